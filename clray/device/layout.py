@@ -1,0 +1,72 @@
+"""numpy twins of the structs in kernels/clray_types.h, field for field and name for name.
+
+tests/test_layout.py compares these against sizeof/offsetof measured on the device.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+PRIM_PLANE = 0
+PRIM_SPHERE = 1
+PRIM_BOX = 2
+PRIM_CYLINDER = 3
+PRIM_CONE = 4
+PRIM_TRIANGLE = 5
+PRIM_TYPE_SHIFT = 28
+PRIM_INDEX_MASK = 0x0FFFFFFF
+
+LIGHT_POINT = 0
+LIGHT_DIRECTIONAL = 1
+
+TEXTURE_NONE = -1
+TEXTURE_CHECKER = 0
+TEXTURE_IMAGE = 1
+
+_F4 = ("<f4", (4,))
+_PAD = [("pad0", "<i4"), ("pad1", "<i4"), ("pad2", "<i4")]
+
+
+def _struct(fields: list) -> np.dtype:
+    return np.dtype([(name, *spec) if isinstance(spec, tuple) else (name, spec)
+                     for name, spec in fields])
+
+
+SPHERE = _struct([("center_radius", _F4), ("material", "<i4"), *_PAD])
+PLANE = _struct([("point", _F4), ("normal", _F4), ("material", "<i4"), *_PAD])
+BOX = _struct([("lo", _F4), ("hi", _F4), ("material", "<i4"), *_PAD])
+CYLINDER = _struct([("base_radius", _F4), ("axis_height", _F4), ("material", "<i4"),
+                    ("capped", "<i4"), ("pad0", "<i4"), ("pad1", "<i4")])
+CONE = _struct([("apex_tan", _F4), ("axis_height", _F4), ("material", "<i4"),
+                ("capped", "<i4"), ("pad0", "<i4"), ("pad1", "<i4")])
+TRIANGLE = _struct([("v0", "<i4"), ("v1", "<i4"), ("v2", "<i4"), ("material", "<i4")])
+MATERIAL = _struct([("color", _F4), ("ambient", "<f4"), ("diffuse", "<f4"),
+                    ("specular", "<f4"), ("shininess", "<f4"), ("reflect", "<f4"),
+                    ("transmit", "<f4"), ("ior", "<f4"), ("texture", "<i4")])
+TEXTURE = _struct([("color2", _F4), ("size", "<f4"), ("repeat_u", "<f4"), ("repeat_v", "<f4"),
+                   ("blend", "<f4"), ("kind", "<i4"), ("texel_offset", "<i4"),
+                   ("width", "<i4"), ("height", "<i4")])
+LIGHT = _struct([("position", _F4), ("color", _F4), ("attenuation", _F4), ("kind", "<i4"),
+                 *_PAD])
+CAMERA = _struct([("position", _F4), ("forward", _F4), ("right", _F4), ("up", _F4)])
+PARAMS = _struct([("background", _F4), ("ambient", _F4), ("width", "<i4"), ("height", "<i4"),
+                  ("spp", "<i4"), ("max_depth", "<i4"), ("seed", "<u4"), ("n_planes", "<i4"),
+                  ("n_lights", "<i4"), ("bvh_root_count", "<i4")])
+BVH_NODE = _struct([("lo", ("<f4", (3,))), ("first", "<i4"), ("hi", ("<f4", (3,))),
+                    ("count", "<i4")])
+
+# Struct name in clray_types.h -> dtype; the layout test walks this.
+STRUCTS: dict[str, np.dtype] = {
+    "Sphere": SPHERE,
+    "Plane": PLANE,
+    "Box": BOX,
+    "Cylinder": CYLINDER,
+    "Cone": CONE,
+    "Triangle": TRIANGLE,
+    "Material": MATERIAL,
+    "Texture": TEXTURE,
+    "Light": LIGHT,
+    "Camera": CAMERA,
+    "Params": PARAMS,
+    "BvhNode": BVH_NODE,
+}

@@ -1,0 +1,36 @@
+"""Errors a user can act on, each mapped to the exit code of DESIGN.md section 7."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+EXIT_OK = 0
+EXIT_RUNTIME = 1
+EXIT_USAGE = 2
+EXIT_SCENE = 3
+EXIT_OPENCL = 4
+
+
+class ClrayError(Exception):
+    """Base class: the message is one line, fit to print without a traceback."""
+
+    exit_code = EXIT_RUNTIME
+
+
+class SceneError(ClrayError):
+    """Bad scene, mesh or texture input: `file: key.path: what was expected`."""
+
+    exit_code = EXIT_SCENE
+
+    def __init__(self, file: str | Path | None, key: str | None, message: str) -> None:
+        self.file = None if file is None else Path(file)
+        self.key = key
+        self.message = message
+        parts = [p for p in (None if file is None else Path(file).name, key, message) if p]
+        super().__init__(": ".join(parts))
+
+
+class DeviceError(ClrayError):
+    """No OpenCL platform or device, a failed build (with its log), or out of resources."""
+
+    exit_code = EXIT_OPENCL

@@ -1,0 +1,1 @@
+"""Scene files -> validated, frozen model."""

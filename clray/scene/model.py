@@ -1,0 +1,171 @@
+"""The scene model: frozen dataclasses in float64 world units.
+
+This module knows nothing about OpenCL or buffer layouts. Everything here is already
+validated by `clray.scene.load`; directions are unit length, angles are in degrees.
+Objects refer to materials by index into `Scene.materials`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+Vec3 = tuple[float, float, float]
+
+
+@dataclass(frozen=True)
+class Texture:
+    """A checker (3D, in world space) or an image texture mapped through (u, v)."""
+
+    kind: str  # "checker" | "image"
+    size: float = 1.0  # checker cell size, world units
+    color2: Vec3 = (0.0, 0.0, 0.0)  # checker's second colour
+    file: Path | None = None
+    repeat: tuple[float, float] = (1.0, 1.0)  # j x k repetitions of the image over (u, v)
+    blend: float = 1.0  # surface colour = blend * texel + (1 - blend) * material colour
+    # (H, W, 3) float32 linear texels in [0, 1], row 0 at the top of the image (v = 1).
+    image: np.ndarray | None = field(default=None, compare=False, repr=False)
+
+
+@dataclass(frozen=True)
+class Material:
+    name: str
+    color: Vec3 = (1.0, 1.0, 1.0)
+    ambient: float = 0.0
+    diffuse: float = 1.0
+    specular: float = 0.0
+    shininess: float = 32.0
+    reflect: float = 0.0
+    transmit: float = 0.0
+    ior: float = 1.5
+    texture: Texture | None = None
+
+
+@dataclass(frozen=True)
+class PointLight:
+    position: Vec3
+    color: Vec3 = (1.0, 1.0, 1.0)
+    attenuation: Vec3 = (1.0, 0.0, 0.0)  # constant, linear, quadratic
+
+
+@dataclass(frozen=True)
+class DirectionalLight:
+    direction: Vec3  # unit; the way the light travels
+    color: Vec3 = (1.0, 1.0, 1.0)
+
+
+Light = PointLight | DirectionalLight
+
+
+@dataclass(frozen=True)
+class Camera:
+    position: Vec3
+    look_at: Vec3
+    up: Vec3 = (0.0, 1.0, 0.0)
+    vfov: float | None = 40.0  # degrees; exactly one of vfov and hfov is set
+    hfov: float | None = None
+
+    def basis(self, width: int, height: int) -> tuple[np.ndarray, ...]:
+        """(forward, right, up, half_w, half_h): unit vectors and image-plane half extents at
+        distance 1. right = normalize(cross(forward, up)), as DESIGN.md fixes it."""
+        eye = np.asarray(self.position, dtype=np.float64)
+        forward = np.asarray(self.look_at, dtype=np.float64) - eye
+        forward /= np.linalg.norm(forward)
+        right = np.cross(forward, np.asarray(self.up, dtype=np.float64))
+        right /= np.linalg.norm(right)
+        true_up = np.cross(right, forward)
+        aspect = width / height
+        if self.hfov is not None:
+            half_w = np.tan(np.radians(self.hfov) / 2.0)
+            half_h = half_w / aspect
+        else:
+            half_h = np.tan(np.radians(self.vfov) / 2.0)
+            half_w = half_h * aspect
+        return forward, right, true_up, half_w, half_h
+
+
+@dataclass(frozen=True)
+class RenderOptions:
+    width: int = 640
+    height: int = 480
+    spp: int = 1
+    max_depth: int = 4
+    background: Vec3 = (0.0, 0.0, 0.0)
+    ambient: Vec3 = (1.0, 1.0, 1.0)
+    seed: int = 0
+
+
+@dataclass(frozen=True)
+class Sphere:
+    center: Vec3
+    radius: float
+    material: int
+
+
+@dataclass(frozen=True)
+class Plane:
+    point: Vec3
+    normal: Vec3  # unit
+    material: int
+
+
+@dataclass(frozen=True)
+class Box:
+    min: Vec3
+    max: Vec3
+    material: int
+
+
+@dataclass(frozen=True)
+class Triangle:
+    vertices: tuple[Vec3, Vec3, Vec3]
+    material: int
+
+
+@dataclass(frozen=True, eq=False)
+class Mesh:
+    """A triangle mesh, already transformed to world space on the host in float64."""
+
+    vertices: np.ndarray  # (V, 3) float64
+    faces: np.ndarray  # (F, 3) int64 indices into vertices
+    material: int
+    normals: np.ndarray | None = None  # (V, 3) float64 unit vertex normals: smooth shading
+    uvs: np.ndarray | None = None  # (V, 2) float64 texture coordinates
+
+
+@dataclass(frozen=True)
+class Cylinder:
+    base: Vec3  # centre of the bottom cap
+    axis: Vec3  # unit, from the bottom cap to the top cap
+    radius: float
+    height: float
+    material: int
+    capped: bool = True
+
+
+@dataclass(frozen=True)
+class Cone:
+    """One nappe: the apex, widening along `axis` to a base disc at distance `height`."""
+
+    apex: Vec3
+    axis: Vec3  # unit, from the apex towards the base
+    angle: float  # half-angle, degrees, in (0, 90)
+    height: float
+    material: int
+    capped: bool = True
+
+
+SceneObject = Sphere | Plane | Box | Triangle | Mesh | Cylinder | Cone
+
+
+@dataclass(frozen=True)
+class Scene:
+    path: Path | None
+    render: RenderOptions
+    camera: Camera
+    materials: tuple[Material, ...]
+    lights: tuple[Light, ...]
+    objects: tuple[SceneObject, ...]
+    warnings: tuple[str, ...] = ()

@@ -1,0 +1,117 @@
+// The host/device contract. Every struct here has a numpy twin of the same name in
+// clray/device/layout.py, field for field; tests/test_layout.py checks sizeof and offsetof on the
+// device. Buffers hold float32 in every build; REAL (float or double) is only the arithmetic.
+// No float3 in buffers: float4 with a scalar or padding in .w, and every struct is a multiple
+// of 16 bytes.
+#ifndef CLRAY_TYPES_H
+#define CLRAY_TYPES_H
+
+// A BVH primitive reference: type in the top bits, index into that type's array below. The
+// type codes also order ties in t (see docs/rendering.md), planes (not in the BVH) first.
+#define PRIM_PLANE 0
+#define PRIM_SPHERE 1
+#define PRIM_BOX 2
+#define PRIM_CYLINDER 3
+#define PRIM_CONE 4
+#define PRIM_TRIANGLE 5
+#define PRIM_TYPE_SHIFT 28
+#define PRIM_INDEX_MASK 0x0FFFFFFF
+
+#define LIGHT_POINT 0
+#define LIGHT_DIRECTIONAL 1
+
+#define TEXTURE_NONE (-1)
+#define TEXTURE_CHECKER 0
+#define TEXTURE_IMAGE 1
+
+typedef struct {
+    float4 center_radius;  // xyz centre, w radius
+    int material;
+    int pad0, pad1, pad2;
+} Sphere;
+
+typedef struct {
+    float4 point;   // w unused
+    float4 normal;  // unit, w unused
+    int material;
+    int pad0, pad1, pad2;
+} Plane;
+
+typedef struct {
+    float4 lo;  // w unused
+    float4 hi;  // w unused
+    int material;
+    int pad0, pad1, pad2;
+} Box;
+
+typedef struct {
+    float4 base_radius;  // xyz centre of the bottom cap, w radius
+    float4 axis_height;  // xyz unit axis, w height
+    int material;
+    int capped;
+    int pad0, pad1;
+} Cylinder;
+
+typedef struct {
+    float4 apex_tan;     // xyz apex, w tan(half-angle)
+    float4 axis_height;  // xyz unit axis from the apex to the base, w height
+    int material;
+    int capped;
+    int pad0, pad1;
+} Cone;
+
+typedef struct {
+    int v0, v1, v2;  // indices into the vertex arrays (positions, normals, uvs)
+    int material;
+} Triangle;
+
+typedef struct {
+    float4 color;  // w unused
+    float ambient, diffuse, specular, shininess;
+    float reflect, transmit, ior;
+    int texture;  // index into the texture array, or TEXTURE_NONE
+} Material;
+
+typedef struct {
+    float4 color2;  // checker's second colour, w unused
+    float size;     // checker cell size
+    float repeat_u, repeat_v, blend;
+    int kind;          // TEXTURE_CHECKER or TEXTURE_IMAGE
+    int texel_offset;  // first texel of this image in the texel array
+    int width, height;
+} Texture;
+
+typedef struct {
+    float4 position;     // point light position, or the travel direction of a directional one
+    float4 color;        // w unused
+    float4 attenuation;  // constant, linear, quadratic, w unused
+    int kind;            // LIGHT_POINT or LIGHT_DIRECTIONAL
+    int pad0, pad1, pad2;
+} Light;
+
+typedef struct {
+    float4 position;  // the eye, in the packed (camera-relative) frame
+    float4 forward;   // unit
+    float4 right;     // unit right times half the image-plane width at distance 1
+    float4 up;        // unit up times half the image-plane height at distance 1
+} Camera;
+
+typedef struct {
+    float4 background;
+    float4 ambient;  // the scene's global ambient light colour
+    int width, height, spp, max_depth;
+    uint seed;
+    int n_planes, n_lights, bvh_root_count;  // bvh_root_count: 0 when the BVH is empty
+} Params;
+
+// Flattened depth-first BVH: an inner node's left child is the next node and `first` is its
+// right child; a leaf has count > 0 primitive references starting at `first`. Bounds are
+// rounded outwards to float32 on the host, so they hold in the double build too.
+typedef struct {
+    float lo[3];
+    int first;
+    float hi[3];
+    int count;
+} BvhNode;
+
+#endif

@@ -1,0 +1,113 @@
+"""Image files: 8-bit PNG for looking at, float32 PFM for measuring.
+
+Rendered images are (H, W, 3) float32 linear radiance with row 0 at the top. PNG clamps them;
+PFM keeps every value, non-finite ones included, so tests and studies can count them.
+Files are written to a temporary name in the target directory and renamed into place, so a
+reader never sees a half-written image.
+"""
+
+from __future__ import annotations
+
+import io
+import os
+import secrets
+from pathlib import Path
+
+import numpy as np
+from PIL import Image
+
+SUFFIXES = (".png", ".pfm")
+
+
+def check_suffix(path: str | Path) -> str:
+    """The lower-case suffix of `path`, or ValueError naming the supported ones."""
+    suffix = Path(path).suffix.lower()
+    if suffix not in SUFFIXES:
+        raise ValueError(
+            f"{Path(path).name}: unsupported image type {suffix or '(no suffix)'!r}; "
+            f"use one of {', '.join(SUFFIXES)}"
+        )
+    return suffix
+
+
+def _as_rgb(image: np.ndarray) -> np.ndarray:
+    image = np.asarray(image)
+    if image.ndim != 3 or image.shape[2] != 3 or image.shape[0] == 0 or image.shape[1] == 0:
+        raise ValueError(f"expected an (H, W, 3) image, got shape {image.shape}")
+    return image
+
+
+def srgb_encode(linear: np.ndarray) -> np.ndarray:
+    """IEC 61966-2-1 transfer function for values already in [0, 1]."""
+    return np.where(linear <= 0.0031308, 12.92 * linear,
+                    1.055 * np.power(linear, 1.0 / 2.4) - 0.055)
+
+
+def to_png_bytes(image: np.ndarray, srgb: bool = False) -> np.ndarray:
+    """(H, W, 3) uint8: non-finite -> 0, clamp to [0, 1], optional sRGB, then round(255 v)."""
+    values = np.asarray(_as_rgb(image), dtype=np.float64)
+    values = np.clip(np.where(np.isfinite(values), values, 0.0), 0.0, 1.0)
+    if srgb:
+        values = srgb_encode(values)
+    return np.rint(values * 255.0).astype(np.uint8)
+
+
+def pfm_bytes(image: np.ndarray) -> bytes:
+    """Colour PFM, little-endian (negative scale), rows stored bottom to top as the format says."""
+    pixels = np.asarray(_as_rgb(image), dtype="<f4")
+    height, width, _ = pixels.shape
+    header = f"PF\n{width} {height}\n-1.0\n".encode("ascii")
+    return header + np.ascontiguousarray(pixels[::-1]).tobytes()
+
+
+def read_pfm(path: str | Path) -> np.ndarray:
+    """(H, W, 3) float32 with row 0 at the top; greyscale ("Pf") files are not accepted."""
+    data = Path(path).read_bytes()
+    stream = io.BytesIO(data)
+    try:
+        kind = stream.readline().strip()
+        width, height = (int(v) for v in stream.readline().split())
+        scale = float(stream.readline().strip())
+    except ValueError as err:
+        raise ValueError(f"{Path(path).name}: not a PFM header") from err
+    if kind != b"PF":
+        raise ValueError(f"{Path(path).name}: expected a colour PFM ('PF'), got {kind[:8]!r}")
+    dtype = "<f4" if scale < 0 else ">f4"
+    count = width * height * 3
+    offset = stream.tell()
+    if len(data) - offset < 4 * count:
+        raise ValueError(f"{Path(path).name}: truncated PFM ({width}x{height} needs {4 * count} "
+                         f"bytes of pixels, has {len(data) - offset})")
+    pixels = np.frombuffer(data, dtype=dtype, count=count, offset=offset)
+    return pixels.reshape(height, width, 3)[::-1].astype(np.float32)
+
+
+def write_bytes_atomically(path: str | Path, payload: bytes) -> None:
+    """Write `payload` so that `path` is either untouched or complete, never partial."""
+    path = Path(path)
+    # Same directory, so os.replace is a rename on one file system; created with 0o666 rather
+    # than through mkstemp so the finished file gets the usual umask-derived permissions.
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.{secrets.token_hex(4)}.tmp")
+    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
+    try:
+        with os.fdopen(fd, "wb") as stream:
+            stream.write(payload)
+        os.replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+
+
+def write_image(path: str | Path, image: np.ndarray, srgb: bool = False) -> None:
+    """Write `image` as PNG or PFM, chosen by the suffix of `path`.
+
+    `srgb` applies to PNG only: PFM always holds linear values.
+    """
+    path = Path(path)
+    if check_suffix(path) == ".pfm":
+        payload = pfm_bytes(image)
+    else:
+        buffer = io.BytesIO()
+        Image.fromarray(to_png_bytes(image, srgb)).save(buffer, format="PNG")
+        payload = buffer.getvalue()
+    write_bytes_atomically(path, payload)

@@ -1,0 +1,59 @@
+"""Image comparison in float64, for tests against the reference renderer and for studies.
+
+Images are (H, W, C) or (H, W) arrays; "pixel" counts reduce over the channel axis of 3-D
+inputs. Non-finite values propagate into rmse, psnr and max_abs (a NaN anywhere gives NaN), so a
+broken image can never look close; count them separately with `nonfinite_count`.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def _pair(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    a = np.asarray(a, dtype=np.float64)
+    b = np.asarray(b, dtype=np.float64)
+    if a.shape != b.shape:
+        raise ValueError(f"images differ in shape: {a.shape} vs {b.shape}")
+    return a, b
+
+
+def _diff(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    a, b = _pair(a, b)
+    with np.errstate(invalid="ignore"):  # inf - inf: the NaN it gives is the answer wanted
+        return a - b
+
+
+def _per_pixel(mask: np.ndarray) -> np.ndarray:
+    return mask.any(axis=-1) if mask.ndim == 3 else mask
+
+
+def rmse(a: np.ndarray, b: np.ndarray) -> float:
+    return float(np.sqrt(np.mean(_diff(a, b) ** 2)))
+
+
+def psnr(a: np.ndarray, b: np.ndarray, max_value: float = 1.0) -> float:
+    """20 log10(max_value / rmse) in dB; inf for identical images."""
+    error = rmse(a, b)
+    if error == 0.0:
+        return float("inf")
+    return float(20.0 * np.log10(max_value / error))
+
+
+def max_abs(a: np.ndarray, b: np.ndarray) -> float:
+    return float(np.max(np.abs(_diff(a, b))))
+
+
+def count_over(a: np.ndarray, b: np.ndarray, threshold: float) -> int:
+    """Pixels where any channel differs by more than `threshold`.
+
+    A channel that is NaN in either image counts as over; equal infinities do not.
+    """
+    a, b = _pair(a, b)
+    close = (np.abs(_diff(a, b)) <= threshold) | (a == b)
+    return int(np.count_nonzero(_per_pixel(~close)))
+
+
+def nonfinite_count(image: np.ndarray) -> int:
+    """Pixels with at least one NaN or infinite channel."""
+    return int(np.count_nonzero(_per_pixel(~np.isfinite(np.asarray(image)))))

@@ -1,0 +1,91 @@
+import numpy as np
+import pytest
+from PIL import Image
+
+from clray.image_io import read_pfm, srgb_encode, to_png_bytes, write_image
+
+
+def test_pfm_round_trip_keeps_values_and_orientation(tmp_path) -> None:
+    rng = np.random.default_rng(1)
+    image = rng.normal(size=(5, 7, 3)).astype(np.float32)
+    image[0, 0] = [np.inf, -np.inf, np.nan]
+    image[4, 6, 1] = np.nan
+    path = tmp_path / "a.pfm"
+    write_image(path, image)
+    back = read_pfm(path)
+    assert back.dtype == np.float32 and back.shape == (5, 7, 3)
+    np.testing.assert_array_equal(back, image)  # NaN compares equal here
+
+
+def test_pfm_layout_is_little_endian_bottom_row_first(tmp_path) -> None:
+    image = np.zeros((2, 3, 3), dtype=np.float32)
+    image[0] = 1.0  # top row
+    path = tmp_path / "a.pfm"
+    write_image(path, image)
+    data = path.read_bytes()
+    header = b"PF\n3 2\n-1.0\n"
+    assert data.startswith(header)
+    pixels = np.frombuffer(data[len(header):], dtype="<f4").reshape(2, 3, 3)
+    assert (pixels[0] == 0).all() and (pixels[1] == 1).all()
+
+
+def test_read_big_endian_pfm(tmp_path) -> None:
+    image = np.arange(2 * 2 * 3, dtype=np.float32).reshape(2, 2, 3)
+    path = tmp_path / "be.pfm"
+    path.write_bytes(b"PF\n2 2\n1.0\n" + image[::-1].astype(">f4").tobytes())
+    np.testing.assert_array_equal(read_pfm(path), image)
+
+
+def test_read_pfm_rejects_truncated_and_grey_files(tmp_path) -> None:
+    short = tmp_path / "short.pfm"
+    short.write_bytes(b"PF\n2 2\n-1.0\n" + bytes(8))
+    with pytest.raises(ValueError, match="truncated"):
+        read_pfm(short)
+    grey = tmp_path / "grey.pfm"
+    grey.write_bytes(b"Pf\n1 1\n-1.0\n" + bytes(4))
+    with pytest.raises(ValueError, match="colour"):
+        read_pfm(grey)
+
+
+def test_png_is_8bit_rgb_of_the_right_size(tmp_path) -> None:
+    image = np.full((24, 32, 3), 0.5, dtype=np.float32)
+    path = tmp_path / "a.png"
+    write_image(path, image)
+    with Image.open(path) as png:
+        assert png.mode == "RGB" and png.size == (32, 24)
+        assert (np.asarray(png) == 128).all()  # round(127.5) -> 128 (half to even)
+
+
+def test_png_clamps_and_zeroes_nonfinite() -> None:
+    image = np.array([[[-1.0, 2.0, np.nan], [np.inf, -np.inf, 0.2]]], dtype=np.float32)
+    assert to_png_bytes(image).tolist() == [[[0, 255, 0], [0, 0, 51]]]
+
+
+def test_png_srgb_encoding() -> None:
+    image = np.array([[[0.0, 0.001, 0.5], [0.2140, 1.0, 0.0031308]]])
+    expected = np.rint(srgb_encode(image) * 255)
+    assert (to_png_bytes(image, srgb=True) == expected).all()
+    assert to_png_bytes(image, srgb=True)[0, 0, 2] == 188  # 0.5 linear is 0.7354 encoded
+    assert srgb_encode(np.array([0.001]))[0] == pytest.approx(0.01292)
+
+
+@pytest.mark.parametrize("name", ["a.jpg", "a", "a.exr"])
+def test_unsupported_suffix_names_the_supported_ones(tmp_path, name) -> None:
+    with pytest.raises(ValueError, match=r"\.png, \.pfm"):
+        write_image(tmp_path / name, np.zeros((1, 1, 3)))
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_bad_shape_leaves_no_file(tmp_path) -> None:
+    with pytest.raises(ValueError, match="shape"):
+        write_image(tmp_path / "a.png", np.zeros((4, 4)))
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_write_replaces_existing_file_and_leaves_no_temp(tmp_path) -> None:
+    path = tmp_path / "a.png"
+    path.write_bytes(b"old")
+    write_image(path, np.ones((2, 2, 3)))
+    with Image.open(path) as png:
+        assert (np.asarray(png) == 255).all()
+    assert [p.name for p in tmp_path.iterdir()] == ["a.png"]

@@ -1,0 +1,3 @@
+from clray.cli import main
+
+raise SystemExit(main())

@@ -1,0 +1,222 @@
+"""The `clray` command (also `python -m clray`): `clray render SCENE ...` and `clray devices`.
+
+Exit codes: 0 ok, 1 runtime error, 2 usage, 3 scene error, 4 OpenCL error, 130 interrupted.
+Every error a user can cause is one `clray: error: ...` line on stderr, never a traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+import warnings
+from collections.abc import Callable
+from pathlib import Path
+from typing import NoReturn
+
+import pyopencl as cl
+
+from clray.device.context import list_devices
+from clray.errors import EXIT_OK, EXIT_USAGE, ClrayError
+from clray.image_io import SUFFIXES, check_suffix, write_bytes_atomically, write_image
+from clray.metrics import nonfinite_count
+from clray.render import RenderSettings, render
+from clray.scene.load import load_scene
+
+EXIT_INTERRUPTED = 130  # 128 + SIGINT, as shells report it
+SEED_MAX = 2**32 - 1  # the kernels hash the seed as a uint32
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse whose usage errors are one line, like every other clray error."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(EXIT_USAGE, f"clray: error: {message} (see '{self.prog} --help')\n")
+
+
+def _int_in(low: int, high: int | None = None) -> Callable[[str], int]:
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+            ok = value >= low and (high is None or value <= high)
+        except ValueError:
+            ok = False
+        if not ok:
+            bounds = f">= {low}" if high is None else f"in [{low}, {high}]"
+            raise argparse.ArgumentTypeError(f"expected an integer {bounds}, got {text!r}")
+        return value
+
+    return parse
+
+
+def _image_path(text: str) -> Path:
+    try:
+        check_suffix(text)
+    except ValueError as err:
+        raise argparse.ArgumentTypeError(str(err)) from err
+    return Path(text)
+
+
+def _build_parser() -> _Parser:
+    parser = _Parser(prog="clray", description="Whitted ray tracer running as OpenCL kernels.")
+    commands = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+
+    r = commands.add_parser(
+        "render", help="render a scene file to an image",
+        description="Render SCENE. Flags override the scene file's [render] values.")
+    r.add_argument("scene", type=Path, metavar="SCENE", help="scene file (.toml or .json)")
+    r.add_argument("-o", "--output", type=_image_path, metavar="OUT",
+                   help=f"output image, by suffix: {', '.join(SUFFIXES)} (.png is 8-bit and "
+                        "clamped, .pfm float32 linear); default: SCENE's stem + .png in the "
+                        "current directory")
+    r.add_argument("-W", "--width", type=_int_in(1), metavar="N", help="image width in pixels")
+    r.add_argument("-H", "--height", type=_int_in(1), metavar="N", help="image height in pixels")
+    r.add_argument("--spp", type=_int_in(1), metavar="N", help="samples per pixel")
+    r.add_argument("--max-depth", type=_int_in(0), metavar="N",
+                   help="reflection/refraction bounces after the primary hit")
+    r.add_argument("--seed", type=_int_in(0, SEED_MAX), metavar="N",
+                   help="seed of the sample jitter")
+    r.add_argument("--device", metavar="SPEC",
+                   help="OpenCL device: 'P:D' indices as in PYOPENCL_CTX, or a name substring "
+                        "(default: CLRAY_DEVICE, PYOPENCL_CTX, then the first CPU device)")
+    r.add_argument("--precision", choices=("float", "double"), default="float",
+                   help="arithmetic in the kernels (double needs cl_khr_fp64; default: float)")
+    r.add_argument("--srgb", action="store_true",
+                   help="sRGB-encode PNG output (default: linear values, no gamma)")
+    r.add_argument("--stats-json", type=Path, metavar="PATH",
+                   help="write timings, sizes and ray counts as JSON")
+    talk = r.add_mutually_exclusive_group()
+    talk.add_argument("-q", "--quiet", action="store_true", help="print nothing on success")
+    talk.add_argument("-v", "--verbose", action="store_true",
+                      help="print progress, compiler warnings and the stats summary")
+    r.set_defaults(run=_render)
+
+    d = commands.add_parser("devices", help="list OpenCL devices, one per line",
+                            description="List OpenCL devices: spec, type, name, platform, "
+                                        "compute units, fp64 support, driver version.")
+    d.set_defaults(run=_devices)
+    return parser
+
+
+def _parse(argv: list[str] | None) -> argparse.Namespace:
+    args = _build_parser().parse_args(argv)
+    if args.command == "render" and args.output is None:
+        args.output = Path(args.scene.stem + ".png")
+    return args
+
+
+def _say(message: str) -> None:
+    print(f"clray: {message}", file=sys.stderr)
+
+
+def _check_directory(path: Path) -> None:
+    # Before rendering, so that a typo in -o does not cost a whole render.
+    if not path.parent.is_dir():
+        raise ClrayError(f"cannot write {path}: directory {path.parent} does not exist")
+
+
+def _write(path: Path, write: Callable[[], None]) -> None:
+    try:
+        write()
+    except OSError as err:
+        raise ClrayError(f"cannot write {path}: {err.strerror or err}") from err
+
+
+class _Progress:
+    """Prints `rendering: N%` at every tenth of the launches, so logs stay short."""
+
+    def __init__(self) -> None:
+        self.shown = -1
+
+    def __call__(self, done: int, total: int) -> None:
+        tenth = 10 * done // max(total, 1)
+        if tenth > self.shown:
+            self.shown = tenth
+            _say(f"rendering: {10 * tenth}% ({done}/{total} launches)")
+
+
+def _format_stat(value: object) -> str:
+    if isinstance(value, float):
+        return f"{value:.4g}"
+    if isinstance(value, dict):
+        return ", ".join(f"{k}={_format_stat(v)}" for k, v in value.items())
+    return str(value)
+
+
+def _render(args: argparse.Namespace) -> int:
+    started = time.perf_counter()
+    output: Path = args.output
+    _check_directory(output)
+    if args.stats_json is not None:
+        _check_directory(args.stats_json)
+
+    scene = load_scene(args.scene)
+    load_s = time.perf_counter() - started
+    if not args.quiet:
+        for warning in scene.warnings:
+            _say(f"warning: {warning}")
+
+    settings = RenderSettings(
+        width=args.width, height=args.height, spp=args.spp, max_depth=args.max_depth,
+        seed=args.seed, device=args.device, precision=args.precision,
+        progress=_Progress() if args.verbose else None)
+    with warnings.catch_warnings():
+        if not args.verbose:
+            # PoCL repeats its build warnings on every cached build; they are noise here.
+            warnings.simplefilter("ignore", cl.CompilerWarning)
+        result = render(scene, settings)
+
+    write_started = time.perf_counter()
+    _write(output, lambda: write_image(output, result.image, srgb=args.srgb))
+    height, width, _ = result.image.shape
+    stats = {
+        **result.stats,
+        "scene": str(args.scene),
+        "output": str(output),
+        "load_s": load_s,
+        "render_s": result.stats["total_s"],
+        "write_s": time.perf_counter() - write_started,
+        "total_s": time.perf_counter() - started,
+        "nonfinite_pixels": nonfinite_count(result.image),
+    }
+    if args.stats_json is not None:
+        text = json.dumps(stats, indent=2, default=str) + "\n"
+        _write(args.stats_json,
+               lambda: write_bytes_atomically(args.stats_json, text.encode("utf-8")))
+
+    if not args.quiet and stats["nonfinite_pixels"]:
+        kept = "kept in the PFM" if output.suffix.lower() == ".pfm" else "written black"
+        _say(f"warning: {stats['nonfinite_pixels']} pixels are NaN or infinite ({kept})")
+    if args.verbose:
+        for key, value in stats.items():
+            print(f"  {key}: {_format_stat(value)}", file=sys.stderr)
+    if not args.quiet:
+        _say(f"wrote {output} ({width}x{height}, {stats['spp']} spp, "
+             f"kernel {stats['kernel_s']:.3f} s)")
+    return EXIT_OK
+
+
+def _devices(args: argparse.Namespace) -> int:
+    rows = [(d.spec, d.type, d.name, d.platform, f"{d.compute_units} CU",
+             f"fp64 {'yes' if d.fp64 else 'no'}", f"driver {d.driver_version}")
+            for d in list_devices()]
+    widths = [max(len(row[i]) for row in rows) for i in range(len(rows[0]))]
+    for row in rows:
+        print("  ".join(cell.ljust(w) for cell, w in zip(row, widths, strict=True)).rstrip())
+    return EXIT_OK
+
+
+def main(argv: list[str] | None = None) -> int:
+    try:
+        args = _parse(argv)
+    except SystemExit as done:  # argparse exits for --help and for usage errors
+        return int(done.code or 0)
+    try:
+        return args.run(args)
+    except ClrayError as err:
+        _say(f"error: {err}")
+        return err.exit_code
+    except KeyboardInterrupt:
+        _say("error: interrupted")
+        return EXIT_INTERRUPTED

@@ -1,0 +1,274 @@
+"""The `clray` command end to end: files written, flags, exit codes, one-line errors."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from clray import cli
+from clray.device.context import has_fp64
+from clray.image_io import read_pfm
+
+SCENE = """\
+[render]
+width = 40
+height = 30
+max_depth = 2
+
+[camera]
+position = [0, 1, 5]
+look_at = [0, 0.5, 0]
+vfov = 40
+
+[materials.red]
+color = [1, 0.2, 0.2]
+specular = 0.3
+{material_extra}
+
+[[lights]]
+type = "point"
+position = [-4, 6, 4]
+
+[[objects]]
+type = "sphere"
+center = [0, 0.5, 0]
+radius = {radius}
+material = "red"
+
+[[objects]]
+type = "plane"
+point = [0, -0.5, 0]
+normal = [0, 1, 0]
+material = "red"
+"""
+
+TINY = ["-W", "32", "-H", "24"]
+
+
+def scene_text(radius: str = "1", material_extra: str = "") -> str:
+    return SCENE.format(radius=radius, material_extra=material_extra)
+
+
+@pytest.fixture
+def scene(tmp_scene, tmp_path, monkeypatch) -> Path:
+    monkeypatch.chdir(tmp_path)  # default outputs land in the current directory
+    return tmp_scene(scene_text())
+
+
+def run(capsys, *argv: str | Path) -> tuple[int, str, str]:
+    code = cli.main([str(a) for a in argv])
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def assert_one_error_line(err: str) -> None:
+    assert "Traceback" not in err
+    lines = err.splitlines()
+    assert len(lines) == 1, err
+    assert lines[0].startswith("clray: error: ")
+
+
+def files_in(directory: Path) -> list[str]:
+    return sorted(p.name for p in directory.iterdir())
+
+
+# --- usage errors (exit 2): no device needed ---------------------------------------------------
+
+@pytest.mark.parametrize("argv", [
+    [],
+    ["render"],
+    ["render", "{scene}", "-o", "out.jpg"],
+    ["render", "{scene}", "-o", "out"],
+    ["render", "{scene}", "-W", "0"],
+    ["render", "{scene}", "-H", "-3"],
+    ["render", "{scene}", "--spp", "two"],
+    ["render", "{scene}", "--max-depth", "-1"],
+    ["render", "{scene}", "--seed", str(2**32)],
+    ["render", "{scene}", "--precision", "half"],
+    ["render", "{scene}", "-q", "-v"],
+    ["render", "{scene}", "--no-such-flag"],
+    ["paint", "{scene}"],
+])
+def test_usage_errors_exit_2(capsys, scene, tmp_path, argv) -> None:
+    code, out, err = run(capsys, *[a.format(scene=scene) for a in argv])
+    assert code == 2
+    assert out == ""
+    assert_one_error_line(err)
+    assert files_in(tmp_path) == ["scene.toml"]
+
+
+def test_bad_suffix_message_names_supported_ones(capsys, scene) -> None:
+    _, _, err = run(capsys, "render", scene, "-o", "out.jpg")
+    assert ".png" in err and ".pfm" in err
+
+
+def test_help_exits_0(capsys) -> None:
+    code, out, _ = run(capsys, "render", "--help")
+    assert code == 0
+    for flag in ("--output", "--width", "--height", "--spp", "--max-depth", "--seed",
+                 "--device", "--precision", "--srgb", "--stats-json", "--quiet", "--verbose"):
+        assert flag in out
+
+
+# --- scene errors (exit 3): the scene is loaded before any device is touched ---------------------
+
+@pytest.mark.parametrize(("text", "needle"), [
+    ("[render\nwidth = ", "scene.toml"),
+    (scene_text().replace("max_depth = 2", "max_depht = 2"), "max_depht"),
+    (scene_text(radius="-1"), "radius"),
+    (scene_text(material_extra='texture = { type = "image", file = "missing.png" }'),
+     "missing.png"),
+])
+def test_scene_errors_exit_3(capsys, tmp_scene, tmp_path, monkeypatch, text, needle) -> None:
+    monkeypatch.chdir(tmp_path)
+    path = tmp_scene(text)
+    code, _, err = run(capsys, "render", path, *TINY)
+    assert code == 3
+    assert_one_error_line(err)
+    assert needle in err
+    assert files_in(tmp_path) == ["scene.toml"]
+
+
+def test_missing_scene_file_exits_3(capsys, tmp_path, monkeypatch) -> None:
+    monkeypatch.chdir(tmp_path)
+    code, _, err = run(capsys, "render", tmp_path / "nowhere.toml")
+    assert code == 3
+    assert_one_error_line(err)
+    assert "nowhere.toml" in err
+    assert files_in(tmp_path) == []
+
+
+# --- OpenCL errors (exit 4) and runtime errors (exit 1) ------------------------------------------
+
+def test_unknown_device_exits_4(capsys, scene, tmp_path) -> None:
+    # With no OpenCL platform at all this is still exit 4, with the install hint.
+    code, _, err = run(capsys, "render", scene, *TINY, "--device", "no-such-device-xyz")
+    assert code == 4
+    assert_one_error_line(err)
+    assert files_in(tmp_path) == ["scene.toml"]
+
+
+def test_output_directory_missing_exits_1_before_rendering(capsys, scene, tmp_path) -> None:
+    code, _, err = run(capsys, "render", scene, "-o", tmp_path / "no" / "out.png")
+    assert code == 1
+    assert_one_error_line(err)
+    assert str(tmp_path / "no" / "out.png") in err
+
+
+def test_unwritable_output_exits_1_and_leaves_no_temp_file(capsys, cl_device, scene,
+                                                           tmp_path) -> None:
+    (tmp_path / "taken.png").mkdir()  # a directory where the image should go
+    code, _, err = run(capsys, "render", scene, *TINY, "-o", "taken.png")
+    assert code == 1
+    assert_one_error_line(err)
+    assert "taken.png" in err
+    assert files_in(tmp_path) == ["scene.toml", "taken.png"]
+    assert files_in(tmp_path / "taken.png") == []
+
+
+# --- successful renders (exit 0) -----------------------------------------------------------------
+
+def test_default_output_is_scene_stem_png_with_scene_size(capsys, cl_device, scene,
+                                                          tmp_path) -> None:
+    code, out, err = run(capsys, "render", scene)
+    assert code == 0
+    assert out == ""
+    assert err.splitlines() == [err.strip()]
+    assert err.startswith("clray: wrote scene.png (40x30, 1 spp, kernel ")
+    with Image.open(tmp_path / "scene.png") as png:
+        assert png.mode == "RGB" and png.size == (40, 30)
+        assert np.asarray(png).max() > 0  # the lit sphere is not black
+    assert files_in(tmp_path) == ["scene.png", "scene.toml"]
+
+
+def test_pfm_with_overrides_and_stats_json(capsys, cl_device, scene, tmp_path) -> None:
+    code, _, err = run(capsys, "render", scene, *TINY, "--spp", "2", "--max-depth", "1",
+                       "--seed", "7", "-o", "out.pfm", "--stats-json", "stats.json", "-q")
+    assert code == 0
+    assert err == ""
+    image = read_pfm(tmp_path / "out.pfm")
+    assert image.shape == (24, 32, 3)
+    assert np.isfinite(image).all()
+    stats = json.loads((tmp_path / "stats.json").read_text())
+    for key in ("width", "height", "spp", "device", "precision", "load_s", "bvh_s", "build_s",
+                "kernel_s", "total_s"):
+        assert key in stats, key
+    assert (stats["width"], stats["height"], stats["spp"]) == (32, 24, 2)
+    assert stats["max_depth"] == 1
+    assert stats["precision"] == "float"
+    assert stats["total_s"] >= stats["kernel_s"] >= 0
+    assert files_in(tmp_path) == ["out.pfm", "scene.toml", "stats.json"]
+
+
+def test_srgb_brightens_png(capsys, cl_device, scene, tmp_path) -> None:
+    assert run(capsys, "render", scene, *TINY, "-o", "linear.png", "-q")[0] == 0
+    assert run(capsys, "render", scene, *TINY, "-o", "srgb.png", "-q", "--srgb")[0] == 0
+    with Image.open(tmp_path / "linear.png") as a, Image.open(tmp_path / "srgb.png") as b:
+        linear, srgb = np.asarray(a, dtype=int), np.asarray(b, dtype=int)
+    assert (srgb >= linear).all() and (srgb > linear).any()
+
+
+def test_verbose_prints_progress_and_stats(capsys, cl_device, scene) -> None:
+    code, _, err = run(capsys, "render", scene, *TINY, "-v")
+    assert code == 0
+    assert "clray: rendering: 100%" in err
+    assert "kernel_s:" in err
+    assert err.splitlines()[-1].startswith("clray: wrote scene.png (32x24")
+
+
+def test_scene_warnings_shown_unless_quiet(capsys, cl_device, scene, monkeypatch) -> None:
+    load = cli.load_scene
+    monkeypatch.setattr(cli, "load_scene",
+                        lambda path: dataclasses.replace(load(path), warnings=("look out",)))
+    code, _, err = run(capsys, "render", scene, *TINY)
+    assert code == 0
+    assert err.splitlines()[0] == "clray: warning: look out"
+    code, _, err = run(capsys, "render", scene, *TINY, "-q")
+    assert (code, err) == (0, "")
+
+
+def test_double_precision_renders_or_reports_missing_fp64(capsys, cl_device, scene,
+                                                          tmp_path) -> None:
+    code, _, err = run(capsys, "render", scene, *TINY, "--precision", "double",
+                       "-o", "d.pfm", "--stats-json", "s.json")
+    if has_fp64(cl_device):
+        assert code == 0, err
+        assert json.loads((tmp_path / "s.json").read_text())["precision"] == "double"
+        assert read_pfm(tmp_path / "d.pfm").shape == (24, 32, 3)
+    else:
+        assert code == 4
+        assert_one_error_line(err)
+
+
+def test_devices_lists_one_line_per_device(capsys, cl_device) -> None:
+    code, out, err = run(capsys, "devices")
+    assert code == 0
+    assert err == ""
+    lines = out.splitlines()
+    assert lines
+    for line in lines:
+        assert " CU " in line and ("fp64 yes" in line or "fp64 no" in line)
+    assert any(cl_device.name.strip() in line for line in lines)
+
+
+def test_python_dash_m_clray(cl_device, scene, tmp_path) -> None:
+    done = subprocess.run([sys.executable, "-m", "clray", "render", str(scene), *TINY,
+                           "-o", "sub.png"], capture_output=True, text=True, cwd=tmp_path,
+                          check=False, timeout=300)
+    assert done.returncode == 0, done.stderr
+    assert done.stderr.startswith("clray: wrote sub.png (32x24")
+    with Image.open(tmp_path / "sub.png") as png:
+        assert png.size == (32, 24)
+
+    failed = subprocess.run([sys.executable, "-m", "clray", "render", "missing.toml"],
+                            capture_output=True, text=True, cwd=tmp_path, check=False,
+                            timeout=300)
+    assert failed.returncode == 3
+    assert_one_error_line(failed.stderr)

@@ -1,0 +1,295 @@
+"""Primitive bounds -> flat BVH node array (kernels/clray_types.h: BvhNode).
+
+The builder is binned SAH, run level by level: every node of one tree level is binned, costed and
+partitioned by the same handful of numpy calls, so the Python overhead is per level (a few dozen),
+not per node (hundreds of thousands for a large mesh). The breadth-first tree it grows is then
+renumbered into the depth-first layout the kernels walk.
+
+All bound arithmetic is done on the primitives' bounds rounded outwards to float32 once, at the
+start. Rounding is monotonic, so a node's min/max of rounded bounds equals the rounding of its
+float64 min/max: node bounds hold the float64 geometry exactly, as the double build needs.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import NamedTuple
+
+import numpy as np
+
+from clray.device.layout import BVH_NODE
+
+# SAH bins along the axis of largest centroid extent. 16 is where binned SAH stops gaining
+# quality for its cost (Wald 2007, "On fast construction of SAH-based BVHs").
+N_BINS = 16
+# Largest leaf SAH may choose; bigger nodes are split regardless of cost, so leaf sizes stay
+# bounded (kernels loop over a leaf's primitives) even for duplicate or coincident primitives.
+SAH_MAX_LEAF = 16
+# Cost of one node visit relative to one primitive test. A BVH node test on the device costs
+# about as much as a triangle test, so splitting must save at least one primitive test.
+TRAVERSAL_COST = 1.0
+
+_F32_MAX = float(np.finfo(np.float32).max)
+
+
+@dataclass(frozen=True)
+class Bvh:
+    """Depth-first flattened BVH: `nodes` in layout.BVH_NODE, leaves index into `order`.
+
+    An inner node's left child is the next node and its `first` is the right child's index,
+    with count 0. A leaf's primitives are `order[first:first + count]`, and `order[k]` is an
+    index into the primitives given to `build_bvh`.
+    """
+
+    nodes: np.ndarray
+    order: np.ndarray
+
+
+def max_leaf_count(max_leaf_size: int) -> int:
+    """The largest leaf `build_bvh(..., max_leaf_size)` can produce."""
+    return max(max_leaf_size, SAH_MAX_LEAF)
+
+
+def build_bvh(lo: np.ndarray, hi: np.ndarray, max_leaf_size: int = 4) -> Bvh:
+    """Build a BVH over N primitives with float64 bounds `lo`, `hi` of shape (N, 3).
+
+    Nodes of at most `max_leaf_size` primitives are always leaves; nodes of up to
+    `max_leaf_count(max_leaf_size)` are leaves when SAH says a split would not pay.
+    """
+    lo = np.asarray(lo, dtype=np.float64)
+    hi = np.asarray(hi, dtype=np.float64)
+    if lo.ndim != 2 or lo.shape[1] != 3 or lo.shape != hi.shape:
+        raise ValueError(f"bounds must both have shape (N, 3), got {lo.shape} and {hi.shape}")
+    if max_leaf_size < 1:
+        raise ValueError(f"max_leaf_size must be at least 1, got {max_leaf_size}")
+    if lo.size and not (np.all(np.abs(lo) <= _F32_MAX) and np.all(np.abs(hi) <= _F32_MAX)):
+        raise ValueError("primitive bounds must be finite and within float32 range")
+    if np.any(lo > hi):
+        raise ValueError("primitive bounds have lo > hi")
+    n = lo.shape[0]
+    if n == 0:
+        return Bvh(np.zeros(0, dtype=BVH_NODE), np.zeros(0, dtype=np.int32))
+    return _Builder(_round_out(lo, hi), max_leaf_size).run()
+
+
+def _round_out(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """(9, N) float32 rows: lo xyz, hi xyz rounded outwards, then centroids (for binning only)."""
+    prim = np.empty((9, lo.shape[0]), dtype=np.float32)
+    lo32 = lo.T.astype(np.float32)
+    hi32 = hi.T.astype(np.float32)
+    prim[0:3] = np.where(lo32 > lo.T, np.nextafter(lo32, np.float32(-np.inf)), lo32)
+    prim[3:6] = np.where(hi32 < hi.T, np.nextafter(hi32, np.float32(np.inf)), hi32)
+    prim[6:9] = (0.5 * (lo.T + hi.T)).astype(np.float32)
+    return prim
+
+
+def _half_area(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """Half surface area of boxes with corners along the last axis; empty boxes give 0."""
+    e = np.maximum(hi.astype(np.float64) - lo, 0)
+    return e[..., 0] * e[..., 1] + e[..., 1] * e[..., 2] + e[..., 2] * e[..., 0]
+
+
+def _segment_ranks(counts: np.ndarray, offsets: np.ndarray,
+                   total: int) -> tuple[np.ndarray, np.ndarray]:
+    """Segment id of each of `total` slots and its rank within the segment."""
+    seg = np.repeat(np.arange(counts.size), counts)
+    return seg, np.arange(total) - offsets[seg]
+
+
+class _Active(NamedTuple):
+    """The nodes of one level that still need splitting, in slot order."""
+
+    node: np.ndarray  # breadth-first node id
+    bounds: np.ndarray  # (m, 6) float32 lo xyz, hi xyz
+    cbounds: np.ndarray  # (m, 6) float32 bounds of the centroids
+    start: np.ndarray  # first slot in `order`
+    count: np.ndarray
+
+
+class _Builder:
+    """One build. Breadth-first: each level holds the nodes still to be split (the active
+    nodes) and their primitives, contiguous per node, in `ids` and the columns of `prim`."""
+
+    def __init__(self, prim: np.ndarray, max_leaf_size: int) -> None:
+        self.max_leaf = max_leaf_size
+        self.sah_leaf = max_leaf_count(max_leaf_size)
+        n = prim.shape[1]
+        self.order = np.empty(n, dtype=np.int32)
+        # Per breadth-first node, appended one level at a time; ids are positions in the
+        # concatenation, so each level's nodes have consecutive ids.
+        self.bounds: list[np.ndarray] = []  # (k, 6) float32
+        self.start: list[np.ndarray] = []  # first slot in `order`
+        self.count: list[np.ndarray] = []
+        self.left: list[np.ndarray] = []  # left child id, -1 for a leaf
+        self.n_nodes = 0
+        self.ids = np.arange(n, dtype=np.int32)
+        self.prim = prim
+
+    def _add_nodes(self, bounds: np.ndarray, start: np.ndarray, count: np.ndarray) -> np.ndarray:
+        k = count.size
+        node_ids = np.arange(self.n_nodes, self.n_nodes + k)
+        self.bounds.append(bounds)
+        self.start.append(start)
+        self.count.append(count)
+        self.left.append(np.full(k, -1, dtype=np.int64))
+        self.n_nodes += k
+        return node_ids
+
+    def run(self) -> Bvh:
+        n = self.ids.size
+        root_bounds = np.concatenate([self.prim[0:3].min(axis=1), self.prim[3:6].max(axis=1)])
+        node = self._add_nodes(root_bounds[None, :], np.zeros(1, np.int64), np.full(1, n))
+        cbounds = np.concatenate([self.prim[6:9].min(axis=1), self.prim[6:9].max(axis=1)])[None]
+        if n <= self.max_leaf:
+            self.order[:] = self.ids
+        else:
+            active = _Active(node, root_bounds[None, :], cbounds, np.zeros(1, np.int64),
+                             np.full(1, n))
+            while active is not None:
+                active = self._level(active)
+        return self._flatten()
+
+    def _level(self, active: _Active) -> _Active | None:
+        """Split every active node once; returns the next level's active nodes."""
+        node, bounds, cbounds, start, count = active
+        m = count.size
+        p = self.ids.size
+        offsets = np.zeros(m, dtype=np.int64)
+        np.cumsum(count[:-1], out=offsets[1:])
+        seg, rank = _segment_ranks(count, offsets, p)
+        prim = self.prim
+
+        # Bin centroids along each node's axis of largest centroid extent.
+        extent = cbounds[:, 3:] - cbounds[:, :3]
+        axis = np.argmax(extent, axis=1)
+        rows = np.arange(m)
+        cmin = cbounds[rows, axis]
+        cext = extent[rows, axis].astype(np.float64)
+        with np.errstate(divide="ignore", over="ignore"):
+            scale = (N_BINS / cext).astype(np.float32)
+        # Coincident centroids (or an extent so small its reciprocal overflows) leave nothing to
+        # bin: those nodes are split at the median of their (arbitrary) order instead.
+        binnable = np.isfinite(scale) & (scale > 0)
+        scale[~binnable] = 0
+        c = prim[6 + axis[seg], np.arange(p)]
+        b = ((c - cmin[seg]) * scale[seg]).astype(np.int64)
+        np.clip(b, 0, N_BINS - 1, out=b)
+        key = seg * N_BINS + b
+        bin_count = np.bincount(key, minlength=m * N_BINS).reshape(m, N_BINS)
+        bin_lo = np.full((3, m * N_BINS), np.inf, dtype=np.float32)
+        bin_hi = np.full((3, m * N_BINS), -np.inf, dtype=np.float32)
+        for d in range(3):
+            np.minimum.at(bin_lo[d], key, prim[d])
+            np.maximum.at(bin_hi[d], key, prim[3 + d])
+        bin_lo = bin_lo.reshape(3, m, N_BINS).transpose(1, 2, 0)
+        bin_hi = bin_hi.reshape(3, m, N_BINS).transpose(1, 2, 0)
+
+        # SAH cost of splitting after bin k (k = 0 .. N_BINS-2), from prefix and suffix unions.
+        n_left = np.cumsum(bin_count, axis=1)[:, :-1]
+        n_right = count[:, None] - n_left
+        a_left = _half_area(np.minimum.accumulate(bin_lo, axis=1),
+                            np.maximum.accumulate(bin_hi, axis=1))[:, :-1]
+        a_right = _half_area(np.minimum.accumulate(bin_lo[:, ::-1], axis=1),
+                             np.maximum.accumulate(bin_hi[:, ::-1], axis=1))[:, -2::-1]
+        cost = a_left * n_left + a_right * n_right
+        cost[(n_left == 0) | (n_right == 0)] = np.inf
+        best = np.argmin(cost, axis=1)
+        best_cost = cost[rows, best]
+        a_node = _half_area(bounds[:, :3], bounds[:, 3:])
+        # Compared multiplied through by the node's area, so flat and point nodes need no care.
+        sah_leaf = (TRAVERSAL_COST * a_node + best_cost >= count * a_node) | ~binnable
+        leaf = sah_leaf & (count <= self.sah_leaf)
+
+        # Partition: stable within each side, left side first, so the final `order` lists the
+        # leaves' primitives in depth-first order and a subtree's primitives are contiguous.
+        split_bin = np.where(binnable, best, 0)
+        median = count // 2
+        right = np.where(binnable[seg], b > split_bin[seg], rank >= median[seg])
+        is_left = ~right
+        left_upto = np.cumsum(is_left)
+        left_before = left_upto - is_left
+        left_rank = left_before - left_before[offsets][seg]
+        n_left_node = left_upto[offsets + count - 1] - left_before[offsets]
+        within = np.where(right, rank - left_rank, left_rank)  # rank within the child
+
+        # Primitives of nodes that stay leaves go to `order` at their node's slots.
+        leaf_slot = leaf[seg]
+        self.order[(start[seg] + rank)[leaf_slot]] = self.ids[leaf_slot]
+
+        # Children of split nodes, left then right per parent, so they keep their parents' slot
+        # order; their primitives are scattered straight into a compact child-major array.
+        split = ~leaf
+        if not split.any():
+            return None
+        split_index = np.cumsum(split) - 1
+        ch_count = np.stack([n_left_node[split], count[split] - n_left_node[split]], 1).ravel()
+        ch_start = np.repeat(start[split], 2)
+        ch_start[1::2] += n_left_node[split]
+        ch_offset = np.zeros(ch_count.size, dtype=np.int64)
+        np.cumsum(ch_count[:-1], out=ch_offset[1:])
+        split_slot = ~leaf_slot
+        child = (2 * split_index[seg] + right)[split_slot]
+        dest = ch_offset[child] + within[split_slot]
+        ids = np.empty(dest.size, dtype=np.int32)
+        ids[dest] = self.ids[split_slot]
+        prim = np.empty((9, dest.size), dtype=np.float32)
+        prim[:, dest] = self.prim[:, split_slot]
+        ch_bounds = np.concatenate([
+            np.minimum.reduceat(prim[0:3], ch_offset, axis=1),
+            np.maximum.reduceat(prim[3:6], ch_offset, axis=1),
+            np.minimum.reduceat(prim[6:9], ch_offset, axis=1),
+            np.maximum.reduceat(prim[6:9], ch_offset, axis=1),
+        ]).T
+        parents = self.left[-1]
+        first_id = self.n_nodes - parents.size
+        ch_node = self._add_nodes(ch_bounds[:, :6], ch_start, ch_count)
+        parents[node[split] - first_id] = ch_node[0::2]
+
+        # Small children are leaves at once; the rest carry on with their primitives compacted.
+        small = ch_count <= self.max_leaf
+        if small.any():
+            ch_seg, ch_rank = _segment_ranks(ch_count, ch_offset, dest.size)
+            small_slot = small[ch_seg]
+            self.order[(ch_start[ch_seg] + ch_rank)[small_slot]] = ids[small_slot]
+            ids = ids[~small_slot]
+            prim = prim[:, ~small_slot]
+        self.ids = ids
+        self.prim = prim
+        go = ~small
+        if not go.any():
+            return None
+        return _Active(ch_node[go], ch_bounds[go, :6], ch_bounds[go, 6:], ch_start[go],
+                       ch_count[go])
+
+    def _flatten(self) -> Bvh:
+        """Renumber the breadth-first tree depth-first: subtree sizes bottom-up, then each
+        node's index top-down (left child next, right child after the left subtree)."""
+        bounds = np.concatenate(self.bounds)
+        start = np.concatenate(self.start)
+        count = np.concatenate(self.count)
+        left = np.concatenate(self.left)
+        n = count.size
+        inner = np.flatnonzero(left >= 0)
+        # Inner nodes per breadth-first level: ids are consecutive within a level, so each level
+        # is a slice of the sorted `inner`.
+        level_ends = np.cumsum([c.size for c in self.count])
+        levels = np.split(inner, np.searchsorted(inner, level_ends[:-1]))
+        # A child's id is larger than its parent's, so bottom-up every child's size is final
+        # before its parent's is summed, and top-down every parent's index is set before its
+        # children's.
+        size = np.ones(n, dtype=np.int64)
+        for lv in reversed(levels):
+            size[lv] += size[left[lv]] + size[left[lv] + 1]
+        dfs = np.zeros(n, dtype=np.int64)
+        for lv in levels:
+            dfs[left[lv]] = dfs[lv] + 1
+            dfs[left[lv] + 1] = dfs[lv] + 1 + size[left[lv]]
+        nodes = np.zeros(n, dtype=BVH_NODE)
+        nodes["lo"][dfs] = bounds[:, :3]
+        nodes["hi"][dfs] = bounds[:, 3:]
+        is_leaf = left < 0
+        nodes["count"][dfs] = np.where(is_leaf, count, 0)
+        right_dfs = dfs[np.where(is_leaf, 0, left + 1)]
+        nodes["first"][dfs] = np.where(is_leaf, start, right_dfs)
+        return Bvh(nodes, self.order)
+

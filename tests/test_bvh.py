@@ -1,0 +1,357 @@
+"""BVH builder: structural invariants over random primitive sets, and a traversal oracle."""
+
+from __future__ import annotations
+
+import importlib.util
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+from hypothesis.extra import numpy as hnp
+
+from clray.accel.bvh import Bvh, build_bvh, max_leaf_count
+from clray.device.layout import BVH_NODE
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _load_mesh_module():
+    # benchmarks/ is not a package; the generator is imported straight from its file.
+    spec = importlib.util.spec_from_file_location(
+        "make_mesh_scene", ROOT / "benchmarks" / "make_mesh_scene.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+mesh_gen = _load_mesh_module()
+
+
+def check_bvh(bvh: Bvh, lo: np.ndarray, hi: np.ndarray, max_leaf_size: int) -> None:
+    """Assert every structural invariant of a built BVH over primitives with bounds lo, hi."""
+    n = lo.shape[0]
+    nodes, order = bvh.nodes, bvh.order
+    assert nodes.dtype == BVH_NODE
+    assert order.dtype == np.int32
+    assert np.array_equal(np.sort(order), np.arange(n))
+    if n == 0:
+        assert nodes.size == 0
+        return
+    count = nodes["count"].astype(np.int64)
+    first = nodes["first"].astype(np.int64)
+    nlo = nodes["lo"].astype(np.float64)
+    nhi = nodes["hi"].astype(np.float64)
+
+    # Depth-first layout: a preorder walk from the root (left child = next node, right child =
+    # `first`) must visit exactly 0, 1, 2, ... n-1, so every node is reachable exactly once.
+    visited = []
+    stack = [0]
+    while stack:
+        i = stack.pop()
+        visited.append(i)
+        if count[i] == 0:
+            assert i + 1 < first[i] < nodes.size
+            stack += [int(first[i]), i + 1]
+    assert visited == list(range(nodes.size))
+
+    leaf = count > 0
+    assert np.all(count[leaf] <= max_leaf_count(max_leaf_size))
+    assert np.all(count >= 0)
+    # Leaves tile `order`: each primitive is in exactly one leaf.
+    covered = np.zeros(n, dtype=np.int64)
+    for i in np.flatnonzero(leaf):
+        covered[first[i]:first[i] + count[i]] += 1
+    assert np.all(covered == 1)
+
+    for i in np.flatnonzero(~leaf):
+        left, right = i + 1, first[i]
+        for child in (left, right):
+            assert np.all(nlo[child] >= nlo[i]) and np.all(nhi[child] <= nhi[i])
+        # An inner node's bounds are exactly the union of its children's.
+        assert np.array_equal(nodes["lo"][i], np.minimum(nodes["lo"][left], nodes["lo"][right]))
+        assert np.array_equal(nodes["hi"][i], np.maximum(nodes["hi"][left], nodes["hi"][right]))
+
+    for i in np.flatnonzero(leaf):
+        prims = order[first[i]:first[i] + count[i]]
+        plo = lo[prims].min(axis=0)
+        phi = hi[prims].max(axis=0)
+        # Contain the float64 bounds exactly, and tightly: the next float32 inwards would not.
+        assert np.all(nlo[i] <= plo) and np.all(nhi[i] >= phi)
+        assert np.all(np.nextafter(nodes["lo"][i], np.float32(np.inf)).astype(np.float64) > plo)
+        assert np.all(np.nextafter(nodes["hi"][i], np.float32(-np.inf)).astype(np.float64) < phi)
+
+
+def _boxes(draw_centres: np.ndarray, extents: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    return draw_centres - extents, draw_centres + extents
+
+
+# Coordinates from a small pool so duplicates and shared planes are common, plus values that
+# are not float32-representable (0.1, 1/3) so the outward rounding is exercised.
+_COORD = st.sampled_from([0.0, 0.1, -0.1, 1 / 3, 1.0, -2.5, 7.0, 1e-30, 123456.789])
+_EXTENT = st.sampled_from([0.0, 0.0, 1e-7, 0.01, 0.5, 3.0])
+
+
+@settings(max_examples=150, deadline=None)
+@given(
+    centres=hnp.arrays(np.float64, st.tuples(st.integers(0, 60), st.just(3)), elements=_COORD),
+    data=st.data(),
+    max_leaf_size=st.sampled_from([1, 2, 4, 8, 20]),
+)
+def test_invariants_small_sets(centres, data, max_leaf_size):
+    extents = data.draw(hnp.arrays(np.float64, centres.shape, elements=_EXTENT))
+    lo, hi = _boxes(centres, extents)
+    check_bvh(build_bvh(lo, hi, max_leaf_size), lo, hi, max_leaf_size)
+
+
+def _random_set(kind: str, n: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    if kind == "uniform":
+        c = rng.uniform(-10, 10, (n, 3))
+        e = rng.exponential(0.2, (n, 3))
+    elif kind == "points":
+        c = rng.uniform(-1, 1, (n, 3))
+        e = np.zeros((n, 3))
+    elif kind == "same_centroid":
+        c = np.full((n, 3), 0.3)
+        e = rng.uniform(0, 2, (n, 3))
+    elif kind == "duplicates":
+        c = rng.uniform(-1, 1, (max(1, n // 10), 3))[rng.integers(0, max(1, n // 10), n)]
+        e = np.full((n, 3), 0.05)
+    elif kind == "flat":
+        c = rng.uniform(-5, 5, (n, 3))
+        c[:, 1] = 0.1
+        e = rng.uniform(0, 0.3, (n, 3))
+        e[:, 1] = 0
+    elif kind == "clustered_scales":
+        # Tiny clusters far apart: extents near float32 spacing at the cluster positions.
+        c = rng.choice([-1e4, 0.0, 1e4], (n, 3)) + rng.normal(0, 1e-3, (n, 3))
+        e = rng.exponential(1e-4, (n, 3))
+    else:
+        raise AssertionError(kind)
+    return _boxes(c, e)
+
+
+KINDS = ["uniform", "points", "same_centroid", "duplicates", "flat", "clustered_scales"]
+
+
+@settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(
+    kind=st.sampled_from(KINDS),
+    n=st.one_of(st.integers(0, 3), st.integers(4, 200), st.integers(1000, 4000)),
+    seed=st.integers(0, 2**32 - 1),
+    max_leaf_size=st.sampled_from([1, 4, 16]),
+)
+def test_invariants_random_sets(kind, n, seed, max_leaf_size):
+    lo, hi = _random_set(kind, n, np.random.default_rng(seed))
+    check_bvh(build_bvh(lo, hi, max_leaf_size), lo, hi, max_leaf_size)
+
+
+def test_empty_and_single():
+    empty = build_bvh(np.zeros((0, 3)), np.zeros((0, 3)))
+    assert empty.nodes.size == 0 and empty.order.size == 0
+    one = build_bvh(np.array([[0.1, 0.2, 0.3]]), np.array([[1.0, 2.0, 3.0]]))
+    assert one.nodes.size == 1
+    assert one.nodes["count"][0] == 1 and one.nodes["first"][0] == 0
+    assert one.order.tolist() == [0]
+
+
+def test_coincident_primitives_are_split_to_bounded_leaves():
+    lo = np.zeros((1000, 3))
+    bvh = build_bvh(lo, lo + 1.0, max_leaf_size=4)
+    check_bvh(bvh, lo, lo + 1.0, 4)
+
+
+@pytest.mark.parametrize(("lo", "hi"), [
+    (np.zeros((3, 2)), np.zeros((3, 2))),
+    (np.zeros((3, 3)), np.zeros((4, 3))),
+    (np.ones((2, 3)), np.zeros((2, 3))),
+    (np.full((2, 3), np.nan), np.zeros((2, 3))),
+    (np.zeros((2, 3)), np.full((2, 3), np.inf)),
+    (np.zeros((2, 3)), np.full((2, 3), 1e39)),
+])
+def test_rejects_bad_bounds(lo, hi):
+    with pytest.raises(ValueError):
+        build_bvh(lo, hi)
+
+
+def test_rejects_bad_leaf_size():
+    with pytest.raises(ValueError):
+        build_bvh(np.zeros((2, 3)), np.ones((2, 3)), max_leaf_size=0)
+
+
+# --- traversal oracle ----------------------------------------------------------------------
+
+_SLAB_WIDEN = 1.0 + 2.0 * (3 * 2.0**-24) / (1 - 3 * 2.0**-24)  # 1 + 2*gamma(3), float32 gamma
+
+
+def _sphere_t(o, d, c, r, tmin, tmax):
+    """Nearest root in (tmin, tmax) of the ray against a sphere, or None (stable form, unit d)."""
+    f = (o[0] - c[0], o[1] - c[1], o[2] - c[2])
+    b = f[0] * d[0] + f[1] * d[1] + f[2] * d[2]
+    lx, ly, lz = f[0] - b * d[0], f[1] - b * d[1], f[2] - b * d[2]
+    ll = math.sqrt(lx * lx + ly * ly + lz * lz)
+    disc = (r - ll) * (r + ll)
+    if disc < 0:
+        return None
+    q = -(b + math.copysign(math.sqrt(disc), b))
+    if q == 0:
+        return None
+    cc = f[0] * f[0] + f[1] * f[1] + f[2] * f[2] - r * r
+    t0, t1 = sorted((cc / q, q))
+    for t in (t0, t1):
+        if tmin < t < tmax:
+            return t
+    return None
+
+
+def _traverse(nodes, order, spheres, o, d, tmin):
+    """Closest hit (t, sphere index) through the BVH, the slab test written as the kernels do."""
+    inv = tuple(1.0 / x if x != 0 else math.copysign(math.inf, x) for x in d)
+    best_t, best_i = math.inf, -1
+    stack = [0]
+    while stack:
+        i = stack.pop()
+        lo, first, hi, count = nodes[i]
+        t0, t1 = tmin, best_t
+        for k in range(3):
+            # (lo - o) * inf is NaN when the origin lies on a slab plane; the compare-selects
+            # below ignore a NaN rather than letting it turn a hit into a miss.
+            tn = (lo[k] - o[k]) * inv[k]
+            tf = (hi[k] - o[k]) * inv[k]
+            if tn > tf:
+                tn, tf = tf, tn
+            tf *= _SLAB_WIDEN
+            t0 = tn if tn > t0 else t0
+            t1 = tf if tf < t1 else t1
+        if t0 > t1:
+            continue
+        if count == 0:
+            stack += [first, i + 1]
+            continue
+        for k in range(first, first + count):
+            s = order[k]
+            t = _sphere_t(o, d, spheres[s][:3], spheres[s][3], tmin, best_t)
+            if t is not None:
+                best_t, best_i = t, s
+    return best_t, best_i
+
+
+def _brute_force(spheres, origins, dirs, tmin):
+    """Closest hit of every ray against every sphere, the same formula in numpy float64."""
+    t_best = np.full(len(origins), np.inf)
+    i_best = np.full(len(origins), -1)
+    for s, (cx, cy, cz, r) in enumerate(spheres):
+        f = origins - (cx, cy, cz)
+        b = np.einsum("ij,ij->i", f, dirs)
+        ll = np.linalg.norm(f - b[:, None] * dirs, axis=1)
+        disc = (r - ll) * (r + ll)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            q = -(b + np.copysign(np.sqrt(disc), b))
+            cc = np.einsum("ij,ij->i", f, f) - r * r
+            roots = np.sort(np.stack([cc / q, q], axis=1), axis=1)
+        valid = (disc >= 0) & (q != 0)
+        t = np.where(valid & (roots[:, 0] > tmin), roots[:, 0],
+                     np.where(valid & (roots[:, 1] > tmin), roots[:, 1], np.inf))
+        closer = t < t_best
+        t_best[closer] = t[closer]
+        i_best[closer] = s
+    return t_best, i_best
+
+
+def test_traversal_matches_brute_force():
+    rng = np.random.default_rng(7)
+    n_spheres, n_rays = 400, 3000
+    centres = rng.uniform(-10, 10, (n_spheres, 3))
+    radii = rng.exponential(0.5, n_spheres) + 0.01
+    spheres = np.column_stack([centres, radii])
+    bvh = build_bvh(centres - radii[:, None], centres + radii[:, None], max_leaf_size=4)
+    check_bvh(bvh, centres - radii[:, None], centres + radii[:, None], 4)
+
+    origins = rng.uniform(-14, 14, (n_rays, 3))
+    dirs = rng.normal(size=(n_rays, 3))
+    # Axis-parallel rays: infinite reciprocals, and origins placed exactly on node slab planes,
+    # where the slab test meets 0 * inf.
+    axis_par = rng.random(n_rays) < 0.2
+    dirs[axis_par, rng.integers(0, 3, axis_par.sum())] = 0.0
+    dirs[axis_par, rng.integers(0, 3, axis_par.sum())] = 0.0
+    dirs[np.all(dirs == 0, axis=1), 0] = 1.0
+    on_plane = np.flatnonzero(axis_par)[::2]
+    node_pick = rng.integers(0, bvh.nodes.size, on_plane.size)
+    for ray, node in zip(on_plane, node_pick, strict=True):
+        k = int(np.flatnonzero(dirs[ray] == 0)[0])
+        origins[ray, k] = bvh.nodes["lo"][node][k]
+    dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+    # Some rays aimed straight at sphere centres, so plenty of them hit.
+    aimed = rng.random(n_rays) < 0.3
+    target = centres[rng.integers(0, n_spheres, aimed.sum())]
+    dirs[aimed] = target - origins[aimed]
+    dirs[aimed] /= np.linalg.norm(dirs[aimed], axis=1, keepdims=True)
+
+    tmin = 1e-9
+    nodes = [(tuple(map(float, nd["lo"])), int(nd["first"]), tuple(map(float, nd["hi"])),
+              int(nd["count"])) for nd in bvh.nodes]
+    order = bvh.order.tolist()
+    sph = [tuple(map(float, s)) for s in spheres]
+    t_ref, i_ref = _brute_force(spheres, origins, dirs, tmin)
+    assert (i_ref >= 0).sum() > n_rays // 4
+    for ray in range(n_rays):
+        t, i = _traverse(nodes, order, sph, tuple(map(float, origins[ray])),
+                         tuple(map(float, dirs[ray])), tmin)
+        # Same formula, but numpy sums and norms round differently from the scalar code.
+        assert i == i_ref[ray], ray
+        assert t == pytest.approx(t_ref[ray], rel=1e-12), ray
+
+
+# --- benchmark mesh generator ----------------------------------------------------------------
+
+@pytest.mark.parametrize("subdivisions", [0, 1, 3])
+def test_icosphere_is_a_closed_unit_sphere(subdivisions):
+    vertices, faces = mesh_gen.icosphere(subdivisions)
+    assert faces.shape == (20 * 4**subdivisions, 3)
+    assert vertices.shape == (10 * 4**subdivisions + 2, 3)
+    assert np.allclose(np.linalg.norm(vertices, axis=1), 1.0)
+    # Closed 2-manifold: every edge is shared by exactly two faces, in opposite directions.
+    directed = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
+    assert np.unique(directed, axis=0).shape[0] == directed.shape[0]
+    assert np.array_equal(np.unique(directed, axis=0), np.unique(directed[:, ::-1], axis=0))
+    v0, v1, v2 = (vertices[faces[:, k]] for k in range(3))
+    outward = np.einsum("ij,ij->i", np.cross(v1 - v0, v2 - v0), v0 + v1 + v2)
+    assert np.all(outward > 0)
+
+
+def test_bumpy_mesh_is_deterministic_and_bumpy():
+    vertices, faces, normals = mesh_gen.bumpy_mesh(3, center=(0.0, 1.0, 0.0), radius=2.0)
+    again = mesh_gen.bumpy_mesh(3, center=(0.0, 1.0, 0.0), radius=2.0)
+    assert all(np.array_equal(a, b) for a, b in zip((vertices, faces, normals), again, strict=True))
+    r = np.linalg.norm(vertices - (0.0, 1.0, 0.0), axis=1)
+    assert r.min() >= 2.0 * (1 - mesh_gen.BUMP_AMPLITUDE) - 1e-12
+    assert r.max() <= 2.0 * (1 + mesh_gen.BUMP_AMPLITUDE) + 1e-12
+    assert r.max() - r.min() > 2.0 * mesh_gen.BUMP_AMPLITUDE
+    assert np.allclose(np.linalg.norm(normals, axis=1), 1.0)
+    assert np.all(np.einsum("ij,ij->i", normals, vertices - (0.0, 1.0, 0.0)) > 0)
+
+
+def test_bvh_over_mesh_triangles():
+    vertices, faces, _ = mesh_gen.bumpy_mesh(4)
+    tri = vertices[faces]
+    lo, hi = tri.min(axis=1), tri.max(axis=1)
+    check_bvh(build_bvh(lo, hi), lo, hi, 4)
+
+
+def test_scene_files_written(tmp_path):
+    import tomllib
+
+    mesh_gen.main(["--out", str(tmp_path), "--subdivisions", "1"])
+    scene = tomllib.loads((tmp_path / "bumpy.toml").read_text())
+    assert (scene["render"]["width"], scene["render"]["height"]) == (1280, 720)
+    assert [o["type"] for o in scene["objects"]] == ["plane", "mesh"]
+    assert scene["objects"][1]["file"] == "bumpy.obj"
+    lines = (tmp_path / "bumpy.obj").read_text().splitlines()
+    assert sum(line.startswith("v ") for line in lines) == 42
+    assert sum(line.startswith("vn ") for line in lines) == 42
+    faces = [line for line in lines if line.startswith("f ")]
+    assert len(faces) == 80
+    a, b, c = (int(x.split("//")[0]) for x in faces[0].split()[1:])
+    assert faces[0] == f"f {a}//{a} {b}//{b} {c}//{c}"

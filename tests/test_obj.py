@@ -1,0 +1,208 @@
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from clray.errors import SceneError
+from clray.scene.obj import read_obj
+
+DATA = Path(__file__).parent / "data"
+
+SQUARE_V = """\
+v 0 0 0
+v 1 0 0
+v 1 1 0
+v 0 1 0
+"""
+
+
+def write(tmp_path: Path, text: str, name: str = "m.obj") -> Path:
+    path = tmp_path / name
+    path.write_text(text)
+    return path
+
+
+def corners(mesh):
+    """Per triangle corner: (position, uv, normal), independent of the vertex order the
+    re-indexing chose."""
+    out = []
+    for face in mesh.faces:
+        out.append(
+            [
+                (
+                    tuple(mesh.vertices[i]),
+                    None if mesh.uvs is None else tuple(mesh.uvs[i]),
+                    None if mesh.normals is None else tuple(mesh.normals[i]),
+                )
+                for i in face
+            ]
+        )
+    return out
+
+
+def test_positions_only_triangle(tmp_path):
+    mesh = read_obj(write(tmp_path, SQUARE_V + "f 1 2 3\n"))
+    assert mesh.vertices.dtype == np.float64 and mesh.vertices.shape == (4, 3)
+    assert mesh.faces.dtype == np.int64
+    np.testing.assert_array_equal(mesh.faces, [[0, 1, 2]])
+    assert mesh.normals is None and mesh.uvs is None
+
+
+def test_quad_is_fan_triangulated(tmp_path):
+    mesh = read_obj(write(tmp_path, SQUARE_V + "f 1 2 3 4\n"))
+    np.testing.assert_array_equal(mesh.faces, [[0, 1, 2], [0, 2, 3]])
+
+
+def test_mixed_polygon_sizes_keep_file_order(tmp_path):
+    text = SQUARE_V + "v 2 0 0\nv 2 1 0\nf 1 2 3 4 5 6\nf 1 2 3\nf 2 5 6 3\n"
+    mesh = read_obj(write(tmp_path, text))
+    np.testing.assert_array_equal(
+        mesh.faces,
+        [[0, 1, 2], [0, 2, 3], [0, 3, 4], [0, 4, 5], [0, 1, 2], [1, 4, 5], [1, 5, 2]],
+    )
+
+
+def test_v_vt_form(tmp_path):
+    text = SQUARE_V + "vt 0 0\nvt 1 0\nvt 1 1\nf 1/1 2/2 3/3\n"
+    mesh = read_obj(write(tmp_path, text))
+    assert mesh.normals is None
+    assert corners(mesh) == [
+        [((0, 0, 0), (0, 0), None), ((1, 0, 0), (1, 0), None), ((1, 1, 0), (1, 1), None)]
+    ]
+
+
+def test_v_vn_form(tmp_path):
+    text = SQUARE_V + "vn 0 0 1\nvn 0 1 0\nf 1//1 2//2 3//1\n"
+    mesh = read_obj(write(tmp_path, text))
+    assert mesh.uvs is None
+    assert corners(mesh) == [
+        [((0, 0, 0), None, (0, 0, 1)), ((1, 0, 0), None, (0, 1, 0)), ((1, 1, 0), None, (0, 0, 1))]
+    ]
+
+
+def test_v_vt_vn_form_splits_vertices_with_distinct_attributes(tmp_path):
+    # Position 1 is used with two different UVs, so it becomes two output vertices.
+    text = SQUARE_V + "vt 0 0\nvt 1 0\nvt 1 1\nvn 0 0 1\nf 1/1/1 2/2/1 3/3/1\nf 1/2/1 3/3/1 4/1/1\n"
+    mesh = read_obj(write(tmp_path, text))
+    assert len(mesh.vertices) == 5
+    assert mesh.normals.shape == (5, 3) and mesh.uvs.shape == (5, 2)
+    assert corners(mesh) == [
+        [
+            ((0, 0, 0), (0, 0), (0, 0, 1)),
+            ((1, 0, 0), (1, 0), (0, 0, 1)),
+            ((1, 1, 0), (1, 1), (0, 0, 1)),
+        ],
+        [
+            ((0, 0, 0), (1, 0), (0, 0, 1)),
+            ((1, 1, 0), (1, 1), (0, 0, 1)),
+            ((0, 1, 0), (0, 0), (0, 0, 1)),
+        ],
+    ]
+
+
+def test_negative_indices_count_back_from_the_latest_definition(tmp_path):
+    text = "v 0 0 0\nv 1 0 0\nv 0 1 0\nf -3 -2 -1\nv 5 5 5\nf -4 -1 -2\n"
+    mesh = read_obj(write(tmp_path, text))
+    np.testing.assert_array_equal(mesh.faces, [[0, 1, 2], [0, 3, 2]])
+
+
+def test_negative_indices_for_uvs_and_normals(tmp_path):
+    text = SQUARE_V + "vt 0 0\nvt 1 0\nvt 1 1\nvn 0 0 1\nf -4/-3/-1 -3/-2/-1 -2/-1/-1\n"
+    mesh = read_obj(write(tmp_path, text))
+    assert corners(mesh) == [
+        [
+            ((0, 0, 0), (0, 0), (0, 0, 1)),
+            ((1, 0, 0), (1, 0), (0, 0, 1)),
+            ((1, 1, 0), (1, 1), (0, 0, 1)),
+        ]
+    ]
+
+
+def test_faces_without_normals_make_the_whole_mesh_flat(tmp_path):
+    text = SQUARE_V + "vn 0 0 1\nf 1//1 2//1 3//1\nf 1 3 4\n"
+    mesh = read_obj(write(tmp_path, text))
+    assert mesh.normals is None and mesh.uvs is None
+    np.testing.assert_array_equal(mesh.faces, [[0, 1, 2], [0, 2, 3]])
+
+
+def test_ignored_statements_comments_and_whitespace(tmp_path):
+    text = (
+        "# a comment\n"
+        "mtllib stuff.mtl\n"
+        "o thing\n"
+        "g group\n"
+        "\n"
+        "v 0 0 0 1.0  # w, then a comment\n"
+        "v\t1 0 0 0.5 0.5 0.5\r\n"  # tab, vertex colour, CRLF
+        "  v 0 1 0\n"
+        "usemtl red\n"
+        "s off\n"
+        "l 1 2\n"
+        "vp 0.5\n"
+        "f 1 2 3 # trailing\n"
+    )
+    mesh = read_obj(write(tmp_path, text))
+    np.testing.assert_array_equal(mesh.vertices, [[0, 0, 0], [1, 0, 0], [0, 1, 0]])
+    np.testing.assert_array_equal(mesh.faces, [[0, 1, 2]])
+
+
+def test_file_without_trailing_newline_and_exponents(tmp_path):
+    mesh = read_obj(write(tmp_path, "v 1e-1 -2.5E+1 +3\nv 0 0 0\nv .5 0 0\nf 1 2 3"))
+    np.testing.assert_array_equal(mesh.vertices[0], [0.1, -25.0, 3.0])
+    np.testing.assert_array_equal(mesh.vertices[2], [0.5, 0, 0])
+
+
+def test_no_faces_gives_empty_face_array(tmp_path):
+    mesh = read_obj(write(tmp_path, "v 0 0 0\n"))
+    assert mesh.faces.shape == (0, 3)
+
+
+def test_fixture_cube():
+    mesh = read_obj(DATA / "cube.obj")
+    assert mesh.faces.shape == (12, 3)
+    # 6 faces x 4 corners, each with its own normal.
+    assert mesh.vertices.shape == (24, 3) and mesh.normals.shape == (24, 3)
+    assert mesh.uvs.shape == (24, 2)
+    tri = mesh.vertices[mesh.faces]
+    geometric = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    # Counter-clockwise faces: the geometric normal agrees with the file's vertex normals.
+    assert np.all(np.einsum("ij,ij->i", geometric, mesh.normals[mesh.faces[:, 0]]) > 0)
+
+
+@pytest.mark.parametrize(
+    ("text", "line", "message"),
+    [
+        (SQUARE_V + "f 1 2 0\n", 5, "vertex index 0 is invalid"),
+        (SQUARE_V + "f 1 2 5\n", 5, "vertex index 5 out of range (4 in the file)"),
+        (SQUARE_V + "f 1 2 -5\n", 5, "relative vertex index -5 out of range"),
+        (SQUARE_V + "vt 0 0\nf 1/1 2/2 3/1\n", 6, "texture coordinate index 2 out of range"),
+        (SQUARE_V + "vn 0 0 1\nf 1//1 2//1 3//3\n", 6, "normal index 3 out of range"),
+        (SQUARE_V + "\nf 1 2\n", 6, "a face needs at least 3 vertices, got 2"),
+        (SQUARE_V + "f\n", 5, "a face needs at least 3 vertices, got 0"),
+        (SQUARE_V + "vt 0 0\nf 1/1 2 3\n", 6, "mixed vertex forms in one face (v/vt and v)"),
+        (SQUARE_V + "vn 0 0 1\nf 1//1 2/1/1 3//1\n", 6, "mixed vertex forms"),
+        (SQUARE_V + "f 1 2 x\n", 5, "bad vertex reference 'x'"),
+        (SQUARE_V + "f 1 2 3.5\n", 5, "bad vertex reference '3.5'"),
+        (SQUARE_V + "f 1 2 1-2\n", 5, "bad vertex reference '1-2'"),
+        (SQUARE_V + "vn 0 0 1\nf 1// 2//1 3//1\n", 6, "bad vertex reference '1//'"),
+        (SQUARE_V + "f 1/2/3/4 2 3\n", 5, "bad vertex reference '1/2/3/4'"),
+        ("v 0 0 0\nv 1 zero 0\n", 2, "expected a number, got 'zero'"),
+        ("v 0 0 0\nv 1 1_0 0\n", 2, "expected a number, got '1_0'"),
+        ("v 0 0 0\nv 1 0\n", 2, "v: expected at least 3 numbers, got 2"),
+        ("vt 0\n", 1, "vt: expected at least 2 numbers, got 1"),
+        ("v 0 0 0\nv 1 nan 0\n", 2, "v: numbers must be finite"),
+        ("v 0 0 0\nvn 0 0 0\n", 2, "vn: zero-length normal"),
+    ],
+)
+def test_errors_name_file_and_line(tmp_path, text, line, message):
+    with pytest.raises(SceneError) as info:
+        read_obj(write(tmp_path, text, "broken.obj"))
+    text = str(info.value)
+    assert text.startswith(f"broken.obj: line {line}: "), text
+    assert message in text
+    assert info.value.key == f"line {line}"
+
+
+def test_missing_file(tmp_path):
+    with pytest.raises(SceneError, match=r"^nope\.obj: cannot read mesh file"):
+        read_obj(tmp_path / "nope.obj")

@@ -60,9 +60,14 @@ typedef struct {
     int pad0, pad1;
 } Cone;
 
+// Triangle.material: the material index in the low 24 bits, and these flags above it.
+#define TRIANGLE_MATERIAL_MASK 0x00FFFFFF
+#define TRIANGLE_SMOOTH (1 << 24)  // blend the vertex normals
+#define TRIANGLE_UV (1 << 25)      // blend the vertex texture coordinates
+
 typedef struct {
     int v0, v1, v2;  // indices into the vertex arrays (positions, normals, uvs)
-    int material;
+    int material;    // index and flags, see above
 } Triangle;
 
 typedef struct {

@@ -70,3 +70,7 @@ STRUCTS: dict[str, np.dtype] = {
     "Params": PARAMS,
     "BvhNode": BVH_NODE,
 }
+
+TRIANGLE_MATERIAL_MASK = 0x00FFFFFF
+TRIANGLE_SMOOTH = 1 << 24
+TRIANGLE_UV = 1 << 25

@@ -1,0 +1,113 @@
+"""Kernel sources + KernelConfig -> built OpenCL program, cached per device and options."""
+
+from __future__ import annotations
+
+import hashlib
+import re
+import time
+from dataclasses import dataclass, fields
+from pathlib import Path
+
+import pyopencl as cl
+
+from clray.device.context import context_for, has_fp64
+from clray.errors import DeviceError
+
+KERNEL_DIR = Path(__file__).resolve().parent.parent.parent / "kernels"
+ENTRY_FILE = "render.cl"
+_INCLUDE = re.compile(r'^\s*#\s*include\s+"([^"]+)"\s*$', re.MULTILINE)
+
+# Build options a study may add; anything else is refused so the cache key stays meaningful.
+ALLOWED_BUILD_OPTIONS = frozenset({
+    "-cl-mad-enable",
+    "-cl-unsafe-math-optimizations",
+    "-cl-fast-relaxed-math",
+    "-cl-finite-math-only",
+    "-cl-no-signed-zeros",
+})
+
+
+@dataclass(frozen=True)
+class KernelConfig:
+    """Only switches that remove code or fix loop bounds; everything else is a kernel
+    argument, so a new scene rarely means a new build."""
+
+    has_planes: bool = False
+    has_spheres: bool = False
+    has_boxes: bool = False
+    has_cylinders: bool = False
+    has_cones: bool = False
+    has_triangles: bool = False
+    has_vertex_normals: bool = False
+    has_vertex_uvs: bool = False
+    has_textures: bool = False
+    has_refraction: bool = False
+    max_depth: int = 0
+    precision: str = "float"  # "float" | "double"
+    # Study variants (clray study): the textbook formulas the defaults replace.
+    sphere_textbook: bool = False
+    offset_fixed_eps: bool = False
+    triangle_no_fp64_fallback: bool = False
+    build_options: tuple[str, ...] = ()
+
+    def options(self) -> list[str]:
+        defines = []
+        for f in fields(self):
+            value = getattr(self, f.name)
+            if isinstance(value, bool):
+                defines.append(f"-D{f.name.upper()}={int(value)}")
+        defines.append(f"-DMAX_DEPTH={self.max_depth}")
+        if self.precision == "double":
+            defines.append("-DUSE_DOUBLE=1")
+        return sorted(defines) + sorted(self.build_options)
+
+
+def kernel_source(name: str = ENTRY_FILE) -> str:
+    """The entry file with its quoted includes inlined (each once), with #line markers so
+    build logs name the right file. Inlining keeps every cache keyed on the full text."""
+    seen: set[str] = set()
+
+    def expand(fname: str) -> str:
+        if fname in seen:
+            return ""
+        seen.add(fname)
+        text = (KERNEL_DIR / fname).read_text()
+        out = [f'#line 1 "{fname}"']
+        for lineno, line in enumerate(text.splitlines(), start=1):
+            match = _INCLUDE.match(line)
+            if match:
+                out.append(expand(match.group(1)))
+                out.append(f'#line {lineno + 1} "{fname}"')
+            else:
+                out.append(line)
+        return "\n".join(out)
+
+    return expand(name)
+
+
+_programs: dict[tuple[int, str, tuple[str, ...]], cl.Program] = {}
+
+
+def build_program(device: cl.Device, config: KernelConfig) -> tuple[cl.Program, float]:
+    """(program, seconds spent building; 0.0 when it came from this process's cache)."""
+    if config.precision == "double" and not has_fp64(device):
+        raise DeviceError(f"--precision double: device {device.name.strip()!r} has no "
+                          "cl_khr_fp64")
+    unknown = set(config.build_options) - ALLOWED_BUILD_OPTIONS
+    if unknown:
+        raise DeviceError(f"unsupported build option(s): {', '.join(sorted(unknown))}")
+    source = kernel_source()
+    options = tuple(config.options())
+    key = (device.int_ptr, hashlib.sha256(source.encode()).hexdigest(), options)
+    if key in _programs:
+        return _programs[key], 0.0
+    start = time.perf_counter()
+    try:
+        program = cl.Program(context_for(device), source).build(options=list(options))
+    except cl.RuntimeError as err:
+        log = str(err).strip().splitlines()
+        detail = " | ".join(line.strip() for line in log if "error" in line.lower())[:2000]
+        raise DeviceError(f"kernel build failed ({' '.join(options)}): "
+                          f"{detail or log[-1] if log else err}") from err
+    _programs[key] = program
+    return program, time.perf_counter() - start

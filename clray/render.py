@@ -1,0 +1,130 @@
+"""Orchestration: pack the scene, build the kernel, launch bands of rows, read the image back."""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+import pyopencl as cl
+
+from clray.device.context import describe, queue_for, select_device
+from clray.device.pack import PackedScene, pack_scene
+from clray.device.program import build_program
+from clray.errors import DeviceError
+from clray.scene.model import Scene
+
+# Work per launch, in pixel-samples: keeps each launch well under a second on a CPU device
+# (and under GPU watchdogs) while leaving enough launches for progress reports.
+PIXEL_SAMPLES_PER_LAUNCH = 1 << 20
+
+
+@dataclass(frozen=True)
+class RenderSettings:
+    width: int | None = None  # overrides; None = the scene file's value
+    height: int | None = None
+    spp: int | None = None
+    max_depth: int | None = None
+    seed: int | None = None
+    device: str | None = None  # clray.device.context.select_device spec
+    precision: str = "float"  # "float" | "double"
+    progress: Callable[[int, int], None] | None = field(default=None, compare=False)
+    variants: tuple[tuple[str, object], ...] = ()  # extra KernelConfig fields (studies)
+
+
+@dataclass(frozen=True)
+class RenderResult:
+    image: np.ndarray  # (H, W, 3) float32, linear, may hold non-finite values
+    stats: dict
+
+
+def _buffer(ctx: cl.Context, array: np.ndarray) -> cl.Buffer:
+    # OpenCL has no zero-sized buffers: an empty array becomes one zeroed element.
+    data = array if array.size else np.zeros(1, dtype=array.dtype)
+    return cl.Buffer(ctx, cl.mem_flags.READ_ONLY | cl.mem_flags.COPY_HOST_PTR,
+                     hostbuf=np.ascontiguousarray(data))
+
+
+def _resolve(scene: Scene, settings: RenderSettings) -> dict[str, int]:
+    r = scene.render
+    return {
+        "width": settings.width if settings.width is not None else r.width,
+        "height": settings.height if settings.height is not None else r.height,
+        "spp": settings.spp if settings.spp is not None else r.spp,
+        "max_depth": settings.max_depth if settings.max_depth is not None else r.max_depth,
+        "seed": settings.seed if settings.seed is not None else r.seed,
+    }
+
+
+def render_packed(packed: PackedScene, device: cl.Device,
+                  progress: Callable[[int, int], None] | None = None
+                  ) -> tuple[np.ndarray, dict]:
+    """Launch the kernel over a packed scene: (image, stats without load/pack times)."""
+    program, build_s = build_program(device, packed.config)
+    queue = queue_for(device)
+    ctx = queue.context
+    params = packed.params[0]
+    width, height, spp = int(params["width"]), int(params["height"]), int(params["spp"])
+    try:
+        buffers = [_buffer(ctx, getattr(packed, name)) for name in (
+            "camera", "params", "planes", "spheres", "boxes", "cylinders", "cones",
+            "triangles", "vertices", "normals", "uvs", "nodes")]
+        buffers.append(np.int32(len(packed.nodes)))
+        buffers += [_buffer(ctx, getattr(packed, name)) for name in (
+            "prim_refs", "materials", "textures", "texels", "lights")]
+        image_buf = cl.Buffer(ctx, cl.mem_flags.WRITE_ONLY, width * height * 16)
+        counts_buf = cl.Buffer(ctx, cl.mem_flags.WRITE_ONLY, width * height * 16)
+        kernel = cl.Kernel(program, "render")
+        rows = max(1, min(height, PIXEL_SAMPLES_PER_LAUNCH // max(1, width * spp)))
+        launches = -(-height // rows)
+        kernel_s = 0.0
+        for launch in range(launches):
+            row0 = launch * rows
+            band = min(rows, height - row0)
+            kernel.set_args(*buffers, image_buf, counts_buf, np.int32(row0))
+            event = cl.enqueue_nd_range_kernel(queue, kernel, (width, band), None)
+            event.wait()
+            kernel_s += (event.profile.end - event.profile.start) * 1e-9
+            if progress is not None:
+                progress(launch + 1, launches)
+        image = np.empty((height, width, 4), dtype=np.float32)
+        counts = np.empty((height * width, 4), dtype=np.int32)
+        cl.enqueue_copy(queue, image, image_buf)
+        cl.enqueue_copy(queue, counts, counts_buf)
+        queue.finish()
+    except cl.Error as err:
+        raise DeviceError(f"OpenCL error while rendering on {describe(device)}: {err}") from err
+    totals = counts.sum(axis=0, dtype=np.int64)
+    rays = {"primary": int(totals[0]), "secondary": int(totals[1]), "shadow": int(totals[2])}
+    rays["total"] = sum(rays.values())
+    stats = {
+        "build_s": build_s,
+        "kernel_s": kernel_s,
+        "launches": launches,
+        "rays": rays,
+        "mrays_per_s": rays["total"] / kernel_s * 1e-6 if kernel_s > 0 else None,
+        "device_bytes": packed.device_bytes(),
+    }
+    return image[:, :, :3], stats
+
+
+def render(scene: Scene, settings: RenderSettings | None = None) -> RenderResult:
+    settings = settings or RenderSettings()
+    start = time.perf_counter()
+    device = select_device(settings.device)
+    resolved = _resolve(scene, settings)
+    packed = pack_scene(scene, precision=settings.precision, **resolved,
+                        **dict(settings.variants))
+    pack_s = time.perf_counter() - start - packed.bvh_s
+    image, stats = render_packed(packed, device, settings.progress)
+    stats = {
+        **resolved,
+        "device": describe(device),
+        "precision": settings.precision,
+        "bvh_s": packed.bvh_s,
+        "pack_s": pack_s,
+        **stats,
+        "total_s": time.perf_counter() - start,
+    }
+    return RenderResult(image, stats)

@@ -1,0 +1,304 @@
+// Ray-primitive intersection. Each primitive reports up to two crossings of the ray with its
+// surface (entry and exit for the solids), sorted, REAL_INF where there is none: closest-hit
+// takes the first with t > 0, shadow rays count every crossing in range.
+// Formulas and their failure rates in float32: ../shared notes, numerics.md (sections 1-2).
+#ifndef CLRAY_INTERSECT_H
+#define CLRAY_INTERSECT_H
+
+typedef struct {
+    REAL3 o, d;
+    REAL3 inv_d;     // 1/d, +-inf for zero components (the slab test relies on it)
+    int kx, ky, kz;  // Woop-Benthin-Wald axis permutation: kz is d's largest component
+    REAL sx, sy, sz; // ... and the shear that maps d to +z
+} Ray;
+
+inline Ray make_ray(REAL3 o, REAL3 d) {
+    Ray r;
+    r.o = o;
+    r.d = d;
+    r.inv_d = (REAL)1 / d;
+    REAL3 ad = fabs(d);
+    r.kz = ad.x > ad.y ? (ad.x > ad.z ? 0 : 2) : (ad.y > ad.z ? 1 : 2);
+    r.kx = r.kz == 2 ? 0 : r.kz + 1;
+    r.ky = r.kx == 2 ? 0 : r.kx + 1;
+    REAL dz = comp3(d, r.kz);
+    if (dz < (REAL)0) {
+        int swap = r.kx;
+        r.kx = r.ky;
+        r.ky = swap;
+    }
+    // dz != 0: it is the largest component of a non-zero direction.
+    r.sx = -comp3(d, r.kx) / dz;
+    r.sy = -comp3(d, r.ky) / dz;
+    r.sz = (REAL)1 / dz;
+    return r;
+}
+
+typedef struct {
+    REAL t[2];
+    int part[2];  // which face: box axis*2 + (0 lo, 1 hi); cylinder/cone 0 side, 1/2 caps
+    REAL b1, b2;  // triangle barycentrics of the (single) crossing
+} Crossings;
+
+inline Crossings no_crossings(void) {
+    Crossings c;
+    c.t[0] = REAL_INF;
+    c.t[1] = REAL_INF;
+    c.part[0] = 0;
+    c.part[1] = 0;
+    c.b1 = 0;
+    c.b2 = 0;
+    return c;
+}
+
+// Keep the smallest and largest of the valid candidates: a convex solid is crossed at most
+// twice, and near rims several surfaces may claim the same crossing.
+inline void add_candidate(Crossings* c, int* n, REAL t, int part) {
+    if (*n == 0) {
+        c->t[0] = t;
+        c->part[0] = part;
+    } else if (*n == 1) {
+        if (t < c->t[0]) {
+            c->t[1] = c->t[0];
+            c->part[1] = c->part[0];
+            c->t[0] = t;
+            c->part[0] = part;
+        } else {
+            c->t[1] = t;
+            c->part[1] = part;
+        }
+    } else if (t < c->t[0]) {
+        c->t[0] = t;
+        c->part[0] = part;
+    } else if (t > c->t[1]) {
+        c->t[1] = t;
+        c->part[1] = part;
+    }
+    (*n)++;
+}
+
+// Roots of a t^2 + 2 b t + c = 0 from the Press pair: no subtractive cancellation in either.
+// disc is b^2 - a c, computed by the caller in whichever stable form fits the shape.
+inline bool quadratic_roots(REAL a, REAL b, REAL c, REAL disc, REAL* t0, REAL* t1) {
+    if (!(disc >= (REAL)0) || a == (REAL)0) return false;
+    REAL q = -(b + copysign(sqrt(disc), b));
+    if (q == (REAL)0) return false;  // tangent at the origin itself: no crossing ahead
+    REAL r0 = c / q, r1 = q / a;
+    *t0 = fmin(r0, r1);
+    *t1 = fmax(r0, r1);
+    return true;
+}
+
+#if HAS_SPHERES
+inline Crossings intersect_sphere(const __global Sphere* s, const Ray* r) {
+    Crossings c = no_crossings();
+    REAL3 center = TO_REAL3(s->center_radius);
+    REAL radius = TO_REAL(s->center_radius.w);
+    REAL3 f = r->o - center;
+    REAL a = dot(r->d, r->d);
+    REAL b = dot(f, r->d);
+#if SPHERE_TEXTBOOK
+    REAL cc = dot(f, f) - radius * radius;
+    REAL disc = b * b - a * cc;
+    if (!(disc >= (REAL)0)) return c;
+    REAL sq = sqrt(disc);
+    c.t[0] = (-b - sq) / a;
+    c.t[1] = (-b + sq) / a;
+#else
+    // Hearn-Baker: b^2 - a c = a (r - |l|)(r + |l|), l the centre's offset from the line.
+    REAL3 l = f - (b / a) * r->d;
+    REAL ll = length(l);
+    REAL disc = a * (radius - ll) * (radius + ll);
+    REAL fl = length(f);
+    if (!quadratic_roots(a, b, (fl - radius) * (fl + radius), disc, &c.t[0], &c.t[1])) {
+        return no_crossings();
+    }
+#endif
+    return c;
+}
+#endif
+
+#if HAS_PLANES
+inline Crossings intersect_plane(const __global Plane* pl, const Ray* r) {
+    Crossings c = no_crossings();
+    REAL3 n = TO_REAL3(pl->normal);
+    REAL dn = dot(r->d, n);
+    if (dn == (REAL)0) return c;  // parallel: never crossed
+    REAL t = dot(TO_REAL3(pl->point) - r->o, n) / dn;
+    if (isfinite(t)) c.t[0] = t;
+    return c;
+}
+#endif
+
+// Slab test against [lo, hi] within (tmin, tmax). Compare-select keeps a NaN from 0 * inf (a
+// zero direction component with the origin on a slab plane) out of the interval, and the far
+// bound is widened by 1 + 2 gamma(3) so no ray slips past an edge (Ize 2013, pbrt).
+inline bool slab_interval(REAL3 lo, REAL3 hi, const Ray* r, REAL* tmin, REAL* tmax, int* part0,
+                          int* part1) {
+    REAL t0 = *tmin, t1 = *tmax;
+    const REAL widen = (REAL)1 + (REAL)2 * gamma_n(3);
+    for (int k = 0; k < 3; ++k) {
+        REAL inv = comp3(r->inv_d, k), o = comp3(r->o, k);
+        REAL tn = (comp3(lo, k) - o) * inv;
+        REAL tf = (comp3(hi, k) - o) * inv;
+        int pn = 2 * k, pf = 2 * k + 1;
+        if (tn > tf) {
+            REAL swap = tn;
+            tn = tf;
+            tf = swap;
+            pn = 2 * k + 1;
+            pf = 2 * k;
+        }
+        tf *= widen;
+        if (tn > t0) {
+            t0 = tn;
+            *part0 = pn;
+        }
+        if (tf < t1) {
+            t1 = tf;
+            *part1 = pf;
+        }
+        if (t0 > t1) return false;
+    }
+    *tmin = t0;
+    *tmax = t1;
+    return true;
+}
+
+#if HAS_BOXES
+inline Crossings intersect_box(const __global Box* b, const Ray* r) {
+    Crossings c = no_crossings();
+    REAL t0 = -REAL_INF, t1 = REAL_INF;
+    int p0 = 0, p1 = 0;
+    if (!slab_interval(TO_REAL3(b->lo), TO_REAL3(b->hi), r, &t0, &t1, &p0, &p1)) return c;
+    if (!isfinite(t0) || !isfinite(t1)) return c;
+    c.t[0] = t0;
+    c.t[1] = t1;
+    c.part[0] = p0;
+    c.part[1] = p1;
+    return c;
+}
+#endif
+
+#if HAS_CYLINDERS
+inline Crossings intersect_cylinder(const __global Cylinder* cy, const Ray* r) {
+    Crossings c = no_crossings();
+    int n = 0;
+    REAL3 axis = TO_REAL3(cy->axis_height);
+    REAL radius = TO_REAL(cy->base_radius.w), height = TO_REAL(cy->axis_height.w);
+    REAL3 f = r->o - TO_REAL3(cy->base_radius);
+    REAL fa = dot(f, axis), da = dot(r->d, axis);
+    // The side is a 2D sphere problem in the plane across the axis.
+    REAL3 fp = f - fa * axis, dp = r->d - da * axis;
+    REAL a = dot(dp, dp), b = dot(fp, dp);
+    REAL ts[2];
+    if (a > (REAL)0) {
+        REAL3 l = fp - (b / a) * dp;
+        REAL ll = length(l), fl = length(fp);
+        REAL disc = a * (radius - ll) * (radius + ll);
+        if (quadratic_roots(a, b, (fl - radius) * (fl + radius), disc, &ts[0], &ts[1])) {
+            for (int i = 0; i < 2; ++i) {
+                REAL s = fa + ts[i] * da;
+                REAL tol = gamma_n(8) * (fabs(fa) + fabs(ts[i] * da) + height);
+                if (s >= -tol && s <= height + tol) add_candidate(&c, &n, ts[i], 0);
+            }
+        }
+    }
+    if (cy->capped && da != (REAL)0) {
+        REAL rr = radius * radius * ((REAL)1 + gamma_n(8));
+        for (int cap = 0; cap < 2; ++cap) {
+            REAL tc = ((cap ? height : (REAL)0) - fa) / da;
+            REAL3 q = fp + tc * dp;
+            if (dot(q, q) <= rr) add_candidate(&c, &n, tc, 1 + cap);
+        }
+    }
+    if (n == 1) c.t[1] = REAL_INF;
+    return c;
+}
+#endif
+
+#if HAS_CONES
+inline Crossings intersect_cone(const __global Cone* co, const Ray* r) {
+    Crossings c = no_crossings();
+    int n = 0;
+    REAL3 axis = TO_REAL3(co->axis_height);
+    REAL tan_a = TO_REAL(co->apex_tan.w), height = TO_REAL(co->axis_height.w);
+    REAL3 f = r->o - TO_REAL3(co->apex_tan);
+    REAL fa = dot(f, axis), da = dot(r->d, axis);
+    REAL3 fp = f - fa * axis, dp = r->d - da * axis;
+    // |perp|^2 = tan^2 s^2 with s the distance along the axis: a quadratic in t.
+    REAL k2 = tan_a * tan_a;
+    REAL a = dot(dp, dp) - k2 * da * da;
+    REAL b = dot(fp, dp) - k2 * fa * da;
+    REAL cc = dot(fp, fp) - k2 * fa * fa;
+    REAL ts[2];
+    int roots = 0;
+    if (a != (REAL)0) {
+        if (quadratic_roots(a, b, cc, difference_of_products(b, b, a, cc), &ts[0], &ts[1])) {
+            roots = 2;
+        }
+    } else if (b != (REAL)0) {
+        // A ray parallel to a generator line crosses the double cone once.
+        ts[0] = -cc / ((REAL)2 * b);
+        roots = 1;
+    }
+    for (int i = 0; i < roots; ++i) {
+        REAL s = fa + ts[i] * da;
+        REAL tol = gamma_n(8) * (fabs(fa) + fabs(ts[i] * da) + height);
+        if (s >= -tol && s <= height + tol) add_candidate(&c, &n, ts[i], 0);
+    }
+    if (co->capped && da != (REAL)0) {
+        REAL tc = (height - fa) / da;
+        REAL3 q = fp + tc * dp;
+        REAL rb = height * tan_a;
+        if (dot(q, q) <= rb * rb * ((REAL)1 + gamma_n(8))) add_candidate(&c, &n, tc, 1);
+    }
+    if (n == 1) c.t[1] = REAL_INF;
+    return c;
+}
+#endif
+
+#if HAS_TRIANGLES
+// Woop, Benthin, Wald, "Watertight Ray/Triangle Intersection", JCGT 2013, as in pbrt-v4: edge
+// functions in a ray-aligned sheared frame, so rays at shared edges hit one side or both.
+inline Crossings intersect_triangle(REAL3 p0, REAL3 p1, REAL3 p2, const Ray* r) {
+    Crossings c = no_crossings();
+    REAL3 a = p0 - r->o, b = p1 - r->o, d = p2 - r->o;
+    REAL3 p0t = (REAL3)(comp3(a, r->kx), comp3(a, r->ky), comp3(a, r->kz));
+    REAL3 p1t = (REAL3)(comp3(b, r->kx), comp3(b, r->ky), comp3(b, r->kz));
+    REAL3 p2t = (REAL3)(comp3(d, r->kx), comp3(d, r->ky), comp3(d, r->kz));
+    p0t.x += r->sx * p0t.z;
+    p0t.y += r->sy * p0t.z;
+    p1t.x += r->sx * p1t.z;
+    p1t.y += r->sy * p1t.z;
+    p2t.x += r->sx * p2t.z;
+    p2t.y += r->sy * p2t.z;
+    REAL e0 = difference_of_products(p1t.x, p2t.y, p1t.y, p2t.x);
+    REAL e1 = difference_of_products(p2t.x, p0t.y, p2t.y, p0t.x);
+    REAL e2 = difference_of_products(p0t.x, p1t.y, p0t.y, p1t.x);
+#if !defined(USE_DOUBLE) && defined(cl_khr_fp64) && !TRIANGLE_NO_FP64_FALLBACK
+    // An edge function of exactly zero may be a float rounding to zero: decide it in double.
+    if (e0 == 0.0f || e1 == 0.0f || e2 == 0.0f) {
+        e0 = (float)((double)p1t.x * (double)p2t.y - (double)p1t.y * (double)p2t.x);
+        e1 = (float)((double)p2t.x * (double)p0t.y - (double)p2t.y * (double)p0t.x);
+        e2 = (float)((double)p0t.x * (double)p1t.y - (double)p0t.y * (double)p1t.x);
+    }
+#endif
+    if ((e0 < 0 || e1 < 0 || e2 < 0) && (e0 > 0 || e1 > 0 || e2 > 0)) return c;
+    REAL det = e0 + e1 + e2;
+    if (det == (REAL)0) return c;
+    p0t.z *= r->sz;
+    p1t.z *= r->sz;
+    p2t.z *= r->sz;
+    REAL t_scaled = e0 * p0t.z + e1 * p1t.z + e2 * p2t.z;
+    if (det < 0 && t_scaled >= 0) return c;
+    if (det > 0 && t_scaled <= 0) return c;
+    REAL inv_det = (REAL)1 / det;
+    c.t[0] = t_scaled * inv_det;
+    c.b1 = e1 * inv_det;
+    c.b2 = e2 * inv_det;
+    return c;
+}
+#endif
+
+#endif

@@ -1,0 +1,69 @@
+// REAL is the arithmetic type of the whole kernel: float by default, double with -DUSE_DOUBLE.
+// Buffers stay float32 in both builds; values are widened on load, so the double build is the
+// same algorithm on the same inputs with more bits.
+#ifndef CLRAY_REAL_H
+#define CLRAY_REAL_H
+
+#ifdef USE_DOUBLE
+#pragma OPENCL EXTENSION cl_khr_fp64 : enable
+typedef double REAL;
+typedef double2 REAL2;
+typedef double3 REAL3;
+#define REAL_EPSILON DBL_EPSILON
+#define TO_REAL3(v) convert_double3((v).xyz)
+#define TO_REAL2(v) convert_double2(v)
+#define TO_REAL(x) ((double)(x))
+#else
+#ifdef cl_khr_fp64
+// The float build decides exact-zero triangle edge functions in double where it can.
+#pragma OPENCL EXTENSION cl_khr_fp64 : enable
+#endif
+typedef float REAL;
+typedef float2 REAL2;
+typedef float3 REAL3;
+#define REAL_EPSILON FLT_EPSILON
+#define TO_REAL3(v) ((v).xyz)
+#define TO_REAL2(v) (v)
+#define TO_REAL(x) (x)
+#endif
+
+#define REAL_INF ((REAL)INFINITY)
+#define PI_R ((REAL)3.14159265358979323846)
+
+// pbrt's bound on n chained roundings: gamma(n) = n u / (1 - n u), u the unit roundoff.
+inline REAL gamma_n(int n) {
+    const REAL u = REAL_EPSILON * (REAL)0.5;
+    return (REAL)n * u / ((REAL)1 - (REAL)n * u);
+}
+
+inline REAL max_abs3(REAL3 v) {
+    REAL3 a = fabs(v);
+    return fmax(a.x, fmax(a.y, a.z));
+}
+
+inline REAL max_comp3(REAL3 v) { return fmax(v.x, fmax(v.y, v.z)); }
+
+inline REAL comp3(REAL3 v, int k) { return k == 0 ? v.x : (k == 1 ? v.y : v.z); }
+
+// Normalise, leaving a zero vector zero instead of making NaN.
+inline REAL3 safe_normalize(REAL3 v) {
+    REAL len = length(v);
+    return len > (REAL)0 ? v / len : v;
+}
+
+// a*b - c*d without catastrophic cancellation (Kahan's algorithm with FMA).
+inline REAL difference_of_products(REAL a, REAL b, REAL c, REAL d) {
+    REAL cd = c * d;
+    REAL err = fma(-c, d, cd);
+    REAL dop = fma(a, b, -cd);
+    return dop + err;
+}
+
+// An orthonormal pair perpendicular to unit a, the frame() of docs/rendering.md.
+inline void frame(REAL3 a, REAL3* e1, REAL3* e2) {
+    REAL3 h = fabs(a.x) < (REAL)0.9 ? (REAL3)(1, 0, 0) : (REAL3)(0, 1, 0);
+    *e1 = safe_normalize(cross(a, h));
+    *e2 = cross(a, *e1);
+}
+
+#endif

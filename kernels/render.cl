@@ -1,0 +1,159 @@
+// Kernel entry points only. One work-item per pixel; the host launches bands of rows.
+//
+// Build switches (all from clray/device/program.py's KernelConfig): HAS_PLANES, HAS_SPHERES,
+// HAS_BOXES, HAS_CYLINDERS, HAS_CONES, HAS_TRIANGLES, HAS_VERTEX_NORMALS, HAS_VERTEX_UVS,
+// HAS_TEXTURES, HAS_REFRACTION (0 or 1), MAX_DEPTH, USE_DOUBLE, and the study variants
+// SPHERE_TEXTBOOK, OFFSET_FIXED_EPS, TRIANGLE_NO_FP64_FALLBACK.
+#include "real.h"
+#include "clray_types.h"
+
+#define HAS_BVH (HAS_SPHERES || HAS_BOXES || HAS_CYLINDERS || HAS_CONES || HAS_TRIANGLES)
+#define MEDIA_DEPTH 4
+
+#include "rng.h"
+#include "camera.h"
+#include "intersect.h"
+#include "bvh.h"
+#include "texture.h"
+#include "shading.h"
+
+// One node of the ray tree, waiting on the explicit stack (OpenCL C has no recursion).
+typedef struct {
+    REAL3 o, d, weight;
+    int depth;
+    int media_count;  // materials the ray is inside, innermost last
+    int media[MEDIA_DEPTH];
+} RayTask;
+
+inline REAL medium_ior(const SceneRefs* s, const RayTask* task) {
+    return task->media_count > 0 ? TO_REAL(s->materials[task->media[task->media_count - 1]].ior)
+                                 : (REAL)1;
+}
+
+#if HAS_REFRACTION
+// The refracted ray's media and eta = n1 / n2 at a surface of material m.
+inline REAL refract_media(const SceneRefs* s, const RayTask* in, RayTask* out, int m,
+                          bool entering) {
+    out->media_count = in->media_count;
+    for (int k = 0; k < MEDIA_DEPTH; ++k) out->media[k] = in->media[k];
+    REAL ior_m = TO_REAL(s->materials[m].ior);
+    if (entering) {
+        REAL n1 = medium_ior(s, in);
+        if (out->media_count < MEDIA_DEPTH) out->media[out->media_count++] = m;
+        return n1 / ior_m;
+    }
+    for (int k = out->media_count - 1; k >= 0; --k) {
+        if (out->media[k] == m) {
+            for (int j = k; j < out->media_count - 1; ++j) out->media[j] = out->media[j + 1];
+            out->media_count--;
+            break;
+        }
+    }
+    return ior_m / medium_ior(s, out);
+}
+#endif
+
+__kernel void render(__global const Camera* camera, __global const Params* params,
+                     __global const Plane* planes, __global const Sphere* spheres,
+                     __global const Box* boxes, __global const Cylinder* cylinders,
+                     __global const Cone* cones, __global const Triangle* triangles,
+                     __global const float4* vertices, __global const float4* normals,
+                     __global const float2* uvs, __global const BvhNode* nodes, int n_nodes,
+                     __global const int* prim_refs, __global const Material* materials,
+                     __global const Texture* textures, __global const float4* texels,
+                     __global const Light* lights, __global float4* image,
+                     __global int4* ray_counts, int row_offset) {
+    int x = get_global_id(0), y = get_global_id(1) + row_offset;
+    int width = params->width, height = params->height;
+    if (x >= width || y >= height) return;
+
+    SceneRefs s;
+    s.planes = planes;
+    s.spheres = spheres;
+    s.boxes = boxes;
+    s.cylinders = cylinders;
+    s.cones = cones;
+    s.triangles = triangles;
+    s.vertices = vertices;
+    s.normals = normals;
+    s.uvs = uvs;
+    s.nodes = nodes;
+    s.prim_refs = prim_refs;
+    s.materials = materials;
+    s.textures = textures;
+    s.texels = texels;
+    s.lights = lights;
+    s.n_planes = params->n_planes;
+    s.n_nodes = n_nodes;
+    s.n_lights = params->n_lights;
+
+    uint pixel = (uint)(y * width + x);
+    int spp = params->spp;
+    REAL3 background = TO_REAL3(params->background), ambient = TO_REAL3(params->ambient);
+    REAL3 sum = (REAL3)(0, 0, 0);
+    int secondary_rays = 0, shadow_rays = 0;
+
+    for (int sample = 0; sample < spp; ++sample) {
+        REAL2 pos = sample_position(x, y, sample, spp, params->seed, pixel);
+        RayTask stack[MAX_DEPTH + 1];
+        int sp = 0;
+        stack[0].o = TO_REAL3(camera->position);
+        stack[0].d = camera_direction(camera, pos, width, height);
+        stack[0].weight = (REAL3)(1, 1, 1);
+        stack[0].depth = 0;
+        stack[0].media_count = 0;
+        sp = 1;
+        while (sp > 0) {
+            RayTask task = stack[--sp];
+            Ray ray = make_ray(task.o, task.d);
+            Hit hit = closest_hit(&s, &ray);
+            if (!(hit.t < REAL_INF)) {
+                sum += task.weight * background;
+                continue;
+            }
+            Surface sf = surface_at(&s, &ray, &hit);
+            const __global Material* m = materials + sf.material;
+            bool entering = dot(ray.d, sf.n_g) < (REAL)0;
+            REAL3 n_f = entering ? sf.n_g : -sf.n_g;
+            REAL3 n = dot(sf.n_s, ray.d) < (REAL)0 ? sf.n_s : -sf.n_s;
+            REAL3 c = surface_color(&s, m, sf.p, n_f, sf.uv);
+            sum += task.weight * shade_direct(&s, &sf, n, -ray.d, c, m, ambient, &shadow_rays);
+#if MAX_DEPTH > 0
+            if (task.depth < MAX_DEPTH) {
+                REAL kr = TO_REAL(m->reflect);
+#if HAS_REFRACTION
+                REAL kt = TO_REAL(m->transmit);
+                if (kt > (REAL)0) {
+                    RayTask next;
+                    REAL eta = refract_media(&s, &task, &next, sf.material, entering);
+                    REAL cos_i = -dot(ray.d, n);
+                    REAL k = (REAL)1 - eta * eta * ((REAL)1 - cos_i * cos_i);
+                    if (k < (REAL)0) {
+                        kr += kt;  // total internal reflection
+                    } else {
+                        next.d = normalize(eta * ray.d + (eta * cos_i - sqrt(k)) * n);
+                        next.o = offset_origin(&sf, next.d);
+                        next.weight = task.weight * kt;
+                        next.depth = task.depth + 1;
+                        stack[sp++] = next;
+                        secondary_rays++;
+                    }
+                }
+#endif
+                if (kr > (REAL)0) {
+                    RayTask next = task;
+                    next.d = ray.d - (REAL)2 * dot(ray.d, n) * n;
+                    next.o = offset_origin(&sf, next.d);
+                    next.weight = task.weight * kr;
+                    next.depth = task.depth + 1;
+                    stack[sp++] = next;
+                    secondary_rays++;
+                }
+            }
+#endif
+        }
+    }
+    REAL3 mean = sum / (REAL)spp;
+    image[pixel] = (float4)((float)mean.x, (float)mean.y, (float)mean.z, 0.0f);
+    ray_counts[pixel] = (int4)(spp, secondary_rays, shadow_rays, 0);
+}

@@ -1,0 +1,237 @@
+// The hit's surface (point, normals, error bound, texture coordinates) and its Phong shading.
+#ifndef CLRAY_SHADING_H
+#define CLRAY_SHADING_H
+
+typedef struct {
+    REAL3 p;    // on the surface (re-projected where the shape allows)
+    REAL3 n_g;  // geometric normal, outward (planes: as given; triangles: by winding)
+    REAL3 n_s;  // shading normal on the same side as n_g
+    REAL err;   // bound on the rounding error of p, per component
+    REAL2 uv;
+    int material;
+} Surface;
+
+// Error bounds are pbrt-style: gamma(n) times the magnitudes the point was computed from. Sixteen
+// roundings is generous for every formula here and still a tiny fraction of the scene's scale.
+#define ERR_ROUNDINGS 16
+
+inline REAL3 set_comp3(REAL3 v, int k, REAL value) {
+    if (k == 0) v.x = value;
+    else if (k == 1) v.y = value;
+    else v.z = value;
+    return v;
+}
+
+inline REAL angle_u(REAL y, REAL x) { return (REAL)0.5 + atan2(y, x) / ((REAL)2 * PI_R); }
+
+inline Surface surface_at(const SceneRefs* s, const Ray* r, const Hit* hit) {
+    Surface sf;
+    int i = hit->ref & PRIM_INDEX_MASK;
+    REAL3 p = r->o + hit->t * r->d;
+    REAL gamma = gamma_n(ERR_ROUNDINGS);
+    sf.uv = (REAL2)(0, 0);
+    switch (hit->ref >> PRIM_TYPE_SHIFT) {
+#if HAS_PLANES
+        case PRIM_PLANE: {
+            const __global Plane* pl = s->planes + i;
+            REAL3 n = TO_REAL3(pl->normal), q = TO_REAL3(pl->point);
+            p -= dot(p - q, n) * n;
+            sf.n_g = n;
+            sf.err = gamma * (max_abs3(p) + max_abs3(q));
+            REAL3 e1, e2;
+            frame(n, &e1, &e2);
+            sf.uv = (REAL2)(dot(p - q, e1), dot(p - q, e2));
+            sf.material = pl->material;
+            break;
+        }
+#endif
+#if HAS_SPHERES
+        case PRIM_SPHERE: {
+            const __global Sphere* sp = s->spheres + i;
+            REAL3 c = TO_REAL3(sp->center_radius);
+            REAL radius = TO_REAL(sp->center_radius.w);
+            REAL3 n = safe_normalize(p - c);
+            p = c + radius * n;
+            sf.n_g = n;
+            sf.err = gamma * (max_abs3(c) + radius);
+            sf.uv = (REAL2)(angle_u(n.x, n.z),
+                            (REAL)0.5 + asin(clamp(n.y, (REAL)-1, (REAL)1)) / PI_R);
+            sf.material = sp->material;
+            break;
+        }
+#endif
+#if HAS_BOXES
+        case PRIM_BOX: {
+            const __global Box* b = s->boxes + i;
+            REAL3 lo = TO_REAL3(b->lo), hi = TO_REAL3(b->hi);
+            int axis = hit->part / 2, side = hit->part % 2;
+            p = set_comp3(p, axis, comp3(side ? hi : lo, axis));
+            sf.n_g = set_comp3((REAL3)(0, 0, 0), axis, side ? (REAL)1 : (REAL)-1);
+            sf.err = gamma * max_abs3(p);
+            int a1 = (axis + 1) % 3, a2 = (axis + 2) % 3;
+            REAL w1 = comp3(hi, a1) - comp3(lo, a1), w2 = comp3(hi, a2) - comp3(lo, a2);
+            sf.uv = (REAL2)(w1 > (REAL)0 ? (comp3(p, a1) - comp3(lo, a1)) / w1 : (REAL)0,
+                            w2 > (REAL)0 ? (comp3(p, a2) - comp3(lo, a2)) / w2 : (REAL)0);
+            sf.material = b->material;
+            break;
+        }
+#endif
+#if HAS_CYLINDERS
+        case PRIM_CYLINDER: {
+            const __global Cylinder* cy = s->cylinders + i;
+            REAL3 base = TO_REAL3(cy->base_radius), axis = TO_REAL3(cy->axis_height);
+            REAL radius = TO_REAL(cy->base_radius.w), height = TO_REAL(cy->axis_height.w);
+            REAL3 q = p - base;
+            REAL h = dot(q, axis);
+            REAL3 e1, e2;
+            frame(axis, &e1, &e2);
+            if (hit->part == 0) {
+                REAL3 radial = safe_normalize(q - h * axis);
+                p = base + h * axis + radius * radial;
+                sf.n_g = radial;
+                sf.uv = (REAL2)(angle_u(dot(q, e2), dot(q, e1)), h / height);
+            } else {
+                REAL cap = hit->part == 2 ? height : (REAL)0;
+                p += (cap - h) * axis;
+                sf.n_g = hit->part == 2 ? axis : -axis;
+                sf.uv = (REAL2)((REAL)0.5 + (REAL)0.5 * dot(q, e1) / radius,
+                                (REAL)0.5 + (REAL)0.5 * dot(q, e2) / radius);
+            }
+            sf.err = gamma * (max_abs3(p) + max_abs3(base) + radius + height);
+            sf.material = cy->material;
+            break;
+        }
+#endif
+#if HAS_CONES
+        case PRIM_CONE: {
+            const __global Cone* co = s->cones + i;
+            REAL3 apex = TO_REAL3(co->apex_tan), axis = TO_REAL3(co->axis_height);
+            REAL tan_a = TO_REAL(co->apex_tan.w), height = TO_REAL(co->axis_height.w);
+            REAL3 q = p - apex;
+            REAL h = dot(q, axis);
+            REAL3 e1, e2;
+            frame(axis, &e1, &e2);
+            if (hit->part == 0) {
+                REAL3 radial = q - h * axis;
+                REAL rl = length(radial);
+                if (rl > (REAL)0) {
+                    radial /= rl;
+                    p = apex + h * axis + (h * tan_a) * radial;
+                    // Outward normal of |perp| = tan * s is radial - tan * axis, normalised.
+                    sf.n_g = (radial - tan_a * axis) / sqrt((REAL)1 + tan_a * tan_a);
+                } else {
+                    sf.n_g = -axis;  // the apex: any choice is a limit; point back out
+                }
+                sf.uv = (REAL2)(angle_u(dot(q, e2), dot(q, e1)), h / height);
+            } else {
+                p += (height - h) * axis;
+                sf.n_g = axis;
+                REAL rb = height * tan_a;
+                sf.uv = (REAL2)((REAL)0.5 + (REAL)0.5 * dot(q, e1) / rb,
+                                (REAL)0.5 + (REAL)0.5 * dot(q, e2) / rb);
+            }
+            sf.err = gamma * (max_abs3(p) + max_abs3(apex) + height * ((REAL)1 + tan_a));
+            sf.material = co->material;
+            break;
+        }
+#endif
+#if HAS_TRIANGLES
+        case PRIM_TRIANGLE: {
+            Triangle tri = s->triangles[i];
+            REAL3 p0 = TO_REAL3(s->vertices[tri.v0]), p1 = TO_REAL3(s->vertices[tri.v1]),
+                  p2 = TO_REAL3(s->vertices[tri.v2]);
+            REAL b1 = hit->b1, b2 = hit->b2, b0 = (REAL)1 - b1 - b2;
+            p = b0 * p0 + b1 * p1 + b2 * p2;
+            sf.err = gamma * max_comp3(fabs(b0 * p0) + fabs(b1 * p1) + fabs(b2 * p2));
+            REAL3 n = safe_normalize(cross(p1 - p0, p2 - p0));
+            // A degenerate triangle has no normal: let it face the ray.
+            sf.n_g = dot(n, n) > (REAL)0 ? n : -r->d;
+            sf.uv = (REAL2)(b1, b2);
+#if HAS_VERTEX_NORMALS
+            if (tri.material & TRIANGLE_SMOOTH) {
+                REAL3 ns = b0 * TO_REAL3(s->normals[tri.v0]) +
+                           b1 * TO_REAL3(s->normals[tri.v1]) +
+                           b2 * TO_REAL3(s->normals[tri.v2]);
+                sf.n_s = safe_normalize(ns);
+            }
+#endif
+#if HAS_VERTEX_UVS
+            if (tri.material & TRIANGLE_UV) {
+                sf.uv = b0 * TO_REAL2(s->uvs[tri.v0]) + b1 * TO_REAL2(s->uvs[tri.v1]) +
+                        b2 * TO_REAL2(s->uvs[tri.v2]);
+            }
+#endif
+            sf.material = tri.material & TRIANGLE_MATERIAL_MASK;
+            sf.p = p;
+#if HAS_VERTEX_NORMALS
+            if ((tri.material & TRIANGLE_SMOOTH) && dot(sf.n_s, sf.n_s) > (REAL)0) return sf;
+#endif
+            sf.n_s = sf.n_g;
+            return sf;
+        }
+#endif
+        default:
+            sf.n_g = -r->d;
+            sf.err = 0;
+            sf.material = 0;
+            break;
+    }
+    sf.p = p;
+    sf.n_s = sf.n_g;
+    return sf;
+}
+
+// Move p off the surface to the side of n_g that w leaves on, by the error bound along the
+// normal: the spawned ray then starts beyond any rounding of p and needs no t epsilon.
+inline REAL3 offset_origin(const Surface* sf, REAL3 w) {
+#if OFFSET_FIXED_EPS
+    REAL d = (REAL)1e-4;
+#else
+    REAL d = sf->err * (fabs(sf->n_g.x) + fabs(sf->n_g.y) + fabs(sf->n_g.z));
+#endif
+    return dot(w, sf->n_g) > (REAL)0 ? sf->p + d * sf->n_g : sf->p - d * sf->n_g;
+}
+
+// Ambient plus, for each light on the lit side, diffuse and specular times the light that
+// reaches p through the shadow ray.
+inline REAL3 shade_direct(const SceneRefs* s, const Surface* sf, REAL3 n, REAL3 v, REAL3 c,
+                          const __global Material* m, REAL3 ambient_light, int* shadow_rays) {
+    REAL3 result = TO_REAL(m->ambient) * c * ambient_light;
+    REAL diffuse = TO_REAL(m->diffuse), specular = TO_REAL(m->specular);
+    REAL shininess = TO_REAL(m->shininess);
+    for (int i = 0; i < s->n_lights; ++i) {
+        const __global Light* light = s->lights + i;
+        REAL3 l;
+        REAL atten = 1, dist = REAL_INF;
+        if (light->kind == LIGHT_POINT) {
+            REAL3 to_light = TO_REAL3(light->position) - sf->p;
+            dist = length(to_light);
+            if (!(dist > sf->err)) continue;  // a light at the hit point lights nothing
+            l = to_light / dist;
+            REAL3 k = TO_REAL3(light->attenuation);
+            REAL denom = k.x + k.y * dist + k.z * dist * dist;
+            atten = denom > (REAL)0 ? fmin((REAL)1, (REAL)1 / denom) : (REAL)1;
+        } else {
+            l = -safe_normalize(TO_REAL3(light->position));
+        }
+        REAL ndl = dot(n, l);
+        if (!(ndl > (REAL)0)) continue;
+        REAL3 origin = offset_origin(sf, l);
+        // Stop just short of the light so a surface through the light does not shadow it.
+        REAL tmax = light->kind == LIGHT_POINT
+                        ? length(TO_REAL3(light->position) - origin) *
+                              ((REAL)1 - gamma_n(ERR_ROUNDINGS))
+                        : REAL_INF;
+        Ray shadow = make_ray(origin, l);
+        (*shadow_rays)++;
+        REAL3 filter = transmission(s, &shadow, tmax);
+        if (max_comp3(filter) <= (REAL)0) continue;
+        REAL3 refl = (REAL)2 * ndl * n - l;
+        REAL rv = dot(refl, v);
+        REAL spec = rv > (REAL)0 ? pow(rv, shininess) : (REAL)0;
+        result += atten * TO_REAL3(light->color) * filter * (diffuse * ndl * c + specular * spec);
+    }
+    return result;
+}
+
+#endif

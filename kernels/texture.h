@@ -1,0 +1,56 @@
+// Surface colour: the material colour, or a texel blended with it (docs/rendering.md).
+#ifndef CLRAY_TEXTURE_H
+#define CLRAY_TEXTURE_H
+
+#if HAS_TEXTURES
+inline REAL3 texel_at(const SceneRefs* s, const __global Texture* tx, int x, int y) {
+    return TO_REAL3(s->texels[tx->texel_offset + y * tx->width + x]);
+}
+
+// Wrap a coordinate into [0, 1); a non-finite one (a degenerate uv) maps to 0.
+inline REAL wrap01(REAL x) {
+    if (!isfinite(x)) return 0;
+    REAL f = x - floor(x);
+    return f < (REAL)1 ? f : 0;
+}
+
+inline REAL3 image_texel(const SceneRefs* s, const __global Texture* tx, REAL2 uv) {
+    int w = tx->width, h = tx->height;
+    REAL sx = wrap01(uv.x * TO_REAL(tx->repeat_u)) * (REAL)w - (REAL)0.5;
+    REAL sy = ((REAL)1 - wrap01(uv.y * TO_REAL(tx->repeat_v))) * (REAL)h - (REAL)0.5;
+    REAL fx0 = floor(sx), fy0 = floor(sy);
+    REAL fx = sx - fx0, fy = sy - fy0;
+    // Bilinear with wrap-around: x0 may be -1 or w - 1 here, y0 likewise.
+    int x0 = ((int)fx0 % w + w) % w, y0 = ((int)fy0 % h + h) % h;
+    int x1 = (x0 + 1) % w, y1 = (y0 + 1) % h;
+    REAL3 top = mix(texel_at(s, tx, x0, y0), texel_at(s, tx, x1, y0), fx);
+    REAL3 bottom = mix(texel_at(s, tx, x0, y1), texel_at(s, tx, x1, y1), fx);
+    return mix(top, bottom, fy);
+}
+
+// 3D checker at the hit point moved a quarter cell into the surface (n_f faces the viewer),
+// so a surface lying on a cell boundary gets one stable colour.
+inline REAL3 checker_texel(const __global Texture* tx, REAL3 color, REAL3 p, REAL3 n_f) {
+    REAL size = TO_REAL(tx->size);
+    REAL3 q = (p - (REAL)0.25 * size * n_f) / size;
+    REAL cells = floor(q.x) + floor(q.y) + floor(q.z);
+    return fmod(fabs(cells), (REAL)2) == (REAL)1 ? TO_REAL3(tx->color2) : color;
+}
+#endif
+
+inline REAL3 surface_color(const SceneRefs* s, const __global Material* m, REAL3 p, REAL3 n_f,
+                           REAL2 uv) {
+    REAL3 color = TO_REAL3(m->color);
+#if HAS_TEXTURES
+    if (m->texture >= 0) {
+        const __global Texture* tx = s->textures + m->texture;
+        REAL3 texel = tx->kind == TEXTURE_CHECKER ? checker_texel(tx, color, p, n_f)
+                                                  : image_texel(s, tx, uv);
+        REAL blend = TO_REAL(tx->blend);
+        return blend * texel + ((REAL)1 - blend) * color;
+    }
+#endif
+    return color;
+}
+
+#endif

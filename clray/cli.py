@@ -193,7 +193,7 @@ def _render(args: argparse.Namespace) -> int:
             print(f"  {key}: {_format_stat(value)}", file=sys.stderr)
     if not args.quiet:
         _say(f"wrote {output} ({width}x{height}, {stats['spp']} spp, "
-             f"kernel {stats['kernel_s']:.3f} s)")
+             f"kernel {stats['kernel_s']:.3g} s)")
     return EXIT_OK
 
 

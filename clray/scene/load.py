@@ -1,0 +1,580 @@
+"""Scene files (.toml, .json) -> validated `clray.scene.model.Scene`.
+
+Every problem becomes one `SceneError` naming the file and the key path
+(`objects[3].radius`), so a user can find and fix it without reading a traceback.
+The format itself is documented in docs/scene_format.md.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import tomllib
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from PIL import Image
+
+from clray.errors import SceneError
+from clray.scene.model import (
+    Box,
+    Camera,
+    Cone,
+    Cylinder,
+    DirectionalLight,
+    Light,
+    Material,
+    Mesh,
+    Plane,
+    PointLight,
+    RenderOptions,
+    Scene,
+    SceneObject,
+    Sphere,
+    Texture,
+    Triangle,
+)
+from clray.scene.obj import read_obj
+
+Vec3 = tuple[float, float, float]
+
+_MAX_SIZE = 16384
+_MAX_SPP = 4096
+_MAX_DEPTH = 16
+_MAX_SEED = 2**32 - 1
+
+_TOP_KEYS = ("render", "camera", "materials", "lights", "objects")
+_RENDER_KEYS = ("width", "height", "spp", "max_depth", "background", "ambient", "seed")
+_CAMERA_KEYS = ("position", "look_at", "up", "vfov", "hfov")
+_MATERIAL_KEYS = (
+    "color",
+    "ambient",
+    "diffuse",
+    "specular",
+    "shininess",
+    "reflect",
+    "transmit",
+    "ior",
+    "texture",
+)
+_TEXTURE_KEYS = {
+    "checker": ("type", "size", "color2", "blend"),
+    "image": ("type", "file", "repeat", "blend"),
+}
+_LIGHT_KEYS = {
+    "point": ("type", "position", "color", "attenuation"),
+    "directional": ("type", "direction", "color"),
+}
+_TRANSFORM_KEYS = ("translate", "rotate", "scale")
+# Per object type: (required keys, optional keys), besides `type` and `material`.
+_OBJECT_KEYS: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
+    "sphere": (("center", "radius"), ()),
+    "plane": (("point", "normal"), ()),
+    "box": (("min", "max"), ()),
+    "triangle": (("vertices",), ()),
+    "mesh": ((), ("file", "vertices", "faces", "transform")),
+    "cylinder": (("base", "axis", "radius", "height"), ("capped",)),
+    "cone": (("apex", "axis", "angle", "height"), ("capped",)),
+}
+
+
+def load_scene(path: str | Path) -> Scene:
+    """Read and validate a scene file; the suffix (.toml or .json) picks the parser."""
+    path = Path(path)
+    suffix = path.suffix.lower()
+    if suffix not in (".toml", ".json"):
+        raise SceneError(
+            path, None, f"unknown scene file type {path.suffix!r} (use .toml or .json)"
+        )
+    try:
+        raw = path.read_bytes()
+    except OSError as exc:
+        raise SceneError(path, None, f"cannot read scene file: {exc.strerror}") from None
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise SceneError(path, None, f"not valid UTF-8 (byte {exc.start})") from None
+    if suffix == ".toml":
+        try:
+            data = tomllib.loads(text)
+        except tomllib.TOMLDecodeError as exc:
+            # The message already ends in "(at line L, column C)".
+            raise SceneError(path, None, f"invalid TOML: {exc}") from None
+    else:
+        try:
+            data = json.loads(text)
+        except json.JSONDecodeError as exc:
+            raise SceneError(
+                path, None, f"invalid JSON: {exc.msg} (at line {exc.lineno}, column {exc.colno})"
+            ) from None
+    return scene_from_dict(data, path)
+
+
+def scene_from_dict(data: dict, path: Path | None = None) -> Scene:
+    """Validate parsed scene data. `path` names the file in errors; texture and mesh files
+    are relative to its folder (the working directory when there is no path)."""
+    return _Loader(path).scene(data)
+
+
+def _show(value: Any) -> str:
+    """A value as the user wrote it, short enough for a one-line message."""
+    if isinstance(value, bool):
+        text = "true" if value else "false"
+    elif isinstance(value, str):
+        text = json.dumps(value)
+    elif isinstance(value, int | float):
+        text = repr(value)
+    elif isinstance(value, list | tuple):
+        text = "[" + ", ".join(_show(v) for v in value) + "]"
+    elif isinstance(value, dict):
+        text = "a table"
+    else:
+        text = type(value).__name__
+    return text if len(text) <= 60 else text[:57] + "..."
+
+
+def _is_number(value: Any) -> bool:
+    # bool is an int subclass in Python, but `true` is not a number in a scene file.
+    return isinstance(value, int | float) and not isinstance(value, bool)
+
+
+def _unit(v: Vec3) -> Vec3:
+    a = np.asarray(v, dtype=np.float64)
+    a = a / np.linalg.norm(a)
+    return (float(a[0]), float(a[1]), float(a[2]))
+
+
+class _Loader:
+    def __init__(self, path: Path | None) -> None:
+        self.path = None if path is None else Path(path)
+        self.base = Path.cwd() if path is None else Path(path).parent
+
+    def error(self, key: str | None, message: str) -> SceneError:
+        return SceneError(self.path, key, message)
+
+    # -- generic checks ------------------------------------------------------------------
+
+    def table(self, value: Any, key: str) -> dict:
+        if not isinstance(value, dict):
+            raise self.error(key, f"expected a table, got {_show(value)}")
+        return value
+
+    def keys(
+        self, table: dict, key: str | None, allowed: tuple[str, ...], required: tuple[str, ...]
+    ) -> None:
+        prefix = f"{key}." if key else ""
+        for name in table:
+            if name not in allowed:
+                expected = ", ".join(allowed)
+                raise self.error(f"{prefix}{name}", f"unknown key (expected one of: {expected})")
+        for name in required:
+            if name not in table:
+                raise self.error(f"{prefix}{name}", "missing required key")
+
+    def number(self, value: Any, key: str) -> float:
+        if not _is_number(value):
+            raise self.error(key, f"expected a number, got {_show(value)}")
+        if not math.isfinite(value):
+            raise self.error(key, f"must be finite, got {_show(value)}")
+        return float(value)
+
+    def at_least(self, value: Any, key: str, low: float, *, strict: bool = False) -> float:
+        x = self.number(value, key)
+        if x < low or (strict and x == low):
+            raise self.error(key, f"must be {'>' if strict else '>='} {low:g}, got {_show(value)}")
+        return x
+
+    def open_range(self, value: Any, key: str, low: float, high: float) -> float:
+        x = self.number(value, key)
+        if not low < x < high:
+            raise self.error(key, f"must be in ({low:g}, {high:g}), got {_show(value)}")
+        return x
+
+    def closed_range(self, value: Any, key: str, low: float, high: float) -> float:
+        x = self.number(value, key)
+        if not low <= x <= high:
+            raise self.error(key, f"must be in [{low:g}, {high:g}], got {_show(value)}")
+        return x
+
+    def integer(self, value: Any, key: str, low: int, high: int) -> int:
+        if not isinstance(value, int) or isinstance(value, bool):
+            raise self.error(key, f"expected an integer, got {_show(value)}")
+        if not low <= value <= high:
+            raise self.error(key, f"must be an integer in [{low}, {high}], got {value}")
+        return value
+
+    def boolean(self, value: Any, key: str) -> bool:
+        if not isinstance(value, bool):
+            raise self.error(key, f"expected true or false, got {_show(value)}")
+        return value
+
+    def string(self, value: Any, key: str) -> str:
+        if not isinstance(value, str):
+            raise self.error(key, f"expected a string, got {_show(value)}")
+        return value
+
+    def numbers(self, value: Any, key: str, n: int) -> tuple[float, ...]:
+        if (
+            not isinstance(value, list | tuple)
+            or len(value) != n
+            or not all(_is_number(v) for v in value)
+        ):
+            raise self.error(key, f"expected {n} numbers, got {_show(value)}")
+        if not all(math.isfinite(v) for v in value):
+            raise self.error(key, f"must be finite, got {_show(value)}")
+        return tuple(float(v) for v in value)
+
+    def vec3(self, value: Any, key: str) -> Vec3:
+        x, y, z = self.numbers(value, key, 3)
+        return (x, y, z)
+
+    def color(self, value: Any, key: str) -> Vec3:
+        v = self.vec3(value, key)
+        if min(v) < 0:
+            raise self.error(key, f"must be >= 0, got {_show(value)}")
+        return v
+
+    def direction(self, value: Any, key: str) -> Vec3:
+        v = self.vec3(value, key)
+        if not any(v):
+            raise self.error(key, f"must be a nonzero vector, got {_show(value)}")
+        return _unit(v)
+
+    def file(self, value: Any, key: str) -> Path:
+        name = self.string(value, key)
+        resolved = self.base / name
+        if not resolved.is_file():
+            raise self.error(key, f"file not found: {name}")
+        return resolved
+
+    def items(self, value: Any, key: str) -> list[dict]:
+        if not isinstance(value, list):
+            raise self.error(key, f"expected an array of tables, got {_show(value)}")
+        return [self.table(item, f"{key}[{i}]") for i, item in enumerate(value)]
+
+    # -- sections ------------------------------------------------------------------------
+
+    def scene(self, data: Any) -> Scene:
+        if not isinstance(data, dict):
+            raise self.error(None, f"expected a table at the top level, got {_show(data)}")
+        self.keys(data, None, _TOP_KEYS, ("camera",))
+        render = self.render(self.table(data.get("render", {}), "render"))
+        camera = self.camera(self.table(data["camera"], "camera"))
+
+        materials: list[Material] = []
+        named: dict[str, int] = {}
+        for name, spec in self.table(data.get("materials", {}), "materials").items():
+            key = f"materials.{name}"
+            named[name] = len(materials)
+            materials.append(self.material(self.table(spec, key), key, name))
+
+        lights = tuple(
+            self.light(spec, f"lights[{i}]")
+            for i, spec in enumerate(self.items(data.get("lights", []), "lights"))
+        )
+
+        default_index: list[int] = []  # filled the first time an object needs it
+
+        def material_for(spec: dict, key: str) -> int:
+            if "material" not in spec:
+                if not default_index:
+                    default_index.append(len(materials))
+                    materials.append(Material(name="(default)"))
+                return default_index[0]
+            value = spec["material"]
+            mkey = f"{key}.material"
+            if isinstance(value, str):
+                if value not in named:
+                    defined = ", ".join(named) or "none"
+                    raise self.error(mkey, f"unknown material {_show(value)} (defined: {defined})")
+                return named[value]
+            if isinstance(value, dict):
+                materials.append(self.material(value, mkey, mkey))
+                return len(materials) - 1
+            raise self.error(
+                mkey, f"expected a material name or an inline table, got {_show(value)}"
+            )
+
+        objects = tuple(
+            self.object(spec, f"objects[{i}]", material_for)
+            for i, spec in enumerate(self.items(data.get("objects", []), "objects"))
+        )
+        return Scene(
+            path=self.path,
+            render=render,
+            camera=camera,
+            materials=tuple(materials),
+            lights=lights,
+            objects=objects,
+            warnings=(),
+        )
+
+    def render(self, spec: dict) -> RenderOptions:
+        self.keys(spec, "render", _RENDER_KEYS, ())
+        d = RenderOptions()
+        return RenderOptions(
+            width=self.integer(spec.get("width", d.width), "render.width", 1, _MAX_SIZE),
+            height=self.integer(spec.get("height", d.height), "render.height", 1, _MAX_SIZE),
+            spp=self.integer(spec.get("spp", d.spp), "render.spp", 1, _MAX_SPP),
+            max_depth=self.integer(
+                spec.get("max_depth", d.max_depth), "render.max_depth", 0, _MAX_DEPTH
+            ),
+            background=self.color(spec.get("background", d.background), "render.background"),
+            ambient=self.color(spec.get("ambient", d.ambient), "render.ambient"),
+            seed=self.integer(spec.get("seed", d.seed), "render.seed", 0, _MAX_SEED),
+        )
+
+    def camera(self, spec: dict) -> Camera:
+        self.keys(spec, "camera", _CAMERA_KEYS, ("position", "look_at"))
+        position = self.vec3(spec["position"], "camera.position")
+        look_at = self.vec3(spec["look_at"], "camera.look_at")
+        up = self.vec3(spec.get("up", (0.0, 1.0, 0.0)), "camera.up")
+        forward = np.subtract(look_at, position)
+        if not forward.any():
+            raise self.error("camera.look_at", "must differ from camera.position")
+        if not any(up):
+            raise self.error("camera.up", f"must be a nonzero vector, got {_show(spec['up'])}")
+        # Relative test: the right vector is normalize(cross(forward, up)), which only
+        # needs the two directions not to be parallel, whatever their lengths.
+        cross = np.linalg.norm(np.cross(forward, up))
+        if cross <= 1e-9 * np.linalg.norm(forward) * np.linalg.norm(up):
+            raise self.error("camera.up", "must not be parallel to the view direction")
+        if "vfov" in spec and "hfov" in spec:
+            raise self.error("camera", "give vfov or hfov, not both")
+        if "hfov" in spec:
+            return Camera(
+                position,
+                look_at,
+                up,
+                vfov=None,
+                hfov=self.open_range(spec["hfov"], "camera.hfov", 0, 180),
+            )
+        vfov = self.open_range(spec.get("vfov", 40.0), "camera.vfov", 0, 180)
+        return Camera(position, look_at, up, vfov=vfov, hfov=None)
+
+    def material(self, spec: dict, key: str, name: str) -> Material:
+        self.keys(spec, key, _MATERIAL_KEYS, ())
+        d = Material(name=name)
+
+        def coefficient(field: str) -> float:
+            return self.at_least(spec.get(field, getattr(d, field)), f"{key}.{field}", 0)
+
+        texture = None
+        if "texture" in spec:
+            tkey = f"{key}.texture"
+            texture = self.texture(self.table(spec["texture"], tkey), tkey)
+        return Material(
+            name=name,
+            color=self.color(spec.get("color", d.color), f"{key}.color"),
+            ambient=coefficient("ambient"),
+            diffuse=coefficient("diffuse"),
+            specular=coefficient("specular"),
+            shininess=coefficient("shininess"),
+            reflect=coefficient("reflect"),
+            transmit=coefficient("transmit"),
+            ior=self.at_least(spec.get("ior", d.ior), f"{key}.ior", 0, strict=True),
+            texture=texture,
+        )
+
+    def texture(self, spec: dict, key: str) -> Texture:
+        kind = self.kind(spec, key, _TEXTURE_KEYS)
+        self.keys(spec, key, _TEXTURE_KEYS[kind], ("type", "file") if kind == "image" else ())
+        d = Texture(kind=kind)
+        blend = self.closed_range(spec.get("blend", d.blend), f"{key}.blend", 0, 1)
+        if kind == "checker":
+            return Texture(
+                kind=kind,
+                size=self.at_least(spec.get("size", d.size), f"{key}.size", 0, strict=True),
+                color2=self.color(spec.get("color2", d.color2), f"{key}.color2"),
+                blend=blend,
+            )
+        rkey = f"{key}.repeat"
+        j, k = self.numbers(spec.get("repeat", d.repeat), rkey, 2)
+        if j <= 0 or k <= 0:
+            raise self.error(rkey, f"must be > 0, got {_show(spec['repeat'])}")
+        file = self.file(spec["file"], f"{key}.file")
+        return Texture(
+            kind=kind, file=file, repeat=(j, k), blend=blend, image=self.image(file, f"{key}.file")
+        )
+
+    def image(self, file: Path, key: str) -> np.ndarray:
+        try:
+            with Image.open(file) as img:
+                rgb = np.asarray(img.convert("RGB"), dtype=np.float32)
+        except (OSError, ValueError) as exc:
+            raise self.error(key, f"cannot read image {file.name}: {exc}") from None
+        # Texels are used as stored (linear), like the output PNG (docs/rendering.md).
+        return np.ascontiguousarray(rgb / np.float32(255.0))
+
+    def kind(self, spec: dict, key: str, known: dict[str, tuple[str, ...]]) -> str:
+        if "type" not in spec:
+            raise self.error(f"{key}.type", f"missing required key (one of: {', '.join(known)})")
+        kind = spec["type"]
+        if not isinstance(kind, str) or kind not in known:
+            raise self.error(
+                f"{key}.type", f"unknown type {_show(kind)} (expected one of: {', '.join(known)})"
+            )
+        return kind
+
+    def light(self, spec: dict, key: str) -> Light:
+        kind = self.kind(spec, key, _LIGHT_KEYS)
+        self.keys(spec, key, _LIGHT_KEYS[kind], _LIGHT_KEYS[kind][:2])
+        color = self.color(spec.get("color", (1.0, 1.0, 1.0)), f"{key}.color")
+        if kind == "directional":
+            return DirectionalLight(self.direction(spec["direction"], f"{key}.direction"), color)
+        akey = f"{key}.attenuation"
+        attenuation = self.color(spec.get("attenuation", (1.0, 0.0, 0.0)), akey)
+        if not any(attenuation):
+            raise self.error(akey, "must not be all zero")
+        return PointLight(self.vec3(spec["position"], f"{key}.position"), color, attenuation)
+
+    # -- objects -------------------------------------------------------------------------
+
+    def object(self, spec: dict, key: str, material_for: Callable[[dict, str], int]) -> SceneObject:
+        kind = self.kind(spec, key, _OBJECT_KEYS)
+        allowed = ("type", "material", *_OBJECT_KEYS[kind][0], *_OBJECT_KEYS[kind][1])
+        required = _OBJECT_KEYS[kind][0]
+        self.keys(spec, key, allowed, required)
+        material = material_for(spec, key)
+
+        def k(name: str) -> str:
+            return f"{key}.{name}"
+
+        if kind == "sphere":
+            radius = self.at_least(spec["radius"], k("radius"), 0, strict=True)
+            return Sphere(self.vec3(spec["center"], k("center")), radius, material)
+        if kind == "plane":
+            normal = self.direction(spec["normal"], k("normal"))
+            return Plane(self.vec3(spec["point"], k("point")), normal, material)
+        if kind == "box":
+            return self.box(spec, key, material)
+        if kind == "triangle":
+            return Triangle(self.points(spec["vertices"], k("vertices"), exactly=3), material)
+        if kind == "mesh":
+            return self.mesh(spec, key, material)
+        capped = self.boolean(spec.get("capped", True), k("capped"))
+        axis = self.direction(spec["axis"], k("axis"))
+        height = self.at_least(spec["height"], k("height"), 0, strict=True)
+        if kind == "cylinder":
+            return Cylinder(
+                base=self.vec3(spec["base"], k("base")),
+                axis=axis,
+                radius=self.at_least(spec["radius"], k("radius"), 0, strict=True),
+                height=height,
+                material=material,
+                capped=capped,
+            )
+        return Cone(
+            apex=self.vec3(spec["apex"], k("apex")),
+            axis=axis,
+            angle=self.open_range(spec["angle"], k("angle"), 0, 90),
+            height=height,
+            material=material,
+            capped=capped,
+        )
+
+    def box(self, spec: dict, key: str, material: int) -> Box:
+        lo = self.vec3(spec["min"], f"{key}.min")
+        hi = self.vec3(spec["max"], f"{key}.max")
+        if any(a > b for a, b in zip(lo, hi, strict=True)):
+            raise self.error(
+                f"{key}.max", f"must be >= min on every axis, got min {_show(lo)}, max {_show(hi)}"
+            )
+        # A box flat on one axis is a rectangle and still renders; one on all three is not.
+        if lo == hi:
+            raise self.error(f"{key}.max", f"must differ from min, got {_show(hi)} for both")
+        return Box(lo, hi, material)
+
+    def points(self, value: Any, key: str, exactly: int | None = None) -> tuple[Vec3, ...]:
+        if not isinstance(value, list) or (exactly is not None and len(value) != exactly):
+            what = f"{exactly} points" if exactly else "a list of points"
+            raise self.error(key, f"expected {what}, got {_show(value)}")
+        return tuple(self.vec3(p, f"{key}[{i}]") for i, p in enumerate(value))
+
+    def mesh(self, spec: dict, key: str, material: int) -> Mesh:
+        inline = "vertices" in spec or "faces" in spec
+        if "file" in spec and inline:
+            raise self.error(key, "give file or vertices + faces, not both")
+        if "file" in spec:
+            fkey = f"{key}.file"
+            obj = read_obj(self.file(spec["file"], fkey))
+            vertices, faces, normals, uvs = obj.vertices, obj.faces, obj.normals, obj.uvs
+        elif inline:
+            for name in ("vertices", "faces"):
+                if name not in spec:
+                    raise self.error(f"{key}.{name}", "missing required key")
+            vertices = np.array(self.points(spec["vertices"], f"{key}.vertices"), dtype=np.float64)
+            faces = self.faces(spec["faces"], f"{key}.faces", len(vertices))
+            normals = uvs = None
+        else:
+            raise self.error(key, "a mesh needs file or vertices + faces")
+        if len(faces) == 0:
+            raise self.error(key, "mesh has no faces")
+        matrix, offset = self.transform(spec.get("transform", {}), f"{key}.transform")
+        vertices = vertices.reshape(-1, 3) @ matrix.T + offset
+        if normals is not None:
+            # Normals follow the inverse transpose, so they stay perpendicular to the surface
+            # under non-uniform scale.
+            normals = normals @ np.linalg.inv(matrix)
+            normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+        if np.linalg.det(matrix) < 0:
+            # A mirroring transform turns the winding inside out; swapping two corners keeps
+            # (v1 - v0) x (v2 - v0) pointing outward, which refraction relies on.
+            faces = faces[:, [0, 2, 1]]
+        return Mesh(
+            vertices=np.ascontiguousarray(vertices),
+            faces=np.ascontiguousarray(faces, dtype=np.int64),
+            material=material,
+            normals=normals,
+            uvs=uvs,
+        )
+
+    def faces(self, value: Any, key: str, n_vertices: int) -> np.ndarray:
+        if not isinstance(value, list):
+            raise self.error(key, f"expected a list of faces, got {_show(value)}")
+        out = []
+        for i, face in enumerate(value):
+            fkey = f"{key}[{i}]"
+            if (
+                not isinstance(face, list)
+                or len(face) != 3
+                or not all(isinstance(v, int) and not isinstance(v, bool) for v in face)
+            ):
+                raise self.error(fkey, f"expected 3 vertex indices, got {_show(face)}")
+            for v in face:
+                if not 0 <= v < n_vertices:
+                    raise self.error(
+                        fkey, f"index {v} out of range (0-based, {n_vertices} vertices)"
+                    )
+            out.append(face)
+        return np.array(out, dtype=np.int64).reshape(-1, 3)
+
+    def transform(self, value: Any, key: str) -> tuple[np.ndarray, np.ndarray]:
+        """(3x3 matrix, translation): scale, then rotate about x, y, z in turn, then
+        translate."""
+        spec = self.table(value, key)
+        self.keys(spec, key, _TRANSFORM_KEYS, ())
+        translate = np.array(self.vec3(spec.get("translate", (0, 0, 0)), f"{key}.translate"))
+        rx, ry, rz = np.radians(self.vec3(spec.get("rotate", (0, 0, 0)), f"{key}.rotate"))
+        skey = f"{key}.scale"
+        scale_value = spec.get("scale", 1.0)
+        if isinstance(scale_value, list):
+            scale = np.array(self.vec3(scale_value, skey))
+        else:
+            scale = np.full(3, self.number(scale_value, skey))
+        if not scale.all():
+            raise self.error(skey, f"must be nonzero, got {_show(scale_value)}")
+        cx, sx, cy, sy, cz, sz = (
+            np.cos(rx),
+            np.sin(rx),
+            np.cos(ry),
+            np.sin(ry),
+            np.cos(rz),
+            np.sin(rz),
+        )
+        rot_x = np.array([[1, 0, 0], [0, cx, -sx], [0, sx, cx]])
+        rot_y = np.array([[cy, 0, sy], [0, 1, 0], [-sy, 0, cy]])
+        rot_z = np.array([[cz, -sz, 0], [sz, cz, 0], [0, 0, 1]])
+        return rot_z @ rot_y @ rot_x @ np.diag(scale), translate

@@ -1,0 +1,683 @@
+import json
+import math
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from clray.errors import SceneError
+from clray.scene.load import load_scene, scene_from_dict
+from clray.scene.model import (
+    Box,
+    Camera,
+    Cone,
+    Cylinder,
+    DirectionalLight,
+    Material,
+    Mesh,
+    Plane,
+    PointLight,
+    RenderOptions,
+    Sphere,
+    Texture,
+    Triangle,
+)
+
+DATA = Path(__file__).parent / "data"
+SCENE = Path("scene.toml")
+CAMERA = {"position": [0, 0, 5], "look_at": [0, 0, 0]}
+
+FULL_TOML = """\
+[render]
+width = 320
+height = 200
+spp = 4
+max_depth = 2
+background = [0.1, 0.2, 0.3]
+ambient = [0.5, 0.5, 0.5]
+seed = 7
+
+[camera]
+position = [0, 4.5, 11]
+look_at = [0, 0.5, 0]
+up = [0, 2, 0]
+hfov = 60
+
+[materials.glass]
+color = [1, 1, 1]
+transmit = 0.9
+ior = 1.5
+texture = { type = "checker", size = 0.5, color2 = [0, 0, 0] }
+
+[materials.matte]
+diffuse = 0.8
+
+[[lights]]
+type = "point"
+position = [-6, 10, 6]
+color = [0.7, 0.7, 0.7]
+attenuation = [1, 0, 0.01]
+
+[[lights]]
+type = "directional"
+direction = [0, -3, 0]
+
+[[objects]]
+type = "sphere"
+center = [0, 1, 0]
+radius = 1
+material = "glass"
+
+[[objects]]
+type = "plane"
+point = [0, 0, 0]
+normal = [0, 0, 2]
+material = { color = [1, 0, 0], reflect = 0.5 }
+
+[[objects]]
+type = "box"
+min = [-1, -1, -1]
+max = [1, 0, 1]
+material = "matte"
+
+[[objects]]
+type = "triangle"
+vertices = [[0, 0, 0], [1, 0, 0], [0, 1, 0]]
+
+[[objects]]
+type = "cylinder"
+base = [0, 0, 0]
+axis = [0, 5, 0]
+radius = 0.5
+height = 2
+capped = false
+
+[[objects]]
+type = "cone"
+apex = [0, 2, 0]
+axis = [0, -1, 0]
+angle = 30
+height = 2
+"""
+
+
+def scene(**sections):
+    """A scene dict with a valid camera, plus the given sections."""
+    return {"camera": dict(CAMERA), **sections}
+
+
+def load_error(data) -> str:
+    with pytest.raises(SceneError) as info:
+        scene_from_dict(data, SCENE)
+    return str(info.value)
+
+
+# -- valid scenes --------------------------------------------------------------------------
+
+
+def test_minimal_scene_gets_every_default():
+    s = scene_from_dict(scene())
+    assert s.path is None
+    assert s.render == RenderOptions()
+    assert s.camera == Camera((0.0, 0.0, 5.0), (0.0, 0.0, 0.0), (0.0, 1.0, 0.0), 40.0, None)
+    assert s.materials == () and s.lights == () and s.objects == ()
+    assert s.warnings == ()
+
+
+def test_full_toml_file(tmp_path):
+    path = tmp_path / "scene.toml"
+    path.write_text(FULL_TOML)
+    s = load_scene(path)
+    assert s.path == path
+    assert s.render == RenderOptions(320, 200, 4, 2, (0.1, 0.2, 0.3), (0.5, 0.5, 0.5), 7)
+    assert s.camera.vfov is None and s.camera.hfov == 60.0
+    assert s.camera.up == (0.0, 2.0, 0.0)
+    assert [m.name for m in s.materials] == [
+        "glass",
+        "matte",
+        "objects[1].material",
+        "(default)",
+    ]
+    glass, matte, inline, default = s.materials
+    assert glass == Material(
+        "glass", transmit=0.9, ior=1.5, texture=Texture("checker", size=0.5, color2=(0, 0, 0))
+    )
+    assert matte == Material("matte", diffuse=0.8)
+    assert inline == Material("objects[1].material", color=(1.0, 0.0, 0.0), reflect=0.5)
+    assert default == Material("(default)")
+    assert s.lights == (
+        PointLight((-6.0, 10.0, 6.0), (0.7, 0.7, 0.7), (1.0, 0.0, 0.01)),
+        DirectionalLight((0.0, -1.0, 0.0)),
+    )
+    assert s.objects == (
+        Sphere((0.0, 1.0, 0.0), 1.0, 0),
+        Plane((0.0, 0.0, 0.0), (0.0, 0.0, 1.0), 2),
+        Box((-1.0, -1.0, -1.0), (1.0, 0.0, 1.0), 1),
+        Triangle(((0.0, 0.0, 0.0), (1.0, 0.0, 0.0), (0.0, 1.0, 0.0)), 3),
+        Cylinder((0.0, 0.0, 0.0), (0.0, 1.0, 0.0), 0.5, 2.0, 3, capped=False),
+        Cone((0.0, 2.0, 0.0), (0.0, -1.0, 0.0), 30.0, 2.0, 3, capped=True),
+    )
+    # Every value in the model is a Python float, whatever the file wrote.
+    assert all(type(x) is float for x in s.objects[0].center)
+
+
+def test_json_with_the_same_keys_gives_the_same_scene(tmp_path):
+    import tomllib
+
+    toml_path = tmp_path / "scene.toml"
+    toml_path.write_text(FULL_TOML)
+    json_path = tmp_path / "scene.json"
+    json_path.write_text(json.dumps(tomllib.loads(FULL_TOML)))
+    a, b = load_scene(toml_path), load_scene(json_path)
+    assert (a.render, a.camera, a.materials, a.lights, a.objects) == (
+        b.render,
+        b.camera,
+        b.materials,
+        b.lights,
+        b.objects,
+    )
+
+
+def test_directions_are_normalised():
+    s = scene_from_dict(
+        scene(
+            lights=[{"type": "directional", "direction": [3, 0, -4]}],
+            objects=[
+                {"type": "plane", "point": [0, 0, 0], "normal": [0, 3, 4]},
+                {
+                    "type": "cylinder",
+                    "base": [0, 0, 0],
+                    "axis": [2, 0, 0],
+                    "radius": 1,
+                    "height": 1,
+                },
+                {"type": "cone", "apex": [0, 0, 0], "axis": [1, 1, 0], "angle": 45, "height": 1},
+            ],
+        )
+    )
+    assert s.lights[0].direction == pytest.approx((0.6, 0.0, -0.8))
+    assert s.objects[0].normal == pytest.approx((0.0, 0.6, 0.8))
+    assert s.objects[1].axis == (1.0, 0.0, 0.0)
+    assert s.objects[2].axis == pytest.approx((math.sqrt(0.5), math.sqrt(0.5), 0.0))
+
+
+def test_materials_shared_by_name_and_default_added_once():
+    s = scene_from_dict(
+        scene(
+            materials={"red": {"color": [1, 0, 0]}, "unused": {}},
+            objects=[
+                {"type": "sphere", "center": [0, 0, 0], "radius": 1, "material": "red"},
+                {"type": "sphere", "center": [3, 0, 0], "radius": 1},
+                {"type": "sphere", "center": [6, 0, 0], "radius": 1, "material": "red"},
+                {"type": "sphere", "center": [9, 0, 0], "radius": 1},
+            ],
+        )
+    )
+    assert [m.name for m in s.materials] == ["red", "unused", "(default)"]
+    assert [o.material for o in s.objects] == [0, 2, 0, 2]
+
+
+def test_material_named_default_does_not_capture_objects_without_one():
+    s = scene_from_dict(
+        scene(
+            materials={"(default)": {"color": [0, 0, 1]}},
+            objects=[{"type": "sphere", "center": [0, 0, 0], "radius": 1}],
+        )
+    )
+    assert s.materials[s.objects[0].material].color == (1.0, 1.0, 1.0)
+
+
+def test_vfov_and_hfov():
+    assert scene_from_dict(scene(camera={**CAMERA, "vfov": 30})).camera.vfov == 30.0
+    cam = scene_from_dict(scene(camera={**CAMERA, "hfov": 90})).camera
+    assert (cam.vfov, cam.hfov) == (None, 90.0)
+
+
+def test_image_texture_loads_linear_texels_relative_to_the_scene(tmp_path):
+    (tmp_path / "tex").mkdir()
+    shutil.copy(DATA / "texels_3x2.png", tmp_path / "tex" / "t.png")
+    data = scene(
+        materials={"wood": {"texture": {"type": "image", "file": "tex/t.png", "repeat": [2, 3]}}}
+    )
+    tex = scene_from_dict(data, tmp_path / "scene.toml").materials[0].texture
+    assert tex.kind == "image" and tex.repeat == (2.0, 3.0) and tex.blend == 1.0
+    assert tex.file == tmp_path / "tex" / "t.png"
+    assert tex.image.dtype == np.float32 and tex.image.shape == (2, 3, 3)
+    assert tex.image.flags.c_contiguous
+    np.testing.assert_array_equal(tex.image[0, 0], [1, 0, 0])  # row 0 is the top row
+    np.testing.assert_array_equal(tex.image[0, 2], [0, 0, 1])
+    np.testing.assert_allclose(tex.image[1, 2], np.array([51, 102, 204]) / 255, rtol=1e-6)
+
+
+def test_checker_texture_defaults():
+    data = scene(materials={"m": {"texture": {"type": "checker", "blend": 0.25}}})
+    tex = scene_from_dict(data).materials[0].texture
+    assert tex == Texture("checker", size=1.0, color2=(0.0, 0.0, 0.0), blend=0.25)
+
+
+def test_empty_scene_renders_background_only():
+    s = scene_from_dict(scene(lights=[], objects=[], materials={}))
+    assert s.objects == () and s.lights == ()
+
+
+# -- meshes --------------------------------------------------------------------------------
+
+
+def mesh_scene(**mesh):
+    return scene(objects=[{"type": "mesh", **mesh}])
+
+
+def test_mesh_from_file_is_relative_to_the_scene(tmp_path):
+    shutil.copy(DATA / "cube.obj", tmp_path / "cube.obj")
+    s = scene_from_dict(mesh_scene(file="cube.obj"), tmp_path / "scene.json")
+    mesh = s.objects[0]
+    assert isinstance(mesh, Mesh)
+    assert mesh.faces.shape == (12, 3) and mesh.normals.shape == (24, 3)
+    assert mesh.uvs.shape == (24, 2)
+    assert s.materials[mesh.material].name == "(default)"
+
+
+def test_inline_mesh_without_transform():
+    s = scene_from_dict(
+        mesh_scene(
+            vertices=[[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0]], faces=[[0, 1, 2], [1, 3, 2]]
+        )
+    )
+    mesh = s.objects[0]
+    assert mesh.vertices.dtype == np.float64 and mesh.faces.dtype == np.int64
+    np.testing.assert_array_equal(mesh.vertices, [[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0]])
+    np.testing.assert_array_equal(mesh.faces, [[0, 1, 2], [1, 3, 2]])
+    assert mesh.normals is None and mesh.uvs is None
+
+
+TRI = {"vertices": [[1, 0, 0], [0, 1, 0], [0, 0, 1]], "faces": [[0, 1, 2]]}
+
+
+def test_transform_scale_then_rotate_then_translate():
+    # (1,0,0) scaled by 2 -> (2,0,0), 90 degrees about z -> (0,2,0), translated -> (1,4,3).
+    mesh = scene_from_dict(
+        mesh_scene(**TRI, transform={"scale": 2, "rotate": [0, 0, 90], "translate": [1, 2, 3]})
+    ).objects[0]
+    np.testing.assert_allclose(mesh.vertices[0], [1, 4, 3], atol=1e-12)
+    # (0,1,0) -> (0,2,0) -> (-2,0,0) -> (-1,2,3)
+    np.testing.assert_allclose(mesh.vertices[1], [-1, 2, 3], atol=1e-12)
+
+
+def test_rotation_order_is_x_then_y_then_z():
+    # (0,1,0): x by 90 -> (0,0,1), then y by 90 -> (1,0,0). The other order gives (0,0,1).
+    mesh = scene_from_dict(mesh_scene(**TRI, transform={"rotate": [90, 90, 0]})).objects[0]
+    np.testing.assert_allclose(mesh.vertices[1], [1, 0, 0], atol=1e-12)
+    # (0,0,1): x by 90 -> (0,-1,0), y leaves it, z by 90 -> (1,0,0).
+    mesh = scene_from_dict(mesh_scene(**TRI, transform={"rotate": [90, 0, 90]})).objects[0]
+    np.testing.assert_allclose(mesh.vertices[2], [1, 0, 0], atol=1e-12)
+
+
+def test_per_axis_scale():
+    mesh = scene_from_dict(mesh_scene(**TRI, transform={"scale": [2, 3, 4]})).objects[0]
+    np.testing.assert_allclose(mesh.vertices, [[2, 0, 0], [0, 3, 0], [0, 0, 4]])
+
+
+def test_normals_follow_the_inverse_transpose(tmp_path):
+    # A face in the plane x + y = 1 with normal (1,1,0)/sqrt2; stretching x by 2 moves the
+    # plane to x/2 + y = 1, whose unit normal is (1/2, 1, 0)/|...| = (1, 2, 0)/sqrt5.
+    (tmp_path / "m.obj").write_text("v 1 0 0\nv 0 1 0\nv 1 0 1\nvn 1 1 0\nf 1//1 2//1 3//1\n")
+    mesh = scene_from_dict(
+        mesh_scene(file="m.obj", transform={"scale": [2, 1, 1], "rotate": [0, 0, 0]}),
+        tmp_path / "scene.toml",
+    ).objects[0]
+    np.testing.assert_allclose(mesh.normals, np.tile([1, 2, 0], (3, 1)) / math.sqrt(5))
+    tri = mesh.vertices[mesh.faces[0]]
+    edge_1, edge_2 = tri[1] - tri[0], tri[2] - tri[0]
+    np.testing.assert_allclose(mesh.normals[0] @ edge_1, 0, atol=1e-12)
+    np.testing.assert_allclose(mesh.normals[0] @ edge_2, 0, atol=1e-12)
+
+
+def test_normals_are_renormalised_even_without_transform(tmp_path):
+    (tmp_path / "m.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nvn 0 0 5\nf 1//1 2//1 3//1\n")
+    mesh = scene_from_dict(mesh_scene(file="m.obj"), tmp_path / "scene.toml").objects[0]
+    np.testing.assert_allclose(mesh.normals, np.tile([0, 0, 1], (3, 1)))
+
+
+def test_mirroring_transform_keeps_faces_outward():
+    mesh = scene_from_dict(mesh_scene(**TRI, transform={"scale": [-1, 1, 1]})).objects[0]
+    tri = mesh.vertices[mesh.faces[0]]
+    normal = np.cross(tri[1] - tri[0], tri[2] - tri[0])
+    # The unmirrored face's normal is (1,1,1); mirrored in x it must be (-1,1,1).
+    np.testing.assert_allclose(normal, [-1, 1, 1])
+
+
+def test_degenerate_faces_are_kept():
+    mesh = scene_from_dict(
+        mesh_scene(vertices=[[0, 0, 0], [1, 0, 0], [2, 0, 0]], faces=[[0, 1, 2], [0, 0, 0]])
+    ).objects[0]
+    assert len(mesh.faces) == 2
+
+
+# -- files -----------------------------------------------------------------------------------
+
+
+def test_malformed_toml_names_line_and_column(tmp_path):
+    path = tmp_path / "bad.toml"
+    path.write_text("[render]\nwidth = 10\nheight = = 3\n")
+    with pytest.raises(SceneError) as info:
+        load_scene(path)
+    message = str(info.value)
+    assert message.startswith("bad.toml: invalid TOML: ")
+    assert "line 3" in message and "column" in message
+
+
+def test_malformed_json_names_line_and_column(tmp_path):
+    path = tmp_path / "bad.json"
+    path.write_text('{\n  "camera": {"position": [0, 0, 1],}\n}\n')
+    with pytest.raises(SceneError) as info:
+        load_scene(path)
+    assert str(info.value).startswith("bad.json: invalid JSON: ")
+    assert "(at line 2, column" in str(info.value)
+
+
+def test_unknown_suffix(tmp_path):
+    path = tmp_path / "scene.yaml"
+    path.write_text("camera: {}")
+    with pytest.raises(SceneError, match=r"^scene\.yaml: unknown scene file type '\.yaml'"):
+        load_scene(path)
+
+
+def test_missing_scene_file(tmp_path):
+    with pytest.raises(SceneError, match=r"^nope\.toml: cannot read scene file"):
+        load_scene(tmp_path / "nope.toml")
+
+
+def test_json_top_level_must_be_a_table(tmp_path):
+    path = tmp_path / "list.json"
+    path.write_text("[1, 2]")
+    with pytest.raises(SceneError, match=r"^list\.json: expected a table at the top level"):
+        load_scene(path)
+
+
+def test_obj_errors_name_the_obj_file_and_line(tmp_path):
+    (tmp_path / "m.obj").write_text("v 0 0 0\nf 1 2 3\n")
+    with pytest.raises(SceneError, match=r"^m\.obj: line 2: f: vertex index 2 out of range"):
+        scene_from_dict(mesh_scene(file="m.obj"), tmp_path / "scene.toml")
+
+
+def test_unreadable_image(tmp_path):
+    (tmp_path / "t.png").write_text("not a png")
+    data = scene(materials={"m": {"texture": {"type": "image", "file": "t.png"}}})
+    with pytest.raises(SceneError) as info:
+        scene_from_dict(data, tmp_path / "scene.toml")
+    assert str(info.value).startswith(
+        "scene.toml: materials.m.texture.file: cannot read image t.png"
+    )
+
+
+def test_without_a_path_errors_have_no_file_prefix():
+    with pytest.raises(SceneError) as info:
+        scene_from_dict(scene(render={"width": 0}))
+    assert str(info.value) == "render.width: must be an integer in [1, 16384], got 0"
+
+
+# -- errors ----------------------------------------------------------------------------------
+
+SPHERE = {"type": "sphere", "center": [0, 0, 0], "radius": 1}
+
+
+def obj(**fields):
+    return scene(objects=[dict(SPHERE), dict(SPHERE), {**fields}])
+
+
+ERRORS = [
+    # top level and render
+    ({"camera": CAMERA, "rendr": {}}, "rendr: unknown key (expected one of: render, camera, "),
+    ({}, "camera: missing required key"),
+    (scene(render={"widht": 3}), "render.widht: unknown key (expected one of: width, height,"),
+    (scene(render=[1]), "render: expected a table, got [1]"),
+    (scene(render={"width": 0}), "render.width: must be an integer in [1, 16384], got 0"),
+    (scene(render={"height": 16385}), "render.height: must be an integer in [1, 16384], got 16385"),
+    (scene(render={"width": 64.0}), "render.width: expected an integer, got 64.0"),
+    (scene(render={"spp": True}), "render.spp: expected an integer, got true"),
+    (scene(render={"spp": 5000}), "render.spp: must be an integer in [1, 4096]"),
+    (scene(render={"max_depth": -1}), "render.max_depth: must be an integer in [0, 16], got -1"),
+    (scene(render={"max_depth": 17}), "render.max_depth: must be an integer in [0, 16], got 17"),
+    (scene(render={"seed": 2**32}), "render.seed: must be an integer in [0, 4294967295]"),
+    (scene(render={"background": [0, 0]}), "render.background: expected 3 numbers, got [0, 0]"),
+    (scene(render={"ambient": [1, -1, 0]}), "render.ambient: must be >= 0, got [1, -1, 0]"),
+    (
+        scene(render={"ambient": [1, math.inf, 0]}),
+        "render.ambient: must be finite, got [1, inf, 0]",
+    ),
+    # camera
+    (
+        scene(camera={"position": "abc", "look_at": [0, 0, 0]}),
+        'camera.position: expected 3 numbers, got "abc"',
+    ),
+    (
+        scene(camera={"position": [0, True, 0], "look_at": [0, 0, 1]}),
+        "camera.position: expected 3 numbers, got [0, true, 0]",
+    ),
+    (
+        scene(camera={"position": [0, math.nan, 0], "look_at": [0, 0, 1]}),
+        "camera.position: must be finite, got [0, nan, 0]",
+    ),
+    (scene(camera={"look_at": [0, 0, 0]}), "camera.position: missing required key"),
+    (
+        scene(camera={"position": [1, 2, 3], "look_at": [1, 2, 3]}),
+        "camera.look_at: must differ from camera.position",
+    ),
+    (
+        scene(camera={**CAMERA, "up": [0, 0, 0]}),
+        "camera.up: must be a nonzero vector, got [0, 0, 0]",
+    ),
+    (
+        scene(camera={**CAMERA, "up": [0, 0, -2]}),
+        "camera.up: must not be parallel to the view direction",
+    ),
+    (scene(camera={**CAMERA, "vfov": 40, "hfov": 50}), "camera: give vfov or hfov, not both"),
+    (scene(camera={**CAMERA, "vfov": 180}), "camera.vfov: must be in (0, 180), got 180"),
+    (scene(camera={**CAMERA, "hfov": 0}), "camera.hfov: must be in (0, 180), got 0"),
+    (scene(camera={**CAMERA, "fov": 40}), "camera.fov: unknown key (expected one of: position,"),
+    # materials and textures
+    (scene(materials={"glass": {"ior": 0}}), "materials.glass.ior: must be > 0, got 0"),
+    (
+        scene(materials={"glass": {"ior": "1.5"}}),
+        'materials.glass.ior: expected a number, got "1.5"',
+    ),
+    (scene(materials={"m": {"diffuse": -0.5}}), "materials.m.diffuse: must be >= 0, got -0.5"),
+    (
+        scene(materials={"m": {"transmit": math.nan}}),
+        "materials.m.transmit: must be finite, got nan",
+    ),
+    (
+        scene(materials={"m": {"colour": [1, 1, 1]}}),
+        "materials.m.colour: unknown key (expected one of: color, ambient,",
+    ),
+    (scene(materials={"m": 3}), "materials.m: expected a table, got 3"),
+    (
+        scene(materials={"m": {"texture": {"size": 1}}}),
+        "materials.m.texture.type: missing required key (one of: checker, image)",
+    ),
+    (
+        scene(materials={"m": {"texture": {"type": "noise"}}}),
+        'materials.m.texture.type: unknown type "noise" (expected one of: checker, image)',
+    ),
+    (
+        scene(materials={"m": {"texture": {"type": "checker", "size": 0}}}),
+        "materials.m.texture.size: must be > 0, got 0",
+    ),
+    (
+        scene(materials={"m": {"texture": {"type": "checker", "blend": 1.5}}}),
+        "materials.m.texture.blend: must be in [0, 1], got 1.5",
+    ),
+    (
+        scene(materials={"m": {"texture": {"type": "checker", "file": "a.png"}}}),
+        "materials.m.texture.file: unknown key (expected one of: type, size, color2, blend)",
+    ),
+    (
+        scene(materials={"m": {"texture": {"type": "image"}}}),
+        "materials.m.texture.file: missing required key",
+    ),
+    (
+        scene(materials={"m": {"texture": {"type": "image", "file": "nope.png"}}}),
+        "materials.m.texture.file: file not found: nope.png",
+    ),
+    (
+        scene(materials={"m": {"texture": {"type": "image", "file": "x.png", "repeat": [1, 0]}}}),
+        "materials.m.texture.repeat: must be > 0, got [1, 0]",
+    ),
+    (
+        scene(materials={"m": {"texture": {"type": "image", "file": "x.png", "repeat": 2}}}),
+        "materials.m.texture.repeat: expected 2 numbers, got 2",
+    ),
+    # lights
+    (scene(lights={"type": "point"}), "lights: expected an array of tables, got a table"),
+    (
+        scene(lights=[{"type": "spot"}]),
+        'lights[0].type: unknown type "spot" (expected one of: point, directional)',
+    ),
+    (scene(lights=[{"position": [0, 0, 0]}]), "lights[0].type: missing required key"),
+    (scene(lights=[{"type": "point"}]), "lights[0].position: missing required key"),
+    (
+        scene(lights=[{"type": "point", "position": [0, 0, 0], "attenuation": [0, 0, 0]}]),
+        "lights[0].attenuation: must not be all zero",
+    ),
+    (
+        scene(lights=[{"type": "point", "position": [0, 0, 0], "attenuation": [1, -1, 0]}]),
+        "lights[0].attenuation: must be >= 0, got [1, -1, 0]",
+    ),
+    (
+        scene(lights=[{"type": "point", "position": [0, 0, 0], "direction": [0, 0, 1]}]),
+        "lights[0].direction: unknown key (expected one of: type, position, color, attenuation)",
+    ),
+    (
+        scene(lights=[{"type": "directional", "direction": [0, 0, 0]}]),
+        "lights[0].direction: must be a nonzero vector, got [0, 0, 0]",
+    ),
+    (
+        scene(lights=[{"type": "directional", "direction": [0, -1, 0], "color": [-1, 0, 0]}]),
+        "lights[0].color: must be >= 0, got [-1, 0, 0]",
+    ),
+    # objects
+    (obj(type="sphere", center=[0, 0, 0], radius=-1), "objects[2].radius: must be > 0, got -1"),
+    (obj(type="sphere", center=[0, 0, 0], radius=0), "objects[2].radius: must be > 0, got 0"),
+    (obj(type="sphere", center=[0, 0, 0]), "objects[2].radius: missing required key"),
+    (
+        obj(type="sphere", center=[0, 0, 0], radius=1, radius2=2),
+        "objects[2].radius2: unknown key (expected one of: type, material, center, radius)",
+    ),
+    (obj(type="torus"), 'objects[2].type: unknown type "torus" (expected one of: sphere, plane,'),
+    (obj(type=3), "objects[2].type: unknown type 3"),
+    (scene(objects=[3]), "objects[0]: expected a table, got 3"),
+    (
+        obj(type="plane", point=[0, 0, 0], normal=[0, 0, 0]),
+        "objects[2].normal: must be a nonzero vector, got [0, 0, 0]",
+    ),
+    (
+        obj(type="box", min=[0, 0, 0], max=[1, -1, 1]),
+        "objects[2].max: must be >= min on every axis",
+    ),
+    (obj(type="box", min=[1, 1, 1], max=[1, 1, 1]), "objects[2].max: must differ from min"),
+    (
+        obj(type="triangle", vertices=[[0, 0, 0], [1, 0, 0]]),
+        "objects[2].vertices: expected 3 points, got [[0, 0, 0], [1, 0, 0]]",
+    ),
+    (
+        obj(type="triangle", vertices=[[0, 0, 0], [1, 0, 0], [0, "1", 0]]),
+        'objects[2].vertices[2]: expected 3 numbers, got [0, "1", 0]',
+    ),
+    (
+        obj(type="cylinder", base=[0, 0, 0], axis=[0, 0, 0], radius=1, height=1),
+        "objects[2].axis: must be a nonzero vector",
+    ),
+    (
+        obj(type="cylinder", base=[0, 0, 0], axis=[0, 1, 0], radius=1, height=-2),
+        "objects[2].height: must be > 0, got -2",
+    ),
+    (
+        obj(type="cylinder", base=[0, 0, 0], axis=[0, 1, 0], radius=1, height=1, capped=1),
+        "objects[2].capped: expected true or false, got 1",
+    ),
+    (
+        obj(type="cone", apex=[0, 0, 0], axis=[0, 1, 0], angle=90, height=1),
+        "objects[2].angle: must be in (0, 90), got 90",
+    ),
+    (
+        obj(type="cone", apex=[0, 0, 0], axis=[0, 1, 0], angle=30),
+        "objects[2].height: missing required key",
+    ),
+    # object materials
+    (
+        obj(**SPHERE, material="glas"),
+        'objects[2].material: unknown material "glas" (defined: none)',
+    ),
+    (obj(**SPHERE, material=1), "objects[2].material: expected a material name or an inline table"),
+    (obj(**SPHERE, material={"ior": -1}), "objects[2].material.ior: must be > 0, got -1"),
+    (obj(**SPHERE, material={"shine": 3}), "objects[2].material.shine: unknown key"),
+    # meshes
+    (obj(type="mesh"), "objects[2]: a mesh needs file or vertices + faces"),
+    (
+        obj(type="mesh", file="a.obj", vertices=[]),
+        "objects[2]: give file or vertices + faces, not both",
+    ),
+    (obj(type="mesh", file="missing.obj"), "objects[2].file: file not found: missing.obj"),
+    (obj(type="mesh", file=3), "objects[2].file: expected a string, got 3"),
+    (obj(type="mesh", vertices=[[0, 0, 0]]), "objects[2].faces: missing required key"),
+    (
+        obj(type="mesh", vertices=[[0, 0, 0], [1, 0, 0], [0, 1, 0]], faces=[]),
+        "objects[2]: mesh has no faces",
+    ),
+    (
+        obj(type="mesh", vertices=[[0, 0, 0], [1, 0, 0], [0, 1, 0]], faces=[[0, 1, 3]]),
+        "objects[2].faces[0]: index 3 out of range (0-based, 3 vertices)",
+    ),
+    (
+        obj(type="mesh", vertices=[[0, 0, 0], [1, 0, 0], [0, 1, 0]], faces=[[0, 1, -1]]),
+        "objects[2].faces[0]: index -1 out of range",
+    ),
+    (
+        obj(type="mesh", vertices=[[0, 0, 0], [1, 0, 0], [0, 1, 0]], faces=[[0, 1, 2, 0]]),
+        "objects[2].faces[0]: expected 3 vertex indices, got [0, 1, 2, 0]",
+    ),
+    (
+        obj(type="mesh", vertices=[[0, 0, 0], [1, 0, 0], [0, 1, 0]], faces=[[0, 1, 2.0]]),
+        "objects[2].faces[0]: expected 3 vertex indices, got [0, 1, 2.0]",
+    ),
+    (
+        obj(type="mesh", vertices=[[0, 0]], faces=[[0, 0, 0]]),
+        "objects[2].vertices[0]: expected 3 numbers, got [0, 0]",
+    ),
+    (
+        obj(type="mesh", **TRI, transform={"scale": 0}),
+        "objects[2].transform.scale: must be nonzero, got 0",
+    ),
+    (
+        obj(type="mesh", **TRI, transform={"scale": [1, 0, 1]}),
+        "objects[2].transform.scale: must be nonzero, got [1, 0, 1]",
+    ),
+    (
+        obj(type="mesh", **TRI, transform={"rotate": [0, 0]}),
+        "objects[2].transform.rotate: expected 3 numbers, got [0, 0]",
+    ),
+    (
+        obj(type="mesh", **TRI, transform={"shear": 1}),
+        "objects[2].transform.shear: unknown key (expected one of: translate, rotate, scale)",
+    ),
+    (
+        obj(type="mesh", **TRI, transform=[1, 2, 3]),
+        "objects[2].transform: expected a table, got [1, 2, 3]",
+    ),
+]
+
+
+@pytest.mark.parametrize(("data", "expected"), ERRORS, ids=[e[1].split(":")[0] for e in ERRORS])
+def test_error_names_file_key_and_problem(data, expected):
+    message = load_error(data)
+    assert message.startswith(f"scene.toml: {expected}"), message
+    assert "\n" not in message
+
+
+def test_scene_error_carries_key_and_exit_code():
+    with pytest.raises(SceneError) as info:
+        scene_from_dict(obj(type="sphere", center=[0, 0, 0], radius=-1), SCENE)
+    assert info.value.key == "objects[2].radius"
+    assert info.value.file == SCENE
+    assert info.value.exit_code == 3

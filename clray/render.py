@@ -128,3 +128,32 @@ def render(scene: Scene, settings: RenderSettings | None = None) -> RenderResult
         "total_s": time.perf_counter() - start,
     }
     return RenderResult(image, stats)
+
+
+def intersect_rays(packed: PackedScene, device: cl.Device, origins: np.ndarray,
+                   directions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Closest hits of rays given in the packed (camera-relative) frame: (t, normal, ref),
+    t = inf and ref = -1 on a miss. For tests and tools; runs the render kernel's code."""
+    program, _ = build_program(device, packed.config)
+    queue = queue_for(device)
+    ctx = queue.context
+    n = len(origins)
+    o4 = np.zeros((n, 4), dtype=np.float32)
+    d4 = np.zeros((n, 4), dtype=np.float32)
+    o4[:, :3] = origins
+    d4[:, :3] = directions
+    args = [_buffer(ctx, o4), _buffer(ctx, d4), _buffer(ctx, packed.planes),
+            np.int32(len(packed.planes))]
+    args += [_buffer(ctx, getattr(packed, name)) for name in (
+        "spheres", "boxes", "cylinders", "cones", "triangles", "vertices", "nodes")]
+    args.append(np.int32(len(packed.nodes)))
+    args += [_buffer(ctx, packed.prim_refs), _buffer(ctx, packed.materials)]
+    hits_buf = cl.Buffer(ctx, cl.mem_flags.WRITE_ONLY, n * 16)
+    refs_buf = cl.Buffer(ctx, cl.mem_flags.WRITE_ONLY, n * 4)
+    program.intersect_rays(queue, (n,), None, *args, hits_buf, refs_buf)
+    hits = np.empty((n, 4), dtype=np.float32)
+    refs = np.empty(n, dtype=np.int32)
+    cl.enqueue_copy(queue, hits, hits_buf)
+    cl.enqueue_copy(queue, refs, refs_buf)
+    queue.finish()
+    return hits[:, 3], hits[:, :3], refs

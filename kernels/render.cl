@@ -157,3 +157,45 @@ __kernel void render(__global const Camera* camera, __global const Params* param
     image[pixel] = (float4)((float)mean.x, (float)mean.y, (float)mean.z, 0.0f);
     ray_counts[pixel] = (int4)(spp, secondary_rays, shadow_rays, 0);
 }
+
+// Closest hit for given rays, for tests and tools: t (inf on a miss), the primitive reference
+// and the surface's outward geometric normal. Uses the same scene buffers as render.
+__kernel void intersect_rays(__global const float4* origins, __global const float4* directions,
+                             __global const Plane* planes, int n_planes,
+                             __global const Sphere* spheres, __global const Box* boxes,
+                             __global const Cylinder* cylinders, __global const Cone* cones,
+                             __global const Triangle* triangles, __global const float4* vertices,
+                             __global const BvhNode* nodes, int n_nodes,
+                             __global const int* prim_refs, __global const Material* materials,
+                             __global float4* hits, __global int* refs) {
+    int i = get_global_id(0);
+    SceneRefs s;
+    s.planes = planes;
+    s.spheres = spheres;
+    s.boxes = boxes;
+    s.cylinders = cylinders;
+    s.cones = cones;
+    s.triangles = triangles;
+    s.vertices = vertices;
+    s.normals = vertices;
+    s.uvs = 0;
+    s.nodes = nodes;
+    s.prim_refs = prim_refs;
+    s.materials = materials;
+    s.textures = 0;
+    s.texels = 0;
+    s.lights = 0;
+    s.n_planes = n_planes;
+    s.n_nodes = n_nodes;
+    s.n_lights = 0;
+    Ray ray = make_ray(TO_REAL3(origins[i]), TO_REAL3(directions[i]));
+    Hit hit = closest_hit(&s, &ray);
+    if (hit.t < REAL_INF) {
+        Surface sf = surface_at(&s, &ray, &hit);
+        hits[i] = (float4)((float)sf.n_g.x, (float)sf.n_g.y, (float)sf.n_g.z, (float)hit.t);
+        refs[i] = hit.ref;
+    } else {
+        hits[i] = (float4)(0.0f, 0.0f, 0.0f, INFINITY);
+        refs[i] = -1;
+    }
+}

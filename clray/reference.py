@@ -389,7 +389,9 @@ class _Geometry:
             ((i, ob) for i, ob in indexed if type(ob) in _CROSSINGS),
             key=lambda item: TIE_ORDER.index(type(item[1])),
         )
-        verts, normals, uvs, obj, face, mat = [], [], [], [], [], []
+        # Each list starts with an empty block so that a scene without triangles concatenates.
+        verts, normals, uvs = [np.zeros((0, 3, 3))], [np.zeros((0, 3, 3))], [np.zeros((0, 3, 2))]
+        obj, face, mat = ([np.zeros(0, dtype=np.int64)] for _ in range(3))
         for i, ob in indexed:
             if isinstance(ob, Triangle):
                 tri = np.asarray(ob.vertices, dtype=np.float64)[None]
@@ -411,15 +413,16 @@ class _Geometry:
             face.append(faces)
             mat.append(np.full(len(faces), ob.material, dtype=np.int64))
         # NaN vertex normals / uvs mark triangles without them.
-        self.tri_v = np.concatenate(verts) if verts else np.zeros((0, 3, 3))
-        self.tri_n = np.concatenate(normals) if verts else np.zeros((0, 3, 3))
-        self.tri_uv = np.concatenate(uvs) if verts else np.zeros((0, 3, 2))
-        self.tri_obj = np.concatenate(obj) if verts else np.zeros(0, dtype=np.int64)
-        self.tri_face = np.concatenate(face) if verts else np.zeros(0, dtype=np.int64)
-        self.tri_mat = np.concatenate(mat) if verts else np.zeros(0, dtype=np.int64)
+        self.tri_v = np.concatenate(verts)
+        self.tri_n = np.concatenate(normals)
+        self.tri_uv = np.concatenate(uvs)
+        self.tri_obj = np.concatenate(obj)
+        self.tri_face = np.concatenate(face)
+        self.tri_mat = np.concatenate(mat)
 
-    def _triangle_batches(self, n_rays: int) -> range:
-        return range(0, len(self.tri_v), max(1, _TRIANGLE_BATCH // max(n_rays, 1)))
+    def _triangle_batches(self, n_rays: int) -> list[slice]:
+        size = max(1, _TRIANGLE_BATCH // max(n_rays, 1))
+        return [slice(start, start + size) for start in range(0, len(self.tri_v), size)]
 
     def closest(self, o: np.ndarray, d: np.ndarray) -> SceneHit:
         n = len(o)
@@ -435,16 +438,15 @@ class _Geometry:
                 best_part[better] = part[better]
         best_tri = np.full(n, -1, dtype=np.int64)
         best_b = np.zeros((n, 2))
-        step = self._triangle_batches(n).step
         rows = np.arange(n)
-        for start in self._triangle_batches(n):
-            t, b1, b2 = _triangle_hits(self.tri_v[start : start + step], o, d)
+        for batch in self._triangle_batches(n):
+            t, b1, b2 = _triangle_hits(self.tri_v[batch], o, d)
             j = np.argmin(t, axis=1)  # the first of equal t: file order
             tj = t[rows, j]
             better = tj < best_t
             best_t[better] = tj[better]
             best_shape[better] = -1
-            best_tri[better] = start + j[better]
+            best_tri[better] = batch.start + j[better]
             best_b[better] = np.stack([b1[rows, j], b2[rows, j]], axis=-1)[better]
 
         p = o + np.where(np.isfinite(best_t), best_t, 0.0)[:, None] * d
@@ -468,7 +470,9 @@ class _Geometry:
             v = self.tri_v[tri]
             normal[m] = _normalize(np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0]))
             smooth = np.sum(bary * self.tri_n[tri], axis=1)
-            shading[m] = np.where(np.isnan(smooth), normal[m], _normalize(smooth))
+            # Without vertex normals (NaN) or where they cancel out, shade with n_g.
+            usable = (np.linalg.norm(smooth, axis=-1) > 0.0)[:, None]
+            shading[m] = np.where(usable, _normalize(smooth), normal[m])
             blended_uv = np.sum(bary * self.tri_uv[tri], axis=1)
             uv[m] = np.where(np.isnan(blended_uv), np.stack([b1, b2], axis=-1), blended_uv)
             obj[m], face[m], material[m] = self.tri_obj[tri], self.tri_face[tri], self.tri_mat[tri]
@@ -484,11 +488,10 @@ class _Geometry:
             for t, _ in _CROSSINGS[type(ob)](ob, o, d):
                 crossed = (t > 0.0) & (t < tmax)
                 out[crossed] *= filters[ob.material]
-        step = self._triangle_batches(n).step
-        for start in self._triangle_batches(n):
-            t, _, _ = _triangle_hits(self.tri_v[start : start + step], o, d)
+        for batch in self._triangle_batches(n):
+            t, _, _ = _triangle_hits(self.tri_v[batch], o, d)
             crossed = t < tmax[:, None]  # misses are inf, and t > 0 already holds
-            tri_filters = filters[self.tri_mat[start : start + step]]
+            tri_filters = filters[self.tri_mat[batch]]
             out *= np.prod(np.where(crossed[:, :, None], tri_filters[None], 1.0), axis=1)
         return out
 
@@ -532,7 +535,9 @@ class _MaterialTable:
         self.filter = self.transmit[:, None] * self.color  # shadow filter per crossing
 
 
-def sample_image(image: np.ndarray, u: np.ndarray, v: np.ndarray, repeat: tuple[float, float]):
+def sample_image(
+    image: np.ndarray, u: np.ndarray, v: np.ndarray, repeat: tuple[float, float]
+) -> np.ndarray:
     """Bilinear, wrapping lookup of an (H, W, 3) image (row 0 at the top) at (u, v)."""
     texels = np.asarray(image, dtype=np.float64)
     height, width = texels.shape[:2]

@@ -31,8 +31,8 @@ typedef struct {
 } Sphere;
 
 typedef struct {
-    float4 point;   // w unused
-    float4 normal;  // unit, w unused
+    float4 point;   // w: u of `point` in the plane's texture frame (the host moves the point)
+    float4 normal;  // unit; w: v of `point`
     int material;
     int pad0, pad1, pad2;
 } Plane;
@@ -99,6 +99,7 @@ typedef struct {
     float4 forward;   // unit
     float4 right;     // unit right times half the image-plane width at distance 1
     float4 up;        // unit up times half the image-plane height at distance 1
+    float4 world;     // the packed frame's origin in world space: solid textures need world p
 } Camera;
 
 typedef struct {

@@ -90,6 +90,36 @@ inline bool quadratic_roots(REAL a, REAL b, REAL c, REAL disc, REAL* t0, REAL* t
 }
 
 #if HAS_SPHERES
+// FP64_SPHERES (set by the packer only when clray.scene.scale flags a sphere that float32
+// cannot intersect, e.g. a radius-1e5 ground): spheres are intersected and re-projected in
+// double inside the float build. Only where the device has fp64; otherwise the float path
+// runs and the loader's warning stands.
+#if FP64_SPHERES && !defined(USE_DOUBLE) && defined(cl_khr_fp64)
+#define SPHERE_FP64 1
+#else
+#define SPHERE_FP64 0
+#endif
+
+#if SPHERE_FP64
+inline Crossings intersect_sphere(const __global Sphere* s, const Ray* r) {
+    Crossings c = no_crossings();
+    double3 center = convert_double3(s->center_radius.xyz);
+    double radius = (double)s->center_radius.w;
+    double3 d = convert_double3(r->d);
+    double3 f = convert_double3(r->o) - center;
+    double a = dot(d, d), b = dot(f, d);
+    double3 l = f - (b / a) * d;
+    double ll = length(l), fl = length(f);
+    double disc = a * (radius - ll) * (radius + ll);
+    if (!(disc >= 0.0)) return c;
+    double q = -(b + copysign(sqrt(disc), b));
+    if (q == 0.0) return c;
+    double r0 = ((fl - radius) * (fl + radius)) / q, r1 = q / a;
+    c.t[0] = (float)fmin(r0, r1);
+    c.t[1] = (float)fmax(r0, r1);
+    return c;
+}
+#else
 inline Crossings intersect_sphere(const __global Sphere* s, const Ray* r) {
     Crossings c = no_crossings();
     REAL3 center = TO_REAL3(s->center_radius);
@@ -116,6 +146,7 @@ inline Crossings intersect_sphere(const __global Sphere* s, const Ray* r) {
 #endif
     return c;
 }
+#endif  // SPHERE_FP64
 #endif
 
 #if HAS_PLANES
@@ -258,7 +289,30 @@ inline Crossings intersect_cone(const __global Cone* co, const Ray* r) {
 }
 #endif
 
-#if HAS_TRIANGLES
+#if HAS_TRIANGLES && TRIANGLE_MOLLER_TRUMBORE
+// Study variant: the textbook Moller-Trumbore test. Not watertight: rays aimed at an edge
+// shared by two triangles can miss both (numerics notes, section 2.4).
+inline Crossings intersect_triangle(REAL3 p0, REAL3 p1, REAL3 p2, const Ray* r) {
+    Crossings c = no_crossings();
+    REAL3 e1 = p1 - p0, e2 = p2 - p0;
+    REAL3 pv = cross(r->d, e2);
+    REAL det = dot(e1, pv);
+    if (det == (REAL)0) return c;
+    REAL inv_det = (REAL)1 / det;
+    REAL3 tv = r->o - p0;
+    REAL u = dot(tv, pv) * inv_det;
+    if (u < (REAL)0 || u > (REAL)1) return c;
+    REAL3 qv = cross(tv, e1);
+    REAL v = dot(r->d, qv) * inv_det;
+    if (v < (REAL)0 || u + v > (REAL)1) return c;
+    REAL t = dot(e2, qv) * inv_det;
+    if (!(t > (REAL)0) || !isfinite(t)) return c;
+    c.t[0] = t;
+    c.b1 = u;
+    c.b2 = v;
+    return c;
+}
+#elif HAS_TRIANGLES
 // Woop, Benthin, Wald, "Watertight Ray/Triangle Intersection", JCGT 2013, as in pbrt-v4: edge
 // functions in a ray-aligned sheared frame, so rays at shared edges hit one side or both.
 inline Crossings intersect_triangle(REAL3 p0, REAL3 p1, REAL3 p2, const Ray* r) {

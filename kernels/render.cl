@@ -3,7 +3,8 @@
 // Build switches (all from clray/device/program.py's KernelConfig): HAS_PLANES, HAS_SPHERES,
 // HAS_BOXES, HAS_CYLINDERS, HAS_CONES, HAS_TRIANGLES, HAS_VERTEX_NORMALS, HAS_VERTEX_UVS,
 // HAS_TEXTURES, HAS_REFRACTION (0 or 1), MAX_DEPTH, USE_DOUBLE, and the study variants
-// SPHERE_TEXTBOOK, OFFSET_FIXED_EPS, TRIANGLE_NO_FP64_FALLBACK.
+// SPHERE_TEXTBOOK, OFFSET_FIXED_EPS, TRIANGLE_NO_FP64_FALLBACK, TRIANGLE_MOLLER_TRUMBORE;
+// FP64_SPHERES (the packer's per-scene fp64 path for spheres float32 cannot intersect).
 #include "real.h"
 #include "clray_types.h"
 
@@ -116,7 +117,7 @@ __kernel void render(__global const Camera* camera, __global const Params* param
             bool entering = dot(ray.d, sf.n_g) < (REAL)0;
             REAL3 n_f = entering ? sf.n_g : -sf.n_g;
             REAL3 n = dot(sf.n_s, ray.d) < (REAL)0 ? sf.n_s : -sf.n_s;
-            REAL3 c = surface_color(&s, m, sf.p, n_f, sf.uv);
+            REAL3 c = surface_color(&s, m, sf.p + TO_REAL3(camera->world), n_f, sf.uv);
             sum += task.weight * shade_direct(&s, &sf, n, -ray.d, c, m, ambient, &shadow_rays);
 #if MAX_DEPTH > 0
             if (task.depth < MAX_DEPTH) {

@@ -40,7 +40,8 @@ inline Surface surface_at(const SceneRefs* s, const Ray* r, const Hit* hit) {
             sf.err = gamma * (max_abs3(p) + max_abs3(q));
             REAL3 e1, e2;
             frame(n, &e1, &e2);
-            sf.uv = (REAL2)(dot(p - q, e1), dot(p - q, e2));
+            sf.uv = (REAL2)(dot(p - q, e1) + TO_REAL(pl->point.w),
+                            dot(p - q, e2) + TO_REAL(pl->normal.w));
             sf.material = pl->material;
             break;
         }
@@ -50,10 +51,25 @@ inline Surface surface_at(const SceneRefs* s, const Ray* r, const Hit* hit) {
             const __global Sphere* sp = s->spheres + i;
             REAL3 c = TO_REAL3(sp->center_radius);
             REAL radius = TO_REAL(sp->center_radius.w);
+#if SPHERE_FP64
+            // Re-projecting in float would round p at the scale of the centre (ulp(1e5) is
+            // 0.008): do it in double, so the bound is the float rounding of p alone.
+            double3 cd = convert_double3(sp->center_radius.xyz);
+            double3 pd = convert_double3(r->o) + (double)hit->t * convert_double3(r->d);
+            double3 nd = pd - cd;
+            double nl = length(nd);
+            nd = nl > 0.0 ? nd / nl : nd;
+            pd = cd + (double)sp->center_radius.w * nd;
+            REAL3 n = convert_float3(nd);
+            p = convert_float3(pd);
+            sf.n_g = n;
+            sf.err = gamma * max_abs3(p);
+#else
             REAL3 n = safe_normalize(p - c);
             p = c + radius * n;
             sf.n_g = n;
             sf.err = gamma * (max_abs3(c) + radius);
+#endif
             sf.uv = (REAL2)(angle_u(n.x, n.z),
                             (REAL)0.5 + asin(clamp(n.y, (REAL)-1, (REAL)1)) / PI_R);
             sf.material = sp->material;

@@ -38,13 +38,14 @@ inline REAL3 checker_texel(const __global Texture* tx, REAL3 color, REAL3 p, REA
 }
 #endif
 
-inline REAL3 surface_color(const SceneRefs* s, const __global Material* m, REAL3 p, REAL3 n_f,
-                           REAL2 uv) {
+// p_world: the hit point in world space (the checker is a world-space solid texture).
+inline REAL3 surface_color(const SceneRefs* s, const __global Material* m, REAL3 p_world,
+                           REAL3 n_f, REAL2 uv) {
     REAL3 color = TO_REAL3(m->color);
 #if HAS_TEXTURES
     if (m->texture >= 0) {
         const __global Texture* tx = s->textures + m->texture;
-        REAL3 texel = tx->kind == TEXTURE_CHECKER ? checker_texel(tx, color, p, n_f)
+        REAL3 texel = tx->kind == TEXTURE_CHECKER ? checker_texel(tx, color, p_world, n_f)
                                                   : image_texel(s, tx, uv);
         REAL blend = TO_REAL(tx->blend);
         return blend * texel + ((REAL)1 - blend) * color;

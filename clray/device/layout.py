@@ -48,7 +48,8 @@ TEXTURE = _struct([("color2", _F4), ("size", "<f4"), ("repeat_u", "<f4"), ("repe
                    ("width", "<i4"), ("height", "<i4")])
 LIGHT = _struct([("position", _F4), ("color", _F4), ("attenuation", _F4), ("kind", "<i4"),
                  *_PAD])
-CAMERA = _struct([("position", _F4), ("forward", _F4), ("right", _F4), ("up", _F4)])
+CAMERA = _struct([("position", _F4), ("forward", _F4), ("right", _F4), ("up", _F4),
+                  ("world", _F4)])
 PARAMS = _struct([("background", _F4), ("ambient", _F4), ("width", "<i4"), ("height", "<i4"),
                   ("spp", "<i4"), ("max_depth", "<i4"), ("seed", "<u4"), ("n_planes", "<i4"),
                   ("n_lights", "<i4"), ("bvh_root_count", "<i4")])

@@ -59,6 +59,14 @@ def _disc_extent(axis: np.ndarray, radius: float) -> np.ndarray:
     return radius * np.sqrt(np.clip(1.0 - axis * axis, 0.0, 1.0))
 
 
+def texture_frame(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """frame(a) of docs/rendering.md, as kernels/real.h computes it."""
+    h = np.array([1.0, 0.0, 0.0]) if abs(a[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    e1 = np.cross(a, h)
+    e1 /= np.linalg.norm(e1)
+    return e1, np.cross(a, e1)
+
+
 def pack_scene(scene: M.Scene, *, width: int, height: int, spp: int, max_depth: int,
                seed: int, precision: str = "float", **variants: object) -> PackedScene:
     """`variants` are extra KernelConfig fields (study switches, build options)."""
@@ -92,9 +100,13 @@ def pack_scene(scene: M.Scene, *, width: int, height: int, spp: int, max_depth: 
     planes = _records(L.PLANE, len(kinds[M.Plane]))
     for i, o in enumerate(kinds[M.Plane]):
         n = np.asarray(o.normal, dtype=np.float64)
-        # The plane's point nearest the eye: the best-conditioned point to store.
-        planes[i]["point"] = _f4(n * np.dot(rel(o.point), n))
-        planes[i]["normal"] = _f4(n)
+        # The plane's point nearest the eye is the best-conditioned point to store; its
+        # texture coordinates keep (u, v) anchored at the point the scene gave.
+        nearest = n * np.dot(rel(o.point), n)
+        e1, e2 = texture_frame(n)
+        shift = nearest - rel(o.point)
+        planes[i]["point"] = _f4(nearest, np.dot(shift, e1))
+        planes[i]["normal"] = _f4(n, np.dot(shift, e2))
         planes[i]["material"] = o.material
 
     lo_list: list[np.ndarray] = []
@@ -246,6 +258,7 @@ def pack_scene(scene: M.Scene, *, width: int, height: int, spp: int, max_depth: 
     camera[0]["forward"] = _f4(forward)
     camera[0]["right"] = _f4(right * half_w)
     camera[0]["up"] = _f4(up * half_h)
+    camera[0]["world"] = _f4(eye)
 
     params = np.zeros(1, dtype=L.PARAMS)
     p = params[0]

@@ -48,6 +48,9 @@ class KernelConfig:
     sphere_textbook: bool = False
     offset_fixed_eps: bool = False
     triangle_no_fp64_fallback: bool = False
+    triangle_moller_trumbore: bool = False
+    # Set by the packer from clray.scene.scale, not a study variant: spheres in double.
+    fp64_spheres: bool = False
     build_options: tuple[str, ...] = ()
 
     def options(self) -> list[str]:

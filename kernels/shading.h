@@ -49,8 +49,6 @@ inline Surface surface_at(const SceneRefs* s, const Ray* r, const Hit* hit) {
 #if HAS_SPHERES
         case PRIM_SPHERE: {
             const __global Sphere* sp = s->spheres + i;
-            REAL3 c = TO_REAL3(sp->center_radius);
-            REAL radius = TO_REAL(sp->center_radius.w);
 #if SPHERE_FP64
             // Re-projecting in float would round p at the scale of the centre (ulp(1e5) is
             // 0.008): do it in double, so the bound is the float rounding of p alone.
@@ -65,6 +63,8 @@ inline Surface surface_at(const SceneRefs* s, const Ray* r, const Hit* hit) {
             sf.n_g = n;
             sf.err = gamma * max_abs3(p);
 #else
+            REAL3 c = TO_REAL3(sp->center_radius);
+            REAL radius = TO_REAL(sp->center_radius.w);
             REAL3 n = safe_normalize(p - c);
             p = c + radius * n;
             sf.n_g = n;

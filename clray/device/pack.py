@@ -15,6 +15,7 @@ from clray.accel.bvh import build_bvh
 from clray.device import layout as L
 from clray.device.program import KernelConfig
 from clray.scene import model as M
+from clray.scene.scale import needs_fp64_spheres
 
 
 @dataclass(frozen=True)
@@ -284,7 +285,7 @@ def pack_scene(scene: M.Scene, *, width: int, height: int, spp: int, max_depth: 
         has_refraction=any_transmit and max_depth > 0,
         max_depth=max_depth if (any_reflect or any_transmit) else 0,
         precision=precision,
-        **variants,
+        **{"fp64_spheres": len(spheres) > 0 and needs_fp64_spheres(scene), **variants},
     )
     return PackedScene(camera, params, planes, spheres, boxes, cylinders, cones, triangles,
                        vertices, normals, uvs, nodes, prim_refs, materials, textures, texels,

@@ -1,0 +1,108 @@
+"""Load-time scale analysis: which primitives float32 cannot intersect accurately.
+
+The kernels run in float32 on camera-relative coordinates (packed in float64 on the host), so
+what limits accuracy is how large the numbers inside one intersection are compared with the
+feature that has to be resolved. The thresholds come from the float32-vs-float64 experiments in
+the numerics notes: a sphere whose distance from the eye is about 1e4 times its radius (or a
+ground sphere of radius 1e5 under a camera 1 unit above it) is intersected with surface errors
+near float32's floor, far above what shading and shadow rays tolerate.
+
+Spheres so flagged are intersected in float64 inside the float build (KernelConfig.fp64_spheres,
+compiled in only when a scene needs it and the device has cl_khr_fp64). Other primitives have no
+such path: they only get a warning, never a silently wrong image.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from clray.scene import model as M
+
+# Distance (or coordinate magnitude) over the length to resolve above which float32 is not enough.
+RATIO_LIMIT = 1e4
+# Lengths whose squares fall outside float32's normal range, with a margin of 100: products of
+# coordinates then flush to zero (denormals) or overflow.
+TINY_LENGTH = 1e-18
+HUGE_LENGTH = 1e18
+
+_KIND = {M.Sphere: "sphere", M.Box: "box", M.Triangle: "triangle", M.Mesh: "mesh",
+         M.Cylinder: "cylinder", M.Cone: "cone"}
+
+
+@dataclass(frozen=True)
+class ScaleReport:
+    median_size: float  # of the bounded objects; 0.0 when there are none
+    fp64_spheres: tuple[int, ...]  # indices into Scene.objects
+    warnings: tuple[str, ...]
+
+
+def _centre_size(obj: M.SceneObject) -> tuple[np.ndarray, float]:
+    """A representative centre and the length the intersection has to resolve."""
+    if isinstance(obj, M.Sphere):
+        return np.asarray(obj.center, dtype=np.float64), float(obj.radius)
+    if isinstance(obj, M.Box):
+        lo, hi = np.asarray(obj.min, dtype=np.float64), np.asarray(obj.max, dtype=np.float64)
+        return (lo + hi) / 2.0, float(np.max(hi - lo))
+    if isinstance(obj, M.Cylinder):
+        base, axis = np.asarray(obj.base), np.asarray(obj.axis)
+        return base + axis * obj.height / 2.0, float(max(obj.radius, obj.height))
+    if isinstance(obj, M.Cone):
+        apex, axis = np.asarray(obj.apex), np.asarray(obj.axis)
+        rim = obj.height * float(np.tan(np.radians(obj.angle)))
+        return apex + axis * obj.height / 2.0, float(max(obj.height, rim))
+    points = np.asarray(obj.vertices, dtype=np.float64)  # Triangle or Mesh
+    lo, hi = points.min(axis=0), points.max(axis=0)
+    return (lo + hi) / 2.0, float(np.max(hi - lo))
+
+
+def analyze(scene: M.Scene) -> ScaleReport:
+    eye = np.asarray(scene.camera.position, dtype=np.float64)
+    bounded = [(i, obj) for i, obj in enumerate(scene.objects) if not isinstance(obj, M.Plane)]
+    measured = [(i, obj, *_centre_size(obj)) for i, obj in bounded]
+    sizes = [size for *_, size in measured if size > 0]
+    median = float(np.median(sizes)) if sizes else 0.0
+    fp64: list[int] = []
+    warnings: list[str] = []
+    for i, obj, centre, size in measured:
+        kind = _KIND[type(obj)]
+        where = f"objects[{i}] ({kind})"
+        dist = float(np.linalg.norm(centre - eye))
+        if size > HUGE_LENGTH or dist > HUGE_LENGTH or 0 < size < TINY_LENGTH:
+            warnings.append(f"{where}: size {size:.3g} at distance {dist:.3g} from the camera "
+                            "is outside the range whose squares float32 can hold; expect "
+                            "missing or wrong surfaces (rescale the scene)")
+            continue
+        if isinstance(obj, M.Sphere):
+            # Intersection works on |centre - eye| + r; it must resolve both the radius and,
+            # when the eye is close to the surface, the gap between them.
+            gap = abs(dist - size)
+            resolve = min(size, gap) if gap > 0 else size
+            ratio = (dist + size) / resolve
+            huge = median > 0 and size > RATIO_LIMIT * median
+            if ratio > RATIO_LIMIT or huge:
+                fp64.append(i)
+                why = (f"radius {size:.3g} is over {RATIO_LIMIT:.0e} times the median object "
+                       f"size {median:.3g}" if huge else
+                       f"its distance from the camera over the length to resolve is "
+                       f"{ratio:.3g} (> {RATIO_LIMIT:.0e})")
+                warnings.append(f"{where}: float32 cannot intersect it accurately ({why}); "
+                                "it is intersected in float64 where the device has "
+                                "cl_khr_fp64, otherwise expect ragged edges and shadow acne "
+                                "(a plane is exact for a ground)")
+        elif size > 0 and dist / size > RATIO_LIMIT:
+            warnings.append(f"{where}: size {size:.3g} at distance {dist:.3g} from the camera "
+                            f"(ratio {dist / size:.3g} > {RATIO_LIMIT:.0e}): float32 cannot "
+                            "resolve it; expect ragged edges (move the camera closer)")
+    return ScaleReport(median, tuple(fp64), tuple(warnings))
+
+
+def scene_warnings(scene: M.Scene) -> tuple[str, ...]:
+    """Warnings about float32 accuracy, for Scene.warnings."""
+    return analyze(scene).warnings
+
+
+def needs_fp64_spheres(scene: M.Scene) -> bool:
+    """Whether the float build should intersect spheres in float64 (KernelConfig.fp64_spheres)."""
+    return bool(analyze(scene).fp64_spheres)

@@ -1,0 +1,211 @@
+"""Rendered images against the float64 reference renderer, analytic images, and the
+properties an image must have (finite, deterministic, independent of launch banding)."""
+
+from __future__ import annotations
+
+import importlib
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from clray.metrics import count_over, nonfinite_count, rmse
+from clray.reference import render_reference
+from clray.render import RenderSettings, render
+from clray.scene import model as M
+from clray.scene.load import load_scene
+
+ROOT = Path(__file__).resolve().parent.parent
+# `clray.render` the attribute is the function; the module is needed for monkeypatching.
+render_module = importlib.import_module("clray.render")
+TEXTURE = ROOT / "scenes" / "textures" / "bricks.png"
+
+# Float32 kernel vs float64 reference: shading error is ~1e-6, so the RMSE bound is loose only
+# because a few pixels may legitimately differ where float and double pick different objects
+# (silhouettes, checker cell boundaries, the horizon). Those are counted, not averaged away.
+RMSE_MAX = 0.01
+OFF_FRACTION_MAX = 0.01  # share of pixels allowed off by more than 2/255
+W, H = 48, 36
+
+
+def _scene(materials, objects, lights, *, camera=None, spp=1, max_depth=3,
+           background=(0.2, 0.3, 0.4)) -> M.Scene:
+    camera = camera or M.Camera((0.0, 2.5, 7.0), (0.0, 0.8, 0.0), vfov=45.0)
+    return M.Scene(None, M.RenderOptions(W, H, spp, max_depth, background), camera,
+                   tuple(materials), tuple(lights), tuple(objects))
+
+
+def _image_texture(**kw) -> M.Texture:
+    from PIL import Image
+
+    texels = np.asarray(Image.open(TEXTURE).convert("RGB"), dtype=np.float32) / 255.0
+    return M.Texture("image", file=TEXTURE, image=texels, **kw)
+
+
+FLOOR = M.Material("floor", (0.8, 0.8, 0.8), ambient=0.1, diffuse=0.8)
+RED = M.Material("red", (0.9, 0.2, 0.1), ambient=0.1, diffuse=0.7, specular=0.5, shininess=40)
+MIRROR = M.Material("mirror", (0.9, 0.9, 0.9), diffuse=0.2, specular=0.3, reflect=0.7)
+GLASS = M.Material("glass", (0.9, 0.95, 1.0), diffuse=0.05, specular=0.5, shininess=80,
+                   reflect=0.1, transmit=0.85, ior=1.5)
+AIR = M.Material("air", (1.0, 1.0, 1.0), diffuse=0.0, transmit=1.0, ior=1.0)
+POINT = M.PointLight((-4.0, 6.0, 5.0), (0.8, 0.8, 0.8), (1.0, 0.02, 0.005))
+SUN = M.DirectionalLight(tuple(np.array([0.3, -1.0, -0.2]) / np.linalg.norm([0.3, -1.0, -0.2])),
+                         (0.4, 0.4, 0.4))  # the model holds unit directions
+
+CASES = {
+    "phong_point_and_directional": _scene(
+        [FLOOR, RED], [M.Plane((0, 0, 0), (0, 1, 0), 0), M.Sphere((0, 1, 0), 1, 1),
+                       M.Sphere((1.8, 0.5, 1), 0.5, 1)], [POINT, SUN]),
+    "reflection": _scene(
+        [FLOOR, MIRROR, RED], [M.Plane((0, 0, 0), (0, 1, 0), 0), M.Sphere((-1, 1, 0), 1, 1),
+                               M.Sphere((1.2, 0.7, 0.5), 0.7, 2),
+                               M.Box((-3, 0, -2.5), (3, 2.5, -2.3), 1)], [POINT], max_depth=4),
+    "refraction_nested_and_tir": _scene(
+        [M.Material("floor", (0.8, 0.8, 0.8), ambient=0.1,
+                    texture=M.Texture("checker", size=0.7, color2=(0.1, 0.1, 0.3))), GLASS, AIR],
+        [M.Plane((0, 0, 0), (0, 1, 0), 0), M.Sphere((-1.2, 1, 0), 1, 1),
+         M.Sphere((1.2, 1, 0), 1, 1), M.Sphere((1.2, 1, 0), 0.8, 2),
+         M.Box((-0.4, 0, 1.5), (0.4, 1.2, 2.2), 1)], [POINT], max_depth=5),
+    "shadows_through_glass": _scene(
+        [FLOOR, M.Material("tint", (0.5, 1.0, 0.6), diffuse=0.1, transmit=0.8, ior=1.3)],
+        [M.Plane((0, 0, 0), (0, 1, 0), 0), M.Sphere((0, 1.5, 0), 0.9, 1),
+         M.Box((1.5, 0.5, -0.5), (2.5, 1.0, 0.5), 1)],
+        [M.PointLight((0.5, 6, 0.5), (1, 1, 1))], max_depth=2),
+    "image_textures_every_primitive": _scene(
+        [M.Material("tex", ambient=0.2, diffuse=0.8, texture=_image_texture(repeat=(2, 2))),
+         M.Material("half", (0.2, 0.6, 1.0), ambient=0.2,
+                    texture=_image_texture(repeat=(1, 3), blend=0.5))],
+        [M.Plane((0, 0, 0), (0, 1, 0), 1), M.Sphere((-2.2, 1, 0), 1, 0),
+         M.Box((-0.8, 0, -0.8), (0.6, 1.4, 0.6), 0), M.Cylinder((2, 0, 0), (0, 1, 0), 0.7, 1.6, 0),
+         M.Cone((0.5, 3.2, -2), (0, -1, 0), 25, 1.8, 0),
+         M.Triangle(((-3, 0, -2), (-1, 0, -2.5), (-2, 2, -2.2)), 1)], [POINT, SUN]),
+    "checker_every_primitive": _scene(
+        [M.Material("chk", (0.9, 0.8, 0.3), ambient=0.2,
+                    texture=M.Texture("checker", size=0.35, color2=(0.1, 0.2, 0.7)))],
+        [M.Plane((0, 0, 0), (0, 1, 0), 0), M.Sphere((-2.2, 1, 0), 1, 0),
+         M.Box((-0.8, 0, -0.8), (0.6, 1.4, 0.6), 0), M.Cylinder((2, 0, 0), (0, 1, 0), 0.7, 1.6, 0),
+         M.Cone((0.5, 3.2, -2), (0, -1, 0), 25, 1.8, 0)], [POINT]),
+    "open_cylinder_cone_and_mesh": _scene(
+        [FLOOR, RED, MIRROR],
+        [M.Plane((0, 0, 0), (0, 1, 0), 0),
+         M.Cylinder((-1.5, 0.8, 0), (0.6, 0.3, 0.74), 0.5, 1.5, 1, capped=False),
+         M.Cone((1.5, 0.0, 0.5), (0, 1, 0), 30, 1.2, 1, capped=False),
+         M.Mesh(np.array([[0, 0, -1], [1, 0, -1], [0.5, 0, -0.1], [0.5, 1.2, -0.6]], float),
+                np.array([[0, 2, 1], [0, 1, 3], [1, 2, 3], [2, 0, 3]]), 2)], [POINT, SUN]),
+    "supersampled": _scene([FLOOR, RED], [M.Plane((0, 0, 0), (0, 1, 0), 0),
+                                          M.Sphere((0, 1, 0), 1, 1)], [POINT], spp=5),
+}
+
+
+@pytest.mark.parametrize("name", sorted(CASES))
+def test_kernel_matches_reference(cl_device, name: str) -> None:
+    scene = CASES[name]
+    image = render(scene).image
+    expected = render_reference(scene)
+    assert nonfinite_count(image) == 0
+    assert rmse(image, expected) < RMSE_MAX
+    assert count_over(image, expected, 2 / 255) <= OFF_FRACTION_MAX * W * H
+
+
+def test_plane_under_directional_light_is_uniform(cl_device) -> None:
+    color, ambient_light = (0.6, 0.5, 0.4), (0.3, 0.3, 0.3)
+    direction = np.array([0.2, -1.0, 0.4]) / np.linalg.norm([0.2, -1.0, 0.4])
+    material = M.Material("m", color, ambient=0.25, diffuse=0.7, specular=0.0)
+    scene = M.Scene(None, M.RenderOptions(40, 30, 1, 0, (0, 0, 0), ambient_light),
+                    M.Camera((0, 3, 0), (0, 0, -2), vfov=50), (material,),
+                    (M.DirectionalLight(tuple(direction), (0.9, 0.8, 1.0)),),
+                    (M.Plane((0, 0, 0), (0, 1, 0), 0),))
+    image = render(scene).image.astype(np.float64)
+    n_dot_l = -direction[1]
+    expected = (0.25 * np.array(color) * np.array(ambient_light)
+                + np.array((0.9, 0.8, 1.0)) * 0.7 * np.array(color) * n_dot_l)
+    below_horizon = image[15:]  # the camera looks down: every pixel below the middle hits
+    assert np.abs(below_horizon - expected).max() < 1e-5
+
+
+def test_lone_sphere_follows_lambert(cl_device) -> None:
+    width, height = 64, 64
+    light_dir = np.array([-1.0, -1.0, -1.0]) / np.sqrt(3.0)
+    scene = M.Scene(None, M.RenderOptions(width, height, 1, 0), M.Camera((0, 0, 5), (0, 0, 0),
+                    vfov=30), (M.Material("m", (1, 1, 1), diffuse=1.0),),
+                    (M.DirectionalLight(tuple(light_dir)),), (M.Sphere((0, 0, 0), 1.0, 0),))
+    image = render(scene).image[:, :, 0].astype(np.float64)
+    # Closed form: per pixel, the camera ray's hit on the unit sphere and max(n.l, 0).
+    half = np.tan(np.radians(15.0))
+    xs = (2 * (np.arange(width) + 0.5) / width - 1) * half
+    ys = (1 - 2 * (np.arange(height) + 0.5) / height) * half
+    dx, dy = np.meshgrid(xs, ys)
+    d = np.stack([dx, dy, -np.ones_like(dx)], axis=-1)
+    d /= np.linalg.norm(d, axis=-1, keepdims=True)
+    o = np.array([0.0, 0.0, 5.0])
+    b = d @ o
+    disc = b * b - (o @ o - 1.0)
+    hit = disc > 0.02  # away from the silhouette, where one pixel may flip between hit and miss
+    t = -b - np.sqrt(np.where(hit, disc, 0.0))
+    n = o + t[..., None] * d
+    expected = np.clip(n @ -light_dir, 0.0, None)
+    assert hit.sum() > 1000
+    assert np.abs(image[hit] - expected[hit]).max() < 1e-4
+    assert np.all(image[disc < -0.02] == 0.0)
+
+
+@pytest.mark.parametrize("scene_file", sorted((ROOT / "scenes").glob("*.toml")),
+                         ids=lambda p: p.stem)
+@pytest.mark.parametrize("precision", ["float", "double"])
+def test_every_example_scene_renders_finite(cl_device, scene_file: Path, precision: str) -> None:
+    scene = load_scene(scene_file)
+    result = render(scene, RenderSettings(width=64, height=36, spp=1, precision=precision))
+    assert result.image.shape == (36, 64, 3)
+    assert nonfinite_count(result.image) == 0
+    assert result.image.max() > 0.05  # something was lit
+
+
+def test_double_build_agrees_with_float_on_spheres(cl_device) -> None:
+    scene = load_scene(ROOT / "scenes" / "spheres.toml")
+    small = RenderSettings(width=96, height=54)
+    single = render(scene, small).image
+    double = render(scene, RenderSettings(width=96, height=54, precision="double")).image
+    assert rmse(single, double) < 1e-3
+    assert count_over(single, double, 2 / 255) <= 5
+
+
+def test_image_is_independent_of_launch_banding(cl_device, monkeypatch) -> None:
+    scene = CASES["supersampled"]
+    whole = render(scene).image
+    monkeypatch.setattr(render_module, "PIXEL_SAMPLES_PER_LAUNCH", W * 5 * 3)
+    banded = render(scene)
+    assert banded.stats["launches"] == H // 3
+    np.testing.assert_array_equal(whole, banded.image)
+
+
+def test_seed_changes_only_jittered_images(cl_device) -> None:
+    scene = CASES["supersampled"]
+    a = render(scene, RenderSettings(seed=1)).image
+    b = render(scene, RenderSettings(seed=2)).image
+    assert not np.array_equal(a, b)
+    one_spp = RenderSettings(spp=1)
+    np.testing.assert_array_equal(render(scene, RenderSettings(spp=1, seed=1)).image,
+                                  render(scene, one_spp).image)
+
+
+def test_only_used_features_are_compiled(cl_device) -> None:
+    from clray.device.pack import pack_scene
+
+    spheres_only = _scene([RED], [M.Sphere((0, 1, 0), 1, 0)], [POINT])
+    options = pack_scene(spheres_only, width=8, height=8, spp=1, max_depth=3,
+                         seed=0).config.options()
+    assert "-DHAS_SPHERES=1" in options
+    for absent in ("TRIANGLES", "PLANES", "BOXES", "CYLINDERS", "CONES", "TEXTURES",
+                   "REFRACTION"):
+        assert f"-DHAS_{absent}=0" in options
+    assert "-DMAX_DEPTH=0" in options  # nothing reflects or refracts: no ray tree at all
+
+
+def test_ray_counts_add_up(cl_device) -> None:
+    scene = _scene([FLOOR, MIRROR], [M.Plane((0, 0, 0), (0, 1, 0), 0),
+                                     M.Sphere((0, 1, 0), 1, 1)], [POINT, SUN], max_depth=2)
+    rays = render(scene).stats["rays"]
+    assert rays["primary"] == W * H
+    assert 0 < rays["secondary"] <= 2 * W * H
+    assert 0 < rays["shadow"] <= 2 * (rays["primary"] + rays["secondary"])
+    assert rays["total"] == rays["primary"] + rays["secondary"] + rays["shadow"]

@@ -1,4 +1,5 @@
-"""The `clray` command (also `python -m clray`): `clray render SCENE ...` and `clray devices`.
+"""The `clray` command (also `python -m clray`): `clray render SCENE ...`, `clray study SCENE...
+--out DIR` and `clray devices`.
 
 Exit codes: 0 ok, 1 runtime error, 2 usage, 3 scene error, 4 OpenCL error, 130 interrupted.
 Every error a user can cause is one `clray: error: ...` line on stderr, never a traceback.
@@ -91,6 +92,26 @@ def _build_parser() -> _Parser:
     talk.add_argument("-v", "--verbose", action="store_true",
                       help="print progress, compiler warnings and the stats summary")
     r.set_defaults(run=_render)
+
+    st = commands.add_parser(
+        "study", help="kernel time against error for variants of the kernel",
+        description="Render each SCENE with every kernel variant (float/double, build options, "
+                    "textbook formulas) and compare with the double build: writes "
+                    "DIR/results.json, DIR/report.md and a time-vs-error PNG per scene "
+                    "(needs matplotlib, the 'plot' extra; skipped with a note otherwise).")
+    st.add_argument("scenes", type=Path, nargs="+", metavar="SCENE",
+                    help="scene files (.toml or .json)")
+    st.add_argument("--out", type=Path, required=True, metavar="DIR", help="output folder")
+    st.add_argument("--repeat", type=_int_in(1), default=3, metavar="N",
+                    help="timed runs per variant after a warm-up; the median is reported "
+                         "(default: 3)")
+    st.add_argument("-W", "--width", type=_int_in(1), metavar="N",
+                    help="image width for every scene (default: each scene's own)")
+    st.add_argument("-H", "--height", type=_int_in(1), metavar="N",
+                    help="image height for every scene (default: each scene's own)")
+    st.add_argument("--device", metavar="SPEC", help="OpenCL device, as for render")
+    st.add_argument("-q", "--quiet", action="store_true", help="print nothing on success")
+    st.set_defaults(run=_study)
 
     d = commands.add_parser("devices", help="list OpenCL devices, one per line",
                             description="List OpenCL devices: spec, type, name, platform, "
@@ -194,6 +215,20 @@ def _render(args: argparse.Namespace) -> int:
     if not args.quiet:
         _say(f"wrote {output} ({width}x{height}, {stats['spp']} spp, "
              f"kernel {stats['kernel_s']:.3g} s)")
+    return EXIT_OK
+
+
+def _study(args: argparse.Namespace) -> int:
+    from clray.study import run_study  # matplotlib and friends only when studying
+
+    if args.out.exists() and not args.out.is_dir():
+        raise ClrayError(f"--out {args.out} exists and is not a directory")
+    records = run_study(args.scenes, args.out, repeat=args.repeat, width=args.width,
+                        height=args.height, device=args.device,
+                        say=(lambda _: None) if args.quiet else _say)
+    if not args.quiet:
+        failed = sum(r["status"] == "FAIL" for r in records)
+        _say(f"wrote {args.out / 'report.md'} ({len(records)} renders, {failed} failing)")
     return EXIT_OK
 
 

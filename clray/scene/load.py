@@ -7,6 +7,7 @@ The format itself is documented in docs/scene_format.md.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import tomllib
@@ -37,6 +38,7 @@ from clray.scene.model import (
     Triangle,
 )
 from clray.scene.obj import read_obj
+from clray.scene.scale import scene_warnings
 
 Vec3 = tuple[float, float, float]
 
@@ -301,15 +303,15 @@ class _Loader:
             self.object(spec, f"objects[{i}]", material_for)
             for i, spec in enumerate(self.items(data.get("objects", []), "objects"))
         )
-        return Scene(
+        scene = Scene(
             path=self.path,
             render=render,
             camera=camera,
             materials=tuple(materials),
             lights=lights,
             objects=objects,
-            warnings=(),
         )
+        return dataclasses.replace(scene, warnings=scene_warnings(scene))
 
     def render(self, spec: dict) -> RenderOptions:
         self.keys(spec, "render", _RENDER_KEYS, ())

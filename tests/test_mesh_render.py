@@ -1,0 +1,238 @@
+"""Rendering triangle meshes: closed meshes leak no ray, OBJ meshes (smooth normals, UVs, an
+image texture) match the float64 reference, and mesh transforms match pre-transformed vertices.
+
+Leak tests colour every surface pure red (material, light and highlights) and the background
+pure green, so a single ray that escapes a closed mesh, primary or secondary, leaves green in
+its pixel.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from clray.metrics import count_over, nonfinite_count, rmse
+from clray.reference import render_reference
+from clray.render import render
+from clray.scene import model as M
+from clray.scene.load import load_scene
+from clray.scene.obj import read_obj
+
+ROOT = Path(__file__).resolve().parents[1]
+DATA = Path(__file__).resolve().parent / "data"
+W, H = 96, 72
+# render() picks the default device: skip (via the fixture) where no OpenCL platform exists.
+pytestmark = pytest.mark.usefixtures("cl_device")
+
+
+def _load_mesh_module():
+    # benchmarks/ is not a package; the generator is imported straight from its file.
+    spec = importlib.util.spec_from_file_location(
+        "make_mesh_scene", ROOT / "benchmarks" / "make_mesh_scene.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+mesh_gen = _load_mesh_module()
+
+RED = M.Material("red", color=(1.0, 0.0, 0.0), ambient=0.3, diffuse=0.7, specular=0.5,
+                 shininess=20.0)
+MIRROR_RED = M.Material("mirror", color=(1.0, 0.0, 0.0), ambient=0.3, diffuse=0.5,
+                        specular=0.5, shininess=20.0, reflect=0.5)
+GREEN = (0.0, 1.0, 0.0)
+
+
+def leak_scene(mesh: M.Mesh, camera: M.Camera, light: tuple, material: M.Material,
+               width: int = W, height: int = H, max_depth: int = 0) -> M.Scene:
+    options = M.RenderOptions(width=width, height=height, max_depth=max_depth, background=GREEN)
+    return M.Scene(None, options, camera, (material,),
+                   (M.PointLight(light, color=(1.0, 0.0, 0.0)),), (mesh,))
+
+
+def assert_no_leak(scene: M.Scene) -> None:
+    image = render(scene).image
+    assert nonfinite_count(image) == 0
+    leaks = np.argwhere(image[:, :, 1] != 0.0)
+    assert len(leaks) == 0, f"{len(leaks)} pixels show the background, first at (y, x) {leaks[0]}"
+    assert np.all(image[:, :, 0] > 0.0)  # every pixel shows the lit or ambient red surface
+
+
+def bumpy_sphere(subdivisions: int = 4) -> M.Mesh:
+    vertices, faces, normals = mesh_gen.bumpy_mesh(subdivisions)
+    return M.Mesh(vertices=vertices, faces=faces, material=0, normals=normals)
+
+
+def test_closed_mesh_from_outside_leaks_no_ray():
+    # At distance 3 the sphere (radius 0.95 at its lowest bump) spans 18.5 degrees; a vfov of
+    # 20 degrees at 4:3 reaches 16.4 degrees in the corners, so every pixel should see it.
+    camera = M.Camera(position=(0.3, 0.2, 3.0), look_at=(0.0, 0.0, 0.0), vfov=20.0)
+    assert_no_leak(leak_scene(bumpy_sphere(), camera, (2.0, 3.0, 4.0), RED))
+
+
+def test_closed_mesh_from_inside_leaks_no_ray():
+    """Camera and light inside; a mirror-red surface sends every hit's reflection back into
+    the mesh, so reflected rays (depth up to 3) are checked too."""
+    camera = M.Camera(position=(0.1, 0.05, -0.1), look_at=(1.0, 0.3, 0.2), vfov=90.0)
+    scene = leak_scene(bumpy_sphere(), camera, (-0.2, 0.3, 0.1), MIRROR_RED, max_depth=3)
+    assert_no_leak(scene)
+
+
+@pytest.mark.parametrize("inside", [False, True])
+def test_pixel_rays_exactly_on_a_shared_diagonal_hit(inside):
+    """A cube mesh seen square-on with a square image of power-of-two size: the pixel rays
+    (x, W - 1 - x) have equal y and z components exactly, so they meet the face x = -1 (or
+    x = 1) precisely on the diagonal its two triangles share. Inside, one mirror bounce."""
+    mesh = cube_mesh(2.0, (-1.0, -1.0, -1.0))
+    if inside:
+        camera = M.Camera(position=(0.0, 0.0, 0.0), look_at=(1.0, 0.0, 0.0), vfov=90.0)
+        scene = leak_scene(mesh, camera, (0.3, 0.2, -0.1), MIRROR_RED, 64, 64, max_depth=1)
+    else:
+        # tan(25 deg) * 2 * 63/64 < 1: every pixel lands on the face x = -1.
+        camera = M.Camera(position=(-3.0, 0.0, 0.0), look_at=(0.0, 0.0, 0.0), vfov=50.0)
+        scene = leak_scene(mesh, camera, (-4.0, 1.0, 0.5), RED, 64, 64)
+    assert_no_leak(scene)
+
+
+@pytest.mark.xfail(strict=True, reason=(
+    "known leak: a reflection spawned exactly on a concave edge is offset along the chosen "
+    "face's normal only, so it starts on the adjacent face's plane and leaves through it at "
+    "t = 0 (docs/rendering.md's offset rule; the float64 reference leaks the same way)"))
+def test_reflections_off_concave_cube_edges_stay_inside():
+    """Inside the cube, the rays of the image's diagonal pixels, once reflected off the face
+    x = 1, reach edges where two faces meet at a right angle exactly."""
+    camera = M.Camera(position=(0.0, 0.0, 0.0), look_at=(1.0, 0.0, 0.0), vfov=90.0)
+    mesh = cube_mesh(2.0, (-1.0, -1.0, -1.0))
+    assert_no_leak(leak_scene(mesh, camera, (0.3, 0.2, -0.1), MIRROR_RED, 64, 64,
+                              max_depth=2))
+
+
+def cube_mesh(scale: float, offset: tuple) -> M.Mesh:
+    """tests/data/cube.obj (unit cube, each quad split along one diagonal), placed. Scale 2
+    and integer offsets keep every vertex exact."""
+    obj = read_obj(DATA / "cube.obj")
+    return M.Mesh(vertices=obj.vertices * scale + np.asarray(offset), faces=obj.faces,
+                  material=0)
+
+
+# ---------------------------------------------------------------------------------------------
+# OBJ meshes against the float64 reference
+
+
+def write_ball_obj(path: Path) -> None:
+    """An icosphere with unit vertex normals (smooth shading) and planar-projected UVs (no
+    seam, so the texture lookup is continuous over the mesh)."""
+    vertices, faces = mesh_gen.icosphere(2)
+    uvs = 0.5 + 0.5 * vertices[:, :2]
+    with path.open("w", encoding="ascii") as f:
+        np.savetxt(f, vertices, fmt="v %.17g %.17g %.17g")
+        np.savetxt(f, uvs, fmt="vt %.17g %.17g")
+        np.savetxt(f, vertices, fmt="vn %.17g %.17g %.17g")
+        np.savetxt(f, np.repeat(faces + 1, 3, axis=1), fmt="f %d/%d/%d %d/%d/%d %d/%d/%d")
+
+
+MESH_SCENE = """
+[render]
+width = 64
+height = 48
+max_depth = 2
+background = [0.1, 0.12, 0.2]
+
+[camera]
+position = [0.4, 1.3, 4.0]
+look_at = [0.0, 0.1, 0.0]
+vfov = 40
+
+[materials.textured]
+color = [0.9, 0.9, 0.9]
+ambient = 0.15
+diffuse = 0.8
+specular = 0.4
+shininess = 20
+texture = {{ type = "image", file = "texels_3x2.png", repeat = [2, 1], blend = 0.8 }}
+
+[materials.floor]
+color = [0.6, 0.65, 0.7]
+ambient = 0.1
+reflect = 0.25
+
+[[lights]]
+type = "point"
+position = [3.0, 4.0, 3.0]
+
+[[objects]]
+type = "plane"
+point = [0, -1.05, 0]
+normal = [0, 1, 0]
+material = "floor"
+
+[[objects]]
+type = "mesh"
+file = "ball.obj"
+material = "textured"
+transform = {{ {transform} }}
+"""
+
+
+def mesh_scene_file(folder: Path, transform: str = "") -> Path:
+    shutil.copy(DATA / "texels_3x2.png", folder / "texels_3x2.png")
+    if not (folder / "ball.obj").exists():
+        write_ball_obj(folder / "ball.obj")
+    path = folder / "ball.toml"
+    path.write_text(MESH_SCENE.format(transform=transform), encoding="utf-8")
+    return path
+
+
+def test_obj_mesh_with_normals_uvs_and_texture_matches_reference(tmp_path):
+    """Smooth shading, an image texture through vertex UVs, a shadow on a mirror floor and
+    its reflection: the kernel against the float64 reference at 64 x 48. Tolerances: RMSE
+    below 1e-4 (float32 shading error is ~1e-6) and at most 3 pixels (1 %) off by more than
+    2/255, for pixels whose ray grazes a silhouette or shadow edge within float32 rounding."""
+    scene = load_scene(mesh_scene_file(tmp_path))
+    mesh = scene.objects[1]
+    assert isinstance(mesh, M.Mesh) and mesh.normals is not None and mesh.uvs is not None
+    got = render(scene).image
+    want = render_reference(scene)
+    assert nonfinite_count(got) == 0
+    # The texture shows: the ball is not one flat colour.
+    assert np.ptp(got[20:30, 28:36].reshape(-1, 3), axis=0).max() > 0.1
+    assert rmse(got, want) < 1e-4
+    assert count_over(got, want, 2 / 255) <= 3
+
+
+def test_mesh_transform_renders_like_pretransformed_vertices(tmp_path):
+    """transform = scale, rotate x then y then z, translate (docs/scene_format.md), against
+    the same OBJ with its vertices and normals transformed here."""
+    scale = np.array([0.8, 1.1, 0.9])
+    angles = np.radians([20.0, -35.0, 10.0])
+    translate = np.array([0.3, 0.1, -0.4])
+    transform = "scale = [0.8, 1.1, 0.9], rotate = [20, -35, 10], translate = [0.3, 0.1, -0.4]"
+    plain = load_scene(mesh_scene_file(tmp_path))
+    moved = load_scene(mesh_scene_file(tmp_path, transform))
+    (cx, cy, cz), (sx, sy, sz) = np.cos(angles), np.sin(angles)
+    rot_x = np.array([[1, 0, 0], [0, cx, -sx], [0, sx, cx]])
+    rot_y = np.array([[cy, 0, sy], [0, 1, 0], [-sy, 0, cy]])
+    rot_z = np.array([[cz, -sz, 0], [sz, cz, 0], [0, 0, 1]])
+    matrix = rot_z @ rot_y @ rot_x @ np.diag(scale)
+    folder = tmp_path / "baked"
+    folder.mkdir()
+    vertices, faces = mesh_gen.icosphere(2)
+    with (folder / "ball.obj").open("w", encoding="ascii") as f:
+        normals = vertices @ np.linalg.inv(matrix)
+        normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+        np.savetxt(f, vertices @ matrix.T + translate, fmt="v %.17g %.17g %.17g")
+        np.savetxt(f, 0.5 + 0.5 * vertices[:, :2], fmt="vt %.17g %.17g")
+        np.savetxt(f, normals, fmt="vn %.17g %.17g %.17g")
+        np.savetxt(f, np.repeat(faces + 1, 3, axis=1), fmt="f %d/%d/%d %d/%d/%d %d/%d/%d")
+    baked = load_scene(mesh_scene_file(folder))
+
+    a, b = render(moved).image, render(baked).image
+    untransformed = render(plain).image
+    # The transform matters: without it the image differs widely.
+    assert count_over(untransformed, b, 2 / 255) > 100
+    assert rmse(a, b) < 1e-4
+    assert count_over(a, b, 2 / 255) <= 2

@@ -1,0 +1,66 @@
+"""Load-time scale analysis: which primitives get a warning or the fp64 sphere path."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from clray.device.pack import pack_scene
+from clray.scene.load import load_scene, scene_from_dict
+from clray.scene.scale import analyze
+
+SCENES = Path(__file__).resolve().parent.parent / "scenes"
+
+
+def _scene(objects: list, eye: tuple = (0.0, 1.0, 4.0)) -> dict:
+    look = [eye[0], eye[1], eye[2] - 1]
+    return {"camera": {"position": list(eye), "look_at": look}, "objects": objects}
+
+
+def _sphere(centre: list, radius: float) -> dict:
+    return {"type": "sphere", "center": centre, "radius": radius}
+
+
+def test_shipped_scenes_need_no_warning() -> None:
+    for path in sorted(SCENES.glob("*.toml")):
+        assert load_scene(path).warnings == (), path.name
+
+
+def test_huge_ground_sphere_is_flagged_for_fp64() -> None:
+    scene = scene_from_dict(_scene([_sphere([0, -1e5, 0], 1e5), _sphere([0, 0.5, 0], 0.5)]))
+    report = analyze(scene)
+    assert report.fp64_spheres == (0,)
+    assert "objects[0] (sphere)" in report.warnings[0]
+    packed = pack_scene(scene, width=4, height=3, spp=1, max_depth=0, seed=0)
+    assert packed.config.fp64_spheres
+
+
+def test_far_small_sphere_threshold() -> None:
+    near = scene_from_dict(_scene([_sphere([0, 0, -1e3], 1.0)], eye=(0, 0, 0)))
+    far = scene_from_dict(_scene([_sphere([0, 0, -1e5], 1.0)], eye=(0, 0, 0)))
+    assert analyze(near).fp64_spheres == ()
+    assert analyze(far).fp64_spheres == (0,)
+    assert not pack_scene(near, width=4, height=3, spp=1, max_depth=0, seed=0).config.fp64_spheres
+
+
+def test_camera_just_under_a_surface_is_flagged() -> None:
+    scene = scene_from_dict(_scene([_sphere([0, 0, 0], 1.0)], eye=(0, 0, 1 - 1e-6)))
+    assert analyze(scene).fp64_spheres == (0,)
+
+
+def test_other_primitives_only_warn() -> None:
+    box = {"type": "box", "min": [0, 0, -1e6], "max": [1e-3, 1e-3, -1e6 + 1e-3]}
+    report = analyze(scene_from_dict(_scene([box])))
+    assert report.fp64_spheres == ()
+    assert "cannot resolve" in report.warnings[0]
+
+
+def test_lengths_outside_float32_squares_warn() -> None:
+    tiny = scene_from_dict(_scene([_sphere([0, 0, 0], 1e-20)], eye=(0, 0, 1e-19)))
+    assert "float32 can hold" in analyze(tiny).warnings[0]
+    assert analyze(tiny).fp64_spheres == ()
+
+
+def test_explicit_variant_overrides_the_flag() -> None:
+    scene = scene_from_dict(_scene([_sphere([0, -1e5, 0], 1e5)]))
+    packed = pack_scene(scene, width=4, height=3, spp=1, max_depth=0, seed=0, fp64_spheres=False)
+    assert not packed.config.fp64_spheres

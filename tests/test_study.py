@@ -1,0 +1,97 @@
+"""clray study: metrics and pass/fail per variant, Pareto front, report files, optional plots."""
+
+from __future__ import annotations
+
+import builtins
+import json
+from pathlib import Path
+
+import numpy as np
+import pyopencl as cl
+import pytest
+
+from clray import study
+from clray.cli import main
+
+SCENE = """
+[render]
+width = 24
+height = 18
+max_depth = 0
+[camera]
+position = [0, 0, 4]
+look_at = [0, 0, 0]
+[[lights]]
+type = "directional"
+direction = [0, -1, -1]
+[[objects]]
+type = "sphere"
+center = [0, 0, 0]
+radius = 1
+"""
+
+
+def test_pareto_front_keeps_points_nothing_beats() -> None:
+    points = [(1.0, 5.0), (2.0, 1.0), (3.0, 2.0), (0.5, 9.0), (4.0, 0.5)]
+    assert study.pareto_front(points) == [3, 0, 1, 4]
+
+
+def test_compare_fails_on_non_finite_and_on_many_wrong_pixels() -> None:
+    ref = np.zeros((10, 10, 3), dtype=np.float32)
+    assert study.compare(ref, ref)["status"] == "pass"
+    nan = ref.copy()
+    nan[3, 4, 1] = np.nan
+    record = study.compare(nan, ref)
+    assert (record["status"], record["nonfinite"], record["rmse"]) == ("FAIL", 1, None)
+    off = ref.copy()
+    off[0, :3] = 0.5  # three pixels, over the allowance of max(2, 0.2 %) for 100 pixels
+    assert study.compare(off, ref)["status"] == "FAIL"
+
+
+@pytest.mark.filterwarnings("ignore::pyopencl.CompilerWarning")
+def test_run_study_writes_results_report_and_plot(tmp_path: Path, tmp_scene,
+                                                  cl_device: cl.Device) -> None:
+    scene = tmp_scene(SCENE)
+    variants = (study.DEFAULT, study.VARIANTS[4])  # default and -cl-fast-relaxed-math
+    records = study.run_study([scene], tmp_path / "out", repeat=2, variants=variants)
+    assert [r["variant"] for r in records] == ["float (default)", "-cl-fast-relaxed-math"]
+    data = json.loads((tmp_path / "out" / "results.json").read_text())
+    assert len(data["records"]) == 2 and data["repeat"] == 2
+    assert all(len(r["kernel_s_all"]) == 2 for r in data["records"])
+    assert records[0]["status"] == "pass"
+    report = (tmp_path / "out" / "report.md").read_text()
+    assert "| float (default) |" in report and "-cl-fast-relaxed-math" in report
+    pytest.importorskip("matplotlib")
+    assert (tmp_path / "out" / "scene.png").read_bytes()[:4] == b"\x89PNG"
+
+
+@pytest.mark.filterwarnings("ignore::pyopencl.CompilerWarning")
+def test_study_without_matplotlib_skips_plots_with_a_note(tmp_path: Path, tmp_scene,
+                                                         monkeypatch: pytest.MonkeyPatch,
+                                                         cl_device: cl.Device) -> None:
+    real_import = builtins.__import__
+
+    def no_matplotlib(name: str, *args: object, **kwargs: object) -> object:
+        if name.startswith("matplotlib"):
+            raise ImportError(name)
+        return real_import(name, *args, **kwargs)
+
+    monkeypatch.setattr(builtins, "__import__", no_matplotlib)
+    study.run_study([tmp_scene(SCENE)], tmp_path, repeat=1, variants=(study.DEFAULT,))
+    assert not list(tmp_path.glob("*.png"))
+    assert "Plots skipped" in (tmp_path / "report.md").read_text()
+
+
+@pytest.mark.filterwarnings("ignore::pyopencl.CompilerWarning")
+def test_cli_study(tmp_path: Path, tmp_scene, cl_device: cl.Device,
+                   monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(study, "VARIANTS", (study.REFERENCE, study.DEFAULT))
+    monkeypatch.setattr(study.run_study, "__kwdefaults__",
+                        {**study.run_study.__kwdefaults__, "variants": study.VARIANTS})
+    assert main(["study", str(tmp_scene(SCENE)), "--out", str(tmp_path / "o"), "--repeat",
+                 "1", "-q"]) == 0
+    assert (tmp_path / "o" / "report.md").exists()
+
+
+def test_cli_study_needs_out(tmp_scene) -> None:
+    assert main(["study", str(tmp_scene(SCENE))]) == 2

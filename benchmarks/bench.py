@@ -1,0 +1,212 @@
+"""End-to-end render benchmark: scenes/spheres.toml and the 327,680-triangle bumpy mesh scene.
+
+    python benchmarks/bench.py [--json benchmarks/results/bench.json] [--repeat 5]
+                               [--scenes spheres,mesh] [--device SPEC] [--mesh-dir DIR]
+
+Per scene: load, BVH build, kernel build (cold and warm PoCL cache), then one warm-up render
+and the median of --repeat renders of the same packed scene, timed by OpenCL profiling events.
+Measures only; the speed targets are compared in the JSON and the printout, never asserted.
+See benchmarks/README.md for every field.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import importlib.util
+import json
+import os
+import platform
+import re
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+import pyopencl as cl
+import pyopencl.characterize
+
+from clray.device.context import describe, select_device
+from clray.device.pack import pack_scene
+from clray.device.program import KernelConfig, build_program
+from clray.render import render_packed
+from clray.scene.load import load_scene
+
+HERE = Path(__file__).resolve().parent
+ROOT = HERE.parent
+
+# The goals these figures are read against (DESIGN.md); reported, never asserted.
+TARGETS = {
+    "spheres": {"kernel_s": 0.5},
+    "mesh": {"bvh_s": 1.0, "kernel_s": 0.3, "bytes_per_triangle": 64.0},
+}
+# Device buffers that scale with the triangle count.
+MESH_BUFFERS = ("vertices", "triangles", "nodes", "prim_refs")
+
+
+def _mesh_module():
+    # benchmarks/ is not a package: load the generator from its file.
+    spec = importlib.util.spec_from_file_location("make_mesh_scene", HERE / "make_mesh_scene.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def environment(device: cl.Device) -> dict:
+    plat = device.platform
+    pocl = pyopencl.characterize.get_pocl_version(plat)
+    llvm = re.search(r"LLVM (\S+?),?(?:\s|$)", plat.version)
+    return {
+        "device": describe(device),
+        "device_name": device.name.strip(),
+        "compute_units": device.max_compute_units,
+        "platform_version": plat.version.strip(),
+        "driver_version": device.driver_version.strip(),
+        "pocl_version": ".".join(map(str, pocl)) if pocl else None,
+        "llvm_version": llvm.group(1) if llvm else None,
+        "numpy": np.__version__,
+        "pyopencl": cl.VERSION_TEXT,
+        "python": platform.python_version(),
+        "cpu_count": os.cpu_count(),
+    }
+
+
+def warm_build_s(config: KernelConfig, device_spec: str | None) -> float:
+    """Kernel build time in a new process that finds this run's PoCL cache populated: what a
+    second `clray render` of the same scene pays."""
+    cmd = [sys.executable, str(Path(__file__).resolve()), "--build-only",
+           json.dumps(dataclasses.asdict(config))]
+    if device_spec:
+        cmd += ["--device", device_spec]
+    out = subprocess.run(cmd, check=True, capture_output=True, text=True, cwd=ROOT).stdout
+    return float(json.loads(out.splitlines()[-1])["build_s"])
+
+
+def _build_only(config_json: str, device_spec: str | None) -> None:
+    fields = json.loads(config_json)
+    fields["build_options"] = tuple(fields["build_options"])
+    _, build_s = build_program(select_device(device_spec), KernelConfig(**fields))
+    print(json.dumps({"build_s": build_s}))
+
+
+def bench_scene(name: str, path: Path, device: cl.Device, device_spec: str | None,
+                repeat: int) -> dict:
+    start = time.perf_counter()
+    scene = load_scene(path)
+    load_s = time.perf_counter() - start
+
+    r = scene.render
+    start = time.perf_counter()
+    packed = pack_scene(scene, width=r.width, height=r.height, spp=r.spp,
+                        max_depth=r.max_depth, seed=r.seed)
+    pack_s = time.perf_counter() - start - packed.bvh_s
+
+    # First render in this process: the program build (PoCL cache empty, see main) inside,
+    # and PoCL's compile of the kernel for its launch size at the first enqueue.
+    start = time.perf_counter()
+    _, first = render_packed(packed, device)
+    first_render_s = time.perf_counter() - start
+
+    runs, walls = [], []
+    for _ in range(repeat):
+        start = time.perf_counter()
+        _, stats = render_packed(packed, device)
+        walls.append(time.perf_counter() - start)
+        runs.append(stats["kernel_s"])
+    kernel_s = statistics.median(runs)
+
+    n_tri = len(packed.triangles)
+    device_bytes = stats["device_bytes"]
+    result = {
+        "scene": name,
+        "file": (str(path.relative_to(ROOT)) if path.is_relative_to(ROOT)
+                 else f"{path.name} (from benchmarks/make_mesh_scene.py)"),
+        "width": r.width,
+        "height": r.height,
+        "spp": r.spp,
+        "max_depth": packed.config.max_depth,
+        "triangles": n_tri,
+        "bounded_primitives": len(packed.prim_refs),
+        "bvh_nodes": len(packed.nodes),
+        "load_s": load_s,
+        "bvh_s": packed.bvh_s,
+        "pack_s": pack_s,
+        "build_s": first["build_s"],
+        "build_cache": "cold (empty PoCL cache)",
+        "build_warm_s": warm_build_s(packed.config, device_spec),
+        "first_render_s": first_render_s,
+        "warmup_kernel_s": first["kernel_s"],
+        "kernel_s": kernel_s,
+        "kernel_runs_s": runs,
+        "render_wall_s": statistics.median(walls),
+        "launches": stats["launches"],
+        "rays": stats["rays"],
+        "mrays_per_s": stats["rays"]["total"] / kernel_s * 1e-6,
+        "device_bytes": device_bytes,
+        "bytes_per_triangle": (sum(device_bytes[k] for k in MESH_BUFFERS) / n_tri
+                               if n_tri else None),
+    }
+    result["targets"] = {
+        key: {"limit": limit, "value": result[key], "met": result[key] <= limit}
+        for key, limit in TARGETS.get(name, {}).items()
+    }
+    return result
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--json", type=Path, default=HERE / "results" / "bench.json")
+    parser.add_argument("--repeat", type=int, default=5)
+    parser.add_argument("--scenes", default="spheres,mesh",
+                        help="comma-separated subset of: spheres, mesh")
+    parser.add_argument("--device", default=None, help="device spec, as for `clray render`")
+    parser.add_argument("--mesh-dir", type=Path, default=None,
+                        help="where to write the generated mesh scene (default: a temp dir)")
+    parser.add_argument("--build-only", default=None, help=argparse.SUPPRESS)
+    args = parser.parse_args(argv)
+    if args.build_only is not None:
+        _build_only(args.build_only, args.device)
+        return
+    names = [s.strip() for s in args.scenes.split(",") if s.strip()]
+    unknown = set(names) - {"spheres", "mesh"}
+    if unknown or args.repeat < 1:
+        parser.error(f"unknown scenes {sorted(unknown)}" if unknown else "--repeat must be >= 1")
+
+    with tempfile.TemporaryDirectory(prefix="clray-bench-") as tmp:
+        # A fresh PoCL cache, set before OpenCL starts, makes this process's first builds cold
+        # and lets the warm-build subprocess (which inherits it) measure a warm one.
+        os.environ["POCL_CACHE_DIR"] = str(Path(tmp) / "pocl-cache")
+        device = select_device(args.device)
+        paths = {"spheres": ROOT / "scenes" / "spheres.toml"}
+        generate_s = None
+        if "mesh" in names:
+            mesh_dir = args.mesh_dir or Path(tmp) / "mesh"
+            start = time.perf_counter()
+            _mesh_module().main(["--out", str(mesh_dir)])
+            generate_s = time.perf_counter() - start
+            paths["mesh"] = mesh_dir / "bumpy.toml"
+        results = [bench_scene(name, paths[name], device, args.device, args.repeat)
+                   for name in names]
+        if generate_s is not None:
+            next(r for r in results if r["scene"] == "mesh")["generate_s"] = generate_s
+
+    report = {"benchmark": "render", "repeat": args.repeat, **environment(device),
+              "scenes": results}
+    args.json.parent.mkdir(parents=True, exist_ok=True)
+    args.json.write_text(json.dumps(report, indent=2) + "\n", encoding="utf-8")
+    for r in results:
+        print(f"{r['scene']}: load {r['load_s']:.3f} s, bvh {r['bvh_s']:.3f} s, build "
+              f"{r['build_s']:.2f} s cold / {r['build_warm_s']:.2f} s warm, kernel "
+              f"{r['kernel_s']:.3f} s (median of {args.repeat}), {r['rays']['total']:,} rays, "
+              f"{r['mrays_per_s']:.2f} Mrays/s")
+        for key, t in r["targets"].items():
+            print(f"  target {key} <= {t['limit']}: {t['value']:.3f} "
+                  f"({'met' if t['met'] else 'NOT met'})")
+    print(f"wrote {args.json}")
+
+
+if __name__ == "__main__":
+    main()

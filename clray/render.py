@@ -150,7 +150,7 @@ def intersect_rays(packed: PackedScene, device: cl.Device, origins: np.ndarray,
     args += [_buffer(ctx, packed.prim_refs), _buffer(ctx, packed.materials)]
     hits_buf = cl.Buffer(ctx, cl.mem_flags.WRITE_ONLY, n * 16)
     refs_buf = cl.Buffer(ctx, cl.mem_flags.WRITE_ONLY, n * 4)
-    program.intersect_rays(queue, (n,), None, *args, hits_buf, refs_buf)
+    cl.Kernel(program, "intersect_rays")(queue, (n,), None, *args, hits_buf, refs_buf)
     hits = np.empty((n, 4), dtype=np.float32)
     refs = np.empty(n, dtype=np.int32)
     cl.enqueue_copy(queue, hits, hits_buf)

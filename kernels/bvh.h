@@ -140,7 +140,10 @@ inline Hit closest_hit(const SceneRefs* s, const Ray* r) {
 #if HAS_BVH
     REAL tnear;
     if (s->n_nodes == 0 || !node_entry(s->nodes, r, hit.t, &tnear)) return hit;
+    // Pushed nodes keep their entry t, so a pop is rejected without a second slab test once a
+    // nearer hit is known.
     int stack[BVH_STACK_SIZE];
+    REAL stack_t[BVH_STACK_SIZE];
     int sp = 0;
     int index = 0;
     for (;;) {
@@ -158,10 +161,12 @@ inline Hit closest_hit(const SceneRefs* s, const Ray* r) {
             bool hl = node_entry(s->nodes + left, r, hit.t, &tl);
             bool hr = node_entry(s->nodes + right, r, hit.t, &tr);
             if (hl && hr) {
-                int near = tl <= tr ? left : right;
-                int far = tl <= tr ? right : left;
-                if (sp < BVH_STACK_SIZE) stack[sp++] = far;
-                index = near;
+                bool left_first = tl <= tr;
+                if (sp < BVH_STACK_SIZE) {
+                    stack[sp] = left_first ? right : left;
+                    stack_t[sp++] = left_first ? tr : tl;
+                }
+                index = left_first ? left : right;
                 continue;
             }
             if (hl || hr) {
@@ -169,16 +174,9 @@ inline Hit closest_hit(const SceneRefs* s, const Ray* r) {
                 continue;
             }
         }
-        // Pop, skipping nodes that a hit found since they were pushed now puts behind it.
-        bool found = false;
-        while (sp > 0) {
-            index = stack[--sp];
-            if (node_entry(s->nodes + index, r, hit.t, &tnear)) {
-                found = true;
-                break;
-            }
-        }
-        if (!found) break;
+        while (sp > 0 && stack_t[sp - 1] > hit.t) sp--;
+        if (sp == 0) break;
+        index = stack[--sp];
     }
 #endif
     return hit;

@@ -83,7 +83,8 @@ inline Surface surface_at(const SceneRefs* s, const Ray* r, const Hit* hit) {
             int axis = hit->part / 2, side = hit->part % 2;
             p = set_comp3(p, axis, comp3(side ? hi : lo, axis));
             sf.n_g = set_comp3((REAL3)(0, 0, 0), axis, side ? (REAL)1 : (REAL)-1);
-            sf.err = gamma * max_abs3(p);
+            // The box's own magnitude too: a hit at the packed origin still gets an offset.
+            sf.err = gamma * (max_abs3(lo) + max_abs3(hi));
             int a1 = (axis + 1) % 3, a2 = (axis + 2) % 3;
             REAL w1 = comp3(hi, a1) - comp3(lo, a1), w2 = comp3(hi, a2) - comp3(lo, a2);
             sf.uv = (REAL2)(w1 > (REAL)0 ? (comp3(p, a1) - comp3(lo, a1)) / w1 : (REAL)0,

@@ -104,4 +104,5 @@ def queue_for(device: cl.Device) -> cl.CommandQueue:
 
 
 def describe(device: cl.Device) -> str:
-    return f"{device.name.strip()} ({device.platform.name.strip()}, {device.driver_version.strip()})"
+    platform = device.platform.name.strip()
+    return f"{device.name.strip()} ({platform}, {device.driver_version.strip()})"

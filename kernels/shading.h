@@ -160,6 +160,15 @@ inline Surface surface_at(const SceneRefs* s, const Ray* r, const Hit* hit) {
             REAL b1 = hit->b1, b2 = hit->b2, b0 = (REAL)1 - b1 - b2;
             p = b0 * p0 + b1 * p1 + b2 * p2;
             sf.err = gamma * max_comp3(fabs(b0 * p0) + fabs(b1 * p1) + fabs(b2 * p2));
+            // A hit on an edge also lies on the neighbouring triangle's plane, so a ray spawned
+            // from it (offset along this normal only) could start on that plane and leave
+            // through a concave edge at t = 0. Pulling the point a few error bounds towards
+            // this triangle's centroid, within the triangle, takes it off that plane.
+            REAL3 to_centroid = (p0 + p1 + p2) / (REAL)3 - p;
+            REAL reach = length(to_centroid);
+            if (reach > (REAL)0) {
+                p += fmin((REAL)4 * sf.err, (REAL)0.5 * reach) / reach * to_centroid;
+            }
             REAL3 n = safe_normalize(cross(p1 - p0, p2 - p0));
             // A degenerate triangle has no normal: let it face the ray.
             sf.n_g = dot(n, n) > (REAL)0 ? n : -r->d;

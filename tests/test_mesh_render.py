@@ -98,13 +98,10 @@ def test_pixel_rays_exactly_on_a_shared_diagonal_hit(inside):
     assert_no_leak(scene)
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "known leak: a reflection spawned exactly on a concave edge is offset along the chosen "
-    "face's normal only, so it starts on the adjacent face's plane and leaves through it at "
-    "t = 0 (docs/rendering.md's offset rule; the float64 reference leaks the same way)"))
 def test_reflections_off_concave_cube_edges_stay_inside():
     """Inside the cube, the rays of the image's diagonal pixels, once reflected off the face
-    x = 1, reach edges where two faces meet at a right angle exactly."""
+    x = 1, reach edges where two faces meet at a right angle exactly. A reflection spawned there
+    must not start on the neighbouring face's plane and leave through it at t = 0."""
     camera = M.Camera(position=(0.0, 0.0, 0.0), look_at=(1.0, 0.0, 0.0), vfov=90.0)
     mesh = cube_mesh(2.0, (-1.0, -1.0, -1.0))
     assert_no_leak(leak_scene(mesh, camera, (0.3, 0.2, -0.1), MIRROR_RED, 64, 64,

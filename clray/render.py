@@ -145,7 +145,8 @@ def intersect_rays(packed: PackedScene, device: cl.Device, origins: np.ndarray,
     args = [_buffer(ctx, o4), _buffer(ctx, d4), _buffer(ctx, packed.planes),
             np.int32(len(packed.planes))]
     args += [_buffer(ctx, getattr(packed, name)) for name in (
-        "spheres", "boxes", "cylinders", "cones", "triangles", "vertices", "nodes")]
+        "spheres", "boxes", "cylinders", "cones", "triangles", "vertices", "normals", "uvs",
+        "nodes")]
     args.append(np.int32(len(packed.nodes)))
     args += [_buffer(ctx, packed.prim_refs), _buffer(ctx, packed.materials)]
     hits_buf = cl.Buffer(ctx, cl.mem_flags.WRITE_ONLY, n * 16)

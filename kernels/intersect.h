@@ -211,6 +211,19 @@ inline Crossings intersect_box(const __global Box* b, const Ray* r) {
 }
 #endif
 
+#if HAS_CYLINDERS || HAS_CONES
+// Keep the side-surface roots whose axial coordinate fa + t da lies in [0, height], widened by a
+// rounding bound so a ray at a rim is not lost between the side and the cap.
+inline void add_side_roots(Crossings* c, int* n, const REAL* ts, int count, REAL fa, REAL da,
+                           REAL height) {
+    for (int i = 0; i < count; ++i) {
+        REAL s = fa + ts[i] * da;
+        REAL tol = gamma_n(8) * (fabs(fa) + fabs(ts[i] * da) + height);
+        if (s >= -tol && s <= height + tol) add_candidate(c, n, ts[i], 0);
+    }
+}
+#endif
+
 #if HAS_CYLINDERS
 inline Crossings intersect_cylinder(const __global Cylinder* cy, const Ray* r) {
     Crossings c = no_crossings();
@@ -228,11 +241,7 @@ inline Crossings intersect_cylinder(const __global Cylinder* cy, const Ray* r) {
         REAL ll = length(l), fl = length(fp);
         REAL disc = a * (radius - ll) * (radius + ll);
         if (quadratic_roots(a, b, (fl - radius) * (fl + radius), disc, &ts[0], &ts[1])) {
-            for (int i = 0; i < 2; ++i) {
-                REAL s = fa + ts[i] * da;
-                REAL tol = gamma_n(8) * (fabs(fa) + fabs(ts[i] * da) + height);
-                if (s >= -tol && s <= height + tol) add_candidate(&c, &n, ts[i], 0);
-            }
+            add_side_roots(&c, &n, ts, 2, fa, da, height);
         }
     }
     if (cy->capped && da != (REAL)0) {
@@ -273,11 +282,7 @@ inline Crossings intersect_cone(const __global Cone* co, const Ray* r) {
         ts[0] = -cc / ((REAL)2 * b);
         roots = 1;
     }
-    for (int i = 0; i < roots; ++i) {
-        REAL s = fa + ts[i] * da;
-        REAL tol = gamma_n(8) * (fabs(fa) + fabs(ts[i] * da) + height);
-        if (s >= -tol && s <= height + tol) add_candidate(&c, &n, ts[i], 0);
-    }
+    add_side_roots(&c, &n, ts, roots, fa, da, height);
     if (co->capped && da != (REAL)0) {
         REAL tc = (height - fa) / da;
         REAL3 q = fp + tc * dp;

@@ -54,6 +54,36 @@ inline REAL refract_media(const SceneRefs* s, const RayTask* in, RayTask* out, i
 }
 #endif
 
+// The scene's geometry and materials; a caller that shades adds lights and textures.
+inline SceneRefs scene_refs(__global const Plane* planes, int n_planes,
+                            __global const Sphere* spheres, __global const Box* boxes,
+                            __global const Cylinder* cylinders, __global const Cone* cones,
+                            __global const Triangle* triangles, __global const float4* vertices,
+                            __global const float4* normals, __global const float2* uvs,
+                            __global const BvhNode* nodes, int n_nodes,
+                            __global const int* prim_refs, __global const Material* materials) {
+    SceneRefs s;
+    s.planes = planes;
+    s.spheres = spheres;
+    s.boxes = boxes;
+    s.cylinders = cylinders;
+    s.cones = cones;
+    s.triangles = triangles;
+    s.vertices = vertices;
+    s.normals = normals;
+    s.uvs = uvs;
+    s.nodes = nodes;
+    s.prim_refs = prim_refs;
+    s.materials = materials;
+    s.textures = 0;
+    s.texels = 0;
+    s.lights = 0;
+    s.n_planes = n_planes;
+    s.n_nodes = n_nodes;
+    s.n_lights = 0;
+    return s;
+}
+
 __kernel void render(__global const Camera* camera, __global const Params* params,
                      __global const Plane* planes, __global const Sphere* spheres,
                      __global const Box* boxes, __global const Cylinder* cylinders,
@@ -68,24 +98,12 @@ __kernel void render(__global const Camera* camera, __global const Params* param
     int width = params->width, height = params->height;
     if (x >= width || y >= height) return;
 
-    SceneRefs s;
-    s.planes = planes;
-    s.spheres = spheres;
-    s.boxes = boxes;
-    s.cylinders = cylinders;
-    s.cones = cones;
-    s.triangles = triangles;
-    s.vertices = vertices;
-    s.normals = normals;
-    s.uvs = uvs;
-    s.nodes = nodes;
-    s.prim_refs = prim_refs;
-    s.materials = materials;
+    SceneRefs s = scene_refs(planes, params->n_planes, spheres, boxes, cylinders, cones,
+                             triangles, vertices, normals, uvs, nodes, n_nodes, prim_refs,
+                             materials);
     s.textures = textures;
     s.texels = texels;
     s.lights = lights;
-    s.n_planes = params->n_planes;
-    s.n_nodes = n_nodes;
     s.n_lights = params->n_lights;
 
     uint pixel = (uint)(y * width + x);
@@ -166,29 +184,13 @@ __kernel void intersect_rays(__global const float4* origins, __global const floa
                              __global const Sphere* spheres, __global const Box* boxes,
                              __global const Cylinder* cylinders, __global const Cone* cones,
                              __global const Triangle* triangles, __global const float4* vertices,
+                             __global const float4* normals, __global const float2* uvs,
                              __global const BvhNode* nodes, int n_nodes,
                              __global const int* prim_refs, __global const Material* materials,
                              __global float4* hits, __global int* refs) {
     int i = get_global_id(0);
-    SceneRefs s;
-    s.planes = planes;
-    s.spheres = spheres;
-    s.boxes = boxes;
-    s.cylinders = cylinders;
-    s.cones = cones;
-    s.triangles = triangles;
-    s.vertices = vertices;
-    s.normals = vertices;
-    s.uvs = 0;
-    s.nodes = nodes;
-    s.prim_refs = prim_refs;
-    s.materials = materials;
-    s.textures = 0;
-    s.texels = 0;
-    s.lights = 0;
-    s.n_planes = n_planes;
-    s.n_nodes = n_nodes;
-    s.n_lights = 0;
+    SceneRefs s = scene_refs(planes, n_planes, spheres, boxes, cylinders, cones, triangles,
+                             vertices, normals, uvs, nodes, n_nodes, prim_refs, materials);
     Ray ray = make_ray(TO_REAL3(origins[i]), TO_REAL3(directions[i]));
     Hit hit = closest_hit(&s, &ray);
     if (hit.t < REAL_INF) {

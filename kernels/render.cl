@@ -31,6 +31,16 @@ inline REAL medium_ior(const SceneRefs* s, const RayTask* task) {
                                  : (REAL)1;
 }
 
+// Push a secondary ray whose direction (and media) are set: it starts off the surface on the
+// side it leaves to, one level deeper in the ray tree.
+inline void spawn(RayTask* stack, int* sp, RayTask* next, const Surface* sf, REAL3 weight,
+                  int depth) {
+    next->o = offset_origin(sf, next->d);
+    next->weight = weight;
+    next->depth = depth + 1;
+    stack[(*sp)++] = *next;
+}
+
 #if HAS_REFRACTION
 // The refracted ray's media and eta = n1 / n2 at a surface of material m.
 inline REAL refract_media(const SceneRefs* s, const RayTask* in, RayTask* out, int m,
@@ -151,21 +161,15 @@ __kernel void render(__global const Camera* camera, __global const Params* param
                         kr += kt;  // total internal reflection
                     } else {
                         next.d = normalize(eta * ray.d + (eta * cos_i - sqrt(k)) * n);
-                        next.o = offset_origin(&sf, next.d);
-                        next.weight = task.weight * kt;
-                        next.depth = task.depth + 1;
-                        stack[sp++] = next;
+                        spawn(stack, &sp, &next, &sf, task.weight * kt, task.depth);
                         secondary_rays++;
                     }
                 }
 #endif
                 if (kr > (REAL)0) {
-                    RayTask next = task;
+                    RayTask next = task;  // a reflection stays in the same media
                     next.d = ray.d - (REAL)2 * dot(ray.d, n) * n;
-                    next.o = offset_origin(&sf, next.d);
-                    next.weight = task.weight * kr;
-                    next.depth = task.depth + 1;
-                    stack[sp++] = next;
+                    spawn(stack, &sp, &next, &sf, task.weight * kr, task.depth);
                     secondary_rays++;
                 }
             }

@@ -24,6 +24,12 @@ inline REAL3 set_comp3(REAL3 v, int k, REAL value) {
 
 inline REAL angle_u(REAL y, REAL x) { return (REAL)0.5 + atan2(y, x) / ((REAL)2 * PI_R); }
 
+// A cap disc's (u, v): its frame coordinates mapped from [-radius, radius] to [0, 1].
+inline REAL2 disc_uv(REAL3 q, REAL3 e1, REAL3 e2, REAL radius) {
+    return (REAL2)((REAL)0.5 + (REAL)0.5 * dot(q, e1) / radius,
+                   (REAL)0.5 + (REAL)0.5 * dot(q, e2) / radius);
+}
+
 inline Surface surface_at(const SceneRefs* s, const Ray* r, const Hit* hit) {
     Surface sf;
     int i = hit->ref & PRIM_INDEX_MASK;
@@ -111,8 +117,7 @@ inline Surface surface_at(const SceneRefs* s, const Ray* r, const Hit* hit) {
                 REAL cap = hit->part == 2 ? height : (REAL)0;
                 p += (cap - h) * axis;
                 sf.n_g = hit->part == 2 ? axis : -axis;
-                sf.uv = (REAL2)((REAL)0.5 + (REAL)0.5 * dot(q, e1) / radius,
-                                (REAL)0.5 + (REAL)0.5 * dot(q, e2) / radius);
+                sf.uv = disc_uv(q, e1, e2, radius);
             }
             sf.err = gamma * (max_abs3(p) + max_abs3(base) + radius + height);
             sf.material = cy->material;
@@ -143,9 +148,7 @@ inline Surface surface_at(const SceneRefs* s, const Ray* r, const Hit* hit) {
             } else {
                 p += (height - h) * axis;
                 sf.n_g = axis;
-                REAL rb = height * tan_a;
-                sf.uv = (REAL2)((REAL)0.5 + (REAL)0.5 * dot(q, e1) / rb,
-                                (REAL)0.5 + (REAL)0.5 * dot(q, e2) / rb);
+                sf.uv = disc_uv(q, e1, e2, height * tan_a);
             }
             sf.err = gamma * (max_abs3(p) + max_abs3(apex) + height * ((REAL)1 + tan_a));
             sf.material = co->material;

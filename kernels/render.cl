@@ -140,7 +140,8 @@ __kernel void render(__global const Camera* camera, __global const Params* param
                 sum += task.weight * background;
                 continue;
             }
-            Surface sf = surface_at(&s, &ray, &hit);
+            Surface sf =
+                surface_at(&s, &ray, &hit, material_needs_uv(&s, prim_material(&s, hit.ref)));
             const __global Material* m = materials + sf.material;
             bool entering = dot(ray.d, sf.n_g) < (REAL)0;
             REAL3 n_f = entering ? sf.n_g : -sf.n_g;
@@ -198,7 +199,7 @@ __kernel void intersect_rays(__global const float4* origins, __global const floa
     Ray ray = make_ray(TO_REAL3(origins[i]), TO_REAL3(directions[i]));
     Hit hit = closest_hit(&s, &ray);
     if (hit.t < REAL_INF) {
-        Surface sf = surface_at(&s, &ray, &hit);
+        Surface sf = surface_at(&s, &ray, &hit, false);
         hits[i] = (float4)((float)sf.n_g.x, (float)sf.n_g.y, (float)sf.n_g.z, (float)hit.t);
         refs[i] = hit.ref;
     } else {

@@ -30,7 +30,19 @@ inline REAL2 disc_uv(REAL3 q, REAL3 e1, REAL3 e2, REAL radius) {
                    (REAL)0.5 + (REAL)0.5 * dot(q, e2) / radius);
 }
 
-inline Surface surface_at(const SceneRefs* s, const Ray* r, const Hit* hit) {
+// (u, v) of a cylinder or cone: around the axis and along it on the side (part 0), the cap
+// disc of radius cap_radius otherwise. q is the hit point relative to the base or apex.
+inline REAL2 axial_uv(REAL3 q, REAL3 axis, REAL along, int part, REAL cap_radius) {
+    REAL3 e1, e2;
+    frame(axis, &e1, &e2);
+    if (part == 0) return (REAL2)(angle_u(dot(q, e2), dot(q, e1)), along);
+    return disc_uv(q, e1, e2, cap_radius);
+}
+
+// want_uv: the material samples an image texture. Only then are (u, v) computed: a sphere's
+// atan2 and asin cost as much as the rest of its shading.
+inline Surface surface_at(const SceneRefs* s, const Ray* r, const Hit* hit,
+                          bool want_uv) {
     Surface sf;
     int i = hit->ref & PRIM_INDEX_MASK;
     REAL3 p = r->o + hit->t * r->d;
@@ -44,10 +56,12 @@ inline Surface surface_at(const SceneRefs* s, const Ray* r, const Hit* hit) {
             p -= dot(p - q, n) * n;
             sf.n_g = n;
             sf.err = gamma * (max_abs3(p) + max_abs3(q));
-            REAL3 e1, e2;
-            frame(n, &e1, &e2);
-            sf.uv = (REAL2)(dot(p - q, e1) + TO_REAL(pl->point.w),
-                            dot(p - q, e2) + TO_REAL(pl->normal.w));
+            if (want_uv) {
+                REAL3 e1, e2;
+                frame(n, &e1, &e2);
+                sf.uv = (REAL2)(dot(p - q, e1) + TO_REAL(pl->point.w),
+                                dot(p - q, e2) + TO_REAL(pl->normal.w));
+            }
             sf.material = pl->material;
             break;
         }
@@ -76,8 +90,10 @@ inline Surface surface_at(const SceneRefs* s, const Ray* r, const Hit* hit) {
             sf.n_g = n;
             sf.err = gamma * (max_abs3(c) + radius);
 #endif
-            sf.uv = (REAL2)(angle_u(n.x, n.z),
-                            (REAL)0.5 + asin(clamp(n.y, (REAL)-1, (REAL)1)) / PI_R);
+            if (want_uv) {
+                sf.uv = (REAL2)(angle_u(n.x, n.z),
+                                (REAL)0.5 + asin(clamp(n.y, (REAL)-1, (REAL)1)) / PI_R);
+            }
             sf.material = sp->material;
             break;
         }
@@ -106,19 +122,16 @@ inline Surface surface_at(const SceneRefs* s, const Ray* r, const Hit* hit) {
             REAL radius = TO_REAL(cy->base_radius.w), height = TO_REAL(cy->axis_height.w);
             REAL3 q = p - base;
             REAL h = dot(q, axis);
-            REAL3 e1, e2;
-            frame(axis, &e1, &e2);
             if (hit->part == 0) {
                 REAL3 radial = safe_normalize(q - h * axis);
                 p = base + h * axis + radius * radial;
                 sf.n_g = radial;
-                sf.uv = (REAL2)(angle_u(dot(q, e2), dot(q, e1)), h / height);
             } else {
                 REAL cap = hit->part == 2 ? height : (REAL)0;
                 p += (cap - h) * axis;
                 sf.n_g = hit->part == 2 ? axis : -axis;
-                sf.uv = disc_uv(q, e1, e2, radius);
             }
+            if (want_uv) sf.uv = axial_uv(q, axis, h / height, hit->part, radius);
             sf.err = gamma * (max_abs3(p) + max_abs3(base) + radius + height);
             sf.material = cy->material;
             break;
@@ -131,8 +144,6 @@ inline Surface surface_at(const SceneRefs* s, const Ray* r, const Hit* hit) {
             REAL tan_a = TO_REAL(co->apex_tan.w), height = TO_REAL(co->axis_height.w);
             REAL3 q = p - apex;
             REAL h = dot(q, axis);
-            REAL3 e1, e2;
-            frame(axis, &e1, &e2);
             if (hit->part == 0) {
                 REAL3 radial = q - h * axis;
                 REAL rl = length(radial);
@@ -144,12 +155,11 @@ inline Surface surface_at(const SceneRefs* s, const Ray* r, const Hit* hit) {
                 } else {
                     sf.n_g = -axis;  // the apex: any choice is a limit; point back out
                 }
-                sf.uv = (REAL2)(angle_u(dot(q, e2), dot(q, e1)), h / height);
             } else {
                 p += (height - h) * axis;
                 sf.n_g = axis;
-                sf.uv = disc_uv(q, e1, e2, height * tan_a);
             }
+            if (want_uv) sf.uv = axial_uv(q, axis, h / height, hit->part, height * tan_a);
             sf.err = gamma * (max_abs3(p) + max_abs3(apex) + height * ((REAL)1 + tan_a));
             sf.material = co->material;
             break;
@@ -257,7 +267,9 @@ inline REAL3 shade_direct(const SceneRefs* s, const Surface* sf, REAL3 n, REAL3 
         if (max_comp3(filter) <= (REAL)0) continue;
         REAL3 refl = (REAL)2 * ndl * n - l;
         REAL rv = dot(refl, v);
-        REAL spec = rv > (REAL)0 ? pow(rv, shininess) : (REAL)0;
+        // rv^shininess as exp2(shininess log2 rv): PoCL's full-precision pow costs several times
+        // more, and the two differ by a few ulp (relative error about |shininess log2 rv| ulp).
+        REAL spec = rv > (REAL)0 ? exp2(shininess * log2(rv)) : (REAL)0;
         result += atten * TO_REAL3(light->color) * filter * (diffuse * ndl * c + specular * spec);
     }
     return result;

@@ -38,6 +38,16 @@ inline REAL3 checker_texel(const __global Texture* tx, REAL3 color, REAL3 p, REA
 }
 #endif
 
+// Only image textures read (u, v); the checker is a solid texture of the hit point.
+inline bool material_needs_uv(const SceneRefs* s, int material) {
+#if HAS_TEXTURES
+    int t = s->materials[material].texture;
+    return t >= 0 && s->textures[t].kind == TEXTURE_IMAGE;
+#else
+    return false;
+#endif
+}
+
 // p_world: the hit point in world space (the checker is a world-space solid texture).
 inline REAL3 surface_color(const SceneRefs* s, const __global Material* m, REAL3 p_world,
                            REAL3 n_f, REAL2 uv) {

@@ -2,9 +2,11 @@
 
     python benchmarks/bench.py [--json benchmarks/results/bench.json] [--repeat 5]
                                [--scenes spheres,mesh] [--device SPEC] [--mesh-dir DIR]
+                           [--povray {auto,off}]
 
 Per scene: load, BVH build, kernel build (cold and warm PoCL cache), then one warm-up render
 and the median of --repeat renders of the same packed scene, timed by OpenCL profiling events.
+With POV-Ray 3.7 installed, a POV-Ray trace of the same scene follows each timed render.
 Measures only; the speed targets are compared in the JSON and the printout, never asserted.
 See benchmarks/README.md for every field.
 """
@@ -47,9 +49,9 @@ TARGETS = {
 MESH_BUFFERS = ("vertices", "triangles", "nodes", "prim_refs")
 
 
-def _mesh_module():
-    # benchmarks/ is not a package: load the generator from its file.
-    spec = importlib.util.spec_from_file_location("make_mesh_scene", HERE / "make_mesh_scene.py")
+def _module(name: str):
+    # benchmarks/ is not a package: load its modules from their files.
+    spec = importlib.util.spec_from_file_location(name, HERE / f"{name}.py")
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     return module
@@ -93,7 +95,7 @@ def _build_only(config_json: str, device_spec: str | None) -> None:
 
 
 def bench_scene(name: str, path: Path, device: cl.Device, device_spec: str | None,
-                repeat: int) -> dict:
+                repeat: int, povray_dir: Path | None = None) -> dict:
     start = time.perf_counter()
     scene = load_scene(path)
     load_s = time.perf_counter() - start
@@ -110,12 +112,17 @@ def bench_scene(name: str, path: Path, device: cl.Device, device_spec: str | Non
     _, first = render_packed(packed, device)
     first_render_s = time.perf_counter() - start
 
+    # POV-Ray's traces alternate with clray's renders, so both see the same machine load.
+    pov = (_module("povray").Interleaved(name, path, povray_dir, r.width, r.height,
+                                         os.cpu_count() or 1) if povray_dir else None)
     runs, walls = [], []
     for _ in range(repeat):
         start = time.perf_counter()
-        _, stats = render_packed(packed, device)
+        image, stats = render_packed(packed, device)
         walls.append(time.perf_counter() - start)
         runs.append(stats["kernel_s"])
+        if pov:
+            pov.trace()
     kernel_s = statistics.median(runs)
 
     n_tri = len(packed.triangles)
@@ -153,6 +160,8 @@ def bench_scene(name: str, path: Path, device: cl.Device, device_spec: str | Non
         key: {"limit": limit, "value": result[key], "met": result[key] <= limit}
         for key, limit in TARGETS.get(name, {}).items()
     }
+    if pov:
+        result["povray"] = pov.summary(kernel_s, image)
     return result
 
 
@@ -165,6 +174,8 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--device", default=None, help="device spec, as for `clray render`")
     parser.add_argument("--mesh-dir", type=Path, default=None,
                         help="where to write the generated mesh scene (default: a temp dir)")
+    parser.add_argument("--povray", choices=("auto", "off"), default="auto",
+                        help="auto: also time POV-Ray 3.7 on each scene when it is on PATH")
     parser.add_argument("--build-only", default=None, help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
     if args.build_only is not None:
@@ -185,11 +196,13 @@ def main(argv: list[str] | None = None) -> None:
         if "mesh" in names:
             mesh_dir = args.mesh_dir or Path(tmp) / "mesh"
             start = time.perf_counter()
-            _mesh_module().main(["--out", str(mesh_dir)])
+            _module("make_mesh_scene").main(["--out", str(mesh_dir)])
             generate_s = time.perf_counter() - start
             paths["mesh"] = mesh_dir / "bumpy.toml"
-        results = [bench_scene(name, paths[name], device, args.device, args.repeat)
-                   for name in names]
+        povray_dir = (Path(tmp) / "povray"
+                      if args.povray == "auto" and _module("povray").available() else None)
+        results = [bench_scene(name, paths[name], device, args.device, args.repeat,
+                               povray_dir and povray_dir / name) for name in names]
         if generate_s is not None:
             next(r for r in results if r["scene"] == "mesh")["generate_s"] = generate_s
 
@@ -205,6 +218,12 @@ def main(argv: list[str] | None = None) -> None:
         for key, t in r["targets"].items():
             print(f"  target {key} <= {t['limit']}: {t['value']:.3f} "
                   f"({'met' if t['met'] else 'NOT met'})")
+        if "povray" in r:
+            p = r["povray"]
+            print(f"  POV-Ray {p['version']}: trace {p['trace_s']:.3f} s (median of "
+                  f"{len(p['trace_s_runs'])}), parse {p['parse_s']:.2f} s, trace / kernel "
+                  f"{p['ratio_trace_over_kernel']:.2f}, image mean abs diff "
+                  f"{p['mean_abs_diff']:.4f}")
     print(f"wrote {args.json}")
 
 

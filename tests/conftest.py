@@ -1,25 +1,129 @@
-"""Shared fixtures: the OpenCL device and context (skipped, never silently passed, when no
-platform exists) and a helper that writes scene files."""
+"""Shared fixtures: the OpenCL devices the suite runs on, and a helper that writes scene files.
+
+A test that asks for `cl_device` (or `cl_ctx`) runs once per OpenCL device, with ids such as
+`pocl-cpu` and `intel-cpu`: all devices found, or those named by `--cl-device` or
+CLRAY_TEST_DEVICES. While it runs, CLRAY_DEVICE names that device, so render(), the CLI and any
+subprocess it starts use the same device as the test. Without an OpenCL platform such tests
+skip, except under CI (CI set) or CLRAY_REQUIRE_DEVICE=1, where a missing device must fail.
+"""
 
 from __future__ import annotations
 
+import os
+import re
 from collections.abc import Callable
 from pathlib import Path
 
 import pyopencl as cl
 import pytest
 
-from clray.device.context import context_for, select_device
+from clray.device.context import DeviceInfo, context_for, list_devices, select_device
 from clray.errors import DeviceError
+
+SELECT_ENV = "CLRAY_TEST_DEVICES"
+# Known platforms by a short name; any other platform goes by the first word of its name.
+PLATFORM_SHORT_NAMES = (("portable computing language", "pocl"), ("intel", "intel"),
+                        ("nvidia", "nvidia"), ("amd", "amd"), ("advanced micro", "amd"))
+
+# Test id -> device; empty, with NO_DEVICE_KEY saying why, where no OpenCL platform exists.
+DEVICES_KEY = pytest.StashKey[dict[str, DeviceInfo]]()
+NO_DEVICE_KEY = pytest.StashKey[str]()
+
+
+def pytest_addoption(parser: pytest.Parser) -> None:
+    parser.addoption("--cl-device", action="append", default=[], metavar="ID",
+                     help="run device tests only on these OpenCL devices: ids such as pocl-cpu "
+                          "or prefixes such as pocl, comma-separated or repeated (default: "
+                          f"${SELECT_ENV}, else every device found)")
+
+
+def _device_required() -> bool:
+    ci = os.environ.get("CI", "").strip().lower()
+    return ci not in ("", "0", "false") or os.environ.get("CLRAY_REQUIRE_DEVICE") == "1"
+
+
+def _test_id(info: DeviceInfo) -> str:
+    platform = info.platform.lower()
+    short = next((s for key, s in PLATFORM_SHORT_NAMES if key in platform), None)
+    if short is None:
+        short = (re.findall(r"[a-z0-9]+", platform) or ["opencl"])[0]
+    return f"{short}-{info.type.lower()}"
+
+
+def _all_test_devices() -> dict[str, DeviceInfo]:
+    devices: dict[str, DeviceInfo] = {}
+    for info in list_devices():
+        base = _test_id(info)
+        test_id, n = base, 1
+        while test_id in devices:  # two alike devices: pocl-cpu, pocl-cpu-2
+            n += 1
+            test_id = f"{base}-{n}"
+        devices[test_id] = info
+    return devices
+
+
+def _chosen(devices: dict[str, DeviceInfo], wanted: list[str]) -> dict[str, DeviceInfo]:
+    if not wanted or wanted == ["all"]:
+        return devices
+    chosen = {}
+    for name in wanted:
+        hits = {i: s for i, s in devices.items() if i == name or i.startswith(f"{name}-")}
+        if not hits:
+            raise pytest.UsageError(f"OpenCL device {name!r} not found; the devices are: "
+                                    f"{', '.join(devices)}")
+        chosen.update(hits)
+    return chosen
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    wanted = ",".join(config.getoption("cl_device")) or os.environ.get(SELECT_ENV, "")
+    try:
+        devices = _all_test_devices()
+    except DeviceError as err:
+        config.stash[DEVICES_KEY] = {}
+        config.stash[NO_DEVICE_KEY] = str(err)
+        return
+    config.stash[DEVICES_KEY] = _chosen(devices, [w.strip().lower() for w in wanted.split(",")
+                                                  if w.strip()])
+
+
+def pytest_report_header(config: pytest.Config) -> str:
+    devices = config.stash[DEVICES_KEY]
+    if not devices:
+        return f"OpenCL test devices: none ({config.stash[NO_DEVICE_KEY]})"
+    return "OpenCL test devices: " + ", ".join(f"{test_id} ({d.spec} {d.platform}: {d.name})"
+                                               for test_id, d in devices.items())
+
+
+def pytest_generate_tests(metafunc: pytest.Metafunc) -> None:
+    # Only tests that need a device are multiplied; the rest run once.
+    if "cl_device" in metafunc.fixturenames:
+        devices = metafunc.config.stash[DEVICES_KEY]
+        # The param is the "platform:device" spec that select_device and CLRAY_DEVICE take.
+        specs = [d.spec for d in devices.values()]
+        metafunc.parametrize("cl_device", specs or [None], indirect=True,
+                             ids=list(devices) or ["no-device"], scope="session")
 
 
 @pytest.fixture(scope="session")
-def cl_device() -> cl.Device:
-    """The device clray would pick by default (CLRAY_DEVICE / PYOPENCL_CTX honoured)."""
-    try:
-        return select_device()
-    except DeviceError as err:
-        pytest.skip(str(err))
+def cl_device(request: pytest.FixtureRequest) -> cl.Device:
+    if request.param is None:
+        reason = request.config.stash[NO_DEVICE_KEY]
+        if _device_required():
+            pytest.fail(f"no OpenCL device, and CI or CLRAY_REQUIRE_DEVICE=1 needs one: {reason}",
+                        pytrace=False)
+        pytest.skip(reason)
+    return select_device(request.param)
+
+
+@pytest.fixture(autouse=True)
+def _default_device_is_the_tests(request: pytest.FixtureRequest,
+                                 monkeypatch: pytest.MonkeyPatch) -> None:
+    # Code under test that picks the default device (render() without a device, the CLI, a
+    # subprocess) must land on the device this test is parametrised with.
+    if "cl_device" in request.fixturenames:
+        request.getfixturevalue("cl_device")
+        monkeypatch.setenv("CLRAY_DEVICE", request.node.callspec.params["cl_device"])
 
 
 @pytest.fixture(scope="session")

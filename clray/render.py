@@ -11,7 +11,7 @@ import pyopencl as cl
 
 from clray.device.context import describe, queue_for, select_device
 from clray.device.pack import PackedScene, pack_scene
-from clray.device.program import build_program
+from clray.device.program import build_program, bvh_width_for
 from clray.errors import DeviceError
 from clray.scene.model import Scene
 
@@ -69,12 +69,15 @@ def render_packed(packed: PackedScene, device: cl.Device,
     try:
         buffers = [_buffer(ctx, getattr(packed, name)) for name in (
             "camera", "params", "planes", "spheres", "boxes", "cylinders", "cones",
-            "triangles", "vertices", "normals", "uvs", "nodes")]
+            "triangles", "packets", "vertices", "normals", "uvs", "nodes")]
         buffers.append(np.int32(len(packed.nodes)))
         buffers += [_buffer(ctx, getattr(packed, name)) for name in (
             "prim_refs", "materials", "textures", "texels", "lights")]
         image_buf = cl.Buffer(ctx, cl.mem_flags.WRITE_ONLY, width * height * 16)
         counts_buf = cl.Buffer(ctx, cl.mem_flags.WRITE_ONLY, width * height * 16)
+        count_tests = packed.config.count_tests
+        tests_buf = cl.Buffer(ctx, cl.mem_flags.WRITE_ONLY,
+                              width * height * 16 if count_tests else 16)
         kernel = cl.Kernel(program, "render")
         rows = max(1, min(height, PIXEL_SAMPLES_PER_LAUNCH // max(1, width * spp)))
         launches = -(-height // rows)
@@ -82,7 +85,7 @@ def render_packed(packed: PackedScene, device: cl.Device,
         for launch in range(launches):
             row0 = launch * rows
             band = min(rows, height - row0)
-            kernel.set_args(*buffers, image_buf, counts_buf, np.int32(row0))
+            kernel.set_args(*buffers, image_buf, counts_buf, tests_buf, np.int32(row0))
             event = cl.enqueue_nd_range_kernel(queue, kernel, (width, band), None)
             event.wait()
             kernel_s += (event.profile.end - event.profile.start) * 1e-9
@@ -92,6 +95,9 @@ def render_packed(packed: PackedScene, device: cl.Device,
         counts = np.empty((height * width, 4), dtype=np.int32)
         cl.enqueue_copy(queue, image, image_buf)
         cl.enqueue_copy(queue, counts, counts_buf)
+        if count_tests:
+            tests = np.empty((height * width, 4), dtype=np.int32)
+            cl.enqueue_copy(queue, tests, tests_buf)
         queue.finish()
     except cl.Error as err:
         raise DeviceError(f"OpenCL error while rendering on {describe(device)}: {err}") from err
@@ -106,6 +112,10 @@ def render_packed(packed: PackedScene, device: cl.Device,
         "mrays_per_s": rays["total"] / kernel_s * 1e-6 if kernel_s > 0 else None,
         "device_bytes": packed.device_bytes(),
     }
+    if count_tests:
+        sums = tests.sum(axis=0, dtype=np.int64)
+        stats["tests"] = dict(zip(("closest_boxes", "closest_prims", "shadow_boxes",
+                                   "shadow_prims"), map(int, sums), strict=True))
     return image[:, :, :3], stats
 
 
@@ -114,8 +124,8 @@ def render(scene: Scene, settings: RenderSettings | None = None) -> RenderResult
     start = time.perf_counter()
     device = select_device(settings.device)
     resolved = _resolve(scene, settings)
-    packed = pack_scene(scene, precision=settings.precision, **resolved,
-                        **dict(settings.variants))
+    packed = pack_scene(scene, precision=settings.precision, bvh_width=bvh_width_for(device),
+                        **resolved, **dict(settings.variants))
     pack_s = time.perf_counter() - start - packed.bvh_s
     image, stats = render_packed(packed, device, settings.progress)
     stats = {
@@ -145,8 +155,8 @@ def intersect_rays(packed: PackedScene, device: cl.Device, origins: np.ndarray,
     args = [_buffer(ctx, o4), _buffer(ctx, d4), _buffer(ctx, packed.planes),
             np.int32(len(packed.planes))]
     args += [_buffer(ctx, getattr(packed, name)) for name in (
-        "spheres", "boxes", "cylinders", "cones", "triangles", "vertices", "normals", "uvs",
-        "nodes")]
+        "spheres", "boxes", "cylinders", "cones", "triangles", "packets", "vertices", "normals",
+        "uvs", "nodes")]
     args.append(np.int32(len(packed.nodes)))
     args += [_buffer(ctx, packed.prim_refs), _buffer(ctx, packed.materials)]
     hits_buf = cl.Buffer(ctx, cl.mem_flags.WRITE_ONLY, n * 16)

@@ -1,9 +1,54 @@
 // Scene queries: closest hit and shadow transmission over the planes (a short list: they are
-// unbounded) and the BVH of every bounded primitive.
+// unbounded) and the wide BVH of every bounded primitive (clray_types.h: BvhNode).
 #ifndef CLRAY_BVH_H
 #define CLRAY_BVH_H
 
-#define BVH_STACK_SIZE 64
+// BVH_STACK_SIZE: set by the host from the tree (clray/accel/wide.py: stack_size), so no walk
+// can overflow it.
+
+#if BVH_WIDTH == 8
+typedef int8 INTW;
+#define VLOADW vload8
+#define VSTOREW vstore8
+#ifdef USE_DOUBLE
+typedef double8 REALW;
+#define TO_REALW(v) convert_double8(v)
+#define MASK_TO_INTW(m) convert_int8(m)
+#else
+typedef float8 REALW;
+#define TO_REALW(v) (v)
+#define MASK_TO_INTW(m) (m)
+#endif
+HOT int lane_bits(INTW m) { return lane_bits4(m.lo) | (lane_bits4(m.hi) << 4); }
+#elif BVH_WIDTH == 4
+typedef int4 INTW;
+#define VLOADW vload4
+#define VSTOREW vstore4
+#ifdef USE_DOUBLE
+typedef double4 REALW;
+#define TO_REALW(v) convert_double4(v)
+#define MASK_TO_INTW(m) convert_int4(m)
+#else
+typedef float4 REALW;
+#define TO_REALW(v) (v)
+#define MASK_TO_INTW(m) (m)
+#endif
+HOT int lane_bits(INTW m) { return lane_bits4(m); }
+#else
+#error "BVH_WIDTH must be 4 or 8"
+#endif
+
+// COUNT_TESTS (the instrumented build of benchmarks/bench.py): box and primitive tests per
+// work-item, for closest-hit and shadow queries apart.
+typedef struct {
+    int closest_boxes, closest_prims, shadow_boxes, shadow_prims;
+} TestCounts;
+
+#if COUNT_TESTS
+#define COUNT(s, field, n) ((s)->counts->field += (n))
+#else
+#define COUNT(s, field, n)
+#endif
 
 typedef struct {
     __global const Plane* planes;
@@ -12,6 +57,7 @@ typedef struct {
     __global const Cylinder* cylinders;
     __global const Cone* cones;
     __global const Triangle* triangles;
+    __global const TrianglePacket* packets;
     __global const float4* vertices;
     __global const float4* normals;
     __global const float2* uvs;
@@ -22,6 +68,9 @@ typedef struct {
     __global const float4* texels;
     __global const Light* lights;
     int n_planes, n_nodes, n_lights;
+#if COUNT_TESTS
+    TestCounts* counts;
+#endif
 } SceneRefs;
 
 typedef struct {
@@ -31,7 +80,8 @@ typedef struct {
     REAL b1, b2;
 } Hit;
 
-inline Crossings intersect_prim(const SceneRefs* s, int ref, const Ray* r) {
+// Triangles are tested in packets (leaf_closest, leaf_transmission), never one by one.
+HOT Crossings intersect_prim(const SceneRefs* s, int ref, const Ray* r) {
     int i = ref & PRIM_INDEX_MASK;
     switch (ref >> PRIM_TYPE_SHIFT) {
 #if HAS_PLANES
@@ -53,14 +103,6 @@ inline Crossings intersect_prim(const SceneRefs* s, int ref, const Ray* r) {
 #if HAS_CONES
         case PRIM_CONE:
             return intersect_cone(s->cones + i, r);
-#endif
-#if HAS_TRIANGLES
-        case PRIM_TRIANGLE: {
-            Triangle tri = s->triangles[i];
-            return intersect_triangle(TO_REAL3(s->vertices[tri.v0]),
-                                      TO_REAL3(s->vertices[tri.v1]),
-                                      TO_REAL3(s->vertices[tri.v2]), r);
-        }
 #endif
         default:
             return no_crossings();
@@ -114,17 +156,74 @@ inline void consider_hit(Hit* hit, const Crossings* c, int ref) {
     }
 }
 
-inline bool node_entry(const __global BvhNode* node, const Ray* r, REAL tmax, REAL* tnear) {
-    REAL3 lo = (REAL3)(node->lo[0], node->lo[1], node->lo[2]);
-    REAL3 hi = (REAL3)(node->hi[0], node->hi[1], node->hi[2]);
-    REAL t0 = 0, t1 = tmax;
-    int p0, p1;
-    if (!slab_interval(lo, hi, r, &t0, &t1, &p0, &p1)) return false;
-    *tnear = t0;
-    return true;
+// One axis of the vector slab test, with the scalar slab_interval's rules: compare-select so a
+// NaN from 0 * inf never narrows the interval, and the far bound widened by `widen`.
+HOT void slab_axis(REALW lo, REALW hi, REAL o, REAL inv, REAL widen, REALW* t0, REALW* t1) {
+    REALW tn = (lo - (REALW)(o)) * (REALW)(inv);
+    REALW tf = (hi - (REALW)(o)) * (REALW)(inv);
+    REALW near = tn > tf ? tf : tn;
+    REALW far = (tn > tf ? tn : tf) * widen;
+    *t0 = near > *t0 ? near : *t0;
+    *t1 = far < *t1 ? far : *t1;
 }
 
-inline Hit closest_hit(const SceneRefs* s, const Ray* r) {
+// The children of a node whose boxes the ray crosses within [0, tmax], as bits, and where it
+// enters each (tnear, meaningful for the crossed ones): one vector slab test for all children.
+HOT int node_children(const __global BvhNode* node, const Ray* r, REAL tmax, REAL* tnear) {
+    const REAL widen = (REAL)1 + (REAL)2 * gamma_n(3);
+    REALW t0 = (REALW)(0), t1 = (REALW)(tmax);
+    slab_axis(TO_REALW(VLOADW(0, node->lo_x)), TO_REALW(VLOADW(0, node->hi_x)), r->o.x,
+              r->inv_d.x, widen, &t0, &t1);
+    slab_axis(TO_REALW(VLOADW(0, node->lo_y)), TO_REALW(VLOADW(0, node->hi_y)), r->o.y,
+              r->inv_d.y, widen, &t0, &t1);
+    slab_axis(TO_REALW(VLOADW(0, node->lo_z)), TO_REALW(VLOADW(0, node->hi_z)), r->o.z,
+              r->inv_d.z, widen, &t0, &t1);
+    VSTOREW(t0, 0, tnear);
+    INTW used = VLOADW(0, node->child) >= 0;
+    return lane_bits(MASK_TO_INTW(t0 <= t1) & used);
+}
+
+#if COUNT_TESTS
+inline int used_children(const __global BvhNode* node) {
+    return popcount(lane_bits(VLOADW(0, node->child) >= 0));
+}
+
+// Primitives a leaf tests: its packets' real triangles and its others.
+inline int leaf_prims(const SceneRefs* s, int slot, int count) {
+    int n = count & LEAF_COUNT_MASK;
+    for (int k = 0; k < (count >> LEAF_PACKET_SHIFT) * PACKET_WIDTH; ++k) {
+        n += s->prim_refs[slot + k] >= 0;
+    }
+    return n;
+}
+#endif
+
+HOT void leaf_closest(const SceneRefs* s, int slot, int count, const Ray* r, Hit* hit) {
+#if HAS_TRIANGLES
+    int packets = count >> LEAF_PACKET_SHIFT;
+    for (int p = 0; p < packets; ++p, slot += PACKET_WIDTH) {
+        REAL t[PACKET_WIDTH], b1[PACKET_WIDTH], b2[PACKET_WIDTH];
+        int bits = intersect_triangle_packet(s->packets + slot / PACKET_WIDTH, r, t, b1, b2);
+        while (bits) {
+            int k = lowest_bit(bits);
+            bits &= bits - 1;
+            Crossings c = no_crossings();
+            c.t[0] = t[k];
+            c.b1 = b1[k];
+            c.b2 = b2[k];
+            consider_hit(hit, &c, s->prim_refs[slot + k]);
+        }
+    }
+    count &= LEAF_COUNT_MASK;
+#endif
+    for (int k = 0; k < count; ++k) {
+        int ref = s->prim_refs[slot + k];
+        Crossings c = intersect_prim(s, ref, r);
+        consider_hit(hit, &c, ref);
+    }
+}
+
+HOT Hit closest_hit(const SceneRefs* s, const Ray* r) {
     Hit hit;
     hit.t = REAL_INF;
     hit.ref = -1;
@@ -138,45 +237,58 @@ inline Hit closest_hit(const SceneRefs* s, const Ray* r) {
     }
 #endif
 #if HAS_BVH
-    REAL tnear;
-    if (s->n_nodes == 0 || !node_entry(s->nodes, r, hit.t, &tnear)) return hit;
-    // Pushed nodes keep their entry t, so a pop is rejected without a second slab test once a
-    // nearer hit is known.
-    int stack[BVH_STACK_SIZE];
+    if (s->n_nodes == 0) return hit;
+    // Entries are (child, count) pairs as in BvhNode, with the t where the ray enters them:
+    // a pop is skipped without another slab test once a nearer hit is known.
+    int stack_child[BVH_STACK_SIZE], stack_count[BVH_STACK_SIZE];
     REAL stack_t[BVH_STACK_SIZE];
     int sp = 0;
-    int index = 0;
+    int child = 0, count = 0;
     for (;;) {
-        const __global BvhNode* node = s->nodes + index;
-        if (node->count > 0) {
-            for (int k = 0; k < node->count; ++k) {
-                int ref = s->prim_refs[node->first + k];
-                Crossings c = intersect_prim(s, ref, r);
-                consider_hit(&hit, &c, ref);
-            }
+        if (count > 0) {
+            COUNT(s, closest_prims, leaf_prims(s, child, count));
+            leaf_closest(s, child, count, r, &hit);
         } else {
-            // Visit the nearer child first; <= keeps equal-t candidates for the tie rule.
-            int left = index + 1, right = node->first;
-            REAL tl, tr;
-            bool hl = node_entry(s->nodes + left, r, hit.t, &tl);
-            bool hr = node_entry(s->nodes + right, r, hit.t, &tr);
-            if (hl && hr) {
-                bool left_first = tl <= tr;
-                if (sp < BVH_STACK_SIZE) {
-                    stack[sp] = left_first ? right : left;
-                    stack_t[sp++] = left_first ? tr : tl;
+            const __global BvhNode* node = s->nodes + child;
+            COUNT(s, closest_boxes, used_children(node));
+            REAL tnear[BVH_WIDTH];
+            int bits = node_children(node, r, hit.t, tnear);
+            if (bits) {
+                // Go on with the nearest crossed child; push the others so that nearer ones
+                // pop first (an insertion into this node's part of the stack, which holds at
+                // most BVH_WIDTH - 1 entries).
+                int near = lowest_bit(bits);
+                bits &= bits - 1;
+                int base = sp;
+                while (bits) {
+                    int far = lowest_bit(bits);
+                    bits &= bits - 1;
+                    if (tnear[far] < tnear[near]) {
+                        int swap = far;
+                        far = near;
+                        near = swap;
+                    }
+                    int at = sp++;
+                    while (at > base && stack_t[at - 1] < tnear[far]) {
+                        stack_child[at] = stack_child[at - 1];
+                        stack_count[at] = stack_count[at - 1];
+                        stack_t[at] = stack_t[at - 1];
+                        at--;
+                    }
+                    stack_child[at] = node->child[far];
+                    stack_count[at] = node->count[far];
+                    stack_t[at] = tnear[far];
                 }
-                index = left_first ? left : right;
-                continue;
-            }
-            if (hl || hr) {
-                index = hl ? left : right;
+                child = node->child[near];
+                count = node->count[near];
                 continue;
             }
         }
         while (sp > 0 && stack_t[sp - 1] > hit.t) sp--;
         if (sp == 0) break;
-        index = stack[--sp];
+        --sp;
+        child = stack_child[sp];
+        count = stack_count[sp];
     }
 #endif
     return hit;
@@ -195,8 +307,34 @@ inline bool filter_crossings(const SceneRefs* s, const Crossings* c, int ref, RE
     return true;
 }
 
+// false once the leaf stops the light entirely.
+HOT bool leaf_transmission(const SceneRefs* s, int slot, int count, const Ray* r, REAL tmax,
+                           REAL3* filter) {
+#if HAS_TRIANGLES
+    int packets = count >> LEAF_PACKET_SHIFT;
+    for (int p = 0; p < packets; ++p, slot += PACKET_WIDTH) {
+        REAL t[PACKET_WIDTH], b1[PACKET_WIDTH], b2[PACKET_WIDTH];
+        int bits = intersect_triangle_packet(s->packets + slot / PACKET_WIDTH, r, t, b1, b2);
+        while (bits) {
+            int k = lowest_bit(bits);
+            bits &= bits - 1;
+            Crossings c = no_crossings();
+            c.t[0] = t[k];
+            if (!filter_crossings(s, &c, s->prim_refs[slot + k], tmax, filter)) return false;
+        }
+    }
+    count &= LEAF_COUNT_MASK;
+#endif
+    for (int k = 0; k < count; ++k) {
+        int ref = s->prim_refs[slot + k];
+        Crossings c = intersect_prim(s, ref, r);
+        if (!filter_crossings(s, &c, ref, tmax, filter)) return false;
+    }
+    return true;
+}
+
 // Light reaching the end of a shadow segment: 0 at the first opaque crossing.
-inline REAL3 transmission(const SceneRefs* s, const Ray* r, REAL tmax) {
+HOT REAL3 transmission(const SceneRefs* s, const Ray* r, REAL tmax) {
     REAL3 filter = (REAL3)(1, 1, 1);
 #if HAS_PLANES
     for (int i = 0; i < s->n_planes; ++i) {
@@ -207,26 +345,28 @@ inline REAL3 transmission(const SceneRefs* s, const Ray* r, REAL tmax) {
     }
 #endif
 #if HAS_BVH
-    REAL tnear;
-    if (s->n_nodes == 0 || !node_entry(s->nodes, r, tmax, &tnear)) return filter;
-    int stack[BVH_STACK_SIZE];
+    if (s->n_nodes == 0) return filter;
+    int stack_child[BVH_STACK_SIZE], stack_count[BVH_STACK_SIZE];
     int sp = 0;
-    stack[sp++] = 0;
+    stack_child[sp] = 0;
+    stack_count[sp++] = 0;
     while (sp > 0) {
-        int index = stack[--sp];
-        const __global BvhNode* node = s->nodes + index;
-        if (node->count > 0) {
-            for (int k = 0; k < node->count; ++k) {
-                int ref = s->prim_refs[node->first + k];
-                Crossings c = intersect_prim(s, ref, r);
-                if (!filter_crossings(s, &c, ref, tmax, &filter)) return (REAL3)(0, 0, 0);
-            }
-        } else {
-            int left = index + 1, right = node->first;
-            if (sp + 2 <= BVH_STACK_SIZE) {
-                if (node_entry(s->nodes + right, r, tmax, &tnear)) stack[sp++] = right;
-                if (node_entry(s->nodes + left, r, tmax, &tnear)) stack[sp++] = left;
-            }
+        --sp;
+        int child = stack_child[sp], count = stack_count[sp];
+        if (count > 0) {
+            COUNT(s, shadow_prims, leaf_prims(s, child, count));
+            if (!leaf_transmission(s, child, count, r, tmax, &filter)) return (REAL3)(0, 0, 0);
+            continue;
+        }
+        const __global BvhNode* node = s->nodes + child;
+        COUNT(s, shadow_boxes, used_children(node));
+        REAL tnear[BVH_WIDTH];
+        int bits = node_children(node, r, tmax, tnear);
+        while (bits) {
+            int k = lowest_bit(bits);
+            bits &= bits - 1;
+            stack_child[sp] = node->child[k];
+            stack_count[sp++] = node->count[k];
         }
     }
 #endif

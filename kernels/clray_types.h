@@ -110,14 +110,29 @@ typedef struct {
     int n_planes, n_lights, bvh_root_count;  // bvh_root_count: 0 when the BVH is empty
 } Params;
 
-// Flattened depth-first BVH: an inner node's left child is the next node and `first` is its
-// right child; a leaf has count > 0 primitive references starting at `first`. Bounds are
-// rounded outwards to float32 on the host, so they hold in the double build too.
+// A wide BVH node (clray/accel/wide.py): up to BVH_WIDTH (4 or 8, a build option) children with
+// their bounds axis by axis, so one vector slab test covers them all. child[k] is an inner
+// child's node index, or a leaf's first slot in prim_refs, or -1 for an empty slot; count[k] is 0
+// for an inner child and (packets << LEAF_PACKET_SHIFT) | others for a leaf. Bounds are rounded
+// outwards to float32 on the host, so they hold in the double build too.
 typedef struct {
-    float lo[3];
-    int first;
-    float hi[3];
-    int count;
+    float lo_x[BVH_WIDTH], lo_y[BVH_WIDTH], lo_z[BVH_WIDTH];
+    float hi_x[BVH_WIDTH], hi_y[BVH_WIDTH], hi_z[BVH_WIDTH];
+    int child[BVH_WIDTH];
+    int count[BVH_WIDTH];
 } BvhNode;
+
+// A leaf's triangles sit first in its prim_refs slots, in packets of PACKET_WIDTH (padded with
+// -1), then its other primitives; leaves start at multiples of PACKET_WIDTH, so packet
+// slot / PACKET_WIDTH holds the corners of slots slot .. slot + 3.
+#define PACKET_WIDTH 4
+#define LEAF_PACKET_SHIFT 16
+#define LEAF_COUNT_MASK 0xFFFF
+
+typedef struct {
+    float x0[4], y0[4], z0[4];
+    float x1[4], y1[4], z1[4];
+    float x2[4], y2[4], z2[4];
+} TrianglePacket;
 
 #endif

@@ -360,4 +360,100 @@ inline Crossings intersect_triangle(REAL3 p0, REAL3 p1, REAL3 p2, const Ray* r) 
 }
 #endif
 
+#if HAS_TRIANGLES
+// Hits of a ray with the triangles of a packet: bit k set where lane k is crossed, with its t
+// and barycentrics in t[k], b1[k], b2[k]. Padding lanes hold NaN corners and are never crossed.
+#if TRIANGLE_MOLLER_TRUMBORE
+// The study variant tests lane by lane with the scalar formula.
+HOT int intersect_triangle_packet(const __global TrianglePacket* pk, const Ray* r, REAL* t,
+                                  REAL* b1, REAL* b2) {
+    int bits = 0;
+    for (int k = 0; k < PACKET_WIDTH; ++k) {
+        Crossings c = intersect_triangle((REAL3)(pk->x0[k], pk->y0[k], pk->z0[k]),
+                                         (REAL3)(pk->x1[k], pk->y1[k], pk->z1[k]),
+                                         (REAL3)(pk->x2[k], pk->y2[k], pk->z2[k]), r);
+        if (c.t[0] < REAL_INF) {
+            bits |= 1 << k;
+            t[k] = c.t[0];
+            b1[k] = c.b1;
+            b2[k] = c.b2;
+        }
+    }
+    return bits;
+}
+#else
+HOT REAL4 pick4(REAL4 x, REAL4 y, REAL4 z, int k) { return k == 0 ? x : (k == 1 ? y : z); }
+
+// intersect_triangle's watertight test on four triangles at once: lane for lane the same
+// operations in the same order, so each lane rounds exactly as the scalar test would.
+HOT int intersect_triangle_packet(const __global TrianglePacket* pk, const Ray* r, REAL* t,
+                                  REAL* b1, REAL* b2) {
+    REAL4 ox = (REAL4)(r->o.x), oy = (REAL4)(r->o.y), oz = (REAL4)(r->o.z);
+    REAL4 ax = TO_REAL4(vload4(0, pk->x0)) - ox, ay = TO_REAL4(vload4(0, pk->y0)) - oy,
+          az = TO_REAL4(vload4(0, pk->z0)) - oz;
+    REAL4 bx = TO_REAL4(vload4(0, pk->x1)) - ox, by = TO_REAL4(vload4(0, pk->y1)) - oy,
+          bz = TO_REAL4(vload4(0, pk->z1)) - oz;
+    REAL4 cx = TO_REAL4(vload4(0, pk->x2)) - ox, cy = TO_REAL4(vload4(0, pk->y2)) - oy,
+          cz = TO_REAL4(vload4(0, pk->z2)) - oz;
+    REAL4 p0x = pick4(ax, ay, az, r->kx), p0y = pick4(ax, ay, az, r->ky),
+          p0z = pick4(ax, ay, az, r->kz);
+    REAL4 p1x = pick4(bx, by, bz, r->kx), p1y = pick4(bx, by, bz, r->ky),
+          p1z = pick4(bx, by, bz, r->kz);
+    REAL4 p2x = pick4(cx, cy, cz, r->kx), p2y = pick4(cx, cy, cz, r->ky),
+          p2z = pick4(cx, cy, cz, r->kz);
+    REAL4 sx = (REAL4)(r->sx), sy = (REAL4)(r->sy);
+    p0x += sx * p0z;
+    p0y += sy * p0z;
+    p1x += sx * p1z;
+    p1y += sy * p1z;
+    p2x += sx * p2z;
+    p2y += sy * p2z;
+    REAL4 e0 = difference_of_products4(p1x, p2y, p1y, p2x);
+    REAL4 e1 = difference_of_products4(p2x, p0y, p2y, p0x);
+    REAL4 e2 = difference_of_products4(p0x, p1y, p0y, p1x);
+#if !defined(USE_DOUBLE) && defined(cl_khr_fp64) && !TRIANGLE_NO_FP64_FALLBACK
+    int zero = lane_bits4((e0 == 0.0f) | (e1 == 0.0f) | (e2 == 0.0f));
+    if (zero) {
+        float q[6][4], e[3][4];
+        vstore4(p0x, 0, q[0]);
+        vstore4(p0y, 0, q[1]);
+        vstore4(p1x, 0, q[2]);
+        vstore4(p1y, 0, q[3]);
+        vstore4(p2x, 0, q[4]);
+        vstore4(p2y, 0, q[5]);
+        vstore4(e0, 0, e[0]);
+        vstore4(e1, 0, e[1]);
+        vstore4(e2, 0, e[2]);
+        for (int k = 0; k < PACKET_WIDTH; ++k) {
+            if (!(zero & (1 << k))) continue;
+            e[0][k] = (float)((double)q[2][k] * (double)q[5][k] - (double)q[3][k] * q[4][k]);
+            e[1][k] = (float)((double)q[4][k] * (double)q[1][k] - (double)q[5][k] * q[0][k]);
+            e[2][k] = (float)((double)q[0][k] * (double)q[3][k] - (double)q[1][k] * q[2][k]);
+        }
+        e0 = vload4(0, e[0]);
+        e1 = vload4(0, e[1]);
+        e2 = vload4(0, e[2]);
+    }
+#endif
+    MASK4 mixed = ((e0 < 0) | (e1 < 0) | (e2 < 0)) & ((e0 > 0) | (e1 > 0) | (e2 > 0));
+    REAL4 det = e0 + e1 + e2;
+    REAL4 sz = (REAL4)(r->sz);
+    p0z *= sz;
+    p1z *= sz;
+    p2z *= sz;
+    REAL4 t_scaled = e0 * p0z + e1 * p1z + e2 * p2z;
+    // A zero or NaN det fails both sign tests.
+    MASK4 ahead = ((det < 0) & (t_scaled < 0)) | ((det > 0) & (t_scaled > 0));
+    int bits = lane_bits4(convert_int4(ahead & ~mixed));
+    if (bits) {
+        REAL4 inv_det = (REAL)1 / det;
+        vstore4(t_scaled * inv_det, 0, t);
+        vstore4(e1 * inv_det, 0, b1);
+        vstore4(e2 * inv_det, 0, b2);
+    }
+    return bits;
+}
+#endif
+#endif
+
 #endif

@@ -2,9 +2,10 @@
 //
 // Build switches (all from clray/device/program.py's KernelConfig): HAS_PLANES, HAS_SPHERES,
 // HAS_BOXES, HAS_CYLINDERS, HAS_CONES, HAS_TRIANGLES, HAS_VERTEX_NORMALS, HAS_VERTEX_UVS,
-// HAS_TEXTURES, HAS_REFRACTION (0 or 1), MAX_DEPTH, USE_DOUBLE, and the study variants
-// SPHERE_TEXTBOOK, OFFSET_FIXED_EPS, TRIANGLE_NO_FP64_FALLBACK, TRIANGLE_MOLLER_TRUMBORE;
-// FP64_SPHERES (the packer's per-scene fp64 path for spheres float32 cannot intersect).
+// HAS_TEXTURES, HAS_REFRACTION (0 or 1), MAX_DEPTH, BVH_WIDTH, BVH_STACK_SIZE, USE_DOUBLE, the
+// study variants SPHERE_TEXTBOOK, OFFSET_FIXED_EPS, TRIANGLE_NO_FP64_FALLBACK,
+// TRIANGLE_MOLLER_TRUMBORE; FP64_SPHERES (the packer's per-scene fp64 path for spheres float32
+// cannot intersect); COUNT_TESTS (the instrumented build: box and primitive tests per pixel).
 #include "real.h"
 #include "clray_types.h"
 
@@ -68,10 +69,12 @@ inline REAL refract_media(const SceneRefs* s, const RayTask* in, RayTask* out, i
 inline SceneRefs scene_refs(__global const Plane* planes, int n_planes,
                             __global const Sphere* spheres, __global const Box* boxes,
                             __global const Cylinder* cylinders, __global const Cone* cones,
-                            __global const Triangle* triangles, __global const float4* vertices,
-                            __global const float4* normals, __global const float2* uvs,
-                            __global const BvhNode* nodes, int n_nodes,
-                            __global const int* prim_refs, __global const Material* materials) {
+                            __global const Triangle* triangles,
+                            __global const TrianglePacket* packets,
+                            __global const float4* vertices, __global const float4* normals,
+                            __global const float2* uvs, __global const BvhNode* nodes,
+                            int n_nodes, __global const int* prim_refs,
+                            __global const Material* materials) {
     SceneRefs s;
     s.planes = planes;
     s.spheres = spheres;
@@ -79,6 +82,7 @@ inline SceneRefs scene_refs(__global const Plane* planes, int n_planes,
     s.cylinders = cylinders;
     s.cones = cones;
     s.triangles = triangles;
+    s.packets = packets;
     s.vertices = vertices;
     s.normals = normals;
     s.uvs = uvs;
@@ -98,23 +102,28 @@ __kernel void render(__global const Camera* camera, __global const Params* param
                      __global const Plane* planes, __global const Sphere* spheres,
                      __global const Box* boxes, __global const Cylinder* cylinders,
                      __global const Cone* cones, __global const Triangle* triangles,
-                     __global const float4* vertices, __global const float4* normals,
-                     __global const float2* uvs, __global const BvhNode* nodes, int n_nodes,
+                     __global const TrianglePacket* packets, __global const float4* vertices,
+                     __global const float4* normals, __global const float2* uvs, __global const BvhNode* nodes, int n_nodes,
                      __global const int* prim_refs, __global const Material* materials,
                      __global const Texture* textures, __global const float4* texels,
                      __global const Light* lights, __global float4* image,
-                     __global int4* ray_counts, int row_offset) {
+                     __global int4* ray_counts, __global int4* test_counts,
+                     int row_offset) {
     int x = get_global_id(0), y = get_global_id(1) + row_offset;
     int width = params->width, height = params->height;
     if (x >= width || y >= height) return;
 
     SceneRefs s = scene_refs(planes, params->n_planes, spheres, boxes, cylinders, cones,
-                             triangles, vertices, normals, uvs, nodes, n_nodes, prim_refs,
-                             materials);
+                             triangles, packets, vertices, normals, uvs, nodes, n_nodes,
+                             prim_refs, materials);
     s.textures = textures;
     s.texels = texels;
     s.lights = lights;
     s.n_lights = params->n_lights;
+#if COUNT_TESTS
+    TestCounts counts = {0, 0, 0, 0};
+    s.counts = &counts;
+#endif
 
     uint pixel = (uint)(y * width + x);
     int spp = params->spp;
@@ -180,6 +189,10 @@ __kernel void render(__global const Camera* camera, __global const Params* param
     REAL3 mean = sum / (REAL)spp;
     image[pixel] = (float4)((float)mean.x, (float)mean.y, (float)mean.z, 0.0f);
     ray_counts[pixel] = (int4)(spp, secondary_rays, shadow_rays, 0);
+#if COUNT_TESTS
+    test_counts[pixel] = (int4)(counts.closest_boxes, counts.closest_prims, counts.shadow_boxes,
+                                counts.shadow_prims);
+#endif
 }
 
 // Closest hit for given rays, for tests and tools: t (inf on a miss), the primitive reference
@@ -188,14 +201,21 @@ __kernel void intersect_rays(__global const float4* origins, __global const floa
                              __global const Plane* planes, int n_planes,
                              __global const Sphere* spheres, __global const Box* boxes,
                              __global const Cylinder* cylinders, __global const Cone* cones,
-                             __global const Triangle* triangles, __global const float4* vertices,
-                             __global const float4* normals, __global const float2* uvs,
-                             __global const BvhNode* nodes, int n_nodes,
-                             __global const int* prim_refs, __global const Material* materials,
-                             __global float4* hits, __global int* refs) {
+                             __global const Triangle* triangles,
+                             __global const TrianglePacket* packets,
+                             __global const float4* vertices, __global const float4* normals,
+                             __global const float2* uvs, __global const BvhNode* nodes,
+                             int n_nodes, __global const int* prim_refs,
+                             __global const Material* materials, __global float4* hits,
+                             __global int* refs) {
     int i = get_global_id(0);
     SceneRefs s = scene_refs(planes, n_planes, spheres, boxes, cylinders, cones, triangles,
-                             vertices, normals, uvs, nodes, n_nodes, prim_refs, materials);
+                             packets, vertices, normals, uvs, nodes, n_nodes, prim_refs,
+                             materials);
+#if COUNT_TESTS
+    TestCounts counts = {0, 0, 0, 0};
+    s.counts = &counts;
+#endif
     Ray ray = make_ray(TO_REAL3(origins[i]), TO_REAL3(directions[i]));
     Hit hit = closest_hit(&s, &ray);
     if (hit.t < REAL_INF) {

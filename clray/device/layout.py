@@ -53,8 +53,22 @@ CAMERA = _struct([("position", _F4), ("forward", _F4), ("right", _F4), ("up", _F
 PARAMS = _struct([("background", _F4), ("ambient", _F4), ("width", "<i4"), ("height", "<i4"),
                   ("spp", "<i4"), ("max_depth", "<i4"), ("seed", "<u4"), ("n_planes", "<i4"),
                   ("n_lights", "<i4"), ("bvh_root_count", "<i4")])
+# The binary tree the builder makes (host only; clray/accel/bvh.py). The kernels walk the wide
+# tree that clray/accel/wide.py collapses it into.
 BVH_NODE = _struct([("lo", ("<f4", (3,))), ("first", "<i4"), ("hi", ("<f4", (3,))),
                     ("count", "<i4")])
+BVH_WIDTHS = (4, 8)
+
+
+def bvh_node_dtype(width: int) -> np.dtype:
+    """BvhNode of kernels/clray_types.h for -DBVH_WIDTH=width: children's bounds axis by axis."""
+    lane_f = ("<f4", (width,))
+    lane_i = ("<i4", (width,))
+    return _struct([*[(f"{side}_{axis}", lane_f) for side in ("lo", "hi") for axis in "xyz"],
+                    ("child", lane_i), ("count", lane_i)])
+
+
+TRIANGLE_PACKET = _struct([(f"{c}{k}", _F4) for k in range(3) for c in "xyz"])
 
 # Struct name in clray_types.h -> dtype; the layout test walks this.
 STRUCTS: dict[str, np.dtype] = {
@@ -69,7 +83,8 @@ STRUCTS: dict[str, np.dtype] = {
     "Light": LIGHT,
     "Camera": CAMERA,
     "Params": PARAMS,
-    "BvhNode": BVH_NODE,
+    "BvhNode": bvh_node_dtype(8),
+    "TrianglePacket": TRIANGLE_PACKET,
 }
 
 TRIANGLE_MATERIAL_MASK = 0x00FFFFFF

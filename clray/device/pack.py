@@ -12,6 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from clray.accel.bvh import build_bvh
+from clray.accel.wide import PACKET_WIDTH, WideBvh, collapse
 from clray.device import layout as L
 from clray.device.program import KernelConfig
 from clray.scene import model as M
@@ -28,11 +29,12 @@ class PackedScene:
     cylinders: np.ndarray
     cones: np.ndarray
     triangles: np.ndarray
+    packets: np.ndarray  # TRIANGLE_PACKET per PACKET_WIDTH slots of prim_refs (triangles only)
     vertices: np.ndarray  # (V, 4) float32
     normals: np.ndarray  # (V, 4) float32, or empty
     uvs: np.ndarray  # (V, 2) float32, or empty
-    nodes: np.ndarray
-    prim_refs: np.ndarray  # int32
+    nodes: np.ndarray  # layout.bvh_node_dtype(config.bvh_width), root first
+    prim_refs: np.ndarray  # int32, leaves laid out as clray.accel.wide describes
     materials: np.ndarray
     textures: np.ndarray
     texels: np.ndarray  # (T, 4) float32
@@ -41,9 +43,9 @@ class PackedScene:
     bvh_s: float  # host time to build the BVH
 
     def device_bytes(self) -> dict[str, int]:
-        names = ("planes", "spheres", "boxes", "cylinders", "cones", "triangles", "vertices",
-                 "normals", "uvs", "nodes", "prim_refs", "materials", "textures", "texels",
-                 "lights")
+        names = ("planes", "spheres", "boxes", "cylinders", "cones", "triangles", "packets",
+                 "vertices", "normals", "uvs", "nodes", "prim_refs", "materials", "textures",
+                 "texels", "lights")
         return {name: int(getattr(self, name).nbytes) for name in names}
 
 
@@ -68,198 +70,271 @@ def texture_frame(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return e1, np.cross(a, e1)
 
 
-def pack_scene(scene: M.Scene, *, width: int, height: int, spp: int, max_depth: int,
-               seed: int, precision: str = "float", **variants: object) -> PackedScene:
-    """`variants` are extra KernelConfig fields (study switches, build options)."""
-    eye = np.asarray(scene.camera.position, dtype=np.float64)
+class _Bounded:
+    """Bounds and references of the primitives that go into the BVH, kind by kind."""
 
-    def rel(p: tuple | np.ndarray) -> np.ndarray:
-        return np.asarray(p, dtype=np.float64) - eye
+    def __init__(self) -> None:
+        self.lo: list[np.ndarray] = []
+        self.hi: list[np.ndarray] = []
+        self.refs: list[np.ndarray] = []
 
-    kinds: dict[type, list] = {t: [] for t in (M.Sphere, M.Plane, M.Box, M.Cylinder, M.Cone)}
-    tri_vertices: list[np.ndarray] = []
-    tri_faces: list[np.ndarray] = []
-    tri_normals: list[np.ndarray | None] = []
-    tri_uvs: list[np.ndarray | None] = []
-    tri_material: list[int] = []
-    for obj in scene.objects:
-        if isinstance(obj, M.Triangle):
-            tri_vertices.append(np.asarray(obj.vertices, dtype=np.float64))
-            tri_faces.append(np.array([[0, 1, 2]]))
-            tri_normals.append(None)
-            tri_uvs.append(None)
-            tri_material.append(obj.material)
-        elif isinstance(obj, M.Mesh):
-            tri_vertices.append(obj.vertices)
-            tri_faces.append(obj.faces)
-            tri_normals.append(obj.normals)
-            tri_uvs.append(obj.uvs)
-            tri_material.append(obj.material)
-        else:
-            kinds[type(obj)].append(obj)
+    def add(self, kind: int, lo: np.ndarray, hi: np.ndarray) -> None:
+        self.lo.append(lo)
+        self.hi.append(hi)
+        self.refs.append((kind << L.PRIM_TYPE_SHIFT) | np.arange(len(lo), dtype=np.int64))
 
-    planes = _records(L.PLANE, len(kinds[M.Plane]))
-    for i, o in enumerate(kinds[M.Plane]):
+
+@dataclass(frozen=True)
+class _Triangles:
+    triangles: np.ndarray
+    vertices: np.ndarray  # (V, 4) float32, camera-relative
+    normals: np.ndarray
+    uvs: np.ndarray
+
+
+def _pack_planes(objs: list[M.Plane], eye: np.ndarray) -> np.ndarray:
+    planes = _records(L.PLANE, len(objs))
+    for i, o in enumerate(objs):
         n = np.asarray(o.normal, dtype=np.float64)
         # The plane's point nearest the eye is the best-conditioned point to store; its
         # texture coordinates keep (u, v) anchored at the point the scene gave.
-        nearest = n * np.dot(rel(o.point), n)
+        point = np.asarray(o.point, dtype=np.float64) - eye
+        nearest = n * np.dot(point, n)
         e1, e2 = texture_frame(n)
-        shift = nearest - rel(o.point)
+        shift = nearest - point
         planes[i]["point"] = _f4(nearest, np.dot(shift, e1))
         planes[i]["normal"] = _f4(n, np.dot(shift, e2))
         planes[i]["material"] = o.material
+    return planes
 
-    lo_list: list[np.ndarray] = []
-    hi_list: list[np.ndarray] = []
-    ref_list: list[np.ndarray] = []
 
-    def add_bounds(kind: int, lo: np.ndarray, hi: np.ndarray) -> None:
-        lo_list.append(lo)
-        hi_list.append(hi)
-        ref_list.append((kind << L.PRIM_TYPE_SHIFT) | np.arange(len(lo), dtype=np.int64))
-
-    spheres = _records(L.SPHERE, len(kinds[M.Sphere]))
-    for i, o in enumerate(kinds[M.Sphere]):
-        spheres[i]["center_radius"] = _f4(rel(o.center), o.radius)
+def _pack_spheres(objs: list[M.Sphere], eye: np.ndarray, bounded: _Bounded) -> np.ndarray:
+    spheres = _records(L.SPHERE, len(objs))
+    for i, o in enumerate(objs):
+        spheres[i]["center_radius"] = _f4(np.asarray(o.center) - eye, o.radius)
         spheres[i]["material"] = o.material
     if len(spheres):
         cr = spheres["center_radius"].astype(np.float64)
-        add_bounds(L.PRIM_SPHERE, cr[:, :3] - cr[:, 3:], cr[:, :3] + cr[:, 3:])
+        bounded.add(L.PRIM_SPHERE, cr[:, :3] - cr[:, 3:], cr[:, :3] + cr[:, 3:])
+    return spheres
 
-    boxes = _records(L.BOX, len(kinds[M.Box]))
-    for i, o in enumerate(kinds[M.Box]):
-        boxes[i]["lo"] = _f4(rel(o.min))
-        boxes[i]["hi"] = _f4(rel(o.max))
+
+def _pack_boxes(objs: list[M.Box], eye: np.ndarray, bounded: _Bounded) -> np.ndarray:
+    boxes = _records(L.BOX, len(objs))
+    for i, o in enumerate(objs):
+        boxes[i]["lo"] = _f4(np.asarray(o.min) - eye)
+        boxes[i]["hi"] = _f4(np.asarray(o.max) - eye)
         boxes[i]["material"] = o.material
     if len(boxes):
-        add_bounds(L.PRIM_BOX, boxes["lo"][:, :3].astype(np.float64),
-                   boxes["hi"][:, :3].astype(np.float64))
+        bounded.add(L.PRIM_BOX, boxes["lo"][:, :3].astype(np.float64),
+                    boxes["hi"][:, :3].astype(np.float64))
+    return boxes
 
-    cylinders = _records(L.CYLINDER, len(kinds[M.Cylinder]))
-    cyl_lo, cyl_hi = [], []
-    for i, o in enumerate(kinds[M.Cylinder]):
-        cylinders[i]["base_radius"] = _f4(rel(o.base), o.radius)
-        cylinders[i]["axis_height"] = _f4(o.axis, o.height)
-        cylinders[i]["material"] = o.material
-        cylinders[i]["capped"] = int(o.capped)
-        base = cylinders[i]["base_radius"][:3].astype(np.float64)
-        axis = cylinders[i]["axis_height"][:3].astype(np.float64)
-        top = base + axis * float(cylinders[i]["axis_height"][3])
-        ext = _disc_extent(axis, float(cylinders[i]["base_radius"][3]))
-        cyl_lo.append(np.minimum(base, top) - ext)
-        cyl_hi.append(np.maximum(base, top) + ext)
-    if cyl_lo:
-        add_bounds(L.PRIM_CYLINDER, np.array(cyl_lo), np.array(cyl_hi))
 
-    cones = _records(L.CONE, len(kinds[M.Cone]))
-    cone_lo, cone_hi = [], []
-    for i, o in enumerate(kinds[M.Cone]):
-        cones[i]["apex_tan"] = _f4(rel(o.apex), np.tan(np.radians(o.angle)))
-        cones[i]["axis_height"] = _f4(o.axis, o.height)
-        cones[i]["material"] = o.material
-        cones[i]["capped"] = int(o.capped)
-        apex = cones[i]["apex_tan"][:3].astype(np.float64)
-        axis = cones[i]["axis_height"][:3].astype(np.float64)
-        length = float(cones[i]["axis_height"][3])
+def _pack_cylinders(objs: list[M.Cylinder], eye: np.ndarray, bounded: _Bounded) -> np.ndarray:
+    cylinders = _records(L.CYLINDER, len(objs))
+    lo, hi = [], []
+    for i, o in enumerate(objs):
+        rec = cylinders[i]
+        rec["base_radius"] = _f4(np.asarray(o.base) - eye, o.radius)
+        rec["axis_height"] = _f4(o.axis, o.height)
+        rec["material"] = o.material
+        rec["capped"] = int(o.capped)
+        # Bounds of the stored (float32) shape, so they hold what the kernel intersects.
+        base = rec["base_radius"][:3].astype(np.float64)
+        axis = rec["axis_height"][:3].astype(np.float64)
+        top = base + axis * float(rec["axis_height"][3])
+        ext = _disc_extent(axis, float(rec["base_radius"][3]))
+        lo.append(np.minimum(base, top) - ext)
+        hi.append(np.maximum(base, top) + ext)
+    if lo:
+        bounded.add(L.PRIM_CYLINDER, np.array(lo), np.array(hi))
+    return cylinders
+
+
+def _pack_cones(objs: list[M.Cone], eye: np.ndarray, bounded: _Bounded) -> np.ndarray:
+    cones = _records(L.CONE, len(objs))
+    lo, hi = [], []
+    for i, o in enumerate(objs):
+        rec = cones[i]
+        rec["apex_tan"] = _f4(np.asarray(o.apex) - eye, np.tan(np.radians(o.angle)))
+        rec["axis_height"] = _f4(o.axis, o.height)
+        rec["material"] = o.material
+        rec["capped"] = int(o.capped)
+        apex = rec["apex_tan"][:3].astype(np.float64)
+        axis = rec["axis_height"][:3].astype(np.float64)
+        length = float(rec["axis_height"][3])
         base = apex + axis * length
-        ext = _disc_extent(axis, length * float(cones[i]["apex_tan"][3]))
-        cone_lo.append(np.minimum(apex, base - ext))
-        cone_hi.append(np.maximum(apex, base + ext))
-    if cone_lo:
-        add_bounds(L.PRIM_CONE, np.array(cone_lo), np.array(cone_hi))
+        ext = _disc_extent(axis, length * float(rec["apex_tan"][3]))
+        lo.append(np.minimum(apex, base - ext))
+        hi.append(np.maximum(apex, base + ext))
+    if lo:
+        bounded.add(L.PRIM_CONE, np.array(lo), np.array(hi))
+    return cones
 
-    has_normals = any(n is not None for n in tri_normals)
-    has_uvs = any(u is not None for u in tri_uvs)
-    if tri_vertices:
-        counts = [len(v) for v in tri_vertices]
-        offsets = np.concatenate([[0], np.cumsum(counts)[:-1]])
-        positions = np.concatenate(tri_vertices) - eye
-        vertices = np.zeros((len(positions), 4), dtype=np.float32)
-        vertices[:, :3] = positions
-        faces = np.concatenate([f + off for f, off in zip(tri_faces, offsets, strict=True)])
-        flags = []
-        for f, mat, n, u in zip(tri_faces, tri_material, tri_normals, tri_uvs, strict=True):
-            bits = mat | (L.TRIANGLE_SMOOTH if n is not None else 0)
-            bits |= L.TRIANGLE_UV if u is not None else 0
-            flags.append(np.full(len(f), bits, dtype=np.int64))
-        triangles = _records(L.TRIANGLE, len(faces))
-        triangles["v0"], triangles["v1"], triangles["v2"] = faces.T
-        triangles["material"] = np.concatenate(flags)
-        corners = vertices[faces, :3].astype(np.float64)
-        add_bounds(L.PRIM_TRIANGLE, corners.min(axis=1), corners.max(axis=1))
-    else:
-        vertices = np.zeros((0, 4), dtype=np.float32)
-        triangles = _records(L.TRIANGLE, 0)
-    normals = np.zeros((len(vertices) if has_normals else 0, 4), dtype=np.float32)
-    uvs = np.zeros((len(vertices) if has_uvs else 0, 2), dtype=np.float32)
-    if tri_vertices:
-        for v, off, n, u in zip(tri_vertices, offsets, tri_normals, tri_uvs, strict=True):
-            if n is not None:
-                normals[off:off + len(v), :3] = n
-                normals[off:off + len(v), 3] = 1.0
-            if u is not None:
-                uvs[off:off + len(v)] = u
 
+def _pack_triangles(objs: list[M.Triangle | M.Mesh], eye: np.ndarray,
+                    bounded: _Bounded) -> _Triangles:
+    """Loose triangles and meshes as one indexed triangle list over shared vertex arrays."""
+    if not objs:
+        empty = np.zeros((0, 4), dtype=np.float32)
+        return _Triangles(_records(L.TRIANGLE, 0), empty, empty.copy(),
+                          np.zeros((0, 2), np.float32))
+    sources = []  # (vertices, faces, normals, uvs, material) per object
+    for obj in objs:
+        if isinstance(obj, M.Triangle):
+            sources.append((np.asarray(obj.vertices, dtype=np.float64), np.array([[0, 1, 2]]),
+                            None, None, obj.material))
+        else:
+            sources.append((obj.vertices, obj.faces, obj.normals, obj.uvs, obj.material))
+    counts = [len(src[0]) for src in sources]
+    offsets = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.int64)
+    n_vertices = int(sum(counts))
+    vertices = np.zeros((n_vertices, 4), dtype=np.float32)
+    vertices[:, :3] = np.concatenate([src[0] for src in sources]) - eye
+    has_normals = any(src[2] is not None for src in sources)
+    has_uvs = any(src[3] is not None for src in sources)
+    normals = np.zeros((n_vertices if has_normals else 0, 4), dtype=np.float32)
+    uvs = np.zeros((n_vertices if has_uvs else 0, 2), dtype=np.float32)
+    faces, flags = [], []
+    for (v, f, n, u, material), off in zip(sources, offsets, strict=True):
+        faces.append(f + off)
+        bits = material | (L.TRIANGLE_SMOOTH if n is not None else 0)
+        bits |= L.TRIANGLE_UV if u is not None else 0
+        flags.append(np.full(len(f), bits, dtype=np.int64))
+        if n is not None:
+            normals[off:off + len(v), :3] = n
+            normals[off:off + len(v), 3] = 1.0
+        if u is not None:
+            uvs[off:off + len(v)] = u
+    all_faces = np.concatenate(faces)
+    triangles = _records(L.TRIANGLE, len(all_faces))
+    triangles["v0"], triangles["v1"], triangles["v2"] = all_faces.T
+    triangles["material"] = np.concatenate(flags)
+    corners = vertices[all_faces, :3].astype(np.float64)
+    bounded.add(L.PRIM_TRIANGLE, corners.min(axis=1), corners.max(axis=1))
+    return _Triangles(triangles, vertices, normals, uvs)
+
+
+def _pack_bvh(bounded: _Bounded, width: int) -> tuple[WideBvh, float]:
+    """The wide BVH over every bounded primitive, and the host seconds it took."""
     start = time.perf_counter()
-    if lo_list:
-        bvh = build_bvh(np.concatenate(lo_list), np.concatenate(hi_list))
-        prim_refs = np.concatenate(ref_list)[bvh.order].astype(np.int32)
-        nodes = bvh.nodes
+    if bounded.lo:
+        binary = build_bvh(np.concatenate(bounded.lo), np.concatenate(bounded.hi))
+        wide = collapse(binary, np.concatenate(bounded.refs), width)
     else:
-        prim_refs = np.zeros(0, dtype=np.int32)
-        nodes = _records(L.BVH_NODE, 0)
-    bvh_s = time.perf_counter() - start
+        wide = collapse(build_bvh(np.zeros((0, 3)), np.zeros((0, 3))), np.zeros(0), width)
+    return wide, time.perf_counter() - start
 
+
+def _triangle_packets(prim_refs: np.ndarray, tris: _Triangles) -> np.ndarray:
+    """One TrianglePacket per PACKET_WIDTH slots of prim_refs: the corners of the slots'
+    triangles, coordinate by coordinate, NaN in slots that hold no triangle."""
+    if len(tris.triangles) == 0:
+        return _records(L.TRIANGLE_PACKET, 0)
+    slots = prim_refs.reshape(-1, PACKET_WIDTH).astype(np.int64)
+    is_tri = (slots >= 0) & ((slots >> L.PRIM_TYPE_SHIFT) == L.PRIM_TRIANGLE)
+    index = np.where(is_tri, slots & L.PRIM_INDEX_MASK, 0)
+    packets = _records(L.TRIANGLE_PACKET, len(slots))
+    for k, corner in enumerate(("v0", "v1", "v2")):
+        points = tris.vertices[tris.triangles[corner][index], :3]
+        for axis, name in enumerate("xyz"):
+            packets[f"{name}{k}"] = np.where(is_tri, points[..., axis], np.nan)
+    return packets
+
+
+def _pack_materials(materials: list[M.Material]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(materials, textures, texels): image texels of every texture in one array."""
     texture_records, texel_chunks, texel_count = [], [], 0
-    materials = _records(L.MATERIAL, len(scene.materials))
-    for i, m in enumerate(scene.materials):
-        rec = materials[i]
+    records = _records(L.MATERIAL, len(materials))
+    for i, m in enumerate(materials):
+        rec = records[i]
         rec["color"] = _f4(m.color)
         for key in ("ambient", "diffuse", "specular", "shininess", "reflect", "transmit", "ior"):
             rec[key] = getattr(m, key)
         rec["texture"] = L.TEXTURE_NONE
-        if m.texture is not None:
-            tex = np.zeros((), dtype=L.TEXTURE)
-            tex["color2"] = _f4(m.texture.color2)
-            tex["size"] = m.texture.size
-            tex["repeat_u"], tex["repeat_v"] = m.texture.repeat
-            tex["blend"] = m.texture.blend
-            if m.texture.kind == "checker":
-                tex["kind"] = L.TEXTURE_CHECKER
-            else:
-                img = np.asarray(m.texture.image, dtype=np.float32)
-                tex["kind"] = L.TEXTURE_IMAGE
-                tex["texel_offset"] = texel_count
-                tex["height"], tex["width"] = img.shape[:2]
-                rgba = np.zeros((img.shape[0] * img.shape[1], 4), dtype=np.float32)
-                rgba[:, :3] = img.reshape(-1, 3)
-                texel_chunks.append(rgba)
-                texel_count += len(rgba)
-            rec["texture"] = len(texture_records)
-            texture_records.append(tex)
+        if m.texture is None:
+            continue
+        tex = np.zeros((), dtype=L.TEXTURE)
+        tex["color2"] = _f4(m.texture.color2)
+        tex["size"] = m.texture.size
+        tex["repeat_u"], tex["repeat_v"] = m.texture.repeat
+        tex["blend"] = m.texture.blend
+        if m.texture.kind == "checker":
+            tex["kind"] = L.TEXTURE_CHECKER
+        else:
+            img = np.asarray(m.texture.image, dtype=np.float32)
+            tex["kind"] = L.TEXTURE_IMAGE
+            tex["texel_offset"] = texel_count
+            tex["height"], tex["width"] = img.shape[:2]
+            rgba = np.zeros((img.shape[0] * img.shape[1], 4), dtype=np.float32)
+            rgba[:, :3] = img.reshape(-1, 3)
+            texel_chunks.append(rgba)
+            texel_count += len(rgba)
+        rec["texture"] = len(texture_records)
+        texture_records.append(tex)
     textures = np.array(texture_records, dtype=L.TEXTURE)
     texels = (np.concatenate(texel_chunks) if texel_chunks
               else np.zeros((0, 4), dtype=np.float32))
+    return records, textures, texels
 
-    lights = _records(L.LIGHT, len(scene.lights))
-    for i, light in enumerate(scene.lights):
-        lights[i]["color"] = _f4(light.color)
+
+def _pack_lights(lights: list[M.PointLight | M.DirectionalLight], eye: np.ndarray) -> np.ndarray:
+    records = _records(L.LIGHT, len(lights))
+    for i, light in enumerate(lights):
+        records[i]["color"] = _f4(light.color)
         if isinstance(light, M.PointLight):
-            lights[i]["kind"] = L.LIGHT_POINT
-            lights[i]["position"] = _f4(rel(light.position))
-            lights[i]["attenuation"] = _f4(light.attenuation)
+            records[i]["kind"] = L.LIGHT_POINT
+            records[i]["position"] = _f4(np.asarray(light.position) - eye)
+            records[i]["attenuation"] = _f4(light.attenuation)
         else:
-            lights[i]["kind"] = L.LIGHT_DIRECTIONAL
-            lights[i]["position"] = _f4(light.direction)
+            records[i]["kind"] = L.LIGHT_DIRECTIONAL
+            records[i]["position"] = _f4(light.direction)
+    return records
 
-    forward, right, up, half_w, half_h = scene.camera.basis(width, height)
-    camera = np.zeros(1, dtype=L.CAMERA)
-    camera[0]["position"] = 0.0
-    camera[0]["forward"] = _f4(forward)
-    camera[0]["right"] = _f4(right * half_w)
-    camera[0]["up"] = _f4(up * half_h)
-    camera[0]["world"] = _f4(eye)
+
+def _pack_camera(camera: M.Camera, eye: np.ndarray, width: int, height: int) -> np.ndarray:
+    forward, right, up, half_w, half_h = camera.basis(width, height)
+    record = np.zeros(1, dtype=L.CAMERA)
+    record[0]["position"] = 0.0
+    record[0]["forward"] = _f4(forward)
+    record[0]["right"] = _f4(right * half_w)
+    record[0]["up"] = _f4(up * half_h)
+    record[0]["world"] = _f4(eye)
+    return record
+
+
+def _stack_size_option(stack_size: int) -> int:
+    """The tree's stack need rounded up to a multiple of 16, so most scenes share a build."""
+    return max(16, -(-stack_size // 16) * 16)
+
+
+def pack_scene(scene: M.Scene, *, width: int, height: int, spp: int, max_depth: int,
+               seed: int, precision: str = "float", bvh_width: int = 8,
+               **variants: object) -> PackedScene:
+    """`bvh_width`: children per BVH node (4 or 8; clray.device.program.bvh_width_for picks
+    one per device). `variants` are extra KernelConfig fields (study switches, options)."""
+    eye = np.asarray(scene.camera.position, dtype=np.float64)
+    kinds: dict[type, list] = {t: [] for t in (M.Sphere, M.Plane, M.Box, M.Cylinder, M.Cone)}
+    triangle_objs = []
+    for obj in scene.objects:
+        if isinstance(obj, M.Triangle | M.Mesh):
+            triangle_objs.append(obj)
+        else:
+            kinds[type(obj)].append(obj)
+
+    bounded = _Bounded()
+    planes = _pack_planes(kinds[M.Plane], eye)
+    spheres = _pack_spheres(kinds[M.Sphere], eye, bounded)
+    boxes = _pack_boxes(kinds[M.Box], eye, bounded)
+    cylinders = _pack_cylinders(kinds[M.Cylinder], eye, bounded)
+    cones = _pack_cones(kinds[M.Cone], eye, bounded)
+    tris = _pack_triangles(triangle_objs, eye, bounded)
+    wide, bvh_s = _pack_bvh(bounded, bvh_width)
+    packets = _triangle_packets(wide.prim_refs, tris)
+    materials, textures, texels = _pack_materials(scene.materials)
+    lights = _pack_lights(scene.lights, eye)
+    camera = _pack_camera(scene.camera, eye, width, height)
 
     params = np.zeros(1, dtype=L.PARAMS)
     p = params[0]
@@ -268,7 +343,7 @@ def pack_scene(scene: M.Scene, *, width: int, height: int, spp: int, max_depth: 
     p["width"], p["height"], p["spp"], p["max_depth"] = width, height, spp, max_depth
     p["seed"] = seed
     p["n_planes"], p["n_lights"] = len(planes), len(lights)
-    p["bvh_root_count"] = len(prim_refs)
+    p["bvh_root_count"] = len(wide.prim_refs)
 
     any_reflect = any(m.reflect > 0 for m in scene.materials)
     any_transmit = any(m.transmit > 0 for m in scene.materials)
@@ -278,15 +353,18 @@ def pack_scene(scene: M.Scene, *, width: int, height: int, spp: int, max_depth: 
         has_boxes=len(boxes) > 0,
         has_cylinders=len(cylinders) > 0,
         has_cones=len(cones) > 0,
-        has_triangles=len(triangles) > 0,
-        has_vertex_normals=has_normals,
-        has_vertex_uvs=has_uvs,
+        has_triangles=len(tris.triangles) > 0,
+        has_vertex_normals=len(tris.normals) > 0,
+        has_vertex_uvs=len(tris.uvs) > 0,
         has_textures=len(textures) > 0,
         has_refraction=any_transmit and max_depth > 0,
         max_depth=max_depth if (any_reflect or any_transmit) else 0,
+        bvh_width=bvh_width,
+        bvh_stack_size=_stack_size_option(wide.stack_size),
         precision=precision,
         **{"fp64_spheres": len(spheres) > 0 and needs_fp64_spheres(scene), **variants},
     )
-    return PackedScene(camera, params, planes, spheres, boxes, cylinders, cones, triangles,
-                       vertices, normals, uvs, nodes, prim_refs, materials, textures, texels,
-                       lights, config, bvh_s)
+    return PackedScene(camera, params, planes, spheres, boxes, cylinders, cones,
+                       tris.triangles, packets, tris.vertices, tris.normals, tris.uvs,
+                       wide.nodes, wide.prim_refs, materials, textures, texels, lights, config,
+                       bvh_s)

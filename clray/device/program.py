@@ -43,6 +43,10 @@ class KernelConfig:
     has_textures: bool = False
     has_refraction: bool = False
     max_depth: int = 0
+    # The wide BVH's children per node (4 or 8) and a traversal stack deep enough for its tree
+    # (clray.accel.wide), rounded up by the packer so similar trees share a build.
+    bvh_width: int = 8
+    bvh_stack_size: int = 32
     precision: str = "float"  # "float" | "double"
     # Study variants (clray study): the textbook formulas the defaults replace.
     sphere_textbook: bool = False
@@ -51,6 +55,8 @@ class KernelConfig:
     triangle_moller_trumbore: bool = False
     # Set by the packer from clray.scene.scale, not a study variant: spheres in double.
     fp64_spheres: bool = False
+    # The instrumented build: render_packed then reports box and primitive tests.
+    count_tests: bool = False
     build_options: tuple[str, ...] = ()
 
     def options(self) -> list[str]:
@@ -60,9 +66,17 @@ class KernelConfig:
             if isinstance(value, bool):
                 defines.append(f"-D{f.name.upper()}={int(value)}")
         defines.append(f"-DMAX_DEPTH={self.max_depth}")
+        defines.append(f"-DBVH_WIDTH={self.bvh_width}")
+        defines.append(f"-DBVH_STACK_SIZE={self.bvh_stack_size}")
         if self.precision == "double":
             defines.append("-DUSE_DOUBLE=1")
         return sorted(defines) + sorted(self.build_options)
+
+
+def bvh_width_for(device: cl.Device) -> int:
+    """Children per BVH node for this device: 8 where it prefers float vectors of 8 or more
+    (AVX and wider CPUs), else 4. Either width is correct on any device."""
+    return 8 if device.preferred_vector_width_float >= 8 else 4
 
 
 def kernel_source(name: str = ENTRY_FILE) -> str:

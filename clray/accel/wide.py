@@ -1,0 +1,159 @@
+"""Binary BVH -> wide BVH (kernels/clray_types.h: BvhNode) with leaves laid out for packets.
+
+A wide node holds up to `width` children (4 or 8) with their bounds stored axis by axis, so the
+kernel tests all of a node's children with one vector slab test. Each wide node is grown from a
+binary node by opening its child of largest surface area until it has `width` children or only
+leaves are left: the greedy collapse of Wald et al. 2008 ("Getting rid of packets") that Embree
+uses. The binary tree is SAH-built, so the wide tree inherits its partition.
+
+Leaves are re-laid out in `prim_refs` for the kernel's triangle packets: a leaf's triangles come
+first, in groups of PACKET_WIDTH (the last group padded with NO_REF), then its other primitives.
+Every leaf starts at a multiple of PACKET_WIDTH, so slot // PACKET_WIDTH indexes the packet
+arrays, and a child's `count` holds both parts: (packets << LEAF_PACKET_SHIFT) | others.
+
+Everything is numpy over one wide level at a time: the Python loop runs per level and per
+opened child (at most width - 2 per level), never per node.
+"""
+
+from __future__ import annotations
+
+import itertools
+from dataclasses import dataclass
+
+import numpy as np
+
+from clray.accel.bvh import Bvh
+from clray.device import layout as L
+
+PACKET_WIDTH = 4
+LEAF_PACKET_SHIFT = 16
+NO_REF = -1
+
+
+@dataclass(frozen=True)
+class WideBvh:
+    """`nodes` in layout.bvh_node_dtype(width), root first; `prim_refs` as laid out above.
+
+    `stack_size` bounds the kernels' traversal stack for this tree: the most entries a
+    closest-hit or shadow walk can hold at once.
+    """
+
+    nodes: np.ndarray
+    prim_refs: np.ndarray
+    width: int
+    stack_size: int
+
+
+def collapse(bvh: Bvh, refs: np.ndarray, width: int) -> WideBvh:
+    """Wide BVH of `width` children per node from a binary `bvh` over primitives whose
+    references (PRIM_* << PRIM_TYPE_SHIFT | index) are `refs[i]` for build input i."""
+    if width not in (4, 8):
+        raise ValueError(f"BVH width must be 4 or 8, got {width}")
+    dtype = L.bvh_node_dtype(width)
+    b = bvh.nodes
+    if b.size == 0:
+        return WideBvh(np.zeros(0, dtype), np.zeros(0, np.int32), width, 1)
+    count = b["count"].astype(np.int64)
+    first = b["first"].astype(np.int64)
+    ext = np.maximum(b["hi"].astype(np.float64) - b["lo"], 0)
+    half_area = ext[:, 0] * ext[:, 1] + ext[:, 1] * ext[:, 2] + ext[:, 2] * ext[:, 0]
+
+    # A leaf root still needs a wide node above it: its one child is the root itself.
+    if count[0] > 0:
+        levels = [np.array([[0] + [-1] * (width - 1)])]
+    else:
+        levels = [_open_children(np.array([0]), count, first, half_area, width)]
+    while True:
+        inner = levels[-1][(levels[-1] >= 0) & (count[np.maximum(levels[-1], 0)] == 0)]
+        if inner.size == 0:
+            break
+        levels.append(_open_children(inner, count, first, half_area, width))
+    slots = np.concatenate(levels)  # binary node per child slot, -1 for none
+    n_wide = slots.shape[0]
+
+    used = slots >= 0
+    node_of = np.maximum(slots, 0)
+    is_inner = used & (count[node_of] == 0)
+    is_leaf = used & ~is_inner
+    # Wide nodes are numbered level by level, children in slot order: the k-th inner slot (row-
+    # major) is wide node k + 1.
+    child = np.full(slots.shape, -1, dtype=np.int64)
+    child[is_inner] = np.arange(1, int(is_inner.sum()) + 1)
+    leaf_first, leaf_count, prim_refs = _lay_out_leaves(
+        first[slots[is_leaf]], count[slots[is_leaf]], refs[bvh.order].astype(np.int64))
+    child[is_leaf] = leaf_first
+    packed_count = np.zeros(slots.shape, dtype=np.int64)
+    packed_count[is_leaf] = leaf_count
+
+    nodes = np.zeros(n_wide, dtype=dtype)
+    for axis, name in enumerate("xyz"):
+        lo = np.full(slots.shape, np.nan, dtype=np.float32)
+        hi = np.full(slots.shape, np.nan, dtype=np.float32)
+        lo[used] = b["lo"][slots[used], axis]
+        hi[used] = b["hi"][slots[used], axis]
+        nodes[f"lo_{name}"] = lo
+        nodes[f"hi_{name}"] = hi
+    nodes["child"] = child
+    nodes["count"] = packed_count
+    level_rows = np.cumsum([0] + [lv.shape[0] for lv in levels])
+    return WideBvh(nodes, prim_refs, width, _stack_size(child, is_inner, used, level_rows))
+
+
+def _open_children(parents: np.ndarray, count: np.ndarray, first: np.ndarray,
+                   half_area: np.ndarray, width: int) -> np.ndarray:
+    """(m, width) child slots of the wide nodes grown from binary inner nodes `parents`."""
+    m = parents.size
+    rows = np.arange(m)
+    slots = np.full((m, width), -1, dtype=np.int64)
+    slots[:, 0] = parents + 1  # depth-first layout: the left child is the next node
+    slots[:, 1] = first[parents]
+    for filled in range(2, width):
+        node = np.maximum(slots, 0)
+        area = np.where((slots >= 0) & (count[node] == 0), half_area[node], -1.0)
+        k = np.argmax(area, axis=1)
+        open_rows = rows[area[rows, k] >= 0]
+        if open_rows.size == 0:
+            break
+        opened = slots[open_rows, k[open_rows]]
+        slots[open_rows, k[open_rows]] = opened + 1
+        slots[open_rows, filled] = first[opened]
+    return slots
+
+
+def _lay_out_leaves(first: np.ndarray, count: np.ndarray,
+                    order_refs: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Each leaf's refs, triangles first in padded packets: (start, packed count, prim_refs)."""
+    n_leaves = first.size
+    leaf = np.repeat(np.arange(n_leaves), count)
+    offsets = np.concatenate([[0], np.cumsum(count)[:-1]])
+    refs = order_refs[np.repeat(first - offsets, count) + np.arange(count.sum())]
+    is_tri = (refs >> L.PRIM_TYPE_SHIFT) == L.PRIM_TRIANGLE
+    n_tri = np.bincount(leaf, weights=is_tri, minlength=n_leaves).astype(np.int64)
+    n_other = count - n_tri
+    packets = -(-n_tri // PACKET_WIDTH)
+    size = packets * PACKET_WIDTH + n_other
+    padded = -(-size // PACKET_WIDTH) * PACKET_WIDTH
+    start = np.concatenate([[0], np.cumsum(padded)[:-1]])
+    # Rank of each ref among its leaf's triangles or among its leaf's others, in order.
+    tri_rank = np.cumsum(is_tri) - is_tri
+    other_rank = np.cumsum(~is_tri) - ~is_tri
+    tri_base = tri_rank[offsets] if refs.size else tri_rank
+    other_base = other_rank[offsets] if refs.size else other_rank
+    dest = np.where(is_tri, start[leaf] + tri_rank - tri_base[leaf],
+                    start[leaf] + packets[leaf] * PACKET_WIDTH + other_rank - other_base[leaf])
+    prim_refs = np.full(int(padded.sum()), NO_REF, dtype=np.int32)
+    prim_refs[dest] = refs
+    return start, (packets << LEAF_PACKET_SHIFT) | n_other, prim_refs
+
+
+def _stack_size(child: np.ndarray, is_inner: np.ndarray, used: np.ndarray,
+                level_rows: np.ndarray) -> int:
+    """Most stack entries a walk can hold: a walk at a node has pushed, per ancestor, all but
+    one of its children, and pushes all but one of the node's own (plus one for the pop)."""
+    pushed = np.zeros(child.shape[0], dtype=np.int64)
+    extra = used.sum(axis=1) - 1
+    for lo, hi in itertools.pairwise(level_rows):
+        kids = child[lo:hi]
+        inner = is_inner[lo:hi]
+        pushed[kids[inner]] = np.repeat(pushed[lo:hi] + extra[lo:hi], inner.sum(axis=1))
+    return int((pushed + extra).max()) + 1

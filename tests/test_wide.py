@@ -1,0 +1,141 @@
+"""Binary -> wide BVH collapse (clray.accel.wide): structure, bounds, leaf layout, stack bound."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from clray.accel.bvh import build_bvh
+from clray.accel.wide import LEAF_PACKET_SHIFT, NO_REF, PACKET_WIDTH, WideBvh, collapse
+from clray.device import layout as L
+
+AXES = "xyz"
+
+
+def _refs(kinds: np.ndarray) -> np.ndarray:
+    """A reference per primitive: its kind in the top bits, its index among that kind below."""
+    refs = np.empty(kinds.size, dtype=np.int64)
+    for kind in np.unique(kinds):
+        where = np.flatnonzero(kinds == kind)
+        refs[where] = (int(kind) << L.PRIM_TYPE_SHIFT) | np.arange(where.size)
+    return refs
+
+
+def _children(wide: WideBvh, node: int) -> list[tuple[int, int, np.ndarray, np.ndarray]]:
+    """(child, count, lo, hi) of each used slot of a node."""
+    rec = wide.nodes[node]
+    out = []
+    for k in range(wide.width):
+        if rec["child"][k] < 0:
+            continue
+        lo = np.array([rec[f"lo_{a}"][k] for a in AXES])
+        hi = np.array([rec[f"hi_{a}"][k] for a in AXES])
+        out.append((int(rec["child"][k]), int(rec["count"][k]), lo, hi))
+    return out
+
+
+def _leaf_refs(wide: WideBvh, slot: int, count: int) -> tuple[np.ndarray, np.ndarray]:
+    packets, others = count >> LEAF_PACKET_SHIFT, count & 0xFFFF
+    tri = wide.prim_refs[slot:slot + packets * PACKET_WIDTH]
+    rest = wide.prim_refs[slot + packets * PACKET_WIDTH:slot + packets * PACKET_WIDTH + others]
+    return tri, rest
+
+
+def check_wide(wide: WideBvh, lo: np.ndarray, hi: np.ndarray, refs: np.ndarray) -> None:
+    """Every primitive in exactly one leaf, inside every box on its path; leaves laid out as the
+    kernel reads them; the stack bound covers the deepest walk."""
+    assert wide.nodes.dtype == L.bvh_node_dtype(wide.width)
+    seen: list[int] = []
+    index_of = {int(r): i for i, r in enumerate(refs)}
+    deepest = 0
+    visited = set()
+    # (node, pushed entries a walk holds on arriving there, boxes on the path)
+    walk = [(0, 0, [])]
+    while walk:
+        node, pushed, path = walk.pop()
+        assert node not in visited  # a tree: each node reached once
+        visited.add(node)
+        children = _children(wide, node)
+        assert children, "a node with no children"
+        deepest = max(deepest, pushed + len(children) - 1 + 1)
+        for child, count, clo, chi in children:
+            boxes = [*path, (clo, chi)]
+            if count == 0:
+                assert 0 < child < wide.nodes.size
+                walk.append((child, pushed + len(children) - 1, boxes))
+                continue
+            assert child % PACKET_WIDTH == 0
+            tri, rest = _leaf_refs(wide, child, count)
+            real_tri = tri[tri != NO_REF]
+            # Padding only at the end of the last packet; triangles only in packets.
+            assert np.all(tri[:real_tri.size] == real_tri)
+            assert tri.size - real_tri.size < PACKET_WIDTH
+            assert np.all((real_tri >> L.PRIM_TYPE_SHIFT) == L.PRIM_TRIANGLE)
+            assert np.all((rest >> L.PRIM_TYPE_SHIFT) != L.PRIM_TRIANGLE)
+            for ref in [*real_tri.tolist(), *rest.tolist()]:
+                seen.append(ref)
+                i = index_of[ref]
+                for blo, bhi in boxes:
+                    assert np.all(blo <= lo[i]) and np.all(bhi >= hi[i])
+    assert len(visited) == wide.nodes.size
+    assert sorted(seen) == sorted(refs.tolist())
+    assert wide.stack_size >= deepest
+
+
+@pytest.mark.parametrize("width", [4, 8])
+@pytest.mark.parametrize("n", [1, 2, 7, 100, 3000])
+def test_collapse_of_random_boxes(width, n):
+    rng = np.random.default_rng(n * 10 + width)
+    c = rng.uniform(-10, 10, (n, 3))
+    e = rng.exponential(0.3, (n, 3))
+    kinds = rng.choice([L.PRIM_SPHERE, L.PRIM_BOX, L.PRIM_TRIANGLE], n)
+    refs = _refs(kinds)
+    wide = collapse(build_bvh(c - e, c + e), refs, width)
+    check_wide(wide, c - e, c + e, refs)
+
+
+@settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(n=st.integers(1, 400), seed=st.integers(0, 2**32 - 1), width=st.sampled_from([4, 8]),
+       leaf=st.sampled_from([1, 4, 16]), tri_share=st.sampled_from([0.0, 0.5, 1.0]))
+def test_collapse_invariants(n, seed, width, leaf, tri_share):
+    rng = np.random.default_rng(seed)
+    # Few distinct centres: duplicates and coincident boxes are common.
+    c = rng.integers(-3, 3, (n, 3)).astype(np.float64)
+    e = rng.choice([0.0, 0.5, 2.0], (n, 3))
+    kinds = np.where(rng.uniform(size=n) < tri_share, L.PRIM_TRIANGLE, L.PRIM_SPHERE)
+    refs = _refs(kinds)
+    check_wide(collapse(build_bvh(c - e, c + e, leaf), refs, width), c - e, c + e, refs)
+
+
+@pytest.mark.parametrize("width", [4, 8])
+def test_wide_nodes_are_full_unless_only_leaves_are_left(width):
+    # The collapse opens inner children until a node is full: a node with a free slot has
+    # nothing left to open, so all its children are leaves.
+    rng = np.random.default_rng(1)
+    c = rng.uniform(-1, 1, (20000, 3))
+    wide = collapse(build_bvh(c - 1e-3, c + 1e-3), _refs(np.full(20000, L.PRIM_SPHERE)), width)
+    used = (wide.nodes["child"] >= 0).sum(axis=1)
+    has_inner = ((wide.nodes["child"] >= 0) & (wide.nodes["count"] == 0)).any(axis=1)
+    assert used[0] == width
+    assert not np.any(has_inner & (used < width))
+    assert np.all(used >= 2)
+
+
+def test_empty_and_leaf_root():
+    empty = collapse(build_bvh(np.zeros((0, 3)), np.zeros((0, 3))), np.zeros(0, np.int64), 8)
+    assert empty.nodes.size == 0 and empty.prim_refs.size == 0
+    lo = np.array([[0.0, 0, 0]])
+    refs = _refs(np.array([L.PRIM_TRIANGLE]))
+    one = collapse(build_bvh(lo, lo + 1), refs, 4)
+    check_wide(one, lo, lo + 1, refs)
+    assert one.nodes.size == 1
+    assert one.nodes["count"][0, 0] == 1 << LEAF_PACKET_SHIFT
+    assert one.prim_refs.tolist() == [int(refs[0]), NO_REF, NO_REF, NO_REF]
+
+
+def test_rejects_other_widths():
+    lo = np.zeros((3, 3))
+    with pytest.raises(ValueError, match="width"):
+        collapse(build_bvh(lo, lo + 1), np.arange(3), 16)

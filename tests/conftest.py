@@ -87,12 +87,14 @@ def pytest_configure(config: pytest.Config) -> None:
                                                   if w.strip()])
 
 
-def pytest_report_header(config: pytest.Config) -> str:
+def pytest_terminal_summary(terminalreporter: pytest.TerminalReporter,
+                            config: pytest.Config) -> None:
+    # Also under -q (which hides the header): a log must show which devices the run covered.
     devices = config.stash[DEVICES_KEY]
-    if not devices:
-        return f"OpenCL test devices: none ({config.stash[NO_DEVICE_KEY]})"
-    return "OpenCL test devices: " + ", ".join(f"{test_id} ({d.spec} {d.platform}: {d.name})"
-                                               for test_id, d in devices.items())
+    listed = ", ".join(f"{test_id} ({d.platform}: {d.name})" for test_id, d in devices.items())
+    if not listed:
+        listed = f"none ({config.stash[NO_DEVICE_KEY]})"
+    terminalreporter.write_line(f"OpenCL test devices: {listed}")
 
 
 def pytest_generate_tests(metafunc: pytest.Metafunc) -> None:

@@ -1,9 +1,12 @@
-"""BVH build time for the benchmark mesh (327,680 triangles at 7 subdivisions).
+"""BVH build time and quality: the benchmark mesh (327,680 triangles at 7 subdivisions) and a
+set of random spheres, built on the host and, where an OpenCL device is found, on the device.
 
     python benchmarks/bench_bvh.py [--json benchmarks/results/bvh.json] [--subdivisions 7]
 
-One warm-up build, then the median of --runs timed builds of clray.accel.bvh.build_bvh over the
-triangles' bounds. Measures only; speed goals are checked from the JSON it writes.
+Per case and builder: one warm-up build (page faults, lazy imports, kernel compilation), then
+--runs timed builds taken in turns with the other builder so that load from elsewhere on the
+machine falls on both alike; the median is reported with the SAH cost of the tree. Measures
+only; speed goals are checked from the JSON it writes.
 """
 
 from __future__ import annotations
@@ -15,11 +18,12 @@ import os
 import platform
 import statistics
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
 
-from clray.accel.bvh import build_bvh, max_leaf_count
+from clray.accel.bvh import Bvh, build_bvh, max_leaf_count, sah_cost
 
 HERE = Path(__file__).resolve().parent
 
@@ -32,58 +36,105 @@ def _mesh_module():
     return module
 
 
-def sah_cost(nodes: np.ndarray) -> float:
-    """SAH cost of the tree (node visits + primitive tests, each 1), relative to the root's
-    area: a build-quality figure to read next to the build time."""
-    e = (nodes["hi"].astype(np.float64) - nodes["lo"]).clip(min=0)
-    area = e[:, 0] * e[:, 1] + e[:, 1] * e[:, 2] + e[:, 2] * e[:, 0]
-    count = nodes["count"].astype(np.float64)
-    per_node = np.where(count > 0, count, 1.0) * area
-    return float(per_node.sum() / area[0])
+def mesh_bounds(subdivisions: int) -> tuple[np.ndarray, np.ndarray]:
+    vertices, faces, _ = _mesh_module().bumpy_mesh(subdivisions)
+    tri = vertices[faces]
+    return tri.min(axis=1), tri.max(axis=1)
+
+
+def sphere_bounds(n: int, seed: int = 1) -> tuple[np.ndarray, np.ndarray]:
+    """Spheres scattered in a cube, radii exponential: overlapping, varied sizes."""
+    rng = np.random.default_rng(seed)
+    centres = rng.uniform(-50, 50, (n, 3))
+    radii = rng.exponential(0.5, (n, 1)) + 0.01
+    return centres - radii, centres + radii
+
+
+def _device_queue():
+    """The default device's queue, or None where there is none or it lacks float64."""
+    from clray.accel import _bvh_cl
+    from clray.device.context import queue_for, select_device
+    from clray.errors import DeviceError
+
+    try:
+        device = select_device()
+    except DeviceError:
+        return None
+    return queue_for(device) if _bvh_cl.supports(device) else None
+
+
+def _describe(bvh: Bvh, runs: list[float], n: int, max_leaf_size: int) -> dict:
+    count = bvh.nodes["count"]
+    leaf_sizes = np.bincount(count[count > 0], minlength=max_leaf_count(max_leaf_size) + 1)
+    return {
+        "build_s": statistics.median(runs),
+        "runs_s": runs,
+        "sah_cost": sah_cost(bvh.nodes),
+        "nodes": int(bvh.nodes.size),
+        "nodes_per_primitive": bvh.nodes.size / n,
+        "leaves": int((count > 0).sum()),
+        "leaf_size_histogram": leaf_sizes.tolist(),
+        "bytes_per_primitive": (bvh.nodes.nbytes + bvh.order.nbytes) / n,
+    }
+
+
+def bench_case(lo: np.ndarray, hi: np.ndarray, builders: dict[str, Callable[[], Bvh]],
+               runs: int, max_leaf_size: int) -> dict:
+    built = {name: build() for name, build in builders.items()}  # warm-up
+    times: dict[str, list[float]] = {name: [] for name in builders}
+    for _ in range(runs):
+        for name, build in builders.items():
+            t0 = time.perf_counter()
+            built[name] = build()
+            times[name].append(time.perf_counter() - t0)
+    result = {name: _describe(built[name], times[name], lo.shape[0], max_leaf_size)
+              for name in builders}
+    if len(built) == 2:
+        a, b = built.values()
+        result["same_tree"] = (a.nodes.tobytes() == b.nodes.tobytes()
+                               and bool(np.array_equal(a.order, b.order)))
+    return result
 
 
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--json", type=Path, default=HERE / "results" / "bvh.json")
     parser.add_argument("--subdivisions", type=int, default=7)
-    parser.add_argument("--runs", type=int, default=5)
+    parser.add_argument("--spheres", type=int, default=100_000)
+    parser.add_argument("--runs", type=int, default=7)
     parser.add_argument("--max-leaf-size", type=int, default=4)
+    parser.add_argument("--host-only", action="store_true", help="skip the device build")
     args = parser.parse_args(argv)
 
-    vertices, faces, _ = _mesh_module().bumpy_mesh(args.subdivisions)
-    tri = vertices[faces]
-    lo, hi = tri.min(axis=1), tri.max(axis=1)
+    queue = None if args.host_only else _device_queue()
+    cases = {"mesh": mesh_bounds(args.subdivisions), "spheres": sphere_bounds(args.spheres)}
+    results = {}
+    for name, (lo, hi) in cases.items():
+        builders = {"host": lambda lo=lo, hi=hi: build_bvh(lo, hi, args.max_leaf_size)}
+        if queue is not None:
+            builders["device"] = lambda lo=lo, hi=hi: build_bvh(lo, hi, args.max_leaf_size,
+                                                                queue=queue)
+        results[name] = {"primitives": lo.shape[0],
+                         **bench_case(lo, hi, builders, args.runs, args.max_leaf_size)}
 
-    bvh = build_bvh(lo, hi, args.max_leaf_size)  # warm-up: page faults, lazy imports
-    runs = []
-    for _ in range(args.runs):
-        t0 = time.perf_counter()
-        bvh = build_bvh(lo, hi, args.max_leaf_size)
-        runs.append(time.perf_counter() - t0)
-
-    n = len(faces)
-    count = bvh.nodes["count"]
-    leaf_sizes = np.bincount(count[count > 0], minlength=max_leaf_count(args.max_leaf_size) + 1)
     result = {
         "benchmark": "bvh_build",
-        "triangles": n,
         "subdivisions": args.subdivisions,
         "max_leaf_size": args.max_leaf_size,
-        "build_s": statistics.median(runs),
-        "runs_s": runs,
-        "nodes": int(bvh.nodes.size),
-        "nodes_per_triangle": bvh.nodes.size / n,
-        "leaves": int((count > 0).sum()),
-        "leaf_size_histogram": leaf_sizes.tolist(),
-        "bytes_per_triangle": (bvh.nodes.nbytes + bvh.order.nbytes) / n,
-        "sah_cost": sah_cost(bvh.nodes),
+        "device": None if queue is None else queue.device.name.strip(),
+        "cases": results,
         "numpy": np.__version__,
         "python": platform.python_version(),
         "cpu_count": os.cpu_count(),
     }
     args.json.parent.mkdir(parents=True, exist_ok=True)
     args.json.write_text(json.dumps(result, indent=2) + "\n", encoding="utf-8")
-    print(json.dumps(result, indent=2))
+    for name, case in results.items():
+        for builder in ("host", "device"):
+            if builder in case:
+                r = case[builder]
+                print(f"{name} ({case['primitives']}) {builder}: {r['build_s']:.3f} s, "
+                      f"SAH {r['sah_cost']:.3f}")
 
 
 if __name__ == "__main__":

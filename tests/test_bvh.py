@@ -12,7 +12,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
-from clray.accel.bvh import Bvh, build_bvh, max_leaf_count
+from clray.accel.bvh import N_BINS, TRAVERSAL_COST, Bvh, build_bvh, max_leaf_count, sah_cost
+from clray.device.context import queue_for
 from clray.device.layout import BVH_NODE
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -179,6 +180,138 @@ def test_rejects_bad_bounds(lo, hi):
 def test_rejects_bad_leaf_size():
     with pytest.raises(ValueError):
         build_bvh(np.zeros((2, 3)), np.ones((2, 3)), max_leaf_size=0)
+
+
+# --- device build -----------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def cl_queue(cl_device):
+    from clray.accel import _bvh_cl
+
+    if not _bvh_cl.supports(cl_device):
+        pytest.skip("the device build needs float64")
+    return queue_for(cl_device)
+
+
+def assert_same_tree(a: Bvh, b: Bvh) -> None:
+    assert a.nodes.tobytes() == b.nodes.tobytes()
+    assert np.array_equal(a.order, b.order)
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    centres=hnp.arrays(np.float64, st.tuples(st.integers(0, 60), st.just(3)), elements=_COORD),
+    data=st.data(),
+    max_leaf_size=st.sampled_from([1, 2, 4, 8, 20]),
+)
+def test_device_build_is_the_host_build_small_sets(cl_queue, centres, data, max_leaf_size):
+    extents = data.draw(hnp.arrays(np.float64, centres.shape, elements=_EXTENT))
+    lo, hi = _boxes(centres, extents)
+    bvh = build_bvh(lo, hi, max_leaf_size, queue=cl_queue)
+    check_bvh(bvh, lo, hi, max_leaf_size)
+    assert_same_tree(bvh, build_bvh(lo, hi, max_leaf_size))
+
+
+@pytest.mark.parametrize("kind", KINDS)
+@pytest.mark.parametrize("n", [5, 300, 20000])
+@pytest.mark.parametrize("max_leaf_size", [1, 4])
+def test_device_build_is_the_host_build(cl_queue, kind, n, max_leaf_size):
+    lo, hi = _random_set(kind, n, np.random.default_rng(n + len(kind)))
+    bvh = build_bvh(lo, hi, max_leaf_size, queue=cl_queue)
+    check_bvh(bvh, lo, hi, max_leaf_size)
+    assert_same_tree(bvh, build_bvh(lo, hi, max_leaf_size))
+
+
+def test_device_build_of_a_lopsided_set(cl_queue):
+    # Centroids at powers of two: every split peels a few primitives off one end, so the tree
+    # is as deep as it is wide and never offers enough subtrees for the per-level launches.
+    c = np.zeros((3000, 3))
+    c[:, 0] = 2.0 ** (np.arange(3000) % 120)
+    lo, hi = c - 0.25, c + 0.25
+    bvh = build_bvh(lo, hi, 1, queue=cl_queue)
+    check_bvh(bvh, lo, hi, 1)
+    assert_same_tree(bvh, build_bvh(lo, hi, 1))
+
+
+def test_device_build_of_mesh_triangles(cl_queue):
+    vertices, faces, _ = mesh_gen.bumpy_mesh(5)
+    tri = vertices[faces]
+    lo, hi = tri.min(axis=1), tri.max(axis=1)
+    assert_same_tree(build_bvh(lo, hi, queue=cl_queue), build_bvh(lo, hi))
+
+
+# --- build quality ---------------------------------------------------------------------------
+
+
+def _half_area(lo: np.ndarray, hi: np.ndarray) -> float:
+    e = np.maximum(hi - lo, 0.0)
+    return float(e[0] * e[1] + e[1] * e[2] + e[2] * e[0])
+
+
+def reference_sah_cost(lo: np.ndarray, hi: np.ndarray, max_leaf_size: int) -> float:
+    """SAH cost (as `sah_cost` counts it) of the textbook recursive binned-SAH build: one node
+    at a time, in float64, with the builder's bins, axis choice and leaf rules."""
+    sah_max_leaf = max_leaf_count(max_leaf_size)
+    total = 0.0
+    stack = [np.arange(lo.shape[0])]
+    while stack:
+        idx = stack.pop()
+        area = _half_area(lo[idx].min(axis=0), hi[idx].max(axis=0))
+        split = _reference_split(lo[idx], hi[idx], area) if idx.size > max_leaf_size else None
+        if split is None or (split[1] and idx.size <= sah_max_leaf):
+            total += idx.size * area
+            continue
+        total += TRAVERSAL_COST * area
+        stack += [idx[~split[0]], idx[split[0]]]
+    return total / _half_area(lo.min(axis=0), hi.max(axis=0))
+
+
+def _reference_split(lo: np.ndarray, hi: np.ndarray, area: float):
+    """(goes right, SAH prefers a leaf) for one node, or None when its centroids coincide."""
+    c = 0.5 * (lo + hi)
+    ext = c.max(axis=0) - c.min(axis=0)
+    axis = int(np.argmax(ext))
+    n = lo.shape[0]
+    if ext[axis] == 0:
+        return (np.arange(n) >= n // 2), True
+    b = np.clip(((c[:, axis] - c[:, axis].min()) * (N_BINS / ext[axis])).astype(int), 0,
+                N_BINS - 1)
+    best, best_cost = 0, math.inf
+    for k in range(N_BINS - 1):
+        left = b <= k
+        if left.all() or not left.any():
+            continue
+        cost = (_half_area(lo[left].min(axis=0), hi[left].max(axis=0)) * left.sum()
+                + _half_area(lo[~left].min(axis=0), hi[~left].max(axis=0)) * (~left).sum())
+        if cost < best_cost:
+            best, best_cost = k, cost
+    return b > best, TRAVERSAL_COST * area + best_cost >= n * area
+
+
+@pytest.mark.parametrize("kind", ["uniform", "duplicates", "flat", "clustered_scales"])
+@pytest.mark.parametrize("seed", [1, 2])
+def test_sah_cost_matches_a_recursive_reference(kind, seed):
+    lo, hi = _random_set(kind, 3000, np.random.default_rng(seed))
+    built = sah_cost(build_bvh(lo, hi, 4).nodes)
+    # The build bins float32-rounded centroids, so a few splits may land one bin apart.
+    assert built == pytest.approx(reference_sah_cost(lo, hi, 4), rel=0.01)
+
+
+def test_sah_cost_of_a_mesh_matches_a_recursive_reference():
+    vertices, faces, _ = mesh_gen.bumpy_mesh(3)
+    tri = vertices[faces]
+    lo, hi = tri.min(axis=1), tri.max(axis=1)
+    assert sah_cost(build_bvh(lo, hi).nodes) == pytest.approx(reference_sah_cost(lo, hi, 4),
+                                                              rel=0.01)
+
+
+def test_sah_cost_of_one_leaf_and_of_two():
+    lo = np.array([[0.0, 0, 0], [2, 0, 0]])
+    hi = lo + 1
+    assert sah_cost(build_bvh(lo, hi, 2).nodes) == pytest.approx(2.0)
+    # Split: the root visit (1) plus each unit cube's primitive test, 3 / 7 of the root's area.
+    assert sah_cost(build_bvh(lo, hi, 1).nodes) == pytest.approx(1 + 2 * 3 / 7)
 
 
 # --- traversal oracle ----------------------------------------------------------------------

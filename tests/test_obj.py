@@ -206,3 +206,135 @@ def test_errors_name_file_and_line(tmp_path, text, line, message):
 def test_missing_file(tmp_path):
     with pytest.raises(SceneError, match=r"^nope\.obj: cannot read mesh file"):
         read_obj(tmp_path / "nope.obj")
+
+
+def reference_obj(text: str) -> tuple[list, list]:
+    """A straightforward line-by-line reader: (positions, triangles as position triples),
+    0-based, for texts whose faces are all valid."""
+    positions: list[tuple[float, ...]] = []
+    triangles = []
+    for line in text.splitlines():
+        tokens = line.split("#")[0].split()
+        if not tokens:
+            continue
+        if tokens[0] == "v":
+            positions.append(tuple(float(t) for t in tokens[1:4]))
+        elif tokens[0] == "f":
+            refs = []
+            for t in tokens[1:]:
+                i = int(t.split("/")[0])
+                refs.append(i - 1 if i > 0 else len(positions) + i)
+            triangles += [(refs[0], refs[k], refs[k + 1]) for k in range(1, len(refs) - 1)]
+    return positions, triangles
+
+
+def positions_of_faces(mesh) -> list:
+    return [tuple(tuple(mesh.vertices[i]) for i in face) for face in mesh.faces]
+
+
+REFERENCE_TEXTS = {
+    "plain": SQUARE_V + "f 1 2 3 4\n",
+    "v/vt": SQUARE_V + "vt 0 0\nvt 1 1\nf 1/1 2/2 3/1\nf 3/2 4/1 1/1\n",
+    "v//vn": SQUARE_V + "vn 0 0 1\nf 1//1 2//1 3//1 4//1\n",
+    "v/vt/vn": SQUARE_V + "vt 0 0\nvn 0 0 1\nf 1/1/1 2/1/1 3/1/1\n",
+    "forms differ between faces": (
+        SQUARE_V
+        + "vt 0 0\nvn 0 0 1\nf 1 2 3\nf 1/1 3/1 4/1\nf 2//1 3//1 4//1\nf 1/1/1 2/1/1 4/1/1\n"
+    ),
+    "relative": SQUARE_V + "vn 0 0 1\nf -4//-1 -3//1 -2//-1\nv 9 9 9\nf -5 -2 -1\n",
+    "signed indices": SQUARE_V + "f +1 +2 +3\n",
+    "crlf and tabs": SQUARE_V.replace("\n", "\r\n") + "f\t1\t2 \t3\r\n\r\nf 1 3 4\r\n",
+    "indented and blank lines": "\n\n  v 0 0 0\n\tv 1 0 0\n \n v 0 1 0\n\n   f 1 2 3   \n\n",
+    "comments everywhere": (
+        "# header\nv 0 0 0 # origin\nv 1 0 0#x\n#v 7 7 7\nv 0 1 0\n# f 9 9 9\nf 1 2 3 # tri\n"
+    ),
+    "slashes in other statements": (
+        SQUARE_V + "mtllib a/b.mtl\nf 1 2 3\nusemtl x//y\nf 1 3 4\ng a/b/c\n"
+    ),
+    "long numbers": (
+        "v 0.12345678901234567890 -123456789012345678901234 1e-300\n"
+        "v 00000000000000000000001.5 .5 5.\nv -0 +0.0 -.25\n"
+        "f 000000000001 2 0000000003\n"
+    ),
+    "exponents and odd spellings": "v 1e3 -2.5E-2 +3E+0\nv 1.e1 .1e1 0e0\nv 7 8 9\nf 1 2 3\n",
+    "no trailing newline": SQUARE_V + "f 4 3 2",
+    "big polygon": SQUARE_V + "v 2 0 0\nv 2 1 0\nf 1 2 5 6 3 4\n",
+}
+
+
+@pytest.mark.parametrize("name", list(REFERENCE_TEXTS))
+def test_matches_a_line_by_line_reader(tmp_path, name):
+    text = REFERENCE_TEXTS[name]
+    positions, triangles = reference_obj(text)
+    mesh = read_obj(write(tmp_path, text))
+    expected = [tuple(positions[i] for i in tri) for tri in triangles]
+    assert positions_of_faces(mesh) == expected
+
+
+def test_vertex_numbers_are_exactly_what_float_reads(tmp_path):
+    rng = np.random.default_rng(7)
+    tokens = []
+    for _ in range(3000):
+        digits = "".join(rng.choice(list("0123456789"), size=int(rng.integers(1, 20))))
+        cut = int(rng.integers(0, len(digits) + 1))
+        sign = rng.choice(["", "-", "+"])
+        shape = int(rng.integers(0, 4))
+        if shape == 0:
+            token = sign + digits
+        elif shape == 1:
+            token = f"{sign}{digits[:cut]}.{digits[cut:]}"
+        elif shape == 2:
+            token = f"{sign}{digits[:cut] or '0'}.{digits[cut:]}e{int(rng.integers(-30, 30))}"
+        else:
+            token = repr(float(rng.normal() * 10.0 ** int(rng.integers(-8, 8))))
+        if token.strip("+-.") == "":
+            token = "0"
+        tokens.append(token)
+    tokens += ["9007199254740993", "0.9007199254740993", "4503599627370497.5", "1" * 16]
+    while len(tokens) % 3:
+        tokens.append("1")
+    lines = [f"v {' '.join(tokens[i : i + 3])}" for i in range(0, len(tokens), 3)]
+    mesh = read_obj(write(tmp_path, "\n".join(lines) + "\nf 1 2 3\n"))
+    expected = np.array([float(t) for t in tokens]).reshape(-1, 3)
+    # Bitwise, so -0.0 against 0.0 and the last bit of the rounding count too.
+    assert mesh.vertices.tobytes() == expected.tobytes()
+
+
+def test_shared_indices_keep_every_vertex_in_file_order(tmp_path):
+    # `f a//a` throughout takes the no-sort path; an unused vertex must still be dropped.
+    text = SQUARE_V + "v 9 9 9\n" + "vn 0 0 1\n" * 5 + "f 4//4 1//1 2//2\nf 2//2 3//3 4//4\n"
+    mesh = read_obj(write(tmp_path, text))
+    np.testing.assert_array_equal(mesh.vertices, [[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]])
+    np.testing.assert_array_equal(mesh.faces, [[3, 0, 1], [1, 2, 3]])
+    assert mesh.normals.shape == (4, 3)
+
+
+@pytest.mark.parametrize(
+    ("text", "line", "message"),
+    [
+        (SQUARE_V.replace("\n", "\r\n") + "\r\nf 1 2 9\r\n", 6, "vertex index 9 out of range"),
+        ("# c\n\n  \nv 0 0 0\n\t\nv 1 x 0 # why\n", 6, "expected a number, got 'x'"),
+        ("v 0 0 0\nv 1 1 1.2.3\n", 2, "expected a number, got '1.2.3'"),
+        ("v 0 0 0\nv 1 1 12345678901234567.5x\n", 2, "got '12345678901234567.5x'"),
+        ("v 0 0 0\nv 1 1 -\n", 2, "expected a number, got '-'"),
+        ("v 0 0 0\nv 1 1 .\n", 2, "expected a number, got '.'"),
+        ("v 0 0 0\nv 1 1 1/2\n", 2, "expected a number, got '1/2'"),
+        ("v 0 0 0\nv 1 1 0x10\n", 2, "expected a number, got '0x10'"),
+        ("v 0 0 0\nv 1 1 1\x002\n", 2, "expected a number, got '1\\x002'"),
+        ("v 0 0 0\nvt 0 1e999\n", 2, "vt: numbers must be finite"),
+        (SQUARE_V + "f 1 2 3\nf 1 2 +\n", 6, "bad vertex reference '+'"),
+        (SQUARE_V + "f 1 2 3\nf 1 2 123456789\n", 6, "vertex index 123456789 out of range"),
+        (SQUARE_V + "f 1 2 99999999999999999999\n", 5, "out of range"),
+        (SQUARE_V + "vt 0 0\nf 1/ 2/1 3/1\n", 6, "bad vertex reference '1/'"),
+        (SQUARE_V + "vt 0 0\nf 1/1 2/1 /3\n", 6, "bad vertex reference '/3'"),
+        (SQUARE_V + "vt 0 0\nf 1/1 2/1 3/-\n", 6, "bad vertex reference '3/-'"),
+        (SQUARE_V + "f 1 2 3\nf 1///2 2 3\n", 6, "bad vertex reference '1///2'"),
+        (SQUARE_V + "vn 0 0 1\nf 1//1 2//1 3//1\nf 1//1 2 3\n", 7, "mixed vertex forms"),
+        (SQUARE_V + "vn 0 0 1\nf 1//1 2//1 3//1\nf 1//1 2//1 3//-2\n", 7, "relative normal"),
+    ],
+)
+def test_more_errors_name_the_line(tmp_path, text, line, message):
+    with pytest.raises(SceneError) as info:
+        read_obj(write(tmp_path, text, "broken.obj"))
+    assert str(info.value).startswith(f"broken.obj: line {line}: "), str(info.value)
+    assert message in str(info.value)

@@ -1,15 +1,16 @@
 """Wavefront OBJ reader: positions, normals, texture coordinates and polygon faces.
 
 Meshes of a few hundred thousand faces are common, so the file is tokenised with numpy on
-its raw bytes instead of line by line in Python: a per-line Python loop costs about a
-second for a 12 MB file, the vectorised passes a small fraction of that. Per-token Python
-work happens only to pin down the line of an error the vectorised passes detected.
+its raw bytes instead of line by line in Python: a per-line Python loop costs seconds for a
+25 MB file, the vectorised passes a tenth of one. Numbers in the usual fixed-point notation
+are read eight bytes at a time as 64-bit words (`_fast_floats`), the face indices by one
+numpy parse of the face lines; Python reads a token itself only when the vectorised passes
+cannot (exponents, long numbers) or to pin down the line of an error they detected.
 """
 
 from __future__ import annotations
 
 import re
-import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -34,7 +35,9 @@ _WS = np.zeros(256, dtype=bool)
 _WS[[9, 10, 11, 12, 13, 32]] = True
 
 _OTHER, _V, _VT, _VN, _F = range(5)
+_NL = ord("\n")
 _SLASH = ord("/")
+_SPACE = ord(" ")
 
 # Face vertex forms, and how many integers each holds once the slashes are gone.
 _FORM_V, _FORM_VT, _FORM_VN, _FORM_VTN = range(4)
@@ -42,42 +45,77 @@ _FORM_NAMES = ("v", "v/vt", "v//vn", "v/vt/vn")
 _FORM_COMPONENTS = np.array([1, 2, 2, 3])
 
 # What the slow paths accept; stricter than float()/int(), which also take "1_0" and
-# non-ASCII digits that numpy's bulk parser rejects.
+# non-ASCII digits that the vectorised parsers reject.
 _FLOAT = re.compile(r"[+-]?(?:[0-9]+\.?[0-9]*|\.[0-9]+)(?:[eE][+-]?[0-9]+)?|[+-]?(?:nan|inf)", re.I)
 _INT = re.compile(r"[+-]?[0-9]+")
 
+# Whitespace in front of the file: every token has two 8-byte words' worth of bytes before
+# its end, so `_fast_floats` never reads before the buffer.
+_PAD = 16
+
+# Byte-parallel ("SWAR") constants for eight ASCII bytes in a little-endian uint64.
+_EACH = 0x0101010101010101
+_ZEROS = np.uint64(0x30 * _EACH)
+_LOW7 = np.uint64(0x7F * _EACH)
+_HIGH = np.uint64(0x80 * _EACH)
+_DOTS = np.uint64(0x2E * _EACH)
+_PLUS_46 = np.uint64(0x46 * _EACH)
+_PLUS_50 = np.uint64(0x50 * _EACH)
+# _KEEP[k]: the k highest-addressed bytes of a word, the ones just before a token's end.
+_KEEP = np.array([((1 << (8 * k)) - 1) << (64 - 8 * k) for k in range(9)], dtype=np.uint64)
+_FILL = _ZEROS & ~_KEEP
+_MAX_FAST_DIGITS = 16  # two words
+_POW10_INT = np.array([10**k for k in range(_MAX_FAST_DIGITS + 1)], dtype=np.uint64)
+_POW10_FLOAT = np.array([10.0**k for k in range(_MAX_FAST_DIGITS + 1)])
+# Integers up to 2**53 are exact doubles; one division of two exact doubles is correctly
+# rounded, so such a mantissa over a power of ten <= 10**22 is exactly what float() gives.
+_EXACT = np.uint64(2**53)
+
 
 class _Tokens:
-    """Every whitespace-separated token of the file, with the line it is on."""
+    """Every whitespace-separated token of the file, grouped into statements (lines)."""
 
     def __init__(self, data: bytes, path: Path) -> None:
         self.path = path
-        buf = np.frombuffer(data + b"\n", dtype=np.uint8)
-        newlines = np.flatnonzero(buf == ord("\n"))
+        buf = np.frombuffer(b" " * _PAD + data + b"\n" + b" " * _PAD, dtype=np.uint8)
+        control = np.flatnonzero(buf < 32)
+        self.newlines = control[buf[control] == _NL]
         if b"#" in data:
-            buf = _blank_comments(buf, newlines)
-        ws = _WS[buf]
-        solid = ~ws
-        starts = np.flatnonzero(solid[1:] & ws[:-1]) + 1
-        if solid[0]:
-            starts = np.concatenate(([0], starts))
+            buf = _blank_comments(buf, self.newlines)
+        if np.any(buf[control] - 9 > 4):
+            # Control bytes other than \t\n\v\f\r are token bytes, as for bytes.split().
+            solid = ~_WS[buf]
+        else:
+            solid = buf > 32
         self.buf = buf
-        self.starts = starts
-        # The buffer ends in a newline, so every token ends before the last byte.
-        self.ends = np.flatnonzero(solid[:-1] & ws[1:]) + 1  # exclusive
-        self.line = np.searchsorted(newlines, starts) + 1  # 1-based line numbers
-        first = np.ones(len(starts), dtype=bool)
-        first[1:] = self.line[1:] != self.line[:-1]
-        self.heads = np.flatnonzero(first)
+        # The buffer starts and ends with whitespace, so the edges alternate start, end.
+        edges = np.flatnonzero(solid[1:] != solid[:-1]) + 1
+        self.starts = edges[0::2]
+        self.ends = edges[1::2]  # exclusive
+        self.heads = self._heads(solid)
         # Tokens per statement, the keyword included.
-        self.counts = np.diff(np.append(self.heads, len(starts)))
+        self.counts = np.diff(self.heads, append=len(self.starts))
         self.kind = self._classify()
+
+    def _heads(self, solid: np.ndarray) -> np.ndarray:
+        """The first token of every line: one with a newline between it and the previous."""
+        if len(self.starts) == 0:
+            return self.starts
+        head = self.buf[self.starts - 1] == _NL
+        head[0] = True
+        # Only a gap of two or more whitespace bytes can hide a newline further back.
+        wide = np.flatnonzero(~head & ~solid[self.starts - 2])
+        if len(wide):
+            head[wide] = np.searchsorted(self.newlines, self.ends[wide - 1]) != np.searchsorted(
+                self.newlines, self.starts[wide]
+            )
+        return np.flatnonzero(head)
 
     def _classify(self) -> np.ndarray:
         start = self.starts[self.heads]
         length = self.ends[self.heads] - start
         c0 = self.buf[start]
-        c1 = self.buf[np.minimum(start + 1, len(self.buf) - 1)]
+        c1 = self.buf[start + 1]  # the buffer ends in a newline, so this stays inside
         kind = np.full(len(start), _OTHER, dtype=np.int8)
         kind[(length == 1) & (c0 == ord("v"))] = _V
         kind[(length == 1) & (c0 == ord("f"))] = _F
@@ -90,20 +128,20 @@ class _Tokens:
         raw = self.buf[self.starts[token] : self.ends[token]].tobytes()
         return raw.decode("utf-8", errors="replace")
 
+    def line(self, token: int) -> int:
+        return int(np.searchsorted(self.newlines, self.starts[token])) + 1
+
     def error(self, token: int, message: str) -> SceneError:
-        return SceneError(self.path, f"line {self.line[token]}", message)
+        return SceneError(self.path, f"line {self.line(token)}", message)
 
-    def statements(self, kind: int) -> tuple[np.ndarray, np.ndarray]:
-        """(index of the first value token, number of values) of each statement of a kind."""
+    def statements(self, kind: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(statement numbers, index of the first value token, number of values) of each
+        statement of a kind."""
         sel = np.flatnonzero(self.kind == kind)
-        return self.heads[sel] + 1, self.counts[sel] - 1
+        return sel, self.heads[sel] + 1, self.counts[sel] - 1
 
-    def joined(self, first: np.ndarray, count: np.ndarray) -> bytes:
-        """The value tokens of the given statements as one blob: each statement's bytes from
-        its first value to the whitespace byte after its last."""
-        lo = self.starts[first]
-        hi = self.ends[first + count - 1] + 1
-        return self.buf[_ranges(lo, hi - lo)].tobytes()
+    def statement_of(self, tokens: np.ndarray) -> np.ndarray:
+        return np.searchsorted(self.heads, tokens, side="right") - 1
 
 
 def _blank_comments(buf: np.ndarray, newlines: np.ndarray) -> np.ndarray:
@@ -113,7 +151,7 @@ def _blank_comments(buf: np.ndarray, newlines: np.ndarray) -> np.ndarray:
     first = np.ones(len(hashes), dtype=bool)
     first[1:] = line[1:] != line[:-1]
     out = buf.copy()
-    out[_ranges(hashes[first], newlines[line[first]] - hashes[first])] = ord(" ")
+    out[_ranges(hashes[first], newlines[line[first]] - hashes[first])] = _SPACE
     return out
 
 
@@ -129,36 +167,145 @@ def _exclusive_cumsum(counts: np.ndarray) -> np.ndarray:
     return out
 
 
-def _bulk_parse(blob: bytes, dtype: type, expected: int) -> np.ndarray | None:
-    """All numbers in a blob, or None when some token is not exactly one number."""
-    with warnings.catch_warnings():
-        # numpy < 2.3 only warns when it stops at a token it cannot read.
-        warnings.simplefilter("error", DeprecationWarning)
-        try:
-            values = np.fromstring(blob, dtype=dtype, sep=" ")
-        except (ValueError, DeprecationWarning):
-            return None
-    # A token such as "1-2" reads as two numbers; the count exposes it.
-    return values if len(values) == expected else None
+def _words(buf: np.ndarray) -> np.ndarray:
+    """The little-endian uint64 of the 8 bytes from each offset of `buf` (a view)."""
+    return np.ndarray((len(buf) - 7,), dtype="<u8", buffer=buf, strides=(1,))
+
+
+def _dots(x: np.ndarray) -> np.ndarray:
+    """High bit of each byte of `x` that is a '.'."""
+    d = x ^ _DOTS
+    out = d & _LOW7
+    out += _LOW7
+    out |= d
+    np.invert(out, out=out)
+    out &= _HIGH
+    return out
+
+
+def _not_digits(x: np.ndarray) -> np.ndarray:
+    """High bit of each byte of `x` that is not an ASCII digit."""
+    # Bit 7 of (b & 0x7f) + 0x46 is set for b >= 0x3a, of (b & 0x7f) + 0x50 for b >= 0x30;
+    # bytes >= 0x80 are caught by their own bit 7. No sum carries into the next byte.
+    low = x & _LOW7
+    out = low + _PLUS_46
+    out |= x
+    low += _PLUS_50
+    np.invert(low, out=low)
+    out |= low
+    out &= _HIGH
+    return out
+
+
+def _eight_digits(x: np.ndarray) -> np.ndarray:
+    """The value of eight ASCII digits, the lowest-addressed byte the most significant
+    (the multiply-and-shift steps combine digit pairs, then pairs of pairs, and so on)."""
+    x = x & np.uint64(0x0F0F0F0F0F0F0F0F)
+    for mask, factor, shift in _DIGIT_STEPS:
+        x *= factor
+        x >>= shift
+        if mask is not None:
+            x &= mask
+    return x
+
+
+_DIGIT_STEPS = (
+    (np.uint64(0x00FF00FF00FF00FF), np.uint64(2561), np.uint64(8)),
+    (np.uint64(0x0000FFFF0000FFFF), np.uint64(6553601), np.uint64(16)),
+    (None, np.uint64(42949672960001), np.uint64(32)),
+)
+
+
+def _word_before(buf: np.ndarray, end: np.ndarray, size: np.ndarray) -> np.ndarray:
+    """The word ending at each `end`, its bytes before the last `size` (0..8) set to '0'."""
+    x = _words(buf)[end - 8]
+    x &= _KEEP[size]
+    x |= _FILL[size]
+    return x
+
+
+def _fast_floats(
+    buf: np.ndarray, start: np.ndarray, end: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """(values, ok): the tokens [start, end) of the form [+-]digits[.digits] with at most 16
+    digits and a mantissa up to 2**53, read as exactly the doubles float() gives; ok is
+    False where a token is anything else, its value then meaningless."""
+    first = buf[start]
+    negative = first == ord("-")
+    n = end - start
+    n -= negative | (first == ord("+"))  # digits and the dot
+    ok = (n >= 1) & (n <= _MAX_FAST_DIGITS)
+    size = np.minimum(n, 8)
+    lo = _word_before(buf, end, size)
+    np.subtract(n, 8, out=size)
+    np.clip(size, 0, 8, out=size)
+    hi = _word_before(buf, end - 8, size)
+    dots_lo, dots_hi = _dots(lo), _dots(hi)
+    ok &= _not_digits(lo) == dots_lo
+    ok &= _not_digits(hi) == dots_hi
+    one = np.uint64(1)
+    has_lo, has_hi = dots_lo != 0, dots_hi != 0
+    # At most one dot, and at least one digit besides it.
+    ok &= (dots_lo & (dots_lo - one)) == 0
+    ok &= (dots_hi & (dots_hi - one)) == 0
+    ok &= ~(has_lo & has_hi)
+    has_dot = has_lo | has_hi
+    ok &= n > has_dot
+    # frexp(2**p) has exponent p + 1; the dot's high bit is bit 8k + 7 for byte k, and
+    # 7 - k digits follow it in the low word, 15 - k if it is in the high one.
+    dot_bits = np.where(has_lo, dots_lo, dots_hi).astype(np.float64)
+    decimals = np.frexp(dot_bits)[1] >> 3
+    np.subtract(np.where(has_lo, 8, 16), decimals, out=decimals)
+    decimals[~(has_dot & ok)] = 0
+    # A dot reads as a '0' digit, so `joined` is the integer part times 10**(decimals + 1)
+    # plus the fraction digits as an integer.
+    dots_lo >>= np.uint64(6)
+    lo += dots_lo
+    dots_hi >>= np.uint64(6)
+    hi += dots_hi
+    joined = _eight_digits(hi)
+    joined *= np.uint64(10**8)
+    joined += _eight_digits(lo)
+    scale = _POW10_INT[decimals]
+    integer = joined // np.where(has_dot, scale * np.uint64(10), np.uint64(10**17))
+    integer *= scale
+    integer *= np.uint64(9)
+    joined -= integer  # now the mantissa: integer part * 10**decimals + fraction digits
+    ok &= joined <= _EXACT
+    values = joined.astype(np.float64)
+    values /= _POW10_FLOAT[decimals]
+    np.negative(values, out=values, where=negative)
+    return values, ok
+
+
+def _value_tokens(first: np.ndarray, count: np.ndarray) -> np.ndarray:
+    """The value tokens of statements, in file order."""
+    if len(count) and np.all(count == count[0]):
+        # The usual file: every statement of a kind the same length.
+        return (first[:, None] + np.arange(count[0])).reshape(-1)
+    return _ranges(first, count)
 
 
 def _floats(tok: _Tokens, kind: int, name: str, want: int) -> tuple[np.ndarray, np.ndarray]:
-    """(values (N, want), line numbers) of the `v`/`vt`/`vn` statements."""
-    first, count = tok.statements(kind)
+    """(values (N, want), statement numbers) of the `v`/`vt`/`vn` statements."""
+    stmt, first, count = tok.statements(kind)
     short = np.flatnonzero(count < want)
     if len(short):
         i = short[0]
         raise tok.error(first[i] - 1, f"{name}: expected at least {want} numbers, got {count[i]}")
-    tokens = _ranges(first, count)
-    values = _bulk_parse(tok.joined(first, count), np.float64, len(tokens))
-    if values is None:
-        values = np.array([_python_float(tok, t) for t in tokens], dtype=np.float64)
+    tokens = _value_tokens(first, count)
+    values, ok = _fast_floats(tok.buf, tok.starts[tokens], tok.ends[tokens])
+    for i in np.flatnonzero(~ok).tolist():
+        values[i] = _python_float(tok, int(tokens[i]))
     # Extra values (a `w`, vertex colours) are allowed and ignored.
-    picked = values[(_exclusive_cumsum(count)[:, None] + np.arange(want))]
+    if np.all(count == want):
+        picked = values.reshape(-1, want)
+    else:
+        picked = values[_exclusive_cumsum(count)[:, None] + np.arange(want)]
     bad = np.flatnonzero(~np.isfinite(picked).all(axis=1))
     if len(bad):
         raise tok.error(first[bad[0]] - 1, f"{name}: numbers must be finite")
-    return picked, tok.line[first - 1]
+    return picked, stmt
 
 
 def _python_float(tok: _Tokens, token: int) -> float:
@@ -168,25 +315,67 @@ def _python_float(tok: _Tokens, token: int) -> float:
     return float(text)
 
 
+def _fast_ints(
+    buf: np.ndarray, start: np.ndarray, end: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """(values, ok): the tokens [start, end) of the form [+-]digits with at most 8 digits;
+    ok is False where a token is anything else (empty included), its value then 0."""
+    first = buf[start]
+    negative = first == ord("-")
+    n = end - start
+    n -= negative | (first == ord("+"))
+    ok = (n >= 1) & (n <= 8)
+    np.clip(n, 0, 8, out=n)
+    x = _word_before(buf, end, n)
+    ok &= _not_digits(x) == 0
+    values = _eight_digits(x).view(np.int64)  # below 10**8, so the same bits
+    values[~ok] = 0
+    np.negative(values, out=values, where=negative)
+    return values, ok
+
+
+def _slashes(start: np.ndarray, end: np.ndarray, buf: np.ndarray) -> tuple[np.ndarray, ...]:
+    """(number of slashes, first slash, second slash) of each token [start, end)."""
+    n = len(start)
+    lo = start[0]
+    found = np.flatnonzero(buf[lo : end[-1]] == _SLASH) + lo
+    k = len(found) // n
+    if len(found) == k * n and k <= 2:
+        # Shortcut for the usual file, one form throughout: the i-th k slashes lie in the
+        # i-th token. As there are exactly k * n, every token then holds exactly its k.
+        mine = found.reshape(n, k)
+        if k == 0 or np.all((mine[:, 0] >= start) & (mine[:, -1] < end)):
+            count = np.full(n, k)
+            if k == 0:
+                return count, end, end
+            return count, mine[:, 0], mine[:, -1]
+    owner = np.searchsorted(start, found, side="right") - 1
+    inside = found < end[owner]  # not a slash between tokens or in another statement
+    found, owner = found[inside], owner[inside]
+    count = np.bincount(owner, minlength=n)
+    at = np.minimum(_exclusive_cumsum(count), max(len(found) - 1, 0))
+    if len(found) == 0:
+        return count, end, end
+    return count, found[at], found[np.minimum(at + 1, len(found) - 1)]
+
+
 def _faces(tok: _Tokens) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Per face-vertex token: (form, components (N, 3) with -1 for absent, line), and the
-    per-face vertex counts."""
-    first, count = tok.statements(_F)
+    """Per face-vertex token: (form, components (N, 3) with -1 for absent, token index), and
+    the per-face vertex counts."""
+    _, first, count = tok.statements(_F)
     few = np.flatnonzero(count < 3)
     if len(few):
         i = few[0]
         raise tok.error(first[i] - 1, f"f: a face needs at least 3 vertices, got {count[i]}")
-    tokens = _ranges(first, count)
-    buf = tok.buf
-    slashes = np.flatnonzero(buf == _SLASH)
-    owner = np.searchsorted(tok.starts, slashes, side="right") - 1
-    n_slash = np.bincount(owner, minlength=len(tok.starts))[tokens]
-    doubled = slashes[buf[slashes + 1] == _SLASH]
-    n_double = np.bincount(
-        np.searchsorted(tok.starts, doubled, side="right") - 1, minlength=len(tok.starts)
-    )[tokens]
+    tokens = _value_tokens(first, count)
+    comp = np.full((len(tokens), 3), -1, dtype=np.int64)
+    if len(tokens) == 0:
+        return np.zeros(0, dtype=np.int64), comp, tokens, count
+    start, end = tok.starts[tokens], tok.ends[tokens]
+    n_slash, first_slash, second_slash = _slashes(start, end, tok.buf)
+    doubled = second_slash == first_slash + 1
     form = np.select(
-        [n_slash == 0, n_slash == 1, (n_slash == 2) & (n_double == 1), n_slash == 2],
+        [n_slash == 0, n_slash == 1, (n_slash == 2) & doubled, n_slash == 2],
         [_FORM_V, _FORM_VT, _FORM_VN, _FORM_VTN],
         default=-1,
     )
@@ -194,70 +383,87 @@ def _faces(tok: _Tokens) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray
     if len(bad):
         t = tokens[bad[0]]
         raise tok.error(t, f"f: bad vertex reference {tok.text(t)!r}")
-    face_of = np.repeat(np.arange(len(count)), count)
     lead = form[_exclusive_cumsum(count)]
-    mixed = np.flatnonzero(form != lead[face_of])
+    mixed = np.flatnonzero(form != np.repeat(lead, count))
     if len(mixed):
         t = tokens[mixed[0]]
+        face = np.searchsorted(_exclusive_cumsum(count), mixed[0], side="right") - 1
         raise tok.error(
             t,
-            f"f: mixed vertex forms in one face ({_FORM_NAMES[lead[face_of[mixed[0]]]]} and "
+            f"f: mixed vertex forms in one face ({_FORM_NAMES[lead[face]]} and "
             f"{_FORM_NAMES[form[mixed[0]]]})",
         )
 
-    n_comp = _FORM_COMPONENTS[form]
-    blob = tok.joined(first, count).replace(b"/", b" ")
-    values = _bulk_parse(blob, np.int64, int(n_comp.sum()))
-    if values is None:
-        values = _python_indices(tok, tokens, form)
-    at = _exclusive_cumsum(n_comp)
-    comp = np.full((len(tokens), 3), -1, dtype=np.int64)
-    comp[:, 0] = values[at]
+    # Each component as a byte range: position up to the first slash, texture coordinate
+    # between the slashes, normal after the last one.
     has_vt = (form == _FORM_VT) | (form == _FORM_VTN)
-    comp[has_vt, 1] = values[at[has_vt] + 1]
-    comp[form == _FORM_VN, 2] = values[at[form == _FORM_VN] + 1]
-    comp[form == _FORM_VTN, 2] = values[at[form == _FORM_VTN] + 2]
+    has_vn = (form == _FORM_VN) | (form == _FORM_VTN)
+    vt_end = np.where(form == _FORM_VT, end, second_slash)
+    ranges = [
+        (np.arange(len(tokens)), start, np.where(form == _FORM_V, end, first_slash)),
+        (np.flatnonzero(has_vt), first_slash + 1, vt_end),
+        (np.flatnonzero(has_vn), second_slash + 1, end),
+    ]
+    failed = np.zeros(len(tokens), dtype=bool)
+    for k, (which, lo, hi) in enumerate(ranges):
+        if len(which) == len(tokens):
+            values, ok = _fast_ints(tok.buf, lo, hi)
+        else:
+            values, ok = _fast_ints(tok.buf, lo[which], hi[which])
+        comp[which, k] = values
+        failed[which[~ok]] = True
+    for i in np.flatnonzero(failed).tolist():
+        comp[i] = _python_indices(tok, int(tokens[i]), int(form[i]))
     return form, comp, tokens, count
 
 
-def _python_indices(tok: _Tokens, tokens: np.ndarray, form: np.ndarray) -> np.ndarray:
-    """The slow path of the face parse: find the token that is not made of integers."""
+def _python_indices(tok: _Tokens, token: int, form: int) -> list[int]:
+    """The slow path of the face parse, for a token the vectorised one could not read."""
+    parts = tok.text(token).split("/")
+    if form == _FORM_VN:
+        del parts[1]  # the empty slot of v//vn
     out = []
-    for t, f in zip(tokens.tolist(), form.tolist(), strict=True):
-        parts = tok.text(t).split("/")
-        if f == _FORM_VN:
-            del parts[1]  # the empty slot of v//vn
-        for part in parts:
-            if _INT.fullmatch(part) is None:
-                raise tok.error(t, f"f: bad vertex reference {tok.text(t)!r}")
-            out.append(int(part))
-    return np.array(out, dtype=np.int64)
+    for part in parts:
+        if _INT.fullmatch(part) is None:
+            raise tok.error(token, f"f: bad vertex reference {tok.text(token)!r}")
+        if len(part.lstrip("+-0")) > 18:
+            raise tok.error(token, f"f: vertex reference {tok.text(token)!r} out of range")
+        out.append(int(part))
+    slots = {_FORM_V: (0,), _FORM_VT: (0, 1), _FORM_VN: (0, 2), _FORM_VTN: (0, 1, 2)}[form]
+    comp = [-1, -1, -1]
+    for slot, value in zip(slots, out, strict=True):
+        comp[slot] = value
+    return comp
 
 
 def _resolve(
     tok: _Tokens,
     raw: np.ndarray,
     tokens: np.ndarray,
-    defined_at: np.ndarray,
+    defined_in: np.ndarray,
     name: str,
 ) -> np.ndarray:
-    """1-based and negative (relative) OBJ indices -> 0-based, with range checks."""
-    line = tok.line[tokens]
-    # A negative index counts back from the last element defined before its line.
-    before = np.searchsorted(defined_at, line)
-    index = np.where(raw < 0, before + raw, raw - 1)
-    bad = np.flatnonzero((raw == 0) | (index < 0) | (index >= len(defined_at)))
+    """1-based and negative (relative) OBJ indices -> 0-based, with range checks.
+    `defined_in` holds the statement number of each element's definition."""
+    index = raw - 1
+    relative = np.flatnonzero(raw < 0)
+    if len(relative):
+        # A negative index counts back from the last element defined before its line.
+        before = np.searchsorted(defined_in, tok.statement_of(tokens[relative]))
+        index[relative] = before + raw[relative]
+    bad = np.flatnonzero((raw == 0) | (index < 0) | (index >= len(defined_in)))
     if len(bad):
         i = bad[0]
         if raw[i] == 0:
             message = f"f: {name} index 0 is invalid (OBJ indices start at 1)"
         elif raw[i] < 0:
+            before = np.searchsorted(defined_in, tok.statement_of(tokens[i]))
             message = (
                 f"f: relative {name} index {raw[i]} out of range "
-                f"({before[i]} defined before this line)"
+                f"({before} defined before this line)"
             )
         else:
-            message = f"f: {name} index {raw[i]} out of range ({len(defined_at)} in the file)"
+            message = f"f: {name} index {raw[i]} out of range ({len(defined_in)} in the file)"
         raise tok.error(tokens[i], message)
     return index
 
@@ -265,6 +471,8 @@ def _resolve(
 def _fan(count: np.ndarray) -> np.ndarray:
     """(T, 3) positions into the face-vertex list: each polygon as a fan around its first
     vertex."""
+    if np.all(count == 3):
+        return np.arange(3 * len(count)).reshape(-1, 3)
     n_tri = count - 2
     poly = np.repeat(np.arange(len(count)), n_tri)
     k = np.arange(n_tri.sum()) - np.repeat(_exclusive_cumsum(n_tri), n_tri) + 1
@@ -273,10 +481,19 @@ def _fan(count: np.ndarray) -> np.ndarray:
 
 
 def _unique_rows(keys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """np.unique(keys, axis=0) via one int64 key per row when the ranges allow it: sorting
-    one integer column is several times faster than sorting rows."""
+    """np.unique(keys, axis=0) without sorting rows where it can."""
+    if np.all(keys == keys[:, :1]):
+        # Exporters often number normals and UVs like the positions (`f 7//7`); then the
+        # rows are their first column, and marking the used values replaces the sort.
+        used = np.zeros(int(keys[:, 0].max()) + 1, dtype=bool)
+        used[keys[:, 0]] = True
+        uniq = np.flatnonzero(used)
+        new_index = np.cumsum(used) - 1
+        return np.repeat(uniq[:, None], keys.shape[1], axis=1), new_index[keys[:, 0]]
     span = keys.max(axis=0) + 1
     if np.prod(span.astype(np.float64)) < 2.0**62:
+        # One int64 key per row: sorting one integer column is several times faster than
+        # sorting rows.
         flat = np.ravel_multi_index(tuple(keys.T), span)
         uniq, inverse = np.unique(flat, return_inverse=True)
         return np.stack(np.unravel_index(uniq, span), axis=1), inverse
@@ -298,27 +515,25 @@ def read_obj(path: Path) -> ObjMesh:
 def parse_obj(data: bytes, path: Path) -> ObjMesh:
     """Parse OBJ text already in memory; `path` names the file in error messages."""
     tok = _Tokens(data, path)
-    positions, v_lines = _floats(tok, _V, "v", 3)
-    uv_values, vt_lines = _floats(tok, _VT, "vt", 2)
-    normal_values, vn_lines = _floats(tok, _VN, "vn", 3)
+    positions, v_stmt = _floats(tok, _V, "v", 3)
+    uv_values, vt_stmt = _floats(tok, _VT, "vt", 2)
+    normal_values, vn_stmt = _floats(tok, _VN, "vn", 3)
     zero = np.flatnonzero(~np.any(normal_values != 0.0, axis=1))
     if len(zero):
-        raise SceneError(path, f"line {vn_lines[zero[0]]}", "vn: zero-length normal")
+        raise tok.error(tok.heads[vn_stmt[zero[0]]], "vn: zero-length normal")
 
     form, comp, tokens, count = _faces(tok)
-    v = _resolve(tok, comp[:, 0], tokens, v_lines, "vertex")
+    v = _resolve(tok, comp[:, 0], tokens, v_stmt, "vertex")
     has_vt = (form == _FORM_VT) | (form == _FORM_VTN)
     has_vn = (form == _FORM_VN) | (form == _FORM_VTN)
-    vt = np.full(len(tokens), -1, dtype=np.int64)
-    vt[has_vt] = _resolve(tok, comp[has_vt, 1], tokens[has_vt], vt_lines, "texture coordinate")
-    vn = np.full(len(tokens), -1, dtype=np.int64)
-    vn[has_vn] = _resolve(tok, comp[has_vn, 2], tokens[has_vn], vn_lines, "normal")
+    use_uv = len(tokens) > 0 and bool(has_vt.all())
+    use_vn = len(tokens) > 0 and bool(has_vn.all())
+    vt = _component(tok, comp[:, 1], tokens, has_vt, use_uv, vt_stmt, "texture coordinate")
+    vn = _component(tok, comp[:, 2], tokens, has_vn, use_vn, vn_stmt, "normal")
 
     corners = _fan(count)
     # Normals and UVs are per vertex in the output, so a mesh gets them only when every
     # face has them; otherwise the faces without would have nothing to interpolate.
-    use_uv = len(tokens) > 0 and bool(has_vt.all())
-    use_vn = len(tokens) > 0 and bool(has_vn.all())
     if not (use_uv or use_vn):
         return ObjMesh(vertices=positions, faces=v[corners])
 
@@ -330,3 +545,20 @@ def parse_obj(data: bytes, path: Path) -> ObjMesh:
         normals=normal_values[uniq[:, -1]] if use_vn else None,
         uvs=uv_values[uniq[:, 1]] if use_uv else None,
     )
+
+
+def _component(
+    tok: _Tokens,
+    raw: np.ndarray,
+    tokens: np.ndarray,
+    present: np.ndarray,
+    everywhere: bool,
+    defined_in: np.ndarray,
+    name: str,
+) -> np.ndarray:
+    """Resolved UV or normal indices, -1 where a face-vertex has none."""
+    if everywhere:
+        return _resolve(tok, raw, tokens, defined_in, name)
+    out = np.full(len(tokens), -1, dtype=np.int64)
+    out[present] = _resolve(tok, raw[present], tokens[present], defined_in, name)
+    return out

@@ -24,7 +24,7 @@ import pyopencl as cl
 from clray.device.layout import BVH_NODE
 
 # Device-side twins of the structs below; Task's float4s set its 16-byte alignment.
-_PRIM = np.dtype([("lo", "<f4", (3,)), ("hi", "<f4", (3,)), ("c", "<f4", (3,)), ("id", "<i4")])
+_PRIM = np.dtype([("lo", "<f4", (4,)), ("hi", "<f4", (4,)), ("c", "<f4", (4,))])
 _TASK = np.dtype([("lo", "<f4", (4,)), ("hi", "<f4", (4,)), ("clo", "<f4", (4,)),
                   ("chi", "<f4", (4,)), ("start", "<i4"), ("count", "<i4"), ("pos", "<i4"),
                   ("flip", "<i4")])
@@ -48,7 +48,8 @@ _SOURCE = r"""
 // first, so each deferred entry at least halves the count and 64 covers any int count.
 #define STACK 64
 
-typedef struct { float lo[3]; float hi[3]; float c[3]; int id; } Prim;
+// Vectors, so a primitive is three aligned loads; the id rides in the centroid's w.
+typedef struct { float4 lo, hi, c; } Prim;
 // `flip`: which of the two primitive buffers holds the task's primitives. Each split moves
 // them to the other one, so a stable partition is one pass and needs no copy back.
 typedef struct { float4 lo, hi, clo, chi; int start, count, pos, flip; } Task;
@@ -58,35 +59,36 @@ typedef struct {
     float4 lo[N_BINS], hi[N_BINS], clo[N_BINS], chi[N_BINS];
 } Bins;
 
-static float4 load_lo(const Prim *p) { return (float4)(p->lo[0], p->lo[1], p->lo[2], 0.0f); }
-static float4 load_hi(const Prim *p) { return (float4)(p->hi[0], p->hi[1], p->hi[2], 0.0f); }
-static float4 load_c(const Prim *p) { return (float4)(p->c[0], p->c[1], p->c[2], 0.0f); }
 
-// One float32 step from f, towards -inf (dir -1) or +inf (dir 1), if `need`; else f. Integer
-// arithmetic on the bits, without branches: about half the steps are needed, at random, and
-// mispredicted branches cost more than the rest of the rounding pass.
-static float step_out(float f, int need, int dir) {
-    int bits = as_int(f);
-    int away = (int)(f < 0.0f) * 2 - 1;
-    float stepped = as_float(bits + need * dir * -away);
-    float tiny = as_float(dir < 0 ? (int)0x80000001u : 1);
-    return select(stepped, tiny, (int)(need && f == 0.0f));
+// Float32 values one step towards -inf (down) or +inf (up) where `need` is set. Integer
+// arithmetic on the bits and selects, four lanes at once: about half the values need the step,
+// at random, and branching on that costs several times the rest of the pass.
+static float4 step_down(float4 f, int4 need) {
+    int4 bits = as_int4(f);
+    int4 stepped = bits + select((int4)(-1), (int4)(1), f < 0.0f);
+    stepped = select(stepped, (int4)(0x80000001), f == 0.0f);
+    return as_float4(select(bits, stepped, need));
+}
+
+static float4 step_up(float4 f, int4 need) {
+    int4 bits = as_int4(f);
+    int4 stepped = bits + select((int4)(1), (int4)(-1), f < 0.0f);
+    stepped = select(stepped, (int4)(1), f == 0.0f);
+    return as_float4(select(bits, stepped, need));
 }
 
 __kernel void round_prims(__global const double *lo, __global const double *hi,
                           __global Prim *prims, int n, int chunk) {
     int end = min(n, (int)(get_global_id(0) + 1) * chunk);
     for (int i = get_global_id(0) * chunk; i < end; i++) {
+        double4 a = (double4)(vload3(i, lo), 0.0), b = (double4)(vload3(i, hi), 0.0);
+        // Nearest, then one step outwards where that went inwards: the host's rounding.
+        float4 fa = convert_float4(a), fb = convert_float4(b);
         Prim p;
-        for (int k = 0; k < 3; k++) {
-            double a = lo[3 * i + k], b = hi[3 * i + k];
-            // Nearest, then one step outwards where that went inwards: the host's rounding.
-            float fa = (float)a, fb = (float)b;
-            p.lo[k] = step_out(fa, (double)fa > a, -1);
-            p.hi[k] = step_out(fb, (double)fb < b, 1);
-            p.c[k] = (float)(0.5 * (a + b));
-        }
-        p.id = i;
+        p.lo = step_down(fa, convert_int4(convert_double4(fa) > a));
+        p.hi = step_up(fb, convert_int4(convert_double4(fb) < b));
+        p.c = convert_float4(0.5 * (a + b));
+        p.c.w = as_float(i);
         prims[i] = p;
     }
 }
@@ -96,10 +98,11 @@ static void bound(__global const Prim *prims, int start, int count, Task *t) {
     float4 lo = (float4)(INFINITY), hi = (float4)(-INFINITY), clo = lo, chi = hi;
     for (int i = start; i < start + count; i++) {
         Prim p = prims[i];
-        lo = fmin(lo, load_lo(&p));
-        hi = fmax(hi, load_hi(&p));
-        clo = fmin(clo, load_c(&p));
-        chi = fmax(chi, load_c(&p));
+        float4 c = (float4)(p.c.xyz, 0.0f);
+        lo = fmin(lo, p.lo);
+        hi = fmax(hi, p.hi);
+        clo = fmin(clo, c);
+        chi = fmax(chi, c);
     }
     t->lo = lo; t->hi = hi; t->clo = clo; t->chi = chi;
     t->start = start; t->count = count;
@@ -120,9 +123,11 @@ static double half_area(float4 lo, float4 hi) {
     return ex * ey + ey * ez + ez * ex;
 }
 
-static int bin_of(const Prim *p, int axis, float cmin, float scale) {
-    return clamp((int)((p->c[axis] - cmin) * scale), 0, N_BINS - 1);
+static int bin_of(float c, float cmin, float scale) {
+    return clamp((int)((c - cmin) * scale), 0, N_BINS - 1);
 }
+
+static float along(float4 v, int axis) { return axis == 0 ? v.x : axis == 1 ? v.y : v.z; }
 
 static void fill_bins(Bins *bins, __global const Prim *src, int start, int count, int axis,
                       float cmin, float scale) {
@@ -133,11 +138,11 @@ static void fill_bins(Bins *bins, __global const Prim *src, int start, int count
     }
     for (int i = start; i < start + count; i++) {
         Prim p = src[i];
-        int b = bin_of(&p, axis, cmin, scale);
-        float4 c = load_c(&p);
+        int b = bin_of(along(p.c, axis), cmin, scale);
+        float4 c = (float4)(p.c.xyz, 0.0f);
         bins->count[b]++;
-        bins->lo[b] = fmin(bins->lo[b], load_lo(&p));
-        bins->hi[b] = fmax(bins->hi[b], load_hi(&p));
+        bins->lo[b] = fmin(bins->lo[b], p.lo);
+        bins->hi[b] = fmax(bins->hi[b], p.hi);
         bins->clo[b] = fmin(bins->clo[b], c);
         bins->chi[b] = fmax(bins->chi[b], c);
     }
@@ -200,7 +205,7 @@ static void write_node(__global Node *nodes, __global uchar *used, const Task *t
 static void write_leaf(const Task *t, __global const Prim *src, __global Node *nodes,
                        __global uchar *used, __global int *order) {
     write_node(nodes, used, t, t->start, t->count);
-    for (int i = t->start; i < t->start + t->count; i++) order[i] = src[i].id;
+    for (int i = t->start; i < t->start + t->count; i++) order[i] = as_int(src[i].c.w);
 }
 
 // Writes the task's node. Returns 0 for a leaf, or 1 after stably partitioning its primitives
@@ -244,7 +249,7 @@ static int process(const Task *t, __global Prim *buf0, __global Prim *buf1,
         int il = start, ir = right->start;
         for (int i = start; i < start + count; i++) {
             Prim p = src[i];
-            if (bin_of(&p, axis, cmin, scale) > best) dst[ir++] = p;
+            if (bin_of(along(p.c, axis), cmin, scale) > best) dst[ir++] = p;
             else dst[il++] = p;
         }
     }

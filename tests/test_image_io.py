@@ -1,8 +1,12 @@
+import io
+import struct
+import zlib
+
 import numpy as np
 import pytest
 from PIL import Image
 
-from clray.image_io import read_pfm, srgb_encode, to_png_bytes, write_image
+from clray.image_io import png_bytes, read_pfm, srgb_encode, to_png_bytes, write_image
 
 
 def test_pfm_round_trip_keeps_values_and_orientation(tmp_path) -> None:
@@ -89,3 +93,46 @@ def test_write_replaces_existing_file_and_leaves_no_temp(tmp_path) -> None:
     with Image.open(path) as png:
         assert (np.asarray(png) == 255).all()
     assert [p.name for p in tmp_path.iterdir()] == ["a.png"]
+
+
+@pytest.mark.parametrize("shape", [(1, 1), (1, 9), (7, 1), (33, 17), (720, 1280)])
+def test_png_bytes_decode_to_the_same_pixels(shape) -> None:
+    rng = np.random.default_rng(shape[0] * 1000 + shape[1])
+    pixels = rng.integers(0, 256, size=(*shape, 3), dtype=np.uint8)
+    pixels[0, 0] = [0, 255, 0]  # the extremes, where a wrong modulo would show
+    with Image.open(io.BytesIO(png_bytes(pixels))) as png:
+        assert png.mode == "RGB" and png.size == (shape[1], shape[0])
+        np.testing.assert_array_equal(np.asarray(png), pixels)
+
+
+def test_png_bytes_layout_is_plain_8bit_rgb() -> None:
+    pixels = np.arange(2 * 3 * 3, dtype=np.uint8).reshape(2, 3, 3)
+    data = png_bytes(pixels)
+    assert data[:8] == b"\x89PNG\r\n\x1a\n"
+    chunks, at = [], 8
+    while at < len(data):
+        (length,) = struct.unpack(">I", data[at : at + 4])
+        kind, body = data[at + 4 : at + 8], data[at + 8 : at + 8 + length]
+        assert struct.unpack(">I", data[at + 8 + length : at + 12 + length])[0] == zlib.crc32(
+            kind + body
+        )
+        chunks.append((kind, body))
+        at += 12 + length
+    assert [kind for kind, _ in chunks] == [b"IHDR", b"IDAT", b"IEND"]
+    assert chunks[0][1] == struct.pack(">IIBBBBB", 3, 2, 8, 2, 0, 0, 0)
+    rows = np.frombuffer(zlib.decompress(chunks[1][1]), dtype=np.uint8).reshape(2, 10)
+    # Row 1 holds its difference from row 0 (filter type 2, "Up"), modulo 256.
+    assert rows[:, 0].tolist() == [2, 2]
+    assert rows[0, 1:].tolist() == list(range(9))
+    assert rows[1, 1:].tolist() == [9] * 9
+
+
+def test_png_file_holds_the_converted_pixels(tmp_path) -> None:
+    rng = np.random.default_rng(3)
+    image = rng.uniform(-0.2, 1.2, size=(40, 60, 3)).astype(np.float32)
+    image[5, 5] = np.nan
+    for srgb in (False, True):
+        path = tmp_path / f"{srgb}.png"
+        write_image(path, image, srgb=srgb)
+        with Image.open(path) as png:
+            np.testing.assert_array_equal(np.asarray(png), to_png_bytes(image, srgb))

@@ -16,7 +16,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from PIL import Image
 
 from clray.errors import SceneError
 from clray.scene.model import (
@@ -402,6 +401,8 @@ class _Loader:
         )
 
     def image(self, file: Path, key: str) -> np.ndarray:
+        from PIL import Image  # only scenes with image textures pay for importing Pillow
+
         try:
             with Image.open(file) as img:
                 rgb = np.asarray(img.convert("RGB"), dtype=np.float32)

@@ -50,8 +50,8 @@ def sphere_bounds(n: int, seed: int = 1) -> tuple[np.ndarray, np.ndarray]:
     return centres - radii, centres + radii
 
 
-def _device_queue():
-    """The default device's queue, or None where there is none or it lacks float64."""
+def _device_queue(n: int):
+    """The default device's queue, or None where there is none or it cannot build over n."""
     from clray.accel import _bvh_cl
     from clray.device.context import queue_for, select_device
     from clray.errors import DeviceError
@@ -60,7 +60,7 @@ def _device_queue():
         device = select_device()
     except DeviceError:
         return None
-    return queue_for(device) if _bvh_cl.supports(device) else None
+    return queue_for(device) if _bvh_cl.supports(device, n) else None
 
 
 def _describe(bvh: Bvh, runs: list[float], n: int, max_leaf_size: int) -> dict:
@@ -106,8 +106,9 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--host-only", action="store_true", help="skip the device build")
     args = parser.parse_args(argv)
 
-    queue = None if args.host_only else _device_queue()
     cases = {"mesh": mesh_bounds(args.subdivisions), "spheres": sphere_bounds(args.spheres)}
+    largest = max(lo.shape[0] for lo, _ in cases.values())
+    queue = None if args.host_only else _device_queue(largest)
     results = {}
     for name, (lo, hi) in cases.items():
         builders = {"host": lambda lo=lo, hi=hi: build_bvh(lo, hi, args.max_leaf_size)}

@@ -189,7 +189,7 @@ def test_rejects_bad_leaf_size():
 def cl_queue(cl_device):
     from clray.accel import _bvh_cl
 
-    if not _bvh_cl.supports(cl_device):
+    if not _bvh_cl.supports(cl_device, 1):
         pytest.skip("the device build needs float64")
     return queue_for(cl_device)
 
@@ -224,14 +224,22 @@ def test_device_build_is_the_host_build(cl_queue, kind, n, max_leaf_size):
 
 
 def test_device_build_of_a_lopsided_set(cl_queue):
-    # Centroids at powers of two: every split peels a few primitives off one end, so the tree
-    # is as deep as it is wide and never offers enough subtrees for the per-level launches.
-    c = np.zeros((3000, 3))
-    c[:, 0] = 2.0 ** (np.arange(3000) % 120)
+    # Centroids at powers of two: every split peels a few primitives off the far end, so the
+    # tree is about as deep as it is wide and never offers enough subtrees to stop the
+    # one-level launches before their cap.
+    c = np.zeros((120, 3))
+    c[:, 0] = 2.0 ** np.arange(120)
     lo, hi = c - 0.25, c + 0.25
     bvh = build_bvh(lo, hi, 1, queue=cl_queue)
     check_bvh(bvh, lo, hi, 1)
     assert_same_tree(bvh, build_bvh(lo, hi, 1))
+
+
+def test_device_build_only_where_node_slots_fit_in_ints(cl_queue):
+    from clray.accel import _bvh_cl
+
+    assert _bvh_cl.supports(cl_queue.device, 2**30)
+    assert not _bvh_cl.supports(cl_queue.device, 2**30 + 1)
 
 
 def test_device_build_of_mesh_triangles(cl_queue):

@@ -21,6 +21,7 @@ from functools import cache
 import numpy as np
 import pyopencl as cl
 
+from clray.device.context import has_fp64
 from clray.device.layout import BVH_NODE
 
 # Device-side twins of the structs below; Task's float4s set its 16-byte alignment.
@@ -302,9 +303,10 @@ __kernel void build_subtrees(__global const Task *tasks, __global Prim *buf0,
 """
 
 
-def supports(device: cl.Device) -> bool:
-    """The kernels cost splits in float64, as the host build does."""
-    return "cl_khr_fp64" in device.extensions.split()
+def supports(device: cl.Device, n: int) -> bool:
+    """The kernels cost splits in float64, as the host build does, and index node slots
+    (2N - 1 of them) with ints."""
+    return has_fp64(device) and 2 * n - 1 <= np.iinfo(np.int32).max
 
 
 @cache

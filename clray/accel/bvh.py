@@ -86,9 +86,10 @@ def build_bvh(lo: np.ndarray, hi: np.ndarray, max_leaf_size: int = 4, *,
     if n == 0:
         return Bvh(np.zeros(0, dtype=BVH_NODE), np.zeros(0, dtype=np.int32))
     if queue is not None and n > max_leaf_size:
+        # Imported here: host-only callers need not load pyopencl.
         from clray.accel import _bvh_cl
 
-        if _bvh_cl.supports(queue.device):
+        if _bvh_cl.supports(queue.device, n):
             nodes, order = _bvh_cl.build(queue, lo, hi, max_leaf_size,
                                          max_leaf_count(max_leaf_size))
             return Bvh(nodes, order)

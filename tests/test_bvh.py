@@ -195,7 +195,9 @@ def cl_queue(cl_device):
 
 
 def assert_same_tree(a: Bvh, b: Bvh) -> None:
-    assert a.nodes.tobytes() == b.nodes.tobytes()
+    # Field by field, by value: a min or max over 0.0 and -0.0 may give either.
+    for field in BVH_NODE.names:
+        assert np.array_equal(a.nodes[field], b.nodes[field]), field
     assert np.array_equal(a.order, b.order)
 
 
@@ -230,6 +232,20 @@ def test_device_build_of_a_lopsided_set(cl_queue):
     c = np.zeros((120, 3))
     c[:, 0] = 2.0 ** np.arange(120)
     lo, hi = c - 0.25, c + 0.25
+    bvh = build_bvh(lo, hi, 1, queue=cl_queue)
+    check_bvh(bvh, lo, hi, 1)
+    assert_same_tree(bvh, build_bvh(lo, hi, 1))
+
+
+def test_device_rounding_at_the_edges_of_float32(cl_queue):
+    # One primitive per leaf, so every primitive's outward-rounded box is a node: values that
+    # round to a signed zero or to a subnormal, exact float32 values, and large ones (whose
+    # differences still fit in float32, as the builds' centroid extents must).
+    edges = np.array([0.0, -0.0, 1e-300, -1e-300, 1e-45, -1e-45, 2.0**-149, -(2.0**-149),
+                      2.0**-126, 0.1, -0.1, 1 / 3, 1e38, -1e38])
+    rng = np.random.default_rng(3)
+    lo = rng.choice(edges, (400, 3))
+    hi = np.maximum(lo, rng.choice(edges, (400, 3)))
     bvh = build_bvh(lo, hi, 1, queue=cl_queue)
     check_bvh(bvh, lo, hi, 1)
     assert_same_tree(bvh, build_bvh(lo, hi, 1))

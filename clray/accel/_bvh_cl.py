@@ -1,4 +1,4 @@
-"""The binned-SAH build of clray.accel.bvh as OpenCL kernels: the same splits, bit for bit.
+"""The binned-SAH build of clray.accel.bvh as OpenCL kernels: the same splits and bounds.
 
 The host build runs level by level because numpy wants whole-array passes; a kernel can instead
 run the plain recursive build, one subtree per work-item. The top few levels, where there are

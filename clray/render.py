@@ -69,7 +69,8 @@ def render_packed(packed: PackedScene, device: cl.Device,
     try:
         buffers = [_buffer(ctx, getattr(packed, name)) for name in (
             "camera", "params", "planes", "spheres", "boxes", "cylinders", "cones",
-            "triangles", "packets", "vertices", "normals", "uvs", "nodes")]
+            "triangles", "triangle_packets", "sphere_packets", "vertices", "normals", "uvs",
+            "nodes")]
         buffers.append(np.int32(len(packed.nodes)))
         buffers += [_buffer(ctx, getattr(packed, name)) for name in (
             "prim_refs", "materials", "textures", "texels", "lights")]
@@ -155,8 +156,8 @@ def intersect_rays(packed: PackedScene, device: cl.Device, origins: np.ndarray,
     args = [_buffer(ctx, o4), _buffer(ctx, d4), _buffer(ctx, packed.planes),
             np.int32(len(packed.planes))]
     args += [_buffer(ctx, getattr(packed, name)) for name in (
-        "spheres", "boxes", "cylinders", "cones", "triangles", "packets", "vertices", "normals",
-        "uvs", "nodes")]
+        "spheres", "boxes", "cylinders", "cones", "triangles", "triangle_packets",
+        "sphere_packets", "vertices", "normals", "uvs", "nodes")]
     args.append(np.int32(len(packed.nodes)))
     args += [_buffer(ctx, packed.prim_refs), _buffer(ctx, packed.materials)]
     hits_buf = cl.Buffer(ctx, cl.mem_flags.WRITE_ONLY, n * 16)

@@ -57,7 +57,8 @@ typedef struct {
     __global const Cylinder* cylinders;
     __global const Cone* cones;
     __global const Triangle* triangles;
-    __global const TrianglePacket* packets;
+    __global const TrianglePacket* triangle_packets;
+    __global const SpherePacket* sphere_packets;
     __global const float4* vertices;
     __global const float4* normals;
     __global const float2* uvs;
@@ -80,7 +81,8 @@ typedef struct {
     REAL b1, b2;
 } Hit;
 
-// Triangles are tested in packets (leaf_closest, leaf_transmission), never one by one.
+// Triangles and spheres are tested in packets (leaf_closest, leaf_transmission), the other
+// primitives one by one.
 HOT Crossings intersect_prim(const SceneRefs* s, int ref, const Ray* r) {
     int i = ref & PRIM_INDEX_MASK;
     switch (ref >> PRIM_TYPE_SHIFT) {
@@ -188,38 +190,79 @@ inline int used_children(const __global BvhNode* node) {
     return popcount(lane_bits(VLOADW(0, node->child) >= 0));
 }
 
-// Primitives a leaf tests: its packets' real triangles and its others.
+// Primitives a leaf tests: its packets' real shapes and its others.
 inline int leaf_prims(const SceneRefs* s, int slot, int count) {
-    int n = count & LEAF_COUNT_MASK;
-    for (int k = 0; k < (count >> LEAF_PACKET_SHIFT) * PACKET_WIDTH; ++k) {
-        n += s->prim_refs[slot + k] >= 0;
-    }
+    int packets =
+        (count >> LEAF_TRIANGLE_SHIFT) + ((count >> LEAF_SPHERE_SHIFT) & LEAF_FIELD_MASK);
+    int n = count & LEAF_FIELD_MASK;
+    for (int k = 0; k < packets * PACKET_WIDTH; ++k) n += s->prim_refs[slot + k] >= 0;
     return n;
 }
 #endif
 
-HOT void leaf_closest(const SceneRefs* s, int slot, int count, const Ray* r, Hit* hit) {
+// The crossings of a packet's PACKET_WIDTH shapes: bit k set where lane k is crossed, its
+// crossings in c[k]. kind: PRIM_TRIANGLE or PRIM_SPHERE.
+HOT int packet_crossings(const SceneRefs* s, int kind, int slot, const Ray* r, Crossings* c) {
+    int bits = 0;
+    REAL t0[PACKET_WIDTH], t1[PACKET_WIDTH], b1[PACKET_WIDTH], b2[PACKET_WIDTH];
 #if HAS_TRIANGLES
-    int packets = count >> LEAF_PACKET_SHIFT;
-    for (int p = 0; p < packets; ++p, slot += PACKET_WIDTH) {
-        REAL t[PACKET_WIDTH], b1[PACKET_WIDTH], b2[PACKET_WIDTH];
-        int bits = intersect_triangle_packet(s->packets + slot / PACKET_WIDTH, r, t, b1, b2);
-        while (bits) {
-            int k = lowest_bit(bits);
-            bits &= bits - 1;
-            Crossings c = no_crossings();
-            c.t[0] = t[k];
-            c.b1 = b1[k];
-            c.b2 = b2[k];
-            consider_hit(hit, &c, s->prim_refs[slot + k]);
+    if (kind == PRIM_TRIANGLE) {
+        bits = intersect_triangle_packet(s->triangle_packets + slot / PACKET_WIDTH, r, t0, b1,
+                                         b2);
+        for (int rest = bits; rest; rest &= rest - 1) {
+            int k = lowest_bit(rest);
+            c[k] = no_crossings();
+            c[k].t[0] = t0[k];
+            c[k].b1 = b1[k];
+            c[k].b2 = b2[k];
         }
     }
-    count &= LEAF_COUNT_MASK;
 #endif
-    for (int k = 0; k < count; ++k) {
+#if HAS_SPHERES
+    if (kind == PRIM_SPHERE) {
+#if SPHERE_FP64 || SPHERE_TEXTBOOK
+        // These variants keep their scalar formula, lane by lane.
+        for (int k = 0; k < PACKET_WIDTH; ++k) {
+            int ref = s->prim_refs[slot + k];
+            if (ref < 0) continue;
+            c[k] = intersect_sphere(s->spheres + (ref & PRIM_INDEX_MASK), r);
+            if (c[k].t[0] < REAL_INF || c[k].t[1] < REAL_INF) bits |= 1 << k;
+        }
+#else
+        bits = intersect_sphere_packet(s->sphere_packets + slot / PACKET_WIDTH, r, t0, t1);
+        for (int rest = bits; rest; rest &= rest - 1) {
+            int k = lowest_bit(rest);
+            c[k] = no_crossings();
+            c[k].t[0] = t0[k];
+            c[k].t[1] = t1[k];
+        }
+#endif
+    }
+#endif
+    return bits;
+}
+
+// Packets in a leaf's triangle or sphere section.
+HOT int section_packets(int count, int kind) {
+    return kind == PRIM_TRIANGLE ? count >> LEAF_TRIANGLE_SHIFT
+                                 : (count >> LEAF_SPHERE_SHIFT) & LEAF_FIELD_MASK;
+}
+
+HOT void leaf_closest(const SceneRefs* s, int slot, int count, const Ray* r, Hit* hit) {
+    Crossings c[PACKET_WIDTH];
+    for (int section = 0; section < 2; ++section) {
+        int kind = section == 0 ? PRIM_TRIANGLE : PRIM_SPHERE;
+        for (int p = section_packets(count, kind); p > 0; --p, slot += PACKET_WIDTH) {
+            for (int bits = packet_crossings(s, kind, slot, r, c); bits; bits &= bits - 1) {
+                int k = lowest_bit(bits);
+                consider_hit(hit, &c[k], s->prim_refs[slot + k]);
+            }
+        }
+    }
+    for (int k = 0; k < (count & LEAF_FIELD_MASK); ++k) {
         int ref = s->prim_refs[slot + k];
-        Crossings c = intersect_prim(s, ref, r);
-        consider_hit(hit, &c, ref);
+        Crossings other = intersect_prim(s, ref, r);
+        consider_hit(hit, &other, ref);
     }
 }
 
@@ -310,25 +353,22 @@ inline bool filter_crossings(const SceneRefs* s, const Crossings* c, int ref, RE
 // false once the leaf stops the light entirely.
 HOT bool leaf_transmission(const SceneRefs* s, int slot, int count, const Ray* r, REAL tmax,
                            REAL3* filter) {
-#if HAS_TRIANGLES
-    int packets = count >> LEAF_PACKET_SHIFT;
-    for (int p = 0; p < packets; ++p, slot += PACKET_WIDTH) {
-        REAL t[PACKET_WIDTH], b1[PACKET_WIDTH], b2[PACKET_WIDTH];
-        int bits = intersect_triangle_packet(s->packets + slot / PACKET_WIDTH, r, t, b1, b2);
-        while (bits) {
-            int k = lowest_bit(bits);
-            bits &= bits - 1;
-            Crossings c = no_crossings();
-            c.t[0] = t[k];
-            if (!filter_crossings(s, &c, s->prim_refs[slot + k], tmax, filter)) return false;
+    Crossings c[PACKET_WIDTH];
+    for (int section = 0; section < 2; ++section) {
+        int kind = section == 0 ? PRIM_TRIANGLE : PRIM_SPHERE;
+        for (int p = section_packets(count, kind); p > 0; --p, slot += PACKET_WIDTH) {
+            for (int bits = packet_crossings(s, kind, slot, r, c); bits; bits &= bits - 1) {
+                int k = lowest_bit(bits);
+                if (!filter_crossings(s, &c[k], s->prim_refs[slot + k], tmax, filter)) {
+                    return false;
+                }
+            }
         }
     }
-    count &= LEAF_COUNT_MASK;
-#endif
-    for (int k = 0; k < count; ++k) {
+    for (int k = 0; k < (count & LEAF_FIELD_MASK); ++k) {
         int ref = s->prim_refs[slot + k];
-        Crossings c = intersect_prim(s, ref, r);
-        if (!filter_crossings(s, &c, ref, tmax, filter)) return false;
+        Crossings other = intersect_prim(s, ref, r);
+        if (!filter_crossings(s, &other, ref, tmax, filter)) return false;
     }
     return true;
 }

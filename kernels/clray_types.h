@@ -113,7 +113,7 @@ typedef struct {
 // A wide BVH node (clray/accel/wide.py): up to BVH_WIDTH (4 or 8, a build option) children with
 // their bounds axis by axis, so one vector slab test covers them all. child[k] is an inner
 // child's node index, or a leaf's first slot in prim_refs, or -1 for an empty slot; count[k] is 0
-// for an inner child and (packets << LEAF_PACKET_SHIFT) | others for a leaf. Bounds are rounded
+// for an inner child and a leaf's section sizes (below) for a leaf. Bounds are rounded
 // outwards to float32 on the host, so they hold in the double build too.
 typedef struct {
     float lo_x[BVH_WIDTH], lo_y[BVH_WIDTH], lo_z[BVH_WIDTH];
@@ -123,16 +123,23 @@ typedef struct {
 } BvhNode;
 
 // A leaf's triangles sit first in its prim_refs slots, in packets of PACKET_WIDTH (padded with
-// -1), then its other primitives; leaves start at multiples of PACKET_WIDTH, so packet
-// slot / PACKET_WIDTH holds the corners of slots slot .. slot + 3.
+// -1), then its spheres likewise, then its other primitives. Leaves start at multiples of
+// PACKET_WIDTH, so packets[slot / PACKET_WIDTH] holds the shapes of slots slot .. slot + 3. A
+// leaf's count: triangle packets << LEAF_TRIANGLE_SHIFT | sphere packets << LEAF_SPHERE_SHIFT |
+// others.
 #define PACKET_WIDTH 4
-#define LEAF_PACKET_SHIFT 16
-#define LEAF_COUNT_MASK 0xFFFF
+#define LEAF_TRIANGLE_SHIFT 16
+#define LEAF_SPHERE_SHIFT 8
+#define LEAF_FIELD_MASK 0xFF
 
 typedef struct {
     float x0[4], y0[4], z0[4];
     float x1[4], y1[4], z1[4];
     float x2[4], y2[4], z2[4];
 } TrianglePacket;
+
+typedef struct {
+    float x[4], y[4], z[4], radius[4];
+} SpherePacket;
 
 #endif

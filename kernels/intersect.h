@@ -456,4 +456,32 @@ HOT int intersect_triangle_packet(const __global TrianglePacket* pk, const Ray* 
 #endif
 #endif
 
+#if HAS_SPHERES && !SPHERE_FP64 && !SPHERE_TEXTBOOK
+// intersect_sphere's Hearn-Baker formula on the four spheres of a packet: bit k set where lane
+// k has roots t0[k] <= t1[k]. Padding lanes hold NaN and have none.
+HOT int intersect_sphere_packet(const __global SpherePacket* pk, const Ray* r, REAL* t0,
+                                REAL* t1) {
+    REAL a = dot(r->d, r->d);
+    if (a == (REAL)0) return 0;
+    REAL4 fx = (REAL4)(r->o.x) - TO_REAL4(vload4(0, pk->x));
+    REAL4 fy = (REAL4)(r->o.y) - TO_REAL4(vload4(0, pk->y));
+    REAL4 fz = (REAL4)(r->o.z) - TO_REAL4(vload4(0, pk->z));
+    REAL4 radius = TO_REAL4(vload4(0, pk->radius));
+    REAL4 dx = (REAL4)(r->d.x), dy = (REAL4)(r->d.y), dz = (REAL4)(r->d.z);
+    REAL4 b = fx * dx + fy * dy + fz * dz;
+    REAL4 along = b / a;
+    REAL4 lx = fx - along * dx, ly = fy - along * dy, lz = fz - along * dz;
+    REAL4 ll = sqrt(lx * lx + ly * ly + lz * lz);
+    REAL4 fl = sqrt(fx * fx + fy * fy + fz * fz);
+    REAL4 disc = (REAL4)(a) * (radius - ll) * (radius + ll);
+    // fmax keeps sqrt's argument non-negative; lanes with disc < 0 (or NaN) are masked below.
+    REAL4 q = -(b + copysign(sqrt(fmax(disc, (REAL4)(0))), b));
+    MASK4 roots = (disc >= (REAL)0) & (q != (REAL)0);
+    REAL4 r0 = ((fl - radius) * (fl + radius)) / q, r1 = q / a;
+    vstore4(fmin(r0, r1), 0, t0);
+    vstore4(fmax(r0, r1), 0, t1);
+    return lane_bits4(convert_int4(roots));
+}
+#endif
+
 #endif

@@ -70,7 +70,8 @@ inline SceneRefs scene_refs(__global const Plane* planes, int n_planes,
                             __global const Sphere* spheres, __global const Box* boxes,
                             __global const Cylinder* cylinders, __global const Cone* cones,
                             __global const Triangle* triangles,
-                            __global const TrianglePacket* packets,
+                            __global const TrianglePacket* triangle_packets,
+                            __global const SpherePacket* sphere_packets,
                             __global const float4* vertices, __global const float4* normals,
                             __global const float2* uvs, __global const BvhNode* nodes,
                             int n_nodes, __global const int* prim_refs,
@@ -82,7 +83,8 @@ inline SceneRefs scene_refs(__global const Plane* planes, int n_planes,
     s.cylinders = cylinders;
     s.cones = cones;
     s.triangles = triangles;
-    s.packets = packets;
+    s.triangle_packets = triangle_packets;
+    s.sphere_packets = sphere_packets;
     s.vertices = vertices;
     s.normals = normals;
     s.uvs = uvs;
@@ -102,8 +104,10 @@ __kernel void render(__global const Camera* camera, __global const Params* param
                      __global const Plane* planes, __global const Sphere* spheres,
                      __global const Box* boxes, __global const Cylinder* cylinders,
                      __global const Cone* cones, __global const Triangle* triangles,
-                     __global const TrianglePacket* packets, __global const float4* vertices,
-                     __global const float4* normals, __global const float2* uvs, __global const BvhNode* nodes, int n_nodes,
+                     __global const TrianglePacket* triangle_packets,
+                     __global const SpherePacket* sphere_packets,
+                     __global const float4* vertices, __global const float4* normals,
+                     __global const float2* uvs, __global const BvhNode* nodes, int n_nodes,
                      __global const int* prim_refs, __global const Material* materials,
                      __global const Texture* textures, __global const float4* texels,
                      __global const Light* lights, __global float4* image,
@@ -114,8 +118,8 @@ __kernel void render(__global const Camera* camera, __global const Params* param
     if (x >= width || y >= height) return;
 
     SceneRefs s = scene_refs(planes, params->n_planes, spheres, boxes, cylinders, cones,
-                             triangles, packets, vertices, normals, uvs, nodes, n_nodes,
-                             prim_refs, materials);
+                             triangles, triangle_packets, sphere_packets, vertices, normals,
+                             uvs, nodes, n_nodes, prim_refs, materials);
     s.textures = textures;
     s.texels = texels;
     s.lights = lights;
@@ -202,7 +206,8 @@ __kernel void intersect_rays(__global const float4* origins, __global const floa
                              __global const Sphere* spheres, __global const Box* boxes,
                              __global const Cylinder* cylinders, __global const Cone* cones,
                              __global const Triangle* triangles,
-                             __global const TrianglePacket* packets,
+                             __global const TrianglePacket* triangle_packets,
+                             __global const SpherePacket* sphere_packets,
                              __global const float4* vertices, __global const float4* normals,
                              __global const float2* uvs, __global const BvhNode* nodes,
                              int n_nodes, __global const int* prim_refs,
@@ -210,8 +215,8 @@ __kernel void intersect_rays(__global const float4* origins, __global const floa
                              __global int* refs) {
     int i = get_global_id(0);
     SceneRefs s = scene_refs(planes, n_planes, spheres, boxes, cylinders, cones, triangles,
-                             packets, vertices, normals, uvs, nodes, n_nodes, prim_refs,
-                             materials);
+                             triangle_packets, sphere_packets, vertices, normals, uvs, nodes,
+                             n_nodes, prim_refs, materials);
 #if COUNT_TESTS
     TestCounts counts = {0, 0, 0, 0};
     s.counts = &counts;

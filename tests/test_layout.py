@@ -57,7 +57,8 @@ def test_header_constants_match_layout() -> None:
     constants = {name: getattr(layout, name) for name in (
         "PRIM_SPHERE", "PRIM_TRIANGLE", "PRIM_TYPE_SHIFT", "LIGHT_DIRECTIONAL", "TEXTURE_IMAGE",
         "TRIANGLE_SMOOTH", "TRIANGLE_UV")}
-    constants.update(PACKET_WIDTH=wide.PACKET_WIDTH, LEAF_PACKET_SHIFT=wide.LEAF_PACKET_SHIFT)
+    constants.update({name: getattr(wide, name) for name in (
+        "PACKET_WIDTH", "LEAF_TRIANGLE_SHIFT", "LEAF_SPHERE_SHIFT", "LEAF_FIELD_MASK")})
     for name, value in constants.items():
         defined = [line.split(None, 2)[2] for line in header.splitlines()
                    if line.startswith(f"#define {name} ")]

@@ -2,13 +2,23 @@
 
 from __future__ import annotations
 
+import itertools
+
 import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from clray.accel.bvh import build_bvh
-from clray.accel.wide import LEAF_PACKET_SHIFT, NO_REF, PACKET_WIDTH, WideBvh, collapse
+from clray.accel.wide import (
+    LEAF_FIELD_MASK,
+    LEAF_SPHERE_SHIFT,
+    LEAF_TRIANGLE_SHIFT,
+    NO_REF,
+    PACKET_WIDTH,
+    WideBvh,
+    collapse,
+)
 from clray.device import layout as L
 
 AXES = "xyz"
@@ -36,11 +46,13 @@ def _children(wide: WideBvh, node: int) -> list[tuple[int, int, np.ndarray, np.n
     return out
 
 
-def _leaf_refs(wide: WideBvh, slot: int, count: int) -> tuple[np.ndarray, np.ndarray]:
-    packets, others = count >> LEAF_PACKET_SHIFT, count & 0xFFFF
-    tri = wide.prim_refs[slot:slot + packets * PACKET_WIDTH]
-    rest = wide.prim_refs[slot + packets * PACKET_WIDTH:slot + packets * PACKET_WIDTH + others]
-    return tri, rest
+def _leaf_sections(wide: WideBvh, slot: int, count: int) -> list[np.ndarray]:
+    """A leaf's triangle-packet, sphere-packet and other slots."""
+    sizes = [(count >> LEAF_TRIANGLE_SHIFT) * PACKET_WIDTH,
+             ((count >> LEAF_SPHERE_SHIFT) & LEAF_FIELD_MASK) * PACKET_WIDTH,
+             count & LEAF_FIELD_MASK]
+    ends = np.cumsum([0, *sizes]) + slot
+    return [wide.prim_refs[a:b] for a, b in itertools.pairwise(ends)]
 
 
 def check_wide(wide: WideBvh, lo: np.ndarray, hi: np.ndarray, refs: np.ndarray) -> None:
@@ -67,14 +79,18 @@ def check_wide(wide: WideBvh, lo: np.ndarray, hi: np.ndarray, refs: np.ndarray) 
                 walk.append((child, pushed + len(children) - 1, boxes))
                 continue
             assert child % PACKET_WIDTH == 0
-            tri, rest = _leaf_refs(wide, child, count)
-            real_tri = tri[tri != NO_REF]
-            # Padding only at the end of the last packet; triangles only in packets.
-            assert np.all(tri[:real_tri.size] == real_tri)
-            assert tri.size - real_tri.size < PACKET_WIDTH
-            assert np.all((real_tri >> L.PRIM_TYPE_SHIFT) == L.PRIM_TRIANGLE)
-            assert np.all((rest >> L.PRIM_TYPE_SHIFT) != L.PRIM_TRIANGLE)
-            for ref in [*real_tri.tolist(), *rest.tolist()]:
+            tri, sph, rest = _leaf_sections(wide, child, count)
+            real = []
+            for packet, kind in ((tri, L.PRIM_TRIANGLE), (sph, L.PRIM_SPHERE)):
+                filled = packet[packet != NO_REF]
+                # Padding only at the end of the last packet; each kind only in its packets.
+                assert np.all(packet[:filled.size] == filled)
+                assert packet.size - filled.size < PACKET_WIDTH
+                assert np.all((filled >> L.PRIM_TYPE_SHIFT) == kind)
+                real += filled.tolist()
+            kinds = rest >> L.PRIM_TYPE_SHIFT
+            assert np.all((kinds != L.PRIM_TRIANGLE) & (kinds != L.PRIM_SPHERE))
+            for ref in [*real, *rest.tolist()]:
                 seen.append(ref)
                 i = index_of[ref]
                 for blo, bhi in boxes:
@@ -90,7 +106,7 @@ def test_collapse_of_random_boxes(width, n):
     rng = np.random.default_rng(n * 10 + width)
     c = rng.uniform(-10, 10, (n, 3))
     e = rng.exponential(0.3, (n, 3))
-    kinds = rng.choice([L.PRIM_SPHERE, L.PRIM_BOX, L.PRIM_TRIANGLE], n)
+    kinds = rng.choice([L.PRIM_SPHERE, L.PRIM_BOX, L.PRIM_TRIANGLE, L.PRIM_CONE], n)
     refs = _refs(kinds)
     wide = collapse(build_bvh(c - e, c + e), refs, width)
     check_wide(wide, c - e, c + e, refs)
@@ -104,7 +120,8 @@ def test_collapse_invariants(n, seed, width, leaf, tri_share):
     # Few distinct centres: duplicates and coincident boxes are common.
     c = rng.integers(-3, 3, (n, 3)).astype(np.float64)
     e = rng.choice([0.0, 0.5, 2.0], (n, 3))
-    kinds = np.where(rng.uniform(size=n) < tri_share, L.PRIM_TRIANGLE, L.PRIM_SPHERE)
+    kinds = np.where(rng.uniform(size=n) < tri_share, L.PRIM_TRIANGLE,
+                     rng.choice([L.PRIM_SPHERE, L.PRIM_BOX], n))
     refs = _refs(kinds)
     check_wide(collapse(build_bvh(c - e, c + e, leaf), refs, width), c - e, c + e, refs)
 
@@ -131,7 +148,7 @@ def test_empty_and_leaf_root():
     one = collapse(build_bvh(lo, lo + 1), refs, 4)
     check_wide(one, lo, lo + 1, refs)
     assert one.nodes.size == 1
-    assert one.nodes["count"][0, 0] == 1 << LEAF_PACKET_SHIFT
+    assert one.nodes["count"][0, 0] == 1 << LEAF_TRIANGLE_SHIFT
     assert one.prim_refs.tolist() == [int(refs[0]), NO_REF, NO_REF, NO_REF]
 
 

@@ -6,10 +6,11 @@ binary node by opening its child of largest surface area until it has `width` ch
 leaves are left: the greedy collapse of Wald et al. 2008 ("Getting rid of packets") that Embree
 uses. The binary tree is SAH-built, so the wide tree inherits its partition.
 
-Leaves are re-laid out in `prim_refs` for the kernel's triangle packets: a leaf's triangles come
-first, in groups of PACKET_WIDTH (the last group padded with NO_REF), then its other primitives.
-Every leaf starts at a multiple of PACKET_WIDTH, so slot // PACKET_WIDTH indexes the packet
-arrays, and a child's `count` holds both parts: (packets << LEAF_PACKET_SHIFT) | others.
+Leaves are re-laid out in `prim_refs` for the kernel's packets: a leaf's triangles come first, in
+groups of PACKET_WIDTH (the last group padded with NO_REF), then its spheres likewise, then its
+other primitives. Every leaf starts at a multiple of PACKET_WIDTH, so slot // PACKET_WIDTH indexes
+the packet arrays, and a child's `count` holds the three section sizes: triangle packets <<
+LEAF_TRIANGLE_SHIFT | sphere packets << LEAF_SPHERE_SHIFT | others.
 
 Everything is numpy over one wide level at a time: the Python loop runs per level and per
 opened child (at most width - 2 per level), never per node.
@@ -26,7 +27,9 @@ from clray.accel.bvh import Bvh
 from clray.device import layout as L
 
 PACKET_WIDTH = 4
-LEAF_PACKET_SHIFT = 16
+LEAF_TRIANGLE_SHIFT = 16
+LEAF_SPHERE_SHIFT = 8
+LEAF_FIELD_MASK = 0xFF
 NO_REF = -1
 
 
@@ -122,28 +125,35 @@ def _open_children(parents: np.ndarray, count: np.ndarray, first: np.ndarray,
 
 def _lay_out_leaves(first: np.ndarray, count: np.ndarray,
                     order_refs: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Each leaf's refs, triangles first in padded packets: (start, packed count, prim_refs)."""
+    """Each leaf's refs in its sections (triangle packets, sphere packets, others), each in
+    build order: (start slot, packed count, prim_refs)."""
     n_leaves = first.size
     leaf = np.repeat(np.arange(n_leaves), count)
-    offsets = np.concatenate([[0], np.cumsum(count)[:-1]])
+    offsets = np.concatenate([[0], np.cumsum(count)[:-1]]).astype(np.int64)
     refs = order_refs[np.repeat(first - offsets, count) + np.arange(count.sum())]
-    is_tri = (refs >> L.PRIM_TYPE_SHIFT) == L.PRIM_TRIANGLE
-    n_tri = np.bincount(leaf, weights=is_tri, minlength=n_leaves).astype(np.int64)
-    n_other = count - n_tri
-    packets = -(-n_tri // PACKET_WIDTH)
-    size = packets * PACKET_WIDTH + n_other
+    kind = refs >> L.PRIM_TYPE_SHIFT
+    section = np.where(kind == L.PRIM_TRIANGLE, 0, np.where(kind == L.PRIM_SPHERE, 1, 2))
+    sizes, ranks = [], np.zeros(refs.size, dtype=np.int64)
+    for sec in range(3):
+        member = section == sec
+        running = np.cumsum(member) - member
+        if refs.size:
+            ranks[member] = (running - running[offsets][leaf])[member]
+        sizes.append(np.bincount(leaf[member], minlength=n_leaves).astype(np.int64))
+    tri_packets = -(-sizes[0] // PACKET_WIDTH)
+    sphere_packets = -(-sizes[1] // PACKET_WIDTH)
+    if np.any(sizes[2] > LEAF_FIELD_MASK) or np.any(sphere_packets > LEAF_FIELD_MASK):
+        raise ValueError(f"a leaf holds more than {LEAF_FIELD_MASK} of one section")
+    section_start = np.stack([np.zeros(n_leaves, np.int64), tri_packets * PACKET_WIDTH,
+                              (tri_packets + sphere_packets) * PACKET_WIDTH])
+    size = section_start[2] + sizes[2]
     padded = -(-size // PACKET_WIDTH) * PACKET_WIDTH
-    start = np.concatenate([[0], np.cumsum(padded)[:-1]])
-    # Rank of each ref among its leaf's triangles or among its leaf's others, in order.
-    tri_rank = np.cumsum(is_tri) - is_tri
-    other_rank = np.cumsum(~is_tri) - ~is_tri
-    tri_base = tri_rank[offsets] if refs.size else tri_rank
-    other_base = other_rank[offsets] if refs.size else other_rank
-    dest = np.where(is_tri, start[leaf] + tri_rank - tri_base[leaf],
-                    start[leaf] + packets[leaf] * PACKET_WIDTH + other_rank - other_base[leaf])
+    start = np.concatenate([[0], np.cumsum(padded)[:-1]]).astype(np.int64)
     prim_refs = np.full(int(padded.sum()), NO_REF, dtype=np.int32)
-    prim_refs[dest] = refs
-    return start, (packets << LEAF_PACKET_SHIFT) | n_other, prim_refs
+    prim_refs[start[leaf] + section_start[section, leaf] + ranks] = refs
+    packed = ((tri_packets << LEAF_TRIANGLE_SHIFT) | (sphere_packets << LEAF_SPHERE_SHIFT)
+              | sizes[2])
+    return start, packed, prim_refs
 
 
 def _stack_size(child: np.ndarray, is_inner: np.ndarray, used: np.ndarray,

@@ -69,6 +69,7 @@ def bvh_node_dtype(width: int) -> np.dtype:
 
 
 TRIANGLE_PACKET = _struct([(f"{c}{k}", _F4) for k in range(3) for c in "xyz"])
+SPHERE_PACKET = _struct([("x", _F4), ("y", _F4), ("z", _F4), ("radius", _F4)])
 
 # Struct name in clray_types.h -> dtype; the layout test walks this.
 STRUCTS: dict[str, np.dtype] = {
@@ -85,6 +86,7 @@ STRUCTS: dict[str, np.dtype] = {
     "Params": PARAMS,
     "BvhNode": bvh_node_dtype(8),
     "TrianglePacket": TRIANGLE_PACKET,
+    "SpherePacket": SPHERE_PACKET,
 }
 
 TRIANGLE_MATERIAL_MASK = 0x00FFFFFF

@@ -29,7 +29,8 @@ class PackedScene:
     cylinders: np.ndarray
     cones: np.ndarray
     triangles: np.ndarray
-    packets: np.ndarray  # TRIANGLE_PACKET per PACKET_WIDTH slots of prim_refs (triangles only)
+    triangle_packets: np.ndarray  # TRIANGLE_PACKET per PACKET_WIDTH slots of prim_refs
+    sphere_packets: np.ndarray  # SPHERE_PACKET likewise (spheres only)
     vertices: np.ndarray  # (V, 4) float32
     normals: np.ndarray  # (V, 4) float32, or empty
     uvs: np.ndarray  # (V, 2) float32, or empty
@@ -43,9 +44,9 @@ class PackedScene:
     bvh_s: float  # host time to build the BVH
 
     def device_bytes(self) -> dict[str, int]:
-        names = ("planes", "spheres", "boxes", "cylinders", "cones", "triangles", "packets",
-                 "vertices", "normals", "uvs", "nodes", "prim_refs", "materials", "textures",
-                 "texels", "lights")
+        names = ("planes", "spheres", "boxes", "cylinders", "cones", "triangles",
+                 "triangle_packets", "sphere_packets", "vertices", "normals", "uvs", "nodes",
+                 "prim_refs", "materials", "textures", "texels", "lights")
         return {name: int(getattr(self, name).nbytes) for name in names}
 
 
@@ -243,6 +244,19 @@ def _triangle_packets(prim_refs: np.ndarray, tris: _Triangles) -> np.ndarray:
     return packets
 
 
+def _sphere_packets(prim_refs: np.ndarray, spheres: np.ndarray) -> np.ndarray:
+    """One SpherePacket per PACKET_WIDTH slots of prim_refs, NaN where a slot holds no sphere."""
+    if len(spheres) == 0:
+        return _records(L.SPHERE_PACKET, 0)
+    slots = prim_refs.reshape(-1, PACKET_WIDTH).astype(np.int64)
+    is_sphere = (slots >= 0) & ((slots >> L.PRIM_TYPE_SHIFT) == L.PRIM_SPHERE)
+    cr = spheres["center_radius"][np.where(is_sphere, slots & L.PRIM_INDEX_MASK, 0)]
+    packets = _records(L.SPHERE_PACKET, len(slots))
+    for axis, name in enumerate(("x", "y", "z", "radius")):
+        packets[name] = np.where(is_sphere, cr[..., axis], np.nan)
+    return packets
+
+
 def _pack_materials(materials: list[M.Material]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(materials, textures, texels): image texels of every texture in one array."""
     texture_records, texel_chunks, texel_count = [], [], 0
@@ -331,7 +345,8 @@ def pack_scene(scene: M.Scene, *, width: int, height: int, spp: int, max_depth: 
     cones = _pack_cones(kinds[M.Cone], eye, bounded)
     tris = _pack_triangles(triangle_objs, eye, bounded)
     wide, bvh_s = _pack_bvh(bounded, bvh_width)
-    packets = _triangle_packets(wide.prim_refs, tris)
+    triangle_packets = _triangle_packets(wide.prim_refs, tris)
+    sphere_packets = _sphere_packets(wide.prim_refs, spheres)
     materials, textures, texels = _pack_materials(scene.materials)
     lights = _pack_lights(scene.lights, eye)
     camera = _pack_camera(scene.camera, eye, width, height)
@@ -365,6 +380,6 @@ def pack_scene(scene: M.Scene, *, width: int, height: int, spp: int, max_depth: 
         **{"fp64_spheres": len(spheres) > 0 and needs_fp64_spheres(scene), **variants},
     )
     return PackedScene(camera, params, planes, spheres, boxes, cylinders, cones,
-                       tris.triangles, packets, tris.vertices, tris.normals, tris.uvs,
-                       wide.nodes, wide.prim_refs, materials, textures, texels, lights, config,
-                       bvh_s)
+                       tris.triangles, triangle_packets, sphere_packets, tris.vertices,
+                       tris.normals, tris.uvs, wide.nodes, wide.prim_refs, materials, textures,
+                       texels, lights, config, bvh_s)

@@ -1,0 +1,128 @@
+"""Kernel time of two or more commits, side by side in one run.
+
+    python benchmarks/compare.py REF [REF ...] [--rounds 5] [--scenes spheres,mesh]
+                                 [--json benchmarks/results/compare.json] [--device SPEC]
+
+Each REF (a commit, branch or `WORKTREE` for the files as they are now) is checked out into a
+temporary git worktree. Rounds alternate between the refs: in each round every ref renders every
+scene in a fresh process (importing clray from its own worktree, kernels included) once as a
+warm-up and then `--per-round` times, timed by OpenCL profiling events. Medians over all rounds are
+reported per ref and scene, with the ratio to the first ref. Alternating the refs spreads the
+machine's load changes over all of them, which separate runs at different times do not.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import statistics
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+HERE = Path(__file__).resolve().parent
+ROOT = HERE.parent
+
+# Runs inside each worktree's process; only API that every compared commit has.
+_MEASURE = """
+import json, sys
+from clray.device.context import select_device
+from clray.device.pack import pack_scene
+from clray.render import render_packed
+from clray.scene.load import load_scene
+path, repeat, spec = sys.argv[1], int(sys.argv[2]), sys.argv[3] or None
+scene = load_scene(path)
+r = scene.render
+packed = pack_scene(scene, width=r.width, height=r.height, spp=r.spp, max_depth=r.max_depth,
+                    seed=r.seed)
+device = select_device(spec)
+render_packed(packed, device)
+times = []
+for _ in range(repeat):
+    image, stats = render_packed(packed, device)
+    times.append(stats["kernel_s"])
+print(json.dumps({"kernel_s": times, "rays": stats["rays"]["total"],
+                  "mean": float(image.mean())}))
+"""
+
+
+def _worktree(ref: str, tmp: Path) -> Path:
+    if ref == "WORKTREE":
+        return ROOT
+    path = tmp / ref.replace("/", "_")
+    subprocess.run(["git", "-C", str(ROOT), "worktree", "add", "--detach", "-f", str(path), ref],
+                   check=True, capture_output=True)
+    return path
+
+
+def _scene_paths(names: list[str], tmp: Path) -> dict[str, Path]:
+    paths = {"spheres": ROOT / "scenes" / "spheres.toml"}
+    if "mesh" in names:
+        subprocess.run([sys.executable, str(HERE / "make_mesh_scene.py"), "--out",
+                        str(tmp / "mesh")], check=True, capture_output=True)
+        paths["mesh"] = tmp / "mesh" / "bumpy.toml"
+    return {name: paths[name] for name in names}
+
+
+def _measure(tree: Path, scene: Path, repeat: int, device: str | None) -> dict:
+    env = {**os.environ, "PYTHONPATH": str(tree)}
+    out = subprocess.run([sys.executable, "-c", _MEASURE, str(scene), str(repeat), device or ""],
+                         check=True, capture_output=True, text=True, cwd=tree, env=env).stdout
+    return json.loads(out.splitlines()[-1])
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("refs", nargs="+", help="commits to compare; WORKTREE = files as they are")
+    parser.add_argument("--rounds", type=int, default=5)
+    parser.add_argument("--per-round", type=int, default=3)
+    parser.add_argument("--scenes", default="spheres,mesh")
+    parser.add_argument("--device", default=None)
+    parser.add_argument("--json", type=Path, default=HERE / "results" / "compare.json")
+    args = parser.parse_args(argv)
+    names = [s for s in args.scenes.split(",") if s]
+    if set(names) - {"spheres", "mesh"} or args.rounds < 1 or args.per_round < 1:
+        parser.error("scenes are spheres and mesh; --rounds and --per-round must be >= 1")
+
+    with tempfile.TemporaryDirectory(prefix="clray-compare-") as tmp_name:
+        tmp = Path(tmp_name)
+        trees = {ref: _worktree(ref, tmp) for ref in args.refs}
+        scenes = _scene_paths(names, tmp)
+        times: dict[str, dict[str, list[float]]] = {r: {n: [] for n in names} for r in args.refs}
+        means: dict[str, dict[str, float]] = {r: {} for r in args.refs}
+        try:
+            for round_index in range(args.rounds):
+                for ref in args.refs:
+                    for name, path in scenes.items():
+                        got = _measure(trees[ref], path, args.per_round, args.device)
+                        times[ref][name] += got["kernel_s"]
+                        means[ref][name] = got["mean"]
+                print(f"round {round_index + 1}/{args.rounds} done", file=sys.stderr)
+        finally:
+            for tree in trees.values():
+                if tree != ROOT:
+                    subprocess.run(["git", "-C", str(ROOT), "worktree", "remove", "--force",
+                                    str(tree)], capture_output=True)
+
+    base = args.refs[0]
+    report = {"benchmark": "compare", "rounds": args.rounds, "per_round": args.per_round,
+              "refs": {}}
+    for ref in args.refs:
+        entry = {}
+        for name in names:
+            median = statistics.median(times[ref][name])
+            entry[name] = {"kernel_s": median, "kernel_runs_s": times[ref][name],
+                           "image_mean": means[ref][name],
+                           "speedup_vs_first": statistics.median(times[base][name]) / median}
+            print(f"{ref:>12} {name:>8}: kernel {median:.4f} s (median of "
+                  f"{len(times[ref][name])}), x{entry[name]['speedup_vs_first']:.2f} vs {base}")
+        report["refs"][ref] = entry
+    args.json.parent.mkdir(parents=True, exist_ok=True)
+    args.json.write_text(json.dumps(report, indent=2) + "\n", encoding="utf-8")
+    print(f"wrote {args.json}")
+
+
+if __name__ == "__main__":
+    main()

@@ -21,9 +21,9 @@ from clray.device.context import DeviceInfo, context_for, list_devices, select_d
 from clray.errors import DeviceError
 
 SELECT_ENV = "CLRAY_TEST_DEVICES"
-# Known platforms by a short name; any other platform goes by the first word of its name.
-PLATFORM_SHORT_NAMES = (("portable computing language", "pocl"), ("intel", "intel"),
-                        ("nvidia", "nvidia"), ("amd", "amd"), ("advanced micro", "amd"))
+# A platform's first word names it well ("Intel(R) OpenCL", "NVIDIA CUDA", "AMD Accelerated
+# Parallel Processing"), except PoCL's.
+PLATFORM_SHORT_NAMES = {"portable computing language": "pocl"}
 
 # Test id -> device; empty, with NO_DEVICE_KEY saying why, where no OpenCL platform exists.
 DEVICES_KEY = pytest.StashKey[dict[str, DeviceInfo]]()
@@ -44,9 +44,8 @@ def _device_required() -> bool:
 
 def _test_id(info: DeviceInfo) -> str:
     platform = info.platform.lower()
-    short = next((s for key, s in PLATFORM_SHORT_NAMES if key in platform), None)
-    if short is None:
-        short = (re.findall(r"[a-z0-9]+", platform) or ["opencl"])[0]
+    short = PLATFORM_SHORT_NAMES.get(platform) or (re.findall(r"[a-z0-9]+", platform)
+                                                   or ["opencl"])[0]
     return f"{short}-{info.type.lower()}"
 
 
@@ -63,11 +62,11 @@ def _all_test_devices() -> dict[str, DeviceInfo]:
 
 
 def _chosen(devices: dict[str, DeviceInfo], wanted: list[str]) -> dict[str, DeviceInfo]:
-    if not wanted or wanted == ["all"]:
+    if not wanted:
         return devices
     chosen = {}
     for name in wanted:
-        hits = {i: s for i, s in devices.items() if i == name or i.startswith(f"{name}-")}
+        hits = {i: d for i, d in devices.items() if i == name or i.startswith(f"{name}-")}
         if not hits:
             raise pytest.UsageError(f"OpenCL device {name!r} not found; the devices are: "
                                     f"{', '.join(devices)}")

@@ -9,14 +9,15 @@ typedef struct {
     REAL3 o, d;
     REAL3 inv_d;     // 1/d, +-inf for zero components (the slab test relies on it)
     int kx, ky, kz;  // Woop-Benthin-Wald axis permutation: kz is d's largest component
-    REAL sx, sy, sz; // ... and the shear that maps d to +z
+    REAL sx, sy, sz; // ... and the shear that maps d to +z (set only where triangles exist)
 } Ray;
 
-inline Ray make_ray(REAL3 o, REAL3 d) {
+HOT Ray make_ray(REAL3 o, REAL3 d) {
     Ray r;
     r.o = o;
     r.d = d;
     r.inv_d = (REAL)1 / d;
+#if HAS_TRIANGLES
     REAL3 ad = fabs(d);
     r.kz = ad.x > ad.y ? (ad.x > ad.z ? 0 : 2) : (ad.y > ad.z ? 1 : 2);
     r.kx = r.kz == 2 ? 0 : r.kz + 1;
@@ -31,6 +32,7 @@ inline Ray make_ray(REAL3 o, REAL3 d) {
     r.sx = -comp3(d, r.kx) / dz;
     r.sy = -comp3(d, r.ky) / dz;
     r.sz = (REAL)1 / dz;
+#endif
     return r;
 }
 

@@ -41,7 +41,7 @@ inline REAL2 axial_uv(REAL3 q, REAL3 axis, REAL along, int part, REAL cap_radius
 
 // want_uv: the material samples an image texture. Only then are (u, v) computed: a sphere's
 // atan2 and asin cost as much as the rest of its shading.
-inline Surface surface_at(const SceneRefs* s, const Ray* r, const Hit* hit,
+HOT Surface surface_at(const SceneRefs* s, const Ray* r, const Hit* hit,
                           bool want_uv) {
     Surface sf;
     int i = hit->ref & PRIM_INDEX_MASK;
@@ -233,7 +233,7 @@ inline REAL3 offset_origin(const Surface* sf, REAL3 w) {
 
 // Ambient plus, for each light on the lit side, diffuse and specular times the light that
 // reaches p through the shadow ray.
-inline REAL3 shade_direct(const SceneRefs* s, const Surface* sf, REAL3 n, REAL3 v, REAL3 c,
+HOT REAL3 shade_direct(const SceneRefs* s, const Surface* sf, REAL3 n, REAL3 v, REAL3 c,
                           const __global Material* m, REAL3 ambient_light, int* shadow_rays) {
     REAL3 result = TO_REAL(m->ambient) * c * ambient_light;
     REAL diffuse = TO_REAL(m->diffuse), specular = TO_REAL(m->specular);

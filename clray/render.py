@@ -126,7 +126,7 @@ def render(scene: Scene, settings: RenderSettings | None = None) -> RenderResult
     device = select_device(settings.device)
     resolved = _resolve(scene, settings)
     packed = pack_scene(scene, precision=settings.precision, bvh_width=bvh_width_for(device),
-                        **resolved, **dict(settings.variants))
+                        queue=queue_for(device), **resolved, **dict(settings.variants))
     pack_s = time.perf_counter() - start - packed.bvh_s
     image, stats = render_packed(packed, device, settings.progress)
     stats = {

@@ -337,14 +337,21 @@ HOT Hit closest_hit(const SceneRefs* s, const Ray* r) {
     return hit;
 }
 
-// Multiply in transmit * colour for each crossing of a primitive within (0, tmax).
+// Multiply in transmit * colour for each crossing of a primitive within (0, tmax); false once
+// no light is left.
 inline bool filter_crossings(const SceneRefs* s, const Crossings* c, int ref, REAL tmax,
                              REAL3* filter) {
     for (int k = 0; k < 2; ++k) {
         if (c->t[k] > (REAL)0 && c->t[k] < tmax) {
+#if HAS_TRANSMISSION
             const __global Material* m = s->materials + prim_material(s, ref);
             *filter *= TO_REAL(m->transmit) * TO_REAL3(m->color);
             if (max_comp3(*filter) <= (REAL)0) return false;
+#else
+            // Every material is opaque: no need to load the primitive's record (a cache miss
+            // on every shadowed hit of a large mesh) to learn that.
+            return false;
+#endif
         }
     }
     return true;

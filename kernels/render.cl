@@ -2,8 +2,8 @@
 //
 // Build switches (all from clray/device/program.py's KernelConfig): HAS_PLANES, HAS_SPHERES,
 // HAS_BOXES, HAS_CYLINDERS, HAS_CONES, HAS_TRIANGLES, HAS_VERTEX_NORMALS, HAS_VERTEX_UVS,
-// HAS_TEXTURES, HAS_REFRACTION (0 or 1), MAX_DEPTH, BVH_WIDTH, BVH_STACK_SIZE, USE_DOUBLE, the
-// study variants SPHERE_TEXTBOOK, OFFSET_FIXED_EPS, TRIANGLE_NO_FP64_FALLBACK,
+// HAS_TEXTURES, HAS_TRANSMISSION, HAS_REFRACTION (0 or 1), MAX_DEPTH, BVH_WIDTH, BVH_STACK_SIZE,
+// USE_DOUBLE, the study variants SPHERE_TEXTBOOK, OFFSET_FIXED_EPS, TRIANGLE_NO_FP64_FALLBACK,
 // TRIANGLE_MOLLER_TRUMBORE; FP64_SPHERES (the packer's per-scene fp64 path for spheres float32
 // cannot intersect); COUNT_TESTS (the instrumented build: box and primitive tests per pixel).
 #include "real.h"

@@ -34,7 +34,10 @@ inline REAL3 checker_texel(const __global Texture* tx, REAL3 color, REAL3 p, REA
     REAL size = TO_REAL(tx->size);
     REAL3 q = (p - (REAL)0.25 * size * n_f) / size;
     REAL cells = floor(q.x) + floor(q.y) + floor(q.z);
-    return fmod(fabs(cells), (REAL)2) == (REAL)1 ? TO_REAL3(tx->color2) : color;
+    // The parity of an integer-valued cells, exactly (fmod is a slow library call here).
+    // Beyond 2^24 (2^53 in double) every value is even, and a NaN or inf is neither.
+    REAL odd = cells - (REAL)2 * floor(cells * (REAL)0.5);
+    return odd == (REAL)1 ? TO_REAL3(tx->color2) : color;
 }
 #endif
 

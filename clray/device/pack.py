@@ -10,6 +10,7 @@ import time
 from dataclasses import dataclass
 
 import numpy as np
+import pyopencl as cl
 
 from clray.accel.bvh import build_bvh
 from clray.accel.wide import PACKET_WIDTH, WideBvh, collapse
@@ -17,6 +18,9 @@ from clray.device import layout as L
 from clray.device.program import KernelConfig
 from clray.scene import model as M
 from clray.scene.scale import needs_fp64_spheres
+
+# Primitive count from which pack_scene builds the BVH on the device when given a queue.
+DEVICE_BUILD_MIN = 20000
 
 
 @dataclass(frozen=True)
@@ -217,11 +221,15 @@ def _pack_triangles(objs: list[M.Triangle | M.Mesh], eye: np.ndarray,
     return _Triangles(triangles, vertices, normals, uvs)
 
 
-def _pack_bvh(bounded: _Bounded, width: int) -> tuple[WideBvh, float]:
-    """The wide BVH over every bounded primitive, and the host seconds it took."""
+def _pack_bvh(bounded: _Bounded, width: int,
+              queue: cl.CommandQueue | None) -> tuple[WideBvh, float]:
+    """The wide BVH over every bounded primitive, and the seconds it took."""
     start = time.perf_counter()
     if bounded.lo:
-        binary = build_bvh(np.concatenate(bounded.lo), np.concatenate(bounded.hi))
+        lo, hi = np.concatenate(bounded.lo), np.concatenate(bounded.hi)
+        # Below DEVICE_BUILD_MIN primitives the host build takes milliseconds, less than
+        # fetching the device build's program from the cache.
+        binary = build_bvh(lo, hi, queue=queue if len(lo) >= DEVICE_BUILD_MIN else None)
         wide = collapse(binary, np.concatenate(bounded.refs), width)
     else:
         wide = collapse(build_bvh(np.zeros((0, 3)), np.zeros((0, 3))), np.zeros(0), width)
@@ -325,9 +333,10 @@ def _stack_size_option(stack_size: int) -> int:
 
 def pack_scene(scene: M.Scene, *, width: int, height: int, spp: int, max_depth: int,
                seed: int, precision: str = "float", bvh_width: int = 8,
-               **variants: object) -> PackedScene:
+               queue: cl.CommandQueue | None = None, **variants: object) -> PackedScene:
     """`bvh_width`: children per BVH node (4 or 8; clray.device.program.bvh_width_for picks
-    one per device). `variants` are extra KernelConfig fields (study switches, options)."""
+    one per device). `queue`: build large BVHs on its device (the same tree as the host
+    build). `variants` are extra KernelConfig fields (study switches, options)."""
     eye = np.asarray(scene.camera.position, dtype=np.float64)
     kinds: dict[type, list] = {t: [] for t in (M.Sphere, M.Plane, M.Box, M.Cylinder, M.Cone)}
     triangle_objs = []
@@ -344,7 +353,7 @@ def pack_scene(scene: M.Scene, *, width: int, height: int, spp: int, max_depth: 
     cylinders = _pack_cylinders(kinds[M.Cylinder], eye, bounded)
     cones = _pack_cones(kinds[M.Cone], eye, bounded)
     tris = _pack_triangles(triangle_objs, eye, bounded)
-    wide, bvh_s = _pack_bvh(bounded, bvh_width)
+    wide, bvh_s = _pack_bvh(bounded, bvh_width, queue)
     triangle_packets = _triangle_packets(wide.prim_refs, tris)
     sphere_packets = _sphere_packets(wide.prim_refs, spheres)
     materials, textures, texels = _pack_materials(scene.materials)
@@ -372,6 +381,7 @@ def pack_scene(scene: M.Scene, *, width: int, height: int, spp: int, max_depth: 
         has_vertex_normals=len(tris.normals) > 0,
         has_vertex_uvs=len(tris.uvs) > 0,
         has_textures=len(textures) > 0,
+        has_transmission=any_transmit,
         has_refraction=any_transmit and max_depth > 0,
         max_depth=max_depth if (any_reflect or any_transmit) else 0,
         bvh_width=bvh_width,

@@ -41,6 +41,7 @@ class KernelConfig:
     has_vertex_normals: bool = False
     has_vertex_uvs: bool = False
     has_textures: bool = False
+    has_transmission: bool = False  # some material transmits: shadow rays filter
     has_refraction: bool = False
     max_depth: int = 0
     # The wide BVH's children per node (4 or 8) and a traversal stack deep enough for its tree

@@ -707,12 +707,16 @@ def trace(
             if not lit.any():
                 continue
             shadow = np.zeros((len(p), 3))
-            shadow[lit] = geo.transmittance(
-                _offset(p[lit], ngf[lit], l_dir[lit], eps[lit]),
-                l_dir[lit],
-                dist[lit],
-                mats.filter,
-            )
+            origin = _offset(p[lit], ngf[lit], l_dir[lit], eps[lit])
+            shadow_dir, span = l_dir[lit], dist[lit]
+            if isinstance(light, PointLight):
+                # Aimed from the offset origin, as the kernels do (docs/rendering.md).
+                to_light = _vec(light.position) - origin
+                span = np.linalg.norm(to_light, axis=-1)
+                shadow_dir = np.where((span > 0.0)[:, None],
+                                      to_light / np.where(span > 0.0, span, 1.0)[:, None],
+                                      shadow_dir)
+            shadow[lit] = geo.transmittance(origin, shadow_dir, span, mats.filter)
             r = 2.0 * ndotl[:, None] * n - l_dir
             rv = _dot(r, -d)
             spec = np.zeros(len(p))

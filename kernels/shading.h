@@ -256,12 +256,18 @@ HOT REAL3 shade_direct(const SceneRefs* s, const Surface* sf, REAL3 n, REAL3 v, 
         REAL ndl = dot(n, l);
         if (!(ndl > (REAL)0)) continue;
         REAL3 origin = offset_origin(sf, l);
-        // Stop just short of the light so a surface through the light does not shadow it.
-        REAL tmax = light->kind == LIGHT_POINT
-                        ? length(TO_REAL3(light->position) - origin) *
-                              ((REAL)1 - gamma_n(ERR_ROUNDINGS))
-                        : REAL_INF;
-        Ray shadow = make_ray(origin, l);
+        // Aimed from the offset origin itself: a ray parallel to l from there passes beside a
+        // point light, and crosses a surface that holds the light before reaching it. It stops
+        // just short of the light so such a surface does not shadow it.
+        REAL3 shadow_dir = l;
+        REAL tmax = REAL_INF;
+        if (light->kind == LIGHT_POINT) {
+            REAL3 to_light = TO_REAL3(light->position) - origin;
+            REAL span = length(to_light);
+            shadow_dir = span > (REAL)0 ? to_light / span : l;
+            tmax = span * ((REAL)1 - gamma_n(ERR_ROUNDINGS));
+        }
+        Ray shadow = make_ray(origin, shadow_dir);
         (*shadow_rays)++;
         REAL3 filter = transmission(s, &shadow, tmax);
         if (max_comp3(filter) <= (REAL)0) continue;

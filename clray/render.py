@@ -125,7 +125,8 @@ def render(scene: Scene, settings: RenderSettings | None = None) -> RenderResult
     start = time.perf_counter()
     device = select_device(settings.device)
     resolved = _resolve(scene, settings)
-    packed = pack_scene(scene, precision=settings.precision, bvh_width=bvh_width_for(device),
+    packed = pack_scene(scene, precision=settings.precision,
+                        bvh_width=bvh_width_for(device, settings.precision),
                         queue=queue_for(device), **resolved, **dict(settings.variants))
     pack_s = time.perf_counter() - start - packed.bvh_s
     image, stats = render_packed(packed, device, settings.progress)

@@ -74,10 +74,13 @@ class KernelConfig:
         return sorted(defines) + sorted(self.build_options)
 
 
-def bvh_width_for(device: cl.Device) -> int:
-    """Children per BVH node for this device: 8 where it prefers float vectors of 8 or more
-    (AVX and wider CPUs), else 4. Either width is correct on any device."""
-    return 8 if device.preferred_vector_width_float >= 8 else 4
+def bvh_width_for(device: cl.Device, precision: str = "float") -> int:
+    """Children per BVH node for this device and arithmetic: 8 where the device prefers vectors
+    of 8 or more of that type (float on AVX CPUs), else 4 (double on AVX2, GPUs). Either width
+    is correct on any device; the node's slab test runs on vectors of this width."""
+    width = (device.preferred_vector_width_double if precision == "double"
+             else device.preferred_vector_width_float)
+    return 8 if width >= 8 else 4
 
 
 def kernel_source(name: str = ENTRY_FILE) -> str:

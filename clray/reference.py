@@ -16,6 +16,7 @@ import numpy as np
 
 from clray.scene.model import (
     Box,
+    Camera,
     Cone,
     Cylinder,
     DirectionalLight,
@@ -100,12 +101,27 @@ def camera_rays(
     `sample_positions`; None takes the scene's setting."""
     width, height, spp, _, seed = _settings(scene, width, height, spp, None, seed)
     sx, sy, pixel = sample_positions(width, height, spp, seed)
-    forward, right, up, half_w, half_h = scene.camera.basis(width, height)
+    forward, right, up, half_w, half_h = _camera_basis(scene.camera, width, height)
     px = 2.0 * sx / width - 1.0
     py = 1.0 - 2.0 * sy / height
     d = forward + (px * half_w)[:, None] * right + (py * half_h)[:, None] * up
     origins = np.broadcast_to(np.asarray(scene.camera.position, dtype=np.float64), d.shape)
     return origins.copy(), _normalize(d), pixel
+
+
+def _camera_basis(camera: Camera, width: int, height: int) -> tuple[np.ndarray, ...]:
+    """(forward, right, up', half_w, half_h) of docs/rendering.md, computed here rather than
+    taken from the model's Camera.basis: the kernels' camera comes from the model, and an
+    oracle sharing that code could not notice a mistake in it."""
+    eye = np.asarray(camera.position, dtype=np.float64)
+    forward = _normalize(np.asarray(camera.look_at, dtype=np.float64) - eye)
+    right = _normalize(np.cross(forward, np.asarray(camera.up, dtype=np.float64)))
+    up = np.cross(right, forward)
+    if camera.hfov is not None:
+        half_w = math.tan(math.radians(camera.hfov) / 2.0)
+        return forward, right, up, half_w, half_w * height / width
+    half_h = math.tan(math.radians(camera.vfov) / 2.0)
+    return forward, right, up, half_h * width / height, half_h
 
 
 def _settings(

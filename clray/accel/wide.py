@@ -58,52 +58,53 @@ def collapse(bvh: Bvh, refs: np.ndarray, width: int) -> WideBvh:
         return WideBvh(np.zeros(0, dtype), np.zeros(0, np.int32), width, 1)
     count = b["count"].astype(np.int64)
     first = b["first"].astype(np.int64)
-    ext = np.maximum(b["hi"].astype(np.float64) - b["lo"], 0)
+    # Bounds as one (nodes + 1, 6) array whose last row, NaN, is what slot -1 reads.
+    bounds = np.full((b.size + 1, 6), np.nan, dtype=np.float32)
+    bounds[:-1, :3] = b["lo"]
+    bounds[:-1, 3:] = b["hi"]
+    ext = np.maximum(bounds[:-1, 3:].astype(np.float64) - bounds[:-1, :3], 0)
     half_area = ext[:, 0] * ext[:, 1] + ext[:, 1] * ext[:, 2] + ext[:, 2] * ext[:, 0]
+    # The area of each node that can be opened (an inner node), -1 otherwise and for slot -1.
+    open_area = np.append(np.where(count == 0, half_area, -1.0), -1.0)
 
     # A leaf root still needs a wide node above it: its one child is the root itself.
     if count[0] > 0:
         levels = [np.array([[0] + [-1] * (width - 1)])]
     else:
-        levels = [_open_children(np.array([0]), count, first, half_area, width)]
+        levels = [_open_children(np.array([0]), first, open_area, width)]
     while True:
-        inner = levels[-1][(levels[-1] >= 0) & (count[np.maximum(levels[-1], 0)] == 0)]
+        inner = levels[-1][open_area[levels[-1]] >= 0]
         if inner.size == 0:
             break
-        levels.append(_open_children(inner, count, first, half_area, width))
+        levels.append(_open_children(inner, first, open_area, width))
     slots = np.concatenate(levels)  # binary node per child slot, -1 for none
     n_wide = slots.shape[0]
 
     used = slots >= 0
-    node_of = np.maximum(slots, 0)
-    is_inner = used & (count[node_of] == 0)
+    is_inner = open_area[slots] >= 0
     is_leaf = used & ~is_inner
     # Wide nodes are numbered level by level, children in slot order: the k-th inner slot (row-
     # major) is wide node k + 1.
-    child = np.full(slots.shape, -1, dtype=np.int64)
+    child = np.full(slots.shape, -1, dtype=np.int32)
     child[is_inner] = np.arange(1, int(is_inner.sum()) + 1)
     leaf_first, leaf_count, prim_refs = _lay_out_leaves(
         first[slots[is_leaf]], count[slots[is_leaf]], refs[bvh.order].astype(np.int64))
     child[is_leaf] = leaf_first
-    packed_count = np.zeros(slots.shape, dtype=np.int64)
+    packed_count = np.zeros(slots.shape, dtype=np.int32)
     packed_count[is_leaf] = leaf_count
 
-    nodes = np.zeros(n_wide, dtype=dtype)
-    for axis, name in enumerate("xyz"):
-        lo = np.full(slots.shape, np.nan, dtype=np.float32)
-        hi = np.full(slots.shape, np.nan, dtype=np.float32)
-        lo[used] = b["lo"][slots[used], axis]
-        hi[used] = b["hi"][slots[used], axis]
-        nodes[f"lo_{name}"] = lo
-        nodes[f"hi_{name}"] = hi
-    nodes["child"] = child
-    nodes["count"] = packed_count
+    # The node records as rows of 8 lanes-wide fields: 6 bound fields, then child and count.
+    rows = np.empty((n_wide, 8, width), dtype=np.float32)
+    rows[:, :6] = bounds[slots].transpose(0, 2, 1)
+    rows[:, 6].view(np.int32)[...] = child
+    rows[:, 7].view(np.int32)[...] = packed_count
+    nodes = rows.reshape(n_wide, -1).view(dtype).ravel()
     level_rows = np.cumsum([0] + [lv.shape[0] for lv in levels])
     return WideBvh(nodes, prim_refs, width, _stack_size(child, is_inner, used, level_rows))
 
 
-def _open_children(parents: np.ndarray, count: np.ndarray, first: np.ndarray,
-                   half_area: np.ndarray, width: int) -> np.ndarray:
+def _open_children(parents: np.ndarray, first: np.ndarray, open_area: np.ndarray,
+                   width: int) -> np.ndarray:
     """(m, width) child slots of the wide nodes grown from binary inner nodes `parents`."""
     m = parents.size
     rows = np.arange(m)
@@ -111,8 +112,7 @@ def _open_children(parents: np.ndarray, count: np.ndarray, first: np.ndarray,
     slots[:, 0] = parents + 1  # depth-first layout: the left child is the next node
     slots[:, 1] = first[parents]
     for filled in range(2, width):
-        node = np.maximum(slots, 0)
-        area = np.where((slots >= 0) & (count[node] == 0), half_area[node], -1.0)
+        area = open_area[slots]
         k = np.argmax(area, axis=1)
         open_rows = rows[area[rows, k] >= 0]
         if open_rows.size == 0:

@@ -241,15 +241,14 @@ def _triangle_packets(prim_refs: np.ndarray, tris: _Triangles) -> np.ndarray:
     triangles, coordinate by coordinate, NaN in slots that hold no triangle."""
     if len(tris.triangles) == 0:
         return _records(L.TRIANGLE_PACKET, 0)
-    slots = prim_refs.reshape(-1, PACKET_WIDTH).astype(np.int64)
+    slots = prim_refs.reshape(-1, PACKET_WIDTH)
     is_tri = (slots >= 0) & ((slots >> L.PRIM_TYPE_SHIFT) == L.PRIM_TRIANGLE)
-    index = np.where(is_tri, slots & L.PRIM_INDEX_MASK, 0)
-    packets = _records(L.TRIANGLE_PACKET, len(slots))
-    for k, corner in enumerate(("v0", "v1", "v2")):
-        points = tris.vertices[tris.triangles[corner][index], :3]
-        for axis, name in enumerate("xyz"):
-            packets[f"{name}{k}"] = np.where(is_tri, points[..., axis], np.nan)
-    return packets
+    faces = tris.triangles[["v0", "v1", "v2"]].view(np.int32).reshape(-1, 4)[:, :3]
+    # (packet, lane, corner, axis), then the record's order: corner, axis, lane.
+    corners = tris.vertices[faces[np.where(is_tri, slots & L.PRIM_INDEX_MASK, 0)], :3]
+    corners[~is_tri] = np.nan
+    packed = np.ascontiguousarray(corners.transpose(0, 2, 3, 1)).reshape(len(slots), -1)
+    return packed.view(L.TRIANGLE_PACKET).ravel()
 
 
 def _sphere_packets(prim_refs: np.ndarray, spheres: np.ndarray) -> np.ndarray:

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import importlib
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 import pytest
@@ -20,11 +21,6 @@ ROOT = Path(__file__).resolve().parent.parent
 render_module = importlib.import_module("clray.render")
 TEXTURE = ROOT / "scenes" / "textures" / "bricks.png"
 
-# Float32 kernel vs float64 reference: shading error is ~1e-6, so the RMSE bound is loose only
-# because a few pixels may legitimately differ where float and double pick different objects
-# (silhouettes, checker cell boundaries, the horizon). Those are counted, not averaged away.
-RMSE_MAX = 0.01
-OFF_FRACTION_MAX = 0.01  # share of pixels allowed off by more than 2/255
 W, H = 48, 36
 
 
@@ -51,6 +47,13 @@ AIR = M.Material("air", (1.0, 1.0, 1.0), diffuse=0.0, transmit=1.0, ior=1.0)
 POINT = M.PointLight((-4.0, 6.0, 5.0), (0.8, 0.8, 0.8), (1.0, 0.02, 0.005))
 SUN = M.DirectionalLight(tuple(np.array([0.3, -1.0, -0.2]) / np.linalg.norm([0.3, -1.0, -0.2])),
                          (0.4, 0.4, 0.4))  # the model holds unit directions
+
+ABOVE_LIGHT = (
+    M.Sphere((-1.2, 1.6, 0.2), 0.5, 1), M.Box((0.2, 1.4, -0.6), (1.2, 1.7, 0.6), 1),
+    M.Cylinder((-0.3, 1.5, 0.9), (0, 1, 0), 0.4, 0.3, 1), M.Cone((1.4, 1.8, 0.8), (0, -1, 0), 30,
+                                                                 0.4, 1),
+    M.Triangle(((-0.8, 1.3, -0.9), (0.6, 1.3, -1.2), (0.0, 1.45, -0.2)), 1),
+)
 
 CASES = {
     "phong_point_and_directional": _scene(
@@ -94,17 +97,82 @@ CASES = {
                 np.array([[0, 2, 1], [0, 1, 3], [1, 2, 3], [2, 0, 3]]), 2)], [POINT, SUN]),
     "supersampled": _scene([FLOOR, RED], [M.Plane((0, 0, 0), (0, 1, 0), 0),
                                           M.Sphere((0, 1, 0), 1, 1)], [POINT], spp=5),
+    # Every bounded primitive type hangs above a point light that sits low over the floor, so
+    # the floor's shadow rays pass the light and then cross them: they must end at the light.
+    # The attenuation's denominator is below 1 near the light (the min(1, ...) clamp) and
+    # above 1 farther out. "_glass" adds a transmissive ball: the HAS_TRANSMISSION traversal.
+    "objects_beyond_point_light": _scene(
+        [FLOOR, RED], [M.Plane((0, 0, 0), (0, 1, 0), 0), *ABOVE_LIGHT],
+        [M.PointLight((0.2, 0.6, 0.3), (1.0, 0.9, 0.8), (0.3, 0.25, 0.05))],
+        camera=M.Camera((0.0, 1.2, 6.0), (0.0, 0.6, 0.0), vfov=55.0)),
+    "objects_beyond_point_light_glass": _scene(
+        [FLOOR, RED, GLASS], [M.Plane((0, 0, 0), (0, 1, 0), 0), *ABOVE_LIGHT,
+                              M.Sphere((1.6, 0.5, 1.2), 0.5, 2)],
+        [M.PointLight((0.2, 0.6, 0.3), (1.0, 0.9, 0.8), (0.3, 0.25, 0.05))],
+        camera=M.Camera((0.0, 1.2, 6.0), (0.0, 0.6, 0.0), vfov=55.0)),
+    # Image-textured caps seen head on: the cone's base disc and the cylinder's top disc face
+    # the camera, so their (u, v) (the disc radius included) decide what is seen.
+    "textured_caps_facing_camera": _scene(
+        [M.Material("tex", ambient=0.3, diffuse=0.7, texture=_image_texture(repeat=(1, 1)))],
+        [M.Cone((-1.1, 1.0, -1.5), (0, 0, 1), 35, 1.6, 0),
+         M.Cylinder((1.1, 1.0, -1.0), (0, 0, 1), 0.9, 1.2, 0)],
+        [M.PointLight((0.5, 2.0, 6.0), (1, 1, 1))],
+        camera=M.Camera((0.0, 1.0, 6.0), (0.0, 1.0, 0.0), vfov=40.0)),
+    # The plane's given point is off the texture's period grid (repeat 2: periods of 1/2)
+    # and off the camera's foot point, so the anchor the packer stores is visible.
+    "plane_texture_anchor_off_grid": _scene(
+        [M.Material("tex", ambient=0.3, diffuse=0.7, texture=_image_texture(repeat=(2, 2)))],
+        [M.Plane((0.37, 0.0, 0.61), (0, 1, 0), 0)], [POINT],
+        camera=M.Camera((0.3, 2.5, 4.0), (0.1, 0.0, 0.0), vfov=45.0)),
+}
+
+
+
+class Tolerance(NamedTuple):
+    """What one scene needs, float32 kernel against the float64 reference: at most `off`
+    pixels may differ by more than `err` in a channel (pixels where float32 legitimately
+    resolves something else: the far horizon's texture lookups, a refraction that grazes a
+    rim), and the other pixels' RMSE stays below `rmse`."""
+
+    rmse: float
+    err: float
+    off: int = 0
+
+
+# Measured on PoCL (CPU) at W x H, then each bound set at 4x the measured value (rmse, err);
+# `off` is the exact number of outlier pixels measured, all off by 0.02 or more, with no
+# pixel between 2.4e-4 and 0.02. A missing highlight or a wrong reflection moves hundreds
+# of pixels by 1e-2 or more, so these fail far beyond their margins.
+TOLERANCES = {  # measured RMSE of the rest and max error in the comments
+    "checker_every_primitive": Tolerance(4.8e-6, 2.2e-4),  # 1.19e-6, 5.37e-5
+    "image_textures_every_primitive": Tolerance(4.1e-5, 9.4e-4, 11),  # 1.02e-5, 2.33e-4; the
+    # 11 lie on the horizon row, where float32 (u, v) at t ~ 2000 is coarser than a texel
+    "objects_beyond_point_light": Tolerance(2.4e-6, 1.6e-4),  # 5.79e-7, 3.93e-5
+    "objects_beyond_point_light_glass": Tolerance(2.5e-6, 1.6e-4),  # 6.25e-7, 3.93e-5
+    "open_cylinder_cone_and_mesh": Tolerance(8.6e-7, 3e-5),  # 2.15e-7, 7.46e-6
+    "phong_point_and_directional": Tolerance(3e-7, 6.4e-6),  # 7.33e-8, 1.58e-6
+    "plane_texture_anchor_off_grid": Tolerance(1.6e-5, 3e-4),  # 3.92e-6, 7.31e-5
+    "reflection": Tolerance(3.8e-7, 1.3e-5),  # 9.38e-8, 3.04e-6
+    "refraction_nested_and_tir": Tolerance(3.9e-6, 7.2e-5, 2),  # 9.51e-7, 1.8e-5; the 2 are
+    # beside a glass sphere's rim, where the refracted ray's float32 error picks another cell
+    "shadows_through_glass": Tolerance(1.3e-6, 1.7e-5),  # 3.23e-7, 4.24e-6
+    "supersampled": Tolerance(1.1e-7, 1.7e-6),  # 2.65e-8, 4.18e-7
+    "textured_caps_facing_camera": Tolerance(1.4e-6, 1.6e-5),  # 3.3e-7, 3.79e-6
 }
 
 
 @pytest.mark.parametrize("name", sorted(CASES))
 def test_kernel_matches_reference(cl_device, name: str) -> None:
-    scene = CASES[name]
-    image = render(scene).image
+    scene, tol = CASES[name], TOLERANCES[name]
+    image = render(scene).image.astype(np.float64)
     expected = render_reference(scene)
     assert nonfinite_count(image) == 0
-    assert rmse(image, expected) < RMSE_MAX
-    assert count_over(image, expected, 2 / 255) <= OFF_FRACTION_MAX * W * H
+    err = np.abs(image - expected).max(axis=-1)
+    off = err > tol.err
+    worst = np.unravel_index(err.argmax(), err.shape)
+    assert off.sum() <= tol.off, (f"{int(off.sum())} pixels off by more than {tol.err:g} "
+                                  f"(worst {err.max():.3g} at (y, x) {worst})")
+    assert rmse(image[~off], expected[~off]) < tol.rmse
 
 
 def test_plane_under_directional_light_is_uniform(cl_device) -> None:

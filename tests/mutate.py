@@ -1,0 +1,428 @@
+"""Mutation testing: does the suite catch small, realistic bugs in kernels/ and clray/?
+
+    python -m tests.mutate                 # every mutation, a table, then the JSON report
+    python -m tests.mutate --list          # the mutations and the tests each one runs
+    python -m tests.mutate --only NAME ... # some of them (names or prefixes: "shading.")
+    python -m tests.mutate --json report.json --rev HEAD
+
+Each mutation replaces one snippet of one file (exactly one occurrence, so a mutation that no
+longer applies is reported as stale instead of silently testing nothing) in a scratch copy of
+the repository, runs the test files it names there, and restores the file. A mutation is killed
+when a test fails, errors, crashes or times out, and survives when they all pass. The shared
+checkout is never written: the scratch copy is the working tree's tracked and untracked
+(not ignored) files, or with --rev the files of that commit.
+
+The scratch copy's unmutated tests run first (the baseline); a failing baseline stops the run,
+since every mutation would then look killed. CLRAY_REQUIRE_DEVICE=1 makes a missing OpenCL
+device fail rather than skip. Kernels are built from their inlined full text (clray.device.
+program.kernel_source), so PoCL's cache, here one per run, never serves a stale binary.
+
+Not collected by pytest (the name does not start with test_): it takes tens of minutes.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+
+# Test files by topic; a mutation runs the ones that should notice it.
+RENDER = "tests/test_render.py"
+FEATURES = "tests/test_feature_paths.py"
+INTERSECT = "tests/test_intersect.py"
+MESH = "tests/test_mesh_render.py"
+HARD = "tests/hard_cases/test_hard_cases.py"
+SHADOW = "tests/test_shadow_rays.py"
+REFERENCE = "tests/test_reference.py"
+BVH = "tests/test_bvh.py"
+WIDE = "tests/test_wide.py"
+LAYOUT = "tests/test_layout.py"
+LOAD = "tests/test_load.py"
+OBJ = "tests/test_obj.py"
+SCALE = "tests/test_scale.py"
+IMAGE_IO = "tests/test_image_io.py"
+SRGB = "tests/test_srgb.py"
+METRICS = "tests/test_metrics.py"
+CLI = "tests/test_cli.py"
+STUDY = "tests/test_study.py"
+DEVICE = "tests/test_device_fixture.py"
+# The kernel-vs-reference scenes and the closed forms, without test_render.py's slower checks.
+KERNEL_SCENES = (f"{RENDER}::test_kernel_matches_reference",
+                 f"{RENDER}::test_lone_sphere_follows_lambert", FEATURES)
+
+
+@dataclass(frozen=True)
+class Mutation:
+    name: str
+    path: str
+    old: str
+    new: str
+    tests: tuple[str, ...]
+
+
+def m(name: str, path: str, old: str, new: str, *tests: str) -> Mutation:
+    return Mutation(name, path, old, new, tests)
+
+
+MUTATIONS: tuple[Mutation, ...] = (
+    # kernels/camera.h
+    m("camera.jitter_dims_swapped", "kernels/camera.h",
+      "((REAL)(s % nx) + r0) / (REAL)nx,\n                   (REAL)y + ((REAL)(s / nx) + r1)",
+      "((REAL)(s % nx) + r1) / (REAL)nx,\n                   (REAL)y + ((REAL)(s / nx) + r0)",
+      *KERNEL_SCENES),
+    m("camera.grid_rows_square", "kernels/camera.h",
+      "int ny = (spp + nx - 1) / nx;", "int ny = nx;", *KERNEL_SCENES),
+    m("camera.py_flipped", "kernels/camera.h",
+      "REAL py = (REAL)1 - (REAL)2 * sample.y / (REAL)height;",
+      "REAL py = (REAL)2 * sample.y / (REAL)height - (REAL)1;", *KERNEL_SCENES),
+    m("camera.px_over_height", "kernels/camera.h",
+      "REAL px = (REAL)2 * sample.x / (REAL)width", "REAL px = (REAL)2 * sample.x / (REAL)height",
+      *KERNEL_SCENES),
+    # kernels/rng.h
+    m("rng.23_bits", "kernels/rng.h", "(REAL)(key >> 8)", "(REAL)(key >> 9)", *KERNEL_SCENES),
+    m("rng.counter_without_stride", "kernels/rng.h", "^ (4u * sample + dim)", "^ (sample + dim)",
+      *KERNEL_SCENES),
+    m("rng.multiplier", "kernels/rng.h", "* 277803737u", "* 277803739u", *KERNEL_SCENES),
+    # kernels/real.h
+    m("real.no_error_bound", "kernels/real.h",
+      "return (REAL)n * u / ((REAL)1 - (REAL)n * u);", "return (REAL)0;",
+      RENDER, HARD, MESH, FEATURES),
+    m("real.frame_helper_swapped", "kernels/real.h",
+      "fabs(a.x) < (REAL)0.9 ? (REAL3)(1, 0, 0) : (REAL3)(0, 1, 0)",
+      "fabs(a.x) < (REAL)0.9 ? (REAL3)(0, 1, 0) : (REAL3)(1, 0, 0)", *KERNEL_SCENES),
+    m("real.lowest_bit_is_highest", "kernels/real.h",
+      "return 31 - clz(bits & -bits);", "return 31 - clz(bits);", INTERSECT, RENDER),
+    m("real.no_fma_error_term", "kernels/real.h",
+      "REAL err = fma(-c, d, cd);\n    REAL dop", "REAL err = 0;\n    REAL dop", INTERSECT, HARD),
+    # kernels/clray_types.h
+    m("types.point_light_code", "kernels/clray_types.h",
+      "#define LIGHT_POINT 0", "#define LIGHT_POINT 2", *KERNEL_SCENES),
+    m("types.material_fields_swapped", "kernels/clray_types.h",
+      "float ambient, diffuse, specular, shininess;",
+      "float diffuse, ambient, specular, shininess;",
+      LAYOUT, RENDER),
+    # kernels/intersect.h
+    m("intersect.press_root_sign", "kernels/intersect.h",
+      "REAL q = -(b + copysign(sqrt(disc), b));", "REAL q = -(b - copysign(sqrt(disc), b));",
+      INTERSECT),
+    m("intersect.plane_offset_sign", "kernels/intersect.h",
+      "REAL t = dot(TO_REAL3(pl->point) - r->o, n) / dn;",
+      "REAL t = dot(r->o - TO_REAL3(pl->point), n) / dn;", INTERSECT),
+    m("intersect.slab_not_widened", "kernels/intersect.h",
+      "        tf *= widen;\n", "", INTERSECT, HARD),
+    m("intersect.cylinder_caps_swapped", "kernels/intersect.h",
+      "REAL tc = ((cap ? height : (REAL)0) - fa) / da;",
+      "REAL tc = ((cap ? (REAL)0 : height) - fa) / da;", INTERSECT),
+    m("intersect.cone_cap_radius", "kernels/intersect.h",
+      "REAL rb = height * tan_a;", "REAL rb = tan_a;", INTERSECT),
+    m("intersect.side_unbounded_above", "kernels/intersect.h",
+      "if (s >= -tol && s <= height + tol) add_candidate", "if (s >= -tol) add_candidate",
+      INTERSECT),
+    m("intersect.triangle_hits_behind", "kernels/intersect.h",
+      "MASK4 ahead = ((det < 0) & (t_scaled < 0)) | ((det > 0) & (t_scaled > 0));",
+      "MASK4 ahead = (det != 0);", INTERSECT),
+    m("intersect.sphere_packet_ignores_disc", "kernels/intersect.h",
+      "MASK4 roots = (disc >= (REAL)0) & (q != (REAL)0);", "MASK4 roots = (q != (REAL)0);",
+      INTERSECT),
+    # kernels/bvh.h
+    m("bvh.tie_to_larger_ref", "kernels/bvh.h",
+      "(t == hit->t && ref < hit->ref)", "(t == hit->t && ref > hit->ref)", INTERSECT),
+    m("bvh.first_crossing_only", "kernels/bvh.h",
+      "int k = c->t[0] > (REAL)0 ? 0 : 1;", "int k = 0;", INTERSECT),
+    m("bvh.flat_boxes_missed", "kernels/bvh.h",
+      "MASK_TO_INTW(t0 <= t1) & used", "MASK_TO_INTW(t0 < t1) & used", INTERSECT),
+    m("bvh.pop_prunes_the_wrong_side", "kernels/bvh.h",
+      "while (sp > 0 && stack_t[sp - 1] > hit.t) sp--;",
+      "while (sp > 0 && stack_t[sp - 1] < hit.t) sp--;", INTERSECT),
+    m("bvh.shadow_ignores_segment_end", "kernels/bvh.h",
+      "if (c->t[k] > (REAL)0 && c->t[k] < tmax) {", "if (c->t[k] > (REAL)0) {",
+      *KERNEL_SCENES, SHADOW),
+    m("bvh.shadow_filters_first_crossing_only", "kernels/bvh.h",
+      "for (int k = 0; k < 2; ++k) {\n        if (c->t[k]",
+      "for (int k = 0; k < 1; ++k) {\n        if (c->t[k]", *KERNEL_SCENES),
+    m("bvh.opaque_triangle_beyond_light_blocks", "kernels/bvh.h",
+      "lane_bits4(convert_int4((t > lo) & (t < hi)))", "lane_bits4(convert_int4(t > lo))",
+      *KERNEL_SCENES),
+    # kernels/texture.h
+    m("texture.v_not_flipped", "kernels/texture.h",
+      "REAL sy = ((REAL)1 - wrap01(uv.y * TO_REAL(tx->repeat_v))) * (REAL)h",
+      "REAL sy = wrap01(uv.y * TO_REAL(tx->repeat_v)) * (REAL)h", *KERNEL_SCENES, MESH),
+    m("texture.bilinear_weight", "kernels/texture.h",
+      "return mix(top, bottom, fy);", "return mix(top, bottom, fx);", *KERNEL_SCENES, MESH),
+    m("texture.repeat_axes_swapped", "kernels/texture.h",
+      "wrap01(uv.x * TO_REAL(tx->repeat_u))", "wrap01(uv.x * TO_REAL(tx->repeat_v))",
+      *KERNEL_SCENES, MESH),
+    m("texture.checker_pushed_towards_viewer", "kernels/texture.h",
+      "(p - (REAL)0.25 * size * n_f) / size", "(p + (REAL)0.25 * size * n_f) / size",
+      *KERNEL_SCENES),
+    m("texture.checker_parity", "kernels/texture.h",
+      "odd == (REAL)1 ? TO_REAL3(tx->color2) : color",
+      "odd == (REAL)0 ? TO_REAL3(tx->color2) : color",
+      *KERNEL_SCENES),
+    m("texture.blend_reversed", "kernels/texture.h",
+      "return blend * texel + ((REAL)1 - blend) * color;",
+      "return ((REAL)1 - blend) * texel + blend * color;", *KERNEL_SCENES),
+    # kernels/shading.h
+    m("shading.no_specular", "kernels/shading.h",
+      "(diffuse * ndl * c + specular * spec)", "(diffuse * ndl * c)", *KERNEL_SCENES),
+    m("shading.reflection_vector", "kernels/shading.h",
+      "REAL3 refl = (REAL)2 * ndl * n - l;", "REAL3 refl = (REAL)2 * ndl * l - n;",
+      *KERNEL_SCENES),
+    m("shading.no_attenuation_clamp", "kernels/shading.h",
+      "fmin((REAL)1, (REAL)1 / denom)", "(REAL)1 / denom", *KERNEL_SCENES),
+    m("shading.linear_quadratic_term", "kernels/shading.h",
+      "k.z * dist * dist", "k.z * dist", *KERNEL_SCENES),
+    m("shading.shadow_ray_past_the_light", "kernels/shading.h",
+      "tmax = span * ((REAL)1 - gamma_n(ERR_ROUNDINGS));", "tmax = REAL_INF;",
+      *KERNEL_SCENES, SHADOW),
+    m("shading.no_scene_ambient", "kernels/shading.h",
+      "TO_REAL(m->ambient) * c * ambient_light", "TO_REAL(m->ambient) * c", *KERNEL_SCENES),
+    m("shading.shadow_filter_ignored", "kernels/shading.h",
+      "atten * TO_REAL3(light->color) * filter *", "atten * TO_REAL3(light->color) *",
+      *KERNEL_SCENES),
+    m("shading.offset_one_side", "kernels/shading.h",
+      "return dot(w, sf->n_g) > (REAL)0 ? sf->p + d * sf->n_g : sf->p - d * sf->n_g;",
+      "return sf->p + d * sf->n_g;", *KERNEL_SCENES, HARD),
+    m("shading.cone_cap_uv_radius", "kernels/shading.h",
+      "axial_uv(q, axis, h / height, hit->part, height * tan_a)",
+      "axial_uv(q, axis, h / height, hit->part, tan_a)", *KERNEL_SCENES),
+    m("shading.cylinder_cap_uv_radius", "kernels/shading.h",
+      "axial_uv(q, axis, h / height, hit->part, radius)",
+      "axial_uv(q, axis, h / height, hit->part, height)", *KERNEL_SCENES),
+    m("shading.plane_uv_anchor_dropped", "kernels/shading.h",
+      "sf.uv = (REAL2)(dot(p - q, e1) + TO_REAL(pl->point.w),",
+      "sf.uv = (REAL2)(dot(p - q, e1),", *KERNEL_SCENES),
+    m("shading.sphere_u_axes", "kernels/shading.h",
+      "sf.uv = (REAL2)(angle_u(n.x, n.z),", "sf.uv = (REAL2)(angle_u(n.z, n.x),",
+      *KERNEL_SCENES),
+    m("shading.cone_normal_sign", "kernels/shading.h",
+      "(radial - tan_a * axis) / sqrt", "(radial + tan_a * axis) / sqrt", INTERSECT, RENDER),
+    m("shading.cylinder_bottom_cap_normal", "kernels/shading.h",
+      "sf.n_g = hit->part == 2 ? axis : -axis;", "sf.n_g = axis;", INTERSECT, RENDER),
+    m("shading.box_uv_axes", "kernels/shading.h",
+      "int a1 = (axis + 1) % 3, a2 = (axis + 2) % 3;",
+      "int a1 = (axis + 2) % 3, a2 = (axis + 1) % 3;", *KERNEL_SCENES),
+    m("shading.vertex_normal_index", "kernels/shading.h",
+      "b1 * TO_REAL3(s->normals[tri.v1])", "b1 * TO_REAL3(s->normals[tri.v2])", MESH),
+    m("shading.vertex_uv_index", "kernels/shading.h",
+      "b2 * TO_REAL2(s->uvs[tri.v2])", "b2 * TO_REAL2(s->uvs[tri.v1])", MESH),
+    # kernels/render.cl
+    m("render.reflection_half", "kernels/render.cl",
+      "next.d = ray.d - (REAL)2 * dot(ray.d, n) * n;", "next.d = ray.d - dot(ray.d, n) * n;",
+      *KERNEL_SCENES),
+    m("render.tir_weight_lost", "kernels/render.cl",
+      "kr += kt;  // total internal reflection", "// total internal reflection", *KERNEL_SCENES,
+      HARD),
+    m("render.refraction_root_sign", "kernels/render.cl",
+      "(eta * cos_i - sqrt(k)) * n", "(eta * cos_i + sqrt(k)) * n", *KERNEL_SCENES),
+    m("render.eta_inverted_on_entry", "kernels/render.cl",
+      "return n1 / ior_m;", "return ior_m / n1;", *KERNEL_SCENES),
+    m("render.one_bounce_short", "kernels/render.cl",
+      "if (task.depth < MAX_DEPTH) {", "if (task.depth + 1 < MAX_DEPTH) {", *KERNEL_SCENES),
+    m("render.reflection_unweighted", "kernels/render.cl",
+      "spawn(stack, &sp, &next, &sf, task.weight * kr, task.depth);",
+      "spawn(stack, &sp, &next, &sf, task.weight, task.depth);", *KERNEL_SCENES),
+    m("render.normal_not_faced", "kernels/render.cl",
+      "REAL3 n = dot(sf.n_s, ray.d) < (REAL)0 ? sf.n_s : -sf.n_s;", "REAL3 n = sf.n_s;",
+      *KERNEL_SCENES),
+    m("render.checker_in_camera_frame", "kernels/render.cl",
+      "surface_color(&s, m, sf.p + TO_REAL3(camera->world), n_f, sf.uv)",
+      "surface_color(&s, m, sf.p, n_f, sf.uv)", *KERNEL_SCENES),
+    m("render.background_unweighted", "kernels/render.cl",
+      "sum += task.weight * background;", "sum += background;", *KERNEL_SCENES),
+    # clray/device
+    m("pack.plane_anchor_dropped", "clray/device/pack.py",
+      'planes[i]["point"] = _f4(nearest, np.dot(shift, e1))',
+      'planes[i]["point"] = _f4(nearest, 0.0)', *KERNEL_SCENES),
+    m("pack.cone_bounds_radius", "clray/device/pack.py",
+      'ext = _disc_extent(axis, length * float(rec["apex_tan"][3]))',
+      'ext = _disc_extent(axis, float(rec["apex_tan"][3]))', INTERSECT),
+    m("pack.cylinder_bounds_without_radius", "clray/device/pack.py",
+      "lo.append(np.minimum(base, top) - ext)", "lo.append(np.minimum(base, top))", INTERSECT),
+    m("pack.cone_half_angle_halved", "clray/device/pack.py",
+      "np.tan(np.radians(o.angle))", "np.tan(np.radians(o.angle) / 2)", INTERSECT, RENDER),
+    m("pack.attenuation_reversed", "clray/device/pack.py",
+      '_f4(light.attenuation)', '_f4(light.attenuation[::-1])', *KERNEL_SCENES),
+    m("layout.texture_repeat_fields_swapped", "clray/device/layout.py",
+      'TEXTURE = _struct([("color2", _F4), ("size", "<f4"), ("repeat_u", "<f4"), ("repeat_v",',
+      'TEXTURE = _struct([("color2", _F4), ("size", "<f4"), ("repeat_v", "<f4"), ("repeat_u",',
+      LAYOUT, INTERSECT),
+    # clray/accel
+    m("context.fp64_ignored", "clray/device/context.py",
+      'return "cl_khr_fp64" in device.extensions.split() or device.double_fp_config != 0',
+      "return False", RENDER, HARD),
+    m("bvh_device.bin_index_clamped_short", "clray/accel/_bvh_cl.py",
+      "return clamp((int)((c - cmin) * scale), 0, N_BINS - 1);",
+      "return clamp((int)((c - cmin) * scale), 0, N_BINS - 2);", BVH),
+    m("bvh_host.bounds_not_rounded_out", "clray/accel/bvh.py",
+      "np.where(hi32 < hi.T, np.nextafter(hi32, np.float32(np.inf)), hi32)", "hi32", BVH),
+    m("bvh_host.sah_one_face", "clray/accel/bvh.py",
+      "return e[..., 0] * e[..., 1] + e[..., 1] * e[..., 2] + e[..., 2] * e[..., 0]",
+      "return e[..., 0] * e[..., 1]", BVH),
+    m("wide.stack_size_without_extra", "clray/accel/wide.py",
+      "np.repeat(pushed[lo:hi] + extra[lo:hi], inner.sum(axis=1))",
+      "np.repeat(pushed[lo:hi], inner.sum(axis=1))", WIDE, INTERSECT),
+    # clray/scene
+    m("model.camera_handedness", "clray/scene/model.py",
+      "right = np.cross(forward, np.asarray(self.up, dtype=np.float64))",
+      "right = np.cross(np.asarray(self.up, dtype=np.float64), forward)",
+      *KERNEL_SCENES, REFERENCE, HARD),
+    m("load.directions_not_normalised", "clray/scene/load.py",
+      "    a = a / np.linalg.norm(a)\n", "", LOAD, *KERNEL_SCENES),
+    m("obj.indices_not_one_based", "clray/scene/obj.py", "index = raw - 1", "index = raw", OBJ),
+    m("scale.ratio_limit", "clray/scene/scale.py", "RATIO_LIMIT = 1e4", "RATIO_LIMIT = 1e5",
+      SCALE, HARD),
+    # clray (top level)
+    m("image_io.srgb_threshold", "clray/image_io.py",
+      "np.where(linear <= 0.0031308, 12.92 * linear,",
+      "np.where(linear <= 0.04045, 12.92 * linear,",
+      IMAGE_IO, SRGB),
+    m("render.launch_rows_off_by_one", "clray/render.py",
+      "band = min(rows, height - row0)", "band = min(rows, height - row0 - 1)", RENDER),
+    m("metrics.count_over_inclusive", "clray/metrics.py",
+      "close = (np.abs(_diff(a, b)) <= threshold) | (a == b)",
+      "close = (np.abs(_diff(a, b)) < threshold) | (a == b)", METRICS),
+    m("reference.no_attenuation_clamp", "clray/reference.py",
+      "np.minimum(1.0, 1.0 / denom)", "1.0 / denom", REFERENCE, FEATURES),
+    m("reference.specular_from_direction", "clray/reference.py",
+      "rv = _dot(r, -d)", "rv = _dot(r, d)", REFERENCE),
+)
+
+
+@dataclass
+class Outcome:
+    name: str
+    path: str
+    status: str  # killed, survived, stale (the snippet no longer matches), error
+    detail: str
+    seconds: float
+    tests: tuple[str, ...]
+
+
+def _scratch_copy(dest: Path, rev: str | None) -> None:
+    if rev is not None:
+        archive = subprocess.run(["git", "archive", "--format=tar", rev], cwd=ROOT,
+                                 check=True, capture_output=True).stdout
+        subprocess.run(["tar", "-x", "-C", str(dest)], input=archive, check=True)
+        return
+    listed = subprocess.run(["git", "ls-files", "-z", "--cached", "--others",
+                             "--exclude-standard"], cwd=ROOT, check=True,
+                            capture_output=True).stdout.decode()
+    for rel in filter(None, listed.split("\0")):
+        src = ROOT / rel
+        if src.is_file():  # a tracked file deleted in the working tree is left out
+            (dest / rel).parent.mkdir(parents=True, exist_ok=True)
+            shutil.copy2(src, dest / rel)
+
+
+def _run_tests(scratch: Path, tests: tuple[str, ...], env: dict[str, str],
+               timeout: float) -> tuple[int | None, str]:
+    cmd = [sys.executable, "-m", "pytest", "-x", "-q", "-p", "no:cacheprovider", *tests]
+    try:
+        done = subprocess.run(cmd, cwd=scratch, env=env, capture_output=True, text=True,
+                              timeout=timeout)
+    except subprocess.TimeoutExpired:
+        return None, f"timed out after {timeout:.0f} s"
+    lines = (done.stdout + done.stderr).strip().splitlines()
+    failed = [ln for ln in lines if ln.startswith(("FAILED", "ERROR"))]
+    return done.returncode, (failed[0] if failed else lines[-1] if lines else "")[:200]
+
+
+def _classify(code: int | None) -> str:
+    # pytest: 1 tests failed; 2-5 interrupted, internal or usage errors, no tests collected.
+    if code is None or code == 1 or code < 0:
+        return "killed"
+    return "survived" if code == 0 else "error"
+
+
+def run(mutations: list[Mutation], rev: str | None, timeout: float, baseline: bool
+        ) -> list[Outcome]:
+    outcomes = []
+    with tempfile.TemporaryDirectory(prefix="clray-mutate-") as tmp:
+        scratch = Path(tmp) / "repo"
+        scratch.mkdir()
+        _scratch_copy(scratch, rev)
+        env = dict(os.environ, PYTHONPATH=str(scratch), CLRAY_REQUIRE_DEVICE="1",
+                   POCL_CACHE_DIR=str(Path(tmp) / "pocl-cache"))
+        check = subprocess.run([sys.executable, "-c", "import clray; print(clray.__file__)"],
+                               cwd=scratch, env=env, check=True, capture_output=True, text=True)
+        if not Path(check.stdout.strip()).is_relative_to(scratch):
+            sys.exit(f"clray imports from {check.stdout.strip()}, not the scratch copy")
+        if baseline:
+            union = tuple(sorted({t for mu in mutations for t in mu.tests}))
+            print(f"baseline: {len(union)} test files, unmutated", flush=True)
+            code, detail = _run_tests(scratch, union, env, timeout * 4)
+            if code != 0:
+                sys.exit(f"the unmutated tests fail (exit {code}): {detail}")
+        for i, mu in enumerate(mutations, start=1):
+            target = scratch / mu.path
+            original = target.read_text()
+            start = time.monotonic()
+            if original.count(mu.old) != 1:
+                status, detail = "stale", f"snippet found {original.count(mu.old)} times"
+            else:
+                target.write_text(original.replace(mu.old, mu.new))
+                try:
+                    code, detail = _run_tests(scratch, mu.tests, env, timeout)
+                finally:
+                    target.write_text(original)
+                status = _classify(code)
+            seconds = time.monotonic() - start
+            outcomes.append(Outcome(mu.name, mu.path, status, detail, seconds, mu.tests))
+            print(f"[{i}/{len(mutations)}] {status:8} {mu.name} ({seconds:.0f} s)", flush=True)
+    return outcomes
+
+
+def table(outcomes: list[Outcome]) -> str:
+    width = max(len(o.name) for o in outcomes)
+    rows = [f"{'mutation':{width}}  {'status':8}  {'s':>5}  detail"]
+    rows += [f"{o.name:{width}}  {o.status:8}  {o.seconds:5.0f}  {o.detail}" for o in outcomes]
+    killed = sum(o.status == "killed" for o in outcomes)
+    rows.append(f"score: {killed}/{len(outcomes)} killed")
+    return "\n".join(rows)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m tests.mutate", description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--only", nargs="+", metavar="NAME",
+                        help="mutations whose name is, or starts with, one of these")
+    parser.add_argument("--list", action="store_true", help="list the mutations and exit")
+    parser.add_argument("--rev", help="test the files of this commit, not the working tree")
+    parser.add_argument("--json", type=Path, help="write the report here (default: stdout)")
+    parser.add_argument("--timeout", type=float, default=900.0,
+                        help="seconds per mutation's test run (default 900)")
+    parser.add_argument("--no-baseline", action="store_true",
+                        help="skip the unmutated run of every selected test file")
+    args = parser.parse_args(argv)
+    chosen = [mu for mu in MUTATIONS
+              if not args.only or any(mu.name == o or mu.name.startswith(o) for o in args.only)]
+    if args.list:
+        for mu in chosen:
+            print(f"{mu.name:44} {mu.path:24} {' '.join(mu.tests)}")
+        return 0
+    if not chosen:
+        parser.error("no mutation matches --only")
+    outcomes = run(chosen, args.rev, args.timeout, not args.no_baseline)
+    print(table(outcomes))
+    report = json.dumps({"killed": sum(o.status == "killed" for o in outcomes),
+                         "total": len(outcomes),
+                         "mutations": [asdict(o) for o in outcomes]}, indent=1)
+    if args.json:
+        args.json.write_text(report + "\n", encoding="utf-8")
+    else:
+        print(report)
+    return 0 if all(o.status == "killed" for o in outcomes) else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -39,7 +39,20 @@ class HardCase:
 def primary_rays(scene: Scene) -> tuple[np.ndarray, np.ndarray]:
     """(eye, unit directions (H, W, 3)) of the pixel-centre rays, as docs/rendering.md fixes."""
     w, h = scene.render.width, scene.render.height
-    forward, right, up, half_w, half_h = scene.camera.basis(w, h)
+    cam = scene.camera
+    # The basis from the formula itself, not the model's Camera.basis that the kernels use.
+    eye = np.asarray(cam.position, dtype=np.float64)
+    forward = np.asarray(cam.look_at, dtype=np.float64) - eye
+    forward /= np.linalg.norm(forward)
+    right = np.cross(forward, np.asarray(cam.up, dtype=np.float64))
+    right /= np.linalg.norm(right)
+    up = np.cross(right, forward)
+    if cam.hfov is not None:
+        half_w = math.tan(math.radians(cam.hfov) / 2)
+        half_h = half_w * h / w
+    else:
+        half_h = math.tan(math.radians(cam.vfov) / 2)
+        half_w = half_h * w / h
     sx = (np.arange(w) + 0.5)[None, :, None]
     sy = (np.arange(h) + 0.5)[:, None, None]
     d = forward + (2 * sx / w - 1) * half_w * right + (1 - 2 * sy / h) * half_h * up
@@ -273,6 +286,35 @@ def touching_spheres() -> HardCase:
         # Mirror-symmetric about x = 0: the image equals its left-right flip.
         off = int(np.count_nonzero(np.abs(image - image[:, ::-1]).max(-1) > 2 / 255))
         assert off <= 2, f"{off} pixels break the left-right symmetry"
+        # And the lit values: 0.1 + 0.9 n.l where the light is seen, 0.1 in shadow, away
+        # from silhouettes, shadow edges and the terminator.
+        eye, d = primary_rays(s)
+        balls = ((-1.0, 0.0, 0.0), (1.0, 0.0, 0.0))
+        light = np.array([0.0, 4.0, 4.0])
+        t_balls = [sphere_t(eye, d, c, 1.0) for c in balls]
+        t_floor = np.where(d[..., 1] < 0, (-1 - eye[1]) / np.where(d[..., 1] < 0, d[..., 1], -1),
+                           np.inf)
+        t = np.minimum(np.minimum(*t_balls), t_floor)
+        clear = np.isfinite(t) & np.all([np.abs(impact(eye, d, c) - 1) > 0.02 for c in balls],
+                                        axis=0)
+        p = eye + np.where(np.isfinite(t), t, 0)[..., None] * d
+        n = np.where((t == t_floor)[..., None], [0.0, 1.0, 0.0],
+                     p - np.where((t == t_balls[0])[..., None], balls[0], balls[1]))
+        to_light = light - p
+        ndl = np.sum(n * to_light, axis=-1) / np.linalg.norm(to_light, axis=-1)
+        lit = np.ones(t.shape, bool)
+        for c in balls:
+            # The shadow segment p -> light against each ball: its closest approach.
+            f = np.asarray(c) - p
+            along = np.clip(np.sum(f * to_light, -1) / np.sum(to_light * to_light, -1), 0, 1)
+            gap = np.linalg.norm(f - along[..., None] * to_light, axis=-1) - 1
+            own = np.linalg.norm(f, axis=-1) < 1.001  # p lies on this ball
+            clear &= own | (np.abs(gap) > 0.02)
+            lit &= own | (gap > 0)
+        clear &= np.abs(ndl) > 0.02
+        expected = np.where(lit & (ndl > 0), 0.1 + 0.9 * np.maximum(ndl, 0), 0.1)
+        assert (clear & lit & (ndl > 0)).sum() > 500 and (clear & ~lit & (t == t_floor)).any()
+        close(image, clear, expected[clear][:, None], 1e-4, "lit spheres and floor")
 
     return HardCase("touching_spheres", scene, check, max_off=0)
 
@@ -540,6 +582,15 @@ def cone_apex() -> HardCase:
         # is the axis, by the documented limit choice (docs/rendering.md: apex normal).
         assert np.allclose(image[23, 25], 0.1 + 0.9 * math.sin(math.radians(30)), atol=2 / 255)
         _flip_symmetric(image, (0, 1), 4, "apex-on cone")
+        # Every side point faces the light at 60 degrees: one value over the whole disc the
+        # cone shows (its base rim has radius 2 tan 30 at distance 7), the apex pixel aside.
+        _, d = primary_rays(s)
+        rim = 2 * math.tan(math.radians(30))
+        at_base = np.hypot(d[..., 0], d[..., 1]) / -d[..., 2] * 7
+        side = at_base < rim * 0.98
+        side[23, 23] = False
+        close(image, side, 0.1 + 0.9 * 0.5, 1e-5, "side lit at n.l = 1/2")
+        close(image, at_base > rim * 1.02, (0, 0, 0), 0.0, "beside the cone")
 
     # One pixel: the centre ray meets the apex, whose normal is a limit choice, and float may
     # land a rounding away from it on the side.
@@ -556,7 +607,19 @@ def cylinder_rim() -> HardCase:
     def check(image: np.ndarray, s: Scene) -> None:
         # The centre row runs in the top cap's plane, grazing the rim.
         _flip_symmetric(image, (1,), 2, "rim-on cylinder")
-        _, d = primary_rays(s)
+        eye, d = primary_rays(s)
+        # The front of the side below the rim row: 0.1 + 0.9 n.l with n = (x, 0, z) there.
+        light = np.array([0.0, 0.3, 1.0]) / math.hypot(0.3, 1.0)
+        dxz = np.hypot(d[..., 0], d[..., 2])
+        u = d[..., [0, 2]] / dxz[..., None]
+        along = -(u[..., 1] * eye[2])  # the closest approach of the xz-ray to the axis
+        miss2 = eye[2] ** 2 - along**2
+        t_xz = along - np.sqrt(np.maximum(1 - miss2, 0))
+        hit = np.stack([u[..., 0] * t_xz, eye[2] + u[..., 1] * t_xz], axis=-1)
+        y = eye[1] + d[..., 1] * t_xz / dxz
+        front = (miss2 < 0.98**2) & (y < 0.98) & (y > -0.98)
+        expected = 0.1 + 0.9 * (hit[..., 1] * light[2])
+        close(image, front, expected[front][:, None], 1e-4, "lit front of the side")
         x_at = np.abs(d[..., 0] / d[..., 2] * 4)
         close(image, (d[..., 1] > 0) | (x_at > 1.01), (0, 0, 0), 0.0, "above and beside")
 

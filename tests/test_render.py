@@ -219,13 +219,18 @@ def test_lone_sphere_follows_lambert(cl_device) -> None:
 
 @pytest.mark.parametrize("scene_file", sorted((ROOT / "scenes").glob("*.toml")),
                          ids=lambda p: p.stem)
-@pytest.mark.parametrize("precision", ["float", "double"])
-def test_every_example_scene_renders_finite(cl_device, scene_file: Path, precision: str) -> None:
+def test_every_example_scene_renders_alike_in_float_and_double(cl_device,
+                                                                scene_file: Path) -> None:
+    # The double build is the same algorithm with more bits: the float image may differ only
+    # where float32 resolves an edge differently. Measured at most 1 such pixel per scene
+    # (glass, textured); allowed 4.
     scene = load_scene(scene_file)
-    result = render(scene, RenderSettings(width=64, height=36, spp=1, precision=precision))
-    assert result.image.shape == (36, 64, 3)
-    assert nonfinite_count(result.image) == 0
-    assert result.image.max() > 0.05  # something was lit
+    images = [render(scene, RenderSettings(width=64, height=36, spp=1, precision=p)).image
+              for p in ("float", "double")]
+    for image in images:
+        assert image.shape == (36, 64, 3)
+        assert nonfinite_count(image) == 0
+    assert count_over(*images, 2 / 255) <= 4
 
 
 def test_double_build_agrees_with_float_on_spheres(cl_device) -> None:
@@ -269,11 +274,16 @@ def test_only_used_features_are_compiled(cl_device) -> None:
     assert "-DMAX_DEPTH=0" in options  # nothing reflects or refracts: no ray tree at all
 
 
-def test_ray_counts_add_up(cl_device) -> None:
-    scene = _scene([FLOOR, MIRROR], [M.Plane((0, 0, 0), (0, 1, 0), 0),
-                                     M.Sphere((0, 1, 0), 1, 1)], [POINT, SUN], max_depth=2)
+def test_ray_counts_match_the_scene(cl_device) -> None:
+    # Looking straight down at a mirror floor: every primary ray hits it and spawns one
+    # reflection, which goes up and misses. The sun above gets one shadow ray per floor hit;
+    # the point light below the floor is on its unlit side and gets none, and the missing
+    # reflections spawn nothing.
+    mirror = M.Material("mirror", (0.9, 0.9, 0.9), diffuse=0.5, reflect=0.5)
+    scene = M.Scene(None, M.RenderOptions(W, H, 1, 2, (0.2, 0.3, 0.4)),
+                    M.Camera((0.0, 3.0, 0.0), (0.0, 0.0, 0.0), up=(0.0, 0.0, -1.0), vfov=60.0),
+                    (mirror,), (SUN, M.PointLight((0.0, -2.0, 0.0))),
+                    (M.Plane((0, 0, 0), (0, 1, 0), 0),))
     rays = render(scene).stats["rays"]
-    assert rays["primary"] == W * H
-    assert 0 < rays["secondary"] <= 2 * W * H
-    assert 0 < rays["shadow"] <= 2 * (rays["primary"] + rays["secondary"])
-    assert rays["total"] == rays["primary"] + rays["secondary"] + rays["shadow"]
+    assert (rays["primary"], rays["secondary"], rays["shadow"]) == (W * H, W * H, W * H)
+    assert rays["total"] == 3 * W * H

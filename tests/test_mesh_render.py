@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from clray.metrics import count_over, nonfinite_count, rmse
+from clray.metrics import count_over, max_abs, nonfinite_count, rmse
 from clray.reference import render_reference
 from clray.render import render
 from clray.scene import model as M
@@ -186,9 +186,9 @@ def mesh_scene_file(folder: Path, transform: str = "") -> Path:
 
 def test_obj_mesh_with_normals_uvs_and_texture_matches_reference(tmp_path):
     """Smooth shading, an image texture through vertex UVs, a shadow on a mirror floor and
-    its reflection: the kernel against the float64 reference at 64 x 48. Tolerances: RMSE
-    below 1e-4 (float32 shading error is ~1e-6) and at most 3 pixels (1 %) off by more than
-    2/255, for pixels whose ray grazes a silhouette or shadow edge within float32 rounding."""
+    its reflection: the kernel against the float64 reference at 64 x 48. Tolerances: 4x
+    what the scene measured on PoCL (RMSE 2.36e-7, largest error 3.72e-6, no outlier pixel),
+    so a wrong normal or texture lookup on a handful of pixels fails."""
     scene = load_scene(mesh_scene_file(tmp_path))
     mesh = scene.objects[1]
     assert isinstance(mesh, M.Mesh) and mesh.normals is not None and mesh.uvs is not None
@@ -197,8 +197,8 @@ def test_obj_mesh_with_normals_uvs_and_texture_matches_reference(tmp_path):
     assert nonfinite_count(got) == 0
     # The texture shows: the ball is not one flat colour.
     assert np.ptp(got[20:30, 28:36].reshape(-1, 3), axis=0).max() > 0.1
-    assert rmse(got, want) < 1e-4
-    assert count_over(got, want, 2 / 255) <= 3
+    assert rmse(got, want) < 9.5e-7
+    assert max_abs(got, want) < 1.5e-5
 
 
 def test_mesh_transform_renders_like_pretransformed_vertices(tmp_path):

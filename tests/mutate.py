@@ -57,6 +57,7 @@ STUDY = "tests/test_study.py"
 DEVICE = "tests/test_device_fixture.py"
 # The kernel-vs-reference scenes and the closed forms, without test_render.py's slower checks.
 KERNEL_SCENES = (f"{RENDER}::test_kernel_matches_reference",
+                 f"{RENDER}::test_plane_under_directional_light_is_uniform",
                  f"{RENDER}::test_lone_sphere_follows_lambert", FEATURES)
 
 

@@ -10,6 +10,24 @@ EXIT_USAGE = 2
 EXIT_SCENE = 3
 EXIT_OPENCL = 4
 
+_ESCAPES = {"\n": "\\n", "\r": "\\r", "\t": "\\t"}
+
+
+def _escape(char: str) -> str:
+    if char in _ESCAPES:
+        return _ESCAPES[char]
+    code = ord(char)
+    return f"\\x{code:02x}" if code < 0x100 else f"\\u{code:04x}" if code < 0x10000 else \
+        f"\\U{code:08x}"
+
+
+def one_line(text: str) -> str:
+    """`text` with every non-printable character escaped: a file name holding a newline (or a
+    line separator) must not split a message into lines that look like separate errors."""
+    if text.isprintable():
+        return text
+    return "".join(c if c.isprintable() else _escape(c) for c in text)
+
 
 class ClrayError(Exception):
     """Base class: the message is one line, fit to print without a traceback."""
@@ -27,7 +45,7 @@ class SceneError(ClrayError):
         self.key = key
         self.message = message
         parts = [p for p in (None if file is None else Path(file).name, key, message) if p]
-        super().__init__(": ".join(parts))
+        super().__init__(one_line(": ".join(parts)))
 
 
 class DeviceError(ClrayError):

@@ -477,7 +477,7 @@ ERRORS = [
     (scene(camera={**CAMERA, "hfov": 0}), "camera.hfov: must be in (0, 180), got 0"),
     (scene(camera={**CAMERA, "fov": 40}), "camera.fov: unknown key (expected one of: position,"),
     # materials and textures
-    (scene(materials={"glass": {"ior": 0}}), "materials.glass.ior: must be > 0, got 0"),
+    (scene(materials={"glass": {"ior": 0}}), "materials.glass.ior: must be >= 0.01, got 0"),
     (
         scene(materials={"glass": {"ior": "1.5"}}),
         'materials.glass.ior: expected a number, got "1.5"',
@@ -610,7 +610,7 @@ ERRORS = [
         'objects[2].material: unknown material "glas" (defined: none)',
     ),
     (obj(**SPHERE, material=1), "objects[2].material: expected a material name or an inline table"),
-    (obj(**SPHERE, material={"ior": -1}), "objects[2].material.ior: must be > 0, got -1"),
+    (obj(**SPHERE, material={"ior": -1}), "objects[2].material.ior: must be >= 0.01, got -1"),
     (obj(**SPHERE, material={"shine": 3}), "objects[2].material.shine: unknown key"),
     # meshes
     (obj(type="mesh"), "objects[2]: a mesh needs file or vertices + faces"),

@@ -2,7 +2,8 @@
 
 Every problem becomes one `SceneError` naming the file and the key path
 (`objects[3].radius`), so a user can find and fix it without reading a traceback.
-The format itself is documented in docs/scene_format.md.
+The format itself, and the limits of clray.scene.limits, are documented in
+docs/scene_format.md.
 """
 
 from __future__ import annotations
@@ -10,7 +11,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
-import tomllib
+import re
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -18,6 +19,8 @@ from typing import Any
 import numpy as np
 
 from clray.errors import SceneError
+from clray.scene import limits as L
+from clray.scene.files import UnreadableFile, open_regular, read_at_most, read_regular
 from clray.scene.model import (
     Box,
     Camera,
@@ -35,16 +38,19 @@ from clray.scene.model import (
     Sphere,
     Texture,
     Triangle,
+    unit,
 )
-from clray.scene.obj import read_obj
+from clray.scene.obj import ObjMesh, parse_obj
+from clray.scene.parse import parse_scene_text
 from clray.scene.scale import scene_warnings
+from clray.scene.texture import TextureError, read_texture
 
 Vec3 = tuple[float, float, float]
 
-_MAX_SIZE = 16384
-_MAX_SPP = 4096
-_MAX_DEPTH = 16
-_MAX_SEED = 2**32 - 1
+_BARE_KEY = re.compile(r"[A-Za-z0-9_-]+")
+_PLAIN_NAME = re.compile(r"[\w./+-]{1,100}")
+_SHOW_ITEMS = 8  # array elements shown in a message
+_SHOW_DEPTH = 3  # nested arrays shown in a message
 
 _TOP_KEYS = ("render", "camera", "materials", "lights", "objects")
 _RENDER_KEYS = ("width", "height", "spp", "max_depth", "background", "ambient", "seed")
@@ -90,27 +96,10 @@ def load_scene(path: str | Path) -> Scene:
             path, None, f"unknown scene file type {path.suffix!r} (use .toml or .json)"
         )
     try:
-        raw = path.read_bytes()
-    except OSError as exc:
-        raise SceneError(path, None, f"cannot read scene file: {exc.strerror}") from None
-    try:
-        text = raw.decode("utf-8")
-    except UnicodeDecodeError as exc:
-        raise SceneError(path, None, f"not valid UTF-8 (byte {exc.start})") from None
-    if suffix == ".toml":
-        try:
-            data = tomllib.loads(text)
-        except tomllib.TOMLDecodeError as exc:
-            # The message already ends in "(at line L, column C)".
-            raise SceneError(path, None, f"invalid TOML: {exc}") from None
-    else:
-        try:
-            data = json.loads(text)
-        except json.JSONDecodeError as exc:
-            raise SceneError(
-                path, None, f"invalid JSON: {exc.msg} (at line {exc.lineno}, column {exc.colno})"
-            ) from None
-    return scene_from_dict(data, path)
+        raw = read_regular(path, L.MAX_SCENE_BYTES)
+    except UnreadableFile as exc:
+        raise SceneError(path, None, f"cannot read scene file: {exc}") from None
+    return scene_from_dict(parse_scene_text(raw, suffix, path), path)
 
 
 def scene_from_dict(data: dict, path: Path | None = None) -> Scene:
@@ -119,16 +108,23 @@ def scene_from_dict(data: dict, path: Path | None = None) -> Scene:
     return _Loader(path).scene(data)
 
 
-def _show(value: Any) -> str:
+def _show(value: Any, depth: int = 0) -> str:
     """A value as the user wrote it, short enough for a one-line message."""
     if isinstance(value, bool):
         text = "true" if value else "false"
     elif isinstance(value, str):
-        text = json.dumps(value)
+        text = json.dumps(value[:100], ensure_ascii=False)
+    elif isinstance(value, int) and value.bit_length() > 200:
+        # repr() of a huge integer is slow, and past 4300 digits refused.
+        text = f"an integer of about {int(value.bit_length() * math.log10(2)) + 1} digits"
     elif isinstance(value, int | float):
         text = repr(value)
     elif isinstance(value, list | tuple):
-        text = "[" + ", ".join(_show(v) for v in value) + "]"
+        if depth >= _SHOW_DEPTH:
+            text = "[...]"
+        else:
+            shown = [_show(v, depth + 1) for v in value[:_SHOW_ITEMS]]
+            text = "[" + ", ".join(shown + ["..."] * (len(value) > _SHOW_ITEMS)) + "]"
     elif isinstance(value, dict):
         text = "a table"
     else:
@@ -136,21 +132,45 @@ def _show(value: Any) -> str:
     return text if len(text) <= 60 else text[:57] + "..."
 
 
+def _key(prefix: str | None, name: str) -> str:
+    """`prefix.name`, the name quoted unless it is a bare TOML key (an empty key, or one with
+    dots or newlines, must stay visible and unambiguous)."""
+    shown = name if _BARE_KEY.fullmatch(name) and len(name) <= 60 else _show(name)
+    return f"{prefix}.{shown}" if prefix else shown
+
+
+def _name(name: str) -> str:
+    """A file name for a message: as written if plain, else quoted and escaped."""
+    return name if _PLAIN_NAME.fullmatch(name) else _show(name)
+
+
 def _is_number(value: Any) -> bool:
     # bool is an int subclass in Python, but `true` is not a number in a scene file.
     return isinstance(value, int | float) and not isinstance(value, bool)
 
 
-def _unit(v: Vec3) -> Vec3:
-    a = np.asarray(v, dtype=np.float64)
-    a = a / np.linalg.norm(a)
-    return (float(a[0]), float(a[1]), float(a[2]))
+def _out_of_range(value: int | float, limit: float) -> str | None:
+    """Why a number is unusable, or None. Integers are compared exactly: float() of one
+    beyond the double range raises OverflowError."""
+    if isinstance(value, float) and not math.isfinite(value):
+        return "must be finite"
+    if abs(value) > limit:
+        return f"must be at most {limit:g} in magnitude"
+    return None
 
 
 class _Loader:
     def __init__(self, path: Path | None) -> None:
         self.path = None if path is None else Path(path)
         self.base = Path.cwd() if path is None else Path(path).parent
+        self.warnings: list[str] = []
+        # Files read once per scene, by (device, inode): a scene naming one texture or mesh a
+        # thousand times must not decode it a thousand times, nor count it against the
+        # texel limit more than once.
+        self.textures: dict[tuple[int, int], np.ndarray] = {}
+        self.meshes: dict[tuple[int, int], ObjMesh] = {}
+        self.texels_left = L.MAX_TEXELS
+        self.triangles_left = L.MAX_TRIANGLES
 
     def error(self, key: str | None, message: str) -> SceneError:
         return SceneError(self.path, key, message)
@@ -165,26 +185,37 @@ class _Loader:
     def keys(
         self, table: dict, key: str | None, allowed: tuple[str, ...], required: tuple[str, ...]
     ) -> None:
-        prefix = f"{key}." if key else ""
         for name in table:
             if name not in allowed:
                 expected = ", ".join(allowed)
-                raise self.error(f"{prefix}{name}", f"unknown key (expected one of: {expected})")
+                raise self.error(_key(key, name), f"unknown key (expected one of: {expected})")
         for name in required:
             if name not in table:
-                raise self.error(f"{prefix}{name}", "missing required key")
+                raise self.error(_key(key, name), "missing required key")
 
-    def number(self, value: Any, key: str) -> float:
+    def number(self, value: Any, key: str, limit: float = L.MAX_MAGNITUDE) -> float:
         if not _is_number(value):
             raise self.error(key, f"expected a number, got {_show(value)}")
-        if not math.isfinite(value):
-            raise self.error(key, f"must be finite, got {_show(value)}")
+        problem = _out_of_range(value, limit)
+        if problem:
+            raise self.error(key, f"{problem}, got {_show(value)}")
         return float(value)
 
-    def at_least(self, value: Any, key: str, low: float, *, strict: bool = False) -> float:
+    def bounded(self, value: Any, key: str, low: float, high: float = L.MAX_MAGNITUDE) -> float:
         x = self.number(value, key)
-        if x < low or (strict and x == low):
-            raise self.error(key, f"must be {'>' if strict else '>='} {low:g}, got {_show(value)}")
+        if x < low:
+            raise self.error(key, f"must be >= {low:g}, got {_show(value)}")
+        if x > high:
+            raise self.error(key, f"must be <= {high:g}, got {_show(value)}")
+        return x
+
+    def length(self, value: Any, key: str) -> float:
+        """A strictly positive length, within float32's normal range."""
+        x = self.number(value, key)
+        if x <= 0:
+            raise self.error(key, f"must be > 0, got {_show(value)}")
+        if x < L.MIN_LENGTH:
+            raise self.error(key, f"must be >= {L.MIN_LENGTH:g}, got {_show(value)}")
         return x
 
     def open_range(self, value: Any, key: str, low: float, high: float) -> float:
@@ -203,7 +234,7 @@ class _Loader:
         if not isinstance(value, int) or isinstance(value, bool):
             raise self.error(key, f"expected an integer, got {_show(value)}")
         if not low <= value <= high:
-            raise self.error(key, f"must be an integer in [{low}, {high}], got {value}")
+            raise self.error(key, f"must be an integer in [{low}, {high}], got {_show(value)}")
         return value
 
     def boolean(self, value: Any, key: str) -> bool:
@@ -216,43 +247,57 @@ class _Loader:
             raise self.error(key, f"expected a string, got {_show(value)}")
         return value
 
-    def numbers(self, value: Any, key: str, n: int) -> tuple[float, ...]:
+    def numbers(
+        self, value: Any, key: str, n: int, limit: float = L.MAX_MAGNITUDE
+    ) -> tuple[float, ...]:
         if (
             not isinstance(value, list | tuple)
             or len(value) != n
             or not all(_is_number(v) for v in value)
         ):
             raise self.error(key, f"expected {n} numbers, got {_show(value)}")
-        if not all(math.isfinite(v) for v in value):
-            raise self.error(key, f"must be finite, got {_show(value)}")
+        for v in value:
+            problem = _out_of_range(v, limit)
+            if problem:
+                raise self.error(key, f"{problem}, got {_show(value)}")
         return tuple(float(v) for v in value)
 
     def vec3(self, value: Any, key: str) -> Vec3:
         x, y, z = self.numbers(value, key, 3)
         return (x, y, z)
 
-    def color(self, value: Any, key: str) -> Vec3:
-        v = self.vec3(value, key)
-        if min(v) < 0:
+    def non_negative(self, value: Any, key: str, limit: float = L.MAX_MAGNITUDE) -> Vec3:
+        x, y, z = self.numbers(value, key, 3)
+        if min(x, y, z) < 0:
             raise self.error(key, f"must be >= 0, got {_show(value)}")
-        return v
+        if max(x, y, z) > limit:
+            raise self.error(key, f"must be <= {limit:g}, got {_show(value)}")
+        return (x, y, z)
+
+    def color(self, value: Any, key: str) -> Vec3:
+        return self.non_negative(value, key, L.MAX_COLOR)
 
     def direction(self, value: Any, key: str) -> Vec3:
         v = self.vec3(value, key)
         if not any(v):
             raise self.error(key, f"must be a nonzero vector, got {_show(value)}")
-        return _unit(v)
+        x, y, z = unit(v).tolist()
+        return (x, y, z)
 
-    def file(self, value: Any, key: str) -> Path:
+    def open_file(self, value: Any, key: str, max_bytes: int) -> tuple[Any, tuple[int, int]]:
+        """(open binary stream, (device, inode)) of a mesh or texture file."""
         name = self.string(value, key)
-        resolved = self.base / name
-        if not resolved.is_file():
-            raise self.error(key, f"file not found: {name}")
-        return resolved
+        try:
+            stream, info = open_regular(self.base / name, max_bytes)
+        except UnreadableFile as exc:
+            raise self.error(key, f"{exc}: {_name(name)}") from None
+        return stream, (info.st_dev, info.st_ino)
 
-    def items(self, value: Any, key: str) -> list[dict]:
+    def items(self, value: Any, key: str, limit: int) -> list[dict]:
         if not isinstance(value, list):
             raise self.error(key, f"expected an array of tables, got {_show(value)}")
+        if len(value) > limit:
+            raise self.error(key, f"{len(value)} entries is over the limit of {limit}")
         return [self.table(item, f"{key}[{i}]") for i, item in enumerate(value)]
 
     # -- sections ------------------------------------------------------------------------
@@ -267,13 +312,13 @@ class _Loader:
         materials: list[Material] = []
         named: dict[str, int] = {}
         for name, spec in self.table(data.get("materials", {}), "materials").items():
-            key = f"materials.{name}"
+            key = _key("materials", name)
             named[name] = len(materials)
             materials.append(self.material(self.table(spec, key), key, name))
 
         lights = tuple(
             self.light(spec, f"lights[{i}]")
-            for i, spec in enumerate(self.items(data.get("lights", []), "lights"))
+            for i, spec in enumerate(self.items(data.get("lights", []), "lights", L.MAX_LIGHTS))
         )
 
         default_index: list[int] = []  # filled the first time an object needs it
@@ -288,7 +333,8 @@ class _Loader:
             mkey = f"{key}.material"
             if isinstance(value, str):
                 if value not in named:
-                    defined = ", ".join(named) or "none"
+                    shown = [_show(n) for n in list(named)[:_SHOW_ITEMS]]
+                    defined = ", ".join(shown + ["..."] * (len(named) > _SHOW_ITEMS)) or "none"
                     raise self.error(mkey, f"unknown material {_show(value)} (defined: {defined})")
                 return named[value]
             if isinstance(value, dict):
@@ -300,7 +346,9 @@ class _Loader:
 
         objects = tuple(
             self.object(spec, f"objects[{i}]", material_for)
-            for i, spec in enumerate(self.items(data.get("objects", []), "objects"))
+            for i, spec in enumerate(
+                self.items(data.get("objects", []), "objects", L.MAX_OBJECTS)
+            )
         )
         scene = Scene(
             path=self.path,
@@ -310,21 +358,22 @@ class _Loader:
             lights=lights,
             objects=objects,
         )
-        return dataclasses.replace(scene, warnings=scene_warnings(scene))
+        return dataclasses.replace(scene, warnings=(*self.warnings, *scene_warnings(scene)))
 
     def render(self, spec: dict) -> RenderOptions:
         self.keys(spec, "render", _RENDER_KEYS, ())
         d = RenderOptions()
+        size = L.MAX_IMAGE_SIZE
         return RenderOptions(
-            width=self.integer(spec.get("width", d.width), "render.width", 1, _MAX_SIZE),
-            height=self.integer(spec.get("height", d.height), "render.height", 1, _MAX_SIZE),
-            spp=self.integer(spec.get("spp", d.spp), "render.spp", 1, _MAX_SPP),
+            width=self.integer(spec.get("width", d.width), "render.width", 1, size),
+            height=self.integer(spec.get("height", d.height), "render.height", 1, size),
+            spp=self.integer(spec.get("spp", d.spp), "render.spp", 1, L.MAX_SPP),
             max_depth=self.integer(
-                spec.get("max_depth", d.max_depth), "render.max_depth", 0, _MAX_DEPTH
+                spec.get("max_depth", d.max_depth), "render.max_depth", 0, L.MAX_DEPTH
             ),
             background=self.color(spec.get("background", d.background), "render.background"),
             ambient=self.color(spec.get("ambient", d.ambient), "render.ambient"),
-            seed=self.integer(spec.get("seed", d.seed), "render.seed", 0, _MAX_SEED),
+            seed=self.integer(spec.get("seed", d.seed), "render.seed", 0, L.MAX_SEED),
         )
 
     def camera(self, spec: dict) -> Camera:
@@ -332,15 +381,15 @@ class _Loader:
         position = self.vec3(spec["position"], "camera.position")
         look_at = self.vec3(spec["look_at"], "camera.look_at")
         up = self.vec3(spec.get("up", (0.0, 1.0, 0.0)), "camera.up")
-        forward = np.subtract(look_at, position)
-        if not forward.any():
+        if position == look_at:
             raise self.error("camera.look_at", "must differ from camera.position")
         if not any(up):
             raise self.error("camera.up", f"must be a nonzero vector, got {_show(spec['up'])}")
-        # Relative test: the right vector is normalize(cross(forward, up)), which only
+        # On unit vectors (scaled first, so that neither tiny nor huge lengths under- or
+        # overflow) the test is relative: the right vector normalize(cross(forward, up)) only
         # needs the two directions not to be parallel, whatever their lengths.
-        cross = np.linalg.norm(np.cross(forward, up))
-        if cross <= 1e-9 * np.linalg.norm(forward) * np.linalg.norm(up):
+        forward = unit(np.subtract(look_at, position))
+        if np.linalg.norm(np.cross(forward, unit(up))) <= 1e-9:
             raise self.error("camera.up", "must not be parallel to the view direction")
         if "vfov" in spec and "hfov" in spec:
             raise self.error("camera", "give vfov or hfov, not both")
@@ -359,23 +408,24 @@ class _Loader:
         self.keys(spec, key, _MATERIAL_KEYS, ())
         d = Material(name=name)
 
-        def coefficient(field: str) -> float:
-            return self.at_least(spec.get(field, getattr(d, field)), f"{key}.{field}", 0)
+        def coefficient(field: str, high: float) -> float:
+            return self.bounded(spec.get(field, getattr(d, field)), f"{key}.{field}", 0, high)
 
         texture = None
         if "texture" in spec:
             tkey = f"{key}.texture"
             texture = self.texture(self.table(spec["texture"], tkey), tkey)
+        low_ior, high_ior = L.IOR_RANGE
         return Material(
             name=name,
             color=self.color(spec.get("color", d.color), f"{key}.color"),
-            ambient=coefficient("ambient"),
-            diffuse=coefficient("diffuse"),
-            specular=coefficient("specular"),
-            shininess=coefficient("shininess"),
-            reflect=coefficient("reflect"),
-            transmit=coefficient("transmit"),
-            ior=self.at_least(spec.get("ior", d.ior), f"{key}.ior", 0, strict=True),
+            ambient=coefficient("ambient", L.MAX_WEIGHT),
+            diffuse=coefficient("diffuse", L.MAX_WEIGHT),
+            specular=coefficient("specular", L.MAX_WEIGHT),
+            shininess=coefficient("shininess", L.MAX_SHININESS),
+            reflect=coefficient("reflect", L.MAX_BOUNCE_WEIGHT),
+            transmit=coefficient("transmit", L.MAX_BOUNCE_WEIGHT),
+            ior=self.bounded(spec.get("ior", d.ior), f"{key}.ior", low_ior, high_ior),
             texture=texture,
         )
 
@@ -387,29 +437,35 @@ class _Loader:
         if kind == "checker":
             return Texture(
                 kind=kind,
-                size=self.at_least(spec.get("size", d.size), f"{key}.size", 0, strict=True),
+                size=self.length(spec.get("size", d.size), f"{key}.size"),
                 color2=self.color(spec.get("color2", d.color2), f"{key}.color2"),
                 blend=blend,
             )
         rkey = f"{key}.repeat"
         j, k = self.numbers(spec.get("repeat", d.repeat), rkey, 2)
-        if j <= 0 or k <= 0:
+        if min(j, k) <= 0:
             raise self.error(rkey, f"must be > 0, got {_show(spec['repeat'])}")
-        file = self.file(spec["file"], f"{key}.file")
+        if min(j, k) < L.MIN_LENGTH:
+            raise self.error(rkey, f"must be >= {L.MIN_LENGTH:g}, got {_show(spec['repeat'])}")
+        fkey = f"{key}.file"
+        file = self.base / self.string(spec["file"], fkey)
         return Texture(
-            kind=kind, file=file, repeat=(j, k), blend=blend, image=self.image(file, f"{key}.file")
+            kind=kind, file=file, repeat=(j, k), blend=blend, image=self.image(spec["file"], fkey)
         )
 
-    def image(self, file: Path, key: str) -> np.ndarray:
-        from PIL import Image  # only scenes with image textures pay for importing Pillow
-
-        try:
-            with Image.open(file) as img:
-                rgb = np.asarray(img.convert("RGB"), dtype=np.float32)
-        except (OSError, ValueError) as exc:
-            raise self.error(key, f"cannot read image {file.name}: {exc}") from None
-        # Texels are used as stored (linear), like the output PNG (docs/rendering.md).
-        return np.ascontiguousarray(rgb / np.float32(255.0))
+    def image(self, name: str, key: str) -> np.ndarray:
+        stream, identity = self.open_file(name, key, L.MAX_TEXTURE_BYTES)
+        with stream:
+            if identity in self.textures:
+                return self.textures[identity]
+            try:
+                texels, warned = read_texture(stream, self.texels_left)
+            except TextureError as exc:
+                raise self.error(key, f"cannot read image {_name(name)}: {exc}") from None
+        self.texels_left -= texels.shape[0] * texels.shape[1]
+        self.warnings.extend(f"{key}: image {_name(name)}: {w}" for w in warned)
+        self.textures[identity] = texels
+        return texels
 
     def kind(self, spec: dict, key: str, known: dict[str, tuple[str, ...]]) -> str:
         if "type" not in spec:
@@ -428,7 +484,7 @@ class _Loader:
         if kind == "directional":
             return DirectionalLight(self.direction(spec["direction"], f"{key}.direction"), color)
         akey = f"{key}.attenuation"
-        attenuation = self.color(spec.get("attenuation", (1.0, 0.0, 0.0)), akey)
+        attenuation = self.non_negative(spec.get("attenuation", (1.0, 0.0, 0.0)), akey)
         if not any(attenuation):
             raise self.error(akey, "must not be all zero")
         return PointLight(self.vec3(spec["position"], f"{key}.position"), color, attenuation)
@@ -446,7 +502,7 @@ class _Loader:
             return f"{key}.{name}"
 
         if kind == "sphere":
-            radius = self.at_least(spec["radius"], k("radius"), 0, strict=True)
+            radius = self.length(spec["radius"], k("radius"))
             return Sphere(self.vec3(spec["center"], k("center")), radius, material)
         if kind == "plane":
             normal = self.direction(spec["normal"], k("normal"))
@@ -459,12 +515,12 @@ class _Loader:
             return self.mesh(spec, key, material)
         capped = self.boolean(spec.get("capped", True), k("capped"))
         axis = self.direction(spec["axis"], k("axis"))
-        height = self.at_least(spec["height"], k("height"), 0, strict=True)
+        height = self.length(spec["height"], k("height"))
         if kind == "cylinder":
             return Cylinder(
                 base=self.vec3(spec["base"], k("base")),
                 axis=axis,
-                radius=self.at_least(spec["radius"], k("radius"), 0, strict=True),
+                radius=self.length(spec["radius"], k("radius")),
                 height=height,
                 material=material,
                 capped=capped,
@@ -496,13 +552,23 @@ class _Loader:
             raise self.error(key, f"expected {what}, got {_show(value)}")
         return tuple(self.vec3(p, f"{key}[{i}]") for i, p in enumerate(value))
 
+    def obj(self, name: Any, key: str) -> ObjMesh:
+        stream, identity = self.open_file(name, key, L.MAX_MESH_BYTES)
+        with stream:
+            if identity not in self.meshes:
+                try:
+                    data = read_at_most(stream, L.MAX_MESH_BYTES)
+                except UnreadableFile as exc:
+                    raise self.error(key, f"{exc}: {_name(name)}") from None
+                self.meshes[identity] = parse_obj(data, self.base / name)
+        return self.meshes[identity]
+
     def mesh(self, spec: dict, key: str, material: int) -> Mesh:
         inline = "vertices" in spec or "faces" in spec
         if "file" in spec and inline:
             raise self.error(key, "give file or vertices + faces, not both")
         if "file" in spec:
-            fkey = f"{key}.file"
-            obj = read_obj(self.file(spec["file"], fkey))
+            obj = self.obj(spec["file"], f"{key}.file")
             vertices, faces, normals, uvs = obj.vertices, obj.faces, obj.normals, obj.uvs
         elif inline:
             for name in ("vertices", "faces"):
@@ -515,14 +581,26 @@ class _Loader:
             raise self.error(key, "a mesh needs file or vertices + faces")
         if len(faces) == 0:
             raise self.error(key, "mesh has no faces")
-        matrix, offset = self.transform(spec.get("transform", {}), f"{key}.transform")
-        vertices = vertices.reshape(-1, 3) @ matrix.T + offset
+        if len(faces) > self.triangles_left:
+            raise self.error(
+                key, f"{len(faces)} triangles is over what is left ({self.triangles_left}) of "
+                f"the limit of {L.MAX_TRIANGLES} triangles for all meshes"
+            )
+        self.triangles_left -= len(faces)
+        tkey = f"{key}.transform"
+        rotation, scale, offset = self.transform(spec.get("transform", {}), tkey)
+        vertices = (vertices.reshape(-1, 3) * scale) @ rotation.T + offset
+        if not np.all(np.abs(vertices) <= L.MAX_MAGNITUDE):
+            raise self.error(
+                tkey, f"moves vertices beyond {L.MAX_MAGNITUDE:g} in magnitude "
+                f"(largest {np.max(np.abs(vertices)):.3g})"
+            )
         if normals is not None:
-            # Normals follow the inverse transpose, so they stay perpendicular to the surface
-            # under non-uniform scale.
-            normals = normals @ np.linalg.inv(matrix)
-            normals /= np.linalg.norm(normals, axis=1, keepdims=True)
-        if np.linalg.det(matrix) < 0:
+            # Normals follow the inverse transpose of R S, which is R S^-1: they stay
+            # perpendicular to the surface under non-uniform scale. Unit normals over scales
+            # of at least MIN_LENGTH stay finite.
+            normals = unit((normals / scale) @ rotation.T)
+        if np.prod(np.sign(scale)) < 0:
             # A mirroring transform turns the winding inside out; swapping two corners keeps
             # (v1 - v0) x (v2 - v0) pointing outward, which refraction relies on.
             faces = faces[:, [0, 2, 1]]
@@ -549,14 +627,14 @@ class _Loader:
             for v in face:
                 if not 0 <= v < n_vertices:
                     raise self.error(
-                        fkey, f"index {v} out of range (0-based, {n_vertices} vertices)"
+                        fkey, f"index {_show(v)} out of range (0-based, {n_vertices} vertices)"
                     )
             out.append(face)
         return np.array(out, dtype=np.int64).reshape(-1, 3)
 
-    def transform(self, value: Any, key: str) -> tuple[np.ndarray, np.ndarray]:
-        """(3x3 matrix, translation): scale, then rotate about x, y, z in turn, then
-        translate."""
+    def transform(self, value: Any, key: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(3x3 rotation, 3 scale factors, translation): scale, then rotate about x, y, z in
+        turn, then translate."""
         spec = self.table(value, key)
         self.keys(spec, key, _TRANSFORM_KEYS, ())
         translate = np.array(self.vec3(spec.get("translate", (0, 0, 0)), f"{key}.translate"))
@@ -569,6 +647,10 @@ class _Loader:
             scale = np.full(3, self.number(scale_value, skey))
         if not scale.all():
             raise self.error(skey, f"must be nonzero, got {_show(scale_value)}")
+        if np.min(np.abs(scale)) < L.MIN_LENGTH:
+            raise self.error(
+                skey, f"must be at least {L.MIN_LENGTH:g} in magnitude, got {_show(scale_value)}"
+            )
         cx, sx, cy, sy, cz, sz = (
             np.cos(rx),
             np.sin(rx),
@@ -580,4 +662,4 @@ class _Loader:
         rot_x = np.array([[1, 0, 0], [0, cx, -sx], [0, sx, cx]])
         rot_y = np.array([[cy, 0, sy], [0, 1, 0], [-sy, 0, cy]])
         rot_z = np.array([[cz, -sz, 0], [sz, cz, 0], [0, 0, 1]])
-        return rot_z @ rot_y @ rot_x @ np.diag(scale), translate
+        return rot_z @ rot_y @ rot_x, scale, translate

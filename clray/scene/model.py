@@ -15,6 +15,17 @@ import numpy as np
 Vec3 = tuple[float, float, float]
 
 
+def unit(v: np.ndarray) -> np.ndarray:
+    """`v` (..., 3) scaled to unit length along its last axis. Dividing by the largest
+    component first keeps the squares in range: a vector such as (1e-200, 1e-200, 0) would
+    otherwise have a norm of 0, and one near 1e200 an infinite one. Zero rows stay zero."""
+    a = np.asarray(v, dtype=np.float64)
+    peak = np.max(np.abs(a), axis=-1, keepdims=True)
+    a = np.divide(a, peak, out=np.zeros_like(a), where=peak > 0)
+    norm = np.linalg.norm(a, axis=-1, keepdims=True)
+    return np.divide(a, norm, out=np.zeros_like(a), where=norm > 0)
+
+
 @dataclass(frozen=True)
 class Texture:
     """A checker (3D, in world space) or an image texture mapped through (u, v)."""
@@ -71,10 +82,8 @@ class Camera:
         """(forward, right, up, half_w, half_h): unit vectors and image-plane half extents at
         distance 1. right = normalize(cross(forward, up)), as DESIGN.md fixes it."""
         eye = np.asarray(self.position, dtype=np.float64)
-        forward = np.asarray(self.look_at, dtype=np.float64) - eye
-        forward /= np.linalg.norm(forward)
-        right = np.cross(forward, np.asarray(self.up, dtype=np.float64))
-        right /= np.linalg.norm(right)
+        forward = unit(np.asarray(self.look_at, dtype=np.float64) - eye)
+        right = unit(np.cross(forward, unit(self.up)))
         true_up = np.cross(right, forward)
         aspect = width / height
         if self.hfov is not None:

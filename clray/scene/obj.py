@@ -17,6 +17,9 @@ from pathlib import Path
 import numpy as np
 
 from clray.errors import SceneError
+from clray.scene.files import UnreadableFile, read_regular
+from clray.scene.limits import MAX_MAGNITUDE, MAX_MESH_BYTES
+from clray.scene.model import unit
 
 
 @dataclass(frozen=True, eq=False)
@@ -25,7 +28,7 @@ class ObjMesh:
 
     vertices: np.ndarray  # (V, 3) float64
     faces: np.ndarray  # (F, 3) int64, fan-triangulated polygons in file order
-    normals: np.ndarray | None = None  # (V, 3) float64, as written in the file
+    normals: np.ndarray | None = None  # (V, 3) float64, unit length
     uvs: np.ndarray | None = None  # (V, 2) float64
 
 
@@ -305,6 +308,12 @@ def _floats(tok: _Tokens, kind: int, name: str, want: int) -> tuple[np.ndarray, 
     bad = np.flatnonzero(~np.isfinite(picked).all(axis=1))
     if len(bad):
         raise tok.error(first[bad[0]] - 1, f"{name}: numbers must be finite")
+    # Past this the kernels' float32 arithmetic (and the bounding boxes) would overflow.
+    huge = np.flatnonzero((np.abs(picked) > MAX_MAGNITUDE).any(axis=1))
+    if len(huge):
+        raise tok.error(
+            first[huge[0]] - 1, f"{name}: numbers must be at most {MAX_MAGNITUDE:g} in magnitude"
+        )
     return picked, stmt
 
 
@@ -506,9 +515,9 @@ def read_obj(path: Path) -> ObjMesh:
     `vn` and `f` (`o`, `g`, `s`, `usemtl`, `mtllib`, ...) is ignored."""
     path = Path(path)
     try:
-        data = path.read_bytes()
-    except OSError as exc:
-        raise SceneError(path, None, f"cannot read mesh file: {exc.strerror}") from None
+        data = read_regular(path, MAX_MESH_BYTES)
+    except UnreadableFile as exc:
+        raise SceneError(path, None, f"cannot read mesh file: {exc}") from None
     return parse_obj(data, path)
 
 
@@ -521,6 +530,9 @@ def parse_obj(data: bytes, path: Path) -> ObjMesh:
     zero = np.flatnonzero(~np.any(normal_values != 0.0, axis=1))
     if len(zero):
         raise tok.error(tok.heads[vn_stmt[zero[0]]], "vn: zero-length normal")
+    # In float64 and scaled first, so that `vn 1e-200 1e-200 1e-200` gives a unit normal
+    # rather than a zero or infinite one.
+    normal_values = unit(normal_values)
 
     form, comp, tokens, count = _faces(tok)
     v = _resolve(tok, comp[:, 0], tokens, v_stmt, "vertex")

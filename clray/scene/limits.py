@@ -1,0 +1,39 @@
+"""What a scene may ask for: the limits docs/scene_format.md (section Limits) documents.
+
+They are checked while loading, before anything large is allocated, so that an untrusted scene
+file ends in a one-line error rather than a traceback, non-finite pixels or an exhausted memory.
+The kernels compute in float32 (largest finite value about 3.4e38): numbers are kept well inside
+that range, and colours and weights small enough that their products along a path of
+MAX_DEPTH bounces, summed over every light, stay finite.
+"""
+
+from __future__ import annotations
+
+# Any number that reaches the device: coordinates, lengths, attenuation, texture repeats.
+MAX_MAGNITUDE = 1e30
+# Strictly positive lengths (radius, height, checker size, repeat, mesh scale): smaller values
+# flush to zero in float32 and then divide.
+MIN_LENGTH = 1e-30
+MAX_COLOR = 1e6  # every colour component: material, checker, light, background, ambient
+MAX_WEIGHT = 1e6  # material ambient, diffuse and specular weights
+MAX_SHININESS = 1e6
+# reflect and transmit multiply the light once per bounce, and transmit once per surface a
+# shadow ray crosses: above 1 the product has no bound.
+MAX_BOUNCE_WEIGHT = 1.0
+IOR_RANGE = (0.01, 100.0)
+
+MAX_IMAGE_SIZE = 16384  # output width and height
+MAX_SPP = 4096
+MAX_DEPTH = 16
+MAX_SEED = 2**32 - 1  # the kernels hash the seed as a uint32
+
+MAX_OBJECTS = 1_000_000
+MAX_LIGHTS = 10_000
+MAX_TRIANGLES = 2**24  # all meshes together, each instance counted
+MAX_TEXTURE_SIDE = 16384
+MAX_TEXELS = 2**26  # all distinct texture files together: 768 MiB as float32 RGB
+
+MIB = 2**20
+MAX_SCENE_BYTES = 64 * MIB
+MAX_MESH_BYTES = 256 * MIB  # the OBJ reader peaks near 13 bytes of memory per byte of file
+MAX_TEXTURE_BYTES = 256 * MIB

@@ -1,0 +1,87 @@
+"""Image texture files -> (H, W, 3) float32 linear texels in [0, 1], row 0 at the top.
+
+The image's declared size is checked against the limits before any pixel is decoded: a PNG of
+a few hundred bytes can declare 100000 x 100000 pixels. 16-bit images are scaled to [0, 1]
+(Pillow's conversion to 8-bit RGB would clip them), float images are clipped to [0, 1].
+"""
+
+from __future__ import annotations
+
+import warnings
+from typing import TYPE_CHECKING, BinaryIO
+
+import numpy as np
+
+from clray.scene import limits as L
+
+if TYPE_CHECKING:
+    from PIL.Image import Image
+
+_SIXTEEN_BIT = ("I;16", "I;16L", "I;16B", "I;16N")
+
+
+class TextureError(Exception):
+    """A one-line reason, for the loader to put into a SceneError with its key."""
+
+
+def read_texture(stream: BinaryIO, texels_left: int) -> tuple[np.ndarray, list[str]]:
+    """(texels, warnings) of the image in `stream`, if its size is within the limits and
+    within `texels_left` (what the scene's earlier textures left of MAX_TEXELS)."""
+    from PIL import Image  # only scenes with image textures pay for importing Pillow
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        try:
+            with Image.open(stream) as img:
+                _check_size(img.size, texels_left)
+                texels = _texels(img)
+        except TextureError:
+            raise
+        except Image.DecompressionBombError as exc:
+            raise TextureError(f"image too large ({exc})") from None
+        except MemoryError:
+            raise TextureError("out of memory while decoding the image") from None
+        except Exception as exc:
+            # Pillow's format plugins raise many types on malformed files (OSError,
+            # SyntaxError, struct.error, EOFError, IndexError, ...): all mean a bad file.
+            raise TextureError(f"{type(exc).__name__}: {exc}") from None
+    return texels, [str(w.message) for w in caught if _worth_telling(w)]
+
+
+def _worth_telling(warning: warnings.WarningMessage) -> bool:
+    from PIL import Image
+
+    # The size limit is ours and stricter, and alpha is dropped, so Pillow's advice about
+    # converting palette transparency to RGBA does not apply.
+    if issubclass(warning.category, Image.DecompressionBombWarning):
+        return False
+    return "Transparency expressed in bytes" not in str(warning.message)
+
+
+def _check_size(size: tuple[int, int], texels_left: int) -> None:
+    width, height = size
+    if width < 1 or height < 1:
+        raise TextureError(f"image has no pixels ({width}x{height})")
+    if max(width, height) > L.MAX_TEXTURE_SIDE:
+        raise TextureError(
+            f"image is {width}x{height}, over the limit of {L.MAX_TEXTURE_SIDE} pixels a side"
+        )
+    if width * height > texels_left:
+        raise TextureError(
+            f"image is {width}x{height} = {width * height} texels, over what is left "
+            f"({texels_left}) of the limit of {L.MAX_TEXELS} texels for all textures"
+        )
+
+
+def _texels(img: Image) -> np.ndarray:
+    # Texels are used as stored (linear), like the output PNG (docs/rendering.md).
+    if img.mode in _SIXTEEN_BIT or img.mode == "I":
+        grey = np.asarray(img).astype(np.float32)
+        grey = np.clip(grey, 0.0, 65535.0) / np.float32(65535.0)
+    elif img.mode == "F":
+        grey = np.nan_to_num(np.asarray(img, dtype=np.float32), nan=0.0, posinf=1.0, neginf=0.0)
+        grey = np.clip(grey, 0.0, 1.0)
+    else:
+        rgb = np.asarray(img.convert("RGB"), dtype=np.float32)
+        return np.ascontiguousarray(rgb / np.float32(255.0))
+    return np.ascontiguousarray(np.repeat(grey[:, :, None], 3, axis=2), dtype=np.float32)

@@ -6,14 +6,16 @@ import hashlib
 import re
 import time
 from dataclasses import dataclass, fields
-from pathlib import Path
+from importlib.resources import files
 
 import pyopencl as cl
 
 from clray.device.context import context_for, has_fp64
 from clray.errors import DeviceError
 
-KERNEL_DIR = Path(__file__).resolve().parent.parent.parent / "kernels"
+# The top-level kernels/ folder, installed as this package (pyproject.toml's package-dir), so a
+# wheel, an sdist and an editable install all read the same files.
+KERNEL_PACKAGE = "clray.kernels"
 ENTRY_FILE = "render.cl"
 _INCLUDE = re.compile(r'^\s*#\s*include\s+"([^"]+)"\s*$', re.MULTILINE)
 
@@ -92,7 +94,7 @@ def kernel_source(name: str = ENTRY_FILE) -> str:
         if fname in seen:
             return ""
         seen.add(fname)
-        text = (KERNEL_DIR / fname).read_text()
+        text = files(KERNEL_PACKAGE).joinpath(fname).read_text(encoding="utf-8")
         out = [f'#line 1 "{fname}"']
         for lineno, line in enumerate(text.splitlines(), start=1):
             match = _INCLUDE.match(line)

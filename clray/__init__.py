@@ -9,8 +9,17 @@ Imported directly rather than lazily: `clray.render` names both the function and
 only an import here keeps the attribute bound to the function.
 """
 
+import importlib.metadata
+
 from clray.device.context import list_devices
 from clray.render import RenderResult, RenderSettings, render
 from clray.scene.load import load_scene
 
 __all__ = ["RenderResult", "RenderSettings", "list_devices", "load_scene", "render"]
+
+# One source for the version: pyproject.toml, through the installed package's metadata.
+try:
+    __version__ = importlib.metadata.version("clray")
+except importlib.metadata.PackageNotFoundError:
+    # Imported from a source tree that was never installed: no metadata to read.
+    __version__ = "0+unknown"

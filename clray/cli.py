@@ -18,6 +18,7 @@ from typing import NoReturn
 
 import pyopencl as cl
 
+from clray import __version__
 from clray.device.context import list_devices
 from clray.errors import EXIT_OK, EXIT_USAGE, ClrayError
 from clray.image_io import SUFFIXES, check_suffix, write_bytes_atomically, write_image
@@ -61,6 +62,7 @@ def _image_path(text: str) -> Path:
 
 def _build_parser() -> _Parser:
     parser = _Parser(prog="clray", description="Whitted ray tracer running as OpenCL kernels.")
+    parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
     commands = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
     r = commands.add_parser(

@@ -10,10 +10,31 @@ only an import here keeps the attribute bound to the function.
 """
 
 import importlib.metadata
+import sys
+from pathlib import Path
 
-from clray.device.context import list_devices
-from clray.render import RenderResult, RenderSettings, render
-from clray.scene.load import load_scene
+
+def _started_as_command() -> bool:
+    """Whether this process is the `clray` command (the console script or `python -m clray`)
+    rather than a program importing the library."""
+    argv = getattr(sys, "orig_argv", sys.argv)
+    as_module = any(a == "-mclray" or (a == "-m" and b == "clray")
+                    for a, b in zip(argv, [*argv[1:], ""], strict=True))
+    return as_module or Path(sys.argv[0]).name == "clray"
+
+
+try:
+    from clray.device.context import list_devices
+    from clray.render import RenderResult, RenderSettings, render
+    from clray.scene.load import load_scene
+except KeyboardInterrupt:
+    # Ctrl-C while numpy and pyopencl load (the first fraction of a second of every run): the
+    # command exits as it does when interrupted later, with one line and status 130, instead
+    # of a traceback. A program importing clray gets its KeyboardInterrupt.
+    if not _started_as_command():
+        raise
+    sys.stderr.write("clray: error: interrupted\n")
+    raise SystemExit(130) from None
 
 __all__ = ["RenderResult", "RenderSettings", "list_devices", "load_scene", "render"]
 

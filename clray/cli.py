@@ -8,11 +8,14 @@ Every error a user can cause is one `clray: error: ...` line on stderr, never a 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
+import os
+import secrets
 import sys
 import time
 import warnings
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import NoReturn
 
@@ -20,36 +23,54 @@ import pyopencl as cl
 
 from clray import __version__
 from clray.device.context import list_devices
-from clray.errors import EXIT_OK, EXIT_USAGE, ClrayError
+from clray.errors import EXIT_OK, EXIT_RUNTIME, EXIT_USAGE, ClrayError, one_line
 from clray.image_io import SUFFIXES, check_suffix, write_bytes_atomically, write_image
 from clray.metrics import nonfinite_count
 from clray.render import RenderSettings, render
+from clray.scene import limits
 from clray.scene.load import load_scene
 
 EXIT_INTERRUPTED = 130  # 128 + SIGINT, as shells report it
-SEED_MAX = 2**32 - 1  # the kernels hash the seed as a uint32
+SEED_MAX = limits.MAX_SEED
+MAX_REPEAT = 1000
 
 
 class _Parser(argparse.ArgumentParser):
     """argparse whose usage errors are one line, like every other clray error."""
 
     def error(self, message: str) -> NoReturn:
-        self.exit(EXIT_USAGE, f"clray: error: {message} (see '{self.prog} --help')\n")
+        self.exit(EXIT_USAGE, f"clray: error: {one_line(message)} (see '{self.prog} --help')\n")
 
 
-def _int_in(low: int, high: int | None = None) -> Callable[[str], int]:
+def _shown(text: str) -> str:
+    return repr(text if len(text) <= 40 else text[:37] + "...")
+
+
+def _int_in(low: int, high: int) -> Callable[[str], int]:
+    # Every count has a maximum: past it the kernels' int32 arithmetic would overflow, long
+    # before the render would end.
     def parse(text: str) -> int:
         try:
-            value = int(text)
-            ok = value >= low and (high is None or value <= high)
+            value = int(text) if len(text) <= 40 else None
         except ValueError:
-            ok = False
-        if not ok:
-            bounds = f">= {low}" if high is None else f"in [{low}, {high}]"
-            raise argparse.ArgumentTypeError(f"expected an integer {bounds}, got {text!r}")
+            value = None
+        if value is None or not low <= value <= high:
+            raise argparse.ArgumentTypeError(
+                f"expected an integer in [{low}, {high}], got {_shown(text)}"
+            )
         return value
 
     return parse
+
+
+def _file_path(text: str) -> Path:
+    """A path to write a file to: it must name a file, not a directory."""
+    if not text:
+        raise argparse.ArgumentTypeError("expected a file name, got ''")
+    path = Path(text)
+    if text.endswith(("/", os.sep)) or path.name in ("", ".", ".."):
+        raise argparse.ArgumentTypeError(f"expected a file name, got the directory {_shown(text)}")
+    return path
 
 
 def _image_path(text: str) -> Path:
@@ -57,7 +78,7 @@ def _image_path(text: str) -> Path:
         check_suffix(text)
     except ValueError as err:
         raise argparse.ArgumentTypeError(str(err)) from err
-    return Path(text)
+    return _file_path(text)
 
 
 def _build_parser() -> _Parser:
@@ -73,10 +94,12 @@ def _build_parser() -> _Parser:
                    help=f"output image, by suffix: {', '.join(SUFFIXES)} (.png is 8-bit and "
                         "clamped, .pfm float32 linear); default: SCENE's stem + .png in the "
                         "current directory")
-    r.add_argument("-W", "--width", type=_int_in(1), metavar="N", help="image width in pixels")
-    r.add_argument("-H", "--height", type=_int_in(1), metavar="N", help="image height in pixels")
-    r.add_argument("--spp", type=_int_in(1), metavar="N", help="samples per pixel")
-    r.add_argument("--max-depth", type=_int_in(0), metavar="N",
+    size = _int_in(1, limits.MAX_IMAGE_SIZE)
+    r.add_argument("-W", "--width", type=size, metavar="N", help="image width in pixels")
+    r.add_argument("-H", "--height", type=size, metavar="N", help="image height in pixels")
+    r.add_argument("--spp", type=_int_in(1, limits.MAX_SPP), metavar="N",
+                   help="samples per pixel")
+    r.add_argument("--max-depth", type=_int_in(0, limits.MAX_DEPTH), metavar="N",
                    help="reflection/refraction bounces after the primary hit")
     r.add_argument("--seed", type=_int_in(0, SEED_MAX), metavar="N",
                    help="seed of the sample jitter")
@@ -87,7 +110,7 @@ def _build_parser() -> _Parser:
                    help="arithmetic in the kernels (double needs cl_khr_fp64; default: float)")
     r.add_argument("--srgb", action="store_true",
                    help="sRGB-encode PNG output (default: linear values, no gamma)")
-    r.add_argument("--stats-json", type=Path, metavar="PATH",
+    r.add_argument("--stats-json", type=_file_path, metavar="PATH",
                    help="write timings, sizes and ray counts as JSON")
     talk = r.add_mutually_exclusive_group()
     talk.add_argument("-q", "--quiet", action="store_true", help="print nothing on success")
@@ -104,12 +127,12 @@ def _build_parser() -> _Parser:
     st.add_argument("scenes", type=Path, nargs="+", metavar="SCENE",
                     help="scene files (.toml or .json)")
     st.add_argument("--out", type=Path, required=True, metavar="DIR", help="output folder")
-    st.add_argument("--repeat", type=_int_in(1), default=3, metavar="N",
+    st.add_argument("--repeat", type=_int_in(1, MAX_REPEAT), default=3, metavar="N",
                     help="timed runs per variant after a warm-up; the median is reported "
                          "(default: 3)")
-    st.add_argument("-W", "--width", type=_int_in(1), metavar="N",
+    st.add_argument("-W", "--width", type=size, metavar="N",
                     help="image width for every scene (default: each scene's own)")
-    st.add_argument("-H", "--height", type=_int_in(1), metavar="N",
+    st.add_argument("-H", "--height", type=size, metavar="N",
                     help="image height for every scene (default: each scene's own)")
     st.add_argument("--device", metavar="SPEC", help="OpenCL device, as for render")
     st.add_argument("-q", "--quiet", action="store_true", help="print nothing on success")
@@ -123,20 +146,39 @@ def _build_parser() -> _Parser:
 
 
 def _parse(argv: list[str] | None) -> argparse.Namespace:
-    args = _build_parser().parse_args(argv)
-    if args.command == "render" and args.output is None:
-        args.output = Path(args.scene.stem + ".png")
+    parser = _build_parser()
+    args = parser.parse_args(argv)
+    if args.command == "render":
+        if args.output is None:
+            args.output = Path(args.scene.stem + ".png")
+        if args.stats_json is not None and _same_file(args.stats_json, args.output):
+            parser.error(f"--stats-json and the output image are the same file: {args.output}")
     return args
 
 
+def _same_file(a: Path, b: Path) -> bool:
+    return os.path.abspath(a) == os.path.abspath(b)
+
+
 def _say(message: str) -> None:
-    print(f"clray: {message}", file=sys.stderr)
+    print(f"clray: {one_line(message)}", file=sys.stderr)
 
 
-def _check_directory(path: Path) -> None:
-    # Before rendering, so that a typo in -o does not cost a whole render.
-    if not path.parent.is_dir():
-        raise ClrayError(f"cannot write {path}: directory {path.parent} does not exist")
+def _check_writable(path: Path) -> None:
+    """Before rendering, so that a typo in -o or a read-only folder does not cost a whole
+    render: the folder must exist and take a new file, which a probe file (removed at once)
+    shows more reliably than permission bits (root, read-only mounts, ACLs)."""
+    folder = path.parent
+    if not folder.is_dir():
+        raise ClrayError(f"cannot write {path}: directory {folder} does not exist")
+    if path.is_dir():
+        raise ClrayError(f"cannot write {path}: it is a directory")
+    probe = folder / f".{path.name[:100]}.{os.getpid()}.{secrets.token_hex(4)}.probe"
+    try:
+        os.close(os.open(probe, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600))
+        os.unlink(probe)
+    except OSError as err:
+        raise ClrayError(f"cannot write {path}: {err.strerror or err}") from err
 
 
 def _write(path: Path, write: Callable[[], None]) -> None:
@@ -167,27 +209,40 @@ def _format_stat(value: object) -> str:
     return str(value)
 
 
+@contextlib.contextmanager
+def _warnings_as_lines(*, quiet: bool, verbose: bool) -> Iterator[None]:
+    """Python warnings (numpy's, Pillow's, PoCL's) told as `clray: warning:` lines like the
+    scene's own, so that stderr holds nothing but clray's lines; also when the block fails."""
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("default")
+        if not verbose:
+            # PoCL repeats its build warnings on every cached build; they are noise here.
+            warnings.simplefilter("ignore", cl.CompilerWarning)
+        try:
+            yield
+        finally:
+            if not quiet:
+                for warning in caught:
+                    _say(f"warning: {warning.message}")
+
+
 def _render(args: argparse.Namespace) -> int:
     started = time.perf_counter()
     output: Path = args.output
-    _check_directory(output)
+    _check_writable(output)
     if args.stats_json is not None:
-        _check_directory(args.stats_json)
+        _check_writable(args.stats_json)
 
-    scene = load_scene(args.scene)
-    load_s = time.perf_counter() - started
-    if not args.quiet:
-        for warning in scene.warnings:
-            _say(f"warning: {warning}")
-
-    settings = RenderSettings(
-        width=args.width, height=args.height, spp=args.spp, max_depth=args.max_depth,
-        seed=args.seed, device=args.device, precision=args.precision,
-        progress=_Progress() if args.verbose else None)
-    with warnings.catch_warnings():
-        if not args.verbose:
-            # PoCL repeats its build warnings on every cached build; they are noise here.
-            warnings.simplefilter("ignore", cl.CompilerWarning)
+    with _warnings_as_lines(quiet=args.quiet, verbose=args.verbose):
+        scene = load_scene(args.scene)
+        load_s = time.perf_counter() - started
+        if not args.quiet:
+            for warning in scene.warnings:
+                _say(f"warning: {warning}")
+        settings = RenderSettings(
+            width=args.width, height=args.height, spp=args.spp, max_depth=args.max_depth,
+            seed=args.seed, device=args.device, precision=args.precision,
+            progress=_Progress() if args.verbose else None)
         result = render(scene, settings)
 
     write_started = time.perf_counter()
@@ -257,3 +312,6 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         _say("error: interrupted")
         return EXIT_INTERRUPTED
+    except MemoryError:
+        _say("error: out of memory")
+        return EXIT_RUNTIME

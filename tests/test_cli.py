@@ -4,8 +4,10 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import os
 import subprocess
 import sys
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -14,6 +16,7 @@ from PIL import Image
 
 from clray import cli
 from clray.device.context import has_fp64
+from clray.errors import ClrayError
 from clray.image_io import read_pfm
 
 SCENE = """\
@@ -50,6 +53,7 @@ material = "red"
 """
 
 TINY = ["-W", "32", "-H", "24"]
+ROOT = Path(__file__).resolve().parent.parent
 
 
 def scene_text(radius: str = "1", material_extra: str = "") -> str:
@@ -91,6 +95,18 @@ def files_in(directory: Path) -> list[str]:
     ["render", "{scene}", "--spp", "two"],
     ["render", "{scene}", "--max-depth", "-1"],
     ["render", "{scene}", "--seed", str(2**32)],
+    # Past the documented maxima: these used to be OverflowError tracebacks.
+    ["render", "{scene}", "-W", str(2**31)],
+    ["render", "{scene}", "-H", "16385"],
+    ["render", "{scene}", "--spp", str(2**31)],
+    ["render", "{scene}", "--max-depth", str(2**31)],
+    ["render", "{scene}", "--spp", "9" * 5000],
+    # Output paths that name no file: --stats-json used to fail after the image was written.
+    ["render", "{scene}", "--stats-json", ""],
+    ["render", "{scene}", "--stats-json", "."],
+    ["render", "{scene}", "--stats-json", "sub/"],
+    ["render", "{scene}", "-o", "out.png", "--stats-json", "out.png"],
+    ["study", "{scene}", "--out", "d", "--repeat", str(2**31)],
     ["render", "{scene}", "--precision", "half"],
     ["render", "{scene}", "-q", "-v"],
     ["render", "{scene}", "--no-such-flag"],
@@ -272,3 +288,109 @@ def test_python_dash_m_clray(cl_device, scene, tmp_path) -> None:
                             timeout=300)
     assert failed.returncode == 3
     assert_one_error_line(failed.stderr)
+
+
+# --- hostile input (issue 10) --------------------------------------------------------------------
+
+def test_flag_maxima_are_in_the_message(capsys, scene) -> None:
+    _, _, err = run(capsys, "render", scene, "-W", str(2**31))
+    assert "expected an integer in [1, 16384], got '2147483648'" in err
+    _, _, err = run(capsys, "render", scene, "--spp", "9" * 5000)
+    assert_one_error_line(err)
+    assert len(err) < 200
+
+
+def refuse_to_render(*_args, **_kwargs):
+    raise AssertionError("rendered although an output could not be written")
+
+
+def test_unwritable_stats_folder_is_found_before_rendering(capsys, scene, tmp_path,
+                                                           monkeypatch) -> None:
+    monkeypatch.setattr(cli, "render", refuse_to_render)
+    (tmp_path / "file").write_text("")
+    code, _, err = run(capsys, "render", scene, "--stats-json", tmp_path / "file" / "s.json")
+    assert code == 1
+    assert_one_error_line(err)
+    assert files_in(tmp_path) == ["file", "scene.toml"]
+
+
+@pytest.mark.skipif(os.geteuid() == 0, reason="root writes into read-only folders")
+def test_read_only_output_folder_is_found_before_rendering(capsys, scene, tmp_path,
+                                                           monkeypatch) -> None:
+    monkeypatch.setattr(cli, "render", refuse_to_render)
+    locked = tmp_path / "locked"
+    locked.mkdir(mode=0o555)
+    code, _, err = run(capsys, "render", scene, "-o", locked / "out.png")
+    assert code == 1
+    assert_one_error_line(err)
+    assert "Permission denied" in err
+
+
+def test_output_folder_probe_leaves_nothing(capsys, scene, tmp_path, monkeypatch) -> None:
+    monkeypatch.setattr(cli, "render", refuse_to_render)
+    (tmp_path / "out").mkdir()
+    with pytest.raises(AssertionError, match="rendered although"):
+        cli.main(["render", str(scene), "-o", str(tmp_path / "out" / "x.png")])
+    assert files_in(tmp_path / "out") == []
+
+
+def test_newline_in_scene_name_gives_one_error_line(capsys, tmp_path, monkeypatch) -> None:
+    monkeypatch.chdir(tmp_path)
+    code, _, err = run(capsys, "render", "a\nclray: error: b.toml")
+    assert code == 3
+    assert_one_error_line(err)
+    assert "a\\nclray: error: b.toml" in err
+
+
+def test_fifo_scene_exits_3_without_blocking(capsys, tmp_path, monkeypatch) -> None:
+    monkeypatch.chdir(tmp_path)
+    os.mkfifo(tmp_path / "pipe.toml")
+    code, _, err = run(capsys, "render", "pipe.toml")
+    assert code == 3
+    assert err == "clray: error: pipe.toml: cannot read scene file: not a regular file\n"
+
+
+def test_python_warnings_become_clray_warning_lines(capsys, scene, monkeypatch) -> None:
+    def warn_and_fail(*_args, **_kwargs):
+        warnings.warn("overflow encountered in cast", RuntimeWarning, stacklevel=1)
+        raise ClrayError("stopped")
+
+    monkeypatch.setattr(cli, "render", warn_and_fail)
+    code, _, err = run(capsys, "render", scene)
+    assert code == 1
+    assert err.splitlines() == ["clray: warning: overflow encountered in cast",
+                                "clray: error: stopped"]
+    code, _, err = run(capsys, "render", scene, "-q")
+    assert err.splitlines() == ["clray: error: stopped"]
+
+
+INTERRUPT_AT_IMPORT = """\
+import sys
+
+
+class _Interrupt:
+    def find_spec(self, name, path=None, target=None):
+        if name == "numpy":
+            raise KeyboardInterrupt
+        return None
+
+
+sys.meta_path.insert(0, _Interrupt())
+"""
+
+
+@pytest.mark.parametrize(("argv", "code", "err"), [
+    (["-m", "clray", "render", "x.toml"], 130, "clray: error: interrupted\n"),
+    (["-c", "import clray"], None, "KeyboardInterrupt"),
+])
+def test_ctrl_c_while_importing(tmp_path, argv, code, err) -> None:
+    # A sitecustomize that presses Ctrl-C when numpy is first imported: deterministic, unlike
+    # a signal sent after a guessed delay.
+    (tmp_path / "sitecustomize.py").write_text(INTERRUPT_AT_IMPORT)
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(tmp_path), str(ROOT)])}
+    done = subprocess.run([sys.executable, *argv], capture_output=True, text=True, cwd=tmp_path,
+                          env=env, check=False, timeout=60)
+    if code is None:  # a program importing the library keeps its KeyboardInterrupt
+        assert done.returncode != 0 and err in done.stderr
+    else:
+        assert (done.returncode, done.stderr) == (code, err)

@@ -1,12 +1,17 @@
 import json
 import math
+import os
 import shutil
+import struct
+import warnings
+import zlib
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 from clray.errors import SceneError
+from clray.scene import limits
 from clray.scene.load import load_scene, scene_from_dict
 from clray.scene.model import (
     Box,
@@ -681,3 +686,247 @@ def test_scene_error_carries_key_and_exit_code():
     assert info.value.key == "objects[2].radius"
     assert info.value.file == SCENE
     assert info.value.exit_code == 3
+
+
+# -- hostile input (issue 10): every crash class is a one-line scene error --------------------
+
+LIMIT_ERRORS = [
+    # Past float32: the BVH builder used to raise on these.
+    (obj(type="sphere", center=[0, 0, 0], radius=1e39), "objects[2].radius: must be at most 1e+30"),
+    (obj(type="sphere", center=[1e31, 0, 0], radius=1), "objects[2].center: must be at most 1e+30"),
+    (obj(type="sphere", center=[0, 0, 0], radius=1e-31), "objects[2].radius: must be >= 1e-30"),
+    (
+        obj(type="mesh", **TRI, transform={"scale": 1e200}),
+        "objects[2].transform.scale: must be at most 1e+30 in magnitude, got 1e+200",
+    ),
+    (
+        obj(type="mesh", **TRI, transform={"scale": 1e20, "translate": [0, 0, 1e30]}),
+        "objects[2].transform: moves vertices beyond 1e+30 in magnitude",
+    ),
+    (
+        obj(type="mesh", **TRI, transform={"scale": [1, 1e-31, 1]}),
+        "objects[2].transform.scale: must be at least 1e-30 in magnitude",
+    ),
+    # Integers beyond the double range used to raise OverflowError.
+    (obj(type="sphere", center=[0, 0, 0], radius=10**400), "objects[2].radius: must be at most"),
+    (scene(render={"width": 10**400}), "render.width: must be an integer in [1, 16384], got an "
+                                       "integer of about 401 digits"),
+    # Huge colours and weights gave infinite pixels.
+    (scene(lights=[{"type": "directional", "direction": [0, -1, 0], "color": [1e7, 0, 0]}]),
+     "lights[0].color: must be <= 1e+06, got [10000000.0, 0, 0]"),
+    (scene(render={"ambient": [0, 2e6, 0]}), "render.ambient: must be <= 1e+06"),
+    (scene(materials={"m": {"reflect": 1e20}}), "materials.m.reflect: must be <= 1, got 1e+20"),
+    (scene(materials={"m": {"transmit": 1.5}}), "materials.m.transmit: must be <= 1, got 1.5"),
+    (scene(materials={"m": {"specular": 1e300}}), "materials.m.specular: must be at most 1e+30"),
+    (scene(materials={"m": {"ambient": 1e7}}), "materials.m.ambient: must be <= 1e+06"),
+    (scene(materials={"m": {"shininess": 1e7}}), "materials.m.shininess: must be <= 1e+06"),
+    (scene(materials={"m": {"ior": 101}}), "materials.m.ior: must be <= 100, got 101"),
+    (scene(materials={"m": {"color": [0, 0, 1e39]}}), "materials.m.color: must be at most 1e+30"),
+    # An empty key used to be shown as "objects[2].", naming nothing.
+    (obj(**SPHERE, **{"": 1}), 'objects[2]."": unknown key'),
+    (scene(materials={"a.b\nc": {"x": 1}}), 'materials."a.b\\nc".x: unknown key'),
+    # Counts are bounded before anything is built.
+    (scene(lights=[{}] * 10_001), "lights: 10001 entries is over the limit of 10000"),
+]
+
+
+@pytest.mark.parametrize(("data", "expected"), LIMIT_ERRORS,
+                         ids=[e[1].split(":")[0] for e in LIMIT_ERRORS])
+def test_limits_are_checked_at_load_with_the_key_named(data, expected):
+    message = load_error(data)
+    assert message.startswith(f"scene.toml: {expected}"), message
+    assert "\n" not in message
+
+
+def test_values_at_the_limits_load():
+    s = scene_from_dict(scene(
+        render={"ambient": [1e6, 0, 0]},
+        materials={"m": {"reflect": 1, "transmit": 1, "specular": 1e6, "ior": 100}},
+        objects=[{"type": "sphere", "center": [-1e30, 0, 0], "radius": 1e30, "material": "m"}],
+    ))
+    assert s.objects[0].radius == 1e30
+    assert s.materials[0].ior == 100
+
+
+def test_tiny_up_vector_is_a_direction_not_parallel():
+    # Its squared length underflows to 0: the parallel test used to reject it, wrongly.
+    s = scene_from_dict(scene(camera={**CAMERA, "up": [0, 1e-200, 1e-200]}))
+    _, right, up, *_ = s.camera.basis(4, 3)
+    assert np.allclose(right, [1, 0, 0])
+    assert np.all(np.isfinite(up))
+
+
+def test_tiny_direction_normalises_to_unit_length():
+    s = scene_from_dict(obj(type="plane", point=[0, 0, 0], normal=[1e-170, 1e-170, 0]))
+    assert np.allclose(s.objects[2].normal, [0.5**0.5, 0.5**0.5, 0])
+
+
+@pytest.mark.parametrize(("suffix", "text", "line"), [
+    (".toml", "[camera]\nposition = [0, 0, 1]\nx = " + "[" * 3000 + "]" * 3000 + "\n", 3),
+    (".json", '{\n"camera":\n' + "[" * 100_000 + "]" * 100_000 + "}", 3),
+])
+def test_deep_nesting_is_an_error_naming_the_line(tmp_path, suffix, text, line):
+    path = tmp_path / f"deep{suffix}"
+    path.write_text(text)
+    with pytest.raises(SceneError) as info:
+        load_scene(path)
+    kind = suffix[1:].upper()
+    assert str(info.value) == (f"deep{suffix}: invalid {kind}: arrays or tables nested more "
+                               f"than 64 levels deep (at line {line})")
+
+
+def test_deeply_nested_value_is_shown_briefly():
+    value = [[[[[[[[1]]]]]]]]
+    for _ in range(500):
+        value = [value]
+    message = load_error(scene(camera={**CAMERA, "position": value}))
+    assert message == "scene.toml: camera.position: expected 3 numbers, got [[[[...]]]]"
+
+
+@pytest.mark.parametrize("suffix", [".toml", ".json"])
+def test_integer_literal_past_the_digit_limit(tmp_path, suffix):
+    digits = "9" * 5000
+    path = tmp_path / f"big{suffix}"
+    path.write_text(f'[render]\nseed = {digits}\n' if suffix == ".toml"
+                    else f'{{\n"render": {{"seed": {digits}}}}}')
+    with pytest.raises(SceneError) as info:
+        load_scene(path)
+    assert str(info.value).startswith(f"big{suffix}: invalid {suffix[1:].upper()}: an integer "
+                                      "literal has more than 4300 digits (at line 2)")
+
+
+def test_scene_file_that_is_a_fifo_is_refused_without_blocking(tmp_path):
+    fifo = tmp_path / "pipe.toml"
+    os.mkfifo(fifo)
+    with pytest.raises(SceneError, match=r"^pipe\.toml: cannot read scene file: not a regular"):
+        load_scene(fifo)
+
+
+def test_scene_directory_is_refused(tmp_path):
+    (tmp_path / "dir.toml").mkdir()
+    with pytest.raises(SceneError, match=r"^dir\.toml: cannot read scene file: not a regular"):
+        load_scene(tmp_path / "dir.toml")
+
+
+def test_scene_file_size_is_limited(tmp_path, monkeypatch):
+    monkeypatch.setattr(limits, "MAX_SCENE_BYTES", 100)
+    path = tmp_path / "big.toml"
+    path.write_text("#" * 101)
+    with pytest.raises(SceneError, match=r"^big\.toml: cannot read scene file: 101 bytes is "
+                                         r"over the limit of 100 bytes$"):
+        load_scene(path)
+
+
+@pytest.mark.parametrize(("make", "expected"), [
+    (lambda d: os.mkfifo(d / "m.obj"), "not a regular file: m.obj"),
+    (lambda d: (d / "m.obj").mkdir(), "not a regular file: m.obj"),
+    (lambda d: os.symlink("m.obj", d / "m.obj"), "Too many levels of symbolic links: m.obj"),
+])
+def test_mesh_file_that_is_not_a_regular_file(tmp_path, make, expected):
+    make(tmp_path)
+    with pytest.raises(SceneError) as info:
+        scene_from_dict(mesh_scene(file="m.obj"), tmp_path / "scene.toml")
+    assert str(info.value) == f"scene.toml: objects[0].file: {expected}"
+
+
+def test_over_long_file_name(tmp_path):
+    name = "a" * 300 + ".obj"
+    with pytest.raises(SceneError) as info:
+        scene_from_dict(mesh_scene(file=name), tmp_path / "scene.toml")
+    assert str(info.value).startswith('scene.toml: objects[0].file: File name too long: "aaa')
+
+
+def test_newline_in_a_file_name_stays_on_one_line(tmp_path):
+    name = "a\nclray: error: b.png"
+    data = scene(materials={"m": {"texture": {"type": "image", "file": name}}})
+    message = load_error(data)
+    assert message == ('scene.toml: materials.m.texture.file: file not found: '
+                       '"a\\nclray: error: b.png"')
+    bad = tmp_path / "x\u2028y.toml"
+    with pytest.raises(SceneError) as info:
+        load_scene(bad)
+    assert str(info.value).startswith("x\\u2028y.toml: cannot read scene file")
+
+
+def test_mesh_triangle_limit_counts_every_instance(monkeypatch):
+    monkeypatch.setattr(limits, "MAX_TRIANGLES", 2)
+    mesh = {"type": "mesh", **TRI}
+    message = load_error(scene(objects=[mesh, mesh, mesh]))
+    assert message == ("scene.toml: objects[2]: 1 triangles is over what is left (0) of the "
+                       "limit of 2 triangles for all meshes")
+
+
+def png_header_only(path: Path, width: int, height: int) -> None:
+    """A PNG that declares its size but holds no pixel data: what a decompression bomb
+    looks like to a reader that trusts the header."""
+    def chunk(kind: bytes, data: bytes) -> bytes:
+        return (struct.pack(">I", len(data)) + kind + data
+                + struct.pack(">I", zlib.crc32(kind + data)))
+    header = struct.pack(">IIBBBBB", width, height, 8, 2, 0, 0, 0)
+    path.write_bytes(b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", header)
+                     + chunk(b"IDAT", zlib.compress(b"")) + chunk(b"IEND", b""))
+
+
+def texture_scene(*files: str) -> dict:
+    return scene(materials={f"m{i}": {"texture": {"type": "image", "file": f}}
+                            for i, f in enumerate(files)})
+
+
+@pytest.mark.parametrize(("width", "height", "expected"), [
+    (100_000, 100_000, "image is over the limits of 16384 pixels a side and 67108864 texels"),
+    (20_000, 1, "image is 20000x1, over the limit of 16384 pixels a side"),
+    (16_384, 6_000, "image is 16384x6000 = 98304000 texels, over what is left (67108864)"),
+])
+def test_texture_size_is_checked_before_decoding(tmp_path, width, height, expected):
+    png_header_only(tmp_path / "bomb.png", width, height)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # Pillow's own bomb warning must not get out either
+        with pytest.raises(SceneError) as info:
+            scene_from_dict(texture_scene("bomb.png"), tmp_path / "scene.toml")
+    assert str(info.value).startswith(
+        f"scene.toml: materials.m0.texture.file: cannot read image bomb.png: {expected}")
+
+
+def test_texel_limit_covers_all_textures_and_counts_a_file_once(tmp_path, monkeypatch):
+    from PIL import Image
+
+    monkeypatch.setattr(limits, "MAX_TEXELS", 10)
+    Image.new("RGB", (3, 2)).save(tmp_path / "a.png")
+    Image.new("RGB", (5, 1)).save(tmp_path / "b.png")
+    s = scene_from_dict(texture_scene("a.png", "a.png", "a.png"), tmp_path / "scene.toml")
+    assert s.materials[0].texture.image is s.materials[2].texture.image
+    message = load_error_at(texture_scene("a.png", "b.png"), tmp_path)
+    assert message.endswith("image is 5x1 = 5 texels, over what is left (4) of the limit of "
+                            "10 texels for all textures")
+
+
+def load_error_at(data: dict, folder: Path) -> str:
+    with pytest.raises(SceneError) as info:
+        scene_from_dict(data, folder / "scene.toml")
+    return str(info.value)
+
+
+@pytest.mark.parametrize(("array", "expected"), [
+    (np.full((2, 3), 32768, dtype=np.uint16), 32768 / 65535),  # 16-bit grey: was clipped to 1
+    (np.full((2, 3), 0.25, dtype=np.float32), 0.25),  # float: was rounded to 0
+    (np.full((2, 3), 7.0, dtype=np.float32), 1.0),
+])
+def test_texture_modes_keep_their_scale(tmp_path, array, expected):
+    from PIL import Image
+
+    name = "t.png" if array.dtype == np.uint16 else "t.tiff"
+    Image.fromarray(array).save(tmp_path / name)
+    s = scene_from_dict(texture_scene(name), tmp_path / "scene.toml")
+    image = s.materials[0].texture.image
+    assert image.shape == (2, 3, 3) and image.dtype == np.float32
+    assert np.allclose(image, expected, atol=1e-7)
+
+
+def test_truncated_texture_is_a_scene_error(tmp_path):
+    from PIL import Image
+
+    Image.new("RGB", (64, 64), (10, 20, 30)).save(tmp_path / "t.png")
+    data = (tmp_path / "t.png").read_bytes()
+    (tmp_path / "t.png").write_bytes(data[: len(data) // 2])
+    message = load_error_at(texture_scene("t.png"), tmp_path)
+    assert message.startswith("scene.toml: materials.m0.texture.file: cannot read image t.png: ")

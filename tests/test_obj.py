@@ -1,3 +1,4 @@
+import os
 from pathlib import Path
 
 import numpy as np
@@ -339,3 +340,29 @@ def test_more_errors_name_the_line(tmp_path, text, line, message):
         read_obj(write(tmp_path, text, "broken.obj"))
     assert str(info.value).startswith(f"broken.obj: line {line}: "), str(info.value)
     assert message in str(info.value)
+
+
+@pytest.mark.parametrize(("text", "line", "message"), [
+    ("v 0 0 0\nv 1e39 0 0\nv 0 1 0\nf 1 2 3\n", 2, "v: numbers must be at most 1e+30 in magnitude"),
+    ("v 0 0 0\nvt 0 -2e30\n", 2, "vt: numbers must be at most 1e+30 in magnitude"),
+    ("v 0 0 0\nvn 1e300 0 0\n", 2, "vn: numbers must be at most 1e+30 in magnitude"),
+    ("v 0 0 0\n\nvn 0 0 -0.0\n", 3, "vn: zero-length normal"),
+])
+def test_numbers_past_float32_name_the_line(tmp_path, text, line, message):
+    with pytest.raises(SceneError) as info:
+        read_obj(write(tmp_path, text))
+    assert str(info.value) == f"m.obj: line {line}: {message}"
+
+
+@pytest.mark.parametrize("normal", ["1e-200 1e-200 1e-200", "1e30 1e30 1e30", "3 3 3"])
+def test_normals_are_normalised_in_float64(tmp_path, normal):
+    # Squaring 1e-200 underflows to 0, and 1e30 overflows float32: both used to give zero
+    # or infinite normals.
+    mesh = read_obj(write(tmp_path, SQUARE_V + f"vn {normal}\nf 1//1 2//1 3//1\n"))
+    assert np.allclose(mesh.normals, 3**-0.5, rtol=0, atol=1e-15)
+
+
+def test_fifo_mesh_is_refused(tmp_path):
+    os.mkfifo(tmp_path / "m.obj")
+    with pytest.raises(SceneError, match=r"^m\.obj: cannot read mesh file: not a regular file$"):
+        read_obj(tmp_path / "m.obj")

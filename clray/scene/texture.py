@@ -37,8 +37,12 @@ def read_texture(stream: BinaryIO, texels_left: int) -> tuple[np.ndarray, list[s
                 texels = _texels(img)
         except TextureError:
             raise
-        except Image.DecompressionBombError as exc:
-            raise TextureError(f"image too large ({exc})") from None
+        except Image.DecompressionBombError:
+            # Pillow refuses before telling the size; its threshold is above both of ours.
+            raise TextureError(
+                f"image is over the limits of {L.MAX_TEXTURE_SIDE} pixels a side and "
+                f"{L.MAX_TEXELS} texels"
+            ) from None
         except MemoryError:
             raise TextureError("out of memory while decoding the image") from None
         except Exception as exc:

@@ -44,7 +44,8 @@ def test_hard_case(case: HardCase, cl_device: cl.Device) -> None:
     double = _render(scene, "double")
     assert metrics.nonfinite_count(double) == 0
     case.check(double, scene)
-    case.check(image, scene)
+    if case.float_checked:
+        case.check(image, scene)
     if case.max_off >= 0:
         off = metrics.count_over(image, double, 2 / 255)
         assert off <= case.max_off, f"float vs double: {off} pixels off by > 2/255"

@@ -169,11 +169,18 @@ def _check_writable(path: Path) -> None:
     render: the folder must exist and take a new file, which a probe file (removed at once)
     shows more reliably than permission bits (root, read-only mounts, ACLs)."""
     folder = path.parent
-    if not folder.is_dir():
-        raise ClrayError(f"cannot write {path}: directory {folder} does not exist")
-    if path.is_dir():
-        raise ClrayError(f"cannot write {path}: it is a directory")
     probe = folder / f".{path.name[:100]}.{os.getpid()}.{secrets.token_hex(4)}.probe"
+    try:
+        if not folder.is_dir():
+            raise ClrayError(f"cannot write {path}: directory {folder} does not exist")
+        if path.is_dir():
+            raise ClrayError(f"cannot write {path}: it is a directory")
+        # The name itself may be refused (too long, a NUL byte) where the probe's is not.
+        os.stat(path)
+    except FileNotFoundError:
+        pass
+    except (OSError, ValueError) as err:
+        raise ClrayError(f"cannot write {path}: {getattr(err, 'strerror', None) or err}") from err
     try:
         os.close(os.open(probe, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600))
         os.unlink(probe)

@@ -394,3 +394,13 @@ def test_ctrl_c_while_importing(tmp_path, argv, code, err) -> None:
         assert done.returncode != 0 and err in done.stderr
     else:
         assert (done.returncode, done.stderr) == (code, err)
+
+
+def test_over_long_output_name_exits_1_before_rendering(capsys, scene, tmp_path,
+                                                        monkeypatch) -> None:
+    # Found by tests/fuzz.py: Path.is_dir() raised ENAMETOOLONG as a traceback.
+    monkeypatch.setattr(cli, "render", refuse_to_render)
+    code, _, err = run(capsys, "render", scene, "-o", "a" * 300 + ".png")
+    assert code == 1
+    assert_one_error_line(err)
+    assert err.endswith(".png: File name too long\n")

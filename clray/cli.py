@@ -275,7 +275,7 @@ def _render(args: argparse.Namespace) -> int:
         _say(f"warning: {stats['nonfinite_pixels']} pixels are NaN or infinite ({kept})")
     if args.verbose:
         for key, value in stats.items():
-            print(f"  {key}: {_format_stat(value)}", file=sys.stderr)
+            print(one_line(f"  {key}: {_format_stat(value)}"), file=sys.stderr)
     if not args.quiet:
         _say(f"wrote {output} ({width}x{height}, {stats['spp']} spp, "
              f"kernel {stats['kernel_s']:.3g} s)")

@@ -404,3 +404,11 @@ def test_over_long_output_name_exits_1_before_rendering(capsys, scene, tmp_path,
     assert code == 1
     assert_one_error_line(err)
     assert err.endswith(".png: File name too long\n")
+
+
+def test_verbose_figures_escape_a_newline_in_the_output_name(capsys, cl_device, scene) -> None:
+    # Found by tests/fuzz.py: "  output: x" and "y.png" came out as two lines.
+    code, _, err = run(capsys, "render", scene, *TINY, "-v", "-o", "x\ny.png")
+    assert code == 0
+    assert "  output: x\\ny.png" in err.splitlines()
+    assert all(line.startswith(("clray: ", "  ")) for line in err.splitlines())

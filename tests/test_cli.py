@@ -412,3 +412,12 @@ def test_verbose_figures_escape_a_newline_in_the_output_name(capsys, cl_device, 
     assert code == 0
     assert "  output: x\\ny.png" in err.splitlines()
     assert all(line.startswith(("clray: ", "  ")) for line in err.splitlines())
+
+
+def test_out_of_memory_is_one_line(capsys, scene, monkeypatch) -> None:
+    def exhausted(_path):
+        raise MemoryError
+
+    monkeypatch.setattr(cli, "load_scene", exhausted)
+    code, _, err = run(capsys, "render", scene)
+    assert (code, err) == (1, "clray: error: out of memory\n")

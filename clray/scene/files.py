@@ -31,7 +31,7 @@ def open_regular(path: Path, max_bytes: int) -> tuple[BinaryIO, os.stat_result]:
             raise UnreadableFile("not a regular file")
         if info.st_size > max_bytes:
             raise UnreadableFile(f"{info.st_size} bytes is over the limit of {max_bytes} bytes")
-        os.set_blocking(fd, True)
+        os.set_blocking(fd, True)  # O_NONBLOCK was for the open; reads may block as usual
         return os.fdopen(fd, "rb"), info
     except BaseException:
         os.close(fd)

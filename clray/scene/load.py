@@ -14,7 +14,7 @@ import math
 import re
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import Any, BinaryIO
 
 import numpy as np
 
@@ -284,7 +284,9 @@ class _Loader:
         x, y, z = unit(v).tolist()
         return (x, y, z)
 
-    def open_file(self, value: Any, key: str, max_bytes: int) -> tuple[Any, tuple[int, int]]:
+    def open_file(
+        self, value: Any, key: str, max_bytes: int
+    ) -> tuple[BinaryIO, tuple[int, int]]:
         """(open binary stream, (device, inode)) of a mesh or texture file."""
         name = self.string(value, key)
         try:

@@ -1,7 +1,8 @@
 // Ray-primitive intersection. Each primitive reports up to two crossings of the ray with its
 // surface (entry and exit for the solids), sorted, REAL_INF where there is none: closest-hit
 // takes the first with t > 0, shadow rays count every crossing in range.
-// Formulas and their failure rates in float32: ../shared notes, numerics.md (sections 1-2).
+// Formulas and their sources: docs/rendering.md and docs/acceleration.md; the study
+// (docs/study/report.md) measures the textbook alternatives against them.
 #ifndef CLRAY_INTERSECT_H
 #define CLRAY_INTERSECT_H
 
@@ -298,7 +299,7 @@ inline Crossings intersect_cone(const __global Cone* co, const Ray* r) {
 
 #if HAS_TRIANGLES && TRIANGLE_MOLLER_TRUMBORE
 // Study variant: the textbook Moller-Trumbore test. Not watertight: rays aimed at an edge
-// shared by two triangles can miss both (numerics notes, section 2.4).
+// shared by two triangles can miss both.
 inline Crossings intersect_triangle(REAL3 p0, REAL3 p1, REAL3 p2, const Ray* r) {
     Crossings c = no_crossings();
     REAL3 e1 = p1 - p0, e2 = p2 - p0;

@@ -104,6 +104,8 @@ MUTATIONS: tuple[Mutation, ...] = (
       "return 31 - clz(bits & -bits);", "return 31 - clz(bits);", INTERSECT, RENDER),
     m("real.no_fma_error_term", "kernels/real.h",
       "REAL err = fma(-c, d, cd);\n    REAL dop", "REAL err = 0;\n    REAL dop", INTERSECT, HARD),
+    m("real.no_fma_error_term_packet", "kernels/real.h",
+      "REAL4 err = fma(-c, d, cd);", "REAL4 err = (REAL4)(0);", INTERSECT),
     # kernels/clray_types.h
     m("types.point_light_code", "kernels/clray_types.h",
       "#define LIGHT_POINT 0", "#define LIGHT_POINT 2", *KERNEL_SCENES),
@@ -325,6 +327,30 @@ def _scratch_copy(dest: Path, rev: str | None) -> None:
             shutil.copy2(src, dest / rel)
 
 
+def _check_imports(scratch: Path, env: dict[str, str]) -> None:
+    """Exit unless the scratch copy's clray, and the kernels it builds, are the ones imported.
+    The kernels ship as the package clray.kernels (pyproject.toml's package-dir), which an
+    editable install maps to the shared checkout's kernels/: a link in the scratch copy's
+    clray/ takes precedence, and a marker written into a scratch kernel must show up."""
+    link = scratch / "clray" / "kernels"
+    if (scratch / "kernels").is_dir() and not link.exists():
+        link.symlink_to(Path("..") / "kernels", target_is_directory=True)
+    marker = "// mutate.py: scratch kernel marker"
+    header = scratch / "kernels" / "rng.h"
+    original = header.read_text()
+    header.write_text(original + marker + "\n")
+    probe = ("import clray\nfrom clray.device.program import kernel_source\n"
+             f"print(clray.__file__)\nprint({marker!r} in kernel_source())")
+    try:
+        out = subprocess.run([sys.executable, "-c", probe], cwd=scratch, env=env, check=True,
+                             capture_output=True, text=True).stdout.split()
+    finally:
+        header.write_text(original)
+    if not Path(out[0]).is_relative_to(scratch) or out[1] != "True":
+        sys.exit(f"the scratch copy is not what runs: clray from {out[0]}, its kernels used: "
+                 f"{out[1]}")
+
+
 def _run_tests(scratch: Path, tests: tuple[str, ...], env: dict[str, str],
                timeout: float) -> tuple[int | None, str]:
     cmd = [sys.executable, "-m", "pytest", "-x", "-q", "-p", "no:cacheprovider", *tests]
@@ -354,10 +380,7 @@ def run(mutations: list[Mutation], rev: str | None, timeout: float, baseline: bo
         _scratch_copy(scratch, rev)
         env = dict(os.environ, PYTHONPATH=str(scratch), CLRAY_REQUIRE_DEVICE="1",
                    POCL_CACHE_DIR=str(Path(tmp) / "pocl-cache"))
-        check = subprocess.run([sys.executable, "-c", "import clray; print(clray.__file__)"],
-                               cwd=scratch, env=env, check=True, capture_output=True, text=True)
-        if not Path(check.stdout.strip()).is_relative_to(scratch):
-            sys.exit(f"clray imports from {check.stdout.strip()}, not the scratch copy")
+        _check_imports(scratch, env)
         if baseline:
             union = tuple(sorted({t for mu in mutations for t in mu.tests}))
             print(f"baseline: {len(union)} test files, unmutated", flush=True)

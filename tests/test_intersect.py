@@ -615,6 +615,31 @@ def test_closed_mesh_is_watertight_at_edges_and_vertices(cl_device, where, dista
             assert np.all(t >= 1.0 - RTOL_GRAZING)
 
 
+def test_rays_exactly_on_a_shared_diagonal_with_inexact_products_hit(cl_device):
+    """Axis-aligned rays through points exactly on the diagonal a quad's two triangles share,
+    where the edge function's two products are equal but not representable in float32. The
+    compensated a*b - c*d (difference_of_products) gives exactly 0 for both triangles, so the
+    edge counts as inside; an uncompensated one gives both the same rounding residue, which
+    one triangle reads as inside and the other as outside, or both as outside: a leak."""
+    rng = np.random.default_rng(15)
+    leaks = []
+    for _ in range(40):
+        # 22-bit mantissas in [1, 2): a s and a - a s are exact for s in {1/4, 1/2, 3/4},
+        # while products of two such numbers need about 44 bits.
+        a, b = rng.integers(2**21, 2**22, 2) / 2.0**21
+        quad = M.Mesh(vertices=np.array([[0, 0, -5], [a, 0, -5], [a, b, -5], [0, b, -5]]),
+                      faces=np.array([[0, 1, 2], [0, 2, 3]]), material=0)
+        s = np.array([0.25, 0.5, 0.75])
+        points = np.stack([a * s, b * s], axis=1)
+        o = np.concatenate([np.column_stack([points, np.zeros(3)]),
+                            np.column_stack([points, np.full(3, -10.0)])])
+        d = np.array([[0.0, 0.0, -1.0]] * 3 + [[0.0, 0.0, 1.0]] * 3)
+        t, _, r = cast(cl_device, make_scene(quad), o, d)
+        assert np.all(f32(o) == o) and np.all((r < 0) | (np.abs(t - 5.0) <= RTOL * 5))
+        leaks += [(a, b, tuple(o[k])) for k in np.flatnonzero(r < 0)]
+    assert not leaks, f"{len(leaks)} of 240 rays slipped between the triangles: {leaks[:3]}"
+
+
 # ---------------------------------------------------------------------------------------------
 # The BVH: closest hit over a random mix, against brute force
 

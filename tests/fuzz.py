@@ -28,6 +28,7 @@ import random
 import re
 import shutil
 import signal
+import stat
 import struct
 import sys
 import tempfile
@@ -392,15 +393,19 @@ def run_case(case: Case, work: Path, render: bool) -> Outcome:
     for name, data in files.items():
         (work / name).write_bytes(data)
     before = set(os.listdir(work))
+    raw_before = _fd2_size()
     previous = signal.signal(signal.SIGALRM, _alarm)
     signal.alarm(CASE_SECONDS)
     try:
         if case.argv is not None:
-            return _run_cli(case.argv, work, before)
-        if render:
-            return _run_cli(["render", _scene_name(case), "-W", "8", "-H", "6", "-o", "r.png",
-                             "--stats-json", "r.json"], work, before, scene=True)
-        return _run_load(work / _scene_name(case))
+            outcome = _run_cli(case.argv, work, before)
+        elif render:
+            outcome = _run_cli(["render", _scene_name(case), "-W", "8", "-H", "6", "-o", "r.png",
+                                "--stats-json", "r.json"], work, before)
+        else:
+            outcome = _run_load(work / _scene_name(case))
+        raw = _fd2_since(raw_before)
+        return Outcome("bug", f"raw output on stderr: {raw!r}") if raw else outcome
     except _Hang:
         return Outcome("bug", f"still running after {CASE_SECONDS} s")
     except Exception:
@@ -412,6 +417,34 @@ def run_case(case: Case, work: Path, render: bool) -> Outcome:
             _remove(work / name)
         for name in files:
             _remove(work / name)
+
+
+def _fd2_size() -> int | None:
+    """Where file descriptor 2 ends, if it is a file (as fuzz() and pytest make it): C code
+    (libtiff, say) writes there directly, past any redirection of sys.stderr."""
+    info = os.fstat(2)
+    return info.st_size if stat.S_ISREG(info.st_mode) else None
+
+
+def _fd2_since(size: int | None) -> bytes:
+    if size is None:
+        return b""
+    return os.pread(2, 300, size)
+
+
+@contextlib.contextmanager
+def _fd2_to_a_file() -> Any:
+    """Point file descriptor 2 at a scratch file for the run, so _fd2_since can see raw
+    output; yields a stream to the real stderr for progress messages."""
+    sys.stderr.flush()
+    saved = os.dup(2)
+    with tempfile.TemporaryFile() as sink, os.fdopen(os.dup(saved), "w", buffering=1) as real:
+        os.dup2(sink.fileno(), 2)
+        try:
+            yield real
+        finally:
+            os.dup2(saved, 2)
+            os.close(saved)
 
 
 def _alarm(_signum: int, _frame: object) -> None:
@@ -426,7 +459,7 @@ def _remove(path: Path) -> None:
 
 
 # A scene error names a key path (`objects[3].radius`, `materials."x".ior`) or a line.
-_LOCATED = re.compile(r'^[^:]+: (line \d+: |(?:[\w\[\].-]|"(?:[^"\\]|\\.)*")+: '
+_LOCATED = re.compile(r'^[^:]+: (line \d+: |(?:[\w\[\].-]|"(?:[^"\\]|\\.)*"(?:\.\.\.)?)+: '
                       r"|.*\(at (line \d+|end of document))")
 _FILE_LEVEL = ("cannot read scene file", "not valid UTF-8", "unknown scene file type",
                "expected a table at the top level", "cannot read mesh file")
@@ -462,7 +495,7 @@ def warnings_as_errors() -> Any:
         yield
 
 
-def _run_cli(argv: list[str], work: Path, before: set[str], scene: bool = False) -> Outcome:
+def _run_cli(argv: list[str], work: Path, before: set[str]) -> Outcome:
     err = io.StringIO()
     cwd = os.getcwd()
     os.chdir(work)
@@ -553,13 +586,18 @@ def save_bug(case: Case, outcome: Outcome, folder: Path, number: int, render: bo
 # -- the long run ---------------------------------------------------------------------------------
 
 def fuzz(cases: int, seed: int, strategies: tuple[str, ...], render_fraction: float,
-         bugs: Path, time_limit: float | None = None, say: Any = print) -> dict:
+         bugs: Path, time_limit: float | None = None) -> dict:
+    """Run `cases` cases, round robin over `strategies`; progress and bugs go to stderr."""
     rng = random.Random(seed)
     counts: dict[str, Counter] = {s: Counter() for s in strategies}
     started = time.perf_counter()
     saved = 0
-    with tempfile.TemporaryDirectory(prefix="clray-fuzz-") as tmp:
+    with tempfile.TemporaryDirectory(prefix="clray-fuzz-") as tmp, _fd2_to_a_file() as real:
         work = Path(tmp)
+
+        def say(message: str) -> None:
+            print(message, file=real)
+
         make_workdir(work)
         for n in range(cases):
             if time_limit is not None and time.perf_counter() - started > time_limit:
@@ -602,7 +640,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--json", type=Path, help="also write the summary here")
     args = parser.parse_args(argv)
     summary = fuzz(args.cases, args.seed, tuple(args.strategies), args.render_fraction,
-                   args.bugs, args.time_limit, say=lambda m: print(m, file=sys.stderr))
+                   args.bugs, args.time_limit)
     text = json.dumps(summary, indent=2)
     print(text)
     if args.json:

@@ -7,6 +7,7 @@ needs a device. The long run is `python -m tests.fuzz --cases N --seed S`.
 
 from __future__ import annotations
 
+import os
 import random
 from pathlib import Path
 
@@ -92,3 +93,14 @@ def test_cli_outcomes_are_classified(work, monkeypatch):
     monkeypatch.setattr(fuzz.cli, "main", lambda _argv: 1)
     outcome = fuzz.run_case(fuzz.Case("flags", {}, argv=["render", "scene.toml"]), work, False)
     assert outcome.kind == "bug" and outcome.detail.startswith("exit 1")
+
+
+def test_raw_output_on_file_descriptor_2_is_a_bug(work, monkeypatch, capfd):
+    # What libtiff does from inside Pillow: it bypasses sys.stderr.
+    def printing(_path):
+        os.write(2, b"More samples per pixel than can be decoded: 224\n")
+
+    monkeypatch.setattr(fuzz, "load_scene", printing)
+    case = fuzz._with_data(fuzz.Case("scene", {}), fuzz.base_scene(random.Random(3)))
+    outcome = fuzz.run_case(case, work, render=False)
+    assert outcome.kind == "bug" and outcome.detail.startswith("raw output on stderr: b'More")

@@ -930,3 +930,17 @@ def test_truncated_texture_is_a_scene_error(tmp_path):
     (tmp_path / "t.png").write_bytes(data[: len(data) // 2])
     message = load_error_at(texture_scene("t.png"), tmp_path)
     assert message.startswith("scene.toml: materials.m0.texture.file: cannot read image t.png: ")
+
+
+def test_c_library_messages_while_decoding_become_warning_text(capfd):
+    from clray.scene.texture import _c_stderr
+
+    with _c_stderr() as lines:
+        os.write(2, b"tempfile.tif: Using code not yet in table.\n")
+    assert lines == ["tempfile.tif: Using code not yet in table."]
+    assert capfd.readouterr().err == ""
+
+
+def test_long_quoted_key_is_cut_inside_its_quotes():
+    message = load_error(obj(**SPHERE, **{"r" + "9" * 80: 1}))
+    assert message.startswith('scene.toml: objects[2]."r' + "9" * 49 + '"...: unknown key')

@@ -135,7 +135,10 @@ def _show(value: Any, depth: int = 0) -> str:
 def _key(prefix: str | None, name: str) -> str:
     """`prefix.name`, the name quoted unless it is a bare TOML key (an empty key, or one with
     dots or newlines, must stay visible and unambiguous)."""
-    shown = name if _BARE_KEY.fullmatch(name) and len(name) <= 60 else _show(name)
+    if _BARE_KEY.fullmatch(name) and len(name) <= 60:
+        shown = name
+    else:  # a long name is cut inside its quotes, so the quotes still close
+        shown = json.dumps(name[:50], ensure_ascii=False) + "..." * (len(name) > 50)
     return f"{prefix}.{shown}" if prefix else shown
 
 

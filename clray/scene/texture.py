@@ -7,7 +7,12 @@ a few hundred bytes can declare 100000 x 100000 pixels. 16-bit images are scaled
 
 from __future__ import annotations
 
+import contextlib
+import os
+import sys
+import tempfile
 import warnings
+from collections.abc import Iterator
 from typing import TYPE_CHECKING, BinaryIO
 
 import numpy as np
@@ -18,6 +23,7 @@ if TYPE_CHECKING:
     from PIL.Image import Image
 
 _SIXTEEN_BIT = ("I;16", "I;16L", "I;16B", "I;16N")
+_MAX_CAPTURED = 4096  # bytes of libtiff's messages kept for the warnings
 
 
 class TextureError(Exception):
@@ -29,7 +35,7 @@ def read_texture(stream: BinaryIO, texels_left: int) -> tuple[np.ndarray, list[s
     within `texels_left` (what the scene's earlier textures left of MAX_TEXELS)."""
     from PIL import Image  # only scenes with image textures pay for importing Pillow
 
-    with warnings.catch_warnings(record=True) as caught:
+    with warnings.catch_warnings(record=True) as caught, _c_stderr() as printed:
         warnings.simplefilter("always")
         try:
             with Image.open(stream) as img:
@@ -49,7 +55,28 @@ def read_texture(stream: BinaryIO, texels_left: int) -> tuple[np.ndarray, list[s
             # Pillow's format plugins raise many types on malformed files (OSError,
             # SyntaxError, struct.error, EOFError, IndexError, ...): all mean a bad file.
             raise TextureError(f"{type(exc).__name__}: {exc}") from None
-    return texels, [str(w.message) for w in caught if _worth_telling(w)]
+    told = [str(w.message) for w in caught if _worth_telling(w)]
+    return texels, told + [f"libtiff: {line}" for line in printed if line.strip()]
+
+
+@contextlib.contextmanager
+def _c_stderr() -> Iterator[list[str]]:
+    """The lines C code (libtiff, inside Pillow) prints straight to file descriptor 2 while
+    the block runs, captured so that they can be told as clray warnings instead."""
+    lines: list[str] = []
+    sys.stderr.flush()
+    saved = os.dup(2)
+    try:
+        with tempfile.TemporaryFile() as sink:
+            os.dup2(sink.fileno(), 2)
+            try:
+                yield lines
+            finally:
+                os.dup2(saved, 2)
+                sink.seek(0)
+                lines.extend(sink.read(_MAX_CAPTURED).decode("utf-8", "replace").splitlines())
+    finally:
+        os.close(saved)
 
 
 def _worth_telling(warning: warnings.WarningMessage) -> bool:

@@ -133,6 +133,9 @@ MUTATIONS: tuple[Mutation, ...] = (
     m("intersect.triangle_hits_behind", "kernels/intersect.h",
       "MASK4 ahead = ((det < 0) & (t_scaled < 0)) | ((det > 0) & (t_scaled > 0));",
       "MASK4 ahead = (det != 0);", INTERSECT),
+    m("intersect.triangle_backfaces_culled", "kernels/intersect.h",
+      "MASK4 mixed = ((e0 < 0) | (e1 < 0) | (e2 < 0)) & ((e0 > 0) | (e1 > 0) | (e2 > 0));",
+      "MASK4 mixed = (e0 < 0) | (e1 < 0) | (e2 < 0);", INTERSECT),
     m("intersect.sphere_packet_ignores_disc", "kernels/intersect.h",
       "MASK4 roots = (disc >= (REAL)0) & (q != (REAL)0);", "MASK4 roots = (q != (REAL)0);",
       INTERSECT),
@@ -295,7 +298,7 @@ MUTATIONS: tuple[Mutation, ...] = (
       "close = (np.abs(_diff(a, b)) <= threshold) | (a == b)",
       "close = (np.abs(_diff(a, b)) < threshold) | (a == b)", METRICS),
     m("reference.no_attenuation_clamp", "clray/reference.py",
-      "np.minimum(1.0, 1.0 / denom)", "1.0 / denom", REFERENCE, FEATURES),
+      "np.minimum(1.0, 1.0 / denom)", "1.0 / denom", REFERENCE, *KERNEL_SCENES),
     m("reference.specular_from_direction", "clray/reference.py",
       "rv = _dot(r, -d)", "rv = _dot(r, d)", REFERENCE),
 )

@@ -16,6 +16,7 @@ near a surface cannot get t below the float32 resolution of its coordinates.
 from __future__ import annotations
 
 import importlib.util
+import math
 from pathlib import Path
 
 import numpy as np
@@ -400,6 +401,31 @@ def test_cylinder_side(cl_device):
     check_against_reference(cl_device, c, o, d, RTOL, "cylinder side")
 
 
+@pytest.mark.parametrize("shape", ["cylinder", "cone"])
+def test_side_from_just_inside_reaches_the_far_side(cl_device, shape):
+    """Origins 1e-4 radii inside the side, as a refracted ray starts: the near root is tiny
+    and negative, and the far one must not inherit its cancellation (the Press pair computes
+    each root from the sum of two same-signed numbers)."""
+    rng = np.random.default_rng(16)
+    n = 2000
+    perp = perpendicular_units(rng, np.broadcast_to(AXIS, (n, 3)))
+    if shape == "cylinder":
+        c = cylinder(capped=False)
+        along = rng.uniform(0.8, 1.2, (n, 1))
+        o = f32(np.array(c.base) + along * AXIS + perp * c.radius * 0.9999)
+    else:
+        c = cone(capped=False)
+        along = rng.uniform(0.8, 1.2, (n, 1))
+        radius = along * math.tan(math.radians(c.angle))
+        o = f32(np.array(c.apex) - along * AXIS + perp * radius * 0.9999)
+    # Inwards and across, nearly perpendicular to the axis, so the far crossing is on the side.
+    tangent = np.cross(AXIS, perp)
+    d = f32(unit(-perp + 0.9 * rng.uniform(-1, 1, (n, 1)) * tangent
+                 + 0.02 * rng.uniform(-1, 1, (n, 1)) * AXIS))
+    t = check_against_reference(cl_device, c, o, d, RTOL, f"{shape} from inside")
+    assert np.all(t > 0.1 * c.radius if shape == "cylinder" else t > 0.05)
+
+
 def test_cylinder_caps(cl_device):
     rng = np.random.default_rng(7)
     c = cylinder()
@@ -727,4 +753,18 @@ def test_coincident_primitives_report_the_lowest_reference(cl_device):
     mesh = M.Mesh(vertices=np.array(tri.vertices * 40), faces=np.arange(120).reshape(40, 3),
                   material=0)
     _, _, r = cast(cl_device, make_scene(mesh), o, d)
+    assert r.tolist() == [ref(L.PRIM_TRIANGLE, 0)] * 2
+
+
+def test_tie_goes_to_the_lowest_reference_in_a_later_leaf(cl_device):
+    """40 coplanar triangles all under the rays, shifted left in scene order: the builder
+    puts the later (higher) references in the first child, so the first hit found at t = 5
+    is not the winner. Children entered at exactly that t must still be searched."""
+    shifts = -0.03 * np.arange(40)
+    tris = [M.Triangle(((-3.0 + s, -3.0, -5.0), (3.0 + s, -3.0, -5.0), (s, 3.0, -5.0)), 0)
+            for s in shifts]
+    o = np.array([[0.0, 0.0, 0.0], [0.25, -0.5, 0.0]])
+    d = np.array([[0.0, 0.0, -1.0]] * 2)
+    t, _, r = cast(cl_device, make_scene(*tris), o, d)
+    assert t.tolist() == [5.0, 5.0]
     assert r.tolist() == [ref(L.PRIM_TRIANGLE, 0)] * 2

@@ -318,7 +318,9 @@ def test_plane_under_directional_light_is_uniform(spp):
     assert np.allclose(img, np.broadcast_to(want, img.shape), rtol=0, atol=1e-13)
 
 
-@pytest.mark.parametrize("attenuation", [(1.0, 0.0, 0.0), (0.2, 0.1, 0.05)])
+# The last: a denominator below 1 on the near side (0.1 + 0.05 d + 0.01 d^2 at d ~ 4), where
+# min(1, 1 / denominator) clamps.
+@pytest.mark.parametrize("attenuation", [(1.0, 0.0, 0.0), (0.2, 0.1, 0.05), (0.1, 0.05, 0.01)])
 @pytest.mark.parametrize("specular", [0.0, 0.6])
 def test_lone_sphere_follows_lambert_and_phong(attenuation, specular):
     center, radius = np.array([0.3, -0.2, 0.0]), 1.2

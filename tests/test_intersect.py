@@ -757,10 +757,12 @@ def test_coincident_primitives_report_the_lowest_reference(cl_device):
 
 
 def test_tie_goes_to_the_lowest_reference_in_a_later_leaf(cl_device):
-    """40 coplanar triangles all under the rays, shifted left in scene order: the builder
-    puts the later (higher) references in the first child, so the first hit found at t = 5
-    is not the winner. Children entered at exactly that t must still be searched."""
-    shifts = -0.03 * np.arange(40)
+    """400 coplanar triangles all under the rays, shifted left in scene order: the builder
+    puts the later (higher) references in the first children, so the first hit found at t = 5
+    is not the winner, and the winner's subtree is opened only after that. Its boxes are
+    entered at exactly t = 5 (flat in z) and must still be searched."""
+    # Shifts in 1/512ths keep every edge function exact, so all 400 hits are at t = 5 exactly.
+    shifts = -np.arange(400) / 512
     tris = [M.Triangle(((-3.0 + s, -3.0, -5.0), (3.0 + s, -3.0, -5.0), (s, 3.0, -5.0)), 0)
             for s in shifts]
     o = np.array([[0.0, 0.0, 0.0], [0.25, -0.5, 0.0]])

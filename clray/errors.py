@@ -1,4 +1,4 @@
-"""Errors a user can act on, each mapped to the exit code of DESIGN.md section 7."""
+"""Errors a user can act on, each mapped to an exit code of the command line (README.md)."""
 
 from __future__ import annotations
 

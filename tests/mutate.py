@@ -17,7 +17,8 @@ since every mutation would then look killed. CLRAY_REQUIRE_DEVICE=1 makes a miss
 device fail rather than skip. Kernels are built from their inlined full text (clray.device.
 program.kernel_source), so PoCL's cache, here one per run, never serves a stale binary.
 
-Not collected by pytest (the name does not start with test_): it takes tens of minutes.
+Not collected by pytest (the name does not start with test_): it takes about 15 minutes on two
+CPU cores with PoCL (two runs with disjoint --only lists can share the machine).
 """
 
 from __future__ import annotations

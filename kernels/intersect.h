@@ -320,47 +320,6 @@ inline Crossings intersect_triangle(REAL3 p0, REAL3 p1, REAL3 p2, const Ray* r) 
     c.b2 = v;
     return c;
 }
-#elif HAS_TRIANGLES
-// Woop, Benthin, Wald, "Watertight Ray/Triangle Intersection", JCGT 2013, as in pbrt-v4: edge
-// functions in a ray-aligned sheared frame, so rays at shared edges hit one side or both.
-inline Crossings intersect_triangle(REAL3 p0, REAL3 p1, REAL3 p2, const Ray* r) {
-    Crossings c = no_crossings();
-    REAL3 a = p0 - r->o, b = p1 - r->o, d = p2 - r->o;
-    REAL3 p0t = (REAL3)(comp3(a, r->kx), comp3(a, r->ky), comp3(a, r->kz));
-    REAL3 p1t = (REAL3)(comp3(b, r->kx), comp3(b, r->ky), comp3(b, r->kz));
-    REAL3 p2t = (REAL3)(comp3(d, r->kx), comp3(d, r->ky), comp3(d, r->kz));
-    p0t.x += r->sx * p0t.z;
-    p0t.y += r->sy * p0t.z;
-    p1t.x += r->sx * p1t.z;
-    p1t.y += r->sy * p1t.z;
-    p2t.x += r->sx * p2t.z;
-    p2t.y += r->sy * p2t.z;
-    REAL e0 = difference_of_products(p1t.x, p2t.y, p1t.y, p2t.x);
-    REAL e1 = difference_of_products(p2t.x, p0t.y, p2t.y, p0t.x);
-    REAL e2 = difference_of_products(p0t.x, p1t.y, p0t.y, p1t.x);
-#if !defined(USE_DOUBLE) && defined(cl_khr_fp64) && !TRIANGLE_NO_FP64_FALLBACK
-    // An edge function of exactly zero may be a float rounding to zero: decide it in double.
-    if (e0 == 0.0f || e1 == 0.0f || e2 == 0.0f) {
-        e0 = (float)((double)p1t.x * (double)p2t.y - (double)p1t.y * (double)p2t.x);
-        e1 = (float)((double)p2t.x * (double)p0t.y - (double)p2t.y * (double)p0t.x);
-        e2 = (float)((double)p0t.x * (double)p1t.y - (double)p0t.y * (double)p1t.x);
-    }
-#endif
-    if ((e0 < 0 || e1 < 0 || e2 < 0) && (e0 > 0 || e1 > 0 || e2 > 0)) return c;
-    REAL det = e0 + e1 + e2;
-    if (det == (REAL)0) return c;
-    p0t.z *= r->sz;
-    p1t.z *= r->sz;
-    p2t.z *= r->sz;
-    REAL t_scaled = e0 * p0t.z + e1 * p1t.z + e2 * p2t.z;
-    if (det < 0 && t_scaled >= 0) return c;
-    if (det > 0 && t_scaled <= 0) return c;
-    REAL inv_det = (REAL)1 / det;
-    c.t[0] = t_scaled * inv_det;
-    c.b1 = e1 * inv_det;
-    c.b2 = e2 * inv_det;
-    return c;
-}
 #endif
 
 #if HAS_TRIANGLES
@@ -387,8 +346,9 @@ HOT int intersect_triangle_packet(const __global TrianglePacket* pk, const Ray* 
 #else
 HOT REAL4 pick4(REAL4 x, REAL4 y, REAL4 z, int k) { return k == 0 ? x : (k == 1 ? y : z); }
 
-// intersect_triangle's watertight test on four triangles at once: lane for lane the same
-// operations in the same order, so each lane rounds exactly as the scalar test would.
+// Woop, Benthin, Wald, "Watertight Ray/Triangle Intersection", JCGT 2013, as in pbrt-v4, on four
+// triangles at once: edge functions in a ray-aligned sheared frame, so rays at shared edges hit
+// one side or both. An edge function that rounds to exactly zero is recomputed in double.
 HOT int intersect_triangle_packet(const __global TrianglePacket* pk, const Ray* r, REAL* t,
                                   REAL* b1, REAL* b2) {
     REAL4 ox = (REAL4)(r->o.x), oy = (REAL4)(r->o.y), oz = (REAL4)(r->o.z);

@@ -80,7 +80,7 @@ class Camera:
 
     def basis(self, width: int, height: int) -> tuple[np.ndarray, ...]:
         """(forward, right, up, half_w, half_h): unit vectors and image-plane half extents at
-        distance 1. right = normalize(cross(forward, up)), as DESIGN.md fixes it."""
+        distance 1. right = normalize(cross(forward, up)), as docs/rendering.md fixes it."""
         eye = np.asarray(self.position, dtype=np.float64)
         forward = unit(np.asarray(self.look_at, dtype=np.float64) - eye)
         right = unit(np.cross(forward, unit(self.up)))

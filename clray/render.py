@@ -57,10 +57,33 @@ def _resolve(scene: Scene, settings: RenderSettings) -> dict[str, int]:
     }
 
 
+def check_device_memory(packed: PackedScene, global_mem: int, max_alloc: int) -> None:
+    """Refuse, before any buffer exists, a render whose buffers exceed the device's limits:
+    the largest single buffer against CL_DEVICE_MAX_MEM_ALLOC_SIZE and the sum against
+    CL_DEVICE_GLOBAL_MEM_SIZE. The image takes three buffers of 16 bytes a pixel (radiance, ray
+    counts, test counts), the scene what PackedScene.device_bytes() lists."""
+    params = packed.params[0]
+    pixels = int(params["width"]) * int(params["height"])
+    sizes = {**packed.device_bytes(), "image": 16 * pixels, "ray counts": 16 * pixels}
+    if packed.config.count_tests:
+        sizes["test counts"] = 16 * pixels
+    largest = max(sizes, key=sizes.__getitem__)
+    mib = 1 << 20
+    if sizes[largest] > max_alloc:
+        raise DeviceError(f"the {largest} buffer needs {sizes[largest] / mib:.0f} MiB, over the "
+                          f"device's largest allocation ({max_alloc / mib:.0f} MiB): render a "
+                          "smaller image or scene")
+    total = sum(sizes.values())
+    if total > global_mem:
+        raise DeviceError(f"the render needs {total / mib:.0f} MiB of device memory, over the "
+                          f"device's {global_mem / mib:.0f} MiB: render a smaller image or scene")
+
+
 def render_packed(packed: PackedScene, device: cl.Device,
                   progress: Callable[[int, int], None] | None = None
                   ) -> tuple[np.ndarray, dict]:
     """Launch the kernel over a packed scene: (image, stats without load/pack times)."""
+    check_device_memory(packed, device.global_mem_size, device.max_mem_alloc_size)
     program, build_s = build_program(device, packed.config)
     queue = queue_for(device)
     ctx = queue.context

@@ -24,7 +24,14 @@ import pyopencl as cl
 from clray import __version__
 from clray.device.context import list_devices
 from clray.errors import EXIT_OK, EXIT_RUNTIME, EXIT_USAGE, ClrayError, one_line
-from clray.image_io import SUFFIXES, check_suffix, write_bytes_atomically, write_image
+from clray.image_io import (
+    SUFFIXES,
+    check_suffix,
+    is_special_file,
+    output_target,
+    write_bytes_atomically,
+    write_image,
+)
 from clray.metrics import nonfinite_count
 from clray.render import RenderSettings, render
 from clray.scene import limits
@@ -168,6 +175,11 @@ def _check_writable(path: Path) -> None:
     """Before rendering, so that a typo in -o or a read-only folder does not cost a whole
     render: the folder must exist and take a new file, which a probe file (removed at once)
     shows more reliably than permission bits (root, read-only mounts, ACLs)."""
+    path = output_target(path)
+    if is_special_file(path):
+        if not os.access(path, os.W_OK):
+            raise ClrayError(f"cannot write {path}: permission denied")
+        return
     folder = path.parent
     probe = folder / f".{path.name[:100]}.{os.getpid()}.{secrets.token_hex(4)}.probe"
     try:

@@ -3,7 +3,8 @@
 Rendered images are (H, W, 3) float32 linear radiance with row 0 at the top. PNG clamps them;
 PFM keeps every value, non-finite ones included, so tests and studies can count them.
 Files are written to a temporary name in the target directory and renamed into place, so a
-reader never sees a half-written image.
+reader never sees a half-written image; a symlink's target is written, not the link, and a
+device or pipe (/dev/stdout) is written directly.
 """
 
 from __future__ import annotations
@@ -11,6 +12,7 @@ from __future__ import annotations
 import io
 import os
 import secrets
+import stat
 import struct
 import zlib
 from pathlib import Path
@@ -113,9 +115,36 @@ def read_pfm(path: str | Path) -> np.ndarray:
     return pixels.reshape(height, width, 3)[::-1].astype(np.float32)
 
 
-def write_bytes_atomically(path: str | Path, payload: bytes) -> None:
-    """Write `payload` so that `path` is either untouched or complete, never partial."""
+def output_target(path: str | Path) -> Path:
+    """Where writing `path` lands: a symlink's final target (its folder must take the file),
+    else `path` itself. Writing there keeps the link a link and never writes elsewhere."""
     path = Path(path)
+    try:
+        linked = path.is_symlink()
+    except (OSError, ValueError):  # a name the system refuses: the writer reports it
+        return path
+    return Path(os.path.realpath(path)) if linked else path
+
+
+def is_special_file(path: Path) -> bool:
+    """An existing file that is not a regular file: a device (/dev/stdout), a pipe."""
+    try:
+        mode = os.stat(path).st_mode
+    except OSError:
+        return False
+    return not (stat.S_ISREG(mode) or stat.S_ISDIR(mode))
+
+
+def write_bytes_atomically(path: str | Path, payload: bytes) -> None:
+    """Write `payload` so that `path` is either untouched or complete, never partial.
+
+    Through a symlink the target is replaced, not the link. A device or pipe cannot be
+    replaced by a rename (it would become a regular file): it is written directly."""
+    path = output_target(path)
+    if is_special_file(path):
+        with open(path, "wb") as stream:
+            stream.write(payload)
+        return
     # Same directory, so os.replace is a rename on one file system; created with 0o666 rather
     # than through mkstemp so the finished file gets the usual umask-derived permissions.
     tmp = path.with_name(f".{path.name}.{os.getpid()}.{secrets.token_hex(4)}.tmp")

@@ -1,0 +1,59 @@
+"""Outputs never destroy what they should not: symlinks are written through, pipes directly."""
+
+from __future__ import annotations
+
+import os
+import threading
+from pathlib import Path
+
+import numpy as np
+
+from clray.cli import main
+from clray.image_io import read_pfm, write_bytes_atomically
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def test_a_symlink_stays_a_link_and_its_target_is_written(tmp_path):
+    target = tmp_path / "elsewhere" / "real.txt"
+    target.parent.mkdir()
+    target.write_bytes(b"old")
+    link = tmp_path / "link.txt"
+    link.symlink_to(target)
+    write_bytes_atomically(link, b"new")
+    assert link.is_symlink() and os.readlink(link) == str(target)
+    assert target.read_bytes() == b"new"
+    assert sorted(p.name for p in target.parent.iterdir()) == ["real.txt"]  # no temp left
+
+
+def test_a_dangling_symlink_creates_its_target(tmp_path):
+    link = tmp_path / "link.txt"
+    link.symlink_to(tmp_path / "made.txt")
+    write_bytes_atomically(link, b"data")
+    assert link.is_symlink()
+    assert (tmp_path / "made.txt").read_bytes() == b"data"
+
+
+def test_a_pipe_is_written_not_replaced(tmp_path):
+    fifo = tmp_path / "pipe"
+    os.mkfifo(fifo)
+    received = []
+    reader = threading.Thread(target=lambda: received.append(fifo.read_bytes()), daemon=True)
+    reader.start()
+    write_bytes_atomically(fifo, b"through the pipe")
+    reader.join(timeout=10)
+    assert received == [b"through the pipe"]
+    assert not fifo.is_file() and fifo.exists()  # still a pipe, not a regular file
+
+
+def test_render_through_a_symlinked_output(cl_device, tmp_path):
+    target = tmp_path / "out" / "image.pfm"
+    target.parent.mkdir()
+    link = tmp_path / "image.pfm"
+    link.symlink_to(target)
+    code = main(["render", str(ROOT / "scenes" / "spheres.toml"), "-W", "16", "-H", "12", "-q",
+                 "-o", str(link)])
+    assert code == 0
+    assert link.is_symlink()
+    image = read_pfm(target)
+    assert image.shape == (12, 16, 3) and np.all(np.isfinite(image))

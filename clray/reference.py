@@ -37,6 +37,9 @@ MAX_MEDIA = 4  # nesting depth of the media stack a ray carries
 TIE_ORDER: tuple[type, ...] = (Plane, Sphere, Box, Cylinder, Cone)
 # Rays x triangles handled per numpy step: bounds memory to a few tens of MB.
 _TRIANGLE_BATCH = 1 << 17
+# Crossings whose t differ by at most this, relative to t, tie (docs/rendering.md): 64 roundings,
+# gamma(64) in float64 as the kernels' double build has it.
+TIE_TOLERANCE = 64 * (np.finfo(np.float64).eps / 2) / (1 - 64 * np.finfo(np.float64).eps / 2)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -385,6 +388,13 @@ def _triangle_hits(
 # The scene's geometry, flattened in tie order
 
 
+def _tie_floor(best_t: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """A later primitive's t must be below this to beat best_t: nearer by more than a tie."""
+    with np.errstate(invalid="ignore"):
+        return np.where(np.isfinite(best_t),
+                        best_t - TIE_TOLERANCE * np.maximum(best_t, np.abs(t)), np.inf)
+
+
 class SceneHit(NamedTuple):
     """Closest hits of N rays. On a miss: t = inf, normals and uv zero, indices -1."""
 
@@ -447,8 +457,8 @@ class _Geometry:
         best_part = np.zeros(n, dtype=np.int64)
         for k, (_, ob) in enumerate(self.shapes):
             for t, part in _CROSSINGS[type(ob)](ob, o, d):
-                # Strictly closer only: an equal t keeps the earlier primitive (the tie rule).
-                better = (t > 0.0) & (t < best_t)
+                # Shapes come in tie order: a later one wins only when nearer beyond a tie.
+                better = (t > 0.0) & (t < _tie_floor(best_t, t))
                 best_t[better] = t[better]
                 best_shape[better] = k
                 best_part[better] = part[better]
@@ -457,9 +467,11 @@ class _Geometry:
         rows = np.arange(n)
         for batch in self._triangle_batches(n):
             t, b1, b2 = _triangle_hits(self.tri_v[batch], o, d)
-            j = np.argmin(t, axis=1)  # the first of equal t: file order
+            # The first (in file order) of the triangles that tie with the batch's nearest.
+            nearest = t.min(axis=1, keepdims=True)
+            j = np.argmax(t <= nearest + TIE_TOLERANCE * nearest, axis=1)
             tj = t[rows, j]
-            better = tj < best_t
+            better = tj < _tie_floor(best_t, tj)
             best_t[better] = tj[better]
             best_shape[better] = -1
             best_tri[better] = batch.start + j[better]

@@ -144,12 +144,16 @@ inline int prim_material(const SceneRefs* s, int ref) {
 }
 
 // The first crossing ahead of the origin; ties in t go to the smaller reference, which orders
-// by type and then by scene order (docs/rendering.md).
+// by type and then by scene order (docs/rendering.md). Crossings within TIE_ROUNDINGS roundings
+// of each other tie: different shapes reach one point through different formulas, and an exact
+// comparison would pick between coplanar primitives at random.
+#define TIE_ROUNDINGS 64
 inline void consider_hit(Hit* hit, const Crossings* c, int ref) {
     int k = c->t[0] > (REAL)0 ? 0 : 1;
     REAL t = c->t[k];
     if (!(t > (REAL)0) || !(t < REAL_INF)) return;
-    if (t < hit->t || (t == hit->t && ref < hit->ref)) {
+    REAL tol = hit->ref < 0 ? (REAL)0 : gamma_n(TIE_ROUNDINGS) * fmax(t, hit->t);
+    if (hit->ref < 0 || t < hit->t - tol || (t <= hit->t + tol && ref < hit->ref)) {
         hit->t = t;
         hit->ref = ref;
         hit->part = c->part[k];
@@ -157,6 +161,9 @@ inline void consider_hit(Hit* hit, const Crossings* c, int ref) {
         hit->b2 = c->b2;
     }
 }
+
+// How far past the closest hit a crossing can still tie with it.
+inline REAL tie_reach(REAL t) { return t + (REAL)2 * gamma_n(TIE_ROUNDINGS) * t; }
 
 // One axis of the vector slab test, with the scalar slab_interval's rules: compare-select so a
 // NaN from 0 * inf never narrows the interval, and the far bound widened by `widen`.
@@ -295,7 +302,7 @@ HOT Hit closest_hit(const SceneRefs* s, const Ray* r) {
             const __global BvhNode* node = s->nodes + child;
             COUNT(s, closest_boxes, used_children(node));
             REAL tnear[BVH_WIDTH];
-            int bits = node_children(node, r, hit.t, tnear);
+            int bits = node_children(node, r, tie_reach(hit.t), tnear);
             if (bits) {
                 // Go on with the nearest crossed child; push the others so that nearer ones
                 // pop first (an insertion into this node's part of the stack, which holds at
@@ -327,7 +334,7 @@ HOT Hit closest_hit(const SceneRefs* s, const Ray* r) {
                 continue;
             }
         }
-        while (sp > 0 && stack_t[sp - 1] > hit.t) sp--;
+        while (sp > 0 && stack_t[sp - 1] > tie_reach(hit.t)) sp--;
         if (sp == 0) break;
         --sp;
         child = stack_child[sp];

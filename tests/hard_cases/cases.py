@@ -635,6 +635,58 @@ def cylinder_rim() -> HardCase:
     return HardCase("cylinder_rim_on", scene, check)
 
 
+def coplanar_mixed_types() -> HardCase:
+    # A triangle and a box's top face lying in a plane: three formulas reach the same points
+    # with t a few roundings apart, which an exact tie rule turns into speckle.
+    mats = {"red": {"color": [1, 0, 0], "ambient": 1.0, "diffuse": 0.0},
+            "blue": {"color": [0, 0, 1], "ambient": 1.0, "diffuse": 0.0},
+            "green": {"color": [0, 1, 0], "ambient": 1.0, "diffuse": 0.0}}
+    scene = _scene([{"type": "plane", "point": [0, 0, 0], "normal": [0, 1, 0],
+                     "material": "red"},
+                    {"type": "triangle", "vertices": [[-3, 0, -3], [3, 0, -3], [0, 0, 3]],
+                     "material": "blue"},
+                    {"type": "box", "min": [0.7, -1, 0.9], "max": [2.3, 0, 2.1],
+                     "material": "green"}],
+                   camera={"position": [0.3, 2.0, 5.0], "look_at": [0, 0, 0], "vfov": 50},
+                   materials=mats, width=64, height=48)
+
+    def check(image: np.ndarray, s: Scene) -> None:
+        # docs/rendering.md: crossings within a tie go to the plane (first in type order).
+        _, d = primary_rays(s)
+        ahead = d[..., 1] < -0.05  # rays that meet y = 0, away from the horizon
+        close(image, ahead, (1, 0, 0), 0.0, "the plane wins every coplanar tie")
+
+    return HardCase("coplanar_mixed_types", scene, check)
+
+
+def light_in_floor_under_ball() -> HardCase:
+    centre, radius, light = (0.0, 0.9, 0.0), 0.6, (0.3, 0.0, 0.4)
+    scene = _scene([{"type": "plane", "point": [0, 0, 0], "normal": [0, 1, 0],
+                     "material": "m"},
+                    {"type": "sphere", "center": list(centre), "radius": radius,
+                     "material": "m"}],
+                   camera={"position": [0.0, 0.12, 2.2], "look_at": [0, 0.7, 0], "vfov": 50},
+                   materials={"m": MATTE}, width=48, height=36,
+                   lights=[{"type": "point", "position": list(light)}])
+
+    def check(image: np.ndarray, s: Scene) -> None:
+        # The ball's underside faces a light lying in the floor: nothing lies between them, so
+        # it is lit by n.l (attenuation 1). Shadow rays aimed beside the light would cross the
+        # floor first and leave a black band.
+        eye, d = primary_rays(s)
+        t = sphere_t(eye, d, centre, radius)
+        p = eye + np.where(np.isfinite(t), t, 0)[..., None] * d
+        n = (p - centre) / radius
+        to_light = np.asarray(light) - p
+        ndl = np.sum(n * to_light, axis=-1) / np.linalg.norm(to_light, axis=-1)
+        body = np.isfinite(t) & (impact(eye, d, centre) < radius - 0.02) & (np.abs(ndl) > 0.02)
+        expected = 0.1 + 0.9 * np.maximum(ndl, 0)
+        close(image, body & (ndl > 0), expected[body & (ndl > 0)][:, None], 1e-3,
+              "underside lit by the light in the floor")
+
+    return HardCase("light_in_floor_under_ball", scene, check)
+
+
 CASES: tuple[HardCase, ...] = (
     far_sphere(1e3, 1e-3),
     far_sphere(1e4, 1e-2),
@@ -645,6 +697,8 @@ CASES: tuple[HardCase, ...] = (
     tilted_plane_far(),
     light_on_surface(),
     coplanar_ties(),
+    coplanar_mixed_types(),
+    light_in_floor_under_ball(),
     touching_spheres(),
     horizon(),
     degenerate_triangles(),

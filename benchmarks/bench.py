@@ -97,18 +97,19 @@ def _build_only(config_json: str, device_spec: str | None) -> None:
     print(json.dumps({"build_s": build_s}))
 
 
-def command_wall_s(path: Path, device_spec: str | None, out_dir: Path) -> list[float]:
+def command_wall_s(path: Path, device_spec: str | None) -> list[float]:
     """Wall times of the whole `clray render` command, after one run that fills the caches."""
-    cmd = [sys.executable, "-m", "clray", "render", str(path), "-q", "-o",
-           str(out_dir / f"{path.stem}.png")]
-    if device_spec:
-        cmd += ["--device", device_spec]
     walls = []
-    for run in range(COMMAND_RUNS + 1):
-        start = time.perf_counter()
-        subprocess.run(cmd, check=True, capture_output=True, cwd=ROOT)
-        if run:
-            walls.append(time.perf_counter() - start)
+    with tempfile.TemporaryDirectory(prefix="clray-bench-out-") as out_dir:
+        cmd = [sys.executable, "-m", "clray", "render", str(path), "-q", "-o",
+               str(Path(out_dir) / f"{path.stem}.png")]
+        if device_spec:
+            cmd += ["--device", device_spec]
+        for run in range(COMMAND_RUNS + 1):
+            start = time.perf_counter()
+            subprocess.run(cmd, check=True, capture_output=True, cwd=ROOT)
+            if run:
+                walls.append(time.perf_counter() - start)
     return walls
 
 
@@ -180,8 +181,7 @@ def bench_scene(name: str, path: Path, device: cl.Device, device_spec: str | Non
         "bytes_per_triangle": (sum(device_bytes[k] for k in MESH_BUFFERS) / n_tri
                                if n_tri else None),
     }
-    walls = command_wall_s(path, device_spec, path.parent if name == "mesh" else
-                           Path(tempfile.gettempdir()))
+    walls = command_wall_s(path, device_spec)
     result["command_wall_s"] = statistics.median(walls)
     result["command_wall_runs_s"] = walls
     if profile:

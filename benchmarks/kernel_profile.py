@@ -16,7 +16,6 @@ from __future__ import annotations
 import dataclasses
 import statistics
 
-import numpy as np
 import pyopencl as cl
 
 from clray.device.pack import PackedScene
@@ -77,7 +76,7 @@ def tests_per_ray(packed: PackedScene, device: cl.Device) -> dict:
     shadow = rays["shadow"]
 
     def per(n: int, d: int) -> float | None:
-        return float(np.float64(n) / d) if d else None
+        return n / d if d else None
 
     return {
         "closest_boxes_per_ray": per(tests["closest_boxes"], closest),

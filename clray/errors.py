@@ -48,6 +48,13 @@ class SceneError(ClrayError):
         super().__init__(one_line(": ".join(parts)))
 
 
+class SettingsError(ClrayError, ValueError):
+    """A render setting out of range, from a command-line flag or RenderSettings: the same rules
+    and wording as the scene file's [render] table (clray.scene.limits)."""
+
+    exit_code = EXIT_USAGE
+
+
 class DeviceError(ClrayError):
     """No OpenCL platform or device, a failed build (with its log), or out of resources."""
 

@@ -674,6 +674,7 @@ def trace(
 ) -> np.ndarray:
     """(N, 3) radiance along each ray (depth 0, starting in air), per docs/rendering.md."""
     max_depth = scene.render.max_depth if max_depth is None else max_depth
+    min_weight = scene.render.min_weight
     geo = _Geometry(scene)
     mats = _MaterialTable(scene.materials)
     background = _vec(scene.render.background)
@@ -763,8 +764,9 @@ def trace(
         k = 1.0 - eta * eta * (1.0 - cos_i * cos_i)
         tir = k < 0.0
         kr = kr + np.where(tir, kt, 0.0)  # total internal reflection: transmit joins reflect
-        refl = go_on & (kr > 0.0)
-        refr = go_on & (kt > 0.0) & ~tir
+        # Rays fainter than min_weight are not traced, as in the kernels.
+        refl = go_on & (kr > 0.0) & (weight * kr >= min_weight)
+        refr = go_on & (kt > 0.0) & ~tir & (weight * kt >= min_weight)
 
         refl_d = d - 2.0 * _dot(d, n)[:, None] * n
         refr_d = eta[:, None] * d + (eta * cos_i - np.sqrt(np.maximum(k, 0.0)))[:, None] * n

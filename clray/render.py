@@ -12,7 +12,8 @@ import pyopencl as cl
 from clray.device.context import describe, queue_for, select_device
 from clray.device.pack import PackedScene, pack_scene
 from clray.device.program import build_program, bvh_width_for
-from clray.errors import DeviceError
+from clray.errors import DeviceError, SettingsError
+from clray.scene import limits as L
 from clray.scene.model import Scene
 
 # Work per launch, in pixel-samples: keeps each launch well under a second on a CPU device
@@ -22,15 +23,39 @@ PIXEL_SAMPLES_PER_LAUNCH = 1 << 20
 
 @dataclass(frozen=True)
 class RenderSettings:
-    width: int | None = None  # overrides; None = the scene file's value
+    """Overrides of the scene's [render] values (None keeps the scene's), checked on creation
+    by the scene file's rules: a bad value raises SettingsError (a ValueError)."""
+
+    width: int | None = None
     height: int | None = None
     spp: int | None = None
     max_depth: int | None = None
     seed: int | None = None
+    min_weight: float | None = None
     device: str | None = None  # clray.device.context.select_device spec
     precision: str = "float"  # "float" | "double"
     progress: Callable[[int, int], None] | None = field(default=None, compare=False)
     variants: tuple[tuple[str, object], ...] = ()  # extra KernelConfig fields (studies)
+
+    def __post_init__(self) -> None:
+        for name, (low, high) in L.RENDER_INTEGERS.items():
+            value = getattr(self, name)
+            problem = None if value is None else L.integer_problem(value, low, high)
+            if problem:
+                raise SettingsError(f"RenderSettings.{name}: {problem}, got {value!r}")
+        if self.min_weight is not None:
+            problem = L.number_problem(self.min_weight, *L.MIN_WEIGHT_RANGE)
+            if problem:
+                raise SettingsError(f"RenderSettings.min_weight: {problem}, "
+                                    f"got {self.min_weight!r}")
+        if self.precision not in L.PRECISIONS:
+            raise SettingsError(f"RenderSettings.precision: expected one of "
+                                f"{', '.join(L.PRECISIONS)}, got {self.precision!r}")
+        if self.device is not None and not isinstance(self.device, str):
+            raise SettingsError(f"RenderSettings.device: expected a string, got {self.device!r}")
+        if self.progress is not None and not callable(self.progress):
+            raise SettingsError(f"RenderSettings.progress: expected a callable, "
+                                f"got {self.progress!r}")
 
 
 @dataclass(frozen=True)
@@ -46,15 +71,10 @@ def _buffer(ctx: cl.Context, array: np.ndarray) -> cl.Buffer:
                      hostbuf=np.ascontiguousarray(data))
 
 
-def _resolve(scene: Scene, settings: RenderSettings) -> dict[str, int]:
-    r = scene.render
-    return {
-        "width": settings.width if settings.width is not None else r.width,
-        "height": settings.height if settings.height is not None else r.height,
-        "spp": settings.spp if settings.spp is not None else r.spp,
-        "max_depth": settings.max_depth if settings.max_depth is not None else r.max_depth,
-        "seed": settings.seed if settings.seed is not None else r.seed,
-    }
+def _resolve(scene: Scene, settings: RenderSettings) -> dict[str, int | float]:
+    names = (*L.RENDER_INTEGERS, "min_weight")
+    return {name: getattr(settings, name) if getattr(settings, name) is not None
+            else getattr(scene.render, name) for name in names}
 
 
 def check_device_memory(packed: PackedScene, global_mem: int, max_alloc: int) -> None:
@@ -77,6 +97,18 @@ def check_device_memory(packed: PackedScene, global_mem: int, max_alloc: int) ->
     if total > global_mem:
         raise DeviceError(f"the render needs {total / mib:.0f} MiB of device memory, over the "
                           f"device's {global_mem / mib:.0f} MiB: render a smaller image or scene")
+
+
+# Work-items per work-group: one row segment. Left to itself PoCL puts up to 4096 work-items
+# in a group and gives them their private memory on one thread's stack, which a deep ray stack
+# (MAX_DEPTH + 1 tasks of 80 bytes each, per work-item) overflows: a segfault at depth 28.
+# Measured on PoCL, 64 costs nothing against its own choice; it suits SIMD CPUs and GPUs alike.
+WORK_GROUP_WIDTH = 64
+
+
+def _group_width(kernel: cl.Kernel, device: cl.Device) -> int:
+    limit = kernel.get_work_group_info(cl.kernel_work_group_info.WORK_GROUP_SIZE, device)
+    return max(1, min(WORK_GROUP_WIDTH, limit))
 
 
 def render_packed(packed: PackedScene, device: cl.Device,
@@ -103,6 +135,8 @@ def render_packed(packed: PackedScene, device: cl.Device,
         tests_buf = cl.Buffer(ctx, cl.mem_flags.WRITE_ONLY,
                               width * height * 16 if count_tests else 16)
         kernel = cl.Kernel(program, "render")
+        group_width = _group_width(kernel, device)
+        padded_width = -(-width // group_width) * group_width
         rows = max(1, min(height, PIXEL_SAMPLES_PER_LAUNCH // max(1, width * spp)))
         launches = -(-height // rows)
         kernel_s = 0.0
@@ -110,7 +144,8 @@ def render_packed(packed: PackedScene, device: cl.Device,
             row0 = launch * rows
             band = min(rows, height - row0)
             kernel.set_args(*buffers, image_buf, counts_buf, tests_buf, np.int32(row0))
-            event = cl.enqueue_nd_range_kernel(queue, kernel, (width, band), None)
+            event = cl.enqueue_nd_range_kernel(queue, kernel, (padded_width, band),
+                                               (group_width, 1))
             event.wait()
             kernel_s += (event.profile.end - event.profile.start) * 1e-9
             if progress is not None:

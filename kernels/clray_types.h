@@ -108,6 +108,8 @@ typedef struct {
     int width, height, spp, max_depth;
     uint seed;
     int n_planes, n_lights, bvh_root_count;  // bvh_root_count: 0 when the BVH is empty
+    float min_weight;  // secondary rays of a smaller weight (largest channel) are not traced
+    int pad0, pad1, pad2;
 } Params;
 
 // A wide BVH node (clray/accel/wide.py): up to BVH_WIDTH (4 or 8, a build option) children with

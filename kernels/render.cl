@@ -11,6 +11,14 @@
 
 #define HAS_BVH (HAS_SPHERES || HAS_BOXES || HAS_CYLINDERS || HAS_CONES || HAS_TRIANGLES)
 #define MEDIA_DEPTH 4
+// Depth first, a task pushes at most two children (refraction and reflection), so the stack
+// holds at most one waiting task per level: MAX_DEPTH + 1 entries. Without refraction a task
+// pushes at most one, and one entry is enough whatever the depth.
+#if HAS_REFRACTION
+#define RAY_STACK_SIZE (MAX_DEPTH + 1)
+#else
+#define RAY_STACK_SIZE 1
+#endif
 
 #include "rng.h"
 #include "camera.h"
@@ -33,13 +41,17 @@ inline REAL medium_ior(const SceneRefs* s, const RayTask* task) {
 }
 
 // Push a secondary ray whose direction (and media) are set: it starts off the surface on the
-// side it leaves to, one level deeper in the ray tree.
-inline void spawn(RayTask* stack, int* sp, RayTask* next, const Surface* sf, REAL3 weight,
-                  int depth) {
+// side it leaves to, one level deeper in the ray tree. A ray too faint to matter (weight
+// below min_weight) is dropped: inside glass the tree doubles at every level, so deep trees
+// need the cut. Returns the rays pushed (0 or 1).
+inline int spawn(RayTask* stack, int* sp, RayTask* next, const Surface* sf, REAL3 weight,
+                 int depth, float min_weight) {
+    if (fmax(fmax(weight.x, weight.y), weight.z) < (REAL)min_weight) return 0;
     next->o = offset_origin(sf, next->d);
     next->weight = weight;
     next->depth = depth + 1;
     stack[(*sp)++] = *next;
+    return 1;
 }
 
 #if HAS_REFRACTION
@@ -137,7 +149,7 @@ __kernel void render(__global const Camera* camera, __global const Params* param
 
     for (int sample = 0; sample < spp; ++sample) {
         REAL2 pos = sample_position(x, y, sample, spp, params->seed, pixel);
-        RayTask stack[MAX_DEPTH + 1];
+        RayTask stack[RAY_STACK_SIZE];
         int sp = 0;
         stack[0].o = TO_REAL3(camera->position);
         stack[0].d = camera_direction(camera, pos, width, height);
@@ -175,16 +187,16 @@ __kernel void render(__global const Camera* camera, __global const Params* param
                         kr += kt;  // total internal reflection
                     } else {
                         next.d = normalize(eta * ray.d + (eta * cos_i - sqrt(k)) * n);
-                        spawn(stack, &sp, &next, &sf, task.weight * kt, task.depth);
-                        secondary_rays++;
+                        secondary_rays += spawn(stack, &sp, &next, &sf, task.weight * kt,
+                                                task.depth, params->min_weight);
                     }
                 }
 #endif
                 if (kr > (REAL)0) {
                     RayTask next = task;  // a reflection stays in the same media
                     next.d = ray.d - (REAL)2 * dot(ray.d, n) * n;
-                    spawn(stack, &sp, &next, &sf, task.weight * kr, task.depth);
-                    secondary_rays++;
+                    secondary_rays += spawn(stack, &sp, &next, &sf, task.weight * kr,
+                                            task.depth, params->min_weight);
                 }
             }
 #endif

@@ -442,9 +442,11 @@ ERRORS = [
     (scene(render={"width": 64.0}), "render.width: expected an integer, got 64.0"),
     (scene(render={"spp": True}), "render.spp: expected an integer, got true"),
     (scene(render={"spp": 5000}), "render.spp: must be an integer in [1, 4096]"),
-    (scene(render={"max_depth": -1}), "render.max_depth: must be an integer in [0, 16], got -1"),
-    (scene(render={"max_depth": 17}), "render.max_depth: must be an integer in [0, 16], got 17"),
+    (scene(render={"max_depth": -1}), "render.max_depth: must be an integer in [0, 256], got -1"),
+    (scene(render={"max_depth": 257}), "render.max_depth: must be an integer in [0, 256], got 257"),
     (scene(render={"seed": 2**32}), "render.seed: must be an integer in [0, 4294967295]"),
+    (scene(render={"min_weight": 2}), "render.min_weight: must be in [0, 1], got 2"),
+    (scene(render={"min_weight": -0.5}), "render.min_weight: must be in [0, 1], got -0.5"),
     (scene(render={"background": [0, 0]}), "render.background: expected 3 numbers, got [0, 0]"),
     (scene(render={"ambient": [1, -1, 0]}), "render.ambient: must be >= 0, got [1, -1, 0]"),
     (

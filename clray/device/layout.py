@@ -52,7 +52,8 @@ CAMERA = _struct([("position", _F4), ("forward", _F4), ("right", _F4), ("up", _F
                   ("world", _F4)])
 PARAMS = _struct([("background", _F4), ("ambient", _F4), ("width", "<i4"), ("height", "<i4"),
                   ("spp", "<i4"), ("max_depth", "<i4"), ("seed", "<u4"), ("n_planes", "<i4"),
-                  ("n_lights", "<i4"), ("bvh_root_count", "<i4")])
+                  ("n_lights", "<i4"), ("bvh_root_count", "<i4"), ("min_weight", "<f4"),
+                  *_PAD])
 # The binary tree the builder makes (host only; clray/accel/bvh.py). The kernels walk the wide
 # tree that clray/accel/wide.py collapses it into.
 BVH_NODE = _struct([("lo", ("<f4", (3,))), ("first", "<i4"), ("hi", ("<f4", (3,))),

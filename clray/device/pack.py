@@ -331,8 +331,9 @@ def _stack_size_option(stack_size: int) -> int:
 
 
 def pack_scene(scene: M.Scene, *, width: int, height: int, spp: int, max_depth: int,
-               seed: int, precision: str = "float", bvh_width: int = 8,
-               queue: cl.CommandQueue | None = None, **variants: object) -> PackedScene:
+               seed: int, min_weight: float = 0.0, precision: str = "float",
+               bvh_width: int = 8, queue: cl.CommandQueue | None = None,
+               **variants: object) -> PackedScene:
     """`bvh_width`: children per BVH node (4 or 8; clray.device.program.bvh_width_for picks
     one per device). `queue`: build large BVHs on its device (the same tree as the host
     build). `variants` are extra KernelConfig fields (study switches, options)."""
@@ -364,7 +365,7 @@ def pack_scene(scene: M.Scene, *, width: int, height: int, spp: int, max_depth: 
     p["background"] = _f4(scene.render.background)
     p["ambient"] = _f4(scene.render.ambient)
     p["width"], p["height"], p["spp"], p["max_depth"] = width, height, spp, max_depth
-    p["seed"] = seed
+    p["seed"], p["min_weight"] = seed, min_weight
     p["n_planes"], p["n_lights"] = len(planes), len(lights)
     p["bvh_root_count"] = len(wide.prim_refs)
 

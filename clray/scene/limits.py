@@ -9,6 +9,8 @@ MAX_DEPTH bounces, summed over every light, stay finite.
 
 from __future__ import annotations
 
+import numbers
+
 # Any number that reaches the device: coordinates, lengths, attenuation, texture repeats.
 MAX_MAGNITUDE = 1e30
 # Strictly positive lengths (radius, height, checker size, repeat, mesh scale): smaller values
@@ -24,8 +26,41 @@ IOR_RANGE = (0.01, 100.0)
 
 MAX_IMAGE_SIZE = 16384  # output width and height
 MAX_SPP = 4096
-MAX_DEPTH = 16
+MAX_DEPTH = 256  # reflection/refraction bounces: POV-Ray's max_trace_level allows 256 too
 MAX_SEED = 2**32 - 1  # the kernels hash the seed as a uint32
+# A secondary ray whose weight (largest colour channel) is below min_weight is not traced:
+# POV-Ray's adc_bailout. 0 traces every ray to max_depth.
+MIN_WEIGHT_RANGE = (0.0, 1.0)
+PRECISIONS = ("float", "double")
+
+# The [render] values that the command line's flags and RenderSettings can override too: one
+# range for every way a value arrives.
+RENDER_INTEGERS = {
+    "width": (1, MAX_IMAGE_SIZE),
+    "height": (1, MAX_IMAGE_SIZE),
+    "spp": (1, MAX_SPP),
+    "max_depth": (0, MAX_DEPTH),
+    "seed": (0, MAX_SEED),
+}
+
+
+def integer_problem(value: object, low: int, high: int) -> str | None:
+    """What is wrong with `value` as an integer in [low, high] (None if nothing): the one
+    wording the scene loader, the command line and RenderSettings all use."""
+    if not isinstance(value, numbers.Integral) or isinstance(value, bool):
+        return "expected an integer"
+    if not low <= value <= high:
+        return f"must be an integer in [{low}, {high}]"
+    return None
+
+
+def number_problem(value: object, low: float, high: float) -> str | None:
+    """What is wrong with `value` as a number in [low, high] (None if nothing)."""
+    if not isinstance(value, numbers.Real) or isinstance(value, bool):
+        return "expected a number"
+    if not low <= value <= high:  # also refuses NaN
+        return f"must be in [{low:g}, {high:g}]"
+    return None
 
 MAX_OBJECTS = 1_000_000
 MAX_LIGHTS = 10_000

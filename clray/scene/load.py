@@ -53,7 +53,9 @@ _SHOW_ITEMS = 8  # array elements shown in a message
 _SHOW_DEPTH = 3  # nested arrays shown in a message
 
 _TOP_KEYS = ("render", "camera", "materials", "lights", "objects")
-_RENDER_KEYS = ("width", "height", "spp", "max_depth", "background", "ambient", "seed")
+_RENDER_KEYS = (
+    "width", "height", "spp", "max_depth", "background", "ambient", "seed", "min_weight"
+)
 _CAMERA_KEYS = ("position", "look_at", "up", "vfov", "hfov")
 _MATERIAL_KEYS = (
     "color",
@@ -234,11 +236,10 @@ class _Loader:
         return x
 
     def integer(self, value: Any, key: str, low: int, high: int) -> int:
-        if not isinstance(value, int) or isinstance(value, bool):
-            raise self.error(key, f"expected an integer, got {_show(value)}")
-        if not low <= value <= high:
-            raise self.error(key, f"must be an integer in [{low}, {high}], got {_show(value)}")
-        return value
+        problem = L.integer_problem(value, low, high)
+        if problem:
+            raise self.error(key, f"{problem}, got {_show(value)}")
+        return int(value)
 
     def boolean(self, value: Any, key: str) -> bool:
         if not isinstance(value, bool):
@@ -368,17 +369,17 @@ class _Loader:
     def render(self, spec: dict) -> RenderOptions:
         self.keys(spec, "render", _RENDER_KEYS, ())
         d = RenderOptions()
-        size = L.MAX_IMAGE_SIZE
+        integers = {
+            name: self.integer(spec.get(name, getattr(d, name)), f"render.{name}", low, high)
+            for name, (low, high) in L.RENDER_INTEGERS.items()
+        }
         return RenderOptions(
-            width=self.integer(spec.get("width", d.width), "render.width", 1, size),
-            height=self.integer(spec.get("height", d.height), "render.height", 1, size),
-            spp=self.integer(spec.get("spp", d.spp), "render.spp", 1, L.MAX_SPP),
-            max_depth=self.integer(
-                spec.get("max_depth", d.max_depth), "render.max_depth", 0, L.MAX_DEPTH
-            ),
+            **integers,
             background=self.color(spec.get("background", d.background), "render.background"),
             ambient=self.color(spec.get("ambient", d.ambient), "render.ambient"),
-            seed=self.integer(spec.get("seed", d.seed), "render.seed", 0, L.MAX_SEED),
+            min_weight=self.closed_range(
+                spec.get("min_weight", d.min_weight), "render.min_weight", *L.MIN_WEIGHT_RANGE
+            ),
         )
 
     def camera(self, spec: dict) -> Camera:

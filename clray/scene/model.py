@@ -104,6 +104,7 @@ class RenderOptions:
     background: Vec3 = (0.0, 0.0, 0.0)
     ambient: Vec3 = (1.0, 1.0, 1.0)
     seed: int = 0
+    min_weight: float = 0.0  # secondary rays of a smaller weight are not traced
 
 
 @dataclass(frozen=True)

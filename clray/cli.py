@@ -20,6 +20,7 @@ from pathlib import Path
 from typing import NoReturn
 
 import pyopencl as cl
+from tqdm import tqdm
 
 from clray import __version__
 from clray.device.context import list_devices
@@ -120,9 +121,12 @@ def _build_parser() -> _Parser:
     r.add_argument("--stats-json", type=_file_path, metavar="PATH",
                    help="write timings, sizes and ray counts as JSON")
     talk = r.add_mutually_exclusive_group()
-    talk.add_argument("-q", "--quiet", action="store_true", help="print nothing on success")
+    talk.add_argument("-q", "--quiet", action="store_true",
+                      help="print nothing on success, not even the progress bar")
     talk.add_argument("-v", "--verbose", action="store_true",
-                      help="print progress, compiler warnings and the stats summary")
+                      help="print progress lines where stderr is not a terminal (a terminal "
+                           "always gets a progress bar), compiler warnings and a table of "
+                           "timings, ray counts and device memory")
     r.set_defaults(run=_render)
 
     st = commands.add_parser(
@@ -207,17 +211,59 @@ def _write(path: Path, write: Callable[[], None]) -> None:
         raise ClrayError(f"cannot write {path}: {err.strerror or err}") from err
 
 
-class _Progress:
-    """Prints `rendering: N%` at every tenth of the launches, so logs stay short."""
+class _ProgressLines:
+    """For -v without a terminal (logs): a `rendering: N%` line at each tenth of the
+    pixel-samples, with the time so far and the time left, so logs stay short."""
 
     def __init__(self) -> None:
-        self.shown = -1
+        self.shown = 0
+        self.started = 0.0
 
     def __call__(self, done: int, total: int) -> None:
-        tenth = 10 * done // max(total, 1)
+        if done == 0:
+            self.started = time.perf_counter()
+        tenth = 10 * done // total
         if tenth > self.shown:
             self.shown = tenth
-            _say(f"rendering: {10 * tenth}% ({done}/{total} launches)")
+            elapsed = time.perf_counter() - self.started
+            left = elapsed * (total - done) / done
+            _say(f"rendering: {10 * tenth}% ({done:,} of {total:,} pixel-samples, "
+                 f"{elapsed:.1f} s, {left:.1f} s left)")
+
+
+class _ProgressBar:
+    """A tqdm bar on stderr, made at the first report so that it measures the launches only."""
+
+    def __init__(self) -> None:
+        self.bar: tqdm | None = None
+
+    def __call__(self, done: int, total: int) -> None:
+        if self.bar is None:
+            # leave=False: the bar is erased when it closes, and the summary line says it all.
+            self.bar = tqdm(total=total, desc="clray: rendering", unit="samples",
+                            unit_scale=True, file=sys.stderr, leave=False, dynamic_ncols=True)
+        self.bar.update(done - self.bar.n)
+
+    def close(self) -> None:
+        if self.bar is not None:
+            self.bar.close()
+
+
+@contextlib.contextmanager
+def _progress(*, quiet: bool, verbose: bool) -> Iterator[Callable[[int, int], None] | None]:
+    """The render's progress callback: a bar when stderr is a terminal, lines with -v when it is
+    not, nothing with -q. The bar is closed when the block ends, also on failure, so that the
+    `clray: ...` lines after it start on a clean line."""
+    if quiet or not (verbose or sys.stderr.isatty()):
+        yield None
+    elif not sys.stderr.isatty():
+        yield _ProgressLines()
+    else:
+        bar = _ProgressBar()
+        try:
+            yield bar
+        finally:
+            bar.close()
 
 
 def _format_stat(value: object) -> str:
@@ -226,6 +272,46 @@ def _format_stat(value: object) -> str:
     if isinstance(value, dict):
         return ", ".join(f"{k}={_format_stat(v)}" for k, v in value.items())
     return str(value)
+
+
+_TIMES = (("load_s", "load"), ("bvh_s", "bvh"), ("pack_s", "pack"), ("build_s", "build"),
+          ("kernel_s", "kernel"), ("render_s", "render"), ("write_s", "write"),
+          ("total_s", "total (wall)"))
+
+
+def _size(n: int) -> str:
+    if n < 1 << 10:
+        return f"{n} B"
+    if n < 1 << 20:
+        return f"{n / (1 << 10):.1f} KiB"
+    return f"{n / (1 << 20):.1f} MiB"
+
+
+def _stats_table(stats: dict) -> list[str]:
+    """The stats for -v as aligned `label  value` rows: what was rendered, then where the time
+    went in order, then the work done; keys this table does not know come last as they are."""
+    rows = [("scene", stats["scene"]), ("output", stats["output"]), ("device", stats["device"]),
+            ("image", f"{stats['width']}x{stats['height']}, {stats['spp']} spp, max depth "
+                      f"{stats['max_depth']}, seed {stats['seed']}, {stats['precision']}")]
+    for key, label in _TIMES:
+        note = {"kernel_s": f"  ({stats['launches']} launches, device time)",
+                "render_s": "  (bvh to read-back)"}.get(key, "")
+        rows.append((label, f"{stats[key]:8.3f} s{note}"))
+    rays = stats["rays"]
+    digits = len(f"{rays['total']:,}")
+    rows += [(f"rays {kind}", f"{count:>{digits},}") for kind, count in rays.items()]
+    if stats["mrays_per_s"] is not None:
+        rows.append(("Mrays/s", f"{stats['mrays_per_s']:.3g}  (rays / kernel time)"))
+    used = sorted(((v, k) for k, v in stats["device_bytes"].items() if v), reverse=True)
+    rows.append(("scene on device", f"{_size(sum(v for v, _ in used))}: " + ", ".join(
+        f"{k} {_size(v)}" for v, k in used)))
+    rows.append(("non-finite pixels", f"{stats['nonfinite_pixels']:,}"))
+    known = {"scene", "output", "device", "width", "height", "spp", "max_depth", "seed",
+             "precision", "launches", "rays", "mrays_per_s", "device_bytes", "nonfinite_pixels",
+             *(key for key, _ in _TIMES)}
+    rows += [(key, _format_stat(value)) for key, value in stats.items() if key not in known]
+    width = max(len(label) for label, _ in rows)
+    return [one_line(f"  {label:<{width}}  {value}") for label, value in rows]
 
 
 @contextlib.contextmanager
@@ -258,11 +344,12 @@ def _render(args: argparse.Namespace) -> int:
         if not args.quiet:
             for warning in scene.warnings:
                 _say(f"warning: {warning}")
-        settings = RenderSettings(
-            width=args.width, height=args.height, spp=args.spp, max_depth=args.max_depth,
-            seed=args.seed, device=args.device, precision=args.precision,
-            progress=_Progress() if args.verbose else None)
-        result = render(scene, settings)
+        with _progress(quiet=args.quiet, verbose=args.verbose) as progress:
+            settings = RenderSettings(
+                width=args.width, height=args.height, spp=args.spp, max_depth=args.max_depth,
+                seed=args.seed, device=args.device, precision=args.precision,
+                progress=progress)
+            result = render(scene, settings)
 
     write_started = time.perf_counter()
     _write(output, lambda: write_image(output, result.image, srgb=args.srgb))
@@ -286,11 +373,12 @@ def _render(args: argparse.Namespace) -> int:
         kept = "kept in the PFM" if output.suffix.lower() == ".pfm" else "written black"
         _say(f"warning: {stats['nonfinite_pixels']} pixels are NaN or infinite ({kept})")
     if args.verbose:
-        for key, value in stats.items():
-            print(one_line(f"  {key}: {_format_stat(value)}"), file=sys.stderr)
+        _say("stats:")
+        for line in _stats_table(stats):
+            print(line, file=sys.stderr)
     if not args.quiet:
         _say(f"wrote {output} ({width}x{height}, {stats['spp']} spp, "
-             f"kernel {stats['kernel_s']:.3g} s)")
+             f"wall {stats['total_s']:.3g} s, kernel {stats['kernel_s']:.3g} s)")
     return EXIT_OK
 
 

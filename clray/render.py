@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -16,9 +17,16 @@ from clray.errors import DeviceError, SettingsError
 from clray.scene import limits as L
 from clray.scene.model import Scene
 
-# Work per launch, in pixel-samples: keeps each launch well under a second on a CPU device
-# (and under GPU watchdogs) while leaving enough launches for progress reports.
-PIXEL_SAMPLES_PER_LAUNCH = 1 << 20
+# Launches are sized by the time they take, not by their work, so that progress advances
+# several times a second on any device and no launch nears a GPU watchdog, while a small render
+# still takes a few launches: the first covers FIRST_LAUNCH_PIXEL_SAMPLES, each later one the
+# rows that the previous launch's rate does in LAUNCH_SECONDS, at most LAUNCH_GROWTH times the
+# previous band (one fast band of sky says little about the rows below it) and at most
+# MAX_LAUNCH_PIXEL_SAMPLES. Pixels are independent, so the image does not depend on the bands.
+FIRST_LAUNCH_PIXEL_SAMPLES = 1 << 16
+MAX_LAUNCH_PIXEL_SAMPLES = 1 << 24
+LAUNCH_SECONDS = 0.25
+LAUNCH_GROWTH = 4
 
 
 @dataclass(frozen=True)
@@ -34,6 +42,8 @@ class RenderSettings:
     min_weight: float | None = None
     device: str | None = None  # clray.device.context.select_device spec
     precision: str = "float"  # "float" | "double"
+    # progress(done, total) in pixel-samples (pixels x spp): called with done = 0 before the
+    # first launch, then after each launch, rising to done = total; several times a second.
     progress: Callable[[int, int], None] | None = field(default=None, compare=False)
     variants: tuple[tuple[str, object], ...] = ()  # extra KernelConfig fields (studies)
 
@@ -75,6 +85,18 @@ def _resolve(scene: Scene, settings: RenderSettings) -> dict[str, int | float]:
     names = (*L.RENDER_INTEGERS, "min_weight")
     return {name: getattr(settings, name) if getattr(settings, name) is not None
             else getattr(scene.render, name) for name in names}
+
+
+def next_band_rows(row_samples: int, last_rows: int, last_s: float, rows_left: int) -> int:
+    """Rows of the next launch, given the pixel-samples in one row and the rows and device time
+    of the previous launch (last_rows = 0 before the first). At least one row, at most
+    rows_left."""
+    if last_rows == 0:
+        rows = FIRST_LAUNCH_PIXEL_SAMPLES // row_samples
+    else:
+        by_time = last_rows * LAUNCH_SECONDS / last_s if last_s > 0 else math.inf
+        rows = min(by_time, LAUNCH_GROWTH * last_rows, MAX_LAUNCH_PIXEL_SAMPLES // row_samples)
+    return int(max(1, min(rows_left, rows)))
 
 
 def check_device_memory(packed: PackedScene, global_mem: int, max_alloc: int) -> None:
@@ -137,19 +159,24 @@ def render_packed(packed: PackedScene, device: cl.Device,
         kernel = cl.Kernel(program, "render")
         group_width = _group_width(kernel, device)
         padded_width = -(-width // group_width) * group_width
-        rows = max(1, min(height, PIXEL_SAMPLES_PER_LAUNCH // max(1, width * spp)))
-        launches = -(-height // rows)
-        kernel_s = 0.0
-        for launch in range(launches):
-            row0 = launch * rows
-            band = min(rows, height - row0)
+        row_samples = width * spp
+        if progress is not None:
+            progress(0, height * row_samples)
+        kernel_s, launches, row0, band, band_s = 0.0, 0, 0, 0, 0.0
+        while row0 < height:
+            band = next_band_rows(row_samples, band, band_s, height - row0)
             kernel.set_args(*buffers, image_buf, counts_buf, tests_buf, np.int32(row0))
             event = cl.enqueue_nd_range_kernel(queue, kernel, (padded_width, band),
                                                (group_width, 1))
             event.wait()
-            kernel_s += (event.profile.end - event.profile.start) * 1e-9
+            # Device time, not wall time: the first launch's wall time holds one-off costs
+            # (PoCL compiles the work-group function then) that say nothing of the rate.
+            band_s = (event.profile.end - event.profile.start) * 1e-9
+            kernel_s += band_s
+            launches += 1
+            row0 += band
             if progress is not None:
-                progress(launch + 1, launches)
+                progress(row0 * row_samples, height * row_samples)
         image = np.empty((height, width, 4), dtype=np.float32)
         counts = np.empty((height * width, 4), dtype=np.int32)
         cl.enqueue_copy(queue, image, image_buf)

@@ -9,21 +9,28 @@ counted separately (they make RMSE NaN).
 
 from __future__ import annotations
 
+import argparse
 import json
 import math
 import statistics
+import sys
 import warnings
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import pyopencl as cl
 
 from clray import metrics
+from clray.errors import EXIT_OK, EXIT_RUNTIME, one_line
 from clray.render import RenderSettings, render
 from clray.scene.load import load_scene
 from clray.scene.model import Scene
+
+if TYPE_CHECKING:
+    import matplotlib.figure
 
 
 @dataclass(frozen=True)
@@ -132,19 +139,93 @@ def pareto_front(points: Sequence[tuple[float, float]]) -> list[int]:
     return front
 
 
-# Where an error is zero (the reference itself) or NaN, a log plot still needs a value.
-_PLOT_FLOOR = 1e-9
+# One marker per variant, in the order of VARIANTS, so that a variant looks alike in every plot.
+_MARKERS = "*osD^vPX<>ph"
 
 
-def _plot_error(record: dict) -> float:
+def _legend_label(record: dict, ms: float) -> str:
     rmse = record["rmse"]
-    if rmse is None:  # non-finite pixels: plot at the top, it is the worst outcome
-        return 1.0
-    return max(rmse, _PLOT_FLOOR)
+    error = "non-finite pixels" if rmse is None else f"RMSE {rmse:.2g}"
+    if record["variant"] == REFERENCE.name:
+        error = "the reference (RMSE 0), dotted"
+    time = f"{ms:.0f}" if ms >= 100 else f"{ms:.3g}"  # 1230, not 1.23e+03
+    fail = ", FAIL" if record["status"] == "FAIL" else ""
+    return f"{record['variant']}: {time} ms, {error}{fail}"
+
+
+def plot_figure(records: list[dict]) -> matplotlib.figure.Figure:
+    """Kernel time against RMSE for one scene's records. Errors are on a log axis, with a strip
+    below it for the variants that match the reference exactly (RMSE 0, the reference itself
+    among them, drawn as a vertical line too) and non-finite errors drawn on the top edge. Each
+    variant has its own marker, named with its figures in the legend beside the plot instead of
+    labels that would collide; FAILs are hollow and the Pareto front is ringed and dashed."""
+    import matplotlib.pyplot as plt
+    from matplotlib.lines import Line2D
+    from matplotlib.ticker import NullFormatter
+
+    times = [r["kernel_s_median"] * 1e3 for r in records]
+    errors = [math.inf if r["rmse"] is None else r["rmse"] for r in records]
+    front = pareto_front(list(zip(times, errors, strict=True)))
+    fig = plt.figure(figsize=(10, 4.8), dpi=100)
+    grid = fig.add_gridspec(2, 1, height_ratios=(5, 1), hspace=0.08, left=0.08, right=0.55,
+                            top=0.91, bottom=0.11)
+    ax = fig.add_subplot(grid[0])
+    exact = fig.add_subplot(grid[1], sharex=ax)
+    handles = []
+    for i, (record, x, y) in enumerate(zip(records, times, errors, strict=True)):
+        style = {"marker": _MARKERS[i % len(_MARKERS)], "color": f"C{i % 10}",
+                 "markersize": 11 if i == 0 else 8, "linestyle": "none",
+                 "markerfacecolor": "none" if record["status"] == "FAIL" else f"C{i % 10}"}
+        if record["variant"] == REFERENCE.name:
+            style["color"] = style["markerfacecolor"] = "black"
+            for axis in (ax, exact):
+                axis.axvline(x, color="black", linestyle=":", linewidth=1)
+        if y == 0:
+            exact.plot([x], [0], **style)
+        elif math.isinf(y):
+            ax.plot([x], [1], transform=ax.get_xaxis_transform(), clip_on=False, **style)
+        else:
+            ax.plot([x], [y], **style)
+        handles.append(Line2D([], [], label=_legend_label(record, x), **{
+            **style, "linestyle": ":" if record["variant"] == REFERENCE.name else "none"}))
+    ring = {"marker": "o", "markersize": 17, "markerfacecolor": "none",
+            "markeredgecolor": "0.4", "linestyle": "none"}
+    for i in front:
+        (exact if errors[i] == 0 else ax).plot([times[i]], [errors[i]], **ring)
+    drawn = [i for i in front if 0 < errors[i] < math.inf]
+    if len(drawn) > 1:
+        ax.plot([times[i] for i in drawn], [errors[i] for i in drawn], "--", color="0.4",
+                linewidth=1, drawstyle="steps-post")
+    handles.append(Line2D([], [], color="0.4", linestyle="--", label="Pareto front (ringed)",
+                          **{k: v for k, v in ring.items() if k != "linestyle"}))
+    finite = [e for e in errors if 0 < e < math.inf]
+    if finite:
+        # Whole decades: a narrow range would get tick labels such as 4x10^-3 that tell less.
+        ax.set_yscale("log")
+        ax.set_ylim(10 ** math.floor(math.log10(min(finite))),
+                    10 ** math.ceil(math.log10(max(finite)) + 1e-9))
+        ax.yaxis.set_minor_formatter(NullFormatter())
+    else:
+        ax.set_yticks([])
+        ax.text(0.5, 0.5, "no variant differs from the reference", transform=ax.transAxes,
+                ha="center", va="center", color="0.4")
+    ax.set_ylabel("RMSE vs double")
+    ax.tick_params(labelbottom=False)
+    ax.grid(True, which="major", alpha=0.3)
+    exact.set_ylim(-1, 1)
+    exact.set_yticks([0], ["0 (exact)"])
+    exact.set_xlabel("kernel time, ms (median)")
+    exact.grid(True, axis="x", alpha=0.3)
+    ax.set_title(f"{records[0]['scene']} ({records[0]['width']}x{records[0]['height']}): "
+                 "kernel time against error", fontsize=10)
+    fig.legend(handles=handles, loc="center left", bbox_to_anchor=(0.565, 0.5), fontsize=8,
+               frameon=False, title="variant: median kernel time, error\n(hollow: FAIL)",
+               title_fontsize=8, alignment="left", borderaxespad=0)
+    return fig
 
 
 def plot_scene(records: list[dict], path: Path) -> bool:
-    """Time-vs-error PNG with the Pareto front; False when matplotlib is not installed."""
+    """Write plot_figure's PNG; False when matplotlib is not installed."""
     try:
         import matplotlib
     except ImportError:
@@ -152,25 +233,8 @@ def plot_scene(records: list[dict], path: Path) -> bool:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    points = [(r["kernel_s_median"] * 1e3, _plot_error(r)) for r in records]
-    front = pareto_front(points)
-    fig, ax = plt.subplots(figsize=(6.4, 4.4), dpi=100)
-    for record, (x, y) in zip(records, points, strict=True):
-        failed = record["status"] == "FAIL"
-        ax.scatter([x], [y], marker="x" if failed else "o", color="red" if failed else "C0")
-        ax.annotate(record["variant"], (x, y), fontsize=7, xytext=(4, 3),
-                    textcoords="offset points")
-    ax.plot([points[i][0] for i in front], [points[i][1] for i in front], "--", color="C2",
-            label="Pareto front")
-    ax.set_xscale("log")
-    ax.set_yscale("log")
-    ax.set_xlabel("kernel time, ms (median)")
-    ax.set_ylabel(f"RMSE vs double (zero plotted at {_PLOT_FLOOR:g})")
-    ax.set_title(f"{records[0]['scene']} ({records[0]['width']}x{records[0]['height']}); "
-                 "x = FAIL", fontsize=9)
-    ax.legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path)
+    fig = plot_figure(records)
+    fig.savefig(path, bbox_inches="tight", pad_inches=0.15)
     plt.close(fig)
     return True
 
@@ -243,10 +307,7 @@ def run_study(paths: Sequence[Path], out: Path, *, repeat: int = 3,
         warnings.simplefilter("ignore", cl.CompilerWarning)
         for path in paths:
             records += study_scene(path, variants, repeat, base, say)
-    plots = {}
-    for scene in dict.fromkeys(r["scene"] for r in records):
-        plots[scene] = plot_scene([r for r in records if r["scene"] == scene],
-                                  out / f"{scene}.png")
+    plots = plot_scenes(records, out)
     if not all(plots.values()):
         say("plots skipped: matplotlib is not installed (pip install 'clray[plot]')")
     device_name = describe(select_device(device))
@@ -255,3 +316,40 @@ def run_study(paths: Sequence[Path], out: Path, *, repeat: int = 3,
         + "\n", encoding="utf-8")
     write_report(records, out, repeat, device_name, plots)
     return records
+
+
+def plot_scenes(records: list[dict], out: Path) -> dict[str, bool]:
+    """One PNG per scene in `out`: {scene: written}."""
+    return {scene: plot_scene([r for r in records if r["scene"] == scene], out / f"{scene}.png")
+            for scene in dict.fromkeys(r["scene"] for r in records)}
+
+
+def replot(out: Path) -> dict[str, bool]:
+    """Redraw a study folder's plots and report.md from its results.json, without rendering:
+    `python -m clray.study DIR`."""
+    data = json.loads((out / "results.json").read_text(encoding="utf-8"))
+    plots = plot_scenes(data["records"], out)
+    write_report(data["records"], out, data["repeat"], data["device"], plots)
+    return plots
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(
+        prog="python -m clray.study",
+        description="Redraw the plots and report.md of a `clray study` folder from its "
+                    "results.json, without rendering.")
+    parser.add_argument("folder", type=Path, metavar="DIR")
+    args = parser.parse_args(argv)
+    try:
+        plots = replot(args.folder)
+    except (OSError, ValueError, KeyError, TypeError) as err:
+        print(f"clray: error: cannot replot {args.folder}: {one_line(str(err))}", file=sys.stderr)
+        return EXIT_RUNTIME
+    if not all(plots.values()):
+        print("clray: error: plots need matplotlib (pip install 'clray[plot]')", file=sys.stderr)
+        return EXIT_RUNTIME
+    return EXIT_OK
+
+
+if __name__ == "__main__":
+    sys.exit(main())

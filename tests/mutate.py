@@ -294,7 +294,7 @@ MUTATIONS: tuple[Mutation, ...] = (
       "np.where(linear <= 0.04045, 12.92 * linear,",
       IMAGE_IO, SRGB),
     m("render.launch_rows_off_by_one", "clray/render.py",
-      "band = min(rows, height - row0)", "band = min(rows, height - row0 - 1)", RENDER),
+      "row0 += band", "row0 += band + 1", RENDER),
     m("metrics.count_over_inclusive", "clray/metrics.py",
       "close = (np.abs(_diff(a, b)) <= threshold) | (a == b)",
       "close = (np.abs(_diff(a, b)) < threshold) | (a == b)", METRICS),

@@ -2,11 +2,18 @@
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
+import fcntl
+import importlib
 import json
 import os
+import pty
+import re
+import struct
 import subprocess
 import sys
+import termios
 import warnings
 from pathlib import Path
 
@@ -54,6 +61,7 @@ material = "red"
 
 TINY = ["-W", "32", "-H", "24"]
 ROOT = Path(__file__).resolve().parent.parent
+render_module = importlib.import_module("clray.render")
 
 
 def scene_text(radius: str = "1", material_extra: str = "") -> str:
@@ -197,7 +205,10 @@ def test_default_output_is_scene_stem_png_with_scene_size(capsys, cl_device, sce
     assert code == 0
     assert out == ""
     assert err.splitlines() == [err.strip()]
-    assert err.startswith("clray: wrote scene.png (40x30, 1 spp, kernel ")
+    summary = re.fullmatch(r"clray: wrote scene\.png \(40x30, 1 spp, wall (\S+) s, "
+                           r"kernel (\S+) s\)\n", err)
+    assert summary, err
+    assert float(summary[1]) >= float(summary[2]) > 0
     with Image.open(tmp_path / "scene.png") as png:
         assert png.mode == "RGB" and png.size == (40, 30)
         assert np.asarray(png).max() > 0  # the lit sphere is not black
@@ -234,9 +245,60 @@ def test_srgb_brightens_png(capsys, cl_device, scene, tmp_path) -> None:
 def test_verbose_prints_progress_and_stats(capsys, cl_device, scene) -> None:
     code, _, err = run(capsys, "render", scene, *TINY, "-v")
     assert code == 0
-    assert "clray: rendering: 100%" in err
-    assert "kernel_s:" in err
-    assert err.splitlines()[-1].startswith("clray: wrote scene.png (32x24")
+    lines = err.splitlines()
+    assert "clray: rendering: 100% (768 of 768 pixel-samples, " in err
+    table = lines[lines.index("clray: stats:") + 1:-1]
+    labels = [line.split("  ")[1] for line in table]
+    assert labels[:17] == ["scene", "output", "device", "image", "load", "bvh", "pack", "build",
+                           "kernel", "render", "write", "total (wall)", "rays primary",
+                           "rays secondary", "rays shadow", "rays total", "Mrays/s"]
+    assert labels[17:] == ["scene on device", "non-finite pixels"]
+    # Labels padded to one width: the values start in one column.
+    column = 2 + len("non-finite pixels") + 2
+    assert all(line[2:column].rstrip() == label for line, label in zip(table, labels,
+                                                                         strict=True))
+    assert "image              32x24, 1 spp, max depth 2, seed 0, float" in err
+    assert lines[-1].startswith("clray: wrote scene.png (32x24")
+
+
+def test_verbose_progress_lines_follow_pixel_samples(capsys, cl_device, scene,
+                                                     monkeypatch) -> None:
+    monkeypatch.setattr(render_module, "FIRST_LAUNCH_PIXEL_SAMPLES", 32 * 4)
+    monkeypatch.setattr(render_module, "MAX_LAUNCH_PIXEL_SAMPLES", 32 * 4)
+    code, _, err = run(capsys, "render", scene, *TINY, "-v")
+    assert code == 0
+    steps = re.findall(r"^clray: rendering: (\d+)% \((\d+) of 768 pixel-samples, "
+                       r"[\d.]+ s, [\d.]+ s left\)$", err, re.MULTILINE)
+    # Six bands of four rows: a line at each tenth of the work that a band crosses.
+    assert steps == [("10", "128"), ("30", "256"), ("50", "384"), ("60", "512"),
+                     ("80", "640"), ("100", "768")]
+
+
+def test_terminal_gets_a_progress_bar_unless_quiet(cl_device, scene, tmp_path) -> None:
+    def stderr_on_a_terminal(*flags: str) -> str:
+        leader, follower = pty.openpty()
+        # A new pseudo-terminal is 0 columns wide, where tqdm draws nothing.
+        fcntl.ioctl(follower, termios.TIOCSWINSZ, struct.pack("HHHH", 24, 100, 0, 0))
+        done = subprocess.run([sys.executable, "-m", "clray", "render", str(scene), *TINY,
+                               *flags], stderr=follower, stdout=subprocess.DEVNULL,
+                              cwd=tmp_path, check=False, timeout=300)
+        os.close(follower)
+        chunks = []
+        with contextlib.suppress(OSError):  # Linux ends a drained pty with EIO
+            while chunk := os.read(leader, 4096):
+                chunks.append(chunk)
+        os.close(leader)
+        assert done.returncode == 0
+        return b"".join(chunks).decode()
+
+    shown = stderr_on_a_terminal()
+    assert re.match(r"\rclray: rendering: +0%\|.*\| \S+/768 \[00:00<\?, \?samples/s\]\r",
+                    shown), repr(shown)
+    # The bar is erased (overwritten with blanks) before the summary line is printed.
+    *_, erased, summary = shown.rstrip("\r\n").split("\r")
+    assert erased.strip() == ""
+    assert summary.startswith("clray: wrote scene.png (32x24, 1 spp, wall ")
+    assert stderr_on_a_terminal("-q") == ""
 
 
 def test_scene_warnings_shown_unless_quiet(capsys, cl_device, scene, monkeypatch) -> None:
@@ -410,7 +472,7 @@ def test_verbose_figures_escape_a_newline_in_the_output_name(capsys, cl_device, 
     # Found by tests/fuzz.py: "  output: x" and "y.png" came out as two lines.
     code, _, err = run(capsys, "render", scene, *TINY, "-v", "-o", "x\ny.png")
     assert code == 0
-    assert "  output: x\\ny.png" in err.splitlines()
+    assert "  output             x\\ny.png" in err.splitlines()
     assert all(line.startswith(("clray: ", "  ")) for line in err.splitlines())
 
 

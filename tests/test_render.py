@@ -246,11 +246,45 @@ def test_double_build_agrees_with_float_on_spheres(cl_device) -> None:
 
 def test_image_is_independent_of_launch_banding(cl_device, monkeypatch) -> None:
     scene = CASES["supersampled"]
-    whole = render(scene).image
-    monkeypatch.setattr(render_module, "PIXEL_SAMPLES_PER_LAUNCH", W * 5 * 3)
-    banded = render(scene)
-    assert banded.stats["launches"] == H // 3
-    np.testing.assert_array_equal(whole, banded.image)
+    whole = render(scene)
+    assert whole.stats["launches"] == 1
+    # Bands of three rows, then of one row: every pixel is computed by a different launch.
+    for rows in (3, 1):
+        monkeypatch.setattr(render_module, "FIRST_LAUNCH_PIXEL_SAMPLES", W * 5 * rows)
+        monkeypatch.setattr(render_module, "MAX_LAUNCH_PIXEL_SAMPLES", W * 5 * rows)
+        banded = render(scene)
+        assert banded.stats["launches"] == H // rows
+        np.testing.assert_array_equal(whole.image, banded.image)
+
+
+def test_progress_counts_pixel_samples_up_to_the_total(cl_device, monkeypatch) -> None:
+    scene = CASES["supersampled"]
+    monkeypatch.setattr(render_module, "FIRST_LAUNCH_PIXEL_SAMPLES", W * 5 * 4)
+    monkeypatch.setattr(render_module, "MAX_LAUNCH_PIXEL_SAMPLES", W * 5 * 4)
+    reports: list[tuple[int, int]] = []
+    result = render(scene, RenderSettings(progress=lambda done, total: reports.append(
+        (done, total))))
+    total = W * H * 5
+    assert {t for _, t in reports} == {total}
+    assert [d for d, _ in reports] == list(range(0, total + 1, W * 5 * 4))
+    assert len(reports) == result.stats["launches"] + 1
+
+
+def test_band_rows_follow_the_measured_rate_within_bounds(monkeypatch) -> None:
+    monkeypatch.setattr(render_module, "FIRST_LAUNCH_PIXEL_SAMPLES", 1000)
+    monkeypatch.setattr(render_module, "MAX_LAUNCH_PIXEL_SAMPLES", 100_000)
+    monkeypatch.setattr(render_module, "LAUNCH_SECONDS", 0.25)
+    monkeypatch.setattr(render_module, "LAUNCH_GROWTH", 4)
+    rows = render_module.next_band_rows
+    assert rows(100, 0, 0.0, 500) == 10  # the first band: FIRST_LAUNCH_PIXEL_SAMPLES
+    assert rows(100, 0, 0.0, 7) == 7  # never past the image
+    assert rows(100_000, 0, 0.0, 50) == 1  # a row over the first band's work: one row
+    assert rows(100, 10, 0.5, 500) == 5  # 20 rows/s for 0.25 s
+    assert rows(100, 10, 0.1, 500) == 25  # 100 rows/s
+    assert rows(100, 10, 0.001, 500) == 40  # 10000 rows/s, but at most 4x the last band
+    assert rows(100, 400, 0.001, 5000) == 1000  # at most MAX_LAUNCH_PIXEL_SAMPLES
+    assert rows(100, 10, 0.0, 500) == 40  # an unmeasurably short launch
+    assert rows(100, 1, 100.0, 500) == 1  # at least one row
 
 
 def test_seed_changes_only_jittered_images(cl_device) -> None:

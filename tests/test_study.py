@@ -62,7 +62,65 @@ def test_run_study_writes_results_report_and_plot(tmp_path: Path, tmp_scene,
     report = (tmp_path / "out" / "report.md").read_text()
     assert "| float (default) |" in report and "-cl-fast-relaxed-math" in report
     pytest.importorskip("matplotlib")
+    png = (tmp_path / "out" / "scene.png").read_bytes()
+    assert png[:4] == b"\x89PNG"
+    # Redrawn from results.json alone: the same report, a plot again.
+    (tmp_path / "out" / "scene.png").unlink()
+    assert study.main([str(tmp_path / "out")]) == 0
+    assert (tmp_path / "out" / "report.md").read_text() == report
     assert (tmp_path / "out" / "scene.png").read_bytes()[:4] == b"\x89PNG"
+
+
+def _record(variant: str, ms: float, rmse: float | None, status: str = "pass") -> dict:
+    return {"scene": "s", "width": 8, "height": 6, "variant": variant,
+            "kernel_s_median": ms / 1e3, "rmse": rmse, "status": status}
+
+
+def test_plot_names_every_variant_once_and_keeps_zero_off_the_log_axis() -> None:
+    pytest.importorskip("matplotlib")
+    import matplotlib.pyplot as plt
+
+    records = [_record("double", 12.0, 0.0), _record("a", 10.0, 3e-4),
+               _record("b", 10.5, 3e-4, "FAIL"), _record("c", 9.0, 2e-3),
+               _record("d", 11.0, None, "FAIL"), _record("e", 8.0, 0.0)]
+    fig = study.plot_figure(records)
+    try:
+        texts = [t.get_text() for t in fig.legends[0].get_texts()]
+        assert texts == ["double: 12 ms, the reference (RMSE 0), dotted",
+                         "a: 10 ms, RMSE 0.0003", "b: 10.5 ms, RMSE 0.0003, FAIL",
+                         "c: 9 ms, RMSE 0.002", "d: 11 ms, non-finite pixels, FAIL",
+                         "e: 8 ms, RMSE 0", "Pareto front (ringed)"]
+        errors, exact = fig.axes
+        # No point labels in the plot: names are in the legend only.
+        assert not errors.texts and not exact.texts
+        assert errors.get_yscale() == "log"
+        assert errors.get_ylim() == pytest.approx((1e-4, 1e-2))  # whole decades, no 1e-9
+        # The exact results (the reference and e) sit in the strip below, at 0.
+        strip = sorted(float(line.get_xdata()[0]) for line in exact.lines
+                       if line.get_marker() not in ("o", "None", None) and
+                       line.get_linestyle() == "None")
+        assert strip == [8.0, 12.0]
+    finally:
+        plt.close(fig)
+
+
+def test_plot_of_only_exact_variants_says_so() -> None:
+    pytest.importorskip("matplotlib")
+    import matplotlib.pyplot as plt
+
+    fig = study.plot_figure([_record("double", 2.0, 0.0), _record("a", 1.0, 0.0)])
+    try:
+        assert [t.get_text() for t in fig.axes[0].texts] == [
+            "no variant differs from the reference"]
+        assert fig.axes[0].get_yscale() == "linear"
+    finally:
+        plt.close(fig)
+
+
+def test_replot_of_a_folder_without_results_is_one_error_line(tmp_path: Path, capsys) -> None:
+    assert study.main([str(tmp_path)]) == 1
+    err = capsys.readouterr().err
+    assert err.startswith("clray: error: cannot replot ") and err.count("\n") == 1
 
 
 @pytest.mark.filterwarnings("ignore::pyopencl.CompilerWarning")

@@ -25,12 +25,17 @@ from clray import __version__
 from clray.device.context import list_devices
 from clray.errors import EXIT_OK, EXIT_RUNTIME, EXIT_USAGE, ClrayError, one_line
 from clray.image_io import (
+    EXPOSURE_RULE,
+    FLOAT_SUFFIXES,
+    PNG_BITS,
     SUFFIXES,
     check_suffix,
+    check_writer,
+    clipped_pixels,
+    is_exposure,
     is_special_file,
     output_target,
     write_bytes_atomically,
-    write_image,
 )
 from clray.metrics import nonfinite_count
 from clray.render import RenderSettings, render
@@ -88,6 +93,16 @@ def _image_path(text: str) -> Path:
     return _file_path(text)
 
 
+def _exposure(text: str) -> float:
+    try:
+        value = float(text) if len(text) <= 40 else None
+    except ValueError:
+        value = None
+    if not is_exposure(value):
+        raise argparse.ArgumentTypeError(f"expected {EXPOSURE_RULE}, got {_shown(text)}")
+    return value
+
+
 def _build_parser() -> _Parser:
     parser = _Parser(prog="clray", description="Whitted ray tracer running as OpenCL kernels.")
     parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
@@ -98,9 +113,10 @@ def _build_parser() -> _Parser:
         description="Render SCENE. Flags override the scene file's [render] values.")
     r.add_argument("scene", type=Path, metavar="SCENE", help="scene file (.toml or .json)")
     r.add_argument("-o", "--output", type=_image_path, metavar="OUT",
-                   help=f"output image, by suffix: {', '.join(SUFFIXES)} (.png is 8-bit and "
-                        "clamped, .pfm float32 linear); default: SCENE's stem + .png in the "
-                        "current directory")
+                   help=f"output image, by suffix: {', '.join(SUFFIXES)} (.png is 8- or "
+                        "16-bit, sRGB unless --linear, clamped to [0, 1] after --exposure; .pfm "
+                        "and .exr are float32 linear radiance, every value kept; .exr needs the "
+                        "'exr' extra); default: SCENE's stem + .png in the current directory")
     size = _int_in(1, limits.MAX_IMAGE_SIZE)
     r.add_argument("-W", "--width", type=size, metavar="N", help="image width in pixels")
     r.add_argument("-H", "--height", type=size, metavar="N", help="image height in pixels")
@@ -115,8 +131,17 @@ def _build_parser() -> _Parser:
                         "(default: CLRAY_DEVICE, PYOPENCL_CTX, then the first CPU device)")
     r.add_argument("--precision", choices=("float", "double"), default="float",
                    help="arithmetic in the kernels (double needs cl_khr_fp64; default: float)")
-    r.add_argument("--srgb", action="store_true",
-                   help="sRGB-encode PNG output (default: linear values, no gamma)")
+    encoding = r.add_mutually_exclusive_group()
+    encoding.add_argument("--linear", dest="linear", action="store_true", default=None,
+                          help="write PNG values linear, tagged gamma 1.0 (default: the sRGB "
+                               "curve, tagged sRGB, unless the scene's [render] linear = true)")
+    encoding.add_argument("--srgb", dest="linear", action="store_false",
+                          help="write PNG values sRGB-encoded, overriding [render] linear")
+    r.add_argument("--exposure", type=_exposure, metavar="STOPS",
+                   help="scale PNG values by 2^STOPS before they are clamped to [0, 1] "
+                        "(default: 0; PFM and EXR keep the radiance as rendered)")
+    r.add_argument("--png-bits", type=int, choices=PNG_BITS,
+                   help="bits a PNG sample (default: 8)")
     r.add_argument("--stats-json", type=_file_path, metavar="PATH",
                    help="write timings, sizes and ray counts as JSON")
     talk = r.add_mutually_exclusive_group()
@@ -160,6 +185,12 @@ def _parse(argv: list[str] | None) -> argparse.Namespace:
             args.output = Path(args.scene.stem + ".png")
         if args.stats_json is not None and _same_file(args.stats_json, args.output):
             parser.error(f"--stats-json and the output image are the same file: {args.output}")
+        png_only = [flag for flag, given in (("--srgb", args.linear is False),
+                                              ("--exposure", args.exposure is not None),
+                                              ("--png-bits", args.png_bits is not None)) if given]
+        if png_only and args.output.suffix.lower() in FLOAT_SUFFIXES:
+            parser.error(f"{', '.join(png_only)} applies to PNG output only; "
+                         f"{args.output.suffix} holds the linear radiance as rendered")
     return args
 
 
@@ -249,6 +280,7 @@ def _render(args: argparse.Namespace) -> int:
     started = time.perf_counter()
     output: Path = args.output
     _check_writable(output)
+    check_writer(output)
     if args.stats_json is not None:
         _check_writable(args.stats_json)
 
@@ -261,11 +293,12 @@ def _render(args: argparse.Namespace) -> int:
         settings = RenderSettings(
             width=args.width, height=args.height, spp=args.spp, max_depth=args.max_depth,
             seed=args.seed, device=args.device, precision=args.precision,
-            progress=_Progress() if args.verbose else None)
+            progress=_Progress() if args.verbose else None, linear=args.linear,
+            exposure=args.exposure, png_bits=args.png_bits)
         result = render(scene, settings)
 
     write_started = time.perf_counter()
-    _write(output, lambda: write_image(output, result.image, srgb=args.srgb))
+    _write(output, lambda: result.save(output))
     height, width, _ = result.image.shape
     stats = {
         **result.stats,
@@ -277,6 +310,8 @@ def _render(args: argparse.Namespace) -> int:
         "total_s": time.perf_counter() - started,
         "nonfinite_pixels": nonfinite_count(result.image),
     }
+    if output.suffix.lower() == ".png":
+        stats["clipped_pixels"] = clipped_pixels(result.image, result.encoding.exposure)
     if args.stats_json is not None:
         text = json.dumps(stats, indent=2, default=str) + "\n"
         _write(args.stats_json,

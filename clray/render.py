@@ -5,6 +5,7 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 import pyopencl as cl
@@ -13,6 +14,7 @@ from clray.device.context import describe, queue_for, select_device
 from clray.device.pack import PackedScene, pack_scene
 from clray.device.program import build_program, bvh_width_for
 from clray.errors import DeviceError
+from clray.image_io import Encoding, write_image
 from clray.scene.model import Scene
 
 # Work per launch, in pixel-samples: keeps each launch well under a second on a CPU device
@@ -31,12 +33,21 @@ class RenderSettings:
     precision: str = "float"  # "float" | "double"
     progress: Callable[[int, int], None] | None = field(default=None, compare=False)
     variants: tuple[tuple[str, object], ...] = ()  # extra KernelConfig fields (studies)
+    # PNG output (RenderResult.save, docs/rendering.md); None = the scene file's value.
+    linear: bool | None = None
+    exposure: float | None = None  # stops
+    png_bits: int | None = None
 
 
 @dataclass(frozen=True)
 class RenderResult:
     image: np.ndarray  # (H, W, 3) float32, linear, may hold non-finite values
     stats: dict
+    encoding: Encoding = field(default_factory=Encoding)  # how save() writes a PNG
+
+    def save(self, path: str | Path) -> None:
+        """Write the image, the suffix picking the format (.png, .pfm, .exr)."""
+        write_image(path, self.image, self.encoding)
 
 
 def _buffer(ctx: cl.Context, array: np.ndarray) -> cl.Buffer:
@@ -55,6 +66,15 @@ def _resolve(scene: Scene, settings: RenderSettings) -> dict[str, int]:
         "max_depth": settings.max_depth if settings.max_depth is not None else r.max_depth,
         "seed": settings.seed if settings.seed is not None else r.seed,
     }
+
+
+def _encoding(scene: Scene, settings: RenderSettings) -> Encoding:
+    r = scene.render
+    return Encoding(
+        linear=settings.linear if settings.linear is not None else r.linear,
+        exposure=settings.exposure if settings.exposure is not None else r.exposure,
+        png_bits=settings.png_bits if settings.png_bits is not None else r.png_bits,
+    )
 
 
 def check_device_memory(packed: PackedScene, global_mem: int, max_alloc: int) -> None:
@@ -148,6 +168,7 @@ def render(scene: Scene, settings: RenderSettings | None = None) -> RenderResult
     start = time.perf_counter()
     device = select_device(settings.device)
     resolved = _resolve(scene, settings)
+    encoding = _encoding(scene, settings)  # before the render, so a bad value costs nothing
     packed = pack_scene(scene, precision=settings.precision,
                         bvh_width=bvh_width_for(device, settings.precision),
                         queue=queue_for(device), **resolved, **dict(settings.variants))
@@ -162,7 +183,7 @@ def render(scene: Scene, settings: RenderSettings | None = None) -> RenderResult
         **stats,
         "total_s": time.perf_counter() - start,
     }
-    return RenderResult(image, stats)
+    return RenderResult(image, stats, encoding)
 
 
 def intersect_rays(packed: PackedScene, device: cl.Device, origins: np.ndarray,

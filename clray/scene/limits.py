@@ -26,6 +26,9 @@ MAX_IMAGE_SIZE = 16384  # output width and height
 MAX_SPP = 4096
 MAX_DEPTH = 16
 MAX_SEED = 2**32 - 1  # the kernels hash the seed as a uint32
+# Output exposure in stops, either way: 2**32 (about 4e9) is beyond any useful display range,
+# and the bound makes a typo such as 1e9 an error rather than an all-white or black image.
+MAX_EXPOSURE = 32.0
 
 MAX_OBJECTS = 1_000_000
 MAX_LIGHTS = 10_000

@@ -36,6 +36,8 @@ class Texture:
     file: Path | None = None
     repeat: tuple[float, float] = (1.0, 1.0)  # j x k repetitions of the image over (u, v)
     blend: float = 1.0  # surface colour = blend * texel + (1 - blend) * material colour
+    # What the file's values are: "srgb" ones were decoded to linear texels when loaded.
+    colorspace: str = "srgb"
     # (H, W, 3) float32 linear texels in [0, 1], row 0 at the top of the image (v = 1).
     image: np.ndarray | None = field(default=None, compare=False, repr=False)
 
@@ -104,6 +106,10 @@ class RenderOptions:
     background: Vec3 = (0.0, 0.0, 0.0)
     ambient: Vec3 = (1.0, 1.0, 1.0)
     seed: int = 0
+    # PNG output (clray.image_io.Encoding): sRGB curve or linear, exposure in stops, bits.
+    linear: bool = False
+    exposure: float = 0.0
+    png_bits: int = 8
 
 
 @dataclass(frozen=True)

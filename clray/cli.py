@@ -318,7 +318,7 @@ def _render(args: argparse.Namespace) -> int:
                lambda: write_bytes_atomically(args.stats_json, text.encode("utf-8")))
 
     if not args.quiet and stats["nonfinite_pixels"]:
-        kept = "kept in the PFM" if output.suffix.lower() == ".pfm" else "written black"
+        kept = "kept" if output.suffix.lower() in FLOAT_SUFFIXES else "written black"
         _say(f"warning: {stats['nonfinite_pixels']} pixels are NaN or infinite ({kept})")
     if args.verbose:
         for key, value in stats.items():

@@ -129,7 +129,8 @@ def test_help_exits_0(capsys) -> None:
     code, out, _ = run(capsys, "render", "--help")
     assert code == 0
     for flag in ("--output", "--width", "--height", "--spp", "--max-depth", "--seed",
-                 "--device", "--precision", "--srgb", "--stats-json", "--quiet", "--verbose"):
+                 "--device", "--precision", "--linear", "--srgb", "--exposure", "--png-bits",
+                 "--stats-json", "--quiet", "--verbose"):
         assert flag in out
 
 
@@ -223,9 +224,9 @@ def test_pfm_with_overrides_and_stats_json(capsys, cl_device, scene, tmp_path) -
     assert files_in(tmp_path) == ["out.pfm", "scene.toml", "stats.json"]
 
 
-def test_srgb_brightens_png(capsys, cl_device, scene, tmp_path) -> None:
-    assert run(capsys, "render", scene, *TINY, "-o", "linear.png", "-q")[0] == 0
-    assert run(capsys, "render", scene, *TINY, "-o", "srgb.png", "-q", "--srgb")[0] == 0
+def test_default_srgb_png_is_brighter_than_linear(capsys, cl_device, scene, tmp_path) -> None:
+    assert run(capsys, "render", scene, *TINY, "-o", "linear.png", "-q", "--linear")[0] == 0
+    assert run(capsys, "render", scene, *TINY, "-o", "srgb.png", "-q")[0] == 0
     with Image.open(tmp_path / "linear.png") as a, Image.open(tmp_path / "srgb.png") as b:
         linear, srgb = np.asarray(a, dtype=int), np.asarray(b, dtype=int)
     assert (srgb >= linear).all() and (srgb > linear).any()

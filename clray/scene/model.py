@@ -36,8 +36,8 @@ class Texture:
     file: Path | None = None
     repeat: tuple[float, float] = (1.0, 1.0)  # j x k repetitions of the image over (u, v)
     blend: float = 1.0  # surface colour = blend * texel + (1 - blend) * material colour
-    # What the file's values are: "srgb" ones were decoded to linear texels when loaded.
-    colorspace: str = "srgb"
+    # An image's file held "srgb" values (decoded to the linear `image` when loaded) or "linear".
+    colorspace: str | None = None
     # (H, W, 3) float32 linear texels in [0, 1], row 0 at the top of the image (v = 1).
     image: np.ndarray | None = field(default=None, compare=False, repr=False)
 

@@ -115,8 +115,9 @@ def _build_parser() -> _Parser:
     r.add_argument("-o", "--output", type=_image_path, metavar="OUT",
                    help=f"output image, by suffix: {', '.join(SUFFIXES)} (.png is 8- or "
                         "16-bit, sRGB unless --linear, clamped to [0, 1] after --exposure; .pfm "
-                        "and .exr are float32 linear radiance, every value kept; .exr needs the "
-                        "'exr' extra); default: SCENE's stem + .png in the current directory")
+                        "and .exr are float32 linear radiance, every value kept; .exr needs "
+                        "pip install 'clray[exr]'); default: SCENE's stem + .png in the current "
+                        "directory")
     size = _int_in(1, limits.MAX_IMAGE_SIZE)
     r.add_argument("-W", "--width", type=size, metavar="N", help="image width in pixels")
     r.add_argument("-H", "--height", type=size, metavar="N", help="image height in pixels")
@@ -138,10 +139,11 @@ def _build_parser() -> _Parser:
     encoding.add_argument("--srgb", dest="linear", action="store_false",
                           help="write PNG values sRGB-encoded, overriding [render] linear")
     r.add_argument("--exposure", type=_exposure, metavar="STOPS",
-                   help="scale PNG values by 2^STOPS before they are clamped to [0, 1] "
-                        "(default: 0; PFM and EXR keep the radiance as rendered)")
+                   help="scale PNG values by 2^STOPS before each channel is clipped to "
+                        "[0, 1] (stats: clipped_pixels); default: [render] exposure, else 0. "
+                        "PFM and EXR keep the radiance as rendered")
     r.add_argument("--png-bits", type=int, choices=PNG_BITS,
-                   help="bits a PNG sample (default: 8)")
+                   help="bits a PNG sample (default: [render] png_bits, else 8)")
     r.add_argument("--stats-json", type=_file_path, metavar="PATH",
                    help="write timings, sizes and ray counts as JSON")
     talk = r.add_mutually_exclusive_group()

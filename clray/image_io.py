@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import io
 import math
+import numbers
 import os
 import secrets
 import stat
@@ -63,13 +64,14 @@ class Encoding:
             raise ValueError(f"linear must be True or False, got {self.linear!r}")
         if not is_exposure(self.exposure):
             raise ValueError(f"exposure must be {EXPOSURE_RULE}, got {self.exposure!r}")
-        if self.png_bits not in PNG_BITS or isinstance(self.png_bits, bool):
+        if (isinstance(self.png_bits, bool) or not isinstance(self.png_bits, numbers.Integral)
+                or self.png_bits not in PNG_BITS):
             raise ValueError(f"png_bits must be 8 or 16, got {self.png_bits!r}")
 
 
 def is_exposure(value: object) -> bool:
     """Whether `value` is an exposure in stops (EXPOSURE_RULE), however it arrives."""
-    return (not isinstance(value, bool) and isinstance(value, int | float)
+    return (not isinstance(value, bool) and isinstance(value, numbers.Real)
             and math.isfinite(value) and abs(value) <= limits.MAX_EXPOSURE)
 
 

@@ -166,9 +166,9 @@ def render_packed(packed: PackedScene, device: cl.Device,
 def render(scene: Scene, settings: RenderSettings | None = None) -> RenderResult:
     settings = settings or RenderSettings()
     start = time.perf_counter()
+    encoding = _encoding(scene, settings)  # first, so that a bad value costs nothing
     device = select_device(settings.device)
     resolved = _resolve(scene, settings)
-    encoding = _encoding(scene, settings)  # before the render, so a bad value costs nothing
     packed = pack_scene(scene, precision=settings.precision,
                         bvh_width=bvh_width_for(device, settings.precision),
                         queue=queue_for(device), **resolved, **dict(settings.variants))

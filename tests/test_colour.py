@@ -185,11 +185,17 @@ def test_clipped_pixels_counts_what_the_png_clamps() -> None:
     ({"exposure": 33}, r"\[-32, 32\]"),
     ({"exposure": True}, "exposure"),
     ({"png_bits": 12}, "png_bits must be 8 or 16"),
+    ({"png_bits": 8.0}, "png_bits must be 8 or 16"),
     ({"linear": "yes"}, "linear must be True or False"),
 ])
 def test_encoding_refuses_bad_values(kwargs, needle) -> None:
     with pytest.raises(ValueError, match=needle):
         Encoding(**kwargs)
+
+
+def test_encoding_takes_numpy_numbers() -> None:
+    encoding = Encoding(exposure=np.float32(1.5), png_bits=np.int64(16))
+    assert to_png_samples(np.full((1, 1, 3), 0.25), encoding).dtype == np.uint16
 
 
 def test_exr_round_trip_keeps_every_value(tmp_path) -> None:
@@ -264,6 +270,18 @@ def test_cli_scene_and_render_settings_reach_the_same_encoding(capsys, cl_device
     default = png_bytes(to_png_samples(read_pfm(tmp_path / "ref.pfm")))
     assert (tmp_path / "over.png").read_bytes() == default
     assert (tmp_path / "api_over.png").read_bytes() == default
+
+
+@pytest.mark.parametrize(("kwargs", "needle"), [
+    ({"exposure": float("nan")}, "exposure must be"),
+    ({"png_bits": 4}, "png_bits must be 8 or 16"),
+    ({"linear": 1}, "linear must be True or False"),
+])
+def test_bad_render_settings_fail_before_rendering(tmp_scene, kwargs, needle) -> None:
+    # No device fixture: the check comes before a device is chosen.
+    scene = load_scene(tmp_scene(SCENE.format(render_extra="")))
+    with pytest.raises(ValueError, match=needle):
+        render(scene, RenderSettings(device="no such device", **kwargs))
 
 
 def test_stats_count_clipped_pixels(capsys, cl_device, scene, tmp_path) -> None:

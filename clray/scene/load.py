@@ -52,6 +52,7 @@ _BARE_KEY = re.compile(r"[A-Za-z0-9_-]+")
 _PLAIN_NAME = re.compile(r"[\w./+-]{1,100}")
 _SHOW_ITEMS = 8  # array elements shown in a message
 _SHOW_DEPTH = 3  # nested arrays shown in a message
+_DECODE_SLICE = 1 << 20  # texel values decoded from sRGB at a time
 
 _TOP_KEYS = ("render", "camera", "materials", "lights", "objects")
 _RENDER_KEYS = (
@@ -503,8 +504,14 @@ class _Loader:
     def decoded(self, texels: np.ndarray) -> np.ndarray:
         """`texels` decoded from sRGB to linear, once per file however often it is named."""
         if id(texels) not in self.decoded_textures:
-            linear = srgb_decode(texels.astype(np.float64)).astype(np.float32)
-            self.decoded_textures[id(texels)] = linear
+            # In float64, a slice at a time: the whole of a texture at the texel limit would
+            # take several GiB of float64 temporaries.
+            flat = texels.reshape(-1)
+            linear = np.empty_like(flat)
+            for start in range(0, flat.size, _DECODE_SLICE):
+                part = flat[start : start + _DECODE_SLICE].astype(np.float64)
+                linear[start : start + _DECODE_SLICE] = srgb_decode(part)
+            self.decoded_textures[id(texels)] = linear.reshape(texels.shape)
         return self.decoded_textures[id(texels)]
 
     def kind(self, spec: dict, key: str, known: dict[str, tuple[str, ...]]) -> str:

@@ -4,6 +4,7 @@
     scene = clray.load_scene("scenes/spheres.toml")
     result = clray.render(scene, clray.RenderSettings(width=320, height=240, spp=4))
     result.image  # (H, W, 3) float32 linear
+    result.save("out.png")  # sRGB-encoded unless RenderSettings(linear=True); .pfm, .exr linear
 
 Imported directly rather than lazily: `clray.render` names both the function and its module, and
 only an import here keeps the attribute bound to the function.

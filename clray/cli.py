@@ -26,12 +26,17 @@ from clray import __version__
 from clray.device.context import list_devices
 from clray.errors import EXIT_OK, EXIT_RUNTIME, EXIT_USAGE, ClrayError, one_line
 from clray.image_io import (
+    EXPOSURE_RULE,
+    FLOAT_SUFFIXES,
+    PNG_BITS,
     SUFFIXES,
     check_suffix,
+    check_writer,
+    clipped_pixels,
+    is_exposure,
     is_special_file,
     output_target,
     write_bytes_atomically,
-    write_image,
 )
 from clray.metrics import nonfinite_count
 from clray.render import RenderSettings, render
@@ -57,16 +62,30 @@ def _shown(text: str) -> str:
 def _int_in(low: int, high: int) -> Callable[[str], int]:
     # Every count has a maximum: past it the kernels' int32 arithmetic would overflow, long
     # before the render would end.
+    # The wording of the scene file's and RenderSettings' checks (limits.integer_problem).
     def parse(text: str) -> int:
         try:
-            value = int(text) if len(text) <= 40 else None
+            value: object = int(text) if len(text) <= 40 else text
         except ValueError:
-            value = None
-        if value is None or not low <= value <= high:
-            raise argparse.ArgumentTypeError(
-                f"expected an integer in [{low}, {high}], got {_shown(text)}"
-            )
-        return value
+            value = text
+        problem = limits.integer_problem(value, low, high)
+        if problem:
+            raise argparse.ArgumentTypeError(f"{problem}, got {_shown(text)}")
+        return int(value)
+
+    return parse
+
+
+def _number_in(low: float, high: float) -> Callable[[str], float]:
+    def parse(text: str) -> float:
+        try:
+            value: object = float(text) if len(text) <= 40 else text
+        except ValueError:
+            value = text
+        problem = limits.number_problem(value, low, high)
+        if problem:
+            raise argparse.ArgumentTypeError(f"{problem}, got {_shown(text)}")
+        return float(value)
 
     return parse
 
@@ -89,6 +108,16 @@ def _image_path(text: str) -> Path:
     return _file_path(text)
 
 
+def _exposure(text: str) -> float:
+    try:
+        value = float(text) if len(text) <= 40 else None
+    except ValueError:
+        value = None
+    if not is_exposure(value):
+        raise argparse.ArgumentTypeError(f"expected {EXPOSURE_RULE}, got {_shown(text)}")
+    return value
+
+
 def _build_parser() -> _Parser:
     parser = _Parser(prog="clray", description="Whitted ray tracer running as OpenCL kernels.")
     parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
@@ -99,9 +128,11 @@ def _build_parser() -> _Parser:
         description="Render SCENE. Flags override the scene file's [render] values.")
     r.add_argument("scene", type=Path, metavar="SCENE", help="scene file (.toml or .json)")
     r.add_argument("-o", "--output", type=_image_path, metavar="OUT",
-                   help=f"output image, by suffix: {', '.join(SUFFIXES)} (.png is 8-bit and "
-                        "clamped, .pfm float32 linear); default: SCENE's stem + .png in the "
-                        "current directory")
+                   help=f"output image, by suffix: {', '.join(SUFFIXES)} (.png is 8- or "
+                        "16-bit, sRGB unless --linear, clamped to [0, 1] after --exposure; .pfm "
+                        "and .exr are float32 linear radiance, every value kept; .exr needs "
+                        "pip install 'clray[exr]'); default: SCENE's stem + .png in the current "
+                        "directory")
     size = _int_in(1, limits.MAX_IMAGE_SIZE)
     r.add_argument("-W", "--width", type=size, metavar="N", help="image width in pixels")
     r.add_argument("-H", "--height", type=size, metavar="N", help="image height in pixels")
@@ -111,13 +142,27 @@ def _build_parser() -> _Parser:
                    help="reflection/refraction bounces after the primary hit")
     r.add_argument("--seed", type=_int_in(0, SEED_MAX), metavar="N",
                    help="seed of the sample jitter")
+    r.add_argument("--min-weight", type=_number_in(*limits.MIN_WEIGHT_RANGE), metavar="W",
+                   help="do not trace reflected or refracted rays of a weight below W (POV-Ray's "
+                        "adc_bailout; default 0: every ray to --max-depth). Inside glass the ray "
+                        "tree doubles at every bounce: set W (e.g. 0.004) for depths above ~20")
     r.add_argument("--device", metavar="SPEC",
                    help="OpenCL device: 'P:D' indices as in PYOPENCL_CTX, or a name substring "
                         "(default: CLRAY_DEVICE, PYOPENCL_CTX, then the first CPU device)")
     r.add_argument("--precision", choices=("float", "double"), default="float",
                    help="arithmetic in the kernels (double needs cl_khr_fp64; default: float)")
-    r.add_argument("--srgb", action="store_true",
-                   help="sRGB-encode PNG output (default: linear values, no gamma)")
+    encoding = r.add_mutually_exclusive_group()
+    encoding.add_argument("--linear", dest="linear", action="store_true", default=None,
+                          help="write PNG values linear, tagged gamma 1.0 (default: the sRGB "
+                               "curve, tagged sRGB, unless the scene's [render] linear = true)")
+    encoding.add_argument("--srgb", dest="linear", action="store_false",
+                          help="write PNG values sRGB-encoded, overriding [render] linear")
+    r.add_argument("--exposure", type=_exposure, metavar="STOPS",
+                   help="scale PNG values by 2^STOPS before each channel is clipped to "
+                        "[0, 1] (stats: clipped_pixels); default: [render] exposure, else 0. "
+                        "PFM and EXR keep the radiance as rendered")
+    r.add_argument("--png-bits", type=int, choices=PNG_BITS,
+                   help="bits a PNG sample (default: [render] png_bits, else 8)")
     r.add_argument("--stats-json", type=_file_path, metavar="PATH",
                    help="write timings, sizes and ray counts as JSON")
     talk = r.add_mutually_exclusive_group()
@@ -164,6 +209,12 @@ def _parse(argv: list[str] | None) -> argparse.Namespace:
             args.output = Path(args.scene.stem + ".png")
         if args.stats_json is not None and _same_file(args.stats_json, args.output):
             parser.error(f"--stats-json and the output image are the same file: {args.output}")
+        png_only = [flag for flag, given in (("--srgb", args.linear is False),
+                                              ("--exposure", args.exposure is not None),
+                                              ("--png-bits", args.png_bits is not None)) if given]
+        if png_only and args.output.suffix.lower() in FLOAT_SUFFIXES:
+            parser.error(f"{', '.join(png_only)} applies to PNG output only; "
+                         f"{args.output.suffix} holds the linear radiance as rendered")
     return args
 
 
@@ -292,7 +343,8 @@ def _stats_table(stats: dict) -> list[str]:
     went in order, then the work done; keys this table does not know come last as they are."""
     rows = [("scene", stats["scene"]), ("output", stats["output"]), ("device", stats["device"]),
             ("image", f"{stats['width']}x{stats['height']}, {stats['spp']} spp, max depth "
-                      f"{stats['max_depth']}, seed {stats['seed']}, {stats['precision']}")]
+                      f"{stats['max_depth']}, min weight {stats['min_weight']:g}, "
+                      f"seed {stats['seed']}, {stats['precision']}")]
     for key, label in _TIMES:
         note = {"kernel_s": f"  ({stats['launches']} launches, device time)",
                 "render_s": "  (bvh to read-back)"}.get(key, "")
@@ -306,8 +358,11 @@ def _stats_table(stats: dict) -> list[str]:
     rows.append(("scene on device", f"{_size(sum(v for v, _ in used))}: " + ", ".join(
         f"{k} {_size(v)}" for v, k in used)))
     rows.append(("non-finite pixels", f"{stats['nonfinite_pixels']:,}"))
-    known = {"scene", "output", "device", "width", "height", "spp", "max_depth", "seed",
-             "precision", "launches", "rays", "mrays_per_s", "device_bytes", "nonfinite_pixels",
+    if "clipped_pixels" in stats:
+        rows.append(("clipped pixels", f"{stats['clipped_pixels']:,}  (a channel over 1)"))
+    known = {"scene", "output", "device", "width", "height", "spp", "max_depth", "min_weight",
+             "seed", "precision", "clipped_pixels", "launches", "rays", "mrays_per_s",
+             "device_bytes", "nonfinite_pixels",
              *(key for key, _ in _TIMES)}
     rows += [(key, _format_stat(value)) for key, value in stats.items() if key not in known]
     width = max(len(label) for label, _ in rows)
@@ -335,6 +390,7 @@ def _render(args: argparse.Namespace) -> int:
     started = time.perf_counter()
     output: Path = args.output
     _check_writable(output)
+    check_writer(output)
     if args.stats_json is not None:
         _check_writable(args.stats_json)
 
@@ -347,12 +403,13 @@ def _render(args: argparse.Namespace) -> int:
         with _progress(quiet=args.quiet, verbose=args.verbose) as progress:
             settings = RenderSettings(
                 width=args.width, height=args.height, spp=args.spp, max_depth=args.max_depth,
-                seed=args.seed, device=args.device, precision=args.precision,
-                progress=progress)
+                seed=args.seed, min_weight=args.min_weight, device=args.device,
+                precision=args.precision, progress=progress, linear=args.linear,
+                exposure=args.exposure, png_bits=args.png_bits)
             result = render(scene, settings)
 
     write_started = time.perf_counter()
-    _write(output, lambda: write_image(output, result.image, srgb=args.srgb))
+    _write(output, lambda: result.save(output))
     height, width, _ = result.image.shape
     stats = {
         **result.stats,
@@ -364,13 +421,15 @@ def _render(args: argparse.Namespace) -> int:
         "total_s": time.perf_counter() - started,
         "nonfinite_pixels": nonfinite_count(result.image),
     }
+    if output.suffix.lower() == ".png":
+        stats["clipped_pixels"] = clipped_pixels(result.image, result.encoding.exposure)
     if args.stats_json is not None:
         text = json.dumps(stats, indent=2, default=str) + "\n"
         _write(args.stats_json,
                lambda: write_bytes_atomically(args.stats_json, text.encode("utf-8")))
 
     if not args.quiet and stats["nonfinite_pixels"]:
-        kept = "kept in the PFM" if output.suffix.lower() == ".pfm" else "written black"
+        kept = "kept" if output.suffix.lower() in FLOAT_SUFFIXES else "written black"
         _say(f"warning: {stats['nonfinite_pixels']} pixels are NaN or infinite ({kept})")
     if args.verbose:
         _say("stats:")

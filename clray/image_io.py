@@ -1,7 +1,9 @@
-"""Image files: 8-bit PNG for looking at, float32 PFM for measuring.
+"""Image files: PNG (8- or 16-bit) for looking at, float32 PFM and OpenEXR for measuring.
 
-Rendered images are (H, W, 3) float32 linear radiance with row 0 at the top. PNG clamps them;
-PFM keeps every value, non-finite ones included, so tests and studies can count them.
+Rendered images are (H, W, 3) float32 linear radiance with row 0 at the top. PNG output goes
+through the colour pipeline of docs/rendering.md (exposure, clamp to [0, 1], sRGB curve unless
+linear) and is tagged so that viewers know its encoding; PFM and EXR keep every value as
+rendered, non-finite ones included, so tests and studies can count them.
 Files are written to a temporary name in the target directory and renamed into place, so a
 reader never sees a half-written image; a symlink's target is written, not the link, and a
 device or pipe (/dev/stdout) is written directly.
@@ -10,16 +12,27 @@ device or pipe (/dev/stdout) is written directly.
 from __future__ import annotations
 
 import io
+import math
+import numbers
 import os
 import secrets
 import stat
 import struct
+import tempfile
 import zlib
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-SUFFIXES = (".png", ".pfm")
+from clray.errors import ClrayError
+from clray.scene import limits
+
+SUFFIXES = (".png", ".pfm", ".exr")
+FLOAT_SUFFIXES = (".pfm", ".exr")
+PNG_BITS = (8, 16)
+EXPOSURE_RULE = f"a number of stops in [{-limits.MAX_EXPOSURE:g}, {limits.MAX_EXPOSURE:g}]"
+EXR_MISSING = "writing .exr needs the OpenEXR package: pip install 'clray[exr]'"
 
 
 def check_suffix(path: str | Path) -> str:
@@ -31,6 +44,35 @@ def check_suffix(path: str | Path) -> str:
             f"use one of {', '.join(SUFFIXES)}"
         )
     return suffix
+
+
+@dataclass(frozen=True)
+class Encoding:
+    """How PNG output encodes linear radiance (docs/rendering.md); PFM and EXR ignore it.
+
+    linear: False writes the sRGB curve (tagged with an sRGB chunk), True writes linear values
+    (tagged gAMA 1.0). exposure: stops; PNG values are radiance * 2**exposure before the clamp.
+    png_bits: 8 or 16 bits a sample.
+    """
+
+    linear: bool = False
+    exposure: float = 0.0
+    png_bits: int = 8
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.linear, bool):
+            raise ValueError(f"linear must be True or False, got {self.linear!r}")
+        if not is_exposure(self.exposure):
+            raise ValueError(f"exposure must be {EXPOSURE_RULE}, got {self.exposure!r}")
+        if (isinstance(self.png_bits, bool) or not isinstance(self.png_bits, numbers.Integral)
+                or self.png_bits not in PNG_BITS):
+            raise ValueError(f"png_bits must be 8 or 16, got {self.png_bits!r}")
+
+
+def is_exposure(value: object) -> bool:
+    """Whether `value` is an exposure in stops (EXPOSURE_RULE), however it arrives."""
+    return (not isinstance(value, bool) and isinstance(value, numbers.Real)
+            and math.isfinite(value) and abs(value) <= limits.MAX_EXPOSURE)
 
 
 def _as_rgb(image: np.ndarray) -> np.ndarray:
@@ -46,40 +88,68 @@ def srgb_encode(linear: np.ndarray) -> np.ndarray:
                     1.055 * np.power(linear, 1.0 / 2.4) - 0.055)
 
 
-def to_png_bytes(image: np.ndarray, srgb: bool = False) -> np.ndarray:
-    """(H, W, 3) uint8: non-finite -> 0, clamp to [0, 1], optional sRGB, then round(255 v)."""
+def srgb_decode(encoded: np.ndarray) -> np.ndarray:
+    """The inverse of srgb_encode (the exact curve, not gamma 2.2), for values in [0, 1]."""
+    return np.where(encoded <= 0.04045, encoded / 12.92,
+                    np.power((encoded + 0.055) / 1.055, 2.4))
+
+
+def to_png_samples(image: np.ndarray, encoding: Encoding = Encoding()) -> np.ndarray:
+    """(H, W, 3) uint8 or uint16 PNG samples: non-finite -> 0, times 2**exposure, clamp to
+    [0, 1] per channel, sRGB curve unless linear, then round to the nearest code."""
     values = np.array(_as_rgb(image), dtype=np.float64)
     np.nan_to_num(values, copy=False, nan=0.0, posinf=0.0, neginf=0.0)
+    if encoding.exposure:
+        values *= 2.0 ** encoding.exposure
     np.clip(values, 0.0, 1.0, out=values)
-    if srgb:
+    if not encoding.linear:
         values = srgb_encode(values)
-    values *= 255.0
-    return np.rint(values, out=values).astype(np.uint8)
+    top = (1 << encoding.png_bits) - 1
+    values *= top
+    return np.rint(values, out=values).astype(np.uint8 if top == 255 else np.uint16)
+
+
+def clipped_pixels(image: np.ndarray, exposure: float = 0.0) -> int:
+    """Pixels a PNG clamps: a finite channel above 1 after the exposure."""
+    scaled = np.asarray(_as_rgb(image), dtype=np.float64) * 2.0 ** exposure
+    return int(np.count_nonzero((np.isfinite(scaled) & (scaled > 1.0)).any(axis=2)))
 
 
 def _png_chunk(kind: bytes, data: bytes) -> bytes:
     return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data))
 
 
-def png_bytes(pixels: np.ndarray) -> bytes:
-    """8-bit RGB PNG of (H, W, 3) uint8 pixels, no other chunks.
+def png_bytes(pixels: np.ndarray, linear: bool = False) -> bytes:
+    """RGB PNG of (H, W, 3) uint8 (8-bit) or uint16 (16-bit) samples, tagged with the
+    encoding: an sRGB chunk, or for linear samples gAMA 1.0 so that viewers do not take them
+    for sRGB (an untagged PNG is read as sRGB).
 
     Written here rather than by Pillow, whose per-row adaptive filter choice and default
-    zlib level take several times as long for a 1280x720 frame: every row uses the "Up"
-    filter (difference from the row above, one numpy subtraction), which suits rendered
-    images, and zlib level 1 compresses that to within a few per cent of the default.
+    zlib level take several times as long for a 1280x720 frame (and which cannot write
+    16-bit RGB): every row uses the "Up" filter (difference from the row above, one numpy
+    subtraction, byte by byte as PNG defines it for any depth), which suits rendered images,
+    and zlib level 1 compresses that to within a few per cent of the default.
     """
-    pixels = np.ascontiguousarray(_as_rgb(pixels), dtype=np.uint8)
+    pixels = _as_rgb(pixels)
+    if pixels.dtype not in (np.uint8, np.uint16):
+        raise ValueError(f"expected uint8 or uint16 samples, got {pixels.dtype}")
+    bits = 8 * pixels.dtype.itemsize
     height, width, _ = pixels.shape
-    rows = pixels.reshape(height, width * 3)
-    filtered = np.empty((height, width * 3 + 1), dtype=np.uint8)
+    # PNG samples are big-endian.
+    rows = np.ascontiguousarray(pixels, dtype=pixels.dtype.newbyteorder(">")).view(np.uint8)
+    rows = rows.reshape(height, -1)
+    filtered = np.empty((height, rows.shape[1] + 1), dtype=np.uint8)
     filtered[:, 0] = 2  # filter type Up
     filtered[0, 1:] = rows[0]
     np.subtract(rows[1:], rows[:-1], out=filtered[1:, 1:])  # modulo 256, as PNG wants
-    header = struct.pack(">IIBBBBB", width, height, 8, 2, 0, 0, 0)  # 8-bit RGB, no interlace
+    header = struct.pack(">IIBBBBB", width, height, bits, 2, 0, 0, 0)  # RGB, no interlace
+    # gAMA holds 100000 / gamma; sRGB's one byte is the rendering intent (0, perceptual).
+    tag = (_png_chunk(b"gAMA", struct.pack(">I", 100000)) if linear
+           else _png_chunk(b"sRGB", b"\x00"))
     return b"".join((
         b"\x89PNG\r\n\x1a\n",
         _png_chunk(b"IHDR", header),
+        tag,
         _png_chunk(b"IDAT", zlib.compress(filtered.tobytes(), 1)),
         _png_chunk(b"IEND", b""),
     ))
@@ -158,14 +228,43 @@ def write_bytes_atomically(path: str | Path, payload: bytes) -> None:
         raise
 
 
-def write_image(path: str | Path, image: np.ndarray, srgb: bool = False) -> None:
-    """Write `image` as PNG or PFM, chosen by the suffix of `path`.
+def exr_bytes(image: np.ndarray) -> bytes:
+    """Float32 RGB OpenEXR, ZIP-compressed; needs the optional OpenEXR package."""
+    try:
+        import OpenEXR
+    except ImportError:
+        raise ClrayError(EXR_MISSING) from None
+    pixels = np.ascontiguousarray(_as_rgb(image), dtype=np.float32)
+    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
+    # The package writes to a file name (streams only in its newest releases): a private
+    # temporary file, whose bytes then go through write_bytes_atomically like every format.
+    with tempfile.TemporaryDirectory(prefix="clray-exr-") as folder:
+        path = os.path.join(folder, "image.exr")
+        OpenEXR.File(header, {"RGB": pixels}).write(path)
+        return Path(path).read_bytes()
 
-    `srgb` applies to PNG only: PFM always holds linear values.
+
+def check_writer(path: str | Path) -> None:
+    """Raise ClrayError if the format `path`'s suffix picks cannot be written here, so that
+    the command can tell before rendering."""
+    if check_suffix(path) == ".exr":
+        try:
+            import OpenEXR  # noqa: F401
+        except ImportError:
+            raise ClrayError(EXR_MISSING) from None
+
+
+def write_image(path: str | Path, image: np.ndarray, encoding: Encoding = Encoding()) -> None:
+    """Write `image` as PNG, PFM or EXR, chosen by the suffix of `path`.
+
+    `encoding` applies to PNG only: PFM and EXR always hold the linear values as rendered.
     """
     path = Path(path)
-    if check_suffix(path) == ".pfm":
+    suffix = check_suffix(path)
+    if suffix == ".pfm":
         payload = pfm_bytes(image)
+    elif suffix == ".exr":
+        payload = exr_bytes(image)
     else:
-        payload = png_bytes(to_png_bytes(image, srgb))
+        payload = png_bytes(to_png_samples(image, encoding), linear=encoding.linear)
     write_bytes_atomically(path, payload)

@@ -6,6 +6,7 @@ import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 import pyopencl as cl
@@ -14,6 +15,7 @@ from clray.device.context import describe, queue_for, select_device
 from clray.device.pack import PackedScene, pack_scene
 from clray.device.program import build_program, bvh_width_for
 from clray.errors import DeviceError, SettingsError
+from clray.image_io import Encoding, write_image
 from clray.scene import limits as L
 from clray.scene.model import Scene
 
@@ -46,6 +48,10 @@ class RenderSettings:
     # first launch, then after each launch, rising to done = total; several times a second.
     progress: Callable[[int, int], None] | None = field(default=None, compare=False)
     variants: tuple[tuple[str, object], ...] = ()  # extra KernelConfig fields (studies)
+    # PNG output (RenderResult.save, docs/rendering.md); None = the scene file's value.
+    linear: bool | None = None
+    exposure: float | None = None  # stops
+    png_bits: int | None = None
 
     def __post_init__(self) -> None:
         for name, (low, high) in L.RENDER_INTEGERS.items():
@@ -63,6 +69,12 @@ class RenderSettings:
                                 f"{', '.join(L.PRECISIONS)}, got {self.precision!r}")
         if self.device is not None and not isinstance(self.device, str):
             raise SettingsError(f"RenderSettings.device: expected a string, got {self.device!r}")
+        given = {name: getattr(self, name) for name in ("linear", "exposure", "png_bits")
+                 if getattr(self, name) is not None}
+        try:
+            Encoding(**given)
+        except ValueError as err:
+            raise SettingsError(f"RenderSettings: {err}") from None
         if self.progress is not None and not callable(self.progress):
             raise SettingsError(f"RenderSettings.progress: expected a callable, "
                                 f"got {self.progress!r}")
@@ -72,6 +84,11 @@ class RenderSettings:
 class RenderResult:
     image: np.ndarray  # (H, W, 3) float32, linear, may hold non-finite values
     stats: dict
+    encoding: Encoding = field(default_factory=Encoding)  # how save() writes a PNG
+
+    def save(self, path: str | Path) -> None:
+        """Write the image, the suffix picking the format (.png, .pfm, .exr)."""
+        write_image(path, self.image, self.encoding)
 
 
 def _buffer(ctx: cl.Context, array: np.ndarray) -> cl.Buffer:
@@ -97,6 +114,15 @@ def next_band_rows(row_samples: int, last_rows: int, last_s: float, rows_left: i
         by_time = last_rows * LAUNCH_SECONDS / last_s if last_s > 0 else math.inf
         rows = min(by_time, LAUNCH_GROWTH * last_rows, MAX_LAUNCH_PIXEL_SAMPLES // row_samples)
     return int(max(1, min(rows_left, rows)))
+
+
+def _encoding(scene: Scene, settings: RenderSettings) -> Encoding:
+    r = scene.render
+    return Encoding(
+        linear=settings.linear if settings.linear is not None else r.linear,
+        exposure=settings.exposure if settings.exposure is not None else r.exposure,
+        png_bits=settings.png_bits if settings.png_bits is not None else r.png_bits,
+    )
 
 
 def check_device_memory(packed: PackedScene, global_mem: int, max_alloc: int) -> None:
@@ -208,6 +234,7 @@ def render_packed(packed: PackedScene, device: cl.Device,
 def render(scene: Scene, settings: RenderSettings | None = None) -> RenderResult:
     settings = settings or RenderSettings()
     start = time.perf_counter()
+    encoding = _encoding(scene, settings)  # first, so that a bad value costs nothing
     device = select_device(settings.device)
     resolved = _resolve(scene, settings)
     packed = pack_scene(scene, precision=settings.precision,
@@ -224,7 +251,7 @@ def render(scene: Scene, settings: RenderSettings | None = None) -> RenderResult
         **stats,
         "total_s": time.perf_counter() - start,
     }
-    return RenderResult(image, stats)
+    return RenderResult(image, stats, encoding)
 
 
 def intersect_rays(packed: PackedScene, device: cl.Device, origins: np.ndarray,

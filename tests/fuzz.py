@@ -115,14 +115,15 @@ def base_scene(rng: random.Random) -> dict:
     rng.shuffle(objects)
     return {
         "render": {"width": 8, "height": 6, "spp": 1, "max_depth": 3,
-                   "background": [0.1, 0.1, 0.2], "ambient": [0.2, 0.2, 0.2], "seed": 1},
+                   "background": [0.1, 0.1, 0.2], "ambient": [0.2, 0.2, 0.2], "seed": 1,
+                   "linear": False, "exposure": 0.5, "png_bits": 8},
         "camera": {"position": [0, 2, 6], "look_at": [0, 0, 0], "up": [0, 1, 0], "vfov": 40},
         "materials": {
             "glass": {"transmit": 0.9, "reflect": 0.1, "ior": 1.5, "specular": 0.5},
             "mirror": {"reflect": 0.8, "color": [0.9, 0.9, 0.9]},
             "floor": {"texture": {"type": "checker", "size": 0.5, "color2": [0, 0, 0]}},
             "tex": {"texture": {"type": "image", "file": rng.choice(["t.png", "t16.png"]),
-                                "repeat": [2, 1], "blend": 0.8}},
+                                "repeat": [2, 1], "blend": 0.8, "colorspace": "srgb"}},
         },
         "lights": [
             {"type": "point", "position": [-3, 5, 4], "color": [0.8, 0.8, 0.8],
@@ -301,7 +302,7 @@ FLAG_VALUES = {
            "file/x.png", "x\ny.png", "OUT.PNG", "a" * 300 + ".png"],
     "--stats-json": ["s.json", "", ".", "dir", "dir/", "nodir/s.json", "out.png", "x\ny.json"],
 }
-FLAG_SWITCHES = ["--srgb", "-q", "-v", "--no-such-flag", "-W"]
+FLAG_SWITCHES = ["--srgb", "--linear", "-q", "-v", "--no-such-flag", "-W"]
 
 
 def flags(rng: random.Random) -> list[str]:

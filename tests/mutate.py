@@ -52,6 +52,7 @@ OBJ = "tests/test_obj.py"
 SCALE = "tests/test_scale.py"
 IMAGE_IO = "tests/test_image_io.py"
 SRGB = "tests/test_srgb.py"
+COLOUR = "tests/test_colour.py"
 METRICS = "tests/test_metrics.py"
 CLI = "tests/test_cli.py"
 STUDY = "tests/test_study.py"
@@ -293,6 +294,18 @@ MUTATIONS: tuple[Mutation, ...] = (
       "np.where(linear <= 0.0031308, 12.92 * linear,",
       "np.where(linear <= 0.04045, 12.92 * linear,",
       IMAGE_IO, SRGB),
+    m("image_io.srgb_decode_threshold", "clray/image_io.py",
+      "np.where(encoded <= 0.04045, encoded / 12.92,",
+      "np.where(encoded <= 0.0031308, encoded / 12.92,",
+      SRGB, COLOUR),
+    m("image_io.exposure_ignored", "clray/image_io.py",
+      "values *= 2.0 ** encoding.exposure", "values *= 1.0", COLOUR),
+    m("image_io.linear_png_tagged_srgb", "clray/image_io.py",
+      "tag = (_png_chunk(b\"gAMA\", struct.pack(\">I\", 100000)) if linear",
+      "tag = (_png_chunk(b\"gAMA\", struct.pack(\">I\", 100000)) if not linear",
+      IMAGE_IO, COLOUR),
+    m("load.srgb_textures_not_decoded", "clray/scene/load.py",
+      'if colorspace == "srgb":', 'if colorspace == "linear":', LOAD, COLOUR),
     m("render.launch_rows_off_by_one", "clray/render.py",
       "row0 += band", "row0 += band + 1", RENDER),
     m("metrics.count_over_inclusive", "clray/metrics.py",

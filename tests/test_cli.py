@@ -137,7 +137,8 @@ def test_help_exits_0(capsys) -> None:
     code, out, _ = run(capsys, "render", "--help")
     assert code == 0
     for flag in ("--output", "--width", "--height", "--spp", "--max-depth", "--seed",
-                 "--device", "--precision", "--srgb", "--stats-json", "--quiet", "--verbose"):
+                 "--device", "--precision", "--linear", "--srgb", "--exposure", "--png-bits",
+                 "--stats-json", "--quiet", "--verbose"):
         assert flag in out
 
 
@@ -234,9 +235,9 @@ def test_pfm_with_overrides_and_stats_json(capsys, cl_device, scene, tmp_path) -
     assert files_in(tmp_path) == ["out.pfm", "scene.toml", "stats.json"]
 
 
-def test_srgb_brightens_png(capsys, cl_device, scene, tmp_path) -> None:
-    assert run(capsys, "render", scene, *TINY, "-o", "linear.png", "-q")[0] == 0
-    assert run(capsys, "render", scene, *TINY, "-o", "srgb.png", "-q", "--srgb")[0] == 0
+def test_default_srgb_png_is_brighter_than_linear(capsys, cl_device, scene, tmp_path) -> None:
+    assert run(capsys, "render", scene, *TINY, "-o", "linear.png", "-q", "--linear")[0] == 0
+    assert run(capsys, "render", scene, *TINY, "-o", "srgb.png", "-q")[0] == 0
     with Image.open(tmp_path / "linear.png") as a, Image.open(tmp_path / "srgb.png") as b:
         linear, srgb = np.asarray(a, dtype=int), np.asarray(b, dtype=int)
     assert (srgb >= linear).all() and (srgb > linear).any()
@@ -252,12 +253,12 @@ def test_verbose_prints_progress_and_stats(capsys, cl_device, scene) -> None:
     assert labels[:17] == ["scene", "output", "device", "image", "load", "bvh", "pack", "build",
                            "kernel", "render", "write", "total (wall)", "rays primary",
                            "rays secondary", "rays shadow", "rays total", "Mrays/s"]
-    assert labels[17:] == ["scene on device", "non-finite pixels"]
+    assert labels[17:] == ["scene on device", "non-finite pixels", "clipped pixels"]
     # Labels padded to one width: the values start in one column.
     column = 2 + len("non-finite pixels") + 2
     assert all(line[2:column].rstrip() == label for line, label in zip(table, labels,
                                                                          strict=True))
-    assert "image              32x24, 1 spp, max depth 2, seed 0, float" in err
+    assert "image              32x24, 1 spp, max depth 2, min weight 0, seed 0, float" in err
     assert lines[-1].startswith("clray: wrote scene.png (32x24")
 
 
@@ -356,7 +357,7 @@ def test_python_dash_m_clray(cl_device, scene, tmp_path) -> None:
 
 def test_flag_maxima_are_in_the_message(capsys, scene) -> None:
     _, _, err = run(capsys, "render", scene, "-W", str(2**31))
-    assert "expected an integer in [1, 16384], got '2147483648'" in err
+    assert "must be an integer in [1, 16384], got '2147483648'" in err
     _, _, err = run(capsys, "render", scene, "--spp", "9" * 5000)
     assert_one_error_line(err)
     assert len(err) < 200

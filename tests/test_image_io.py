@@ -6,7 +6,16 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from clray.image_io import png_bytes, read_pfm, srgb_encode, to_png_bytes, write_image
+from clray.image_io import (
+    Encoding,
+    png_bytes,
+    read_pfm,
+    srgb_encode,
+    to_png_samples,
+    write_image,
+)
+
+LINEAR = Encoding(linear=True)
 
 
 def test_pfm_round_trip_keeps_values_and_orientation(tmp_path) -> None:
@@ -54,7 +63,7 @@ def test_read_pfm_rejects_truncated_and_grey_files(tmp_path) -> None:
 def test_png_is_8bit_rgb_of_the_right_size(tmp_path) -> None:
     image = np.full((24, 32, 3), 0.5, dtype=np.float32)
     path = tmp_path / "a.png"
-    write_image(path, image)
+    write_image(path, image, LINEAR)
     with Image.open(path) as png:
         assert png.mode == "RGB" and png.size == (32, 24)
         assert (np.asarray(png) == 128).all()  # round(127.5) -> 128 (half to even)
@@ -62,20 +71,20 @@ def test_png_is_8bit_rgb_of_the_right_size(tmp_path) -> None:
 
 def test_png_clamps_and_zeroes_nonfinite() -> None:
     image = np.array([[[-1.0, 2.0, np.nan], [np.inf, -np.inf, 0.2]]], dtype=np.float32)
-    assert to_png_bytes(image).tolist() == [[[0, 255, 0], [0, 0, 51]]]
+    assert to_png_samples(image, LINEAR).tolist() == [[[0, 255, 0], [0, 0, 51]]]
 
 
 def test_png_srgb_encoding() -> None:
     image = np.array([[[0.0, 0.001, 0.5], [0.2140, 1.0, 0.0031308]]])
     expected = np.rint(srgb_encode(image) * 255)
-    assert (to_png_bytes(image, srgb=True) == expected).all()
-    assert to_png_bytes(image, srgb=True)[0, 0, 2] == 188  # 0.5 linear is 0.7354 encoded
+    assert (to_png_samples(image) == expected).all()  # sRGB is the default
+    assert to_png_samples(image)[0, 0, 2] == 188  # 0.5 linear is 0.7354 encoded
     assert srgb_encode(np.array([0.001]))[0] == pytest.approx(0.01292)
 
 
-@pytest.mark.parametrize("name", ["a.jpg", "a", "a.exr"])
+@pytest.mark.parametrize("name", ["a.jpg", "a", "a.tiff"])
 def test_unsupported_suffix_names_the_supported_ones(tmp_path, name) -> None:
-    with pytest.raises(ValueError, match=r"\.png, \.pfm"):
+    with pytest.raises(ValueError, match=r"\.png, \.pfm, \.exr"):
         write_image(tmp_path / name, np.zeros((1, 1, 3)))
     assert list(tmp_path.iterdir()) == []
 
@@ -118,9 +127,10 @@ def test_png_bytes_layout_is_plain_8bit_rgb() -> None:
         )
         chunks.append((kind, body))
         at += 12 + length
-    assert [kind for kind, _ in chunks] == [b"IHDR", b"IDAT", b"IEND"]
+    assert [kind for kind, _ in chunks] == [b"IHDR", b"sRGB", b"IDAT", b"IEND"]
     assert chunks[0][1] == struct.pack(">IIBBBBB", 3, 2, 8, 2, 0, 0, 0)
-    rows = np.frombuffer(zlib.decompress(chunks[1][1]), dtype=np.uint8).reshape(2, 10)
+    assert chunks[1][1] == b"\x00"  # rendering intent: perceptual
+    rows = np.frombuffer(zlib.decompress(chunks[2][1]), dtype=np.uint8).reshape(2, 10)
     # Row 1 holds its difference from row 0 (filter type 2, "Up"), modulo 256.
     assert rows[:, 0].tolist() == [2, 2]
     assert rows[0, 1:].tolist() == list(range(9))
@@ -131,8 +141,9 @@ def test_png_file_holds_the_converted_pixels(tmp_path) -> None:
     rng = np.random.default_rng(3)
     image = rng.uniform(-0.2, 1.2, size=(40, 60, 3)).astype(np.float32)
     image[5, 5] = np.nan
-    for srgb in (False, True):
-        path = tmp_path / f"{srgb}.png"
-        write_image(path, image, srgb=srgb)
+    for linear in (False, True):
+        path = tmp_path / f"{linear}.png"
+        write_image(path, image, Encoding(linear=linear))
         with Image.open(path) as png:
-            np.testing.assert_array_equal(np.asarray(png), to_png_bytes(image, srgb))
+            np.testing.assert_array_equal(np.asarray(png),
+                                          to_png_samples(image, Encoding(linear=linear)))

@@ -239,7 +239,7 @@ def test_vfov_and_hfov():
     assert (cam.vfov, cam.hfov) == (None, 90.0)
 
 
-def test_image_texture_loads_linear_texels_relative_to_the_scene(tmp_path):
+def test_image_texture_decodes_srgb_texels_relative_to_the_scene(tmp_path):
     (tmp_path / "tex").mkdir()
     shutil.copy(DATA / "texels_3x2.png", tmp_path / "tex" / "t.png")
     data = scene(
@@ -252,7 +252,9 @@ def test_image_texture_loads_linear_texels_relative_to_the_scene(tmp_path):
     assert tex.image.flags.c_contiguous
     np.testing.assert_array_equal(tex.image[0, 0], [1, 0, 0])  # row 0 is the top row
     np.testing.assert_array_equal(tex.image[0, 2], [0, 0, 1])
-    np.testing.assert_allclose(tex.image[1, 2], np.array([51, 102, 204]) / 255, rtol=1e-6)
+    # An 8-bit file is sRGB by default: 51, 102, 204 decode to these linear values.
+    assert tex.colorspace == "srgb"
+    np.testing.assert_allclose(tex.image[1, 2], [0.0331048, 0.1328683, 0.6038274], atol=1e-6)
 
 
 def test_checker_texture_defaults():

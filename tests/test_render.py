@@ -35,7 +35,7 @@ def _image_texture(**kw) -> M.Texture:
     from PIL import Image
 
     texels = np.asarray(Image.open(TEXTURE).convert("RGB"), dtype=np.float32) / 255.0
-    return M.Texture("image", file=TEXTURE, image=texels, **kw)
+    return M.Texture("image", file=TEXTURE, image=texels, colorspace="linear", **kw)
 
 
 FLOOR = M.Material("floor", (0.8, 0.8, 0.8), ambient=0.1, diffuse=0.8)

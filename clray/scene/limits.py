@@ -61,6 +61,9 @@ def number_problem(value: object, low: float, high: float) -> str | None:
     if not low <= value <= high:  # also refuses NaN
         return f"must be in [{low:g}, {high:g}]"
     return None
+# Output exposure in stops, either way: 2**32 (about 4e9) is beyond any useful display range,
+# and the bound makes a typo such as 1e9 an error rather than an all-white or black image.
+MAX_EXPOSURE = 32.0
 
 MAX_OBJECTS = 1_000_000
 MAX_LIGHTS = 10_000

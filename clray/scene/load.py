@@ -19,6 +19,7 @@ from typing import Any, BinaryIO
 import numpy as np
 
 from clray.errors import SceneError
+from clray.image_io import PNG_BITS, srgb_decode
 from clray.scene import limits as L
 from clray.scene.files import UnreadableFile, open_regular, read_at_most, read_regular
 from clray.scene.model import (
@@ -43,7 +44,7 @@ from clray.scene.model import (
 from clray.scene.obj import ObjMesh, parse_obj
 from clray.scene.parse import parse_scene_text
 from clray.scene.scale import scene_warnings
-from clray.scene.texture import TextureError, read_texture
+from clray.scene.texture import COLORSPACES, TextureError, read_texture
 
 Vec3 = tuple[float, float, float]
 
@@ -51,10 +52,12 @@ _BARE_KEY = re.compile(r"[A-Za-z0-9_-]+")
 _PLAIN_NAME = re.compile(r"[\w./+-]{1,100}")
 _SHOW_ITEMS = 8  # array elements shown in a message
 _SHOW_DEPTH = 3  # nested arrays shown in a message
+_DECODE_SLICE = 1 << 20  # texel values decoded from sRGB at a time
 
 _TOP_KEYS = ("render", "camera", "materials", "lights", "objects")
 _RENDER_KEYS = (
-    "width", "height", "spp", "max_depth", "background", "ambient", "seed", "min_weight"
+    "width", "height", "spp", "max_depth", "background", "ambient", "seed", "min_weight",
+    "linear", "exposure", "png_bits",
 )
 _CAMERA_KEYS = ("position", "look_at", "up", "vfov", "hfov")
 _MATERIAL_KEYS = (
@@ -70,7 +73,7 @@ _MATERIAL_KEYS = (
 )
 _TEXTURE_KEYS = {
     "checker": ("type", "size", "color2", "blend"),
-    "image": ("type", "file", "repeat", "blend"),
+    "image": ("type", "file", "repeat", "blend", "colorspace"),
 }
 _LIGHT_KEYS = {
     "point": ("type", "position", "color", "attenuation"),
@@ -172,7 +175,9 @@ class _Loader:
         # Files read once per scene, by (device, inode): a scene naming one texture or mesh a
         # thousand times must not decode it a thousand times, nor count it against the
         # texel limit more than once.
-        self.textures: dict[tuple[int, int], np.ndarray] = {}
+        self.textures: dict[tuple[int, int], tuple[np.ndarray, bool]] = {}
+        # By id() of the stored texels, which self.textures keeps alive for the loader's life.
+        self.decoded_textures: dict[int, np.ndarray] = {}
         self.meshes: dict[tuple[int, int], ObjMesh] = {}
         self.texels_left = L.MAX_TEXELS
         self.triangles_left = L.MAX_TRIANGLES
@@ -244,6 +249,12 @@ class _Loader:
     def boolean(self, value: Any, key: str) -> bool:
         if not isinstance(value, bool):
             raise self.error(key, f"expected true or false, got {_show(value)}")
+        return value
+
+    def choice(self, value: Any, key: str, allowed: tuple) -> Any:
+        if isinstance(value, bool) or value not in allowed:
+            expected = " or ".join(_show(v) for v in allowed)
+            raise self.error(key, f"expected {expected}, got {_show(value)}")
         return value
 
     def string(self, value: Any, key: str) -> str:
@@ -380,6 +391,12 @@ class _Loader:
             min_weight=self.closed_range(
                 spec.get("min_weight", d.min_weight), "render.min_weight", *L.MIN_WEIGHT_RANGE
             ),
+            linear=self.boolean(spec.get("linear", d.linear), "render.linear"),
+            exposure=self.closed_range(
+                spec.get("exposure", d.exposure), "render.exposure", -L.MAX_EXPOSURE,
+                L.MAX_EXPOSURE
+            ),
+            png_bits=self.choice(spec.get("png_bits", d.png_bits), "render.png_bits", PNG_BITS),
         )
 
     def camera(self, spec: dict) -> Camera:
@@ -455,23 +472,46 @@ class _Loader:
             raise self.error(rkey, f"must be >= {L.MIN_LENGTH:g}, got {_show(spec['repeat'])}")
         fkey = f"{key}.file"
         file = self.base / self.string(spec["file"], fkey)
+        texels, deep = self.image(spec["file"], fkey)
+        # The file's values are sRGB-encoded unless it says otherwise: by default 8-bit images
+        # are (as cameras and paint programs write them), 16-bit and float ones are linear.
+        colorspace = self.choice(
+            spec.get("colorspace", "linear" if deep else "srgb"), f"{key}.colorspace",
+            COLORSPACES,
+        )
+        if colorspace == "srgb":
+            texels = self.decoded(texels)
         return Texture(
-            kind=kind, file=file, repeat=(j, k), blend=blend, image=self.image(spec["file"], fkey)
+            kind=kind, file=file, repeat=(j, k), blend=blend, colorspace=colorspace, image=texels
         )
 
-    def image(self, name: str, key: str) -> np.ndarray:
+    def image(self, name: str, key: str) -> tuple[np.ndarray, bool]:
+        """(texels as stored, scaled to [0, 1]; whether the file has more than 8 bits)."""
         stream, identity = self.open_file(name, key, L.MAX_TEXTURE_BYTES)
         with stream:
             if identity in self.textures:
                 return self.textures[identity]
             try:
-                texels, warned = read_texture(stream, self.texels_left)
+                texels, deep, warned = read_texture(stream, self.texels_left)
             except TextureError as exc:
                 raise self.error(key, f"cannot read image {_name(name)}: {exc}") from None
         self.texels_left -= texels.shape[0] * texels.shape[1]
         self.warnings.extend(f"{key}: image {_name(name)}: {w}" for w in warned)
-        self.textures[identity] = texels
-        return texels
+        self.textures[identity] = (texels, deep)
+        return texels, deep
+
+    def decoded(self, texels: np.ndarray) -> np.ndarray:
+        """`texels` decoded from sRGB to linear, once per file however often it is named."""
+        if id(texels) not in self.decoded_textures:
+            # In float64, a slice at a time: the whole of a texture at the texel limit would
+            # take several GiB of float64 temporaries.
+            flat = texels.reshape(-1)
+            linear = np.empty_like(flat)
+            for start in range(0, flat.size, _DECODE_SLICE):
+                part = flat[start : start + _DECODE_SLICE].astype(np.float64)
+                linear[start : start + _DECODE_SLICE] = srgb_decode(part)
+            self.decoded_textures[id(texels)] = linear.reshape(texels.shape)
+        return self.decoded_textures[id(texels)]
 
     def kind(self, spec: dict, key: str, known: dict[str, tuple[str, ...]]) -> str:
         if "type" not in spec:

@@ -36,6 +36,8 @@ class Texture:
     file: Path | None = None
     repeat: tuple[float, float] = (1.0, 1.0)  # j x k repetitions of the image over (u, v)
     blend: float = 1.0  # surface colour = blend * texel + (1 - blend) * material colour
+    # An image's file held "srgb" values (decoded to the linear `image` when loaded) or "linear".
+    colorspace: str | None = None
     # (H, W, 3) float32 linear texels in [0, 1], row 0 at the top of the image (v = 1).
     image: np.ndarray | None = field(default=None, compare=False, repr=False)
 
@@ -105,6 +107,10 @@ class RenderOptions:
     ambient: Vec3 = (1.0, 1.0, 1.0)
     seed: int = 0
     min_weight: float = 0.0  # secondary rays of a smaller weight are not traced
+    # PNG output (clray.image_io.Encoding): sRGB curve or linear, exposure in stops, bits.
+    linear: bool = False
+    exposure: float = 0.0
+    png_bits: int = 8
 
 
 @dataclass(frozen=True)

@@ -1,8 +1,9 @@
-"""Image texture files -> (H, W, 3) float32 linear texels in [0, 1], row 0 at the top.
+"""Image texture files -> (H, W, 3) float32 texels in [0, 1] as stored, row 0 at the top.
 
 The image's declared size is checked against the limits before any pixel is decoded: a PNG of
 a few hundred bytes can declare 100000 x 100000 pixels. 16-bit images are scaled to [0, 1]
-(Pillow's conversion to 8-bit RGB would clip them), float images are clipped to [0, 1].
+(Pillow's conversion to 8-bit RGB would clip them), float images are clipped to [0, 1]. The
+loader then decodes sRGB files to linear (clray.scene.load, docs/rendering.md).
 """
 
 from __future__ import annotations
@@ -23,6 +24,7 @@ if TYPE_CHECKING:
     from PIL.Image import Image
 
 _SIXTEEN_BIT = ("I;16", "I;16L", "I;16B", "I;16N")
+COLORSPACES = ("srgb", "linear")  # what a texture file's values are
 _MAX_CAPTURED = 4096  # bytes of libtiff's messages kept for the warnings
 
 
@@ -30,9 +32,10 @@ class TextureError(Exception):
     """A one-line reason, for the loader to put into a SceneError with its key."""
 
 
-def read_texture(stream: BinaryIO, texels_left: int) -> tuple[np.ndarray, list[str]]:
-    """(texels, warnings) of the image in `stream`, if its size is within the limits and
-    within `texels_left` (what the scene's earlier textures left of MAX_TEXELS)."""
+def read_texture(stream: BinaryIO, texels_left: int) -> tuple[np.ndarray, bool, list[str]]:
+    """(texels, deep, warnings) of the image in `stream`, if its size is within the limits and
+    within `texels_left` (what the scene's earlier textures left of MAX_TEXELS). `deep`: the
+    file holds more than 8 bits a sample (16-bit or float), which the loader takes as linear."""
     from PIL import Image  # only scenes with image textures pay for importing Pillow
 
     with warnings.catch_warnings(record=True) as caught, _c_stderr() as printed:
@@ -40,6 +43,7 @@ def read_texture(stream: BinaryIO, texels_left: int) -> tuple[np.ndarray, list[s
         try:
             with Image.open(stream) as img:
                 _check_size(img.size, texels_left)
+                deep = _is_deep(img)
                 texels = _texels(img)
         except TextureError:
             raise
@@ -56,7 +60,7 @@ def read_texture(stream: BinaryIO, texels_left: int) -> tuple[np.ndarray, list[s
             # SyntaxError, struct.error, EOFError, IndexError, ...): all mean a bad file.
             raise TextureError(f"{type(exc).__name__}: {exc}") from None
     told = [str(w.message) for w in caught if _worth_telling(w)]
-    return texels, told + [f"libtiff: {line}" for line in printed if line.strip()]
+    return texels, deep, told + [f"libtiff: {line}" for line in printed if line.strip()]
 
 
 @contextlib.contextmanager
@@ -104,8 +108,15 @@ def _check_size(size: tuple[int, int], texels_left: int) -> None:
         )
 
 
+def _is_deep(img: Image) -> bool:
+    # Pillow opens a 16-bit RGB(A) PNG or TIFF as 8-bit "RGB"; only the raw mode of its
+    # undecoded tiles ("RGB;16B") still tells the file's depth.
+    if img.mode in _SIXTEEN_BIT or img.mode in ("I", "F"):
+        return True
+    return any(";16" in str(tile.args) for tile in img.tile)
+
+
 def _texels(img: Image) -> np.ndarray:
-    # Texels are used as stored (linear), like the output PNG (docs/rendering.md).
     if img.mode in _SIXTEEN_BIT or img.mode == "I":
         grey = np.asarray(img).astype(np.float32)
         grey = np.clip(grey, 0.0, 65535.0) / np.float32(65535.0)

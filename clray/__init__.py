@@ -27,7 +27,7 @@ def _started_as_command() -> bool:
 try:
     from clray.device.context import list_devices
     from clray.render import RenderResult, RenderSettings, render
-    from clray.scene.load import load_scene
+    from clray.scene.load import load_scene, scene_from_dict
 except KeyboardInterrupt:
     # Ctrl-C while numpy and pyopencl load (the first fraction of a second of every run): the
     # command exits as it does when interrupted later, with one line and status 130, instead
@@ -37,7 +37,8 @@ except KeyboardInterrupt:
     sys.stderr.write("clray: error: interrupted\n")
     raise SystemExit(130) from None
 
-__all__ = ["RenderResult", "RenderSettings", "list_devices", "load_scene", "render"]
+__all__ = ["RenderResult", "RenderSettings", "list_devices", "load_scene", "render",
+           "scene_from_dict"]
 
 # One source for the version: pyproject.toml, through the installed package's metadata.
 try:

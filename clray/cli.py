@@ -26,14 +26,11 @@ from clray import __version__
 from clray.device.context import list_devices
 from clray.errors import EXIT_OK, EXIT_RUNTIME, EXIT_USAGE, ClrayError, one_line
 from clray.image_io import (
-    EXPOSURE_RULE,
     FLOAT_SUFFIXES,
-    PNG_BITS,
     SUFFIXES,
     check_suffix,
     check_writer,
     clipped_pixels,
-    is_exposure,
     is_special_file,
     output_target,
     write_bytes_atomically,
@@ -108,14 +105,18 @@ def _image_path(text: str) -> Path:
     return _file_path(text)
 
 
-def _exposure(text: str) -> float:
-    try:
-        value = float(text) if len(text) <= 40 else None
-    except ValueError:
-        value = None
-    if not is_exposure(value):
-        raise argparse.ArgumentTypeError(f"expected {EXPOSURE_RULE}, got {_shown(text)}")
-    return value
+def _choice_in(allowed: tuple[int, ...]) -> Callable[[str], int]:
+    def parse(text: str) -> int:
+        try:
+            value: object = int(text) if len(text) <= 40 else text
+        except ValueError:
+            value = text
+        problem = limits.choice_problem(value, allowed)
+        if problem:
+            raise argparse.ArgumentTypeError(f"{problem}, got {_shown(text)}")
+        return int(value)
+
+    return parse
 
 
 def _build_parser() -> _Parser:
@@ -149,7 +150,7 @@ def _build_parser() -> _Parser:
     r.add_argument("--device", metavar="SPEC",
                    help="OpenCL device: 'P:D' indices as in PYOPENCL_CTX, or a name substring "
                         "(default: CLRAY_DEVICE, PYOPENCL_CTX, then the first CPU device)")
-    r.add_argument("--precision", choices=("float", "double"), default="float",
+    r.add_argument("--precision", choices=limits.PRECISIONS, default="float",
                    help="arithmetic in the kernels (double needs cl_khr_fp64; default: float)")
     encoding = r.add_mutually_exclusive_group()
     encoding.add_argument("--linear", dest="linear", action="store_true", default=None,
@@ -157,11 +158,12 @@ def _build_parser() -> _Parser:
                                "curve, tagged sRGB, unless the scene's [render] linear = true)")
     encoding.add_argument("--srgb", dest="linear", action="store_false",
                           help="write PNG values sRGB-encoded, overriding [render] linear")
-    r.add_argument("--exposure", type=_exposure, metavar="STOPS",
+    r.add_argument("--exposure", type=_number_in(*limits.RENDER_NUMBERS["exposure"]),
+                   metavar="STOPS",
                    help="scale PNG values by 2^STOPS before each channel is clipped to "
                         "[0, 1] (stats: clipped_pixels); default: [render] exposure, else 0. "
                         "PFM and EXR keep the radiance as rendered")
-    r.add_argument("--png-bits", type=int, choices=PNG_BITS,
+    r.add_argument("--png-bits", type=_choice_in(limits.PNG_BITS), metavar="8|16",
                    help="bits a PNG sample (default: [render] png_bits, else 8)")
     r.add_argument("--stats-json", type=_file_path, metavar="PATH",
                    help="write timings, sizes and ray counts as JSON")

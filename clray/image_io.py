@@ -30,7 +30,7 @@ from clray.scene import limits
 
 SUFFIXES = (".png", ".pfm", ".exr")
 FLOAT_SUFFIXES = (".pfm", ".exr")
-PNG_BITS = (8, 16)
+PNG_BITS = limits.PNG_BITS
 EXPOSURE_RULE = f"a number of stops in [{-limits.MAX_EXPOSURE:g}, {limits.MAX_EXPOSURE:g}]"
 EXR_MISSING = "writing .exr needs the OpenEXR package: pip install 'clray[exr]'"
 

@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import math
+import os
 import time
+import warnings
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -17,6 +19,8 @@ from clray.device.program import build_program, bvh_width_for
 from clray.errors import DeviceError, SettingsError
 from clray.image_io import Encoding, write_image
 from clray.scene import limits as L
+from clray.scene.check import check_scene
+from clray.scene.load import load_scene
 from clray.scene.model import Scene
 
 # Launches are sized by the time they take, not by their work, so that progress advances
@@ -54,27 +58,21 @@ class RenderSettings:
     png_bits: int | None = None
 
     def __post_init__(self) -> None:
-        for name, (low, high) in L.RENDER_INTEGERS.items():
+        # The scene file's [render] rules (clray.scene.limits), in the same words.
+        checks = [(name, lambda v, r=rule: L.integer_problem(v, *r))
+                  for name, rule in L.RENDER_INTEGERS.items()]
+        checks += [(name, lambda v, r=rule: L.number_problem(v, *r))
+                   for name, rule in L.RENDER_NUMBERS.items()]
+        checks += [(name, lambda v, r=rule: L.choice_problem(v, r))
+                   for name, rule in L.RENDER_CHOICES.items()]
+        checks += [("linear", lambda v: None if isinstance(v, bool) else "expected True or False"),
+                   ("precision", lambda v: L.choice_problem(v, L.PRECISIONS)),
+                   ("device", lambda v: None if isinstance(v, str) else "expected a string")]
+        for name, problem_of in checks:
             value = getattr(self, name)
-            problem = None if value is None else L.integer_problem(value, low, high)
+            problem = None if value is None else problem_of(value)
             if problem:
                 raise SettingsError(f"RenderSettings.{name}: {problem}, got {value!r}")
-        if self.min_weight is not None:
-            problem = L.number_problem(self.min_weight, *L.MIN_WEIGHT_RANGE)
-            if problem:
-                raise SettingsError(f"RenderSettings.min_weight: {problem}, "
-                                    f"got {self.min_weight!r}")
-        if self.precision not in L.PRECISIONS:
-            raise SettingsError(f"RenderSettings.precision: expected one of "
-                                f"{', '.join(L.PRECISIONS)}, got {self.precision!r}")
-        if self.device is not None and not isinstance(self.device, str):
-            raise SettingsError(f"RenderSettings.device: expected a string, got {self.device!r}")
-        given = {name: getattr(self, name) for name in ("linear", "exposure", "png_bits")
-                 if getattr(self, name) is not None}
-        try:
-            Encoding(**given)
-        except ValueError as err:
-            raise SettingsError(f"RenderSettings: {err}") from None
         if self.progress is not None and not callable(self.progress):
             raise SettingsError(f"RenderSettings.progress: expected a callable, "
                                 f"got {self.progress!r}")
@@ -125,27 +123,38 @@ def _encoding(scene: Scene, settings: RenderSettings) -> Encoding:
     )
 
 
-def check_device_memory(packed: PackedScene, global_mem: int, max_alloc: int) -> None:
-    """Refuse, before any buffer exists, a render whose buffers exceed the device's limits:
-    the largest single buffer against CL_DEVICE_MAX_MEM_ALLOC_SIZE and the sum against
-    CL_DEVICE_GLOBAL_MEM_SIZE. The image takes three buffers of 16 bytes a pixel (radiance, ray
-    counts, test counts), the scene what PackedScene.device_bytes() lists."""
-    params = packed.params[0]
-    pixels = int(params["width"]) * int(params["height"])
-    sizes = {**packed.device_bytes(), "image": 16 * pixels, "ray counts": 16 * pixels}
-    if packed.config.count_tests:
-        sizes["test counts"] = 16 * pixels
-    largest = max(sizes, key=sizes.__getitem__)
-    mib = 1 << 20
-    if sizes[largest] > max_alloc:
-        raise DeviceError(f"the {largest} buffer needs {sizes[largest] / mib:.0f} MiB, over the "
-                          f"device's largest allocation ({max_alloc / mib:.0f} MiB): render a "
-                          "smaller image or scene")
-    total = sum(sizes.values())
-    if total > global_mem:
-        raise DeviceError(f"the render needs {total / mib:.0f} MiB of device memory, over the "
-                          f"device's {global_mem / mib:.0f} MiB: render a smaller image or scene")
+# The output buffers (radiance, ray counts, test counts: 16 bytes a pixel each) hold one band of
+# rows, at most this many bytes each: any image the format allows renders on any device, in
+# bands, and a CPU device does not double the image in its memory.
+MAX_BAND_BYTES = 256 << 20
 
+
+def band_capacity(packed: PackedScene, global_mem: int, max_alloc: int) -> int:
+    """The most rows one launch may render: its output buffers within the device's largest
+    allocation and, beside the scene's buffers, within its global memory. Refuses (DeviceError)
+    a scene whose own buffers do not fit, before any buffer exists."""
+    width, height = int(packed.params[0]["width"]), int(packed.params[0]["height"])
+    scene = packed.device_bytes()
+    mib = 1 << 20
+    largest = max(scene, key=scene.__getitem__)
+    if scene[largest] > max_alloc:
+        raise DeviceError(f"the {largest} buffer needs {scene[largest] / mib:.0f} MiB, over the "
+                          f"device's largest allocation ({max_alloc / mib:.0f} MiB): render a "
+                          "smaller scene")
+    outputs = 3 if packed.config.count_tests else 2
+    row_bytes = 16 * width
+    room = global_mem - sum(scene.values())
+    if room < outputs * row_bytes:
+        raise DeviceError(f"the scene needs {sum(scene.values()) / mib:.0f} MiB of device "
+                          f"memory, more than the device's {global_mem / mib:.0f} MiB leave for "
+                          "rendering: render a smaller scene")
+    return max(1, min(height, min(max_alloc, MAX_BAND_BYTES) // row_bytes,
+                      room // (outputs * row_bytes)))
+
+
+# Above this depth a transmissive scene without min_weight gets a warning: glass.toml takes
+# 0.03 s at depth 16 and did not finish in 5 minutes at depth 32 (80x60 pixels, PoCL).
+DEEP_TREE_DEPTH = 20
 
 # Work-items per work-group: one row segment. Left to itself PoCL puts up to 4096 work-items
 # in a group and gives them their private memory on one thread's stack, which a deep ray stack
@@ -163,7 +172,7 @@ def render_packed(packed: PackedScene, device: cl.Device,
                   progress: Callable[[int, int], None] | None = None
                   ) -> tuple[np.ndarray, dict]:
     """Launch the kernel over a packed scene: (image, stats without load/pack times)."""
-    check_device_memory(packed, device.global_mem_size, device.max_mem_alloc_size)
+    capacity = band_capacity(packed, device.global_mem_size, device.max_mem_alloc_size)
     program, build_s = build_program(device, packed.config)
     queue = queue_for(device)
     ctx = queue.context
@@ -177,11 +186,16 @@ def render_packed(packed: PackedScene, device: cl.Device,
         buffers.append(np.int32(len(packed.nodes)))
         buffers += [_buffer(ctx, getattr(packed, name)) for name in (
             "prim_refs", "materials", "textures", "texels", "lights")]
-        image_buf = cl.Buffer(ctx, cl.mem_flags.WRITE_ONLY, width * height * 16)
-        counts_buf = cl.Buffer(ctx, cl.mem_flags.WRITE_ONLY, width * height * 16)
+        band_bytes = width * capacity * 16
+        image_buf = cl.Buffer(ctx, cl.mem_flags.WRITE_ONLY, band_bytes)
+        counts_buf = cl.Buffer(ctx, cl.mem_flags.WRITE_ONLY, band_bytes)
         count_tests = packed.config.count_tests
-        tests_buf = cl.Buffer(ctx, cl.mem_flags.WRITE_ONLY,
-                              width * height * 16 if count_tests else 16)
+        tests_buf = cl.Buffer(ctx, cl.mem_flags.WRITE_ONLY, band_bytes if count_tests else 16)
+        image = np.empty((height, width, 3), dtype=np.float32)
+        band_image = np.empty((capacity, width, 4), dtype=np.float32)
+        band_counts = np.empty((capacity * width, 4), dtype=np.int32)
+        totals = np.zeros(4, dtype=np.int64)
+        test_totals = np.zeros(4, dtype=np.int64)
         kernel = cl.Kernel(program, "render")
         group_width = _group_width(kernel, device)
         padded_width = -(-width // group_width) * group_width
@@ -190,7 +204,7 @@ def render_packed(packed: PackedScene, device: cl.Device,
             progress(0, height * row_samples)
         kernel_s, launches, row0, band, band_s = 0.0, 0, 0, 0, 0.0
         while row0 < height:
-            band = next_band_rows(row_samples, band, band_s, height - row0)
+            band = min(capacity, next_band_rows(row_samples, band, band_s, height - row0))
             kernel.set_args(*buffers, image_buf, counts_buf, tests_buf, np.int32(row0))
             event = cl.enqueue_nd_range_kernel(queue, kernel, (padded_width, band),
                                                (group_width, 1))
@@ -200,20 +214,20 @@ def render_packed(packed: PackedScene, device: cl.Device,
             band_s = (event.profile.end - event.profile.start) * 1e-9
             kernel_s += band_s
             launches += 1
+            pixels = band * width
+            cl.enqueue_copy(queue, band_image[:band], image_buf)
+            cl.enqueue_copy(queue, band_counts[:pixels], counts_buf)
+            image[row0:row0 + band] = band_image[:band, :, :3]
+            totals += band_counts[:pixels].sum(axis=0, dtype=np.int64)
+            if count_tests:
+                cl.enqueue_copy(queue, band_counts[:pixels], tests_buf)
+                test_totals += band_counts[:pixels].sum(axis=0, dtype=np.int64)
             row0 += band
             if progress is not None:
                 progress(row0 * row_samples, height * row_samples)
-        image = np.empty((height, width, 4), dtype=np.float32)
-        counts = np.empty((height * width, 4), dtype=np.int32)
-        cl.enqueue_copy(queue, image, image_buf)
-        cl.enqueue_copy(queue, counts, counts_buf)
-        if count_tests:
-            tests = np.empty((height * width, 4), dtype=np.int32)
-            cl.enqueue_copy(queue, tests, tests_buf)
         queue.finish()
     except cl.Error as err:
         raise DeviceError(f"OpenCL error while rendering on {describe(device)}: {err}") from err
-    totals = counts.sum(axis=0, dtype=np.int64)
     rays = {"primary": int(totals[0]), "secondary": int(totals[1]), "shadow": int(totals[2])}
     rays["total"] = sum(rays.values())
     stats = {
@@ -225,18 +239,27 @@ def render_packed(packed: PackedScene, device: cl.Device,
         "device_bytes": packed.device_bytes(),
     }
     if count_tests:
-        sums = tests.sum(axis=0, dtype=np.int64)
         stats["tests"] = dict(zip(("closest_boxes", "closest_prims", "shadow_boxes",
-                                   "shadow_prims"), map(int, sums), strict=True))
-    return image[:, :, :3], stats
+                                   "shadow_prims"), map(int, test_totals), strict=True))
+    return image, stats
 
 
-def render(scene: Scene, settings: RenderSettings | None = None) -> RenderResult:
+def render(scene: Scene | str | os.PathLike, settings: RenderSettings | None = None
+           ) -> RenderResult:
+    """Render a scene, or the scene file at a path. A scene built in Python is first checked
+    by the scene file's rules (clray.scene.check): SceneError names the bad value."""
     settings = settings or RenderSettings()
+    scene = load_scene(scene) if isinstance(scene, str | os.PathLike) else check_scene(scene)
     start = time.perf_counter()
     encoding = _encoding(scene, settings)  # first, so that a bad value costs nothing
-    device = select_device(settings.device)
     resolved = _resolve(scene, settings)
+    if (resolved["max_depth"] > DEEP_TREE_DEPTH and resolved["min_weight"] == 0
+            and any(m.transmit > 0 for m in scene.materials)):
+        warnings.warn(f"max_depth {resolved['max_depth']} with transmissive materials and "
+                      "min_weight 0: inside glass the ray tree can double at every bounce and "
+                      "the render take very long; set min_weight (e.g. 0.004) to stop faint rays",
+                      stacklevel=2)
+    device = select_device(settings.device)
     packed = pack_scene(scene, precision=settings.precision,
                         bvh_width=bvh_width_for(device, settings.precision),
                         queue=queue_for(device), **resolved, **dict(settings.variants))

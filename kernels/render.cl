@@ -203,11 +203,14 @@ __kernel void render(__global const Camera* camera, __global const Params* param
         }
     }
     REAL3 mean = sum / (REAL)spp;
-    image[pixel] = (float4)((float)mean.x, (float)mean.y, (float)mean.z, 0.0f);
-    ray_counts[pixel] = (int4)(spp, secondary_rays, shadow_rays, 0);
+    // The output buffers hold this launch's band of rows only, so that an image of any size
+    // renders within the device's largest allocation.
+    int slot = get_global_id(1) * width + x;
+    image[slot] = (float4)((float)mean.x, (float)mean.y, (float)mean.z, 0.0f);
+    ray_counts[slot] = (int4)(spp, secondary_rays, shadow_rays, 0);
 #if COUNT_TESTS
-    test_counts[pixel] = (int4)(counts.closest_boxes, counts.closest_prims, counts.shadow_boxes,
-                                counts.shadow_prims);
+    test_counts[slot] = (int4)(counts.closest_boxes, counts.closest_prims, counts.shadow_boxes,
+                               counts.shadow_prims);
 #endif
 }
 

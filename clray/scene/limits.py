@@ -9,6 +9,7 @@ MAX_DEPTH bounces, summed over every light, stay finite.
 
 from __future__ import annotations
 
+import math
 import numbers
 
 # Any number that reaches the device: coordinates, lengths, attenuation, texture repeats.
@@ -31,10 +32,14 @@ MAX_SEED = 2**32 - 1  # the kernels hash the seed as a uint32
 # A secondary ray whose weight (largest colour channel) is below min_weight is not traced:
 # POV-Ray's adc_bailout. 0 traces every ray to max_depth.
 MIN_WEIGHT_RANGE = (0.0, 1.0)
+# Output exposure in stops, either way: 2**32 (about 4e9) is beyond any useful display range,
+# and the bound makes a typo such as 1e9 an error rather than an all-white or black image.
+MAX_EXPOSURE = 32.0
+PNG_BITS = (8, 16)
 PRECISIONS = ("float", "double")
 
 # The [render] values that the command line's flags and RenderSettings can override too: one
-# range for every way a value arrives.
+# rule for every way a value arrives (clray.render.RenderSettings, clray.cli).
 RENDER_INTEGERS = {
     "width": (1, MAX_IMAGE_SIZE),
     "height": (1, MAX_IMAGE_SIZE),
@@ -42,6 +47,11 @@ RENDER_INTEGERS = {
     "max_depth": (0, MAX_DEPTH),
     "seed": (0, MAX_SEED),
 }
+RENDER_NUMBERS = {
+    "min_weight": MIN_WEIGHT_RANGE,
+    "exposure": (-MAX_EXPOSURE, MAX_EXPOSURE),
+}
+RENDER_CHOICES = {"png_bits": PNG_BITS}
 
 
 def integer_problem(value: object, low: int, high: int) -> str | None:
@@ -58,12 +68,19 @@ def number_problem(value: object, low: float, high: float) -> str | None:
     """What is wrong with `value` as a number in [low, high] (None if nothing)."""
     if not isinstance(value, numbers.Real) or isinstance(value, bool):
         return "expected a number"
-    if not low <= value <= high:  # also refuses NaN
+    if not math.isfinite(value):
+        return "must be finite"
+    if not low <= value <= high:
         return f"must be in [{low:g}, {high:g}]"
     return None
-# Output exposure in stops, either way: 2**32 (about 4e9) is beyond any useful display range,
-# and the bound makes a typo such as 1e9 an error rather than an all-white or black image.
-MAX_EXPOSURE = 32.0
+
+
+def choice_problem(value: object, allowed: tuple) -> str | None:
+    """What is wrong with `value` as one of `allowed` (None if nothing)."""
+    if isinstance(value, bool) or value not in allowed:
+        return f"expected {' or '.join(map(str, allowed))}"
+    return None
+
 
 MAX_OBJECTS = 1_000_000
 MAX_LIGHTS = 10_000

@@ -19,7 +19,7 @@ from typing import Any, BinaryIO
 import numpy as np
 
 from clray.errors import SceneError
-from clray.image_io import PNG_BITS, srgb_decode
+from clray.image_io import srgb_decode
 from clray.scene import limits as L
 from clray.scene.files import UnreadableFile, open_regular, read_at_most, read_regular
 from clray.scene.model import (
@@ -73,7 +73,7 @@ _MATERIAL_KEYS = (
 )
 _TEXTURE_KEYS = {
     "checker": ("type", "size", "color2", "blend"),
-    "image": ("type", "file", "repeat", "blend", "colorspace"),
+    "image": ("type", "file", "texels", "repeat", "blend", "colorspace"),
 }
 _LIGHT_KEYS = {
     "point": ("type", "position", "color", "attenuation"),
@@ -86,7 +86,7 @@ _OBJECT_KEYS: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
     "plane": (("point", "normal"), ()),
     "box": (("min", "max"), ()),
     "triangle": (("vertices",), ()),
-    "mesh": ((), ("file", "vertices", "faces", "transform")),
+    "mesh": ((), ("file", "vertices", "faces", "normals", "uvs", "transform")),
     "cylinder": (("base", "axis", "radius", "height"), ("capped",)),
     "cone": (("apex", "axis", "angle", "height"), ("capped",)),
 }
@@ -375,28 +375,29 @@ class _Loader:
             lights=lights,
             objects=objects,
         )
-        return dataclasses.replace(scene, warnings=(*self.warnings, *scene_warnings(scene)))
+        scene = dataclasses.replace(scene, warnings=(*self.warnings, *scene_warnings(scene)))
+        object.__setattr__(scene, "checked", True)  # frozen: the one field the loader sets
+        return scene
 
     def render(self, spec: dict) -> RenderOptions:
         self.keys(spec, "render", _RENDER_KEYS, ())
         d = RenderOptions()
-        integers = {
-            name: self.integer(spec.get(name, getattr(d, name)), f"render.{name}", low, high)
-            for name, (low, high) in L.RENDER_INTEGERS.items()
-        }
+
+        def given(name: str) -> Any:
+            return spec.get(name, getattr(d, name))
+
+        # The tables RenderSettings and the command line check their overrides by, too.
+        values = {name: self.integer(given(name), f"render.{name}", low, high)
+                  for name, (low, high) in L.RENDER_INTEGERS.items()}
+        values |= {name: self.closed_range(given(name), f"render.{name}", low, high)
+                   for name, (low, high) in L.RENDER_NUMBERS.items()}
+        values |= {name: self.choice(given(name), f"render.{name}", allowed)
+                   for name, allowed in L.RENDER_CHOICES.items()}
         return RenderOptions(
-            **integers,
-            background=self.color(spec.get("background", d.background), "render.background"),
-            ambient=self.color(spec.get("ambient", d.ambient), "render.ambient"),
-            min_weight=self.closed_range(
-                spec.get("min_weight", d.min_weight), "render.min_weight", *L.MIN_WEIGHT_RANGE
-            ),
-            linear=self.boolean(spec.get("linear", d.linear), "render.linear"),
-            exposure=self.closed_range(
-                spec.get("exposure", d.exposure), "render.exposure", -L.MAX_EXPOSURE,
-                L.MAX_EXPOSURE
-            ),
-            png_bits=self.choice(spec.get("png_bits", d.png_bits), "render.png_bits", PNG_BITS),
+            **values,
+            background=self.color(given("background"), "render.background"),
+            ambient=self.color(given("ambient"), "render.ambient"),
+            linear=self.boolean(given("linear"), "render.linear"),
         )
 
     def camera(self, spec: dict) -> Camera:
@@ -454,7 +455,7 @@ class _Loader:
 
     def texture(self, spec: dict, key: str) -> Texture:
         kind = self.kind(spec, key, _TEXTURE_KEYS)
-        self.keys(spec, key, _TEXTURE_KEYS[kind], ("type", "file") if kind == "image" else ())
+        self.keys(spec, key, _TEXTURE_KEYS[kind], ("type",))
         d = Texture(kind=kind)
         blend = self.closed_range(spec.get("blend", d.blend), f"{key}.blend", 0, 1)
         if kind == "checker":
@@ -470,6 +471,15 @@ class _Loader:
             raise self.error(rkey, f"must be > 0, got {_show(spec['repeat'])}")
         if min(j, k) < L.MIN_LENGTH:
             raise self.error(rkey, f"must be >= {L.MIN_LENGTH:g}, got {_show(spec['repeat'])}")
+        if "file" in spec and "texels" in spec:
+            raise self.error(key, "give file or texels, not both")
+        if "file" not in spec and "texels" not in spec:
+            raise self.error(f"{key}.file", "missing required key")
+        if "texels" in spec:
+            if "colorspace" in spec:
+                raise self.error(f"{key}.colorspace", "texels are linear: give no colorspace")
+            texels = self.texels(spec["texels"], f"{key}.texels")
+            return Texture(kind=kind, repeat=(j, k), blend=blend, image=texels)
         fkey = f"{key}.file"
         file = self.base / self.string(spec["file"], fkey)
         texels, deep = self.image(spec["file"], fkey)
@@ -499,6 +509,44 @@ class _Loader:
         self.warnings.extend(f"{key}: image {_name(name)}: {w}" for w in warned)
         self.textures[identity] = (texels, deep)
         return texels, deep
+
+    def texels(self, value: Any, key: str) -> np.ndarray:
+        """Linear texels given as an (H, W, 3) array (from Python), within the texel limits."""
+        texels = self.array(value, key, (None, None, 3))
+        height, width, _ = texels.shape
+        side = L.MAX_TEXTURE_SIDE
+        if not 0 < min(height, width) <= max(height, width) <= side:
+            raise self.error(key, f"must be at least 1 and at most {side} texels a side, "
+                             f"got {width}x{height}")
+        if width * height > self.texels_left:
+            raise self.error(key, f"{width}x{height} texels is over what is left "
+                             f"({self.texels_left}) of the limit of {L.MAX_TEXELS}")
+        if not np.all((texels >= 0) & (texels <= 1)):
+            raise self.error(key, "must be linear values in [0, 1]")
+        self.texels_left -= width * height
+        return np.ascontiguousarray(texels, dtype=np.float32)
+
+    def array(self, value: Any, key: str, shape: tuple[int | None, ...],
+              integer: bool = False) -> np.ndarray:
+        """A numeric array (numpy, or nested lists) of `shape` (None: any length), with finite
+        values within MAX_MAGNITUDE; the first bad row is named in the message."""
+        try:
+            a = np.asarray(value)
+        except (ValueError, TypeError):
+            a = np.asarray(None)
+        kinds = "iu" if integer else "iuf"
+        shown = "x".join("N" if n is None else str(n) for n in shape)
+        if (a.dtype.kind not in kinds or a.ndim != len(shape)
+                or any(n is not None and n != m for n, m in zip(shape, a.shape, strict=True))):
+            what = "integers" if integer else "numbers"
+            raise self.error(key, f"expected an array of {shown} {what}, got {_show(value)}")
+        if not integer:
+            bad = ~np.isfinite(a) | (np.abs(a) > L.MAX_MAGNITUDE)
+            if bad.any():
+                row = int(np.argwhere(bad)[0][0])
+                raise self.error(f"{key}[{row}]", f"must be finite and at most "
+                                 f"{L.MAX_MAGNITUDE:g} in magnitude, got {_show(a[row].tolist())}")
+        return a
 
     def decoded(self, texels: np.ndarray) -> np.ndarray:
         """`texels` decoded from sRGB to linear, once per file however often it is named."""
@@ -613,6 +661,10 @@ class _Loader:
         inline = "vertices" in spec or "faces" in spec
         if "file" in spec and inline:
             raise self.error(key, "give file or vertices + faces, not both")
+        for name in ("normals", "uvs"):
+            if name in spec and not inline:
+                raise self.error(f"{key}.{name}", "only with vertices + faces (an OBJ file "
+                                 "gives its own)")
         if "file" in spec:
             obj = self.obj(spec["file"], f"{key}.file")
             vertices, faces, normals, uvs = obj.vertices, obj.faces, obj.normals, obj.uvs
@@ -620,9 +672,14 @@ class _Loader:
             for name in ("vertices", "faces"):
                 if name not in spec:
                     raise self.error(f"{key}.{name}", "missing required key")
-            vertices = np.array(self.points(spec["vertices"], f"{key}.vertices"), dtype=np.float64)
+            vertices = self.vertex_values(spec["vertices"], f"{key}.vertices", None, 3)
             faces = self.faces(spec["faces"], f"{key}.faces", len(vertices))
-            normals = uvs = None
+            normals, uvs = (None if name not in spec else self.vertex_values(
+                spec[name], f"{key}.{name}", len(vertices), size) for name, size in
+                (("normals", 3), ("uvs", 2)))
+            if normals is not None and not np.all(np.any(normals != 0, axis=1)):
+                row = int(np.flatnonzero(~np.any(normals != 0, axis=1))[0])
+                raise self.error(f"{key}.normals[{row}]", "must be a nonzero vector")
         else:
             raise self.error(key, "a mesh needs file or vertices + faces")
         if len(faces) == 0:
@@ -662,25 +719,44 @@ class _Loader:
             uvs=uvs,
         )
 
+    def vertex_values(self, value: Any, key: str, n_vertices: int | None, size: int
+                      ) -> np.ndarray:
+        """Per-vertex positions, normals or (u, v): a row of `size` numbers for each vertex,
+        from a list of lists (scene files: each row checked as any other numbers) or an array
+        (Python: checked at once)."""
+        if isinstance(value, np.ndarray):
+            a = self.array(value, key, (None, size)).astype(np.float64)
+        elif isinstance(value, list):
+            a = np.array([self.numbers(row, f"{key}[{i}]", size) for i, row in enumerate(value)],
+                         dtype=np.float64).reshape(-1, size)
+        else:
+            raise self.error(key, f"expected a list of {size}-number rows, got {_show(value)}")
+        if n_vertices is not None and len(a) != n_vertices:
+            raise self.error(key, f"expected one row per vertex ({n_vertices}), got {len(a)}")
+        return a
+
     def faces(self, value: Any, key: str, n_vertices: int) -> np.ndarray:
-        if not isinstance(value, list):
-            raise self.error(key, f"expected a list of faces, got {_show(value)}")
-        out = []
-        for i, face in enumerate(value):
-            fkey = f"{key}[{i}]"
-            if (
-                not isinstance(face, list)
-                or len(face) != 3
-                or not all(isinstance(v, int) and not isinstance(v, bool) for v in face)
-            ):
-                raise self.error(fkey, f"expected 3 vertex indices, got {_show(face)}")
-            for v in face:
-                if not 0 <= v < n_vertices:
-                    raise self.error(
-                        fkey, f"index {_show(v)} out of range (0-based, {n_vertices} vertices)"
-                    )
-            out.append(face)
-        return np.array(out, dtype=np.int64).reshape(-1, 3)
+        if isinstance(value, np.ndarray):
+            faces = self.array(value, key, (None, 3), integer=True)
+        else:
+            if not isinstance(value, list):
+                raise self.error(key, f"expected a list of faces, got {_show(value)}")
+            for i, face in enumerate(value):
+                if (
+                    not isinstance(face, list)
+                    or len(face) != 3
+                    or not all(isinstance(v, int) and not isinstance(v, bool) for v in face)
+                ):
+                    raise self.error(f"{key}[{i}]", f"expected 3 vertex indices, got {_show(face)}")
+            faces = np.array(value, dtype=object).reshape(-1, 3)
+        outside = np.any((faces < 0) | (faces >= n_vertices), axis=1)
+        if outside.any():
+            i = int(np.flatnonzero(outside)[0])
+            v = next(v for v in faces[i].tolist() if not 0 <= v < n_vertices)
+            raise self.error(
+                f"{key}[{i}]", f"index {_show(v)} out of range (0-based, {n_vertices} vertices)"
+            )
+        return faces.astype(np.int64)
 
     def transform(self, value: Any, key: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(3x3 rotation, 3 scale factors, translation): scale, then rotate about x, y, z in

@@ -185,3 +185,7 @@ class Scene:
     lights: tuple[Light, ...]
     objects: tuple[SceneObject, ...]
     warnings: tuple[str, ...] = ()
+    # Set by the loader on the scenes it makes. A scene built or changed in Python (even with
+    # dataclasses.replace, which does not copy it) starts False and is checked by the file
+    # format's rules before it renders (clray.scene.check).
+    checked: bool = field(default=False, init=False, compare=False, repr=False)

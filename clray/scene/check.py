@@ -1,0 +1,132 @@
+"""Scenes built in Python from the model's dataclasses, checked by the scene file's rules.
+
+The rules live in one place, the loader (clray.scene.load). A Scene that the loader did not
+make is written back into the file format's dict form (arrays stay arrays, so a large mesh is
+checked at numpy speed) and loaded again: a hand-built scene meets the same checks, with the
+same one-line messages naming the key (`objects[3].radius`), as a scene file, and comes back
+normalised as a loaded scene is (unit directions and normals).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any
+
+import numpy as np
+
+from clray.errors import SceneError
+from clray.scene import model as M
+from clray.scene.load import scene_from_dict
+
+_OBJECT_TYPES: dict[type, str] = {
+    M.Sphere: "sphere", M.Plane: "plane", M.Box: "box", M.Triangle: "triangle",
+    M.Mesh: "mesh", M.Cylinder: "cylinder", M.Cone: "cone",
+}
+_MESH_ARRAYS = ("vertices", "faces", "normals", "uvs")
+
+
+def check_scene(scene: M.Scene) -> M.Scene:
+    """`scene` itself if the loader made it, else the same scene checked and normalised by the
+    loader; SceneError (a one-line message naming the key) if something is wrong."""
+    if getattr(scene, "checked", False):
+        return scene
+    if not isinstance(scene, M.Scene):
+        raise SceneError(None, None, f"expected a clray Scene, got {type(scene).__name__}")
+    return scene_from_dict(scene_to_dict(scene), scene.path)
+
+
+def scene_to_dict(scene: M.Scene) -> dict:
+    """The scene in the scene file's form (docs/scene_format.md), as scene_from_dict takes it."""
+    names = _material_names(scene.materials)
+    return {
+        "render": {f.name: _plain(getattr(scene.render, f.name))
+                   for f in dataclasses.fields(M.RenderOptions)},
+        "camera": _camera(scene.camera),
+        "materials": {name: _material(m) for name, m in zip(names, scene.materials, strict=True)},
+        "lights": [_light(light, i) for i, light in enumerate(scene.lights)],
+        "objects": [_object(obj, i, names) for i, obj in enumerate(scene.objects)],
+    }
+
+
+def _plain(value: Any) -> Any:
+    """Numbers and small vectors as the parsers give them: Python scalars and lists (the
+    loader refuses numpy scalars and tuples nowhere, but lists keep its messages alike)."""
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, np.ndarray | tuple | list):
+        return [_plain(v) for v in value]
+    return value
+
+
+def _material_names(materials: tuple[M.Material, ...]) -> list[str]:
+    """A unique table key per material, its own name where that is unique."""
+    given = [m.name if isinstance(m, M.Material) and isinstance(m.name, str) else "" for m in
+             materials]
+    return [name if name and given.count(name) == 1 else f"material {i}"
+            for i, name in enumerate(given)]
+
+
+def _fields(obj: object, skip: tuple[str, ...] = ()) -> dict:
+    return {f.name: _plain(getattr(obj, f.name)) for f in dataclasses.fields(obj)
+            if f.name not in skip and getattr(obj, f.name) is not None}
+
+
+def _camera(camera: M.Camera) -> dict:
+    if not isinstance(camera, M.Camera):
+        raise SceneError(None, "camera", f"expected a Camera, got {type(camera).__name__}")
+    return _fields(camera)
+
+
+def _material(material: M.Material) -> dict:
+    if not isinstance(material, M.Material):
+        raise SceneError(None, "materials", f"expected a Material, got "
+                         f"{type(material).__name__}")
+    spec = _fields(material, skip=("name", "texture"))
+    texture = material.texture
+    if texture is not None:
+        if not isinstance(texture, M.Texture):
+            raise SceneError(None, "texture", f"expected a Texture, got {type(texture).__name__}")
+        spec["texture"] = _texture(texture)
+    return spec
+
+
+def _texture(texture: M.Texture) -> dict:
+    if texture.kind == "checker":
+        return {"type": "checker", **_fields(texture, skip=(
+            "kind", "file", "repeat", "colorspace", "image"))}
+    spec = {"type": texture.kind, "repeat": _plain(texture.repeat), "blend": texture.blend}
+    if texture.image is not None:
+        spec["texels"] = texture.image  # already linear: what the file decoded to
+    elif texture.file is not None:
+        spec["file"] = str(texture.file)
+        if texture.colorspace is not None:
+            spec["colorspace"] = texture.colorspace
+    return spec
+
+
+def _light(light: M.Light, i: int) -> dict:
+    if isinstance(light, M.PointLight):
+        return {"type": "point", **_fields(light)}
+    if isinstance(light, M.DirectionalLight):
+        return {"type": "directional", **_fields(light)}
+    raise SceneError(None, f"lights[{i}]", f"expected a PointLight or DirectionalLight, got "
+                     f"{type(light).__name__}")
+
+
+def _object(obj: M.SceneObject, i: int, names: list[str]) -> dict:
+    key = f"objects[{i}]"
+    kind = _OBJECT_TYPES.get(type(obj))
+    if kind is None:
+        shown = ", ".join(t.__name__ for t in _OBJECT_TYPES)
+        raise SceneError(None, key, f"expected one of {shown}, got {type(obj).__name__}")
+    material = obj.material
+    if (isinstance(material, bool) or not isinstance(material, int | np.integer)
+            or not 0 <= material < len(names)):
+        raise SceneError(None, f"{key}.material", f"expected the index of one of the scene's "
+                         f"{len(names)} materials, got {material!r}")
+    if kind == "mesh":
+        spec = {name: getattr(obj, name) for name in _MESH_ARRAYS
+                if getattr(obj, name) is not None}
+    else:
+        spec = _fields(obj, skip=("material",))
+    return {"type": kind, "material": names[int(material)], **spec}

@@ -31,6 +31,7 @@ from clray.image_io import (
     check_suffix,
     check_writer,
     clipped_pixels,
+    image_bytes,
     is_special_file,
     output_target,
     write_bytes_atomically,
@@ -97,7 +98,14 @@ def _file_path(text: str) -> Path:
     return path
 
 
+# `-o -` and `--stats-json -` write to standard output (the image as PNG); clray's own lines
+# go to stderr, so stdout carries nothing else.
+STDOUT = Path("-")
+
+
 def _image_path(text: str) -> Path:
+    if text == "-":
+        return STDOUT
     try:
         check_suffix(text)
     except ValueError as err:
@@ -132,8 +140,8 @@ def _build_parser() -> _Parser:
                    help=f"output image, by suffix: {', '.join(SUFFIXES)} (.png is 8- or "
                         "16-bit, sRGB unless --linear, clamped to [0, 1] after --exposure; .pfm "
                         "and .exr are float32 linear radiance, every value kept; .exr needs "
-                        "pip install 'clray[exr]'); default: SCENE's stem + .png in the current "
-                        "directory")
+                        "pip install 'clray[exr]'); '-' writes PNG to standard output; default: "
+                        "SCENE's stem + .png in the current directory")
     size = _int_in(1, limits.MAX_IMAGE_SIZE)
     r.add_argument("-W", "--width", type=size, metavar="N", help="image width in pixels")
     r.add_argument("-H", "--height", type=size, metavar="N", help="image height in pixels")
@@ -166,7 +174,7 @@ def _build_parser() -> _Parser:
     r.add_argument("--png-bits", type=_choice_in(limits.PNG_BITS), metavar="8|16",
                    help="bits a PNG sample (default: [render] png_bits, else 8)")
     r.add_argument("--stats-json", type=_file_path, metavar="PATH",
-                   help="write timings, sizes and ray counts as JSON")
+                   help="write timings, sizes and ray counts as JSON ('-': standard output)")
     talk = r.add_mutually_exclusive_group()
     talk.add_argument("-q", "--quiet", action="store_true",
                       help="print nothing on success, not even the progress bar")
@@ -209,6 +217,8 @@ def _parse(argv: list[str] | None) -> argparse.Namespace:
     if args.command == "render":
         if args.output is None:
             args.output = Path(args.scene.stem + ".png")
+        if args.stats_json == STDOUT and args.output == STDOUT:
+            parser.error("-o - and --stats-json - would both write to standard output")
         if args.stats_json is not None and _same_file(args.stats_json, args.output):
             parser.error(f"--stats-json and the output image are the same file: {args.output}")
         png_only = [flag for flag, given in (("--srgb", args.linear is False),
@@ -222,6 +232,12 @@ def _parse(argv: list[str] | None) -> argparse.Namespace:
 
 def _same_file(a: Path, b: Path) -> bool:
     return os.path.abspath(a) == os.path.abspath(b)
+
+
+def _to_stdout(payload: bytes) -> None:
+    sys.stdout.flush()
+    sys.stdout.buffer.write(payload)
+    sys.stdout.buffer.flush()
 
 
 def _say(message: str) -> None:
@@ -391,9 +407,10 @@ def _warnings_as_lines(*, quiet: bool, verbose: bool) -> Iterator[None]:
 def _render(args: argparse.Namespace) -> int:
     started = time.perf_counter()
     output: Path = args.output
-    _check_writable(output)
-    check_writer(output)
-    if args.stats_json is not None:
+    if output != STDOUT:
+        _check_writable(output)
+        check_writer(output)
+    if args.stats_json not in (None, STDOUT):
         _check_writable(args.stats_json)
 
     with _warnings_as_lines(quiet=args.quiet, verbose=args.verbose):
@@ -411,7 +428,10 @@ def _render(args: argparse.Namespace) -> int:
             result = render(scene, settings)
 
     write_started = time.perf_counter()
-    _write(output, lambda: result.save(output))
+    if output == STDOUT:
+        _write(output, lambda: _to_stdout(image_bytes(".png", result.image, result.encoding)))
+    else:
+        _write(output, lambda: result.save(output))
     height, width, _ = result.image.shape
     stats = {
         **result.stats,
@@ -423,12 +443,15 @@ def _render(args: argparse.Namespace) -> int:
         "total_s": time.perf_counter() - started,
         "nonfinite_pixels": nonfinite_count(result.image),
     }
-    if output.suffix.lower() == ".png":
+    if output == STDOUT or output.suffix.lower() == ".png":
         stats["clipped_pixels"] = clipped_pixels(result.image, result.encoding.exposure)
     if args.stats_json is not None:
         text = json.dumps(stats, indent=2, default=str) + "\n"
-        _write(args.stats_json,
-               lambda: write_bytes_atomically(args.stats_json, text.encode("utf-8")))
+        if args.stats_json == STDOUT:
+            _write(args.stats_json, lambda: _to_stdout(text.encode("utf-8")))
+        else:
+            _write(args.stats_json,
+                   lambda: write_bytes_atomically(args.stats_json, text.encode("utf-8")))
 
     if not args.quiet and stats["nonfinite_pixels"]:
         kept = "kept" if output.suffix.lower() in FLOAT_SUFFIXES else "written black"

@@ -259,12 +259,13 @@ def write_image(path: str | Path, image: np.ndarray, encoding: Encoding = Encodi
 
     `encoding` applies to PNG only: PFM and EXR always hold the linear values as rendered.
     """
-    path = Path(path)
-    suffix = check_suffix(path)
+    write_bytes_atomically(path, image_bytes(check_suffix(path), image, encoding))
+
+
+def image_bytes(suffix: str, image: np.ndarray, encoding: Encoding = Encoding()) -> bytes:
+    """The file `write_image` writes for `suffix` (.png, .pfm or .exr), as bytes."""
     if suffix == ".pfm":
-        payload = pfm_bytes(image)
-    elif suffix == ".exr":
-        payload = exr_bytes(image)
-    else:
-        payload = png_bytes(to_png_samples(image, encoding), linear=encoding.linear)
-    write_bytes_atomically(path, payload)
+        return pfm_bytes(image)
+    if suffix == ".exr":
+        return exr_bytes(image)
+    return png_bytes(to_png_samples(image, encoding), linear=encoding.linear)

@@ -23,7 +23,7 @@ from PIL import Image
 
 from clray import cli
 from clray.device.context import has_fp64
-from clray.errors import ClrayError
+from clray.errors import EXIT_USAGE, ClrayError
 from clray.image_io import read_pfm
 
 SCENE = """\
@@ -484,3 +484,35 @@ def test_out_of_memory_is_one_line(capsys, scene, monkeypatch) -> None:
     monkeypatch.setattr(cli, "load_scene", exhausted)
     code, _, err = run(capsys, "render", scene)
     assert (code, err) == (1, "clray: error: out of memory\n")
+
+
+# --- standard output ---------------------------------------------------------------------------
+
+def _clray(*argv: str | Path) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "clray", *map(str, argv)], capture_output=True,
+                          timeout=300)
+
+
+def test_dash_writes_the_png_to_stdout(cl_device, scene, tmp_path) -> None:
+    done = _clray("render", scene, *TINY, "-o", "-")
+    assert done.returncode == 0, done.stderr
+    assert _clray("render", scene, *TINY, "-o", tmp_path / "file.png", "-q").returncode == 0
+    assert done.stdout == (tmp_path / "file.png").read_bytes()
+    assert b"wrote -" in done.stderr  # clray's own lines stay on stderr
+    assert files_in(tmp_path) == ["file.png", "scene.toml"]
+
+
+def test_stats_json_dash_writes_json_to_stdout(cl_device, scene, tmp_path) -> None:
+    done = _clray("render", scene, *TINY, "-o", tmp_path / "out.pfm", "--stats-json", "-", "-q")
+    assert done.returncode == 0, done.stderr
+    stats = json.loads(done.stdout)
+    assert (stats["width"], stats["height"], stats["output"]) == (32, 24, str(tmp_path / "out.pfm"))
+    assert done.stderr == b""
+    assert files_in(tmp_path) == ["out.pfm", "scene.toml"]
+
+
+def test_image_and_stats_both_to_stdout_is_a_usage_error(capsys, scene) -> None:
+    code, out, err = run(capsys, "render", scene, "-o", "-", "--stats-json", "-")
+    assert code == EXIT_USAGE and out == ""
+    assert_one_error_line(err)
+    assert "both write to standard output" in err

@@ -435,7 +435,7 @@ def obj(**fields):
 
 ERRORS = [
     # top level and render
-    ({"camera": CAMERA, "rendr": {}}, "rendr: unknown key (expected one of: render, camera, "),
+    ({"camera": CAMERA, "rendr": {}}, "rendr: unknown key (expected one of: include, render, "),
     ({}, "camera: missing required key"),
     (scene(render={"widht": 3}), "render.widht: unknown key (expected one of: width, height,"),
     (scene(render=[1]), "render: expected a table, got [1]"),

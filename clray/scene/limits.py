@@ -82,6 +82,7 @@ def choice_problem(value: object, allowed: tuple) -> str | None:
     return None
 
 
+MAX_INCLUDE_DEPTH = 16  # files including files including files ...
 MAX_OBJECTS = 1_000_000
 MAX_LIGHTS = 10_000
 MAX_TRIANGLES = 2**24  # all meshes together, each instance counted

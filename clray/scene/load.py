@@ -22,6 +22,7 @@ from clray.errors import SceneError
 from clray.image_io import srgb_decode
 from clray.scene import limits as L
 from clray.scene.files import UnreadableFile, open_regular, read_at_most, read_regular
+from clray.scene.include import expand_includes
 from clray.scene.model import (
     Box,
     Camera,
@@ -54,7 +55,7 @@ _SHOW_ITEMS = 8  # array elements shown in a message
 _SHOW_DEPTH = 3  # nested arrays shown in a message
 _DECODE_SLICE = 1 << 20  # texel values decoded from sRGB at a time
 
-_TOP_KEYS = ("render", "camera", "materials", "lights", "objects")
+_TOP_KEYS = ("include", "render", "camera", "materials", "lights", "objects")
 _RENDER_KEYS = (
     "width", "height", "spp", "max_depth", "background", "ambient", "seed", "min_weight",
     "linear", "exposure", "png_bits",
@@ -95,22 +96,35 @@ _OBJECT_KEYS: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
 def load_scene(path: str | Path) -> Scene:
     """Read and validate a scene file; the suffix (.toml or .json) picks the parser."""
     path = Path(path)
+    try:
+        data = _read_scene_file(path)
+    except UnreadableFile as exc:
+        raise SceneError(path, None, f"cannot read scene file: {exc}") from None
+    return scene_from_dict(data, path)
+
+
+def _read_scene_file(path: Path) -> Any:
+    """A scene file parsed: SceneError naming it for a bad type or syntax, UnreadableFile for
+    a file that cannot be read."""
     suffix = path.suffix.lower()
     if suffix not in (".toml", ".json"):
         raise SceneError(
             path, None, f"unknown scene file type {path.suffix!r} (use .toml or .json)"
         )
+    return parse_scene_text(read_regular(path, L.MAX_SCENE_BYTES), suffix, path)
+
+
+def scene_from_dict(data: dict, path: str | Path | None = None) -> Scene:
+    """Validate parsed scene data. `path` names the file in errors; texture, mesh and included
+    scene files are relative to its folder (the working directory when there is no path)."""
+    path = None if path is None else Path(path)
+    merged, origins = expand_includes(data, path, _read_scene_file)
     try:
-        raw = read_regular(path, L.MAX_SCENE_BYTES)
-    except UnreadableFile as exc:
-        raise SceneError(path, None, f"cannot read scene file: {exc}") from None
-    return scene_from_dict(parse_scene_text(raw, suffix, path), path)
-
-
-def scene_from_dict(data: dict, path: Path | None = None) -> Scene:
-    """Validate parsed scene data. `path` names the file in errors; texture and mesh files
-    are relative to its folder (the working directory when there is no path)."""
-    return _Loader(path).scene(data)
+        return _Loader(path).scene(merged)
+    except SceneError as err:
+        if origins is None:
+            raise
+        raise origins.locate(err, _key) from None
 
 
 def _show(value: Any, depth: int = 0) -> str:

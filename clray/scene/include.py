@@ -1,0 +1,159 @@
+"""Scene files that include others: `include = ["materials.toml", ...]`, merged into one scene.
+
+Rules (docs/scene_format.md, Includes): included files are read in order, each after its own
+includes, and the including file comes last. `materials` are merged by name, and a name defined
+in two files is an error naming both; `lights` and `objects` are appended in that order;
+`render` keys are merged one by one, a later file's value replacing an earlier one's (so the
+including file overrides its libraries); `camera` may be given by one file only. Relative file
+names inside an included file (textures, meshes) are relative to that file's folder, as they
+are in the file itself. A file included more than once (two files sharing a material library) is
+merged once, where it is first included. A file that includes itself, directly or through
+others, is an error showing the chain.
+
+The merged data keeps where each entry came from, so that an error the loader finds in it
+names the file and the key as they are written there (`lib.toml: materials.glass.ior: ...`).
+"""
+
+from __future__ import annotations
+
+import os
+import re
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from clray.errors import SceneError
+from clray.scene import limits as L
+from clray.scene.files import UnreadableFile
+
+_KEYS = ("include", "render", "camera", "materials", "lights", "objects")
+_BARE = re.compile(r"[A-Za-z0-9_-]+")
+_INDEXED = re.compile(r"(objects|lights)\[(\d+)\](.*)", re.S)
+
+
+@dataclass
+class Origins:
+    """The file (and index there) each merged entry came from."""
+
+    materials: dict[str, Path] = field(default_factory=dict)
+    lights: list[tuple[Path, int]] = field(default_factory=list)
+    objects: list[tuple[Path, int]] = field(default_factory=list)
+    render: dict[str, Path] = field(default_factory=dict)
+    camera: Path | None = None
+    merged_files: set[Path] = field(default_factory=set)
+
+    def locate(self, error: SceneError, key_of: Callable[[str, str], str]) -> SceneError:
+        """`error` (found in the merged data) re-addressed to the file and key it came from."""
+        key = error.key or ""
+        found = _INDEXED.fullmatch(key)
+        if found:
+            table, index, rest = found.group(1), int(found.group(2)), found.group(3)
+            entries = self.objects if table == "objects" else self.lights
+            if index < len(entries):
+                file, local = entries[index]
+                return SceneError(file, f"{table}[{local}]{rest}", error.message)
+        for name, file in self.materials.items():
+            prefix = key_of("materials", name)
+            if key == prefix or key.startswith((prefix + ".", prefix + "[")):
+                return SceneError(file, key, error.message)
+        head = key.split(".", 1)
+        if head[0] == "render" and len(head) == 2 and head[1] in self.render:
+            return SceneError(self.render[head[1]], key, error.message)
+        if head[0] == "camera" and self.camera is not None:
+            return SceneError(self.camera, key, error.message)
+        return error
+
+
+def expand_includes(data: Any, path: Path | None, read: Callable[[Path], Any]
+                    ) -> tuple[Any, Origins | None]:
+    """`data` with its includes merged in, and where each entry came from (None when `data`
+    includes nothing). `read(path)` parses a scene file: its syntax errors name that file, and
+    UnreadableFile becomes an error of the include naming it. `path` names the file `data`
+    came from (None: relative names are relative to the working directory)."""
+    if not isinstance(data, dict) or "include" not in data:
+        return data, None
+    origins = Origins()
+    merged: dict[str, Any] = {"materials": {}, "lights": [], "objects": [], "render": {}}
+    top = (path or Path("scene")).resolve()
+    _merge(data, path, (top,), merged, origins, top.parent, read)
+    return merged, origins
+
+
+def _merge(data: Any, path: Path | None, chain: tuple[Path, ...], merged: dict, origins: Origins,
+           top_dir: Path, read: Callable[[Path], Any]) -> None:
+    if not isinstance(data, dict):
+        raise SceneError(path, None, f"expected a table at the top level, got "
+                         f"{type(data).__name__}")
+    for key in data:
+        if key not in _KEYS:
+            raise SceneError(path, key, f"unknown key (expected one of: {', '.join(_KEYS)})")
+    folder = (path or Path("scene")).resolve().parent
+    names = data.get("include", [])
+    if not isinstance(names, list) or not all(isinstance(n, str) for n in names):
+        raise SceneError(path, "include", "expected a list of file names")
+    for i, name in enumerate(names):
+        target = folder / name
+        resolved = target.resolve()
+        if resolved in chain:
+            shown = " -> ".join(p.name for p in (*chain, resolved))
+            raise SceneError(path, f"include[{i}]", f"includes itself: {shown}")
+        if len(chain) > L.MAX_INCLUDE_DEPTH:
+            raise SceneError(path, f"include[{i}]", f"includes nested more than "
+                             f"{L.MAX_INCLUDE_DEPTH} deep")
+        if resolved in origins.merged_files:
+            continue
+        origins.merged_files.add(resolved)
+        try:
+            included = read(target)
+        except UnreadableFile as exc:
+            raise SceneError(path, f"include[{i}]", f"cannot read {name!r}: {exc}") from None
+        _merge(included, target, (*chain, resolved), merged, origins, top_dir, read)
+    own = {k: _relocated(v, folder, top_dir) for k, v in data.items()
+           if k in ("materials", "lights", "objects")}
+    _merge_tables(data, own, path, merged, origins)
+
+
+def _merge_tables(data: dict, own: dict, path: Path | None, merged: dict,
+                  origins: Origins) -> None:
+    file = path or Path("scene")
+    for table in ("materials", "render"):
+        value = data.get(table, {})
+        if not isinstance(value, dict):
+            raise SceneError(path, table, f"expected a table, got {type(value).__name__}")
+    for name, spec in own.get("materials", {}).items():
+        if name in merged["materials"]:
+            raise SceneError(path, f"materials.{name}" if _BARE.fullmatch(name) else
+                             f"materials.{name!r}",
+                             f"already defined in {origins.materials[name].name}")
+        merged["materials"][name] = spec
+        origins.materials[name] = file
+    for table in ("lights", "objects"):
+        items = own.get(table, [])
+        if not isinstance(items, list):
+            raise SceneError(path, table, f"expected an array of tables, got "
+                             f"{type(items).__name__}")
+        merged[table].extend(items)
+        getattr(origins, table).extend((file, i) for i in range(len(items)))
+    for key, value in data.get("render", {}).items():
+        merged["render"][key] = value
+        origins.render[key] = file
+    if "camera" in data:
+        if origins.camera is not None:
+            raise SceneError(path, "camera", f"already given in {origins.camera.name}")
+        merged["camera"] = data["camera"]
+        origins.camera = file
+
+
+def _relocated(value: Any, folder: Path, top_dir: Path) -> Any:
+    """`value` with every relative `file` name made relative to the including file's folder,
+    where the loader resolves them, so it still names the same file."""
+    if folder == top_dir:
+        return value
+    if isinstance(value, dict):
+        return {k: (os.path.relpath(folder / v, top_dir)
+                    if k == "file" and isinstance(v, str) and not Path(v).is_absolute()
+                    else _relocated(v, folder, top_dir)) for k, v in value.items()}
+    if isinstance(value, list):
+        return [_relocated(v, folder, top_dir) for v in value]
+    return value

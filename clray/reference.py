@@ -27,6 +27,7 @@ from clray.scene.model import (
     Scene,
     SceneObject,
     Sphere,
+    Spheres,
     Texture,
     Triangle,
 )
@@ -407,9 +408,17 @@ class SceneHit(NamedTuple):
     material: np.ndarray  # (N,) index into scene.materials
 
 
+def _expanded(spheres: Spheres) -> list[Sphere]:
+    return [Sphere(tuple(c), float(r), int(m)) for c, r, m in
+            zip(spheres.centers.tolist(), spheres.radii.tolist(), spheres.materials.tolist(),
+                strict=True)]
+
+
 class _Geometry:
     def __init__(self, scene: Scene) -> None:
-        indexed = list(enumerate(scene.objects))
+        # A `spheres` array is that many Sphere objects at its place in the scene order.
+        indexed = [(i, sphere) for i, ob in enumerate(scene.objects)
+                   for sphere in (_expanded(ob) if isinstance(ob, Spheres) else (ob,))]
         # Stable sort: within a type, scene order is kept.
         self.shapes: list[tuple[int, SceneObject]] = sorted(
             ((i, ob) for i, ob in indexed if type(ob) in _CROSSINGS),

@@ -113,11 +113,20 @@ def _pack_planes(objs: list[M.Plane], eye: np.ndarray) -> np.ndarray:
     return planes
 
 
-def _pack_spheres(objs: list[M.Sphere], eye: np.ndarray, bounded: _Bounded) -> np.ndarray:
-    spheres = _records(L.SPHERE, len(objs))
-    for i, o in enumerate(objs):
-        spheres[i]["center_radius"] = _f4(np.asarray(o.center) - eye, o.radius)
-        spheres[i]["material"] = o.material
+def _pack_spheres(objs: list[M.Sphere | M.Spheres], eye: np.ndarray,
+                  bounded: _Bounded) -> np.ndarray:
+    """Sphere objects and `spheres` arrays, in scene order: one record per sphere."""
+    blocks = [(o.centers, o.radii, o.materials) if isinstance(o, M.Spheres) else
+              ([o.center], [o.radius], [o.material]) for o in objs]
+    centers, radii, materials = (
+        np.concatenate([np.asarray(b[k], dtype=dtype).reshape(shape) for b in blocks])
+        if blocks else np.zeros((0, *shape[1:]), dtype=dtype)
+        for k, dtype, shape in ((0, np.float64, (-1, 3)), (1, np.float64, (-1,)),
+                                (2, np.int32, (-1,))))
+    spheres = _records(L.SPHERE, len(centers))
+    spheres["center_radius"][:, :3] = centers - eye
+    spheres["center_radius"][:, 3] = radii
+    spheres["material"] = materials
     if len(spheres):
         cr = spheres["center_radius"].astype(np.float64)
         bounded.add(L.PRIM_SPHERE, cr[:, :3] - cr[:, 3:], cr[:, :3] + cr[:, 3:])
@@ -344,7 +353,7 @@ def pack_scene(scene: M.Scene, *, width: int, height: int, spp: int, max_depth: 
         if isinstance(obj, M.Triangle | M.Mesh):
             triangle_objs.append(obj)
         else:
-            kinds[type(obj)].append(obj)
+            kinds[M.Sphere if isinstance(obj, M.Spheres) else type(obj)].append(obj)
 
     bounded = _Bounded()
     planes = _pack_planes(kinds[M.Plane], eye)

@@ -20,7 +20,7 @@ from clray.scene.load import scene_from_dict
 
 _OBJECT_TYPES: dict[type, str] = {
     M.Sphere: "sphere", M.Plane: "plane", M.Box: "box", M.Triangle: "triangle",
-    M.Mesh: "mesh", M.Cylinder: "cylinder", M.Cone: "cone",
+    M.Mesh: "mesh", M.Cylinder: "cylinder", M.Cone: "cone", M.Spheres: "spheres",
 }
 _MESH_ARRAYS = ("vertices", "faces", "normals", "uvs")
 
@@ -119,6 +119,9 @@ def _object(obj: M.SceneObject, i: int, names: list[str]) -> dict:
     if kind is None:
         shown = ", ".join(t.__name__ for t in _OBJECT_TYPES)
         raise SceneError(None, key, f"expected one of {shown}, got {type(obj).__name__}")
+    if kind == "spheres":
+        return {"type": "spheres", "centers": obj.centers, "radii": obj.radii,
+                "materials": names, "material_index": obj.materials}
     material = obj.material
     if (isinstance(material, bool) or not isinstance(material, int | np.integer)
             or not 0 <= material < len(names)):

@@ -86,6 +86,8 @@ MAX_INCLUDE_DEPTH = 16  # files including files including files ...
 MAX_OBJECTS = 1_000_000
 MAX_LIGHTS = 10_000
 MAX_TRIANGLES = 2**24  # all meshes together, each instance counted
+MAX_BULK_SPHERES = 2**24  # all `spheres` objects together
+MAX_ARRAY_BYTES = 256 * 2**20  # a .npy/.npz file of spheres
 MAX_TEXTURE_SIDE = 16384
 MAX_TEXELS = 2**26  # all distinct texture files together: 768 MiB as float32 RGB
 

@@ -9,9 +9,11 @@ docs/scene_format.md.
 from __future__ import annotations
 
 import dataclasses
+import io
 import json
 import math
 import re
+import zipfile
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any, BinaryIO
@@ -38,6 +40,7 @@ from clray.scene.model import (
     Scene,
     SceneObject,
     Sphere,
+    Spheres,
     Texture,
     Triangle,
     unit,
@@ -90,7 +93,10 @@ _OBJECT_KEYS: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
     "mesh": ((), ("file", "vertices", "faces", "normals", "uvs", "transform")),
     "cylinder": (("base", "axis", "radius", "height"), ("capped",)),
     "cone": (("apex", "axis", "angle", "height"), ("capped",)),
+    "spheres": ((), ("file", "centers", "radii", "radius", "materials", "material_index")),
 }
+# What a `spheres` object's .npz may hold (a .npy holds centers, or centers and radii).
+_SPHERE_ARRAYS = ("centers", "radii", "material_index")
 
 
 def load_scene(path: str | Path) -> Scene:
@@ -195,6 +201,7 @@ class _Loader:
         self.meshes: dict[tuple[int, int], ObjMesh] = {}
         self.texels_left = L.MAX_TEXELS
         self.triangles_left = L.MAX_TRIANGLES
+        self.spheres_left = L.MAX_BULK_SPHERES
 
     def error(self, key: str | None, message: str) -> SceneError:
         return SceneError(self.path, key, message)
@@ -360,8 +367,9 @@ class _Loader:
                     default_index.append(len(materials))
                     materials.append(Material(name="(default)"))
                 return default_index[0]
-            value = spec["material"]
-            mkey = f"{key}.material"
+            return material_ref(spec["material"], f"{key}.material")
+
+        def material_ref(value: Any, mkey: str) -> int:
             if isinstance(value, str):
                 if value not in named:
                     shown = [_show(n) for n in list(named)[:_SHOW_ITEMS]]
@@ -375,6 +383,7 @@ class _Loader:
                 mkey, f"expected a material name or an inline table, got {_show(value)}"
             )
 
+        self.material_ref = material_ref
         objects = tuple(
             self.object(spec, f"objects[{i}]", material_for)
             for i, spec in enumerate(
@@ -604,7 +613,13 @@ class _Loader:
         allowed = ("type", "material", *_OBJECT_KEYS[kind][0], *_OBJECT_KEYS[kind][1])
         required = _OBJECT_KEYS[kind][0]
         self.keys(spec, key, allowed, required)
+        if kind == "spheres" and "materials" in spec:
+            if "material" in spec:
+                raise self.error(key, "give material or materials, not both")
+            return self.spheres(spec, key, None)
         material = material_for(spec, key)
+        if kind == "spheres":
+            return self.spheres(spec, key, material)
 
         def k(name: str) -> str:
             return f"{key}.{name}"
@@ -641,6 +656,91 @@ class _Loader:
             material=material,
             capped=capped,
         )
+
+    def spheres(self, spec: dict, key: str, material: int | None) -> Spheres:
+        """A `spheres` object: arrays from a .npy/.npz file or given inline (lists, or numpy
+        arrays from Python), one material or one per sphere through material_index."""
+        arrays = self.sphere_arrays(spec, key)
+        if "centers" not in arrays:
+            raise self.error(key, "a spheres object needs centers (a file or the centers key)")
+        centers = self.array(arrays["centers"], f"{key}.centers", (None, 3)).astype(np.float64)
+        n = len(centers)
+        if n > self.spheres_left:
+            raise self.error(key, f"{n} spheres is over what is left ({self.spheres_left}) of the "
+                             f"limit of {L.MAX_BULK_SPHERES} spheres for all spheres objects")
+        self.spheres_left -= n
+        if "radii" in arrays and "radius" in spec:
+            raise self.error(key, "give radius or radii, not both")
+        if "radius" in spec:
+            radii = np.full(n, self.length(spec["radius"], f"{key}.radius"))
+        elif "radii" in arrays:
+            radii = self.array(arrays["radii"], f"{key}.radii", (n,)).astype(np.float64)
+            small = ~(radii >= L.MIN_LENGTH)
+            if small.any():
+                i = int(np.flatnonzero(small)[0])
+                raise self.error(f"{key}.radii[{i}]", f"must be >= {L.MIN_LENGTH:g}, "
+                                 f"got {_show(radii[i].item())}")
+        else:
+            raise self.error(key, "a spheres object needs radius or radii")
+        if material is not None:
+            if "material_index" in arrays:
+                raise self.error(f"{key}.material_index", "only with materials (a list)")
+            return Spheres(centers, radii, np.full(n, material, dtype=np.int64))
+        names = spec["materials"]
+        if not isinstance(names, list) or not names:
+            raise self.error(f"{key}.materials", f"expected a list of material names or inline "
+                             f"tables, got {_show(names)}")
+        refs = np.array([self.material_ref(v, f"{key}.materials[{j}]")
+                         for j, v in enumerate(names)], dtype=np.int64)
+        if "material_index" not in arrays:
+            raise self.error(key, "materials needs material_index (in the file or as a key)")
+        index = self.array(arrays["material_index"], f"{key}.material_index", (n,), integer=True)
+        outside = (index < 0) | (index >= len(refs))
+        if outside.any():
+            i = int(np.flatnonzero(outside)[0])
+            raise self.error(f"{key}.material_index[{i}]", f"index {index[i]} out of range "
+                             f"(0-based, {len(refs)} materials)")
+        return Spheres(centers, radii, refs[index])
+
+    def sphere_arrays(self, spec: dict, key: str) -> dict[str, Any]:
+        inline = {name: spec[name] for name in _SPHERE_ARRAYS if name in spec}
+        if "file" not in spec:
+            return inline
+        from_file = self.sphere_file(spec["file"], f"{key}.file")
+        both = [name for name in _SPHERE_ARRAYS if name in inline and name in from_file]
+        if both:
+            raise self.error(key, f"{both[0]} is in the file: give it there or as a key, "
+                             "not both")
+        return {**from_file, **inline}
+
+    def sphere_file(self, value: Any, fkey: str) -> dict[str, Any]:
+        name = self.string(value, fkey)
+        suffix = Path(name).suffix.lower()
+        if suffix not in (".npy", ".npz"):
+            raise self.error(fkey, f"expected a .npy or .npz file, got {_name(name)}")
+        stream, _ = self.open_file(name, fkey, L.MAX_ARRAY_BYTES)
+        with stream:
+            try:
+                data = read_at_most(stream, L.MAX_ARRAY_BYTES)
+                loaded = np.load(io.BytesIO(data), allow_pickle=False)
+                if suffix == ".npy":
+                    return self.npy_spheres(loaded, fkey, name)
+                unknown = sorted(set(loaded.files) - set(_SPHERE_ARRAYS))
+                if unknown:
+                    raise self.error(fkey, f"{_name(name)} holds {', '.join(unknown)} (expected "
+                                     f"{', '.join(_SPHERE_ARRAYS)})")
+                return {n: loaded[n] for n in loaded.files}
+            except (UnreadableFile, OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
+                raise self.error(fkey, f"cannot read {_name(name)}: {exc}") from None
+
+    def npy_spheres(self, array: np.ndarray, key: str, name: str) -> dict[str, Any]:
+        """A .npy of spheres: (N, 3) centers, or (N, 4) centers and radii."""
+        if array.ndim != 2 or array.shape[1] not in (3, 4):
+            raise self.error(key, f"{_name(name)}: expected an (N, 3) or (N, 4) array, got shape "
+                             f"{array.shape}")
+        if array.shape[1] == 3:
+            return {"centers": array}
+        return {"centers": array[:, :3], "radii": array[:, 3]}
 
     def box(self, spec: dict, key: str, material: int) -> Box:
         lo = self.vec3(spec["min"], f"{key}.min")

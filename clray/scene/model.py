@@ -120,6 +120,16 @@ class Sphere:
     material: int
 
 
+@dataclass(frozen=True, eq=False)
+class Spheres:
+    """Many spheres given as arrays (particles, molecules): one object in the scene, packed and
+    intersected exactly as that many Sphere objects in this order would be."""
+
+    centers: np.ndarray  # (N, 3) float64
+    radii: np.ndarray  # (N,) float64, each > 0
+    materials: np.ndarray  # (N,) int64 indices into Scene.materials
+
+
 @dataclass(frozen=True)
 class Plane:
     point: Vec3
@@ -173,7 +183,7 @@ class Cone:
     capped: bool = True
 
 
-SceneObject = Sphere | Plane | Box | Triangle | Mesh | Cylinder | Cone
+SceneObject = Sphere | Spheres | Plane | Box | Triangle | Mesh | Cylinder | Cone
 
 
 @dataclass(frozen=True)

@@ -59,12 +59,19 @@ def _centre_size(obj: M.SceneObject) -> tuple[np.ndarray, float]:
 
 def analyze(scene: M.Scene) -> ScaleReport:
     eye = np.asarray(scene.camera.position, dtype=np.float64)
-    bounded = [(i, obj) for i, obj in enumerate(scene.objects) if not isinstance(obj, M.Plane)]
+    bounded = [(i, obj) for i, obj in enumerate(scene.objects)
+               if not isinstance(obj, M.Plane | M.Spheres)]
+    bulk = [(i, obj) for i, obj in enumerate(scene.objects) if isinstance(obj, M.Spheres)]
     measured = [(i, obj, *_centre_size(obj)) for i, obj in bounded]
-    sizes = [size for *_, size in measured if size > 0]
-    median = float(np.median(sizes)) if sizes else 0.0
+    sizes = np.concatenate([np.array([size for *_, size in measured], dtype=np.float64),
+                            *(obj.radii for _, obj in bulk)])
+    sizes = sizes[sizes > 0]
+    median = float(np.median(sizes)) if len(sizes) else 0.0
     fp64: list[int] = []
     warnings: list[str] = []
+    for i, obj in bulk:
+        if _bulk_warnings(f"objects[{i}] (spheres)", obj, eye, median, warnings):
+            fp64.append(i)
     for i, obj, centre, size in measured:
         kind = _KIND[type(obj)]
         where = f"objects[{i}] ({kind})"
@@ -96,6 +103,29 @@ def analyze(scene: M.Scene) -> ScaleReport:
                             f"(ratio {dist / size:.3g} > {RATIO_LIMIT:.0e}): float32 cannot "
                             "resolve it; expect ragged edges (move the camera closer)")
     return ScaleReport(median, tuple(fp64), tuple(warnings))
+
+
+def _bulk_warnings(where: str, obj: M.Spheres, eye: np.ndarray, median: float,
+                   warnings: list[str]) -> bool:
+    """The single-sphere rules of analyze() on a `spheres` array at once, told as one warning
+    per rule with a count; whether any of its spheres needs float64."""
+    size = obj.radii
+    dist = np.linalg.norm(obj.centers - eye, axis=1)
+    outside = (size > HUGE_LENGTH) | (dist > HUGE_LENGTH) | (size < TINY_LENGTH)
+    if outside.any():
+        warnings.append(f"{where}: {int(outside.sum())} of {len(size)} spheres (the first is "
+                        f"[{int(np.flatnonzero(outside)[0])}]) are outside the range whose "
+                        "squares float32 can hold; expect missing or wrong surfaces")
+    gap = np.abs(dist - size)
+    resolve = np.where(gap > 0, np.minimum(size, gap), size)
+    ratio = (dist + size) / resolve
+    flagged = ~outside & ((ratio > RATIO_LIMIT) | ((median > 0) & (size > RATIO_LIMIT * median)))
+    if flagged.any():
+        warnings.append(f"{where}: float32 cannot intersect {int(flagged.sum())} of {len(size)} "
+                        f"spheres accurately (the first is [{int(np.flatnonzero(flagged)[0])}]): "
+                        "they are intersected in float64 where the device has cl_khr_fp64, "
+                        "otherwise expect ragged edges and shadow acne")
+    return bool(flagged.any())
 
 
 def scene_warnings(scene: M.Scene) -> tuple[str, ...]:

@@ -1,0 +1,144 @@
+"""`spheres` objects: many spheres from arrays (.npy, .npz, inline, numpy from Python), packed
+and intersected exactly as that many sphere objects; their errors name the file and key."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from clray.errors import SceneError
+from clray.reference import render_reference
+from clray.render import render
+from clray.scene import model as M
+from clray.scene.load import load_scene, scene_from_dict
+
+HEAD = """
+[render]
+width = 40
+height = 30
+[camera]
+position = [0, 3, 9]
+look_at = [0, 0.5, 0]
+[materials.a]
+color = [0.9, 0.3, 0.2]
+[materials.b]
+color = [0.2, 0.5, 0.9]
+specular = 0.6
+reflect = 0.3
+[[lights]]
+type = "point"
+position = [4, 6, 5]
+[[objects]]
+type = "plane"
+point = [0, 0, 0]
+normal = [0, 1, 0]
+material = "a"
+"""
+
+CENTERS = np.array([[-1.5, 0.6, 0.0], [0.0, 0.8, -0.5], [1.4, 0.5, 0.4], [0.3, 1.9, 0.8]])
+RADII = np.array([0.6, 0.8, 0.5, 0.3])
+INDEX = np.array([0, 1, 1, 0])
+
+
+def write(folder: Path, name: str, text: str) -> Path:
+    path = folder / name
+    path.write_text(text, encoding="utf-8")
+    return path
+
+
+def one_by_one(folder: Path) -> Path:
+    spheres = "".join(
+        f'[[objects]]\ntype = "sphere"\ncenter = {c.tolist()}\nradius = {r}\n'
+        f'material = "{"ab"[m]}"\n' for c, r, m in zip(CENTERS, RADII, INDEX, strict=True))
+    return write(folder, "one_by_one.toml", HEAD + spheres)
+
+
+@pytest.mark.parametrize("form", ["npz", "npy", "inline"])
+def test_array_spheres_render_as_sphere_objects(cl_device, tmp_path: Path, form: str) -> None:
+    if form == "npz":
+        np.savez(tmp_path / "s.npz", centers=CENTERS, radii=RADII, material_index=INDEX)
+        spec = 'file = "s.npz"\nmaterials = ["a", "b"]\n'
+    elif form == "npy":
+        np.save(tmp_path / "s.npy", np.column_stack([CENTERS, RADII]))
+        spec = f'file = "s.npy"\nmaterials = ["a", "b"]\nmaterial_index = {INDEX.tolist()}\n'
+    else:
+        spec = (f'centers = {CENTERS.tolist()}\nradii = {RADII.tolist()}\n'
+                f'materials = ["a", {{ color = [0.2, 0.5, 0.9], specular = 0.6, reflect = 0.3 }}]'
+                f'\nmaterial_index = {INDEX.tolist()}\n')
+    bulk = load_scene(write(tmp_path, "bulk.toml", HEAD + '[[objects]]\ntype = "spheres"\n' + spec))
+    single = load_scene(one_by_one(tmp_path))
+    assert isinstance(bulk.objects[1], M.Spheres) and len(single.objects) == 5
+    got, want = render(bulk), render(single)
+    np.testing.assert_array_equal(got.image, want.image)
+    assert got.stats["rays"] == want.stats["rays"]
+    np.testing.assert_allclose(render_reference(bulk), render_reference(single), rtol=0, atol=0)
+
+
+def test_one_material_and_one_radius(cl_device, tmp_path: Path) -> None:
+    np.save(tmp_path / "c.npy", CENTERS)
+    scene = load_scene(write(tmp_path, "s.toml", HEAD + '[[objects]]\ntype = "spheres"\n'
+                             'file = "c.npy"\nradius = 0.4\nmaterial = "b"\n'))
+    spheres = scene.objects[1]
+    np.testing.assert_array_equal(spheres.radii, 0.4)
+    np.testing.assert_array_equal(spheres.materials, 1)
+    expected = render_reference(scene)
+    image = render(scene).image
+    assert np.abs(image - expected).max() < 1e-3
+
+
+def test_numpy_arrays_from_python() -> None:
+    data = {"camera": {"position": [0, 0, 5], "look_at": [0, 0, 0]},
+            "materials": {"m": {}},
+            "objects": [{"type": "spheres", "centers": CENTERS.astype(np.float32), "radius": 0.1,
+                         "material": "m"}]}
+    np.testing.assert_array_equal(scene_from_dict(data).objects[0].centers,
+                                  CENTERS.astype(np.float32))
+
+
+@pytest.mark.parametrize(("spec", "files", "message"), [
+    ('centers = [[0, 0, 0]]\n', {}, "objects[1]: a spheres object needs radius or radii"),
+    ('radius = 1\n', {}, "objects[1]: a spheres object needs centers"),
+    ('centers = [[0, 0]]\nradius = 1\n', {}, "objects[1].centers: expected an array of Nx3"),
+    ('centers = [[0, 0, nan]]\nradius = 1\n', {}, "objects[1].centers[0]: must be finite"),
+    ('centers = [[0, 0, 0], [1, 1, 1]]\nradii = [1, 0]\n', {},
+     "objects[1].radii[1]: must be >= 1e-30, got 0"),
+    ('centers = [[0, 0, 0]]\nradii = [1, 2]\n', {}, "objects[1].radii: expected an array of 1"),
+    ('centers = [[0, 0, 0]]\nradius = 1\nradii = [1]\n', {},
+     "objects[1]: give radius or radii, not both"),
+    ('centers = [[0, 0, 0]]\nradius = 1\nmaterials = ["a"]\nmaterial_index = [1]\n', {},
+     "objects[1].material_index[0]: index 1 out of range (0-based, 1 materials)"),
+    ('centers = [[0, 0, 0]]\nradius = 1\nmaterials = ["a", "zz"]\nmaterial_index = [0]\n', {},
+     'objects[1].materials[1]: unknown material "zz"'),
+    ('centers = [[0, 0, 0]]\nradius = 1\nmaterials = ["a"]\n', {},
+     "objects[1]: materials needs material_index"),
+    ('centers = [[0, 0, 0]]\nradius = 1\nmaterial = "a"\nmaterials = ["a"]\n', {},
+     "objects[1]: give material or materials, not both"),
+    ('file = "c.npy"\ncenters = [[0, 0, 0]]\n', {"c.npy": np.zeros((1, 3))},
+     "objects[1]: centers is in the file: give it there or as a key, not both"),
+    ('file = "s.txt"\nradius = 1\n', {}, "objects[1].file: expected a .npy or .npz file"),
+    ('file = "missing.npy"\nradius = 1\n', {}, "objects[1].file: file not found: missing.npy"),
+    ('file = "bad.npy"\nradius = 1\n', {"bad.npy": b"not an array"}, "objects[1].file: cannot "
+     "read bad.npy"),
+    ('file = "obj.npy"\nradius = 1\n', {"obj.npy": "object"}, "objects[1].file: cannot read "
+     "obj.npy"),
+    ('file = "flat.npy"\nradius = 1\n', {"flat.npy": np.zeros(6)},
+     "objects[1].file: flat.npy: expected an (N, 3) or (N, 4) array, got shape (6,)"),
+    ('file = "x.npz"\nradius = 1\n', {"x.npz": {"centres": np.zeros((1, 3))}},
+     "objects[1].file: x.npz holds centres (expected centers, radii, material_index)"),
+])
+def test_errors_name_the_key(tmp_path: Path, spec: str, files: dict, message: str) -> None:
+    for name, content in files.items():
+        if isinstance(content, bytes):
+            (tmp_path / name).write_bytes(content)
+        elif isinstance(content, dict):
+            np.savez(tmp_path / name, **content)
+        elif isinstance(content, str):  # a pickled object array: never unpickled
+            np.save(tmp_path / name, np.array([{"a": 1}], dtype=object), allow_pickle=True)
+        else:
+            np.save(tmp_path / name, content)
+    path = write(tmp_path, "s.toml", HEAD + '[[objects]]\ntype = "spheres"\n' + spec)
+    with pytest.raises(SceneError) as info:
+        load_scene(path)
+    assert str(info.value).startswith(f"s.toml: {message}"), str(info.value)

@@ -3,6 +3,7 @@ and intersected exactly as that many sphere objects; their errors name the file 
 
 from __future__ import annotations
 
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -142,3 +143,31 @@ def test_errors_name_the_key(tmp_path: Path, spec: str, files: dict, message: st
     with pytest.raises(SceneError) as info:
         load_scene(path)
     assert str(info.value).startswith(f"s.toml: {message}"), str(info.value)
+
+
+def test_mesh_from_npz_equals_the_obj(tmp_path: Path) -> None:
+    from clray.scene.obj import parse_obj
+
+    root = Path(__file__).resolve().parent.parent
+    obj = parse_obj((root / "tests" / "data" / "cube.obj").read_bytes(), Path("cube.obj"))
+    arrays = {"vertices": obj.vertices, "faces": obj.faces}
+    arrays |= {k: v for k, v in (("normals", obj.normals), ("uvs", obj.uvs)) if v is not None}
+    np.savez(tmp_path / "cube.npz", **arrays)
+    text = HEAD + '[[objects]]\ntype = "mesh"\nfile = "{}"\ntransform = {{ scale = 0.5 }}\n'
+    shutil.copy(root / "tests" / "data" / "cube.obj", tmp_path / "cube.obj")
+    a = load_scene(write(tmp_path, "a.toml", text.format("cube.npz"))).objects[1]
+    b = load_scene(write(tmp_path, "b.toml", text.format("cube.obj"))).objects[1]
+    for name in ("vertices", "faces", "normals", "uvs"):
+        x, y = getattr(a, name), getattr(b, name)
+        assert (x is None) == (y is None)
+        if y is not None:
+            np.testing.assert_array_equal(x, y)
+
+
+def test_mesh_npz_errors_name_the_array(tmp_path: Path) -> None:
+    np.savez(tmp_path / "m.npz", vertices=np.zeros((3, 3)), faces=np.array([[0, 1, 3]]))
+    path = write(tmp_path, "s.toml", HEAD + '[[objects]]\ntype = "mesh"\nfile = "m.npz"\n')
+    with pytest.raises(SceneError) as info:
+        load_scene(path)
+    assert str(info.value) == ("s.toml: objects[1].file: m.npz: faces[0]: index 3 out of range "
+                               "(0-based, 3 vertices)")

@@ -768,8 +768,38 @@ class _Loader:
                     data = read_at_most(stream, L.MAX_MESH_BYTES)
                 except UnreadableFile as exc:
                     raise self.error(key, f"{exc}: {_name(name)}") from None
-                self.meshes[identity] = parse_obj(data, self.base / name)
+                if Path(str(name)).suffix.lower() == ".npz":
+                    self.meshes[identity] = self.npz_mesh(data, key, name)
+                else:
+                    self.meshes[identity] = parse_obj(data, self.base / name)
         return self.meshes[identity]
+
+    def npz_mesh(self, data: bytes, key: str, name: str) -> ObjMesh:
+        """A mesh from a .npz of arrays: vertices (V, 3), faces (F, 3, 0-based), and optionally
+        normals (V, 3) and uvs (V, 2); checked as inline arrays are."""
+        try:
+            loaded = np.load(io.BytesIO(data), allow_pickle=False)
+            arrays = {n: loaded[n] for n in loaded.files}
+        except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
+            raise self.error(key, f"cannot read {_name(name)}: {exc}") from None
+        known = ("vertices", "faces", "normals", "uvs")
+        unknown = sorted(set(arrays) - set(known))
+        if unknown or "vertices" not in arrays or "faces" not in arrays:
+            raise self.error(key, f"{_name(name)} holds {', '.join(sorted(arrays)) or 'nothing'} "
+                             f"(expected vertices, faces and optionally normals, uvs)")
+        inside = f"{key}: {_name(name)}:"  # errors name the array in the file
+        vertices = self.vertex_values(arrays["vertices"], f"{inside} vertices", None, 3)
+        faces = self.faces(arrays["faces"], f"{inside} faces", len(vertices))
+        normals, uvs = (None if n not in arrays else self.vertex_values(
+            arrays[n], f"{inside} {n}", len(vertices), size) for n, size in (("normals", 3),
+                                                                             ("uvs", 2)))
+        if normals is not None:
+            zero = ~np.any(normals != 0, axis=1)
+            if zero.any():
+                raise self.error(f"{inside} normals[{int(np.flatnonzero(zero)[0])}]",
+                                 "must be a nonzero vector")
+            normals = unit(normals)
+        return ObjMesh(vertices, faces, normals, uvs)
 
     def mesh(self, spec: dict, key: str, material: int) -> Mesh:
         inline = "vertices" in spec or "faces" in spec

@@ -571,7 +571,8 @@ ERRORS = [
     (obj(type="sphere", center=[0, 0, 0]), "objects[2].radius: missing required key"),
     (
         obj(type="sphere", center=[0, 0, 0], radius=1, radius2=2),
-        "objects[2].radius2: unknown key (expected one of: type, material, center, radius)",
+        "objects[2].radius2: unknown key (expected one of: type, material, center, radius, "
+        "transform)",
     ),
     (obj(type="torus"), 'objects[2].type: unknown type "torus" (expected one of: sphere, plane,'),
     (obj(type=3), "objects[2].type: unknown type 3"),
@@ -668,7 +669,8 @@ ERRORS = [
     ),
     (
         obj(type="mesh", **TRI, transform={"shear": 1}),
-        "objects[2].transform.shear: unknown key (expected one of: translate, rotate, scale)",
+        "objects[2].transform.shear: unknown key (expected one of: translate, rotate, scale, "
+        "matrix)",
     ),
     (
         obj(type="mesh", **TRI, transform=[1, 2, 3]),

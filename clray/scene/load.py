@@ -49,6 +49,7 @@ from clray.scene.obj import ObjMesh, parse_obj
 from clray.scene.parse import parse_scene_text
 from clray.scene.scale import scene_warnings
 from clray.scene.texture import COLORSPACES, TextureError, read_texture
+from clray.scene.transform import place, rotation_matrix
 
 Vec3 = tuple[float, float, float]
 
@@ -83,14 +84,14 @@ _LIGHT_KEYS = {
     "point": ("type", "position", "color", "attenuation"),
     "directional": ("type", "direction", "color"),
 }
-_TRANSFORM_KEYS = ("translate", "rotate", "scale")
-# Per object type: (required keys, optional keys), besides `type` and `material`.
+_TRANSFORM_KEYS = ("translate", "rotate", "scale", "matrix")
+# Per object type: (required keys, optional keys), besides `type`, `material` and `transform`.
 _OBJECT_KEYS: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
     "sphere": (("center", "radius"), ()),
     "plane": (("point", "normal"), ()),
     "box": (("min", "max"), ()),
     "triangle": (("vertices",), ()),
-    "mesh": ((), ("file", "vertices", "faces", "normals", "uvs", "transform")),
+    "mesh": ((), ("file", "vertices", "faces", "normals", "uvs")),
     "cylinder": (("base", "axis", "radius", "height"), ("capped",)),
     "cone": (("apex", "axis", "angle", "height"), ("capped",)),
     "spheres": ((), ("file", "centers", "radii", "radius", "materials", "material_index")),
@@ -610,9 +611,33 @@ class _Loader:
 
     def object(self, spec: dict, key: str, material_for: Callable[[dict, str], int]) -> SceneObject:
         kind = self.kind(spec, key, _OBJECT_KEYS)
-        allowed = ("type", "material", *_OBJECT_KEYS[kind][0], *_OBJECT_KEYS[kind][1])
+        allowed = ("type", "material", *_OBJECT_KEYS[kind][0], *_OBJECT_KEYS[kind][1],
+                   "transform")
         required = _OBJECT_KEYS[kind][0]
         self.keys(spec, key, allowed, required)
+        obj = self.unplaced(spec, key, kind, material_for)
+        if kind == "mesh" or "transform" not in spec:
+            return obj
+        tkey = f"{key}.transform"
+        placed = place(obj, *self.transform(spec["transform"], tkey))
+        if isinstance(placed, str):
+            raise self.error(tkey, placed)
+        return self.within_limits(placed, tkey)
+
+    def within_limits(self, obj: SceneObject, key: str) -> SceneObject:
+        """A placed object's numbers still within what the kernels take."""
+        values = [np.asarray(v, dtype=np.float64) for f in dataclasses.fields(obj)
+                  if f.name != "material" and not isinstance(v := getattr(obj, f.name), bool)
+                  and isinstance(v, float | tuple | np.ndarray)]
+        if not all(np.all(np.abs(v) <= L.MAX_MAGNITUDE) for v in values):
+            raise self.error(key, f"moves the object beyond {L.MAX_MAGNITUDE:g} in magnitude")
+        lengths = [getattr(obj, n) for n in ("radius", "height", "radii") if hasattr(obj, n)]
+        if any(np.any(np.asarray(v) < L.MIN_LENGTH) for v in lengths):
+            raise self.error(key, f"shrinks the object below {L.MIN_LENGTH:g}")
+        return obj
+
+    def unplaced(self, spec: dict, key: str, kind: str,
+                 material_for: Callable[[dict, str], int]) -> SceneObject:
         if kind == "spheres" and "materials" in spec:
             if "material" in spec:
                 raise self.error(key, "give material or materials, not both")
@@ -835,23 +860,23 @@ class _Loader:
             )
         self.triangles_left -= len(faces)
         tkey = f"{key}.transform"
-        rotation, scale, offset = self.transform(spec.get("transform", {}), tkey)
+        a, offset = self.transform(spec.get("transform", {}), tkey)
         # Without a transform the vertices are used as read: a 327k-triangle mesh spends a
         # fifth of its load time in the matrix product otherwise.
         identity = "transform" not in spec
         if not identity:
-            vertices = (vertices.reshape(-1, 3) * scale) @ rotation.T + offset
+            vertices = vertices.reshape(-1, 3) @ a.T + offset
         if not np.all(np.abs(vertices) <= L.MAX_MAGNITUDE):
             raise self.error(
                 tkey, f"moves vertices beyond {L.MAX_MAGNITUDE:g} in magnitude "
                 f"(largest {np.max(np.abs(vertices)):.3g})"
             )
         if normals is not None:
-            # Normals follow the inverse transpose of R S, which is R S^-1: they stay
-            # perpendicular to the surface under non-uniform scale. Unit normals over scales
-            # of at least MIN_LENGTH stay finite.
-            normals = unit(normals if identity else (normals / scale) @ rotation.T)
-        if np.prod(np.sign(scale)) < 0:
+            # Normals follow the inverse transpose of A (n @ A^-1 as rows): they stay
+            # perpendicular to the surface under non-uniform scale and shear. Unit normals
+            # under a matrix whose singular values are at least MIN_LENGTH stay finite.
+            normals = unit(normals if identity else normals @ np.linalg.inv(a))
+        if np.linalg.det(a) < 0:
             # A mirroring transform turns the winding inside out; swapping two corners keeps
             # (v1 - v0) x (v2 - v0) pointing outward, which refraction relies on.
             faces = faces[:, [0, 2, 1]]
@@ -902,13 +927,18 @@ class _Loader:
             )
         return faces.astype(np.int64)
 
-    def transform(self, value: Any, key: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(3x3 rotation, 3 scale factors, translation): scale, then rotate about x, y, z in
-        turn, then translate."""
+    def transform(self, value: Any, key: str) -> tuple[np.ndarray, np.ndarray]:
+        """(A, t) of x -> A x + t, in float64: scale, then rotate about x, y, z in turn, then
+        translate; or a 4x4 `matrix` (row-major, last row 0 0 0 1)."""
         spec = self.table(value, key)
         self.keys(spec, key, _TRANSFORM_KEYS, ())
+        if "matrix" in spec:
+            others = [k for k in ("translate", "rotate", "scale") if k in spec]
+            if others:
+                raise self.error(key, f"give matrix or {', '.join(others)}, not both")
+            return self.matrix(spec["matrix"], f"{key}.matrix")
         translate = np.array(self.vec3(spec.get("translate", (0, 0, 0)), f"{key}.translate"))
-        rx, ry, rz = np.radians(self.vec3(spec.get("rotate", (0, 0, 0)), f"{key}.rotate"))
+        rotation = rotation_matrix(self.vec3(spec.get("rotate", (0, 0, 0)), f"{key}.rotate"))
         skey = f"{key}.scale"
         scale_value = spec.get("scale", 1.0)
         if isinstance(scale_value, list):
@@ -921,15 +951,17 @@ class _Loader:
             raise self.error(
                 skey, f"must be at least {L.MIN_LENGTH:g} in magnitude, got {_show(scale_value)}"
             )
-        cx, sx, cy, sy, cz, sz = (
-            np.cos(rx),
-            np.sin(rx),
-            np.cos(ry),
-            np.sin(ry),
-            np.cos(rz),
-            np.sin(rz),
-        )
-        rot_x = np.array([[1, 0, 0], [0, cx, -sx], [0, sx, cx]])
-        rot_y = np.array([[cy, 0, sy], [0, 1, 0], [-sy, 0, cy]])
-        rot_z = np.array([[cz, -sz, 0], [sz, cz, 0], [0, 0, 1]])
-        return rot_z @ rot_y @ rot_x, scale, translate
+        return rotation * scale, translate
+
+    def matrix(self, value: Any, key: str) -> tuple[np.ndarray, np.ndarray]:
+        rows = value if isinstance(value, list) and len(value) == 4 else None
+        if rows is None:
+            raise self.error(key, f"expected 4 rows of 4 numbers, got {_show(value)}")
+        m = np.array([self.numbers(row, f"{key}[{i}]", 4) for i, row in enumerate(rows)])
+        if m[3].tolist() != [0.0, 0.0, 0.0, 1.0]:
+            raise self.error(f"{key}[3]", f"must be [0, 0, 0, 1] (an affine transform), got "
+                             f"{_show(rows[3])}")
+        if np.linalg.svd(m[:3, :3], compute_uv=False).min() < L.MIN_LENGTH:
+            raise self.error(key, "is singular: it flattens space (its 3x3 part must be "
+                             "invertible)")
+        return m[:3, :3], m[:3, 3]

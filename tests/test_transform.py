@@ -1,0 +1,111 @@
+"""`transform` on every object: exact placement on the host (float64) where the shape survives
+the transform, a one-line error naming the key where it does not."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from clray.errors import SceneError
+from clray.scene import model as M
+from clray.scene.load import scene_from_dict
+
+CAMERA = {"position": [0, 0, 10], "look_at": [0, 0, 0]}
+
+
+def placed(obj: dict, transform: dict) -> M.SceneObject:
+    return scene_from_dict({"camera": CAMERA, "objects": [{**obj, "transform": transform}]}
+                           ).objects[0]
+
+
+def error(obj: dict, transform: dict) -> str:
+    with pytest.raises(SceneError) as info:
+        placed(obj, transform)
+    return str(info.value)
+
+
+SPHERE = {"type": "sphere", "center": [1, 0, 0], "radius": 0.5}
+
+
+def test_sphere_under_a_similarity() -> None:
+    s = placed(SPHERE, {"scale": 2, "rotate": [0, 0, 90], "translate": [0, 0, 3]})
+    # Scale first: (2, 0, 0); a quarter turn about z: (0, 2, 0); then up 3 in z.
+    np.testing.assert_allclose(s.center, (0, 2, 3), rtol=0, atol=1e-15)
+    assert s.radius == 1.0
+    mirrored = placed(SPHERE, {"scale": [-3, 3, 3]})
+    assert (mirrored.center, mirrored.radius) == ((-3.0, 0.0, 0.0), 1.5)
+
+
+def test_plane_normal_follows_the_inverse_transpose() -> None:
+    plane = {"type": "plane", "point": [0, 0, 0], "normal": [1, 1, 0]}
+    p = placed(plane, {"scale": [2, 1, 1]})
+    # x + y = 0 stretched along x is x / 2 + y = 0: normal along (1/2, 1, 0).
+    np.testing.assert_allclose(p.normal, np.array([0.5, 1, 0]) / np.hypot(0.5, 1), atol=1e-15)
+    on_plane = np.array([1.0, -1.0, 0.0]) * [2, 1, 1]
+    assert abs(np.dot(on_plane, p.normal)) < 1e-15
+
+
+def test_box_quarter_turns_stay_boxes() -> None:
+    box = {"type": "box", "min": [0, 0, 0], "max": [1, 2, 3]}
+    b = placed(box, {"rotate": [0, 90, 0], "translate": [10, 0, 0]})
+    # About y, x -> -z and z -> x: the box spans x 10..13, y 0..2, z -1..0.
+    np.testing.assert_allclose(b.min, (10, 0, -1), atol=1e-15)
+    np.testing.assert_allclose(b.max, (13, 2, 0), atol=1e-15)
+    assert error(box, {"rotate": [0, 30, 0]}).startswith(
+        "objects[0].transform: rotates the box off the axes")
+
+
+def test_cylinder_and_cone_rotate_and_scale_uniformly() -> None:
+    cyl = placed({"type": "cylinder", "base": [0, 0, 0], "axis": [0, 1, 0], "radius": 1,
+                  "height": 2}, {"rotate": [90, 0, 0], "scale": 0.5})
+    np.testing.assert_allclose(cyl.axis, (0, 0, 1), atol=1e-15)
+    assert (cyl.radius, cyl.height) == (0.5, 1.0)
+    cone = placed({"type": "cone", "apex": [0, 1, 0], "axis": [0, -1, 0], "angle": 30,
+                   "height": 1}, {"translate": [1, 1, 1], "scale": 2})
+    assert (cone.apex, cone.axis, cone.angle, cone.height) == ((1.0, 3.0, 1.0), (0.0, -1.0, 0.0),
+                                                               30.0, 2.0)
+    message = error({"type": "cylinder", "base": [0, 0, 0], "axis": [0, 1, 0], "radius": 1,
+                     "height": 2}, {"scale": [1, 2, 1]})
+    assert message.startswith("objects[0].transform: scales or shears unevenly")
+    assert error(SPHERE, {"matrix": [[1, 0.5, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]}
+                 ).startswith("objects[0].transform: scales or shears unevenly")
+
+
+def test_triangle_keeps_its_outward_side_when_mirrored() -> None:
+    tri = {"type": "triangle", "vertices": [[0, 0, 0], [1, 0, 0], [0, 1, 0]]}
+    t = placed(tri, {"scale": [1, 1, -1]})
+    v0, v1, v2 = np.array(t.vertices)
+    # The original faces +z; mirrored in z its outward side faces -z.
+    np.testing.assert_allclose(np.cross(v1 - v0, v2 - v0), (0, 0, -1), atol=1e-15)
+
+
+def test_matrix_equals_the_composed_transform() -> None:
+    by_parts = placed(SPHERE, {"scale": 2, "rotate": [0, 0, 90], "translate": [0, 0, 3]})
+    by_matrix = placed(SPHERE, {"matrix": [[0, -2, 0, 0], [2, 0, 0, 0], [0, 0, 2, 3],
+                                           [0, 0, 0, 1]]})
+    np.testing.assert_allclose(by_matrix.center, by_parts.center, atol=1e-15)
+    assert by_matrix.radius == by_parts.radius
+
+
+def test_mesh_normals_stay_perpendicular_under_shear() -> None:
+    mesh = {"type": "mesh", "vertices": [[0, 0, 0], [1, 0, 0], [0, 1, 0]],
+            "faces": [[0, 1, 2]], "normals": [[0, 0, 1]] * 3}
+    m = placed(mesh, {"matrix": [[1, 0, 0.7, 0], [0, 1, 0, 0], [0.3, 0, 1, 0], [0, 0, 0, 1]]})
+    edges = m.vertices[[1, 2]] - m.vertices[0]
+    assert np.abs(edges @ m.normals[0]).max() < 1e-15
+
+
+@pytest.mark.parametrize(("transform", "message"), [
+    ({"matrix": [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0]]},
+     "objects[0].transform.matrix: expected 4 rows of 4 numbers"),
+    ({"matrix": [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 1, 1]]},
+     "objects[0].transform.matrix[3]: must be [0, 0, 0, 1]"),
+    ({"matrix": [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 0, 0], [0, 0, 0, 1]]},
+     "objects[0].transform.matrix: is singular"),
+    ({"matrix": [[1, 0, 0, 0]] * 4, "scale": 2}, "objects[0].transform: give matrix or scale"),
+    ({"scale": 1e25}, "objects[0].transform: moves the object beyond 1e+30"),
+    ({"scale": 1e-29}, "objects[0].transform: shrinks the object below 1e-30"),
+])
+def test_bad_transforms_name_the_key(transform: dict, message: str) -> None:
+    sphere = {"type": "sphere", "center": [1e6, 0, 0], "radius": 0.05}
+    assert error(sphere, transform).startswith(message)

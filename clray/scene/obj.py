@@ -80,7 +80,7 @@ class _Tokens:
 
     def __init__(self, data: bytes, path: Path) -> None:
         self.path = path
-        buf = np.frombuffer(b" " * _PAD + data + b"\n" + b" " * _PAD, dtype=np.uint8)
+        buf = _padded(data)
         control = np.flatnonzero(buf < 32)
         self.newlines = control[buf[control] == _NL]
         if b"#" in data:
@@ -145,6 +145,17 @@ class _Tokens:
 
     def statement_of(self, tokens: np.ndarray) -> np.ndarray:
         return np.searchsorted(self.heads, tokens, side="right") - 1
+
+
+def _padded(data: bytes) -> np.ndarray:
+    """The file's bytes between `_PAD` spaces and a newline plus `_PAD` spaces, copied once
+    (concatenating bytes would copy a large file twice)."""
+    buf = np.empty(len(data) + 2 * _PAD + 1, dtype=np.uint8)
+    buf[:_PAD] = _SPACE
+    buf[_PAD : _PAD + len(data)] = np.frombuffer(data, dtype=np.uint8)
+    buf[_PAD + len(data)] = _NL
+    buf[-_PAD:] = _SPACE
+    return buf
 
 
 def _blank_comments(buf: np.ndarray, newlines: np.ndarray) -> np.ndarray:
@@ -608,7 +619,7 @@ def _parse_regular(data: bytes) -> ObjMesh | None:
     """The mesh of a file in the common layout, or None where the file departs from it in
     any way (including every error), for the general parser to read or to report with its
     line number. Faster than the general parser, which must find every token's bounds."""
-    buf = np.frombuffer(b" " * _PAD + data + b"\n" + b" " * _PAD, dtype=np.uint8)
+    buf = _padded(data)
     newlines = np.flatnonzero(buf == _NL)
     # Whitespace is then only spaces and newlines, and a space the only byte below 33 within
     # a line.

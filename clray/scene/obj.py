@@ -5,7 +5,10 @@ its raw bytes instead of line by line in Python: a per-line Python loop costs se
 25 MB file, the vectorised passes a tenth of one. Numbers in the usual fixed-point notation
 are read eight bytes at a time as 64-bit words (`_fast_floats`), the face indices by one
 numpy parse of the face lines; Python reads a token itself only when the vectorised passes
-cannot (exponents, long numbers) or to pin down the line of an error they detected.
+cannot (exponents, long numbers) or to pin down the line of an error they detected. A file in
+the layout nearly every exporter writes is first tried by `_parse_regular`, which checks that
+layout line by line and skips finding every token's bounds (about 1.5x faster on a 26 MB
+mesh); anything else, errors included, is left to the general parser.
 """
 
 from __future__ import annotations

@@ -80,8 +80,8 @@ def environment(device: cl.Device) -> dict:
 
 
 def warm_build_s(config: KernelConfig, device_spec: str | None) -> float:
-    """Kernel build time in a new process that finds this run's PoCL and pyopencl caches
-    populated: what a second `clray render` of the same scene pays."""
+    """Kernel build time in a new process that finds this run's PoCL cache populated: what a
+    second `clray render` of the same scene pays."""
     cmd = [sys.executable, str(Path(__file__).resolve()), "--build-only",
            json.dumps(dataclasses.asdict(config))]
     if device_spec:
@@ -224,12 +224,9 @@ def main(argv: list[str] | None = None) -> None:
         parser.error(f"unknown scenes {sorted(unknown)}" if unknown else "--repeat must be >= 1")
 
     with tempfile.TemporaryDirectory(prefix="clray-bench-") as tmp:
-        # Fresh PoCL and pyopencl caches (pyopencl's holds program binaries, see
-        # clray.device.program.cached_program), set before OpenCL starts, make this process's
-        # first builds cold and let the warm-build subprocess (which inherits them) measure a
-        # warm one.
+        # A fresh PoCL cache, set before OpenCL starts, makes this process's first builds cold
+        # and lets the warm-build subprocess (which inherits it) measure a warm one.
         os.environ["POCL_CACHE_DIR"] = str(Path(tmp) / "pocl-cache")
-        os.environ["XDG_CACHE_HOME"] = str(Path(tmp) / "cache")
         device = select_device(args.device)
         paths = {"spheres": ROOT / "scenes" / "spheres.toml"}
         generate_s = None

@@ -23,7 +23,6 @@ import pyopencl as cl
 
 from clray.device.context import has_fp64
 from clray.device.layout import BVH_NODE
-from clray.device.program import cached_program
 
 # Device-side twins of the structs below; Task's float4s set its 16-byte alignment.
 _PRIM = np.dtype([("lo", "<f4", (4,)), ("hi", "<f4", (4,)), ("c", "<f4", (4,))])
@@ -313,7 +312,7 @@ def supports(device: cl.Device, n: int) -> bool:
 @cache
 def _kernels(context: cl.Context) -> dict[str, cl.Kernel]:
     # Kernel objects are kept: pyopencl makes a new one on every attribute access.
-    program = cached_program(context, _SOURCE)
+    program = cl.Program(context, _SOURCE).build()
     return {k.function_name: k for k in program.all_kernels()}
 
 

@@ -3,15 +3,12 @@
 from __future__ import annotations
 
 import hashlib
-import os
 import re
 import time
-from collections.abc import Sequence
 from dataclasses import dataclass, fields
 from importlib.resources import files
 
 import pyopencl as cl
-from pyopencl.cache import create_built_program_from_source_cached
 
 from clray.device.context import context_for, has_fp64
 from clray.errors import DeviceError
@@ -114,18 +111,6 @@ def kernel_source(name: str = ENTRY_FILE) -> str:
 _programs: dict[tuple[int, str, tuple[str, ...]], cl.Program] = {}
 
 
-def cached_program(context: cl.Context, source: str, options: Sequence[str] = ()) -> cl.Program:
-    """A built program for the context's device, through pyopencl's on-disk cache of program
-    binaries (PYOPENCL_NO_CACHE turns it off). pyopencl skips that cache on PoCL, whose own
-    cache of source builds takes about 0.08 s per hit on the render kernel; loading the
-    binary takes about 0.01 s, the largest fixed cost of a `clray render` after imports."""
-    if os.environ.get("PYOPENCL_NO_CACHE", "").lower() in ("1", "true", "yes", "on"):
-        return cl.Program(context, source).build(options=list(options))
-    program, _ = create_built_program_from_source_cached(
-        context, source, " ".join(options).encode(), context.devices)
-    return cl.Program(program)
-
-
 def build_program(device: cl.Device, config: KernelConfig) -> tuple[cl.Program, float]:
     """(program, seconds spent building; 0.0 when it came from this process's cache)."""
     if config.precision == "double" and not has_fp64(device):
@@ -141,7 +126,7 @@ def build_program(device: cl.Device, config: KernelConfig) -> tuple[cl.Program, 
         return _programs[key], 0.0
     start = time.perf_counter()
     try:
-        program = cached_program(context_for(device), source, options)
+        program = cl.Program(context_for(device), source).build(options=list(options))
     except cl.RuntimeError as err:
         log = str(err).strip().splitlines()
         detail = " | ".join(line.strip() for line in log if "error" in line.lower())[:2000]

@@ -1,5 +1,5 @@
 try:
-    from clray.cli import main
+    from clray.cli import run_command
 except KeyboardInterrupt:
     # The package itself has loaded (its own import handles Ctrl-C); this is the CLI module.
     import sys
@@ -7,4 +7,4 @@ except KeyboardInterrupt:
     sys.stderr.write("clray: error: interrupted\n")
     raise SystemExit(130) from None
 
-raise SystemExit(main())
+run_command()

@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 
 from clray.errors import SceneError
+from clray.scene import obj
 from clray.scene.obj import read_obj
 
 DATA = Path(__file__).parent / "data"
@@ -366,3 +367,68 @@ def test_fifo_mesh_is_refused(tmp_path):
     os.mkfifo(tmp_path / "m.obj")
     with pytest.raises(SceneError, match=r"^m\.obj: cannot read mesh file: not a regular file$"):
         read_obj(tmp_path / "m.obj")
+
+
+REGULAR_TEXTS = {
+    "positions": SQUARE_V + "f 1 2 3\nf 1 3 4\n",
+    "quads": SQUARE_V + "f 1 2 3 4\nf 4 3 2 1\n",
+    "v/vt": SQUARE_V + "vt 0 0\nvt 1 1\nf 1/1 2/2 3/1\nf 3/2 4/1 1/1\n",
+    "v//vn": SQUARE_V + "vn 0 0 1\nvn 0 0 -1\nf 1//1 2//2 3//1\n",
+    "v/vt/vn": SQUARE_V + "vt 0 0 0\nvn 0 0 1\nf 1/1/1 2/1/1 3/1/1\n",
+    "comments and other statements": (
+        "# header\nmtllib m.mtl\no thing\n" + SQUARE_V
+        + "\ns off\nusemtl a\nf 1 2 3\ng b\nf 1 3 4\n"
+    ),
+    "interleaved runs": "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\nv 1 1 0\nf 2 4 3\n",
+    "colours and w": "v 0 0 0 1 0.5 0\nv 1 0 0 1 0.5 0\nv 0 1 0 1 0.5 0\nf 3 2 1\n",
+    "exponents and long numbers": (
+        "v 1e3 -2.5E-2 +3E+0\nv 0.12345678901234567890 .5 5.\nv -0 +0.0 -.25\nf 1 2 3\n"
+    ),
+    "no trailing newline": SQUARE_V + "f 4 3 2",
+}
+
+
+def test_regular_files_take_the_fast_path():
+    for name, text in REGULAR_TEXTS.items():
+        assert obj._parse_regular(text.encode()) is not None, name
+
+
+@pytest.mark.parametrize("text", [*REGULAR_TEXTS.values(), *REFERENCE_TEXTS.values(),
+                                  "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3 # c\n",
+                                  "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\nf 1 2 3 1\n",
+                                  "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\nf 1/1 2/1 3/1\n",
+                                  "v 0 0 0\nv 1 0 0\nv 0 1 0\nvp 1 2\nf 1 2 3\n",
+                                  "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 -1\n",
+                                  "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\x00\n"])
+def test_fast_path_reads_what_the_general_parser_reads(monkeypatch, text):
+    data = text.encode()
+    fast = obj._parse_regular(data)
+    monkeypatch.setattr(obj, "_parse_regular", lambda _: None)
+    try:
+        general = obj.parse_obj(data, Path("m.obj"))
+    except SceneError:
+        assert fast is None
+        return
+    if fast is not None:
+        for field in ("vertices", "faces", "normals", "uvs"):
+            a, b = getattr(fast, field), getattr(general, field)
+            assert (a is None) == (b is None), field
+            if a is not None:
+                assert a.tobytes() == b.tobytes() and a.shape == b.shape, field
+
+
+@pytest.mark.parametrize("text", [
+    "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 4\n",
+    "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 0\n",
+    "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3x\n",
+    "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2\n",
+    "v 0 0 0\nv 1 0 0\nv 0 1\nf 1 2 3\n",
+    "v 0 0 0\nv 1 0 0\nv 0 1 0\nvn 0 0 0\nf 1//1 2//1 3//1\n",
+    "v 0 0 0\nv 1 0 0\nv 0 1 nan\nf 1 2 3\n",
+    "v 0 0 0\nv 1 0 0\nv 0 1 1e40\nf 1 2 3\n",
+    "v 0 0 0\nv 1 0 0\nv 0 1 1-2\nf 1 2 3\n",
+    "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1/ 2/ 3/\n",
+    "v 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0\nf 1/1 2/2 3/1\n",
+])
+def test_regular_layout_with_errors_leaves_them_to_the_general_parser(text):
+    assert obj._parse_regular(text.encode()) is None

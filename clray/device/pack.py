@@ -225,8 +225,13 @@ def _pack_triangles(objs: list[M.Triangle | M.Mesh], eye: np.ndarray,
     triangles = _records(L.TRIANGLE, len(all_faces))
     triangles["v0"], triangles["v1"], triangles["v2"] = all_faces.T
     triangles["material"] = np.concatenate(flags)
-    corners = vertices[all_faces, :3].astype(np.float64)
-    bounded.add(L.PRIM_TRIANGLE, corners.min(axis=1), corners.max(axis=1))
+    # Corner by corner: elementwise minima of three (F, 3) arrays take a tenth of the time of
+    # a reduction over the middle axis of (F, 3, 3), and float32 minima widened are the same
+    # numbers as float64 minima of the widened corners.
+    c0, c1, c2 = (vertices[all_faces[:, k], :3] for k in range(3))
+    lo = np.minimum(np.minimum(c0, c1), c2).astype(np.float64)
+    hi = np.maximum(np.maximum(c0, c1), c2).astype(np.float64)
+    bounded.add(L.PRIM_TRIANGLE, lo, hi)
     return _Triangles(triangles, vertices, normals, uvs)
 
 

@@ -17,10 +17,9 @@ import time
 import warnings
 from collections.abc import Callable, Iterator
 from pathlib import Path
-from typing import NoReturn
+from typing import Any, NoReturn
 
 import pyopencl as cl
-from tqdm import tqdm
 
 from clray import __version__
 from clray.device.context import list_devices
@@ -304,10 +303,14 @@ class _ProgressBar:
     """A tqdm bar on stderr, made at the first report so that it measures the launches only."""
 
     def __init__(self) -> None:
-        self.bar: tqdm | None = None
+        self.bar: Any = None  # a tqdm bar
 
     def __call__(self, done: int, total: int) -> None:
         if self.bar is None:
+            # Imported here: only a terminal shows the bar, and the import costs every command
+            # about 25 ms.
+            from tqdm import tqdm
+
             # leave=False: the bar is erased when it closes, and the summary line says it all.
             self.bar = tqdm(total=total, desc="clray: rendering", unit="samples",
                             unit_scale=True, file=sys.stderr, leave=False, dynamic_ncols=True)

@@ -84,6 +84,10 @@ def choice_problem(value: object, allowed: tuple) -> str | None:
 
 MAX_OBJECTS = 1_000_000
 MAX_LIGHTS = 10_000
+# Rect, disc and sphere lights' emitting area (|u x v|, pi radius^2): the kernels multiply
+# radiance by it, and a sphere light's radius squares, in float32.
+MAX_LIGHT_AREA = 1e30
+MAX_SPOT_ANGLE = 180.0  # a spot light's half-angle, degrees: below it, exclusive
 MAX_TRIANGLES = 2**24  # all meshes together, each instance counted
 MAX_TEXTURE_SIDE = 16384
 MAX_TEXELS = 2**26  # all distinct texture files together: 768 MiB as float32 RGB

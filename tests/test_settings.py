@@ -139,6 +139,12 @@ def _scene(objects: tuple, *, camera: M.Camera | None = None, **render: object) 
                     0),)),
      "objects[0].vertices[2]: must be finite"),
     (_scene(("sphere",)), "objects[0]: expected one of Sphere"),
+    (dataclasses.replace(_scene((M.Sphere((0, 0, 0), 1.0, 0),)),
+                         lights=(M.RectLight((0, 3, 0), (1, 0, 0), (-2, 0, 0)),)),
+     "lights[0].v: the light's area (|u x v|) must be in"),
+    (dataclasses.replace(_scene((M.Sphere((0, 0, 0), 1.0, 0),)),
+                         lights=(M.PointLight((0, 3, 0)), "spot")),
+     "lights[1]: expected one of PointLight, DirectionalLight, SpotLight, RectLight"),
 ])
 def test_scene_built_in_python_meets_the_file_rules(scene: M.Scene, message: str) -> None:
     with pytest.raises(SceneError) as info:

@@ -27,7 +27,14 @@ ROOT = HERE.parent
 
 # Runs inside each worktree's process; only API that every compared commit has.
 _MEASURE = """
-import json, sys
+import importlib.util, json, os, sys
+# The virtual environment's editable install maps clray.kernels to its own checkout's kernels/:
+# take this tree's, or every ref would render with the same kernels (against its own layouts).
+kernels = os.path.join(os.getcwd(), "kernels", "__init__.py")
+if os.path.exists(kernels):
+    spec = importlib.util.spec_from_file_location("clray.kernels", kernels)
+    sys.modules["clray.kernels"] = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(sys.modules["clray.kernels"])
 from clray.device.context import select_device
 from clray.device.pack import pack_scene
 from clray.render import render_packed

@@ -285,3 +285,23 @@ def test_shadow_rays_one_per_area_light_per_sample(cl_device) -> None:
                     (M.RectLight((-1, 3, -1), (2, 0, 0), (0, 0, 2)),),
                     (M.Plane((0, 0, 0), (0, 1, 0), 0),))
     assert render(scene).stats["rays"]["shadow"] == 16 * 12 * 3
+
+
+@pytest.mark.parametrize("light", [
+    M.RectLight((-1, 3, -1), (2, 0, 0), (0, 0, 2), (1.0, 1.0, 1.0)),
+    M.DiscLight((0.3, 3, 0.2), (0, -1, 0), 1.0, (1.0, 1.0, 1.0)),
+], ids=["rect", "disc"])
+def test_area_light_set_into_a_ceiling_is_not_shadowed_by_it(cl_device, light) -> None:
+    # A panel flush with an opaque ceiling: the shadow rays end just short of their sample
+    # points, as they do at a point light, so the ceiling does not shadow its own light. The
+    # camera looks down at the floor only.
+    def image(objects: tuple) -> np.ndarray:
+        scene = M.Scene(None, M.RenderOptions(W, H, 4, 0, (0, 0, 0), (0, 0, 0)),
+                        M.Camera((0.0, 2.0, 0.0), (0.0, 0.0, 0.0), up=(0.0, 0.0, -1.0)),
+                        (WHITE,), (light,), objects)
+        return render(scene).image
+
+    floor = M.Plane((0, 0, 0), (0, 1, 0), 0)
+    open_sky = image((floor,))
+    assert open_sky.min() > 0.01
+    np.testing.assert_array_equal(image((floor, M.Plane((0, 3, 0), (0, -1, 0), 0))), open_sky)

@@ -305,3 +305,18 @@ def test_area_light_set_into_a_ceiling_is_not_shadowed_by_it(cl_device, light) -
     open_sky = image((floor,))
     assert open_sky.min() > 0.01
     np.testing.assert_array_equal(image((floor, M.Plane((0, 3, 0), (0, -1, 0), 0))), open_sky)
+
+
+def test_rect_and_disc_lights_emit_on_one_side_only(cl_device) -> None:
+    # The camera looks up at a ceiling above two lights at y = 1: facing down they leave it
+    # black (no ambient), facing up they light it.
+    def image(facing: float) -> np.ndarray:
+        lights = (M.RectLight((-1, 1, -1), (2, 0, 0), (0, 0, -2 * facing)),
+                  M.DiscLight((1.5, 1, 0), (0, facing, 0), 0.5))
+        scene = M.Scene(None, M.RenderOptions(16, 12, 4, 0, (0, 0, 0), (0, 0, 0)),
+                        M.Camera((0.0, 0.5, 0.0), (0.0, 3.0, 0.0), up=(0.0, 0.0, -1.0)),
+                        (WHITE,), lights, (M.Plane((0, 3, 0), (0, -1, 0), 0),))
+        return render(scene).image
+
+    assert np.all(image(-1.0) == 0.0)
+    assert image(1.0).min() > 0.01

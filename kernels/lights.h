@@ -10,11 +10,12 @@ typedef struct {
     int nx;  // columns of the light's strata: ceil(sqrt(spp)), as the pixel's grid
 } SampleKey;
 
-inline SampleKey sample_key(uint seed, uint pixel, int sample, int spp) {
+// A pixel's key, its sample still to be set.
+inline SampleKey sample_key(uint seed, uint pixel, int spp) {
     SampleKey k;
     k.seed = seed;
     k.pixel = pixel;
-    k.sample = sample;
+    k.sample = 0;
     k.spp = spp;
     // Integer ceil(sqrt(spp)), as sample_position has it.
     k.nx = 1;

@@ -148,7 +148,9 @@ __kernel void render(__global const Camera* camera, __global const Params* param
     REAL3 sum = (REAL3)(0, 0, 0);
     int secondary_rays = 0, shadow_rays = 0;
 
+    SampleKey key = sample_key(params->seed, pixel, spp);
     for (int sample = 0; sample < spp; ++sample) {
+        key.sample = sample;
         REAL2 pos = sample_position(x, y, sample, spp, params->seed, pixel);
         RayTask stack[RAY_STACK_SIZE];
         int sp = 0;
@@ -173,8 +175,7 @@ __kernel void render(__global const Camera* camera, __global const Params* param
             REAL3 n_f = entering ? sf.n_g : -sf.n_g;
             REAL3 n = dot(sf.n_s, ray.d) < (REAL)0 ? sf.n_s : -sf.n_s;
             REAL3 c = surface_color(&s, m, sf.p + TO_REAL3(camera->world), n_f, sf.uv);
-            sum += task.weight * shade_direct(&s, &sf, n, -ray.d, c, m, ambient,
-                                              sample_key(params->seed, pixel, sample, spp),
+            sum += task.weight * shade_direct(&s, &sf, n, -ray.d, c, m, ambient, key,
                                               &shadow_rays);
 #if MAX_DEPTH > 0
             if (task.depth < MAX_DEPTH) {

@@ -27,13 +27,14 @@ ROOT = HERE.parent
 
 # Runs inside each worktree's process; only API that every compared commit has.
 _MEASURE = """
-import json, os, sys
-import clray
-# The tree's kernels/ as clray.kernels (pyproject's package-dir): an editable install's finder
-# would otherwise supply the installed checkout's kernels to every tree.
-clray.__path__.append(os.getcwd())
-import clray.kernels
-assert clray.kernels.__file__.startswith(os.getcwd()), clray.kernels.__file__
+import importlib.util, json, os, sys
+# The virtual environment's editable install maps clray.kernels to its own checkout's kernels/:
+# take this tree's, or every ref would render with the same kernels (against its own layouts).
+kernels = os.path.join(os.getcwd(), "kernels", "__init__.py")
+if os.path.exists(kernels):
+    spec = importlib.util.spec_from_file_location("clray.kernels", kernels)
+    sys.modules["clray.kernels"] = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(sys.modules["clray.kernels"])
 from clray.device.context import select_device
 from clray.device.pack import pack_scene
 from clray.render import render_packed

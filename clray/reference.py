@@ -20,14 +20,18 @@ from clray.scene.model import (
     Cone,
     Cylinder,
     DirectionalLight,
+    DiscLight,
     Material,
     Mesh,
     Plane,
     PointLight,
+    RectLight,
     Scene,
     SceneObject,
     Sphere,
+    SphereLight,
     Spheres,
+    SpotLight,
     Texture,
     Triangle,
 )
@@ -73,6 +77,27 @@ def sample_grid(spp: int) -> tuple[int, int]:
     if nx * nx < spp:
         nx += 1
     return nx, -(-spp // nx)
+
+
+def light_square(
+    seed: int, pixel: np.ndarray, sample: np.ndarray, spp: int, light: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """(u1, u2) in the unit square: light `light`'s stratified sample for each (pixel,
+    sample) of docs/rendering.md (Area lights)."""
+    pixel = np.asarray(pixel).astype(np.uint32)
+    sample = np.asarray(sample).astype(np.int64)
+    key = pcg_hash(pcg_hash(pcg_hash(np.uint32(seed & 0xFFFFFFFF)) ^ pixel)
+                   ^ np.uint32(0x80000000 | light))
+    stratum = (sample + (key % np.uint32(spp)).astype(np.int64)) % spp
+    nx, _ = sample_grid(spp)
+    row, col = stratum // nx, stratum % nx
+    cells = np.minimum(nx, spp - row * nx)
+
+    def uniform(dim: int) -> np.ndarray:
+        counter = (2 * sample + dim).astype(np.uint32)
+        return (pcg_hash(key ^ counter) >> np.uint32(8)).astype(np.float64) * 2.0**-24
+
+    return (col + uniform(0)) / cells, (row * nx + uniform(1) * cells) / spp
 
 
 def sample_positions(
@@ -640,6 +665,81 @@ def _offset(p: np.ndarray, ngf: np.ndarray, new_d: np.ndarray, eps: np.ndarray) 
     return p + (side * eps)[:, None] * ngf
 
 
+# An area light sample's weight is clamped here, as in the kernels (kernels/lights.h).
+AREA_WEIGHT_MAX = 1e20
+
+
+def _spot_factor(light: SpotLight, l_dir: np.ndarray) -> np.ndarray:
+    """1 inside the inner cone, 0 outside the outer, smoothstep in cos between."""
+    inner = light.angle if light.inner_angle is None else light.inner_angle
+    cos_o, cos_i = math.cos(math.radians(light.angle)), math.cos(math.radians(inner))
+    cos_t = -(l_dir @ _vec(light.direction))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = np.clip((cos_t - cos_o) / (cos_i - cos_o), 0.0, 1.0)
+    return np.where(cos_t <= cos_o, 0.0, np.where(cos_t >= cos_i, 1.0, t * t * (3.0 - 2.0 * t)))
+
+
+def concentric_disc(u1: np.ndarray, u2: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Shirley and Chiu's area-preserving map of the unit square onto the unit disc."""
+    a, b = 2.0 * u1 - 1.0, 2.0 * u2 - 1.0
+    wide = np.abs(a) > np.abs(b)
+    r = np.where(wide, a, b)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        phi = np.where(wide, np.pi / 4 * (b / a), np.pi / 2 - np.pi / 4 * (a / b))
+    phi = np.where((a == 0.0) & (b == 0.0), 0.0, phi)
+    return r * np.cos(phi), r * np.sin(phi)
+
+
+def _area_light_sample(
+    light: RectLight | DiscLight | SphereLight,
+    p: np.ndarray,
+    eps: np.ndarray,
+    u1: np.ndarray,
+    u2: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(target point on the light, weight, usable) of docs/rendering.md (Area lights): weight
+    times the light's radiance estimates the irradiance on a surface facing the sample."""
+    if isinstance(light, SphereLight):
+        to_c = _vec(light.center) - p
+        dist = np.linalg.norm(to_c, axis=-1)
+        usable = dist > light.radius
+        safe = np.where(usable, dist, 2.0 * light.radius)
+        s = light.radius / safe
+        k = 1.0 - np.sqrt(1.0 - s * s)
+        one_minus_cos = u1 * k
+        cos_t = 1.0 - one_minus_cos
+        sin_t = np.sqrt(np.maximum(0.0, one_minus_cos * (2.0 - one_minus_cos)))
+        phi = 2.0 * np.pi * u2
+        w_c = to_c / safe[:, None]
+        h = np.where((np.abs(w_c[:, 0]) < 0.9)[:, None], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0])
+        e1 = _normalize(np.cross(w_c, h))
+        e2 = np.cross(w_c, e1)
+        w = (cos_t[:, None] * w_c
+             + sin_t[:, None] * (np.cos(phi)[:, None] * e1 + np.sin(phi)[:, None] * e2))
+        # The nearer of the two crossings of the sphere along w.
+        t = safe * cos_t - np.sqrt(np.maximum(0.0, light.radius**2 - (safe * sin_t) ** 2))
+        return p + t[:, None] * w, 2.0 * np.pi * k, usable
+    if isinstance(light, RectLight):
+        u, v = _vec(light.u), _vec(light.v)
+        y = _vec(light.corner) + u1[:, None] * u + u2[:, None] * v
+        normal = np.cross(u, v)
+        area = float(np.linalg.norm(normal))
+        normal = normal / area
+    else:
+        normal = _vec(light.normal)
+        e1, e2 = frame(normal)
+        a, b = concentric_disc(u1, u2)
+        y = _vec(light.center) + light.radius * (a[:, None] * e1 + b[:, None] * e2)
+        area = np.pi * light.radius**2
+    to_y = y - p
+    dist = np.linalg.norm(to_y, axis=-1)
+    safe = np.where(dist > 0.0, dist, 1.0)
+    cos_l = -(to_y @ normal) / safe
+    usable = (dist > eps) & (cos_l > 0.0)  # one-sided: the back emits nothing
+    weight = np.minimum(area * cos_l / (safe * safe), AREA_WEIGHT_MAX)
+    return y, weight, usable
+
+
 def _top_ior(stack: np.ndarray, count: np.ndarray, ior: np.ndarray) -> np.ndarray:
     top = stack[np.arange(len(stack)), np.maximum(count - 1, 0)]
     return np.where(count > 0, ior[np.maximum(top, 0)], 1.0)
@@ -680,9 +780,17 @@ def trace(
     origins: np.ndarray,
     directions: np.ndarray,
     max_depth: int | None = None,
+    *,
+    pixel: np.ndarray | None = None,
+    sample: np.ndarray | None = None,
+    spp: int = 1,
+    seed: int | None = None,
 ) -> np.ndarray:
-    """(N, 3) radiance along each ray (depth 0, starting in air), per docs/rendering.md."""
+    """(N, 3) radiance along each ray (depth 0, starting in air), per docs/rendering.md.
+    `pixel`, `sample` (per ray), `spp` and `seed` pick area lights' samples; by default ray i
+    is sample 0 of 1 of pixel i."""
     max_depth = scene.render.max_depth if max_depth is None else max_depth
+    seed = scene.render.seed if seed is None else seed
     min_weight = scene.render.min_weight
     geo = _Geometry(scene)
     mats = _MaterialTable(scene.materials)
@@ -691,6 +799,8 @@ def trace(
 
     o = np.asarray(origins, dtype=np.float64).reshape(-1, 3)
     d = _normalize(np.asarray(directions, dtype=np.float64).reshape(-1, 3))
+    ray_pixel = np.arange(len(o)) if pixel is None else np.asarray(pixel).reshape(-1)
+    ray_sample = np.zeros(len(o), dtype=np.int64) if sample is None else np.asarray(sample)
     radiance = np.zeros((len(o), 3))
     # The wavefront: one entry per live ray.
     owner = np.arange(len(o))  # which input ray this path's radiance belongs to
@@ -724,9 +834,14 @@ def trace(
         c = _surface_color(mats, m, p, uv, ngf)
 
         local = mats.ambient[m, None] * c * scene_ambient
-        for light in scene.lights:
-            if isinstance(light, PointLight):
-                to_light = _vec(light.position) - p
+        for index, light in enumerate(scene.lights):
+            if isinstance(light, RectLight | DiscLight | SphereLight):
+                u1, u2 = light_square(seed, ray_pixel[owner], ray_sample[owner], spp, index)
+                target, atten, usable = _area_light_sample(light, p, eps, u1, u2)
+                l_dir = _normalize(target - p)
+            elif isinstance(light, PointLight | SpotLight):
+                target = np.broadcast_to(_vec(light.position), p.shape)
+                to_light = target - p
                 dist = np.linalg.norm(to_light, axis=-1)
                 l_dir = to_light / np.where(dist > 0.0, dist, 1.0)[:, None]
                 kc, kl, kq = light.attenuation
@@ -734,10 +849,13 @@ def trace(
                 with np.errstate(divide="ignore"):
                     atten = np.where(denom > 0.0, np.minimum(1.0, 1.0 / denom), 1.0)
                 usable = dist > eps
+                if isinstance(light, SpotLight):
+                    atten = atten * _spot_factor(light, l_dir)
+                    usable &= atten > 0.0
             else:
                 assert isinstance(light, DirectionalLight)
+                target = None
                 l_dir = np.broadcast_to(-_vec(light.direction), p.shape)
-                dist = np.full(len(p), np.inf)
                 atten = np.ones(len(p))
                 usable = np.ones(len(p), dtype=bool)
             ndotl = _dot(n, l_dir)
@@ -746,10 +864,10 @@ def trace(
                 continue
             shadow = np.zeros((len(p), 3))
             origin = _offset(p[lit], ngf[lit], l_dir[lit], eps[lit])
-            shadow_dir, span = l_dir[lit], dist[lit]
-            if isinstance(light, PointLight):
+            shadow_dir, span = l_dir[lit], np.full(int(lit.sum()), np.inf)
+            if target is not None:
                 # Aimed from the offset origin, as the kernels do (docs/rendering.md).
-                to_light = _vec(light.position) - origin
+                to_light = target[lit] - origin
                 span = np.linalg.norm(to_light, axis=-1)
                 shadow_dir = np.where((span > 0.0)[:, None],
                                       to_light / np.where(span > 0.0, span, 1.0)[:, None],
@@ -802,7 +920,9 @@ def render_reference(
     """(H, W, 3) float64 linear RGB: the mean of each pixel's samples. None = the scene's value."""
     width, height, spp, max_depth, seed = _settings(scene, width, height, spp, max_depth, seed)
     origins, directions, pixel = camera_rays(scene, width, height, spp, seed)
-    radiance = trace(scene, origins, directions, max_depth)
+    sample = np.tile(np.arange(spp, dtype=np.int64), width * height)
+    radiance = trace(scene, origins, directions, max_depth, pixel=pixel, sample=sample, spp=spp,
+                     seed=seed)
     image = np.zeros((width * height, 3))
     np.add.at(image, pixel, radiance)
     return (image / spp).reshape(height, width, 3)

@@ -19,6 +19,10 @@
 
 #define LIGHT_POINT 0
 #define LIGHT_DIRECTIONAL 1
+#define LIGHT_SPOT 2
+#define LIGHT_RECT 3
+#define LIGHT_DISC 4
+#define LIGHT_SPHERE 5
 
 #define TEXTURE_NONE (-1)
 #define TEXTURE_CHECKER 0
@@ -87,10 +91,14 @@ typedef struct {
 } Texture;
 
 typedef struct {
-    float4 position;     // point light position, or the travel direction of a directional one
-    float4 color;        // w unused
-    float4 attenuation;  // constant, linear, quadratic, w unused
-    int kind;            // LIGHT_POINT or LIGHT_DIRECTIONAL
+    // Point and spot: the position. Directional: the travel direction. Rect: a corner. Disc and
+    // sphere: the centre, w the radius.
+    float4 position;
+    float4 color;        // area lights: the radiance, w the emitting area (rect and disc)
+    float4 attenuation;  // point and spot: constant, linear, quadratic, w unused
+    float4 axis_u;  // rect: edge u; disc: unit normal; spot: unit direction, w cos(angle)
+    float4 axis_v;  // rect: edge v; spot: w cos(inner_angle)
+    int kind;       // LIGHT_*
     int pad0, pad1, pad2;
 } Light;
 

@@ -6,6 +6,7 @@
 // USE_DOUBLE, the study variants SPHERE_TEXTBOOK, OFFSET_FIXED_EPS, TRIANGLE_NO_FP64_FALLBACK,
 // TRIANGLE_MOLLER_TRUMBORE; FP64_SPHERES (the packer's per-scene fp64 path for spheres float32
 // cannot intersect); COUNT_TESTS (the instrumented build: box and primitive tests per pixel).
+// HAS_SPOT_LIGHTS, HAS_AREA_LIGHTS (0 or 1): the scene has spot lights, area lights.
 #include "real.h"
 #include "clray_types.h"
 
@@ -147,7 +148,9 @@ __kernel void render(__global const Camera* camera, __global const Params* param
     REAL3 sum = (REAL3)(0, 0, 0);
     int secondary_rays = 0, shadow_rays = 0;
 
+    SampleKey key = sample_key(params->seed, pixel, spp);
     for (int sample = 0; sample < spp; ++sample) {
+        key.sample = sample;
         REAL2 pos = sample_position(x, y, sample, spp, params->seed, pixel);
         RayTask stack[RAY_STACK_SIZE];
         int sp = 0;
@@ -172,7 +175,8 @@ __kernel void render(__global const Camera* camera, __global const Params* param
             REAL3 n_f = entering ? sf.n_g : -sf.n_g;
             REAL3 n = dot(sf.n_s, ray.d) < (REAL)0 ? sf.n_s : -sf.n_s;
             REAL3 c = surface_color(&s, m, sf.p + TO_REAL3(camera->world), n_f, sf.uv);
-            sum += task.weight * shade_direct(&s, &sf, n, -ray.d, c, m, ambient, &shadow_rays);
+            sum += task.weight * shade_direct(&s, &sf, n, -ray.d, c, m, ambient, key,
+                                              &shadow_rays);
 #if MAX_DEPTH > 0
             if (task.depth < MAX_DEPTH) {
                 REAL kr = TO_REAL(m->reflect);

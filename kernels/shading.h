@@ -2,6 +2,8 @@
 #ifndef CLRAY_SHADING_H
 #define CLRAY_SHADING_H
 
+#include "lights.h"
+
 typedef struct {
     REAL3 p;    // on the surface (re-projected where the shape allows)
     REAL3 n_g;  // geometric normal, outward (planes: as given; triangles: by winding)
@@ -232,24 +234,42 @@ inline REAL3 offset_origin(const Surface* sf, REAL3 w) {
 }
 
 // Ambient plus, for each light on the lit side, diffuse and specular times the light that
-// reaches p through the shadow ray.
+// reaches p through the shadow ray. key: the pixel sample, which picks area lights' samples.
 HOT REAL3 shade_direct(const SceneRefs* s, const Surface* sf, REAL3 n, REAL3 v, REAL3 c,
-                          const __global Material* m, REAL3 ambient_light, int* shadow_rays) {
+                          const __global Material* m, REAL3 ambient_light, SampleKey key,
+                          int* shadow_rays) {
     REAL3 result = TO_REAL(m->ambient) * c * ambient_light;
     REAL diffuse = TO_REAL(m->diffuse), specular = TO_REAL(m->specular);
     REAL shininess = TO_REAL(m->shininess);
     for (int i = 0; i < s->n_lights; ++i) {
         const __global Light* light = s->lights + i;
         REAL3 l;
-        REAL atten = 1, dist = REAL_INF;
-        if (light->kind == LIGHT_POINT) {
-            REAL3 to_light = TO_REAL3(light->position) - sf->p;
-            dist = length(to_light);
+        REAL atten = 1;
+        // Where a shadow ray towards a light at a finite place aims: the light, or its sample.
+        REAL3 target = TO_REAL3(light->position);
+#if HAS_AREA_LIGHTS
+        if (light->kind >= LIGHT_RECT) {
+            if (!sample_area_light(light, sf->p, sf->err, light_square(key, i), &target,
+                                   &atten)) {
+                continue;
+            }
+            l = safe_normalize(target - sf->p);
+        } else
+#endif
+        if (light->kind != LIGHT_DIRECTIONAL) {
+            REAL3 to_light = target - sf->p;
+            REAL dist = length(to_light);
             if (!(dist > sf->err)) continue;  // a light at the hit point lights nothing
             l = to_light / dist;
             REAL3 k = TO_REAL3(light->attenuation);
             REAL denom = k.x + k.y * dist + k.z * dist * dist;
             atten = denom > (REAL)0 ? fmin((REAL)1, (REAL)1 / denom) : (REAL)1;
+#if HAS_SPOT_LIGHTS
+            if (light->kind == LIGHT_SPOT) {
+                atten *= spot_factor(light, l);
+                if (!(atten > (REAL)0)) continue;  // outside the cone: no shadow ray
+            }
+#endif
         } else {
             l = -safe_normalize(TO_REAL3(light->position));
         }
@@ -261,8 +281,8 @@ HOT REAL3 shade_direct(const SceneRefs* s, const Surface* sf, REAL3 n, REAL3 v, 
         // just short of the light so such a surface does not shadow it.
         REAL3 shadow_dir = l;
         REAL tmax = REAL_INF;
-        if (light->kind == LIGHT_POINT) {
-            REAL3 to_light = TO_REAL3(light->position) - origin;
+        if (light->kind != LIGHT_DIRECTIONAL) {
+            REAL3 to_light = target - origin;
             REAL span = length(to_light);
             shadow_dir = span > (REAL)0 ? to_light / span : l;
             tmax = span * ((REAL)1 - gamma_n(ERR_ROUNDINGS));

@@ -129,6 +129,12 @@ def base_scene(rng: random.Random) -> dict:
             {"type": "point", "position": [-3, 5, 4], "color": [0.8, 0.8, 0.8],
              "attenuation": [1, 0, 0.01]},
             {"type": "directional", "direction": [1, -2, -1], "color": [0.3, 0.3, 0.3]},
+            {"type": "spot", "position": [2, 4, 3], "direction": [-1, -2, -1], "angle": 30,
+             "inner_angle": 20, "attenuation": [1, 0.1, 0]},
+            {"type": "rect", "corner": [-1, 3, -1], "u": [2, 0, 0], "v": [0, 0, 1],
+             "color": [0.5, 0.5, 0.5]},
+            {"type": "disc", "center": [1, 3, 1], "normal": [0, -1, 0], "radius": 0.5},
+            {"type": "sphere", "center": [-2, 2, 2], "radius": 0.2, "color": [3, 3, 3]},
         ],
         "objects": objects,
     }

@@ -57,6 +57,7 @@ METRICS = "tests/test_metrics.py"
 CLI = "tests/test_cli.py"
 STUDY = "tests/test_study.py"
 DEVICE = "tests/test_device_fixture.py"
+LIGHTS = "tests/test_area_lights.py"
 # The kernel-vs-reference scenes and the closed forms, without test_render.py's slower checks.
 KERNEL_SCENES = (f"{RENDER}::test_kernel_matches_reference",
                  f"{RENDER}::test_plane_under_directional_light_is_uniform",
@@ -223,6 +224,28 @@ MUTATIONS: tuple[Mutation, ...] = (
       "b1 * TO_REAL3(s->normals[tri.v1])", "b1 * TO_REAL3(s->normals[tri.v2])", MESH),
     m("shading.vertex_uv_index", "kernels/shading.h",
       "b2 * TO_REAL2(s->uvs[tri.v2])", "b2 * TO_REAL2(s->uvs[tri.v1])", MESH),
+    # kernels/lights.h
+    m("lights.area_weight_without_cos", "kernels/lights.h",
+      "fmin(TO_REAL(light->color.w) * cos_l / dist / dist",
+      "fmin(TO_REAL(light->color.w) / dist / dist", LIGHTS),
+    m("lights.two_sided", "kernels/lights.h",
+      "if (!(cos_l > (REAL)0)) return false;", "cos_l = fabs(cos_l);", LIGHTS),
+    m("lights.jitter_dimensions_swapped", "kernels/lights.h",
+      "r0 = light_uniform(key, k.sample, 0u), r1 = light_uniform(key, k.sample, 1u);",
+      "r0 = light_uniform(key, k.sample, 1u), r1 = light_uniform(key, k.sample, 0u);", LIGHTS),
+    m("lights.no_stratum_rotation", "kernels/lights.h",
+      "((uint)k.sample + key % (uint)k.spp) % (uint)k.spp", "(uint)k.sample % (uint)k.spp",
+      LIGHTS),
+    m("lights.last_row_as_wide", "kernels/lights.h",
+      "int cells = min(k.nx, k.spp - row * k.nx);", "int cells = k.nx;", LIGHTS),
+    m("lights.sphere_solid_angle_halved", "kernels/lights.h",
+      "*weight = (REAL)2 * PI_R * k;", "*weight = PI_R * k;", LIGHTS),
+    m("lights.disc_not_concentric", "kernels/lights.h",
+      "phi = (PI_R / (REAL)4) * (b / a);", "phi = (PI_R / (REAL)2) * (b / a);", LIGHTS),
+    m("lights.spot_linear_rim", "kernels/lights.h",
+      "return t * t * ((REAL)3 - (REAL)2 * t);", "return t;", LIGHTS),
+    m("pack.spot_inner_is_outer", "clray/device/pack.py",
+      "math.cos(math.radians(inner))", "math.cos(math.radians(light.angle))", LIGHTS),
     # kernels/render.cl
     m("render.reflection_half", "kernels/render.cl",
       "next.d = ray.d - (REAL)2 * dot(ray.d, n) * n;", "next.d = ray.d - dot(ray.d, n) * n;",

@@ -540,8 +540,64 @@ ERRORS = [
     # lights
     (scene(lights={"type": "point"}), "lights: expected an array of tables, got a table"),
     (
-        scene(lights=[{"type": "spot"}]),
-        'lights[0].type: unknown type "spot" (expected one of: point, directional)',
+        scene(lights=[{"type": "area"}]),
+        'lights[0].type: unknown type "area" (expected one of: point, directional, spot, rect,'
+        " disc, sphere)",
+    ),
+    (
+        scene(lights=[{"type": "spot", "position": [0, 0, 0], "direction": [0, -1, 0]}]),
+        "lights[0].angle: missing required key",
+    ),
+    (
+        scene(lights=[{"type": "spot", "position": [0, 0, 0], "direction": [0, -1, 0],
+                       "angle": 0}]),
+        "lights[0].angle: must be in (0, 180), got 0",
+    ),
+    (
+        scene(lights=[{"type": "spot", "position": [0, 0, 0], "direction": [0, -1, 0],
+                       "angle": 30, "inner_angle": 40}]),
+        "lights[0].inner_angle: must be in [0, 30], got 40",
+    ),
+    (
+        scene(lights=[{"type": "spot", "position": [0, 0, 0], "direction": [0, 0, 0],
+                       "angle": 30}]),
+        "lights[0].direction: must be a nonzero vector, got [0, 0, 0]",
+    ),
+    (
+        scene(lights=[{"type": "rect", "corner": [0, 0, 0], "u": [1, 0, 0]}]),
+        "lights[0].v: missing required key",
+    ),
+    (
+        scene(lights=[{"type": "rect", "corner": [0, 0, 0], "u": [1, 0, 0], "v": [2, 0, 0]}]),
+        "lights[0].v: the light's area (|u x v|) must be in [1e-30, 1e+30], got 0",
+    ),
+    (
+        scene(lights=[{"type": "rect", "corner": [0, 0, 0], "u": [1e20, 0, 0],
+                       "v": [0, 1e20, 0]}]),
+        "lights[0].v: the light's area (|u x v|) must be in [1e-30, 1e+30], got 1e+40",
+    ),
+    (
+        scene(lights=[{"type": "rect", "corner": [0, 0, 0], "u": [1, 0, 0], "v": [0, 1, 0],
+                       "radius": 1}]),
+        "lights[0].radius: unknown key (expected one of: type, corner, u, v, color)",
+    ),
+    (
+        scene(lights=[{"type": "disc", "center": [0, 0, 0], "normal": [0, 0, 0],
+                       "radius": 1}]),
+        "lights[0].normal: must be a nonzero vector, got [0, 0, 0]",
+    ),
+    (
+        scene(lights=[{"type": "disc", "center": [0, 0, 0], "normal": [0, 1, 0],
+                       "radius": -1}]),
+        "lights[0].radius: must be > 0, got -1",
+    ),
+    (
+        scene(lights=[{"type": "sphere", "center": [0, 0, 0], "radius": 1e16}]),
+        "lights[0].radius: the light's area (pi radius^2) must be in [1e-30, 1e+30], got 3.14e+32",
+    ),
+    (
+        scene(lights=[{"type": "sphere", "center": [0, 0, 0], "radius": 1, "color": [1, 1]}]),
+        "lights[0].color: expected 3 numbers, got [1, 1]",
     ),
     (scene(lights=[{"position": [0, 0, 0]}]), "lights[0].type: missing required key"),
     (scene(lights=[{"type": "point"}]), "lights[0].position: missing required key"),

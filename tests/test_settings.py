@@ -139,6 +139,12 @@ def _scene(objects: tuple, *, camera: M.Camera | None = None, **render: object) 
                     0),)),
      "objects[0].vertices[2]: must be finite"),
     (_scene(("sphere",)), "objects[0]: expected one of Sphere"),
+    (dataclasses.replace(_scene((M.Sphere((0, 0, 0), 1.0, 0),)),
+                         lights=(M.RectLight((0, 3, 0), (1, 0, 0), (-2, 0, 0)),)),
+     "lights[0].v: the light's area (|u x v|) must be in"),
+    (dataclasses.replace(_scene((M.Sphere((0, 0, 0), 1.0, 0),)),
+                         lights=(M.PointLight((0, 3, 0)), "spot")),
+     "lights[1]: expected one of PointLight, DirectionalLight, SpotLight, RectLight"),
 ])
 def test_scene_built_in_python_meets_the_file_rules(scene: M.Scene, message: str) -> None:
     with pytest.raises(SceneError) as info:
@@ -173,7 +179,16 @@ def test_check_normalises_as_the_loader_does() -> None:
 def test_round_trip_keeps_every_example_scene(path: Path) -> None:
     scene = load_scene(path)
     again = scene_from_dict(scene_to_dict(scene), path)
-    assert (again.render, again.camera, again.lights) == (scene.render, scene.camera, scene.lights)
+    assert (again.render, again.camera) == (scene.render, scene.camera)
+    assert [type(light) for light in again.lights] == [type(light) for light in scene.lights]
+    for a, b in zip(again.lights, scene.lights, strict=True):
+        for f in dataclasses.fields(b):
+            x, y = getattr(a, f.name), getattr(b, f.name)
+            if f.name in ("direction", "normal"):
+                # Loaded directions are unit already: normalising again may move one ulp.
+                np.testing.assert_allclose(x, y, rtol=0, atol=4e-16)
+            else:
+                assert x == y, f.name
     for a, b in zip(again.materials, scene.materials, strict=True):
         if b.texture is not None and b.texture.image is not None:
             # The texels travel, already linear; where they came from does not.

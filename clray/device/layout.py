@@ -18,6 +18,10 @@ PRIM_INDEX_MASK = 0x0FFFFFFF
 
 LIGHT_POINT = 0
 LIGHT_DIRECTIONAL = 1
+LIGHT_SPOT = 2
+LIGHT_RECT = 3
+LIGHT_DISC = 4
+LIGHT_SPHERE = 5
 
 TEXTURE_NONE = -1
 TEXTURE_CHECKER = 0
@@ -46,8 +50,8 @@ MATERIAL = _struct([("color", _F4), ("ambient", "<f4"), ("diffuse", "<f4"),
 TEXTURE = _struct([("color2", _F4), ("size", "<f4"), ("repeat_u", "<f4"), ("repeat_v", "<f4"),
                    ("blend", "<f4"), ("kind", "<i4"), ("texel_offset", "<i4"),
                    ("width", "<i4"), ("height", "<i4")])
-LIGHT = _struct([("position", _F4), ("color", _F4), ("attenuation", _F4), ("kind", "<i4"),
-                 *_PAD])
+LIGHT = _struct([("position", _F4), ("color", _F4), ("attenuation", _F4), ("axis_u", _F4),
+                 ("axis_v", _F4), ("kind", "<i4"), *_PAD])
 CAMERA = _struct([("position", _F4), ("forward", _F4), ("right", _F4), ("up", _F4),
                   ("world", _F4)])
 PARAMS = _struct([("background", _F4), ("ambient", _F4), ("width", "<i4"), ("height", "<i4"),

@@ -6,6 +6,7 @@ authored far from the origin keeps its precision near the eye.
 
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import dataclass
 
@@ -314,17 +315,36 @@ def _pack_materials(materials: list[M.Material]) -> tuple[np.ndarray, np.ndarray
     return records, textures, texels
 
 
-def _pack_lights(lights: list[M.PointLight | M.DirectionalLight], eye: np.ndarray) -> np.ndarray:
+def _pack_lights(lights: list[M.Light], eye: np.ndarray) -> np.ndarray:
     records = _records(L.LIGHT, len(lights))
     for i, light in enumerate(lights):
-        records[i]["color"] = _f4(light.color)
-        if isinstance(light, M.PointLight):
-            records[i]["kind"] = L.LIGHT_POINT
-            records[i]["position"] = _f4(np.asarray(light.position) - eye)
-            records[i]["attenuation"] = _f4(light.attenuation)
+        rec = records[i]
+        rec["color"] = _f4(light.color)
+        if isinstance(light, M.PointLight | M.SpotLight):
+            rec["kind"] = L.LIGHT_POINT
+            rec["position"] = _f4(np.asarray(light.position) - eye)
+            rec["attenuation"] = _f4(light.attenuation)
+            if isinstance(light, M.SpotLight):
+                inner = light.angle if light.inner_angle is None else light.inner_angle
+                rec["kind"] = L.LIGHT_SPOT
+                rec["axis_u"] = _f4(light.direction, math.cos(math.radians(light.angle)))
+                rec["axis_v"] = _f4((0.0, 0.0, 0.0), math.cos(math.radians(inner)))
+        elif isinstance(light, M.RectLight):
+            rec["kind"] = L.LIGHT_RECT
+            rec["position"] = _f4(np.asarray(light.corner) - eye)
+            rec["axis_u"], rec["axis_v"] = _f4(light.u), _f4(light.v)
+            rec["color"] = _f4(light.color, M.rect_area(light.u, light.v))
+        elif isinstance(light, M.DiscLight):
+            rec["kind"] = L.LIGHT_DISC
+            rec["position"] = _f4(np.asarray(light.center) - eye, light.radius)
+            rec["axis_u"] = _f4(light.normal)
+            rec["color"] = _f4(light.color, math.pi * light.radius**2)
+        elif isinstance(light, M.SphereLight):
+            rec["kind"] = L.LIGHT_SPHERE
+            rec["position"] = _f4(np.asarray(light.center) - eye, light.radius)
         else:
-            records[i]["kind"] = L.LIGHT_DIRECTIONAL
-            records[i]["position"] = _f4(light.direction)
+            rec["kind"] = L.LIGHT_DIRECTIONAL
+            rec["position"] = _f4(light.direction)
     return records
 
 
@@ -397,6 +417,8 @@ def pack_scene(scene: M.Scene, *, width: int, height: int, spp: int, max_depth: 
         has_textures=len(textures) > 0,
         has_transmission=any_transmit,
         has_refraction=any_transmit and max_depth > 0,
+        has_spot_lights=any(isinstance(x, M.SpotLight) for x in scene.lights),
+        has_area_lights=any(isinstance(x, M.AreaLight) for x in scene.lights),
         max_depth=max_depth if (any_reflect or any_transmit) else 0,
         bvh_width=bvh_width,
         bvh_stack_size=_stack_size_option(wide.stack_size),

@@ -45,6 +45,8 @@ class KernelConfig:
     has_textures: bool = False
     has_transmission: bool = False  # some material transmits: shadow rays filter
     has_refraction: bool = False
+    has_spot_lights: bool = False
+    has_area_lights: bool = False  # rect, disc or sphere lights: sampled per pixel sample
     max_depth: int = 0
     # The wide BVH's children per node (4 or 8) and a traversal stack deep enough for its tree
     # (clray.accel.wide), rounded up by the packer so similar trees share a build.

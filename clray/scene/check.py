@@ -104,13 +104,19 @@ def _texture(texture: M.Texture) -> dict:
     return spec
 
 
+_LIGHT_TYPES: dict[type, str] = {
+    M.PointLight: "point", M.DirectionalLight: "directional", M.SpotLight: "spot",
+    M.RectLight: "rect", M.DiscLight: "disc", M.SphereLight: "sphere",
+}
+
+
 def _light(light: M.Light, i: int) -> dict:
-    if isinstance(light, M.PointLight):
-        return {"type": "point", **_fields(light)}
-    if isinstance(light, M.DirectionalLight):
-        return {"type": "directional", **_fields(light)}
-    raise SceneError(None, f"lights[{i}]", f"expected a PointLight or DirectionalLight, got "
-                     f"{type(light).__name__}")
+    kind = _LIGHT_TYPES.get(type(light))
+    if kind is None:
+        shown = ", ".join(t.__name__ for t in _LIGHT_TYPES)
+        raise SceneError(None, f"lights[{i}]", f"expected one of {shown}, got "
+                         f"{type(light).__name__}")
+    return {"type": kind, **_fields(light)}
 
 
 def _object(obj: M.SceneObject, i: int, names: list[str]) -> dict:

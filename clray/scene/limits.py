@@ -85,6 +85,10 @@ def choice_problem(value: object, allowed: tuple) -> str | None:
 MAX_INCLUDE_DEPTH = 16  # files including files including files ...
 MAX_OBJECTS = 1_000_000
 MAX_LIGHTS = 10_000
+# Rect, disc and sphere lights' emitting area (|u x v|, pi radius^2): the kernels multiply
+# radiance by it, and a sphere light's radius squares, in float32.
+MAX_LIGHT_AREA = 1e30
+MAX_SPOT_ANGLE = 180.0  # a spot light's half-angle, degrees: below it, exclusive
 MAX_TRIANGLES = 2**24  # all meshes together, each instance counted
 MAX_BULK_SPHERES = 2**24  # all `spheres` objects together
 MAX_ARRAY_BYTES = 256 * 2**20  # a .npy/.npz file of spheres

@@ -31,18 +31,23 @@ from clray.scene.model import (
     Cone,
     Cylinder,
     DirectionalLight,
+    DiscLight,
     Light,
     Material,
     Mesh,
     Plane,
     PointLight,
+    RectLight,
     RenderOptions,
     Scene,
     SceneObject,
     Sphere,
+    SphereLight,
     Spheres,
+    SpotLight,
     Texture,
     Triangle,
+    rect_area,
     unit,
 )
 from clray.scene.obj import ObjMesh, parse_obj
@@ -83,7 +88,13 @@ _TEXTURE_KEYS = {
 _LIGHT_KEYS = {
     "point": ("type", "position", "color", "attenuation"),
     "directional": ("type", "direction", "color"),
+    "spot": ("type", "position", "direction", "angle", "inner_angle", "color", "attenuation"),
+    "rect": ("type", "corner", "u", "v", "color"),
+    "disc": ("type", "center", "normal", "radius", "color"),
+    "sphere": ("type", "center", "radius", "color"),
 }
+# Keys every light of the type must have, after `type`.
+_LIGHT_REQUIRED = {"point": 1, "directional": 1, "spot": 3, "rect": 3, "disc": 3, "sphere": 2}
 _TRANSFORM_KEYS = ("translate", "rotate", "scale", "matrix")
 # Per object type: (required keys, optional keys), besides `type`, `material` and `transform`.
 _OBJECT_KEYS: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
@@ -597,15 +608,44 @@ class _Loader:
 
     def light(self, spec: dict, key: str) -> Light:
         kind = self.kind(spec, key, _LIGHT_KEYS)
-        self.keys(spec, key, _LIGHT_KEYS[kind], _LIGHT_KEYS[kind][:2])
+        self.keys(spec, key, _LIGHT_KEYS[kind], _LIGHT_KEYS[kind][1 : 1 + _LIGHT_REQUIRED[kind]])
         color = self.color(spec.get("color", (1.0, 1.0, 1.0)), f"{key}.color")
         if kind == "directional":
             return DirectionalLight(self.direction(spec["direction"], f"{key}.direction"), color)
+        if kind in ("rect", "disc", "sphere"):
+            return self.area_light(kind, spec, key, color)
         akey = f"{key}.attenuation"
         attenuation = self.non_negative(spec.get("attenuation", (1.0, 0.0, 0.0)), akey)
         if not any(attenuation):
             raise self.error(akey, "must not be all zero")
-        return PointLight(self.vec3(spec["position"], f"{key}.position"), color, attenuation)
+        position = self.vec3(spec["position"], f"{key}.position")
+        if kind == "point":
+            return PointLight(position, color, attenuation)
+        angle = self.open_range(spec["angle"], f"{key}.angle", 0, L.MAX_SPOT_ANGLE)
+        inner = self.closed_range(spec.get("inner_angle", angle), f"{key}.inner_angle", 0, angle)
+        return SpotLight(position, self.direction(spec["direction"], f"{key}.direction"), angle,
+                         color, attenuation, inner)
+
+    def area_light(self, kind: str, spec: dict, key: str, color: Vec3) -> Light:
+        if kind == "rect":
+            corner = self.vec3(spec["corner"], f"{key}.corner")
+            u, v = self.vec3(spec["u"], f"{key}.u"), self.vec3(spec["v"], f"{key}.v")
+            self.light_area(rect_area(u, v), f"{key}.v", "|u x v|")
+            return RectLight(corner, u, v, color)
+        radius = self.length(spec["radius"], f"{key}.radius")
+        center = self.vec3(spec["center"], f"{key}.center")
+        self.light_area(math.pi * radius * radius, f"{key}.radius", "pi radius^2")
+        if kind == "disc":
+            return DiscLight(center, self.direction(spec["normal"], f"{key}.normal"), radius,
+                             color)
+        return SphereLight(center, radius, color)
+
+    def light_area(self, area: float, key: str, what: str) -> None:
+        """The kernels divide by and multiply with an emitting area: it must be a normal
+        float32 number, far from overflow."""
+        if not L.MIN_LENGTH <= area <= L.MAX_LIGHT_AREA:
+            raise self.error(key, f"the light's area ({what}) must be in [{L.MIN_LENGTH:g}, "
+                             f"{L.MAX_LIGHT_AREA:g}], got {area:.3g}")
 
     # -- objects -------------------------------------------------------------------------
 

@@ -69,7 +69,64 @@ class DirectionalLight:
     color: Vec3 = (1.0, 1.0, 1.0)
 
 
-Light = PointLight | DirectionalLight
+@dataclass(frozen=True)
+class SpotLight:
+    """A point light lighting only a cone: full inside `inner_angle`, nothing outside
+    `angle` (half-angles in degrees), smoothstep in cos between."""
+
+    position: Vec3
+    direction: Vec3  # unit; the cone's axis, the way the light travels
+    angle: float
+    color: Vec3 = (1.0, 1.0, 1.0)
+    attenuation: Vec3 = (1.0, 0.0, 0.0)  # constant, linear, quadratic
+    inner_angle: float | None = None  # None: equal to `angle`, a hard edge
+
+
+# Area lights: `color` is the emitted radiance, the same from every point and in every
+# direction the light emits in (docs/rendering.md, Lights).
+
+
+@dataclass(frozen=True)
+class RectLight:
+    """The parallelogram corner + s u + t v (s, t in [0, 1]); emits to the side of
+    cross(u, v) only."""
+
+    corner: Vec3
+    u: Vec3
+    v: Vec3
+    color: Vec3 = (1.0, 1.0, 1.0)
+
+
+def rect_area(u: Vec3, v: Vec3) -> float:
+    """|u x v|, the parallelogram's area, computed with both edges scaled to unit length first
+    so that no product underflows or overflows."""
+    nu, nv = float(np.max(np.abs(u))), float(np.max(np.abs(v)))
+    if nu == 0.0 or nv == 0.0:
+        return 0.0
+    return float(np.linalg.norm(np.cross(np.asarray(u) / nu, np.asarray(v) / nv))) * nu * nv
+
+
+@dataclass(frozen=True)
+class DiscLight:
+    """A disc that emits to the side its (unit) normal points to."""
+
+    center: Vec3
+    normal: Vec3
+    radius: float
+    color: Vec3 = (1.0, 1.0, 1.0)
+
+
+@dataclass(frozen=True)
+class SphereLight:
+    """A sphere that emits outwards from every point of its surface."""
+
+    center: Vec3
+    radius: float
+    color: Vec3 = (1.0, 1.0, 1.0)
+
+
+AreaLight = RectLight | DiscLight | SphereLight
+Light = PointLight | DirectionalLight | SpotLight | RectLight | DiscLight | SphereLight
 
 
 @dataclass(frozen=True)

@@ -27,7 +27,13 @@ ROOT = HERE.parent
 
 # Runs inside each worktree's process; only API that every compared commit has.
 _MEASURE = """
-import json, sys
+import json, os, sys
+import clray
+# The tree's kernels/ as clray.kernels (pyproject's package-dir): an editable install's finder
+# would otherwise supply the installed checkout's kernels to every tree.
+clray.__path__.append(os.getcwd())
+import clray.kernels
+assert clray.kernels.__file__.startswith(os.getcwd()), clray.kernels.__file__
 from clray.device.context import select_device
 from clray.device.pack import pack_scene
 from clray.render import render_packed

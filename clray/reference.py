@@ -123,7 +123,7 @@ def camera_rays(
         lens = lens_offsets(camera.aperture / 2.0, spp, seed, pixel, sample)
         lens = lens[:, :1] * right + lens[:, 1:] * up
         focus = _focus_distance(camera)
-        return origins + lens, _normalize(focus * aim - lens), pixel
+        return origins + lens, _normalize(aim - lens / focus), pixel
     return origins, _normalize(aim), pixel
 
 

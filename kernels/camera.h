@@ -62,8 +62,9 @@ inline void camera_ray(const __global Camera* camera, REAL2 sample, int width, i
 #if HAS_THIN_LENS
     REAL2 l = lens_sample(s, spp, seed, pixel);
     REAL3 lens = l.x * TO_REAL3(camera->lens_u) + l.y * TO_REAL3(camera->lens_v);
-    // The focus distance is positive and the lens lies across forward, so this is never zero.
-    *d = normalize(TO_REAL(camera->lens_u.w) * aim - lens);
+    // aim's component along forward is 1 and the lens lies across forward, so this is at
+    // least 1 long; the loader keeps lens / focus distance below 1e6, well inside float32.
+    *d = normalize(aim - TO_REAL(camera->lens_u.w) * lens);
     *o += lens;
 #else
     *d = normalize(aim);

@@ -328,7 +328,7 @@ def _pack_camera(camera: M.Camera, eye: np.ndarray, width: int, height: int) -> 
         if focus is None:
             focus = float(np.linalg.norm(np.subtract(camera.look_at, camera.position)))
         radius = camera.aperture / 2.0
-        record[0]["lens_u"] = _f4(right * radius, focus)
+        record[0]["lens_u"] = _f4(right * radius, 1.0 / focus)
         record[0]["lens_v"] = _f4(up * radius)
     return record
 

@@ -454,6 +454,10 @@ class _Loader:
         lens = {"aperture": self.bounded(spec.get("aperture", 0.0), "camera.aperture", 0)}
         if "focus_distance" in spec:
             lens["focus_distance"] = self.length(spec["focus_distance"], "camera.focus_distance")
+        focus = lens.get("focus_distance", float(np.linalg.norm(np.subtract(look_at, position))))
+        if lens["aperture"] > L.MAX_APERTURE_RATIO * focus:
+            raise self.error("camera.aperture", f"must be at most {L.MAX_APERTURE_RATIO:g} "
+                             f"times the focus distance ({focus:g}), got {lens['aperture']:g}")
         if kind == "orthographic":
             for name in ("vfov", "hfov"):
                 if name in spec:

@@ -15,6 +15,7 @@ from typing import NamedTuple
 import numpy as np
 
 from clray.scene.model import (
+    Background,
     Box,
     Camera,
     Cone,
@@ -130,12 +131,46 @@ def camera_rays(
     `sample_positions`; None takes the scene's setting."""
     width, height, spp, _, seed = _settings(scene, width, height, spp, None, seed)
     sx, sy, pixel = sample_positions(width, height, spp, seed)
-    forward, right, up, half_w, half_h = _camera_basis(scene.camera, width, height)
+    camera = scene.camera
+    forward, right, up, half_w, half_h = _camera_basis(camera, width, height)
     px = 2.0 * sx / width - 1.0
     py = 1.0 - 2.0 * sy / height
-    d = forward + (px * half_w)[:, None] * right + (py * half_h)[:, None] * up
-    origins = np.broadcast_to(np.asarray(scene.camera.position, dtype=np.float64), d.shape)
-    return origins.copy(), _normalize(d), pixel
+    across = (px * half_w)[:, None] * right + (py * half_h)[:, None] * up
+    eye = np.asarray(camera.position, dtype=np.float64)
+    if camera.type == "orthographic":
+        origins = eye + across
+        aim = np.broadcast_to(forward, across.shape)
+    else:
+        origins = np.broadcast_to(eye, across.shape).copy()
+        aim = forward + across
+    # aim: from the ray's origin to its point on the focus plane, per unit of focus distance.
+    if camera.aperture > 0.0:
+        sample = np.tile(np.arange(spp, dtype=np.int64), width * height)
+        lens = lens_offsets(camera.aperture / 2.0, spp, seed, pixel, sample)
+        lens = lens[:, :1] * right + lens[:, 1:] * up
+        focus = _focus_distance(camera)
+        return origins + lens, _normalize(aim - lens / focus), pixel
+    return origins, _normalize(aim), pixel
+
+
+def lens_offsets(radius: float, spp: int, seed: int, pixel: np.ndarray, sample: np.ndarray
+                 ) -> np.ndarray:
+    """(N, 2): each sample's point on the lens disc of `radius`, in (right, up) coordinates
+    (docs/rendering.md, Depth of field)."""
+    # The pixel's shift of the angular strata: r_2 of the sample index spp, which no sample uses.
+    shift_bits = (sample_uniform(seed, pixel, np.full_like(sample, spp), 2)
+                  * 2.0**24).astype(np.int64)
+    shift = (shift_bits * spp) >> 24
+    stratum = (sample + shift) % spp
+    angle = 2.0 * np.pi * (stratum + sample_uniform(seed, pixel, sample, 2)) / spp
+    rho = radius * np.sqrt(sample_uniform(seed, pixel, sample, 3))
+    return np.stack([rho * np.cos(angle), rho * np.sin(angle)], axis=-1)
+
+
+def _focus_distance(camera: Camera) -> float:
+    if camera.focus_distance is not None:
+        return camera.focus_distance
+    return float(np.linalg.norm(np.subtract(camera.look_at, camera.position)))
 
 
 def _camera_basis(camera: Camera, width: int, height: int) -> tuple[np.ndarray, ...]:
@@ -146,6 +181,10 @@ def _camera_basis(camera: Camera, width: int, height: int) -> tuple[np.ndarray, 
     forward = _normalize(np.asarray(camera.look_at, dtype=np.float64) - eye)
     right = _normalize(np.cross(forward, np.asarray(camera.up, dtype=np.float64)))
     up = np.cross(right, forward)
+    if camera.type == "orthographic":
+        if camera.width is not None:
+            return forward, right, up, camera.width / 2.0, camera.width / 2.0 * height / width
+        return forward, right, up, camera.height / 2.0 * width / height, camera.height / 2.0
     if camera.hfov is not None:
         half_w = math.tan(math.radians(camera.hfov) / 2.0)
         return forward, right, up, half_w, half_w * height / width
@@ -651,6 +690,73 @@ def _surface_color(
 
 
 # ---------------------------------------------------------------------------------------------
+# Fresnel and background
+
+
+def fresnel_polarised(eta: np.ndarray, cos_i: np.ndarray, cos_t: np.ndarray
+                      ) -> tuple[np.ndarray, np.ndarray]:
+    """(R_s, R_p): the dielectric reflectances of s- and p-polarised light going from IOR n1
+    to n2, eta = n1 / n2, at incidence cosine cos_i and refraction cosine cos_t (both >= 0).
+    Grazing with cos_i = cos_t = 0 (eta = 1 exactly) is the limit, 1."""
+    eta, cos_i, cos_t = np.broadcast_arrays(*(np.asarray(a, dtype=np.float64)
+                                              for a in (eta, cos_i, cos_t)))
+    ds, dp = eta * cos_i + cos_t, cos_i + eta * cos_t
+    with np.errstate(divide="ignore", invalid="ignore"):
+        rs = np.where(ds > 0.0, (eta * cos_i - cos_t) / ds, 1.0)
+        rp = np.where(dp > 0.0, (cos_i - eta * cos_t) / dp, 1.0)
+    return rs * rs, rp * rp
+
+
+def fresnel_exact(eta: np.ndarray, cos_i: np.ndarray, cos_t: np.ndarray) -> np.ndarray:
+    """Unpolarised dielectric reflectance (R_s + R_p) / 2."""
+    r_s, r_p = fresnel_polarised(eta, cos_i, cos_t)
+    return 0.5 * (r_s + r_p)
+
+
+def fresnel_schlick(eta: np.ndarray, cos_i: np.ndarray, cos_t: np.ndarray) -> np.ndarray:
+    """Schlick's approximation R0 + (1 - R0)(1 - c)^5, c the cosine on the less dense side."""
+    eta = np.asarray(eta, dtype=np.float64)
+    r0 = ((1.0 - eta) / (1.0 + eta)) ** 2
+    c = np.where(eta > 1.0, cos_t, cos_i)
+    return r0 + (1.0 - r0) * (1.0 - c) ** 5
+
+
+def equirect_uv(d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(u, v) of unit directions in the environment image: u = 0.5 looks along -z, u grows
+    towards +x; v = 1 straight up."""
+    u = 0.5 + np.arctan2(d[:, 0], -d[:, 2]) / (2.0 * np.pi)
+    v = 0.5 + np.arcsin(np.clip(d[:, 1], -1.0, 1.0)) / np.pi
+    return u, v
+
+
+def sample_environment(image: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Bilinear lookup of an equirectangular (H, W, 3) image: wrapping across u, rows clamped
+    at the poles (row 0 at v = 1)."""
+    texels = np.asarray(image, dtype=np.float64)
+    height, width = texels.shape[:2]
+    s = (u - np.floor(u)) * width - 0.5
+    t = np.clip((1.0 - v) * height - 0.5, 0.0, height - 1.0)
+    x0, y0 = np.floor(s), np.floor(t)
+    fx, fy = (s - x0)[:, None], (t - y0)[:, None]
+    x0, y0 = x0.astype(np.int64) % width, y0.astype(np.int64)
+    x1, y1 = (x0 + 1) % width, np.minimum(y0 + 1, height - 1)
+    return ((1 - fx) * (1 - fy) * texels[y0, x0] + fx * (1 - fy) * texels[y0, x1]
+            + (1 - fx) * fy * texels[y1, x0] + fx * fy * texels[y1, x1])
+
+
+def background_radiance(background: tuple[float, float, float] | Background, d: np.ndarray
+                        ) -> np.ndarray:
+    """(N, 3): what rays of unit directions d that hit nothing see."""
+    if not isinstance(background, Background):
+        return np.broadcast_to(_vec(background), d.shape)
+    d = _normalize(d)
+    if background.kind == "gradient":
+        t = np.clip(0.5 * (d[:, 1:2] + 1.0), 0.0, 1.0)
+        return (1.0 - t) * _vec(background.bottom) + t * _vec(background.top)
+    return sample_environment(background.image, *equirect_uv(d))
+
+
+# ---------------------------------------------------------------------------------------------
 # Tracing
 
 
@@ -780,6 +886,7 @@ def trace(
     origins: np.ndarray,
     directions: np.ndarray,
     max_depth: int | None = None,
+    schlick: bool = False,
     *,
     pixel: np.ndarray | None = None,
     sample: np.ndarray | None = None,
@@ -787,6 +894,7 @@ def trace(
     seed: int | None = None,
 ) -> np.ndarray:
     """(N, 3) radiance along each ray (depth 0, starting in air), per docs/rendering.md.
+    `schlick`: Fresnel materials use Schlick's approximation (the kernels' study variant).
     `pixel`, `sample` (per ray), `spp` and `seed` pick area lights' samples; by default ray i
     is sample 0 of 1 of pixel i."""
     max_depth = scene.render.max_depth if max_depth is None else max_depth
@@ -794,7 +902,8 @@ def trace(
     min_weight = scene.render.min_weight
     geo = _Geometry(scene)
     mats = _MaterialTable(scene.materials)
-    background = _vec(scene.render.background)
+    background = scene.render.background
+    fresnel = np.array([m.fresnel for m in scene.materials], dtype=bool)
     scene_ambient = _vec(scene.render.ambient)
 
     o = np.asarray(origins, dtype=np.float64).reshape(-1, 3)
@@ -812,7 +921,8 @@ def trace(
     while len(o):
         hit = geo.closest(o, d)
         miss = ~np.isfinite(hit.t)
-        np.add.at(radiance, owner[miss], weight[miss, None] * background)
+        np.add.at(radiance, owner[miss],
+                  weight[miss, None] * background_radiance(background, d[miss]))
         h = ~miss
         o, d, owner, weight, depth, stack, count = (
             a[h] for a in (o, d, owner, weight, depth, stack, count)
@@ -891,6 +1001,11 @@ def trace(
         k = 1.0 - eta * eta * (1.0 - cos_i * cos_i)
         tir = k < 0.0
         kr = kr + np.where(tir, kt, 0.0)  # total internal reflection: transmit joins reflect
+        split = fresnel[m] & ~tir
+        if split.any():
+            f_of = fresnel_schlick if schlick else fresnel_exact
+            f = np.where(split, f_of(eta, cos_i, np.sqrt(np.maximum(k, 0.0))), 0.0)
+            kr, kt = kr + f * kt, (1.0 - f) * kt
         # Rays fainter than min_weight are not traced, as in the kernels.
         refl = go_on & (kr > 0.0) & (weight * kr >= min_weight)
         refr = go_on & (kt > 0.0) & ~tir & (weight * kt >= min_weight)
@@ -916,13 +1031,15 @@ def render_reference(
     spp: int | None = None,
     max_depth: int | None = None,
     seed: int | None = None,
+    schlick: bool = False,
 ) -> np.ndarray:
-    """(H, W, 3) float64 linear RGB: the mean of each pixel's samples. None = the scene's value."""
+    """(H, W, 3) float64 linear RGB: the mean of each pixel's samples. None = the scene's value;
+    `schlick` as for `trace`."""
     width, height, spp, max_depth, seed = _settings(scene, width, height, spp, max_depth, seed)
     origins, directions, pixel = camera_rays(scene, width, height, spp, seed)
     sample = np.tile(np.arange(spp, dtype=np.int64), width * height)
-    radiance = trace(scene, origins, directions, max_depth, pixel=pixel, sample=sample, spp=spp,
-                     seed=seed)
+    radiance = trace(scene, origins, directions, max_depth, schlick, pixel=pixel, sample=sample,
+                     spp=spp, seed=seed)
     image = np.zeros((width * height, 3))
     np.add.at(image, pixel, radiance)
     return (image / spp).reshape(height, width, 3)

@@ -56,6 +56,9 @@ VARIANTS: tuple[Variant, ...] = (
     Variant("Moller-Trumbore triangles", switches=(("triangle_moller_trumbore", True),)),
     Variant("no fp64 sphere path", switches=(("fp64_spheres", False),),
             note="flagged spheres intersected in float32 too"),
+    Variant("Schlick Fresnel", switches=(("fresnel_schlick", True),),
+            note="Schlick's approximation in materials with fresnel = true: a model change, "
+                 "so it differs from the reference by more than rounding"),
 )
 
 # A variant fails a scene when any pixel is non-finite or more pixels than this differ from the

@@ -24,4 +24,52 @@ inline REAL3 camera_direction(const __global Camera* camera, REAL2 sample, int w
     return normalize(d);
 }
 
+#if HAS_THIN_LENS || HAS_ORTHOGRAPHIC
+#if HAS_THIN_LENS
+// Sample s's point on the lens disc, in (right, up) coordinates times the lens radius: spp
+// angular strata, taken in an order shifted per pixel (by r_2 of the sample index spp, which no
+// sample uses) so that a sample's stratum does not follow its cell in the pixel, with the
+// angle jittered in the stratum by r_2 and the radius sqrt(r_3) (uniform over the disc).
+inline REAL2 lens_sample(int s, int spp, uint seed, uint pixel) {
+    // Integer arithmetic on the 24 bits of r_2, so the shift is the reference's exactly.
+    uint bits = (uint)(rng_uniform(seed, pixel, (uint)spp, 2u) * (REAL)16777216);
+    int shift = (int)(((ulong)bits * (ulong)spp) >> 24);
+    int stratum = (s + shift) % spp;
+    REAL angle = (REAL)2 * PI_R * ((REAL)stratum + rng_uniform(seed, pixel, (uint)s, 2u)) /
+                 (REAL)spp;
+    REAL rho = sqrt(rng_uniform(seed, pixel, (uint)s, 3u));
+    return (REAL2)(rho * cos(angle), rho * sin(angle));
+}
+#endif
+
+// The camera ray of sample s at image point `sample` (pixel units): from the eye (a
+// perspective camera) or from the image point on the view plane (orthographic), then, with a
+// lens, from a point of the lens towards the same point of the focus plane.
+inline void camera_ray(const __global Camera* camera, REAL2 sample, int width, int height,
+                       int s, int spp, uint seed, uint pixel, REAL3* o, REAL3* d) {
+    REAL px = (REAL)2 * sample.x / (REAL)width - (REAL)1;
+    REAL py = (REAL)1 - (REAL)2 * sample.y / (REAL)height;
+    REAL3 across = px * TO_REAL3(camera->right) + py * TO_REAL3(camera->up);
+    // aim: from the origin to the ray's point on the focus plane, per unit of focus distance
+    // (its component along forward is 1).
+#if HAS_ORTHOGRAPHIC
+    *o = TO_REAL3(camera->position) + across;
+    REAL3 aim = TO_REAL3(camera->forward);
+#else
+    *o = TO_REAL3(camera->position);
+    REAL3 aim = TO_REAL3(camera->forward) + across;
+#endif
+#if HAS_THIN_LENS
+    REAL2 l = lens_sample(s, spp, seed, pixel);
+    REAL3 lens = l.x * TO_REAL3(camera->lens_u) + l.y * TO_REAL3(camera->lens_v);
+    // aim's component along forward is 1 and the lens lies across forward, so this is at
+    // least 1 long; the loader keeps lens / focus distance below 1e6, well inside float32.
+    *d = normalize(aim - TO_REAL(camera->lens_u.w) * lens);
+    *o += lens;
+#else
+    *d = normalize(aim);
+#endif
+}
+#endif
+
 #endif

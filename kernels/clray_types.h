@@ -79,6 +79,8 @@ typedef struct {
     float ambient, diffuse, specular, shininess;
     float reflect, transmit, ior;
     int texture;  // index into the texture array, or TEXTURE_NONE
+    int fresnel;  // 1: transmit is split by the Fresnel reflectance (HAS_FRESNEL builds)
+    int pad0, pad1, pad2;
 } Material;
 
 typedef struct {
@@ -108,16 +110,24 @@ typedef struct {
     float4 right;     // unit right times half the image-plane width at distance 1
     float4 up;        // unit up times half the image-plane height at distance 1
     float4 world;     // the packed frame's origin in world space: solid textures need world p
+    // Thin lens (HAS_THIN_LENS): unit right and up times the lens radius; w of lens_u is one
+    // over the focus distance. Orthographic cameras (HAS_ORTHOGRAPHIC) read right and up as the view's
+    // half extents in world units.
+    float4 lens_u;
+    float4 lens_v;
 } Camera;
 
 typedef struct {
-    float4 background;
+    float4 background;  // the colour, or the gradient's bottom (straight down)
     float4 ambient;  // the scene's global ambient light colour
     int width, height, spp, max_depth;
     uint seed;
     int n_planes, n_lights, bvh_root_count;  // bvh_root_count: 0 when the BVH is empty
     float min_weight;  // secondary rays of a smaller weight (largest channel) are not traced
-    int pad0, pad1, pad2;
+    // The equirectangular environment (HAS_BACKGROUND_IMAGE): its first texel in the texel
+    // array and its size.
+    int background_texels, background_width, background_height;
+    float4 background_top;  // the gradient's colour straight up (HAS_BACKGROUND_GRADIENT)
 } Params;
 
 // A wide BVH node (clray/accel/wide.py): up to BVH_WIDTH (4 or 8, a build option) children with

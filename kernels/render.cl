@@ -2,9 +2,10 @@
 //
 // Build switches (all from clray/device/program.py's KernelConfig): HAS_PLANES, HAS_SPHERES,
 // HAS_BOXES, HAS_CYLINDERS, HAS_CONES, HAS_TRIANGLES, HAS_VERTEX_NORMALS, HAS_VERTEX_UVS,
-// HAS_TEXTURES, HAS_TRANSMISSION, HAS_REFRACTION (0 or 1), MAX_DEPTH, BVH_WIDTH, BVH_STACK_SIZE,
+// HAS_TEXTURES, HAS_TRANSMISSION, HAS_REFRACTION, HAS_FRESNEL, HAS_THIN_LENS, HAS_ORTHOGRAPHIC,
+// HAS_BACKGROUND_GRADIENT, HAS_BACKGROUND_IMAGE (0 or 1), MAX_DEPTH, BVH_WIDTH, BVH_STACK_SIZE,
 // USE_DOUBLE, the study variants SPHERE_TEXTBOOK, OFFSET_FIXED_EPS, TRIANGLE_NO_FP64_FALLBACK,
-// TRIANGLE_MOLLER_TRUMBORE; FP64_SPHERES (the packer's per-scene fp64 path for spheres float32
+// TRIANGLE_MOLLER_TRUMBORE, FRESNEL_SCHLICK; FP64_SPHERES (the packer's per-scene fp64 path for spheres float32
 // cannot intersect); COUNT_TESTS (the instrumented build: box and primitive tests per pixel).
 // HAS_SPOT_LIGHTS, HAS_AREA_LIGHTS (0 or 1): the scene has spot lights, area lights.
 #include "real.h"
@@ -27,6 +28,8 @@
 #include "bvh.h"
 #include "texture.h"
 #include "shading.h"
+#include "fresnel.h"
+#include "background.h"
 
 // One node of the ray tree, waiting on the explicit stack (OpenCL C has no recursion).
 typedef struct {
@@ -154,8 +157,13 @@ __kernel void render(__global const Camera* camera, __global const Params* param
         REAL2 pos = sample_position(x, y, sample, spp, params->seed, pixel);
         RayTask stack[RAY_STACK_SIZE];
         int sp = 0;
+#if HAS_THIN_LENS || HAS_ORTHOGRAPHIC
+        camera_ray(camera, pos, width, height, sample, spp, params->seed, pixel, &stack[0].o,
+                   &stack[0].d);
+#else
         stack[0].o = TO_REAL3(camera->position);
         stack[0].d = camera_direction(camera, pos, width, height);
+#endif
         stack[0].weight = (REAL3)(1, 1, 1);
         stack[0].depth = 0;
         stack[0].media_count = 0;
@@ -165,7 +173,11 @@ __kernel void render(__global const Camera* camera, __global const Params* param
             Ray ray = make_ray(task.o, task.d);
             Hit hit = closest_hit(&s, &ray);
             if (!(hit.t < REAL_INF)) {
+#if HAS_BACKGROUND_GRADIENT || HAS_BACKGROUND_IMAGE
+                sum += task.weight * background_radiance(params, texels, task.d);
+#else
                 sum += task.weight * background;
+#endif
                 continue;
             }
             Surface sf =
@@ -190,6 +202,13 @@ __kernel void render(__global const Camera* camera, __global const Params* param
                     if (k < (REAL)0) {
                         kr += kt;  // total internal reflection
                     } else {
+#if HAS_FRESNEL
+                        if (m->fresnel) {
+                            REAL f = fresnel_reflectance(eta, cos_i, sqrt(k));
+                            kr += f * kt;
+                            kt *= (REAL)1 - f;
+                        }
+#endif
                         next.d = normalize(eta * ray.d + (eta * cos_i - sqrt(k)) * n);
                         secondary_rays += spawn(stack, &sp, &next, &sf, task.weight * kt,
                                                 task.depth, params->min_weight);

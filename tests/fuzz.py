@@ -61,7 +61,8 @@ STRINGS = [
     "", "a", "sphere", "plane", "box", "triangle", "mesh", "cylinder", "cone", "checker",
     "image", "point", "directional", "m", "x\ny", "a" * 300, "../../nowhere", "/dev/zero",
     "t.png", "t16.png", "m.obj", "loop.obj", "fifo.obj", "dir", "bomb.png", "\u2028", "a\x00b",
-    "clray: error: fake", "é", "tab\tname", "\udc80x",
+    "clray: error: fake", "é", "tab\tname", "\udc80x", "gradient", "orthographic",
+    "perspective",
 ]
 # Arrays nested this deep, written out as brackets by scene_text: as Python lists they would
 # exhaust the recursion of this module's own writers.
@@ -75,6 +76,7 @@ KEYS = [
     "color2", "blend", "file", "repeat", "attenuation", "direction", "center", "radius", "point",
     "normal", "min", "max", "vertices", "faces", "transform", "scale", "rotate", "translate",
     "base", "axis", "angle", "capped", "material", "apex", "", "x\ny", "a.b", "objects[0]",
+    "aperture", "focus_distance", "fresnel", "bottom", "top",
 ]
 
 
@@ -115,11 +117,20 @@ def base_scene(rng: random.Random) -> dict:
     rng.shuffle(objects)
     return {
         "render": {"width": 8, "height": 6, "spp": 1, "max_depth": 3,
-                   "background": [0.1, 0.1, 0.2], "ambient": [0.2, 0.2, 0.2], "seed": 1,
+                   "background": rng.choice([
+                       [0.1, 0.1, 0.2],
+                       {"type": "gradient", "bottom": [0.2, 0.1, 0], "top": [0.1, 0.2, 0.9]},
+                       {"type": "image", "file": "t.png"}]),
+                   "ambient": [0.2, 0.2, 0.2], "seed": 1,
                    "linear": False, "exposure": 0.5, "png_bits": 8},
-        "camera": {"position": [0, 2, 6], "look_at": [0, 0, 0], "up": [0, 1, 0], "vfov": 40},
+        "camera": rng.choice([
+            {"position": [0, 2, 6], "look_at": [0, 0, 0], "up": [0, 1, 0], "vfov": 40},
+            {"position": [0, 2, 6], "look_at": [0, 0, 0], "vfov": 40, "aperture": 0.2,
+             "focus_distance": 5},
+            {"position": [0, 2, 6], "look_at": [0, 0, 0], "type": "orthographic", "height": 4}]),
         "materials": {
-            "glass": {"transmit": 0.9, "reflect": 0.1, "ior": 1.5, "specular": 0.5},
+            "glass": {"transmit": 0.9, "reflect": 0.1, "ior": 1.5, "specular": 0.5,
+                      "fresnel": rng.random() < 0.5},
             "mirror": {"reflect": 0.8, "color": [0.9, 0.9, 0.9]},
             "floor": {"texture": {"type": "checker", "size": 0.5, "color2": [0, 0, 0]}},
             "tex": {"texture": {"type": "image", "file": rng.choice(["t.png", "t16.png"]),

@@ -58,6 +58,9 @@ CLI = "tests/test_cli.py"
 STUDY = "tests/test_study.py"
 DEVICE = "tests/test_device_fixture.py"
 LIGHTS = "tests/test_area_lights.py"
+CAMERA = "tests/test_camera.py"
+FRESNEL = "tests/test_fresnel.py"
+BACKGROUND = "tests/test_background.py"
 # The kernel-vs-reference scenes and the closed forms, without test_render.py's slower checks.
 KERNEL_SCENES = (f"{RENDER}::test_kernel_matches_reference",
                  f"{RENDER}::test_plane_under_directional_light_is_uniform",
@@ -91,6 +94,32 @@ MUTATIONS: tuple[Mutation, ...] = (
     m("camera.px_over_height", "kernels/camera.h",
       "REAL px = (REAL)2 * sample.x / (REAL)width", "REAL px = (REAL)2 * sample.x / (REAL)height",
       *KERNEL_SCENES),
+    m("camera.lens_radius_linear", "kernels/camera.h",
+      "REAL rho = sqrt(rng_uniform(seed, pixel, (uint)s, 3u));",
+      "REAL rho = rng_uniform(seed, pixel, (uint)s, 3u);", CAMERA),
+    m("camera.lens_strata_unshifted", "kernels/camera.h", "int stratum = (s + shift) % spp;",
+      "int stratum = s % spp;", CAMERA),
+    m("camera.lens_aim_unscaled", "kernels/camera.h",
+      "*d = normalize(aim - TO_REAL(camera->lens_u.w) * lens);", "*d = normalize(aim - lens);",
+      CAMERA),
+    m("camera.orthographic_rays_spread", "kernels/camera.h",
+      "REAL3 aim = TO_REAL3(camera->forward);\n#else",
+      "REAL3 aim = TO_REAL3(camera->forward) + across;\n#else", CAMERA),
+    # kernels/fresnel.h and its use
+    m("fresnel.p_as_s", "kernels/fresnel.h", "rp = (cos_i - eta * cos_t) / dp",
+      "rp = (eta * cos_i - cos_t) / ds", FRESNEL),
+    m("fresnel.transmit_kept_whole", "kernels/render.cl", "kt *= (REAL)1 - f;", "", FRESNEL),
+    m("fresnel.schlick_incident_cosine_always", "kernels/fresnel.h",
+      "(eta > (REAL)1 ? cos_t : cos_i)", "cos_i", FRESNEL),
+    # kernels/background.h
+    m("background.gradient_upside_down", "kernels/background.h",
+      "mix(TO_REAL3(params->background), TO_REAL3(params->background_top), t)",
+      "mix(TO_REAL3(params->background_top), TO_REAL3(params->background), t)", BACKGROUND),
+    m("background.panorama_mirrored", "kernels/background.h", "atan2(u.x, -u.z)",
+      "atan2(-u.x, -u.z)", BACKGROUND),
+    m("background.panorama_poles_unclamped", "kernels/background.h",
+      "clamp(((REAL)1 - ev) * (REAL)h - (REAL)0.5, (REAL)0, (REAL)(h - 1))",
+      "((REAL)1 - ev) * (REAL)h - (REAL)0.5", BACKGROUND),
     # kernels/rng.h
     m("rng.23_bits", "kernels/rng.h", "(REAL)(key >> 8)", "(REAL)(key >> 9)", *KERNEL_SCENES),
     m("rng.counter_without_stride", "kernels/rng.h", "^ (4u * sample + dim)", "^ (sample + dim)",

@@ -46,18 +46,20 @@ CONE = _struct([("apex_tan", _F4), ("axis_height", _F4), ("material", "<i4"),
 TRIANGLE = _struct([("v0", "<i4"), ("v1", "<i4"), ("v2", "<i4"), ("material", "<i4")])
 MATERIAL = _struct([("color", _F4), ("ambient", "<f4"), ("diffuse", "<f4"),
                     ("specular", "<f4"), ("shininess", "<f4"), ("reflect", "<f4"),
-                    ("transmit", "<f4"), ("ior", "<f4"), ("texture", "<i4")])
+                    ("transmit", "<f4"), ("ior", "<f4"), ("texture", "<i4"), ("fresnel", "<i4"),
+                    *_PAD])
 TEXTURE = _struct([("color2", _F4), ("size", "<f4"), ("repeat_u", "<f4"), ("repeat_v", "<f4"),
                    ("blend", "<f4"), ("kind", "<i4"), ("texel_offset", "<i4"),
                    ("width", "<i4"), ("height", "<i4")])
 LIGHT = _struct([("position", _F4), ("color", _F4), ("attenuation", _F4), ("axis_u", _F4),
                  ("axis_v", _F4), ("kind", "<i4"), *_PAD])
 CAMERA = _struct([("position", _F4), ("forward", _F4), ("right", _F4), ("up", _F4),
-                  ("world", _F4)])
+                  ("world", _F4), ("lens_u", _F4), ("lens_v", _F4)])
 PARAMS = _struct([("background", _F4), ("ambient", _F4), ("width", "<i4"), ("height", "<i4"),
                   ("spp", "<i4"), ("max_depth", "<i4"), ("seed", "<u4"), ("n_planes", "<i4"),
                   ("n_lights", "<i4"), ("bvh_root_count", "<i4"), ("min_weight", "<f4"),
-                  *_PAD])
+                  ("background_texels", "<i4"), ("background_width", "<i4"),
+                  ("background_height", "<i4"), ("background_top", _F4)])
 # The binary tree the builder makes (host only; clray/accel/bvh.py). The kernels walk the wide
 # tree that clray/accel/wide.py collapses it into.
 BVH_NODE = _struct([("lo", ("<f4", (3,))), ("first", "<i4"), ("hi", ("<f4", (3,))),

@@ -289,6 +289,7 @@ def _pack_materials(materials: list[M.Material]) -> tuple[np.ndarray, np.ndarray
         for key in ("ambient", "diffuse", "specular", "shininess", "reflect", "transmit", "ior"):
             rec[key] = getattr(m, key)
         rec["texture"] = L.TEXTURE_NONE
+        rec["fresnel"] = int(m.fresnel)
         if m.texture is None:
             continue
         tex = np.zeros((), dtype=L.TEXTURE)
@@ -356,7 +357,33 @@ def _pack_camera(camera: M.Camera, eye: np.ndarray, width: int, height: int) -> 
     record[0]["right"] = _f4(right * half_w)
     record[0]["up"] = _f4(up * half_h)
     record[0]["world"] = _f4(eye)
+    if camera.aperture > 0:
+        focus = camera.focus_distance
+        if focus is None:
+            focus = float(np.linalg.norm(np.subtract(camera.look_at, camera.position)))
+        radius = camera.aperture / 2.0
+        record[0]["lens_u"] = _f4(right * radius, 1.0 / focus)
+        record[0]["lens_v"] = _f4(up * radius)
     return record
+
+
+def _pack_background(background: M.Vec3 | M.Background, params: np.ndarray,
+                     texels: np.ndarray) -> np.ndarray:
+    """Fill the params' background fields; the texels with an environment image appended."""
+    p = params[0]
+    if not isinstance(background, M.Background):
+        p["background"] = _f4(background)
+        return texels
+    if background.kind == "gradient":
+        p["background"] = _f4(background.bottom)
+        p["background_top"] = _f4(background.top)
+        return texels
+    img = np.asarray(background.image, dtype=np.float32)
+    rgba = np.zeros((img.shape[0] * img.shape[1], 4), dtype=np.float32)
+    rgba[:, :3] = img.reshape(-1, 3)
+    p["background_texels"] = len(texels)
+    p["background_height"], p["background_width"] = img.shape[:2]
+    return np.concatenate([texels, rgba])
 
 
 def _stack_size_option(stack_size: int) -> int:
@@ -396,7 +423,7 @@ def pack_scene(scene: M.Scene, *, width: int, height: int, spp: int, max_depth: 
 
     params = np.zeros(1, dtype=L.PARAMS)
     p = params[0]
-    p["background"] = _f4(scene.render.background)
+    texels = _pack_background(scene.render.background, params, texels)
     p["ambient"] = _f4(scene.render.ambient)
     p["width"], p["height"], p["spp"], p["max_depth"] = width, height, spp, max_depth
     p["seed"], p["min_weight"] = seed, min_weight
@@ -405,6 +432,8 @@ def pack_scene(scene: M.Scene, *, width: int, height: int, spp: int, max_depth: 
 
     any_reflect = any(m.reflect > 0 for m in scene.materials)
     any_transmit = any(m.transmit > 0 for m in scene.materials)
+    background = scene.render.background
+    background_kind = background.kind if isinstance(background, M.Background) else None
     config = KernelConfig(
         has_planes=len(planes) > 0,
         has_spheres=len(spheres) > 0,
@@ -419,6 +448,11 @@ def pack_scene(scene: M.Scene, *, width: int, height: int, spp: int, max_depth: 
         has_refraction=any_transmit and max_depth > 0,
         has_spot_lights=any(isinstance(x, M.SpotLight) for x in scene.lights),
         has_area_lights=any(isinstance(x, M.AreaLight) for x in scene.lights),
+        has_fresnel=max_depth > 0 and any(m.fresnel and m.transmit > 0 for m in scene.materials),
+        has_thin_lens=scene.camera.aperture > 0,
+        has_orthographic=scene.camera.type == "orthographic",
+        has_background_gradient=background_kind == "gradient",
+        has_background_image=background_kind == "image",
         max_depth=max_depth if (any_reflect or any_transmit) else 0,
         bvh_width=bvh_width,
         bvh_stack_size=_stack_size_option(wide.stack_size),

@@ -47,6 +47,11 @@ class KernelConfig:
     has_refraction: bool = False
     has_spot_lights: bool = False
     has_area_lights: bool = False  # rect, disc or sphere lights: sampled per pixel sample
+    has_fresnel: bool = False  # some transmissive material splits by Fresnel
+    has_thin_lens: bool = False  # camera aperture > 0
+    has_orthographic: bool = False
+    has_background_gradient: bool = False
+    has_background_image: bool = False
     max_depth: int = 0
     # The wide BVH's children per node (4 or 8) and a traversal stack deep enough for its tree
     # (clray.accel.wide), rounded up by the packer so similar trees share a build.
@@ -58,6 +63,7 @@ class KernelConfig:
     offset_fixed_eps: bool = False
     triangle_no_fp64_fallback: bool = False
     triangle_moller_trumbore: bool = False
+    fresnel_schlick: bool = False  # Schlick's approximation for Fresnel materials
     # Set by the packer from clray.scene.scale, not a study variant: spheres in double.
     fp64_spheres: bool = False
     # The instrumented build: render_packed then reports box and primitive tests.

@@ -38,9 +38,12 @@ def check_scene(scene: M.Scene) -> M.Scene:
 def scene_to_dict(scene: M.Scene) -> dict:
     """The scene in the scene file's form (docs/scene_format.md), as scene_from_dict takes it."""
     names = _material_names(scene.materials)
+    render = {f.name: _plain(getattr(scene.render, f.name))
+              for f in dataclasses.fields(M.RenderOptions)}
+    if isinstance(scene.render.background, M.Background):
+        render["background"] = _background(scene.render.background)
     return {
-        "render": {f.name: _plain(getattr(scene.render, f.name))
-                   for f in dataclasses.fields(M.RenderOptions)},
+        "render": render,
         "camera": _camera(scene.camera),
         "materials": {name: _material(m) for name, m in zip(names, scene.materials, strict=True)},
         "lights": [_light(light, i) for i, light in enumerate(scene.lights)],
@@ -108,6 +111,20 @@ _LIGHT_TYPES: dict[type, str] = {
     M.PointLight: "point", M.DirectionalLight: "directional", M.SpotLight: "spot",
     M.RectLight: "rect", M.DiscLight: "disc", M.SphereLight: "sphere",
 }
+
+
+def _background(background: M.Background) -> dict:
+    if background.kind == "gradient":
+        return {"type": "gradient", "bottom": _plain(background.bottom),
+                "top": _plain(background.top)}
+    spec: dict = {"type": background.kind}
+    if background.image is not None:
+        spec["texels"] = background.image  # already linear: what the file decoded to
+    elif background.file is not None:
+        spec["file"] = str(background.file)
+        if background.colorspace is not None:
+            spec["colorspace"] = background.colorspace
+    return spec
 
 
 def _light(light: M.Light, i: int) -> dict:

@@ -24,6 +24,10 @@ MAX_SHININESS = 1e6
 # shadow ray crosses: above 1 the product has no bound.
 MAX_BOUNCE_WEIGHT = 1.0
 IOR_RANGE = (0.01, 100.0)
+# A thin lens's aperture over its focus distance: the kernels aim each lens ray along
+# aim - lens / focus_distance, which this keeps well inside float32 (an f-number of 1e-6,
+# far beyond any lens).
+MAX_APERTURE_RATIO = 1e6
 
 MAX_IMAGE_SIZE = 16384  # output width and height
 MAX_SPP = 4096

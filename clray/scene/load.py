@@ -26,6 +26,7 @@ from clray.scene import limits as L
 from clray.scene.files import UnreadableFile, open_regular, read_at_most, read_regular
 from clray.scene.include import expand_includes
 from clray.scene.model import (
+    Background,
     Box,
     Camera,
     Cone,
@@ -69,7 +70,13 @@ _RENDER_KEYS = (
     "width", "height", "spp", "max_depth", "background", "ambient", "seed", "min_weight",
     "linear", "exposure", "png_bits",
 )
-_CAMERA_KEYS = ("position", "look_at", "up", "vfov", "hfov")
+_CAMERA_KEYS = ("position", "look_at", "up", "vfov", "hfov", "type", "width", "height",
+                "aperture", "focus_distance")
+_CAMERA_TYPES = ("perspective", "orthographic")
+_BACKGROUND_KEYS = {
+    "gradient": ("type", "bottom", "top"),
+    "image": ("type", "file", "texels", "colorspace"),
+}
 _MATERIAL_KEYS = (
     "color",
     "ambient",
@@ -80,6 +87,7 @@ _MATERIAL_KEYS = (
     "transmit",
     "ior",
     "texture",
+    "fresnel",
 )
 _TEXTURE_KEYS = {
     "checker": ("type", "size", "color2", "blend"),
@@ -430,10 +438,37 @@ class _Loader:
                    for name, allowed in L.RENDER_CHOICES.items()}
         return RenderOptions(
             **values,
-            background=self.color(given("background"), "render.background"),
+            background=self.background(given("background"), "render.background"),
             ambient=self.color(given("ambient"), "render.ambient"),
             linear=self.boolean(given("linear"), "render.linear"),
         )
+
+    def background(self, value: Any, key: str) -> Vec3 | Background:
+        """A plain colour, or a gradient or environment image table."""
+        if not isinstance(value, dict):
+            return self.color(value, key)
+        kind = self.kind(value, key, _BACKGROUND_KEYS)
+        required = _BACKGROUND_KEYS[kind] if kind == "gradient" else ("type",)
+        self.keys(value, key, _BACKGROUND_KEYS[kind], required)
+        if kind == "gradient":
+            return Background(kind, bottom=self.color(value["bottom"], f"{key}.bottom"),
+                              top=self.color(value["top"], f"{key}.top"))
+        if "file" in value and "texels" in value:
+            raise self.error(key, "give file or texels, not both")
+        if "texels" in value:
+            if "colorspace" in value:
+                raise self.error(f"{key}.colorspace", "texels are linear: give no colorspace")
+            return Background(kind, image=self.texels(value["texels"], f"{key}.texels"))
+        if "file" not in value:
+            raise self.error(f"{key}.file", "missing required key")
+        fkey = f"{key}.file"
+        file = self.base / self.string(value["file"], fkey)
+        texels, deep = self.image(value["file"], fkey)
+        colorspace = self.choice(value.get("colorspace", "linear" if deep else "srgb"),
+                                 f"{key}.colorspace", COLORSPACES)
+        if colorspace == "srgb":
+            texels = self.decoded(texels)
+        return Background(kind, file=file, colorspace=colorspace, image=texels)
 
     def camera(self, spec: dict) -> Camera:
         self.keys(spec, "camera", _CAMERA_KEYS, ("position", "look_at"))
@@ -450,6 +485,32 @@ class _Loader:
         forward = unit(np.subtract(look_at, position))
         if np.linalg.norm(np.cross(forward, unit(up))) <= 1e-9:
             raise self.error("camera.up", "must not be parallel to the view direction")
+        kind = self.choice(spec.get("type", "perspective"), "camera.type", _CAMERA_TYPES)
+        lens = {"aperture": self.bounded(spec.get("aperture", 0.0), "camera.aperture", 0)}
+        if "focus_distance" in spec:
+            lens["focus_distance"] = self.length(spec["focus_distance"], "camera.focus_distance")
+        focus = lens.get("focus_distance", float(np.linalg.norm(np.subtract(look_at, position))))
+        if lens["aperture"] > L.MAX_APERTURE_RATIO * focus:
+            raise self.error("camera.aperture", f"must be at most {L.MAX_APERTURE_RATIO:g} "
+                             f"times the focus distance ({focus:g}), got {lens['aperture']:g}")
+        if kind == "orthographic":
+            for name in ("vfov", "hfov"):
+                if name in spec:
+                    raise self.error(f"camera.{name}", "an orthographic camera has no field of "
+                                     "view: give width or height")
+            if "width" in spec and "height" in spec:
+                raise self.error("camera", "give width or height, not both")
+            if "width" not in spec and "height" not in spec:
+                raise self.error("camera.height", "missing required key (an orthographic "
+                                 "camera needs width or height)")
+            extent = {name: self.length(spec[name], f"camera.{name}")
+                      for name in ("width", "height") if name in spec}
+            return Camera(position, look_at, up, vfov=None, hfov=None, type=kind, **extent,
+                          **lens)
+        for name in ("width", "height"):
+            if name in spec:
+                raise self.error(f"camera.{name}", 'only with type = "orthographic" (a '
+                                 "perspective camera takes vfov or hfov)")
         if "vfov" in spec and "hfov" in spec:
             raise self.error("camera", "give vfov or hfov, not both")
         if "hfov" in spec:
@@ -459,9 +520,10 @@ class _Loader:
                 up,
                 vfov=None,
                 hfov=self.open_range(spec["hfov"], "camera.hfov", 0, 180),
+                **lens,
             )
         vfov = self.open_range(spec.get("vfov", 40.0), "camera.vfov", 0, 180)
-        return Camera(position, look_at, up, vfov=vfov, hfov=None)
+        return Camera(position, look_at, up, vfov=vfov, hfov=None, **lens)
 
     def material(self, spec: dict, key: str, name: str) -> Material:
         self.keys(spec, key, _MATERIAL_KEYS, ())
@@ -475,6 +537,13 @@ class _Loader:
             tkey = f"{key}.texture"
             texture = self.texture(self.table(spec["texture"], tkey), tkey)
         low_ior, high_ior = L.IOR_RANGE
+        fresnel = self.boolean(spec.get("fresnel", d.fresnel), f"{key}.fresnel")
+        reflect = coefficient("reflect", L.MAX_BOUNCE_WEIGHT)
+        transmit = coefficient("transmit", L.MAX_BOUNCE_WEIGHT)
+        # With Fresnel, reflect + transmit leave the surface in all (docs/rendering.md).
+        if fresnel and reflect + transmit > L.MAX_BOUNCE_WEIGHT:
+            raise self.error(f"{key}.fresnel", f"needs reflect + transmit <= "
+                             f"{L.MAX_BOUNCE_WEIGHT:g}, got {reflect:g} + {transmit:g}")
         return Material(
             name=name,
             color=self.color(spec.get("color", d.color), f"{key}.color"),
@@ -482,10 +551,11 @@ class _Loader:
             diffuse=coefficient("diffuse", L.MAX_WEIGHT),
             specular=coefficient("specular", L.MAX_WEIGHT),
             shininess=coefficient("shininess", L.MAX_SHININESS),
-            reflect=coefficient("reflect", L.MAX_BOUNCE_WEIGHT),
-            transmit=coefficient("transmit", L.MAX_BOUNCE_WEIGHT),
+            reflect=reflect,
+            transmit=transmit,
             ior=self.bounded(spec.get("ior", d.ior), f"{key}.ior", low_ior, high_ior),
             texture=texture,
+            fresnel=fresnel,
         )
 
     def texture(self, spec: dict, key: str) -> Texture:

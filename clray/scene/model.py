@@ -54,6 +54,9 @@ class Material:
     transmit: float = 0.0
     ior: float = 1.5
     texture: Texture | None = None
+    # Split `transmit` between the refracted and reflected rays by the dielectric Fresnel
+    # reflectance instead of the fixed weights (docs/rendering.md, Fresnel).
+    fresnel: bool = False
 
 
 @dataclass(frozen=True)
@@ -134,17 +137,28 @@ class Camera:
     position: Vec3
     look_at: Vec3
     up: Vec3 = (0.0, 1.0, 0.0)
-    vfov: float | None = 40.0  # degrees; exactly one of vfov and hfov is set
+    vfov: float | None = 40.0  # degrees; a perspective camera sets exactly one of vfov, hfov
     hfov: float | None = None
+    type: str = "perspective"  # "perspective" | "orthographic"
+    # Orthographic: the view's extent in world units, exactly one of the two set.
+    width: float | None = None
+    height: float | None = None
+    aperture: float = 0.0  # thin-lens diameter, world units; 0 is a pinhole
+    focus_distance: float | None = None  # along the view direction; None: to look_at
 
     def basis(self, width: int, height: int) -> tuple[np.ndarray, ...]:
         """(forward, right, up, half_w, half_h): unit vectors and image-plane half extents at
-        distance 1. right = normalize(cross(forward, up)), as docs/rendering.md fixes it."""
+        distance 1 (orthographic: the view's half extents in world units). right =
+        normalize(cross(forward, up)), as docs/rendering.md fixes it."""
         eye = np.asarray(self.position, dtype=np.float64)
         forward = unit(np.asarray(self.look_at, dtype=np.float64) - eye)
         right = unit(np.cross(forward, unit(self.up)))
         true_up = np.cross(right, forward)
         aspect = width / height
+        if self.type == "orthographic":
+            if self.width is not None:
+                return forward, right, true_up, self.width / 2.0, self.width / 2.0 / aspect
+            return forward, right, true_up, self.height / 2.0 * aspect, self.height / 2.0
         if self.hfov is not None:
             half_w = np.tan(np.radians(self.hfov) / 2.0)
             half_h = half_w / aspect
@@ -155,12 +169,25 @@ class Camera:
 
 
 @dataclass(frozen=True)
+class Background:
+    """What rays that miss see beyond a plain colour (docs/rendering.md, Background)."""
+
+    kind: str  # "gradient" | "image"
+    bottom: Vec3 = (0.0, 0.0, 0.0)  # gradient: straight down
+    top: Vec3 = (1.0, 1.0, 1.0)  # gradient: straight up
+    file: Path | None = None
+    colorspace: str | None = None  # as Texture.colorspace
+    # (H, W, 3) float32 linear texels, equirectangular, row 0 at the top (straight up).
+    image: np.ndarray | None = field(default=None, compare=False, repr=False)
+
+
+@dataclass(frozen=True)
 class RenderOptions:
     width: int = 640
     height: int = 480
     spp: int = 1
     max_depth: int = 4
-    background: Vec3 = (0.0, 0.0, 0.0)
+    background: Vec3 | Background = (0.0, 0.0, 0.0)
     ambient: Vec3 = (1.0, 1.0, 1.0)
     seed: int = 0
     min_weight: float = 0.0  # secondary rays of a smaller weight are not traced

@@ -72,16 +72,17 @@ def frames_in(frames: range, animation: Animation) -> range:
 
 
 def frame_path(pattern: Path, frame: int) -> Path:
-    return Path(str(pattern) % frame)
+    """The file of `frame`: `pattern` with its printf-style number filled in; a name without
+    one (a single frame) as it is."""
+    try:
+        return Path(str(pattern) % frame)
+    except (TypeError, ValueError):
+        return pattern
 
 
 def check_pattern(pattern: Path, n_frames: int) -> None:
     """Each frame needs a file of its own: a printf-style frame number (`frame_%04d.png`)."""
-    try:
-        distinct = str(pattern) % 0 != str(pattern) % 1
-    except (TypeError, ValueError):
-        distinct = False
-    if not distinct and n_frames > 1:
+    if n_frames > 1 and frame_path(pattern, 0) == frame_path(pattern, 1):
         raise SettingsError(f"-o {pattern}: several frames need a frame number in the name, "
                             "such as out/frame_%04d.png")
 

@@ -28,6 +28,7 @@ import numpy as np
 
 from clray.animation import Sequence
 from clray.device.context import describe, select_device
+from clray.device.pack import PackedScene
 from clray.errors import ClrayError
 from clray.render import (
     RenderResult,
@@ -97,7 +98,7 @@ def connect(address: str | None, workers: int = LOCAL_WORKERS,
 
 # One packed scene per worker process, for the scene it is rendering now: the tiles of one
 # image share it, and a long-lived worker does not keep every scene it was ever sent.
-_packed: dict[tuple, tuple[Any, float]] = {}
+_packed: dict[tuple, PackedScene] = {}
 # A worker started with several threads would run tiles at once on one device, sharing its
 # queue and program cache; the device is busy either way, so they take turns.
 _device_lock = threading.Lock()
@@ -109,17 +110,17 @@ def _render_tile(scene: Scene, scene_key: str, settings: RenderSettings, start: 
     with _device_lock:
         device = select_device(settings.device)
         key = (scene_key, settings, describe(device))
-        if key not in _packed:
+        packs = key not in _packed
+        if packs:
             _packed.clear()
             pack_started = time.perf_counter()
-            _packed[key] = (pack_for(scene, settings, device), time.perf_counter() - pack_started)
-            pack_s = _packed[key][1]
-        else:
-            pack_s = 0.0
-        packed = _packed[key][0]
+            _packed[key] = pack_for(scene, settings, device)
+            pack_s = time.perf_counter() - pack_started
+        packed = _packed[key]
         image, stats = render_packed(packed, device, rows=(start, stop))
-    return {"start": start, "rows": stop - start, "image": image, "stats": stats, "pack_s": pack_s,
-            "bvh_s": packed.bvh_s if pack_s else 0.0, "device": describe(device),
+    return {"start": start, "rows": stop - start, "image": image, "stats": stats,
+            "packed": packs, "pack_s": pack_s if packs else 0.0,
+            "bvh_s": packed.bvh_s if packs else 0.0, "device": describe(device),
             "worker": f"{socket.gethostname()}:{os.getpid()}",
             "task_s": time.perf_counter() - started}
 
@@ -220,6 +221,8 @@ def render_still(client: Client, scene: Scene, settings: RenderSettings | None =
         "result_bytes": image.nbytes,
         "task_s": sum(t["task_s"] for t in tiles),
         "tiles_by_worker": by_worker,
+        # Tiles that packed the scene (BVH, buffers): one a worker, the rest reuse it.
+        "packs": sum(t["packed"] for t in tiles),
     }
     stats["total_s"] = time.perf_counter() - started
     return RenderResult(image, stats, encoding)

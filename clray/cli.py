@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import functools
 import json
 import os
 import secrets
@@ -226,6 +227,13 @@ def _build_parser() -> _Parser:
     st.add_argument("-H", "--height", type=size, metavar="N",
                     help="image height for every scene (default: each scene's own)")
     st.add_argument("--device", metavar="SPEC", help="OpenCL device, as for render")
+    st.add_argument("--dask", nargs="?", const="", metavar="ADDRESS",
+                    help="render on a Dask cluster, one task a scene (each scene's variants on "
+                         "one worker, so that their times compare), as for render")
+    st.add_argument("--dask-workers", type=_int_in(1, 256), metavar="N",
+                    help="worker processes of the local cluster (default: 2)")
+    st.add_argument("--dask-timeout", type=_number_in(0.1, 3600), default=10.0, metavar="S",
+                    help="seconds to wait for the scheduler (default: 10)")
     st.add_argument("-q", "--quiet", action="store_true", help="print nothing on success")
     st.set_defaults(run=_study)
 
@@ -239,6 +247,8 @@ def _build_parser() -> _Parser:
 def _parse(argv: list[str] | None) -> argparse.Namespace:
     parser = _build_parser()
     args = parser.parse_args(argv)
+    if args.command in ("render", "study") and args.dask and args.dask_workers is not None:
+        parser.error("--dask-workers applies to a local cluster (--dask without ADDRESS)")
     if args.command == "render":
         if args.output is None:
             args.output = Path(args.scene.stem + ("_%04d" if args.frames else "") + ".png")
@@ -246,8 +256,6 @@ def _parse(argv: list[str] | None) -> argparse.Namespace:
             parser.error("--frames writes files: give -o and --stats-json file names")
         if args.resume and args.frames is None:
             parser.error("--resume applies to --frames")
-        if args.dask and args.dask_workers is not None:
-            parser.error("--dask-workers applies to a local cluster (--dask without ADDRESS)")
         if args.stats_json == STDOUT and args.output == STDOUT:
             parser.error("-o - and --stats-json - would both write to standard output")
         if args.stats_json is not None and _same_file(args.stats_json, args.output):
@@ -596,9 +604,17 @@ def _study(args: argparse.Namespace) -> int:
 
     if args.out.exists() and not args.out.is_dir():
         raise ClrayError(f"--out {args.out} exists and is not a directory")
-    records = run_study(args.scenes, args.out, repeat=args.repeat, width=args.width,
-                        height=args.height, device=args.device,
-                        say=(lambda _: None) if args.quiet else _say)
+    study = functools.partial(run_study, args.scenes, args.out, repeat=args.repeat,
+                              width=args.width, height=args.height, device=args.device,
+                              say=(lambda _: None) if args.quiet else _say)
+    if args.dask is None:
+        records = study()
+    else:
+        from clray.distributed import import_distributed, study_scenes
+
+        import_distributed()
+        with _cluster(args) as client:
+            records = study(run_scenes=functools.partial(study_scenes, client))
     if not args.quiet:
         failed = sum(r["status"] == "FAIL" for r in records)
         _say(f"wrote {args.out / 'report.md'} ({len(records)} renders, {failed} failing)")

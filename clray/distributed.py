@@ -21,10 +21,13 @@ import pickle
 import socket
 import threading
 import time
+import warnings
 from collections.abc import Callable, Iterable, Iterator
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
+import pyopencl as cl
 
 from clray.animation import Sequence
 from clray.device.context import describe, select_device
@@ -40,7 +43,9 @@ from clray.render import (
     render_packed,
 )
 from clray.scene.check import check_scene
+from clray.scene.load import load_scene
 from clray.scene.model import Scene
+from clray.study import study_scene
 
 if TYPE_CHECKING:
     from distributed import Client
@@ -195,11 +200,11 @@ def render_still(client: Client, scene: Scene, settings: RenderSettings | None =
         rows_done += tile["rows"]
         if settings.progress is not None:
             settings.progress(rows_done * row_samples, height * row_samples)
-        if tile_rows is None and len(tiles) == submitted and next_row < height:
-            # Every probe is in: size the remaining tiles by the rate they measured.
-            rows_probed = sum(t["rows"] for t in tiles)
-            kernel_s = sum(t["stats"]["kernel_s"] for t in tiles)
-            size = tile_rows_for(rows_probed / kernel_s if kernel_s > 0 else 0.0,
+        if tile_rows is None and len(tiles) == 1 and next_row < height:
+            # The first probe sizes the remaining tiles by its device's rate; waiting for the
+            # other probes would leave their workers idle for a round trip.
+            kernel_s = tile["stats"]["kernel_s"]
+            size = tile_rows_for(tile["rows"] / kernel_s if kernel_s > 0 else 0.0,
                                  height - next_row, workers)
             rest = [submit(size) for _ in range(math.ceil((height - next_row) / size))]
             submitted += len(rest)
@@ -275,3 +280,34 @@ def render_sequence(client: Client, sequence: Sequence, frames: Iterable[int],
     return {"scheduler": client.scheduler.address, "workers": workers, "frames": len(tasks),
             "scene_bytes": nbytes, "bytes_sent": nbytes * workers,
             "result_bytes": result_bytes, "task_s": task_s, "frames_by_worker": by_worker}
+
+
+def _study_scene(scene: Scene, path: str, variants: tuple, repeat: int,
+                 base: RenderSettings) -> list[dict]:
+    with _device_lock, warnings.catch_warnings():
+        warnings.simplefilter("ignore", cl.CompilerWarning)
+        records = study_scene(Path(path), variants, repeat, base, scene=scene)
+    worker = f"{socket.gethostname()}:{os.getpid()}"
+    device = describe(select_device(base.device))
+    return [{**r, "worker": worker, "device": device} for r in records]
+
+
+def study_scenes(client: Client, paths: Iterable[Path], variants: Iterable, repeat: int,
+                 base: RenderSettings, say: Callable[[str], None] = lambda _: None
+                 ) -> list[dict]:
+    """clray study's renders on the cluster, one task a scene: all the variants of a scene run
+    on one worker, one after another, so that their times compare (times from different
+    workers do not). The scenes are loaded here and sent with their tasks; the records come
+    back in the order of `paths`, each naming its worker and device."""
+    paths = list(paths)
+    variants = tuple(variants)
+    tasks = [client.submit(_study_scene, load_scene(p), str(p), variants, repeat, base,
+                           pure=False) for p in paths]
+    by_path: dict[int, list[dict]] = {}
+    index = {t.key: i for i, t in enumerate(tasks)}
+    for task, records in import_distributed().as_completed(tasks, with_results=True):
+        by_path[index[task.key]] = records
+        for r in records:
+            say(f"{r['scene']}: {r['variant']}: {r['kernel_s_median'] * 1e3:.3g} ms, rmse "
+                f"{r['rmse']}, {r['status']} (on {r['worker']})")
+    return [r for i in range(len(paths)) for r in by_path[i]]

@@ -3,6 +3,7 @@ on local clusters of 1 and 2 worker processes; per-task overhead and bytes moved
 
     python benchmarks/bench_dask.py [--json benchmarks/results/dask.json]
                                     [-W 3840] [-H 2160] [--spp 16] [--frames 12]
+                                    [--anim-width 1280] [--anim-height 720] [--anim-spp 4]
 
 Every configuration renders once untimed first (PoCL compiles the kernel in each new worker
 process), then is timed by wall clock on the client, as a user waits for it. Measures only:
@@ -127,8 +128,8 @@ def main() -> None:
     parser.add_argument("-H", "--height", type=int, default=2160)
     parser.add_argument("--spp", type=int, default=16)
     parser.add_argument("--frames", type=int, default=12)
-    parser.add_argument("--anim-width", type=int, default=640)
-    parser.add_argument("--anim-height", type=int, default=360)
+    parser.add_argument("--anim-width", type=int, default=1280)
+    parser.add_argument("--anim-height", type=int, default=720)
     parser.add_argument("--anim-spp", type=int, default=4)
     args = parser.parse_args()
     record = {

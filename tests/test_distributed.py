@@ -178,3 +178,25 @@ def test_unreachable_scheduler_is_one_line_in_time(tmp_path):
     assert len(lines) == 1, done.stderr
     assert lines[0].startswith(f"clray: error: cannot connect to the Dask scheduler at "
                                f"tcp://127.0.0.1:{port}")
+
+
+@needs_dask
+def test_study_keeps_each_scene_on_one_worker(cl_device, client, tmp_path):
+    import functools
+
+    from clray.distributed import study_scenes
+    from clray.study import DEFAULT, REFERENCE, run_study
+
+    scenes = [SPHERES, ROOT / "scenes" / "glass.toml"]
+    records = run_study(scenes, tmp_path, repeat=1, width=24, height=16,
+                        device=os.environ["CLRAY_DEVICE"], variants=(REFERENCE, DEFAULT),
+                        run_scenes=functools.partial(study_scenes, client))
+    assert [(r["scene"], r["variant"]) for r in records] == [
+        (s.stem, v.name) for s in scenes for v in (REFERENCE, DEFAULT)]
+    for stem in ("spheres", "glass"):
+        assert len({r["worker"] for r in records if r["scene"] == stem}) == 1
+    # The same numbers as a study in this process: the double build is its own reference.
+    assert all(r["rmse"] == 0 for r in records if r["variant"] == REFERENCE.name)
+    report = (tmp_path / "report.md").read_text()
+    assert "each scene's variants all on one worker" in report
+    assert f"on worker {records[0]['worker']}" in report

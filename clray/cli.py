@@ -326,6 +326,10 @@ class _ProgressLines:
     def __init__(self) -> None:
         self.shown = 0
         self.started = 0.0
+        self.tiles = ""
+
+    def note_tiles(self, done: int, submitted: int) -> None:
+        self.tiles = f", {done} of {submitted} tiles"
 
     def __call__(self, done: int, total: int) -> None:
         if done == 0:
@@ -335,7 +339,7 @@ class _ProgressLines:
             self.shown = tenth
             elapsed = time.perf_counter() - self.started
             left = elapsed * (total - done) / done
-            _say(f"rendering: {10 * tenth}% ({done:,} of {total:,} pixel-samples, "
+            _say(f"rendering: {10 * tenth}% ({done:,} of {total:,} pixel-samples{self.tiles}, "
                  f"{elapsed:.1f} s, {left:.1f} s left)")
 
 
@@ -351,6 +355,11 @@ class _ProgressBar:
             self.bar = tqdm(total=total, desc="clray: rendering", unit="samples",
                             unit_scale=True, file=sys.stderr, leave=False, dynamic_ncols=True)
         self.bar.update(done - self.bar.n)
+
+    def note_tiles(self, done: int, submitted: int) -> None:
+        # A distributed render's tiles, as they arrive from the cluster's workers.
+        if self.bar is not None:
+            self.bar.set_postfix_str(f"{done}/{submitted} tiles")
 
     def close(self) -> None:
         if self.bar is not None:
@@ -473,7 +482,8 @@ def _render(args: argparse.Namespace) -> int:
                 from clray.distributed import render_still
 
                 with _cluster(args) as client:
-                    result = render_still(client, scene, settings)
+                    result = render_still(client, scene, settings, on_tile=getattr(
+                        progress, "note_tiles", None))
 
     write_started = time.perf_counter()
     if output == STDOUT:

@@ -5,6 +5,7 @@ the missing-Dask message run."""
 
 from __future__ import annotations
 
+import importlib.util
 import logging
 import os
 import signal
@@ -26,7 +27,7 @@ ROOT = Path(__file__).resolve().parent.parent
 SPHERES = ROOT / "scenes" / "spheres.toml"
 
 needs_dask = pytest.mark.skipif(
-    subprocess.run([sys.executable, "-c", "import distributed"], capture_output=True).returncode,
+    importlib.util.find_spec("distributed") is None,
     reason="Dask distributed is not installed (pip install 'clray[dask]')")
 
 

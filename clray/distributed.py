@@ -80,7 +80,7 @@ def connect(address: str | None, workers: int = LOCAL_WORKERS,
     distributed = import_distributed()
     if address is None:
         with distributed.LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                                      dashboard_address=None, silence_logs=logging.ERROR
+                                      dashboard_address=":0", silence_logs=logging.ERROR
                                       ) as cluster, distributed.Client(cluster) as client:
             yield client
         return

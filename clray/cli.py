@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import functools
 import json
 import os
 import secrets
@@ -36,7 +37,7 @@ from clray.image_io import (
     write_bytes_atomically,
 )
 from clray.metrics import nonfinite_count
-from clray.render import RenderSettings, render
+from clray.render import RenderResult, RenderSettings, render
 from clray.scene import limits
 from clray.scene.load import load_scene
 
@@ -126,6 +127,15 @@ def _choice_in(allowed: tuple[int, ...]) -> Callable[[str], int]:
     return parse
 
 
+def _frames(text: str) -> range:
+    from clray.animation import parse_frames
+
+    try:
+        return parse_frames(text)
+    except ValueError as err:
+        raise argparse.ArgumentTypeError(str(err).removeprefix("--frames: ")) from None
+
+
 def _build_parser() -> _Parser:
     parser = _Parser(prog="clray", description="Whitted ray tracer running as OpenCL kernels.")
     parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
@@ -181,6 +191,22 @@ def _build_parser() -> _Parser:
                       help="print progress lines where stderr is not a terminal (a terminal "
                            "always gets a progress bar), compiler warnings and a table of "
                            "timings, ray counts and device memory")
+    cluster = r.add_argument_group("animation and Dask (docs/rendering.md)")
+    cluster.add_argument("--frames", type=_frames, metavar="A:B",
+                         help="render frames A to B-1 of the scene's [animation] ('A:' to the "
+                              "last, 'N' one frame) to -o with a frame number, e.g. "
+                              "-o out/frame_%%04d.png (default: SCENE's stem + _%%04d.png)")
+    cluster.add_argument("--resume", action="store_true",
+                         help="with --frames: skip frames whose file exists (files are written "
+                              "whole or not at all)")
+    cluster.add_argument("--dask", nargs="?", const="", metavar="ADDRESS",
+                         help="render on a Dask cluster: a still in tiles, frames one task "
+                              "each; at ADDRESS (tcp://host:8786), else on a local cluster of "
+                              "--dask-workers processes. Needs pip install 'clray[dask]'")
+    cluster.add_argument("--dask-workers", type=_int_in(1, 256), metavar="N",
+                         help="worker processes of the local cluster (default: 2)")
+    cluster.add_argument("--dask-timeout", type=_number_in(0.1, 3600), default=10.0,
+                         metavar="S", help="seconds to wait for the scheduler (default: 10)")
     r.set_defaults(run=_render)
 
     st = commands.add_parser(
@@ -200,6 +226,13 @@ def _build_parser() -> _Parser:
     st.add_argument("-H", "--height", type=size, metavar="N",
                     help="image height for every scene (default: each scene's own)")
     st.add_argument("--device", metavar="SPEC", help="OpenCL device, as for render")
+    st.add_argument("--dask", nargs="?", const="", metavar="ADDRESS",
+                    help="render on a Dask cluster, one task a scene (each scene's variants on "
+                         "one worker, so that their times compare), as for render")
+    st.add_argument("--dask-workers", type=_int_in(1, 256), metavar="N",
+                    help="worker processes of the local cluster (default: 2)")
+    st.add_argument("--dask-timeout", type=_number_in(0.1, 3600), default=10.0, metavar="S",
+                    help="seconds to wait for the scheduler (default: 10)")
     st.add_argument("-q", "--quiet", action="store_true", help="print nothing on success")
     st.set_defaults(run=_study)
 
@@ -213,9 +246,15 @@ def _build_parser() -> _Parser:
 def _parse(argv: list[str] | None) -> argparse.Namespace:
     parser = _build_parser()
     args = parser.parse_args(argv)
+    if args.command in ("render", "study") and args.dask and args.dask_workers is not None:
+        parser.error("--dask-workers applies to a local cluster (--dask without ADDRESS)")
     if args.command == "render":
         if args.output is None:
-            args.output = Path(args.scene.stem + ".png")
+            args.output = Path(args.scene.stem + ("_%04d" if args.frames else "") + ".png")
+        if args.frames is not None and STDOUT in (args.output, args.stats_json):
+            parser.error("--frames writes files: give -o and --stats-json file names")
+        if args.resume and args.frames is None:
+            parser.error("--resume applies to --frames")
         if args.stats_json == STDOUT and args.output == STDOUT:
             parser.error("-o - and --stats-json - would both write to standard output")
         if args.stats_json is not None and _same_file(args.stats_json, args.output):
@@ -286,6 +325,10 @@ class _ProgressLines:
     def __init__(self) -> None:
         self.shown = 0
         self.started = 0.0
+        self.tiles = ""
+
+    def note_tiles(self, done: int, submitted: int) -> None:
+        self.tiles = f", {done} of {submitted} tiles"
 
     def __call__(self, done: int, total: int) -> None:
         if done == 0:
@@ -295,7 +338,7 @@ class _ProgressLines:
             self.shown = tenth
             elapsed = time.perf_counter() - self.started
             left = elapsed * (total - done) / done
-            _say(f"rendering: {10 * tenth}% ({done:,} of {total:,} pixel-samples, "
+            _say(f"rendering: {10 * tenth}% ({done:,} of {total:,} pixel-samples{self.tiles}, "
                  f"{elapsed:.1f} s, {left:.1f} s left)")
 
 
@@ -315,6 +358,11 @@ class _ProgressBar:
             self.bar = tqdm(total=total, desc="clray: rendering", unit="samples",
                             unit_scale=True, file=sys.stderr, leave=False, dynamic_ncols=True)
         self.bar.update(done - self.bar.n)
+
+    def note_tiles(self, done: int, submitted: int) -> None:
+        # A distributed render's tiles, as they arrive from the cluster's workers.
+        if self.bar is not None:
+            self.bar.set_postfix_str(f"{done}/{submitted} tiles")
 
     def close(self) -> None:
         if self.bar is not None:
@@ -416,6 +464,13 @@ def _render(args: argparse.Namespace) -> int:
     if args.stats_json not in (None, STDOUT):
         _check_writable(args.stats_json)
 
+    if args.dask is not None:
+        from clray.distributed import import_distributed
+
+        import_distributed()  # before any work: says how to install Dask where it is missing
+    if args.frames is not None:
+        return _render_frames(args, started)
+
     with _warnings_as_lines(quiet=args.quiet, verbose=args.verbose):
         scene = load_scene(args.scene)
         load_s = time.perf_counter() - started
@@ -423,12 +478,15 @@ def _render(args: argparse.Namespace) -> int:
             for warning in scene.warnings:
                 _say(f"warning: {warning}")
         with _progress(quiet=args.quiet, verbose=args.verbose) as progress:
-            settings = RenderSettings(
-                width=args.width, height=args.height, spp=args.spp, max_depth=args.max_depth,
-                seed=args.seed, min_weight=args.min_weight, device=args.device,
-                precision=args.precision, progress=progress, linear=args.linear,
-                exposure=args.exposure, png_bits=args.png_bits)
-            result = render(scene, settings)
+            settings = _settings(args, progress)
+            if args.dask is None:
+                result = render(scene, settings)
+            else:
+                from clray.distributed import render_still
+
+                with _cluster(args) as client:
+                    result = render_still(client, scene, settings, on_tile=getattr(
+                        progress, "note_tiles", None))
 
     write_started = time.perf_counter()
     if output == STDOUT:
@@ -464,8 +522,93 @@ def _render(args: argparse.Namespace) -> int:
         for line in _stats_table(stats):
             print(line, file=sys.stderr)
     if not args.quiet:
+        if "dask" in stats:
+            _say_dask(stats["dask"], "tiles")
         _say(f"wrote {output} ({width}x{height}, {stats['spp']} spp, "
              f"wall {stats['total_s']:.3g} s, kernel {stats['kernel_s']:.3g} s)")
+    return EXIT_OK
+
+
+def _settings(args: argparse.Namespace, progress: Callable[[int, int], None] | None
+              ) -> RenderSettings:
+    return RenderSettings(
+        width=args.width, height=args.height, spp=args.spp, max_depth=args.max_depth,
+        seed=args.seed, min_weight=args.min_weight, device=args.device,
+        precision=args.precision, progress=progress, linear=args.linear,
+        exposure=args.exposure, png_bits=args.png_bits)
+
+
+def _cluster(args: argparse.Namespace) -> contextlib.AbstractContextManager:
+    from clray.distributed import LOCAL_WORKERS, connect
+
+    return connect(args.dask or None, workers=args.dask_workers or LOCAL_WORKERS,
+                   timeout=args.dask_timeout)
+
+
+def _say_dask(stats: dict, unit: str) -> None:
+    _say(f"dask: {stats[unit]} {unit} on {stats['workers']} workers at {stats['scheduler']}, "
+         f"scene {_size(stats['scene_bytes'])} sent to each ({_size(stats['bytes_sent'])}), "
+         f"{_size(stats['result_bytes'])} of images back")
+
+
+def _render_frames(args: argparse.Namespace, started: float) -> int:
+    """--frames: each frame of the scene's [animation] to its own file, skipping those that
+    exist with --resume; locally one after another, or one Dask task each."""
+    from clray.animation import (
+        check_pattern,
+        frame_path,
+        frames_in,
+        frames_to_render,
+        load_sequence,
+        render_frames,
+    )
+
+    with _warnings_as_lines(quiet=args.quiet, verbose=args.verbose):
+        sequence = load_sequence(args.scene)
+        frames = frames_in(args.frames, sequence.animation)
+        check_pattern(args.output, len(frames))
+        _check_writable(frame_path(args.output, frames[0]))
+        todo = frames_to_render(frames, args.output, args.resume)
+        first = sequence.scene(frames[0])
+        if not args.quiet:
+            for warning in first.warnings:
+                _say(f"warning: {warning}")
+        records: list[dict] = []
+        with _progress(quiet=args.quiet, verbose=args.verbose) as progress:
+            settings = _settings(args, None)
+            samples = ((args.width or first.render.width) * (args.height or first.render.height)
+                       * (args.spp or first.render.spp))
+            if progress is not None:
+                progress(0, len(todo) * samples)
+
+            def done(frame: int, result: RenderResult) -> None:
+                path = frame_path(args.output, frame)
+                _write(path, lambda: result.save(path))
+                records.append({"frame": frame, "output": str(path), **result.stats})
+                if progress is not None:
+                    progress(len(records) * samples, len(todo) * samples)
+
+            if args.dask is None:
+                dask_stats = None
+                render_frames(sequence, todo, settings, done)
+            else:
+                from clray.distributed import render_sequence
+
+                with _cluster(args) as client:
+                    dask_stats = render_sequence(client, sequence, todo, settings, done)
+    stats = {"scene": str(args.scene), "frames": sorted(records, key=lambda r: r["frame"]),
+             "skipped": len(frames) - len(todo), "total_s": time.perf_counter() - started}
+    if dask_stats is not None:
+        stats["dask"] = dask_stats
+    if args.stats_json is not None:
+        text = json.dumps(stats, indent=2, default=str) + "\n"
+        _write(args.stats_json, lambda: write_bytes_atomically(args.stats_json, text.encode()))
+    if not args.quiet:
+        if dask_stats is not None:
+            _say_dask(dask_stats, "frames")
+        skipped = f", {stats['skipped']} complete already" if stats["skipped"] else ""
+        _say(f"wrote {len(records)} frames of {frames.start}-{frames.stop - 1} to "
+             f"{args.output}{skipped} (wall {stats['total_s']:.3g} s)")
     return EXIT_OK
 
 
@@ -474,9 +617,17 @@ def _study(args: argparse.Namespace) -> int:
 
     if args.out.exists() and not args.out.is_dir():
         raise ClrayError(f"--out {args.out} exists and is not a directory")
-    records = run_study(args.scenes, args.out, repeat=args.repeat, width=args.width,
-                        height=args.height, device=args.device,
-                        say=(lambda _: None) if args.quiet else _say)
+    study = functools.partial(run_study, args.scenes, args.out, repeat=args.repeat,
+                              width=args.width, height=args.height, device=args.device,
+                              say=(lambda _: None) if args.quiet else _say)
+    if args.dask is None:
+        records = study()
+    else:
+        from clray.distributed import import_distributed, study_scenes
+
+        import_distributed()
+        with _cluster(args) as client:
+            records = study(run_scenes=functools.partial(study_scenes, client))
     if not args.quiet:
         failed = sum(r["status"] == "FAIL" for r in records)
         _say(f"wrote {args.out / 'report.md'} ({len(records)} renders, {failed} failing)")

@@ -169,15 +169,19 @@ def _group_width(kernel: cl.Kernel, device: cl.Device) -> int:
 
 
 def render_packed(packed: PackedScene, device: cl.Device,
-                  progress: Callable[[int, int], None] | None = None
-                  ) -> tuple[np.ndarray, dict]:
-    """Launch the kernel over a packed scene: (image, stats without load/pack times)."""
+                  progress: Callable[[int, int], None] | None = None,
+                  rows: tuple[int, int] | None = None) -> tuple[np.ndarray, dict]:
+    """Launch the kernel over a packed scene: (image, stats without load/pack times). With
+    `rows` = (start, stop), only those rows of the image (a tile of a distributed render): the
+    same values, bit for bit, as those rows of the whole image."""
     capacity = band_capacity(packed, device.global_mem_size, device.max_mem_alloc_size)
     program, build_s = build_program(device, packed.config)
     queue = queue_for(device)
     ctx = queue.context
     params = packed.params[0]
-    width, height, spp = int(params["width"]), int(params["height"]), int(params["spp"])
+    width, spp = int(params["width"]), int(params["spp"])
+    first, end = rows if rows is not None else (0, int(params["height"]))
+    height = end - first
     try:
         buffers = [_buffer(ctx, getattr(packed, name)) for name in (
             "camera", "params", "planes", "spheres", "boxes", "cylinders", "cones",
@@ -205,7 +209,7 @@ def render_packed(packed: PackedScene, device: cl.Device,
         kernel_s, launches, row0, band, band_s = 0.0, 0, 0, 0, 0.0
         while row0 < height:
             band = min(capacity, next_band_rows(row_samples, band, band_s, height - row0))
-            kernel.set_args(*buffers, image_buf, counts_buf, tests_buf, np.int32(row0))
+            kernel.set_args(*buffers, image_buf, counts_buf, tests_buf, np.int32(first + row0))
             event = cl.enqueue_nd_range_kernel(queue, kernel, (padded_width, band),
                                                (group_width, 1))
             event.wait()
@@ -245,6 +249,15 @@ def render_packed(packed: PackedScene, device: cl.Device,
     return image, stats
 
 
+def pack_for(scene: Scene, settings: RenderSettings, device: cl.Device) -> PackedScene:
+    """The checked `scene` packed for `device` with `settings`: what render() launches, and
+    what each worker of a distributed render packs once for all its tiles."""
+    return pack_scene(scene, precision=settings.precision,
+                      bvh_width=bvh_width_for(device, settings.precision),
+                      queue=queue_for(device), **_resolve(scene, settings),
+                      **dict(settings.variants))
+
+
 def render(scene: Scene | str | os.PathLike, settings: RenderSettings | None = None
            ) -> RenderResult:
     """Render a scene, or the scene file at a path. A scene built in Python is first checked
@@ -261,9 +274,7 @@ def render(scene: Scene | str | os.PathLike, settings: RenderSettings | None = N
                       "the render take very long; set min_weight (e.g. 0.004) to stop faint rays",
                       stacklevel=2)
     device = select_device(settings.device)
-    packed = pack_scene(scene, precision=settings.precision,
-                        bvh_width=bvh_width_for(device, settings.precision),
-                        queue=queue_for(device), **resolved, **dict(settings.variants))
+    packed = pack_for(scene, settings, device)
     pack_s = time.perf_counter() - start - packed.bvh_s
     image, stats = render_packed(packed, device, settings.progress)
     stats = {

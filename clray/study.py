@@ -105,8 +105,10 @@ def compare(image: np.ndarray, reference: np.ndarray) -> dict:
 
 
 def study_scene(path: Path, variants: Sequence[Variant], repeat: int, base: RenderSettings,
-                say: Callable[[str], None] = lambda _: None) -> list[dict]:
-    scene = load_scene(path)
+                say: Callable[[str], None] = lambda _: None, scene: Scene | None = None
+                ) -> list[dict]:
+    """Every variant of the scene at `path` (already loaded: `scene`), timed on one device."""
+    scene = scene or load_scene(path)
     reference, _ = _render_timed(scene, REFERENCE, 0, base)
     records = []
     for variant in variants:
@@ -276,7 +278,9 @@ def write_report(records: list[dict], out: Path, repeat: int, device: str,
     for scene in scenes:
         rows = [r for r in records if r["scene"] == scene]
         lines += ["", f"## {scene}", "",
-                  f"`{rows[0]['scene_file']}` at {rows[0]['width']}x{rows[0]['height']}."]
+                  f"`{rows[0]['scene_file']}` at {rows[0]['width']}x{rows[0]['height']}"
+                  + (f", on worker {rows[0]['worker']} ({rows[0]['device']})."
+                     if "worker" in rows[0] else ".")]
         for warning in rows[0]["scene_warnings"]:
             lines.append(f"Loader warning: {warning}")
         lines += ["", "| variant | kernel ms | RMSE | PSNR dB | max abs | px > 1/255 | "
@@ -298,22 +302,32 @@ def write_report(records: list[dict], out: Path, repeat: int, device: str,
 def run_study(paths: Sequence[Path], out: Path, *, repeat: int = 3,
               width: int | None = None, height: int | None = None, device: str | None = None,
               variants: Sequence[Variant] = VARIANTS,
-              say: Callable[[str], None] = lambda _: None) -> list[dict]:
-    """Render every scene with every variant; write results.json, report.md and plots."""
+              say: Callable[[str], None] = lambda _: None,
+              run_scenes: Callable[..., list[dict]] | None = None) -> list[dict]:
+    """Render every scene with every variant; write results.json, report.md and plots.
+    `run_scenes(paths, variants, repeat, base, say)` renders elsewhere (a Dask cluster, one
+    task a scene: clray.distributed.study_scenes); its records name their device."""
     from clray.device.context import describe, select_device
 
     out.mkdir(parents=True, exist_ok=True)
     base = RenderSettings(width=width, height=height, device=device)
     records: list[dict] = []
-    with warnings.catch_warnings():
-        # PoCL repeats its build warnings on every cached build; they are noise here.
-        warnings.simplefilter("ignore", cl.CompilerWarning)
-        for path in paths:
-            records += study_scene(path, variants, repeat, base, say)
+    if run_scenes is not None:
+        records = run_scenes(paths, variants, repeat, base, say)
+    else:
+        with warnings.catch_warnings():
+            # PoCL repeats its build warnings on every cached build; they are noise here.
+            warnings.simplefilter("ignore", cl.CompilerWarning)
+            for path in paths:
+                records += study_scene(path, variants, repeat, base, say)
     plots = plot_scenes(records, out)
     if not all(plots.values()):
         say("plots skipped: matplotlib is not installed (pip install 'clray[plot]')")
-    device_name = describe(select_device(device))
+    workers = {r["worker"]: r["device"] for r in records if "worker" in r}
+    device_name = (describe(select_device(device)) if not workers else
+                   f"{len(workers)} Dask workers (" + "; ".join(sorted(set(workers.values())))
+                   + "), each scene's variants all on one worker, whose name each scene's "
+                   "section gives: times compare within a scene, not across scenes")
     (out / "results.json").write_text(
         json.dumps({"device": device_name, "repeat": repeat, "records": records}, indent=1)
         + "\n", encoding="utf-8")

@@ -112,6 +112,11 @@ def scene(**sections):
     return {"camera": dict(CAMERA), **sections}
 
 
+def anim(*tracks: dict) -> dict:
+    """A scene of one sphere animated over 10 frames by `tracks`."""
+    return scene(objects=[dict(SPHERE)], animation={"frames": 10, "tracks": list(tracks)})
+
+
 def load_error(data) -> str:
     with pytest.raises(SceneError) as info:
         scene_from_dict(data, SCENE)
@@ -779,6 +784,38 @@ ERRORS = [
         obj(type="mesh", **TRI, transform=[1, 2, 3]),
         "objects[2].transform: expected a table, got [1, 2, 3]",
     ),
+    # animation: the table, its tracks, and each keyframe loaded into the scene
+    (scene(animation=[]), "animation: expected a table, got []"),
+    (scene(animation={}), "animation.frames: missing required key"),
+    (scene(animation={"frames": 0}), "animation.frames: must be an integer in [1, 1000000], got 0"),
+    (scene(animation={"frames": 10, "fps": 0}), "animation.fps: must be > 0, got 0"),
+    (scene(animation={"frames": 10, "speed": 1}), "animation.speed: unknown key (expected one "
+                                                  "of: frames, fps, interpolation, tracks)"),
+    (scene(animation={"frames": 10, "interpolation": "cubic"}),
+     'animation.interpolation: expected "linear" or "catmull-rom", got "cubic"'),
+    (anim({"frames": [0, 9], "values": [1, 2]}), "animation.tracks[0].key: missing required key"),
+    (anim({"key": "camera..position", "frames": [0], "values": [1]}),
+     "animation.tracks[0].key: expected a key path such as camera.position"),
+    (anim({"key": "camera.vfov", "frames": [0, 10], "values": [30, 40]}),
+     "animation.tracks[0].frames[1]: must be an integer in [0, 9], got 10"),
+    (anim({"key": "camera.vfov", "frames": [5, 5], "values": [30, 40]}),
+     "animation.tracks[0].frames: must be strictly increasing"),
+    (anim({"key": "camera.vfov", "frames": [0, 9], "values": [30]}),
+     "animation.tracks[0].values: expected one value per keyframe (2)"),
+    (anim({"key": "camera.vfov", "frames": [0, 9], "values": [30, [1, 2]]}),
+     "animation.tracks[0].values[1]: expected the shape of values[0]"),
+    (anim({"key": "camera.vfov", "frames": [0, 9], "values": [30, "wide"]}),
+     'animation.tracks[0].values[1]: expected a number, got "wide"'),
+    (anim({"key": "objects[5].center", "frames": [0], "values": [[0, 0, 0]]}),
+     "animation.tracks[0].key: objects[5] is not in the scene"),
+    (anim({"key": "camera.positon", "frames": [0], "values": [[0, 0, 0]]}),
+     "animation.tracks[0].values[0]: camera.positon: unknown key"),
+    (anim({"key": "camera.vfov", "frames": [0, 9], "values": [30, 200]}),
+     "animation.tracks[0].values[1]: camera.vfov: must be in (0, 180), got 200.0 (frame 9)"),
+    (anim({"key": "objects[0].radius", "frames": [3], "values": [-1]}),
+     "animation.tracks[0].values[0]: objects[0].radius: must be > 0, got -1.0 (frame 3)"),
+    (anim({"key": "camera.vfov", "frames": [0], "values": [30], "interpolation": "step"}),
+     'animation.tracks[0].interpolation: expected "linear" or "catmull-rom", got "step"'),
 ]
 
 

@@ -27,7 +27,7 @@ from clray.errors import SceneError
 from clray.scene import limits as L
 from clray.scene.files import UnreadableFile
 
-_KEYS = ("include", "render", "camera", "materials", "lights", "objects")
+_KEYS = ("include", "render", "camera", "materials", "lights", "objects", "animation")
 _BARE = re.compile(r"[A-Za-z0-9_-]+")
 _INDEXED = re.compile(r"(objects|lights)\[(\d+)\](.*)", re.S)
 
@@ -112,6 +112,11 @@ def _merge(data: Any, path: Path | None, chain: tuple[Path, ...], merged: dict, 
     own = {k: _relocated(v, folder, top_dir) for k, v in data.items()
            if k in ("materials", "lights", "objects")}
     _merge_tables(data, own, path, merged, origins)
+    if "animation" in data:
+        # Its tracks name values by the scene file's own key paths (clray.animation).
+        if len(chain) > 1:
+            raise SceneError(path, "animation", "only the scene file itself may animate")
+        merged["animation"] = data["animation"]
 
 
 def _merge_tables(data: dict, own: dict, path: Path | None, merged: dict,

@@ -8,6 +8,7 @@ docs/scene_format.md.
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import io
 import json
@@ -23,6 +24,7 @@ import numpy as np
 from clray.errors import SceneError
 from clray.image_io import srgb_decode
 from clray.scene import limits as L
+from clray.scene.animation import Animation, parse_animation, put, show_path
 from clray.scene.files import UnreadableFile, open_regular, read_at_most, read_regular
 from clray.scene.include import expand_includes
 from clray.scene.model import (
@@ -65,7 +67,7 @@ _SHOW_ITEMS = 8  # array elements shown in a message
 _SHOW_DEPTH = 3  # nested arrays shown in a message
 _DECODE_SLICE = 1 << 20  # texel values decoded from sRGB at a time
 
-_TOP_KEYS = ("include", "render", "camera", "materials", "lights", "objects")
+_TOP_KEYS = ("include", "render", "camera", "materials", "lights", "objects", "animation")
 _RENDER_KEYS = (
     "width", "height", "spp", "max_depth", "background", "ambient", "seed", "min_weight",
     "linear", "exposure", "png_bits",
@@ -121,12 +123,17 @@ _SPHERE_ARRAYS = ("centers", "radii", "material_index")
 
 def load_scene(path: str | Path) -> Scene:
     """Read and validate a scene file; the suffix (.toml or .json) picks the parser."""
+    return scene_from_dict(read_scene_data(path), Path(path))
+
+
+def read_scene_data(path: str | Path) -> dict:
+    """A scene file parsed, not yet checked (nor its includes merged): what scene_from_dict
+    takes."""
     path = Path(path)
     try:
-        data = _read_scene_file(path)
+        return _read_scene_file(path)
     except UnreadableFile as exc:
         raise SceneError(path, None, f"cannot read scene file: {exc}") from None
-    return scene_from_dict(data, path)
 
 
 def _read_scene_file(path: Path) -> Any:
@@ -138,6 +145,13 @@ def _read_scene_file(path: Path) -> Any:
             path, None, f"unknown scene file type {path.suffix!r} (use .toml or .json)"
         )
     return parse_scene_text(read_regular(path, L.MAX_SCENE_BYTES), suffix, path)
+
+
+def animation_from_dict(data: dict, path: Path | None = None) -> Animation | None:
+    """The [animation] table of scene data that scene_from_dict has checked, or None."""
+    if "animation" not in data:
+        return None
+    return parse_animation(data["animation"], _Loader(path))
 
 
 def scene_from_dict(data: dict, path: str | Path | None = None) -> Scene:
@@ -420,7 +434,34 @@ class _Loader:
         )
         scene = dataclasses.replace(scene, warnings=(*self.warnings, *scene_warnings(scene)))
         object.__setattr__(scene, "checked", True)  # frozen: the one field the loader sets
+        if "animation" in data:
+            self.animation(data)
         return scene
+
+    def animation(self, data: dict) -> Animation:
+        """The [animation] table, each keyframe checked by loading the scene with its value put
+        in: a key path or a value the scene cannot take is an error now, not at its frame."""
+        animation = parse_animation(self.table(data["animation"], "animation"), self)
+        base = {k: v for k, v in data.items() if k != "animation"}
+        for i, track in enumerate(animation.tracks):
+            key = f"animation.tracks[{i}]"
+            for j, frame in enumerate(track.frames):
+                keyed = copy.deepcopy(base)
+                try:
+                    put(keyed, track.path, track.values[j])
+                except KeyError as missing:
+                    raise self.error(f"{key}.key", f"{show_path(missing.args[0])} is not in the "
+                                     "scene (give it a value there to animate it)") from None
+                # Sharing the file caches: a keyframe does not read a mesh or texture again.
+                loader = _Loader(self.path)
+                loader.textures, loader.meshes = self.textures, self.meshes
+                loader.decoded_textures = self.decoded_textures
+                try:
+                    loader.scene(keyed)
+                except SceneError as err:
+                    raise self.error(f"{key}.values[{j}]", f"{err.key}: {err.message} (frame "
+                                     f"{frame})") from None
+        return animation
 
     def render(self, spec: dict) -> RenderOptions:
         self.keys(spec, "render", _RENDER_KEYS, ())

@@ -1,0 +1,100 @@
+"""Sequences of frames: a scene file's [animation] table turned into one scene per frame, the
+frame numbers and file names of `clray render --frames`, and the frames rendered in a loop."""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass
+from pathlib import Path
+
+from clray.errors import SceneError, SettingsError
+from clray.render import RenderResult, RenderSettings, render
+from clray.scene.animation import Animation
+from clray.scene.load import animation_from_dict, read_scene_data, scene_from_dict
+from clray.scene.model import Scene
+
+
+@dataclass(frozen=True)
+class Sequence:
+    """An animated scene file: its data as parsed and its checked [animation] table. Small and
+    picklable: a Dask cluster gets it once and makes each frame's scene where it renders it."""
+
+    path: Path
+    data: dict
+    animation: Animation
+
+    def scene(self, frame: int) -> Scene:
+        """The scene at `frame`; SceneError names the key and the frame where an interpolated
+        value is out of range (a Catmull-Rom curve may overshoot its keys)."""
+        try:
+            return scene_from_dict(self.animation.data_at(self.data, frame), self.path)
+        except SceneError as err:
+            raise SceneError(err.file, err.key, f"{err.message} (animated, frame {frame})"
+                             ) from None
+
+
+def load_sequence(path: str | os.PathLike) -> Sequence:
+    """Read and check an animated scene file: the scene, its [animation] table and each
+    keyframe by the loader's rules; SceneError if it has no [animation] table."""
+    path = Path(path)
+    data = read_scene_data(path)
+    scene_from_dict(data, path)
+    animation = animation_from_dict(data, path)
+    if animation is None:
+        raise SceneError(path, "animation", "missing: --frames renders an [animation] table "
+                         "(docs/scene_format.md)")
+    return Sequence(path, data, animation)
+
+
+def parse_frames(text: str) -> range:
+    """`A:B` (frames A to B - 1, as Python slices), `A:` (A to the last), `N` (one frame);
+    bounds are checked against the animation by frames_in."""
+    start, colon, stop = text.partition(":")
+    try:
+        first = int(start) if start else 0
+        end = (int(stop) if stop else None) if colon else first + 1
+    except ValueError:
+        raise SettingsError(f"--frames: expected A:B, A: or N (frame numbers), got "
+                            f"{text[:40]!r}") from None
+    if first < 0 or (end is not None and end <= first):
+        raise SettingsError(f"--frames: expected 0 <= A < B, got {text[:40]!r}")
+    return range(first, -1 if end is None else end)
+
+
+def frames_in(frames: range, animation: Animation) -> range:
+    """`frames` (stop -1: to the last frame) within the animation's 0 .. frames - 1."""
+    stop = animation.frames if frames.stop == -1 else frames.stop
+    if stop > animation.frames:
+        raise SettingsError(f"--frames: the animation has frames 0 to {animation.frames - 1}, "
+                            f"asked for up to {stop - 1}")
+    return range(frames.start, stop)
+
+
+def frame_path(pattern: Path, frame: int) -> Path:
+    """The file of `frame`: `pattern` with its printf-style number filled in; a name without
+    one (a single frame) as it is."""
+    try:
+        return Path(str(pattern) % frame)
+    except (TypeError, ValueError):
+        return pattern
+
+
+def check_pattern(pattern: Path, n_frames: int) -> None:
+    """Each frame needs a file of its own: a printf-style frame number (`frame_%04d.png`)."""
+    if n_frames > 1 and frame_path(pattern, 0) == frame_path(pattern, 1):
+        raise SettingsError(f"-o {pattern}: several frames need a frame number in the name, "
+                            "such as out/frame_%04d.png")
+
+
+def frames_to_render(frames: range, pattern: Path, resume: bool) -> list[int]:
+    """The frames to render: with `resume`, those whose file does not exist yet. A frame's file
+    is complete once it exists: image files are written to a temporary name and renamed."""
+    return [f for f in frames if not (resume and frame_path(pattern, f).exists())]
+
+
+def render_frames(sequence: Sequence, frames: Iterable[int], settings: RenderSettings,
+                  done: Callable[[int, RenderResult], None]) -> None:
+    """Render frames one after another in this process, `done(frame, result)` after each."""
+    for frame in frames:
+        done(frame, render(sequence.scene(frame), settings))

@@ -1,0 +1,313 @@
+"""Rendering on a Dask cluster (`clray render --dask`): a still in bands of rows, or an animation
+one frame a task. Only this module imports Dask, and only when called: `pip install
+'clray[dask]'`.
+
+Data movement: the scene (or the animation's scene data) goes to every worker once, with
+`client.scatter(..., broadcast=True)`; a task carries only its row range and settings. Each
+worker selects its own OpenCL device (`--device`, else its CLRAY_DEVICE, PYOPENCL_CTX, the
+first CPU device), packs the scene once for all its tiles and keeps compiled programs cached
+(clray.device.program caches per process). Per-pixel sampling depends on the seed and the
+pixel's index only, so the assembled image is bit for bit the single-process render's.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import logging
+import math
+import os
+import pickle
+import socket
+import threading
+import time
+import warnings
+from collections.abc import Callable, Iterable, Iterator
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+import pyopencl as cl
+
+from clray.animation import Sequence
+from clray.device.context import describe, select_device
+from clray.device.pack import PackedScene
+from clray.errors import ClrayError
+from clray.render import (
+    RenderResult,
+    RenderSettings,
+    _encoding,
+    _resolve,
+    pack_for,
+    render,
+    render_packed,
+)
+from clray.scene.check import check_scene
+from clray.scene.load import load_scene
+from clray.scene.model import Scene
+from clray.study import study_scene
+
+if TYPE_CHECKING:
+    from distributed import Client
+
+INSTALL_HINT = "pip install 'clray[dask]'"
+CONNECT_TIMEOUT_S = 10.0
+LOCAL_WORKERS = 2
+# A tile is sized to take about this long on a worker's device: long enough that the
+# scheduler's per-task cost (milliseconds) is a small share, short enough to spread an image
+# over many workers and lose little when one dies.
+TILE_SECONDS = 1.0
+# The first tile of each worker measures its device's rate: about this many pixel-samples.
+PROBE_PIXEL_SAMPLES = 1 << 18
+
+
+def import_distributed() -> Any:
+    """The `distributed` module, or a one-line ClrayError saying how to install it."""
+    try:
+        import distributed
+    except ImportError:
+        raise ClrayError(f"--dask needs Dask distributed, which is not installed: "
+                         f"{INSTALL_HINT}") from None
+    return distributed
+
+
+@contextlib.contextmanager
+def connect(address: str | None, workers: int = LOCAL_WORKERS,
+            timeout: float = CONNECT_TIMEOUT_S) -> Iterator[Client]:
+    """A client of the scheduler at `address` (`tcp://host:8786`), or of a LocalCluster of
+    `workers` worker processes (one thread each: one task at a time per device) when None.
+    An unreachable scheduler is a ClrayError after `timeout` seconds."""
+    distributed = import_distributed()
+    if address is None:
+        with distributed.LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
+                                      dashboard_address=":0", silence_logs=logging.ERROR
+                                      ) as cluster, distributed.Client(cluster) as client:
+            yield client
+        return
+    try:
+        client = distributed.Client(address, timeout=timeout)
+    except (OSError, TimeoutError, ValueError) as err:
+        raise ClrayError(f"cannot connect to the Dask scheduler at {address}: "
+                         f"{str(err).splitlines()[0] if str(err) else type(err).__name__}"
+                         ) from None
+    with client:
+        try:
+            client.wait_for_workers(1, timeout=timeout)
+        except TimeoutError:
+            raise ClrayError(f"the Dask scheduler at {address} has no workers (waited "
+                             f"{timeout:g} s)") from None
+        yield client
+
+
+# -- on the workers ----------------------------------------------------------------------
+
+# One packed scene per worker process, for the scene it is rendering now: the tiles of one
+# image share it, and a long-lived worker does not keep every scene it was ever sent.
+_packed: dict[tuple, PackedScene] = {}
+# A worker started with several threads would run tiles at once on one device, sharing its
+# queue and program cache; the device is busy either way, so they take turns.
+_device_lock = threading.Lock()
+
+
+def _render_tile(scene: Scene, scene_key: str, settings: RenderSettings, start: int,
+                 stop: int) -> dict:
+    started = time.perf_counter()
+    with _device_lock:
+        device = select_device(settings.device)
+        key = (scene_key, settings, describe(device))
+        packs = key not in _packed
+        if packs:
+            _packed.clear()
+            pack_started = time.perf_counter()
+            _packed[key] = pack_for(scene, settings, device)
+            pack_s = time.perf_counter() - pack_started
+        packed = _packed[key]
+        image, stats = render_packed(packed, device, rows=(start, stop))
+    return {"start": start, "rows": stop - start, "image": image, "stats": stats,
+            "packed": packs, "pack_s": pack_s if packs else 0.0,
+            "bvh_s": packed.bvh_s if packs else 0.0, "device": describe(device),
+            "worker": f"{socket.gethostname()}:{os.getpid()}",
+            "task_s": time.perf_counter() - started}
+
+
+def _render_frame(sequence: Sequence, frame: int, settings: RenderSettings) -> dict:
+    started = time.perf_counter()
+    with _device_lock:
+        result = render(sequence.scene(frame), settings)
+    return {"frame": frame, "result": result, "worker": f"{socket.gethostname()}:{os.getpid()}",
+            "task_s": time.perf_counter() - started}
+
+
+# -- on the client -----------------------------------------------------------------------
+
+
+def _scatter(client: Client, value: object) -> tuple[Any, int, int]:
+    """(future, pickled bytes, workers): `value` sent once to every worker now connected."""
+    nbytes = len(pickle.dumps(value, protocol=pickle.HIGHEST_PROTOCOL))
+    workers = len(client.scheduler_info()["workers"])
+    [future] = client.scatter([value], broadcast=True, hash=False)
+    return future, nbytes, workers
+
+
+def tile_rows_for(rate_rows_per_s: float, rows_left: int, workers: int) -> int:
+    """Rows of a tile that takes about TILE_SECONDS at the measured rate, but no more than an
+    even share of what is left, so that every worker gets some."""
+    by_time = math.ceil(rate_rows_per_s * TILE_SECONDS) if rate_rows_per_s > 0 else rows_left
+    return max(1, min(by_time, math.ceil(rows_left / max(workers, 1))))
+
+
+def render_still(client: Client, scene: Scene, settings: RenderSettings | None = None,
+                 tile_rows: int | None = None,
+                 on_tile: Callable[[int, int], None] | None = None) -> RenderResult:
+    """Render `scene` on the cluster in bands of rows, assembled here: the same image, bit for
+    bit, as render(scene, settings) on the workers' device. `tile_rows` fixes the band height
+    (default: sized by the first tiles' rate to about TILE_SECONDS each). settings.progress
+    hears pixel-samples as tiles arrive; on_tile(tiles done, tiles submitted) after each."""
+    distributed = import_distributed()
+    settings = settings or RenderSettings()
+    started = time.perf_counter()
+    scene = check_scene(scene)
+    encoding = _encoding(scene, settings)
+    resolved = _resolve(scene, settings)
+    width, height, spp = (int(resolved[k]) for k in ("width", "height", "spp"))
+    task_settings = dataclasses.replace(settings, progress=None)
+    scene_future, scene_bytes, workers = _scatter(client, scene)
+    row_samples = width * spp
+
+    image = np.empty((height, width, 3), dtype=np.float32)
+    tiles: list[dict] = []
+    next_row = 0
+
+    def submit(rows: int) -> Any:
+        nonlocal next_row
+        start, next_row = next_row, min(height, next_row + rows)
+        return client.submit(_render_tile, scene_future, scene_future.key, task_settings,
+                             start, next_row, pure=False)
+
+    if settings.progress is not None:
+        settings.progress(0, height * row_samples)
+    if tile_rows is not None:
+        pending = [submit(tile_rows) for _ in range(math.ceil(height / tile_rows))]
+    else:
+        probe = max(1, PROBE_PIXEL_SAMPLES // row_samples)
+        pending = [submit(probe) for _ in range(workers) if next_row < height]
+    submitted = len(pending)
+    done = distributed.as_completed(pending, with_results=True)
+    rows_done = 0
+    for _, tile in done:
+        image[tile["start"]:tile["start"] + tile["rows"]] = tile.pop("image")
+        tiles.append(tile)
+        rows_done += tile["rows"]
+        if settings.progress is not None:
+            settings.progress(rows_done * row_samples, height * row_samples)
+        if tile_rows is None and len(tiles) == 1 and next_row < height:
+            # The first probe sizes the remaining tiles by its device's rate; waiting for the
+            # other probes would leave their workers idle for a round trip.
+            kernel_s = tile["stats"]["kernel_s"]
+            size = tile_rows_for(tile["rows"] / kernel_s if kernel_s > 0 else 0.0,
+                                 height - next_row, workers)
+            rest = [submit(size) for _ in range(math.ceil((height - next_row) / size))]
+            submitted += len(rest)
+            done.update(rest)
+        if on_tile is not None:
+            on_tile(len(tiles), submitted)
+    client.cancel([scene_future])
+    stats = _merge(tiles, resolved, settings)
+    by_worker: dict[str, int] = {}
+    for t in tiles:
+        by_worker[t["worker"]] = by_worker.get(t["worker"], 0) + 1
+    stats["dask"] = {
+        "scheduler": client.scheduler.address,
+        "workers": workers,
+        "tiles": len(tiles),
+        "tile_rows": sorted({t["rows"] for t in tiles}),
+        "scene_bytes": scene_bytes,
+        "bytes_sent": scene_bytes * workers,
+        "result_bytes": image.nbytes,
+        "task_s": sum(t["task_s"] for t in tiles),
+        "tiles_by_worker": by_worker,
+        # Tiles that packed the scene (BVH, buffers): one a worker, the rest reuse it.
+        "packs": sum(t["packed"] for t in tiles),
+    }
+    stats["total_s"] = time.perf_counter() - started
+    return RenderResult(image, stats, encoding)
+
+
+def _merge(tiles: list[dict], resolved: dict, settings: RenderSettings) -> dict:
+    """The stats of render() from those of the tiles: counts and device times summed, packing
+    as the slowest worker did it."""
+    rays = {k: sum(t["stats"]["rays"][k] for t in tiles)
+            for k in ("primary", "secondary", "shadow", "total")}
+    kernel_s = sum(t["stats"]["kernel_s"] for t in tiles)
+    stats = {
+        **resolved,
+        "device": ", ".join(sorted({t["device"] for t in tiles})),
+        "precision": settings.precision,
+        "bvh_s": max(t["bvh_s"] for t in tiles),
+        "pack_s": max(t["pack_s"] - t["bvh_s"] for t in tiles),
+        "build_s": max(t["stats"]["build_s"] for t in tiles),
+        "kernel_s": kernel_s,
+        "launches": sum(t["stats"]["launches"] for t in tiles),
+        "rays": rays,
+        "mrays_per_s": rays["total"] / kernel_s * 1e-6 if kernel_s > 0 else None,
+        "device_bytes": tiles[0]["stats"]["device_bytes"],
+    }
+    if "tests" in tiles[0]["stats"]:
+        stats["tests"] = {k: sum(t["stats"]["tests"][k] for t in tiles)
+                          for k in tiles[0]["stats"]["tests"]}
+    return stats
+
+
+def render_sequence(client: Client, sequence: Sequence, frames: Iterable[int],
+                    settings: RenderSettings | None,
+                    done: Callable[[int, RenderResult], None]) -> dict:
+    """Render frames on the cluster, one task each, `done(frame, result)` here as each
+    arrives (in any order); returns what was moved and where it ran."""
+    distributed = import_distributed()
+    settings = dataclasses.replace(settings or RenderSettings(), progress=None)
+    future, nbytes, workers = _scatter(client, sequence)
+    tasks = [client.submit(_render_frame, future, frame, settings, pure=False)
+             for frame in frames]
+    by_worker: dict[str, int] = {}
+    result_bytes = 0
+    task_s = 0.0
+    for _, out in distributed.as_completed(tasks, with_results=True):
+        by_worker[out["worker"]] = by_worker.get(out["worker"], 0) + 1
+        result_bytes += out["result"].image.nbytes
+        task_s += out["task_s"]
+        done(out["frame"], out["result"])
+    client.cancel([future])
+    return {"scheduler": client.scheduler.address, "workers": workers, "frames": len(tasks),
+            "scene_bytes": nbytes, "bytes_sent": nbytes * workers,
+            "result_bytes": result_bytes, "task_s": task_s, "frames_by_worker": by_worker}
+
+
+def _study_scene(scene: Scene, path: str, variants: tuple, repeat: int,
+                 base: RenderSettings) -> list[dict]:
+    with _device_lock, warnings.catch_warnings():
+        warnings.simplefilter("ignore", cl.CompilerWarning)
+        records = study_scene(Path(path), variants, repeat, base, scene=scene)
+    worker = f"{socket.gethostname()}:{os.getpid()}"
+    device = describe(select_device(base.device))
+    return [{**r, "worker": worker, "device": device} for r in records]
+
+
+def study_scenes(client: Client, paths: Iterable[Path], variants: Iterable, repeat: int,
+                 base: RenderSettings, say: Callable[[str], None] = lambda _: None
+                 ) -> list[dict]:
+    """clray study's renders on the cluster, one task a scene: all the variants of a scene run
+    on one worker, one after another, so that their times compare (times from different
+    workers do not). The scenes are loaded here and sent with their tasks; the records come
+    back in the order of `paths`, each naming its worker and device."""
+    paths = list(paths)
+    variants = tuple(variants)
+    tasks = [client.submit(_study_scene, load_scene(p), str(p), variants, repeat, base,
+                           pure=False) for p in paths]
+    by_path: dict[int, list[dict]] = {}
+    index = {t.key: i for i, t in enumerate(tasks)}
+    for task, records in import_distributed().as_completed(tasks, with_results=True):
+        by_path[index[task.key]] = records
+        for r in records:
+            say(f"{r['scene']}: {r['variant']}: {r['kernel_s_median'] * 1e3:.3g} ms, rmse "
+                f"{r['rmse']}, {r['status']} (on {r['worker']})")
+    return [r for i in range(len(paths)) for r in by_path[i]]

@@ -1,0 +1,197 @@
+"""The [animation] table: numeric values of a scene keyframed over a sequence of frames.
+
+A track names one value of the scene by its key path as the loader reports it
+(`camera.position`, `materials.red.reflect`, `objects[2].center`,
+`objects[0].transform.rotate`) and gives its value at some frames; every other frame takes a
+value interpolated between them, linearly or along a Catmull-Rom spline. A frame's scene is
+the file's data with each track's value put in and loaded again, so it meets every check a scene
+file meets (docs/scene_format.md, "Animation").
+"""
+
+from __future__ import annotations
+
+import bisect
+import copy
+import itertools
+import re
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from clray.scene.load import _Loader
+
+ANIMATION_KEYS = ("frames", "fps", "interpolation", "tracks")
+TRACK_KEYS = ("key", "frames", "values", "interpolation")
+INTERPOLATIONS = ("linear", "catmull-rom")
+MAX_FRAMES = 1_000_000
+MAX_FPS = 1000.0
+# Each keyframe is checked by loading the scene with its value put in: a bound on that work.
+MAX_KEYFRAMES = 1000
+MAX_TRACKS = 1000
+
+_SEGMENT = re.compile(r"([A-Za-z0-9_-]+)((?:\[\d+\])*)")
+_INDEX = re.compile(r"\[(\d+)\]")
+
+Path = tuple[str | int, ...]
+Value = float | list[float]
+
+
+@dataclass(frozen=True)
+class Track:
+    key: str  # as written
+    path: Path  # table keys (str) and array indices (int) from the top of the scene
+    frames: tuple[int, ...]  # strictly increasing
+    values: tuple[Value, ...]  # one per frame: all numbers, or all lists of one length
+    interpolation: str
+
+    def at(self, frame: int) -> Value:
+        """The value at `frame`: a keyframe's own value exactly at its frame, the first before
+        it and the last after it, else interpolated."""
+        frames, values = self.frames, self.values
+        if frame <= frames[0]:
+            return values[0]
+        if frame >= frames[-1]:
+            return values[-1]
+        i = bisect.bisect_right(frames, frame) - 1
+        if frames[i] == frame:
+            return values[i]
+        v0, v1 = _vector(values[i]), _vector(values[i + 1])
+        span = frames[i + 1] - frames[i]
+        s = (frame - frames[i]) / span
+        if self.interpolation == "linear":
+            out = [a + (b - a) * s for a, b in zip(v0, v1, strict=True)]
+        else:
+            # Hermite form of Catmull-Rom over uneven key spacing: the tangent at a key is the
+            # slope between its neighbours (one-sided at the ends), per frame, scaled by the
+            # span, so that a path keeps its speed through keys at uneven frames.
+            m0 = self._slope(i)
+            m1 = self._slope(i + 1)
+            h00, h10 = 2 * s**3 - 3 * s**2 + 1, s**3 - 2 * s**2 + s
+            h01, h11 = -2 * s**3 + 3 * s**2, s**3 - s**2
+            out = [h00 * a + h10 * span * ma + h01 * b + h11 * span * mb
+                   for a, b, ma, mb in zip(v0, v1, m0, m1, strict=True)]
+        return out if isinstance(values[0], list) else out[0]
+
+    def _slope(self, i: int) -> list[float]:
+        lo, hi = max(i - 1, 0), min(i + 1, len(self.frames) - 1)
+        a, b = _vector(self.values[lo]), _vector(self.values[hi])
+        return [(y - x) / (self.frames[hi] - self.frames[lo]) for x, y in zip(a, b, strict=True)]
+
+
+@dataclass(frozen=True)
+class Animation:
+    frames: int  # frames 0 .. frames - 1
+    fps: float
+    tracks: tuple[Track, ...]
+
+    def data_at(self, data: dict, frame: int) -> dict:
+        """The scene data (without its [animation] table) with every track's value at `frame`
+        put in; `data` itself is left as it was."""
+        out = copy.deepcopy({k: v for k, v in data.items() if k != "animation"})
+        for track in self.tracks:
+            put(out, track.path, track.at(frame))
+        return out
+
+
+def _vector(value: Value) -> list[float]:
+    return value if isinstance(value, list) else [value]
+
+
+def parse_path(text: str) -> Path | None:
+    """`camera.position`, `objects[2].transform.rotate` -> ('camera', 'position'),
+    ('objects', 2, 'transform', 'rotate'); None if `text` is not such a path."""
+    path: list[str | int] = []
+    for part in text.split("."):
+        match = _SEGMENT.fullmatch(part)
+        if not match:
+            return None
+        path.append(match.group(1))
+        path += [int(i) for i in _INDEX.findall(match.group(2))]
+    return tuple(path)
+
+
+def put(data: Any, path: Path, value: Value) -> None:
+    """Set the value at `path`. Every table and array on the way must exist; the last key may
+    be new (a value left at its default in the file). KeyError names the first missing step."""
+    for depth, step in enumerate(path[:-1]):
+        data = _step(data, step, path[:depth + 1])
+    last = path[-1]
+    if isinstance(last, int):
+        _step(data, last, path)
+        data[last] = value
+    elif isinstance(data, dict):
+        data[last] = value
+    else:
+        raise KeyError(path)
+
+
+def _step(data: Any, step: str | int, where: Path) -> Any:
+    if isinstance(step, int) and isinstance(data, list) and step < len(data):
+        return data[step]
+    if isinstance(step, str) and isinstance(data, dict) and step in data:
+        return data[step]
+    raise KeyError(where)
+
+
+def show_path(path: Path) -> str:
+    text = ""
+    for step in path:
+        text += f"[{step}]" if isinstance(step, int) else f".{step}" if text else step
+    return text
+
+
+def parse_animation(spec: dict, loader: _Loader) -> Animation:
+    """The [animation] table checked by the loader's rules (errors name `animation.*` keys).
+    The tracks' paths and values are checked against the scene by the loader itself."""
+    loader.keys(spec, "animation", ANIMATION_KEYS, ("frames",))
+    frames = loader.integer(spec["frames"], "animation.frames", 1, MAX_FRAMES)
+    fps = loader.bounded(spec.get("fps", 24.0), "animation.fps", 0, MAX_FPS)
+    if fps == 0:
+        raise loader.error("animation.fps", "must be > 0, got 0")
+    default = loader.choice(spec.get("interpolation", "linear"), "animation.interpolation",
+                            INTERPOLATIONS)
+    tracks = []
+    keyframes = 0
+    for i, track in enumerate(loader.items(spec.get("tracks", []), "animation.tracks",
+                                           MAX_TRACKS)):
+        key = f"animation.tracks[{i}]"
+        tracks.append(_track(track, key, frames, default, loader))
+        keyframes += len(tracks[-1].frames)
+        if keyframes > MAX_KEYFRAMES:
+            raise loader.error(key, f"over the limit of {MAX_KEYFRAMES} keyframes in all tracks")
+    return Animation(frames=frames, fps=fps, tracks=tuple(tracks))
+
+
+def _track(spec: dict, key: str, n_frames: int, default: str, loader: _Loader) -> Track:
+    loader.keys(spec, key, TRACK_KEYS, ("key", "frames", "values"))
+    name = loader.string(spec["key"], f"{key}.key")
+    path = parse_path(name)
+    if path is None:
+        raise loader.error(f"{key}.key", f"expected a key path such as camera.position or "
+                           f"objects[0].center, got {name!r:.60}")
+    fkey, vkey = f"{key}.frames", f"{key}.values"
+    raw_frames = spec["frames"]
+    if not isinstance(raw_frames, list) or not raw_frames:
+        raise loader.error(fkey, "expected a non-empty array of frame numbers")
+    frames = tuple(loader.integer(f, f"{fkey}[{j}]", 0, n_frames - 1)
+                   for j, f in enumerate(raw_frames))
+    if any(b <= a for a, b in itertools.pairwise(frames)):
+        raise loader.error(fkey, "must be strictly increasing")
+    raw_values = spec["values"]
+    if not isinstance(raw_values, list) or len(raw_values) != len(frames):
+        raise loader.error(vkey, f"expected one value per keyframe ({len(frames)})")
+    values: list[Value] = []
+    for j, value in enumerate(raw_values):
+        if isinstance(value, list):
+            values.append(list(loader.numbers(value, f"{vkey}[{j}]", len(value))))
+        else:
+            values.append(loader.number(value, f"{vkey}[{j}]"))
+        shape = len(values[-1]) if isinstance(values[-1], list) else None
+        first = len(values[0]) if isinstance(values[0], list) else None
+        if shape != first or shape == 0:
+            raise loader.error(f"{vkey}[{j}]", "expected the shape of values[0] (all numbers, "
+                               "or all arrays of one length)")
+    interpolation = loader.choice(spec.get("interpolation", default), f"{key}.interpolation",
+                                  INTERPOLATIONS)
+    return Track(key=name, path=path, frames=frames, values=tuple(values),
+                 interpolation=interpolation)

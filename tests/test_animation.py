@@ -1,0 +1,187 @@
+"""Animation: keyframe interpolation against hand-computed values, frame scenes, and
+`clray render --frames` rendering and resuming in this process (Dask: test_distributed.py)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from clray import cli
+from clray.animation import (
+    check_pattern,
+    frame_path,
+    frames_in,
+    frames_to_render,
+    load_sequence,
+    parse_frames,
+)
+from clray.errors import SceneError, SettingsError
+from clray.image_io import read_pfm
+from clray.scene.animation import Animation, Track, parse_path
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def track(frames, values, interpolation="linear", path=("camera", "vfov")) -> Track:
+    return Track(key=".".join(map(str, path)), path=path, frames=tuple(frames),
+                 values=tuple(values), interpolation=interpolation)
+
+
+def test_linear_between_keys_by_hand():
+    t = track([0, 10, 30], [[0.0, 2.0, 4.0], [10.0, 2.0, 0.0], [10.0, 6.0, 0.0]])
+    assert t.at(5) == [5.0, 2.0, 2.0]
+    assert t.at(20) == [10.0, 4.0, 0.0]
+    assert t.at(25) == [10.0, 5.0, 0.0]
+
+
+def test_catmull_rom_by_hand():
+    # Keys of y = x^2 at x = 0, 10, 20, 30 (values 0, 1, 4, 9 for x / 10). At frame 15: s = 1/2,
+    # tangents (per frame) (4 - 0) / 20 = 0.2 and (9 - 1) / 20 = 0.4, times the span of 10:
+    # 1/2 * 1 + 1/8 * 2 + 1/2 * 4 - 1/8 * 4 = 2.25 = 1.5^2 (Catmull-Rom reproduces quadratics).
+    t = track([0, 10, 20, 30], [0.0, 1.0, 4.0, 9.0], "catmull-rom")
+    assert t.at(15) == pytest.approx(2.25, abs=1e-12)
+    # First span, one-sided tangent (1 - 0) / 10 = 0.1 at frame 0, 0.2 at frame 10; at s = 1/2:
+    # 1/8 * 1 + 1/2 * 1 - 1/8 * 2 = 0.375.
+    assert t.at(5) == pytest.approx(0.375, abs=1e-12)
+    # Uneven spacing: keys 0 at 0, 2 at 10, 4 at 40 (slope 0.1 per frame around key 1). At
+    # frame 5 (s = 1/2, span 10): m0 = 0.2, m1 = (4 - 0) / 40 = 0.1:
+    # 1/8 * 10 * 0.2 + 1/2 * 2 - 1/8 * 10 * 0.1 = 0.25 + 1 - 0.125 = 1.125.
+    uneven = track([0, 10, 40], [0.0, 2.0, 4.0], "catmull-rom")
+    assert uneven.at(5) == pytest.approx(1.125, abs=1e-12)
+
+
+@pytest.mark.parametrize("interpolation", ["linear", "catmull-rom"])
+def test_keyframes_are_exact_and_ends_hold(interpolation):
+    values = [[0.1, 0.2, 0.3], [1 / 3, 2 / 3, 0.7], [-5.5, 1e-7, 3.0]]
+    t = track([2, 17, 40], values, interpolation)
+    for frame, value in zip([2, 17, 40], values, strict=True):
+        assert t.at(frame) == value  # exactly, not approximately
+    assert t.at(0) == values[0]
+    assert t.at(41) == values[-1]
+
+
+def test_frame_data_puts_every_track_and_leaves_the_file_data_alone():
+    data = {"camera": {"position": [0, 0, 5], "look_at": [0, 0, 0]},
+            "objects": [{"type": "sphere", "center": [0, 0, 0], "radius": 1}],
+            "animation": {"frames": 3}}
+    animation = Animation(frames=3, fps=24, tracks=(
+        track([0, 2], [[0.0, 0.0, 5.0], [0.0, 2.0, 5.0]], path=("camera", "position")),
+        track([0, 2], [1.0, 3.0], path=("objects", 0, "radius")),
+        track([0, 2], [30.0, 50.0], path=("camera", "vfov")),
+    ))
+    out = animation.data_at(data, 1)
+    assert out["camera"]["position"] == [0.0, 1.0, 5.0]
+    assert out["objects"][0]["radius"] == 2.0
+    assert out["camera"]["vfov"] == 40.0  # a default in the file, given a value per frame
+    assert "animation" not in out
+    assert data["camera"]["position"] == [0, 0, 5] and "vfov" not in data["camera"]
+
+
+def test_key_paths():
+    assert parse_path("objects[2].transform.rotate") == ("objects", 2, "transform", "rotate")
+    assert parse_path("materials.red-1.ior") == ("materials", "red-1", "ior")
+    assert parse_path("camera..position") is None
+    assert parse_path("objects[x].center") is None
+
+
+def test_example_scene_frames_hit_the_keyframes():
+    sequence = load_sequence(ROOT / "scenes" / "orbit.toml")
+    assert sequence.animation.frames == 48
+    assert sequence.scene(0).camera.position == (0.0, 2.0, 8.0)
+    assert sequence.scene(47).camera.position == (0.0, 2.0, 8.0)
+    assert sequence.scene(12).camera.position == (8.0, 2.5, 0.0)
+    red = next(m for m in sequence.scene(47).materials if m.name == "red")
+    assert red.reflect == 0.6
+    assert sequence.scene(24).objects[2].center == (1.3, 2.0, 0.5)
+    mid = next(m for m in sequence.scene(10).materials if m.name == "red")
+    assert mid.reflect == pytest.approx(0.6 * 10 / 47)
+
+
+def test_overshooting_curve_names_key_and_frame(tmp_scene):
+    # Catmull-Rom through 0, 1, 1, 0 at frames 0, 2, 4, 6 rises above 1 between the middle
+    # keys: at frame 3, tangents +-1/4 a frame over a span of 2 give 1 + 2 * 1/8 * 2 * 1/4 =
+    # 1.125, which reflect does not allow: every key loads, that frame does not.
+    path = tmp_scene("""\
+[camera]
+position = [0, 0, 5]
+look_at = [0, 0, 0]
+[materials.m]
+reflect = 0.5
+[[objects]]
+type = "sphere"
+center = [0, 0, 0]
+radius = 1
+material = "m"
+[animation]
+frames = 7
+interpolation = "catmull-rom"
+[[animation.tracks]]
+key = "materials.m.reflect"
+frames = [0, 2, 4, 6]
+values = [0.0, 1.0, 1.0, 0.0]
+""")
+    sequence = load_sequence(path)
+    assert next(m for m in sequence.scene(2).materials if m.name == "m").reflect == 1.0
+    with pytest.raises(SceneError) as info:
+        sequence.scene(3)
+    assert str(info.value) == ("scene.toml: materials.m.reflect: must be <= 1, got 1.125 "
+                               "(animated, frame 3)")
+
+
+def test_frames_argument_and_output_names():
+    assert parse_frames("0:120") == range(0, 120)
+    assert parse_frames("7") == range(7, 8)
+    animation = Animation(frames=48, fps=24, tracks=())
+    assert frames_in(parse_frames("40:"), animation) == range(40, 48)
+    for bad in ("a:b", "5:5", "-1:3"):
+        with pytest.raises(SettingsError):
+            parse_frames(bad)
+    with pytest.raises(SettingsError, match="frames 0 to 47"):
+        frames_in(parse_frames("0:49"), animation)
+    assert frame_path(Path("out/frame_%04d.png"), 12) == Path("out/frame_0012.png")
+    with pytest.raises(SettingsError, match="frame number"):
+        check_pattern(Path("out.png"), 2)
+    check_pattern(Path("out.png"), 1)
+
+
+def test_resume_skips_only_existing_frames(tmp_path):
+    pattern = tmp_path / "f_%02d.png"
+    (tmp_path / "f_01.png").write_bytes(b"done")
+    assert frames_to_render(range(0, 3), pattern, resume=True) == [0, 2]
+    assert frames_to_render(range(0, 3), pattern, resume=False) == [0, 1, 2]
+
+
+def test_render_frames_then_resume(cl_device, tmp_path, capsys):
+    scene = ROOT / "scenes" / "orbit.toml"
+    pattern = tmp_path / "f_%04d.pfm"
+    args = [str(scene), "-W", "32", "-H", "18", "--spp", "1", "-o", str(pattern)]
+    assert cli.main(["render", *args, "--frames", "0:2", "-q"]) == 0
+    first = {f: read_pfm(frame_path(pattern, f)) for f in (0, 1)}
+    stamp = frame_path(pattern, 0).stat().st_mtime_ns
+    stats = tmp_path / "stats.json"
+    assert cli.main(["render", *args, "--frames", "0:3", "--resume",
+                     "--stats-json", str(stats)]) == 0
+    assert "wrote 1 frames of 0-2" in capsys.readouterr().err
+    assert frame_path(pattern, 0).stat().st_mtime_ns == stamp  # not written again
+    record = json.loads(stats.read_text())
+    assert [f["frame"] for f in record["frames"]] == [2] and record["skipped"] == 2
+    assert frame_path(pattern, 2).exists()
+    # Frames differ (the camera moves) and each is the still render of its frame's scene.
+    assert (first[0] != first[1]).any()
+    single = tmp_path / "one.pfm"
+    assert cli.main(["render", *args[:-1], str(single), "--frames", "1", "-q"]) == 0
+    assert read_pfm(single).tobytes() == first[1].tobytes()
+
+
+def test_frames_usage_errors(tmp_path, capsys):
+    scene = str(ROOT / "scenes" / "orbit.toml")
+    assert cli.main(["render", scene, "--frames", "0:3", "-o", str(tmp_path / "a.png")]) == 2
+    assert "frame number" in capsys.readouterr().err
+    assert cli.main(["render", scene, "--resume"]) == 2
+    assert cli.main(["render", scene, "--frames", "x"]) == 2
+    plain = ROOT / "scenes" / "spheres.toml"
+    assert cli.main(["render", str(plain), "--frames", "0:2", "-o",
+                     str(tmp_path / "f_%d.png")]) == 3
+    assert "animation: missing" in capsys.readouterr().err

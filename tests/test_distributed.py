@@ -1,0 +1,203 @@
+"""Rendering on a real Dask cluster (a LocalCluster of 2 worker processes): tiles assembled bit
+for bit as the single-process render, frames as tasks, a killed worker survived, an unreachable
+scheduler refused in time. Dask itself is optional (clray[dask]); without it only the tests of
+the missing-Dask message run."""
+
+from __future__ import annotations
+
+import importlib.util
+import logging
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from clray import cli
+from clray.errors import EXIT_RUNTIME
+from clray.image_io import read_pfm
+from clray.render import RenderSettings, render
+from clray.scene.load import load_scene
+
+ROOT = Path(__file__).resolve().parent.parent
+SPHERES = ROOT / "scenes" / "spheres.toml"
+
+needs_dask = pytest.mark.skipif(
+    importlib.util.find_spec("distributed") is None,
+    reason="Dask distributed is not installed (pip install 'clray[dask]')")
+
+
+def _run(code: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                          timeout=120, cwd=ROOT)
+
+
+def test_core_imports_no_dask():
+    done = _run("import sys, clray, clray.cli, clray.animation, clray.render\n"
+                "print(sorted(m for m in sys.modules if m.split('.')[0] in "
+                "('dask', 'distributed')))")
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.strip() == "[]"
+
+
+def test_without_dask_says_how_to_install(tmp_path):
+    # `distributed` made unimportable as it is where the extra is not installed.
+    done = _run("import sys; sys.modules['distributed'] = None\n"
+                "from clray.cli import main\n"
+                f"sys.exit(main(['render', {str(SPHERES)!r}, '--dask', "
+                f"'-o', {str(tmp_path / 'x.png')!r}]))")
+    assert done.returncode == EXIT_RUNTIME
+    assert done.stderr == ("clray: error: --dask needs Dask distributed, which is not "
+                           "installed: pip install 'clray[dask]'\n")
+    assert not (tmp_path / "x.png").exists()
+
+
+@pytest.fixture(scope="module")
+def client():
+    if needs_dask.args[0]:
+        pytest.skip(needs_dask.kwargs["reason"])
+    from clray.distributed import connect
+
+    with connect(None, workers=2) as c:
+        yield c
+
+
+def small(spp: int = 2) -> RenderSettings:
+    return RenderSettings(width=96, height=64, spp=spp, device=os.environ["CLRAY_DEVICE"])
+
+
+@needs_dask
+def test_tiles_assemble_bit_identical(cl_device, client):
+    from clray.distributed import render_still
+
+    scene = load_scene(SPHERES)
+    local = render(scene, small())
+    for tile_rows in (5, None):  # uneven fixed tiles; tiles sized by the measured rate
+        result = render_still(client, scene, small(), tile_rows=tile_rows)
+        assert result.image.tobytes() == local.image.tobytes()
+        assert result.stats["rays"] == local.stats["rays"]
+    fixed = render_still(client, scene, small(), tile_rows=5)
+    dask = fixed.stats["dask"]
+    assert dask["tiles"] == 13 and dask["tile_rows"] == [4, 5]
+    assert dask["workers"] == 2
+    assert dask["bytes_sent"] == 2 * dask["scene_bytes"] > 0
+    assert dask["result_bytes"] == local.image.nbytes
+
+
+@needs_dask
+def test_scene_sent_and_packed_once_per_worker(cl_device, client):
+    """Tasks refer to the scattered scene: while tiles render, each worker holds one copy, and
+    each worker packs it once for all its tiles."""
+    from clray.distributed import render_still
+
+    scene = load_scene(SPHERES)
+    copies: list[int] = []
+
+    def count_scene_copies(done: int, submitted: int) -> None:
+        copies.append(sum(len(workers) for key, workers in client.who_has().items()
+                          if str(key).startswith("Scene-")))
+
+    result = render_still(client, scene, small(), tile_rows=8, on_tile=count_scene_copies)
+    assert copies == [2] * 8
+    dask = result.stats["dask"]
+    assert dask["packs"] == len(dask["tiles_by_worker"]) <= 2
+    assert not any(str(k).startswith("Scene-") for k in client.who_has())
+
+
+@needs_dask
+def test_killed_worker_loses_no_tile(cl_device, client):
+    from clray.distributed import render_still
+
+    scene = load_scene(SPHERES)
+    settings = RenderSettings(width=160, height=96, spp=24, device=os.environ["CLRAY_DEVICE"])
+    local = render(scene, settings)
+    pids = client.run(os.getpid)
+    killed: list[int] = []
+
+    def kill_a_busy_worker(done: int, submitted: int) -> None:
+        if killed:
+            return
+        busy = [w for w, keys in client.processing().items() if keys]
+        assert busy, "no tile left in flight to lose: make the render longer"
+        killed.append(pids[busy[0]])
+        os.kill(pids[busy[0]], signal.SIGKILL)
+
+    logging.getLogger("distributed").setLevel(logging.CRITICAL)
+    result = render_still(client, scene, settings, tile_rows=4, on_tile=kill_a_busy_worker)
+    assert killed
+    assert result.image.tobytes() == local.image.tobytes()
+    assert result.stats["dask"]["tiles"] == 24
+    # The nanny restarts the worker; the next tests get two again.
+    client.wait_for_workers(2, timeout=60)
+
+
+@needs_dask
+def test_cli_dask_still_equals_local(cl_device, tmp_path, capsys):
+    args = ["render", str(SPHERES), "-W", "80", "-H", "48", "--spp", "2"]
+    assert cli.main([*args, "-o", str(tmp_path / "local.pfm"), "-q"]) == 0
+    assert cli.main([*args, "-o", str(tmp_path / "dask.pfm"), "--dask", "--dask-workers",
+                     "2"]) == 0
+    err = capsys.readouterr().err
+    assert "dask: 1 tiles on 2 workers" in err or "dask: 2 tiles on 2 workers" in err, err
+    assert (read_pfm(tmp_path / "dask.pfm").tobytes()
+            == read_pfm(tmp_path / "local.pfm").tobytes())
+
+
+@needs_dask
+def test_cli_dask_frames_render_and_resume(cl_device, tmp_path, capsys):
+    scene = str(ROOT / "scenes" / "orbit.toml")
+    size = ["-W", "32", "-H", "18", "--spp", "1"]
+    local, dask = tmp_path / "l_%02d.pfm", tmp_path / "d_%02d.pfm"
+    assert cli.main(["render", scene, *size, "--frames", "0:3", "-o", str(local), "-q"]) == 0
+    assert cli.main(["render", scene, *size, "--frames", "0:2", "-o", str(dask), "--dask",
+                     "-q"]) == 0
+    assert cli.main(["render", scene, *size, "--frames", "0:3", "-o", str(dask), "--dask",
+                     "--resume"]) == 0
+    err = capsys.readouterr().err
+    assert "dask: 1 frames on 2 workers" in err and "2 complete already" in err, err
+    for f in range(3):
+        assert (read_pfm(tmp_path / f"d_{f:02d}.pfm").tobytes()
+                == read_pfm(tmp_path / f"l_{f:02d}.pfm").tobytes())
+
+
+@needs_dask
+def test_unreachable_scheduler_is_one_line_in_time(tmp_path):
+    with socket.socket() as s:  # a port nothing listens on
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    started = time.monotonic()
+    done = subprocess.run([sys.executable, "-m", "clray", "render", str(SPHERES), "-o",
+                           str(tmp_path / "x.png"), "--dask", f"tcp://127.0.0.1:{port}",
+                           "--dask-timeout", "2"], capture_output=True, text=True, timeout=60)
+    assert time.monotonic() - started < 30
+    assert done.returncode == EXIT_RUNTIME
+    lines = done.stderr.splitlines()
+    assert len(lines) == 1, done.stderr
+    assert lines[0].startswith(f"clray: error: cannot connect to the Dask scheduler at "
+                               f"tcp://127.0.0.1:{port}")
+
+
+@needs_dask
+def test_study_keeps_each_scene_on_one_worker(cl_device, client, tmp_path):
+    import functools
+
+    from clray.distributed import study_scenes
+    from clray.study import DEFAULT, REFERENCE, run_study
+
+    scenes = [SPHERES, ROOT / "scenes" / "glass.toml"]
+    records = run_study(scenes, tmp_path, repeat=1, width=24, height=16,
+                        device=os.environ["CLRAY_DEVICE"], variants=(REFERENCE, DEFAULT),
+                        run_scenes=functools.partial(study_scenes, client))
+    assert [(r["scene"], r["variant"]) for r in records] == [
+        (s.stem, v.name) for s in scenes for v in (REFERENCE, DEFAULT)]
+    for stem in ("spheres", "glass"):
+        assert len({r["worker"] for r in records if r["scene"] == stem}) == 1
+    # The same numbers as a study in this process: the double build is its own reference.
+    assert all(r["rmse"] == 0 for r in records if r["variant"] == REFERENCE.name)
+    report = (tmp_path / "report.md").read_text()
+    assert "each scene's variants all on one worker" in report
+    assert f"on worker {records[0]['worker']}" in report

@@ -57,35 +57,35 @@ def _shown(text: str) -> str:
     return repr(text if len(text) <= 40 else text[:37] + "...")
 
 
+def _flag_value(convert: Callable[[str], Any], problem_of: Callable[[object], str | None]
+                ) -> Callable[[str], Any]:
+    """A flag's parser: `convert` the text, then the scene file's and RenderSettings' rule in
+    their words (clray.scene.limits)."""
+    def parse(text: str) -> Any:
+        try:
+            value = convert(text) if len(text) <= 40 else text
+        except ValueError:
+            value = text
+        problem = problem_of(value)
+        if problem:
+            raise argparse.ArgumentTypeError(f"{problem}, got {_shown(text)}")
+        return value
+
+    return parse
+
+
 def _int_in(low: int, high: int) -> Callable[[str], int]:
     # Every count has a maximum: past it the kernels' int32 arithmetic would overflow, long
     # before the render would end.
-    # The wording of the scene file's and RenderSettings' checks (limits.integer_problem).
-    def parse(text: str) -> int:
-        try:
-            value: object = int(text) if len(text) <= 40 else text
-        except ValueError:
-            value = text
-        problem = limits.integer_problem(value, low, high)
-        if problem:
-            raise argparse.ArgumentTypeError(f"{problem}, got {_shown(text)}")
-        return int(value)
-
-    return parse
+    return _flag_value(int, lambda v: limits.integer_problem(v, low, high))
 
 
 def _number_in(low: float, high: float) -> Callable[[str], float]:
-    def parse(text: str) -> float:
-        try:
-            value: object = float(text) if len(text) <= 40 else text
-        except ValueError:
-            value = text
-        problem = limits.number_problem(value, low, high)
-        if problem:
-            raise argparse.ArgumentTypeError(f"{problem}, got {_shown(text)}")
-        return float(value)
+    return _flag_value(float, lambda v: limits.number_problem(v, low, high))
 
-    return parse
+
+def _choice_in(allowed: tuple[int, ...]) -> Callable[[str], int]:
+    return _flag_value(int, lambda v: limits.choice_problem(v, allowed))
 
 
 def _file_path(text: str) -> Path:
@@ -111,20 +111,6 @@ def _image_path(text: str) -> Path:
     except ValueError as err:
         raise argparse.ArgumentTypeError(str(err)) from err
     return _file_path(text)
-
-
-def _choice_in(allowed: tuple[int, ...]) -> Callable[[str], int]:
-    def parse(text: str) -> int:
-        try:
-            value: object = int(text) if len(text) <= 40 else text
-        except ValueError:
-            value = text
-        problem = limits.choice_problem(value, allowed)
-        if problem:
-            raise argparse.ArgumentTypeError(f"{problem}, got {_shown(text)}")
-        return int(value)
-
-    return parse
 
 
 def _frames(text: str) -> range:

@@ -97,13 +97,20 @@ def _texture(texture: M.Texture) -> dict:
     if texture.kind == "checker":
         return {"type": "checker", **_fields(texture, skip=(
             "kind", "file", "repeat", "colorspace", "image"))}
-    spec = {"type": texture.kind, "repeat": _plain(texture.repeat), "blend": texture.blend}
-    if texture.image is not None:
-        spec["texels"] = texture.image  # already linear: what the file decoded to
-    elif texture.file is not None:
-        spec["file"] = str(texture.file)
-        if texture.colorspace is not None:
-            spec["colorspace"] = texture.colorspace
+    return {"type": texture.kind, "repeat": _plain(texture.repeat), "blend": texture.blend,
+            **_image_source(texture)}
+
+
+def _image_source(image: M.Texture | M.Background) -> dict:
+    """An image texture's or panorama's texels (already linear: what the file decoded to), or
+    its file where it has no texels."""
+    if image.image is not None:
+        return {"texels": image.image}
+    if image.file is None:
+        return {}
+    spec = {"file": str(image.file)}
+    if image.colorspace is not None:
+        spec["colorspace"] = image.colorspace
     return spec
 
 
@@ -117,14 +124,7 @@ def _background(background: M.Background) -> dict:
     if background.kind == "gradient":
         return {"type": "gradient", "bottom": _plain(background.bottom),
                 "top": _plain(background.top)}
-    spec: dict = {"type": background.kind}
-    if background.image is not None:
-        spec["texels"] = background.image  # already linear: what the file decoded to
-    elif background.file is not None:
-        spec["file"] = str(background.file)
-        if background.colorspace is not None:
-            spec["colorspace"] = background.colorspace
-    return spec
+    return {"type": background.kind, **_image_source(background)}
 
 
 def _light(light: M.Light, i: int) -> dict:

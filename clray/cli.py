@@ -177,7 +177,7 @@ def _build_parser() -> _Parser:
                       help="print progress lines where stderr is not a terminal (a terminal "
                            "always gets a progress bar), compiler warnings and a table of "
                            "timings, ray counts and device memory")
-    cluster = r.add_argument_group("animation and Dask (docs/rendering.md)")
+    cluster = r.add_argument_group("animation and Dask (README.md: Animation, Beyond one machine)")
     cluster.add_argument("--frames", type=_frames, metavar="A:B",
                          help="render frames A to B-1 of the scene's [animation] ('A:' to the "
                               "last, 'N' one frame) to -o with a frame number, e.g. "

@@ -185,3 +185,32 @@ def test_frames_usage_errors(tmp_path, capsys):
     assert cli.main(["render", str(plain), "--frames", "0:2", "-o",
                      str(tmp_path / "f_%d.png")]) == 3
     assert "animation: missing" in capsys.readouterr().err
+
+
+def test_object_transform_animates(tmp_scene):
+    # Any object's transform can be keyed once the object has a transform table to put it in.
+    path = tmp_scene("""\
+[camera]
+position = [0, 0, 5]
+look_at = [0, 0, 0]
+[[objects]]
+type = "sphere"
+center = [0, 0, 0]
+radius = 1
+transform = {}
+[animation]
+frames = 5
+[[animation.tracks]]
+key = "objects[0].transform.translate"
+frames = [0, 4]
+values = [[0, 0, 0], [2, -4, 8]]
+[[animation.tracks]]
+key = "objects[0].transform.scale"
+frames = [0, 4]
+values = [1, 3]
+""")
+    sequence = load_sequence(path)
+    sphere = sequence.scene(1).objects[0]
+    assert sphere.center == (0.5, -1.0, 2.0)
+    assert sphere.radius == 1.5
+    assert sequence.scene(4).objects[0].center == (2.0, -4.0, 8.0)

@@ -201,3 +201,16 @@ def test_study_keeps_each_scene_on_one_worker(cl_device, client, tmp_path):
     report = (tmp_path / "report.md").read_text()
     assert "each scene's variants all on one worker" in report
     assert f"on worker {records[0]['worker']}" in report
+
+
+@needs_dask
+def test_cli_study_on_a_local_cluster(cl_device, tmp_path):
+    import json
+
+    assert cli.main(["study", str(SPHERES), "--out", str(tmp_path), "--repeat", "1", "-W", "16",
+                     "-H", "12", "--dask", "-q"]) == 0
+    records = json.loads((tmp_path / "results.json").read_text())["records"]
+    assert len(records) > 2
+    assert len({r["worker"] for r in records}) == 1
+    assert cli.main(["study", str(SPHERES), "--out", str(tmp_path), "--dask",
+                     "tcp://127.0.0.1:1", "--dask-workers", "2"]) == 2

@@ -88,6 +88,13 @@ def _choice_in(allowed: tuple[int, ...]) -> Callable[[str], int]:
     return _flag_value(int, lambda v: limits.choice_problem(v, allowed))
 
 
+def _scene_path(text: str) -> Path:
+    # Path("") is the current directory, and would name the default output ".png".
+    if not text:
+        raise argparse.ArgumentTypeError("expected a scene file name, got ''")
+    return Path(text)
+
+
 def _file_path(text: str) -> Path:
     """A path to write a file to: it must name a file, not a directory."""
     if not text:
@@ -130,7 +137,8 @@ def _build_parser() -> _Parser:
     r = commands.add_parser(
         "render", help="render a scene file to an image",
         description="Render SCENE. Flags override the scene file's [render] values.")
-    r.add_argument("scene", type=Path, metavar="SCENE", help="scene file (.toml or .json)")
+    r.add_argument("scene", type=_scene_path, metavar="SCENE",
+                   help="scene file (.toml or .json)")
     r.add_argument("-o", "--output", type=_image_path, metavar="OUT",
                    help=f"output image, by suffix: {', '.join(SUFFIXES)} (.png is 8- or "
                         "16-bit, sRGB unless --linear, clamped to [0, 1] after --exposure; .pfm "
@@ -201,7 +209,7 @@ def _build_parser() -> _Parser:
                     "textbook formulas) and compare with the double build: writes "
                     "DIR/results.json, DIR/report.md and a time-vs-error PNG per scene "
                     "(needs matplotlib, the 'plot' extra; skipped with a note otherwise).")
-    st.add_argument("scenes", type=Path, nargs="+", metavar="SCENE",
+    st.add_argument("scenes", type=_scene_path, nargs="+", metavar="SCENE",
                     help="scene files (.toml or .json)")
     st.add_argument("--out", type=Path, required=True, metavar="DIR", help="output folder")
     st.add_argument("--repeat", type=_int_in(1, MAX_REPEAT), default=3, metavar="N",
@@ -646,6 +654,9 @@ def main(argv: list[str] | None = None) -> int:
     except MemoryError:
         _say("error: out of memory")
         return EXIT_RUNTIME
+    except BrokenPipeError:
+        _quiet_stdout()
+        return EXIT_RUNTIME
 
 
 def run_command() -> NoReturn:
@@ -657,6 +668,15 @@ def run_command() -> NoReturn:
     try:
         sys.stdout.flush()
         sys.stderr.flush()
+    except BrokenPipeError:
+        _quiet_stdout()
+        code = code or EXIT_RUNTIME
     except OSError:
         raise SystemExit(code) from None
     os._exit(code)
+
+
+def _quiet_stdout() -> None:
+    """After the reader of stdout went away (`clray devices | head -1`): nothing more to say to
+    it, and no later flush may fail again with a traceback."""
+    os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())

@@ -516,3 +516,27 @@ def test_image_and_stats_both_to_stdout_is_a_usage_error(capsys, scene) -> None:
     assert code == EXIT_USAGE and out == ""
     assert_one_error_line(err)
     assert "both write to standard output" in err
+
+
+def test_empty_scene_name_is_a_usage_error(capsys) -> None:
+    code, out, err = run(capsys, "render", "")
+    assert code == EXIT_USAGE and out == ""
+    assert_one_error_line(err)
+    assert "expected a scene file name, got ''" in err
+
+
+@pytest.mark.parametrize("unbuffered", ["1", ""])
+def test_closed_stdout_is_not_a_traceback(cl_device, unbuffered: str) -> None:
+    # A pipe whose reader is gone before clray writes: every write fails with EPIPE.
+    read_end, write_end = os.pipe()
+    os.close(read_end)
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONUNBUFFERED"}
+    if unbuffered:
+        env["PYTHONUNBUFFERED"] = unbuffered
+    try:
+        done = subprocess.run([sys.executable, "-m", "clray", "devices"], stdout=write_end,
+                              stderr=subprocess.PIPE, text=True, env=env, timeout=120)
+    finally:
+        os.close(write_end)
+    assert done.returncode == 1
+    assert done.stderr == ""

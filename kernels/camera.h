@@ -15,12 +15,17 @@ inline REAL2 sample_position(int x, int y, int s, int spp, uint seed, uint pixel
                    (REAL)y + ((REAL)(s / nx) + r1) / (REAL)ny);
 }
 
+// Image point `sample` (pixel units) as (x, y) in [-1, 1] on the image plane, y up.
+inline REAL2 image_plane_point(REAL2 sample, int width, int height) {
+    return (REAL2)((REAL)2 * sample.x / (REAL)width - (REAL)1,
+                   (REAL)1 - (REAL)2 * sample.y / (REAL)height);
+}
+
 inline REAL3 camera_direction(const __global Camera* camera, REAL2 sample, int width,
                               int height) {
-    REAL px = (REAL)2 * sample.x / (REAL)width - (REAL)1;
-    REAL py = (REAL)1 - (REAL)2 * sample.y / (REAL)height;
-    REAL3 d = TO_REAL3(camera->forward) + px * TO_REAL3(camera->right) +
-              py * TO_REAL3(camera->up);
+    REAL2 p = image_plane_point(sample, width, height);
+    REAL3 d = TO_REAL3(camera->forward) + p.x * TO_REAL3(camera->right) +
+              p.y * TO_REAL3(camera->up);
     return normalize(d);
 }
 
@@ -47,9 +52,8 @@ inline REAL2 lens_sample(int s, int spp, uint seed, uint pixel) {
 // lens, from a point of the lens towards the same point of the focus plane.
 inline void camera_ray(const __global Camera* camera, REAL2 sample, int width, int height,
                        int s, int spp, uint seed, uint pixel, REAL3* o, REAL3* d) {
-    REAL px = (REAL)2 * sample.x / (REAL)width - (REAL)1;
-    REAL py = (REAL)1 - (REAL)2 * sample.y / (REAL)height;
-    REAL3 across = px * TO_REAL3(camera->right) + py * TO_REAL3(camera->up);
+    REAL2 p = image_plane_point(sample, width, height);
+    REAL3 across = p.x * TO_REAL3(camera->right) + p.y * TO_REAL3(camera->up);
     // aim: from the origin to the ray's point on the focus plane, per unit of focus distance
     // (its component along forward is 1).
 #if HAS_ORTHOGRAPHIC

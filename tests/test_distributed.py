@@ -102,7 +102,11 @@ def test_scene_sent_and_packed_once_per_worker(cl_device, client):
                           if str(key).startswith("Scene-")))
 
     result = render_still(client, scene, small(), tile_rows=8, on_tile=count_scene_copies)
-    assert copies == [2] * 8
+    # Never more than one copy a worker (the scene is not sent with each tile). Dask may drop a
+    # replica of an idle worker mid-render (seen once on Intel's runtime: 2, 2, 1, 1, ...), so
+    # the count is not pinned at 2; a worker that then needed the scene again would pack it
+    # again, which the packs check below would catch.
+    assert len(copies) == 8 and all(1 <= c <= 2 for c in copies), copies
     dask = result.stats["dask"]
     assert dask["packs"] == len(dask["tiles_by_worker"]) <= 2
     assert not any(str(k).startswith("Scene-") for k in client.who_has())

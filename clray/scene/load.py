@@ -1022,10 +1022,11 @@ class _Loader:
                 tkey, f"moves vertices beyond {L.MAX_MAGNITUDE:g} in magnitude "
                 f"(largest {np.max(np.abs(vertices)):.3g})"
             )
-        if normals is not None:
+        if normals is not None and not (identity and "file" in spec):
             # Normals follow the inverse transpose of A (n @ A^-1 as rows): they stay
             # perpendicular to the surface under non-uniform scale and shear. Unit normals
-            # under a matrix whose singular values are at least MIN_LENGTH stay finite.
+            # under a matrix whose singular values are at least MIN_LENGTH stay finite. A
+            # file's normals are unit already (the OBJ and .npz readers normalise them).
             normals = unit(normals if identity else normals @ np.linalg.inv(a))
         if np.linalg.det(a) < 0:
             # A mirroring transform turns the winding inside out; swapping two corners keeps

@@ -41,6 +41,7 @@ from clray.render import (
     pack_for,
     render,
     render_packed,
+    warn_deep_tree,
 )
 from clray.scene.check import check_scene
 from clray.scene.load import load_scene
@@ -169,6 +170,7 @@ def render_still(client: Client, scene: Scene, settings: RenderSettings | None =
     scene = check_scene(scene)
     encoding = _encoding(scene, settings)
     resolved = _resolve(scene, settings)
+    warn_deep_tree(scene, resolved)
     width, height, spp = (int(resolved[k]) for k in ("width", "height", "spp"))
     task_settings = dataclasses.replace(settings, progress=None)
     scene_future, scene_bytes, workers = _scatter(client, scene)

@@ -249,6 +249,17 @@ def render_packed(packed: PackedScene, device: cl.Device,
     return image, stats
 
 
+def warn_deep_tree(scene: Scene, resolved: dict[str, int | float]) -> None:
+    """A warning (before any device work) for a transmissive scene traced deep without
+    min_weight, whose ray tree can double at every bounce."""
+    if (resolved["max_depth"] > DEEP_TREE_DEPTH and resolved["min_weight"] == 0
+            and any(m.transmit > 0 for m in scene.materials)):
+        warnings.warn(f"max_depth {resolved['max_depth']} with transmissive materials and "
+                      "min_weight 0: inside glass the ray tree can double at every bounce and "
+                      "the render take very long; set min_weight (e.g. 0.004) to stop faint rays",
+                      stacklevel=3)
+
+
 def pack_for(scene: Scene, settings: RenderSettings, device: cl.Device) -> PackedScene:
     """The checked `scene` packed for `device` with `settings`: what render() launches, and
     what each worker of a distributed render packs once for all its tiles."""
@@ -267,12 +278,7 @@ def render(scene: Scene | str | os.PathLike, settings: RenderSettings | None = N
     start = time.perf_counter()
     encoding = _encoding(scene, settings)  # first, so that a bad value costs nothing
     resolved = _resolve(scene, settings)
-    if (resolved["max_depth"] > DEEP_TREE_DEPTH and resolved["min_weight"] == 0
-            and any(m.transmit > 0 for m in scene.materials)):
-        warnings.warn(f"max_depth {resolved['max_depth']} with transmissive materials and "
-                      "min_weight 0: inside glass the ray tree can double at every bounce and "
-                      "the render take very long; set min_weight (e.g. 0.004) to stop faint rays",
-                      stacklevel=2)
+    warn_deep_tree(scene, resolved)
     device = select_device(settings.device)
     packed = pack_for(scene, settings, device)
     pack_s = time.perf_counter() - start - packed.bvh_s

@@ -113,6 +113,17 @@ def test_scene_sent_and_packed_once_per_worker(cl_device, client):
 
 
 @needs_dask
+def test_deep_glass_without_min_weight_is_warned_about(cl_device, client):
+    from clray.distributed import render_still
+
+    glass = load_scene(ROOT / "scenes" / "glass.toml")
+    # Just over the depth that warns, on a few pixels: the tree stays small enough to render.
+    settings = RenderSettings(width=16, height=12, spp=1, max_depth=21)
+    with pytest.warns(UserWarning, match="set min_weight"):
+        render_still(client, glass, settings)
+
+
+@needs_dask
 def test_killed_worker_loses_no_tile(cl_device, client):
     from clray.distributed import render_still
 

@@ -3,8 +3,6 @@ against closed-form irradiance, and the sampling's stratification and determinis
 
 from __future__ import annotations
 
-from typing import NamedTuple
-
 import numpy as np
 import pytest
 
@@ -12,6 +10,7 @@ from clray.metrics import nonfinite_count, rmse
 from clray.reference import camera_rays, light_square, render_reference
 from clray.render import RenderSettings, render
 from clray.scene import model as M
+from tests.reference_check import Tolerance, assert_kernel_matches_reference
 
 W, H = 48, 36
 
@@ -57,11 +56,6 @@ CASES = {
 }
 
 
-class Tolerance(NamedTuple):
-    rmse: float
-    err: float
-
-
 # Measured on PoCL (CPU) at W x H, each bound set at 4x the measured value (in the comment:
 # RMSE, max error). The kernels and the reference draw the same light samples, so the images
 # agree to float32 rounding; a light sample drawn from another stratum or dimension changes
@@ -78,14 +72,7 @@ TOLERANCES = {
 
 @pytest.mark.parametrize("name", sorted(CASES))
 def test_kernel_matches_reference(cl_device, name: str) -> None:
-    scene, tol = CASES[name], TOLERANCES[name]
-    image = render(scene).image.astype(np.float64)
-    expected = render_reference(scene)
-    assert nonfinite_count(image) == 0
-    err = np.abs(image - expected).max(axis=-1)
-    worst = np.unravel_index(err.argmax(), err.shape)
-    assert err.max() <= tol.err, f"worst {err.max():.3g} at (y, x) {worst}"
-    assert rmse(image, expected) < tol.rmse
+    assert_kernel_matches_reference(CASES[name], TOLERANCES[name])
 
 
 # ---------------------------------------------------------------------------------------------

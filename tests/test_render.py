@@ -5,16 +5,15 @@ from __future__ import annotations
 
 import importlib
 from pathlib import Path
-from typing import NamedTuple
 
 import numpy as np
 import pytest
 
 from clray.metrics import count_over, nonfinite_count, rmse
-from clray.reference import render_reference
 from clray.render import RenderSettings, render
 from clray.scene import model as M
 from clray.scene.load import load_scene
+from tests.reference_check import Tolerance, assert_kernel_matches_reference
 
 ROOT = Path(__file__).resolve().parent.parent
 # `clray.render` the attribute is the function; the module is needed for monkeypatching.
@@ -137,17 +136,6 @@ CASES = {
 }
 
 
-class Tolerance(NamedTuple):
-    """What one scene needs, float32 kernel against the float64 reference: at most `off`
-    pixels may differ by more than `err` in a channel (pixels where float32 legitimately
-    resolves something else: the far horizon's texture lookups, a refraction that grazes a
-    rim), and the other pixels' RMSE stays below `rmse`."""
-
-    rmse: float
-    err: float
-    off: int = 0
-
-
 # Measured on PoCL (CPU) at W x H, then each bound set at 4x the measured value (rmse, err);
 # `off` is the exact number of outlier pixels measured, all off by 0.02 or more, with no
 # pixel between 2.4e-4 and 0.02. A missing highlight, a wrong highlight reflection vector or
@@ -172,16 +160,7 @@ TOLERANCES = {  # measured RMSE of the rest and max error in the comments
 
 @pytest.mark.parametrize("name", sorted(CASES))
 def test_kernel_matches_reference(cl_device, name: str) -> None:
-    scene, tol = CASES[name], TOLERANCES[name]
-    image = render(scene).image.astype(np.float64)
-    expected = render_reference(scene)
-    assert nonfinite_count(image) == 0
-    err = np.abs(image - expected).max(axis=-1)
-    off = err > tol.err
-    worst = np.unravel_index(err.argmax(), err.shape)
-    assert off.sum() <= tol.off, (f"{int(off.sum())} pixels off by more than {tol.err:g} "
-                                  f"(worst {err.max():.3g} at (y, x) {worst})")
-    assert rmse(image[~off], expected[~off]) < tol.rmse
+    assert_kernel_matches_reference(CASES[name], TOLERANCES[name])
 
 
 def test_plane_under_directional_light_is_uniform(cl_device) -> None:

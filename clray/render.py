@@ -276,7 +276,7 @@ def render(scene: Scene | str | os.PathLike, settings: RenderSettings | None = N
     settings = settings or RenderSettings()
     scene = load_scene(scene) if isinstance(scene, str | os.PathLike) else check_scene(scene)
     start = time.perf_counter()
-    encoding = _encoding(scene, settings)  # first, so that a bad value costs nothing
+    encoding = _encoding(scene, settings)
     resolved = _resolve(scene, settings)
     warn_deep_tree(scene, resolved)
     device = select_device(settings.device)

@@ -963,16 +963,20 @@ class _Loader:
         if unknown or "vertices" not in arrays or "faces" not in arrays:
             raise self.error(key, f"{_name(name)} holds {', '.join(sorted(arrays)) or 'nothing'} "
                              f"(expected vertices, faces and optionally normals, uvs)")
-        inside = f"{key}: {_name(name)}:"  # errors name the array in the file
-        vertices = self.vertex_values(arrays["vertices"], f"{inside} vertices", None, 3)
-        faces = self.faces(arrays["faces"], f"{inside} faces", len(vertices))
-        normals, uvs = (None if n not in arrays else self.vertex_values(
-            arrays[n], f"{inside} {n}", len(vertices), size) for n, size in (("normals", 3),
-                                                                             ("uvs", 2)))
+        return self.mesh_arrays(arrays, f"{key}: {_name(name)}: ")  # errors name the array
+
+    def mesh_arrays(self, source: dict, prefix: str) -> ObjMesh:
+        """Vertices, faces and the optional per-vertex normals (made unit) and uvs of `source`,
+        numpy arrays or lists; errors name the array as `prefix` + its name."""
+        vertices = self.vertex_values(source["vertices"], f"{prefix}vertices", None, 3)
+        faces = self.faces(source["faces"], f"{prefix}faces", len(vertices))
+        normals, uvs = (None if n not in source else self.vertex_values(
+            source[n], f"{prefix}{n}", len(vertices), size) for n, size in (("normals", 3),
+                                                                            ("uvs", 2)))
         if normals is not None:
             zero = ~np.any(normals != 0, axis=1)
             if zero.any():
-                raise self.error(f"{inside} normals[{int(np.flatnonzero(zero)[0])}]",
+                raise self.error(f"{prefix}normals[{int(np.flatnonzero(zero)[0])}]",
                                  "must be a nonzero vector")
             normals = unit(normals)
         return ObjMesh(vertices, faces, normals, uvs)
@@ -992,14 +996,8 @@ class _Loader:
             for name in ("vertices", "faces"):
                 if name not in spec:
                     raise self.error(f"{key}.{name}", "missing required key")
-            vertices = self.vertex_values(spec["vertices"], f"{key}.vertices", None, 3)
-            faces = self.faces(spec["faces"], f"{key}.faces", len(vertices))
-            normals, uvs = (None if name not in spec else self.vertex_values(
-                spec[name], f"{key}.{name}", len(vertices), size) for name, size in
-                (("normals", 3), ("uvs", 2)))
-            if normals is not None and not np.all(np.any(normals != 0, axis=1)):
-                row = int(np.flatnonzero(~np.any(normals != 0, axis=1))[0])
-                raise self.error(f"{key}.normals[{row}]", "must be a nonzero vector")
+            obj = self.mesh_arrays(spec, f"{key}.")
+            vertices, faces, normals, uvs = obj.vertices, obj.faces, obj.normals, obj.uvs
         else:
             raise self.error(key, "a mesh needs file or vertices + faces")
         if len(faces) == 0:
@@ -1022,12 +1020,12 @@ class _Loader:
                 tkey, f"moves vertices beyond {L.MAX_MAGNITUDE:g} in magnitude "
                 f"(largest {np.max(np.abs(vertices)):.3g})"
             )
-        if normals is not None and not (identity and "file" in spec):
+        if normals is not None and not identity:
             # Normals follow the inverse transpose of A (n @ A^-1 as rows): they stay
             # perpendicular to the surface under non-uniform scale and shear. Unit normals
-            # under a matrix whose singular values are at least MIN_LENGTH stay finite. A
-            # file's normals are unit already (the OBJ and .npz readers normalise them).
-            normals = unit(normals if identity else normals @ np.linalg.inv(a))
+            # under a matrix whose singular values are at least MIN_LENGTH stay finite. They
+            # arrive unit (the OBJ reader and mesh_arrays normalise them).
+            normals = unit(normals @ np.linalg.inv(a))
         if np.linalg.det(a) < 0:
             # A mirroring transform turns the winding inside out; swapping two corners keeps
             # (v1 - v0) x (v2 - v0) pointing outward, which refraction relies on.

@@ -96,10 +96,14 @@ def _buffer(ctx: cl.Context, array: np.ndarray) -> cl.Buffer:
                      hostbuf=np.ascontiguousarray(data))
 
 
-def _resolve(scene: Scene, settings: RenderSettings) -> dict[str, int | float]:
-    names = (*L.RENDER_INTEGERS, "min_weight")
+def _overrides(scene: Scene, settings: RenderSettings, names: tuple[str, ...]) -> dict:
+    """Each of `names` from the settings where given, else from the scene's [render]."""
     return {name: getattr(settings, name) if getattr(settings, name) is not None
             else getattr(scene.render, name) for name in names}
+
+
+def _resolve(scene: Scene, settings: RenderSettings) -> dict[str, int | float]:
+    return _overrides(scene, settings, (*L.RENDER_INTEGERS, "min_weight"))
 
 
 def next_band_rows(row_samples: int, last_rows: int, last_s: float, rows_left: int) -> int:
@@ -115,12 +119,7 @@ def next_band_rows(row_samples: int, last_rows: int, last_s: float, rows_left: i
 
 
 def _encoding(scene: Scene, settings: RenderSettings) -> Encoding:
-    r = scene.render
-    return Encoding(
-        linear=settings.linear if settings.linear is not None else r.linear,
-        exposure=settings.exposure if settings.exposure is not None else r.exposure,
-        png_bits=settings.png_bits if settings.png_bits is not None else r.png_bits,
-    )
+    return Encoding(**_overrides(scene, settings, ("linear", "exposure", "png_bits")))
 
 
 # The output buffers (radiance, ray counts, test counts: 16 bytes a pixel each) hold one band of

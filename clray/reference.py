@@ -22,6 +22,7 @@ from clray.scene.model import (
     Cylinder,
     DirectionalLight,
     DiscLight,
+    Instance,
     Material,
     Mesh,
     Plane,
@@ -479,10 +480,19 @@ def _expanded(spheres: Spheres) -> list[Sphere]:
 
 
 class _Geometry:
-    def __init__(self, scene: Scene) -> None:
+    def __init__(self, objects: tuple[SceneObject, ...]) -> None:
         # A `spheres` array is that many Sphere objects at its place in the scene order.
-        indexed = [(i, sphere) for i, ob in enumerate(scene.objects)
+        indexed = [(i, sphere) for i, ob in enumerate(objects)
                    for sphere in (_expanded(ob) if isinstance(ob, Spheres) else (ob,))]
+        # Instances after every other shape (ties go to the scene's own shapes first), each
+        # with its group's geometry, built once per group.
+        groups: dict[int, _Geometry] = {}
+        self.instances: list[tuple[int, Instance, _Geometry]] = []
+        for i, ob in enumerate(objects):
+            if isinstance(ob, Instance):
+                if id(ob.group) not in groups:
+                    groups[id(ob.group)] = _Geometry(ob.group.objects)
+                self.instances.append((i, ob, groups[id(ob.group)]))
         # Stable sort: within a type, scene order is kept.
         self.shapes: list[tuple[int, SceneObject]] = sorted(
             ((i, ob) for i, ob in indexed if type(ob) in _CROSSINGS),
@@ -577,7 +587,10 @@ class _Geometry:
             blended_uv = np.sum(bary * self.tri_uv[tri], axis=1)
             uv[m] = np.where(np.isnan(blended_uv), np.stack([b1, b2], axis=-1), blended_uv)
             obj[m], face[m], material[m] = self.tri_obj[tri], self.tri_face[tri], self.tri_mat[tri]
-        return SceneHit(best_t, normal, shading, uv, obj, face, material)
+        hit = SceneHit(best_t, normal, shading, uv, obj, face, material)
+        for i, inst, group in self.instances:
+            hit = _instance_hit(hit, i, inst, group, o, d)
+        return hit
 
     def transmittance(
         self, o: np.ndarray, d: np.ndarray, tmax: np.ndarray, filters: np.ndarray
@@ -594,14 +607,45 @@ class _Geometry:
             crossed = t < tmax[:, None]  # misses are inf, and t > 0 already holds
             tri_filters = filters[self.tri_mat[batch]]
             out *= np.prod(np.where(crossed[:, :, None], tri_filters[None], 1.0), axis=1)
+        for _, inst, group in self.instances:
+            local_o, local_d = _to_group(inst, o, d)
+            mine = filters if inst.material is None else np.broadcast_to(
+                filters[inst.material], filters.shape)
+            out *= group.transmittance(local_o, local_d, tmax, mine)
         return out
+
+
+def _to_group(inst: Instance, o: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Rays in an instance's group frame: d is mapped, not normalised, so t stays the same."""
+    inverse = np.linalg.inv(inst.matrix[:, :3])
+    return (o - inst.matrix[:, 3]) @ inverse.T, d @ inverse.T
+
+
+def _instance_hit(hit: SceneHit, i: int, inst: Instance, group: _Geometry, o: np.ndarray,
+                  d: np.ndarray) -> SceneHit:
+    """`hit` with instance i's hits where they are nearer beyond a tie. Normals go back by the
+    inverse transpose of the instance's matrix."""
+    local = group.closest(*_to_group(inst, o, d))
+    better = (local.t > 0.0) & (local.t < _tie_floor(hit.t, local.t))
+    if not better.any():
+        return hit
+    inverse = np.linalg.inv(inst.matrix[:, :3])
+    t, normal, shading, uv, obj, face, material = (np.array(field) for field in hit)
+    t[better] = local.t[better]
+    normal[better] = _normalize(local.normal[better] @ inverse)
+    shading[better] = _normalize(local.shading_normal[better] @ inverse)
+    uv[better] = local.uv[better]
+    obj[better] = i
+    face[better] = local.face[better]
+    material[better] = local.material[better] if inst.material is None else inst.material
+    return SceneHit(t, normal, shading, uv, obj, face, material)
 
 
 def intersect_scene(scene: Scene, origins: np.ndarray, directions: np.ndarray) -> SceneHit:
     """Closest hit (t > 0, ties by docs/rendering.md) of each ray with the scene's objects."""
     o = np.asarray(origins, dtype=np.float64).reshape(-1, 3)
     d = np.asarray(directions, dtype=np.float64).reshape(-1, 3)
-    return _Geometry(scene).closest(o, d)
+    return _Geometry(scene.objects).closest(o, d)
 
 
 def shadow_transmittance(
@@ -611,7 +655,7 @@ def shadow_transmittance(
     o = np.asarray(origins, dtype=np.float64).reshape(-1, 3)
     d = np.asarray(directions, dtype=np.float64).reshape(-1, 3)
     tmax = np.broadcast_to(np.asarray(tmax, dtype=np.float64), (len(o),))
-    return _Geometry(scene).transmittance(o, d, tmax, _MaterialTable(scene.materials).filter)
+    return _Geometry(scene.objects).transmittance(o, d, tmax, _MaterialTable(scene.materials).filter)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -900,7 +944,7 @@ def trace(
     max_depth = scene.render.max_depth if max_depth is None else max_depth
     seed = scene.render.seed if seed is None else seed
     min_weight = scene.render.min_weight
-    geo = _Geometry(scene)
+    geo = _Geometry(scene.objects)
     mats = _MaterialTable(scene.materials)
     background = scene.render.background
     fresnel = np.array([m.fresnel for m in scene.materials], dtype=bool)

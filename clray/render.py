@@ -188,7 +188,7 @@ def render_packed(packed: PackedScene, device: cl.Device,
             "nodes")]
         buffers.append(np.int32(len(packed.nodes)))
         buffers += [_buffer(ctx, getattr(packed, name)) for name in (
-            "prim_refs", "materials", "textures", "texels", "lights")]
+            "prim_refs", "materials", "textures", "texels", "lights", "instances")]
         band_bytes = width * capacity * 16
         image_buf = cl.Buffer(ctx, cl.mem_flags.WRITE_ONLY, band_bytes)
         counts_buf = cl.Buffer(ctx, cl.mem_flags.WRITE_ONLY, band_bytes)
@@ -312,7 +312,8 @@ def intersect_rays(packed: PackedScene, device: cl.Device, origins: np.ndarray,
         "spheres", "boxes", "cylinders", "cones", "triangles", "triangle_packets",
         "sphere_packets", "vertices", "normals", "uvs", "nodes")]
     args.append(np.int32(len(packed.nodes)))
-    args += [_buffer(ctx, packed.prim_refs), _buffer(ctx, packed.materials)]
+    args += [_buffer(ctx, packed.prim_refs), _buffer(ctx, packed.materials),
+             _buffer(ctx, packed.instances)]
     hits_buf = cl.Buffer(ctx, cl.mem_flags.WRITE_ONLY, n * 16)
     refs_buf = cl.Buffer(ctx, cl.mem_flags.WRITE_ONLY, n * 4)
     cl.Kernel(program, "intersect_rays")(queue, (n,), None, *args, hits_buf, refs_buf)

@@ -68,6 +68,7 @@ typedef struct {
     __global const Texture* textures;
     __global const float4* texels;
     __global const Light* lights;
+    __global const Instance* instances;
     int n_planes, n_nodes, n_lights;
 #if COUNT_TESTS
     TestCounts* counts;
@@ -79,6 +80,7 @@ typedef struct {
     int ref;  // PRIM_* << PRIM_TYPE_SHIFT | index; meaningful when t < REAL_INF
     int part;
     REAL b1, b2;
+    int instance;  // the instance `ref` was crossed in (ref is then in its group), or -1
 } Hit;
 
 // Triangles and spheres are tested in packets (leaf_closest, leaf_transmission), the other
@@ -143,19 +145,30 @@ inline int prim_material(const SceneRefs* s, int ref) {
     }
 }
 
-// The first crossing ahead of the origin; ties in t go to the smaller reference, which orders
-// by type and then by scene order (docs/rendering.md). Crossings within TIE_ROUNDINGS roundings
-// of each other tie: different shapes reach one point through different formulas, and an exact
-// comparison would pick between coplanar primitives at random.
+// Of two crossings that tie in t, whether (instance, ref) goes before the hit: the scene's own
+// primitives first, by reference, which orders by type and then by scene order
+// (docs/rendering.md); then instances in scene order, within one by reference.
+inline bool tie_before(const Hit* hit, int ref, int instance) {
+#if HAS_INSTANCES
+    if (instance != hit->instance) return instance < hit->instance;
+#endif
+    return ref < hit->ref;
+}
+
+// The first crossing ahead of the origin, ties going by tie_before. Crossings within
+// TIE_ROUNDINGS roundings of each other tie: different shapes reach one point through
+// different formulas, and an exact comparison would pick between coplanar primitives at random.
 #define TIE_ROUNDINGS 64
-inline void consider_hit(Hit* hit, const Crossings* c, int ref) {
+inline void consider_hit(Hit* hit, const Crossings* c, int ref, int instance) {
     int k = c->t[0] > (REAL)0 ? 0 : 1;
     REAL t = c->t[k];
     if (!(t > (REAL)0) || !(t < REAL_INF)) return;
     REAL tol = hit->ref < 0 ? (REAL)0 : gamma_n(TIE_ROUNDINGS) * fmax(t, hit->t);
-    if (hit->ref < 0 || t < hit->t - tol || (t <= hit->t + tol && ref < hit->ref)) {
+    if (hit->ref < 0 || t < hit->t - tol ||
+        (t <= hit->t + tol && tie_before(hit, ref, instance))) {
         hit->t = t;
         hit->ref = ref;
+        hit->instance = instance;
         hit->part = c->part[k];
         hit->b1 = c->b1;
         hit->b2 = c->b2;
@@ -255,35 +268,67 @@ HOT int section_packets(int count, int kind) {
                                  : (count >> LEAF_SPHERE_SHIFT) & LEAF_FIELD_MASK;
 }
 
-HOT void leaf_closest(const SceneRefs* s, int slot, int count, const Ray* r, Hit* hit) {
+HOT void leaf_closest(const SceneRefs* s, int slot, int count, const Ray* r, int instance,
+                      Hit* hit) {
     Crossings c[PACKET_WIDTH];
     for (int section = 0; section < 2; ++section) {
         int kind = section == 0 ? PRIM_TRIANGLE : PRIM_SPHERE;
         for (int p = section_packets(count, kind); p > 0; --p, slot += PACKET_WIDTH) {
             for (int bits = packet_crossings(s, kind, slot, r, c); bits; bits &= bits - 1) {
                 int k = lowest_bit(bits);
-                consider_hit(hit, &c[k], s->prim_refs[slot + k]);
+                consider_hit(hit, &c[k], s->prim_refs[slot + k], instance);
             }
         }
     }
     for (int k = 0; k < (count & LEAF_FIELD_MASK); ++k) {
         int ref = s->prim_refs[slot + k];
         Crossings other = intersect_prim(s, ref, r);
-        consider_hit(hit, &other, ref);
+        consider_hit(hit, &other, ref, instance);
     }
 }
 
-HOT Hit closest_hit(const SceneRefs* s, const Ray* r) {
+#if HAS_INSTANCES
+// The ray in an instance's group frame: o' = L o + t, d' = L d. d' is not normalised, so a
+// crossing's t is the same number in both frames and hits compare across them.
+HOT Ray instance_ray(const __global Instance* in, const Ray* r) {
+    REAL4 o = (REAL4)(r->o, (REAL)1), d = (REAL4)(r->d, (REAL)0);
+    REAL4 m0 = TO_REAL4(in->to_object[0]), m1 = TO_REAL4(in->to_object[1]),
+          m2 = TO_REAL4(in->to_object[2]);
+    return make_ray((REAL3)(dot(m0, o), dot(m1, o), dot(m2, o)),
+                    (REAL3)(dot(m0, d), dot(m1, d), dot(m2, d)));
+}
+
+// Push the instances among a scene leaf's other primitives as ENTER_INSTANCE entries; their
+// t (when the walk keeps one) is 0, so they are entered before older entries. Returns the new
+// stack size.
+HOT int push_instances(const SceneRefs* s, int slot, int count, int* stack_child,
+                       int* stack_count, REAL* stack_t, int sp) {
+    slot += (section_packets(count, PRIM_TRIANGLE) + section_packets(count, PRIM_SPHERE)) *
+            PACKET_WIDTH;
+    for (int k = 0; k < (count & LEAF_FIELD_MASK); ++k) {
+        int ref = s->prim_refs[slot + k];
+        if ((ref >> PRIM_TYPE_SHIFT) != PRIM_INSTANCE) continue;
+        stack_child[sp] = ref & PRIM_INDEX_MASK;
+        stack_count[sp] = ENTER_INSTANCE;
+        if (stack_t) stack_t[sp] = 0;
+        sp++;
+    }
+    return sp;
+}
+#endif
+
+HOT Hit closest_hit(const SceneRefs* s, const Ray* world) {
     Hit hit;
     hit.t = REAL_INF;
     hit.ref = -1;
     hit.part = 0;
     hit.b1 = 0;
     hit.b2 = 0;
+    hit.instance = -1;
 #if HAS_PLANES
     for (int i = 0; i < s->n_planes; ++i) {
-        Crossings c = intersect_plane(s->planes + i, r);
-        consider_hit(&hit, &c, (PRIM_PLANE << PRIM_TYPE_SHIFT) | i);
+        Crossings c = intersect_plane(s->planes + i, world);
+        consider_hit(&hit, &c, (PRIM_PLANE << PRIM_TYPE_SHIFT) | i, -1);
     }
 #endif
 #if HAS_BVH
@@ -294,10 +339,38 @@ HOT Hit closest_hit(const SceneRefs* s, const Ray* r) {
     REAL stack_t[BVH_STACK_SIZE];
     int sp = 0;
     int child = 0, count = 0;
+    const Ray* r = world;
+#if HAS_INSTANCES
+    // Inside an instance the walk goes on in its group's BVH with the ray in the group's frame,
+    // above a LEAVE_INSTANCE entry (t -inf: never skipped) that brings the scene's ray back.
+    Ray group_ray;
+    int instance = -1;
+#else
+    const int instance = -1;
+#endif
     for (;;) {
         if (count > 0) {
             COUNT(s, closest_prims, leaf_prims(s, child, count));
-            leaf_closest(s, child, count, r, &hit);
+            leaf_closest(s, child, count, r, instance, &hit);
+#if HAS_INSTANCES
+            if (instance < 0) {
+                sp = push_instances(s, child, count, stack_child, stack_count, stack_t, sp);
+            }
+        } else if (count == ENTER_INSTANCE) {
+            const __global Instance* in = s->instances + child;
+            instance = child;
+            group_ray = instance_ray(in, world);
+            r = &group_ray;
+            stack_child[sp] = 0;
+            stack_count[sp] = LEAVE_INSTANCE;
+            stack_t[sp++] = -REAL_INF;
+            child = in->root_child;
+            count = in->root_count;
+            continue;
+        } else if (count == LEAVE_INSTANCE) {
+            instance = -1;
+            r = world;
+#endif
         } else {
             const __global BvhNode* node = s->nodes + child;
             COUNT(s, closest_boxes, used_children(node));
@@ -344,14 +417,25 @@ HOT Hit closest_hit(const SceneRefs* s, const Ray* r) {
     return hit;
 }
 
+// The material a crossing shades or filters with: the instance's, where it replaces its
+// group's.
+inline int crossing_material(const SceneRefs* s, int ref, int instance) {
+#if HAS_INSTANCES
+    if (instance >= 0 && s->instances[instance].material >= 0) {
+        return s->instances[instance].material;
+    }
+#endif
+    return prim_material(s, ref);
+}
+
 // Multiply in transmit * colour for each crossing of a primitive within (0, tmax); false once
 // no light is left.
-inline bool filter_crossings(const SceneRefs* s, const Crossings* c, int ref, REAL tmax,
-                             REAL3* filter) {
+inline bool filter_crossings(const SceneRefs* s, const Crossings* c, int ref, int instance,
+                             REAL tmax, REAL3* filter) {
     for (int k = 0; k < 2; ++k) {
         if (c->t[k] > (REAL)0 && c->t[k] < tmax) {
 #if HAS_TRANSMISSION
-            const __global Material* m = s->materials + prim_material(s, ref);
+            const __global Material* m = s->materials + crossing_material(s, ref, instance);
             *filter *= TO_REAL(m->transmit) * TO_REAL3(m->color);
             if (max_comp3(*filter) <= (REAL)0) return false;
 #else
@@ -393,15 +477,15 @@ HOT bool packet_blocks(const SceneRefs* s, int kind, int slot, const Ray* r, REA
     REAL3 filter = (REAL3)(1, 1, 1);
     for (int bits = packet_crossings(s, kind, slot, r, c); bits; bits &= bits - 1) {
         int k = lowest_bit(bits);
-        if (!filter_crossings(s, &c[k], s->prim_refs[slot + k], tmax, &filter)) return true;
+        if (!filter_crossings(s, &c[k], s->prim_refs[slot + k], -1, tmax, &filter)) return true;
     }
     return false;
 }
 #endif
 
 // false once the leaf stops the light entirely.
-HOT bool leaf_transmission(const SceneRefs* s, int slot, int count, const Ray* r, REAL tmax,
-                           REAL3* filter) {
+HOT bool leaf_transmission(const SceneRefs* s, int slot, int count, const Ray* r, int instance,
+                           REAL tmax, REAL3* filter) {
     for (int section = 0; section < 2; ++section) {
         int kind = section == 0 ? PRIM_TRIANGLE : PRIM_SPHERE;
         for (int p = section_packets(count, kind); p > 0; --p, slot += PACKET_WIDTH) {
@@ -409,7 +493,8 @@ HOT bool leaf_transmission(const SceneRefs* s, int slot, int count, const Ray* r
             Crossings c[PACKET_WIDTH];
             for (int bits = packet_crossings(s, kind, slot, r, c); bits; bits &= bits - 1) {
                 int k = lowest_bit(bits);
-                if (!filter_crossings(s, &c[k], s->prim_refs[slot + k], tmax, filter)) {
+                if (!filter_crossings(s, &c[k], s->prim_refs[slot + k], instance, tmax,
+                                      filter)) {
                     return false;
                 }
             }
@@ -421,18 +506,18 @@ HOT bool leaf_transmission(const SceneRefs* s, int slot, int count, const Ray* r
     for (int k = 0; k < (count & LEAF_FIELD_MASK); ++k) {
         int ref = s->prim_refs[slot + k];
         Crossings other = intersect_prim(s, ref, r);
-        if (!filter_crossings(s, &other, ref, tmax, filter)) return false;
+        if (!filter_crossings(s, &other, ref, instance, tmax, filter)) return false;
     }
     return true;
 }
 
 // Light reaching the end of a shadow segment: 0 at the first opaque crossing.
-HOT REAL3 transmission(const SceneRefs* s, const Ray* r, REAL tmax) {
+HOT REAL3 transmission(const SceneRefs* s, const Ray* world, REAL tmax) {
     REAL3 filter = (REAL3)(1, 1, 1);
 #if HAS_PLANES
     for (int i = 0; i < s->n_planes; ++i) {
-        Crossings c = intersect_plane(s->planes + i, r);
-        if (!filter_crossings(s, &c, (PRIM_PLANE << PRIM_TYPE_SHIFT) | i, tmax, &filter)) {
+        Crossings c = intersect_plane(s->planes + i, world);
+        if (!filter_crossings(s, &c, (PRIM_PLANE << PRIM_TYPE_SHIFT) | i, -1, tmax, &filter)) {
             return (REAL3)(0, 0, 0);
         }
     }
@@ -443,14 +528,44 @@ HOT REAL3 transmission(const SceneRefs* s, const Ray* r, REAL tmax) {
     int sp = 0;
     stack_child[sp] = 0;
     stack_count[sp++] = 0;
+    const Ray* r = world;
+#if HAS_INSTANCES
+    Ray group_ray;  // as in closest_hit
+    int instance = -1;
+#else
+    const int instance = -1;
+#endif
     while (sp > 0) {
         --sp;
         int child = stack_child[sp], count = stack_count[sp];
         if (count > 0) {
             COUNT(s, shadow_prims, leaf_prims(s, child, count));
-            if (!leaf_transmission(s, child, count, r, tmax, &filter)) return (REAL3)(0, 0, 0);
+            if (!leaf_transmission(s, child, count, r, instance, tmax, &filter)) {
+                return (REAL3)(0, 0, 0);
+            }
+#if HAS_INSTANCES
+            if (instance < 0) sp = push_instances(s, child, count, stack_child, stack_count, 0, sp);
+#endif
             continue;
         }
+#if HAS_INSTANCES
+        if (count == ENTER_INSTANCE) {
+            const __global Instance* in = s->instances + child;
+            instance = child;
+            group_ray = instance_ray(in, world);
+            r = &group_ray;
+            stack_child[sp] = 0;
+            stack_count[sp++] = LEAVE_INSTANCE;
+            stack_child[sp] = in->root_child;
+            stack_count[sp++] = in->root_count;
+            continue;
+        }
+        if (count == LEAVE_INSTANCE) {
+            instance = -1;
+            r = world;
+            continue;
+        }
+#endif
         const __global BvhNode* node = s->nodes + child;
         COUNT(s, shadow_boxes, used_children(node));
         REAL tnear[BVH_WIDTH];

@@ -14,6 +14,7 @@
 #define PRIM_CYLINDER 3
 #define PRIM_CONE 4
 #define PRIM_TRIANGLE 5
+#define PRIM_INSTANCE 6
 #define PRIM_TYPE_SHIFT 28
 #define PRIM_INDEX_MASK 0x0FFFFFFF
 
@@ -161,5 +162,22 @@ typedef struct {
 typedef struct {
     float x[4], y[4], z[4], radius[4];
 } SpherePacket;
+
+// A group of primitives placed by an affine transform (HAS_INSTANCES). The group's primitives
+// sit in the same arrays as the scene's, in the group's own frame, under their own BVH (its root
+// the (root_child, root_count) entry). Rows of the 3x4 matrices [L | t]: x -> L x + t.
+// to_object maps the packed (camera-relative) frame to the group's, to_world back.
+typedef struct {
+    float4 to_object[3];
+    float4 to_world[3];
+    int root_child, root_count;
+    int material;  // replaces every material of the group, or -1
+    int pad0;
+} Instance;
+
+// Traversal-stack entries that are not a node or a leaf (kernels/bvh.h), told by their count:
+// enter instance `child` (its ref is in the scene BVH's leaf), and go back to the scene's ray.
+#define ENTER_INSTANCE (-1)
+#define LEAVE_INSTANCE (-2)
 
 #endif

@@ -8,6 +8,7 @@
 // TRIANGLE_MOLLER_TRUMBORE, FRESNEL_SCHLICK; FP64_SPHERES (the packer's per-scene fp64 path for spheres float32
 // cannot intersect); COUNT_TESTS (the instrumented build: box and primitive tests per pixel).
 // HAS_SPOT_LIGHTS, HAS_AREA_LIGHTS (0 or 1): the scene has spot lights, area lights.
+// HAS_INSTANCES (0 or 1): the scene places groups by transforms (kernels/bvh.h walks into them).
 #include "real.h"
 #include "clray_types.h"
 
@@ -110,6 +111,7 @@ inline SceneRefs scene_refs(__global const Plane* planes, int n_planes,
     s.textures = 0;
     s.texels = 0;
     s.lights = 0;
+    s.instances = 0;
     s.n_planes = n_planes;
     s.n_nodes = n_nodes;
     s.n_lights = 0;
@@ -126,7 +128,8 @@ __kernel void render(__global const Camera* camera, __global const Params* param
                      __global const float2* uvs, __global const BvhNode* nodes, int n_nodes,
                      __global const int* prim_refs, __global const Material* materials,
                      __global const Texture* textures, __global const float4* texels,
-                     __global const Light* lights, __global float4* image,
+                     __global const Light* lights, __global const Instance* instances,
+                     __global float4* image,
                      __global int4* ray_counts, __global int4* test_counts,
                      int row_offset) {
     int x = get_global_id(0), y = get_global_id(1) + row_offset;
@@ -139,6 +142,7 @@ __kernel void render(__global const Camera* camera, __global const Params* param
     s.textures = textures;
     s.texels = texels;
     s.lights = lights;
+    s.instances = instances;
     s.n_lights = params->n_lights;
 #if COUNT_TESTS
     TestCounts counts = {0, 0, 0, 0};
@@ -181,7 +185,8 @@ __kernel void render(__global const Camera* camera, __global const Params* param
                 continue;
             }
             Surface sf =
-                surface_at(&s, &ray, &hit, material_needs_uv(&s, prim_material(&s, hit.ref)));
+                surface_at(&s, &ray, &hit,
+                           material_needs_uv(&s, crossing_material(&s, hit.ref, hit.instance)));
             const __global Material* m = materials + sf.material;
             bool entering = dot(ray.d, sf.n_g) < (REAL)0;
             REAL3 n_f = entering ? sf.n_g : -sf.n_g;
@@ -249,12 +254,14 @@ __kernel void intersect_rays(__global const float4* origins, __global const floa
                              __global const float4* vertices, __global const float4* normals,
                              __global const float2* uvs, __global const BvhNode* nodes,
                              int n_nodes, __global const int* prim_refs,
-                             __global const Material* materials, __global float4* hits,
+                             __global const Material* materials,
+                             __global const Instance* instances, __global float4* hits,
                              __global int* refs) {
     int i = get_global_id(0);
     SceneRefs s = scene_refs(planes, n_planes, spheres, boxes, cylinders, cones, triangles,
                              triangle_packets, sphere_packets, vertices, normals, uvs, nodes,
                              n_nodes, prim_refs, materials);
+    s.instances = instances;
 #if COUNT_TESTS
     TestCounts counts = {0, 0, 0, 0};
     s.counts = &counts;

@@ -42,9 +42,8 @@ inline REAL2 axial_uv(REAL3 q, REAL3 axis, REAL along, int part, REAL cap_radius
 }
 
 // want_uv: the material samples an image texture. Only then are (u, v) computed: a sphere's
-// atan2 and asin cost as much as the rest of its shading.
-HOT Surface surface_at(const SceneRefs* s, const Ray* r, const Hit* hit,
-                          bool want_uv) {
+// atan2 and asin cost as much as the rest of its shading. r and the primitive in one frame.
+HOT Surface shape_surface(const SceneRefs* s, const Ray* r, const Hit* hit, bool want_uv) {
     Surface sf;
     int i = hit->ref & PRIM_INDEX_MASK;
     REAL3 p = r->o + hit->t * r->d;
@@ -220,6 +219,59 @@ HOT Surface surface_at(const SceneRefs* s, const Ray* r, const Hit* hit,
     sf.p = p;
     sf.n_s = sf.n_g;
     return sf;
+}
+
+#if HAS_INSTANCES
+// n_g and n_s go to the scene's frame by the transpose of to_object's linear part M (the
+// inverse transpose of to_world's), which keeps them normal to the surface and on its outward
+// side. Not normalised: its length says how M stretches distances along the normal.
+inline REAL3 instance_normal(const __global Instance* in, REAL3 n) {
+    return n.x * TO_REAL3(in->to_object[0]) + n.y * TO_REAL3(in->to_object[1]) +
+           n.z * TO_REAL3(in->to_object[2]);
+}
+
+inline REAL abs_sum3(REAL3 v) { return fabs(v.x) + fabs(v.y) + fabs(v.z); }
+
+// The surface of a hit inside an instance: found in the group's frame, then mapped to the
+// scene's. Its error bound covers three things: the group-frame bound mapped through the
+// linear part A of to_world (the sum of |A| bounds its largest stretch); the rounding of that
+// map; and the rounding a ray spawned here suffers when mapped back into the group's frame by
+// to_object, which must not carry its origin back through the surface: a distance e there is
+// at most e / |M^T n| along the normal here.
+HOT Surface instance_surface(const SceneRefs* s, const Ray* r, const Hit* hit, bool want_uv) {
+    const __global Instance* in = s->instances + hit->instance;
+    Ray group_ray = instance_ray(in, r);
+    Surface sf = shape_surface(s, &group_ray, hit, want_uv);
+    REAL4 p = (REAL4)(sf.p, (REAL)1);
+    REAL4 a0 = TO_REAL4(in->to_world[0]), a1 = TO_REAL4(in->to_world[1]),
+          a2 = TO_REAL4(in->to_world[2]);
+    REAL4 m0 = TO_REAL4(in->to_object[0]), m1 = TO_REAL4(in->to_object[1]),
+          m2 = TO_REAL4(in->to_object[2]);
+    REAL3 world = (REAL3)(dot(a0, p), dot(a1, p), dot(a2, p));
+    REAL4 ap = fabs(p);
+    REAL mapped = fmax(dot(fabs(a0), ap), fmax(dot(fabs(a1), ap), dot(fabs(a2), ap)));
+    REAL stretch = abs_sum3(a0.xyz) + abs_sum3(a1.xyz) + abs_sum3(a2.xyz);
+    REAL4 aw = (REAL4)(fabs(world), (REAL)1);
+    REAL back = fmax(dot(fabs(m0), aw), fmax(dot(fabs(m1), aw), dot(fabs(m2), aw)));
+    REAL3 n_g = instance_normal(in, sf.n_g);
+    REAL along = length(n_g);
+    REAL gamma = gamma_n(ERR_ROUNDINGS);
+    sf.err = sf.err * stretch + gamma * (max_abs3(world) + mapped) +
+             (along > (REAL)0 ? gamma * back / along : (REAL)0);
+    sf.p = world;
+    sf.n_g = safe_normalize(n_g);
+    sf.n_s = safe_normalize(instance_normal(in, sf.n_s));
+    if (in->material >= 0) sf.material = in->material;
+    return sf;
+}
+#endif
+
+// The hit's surface in the scene's frame.
+HOT Surface surface_at(const SceneRefs* s, const Ray* r, const Hit* hit, bool want_uv) {
+#if HAS_INSTANCES
+    if (hit->instance >= 0) return instance_surface(s, r, hit, want_uv);
+#endif
+    return shape_surface(s, r, hit, want_uv);
 }
 
 // Move p off the surface to the side of n_g that w leaves on, by the error bound along the

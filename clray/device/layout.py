@@ -13,6 +13,7 @@ PRIM_BOX = 2
 PRIM_CYLINDER = 3
 PRIM_CONE = 4
 PRIM_TRIANGLE = 5
+PRIM_INSTANCE = 6
 PRIM_TYPE_SHIFT = 28
 PRIM_INDEX_MASK = 0x0FFFFFFF
 
@@ -75,6 +76,13 @@ def bvh_node_dtype(width: int) -> np.dtype:
                     ("child", lane_i), ("count", lane_i)])
 
 
+INSTANCE = _struct([("to_object", ("<f4", (3, 4))), ("to_world", ("<f4", (3, 4))),
+                    ("root_child", "<i4"), ("root_count", "<i4"), ("material", "<i4"),
+                    ("pad0", "<i4")])
+# Traversal-stack entries that are not nodes or leaves (kernels/bvh.h): count < 0.
+ENTER_INSTANCE = -1
+LEAVE_INSTANCE = -2
+
 TRIANGLE_PACKET = _struct([(f"{c}{k}", _F4) for k in range(3) for c in "xyz"])
 SPHERE_PACKET = _struct([("x", _F4), ("y", _F4), ("z", _F4), ("radius", _F4)])
 
@@ -94,6 +102,7 @@ STRUCTS: dict[str, np.dtype] = {
     "BvhNode": bvh_node_dtype(8),
     "TrianglePacket": TRIANGLE_PACKET,
     "SpherePacket": SPHERE_PACKET,
+    "Instance": INSTANCE,
 }
 
 TRIANGLE_MATERIAL_MASK = 0x00FFFFFF

@@ -14,7 +14,7 @@ import numpy as np
 import pyopencl as cl
 
 from clray.accel.bvh import build_bvh
-from clray.accel.wide import PACKET_WIDTH, WideBvh, collapse
+from clray.accel.wide import LEAF_FIELD_MASK, PACKET_WIDTH, WideBvh, collapse
 from clray.device import layout as L
 from clray.device.program import KernelConfig
 from clray.scene import model as M
@@ -45,13 +45,14 @@ class PackedScene:
     textures: np.ndarray
     texels: np.ndarray  # (T, 4) float32
     lights: np.ndarray
+    instances: np.ndarray  # INSTANCE records; their groups' primitives are in the arrays above
     config: KernelConfig
     bvh_s: float  # host time to build the BVH
 
     def device_bytes(self) -> dict[str, int]:
         names = ("planes", "spheres", "boxes", "cylinders", "cones", "triangles",
                  "triangle_packets", "sphere_packets", "vertices", "normals", "uvs", "nodes",
-                 "prim_refs", "materials", "textures", "texels", "lights")
+                 "prim_refs", "materials", "textures", "texels", "lights", "instances")
         return {name: int(getattr(self, name).nbytes) for name in names}
 
 
@@ -77,17 +78,45 @@ def texture_frame(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 class _Bounded:
-    """Bounds and references of the primitives that go into the BVH, kind by kind."""
+    """Bounds and references of the primitives that go into a BVH, kind by kind, with the
+    owner of each: 0 for the scene, g + 1 for group g (each owner gets its own BVH)."""
 
     def __init__(self) -> None:
         self.lo: list[np.ndarray] = []
         self.hi: list[np.ndarray] = []
         self.refs: list[np.ndarray] = []
+        self.owners: list[np.ndarray] = []
 
-    def add(self, kind: int, lo: np.ndarray, hi: np.ndarray) -> None:
+    def add(self, kind: int, lo: np.ndarray, hi: np.ndarray, owners: np.ndarray) -> None:
         self.lo.append(lo)
         self.hi.append(hi)
         self.refs.append((kind << L.PRIM_TYPE_SHIFT) | np.arange(len(lo), dtype=np.int64))
+        self.owners.append(np.asarray(owners, dtype=np.int64))
+
+    def owned_by(self, owner: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(lo, hi, refs) of one owner's primitives."""
+        if not self.lo:
+            return np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0, dtype=np.int64)
+        if len(self.lo) > 1:
+            # Joined once: a scene with groups asks once per owner.
+            self.lo, self.hi, self.refs, self.owners = (
+                [np.concatenate(part)] for part in (self.lo, self.hi, self.refs, self.owners))
+        lo, hi, refs, owners = self.lo[0], self.hi[0], self.refs[0], self.owners[0]
+        mine = owners == owner
+        if mine.all():
+            return lo, hi, refs
+        return lo[mine], hi[mine], refs[mine]
+
+
+@dataclass(frozen=True)
+class _Placed:
+    """Objects of one kind, each with the origin its coordinates are stored relative to (the
+    eye for the scene's objects, 0 for a group's, which stay in the group's frame) and its
+    owner (as in _Bounded)."""
+
+    objects: list
+    origins: np.ndarray  # (n, 3) float64
+    owners: np.ndarray  # (n,) int64
 
 
 @dataclass(frozen=True)
@@ -114,44 +143,45 @@ def _pack_planes(objs: list[M.Plane], eye: np.ndarray) -> np.ndarray:
     return planes
 
 
-def _pack_spheres(objs: list[M.Sphere | M.Spheres], eye: np.ndarray,
-                  bounded: _Bounded) -> np.ndarray:
+def _pack_spheres(objs: _Placed, bounded: _Bounded) -> np.ndarray:
     """Sphere objects and `spheres` arrays, in scene order: one record per sphere."""
     blocks = [(o.centers, o.radii, o.materials) if isinstance(o, M.Spheres) else
-              ([o.center], [o.radius], [o.material]) for o in objs]
+              ([o.center], [o.radius], [o.material]) for o in objs.objects]
     centers, radii, materials = (
         np.concatenate([np.asarray(b[k], dtype=dtype).reshape(shape) for b in blocks])
         if blocks else np.zeros((0, *shape[1:]), dtype=dtype)
         for k, dtype, shape in ((0, np.float64, (-1, 3)), (1, np.float64, (-1,)),
                                 (2, np.int32, (-1,))))
+    sizes = [len(b[1]) for b in blocks]
     spheres = _records(L.SPHERE, len(centers))
-    spheres["center_radius"][:, :3] = centers - eye
+    spheres["center_radius"][:, :3] = centers - np.repeat(objs.origins, sizes, axis=0)
     spheres["center_radius"][:, 3] = radii
     spheres["material"] = materials
     if len(spheres):
         cr = spheres["center_radius"].astype(np.float64)
-        bounded.add(L.PRIM_SPHERE, cr[:, :3] - cr[:, 3:], cr[:, :3] + cr[:, 3:])
+        bounded.add(L.PRIM_SPHERE, cr[:, :3] - cr[:, 3:], cr[:, :3] + cr[:, 3:],
+                    np.repeat(objs.owners, sizes))
     return spheres
 
 
-def _pack_boxes(objs: list[M.Box], eye: np.ndarray, bounded: _Bounded) -> np.ndarray:
-    boxes = _records(L.BOX, len(objs))
-    for i, o in enumerate(objs):
-        boxes[i]["lo"] = _f4(np.asarray(o.min) - eye)
-        boxes[i]["hi"] = _f4(np.asarray(o.max) - eye)
+def _pack_boxes(objs: _Placed, bounded: _Bounded) -> np.ndarray:
+    boxes = _records(L.BOX, len(objs.objects))
+    for i, (o, origin) in enumerate(zip(objs.objects, objs.origins, strict=True)):
+        boxes[i]["lo"] = _f4(np.asarray(o.min) - origin)
+        boxes[i]["hi"] = _f4(np.asarray(o.max) - origin)
         boxes[i]["material"] = o.material
     if len(boxes):
         bounded.add(L.PRIM_BOX, boxes["lo"][:, :3].astype(np.float64),
-                    boxes["hi"][:, :3].astype(np.float64))
+                    boxes["hi"][:, :3].astype(np.float64), objs.owners)
     return boxes
 
 
-def _pack_cylinders(objs: list[M.Cylinder], eye: np.ndarray, bounded: _Bounded) -> np.ndarray:
-    cylinders = _records(L.CYLINDER, len(objs))
+def _pack_cylinders(objs: _Placed, bounded: _Bounded) -> np.ndarray:
+    cylinders = _records(L.CYLINDER, len(objs.objects))
     lo, hi = [], []
-    for i, o in enumerate(objs):
+    for i, (o, origin) in enumerate(zip(objs.objects, objs.origins, strict=True)):
         rec = cylinders[i]
-        rec["base_radius"] = _f4(np.asarray(o.base) - eye, o.radius)
+        rec["base_radius"] = _f4(np.asarray(o.base) - origin, o.radius)
         rec["axis_height"] = _f4(o.axis, o.height)
         rec["material"] = o.material
         rec["capped"] = int(o.capped)
@@ -163,16 +193,16 @@ def _pack_cylinders(objs: list[M.Cylinder], eye: np.ndarray, bounded: _Bounded) 
         lo.append(np.minimum(base, top) - ext)
         hi.append(np.maximum(base, top) + ext)
     if lo:
-        bounded.add(L.PRIM_CYLINDER, np.array(lo), np.array(hi))
+        bounded.add(L.PRIM_CYLINDER, np.array(lo), np.array(hi), objs.owners)
     return cylinders
 
 
-def _pack_cones(objs: list[M.Cone], eye: np.ndarray, bounded: _Bounded) -> np.ndarray:
-    cones = _records(L.CONE, len(objs))
+def _pack_cones(objs: _Placed, bounded: _Bounded) -> np.ndarray:
+    cones = _records(L.CONE, len(objs.objects))
     lo, hi = [], []
-    for i, o in enumerate(objs):
+    for i, (o, origin) in enumerate(zip(objs.objects, objs.origins, strict=True)):
         rec = cones[i]
-        rec["apex_tan"] = _f4(np.asarray(o.apex) - eye, np.tan(np.radians(o.angle)))
+        rec["apex_tan"] = _f4(np.asarray(o.apex) - origin, np.tan(np.radians(o.angle)))
         rec["axis_height"] = _f4(o.axis, o.height)
         rec["material"] = o.material
         rec["capped"] = int(o.capped)
@@ -184,19 +214,18 @@ def _pack_cones(objs: list[M.Cone], eye: np.ndarray, bounded: _Bounded) -> np.nd
         lo.append(np.minimum(apex, base - ext))
         hi.append(np.maximum(apex, base + ext))
     if lo:
-        bounded.add(L.PRIM_CONE, np.array(lo), np.array(hi))
+        bounded.add(L.PRIM_CONE, np.array(lo), np.array(hi), objs.owners)
     return cones
 
 
-def _pack_triangles(objs: list[M.Triangle | M.Mesh], eye: np.ndarray,
-                    bounded: _Bounded) -> _Triangles:
+def _pack_triangles(objs: _Placed, bounded: _Bounded) -> _Triangles:
     """Loose triangles and meshes as one indexed triangle list over shared vertex arrays."""
-    if not objs:
+    if not objs.objects:
         empty = np.zeros((0, 4), dtype=np.float32)
         return _Triangles(_records(L.TRIANGLE, 0), empty, empty.copy(),
                           np.zeros((0, 2), np.float32))
     sources = []  # (vertices, faces, normals, uvs, material) per object
-    for obj in objs:
+    for obj in objs.objects:
         if isinstance(obj, M.Triangle):
             sources.append((np.asarray(obj.vertices, dtype=np.float64), np.array([[0, 1, 2]]),
                             None, None, obj.material))
@@ -206,7 +235,8 @@ def _pack_triangles(objs: list[M.Triangle | M.Mesh], eye: np.ndarray,
     offsets = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.int64)
     n_vertices = int(sum(counts))
     vertices = np.zeros((n_vertices, 4), dtype=np.float32)
-    vertices[:, :3] = np.concatenate([src[0] for src in sources]) - eye
+    vertices[:, :3] = (np.concatenate([src[0] for src in sources])
+                       - np.repeat(objs.origins, counts, axis=0))
     has_normals = any(src[2] is not None for src in sources)
     has_uvs = any(src[3] is not None for src in sources)
     normals = np.zeros((n_vertices if has_normals else 0, 4), dtype=np.float32)
@@ -232,23 +262,100 @@ def _pack_triangles(objs: list[M.Triangle | M.Mesh], eye: np.ndarray,
     c0, c1, c2 = (vertices[all_faces[:, k], :3] for k in range(3))
     lo = np.minimum(np.minimum(c0, c1), c2).astype(np.float64)
     hi = np.maximum(np.maximum(c0, c1), c2).astype(np.float64)
-    bounded.add(L.PRIM_TRIANGLE, lo, hi)
+    bounded.add(L.PRIM_TRIANGLE, lo, hi, np.repeat(objs.owners, [len(f) for f in faces]))
     return _Triangles(triangles, vertices, normals, uvs)
 
 
-def _pack_bvh(bounded: _Bounded, width: int,
-              queue: cl.CommandQueue | None) -> tuple[WideBvh, float]:
-    """The wide BVH over every bounded primitive, and the seconds it took."""
+def _build_wide(lo: np.ndarray, hi: np.ndarray, refs: np.ndarray, width: int,
+                queue: cl.CommandQueue | None) -> WideBvh:
+    # Below DEVICE_BUILD_MIN primitives the host build takes milliseconds, less than fetching
+    # the device build's program from the cache.
+    binary = build_bvh(lo, hi, queue=queue if len(lo) >= DEVICE_BUILD_MIN else None)
+    return collapse(binary, refs, width)
+
+
+# Relative widening of an instance's bounds in the scene's frame: its matrices are rounded to
+# float32, so the kernel's group-frame hits can land that much outside the exact image of the
+# group's bounds.
+_INSTANCE_BOUND_SLACK = 1e-5
+
+
+def _instance_bounds(matrix: np.ndarray, lo: np.ndarray, hi: np.ndarray
+                     ) -> tuple[np.ndarray, np.ndarray]:
+    """Bounds of the image of the box [lo, hi] under x -> A x + t, widened (see above)."""
+    corners = np.array([[(hi if k >> axis & 1 else lo)[axis] for axis in range(3)]
+                        for k in range(8)])
+    placed = corners @ matrix[:, :3].T + matrix[:, 3]
+    plo, phi = placed.min(axis=0), placed.max(axis=0)
+    slack = _INSTANCE_BOUND_SLACK * (np.max(np.abs(placed)) + np.max(phi - plo))
+    return plo - slack, phi + slack
+
+
+def _pack_instances(instances: list[M.Instance], group_of: np.ndarray,
+                    group_bounds: list[tuple[np.ndarray, np.ndarray]], eye: np.ndarray,
+                    bounded: _Bounded) -> np.ndarray:
+    """INSTANCE records (matrices in the packed, camera-relative frame; roots left for the
+    caller), their bounds added to the scene's BVH input. group_of: each one's group index."""
+    records = _records(L.INSTANCE, len(instances))
+    lo, hi = [], []
+    for i, (inst, g) in enumerate(zip(instances, group_of, strict=True)):
+        to_world = np.array(inst.matrix, dtype=np.float64)
+        to_world[:, 3] -= eye
+        linear_inverse = np.linalg.inv(to_world[:, :3])
+        rec = records[i]
+        rec["to_world"] = to_world
+        rec["to_object"] = np.hstack([linear_inverse, -(linear_inverse @ to_world[:, 3:])])
+        rec["material"] = -1 if inst.material is None else inst.material
+        box = _instance_bounds(to_world, *group_bounds[g])
+        lo.append(box[0])
+        hi.append(box[1])
+    if instances:
+        bounded.add(L.PRIM_INSTANCE, np.array(lo), np.array(hi), np.zeros(len(instances)))
+    return records
+
+
+def _appended(wide: WideBvh, node_offset: int, slot_offset: int) -> np.ndarray:
+    """A group's nodes with their children renumbered for its place after the scene's tree:
+    inner children by node_offset, leaves by slot_offset."""
+    nodes = wide.nodes.copy()
+    inner = (nodes["count"] == 0) & (nodes["child"] >= 0)
+    nodes["child"] += np.where(inner, node_offset, np.where(nodes["count"] > 0, slot_offset, 0))
+    return nodes
+
+
+def _pack_bvh(bounded: _Bounded, n_groups: int, instances: list[M.Instance],
+              group_of: np.ndarray, eye: np.ndarray, width: int,
+              queue: cl.CommandQueue | None) -> tuple[WideBvh, np.ndarray, float]:
+    """The wide BVH of the scene's bounded primitives and instances, each group's BVH appended
+    after it, the INSTANCE records, and the seconds it took."""
     start = time.perf_counter()
-    if bounded.lo:
-        lo, hi = np.concatenate(bounded.lo), np.concatenate(bounded.hi)
-        # Below DEVICE_BUILD_MIN primitives the host build takes milliseconds, less than
-        # fetching the device build's program from the cache.
-        binary = build_bvh(lo, hi, queue=queue if len(lo) >= DEVICE_BUILD_MIN else None)
-        wide = collapse(binary, np.concatenate(bounded.refs), width)
-    else:
-        wide = collapse(build_bvh(np.zeros((0, 3)), np.zeros((0, 3))), np.zeros(0), width)
-    return wide, time.perf_counter() - start
+    group_trees, group_bounds = [], []
+    for g in range(n_groups):
+        lo, hi, refs = bounded.owned_by(g + 1)
+        group_trees.append(_build_wide(lo, hi, refs, width, queue))
+        group_bounds.append((lo.min(axis=0), hi.max(axis=0)))
+    # The scene's tree comes first (its root is node 0): the groups' roots are known after it.
+    records = _pack_instances(instances, group_of, group_bounds, eye, bounded)
+    wide = _build_wide(*bounded.owned_by(0), width, queue)
+    nodes, prim_refs, roots, group_stack = [wide.nodes], [wide.prim_refs], [], 0
+    n_nodes, n_slots = len(wide.nodes), len(wide.prim_refs)
+    for tree in group_trees:
+        roots.append(n_nodes)
+        nodes.append(_appended(tree, n_nodes, n_slots))
+        prim_refs.append(tree.prim_refs)
+        n_nodes += len(tree.nodes)
+        n_slots += len(tree.prim_refs)
+        group_stack = max(group_stack, tree.stack_size)
+    stack_size = wide.stack_size
+    if instances:
+        records["root_child"] = np.array(roots, dtype=np.int64)[group_of]
+        # At a leaf the walk pushes the leaf's instances, then one LEAVE_INSTANCE entry and the
+        # group's walk above it.
+        leaf = wide.nodes["count"] > 0
+        per_leaf = int(np.max(wide.nodes["count"][leaf] & LEAF_FIELD_MASK, initial=0))
+        stack_size += per_leaf + 1 + group_stack
+        wide = WideBvh(np.concatenate(nodes), np.concatenate(prim_refs), width, stack_size)
+    return wide, records, time.perf_counter() - start
 
 
 def _triangle_packets(prim_refs: np.ndarray, tris: _Triangles) -> np.ndarray:
@@ -386,6 +493,23 @@ def _pack_background(background: M.Vec3 | M.Background, params: np.ndarray,
     return np.concatenate([texels, rgba])
 
 
+def _by_kind(objects: tuple[M.SceneObject, ...], groups: list[M.Group], eye: np.ndarray
+             ) -> dict[type, _Placed]:
+    """The scene's objects (stored relative to the eye) and then each group's (in its own
+    frame), sorted by the array they pack into: Sphere (with Spheres), Plane, Box, Cylinder,
+    Cone, Triangle (with Mesh)."""
+    owned = [(obj, eye, 0) for obj in objects if not isinstance(obj, M.Instance)]
+    owned += [(obj, np.zeros(3), g + 1) for g, group in enumerate(groups) for obj in group.objects]
+    array_of = {M.Spheres: M.Sphere, M.Mesh: M.Triangle}
+    kinds = {}
+    for kind in (M.Sphere, M.Plane, M.Box, M.Cylinder, M.Cone, M.Triangle):
+        mine = [item for item in owned if array_of.get(type(item[0]), type(item[0])) is kind]
+        kinds[kind] = _Placed([item[0] for item in mine],
+                              np.array([item[1] for item in mine]).reshape(-1, 3),
+                              np.array([item[2] for item in mine], dtype=np.int64))
+    return kinds
+
+
 def _stack_size_option(stack_size: int) -> int:
     """The tree's stack need rounded up to a multiple of 16, so most scenes share a build."""
     return max(16, -(-stack_size // 16) * 16)
@@ -399,22 +523,23 @@ def pack_scene(scene: M.Scene, *, width: int, height: int, spp: int, max_depth: 
     one per device). `queue`: build large BVHs on its device (the same tree as the host
     build). `variants` are extra KernelConfig fields (study switches, options)."""
     eye = np.asarray(scene.camera.position, dtype=np.float64)
-    kinds: dict[type, list] = {t: [] for t in (M.Sphere, M.Plane, M.Box, M.Cylinder, M.Cone)}
-    triangle_objs = []
-    for obj in scene.objects:
-        if isinstance(obj, M.Triangle | M.Mesh):
-            triangle_objs.append(obj)
-        else:
-            kinds[M.Sphere if isinstance(obj, M.Spheres) else type(obj)].append(obj)
+    instances = [obj for obj in scene.objects if isinstance(obj, M.Instance)]
+    groups: dict[int, M.Group] = {}  # by identity, in order of first use
+    for inst in instances:
+        groups.setdefault(id(inst.group), inst.group)
+    group_index = {key: g for g, key in enumerate(groups)}
+    group_of = np.array([group_index[id(inst.group)] for inst in instances], dtype=np.int64)
+    kinds = _by_kind(scene.objects, list(groups.values()), eye)
 
     bounded = _Bounded()
-    planes = _pack_planes(kinds[M.Plane], eye)
-    spheres = _pack_spheres(kinds[M.Sphere], eye, bounded)
-    boxes = _pack_boxes(kinds[M.Box], eye, bounded)
-    cylinders = _pack_cylinders(kinds[M.Cylinder], eye, bounded)
-    cones = _pack_cones(kinds[M.Cone], eye, bounded)
-    tris = _pack_triangles(triangle_objs, eye, bounded)
-    wide, bvh_s = _pack_bvh(bounded, bvh_width, queue)
+    planes = _pack_planes(kinds[M.Plane].objects, eye)
+    spheres = _pack_spheres(kinds[M.Sphere], bounded)
+    boxes = _pack_boxes(kinds[M.Box], bounded)
+    cylinders = _pack_cylinders(kinds[M.Cylinder], bounded)
+    cones = _pack_cones(kinds[M.Cone], bounded)
+    tris = _pack_triangles(kinds[M.Triangle], bounded)
+    wide, instance_records, bvh_s = _pack_bvh(bounded, len(groups), instances, group_of, eye,
+                                              bvh_width, queue)
     triangle_packets = _triangle_packets(wide.prim_refs, tris)
     sphere_packets = _sphere_packets(wide.prim_refs, spheres)
     materials, textures, texels = _pack_materials(scene.materials)
@@ -453,6 +578,7 @@ def pack_scene(scene: M.Scene, *, width: int, height: int, spp: int, max_depth: 
         has_orthographic=scene.camera.type == "orthographic",
         has_background_gradient=background_kind == "gradient",
         has_background_image=background_kind == "image",
+        has_instances=len(instances) > 0,
         max_depth=max_depth if (any_reflect or any_transmit) else 0,
         bvh_width=bvh_width,
         bvh_stack_size=_stack_size_option(wide.stack_size),
@@ -462,4 +588,4 @@ def pack_scene(scene: M.Scene, *, width: int, height: int, spp: int, max_depth: 
     return PackedScene(camera, params, planes, spheres, boxes, cylinders, cones,
                        tris.triangles, triangle_packets, sphere_packets, tris.vertices,
                        tris.normals, tris.uvs, wide.nodes, wide.prim_refs, materials, textures,
-                       texels, lights, config, bvh_s)
+                       texels, lights, instance_records, config, bvh_s)

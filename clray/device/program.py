@@ -52,6 +52,7 @@ class KernelConfig:
     has_orthographic: bool = False
     has_background_gradient: bool = False
     has_background_image: bool = False
+    has_instances: bool = False  # groups placed by transforms, walked in their own frames
     max_depth: int = 0
     # The wide BVH's children per node (4 or 8) and a traversal stack deep enough for its tree
     # (clray.accel.wide), rounded up by the packer so similar trees share a build.

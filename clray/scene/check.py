@@ -42,13 +42,33 @@ def scene_to_dict(scene: M.Scene) -> dict:
               for f in dataclasses.fields(M.RenderOptions)}
     if isinstance(scene.render.background, M.Background):
         render["background"] = _background(scene.render.background)
+    groups = _group_names(scene.objects)
     return {
         "render": render,
         "camera": _camera(scene.camera),
         "materials": {name: _material(m) for name, m in zip(names, scene.materials, strict=True)},
+        "groups": {name: {"objects": [_object(obj, f"groups.{name}.objects[{j}]", names, {})
+                                      for j, obj in enumerate(group.objects)]}
+                   for name, group in groups.values()},
         "lights": [_light(light, i) for i, light in enumerate(scene.lights)],
-        "objects": [_object(obj, i, names) for i, obj in enumerate(scene.objects)],
+        "objects": [_object(obj, f"objects[{i}]", names, groups)
+                    for i, obj in enumerate(scene.objects)],
     }
+
+
+def _group_names(objects: tuple) -> dict[int, tuple[str, M.Group]]:
+    """A unique table key per group the instances use (by identity), its own name where that
+    is unique."""
+    groups: dict[int, M.Group] = {}
+    for obj in objects:
+        if isinstance(obj, M.Instance):
+            if not isinstance(obj.group, M.Group):
+                raise SceneError(None, "group", f"expected a Group, got "
+                                 f"{type(obj.group).__name__}")
+            groups.setdefault(id(obj.group), obj.group)
+    given = [g.name if isinstance(g.name, str) else "" for g in groups.values()]
+    return {key: (name if name and given.count(name) == 1 else f"group {i}", g)
+            for i, (key, g, name) in enumerate(zip(groups, groups.values(), given, strict=True))}
 
 
 def _plain(value: Any) -> Any:
@@ -136,8 +156,31 @@ def _light(light: M.Light, i: int) -> dict:
     return {"type": kind, **_fields(light)}
 
 
-def _object(obj: M.SceneObject, i: int, names: list[str]) -> dict:
-    key = f"objects[{i}]"
+def _instance(obj: M.Instance, key: str, names: list[str],
+              groups: dict[int, tuple[str, M.Group]]) -> dict:
+    matrix = np.asarray(obj.matrix, dtype=np.float64)
+    if matrix.shape != (3, 4):
+        raise SceneError(None, f"{key}.matrix", f"expected a (3, 4) array, got shape "
+                         f"{matrix.shape}")
+    spec = {"type": "instance", "group": groups[id(obj.group)][0],
+            "transform": {"matrix": [*_plain(matrix), [0.0, 0.0, 0.0, 1.0]]}}
+    if obj.material is not None:
+        spec["material"] = names[_material_index(obj.material, key, names)]
+    return spec
+
+
+def _material_index(material: Any, key: str, names: list[str]) -> int:
+    if (isinstance(material, bool) or not isinstance(material, int | np.integer)
+            or not 0 <= material < len(names)):
+        raise SceneError(None, f"{key}.material", f"expected the index of one of the scene's "
+                         f"{len(names)} materials, got {material!r}")
+    return int(material)
+
+
+def _object(obj: M.SceneObject, key: str, names: list[str],
+            groups: dict[int, tuple[str, M.Group]]) -> dict:
+    if isinstance(obj, M.Instance) and groups:
+        return _instance(obj, key, names, groups)
     kind = _OBJECT_TYPES.get(type(obj))
     if kind is None:
         shown = ", ".join(t.__name__ for t in _OBJECT_TYPES)
@@ -145,14 +188,10 @@ def _object(obj: M.SceneObject, i: int, names: list[str]) -> dict:
     if kind == "spheres":
         return {"type": "spheres", "centers": obj.centers, "radii": obj.radii,
                 "materials": names, "material_index": obj.materials}
-    material = obj.material
-    if (isinstance(material, bool) or not isinstance(material, int | np.integer)
-            or not 0 <= material < len(names)):
-        raise SceneError(None, f"{key}.material", f"expected the index of one of the scene's "
-                         f"{len(names)} materials, got {material!r}")
+    material = _material_index(obj.material, key, names)
     if kind == "mesh":
         spec = {name: getattr(obj, name) for name in _MESH_ARRAYS
                 if getattr(obj, name) is not None}
     else:
         spec = _fields(obj, skip=("material",))
-    return {"type": kind, "material": names[int(material)], **spec}
+    return {"type": kind, "material": names[material], **spec}

@@ -35,6 +35,8 @@ from clray.scene.model import (
     Cylinder,
     DirectionalLight,
     DiscLight,
+    Group,
+    Instance,
     Light,
     Material,
     Mesh,
@@ -67,7 +69,8 @@ _SHOW_ITEMS = 8  # array elements shown in a message
 _SHOW_DEPTH = 3  # nested arrays shown in a message
 _DECODE_SLICE = 1 << 20  # texel values decoded from sRGB at a time
 
-_TOP_KEYS = ("include", "render", "camera", "materials", "lights", "objects", "animation")
+_TOP_KEYS = ("include", "render", "camera", "materials", "groups", "lights", "objects",
+             "animation")
 _RENDER_KEYS = (
     "width", "height", "spp", "max_depth", "background", "ambient", "seed", "min_weight",
     "linear", "exposure", "png_bits",
@@ -116,6 +119,7 @@ _OBJECT_KEYS: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
     "cylinder": (("base", "axis", "radius", "height"), ("capped",)),
     "cone": (("apex", "axis", "angle", "height"), ("capped",)),
     "spheres": ((), ("file", "centers", "radii", "radius", "materials", "material_index")),
+    "instance": (("group",), ()),
 }
 # What a `spheres` object's .npz may hold (a .npy holds centers, or centers and radii).
 _SPHERE_ARRAYS = ("centers", "radii", "material_index")
@@ -418,6 +422,10 @@ class _Loader:
             )
 
         self.material_ref = material_ref
+        self.groups = {
+            name: self.group(spec, _key("groups", name), name, material_for)
+            for name, spec in self.table(data.get("groups", {}), "groups").items()
+        }
         objects = tuple(
             self.object(spec, f"objects[{i}]", material_for)
             for i, spec in enumerate(
@@ -760,20 +768,63 @@ class _Loader:
 
     # -- objects -------------------------------------------------------------------------
 
-    def object(self, spec: dict, key: str, material_for: Callable[[dict, str], int]) -> SceneObject:
+    def group(self, value: Any, key: str, name: str,
+              material_for: Callable[[dict, str], int]) -> Group:
+        spec = self.table(value, key)
+        self.keys(spec, key, ("objects",), ("objects",))
+        items = self.items(spec["objects"], f"{key}.objects", L.MAX_OBJECTS)
+        if not items:
+            raise self.error(f"{key}.objects", "a group needs at least one object")
+        return Group(name, tuple(self.object(item, f"{key}.objects[{i}]", material_for,
+                                             in_group=True) for i, item in enumerate(items)))
+
+    def object(self, spec: dict, key: str, material_for: Callable[[dict, str], int],
+               in_group: bool = False) -> SceneObject:
         kind = self.kind(spec, key, _OBJECT_KEYS)
         allowed = ("type", "material", *_OBJECT_KEYS[kind][0], *_OBJECT_KEYS[kind][1],
                    "transform")
         required = _OBJECT_KEYS[kind][0]
         self.keys(spec, key, allowed, required)
+        if in_group and kind in ("instance", "plane"):
+            raise self.error(f"{key}.type", "a group holds bounded primitives: no planes "
+                             "(unbounded) and no instances (groups do not nest)")
+        if kind == "instance":
+            return self.instance(spec, key)
         obj = self.unplaced(spec, key, kind, material_for)
         if kind == "mesh" or "transform" not in spec:
             return obj
         tkey = f"{key}.transform"
-        placed = place(obj, *self.transform(spec["transform"], tkey))
-        if isinstance(placed, str):
-            raise self.error(tkey, placed)
-        return self.within_limits(placed, tkey)
+        a, offset = self.transform(spec["transform"], tkey)
+        placed = place(obj, a, offset)
+        if not isinstance(placed, str):
+            return self.within_limits(placed, tkey)
+        if in_group:
+            raise self.error(tkey, f"{placed}, and inside a group that would need a group in a "
+                             "group: place the instance by that transform instead")
+        # A shape the transform does not keep (an ellipsoid, a box at an angle) is intersected
+        # in its own frame, as a one-object group.
+        return Instance(Group(key, (obj,)), self.placement(a, offset, tkey))
+
+    def instance(self, spec: dict, key: str) -> Instance:
+        name = self.string(spec["group"], f"{key}.group")
+        if name not in self.groups:
+            shown = [_show(n) for n in list(self.groups)[:_SHOW_ITEMS]]
+            defined = ", ".join(shown + ["..."] * (len(self.groups) > _SHOW_ITEMS)) or "none"
+            raise self.error(f"{key}.group", f"unknown group {_show(name)} (defined: {defined})")
+        material = (self.material_ref(spec["material"], f"{key}.material")
+                    if "material" in spec else None)
+        tkey = f"{key}.transform"
+        a, offset = self.transform(spec.get("transform", {}), tkey)
+        return Instance(self.groups[name], self.placement(a, offset, tkey), material)
+
+    def placement(self, a: np.ndarray, offset: np.ndarray, key: str) -> np.ndarray:
+        """The (3, 4) matrix [A | t] of an instance, within the magnitudes the kernels take."""
+        if not np.all(np.abs(offset) <= L.MAX_MAGNITUDE):
+            raise self.error(key, f"moves the object beyond {L.MAX_MAGNITUDE:g} in magnitude")
+        singular = np.linalg.svd(a, compute_uv=False)
+        if singular.max() > L.MAX_MAGNITUDE or singular.min() < L.MIN_LENGTH:
+            raise self.error(key, f"stretches or shrinks by more than {L.MAX_MAGNITUDE:g}")
+        return np.hstack([a, offset[:, None]])
 
     def within_limits(self, obj: SceneObject, key: str) -> SceneObject:
         """A placed object's numbers still within what the kernels take."""

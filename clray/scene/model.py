@@ -267,7 +267,26 @@ class Cone:
     capped: bool = True
 
 
-SceneObject = Sphere | Spheres | Plane | Box | Triangle | Mesh | Cylinder | Cone
+@dataclass(frozen=True, eq=False)
+class Group:
+    """Objects defined once, in their own frame, to be placed by instances. Identity matters:
+    instances of one Group share its primitives and BVH on the device."""
+
+    name: str
+    objects: tuple[Sphere | Spheres | Box | Triangle | Mesh | Cylinder | Cone, ...]
+
+
+@dataclass(frozen=True, eq=False)
+class Instance:
+    """A group placed by x -> A x + t (the (3, 4) float64 `matrix` [A | t], A invertible) and
+    intersected in the group's frame. `material` replaces every material of the group."""
+
+    group: Group
+    matrix: np.ndarray
+    material: int | None = None
+
+
+SceneObject = Sphere | Spheres | Plane | Box | Triangle | Mesh | Cylinder | Cone | Instance
 
 
 @dataclass(frozen=True)

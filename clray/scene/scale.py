@@ -60,7 +60,7 @@ def _centre_size(obj: M.SceneObject) -> tuple[np.ndarray, float]:
 def analyze(scene: M.Scene) -> ScaleReport:
     eye = np.asarray(scene.camera.position, dtype=np.float64)
     bounded = [(i, obj) for i, obj in enumerate(scene.objects)
-               if not isinstance(obj, M.Plane | M.Spheres)]
+               if not isinstance(obj, M.Plane | M.Spheres | M.Instance)]
     bulk = [(i, obj) for i, obj in enumerate(scene.objects) if isinstance(obj, M.Spheres)]
     measured = [(i, obj, *_centre_size(obj)) for i, obj in bounded]
     sizes = np.concatenate([np.array([size for *_, size in measured], dtype=np.float64),

@@ -3,8 +3,8 @@
 A transform x -> A x + t maps a triangle to a triangle and a plane to a plane whatever A is. A
 sphere, cylinder or cone stays one only under a similarity (A = s R, R orthogonal: rotation,
 uniform scale, mirroring), and an axis-aligned box stays one only when A maps axes onto axes (a
-signed permutation times a diagonal scale). Other transforms of those would need intersection
-in object space, which the kernels do not have yet: `place` says so instead of approximating.
+signed permutation times a diagonal scale). Other transforms of those are intersected in the
+object's own frame instead (the loader makes it an instance); `place` says why it cannot.
 """
 
 from __future__ import annotations
@@ -68,15 +68,13 @@ def place(obj: M.SceneObject, a: np.ndarray, t: np.ndarray) -> M.SceneObject | s
     if isinstance(obj, M.Box):
         clean = _clean(a)
         if np.count_nonzero(clean, axis=0).max() != 1:
-            return ("rotates the box off the axes (only quarter turns keep a box axis-aligned); "
-                    "use a mesh for a box at any angle")
+            return "rotates the box off the axes (only quarter turns keep a box axis-aligned)"
         corners = np.array([obj.min, obj.max], dtype=np.float64) @ clean.T + t
         lo, hi = corners.min(axis=0), corners.max(axis=0)
         return dataclasses.replace(obj, min=tuple(lo.tolist()), max=tuple(hi.tolist()))
     s = similarity_scale(a)
     if s is None:
-        return ("scales or shears unevenly, which a sphere, cylinder or cone does not survive "
-                "(an ellipsoid or an elliptic cylinder would need a mesh)")
+        return "scales or shears unevenly, which a sphere, cylinder or cone does not survive"
     if isinstance(obj, M.Sphere):
         return dataclasses.replace(obj, center=_point(a, t, obj.center), radius=obj.radius * s)
     if isinstance(obj, M.Cylinder):

@@ -655,7 +655,8 @@ def shadow_transmittance(
     o = np.asarray(origins, dtype=np.float64).reshape(-1, 3)
     d = np.asarray(directions, dtype=np.float64).reshape(-1, 3)
     tmax = np.broadcast_to(np.asarray(tmax, dtype=np.float64), (len(o),))
-    return _Geometry(scene.objects).transmittance(o, d, tmax, _MaterialTable(scene.materials).filter)
+    filters = _MaterialTable(scene.materials).filter
+    return _Geometry(scene.objects).transmittance(o, d, tmax, filters)
 
 
 # ---------------------------------------------------------------------------------------------

@@ -55,8 +55,8 @@ def test_structs_are_16_byte_multiples(bvh_width: int) -> None:
 def test_header_constants_match_layout() -> None:
     header = kernel_source("clray_types.h")
     constants = {name: getattr(layout, name) for name in (
-        "PRIM_SPHERE", "PRIM_TRIANGLE", "PRIM_INSTANCE", "PRIM_TYPE_SHIFT", "LIGHT_DIRECTIONAL", "TEXTURE_IMAGE",
-        "TRIANGLE_SMOOTH", "TRIANGLE_UV", "ENTER_INSTANCE", "LEAVE_INSTANCE")}
+        "PRIM_SPHERE", "PRIM_TRIANGLE", "PRIM_INSTANCE", "PRIM_TYPE_SHIFT", "LIGHT_DIRECTIONAL",
+        "TEXTURE_IMAGE", "TRIANGLE_SMOOTH", "TRIANGLE_UV", "ENTER_INSTANCE", "LEAVE_INSTANCE")}
     constants.update({name: getattr(wide, name) for name in (
         "PACKET_WIDTH", "LEAF_TRIANGLE_SHIFT", "LEAF_SPHERE_SHIFT", "LEAF_FIELD_MASK")})
     for name, value in constants.items():

@@ -1,5 +1,6 @@
 """`transform` on every object: exact placement on the host (float64) where the shape survives
-the transform, a one-line error naming the key where it does not."""
+the transform, and a one-object instance (intersected in the shape's own frame) where it does
+not; inside a group, where an instance cannot nest, a one-line error naming the key."""
 
 from __future__ import annotations
 
@@ -9,6 +10,7 @@ import pytest
 from clray.errors import SceneError
 from clray.scene import model as M
 from clray.scene.load import scene_from_dict
+from clray.scene.transform import rotation_matrix
 
 CAMERA = {"position": [0, 0, 10], "look_at": [0, 0, 0]}
 
@@ -51,8 +53,9 @@ def test_box_quarter_turns_stay_boxes() -> None:
     # About y, x -> -z and z -> x: the box spans x 10..13, y 0..2, z -1..0.
     np.testing.assert_allclose(b.min, (10, 0, -1), atol=1e-15)
     np.testing.assert_allclose(b.max, (13, 2, 0), atol=1e-15)
-    assert error(box, {"rotate": [0, 30, 0]}).startswith(
-        "objects[0].transform: rotates the box off the axes")
+    turned = placed(box, {"rotate": [0, 30, 0]})
+    assert isinstance(turned, M.Instance) and turned.group.objects[0].max == (1.0, 2.0, 3.0)
+    np.testing.assert_allclose(turned.matrix[:, :3], rotation_matrix((0, 30, 0)), atol=0)
 
 
 def test_cylinder_and_cone_rotate_and_scale_uniformly() -> None:
@@ -64,11 +67,29 @@ def test_cylinder_and_cone_rotate_and_scale_uniformly() -> None:
                    "height": 1}, {"translate": [1, 1, 1], "scale": 2})
     assert (cone.apex, cone.axis, cone.angle, cone.height) == ((1.0, 3.0, 1.0), (0.0, -1.0, 0.0),
                                                                30.0, 2.0)
-    message = error({"type": "cylinder", "base": [0, 0, 0], "axis": [0, 1, 0], "radius": 1,
-                     "height": 2}, {"scale": [1, 2, 1]})
-    assert message.startswith("objects[0].transform: scales or shears unevenly")
-    assert error(SPHERE, {"matrix": [[1, 0.5, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]}
-                 ).startswith("objects[0].transform: scales or shears unevenly")
+    stretched = placed({"type": "cylinder", "base": [0, 0, 0], "axis": [0, 1, 0], "radius": 1,
+                        "height": 2}, {"scale": [1, 2, 1]})
+    assert isinstance(stretched, M.Instance)
+    np.testing.assert_array_equal(stretched.matrix, [[1, 0, 0, 0], [0, 2, 0, 0], [0, 0, 1, 0]])
+    sheared = placed(SPHERE, {"matrix": [[1, 0.5, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0],
+                                         [0, 0, 0, 1]]})
+    assert isinstance(sheared, M.Instance) and sheared.group.objects[0].radius == 0.5
+
+
+def group_error(obj: dict) -> str:
+    with pytest.raises(SceneError) as info:
+        scene_from_dict({"camera": CAMERA, "groups": {"g": {"objects": [obj]}}})
+    return str(info.value)
+
+
+def test_inside_a_group_what_would_nest_is_an_error() -> None:
+    assert group_error({**SPHERE, "transform": {"scale": [1, 2, 1]}}).startswith(
+        "groups.g.objects[0].transform: scales or shears unevenly, which a sphere, cylinder or "
+        "cone does not survive, and inside a group")
+    assert group_error({"type": "plane", "point": [0, 0, 0], "normal": [0, 1, 0]}).startswith(
+        "groups.g.objects[0].type: a group holds bounded primitives")
+    assert group_error({"type": "instance", "group": "g"}).startswith(
+        "groups.g.objects[0].type: a group holds bounded primitives")
 
 
 def test_triangle_keeps_its_outward_side_when_mirrored() -> None:

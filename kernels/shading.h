@@ -235,9 +235,11 @@ inline REAL abs_sum3(REAL3 v) { return fabs(v.x) + fabs(v.y) + fabs(v.z); }
 // The surface of a hit inside an instance: found in the group's frame, then mapped to the
 // scene's. Its error bound covers three things: the group-frame bound mapped through the
 // linear part A of to_world (the sum of |A| bounds its largest stretch); the rounding of that
-// map; and the rounding a ray spawned here suffers when mapped back into the group's frame by
-// to_object, which must not carry its origin back through the surface: a distance e there is
-// at most e / |M^T n| along the normal here.
+// map; and how far a ray spawned here moves when mapped back into the group's frame by
+// to_object M, which must not carry its origin back through the surface: a distance e there
+// is at most e / |M^T n| along the normal here. The matrices are float32 in every build and M
+// is only the rounded inverse of A, so out and back moves a point by float32 roundings of
+// |M| |A| |p| even in the double build: those terms count float32 roundings.
 HOT Surface instance_surface(const SceneRefs* s, const Ray* r, const Hit* hit, bool want_uv) {
     const __global Instance* in = s->instances + hit->instance;
     Ray group_ray = instance_ray(in, r);
@@ -249,14 +251,14 @@ HOT Surface instance_surface(const SceneRefs* s, const Ray* r, const Hit* hit, b
           m2 = TO_REAL4(in->to_object[2]);
     REAL3 world = (REAL3)(dot(a0, p), dot(a1, p), dot(a2, p));
     REAL4 ap = fabs(p);
-    REAL mapped = fmax(dot(fabs(a0), ap), fmax(dot(fabs(a1), ap), dot(fabs(a2), ap)));
+    REAL3 mapped = (REAL3)(dot(fabs(a0), ap), dot(fabs(a1), ap), dot(fabs(a2), ap));
     REAL stretch = abs_sum3(a0.xyz) + abs_sum3(a1.xyz) + abs_sum3(a2.xyz);
-    REAL4 aw = (REAL4)(fabs(world), (REAL)1);
+    REAL4 aw = (REAL4)(fabs(world) + mapped, (REAL)1);
     REAL back = fmax(dot(fabs(m0), aw), fmax(dot(fabs(m1), aw), dot(fabs(m2), aw)));
     REAL3 n_g = instance_normal(in, sf.n_g);
     REAL along = length(n_g);
-    REAL gamma = gamma_n(ERR_ROUNDINGS);
-    sf.err = sf.err * stretch + gamma * (max_abs3(world) + mapped) +
+    REAL gamma = fmax(gamma_n(ERR_ROUNDINGS), (REAL)(ERR_ROUNDINGS * FLT_EPSILON));
+    sf.err = sf.err * stretch + gamma * (max_abs3(world) + max_comp3(mapped)) +
              (along > (REAL)0 ? gamma * back / along : (REAL)0);
     sf.p = world;
     sf.n_g = safe_normalize(n_g);

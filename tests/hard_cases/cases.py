@@ -687,6 +687,133 @@ def light_in_floor_under_ball() -> HardCase:
     return HardCase("light_in_floor_under_ball", scene, check)
 
 
+def group_rays(eye: np.ndarray, d: np.ndarray, matrix: np.ndarray
+               ) -> tuple[np.ndarray, np.ndarray]:
+    """Rays in the frame of an object placed by x -> A x + t (matrix [A | t]), float64."""
+    inverse = np.linalg.inv(matrix[:, :3])
+    return (eye - matrix[:, 3]) @ inverse.T, d @ inverse.T
+
+
+def _matrix(rows: list) -> np.ndarray:
+    return np.asarray(rows, dtype=np.float64)[:3]
+
+
+def thin_ellipsoid(edge_on: bool) -> HardCase:
+    # A unit sphere squashed 1e4 times along one axis: a disc 2e-4 thick, intersected in the
+    # sphere's own frame. Edge-on only the rays with a zero y component stay in it; face-on and
+    # lit head-on, its Lambert shading must show no self-shadowing (the spawned shadow ray is
+    # mapped back into the squashed frame) and the normal must follow the inverse transpose.
+    squash = [1.0, 1e-4, 1.0] if edge_on else [1.0, 1.0, 1e-2]
+    sphere = {"type": "sphere", "center": [0, 0, 0], "radius": 1, "material": "m",
+              "transform": {"scale": squash}}
+    if edge_on:
+        scene = _scene([sphere], camera={"position": [0, 0, 5], "look_at": [0, 0, 0],
+                                         "vfov": 40},
+                       materials={"m": FLAT}, width=47, height=35)
+    else:
+        scene = _scene([sphere], camera={"position": [0, 0, 5], "look_at": [0, 0, 0],
+                                         "vfov": 30},
+                       materials={"m": MATTE}, width=47, height=47,
+                       lights=[{"type": "directional", "direction": [0.3, -0.2, -1.0]}])
+    matrix = np.diag([*squash, 0.0])[:3]
+
+    def check(image: np.ndarray, s: Scene) -> None:
+        eye, d = primary_rays(s)
+        o, dl = group_rays(eye, d, matrix)
+        unit = dl / np.linalg.norm(dl, axis=-1, keepdims=True)
+        b = impact(o, unit, (0, 0, 0))
+        if edge_on:
+            hit = (d[..., 1] == 0) & (b < 0.99)
+            close(image, hit, COLOR, 1e-6, "the disc's rim row")
+            close(image, d[..., 1] != 0, (0, 0, 0), 0.0, "beside the disc")
+            return
+        t = sphere_t(o, unit, (0, 0, 0), 1.0) / np.linalg.norm(dl, axis=-1)
+        p = eye + np.where(np.isfinite(t), t, 0)[..., None] * d
+        n = p / np.square(np.asarray(squash))  # the gradient of the ellipsoid's equation
+        n /= np.linalg.norm(n, axis=-1, keepdims=True)
+        light = -np.array([0.3, -0.2, -1.0]) / np.linalg.norm([0.3, -0.2, -1.0])
+        lit = 0.1 + 0.9 * np.clip(n @ light, 0, None)
+        inside = b < 0.97
+        close(image, inside, lit[inside][:, None], 1e-4, "Lambert over the face, no acne")
+        close(image, b > 1.03, (0, 0, 0), 0.0, "beside")
+
+    return HardCase("thin_ellipsoid_edge_on" if edge_on else "thin_ellipsoid_lit", scene, check)
+
+
+def rotated_box() -> HardCase:
+    # A box turned off the axes (intersected in its own frame) and lit: each face one Lambert
+    # value, its normal the rotated axis, no acne on any face.
+    turn = {"rotate": [25, 40, 0], "translate": [0, 0, 0]}
+    box = {"type": "box", "min": [-1, -1, -1], "max": [1, 1, 1], "material": "m",
+           "transform": turn}
+    light_dir = np.array([-0.4, -0.7, -0.6])
+    scene = _scene([box], camera={"position": [0, 0, 6], "look_at": [0, 0, 0], "vfov": 45},
+                   materials={"m": MATTE}, width=47, height=47,
+                   lights=[{"type": "directional", "direction": light_dir.tolist()}])
+
+    def check(image: np.ndarray, s: Scene) -> None:
+        rot = s.objects[0].matrix
+        eye, d = primary_rays(s)
+        o, dl = group_rays(eye, d, rot)
+        inner = box_hit(o, dl, (-0.97,) * 3, (0.97,) * 3)
+        close(image, ~box_hit(o, dl, (-1.03,) * 3, (1.03,) * 3), (0, 0, 0), 0.0, "beside")
+        # The face each ray enters: where the slab entry is latest, in the box's frame.
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t_near = np.minimum((-1 - o) / dl, (1 - o) / dl)
+        axis = np.argmax(t_near, axis=-1)
+        side = -np.sign(np.take_along_axis(dl, axis[..., None], -1)[..., 0])
+        n_local = np.zeros(d.shape)
+        np.put_along_axis(n_local, axis[..., None], side[..., None], -1)
+        n = n_local @ rot[:, :3].T  # a rotation: the inverse transpose is itself
+        light = -light_dir / np.linalg.norm(light_dir)
+        lit = 0.1 + 0.9 * np.clip(n @ light, 0, None)
+        # Away from the edges between faces, where a pixel may see either face.
+        second = np.sort(t_near, axis=-1)[..., 1]
+        clear = inner & (np.max(t_near, axis=-1) - second > 0.05)
+        close(image, clear, lit[clear][:, None], 1e-4, "faces lit, no acne")
+
+    return HardCase("rotated_box", scene, check)
+
+
+def cylinder_hit(o: np.ndarray, d: np.ndarray, radius: float, height: float) -> np.ndarray:
+    """Whether rays cross the capped cylinder about +y from y = 0 to height (float64)."""
+    a = d[..., 0] ** 2 + d[..., 2] ** 2
+    b = o[..., 0] * d[..., 0] + o[..., 2] * d[..., 2]
+    c = o[..., 0] ** 2 + o[..., 2] ** 2 - radius**2
+    with np.errstate(divide="ignore", invalid="ignore"):
+        sq = np.sqrt(np.maximum(b * b - a * c, 0))
+        hit = np.zeros(d.shape[:-1], bool)
+        for t in ((-b - sq) / a, (-b + sq) / a):
+            y = o[..., 1] + t * d[..., 1]
+            hit |= (b * b - a * c >= 0) & (t > 0) & (y >= 0) & (y <= height)
+        for cap in (0.0, height):
+            t = (cap - o[..., 1]) / d[..., 1]
+            x, z = o[..., 0] + t * d[..., 0], o[..., 2] + t * d[..., 2]
+            hit |= (t > 0) & (x * x + z * z <= radius**2)
+    return hit
+
+
+def sheared_cylinder() -> HardCase:
+    # A cylinder sheared along x as it rises: an oblique elliptic cylinder, only possible in
+    # its own frame. Its silhouette must be the sheared one exactly.
+    shear = [[1, 0.6, 0, 0], [0, 1, 0, -1], [0, 0, 1, 0], [0, 0, 0, 1]]
+    cyl = {"type": "cylinder", "base": [0, 0, 0], "axis": [0, 1, 0], "radius": 0.7,
+           "height": 2, "material": "m", "transform": {"matrix": shear}}
+    scene = _scene([cyl], camera={"position": [1, 2, 6], "look_at": [0.6, 0, 0], "vfov": 40},
+                   materials={"m": FLAT}, width=47, height=47)
+
+    def check(image: np.ndarray, s: Scene) -> None:
+        eye, d = primary_rays(s)
+        o, dl = group_rays(eye, d, _matrix(shear))
+        # The cylinder shrunk and grown by 0.02 in radius and at both caps.
+        shrunk = cylinder_hit(o - [0, 0.02, 0], dl, 0.68, 1.96)
+        grown = cylinder_hit(o + [0, 0.02, 0], dl, 0.72, 2.04)
+        close(image, shrunk, COLOR, 1e-6, "inside")
+        close(image, ~grown, (0, 0, 0), 0.0, "outside")
+
+    return HardCase("sheared_cylinder", scene, check)
+
+
 CASES: tuple[HardCase, ...] = (
     far_sphere(1e3, 1e-3),
     far_sphere(1e4, 1e-2),
@@ -717,6 +844,10 @@ CASES: tuple[HardCase, ...] = (
     shininess_zero(),
     cone_apex(),
     cylinder_rim(),
+    thin_ellipsoid(edge_on=True),
+    thin_ellipsoid(edge_on=False),
+    rotated_box(),
+    sheared_cylinder(),
 )
 
 

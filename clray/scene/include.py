@@ -1,17 +1,16 @@
 """Scene files that include others: `include = ["materials.toml", ...]`, merged into one scene.
 
 Rules (docs/scene_format.md, Includes): included files are read in order, each after its own
-includes, and the including file comes last. `materials` are merged by name, and a name defined
-in two files is an error naming both; `lights` and `objects` are appended in that order;
-`render` keys are merged one by one, a later file's value replacing an earlier one's (so the
-including file overrides its libraries); `camera` may be given by one file only. Relative file
-names inside an included file (textures, meshes) are relative to that file's folder, as they
-are in the file itself. A file included more than once (two files sharing a material library) is
-merged once, where it is first included. A file that includes itself, directly or through
-others, is an error showing the chain.
-
-The merged data keeps where each entry came from, so that an error the loader finds in it
-names the file and the key as they are written there (`lib.toml: materials.glass.ior: ...`).
+includes, and the including file comes last. `materials` and `groups` are merged by name, and a
+name defined in two files is an error naming both; `lights` and `objects` are appended in that
+order; `render` keys are merged one by one, a later file's value replacing an earlier one's (so
+the including file overrides its libraries); `camera` may be given by one file only. Relative
+file names inside an included file (textures, meshes) are relative to that file's folder, as
+they are in the file itself. A file included more than once (two files sharing a material
+library) is merged once, where it is first included. A file that includes itself, directly or
+through others, is an error showing the chain. The merged data keeps where each entry came from,
+so that an error the loader finds in it names the file and the key as they are written there
+(`lib.toml: materials.glass.ior: ...`).
 """
 
 from __future__ import annotations
@@ -27,7 +26,8 @@ from clray.errors import SceneError
 from clray.scene import limits as L
 from clray.scene.files import UnreadableFile
 
-_KEYS = ("include", "render", "camera", "materials", "lights", "objects", "animation")
+_KEYS = ("include", "render", "camera", "materials", "groups", "lights", "objects", "animation")
+_NAMED = ("materials", "groups")  # tables merged by name
 _BARE = re.compile(r"[A-Za-z0-9_-]+")
 _INDEXED = re.compile(r"(objects|lights)\[(\d+)\](.*)", re.S)
 
@@ -37,6 +37,7 @@ class Origins:
     """The file (and index there) each merged entry came from."""
 
     materials: dict[str, Path] = field(default_factory=dict)
+    groups: dict[str, Path] = field(default_factory=dict)
     lights: list[tuple[Path, int]] = field(default_factory=list)
     objects: list[tuple[Path, int]] = field(default_factory=list)
     render: dict[str, Path] = field(default_factory=dict)
@@ -53,10 +54,11 @@ class Origins:
             if index < len(entries):
                 file, local = entries[index]
                 return SceneError(file, f"{table}[{local}]{rest}", error.message)
-        for name, file in self.materials.items():
-            prefix = key_of("materials", name)
-            if key == prefix or key.startswith((prefix + ".", prefix + "[")):
-                return SceneError(file, key, error.message)
+        for table in _NAMED:
+            for name, file in getattr(self, table).items():
+                prefix = key_of(table, name)
+                if key == prefix or key.startswith((prefix + ".", prefix + "[")):
+                    return SceneError(file, key, error.message)
         head = key.split(".", 1)
         if head[0] == "render" and len(head) == 2 and head[1] in self.render:
             return SceneError(self.render[head[1]], key, error.message)
@@ -74,7 +76,8 @@ def expand_includes(data: Any, path: Path | None, read: Callable[[Path], Any]
     if not isinstance(data, dict) or "include" not in data:
         return data, None
     origins = Origins()
-    merged: dict[str, Any] = {"materials": {}, "lights": [], "objects": [], "render": {}}
+    merged: dict[str, Any] = {"materials": {}, "groups": {}, "lights": [], "objects": [],
+                              "render": {}}
     top = (path or Path("scene")).resolve()
     _merge(data, path, (top,), merged, origins, top.parent, read)
     return merged, origins
@@ -110,7 +113,7 @@ def _merge(data: Any, path: Path | None, chain: tuple[Path, ...], merged: dict, 
             raise SceneError(path, f"include[{i}]", f"cannot read {name!r}: {exc}") from None
         _merge(included, target, (*chain, resolved), merged, origins, top_dir, read)
     own = {k: _relocated(v, folder, top_dir) for k, v in data.items()
-           if k in ("materials", "lights", "objects")}
+           if k in ("materials", "groups", "lights", "objects")}
     _merge_tables(data, own, path, merged, origins)
     if "animation" in data:
         # Its tracks name values by the scene file's own key paths (clray.animation).
@@ -122,17 +125,19 @@ def _merge(data: Any, path: Path | None, chain: tuple[Path, ...], merged: dict, 
 def _merge_tables(data: dict, own: dict, path: Path | None, merged: dict,
                   origins: Origins) -> None:
     file = path or Path("scene")
-    for table in ("materials", "render"):
+    for table in (*_NAMED, "render"):
         value = data.get(table, {})
         if not isinstance(value, dict):
             raise SceneError(path, table, f"expected a table, got {type(value).__name__}")
-    for name, spec in own.get("materials", {}).items():
-        if name in merged["materials"]:
-            raise SceneError(path, f"materials.{name}" if _BARE.fullmatch(name) else
-                             f"materials.{name!r}",
-                             f"already defined in {origins.materials[name].name}")
-        merged["materials"][name] = spec
-        origins.materials[name] = file
+    for table in _NAMED:
+        defined = getattr(origins, table)
+        for name, spec in own.get(table, {}).items():
+            if name in merged[table]:
+                raise SceneError(path, f"{table}.{name}" if _BARE.fullmatch(name) else
+                                 f"{table}.{name!r}",
+                                 f"already defined in {defined[name].name}")
+            merged[table][name] = spec
+            defined[name] = file
     for table in ("lights", "objects"):
         items = own.get(table, [])
         if not isinstance(items, list):

@@ -806,8 +806,9 @@ def sheared_cylinder() -> HardCase:
         eye, d = primary_rays(s)
         o, dl = group_rays(eye, d, _matrix(shear))
         # The cylinder shrunk and grown by 0.02 in radius and at both caps.
-        shrunk = cylinder_hit(o - [0, 0.02, 0], dl, 0.68, 1.96)
-        grown = cylinder_hit(o + [0, 0.02, 0], dl, 0.72, 2.04)
+        lift = np.array([0, 0.02, 0])
+        shrunk = cylinder_hit(o - lift, dl, 0.68, 1.96)
+        grown = cylinder_hit(o + lift, dl, 0.72, 2.04)
         close(image, shrunk, COLOR, 1e-6, "inside")
         close(image, ~grown, (0, 0, 0), 0.0, "outside")
 

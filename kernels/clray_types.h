@@ -170,6 +170,7 @@ typedef struct {
 typedef struct {
     float4 to_object[3];
     float4 to_world[3];
+    float4 lo, hi;  // its bounds in the packed frame, rounded outwards; w unused
     int root_child, root_count;
     int material;  // replaces every material of the group, or -1
     int pad0;

@@ -77,8 +77,8 @@ def bvh_node_dtype(width: int) -> np.dtype:
 
 
 INSTANCE = _struct([("to_object", ("<f4", (3, 4))), ("to_world", ("<f4", (3, 4))),
-                    ("root_child", "<i4"), ("root_count", "<i4"), ("material", "<i4"),
-                    ("pad0", "<i4")])
+                    ("lo", _F4), ("hi", _F4), ("root_child", "<i4"), ("root_count", "<i4"),
+                    ("material", "<i4"), ("pad0", "<i4")])
 # Traversal-stack entries that are not nodes or leaves (kernels/bvh.h): count < 0.
 ENTER_INSTANCE = -1
 LEAVE_INSTANCE = -2

@@ -1,0 +1,173 @@
+"""Instancing: one 327,680-triangle mesh placed once, and placed 1,000 times, side by side.
+
+    python benchmarks/bench_instances.py [--device SPEC] [--repeat N] [--out FILE.json]
+
+Scenes, all 1280x720, 1 spp, one point light and a ground plane:
+- `placed`: the mesh as a plain object (no instance), the close-up camera;
+- `one_instance`: the mesh as the one instance of a group, the same camera;
+- `thousand_instances`: 1,000 instances on a 40 x 25 grid, each turned and scaled differently
+  except the one at the origin, which is the close-up's mesh, seen by the same camera (the
+  other instances fill the background);
+- `thousand_overview`: the same 1,000 seen from above, filling the view (each mesh covers a few
+  hundred pixels with its 327,680 triangles, so rays are incoherent: compare Mrays/s);
+- `eight_placed` and `eight_instances`: eight turned copies of the mesh, placed as eight mesh
+  objects (2.6 M triangles on the device) and as eight instances of one group, same camera:
+  the same image, so their kernel times compare the two-level walk with the flat one.
+For each: load time (the OBJ is read once either way), BVH build time, device bytes, kernel
+time (median of `repeat` renders after one warm-up; OpenCL profiling events) and Mrays/s.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib.util
+import json
+import statistics
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+
+from clray.device.context import queue_for, select_device  # noqa: E402
+from clray.device.pack import pack_scene  # noqa: E402
+from clray.device.program import bvh_width_for  # noqa: E402
+from clray.render import render_packed  # noqa: E402
+from clray.scene.load import load_scene  # noqa: E402
+
+GRID = (40, 25)  # instances along x and z, one of them at the origin
+
+
+def _make_mesh(folder: Path) -> Path:
+    spec = importlib.util.spec_from_file_location("make_mesh_scene",
+                                                  ROOT / "benchmarks" / "make_mesh_scene.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    path = folder / "bumpy.obj"
+    module.write_obj(path, *module.bumpy_mesh(7))
+    return path
+
+
+def _scene_text(mesh: Path, placements: list[str] | None, camera: str) -> str:
+    if placements is None:
+        objects = f'\n[[objects]]\ntype = "mesh"\nfile = "{mesh.name}"\nmaterial = "clay"\n'
+    else:
+        objects = "".join(f'\n[[objects]]\ntype = "instance"\ngroup = "bumpy"\n'
+                          f"transform = {p}\n" for p in placements)
+    return f"""
+[render]
+width = 1280
+height = 720
+spp = 1
+max_depth = 0
+background = [0.05, 0.05, 0.08]
+{camera}
+[materials.clay]
+color = [0.85, 0.45, 0.25]
+ambient = 0.1
+diffuse = 0.8
+specular = 0.3
+shininess = 40
+
+[[lights]]
+type = "point"
+position = [30, 60, 40]
+
+[groups.bumpy]
+objects = [{{ type = "mesh", file = "{mesh.name}", material = "clay" }}]
+
+[[objects]]
+type = "plane"
+point = [0, -1.1, 0]
+normal = [0, 1, 0]
+material = "clay"
+{objects}"""
+
+
+def scenes(folder: Path) -> dict[str, Path]:
+    mesh = _make_mesh(folder)
+    rng = np.random.default_rng(1)
+    grid = []
+    for i in range(GRID[0]):
+        for k in range(GRID[1]):
+            x, z = (i - GRID[0] // 2) * 2.5, (k - GRID[1] // 2) * 2.5
+            turn = rng.uniform(0, 360, 3).round(1).tolist()
+            scale = rng.uniform(0.7, 1.1)
+            grid.append("{}" if x == z == 0 else
+                        f"{{ rotate = {turn}, scale = {scale:.2f}, translate = [{x}, 0, {z}] }}")
+    close = "[camera]\nposition = [0.0, 1.2, 5.0]\nlook_at = [0.0, 0.0, 0.0]\nvfov = 40\n"
+    above = "[camera]\nposition = [0.0, 45.0, 55.0]\nlook_at = [0.0, 0.0, 0.0]\nvfov = 45\n"
+    texts = {"placed": _scene_text(mesh, None, close),
+             "one_instance": _scene_text(mesh, ["{}"], close),
+             "thousand_instances": _scene_text(mesh, grid, close),
+             "thousand_overview": _scene_text(mesh, grid, above)}
+    eight = [f"{{ rotate = [0, {30 * i}, 0], translate = [{(i % 4 - 1.5) * 2.5}, 0, "
+             f"{-(i // 4) * 2.5}] }}" for i in range(8)]
+    wide = "[camera]\nposition = [0.0, 3.0, 6.0]\nlook_at = [0.0, 0.0, -1.5]\nvfov = 60\n"
+    texts["eight_instances"] = _scene_text(mesh, eight, wide)
+    texts["eight_placed"] = _scene_text(mesh, None, wide).replace(
+        f'\n[[objects]]\ntype = "mesh"\nfile = "{mesh.name}"\nmaterial = "clay"\n',
+        "".join(f'\n[[objects]]\ntype = "mesh"\nfile = "{mesh.name}"\nmaterial = "clay"\n'
+                f"transform = {p}\n" for p in eight))
+    paths = {}
+    for name, text in texts.items():
+        paths[name] = folder / f"{name}.toml"
+        paths[name].write_text(text, encoding="utf-8")
+    return paths
+
+
+def bench(path: Path, device, repeat: int) -> dict:
+    start = time.perf_counter()
+    scene = load_scene(path)
+    load_s = time.perf_counter() - start
+    settings = {"width": 1280, "height": 720, "spp": 1, "max_depth": 0, "seed": 0,
+                "bvh_width": bvh_width_for(device), "queue": queue_for(device)}
+    pack_scene(scene, **settings)  # compiles the device BVH build once
+    packed = pack_scene(scene, **settings)
+    render_packed(packed, device)  # warm-up: program build and first launch
+    runs, rays = [], 0
+    for _ in range(repeat):
+        _, stats = render_packed(packed, device)
+        runs.append(stats["kernel_s"])
+        rays = stats["rays"]["total"]
+    kernel_s = statistics.median(runs)
+    device_bytes = packed.device_bytes()
+    return {"instances": len(packed.instances), "triangles": len(packed.triangles),
+            "load_s": load_s, "bvh_s": packed.bvh_s, "device_bytes": sum(device_bytes.values()),
+            "device_bytes_by_buffer": device_bytes, "kernel_s": kernel_s, "kernel_runs_s": runs,
+            "rays": rays, "mrays_per_s": rays / kernel_s * 1e-6}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--device", default=None)
+    parser.add_argument("--repeat", type=int, default=5)
+    parser.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results" /
+                        "bench_instances.json")
+    args = parser.parse_args()
+    device = select_device(args.device)
+    with tempfile.TemporaryDirectory(prefix="clray-instances-") as tmp:
+        results = {name: bench(path, device, args.repeat)
+                   for name, path in scenes(Path(tmp)).items()}
+    ratios = {f"{a}/{b}": {key: results[a][key] / results[b][key] for key in (
+        "load_s", "bvh_s", "device_bytes", "kernel_s", "mrays_per_s")}
+        for a, b in (("one_instance", "placed"), ("thousand_instances", "one_instance"),
+                     ("thousand_overview", "one_instance"), ("eight_instances", "eight_placed"))}
+    report = {"benchmark": "instances", "device": device.name.strip(),
+              "platform_version": device.platform.version.strip(), "repeat": args.repeat,
+              "scenes": results, "ratios": ratios}
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.write_text(json.dumps(report, indent=1) + "\n", encoding="utf-8")
+    for name, r in results.items():
+        print(f"{name}: {r['instances']} instances, load {r['load_s']:.3f} s, BVH "
+              f"{r['bvh_s']:.3f} s, {r['device_bytes'] / 2**20:.1f} MiB, kernel "
+              f"{r['kernel_s']:.3f} s, {r['mrays_per_s']:.1f} Mrays/s")
+    print(f"wrote {args.out}")
+
+
+if __name__ == "__main__":
+    main()

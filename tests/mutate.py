@@ -58,6 +58,7 @@ CLI = "tests/test_cli.py"
 STUDY = "tests/test_study.py"
 DEVICE = "tests/test_device_fixture.py"
 LIGHTS = "tests/test_area_lights.py"
+INSTANCES = "tests/test_instances.py"
 CAMERA = "tests/test_camera.py"
 FRESNEL = "tests/test_fresnel.py"
 BACKGROUND = "tests/test_background.py"
@@ -81,6 +82,21 @@ def m(name: str, path: str, old: str, new: str, *tests: str) -> Mutation:
 
 
 MUTATIONS: tuple[Mutation, ...] = (
+    # instances (kernels/bvh.h, kernels/shading.h, clray/device/pack.py)
+    m("instances.normal_by_to_world", "kernels/shading.h",
+      "return n.x * TO_REAL3(in->to_object[0])", "return n.x * TO_REAL3(in->to_world[0])",
+      INSTANCES, HARD),
+    m("instances.double_bound_in_double_roundings", "kernels/shading.h",
+      "REAL gamma = fmax(gamma_n(ERR_ROUNDINGS), (REAL)(ERR_ROUNDINGS * FLT_EPSILON));",
+      "REAL gamma = gamma_n(ERR_ROUNDINGS);", HARD),
+    m("instances.scene_ray_not_restored", "kernels/bvh.h",
+      "instance = -1;\n            r = world;\n#endif\n        } else {",
+      "instance = -1;\n#endif\n        } else {", INSTANCES),
+    m("instances.material_not_replaced", "kernels/shading.h",
+      "if (in->material >= 0) sf.material = in->material;", "", INSTANCES),
+    m("instances.bounds_not_mapped", "clray/device/pack.py",
+      'placed = np.einsum("nij,nkj->nki", to_world[:, :, :3], corners) + to_world[:, None, :, 3]',
+      "placed = corners + to_world[:, None, :, 3]", INSTANCES),
     # kernels/camera.h
     m("camera.jitter_dims_swapped", "kernels/camera.h",
       "((REAL)(s % nx) + r0) / (REAL)nx,\n                   (REAL)y + ((REAL)(s / nx) + r1)",

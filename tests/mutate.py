@@ -189,7 +189,7 @@ MUTATIONS: tuple[Mutation, ...] = (
       INTERSECT),
     # kernels/bvh.h
     m("bvh.tie_to_larger_ref", "kernels/bvh.h",
-      "(t <= hit->t + tol && ref < hit->ref)", "(t <= hit->t + tol && ref > hit->ref)",
+      "return ref < hit->ref;", "return ref > hit->ref;",
       INTERSECT),
     m("bvh.first_crossing_only", "kernels/bvh.h",
       "int k = c->t[0] > (REAL)0 ? 0 : 1;", "int k = 0;", INTERSECT),

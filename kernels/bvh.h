@@ -159,11 +159,23 @@ inline bool tie_before(const Hit* hit, int ref, int instance) {
 // TIE_ROUNDINGS roundings of each other tie: different shapes reach one point through
 // different formulas, and an exact comparison would pick between coplanar primitives at random.
 #define TIE_ROUNDINGS 64
+
+// The relative width of a tie. An instance's crossings come through its float32 matrices in
+// every build, so where instances exist ties count float32 roundings in the double build too:
+// a box standing on a plane in an instance must tie with the plane there as it does in float.
+inline REAL tie_gamma(void) {
+#if HAS_INSTANCES
+    return fmax(gamma_n(TIE_ROUNDINGS), (REAL)(TIE_ROUNDINGS * FLT_EPSILON / 2));
+#else
+    return gamma_n(TIE_ROUNDINGS);
+#endif
+}
+
 inline void consider_hit(Hit* hit, const Crossings* c, int ref, int instance) {
     int k = c->t[0] > (REAL)0 ? 0 : 1;
     REAL t = c->t[k];
     if (!(t > (REAL)0) || !(t < REAL_INF)) return;
-    REAL tol = hit->ref < 0 ? (REAL)0 : gamma_n(TIE_ROUNDINGS) * fmax(t, hit->t);
+    REAL tol = hit->ref < 0 ? (REAL)0 : tie_gamma() * fmax(t, hit->t);
     if (hit->ref < 0 || t < hit->t - tol ||
         (t <= hit->t + tol && tie_before(hit, ref, instance))) {
         hit->t = t;
@@ -176,7 +188,7 @@ inline void consider_hit(Hit* hit, const Crossings* c, int ref, int instance) {
 }
 
 // How far past the closest hit a crossing can still tie with it.
-inline REAL tie_reach(REAL t) { return t + (REAL)2 * gamma_n(TIE_ROUNDINGS) * t; }
+inline REAL tie_reach(REAL t) { return t + (REAL)2 * tie_gamma() * t; }
 
 // One axis of the vector slab test, with the scalar slab_interval's rules: compare-select so a
 // NaN from 0 * inf never narrows the interval, and the far bound widened by `widen`.

@@ -272,6 +272,14 @@ HOT Surface instance_surface(const SceneRefs* s, const Ray* r, const Hit* hit, b
 HOT Surface surface_at(const SceneRefs* s, const Ray* r, const Hit* hit, bool want_uv) {
 #if HAS_INSTANCES
     if (hit->instance >= 0) return instance_surface(s, r, hit, want_uv);
+#ifdef USE_DOUBLE
+    // Instances' surfaces lie where their float32 matrices put them, in every build: a scene
+    // surface that meets one (a glass base standing on the floor) needs offsets of float32
+    // size too, or a ray spawned from it can start on the wrong side of the instance's.
+    Surface sf = shape_surface(s, r, hit, want_uv);
+    sf.err = fmax(sf.err, (REAL)(ERR_ROUNDINGS * FLT_EPSILON) * max_abs3(sf.p));
+    return sf;
+#endif
 #endif
     return shape_surface(s, r, hit, want_uv);
 }

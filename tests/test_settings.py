@@ -206,18 +206,29 @@ def test_round_trip_keeps_every_example_scene(path: Path) -> None:
         assert a == b  # textures compare without their texels
     assert len(again.objects) == len(scene.objects)
     for a, b in zip(again.objects, scene.objects, strict=True):
-        if isinstance(b, M.Spheres):
-            for name in ("centers", "radii", "materials"):
-                np.testing.assert_array_equal(getattr(a, name), getattr(b, name))
-        elif isinstance(b, M.Mesh):
-            for name in ("vertices", "faces", "normals", "uvs"):
-                x, y = getattr(a, name), getattr(b, name)
-                assert (x is None) == (y is None)
-                if y is not None:
-                    # Loaded normals are unit already: normalising again may move one ulp.
-                    np.testing.assert_allclose(x, y, rtol=0, atol=4e-16)
-        else:
-            assert a == b
+        assert_same_object(a, b)
+
+
+def assert_same_object(a: M.SceneObject, b: M.SceneObject) -> None:
+    assert type(a) is type(b)
+    if isinstance(b, M.Spheres):
+        for name in ("centers", "radii", "materials"):
+            np.testing.assert_array_equal(getattr(a, name), getattr(b, name))
+    elif isinstance(b, M.Mesh):
+        for name in ("vertices", "faces", "normals", "uvs"):
+            x, y = getattr(a, name), getattr(b, name)
+            assert (x is None) == (y is None)
+            if y is not None:
+                # Loaded normals are unit already: normalising again may move one ulp.
+                np.testing.assert_allclose(x, y, rtol=0, atol=4e-16)
+    elif isinstance(b, M.Instance):
+        np.testing.assert_array_equal(a.matrix, b.matrix)
+        assert (a.material, a.group.name) == (b.material, b.group.name)
+        assert len(a.group.objects) == len(b.group.objects)
+        for x, y in zip(a.group.objects, b.group.objects, strict=True):
+            assert_same_object(x, y)
+    else:
+        assert a == b
 
 
 def test_render_takes_a_path(cl_device) -> None:

@@ -11,6 +11,7 @@ device or pipe (/dev/stdout) is written directly.
 
 from __future__ import annotations
 
+import functools
 import io
 import math
 import numbers
@@ -94,10 +95,9 @@ def srgb_decode(encoded: np.ndarray) -> np.ndarray:
                     np.power((encoded + 0.055) / 1.055, 2.4))
 
 
-def to_png_samples(image: np.ndarray, encoding: Encoding = Encoding()) -> np.ndarray:
-    """(H, W, 3) uint8 or uint16 PNG samples: non-finite -> 0, times 2**exposure, clamp to
-    [0, 1] per channel, sRGB curve unless linear, then round to the nearest code."""
-    values = np.array(_as_rgb(image), dtype=np.float64)
+def _encode_float64(values: np.ndarray, encoding: Encoding) -> np.ndarray:
+    """to_png_samples by the formula, in float64."""
+    values = np.array(values, dtype=np.float64)
     np.nan_to_num(values, copy=False, nan=0.0, posinf=0.0, neginf=0.0)
     if encoding.exposure:
         values *= 2.0 ** encoding.exposure
@@ -107,6 +107,62 @@ def to_png_samples(image: np.ndarray, encoding: Encoding = Encoding()) -> np.nda
     top = (1 << encoding.png_bits) - 1
     values *= top
     return np.rint(values, out=values).astype(np.uint8 if top == 255 else np.uint16)
+
+
+# The default encoding (8-bit sRGB, no exposure) of float32 values by table: the code of a value
+# in [0, 1] is a non-decreasing step function of its bit pattern, and over a bucket of 2**15
+# consecutive patterns (0.4 % of the value) the curve moves by less than one code, so each
+# bucket needs its first value's code and the first pattern, if any, where the next code starts.
+# Both are found with the float64 formula itself, so the table gives exactly its codes: checked
+# for every float32 in [0, 1] (tests/test_image_io.py checks every pattern near each step).
+_BUCKET_SHIFT = 15
+_ONE_BITS = 0x3F800000  # 1.0f
+_INF_BITS = 0x7F800000
+
+
+@functools.cache
+def _srgb8_table() -> tuple[np.ndarray, np.ndarray]:
+    """(first code of each bucket, first bit pattern of its next code or 2**32)."""
+    default = Encoding()
+    n = (_ONE_BITS >> _BUCKET_SHIFT) + 1
+    starts = np.arange(n + 1, dtype=np.int64) << _BUCKET_SHIFT
+    starts[-1] = _ONE_BITS + 1  # past 1.0: only the bucket of 1.0 itself is cut short
+
+    def code(bits: np.ndarray) -> np.ndarray:
+        return _encode_float64(bits.astype(np.uint32).view(np.float32), default)
+
+    first = code(np.minimum(starts, _ONE_BITS))
+    step = np.flatnonzero(first[1:] > first[:-1])  # buckets whose next code starts in them
+    lo, hi = starts[step], starts[step + 1]  # the next code starts in (lo, hi]
+    for _ in range(_BUCKET_SHIFT + 1):
+        mid = (lo + hi) // 2
+        up = code(mid) > first[step]
+        hi = np.where(up, mid, hi)
+        lo = np.where(up, lo, mid)
+    threshold = np.full(n, 1 << 32, dtype=np.int64)
+    threshold[step] = hi
+    return first[:-1], threshold
+
+
+def _srgb8_by_table(values: np.ndarray) -> np.ndarray:
+    bits = np.ascontiguousarray(values, dtype=np.float32).view(np.uint32)
+    first, threshold = _srgb8_table()
+    bucket = np.minimum(bits >> _BUCKET_SHIFT, len(first) - 1)
+    codes = first[bucket] + (bits >= threshold[bucket])
+    # Above 1 (finite) clamps to 255; negatives, NaN and infinities are 0, as in the formula.
+    beyond = np.where((bits > _ONE_BITS) & (bits < _INF_BITS), 255, 0)
+    return np.where(bits <= _ONE_BITS, codes, beyond).astype(np.uint8)
+
+
+def to_png_samples(image: np.ndarray, encoding: Encoding = Encoding()) -> np.ndarray:
+    """(H, W, 3) uint8 or uint16 PNG samples: non-finite -> 0, times 2**exposure, clamp to
+    [0, 1] per channel, sRGB curve unless linear, then round to the nearest code. The float64
+    formula, or for float32 images in the default encoding a table that gives its codes
+    exactly, twice as fast."""
+    image = _as_rgb(image)
+    if image.dtype == np.float32 and encoding == Encoding():
+        return _srgb8_by_table(image)
+    return _encode_float64(image, encoding)
 
 
 def clipped_pixels(image: np.ndarray, exposure: float = 0.0) -> int:

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
+from clray import image_io
 from clray.image_io import (
     Encoding,
     png_bytes,
@@ -147,3 +148,21 @@ def test_png_file_holds_the_converted_pixels(tmp_path) -> None:
         with Image.open(path) as png:
             np.testing.assert_array_equal(np.asarray(png),
                                           to_png_samples(image, Encoding(linear=linear)))
+
+
+def test_srgb_table_gives_the_formulas_codes() -> None:
+    # The default encoding of float32 images goes through a table; it must give exactly the
+    # float64 formula's codes. Every bit pattern within 4096 of each step between two codes,
+    # every 97th pattern in [0, 1], and the values the formula clamps or zeroes.
+    _, threshold = image_io._srgb8_table()
+    steps = threshold[threshold < 1 << 32]
+    assert len(steps) == 255  # one step into each code above 0
+    near = (steps[:, None] + np.arange(-4096, 4096)).ravel()
+    strided = np.arange(0, 0x3F800001, 97)
+    bits = np.concatenate([near, strided]).astype(np.uint32)
+    values = bits.view(np.float32)
+    special = np.array([0.0, -0.0, 1.0, np.nextafter(1, 2), 3e38, np.inf, -np.inf, np.nan,
+                        -1e-30, 1e-45, -1.0], dtype=np.float32)
+    image = np.repeat(np.concatenate([values, special])[:, None, None], 3, axis=2)
+    assert np.array_equal(image_io.to_png_samples(image),
+                          image_io.to_png_samples(image.astype(np.float64)))

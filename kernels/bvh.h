@@ -10,6 +10,7 @@
 typedef int8 INTW;
 #define VLOADW vload8
 #define VSTOREW vstore8
+#define CONVERT_FLOATW convert_float8
 #ifdef USE_DOUBLE
 typedef double8 REALW;
 #define TO_REALW(v) convert_double8(v)
@@ -24,6 +25,7 @@ HOT int lane_bits(INTW m) { return lane_bits4(m.lo) | (lane_bits4(m.hi) << 4); }
 typedef int4 INTW;
 #define VLOADW vload4
 #define VSTOREW vstore4
+#define CONVERT_FLOATW convert_float4
 #ifdef USE_DOUBLE
 typedef double4 REALW;
 #define TO_REALW(v) convert_double4(v)
@@ -176,17 +178,26 @@ HOT void slab_axis(REALW lo, REALW hi, REAL o, REAL inv, REAL widen, REALW* t0, 
     *t1 = far < *t1 ? far : *t1;
 }
 
+// A row of quantised child bounds on the node's grid: origin + q * 2^exp in REAL, the numbers
+// the host checked (clray/accel/wide.py: grid_bounds). 2^exp is built from its bits.
+#define GRID_ROW(row, origin, exp)                                     \
+    ((REALW)(origin) + TO_REALW(CONVERT_FLOATW(VLOADW(0, row))) *     \
+                           (REALW)(as_float(((int)(exp) + 127) << 23)))
+
 // The children of a node whose boxes the ray crosses within [0, tmax], as bits, and where it
 // enters each (tnear, meaningful for the crossed ones): one vector slab test for all children.
 HOT int node_children(const __global BvhNode* node, const Ray* r, REAL tmax, REAL* tnear) {
     const REAL widen = (REAL)1 + (REAL)2 * gamma_n(3);
     REALW t0 = (REALW)(0), t1 = (REALW)(tmax);
-    slab_axis(TO_REALW(VLOADW(0, node->lo_x)), TO_REALW(VLOADW(0, node->hi_x)), r->o.x,
-              r->inv_d.x, widen, &t0, &t1);
-    slab_axis(TO_REALW(VLOADW(0, node->lo_y)), TO_REALW(VLOADW(0, node->hi_y)), r->o.y,
-              r->inv_d.y, widen, &t0, &t1);
-    slab_axis(TO_REALW(VLOADW(0, node->lo_z)), TO_REALW(VLOADW(0, node->hi_z)), r->o.z,
-              r->inv_d.z, widen, &t0, &t1);
+    slab_axis(GRID_ROW(node->lo_x, node->origin_x, node->exp_x),
+              GRID_ROW(node->hi_x, node->origin_x, node->exp_x), r->o.x, r->inv_d.x, widen,
+              &t0, &t1);
+    slab_axis(GRID_ROW(node->lo_y, node->origin_y, node->exp_y),
+              GRID_ROW(node->hi_y, node->origin_y, node->exp_y), r->o.y, r->inv_d.y, widen,
+              &t0, &t1);
+    slab_axis(GRID_ROW(node->lo_z, node->origin_z, node->exp_z),
+              GRID_ROW(node->hi_z, node->origin_z, node->exp_z), r->o.z, r->inv_d.z, widen,
+              &t0, &t1);
     VSTOREW(t0, 0, tnear);
     INTW used = VLOADW(0, node->child) >= 0;
     return lane_bits(MASK_TO_INTW(t0 <= t1) & used);

@@ -6,6 +6,7 @@ import itertools
 from pathlib import Path
 
 import numpy as np
+import pyopencl as cl
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
@@ -18,10 +19,15 @@ from clray.accel.wide import (
     NO_REF,
     PACKET_WIDTH,
     WideBvh,
+    child_boxes,
     collapse,
+    grid_bounds,
+    quantise,
 )
 from clray.device import layout as L
+from clray.device.context import has_fp64
 from clray.device.pack import pack_scene
+from clray.device.program import KernelConfig, kernel_source
 from clray.render import render_packed
 from clray.scene.load import load_scene
 
@@ -40,15 +46,17 @@ def _refs(kinds: np.ndarray) -> np.ndarray:
 
 
 def _children(wide: WideBvh, node: int) -> list[tuple[int, int, np.ndarray, np.ndarray]]:
-    """(child, count, lo, hi) of each used slot of a node."""
-    rec = wide.nodes[node]
+    """(child, count, lo, hi) of each used slot of a node: the box that every arithmetic of
+    the kernels (float32, float32 flushing denormals, float64) holds, the tightest of them."""
+    rec = wide.nodes[node:node + 1]
+    boxes = child_boxes(rec)
+    lo = np.max([b.astype(np.float64) for b in boxes[0::2]], axis=0)[0]
+    hi = np.min([b.astype(np.float64) for b in boxes[1::2]], axis=0)[0]
     out = []
     for k in range(wide.width):
-        if rec["child"][k] < 0:
+        if rec["child"][0, k] < 0:
             continue
-        lo = np.array([rec[f"lo_{a}"][k] for a in AXES])
-        hi = np.array([rec[f"hi_{a}"][k] for a in AXES])
-        out.append((int(rec["child"][k]), int(rec["count"][k]), lo, hi))
+        out.append((int(rec["child"][0, k]), int(rec["count"][0, k]), lo[k], hi[k]))
     return out
 
 
@@ -177,3 +185,102 @@ def test_both_widths_render_the_same_image(cl_device, scene_file):
         images.append(render_packed(packed, cl_device)[0])
     assert np.all(np.isfinite(images[0]))
     np.testing.assert_allclose(images[0], images[1], rtol=0, atol=1e-6)
+
+
+# --- quantised child bounds ------------------------------------------------------------------
+
+_EDGE_FLOATS = [0.0, -0.0, 2.0**-149, -(2.0**-149), 2.0**-127, -(2.0**-127), 2.0**-126,
+                -(2.0**-126), 1.0, -1.0, 3e38, -3e38, 1e30, -1e-30, 16777216.0, 16777217.0]
+
+
+def _quantise_and_check(lo: np.ndarray, hi: np.ndarray, used: np.ndarray) -> tuple:
+    """quantise() the boxes and assert that every arithmetic's grid box holds each used box."""
+    origin, exp, q_lo, q_hi = quantise(lo, hi, used)
+    assert origin.dtype == np.float32 and exp.dtype == np.int8
+    assert np.all((exp >= -126) & (exp <= 127))
+    for v in grid_bounds(origin[:, None, :], exp[:, None, :], q_lo):
+        assert np.all((v <= lo)[used]), "a quantised lower bound cuts into its box"
+    for v in grid_bounds(origin[:, None, :], exp[:, None, :], q_hi):
+        assert np.all((v >= hi)[used]), "a quantised upper bound cuts into its box"
+    return origin, exp, q_lo, q_hi
+
+
+@settings(max_examples=200, deadline=None)
+@given(data=st.data(), width=st.sampled_from([4, 8]), n=st.integers(1, 4))
+def test_quantised_bounds_hold_the_exact_bounds(data, width, n):
+    # float32 boxes anywhere in range, denormals and values far from their neighbours included.
+    value = st.one_of(st.floats(width=32, allow_nan=False, allow_infinity=False),
+                      st.sampled_from(_EDGE_FLOATS),
+                      st.floats(-4.0, 4.0, width=32))
+    a = np.array(data.draw(st.lists(value, min_size=n * width * 3, max_size=n * width * 3)),
+                 dtype=np.float32).reshape(n, width, 3)
+    b = np.array(data.draw(st.lists(value, min_size=n * width * 3, max_size=n * width * 3)),
+                 dtype=np.float32).reshape(n, width, 3)
+    used = np.array(data.draw(st.lists(st.booleans(), min_size=n * width,
+                                       max_size=n * width)), dtype=bool).reshape(n, width)
+    used[:, 0] = True
+    _quantise_and_check(np.minimum(a, b), np.maximum(a, b), used)
+
+
+def test_quantised_bounds_are_tight_and_can_fail():
+    rng = np.random.default_rng(5)
+    # Small boxes far from the origin, where the sum's rounding is coarsest against the grid.
+    centre = rng.uniform(-1e4, 1e4, (500, 1, 3))
+    lo = (centre + rng.uniform(-1, 1, (500, 8, 3))).astype(np.float32)
+    hi = (lo + rng.exponential(0.1, (500, 8, 3))).astype(np.float32)
+    used = np.ones((500, 8), dtype=bool)
+    origin, exp, q_lo, q_hi = _quantise_and_check(lo, hi, used)
+    # Within a grid step or two of the box, past what the sum's rounding adds.
+    step = np.ldexp(1.0, exp.astype(np.int64))[:, None, :]
+    box_lo, box_hi = (grid_bounds(origin[:, None, :], exp[:, None, :], q)[2]
+                      for q in (q_lo, q_hi))
+    slack = 2 * step + 1e-3
+    assert np.all(lo - box_lo <= slack) and np.all(box_hi - hi <= slack)
+    # Rounding to the nearest step instead of outwards cuts into boxes: the check sees it.
+    nearest = np.rint((lo.astype(np.float64) - origin[:, None, :]) / step).astype(np.uint8)
+    cut = grid_bounds(origin[:, None, :], exp[:, None, :], nearest)[0] > lo
+    assert cut.any()
+
+
+@pytest.mark.parametrize("width", [4, 8])
+@pytest.mark.parametrize("precision", ["float", "double"])
+def test_kernel_reads_the_grid_bounds_the_host_checked(cl_ctx, width, precision):
+    # The device's GRID_ROW (bvh.h) against grid_bounds: the same numbers, so the host's check
+    # of every quantised bound holds for what the kernel's slab test uses.
+    if precision == "double" and not has_fp64(cl_ctx.devices[0]):
+        pytest.skip("no fp64 on this device")
+    rng = np.random.default_rng(width)
+    lo = np.array(_EDGE_FLOATS[:12], dtype=np.float64)[:, None, None] * rng.uniform(
+        0.5, 1, (12, width, 3)) + rng.normal(0, 10.0 ** rng.integers(-6, 6, (12, 1, 1)),
+                                             (12, width, 3))
+    lo = lo.astype(np.float32)
+    hi = (lo + np.abs(rng.normal(0, 1, lo.shape))).astype(np.float32)
+    used = np.ones((12, width), dtype=bool)
+    origin, exp, q_lo, q_hi = quantise(lo, hi, used)
+    nodes = np.zeros(12, dtype=L.bvh_node_dtype(width))
+    for a, axis in enumerate(AXES):
+        nodes[f"origin_{axis}"], nodes[f"exp_{axis}"] = origin[:, a], exp[:, a]
+        nodes[f"lo_{axis}"], nodes[f"hi_{axis}"] = q_lo[..., a], q_hi[..., a]
+    real = np.float64 if precision == "double" else np.float32
+    config = KernelConfig(has_spheres=True, bvh_width=width, precision=precision)
+    rows = "".join(f"    VSTOREW(GRID_ROW(n->{side}_{axis}, n->origin_{axis}, n->exp_{axis}), "
+                   f"{k}, out + i * 6 * BVH_WIDTH);\n"
+                   for k, (side, axis) in enumerate((s, a) for s in ("lo", "hi") for a in AXES))
+    source = (kernel_source() + "\n__kernel void grid_probe(__global const BvhNode* nodes, "
+              "__global REAL* out) {\n    int i = get_global_id(0);\n"
+              "    const __global BvhNode* n = nodes + i;\n" + rows + "}\n")
+    program = cl.Program(cl_ctx, source).build(options=config.options())
+    queue = cl.CommandQueue(cl_ctx)
+    out = np.zeros((12, 6, width), dtype=real)
+    mf = cl.mem_flags
+    nodes_buf = cl.Buffer(cl_ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=nodes)
+    out_buf = cl.Buffer(cl_ctx, mf.WRITE_ONLY, out.nbytes)
+    program.grid_probe(queue, (12,), None, nodes_buf, out_buf)
+    cl.enqueue_copy(queue, out, out_buf)
+    boxes = child_boxes(nodes)  # lo, hi in float32, flushed float32, float64
+    for k, side in enumerate(("lo", "hi")):
+        got = out[:, 3 * k:3 * k + 3].transpose(0, 2, 1)
+        if precision == "double":
+            np.testing.assert_array_equal(got, boxes[4 + k])
+        else:
+            assert np.all((got == boxes[k]) | (got == boxes[2 + k])), side

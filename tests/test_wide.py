@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import itertools
+from fractions import Fraction
 from pathlib import Path
 
 import numpy as np
@@ -46,17 +47,15 @@ def _refs(kinds: np.ndarray) -> np.ndarray:
 
 
 def _children(wide: WideBvh, node: int) -> list[tuple[int, int, np.ndarray, np.ndarray]]:
-    """(child, count, lo, hi) of each used slot of a node: the box that every arithmetic of
-    the kernels (float32, float32 flushing denormals, float64) holds, the tightest of them."""
+    """(child, count, lo, hi) of each used slot of a node: its exact quantised box, rounded
+    outwards to float64."""
     rec = wide.nodes[node:node + 1]
-    boxes = child_boxes(rec)
-    lo = np.max([b.astype(np.float64) for b in boxes[0::2]], axis=0)[0]
-    hi = np.min([b.astype(np.float64) for b in boxes[1::2]], axis=0)[0]
+    lo, hi = child_boxes(rec)
     out = []
     for k in range(wide.width):
         if rec["child"][0, k] < 0:
             continue
-        out.append((int(rec["child"][0, k]), int(rec["count"][0, k]), lo[k], hi[k]))
+        out.append((int(rec["child"][0, k]), int(rec["count"][0, k]), lo[0, k], hi[0, k]))
     return out
 
 
@@ -193,15 +192,28 @@ _EDGE_FLOATS = [0.0, -0.0, 2.0**-149, -(2.0**-149), 2.0**-127, -(2.0**-127), 2.0
                 -(2.0**-126), 1.0, -1.0, 3e38, -3e38, 1e30, -1e-30, 16777216.0, 16777217.0]
 
 
+def _exact_grid(origin: np.ndarray, exp: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """origin + q * 2^exp as exact fractions, (n, width, 3) of objects."""
+    n, width, _ = q.shape
+    out = np.empty(q.shape, dtype=object)
+    for i, k, a in itertools.product(range(n), range(width), range(3)):
+        out[i, k, a] = (Fraction(float(origin[i, a]))
+                        + int(q[i, k, a]) * Fraction(2) ** int(exp[i, a]))
+    return out
+
+
 def _quantise_and_check(lo: np.ndarray, hi: np.ndarray, used: np.ndarray) -> tuple:
-    """quantise() the boxes and assert that every arithmetic's grid box holds each used box."""
+    """quantise() the boxes and assert, in exact arithmetic, that each used box's grid box
+    holds it."""
     origin, exp, q_lo, q_hi = quantise(lo, hi, used)
     assert origin.dtype == np.float32 and exp.dtype == np.int8
     assert np.all((exp >= -126) & (exp <= 127))
-    for v in grid_bounds(origin[:, None, :], exp[:, None, :], q_lo):
-        assert np.all((v <= lo)[used]), "a quantised lower bound cuts into its box"
-    for v in grid_bounds(origin[:, None, :], exp[:, None, :], q_hi):
-        assert np.all((v >= hi)[used]), "a quantised upper bound cuts into its box"
+    # The kernels read the origin as a number: never a denormal a device could flush.
+    assert np.all((origin == 0) | (np.abs(origin) >= 2.0**-126))
+    grid_lo, grid_hi = _exact_grid(origin, exp, q_lo), _exact_grid(origin, exp, q_hi)
+    for i, k, a in zip(*np.nonzero(np.broadcast_to(used[..., None], lo.shape)), strict=True):
+        assert grid_lo[i, k, a] <= Fraction(float(lo[i, k, a])), "a lower bound cuts in"
+        assert grid_hi[i, k, a] >= Fraction(float(hi[i, k, a])), "an upper bound cuts in"
     return origin, exp, q_lo, q_hi
 
 
@@ -232,7 +244,7 @@ def test_quantised_bounds_are_tight_and_can_fail():
     origin, exp, q_lo, q_hi = _quantise_and_check(lo, hi, used)
     # Within a grid step or two of the box, past what the sum's rounding adds.
     step = np.ldexp(1.0, exp.astype(np.int64))[:, None, :]
-    box_lo, box_hi = (grid_bounds(origin[:, None, :], exp[:, None, :], q)[2]
+    box_lo, box_hi = (grid_bounds(origin[:, None, :], exp[:, None, :], q)[0]
                       for q in (q_lo, q_hi))
     slack = 2 * step + 1e-3
     assert np.all(lo - box_lo <= slack) and np.all(box_hi - hi <= slack)
@@ -242,45 +254,84 @@ def test_quantised_bounds_are_tight_and_can_fail():
     assert cut.any()
 
 
+def _crosses(o: np.ndarray, d: np.ndarray, lo: list, hi: list, tmax: float) -> bool:
+    """Exactly: some t in [0, tmax] has o + t d in the box [lo, hi] (fractions)."""
+    t0, t1 = Fraction(0), Fraction(tmax)
+    for a in range(3):
+        oa, da = Fraction(float(o[a])), Fraction(float(d[a]))
+        if da == 0:
+            if not lo[a] <= oa <= hi[a]:
+                return False
+            continue
+        near, far = sorted(((lo[a] - oa) / da, (hi[a] - oa) / da))
+        t0, t1 = max(t0, near), min(t1, far)
+    return t0 <= t1
+
+
 @pytest.mark.parametrize("width", [4, 8])
 @pytest.mark.parametrize("precision", ["float", "double"])
-def test_kernel_reads_the_grid_bounds_the_host_checked(cl_ctx, width, precision):
-    # The device's GRID_ROW (bvh.h) against grid_bounds: the same numbers, so the host's check
-    # of every quantised bound holds for what the kernel's slab test uses.
+def test_node_children_never_miss_a_crossed_child(cl_ctx, width, precision):
+    # Rays from all around aimed at the corners, edges and faces of quantised child boxes:
+    # node_children (bvh.h) must report every child whose exact box a ray crosses.
     if precision == "double" and not has_fp64(cl_ctx.devices[0]):
         pytest.skip("no fp64 on this device")
-    rng = np.random.default_rng(width)
-    lo = np.array(_EDGE_FLOATS[:12], dtype=np.float64)[:, None, None] * rng.uniform(
-        0.5, 1, (12, width, 3)) + rng.normal(0, 10.0 ** rng.integers(-6, 6, (12, 1, 1)),
-                                             (12, width, 3))
-    lo = lo.astype(np.float32)
-    hi = (lo + np.abs(rng.normal(0, 1, lo.shape))).astype(np.float32)
-    used = np.ones((12, width), dtype=bool)
+    rng = np.random.default_rng(width + (precision == "double"))
+    n_nodes = 6
+    scale = 10.0 ** rng.integers(-3, 4, (n_nodes, 1, 1))
+    centre = rng.normal(0, 1, (n_nodes, 1, 3)) * scale * 20
+    lo = (centre + rng.normal(0, 1, (n_nodes, width, 3)) * scale).astype(np.float32)
+    hi = (lo + rng.exponential(1, lo.shape) * scale).astype(np.float32)
+    used = np.ones((n_nodes, width), dtype=bool)
     origin, exp, q_lo, q_hi = quantise(lo, hi, used)
-    nodes = np.zeros(12, dtype=L.bvh_node_dtype(width))
+    nodes = np.zeros(n_nodes, dtype=L.bvh_node_dtype(width))
     for a, axis in enumerate(AXES):
         nodes[f"origin_{axis}"], nodes[f"exp_{axis}"] = origin[:, a], exp[:, a]
         nodes[f"lo_{axis}"], nodes[f"hi_{axis}"] = q_lo[..., a], q_hi[..., a]
+    nodes["child"] = np.arange(width)
+    grid_lo, grid_hi = _exact_grid(origin, exp, q_lo), _exact_grid(origin, exp, q_hi)
+    box_lo, box_hi = child_boxes(nodes)
+    # Per ray: its node, an origin and a target on the boundary of one child's box (each axis
+    # at lo, hi or between), with zero direction components now and then.
+    n_rays = 400
+    node = rng.integers(0, n_nodes, n_rays)
+    k = rng.integers(0, width, n_rays)
+    pick = rng.integers(0, 3, (n_rays, 3))
+    f = rng.uniform(0, 1, (n_rays, 3))
+    target = np.where(pick == 0, box_lo[node, k], np.where(
+        pick == 1, box_hi[node, k], box_lo[node, k] + f * (box_hi[node, k] - box_lo[node, k])))
     real = np.float64 if precision == "double" else np.float32
-    config = KernelConfig(has_spheres=True, bvh_width=width, precision=precision)
-    rows = "".join(f"    VSTOREW(GRID_ROW(n->{side}_{axis}, n->origin_{axis}, n->exp_{axis}), "
-                   f"{k}, out + i * 6 * BVH_WIDTH);\n"
-                   for k, (side, axis) in enumerate((s, a) for s in ("lo", "hi") for a in AXES))
-    source = (kernel_source() + "\n__kernel void grid_probe(__global const BvhNode* nodes, "
-              "__global REAL* out) {\n    int i = get_global_id(0);\n"
-              "    const __global BvhNode* n = nodes + i;\n" + rows + "}\n")
+    target = target.astype(real)
+    span = (box_hi[node].max(axis=1) - box_lo[node].min(axis=1))
+    o = (target + rng.normal(0, 1, (n_rays, 3)) * span * 2).astype(real)
+    flat = rng.uniform(size=(n_rays, 3)) < 0.1
+    o = np.where(flat, target, o)
+    d = (target - o).astype(real)
+    d[np.all(d == 0, axis=1), 0] = 1
+    tmax = np.full(n_rays, 2.0)
+    config = KernelConfig(has_triangles=True, bvh_width=width, precision=precision)
+    source = kernel_source() + """
+__kernel void children_probe(__global const BvhNode* nodes, __global const int* node,
+                             __global const REAL* o, __global const REAL* d,
+                             __global const REAL* tmax, __global int* bits) {
+    int i = get_global_id(0);
+    Ray r = make_ray(vload3(i, o), vload3(i, d));
+    REAL tnear[BVH_WIDTH];
+    bits[i] = node_children(nodes + node[i], &r, tmax[i], tnear);
+}
+"""
     program = cl.Program(cl_ctx, source).build(options=config.options())
     queue = cl.CommandQueue(cl_ctx)
-    out = np.zeros((12, 6, width), dtype=real)
     mf = cl.mem_flags
-    nodes_buf = cl.Buffer(cl_ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=nodes)
-    out_buf = cl.Buffer(cl_ctx, mf.WRITE_ONLY, out.nbytes)
-    program.grid_probe(queue, (12,), None, nodes_buf, out_buf)
-    cl.enqueue_copy(queue, out, out_buf)
-    boxes = child_boxes(nodes)  # lo, hi in float32, flushed float32, float64
-    for k, side in enumerate(("lo", "hi")):
-        got = out[:, 3 * k:3 * k + 3].transpose(0, 2, 1)
-        if precision == "double":
-            np.testing.assert_array_equal(got, boxes[4 + k])
-        else:
-            assert np.all((got == boxes[k]) | (got == boxes[2 + k])), side
+    bufs = [cl.Buffer(cl_ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=np.ascontiguousarray(x))
+            for x in (nodes, node.astype(np.int32), o, d, tmax.astype(real))]
+    bits = np.zeros(n_rays, dtype=np.int32)
+    out = cl.Buffer(cl_ctx, mf.WRITE_ONLY, bits.nbytes)
+    program.children_probe(queue, (n_rays,), None, *bufs, out)
+    cl.enqueue_copy(queue, bits, out)
+    crossed = 0
+    for i in range(n_rays):
+        for c in range(width):
+            if _crosses(o[i], d[i], list(grid_lo[node[i], c]), list(grid_hi[node[i], c]), 2.0):
+                crossed += 1
+                assert bits[i] >> c & 1, f"ray {i} crosses child {c} but was not sent there"
+    assert crossed >= n_rays  # every ray crosses the child it was aimed at

@@ -114,47 +114,47 @@ EXP_MIN, EXP_MAX = -126, 127  # grid steps 2^exp are normal float32 numbers
 
 
 def grid_bounds(origin: np.ndarray, exp: np.ndarray,
-                q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """origin + q * 2^exp as the kernels compute it (bvh.h: node_children): in float32, in
-    float32 with denormal results flushed to zero, and in float64. The product is exact in
-    all three, so each differs from the exact value by the sum's one rounding."""
-    exp = np.asarray(exp, dtype=np.int64)
-    q = np.asarray(q)
-    with np.errstate(over="ignore", invalid="ignore"):
-        v32 = np.float32(origin) + q.astype(np.float32) * np.ldexp(np.float32(1), exp).astype(
-            np.float32)
-        v32 = np.asarray(v32, dtype=np.float32)
-        flushed = np.where(np.abs(v32) < _F32_TINY, np.copysign(np.float32(0), v32), v32)
-        v64 = (np.asarray(origin, dtype=np.float64) + q.astype(np.float64) * np.ldexp(1.0, exp))
-    return v32, flushed, v64
+                q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The exact grid bound origin + q * 2^exp as float64 (value, residual) whose exact sum it
+    is: q * 2^exp is exact in float64, and Knuth's TwoSum gives the sum's rounding error."""
+    a = np.asarray(origin, dtype=np.float64)
+    b = np.asarray(q).astype(np.float64) * np.ldexp(1.0, np.asarray(exp, dtype=np.int64))
+    value = a + b
+    b_virtual = value - a
+    residual = (a - (value - b_virtual)) + (b - b_virtual)
+    return value, residual
 
 
-def _below(values: tuple, bound: np.ndarray) -> np.ndarray:
-    return np.logical_and.reduce([v <= bound for v in values])
+def _below(grid: tuple[np.ndarray, np.ndarray], bound: np.ndarray) -> np.ndarray:
+    """Exactly: grid bound <= bound (a float32 or float64 array)."""
+    value, residual = grid
+    return (value < bound) | ((value == bound) & (residual <= 0))
 
 
-def _above(values: tuple, bound: np.ndarray) -> np.ndarray:
-    return np.logical_and.reduce([v >= bound for v in values])
+def _above(grid: tuple[np.ndarray, np.ndarray], bound: np.ndarray) -> np.ndarray:
+    value, residual = grid
+    return (value > bound) | ((value == bound) & (residual >= 0))
 
 
 def quantise(lo: np.ndarray, hi: np.ndarray,
              used: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Child boxes (n, width, 3) float32 of n nodes, `used` (n, width) -> each node's grid
     origin (n, 3) float32 and exponent (n, 3) int8, and the children's grid steps q_lo, q_hi
-    (n, width, 3) uint8, rounded outwards: grid_bounds gives, in every one of its
-    arithmetics, a box holding the child's. Unused slots get q 0."""
+    (n, width, 3) uint8, rounded outwards: the exact grid box (grid_bounds) holds the
+    child's. Unused slots get q 0."""
     n = lo.shape[0]
     mask = used[..., None]
     lo = np.where(mask, lo, np.inf).astype(np.float32)
     hi = np.where(mask, hi, -np.inf).astype(np.float32)
     origin = lo.min(axis=1) if n else np.zeros((0, 3), np.float32)
     top = hi.max(axis=1) if n else np.zeros((0, 3), np.float32)
-    # A denormal origin may be flushed to zero, which is above a negative one: below zero it
-    # goes down to the smallest normal number, above zero down to zero.
+    # The kernels read the origin as a number, not as a bound: a denormal one that a device
+    # flushes to zero would move every child. Below zero it goes down to the smallest normal
+    # number, above zero down to zero.
     origin = np.where((origin < 0) & (origin > -_F32_TINY), -_F32_TINY, origin)
     origin = np.where((origin > 0) & (origin < _F32_TINY), np.float32(0), origin)
     origin = origin.astype(np.float32)
-    # The smallest step whose last grid line reaches the node's top in every arithmetic.
+    # The smallest step whose last grid line reaches the node's top.
     extent = top.astype(np.float64) - origin
     with np.errstate(divide="ignore"):
         exp = np.ceil(np.log2(extent / QUANT_MAX))
@@ -165,9 +165,9 @@ def quantise(lo: np.ndarray, hi: np.ndarray,
         if not short.any():
             break
         exp[short] += 1
-    # The children's steps: the exact quotient rounded outwards, then stepped on outwards
-    # where the kernels' rounding of the sum would cut into the box. Step 0 is the origin, the
-    # least lower bound, and step QUANT_MAX at least the top: both always hold.
+    # The children's steps: the quotient rounded outwards, then stepped on outwards where
+    # its float64 rounding cut into the box. Step 0 is the origin, the least lower bound, and
+    # step QUANT_MAX at least the top: both always hold.
     o3, e3 = origin[:, None, :], exp[:, None, :]
     step = np.ldexp(1.0, e3)
     with np.errstate(invalid="ignore"):
@@ -188,16 +188,18 @@ def quantise(lo: np.ndarray, hi: np.ndarray,
     return origin, exp.astype(np.int8), q_lo.astype(np.uint8), q_hi.astype(np.uint8)
 
 
-def child_boxes(nodes: np.ndarray) -> tuple[np.ndarray, ...]:
-    """The children's boxes (n, width, 3) of wide `nodes` as the kernels see them: (lo, hi) in
-    float32, in float32 flushing denormals, and in float64, in that order."""
+def child_boxes(nodes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The children's exact grid boxes (n, width, 3) of wide `nodes`, rounded outwards to
+    float64: (lo, hi)."""
     origin = np.stack([nodes[f"origin_{a}"] for a in "xyz"], -1)[:, None, :]
     exp = np.stack([nodes[f"exp_{a}"] for a in "xyz"], -1)[:, None, :]
     out = []
-    for side in ("lo", "hi"):
+    for side, outwards in (("lo", -np.inf), ("hi", np.inf)):
         q = np.stack([nodes[f"{side}_{a}"] for a in "xyz"], -1)
-        out.append(grid_bounds(origin, exp, q))
-    return tuple(pair for k in range(3) for pair in (out[0][k], out[1][k]))
+        value, residual = grid_bounds(origin, exp, q)
+        off = residual < 0 if side == "lo" else residual > 0
+        out.append(np.where(off, np.nextafter(value, outwards), value))
+    return out[0], out[1]
 
 
 def _open_children(parents: np.ndarray, first: np.ndarray, open_area: np.ndarray,

@@ -10,7 +10,6 @@
 typedef int8 INTW;
 #define VLOADW vload8
 #define VSTOREW vstore8
-#define CONVERT_FLOATW convert_float8
 #ifdef USE_DOUBLE
 typedef double8 REALW;
 #define TO_REALW(v) convert_double8(v)
@@ -25,7 +24,6 @@ HOT int lane_bits(INTW m) { return lane_bits4(m.lo) | (lane_bits4(m.hi) << 4); }
 typedef int4 INTW;
 #define VLOADW vload4
 #define VSTOREW vstore4
-#define CONVERT_FLOATW convert_float4
 #ifdef USE_DOUBLE
 typedef double4 REALW;
 #define TO_REALW(v) convert_double4(v)
@@ -167,24 +165,13 @@ inline void consider_hit(Hit* hit, const Crossings* c, int ref) {
 // How far past the closest hit a crossing can still tie with it.
 inline REAL tie_reach(REAL t) { return t + (REAL)2 * gamma_n(TIE_ROUNDINGS) * t; }
 
-// One axis of the vector slab test on a node's quantised child bounds (clray_types.h:
-// BvhNode), with the scalar slab_interval's compare-selects, so a NaN (0 * inf on a zero
-// direction component) never narrows the interval. A bound g + q * 2^exp is crossed at
-// t = q a + b, with a = 2^exp / d and b = (g - o) / d the same for every child: one multiply
-// and add per row. Such a t is off the t of the exact bound (which the host made hold the
-// child's box) by at most gamma(6) (255 |a| + |b|), from the roundings of 1 / d, a, g - o, b,
-// the product and the sum. The interval is widened by gamma(16) (255 |a| + |b|) on both sides,
-// room for the widening's own roundings and a division a few ulp off, plus 255 FLT_MIN for an
-// a flushed to zero, so it holds the exact interval.
-HOT void slab_grid_axis(const __global uchar* lo, const __global uchar* hi, float origin,
-                        char exp, REAL o, REAL inv, REALW* t0, REALW* t1) {
-    REAL a = (REAL)as_float(((int)exp + 127) << 23) * inv;
-    REAL b = ((REAL)origin - o) * inv;
-    REAL err = gamma_n(16) * ((REAL)255 * fabs(a) + fabs(b)) + (REAL)255 * (REAL)FLT_MIN;
-    REALW tn = TO_REALW(CONVERT_FLOATW(VLOADW(0, lo))) * (REALW)(a) + (REALW)(b);
-    REALW tf = TO_REALW(CONVERT_FLOATW(VLOADW(0, hi))) * (REALW)(a) + (REALW)(b);
-    REALW near = (tn > tf ? tf : tn) - (REALW)(err);
-    REALW far = (tn > tf ? tn : tf) + (REALW)(err);
+// One axis of the vector slab test, with the scalar slab_interval's rules: compare-select so a
+// NaN from 0 * inf never narrows the interval, and the far bound widened by `widen`.
+HOT void slab_axis(REALW lo, REALW hi, REAL o, REAL inv, REAL widen, REALW* t0, REALW* t1) {
+    REALW tn = (lo - (REALW)(o)) * (REALW)(inv);
+    REALW tf = (hi - (REALW)(o)) * (REALW)(inv);
+    REALW near = tn > tf ? tf : tn;
+    REALW far = (tn > tf ? tn : tf) * widen;
     *t0 = near > *t0 ? near : *t0;
     *t1 = far < *t1 ? far : *t1;
 }
@@ -192,13 +179,14 @@ HOT void slab_grid_axis(const __global uchar* lo, const __global uchar* hi, floa
 // The children of a node whose boxes the ray crosses within [0, tmax], as bits, and where it
 // enters each (tnear, meaningful for the crossed ones): one vector slab test for all children.
 HOT int node_children(const __global BvhNode* node, const Ray* r, REAL tmax, REAL* tnear) {
+    const REAL widen = (REAL)1 + (REAL)2 * gamma_n(3);
     REALW t0 = (REALW)(0), t1 = (REALW)(tmax);
-    slab_grid_axis(node->lo_x, node->hi_x, node->origin_x, node->exp_x, r->o.x, r->inv_d.x,
-                   &t0, &t1);
-    slab_grid_axis(node->lo_y, node->hi_y, node->origin_y, node->exp_y, r->o.y, r->inv_d.y,
-                   &t0, &t1);
-    slab_grid_axis(node->lo_z, node->hi_z, node->origin_z, node->exp_z, r->o.z, r->inv_d.z,
-                   &t0, &t1);
+    slab_axis(TO_REALW(VLOADW(0, node->lo_x)), TO_REALW(VLOADW(0, node->hi_x)), r->o.x,
+              r->inv_d.x, widen, &t0, &t1);
+    slab_axis(TO_REALW(VLOADW(0, node->lo_y)), TO_REALW(VLOADW(0, node->hi_y)), r->o.y,
+              r->inv_d.y, widen, &t0, &t1);
+    slab_axis(TO_REALW(VLOADW(0, node->lo_z)), TO_REALW(VLOADW(0, node->hi_z)), r->o.z,
+              r->inv_d.z, widen, &t0, &t1);
     VSTOREW(t0, 0, tnear);
     INTW used = VLOADW(0, node->child) >= 0;
     return lane_bits(MASK_TO_INTW(t0 <= t1) & used);

@@ -133,22 +133,13 @@ typedef struct {
 // A wide BVH node (clray/accel/wide.py): up to BVH_WIDTH (4 or 8, a build option) children with
 // their bounds axis by axis, so one vector slab test covers them all. child[k] is an inner
 // child's node index, or a leaf's first slot in prim_refs, or -1 for an empty slot; count[k] is 0
-// for an inner child and a leaf's section sizes (below) for a leaf.
-// Child bounds are quantised to 8 bits on a grid per node and axis: bound = origin + q * 2^exp,
-// computed in REAL (bvh.h: node_children). The product is exact, so the one rounding is the
-// sum's, and the host picks each q (rounding outwards) so that the sum, in float with or without
-// denormals and in double, holds the child's float32 box: both builds see conservative boxes.
+// for an inner child and a leaf's section sizes (below) for a leaf. Bounds are rounded
+// outwards to float32 on the host, so they hold in the double build too.
 typedef struct {
-    float origin_x, origin_y, origin_z;  // the grid's origin: the node's lower corner
-    char exp_x, exp_y, exp_z;            // the grid's step per axis is 2^exp, exp in -126..127
-    char pad;
-    uchar lo_x[BVH_WIDTH], lo_y[BVH_WIDTH], lo_z[BVH_WIDTH];
-    uchar hi_x[BVH_WIDTH], hi_y[BVH_WIDTH], hi_z[BVH_WIDTH];
+    float lo_x[BVH_WIDTH], lo_y[BVH_WIDTH], lo_z[BVH_WIDTH];
+    float hi_x[BVH_WIDTH], hi_y[BVH_WIDTH], hi_z[BVH_WIDTH];
     int child[BVH_WIDTH];
     int count[BVH_WIDTH];
-#if BVH_WIDTH == 4
-    int tail[2];  // to a multiple of 16 bytes
-#endif
 } BvhNode;
 
 // A leaf's triangles sit first in its prim_refs slots, in packets of PACKET_WIDTH (padded with

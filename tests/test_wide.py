@@ -3,11 +3,9 @@
 from __future__ import annotations
 
 import itertools
-from fractions import Fraction
 from pathlib import Path
 
 import numpy as np
-import pyopencl as cl
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
@@ -20,15 +18,10 @@ from clray.accel.wide import (
     NO_REF,
     PACKET_WIDTH,
     WideBvh,
-    child_boxes,
     collapse,
-    grid_bounds,
-    quantise,
 )
 from clray.device import layout as L
-from clray.device.context import has_fp64
 from clray.device.pack import pack_scene
-from clray.device.program import KernelConfig, kernel_source
 from clray.render import render_packed
 from clray.scene.load import load_scene
 
@@ -47,15 +40,15 @@ def _refs(kinds: np.ndarray) -> np.ndarray:
 
 
 def _children(wide: WideBvh, node: int) -> list[tuple[int, int, np.ndarray, np.ndarray]]:
-    """(child, count, lo, hi) of each used slot of a node: its exact quantised box, rounded
-    outwards to float64."""
-    rec = wide.nodes[node:node + 1]
-    lo, hi = child_boxes(rec)
+    """(child, count, lo, hi) of each used slot of a node."""
+    rec = wide.nodes[node]
     out = []
     for k in range(wide.width):
-        if rec["child"][0, k] < 0:
+        if rec["child"][k] < 0:
             continue
-        out.append((int(rec["child"][0, k]), int(rec["count"][0, k]), lo[0, k], hi[0, k]))
+        lo = np.array([rec[f"lo_{a}"][k] for a in AXES])
+        hi = np.array([rec[f"hi_{a}"][k] for a in AXES])
+        out.append((int(rec["child"][k]), int(rec["count"][k]), lo, hi))
     return out
 
 
@@ -184,154 +177,3 @@ def test_both_widths_render_the_same_image(cl_device, scene_file):
         images.append(render_packed(packed, cl_device)[0])
     assert np.all(np.isfinite(images[0]))
     np.testing.assert_allclose(images[0], images[1], rtol=0, atol=1e-6)
-
-
-# --- quantised child bounds ------------------------------------------------------------------
-
-_EDGE_FLOATS = [0.0, -0.0, 2.0**-149, -(2.0**-149), 2.0**-127, -(2.0**-127), 2.0**-126,
-                -(2.0**-126), 1.0, -1.0, 3e38, -3e38, 1e30, -1e-30, 16777216.0, 16777217.0]
-
-
-def _exact_grid(origin: np.ndarray, exp: np.ndarray, q: np.ndarray) -> np.ndarray:
-    """origin + q * 2^exp as exact fractions, (n, width, 3) of objects."""
-    n, width, _ = q.shape
-    out = np.empty(q.shape, dtype=object)
-    for i, k, a in itertools.product(range(n), range(width), range(3)):
-        out[i, k, a] = (Fraction(float(origin[i, a]))
-                        + int(q[i, k, a]) * Fraction(2) ** int(exp[i, a]))
-    return out
-
-
-def _quantise_and_check(lo: np.ndarray, hi: np.ndarray, used: np.ndarray) -> tuple:
-    """quantise() the boxes and assert, in exact arithmetic, that each used box's grid box
-    holds it."""
-    origin, exp, q_lo, q_hi = quantise(lo, hi, used)
-    assert origin.dtype == np.float32 and exp.dtype == np.int8
-    assert np.all((exp >= -126) & (exp <= 127))
-    # The kernels read the origin as a number: never a denormal a device could flush.
-    assert np.all((origin == 0) | (np.abs(origin) >= 2.0**-126))
-    grid_lo, grid_hi = _exact_grid(origin, exp, q_lo), _exact_grid(origin, exp, q_hi)
-    for i, k, a in zip(*np.nonzero(np.broadcast_to(used[..., None], lo.shape)), strict=True):
-        assert grid_lo[i, k, a] <= Fraction(float(lo[i, k, a])), "a lower bound cuts in"
-        assert grid_hi[i, k, a] >= Fraction(float(hi[i, k, a])), "an upper bound cuts in"
-    return origin, exp, q_lo, q_hi
-
-
-@settings(max_examples=200, deadline=None)
-@given(data=st.data(), width=st.sampled_from([4, 8]), n=st.integers(1, 4))
-def test_quantised_bounds_hold_the_exact_bounds(data, width, n):
-    # float32 boxes anywhere in range, denormals and values far from their neighbours included.
-    value = st.one_of(st.floats(width=32, allow_nan=False, allow_infinity=False),
-                      st.sampled_from(_EDGE_FLOATS),
-                      st.floats(-4.0, 4.0, width=32))
-    a = np.array(data.draw(st.lists(value, min_size=n * width * 3, max_size=n * width * 3)),
-                 dtype=np.float32).reshape(n, width, 3)
-    b = np.array(data.draw(st.lists(value, min_size=n * width * 3, max_size=n * width * 3)),
-                 dtype=np.float32).reshape(n, width, 3)
-    used = np.array(data.draw(st.lists(st.booleans(), min_size=n * width,
-                                       max_size=n * width)), dtype=bool).reshape(n, width)
-    used[:, 0] = True
-    _quantise_and_check(np.minimum(a, b), np.maximum(a, b), used)
-
-
-def test_quantised_bounds_are_tight_and_can_fail():
-    rng = np.random.default_rng(5)
-    # Small boxes far from the origin, where the sum's rounding is coarsest against the grid.
-    centre = rng.uniform(-1e4, 1e4, (500, 1, 3))
-    lo = (centre + rng.uniform(-1, 1, (500, 8, 3))).astype(np.float32)
-    hi = (lo + rng.exponential(0.1, (500, 8, 3))).astype(np.float32)
-    used = np.ones((500, 8), dtype=bool)
-    origin, exp, q_lo, q_hi = _quantise_and_check(lo, hi, used)
-    # Within a grid step or two of the box, past what the sum's rounding adds.
-    step = np.ldexp(1.0, exp.astype(np.int64))[:, None, :]
-    box_lo, box_hi = (grid_bounds(origin[:, None, :], exp[:, None, :], q)[0]
-                      for q in (q_lo, q_hi))
-    slack = 2 * step + 1e-3
-    assert np.all(lo - box_lo <= slack) and np.all(box_hi - hi <= slack)
-    # Rounding to the nearest step instead of outwards cuts into boxes: the check sees it.
-    nearest = np.rint((lo.astype(np.float64) - origin[:, None, :]) / step).astype(np.uint8)
-    cut = grid_bounds(origin[:, None, :], exp[:, None, :], nearest)[0] > lo
-    assert cut.any()
-
-
-def _crosses(o: np.ndarray, d: np.ndarray, lo: list, hi: list, tmax: float) -> bool:
-    """Exactly: some t in [0, tmax] has o + t d in the box [lo, hi] (fractions)."""
-    t0, t1 = Fraction(0), Fraction(tmax)
-    for a in range(3):
-        oa, da = Fraction(float(o[a])), Fraction(float(d[a]))
-        if da == 0:
-            if not lo[a] <= oa <= hi[a]:
-                return False
-            continue
-        near, far = sorted(((lo[a] - oa) / da, (hi[a] - oa) / da))
-        t0, t1 = max(t0, near), min(t1, far)
-    return t0 <= t1
-
-
-@pytest.mark.parametrize("width", [4, 8])
-@pytest.mark.parametrize("precision", ["float", "double"])
-def test_node_children_never_miss_a_crossed_child(cl_ctx, width, precision):
-    # Rays from all around aimed at the corners, edges and faces of quantised child boxes:
-    # node_children (bvh.h) must report every child whose exact box a ray crosses.
-    if precision == "double" and not has_fp64(cl_ctx.devices[0]):
-        pytest.skip("no fp64 on this device")
-    rng = np.random.default_rng(width + (precision == "double"))
-    n_nodes = 6
-    scale = 10.0 ** rng.integers(-3, 4, (n_nodes, 1, 1))
-    centre = rng.normal(0, 1, (n_nodes, 1, 3)) * scale * 20
-    lo = (centre + rng.normal(0, 1, (n_nodes, width, 3)) * scale).astype(np.float32)
-    hi = (lo + rng.exponential(1, lo.shape) * scale).astype(np.float32)
-    used = np.ones((n_nodes, width), dtype=bool)
-    origin, exp, q_lo, q_hi = quantise(lo, hi, used)
-    nodes = np.zeros(n_nodes, dtype=L.bvh_node_dtype(width))
-    for a, axis in enumerate(AXES):
-        nodes[f"origin_{axis}"], nodes[f"exp_{axis}"] = origin[:, a], exp[:, a]
-        nodes[f"lo_{axis}"], nodes[f"hi_{axis}"] = q_lo[..., a], q_hi[..., a]
-    nodes["child"] = np.arange(width)
-    grid_lo, grid_hi = _exact_grid(origin, exp, q_lo), _exact_grid(origin, exp, q_hi)
-    box_lo, box_hi = child_boxes(nodes)
-    # Per ray: its node, an origin and a target on the boundary of one child's box (each axis
-    # at lo, hi or between), with zero direction components now and then.
-    n_rays = 400
-    node = rng.integers(0, n_nodes, n_rays)
-    k = rng.integers(0, width, n_rays)
-    pick = rng.integers(0, 3, (n_rays, 3))
-    f = rng.uniform(0, 1, (n_rays, 3))
-    target = np.where(pick == 0, box_lo[node, k], np.where(
-        pick == 1, box_hi[node, k], box_lo[node, k] + f * (box_hi[node, k] - box_lo[node, k])))
-    real = np.float64 if precision == "double" else np.float32
-    target = target.astype(real)
-    span = (box_hi[node].max(axis=1) - box_lo[node].min(axis=1))
-    o = (target + rng.normal(0, 1, (n_rays, 3)) * span * 2).astype(real)
-    flat = rng.uniform(size=(n_rays, 3)) < 0.1
-    o = np.where(flat, target, o)
-    d = (target - o).astype(real)
-    d[np.all(d == 0, axis=1), 0] = 1
-    tmax = np.full(n_rays, 2.0)
-    config = KernelConfig(has_triangles=True, bvh_width=width, precision=precision)
-    source = kernel_source() + """
-__kernel void children_probe(__global const BvhNode* nodes, __global const int* node,
-                             __global const REAL* o, __global const REAL* d,
-                             __global const REAL* tmax, __global int* bits) {
-    int i = get_global_id(0);
-    Ray r = make_ray(vload3(i, o), vload3(i, d));
-    REAL tnear[BVH_WIDTH];
-    bits[i] = node_children(nodes + node[i], &r, tmax[i], tnear);
-}
-"""
-    program = cl.Program(cl_ctx, source).build(options=config.options())
-    queue = cl.CommandQueue(cl_ctx)
-    mf = cl.mem_flags
-    bufs = [cl.Buffer(cl_ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=np.ascontiguousarray(x))
-            for x in (nodes, node.astype(np.int32), o, d, tmax.astype(real))]
-    bits = np.zeros(n_rays, dtype=np.int32)
-    out = cl.Buffer(cl_ctx, mf.WRITE_ONLY, bits.nbytes)
-    program.children_probe(queue, (n_rays,), None, *bufs, out)
-    cl.enqueue_copy(queue, bits, out)
-    crossed = 0
-    for i in range(n_rays):
-        for c in range(width):
-            if _crosses(o[i], d[i], list(grid_lo[node[i], c]), list(grid_hi[node[i], c]), 2.0):
-                crossed += 1
-                assert bits[i] >> c & 1, f"ray {i} crosses child {c} but was not sent there"
-    assert crossed >= n_rays  # every ray crosses the child it was aimed at

@@ -93,113 +93,14 @@ def collapse(bvh: Bvh, refs: np.ndarray, width: int) -> WideBvh:
     packed_count = np.zeros(slots.shape, dtype=np.int32)
     packed_count[is_leaf] = leaf_count
 
-    nodes = np.zeros(n_wide, dtype=dtype)
-    child_bounds = bounds[slots]  # (n_wide, width, 6), NaN in unused slots
-    origin, exp, q_lo, q_hi = quantise(child_bounds[..., :3], child_bounds[..., 3:], used)
-    for a, axis in enumerate("xyz"):
-        nodes[f"origin_{axis}"] = origin[:, a]
-        nodes[f"exp_{axis}"] = exp[:, a]
-        nodes[f"lo_{axis}"] = q_lo[..., a]
-        nodes[f"hi_{axis}"] = q_hi[..., a]
-    nodes["child"] = child
-    nodes["count"] = packed_count
+    # The node records as rows of 8 lanes-wide fields: 6 bound fields, then child and count.
+    rows = np.empty((n_wide, 8, width), dtype=np.float32)
+    rows[:, :6] = bounds[slots].transpose(0, 2, 1)
+    rows[:, 6].view(np.int32)[...] = child
+    rows[:, 7].view(np.int32)[...] = packed_count
+    nodes = rows.reshape(n_wide, -1).view(dtype).ravel()
     level_rows = np.cumsum([0] + [lv.shape[0] for lv in levels])
     return WideBvh(nodes, prim_refs, width, _stack_size(child, is_inner, used, level_rows))
-
-
-# Smallest normal float32: a device may flush anything smaller to zero.
-_F32_TINY = np.float32(2.0**-126)
-QUANT_MAX = 255  # a quantised bound is an 8-bit grid step count
-EXP_MIN, EXP_MAX = -126, 127  # grid steps 2^exp are normal float32 numbers
-
-
-def grid_bounds(origin: np.ndarray, exp: np.ndarray,
-                q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The exact grid bound origin + q * 2^exp as float64 (value, residual) whose exact sum it
-    is: q * 2^exp is exact in float64, and Knuth's TwoSum gives the sum's rounding error."""
-    a = np.asarray(origin, dtype=np.float64)
-    b = np.asarray(q).astype(np.float64) * np.ldexp(1.0, np.asarray(exp, dtype=np.int64))
-    value = a + b
-    b_virtual = value - a
-    residual = (a - (value - b_virtual)) + (b - b_virtual)
-    return value, residual
-
-
-def _below(grid: tuple[np.ndarray, np.ndarray], bound: np.ndarray) -> np.ndarray:
-    """Exactly: grid bound <= bound (a float32 or float64 array)."""
-    value, residual = grid
-    return (value < bound) | ((value == bound) & (residual <= 0))
-
-
-def _above(grid: tuple[np.ndarray, np.ndarray], bound: np.ndarray) -> np.ndarray:
-    value, residual = grid
-    return (value > bound) | ((value == bound) & (residual >= 0))
-
-
-def quantise(lo: np.ndarray, hi: np.ndarray,
-             used: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Child boxes (n, width, 3) float32 of n nodes, `used` (n, width) -> each node's grid
-    origin (n, 3) float32 and exponent (n, 3) int8, and the children's grid steps q_lo, q_hi
-    (n, width, 3) uint8, rounded outwards: the exact grid box (grid_bounds) holds the
-    child's. Unused slots get q 0."""
-    n = lo.shape[0]
-    mask = used[..., None]
-    lo = np.where(mask, lo, np.inf).astype(np.float32)
-    hi = np.where(mask, hi, -np.inf).astype(np.float32)
-    origin = lo.min(axis=1) if n else np.zeros((0, 3), np.float32)
-    top = hi.max(axis=1) if n else np.zeros((0, 3), np.float32)
-    # The kernels read the origin as a number, not as a bound: a denormal one that a device
-    # flushes to zero would move every child. Below zero it goes down to the smallest normal
-    # number, above zero down to zero.
-    origin = np.where((origin < 0) & (origin > -_F32_TINY), -_F32_TINY, origin)
-    origin = np.where((origin > 0) & (origin < _F32_TINY), np.float32(0), origin)
-    origin = origin.astype(np.float32)
-    # The smallest step whose last grid line reaches the node's top.
-    extent = top.astype(np.float64) - origin
-    with np.errstate(divide="ignore"):
-        exp = np.ceil(np.log2(extent / QUANT_MAX))
-    exp = np.clip(np.nan_to_num(exp, nan=EXP_MIN, neginf=EXP_MIN), EXP_MIN, EXP_MAX)
-    exp = exp.astype(np.int64)
-    while True:
-        short = ~_above(grid_bounds(origin, exp, QUANT_MAX), top) & (exp < EXP_MAX)
-        if not short.any():
-            break
-        exp[short] += 1
-    # The children's steps: the quotient rounded outwards, then stepped on outwards where
-    # its float64 rounding cut into the box. Step 0 is the origin, the least lower bound, and
-    # step QUANT_MAX at least the top: both always hold.
-    o3, e3 = origin[:, None, :], exp[:, None, :]
-    step = np.ldexp(1.0, e3)
-    with np.errstate(invalid="ignore"):
-        q_lo = np.clip(np.floor((lo.astype(np.float64) - o3) / step), 0, QUANT_MAX)
-        q_hi = np.clip(np.ceil((hi.astype(np.float64) - o3) / step), 0, QUANT_MAX)
-    q_lo = np.where(mask, q_lo, 0).astype(np.int64)
-    q_hi = np.where(mask, q_hi, 0).astype(np.int64)
-    while True:
-        bad = mask & ~_below(grid_bounds(o3, e3, q_lo), lo)
-        if not bad.any():
-            break
-        q_lo[bad] -= 1
-    while True:
-        bad = mask & ~_above(grid_bounds(o3, e3, q_hi), hi)
-        if not bad.any():
-            break
-        q_hi[bad] += 1
-    return origin, exp.astype(np.int8), q_lo.astype(np.uint8), q_hi.astype(np.uint8)
-
-
-def child_boxes(nodes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The children's exact grid boxes (n, width, 3) of wide `nodes`, rounded outwards to
-    float64: (lo, hi)."""
-    origin = np.stack([nodes[f"origin_{a}"] for a in "xyz"], -1)[:, None, :]
-    exp = np.stack([nodes[f"exp_{a}"] for a in "xyz"], -1)[:, None, :]
-    out = []
-    for side, outwards in (("lo", -np.inf), ("hi", np.inf)):
-        q = np.stack([nodes[f"{side}_{a}"] for a in "xyz"], -1)
-        value, residual = grid_bounds(origin, exp, q)
-        off = residual < 0 if side == "lo" else residual > 0
-        out.append(np.where(off, np.nextafter(value, outwards), value))
-    return out[0], out[1]
 
 
 def _open_children(parents: np.ndarray, first: np.ndarray, open_area: np.ndarray,

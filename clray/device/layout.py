@@ -68,18 +68,11 @@ BVH_WIDTHS = (4, 8)
 
 
 def bvh_node_dtype(width: int) -> np.dtype:
-    """BvhNode of kernels/clray_types.h for -DBVH_WIDTH=width: the node's grid (origin and a
-    power-of-two step per axis), then children's quantised bounds axis by axis."""
-    lane_q = ("u1", (width,))
+    """BvhNode of kernels/clray_types.h for -DBVH_WIDTH=width: children's bounds axis by axis."""
+    lane_f = ("<f4", (width,))
     lane_i = ("<i4", (width,))
-    fields = [*[(f"origin_{axis}", "<f4") for axis in "xyz"],
-              *[(f"exp_{axis}", "i1") for axis in "xyz"], ("pad", "i1"),
-              *[(f"{side}_{axis}", lane_q) for side in ("lo", "hi") for axis in "xyz"],
-              ("child", lane_i), ("count", lane_i)]
-    size = 16 + 6 * width + 8 * width
-    if size % 16:
-        fields.append(("tail", ("<i4", ((-size % 16) // 4,))))
-    return _struct(fields)
+    return _struct([*[(f"{side}_{axis}", lane_f) for side in ("lo", "hi") for axis in "xyz"],
+                    ("child", lane_i), ("count", lane_i)])
 
 
 TRIANGLE_PACKET = _struct([(f"{c}{k}", _F4) for k in range(3) for c in "xyz"])

@@ -124,6 +124,9 @@ static double half_area(float4 lo, float4 hi) {
     return ex * ey + ey * ez + ez * ex;
 }
 
+// Packet tests of a leaf of n primitives: the SAH's leaf cost, as the host's bvh.packets.
+static int packets(int n) { return (n + 3) / 4; }
+
 static int bin_of(float c, float cmin, float scale) {
     return clamp((int)((c - cmin) * scale), 0, N_BINS - 1);
 }
@@ -168,7 +171,8 @@ static int best_split(const Bins *bins, int count, double *best_cost) {
         n_left += bins->count[k];
         int n_right = count - n_left;
         double cost = n_left == 0 || n_right == 0 ? INFINITY
-            : half_area(lo, hi) * (double)n_left + a_right[k] * (double)n_right;
+            : half_area(lo, hi) * (double)packets(n_left)
+                + a_right[k] * (double)packets(n_right);
         if (cost < *best_cost) {
             *best_cost = cost;
             best = k;
@@ -241,7 +245,8 @@ static int process(const Task *t, __global Prim *buf0, __global Prim *buf1,
         double best_cost;
         int best = best_split(&bins, count, &best_cost);
         double a_node = half_area(t->lo, t->hi);
-        if (count <= sah_max_leaf && 1.0 * a_node + best_cost >= (double)count * a_node) {
+        if (count <= sah_max_leaf
+            && 1.0 * a_node + best_cost >= (double)packets(count) * a_node) {
             write_leaf(t, src, nodes, used, order);
             return 0;
         }

@@ -353,10 +353,10 @@ def test_sah_cost_of_one_leaf_and_of_two():
     assert sah_cost(build_bvh(lo, hi, 2).nodes) == pytest.approx(1.0)
     # Two primitives fit one packet: even with leaves of one, SAH keeps them together.
     assert sah_cost(build_bvh(lo, hi, 1).nodes) == pytest.approx(1.0)
-    # Split: two groups of four coincident unit cubes. The root visit (1) plus one packet test
-    # per group, 3 / 7 of the root's area each, beats one leaf of two packets (2).
-    lo = np.array([[0.0, 0, 0]] * 4 + [[2.0, 0, 0]] * 4)
-    assert sah_cost(build_bvh(lo, lo + 1).nodes) == pytest.approx(1 + 2 * 3 / 7)
+    # Split: two groups of four coincident unit cubes far apart. The root visit plus one packet
+    # test per group, 3 / 203 of the root's area each, beats one leaf of two packets (2).
+    lo = np.array([[0.0, 0, 0]] * 4 + [[100.0, 0, 0]] * 4)
+    assert sah_cost(build_bvh(lo, lo + 1).nodes) == pytest.approx(TRAVERSAL_COST + 2 * 3 / 203)
 
 
 # --- traversal oracle ----------------------------------------------------------------------

@@ -32,9 +32,10 @@ SAH_MAX_LEAF = 16
 # of four (clray.accel.wide.PACKET_WIDTH), at the cost of about one, so a leaf costs its packet
 # count, ceil(n / 4), and a split that cuts 8 primitives into 4 + 4 beats one into 3 + 5.
 SAH_PACKET = 4
-# Cost of one node visit relative to one packet test. A BVH node test on the device costs
-# about as much as a triangle packet test, so splitting must save at least one packet test.
-TRAVERSAL_COST = 1.0
+# Cost of one node visit relative to one packet test. Measured (benchmarks/README.md, What did
+# not pay): 1.5 gives the mesh 65 B per triangle (1.0: 77 B) with both benchmark kernels a few
+# per cent faster; from 1.875 the 64 spheres go into four leaves of 16 and take 9 % longer.
+TRAVERSAL_COST = 1.5
 
 _F32_MAX = float(np.finfo(np.float32).max)
 

@@ -233,7 +233,8 @@ inline int leaf_prims(const SceneRefs* s, int slot, int count) {
 #endif
 
 // The crossings of a packet's PACKET_WIDTH shapes: bit k set where lane k is crossed, its
-// crossings in c[k]. kind: PRIM_TRIANGLE or PRIM_SPHERE.
+// crossings in c[k]. kind: PRIM_TRIANGLE or PRIM_SPHERE. A triangle's part is its slot, where
+// shading finds its corners (shading.h).
 HOT int packet_crossings(const SceneRefs* s, int kind, int slot, const Ray* r, Crossings* c) {
     int bits = 0;
     REAL t0[PACKET_WIDTH], t1[PACKET_WIDTH], b1[PACKET_WIDTH], b2[PACKET_WIDTH];
@@ -245,6 +246,7 @@ HOT int packet_crossings(const SceneRefs* s, int kind, int slot, const Ray* r, C
             int k = lowest_bit(rest);
             c[k] = no_crossings();
             c[k].t[0] = t0[k];
+            c[k].part[0] = slot + k;
             c[k].b1 = b1[k];
             c[k].b2 = b2[k];
         }

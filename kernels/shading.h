@@ -169,8 +169,13 @@ HOT Surface shape_surface(const SceneRefs* s, const Ray* r, const Hit* hit, bool
 #if HAS_TRIANGLES
         case PRIM_TRIANGLE: {
             Triangle tri = s->triangles[i];
-            REAL3 p0 = TO_REAL3(s->vertices[tri.v0]), p1 = TO_REAL3(s->vertices[tri.v1]),
-                  p2 = TO_REAL3(s->vertices[tri.v2]);
+            // The corners from the hit's packet lane (its part is its slot, bvh.h:
+            // packet_crossings): the mesh's float32 vertices, which the device does not keep.
+            const __global TrianglePacket* pk = s->triangle_packets + hit->part / PACKET_WIDTH;
+            int lane = hit->part % PACKET_WIDTH;
+            REAL3 p0 = (REAL3)((REAL)pk->x0[lane], (REAL)pk->y0[lane], (REAL)pk->z0[lane]);
+            REAL3 p1 = (REAL3)((REAL)pk->x1[lane], (REAL)pk->y1[lane], (REAL)pk->z1[lane]);
+            REAL3 p2 = (REAL3)((REAL)pk->x2[lane], (REAL)pk->y2[lane], (REAL)pk->z2[lane]);
             REAL b1 = hit->b1, b2 = hit->b2, b0 = (REAL)1 - b1 - b2;
             p = b0 * p0 + b1 * p1 + b2 * p2;
             sf.err = gamma * max_comp3(fabs(b0 * p0) + fabs(b1 * p1) + fabs(b2 * p2));

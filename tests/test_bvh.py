@@ -12,7 +12,17 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
-from clray.accel.bvh import N_BINS, TRAVERSAL_COST, Bvh, build_bvh, max_leaf_count, sah_cost
+from clray.accel.bvh import (
+    N_BINS,
+    SAH_PACKET,
+    TRAVERSAL_COST,
+    Bvh,
+    build_bvh,
+    max_leaf_count,
+    packets,
+    sah_cost,
+)
+from clray.accel.wide import PACKET_WIDTH
 from clray.device.context import queue_for
 from clray.device.layout import BVH_NODE
 
@@ -273,6 +283,11 @@ def _half_area(lo: np.ndarray, hi: np.ndarray) -> float:
     return float(e[0] * e[1] + e[1] * e[2] + e[2] * e[0])
 
 
+def _packets(n: int) -> int:
+    """Packet tests of a leaf of n primitives, counted on their own: ceil(n / 4)."""
+    return math.ceil(n / 4)
+
+
 def reference_sah_cost(lo: np.ndarray, hi: np.ndarray, max_leaf_size: int) -> float:
     """SAH cost (as `sah_cost` counts it) of the textbook recursive binned-SAH build: one node
     at a time, in float64, with the builder's bins, axis choice and leaf rules."""
@@ -284,7 +299,7 @@ def reference_sah_cost(lo: np.ndarray, hi: np.ndarray, max_leaf_size: int) -> fl
         area = _half_area(lo[idx].min(axis=0), hi[idx].max(axis=0))
         split = _reference_split(lo[idx], hi[idx], area) if idx.size > max_leaf_size else None
         if split is None or (split[1] and idx.size <= sah_max_leaf):
-            total += idx.size * area
+            total += _packets(idx.size) * area
             continue
         total += TRAVERSAL_COST * area
         stack += [idx[~split[0]], idx[split[0]]]
@@ -306,11 +321,12 @@ def _reference_split(lo: np.ndarray, hi: np.ndarray, area: float):
         left = b <= k
         if left.all() or not left.any():
             continue
-        cost = (_half_area(lo[left].min(axis=0), hi[left].max(axis=0)) * left.sum()
-                + _half_area(lo[~left].min(axis=0), hi[~left].max(axis=0)) * (~left).sum())
+        cost = (_half_area(lo[left].min(axis=0), hi[left].max(axis=0)) * _packets(left.sum())
+                + _half_area(lo[~left].min(axis=0), hi[~left].max(axis=0))
+                * _packets((~left).sum()))
         if cost < best_cost:
             best, best_cost = k, cost
-    return b > best, TRAVERSAL_COST * area + best_cost >= n * area
+    return b > best, TRAVERSAL_COST * area + best_cost >= _packets(n) * area
 
 
 @pytest.mark.parametrize("kind", ["uniform", "duplicates", "flat", "clustered_scales"])
@@ -333,9 +349,14 @@ def test_sah_cost_of_a_mesh_matches_a_recursive_reference():
 def test_sah_cost_of_one_leaf_and_of_two():
     lo = np.array([[0.0, 0, 0], [2, 0, 0]])
     hi = lo + 1
-    assert sah_cost(build_bvh(lo, hi, 2).nodes) == pytest.approx(2.0)
-    # Split: the root visit (1) plus each unit cube's primitive test, 3 / 7 of the root's area.
-    assert sah_cost(build_bvh(lo, hi, 1).nodes) == pytest.approx(1 + 2 * 3 / 7)
+    # One leaf: one packet test over the root's area.
+    assert sah_cost(build_bvh(lo, hi, 2).nodes) == pytest.approx(1.0)
+    # Two primitives fit one packet: even with leaves of one, SAH keeps them together.
+    assert sah_cost(build_bvh(lo, hi, 1).nodes) == pytest.approx(1.0)
+    # Split: two groups of four coincident unit cubes far apart. The root visit plus one packet
+    # test per group, 3 / 203 of the root's area each, beats one leaf of two packets (2).
+    lo = np.array([[0.0, 0, 0]] * 4 + [[100.0, 0, 0]] * 4)
+    assert sah_cost(build_bvh(lo, lo + 1).nodes) == pytest.approx(TRAVERSAL_COST + 2 * 3 / 203)
 
 
 # --- traversal oracle ----------------------------------------------------------------------
@@ -512,3 +533,20 @@ def test_scene_files_written(tmp_path):
     assert len(faces) == 80
     a, b, c = (int(x.split("//")[0]) for x in faces[0].split()[1:])
     assert faces[0] == f"f {a}//{a} {b}//{b} {c}//{c}"
+
+
+def test_sah_packet_is_the_kernels_packet_width():
+    assert SAH_PACKET == PACKET_WIDTH
+
+
+def test_leaves_fill_their_packets():
+    # Leaves cost their packet count, so SAH cuts 8 triangles into 4 + 4, not 3 + 5: most
+    # packets are full. Leaves costed per primitive left a fifth of the lanes empty here.
+    vertices, faces, _ = mesh_gen.bumpy_mesh(4)
+    tri = vertices[faces]
+    lo, hi = tri.min(axis=1), tri.max(axis=1)
+    count = build_bvh(lo, hi).nodes["count"]
+    leaves = count[count > 0].astype(np.int64)
+    assert leaves.sum() == len(faces)
+    lanes = packets(leaves).sum() * PACKET_WIDTH
+    assert len(faces) / lanes > 0.9

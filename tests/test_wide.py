@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import importlib.util
 import itertools
 from pathlib import Path
 
@@ -12,6 +13,7 @@ from hypothesis import strategies as st
 
 from clray.accel.bvh import build_bvh
 from clray.accel.wide import (
+    FOLD_PACKETS,
     LEAF_FIELD_MASK,
     LEAF_SPHERE_SHIFT,
     LEAF_TRIANGLE_SHIFT,
@@ -177,3 +179,36 @@ def test_both_widths_render_the_same_image(cl_device, scene_file):
         images.append(render_packed(packed, cl_device)[0])
     assert np.all(np.isfinite(images[0]))
     np.testing.assert_allclose(images[0], images[1], rtol=0, atol=1e-6)
+
+
+@pytest.mark.parametrize("width", [4, 8])
+def test_small_nodes_of_leaves_are_folded_into_one_leaf(width, monkeypatch):
+    # Below the root, no wide node holds only leaves that one leaf of FOLD_PACKETS packet tests
+    # could cover: such a node is that leaf of its parent instead.
+    spec = importlib.util.spec_from_file_location(
+        "make_mesh_scene", ROOT / "benchmarks" / "make_mesh_scene.py")
+    mesh_gen = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mesh_gen)
+    vertices, faces, _ = mesh_gen.bumpy_mesh(4)
+    tri = vertices[faces]
+    lo, hi = tri.min(axis=1), tri.max(axis=1)
+    refs = _refs(np.full(len(faces), L.PRIM_TRIANGLE))
+    bvh = build_bvh(lo, hi)
+
+    def small_nodes(wide: WideBvh) -> int:
+        child, count = wide.nodes["child"], wide.nodes["count"]
+        only_leaves = ~((child >= 0) & (count == 0)).any(axis=1)
+        packets = np.where(child >= 0, count >> LEAF_TRIANGLE_SHIFT, 0).sum(axis=1)
+        return int((only_leaves & (packets <= FOLD_PACKETS))[1:].sum())
+
+    wide = collapse(bvh, refs, width)
+    check_wide(wide, lo, hi, refs)
+    assert small_nodes(wide) == 0
+    # Without folding there are such nodes, and one node more for each.
+    folds = FOLD_PACKETS
+    monkeypatch.setattr("clray.accel.wide.FOLD_PACKETS", 0)
+    unfolded = collapse(bvh, refs, width)
+    monkeypatch.setattr("clray.accel.wide.FOLD_PACKETS", folds)
+    check_wide(unfolded, lo, hi, refs)
+    assert small_nodes(unfolded) > 0
+    assert unfolded.nodes.size > wide.nodes.size

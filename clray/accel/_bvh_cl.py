@@ -21,6 +21,7 @@ from functools import cache
 import numpy as np
 import pyopencl as cl
 
+from clray.accel.bvh import SAH_PACKET, TRAVERSAL_COST
 from clray.device.context import has_fp64
 from clray.device.layout import BVH_NODE
 
@@ -45,6 +46,7 @@ _SOURCE = r"""
 #pragma OPENCL FP_CONTRACT OFF
 
 #define N_BINS 16
+// TRAVERSAL_COST and SAH_PACKET come from clray.accel.bvh, as build options.
 // Pending subtrees of one work-item: the larger child is deferred and the smaller one built
 // first, so each deferred entry at least halves the count and 64 covers any int count.
 #define STACK 64
@@ -124,6 +126,9 @@ static double half_area(float4 lo, float4 hi) {
     return ex * ey + ey * ez + ez * ex;
 }
 
+// Packet tests of a leaf of n primitives: the SAH's leaf cost, as the host's bvh.packets.
+static int packets(int n) { return (n + SAH_PACKET - 1) / SAH_PACKET; }
+
 static int bin_of(float c, float cmin, float scale) {
     return clamp((int)((c - cmin) * scale), 0, N_BINS - 1);
 }
@@ -168,7 +173,8 @@ static int best_split(const Bins *bins, int count, double *best_cost) {
         n_left += bins->count[k];
         int n_right = count - n_left;
         double cost = n_left == 0 || n_right == 0 ? INFINITY
-            : half_area(lo, hi) * (double)n_left + a_right[k] * (double)n_right;
+            : half_area(lo, hi) * (double)packets(n_left)
+                + a_right[k] * (double)packets(n_right);
         if (cost < *best_cost) {
             *best_cost = cost;
             best = k;
@@ -241,7 +247,8 @@ static int process(const Task *t, __global Prim *buf0, __global Prim *buf1,
         double best_cost;
         int best = best_split(&bins, count, &best_cost);
         double a_node = half_area(t->lo, t->hi);
-        if (count <= sah_max_leaf && 1.0 * a_node + best_cost >= (double)count * a_node) {
+        if (count <= sah_max_leaf
+            && TRAVERSAL_COST * a_node + best_cost >= (double)packets(count) * a_node) {
             write_leaf(t, src, nodes, used, order);
             return 0;
         }
@@ -312,7 +319,8 @@ def supports(device: cl.Device, n: int) -> bool:
 @cache
 def _kernels(context: cl.Context) -> dict[str, cl.Kernel]:
     # Kernel objects are kept: pyopencl makes a new one on every attribute access.
-    program = cl.Program(context, _SOURCE).build()
+    program = cl.Program(context, _SOURCE).build(
+        options=[f"-DTRAVERSAL_COST={float(TRAVERSAL_COST)!r}", f"-DSAH_PACKET={SAH_PACKET}"])
     return {k.function_name: k for k in program.all_kernels()}
 
 

@@ -28,9 +28,14 @@ N_BINS = 16
 # Largest leaf SAH may choose; bigger nodes are split regardless of cost, so leaf sizes stay
 # bounded (kernels loop over a leaf's primitives) even for duplicate or coincident primitives.
 SAH_MAX_LEAF = 16
-# Cost of one node visit relative to one primitive test. A BVH node test on the device costs
-# about as much as a triangle test, so splitting must save at least one primitive test.
-TRAVERSAL_COST = 1.0
+# Primitives one leaf test covers: the kernels test a leaf's triangles and spheres in packets
+# of four (clray.accel.wide.PACKET_WIDTH), at the cost of about one, so a leaf costs its packet
+# count, ceil(n / 4), and a split that cuts 8 primitives into 4 + 4 beats one into 3 + 5.
+SAH_PACKET = 4
+# Cost of one node visit relative to one packet test. Measured (benchmarks/README.md, What did
+# not pay): 1.5 gives the mesh 65 B per triangle (1.0: 77 B) with both benchmark kernels a few
+# per cent faster; from 1.875 the 64 spheres go into four leaves of 16 and take 9 % longer.
+TRAVERSAL_COST = 1.5
 
 _F32_MAX = float(np.finfo(np.float32).max)
 
@@ -53,13 +58,19 @@ def max_leaf_count(max_leaf_size: int) -> int:
     return max(max_leaf_size, SAH_MAX_LEAF)
 
 
+def packets(count: np.ndarray) -> np.ndarray:
+    """Packet tests of leaves of `count` primitives: the SAH's leaf cost."""
+    return -(-count // SAH_PACKET)
+
+
 def sah_cost(nodes: np.ndarray) -> float:
-    """SAH cost of a built tree (node visits at TRAVERSAL_COST, primitive tests at 1) relative
-    to the root's area: the build-quality figure, lower is better. The root needs an area."""
+    """SAH cost of a built tree (node visits at TRAVERSAL_COST, leaves at their packet count)
+    relative to the root's area: the build-quality figure, lower is better. The root needs an
+    area."""
     e = (nodes["hi"].astype(np.float64) - nodes["lo"]).clip(min=0)
     area = e[:, 0] * e[:, 1] + e[:, 1] * e[:, 2] + e[:, 2] * e[:, 0]
-    count = nodes["count"].astype(np.float64)
-    return float((np.where(count > 0, count, TRAVERSAL_COST) * area).sum() / area[0])
+    count = nodes["count"].astype(np.int64)
+    return float((np.where(count > 0, packets(count), TRAVERSAL_COST) * area).sum() / area[0])
 
 
 def build_bvh(lo: np.ndarray, hi: np.ndarray, max_leaf_size: int = 4, *,
@@ -224,13 +235,14 @@ class _Builder:
                             np.maximum.accumulate(bin_hi, axis=1))[:, :-1]
         a_right = _half_area(np.minimum.accumulate(bin_lo[:, ::-1], axis=1),
                              np.maximum.accumulate(bin_hi[:, ::-1], axis=1))[:, -2::-1]
-        cost = a_left * n_left + a_right * n_right
+        cost = a_left * packets(n_left) + a_right * packets(n_right)
         cost[(n_left == 0) | (n_right == 0)] = np.inf
         best = np.argmin(cost, axis=1)
         best_cost = cost[rows, best]
         a_node = _half_area(bounds[:, :3], bounds[:, 3:])
         # Compared multiplied through by the node's area, so flat and point nodes need no care.
-        sah_leaf = (TRAVERSAL_COST * a_node + best_cost >= count * a_node) | ~binnable
+        sah_leaf = ((TRAVERSAL_COST * a_node + best_cost >= packets(count) * a_node)
+                    | ~binnable)
         leaf = sah_leaf & (count <= self.sah_leaf)
 
         # Partition: stable within each side, left side first, so the final `order` lists the

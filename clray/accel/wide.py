@@ -6,6 +6,11 @@ binary node by opening its child of largest surface area until it has `width` ch
 leaves are left: the greedy collapse of Wald et al. 2008 ("Getting rid of packets") that Embree
 uses. The binary tree is SAH-built, so the wide tree inherits its partition.
 
+A wide node below the root whose children are all leaves, and which would hold FOLD_PACKETS
+packet tests or fewer as one leaf, is folded into its parent as that leaf: choosing among a few
+packets is not worth a node visit (about a packet test) and a node's bytes. The SAH decided
+those splits for a binary node; in the wide tree each such split costs a whole wide node.
+
 Leaves are re-laid out in `prim_refs` for the kernel's packets: a leaf's triangles come first, in
 groups of PACKET_WIDTH (the last group padded with NO_REF), then its spheres likewise, then its
 other primitives. Every leaf starts at a multiple of PACKET_WIDTH, so slot // PACKET_WIDTH indexes
@@ -31,6 +36,9 @@ LEAF_TRIANGLE_SHIFT = 16
 LEAF_SPHERE_SHIFT = 8
 LEAF_FIELD_MASK = 0xFF
 NO_REF = -1
+# A node of leaves only that one leaf of this many packet tests (triangle packets, sphere
+# packets, other primitives one each) would cover is folded into that leaf.
+FOLD_PACKETS = 4
 
 
 @dataclass(frozen=True)
@@ -67,16 +75,17 @@ def collapse(bvh: Bvh, refs: np.ndarray, width: int) -> WideBvh:
     # The area of each node that can be opened (an inner node), -1 otherwise and for slot -1.
     open_area = np.append(np.where(count == 0, half_area, -1.0), -1.0)
 
-    # A leaf root still needs a wide node above it: its one child is the root itself.
-    if count[0] > 0:
-        levels = [np.array([[0] + [-1] * (width - 1)])]
-    else:
-        levels = [_open_children(np.array([0]), first, open_area, width)]
-    while True:
-        inner = levels[-1][open_area[levels[-1]] >= 0]
-        if inner.size == 0:
-            break
-        levels.append(_open_children(inner, first, open_area, width))
+    order_refs = refs[bvh.order].astype(np.int64)
+    levels = _levels(first, open_area, count[0] > 0, width)
+    fold = _foldable(np.concatenate(levels), first, count, open_area, order_refs)
+    if fold is not None:
+        # Each folded node's binary node becomes one leaf over its leaves' primitives, which
+        # are contiguous (a subtree's are). It was never opened, so the collapse above it
+        # opens the same nodes as before.
+        node, fold_first, fold_count = fold
+        first, count, open_area = first.copy(), count.copy(), open_area.copy()
+        first[node], count[node], open_area[node] = fold_first, fold_count, -1.0
+        levels = _levels(first, open_area, count[0] > 0, width)
     slots = np.concatenate(levels)  # binary node per child slot, -1 for none
     n_wide = slots.shape[0]
 
@@ -88,7 +97,7 @@ def collapse(bvh: Bvh, refs: np.ndarray, width: int) -> WideBvh:
     child = np.full(slots.shape, -1, dtype=np.int32)
     child[is_inner] = np.arange(1, int(is_inner.sum()) + 1)
     leaf_first, leaf_count, prim_refs = _lay_out_leaves(
-        first[slots[is_leaf]], count[slots[is_leaf]], refs[bvh.order].astype(np.int64))
+        first[slots[is_leaf]], count[slots[is_leaf]], order_refs)
     child[is_leaf] = leaf_first
     packed_count = np.zeros(slots.shape, dtype=np.int32)
     packed_count[is_leaf] = leaf_count
@@ -101,6 +110,47 @@ def collapse(bvh: Bvh, refs: np.ndarray, width: int) -> WideBvh:
     nodes = rows.reshape(n_wide, -1).view(dtype).ravel()
     level_rows = np.cumsum([0] + [lv.shape[0] for lv in levels])
     return WideBvh(nodes, prim_refs, width, _stack_size(child, is_inner, used, level_rows))
+
+
+def _levels(first: np.ndarray, open_area: np.ndarray, leaf_root: bool,
+            width: int) -> list[np.ndarray]:
+    """The wide tree level by level: (m, width) binary node per child slot, -1 for none."""
+    # A leaf root still needs a wide node above it: its one child is the root itself.
+    if leaf_root:
+        levels = [np.array([[0] + [-1] * (width - 1)])]
+    else:
+        levels = [_open_children(np.array([0]), first, open_area, width)]
+    while True:
+        inner = levels[-1][open_area[levels[-1]] >= 0]
+        if inner.size == 0:
+            break
+        levels.append(_open_children(inner, first, open_area, width))
+    return levels
+
+
+def _foldable(slots: np.ndarray, first: np.ndarray, count: np.ndarray, open_area: np.ndarray,
+              order_refs: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """The wide nodes (rows of `slots`) to fold into one leaf, as (binary node, first, count)
+    of that leaf, or None."""
+    used = slots >= 0
+    is_inner = open_area[slots] >= 0
+    leaf = used & ~is_inner
+    # Primitives of each kind per leaf slot, from prefix sums over the leaves' references.
+    kind = order_refs >> L.PRIM_TYPE_SHIFT
+    sums = [np.concatenate([[0], np.cumsum(kind == k)]) for k in (L.PRIM_TRIANGLE, L.PRIM_SPHERE)]
+    lo = np.where(leaf, first[slots], 0)
+    n = np.where(leaf, count[slots], 0)
+    tri, sph = ((s[lo + n] - s[lo]).sum(axis=1) for s in sums)
+    total = n.sum(axis=1)
+    tests = -(-tri // PACKET_WIDTH) - (-sph // PACKET_WIDTH) + (total - tri - sph)
+    # Wide node k + 1 grew from the k-th inner slot; the root (row 0) stays.
+    fold = ~is_inner.any(axis=1) & (tests <= FOLD_PACKETS)
+    fold[0] = False
+    if not fold.any():
+        return None
+    node = slots[is_inner][fold[1:]]
+    start = np.where(leaf, first[slots], np.iinfo(np.int64).max).min(axis=1)
+    return node, start[fold], total[fold]
 
 
 def _open_children(parents: np.ndarray, first: np.ndarray, open_area: np.ndarray,

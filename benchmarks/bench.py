@@ -48,7 +48,7 @@ TARGETS = {
              "build_s": 2.0, "build_warm_s": 0.2},
 }
 # Device buffers that scale with the triangle count.
-MESH_BUFFERS = ("vertices", "triangles", "triangle_packets", "nodes", "prim_refs")
+MESH_BUFFERS = ("triangles", "triangle_packets", "nodes", "prim_refs")
 COMMAND_RUNS = 3
 LOAD_RUNS = 3
 

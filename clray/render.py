@@ -184,7 +184,7 @@ def render_packed(packed: PackedScene, device: cl.Device,
     try:
         buffers = [_buffer(ctx, getattr(packed, name)) for name in (
             "camera", "params", "planes", "spheres", "boxes", "cylinders", "cones",
-            "triangles", "triangle_packets", "sphere_packets", "vertices", "normals", "uvs",
+            "triangles", "triangle_packets", "sphere_packets", "normals", "uvs",
             "nodes")]
         buffers.append(np.int32(len(packed.nodes)))
         buffers += [_buffer(ctx, getattr(packed, name)) for name in (
@@ -310,7 +310,7 @@ def intersect_rays(packed: PackedScene, device: cl.Device, origins: np.ndarray,
             np.int32(len(packed.planes))]
     args += [_buffer(ctx, getattr(packed, name)) for name in (
         "spheres", "boxes", "cylinders", "cones", "triangles", "triangle_packets",
-        "sphere_packets", "vertices", "normals", "uvs", "nodes")]
+        "sphere_packets", "normals", "uvs", "nodes")]
     args.append(np.int32(len(packed.nodes)))
     args += [_buffer(ctx, packed.prim_refs), _buffer(ctx, packed.materials),
              _buffer(ctx, packed.instances)]

@@ -59,7 +59,6 @@ typedef struct {
     __global const Triangle* triangles;
     __global const TrianglePacket* triangle_packets;
     __global const SpherePacket* sphere_packets;
-    __global const float4* vertices;
     __global const float4* normals;
     __global const float2* uvs;
     __global const BvhNode* nodes;

@@ -89,8 +89,8 @@ inline SceneRefs scene_refs(__global const Plane* planes, int n_planes,
                             __global const Triangle* triangles,
                             __global const TrianglePacket* triangle_packets,
                             __global const SpherePacket* sphere_packets,
-                            __global const float4* vertices, __global const float4* normals,
-                            __global const float2* uvs, __global const BvhNode* nodes,
+                            __global const float4* normals, __global const float2* uvs,
+                            __global const BvhNode* nodes,
                             int n_nodes, __global const int* prim_refs,
                             __global const Material* materials) {
     SceneRefs s;
@@ -102,7 +102,6 @@ inline SceneRefs scene_refs(__global const Plane* planes, int n_planes,
     s.triangles = triangles;
     s.triangle_packets = triangle_packets;
     s.sphere_packets = sphere_packets;
-    s.vertices = vertices;
     s.normals = normals;
     s.uvs = uvs;
     s.nodes = nodes;
@@ -124,7 +123,7 @@ __kernel void render(__global const Camera* camera, __global const Params* param
                      __global const Cone* cones, __global const Triangle* triangles,
                      __global const TrianglePacket* triangle_packets,
                      __global const SpherePacket* sphere_packets,
-                     __global const float4* vertices, __global const float4* normals,
+                     __global const float4* normals,
                      __global const float2* uvs, __global const BvhNode* nodes, int n_nodes,
                      __global const int* prim_refs, __global const Material* materials,
                      __global const Texture* textures, __global const float4* texels,
@@ -137,7 +136,7 @@ __kernel void render(__global const Camera* camera, __global const Params* param
     if (x >= width || y >= height) return;
 
     SceneRefs s = scene_refs(planes, params->n_planes, spheres, boxes, cylinders, cones,
-                             triangles, triangle_packets, sphere_packets, vertices, normals,
+                             triangles, triangle_packets, sphere_packets, normals,
                              uvs, nodes, n_nodes, prim_refs, materials);
     s.textures = textures;
     s.texels = texels;
@@ -251,7 +250,7 @@ __kernel void intersect_rays(__global const float4* origins, __global const floa
                              __global const Triangle* triangles,
                              __global const TrianglePacket* triangle_packets,
                              __global const SpherePacket* sphere_packets,
-                             __global const float4* vertices, __global const float4* normals,
+                             __global const float4* normals,
                              __global const float2* uvs, __global const BvhNode* nodes,
                              int n_nodes, __global const int* prim_refs,
                              __global const Material* materials,
@@ -259,7 +258,7 @@ __kernel void intersect_rays(__global const float4* origins, __global const floa
                              __global int* refs) {
     int i = get_global_id(0);
     SceneRefs s = scene_refs(planes, n_planes, spheres, boxes, cylinders, cones, triangles,
-                             triangle_packets, sphere_packets, vertices, normals, uvs, nodes,
+                             triangle_packets, sphere_packets, normals, uvs, nodes,
                              n_nodes, prim_refs, materials);
     s.instances = instances;
 #if COUNT_TESTS

@@ -36,9 +36,8 @@ class PackedScene:
     triangles: np.ndarray
     triangle_packets: np.ndarray  # TRIANGLE_PACKET per PACKET_WIDTH slots of prim_refs
     sphere_packets: np.ndarray  # SPHERE_PACKET likewise (spheres only)
-    # Empty: shading reads a triangle's corners from its packet (the same float32 numbers), so
-    # the device keeps no vertex positions; the kernels still take the argument.
-    vertices: np.ndarray  # (0, 4) float32
+    # No vertex positions: shading reads a triangle's corners from its packet (the same float32
+    # numbers), so the device keeps only the per-vertex normals and uvs.
     normals: np.ndarray  # (V, 4) float32, or empty
     uvs: np.ndarray  # (V, 2) float32, or empty
     nodes: np.ndarray  # layout.bvh_node_dtype(config.bvh_width), root first
@@ -53,7 +52,7 @@ class PackedScene:
 
     def device_bytes(self) -> dict[str, int]:
         names = ("planes", "spheres", "boxes", "cylinders", "cones", "triangles",
-                 "triangle_packets", "sphere_packets", "vertices", "normals", "uvs", "nodes",
+                 "triangle_packets", "sphere_packets", "normals", "uvs", "nodes",
                  "prim_refs", "materials", "textures", "texels", "lights", "instances")
         return {name: int(getattr(self, name).nbytes) for name in names}
 
@@ -586,7 +585,6 @@ def pack_scene(scene: M.Scene, *, width: int, height: int, spp: int, max_depth: 
         **{"fp64_spheres": len(spheres) > 0 and needs_fp64_spheres(scene), **variants},
     )
     return PackedScene(camera, params, planes, spheres, boxes, cylinders, cones,
-                       tris.triangles, triangle_packets, sphere_packets,
-                       np.zeros((0, 4), dtype=np.float32),
-                       tris.normals, tris.uvs, wide.nodes, wide.prim_refs, materials, textures,
-                       texels, lights, instance_records, config, bvh_s)
+                       tris.triangles, triangle_packets, sphere_packets, tris.normals, tris.uvs,
+                       wide.nodes, wide.prim_refs, materials, textures, texels, lights,
+                       instance_records, config, bvh_s)

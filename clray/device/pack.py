@@ -509,6 +509,39 @@ def _by_kind(objects: tuple[M.SceneObject, ...], groups: list[M.Group], eye: np.
     return kinds
 
 
+def _groups_of(instances: list[M.Instance]) -> tuple[list[M.Group], np.ndarray]:
+    """The groups the instances place, by identity in order of first use, and each instance's
+    index among them."""
+    groups: dict[int, M.Group] = {}
+    for inst in instances:
+        groups.setdefault(id(inst.group), inst.group)
+    index = {key: g for g, key in enumerate(groups)}
+    return list(groups.values()), np.array([index[id(inst.group)] for inst in instances],
+                                           dtype=np.int64)
+
+
+def _scene_switches(scene: M.Scene, max_depth: int) -> dict[str, object]:
+    """The KernelConfig switches that follow from the materials, lights, camera and
+    background (the geometry's follow from the packed arrays)."""
+    any_reflect = any(m.reflect > 0 for m in scene.materials)
+    any_transmit = any(m.transmit > 0 for m in scene.materials)
+    background = scene.render.background
+    background_kind = background.kind if isinstance(background, M.Background) else None
+    return {
+        "has_transmission": any_transmit,
+        "has_refraction": any_transmit and max_depth > 0,
+        "has_spot_lights": any(isinstance(x, M.SpotLight) for x in scene.lights),
+        "has_area_lights": any(isinstance(x, M.AreaLight) for x in scene.lights),
+        "has_fresnel": max_depth > 0 and any(m.fresnel and m.transmit > 0
+                                             for m in scene.materials),
+        "has_thin_lens": scene.camera.aperture > 0,
+        "has_orthographic": scene.camera.type == "orthographic",
+        "has_background_gradient": background_kind == "gradient",
+        "has_background_image": background_kind == "image",
+        "max_depth": max_depth if (any_reflect or any_transmit) else 0,
+    }
+
+
 def _stack_size_option(stack_size: int) -> int:
     """The tree's stack need rounded up to a multiple of 16, so most scenes share a build."""
     return max(16, -(-stack_size // 16) * 16)
@@ -523,12 +556,8 @@ def pack_scene(scene: M.Scene, *, width: int, height: int, spp: int, max_depth: 
     build). `variants` are extra KernelConfig fields (study switches, options)."""
     eye = np.asarray(scene.camera.position, dtype=np.float64)
     instances = [obj for obj in scene.objects if isinstance(obj, M.Instance)]
-    groups: dict[int, M.Group] = {}  # by identity, in order of first use
-    for inst in instances:
-        groups.setdefault(id(inst.group), inst.group)
-    group_index = {key: g for g, key in enumerate(groups)}
-    group_of = np.array([group_index[id(inst.group)] for inst in instances], dtype=np.int64)
-    kinds = _by_kind(scene.objects, list(groups.values()), eye)
+    groups, group_of = _groups_of(instances)
+    kinds = _by_kind(scene.objects, groups, eye)
 
     bounded = _Bounded()
     planes = _pack_planes(kinds[M.Plane].objects, eye)
@@ -554,10 +583,6 @@ def pack_scene(scene: M.Scene, *, width: int, height: int, spp: int, max_depth: 
     p["n_planes"], p["n_lights"] = len(planes), len(lights)
     p["bvh_root_count"] = len(wide.prim_refs)
 
-    any_reflect = any(m.reflect > 0 for m in scene.materials)
-    any_transmit = any(m.transmit > 0 for m in scene.materials)
-    background = scene.render.background
-    background_kind = background.kind if isinstance(background, M.Background) else None
     config = KernelConfig(
         has_planes=len(planes) > 0,
         has_spheres=len(spheres) > 0,
@@ -568,17 +593,8 @@ def pack_scene(scene: M.Scene, *, width: int, height: int, spp: int, max_depth: 
         has_vertex_normals=len(tris.normals) > 0,
         has_vertex_uvs=len(tris.uvs) > 0,
         has_textures=len(textures) > 0,
-        has_transmission=any_transmit,
-        has_refraction=any_transmit and max_depth > 0,
-        has_spot_lights=any(isinstance(x, M.SpotLight) for x in scene.lights),
-        has_area_lights=any(isinstance(x, M.AreaLight) for x in scene.lights),
-        has_fresnel=max_depth > 0 and any(m.fresnel and m.transmit > 0 for m in scene.materials),
-        has_thin_lens=scene.camera.aperture > 0,
-        has_orthographic=scene.camera.type == "orthographic",
-        has_background_gradient=background_kind == "gradient",
-        has_background_image=background_kind == "image",
         has_instances=len(instances) > 0,
-        max_depth=max_depth if (any_reflect or any_transmit) else 0,
+        **_scene_switches(scene, max_depth),
         bvh_width=bvh_width,
         bvh_stack_size=_stack_size_option(wide.stack_size),
         precision=precision,

@@ -480,23 +480,23 @@ inline bool filter_crossings(const SceneRefs* s, const Crossings* c, int ref, in
 // shadow ray needs, decided on the lanes' t without building their Crossings.
 HOT bool packet_blocks(const SceneRefs* s, int kind, int slot, const Ray* r, REAL tmax) {
     REAL t0[PACKET_WIDTH], t1[PACKET_WIDTH], b1[PACKET_WIDTH], b2[PACKET_WIDTH];
-    REALP lo = (REALP)(0), hi = (REALP)(tmax);
+    REAL4 lo = (REAL4)(0), hi = (REAL4)(tmax);
 #if HAS_TRIANGLES
     if (kind == PRIM_TRIANGLE) {
         int bits = intersect_triangle_packet(s->triangle_packets + slot / PACKET_WIDTH, r, t0,
                                              b1, b2);
         if (!bits) return false;
-        REALP t = VLOADP(0, t0);
-        return (bits & MASKP_BITS((t > lo) & (t < hi))) != 0;
+        REAL4 t = vload4(0, t0);
+        return (bits & lane_bits4(convert_int4((t > lo) & (t < hi)))) != 0;
     }
 #endif
 #if HAS_SPHERES && !SPHERE_FP64 && !SPHERE_TEXTBOOK
     if (kind == PRIM_SPHERE) {
         int bits = intersect_sphere_packet(s->sphere_packets + slot / PACKET_WIDTH, r, t0, t1);
         if (!bits) return false;
-        REALP near = VLOADP(0, t0), far = VLOADP(0, t1);
-        MASKP inside = ((near > lo) & (near < hi)) | ((far > lo) & (far < hi));
-        return (bits & MASKP_BITS(inside)) != 0;
+        REAL4 near = vload4(0, t0), far = vload4(0, t1);
+        MASK4 inside = ((near > lo) & (near < hi)) | ((far > lo) & (far < hi));
+        return (bits & lane_bits4(convert_int4(inside))) != 0;
     }
 #endif
     // The study variants' scalar spheres.

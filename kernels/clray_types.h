@@ -145,22 +145,22 @@ typedef struct {
 
 // A leaf's triangles sit first in its prim_refs slots, in packets of PACKET_WIDTH (padded with
 // -1), then its spheres likewise, then its other primitives. Leaves start at multiples of
-// PACKET_WIDTH, so packets[slot / PACKET_WIDTH] holds the shapes of slots slot .. slot + PACKET_WIDTH - 1. A
+// PACKET_WIDTH, so packets[slot / PACKET_WIDTH] holds the shapes of slots slot .. slot + 3. A
 // leaf's count: triangle packets << LEAF_TRIANGLE_SHIFT | sphere packets << LEAF_SPHERE_SHIFT |
 // others.
-#define PACKET_WIDTH 8
+#define PACKET_WIDTH 4
 #define LEAF_TRIANGLE_SHIFT 16
 #define LEAF_SPHERE_SHIFT 8
 #define LEAF_FIELD_MASK 0xFF
 
 typedef struct {
-    float x0[PACKET_WIDTH], y0[PACKET_WIDTH], z0[PACKET_WIDTH];
-    float x1[PACKET_WIDTH], y1[PACKET_WIDTH], z1[PACKET_WIDTH];
-    float x2[PACKET_WIDTH], y2[PACKET_WIDTH], z2[PACKET_WIDTH];
+    float x0[4], y0[4], z0[4];
+    float x1[4], y1[4], z1[4];
+    float x2[4], y2[4], z2[4];
 } TrianglePacket;
 
 typedef struct {
-    float x[PACKET_WIDTH], y[PACKET_WIDTH], z[PACKET_WIDTH], radius[PACKET_WIDTH];
+    float x[4], y[4], z[4], radius[4];
 } SpherePacket;
 
 // A group of primitives placed by an affine transform (HAS_INSTANCES). The group's primitives

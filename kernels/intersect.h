@@ -6,35 +6,6 @@
 #ifndef CLRAY_INTERSECT_H
 #define CLRAY_INTERSECT_H
 
-// A packet's lanes as one vector: REALP and MASKP (what comparing two REALP gives), loaded and
-// stored with VLOADP / VSTOREP, lane bits of a mask with MASKP_BITS.
-#if PACKET_WIDTH == 8
-#ifdef USE_DOUBLE
-typedef double8 REALP;
-typedef long8 MASKP;
-#define TO_REALP(v) convert_double8(v)
-#else
-typedef float8 REALP;
-typedef int8 MASKP;
-#define TO_REALP(v) (v)
-#endif
-#define VLOADP vload8
-#define VSTOREP vstore8
-#define MASKP_BITS(m) lane_bits8(convert_int8(m))
-HOT int lane_bits8(int8 m) {
-    return lane_bits4(m.lo) | (lane_bits4(m.hi) << 4);
-}
-#elif PACKET_WIDTH == 4
-typedef REAL4 REALP;
-typedef MASK4 MASKP;
-#define TO_REALP(v) TO_REAL4(v)
-#define VLOADP vload4
-#define VSTOREP vstore4
-#define MASKP_BITS(m) lane_bits4(convert_int4(m))
-#else
-#error "PACKET_WIDTH must be 4 or 8"
-#endif
-
 typedef struct {
     REAL3 o, d;
     REAL3 inv_d;     // 1/d, +-inf for zero components (the slab test relies on it)
@@ -373,75 +344,75 @@ HOT int intersect_triangle_packet(const __global TrianglePacket* pk, const Ray* 
     return bits;
 }
 #else
-HOT REALP pickP(REALP x, REALP y, REALP z, int k) { return k == 0 ? x : (k == 1 ? y : z); }
+HOT REAL4 pick4(REAL4 x, REAL4 y, REAL4 z, int k) { return k == 0 ? x : (k == 1 ? y : z); }
 
-// Woop, Benthin, Wald, "Watertight Ray/Triangle Intersection", JCGT 2013, as in pbrt-v4, on a
-// packet's triangles at once: edge functions in a ray-aligned sheared frame, so rays at shared edges hit
+// Woop, Benthin, Wald, "Watertight Ray/Triangle Intersection", JCGT 2013, as in pbrt-v4, on four
+// triangles at once: edge functions in a ray-aligned sheared frame, so rays at shared edges hit
 // one side or both. An edge function that rounds to exactly zero is recomputed in double.
 HOT int intersect_triangle_packet(const __global TrianglePacket* pk, const Ray* r, REAL* t,
                                   REAL* b1, REAL* b2) {
-    REALP ox = (REALP)(r->o.x), oy = (REALP)(r->o.y), oz = (REALP)(r->o.z);
-    REALP ax = TO_REALP(VLOADP(0, pk->x0)) - ox, ay = TO_REALP(VLOADP(0, pk->y0)) - oy,
-          az = TO_REALP(VLOADP(0, pk->z0)) - oz;
-    REALP bx = TO_REALP(VLOADP(0, pk->x1)) - ox, by = TO_REALP(VLOADP(0, pk->y1)) - oy,
-          bz = TO_REALP(VLOADP(0, pk->z1)) - oz;
-    REALP cx = TO_REALP(VLOADP(0, pk->x2)) - ox, cy = TO_REALP(VLOADP(0, pk->y2)) - oy,
-          cz = TO_REALP(VLOADP(0, pk->z2)) - oz;
-    REALP p0x = pickP(ax, ay, az, r->kx), p0y = pickP(ax, ay, az, r->ky),
-          p0z = pickP(ax, ay, az, r->kz);
-    REALP p1x = pickP(bx, by, bz, r->kx), p1y = pickP(bx, by, bz, r->ky),
-          p1z = pickP(bx, by, bz, r->kz);
-    REALP p2x = pickP(cx, cy, cz, r->kx), p2y = pickP(cx, cy, cz, r->ky),
-          p2z = pickP(cx, cy, cz, r->kz);
-    REALP sx = (REALP)(r->sx), sy = (REALP)(r->sy);
+    REAL4 ox = (REAL4)(r->o.x), oy = (REAL4)(r->o.y), oz = (REAL4)(r->o.z);
+    REAL4 ax = TO_REAL4(vload4(0, pk->x0)) - ox, ay = TO_REAL4(vload4(0, pk->y0)) - oy,
+          az = TO_REAL4(vload4(0, pk->z0)) - oz;
+    REAL4 bx = TO_REAL4(vload4(0, pk->x1)) - ox, by = TO_REAL4(vload4(0, pk->y1)) - oy,
+          bz = TO_REAL4(vload4(0, pk->z1)) - oz;
+    REAL4 cx = TO_REAL4(vload4(0, pk->x2)) - ox, cy = TO_REAL4(vload4(0, pk->y2)) - oy,
+          cz = TO_REAL4(vload4(0, pk->z2)) - oz;
+    REAL4 p0x = pick4(ax, ay, az, r->kx), p0y = pick4(ax, ay, az, r->ky),
+          p0z = pick4(ax, ay, az, r->kz);
+    REAL4 p1x = pick4(bx, by, bz, r->kx), p1y = pick4(bx, by, bz, r->ky),
+          p1z = pick4(bx, by, bz, r->kz);
+    REAL4 p2x = pick4(cx, cy, cz, r->kx), p2y = pick4(cx, cy, cz, r->ky),
+          p2z = pick4(cx, cy, cz, r->kz);
+    REAL4 sx = (REAL4)(r->sx), sy = (REAL4)(r->sy);
     p0x += sx * p0z;
     p0y += sy * p0z;
     p1x += sx * p1z;
     p1y += sy * p1z;
     p2x += sx * p2z;
     p2y += sy * p2z;
-    REALP e0 = difference_of_productsP(p1x, p2y, p1y, p2x);
-    REALP e1 = difference_of_productsP(p2x, p0y, p2y, p0x);
-    REALP e2 = difference_of_productsP(p0x, p1y, p0y, p1x);
+    REAL4 e0 = difference_of_products4(p1x, p2y, p1y, p2x);
+    REAL4 e1 = difference_of_products4(p2x, p0y, p2y, p0x);
+    REAL4 e2 = difference_of_products4(p0x, p1y, p0y, p1x);
 #if !defined(USE_DOUBLE) && defined(cl_khr_fp64) && !TRIANGLE_NO_FP64_FALLBACK
-    int zero = MASKP_BITS((e0 == 0.0f) | (e1 == 0.0f) | (e2 == 0.0f));
+    int zero = lane_bits4((e0 == 0.0f) | (e1 == 0.0f) | (e2 == 0.0f));
     if (zero) {
-        float q[6][PACKET_WIDTH], e[3][PACKET_WIDTH];
-        VSTOREP(p0x, 0, q[0]);
-        VSTOREP(p0y, 0, q[1]);
-        VSTOREP(p1x, 0, q[2]);
-        VSTOREP(p1y, 0, q[3]);
-        VSTOREP(p2x, 0, q[4]);
-        VSTOREP(p2y, 0, q[5]);
-        VSTOREP(e0, 0, e[0]);
-        VSTOREP(e1, 0, e[1]);
-        VSTOREP(e2, 0, e[2]);
+        float q[6][4], e[3][4];
+        vstore4(p0x, 0, q[0]);
+        vstore4(p0y, 0, q[1]);
+        vstore4(p1x, 0, q[2]);
+        vstore4(p1y, 0, q[3]);
+        vstore4(p2x, 0, q[4]);
+        vstore4(p2y, 0, q[5]);
+        vstore4(e0, 0, e[0]);
+        vstore4(e1, 0, e[1]);
+        vstore4(e2, 0, e[2]);
         for (int k = 0; k < PACKET_WIDTH; ++k) {
             if (!(zero & (1 << k))) continue;
             e[0][k] = (float)((double)q[2][k] * (double)q[5][k] - (double)q[3][k] * q[4][k]);
             e[1][k] = (float)((double)q[4][k] * (double)q[1][k] - (double)q[5][k] * q[0][k]);
             e[2][k] = (float)((double)q[0][k] * (double)q[3][k] - (double)q[1][k] * q[2][k]);
         }
-        e0 = VLOADP(0, e[0]);
-        e1 = VLOADP(0, e[1]);
-        e2 = VLOADP(0, e[2]);
+        e0 = vload4(0, e[0]);
+        e1 = vload4(0, e[1]);
+        e2 = vload4(0, e[2]);
     }
 #endif
-    MASKP mixed = ((e0 < 0) | (e1 < 0) | (e2 < 0)) & ((e0 > 0) | (e1 > 0) | (e2 > 0));
-    REALP det = e0 + e1 + e2;
-    REALP sz = (REALP)(r->sz);
+    MASK4 mixed = ((e0 < 0) | (e1 < 0) | (e2 < 0)) & ((e0 > 0) | (e1 > 0) | (e2 > 0));
+    REAL4 det = e0 + e1 + e2;
+    REAL4 sz = (REAL4)(r->sz);
     p0z *= sz;
     p1z *= sz;
     p2z *= sz;
-    REALP t_scaled = e0 * p0z + e1 * p1z + e2 * p2z;
+    REAL4 t_scaled = e0 * p0z + e1 * p1z + e2 * p2z;
     // A zero or NaN det fails both sign tests.
-    MASKP ahead = ((det < 0) & (t_scaled < 0)) | ((det > 0) & (t_scaled > 0));
-    int bits = MASKP_BITS(ahead & ~mixed);
+    MASK4 ahead = ((det < 0) & (t_scaled < 0)) | ((det > 0) & (t_scaled > 0));
+    int bits = lane_bits4(convert_int4(ahead & ~mixed));
     if (bits) {
-        REALP inv_det = (REAL)1 / det;
-        VSTOREP(t_scaled * inv_det, 0, t);
-        VSTOREP(e1 * inv_det, 0, b1);
-        VSTOREP(e2 * inv_det, 0, b2);
+        REAL4 inv_det = (REAL)1 / det;
+        vstore4(t_scaled * inv_det, 0, t);
+        vstore4(e1 * inv_det, 0, b1);
+        vstore4(e2 * inv_det, 0, b2);
     }
     return bits;
 }
@@ -449,30 +420,30 @@ HOT int intersect_triangle_packet(const __global TrianglePacket* pk, const Ray* 
 #endif
 
 #if HAS_SPHERES && !SPHERE_FP64 && !SPHERE_TEXTBOOK
-// intersect_sphere's Hearn-Baker formula on the spheres of a packet: bit k set where lane
+// intersect_sphere's Hearn-Baker formula on the four spheres of a packet: bit k set where lane
 // k has roots t0[k] <= t1[k]. Padding lanes hold NaN and have none.
 HOT int intersect_sphere_packet(const __global SpherePacket* pk, const Ray* r, REAL* t0,
                                 REAL* t1) {
     REAL a = dot(r->d, r->d);
     if (a == (REAL)0) return 0;
-    REALP fx = (REALP)(r->o.x) - TO_REALP(VLOADP(0, pk->x));
-    REALP fy = (REALP)(r->o.y) - TO_REALP(VLOADP(0, pk->y));
-    REALP fz = (REALP)(r->o.z) - TO_REALP(VLOADP(0, pk->z));
-    REALP radius = TO_REALP(VLOADP(0, pk->radius));
-    REALP dx = (REALP)(r->d.x), dy = (REALP)(r->d.y), dz = (REALP)(r->d.z);
-    REALP b = fx * dx + fy * dy + fz * dz;
-    REALP along = b / a;
-    REALP lx = fx - along * dx, ly = fy - along * dy, lz = fz - along * dz;
-    REALP ll = sqrt(lx * lx + ly * ly + lz * lz);
-    REALP fl = sqrt(fx * fx + fy * fy + fz * fz);
-    REALP disc = (REALP)(a) * (radius - ll) * (radius + ll);
+    REAL4 fx = (REAL4)(r->o.x) - TO_REAL4(vload4(0, pk->x));
+    REAL4 fy = (REAL4)(r->o.y) - TO_REAL4(vload4(0, pk->y));
+    REAL4 fz = (REAL4)(r->o.z) - TO_REAL4(vload4(0, pk->z));
+    REAL4 radius = TO_REAL4(vload4(0, pk->radius));
+    REAL4 dx = (REAL4)(r->d.x), dy = (REAL4)(r->d.y), dz = (REAL4)(r->d.z);
+    REAL4 b = fx * dx + fy * dy + fz * dz;
+    REAL4 along = b / a;
+    REAL4 lx = fx - along * dx, ly = fy - along * dy, lz = fz - along * dz;
+    REAL4 ll = sqrt(lx * lx + ly * ly + lz * lz);
+    REAL4 fl = sqrt(fx * fx + fy * fy + fz * fz);
+    REAL4 disc = (REAL4)(a) * (radius - ll) * (radius + ll);
     // fmax keeps sqrt's argument non-negative; lanes with disc < 0 (or NaN) are masked below.
-    REALP q = -(b + copysign(sqrt(fmax(disc, (REALP)(0))), b));
-    MASKP roots = (disc >= (REAL)0) & (q != (REAL)0);
-    REALP r0 = ((fl - radius) * (fl + radius)) / q, r1 = q / a;
-    VSTOREP(fmin(r0, r1), 0, t0);
-    VSTOREP(fmax(r0, r1), 0, t1);
-    return MASKP_BITS(roots);
+    REAL4 q = -(b + copysign(sqrt(fmax(disc, (REAL4)(0))), b));
+    MASK4 roots = (disc >= (REAL)0) & (q != (REAL)0);
+    REAL4 r0 = ((fl - radius) * (fl + radius)) / q, r1 = q / a;
+    vstore4(fmin(r0, r1), 0, t0);
+    vstore4(fmax(r0, r1), 0, t1);
+    return lane_bits4(convert_int4(roots));
 }
 #endif
 

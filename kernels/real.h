@@ -69,8 +69,13 @@ inline REAL difference_of_products(REAL a, REAL b, REAL c, REAL d) {
     return dop + err;
 }
 
-// a*b - c*d lane by lane (any vector type), the same arithmetic as difference_of_products.
-#define difference_of_productsP(a, b, c, d) (fma(a, b, -(c) * (d)) + fma(-(c), d, (c) * (d)))
+// a*b - c*d four lanes at once, the same arithmetic as difference_of_products in each.
+HOT REAL4 difference_of_products4(REAL4 a, REAL4 b, REAL4 c, REAL4 d) {
+    REAL4 cd = c * d;
+    REAL4 err = fma(-c, d, cd);
+    REAL4 dop = fma(a, b, -cd);
+    return dop + err;
+}
 
 // Bit k set where lane k of a comparison result is true.
 HOT int lane_bits4(int4 m) {

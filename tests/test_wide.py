@@ -157,7 +157,7 @@ def test_empty_and_leaf_root():
     check_wide(one, lo, lo + 1, refs)
     assert one.nodes.size == 1
     assert one.nodes["count"][0, 0] == 1 << LEAF_TRIANGLE_SHIFT
-    assert one.prim_refs.tolist() == [int(refs[0])] + [NO_REF] * (PACKET_WIDTH - 1)
+    assert one.prim_refs.tolist() == [int(refs[0]), NO_REF, NO_REF, NO_REF]
 
 
 def test_rejects_other_widths():

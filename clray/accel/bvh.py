@@ -31,7 +31,7 @@ SAH_MAX_LEAF = 16
 # Primitives one leaf test covers: the kernels test a leaf's triangles and spheres in packets
 # of four (clray.accel.wide.PACKET_WIDTH), at the cost of about one, so a leaf costs its packet
 # count, ceil(n / 4), and a split that cuts 8 primitives into 4 + 4 beats one into 3 + 5.
-SAH_PACKET = 8
+SAH_PACKET = 4
 # Cost of one node visit relative to one packet test. Measured (benchmarks/README.md, What did
 # not pay): 1.5 gives the mesh 65 B per triangle (1.0: 77 B) with both benchmark kernels a few
 # per cent faster; from 1.875 the 64 spheres go into four leaves of 16 and take 9 % longer.

@@ -31,7 +31,7 @@ import numpy as np
 from clray.accel.bvh import Bvh
 from clray.device import layout as L
 
-PACKET_WIDTH = L.PACKET_WIDTH
+PACKET_WIDTH = 4
 LEAF_TRIANGLE_SHIFT = 16
 LEAF_SPHERE_SHIFT = 8
 LEAF_FIELD_MASK = 0xFF

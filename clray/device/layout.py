@@ -83,11 +83,8 @@ INSTANCE = _struct([("to_object", ("<f4", (3, 4))), ("to_world", ("<f4", (3, 4))
 ENTER_INSTANCE = -1
 LEAVE_INSTANCE = -2
 
-# Shapes per packet (PACKET_WIDTH in clray_types.h; clray.accel.wide lays leaves out in them).
-PACKET_WIDTH = 8
-_FP = ("<f4", (PACKET_WIDTH,))
-TRIANGLE_PACKET = _struct([(f"{c}{k}", _FP) for k in range(3) for c in "xyz"])
-SPHERE_PACKET = _struct([("x", _FP), ("y", _FP), ("z", _FP), ("radius", _FP)])
+TRIANGLE_PACKET = _struct([(f"{c}{k}", _F4) for k in range(3) for c in "xyz"])
+SPHERE_PACKET = _struct([("x", _F4), ("y", _F4), ("z", _F4), ("radius", _F4)])
 
 # Struct name in clray_types.h -> dtype; the layout test walks this.
 STRUCTS: dict[str, np.dtype] = {

@@ -74,11 +74,13 @@ def sah_cost(nodes: np.ndarray) -> float:
 
 
 def build_bvh(lo: np.ndarray, hi: np.ndarray, max_leaf_size: int = 4, *,
+              largest_leaf: int | None = None,
               queue: cl.CommandQueue | None = None) -> Bvh:
     """Build a BVH over N primitives with float64 bounds `lo`, `hi` of shape (N, 3).
 
     Nodes of at most `max_leaf_size` primitives are always leaves; nodes of up to
-    `max_leaf_count(max_leaf_size)` are leaves when SAH says a split would not pay.
+    `largest_leaf` (default `max_leaf_count(max_leaf_size)`) are leaves when SAH says a split
+    would not pay.
 
     With a `queue` whose device has float64, the build runs there (clray.accel._bvh_cl) and
     gives the same tree as the host build, several times faster.
@@ -89,6 +91,9 @@ def build_bvh(lo: np.ndarray, hi: np.ndarray, max_leaf_size: int = 4, *,
         raise ValueError(f"bounds must both have shape (N, 3), got {lo.shape} and {hi.shape}")
     if max_leaf_size < 1:
         raise ValueError(f"max_leaf_size must be at least 1, got {max_leaf_size}")
+    largest = max_leaf_count(max_leaf_size) if largest_leaf is None else largest_leaf
+    if largest < max_leaf_size:
+        raise ValueError(f"largest_leaf {largest} is below max_leaf_size {max_leaf_size}")
     if lo.size and not (np.all(np.abs(lo) <= _F32_MAX) and np.all(np.abs(hi) <= _F32_MAX)):
         raise ValueError("primitive bounds must be finite and within float32 range")
     if np.any(lo > hi):
@@ -101,10 +106,9 @@ def build_bvh(lo: np.ndarray, hi: np.ndarray, max_leaf_size: int = 4, *,
         from clray.accel import _bvh_cl
 
         if _bvh_cl.supports(queue.device, n):
-            nodes, order = _bvh_cl.build(queue, lo, hi, max_leaf_size,
-                                         max_leaf_count(max_leaf_size))
+            nodes, order = _bvh_cl.build(queue, lo, hi, max_leaf_size, largest)
             return Bvh(nodes, order)
-    return _Builder(_round_out(lo, hi), max_leaf_size).run()
+    return _Builder(_round_out(lo, hi), max_leaf_size, largest).run()
 
 
 def _round_out(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
@@ -154,9 +158,9 @@ class _Builder:
     """One build. Breadth-first: each level holds the nodes still to be split (the active
     nodes) and their primitives, contiguous per node, in `ids` and the columns of `prim`."""
 
-    def __init__(self, prim: np.ndarray, max_leaf_size: int) -> None:
+    def __init__(self, prim: np.ndarray, max_leaf_size: int, largest_leaf: int) -> None:
         self.max_leaf = max_leaf_size
-        self.sah_leaf = max_leaf_count(max_leaf_size)
+        self.sah_leaf = largest_leaf
         n = prim.shape[1]
         self.order = np.empty(n, dtype=np.int32)
         # Per breadth-first node, appended one level at a time; ids are positions in the

@@ -137,14 +137,16 @@ def _foldable(slots: np.ndarray, first: np.ndarray, count: np.ndarray, open_area
     leaf = used & ~is_inner
     # Primitives of each kind per leaf slot, from prefix sums over the leaves' references.
     kind = order_refs >> L.PRIM_TYPE_SHIFT
-    sums = [np.concatenate([[0], np.cumsum(kind == k)]) for k in (L.PRIM_TRIANGLE, L.PRIM_SPHERE)]
+    sums = [np.concatenate([[0], np.cumsum(kind == k)])
+            for k in (L.PRIM_TRIANGLE, L.PRIM_SPHERE, L.PRIM_INSTANCE)]
     lo = np.where(leaf, first[slots], 0)
     n = np.where(leaf, count[slots], 0)
-    tri, sph = ((s[lo + n] - s[lo]).sum(axis=1) for s in sums)
+    tri, sph, inst = ((s[lo + n] - s[lo]).sum(axis=1) for s in sums)
     total = n.sum(axis=1)
     tests = -(-tri // PACKET_WIDTH) - (-sph // PACKET_WIDTH) + (total - tri - sph)
-    # Wide node k + 1 grew from the k-th inner slot; the root (row 0) stays.
-    fold = ~is_inner.any(axis=1) & (tests <= FOLD_PACKETS)
+    # Wide node k + 1 grew from the k-th inner slot; the root (row 0) stays. Nodes over
+    # instances stay: their boxes are lanes of one vector test, where a leaf would test each.
+    fold = ~is_inner.any(axis=1) & (tests <= FOLD_PACKETS) & (inst == 0)
     fold[0] = False
     if not fold.any():
         return None

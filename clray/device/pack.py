@@ -268,10 +268,13 @@ def _pack_triangles(objs: _Placed, bounded: _Bounded) -> _Triangles:
 
 
 def _build_wide(lo: np.ndarray, hi: np.ndarray, refs: np.ndarray, width: int,
-                queue: cl.CommandQueue | None) -> WideBvh:
+                queue: cl.CommandQueue | None, one_per_leaf: bool = False) -> WideBvh:
+    """one_per_leaf: every leaf holds one primitive, so each one's box is a lane of its
+    parent's vector slab test (the scene's tree where it holds instances)."""
     # Below DEVICE_BUILD_MIN primitives the host build takes milliseconds, less than fetching
     # the device build's program from the cache.
-    binary = build_bvh(lo, hi, queue=queue if len(lo) >= DEVICE_BUILD_MIN else None)
+    leaves = {"max_leaf_size": 1, "largest_leaf": 1} if one_per_leaf else {}
+    binary = build_bvh(lo, hi, queue=queue if len(lo) >= DEVICE_BUILD_MIN else None, **leaves)
     return collapse(binary, refs, width)
 
 
@@ -335,26 +338,34 @@ def _pack_bvh(bounded: _Bounded, n_groups: int, instances: list[M.Instance],
         group_bounds.append((lo.min(axis=0), hi.max(axis=0)))
     # The scene's tree comes first (its root is node 0): the groups' roots are known after it.
     records = _pack_instances(instances, group_of, group_bounds, eye, bounded)
-    wide = _build_wide(*bounded.owned_by(0), width, queue)
-    nodes, prim_refs, roots, group_stack = [wide.nodes], [wide.prim_refs], [], 0
-    n_nodes, n_slots = len(wide.nodes), len(wide.prim_refs)
-    for tree in group_trees:
+    wide = _build_wide(*bounded.owned_by(0), width, queue, one_per_leaf=bool(instances))
+    if not instances:
+        return wide, records, time.perf_counter() - start
+    # Nodes: the scene's tree first, then each group's. Slots: the groups' first, so that the
+    # scene's leaves of instances come last and need no packets (_triangle_packets).
+    slot_offsets = np.cumsum([0] + [len(tree.prim_refs) for tree in group_trees])
+    nodes, roots = [_appended(wide, 0, int(slot_offsets[-1]))], []
+    n_nodes = len(wide.nodes)
+    for tree, slot_offset in zip(group_trees, slot_offsets[:-1], strict=True):
         roots.append(n_nodes)
-        nodes.append(_appended(tree, n_nodes, n_slots))
-        prim_refs.append(tree.prim_refs)
+        nodes.append(_appended(tree, n_nodes, int(slot_offset)))
         n_nodes += len(tree.nodes)
-        n_slots += len(tree.prim_refs)
-        group_stack = max(group_stack, tree.stack_size)
-    stack_size = wide.stack_size
-    if instances:
-        records["root_child"] = np.array(roots, dtype=np.int64)[group_of]
-        # At a leaf the walk pushes the leaf's instances, then one LEAVE_INSTANCE entry and the
-        # group's walk above it.
-        leaf = wide.nodes["count"] > 0
-        per_leaf = int(np.max(wide.nodes["count"][leaf] & LEAF_FIELD_MASK, initial=0))
-        stack_size += per_leaf + 1 + group_stack
-        wide = WideBvh(np.concatenate(nodes), np.concatenate(prim_refs), width, stack_size)
-    return wide, records, time.perf_counter() - start
+    records["root_child"] = np.array(roots, dtype=np.int64)[group_of]
+    # At a leaf the walk pushes the leaf's instances, then one LEAVE_INSTANCE entry and the
+    # group's walk above it.
+    leaf = wide.nodes["count"] > 0
+    per_leaf = int(np.max(wide.nodes["count"][leaf] & LEAF_FIELD_MASK, initial=0))
+    stack_size = (wide.stack_size + per_leaf + 1 +
+                  max(tree.stack_size for tree in group_trees))
+    prim_refs = np.concatenate([*(tree.prim_refs for tree in group_trees), wide.prim_refs])
+    return (WideBvh(np.concatenate(nodes), prim_refs, width, stack_size), records,
+            time.perf_counter() - start)
+
+
+def _through_last(is_kind: np.ndarray) -> int:
+    """Packets up to and including the last one with a lane of the kind (rows of is_kind)."""
+    holding = np.flatnonzero(is_kind.any(axis=1))
+    return int(holding[-1]) + 1 if len(holding) else 0
 
 
 def _triangle_packets(prim_refs: np.ndarray, tris: _Triangles) -> np.ndarray:
@@ -364,6 +375,9 @@ def _triangle_packets(prim_refs: np.ndarray, tris: _Triangles) -> np.ndarray:
         return _records(L.TRIANGLE_PACKET, 0)
     slots = prim_refs.reshape(-1, PACKET_WIDTH)
     is_tri = (slots >= 0) & ((slots >> L.PRIM_TYPE_SHIFT) == L.PRIM_TRIANGLE)
+    # None past the last packet that holds a triangle: the kernel never reads them.
+    used = _through_last(is_tri)
+    slots, is_tri = slots[:used], is_tri[:used]
     faces = tris.triangles[["v0", "v1", "v2"]].view(np.int32).reshape(-1, 4)[:, :3]
     # (packet, lane, corner, axis), then the record's order: corner, axis, lane.
     corners = tris.vertices[faces[np.where(is_tri, slots & L.PRIM_INDEX_MASK, 0)], :3]
@@ -378,6 +392,8 @@ def _sphere_packets(prim_refs: np.ndarray, spheres: np.ndarray) -> np.ndarray:
         return _records(L.SPHERE_PACKET, 0)
     slots = prim_refs.reshape(-1, PACKET_WIDTH).astype(np.int64)
     is_sphere = (slots >= 0) & ((slots >> L.PRIM_TYPE_SHIFT) == L.PRIM_SPHERE)
+    used = _through_last(is_sphere)
+    slots, is_sphere = slots[:used], is_sphere[:used]
     cr = spheres["center_radius"][np.where(is_sphere, slots & L.PRIM_INDEX_MASK, 0)]
     packets = _records(L.SPHERE_PACKET, len(slots))
     for axis, name in enumerate(("x", "y", "z", "radius")):

@@ -550,3 +550,14 @@ def test_leaves_fill_their_packets():
     assert leaves.sum() == len(faces)
     lanes = packets(leaves).sum() * PACKET_WIDTH
     assert len(faces) / lanes > 0.9
+
+
+def test_largest_leaf_caps_the_leaves_sah_may_choose() -> None:
+    rng = np.random.default_rng(3)
+    lo = rng.uniform(-1, 1, (300, 3))
+    hi = lo + 0.01  # tiny boxes: SAH alone would keep many in a leaf
+    counts = build_bvh(lo, hi, max_leaf_size=1, largest_leaf=1).nodes["count"]
+    assert counts.max() == 1 and (counts == 1).sum() == 300
+    assert build_bvh(lo, hi, max_leaf_size=1).nodes["count"].max() > 1
+    with pytest.raises(ValueError, match="largest_leaf"):
+        build_bvh(lo, hi, max_leaf_size=4, largest_leaf=2)

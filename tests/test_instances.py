@@ -100,6 +100,10 @@ def test_group_primitives_are_packed_once_however_many_instances() -> None:
     refs = many.prim_refs[many.prim_refs >= 0]
     instance_refs = refs[(refs >> PRIM_TYPE_SHIFT) == 6] & PRIM_INDEX_MASK
     assert sorted(instance_refs.tolist()) == list(range(200))
+    # One instance a leaf, so that a node's vector slab test covers its instances' boxes.
+    slots = many.prim_refs.reshape(-1, 4)
+    holds = (slots[:, 0] >= 0) & ((slots[:, 0] >> PRIM_TYPE_SHIFT) == 6)
+    assert holds.sum() == 200 and np.all(slots[holds, 1:] == -1)
 
 
 def ellipsoid_t(o: np.ndarray, d: np.ndarray, radii: np.ndarray) -> np.ndarray:

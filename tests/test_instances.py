@@ -189,3 +189,22 @@ def test_example_scene_loads_with_its_groups() -> None:
     instances = [o for o in scene.objects if isinstance(o, M.Instance)]
     assert len(instances) == 9
     assert len({id(o.group) for o in instances}) == 4  # the pawn and three one-object groups
+
+
+def test_a_large_mesh_beside_a_few_instances_keeps_its_packed_leaves() -> None:
+    # One instance a leaf only where instances are most of the scene's tree.
+    n = 24
+    angles = np.linspace(0, 2 * np.pi, n, endpoint=False)
+    ring = np.stack([np.cos(angles), np.zeros(n), np.sin(angles)], axis=1)
+    top = ring + np.array([0.0, 1.0, 0.0])
+    vertices = np.concatenate([ring, top]) * 3
+    faces = np.array([[i, (i + 1) % n, n + i] for i in range(n)] +
+                     [[(i + 1) % n, n + (i + 1) % n, n + i] for i in range(n)])
+    data = pawn_scene(PLACEMENTS[:2], [{"type": "mesh", "vertices": vertices.tolist(),
+                                        "faces": faces.tolist(), "material": "red"}])
+    packed = pack_scene(scene_from_dict(data), width=8, height=8, spp=1, max_depth=3, seed=0)
+    slots = packed.prim_refs.reshape(-1, 4)
+    # The scene's 48 triangles (indices past the group's one) share packets.
+    tri = (slots >= 0) & ((slots >> PRIM_TYPE_SHIFT) == 5) & ((slots & PRIM_INDEX_MASK) >= 1)
+    packets = tri.any(axis=1)
+    assert tri.sum() == 48 and tri[packets].mean() > 0.8

@@ -338,7 +338,11 @@ def _pack_bvh(bounded: _Bounded, n_groups: int, instances: list[M.Instance],
         group_bounds.append((lo.min(axis=0), hi.max(axis=0)))
     # The scene's tree comes first (its root is node 0): the groups' roots are known after it.
     records = _pack_instances(instances, group_of, group_bounds, eye, bounded)
-    wide = _build_wide(*bounded.owned_by(0), width, queue, one_per_leaf=bool(instances))
+    lo, hi, refs = bounded.owned_by(0)
+    # Where instances are most of the scene's tree, one primitive a leaf; a large mesh of the
+    # scene's own beside a few instances keeps its packed leaves.
+    wide = _build_wide(lo, hi, refs, width, queue,
+                       one_per_leaf=bool(instances) and 2 * len(instances) >= len(refs))
     if not instances:
         return wide, records, time.perf_counter() - start
     # Nodes: the scene's tree first, then each group's. Slots: the groups' first, so that the

@@ -62,7 +62,7 @@ STRINGS = [
     "image", "point", "directional", "m", "x\ny", "a" * 300, "../../nowhere", "/dev/zero",
     "t.png", "t16.png", "m.obj", "loop.obj", "fifo.obj", "dir", "bomb.png", "\u2028", "a\x00b",
     "clray: error: fake", "é", "tab\tname", "\udc80x", "gradient", "orthographic",
-    "perspective",
+    "perspective", "instance", "pawn",
 ]
 # Arrays nested this deep, written out as brackets by scene_text: as Python lists they would
 # exhaust the recursion of this module's own writers.
@@ -76,7 +76,7 @@ KEYS = [
     "color2", "blend", "file", "repeat", "attenuation", "direction", "center", "radius", "point",
     "normal", "min", "max", "vertices", "faces", "transform", "scale", "rotate", "translate",
     "base", "axis", "angle", "capped", "material", "apex", "", "x\ny", "a.b", "objects[0]",
-    "aperture", "focus_distance", "fresnel", "bottom", "top",
+    "aperture", "focus_distance", "fresnel", "bottom", "top", "groups", "group", "matrix",
 ]
 
 
@@ -100,7 +100,8 @@ def hostile_value(rng: random.Random, depth: int = 0) -> Any:
 # -- base scenes ----------------------------------------------------------------------------------
 
 def base_scene(rng: random.Random) -> dict:
-    """A valid 8x6 scene using every section, object type, texture kind and light type."""
+    """A valid 8x6 scene using every section, object type (instances of a group, and a shape in
+    its own frame, among them), texture kind and light type."""
     objects: list[dict] = [
         {"type": "sphere", "center": [0, 0.5, 0], "radius": 0.5, "material": "glass"},
         {"type": "plane", "point": [0, -0.5, 0], "normal": [0, 1, 0], "material": "floor"},
@@ -113,6 +114,11 @@ def base_scene(rng: random.Random) -> dict:
          "height": 1},
         {"type": "cone", "apex": [-2, 1, 1], "axis": [0, -1, 0], "angle": 20, "height": 1,
          "capped": False, "material": {"color": [0.2, 0.8, 0.2], "specular": 0.5}},
+        {"type": "sphere", "center": [0, 0, 0], "radius": 0.3, "material": "mirror",
+         "transform": {"scale": [1, 0.2, 1], "rotate": [10, 0, 20], "translate": [0, 1.5, 0]}},
+        {"type": "instance", "group": "pawn", "transform": {"translate": [-1, 0, 2]}},
+        {"type": "instance", "group": "pawn", "material": "glass",
+         "transform": {"matrix": [[1, 0.3, 0, 1], [0, 1, 0, 0], [0, 0, 1, 2], [0, 0, 0, 1]]}},
     ]
     rng.shuffle(objects)
     return {
@@ -147,6 +153,12 @@ def base_scene(rng: random.Random) -> dict:
             {"type": "disc", "center": [1, 3, 1], "normal": [0, -1, 0], "radius": 0.5},
             {"type": "sphere", "center": [-2, 2, 2], "radius": 0.2, "color": [3, 3, 3]},
         ],
+        "groups": {"pawn": {"objects": [
+            {"type": "sphere", "center": [0, 0.8, 0], "radius": 0.2, "material": "mirror"},
+            {"type": "cylinder", "base": [0, 0, 0], "axis": [0, 1, 0], "radius": 0.1,
+             "height": 0.7},
+            {"type": "mesh", "vertices": [[0, 0, 0], [0.3, 0, 0], [0, 0.3, 0]],
+             "faces": [[0, 1, 2]], "material": "tex"}]}},
         "objects": objects,
     }
 

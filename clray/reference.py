@@ -487,12 +487,13 @@ class _Geometry:
         # Instances after every other shape (ties go to the scene's own shapes first), each
         # with its group's geometry, built once per group.
         groups: dict[int, _Geometry] = {}
-        self.instances: list[tuple[int, Instance, _Geometry]] = []
+        self.instances: list[_Placement] = []
         for i, ob in enumerate(objects):
             if isinstance(ob, Instance):
                 if id(ob.group) not in groups:
                     groups[id(ob.group)] = _Geometry(ob.group.objects)
-                self.instances.append((i, ob, groups[id(ob.group)]))
+                self.instances.append(_Placement(i, ob, groups[id(ob.group)],
+                                                 np.linalg.inv(ob.matrix[:, :3])))
         # Stable sort: within a type, scene order is kept.
         self.shapes: list[tuple[int, SceneObject]] = sorted(
             ((i, ob) for i, ob in indexed if type(ob) in _CROSSINGS),
@@ -588,8 +589,8 @@ class _Geometry:
             uv[m] = np.where(np.isnan(blended_uv), np.stack([b1, b2], axis=-1), blended_uv)
             obj[m], face[m], material[m] = self.tri_obj[tri], self.tri_face[tri], self.tri_mat[tri]
         hit = SceneHit(best_t, normal, shading, uv, obj, face, material)
-        for i, inst, group in self.instances:
-            hit = _instance_hit(hit, i, inst, group, o, d)
+        for placement in self.instances:
+            hit = placement.nearer(hit, o, d)
         return hit
 
     def transmittance(
@@ -607,38 +608,44 @@ class _Geometry:
             crossed = t < tmax[:, None]  # misses are inf, and t > 0 already holds
             tri_filters = filters[self.tri_mat[batch]]
             out *= np.prod(np.where(crossed[:, :, None], tri_filters[None], 1.0), axis=1)
-        for _, inst, group in self.instances:
-            local_o, local_d = _to_group(inst, o, d)
+        for placement in self.instances:
+            inst = placement.instance
             mine = filters if inst.material is None else np.broadcast_to(
                 filters[inst.material], filters.shape)
-            out *= group.transmittance(local_o, local_d, tmax, mine)
+            out *= placement.group.transmittance(*placement.to_group(o, d), tmax, mine)
         return out
 
 
-def _to_group(inst: Instance, o: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Rays in an instance's group frame: d is mapped, not normalised, so t stays the same."""
-    inverse = np.linalg.inv(inst.matrix[:, :3])
-    return (o - inst.matrix[:, 3]) @ inverse.T, d @ inverse.T
+class _Placement(NamedTuple):
+    """An instance (objects[index]) with its group's geometry and the inverse of its matrix's
+    linear part."""
 
+    index: int
+    instance: Instance
+    group: _Geometry
+    inverse: np.ndarray
 
-def _instance_hit(hit: SceneHit, i: int, inst: Instance, group: _Geometry, o: np.ndarray,
-                  d: np.ndarray) -> SceneHit:
-    """`hit` with instance i's hits where they are nearer beyond a tie. Normals go back by the
-    inverse transpose of the instance's matrix."""
-    local = group.closest(*_to_group(inst, o, d))
-    better = (local.t > 0.0) & (local.t < _tie_floor(hit.t, local.t))
-    if not better.any():
-        return hit
-    inverse = np.linalg.inv(inst.matrix[:, :3])
-    t, normal, shading, uv, obj, face, material = (np.array(field) for field in hit)
-    t[better] = local.t[better]
-    normal[better] = _normalize(local.normal[better] @ inverse)
-    shading[better] = _normalize(local.shading_normal[better] @ inverse)
-    uv[better] = local.uv[better]
-    obj[better] = i
-    face[better] = local.face[better]
-    material[better] = local.material[better] if inst.material is None else inst.material
-    return SceneHit(t, normal, shading, uv, obj, face, material)
+    def to_group(self, o: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Rays in the group's frame: d is mapped, not normalised, so t stays the same."""
+        return (o - self.instance.matrix[:, 3]) @ self.inverse.T, d @ self.inverse.T
+
+    def nearer(self, hit: SceneHit, o: np.ndarray, d: np.ndarray) -> SceneHit:
+        """`hit` with this instance's hits where they are nearer beyond a tie. Normals go back
+        by the inverse transpose of the instance's matrix."""
+        local = self.group.closest(*self.to_group(o, d))
+        better = (local.t > 0.0) & (local.t < _tie_floor(hit.t, local.t))
+        if not better.any():
+            return hit
+        t, normal, shading, uv, obj, face, material = (np.array(field) for field in hit)
+        t[better] = local.t[better]
+        normal[better] = _normalize(local.normal[better] @ self.inverse)
+        shading[better] = _normalize(local.shading_normal[better] @ self.inverse)
+        uv[better] = local.uv[better]
+        obj[better] = self.index
+        face[better] = local.face[better]
+        replaced = self.instance.material
+        material[better] = local.material[better] if replaced is None else replaced
+        return SceneHit(t, normal, shading, uv, obj, face, material)
 
 
 def intersect_scene(scene: Scene, origins: np.ndarray, directions: np.ndarray) -> SceneHit:

@@ -435,11 +435,15 @@ HOT int intersect_sphere_packet(const __global SpherePacket* pk, const Ray* r, R
     REAL4 along = b / a;
     REAL4 lx = fx - along * dx, ly = fy - along * dy, lz = fz - along * dz;
     REAL4 ll = sqrt(lx * lx + ly * ly + lz * lz);
-    REAL4 fl = sqrt(fx * fx + fy * fy + fz * fz);
     REAL4 disc = (REAL4)(a) * (radius - ll) * (radius + ll);
+    // Most packets a ray reaches miss in every lane: stop before the other square roots and
+    // divisions, on the same disc the roots below are masked by.
+    MASK4 crossed = disc >= (REAL)0;
+    if (!lane_bits4(convert_int4(crossed))) return 0;
+    REAL4 fl = sqrt(fx * fx + fy * fy + fz * fz);
     // fmax keeps sqrt's argument non-negative; lanes with disc < 0 (or NaN) are masked below.
     REAL4 q = -(b + copysign(sqrt(fmax(disc, (REAL4)(0))), b));
-    MASK4 roots = (disc >= (REAL)0) & (q != (REAL)0);
+    MASK4 roots = crossed & (q != (REAL)0);
     REAL4 r0 = ((fl - radius) * (fl + radius)) / q, r1 = q / a;
     vstore4(fmin(r0, r1), 0, t0);
     vstore4(fmax(r0, r1), 0, t1);

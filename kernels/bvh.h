@@ -19,7 +19,11 @@ typedef float8 REALW;
 #define TO_REALW(v) (v)
 #define MASK_TO_INTW(m) (m)
 #endif
-HOT int lane_bits(INTW m) { return lane_bits4(m.lo) | (lane_bits4(m.hi) << 4); }
+HOT int lane_bits(INTW m) {
+    int4 b = (m.lo & (int4)(1, 2, 4, 8)) | (m.hi & (int4)(16, 32, 64, 128));
+    int2 h = b.lo | b.hi;
+    return h.x | h.y;
+}
 #elif BVH_WIDTH == 4
 typedef int4 INTW;
 #define VLOADW vload4

@@ -179,6 +179,18 @@ def test_clipped_pixels_counts_what_the_png_clamps() -> None:
     assert clipped_pixels(image, exposure=-1) == 0
 
 
+def test_clipped_pixels_of_float32_images_agree_with_float64() -> None:
+    # Rendered images are float32 and take a path without the float64 copy: the same counts.
+    rng = np.random.default_rng(3)
+    image = (rng.random((40, 50, 3)) * 1.05).astype(np.float32)
+    image[0, :6] = [[np.nan, 2, 0], [np.inf, 0, 0], [-np.inf, 0.5, 0],
+                    [np.nextafter(np.float32(1), np.float32(2)), 0, 0], [1, 1, 1], [0, 0, np.nan]]
+    for exposure in (0, 0.5, -0.25):
+        expected = clipped_pixels(image.astype(np.float64), exposure)
+        assert clipped_pixels(image, exposure) == expected
+    assert 0 < clipped_pixels(image) < image.shape[0] * image.shape[1]
+
+
 @pytest.mark.parametrize(("kwargs", "needle"), [
     ({"exposure": float("nan")}, "exposure must be a number of stops in"),
     ({"exposure": float("inf")}, "exposure"),

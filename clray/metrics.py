@@ -25,7 +25,13 @@ def _diff(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 
 def _per_pixel(mask: np.ndarray) -> np.ndarray:
-    return mask.any(axis=-1) if mask.ndim == 3 else mask
+    if mask.ndim != 3:
+        return mask
+    # OR-ing the channels by hand: any(axis=-1) over a short last axis is ten times slower.
+    out = mask[..., 0].copy()
+    for k in range(1, mask.shape[-1]):
+        out |= mask[..., k]
+    return out
 
 
 def rmse(a: np.ndarray, b: np.ndarray) -> float:

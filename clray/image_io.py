@@ -112,9 +112,11 @@ def _encode_float64(values: np.ndarray, encoding: Encoding) -> np.ndarray:
 # The default encoding (8-bit sRGB, no exposure) of float32 values by table: the code of a value
 # in [0, 1] is a non-decreasing step function of its bit pattern, and over a bucket of 2**15
 # consecutive patterns (0.4 % of the value) the curve moves by less than one code, so each
-# bucket needs its first value's code and the first pattern, if any, where the next code starts.
-# Both are found with the float64 formula itself, so the table gives exactly its codes: checked
-# for every float32 in [0, 1] (tests/test_image_io.py checks every pattern near each step).
+# bucket needs its code at the top and the first pattern, if any, where that code starts. Both
+# are found with the float64 formula itself, so the table gives exactly its codes: checked for
+# every float32 in [0, 1] (tests/test_image_io.py checks every pattern near each step). The
+# buckets cover every 32-bit pattern, so the values the formula clamps (finite above 1: 255) or
+# zeroes (negatives, infinities, NaN) need no pass of their own.
 _BUCKET_SHIFT = 15
 _ONE_BITS = 0x3F800000  # 1.0f
 _INF_BITS = 0x7F800000
@@ -122,16 +124,16 @@ _INF_BITS = 0x7F800000
 
 @functools.cache
 def _srgb8_table() -> tuple[np.ndarray, np.ndarray]:
-    """(first code of each bucket, first bit pattern of its next code or 2**32)."""
+    """(uint8 code at the top of each bucket, uint32 first pattern of that code where it starts
+    inside the bucket, else 0)."""
     default = Encoding()
-    n = (_ONE_BITS >> _BUCKET_SHIFT) + 1
-    starts = np.arange(n + 1, dtype=np.int64) << _BUCKET_SHIFT
-    starts[-1] = _ONE_BITS + 1  # past 1.0: only the bucket of 1.0 itself is cut short
+    unit = _ONE_BITS >> _BUCKET_SHIFT  # buckets below 1.0; bucket `unit` starts at 1.0
+    starts = np.arange(unit + 1, dtype=np.int64) << _BUCKET_SHIFT
 
     def code(bits: np.ndarray) -> np.ndarray:
         return _encode_float64(bits.astype(np.uint32).view(np.float32), default)
 
-    first = code(np.minimum(starts, _ONE_BITS))
+    first = code(starts)
     step = np.flatnonzero(first[1:] > first[:-1])  # buckets whose next code starts in them
     lo, hi = starts[step], starts[step + 1]  # the next code starts in (lo, hi]
     for _ in range(_BUCKET_SHIFT + 1):
@@ -139,19 +141,23 @@ def _srgb8_table() -> tuple[np.ndarray, np.ndarray]:
         up = code(mid) > first[step]
         hi = np.where(up, mid, hi)
         lo = np.where(up, lo, mid)
-    threshold = np.full(n, 1 << 32, dtype=np.int64)
-    threshold[step] = hi
-    return first[:-1], threshold
+    inside = hi < starts[step + 1]  # a code starting at the next bucket belongs to that one
+    top = np.zeros(1 << (32 - _BUCKET_SHIFT), dtype=np.uint8)
+    top[:unit + 1] = first
+    top[step[inside]] += 1
+    top[unit:_INF_BITS >> _BUCKET_SHIFT] = 255
+    starts_at = np.zeros(len(top), dtype=np.uint32)
+    starts_at[step[inside]] = hi[inside]
+    return top, starts_at
 
 
 def _srgb8_by_table(values: np.ndarray) -> np.ndarray:
     bits = np.ascontiguousarray(values, dtype=np.float32).view(np.uint32)
-    first, threshold = _srgb8_table()
-    bucket = np.minimum(bits >> _BUCKET_SHIFT, len(first) - 1)
-    codes = first[bucket] + (bits >= threshold[bucket])
-    # Above 1 (finite) clamps to 255; negatives, NaN and infinities are 0, as in the formula.
-    beyond = np.where((bits > _ONE_BITS) & (bits < _INF_BITS), 255, 0)
-    return np.where(bits <= _ONE_BITS, codes, beyond).astype(np.uint8)
+    top, starts_at = _srgb8_table()
+    bucket = bits >> _BUCKET_SHIFT
+    # One code below the bucket's top where the top's code starts later in it (never where it
+    # starts at 0).
+    return top[bucket] - (bits < starts_at[bucket])
 
 
 def to_png_samples(image: np.ndarray, encoding: Encoding = Encoding()) -> np.ndarray:

@@ -1,0 +1,127 @@
+"""Instructions the render kernel executes per pixel and per ray, counted by valgrind.
+
+    python benchmarks/instructions.py [--json benchmarks/results/instructions.json]
+                                      [--scenes spheres,mesh] [--mesh-dir DIR]
+
+Times on a shared machine move by 10 to 30 % from one minute to the next; the number of
+instructions a render executes does not. Each scene renders once per variant (as bench.py's time
+split: `primary` at depth 0 without lights, `primary_shadow` at depth 0 with them, `full`) in a
+child process under `valgrind --tool=callgrind`, counting only inside PoCL's work-group function
+of the render kernel, with one PoCL thread. The kernel comes from PoCL's cache, filled by a plain
+render first, so no compiler runs under valgrind. Needs valgrind and PoCL's CPU device (the
+counted function is PoCL's); each count takes about a minute. Measures only.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import re
+import shutil
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+HERE = Path(__file__).resolve().parent
+ROOT = HERE.parent
+VARIANTS = ("primary", "primary_shadow", "full")
+KERNEL_FUNCTION = "_pocl_kernel_render_workgroup*"
+
+# Runs in the child: one render of a variant of the scene; prints the rays it traced.
+_RENDER = """
+import dataclasses, json, sys
+from clray.device.context import select_device
+from clray.device.pack import pack_scene
+from clray.render import render_packed
+from clray.scene.load import load_scene
+path, variant = sys.argv[1], sys.argv[2]
+scene = load_scene(path)
+r = scene.render
+packed = pack_scene(scene, width=r.width, height=r.height, spp=r.spp, max_depth=r.max_depth,
+                    seed=r.seed)
+config, params = packed.config, packed.params.copy()
+if variant != "full":
+    config = dataclasses.replace(config, max_depth=0)
+    params[0]["max_depth"] = 0
+if variant == "primary":
+    params[0]["n_lights"] = 0
+packed = dataclasses.replace(packed, config=config, params=params)
+_, stats = render_packed(packed, select_device("pocl"))
+print(json.dumps({"rays": stats["rays"], "pixels": int(r.width) * int(r.height)}))
+"""
+
+
+def _render(scene: Path, variant: str, valgrind: bool) -> dict:
+    env = {**os.environ, "POCL_MAX_PTHREAD_COUNT": "1"}
+    command = [sys.executable, "-c", _RENDER, str(scene), variant]
+    if valgrind:
+        command = ["valgrind", "--tool=callgrind", "--callgrind-out-file=/dev/null",
+                   f"--toggle-collect={KERNEL_FUNCTION}", *command]
+    done = subprocess.run(command, capture_output=True, text=True, cwd=ROOT, env=env,
+                          check=True)
+    result = json.loads(done.stdout.strip().splitlines()[-1])
+    if valgrind:
+        collected = re.findall(r"Collected\s*:\s*(\d+)", done.stderr)
+        if not collected:
+            raise RuntimeError(f"no instruction count in valgrind's output:\n{done.stderr}")
+        result["instructions"] = int(collected[-1])
+    return result
+
+
+def count_scene(scene: Path) -> dict:
+    """Instructions per variant, per pixel, and per ray of each kind (by differences)."""
+    out = {}
+    for variant in VARIANTS:
+        _render(scene, variant, valgrind=False)  # fills PoCL's kernel cache for this variant
+        out[variant] = _render(scene, variant, valgrind=True)
+    pixels = out["full"]["pixels"]
+    primary = out["primary"]
+    shadow = out["primary_shadow"]["rays"]["shadow"]
+    full = out["full"]["rays"]
+    later = full["secondary"] + full["shadow"] - shadow
+    per_ray = {
+        "primary": primary["instructions"] / primary["rays"]["primary"],
+        "shadow_of_primary": ((out["primary_shadow"]["instructions"] - primary["instructions"])
+                              / shadow if shadow else None),
+        "secondary_and_their_shadow": ((out["full"]["instructions"]
+                                        - out["primary_shadow"]["instructions"]) / later
+                                       if later else None),
+        "all": out["full"]["instructions"] / full["total"],
+    }
+    return {"variants": out, "pixels": pixels,
+            "instructions_per_pixel": out["full"]["instructions"] / pixels,
+            "instructions_per_ray": per_ray}
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--json", default=str(HERE / "results" / "instructions.json"))
+    parser.add_argument("--scenes", default="spheres,mesh")
+    parser.add_argument("--mesh-dir", help="where to write the mesh scene (default: a temporary "
+                        "folder)")
+    args = parser.parse_args(argv)
+    if shutil.which("valgrind") is None:
+        sys.exit("instructions.py needs valgrind (Debian: apt-get install valgrind)")
+    names = [n for n in args.scenes.split(",") if n]
+    with tempfile.TemporaryDirectory() as tmp:
+        scenes = {"spheres": ROOT / "scenes" / "spheres.toml"}
+        if "mesh" in names:
+            mesh_dir = Path(args.mesh_dir or Path(tmp) / "mesh")
+            subprocess.run([sys.executable, str(HERE / "make_mesh_scene.py"), "--out",
+                            str(mesh_dir)], check=True, capture_output=True)
+            scenes["mesh"] = mesh_dir / "bumpy.toml"
+        results = {}
+        for name in names:
+            results[name] = count_scene(scenes[name])
+            per = results[name]["instructions_per_ray"]
+            print(f"{name}: {results[name]['instructions_per_pixel']:.0f} instructions a pixel; "
+                  "a ray: " + ", ".join(f"{k} {v:.0f}" for k, v in per.items() if v is not None))
+    Path(args.json).parent.mkdir(parents=True, exist_ok=True)
+    Path(args.json).write_text(json.dumps({"scenes": results}, indent=2) + "\n")
+    print(f"wrote {args.json}")
+
+
+if __name__ == "__main__":
+    main()

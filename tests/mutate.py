@@ -231,6 +231,10 @@ MUTATIONS: tuple[Mutation, ...] = (
       "return blend * texel + ((REAL)1 - blend) * color;",
       "return ((REAL)1 - blend) * texel + blend * color;", *KERNEL_SCENES),
     # kernels/shading.h
+    m("shading.phong_power_skips_odd_bits", "kernels/shading.h",
+      "if (n & 1) r *= x;", "if (n & 2) r *= x;", *KERNEL_SCENES),
+    m("shading.phong_power_truncates_fractions", "kernels/shading.h",
+      "s <= (REAL)4096 && s == floor(s)", "s <= (REAL)4096", *KERNEL_SCENES),
     m("shading.no_specular", "kernels/shading.h",
       "(diffuse * ndl * c + specular * spec)", "(diffuse * ndl * c)", *KERNEL_SCENES),
     m("shading.reflection_vector", "kernels/shading.h",

@@ -3,6 +3,7 @@ properties an image must have (finite, deterministic, independent of launch band
 
 from __future__ import annotations
 
+import dataclasses
 import importlib
 from pathlib import Path
 
@@ -67,6 +68,13 @@ CASES = {
     "phong_point_and_directional": _scene(
         [FLOOR, RED], [M.Plane((0, 0, 0), (0, 1, 0), 0), M.Sphere((0, 1, 0), 1, 1),
                        M.Sphere((1.8, 0.5, 1), 0.5, 1)], [POINT, SUN]),
+    # Whole shininess goes through repeated squaring in the kernel, any other through exp2 and
+    # log2: one sphere each, with a highlight from each light.
+    "phong_fractional_and_whole_shininess": _scene(
+        [FLOOR, dataclasses.replace(RED, name="red", shininess=40.5),
+         dataclasses.replace(RED, name="red7", shininess=7.0)],
+        [M.Plane((0, 0, 0), (0, 1, 0), 0), M.Sphere((0, 1, 0), 1, 1),
+         M.Sphere((1.8, 0.5, 1), 0.5, 2)], [POINT, SUN]),
     "reflection": _scene(
         [FLOOR, MIRROR, RED], [M.Plane((0, 0, 0), (0, 1, 0), 0), M.Sphere((-1, 1, 0), 1, 1),
                                M.Sphere((1.2, 0.7, 0.5), 0.7, 2),
@@ -147,6 +155,7 @@ TOLERANCES = {  # measured RMSE of the rest and max error in the comments
     "objects_beyond_point_light": Tolerance(3.8e-6, 1.6e-4),  # 9.35e-7, 3.93e-5
     "objects_beyond_point_light_glass": Tolerance(3.9e-6, 1.6e-4),  # 9.62e-7, 3.93e-5
     "open_cylinder_cone_and_mesh": Tolerance(8.6e-7, 3e-5),  # 2.15e-7, 7.46e-6
+    "phong_fractional_and_whole_shininess": Tolerance(3.4e-7, 6.4e-6),  # 8.52e-8, 1.6e-6
     "phong_point_and_directional": Tolerance(3e-7, 6.4e-6),  # 7.33e-8, 1.58e-6
     "plane_texture_anchor_off_grid": Tolerance(1e-5, 1.1e-4),  # 2.48e-6, 2.64e-5
     "reflection": Tolerance(3.8e-7, 1.3e-5),  # 9.38e-8, 3.04e-6

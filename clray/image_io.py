@@ -27,6 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from clray.errors import ClrayError
+from clray.metrics import per_pixel
 from clray.scene import limits
 
 SUFFIXES = (".png", ".pfm", ".exr")
@@ -176,10 +177,8 @@ def clipped_pixels(image: np.ndarray, exposure: float = 0.0) -> int:
     scaled = _as_rgb(image)
     if exposure != 0 or scaled.dtype != np.float32:
         scaled = np.asarray(scaled, dtype=np.float64) * 2.0 ** exposure
-    # Both comparisons are false for NaN; the channels OR-ed by hand, since any(axis=2)
-    # over an axis of three takes ten times as long (0.03 s for a 1280x720 frame).
-    over = (scaled > 1.0) & (scaled < np.inf)
-    return int(np.count_nonzero(over[..., 0] | over[..., 1] | over[..., 2]))
+    # Both comparisons are false for NaN.
+    return int(np.count_nonzero(per_pixel((scaled > 1.0) & (scaled < np.inf))))
 
 
 def _png_chunk(kind: bytes, data: bytes) -> bytes:

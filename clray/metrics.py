@@ -24,7 +24,8 @@ def _diff(a: np.ndarray, b: np.ndarray) -> np.ndarray:
         return a - b
 
 
-def _per_pixel(mask: np.ndarray) -> np.ndarray:
+def per_pixel(mask: np.ndarray) -> np.ndarray:
+    """An (H, W, C) mask reduced to (H, W): true where any channel is; 2-D masks unchanged."""
     if mask.ndim != 3:
         return mask
     # OR-ing the channels by hand: any(axis=-1) over a short last axis is ten times slower.
@@ -57,9 +58,9 @@ def count_over(a: np.ndarray, b: np.ndarray, threshold: float) -> int:
     """
     a, b = _pair(a, b)
     close = (np.abs(_diff(a, b)) <= threshold) | (a == b)
-    return int(np.count_nonzero(_per_pixel(~close)))
+    return int(np.count_nonzero(per_pixel(~close)))
 
 
 def nonfinite_count(image: np.ndarray) -> int:
     """Pixels with at least one NaN or infinite channel."""
-    return int(np.count_nonzero(_per_pixel(~np.isfinite(np.asarray(image)))))
+    return int(np.count_nonzero(per_pixel(~np.isfinite(np.asarray(image)))))

@@ -20,9 +20,7 @@ typedef float8 REALW;
 #define MASK_TO_INTW(m) (m)
 #endif
 HOT int lane_bits(INTW m) {
-    int4 b = (m.lo & (int4)(1, 2, 4, 8)) | (m.hi & (int4)(16, 32, 64, 128));
-    int2 h = b.lo | b.hi;
-    return h.x | h.y;
+    return or_lanes4((m.lo & (int4)(1, 2, 4, 8)) | (m.hi & (int4)(16, 32, 64, 128)));
 }
 #elif BVH_WIDTH == 4
 typedef int4 INTW;

@@ -77,13 +77,14 @@ HOT REAL4 difference_of_products4(REAL4 a, REAL4 b, REAL4 c, REAL4 d) {
     return dop + err;
 }
 
-// Bit k set where lane k of a comparison result is true.
-// A tree of ORs over halves: fewer shuffles than OR-ing the lanes one by one.
-HOT int lane_bits4(int4 m) {
-    int4 b = m & (int4)(1, 2, 4, 8);
+// The OR of four lanes, as a tree over halves: fewer shuffles than OR-ing them one by one.
+HOT int or_lanes4(int4 b) {
     int2 h = b.lo | b.hi;
     return h.x | h.y;
 }
+
+// Bit k set where lane k of a comparison result is true.
+HOT int lane_bits4(int4 m) { return or_lanes4(m & (int4)(1, 2, 4, 8)); }
 
 // The lowest set bit's index (bits != 0); ctz is OpenCL 2.0, clz is 1.2.
 HOT int lowest_bit(int bits) { return 31 - clz(bits & -bits); }

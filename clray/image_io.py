@@ -29,6 +29,7 @@ import numpy as np
 from clray.errors import ClrayError
 from clray.metrics import per_pixel
 from clray.scene import limits
+from clray.scene.colour import srgb_encode
 
 SUFFIXES = (".png", ".pfm", ".exr")
 FLOAT_SUFFIXES = (".pfm", ".exr")
@@ -82,18 +83,6 @@ def _as_rgb(image: np.ndarray) -> np.ndarray:
     if image.ndim != 3 or image.shape[2] != 3 or image.shape[0] == 0 or image.shape[1] == 0:
         raise ValueError(f"expected an (H, W, 3) image, got shape {image.shape}")
     return image
-
-
-def srgb_encode(linear: np.ndarray) -> np.ndarray:
-    """IEC 61966-2-1 transfer function for values already in [0, 1]."""
-    return np.where(linear <= 0.0031308, 12.92 * linear,
-                    1.055 * np.power(linear, 1.0 / 2.4) - 0.055)
-
-
-def srgb_decode(encoded: np.ndarray) -> np.ndarray:
-    """The inverse of srgb_encode (the exact curve, not gamma 2.2), for values in [0, 1]."""
-    return np.where(encoded <= 0.04045, encoded / 12.92,
-                    np.power((encoded + 0.055) / 1.055, 2.4))
 
 
 def _encode_float64(values: np.ndarray, encoding: Encoding) -> np.ndarray:

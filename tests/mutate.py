@@ -361,17 +361,17 @@ MUTATIONS: tuple[Mutation, ...] = (
       "right = unit(np.cross(forward, unit(self.up)))",
       "right = unit(np.cross(unit(self.up), forward))",
       *KERNEL_SCENES, REFERENCE, HARD),
-    m("load.directions_not_normalised", "clray/scene/load.py",
+    m("values.directions_not_normalised", "clray/scene/values.py",
       "x, y, z = unit(v).tolist()", "x, y, z = v", LOAD, *KERNEL_SCENES),
     m("obj.indices_not_one_based", "clray/scene/obj.py", "index = raw - 1", "index = raw", OBJ),
     m("scale.ratio_limit", "clray/scene/scale.py", "RATIO_LIMIT = 1e4", "RATIO_LIMIT = 1e5",
       SCALE, HARD),
     # clray (top level)
-    m("image_io.srgb_threshold", "clray/image_io.py",
+    m("colour.srgb_threshold", "clray/scene/colour.py",
       "np.where(linear <= 0.0031308, 12.92 * linear,",
       "np.where(linear <= 0.04045, 12.92 * linear,",
       IMAGE_IO, SRGB),
-    m("image_io.srgb_decode_threshold", "clray/image_io.py",
+    m("colour.srgb_decode_threshold", "clray/scene/colour.py",
       "np.where(encoded <= 0.04045, encoded / 12.92,",
       "np.where(encoded <= 0.0031308, encoded / 12.92,",
       SRGB, COLOUR),
@@ -381,11 +381,11 @@ MUTATIONS: tuple[Mutation, ...] = (
       "tag = (_png_chunk(b\"gAMA\", struct.pack(\">I\", 100000)) if linear",
       "tag = (_png_chunk(b\"gAMA\", struct.pack(\">I\", 100000)) if not linear",
       IMAGE_IO, COLOUR),
-    m("load.srgb_textures_not_decoded", "clray/scene/load.py",
-      'if colorspace == "srgb":\n            texels = self.decoded(texels)\n'
-      '        return Texture(',
-      'if colorspace == "linear":\n            texels = self.decoded(texels)\n'
-      '        return Texture(',
+    m("materials.srgb_textures_not_decoded", "clray/scene/parse_materials.py",
+      'if colorspace == "srgb":\n        texels = assets.decoded(texels)\n'
+      '    return Texture(',
+      'if colorspace == "linear":\n        texels = assets.decoded(texels)\n'
+      '    return Texture(',
       LOAD, COLOUR),
     m("render.launch_rows_off_by_one", "clray/render.py",
       "row0 += band", "row0 += band + 1", RENDER),

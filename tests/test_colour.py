@@ -20,12 +20,11 @@ from clray.image_io import (
     clipped_pixels,
     png_bytes,
     read_pfm,
-    srgb_decode,
-    srgb_encode,
     to_png_samples,
     write_image,
 )
 from clray.render import RenderSettings, render
+from clray.scene.colour import srgb_decode, srgb_encode
 from clray.scene.load import load_scene
 
 TINY = ["-W", "32", "-H", "24"]

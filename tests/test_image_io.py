@@ -11,10 +11,10 @@ from clray.image_io import (
     Encoding,
     png_bytes,
     read_pfm,
-    srgb_encode,
     to_png_samples,
     write_image,
 )
+from clray.scene.colour import srgb_encode
 
 LINEAR = Encoding(linear=True)
 

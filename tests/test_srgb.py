@@ -10,7 +10,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from clray.image_io import srgb_decode, srgb_encode, to_png_samples
+from clray.image_io import to_png_samples
+from clray.scene.colour import srgb_decode, srgb_encode
 
 # linear -> encoded, by hand: 12.92 x on the linear segment, 1.055 x^(1/2.4) - 0.055 above it.
 HAND_VALUES = [

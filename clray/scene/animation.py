@@ -15,10 +15,9 @@ import copy
 import itertools
 import re
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
-if TYPE_CHECKING:
-    from clray.scene.load import _Loader
+from clray.scene.values import Values
 
 ANIMATION_KEYS = ("frames", "fps", "interpolation", "tracks")
 TRACK_KEYS = ("key", "frames", "values", "interpolation")
@@ -140,58 +139,58 @@ def show_path(path: Path) -> str:
     return text
 
 
-def parse_animation(spec: dict, loader: _Loader) -> Animation:
-    """The [animation] table checked by the loader's rules (errors name `animation.*` keys).
-    The tracks' paths and values are checked against the scene by the loader itself."""
-    loader.keys(spec, "animation", ANIMATION_KEYS, ("frames",))
-    frames = loader.integer(spec["frames"], "animation.frames", 1, MAX_FRAMES)
-    fps = loader.bounded(spec.get("fps", 24.0), "animation.fps", 0, MAX_FPS)
+def parse_animation(spec: dict, v: Values) -> Animation:
+    """The [animation] table checked by the scene's value checks (errors name `animation.*`
+    keys). The tracks' paths and values are checked against the scene by the loader itself."""
+    v.keys(spec, "animation", ANIMATION_KEYS, ("frames",))
+    frames = v.integer(spec["frames"], "animation.frames", 1, MAX_FRAMES)
+    fps = v.bounded(spec.get("fps", 24.0), "animation.fps", 0, MAX_FPS)
     if fps == 0:
-        raise loader.error("animation.fps", "must be > 0, got 0")
-    default = loader.choice(spec.get("interpolation", "linear"), "animation.interpolation",
+        raise v.error("animation.fps", "must be > 0, got 0")
+    default = v.choice(spec.get("interpolation", "linear"), "animation.interpolation",
                             INTERPOLATIONS)
     tracks = []
     keyframes = 0
-    for i, track in enumerate(loader.items(spec.get("tracks", []), "animation.tracks",
+    for i, track in enumerate(v.items(spec.get("tracks", []), "animation.tracks",
                                            MAX_TRACKS)):
         key = f"animation.tracks[{i}]"
-        tracks.append(_track(track, key, frames, default, loader))
+        tracks.append(_track(track, key, frames, default, v))
         keyframes += len(tracks[-1].frames)
         if keyframes > MAX_KEYFRAMES:
-            raise loader.error(key, f"over the limit of {MAX_KEYFRAMES} keyframes in all tracks")
+            raise v.error(key, f"over the limit of {MAX_KEYFRAMES} keyframes in all tracks")
     return Animation(frames=frames, fps=fps, tracks=tuple(tracks))
 
 
-def _track(spec: dict, key: str, n_frames: int, default: str, loader: _Loader) -> Track:
-    loader.keys(spec, key, TRACK_KEYS, ("key", "frames", "values"))
-    name = loader.string(spec["key"], f"{key}.key")
+def _track(spec: dict, key: str, n_frames: int, default: str, v: Values) -> Track:
+    v.keys(spec, key, TRACK_KEYS, ("key", "frames", "values"))
+    name = v.string(spec["key"], f"{key}.key")
     path = parse_path(name)
     if path is None:
-        raise loader.error(f"{key}.key", f"expected a key path such as camera.position or "
+        raise v.error(f"{key}.key", f"expected a key path such as camera.position or "
                            f"objects[0].center, got {name!r:.60}")
     fkey, vkey = f"{key}.frames", f"{key}.values"
     raw_frames = spec["frames"]
     if not isinstance(raw_frames, list) or not raw_frames:
-        raise loader.error(fkey, "expected a non-empty array of frame numbers")
-    frames = tuple(loader.integer(f, f"{fkey}[{j}]", 0, n_frames - 1)
+        raise v.error(fkey, "expected a non-empty array of frame numbers")
+    frames = tuple(v.integer(f, f"{fkey}[{j}]", 0, n_frames - 1)
                    for j, f in enumerate(raw_frames))
     if any(b <= a for a, b in itertools.pairwise(frames)):
-        raise loader.error(fkey, "must be strictly increasing")
+        raise v.error(fkey, "must be strictly increasing")
     raw_values = spec["values"]
     if not isinstance(raw_values, list) or len(raw_values) != len(frames):
-        raise loader.error(vkey, f"expected one value per keyframe ({len(frames)})")
+        raise v.error(vkey, f"expected one value per keyframe ({len(frames)})")
     values: list[Value] = []
     for j, value in enumerate(raw_values):
         if isinstance(value, list):
-            values.append(list(loader.numbers(value, f"{vkey}[{j}]", len(value))))
+            values.append(list(v.numbers(value, f"{vkey}[{j}]", len(value))))
         else:
-            values.append(loader.number(value, f"{vkey}[{j}]"))
+            values.append(v.number(value, f"{vkey}[{j}]"))
         shape = len(values[-1]) if isinstance(values[-1], list) else None
         first = len(values[0]) if isinstance(values[0], list) else None
         if shape != first or shape == 0:
-            raise loader.error(f"{vkey}[{j}]", "expected the shape of values[0] (all numbers, "
+            raise v.error(f"{vkey}[{j}]", "expected the shape of values[0] (all numbers, "
                                "or all arrays of one length)")
-    interpolation = loader.choice(spec.get("interpolation", default), f"{key}.interpolation",
+    interpolation = v.choice(spec.get("interpolation", default), f"{key}.interpolation",
                                   INTERPOLATIONS)
     return Track(key=name, path=path, frames=frames, values=tuple(values),
                  interpolation=interpolation)

@@ -1,0 +1,194 @@
+"""The files a scene names (textures, environment images, meshes, sphere arrays), read once each
+and counted against the limits that all of them share.
+
+Files are known by (device, inode): a scene naming one texture or mesh a thousand times must
+not decode it a thousand times, nor count it against the texel limit more than once. The
+budgets (texels, triangles, bulk spheres) are what is left of clray.scene.limits' totals.
+"""
+
+from __future__ import annotations
+
+import io
+import zipfile
+from pathlib import Path
+from typing import Any, BinaryIO
+
+import numpy as np
+
+from clray.scene import limits as L
+from clray.scene.colour import srgb_decode
+from clray.scene.files import UnreadableFile, open_regular, read_at_most
+from clray.scene.mesh_data import mesh_arrays
+from clray.scene.obj import ObjMesh, parse_obj
+from clray.scene.texture import TextureError, read_texture
+from clray.scene.values import Values, file_name
+
+# What a `spheres` object's .npz may hold (a .npy holds centers, or centers and radii).
+SPHERE_ARRAYS = ("centers", "radii", "material_index")
+_DECODE_SLICE = 1 << 20  # texel values decoded from sRGB at a time
+
+
+class Assets:
+    """The files of one scene, relative to `base`; errors through `values` name the key."""
+
+    def __init__(self, values: Values, base: Path) -> None:
+        self.values = values
+        self.base = base
+        self.warnings: list[str] = []
+        self.textures: dict[tuple[int, int], tuple[np.ndarray, bool]] = {}
+        # By id() of the stored texels, which self.textures keeps alive for the assets' life.
+        self.decoded_textures: dict[int, np.ndarray] = {}
+        self.meshes: dict[tuple[int, int], ObjMesh] = {}
+        self.texels_left = L.MAX_TEXELS
+        self.triangles_left = L.MAX_TRIANGLES
+        self.spheres_left = L.MAX_BULK_SPHERES
+
+    def sharing_files(self) -> Assets:
+        """Fresh budgets over the same files already read: a keyframe's scene does not read a
+        mesh or texture again."""
+        other = Assets(self.values, self.base)
+        other.textures, other.meshes = self.textures, self.meshes
+        other.decoded_textures = self.decoded_textures
+        return other
+
+    def open_file(
+        self, value: Any, key: str, max_bytes: int
+    ) -> tuple[BinaryIO, tuple[int, int]]:
+        """(open binary stream, (device, inode)) of a mesh or texture file."""
+        name = self.values.string(value, key)
+        try:
+            stream, info = open_regular(self.base / name, max_bytes)
+        except UnreadableFile as exc:
+            raise self.values.error(key, f"{exc}: {file_name(name)}") from None
+        return stream, (info.st_dev, info.st_ino)
+
+    # -- images ---------------------------------------------------------------------------
+
+    def image(self, name: str, key: str) -> tuple[np.ndarray, bool]:
+        """(texels as stored, scaled to [0, 1]; whether the file has more than 8 bits)."""
+        stream, identity = self.open_file(name, key, L.MAX_TEXTURE_BYTES)
+        with stream:
+            if identity in self.textures:
+                return self.textures[identity]
+            try:
+                texels, deep, warned = read_texture(stream, self.texels_left)
+            except TextureError as exc:
+                raise self.values.error(key, f"cannot read image {file_name(name)}: {exc}"
+                                        ) from None
+        self.texels_left -= texels.shape[0] * texels.shape[1]
+        self.warnings.extend(f"{key}: image {file_name(name)}: {w}" for w in warned)
+        self.textures[identity] = (texels, deep)
+        return texels, deep
+
+    def texels(self, value: Any, key: str) -> np.ndarray:
+        """Linear texels given as an (H, W, 3) array (from Python), within the texel limits."""
+        texels = self.values.array(value, key, (None, None, 3))
+        height, width, _ = texels.shape
+        side = L.MAX_TEXTURE_SIDE
+        if not 0 < min(height, width) <= max(height, width) <= side:
+            raise self.values.error(key, f"must be at least 1 and at most {side} texels a side, "
+                                    f"got {width}x{height}")
+        if width * height > self.texels_left:
+            raise self.values.error(key, f"{width}x{height} texels is over what is left "
+                                    f"({self.texels_left}) of the limit of {L.MAX_TEXELS}")
+        if not np.all((texels >= 0) & (texels <= 1)):
+            raise self.values.error(key, "must be linear values in [0, 1]")
+        self.texels_left -= width * height
+        return np.ascontiguousarray(texels, dtype=np.float32)
+
+    def decoded(self, texels: np.ndarray) -> np.ndarray:
+        """`texels` decoded from sRGB to linear, once per file however often it is named."""
+        if id(texels) not in self.decoded_textures:
+            # In float64, a slice at a time: the whole of a texture at the texel limit would
+            # take several GiB of float64 temporaries.
+            flat = texels.reshape(-1)
+            linear = np.empty_like(flat)
+            for start in range(0, flat.size, _DECODE_SLICE):
+                part = flat[start : start + _DECODE_SLICE].astype(np.float64)
+                linear[start : start + _DECODE_SLICE] = srgb_decode(part)
+            self.decoded_textures[id(texels)] = linear.reshape(texels.shape)
+        return self.decoded_textures[id(texels)]
+
+    # -- meshes ---------------------------------------------------------------------------
+
+    def mesh_file(self, name: Any, key: str) -> ObjMesh:
+        """A mesh from an OBJ file, or a .npz of arrays."""
+        stream, identity = self.open_file(name, key, L.MAX_MESH_BYTES)
+        with stream:
+            if identity not in self.meshes:
+                try:
+                    data = read_at_most(stream, L.MAX_MESH_BYTES)
+                except UnreadableFile as exc:
+                    raise self.values.error(key, f"{exc}: {file_name(name)}") from None
+                if Path(str(name)).suffix.lower() == ".npz":
+                    self.meshes[identity] = self.npz_mesh(data, key, name)
+                else:
+                    self.meshes[identity] = parse_obj(data, self.base / name)
+        return self.meshes[identity]
+
+    def npz_mesh(self, data: bytes, key: str, name: str) -> ObjMesh:
+        """A mesh from a .npz of arrays: vertices (V, 3), faces (F, 3, 0-based), and optionally
+        normals (V, 3) and uvs (V, 2); checked as inline arrays are."""
+        try:
+            loaded = np.load(io.BytesIO(data), allow_pickle=False)
+            arrays = {n: loaded[n] for n in loaded.files}
+        except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
+            raise self.values.error(key, f"cannot read {file_name(name)}: {exc}") from None
+        known = ("vertices", "faces", "normals", "uvs")
+        unknown = sorted(set(arrays) - set(known))
+        if unknown or "vertices" not in arrays or "faces" not in arrays:
+            raise self.values.error(
+                key, f"{file_name(name)} holds {', '.join(sorted(arrays)) or 'nothing'} "
+                f"(expected vertices, faces and optionally normals, uvs)")
+        # Errors name the array.
+        return mesh_arrays(self.values, arrays, f"{key}: {file_name(name)}: ")
+
+    def take_triangles(self, count: int, key: str) -> None:
+        """Count a mesh's triangles against the limit for all meshes."""
+        if count > self.triangles_left:
+            raise self.values.error(
+                key, f"{count} triangles is over what is left ({self.triangles_left}) of "
+                f"the limit of {L.MAX_TRIANGLES} triangles for all meshes"
+            )
+        self.triangles_left -= count
+
+    # -- sphere arrays --------------------------------------------------------------------
+
+    def sphere_file(self, value: Any, fkey: str) -> dict[str, Any]:
+        """The arrays of a `spheres` object's .npy or .npz file, by name."""
+        v = self.values
+        name = v.string(value, fkey)
+        suffix = Path(name).suffix.lower()
+        if suffix not in (".npy", ".npz"):
+            raise v.error(fkey, f"expected a .npy or .npz file, got {file_name(name)}")
+        stream, _ = self.open_file(name, fkey, L.MAX_ARRAY_BYTES)
+        with stream:
+            try:
+                data = read_at_most(stream, L.MAX_ARRAY_BYTES)
+                loaded = np.load(io.BytesIO(data), allow_pickle=False)
+                if suffix == ".npy":
+                    return self.npy_spheres(loaded, fkey, name)
+                unknown = sorted(set(loaded.files) - set(SPHERE_ARRAYS))
+                if unknown:
+                    raise v.error(fkey, f"{file_name(name)} holds {', '.join(unknown)} "
+                                  f"(expected {', '.join(SPHERE_ARRAYS)})")
+                return {n: loaded[n] for n in loaded.files}
+            except (UnreadableFile, OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
+                raise v.error(fkey, f"cannot read {file_name(name)}: {exc}") from None
+
+    def npy_spheres(self, array: np.ndarray, key: str, name: str) -> dict[str, Any]:
+        """A .npy of spheres: (N, 3) centers, or (N, 4) centers and radii."""
+        if array.ndim != 2 or array.shape[1] not in (3, 4):
+            raise self.values.error(key, f"{file_name(name)}: expected an (N, 3) or (N, 4) "
+                                    f"array, got shape {array.shape}")
+        if array.shape[1] == 3:
+            return {"centers": array}
+        return {"centers": array[:, :3], "radii": array[:, 3]}
+
+    def take_spheres(self, count: int, key: str) -> None:
+        """Count a `spheres` object's spheres against the limit for all of them."""
+        if count > self.spheres_left:
+            raise self.values.error(
+                key, f"{count} spheres is over what is left ({self.spheres_left}) of the "
+                f"limit of {L.MAX_BULK_SPHERES} spheres for all spheres objects")
+        self.spheres_left -= count

@@ -1,0 +1,179 @@
+"""The [[objects]] array and the [groups] that instances place: every primitive type, placed
+by its transform (baked into the primitive where the shape allows, an instance where not)."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from clray.scene import limits as L
+from clray.scene.assets import Assets
+from clray.scene.model import (
+    Box,
+    Cone,
+    Cylinder,
+    Group,
+    Instance,
+    Plane,
+    SceneObject,
+    Sphere,
+    Triangle,
+)
+from clray.scene.parse_materials import MaterialTable
+from clray.scene.parse_mesh import parse_mesh
+from clray.scene.parse_spheres import parse_spheres
+from clray.scene.parse_transform import parse_transform
+from clray.scene.transform import place
+from clray.scene.values import Values, show, show_defined
+
+# Per object type: (required keys, optional keys), besides `type`, `material` and `transform`.
+OBJECT_KEYS: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
+    "sphere": (("center", "radius"), ()),
+    "plane": (("point", "normal"), ()),
+    "box": (("min", "max"), ()),
+    "triangle": (("vertices",), ()),
+    "mesh": ((), ("file", "vertices", "faces", "normals", "uvs")),
+    "cylinder": (("base", "axis", "radius", "height"), ("capped",)),
+    "cone": (("apex", "axis", "angle", "height"), ("capped",)),
+    "spheres": ((), ("file", "centers", "radii", "radius", "materials", "material_index")),
+    "instance": (("group",), ()),
+}
+
+
+class ObjectParser:
+    """Objects and groups of one scene, their materials from `materials`."""
+
+    def __init__(self, v: Values, assets: Assets, materials: MaterialTable) -> None:
+        self.v, self.assets, self.materials = v, assets, materials
+        self.groups: dict[str, Group] = {}
+
+    def group(self, value: object, key: str, name: str) -> Group:
+        v = self.v
+        spec = v.table(value, key)
+        v.keys(spec, key, ("objects",), ("objects",))
+        items = v.items(spec["objects"], f"{key}.objects", L.MAX_OBJECTS)
+        if not items:
+            raise v.error(f"{key}.objects", "a group needs at least one object")
+        return Group(name, tuple(self.object(item, f"{key}.objects[{i}]", in_group=True)
+                                 for i, item in enumerate(items)))
+
+    def object(self, spec: dict, key: str, in_group: bool = False) -> SceneObject:
+        v = self.v
+        kind = v.kind(spec, key, OBJECT_KEYS)
+        allowed = ("type", "material", *OBJECT_KEYS[kind][0], *OBJECT_KEYS[kind][1],
+                   "transform")
+        required = OBJECT_KEYS[kind][0]
+        v.keys(spec, key, allowed, required)
+        if in_group and kind in ("instance", "plane"):
+            raise v.error(f"{key}.type", "a group holds bounded primitives: no planes "
+                          "(unbounded) and no instances (groups do not nest)")
+        if kind == "instance":
+            return self.instance(spec, key)
+        obj = self.unplaced(spec, key, kind)
+        if kind == "mesh" or "transform" not in spec:
+            return obj
+        tkey = f"{key}.transform"
+        a, offset = parse_transform(spec["transform"], tkey, v)
+        placed = place(obj, a, offset)
+        if not isinstance(placed, str):
+            return self.within_limits(placed, tkey)
+        if in_group:
+            raise v.error(tkey, f"{placed}, and inside a group that would need a group in a "
+                          "group: place the instance by that transform instead")
+        # A shape the transform does not keep (an ellipsoid, a box at an angle) is intersected
+        # in its own frame, as a one-object group.
+        return Instance(Group(key, (obj,)), self.placement(a, offset, tkey))
+
+    def instance(self, spec: dict, key: str) -> Instance:
+        v = self.v
+        name = v.string(spec["group"], f"{key}.group")
+        if name not in self.groups:
+            raise v.error(f"{key}.group", f"unknown group {show(name)} (defined: "
+                          f"{show_defined(list(self.groups))})")
+        material = (self.materials.ref(spec["material"], f"{key}.material")
+                    if "material" in spec else None)
+        tkey = f"{key}.transform"
+        a, offset = parse_transform(spec.get("transform", {}), tkey, v)
+        return Instance(self.groups[name], self.placement(a, offset, tkey), material)
+
+    def placement(self, a: np.ndarray, offset: np.ndarray, key: str) -> np.ndarray:
+        """The (3, 4) matrix [A | t] of an instance, within the magnitudes the kernels take."""
+        if not np.all(np.abs(offset) <= L.MAX_MAGNITUDE):
+            raise self.v.error(key, f"moves the object beyond {L.MAX_MAGNITUDE:g} in magnitude")
+        singular = np.linalg.svd(a, compute_uv=False)
+        if singular.max() > L.MAX_MAGNITUDE or singular.min() < L.MIN_LENGTH:
+            raise self.v.error(key, f"stretches or shrinks by more than {L.MAX_MAGNITUDE:g}")
+        return np.hstack([a, offset[:, None]])
+
+    def within_limits(self, obj: SceneObject, key: str) -> SceneObject:
+        """A placed object's numbers still within what the kernels take."""
+        values = [np.asarray(x, dtype=np.float64) for f in dataclasses.fields(obj)
+                  if f.name != "material" and not isinstance(x := getattr(obj, f.name), bool)
+                  and isinstance(x, float | tuple | np.ndarray)]
+        if not all(np.all(np.abs(x) <= L.MAX_MAGNITUDE) for x in values):
+            raise self.v.error(key, f"moves the object beyond {L.MAX_MAGNITUDE:g} in magnitude")
+        lengths = [getattr(obj, n) for n in ("radius", "height", "radii") if hasattr(obj, n)]
+        if any(np.any(np.asarray(x) < L.MIN_LENGTH) for x in lengths):
+            raise self.v.error(key, f"shrinks the object below {L.MIN_LENGTH:g}")
+        return obj
+
+    def unplaced(self, spec: dict, key: str, kind: str) -> SceneObject:
+        """A primitive in the coordinates its keys give, before its transform."""
+        v, assets = self.v, self.assets
+        if kind == "spheres" and "materials" in spec:
+            if "material" in spec:
+                raise v.error(key, "give material or materials, not both")
+            return parse_spheres(spec, key, None, v, assets, self.materials)
+        material = self.materials.for_object(spec, key)
+        if kind == "spheres":
+            return parse_spheres(spec, key, material, v, assets, self.materials)
+
+        def k(name: str) -> str:
+            return f"{key}.{name}"
+
+        if kind == "sphere":
+            radius = v.length(spec["radius"], k("radius"))
+            return Sphere(v.vec3(spec["center"], k("center")), radius, material)
+        if kind == "plane":
+            normal = v.direction(spec["normal"], k("normal"))
+            return Plane(v.vec3(spec["point"], k("point")), normal, material)
+        if kind == "box":
+            return self.box(spec, key, material)
+        if kind == "triangle":
+            return Triangle(v.points(spec["vertices"], k("vertices"), exactly=3), material)
+        if kind == "mesh":
+            return parse_mesh(spec, key, material, v, assets)
+        capped = v.boolean(spec.get("capped", True), k("capped"))
+        axis = v.direction(spec["axis"], k("axis"))
+        height = v.length(spec["height"], k("height"))
+        if kind == "cylinder":
+            return Cylinder(
+                base=v.vec3(spec["base"], k("base")),
+                axis=axis,
+                radius=v.length(spec["radius"], k("radius")),
+                height=height,
+                material=material,
+                capped=capped,
+            )
+        return Cone(
+            apex=v.vec3(spec["apex"], k("apex")),
+            axis=axis,
+            angle=v.open_range(spec["angle"], k("angle"), 0, 90),
+            height=height,
+            material=material,
+            capped=capped,
+        )
+
+    def box(self, spec: dict, key: str, material: int) -> Box:
+        v = self.v
+        lo = v.vec3(spec["min"], f"{key}.min")
+        hi = v.vec3(spec["max"], f"{key}.max")
+        if any(a > b for a, b in zip(lo, hi, strict=True)):
+            raise v.error(
+                f"{key}.max", f"must be >= min on every axis, got min {show(lo)}, max {show(hi)}"
+            )
+        # A box flat on one axis is a rectangle and still renders; one on all three is not.
+        if lo == hi:
+            raise v.error(f"{key}.max", f"must differ from min, got {show(hi)} for both")
+        return Box(lo, hi, material)

@@ -392,10 +392,10 @@ MUTATIONS: tuple[Mutation, ...] = (
     m("metrics.count_over_inclusive", "clray/metrics.py",
       "close = (np.abs(_diff(a, b)) <= threshold) | (a == b)",
       "close = (np.abs(_diff(a, b)) < threshold) | (a == b)", METRICS),
-    m("reference.no_attenuation_clamp", "clray/reference.py",
+    m("reference.no_attenuation_clamp", "clray/reference/shading.py",
       "np.minimum(1.0, 1.0 / denom)", "1.0 / denom", REFERENCE, *KERNEL_SCENES),
-    m("reference.specular_from_direction", "clray/reference.py",
-      "rv = _dot(r, -d)", "rv = _dot(r, d)", REFERENCE),
+    m("reference.specular_from_direction", "clray/reference/shading.py",
+      "rv = dot(r, -d)", "rv = dot(r, d)", REFERENCE),
 )
 
 

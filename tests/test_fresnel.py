@@ -14,8 +14,8 @@ from clray.device.context import has_fp64
 from clray.device.pack import pack_scene
 from clray.metrics import nonfinite_count, rmse
 from clray.reference import (
-    fresnel_exact,
     fresnel_polarised,
+    fresnel_reflectance,
     fresnel_schlick,
     render_reference,
 )
@@ -34,7 +34,7 @@ def _cosines(n1: float, n2: float, theta_i: float) -> tuple[float, float, float]
 @pytest.mark.parametrize(("n1", "n2"), [(1.0, 1.5), (1.5, 1.0), (1.0, 2.42), (1.33, 1.5)])
 def test_normal_incidence_reflects_the_squared_index_contrast(n1: float, n2: float) -> None:
     want = ((n1 - n2) / (n1 + n2)) ** 2  # 0.04 for glass in air, either way
-    for f in (fresnel_exact, fresnel_schlick):
+    for f in (fresnel_reflectance, fresnel_schlick):
         assert f(n1 / n2, 1.0, 1.0) == pytest.approx(want, rel=1e-14, abs=1e-17)
 
 
@@ -45,27 +45,27 @@ def test_glass_at_brewsters_angle_reflects_no_p_polarised_light() -> None:
     r_s, r_p = fresnel_polarised(eta, cos_i, cos_t)
     assert r_p == pytest.approx(0.0, abs=1e-30)
     assert r_s == pytest.approx(25 / 169, rel=1e-14)
-    assert fresnel_exact(eta, cos_i, cos_t) == pytest.approx(25 / 338, rel=1e-14)
+    assert fresnel_reflectance(eta, cos_i, cos_t) == pytest.approx(25 / 338, rel=1e-14)
     # Inside the glass, Brewster's angle is atan(1 / 1.5), with the same r_s.
     eta, cos_i, cos_t = _cosines(1.5, 1.0, math.atan(1 / 1.5))
     assert fresnel_polarised(eta, cos_i, cos_t)[1] == pytest.approx(0.0, abs=1e-30)
-    assert fresnel_exact(eta, cos_i, cos_t) == pytest.approx(25 / 338, rel=1e-14)
+    assert fresnel_reflectance(eta, cos_i, cos_t) == pytest.approx(25 / 338, rel=1e-14)
 
 
 def test_reflectance_is_reciprocal_and_reaches_one_at_grazing_incidence() -> None:
     for theta in np.radians([0.0, 20.0, 40.0, 60.0, 80.0, 89.0]):
         eta, cos_i, cos_t = _cosines(1.0, 1.5, theta)
         # The same pair of directions traversed the other way reflects the same share.
-        assert fresnel_exact(1 / eta, cos_t, cos_i) == pytest.approx(
-            fresnel_exact(eta, cos_i, cos_t), rel=1e-13)
-    assert fresnel_exact(1 / 1.5, 0.0, math.sqrt(1 - (1 / 1.5) ** 2)) == 1.0
-    assert fresnel_exact(1.0, 0.0, 0.0) == 1.0  # equal media, grazing: the limit
+        assert fresnel_reflectance(1 / eta, cos_t, cos_i) == pytest.approx(
+            fresnel_reflectance(eta, cos_i, cos_t), rel=1e-13)
+    assert fresnel_reflectance(1 / 1.5, 0.0, math.sqrt(1 - (1 / 1.5) ** 2)) == 1.0
+    assert fresnel_reflectance(1.0, 0.0, 0.0) == 1.0  # equal media, grazing: the limit
     assert fresnel_schlick(1 / 1.5, 0.0, 0.5) == 1.0
     # Schlick's curve against the exact one for glass: measured 0.0357 apart at most.
     theta = np.radians(np.linspace(0.0, 89.9, 500))
     eta, cos_i, cos_t = (np.array(v) for v in zip(*(_cosines(1.0, 1.5, t) for t in theta),
                                                    strict=True))
-    gap = np.abs(fresnel_schlick(eta, cos_i, cos_t) - fresnel_exact(eta, cos_i, cos_t))
+    gap = np.abs(fresnel_schlick(eta, cos_i, cos_t) - fresnel_reflectance(eta, cos_i, cos_t))
     assert 0.02 < gap.max() < 0.05
 
 
@@ -97,7 +97,7 @@ def test_rendered_glass_reflects_the_fresnel_share_of_the_sky(
     scene = _glass_plane_scene(ior, theta)
     image = render(scene, SCHLICK if schlick else RenderSettings()).image.astype(np.float64)
     eta, cos_i, cos_t = _cosines(1.0, ior, theta)
-    share = (fresnel_schlick if schlick else fresnel_exact)(eta, cos_i, cos_t)
+    share = (fresnel_schlick if schlick else fresnel_reflectance)(eta, cos_i, cos_t)
     if theta == 0.0:
         assert share == pytest.approx(((ior - 1) / (ior + 1)) ** 2, rel=1e-14)
     if theta_deg is None and not schlick:

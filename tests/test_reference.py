@@ -2,7 +2,7 @@
 
 Expected values come from hand-derived geometry (the ray-sphere hit by closest approach, the
 ray-plane hit, Snell's law in a prism) and a pure-Python hash, never from the reference's own
-code paths, so a wrong formula in clray/reference.py makes these fail.
+code paths, so a wrong formula in clray/reference/ makes these fail.
 """
 
 from __future__ import annotations
@@ -14,14 +14,14 @@ import pytest
 
 from clray.reference import (
     camera_rays,
+    image_texel,
     intersect_scene,
     pcg_hash,
     render_reference,
-    sample_image,
     sample_positions,
     sample_uniform,
-    shadow_transmittance,
     trace,
+    transmission,
 )
 from clray.scene.model import (
     Box,
@@ -268,7 +268,7 @@ def test_shadow_segments_filter_once_per_crossing():
     o = [[-5, 0, 0], [-5, 0, 0], [10, -5, 0], [10, 0, -5], [15, 0, 0], [-0.5, 0, 0]]
     d = [[1, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1], [1, 0, 0], [1, 0, 0]]
     tmax = [8.0, 5.0, 20.0, 20.0, 10.0, 1.0]
-    got = shadow_transmittance(scene, o, d, tmax)
+    got = transmission(scene, o, d, tmax)
     want = [
         f**2,  # through the sphere, not reaching the tube
         f,  # segment ends inside the sphere
@@ -570,17 +570,17 @@ def test_image_sampling_is_bilinear_and_wraps():
 
     cols, rows = np.meshgrid(np.arange(w), np.arange(h))
     u, v = uv_of(cols.ravel(), rows.ravel())
-    got = sample_image(img, u, v, (1.0, 1.0))
+    got = image_texel(img, u, v, (1.0, 1.0))
     assert np.allclose(got, tex[rows.ravel(), cols.ravel()], atol=1e-15)
     # Half way between columns 1 and 2 of the top row.
-    got = sample_image(img, np.array([0.5]), np.array([uv_of(0, 0)[1]]), (1.0, 1.0))
+    got = image_texel(img, np.array([0.5]), np.array([uv_of(0, 0)[1]]), (1.0, 1.0))
     assert np.allclose(got, [(tex[0, 1] + tex[0, 2]) / 2], atol=1e-15)
     # u = 0 sits half way between the last column and the first.
-    got = sample_image(img, np.array([0.0]), np.array([uv_of(0, 1)[1]]), (1.0, 1.0))
+    got = image_texel(img, np.array([0.0]), np.array([uv_of(0, 1)[1]]), (1.0, 1.0))
     assert np.allclose(got, [(tex[1, 3] + tex[1, 0]) / 2], atol=1e-15)
     # repeat = (2, 1): u and u + 1/2 sample the same place.
-    a = sample_image(img, np.array([0.1]), np.array([0.3]), (2.0, 1.0))
-    b = sample_image(img, np.array([0.6]), np.array([0.3]), (2.0, 1.0))
+    a = image_texel(img, np.array([0.1]), np.array([0.3]), (2.0, 1.0))
+    b = image_texel(img, np.array([0.6]), np.array([0.3]), (2.0, 1.0))
     assert np.allclose(a, b, atol=1e-15)
 
 

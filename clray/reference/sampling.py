@@ -1,0 +1,169 @@
+"""The oracle's samples and camera rays (kernels/rng.h and kernels/camera.h): the hash, the
+pixel and lens samples, the area lights' stratified squares, and the primary rays."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from clray.reference.vectors import safe_normalize as _normalize
+from clray.scene.model import Camera, Scene
+
+
+def pcg_hash(x: np.ndarray | int) -> np.ndarray:
+    """The PCG output hash of docs/rendering.md in wrapping uint32 arithmetic."""
+    state = np.asarray(x).astype(np.uint32)
+    with np.errstate(over="ignore"):
+        state = state * np.uint32(747796405) + np.uint32(2891336453)
+        word = ((state >> ((state >> np.uint32(28)) + np.uint32(4))) ^ state) * np.uint32(277803737)
+    return (word >> np.uint32(22)) ^ word
+
+
+def sample_uniform(seed: int, pixel: np.ndarray, sample: np.ndarray, dim: int) -> np.ndarray:
+    """r_dim of docs/rendering.md: 24 random bits of the key, in [0, 1)."""
+    seed_hash = pcg_hash(np.uint32(seed & 0xFFFFFFFF))
+    pixel = np.asarray(pixel).astype(np.uint32)
+    sample = np.asarray(sample).astype(np.uint32)
+    with np.errstate(over="ignore"):
+        counter = np.uint32(4) * sample + np.uint32(dim)
+    key = pcg_hash(pcg_hash(seed_hash ^ pixel) ^ counter)
+    return (key >> np.uint32(8)).astype(np.float64) * 2.0**-24
+
+
+def sample_grid(spp: int) -> tuple[int, int]:
+    """(nx, ny): nx = ceil(sqrt(spp)) computed in integers, ny = ceil(spp / nx)."""
+    nx = math.isqrt(spp)
+    if nx * nx < spp:
+        nx += 1
+    return nx, -(-spp // nx)
+
+
+def light_square(
+    seed: int, pixel: np.ndarray, sample: np.ndarray, spp: int, light: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """(u1, u2) in the unit square: light `light`'s stratified sample for each (pixel,
+    sample) of docs/rendering.md (Area lights)."""
+    pixel = np.asarray(pixel).astype(np.uint32)
+    sample = np.asarray(sample).astype(np.int64)
+    key = pcg_hash(pcg_hash(pcg_hash(np.uint32(seed & 0xFFFFFFFF)) ^ pixel)
+                   ^ np.uint32(0x80000000 | light))
+    stratum = (sample + (key % np.uint32(spp)).astype(np.int64)) % spp
+    nx, _ = sample_grid(spp)
+    row, col = stratum // nx, stratum % nx
+    cells = np.minimum(nx, spp - row * nx)
+
+    def uniform(dim: int) -> np.ndarray:
+        counter = (2 * sample + dim).astype(np.uint32)
+        return (pcg_hash(key ^ counter) >> np.uint32(8)).astype(np.float64) * 2.0**-24
+
+    return (col + uniform(0)) / cells, (row * nx + uniform(1) * cells) / spp
+
+
+def sample_positions(
+    width: int, height: int, spp: int, seed: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(sx, sy, pixel) for every sample, pixel-major (all samples of pixel 0 first), in pixel
+    units with y = 0 at the top row; pixel = y * width + x."""
+    pixel = np.repeat(np.arange(width * height, dtype=np.int64), spp)
+    sample = np.tile(np.arange(spp, dtype=np.int64), width * height)
+    x = (pixel % width).astype(np.float64)
+    y = (pixel // width).astype(np.float64)
+    if spp == 1:
+        return x + 0.5, y + 0.5, pixel
+    nx, ny = sample_grid(spp)
+    r0 = sample_uniform(seed, pixel, sample, 0)
+    r1 = sample_uniform(seed, pixel, sample, 1)
+    sx = x + ((sample % nx) + r0) / nx
+    sy = y + ((sample // nx) + r1) / ny
+    return sx, sy, pixel
+
+
+def camera_rays(
+    scene: Scene,
+    width: int | None = None,
+    height: int | None = None,
+    spp: int | None = None,
+    seed: int | None = None,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(origins (N, 3), unit directions (N, 3), pixel (N,)) of every sample, ordered as
+    `sample_positions`; None takes the scene's setting."""
+    width, height, spp, _, seed = _settings(scene, width, height, spp, None, seed)
+    sx, sy, pixel = sample_positions(width, height, spp, seed)
+    camera = scene.camera
+    forward, right, up, half_w, half_h = _camera_basis(camera, width, height)
+    px = 2.0 * sx / width - 1.0
+    py = 1.0 - 2.0 * sy / height
+    across = (px * half_w)[:, None] * right + (py * half_h)[:, None] * up
+    eye = np.asarray(camera.position, dtype=np.float64)
+    if camera.type == "orthographic":
+        origins = eye + across
+        aim = np.broadcast_to(forward, across.shape)
+    else:
+        origins = np.broadcast_to(eye, across.shape).copy()
+        aim = forward + across
+    # aim: from the ray's origin to its point on the focus plane, per unit of focus distance.
+    if camera.aperture > 0.0:
+        sample = np.tile(np.arange(spp, dtype=np.int64), width * height)
+        lens = lens_offsets(camera.aperture / 2.0, spp, seed, pixel, sample)
+        lens = lens[:, :1] * right + lens[:, 1:] * up
+        focus = _focus_distance(camera)
+        return origins + lens, _normalize(aim - lens / focus), pixel
+    return origins, _normalize(aim), pixel
+
+
+def lens_offsets(radius: float, spp: int, seed: int, pixel: np.ndarray, sample: np.ndarray
+                 ) -> np.ndarray:
+    """(N, 2): each sample's point on the lens disc of `radius`, in (right, up) coordinates
+    (docs/rendering.md, Depth of field)."""
+    # The pixel's shift of the angular strata: r_2 of the sample index spp, which no sample uses.
+    shift_bits = (sample_uniform(seed, pixel, np.full_like(sample, spp), 2)
+                  * 2.0**24).astype(np.int64)
+    shift = (shift_bits * spp) >> 24
+    stratum = (sample + shift) % spp
+    angle = 2.0 * np.pi * (stratum + sample_uniform(seed, pixel, sample, 2)) / spp
+    rho = radius * np.sqrt(sample_uniform(seed, pixel, sample, 3))
+    return np.stack([rho * np.cos(angle), rho * np.sin(angle)], axis=-1)
+
+
+def _focus_distance(camera: Camera) -> float:
+    if camera.focus_distance is not None:
+        return camera.focus_distance
+    return float(np.linalg.norm(np.subtract(camera.look_at, camera.position)))
+
+
+def _camera_basis(camera: Camera, width: int, height: int) -> tuple[np.ndarray, ...]:
+    """(forward, right, up', half_w, half_h) of docs/rendering.md, computed here rather than
+    taken from the model's Camera.basis: the kernels' camera comes from the model, and an
+    oracle sharing that code could not notice a mistake in it."""
+    eye = np.asarray(camera.position, dtype=np.float64)
+    forward = _normalize(np.asarray(camera.look_at, dtype=np.float64) - eye)
+    right = _normalize(np.cross(forward, np.asarray(camera.up, dtype=np.float64)))
+    up = np.cross(right, forward)
+    if camera.type == "orthographic":
+        if camera.width is not None:
+            return forward, right, up, camera.width / 2.0, camera.width / 2.0 * height / width
+        return forward, right, up, camera.height / 2.0 * width / height, camera.height / 2.0
+    if camera.hfov is not None:
+        half_w = math.tan(math.radians(camera.hfov) / 2.0)
+        return forward, right, up, half_w, half_w * height / width
+    half_h = math.tan(math.radians(camera.vfov) / 2.0)
+    return forward, right, up, half_h * width / height, half_h
+
+
+def _settings(
+    scene: Scene,
+    width: int | None,
+    height: int | None,
+    spp: int | None,
+    max_depth: int | None,
+    seed: int | None,
+) -> tuple[int, int, int, int, int]:
+    r = scene.render
+    return (
+        r.width if width is None else width,
+        r.height if height is None else height,
+        r.spp if spp is None else spp,
+        r.max_depth if max_depth is None else max_depth,
+        r.seed if seed is None else seed,
+    )

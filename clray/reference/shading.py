@@ -1,0 +1,200 @@
+"""Surfaces and direct light of the oracle (kernels/shading.h): each shape's outward normal and
+(u, v) at a hit, the surface record of a hit, the offset that starts a spawned ray off it, and
+shade_direct, the ambient, diffuse and specular light that reaches it from every light."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from typing import NamedTuple
+
+import numpy as np
+
+from clray.reference.lights import SampleKey, sample_area_light, spot_factor
+from clray.reference.sampling import light_square
+from clray.reference.texture import MaterialTable
+from clray.reference.vectors import dot, frame, safe_normalize, vec
+from clray.scene.model import (
+    Box,
+    Cone,
+    Cylinder,
+    DirectionalLight,
+    DiscLight,
+    Light,
+    Plane,
+    PointLight,
+    RectLight,
+    Sphere,
+    SphereLight,
+    SpotLight,
+)
+
+# (origins, directions, tmax, filters) -> (N, 3): the filter of every crossing before tmax.
+Transmission = Callable[[np.ndarray, np.ndarray, np.ndarray, np.ndarray], np.ndarray]
+
+
+def _sphere_surface(s: Sphere, p: np.ndarray, part: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    q = (p - vec(s.center)) / s.radius
+    u = 0.5 + np.arctan2(q[:, 0], q[:, 2]) / (2.0 * np.pi)
+    v = 0.5 + np.arcsin(np.clip(q[:, 1], -1.0, 1.0)) / np.pi
+    return safe_normalize(q), np.stack([u, v], axis=-1)
+
+
+def _plane_surface(pl: Plane, p: np.ndarray, part: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    n = vec(pl.normal)
+    e1, e2 = frame(n)
+    q = p - vec(pl.point)
+    return np.broadcast_to(n, p.shape).copy(), np.stack([q @ e1, q @ e2], axis=-1)
+
+
+def _box_surface(b: Box, p: np.ndarray, part: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    lo, hi = vec(b.min), vec(b.max)
+    axis = part // 2
+    rows = np.arange(len(p))
+    n = np.zeros_like(p)
+    n[rows, axis] = np.where(part % 2 == 1, 1.0, -1.0)
+    a1, a2 = (axis + 1) % 3, (axis + 2) % 3
+    u = (p[rows, a1] - lo[a1]) / (hi[a1] - lo[a1])
+    v = (p[rows, a2] - lo[a2]) / (hi[a2] - lo[a2])
+    return n, np.stack([u, v], axis=-1)
+
+
+def _cylinder_surface(
+    c: Cylinder, p: np.ndarray, part: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    base, axis = vec(c.base), vec(c.axis)
+    e1, e2 = frame(axis)
+    q = p - base
+    h = q @ axis
+    side_n = safe_normalize(q - h[:, None] * axis)
+    n = np.where((part == 0)[:, None], side_n, np.where((part == 1)[:, None], -axis, axis))
+    side_uv = np.stack([0.5 + np.arctan2(q @ e2, q @ e1) / (2 * np.pi), h / c.height], axis=-1)
+    cap_uv = np.stack([0.5 + 0.5 * (q @ e1) / c.radius, 0.5 + 0.5 * (q @ e2) / c.radius], axis=-1)
+    return n, np.where((part == 0)[:, None], side_uv, cap_uv)
+
+
+def _cone_surface(c: Cone, p: np.ndarray, part: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    apex, axis = vec(c.apex), vec(c.axis)
+    cos2 = math.cos(math.radians(c.angle)) ** 2
+    radius = c.height * math.tan(math.radians(c.angle))
+    e1, e2 = frame(axis)
+    q = p - apex
+    h = q @ axis
+    # Minus the gradient of (q.axis)^2 - cos^2 |q|^2, which points out of the cone.
+    side_n = safe_normalize(cos2 * q - h[:, None] * axis)
+    n = np.where((part == 0)[:, None], side_n, axis)
+    side_uv = np.stack([0.5 + np.arctan2(q @ e2, q @ e1) / (2 * np.pi), h / c.height], axis=-1)
+    cap_uv = np.stack([0.5 + 0.5 * (q @ e1) / radius, 0.5 + 0.5 * (q @ e2) / radius], axis=-1)
+    return n, np.where((part == 0)[:, None], side_uv, cap_uv)
+
+
+# A shape's (outward geometric normal, uv) at points p on it, `part` the face its crossing hit.
+SHAPE_SURFACE: dict[type, Callable[..., tuple[np.ndarray, np.ndarray]]] = {
+    Plane: _plane_surface,
+    Sphere: _sphere_surface,
+    Box: _box_surface,
+    Cylinder: _cylinder_surface,
+    Cone: _cone_surface,
+}
+
+
+class Surface(NamedTuple):
+    """What shading needs of N hits: both normals face the incoming ray."""
+
+    p: np.ndarray  # (N, 3) hit point
+    err: np.ndarray  # (N,) how far p may be off the surface
+    n_g: np.ndarray  # (N, 3) geometric normal, facing the ray
+    n: np.ndarray  # (N, 3) shading normal, facing the ray
+    entering: np.ndarray  # (N,) the ray arrives on the outward side
+    uv: np.ndarray  # (N, 2)
+    material: np.ndarray  # (N,)
+
+
+def surface_at(o: np.ndarray, d: np.ndarray, t: np.ndarray, normal: np.ndarray,
+               shading_normal: np.ndarray, uv: np.ndarray, material: np.ndarray) -> Surface:
+    """The surface record of rays (o, d) that hit at t with these outward normals."""
+    p = o + t[:, None] * d
+    # Both normals face the incoming ray, each by its own sign.
+    n_g = np.where((dot(d, normal) > 0.0)[:, None], -normal, normal)
+    n = np.where((dot(d, shading_normal) > 0.0)[:, None], -shading_normal, shading_normal)
+    return Surface(p, _error_bound(p), n_g, n, dot(d, normal) < 0.0, uv, material)
+
+
+def _error_bound(p: np.ndarray) -> np.ndarray:
+    """How far a float64 hit point may be off its surface, scaled to its magnitude."""
+    return 1e-9 * (1.0 + np.max(np.abs(p), axis=-1))
+
+
+def offset_origin(p: np.ndarray, n_g: np.ndarray, w: np.ndarray, err: np.ndarray) -> np.ndarray:
+    """Move p off the surface along the facing geometric normal, to the side w leaves on."""
+    side = np.where(dot(w, n_g) >= 0.0, 1.0, -1.0)
+    return p + (side * err)[:, None] * n_g
+
+
+def shade_direct(sf: Surface, d: np.ndarray, c: np.ndarray, mats: MaterialTable,
+                 lights: tuple[Light, ...], ambient_light: np.ndarray, key: SampleKey,
+                 transmission: Transmission) -> np.ndarray:
+    """(N, 3): ambient plus, for each light on the lit side, diffuse and specular times the
+    light that reaches p through the shadow ray; `d` the incoming rays, `c` the surface
+    colour, `key` each ray's sample (which picks area lights' samples)."""
+    m, n = sf.material, sf.n
+    result = mats.ambient[m, None] * c * ambient_light
+    for index, light in enumerate(lights):
+        target, l_dir, atten, usable = _light_toward(light, index, sf, key)
+        ndotl = dot(n, l_dir)
+        lit = usable & (ndotl > 0.0)
+        if not lit.any():
+            continue
+        shadow = np.zeros((len(sf.p), 3))
+        shadow[lit] = _shadow_filter(sf, lit, l_dir, target, mats, transmission)
+        r = 2.0 * ndotl[:, None] * n - l_dir
+        rv = dot(r, -d)
+        spec = np.zeros(len(sf.p))
+        pos = rv > 0.0
+        spec[pos] = rv[pos] ** mats.shininess[m[pos]]
+        term = mats.diffuse[m, None] * c * ndotl[:, None] + (mats.specular[m] * spec)[:, None]
+        result += np.where(lit[:, None], atten[:, None] * vec(light.color) * shadow * term, 0.0)
+    return result
+
+
+def _light_toward(light: Light, index: int, sf: Surface, key: SampleKey
+                  ) -> tuple[np.ndarray | None, np.ndarray, np.ndarray, np.ndarray]:
+    """(where a shadow ray aims: the light, its sample, or None for a directional light;
+    unit direction towards it; attenuation; usable) for light number `index`."""
+    p, eps = sf.p, sf.err
+    if isinstance(light, RectLight | DiscLight | SphereLight):
+        u1, u2 = light_square(key.seed, key.pixel, key.sample, key.spp, index)
+        target, atten, usable = sample_area_light(light, p, eps, u1, u2)
+        return target, safe_normalize(target - p), atten, usable
+    if isinstance(light, PointLight | SpotLight):
+        target = np.broadcast_to(vec(light.position), p.shape)
+        to_light = target - p
+        dist = np.linalg.norm(to_light, axis=-1)
+        l_dir = to_light / np.where(dist > 0.0, dist, 1.0)[:, None]
+        kc, kl, kq = light.attenuation
+        denom = kc + kl * dist + kq * dist * dist
+        with np.errstate(divide="ignore"):
+            atten = np.where(denom > 0.0, np.minimum(1.0, 1.0 / denom), 1.0)
+        usable = dist > eps
+        if isinstance(light, SpotLight):
+            atten = atten * spot_factor(light, l_dir)
+            usable &= atten > 0.0
+        return target, l_dir, atten, usable
+    assert isinstance(light, DirectionalLight)
+    l_dir = np.broadcast_to(-vec(light.direction), p.shape)
+    return None, l_dir, np.ones(len(p)), np.ones(len(p), dtype=bool)
+
+
+def _shadow_filter(sf: Surface, lit: np.ndarray, l_dir: np.ndarray, target: np.ndarray | None,
+                   mats: MaterialTable, transmission: Transmission) -> np.ndarray:
+    """The filter of the shadow rays of the `lit` hits, from their offset origins."""
+    origin = offset_origin(sf.p[lit], sf.n_g[lit], l_dir[lit], sf.err[lit])
+    shadow_dir, span = l_dir[lit], np.full(int(lit.sum()), np.inf)
+    if target is not None:
+        # Aimed from the offset origin, as the kernels do (docs/rendering.md).
+        to_light = target[lit] - origin
+        span = np.linalg.norm(to_light, axis=-1)
+        shadow_dir = np.where((span > 0.0)[:, None],
+                              to_light / np.where(span > 0.0, span, 1.0)[:, None],
+                              shadow_dir)
+    return transmission(origin, shadow_dir, span, mats.filter)

@@ -1,0 +1,83 @@
+"""Materials and textures of the oracle (kernels/texture.h): a surface's colour at a hit."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from clray.reference.vectors import vec
+from clray.scene.model import Material, Texture
+
+
+class MaterialTable:
+    """The scene's materials as columns, indexed by material number."""
+
+    def __init__(self, materials: tuple[Material, ...]) -> None:
+        self.materials = materials
+        self.color = np.array([m.color for m in materials], dtype=np.float64).reshape(-1, 3)
+
+        def column(name: str) -> np.ndarray:
+            return np.array([getattr(m, name) for m in materials], dtype=np.float64)
+
+        self.ambient = column("ambient")
+        self.diffuse = column("diffuse")
+        self.specular = column("specular")
+        self.shininess = column("shininess")
+        self.reflect = column("reflect")
+        self.transmit = column("transmit")
+        self.ior = column("ior")
+        self.fresnel = np.array([m.fresnel for m in materials], dtype=bool)
+        self.filter = self.transmit[:, None] * self.color  # shadow filter per crossing
+
+
+def image_texel(
+    image: np.ndarray, u: np.ndarray, v: np.ndarray, repeat: tuple[float, float]
+) -> np.ndarray:
+    """Bilinear, wrapping lookup of an (H, W, 3) image (row 0 at the top) at (u, v)."""
+    texels = np.asarray(image, dtype=np.float64)
+    height, width = texels.shape[:2]
+    j, k = repeat
+    uj, vk = u * j, v * k
+    s = (uj - np.floor(uj)) * width - 0.5
+    t = (1.0 - (vk - np.floor(vk))) * height - 0.5
+    # A degenerate (u, v) (NaN from a zero-extent face) must not become a wild index.
+    s = np.where(np.isfinite(s), s, 0.0)
+    t = np.where(np.isfinite(t), t, 0.0)
+    x0, y0 = np.floor(s), np.floor(t)
+    fx, fy = (s - x0)[:, None], (t - y0)[:, None]
+    x0, y0 = x0.astype(np.int64), y0.astype(np.int64)
+    x1, y1 = (x0 + 1) % width, (y0 + 1) % height
+    x0, y0 = x0 % width, y0 % height
+    return (
+        (1 - fx) * (1 - fy) * texels[y0, x0]
+        + fx * (1 - fy) * texels[y0, x1]
+        + (1 - fx) * fy * texels[y1, x0]
+        + fx * fy * texels[y1, x1]
+    )
+
+
+def checker_texel(
+    texture: Texture, color: np.ndarray, p: np.ndarray, facing_normal: np.ndarray
+) -> np.ndarray:
+    """The 3D checker: `color` on even cells of q = p - size/4 * n_f, else texture.color2."""
+    q = p - 0.25 * texture.size * facing_normal
+    cells = np.sum(np.floor(q / texture.size), axis=-1)
+    even = (cells % 2 == 0)[:, None]
+    return np.where(even, color, vec(texture.color2))
+
+
+def surface_color(
+    mats: MaterialTable, material: np.ndarray, p: np.ndarray, uv: np.ndarray, ngf: np.ndarray
+) -> np.ndarray:
+    """The material's colour, blended with its texture's texel where it has one."""
+    c = mats.color[material]
+    for idx, mat in enumerate(mats.materials):
+        tex = mat.texture
+        m = material == idx
+        if tex is None or not m.any():
+            continue
+        if tex.kind == "checker":
+            texel = checker_texel(tex, mats.color[idx], p[m], ngf[m])
+        else:
+            texel = image_texel(tex.image, uv[m, 0], uv[m, 1], tex.repeat)
+        c[m] = tex.blend * texel + (1.0 - tex.blend) * mats.color[idx]
+    return c

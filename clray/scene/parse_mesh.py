@@ -9,27 +9,13 @@ from clray.scene import limits as L
 from clray.scene.assets import Assets
 from clray.scene.mesh_data import mesh_arrays
 from clray.scene.model import Mesh, unit
+from clray.scene.obj import ObjMesh
 from clray.scene.parse_transform import parse_transform
 from clray.scene.values import Values
 
 
 def parse_mesh(spec: dict, key: str, material: int, v: Values, assets: Assets) -> Mesh:
-    inline = "vertices" in spec or "faces" in spec
-    if "file" in spec and inline:
-        raise v.error(key, "give file or vertices + faces, not both")
-    for name in ("normals", "uvs"):
-        if name in spec and not inline:
-            raise v.error(f"{key}.{name}", "only with vertices + faces (an OBJ file "
-                          "gives its own)")
-    if "file" in spec:
-        obj = assets.mesh_file(spec["file"], f"{key}.file")
-    elif inline:
-        for name in ("vertices", "faces"):
-            if name not in spec:
-                raise v.error(f"{key}.{name}", "missing required key")
-        obj = mesh_arrays(v, spec, f"{key}.")
-    else:
-        raise v.error(key, "a mesh needs file or vertices + faces")
+    obj = _mesh_source(spec, key, v, assets)
     vertices, faces, normals, uvs = obj.vertices, obj.faces, obj.normals, obj.uvs
     if len(faces) == 0:
         raise v.error(key, "mesh has no faces")
@@ -63,3 +49,22 @@ def parse_mesh(spec: dict, key: str, material: int, v: Values, assets: Assets) -
         normals=normals,
         uvs=uvs,
     )
+
+
+def _mesh_source(spec: dict, key: str, v: Values, assets: Assets) -> ObjMesh:
+    """The mesh as read: from its file, or its inline vertices and faces."""
+    inline = "vertices" in spec or "faces" in spec
+    if "file" in spec and inline:
+        raise v.error(key, "give file or vertices + faces, not both")
+    for name in ("normals", "uvs"):
+        if name in spec and not inline:
+            raise v.error(f"{key}.{name}", "only with vertices + faces (an OBJ file "
+                          "gives its own)")
+    if "file" in spec:
+        return assets.mesh_file(spec["file"], f"{key}.file")
+    if not inline:
+        raise v.error(key, "a mesh needs file or vertices + faces")
+    for name in ("vertices", "faces"):
+        if name not in spec:
+            raise v.error(f"{key}.{name}", "missing required key")
+    return mesh_arrays(v, spec, f"{key}.")

@@ -3,7 +3,7 @@
 The image's declared size is checked against the limits before any pixel is decoded: a PNG of
 a few hundred bytes can declare 100000 x 100000 pixels. 16-bit images are scaled to [0, 1]
 (Pillow's conversion to 8-bit RGB would clip them), float images are clipped to [0, 1]. The
-loader then decodes sRGB files to linear (clray.scene.load, docs/rendering.md).
+loader then decodes sRGB files to linear (clray.scene.assets, docs/rendering.md).
 """
 
 from __future__ import annotations

@@ -18,8 +18,8 @@ import statistics
 
 import pyopencl as cl
 
+from clray.device.launch import render_packed
 from clray.device.pack import PackedScene
-from clray.render import render_packed
 
 
 def _variant(packed: PackedScene, *, depth0: bool, lights: bool) -> PackedScene:

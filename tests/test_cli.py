@@ -61,7 +61,7 @@ material = "red"
 
 TINY = ["-W", "32", "-H", "24"]
 ROOT = Path(__file__).resolve().parent.parent
-render_module = importlib.import_module("clray.render")
+launch_module = importlib.import_module("clray.device.launch")
 
 
 def scene_text(radius: str = "1", material_extra: str = "") -> str:
@@ -264,8 +264,8 @@ def test_verbose_prints_progress_and_stats(capsys, cl_device, scene) -> None:
 
 def test_verbose_progress_lines_follow_pixel_samples(capsys, cl_device, scene,
                                                      monkeypatch) -> None:
-    monkeypatch.setattr(render_module, "FIRST_LAUNCH_PIXEL_SAMPLES", 32 * 4)
-    monkeypatch.setattr(render_module, "MAX_LAUNCH_PIXEL_SAMPLES", 32 * 4)
+    monkeypatch.setattr(launch_module, "FIRST_LAUNCH_PIXEL_SAMPLES", 32 * 4)
+    monkeypatch.setattr(launch_module, "MAX_LAUNCH_PIXEL_SAMPLES", 32 * 4)
     code, _, err = run(capsys, "render", scene, *TINY, "-v")
     assert code == 0
     steps = re.findall(r"^clray: rendering: (\d+)% \((\d+) of 768 pixel-samples, "

@@ -18,7 +18,7 @@ from tests.reference_check import Tolerance, assert_kernel_matches_reference
 
 ROOT = Path(__file__).resolve().parent.parent
 # `clray.render` the attribute is the function; the module is needed for monkeypatching.
-render_module = importlib.import_module("clray.render")
+launch_module = importlib.import_module("clray.device.launch")
 TEXTURE = ROOT / "scenes" / "textures" / "bricks.png"
 
 W, H = 48, 36
@@ -245,8 +245,8 @@ def test_image_is_independent_of_launch_banding(cl_device, monkeypatch) -> None:
     assert whole.stats["launches"] == 1
     # Bands of three rows, then of one row: every pixel is computed by a different launch.
     for rows in (3, 1):
-        monkeypatch.setattr(render_module, "FIRST_LAUNCH_PIXEL_SAMPLES", W * 5 * rows)
-        monkeypatch.setattr(render_module, "MAX_LAUNCH_PIXEL_SAMPLES", W * 5 * rows)
+        monkeypatch.setattr(launch_module, "FIRST_LAUNCH_PIXEL_SAMPLES", W * 5 * rows)
+        monkeypatch.setattr(launch_module, "MAX_LAUNCH_PIXEL_SAMPLES", W * 5 * rows)
         banded = render(scene)
         assert banded.stats["launches"] == H // rows
         np.testing.assert_array_equal(whole.image, banded.image)
@@ -254,8 +254,8 @@ def test_image_is_independent_of_launch_banding(cl_device, monkeypatch) -> None:
 
 def test_progress_counts_pixel_samples_up_to_the_total(cl_device, monkeypatch) -> None:
     scene = CASES["supersampled"]
-    monkeypatch.setattr(render_module, "FIRST_LAUNCH_PIXEL_SAMPLES", W * 5 * 4)
-    monkeypatch.setattr(render_module, "MAX_LAUNCH_PIXEL_SAMPLES", W * 5 * 4)
+    monkeypatch.setattr(launch_module, "FIRST_LAUNCH_PIXEL_SAMPLES", W * 5 * 4)
+    monkeypatch.setattr(launch_module, "MAX_LAUNCH_PIXEL_SAMPLES", W * 5 * 4)
     reports: list[tuple[int, int]] = []
     result = render(scene, RenderSettings(progress=lambda done, total: reports.append(
         (done, total))))
@@ -266,11 +266,11 @@ def test_progress_counts_pixel_samples_up_to_the_total(cl_device, monkeypatch) -
 
 
 def test_band_rows_follow_the_measured_rate_within_bounds(monkeypatch) -> None:
-    monkeypatch.setattr(render_module, "FIRST_LAUNCH_PIXEL_SAMPLES", 1000)
-    monkeypatch.setattr(render_module, "MAX_LAUNCH_PIXEL_SAMPLES", 100_000)
-    monkeypatch.setattr(render_module, "LAUNCH_SECONDS", 0.25)
-    monkeypatch.setattr(render_module, "LAUNCH_GROWTH", 4)
-    rows = render_module.next_band_rows
+    monkeypatch.setattr(launch_module, "FIRST_LAUNCH_PIXEL_SAMPLES", 1000)
+    monkeypatch.setattr(launch_module, "MAX_LAUNCH_PIXEL_SAMPLES", 100_000)
+    monkeypatch.setattr(launch_module, "LAUNCH_SECONDS", 0.25)
+    monkeypatch.setattr(launch_module, "LAUNCH_GROWTH", 4)
+    rows = launch_module.next_band_rows
     assert rows(100, 0, 0.0, 500) == 10  # the first band: FIRST_LAUNCH_PIXEL_SAMPLES
     assert rows(100, 0, 0.0, 7) == 7  # never past the image
     assert rows(100_000, 0, 0.0, 50) == 1  # a row over the first band's work: one row

@@ -1,0 +1,149 @@
+"""The clray package's import graph (docs/architecture.md): every module in a layer, no import
+from a lower layer to a higher one, and no import loop. Imports are read with ast, inside
+functions too: a deferred import is still a dependency."""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+import pytest
+
+PACKAGE = Path(__file__).resolve().parent.parent / "clray"
+
+# Lowest first. A module belongs to the first layer with a prefix that names it or a package
+# above it; within a layer imports go either way.
+LAYERS: list[tuple[str, tuple[str, ...]]] = [
+    ("base", ("clray.errors", "clray.metrics")),
+    ("scene/accel", ("clray.scene", "clray.accel")),
+    ("device", ("clray.device",)),
+    ("render/cli", ("clray", "clray.render", "clray.image_io", "clray.cli", "clray.__main__",
+                    "clray.distributed", "clray.sequence", "clray.study", "clray.reference")),
+]
+
+# Known arrows that issue 19's other half (the scene loader in parts, the sRGB curve in its own
+# module) removes: each is excused from the checks below and has its own strict xfail, which
+# passes, and so fails, once the arrow is gone, so that its entry here goes with it.
+KNOWN_LOOP = ("clray.scene.animation", "clray.scene.load")
+KNOWN_UPWARD = ("clray.scene.load", "clray.image_io")
+
+
+def _module_name(path: Path) -> str:
+    parts = path.relative_to(PACKAGE.parent).with_suffix("").parts
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+def _is_module(name: str) -> bool:
+    path = PACKAGE.parent.joinpath(*name.split("."))
+    return path.with_suffix(".py").is_file() or (path / "__init__.py").is_file()
+
+
+def _imports(path: Path) -> set[str]:
+    """The clray modules a file imports: `from a import b` names a.b where that is a module."""
+    found = set()
+    for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+        if isinstance(node, ast.Import):
+            found.update(a.name for a in node.names if a.name.split(".")[0] == "clray")
+        elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module and \
+                node.module.split(".")[0] == "clray":
+            subs = [f"{node.module}.{a.name}" for a in node.names]
+            found.update(s for s in subs if _is_module(s))
+            if not all(_is_module(s) for s in subs):
+                found.add(node.module)
+    return found
+
+
+def import_graph() -> dict[str, set[str]]:
+    graph = {_module_name(p): _imports(p) for p in PACKAGE.rglob("*.py")}
+    return {module: deps - {module} for module, deps in graph.items()}
+
+
+def layer_of(module: str) -> int | None:
+    best = None
+    for index, (_, prefixes) in enumerate(LAYERS):
+        for prefix in prefixes:
+            if module == prefix or module.startswith(prefix + "."):
+                if best is None or len(prefix) > best[0]:
+                    best = (len(prefix), index)
+    return None if best is None else best[1]
+
+
+def upward_imports(graph: dict[str, set[str]]) -> set[tuple[str, str]]:
+    return {(module, dep) for module, deps in graph.items() for dep in deps
+            if layer_of(dep) > layer_of(module)}
+
+
+def loops(graph: dict[str, set[str]]) -> list[set[str]]:
+    """The graph's strongly connected components of more than one module (Tarjan)."""
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    found: list[set[str]] = []
+
+    def visit(v: str) -> None:
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        for w in graph.get(v, ()):
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in stack:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            component = set()
+            while True:
+                w = stack.pop()
+                component.add(w)
+                if w == v:
+                    break
+            if len(component) > 1:
+                found.append(component)
+
+    for v in sorted(graph):
+        if v not in index:
+            visit(v)
+    return found
+
+
+def _without(graph: dict[str, set[str]], a: str, b: str) -> dict[str, set[str]]:
+    """The graph less the arrows between a and b, both ways."""
+    pair = {a, b}
+    return {m: {d for d in deps if {m, d} != pair} for m, deps in graph.items()}
+
+
+def test_the_graph_is_read() -> None:
+    graph = import_graph()
+    assert "clray.device.launch" in graph["clray.render"]
+    assert "clray.accel.bvh" in graph["clray.device.bvh_build"]
+    assert len(graph) > 30
+
+
+def test_every_module_has_a_layer() -> None:
+    assert [m for m in import_graph() if layer_of(m) is None] == []
+
+
+def test_no_import_from_a_lower_layer_to_a_higher_one() -> None:
+    assert upward_imports(import_graph()) - {KNOWN_UPWARD} == set()
+
+
+def test_no_import_loops() -> None:
+    assert loops(_without(import_graph(), *KNOWN_LOOP)) == []
+
+
+def test_the_checks_can_fail() -> None:
+    graph = {"clray.scene.model": {"clray.device.pack"}, "clray.device.pack": {"clray.render"},
+             "clray.render": {"clray.scene.model"}}
+    assert upward_imports(graph) == {("clray.scene.model", "clray.device.pack"),
+                                     ("clray.device.pack", "clray.render")}
+    assert loops(graph) == [set(graph)]
+
+
+@pytest.mark.xfail(strict=True, reason="the other half of issue 19 splits the scene loader")
+def test_known_loop_scene_load_and_animation_is_gone() -> None:
+    graph = import_graph()
+    assert not any(set(KNOWN_LOOP) <= component for component in loops(graph))
+
+
+@pytest.mark.xfail(strict=True, reason="the other half of issue 19 moves the sRGB curve")
+def test_known_upward_import_scene_load_to_image_io_is_gone() -> None:
+    assert KNOWN_UPWARD not in upward_imports(import_graph())

@@ -261,6 +261,19 @@ def test_device_rounding_at_the_edges_of_float32(cl_queue):
     assert_same_tree(bvh, build_bvh(lo, hi, 1))
 
 
+def test_device_build_runs_on_the_device(cl_queue, monkeypatch):
+    # Above max_leaf_size primitives on a device that supports it, build_bvh_on does not fall
+    # back to the host build (which would make the comparisons above vacuous).
+    def device_build(*args: object) -> None:
+        raise RuntimeError("device build")
+
+    monkeypatch.setattr(bvh_build, "build", device_build)
+    lo = np.random.default_rng(0).uniform(-1, 1, (10, 3))
+    with pytest.raises(RuntimeError, match="device build"):
+        build_bvh_on(cl_queue, lo, lo + 0.1, 4)
+    assert build_bvh_on(cl_queue, lo[:4], lo[:4] + 0.1, 4).nodes.size == 1
+
+
 def test_device_build_only_where_node_slots_fit_in_ints(cl_queue):
     assert bvh_build.supports(cl_queue.device, 2**30)
     assert not bvh_build.supports(cl_queue.device, 2**30 + 1)

@@ -7,8 +7,6 @@ from __future__ import annotations
 import ast
 from pathlib import Path
 
-import pytest
-
 PACKAGE = Path(__file__).resolve().parent.parent / "clray"
 
 # Lowest first. A module belongs to the first layer with a prefix that names it or a package
@@ -20,13 +18,6 @@ LAYERS: list[tuple[str, tuple[str, ...]]] = [
     ("render/cli", ("clray", "clray.render", "clray.image_io", "clray.cli", "clray.__main__",
                     "clray.distributed", "clray.sequence", "clray.study", "clray.reference")),
 ]
-
-# Known arrows that issue 19's other half (the scene loader in parts, the sRGB curve in its own
-# module) removes: each is excused from the checks below and has its own strict xfail, which
-# passes, and so fails, once the arrow is gone, so that its entry here goes with it.
-KNOWN_LOOP = ("clray.scene.animation", "clray.scene.load")
-KNOWN_UPWARD = ("clray.scene.load", "clray.image_io")
-
 
 def _module_name(path: Path) -> str:
     parts = path.relative_to(PACKAGE.parent).with_suffix("").parts
@@ -105,12 +96,6 @@ def loops(graph: dict[str, set[str]]) -> list[set[str]]:
     return found
 
 
-def _without(graph: dict[str, set[str]], a: str, b: str) -> dict[str, set[str]]:
-    """The graph less the arrows between a and b, both ways."""
-    pair = {a, b}
-    return {m: {d for d in deps if {m, d} != pair} for m, deps in graph.items()}
-
-
 def test_the_graph_is_read() -> None:
     graph = import_graph()
     assert "clray.device.launch" in graph["clray.render"]
@@ -123,11 +108,11 @@ def test_every_module_has_a_layer() -> None:
 
 
 def test_no_import_from_a_lower_layer_to_a_higher_one() -> None:
-    assert upward_imports(import_graph()) - {KNOWN_UPWARD} == set()
+    assert upward_imports(import_graph()) == set()
 
 
 def test_no_import_loops() -> None:
-    assert loops(_without(import_graph(), *KNOWN_LOOP)) == []
+    assert loops(import_graph()) == []
 
 
 def test_the_checks_can_fail() -> None:
@@ -136,14 +121,3 @@ def test_the_checks_can_fail() -> None:
     assert upward_imports(graph) == {("clray.scene.model", "clray.device.pack"),
                                      ("clray.device.pack", "clray.render")}
     assert loops(graph) == [set(graph)]
-
-
-@pytest.mark.xfail(strict=True, reason="the other half of issue 19 splits the scene loader")
-def test_known_loop_scene_load_and_animation_is_gone() -> None:
-    graph = import_graph()
-    assert not any(set(KNOWN_LOOP) <= component for component in loops(graph))
-
-
-@pytest.mark.xfail(strict=True, reason="the other half of issue 19 moves the sRGB curve")
-def test_known_upward_import_scene_load_to_image_io_is_gone() -> None:
-    assert KNOWN_UPWARD not in upward_imports(import_graph())

@@ -24,7 +24,7 @@ import pyopencl as cl
 
 from clray import __version__
 from clray.device.context import list_devices
-from clray.errors import EXIT_OK, EXIT_RUNTIME, EXIT_USAGE, ClrayError, one_line
+from clray.errors import EXIT_OK, EXIT_RUNTIME, EXIT_USAGE, ClrayError, SceneError, one_line
 from clray.image_io import (
     FLOAT_SUFFIXES,
     SUFFIXES,
@@ -40,6 +40,7 @@ from clray.metrics import nonfinite_count
 from clray.render import RenderResult, RenderSettings, render
 from clray.scene import limits
 from clray.scene.load import load_scene
+from clray.scene.model import Scene
 
 EXIT_INTERRUPTED = 130  # 128 + SIGINT, as shells report it
 SEED_MAX = limits.MAX_SEED
@@ -138,7 +139,9 @@ def _build_parser() -> _Parser:
         "render", help="render a scene file to an image",
         description="Render SCENE. Flags override the scene file's [render] values.")
     r.add_argument("scene", type=_scene_path, metavar="SCENE",
-                   help="scene file (.toml or .json)")
+                   help="scene file (.toml or .json), or a mesh file (.obj, .ply, .npz) to "
+                        "render with an automatic camera and lights")
+    _model_flags(r)
     r.add_argument("-o", "--output", type=_image_path, metavar="OUT",
                    help=f"output image, by suffix: {', '.join(SUFFIXES)} (.png is 8- or "
                         "16-bit, sRGB unless --linear, clamped to [0, 1] after --exposure; .pfm "
@@ -230,11 +233,53 @@ def _build_parser() -> _Parser:
     st.add_argument("-q", "--quiet", action="store_true", help="print nothing on success")
     st.set_defaults(run=_study)
 
+    sc = commands.add_parser(
+        "scene", help="write the automatic scene of a mesh file as TOML",
+        description="Write to standard output the scene `clray render MODEL` renders: an "
+                    "editable TOML file that loads and renders the same. Its mesh file name is "
+                    "MODEL as given, relative to the working directory: save the scene there "
+                    "(or edit the name).")
+    sc.add_argument("model", type=_scene_path, metavar="MODEL",
+                    help="mesh file (.obj, .ply, .npz)")
+    _model_flags(sc)
+    sc.set_defaults(run=_scene)
+
     d = commands.add_parser("devices", help="list OpenCL devices, one per line",
                             description="List OpenCL devices: spec, type, name, platform, "
                                         "compute units, fp64 support, driver version.")
     d.set_defaults(run=_devices)
     return parser
+
+
+def _model_flags(parser: argparse.ArgumentParser) -> None:
+    from clray.model_scene import VIEWS
+
+    parser.add_argument("--view", choices=tuple(VIEWS), default="three-quarter",
+                        help="a mesh file's automatic camera: where it looks from "
+                             "(default: three-quarter)")
+    parser.add_argument("--ground", action="store_true",
+                        help="a mesh file's automatic scene: add a ground plane under it")
+
+
+def _load(args: argparse.Namespace) -> Scene:
+    """The scene file, or a mesh file's automatic scene."""
+    from clray.model_scene import is_mesh_file, load_model_scene
+
+    if is_mesh_file(args.scene):
+        return load_model_scene(args.scene, args.view, args.ground)
+    return load_scene(args.scene)
+
+
+def _scene(args: argparse.Namespace) -> int:
+    from clray.model_scene import is_mesh_file, model_scene_data, to_toml
+
+    if not is_mesh_file(args.model):
+        raise SceneError(args.model, None, "expected a mesh file (.obj, .ply, .npz)")
+    data = model_scene_data(args.model, args.view, args.ground)
+    header = (f"The automatic scene of {args.model.as_posix()} (clray scene --view {args.view}"
+              f"{' --ground' if args.ground else ''}).")
+    _to_stdout(to_toml(data, header).encode("utf-8"))
+    return EXIT_OK
 
 
 def _parse(argv: list[str] | None) -> argparse.Namespace:
@@ -466,7 +511,7 @@ def _render(args: argparse.Namespace) -> int:
         return _render_frames(args, started)
 
     with _warnings_as_lines(quiet=args.quiet, verbose=args.verbose):
-        scene = load_scene(args.scene)
+        scene = _load(args)
         load_s = time.perf_counter() - started
         if not args.quiet:
             for warning in scene.warnings:

@@ -24,6 +24,7 @@
 #define LIGHT_RECT 3
 #define LIGHT_DISC 4
 #define LIGHT_SPHERE 5
+#define LIGHT_TRIANGLE 6  // an emissive mesh face
 
 #define TEXTURE_NONE (-1)
 #define TEXTURE_CHECKER 0
@@ -82,6 +83,7 @@ typedef struct {
     int texture;  // index into the texture array, or TEXTURE_NONE
     int fresnel;  // 1: transmit is split by the Fresnel reflectance (HAS_FRESNEL builds)
     int pad0, pad1, pad2;
+    float4 emission;  // radiance the surface emits, w unused
 } Material;
 
 typedef struct {
@@ -94,13 +96,13 @@ typedef struct {
 } Texture;
 
 typedef struct {
-    // Point and spot: the position. Directional: the travel direction. Rect: a corner. Disc and
-    // sphere: the centre, w the radius.
+    // Point and spot: the position. Directional: the travel direction. Rect and triangle: a
+    // corner. Disc and sphere: the centre, w the radius.
     float4 position;
-    float4 color;        // area lights: the radiance, w the emitting area (rect and disc)
+    float4 color;        // area lights: the radiance, w the emitting area (rect, disc, triangle)
     float4 attenuation;  // point and spot: constant, linear, quadratic, w unused
-    float4 axis_u;  // rect: edge u; disc: unit normal; spot: unit direction, w cos(angle)
-    float4 axis_v;  // rect: edge v; spot: w cos(inner_angle)
+    float4 axis_u;  // rect, triangle: edge u; disc: unit normal; spot: unit direction, w cos(angle)
+    float4 axis_v;  // rect, triangle: edge v; spot: w cos(inner_angle)
     int kind;       // LIGHT_*
     int pad0, pad1, pad2;
 } Light;

@@ -122,8 +122,12 @@ inline bool sample_area_light(const __global Light* light, REAL3 p, REAL err, RE
         return true;
     }
     REAL3 y, n_l;
-    if (light->kind == LIGHT_RECT) {
+    if (light->kind == LIGHT_RECT || light->kind == LIGHT_TRIANGLE) {
         REAL3 eu = TO_REAL3(light->axis_u), ev = TO_REAL3(light->axis_v);
+        // A triangle folds the square's far half onto its near one: uniform by area still.
+        if (light->kind == LIGHT_TRIANGLE && u.x + u.y > (REAL)1) {
+            u = (REAL2)((REAL)1 - u.x, (REAL)1 - u.y);
+        }
         y = c + u.x * eu + u.y * ev;
         n_l = safe_normalize(cross(eu, ev));
     } else {

@@ -317,7 +317,7 @@ HOT REAL phong_power(REAL x, REAL s) {
 HOT REAL3 shade_direct(const SceneRefs* s, const Surface* sf, REAL3 n, REAL3 v, REAL3 c,
                           const __global Material* m, REAL3 ambient_light, SampleKey key,
                           int* shadow_rays) {
-    REAL3 result = TO_REAL(m->ambient) * c * ambient_light;
+    REAL3 result = TO_REAL(m->ambient) * c * ambient_light + TO_REAL3(m->emission);
     REAL diffuse = TO_REAL(m->diffuse), specular = TO_REAL(m->specular);
     REAL shininess = TO_REAL(m->shininess);
     for (int i = 0; i < s->n_lights; ++i) {

@@ -1,4 +1,5 @@
-"""Fuzzing harness: hostile scene files, OBJ meshes, textures and flags against `clray render`.
+"""Fuzzing harness: hostile scene files, OBJ meshes and their MTL libraries, PLY meshes, textures
+and flags against `clray render`.
 
     python -m tests.fuzz --cases 100000 --seed 1          # long run, summary at the end
     python -m tests.fuzz --cases 2000 --strategies obj texture --render-fraction 0.1
@@ -46,7 +47,7 @@ from clray import cli
 from clray.errors import SceneError
 from clray.scene.load import load_scene
 
-STRATEGIES = ("scene", "bytes", "obj", "texture", "flags")
+STRATEGIES = ("scene", "bytes", "obj", "mtl", "ply", "texture", "flags")
 CASE_SECONDS = 30  # a case still running after this is a hang
 
 # -- hostile values -------------------------------------------------------------------------------
@@ -273,6 +274,67 @@ def obj_text(rng: random.Random) -> bytes:
     return byte_mutate(text, rng) if rng.random() < 0.2 else text
 
 
+MTL_KEYS = ["Ka", "Kd", "Ks", "Tf", "Ke", "Ns", "Ni", "d", "Tr", "illum", "map_Kd", "bump",
+            "Pr", "newmtl", "", "#", "map_Kd -s", "map_Kd -o", "d -halo"]
+MTL_VALUES = ["0", "1", "0.5", "-1", "1e30", "1e400", "nan", "x", "11", "10", "spectral f.rfl",
+              "xyz 1 1 1", "t.png", "missing.png", "dir", "fifo.obj", "bomb.png", "1 1", "a b c"]
+
+
+def mtl_text(rng: random.Random) -> tuple[bytes, bytes]:
+    """(OBJ, MTL): a quad whose faces use materials of a hostile library."""
+    names = ["a", "b", "", "c d", "\u00e9"]
+    obj = ["mtllib case.mtl", rng.choice(["", "mtllib missing.mtl", "mtllib dir", "mtllib"]),
+           "v 0 0 0", "v 1 0 0", "v 1 1 0", "v 0 1 0", "vt 0 0", "vt 1 0", "vt 1 1"]
+    for _ in range(rng.randint(1, 4)):
+        obj += [f"usemtl {rng.choice(names)}", rng.choice(["f 1/1 2/2 3/3", "f 1 2 3 4"])]
+    mtl = ["newmtl a"] if rng.random() < 0.9 else []
+    for _ in range(rng.randint(0, 14)):
+        key = rng.choice(MTL_KEYS)
+        if key == "newmtl" or rng.random() < 0.2:
+            mtl.append(f"newmtl {rng.choice(names)}")
+        else:
+            mtl.append(" ".join([key, *(rng.choice(MTL_VALUES) for _ in
+                                        range(rng.choice([0, 1, 1, 3])))]))
+    text = "\n".join(mtl).encode("utf-8", "surrogatepass")
+    return "\n".join(obj).encode(), byte_mutate(text, rng) if rng.random() < 0.2 else text
+
+
+def ply_bytes(rng: random.Random) -> bytes:
+    """A small PLY, ASCII or binary, with a hostile header line or body."""
+    fmt = rng.choice(["ascii", "binary_little_endian", "binary_big_endian"])
+    vertex = ["property float x", "property float y", "property float z"]
+    if rng.random() < 0.5:
+        vertex += ["property float nx", "property float ny", "property float nz"]
+    count_type, count_code = rng.choice([("uchar", "B"), ("uchar", "B"), ("char", "b"),
+                                         ("uint", "I"), ("float", "f")])
+    face = [f"property list {count_type} int vertex_indices"]
+    header = ["ply", f"format {fmt} 1.0", "element vertex 4", *vertex, "element face 2", *face,
+              "end_header"]
+    if rng.random() < 0.5:
+        at = rng.randrange(len(header))
+        header[at] = rng.choice(["element vertex 99999999999", "element face 0", "property x",
+                                 "property float x", "property list uchar float q",
+                                 "element vertex \u00b2", "comment", "format ascii 2.0", ""])
+    n_props = len(vertex)
+    values = [[rng.choice([0.0, 1.0, 0.5, -1.0, 1e30, 3e38, math.nan, math.inf]) if
+               rng.random() < 0.1 else float(i % 2 + k) for k in range(n_props)] for i in range(4)]
+    faces = [[3, 0, 1, 2], [rng.choice([3, 4, 2, 0, 255, -1]), 0, 2, 3, rng.choice([1, 4, -1])]]
+    if fmt == "ascii":
+        body = "\n".join(" ".join(f"{v:g}" for v in row) for row in values) + "\n"
+        body += "\n".join(" ".join(str(v) for v in f[:max(f[0], 0) + 1]) for f in faces) + "\n"
+        raw = ("\n".join(header) + "\n" + body).encode()
+    else:
+        order = "<" if fmt.endswith("little_endian") else ">"
+        body = b"".join(struct.pack(order + f"{n_props}f", *row) for row in values)
+        for f in faces:
+            k = f[0] % 128
+            items = (f[1:] * 100)[:k]
+            body += struct.pack(order + count_code, min(f[0], 127) if count_code == "b" else k)
+            body += struct.pack(order + f"{k}i", *items)
+        raw = ("\n".join(header) + "\n").encode() + body
+    return byte_mutate(raw, rng) if rng.random() < 0.15 else raw
+
+
 def png_header_only(width: int, height: int) -> bytes:
     def chunk(kind: bytes, data: bytes) -> bytes:
         return (struct.pack(">I", len(data)) + kind + data
@@ -405,6 +467,15 @@ def generate(strategy: str, rng: random.Random) -> Case:
         data["objects"].append({"type": "mesh", "file": "case.obj",
                                 "transform": {"scale": rng.choice([1, -1, 1e-20, 1e20, 1e30])}})
         return _with_data(Case(strategy, {"case.obj": obj_text(rng)}), data)
+    if strategy == "mtl":
+        data = base_scene(rng)
+        data["objects"].append({"type": "mesh", "file": "case.obj"})
+        obj, mtl = mtl_text(rng)
+        return _with_data(Case(strategy, {"case.obj": obj, "case.mtl": mtl}), data)
+    if strategy == "ply":
+        data = base_scene(rng)
+        data["objects"].append({"type": "mesh", "file": "case.ply"})
+        return _with_data(Case(strategy, {"case.ply": ply_bytes(rng)}), data)
     if strategy == "texture":
         data = base_scene(rng)
         raw, suffix = texture_bytes(rng)
@@ -490,9 +561,12 @@ def _remove(path: Path) -> None:
 
 # A scene error names a key path (`objects[3].radius`, `materials."x".ior`) or a line.
 _LOCATED = re.compile(r'^[^:]+: (line \d+: |(?:[\w\[\].-]|"(?:[^"\\]|\\.)*"(?:\.\.\.)?)+: '
-                      r"|.*\(at (line \d+|end of document))")
+                      r"|.*\(at (line \d+|end of document))"
+                      # A PLY file's element (and line), or header line.
+                      r"|^[^:]+: (element [^:,]+(, line \d+)?|header line \d+): ")
 _FILE_LEVEL = ("cannot read scene file", "not valid UTF-8", "unknown scene file type",
-               "expected a table at the top level", "cannot read mesh file")
+               "expected a table at the top level", "cannot read mesh file", "not a PLY file",
+               "no end_header line", "no format line", "header of over")
 
 
 def _check_scene_error(message: str) -> str | None:

@@ -34,7 +34,7 @@ def check(case: fuzz.Case, work: Path, render: bool = False) -> fuzz.Outcome:
     return outcome
 
 
-@pytest.mark.parametrize("strategy", ["scene", "bytes", "obj", "texture"])
+@pytest.mark.parametrize("strategy", ["scene", "bytes", "obj", "mtl", "ply", "texture"])
 @FAST
 @given(rng=st.randoms(use_true_random=False))
 def test_loading_never_crashes(work, strategy, rng):

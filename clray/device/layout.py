@@ -34,6 +34,7 @@ LIGHT_SPOT = 2
 LIGHT_RECT = 3
 LIGHT_DISC = 4
 LIGHT_SPHERE = 5
+LIGHT_TRIANGLE = 6
 
 TEXTURE_NONE = -1
 TEXTURE_CHECKER = 0
@@ -59,7 +60,7 @@ TRIANGLE = _struct([("v0", "<i4"), ("v1", "<i4"), ("v2", "<i4"), ("material", "<
 MATERIAL = _struct([("color", _F4), ("ambient", "<f4"), ("diffuse", "<f4"),
                     ("specular", "<f4"), ("shininess", "<f4"), ("reflect", "<f4"),
                     ("transmit", "<f4"), ("ior", "<f4"), ("texture", "<i4"), ("fresnel", "<i4"),
-                    *_PAD])
+                    *_PAD, ("emission", _F4)])
 TEXTURE = _struct([("color2", _F4), ("size", "<f4"), ("repeat_u", "<f4"), ("repeat_v", "<f4"),
                    ("blend", "<f4"), ("kind", "<i4"), ("texel_offset", "<i4"),
                    ("width", "<i4"), ("height", "<i4")])

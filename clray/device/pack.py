@@ -19,6 +19,7 @@ from clray.device import layout as L
 from clray.device.bvh_build import build_bvh_on
 from clray.device.program import KernelConfig
 from clray.scene import model as M
+from clray.scene.emitters import scene_lights
 from clray.scene.scale import needs_fp64_spheres
 
 # Primitive count from which pack_scene builds the BVH on the device when given a queue.
@@ -218,13 +219,14 @@ def _pack_triangles(objs: _Placed, bounded: _Bounded) -> _Triangles:
         empty = np.zeros((0, 4), dtype=np.float32)
         return _Triangles(_records(L.TRIANGLE, 0), empty, empty.copy(),
                           np.zeros((0, 2), np.float32))
-    sources = []  # (vertices, faces, normals, uvs, material) per object
+    sources = []  # (vertices, faces, normals, uvs, material or one per face) per object
     for obj in objs.objects:
         if isinstance(obj, M.Triangle):
             sources.append((np.asarray(obj.vertices, dtype=np.float64), np.array([[0, 1, 2]]),
                             None, None, obj.material))
         else:
-            sources.append((obj.vertices, obj.faces, obj.normals, obj.uvs, obj.material))
+            material = obj.material if obj.face_materials is None else obj.face_materials
+            sources.append((obj.vertices, obj.faces, obj.normals, obj.uvs, material))
     counts = [len(src[0]) for src in sources]
     offsets = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.int64)
     n_vertices = int(sum(counts))
@@ -240,7 +242,7 @@ def _pack_triangles(objs: _Placed, bounded: _Bounded) -> _Triangles:
         faces.append(f + off)
         bits = material | (L.TRIANGLE_SMOOTH if n is not None else 0)
         bits |= L.TRIANGLE_UV if u is not None else 0
-        flags.append(np.full(len(f), bits, dtype=np.int64))
+        flags.append(np.broadcast_to(np.asarray(bits, dtype=np.int64), len(f)))
         if n is not None:
             normals[off:off + len(v), :3] = n
             normals[off:off + len(v), 3] = 1.0
@@ -410,6 +412,7 @@ def _pack_materials(materials: list[M.Material]) -> tuple[np.ndarray, np.ndarray
             rec[key] = getattr(m, key)
         rec["texture"] = L.TEXTURE_NONE
         rec["fresnel"] = int(m.fresnel)
+        rec["emission"] = _f4(m.emission)
         if m.texture is None:
             continue
         tex = np.zeros((), dtype=L.TEXTURE)
@@ -455,6 +458,12 @@ def _pack_lights(lights: list[M.Light], eye: np.ndarray) -> np.ndarray:
             rec["position"] = _f4(np.asarray(light.corner) - eye)
             rec["axis_u"], rec["axis_v"] = _f4(light.u), _f4(light.v)
             rec["color"] = _f4(light.color, M.rect_area(light.u, light.v))
+        elif isinstance(light, M.TriangleLight):
+            v0, v1, v2 = (np.asarray(v, dtype=np.float64) for v in light.vertices)
+            rec["kind"] = L.LIGHT_TRIANGLE
+            rec["position"] = _f4(v0 - eye)
+            rec["axis_u"], rec["axis_v"] = _f4(v1 - v0), _f4(v2 - v0)
+            rec["color"] = _f4(light.color, M.rect_area(v1 - v0, v2 - v0) / 2.0)
         elif isinstance(light, M.DiscLight):
             rec["kind"] = L.LIGHT_DISC
             rec["position"] = _f4(np.asarray(light.center) - eye, light.radius)
@@ -545,7 +554,7 @@ def _scene_switches(scene: M.Scene, max_depth: int) -> dict[str, object]:
         "has_transmission": any_transmit,
         "has_refraction": any_transmit and max_depth > 0,
         "has_spot_lights": any(isinstance(x, M.SpotLight) for x in scene.lights),
-        "has_area_lights": any(isinstance(x, M.AreaLight) for x in scene.lights),
+        "has_area_lights": any(isinstance(x, M.AreaLight) for x in scene_lights(scene)),
         "has_fresnel": max_depth > 0 and any(m.fresnel and m.transmit > 0
                                              for m in scene.materials),
         "has_thin_lens": scene.camera.aperture > 0,
@@ -585,7 +594,7 @@ def pack_scene(scene: M.Scene, *, width: int, height: int, spp: int, max_depth: 
     triangle_packets = _triangle_packets(wide.prim_refs, tris)
     sphere_packets = _sphere_packets(wide.prim_refs, spheres)
     materials, textures, texels = _pack_materials(scene.materials)
-    lights = _pack_lights(scene.lights, eye)
+    lights = _pack_lights(scene_lights(scene), eye)
     camera = _pack_camera(scene.camera, eye, width, height)
 
     params = np.zeros(1, dtype=L.PARAMS)

@@ -121,7 +121,10 @@ class Geometry:
                 continue
             obj.append(np.full(len(faces), i, dtype=np.int64))
             face.append(faces)
-            mat.append(np.full(len(faces), ob.material, dtype=np.int64))
+            if isinstance(ob, Mesh) and ob.face_materials is not None:
+                mat.append(np.asarray(ob.face_materials, dtype=np.int64))
+            else:
+                mat.append(np.full(len(faces), ob.material, dtype=np.int64))
         self.tri_v = np.concatenate(verts)
         self.tri_n = np.concatenate(normals)
         self.tri_uv = np.concatenate(uvs)

@@ -8,7 +8,7 @@ from typing import NamedTuple
 import numpy as np
 
 from clray.reference.vectors import frame, safe_normalize, vec
-from clray.scene.model import DiscLight, RectLight, SphereLight, SpotLight
+from clray.scene.model import DiscLight, RectLight, SphereLight, SpotLight, TriangleLight
 
 # An area light sample's weight is clamped here, as in the kernels (kernels/lights.h).
 AREA_WEIGHT_MAX = 1e20
@@ -46,7 +46,7 @@ def concentric_disc(u1: np.ndarray, u2: np.ndarray) -> tuple[np.ndarray, np.ndar
 
 
 def sample_area_light(
-    light: RectLight | DiscLight | SphereLight,
+    light: RectLight | DiscLight | SphereLight | TriangleLight,
     p: np.ndarray,
     eps: np.ndarray,
     u1: np.ndarray,
@@ -62,6 +62,16 @@ def sample_area_light(
         normal = np.cross(u, v)
         area = float(np.linalg.norm(normal))
         normal = normal / area
+    elif isinstance(light, TriangleLight):
+        v0, v1, v2 = (vec(v) for v in light.vertices)
+        u, v = v1 - v0, v2 - v0
+        # The square's far half folded onto its near one, as the kernels do.
+        far = u1 + u2 > 1.0
+        u1, u2 = np.where(far, 1.0 - u1, u1), np.where(far, 1.0 - u2, u2)
+        y = v0 + u1[:, None] * u + u2[:, None] * v
+        normal = np.cross(u, v)
+        area = float(np.linalg.norm(normal)) / 2.0
+        normal = normal / (2.0 * area)
     else:
         normal = vec(light.normal)
         e1, e2 = frame(normal)

@@ -16,6 +16,7 @@ from clray.reference.sampling import _settings, camera_rays
 from clray.reference.shading import Surface, offset_origin, shade_direct, surface_at
 from clray.reference.texture import MaterialTable, surface_color
 from clray.reference.vectors import dot, safe_normalize, vec
+from clray.scene.emitters import scene_lights
 from clray.scene.model import Scene
 
 MEDIA_DEPTH = 4  # nesting depth of the media stack a ray carries
@@ -93,6 +94,7 @@ def trace(
     geo = Geometry(scene.objects)
     mats = MaterialTable(scene.materials)
     ambient_light = vec(scene.render.ambient)
+    lights = scene_lights(scene)
 
     o = np.asarray(origins, dtype=np.float64).reshape(-1, 3)
     n_rays = len(o)
@@ -115,7 +117,7 @@ def trace(
                         hit.uv[h], hit.material[h])
         c = surface_color(mats, sf.material, sf.p, sf.uv, sf.n_g)
         key = SampleKey(seed, ray_pixel[tasks.owner], ray_sample[tasks.owner], spp)
-        local = shade_direct(sf, tasks.d, c, mats, scene.lights, ambient_light, key,
+        local = shade_direct(sf, tasks.d, c, mats, lights, ambient_light, key,
                              geo.transmission)
         np.add.at(radiance, tasks.owner, tasks.weight[:, None] * local)
         tasks = secondary_rays(tasks, sf, mats, max_depth, scene.render.min_weight, schlick)

@@ -14,6 +14,8 @@ class MaterialTable:
     def __init__(self, materials: tuple[Material, ...]) -> None:
         self.materials = materials
         self.color = np.array([m.color for m in materials], dtype=np.float64).reshape(-1, 3)
+        self.emission = np.array([m.emission for m in materials],
+                                 dtype=np.float64).reshape(-1, 3)
 
         def column(name: str) -> np.ndarray:
             return np.array([getattr(m, name) for m in materials], dtype=np.float64)

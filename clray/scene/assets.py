@@ -19,7 +19,9 @@ from clray.scene import limits as L
 from clray.scene.colour import srgb_decode
 from clray.scene.files import UnreadableFile, open_regular, read_at_most
 from clray.scene.mesh_data import mesh_arrays
+from clray.scene.mtl import MtlLibrary, parse_mtl
 from clray.scene.obj import ObjMesh, parse_obj
+from clray.scene.ply import read_ply
 from clray.scene.texture import TextureError, read_texture
 from clray.scene.values import Values, file_name
 
@@ -39,6 +41,8 @@ class Assets:
         # By id() of the stored texels, which self.textures keeps alive for the assets' life.
         self.decoded_textures: dict[int, np.ndarray] = {}
         self.meshes: dict[tuple[int, int], ObjMesh] = {}
+        # MTL libraries by (device, inode): (the library, its identity).
+        self.libraries: dict[tuple[int, int], MtlLibrary] = {}
         self.texels_left = L.MAX_TEXELS
         self.triangles_left = L.MAX_TRIANGLES
         self.spheres_left = L.MAX_BULK_SPHERES
@@ -120,11 +124,42 @@ class Assets:
                     data = read_at_most(stream, L.MAX_MESH_BYTES)
                 except UnreadableFile as exc:
                     raise self.values.error(key, f"{exc}: {file_name(name)}") from None
-                if Path(str(name)).suffix.lower() == ".npz":
+                suffix = Path(str(name)).suffix.lower()
+                if suffix == ".npz":
                     self.meshes[identity] = self.npz_mesh(data, key, name)
+                elif suffix == ".ply":
+                    self.meshes[identity] = self.ply_mesh(data, key, name)
                 else:
                     self.meshes[identity] = parse_obj(data, self.base / name)
         return self.meshes[identity]
+
+    def ply_mesh(self, data: bytes, key: str, name: str) -> ObjMesh:
+        ply = read_ply(data, self.base / name)
+        if ply.colors is not None:
+            # Colours per vertex would need a per-vertex colour buffer on the device.
+            self.warnings.append(f"{key}: {file_name(name)}: vertex colours are not rendered "
+                                 "yet (the mesh takes its material's colour)")
+        return ply.mesh
+
+    def material_library(self, path: Path, where: str
+                         ) -> tuple[MtlLibrary, tuple[int, int]] | None:
+        """An MTL file (relative to the scene's folder) read once, with its identity; None,
+        with a warning naming `where`, if it cannot be read."""
+        try:
+            stream, info = open_regular(self.base / path, L.MAX_SCENE_BYTES)
+            with stream:
+                identity = (info.st_dev, info.st_ino)
+                if identity not in self.libraries:
+                    data = read_at_most(stream, L.MAX_SCENE_BYTES)
+                    self.libraries[identity] = parse_mtl(data, self.base / path,
+                                                         f"{where}: {file_name(path.name)}")
+                    self.warnings.extend(self.libraries[identity].warnings)
+        except UnreadableFile as exc:
+            self.warnings.append(f"{where}: cannot read material library "
+                                 f"{file_name(path.name)}: {exc} (its faces take the default "
+                                 "material)")
+            return None
+        return self.libraries[identity], identity
 
     def npz_mesh(self, data: bytes, key: str, name: str) -> ObjMesh:
         """A mesh from a .npz of arrays: vertices (V, 3), faces (F, 3, 0-based), and optionally

@@ -192,6 +192,9 @@ def _object(obj: M.SceneObject, key: str, names: list[str],
     if kind == "mesh":
         spec = {name: getattr(obj, name) for name in _MESH_ARRAYS
                 if getattr(obj, name) is not None}
+        if obj.face_materials is not None:
+            return {"type": kind, "materials": names, "material_index": obj.face_materials,
+                    **spec}
     else:
         spec = _fields(obj, skip=("material",))
     return {"type": kind, "material": names[material], **spec}

@@ -19,6 +19,7 @@ from clray.errors import SceneError
 from clray.scene import limits as L
 from clray.scene.animation import Animation, parse_animation, put, show_path
 from clray.scene.assets import Assets
+from clray.scene.emitters import emissive_triangles
 from clray.scene.files import UnreadableFile, read_regular
 from clray.scene.include import expand_includes
 from clray.scene.model import Scene
@@ -115,6 +116,10 @@ def _scene(data: Any, v: Values, assets: Assets) -> tuple[Scene, Animation | Non
         lights=lights,
         objects=placed,
     )
+    glowing = len(emissive_triangles(scene))
+    if glowing and len(lights) + glowing > L.MAX_LIGHTS:
+        raise v.error("objects", f"{glowing} emissive triangles and {len(lights)} lights are "
+                      f"over the limit of {L.MAX_LIGHTS} lights")
     scene = dataclasses.replace(scene, warnings=(*assets.warnings, *scene_warnings(scene)))
     object.__setattr__(scene, "checked", True)  # frozen: the one field the loader sets
     animation = _animation(data, v, assets) if "animation" in data else None

@@ -57,6 +57,9 @@ class Material:
     # Split `transmit` between the refracted and reflected rays by the dielectric Fresnel
     # reflectance instead of the fixed weights (docs/rendering.md, Fresnel).
     fresnel: bool = False
+    # Radiance the surface emits (MTL Ke), seen by the rays that hit it; a scene mesh's faces
+    # of such a material also light the scene (clray.scene.emitters).
+    emission: Vec3 = (0.0, 0.0, 0.0)
 
 
 @dataclass(frozen=True)
@@ -128,7 +131,16 @@ class SphereLight:
     color: Vec3 = (1.0, 1.0, 1.0)
 
 
-AreaLight = RectLight | DiscLight | SphereLight
+@dataclass(frozen=True)
+class TriangleLight:
+    """An emissive mesh face (clray.scene.emitters): emits to the side of
+    cross(v1 - v0, v2 - v0) only. Made from the meshes, never given in a scene file."""
+
+    vertices: tuple[Vec3, Vec3, Vec3]
+    color: Vec3 = (1.0, 1.0, 1.0)
+
+
+AreaLight = RectLight | DiscLight | SphereLight | TriangleLight
 Light = PointLight | DirectionalLight | SpotLight | RectLight | DiscLight | SphereLight
 
 
@@ -243,6 +255,9 @@ class Mesh:
     material: int
     normals: np.ndarray | None = None  # (V, 3) float64 unit vertex normals: smooth shading
     uvs: np.ndarray | None = None  # (V, 2) float64 texture coordinates
+    # (F,) int64 indices into Scene.materials, one per face (an OBJ file's `usemtl`); None:
+    # every face takes `material`.
+    face_materials: np.ndarray | None = None
 
 
 @dataclass(frozen=True)

@@ -13,6 +13,7 @@ mesh); anything else, errors included, is left to the general parser.
 
 from __future__ import annotations
 
+import dataclasses
 import re
 from dataclasses import dataclass
 from pathlib import Path
@@ -33,6 +34,12 @@ class ObjMesh:
     faces: np.ndarray  # (F, 3) int64, fan-triangulated polygons in file order
     normals: np.ndarray | None = None  # (V, 3) float64, unit length
     uvs: np.ndarray | None = None  # (V, 2) float64
+    # Materials named by `usemtl`, in order of first use; face_groups gives each triangle's
+    # index into them (-1 before the first `usemtl`), None in a file without `usemtl`.
+    material_names: tuple[str, ...] = ()
+    face_groups: np.ndarray | None = None
+    # `mtllib` statements: (line, file name as written) each, in file order.
+    material_libraries: tuple[tuple[int, str], ...] = ()
 
 
 # The bytes `bytes.split()` treats as whitespace, so token boundaries found with numpy agree
@@ -560,8 +567,10 @@ def parse_obj(data: bytes, path: Path) -> ObjMesh:
     vt = _component(tok, comp[:, 1], tokens, has_vt, use_uv, vt_stmt, "texture coordinate")
     vn = _component(tok, comp[:, 2], tokens, has_vn, use_vn, vn_stmt, "normal")
 
-    return _mesh(positions, uv_values if use_uv else None, normal_values if use_vn else None,
+    mesh = _mesh(positions, uv_values if use_uv else None, normal_values if use_vn else None,
                  v, vt, vn, _fan(count))
+    face_at = tok.starts[tok.heads[tok.kind == _F]] - _PAD
+    return _with_materials(data, mesh, face_at, count)
 
 
 def _mesh(
@@ -613,8 +622,9 @@ def _component(
 # number of values on every line of a kind, one vertex form in all faces, indices from 1,
 # comments only on lines of their own.
 
-# Runs of lines of one kind; a file that alternates more often is left to the general parser
-# rather than paying Python's overhead per run.
+# Runs of lines of one kind found one by one; where a file alternates more often (faces
+# between `usemtl`, `g` and `o` lines), one pass over the span of all of them finds the
+# spaces and keeps those on lines of the kind, rather than paying Python's overhead per run.
 _MAX_RUNS = 256
 
 
@@ -680,8 +690,10 @@ def _parse_regular(data: bytes) -> ObjMesh | None:
         vn = _regular_ints(buf, second_slash + 1, end, len(normal_values))
     if v is None or vt is None or vn is None:
         return None
-    return _mesh(positions, uv_values if use_uv else None, normal_values if use_vn else None,
-                 v, vt, vn, _fan(np.full(len(ws), ws.shape[1] - 1)))
+    count = np.full(len(ws), ws.shape[1] - 1)
+    mesh = _mesh(positions, uv_values if use_uv else None, normal_values if use_vn else None,
+                 v, vt, vn, _fan(count))
+    return _with_materials(data, mesh, starts[kind == _F] - _PAD, count)
 
 
 def _line_spaces(
@@ -695,12 +707,18 @@ def _line_spaces(
     # Consecutive selected lines form a run whose spaces one pass finds.
     breaks = np.flatnonzero(np.diff(sel) != 1) + 1
     if len(breaks) >= _MAX_RUNS:
-        return None
-    first = sel[np.concatenate(([0], breaks))]
-    last = sel[np.concatenate((breaks - 1, [len(sel) - 1]))]
-    ws = np.concatenate([np.flatnonzero(buf[lo : hi + 1] <= _SPACE) + lo
-                         for lo, hi in zip(starts[first].tolist(), newlines[last].tolist(),
-                                           strict=True)])
+        lo, hi = int(starts[sel[0]]), int(newlines[sel[-1]])
+        ws = np.flatnonzero(buf[lo : hi + 1] <= _SPACE) + lo
+        mine = np.zeros(len(starts), dtype=bool)
+        mine[sel] = True
+        # A space's line is that of the first newline at or after it.
+        ws = ws[mine[np.searchsorted(newlines, ws)]]
+    else:
+        first = sel[np.concatenate(([0], breaks))]
+        last = sel[np.concatenate((breaks - 1, [len(sel) - 1]))]
+        ws = np.concatenate([np.flatnonzero(buf[lo : hi + 1] <= _SPACE) + lo
+                             for lo, hi in zip(starts[first].tolist(), newlines[last].tolist(),
+                                               strict=True)])
     per_line, rest = divmod(len(ws), len(sel))
     if rest or per_line < 2:
         return None
@@ -768,3 +786,45 @@ def _regular_ints(buf: np.ndarray, start: np.ndarray, end: np.ndarray,
     if len(values) and not (values.min() >= 0 and values.max() < defined):
         return None
     return values
+
+
+def _statements(data: bytes, keyword: bytes) -> list[tuple[int, int, str]]:
+    """(byte offset, line, rest of the line) of each `keyword` statement. A file has a few
+    of these at most per material, so they are found with bytes.find rather than a pass over
+    every line."""
+    found = []
+    at = data.find(keyword)
+    counted, line = 0, 1  # newlines before `counted`, counted once in all
+    while at >= 0:
+        line_start = data.rfind(b"\n", 0, at) + 1
+        end = data.find(b"\n", at)
+        end = len(data) if end < 0 else end
+        after = data[at + len(keyword):at + len(keyword) + 1]
+        if not data[line_start:at].strip() and after in (b" ", b"\t"):
+            rest = data[at + len(keyword):end].split(b"#", 1)[0].strip()
+            line += data.count(b"\n", counted, at)
+            counted = at
+            found.append((at, line, rest.decode("utf-8", errors="replace")))
+        at = data.find(keyword, end)
+    return found
+
+
+def _with_materials(data: bytes, mesh: ObjMesh, face_at: np.ndarray,
+                    count: np.ndarray) -> ObjMesh:
+    """`mesh` with the file's `mtllib` names and each triangle's `usemtl` group. face_at: the
+    byte offset of each polygon's statement; count: its corners."""
+    if b"usemtl" not in data and b"mtllib" not in data:
+        return mesh
+    libraries = tuple((line, name) for _, line, rest in _statements(data, b"mtllib")
+                      for name in rest.split())
+    uses = _statements(data, b"usemtl")
+    if not uses:
+        return dataclasses.replace(mesh, material_libraries=libraries)
+    names: dict[str, int] = {}
+    group_of_use = np.array([names.setdefault(rest, len(names)) for _, _, rest in uses] + [-1])
+    use_at = np.array([at for at, _, _ in uses])
+    # -1 picks the appended -1: faces before the first usemtl have no material of the file's.
+    polygon_group = group_of_use[np.searchsorted(use_at, face_at) - 1]
+    return dataclasses.replace(mesh, material_names=tuple(names),
+                               face_groups=np.repeat(polygon_group, count - 2),
+                               material_libraries=libraries)

@@ -21,6 +21,7 @@ MATERIAL_KEYS = (
     "ior",
     "texture",
     "fresnel",
+    "emission",
 )
 TEXTURE_KEYS = {
     "checker": ("type", "size", "color2", "blend"),
@@ -37,10 +38,17 @@ class MaterialTable:
         self.materials: list[Material] = []
         self.named: dict[str, int] = {}
         self.default: int | None = None
+        # Materials of OBJ files' libraries, by (library identity, name): added once each.
+        self.from_libraries: dict[tuple[tuple[int, int], str], int] = {}
         for name, value in spec.items():
             key = key_path("materials", name)
             self.named[name] = len(self.materials)
             self.materials.append(parse_material(v.table(value, key), key, name, v, assets))
+
+    def add(self, material: Material) -> int:
+        """Append a material (one of an OBJ file's libraries): its index."""
+        self.materials.append(material)
+        return len(self.materials) - 1
 
     def for_object(self, spec: dict, key: str) -> int:
         """The index of an object's `material`, or of the default material if it has none."""
@@ -90,6 +98,7 @@ def parse_material(spec: dict, key: str, name: str, v: Values, assets: Assets) -
         color=v.color(spec.get("color", d.color), f"{key}.color"),
         ambient=coefficient("ambient", L.MAX_WEIGHT),
         diffuse=coefficient("diffuse", L.MAX_WEIGHT),
+        emission=v.color(spec.get("emission", d.emission), f"{key}.emission"),
         specular=coefficient("specular", L.MAX_WEIGHT),
         shininess=coefficient("shininess", L.MAX_SHININESS),
         reflect=reflect,

@@ -1,7 +1,9 @@
-"""A `mesh` object: an OBJ or .npz file, or vertices and faces given inline, placed by its
-transform (vertices, normals and winding) while loading."""
+"""A `mesh` object: an OBJ, PLY or .npz file, or vertices and faces given inline, placed by its
+transform (vertices, normals and winding) while loading, with one material or one per face."""
 
 from __future__ import annotations
+
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -10,12 +12,23 @@ from clray.scene.assets import Assets
 from clray.scene.mesh_data import mesh_arrays
 from clray.scene.model import Mesh, unit
 from clray.scene.obj import ObjMesh
+from clray.scene.obj_materials import obj_face_materials
 from clray.scene.parse_transform import parse_transform
-from clray.scene.values import Values
+from clray.scene.values import Values, show
+
+if TYPE_CHECKING:
+    from clray.scene.parse_materials import MaterialTable
 
 
-def parse_mesh(spec: dict, key: str, material: int, v: Values, assets: Assets) -> Mesh:
+def parse_mesh(spec: dict, key: str, material: int | None, v: Values, assets: Assets,
+               materials: MaterialTable) -> Mesh:
+    """material: the mesh's material, None where `materials` gives one per face."""
     obj = _mesh_source(spec, key, v, assets)
+    face_materials = None
+    # A scene `material` (or `materials`) overrides the file's own.
+    if obj.face_groups is not None and material is not None and "material" not in spec:
+        face_materials = obj_face_materials(obj, spec["file"], f"{key}.file", material, v,
+                                            assets, materials)
     vertices, faces, normals, uvs = obj.vertices, obj.faces, obj.normals, obj.uvs
     if len(faces) == 0:
         raise v.error(key, "mesh has no faces")
@@ -42,13 +55,42 @@ def parse_mesh(spec: dict, key: str, material: int, v: Values, assets: Assets) -
         # A mirroring transform turns the winding inside out; swapping two corners keeps
         # (v1 - v0) x (v2 - v0) pointing outward, which refraction relies on.
         faces = faces[:, [0, 2, 1]]
+    if face_materials is None:
+        face_materials = _face_materials(spec, key, len(faces), v, materials)
     return Mesh(
         vertices=np.ascontiguousarray(vertices),
         faces=np.ascontiguousarray(faces, dtype=np.int64),
-        material=material,
+        # Per-face materials leave `material` unused; the first face's keeps it valid.
+        material=int(face_materials[0]) if material is None else material,
         normals=normals,
         uvs=uvs,
+        face_materials=face_materials,
     )
+
+
+def _face_materials(spec: dict, key: str, n_faces: int, v: Values,
+                    materials: MaterialTable) -> np.ndarray | None:
+    """A mesh's material per face: `materials` (names or inline tables) picked by
+    `material_index`, one per triangle, as for `spheres`."""
+    if "material_index" in spec and "materials" not in spec:
+        raise v.error(f"{key}.material_index", "only with materials (a list)")
+    if "materials" not in spec:
+        return None
+    names = spec["materials"]
+    if not isinstance(names, list) or not names:
+        raise v.error(f"{key}.materials", f"expected a list of material names or inline "
+                      f"tables, got {show(names)}")
+    refs = np.array([materials.ref(x, f"{key}.materials[{j}]") for j, x in enumerate(names)],
+                    dtype=np.int64)
+    if "material_index" not in spec:
+        raise v.error(key, "materials needs material_index (one per triangle)")
+    index = v.array(spec["material_index"], f"{key}.material_index", (n_faces,), integer=True)
+    outside = (index < 0) | (index >= len(refs))
+    if outside.any():
+        i = int(np.flatnonzero(outside)[0])
+        raise v.error(f"{key}.material_index[{i}]", f"index {index[i]} out of range "
+                      f"(0-based, {len(refs)} materials)")
+    return refs[index]
 
 
 def _mesh_source(spec: dict, key: str, v: Values, assets: Assets) -> ObjMesh:

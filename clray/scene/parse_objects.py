@@ -33,7 +33,7 @@ OBJECT_KEYS: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
     "plane": (("point", "normal"), ()),
     "box": (("min", "max"), ()),
     "triangle": (("vertices",), ()),
-    "mesh": ((), ("file", "vertices", "faces", "normals", "uvs")),
+    "mesh": ((), ("file", "vertices", "faces", "normals", "uvs", "materials", "material_index")),
     "cylinder": (("base", "axis", "radius", "height"), ("capped",)),
     "cone": (("apex", "axis", "angle", "height"), ("capped",)),
     "spheres": ((), ("file", "centers", "radii", "radius", "materials", "material_index")),
@@ -121,9 +121,11 @@ class ObjectParser:
     def unplaced(self, spec: dict, key: str, kind: str) -> SceneObject:
         """A primitive in the coordinates its keys give, before its transform."""
         v, assets = self.v, self.assets
-        if kind == "spheres" and "materials" in spec:
+        if kind in ("spheres", "mesh") and "materials" in spec:
             if "material" in spec:
                 raise v.error(key, "give material or materials, not both")
+            if kind == "mesh":
+                return parse_mesh(spec, key, None, v, assets, self.materials)
             return parse_spheres(spec, key, None, v, assets, self.materials)
         material = self.materials.for_object(spec, key)
         if kind == "spheres":
@@ -143,7 +145,7 @@ class ObjectParser:
         if kind == "triangle":
             return Triangle(v.points(spec["vertices"], k("vertices"), exactly=3), material)
         if kind == "mesh":
-            return parse_mesh(spec, key, material, v, assets)
+            return parse_mesh(spec, key, material, v, assets, self.materials)
         capped = v.boolean(spec.get("capped", True), k("capped"))
         axis = v.direction(spec["axis"], k("axis"))
         height = v.length(spec["height"], k("height"))

@@ -1,0 +1,128 @@
+"""A scene made for a mesh file (`clray render model.obj`, `clray scene model.ply`).
+
+The scene is built as scene data (the dict a TOML file parses to), so that what `clray scene`
+writes is exactly what `clray render` renders: a camera framing the mesh's bounding sphere
+from the chosen view, a key and a fill light (directional, so they light any size of model
+alike) plus the ambient light, the file's own materials (or a plain grey where it has none),
+and optionally a ground plane under the model. README.md (Looking at a model) describes it.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from clray.errors import SceneError
+from clray.scene.load import scene_from_dict
+from clray.scene.model import Mesh, Scene, unit
+
+MESH_SUFFIXES = (".obj", ".ply", ".npz")
+# Unit directions from the model's centre to the camera, and the camera's up.
+VIEWS: dict[str, tuple[tuple[float, float, float], tuple[float, float, float]]] = {
+    # 45 degrees round from the front, 25 degrees up: the usual three-quarter view.
+    "three-quarter": ((0.6409, 0.4226, 0.6409), (0.0, 1.0, 0.0)),
+    "front": ((0.0, 0.0, 1.0), (0.0, 1.0, 0.0)),
+    "side": ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0)),
+    "top": ((0.0, 1.0, 0.0), (0.0, 0.0, -1.0)),
+    "iso": ((0.5774, 0.5774, 0.5774), (0.0, 1.0, 0.0)),
+}
+VFOV = 35.0
+# The bounding sphere's radius over the half-height of the view: a little room round it.
+MARGIN = 1.05
+# The ambient light: dim, as files often give Ka = 1 (exporters' default) or Ka = Kd.
+AMBIENT = 0.12
+MODEL_MATERIAL = {"color": [0.8, 0.8, 0.8], "ambient": 1.0, "diffuse": 0.85,
+                  "specular": 0.25, "shininess": 40.0}
+GROUND_MATERIAL = {"color": [0.6, 0.6, 0.6], "ambient": 1.0, "diffuse": 0.85}
+
+
+def is_mesh_file(path: Path) -> bool:
+    return path.suffix.lower() in MESH_SUFFIXES
+
+
+def model_scene_data(path: Path, view: str = "three-quarter", ground: bool = False) -> dict:
+    """Scene data for the mesh file `path` (relative names are relative to the working
+    directory, and written so)."""
+    name = path.as_posix()
+    try:
+        probe = scene_from_dict({"camera": {"position": [0, 0, 1], "look_at": [0, 0, 0]},
+                                 "objects": [{"type": "mesh", "file": name}]})
+    except SceneError as err:
+        if err.file is not None:  # an error inside the mesh file names it already
+            raise
+        # Not a scene file's key: the mesh file itself could not be opened.
+        raise SceneError(path, None, err.message) from None
+    mesh = probe.objects[0]
+    assert isinstance(mesh, Mesh)
+    lo, hi = mesh.vertices.min(axis=0), mesh.vertices.max(axis=0)
+    center = (lo + hi) / 2.0
+    radius = max(float(np.linalg.norm(mesh.vertices - center, axis=1).max()), 1e-6)
+    toward, up = (np.array(v) for v in VIEWS[view])
+    distance = MARGIN * radius / math.sin(math.radians(VFOV) / 2.0)
+    right = unit(np.cross(-toward, up))
+    true_up = np.cross(right, -toward)
+    key = unit(toward + 0.8 * true_up - 0.6 * right)
+    fill = unit(toward + 0.2 * true_up + 0.9 * right)
+    obj: dict[str, Any] = {"type": "mesh", "file": name}
+    data: dict[str, Any] = {
+        "render": {"width": 640, "height": 480, "background": [0.05, 0.05, 0.07],
+                   "ambient": [AMBIENT] * 3, "max_depth": 4},
+        "camera": {"position": _plain(center + distance * toward), "look_at": _plain(center),
+                   "up": _plain(up), "vfov": VFOV},
+        "materials": {},
+        "lights": [{"type": "directional", "direction": _plain(-key), "color": [0.85] * 3},
+                   {"type": "directional", "direction": _plain(-fill), "color": [0.35] * 3}],
+        "objects": [obj],
+    }
+    if mesh.face_materials is None:  # the file brings no materials of its own
+        data["materials"]["model"] = MODEL_MATERIAL
+        obj["material"] = "model"
+    if ground:
+        data["materials"]["ground"] = GROUND_MATERIAL
+        data["objects"].append({"type": "plane", "point": _plain(center * [1, 0, 1]
+                                                                  + lo * [0, 1, 0]),
+                                "normal": [0.0, 1.0, 0.0], "material": "ground"})
+    return data
+
+
+def load_model_scene(path: Path, view: str = "three-quarter", ground: bool = False) -> Scene:
+    return scene_from_dict(model_scene_data(path, view, ground))
+
+
+def _plain(v: np.ndarray) -> list[float]:
+    # Rounded to 6 significant digits: an editable file, and the TOML loads to these numbers.
+    return [float(f"{x:.6g}") for x in np.asarray(v, dtype=np.float64).tolist()]
+
+
+def to_toml(data: dict, header: str = "") -> str:
+    """Scene data of model_scene_data as TOML: top-level tables, materials as sub-tables,
+    lights and objects as arrays of tables."""
+    lines = [f"# {line}" for line in header.splitlines()]
+    for section, value in data.items():
+        if isinstance(value, list):
+            for item in value:
+                lines += ["", f"[[{section}]]", *_pairs(item)]
+        elif section == "materials":
+            for name, spec in value.items():
+                lines += ["", f"[materials.{name}]", *_pairs(spec)]
+        else:
+            lines += ["", f"[{section}]", *_pairs(value)]
+    return "\n".join(lines).lstrip("\n") + "\n"
+
+
+def _pairs(table: dict) -> list[str]:
+    return [f"{key} = {_value(v)}" for key, v in table.items()]
+
+
+def _value(v: Any) -> str:
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, str):
+        return json.dumps(v)  # a TOML basic string: the same escapes
+    if isinstance(v, list):
+        return "[" + ", ".join(_value(x) for x in v) + "]"
+    return repr(v)

@@ -1,0 +1,106 @@
+"""`clray render MODEL` and `clray scene MODEL`: every example mesh renders with the object
+filling most of the frame, the written TOML renders the same image, and the views and ground
+plane are where they should be."""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from clray.cli import main
+from clray.model_scene import VIEWS, load_model_scene, model_scene_data, to_toml
+from clray.render import render
+from clray.scene import model as M
+from clray.scene.load import load_scene
+
+ROOT = Path(__file__).resolve().parents[1]
+EXAMPLES = sorted(p for p in (ROOT / "scenes" / "meshes").iterdir()
+                  if p.suffix in (".obj", ".ply"))
+W, H = 80, 60
+
+
+def covered(scene: M.Scene) -> np.ndarray:
+    """Pixels where the model (not the background) is seen."""
+    scene = M.Scene(scene.path, M.RenderOptions(**{**scene.render.__dict__, "width": W,
+                                                   "height": H}),
+                    scene.camera, scene.materials, scene.lights, scene.objects)
+    image = render(scene).image
+    return np.any(image != np.asarray(scene.render.background, dtype=np.float32), axis=-1)
+
+
+@pytest.mark.parametrize("mesh", EXAMPLES, ids=lambda p: p.name)
+def test_each_example_mesh_fills_most_of_the_frame(cl_device, mesh, monkeypatch):
+    monkeypatch.chdir(mesh.parent)
+    seen = covered(load_model_scene(Path(mesh.name)))
+    rows, cols = np.flatnonzero(seen.any(axis=1)), np.flatnonzero(seen.any(axis=0))
+    # Framed by the bounding sphere: inside the frame, spanning most of its height or width.
+    assert not (seen[0].any() or seen[-1].any() or seen[:, 0].any() or seen[:, -1].any())
+    span = max((rows[-1] - rows[0] + 1) / H, (cols[-1] - cols[0] + 1) / W)
+    assert span > 0.7, span
+    assert seen.mean() > 0.2, seen.mean()
+
+
+@pytest.mark.parametrize("mesh", EXAMPLES, ids=lambda p: p.name)
+def test_render_command_takes_a_mesh_file(cl_device, mesh, tmp_path):
+    out = tmp_path / "m.png"
+    assert main(["render", str(mesh), "-o", str(out), "-W", "40", "-H", "30", "-q"]) == 0
+    assert out.stat().st_size > 0
+
+
+def test_written_scene_renders_identically(cl_device, tmp_path, monkeypatch, capsysbinary):
+    shutil.copy(ROOT / "scenes" / "meshes" / "cornell_box.obj", tmp_path)
+    shutil.copy(ROOT / "scenes" / "meshes" / "cornell_box.mtl", tmp_path)
+    monkeypatch.chdir(tmp_path)
+    assert main(["scene", "cornell_box.obj", "--view", "iso", "--ground"]) == 0
+    (tmp_path / "model.toml").write_bytes(capsysbinary.readouterr().out)
+    from_toml = load_scene(tmp_path / "model.toml")
+    direct = load_model_scene(Path("cornell_box.obj"), "iso", ground=True)
+    assert from_toml.camera == direct.camera and from_toml.materials == direct.materials
+    np.testing.assert_array_equal(render(from_toml).image, render(direct).image)
+
+
+def test_file_materials_are_kept_and_a_plain_mesh_gets_grey():
+    box = model_scene_data(ROOT / "scenes" / "meshes" / "cornell_box.obj")
+    assert "material" not in box["objects"][0] and box["materials"] == {}
+    scan = model_scene_data(ROOT / "scenes" / "meshes" / "scan.ply")
+    assert scan["objects"][0]["material"] == "model"
+
+
+@pytest.mark.parametrize("view", sorted(VIEWS))
+def test_views_look_at_the_centre_from_their_side(view):
+    mesh = ROOT / "scenes" / "meshes" / "cornell_box.obj"  # centre (278, 274.4, 279.6)
+    data = model_scene_data(mesh, view, ground=True)
+    eye = np.array(data["camera"]["position"]) - data["camera"]["look_at"]
+    np.testing.assert_allclose(data["camera"]["look_at"], [278, 274.4, 279.6], atol=1e-3)
+    toward = np.array(VIEWS[view][0])
+    np.testing.assert_allclose(eye / np.linalg.norm(eye), toward / np.linalg.norm(toward),
+                               atol=1e-5)
+    plane = data["objects"][1]
+    assert plane["type"] == "plane" and plane["point"][1] == 0.0
+
+
+def test_scene_command_refuses_a_scene_file(capsys):
+    assert main(["scene", "x.toml"]) != 0
+    assert "expected a mesh file" in capsys.readouterr().err
+
+
+def test_toml_strings_are_escaped():
+    text = to_toml({"objects": [{"type": "mesh", "file": 'a "b"\\c.obj'}]})
+    assert 'file = "a \\"b\\"\\\\c.obj"' in text
+
+
+def test_an_npz_mesh_renders_from_the_command_line(cl_device, tmp_path, monkeypatch):
+    np.savez(tmp_path / "m.npz", vertices=np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0],
+                                                    [0, 0, 1.0]]),
+             faces=np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]]))
+    monkeypatch.chdir(tmp_path)
+    assert main(["render", "m.npz", "--view", "top", "-W", "40", "-H", "30", "-q"]) == 0
+    assert (tmp_path / "m.png").stat().st_size > 0
+
+
+def test_a_missing_mesh_file_is_named(tmp_path, capsys):
+    assert main(["scene", str(tmp_path / "none.obj")]) == 3
+    assert "none.obj: file not found" in capsys.readouterr().err

@@ -36,14 +36,12 @@ inline REAL3 camera_direction(const __global Camera* camera, REAL2 sample, int w
 #if HAS_THIN_LENS || HAS_ORTHOGRAPHIC
 #if HAS_THIN_LENS
 // Sample s's point on the lens disc, in (right, up) coordinates times the lens radius: spp
-// angular strata, taken in an order shifted per pixel (by r_2 of the sample index spp, which no
-// sample uses) so that a sample's stratum does not follow its cell in the pixel, with the
-// angle jittered in the stratum by r_2 and the radius sqrt(r_3) (uniform over the disc).
+// angular strata, taken in an order permuted per pixel (keyed by the bits of r_2 of the sample
+// index spp, which no sample uses) so that a sample's stratum is independent of its cell in the
+// pixel and of its light points, with the angle jittered in the stratum by r_2 and the radius
+// sqrt(r_3) (uniform over the disc).
 inline REAL2 lens_sample(int s, int spp, uint seed, uint pixel) {
-    // Integer arithmetic on the 24 bits of r_2, so the shift is the reference's exactly.
-    uint bits = (uint)(rng_uniform(seed, pixel, (uint)spp, 2u) * (REAL)16777216);
-    int shift = (int)(((ulong)bits * (ulong)spp) >> 24);
-    int stratum = (s + shift) % spp;
+    int stratum = (int)permute_stratum((uint)s, (uint)spp, rng_bits(seed, pixel, (uint)spp, 2u));
     REAL angle = (REAL)2 * PI_R * ((REAL)stratum + rng_uniform(seed, pixel, (uint)s, 2u)) /
                  (REAL)spp;
     REAL rho = sqrt(rng_uniform(seed, pixel, (uint)s, 3u));

@@ -54,11 +54,11 @@ inline REAL light_uniform(uint key, int sample, uint dim) {
 // A point of the unit square for this light at this pixel sample. The spp samples take the
 // spp strata of a grid of rows of nx cells (the last row may hold fewer, its cells as much
 // wider as the row is shorter, so every stratum has area 1/spp), each stratum once: sample s
-// takes stratum (s + rotation) mod spp, the rotation drawn per pixel and light so that a
-// light's strata are not tied to the pixel's jitter cells.
+// takes stratum permute_stratum(s), a permutation drawn per pixel and light, so that a light's
+// strata are independent of the pixel's jitter cells and of every other light's strata.
 inline REAL2 light_square(SampleKey k, int light) {
     uint key = light_key(k, light);
-    int stratum = (int)(((uint)k.sample + key % (uint)k.spp) % (uint)k.spp);
+    int stratum = (int)permute_stratum((uint)k.sample, (uint)k.spp, key);
     int row = stratum / k.nx, col = stratum % k.nx;
     int cells = min(k.nx, k.spp - row * k.nx);
     REAL r0 = light_uniform(key, k.sample, 0u), r1 = light_uniform(key, k.sample, 1u);

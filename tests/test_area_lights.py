@@ -194,13 +194,19 @@ def test_small_sphere_light_approaches_a_point_light(cl_device) -> None:
     for radius in (0.2, 0.02, 0.002):
         sphere = M.SphereLight(centre, radius, (intensity / (np.pi * radius**2),) * 3)
         b = render(_scene([sphere], spp=16)).image.astype(np.float64)
-        errors.append((rmse(a, b), np.abs(a - b).max()))
+        errors.append(rmse(a, b))
     # The difference shrinks with the light: in the lit part as r^2 / d^2, at shadow edges
-    # with the penumbra's width, r. Measured RMSE 3.0e-3, 9.1e-4, 1.1e-5 and, at r = 0.002,
-    # a largest difference of 3.5e-4 (the image's mean is 0.27); bounds at 4x.
-    assert errors[0][0] > errors[1][0] > errors[2][0]
-    assert errors[2][0] < 4.4e-5
-    assert errors[2][1] < 1.4e-3
+    # with the penumbra's width, r. Measured RMSE 3.0e-3, 9.1e-4 and 1.7e-4.
+    assert errors[0] > errors[1] > errors[2]
+    # At r = 0.002 a pixel sample within the penumbra (about r wide) of a shadow edge may be lit
+    # under one light and not the other, changing its pixel by at most its lit value / spp: a
+    # few such pixels (measured: 1 of 1728, by 7.1e-3). Every other pixel is within 4x the
+    # measured largest difference, 2.1e-4 (highlights), and their RMSE within 4x its 8.0e-6.
+    diff = np.abs(a - b).max(axis=-1)
+    flipped = diff > 8.6e-4
+    assert flipped.sum() <= 4
+    assert np.all(diff[flipped] <= a.max() / 16)
+    assert rmse(a[~flipped], b[~flipped]) < 3.2e-5
 
 
 def test_spot_light_cone_on_a_plane(cl_device) -> None:
@@ -320,9 +326,11 @@ def test_lights_touching_surfaces_give_finite_images(cl_device) -> None:
     image = render(_scene(lights, spp=4)).image
     assert nonfinite_count(image) == 0
     reference = render_reference(_scene(lights, spp=4))
-    # Measured on PoCL: median error 8e-9, largest 2.8e-5 but for 3 pixels (2.2e-4 to 6.9e-4),
+    # Measured on PoCL: median error 8e-9, largest 2.8e-5 but for a few pixels (1e-4 to 7e-3),
     # where a float32 point and its float64 twin lie on either side of the sunk sphere's
-    # surface or of the rect light's plane; bounds at 4x, the 3 exactly.
+    # surface or of the rect light's plane: which pixels depends on where the samples fall,
+    # 2 to 7 of the 1728 over seeds 0 to 3 (with the light strata rotated or permuted); the
+    # median's bound at 4x, the count's at 8.
     err = np.abs(image - reference).max(axis=-1)
     assert np.median(err) < 3.2e-8
-    assert (err > 1.1e-4).sum() <= 3
+    assert (err > 1.1e-4).sum() <= 8

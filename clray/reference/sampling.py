@@ -20,15 +20,56 @@ def pcg_hash(x: np.ndarray | int) -> np.ndarray:
     return (word >> np.uint32(22)) ^ word
 
 
-def sample_uniform(seed: int, pixel: np.ndarray, sample: np.ndarray, dim: int) -> np.ndarray:
-    """r_dim of docs/rendering.md: 24 random bits of the key, in [0, 1)."""
+def rng_bits(seed: int, pixel: np.ndarray, sample: np.ndarray, dim: int) -> np.ndarray:
+    """The 32 hashed bits behind r_dim of docs/rendering.md."""
     seed_hash = pcg_hash(np.uint32(seed & 0xFFFFFFFF))
     pixel = np.asarray(pixel).astype(np.uint32)
     sample = np.asarray(sample).astype(np.uint32)
     with np.errstate(over="ignore"):
         counter = np.uint32(4) * sample + np.uint32(dim)
-    key = pcg_hash(pcg_hash(seed_hash ^ pixel) ^ counter)
-    return (key >> np.uint32(8)).astype(np.float64) * 2.0**-24
+    return pcg_hash(pcg_hash(seed_hash ^ pixel) ^ counter)
+
+
+def sample_uniform(seed: int, pixel: np.ndarray, sample: np.ndarray, dim: int) -> np.ndarray:
+    """r_dim of docs/rendering.md: 24 random bits of the key, in [0, 1)."""
+    return (rng_bits(seed, pixel, sample, dim) >> np.uint32(8)).astype(np.float64) * 2.0**-24
+
+
+def _permute_round(i: np.ndarray, w: np.uint32, key: np.ndarray) -> np.ndarray:
+    """One walk step of permute_stratum: a bijection on [0, w]."""
+    u = np.uint32
+    with np.errstate(over="ignore"):
+        i = i ^ key
+        i = i * u(0xE170893D)
+        i = i ^ (key >> u(16))
+        i = i ^ ((i & w) >> u(4))
+        i = i ^ (key >> u(8))
+        i = i * u(0x0929EB3F)
+        i = i ^ (key >> u(23))
+        i = i ^ ((i & w) >> u(1))
+        i = i * (u(1) | (key >> u(27)))
+        i = i * u(0x6935FA69)
+        i = i ^ ((i & w) >> u(11))
+        i = i * u(0x74DCB303)
+        i = i ^ ((i & w) >> u(2))
+        i = i * u(0x9E501CC3)
+        i = i ^ ((i & w) >> u(2))
+        i = i * u(0xC860A3DF)
+        i = i & w
+        return i ^ (i >> u(5))
+
+
+def permute_stratum(i: np.ndarray, n: int, key: np.ndarray) -> np.ndarray:
+    """The stratum of 0..n-1 that sample i takes: kernels/rng.h's permutation per key
+    (docs/rendering.md, What the sampler guarantees), walked until below n."""
+    key = np.broadcast_to(np.asarray(key).astype(np.uint32), np.shape(i))
+    w = (1 << max(n - 1, 0).bit_length()) - 1
+    out = _permute_round(np.asarray(i).astype(np.uint32), np.uint32(w), key)
+    above = out >= n
+    while above.any():
+        out[above] = _permute_round(out[above], np.uint32(w), key[above])
+        above = out >= n
+    return ((out + key % np.uint32(n)) % np.uint32(n)).astype(np.int64)
 
 
 def sample_grid(spp: int) -> tuple[int, int]:
@@ -48,7 +89,7 @@ def light_square(
     sample = np.asarray(sample).astype(np.int64)
     key = pcg_hash(pcg_hash(pcg_hash(np.uint32(seed & 0xFFFFFFFF)) ^ pixel)
                    ^ np.uint32(0x80000000 | light))
-    stratum = (sample + (key % np.uint32(spp)).astype(np.int64)) % spp
+    stratum = permute_stratum(sample, spp, key)
     nx, _ = sample_grid(spp)
     row, col = stratum // nx, stratum % nx
     cells = np.minimum(nx, spp - row * nx)
@@ -116,11 +157,9 @@ def lens_offsets(radius: float, spp: int, seed: int, pixel: np.ndarray, sample: 
                  ) -> np.ndarray:
     """(N, 2): each sample's point on the lens disc of `radius`, in (right, up) coordinates
     (docs/rendering.md, Depth of field)."""
-    # The pixel's shift of the angular strata: r_2 of the sample index spp, which no sample uses.
-    shift_bits = (sample_uniform(seed, pixel, np.full_like(sample, spp), 2)
-                  * 2.0**24).astype(np.int64)
-    shift = (shift_bits * spp) >> 24
-    stratum = (sample + shift) % spp
+    # The pixel's order of the angular strata, keyed by r_2 of the sample index spp, which no
+    # sample uses.
+    stratum = permute_stratum(sample, spp, rng_bits(seed, pixel, np.full_like(sample, spp), 2))
     angle = 2.0 * np.pi * (stratum + sample_uniform(seed, pixel, sample, 2)) / spp
     rho = radius * np.sqrt(sample_uniform(seed, pixel, sample, 3))
     return np.stack([rho * np.cos(angle), rho * np.sin(angle)], axis=-1)

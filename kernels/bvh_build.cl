@@ -39,7 +39,10 @@ __kernel void round_prims(__global const double *lo, __global const double *hi,
                           __global BuildPrim *prims, int n, int chunk) {
     int end = min(n, (int)(get_global_id(0) + 1) * chunk);
     for (int i = get_global_id(0) * chunk; i < end; i++) {
-        double4 a = (double4)(vload3(i, lo), 0.0), b = (double4)(vload3(i, hi), 0.0);
+        // Element by element, not vload3: a 3-vector's fourth (padding) lane is undefined,
+        // and Oclgrind tracks it into the whole double4 built from it.
+        double4 a = (double4)(lo[3 * i], lo[3 * i + 1], lo[3 * i + 2], 0.0);
+        double4 b = (double4)(hi[3 * i], hi[3 * i + 1], hi[3 * i + 2], 0.0);
         // Nearest, then one step outwards where that went inwards: the host's rounding.
         float4 fa = convert_float4(a), fb = convert_float4(b);
         BuildPrim p;

@@ -337,9 +337,10 @@ HOT int intersect_triangle_packet(const __global TrianglePacket* pk, const Ray* 
         Crossings c = intersect_triangle((REAL3)(pk->x0[k], pk->y0[k], pk->z0[k]),
                                          (REAL3)(pk->x1[k], pk->y1[k], pk->z1[k]),
                                          (REAL3)(pk->x2[k], pk->y2[k], pk->z2[k]), r);
+        // Every lane's t, a miss's infinite: packet_blocks compares all four lanes.
+        t[k] = c.t[0];
         if (c.t[0] < REAL_INF) {
             bits |= 1 << k;
-            t[k] = c.t[0];
             b1[k] = c.b1;
             b2[k] = c.b2;
         }

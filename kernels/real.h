@@ -35,7 +35,10 @@ typedef int4 MASK4;
 
 // The traversal and intersection helpers run once per node or primitive test: a call that is
 // not inlined costs as much as the test (PoCL does not inline everything marked inline).
+// Oclgrind builds with -DHOT=inline (clray/device/program.py, device_build_options).
+#ifndef HOT
 #define HOT inline __attribute__((always_inline))
+#endif
 
 #define REAL_INF ((REAL)INFINITY)
 #define PI_R ((REAL)3.14159265358979323846)

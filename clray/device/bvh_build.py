@@ -32,7 +32,7 @@ from clray.accel.bvh import (
 )
 from clray.device.context import has_fp64
 from clray.device.layout import BINARY_NODE, BUILD_PRIM, BUILD_TASK
-from clray.device.program import kernel_source
+from clray.device.program import device_build_options, kernel_source
 
 # Subtrees per compute unit before the per-subtree kernel takes over: enough that one large
 # subtree does not leave the other cores idle at the end.
@@ -71,7 +71,8 @@ def supports(device: cl.Device, n: int) -> bool:
 @cache
 def _kernels(context: cl.Context) -> dict[str, cl.Kernel]:
     # Kernel objects are kept: pyopencl makes a new one on every attribute access.
-    program = cl.Program(context, kernel_source(BUILD_FILE)).build(options=build_options())
+    program = cl.Program(context, kernel_source(BUILD_FILE)).build(
+        options=build_options() + list(device_build_options(context.devices[0])))
     return {k.function_name: k for k in program.all_kernels()}
 
 
@@ -83,8 +84,8 @@ def build(queue: cl.CommandQueue, lo: np.ndarray, hi: np.ndarray, max_leaf: int,
     kernels = _kernels(queue.context)
     # Every buffer lives in numpy memory: a CPU device then works in place, and numpy reuses
     # freed memory where a fresh device allocation page-faults in all over again each build.
-    lo_buf = _host_buffer(queue, np.ascontiguousarray(lo))
-    hi_buf = _host_buffer(queue, np.ascontiguousarray(hi))
+    lo_buf = _input_buffer(queue, np.ascontiguousarray(lo))
+    hi_buf = _input_buffer(queue, np.ascontiguousarray(hi))
     prims = [np.empty(n, dtype=BUILD_PRIM), np.empty(n, dtype=BUILD_PRIM)]
     padded = np.empty(slots, dtype=BINARY_NODE)
     used = np.zeros(slots, dtype=np.uint8)
@@ -99,7 +100,7 @@ def build(queue: cl.CommandQueue, lo: np.ndarray, hi: np.ndarray, max_leaf: int,
 
     tasks = _split_levels(queue, kernels["split_level"], bufs[5], shared)
     if tasks.size:
-        kernels["build_subtrees"](queue, (tasks.size,), (1,), _host_buffer(queue, tasks),
+        kernels["build_subtrees"](queue, (tasks.size,), (1,), _input_buffer(queue, tasks),
                                   *shared)
     for buf, array in zip(bufs[2:5], (padded, used, order), strict=True):
         _sync(queue, buf, array)
@@ -108,6 +109,14 @@ def build(queue: cl.CommandQueue, lo: np.ndarray, hi: np.ndarray, max_leaf: int,
 
 def _host_buffer(queue: cl.CommandQueue, array: np.ndarray) -> cl.Buffer:
     return cl.Buffer(queue.context, cl.mem_flags.READ_WRITE | cl.mem_flags.USE_HOST_PTR,
+                     hostbuf=array)
+
+
+def _input_buffer(queue: cl.CommandQueue, array: np.ndarray) -> cl.Buffer:
+    """A copy of `array` that the kernels only read. Copied, not used in place: Oclgrind
+    takes the contents of a USE_HOST_PTR buffer for uninitialised, and the bounds and task
+    lists are small beside the build's own arrays."""
+    return cl.Buffer(queue.context, cl.mem_flags.READ_ONLY | cl.mem_flags.COPY_HOST_PTR,
                      hostbuf=array)
 
 
@@ -132,7 +141,7 @@ def _split_levels(queue: cl.CommandQueue, split_level: cl.Kernel, root_buf: cl.B
         tasks = out[out["count"] >= 0]
         if not 0 < tasks.size < enough:
             break
-        in_buf = _host_buffer(queue, tasks)
+        in_buf = _input_buffer(queue, tasks)
         m = tasks.size
     return tasks
 

@@ -29,6 +29,19 @@ ALLOWED_BUILD_OPTIONS = frozenset({
 })
 
 
+# Oclgrind 21.10 (Debian's package, built on a newer LLVM than it knows) cannot run the
+# llvm.experimental.noalias.scope.decl that LLVM's inliner leaves where it inlines a function
+# returning a struct (the hidden noalias sret pointer). The always_inline helpers (HOT) are
+# inlined even at -O0, so for Oclgrind they become plain inline and nothing is optimised: with
+# optimisation on, Oclgrind 21.10 crashes (SIGSEGV) while creating the render kernel.
+OCLGRIND_BUILD_OPTIONS = ("-DHOT=inline", "-cl-opt-disable")
+
+
+def device_build_options(device: cl.Device) -> tuple[str, ...]:
+    """Options a device's compiler needs whatever the configuration."""
+    return OCLGRIND_BUILD_OPTIONS if device.platform.name.strip() == "Oclgrind" else ()
+
+
 @dataclass(frozen=True)
 class KernelConfig:
     """Only switches that remove code or fix loop bounds; everything else is a kernel
@@ -129,7 +142,7 @@ def build_program(device: cl.Device, config: KernelConfig) -> tuple[cl.Program, 
     if unknown:
         raise DeviceError(f"unsupported build option(s): {', '.join(sorted(unknown))}")
     source = kernel_source()
-    options = tuple(config.options())
+    options = tuple(config.options()) + device_build_options(device)
     key = (device.int_ptr, hashlib.sha256(source.encode()).hexdigest(), options)
     if key in _programs:
         return _programs[key], 0.0

@@ -29,7 +29,7 @@ class DeviceInfo:
     driver_version: str
 
 
-def _type_name(device: cl.Device) -> str:
+def device_type(device: cl.Device) -> str:
     for flag, name in ((cl.device_type.CPU, "CPU"), (cl.device_type.GPU, "GPU"),
                        (cl.device_type.ACCELERATOR, "ACCELERATOR")):
         if device.type & flag:
@@ -60,7 +60,7 @@ def has_fp64(device: cl.Device) -> bool:
 
 def list_devices() -> list[DeviceInfo]:
     return [
-        DeviceInfo(spec, d.platform.name.strip(), d.name.strip(), _type_name(d),
+        DeviceInfo(spec, d.platform.name.strip(), d.name.strip(), device_type(d),
                    d.max_compute_units, d.global_mem_size, has_fp64(d), d.version.strip(),
                    d.driver_version.strip())
         for spec, d in _all_devices()

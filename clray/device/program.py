@@ -5,12 +5,13 @@ from __future__ import annotations
 import hashlib
 import re
 import time
+import warnings
 from dataclasses import dataclass, fields
 from importlib.resources import files
 
 import pyopencl as cl
 
-from clray.device.context import context_for, has_fp64
+from clray.device.context import context_for, device_type, has_fp64
 from clray.errors import DeviceError
 
 # The top-level kernels/ folder, installed as this package (pyproject.toml's package-dir), so a
@@ -98,6 +99,39 @@ class KernelConfig:
         return sorted(defines) + sorted(self.build_options)
 
 
+# What a GPU keeps in registers per work-item: 255 32-bit registers on NVIDIA GPUs, 256 vector
+# registers per lane on AMD's: about 1 KiB. Private arrays indexed at run time (the ray and
+# BVH stacks) live in registers only below that; above it they spill to slow off-chip memory.
+GPU_REGISTER_BYTES = 1024
+MEDIA_DEPTH = 4  # kernels/render.cl: the media a ray task carries
+
+
+def private_stack_bytes(config: KernelConfig) -> dict[str, int]:
+    """Bytes per work-item of the kernel's private stacks: the ray stack (RayTask entries,
+    MAX_DEPTH + 1 of them with refraction, else 1) and the BVH traversal stack (child, count
+    and entry t per level, BVH_STACK_SIZE levels), as kernels/render.cl and bvh.h declare
+    them. A 3-vector takes four elements' room."""
+    real = 8 if config.precision == "double" else 4
+    task = 3 * 4 * real + 4 + 4 + 4 * MEDIA_DEPTH
+    task = -(-task // (4 * real)) * (4 * real)  # aligned to its REAL3
+    ray = task * (config.max_depth + 1 if config.has_refraction else 1)
+    bvh = config.bvh_stack_size * (4 + 4 + real)
+    return {"ray_stack": ray, "bvh_stack": bvh, "total": ray + bvh}
+
+
+def private_memory_warning(config: KernelConfig, device_type: str) -> str | None:
+    """One line where a GPU would keep this configuration's stacks off-chip, else None."""
+    if device_type != "GPU":
+        return None
+    stacks = private_stack_bytes(config)
+    if stacks["total"] <= GPU_REGISTER_BYTES:
+        return None
+    return (f"clray: {stacks['total']} bytes of private stacks per work-item (ray "
+            f"{stacks['ray_stack']}, BVH {stacks['bvh_stack']}; max_depth {config.max_depth}, "
+            f"{config.precision}) exceed the {GPU_REGISTER_BYTES} a GPU keeps in registers: "
+            "expect spills to slow memory")
+
+
 def bvh_width_for(device: cl.Device, precision: str = "float") -> int:
     """Children per BVH node for this device and arithmetic: 8 where the device prefers vectors
     of 8 or more of that type (float on AVX CPUs), else 4 (double on AVX2, GPUs). Either width
@@ -155,4 +189,7 @@ def build_program(device: cl.Device, config: KernelConfig) -> tuple[cl.Program, 
         raise DeviceError(f"kernel build failed ({' '.join(options)}): "
                           f"{detail or log[-1] if log else err}") from err
     _programs[key] = program
+    warning = private_memory_warning(config, device_type(device))
+    if warning:
+        warnings.warn(warning, stacklevel=2)
     return program, time.perf_counter() - start

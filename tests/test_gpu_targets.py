@@ -1,0 +1,113 @@
+"""The kernel sources compile for GPU targets with clang's OpenCL C 1.2 front end (no GPU
+needed), warnings as errors, in every configuration the packer's switches make; and the
+private-stack model behind the render-time warning matches the compiled layout."""
+
+from __future__ import annotations
+
+import dataclasses
+import re
+import shutil
+import subprocess
+
+import pytest
+
+from clray.device.program import (
+    GPU_REGISTER_BYTES,
+    OCLGRIND_BUILD_OPTIONS,
+    KernelConfig,
+    kernel_source,
+    private_memory_warning,
+    private_stack_bytes,
+)
+
+CLANG = next((c for c in ("clang", *(f"clang-{v}" for v in range(20, 13, -1)))
+              if shutil.which(c)), None)
+pytestmark = pytest.mark.skipif(CLANG is None,
+                                reason="clang is not installed (Debian: apt-get install clang)")
+TARGETS = ("spir64", "nvptx64-nvidia-nvcl", "amdgcn-amd-amdhsa")
+# The AMD target wants ROCm's device library for linking; a syntax check needs none.
+TARGET_FLAGS = {"amdgcn-amd-amdhsa": ("-nogpulib", "-mcpu=gfx90a")}
+# Study variants change formulas, not which code is in: checked on the full build.
+VARIANTS = ("sphere_textbook", "offset_fixed_eps", "triangle_no_fp64_fallback",
+            "triangle_moller_trumbore", "fresnel_schlick", "fp64_spheres", "count_tests")
+FEATURES = tuple(f.name for f in dataclasses.fields(KernelConfig)
+                 if f.type == "bool" and f.name not in VARIANTS)
+
+
+def configs() -> dict[str, KernelConfig]:
+    """Per precision: nothing on, everything on, each feature alone and each left out, and
+    each study variant on the full build; depths from 0 to 16."""
+    out = {}
+    for precision in ("float", "double"):
+        def make(on: set[str], precision: str = precision, **extra) -> KernelConfig:
+            return KernelConfig(precision=precision, max_depth=extra.pop("max_depth", 4),
+                                **{name: True for name in on}, **extra)
+
+        every = set(FEATURES)
+        out[f"{precision}-none"] = make(set(), max_depth=0)
+        out[f"{precision}-all"] = make(every, max_depth=16, bvh_stack_size=64)
+        for name in FEATURES:
+            out[f"{precision}-only-{name}"] = make({name})
+            out[f"{precision}-all-but-{name}"] = make(every - {name})
+        for name in VARIANTS:
+            out[f"{precision}-all+{name}"] = make(every | {name})
+    return out
+
+
+CONFIGS = configs()
+
+
+def compile_cl(target: str, options: list[str], source: str, *extra: str) -> str:
+    run = subprocess.run([CLANG, "-x", "cl", "-cl-std=CL1.2", "-target", target,
+                          *TARGET_FLAGS.get(target, ()), "-Xclang",
+                          "-finclude-default-header", "-Werror", *options, *extra, "-"],
+                         input=source, capture_output=True, text=True, timeout=120)
+    assert run.returncode == 0 and not run.stderr.strip(), (
+        f"{target} {' '.join(options)}:\n{run.stderr[-4000:]}")
+    return run.stdout
+
+
+def _targets(name: str) -> tuple[str, ...]:
+    # Every configuration for SPIR; the GPU back ends' front-end checks on the extremes.
+    extreme = name.endswith(("-none", "-all")) or "-all+" in name
+    return TARGETS if extreme else TARGETS[:1]
+
+
+@pytest.mark.parametrize("name", sorted(CONFIGS))
+def test_kernels_compile_for_gpu_targets(name: str) -> None:
+    source = kernel_source()
+    for target in _targets(name):
+        compile_cl(target, CONFIGS[name].options(), source, "-fsyntax-only")
+
+
+def test_oclgrind_options_compile() -> None:
+    # Oclgrind's -DHOT=inline must not clash with the kernels' own HOT.
+    compile_cl("spir64", [*CONFIGS["float-all"].options(), *OCLGRIND_BUILD_OPTIONS],
+               kernel_source(), "-fsyntax-only")
+
+
+@pytest.mark.parametrize("precision", ["float", "double"])
+def test_private_stack_model_matches_the_compiled_layout(precision: str) -> None:
+    # sizeof(RayTask) as clang lays it out for spir64, against the model's.
+    probe = kernel_source() + (
+        "\n__kernel void probe_sizes(__global int* out) { out[0] = (int)sizeof(RayTask); }\n")
+    config = dataclasses.replace(CONFIGS[f"{precision}-all"], max_depth=0, bvh_stack_size=1)
+    ir = compile_cl("spir64", config.options(), probe, "-S", "-emit-llvm", "-O1", "-o", "-")
+    body = ir[ir.index("@probe_sizes"):]
+    stored = int(re.search(r"store i32 (\d+)", body).group(1))
+    real = 8 if precision == "double" else 4
+    assert private_stack_bytes(config) == {"ray_stack": stored, "bvh_stack": 8 + real,
+                                           "total": stored + 8 + real}
+
+
+def test_render_time_warning_only_for_gpus_past_the_register_budget() -> None:
+    shallow = KernelConfig(has_refraction=True, max_depth=2, bvh_stack_size=16)
+    deep = KernelConfig(has_refraction=True, max_depth=16, bvh_stack_size=64,
+                        precision="double")
+    assert private_stack_bytes(shallow)["total"] <= GPU_REGISTER_BYTES
+    assert private_stack_bytes(deep)["total"] > GPU_REGISTER_BYTES
+    assert private_memory_warning(shallow, "GPU") is None
+    assert private_memory_warning(deep, "CPU") is None
+    line = private_memory_warning(deep, "GPU")
+    assert line is not None and "\n" not in line
+    assert str(private_stack_bytes(deep)["total"]) in line

@@ -12,6 +12,7 @@ import subprocess
 import pytest
 
 from clray.device.program import (
+    FEATURE_SWITCHES,
     GPU_REGISTER_BYTES,
     OCLGRIND_BUILD_OPTIONS,
     KernelConfig,
@@ -27,11 +28,11 @@ pytestmark = pytest.mark.skipif(CLANG is None,
 TARGETS = ("spir64", "nvptx64-nvidia-nvcl", "amdgcn-amd-amdhsa")
 # The AMD target wants ROCm's device library for linking; a syntax check needs none.
 TARGET_FLAGS = {"amdgcn-amd-amdhsa": ("-nogpulib", "-mcpu=gfx90a")}
-# Study variants change formulas, not which code is in: checked on the full build.
-VARIANTS = ("sphere_textbook", "offset_fixed_eps", "triangle_no_fp64_fallback",
-            "triangle_moller_trumbore", "fresnel_schlick", "fp64_spheres", "count_tests")
-FEATURES = tuple(f.name for f in dataclasses.fields(KernelConfig)
-                 if f.type == "bool" and f.name not in VARIANTS)
+FEATURES = FEATURE_SWITCHES
+# Study variants, spheres in double and the counting build change formulas, not which code is
+# in: checked on the full build.
+VARIANTS = tuple(f.name for f in dataclasses.fields(KernelConfig)
+                 if f.type == "bool" and f.name not in FEATURES)
 
 
 def configs() -> dict[str, KernelConfig]:

@@ -99,6 +99,11 @@ class KernelConfig:
         return sorted(defines) + sorted(self.build_options)
 
 
+# The switches that take code in or out (every bool but the study variants and the counting
+# build).
+FEATURE_SWITCHES = tuple(f.name for f in fields(KernelConfig) if f.type == "bool"
+                         and f.name.startswith("has_"))
+
 # What a GPU keeps in registers per work-item: 255 32-bit registers on NVIDIA GPUs, 256 vector
 # registers per lane on AMD's: about 1 KiB. Private arrays indexed at run time (the ray and
 # BVH stacks) live in registers only below that; above it they spill to slow off-chip memory.

@@ -1,0 +1,74 @@
+"""Private memory per work-item of the render kernel for a GPU, by configuration.
+
+    python benchmarks/private_memory.py [--json benchmarks/results/private_memory.json]
+
+For float and double and several ray-tree depths, the model's stacks (the ray stack and the
+BVH traversal stack, clray.device.program.private_stack_bytes, which the render-time warning
+uses) beside what clang 15's AMDGPU back end (gfx90a, -O2) gives the render kernel: its
+scratch (private segment) bytes and vector registers. Without ROCm's device library the math
+builtins stay external calls, for each of which the back end would add 16 KiB of assumed callee
+stack; `-amdgpu-assume-external-call-stack-size=0` leaves the kernel's own scratch. The scene's
+features are all on. Needs clang; each configuration takes 10 to 30 s to compile. Measures
+only.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import re
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+from clray.device.program import (
+    FEATURE_SWITCHES,
+    GPU_REGISTER_BYTES,
+    KernelConfig,
+    kernel_source,
+    private_stack_bytes,
+)
+
+DEPTHS = (1, 4, 8)
+
+
+def amdgpu_render_usage(config: KernelConfig, clang: str) -> dict[str, int]:
+    """The render kernel's ScratchSize and NumVgprs from clang's AMDGPU assembly."""
+    run = subprocess.run([clang, "-x", "cl", "-cl-std=CL1.2", "-target", "amdgcn-amd-amdhsa",
+                          "-mcpu=gfx90a", "-nogpulib", "-mllvm",
+                          "-amdgpu-assume-external-call-stack-size=0", "-Xclang",
+                          "-finclude-default-header",
+                          "-O2", "-S", "-o", "-", *config.options(), "-"],
+                         input=kernel_source(), capture_output=True, text=True, check=True)
+    asm = run.stdout
+    body = asm[asm.index("render:"):]
+    return {"scratch_bytes": int(re.search(r"; ScratchSize: (\d+)", body).group(1)),
+            "vgprs": int(re.search(r"; NumVgprs: (\d+)", body).group(1))}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--json", type=Path)
+    args = parser.parse_args()
+    clang = next((c for c in ("clang", "clang-15") if shutil.which(c)), None)
+    if clang is None:
+        sys.exit("private_memory: clang not found (Debian: apt-get install clang)")
+    rows = []
+    for precision in ("float", "double"):
+        for depth in DEPTHS:
+            config = KernelConfig(precision=precision, max_depth=depth, bvh_stack_size=32,
+                                  **dict.fromkeys(FEATURE_SWITCHES, True))
+            row = {"precision": precision, "max_depth": depth, "bvh_stack_size": 32,
+                   **private_stack_bytes(config), **amdgpu_render_usage(config, clang)}
+            print(json.dumps(row), flush=True)
+            rows.append(row)
+    if args.json:
+        args.json.write_text(json.dumps({"compiler": "clang 15, amdgcn-amd-amdhsa gfx90a -O2, "
+                                                     "no device library",
+                                         "register_budget_bytes": GPU_REGISTER_BYTES,
+                                         "rows": rows}, indent=2) + "\n")
+
+
+if __name__ == "__main__":
+    main()

@@ -113,14 +113,16 @@ MEDIA_DEPTH = 4  # kernels/render.cl: the media a ray task carries
 
 def private_stack_bytes(config: KernelConfig) -> dict[str, int]:
     """Bytes per work-item of the kernel's private stacks: the ray stack (RayTask entries,
-    MAX_DEPTH + 1 of them with refraction, else 1) and the BVH traversal stack (child, count
-    and entry t per level, BVH_STACK_SIZE levels), as kernels/render.cl and bvh.h declare
-    them. A 3-vector takes four elements' room."""
+    MAX_DEPTH + 1 of them with refraction, else 1) and the BVH traversal stacks, BVH_STACK_SIZE
+    levels of (child, count, entry t) for closest hits and of (child, count) for shadow rays,
+    as kernels/render.cl and bvh.h declare them. A 3-vector takes four elements' room. The
+    rest of the kernel's private memory does not grow with the settings (benchmarks/
+    private_memory.py measures it)."""
     real = 8 if config.precision == "double" else 4
     task = 3 * 4 * real + 4 + 4 + 4 * MEDIA_DEPTH
     task = -(-task // (4 * real)) * (4 * real)  # aligned to its REAL3
     ray = task * (config.max_depth + 1 if config.has_refraction else 1)
-    bvh = config.bvh_stack_size * (4 + 4 + real)
+    bvh = config.bvh_stack_size * ((4 + 4 + real) + (4 + 4))
     return {"ray_stack": ray, "bvh_stack": bvh, "total": ray + bvh}
 
 

@@ -133,7 +133,7 @@ def private_memory_warning(config: KernelConfig, device_type: str) -> str | None
     stacks = private_stack_bytes(config)
     if stacks["total"] <= GPU_REGISTER_BYTES:
         return None
-    return (f"clray: {stacks['total']} bytes of private stacks per work-item (ray "
+    return (f"{stacks['total']} bytes of private stacks per work-item (ray "
             f"{stacks['ray_stack']}, BVH {stacks['bvh_stack']}; max_depth {config.max_depth}, "
             f"{config.precision}) exceed the {GPU_REGISTER_BYTES} a GPU keeps in registers: "
             "expect spills to slow memory")

@@ -7,7 +7,7 @@ import os
 import time
 import warnings
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -22,17 +22,16 @@ from clray.scene import limits as L
 from clray.scene.check import check_scene
 from clray.scene.load import load_scene
 from clray.scene.model import Scene
+from clray.tuning.knobs import DEFAULT_TUNING, Tuning
+from clray.tuning.store import chosen_tuning
 
 # Launches are sized by the time they take, not by their work, so that progress advances
 # several times a second on any device and no launch nears a GPU watchdog, while a small render
-# still takes a few launches: the first covers FIRST_LAUNCH_PIXEL_SAMPLES, each later one the
-# rows that the previous launch's rate does in LAUNCH_SECONDS, at most LAUNCH_GROWTH times the
+# still takes a few launches: the first covers first_launch_pixel_samples, each later one the
+# rows that the previous launch's rate does in launch_seconds, at most launch_growth times the
 # previous band (one fast band of sky says little about the rows below it) and at most
-# MAX_LAUNCH_PIXEL_SAMPLES. Pixels are independent, so the image does not depend on the bands.
-FIRST_LAUNCH_PIXEL_SAMPLES = 1 << 16
-MAX_LAUNCH_PIXEL_SAMPLES = 1 << 24
-LAUNCH_SECONDS = 0.25
-LAUNCH_GROWTH = 4
+# max_launch_pixel_samples: knobs of clray.tuning. Pixels are independent, so the image does not
+# depend on the bands.
 
 
 @dataclass(frozen=True)
@@ -56,6 +55,10 @@ class RenderSettings:
     linear: bool | None = None
     exposure: float | None = None  # stops
     png_bits: int | None = None
+    # Performance knobs (clray.tuning): None takes the device's tuning file, written by `clray
+    # tune`, where stored_tuning and one exists, else the knob table's defaults.
+    tuning: Tuning | None = None
+    stored_tuning: bool = True
 
     def __post_init__(self) -> None:
         # The scene file's [render] rules (clray.scene.limits), in the same words.
@@ -67,7 +70,11 @@ class RenderSettings:
                    for name, rule in L.RENDER_CHOICES.items()]
         checks += [("linear", lambda v: None if isinstance(v, bool) else "expected True or False"),
                    ("precision", lambda v: L.choice_problem(v, L.PRECISIONS)),
-                   ("device", lambda v: None if isinstance(v, str) else "expected a string")]
+                   ("device", lambda v: None if isinstance(v, str) else "expected a string"),
+                   ("tuning", lambda v: None if isinstance(v, Tuning)
+                    else "expected a clray.tuning.Tuning"),
+                   ("stored_tuning",
+                    lambda v: None if isinstance(v, bool) else "expected True or False")]
         for name, problem_of in checks:
             value = getattr(self, name)
             problem = None if value is None else problem_of(value)
@@ -106,15 +113,17 @@ def _resolve(scene: Scene, settings: RenderSettings) -> dict[str, int | float]:
     return _overrides(scene, settings, (*L.RENDER_INTEGERS, "min_weight"))
 
 
-def next_band_rows(row_samples: int, last_rows: int, last_s: float, rows_left: int) -> int:
+def next_band_rows(row_samples: int, last_rows: int, last_s: float, rows_left: int,
+                   tuning: Tuning = DEFAULT_TUNING) -> int:
     """Rows of the next launch, given the pixel-samples in one row and the rows and device time
-    of the previous launch (last_rows = 0 before the first). At least one row, at most
-    rows_left."""
+    of the previous launch (last_rows = 0 before the first), under `tuning`'s band knobs. At
+    least one row, at most rows_left."""
     if last_rows == 0:
-        rows = FIRST_LAUNCH_PIXEL_SAMPLES // row_samples
+        rows = tuning.first_launch_pixel_samples // row_samples
     else:
-        by_time = last_rows * LAUNCH_SECONDS / last_s if last_s > 0 else math.inf
-        rows = min(by_time, LAUNCH_GROWTH * last_rows, MAX_LAUNCH_PIXEL_SAMPLES // row_samples)
+        by_time = last_rows * tuning.launch_seconds / last_s if last_s > 0 else math.inf
+        rows = min(by_time, tuning.launch_growth * last_rows,
+                   tuning.max_launch_pixel_samples // row_samples)
     return int(max(1, min(rows_left, rows)))
 
 
@@ -155,16 +164,13 @@ def band_capacity(packed: PackedScene, global_mem: int, max_alloc: int) -> int:
 # 0.03 s at depth 16 and did not finish in 5 minutes at depth 32 (80x60 pixels, PoCL).
 DEEP_TREE_DEPTH = 20
 
-# Work-items per work-group: one row segment. Left to itself PoCL puts up to 4096 work-items
-# in a group and gives them their private memory on one thread's stack, which a deep ray stack
-# (MAX_DEPTH + 1 tasks of 80 bytes each, per work-item) overflows: a segfault at depth 28.
-# Measured on PoCL, 64 costs nothing against its own choice; it suits SIMD CPUs and GPUs alike.
-WORK_GROUP_WIDTH = 64
-
-
-def _group_width(kernel: cl.Kernel, device: cl.Device) -> int:
+def _group_width(kernel: cl.Kernel, device: cl.Device, tuning: Tuning) -> int:
+    """Work-items per work-group, one row segment: the work_group_width knob, within the
+    kernel's limit on the device. Never left to the driver: PoCL puts up to 4096 work-items in
+    a group and gives them their private memory on one thread's stack, which a deep ray stack
+    (MAX_DEPTH + 1 tasks of 80 bytes each, per work-item) overflows: a segfault at depth 28."""
     limit = kernel.get_work_group_info(cl.kernel_work_group_info.WORK_GROUP_SIZE, device)
-    return max(1, min(WORK_GROUP_WIDTH, limit))
+    return max(1, min(tuning.work_group_width, limit))
 
 
 def render_packed(packed: PackedScene, device: cl.Device,
@@ -200,14 +206,15 @@ def render_packed(packed: PackedScene, device: cl.Device,
         totals = np.zeros(4, dtype=np.int64)
         test_totals = np.zeros(4, dtype=np.int64)
         kernel = cl.Kernel(program, "render")
-        group_width = _group_width(kernel, device)
+        group_width = _group_width(kernel, device, packed.tuning)
         padded_width = -(-width // group_width) * group_width
         row_samples = width * spp
         if progress is not None:
             progress(0, height * row_samples)
         kernel_s, launches, row0, band, band_s = 0.0, 0, 0, 0, 0.0
         while row0 < height:
-            band = min(capacity, next_band_rows(row_samples, band, band_s, height - row0))
+            band = min(capacity, next_band_rows(row_samples, band, band_s, height - row0,
+                                                packed.tuning))
             kernel.set_args(*buffers, image_buf, counts_buf, tests_buf, np.int32(first + row0))
             event = cl.enqueue_nd_range_kernel(queue, kernel, (padded_width, band),
                                                (group_width, 1))
@@ -261,10 +268,12 @@ def warn_deep_tree(scene: Scene, resolved: dict[str, int | float]) -> None:
 
 def pack_for(scene: Scene, settings: RenderSettings, device: cl.Device) -> PackedScene:
     """The checked `scene` packed for `device` with `settings`: what render() launches, and
-    what each worker of a distributed render packs once for all its tiles."""
+    what each worker of a distributed render packs once for all its tiles. The knobs are the
+    settings' tuning, else the device's tuning file's (clray.tuning.store.chosen_tuning)."""
+    tuning = settings.tuning or chosen_tuning(device, settings.stored_tuning)[0]
     return pack_scene(scene, precision=settings.precision,
-                      bvh_width=bvh_width_for(device, settings.precision),
-                      queue=queue_for(device), **_resolve(scene, settings),
+                      bvh_width=tuning.bvh_width or bvh_width_for(device, settings.precision),
+                      queue=queue_for(device), tuning=tuning, **_resolve(scene, settings),
                       **dict(settings.variants))
 
 
@@ -279,6 +288,11 @@ def render(scene: Scene | str | os.PathLike, settings: RenderSettings | None = N
     resolved = _resolve(scene, settings)
     warn_deep_tree(scene, resolved)
     device = select_device(settings.device)
+    if settings.tuning is None:
+        tuning, tuning_source = chosen_tuning(device, settings.stored_tuning)
+        settings = replace(settings, tuning=tuning)
+    else:
+        tuning_source = "given"
     packed = pack_for(scene, settings, device)
     pack_s = time.perf_counter() - start - packed.bvh_s
     image, stats = render_packed(packed, device, settings.progress)
@@ -286,6 +300,10 @@ def render(scene: Scene | str | os.PathLike, settings: RenderSettings | None = N
         **resolved,
         "device": describe(device),
         "precision": settings.precision,
+        # Which configuration rendered: its source, the knobs changed from the defaults, every
+        # knob's value, and the BVH width that "auto" (None) picked.
+        "tuning": {"source": tuning_source, "label": packed.tuning.label(),
+                   **packed.tuning.values(), "bvh_width": packed.config.bvh_width},
         "bvh_s": packed.bvh_s,
         "pack_s": pack_s,
         **stats,

@@ -5,7 +5,6 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import fcntl
-import importlib
 import json
 import os
 import pty
@@ -25,6 +24,7 @@ from clray import cli
 from clray.device.context import has_fp64
 from clray.errors import EXIT_USAGE, ClrayError
 from clray.image_io import read_pfm
+from clray.tuning import Tuning
 
 SCENE = """\
 [render]
@@ -61,7 +61,6 @@ material = "red"
 
 TINY = ["-W", "32", "-H", "24"]
 ROOT = Path(__file__).resolve().parent.parent
-render_module = importlib.import_module("clray.render")
 
 
 def scene_text(radius: str = "1", material_extra: str = "") -> str:
@@ -264,8 +263,10 @@ def test_verbose_prints_progress_and_stats(capsys, cl_device, scene) -> None:
 
 def test_verbose_progress_lines_follow_pixel_samples(capsys, cl_device, scene,
                                                      monkeypatch) -> None:
-    monkeypatch.setattr(render_module, "FIRST_LAUNCH_PIXEL_SAMPLES", 32 * 4)
-    monkeypatch.setattr(render_module, "MAX_LAUNCH_PIXEL_SAMPLES", 32 * 4)
+    # Bands of four rows: the knob table's defaults, as every render without a tuning file
+    # takes them, changed.
+    monkeypatch.setattr("clray.tuning.store.DEFAULT_TUNING", Tuning(
+        first_launch_pixel_samples=32 * 4, max_launch_pixel_samples=32 * 4))
     code, _, err = run(capsys, "render", scene, *TINY, "-v")
     assert code == 0
     steps = re.findall(r"^clray: rendering: (\d+)% \((\d+) of 768 pixel-samples, "

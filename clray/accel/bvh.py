@@ -18,6 +18,7 @@ from typing import TYPE_CHECKING, NamedTuple
 import numpy as np
 
 from clray.device.layout import BVH_NODE
+from clray.tuning.knobs import KNOBS
 
 if TYPE_CHECKING:
     import pyopencl as cl
@@ -27,15 +28,17 @@ if TYPE_CHECKING:
 N_BINS = 16
 # Largest leaf SAH may choose; bigger nodes are split regardless of cost, so leaf sizes stay
 # bounded (kernels loop over a leaf's primitives) even for duplicate or coincident primitives.
-SAH_MAX_LEAF = 16
+# A tunable knob (clray.tuning): its default comes from the knob table.
+SAH_MAX_LEAF = KNOBS["largest_leaf"].default
 # Primitives one leaf test covers: the kernels test a leaf's triangles and spheres in packets
 # of four (clray.accel.wide.PACKET_WIDTH), at the cost of about one, so a leaf costs its packet
 # count, ceil(n / 4), and a split that cuts 8 primitives into 4 + 4 beats one into 3 + 5.
 SAH_PACKET = 4
-# Cost of one node visit relative to one packet test. Measured (benchmarks/README.md, What did
-# not pay): 1.5 gives the mesh 65 B per triangle (1.0: 77 B) with both benchmark kernels a few
-# per cent faster; from 1.875 the 64 spheres go into four leaves of 16 and take 9 % longer.
-TRAVERSAL_COST = 1.5
+# Cost of one node visit relative to one packet test: a tunable knob (clray.tuning), whose table
+# records why its default is 1.5 (benchmarks/README.md, What did not pay).
+TRAVERSAL_COST = KNOBS["traversal_cost"].default
+# Nodes of at most this many primitives are always leaves (a tunable knob too).
+MAX_LEAF_SIZE = KNOBS["max_leaf_size"].default
 
 _F32_MAX = float(np.finfo(np.float32).max)
 
@@ -63,18 +66,18 @@ def packets(count: np.ndarray) -> np.ndarray:
     return -(-count // SAH_PACKET)
 
 
-def sah_cost(nodes: np.ndarray) -> float:
-    """SAH cost of a built tree (node visits at TRAVERSAL_COST, leaves at their packet count)
+def sah_cost(nodes: np.ndarray, traversal_cost: float = TRAVERSAL_COST) -> float:
+    """SAH cost of a built tree (node visits at `traversal_cost`, leaves at their packet count)
     relative to the root's area: the build-quality figure, lower is better. The root needs an
     area."""
     e = (nodes["hi"].astype(np.float64) - nodes["lo"]).clip(min=0)
     area = e[:, 0] * e[:, 1] + e[:, 1] * e[:, 2] + e[:, 2] * e[:, 0]
     count = nodes["count"].astype(np.int64)
-    return float((np.where(count > 0, packets(count), TRAVERSAL_COST) * area).sum() / area[0])
+    return float((np.where(count > 0, packets(count), traversal_cost) * area).sum() / area[0])
 
 
-def build_bvh(lo: np.ndarray, hi: np.ndarray, max_leaf_size: int = 4, *,
-              largest_leaf: int | None = None,
+def build_bvh(lo: np.ndarray, hi: np.ndarray, max_leaf_size: int = MAX_LEAF_SIZE, *,
+              largest_leaf: int | None = None, traversal_cost: float = TRAVERSAL_COST,
               queue: cl.CommandQueue | None = None) -> Bvh:
     """Build a BVH over N primitives with float64 bounds `lo`, `hi` of shape (N, 3).
 
@@ -82,8 +85,11 @@ def build_bvh(lo: np.ndarray, hi: np.ndarray, max_leaf_size: int = 4, *,
     `largest_leaf` (default `max_leaf_count(max_leaf_size)`) are leaves when SAH says a split
     would not pay.
 
+    `traversal_cost`: the SAH's cost of a node visit against one packet test.
+
     With a `queue` whose device has float64, the build runs there (clray.accel._bvh_cl) and
-    gives the same tree as the host build, several times faster.
+    gives the same tree as the host build, several times faster. The device build compiles in
+    the default traversal cost: another one builds on the host.
     """
     lo = np.asarray(lo, dtype=np.float64)
     hi = np.asarray(hi, dtype=np.float64)
@@ -101,14 +107,14 @@ def build_bvh(lo: np.ndarray, hi: np.ndarray, max_leaf_size: int = 4, *,
     n = lo.shape[0]
     if n == 0:
         return Bvh(np.zeros(0, dtype=BVH_NODE), np.zeros(0, dtype=np.int32))
-    if queue is not None and n > max_leaf_size:
+    if queue is not None and n > max_leaf_size and traversal_cost == TRAVERSAL_COST:
         # Imported here: host-only callers need not load pyopencl.
         from clray.accel import _bvh_cl
 
         if _bvh_cl.supports(queue.device, n):
             nodes, order = _bvh_cl.build(queue, lo, hi, max_leaf_size, largest)
             return Bvh(nodes, order)
-    return _Builder(_round_out(lo, hi), max_leaf_size, largest).run()
+    return _Builder(_round_out(lo, hi), max_leaf_size, largest, traversal_cost).run()
 
 
 def _round_out(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
@@ -158,9 +164,11 @@ class _Builder:
     """One build. Breadth-first: each level holds the nodes still to be split (the active
     nodes) and their primitives, contiguous per node, in `ids` and the columns of `prim`."""
 
-    def __init__(self, prim: np.ndarray, max_leaf_size: int, largest_leaf: int) -> None:
+    def __init__(self, prim: np.ndarray, max_leaf_size: int, largest_leaf: int,
+                 traversal_cost: float) -> None:
         self.max_leaf = max_leaf_size
         self.sah_leaf = largest_leaf
+        self.traversal_cost = traversal_cost
         n = prim.shape[1]
         self.order = np.empty(n, dtype=np.int32)
         # Per breadth-first node, appended one level at a time; ids are positions in the
@@ -245,7 +253,7 @@ class _Builder:
         best_cost = cost[rows, best]
         a_node = _half_area(bounds[:, :3], bounds[:, 3:])
         # Compared multiplied through by the node's area, so flat and point nodes need no care.
-        sah_leaf = ((TRAVERSAL_COST * a_node + best_cost >= packets(count) * a_node)
+        sah_leaf = ((self.traversal_cost * a_node + best_cost >= packets(count) * a_node)
                     | ~binnable)
         leaf = sah_leaf & (count <= self.sah_leaf)
 

@@ -19,6 +19,7 @@ from clray.device import layout as L
 from clray.device.program import KernelConfig
 from clray.scene import model as M
 from clray.scene.scale import needs_fp64_spheres
+from clray.tuning.knobs import DEFAULT_TUNING, Tuning
 
 # Primitive count from which pack_scene builds the BVH on the device when given a queue.
 DEVICE_BUILD_MIN = 20000
@@ -49,6 +50,7 @@ class PackedScene:
     instances: np.ndarray  # INSTANCE records; their groups' primitives are in the arrays above
     config: KernelConfig
     bvh_s: float  # host time to build the BVH
+    tuning: Tuning = DEFAULT_TUNING  # the knobs it was built with; render_packed launches by them
 
     def device_bytes(self) -> dict[str, int]:
         names = ("planes", "spheres", "boxes", "cylinders", "cones", "triangles",
@@ -268,14 +270,17 @@ def _pack_triangles(objs: _Placed, bounded: _Bounded) -> _Triangles:
 
 
 def _build_wide(lo: np.ndarray, hi: np.ndarray, refs: np.ndarray, width: int,
-                queue: cl.CommandQueue | None, one_per_leaf: bool = False) -> WideBvh:
+                queue: cl.CommandQueue | None, tuning: Tuning,
+                one_per_leaf: bool = False) -> WideBvh:
     """one_per_leaf: every leaf holds one primitive, so each one's box is a lane of its
     parent's vector slab test (the scene's tree where it holds instances)."""
     # Below DEVICE_BUILD_MIN primitives the host build takes milliseconds, less than fetching
     # the device build's program from the cache.
-    leaves = {"max_leaf_size": 1, "largest_leaf": 1} if one_per_leaf else {}
-    binary = build_bvh(lo, hi, queue=queue if len(lo) >= DEVICE_BUILD_MIN else None, **leaves)
-    return collapse(binary, refs, width)
+    leaves = ({"max_leaf_size": 1, "largest_leaf": 1} if one_per_leaf else
+              {"max_leaf_size": tuning.max_leaf_size, "largest_leaf": tuning.largest_leaf})
+    binary = build_bvh(lo, hi, queue=queue if len(lo) >= DEVICE_BUILD_MIN else None,
+                       traversal_cost=tuning.traversal_cost, **leaves)
+    return collapse(binary, refs, width, tuning.fold_packets)
 
 
 # Relative widening of an instance's bounds in the scene's frame: its matrices are rounded to
@@ -327,21 +332,22 @@ def _appended(wide: WideBvh, node_offset: int, slot_offset: int) -> np.ndarray:
 
 def _pack_bvh(bounded: _Bounded, n_groups: int, instances: list[M.Instance],
               group_of: np.ndarray, eye: np.ndarray, width: int,
-              queue: cl.CommandQueue | None) -> tuple[WideBvh, np.ndarray, float]:
+              queue: cl.CommandQueue | None, tuning: Tuning
+              ) -> tuple[WideBvh, np.ndarray, float]:
     """The wide BVH of the scene's bounded primitives and instances, each group's BVH appended
     after it, the INSTANCE records, and the seconds it took."""
     start = time.perf_counter()
     group_trees, group_bounds = [], []
     for g in range(n_groups):
         lo, hi, refs = bounded.owned_by(g + 1)
-        group_trees.append(_build_wide(lo, hi, refs, width, queue))
+        group_trees.append(_build_wide(lo, hi, refs, width, queue, tuning))
         group_bounds.append((lo.min(axis=0), hi.max(axis=0)))
     # The scene's tree comes first (its root is node 0): the groups' roots are known after it.
     records = _pack_instances(instances, group_of, group_bounds, eye, bounded)
     lo, hi, refs = bounded.owned_by(0)
     # Where instances are most of the scene's tree, one primitive a leaf; a large mesh of the
     # scene's own beside a few instances keeps its packed leaves.
-    wide = _build_wide(lo, hi, refs, width, queue,
+    wide = _build_wide(lo, hi, refs, width, queue, tuning,
                        one_per_leaf=bool(instances) and 2 * len(instances) >= len(refs))
     if not instances:
         return wide, records, time.perf_counter() - start
@@ -570,10 +576,11 @@ def _stack_size_option(stack_size: int) -> int:
 def pack_scene(scene: M.Scene, *, width: int, height: int, spp: int, max_depth: int,
                seed: int, min_weight: float = 0.0, precision: str = "float",
                bvh_width: int = 8, queue: cl.CommandQueue | None = None,
-               **variants: object) -> PackedScene:
+               tuning: Tuning = DEFAULT_TUNING, **variants: object) -> PackedScene:
     """`bvh_width`: children per BVH node (4 or 8; clray.device.program.bvh_width_for picks
     one per device). `queue`: build large BVHs on its device (the same tree as the host
-    build). `variants` are extra KernelConfig fields (study switches, options)."""
+    build). `tuning`: the other knobs of the BVH build, and of the launches (kept in the
+    PackedScene). `variants` are extra KernelConfig fields (study switches, options)."""
     eye = np.asarray(scene.camera.position, dtype=np.float64)
     instances = [obj for obj in scene.objects if isinstance(obj, M.Instance)]
     groups, group_of = _groups_of(instances)
@@ -587,7 +594,7 @@ def pack_scene(scene: M.Scene, *, width: int, height: int, spp: int, max_depth: 
     cones = _pack_cones(kinds[M.Cone], bounded)
     tris = _pack_triangles(kinds[M.Triangle], bounded)
     wide, instance_records, bvh_s = _pack_bvh(bounded, len(groups), instances, group_of, eye,
-                                              bvh_width, queue)
+                                              bvh_width, queue, tuning)
     triangle_packets = _triangle_packets(wide.prim_refs, tris)
     sphere_packets = _sphere_packets(wide.prim_refs, spheres)
     materials, textures, texels = _pack_materials(scene.materials)
@@ -623,4 +630,4 @@ def pack_scene(scene: M.Scene, *, width: int, height: int, spp: int, max_depth: 
     return PackedScene(camera, params, planes, spheres, boxes, cylinders, cones,
                        tris.triangles, triangle_packets, sphere_packets, tris.normals, tris.uvs,
                        wide.nodes, wide.prim_refs, materials, textures, texels, lights,
-                       instance_records, config, bvh_s)
+                       instance_records, config, bvh_s, tuning)

@@ -264,6 +264,24 @@ def _build_parser() -> _Parser:
     t.add_argument("-q", "--quiet", action="store_true", help="print nothing on success")
     t.set_defaults(run=_tune)
 
+    pr = commands.add_parser(
+        "profile", help="where a scene's render time goes: rays, tests and time by ray kind",
+        description="Profile SCENE: rays by kind, Mrays/s and kernel time by kind (from "
+                    "renders without lights and bounces, differenced), box and primitive tests "
+                    "per ray (the COUNT_TESTS build), kernel build time cold and warm, and the "
+                    "scene's device bytes.")
+    pr.add_argument("scene", type=_scene_path, metavar="SCENE",
+                    help="scene file (.toml or .json)")
+    pr.add_argument("--device", metavar="SPEC", help="OpenCL device, as for render")
+    pr.add_argument("-W", "--width", type=size, metavar="N", help="image width in pixels")
+    pr.add_argument("-H", "--height", type=size, metavar="N", help="image height in pixels")
+    pr.add_argument("--repeat", type=_int_in(1, MAX_REPEAT), default=3, metavar="N",
+                    help="timed renders of each variant after a warm-up; medians (default: 3)")
+    pr.add_argument("--no-tuning", dest="stored_tuning", action="store_false",
+                    help="profile the knob table's defaults, not the device's tuning file")
+    pr.add_argument("--json", action="store_true", help="print the profile as JSON on stdout")
+    pr.set_defaults(run=_profile)
+
     d = commands.add_parser("devices", help="list OpenCL devices, one per line",
                             description="List OpenCL devices: spec, type, name, platform, "
                                         "compute units, fp64 support, driver version, and "
@@ -682,6 +700,43 @@ def _tune(args: argparse.Namespace) -> int:
                  say=(lambda _: None) if args.quiet else _say)
     if not args.quiet:
         _say(f"wrote {args.out / 'report.md'}")
+    return EXIT_OK
+
+
+def _profile(args: argparse.Namespace) -> int:
+    from clray.profile import profile_scene
+
+    with _warnings_as_lines(quiet=False, verbose=False):
+        settings = RenderSettings(width=args.width, height=args.height, device=args.device,
+                                  stored_tuning=args.stored_tuning)
+        prof = profile_scene(args.scene, settings, args.repeat)
+    if args.json:
+        print(json.dumps(prof, indent=2))
+        return EXIT_OK
+    rays, tests = prof["rays"], prof["tests_per_ray"]
+    lines = [f"{prof['scene']}: {prof['width']}x{prof['height']}, {prof['spp']} spp on "
+             f"{prof['device']} (tuning: {prof['tuning']})",
+             f"rays: {rays['total']:,} ({rays['primary']:,} primary, {rays['secondary']:,} "
+             f"secondary, {rays['shadow']:,} shadow); kernel {prof['kernel_s'] * 1e3:.3g} ms, "
+             f"{prof['mrays_per_s']:.3g} Mrays/s (median of {prof['repeat']})"]
+    for part, v in prof["time_split"]["parts"].items():
+        rate = f"{v['mrays_per_s']:.3g} Mrays/s" if v["mrays_per_s"] else "-"
+        lines.append(f"  {part}: {v['kernel_s'] * 1e3:.3g} ms, {v['rays']:,} rays, {rate}")
+
+    def per(value: float | None) -> str:
+        return "-" if value is None else f"{value:.3g}"
+
+    lines += [f"tests per closest-hit ray: {per(tests['closest_boxes_per_ray'])} boxes, "
+              f"{per(tests['closest_prims_per_ray'])} primitives; per shadow ray: "
+              f"{per(tests['shadow_boxes_per_ray'])} boxes, "
+              f"{per(tests['shadow_prims_per_ray'])} primitives",
+              f"kernel build: {prof['build_cold_s']:.3g} s cold, {prof['build_warm_s']:.3g} s "
+              "warm (new processes)",
+              f"scene on device: {_size(prof['device_bytes_total'])}: " + ", ".join(
+                  f"{k} {_size(v)}" for k, v in sorted(prof["device_bytes"].items(),
+                                                       key=lambda kv: -kv[1]) if v)]
+    for line in lines:
+        print(line)
     return EXIT_OK
 
 

@@ -30,7 +30,7 @@ import pyopencl as cl
 
 from clray import metrics
 from clray.device.pack import PackedScene
-from clray.device.program import kernel_source
+from clray.device.program import bvh_width_for, kernel_source
 from clray.errors import ClrayError, DeviceError
 from clray.render import RenderSettings, pack_for, render_packed
 from clray.scene.load import load_scene
@@ -264,7 +264,15 @@ class Tuner:
     def tune(self, paths: Sequence[Path]) -> list[Trial]:
         """Every scene, host configuration by host configuration, until the budget is spent
         (each scene gets an equal share)."""
-        hosts = host_configurations(self.space)
+        # bvh_width None means the device's own width: the same tree as that width given,
+        # tried once (as None, the default, where both are in the space).
+        auto = bvh_width_for(self.device)
+        hosts, seen = [], set()
+        for host in host_configurations(self.space):
+            resolved = json.dumps({**host, "bvh_width": host["bvh_width"] or auto})
+            if resolved not in seen:
+                seen.add(resolved)
+                hosts.append(host)
         start = time.monotonic()
         for i, path in enumerate(paths):
             run = self.prepare(path)

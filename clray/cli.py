@@ -461,6 +461,10 @@ def _stats_table(stats: dict) -> list[str]:
             ("image", f"{stats['width']}x{stats['height']}, {stats['spp']} spp, max depth "
                       f"{stats['max_depth']}, min weight {stats['min_weight']:g}, "
                       f"seed {stats['seed']}, {stats['precision']}")]
+    if "tuning" in stats:  # a Dask render's workers each take their own device's
+        tuning = stats["tuning"]
+        rows.append(("tuning", f"{tuning['label']} ({tuning['source']}; BVH width "
+                               f"{tuning['bvh_width']})"))
     for key, label in _TIMES:
         note = {"kernel_s": f"  ({stats['launches']} launches, device time)",
                 "render_s": "  (bvh to read-back)"}.get(key, "")
@@ -476,7 +480,8 @@ def _stats_table(stats: dict) -> list[str]:
     rows.append(("non-finite pixels", f"{stats['nonfinite_pixels']:,}"))
     if "clipped_pixels" in stats:
         rows.append(("clipped pixels", f"{stats['clipped_pixels']:,}  (a channel over 1)"))
-    known = {"scene", "output", "device", "width", "height", "spp", "max_depth", "min_weight",
+    known = {"scene", "output", "device", "tuning", "width", "height", "spp", "max_depth",
+             "min_weight",
              "seed", "precision", "clipped_pixels", "launches", "rays", "mrays_per_s",
              "device_bytes", "nonfinite_pixels",
              *(key for key, _ in _TIMES)}

@@ -249,15 +249,16 @@ def test_verbose_prints_progress_and_stats(capsys, cl_device, scene) -> None:
     assert "clray: rendering: 100% (768 of 768 pixel-samples, " in err
     table = lines[lines.index("clray: stats:") + 1:-1]
     labels = [line.split("  ")[1] for line in table]
-    assert labels[:17] == ["scene", "output", "device", "image", "load", "bvh", "pack", "build",
-                           "kernel", "render", "write", "total (wall)", "rays primary",
+    assert labels[:18] == ["scene", "output", "device", "image", "tuning", "load", "bvh", "pack",
+                           "build", "kernel", "render", "write", "total (wall)", "rays primary",
                            "rays secondary", "rays shadow", "rays total", "Mrays/s"]
-    assert labels[17:] == ["scene on device", "non-finite pixels", "clipped pixels"]
+    assert labels[18:] == ["scene on device", "non-finite pixels", "clipped pixels"]
     # Labels padded to one width: the values start in one column.
     column = 2 + len("non-finite pixels") + 2
     assert all(line[2:column].rstrip() == label for line, label in zip(table, labels,
                                                                          strict=True))
     assert "image              32x24, 1 spp, max depth 2, min weight 0, seed 0, float" in err
+    assert "tuning             default (default; BVH width " in err
     assert lines[-1].startswith("clray: wrote scene.png (32x24")
 
 

@@ -93,7 +93,8 @@ def command_wall_s(path: Path, device_spec: str | None) -> list[float]:
     # would compile clray's modules again (about 0.07 s).
     env = {k: v for k, v in os.environ.items() if k != "PYTHONDONTWRITEBYTECODE"}
     with tempfile.TemporaryDirectory(prefix="clray-bench-out-") as out_dir:
-        cmd = [sys.executable, "-m", "clray", "render", str(path), "-q", "-o",
+        # --no-tuning: the defaults' figures, whatever `clray tune` stored on this machine.
+        cmd = [sys.executable, "-m", "clray", "render", str(path), "-q", "--no-tuning", "-o",
                str(Path(out_dir) / f"{path.stem}.png")]
         if device_spec:
             cmd += ["--device", device_spec]

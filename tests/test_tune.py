@@ -87,7 +87,10 @@ def test_tune_command_stores_the_winner_that_render_then_uses(
     assert "**default**" in report and "**best**" in report
     results = json.loads((out / "results.json").read_text())
     assert len(results["trials"]) == 2
-    stored = Tuning(**results["best"]["tuning"])
+    # The best of Kernel Tuner's runs, or the defaults where interleaved renders did not
+    # confirm its gain.
+    stored = Tuning(**results["stored"])
+    assert stored in (Tuning(**results["best"]["tuning"]), Tuning())
     assert results["tuning_file"]
 
     def render_stats(*flags: str) -> dict:

@@ -4,6 +4,7 @@ results, report and plot written to the output folder."""
 
 from __future__ import annotations
 
+import math
 import sys
 import time
 from collections.abc import Callable, Sequence
@@ -13,6 +14,7 @@ from typing import Any
 from clray.device.context import describe, select_device
 from clray.errors import ClrayError
 from clray.tuning import report
+from clray.tuning.knobs import DEFAULT_TUNING
 from clray.tuning.store import save_tuning
 from clray.tuning.tuner import PIXEL_TOLERANCE, Trial, Tuner, best_configuration, confirm
 
@@ -80,11 +82,19 @@ def run_tune(paths: Sequence[Path], out: Path, *, device: str | None = None,
         runs = {run.name: run for run in tuner.runs}
         confirmed = [confirm(runs[s], winner.tuning, cl_device) for s in scenes]
         header["confirmed"] = confirmed
+        # Kernel Tuner times one launch over the whole image; renders launch in bands. Where
+        # the interleaved renders do not confirm the gain, the defaults are what is stored.
+        gain = math.prod(c["speedup"] for c in confirmed) ** (1 / len(confirmed))
+        stored = winner.tuning if gain >= 1 else DEFAULT_TUNING
+        header["stored"] = stored.values()
+        if stored is DEFAULT_TUNING:
+            say(f"best in Kernel Tuner's runs: {header['best']['label']}, but slower than the "
+                f"default in interleaved renders ({gain:.3f}x): storing the defaults")
         # A winner that needs a switch outside the knob table (a test's) is not stored.
         if save and not any(winner.extra.values()):
-            header["tuning_file"] = str(save_tuning(cl_device, winner.tuning, {
+            header["tuning_file"] = str(save_tuning(cl_device, stored, {
                 "scenes": header["scenes"], "strategy": strategy, "budget_s": budget_s,
-                "confirmed": confirmed}))
+                "best": header["best"], "confirmed": confirmed}))
     report.write_results(out, header, trials)
     plotted = report.plot(out, trials, best[0] if best else None)
     report.write_report(out, header, trials, best[0] if best else None, confirmed, plotted)

@@ -124,3 +124,14 @@ def test_tune_refuses_an_unknown_strategy(kernel_tuner, capsys, tmp_path) -> Non
     assert code == 2
     assert err.startswith("clray: error: --strategy: expected one of ") and "brute_force" in err
     assert err.endswith("got 'guesswork'\n")
+
+
+def test_tune_refuses_a_bad_scene_before_writing_anything(kernel_tuner, capsys, tmp_path,
+                                                          cl_device) -> None:
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[render]\nwidth = -3\n")
+    code = cli.main(["tune", str(bad), "--out", str(tmp_path / "t")])
+    err = capsys.readouterr().err
+    assert code == 3
+    assert err == "clray: error: bad.toml: camera: missing required key\n"
+    assert not (tmp_path / "t").exists()

@@ -13,6 +13,7 @@ from typing import Any
 
 from clray.device.context import describe, select_device
 from clray.errors import ClrayError
+from clray.scene.load import load_scene
 from clray.tuning import report
 from clray.tuning.knobs import DEFAULT_TUNING
 from clray.tuning.store import save_tuning
@@ -55,8 +56,10 @@ def run_tune(paths: Sequence[Path], out: Path, *, device: str | None = None,
     """Tune, confirm, store and report; returns the results' header with the winner."""
     if out.exists() and not out.is_dir():
         raise ClrayError(f"--out {out} exists and is not a directory")
-    out.mkdir(parents=True, exist_ok=True)
     cl_device = select_device(device)
+    for path in paths:  # a bad scene is one line before anything is written
+        load_scene(path)
+    out.mkdir(parents=True, exist_ok=True)
     progress = _Progress(budget_s, show_progress)
     tuner = Tuner(cl_device, out, strategy=strategy, budget_s=budget_s,
                   allow_error=allow_error, size=size, progress=progress, **tuner_options)

@@ -14,6 +14,7 @@ import numpy as np
 import pyopencl as cl
 import pytest
 
+from clray import __version__, cli
 from clray.accel import bvh as bvh_module
 from clray.accel import wide as wide_module
 from clray.device.pack import pack_scene
@@ -223,3 +224,17 @@ def test_next_band_rows_reads_the_band_knobs() -> None:
     assert rows(100, 0, 0.0, 10_000, Tuning(first_launch_pixel_samples=500)) == 5
     assert rows(100, 10, 0.1, 10_000, Tuning(launch_seconds=0.5)) == 40  # at most 4x
     assert rows(100, 10, 0.1, 10_000, Tuning(launch_seconds=0.5, launch_growth=8)) == 50
+
+
+def test_render_command_warns_once_of_a_stale_file_and_renders(cl_device, capsys,
+                                                               tmp_path) -> None:
+    path = _write_file(cl_device, Tuning(work_group_width=16), {"clray_version": "0.0.1"})
+    stats = tmp_path / "stats.json"
+    code = cli.main(["render", str(SPHERES), "-W", "32", "-H", "18", "-o",
+                     str(tmp_path / "out.png"), "--stats-json", str(stats)])
+    err = capsys.readouterr().err.splitlines()
+    assert code == 0
+    warned = [line for line in err if line.startswith("clray: warning: ")]
+    assert warned == [f"clray: warning: ignoring tuning file {path}: stale: tuned for "
+                      f"clray_version '0.0.1', this is '{__version__}'; run clray tune again"]
+    assert json.loads(stats.read_text())["tuning"]["source"] == "default"

@@ -259,6 +259,10 @@ def _build_parser() -> _Parser:
                    help="image width for every scene (default: each scene's own)")
     t.add_argument("-H", "--height", type=size, metavar="N",
                    help="image height for every scene (default: each scene's own)")
+    t.add_argument("--search-every-host", action="store_true",
+                   help="search the kernel and launch knobs again for every host configuration "
+                        "(default: with the first, the default; later host configurations keep "
+                        "the best found so far, one build each)")
     t.add_argument("--no-save", dest="save", action="store_false",
                    help="do not store the winner as the device's tuning file")
     t.add_argument("-q", "--quiet", action="store_true", help="print nothing on success")
@@ -701,6 +705,7 @@ def _tune(args: argparse.Namespace) -> int:
         run_tune(args.scenes, args.out, device=args.device, strategy=args.strategy,
                  budget_s=args.budget, allow_error=args.allow_error,
                  size=(args.width, args.height), save=args.save,
+                 search_every_host=args.search_every_host,
                  show_progress=not args.quiet and sys.stderr.isatty(),
                  say=(lambda _: None) if args.quiet else _say)
     if not args.quiet:

@@ -135,3 +135,14 @@ def test_tune_refuses_a_bad_scene_before_writing_anything(kernel_tuner, capsys, 
     assert code == 3
     assert err == "clray: error: bad.toml: camera: missing required key\n"
     assert not (tmp_path / "t").exists()
+
+
+def test_later_host_configurations_keep_the_best_kernel_knobs(kernel_tuner, cl_device,
+                                                              tmp_path) -> None:
+    trials = tune(cl_device, tmp_path, space={**TWO, "traversal_cost": (1.5, 1.0)})
+    first = [t for t in trials if t.tuning.traversal_cost == 1.5]
+    later = [t for t in trials if t.tuning.traversal_cost == 1.0]
+    assert sorted(t.tuning.work_group_width for t in first) == [16, 64]
+    best = min(first, key=lambda t: t.time_ms)
+    assert [t.tuning.work_group_width for t in later] == [best.tuning.work_group_width]
+    assert all(t.verified for t in trials)

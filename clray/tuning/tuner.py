@@ -181,6 +181,7 @@ class Tuner:
                  budget_s: float = 120.0, allow_error: float | None = None,
                  space: dict[str, Sequence] | None = None, iterations: int = ITERATIONS,
                  size: tuple[int | None, int | None] = (None, None),
+                 search_every_host: bool = False,
                  source: str | None = None, extra_params: dict[str, list] | None = None,
                  progress: Callable[[str, Trial | None], None] | None = None) -> None:
         self.kt = import_kernel_tuner()
@@ -192,6 +193,10 @@ class Tuner:
         self.space = {**default_space(), **(space or {})}
         self.iterations = iterations
         self.size = size
+        # False: the kernel and launch knobs are searched with the first (default) host
+        # configuration; later ones keep the best values found so far, so that each costs one
+        # build rather than one per kernel configuration and the budget reaches more of them.
+        self.search_every_host = search_every_host
         # The kernel's source, unless a test hands in a changed one (with its extra_params).
         self.source = source if source is not None else kernel_source()
         self.extra_params = extra_params or {}
@@ -212,17 +217,17 @@ class Tuner:
         threshold = PIXEL_TOLERANCE if self.allow_error is None else self.allow_error
         return Tolerance(threshold, fail_allowance(n))
 
-    def run_host(self, run: SceneRun, host: dict, time_limit: float) -> list[Trial]:
+    def run_host(self, run: SceneRun, host: dict, time_limit: float,
+                 kernel_space: dict[str, list]) -> list[Trial]:
         """One Kernel Tuner run: the scene packed with `host`'s knobs, the kernel and launch
-        knobs as tunable parameters."""
+        knobs' values in `kernel_space` as tunable parameters."""
         base = Tuning(**host)
         packed = pack_for(load_scene(run.path), RenderSettings(
             width=self.size[0], height=self.size[1], tuning=base), self.device)
         args, image_index = _arguments(packed)
         height, width = run.reference.shape[:2]
         check = _image_check(image_index, run.reference, self.tolerance(run.reference))
-        tune_params = {BLOCK_SIZE_X: list(self.space["work_group_width"]),
-                       **self.extra_params}
+        tune_params = kernel_space
         answer = [None] * len(args)
         answer[image_index] = args[image_index]
         cache = self.out / "cache" / _slug(self.device.name) / run.name / f"{_slug(base.label())}"
@@ -278,12 +283,20 @@ class Tuner:
             run = self.prepare(path)
             self.runs.append(run)
             deadline = start + self.budget_s * (i + 1) / len(paths)
+            kernel_space = {BLOCK_SIZE_X: list(self.space["work_group_width"]),
+                            **self.extra_params}
             for host in hosts:
                 left = deadline - time.monotonic()
                 if left < MIN_RUN_BUDGET_S:
                     break
-                for trial in self.run_host(run, host, left):
+                trials = self.run_host(run, host, left, kernel_space)
+                for trial in trials:
                     self.progress(run.name, trial)
+                best = min((t for t in trials if t.verified), key=lambda t: t.time_ms,
+                           default=None)
+                if best is not None and not self.search_every_host:
+                    kernel_space = {BLOCK_SIZE_X: [best.tuning.work_group_width],
+                                    **{k: [v] for k, v in best.extra.items()}}
         return self.trials
 
 

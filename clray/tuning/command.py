@@ -15,7 +15,7 @@ from clray.device.context import describe, select_device
 from clray.errors import ClrayError
 from clray.scene.load import load_scene
 from clray.tuning import report
-from clray.tuning.knobs import DEFAULT_TUNING
+from clray.tuning.knobs import DEFAULT_TUNING, Tuning
 from clray.tuning.store import save_tuning
 from clray.tuning.tuner import PIXEL_TOLERANCE, Trial, Tuner, best_configuration, confirm
 
@@ -107,8 +107,9 @@ def run_tune(paths: Sequence[Path], out: Path, *, device: str | None = None,
         say(f"{c['scene']}: default {c['default_kernel_s'] * 1e3:.3g} ms, tuned "
             f"{c['tuned_kernel_s'] * 1e3:.3g} ms ({c['speedup']:.3f}x, interleaved renders)")
     if header["best"] is not None:
+        stored = Tuning(**header["stored"]).label()
         say(f"best: {header['best']['label']}"
-            + (f"; stored in {header['tuning_file']}" if header["tuning_file"] else ""))
+            + (f"; stored {stored} in {header['tuning_file']}" if header["tuning_file"] else ""))
     else:
         say("no configuration was verified on every scene: nothing stored")
     return header

@@ -32,9 +32,9 @@ import pyopencl.characterize
 
 from clray import profile
 from clray.device.context import describe, queue_for, select_device
+from clray.device.launch import render_packed
 from clray.device.pack import pack_scene
 from clray.device.program import KernelConfig, bvh_width_for
-from clray.render import render_packed
 from clray.scene.load import load_scene
 
 HERE = Path(__file__).resolve().parent

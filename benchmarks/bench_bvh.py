@@ -52,7 +52,7 @@ def sphere_bounds(n: int, seed: int = 1) -> tuple[np.ndarray, np.ndarray]:
 
 def _device_queue(n: int):
     """The default device's queue, or None where there is none or it cannot build over n."""
-    from clray.accel import _bvh_cl
+    from clray.device import bvh_build
     from clray.device.context import queue_for, select_device
     from clray.errors import DeviceError
 
@@ -60,7 +60,7 @@ def _device_queue(n: int):
         device = select_device()
     except DeviceError:
         return None
-    return queue_for(device) if _bvh_cl.supports(device, n) else None
+    return queue_for(device) if bvh_build.supports(device, n) else None
 
 
 def _describe(bvh: Bvh, runs: list[float], n: int, max_leaf_size: int) -> dict:
@@ -115,8 +115,10 @@ def main(argv: list[str] | None = None) -> None:
     for name, (lo, hi) in cases.items():
         builders = {"host": lambda lo=lo, hi=hi: build_bvh(lo, hi, args.max_leaf_size)}
         if queue is not None:
-            builders["device"] = lambda lo=lo, hi=hi: build_bvh(lo, hi, args.max_leaf_size,
-                                                                queue=queue)
+            from clray.device.bvh_build import build_bvh_on
+
+            builders["device"] = lambda lo=lo, hi=hi: build_bvh_on(queue, lo, hi,
+                                                                   args.max_leaf_size)
         results[name] = {"primitives": lo.shape[0],
                          **bench_case(lo, hi, builders, args.runs, args.max_leaf_size)}
 

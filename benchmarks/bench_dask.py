@@ -27,11 +27,11 @@ from pathlib import Path
 
 from distributed import Client
 
-from clray.animation import load_sequence
 from clray.device.context import describe, select_device
 from clray.distributed import connect, render_sequence, render_still
 from clray.render import RenderResult, RenderSettings, render
 from clray.scene.load import load_scene
+from clray.sequence import load_sequence
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent

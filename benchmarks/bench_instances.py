@@ -34,9 +34,9 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 from clray.device.context import queue_for, select_device  # noqa: E402
+from clray.device.launch import render_packed  # noqa: E402
 from clray.device.pack import pack_scene  # noqa: E402
 from clray.device.program import bvh_width_for  # noqa: E402
-from clray.render import render_packed  # noqa: E402
 from clray.scene.load import load_scene  # noqa: E402
 
 GRID = (40, 25)  # instances along x and z, one of them at the origin

@@ -37,7 +37,10 @@ if os.path.exists(kernels):
     spec.loader.exec_module(sys.modules["clray.kernels"])
 from clray.device.context import select_device
 from clray.device.pack import pack_scene
-from clray.render import render_packed
+try:
+    from clray.device.launch import render_packed
+except ImportError:  # a commit from before clray.device.launch
+    from clray.render import render_packed
 from clray.scene.load import load_scene
 path, repeat, spec = sys.argv[1], int(sys.argv[2]), sys.argv[3] or None
 scene = load_scene(path)

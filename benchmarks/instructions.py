@@ -34,7 +34,7 @@ _RENDER = """
 import dataclasses, json, sys
 from clray.device.context import select_device
 from clray.device.pack import pack_scene
-from clray.render import render_packed
+from clray.device.launch import render_packed
 from clray.scene.load import load_scene
 path, variant = sys.argv[1], sys.argv[2]
 scene = load_scene(path)

@@ -121,7 +121,7 @@ def _image_path(text: str) -> Path:
 
 
 def _frames(text: str) -> range:
-    from clray.animation import parse_frames
+    from clray.sequence import parse_frames
 
     try:
         return parse_frames(text)
@@ -610,7 +610,7 @@ def _say_dask(stats: dict, unit: str) -> None:
 def _render_frames(args: argparse.Namespace, started: float) -> int:
     """--frames: each frame of the scene's [animation] to its own file, skipping those that
     exist with --resume; locally one after another, or one Dask task each."""
-    from clray.animation import (
+    from clray.sequence import (
         check_pattern,
         frame_path,
         frames_in,

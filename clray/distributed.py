@@ -29,23 +29,23 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import pyopencl as cl
 
-from clray.animation import Sequence
 from clray.device.context import describe, select_device
+from clray.device.launch import render_packed
 from clray.device.pack import PackedScene
 from clray.errors import ClrayError
 from clray.render import (
     RenderResult,
     RenderSettings,
-    _encoding,
-    _resolve,
     pack_for,
+    png_encoding,
     render,
-    render_packed,
+    resolved_settings,
     warn_deep_tree,
 )
 from clray.scene.check import check_scene
 from clray.scene.load import load_scene
 from clray.scene.model import Scene
+from clray.sequence import Sequence
 from clray.study import study_scene
 
 if TYPE_CHECKING:
@@ -168,8 +168,8 @@ def render_still(client: Client, scene: Scene, settings: RenderSettings | None =
     settings = settings or RenderSettings()
     started = time.perf_counter()
     scene = check_scene(scene)
-    encoding = _encoding(scene, settings)
-    resolved = _resolve(scene, settings)
+    encoding = png_encoding(scene, settings)
+    resolved = resolved_settings(scene, settings)
     warn_deep_tree(scene, resolved)
     width, height, spp = (int(resolved[k]) for k in ("width", "height", "spp"))
     task_settings = dataclasses.replace(settings, progress=None)

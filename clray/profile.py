@@ -31,9 +31,10 @@ from pathlib import Path
 import pyopencl as cl
 
 from clray.device.context import describe, select_device
+from clray.device.launch import render_packed
 from clray.device.pack import PackedScene
 from clray.device.program import KernelConfig, build_program
-from clray.render import RenderSettings, pack_for, render_packed
+from clray.render import RenderSettings, pack_for
 from clray.scene.load import load_scene
 
 

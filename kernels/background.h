@@ -3,6 +3,9 @@
 #ifndef CLRAY_BACKGROUND_H
 #define CLRAY_BACKGROUND_H
 
+#include "real.h"
+#include "clray_types.h"
+
 #if HAS_BACKGROUND_IMAGE
 inline REAL3 environment_texel(__global const float4* texels, __global const Params* params,
                                int x, int y) {

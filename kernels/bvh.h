@@ -3,6 +3,12 @@
 #ifndef CLRAY_BVH_H
 #define CLRAY_BVH_H
 
+#include "real.h"
+#include "clray_types.h"
+#include "scene.h"
+#include "hit.h"
+#include "intersect.h"
+
 // BVH_STACK_SIZE: set by the host from the tree (clray/accel/wide.py: stack_size), so no walk
 // can overflow it.
 
@@ -39,50 +45,6 @@ HOT int lane_bits(INTW m) { return lane_bits4(m); }
 #else
 #error "BVH_WIDTH must be 4 or 8"
 #endif
-
-// COUNT_TESTS (the instrumented build of benchmarks/bench.py): box and primitive tests per
-// work-item, for closest-hit and shadow queries apart.
-typedef struct {
-    int closest_boxes, closest_prims, shadow_boxes, shadow_prims;
-} TestCounts;
-
-#if COUNT_TESTS
-#define COUNT(s, field, n) ((s)->counts->field += (n))
-#else
-#define COUNT(s, field, n)
-#endif
-
-typedef struct {
-    __global const Plane* planes;
-    __global const Sphere* spheres;
-    __global const Box* boxes;
-    __global const Cylinder* cylinders;
-    __global const Cone* cones;
-    __global const Triangle* triangles;
-    __global const TrianglePacket* triangle_packets;
-    __global const SpherePacket* sphere_packets;
-    __global const float4* normals;
-    __global const float2* uvs;
-    __global const BvhNode* nodes;
-    __global const int* prim_refs;
-    __global const Material* materials;
-    __global const Texture* textures;
-    __global const float4* texels;
-    __global const Light* lights;
-    __global const Instance* instances;
-    int n_planes, n_nodes, n_lights;
-#if COUNT_TESTS
-    TestCounts* counts;
-#endif
-} SceneRefs;
-
-typedef struct {
-    REAL t;
-    int ref;  // PRIM_* << PRIM_TYPE_SHIFT | index; meaningful when t < REAL_INF
-    int part;
-    REAL b1, b2;
-    int instance;  // the instance `ref` was crossed in (ref is then in its group), or -1
-} Hit;
 
 // Triangles and spheres are tested in packets (leaf_closest, leaf_transmission), the other
 // primitives one by one.

@@ -1,6 +1,10 @@
 #ifndef CLRAY_CAMERA_H
 #define CLRAY_CAMERA_H
 
+#include "real.h"
+#include "clray_types.h"
+#include "rng.h"
+
 // Sample s of spp inside pixel (x, y), in pixel units: the centre for one sample, else a jittered
 // point in cell (s mod nx, s div nx) of an nx x ny grid.
 inline REAL2 sample_position(int x, int y, int s, int spp, uint seed, uint pixel) {

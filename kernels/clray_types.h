@@ -123,7 +123,7 @@ typedef struct {
     float4 ambient;  // the scene's global ambient light colour
     int width, height, spp, max_depth;
     uint seed;
-    int n_planes, n_lights, bvh_root_count;  // bvh_root_count: 0 when the BVH is empty
+    int n_planes, n_lights, n_nodes;  // n_nodes: BvhNode records, 0 when the BVH is empty
     float min_weight;  // secondary rays of a smaller weight (largest channel) are not traced
     // The equirectangular environment (HAS_BACKGROUND_IMAGE): its first texel in the texel
     // array and its size.
@@ -135,13 +135,41 @@ typedef struct {
 // their bounds axis by axis, so one vector slab test covers them all. child[k] is an inner
 // child's node index, or a leaf's first slot in prim_refs, or -1 for an empty slot; count[k] is 0
 // for an inner child and a leaf's section sizes (below) for a leaf. Bounds are rounded
-// outwards to float32 on the host, so they hold in the double build too.
+// outwards to float32 on the host, so they hold in the double build too. Only builds that set
+// BVH_WIDTH have it (the device BVH build does not).
+#ifdef BVH_WIDTH
 typedef struct {
     float lo_x[BVH_WIDTH], lo_y[BVH_WIDTH], lo_z[BVH_WIDTH];
     float hi_x[BVH_WIDTH], hi_y[BVH_WIDTH], hi_z[BVH_WIDTH];
     int child[BVH_WIDTH];
     int count[BVH_WIDTH];
 } BvhNode;
+#endif
+
+// The binary tree that the BVH build makes (clray/accel/bvh.py on the host, kernels/bvh_build.cl
+// on the device) and clray/accel/wide.py collapses: for an inner node (count 0) `first` is its
+// right child (its left child is the next node), for a leaf its first slot in the build's order.
+typedef struct {
+    float lo[3];
+    int first;
+    float hi[3];
+    int count;
+} BinaryNode;
+
+// The device build's primitive: its bounds rounded outwards and its centroid, vectors so that it
+// is three aligned loads; the primitive's index rides in the centroid's w.
+typedef struct {
+    float4 lo, hi, c;
+} BuildPrim;
+
+// A subtree the device build has still to split: its bounds and centroid bounds, its
+// primitives, its node's slot, and `flip`: which of the two primitive buffers holds its
+// primitives. Each split moves them to the other one, so a stable partition is one pass and
+// needs no copy back.
+typedef struct {
+    float4 lo, hi, clo, chi;
+    int start, count, pos, flip;
+} BuildTask;
 
 // A leaf's triangles sit first in its prim_refs slots, in packets of PACKET_WIDTH (padded with
 // -1), then its spheres likewise, then its other primitives. Leaves start at multiples of

@@ -3,6 +3,8 @@
 #ifndef CLRAY_FRESNEL_H
 #define CLRAY_FRESNEL_H
 
+#include "real.h"
+
 #if HAS_FRESNEL
 // eta = n1 / n2; cos_i, cos_t >= 0 the cosines of the incident and refracted rays.
 inline REAL fresnel_reflectance(REAL eta, REAL cos_i, REAL cos_t) {

@@ -6,6 +6,9 @@
 #ifndef CLRAY_INTERSECT_H
 #define CLRAY_INTERSECT_H
 
+#include "real.h"
+#include "clray_types.h"
+
 typedef struct {
     REAL3 o, d;
     REAL3 inv_d;     // 1/d, +-inf for zero components (the slab test relies on it)

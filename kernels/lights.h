@@ -3,6 +3,10 @@
 #ifndef CLRAY_LIGHTS_H
 #define CLRAY_LIGHTS_H
 
+#include "real.h"
+#include "clray_types.h"
+#include "rng.h"
+
 // Which pixel sample is being shaded: area lights draw their sample point from it.
 typedef struct {
     uint seed, pixel;

@@ -11,8 +11,18 @@
 // HAS_INSTANCES (0 or 1): the scene places groups by transforms (kernels/bvh.h walks into them).
 #include "real.h"
 #include "clray_types.h"
+#include "scene.h"
+#include "hit.h"
+#include "rng.h"
+#include "camera.h"
+#include "intersect.h"
+#include "bvh.h"
+#include "texture.h"
+#include "shading.h"
+#include "fresnel.h"
+#include "background.h"
 
-#define HAS_BVH (HAS_SPHERES || HAS_BOXES || HAS_CYLINDERS || HAS_CONES || HAS_TRIANGLES)
+// The media a ray can be inside at once (nested glass); a deeper one is not recorded.
 #define MEDIA_DEPTH 4
 // Depth first, a task pushes at most two children (refraction and reflection), so the stack
 // holds at most one waiting task per level: MAX_DEPTH + 1 entries. Without refraction a task
@@ -22,15 +32,6 @@
 #else
 #define RAY_STACK_SIZE 1
 #endif
-
-#include "rng.h"
-#include "camera.h"
-#include "intersect.h"
-#include "bvh.h"
-#include "texture.h"
-#include "shading.h"
-#include "fresnel.h"
-#include "background.h"
 
 // One node of the ray tree, waiting on the explicit stack (OpenCL C has no recursion).
 typedef struct {
@@ -82,67 +83,13 @@ inline REAL refract_media(const SceneRefs* s, const RayTask* in, RayTask* out, i
 }
 #endif
 
-// The scene's geometry and materials; a caller that shades adds lights and textures.
-inline SceneRefs scene_refs(__global const Plane* planes, int n_planes,
-                            __global const Sphere* spheres, __global const Box* boxes,
-                            __global const Cylinder* cylinders, __global const Cone* cones,
-                            __global const Triangle* triangles,
-                            __global const TrianglePacket* triangle_packets,
-                            __global const SpherePacket* sphere_packets,
-                            __global const float4* normals, __global const float2* uvs,
-                            __global const BvhNode* nodes,
-                            int n_nodes, __global const int* prim_refs,
-                            __global const Material* materials) {
-    SceneRefs s;
-    s.planes = planes;
-    s.spheres = spheres;
-    s.boxes = boxes;
-    s.cylinders = cylinders;
-    s.cones = cones;
-    s.triangles = triangles;
-    s.triangle_packets = triangle_packets;
-    s.sphere_packets = sphere_packets;
-    s.normals = normals;
-    s.uvs = uvs;
-    s.nodes = nodes;
-    s.prim_refs = prim_refs;
-    s.materials = materials;
-    s.textures = 0;
-    s.texels = 0;
-    s.lights = 0;
-    s.instances = 0;
-    s.n_planes = n_planes;
-    s.n_nodes = n_nodes;
-    s.n_lights = 0;
-    return s;
-}
-
-__kernel void render(__global const Camera* camera, __global const Params* params,
-                     __global const Plane* planes, __global const Sphere* spheres,
-                     __global const Box* boxes, __global const Cylinder* cylinders,
-                     __global const Cone* cones, __global const Triangle* triangles,
-                     __global const TrianglePacket* triangle_packets,
-                     __global const SpherePacket* sphere_packets,
-                     __global const float4* normals,
-                     __global const float2* uvs, __global const BvhNode* nodes, int n_nodes,
-                     __global const int* prim_refs, __global const Material* materials,
-                     __global const Texture* textures, __global const float4* texels,
-                     __global const Light* lights, __global const Instance* instances,
-                     __global float4* image,
-                     __global int4* ray_counts, __global int4* test_counts,
-                     int row_offset) {
+__kernel void render(SCENE_BUFFER_PARAMS, __global float4* image, __global int4* ray_counts,
+                     __global int4* test_counts, int row_offset) {
     int x = get_global_id(0), y = get_global_id(1) + row_offset;
     int width = params->width, height = params->height;
     if (x >= width || y >= height) return;
 
-    SceneRefs s = scene_refs(planes, params->n_planes, spheres, boxes, cylinders, cones,
-                             triangles, triangle_packets, sphere_packets, normals,
-                             uvs, nodes, n_nodes, prim_refs, materials);
-    s.textures = textures;
-    s.texels = texels;
-    s.lights = lights;
-    s.instances = instances;
-    s.n_lights = params->n_lights;
+    SceneRefs s = scene_refs(SCENE_BUFFER_ARGS);
 #if COUNT_TESTS
     TestCounts counts = {0, 0, 0, 0};
     s.counts = &counts;
@@ -244,23 +191,9 @@ __kernel void render(__global const Camera* camera, __global const Params* param
 // Closest hit for given rays, for tests and tools: t (inf on a miss), the primitive reference
 // and the surface's outward geometric normal. Uses the same scene buffers as render.
 __kernel void intersect_rays(__global const float4* origins, __global const float4* directions,
-                             __global const Plane* planes, int n_planes,
-                             __global const Sphere* spheres, __global const Box* boxes,
-                             __global const Cylinder* cylinders, __global const Cone* cones,
-                             __global const Triangle* triangles,
-                             __global const TrianglePacket* triangle_packets,
-                             __global const SpherePacket* sphere_packets,
-                             __global const float4* normals,
-                             __global const float2* uvs, __global const BvhNode* nodes,
-                             int n_nodes, __global const int* prim_refs,
-                             __global const Material* materials,
-                             __global const Instance* instances, __global float4* hits,
-                             __global int* refs) {
+                             SCENE_BUFFER_PARAMS, __global float4* hits, __global int* refs) {
     int i = get_global_id(0);
-    SceneRefs s = scene_refs(planes, n_planes, spheres, boxes, cylinders, cones, triangles,
-                             triangle_packets, sphere_packets, normals, uvs, nodes,
-                             n_nodes, prim_refs, materials);
-    s.instances = instances;
+    SceneRefs s = scene_refs(SCENE_BUFFER_ARGS);
 #if COUNT_TESTS
     TestCounts counts = {0, 0, 0, 0};
     s.counts = &counts;

@@ -3,6 +3,8 @@
 #ifndef CLRAY_RNG_H
 #define CLRAY_RNG_H
 
+#include "real.h"
+
 inline uint pcg_hash(uint x) {
     uint state = x * 747796405u + 2891336453u;
     uint word = ((state >> ((state >> 28u) + 4u)) ^ state) * 277803737u;

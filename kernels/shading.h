@@ -2,16 +2,13 @@
 #ifndef CLRAY_SHADING_H
 #define CLRAY_SHADING_H
 
+#include "real.h"
+#include "clray_types.h"
+#include "scene.h"
+#include "hit.h"
+#include "intersect.h"
+#include "bvh.h"
 #include "lights.h"
-
-typedef struct {
-    REAL3 p;    // on the surface (re-projected where the shape allows)
-    REAL3 n_g;  // geometric normal, outward (planes: as given; triangles: by winding)
-    REAL3 n_s;  // shading normal on the same side as n_g
-    REAL err;   // bound on the rounding error of p, per component
-    REAL2 uv;
-    int material;
-} Surface;
 
 // Error bounds are pbrt-style: gamma(n) times the magnitudes the point was computed from. Sixteen
 // roundings is generous for every formula here and still a tiny fraction of the scene's scale.

@@ -2,6 +2,10 @@
 #ifndef CLRAY_TEXTURE_H
 #define CLRAY_TEXTURE_H
 
+#include "real.h"
+#include "clray_types.h"
+#include "scene.h"
+
 #if HAS_TEXTURES
 inline REAL3 texel_at(const SceneRefs* s, const __global Texture* tx, int x, int y) {
     return TO_REAL3(s->texels[tx->texel_offset + y * tx->width + x]);

@@ -13,6 +13,7 @@ from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
 from clray.accel.bvh import (
+    BINARY_NODE,
     N_BINS,
     SAH_PACKET,
     TRAVERSAL_COST,
@@ -23,8 +24,9 @@ from clray.accel.bvh import (
     sah_cost,
 )
 from clray.accel.wide import PACKET_WIDTH
+from clray.device import bvh_build
+from clray.device.bvh_build import build_bvh_on
 from clray.device.context import queue_for
-from clray.device.layout import BVH_NODE
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -45,7 +47,7 @@ def check_bvh(bvh: Bvh, lo: np.ndarray, hi: np.ndarray, max_leaf_size: int) -> N
     """Assert every structural invariant of a built BVH over primitives with bounds lo, hi."""
     n = lo.shape[0]
     nodes, order = bvh.nodes, bvh.order
-    assert nodes.dtype == BVH_NODE
+    assert nodes.dtype == BINARY_NODE
     assert order.dtype == np.int32
     assert np.array_equal(np.sort(order), np.arange(n))
     if n == 0:
@@ -197,16 +199,14 @@ def test_rejects_bad_leaf_size():
 
 @pytest.fixture(scope="module")
 def cl_queue(cl_device):
-    from clray.accel import _bvh_cl
-
-    if not _bvh_cl.supports(cl_device, 1):
+    if not bvh_build.supports(cl_device, 1):
         pytest.skip("the device build needs float64")
     return queue_for(cl_device)
 
 
 def assert_same_tree(a: Bvh, b: Bvh) -> None:
     # Field by field, by value: a min or max over 0.0 and -0.0 may give either.
-    for field in BVH_NODE.names:
+    for field in BINARY_NODE.names:
         assert np.array_equal(a.nodes[field], b.nodes[field]), field
     assert np.array_equal(a.order, b.order)
 
@@ -220,7 +220,7 @@ def assert_same_tree(a: Bvh, b: Bvh) -> None:
 def test_device_build_is_the_host_build_small_sets(cl_queue, centres, data, max_leaf_size):
     extents = data.draw(hnp.arrays(np.float64, centres.shape, elements=_EXTENT))
     lo, hi = _boxes(centres, extents)
-    bvh = build_bvh(lo, hi, max_leaf_size, queue=cl_queue)
+    bvh = build_bvh_on(cl_queue, lo, hi, max_leaf_size)
     check_bvh(bvh, lo, hi, max_leaf_size)
     assert_same_tree(bvh, build_bvh(lo, hi, max_leaf_size))
 
@@ -230,7 +230,7 @@ def test_device_build_is_the_host_build_small_sets(cl_queue, centres, data, max_
 @pytest.mark.parametrize("max_leaf_size", [1, 4])
 def test_device_build_is_the_host_build(cl_queue, kind, n, max_leaf_size):
     lo, hi = _random_set(kind, n, np.random.default_rng(n + len(kind)))
-    bvh = build_bvh(lo, hi, max_leaf_size, queue=cl_queue)
+    bvh = build_bvh_on(cl_queue, lo, hi, max_leaf_size)
     check_bvh(bvh, lo, hi, max_leaf_size)
     assert_same_tree(bvh, build_bvh(lo, hi, max_leaf_size))
 
@@ -242,7 +242,7 @@ def test_device_build_of_a_lopsided_set(cl_queue):
     c = np.zeros((120, 3))
     c[:, 0] = 2.0 ** np.arange(120)
     lo, hi = c - 0.25, c + 0.25
-    bvh = build_bvh(lo, hi, 1, queue=cl_queue)
+    bvh = build_bvh_on(cl_queue, lo, hi, 1)
     check_bvh(bvh, lo, hi, 1)
     assert_same_tree(bvh, build_bvh(lo, hi, 1))
 
@@ -256,23 +256,34 @@ def test_device_rounding_at_the_edges_of_float32(cl_queue):
     rng = np.random.default_rng(3)
     lo = rng.choice(edges, (400, 3))
     hi = np.maximum(lo, rng.choice(edges, (400, 3)))
-    bvh = build_bvh(lo, hi, 1, queue=cl_queue)
+    bvh = build_bvh_on(cl_queue, lo, hi, 1)
     check_bvh(bvh, lo, hi, 1)
     assert_same_tree(bvh, build_bvh(lo, hi, 1))
 
 
-def test_device_build_only_where_node_slots_fit_in_ints(cl_queue):
-    from clray.accel import _bvh_cl
+def test_device_build_runs_on_the_device(cl_queue, monkeypatch):
+    # Above max_leaf_size primitives on a device that supports it, build_bvh_on does not fall
+    # back to the host build (which would make the comparisons above vacuous).
+    def device_build(*args: object) -> None:
+        raise RuntimeError("device build")
 
-    assert _bvh_cl.supports(cl_queue.device, 2**30)
-    assert not _bvh_cl.supports(cl_queue.device, 2**30 + 1)
+    monkeypatch.setattr(bvh_build, "build", device_build)
+    lo = np.random.default_rng(0).uniform(-1, 1, (10, 3))
+    with pytest.raises(RuntimeError, match="device build"):
+        build_bvh_on(cl_queue, lo, lo + 0.1, 4)
+    assert build_bvh_on(cl_queue, lo[:4], lo[:4] + 0.1, 4).nodes.size == 1
+
+
+def test_device_build_only_where_node_slots_fit_in_ints(cl_queue):
+    assert bvh_build.supports(cl_queue.device, 2**30)
+    assert not bvh_build.supports(cl_queue.device, 2**30 + 1)
 
 
 def test_device_build_of_mesh_triangles(cl_queue):
     vertices, faces, _ = mesh_gen.bumpy_mesh(5)
     tri = vertices[faces]
     lo, hi = tri.min(axis=1), tri.max(axis=1)
-    assert_same_tree(build_bvh(lo, hi, queue=cl_queue), build_bvh(lo, hi))
+    assert_same_tree(build_bvh_on(cl_queue, lo, hi), build_bvh(lo, hi))
 
 
 # --- build quality ---------------------------------------------------------------------------

@@ -8,14 +8,15 @@ import importlib
 import numpy as np
 import pytest
 
+from clray.device.launch import band_capacity
 from clray.device.pack import pack_scene
 from clray.errors import DeviceError
-from clray.render import RenderSettings, band_capacity, render
+from clray.render import RenderSettings, render
 from clray.scene import model as M
 
 MIB = 1 << 20
 # `clray.render` the attribute is the function; the module is needed for monkeypatching.
-render_module = importlib.import_module("clray.render")
+launch_module = importlib.import_module("clray.device.launch")
 
 
 def _scene(width: int, height: int) -> M.Scene:
@@ -44,7 +45,7 @@ def test_band_fits_beside_the_scene_in_global_memory():
 
 
 def test_band_capacity_is_bounded_for_huge_images(monkeypatch):
-    monkeypatch.setattr(render_module, "MAX_BAND_BYTES", 1 * MIB)
+    monkeypatch.setattr(launch_module, "MAX_BAND_BYTES", 1 * MIB)
     packed = _packed(16384, 16384)
     assert band_capacity(packed, global_mem=1 << 40, max_alloc=1 << 40) == 4
 
@@ -63,7 +64,7 @@ def test_image_in_small_bands_is_identical(cl_device, monkeypatch):
     scene = _scene(96, 40)
     whole = render(scene, RenderSettings(spp=2))
     # Three rows of 96 pixels a band: the bands, not the launches' timing, split the image.
-    monkeypatch.setattr(render_module, "MAX_BAND_BYTES", 3 * 96 * 16)
+    monkeypatch.setattr(launch_module, "MAX_BAND_BYTES", 3 * 96 * 16)
     banded = render(scene, RenderSettings(spp=2))
     assert banded.stats["launches"] >= 14
     np.testing.assert_array_equal(banded.image, whole.image)

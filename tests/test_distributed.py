@@ -37,7 +37,7 @@ def _run(code: str) -> subprocess.CompletedProcess:
 
 
 def test_core_imports_no_dask():
-    done = _run("import sys, clray, clray.cli, clray.animation, clray.render\n"
+    done = _run("import sys, clray, clray.cli, clray.sequence, clray.render\n"
                 "print(sorted(m for m in sys.modules if m.split('.')[0] in "
                 "('dask', 'distributed')))")
     assert done.returncode == 0, done.stderr

@@ -10,11 +10,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from clray.device.launch import intersect_rays
 from clray.device.layout import INSTANCE, PRIM_INDEX_MASK, PRIM_TYPE_SHIFT
 from clray.device.pack import pack_scene
 from clray.errors import SceneError
 from clray.metrics import count_over
-from clray.render import RenderSettings, intersect_rays, render
+from clray.render import RenderSettings, render
 from clray.scene import model as M
 from clray.scene.load import load_scene, scene_from_dict
 from tests.reference_check import Tolerance, assert_kernel_matches_reference

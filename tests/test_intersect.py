@@ -1,4 +1,4 @@
-"""The intersection kernel (clray.render.intersect_rays) against float64 numpy.
+"""The intersection kernel (clray.device.launch.intersect_rays) against float64 numpy.
 
 Every ray is rounded to float32 first and the float64 oracle is fed those same rounded values,
 so the comparisons measure the kernel's arithmetic, not the input rounding. Scenes put the
@@ -24,9 +24,9 @@ import pyopencl as cl
 import pytest
 
 from clray.device import layout as L
+from clray.device.launch import intersect_rays
 from clray.device.pack import pack_scene
 from clray.reference import intersect_scene
-from clray.render import intersect_rays
 from clray.scene import model as M
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -1,14 +1,17 @@
-"""The numpy dtypes of clray/device/layout.py against sizeof/offsetof measured on the device."""
+"""The host/device contract checked on the device: the numpy dtypes of clray/device/layout.py
+against sizeof/offsetof, every constant kernels/clray_types.h defines against its host twin, and
+the scene buffers of the kernels' parameter lists (kernels/scene.h) against layout.SCENE_BUFFERS."""
 
 from __future__ import annotations
+
+import re
 
 import numpy as np
 import pyopencl as cl
 import pytest
 
-from clray.accel import wide
 from clray.device import layout
-from clray.device.program import kernel_source
+from clray.device.program import KernelConfig, kernel_source
 
 
 def _structs(bvh_width: int) -> dict[str, np.dtype]:
@@ -52,15 +55,66 @@ def test_structs_are_16_byte_multiples(bvh_width: int) -> None:
         assert dtype.itemsize % 16 == 0, name
 
 
-def test_header_constants_match_layout() -> None:
+def _defined_constants() -> list[str]:
+    """Every object-like #define of clray_types.h but its include guard."""
     header = kernel_source("clray_types.h")
-    constants = {name: getattr(layout, name) for name in (
-        "PRIM_SPHERE", "PRIM_TRIANGLE", "PRIM_INSTANCE", "PRIM_TYPE_SHIFT", "LIGHT_DIRECTIONAL",
-        "TEXTURE_IMAGE", "TRIANGLE_SMOOTH", "TRIANGLE_UV", "ENTER_INSTANCE", "LEAVE_INSTANCE")}
-    constants.update({name: getattr(wide, name) for name in (
-        "PACKET_WIDTH", "LEAF_TRIANGLE_SHIFT", "LEAF_SPHERE_SHIFT", "LEAF_FIELD_MASK")})
-    for name, value in constants.items():
-        defined = [line.split(None, 2)[2] for line in header.splitlines()
-                   if line.startswith(f"#define {name} ")]
-        assert defined, name
-        assert eval(defined[0].split("//")[0]) == value, name
+    names = re.findall(r"^#define ([A-Z][A-Z0-9_]*)[ \t]+\S", header, flags=re.MULTILINE)
+    return [name for name in names if name != "CLRAY_TYPES_H"]
+
+
+def test_every_header_constant_has_a_host_twin() -> None:
+    names = _defined_constants()
+    # The known ones, so that a broken scan cannot pass by finding none.
+    assert {"PRIM_BOX", "PRIM_CONE", "PRIM_INDEX_MASK", "LIGHT_SPOT", "TEXTURE_CHECKER",
+            "PACKET_WIDTH", "LEAVE_INSTANCE"} <= set(names)
+    assert [name for name in names if not hasattr(layout, name)] == []
+
+
+def test_header_constants_match_layout_on_the_device(cl_ctx: cl.Context) -> None:
+    names = _defined_constants()
+    lines = [f"out[{i}] = (long)({name});" for i, name in enumerate(names)]
+    source = (kernel_source("clray_types.h") + "\n__kernel void probe(__global long* out) {\n"
+              + "\n".join(lines) + "\n}\n")
+    program = cl.Program(cl_ctx, source).build(options=["-DBVH_WIDTH=8"])
+    queue = cl.CommandQueue(cl_ctx)
+    out = np.zeros(len(names), dtype=np.int64)
+    buf = cl.Buffer(cl_ctx, cl.mem_flags.WRITE_ONLY, out.nbytes)
+    program.probe(queue, (1,), None, buf)
+    cl.enqueue_copy(queue, out, buf)
+    device = dict(zip(names, out.tolist(), strict=True))
+    host = {name: getattr(layout, name) for name in names}
+    assert device == host
+
+
+def _scene_parameters(kernel: cl.Kernel, first: int) -> list[tuple[str, str]]:
+    """(name, type) of the kernel's parameters from `first`, as many as there are buffers."""
+    info = cl.kernel_arg_info
+    return [(kernel.get_arg_info(i, info.NAME), kernel.get_arg_info(i, info.TYPE_NAME))
+            for i in range(first, first + len(layout.SCENE_BUFFERS))]
+
+
+_HOST_BUFFERS = [(b.name, f"{b.element}*") for b in layout.SCENE_BUFFERS]
+
+
+def test_scene_buffer_macro_is_the_host_list(cl_ctx: cl.Context) -> None:
+    source = kernel_source("scene.h") + "\n__kernel void probe(SCENE_BUFFER_PARAMS) {}\n"
+    program = cl.Program(cl_ctx, source).build(options=["-DBVH_WIDTH=8", "-cl-kernel-arg-info"])
+    kernel = program.probe
+    assert kernel.num_args == len(layout.SCENE_BUFFERS)
+    assert _scene_parameters(kernel, 0) == _HOST_BUFFERS
+
+
+def test_kernels_take_the_scene_buffers_where_the_host_sets_them(cl_ctx: cl.Context) -> None:
+    # render: the buffers first; intersect_rays: after the rays' origins and directions
+    # (clray.device.launch sets the arguments in this order).
+    program = cl.Program(cl_ctx, kernel_source()).build(
+        options=[*KernelConfig().options(), "-cl-kernel-arg-info"])
+    assert _scene_parameters(cl.Kernel(program, "render"), 0) == _HOST_BUFFERS
+    assert _scene_parameters(cl.Kernel(program, "intersect_rays"), 2) == _HOST_BUFFERS
+
+
+def test_packed_scene_fields_are_the_scene_buffers() -> None:
+    from clray.device.pack import PackedScene
+
+    fields = list(PackedScene.__dataclass_fields__)
+    assert fields[:len(layout.SCENE_BUFFERS)] == [b.name for b in layout.SCENE_BUFFERS]

@@ -19,7 +19,7 @@ from tests.reference_check import Tolerance, assert_kernel_matches_reference
 
 ROOT = Path(__file__).resolve().parent.parent
 # `clray.render` the attribute is the function; the module is needed for monkeypatching.
-render_module = importlib.import_module("clray.render")
+launch_module = importlib.import_module("clray.device.launch")
 TEXTURE = ROOT / "scenes" / "textures" / "bricks.png"
 
 W, H = 48, 36
@@ -240,7 +240,7 @@ def test_double_build_agrees_with_float_on_spheres(cl_device) -> None:
     assert count_over(single, double, 2 / 255) <= 5
 
 
-def test_image_is_independent_of_launch_banding(cl_device) -> None:
+def test_image_is_independent_of_launch_banding(cl_device, monkeypatch) -> None:
     scene = CASES["supersampled"]
     whole = render(scene)
     assert whole.stats["launches"] == 1
@@ -252,7 +252,7 @@ def test_image_is_independent_of_launch_banding(cl_device) -> None:
         np.testing.assert_array_equal(whole.image, banded.image)
 
 
-def test_progress_counts_pixel_samples_up_to_the_total(cl_device) -> None:
+def test_progress_counts_pixel_samples_up_to_the_total(cl_device, monkeypatch) -> None:
     scene = CASES["supersampled"]
     reports: list[tuple[int, int]] = []
     bands = Tuning(first_launch_pixel_samples=W * 5 * 4, max_launch_pixel_samples=W * 5 * 4)
@@ -264,12 +264,12 @@ def test_progress_counts_pixel_samples_up_to_the_total(cl_device) -> None:
     assert len(reports) == result.stats["launches"] + 1
 
 
-def test_band_rows_follow_the_measured_rate_within_bounds() -> None:
+def test_band_rows_follow_the_measured_rate_within_bounds(monkeypatch) -> None:
     bands = Tuning(first_launch_pixel_samples=1000, max_launch_pixel_samples=100_000,
                    launch_seconds=0.25, launch_growth=4)
 
     def rows(*args: float) -> int:
-        return render_module.next_band_rows(*args, bands)
+        return launch_module.next_band_rows(*args, bands)
 
     assert rows(100, 0, 0.0, 500) == 10  # the first band: FIRST_LAUNCH_PIXEL_SAMPLES
     assert rows(100, 0, 0.0, 7) == 7  # never past the image

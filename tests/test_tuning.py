@@ -26,8 +26,7 @@ from clray.tuning import DEFAULT_TUNING, KNOB_TABLE, KNOBS, Tuning, TuningError,
 ROOT = Path(__file__).resolve().parent.parent
 SPHERES = ROOT / "scenes" / "spheres.toml"
 SMALL = {"width": 48, "height": 27}
-# `clray.render` is the function: clray/__init__ binds the name over the module.
-render_module = importlib.import_module("clray.render")
+launch_module = importlib.import_module("clray.device.launch")
 
 
 @pytest.fixture(scope="module")
@@ -219,7 +218,7 @@ def test_cache_directory_follows_xdg(monkeypatch, tmp_path) -> None:
 
 
 def test_next_band_rows_reads_the_band_knobs() -> None:
-    rows = render_module.next_band_rows
+    rows = launch_module.next_band_rows
     assert rows(100, 0, 0.0, 10_000) == (1 << 16) // 100
     assert rows(100, 0, 0.0, 10_000, Tuning(first_launch_pixel_samples=500)) == 5
     assert rows(100, 10, 0.1, 10_000, Tuning(launch_seconds=0.5)) == 40  # at most 4x

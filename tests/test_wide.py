@@ -23,8 +23,8 @@ from clray.accel.wide import (
     collapse,
 )
 from clray.device import layout as L
+from clray.device.launch import render_packed
 from clray.device.pack import pack_scene
-from clray.render import render_packed
 from clray.scene.load import load_scene
 
 ROOT = Path(__file__).resolve().parent.parent

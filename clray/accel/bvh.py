@@ -1,4 +1,5 @@
-"""Primitive bounds -> flat BVH node array (kernels/clray_types.h: BvhNode).
+"""Primitive bounds -> flat binary BVH node array (BINARY_NODE; clray.accel.wide collapses it
+into the wide tree the kernels walk).
 
 The builder is binned SAH, run level by level: every node of one tree level is binned, costed and
 partitioned by the same handful of numpy calls, so the Python overhead is per level (a few dozen),
@@ -13,15 +14,11 @@ float64 min/max: node bounds hold the float64 geometry exactly, as the double bu
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, NamedTuple
+from typing import NamedTuple
 
 import numpy as np
 
-from clray.device.layout import BVH_NODE
 from clray.tuning.knobs import KNOBS
-
-if TYPE_CHECKING:
-    import pyopencl as cl
 
 # SAH bins along the axis of largest centroid extent. 16 is where binned SAH stops gaining
 # quality for its cost (Wald 2007, "On fast construction of SAH-based BVHs").
@@ -42,10 +39,16 @@ MAX_LEAF_SIZE = KNOBS["max_leaf_size"].default
 
 _F32_MAX = float(np.finfo(np.float32).max)
 
+# A node of the binary tree: its bounds, and for an inner node (count 0) its right child's index,
+# for a leaf its first slot in `order` and its primitive count. kernels/clray_types.h's
+# BinaryNode (the device build writes it too).
+BINARY_NODE = np.dtype([("lo", "<f4", (3,)), ("first", "<i4"), ("hi", "<f4", (3,)),
+                        ("count", "<i4")])
+
 
 @dataclass(frozen=True)
 class Bvh:
-    """Depth-first flattened BVH: `nodes` in layout.BVH_NODE, leaves index into `order`.
+    """Depth-first flattened BVH: `nodes` in BINARY_NODE, leaves index into `order`.
 
     An inner node's left child is the next node and its `first` is the right child's index,
     with count 0. A leaf's primitives are `order[first:first + count]`, and `order[k]` is an
@@ -76,21 +79,10 @@ def sah_cost(nodes: np.ndarray, traversal_cost: float = TRAVERSAL_COST) -> float
     return float((np.where(count > 0, packets(count), traversal_cost) * area).sum() / area[0])
 
 
-def build_bvh(lo: np.ndarray, hi: np.ndarray, max_leaf_size: int = MAX_LEAF_SIZE, *,
-              largest_leaf: int | None = None, traversal_cost: float = TRAVERSAL_COST,
-              queue: cl.CommandQueue | None = None) -> Bvh:
-    """Build a BVH over N primitives with float64 bounds `lo`, `hi` of shape (N, 3).
-
-    Nodes of at most `max_leaf_size` primitives are always leaves; nodes of up to
-    `largest_leaf` (default `max_leaf_count(max_leaf_size)`) are leaves when SAH says a split
-    would not pay.
-
-    `traversal_cost`: the SAH's cost of a node visit against one packet test.
-
-    With a `queue` whose device has float64, the build runs there (clray.accel._bvh_cl) and
-    gives the same tree as the host build, several times faster. The device build compiles in
-    the default traversal cost: another one builds on the host.
-    """
+def checked_bounds(lo: np.ndarray, hi: np.ndarray, max_leaf_size: int,
+                   largest_leaf: int | None) -> tuple[np.ndarray, np.ndarray, int]:
+    """build_bvh's arguments checked (ValueError names the bad one): the bounds as float64 and
+    the largest leaf."""
     lo = np.asarray(lo, dtype=np.float64)
     hi = np.asarray(hi, dtype=np.float64)
     if lo.ndim != 2 or lo.shape[1] != 3 or lo.shape != hi.shape:
@@ -104,16 +96,22 @@ def build_bvh(lo: np.ndarray, hi: np.ndarray, max_leaf_size: int = MAX_LEAF_SIZE
         raise ValueError("primitive bounds must be finite and within float32 range")
     if np.any(lo > hi):
         raise ValueError("primitive bounds have lo > hi")
-    n = lo.shape[0]
-    if n == 0:
-        return Bvh(np.zeros(0, dtype=BVH_NODE), np.zeros(0, dtype=np.int32))
-    if queue is not None and n > max_leaf_size and traversal_cost == TRAVERSAL_COST:
-        # Imported here: host-only callers need not load pyopencl.
-        from clray.accel import _bvh_cl
+    return lo, hi, largest
 
-        if _bvh_cl.supports(queue.device, n):
-            nodes, order = _bvh_cl.build(queue, lo, hi, max_leaf_size, largest)
-            return Bvh(nodes, order)
+
+def build_bvh(lo: np.ndarray, hi: np.ndarray, max_leaf_size: int = MAX_LEAF_SIZE, *,
+              largest_leaf: int | None = None, traversal_cost: float = TRAVERSAL_COST) -> Bvh:
+    """Build a BVH over N primitives with float64 bounds `lo`, `hi` of shape (N, 3).
+
+    Nodes of at most `max_leaf_size` primitives are always leaves; nodes of up to
+    `largest_leaf` (default `max_leaf_count(max_leaf_size)`) are leaves when SAH says a split
+    would not pay; `traversal_cost` is the SAH's cost of a node visit against one packet
+    test. clray.device.bvh_build builds the same tree on an OpenCL device (with the default
+    traversal cost, which it compiles in).
+    """
+    lo, hi, largest = checked_bounds(lo, hi, max_leaf_size, largest_leaf)
+    if lo.shape[0] == 0:
+        return Bvh(np.zeros(0, dtype=BINARY_NODE), np.zeros(0, dtype=np.int32))
     return _Builder(_round_out(lo, hi), max_leaf_size, largest, traversal_cost).run()
 
 
@@ -341,7 +339,7 @@ class _Builder:
         for lv in levels:
             dfs[left[lv]] = dfs[lv] + 1
             dfs[left[lv] + 1] = dfs[lv] + 1 + size[left[lv]]
-        nodes = np.zeros(n, dtype=BVH_NODE)
+        nodes = np.zeros(n, dtype=BINARY_NODE)
         nodes["lo"][dfs] = bounds[:, :3]
         nodes["hi"][dfs] = bounds[:, 3:]
         is_leaf = left < 0

@@ -28,8 +28,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from clray.accel import prim_refs as P
 from clray.accel.bvh import Bvh
-from clray.device import layout as L
 from clray.tuning.knobs import KNOBS
 
 PACKET_WIDTH = 4
@@ -37,15 +37,26 @@ LEAF_TRIANGLE_SHIFT = 16
 LEAF_SPHERE_SHIFT = 8
 LEAF_FIELD_MASK = 0xFF
 NO_REF = -1
+# The node widths the kernels are built for (-DBVH_WIDTH).
+BVH_WIDTHS = (4, 8)
 # A node of leaves only that one leaf of this many packet tests (triangle packets, sphere
 # packets, other primitives one each) would cover is folded into that leaf. A tunable knob
 # (clray.tuning): its default comes from the knob table.
 FOLD_PACKETS = KNOBS["fold_packets"].default
 
 
+def bvh_node_dtype(width: int) -> np.dtype:
+    """A wide node (kernels/clray_types.h's BvhNode for -DBVH_WIDTH=width): its children's
+    bounds axis by axis, then each child's index and count."""
+    lane_f = ("<f4", (width,))
+    lane_i = ("<i4", (width,))
+    return np.dtype([*[(f"{side}_{axis}", *lane_f) for side in ("lo", "hi") for axis in "xyz"],
+                     ("child", *lane_i), ("count", *lane_i)])
+
+
 @dataclass(frozen=True)
 class WideBvh:
-    """`nodes` in layout.bvh_node_dtype(width), root first; `prim_refs` as laid out above.
+    """`nodes` in bvh_node_dtype(width), root first; `prim_refs` as laid out above.
 
     `stack_size` bounds the kernels' traversal stack for this tree: the most entries a
     closest-hit or shadow walk can hold at once.
@@ -62,9 +73,9 @@ def collapse(bvh: Bvh, refs: np.ndarray, width: int,
     """Wide BVH of `width` children per node from a binary `bvh` over primitives whose
     references (PRIM_* << PRIM_TYPE_SHIFT | index) are `refs[i]` for build input i.
     `fold_packets`: the folding bound (None: FOLD_PACKETS)."""
-    if width not in (4, 8):
+    if width not in BVH_WIDTHS:
         raise ValueError(f"BVH width must be 4 or 8, got {width}")
-    dtype = L.bvh_node_dtype(width)
+    dtype = bvh_node_dtype(width)
     b = bvh.nodes
     if b.size == 0:
         return WideBvh(np.zeros(0, dtype), np.zeros(0, np.int32), width, 1)
@@ -142,9 +153,9 @@ def _foldable(slots: np.ndarray, first: np.ndarray, count: np.ndarray, open_area
     is_inner = open_area[slots] >= 0
     leaf = used & ~is_inner
     # Primitives of each kind per leaf slot, from prefix sums over the leaves' references.
-    kind = order_refs >> L.PRIM_TYPE_SHIFT
+    kind = order_refs >> P.PRIM_TYPE_SHIFT
     sums = [np.concatenate([[0], np.cumsum(kind == k)])
-            for k in (L.PRIM_TRIANGLE, L.PRIM_SPHERE, L.PRIM_INSTANCE)]
+            for k in (P.PRIM_TRIANGLE, P.PRIM_SPHERE, P.PRIM_INSTANCE)]
     lo = np.where(leaf, first[slots], 0)
     n = np.where(leaf, count[slots], 0)
     tri, sph, inst = ((s[lo + n] - s[lo]).sum(axis=1) for s in sums)
@@ -189,8 +200,8 @@ def _lay_out_leaves(first: np.ndarray, count: np.ndarray,
     leaf = np.repeat(np.arange(n_leaves), count)
     offsets = np.concatenate([[0], np.cumsum(count)[:-1]]).astype(np.int64)
     refs = order_refs[np.repeat(first - offsets, count) + np.arange(count.sum())]
-    kind = refs >> L.PRIM_TYPE_SHIFT
-    section = np.where(kind == L.PRIM_TRIANGLE, 0, np.where(kind == L.PRIM_SPHERE, 1, 2))
+    kind = refs >> P.PRIM_TYPE_SHIFT
+    section = np.where(kind == P.PRIM_TRIANGLE, 0, np.where(kind == P.PRIM_SPHERE, 1, 2))
     sizes, ranks = [], np.zeros(refs.size, dtype=np.int64)
     for sec in range(3):
         member = section == sec

@@ -5,17 +5,28 @@ tests/test_layout.py compares these against sizeof/offsetof measured on the devi
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
-PRIM_PLANE = 0
-PRIM_SPHERE = 1
-PRIM_BOX = 2
-PRIM_CYLINDER = 3
-PRIM_CONE = 4
-PRIM_TRIANGLE = 5
-PRIM_INSTANCE = 6
-PRIM_TYPE_SHIFT = 28
-PRIM_INDEX_MASK = 0x0FFFFFFF
+# The layouts the host algorithms define (clray.accel), mirrored by the kernels like the rest.
+from clray.accel.bvh import BINARY_NODE as BINARY_NODE
+from clray.accel.bvh import N_BINS as N_BINS
+from clray.accel.prim_refs import PRIM_BOX as PRIM_BOX
+from clray.accel.prim_refs import PRIM_CONE as PRIM_CONE
+from clray.accel.prim_refs import PRIM_CYLINDER as PRIM_CYLINDER
+from clray.accel.prim_refs import PRIM_INDEX_MASK as PRIM_INDEX_MASK
+from clray.accel.prim_refs import PRIM_INSTANCE as PRIM_INSTANCE
+from clray.accel.prim_refs import PRIM_PLANE as PRIM_PLANE
+from clray.accel.prim_refs import PRIM_SPHERE as PRIM_SPHERE
+from clray.accel.prim_refs import PRIM_TRIANGLE as PRIM_TRIANGLE
+from clray.accel.prim_refs import PRIM_TYPE_SHIFT as PRIM_TYPE_SHIFT
+from clray.accel.wide import BVH_WIDTHS as BVH_WIDTHS
+from clray.accel.wide import LEAF_FIELD_MASK as LEAF_FIELD_MASK
+from clray.accel.wide import LEAF_SPHERE_SHIFT as LEAF_SPHERE_SHIFT
+from clray.accel.wide import LEAF_TRIANGLE_SHIFT as LEAF_TRIANGLE_SHIFT
+from clray.accel.wide import PACKET_WIDTH as PACKET_WIDTH
+from clray.accel.wide import bvh_node_dtype as bvh_node_dtype
 
 LIGHT_POINT = 0
 LIGHT_DIRECTIONAL = 1
@@ -58,24 +69,9 @@ CAMERA = _struct([("position", _F4), ("forward", _F4), ("right", _F4), ("up", _F
                   ("world", _F4), ("lens_u", _F4), ("lens_v", _F4)])
 PARAMS = _struct([("background", _F4), ("ambient", _F4), ("width", "<i4"), ("height", "<i4"),
                   ("spp", "<i4"), ("max_depth", "<i4"), ("seed", "<u4"), ("n_planes", "<i4"),
-                  ("n_lights", "<i4"), ("bvh_root_count", "<i4"), ("min_weight", "<f4"),
+                  ("n_lights", "<i4"), ("n_nodes", "<i4"), ("min_weight", "<f4"),
                   ("background_texels", "<i4"), ("background_width", "<i4"),
                   ("background_height", "<i4"), ("background_top", _F4)])
-# The binary tree the builder makes (host only; clray/accel/bvh.py). The kernels walk the wide
-# tree that clray/accel/wide.py collapses it into.
-BVH_NODE = _struct([("lo", ("<f4", (3,))), ("first", "<i4"), ("hi", ("<f4", (3,))),
-                    ("count", "<i4")])
-BVH_WIDTHS = (4, 8)
-
-
-def bvh_node_dtype(width: int) -> np.dtype:
-    """BvhNode of kernels/clray_types.h for -DBVH_WIDTH=width: children's bounds axis by axis."""
-    lane_f = ("<f4", (width,))
-    lane_i = ("<i4", (width,))
-    return _struct([*[(f"{side}_{axis}", lane_f) for side in ("lo", "hi") for axis in "xyz"],
-                    ("child", lane_i), ("count", lane_i)])
-
-
 INSTANCE = _struct([("to_object", ("<f4", (3, 4))), ("to_world", ("<f4", (3, 4))),
                     ("lo", _F4), ("hi", _F4), ("root_child", "<i4"), ("root_count", "<i4"),
                     ("material", "<i4"), ("pad0", "<i4")])
@@ -85,6 +81,13 @@ LEAVE_INSTANCE = -2
 
 TRIANGLE_PACKET = _struct([(f"{c}{k}", _F4) for k in range(3) for c in "xyz"])
 SPHERE_PACKET = _struct([("x", _F4), ("y", _F4), ("z", _F4), ("radius", _F4)])
+
+# The device BVH build's records (kernels/bvh_build.cl): a primitive's bounds rounded outwards
+# and its centroid, its index in the centroid's w; a subtree still to build, `flip` saying which
+# of the two primitive buffers holds its primitives.
+BUILD_PRIM = _struct([("lo", _F4), ("hi", _F4), ("c", _F4)])
+BUILD_TASK = _struct([("lo", _F4), ("hi", _F4), ("clo", _F4), ("chi", _F4), ("start", "<i4"),
+                      ("count", "<i4"), ("pos", "<i4"), ("flip", "<i4")])
 
 # Struct name in clray_types.h -> dtype; the layout test walks this.
 STRUCTS: dict[str, np.dtype] = {
@@ -100,6 +103,9 @@ STRUCTS: dict[str, np.dtype] = {
     "Camera": CAMERA,
     "Params": PARAMS,
     "BvhNode": bvh_node_dtype(8),
+    "BinaryNode": BINARY_NODE,
+    "BuildPrim": BUILD_PRIM,
+    "BuildTask": BUILD_TASK,
     "TrianglePacket": TRIANGLE_PACKET,
     "SpherePacket": SPHERE_PACKET,
     "Instance": INSTANCE,
@@ -108,3 +114,40 @@ STRUCTS: dict[str, np.dtype] = {
 TRIANGLE_MATERIAL_MASK = 0x00FFFFFF
 TRIANGLE_SMOOTH = 1 << 24
 TRIANGLE_UV = 1 << 25
+
+
+@dataclass(frozen=True)
+class SceneBuffer:
+    """One of the scene's device buffers: its name (PackedScene's field, the kernels'
+    parameter and SceneRefs' field) and its element type in the kernels."""
+
+    name: str
+    element: str  # a struct of kernels/clray_types.h or an OpenCL C type
+
+
+# The scene's buffers in the kernels' parameter order: kernels/scene.h's SCENE_BUFFERS, which
+# tests/test_layout.py checks against this on the device. PackedScene's fields, its
+# device_bytes and the arguments of every kernel launch come from this one list.
+SCENE_BUFFERS: tuple[SceneBuffer, ...] = tuple(SceneBuffer(name, element) for name, element in (
+    ("camera", "Camera"),  # one record
+    ("params", "Params"),  # one record
+    ("planes", "Plane"),
+    ("spheres", "Sphere"),
+    ("boxes", "Box"),
+    ("cylinders", "Cylinder"),
+    ("cones", "Cone"),
+    ("triangles", "Triangle"),
+    ("triangle_packets", "TrianglePacket"),  # one per PACKET_WIDTH slots of prim_refs
+    ("sphere_packets", "SpherePacket"),  # likewise (spheres only)
+    # No vertex positions: shading reads a triangle's corners from its packet (the same float32
+    # numbers), so the device keeps only the per-vertex normals and uvs, or nothing.
+    ("normals", "float4"),
+    ("uvs", "float2"),
+    ("nodes", "BvhNode"),  # bvh_node_dtype(bvh_width), root first
+    ("prim_refs", "int"),  # leaves laid out as clray.accel.wide describes
+    ("materials", "Material"),
+    ("textures", "Texture"),
+    ("texels", "float4"),  # every image texture's texels, then the environment's
+    ("lights", "Light"),
+    ("instances", "Instance"),  # their groups' primitives are in the arrays above
+))

@@ -8,14 +8,15 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field, make_dataclass
 
 import numpy as np
 import pyopencl as cl
 
-from clray.accel.bvh import build_bvh
+from clray.accel.bvh import TRAVERSAL_COST, build_bvh
 from clray.accel.wide import LEAF_FIELD_MASK, PACKET_WIDTH, WideBvh, collapse
 from clray.device import layout as L
+from clray.device.bvh_build import build_bvh_on
 from clray.device.program import KernelConfig
 from clray.scene import model as M
 from clray.scene.scale import needs_fp64_spheres
@@ -25,38 +26,30 @@ from clray.tuning.knobs import DEFAULT_TUNING, Tuning
 DEVICE_BUILD_MIN = 20000
 
 
-@dataclass(frozen=True)
-class PackedScene:
-    camera: np.ndarray  # one CAMERA record
-    params: np.ndarray  # one PARAMS record
-    planes: np.ndarray
-    spheres: np.ndarray
-    boxes: np.ndarray
-    cylinders: np.ndarray
-    cones: np.ndarray
-    triangles: np.ndarray
-    triangle_packets: np.ndarray  # TRIANGLE_PACKET per PACKET_WIDTH slots of prim_refs
-    sphere_packets: np.ndarray  # SPHERE_PACKET likewise (spheres only)
-    # No vertex positions: shading reads a triangle's corners from its packet (the same float32
-    # numbers), so the device keeps only the per-vertex normals and uvs.
-    normals: np.ndarray  # (V, 4) float32, or empty
-    uvs: np.ndarray  # (V, 2) float32, or empty
-    nodes: np.ndarray  # layout.bvh_node_dtype(config.bvh_width), root first
-    prim_refs: np.ndarray  # int32, leaves laid out as clray.accel.wide describes
-    materials: np.ndarray
-    textures: np.ndarray
-    texels: np.ndarray  # (T, 4) float32
-    lights: np.ndarray
-    instances: np.ndarray  # INSTANCE records; their groups' primitives are in the arrays above
-    config: KernelConfig
-    bvh_s: float  # host time to build the BVH
-    tuning: Tuning = DEFAULT_TUNING  # the knobs it was built with; render_packed launches by them
+def _device_bytes(self: PackedScene) -> dict[str, int]:
+    """Bytes of each scene buffer on the device, in layout.SCENE_BUFFERS' order."""
+    return {name: int(array.nbytes) for name, array in self.buffers().items()}
 
-    def device_bytes(self) -> dict[str, int]:
-        names = ("planes", "spheres", "boxes", "cylinders", "cones", "triangles",
-                 "triangle_packets", "sphere_packets", "normals", "uvs", "nodes",
-                 "prim_refs", "materials", "textures", "texels", "lights", "instances")
-        return {name: int(getattr(self, name).nbytes) for name in names}
+
+def _buffers(self: PackedScene) -> dict[str, np.ndarray]:
+    """The scene's buffers by name, in the kernels' parameter order (layout.SCENE_BUFFERS)."""
+    return {b.name: getattr(self, b.name) for b in L.SCENE_BUFFERS}
+
+
+# One numpy array per layout.SCENE_BUFFERS entry (a field of that name, in that order), then
+# the build switches, the host time the BVH build took and the performance knobs it was packed
+# with (clray.tuning; the launches follow them too). Made from the list, so a new buffer is one
+# entry there.
+PackedScene = make_dataclass(
+    "PackedScene",
+    [*((b.name, np.ndarray) for b in L.SCENE_BUFFERS), ("config", KernelConfig),
+     ("bvh_s", float), ("tuning", Tuning, field(default=DEFAULT_TUNING))],
+    frozen=True,
+    namespace={"device_bytes": _device_bytes, "buffers": _buffers,
+               "__doc__": "A scene packed for the kernels: layout.SCENE_BUFFERS' arrays by "
+                          "name, the KernelConfig and bvh_s (host seconds of the BVH build)."},
+)
+PackedScene.__module__ = __name__  # pickled by reference: a Dask worker finds it here
 
 
 def _f4(v: np.ndarray | tuple, w: float = 0.0) -> np.ndarray:
@@ -276,10 +269,13 @@ def _build_wide(lo: np.ndarray, hi: np.ndarray, refs: np.ndarray, width: int,
     parent's vector slab test (the scene's tree where it holds instances)."""
     # Below DEVICE_BUILD_MIN primitives the host build takes milliseconds, less than fetching
     # the device build's program from the cache.
+    # The device build compiles the default traversal cost in: another one builds on the host.
     leaves = ({"max_leaf_size": 1, "largest_leaf": 1} if one_per_leaf else
               {"max_leaf_size": tuning.max_leaf_size, "largest_leaf": tuning.largest_leaf})
-    binary = build_bvh(lo, hi, queue=queue if len(lo) >= DEVICE_BUILD_MIN else None,
-                       traversal_cost=tuning.traversal_cost, **leaves)
+    on_device = (queue is not None and len(lo) >= DEVICE_BUILD_MIN
+                 and tuning.traversal_cost == TRAVERSAL_COST)
+    binary = (build_bvh_on(queue, lo, hi, **leaves) if on_device
+              else build_bvh(lo, hi, traversal_cost=tuning.traversal_cost, **leaves))
     return collapse(binary, refs, width, tuning.fold_packets)
 
 
@@ -608,7 +604,7 @@ def pack_scene(scene: M.Scene, *, width: int, height: int, spp: int, max_depth: 
     p["width"], p["height"], p["spp"], p["max_depth"] = width, height, spp, max_depth
     p["seed"], p["min_weight"] = seed, min_weight
     p["n_planes"], p["n_lights"] = len(planes), len(lights)
-    p["bvh_root_count"] = len(wide.prim_refs)
+    p["n_nodes"] = len(wide.nodes)
 
     config = KernelConfig(
         has_planes=len(planes) > 0,
@@ -627,7 +623,10 @@ def pack_scene(scene: M.Scene, *, width: int, height: int, spp: int, max_depth: 
         precision=precision,
         **{"fp64_spheres": len(spheres) > 0 and needs_fp64_spheres(scene), **variants},
     )
-    return PackedScene(camera, params, planes, spheres, boxes, cylinders, cones,
-                       tris.triangles, triangle_packets, sphere_packets, tris.normals, tris.uvs,
-                       wide.nodes, wide.prim_refs, materials, textures, texels, lights,
-                       instance_records, config, bvh_s, tuning)
+    return PackedScene(camera=camera, params=params, planes=planes, spheres=spheres,
+                       boxes=boxes, cylinders=cylinders, cones=cones, triangles=tris.triangles,
+                       triangle_packets=triangle_packets, sphere_packets=sphere_packets,
+                       normals=tris.normals, uvs=tris.uvs, nodes=wide.nodes,
+                       prim_refs=wide.prim_refs, materials=materials, textures=textures,
+                       texels=texels, lights=lights, instances=instance_records,
+                       config=config, bvh_s=bvh_s, tuning=tuning)

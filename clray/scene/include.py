@@ -116,7 +116,7 @@ def _merge(data: Any, path: Path | None, chain: tuple[Path, ...], merged: dict, 
            if k in ("materials", "groups", "lights", "objects")}
     _merge_tables(data, own, path, merged, origins)
     if "animation" in data:
-        # Its tracks name values by the scene file's own key paths (clray.animation).
+        # Its tracks name values by the scene file's own key paths (clray.scene.animation).
         if len(chain) > 1:
             raise SceneError(path, "animation", "only the scene file itself may animate")
         merged["animation"] = data["animation"]

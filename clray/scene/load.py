@@ -61,15 +61,6 @@ def _read_scene_file(path: Path) -> Any:
     return parse_scene_text(read_regular(path, L.MAX_SCENE_BYTES), suffix, path)
 
 
-def animation_from_dict(data: dict, path: Path | None = None) -> Animation | None:
-    """The [animation] table alone, of scene data that scene_from_dict has checked, or None.
-    A caller that needs the scene too gets both from one load by scene_and_animation."""
-    if "animation" not in data:
-        return None
-    values = Values(path)
-    return parse_animation(values.table(data["animation"], "animation"), values)
-
-
 def scene_from_dict(data: dict, path: str | Path | None = None) -> Scene:
     """Validate parsed scene data. `path` names the file in errors; texture, mesh and included
     scene files are relative to its folder (the working directory when there is no path)."""

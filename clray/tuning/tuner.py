@@ -29,10 +29,11 @@ import numpy as np
 import pyopencl as cl
 
 from clray import metrics
+from clray.device.launch import render_packed
 from clray.device.pack import PackedScene
 from clray.device.program import bvh_width_for, kernel_source
 from clray.errors import ClrayError, DeviceError
-from clray.render import RenderSettings, pack_for, render_packed
+from clray.render import RenderSettings, pack_for
 from clray.scene.load import load_scene
 from clray.study import fail_allowance
 from clray.tuning.knobs import DEFAULT_TUNING, HOST_KNOBS, KNOB_TABLE, KNOBS, Tuning, TuningError
@@ -132,20 +133,13 @@ def default_space() -> dict[str, tuple]:
 
 
 def _arguments(packed: PackedScene) -> tuple[list, int]:
-    """The render kernel's arguments over the whole image in one launch (the order of
-    clray.render.render_packed's), and the index of the image buffer."""
-    def array(name: str) -> np.ndarray:
-        a = np.ascontiguousarray(getattr(packed, name))
-        # OpenCL has no zero-sized buffers: an empty array becomes one zeroed element.
-        return a if a.size else np.zeros(1, dtype=a.dtype)
-
+    """The render kernel's arguments over the whole image in one launch (the scene's buffers in
+    layout.SCENE_BUFFERS' order, as clray.device.launch passes them), and the index of the image
+    buffer."""
     width, height = int(packed.params[0]["width"]), int(packed.params[0]["height"])
-    args: list = [array(n) for n in ("camera", "params", "planes", "spheres", "boxes",
-                                     "cylinders", "cones", "triangles", "triangle_packets",
-                                     "sphere_packets", "normals", "uvs", "nodes")]
-    args.append(np.int32(len(packed.nodes)))
-    args += [array(n) for n in ("prim_refs", "materials", "textures", "texels", "lights",
-                                "instances")]
+    # OpenCL has no zero-sized buffers: an empty array becomes one zeroed element.
+    args: list = [np.ascontiguousarray(a) if a.size else np.zeros(1, dtype=a.dtype)
+                  for a in packed.buffers().values()]
     image_index = len(args)
     args += [np.zeros((height, width, 4), np.float32), np.zeros((height * width, 4), np.int32),
              np.zeros(4, np.int32), np.int32(0)]

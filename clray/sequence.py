@@ -11,7 +11,7 @@ from pathlib import Path
 from clray.errors import SceneError, SettingsError
 from clray.render import RenderResult, RenderSettings, render
 from clray.scene.animation import Animation
-from clray.scene.load import animation_from_dict, read_scene_data, scene_from_dict
+from clray.scene.load import read_scene_data, scene_and_animation, scene_from_dict
 from clray.scene.model import Scene
 
 
@@ -39,8 +39,7 @@ def load_sequence(path: str | os.PathLike) -> Sequence:
     keyframe by the loader's rules; SceneError if it has no [animation] table."""
     path = Path(path)
     data = read_scene_data(path)
-    scene_from_dict(data, path)
-    animation = animation_from_dict(data, path)
+    animation = scene_and_animation(data, path)[1]
     if animation is None:
         raise SceneError(path, "animation", "missing: --frames renders an [animation] table "
                          "(docs/scene_format.md)")

@@ -9,7 +9,10 @@ from pathlib import Path
 import pytest
 
 from clray import cli
-from clray.animation import (
+from clray.errors import SceneError, SettingsError
+from clray.image_io import read_pfm
+from clray.scene.animation import Animation, Track, parse_path
+from clray.sequence import (
     check_pattern,
     frame_path,
     frames_in,
@@ -17,9 +20,6 @@ from clray.animation import (
     load_sequence,
     parse_frames,
 )
-from clray.errors import SceneError, SettingsError
-from clray.image_io import read_pfm
-from clray.scene.animation import Animation, Track, parse_path
 
 ROOT = Path(__file__).resolve().parent.parent
 

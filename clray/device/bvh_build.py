@@ -1,0 +1,148 @@
+"""The binned-SAH build of clray.accel.bvh on an OpenCL device (kernels/bvh_build.cl): the same
+splits and bounds, so the same tree.
+
+The host build runs level by level because numpy wants whole-array passes; a kernel can instead
+run the plain recursive build, one subtree per work-item. The top few levels, where there are
+fewer nodes than cores, are split one level per launch (one work-item per node) until there are
+enough subtrees to keep every core busy.
+
+Every node is written at its position in a padded depth-first layout: a subtree over c
+primitives gets 2c - 1 slots (as many as its nodes could ever need), so a node's position
+depends only on its ancestors' splits and no work-item waits for another's subtree size.
+Dropping the unused slots, in order, leaves exactly the depth-first layout.
+
+The kernels repeat the host build's arithmetic operation for operation (float32 binning, float64
+costs, no contraction into fma), so both builds give the same tree.
+"""
+
+from __future__ import annotations
+
+from functools import cache
+
+import numpy as np
+import pyopencl as cl
+
+from clray.accel.bvh import (
+    N_BINS,
+    SAH_PACKET,
+    TRAVERSAL_COST,
+    Bvh,
+    build_bvh,
+    checked_bounds,
+)
+from clray.device.context import has_fp64
+from clray.device.layout import BINARY_NODE, BUILD_PRIM, BUILD_TASK
+from clray.device.program import kernel_source
+
+# Subtrees per compute unit before the per-subtree kernel takes over: enough that one large
+# subtree does not leave the other cores idle at the end.
+_TASKS_PER_UNIT = 8
+# Work-items of the rounding pass, each over a contiguous run of primitives.
+_ROUND_ITEMS = 256
+# A lopsided tree (each split peeling off a few primitives) never reaches that many subtrees:
+# past this many one-level launches its remaining subtrees are built as they are.
+_MAX_LEVEL_LAUNCHES = 24
+BUILD_FILE = "bvh_build.cl"
+
+
+def build_options() -> list[str]:
+    """The host build's constants, so that the kernels cost and bin as it does."""
+    return [f"-DN_BINS={N_BINS}", f"-DTRAVERSAL_COST={float(TRAVERSAL_COST)!r}",
+            f"-DSAH_PACKET={SAH_PACKET}"]
+
+
+def build_bvh_on(queue: cl.CommandQueue, lo: np.ndarray, hi: np.ndarray,
+                 max_leaf_size: int = 4, *, largest_leaf: int | None = None) -> Bvh:
+    """clray.accel.bvh.build_bvh's tree, built on the queue's device where it can be (float64,
+    int slot indices: supports), several times faster than the host build; else on the host."""
+    lo, hi, largest = checked_bounds(lo, hi, max_leaf_size, largest_leaf)
+    n = lo.shape[0]
+    if n > max_leaf_size and supports(queue.device, n):
+        return Bvh(*build(queue, lo, hi, max_leaf_size, largest))
+    return build_bvh(lo, hi, max_leaf_size, largest_leaf=largest)
+
+
+def supports(device: cl.Device, n: int) -> bool:
+    """The kernels cost splits in float64, as the host build does, and index node slots
+    (2N - 1 of them) with ints."""
+    return has_fp64(device) and 2 * n - 1 <= np.iinfo(np.int32).max
+
+
+@cache
+def _kernels(context: cl.Context) -> dict[str, cl.Kernel]:
+    # Kernel objects are kept: pyopencl makes a new one on every attribute access.
+    program = cl.Program(context, kernel_source(BUILD_FILE)).build(options=build_options())
+    return {k.function_name: k for k in program.all_kernels()}
+
+
+def build(queue: cl.CommandQueue, lo: np.ndarray, hi: np.ndarray, max_leaf: int,
+          sah_max_leaf: int) -> tuple[np.ndarray, np.ndarray]:
+    """(nodes, order) for N primitives with float64 bounds `lo`, `hi` (N, 3), N > max_leaf."""
+    n = lo.shape[0]
+    slots = 2 * n - 1
+    kernels = _kernels(queue.context)
+    # Every buffer lives in numpy memory: a CPU device then works in place, and numpy reuses
+    # freed memory where a fresh device allocation page-faults in all over again each build.
+    lo_buf = _host_buffer(queue, np.ascontiguousarray(lo))
+    hi_buf = _host_buffer(queue, np.ascontiguousarray(hi))
+    prims = [np.empty(n, dtype=BUILD_PRIM), np.empty(n, dtype=BUILD_PRIM)]
+    padded = np.empty(slots, dtype=BINARY_NODE)
+    used = np.zeros(slots, dtype=np.uint8)
+    order = np.empty(n, dtype=np.int32)
+    root = np.empty(1, dtype=BUILD_TASK)
+    bufs = [_host_buffer(queue, a) for a in (*prims, padded, used, order, root)]
+    chunk = -(-n // _ROUND_ITEMS)
+    kernels["round_prims"](queue, (-(-n // chunk),), (1,), lo_buf, hi_buf, bufs[0],
+                           np.int32(n), np.int32(chunk))
+    kernels["root_task"](queue, (1,), (1,), bufs[0], np.int32(n), bufs[5])
+    shared = (*bufs[:5], np.int32(max_leaf), np.int32(sah_max_leaf))
+
+    tasks = _split_levels(queue, kernels["split_level"], bufs[5], shared)
+    if tasks.size:
+        kernels["build_subtrees"](queue, (tasks.size,), (1,), _host_buffer(queue, tasks),
+                                  *shared)
+    for buf, array in zip(bufs[2:5], (padded, used, order), strict=True):
+        _sync(queue, buf, array)
+    return _compact(padded, used.view(bool)), order
+
+
+def _host_buffer(queue: cl.CommandQueue, array: np.ndarray) -> cl.Buffer:
+    return cl.Buffer(queue.context, cl.mem_flags.READ_WRITE | cl.mem_flags.USE_HOST_PTR,
+                     hostbuf=array)
+
+
+def _sync(queue: cl.CommandQueue, buf: cl.Buffer, array: np.ndarray) -> None:
+    """Make the device's writes to `buf` visible in `array`, its host memory: mapping does
+    that (a no-op on a CPU device), and unmapping hands the memory back."""
+    mapped, _ = cl.enqueue_map_buffer(queue, buf, cl.map_flags.READ, 0, array.shape,
+                                      array.dtype, is_blocking=True)
+    mapped.base.release(queue)
+
+
+def _split_levels(queue: cl.CommandQueue, split_level: cl.Kernel, root_buf: cl.Buffer,
+                  shared: tuple) -> np.ndarray:
+    """Split the top levels one launch each; returns the subtrees left to build."""
+    enough = _TASKS_PER_UNIT * queue.device.max_compute_units
+    in_buf, m = root_buf, 1
+    for _ in range(_MAX_LEVEL_LAUNCHES):
+        out = np.empty(2 * m, dtype=BUILD_TASK)
+        out_buf = _host_buffer(queue, out)
+        split_level(queue, (m,), (1,), in_buf, out_buf, *shared)
+        _sync(queue, out_buf, out)
+        tasks = out[out["count"] >= 0]
+        if not 0 < tasks.size < enough:
+            break
+        in_buf = _host_buffer(queue, tasks)
+        m = tasks.size
+    return tasks
+
+
+def _compact(padded: np.ndarray, used: np.ndarray) -> np.ndarray:
+    """Drop the unused slots; inner nodes' `first` goes from padded to compact positions."""
+    index = np.cumsum(used, dtype=np.int32) - 1
+    # Whole records as opaque 32-byte items: numpy copies those far faster than structs.
+    opaque = np.dtype((np.void, BINARY_NODE.itemsize))
+    nodes = np.compress(used, padded.view(opaque)).view(BINARY_NODE)
+    first = nodes["first"]
+    np.copyto(first, index[first], where=nodes["count"] == 0)
+    return nodes

@@ -1,0 +1,188 @@
+"""Launching the kernels on a packed scene: its buffers on the device, bands of rows sized by
+their time, the image and ray counts read back."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+
+import numpy as np
+import pyopencl as cl
+
+from clray.device.context import describe, queue_for
+from clray.device.pack import PackedScene
+from clray.device.program import build_program
+from clray.errors import DeviceError
+from clray.tuning.knobs import DEFAULT_TUNING, Tuning
+
+# Launches are sized by the time they take, not by their work, so that progress advances
+# several times a second on any device and no launch nears a GPU watchdog, while a small render
+# still takes a few launches: the first covers first_launch_pixel_samples, each later one the
+# rows that the previous launch's rate does in launch_seconds, at most launch_growth times the
+# previous band (one fast band of sky says little about the rows below it) and at most
+# max_launch_pixel_samples: knobs of clray.tuning. Pixels are independent, so the image does not
+# depend on the bands.
+
+
+def _buffer(ctx: cl.Context, array: np.ndarray) -> cl.Buffer:
+    # OpenCL has no zero-sized buffers: an empty array becomes one zeroed element.
+    data = array if array.size else np.zeros(1, dtype=array.dtype)
+    return cl.Buffer(ctx, cl.mem_flags.READ_ONLY | cl.mem_flags.COPY_HOST_PTR,
+                     hostbuf=np.ascontiguousarray(data))
+
+
+def _scene_buffers(ctx: cl.Context, packed: PackedScene) -> list[cl.Buffer]:
+    """The scene's buffers on the device, in the kernels' parameter order (SCENE_BUFFERS)."""
+    return [_buffer(ctx, array) for array in packed.buffers().values()]
+
+
+def next_band_rows(row_samples: int, last_rows: int, last_s: float, rows_left: int,
+                   tuning: Tuning = DEFAULT_TUNING) -> int:
+    """Rows of the next launch, given the pixel-samples in one row and the rows and device time
+    of the previous launch (last_rows = 0 before the first), under `tuning`'s band knobs. At
+    least one row, at most rows_left."""
+    if last_rows == 0:
+        rows = tuning.first_launch_pixel_samples // row_samples
+    else:
+        by_time = last_rows * tuning.launch_seconds / last_s if last_s > 0 else math.inf
+        rows = min(by_time, tuning.launch_growth * last_rows,
+                   tuning.max_launch_pixel_samples // row_samples)
+    return int(max(1, min(rows_left, rows)))
+
+
+# The output buffers (radiance, ray counts, test counts: 16 bytes a pixel each) hold one band of
+# rows, at most this many bytes each: any image the format allows renders on any device, in
+# bands, and a CPU device does not double the image in its memory.
+MAX_BAND_BYTES = 256 << 20
+
+
+def band_capacity(packed: PackedScene, global_mem: int, max_alloc: int) -> int:
+    """The most rows one launch may render: its output buffers within the device's largest
+    allocation and, beside the scene's buffers, within its global memory. Refuses (DeviceError)
+    a scene whose own buffers do not fit, before any buffer exists."""
+    width, height = int(packed.params[0]["width"]), int(packed.params[0]["height"])
+    scene = packed.device_bytes()
+    mib = 1 << 20
+    largest = max(scene, key=scene.__getitem__)
+    if scene[largest] > max_alloc:
+        raise DeviceError(f"the {largest} buffer needs {scene[largest] / mib:.0f} MiB, over the "
+                          f"device's largest allocation ({max_alloc / mib:.0f} MiB): render a "
+                          "smaller scene")
+    outputs = 3 if packed.config.count_tests else 2
+    row_bytes = 16 * width
+    room = global_mem - sum(scene.values())
+    if room < outputs * row_bytes:
+        raise DeviceError(f"the scene needs {sum(scene.values()) / mib:.0f} MiB of device "
+                          f"memory, more than the device's {global_mem / mib:.0f} MiB leave for "
+                          "rendering: render a smaller scene")
+    return max(1, min(height, min(max_alloc, MAX_BAND_BYTES) // row_bytes,
+                      room // (outputs * row_bytes)))
+
+
+def _group_width(kernel: cl.Kernel, device: cl.Device, tuning: Tuning) -> int:
+    """Work-items per work-group, one row segment: the work_group_width knob, within the
+    kernel's limit on the device. Never left to the driver: PoCL puts up to 4096 work-items in
+    a group and gives them their private memory on one thread's stack, which a deep ray stack
+    (MAX_DEPTH + 1 tasks of 80 bytes each, per work-item) overflows: a segfault at depth 28."""
+    limit = kernel.get_work_group_info(cl.kernel_work_group_info.WORK_GROUP_SIZE, device)
+    return max(1, min(tuning.work_group_width, limit))
+
+
+def render_packed(packed: PackedScene, device: cl.Device,
+                  progress: Callable[[int, int], None] | None = None,
+                  rows: tuple[int, int] | None = None) -> tuple[np.ndarray, dict]:
+    """Launch the kernel over a packed scene: (image, stats without load/pack times). With
+    `rows` = (start, stop), only those rows of the image (a tile of a distributed render): the
+    same values, bit for bit, as those rows of the whole image."""
+    capacity = band_capacity(packed, device.global_mem_size, device.max_mem_alloc_size)
+    program, build_s = build_program(device, packed.config)
+    queue = queue_for(device)
+    ctx = queue.context
+    params = packed.params[0]
+    width, spp = int(params["width"]), int(params["spp"])
+    first, end = rows if rows is not None else (0, int(params["height"]))
+    height = end - first
+    try:
+        buffers = _scene_buffers(ctx, packed)
+        band_bytes = width * capacity * 16
+        image_buf = cl.Buffer(ctx, cl.mem_flags.WRITE_ONLY, band_bytes)
+        counts_buf = cl.Buffer(ctx, cl.mem_flags.WRITE_ONLY, band_bytes)
+        count_tests = packed.config.count_tests
+        tests_buf = cl.Buffer(ctx, cl.mem_flags.WRITE_ONLY, band_bytes if count_tests else 16)
+        image = np.empty((height, width, 3), dtype=np.float32)
+        band_image = np.empty((capacity, width, 4), dtype=np.float32)
+        band_counts = np.empty((capacity * width, 4), dtype=np.int32)
+        totals = np.zeros(4, dtype=np.int64)
+        test_totals = np.zeros(4, dtype=np.int64)
+        kernel = cl.Kernel(program, "render")
+        group_width = _group_width(kernel, device, packed.tuning)
+        padded_width = -(-width // group_width) * group_width
+        row_samples = width * spp
+        if progress is not None:
+            progress(0, height * row_samples)
+        kernel_s, launches, row0, band, band_s = 0.0, 0, 0, 0, 0.0
+        while row0 < height:
+            band = min(capacity, next_band_rows(row_samples, band, band_s, height - row0,
+                                                packed.tuning))
+            kernel.set_args(*buffers, image_buf, counts_buf, tests_buf, np.int32(first + row0))
+            event = cl.enqueue_nd_range_kernel(queue, kernel, (padded_width, band),
+                                               (group_width, 1))
+            event.wait()
+            # Device time, not wall time: the first launch's wall time holds one-off costs
+            # (PoCL compiles the work-group function then) that say nothing of the rate.
+            band_s = (event.profile.end - event.profile.start) * 1e-9
+            kernel_s += band_s
+            launches += 1
+            pixels = band * width
+            cl.enqueue_copy(queue, band_image[:band], image_buf)
+            cl.enqueue_copy(queue, band_counts[:pixels], counts_buf)
+            image[row0:row0 + band] = band_image[:band, :, :3]
+            # einsum sums int32 columns into int64 about 3x faster than sum(axis=0, dtype=...).
+            totals += np.einsum("ij->j", band_counts[:pixels], dtype=np.int64)
+            if count_tests:
+                cl.enqueue_copy(queue, band_counts[:pixels], tests_buf)
+                test_totals += np.einsum("ij->j", band_counts[:pixels], dtype=np.int64)
+            row0 += band
+            if progress is not None:
+                progress(row0 * row_samples, height * row_samples)
+        queue.finish()
+    except cl.Error as err:
+        raise DeviceError(f"OpenCL error while rendering on {describe(device)}: {err}") from err
+    rays = {"primary": int(totals[0]), "secondary": int(totals[1]), "shadow": int(totals[2])}
+    rays["total"] = sum(rays.values())
+    stats = {
+        "build_s": build_s,
+        "kernel_s": kernel_s,
+        "launches": launches,
+        "rays": rays,
+        "mrays_per_s": rays["total"] / kernel_s * 1e-6 if kernel_s > 0 else None,
+        "device_bytes": packed.device_bytes(),
+    }
+    if count_tests:
+        stats["tests"] = dict(zip(("closest_boxes", "closest_prims", "shadow_boxes",
+                                   "shadow_prims"), map(int, test_totals), strict=True))
+    return image, stats
+
+
+def intersect_rays(packed: PackedScene, device: cl.Device, origins: np.ndarray,
+                   directions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Closest hits of rays given in the packed (camera-relative) frame: (t, normal, ref),
+    t = inf and ref = -1 on a miss. For tests and tools; runs the render kernel's code."""
+    program, _ = build_program(device, packed.config)
+    queue = queue_for(device)
+    ctx = queue.context
+    n = len(origins)
+    o4 = np.zeros((n, 4), dtype=np.float32)
+    d4 = np.zeros((n, 4), dtype=np.float32)
+    o4[:, :3] = origins
+    d4[:, :3] = directions
+    args = [_buffer(ctx, o4), _buffer(ctx, d4), *_scene_buffers(ctx, packed)]
+    hits_buf = cl.Buffer(ctx, cl.mem_flags.WRITE_ONLY, n * 16)
+    refs_buf = cl.Buffer(ctx, cl.mem_flags.WRITE_ONLY, n * 4)
+    cl.Kernel(program, "intersect_rays")(queue, (n,), None, *args, hits_buf, refs_buf)
+    hits = np.empty((n, 4), dtype=np.float32)
+    refs = np.empty(n, dtype=np.int32)
+    cl.enqueue_copy(queue, hits, hits_buf)
+    cl.enqueue_copy(queue, refs, refs_buf)
+    queue.finish()
+    return hits[:, 3], hits[:, :3], refs

@@ -1,0 +1,25 @@
+// What a closest-hit query finds (Hit) and the surface there that shading reads (Surface).
+#ifndef CLRAY_HIT_H
+#define CLRAY_HIT_H
+
+#include "real.h"
+#include "clray_types.h"
+
+typedef struct {
+    REAL t;
+    int ref;  // PRIM_* << PRIM_TYPE_SHIFT | index; meaningful when t < REAL_INF
+    int part;
+    REAL b1, b2;
+    int instance;  // the instance `ref` was crossed in (ref is then in its group), or -1
+} Hit;
+
+typedef struct {
+    REAL3 p;    // on the surface (re-projected where the shape allows)
+    REAL3 n_g;  // geometric normal, outward (planes: as given; triangles: by winding)
+    REAL3 n_s;  // shading normal on the same side as n_g
+    REAL err;   // bound on the rounding error of p, per component
+    REAL2 uv;
+    int material;
+} Surface;
+
+#endif

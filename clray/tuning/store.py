@@ -9,6 +9,7 @@ warning. The knobs change the speed, not the image, so a stale file is never an 
 
 from __future__ import annotations
 
+import importlib.metadata
 import json
 import os
 import re
@@ -30,9 +31,11 @@ def cache_dir() -> Path:
 
 
 def _clray_version() -> str:
-    from clray import __version__  # here: clray/__init__ imports clray.render, which imports us
-
-    return __version__
+    # As clray.__version__ reads it (importing clray here would make an import loop).
+    try:
+        return importlib.metadata.version("clray")
+    except importlib.metadata.PackageNotFoundError:
+        return "0+unknown"
 
 
 def _slug(text: str) -> str:

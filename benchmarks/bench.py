@@ -14,7 +14,6 @@ See benchmarks/README.md for every field.
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import importlib.util
 import json
 import os
@@ -31,10 +30,11 @@ import numpy as np
 import pyopencl as cl
 import pyopencl.characterize
 
+from clray import profile
 from clray.device.context import describe, queue_for, select_device
 from clray.device.launch import render_packed
 from clray.device.pack import pack_scene
-from clray.device.program import KernelConfig, build_program, bvh_width_for
+from clray.device.program import KernelConfig, bvh_width_for
 from clray.scene.load import load_scene
 
 HERE = Path(__file__).resolve().parent
@@ -83,19 +83,7 @@ def environment(device: cl.Device) -> dict:
 def warm_build_s(config: KernelConfig, device_spec: str | None) -> float:
     """Kernel build time in a new process that finds this run's PoCL cache populated: what a
     second `clray render` of the same scene pays."""
-    cmd = [sys.executable, str(Path(__file__).resolve()), "--build-only",
-           json.dumps(dataclasses.asdict(config))]
-    if device_spec:
-        cmd += ["--device", device_spec]
-    out = subprocess.run(cmd, check=True, capture_output=True, text=True, cwd=ROOT).stdout
-    return float(json.loads(out.splitlines()[-1])["build_s"])
-
-
-def _build_only(config_json: str, device_spec: str | None) -> None:
-    fields = json.loads(config_json)
-    fields["build_options"] = tuple(fields["build_options"])
-    _, build_s = build_program(select_device(device_spec), KernelConfig(**fields))
-    print(json.dumps({"build_s": build_s}))
+    return profile.build_seconds(config, device_spec)
 
 
 def command_wall_s(path: Path, device_spec: str | None) -> list[float]:
@@ -105,7 +93,8 @@ def command_wall_s(path: Path, device_spec: str | None) -> list[float]:
     # would compile clray's modules again (about 0.07 s).
     env = {k: v for k, v in os.environ.items() if k != "PYTHONDONTWRITEBYTECODE"}
     with tempfile.TemporaryDirectory(prefix="clray-bench-out-") as out_dir:
-        cmd = [sys.executable, "-m", "clray", "render", str(path), "-q", "-o",
+        # --no-tuning: the defaults' figures, whatever `clray tune` stored on this machine.
+        cmd = [sys.executable, "-m", "clray", "render", str(path), "-q", "--no-tuning", "-o",
                str(Path(out_dir) / f"{path.stem}.png")]
         if device_spec:
             cmd += ["--device", device_spec]
@@ -199,9 +188,8 @@ def bench_scene(name: str, path: Path, device: cl.Device, device_spec: str | Non
     result["command_wall_s"] = statistics.median(walls)
     result["command_wall_runs_s"] = walls
     if profile:
-        kernel_profile = _module("kernel_profile")
-        result["time_split"] = kernel_profile.time_split(packed, device, repeat)
-        result["tests_per_ray"] = kernel_profile.tests_per_ray(packed, device)
+        result["time_split"] = profile.time_split(packed, device, repeat)
+        result["tests_per_ray"] = profile.tests_per_ray(packed, device)
     result["targets"] = {
         key: {"limit": limit, "value": result[key], "met": result[key] <= limit}
         for key, limit in TARGETS.get(name, {}).items()
@@ -224,11 +212,7 @@ def main(argv: list[str] | None = None) -> None:
                         help="auto: also time POV-Ray 3.7 on each scene when it is on PATH")
     parser.add_argument("--no-profile", action="store_true",
                         help="skip the time split by ray kind and the test counts")
-    parser.add_argument("--build-only", default=None, help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
-    if args.build_only is not None:
-        _build_only(args.build_only, args.device)
-        return
     names = [s.strip() for s in args.scenes.split(",") if s.strip()]
     unknown = set(names) - {"spheres", "mesh"}
     if unknown or args.repeat < 1:

@@ -1,5 +1,5 @@
 """The `clray` command (also `python -m clray`): `clray render SCENE ...`, `clray study SCENE...
---out DIR` and `clray devices`.
+--out DIR`, `clray tune SCENE...`, `clray profile SCENE` and `clray devices`.
 
 Exit codes: 0 ok, 1 runtime error, 2 usage, 3 scene error, 4 OpenCL error, 130 interrupted.
 Every error a user can cause is one `clray: error: ...` line on stderr, never a traceback.
@@ -179,6 +179,9 @@ def _build_parser() -> _Parser:
                         "PFM and EXR keep the radiance as rendered")
     r.add_argument("--png-bits", type=_choice_in(limits.PNG_BITS), metavar="8|16",
                    help="bits a PNG sample (default: [render] png_bits, else 8)")
+    r.add_argument("--no-tuning", dest="stored_tuning", action="store_false",
+                   help="render with the knob table's defaults, not the device's tuning file "
+                        "that `clray tune` wrote (docs/tuning.md)")
     r.add_argument("--stats-json", type=_file_path, metavar="PATH",
                    help="write timings, sizes and ray counts as JSON ('-': standard output)")
     talk = r.add_mutually_exclusive_group()
@@ -244,9 +247,63 @@ def _build_parser() -> _Parser:
     _model_flags(sc)
     sc.set_defaults(run=_scene)
 
+    t = commands.add_parser(
+        "tune", help="search the performance knobs for the fastest configuration on a device",
+        description="Try configurations of the performance knobs (docs/tuning.md) on each "
+                    "SCENE with Kernel Tuner, each verified against the default's image; "
+                    "store the fastest as the device's tuning file, which later renders use, "
+                    "and write DIR/report.md, DIR/results.json, DIR/tune.png and Kernel "
+                    "Tuner's cache files (a second run continues). Needs pip install "
+                    "'clray[tune]'.")
+    t.add_argument("scenes", type=_scene_path, nargs="+", metavar="SCENE",
+                   help="scene files (.toml or .json)")
+    t.add_argument("--device", metavar="SPEC", help="OpenCL device, as for render")
+    t.add_argument("--strategy", default="brute_force", metavar="S",
+                   help="Kernel Tuner's search strategy over the kernel and launch knobs of "
+                        "each host configuration: brute_force (default), random_sample, "
+                        "greedy_ils, genetic_algorithm, bayes_opt, ...")
+    t.add_argument("--budget", type=_number_in(0.0, 86400.0), default=120.0, metavar="SECONDS",
+                   help="tuning time, shared equally by the scenes (default: 120)")
+    t.add_argument("--allow-error", type=_number_in(0.0, 1.0), metavar="E",
+                   help="accept configurations whose pixels differ from the default's by up to "
+                        "E (default: the scene's float tolerance, 2/255)")
+    t.add_argument("--out", type=Path, default=Path("clray-tune"), metavar="DIR",
+                   help="output folder (default: clray-tune)")
+    t.add_argument("-W", "--width", type=size, metavar="N",
+                   help="image width for every scene (default: each scene's own)")
+    t.add_argument("-H", "--height", type=size, metavar="N",
+                   help="image height for every scene (default: each scene's own)")
+    t.add_argument("--search-every-host", action="store_true",
+                   help="search the kernel and launch knobs again for every host configuration "
+                        "(default: with the first, the default; later host configurations keep "
+                        "the best found so far, one build each)")
+    t.add_argument("--no-save", dest="save", action="store_false",
+                   help="do not store the winner as the device's tuning file")
+    t.add_argument("-q", "--quiet", action="store_true", help="print nothing on success")
+    t.set_defaults(run=_tune)
+
+    pr = commands.add_parser(
+        "profile", help="where a scene's render time goes: rays, tests and time by ray kind",
+        description="Profile SCENE: rays by kind, Mrays/s and kernel time by kind (from "
+                    "renders without lights and bounces, differenced), box and primitive tests "
+                    "per ray (the COUNT_TESTS build), kernel build time cold and warm, and the "
+                    "scene's device bytes.")
+    pr.add_argument("scene", type=_scene_path, metavar="SCENE",
+                    help="scene file (.toml or .json)")
+    pr.add_argument("--device", metavar="SPEC", help="OpenCL device, as for render")
+    pr.add_argument("-W", "--width", type=size, metavar="N", help="image width in pixels")
+    pr.add_argument("-H", "--height", type=size, metavar="N", help="image height in pixels")
+    pr.add_argument("--repeat", type=_int_in(1, MAX_REPEAT), default=3, metavar="N",
+                    help="timed renders of each variant after a warm-up; medians (default: 3)")
+    pr.add_argument("--no-tuning", dest="stored_tuning", action="store_false",
+                    help="profile the knob table's defaults, not the device's tuning file")
+    pr.add_argument("--json", action="store_true", help="print the profile as JSON on stdout")
+    pr.set_defaults(run=_profile)
+
     d = commands.add_parser("devices", help="list OpenCL devices, one per line",
                             description="List OpenCL devices: spec, type, name, platform, "
-                                        "compute units, fp64 support, driver version.")
+                                        "compute units, fp64 support, driver version, and "
+                                        "whether `clray tune` left a tuning file for it.")
     d.set_defaults(run=_devices)
     return parser
 
@@ -453,6 +510,10 @@ def _stats_table(stats: dict) -> list[str]:
             ("image", f"{stats['width']}x{stats['height']}, {stats['spp']} spp, max depth "
                       f"{stats['max_depth']}, min weight {stats['min_weight']:g}, "
                       f"seed {stats['seed']}, {stats['precision']}")]
+    if "tuning" in stats:  # a Dask render's workers each take their own device's
+        tuning = stats["tuning"]
+        rows.append(("tuning", f"{tuning['label']} ({tuning['source']}; BVH width "
+                               f"{tuning['bvh_width']})"))
     for key, label in _TIMES:
         note = {"kernel_s": f"  ({stats['launches']} launches, device time)",
                 "render_s": "  (bvh to read-back)"}.get(key, "")
@@ -468,7 +529,8 @@ def _stats_table(stats: dict) -> list[str]:
     rows.append(("non-finite pixels", f"{stats['nonfinite_pixels']:,}"))
     if "clipped_pixels" in stats:
         rows.append(("clipped pixels", f"{stats['clipped_pixels']:,}  (a channel over 1)"))
-    known = {"scene", "output", "device", "width", "height", "spp", "max_depth", "min_weight",
+    known = {"scene", "output", "device", "tuning", "width", "height", "spp", "max_depth",
+             "min_weight",
              "seed", "precision", "clipped_pixels", "launches", "rays", "mrays_per_s",
              "device_bytes", "nonfinite_pixels",
              *(key for key, _ in _TIMES)}
@@ -574,7 +636,7 @@ def _settings(args: argparse.Namespace, progress: Callable[[int, int], None] | N
         width=args.width, height=args.height, spp=args.spp, max_depth=args.max_depth,
         seed=args.seed, min_weight=args.min_weight, device=args.device,
         precision=args.precision, progress=progress, linear=args.linear,
-        exposure=args.exposure, png_bits=args.png_bits)
+        exposure=args.exposure, png_bits=args.png_bits, stored_tuning=args.stored_tuning)
 
 
 def _cluster(args: argparse.Namespace) -> contextlib.AbstractContextManager:
@@ -673,9 +735,81 @@ def _study(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def _tune(args: argparse.Namespace) -> int:
+    from clray.tuning.tuner import import_kernel_tuner
+
+    # Before any work: says how to install Kernel Tuner where it is missing.
+    strategies = import_kernel_tuner().strategy_map
+    if args.strategy not in strategies:
+        _say(f"error: --strategy: expected one of {', '.join(sorted(strategies))}, got "
+             f"{args.strategy!r}")
+        return EXIT_USAGE
+    from clray.tuning.command import run_tune
+
+    with _warnings_as_lines(quiet=args.quiet, verbose=False):
+        run_tune(args.scenes, args.out, device=args.device, strategy=args.strategy,
+                 budget_s=args.budget, allow_error=args.allow_error,
+                 size=(args.width, args.height), save=args.save,
+                 search_every_host=args.search_every_host,
+                 show_progress=not args.quiet and sys.stderr.isatty(),
+                 say=(lambda _: None) if args.quiet else _say)
+    if not args.quiet:
+        _say(f"wrote {args.out / 'report.md'}")
+    return EXIT_OK
+
+
+def _profile(args: argparse.Namespace) -> int:
+    from clray.profile import profile_scene
+
+    with _warnings_as_lines(quiet=False, verbose=False):
+        settings = RenderSettings(width=args.width, height=args.height, device=args.device,
+                                  stored_tuning=args.stored_tuning)
+        prof = profile_scene(args.scene, settings, args.repeat)
+    if args.json:
+        print(json.dumps(prof, indent=2))
+        return EXIT_OK
+    rays, tests = prof["rays"], prof["tests_per_ray"]
+    lines = [f"{prof['scene']}: {prof['width']}x{prof['height']}, {prof['spp']} spp on "
+             f"{prof['device']} (tuning: {prof['tuning']})",
+             f"rays: {rays['total']:,} ({rays['primary']:,} primary, {rays['secondary']:,} "
+             f"secondary, {rays['shadow']:,} shadow); kernel {prof['kernel_s'] * 1e3:.3g} ms, "
+             f"{prof['mrays_per_s']:.3g} Mrays/s (median of {prof['repeat']})"]
+    for part, v in prof["time_split"]["parts"].items():
+        rate = f"{v['mrays_per_s']:.3g} Mrays/s" if v["mrays_per_s"] else "-"
+        lines.append(f"  {part}: {v['kernel_s'] * 1e3:.3g} ms, {v['rays']:,} rays, {rate}")
+
+    def per(value: float | None) -> str:
+        return "-" if value is None else f"{value:.3g}"
+
+    lines += [f"tests per closest-hit ray: {per(tests['closest_boxes_per_ray'])} boxes, "
+              f"{per(tests['closest_prims_per_ray'])} primitives; per shadow ray: "
+              f"{per(tests['shadow_boxes_per_ray'])} boxes, "
+              f"{per(tests['shadow_prims_per_ray'])} primitives",
+              f"kernel build: {prof['build_cold_s']:.3g} s cold, {prof['build_warm_s']:.3g} s "
+              "warm (new processes)",
+              f"scene on device: {_size(prof['device_bytes_total'])}: " + ", ".join(
+                  f"{k} {_size(v)}" for k, v in sorted(prof["device_bytes"].items(),
+                                                       key=lambda kv: -kv[1]) if v)]
+    for line in lines:
+        print(line)
+    return EXIT_OK
+
+
+def _tuned(spec: str) -> str:
+    from clray.device.context import select_device
+    from clray.tuning.store import load_tuning
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        found = load_tuning(select_device(spec))
+    if found is not None:
+        return f"tuned ({found[0].label()})"
+    return "tuning file stale or invalid" if caught else "not tuned"
+
+
 def _devices(args: argparse.Namespace) -> int:
     rows = [(d.spec, d.type, d.name, d.platform, f"{d.compute_units} CU",
-             f"fp64 {'yes' if d.fp64 else 'no'}", f"driver {d.driver_version}")
+             f"fp64 {'yes' if d.fp64 else 'no'}", f"driver {d.driver_version}", _tuned(d.spec))
             for d in list_devices()]
     widths = [max(len(row[i]) for row in rows) for i in range(len(rows[0]))]
     for row in rows:

@@ -7,7 +7,7 @@ import os
 import time
 import warnings
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -23,6 +23,8 @@ from clray.scene import limits as L
 from clray.scene.check import check_scene
 from clray.scene.load import load_scene
 from clray.scene.model import Scene
+from clray.tuning.knobs import Tuning
+from clray.tuning.store import chosen_tuning
 
 
 @dataclass(frozen=True)
@@ -46,6 +48,10 @@ class RenderSettings:
     linear: bool | None = None
     exposure: float | None = None  # stops
     png_bits: int | None = None
+    # Performance knobs (clray.tuning): None takes the device's tuning file, written by `clray
+    # tune`, where stored_tuning and one exists, else the knob table's defaults.
+    tuning: Tuning | None = None
+    stored_tuning: bool = True
 
     def __post_init__(self) -> None:
         # The scene file's [render] rules (clray.scene.limits), in the same words.
@@ -57,7 +63,11 @@ class RenderSettings:
                    for name, rule in L.RENDER_CHOICES.items()]
         checks += [("linear", lambda v: None if isinstance(v, bool) else "expected True or False"),
                    ("precision", lambda v: L.choice_problem(v, L.PRECISIONS)),
-                   ("device", lambda v: None if isinstance(v, str) else "expected a string")]
+                   ("device", lambda v: None if isinstance(v, str) else "expected a string"),
+                   ("tuning", lambda v: None if isinstance(v, Tuning)
+                    else "expected a clray.tuning.Tuning"),
+                   ("stored_tuning",
+                    lambda v: None if isinstance(v, bool) else "expected True or False")]
         for name, problem_of in checks:
             value = getattr(self, name)
             problem = None if value is None else problem_of(value)
@@ -112,11 +122,13 @@ def warn_deep_tree(scene: Scene, resolved: dict[str, int | float]) -> None:
 
 def pack_for(scene: Scene, settings: RenderSettings, device: cl.Device) -> PackedScene:
     """The checked `scene` packed for `device` with `settings`: what render() launches, and
-    what each worker of a distributed render packs once for all its tiles."""
+    what each worker of a distributed render packs once for all its tiles. The knobs are the
+    settings' tuning, else the device's tuning file's (clray.tuning.store.chosen_tuning)."""
+    tuning = settings.tuning or chosen_tuning(device, settings.stored_tuning)[0]
     return pack_scene(scene, precision=settings.precision,
-                      bvh_width=bvh_width_for(device, settings.precision),
-                      queue=queue_for(device), **resolved_settings(scene, settings),
-                      **dict(settings.variants))
+                      bvh_width=tuning.bvh_width or bvh_width_for(device, settings.precision),
+                      queue=queue_for(device), tuning=tuning,
+                      **resolved_settings(scene, settings), **dict(settings.variants))
 
 
 def render(scene: Scene | str | os.PathLike, settings: RenderSettings | None = None
@@ -130,6 +142,11 @@ def render(scene: Scene | str | os.PathLike, settings: RenderSettings | None = N
     resolved = resolved_settings(scene, settings)
     warn_deep_tree(scene, resolved)
     device = select_device(settings.device)
+    if settings.tuning is None:
+        tuning, tuning_source = chosen_tuning(device, settings.stored_tuning)
+        settings = replace(settings, tuning=tuning)
+    else:
+        tuning_source = "given"
     packed = pack_for(scene, settings, device)
     pack_s = time.perf_counter() - start - packed.bvh_s
     image, stats = render_packed(packed, device, settings.progress)
@@ -137,6 +154,10 @@ def render(scene: Scene | str | os.PathLike, settings: RenderSettings | None = N
         **resolved,
         "device": describe(device),
         "precision": settings.precision,
+        # Which configuration rendered: its source, the knobs changed from the defaults, every
+        # knob's value, and the BVH width that "auto" (None) picked.
+        "tuning": {"source": tuning_source, "label": packed.tuning.label(),
+                   **packed.tuning.values(), "bvh_width": packed.config.bvh_width},
         "bvh_s": packed.bvh_s,
         "pack_s": pack_s,
         **stats,

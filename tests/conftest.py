@@ -127,6 +127,19 @@ def _default_device_is_the_tests(request: pytest.FixtureRequest,
         monkeypatch.setenv("CLRAY_DEVICE", request.node.callspec.params["cl_device"])
 
 
+@pytest.fixture(autouse=True)
+def _own_cache_directory(tmp_path_factory: pytest.TempPathFactory,
+                         monkeypatch: pytest.MonkeyPatch) -> None:
+    # A tuning file the user's `clray tune` left in ~/.cache/clray must not change what a test
+    # renders: every test (and its subprocesses) gets an empty cache directory of its own.
+    # PoCL keeps its kernel cache under the same directory: it stays where it was, or every
+    # subprocess would build its kernels cold.
+    if "POCL_CACHE_DIR" not in os.environ:
+        user_cache = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
+        monkeypatch.setenv("POCL_CACHE_DIR", str(Path(user_cache) / "pocl" / "kcache"))
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path_factory.mktemp("xdg-cache")))
+
+
 @pytest.fixture(scope="session")
 def cl_ctx(cl_device: cl.Device) -> cl.Context:
     return context_for(cl_device)

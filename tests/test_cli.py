@@ -5,7 +5,6 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import fcntl
-import importlib
 import json
 import os
 import pty
@@ -25,6 +24,7 @@ from clray import cli
 from clray.device.context import has_fp64
 from clray.errors import EXIT_USAGE, ClrayError
 from clray.image_io import read_pfm
+from clray.tuning import Tuning
 
 SCENE = """\
 [render]
@@ -61,7 +61,6 @@ material = "red"
 
 TINY = ["-W", "32", "-H", "24"]
 ROOT = Path(__file__).resolve().parent.parent
-launch_module = importlib.import_module("clray.device.launch")
 
 
 def scene_text(radius: str = "1", material_extra: str = "") -> str:
@@ -250,22 +249,25 @@ def test_verbose_prints_progress_and_stats(capsys, cl_device, scene) -> None:
     assert "clray: rendering: 100% (768 of 768 pixel-samples, " in err
     table = lines[lines.index("clray: stats:") + 1:-1]
     labels = [line.split("  ")[1] for line in table]
-    assert labels[:17] == ["scene", "output", "device", "image", "load", "bvh", "pack", "build",
-                           "kernel", "render", "write", "total (wall)", "rays primary",
+    assert labels[:18] == ["scene", "output", "device", "image", "tuning", "load", "bvh", "pack",
+                           "build", "kernel", "render", "write", "total (wall)", "rays primary",
                            "rays secondary", "rays shadow", "rays total", "Mrays/s"]
-    assert labels[17:] == ["scene on device", "non-finite pixels", "clipped pixels"]
+    assert labels[18:] == ["scene on device", "non-finite pixels", "clipped pixels"]
     # Labels padded to one width: the values start in one column.
     column = 2 + len("non-finite pixels") + 2
     assert all(line[2:column].rstrip() == label for line, label in zip(table, labels,
                                                                          strict=True))
     assert "image              32x24, 1 spp, max depth 2, min weight 0, seed 0, float" in err
+    assert "tuning             default (default; BVH width " in err
     assert lines[-1].startswith("clray: wrote scene.png (32x24")
 
 
 def test_verbose_progress_lines_follow_pixel_samples(capsys, cl_device, scene,
                                                      monkeypatch) -> None:
-    monkeypatch.setattr(launch_module, "FIRST_LAUNCH_PIXEL_SAMPLES", 32 * 4)
-    monkeypatch.setattr(launch_module, "MAX_LAUNCH_PIXEL_SAMPLES", 32 * 4)
+    # Bands of four rows: the knob table's defaults, as every render without a tuning file
+    # takes them, changed.
+    monkeypatch.setattr("clray.tuning.store.DEFAULT_TUNING", Tuning(
+        first_launch_pixel_samples=32 * 4, max_launch_pixel_samples=32 * 4))
     code, _, err = run(capsys, "render", scene, *TINY, "-v")
     assert code == 0
     steps = re.findall(r"^clray: rendering: (\d+)% \((\d+) of 768 pixel-samples, "

@@ -14,6 +14,7 @@ from clray.metrics import count_over, nonfinite_count, rmse
 from clray.render import RenderSettings, render
 from clray.scene import model as M
 from clray.scene.load import load_scene
+from clray.tuning import Tuning
 from tests.reference_check import Tolerance, assert_kernel_matches_reference
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -245,20 +246,18 @@ def test_image_is_independent_of_launch_banding(cl_device, monkeypatch) -> None:
     assert whole.stats["launches"] == 1
     # Bands of three rows, then of one row: every pixel is computed by a different launch.
     for rows in (3, 1):
-        monkeypatch.setattr(launch_module, "FIRST_LAUNCH_PIXEL_SAMPLES", W * 5 * rows)
-        monkeypatch.setattr(launch_module, "MAX_LAUNCH_PIXEL_SAMPLES", W * 5 * rows)
-        banded = render(scene)
+        banded = render(scene, RenderSettings(tuning=Tuning(
+            first_launch_pixel_samples=W * 5 * rows, max_launch_pixel_samples=W * 5 * rows)))
         assert banded.stats["launches"] == H // rows
         np.testing.assert_array_equal(whole.image, banded.image)
 
 
 def test_progress_counts_pixel_samples_up_to_the_total(cl_device, monkeypatch) -> None:
     scene = CASES["supersampled"]
-    monkeypatch.setattr(launch_module, "FIRST_LAUNCH_PIXEL_SAMPLES", W * 5 * 4)
-    monkeypatch.setattr(launch_module, "MAX_LAUNCH_PIXEL_SAMPLES", W * 5 * 4)
     reports: list[tuple[int, int]] = []
-    result = render(scene, RenderSettings(progress=lambda done, total: reports.append(
-        (done, total))))
+    bands = Tuning(first_launch_pixel_samples=W * 5 * 4, max_launch_pixel_samples=W * 5 * 4)
+    result = render(scene, RenderSettings(tuning=bands, progress=lambda done, total:
+                                          reports.append((done, total))))
     total = W * H * 5
     assert {t for _, t in reports} == {total}
     assert [d for d, _ in reports] == list(range(0, total + 1, W * 5 * 4))
@@ -266,11 +265,12 @@ def test_progress_counts_pixel_samples_up_to_the_total(cl_device, monkeypatch) -
 
 
 def test_band_rows_follow_the_measured_rate_within_bounds(monkeypatch) -> None:
-    monkeypatch.setattr(launch_module, "FIRST_LAUNCH_PIXEL_SAMPLES", 1000)
-    monkeypatch.setattr(launch_module, "MAX_LAUNCH_PIXEL_SAMPLES", 100_000)
-    monkeypatch.setattr(launch_module, "LAUNCH_SECONDS", 0.25)
-    monkeypatch.setattr(launch_module, "LAUNCH_GROWTH", 4)
-    rows = launch_module.next_band_rows
+    bands = Tuning(first_launch_pixel_samples=1000, max_launch_pixel_samples=100_000,
+                   launch_seconds=0.25, launch_growth=4)
+
+    def rows(*args: float) -> int:
+        return launch_module.next_band_rows(*args, bands)
+
     assert rows(100, 0, 0.0, 500) == 10  # the first band: FIRST_LAUNCH_PIXEL_SAMPLES
     assert rows(100, 0, 0.0, 7) == 7  # never past the image
     assert rows(100_000, 0, 0.0, 50) == 1  # a row over the first band's work: one row

@@ -18,20 +18,24 @@ from typing import NamedTuple
 
 import numpy as np
 
+from clray.tuning.knobs import KNOBS
+
 # SAH bins along the axis of largest centroid extent. 16 is where binned SAH stops gaining
 # quality for its cost (Wald 2007, "On fast construction of SAH-based BVHs").
 N_BINS = 16
 # Largest leaf SAH may choose; bigger nodes are split regardless of cost, so leaf sizes stay
 # bounded (kernels loop over a leaf's primitives) even for duplicate or coincident primitives.
-SAH_MAX_LEAF = 16
+# A tunable knob (clray.tuning): its default comes from the knob table.
+SAH_MAX_LEAF = KNOBS["largest_leaf"].default
 # Primitives one leaf test covers: the kernels test a leaf's triangles and spheres in packets
 # of four (clray.accel.wide.PACKET_WIDTH), at the cost of about one, so a leaf costs its packet
 # count, ceil(n / 4), and a split that cuts 8 primitives into 4 + 4 beats one into 3 + 5.
 SAH_PACKET = 4
-# Cost of one node visit relative to one packet test. Measured (benchmarks/README.md, What did
-# not pay): 1.5 gives the mesh 65 B per triangle (1.0: 77 B) with both benchmark kernels a few
-# per cent faster; from 1.875 the 64 spheres go into four leaves of 16 and take 9 % longer.
-TRAVERSAL_COST = 1.5
+# Cost of one node visit relative to one packet test: a tunable knob (clray.tuning), whose table
+# records why its default is 1.5 (benchmarks/README.md, What did not pay).
+TRAVERSAL_COST = KNOBS["traversal_cost"].default
+# Nodes of at most this many primitives are always leaves (a tunable knob too).
+MAX_LEAF_SIZE = KNOBS["max_leaf_size"].default
 
 _F32_MAX = float(np.finfo(np.float32).max)
 
@@ -65,14 +69,14 @@ def packets(count: np.ndarray) -> np.ndarray:
     return -(-count // SAH_PACKET)
 
 
-def sah_cost(nodes: np.ndarray) -> float:
-    """SAH cost of a built tree (node visits at TRAVERSAL_COST, leaves at their packet count)
+def sah_cost(nodes: np.ndarray, traversal_cost: float = TRAVERSAL_COST) -> float:
+    """SAH cost of a built tree (node visits at `traversal_cost`, leaves at their packet count)
     relative to the root's area: the build-quality figure, lower is better. The root needs an
     area."""
     e = (nodes["hi"].astype(np.float64) - nodes["lo"]).clip(min=0)
     area = e[:, 0] * e[:, 1] + e[:, 1] * e[:, 2] + e[:, 2] * e[:, 0]
     count = nodes["count"].astype(np.int64)
-    return float((np.where(count > 0, packets(count), TRAVERSAL_COST) * area).sum() / area[0])
+    return float((np.where(count > 0, packets(count), traversal_cost) * area).sum() / area[0])
 
 
 def checked_bounds(lo: np.ndarray, hi: np.ndarray, max_leaf_size: int,
@@ -95,18 +99,20 @@ def checked_bounds(lo: np.ndarray, hi: np.ndarray, max_leaf_size: int,
     return lo, hi, largest
 
 
-def build_bvh(lo: np.ndarray, hi: np.ndarray, max_leaf_size: int = 4, *,
-              largest_leaf: int | None = None) -> Bvh:
+def build_bvh(lo: np.ndarray, hi: np.ndarray, max_leaf_size: int = MAX_LEAF_SIZE, *,
+              largest_leaf: int | None = None, traversal_cost: float = TRAVERSAL_COST) -> Bvh:
     """Build a BVH over N primitives with float64 bounds `lo`, `hi` of shape (N, 3).
 
     Nodes of at most `max_leaf_size` primitives are always leaves; nodes of up to
     `largest_leaf` (default `max_leaf_count(max_leaf_size)`) are leaves when SAH says a split
-    would not pay. clray.device.bvh_build builds the same tree on an OpenCL device.
+    would not pay; `traversal_cost` is the SAH's cost of a node visit against one packet
+    test. clray.device.bvh_build builds the same tree on an OpenCL device (with the default
+    traversal cost, which it compiles in).
     """
     lo, hi, largest = checked_bounds(lo, hi, max_leaf_size, largest_leaf)
     if lo.shape[0] == 0:
         return Bvh(np.zeros(0, dtype=BINARY_NODE), np.zeros(0, dtype=np.int32))
-    return _Builder(_round_out(lo, hi), max_leaf_size, largest).run()
+    return _Builder(_round_out(lo, hi), max_leaf_size, largest, traversal_cost).run()
 
 
 def _round_out(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
@@ -156,9 +162,11 @@ class _Builder:
     """One build. Breadth-first: each level holds the nodes still to be split (the active
     nodes) and their primitives, contiguous per node, in `ids` and the columns of `prim`."""
 
-    def __init__(self, prim: np.ndarray, max_leaf_size: int, largest_leaf: int) -> None:
+    def __init__(self, prim: np.ndarray, max_leaf_size: int, largest_leaf: int,
+                 traversal_cost: float) -> None:
         self.max_leaf = max_leaf_size
         self.sah_leaf = largest_leaf
+        self.traversal_cost = traversal_cost
         n = prim.shape[1]
         self.order = np.empty(n, dtype=np.int32)
         # Per breadth-first node, appended one level at a time; ids are positions in the
@@ -243,7 +251,7 @@ class _Builder:
         best_cost = cost[rows, best]
         a_node = _half_area(bounds[:, :3], bounds[:, 3:])
         # Compared multiplied through by the node's area, so flat and point nodes need no care.
-        sah_leaf = ((TRAVERSAL_COST * a_node + best_cost >= packets(count) * a_node)
+        sah_leaf = ((self.traversal_cost * a_node + best_cost >= packets(count) * a_node)
                     | ~binnable)
         leaf = sah_leaf & (count <= self.sah_leaf)
 

@@ -30,6 +30,7 @@ import numpy as np
 
 from clray.accel import prim_refs as P
 from clray.accel.bvh import Bvh
+from clray.tuning.knobs import KNOBS
 
 PACKET_WIDTH = 4
 LEAF_TRIANGLE_SHIFT = 16
@@ -39,8 +40,9 @@ NO_REF = -1
 # The node widths the kernels are built for (-DBVH_WIDTH).
 BVH_WIDTHS = (4, 8)
 # A node of leaves only that one leaf of this many packet tests (triangle packets, sphere
-# packets, other primitives one each) would cover is folded into that leaf.
-FOLD_PACKETS = 4
+# packets, other primitives one each) would cover is folded into that leaf. A tunable knob
+# (clray.tuning): its default comes from the knob table.
+FOLD_PACKETS = KNOBS["fold_packets"].default
 
 
 def bvh_node_dtype(width: int) -> np.dtype:
@@ -66,9 +68,11 @@ class WideBvh:
     stack_size: int
 
 
-def collapse(bvh: Bvh, refs: np.ndarray, width: int) -> WideBvh:
+def collapse(bvh: Bvh, refs: np.ndarray, width: int,
+             fold_packets: int | None = None) -> WideBvh:
     """Wide BVH of `width` children per node from a binary `bvh` over primitives whose
-    references (PRIM_* << PRIM_TYPE_SHIFT | index) are `refs[i]` for build input i."""
+    references (PRIM_* << PRIM_TYPE_SHIFT | index) are `refs[i]` for build input i.
+    `fold_packets`: the folding bound (None: FOLD_PACKETS)."""
     if width not in BVH_WIDTHS:
         raise ValueError(f"BVH width must be 4 or 8, got {width}")
     dtype = bvh_node_dtype(width)
@@ -88,7 +92,8 @@ def collapse(bvh: Bvh, refs: np.ndarray, width: int) -> WideBvh:
 
     order_refs = refs[bvh.order].astype(np.int64)
     levels = _levels(first, open_area, count[0] > 0, width)
-    fold = _foldable(np.concatenate(levels), first, count, open_area, order_refs)
+    fold = _foldable(np.concatenate(levels), first, count, open_area, order_refs,
+                     FOLD_PACKETS if fold_packets is None else fold_packets)
     if fold is not None:
         # Each folded node's binary node becomes one leaf over its leaves' primitives, which
         # are contiguous (a subtree's are). It was never opened, so the collapse above it
@@ -140,7 +145,8 @@ def _levels(first: np.ndarray, open_area: np.ndarray, leaf_root: bool,
 
 
 def _foldable(slots: np.ndarray, first: np.ndarray, count: np.ndarray, open_area: np.ndarray,
-              order_refs: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+              order_refs: np.ndarray, fold_packets: int
+              ) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
     """The wide nodes (rows of `slots`) to fold into one leaf, as (binary node, first, count)
     of that leaf, or None."""
     used = slots >= 0
@@ -157,7 +163,7 @@ def _foldable(slots: np.ndarray, first: np.ndarray, count: np.ndarray, open_area
     tests = -(-tri // PACKET_WIDTH) - (-sph // PACKET_WIDTH) + (total - tri - sph)
     # Wide node k + 1 grew from the k-th inner slot; the root (row 0) stays. Nodes over
     # instances stay: their boxes are lanes of one vector test, where a leaf would test each.
-    fold = ~is_inner.any(axis=1) & (tests <= FOLD_PACKETS) & (inst == 0)
+    fold = ~is_inner.any(axis=1) & (tests <= fold_packets) & (inst == 0)
     fold[0] = False
     if not fold.any():
         return None

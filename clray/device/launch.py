@@ -13,17 +13,15 @@ from clray.device.context import describe, queue_for
 from clray.device.pack import PackedScene
 from clray.device.program import build_program
 from clray.errors import DeviceError
+from clray.tuning.knobs import DEFAULT_TUNING, Tuning
 
 # Launches are sized by the time they take, not by their work, so that progress advances
 # several times a second on any device and no launch nears a GPU watchdog, while a small render
-# still takes a few launches: the first covers FIRST_LAUNCH_PIXEL_SAMPLES, each later one the
-# rows that the previous launch's rate does in LAUNCH_SECONDS, at most LAUNCH_GROWTH times the
+# still takes a few launches: the first covers first_launch_pixel_samples, each later one the
+# rows that the previous launch's rate does in launch_seconds, at most launch_growth times the
 # previous band (one fast band of sky says little about the rows below it) and at most
-# MAX_LAUNCH_PIXEL_SAMPLES. Pixels are independent, so the image does not depend on the bands.
-FIRST_LAUNCH_PIXEL_SAMPLES = 1 << 16
-MAX_LAUNCH_PIXEL_SAMPLES = 1 << 24
-LAUNCH_SECONDS = 0.25
-LAUNCH_GROWTH = 4
+# max_launch_pixel_samples: knobs of clray.tuning. Pixels are independent, so the image does not
+# depend on the bands.
 
 
 def _buffer(ctx: cl.Context, array: np.ndarray) -> cl.Buffer:
@@ -38,15 +36,17 @@ def _scene_buffers(ctx: cl.Context, packed: PackedScene) -> list[cl.Buffer]:
     return [_buffer(ctx, array) for array in packed.buffers().values()]
 
 
-def next_band_rows(row_samples: int, last_rows: int, last_s: float, rows_left: int) -> int:
+def next_band_rows(row_samples: int, last_rows: int, last_s: float, rows_left: int,
+                   tuning: Tuning = DEFAULT_TUNING) -> int:
     """Rows of the next launch, given the pixel-samples in one row and the rows and device time
-    of the previous launch (last_rows = 0 before the first). At least one row, at most
-    rows_left."""
+    of the previous launch (last_rows = 0 before the first), under `tuning`'s band knobs. At
+    least one row, at most rows_left."""
     if last_rows == 0:
-        rows = FIRST_LAUNCH_PIXEL_SAMPLES // row_samples
+        rows = tuning.first_launch_pixel_samples // row_samples
     else:
-        by_time = last_rows * LAUNCH_SECONDS / last_s if last_s > 0 else math.inf
-        rows = min(by_time, LAUNCH_GROWTH * last_rows, MAX_LAUNCH_PIXEL_SAMPLES // row_samples)
+        by_time = last_rows * tuning.launch_seconds / last_s if last_s > 0 else math.inf
+        rows = min(by_time, tuning.launch_growth * last_rows,
+                   tuning.max_launch_pixel_samples // row_samples)
     return int(max(1, min(rows_left, rows)))
 
 
@@ -79,16 +79,13 @@ def band_capacity(packed: PackedScene, global_mem: int, max_alloc: int) -> int:
                       room // (outputs * row_bytes)))
 
 
-# Work-items per work-group: one row segment. Left to itself PoCL puts up to 4096 work-items
-# in a group and gives them their private memory on one thread's stack, which a deep ray stack
-# (MAX_DEPTH + 1 tasks of 80 bytes each, per work-item) overflows: a segfault at depth 28.
-# Measured on PoCL, 64 costs nothing against its own choice; it suits SIMD CPUs and GPUs alike.
-WORK_GROUP_WIDTH = 64
-
-
-def _group_width(kernel: cl.Kernel, device: cl.Device) -> int:
+def _group_width(kernel: cl.Kernel, device: cl.Device, tuning: Tuning) -> int:
+    """Work-items per work-group, one row segment: the work_group_width knob, within the
+    kernel's limit on the device. Never left to the driver: PoCL puts up to 4096 work-items in
+    a group and gives them their private memory on one thread's stack, which a deep ray stack
+    (MAX_DEPTH + 1 tasks of 80 bytes each, per work-item) overflows: a segfault at depth 28."""
     limit = kernel.get_work_group_info(cl.kernel_work_group_info.WORK_GROUP_SIZE, device)
-    return max(1, min(WORK_GROUP_WIDTH, limit))
+    return max(1, min(tuning.work_group_width, limit))
 
 
 def render_packed(packed: PackedScene, device: cl.Device,
@@ -118,14 +115,15 @@ def render_packed(packed: PackedScene, device: cl.Device,
         totals = np.zeros(4, dtype=np.int64)
         test_totals = np.zeros(4, dtype=np.int64)
         kernel = cl.Kernel(program, "render")
-        group_width = _group_width(kernel, device)
+        group_width = _group_width(kernel, device, packed.tuning)
         padded_width = -(-width // group_width) * group_width
         row_samples = width * spp
         if progress is not None:
             progress(0, height * row_samples)
         kernel_s, launches, row0, band, band_s = 0.0, 0, 0, 0, 0.0
         while row0 < height:
-            band = min(capacity, next_band_rows(row_samples, band, band_s, height - row0))
+            band = min(capacity, next_band_rows(row_samples, band, band_s, height - row0,
+                                                packed.tuning))
             kernel.set_args(*buffers, image_buf, counts_buf, tests_buf, np.int32(first + row0))
             event = cl.enqueue_nd_range_kernel(queue, kernel, (padded_width, band),
                                                (group_width, 1))

@@ -8,12 +8,12 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass, make_dataclass
+from dataclasses import dataclass, field, make_dataclass
 
 import numpy as np
 import pyopencl as cl
 
-from clray.accel.bvh import build_bvh
+from clray.accel.bvh import TRAVERSAL_COST, build_bvh
 from clray.accel.wide import LEAF_FIELD_MASK, PACKET_WIDTH, WideBvh, collapse
 from clray.device import layout as L
 from clray.device.bvh_build import build_bvh_on
@@ -21,6 +21,7 @@ from clray.device.program import KernelConfig
 from clray.scene import model as M
 from clray.scene.emitters import scene_lights
 from clray.scene.scale import needs_fp64_spheres
+from clray.tuning.knobs import DEFAULT_TUNING, Tuning
 
 # Primitive count from which pack_scene builds the BVH on the device when given a queue.
 DEVICE_BUILD_MIN = 20000
@@ -37,12 +38,13 @@ def _buffers(self: PackedScene) -> dict[str, np.ndarray]:
 
 
 # One numpy array per layout.SCENE_BUFFERS entry (a field of that name, in that order), then
-# the build switches and the host time the BVH build took. Made from the list, so a new buffer
-# is one entry there.
+# the build switches, the host time the BVH build took and the performance knobs it was packed
+# with (clray.tuning; the launches follow them too). Made from the list, so a new buffer is one
+# entry there.
 PackedScene = make_dataclass(
     "PackedScene",
     [*((b.name, np.ndarray) for b in L.SCENE_BUFFERS), ("config", KernelConfig),
-     ("bvh_s", float)],
+     ("bvh_s", float), ("tuning", Tuning, field(default=DEFAULT_TUNING))],
     frozen=True,
     namespace={"device_bytes": _device_bytes, "buffers": _buffers,
                "__doc__": "A scene packed for the kernels: layout.SCENE_BUFFERS' arrays by "
@@ -263,15 +265,20 @@ def _pack_triangles(objs: _Placed, bounded: _Bounded) -> _Triangles:
 
 
 def _build_wide(lo: np.ndarray, hi: np.ndarray, refs: np.ndarray, width: int,
-                queue: cl.CommandQueue | None, one_per_leaf: bool = False) -> WideBvh:
+                queue: cl.CommandQueue | None, tuning: Tuning,
+                one_per_leaf: bool = False) -> WideBvh:
     """one_per_leaf: every leaf holds one primitive, so each one's box is a lane of its
     parent's vector slab test (the scene's tree where it holds instances)."""
     # Below DEVICE_BUILD_MIN primitives the host build takes milliseconds, less than fetching
     # the device build's program from the cache.
-    leaves = {"max_leaf_size": 1, "largest_leaf": 1} if one_per_leaf else {}
-    binary = (build_bvh_on(queue, lo, hi, **leaves)
-              if queue is not None and len(lo) >= DEVICE_BUILD_MIN else build_bvh(lo, hi, **leaves))
-    return collapse(binary, refs, width)
+    # The device build compiles the default traversal cost in: another one builds on the host.
+    leaves = ({"max_leaf_size": 1, "largest_leaf": 1} if one_per_leaf else
+              {"max_leaf_size": tuning.max_leaf_size, "largest_leaf": tuning.largest_leaf})
+    on_device = (queue is not None and len(lo) >= DEVICE_BUILD_MIN
+                 and tuning.traversal_cost == TRAVERSAL_COST)
+    binary = (build_bvh_on(queue, lo, hi, **leaves) if on_device
+              else build_bvh(lo, hi, traversal_cost=tuning.traversal_cost, **leaves))
+    return collapse(binary, refs, width, tuning.fold_packets)
 
 
 # Relative widening of an instance's bounds in the scene's frame: its matrices are rounded to
@@ -323,21 +330,22 @@ def _appended(wide: WideBvh, node_offset: int, slot_offset: int) -> np.ndarray:
 
 def _pack_bvh(bounded: _Bounded, n_groups: int, instances: list[M.Instance],
               group_of: np.ndarray, eye: np.ndarray, width: int,
-              queue: cl.CommandQueue | None) -> tuple[WideBvh, np.ndarray, float]:
+              queue: cl.CommandQueue | None, tuning: Tuning
+              ) -> tuple[WideBvh, np.ndarray, float]:
     """The wide BVH of the scene's bounded primitives and instances, each group's BVH appended
     after it, the INSTANCE records, and the seconds it took."""
     start = time.perf_counter()
     group_trees, group_bounds = [], []
     for g in range(n_groups):
         lo, hi, refs = bounded.owned_by(g + 1)
-        group_trees.append(_build_wide(lo, hi, refs, width, queue))
+        group_trees.append(_build_wide(lo, hi, refs, width, queue, tuning))
         group_bounds.append((lo.min(axis=0), hi.max(axis=0)))
     # The scene's tree comes first (its root is node 0): the groups' roots are known after it.
     records = _pack_instances(instances, group_of, group_bounds, eye, bounded)
     lo, hi, refs = bounded.owned_by(0)
     # Where instances are most of the scene's tree, one primitive a leaf; a large mesh of the
     # scene's own beside a few instances keeps its packed leaves.
-    wide = _build_wide(lo, hi, refs, width, queue,
+    wide = _build_wide(lo, hi, refs, width, queue, tuning,
                        one_per_leaf=bool(instances) and 2 * len(instances) >= len(refs))
     if not instances:
         return wide, records, time.perf_counter() - start
@@ -573,10 +581,11 @@ def _stack_size_option(stack_size: int) -> int:
 def pack_scene(scene: M.Scene, *, width: int, height: int, spp: int, max_depth: int,
                seed: int, min_weight: float = 0.0, precision: str = "float",
                bvh_width: int = 8, queue: cl.CommandQueue | None = None,
-               **variants: object) -> PackedScene:
+               tuning: Tuning = DEFAULT_TUNING, **variants: object) -> PackedScene:
     """`bvh_width`: children per BVH node (4 or 8; clray.device.program.bvh_width_for picks
     one per device). `queue`: build large BVHs on its device (the same tree as the host
-    build). `variants` are extra KernelConfig fields (study switches, options)."""
+    build). `tuning`: the other knobs of the BVH build, and of the launches (kept in the
+    PackedScene). `variants` are extra KernelConfig fields (study switches, options)."""
     eye = np.asarray(scene.camera.position, dtype=np.float64)
     instances = [obj for obj in scene.objects if isinstance(obj, M.Instance)]
     groups, group_of = _groups_of(instances)
@@ -590,7 +599,7 @@ def pack_scene(scene: M.Scene, *, width: int, height: int, spp: int, max_depth: 
     cones = _pack_cones(kinds[M.Cone], bounded)
     tris = _pack_triangles(kinds[M.Triangle], bounded)
     wide, instance_records, bvh_s = _pack_bvh(bounded, len(groups), instances, group_of, eye,
-                                              bvh_width, queue)
+                                              bvh_width, queue, tuning)
     triangle_packets = _triangle_packets(wide.prim_refs, tris)
     sphere_packets = _sphere_packets(wide.prim_refs, spheres)
     materials, textures, texels = _pack_materials(scene.materials)
@@ -629,4 +638,4 @@ def pack_scene(scene: M.Scene, *, width: int, height: int, spp: int, max_depth: 
                        normals=tris.normals, uvs=tris.uvs, nodes=wide.nodes,
                        prim_refs=wide.prim_refs, materials=materials, textures=textures,
                        texels=texels, lights=lights, instances=instance_records,
-                       config=config, bvh_s=bvh_s)
+                       config=config, bvh_s=bvh_s, tuning=tuning)

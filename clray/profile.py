@@ -1,0 +1,168 @@
+"""`clray profile SCENE`: where a render's time goes. Rays by kind, Mrays/s by kind, box and
+primitive tests per ray, kernel build time cold and warm, and the scene's device bytes; the
+benchmark (benchmarks/bench.py) reports the same split from here.
+
+The render kernel does everything in one launch, so its time is split by rendering the same
+packed scene three ways and differencing the medians:
+
+- `primary`: max depth 0 and no lights: eye rays, closest hits and ambient shading only;
+- `primary_shadow`: max depth 0 with the lights: adds the shadow rays from primary hits;
+- `full`: the scene as given: adds reflected and refracted rays and their shadow rays.
+
+A part's figure carries the noise of two medians. Box and primitive tests come from the
+instrumented build (KernelConfig.count_tests), rendered once and untimed: its counters cost time
+of their own. Build times are measured in new processes, so this process's program cache does
+not answer them: cold with an empty PoCL kernel cache, warm with that cache filled (on other
+drivers, which keep their own caches, both are what a new process pays).
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import os
+import statistics
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+import pyopencl as cl
+
+from clray.device.context import describe, select_device
+from clray.device.launch import render_packed
+from clray.device.pack import PackedScene
+from clray.device.program import KernelConfig, build_program
+from clray.render import RenderSettings, pack_for
+from clray.scene.load import load_scene
+
+
+def _variant(packed: PackedScene, *, depth0: bool, lights: bool) -> PackedScene:
+    config = packed.config
+    params = packed.params.copy()
+    if depth0:
+        config = dataclasses.replace(config, max_depth=0)
+        params[0]["max_depth"] = 0
+    if not lights:
+        params[0]["n_lights"] = 0
+    return dataclasses.replace(packed, config=config, params=params)
+
+
+def time_split(packed: PackedScene, device: cl.Device, repeat: int) -> dict:
+    """Kernel seconds and Mrays/s per kind of ray, from the three variants above."""
+    variants = {"primary": _variant(packed, depth0=True, lights=False),
+                "primary_shadow": _variant(packed, depth0=True, lights=True),
+                "full": packed}
+    # Interleave the variants' runs so load changes spread over all three.
+    runs: dict[str, list[float]] = {name: [] for name in variants}
+    rays: dict[str, dict] = {}
+    for variant in variants.values():
+        render_packed(variant, device)  # build and warm-up
+    for _ in range(repeat):
+        for name, variant in variants.items():
+            _, stats = render_packed(variant, device)
+            runs[name].append(stats["kernel_s"])
+            rays[name] = stats["rays"]
+    t = {name: statistics.median(r) for name, r in runs.items()}
+    primary_shadow_rays = rays["primary_shadow"]["shadow"]
+    later_rays = rays["full"]["total"] - rays["primary_shadow"]["total"]
+    parts = {
+        "primary": (t["primary"], rays["full"]["primary"]),
+        "shadow_of_primary": (t["primary_shadow"] - t["primary"], primary_shadow_rays),
+        "secondary_and_their_shadow": (t["full"] - t["primary_shadow"], later_rays),
+    }
+    return {
+        "variant_kernel_s": t,
+        "parts": {
+            name: {"kernel_s": s, "rays": n,
+                   "mrays_per_s": n / s * 1e-6 if s > 0 and n > 0 else None}
+            for name, (s, n) in parts.items()
+        },
+    }
+
+
+def tests_per_ray(packed: PackedScene, device: cl.Device) -> dict:
+    """Box and primitive tests per closest-hit ray (primary and secondary) and per shadow ray."""
+    counted = dataclasses.replace(packed, config=dataclasses.replace(packed.config,
+                                                                     count_tests=True))
+    _, stats = render_packed(counted, device)
+    tests, rays = stats["tests"], stats["rays"]
+    closest = rays["primary"] + rays["secondary"]
+    shadow = rays["shadow"]
+
+    def per(n: int, d: int) -> float | None:
+        return n / d if d else None
+
+    return {
+        "closest_boxes_per_ray": per(tests["closest_boxes"], closest),
+        "closest_prims_per_ray": per(tests["closest_prims"], closest),
+        "shadow_boxes_per_ray": per(tests["shadow_boxes"], shadow),
+        "shadow_prims_per_ray": per(tests["shadow_prims"], shadow),
+        "totals": tests,
+    }
+
+
+def build_seconds(config: KernelConfig, device_spec: str | None,
+                  pocl_cache: Path | None = None) -> float:
+    """Seconds a new process takes to build the render kernel of `config` (with PoCL's kernel
+    cache at `pocl_cache` where given, else where this process's environment puts it)."""
+    env = dict(os.environ)
+    if pocl_cache is not None:
+        env["POCL_CACHE_DIR"] = str(pocl_cache)
+    cmd = [sys.executable, "-m", "clray.profile", "--build-only",
+           json.dumps(dataclasses.asdict(config))]
+    if device_spec:
+        cmd += ["--device", device_spec]
+    out = subprocess.run(cmd, check=True, capture_output=True, text=True, env=env).stdout
+    return float(json.loads(out.splitlines()[-1])["build_s"])
+
+
+def _build_only(config_json: str, device_spec: str | None) -> None:
+    fields = json.loads(config_json)
+    fields["build_options"] = tuple(fields["build_options"])
+    _, seconds = build_program(select_device(device_spec), KernelConfig(**fields))
+    print(json.dumps({"build_s": seconds}))
+
+
+def profile_scene(path: Path, settings: RenderSettings, repeat: int = 3) -> dict:
+    """The whole profile of the scene at `path` rendered with `settings` on its device."""
+    device = select_device(settings.device)
+    packed = pack_for(load_scene(path), settings, device)
+    with tempfile.TemporaryDirectory(prefix="clray-profile-") as pocl_cache:
+        cold = build_seconds(packed.config, settings.device, Path(pocl_cache))
+        warm = build_seconds(packed.config, settings.device, Path(pocl_cache))
+    split = time_split(packed, device, repeat)
+    _, stats = render_packed(packed, device)
+    width, height = int(packed.params[0]["width"]), int(packed.params[0]["height"])
+    return {
+        "scene": str(path),
+        "device": describe(device),
+        "width": width,
+        "height": height,
+        "spp": int(packed.params[0]["spp"]),
+        "tuning": packed.tuning.label(),
+        "repeat": repeat,
+        "rays": stats["rays"],
+        "kernel_s": split["variant_kernel_s"]["full"],
+        "mrays_per_s": stats["rays"]["total"] / split["variant_kernel_s"]["full"] * 1e-6,
+        "time_split": split,
+        "tests_per_ray": tests_per_ray(packed, device),
+        "build_cold_s": cold,
+        "build_warm_s": warm,
+        "device_bytes": packed.device_bytes(),
+        "device_bytes_total": sum(packed.device_bytes().values()),
+    }
+
+
+def main(argv: list[str] | None = None) -> None:
+    # `python -m clray.profile --build-only CONFIG`: build_seconds' new process.
+    parser = argparse.ArgumentParser(prog="python -m clray.profile")
+    parser.add_argument("--build-only", required=True)
+    parser.add_argument("--device")
+    args = parser.parse_args(argv)
+    _build_only(args.build_only, args.device)
+
+
+if __name__ == "__main__":
+    main()

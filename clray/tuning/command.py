@@ -1,0 +1,115 @@
+"""`clray tune SCENE...`: the tuner over the scenes within the budget, the winner confirmed
+against the default in interleaved renders and stored as the device's tuning file, and the
+results, report and plot written to the output folder."""
+
+from __future__ import annotations
+
+import math
+import sys
+import time
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any
+
+from clray.device.context import describe, select_device
+from clray.errors import ClrayError
+from clray.scene.load import load_scene
+from clray.tuning import report
+from clray.tuning.knobs import DEFAULT_TUNING, Tuning
+from clray.tuning.store import save_tuning
+from clray.tuning.tuner import PIXEL_TOLERANCE, Trial, Tuner, best_configuration, confirm
+
+
+class _Progress:
+    """A tqdm bar over the budget's seconds, with the best verified time so far."""
+
+    def __init__(self, budget_s: float, show: bool) -> None:
+        self.start = time.monotonic()
+        self.budget_s = budget_s
+        self.best: dict[str, float] = {}
+        self.bar: Any = None
+        if show:
+            from tqdm import tqdm
+
+            self.bar = tqdm(total=round(budget_s), desc="clray: tuning", unit="s",
+                            file=sys.stderr, leave=False, dynamic_ncols=True)
+
+    def __call__(self, scene: str, trial: Trial) -> None:
+        if trial.verified and trial.time_ms < self.best.get(scene, float("inf")):
+            self.best[scene] = trial.time_ms
+        if self.bar is not None:
+            elapsed = min(round(time.monotonic() - self.start), self.bar.total)
+            self.bar.update(elapsed - self.bar.n)
+            self.bar.set_postfix_str(", ".join(f"{s} best {ms:.3g} ms"
+                                               for s, ms in self.best.items()))
+
+    def close(self) -> None:
+        if self.bar is not None:
+            self.bar.close()
+
+
+def run_tune(paths: Sequence[Path], out: Path, *, device: str | None = None,
+             strategy: str = "brute_force", budget_s: float = 120.0,
+             allow_error: float | None = None, size: tuple[int | None, int | None] = (None, None),
+             save: bool = True, show_progress: bool = False,
+             say: Callable[[str], None] = lambda _: None, **tuner_options: Any) -> dict:
+    """Tune, confirm, store and report; returns the results' header with the winner."""
+    if out.exists() and not out.is_dir():
+        raise ClrayError(f"--out {out} exists and is not a directory")
+    cl_device = select_device(device)
+    for path in paths:  # a bad scene is one line before anything is written
+        load_scene(path)
+    out.mkdir(parents=True, exist_ok=True)
+    progress = _Progress(budget_s, show_progress)
+    tuner = Tuner(cl_device, out, strategy=strategy, budget_s=budget_s,
+                  allow_error=allow_error, size=size, progress=progress, **tuner_options)
+    try:
+        trials = tuner.tune(paths)
+    finally:
+        progress.close()
+    scenes = [p.stem for p in paths]
+    best = best_configuration(trials, scenes)
+    header = {"device": describe(cl_device), "strategy": strategy, "budget_s": budget_s,
+              "iterations": tuner.iterations, "scenes": [str(p) for p in paths],
+              "tolerance": (f"at most max(2, 0.2 % of the pixels) may differ by over "
+                            f"{PIXEL_TOLERANCE if allow_error is None else allow_error:.3g}, "
+                            "and no pixel may turn non-finite"),
+              "best": None, "tuning_file": None}
+    confirmed = []
+    if best is not None:
+        per_scene = best[1]
+        winner = next(iter(per_scene.values()))
+        header["best"] = {"label": report.label(winner), "tuning": winner.tuning.values(),
+                          "extra": winner.extra,
+                          "time_ms": {s: t.time_ms for s, t in per_scene.items()}}
+        runs = {run.name: run for run in tuner.runs}
+        confirmed = [confirm(runs[s], winner.tuning, cl_device) for s in scenes]
+        header["confirmed"] = confirmed
+        # Kernel Tuner times one launch over the whole image; renders launch in bands. Where
+        # the interleaved renders do not confirm the gain, the defaults are what is stored.
+        gain = math.prod(c["speedup"] for c in confirmed) ** (1 / len(confirmed))
+        stored = winner.tuning if gain >= 1 else DEFAULT_TUNING
+        header["stored"] = stored.values()
+        if stored is DEFAULT_TUNING:
+            say(f"best in Kernel Tuner's runs: {header['best']['label']}, but slower than the "
+                f"default in interleaved renders ({gain:.3f}x): storing the defaults")
+        # A winner that needs a switch outside the knob table (a test's) is not stored.
+        if save and not any(winner.extra.values()):
+            header["tuning_file"] = str(save_tuning(cl_device, stored, {
+                "scenes": header["scenes"], "strategy": strategy, "budget_s": budget_s,
+                "best": header["best"], "confirmed": confirmed}))
+    report.write_results(out, header, trials)
+    plotted = report.plot(out, trials, best[0] if best else None)
+    report.write_report(out, header, trials, best[0] if best else None, confirmed, plotted)
+    rejected = sum(not t.verified for t in trials)
+    say(f"tried {len(trials)} configurations on {describe(cl_device)}, {rejected} rejected")
+    for c in confirmed:
+        say(f"{c['scene']}: default {c['default_kernel_s'] * 1e3:.3g} ms, tuned "
+            f"{c['tuned_kernel_s'] * 1e3:.3g} ms ({c['speedup']:.3f}x, interleaved renders)")
+    if header["best"] is not None:
+        stored = Tuning(**header["stored"]).label()
+        say(f"best: {header['best']['label']}"
+            + (f"; stored {stored} in {header['tuning_file']}" if header["tuning_file"] else ""))
+    else:
+        say("no configuration was verified on every scene: nothing stored")
+    return header

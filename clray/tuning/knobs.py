@@ -1,0 +1,167 @@
+"""Every performance knob of the renderer, in one table: where it acts, its default, its legal
+values, the values `clray tune` tries, and the restrictions between knobs (docs/tuning.md).
+
+A knob changes how fast an image renders, never which image: every legal configuration renders
+the default's image within the scene's float tolerance (clray.tuning.verify checks it for every
+configuration `clray tune` tries). This module imports nothing of clray's, so the modules whose
+constants it replaces (clray.render, clray.accel.bvh, clray.accel.wide) can read it.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, fields
+from typing import Literal
+
+# Where a knob acts. host: how the packed scene is built (a new BVH, new buffers); kernel: a -D
+# switch of the render kernel's build; launch: how the host launches the built kernel.
+Acts = Literal["host", "host+kernel", "kernel", "launch"]
+
+
+@dataclass(frozen=True)
+class Knob:
+    name: str
+    acts: Acts
+    default: object
+    legal: Callable[[object], bool]
+    legal_text: str  # `legal` in words, for docs and errors
+    tried: tuple  # the values `clray tune` tries, the default among them
+    why: str  # what it trades
+
+
+def _int_in(low: int, high: int) -> Callable[[object], bool]:
+    return lambda v: isinstance(v, int) and not isinstance(v, bool) and low <= v <= high
+
+
+def _power_of_two_upto(high: int) -> Callable[[object], bool]:
+    return lambda v: _int_in(1, high)(v) and v & (v - 1) == 0
+
+
+def _number_in(low: float, high: float) -> Callable[[object], bool]:
+    return lambda v: (isinstance(v, int | float) and not isinstance(v, bool)
+                      and low < v <= high)
+
+
+# Largest count in one of a leaf's sections (clray.accel.wide.LEAF_FIELD_MASK): the bound of
+# largest_leaf.
+_LEAF_SECTION_MAX = 255
+
+KNOB_TABLE: tuple[Knob, ...] = (
+    Knob("work_group_width", "launch", 64, _power_of_two_upto(1024),
+         "a power of two, 1 to 1024 (the launch clamps it to the kernel's work-group limit)",
+         (16, 32, 64, 128),
+         "work-items per work-group, one row segment. PoCL left to itself puts up to 4096 in "
+         "a group and gives their private memory one thread's stack, which a deep ray stack "
+         "overflows; on PoCL 64 costs nothing against its own choice"),
+    Knob("bvh_width", "host+kernel", None, lambda v: v is None or v in (4, 8),
+         "4, 8, or None: 8 where the device prefers vectors of 8 or more of the arithmetic's "
+         "type (float on AVX CPUs), else 4", (None, 4, 8),
+         "children per BVH node (the -D BVH_WIDTH of the node's vector slab test): wider "
+         "nodes mean fewer visits, each testing more boxes"),
+    Knob("traversal_cost", "host", 1.5, _number_in(0.0, 16.0), "a number over 0, at most 16",
+         (1.0, 1.5, 2.0),
+         "the SAH's cost of a node visit against one packet test: higher makes shallower "
+         "trees with bigger leaves (1.5: 65 B per mesh triangle and both benchmark kernels a "
+         "few per cent faster than 1.0; from 1.875 the 64 spheres go into four leaves of 16 "
+         "and take 9 % longer)"),
+    Knob("max_leaf_size", "host", 4, _int_in(1, 64), "an integer, 1 to 64",
+         (2, 4, 8),
+         "primitives below which a BVH node is always a leaf, whatever the SAH says"),
+    Knob("largest_leaf", "host", 16, _int_in(1, _LEAF_SECTION_MAX),
+         f"an integer, 1 to {_LEAF_SECTION_MAX}, at least max_leaf_size", (8, 16, 32),
+         "the largest leaf the SAH may choose; bigger nodes are split regardless of cost, so "
+         "duplicate or coincident primitives still make bounded leaves"),
+    Knob("fold_packets", "host", 4, _int_in(0, 64), "an integer, 0 to 64 (0: no folding)",
+         (0, 2, 4, 8),
+         "a wide node whose children are all leaves, and which one leaf of at most this many "
+         "packet tests would cover, is folded into that leaf: choosing among a few packets is "
+         "not worth a node visit"),
+    Knob("first_launch_pixel_samples", "launch", 1 << 16, _int_in(1, 1 << 30),
+         "an integer, 1 to 2^30", (1 << 16,),
+         "pixel-samples of a render's first launch (band of rows), before its rate is known"),
+    Knob("max_launch_pixel_samples", "launch", 1 << 24, _int_in(1, 1 << 30),
+         "an integer, 1 to 2^30, at least first_launch_pixel_samples", (1 << 24,),
+         "pixel-samples of one launch at most"),
+    Knob("launch_seconds", "launch", 0.25, _number_in(0.0, 10.0),
+         "a number of seconds over 0, at most 10", (0.25,),
+         "device time each later launch aims at: progress advances several times a second "
+         "and no launch nears a GPU watchdog"),
+    Knob("launch_growth", "launch", 4, _int_in(1, 1024), "an integer, 1 to 1024", (4,),
+         "a launch covers at most this many times the previous one's rows (one fast band of "
+         "sky says little about the rows below it)"),
+)
+KNOBS: dict[str, Knob] = {knob.name: knob for knob in KNOB_TABLE}
+
+# The knobs that change the packed scene (a new BVH, new buffers): `clray tune` runs Kernel
+# Tuner once for each combination of their values, with the others as Kernel Tuner's
+# tunable parameters.
+HOST_KNOBS = tuple(k.name for k in KNOB_TABLE if k.acts.startswith("host"))
+
+
+def restriction_problems(values: dict[str, object]) -> list[str]:
+    """What is wrong between knobs of one configuration (each already legal on its own)."""
+    problems = []
+    if values["largest_leaf"] < values["max_leaf_size"]:
+        problems.append(f"largest_leaf {values['largest_leaf']} is below max_leaf_size "
+                        f"{values['max_leaf_size']}")
+    if values["max_launch_pixel_samples"] < values["first_launch_pixel_samples"]:
+        problems.append(f"max_launch_pixel_samples {values['max_launch_pixel_samples']} is "
+                        f"below first_launch_pixel_samples "
+                        f"{values['first_launch_pixel_samples']}")
+    return problems
+
+
+class TuningError(ValueError):
+    """A knob value that is not legal, or knobs that break a restriction."""
+
+
+@dataclass(frozen=True)
+class Tuning:
+    """One value per knob of KNOB_TABLE; a field left out takes the table's default."""
+
+    work_group_width: int = KNOBS["work_group_width"].default
+    bvh_width: int | None = KNOBS["bvh_width"].default
+    traversal_cost: float = KNOBS["traversal_cost"].default
+    max_leaf_size: int = KNOBS["max_leaf_size"].default
+    largest_leaf: int = KNOBS["largest_leaf"].default
+    fold_packets: int = KNOBS["fold_packets"].default
+    first_launch_pixel_samples: int = KNOBS["first_launch_pixel_samples"].default
+    max_launch_pixel_samples: int = KNOBS["max_launch_pixel_samples"].default
+    launch_seconds: float = KNOBS["launch_seconds"].default
+    launch_growth: int = KNOBS["launch_growth"].default
+
+    def __post_init__(self) -> None:
+        for name, value in self.values().items():
+            knob = KNOBS[name]
+            if not knob.legal(value):
+                raise TuningError(f"{name}: expected {knob.legal_text}, got {value!r}")
+        problems = restriction_problems(self.values())
+        if problems:
+            raise TuningError("; ".join(problems))
+
+    def values(self) -> dict[str, object]:
+        return asdict(self)
+
+    def changed(self) -> dict[str, object]:
+        """The knobs that differ from the table's defaults."""
+        return {name: value for name, value in self.values().items()
+                if value != KNOBS[name].default}
+
+    def host(self) -> dict[str, object]:
+        return {name: getattr(self, name) for name in HOST_KNOBS}
+
+    def label(self) -> str:
+        """The configuration in one line: `default`, or the changed knobs."""
+        changed = self.changed()
+        return ", ".join(f"{k}={v}" for k, v in changed.items()) if changed else "default"
+
+    @classmethod
+    def from_values(cls, values: dict[str, object]) -> Tuning:
+        """From a mapping of knob names (a tuning file's), refusing names no knob has."""
+        unknown = set(values) - {f.name for f in fields(cls)}
+        if unknown:
+            raise TuningError(f"unknown knob(s): {', '.join(sorted(unknown))}")
+        return cls(**values)
+
+
+DEFAULT_TUNING = Tuning()

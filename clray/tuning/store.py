@@ -1,0 +1,112 @@
+"""Per-device tuning files: where `clray tune` leaves its winner, and where renders pick it up.
+
+One JSON file per device under the user's cache directory ($XDG_CACHE_HOME/clray/tuning, else
+~/.cache/clray/tuning), named by the device's platform and name, and holding the driver version
+and the clray version it was tuned with: a file written under another driver or clray is stale,
+and like a file that does not parse or names an illegal knob it is ignored with a one-line
+warning. The knobs change the speed, not the image, so a stale file is never an error.
+"""
+
+from __future__ import annotations
+
+import importlib.metadata
+import json
+import os
+import re
+import warnings
+from pathlib import Path
+
+import pyopencl as cl
+
+from clray.tuning.knobs import DEFAULT_TUNING, Tuning, TuningError
+
+FORMAT = 1
+
+
+def cache_dir() -> Path:
+    """clray's folder in the user's cache directory (XDG base directories)."""
+    base = os.environ.get("XDG_CACHE_HOME") or ""
+    root = Path(base) if os.path.isabs(base) else Path.home() / ".cache"
+    return root / "clray"
+
+
+def _clray_version() -> str:
+    # As clray.__version__ reads it (importing clray here would make an import loop).
+    try:
+        return importlib.metadata.version("clray")
+    except importlib.metadata.PackageNotFoundError:
+        return "0+unknown"
+
+
+def _slug(text: str) -> str:
+    return re.sub(r"[^A-Za-z0-9.]+", "-", text.strip()).strip("-")[:80] or "device"
+
+
+def device_key(device: cl.Device) -> dict[str, str]:
+    """What a tuning file is valid for: the device, its driver and the clray version."""
+    return {"platform": device.platform.name.strip(), "device": device.name.strip(),
+            "driver_version": device.driver_version.strip(), "clray_version": _clray_version()}
+
+
+def tuning_path(device: cl.Device) -> Path:
+    key = device_key(device)
+    return cache_dir() / "tuning" / f"{_slug(key['platform'])}--{_slug(key['device'])}.json"
+
+
+def _problem(record: object, key: dict[str, str]) -> str | None:
+    """Why a parsed tuning file does not apply to the device of `key`, or None."""
+    if not isinstance(record, dict) or record.get("format") != FORMAT:
+        return f"expected a clray tuning file of format {FORMAT}"
+    for name in ("device", "platform", "driver_version", "clray_version"):
+        if record.get(name) != key[name]:
+            return (f"stale: tuned for {name} {record.get(name)!r}, this is {key[name]!r}; "
+                    "run clray tune again")
+    if not isinstance(record.get("tuning"), dict):
+        return "expected a 'tuning' table of knob values"
+    return None
+
+
+def load_tuning(device: cl.Device) -> tuple[Tuning, Path] | None:
+    """The device's stored tuning and its file, or None where there is none that applies (with
+    a warning naming the file where one exists but is invalid or stale)."""
+    path = tuning_path(device)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        return None
+    except (OSError, UnicodeDecodeError) as err:
+        warnings.warn(f"ignoring tuning file {path}: {err}", stacklevel=2)
+        return None
+    try:
+        record = json.loads(text)
+        problem = _problem(record, device_key(device))
+        if problem is None:
+            return Tuning.from_values(record["tuning"]), path
+    except json.JSONDecodeError as err:
+        problem = f"not JSON ({err})"
+    except (TuningError, TypeError) as err:
+        problem = str(err)
+    warnings.warn(f"ignoring tuning file {path}: {problem}", stacklevel=2)
+    return None
+
+
+def chosen_tuning(device: cl.Device, stored: bool = True) -> tuple[Tuning, str]:
+    """The knobs a render on `device` uses and where they come from: the device's tuning file
+    (when `stored`), else the table's defaults."""
+    found = load_tuning(device) if stored else None
+    if found is None:
+        return DEFAULT_TUNING, "default"
+    return found[0], f"tuning file {found[1]}"
+
+
+def save_tuning(device: cl.Device, tuning: Tuning, summary: dict) -> Path:
+    """Store `tuning` as the device's winner (whole or not at all), with `summary` (what was
+    tuned, and the times) beside it for people reading the file."""
+    from clray.image_io import write_bytes_atomically
+
+    path = tuning_path(device)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    record = {"format": FORMAT, **device_key(device), "tuning": tuning.values(),
+              "summary": summary}
+    write_bytes_atomically(path, (json.dumps(record, indent=2) + "\n").encode("utf-8"))
+    return path

@@ -1,0 +1,347 @@
+"""`clray tune`: search the knobs of clray.tuning.knobs for the fastest configuration on one
+device, with Kernel Tuner (docs/tuning.md: why one Kernel Tuner run per host configuration).
+
+For each scene, the default configuration renders the reference image through clray's own
+launches. Then, configuration of the host knobs by configuration (a new BVH, new buffers), the
+packed scene's buffers become the arguments of one Kernel Tuner run whose tunable parameters are
+the kernel and launch knobs. Kernel Tuner compiles each configuration, launches it over the
+whole image, hands the image to ImageCheck (which compares it with the reference within the
+scene's tolerance and records the verdict beside the times) and times it by OpenCL profiling
+events over several runs, compile time apart. Its cache file, one per scene and host
+configuration, makes a second run continue where the first stopped.
+"""
+
+from __future__ import annotations
+
+import itertools
+import json
+import random
+import re
+import statistics
+import time
+import warnings
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pyopencl as cl
+
+from clray import metrics
+from clray.device.launch import render_packed
+from clray.device.pack import PackedScene
+from clray.device.program import bvh_width_for, kernel_source
+from clray.errors import ClrayError, DeviceError
+from clray.render import RenderSettings, pack_for
+from clray.scene.load import load_scene
+from clray.study import fail_allowance
+from clray.tuning.knobs import DEFAULT_TUNING, HOST_KNOBS, KNOB_TABLE, KNOBS, Tuning, TuningError
+
+INSTALL_HINT = "pip install 'clray[tune]'"
+# Kernel Tuner's name for the work-group's x size: the work_group_width knob.
+BLOCK_SIZE_X = "block_size_x"
+# Pixels off by more than this from the default's image count against a configuration, unless
+# --allow-error gives another bound: the study's float-vs-double threshold (clray.study).
+PIXEL_TOLERANCE = 2 / 255
+ITERATIONS = 7  # timed launches per configuration, Kernel Tuner's default
+# A Kernel Tuner run needs a few seconds of budget to start (a compile, a reference launch).
+MIN_RUN_BUDGET_S = 2.0
+CONFIRM_ROUNDS = 5
+
+
+def import_kernel_tuner() -> Any:
+    """Kernel Tuner's `interface` module, or a one-line ClrayError saying how to install it."""
+    try:
+        from kernel_tuner import interface
+    except ImportError:
+        raise ClrayError(f"clray tune needs Kernel Tuner, which is not installed: "
+                         f"{INSTALL_HINT}") from None
+    return interface
+
+
+def _observer_base() -> type:
+    from kernel_tuner.observers.observer import OutputObserver
+
+    return OutputObserver
+
+
+@dataclass
+class Trial:
+    """One configuration tried on one scene."""
+
+    scene: str
+    tuning: Tuning
+    time_ms: float | None  # median kernel time of Kernel Tuner's timed launches
+    times_ms: list[float]
+    compile_ms: float
+    verified: bool
+    pixels_off: int  # pixels off the default's image by more than the tolerance
+    problem: str | None = None  # why it was rejected or failed
+    extra: dict = field(default_factory=dict)  # tunable parameters outside the knob table
+
+    def key(self) -> str:
+        return json.dumps({**self.tuning.values(), **self.extra}, sort_keys=True)
+
+
+@dataclass(frozen=True)
+class Tolerance:
+    """A configuration passes when it makes no more non-finite pixels than the default and at
+    most `allowance` pixels differ from the default's by more than `threshold`."""
+
+    threshold: float
+    allowance: int
+
+    def check(self, image: np.ndarray, reference: np.ndarray) -> tuple[bool, int, str | None]:
+        off = metrics.count_over(image, reference, self.threshold)
+        extra_nonfinite = metrics.nonfinite_count(image) - metrics.nonfinite_count(reference)
+        if extra_nonfinite > 0:
+            return False, off, f"{extra_nonfinite} more non-finite pixels than the default"
+        if off > self.allowance:
+            return False, off, (f"{off} pixels differ from the default's image by over "
+                                f"{self.threshold:.3g} (at most {self.allowance} may)")
+        return True, off, None
+
+
+def host_configurations(space: dict[str, Sequence], seed: int = 0) -> list[dict[str, Any]]:
+    """Every combination of the host knobs' values in `space`, in the order they are tried:
+    the default first, then each single-knob change from it, then the rest in a seeded random
+    order, so a short budget still covers each knob once. Illegal combinations are left out."""
+    names = list(HOST_KNOBS)
+    default = {n: KNOBS[n].default for n in names}
+    combos = [dict(zip(names, values, strict=True))
+              for values in itertools.product(*(space[n] for n in names))]
+    legal = []
+    for combo in combos:
+        try:
+            Tuning(**combo)
+        except TuningError:
+            continue
+        legal.append(combo)
+
+    def changed(c: dict) -> int:
+        return sum(c[n] != default[n] for n in names)
+
+    first = [c for c in legal if changed(c) <= 1]
+    rest = [c for c in legal if changed(c) > 1]
+    random.Random(seed).shuffle(rest)
+    return sorted(first, key=changed) + rest
+
+
+def default_space() -> dict[str, tuple]:
+    return {knob.name: knob.tried for knob in KNOB_TABLE}
+
+
+def _arguments(packed: PackedScene) -> tuple[list, int]:
+    """The render kernel's arguments over the whole image in one launch (the scene's buffers in
+    layout.SCENE_BUFFERS' order, as clray.device.launch passes them), and the index of the image
+    buffer."""
+    width, height = int(packed.params[0]["width"]), int(packed.params[0]["height"])
+    # OpenCL has no zero-sized buffers: an empty array becomes one zeroed element.
+    args: list = [np.ascontiguousarray(a) if a.size else np.zeros(1, dtype=a.dtype)
+                  for a in packed.buffers().values()]
+    image_index = len(args)
+    args += [np.zeros((height, width, 4), np.float32), np.zeros((height * width, 4), np.int32),
+             np.zeros(4, np.int32), np.int32(0)]
+    return args, image_index
+
+
+def _platform_indices(device: cl.Device) -> tuple[int, int]:
+    for p, platform in enumerate(cl.get_platforms()):
+        for d, candidate in enumerate(platform.get_devices()):
+            if candidate.int_ptr == device.int_ptr:
+                return p, d
+    raise DeviceError(f"device {device.name.strip()!r} not found among the platforms")
+
+
+def _slug(text: str) -> str:
+    return re.sub(r"[^A-Za-z0-9.=]+", "_", text).strip("_")[:120] or "default"
+
+
+@dataclass
+class SceneRun:
+    name: str
+    path: Path
+    settings: RenderSettings
+    reference: np.ndarray
+    default_packed: PackedScene
+
+
+class Tuner:
+    """One `clray tune` run on one device: trials accumulate over scenes and host
+    configurations until the budget is spent."""
+
+    def __init__(self, device: cl.Device, out: Path, *, strategy: str = "brute_force",
+                 budget_s: float = 120.0, allow_error: float | None = None,
+                 space: dict[str, Sequence] | None = None, iterations: int = ITERATIONS,
+                 size: tuple[int | None, int | None] = (None, None),
+                 search_every_host: bool = False,
+                 source: str | None = None, extra_params: dict[str, list] | None = None,
+                 progress: Callable[[str, Trial | None], None] | None = None) -> None:
+        self.kt = import_kernel_tuner()
+        self.device = device
+        self.out = out
+        self.strategy = strategy
+        self.budget_s = budget_s
+        self.allow_error = allow_error
+        self.space = {**default_space(), **(space or {})}
+        self.iterations = iterations
+        self.size = size
+        # False: the kernel and launch knobs are searched with the first (default) host
+        # configuration; later ones keep the best values found so far, so that each costs one
+        # build rather than one per kernel configuration and the budget reaches more of them.
+        self.search_every_host = search_every_host
+        # The kernel's source, unless a test hands in a changed one (with its extra_params).
+        self.source = source if source is not None else kernel_source()
+        self.extra_params = extra_params or {}
+        self.progress = progress or (lambda _msg, _trial: None)
+        self.trials: list[Trial] = []
+        self.runs: list[SceneRun] = []
+
+    def prepare(self, path: Path) -> SceneRun:
+        scene = load_scene(path)
+        settings = RenderSettings(width=self.size[0], height=self.size[1],
+                                  tuning=DEFAULT_TUNING)
+        packed = pack_for(scene, settings, self.device)
+        reference, _ = render_packed(packed, self.device)
+        return SceneRun(path.stem, path, settings, reference, packed)
+
+    def tolerance(self, reference: np.ndarray) -> Tolerance:
+        n = reference.shape[0] * reference.shape[1]
+        threshold = PIXEL_TOLERANCE if self.allow_error is None else self.allow_error
+        return Tolerance(threshold, fail_allowance(n))
+
+    def run_host(self, run: SceneRun, host: dict, time_limit: float,
+                 kernel_space: dict[str, list]) -> list[Trial]:
+        """One Kernel Tuner run: the scene packed with `host`'s knobs, the kernel and launch
+        knobs' values in `kernel_space` as tunable parameters."""
+        base = Tuning(**host)
+        packed = pack_for(load_scene(run.path), RenderSettings(
+            width=self.size[0], height=self.size[1], tuning=base), self.device)
+        args, image_index = _arguments(packed)
+        height, width = run.reference.shape[:2]
+        check = _image_check(image_index, run.reference, self.tolerance(run.reference))
+        tune_params = kernel_space
+        answer = [None] * len(args)
+        answer[image_index] = args[image_index]
+        cache = self.out / "cache" / _slug(self.device.name) / run.name / f"{_slug(base.label())}"
+        cache.parent.mkdir(parents=True, exist_ok=True)
+        platform, device = _platform_indices(self.device)
+        with warnings.catch_warnings():
+            # Kernel Tuner warns where a structured buffer meets a struct pointer: expected.
+            warnings.simplefilter("ignore")
+            results, _env = self.kt.tune_kernel(
+                "render", self.source, (width, height), args, tune_params,
+                answer=answer, observers=[check], compiler_options=packed.config.options(),
+                lang="OpenCL", platform=platform, device=device, iterations=self.iterations,
+                strategy=self.strategy,
+                # Brute force takes no options: it tries every kernel configuration.
+                strategy_options=(None if self.strategy == "brute_force"
+                                  else {"time_limit": time_limit}),
+                cache=str(cache), quiet=True, verbose=False)
+        trials = [self._trial(run.name, base, r) for r in results if r]
+        self.trials += trials
+        return trials
+
+    def _trial(self, scene: str, base: Tuning, result: dict) -> Trial:
+        extra = {k: result[k] for k in self.extra_params}
+        tuning = Tuning(**{**base.values(), "work_group_width": int(result[BLOCK_SIZE_X])})
+        time_ms = result.get("time")
+        if not isinstance(time_ms, int | float) or "__error__" in result:
+            problem = f"failed: {type(time_ms).__name__ if time_ms is not None else 'error'}"
+            return Trial(scene, tuning, None, [], float(result.get("compile_time", 0)), False,
+                         0, problem, extra)
+        verified = bool(result.get("verified", 0))
+        problem = None if verified else result.get("problem") or "image differs"
+        times = [float(t) for t in result.get("times", [])]
+        # Kernel Tuner's strategies follow the mean ("time"); clray ranks by the median of the
+        # same runs, which one launch slowed by the shared machine does not move.
+        return Trial(scene, tuning, statistics.median(times) if times else float(time_ms), times,
+                     float(result.get("compile_time", 0)), verified,
+                     int(result.get("pixels_off", 0)), problem, extra)
+
+    def tune(self, paths: Sequence[Path]) -> list[Trial]:
+        """Every scene, host configuration by host configuration, until the budget is spent
+        (each scene gets an equal share)."""
+        # bvh_width None means the device's own width: the same tree as that width given,
+        # tried once (as None, the default, where both are in the space).
+        auto = bvh_width_for(self.device)
+        hosts, seen = [], set()
+        for host in host_configurations(self.space):
+            resolved = json.dumps({**host, "bvh_width": host["bvh_width"] or auto})
+            if resolved not in seen:
+                seen.add(resolved)
+                hosts.append(host)
+        start = time.monotonic()
+        for i, path in enumerate(paths):
+            run = self.prepare(path)
+            self.runs.append(run)
+            deadline = start + self.budget_s * (i + 1) / len(paths)
+            kernel_space = {BLOCK_SIZE_X: list(self.space["work_group_width"]),
+                            **self.extra_params}
+            for host in hosts:
+                left = deadline - time.monotonic()
+                if left < MIN_RUN_BUDGET_S:
+                    break
+                trials = self.run_host(run, host, left, kernel_space)
+                for trial in trials:
+                    self.progress(run.name, trial)
+                best = min((t for t in trials if t.verified), key=lambda t: t.time_ms,
+                           default=None)
+                if best is not None and not self.search_every_host:
+                    kernel_space = {BLOCK_SIZE_X: [best.tuning.work_group_width],
+                                    **{k: [v] for k, v in best.extra.items()}}
+        return self.trials
+
+
+def _image_check(index: int, reference: np.ndarray, tolerance: Tolerance) -> Any:
+    """A Kernel Tuner OutputObserver: the configuration's image against the default's, the
+    verdict recorded with its times (and so in the cache file)."""
+
+    class ImageCheck(_observer_base()):
+        def __init__(self) -> None:
+            self.result: dict = {}
+
+        def process_output(self, answer: list, output: list) -> None:
+            image = output[index].reshape(reference.shape[0], reference.shape[1], 4)[..., :3]
+            ok, off, problem = tolerance.check(image, reference)
+            self.result = {"verified": int(ok), "pixels_off": off, "problem": problem or ""}
+
+        def get_results(self) -> dict:
+            return self.result
+
+    return ImageCheck()
+
+
+def best_configuration(trials: Sequence[Trial], scenes: Sequence[str]
+                       ) -> tuple[str, dict[str, Trial]] | None:
+    """The configuration verified on every scene with the least total time, as (key, its trial
+    per scene); None when none was."""
+    by_key: dict[str, dict[str, Trial]] = {}
+    for trial in trials:
+        by_key.setdefault(trial.key(), {})[trial.scene] = trial
+    whole = {k: v for k, v in by_key.items()
+             if set(v) == set(scenes) and all(t.verified for t in v.values())}
+    if not whole:
+        return None
+    key = min(whole, key=lambda k: sum(t.time_ms for t in whole[k].values()))
+    return key, whole[key]
+
+
+def confirm(run: SceneRun, tuning: Tuning, device: cl.Device,
+            rounds: int = CONFIRM_ROUNDS) -> dict:
+    """The default and `tuning` rendered in turns through clray's own launches (bands and all),
+    after a warm-up of each: median kernel times, so the gain is measured as renders see it."""
+    scene = load_scene(run.path)
+    tuned = pack_for(scene, RenderSettings(width=run.settings.width,
+                                           height=run.settings.height, tuning=tuning), device)
+    times: dict[str, list[float]] = {"default": [], "tuned": []}
+    for packed in (run.default_packed, tuned):
+        render_packed(packed, device)
+    for _ in range(rounds):
+        for name, packed in (("default", run.default_packed), ("tuned", tuned)):
+            times[name].append(render_packed(packed, device)[1]["kernel_s"])
+    default_s, tuned_s = (statistics.median(times[n]) for n in ("default", "tuned"))
+    return {"scene": run.name, "rounds": rounds, "default_kernel_s": default_s,
+            "tuned_kernel_s": tuned_s, "speedup": default_s / tuned_s if tuned_s else None,
+            "default_runs_s": times["default"], "tuned_runs_s": times["tuned"]}

@@ -1,0 +1,54 @@
+"""`clray profile`: its figures add up, and agree with a render of the same scene."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from clray import cli
+from clray.render import RenderSettings, render
+
+SPHERES = Path(__file__).resolve().parent.parent / "scenes" / "spheres.toml"
+
+
+def test_profile_figures_add_up_and_match_the_render(cl_device, capsys) -> None:
+    code = cli.main(["profile", str(SPHERES), "-W", "40", "-H", "24", "--repeat", "1",
+                     "--json"])
+    out = capsys.readouterr().out
+    assert code == 0
+    prof = json.loads(out)
+    rendered = render(SPHERES, RenderSettings(width=40, height=24))
+    assert prof["rays"] == rendered.stats["rays"]
+    rays = prof["rays"]
+    assert rays["primary"] == 40 * 24 * prof["spp"]
+    assert rays["total"] == rays["primary"] + rays["secondary"] + rays["shadow"]
+    parts = prof["time_split"]["parts"]
+    assert sum(p["rays"] for p in parts.values()) == rays["total"]
+    assert parts["primary"]["rays"] == rays["primary"]
+    split = prof["time_split"]["variant_kernel_s"]
+    assert prof["kernel_s"] == split["full"]
+    assert sum(p["kernel_s"] for p in parts.values()) == pytest.approx(split["full"])
+    tests = prof["tests_per_ray"]
+    closest = rays["primary"] + rays["secondary"]
+    assert tests["totals"]["closest_boxes"] == pytest.approx(
+        tests["closest_boxes_per_ray"] * closest)
+    assert tests["totals"]["shadow_prims"] == pytest.approx(
+        tests["shadow_prims_per_ray"] * rays["shadow"])
+    assert prof["device_bytes"] == rendered.stats["device_bytes"]
+    assert prof["device_bytes_total"] == sum(prof["device_bytes"].values())
+    assert prof["build_cold_s"] > 0 and prof["build_warm_s"] > 0
+    assert prof["tuning"] == "default"
+
+
+def test_profile_prints_a_summary(cl_device, capsys) -> None:
+    assert cli.main(["profile", str(SPHERES), "-W", "32", "-H", "18", "--repeat", "1"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[0].startswith(f"{SPHERES}: 32x18, 1 spp on ")
+    assert lines[1].startswith("rays: ") and "Mrays/s" in lines[1]
+    assert [line.split(":")[0].strip() for line in lines[2:5]] == [
+        "primary", "shadow_of_primary", "secondary_and_their_shadow"]
+    assert lines[5].startswith("tests per closest-hit ray: ")
+    assert lines[6].startswith("kernel build: ") and "cold" in lines[6]
+    assert lines[7].startswith("scene on device: ")

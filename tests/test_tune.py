@@ -1,0 +1,148 @@
+"""`clray tune` on a tiny scene: Kernel Tuner's brute force over two configurations, every image
+verified against the default's (a configuration that drops shadows is rejected, never chosen),
+the cache file resumed by a second run, and the stored winner used by `clray render` unless
+--no-tuning."""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+import pytest
+
+from clray import cli
+from clray.device.program import kernel_source
+from clray.tuning import KNOB_TABLE, Tuning
+from clray.tuning import tuner as tuner_module
+
+ROOT = Path(__file__).resolve().parent.parent
+SPHERES = ROOT / "scenes" / "spheres.toml"
+SIZE = (48, 27)
+# Host knobs at their defaults, two work-group widths: two configurations, the default one of them.
+TWO = {**{k.name: (k.default,) for k in KNOB_TABLE}, "work_group_width": (16, 64)}
+SHADOW_LINE = "        REAL3 filter = transmission(s, &shadow, tmax);\n"
+
+
+@pytest.fixture
+def kernel_tuner():
+    return pytest.importorskip("kernel_tuner", reason="Kernel Tuner is the 'tune' extra: "
+                                                      "pip install 'clray[tune]'")
+
+
+def tune(cl_device, out: Path, **options) -> list[tuner_module.Trial]:
+    options = {"space": TWO, "size": SIZE, "iterations": 3, "budget_s": 300, **options}
+    return tuner_module.Tuner(cl_device, out, **options).tune([SPHERES])
+
+
+def test_brute_force_tries_verifies_and_times_each_configuration_then_resumes(
+        kernel_tuner, cl_device, tmp_path) -> None:
+    trials = tune(cl_device, tmp_path)
+    assert sorted(t.tuning.work_group_width for t in trials) == [16, 64]
+    assert all(t.verified and t.pixels_off == 0 and t.problem is None for t in trials)
+    assert all(len(t.times_ms) == 3 and t.time_ms > 0 for t in trials)
+    assert any(t.tuning == Tuning() for t in trials)
+    best = tuner_module.best_configuration(trials, ["spheres"])
+    assert best is not None
+    fastest = min(trials, key=lambda t: t.time_ms)
+    assert best[1]["spheres"].tuning == fastest.tuning
+    cache = list((tmp_path / "cache").rglob("*.json"))
+    assert len(cache) == 1 and len(json.loads(cache[0].read_text())["cache"]) == 2
+    # A second run over the same folder takes both configurations from the cache: the same
+    # times, and no build (Kernel Tuner zeroes a cached entry's build time).
+    again = tune(cl_device, tmp_path)
+    assert sorted((t.tuning.work_group_width, t.time_ms) for t in again) == sorted(
+        (t.tuning.work_group_width, t.time_ms) for t in trials)
+    assert all(t.compile_ms == 0 for t in again)
+    assert all(t.compile_ms > 0 for t in trials)
+
+
+def test_a_configuration_that_drops_shadows_is_rejected_and_never_chosen(
+        kernel_tuner, cl_device, tmp_path) -> None:
+    source = kernel_source()
+    assert source.count(SHADOW_LINE) == 1
+    wrong = source.replace(SHADOW_LINE, "#if drop_shadows\n        REAL3 filter = (REAL3)(1);\n"
+                                         "#else\n" + SHADOW_LINE + "#endif\n")
+    trials = tune(cl_device, tmp_path, source=wrong, extra_params={"drop_shadows": [0, 1]},
+                  space={**TWO, "work_group_width": (64,)})
+    by_switch = {t.extra["drop_shadows"]: t for t in trials}
+    assert by_switch[0].verified
+    assert not by_switch[1].verified
+    assert by_switch[1].pixels_off > 2 and "differ from the default's image" in by_switch[1].problem
+    best = tuner_module.best_configuration(trials, ["spheres"])
+    assert best[1]["spheres"].extra == {"drop_shadows": 0}
+
+
+def test_tune_command_stores_the_winner_that_render_then_uses(
+        kernel_tuner, cl_device, tmp_path, monkeypatch, capsys) -> None:
+    monkeypatch.setattr(tuner_module, "default_space", lambda: TWO)
+    out = tmp_path / "tuned"
+    code = cli.main(["tune", str(SPHERES), "-W", "48", "-H", "27", "--budget", "300",
+                     "--out", str(out)])
+    err = capsys.readouterr().err
+    assert code == 0, err
+    assert "clray: tried 2 configurations" in err and "0 rejected" in err
+    assert "interleaved renders" in err
+    report = (out / "report.md").read_text()
+    assert "**default**" in report and "**best**" in report
+    results = json.loads((out / "results.json").read_text())
+    assert len(results["trials"]) == 2
+    # The best of Kernel Tuner's runs, or the defaults where interleaved renders did not
+    # confirm its gain.
+    stored = Tuning(**results["stored"])
+    assert stored in (Tuning(**results["best"]["tuning"]), Tuning())
+    assert results["tuning_file"]
+
+    def render_stats(*flags: str) -> dict:
+        stats = tmp_path / "stats.json"
+        assert cli.main(["render", str(SPHERES), "-W", "48", "-H", "27", "-q", "-o",
+                         str(tmp_path / "out.png"), "--stats-json", str(stats), *flags]) == 0
+        return json.loads(stats.read_text())["tuning"]
+
+    used = render_stats()
+    assert used["source"] == f"tuning file {results['tuning_file']}"
+    assert used["work_group_width"] == stored.work_group_width
+    assert render_stats("--no-tuning")["source"] == "default"
+    capsys.readouterr()
+    assert cli.main(["devices"]) == 0
+    assert f"tuned ({stored.label()})" in capsys.readouterr().out
+
+
+def test_tune_without_kernel_tuner_says_how_to_install(monkeypatch, capsys, tmp_path) -> None:
+    monkeypatch.setitem(sys.modules, "kernel_tuner", None)
+    code = cli.main(["tune", str(SPHERES), "--out", str(tmp_path / "t")])
+    err = capsys.readouterr().err
+    assert code == 1
+    assert err == ("clray: error: clray tune needs Kernel Tuner, which is not installed: "
+                   "pip install 'clray[tune]'\n")
+    assert not (tmp_path / "t").exists()
+
+
+def test_tune_refuses_an_unknown_strategy(kernel_tuner, capsys, tmp_path) -> None:
+    code = cli.main(["tune", str(SPHERES), "--strategy", "guesswork", "--out", str(tmp_path)])
+    err = capsys.readouterr().err
+    assert code == 2
+    assert err.startswith("clray: error: --strategy: expected one of ") and "brute_force" in err
+    assert err.endswith("got 'guesswork'\n")
+
+
+def test_tune_refuses_a_bad_scene_before_writing_anything(kernel_tuner, capsys, tmp_path,
+                                                          cl_device) -> None:
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[render]\nwidth = -3\n")
+    code = cli.main(["tune", str(bad), "--out", str(tmp_path / "t")])
+    err = capsys.readouterr().err
+    assert code == 3
+    assert err == "clray: error: bad.toml: camera: missing required key\n"
+    assert not (tmp_path / "t").exists()
+
+
+def test_later_host_configurations_keep_the_best_kernel_knobs(kernel_tuner, cl_device,
+                                                              tmp_path) -> None:
+    trials = tune(cl_device, tmp_path, space={**TWO, "traversal_cost": (1.5, 1.0)})
+    first = [t for t in trials if t.tuning.traversal_cost == 1.5]
+    later = [t for t in trials if t.tuning.traversal_cost == 1.0]
+    assert sorted(t.tuning.work_group_width for t in first) == [16, 64]
+    best = min(first, key=lambda t: t.time_ms)
+    assert [t.tuning.work_group_width for t in later] == [best.tuning.work_group_width]
+    assert all(t.verified for t in trials)

@@ -1,0 +1,239 @@
+"""The knob table (clray.tuning.knobs): every knob acts where the table says, the defaults are
+the table's, tuned renders give the default's image, and per-device tuning files are picked up,
+or ignored with a warning when invalid or stale (clray.tuning.store)."""
+
+from __future__ import annotations
+
+import dataclasses
+import importlib
+import json
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pyopencl as cl
+import pytest
+
+from clray import __version__, cli
+from clray.accel import bvh as bvh_module
+from clray.accel import wide as wide_module
+from clray.device.pack import pack_scene
+from clray.render import RenderSettings, render
+from clray.scene.load import load_scene
+from clray.study import compare
+from clray.tuning import DEFAULT_TUNING, KNOB_TABLE, KNOBS, Tuning, TuningError, store
+
+ROOT = Path(__file__).resolve().parent.parent
+SPHERES = ROOT / "scenes" / "spheres.toml"
+SMALL = {"width": 48, "height": 27}
+launch_module = importlib.import_module("clray.device.launch")
+
+
+@pytest.fixture(scope="module")
+def spheres():
+    return load_scene(SPHERES)
+
+
+@pytest.fixture(scope="module")
+def crowd(tmp_path_factory):
+    """300 small spheres at random: a BVH of many nodes, which every host knob reshapes."""
+    rng = np.random.default_rng(7)
+    centers = rng.uniform(-3, 3, (300, 3)).round(3)
+    radii = rng.uniform(0.05, 0.2, 300).round(3)
+    path = tmp_path_factory.mktemp("crowd") / "crowd.toml"
+    path.write_text(f"""
+[camera]
+position = [0, 0, 9]
+look_at = [0, 0, 0]
+[materials.a]
+color = [0.9, 0.3, 0.2]
+[[lights]]
+type = "point"
+position = [4, 6, 5]
+[[objects]]
+type = "spheres"
+centers = {centers.tolist()}
+radii = {radii.tolist()}
+materials = ["a"]
+material_index = {[0] * 300}
+""")
+    return load_scene(path)
+
+
+def packed_with(scene, **knobs):
+    r = scene.render
+    tuning = Tuning(**knobs)
+    return pack_scene(scene, width=48, height=27, spp=r.spp, max_depth=r.max_depth, seed=0,
+                      bvh_width=tuning.bvh_width or 8, tuning=tuning)
+
+
+def test_every_knob_is_a_tuning_field_with_a_legal_default_among_its_tried_values() -> None:
+    assert [k.name for k in KNOB_TABLE] == [f.name for f in dataclasses.fields(Tuning)]
+    for knob in KNOB_TABLE:
+        assert knob.legal(knob.default), knob.name
+        assert knob.default in knob.tried, knob.name
+        assert all(knob.legal(v) for v in knob.tried), knob.name
+        assert knob.acts in ("host", "host+kernel", "kernel", "launch")
+
+
+def test_the_constants_at_their_sites_are_the_table_defaults() -> None:
+    assert bvh_module.TRAVERSAL_COST == KNOBS["traversal_cost"].default
+    assert bvh_module.SAH_MAX_LEAF == KNOBS["largest_leaf"].default
+    assert bvh_module.MAX_LEAF_SIZE == KNOBS["max_leaf_size"].default
+    assert wide_module.FOLD_PACKETS == KNOBS["fold_packets"].default
+    assert RenderSettings().tuning is None  # a render takes the table's (or a tuning file's)
+
+
+@pytest.mark.parametrize(("values", "words"), [
+    ({"work_group_width": 48}, "work_group_width: expected a power of two"),
+    ({"bvh_width": 16}, "bvh_width: expected 4, 8, or None"),
+    ({"traversal_cost": 0}, "traversal_cost: expected a number over 0"),
+    ({"max_leaf_size": 8, "largest_leaf": 4}, "largest_leaf 4 is below max_leaf_size 8"),
+    ({"first_launch_pixel_samples": 100, "max_launch_pixel_samples": 10},
+     "max_launch_pixel_samples 10 is below"),
+    ({"launch_growth": True}, "launch_growth: expected an integer"),
+])
+def test_illegal_knobs_and_broken_restrictions_are_refused(values, words) -> None:
+    with pytest.raises(TuningError, match=words):
+        Tuning(**values)
+    with pytest.raises(TuningError, match="unknown knob"):
+        Tuning.from_values({"work_group_size": 64})
+
+
+def test_host_knobs_change_the_packed_bvh(crowd) -> None:
+    base = packed_with(crowd)
+    assert base.tuning == DEFAULT_TUNING
+    four = packed_with(crowd, bvh_width=4)
+    assert (base.config.bvh_width, four.config.bvh_width) == (8, 4)
+    assert "-DBVH_WIDTH=4" in four.config.options() and "-DBVH_WIDTH=8" in base.config.options()
+    assert len(four.nodes) > len(base.nodes)
+    deep = {"traversal_cost": 0.25}  # a deeper tree, whose bottom folding can shrink
+    for before, knobs in (({}, {"traversal_cost": 0.25}),
+                          ({}, {"max_leaf_size": 1, "largest_leaf": 1}),
+                          ({}, {"largest_leaf": 4}),
+                          ({**deep, "fold_packets": 0}, {**deep, "fold_packets": 8})):
+        one, other = packed_with(crowd, **before), packed_with(crowd, **knobs)
+        assert other.tuning == Tuning(**knobs)
+        assert (other.nodes.tobytes(), other.prim_refs.tobytes()) != (
+            one.nodes.tobytes(), one.prim_refs.tobytes()), knobs
+
+
+def test_traversal_cost_reaches_the_sah() -> None:
+    rng = np.random.default_rng(1)
+    lo = rng.uniform(0, 10, (500, 3))
+    hi = lo + rng.uniform(0.1, 1, (500, 3))
+    cheap = bvh_module.build_bvh(lo, hi, traversal_cost=0.5).nodes
+    dear = bvh_module.build_bvh(lo, hi, traversal_cost=4.0).nodes
+    # A dearer node visit makes fewer, bigger leaves.
+    assert len(dear) < len(cheap)
+    assert (dear["count"].max()) > (cheap["count"].max())
+
+
+def test_work_group_width_is_the_launch_local_size(cl_device, spheres, monkeypatch) -> None:
+    seen = []
+    enqueue = cl.enqueue_nd_range_kernel
+
+    def recording(queue, kernel, global_size, local_size, *args, **kwargs):
+        seen.append(local_size)
+        return enqueue(queue, kernel, global_size, local_size, *args, **kwargs)
+
+    monkeypatch.setattr(cl, "enqueue_nd_range_kernel", recording)
+    render(spheres, RenderSettings(**SMALL, tuning=Tuning(work_group_width=16)))
+    assert seen and {s[0] for s in seen} == {16}
+
+
+def test_default_knobs_render_the_untuned_image_bit_for_bit(cl_device, spheres) -> None:
+    untuned = render(spheres, RenderSettings(**SMALL))
+    assert untuned.stats["tuning"]["source"] == "default"
+    assert untuned.stats["tuning"]["label"] == "default"
+    # Every knob given, each at the table's value: the same image, bit for bit.
+    given = render(spheres, RenderSettings(**SMALL, tuning=Tuning(**{
+        k.name: k.default for k in KNOB_TABLE})))
+    np.testing.assert_array_equal(untuned.image, given.image)
+    assert given.stats["tuning"]["source"] == "given"
+
+
+def test_tuned_render_gives_the_default_image_within_tolerance(cl_device, spheres) -> None:
+    default = render(spheres, RenderSettings(**SMALL))
+    tuned_knobs = Tuning(work_group_width=16, bvh_width=4, traversal_cost=1.0, max_leaf_size=2,
+                         largest_leaf=8, fold_packets=0, first_launch_pixel_samples=48 * 5,
+                         launch_growth=2)
+    tuned = render(spheres, RenderSettings(**SMALL, tuning=tuned_knobs))
+    assert tuned.stats["launches"] > default.stats["launches"]
+    assert tuned.stats["tuning"]["bvh_width"] == 4
+    assert compare(tuned.image, default.image)["status"] == "pass"
+    assert tuned.stats["rays"]["primary"] == default.stats["rays"]["primary"]
+
+
+def _write_file(device: cl.Device, knobs: Tuning, changes: dict) -> Path:
+    path = store.save_tuning(device, knobs, {"note": "test"})
+    record = json.loads(path.read_text())
+    record.update(changes)
+    path.write_text(json.dumps(record))
+    return path
+
+
+def test_render_uses_the_stored_winner_unless_told_not_to(cl_device, spheres) -> None:
+    winner = Tuning(work_group_width=16, fold_packets=2)
+    path = store.save_tuning(cl_device, winner, {"note": "test"})
+    assert path.is_relative_to(store.cache_dir())
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        stored = render(spheres, RenderSettings(**SMALL))
+    assert stored.stats["tuning"]["source"] == f"tuning file {path}"
+    assert stored.stats["tuning"]["work_group_width"] == 16
+    assert stored.stats["tuning"]["label"] == "work_group_width=16, fold_packets=2"
+    plain = render(spheres, RenderSettings(**SMALL, stored_tuning=False))
+    assert plain.stats["tuning"]["source"] == "default"
+    assert compare(stored.image, plain.image)["status"] == "pass"
+
+
+@pytest.mark.parametrize(("changes", "words"), [
+    ({"driver_version": "0.0-elsewhere"}, "stale: tuned for driver_version '0.0-elsewhere'"),
+    ({"clray_version": "0.0.1"}, "stale: tuned for clray_version '0.0.1'"),
+    ({"tuning": {"work_group_width": 48}}, "work_group_width: expected a power of two"),
+    ({"format": 99}, "expected a clray tuning file of format 1"),
+])
+def test_invalid_or_stale_tuning_files_are_ignored_with_a_warning(cl_device, changes,
+                                                                  words) -> None:
+    path = _write_file(cl_device, Tuning(work_group_width=16), changes)
+    with pytest.warns(UserWarning, match=f"ignoring tuning file {path}: {words}"):
+        tuning, source = store.chosen_tuning(cl_device)
+    assert (tuning, source) == (DEFAULT_TUNING, "default")
+
+
+def test_a_tuning_file_that_is_not_json_is_ignored(cl_device) -> None:
+    path = store.tuning_path(cl_device)
+    path.parent.mkdir(parents=True)
+    path.write_text("{half a file")
+    with pytest.warns(UserWarning, match="not JSON"):
+        assert store.load_tuning(cl_device) is None
+
+
+def test_cache_directory_follows_xdg(monkeypatch, tmp_path) -> None:
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
+    assert store.cache_dir() == tmp_path / "clray"
+    monkeypatch.setenv("XDG_CACHE_HOME", "relative/ignored")
+    assert store.cache_dir() == Path.home() / ".cache" / "clray"
+
+
+def test_next_band_rows_reads_the_band_knobs() -> None:
+    rows = launch_module.next_band_rows
+    assert rows(100, 0, 0.0, 10_000) == (1 << 16) // 100
+    assert rows(100, 0, 0.0, 10_000, Tuning(first_launch_pixel_samples=500)) == 5
+    assert rows(100, 10, 0.1, 10_000, Tuning(launch_seconds=0.5)) == 40  # at most 4x
+    assert rows(100, 10, 0.1, 10_000, Tuning(launch_seconds=0.5, launch_growth=8)) == 50
+
+
+def test_render_command_warns_once_of_a_stale_file_and_renders(cl_device, capsys,
+                                                               tmp_path) -> None:
+    path = _write_file(cl_device, Tuning(work_group_width=16), {"clray_version": "0.0.1"})
+    stats = tmp_path / "stats.json"
+    code = cli.main(["render", str(SPHERES), "-W", "32", "-H", "18", "-o",
+                     str(tmp_path / "out.png"), "--stats-json", str(stats)])
+    err = capsys.readouterr().err.splitlines()
+    assert code == 0
+    warned = [line for line in err if line.startswith("clray: warning: ")]
+    assert warned == [f"clray: warning: ignoring tuning file {path}: stale: tuned for "
+                      f"clray_version '0.0.1', this is '{__version__}'; run clray tune again"]
+    assert json.loads(stats.read_text())["tuning"]["source"] == "default"

@@ -16,10 +16,11 @@ import pyopencl as cl
 import pytest
 from test_intersect import mesh_gen, random_mix, random_units
 
+from clray.device.launch import intersect_rays
 from clray.device.pack import pack_scene
 from clray.device.program import TRAVERSALS, traversal_for
 from clray.errors import SettingsError
-from clray.render import RenderSettings, intersect_rays, render
+from clray.render import RenderSettings, render
 from clray.scene import model as M
 from clray.scene.load import load_scene, scene_from_dict
 

@@ -2,6 +2,7 @@
 
     python benchmarks/compare.py REF [REF ...] [--rounds 5] [--scenes spheres,mesh]
                                  [--json benchmarks/results/compare.json] [--device SPEC]
+                                 [--spp N] [--size WxH]
 
 Each REF (a commit, branch or `WORKTREE` for the files as they are now) is checked out into a
 temporary git worktree. Rounds alternate between the refs: in each round every ref renders every
@@ -9,6 +10,9 @@ scene in a fresh process (importing clray from its own worktree, kernels include
 warm-up and then `--per-round` times, timed by OpenCL profiling events. Medians over all rounds are
 reported per ref and scene, with the ratio to the first ref. Alternating the refs spreads the
 machine's load changes over all of them, which separate runs at different times do not.
+`REF:TRAVERSAL` (e.g. `WORKTREE:sample_packet`) renders with that KernelConfig traversal, for
+commits that have it; a plain REF with KernelConfig's default. `--spp` and `--size` replace the
+scenes' own.
 """
 
 from __future__ import annotations
@@ -42,11 +46,13 @@ try:
 except ImportError:  # a commit from before clray.device.launch
     from clray.render import render_packed
 from clray.scene.load import load_scene
-path, repeat, spec = sys.argv[1], int(sys.argv[2]), sys.argv[3] or None
+path, repeat, spec, traversal = sys.argv[1], int(sys.argv[2]), sys.argv[3] or None, sys.argv[4]
+spp, width, height = (int(v) for v in sys.argv[5:8])
 scene = load_scene(path)
 r = scene.render
-packed = pack_scene(scene, width=r.width, height=r.height, spp=r.spp, max_depth=r.max_depth,
-                    seed=r.seed)
+switches = {"traversal": traversal} if traversal else {}
+packed = pack_scene(scene, width=width or r.width, height=height or r.height,
+                    spp=spp or r.spp, max_depth=r.max_depth, seed=r.seed, **switches)
 device = select_device(spec)
 render_packed(packed, device)
 times = []
@@ -58,7 +64,14 @@ print(json.dumps({"kernel_s": times, "rays": stats["rays"]["total"],
 """
 
 
+def _split_ref(ref: str) -> tuple[str, str]:
+    """(commit, traversal or "") of a REF[:TRAVERSAL] argument."""
+    commit, _, traversal = ref.partition(":")
+    return commit, traversal
+
+
 def _worktree(ref: str, tmp: Path) -> Path:
+    ref = _split_ref(ref)[0]
     if ref == "WORKTREE":
         return ROOT
     path = tmp / ref.replace("/", "_")
@@ -76,9 +89,11 @@ def _scene_paths(names: list[str], tmp: Path) -> dict[str, Path]:
     return {name: paths[name] for name in names}
 
 
-def _measure(tree: Path, scene: Path, repeat: int, device: str | None) -> dict:
+def _measure(tree: Path, scene: Path, repeat: int, device: str | None, traversal: str,
+             shape: tuple[int, int, int]) -> dict:
     env = {**os.environ, "PYTHONPATH": str(tree)}
-    out = subprocess.run([sys.executable, "-c", _MEASURE, str(scene), str(repeat), device or ""],
+    out = subprocess.run([sys.executable, "-c", _MEASURE, str(scene), str(repeat), device or "",
+                          traversal, *(str(v) for v in shape)],
                          check=True, capture_output=True, text=True, cwd=tree, env=env).stdout
     return json.loads(out.splitlines()[-1])
 
@@ -91,43 +106,56 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--scenes", default="spheres,mesh")
     parser.add_argument("--device", default=None)
     parser.add_argument("--json", type=Path, default=HERE / "results" / "compare.json")
+    parser.add_argument("--spp", type=int, default=0, help="samples per pixel (default: the "
+                        "scene's)")
+    parser.add_argument("--size", default="", metavar="WxH", help="image size (default: the "
+                        "scene's)")
     args = parser.parse_args(argv)
+    width, _, height = args.size.partition("x")
+    shape = (args.spp, int(width or 0), int(height or 0))
     names = [s for s in args.scenes.split(",") if s]
     if set(names) - {"spheres", "mesh"} or args.rounds < 1 or args.per_round < 1:
         parser.error("scenes are spheres and mesh; --rounds and --per-round must be >= 1")
 
     with tempfile.TemporaryDirectory(prefix="clray-compare-") as tmp_name:
         tmp = Path(tmp_name)
-        trees = {ref: _worktree(ref, tmp) for ref in args.refs}
+        commits = {_split_ref(ref)[0] for ref in args.refs}
+        commit_trees = {commit: _worktree(commit, tmp) for commit in commits}
+        trees = {ref: commit_trees[_split_ref(ref)[0]] for ref in args.refs}
         scenes = _scene_paths(names, tmp)
         times: dict[str, dict[str, list[float]]] = {r: {n: [] for n in names} for r in args.refs}
         means: dict[str, dict[str, float]] = {r: {} for r in args.refs}
+        rays: dict[str, dict[str, int]] = {r: {} for r in args.refs}
         try:
             for round_index in range(args.rounds):
                 for ref in args.refs:
                     for name, path in scenes.items():
-                        got = _measure(trees[ref], path, args.per_round, args.device)
+                        got = _measure(trees[ref], path, args.per_round, args.device,
+                                       _split_ref(ref)[1], shape)
                         times[ref][name] += got["kernel_s"]
                         means[ref][name] = got["mean"]
+                        rays[ref][name] = got["rays"]
                 print(f"round {round_index + 1}/{args.rounds} done", file=sys.stderr)
         finally:
-            for tree in trees.values():
+            for tree in commit_trees.values():
                 if tree != ROOT:
                     subprocess.run(["git", "-C", str(ROOT), "worktree", "remove", "--force",
                                     str(tree)], capture_output=True)
 
     base = args.refs[0]
     report = {"benchmark": "compare", "rounds": args.rounds, "per_round": args.per_round,
-              "refs": {}}
+              "spp": args.spp or None, "size": args.size or None, "refs": {}}
     for ref in args.refs:
         entry = {}
         for name in names:
             median = statistics.median(times[ref][name])
             entry[name] = {"kernel_s": median, "kernel_runs_s": times[ref][name],
-                           "image_mean": means[ref][name],
+                           "image_mean": means[ref][name], "rays": rays[ref][name],
+                           "mrays_per_s": rays[ref][name] / median * 1e-6,
                            "speedup_vs_first": statistics.median(times[base][name]) / median}
             print(f"{ref:>12} {name:>8}: kernel {median:.4f} s (median of "
-                  f"{len(times[ref][name])}), x{entry[name]['speedup_vs_first']:.2f} vs {base}")
+                  f"{len(times[ref][name])}), {entry[name]['mrays_per_s']:.2f} Mrays/s, "
+                  f"x{entry[name]['speedup_vs_first']:.2f} vs {base}")
         report["refs"][ref] = entry
     args.json.parent.mkdir(parents=True, exist_ok=True)
     args.json.write_text(json.dumps(report, indent=2) + "\n", encoding="utf-8")

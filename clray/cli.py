@@ -24,6 +24,7 @@ import pyopencl as cl
 
 from clray import __version__
 from clray.device.context import list_devices
+from clray.device.program import TRAVERSALS
 from clray.errors import EXIT_OK, EXIT_RUNTIME, EXIT_USAGE, ClrayError, SceneError, one_line
 from clray.image_io import (
     FLOAT_SUFFIXES,
@@ -166,6 +167,10 @@ def _build_parser() -> _Parser:
                         "(default: CLRAY_DEVICE, PYOPENCL_CTX, then the first CPU device)")
     r.add_argument("--precision", choices=limits.PRECISIONS, default="float",
                    help="arithmetic in the kernels (double needs cl_khr_fp64; default: float)")
+    r.add_argument("--traversal", choices=TRAVERSALS, default=None,
+                   help="how rays walk the BVH: 'single' (every ray alone) or 'sample_packet' "
+                        "(a pixel's samples together; the same image); default: single "
+                        "(docs/acceleration.md, Sample packets)")
     encoding = r.add_mutually_exclusive_group()
     encoding.add_argument("--linear", dest="linear", action="store_true", default=None,
                           help="write PNG values linear, tagged gamma 1.0 (default: the sRGB "
@@ -635,8 +640,9 @@ def _settings(args: argparse.Namespace, progress: Callable[[int, int], None] | N
     return RenderSettings(
         width=args.width, height=args.height, spp=args.spp, max_depth=args.max_depth,
         seed=args.seed, min_weight=args.min_weight, device=args.device,
-        precision=args.precision, progress=progress, linear=args.linear,
-        exposure=args.exposure, png_bits=args.png_bits, stored_tuning=args.stored_tuning)
+        precision=args.precision, traversal=args.traversal, progress=progress,
+        linear=args.linear, exposure=args.exposure, png_bits=args.png_bits,
+        stored_tuning=args.stored_tuning)
 
 
 def _cluster(args: argparse.Namespace) -> contextlib.AbstractContextManager:

@@ -16,7 +16,12 @@ import pyopencl as cl
 from clray.device.context import describe, queue_for, select_device
 from clray.device.launch import render_packed
 from clray.device.pack import PackedScene, pack_scene
-from clray.device.program import bvh_width_for
+from clray.device.program import (
+    TRAVERSALS,
+    bvh_width_for,
+    packet_lanes_for,
+    traversal_for,
+)
 from clray.errors import SettingsError
 from clray.image_io import Encoding, write_image
 from clray.scene import limits as L
@@ -40,6 +45,8 @@ class RenderSettings:
     min_weight: float | None = None
     device: str | None = None  # clray.device.context.select_device spec
     precision: str = "float"  # "float" | "double"
+    # How rays walk the BVH (clray.device.program.TRAVERSALS); None: the device's default.
+    traversal: str | None = None
     # progress(done, total) in pixel-samples (pixels x spp): called with done = 0 before the
     # first launch, then after each launch, rising to done = total; several times a second.
     progress: Callable[[int, int], None] | None = field(default=None, compare=False)
@@ -63,6 +70,7 @@ class RenderSettings:
                    for name, rule in L.RENDER_CHOICES.items()]
         checks += [("linear", lambda v: None if isinstance(v, bool) else "expected True or False"),
                    ("precision", lambda v: L.choice_problem(v, L.PRECISIONS)),
+                   ("traversal", lambda v: L.choice_problem(v, TRAVERSALS)),
                    ("device", lambda v: None if isinstance(v, str) else "expected a string"),
                    ("tuning", lambda v: None if isinstance(v, Tuning)
                     else "expected a clray.tuning.Tuning"),
@@ -125,10 +133,13 @@ def pack_for(scene: Scene, settings: RenderSettings, device: cl.Device) -> Packe
     what each worker of a distributed render packs once for all its tiles. The knobs are the
     settings' tuning, else the device's tuning file's (clray.tuning.store.chosen_tuning)."""
     tuning = settings.tuning or chosen_tuning(device, settings.stored_tuning)[0]
+    switches = {"traversal": settings.traversal or traversal_for(device),
+                "packet_lanes": packet_lanes_for(device, settings.precision),
+                **dict(settings.variants)}
     return pack_scene(scene, precision=settings.precision,
                       bvh_width=tuning.bvh_width or bvh_width_for(device, settings.precision),
                       queue=queue_for(device), tuning=tuning,
-                      **resolved_settings(scene, settings), **dict(settings.variants))
+                      **resolved_settings(scene, settings), **switches)
 
 
 def render(scene: Scene | str | os.PathLike, settings: RenderSettings | None = None
@@ -158,6 +169,7 @@ def render(scene: Scene | str | os.PathLike, settings: RenderSettings | None = N
         # knob's value, and the BVH width that "auto" (None) picked.
         "tuning": {"source": tuning_source, "label": packed.tuning.label(),
                    **packed.tuning.values(), "bvh_width": packed.config.bvh_width},
+        "traversal": packed.config.traversal,
         "bvh_s": packed.bvh_s,
         "pack_s": pack_s,
         **stats,

@@ -307,6 +307,10 @@ HOT int push_instances(const SceneRefs* s, int slot, int count, const Ray* r, RE
 }
 #endif
 
+#if HAS_BVH
+HOT void walk_closest(const SceneRefs* s, const Ray* world, int child, int count, Hit* found);
+#endif
+
 HOT Hit closest_hit(const SceneRefs* s, const Ray* world) {
     Hit hit;
     hit.t = REAL_INF;
@@ -322,13 +326,22 @@ HOT Hit closest_hit(const SceneRefs* s, const Ray* world) {
     }
 #endif
 #if HAS_BVH
-    if (s->n_nodes == 0) return hit;
+    if (s->n_nodes > 0) walk_closest(s, world, 0, 0, &hit);
+#endif
+    return hit;
+}
+
+#if HAS_BVH
+// The closest hit below the tree entry (child, count) (as in BvhNode; (0, 0) is the root) that
+// goes before *found: closest_hit's walk, which the packet walk also runs for single lanes
+// (kernels/packet.h).
+HOT void walk_closest(const SceneRefs* s, const Ray* world, int child, int count, Hit* found) {
+    Hit hit = *found;
     // Entries are (child, count) pairs as in BvhNode, with the t where the ray enters them:
     // a pop is skipped without another slab test once a nearer hit is known.
     int stack_child[BVH_STACK_SIZE], stack_count[BVH_STACK_SIZE];
     REAL stack_t[BVH_STACK_SIZE];
     int sp = 0;
-    int child = 0, count = 0;
     const Ray* r = world;
 #if HAS_INSTANCES
     // Inside an instance the walk goes on in its group's BVH with the ray in the group's frame,
@@ -404,9 +417,9 @@ HOT Hit closest_hit(const SceneRefs* s, const Ray* world) {
         child = stack_child[sp];
         count = stack_count[sp];
     }
-#endif
-    return hit;
+    *found = hit;
 }
+#endif
 
 // The material a crossing shades or filters with: the instance's, where it replaces its
 // group's.
@@ -502,6 +515,11 @@ HOT bool leaf_transmission(const SceneRefs* s, int slot, int count, const Ray* r
     return true;
 }
 
+#if HAS_BVH
+HOT REAL3 walk_transmission(const SceneRefs* s, const Ray* world, int child, int count,
+                            REAL tmax, REAL3 filter);
+#endif
+
 // Light reaching the end of a shadow segment: 0 at the first opaque crossing.
 HOT REAL3 transmission(const SceneRefs* s, const Ray* world, REAL tmax) {
     REAL3 filter = (REAL3)(1, 1, 1);
@@ -514,11 +532,21 @@ HOT REAL3 transmission(const SceneRefs* s, const Ray* world, REAL tmax) {
     }
 #endif
 #if HAS_BVH
-    if (s->n_nodes == 0) return filter;
+    if (s->n_nodes > 0) filter = walk_transmission(s, world, 0, 0, tmax, filter);
+#endif
+    return filter;
+}
+
+#if HAS_BVH
+// `filter` times the light let through below the tree entry (child, count) (as in BvhNode), 0
+// at the first opaque crossing: transmission's walk, which the packet walk also runs for single
+// lanes (kernels/packet.h).
+HOT REAL3 walk_transmission(const SceneRefs* s, const Ray* world, int child, int count,
+                            REAL tmax, REAL3 filter) {
     int stack_child[BVH_STACK_SIZE], stack_count[BVH_STACK_SIZE];
     int sp = 0;
-    stack_child[sp] = 0;
-    stack_count[sp++] = 0;
+    stack_child[sp] = child;
+    stack_count[sp++] = count;
     const Ray* r = world;
 #if HAS_INSTANCES
     Ray group_ray;  // as in closest_hit
@@ -570,8 +598,8 @@ HOT REAL3 transmission(const SceneRefs* s, const Ray* world, REAL tmax) {
             stack_count[sp++] = node->count[k];
         }
     }
-#endif
     return filter;
 }
+#endif
 
 #endif

@@ -9,6 +9,9 @@
 // cannot intersect); COUNT_TESTS (the instrumented build: box and primitive tests per pixel).
 // HAS_SPOT_LIGHTS, HAS_AREA_LIGHTS (0 or 1): the scene has spot lights, area lights.
 // HAS_INSTANCES (0 or 1): the scene places groups by transforms (kernels/bvh.h walks into them).
+// TRAVERSAL: TRAVERSAL_SINGLE (every ray walks the BVH alone) or TRAVERSAL_SAMPLE_PACKET (a
+// pixel's samples' primary and shadow rays walk it in packets of PACKET_LANES, kernels/packet.h;
+// PACKET_MIN_LANES: below it, lanes go on ray by ray).
 #include "real.h"
 #include "clray_types.h"
 #include "scene.h"
@@ -31,6 +34,16 @@
 #define RAY_STACK_SIZE (MAX_DEPTH + 1)
 #else
 #define RAY_STACK_SIZE 1
+#endif
+
+#define TRAVERSAL_SINGLE 0
+#define TRAVERSAL_SAMPLE_PACKET 1
+#ifndef TRAVERSAL
+#define TRAVERSAL TRAVERSAL_SINGLE
+#endif
+#define SAMPLE_PACKETS (TRAVERSAL == TRAVERSAL_SAMPLE_PACKET)
+#if SAMPLE_PACKETS
+#include "packet.h"
 #endif
 
 // One node of the ray tree, waiting on the explicit stack (OpenCL C has no recursion).
@@ -83,6 +96,82 @@ inline REAL refract_media(const SceneRefs* s, const RayTask* in, RayTask* out, i
 }
 #endif
 
+// The primary ray of pixel sample `sample`.
+inline void sample_ray(const __global Camera* camera, const __global Params* params, int x,
+                       int y, int sample, uint pixel, REAL3* o, REAL3* d) {
+    int spp = params->spp;
+    REAL2 pos = sample_position(x, y, sample, spp, params->seed, pixel);
+#if HAS_THIN_LENS || HAS_ORTHOGRAPHIC
+    camera_ray(camera, pos, params->width, params->height, sample, spp, params->seed, pixel, o,
+               d);
+#else
+    *o = TO_REAL3(camera->position);
+    *d = camera_direction(camera, pos, params->width, params->height);
+#endif
+}
+
+// What shading a hit needs: its surface, its side, the normal facing the ray and its colour.
+typedef struct {
+    Surface sf;
+    REAL3 n, c;
+    bool entering;
+} ShadePoint;
+
+HOT ShadePoint shade_point(const SceneRefs* s, const __global Camera* camera, const Ray* ray,
+                           const Hit* hit) {
+    ShadePoint pt;
+    pt.sf = surface_at(s, ray, hit,
+                       material_needs_uv(s, crossing_material(s, hit->ref, hit->instance)));
+    pt.entering = dot(ray->d, pt.sf.n_g) < (REAL)0;
+    REAL3 n_f = pt.entering ? pt.sf.n_g : -pt.sf.n_g;
+    pt.n = dot(pt.sf.n_s, ray->d) < (REAL)0 ? pt.sf.n_s : -pt.sf.n_s;
+    pt.c = surface_color(s, s->materials + pt.sf.material, pt.sf.p + TO_REAL3(camera->world),
+                         n_f, pt.sf.uv);
+    return pt;
+}
+
+#if SAMPLE_PACKETS
+// A packet of a pixel's samples after its primary rays: each lane's ray, hit, shading point
+// and direct light (shade_direct's, its shadow rays traced as packets).
+typedef struct {
+    Ray ray[PACKET_LANES];
+    Hit hit[PACKET_LANES];
+    ShadePoint pt[PACKET_LANES];
+    REAL3 direct[PACKET_LANES];
+} SamplePacket;
+
+// Samples first .. first + lanes - 1 of the pixel, to the end of their direct light.
+HOT void trace_sample_packet(const SceneRefs* s, const __global Camera* camera,
+                             const __global Params* params, int x, int y, uint pixel,
+                             SampleKey key, int lanes, SamplePacket* pk, int* shadow_rays) {
+    int first = key.sample;
+    for (int j = 0; j < PACKET_LANES; ++j) {
+        REAL3 o, d;
+        // Lanes past the pixel's last sample ride along as copies of its first.
+        sample_ray(camera, params, x, y, first + (j < lanes ? j : 0), pixel, &o, &d);
+        pk->ray[j] = make_ray(o, d);
+    }
+    int bits = (1 << lanes) - 1;
+    packet_closest(s, pk->ray, bits, pk->hit);
+    Surface sf[PACKET_LANES];
+    REAL3 n[PACKET_LANES], v[PACKET_LANES], c[PACKET_LANES];
+    int material[PACKET_LANES];
+    int lit = 0;
+    for (int j = 0; j < lanes; ++j) {
+        if (!(pk->hit[j].t < REAL_INF)) continue;
+        lit |= 1 << j;
+        pk->pt[j] = shade_point(s, camera, pk->ray + j, pk->hit + j);
+        sf[j] = pk->pt[j].sf;
+        n[j] = pk->pt[j].n;
+        v[j] = -pk->ray[j].d;
+        c[j] = pk->pt[j].c;
+        material[j] = pk->pt[j].sf.material;
+    }
+    packet_direct(s, sf, n, v, c, material, TO_REAL3(params->ambient), key, lit, pk->direct,
+                  shadow_rays);
+}
+#endif
+
 __kernel void render(SCENE_BUFFER_PARAMS, __global float4* image, __global int4* ray_counts,
                      __global int4* test_counts, int row_offset) {
     int x = get_global_id(0), y = get_global_id(1) + row_offset;
@@ -102,26 +191,43 @@ __kernel void render(SCENE_BUFFER_PARAMS, __global float4* image, __global int4*
     int secondary_rays = 0, shadow_rays = 0;
 
     SampleKey key = sample_key(params->seed, pixel, spp);
+#if SAMPLE_PACKETS
+    // With one sample a pixel there is no packet: its rays go alone.
+    SamplePacket packet;
+    int lane = 0;
+#endif
     for (int sample = 0; sample < spp; ++sample) {
         key.sample = sample;
-        REAL2 pos = sample_position(x, y, sample, spp, params->seed, pixel);
         RayTask stack[RAY_STACK_SIZE];
         int sp = 0;
-#if HAS_THIN_LENS || HAS_ORTHOGRAPHIC
-        camera_ray(camera, pos, width, height, sample, spp, params->seed, pixel, &stack[0].o,
-                   &stack[0].d);
-#else
-        stack[0].o = TO_REAL3(camera->position);
-        stack[0].d = camera_direction(camera, pos, width, height);
+#if SAMPLE_PACKETS
+        lane = sample % PACKET_LANES;
+        if (spp > 1 && lane == 0) {
+            trace_sample_packet(&s, camera, params, x, y, pixel, key,
+                                min(PACKET_LANES, spp - sample), &packet, &shadow_rays);
+        }
+        if (spp > 1) {
+            // The packet drew the sample's ray already.
+            stack[0].o = packet.ray[lane].o;
+            stack[0].d = packet.ray[lane].d;
+        } else
 #endif
+        sample_ray(camera, params, x, y, sample, pixel, &stack[0].o, &stack[0].d);
         stack[0].weight = (REAL3)(1, 1, 1);
         stack[0].depth = 0;
         stack[0].media_count = 0;
         sp = 1;
         while (sp > 0) {
             RayTask task = stack[--sp];
+#if SAMPLE_PACKETS
+            // A primary ray of a packet: its hit and direct light are known.
+            bool packed = spp > 1 && task.depth == 0;
+            Ray ray = packed ? packet.ray[lane] : make_ray(task.o, task.d);
+            Hit hit = packed ? packet.hit[lane] : closest_hit(&s, &ray);
+#else
             Ray ray = make_ray(task.o, task.d);
             Hit hit = closest_hit(&s, &ray);
+#endif
             if (!(hit.t < REAL_INF)) {
 #if HAS_BACKGROUND_GRADIENT || HAS_BACKGROUND_IMAGE
                 sum += task.weight * background_radiance(params, texels, task.d);
@@ -130,16 +236,23 @@ __kernel void render(SCENE_BUFFER_PARAMS, __global float4* image, __global int4*
 #endif
                 continue;
             }
-            Surface sf =
-                surface_at(&s, &ray, &hit,
-                           material_needs_uv(&s, crossing_material(&s, hit.ref, hit.instance)));
+#if SAMPLE_PACKETS
+            ShadePoint pt = packed ? packet.pt[lane] : shade_point(&s, camera, &ray, &hit);
+#else
+            ShadePoint pt = shade_point(&s, camera, &ray, &hit);
+#endif
+            Surface sf = pt.sf;
             const __global Material* m = materials + sf.material;
-            bool entering = dot(ray.d, sf.n_g) < (REAL)0;
-            REAL3 n_f = entering ? sf.n_g : -sf.n_g;
-            REAL3 n = dot(sf.n_s, ray.d) < (REAL)0 ? sf.n_s : -sf.n_s;
-            REAL3 c = surface_color(&s, m, sf.p + TO_REAL3(camera->world), n_f, sf.uv);
-            sum += task.weight * shade_direct(&s, &sf, n, -ray.d, c, m, ambient, key,
+            bool entering = pt.entering;
+            REAL3 n = pt.n;
+#if SAMPLE_PACKETS
+            sum += task.weight * (packed ? packet.direct[lane]
+                                         : shade_direct(&s, &sf, n, -ray.d, pt.c, m, ambient,
+                                                        key, &shadow_rays));
+#else
+            sum += task.weight * shade_direct(&s, &sf, n, -ray.d, pt.c, m, ambient, key,
                                               &shadow_rays);
+#endif
 #if MAX_DEPTH > 0
             if (task.depth < MAX_DEPTH) {
                 REAL kr = TO_REAL(m->reflect);
@@ -188,8 +301,23 @@ __kernel void render(SCENE_BUFFER_PARAMS, __global float4* image, __global int4*
 #endif
 }
 
+// A closest hit as intersect_rays reports it: the outward geometric normal and t (inf on a
+// miss), and the primitive reference (-1).
+inline void report_hit(const SceneRefs* s, const Ray* ray, const Hit* hit, __global float4* out,
+                       __global int* ref) {
+    if (hit->t < REAL_INF) {
+        Surface sf = surface_at(s, ray, hit, false);
+        *out = (float4)((float)sf.n_g.x, (float)sf.n_g.y, (float)sf.n_g.z, (float)hit->t);
+        *ref = hit->ref;
+    } else {
+        *out = (float4)(0.0f, 0.0f, 0.0f, INFINITY);
+        *ref = -1;
+    }
+}
+
 // Closest hit for given rays, for tests and tools: t (inf on a miss), the primitive reference
-// and the surface's outward geometric normal. Uses the same scene buffers as render.
+// and the surface's outward geometric normal. Uses the same scene buffers as render. With
+// sample packets a work-item takes PACKET_LANES rays as one packet (the host pads the last).
 __kernel void intersect_rays(__global const float4* origins, __global const float4* directions,
                              SCENE_BUFFER_PARAMS, __global float4* hits, __global int* refs) {
     int i = get_global_id(0);
@@ -198,14 +326,20 @@ __kernel void intersect_rays(__global const float4* origins, __global const floa
     TestCounts counts = {0, 0, 0, 0};
     s.counts = &counts;
 #endif
+#if SAMPLE_PACKETS
+    int first = i * PACKET_LANES;
+    Ray rays[PACKET_LANES];
+    Hit found[PACKET_LANES];
+    for (int j = 0; j < PACKET_LANES; ++j) {
+        rays[j] = make_ray(TO_REAL3(origins[first + j]), TO_REAL3(directions[first + j]));
+    }
+    packet_closest(&s, rays, ALL_LANES, found);
+    for (int j = 0; j < PACKET_LANES; ++j) {
+        report_hit(&s, rays + j, found + j, hits + first + j, refs + first + j);
+    }
+#else
     Ray ray = make_ray(TO_REAL3(origins[i]), TO_REAL3(directions[i]));
     Hit hit = closest_hit(&s, &ray);
-    if (hit.t < REAL_INF) {
-        Surface sf = surface_at(&s, &ray, &hit, false);
-        hits[i] = (float4)((float)sf.n_g.x, (float)sf.n_g.y, (float)sf.n_g.z, (float)hit.t);
-        refs[i] = hit.ref;
-    } else {
-        hits[i] = (float4)(0.0f, 0.0f, 0.0f, INFINITY);
-        refs[i] = -1;
-    }
+    report_hit(&s, &ray, &hit, hits + i, refs + i);
+#endif
 }

@@ -312,68 +312,90 @@ HOT REAL phong_power(REAL x, REAL s) {
     return r;
 }
 
+// Light i's shadow ray from the surface (origin off it, towards the light or its sample, up to
+// tmax) and what the light brings if nothing blocks it: direction l, attenuation and n.l. False
+// when the light gives nothing there, and no shadow ray is traced. key: the pixel sample, which
+// picks area lights' samples.
+HOT bool light_ray(const SceneRefs* s, const Surface* sf, REAL3 n, int i, SampleKey key,
+                   REAL3* l_out, REAL* atten_out, REAL* ndl_out, Ray* shadow, REAL* tmax_out) {
+    const __global Light* light = s->lights + i;
+    REAL3 l;
+    REAL atten = 1;
+    // Where a shadow ray towards a light at a finite place aims: the light, or its sample.
+    REAL3 target = TO_REAL3(light->position);
+#if HAS_AREA_LIGHTS
+    if (light->kind >= LIGHT_RECT) {
+        if (!sample_area_light(light, sf->p, sf->err, light_square(key, i), &target, &atten)) {
+            return false;
+        }
+        l = safe_normalize(target - sf->p);
+    } else
+#endif
+    if (light->kind != LIGHT_DIRECTIONAL) {
+        REAL3 to_light = target - sf->p;
+        REAL dist = length(to_light);
+        if (!(dist > sf->err)) return false;  // a light at the hit point lights nothing
+        l = to_light / dist;
+        REAL3 k = TO_REAL3(light->attenuation);
+        REAL denom = k.x + k.y * dist + k.z * dist * dist;
+        atten = denom > (REAL)0 ? fmin((REAL)1, (REAL)1 / denom) : (REAL)1;
+#if HAS_SPOT_LIGHTS
+        if (light->kind == LIGHT_SPOT) {
+            atten *= spot_factor(light, l);
+            if (!(atten > (REAL)0)) return false;  // outside the cone: no shadow ray
+        }
+#endif
+    } else {
+        l = -safe_normalize(TO_REAL3(light->position));
+    }
+    REAL ndl = dot(n, l);
+    if (!(ndl > (REAL)0)) return false;
+    REAL3 origin = offset_origin(sf, l);
+    // Aimed from the offset origin itself: a ray parallel to l from there passes beside a
+    // point light, and crosses a surface that holds the light before reaching it. It stops
+    // just short of the light so such a surface does not shadow it.
+    REAL3 shadow_dir = l;
+    REAL tmax = REAL_INF;
+    if (light->kind != LIGHT_DIRECTIONAL) {
+        REAL3 to_light = target - origin;
+        REAL span = length(to_light);
+        shadow_dir = span > (REAL)0 ? to_light / span : l;
+        tmax = span * ((REAL)1 - gamma_n(ERR_ROUNDINGS));
+    }
+    *shadow = make_ray(origin, shadow_dir);
+    *l_out = l;
+    *atten_out = atten;
+    *ndl_out = ndl;
+    *tmax_out = tmax;
+    return true;
+}
+
+// Light i's diffuse and specular term, `filter` being the light its shadow ray let through.
+HOT REAL3 light_term(const SceneRefs* s, int i, REAL3 n, REAL3 v, REAL3 c,
+                     const __global Material* m, REAL3 l, REAL atten, REAL ndl, REAL3 filter) {
+    REAL3 refl = (REAL)2 * ndl * n - l;
+    REAL rv = dot(refl, v);
+    REAL spec = rv > (REAL)0 ? phong_power(rv, TO_REAL(m->shininess)) : (REAL)0;
+    REAL diffuse = TO_REAL(m->diffuse), specular = TO_REAL(m->specular);
+    const __global Light* light = s->lights + i;
+    return atten * TO_REAL3(light->color) * filter * (diffuse * ndl * c + specular * spec);
+}
+
 // Ambient plus, for each light on the lit side, diffuse and specular times the light that
 // reaches p through the shadow ray. key: the pixel sample, which picks area lights' samples.
 HOT REAL3 shade_direct(const SceneRefs* s, const Surface* sf, REAL3 n, REAL3 v, REAL3 c,
                           const __global Material* m, REAL3 ambient_light, SampleKey key,
                           int* shadow_rays) {
     REAL3 result = TO_REAL(m->ambient) * c * ambient_light + TO_REAL3(m->emission);
-    REAL diffuse = TO_REAL(m->diffuse), specular = TO_REAL(m->specular);
-    REAL shininess = TO_REAL(m->shininess);
     for (int i = 0; i < s->n_lights; ++i) {
-        const __global Light* light = s->lights + i;
         REAL3 l;
-        REAL atten = 1;
-        // Where a shadow ray towards a light at a finite place aims: the light, or its sample.
-        REAL3 target = TO_REAL3(light->position);
-#if HAS_AREA_LIGHTS
-        if (light->kind >= LIGHT_RECT) {
-            if (!sample_area_light(light, sf->p, sf->err, light_square(key, i), &target,
-                                   &atten)) {
-                continue;
-            }
-            l = safe_normalize(target - sf->p);
-        } else
-#endif
-        if (light->kind != LIGHT_DIRECTIONAL) {
-            REAL3 to_light = target - sf->p;
-            REAL dist = length(to_light);
-            if (!(dist > sf->err)) continue;  // a light at the hit point lights nothing
-            l = to_light / dist;
-            REAL3 k = TO_REAL3(light->attenuation);
-            REAL denom = k.x + k.y * dist + k.z * dist * dist;
-            atten = denom > (REAL)0 ? fmin((REAL)1, (REAL)1 / denom) : (REAL)1;
-#if HAS_SPOT_LIGHTS
-            if (light->kind == LIGHT_SPOT) {
-                atten *= spot_factor(light, l);
-                if (!(atten > (REAL)0)) continue;  // outside the cone: no shadow ray
-            }
-#endif
-        } else {
-            l = -safe_normalize(TO_REAL3(light->position));
-        }
-        REAL ndl = dot(n, l);
-        if (!(ndl > (REAL)0)) continue;
-        REAL3 origin = offset_origin(sf, l);
-        // Aimed from the offset origin itself: a ray parallel to l from there passes beside a
-        // point light, and crosses a surface that holds the light before reaching it. It stops
-        // just short of the light so such a surface does not shadow it.
-        REAL3 shadow_dir = l;
-        REAL tmax = REAL_INF;
-        if (light->kind != LIGHT_DIRECTIONAL) {
-            REAL3 to_light = target - origin;
-            REAL span = length(to_light);
-            shadow_dir = span > (REAL)0 ? to_light / span : l;
-            tmax = span * ((REAL)1 - gamma_n(ERR_ROUNDINGS));
-        }
-        Ray shadow = make_ray(origin, shadow_dir);
+        REAL atten, ndl, tmax;
+        Ray shadow;
+        if (!light_ray(s, sf, n, i, key, &l, &atten, &ndl, &shadow, &tmax)) continue;
         (*shadow_rays)++;
         REAL3 filter = transmission(s, &shadow, tmax);
         if (max_comp3(filter) <= (REAL)0) continue;
-        REAL3 refl = (REAL)2 * ndl * n - l;
-        REAL rv = dot(refl, v);
-        REAL spec = rv > (REAL)0 ? phong_power(rv, shininess) : (REAL)0;
-        result += atten * TO_REAL3(light->color) * filter * (diffuse * ndl * c + specular * spec);
+        result += light_term(s, i, n, v, c, m, l, atten, ndl, filter);
     }
     return result;
 }

@@ -327,11 +327,10 @@ MUTATIONS: tuple[Mutation, ...] = (
       "spawn(stack, &sp, &next, &sf, task.weight * kr,",
       "spawn(stack, &sp, &next, &sf, task.weight,", *KERNEL_SCENES),
     m("render.normal_not_faced", "kernels/render.cl",
-      "REAL3 n = dot(sf.n_s, ray.d) < (REAL)0 ? sf.n_s : -sf.n_s;", "REAL3 n = sf.n_s;",
+      "pt.n = dot(pt.sf.n_s, ray->d) < (REAL)0 ? pt.sf.n_s : -pt.sf.n_s;", "pt.n = pt.sf.n_s;",
       *KERNEL_SCENES),
     m("render.checker_in_camera_frame", "kernels/render.cl",
-      "surface_color(&s, m, sf.p + TO_REAL3(camera->world), n_f, sf.uv)",
-      "surface_color(&s, m, sf.p, n_f, sf.uv)", *KERNEL_SCENES),
+      "pt.sf.p + TO_REAL3(camera->world)", "pt.sf.p", *KERNEL_SCENES),
     m("render.background_unweighted", "kernels/render.cl",
       "sum += task.weight * background;", "sum += background;", *KERNEL_SCENES),
     # clray/device

@@ -167,22 +167,30 @@ def render_packed(packed: PackedScene, device: cl.Device,
 def intersect_rays(packed: PackedScene, device: cl.Device, origins: np.ndarray,
                    directions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Closest hits of rays given in the packed (camera-relative) frame: (t, normal, ref),
-    t = inf and ref = -1 on a miss. For tests and tools; runs the render kernel's code."""
+    t = inf and ref = -1 on a miss. For tests and tools; runs the render kernel's code. With
+    sample packets (packed.config.traversal), rays k * lanes .. k * lanes + lanes - 1 walk the
+    BVH as one packet."""
     program, _ = build_program(device, packed.config)
     queue = queue_for(device)
     ctx = queue.context
     n = len(origins)
-    o4 = np.zeros((n, 4), dtype=np.float32)
-    d4 = np.zeros((n, 4), dtype=np.float32)
-    o4[:, :3] = origins
-    d4[:, :3] = directions
+    lanes = packed.config.packet_lanes if packed.config.traversal == "sample_packet" else 1
+    # The last packet padded with copies of the last ray.
+    padded = -(-max(n, 1) // lanes) * lanes
+    o4 = np.zeros((padded, 4), dtype=np.float32)
+    d4 = np.zeros((padded, 4), dtype=np.float32)
+    o4[:n, :3] = origins
+    d4[:n, :3] = directions
+    o4[n:] = o4[n - 1] if n else 0
+    d4[n:] = d4[n - 1] if n else 0
     args = [_buffer(ctx, o4), _buffer(ctx, d4), *_scene_buffers(ctx, packed)]
-    hits_buf = cl.Buffer(ctx, cl.mem_flags.WRITE_ONLY, n * 16)
-    refs_buf = cl.Buffer(ctx, cl.mem_flags.WRITE_ONLY, n * 4)
-    cl.Kernel(program, "intersect_rays")(queue, (n,), None, *args, hits_buf, refs_buf)
-    hits = np.empty((n, 4), dtype=np.float32)
-    refs = np.empty(n, dtype=np.int32)
+    hits_buf = cl.Buffer(ctx, cl.mem_flags.WRITE_ONLY, padded * 16)
+    refs_buf = cl.Buffer(ctx, cl.mem_flags.WRITE_ONLY, padded * 4)
+    cl.Kernel(program, "intersect_rays")(queue, (padded // lanes,), None, *args, hits_buf,
+                                         refs_buf)
+    hits = np.empty((padded, 4), dtype=np.float32)
+    refs = np.empty(padded, dtype=np.int32)
     cl.enqueue_copy(queue, hits, hits_buf)
     cl.enqueue_copy(queue, refs, refs_buf)
     queue.finish()
-    return hits[:, 3], hits[:, :3], refs
+    return hits[:n, 3], hits[:n, :3], refs[:n]

@@ -73,6 +73,12 @@ class KernelConfig:
     bvh_width: int = 8
     bvh_stack_size: int = 32
     precision: str = "float"  # "float" | "double"
+    # How rays walk the BVH (TRAVERSALS; docs/acceleration.md): "single", every ray alone, or
+    # "sample_packet", a pixel's samples in packets of packet_lanes vector lanes, lanes going on
+    # ray by ray where at most packet_min_lanes of them reach a subtree.
+    traversal: str = "single"
+    packet_lanes: int = 8
+    packet_min_lanes: int = 2
     # Study variants (clray study): the textbook formulas the defaults replace.
     sphere_textbook: bool = False
     offset_fixed_eps: bool = False
@@ -94,6 +100,10 @@ class KernelConfig:
         defines.append(f"-DMAX_DEPTH={self.max_depth}")
         defines.append(f"-DBVH_WIDTH={self.bvh_width}")
         defines.append(f"-DBVH_STACK_SIZE={self.bvh_stack_size}")
+        defines.append(f"-DTRAVERSAL=TRAVERSAL_{self.traversal.upper()}")
+        if self.traversal == "sample_packet":
+            defines.append(f"-DPACKET_LANES={self.packet_lanes}")
+            defines.append(f"-DPACKET_MIN_LANES={self.packet_min_lanes}")
         if self.precision == "double":
             defines.append("-DUSE_DOUBLE=1")
         return sorted(defines) + sorted(self.build_options)
@@ -146,6 +156,26 @@ def bvh_width_for(device: cl.Device, precision: str = "float") -> int:
     width = (device.preferred_vector_width_double if precision == "double"
              else device.preferred_vector_width_float)
     return 8 if width >= 8 else 4
+
+
+TRAVERSALS = ("single", "sample_packet")
+
+
+def traversal_for(device: cl.Device) -> str:
+    """The traversal a device renders with by default: the single-ray walk on every device for
+    now. On PoCL's CPU device sample packets give the same image but are not faster yet
+    (docs/acceleration.md, Sample packets); on a GPU a work-item's lanes are work-items already,
+    and a packet's private state would cut occupancy."""
+    del device  # one default for all devices until a device measures faster with packets
+    return "single"
+
+
+def packet_lanes_for(device: cl.Device, precision: str = "float") -> int:
+    """Rays in a sample packet: the device's preferred vector width of the arithmetic type
+    (8 floats on AVX2, 16 on AVX-512), within 4 to 16."""
+    width = (device.preferred_vector_width_double if precision == "double"
+             else device.preferred_vector_width_float)
+    return 16 if width >= 16 else (8 if width >= 8 else 4)
 
 
 def kernel_source(name: str = ENTRY_FILE) -> str:

@@ -1,0 +1,770 @@
+// Sample packets (TRAVERSAL_SAMPLE_PACKET): PACKET_LANES rays of one pixel's samples walk the
+// wide BVH together, one ray per vector lane (docs/acceleration.md, Sample packets). A child
+// is visited if any active lane crosses its box, nearest first for the packet; each lane keeps
+// its own t and hit, and tests shapes with the single-ray formulas written lane-wise, so each
+// lane finds the hit the single-ray walk finds. A subtree or leaf that at most
+// PACKET_MIN_LANES lanes reach is walked ray by ray by the single-ray code (bvh.h), as an
+// any-hit packet is once every lane is blocked.
+#ifndef CLRAY_PACKET_H
+#define CLRAY_PACKET_H
+
+#include "real.h"
+#include "clray_types.h"
+#include "scene.h"
+#include "hit.h"
+#include "intersect.h"
+#include "bvh.h"
+#include "shading.h"
+
+#ifndef PACKET_LANES
+#define PACKET_LANES 8
+#endif
+#ifndef PACKET_MIN_LANES
+#define PACKET_MIN_LANES 2
+#endif
+
+// REALP: one REAL per lane; MASKP: what comparing two REALP gives (int lanes for float, long
+// for double), also the type of per-lane integers that selects mix with REALP.
+#ifdef USE_DOUBLE
+#define PACKET_TYPES(n) \
+    typedef double##n REALP; \
+    typedef long##n MASKP;
+#else
+#define PACKET_TYPES(n) \
+    typedef float##n REALP; \
+    typedef int##n MASKP;
+#endif
+
+#if PACKET_LANES == 16
+PACKET_TYPES(16)
+#define VLOADP vload16
+#define VSTOREP vstore16
+#define LANE_BITS \
+    ((MASKP)(1, 2, 4, 8, 16, 32, 64, 128, 256, 512, 1024, 2048, 4096, 8192, 16384, 32768))
+#elif PACKET_LANES == 8
+PACKET_TYPES(8)
+#define VLOADP vload8
+#define VSTOREP vstore8
+#define LANE_BITS ((MASKP)(1, 2, 4, 8, 16, 32, 64, 128))
+#elif PACKET_LANES == 4
+PACKET_TYPES(4)
+#define VLOADP vload4
+#define VSTOREP vstore4
+#define LANE_BITS ((MASKP)(1, 2, 4, 8))
+#else
+#error "PACKET_LANES must be 4, 8 or 16"
+#endif
+
+#ifdef USE_DOUBLE
+typedef long LANE_INT;
+#else
+typedef int LANE_INT;
+#endif
+
+#define ALL_LANES ((1 << PACKET_LANES) - 1)
+
+// The OR and the minimum over the lanes. Clang's reductions compile to a few instructions;
+// a tree of halves (what PoCL's any() and all() amount to) costs shuffles at every level.
+#if defined(__clang__) && defined(__has_builtin)
+#if __has_builtin(__builtin_reduce_or)
+#define REDUCE_OR(v) __builtin_reduce_or(v)
+#endif
+#endif
+#ifndef REDUCE_OR
+HOT LANE_INT reduce_or_lanes(MASKP v) {
+    LANE_INT buf[PACKET_LANES];
+    VSTOREP(v, 0, buf);
+    LANE_INT m = buf[0];
+    for (int k = 1; k < PACKET_LANES; ++k) m |= buf[k];
+    return m;
+}
+#define REDUCE_OR(v) reduce_or_lanes(v)
+#endif
+
+// Bit k set where lane k of a comparison is true.
+HOT int lane_mask(MASKP m) { return (int)REDUCE_OR(m & LANE_BITS); }
+
+// The lanes of `bits` as a comparison result.
+HOT MASKP lanes_of(int bits) { return ((MASKP)(bits) & LANE_BITS) != (MASKP)(0); }
+
+#if defined(__clang__) && defined(__has_builtin)
+#if __has_builtin(__builtin_reduce_min)
+#define REDUCE_MIN(v) __builtin_reduce_min(v)
+#endif
+#endif
+
+HOT REAL min_lanes(REALP v) {
+#ifdef REDUCE_MIN
+    return REDUCE_MIN(v);
+#else
+    REAL buf[PACKET_LANES];
+    VSTOREP(v, 0, buf);
+    REAL m = buf[0];
+    for (int k = 1; k < PACKET_LANES; ++k) m = fmin(m, buf[k]);
+    return m;
+#endif
+}
+
+// The packet's rays, coordinate by coordinate, with each lane's set-up from make_ray.
+typedef struct {
+    REALP ox, oy, oz, dx, dy, dz, ix, iy, iz;
+    REALP dd;  // d . d, as intersect_sphere_packet has it
+#if HAS_TRIANGLES
+    MASKP kx, ky, kz;
+    REALP sx, sy, sz;
+    // Whether every lane has lane 0's axis permutation (akx, aky, akz), as a pixel's samples
+    // mostly do; then okx, oky, okz are the origins' coordinates along those axes.
+    bool uniform;
+    int akx, aky, akz;
+    REALP okx, oky, okz;
+#endif
+} RayPacket;
+
+// rays[k] for every lane (lanes without a ray of their own hold a copy of another's).
+HOT RayPacket ray_packet(const Ray* rays) {
+    REAL f[10][PACKET_LANES];
+    for (int k = 0; k < PACKET_LANES; ++k) {
+        const Ray* r = rays + k;
+        f[0][k] = r->o.x;
+        f[1][k] = r->o.y;
+        f[2][k] = r->o.z;
+        f[3][k] = r->d.x;
+        f[4][k] = r->d.y;
+        f[5][k] = r->d.z;
+        f[6][k] = r->inv_d.x;
+        f[7][k] = r->inv_d.y;
+        f[8][k] = r->inv_d.z;
+        f[9][k] = dot(r->d, r->d);
+    }
+    RayPacket p;
+    p.ox = VLOADP(0, f[0]);
+    p.oy = VLOADP(0, f[1]);
+    p.oz = VLOADP(0, f[2]);
+    p.dx = VLOADP(0, f[3]);
+    p.dy = VLOADP(0, f[4]);
+    p.dz = VLOADP(0, f[5]);
+    p.ix = VLOADP(0, f[6]);
+    p.iy = VLOADP(0, f[7]);
+    p.iz = VLOADP(0, f[8]);
+    p.dd = VLOADP(0, f[9]);
+#if HAS_TRIANGLES
+    LANE_INT axis[3][PACKET_LANES];
+    for (int k = 0; k < PACKET_LANES; ++k) {
+        axis[0][k] = rays[k].kx;
+        axis[1][k] = rays[k].ky;
+        axis[2][k] = rays[k].kz;
+        f[0][k] = rays[k].sx;
+        f[1][k] = rays[k].sy;
+        f[2][k] = rays[k].sz;
+    }
+    p.kx = VLOADP(0, axis[0]);
+    p.ky = VLOADP(0, axis[1]);
+    p.kz = VLOADP(0, axis[2]);
+    p.sx = VLOADP(0, f[0]);
+    p.sy = VLOADP(0, f[1]);
+    p.sz = VLOADP(0, f[2]);
+    p.akx = rays[0].kx;
+    p.aky = rays[0].ky;
+    p.akz = rays[0].kz;
+    p.uniform = true;
+    for (int k = 1; k < PACKET_LANES; ++k) {
+        p.uniform &= rays[k].kx == p.akx && rays[k].ky == p.aky && rays[k].kz == p.akz;
+    }
+    p.okx = p.akx == 0 ? p.ox : (p.akx == 1 ? p.oy : p.oz);
+    p.oky = p.aky == 0 ? p.ox : (p.aky == 1 ? p.oy : p.oz);
+    p.okz = p.akz == 0 ? p.ox : (p.akz == 1 ? p.oy : p.oz);
+#endif
+    return p;
+}
+
+// The lanes' hits (Hit, lane by lane; instances are not walked by packets).
+typedef struct {
+    REALP t, b1, b2;
+    MASKP ref, part;
+} PacketHit;
+
+HOT PacketHit packet_hit(const Hit* hits) {
+    REAL t[PACKET_LANES], b1[PACKET_LANES], b2[PACKET_LANES];
+    LANE_INT ref[PACKET_LANES], part[PACKET_LANES];
+    for (int k = 0; k < PACKET_LANES; ++k) {
+        t[k] = hits[k].t;
+        b1[k] = hits[k].b1;
+        b2[k] = hits[k].b2;
+        ref[k] = hits[k].ref;
+        part[k] = hits[k].part;
+    }
+    PacketHit h;
+    h.t = VLOADP(0, t);
+    h.b1 = VLOADP(0, b1);
+    h.b2 = VLOADP(0, b2);
+    h.ref = VLOADP(0, ref);
+    h.part = VLOADP(0, part);
+    return h;
+}
+
+HOT void store_hits(const PacketHit* h, Hit* hits) {
+    REAL t[PACKET_LANES], b1[PACKET_LANES], b2[PACKET_LANES];
+    LANE_INT ref[PACKET_LANES], part[PACKET_LANES];
+    VSTOREP(h->t, 0, t);
+    VSTOREP(h->b1, 0, b1);
+    VSTOREP(h->b2, 0, b2);
+    VSTOREP(h->ref, 0, ref);
+    VSTOREP(h->part, 0, part);
+    for (int k = 0; k < PACKET_LANES; ++k) {
+        hits[k].t = t[k];
+        hits[k].b1 = b1[k];
+        hits[k].b2 = b2[k];
+        hits[k].ref = (int)ref[k];
+        hits[k].part = (int)part[k];
+        hits[k].instance = -1;
+    }
+}
+
+// consider_hit on every lane of `crossed`, for one shape (ref, part) crossed at t: the same
+// comparisons, with selects.
+HOT void consider_lanes(PacketHit* h, MASKP crossed, REALP t, int ref, int part, REALP b1,
+                        REALP b2) {
+    MASKP take = crossed & (t > (REAL)0) & (t < REAL_INF);
+    MASKP none = h->ref < (MASKP)(0);
+    REALP tol = none ? (REALP)(0) : (REALP)(tie_gamma()) * fmax(t, h->t);
+    take &= none | (t < h->t - tol) | ((t <= h->t + tol) & ((MASKP)(ref) < h->ref));
+    h->t = take ? t : h->t;
+    h->ref = take ? (MASKP)(ref) : h->ref;
+    h->part = take ? (MASKP)(part) : h->part;
+    h->b1 = take ? b1 : h->b1;
+    h->b2 = take ? b2 : h->b2;
+}
+
+// One axis of node_children's slab test, for one box against every lane: the same
+// compare-selects (a NaN from 0 * inf never narrows the interval) and widened far bound.
+HOT void slab_axis_lanes(REAL lo, REAL hi, REALP o, REALP inv, REAL widen, REALP* t0,
+                         REALP* t1) {
+    REALP tn = ((REALP)(lo) - o) * inv;
+    REALP tf = ((REALP)(hi) - o) * inv;
+    REALP near = tn > tf ? tf : tn;
+    REALP far = (tn > tf ? tn : tf) * widen;
+    *t0 = near > *t0 ? near : *t0;
+    *t1 = far < *t1 ? far : *t1;
+}
+
+// Where each lane enters box c of a node, within [0, tmax]; crossed lanes in *crossed.
+HOT REALP box_lanes(const __global BvhNode* node, int c, const RayPacket* p, REALP tmax,
+                    MASKP* crossed) {
+    const REAL widen = (REAL)1 + (REAL)2 * gamma_n(3);
+    REALP t0 = (REALP)(0), t1 = tmax;
+    slab_axis_lanes(TO_REAL(node->lo_x[c]), TO_REAL(node->hi_x[c]), p->ox, p->ix, widen, &t0,
+                    &t1);
+    slab_axis_lanes(TO_REAL(node->lo_y[c]), TO_REAL(node->hi_y[c]), p->oy, p->iy, widen, &t0,
+                    &t1);
+    slab_axis_lanes(TO_REAL(node->lo_z[c]), TO_REAL(node->hi_z[c]), p->oz, p->iz, widen, &t0,
+                    &t1);
+    *crossed = t0 <= t1;
+    return t0;
+}
+
+#if HAS_TRIANGLES && !TRIANGLE_MOLLER_TRUMBORE
+HOT REALP pick_lanes(REALP x, REALP y, REALP z, MASKP k) {
+    return k == (MASKP)(0) ? x : (k == (MASKP)(1) ? y : z);
+}
+
+HOT REALP difference_of_products_lanes(REALP a, REALP b, REALP c, REALP d) {
+    REALP cd = c * d;
+    REALP err = fma(-c, d, cd);
+    REALP dop = fma(a, b, -cd);
+    return dop + err;
+}
+
+// Triangle k's corners relative to each lane's origin, in each lane's permuted axes.
+typedef struct {
+    REALP p0x, p0y, p0z, p1x, p1y, p1z, p2x, p2y, p2z;
+} CornerLanes;
+
+HOT CornerLanes triangle_corners_lanes(const __global TrianglePacket* pk, int k,
+                                       const RayPacket* r) {
+    CornerLanes q;
+    if (r->uniform) {
+        // One permutation for all lanes: pick the corners' coordinates once, as scalars.
+        REAL3 a = (REAL3)(TO_REAL(pk->x0[k]), TO_REAL(pk->y0[k]), TO_REAL(pk->z0[k]));
+        REAL3 b = (REAL3)(TO_REAL(pk->x1[k]), TO_REAL(pk->y1[k]), TO_REAL(pk->z1[k]));
+        REAL3 c = (REAL3)(TO_REAL(pk->x2[k]), TO_REAL(pk->y2[k]), TO_REAL(pk->z2[k]));
+        q.p0x = (REALP)(comp3(a, r->akx)) - r->okx;
+        q.p0y = (REALP)(comp3(a, r->aky)) - r->oky;
+        q.p0z = (REALP)(comp3(a, r->akz)) - r->okz;
+        q.p1x = (REALP)(comp3(b, r->akx)) - r->okx;
+        q.p1y = (REALP)(comp3(b, r->aky)) - r->oky;
+        q.p1z = (REALP)(comp3(b, r->akz)) - r->okz;
+        q.p2x = (REALP)(comp3(c, r->akx)) - r->okx;
+        q.p2y = (REALP)(comp3(c, r->aky)) - r->oky;
+        q.p2z = (REALP)(comp3(c, r->akz)) - r->okz;
+        return q;
+    }
+    REALP ax = (REALP)(TO_REAL(pk->x0[k])) - r->ox, ay = (REALP)(TO_REAL(pk->y0[k])) - r->oy,
+          az = (REALP)(TO_REAL(pk->z0[k])) - r->oz;
+    REALP bx = (REALP)(TO_REAL(pk->x1[k])) - r->ox, by = (REALP)(TO_REAL(pk->y1[k])) - r->oy,
+          bz = (REALP)(TO_REAL(pk->z1[k])) - r->oz;
+    REALP cx = (REALP)(TO_REAL(pk->x2[k])) - r->ox, cy = (REALP)(TO_REAL(pk->y2[k])) - r->oy,
+          cz = (REALP)(TO_REAL(pk->z2[k])) - r->oz;
+    q.p0x = pick_lanes(ax, ay, az, r->kx);
+    q.p0y = pick_lanes(ax, ay, az, r->ky);
+    q.p0z = pick_lanes(ax, ay, az, r->kz);
+    q.p1x = pick_lanes(bx, by, bz, r->kx);
+    q.p1y = pick_lanes(bx, by, bz, r->ky);
+    q.p1z = pick_lanes(bx, by, bz, r->kz);
+    q.p2x = pick_lanes(cx, cy, cz, r->kx);
+    q.p2y = pick_lanes(cx, cy, cz, r->ky);
+    q.p2z = pick_lanes(cx, cy, cz, r->kz);
+    return q;
+}
+
+// Triangle k of a packet against every lane: intersect_triangle_packet's watertight test with
+// the triangle and the ray's roles swapped (one triangle, PACKET_LANES rays), the same
+// operations in the same order. Crossed lanes come back with t and barycentrics.
+HOT MASKP triangle_lanes(const __global TrianglePacket* pk, int k, const RayPacket* r,
+                         REALP* t, REALP* b1, REALP* b2) {
+    CornerLanes corners = triangle_corners_lanes(pk, k, r);
+    REALP p0x = corners.p0x, p0y = corners.p0y, p0z = corners.p0z;
+    REALP p1x = corners.p1x, p1y = corners.p1y, p1z = corners.p1z;
+    REALP p2x = corners.p2x, p2y = corners.p2y, p2z = corners.p2z;
+    p0x += r->sx * p0z;
+    p0y += r->sy * p0z;
+    p1x += r->sx * p1z;
+    p1y += r->sy * p1z;
+    p2x += r->sx * p2z;
+    p2y += r->sy * p2z;
+    REALP e0 = difference_of_products_lanes(p1x, p2y, p1y, p2x);
+    REALP e1 = difference_of_products_lanes(p2x, p0y, p2y, p0x);
+    REALP e2 = difference_of_products_lanes(p0x, p1y, p0y, p1x);
+#if !defined(USE_DOUBLE) && defined(cl_khr_fp64) && !TRIANGLE_NO_FP64_FALLBACK
+    int zero = lane_mask((e0 == 0.0f) | (e1 == 0.0f) | (e2 == 0.0f));
+    if (zero) {
+        float q[6][PACKET_LANES], e[3][PACKET_LANES];
+        VSTOREP(p0x, 0, q[0]);
+        VSTOREP(p0y, 0, q[1]);
+        VSTOREP(p1x, 0, q[2]);
+        VSTOREP(p1y, 0, q[3]);
+        VSTOREP(p2x, 0, q[4]);
+        VSTOREP(p2y, 0, q[5]);
+        VSTOREP(e0, 0, e[0]);
+        VSTOREP(e1, 0, e[1]);
+        VSTOREP(e2, 0, e[2]);
+        for (int j = 0; j < PACKET_LANES; ++j) {
+            if (!(zero & (1 << j))) continue;
+            e[0][j] = (float)((double)q[2][j] * (double)q[5][j] - (double)q[3][j] * q[4][j]);
+            e[1][j] = (float)((double)q[4][j] * (double)q[1][j] - (double)q[5][j] * q[0][j]);
+            e[2][j] = (float)((double)q[0][j] * (double)q[3][j] - (double)q[1][j] * q[2][j]);
+        }
+        e0 = VLOADP(0, e[0]);
+        e1 = VLOADP(0, e[1]);
+        e2 = VLOADP(0, e[2]);
+    }
+#endif
+    MASKP mixed = ((e0 < 0) | (e1 < 0) | (e2 < 0)) & ((e0 > 0) | (e1 > 0) | (e2 > 0));
+    REALP det = e0 + e1 + e2;
+    p0z *= r->sz;
+    p1z *= r->sz;
+    p2z *= r->sz;
+    REALP t_scaled = e0 * p0z + e1 * p1z + e2 * p2z;
+    // A zero or NaN det fails both sign tests.
+    MASKP ahead = ((det < 0) & (t_scaled < 0)) | ((det > 0) & (t_scaled > 0));
+    REALP inv_det = (REAL)1 / det;
+    *t = t_scaled * inv_det;
+    *b1 = e1 * inv_det;
+    *b2 = e2 * inv_det;
+    return ahead & ~mixed;
+}
+#define TRIANGLE_LANES 1
+#else
+#define TRIANGLE_LANES 0
+#endif
+
+#if HAS_SPHERES && !SPHERE_FP64 && !SPHERE_TEXTBOOK
+// Sphere k of a packet against every lane: intersect_sphere_packet's Hearn-Baker formula with
+// the roles swapped. Lanes with roots t0 <= t1 come back set.
+HOT MASKP sphere_lanes(const __global SpherePacket* pk, int k, const RayPacket* r, MASKP lanes,
+                       REALP* t0, REALP* t1) {
+    REALP a = r->dd;
+    REALP fx = r->ox - (REALP)(TO_REAL(pk->x[k]));
+    REALP fy = r->oy - (REALP)(TO_REAL(pk->y[k]));
+    REALP fz = r->oz - (REALP)(TO_REAL(pk->z[k]));
+    REALP radius = (REALP)(TO_REAL(pk->radius[k]));
+    REALP b = fx * r->dx + fy * r->dy + fz * r->dz;
+    REALP along = b / a;
+    REALP lx = fx - along * r->dx, ly = fy - along * r->dy, lz = fz - along * r->dz;
+    REALP ll = sqrt(lx * lx + ly * ly + lz * lz);
+    REALP disc = a * (radius - ll) * (radius + ll);
+    MASKP crossed = lanes & (disc >= (REAL)0) & (a != (REAL)0);
+    if (!lane_mask(crossed)) return crossed;
+    REALP fl = sqrt(fx * fx + fy * fy + fz * fz);
+    // fmax keeps sqrt's argument non-negative; lanes with disc < 0 (or NaN) are masked.
+    REALP q = -(b + copysign(sqrt(fmax(disc, (REALP)(0))), b));
+    REALP r0 = ((fl - radius) * (fl + radius)) / q, r1 = q / a;
+    *t0 = fmin(r0, r1);
+    *t1 = fmax(r0, r1);
+    return crossed & (q != (REAL)0);
+}
+#define SPHERE_LANES 1
+#else
+#define SPHERE_LANES 0
+#endif
+
+#if HAS_BVH && !HAS_INSTANCES
+// Whether a leaf holds shapes that have no lane-wise test: its other primitives, and the
+// packets of the study variants' formulas.
+HOT bool leaf_ray_by_ray(int count) {
+    bool ray_by_ray = (count & LEAF_FIELD_MASK) > 0;
+#if !TRIANGLE_LANES
+    ray_by_ray |= section_packets(count, PRIM_TRIANGLE) > 0;
+#endif
+#if !SPHERE_LANES
+    ray_by_ray |= section_packets(count, PRIM_SPHERE) > 0;
+#endif
+    return ray_by_ray;
+}
+
+// Closest hits of the lanes `bits` in a leaf: its triangles and spheres lane-wise, its other
+// shapes (and the study variants' formulas) ray by ray, as leaf_closest has them.
+HOT void leaf_closest_lanes(const SceneRefs* s, int slot, int count, const Ray* rays,
+                            const RayPacket* p, int bits, PacketHit* h) {
+    MASKP lanes = lanes_of(bits);
+    int tri_packets = section_packets(count, PRIM_TRIANGLE);
+    int sphere_packets = section_packets(count, PRIM_SPHERE);
+    if (leaf_ray_by_ray(count) || popcount(bits) <= PACKET_MIN_LANES) {
+        Hit hits[PACKET_LANES];
+        store_hits(h, hits);
+        for (int rest = bits; rest; rest &= rest - 1) {
+            int j = lowest_bit(rest);
+            leaf_closest(s, slot, count, rays + j, -1, hits + j);
+        }
+        *h = packet_hit(hits);
+        return;
+    }
+#if TRIANGLE_LANES
+    for (int end = slot + tri_packets * PACKET_WIDTH; slot < end; slot += PACKET_WIDTH) {
+        const __global TrianglePacket* pk = s->triangle_packets + slot / PACKET_WIDTH;
+        for (int k = 0; k < PACKET_WIDTH; ++k) {
+            int ref = s->prim_refs[slot + k];
+            if (ref < 0) break;  // padding: the packet's last lanes
+            REALP t, b1, b2;
+            MASKP crossed = lanes & triangle_lanes(pk, k, p, &t, &b1, &b2);
+            if (lane_mask(crossed)) consider_lanes(h, crossed, t, ref, slot + k, b1, b2);
+        }
+    }
+#endif
+#if SPHERE_LANES
+    for (int end = slot + sphere_packets * PACKET_WIDTH; slot < end; slot += PACKET_WIDTH) {
+        const __global SpherePacket* pk = s->sphere_packets + slot / PACKET_WIDTH;
+        for (int k = 0; k < PACKET_WIDTH; ++k) {
+            int ref = s->prim_refs[slot + k];
+            if (ref < 0) break;
+            REALP t0, t1;
+            MASKP crossed = sphere_lanes(pk, k, p, lanes, &t0, &t1);
+            if (!lane_mask(crossed)) continue;
+            // consider_hit's choice: the first crossing ahead of the origin.
+            REALP t = t0 > (REAL)0 ? t0 : t1;
+            consider_lanes(h, crossed, t, ref, 0, (REALP)(0), (REALP)(0));
+        }
+    }
+#endif
+}
+
+// The crossed children of a node for the lanes `bits`, nearest (by the packet's nearest entry)
+// in child[0]: their entries, lanes and entry t's. Returns how many.
+HOT int node_children_lanes(const __global BvhNode* node, const RayPacket* p, REALP tmax,
+                            int bits, int* child, int* count, int* lanes, REAL* tnear) {
+    MASKP active = lanes_of(bits);
+    int n = 0;
+    for (int c = 0; c < BVH_WIDTH; ++c) {
+        if (node->child[c] < 0) continue;
+        MASKP crossed;
+        REALP t0 = box_lanes(node, c, p, tmax, &crossed);
+        crossed &= active;
+        int lane_bits_c = lane_mask(crossed);
+        if (!lane_bits_c) continue;
+        REAL t = min_lanes(crossed ? t0 : (REALP)(REAL_INF));
+        // Insertion by entry t, nearest first.
+        int at = n++;
+        while (at > 0 && tnear[at - 1] > t) {
+            child[at] = child[at - 1];
+            count[at] = count[at - 1];
+            lanes[at] = lanes[at - 1];
+            tnear[at] = tnear[at - 1];
+            at--;
+        }
+        child[at] = node->child[c];
+        count[at] = node->count[c];
+        lanes[at] = lane_bits_c;
+        tnear[at] = t;
+    }
+    return n;
+}
+
+// Lanes that a subtree entered at `t` (the nearest lane's entry) can still give a hit: those
+// whose hit is not nearer than t (beyond the tie reach, as closest_hit skips a pop).
+HOT int reaching_lanes(const PacketHit* h, REAL t, int bits) {
+    REALP reach = h->t + (REAL)2 * tie_gamma() * h->t;
+    return bits & lane_mask(reach >= (REALP)(t));
+}
+
+// The BVH part of closest_hit for the lanes `bits`, from the hits in *h.
+HOT void packet_walk_closest(const SceneRefs* s, const Ray* rays, const RayPacket* p, int bits,
+                             PacketHit* h) {
+    int stack_child[BVH_STACK_SIZE], stack_count[BVH_STACK_SIZE], stack_lanes[BVH_STACK_SIZE];
+    REAL stack_t[BVH_STACK_SIZE];
+    int sp = 0;
+    int child = 0, count = 0;
+    for (;;) {
+        if (count > 0) {
+            COUNT(s, closest_prims, leaf_prims(s, child, count));
+            leaf_closest_lanes(s, child, count, rays, p, bits, h);
+        } else if (popcount(bits) <= PACKET_MIN_LANES) {
+            // Too few lanes to pay for the packet: the single-ray walk, lane by lane.
+            Hit hits[PACKET_LANES];
+            store_hits(h, hits);
+            for (int rest = bits; rest; rest &= rest - 1) {
+                int j = lowest_bit(rest);
+                walk_closest(s, rays + j, child, count, hits + j);
+            }
+            *h = packet_hit(hits);
+        } else {
+            const __global BvhNode* node = s->nodes + child;
+            COUNT(s, closest_boxes, used_children(node));
+            int c_child[BVH_WIDTH], c_count[BVH_WIDTH], c_lanes[BVH_WIDTH];
+            REAL c_t[BVH_WIDTH];
+            REALP reach = h->t + (REAL)2 * tie_gamma() * h->t;
+            int n = node_children_lanes(node, p, reach, bits, c_child, c_count, c_lanes, c_t);
+            if (n > 0) {
+                // Go on with the nearest; push the others farthest first, so nearer ones pop
+                // first.
+                for (int k = n - 1; k > 0; --k) {
+                    stack_child[sp] = c_child[k];
+                    stack_count[sp] = c_count[k];
+                    stack_lanes[sp] = c_lanes[k];
+                    stack_t[sp++] = c_t[k];
+                }
+                child = c_child[0];
+                count = c_count[0];
+                bits = c_lanes[0];
+                continue;
+            }
+        }
+        bits = 0;
+        while (sp > 0 && !bits) {
+            --sp;
+            bits = reaching_lanes(h, stack_t[sp], stack_lanes[sp]);
+        }
+        if (!bits) break;
+        child = stack_child[sp];
+        count = stack_count[sp];
+    }
+}
+
+#endif
+
+// closest_hit for each lane of `bits` (hits of the others: no hit).
+HOT void packet_closest(const SceneRefs* s, const Ray* rays, int bits, Hit* hits) {
+    for (int j = 0; j < PACKET_LANES; ++j) {
+        hits[j].t = REAL_INF;
+        hits[j].ref = -1;
+        hits[j].part = 0;
+        hits[j].b1 = 0;
+        hits[j].b2 = 0;
+        hits[j].instance = -1;
+    }
+#if HAS_INSTANCES || !HAS_BVH
+    // Instances are walked ray by ray.
+    for (int rest = bits; rest; rest &= rest - 1) {
+        int j = lowest_bit(rest);
+        hits[j] = closest_hit(s, rays + j);
+    }
+#else
+#if HAS_PLANES
+    for (int rest = bits; rest; rest &= rest - 1) {
+        int j = lowest_bit(rest);
+        for (int i = 0; i < s->n_planes; ++i) {
+            Crossings c = intersect_plane(s->planes + i, rays + j);
+            consider_hit(hits + j, &c, (PRIM_PLANE << PRIM_TYPE_SHIFT) | i, -1);
+        }
+    }
+#endif
+    if (s->n_nodes == 0) return;
+    RayPacket p = ray_packet(rays);
+    PacketHit h = packet_hit(hits);
+    packet_walk_closest(s, rays, &p, bits, &h);
+    store_hits(&h, hits);
+#endif
+}
+
+#if !HAS_TRANSMISSION && !HAS_INSTANCES && HAS_BVH
+// Lanes of `bits` that a leaf blocks within (0, tmax): packet_blocks lane-wise.
+HOT int leaf_blocks_lanes(const SceneRefs* s, int slot, int count, const Ray* rays,
+                          const RayPacket* p, REALP tmax, const REAL* tmax_lanes, int bits) {
+    MASKP lanes = lanes_of(bits);
+    int tri_packets = section_packets(count, PRIM_TRIANGLE);
+    int sphere_packets = section_packets(count, PRIM_SPHERE);
+    int blocked = 0;
+    if (leaf_ray_by_ray(count) || popcount(bits) <= PACKET_MIN_LANES) {
+        for (int rest = bits; rest; rest &= rest - 1) {
+            int j = lowest_bit(rest);
+            REAL3 filter = (REAL3)(1, 1, 1);
+            if (!leaf_transmission(s, slot, count, rays + j, -1, tmax_lanes[j], &filter)) {
+                blocked |= 1 << j;
+            }
+        }
+        return blocked;
+    }
+#if TRIANGLE_LANES
+    for (int end = slot + tri_packets * PACKET_WIDTH; slot < end; slot += PACKET_WIDTH) {
+        const __global TrianglePacket* pk = s->triangle_packets + slot / PACKET_WIDTH;
+        for (int k = 0; k < PACKET_WIDTH; ++k) {
+            if (s->prim_refs[slot + k] < 0) break;
+            REALP t, b1, b2;
+            MASKP crossed = lanes & triangle_lanes(pk, k, p, &t, &b1, &b2);
+            blocked |= lane_mask(crossed & (t > (REAL)0) & (t < tmax));
+        }
+        if (blocked == bits) return blocked;
+    }
+#endif
+#if SPHERE_LANES
+    for (int end = slot + sphere_packets * PACKET_WIDTH; slot < end; slot += PACKET_WIDTH) {
+        const __global SpherePacket* pk = s->sphere_packets + slot / PACKET_WIDTH;
+        for (int k = 0; k < PACKET_WIDTH; ++k) {
+            if (s->prim_refs[slot + k] < 0) break;
+            REALP t0, t1;
+            MASKP crossed = sphere_lanes(pk, k, p, lanes, &t0, &t1);
+            MASKP inside = ((t0 > (REAL)0) & (t0 < tmax)) | ((t1 > (REAL)0) & (t1 < tmax));
+            blocked |= lane_mask(crossed & inside);
+        }
+        if (blocked == bits) return blocked;
+    }
+#endif
+    return blocked;
+}
+
+// The lanes of `bits` whose shadow segment (0, tmax) some shape blocks, in an opaque scene:
+// every crossed child is walked (any order) until every lane is blocked.
+HOT int packet_blocked(const SceneRefs* s, const Ray* rays, const REAL* tmax_lanes, int bits) {
+    int blocked = 0;
+#if HAS_PLANES
+    for (int rest = bits; rest; rest &= rest - 1) {
+        int j = lowest_bit(rest);
+        for (int i = 0; i < s->n_planes; ++i) {
+            Crossings c = intersect_plane(s->planes + i, rays + j);
+            REAL3 filter = (REAL3)(1, 1, 1);
+            if (!filter_crossings(s, &c, (PRIM_PLANE << PRIM_TYPE_SHIFT) | i, -1,
+                                  tmax_lanes[j], &filter)) {
+                blocked |= 1 << j;
+                break;
+            }
+        }
+    }
+#endif
+    if (s->n_nodes == 0 || blocked == bits) return blocked;
+    RayPacket p = ray_packet(rays);
+    REALP tmax = VLOADP(0, tmax_lanes);
+    int stack_child[BVH_STACK_SIZE], stack_count[BVH_STACK_SIZE], stack_lanes[BVH_STACK_SIZE];
+    int sp = 0;
+    stack_child[sp] = 0;
+    stack_count[sp] = 0;
+    stack_lanes[sp++] = bits & ~blocked;
+    while (sp > 0) {
+        --sp;
+        int child = stack_child[sp], count = stack_count[sp];
+        int lanes = stack_lanes[sp] & ~blocked;
+        if (!lanes) continue;
+        if (count > 0) {
+            COUNT(s, shadow_prims, leaf_prims(s, child, count));
+            blocked |= leaf_blocks_lanes(s, child, count, rays, &p, tmax, tmax_lanes, lanes);
+            if (blocked == bits) return blocked;
+            continue;
+        }
+        if (popcount(lanes) <= PACKET_MIN_LANES) {
+            // Too few lanes to pay for the packet: the single-ray walk, lane by lane.
+            for (int rest = lanes; rest; rest &= rest - 1) {
+                int j = lowest_bit(rest);
+                REAL3 filter = walk_transmission(s, rays + j, child, count, tmax_lanes[j],
+                                                 (REAL3)(1, 1, 1));
+                if (max_comp3(filter) <= (REAL)0) blocked |= 1 << j;
+            }
+            if (blocked == bits) return blocked;
+            continue;
+        }
+        const __global BvhNode* node = s->nodes + child;
+        COUNT(s, shadow_boxes, used_children(node));
+        MASKP active = lanes_of(lanes);
+        for (int c = 0; c < BVH_WIDTH; ++c) {
+            if (node->child[c] < 0) continue;
+            MASKP crossed;
+            box_lanes(node, c, &p, tmax, &crossed);
+            int crossing = lane_mask(crossed & active);
+            if (!crossing) continue;
+            stack_child[sp] = node->child[c];
+            stack_count[sp] = node->count[c];
+            stack_lanes[sp++] = crossing;
+        }
+    }
+    return blocked;
+}
+#endif
+
+// transmission() for each lane of `bits`, into filter[lane].
+HOT void packet_transmission(const SceneRefs* s, const Ray* rays, const REAL* tmax, int bits,
+                             REAL3* filter) {
+#if !HAS_TRANSMISSION && !HAS_INSTANCES && HAS_BVH
+    int blocked = packet_blocked(s, rays, tmax, bits);
+    for (int j = 0; j < PACKET_LANES; ++j) {
+        filter[j] = (blocked >> j) & 1 ? (REAL3)(0, 0, 0) : (REAL3)(1, 1, 1);
+    }
+#else
+    // Coloured shadows multiply filters crossing by crossing: ray by ray.
+    for (int rest = bits; rest; rest &= rest - 1) {
+        int j = lowest_bit(rest);
+        filter[j] = transmission(s, rays + j, tmax[j]);
+    }
+#endif
+}
+
+// shade_direct for the lanes of `bits`, each at its own surface point, with one shadow-ray
+// packet per light. key.sample: lane 0's sample. The per-lane arithmetic is shade_direct's.
+HOT void packet_direct(const SceneRefs* s, const Surface* sf, const REAL3* n, const REAL3* v,
+                       const REAL3* c, const int* material, REAL3 ambient_light, SampleKey key,
+                       int bits, REAL3* direct, int* shadow_rays) {
+    int first = key.sample;
+    for (int rest = bits; rest; rest &= rest - 1) {
+        int j = lowest_bit(rest);
+        direct[j] = TO_REAL(s->materials[material[j]].ambient) * c[j] * ambient_light +
+                    TO_REAL3(s->materials[material[j]].emission);
+    }
+    for (int i = 0; i < s->n_lights; ++i) {
+        Ray rays[PACKET_LANES];
+        REAL3 l[PACKET_LANES], filter[PACKET_LANES];
+        REAL atten[PACKET_LANES], ndl[PACKET_LANES], tmax[PACKET_LANES];
+        int shot = 0;
+        for (int rest = bits; rest; rest &= rest - 1) {
+            int j = lowest_bit(rest);
+            key.sample = first + j;
+            if (light_ray(s, sf + j, n[j], i, key, l + j, atten + j, ndl + j, rays + j,
+                          tmax + j)) {
+                shot |= 1 << j;
+            }
+        }
+        if (!shot) continue;
+        *shadow_rays += popcount(shot);
+        // Lanes without a shadow ray ride along as copies of one that has.
+        int spare = lowest_bit(shot);
+        for (int j = 0; j < PACKET_LANES; ++j) {
+            if (!((shot >> j) & 1)) {
+                rays[j] = rays[spare];
+                tmax[j] = tmax[spare];
+            }
+        }
+        packet_transmission(s, rays, tmax, shot, filter);
+        for (int rest = shot; rest; rest &= rest - 1) {
+            int j = lowest_bit(rest);
+            if (max_comp3(filter[j]) <= (REAL)0) continue;
+            direct[j] += light_term(s, i, n[j], v[j], c[j], s->materials + material[j], l[j],
+                                    atten[j], ndl[j], filter[j]);
+        }
+    }
+}
+
+#endif

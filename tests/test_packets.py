@@ -1,0 +1,142 @@
+"""Sample packets (KernelConfig.traversal "sample_packet", kernels/packet.h) against the
+single-ray walk they replace: every lane must find the hit the single-ray walk finds for the
+same ray, and every render the same image.
+
+The packet walk visits nodes in another order and tests each shape lane-wise with the single-ray
+formulas, the same operations in the same order, so hits are compared exactly: a different t
+or primitive would mean a lane missed a node, tested a shape another way, or dropped a hit.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pyopencl as cl
+import pytest
+from test_intersect import mesh_gen, random_mix, random_units
+
+from clray.device.launch import intersect_rays
+from clray.device.pack import pack_scene
+from clray.device.program import TRAVERSALS, traversal_for
+from clray.errors import SettingsError
+from clray.render import RenderSettings, render
+from clray.scene import model as M
+from clray.scene.load import load_scene, scene_from_dict
+
+ROOT = Path(__file__).resolve().parents[1]
+SCENES = sorted((ROOT / "scenes").glob("*.toml"))
+# 11 samples: a full packet of 8 and one of 3 on an AVX2 CPU, three packets of 4 elsewhere.
+SPP = 11
+
+
+def _packets(rng: np.random.Generator, n: int, lanes: int, spread: float
+             ) -> tuple[np.ndarray, np.ndarray]:
+    """n packets of `lanes` rays: one origin each (jittered by spread / 10) and directions
+    within about `spread` radians of a random one: a pixel's samples for small spreads, rays
+    that share nothing for spread 1."""
+    origins = np.repeat(rng.uniform(-12, 12, (n, 3)), lanes, axis=0)
+    origins += rng.normal(scale=spread / 10, size=origins.shape)
+    axes = np.repeat(random_units(rng, n), lanes, axis=0)
+    directions = axes + rng.normal(scale=spread, size=axes.shape)
+    directions /= np.linalg.norm(directions, axis=1, keepdims=True)
+    return origins.astype(np.float32), directions.astype(np.float32)
+
+
+def _hits(device: cl.Device, scene: M.Scene, o: np.ndarray, d: np.ndarray, precision: str,
+          **switches: object) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    packed = pack_scene(scene, width=4, height=4, spp=1, max_depth=0, seed=0,
+                        precision=precision, **switches)
+    return intersect_rays(packed, device, o - np.asarray(scene.camera.position), d)
+
+
+@pytest.mark.filterwarnings("ignore::pyopencl.CompilerWarning")
+@pytest.mark.parametrize(("lanes", "precision"),
+                         [(8, "float"), (16, "float"), (8, "double")])
+def test_packet_lanes_find_the_single_ray_hits(cl_device, lanes, precision):
+    if precision == "double" and "cl_khr_fp64" not in cl_device.extensions:
+        pytest.skip("no fp64")
+    rng = np.random.default_rng(21)
+    scene = random_mix(rng, (0.0, 0.0, 0.0))
+    parts = [_packets(rng, 150, lanes, spread) for spread in (1e-3, 3e-2, 1.0)]
+    o = np.concatenate([p[0] for p in parts])
+    d = np.concatenate([p[1] for p in parts])
+    t1, n1, r1 = _hits(cl_device, scene, o, d, precision, traversal="single")
+    t2, n2, r2 = _hits(cl_device, scene, o, d, precision, traversal="sample_packet",
+                       packet_lanes=lanes)
+    assert (r1 >= 0).mean() > 0.3
+    assert np.array_equal(r1, r2), f"{np.sum(r1 != r2)} of {len(r1)} lanes hit another shape"
+    assert np.array_equal(t1, t2), f"t differs in {np.sum(t1 != t2)} lanes"
+    assert np.array_equal(n1, n2)
+
+
+@pytest.mark.filterwarnings("ignore::pyopencl.CompilerWarning")
+@pytest.mark.parametrize("min_lanes", [0, 16])
+def test_mesh_packets_find_the_single_ray_hits(cl_device, min_lanes):
+    """A bumpy mesh seen by pixel-sized packets from outside and from inside it; min_lanes 16
+    walks every subtree ray by ray below the root, 0 never does."""
+    rng = np.random.default_rng(5)
+    vertices, faces, _ = mesh_gen.bumpy_mesh(4, (0.0, 0.0, -6.0), 2.0)
+    scene = M.Scene(None, M.RenderOptions(),
+                    M.Camera(position=(0.0, 0.0, 0.0), look_at=(0.0, 0.0, -1.0)),
+                    (M.Material("m"),), (), (M.Mesh(vertices=vertices, faces=faces, material=0),))
+    n, lanes = 300, 8
+    centre = np.array([0.0, 0.0, -6.0])
+    outside = np.tile([0.0, 0.0, 0.0], (n * lanes, 1))
+    aim = np.repeat(rng.uniform(-2.2, 2.2, (n, 3)) + centre, lanes, axis=0)
+    aim += rng.normal(scale=2e-3, size=aim.shape)
+    inside_o, inside_d = _packets(rng, n, lanes, 1e-2)
+    inside_o = np.repeat(rng.uniform(-0.5, 0.5, (n, 3)) + centre, lanes, axis=0)
+    o = np.concatenate([outside, inside_o]).astype(np.float32)
+    d = np.concatenate([aim / np.linalg.norm(aim, axis=1, keepdims=True), inside_d])
+    d = d.astype(np.float32)
+    t1, _, r1 = _hits(cl_device, scene, o, d, "float", traversal="single")
+    t2, _, r2 = _hits(cl_device, scene, o, d, "float", traversal="sample_packet",
+                      packet_lanes=lanes, packet_min_lanes=min_lanes)
+    assert (r1 >= 0).mean() > 0.5
+    assert np.array_equal(r1, r2), f"{np.sum(r1 != r2)} of {len(r1)} lanes hit another shape"
+    assert np.array_equal(t1, t2)
+
+
+def _render_both(scene: M.Scene | Path, **size: int) -> tuple[np.ndarray, np.ndarray]:
+    images = [render(scene, RenderSettings(spp=SPP, traversal=traversal, **size)).image
+              for traversal in TRAVERSALS]
+    return images[0], images[1]
+
+
+@pytest.mark.filterwarnings("ignore::pyopencl.CompilerWarning")
+@pytest.mark.parametrize("path", SCENES, ids=[p.stem for p in SCENES])
+def test_example_scene_renders_the_same_with_sample_packets(cl_device, path):
+    single, packets = _render_both(path, width=40, height=30)
+    assert np.array_equal(single, packets, equal_nan=True), (
+        f"{np.sum(np.any(single != packets, axis=2))} pixels differ")
+
+
+def _hard_cases() -> list:
+    import sys
+    sys.path.insert(0, str(ROOT / "tests" / "hard_cases"))
+    from cases import CASES
+    return [c for c in CASES if not c.slow]
+
+
+@pytest.mark.filterwarnings("ignore::pyopencl.CompilerWarning")
+@pytest.mark.parametrize("case", _hard_cases(), ids=lambda c: c.name)
+def test_hard_case_renders_the_same_with_sample_packets(cl_device, case):
+    single, packets = _render_both(scene_from_dict(case.scene), width=40, height=30)
+    assert np.array_equal(single, packets, equal_nan=True), (
+        f"{np.sum(np.any(single != packets, axis=2))} pixels differ")
+
+
+def test_traversal_setting_is_checked():
+    with pytest.raises(SettingsError, match="traversal"):
+        RenderSettings(traversal="packets")
+
+
+def test_default_traversal_is_reported(cl_device):
+    want = traversal_for(cl_device)
+    assert want in TRAVERSALS
+    scene = load_scene(ROOT / "scenes" / "spheres.toml")
+    assert RenderSettings().traversal is None
+    assert render(scene, RenderSettings(width=8, height=6, spp=2)).stats["traversal"] == want
+    chosen = render(scene, RenderSettings(width=8, height=6, spp=2, traversal="sample_packet"))
+    assert chosen.stats["traversal"] == "sample_packet"

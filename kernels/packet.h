@@ -65,7 +65,9 @@ typedef int LANE_INT;
 
 // The OR and the minimum over the lanes. Clang's reductions compile to a few instructions;
 // a tree of halves (what PoCL's any() and all() amount to) costs shuffles at every level.
-#if defined(__clang__) && defined(__has_builtin)
+// PORTABLE_REDUCTIONS keeps to the loops: an interpreter built on an older LLVM (Oclgrind 21.10)
+// cannot run the llvm.vector.reduce intrinsics that the builtins become.
+#if defined(__clang__) && defined(__has_builtin) && !defined(PORTABLE_REDUCTIONS)
 #if __has_builtin(__builtin_reduce_or)
 #define REDUCE_OR(v) __builtin_reduce_or(v)
 #endif
@@ -87,7 +89,7 @@ HOT int lane_mask(MASKP m) { return (int)REDUCE_OR(m & LANE_BITS); }
 // The lanes of `bits` as a comparison result.
 HOT MASKP lanes_of(int bits) { return ((MASKP)(bits) & LANE_BITS) != (MASKP)(0); }
 
-#if defined(__clang__) && defined(__has_builtin)
+#if defined(__clang__) && defined(__has_builtin) && !defined(PORTABLE_REDUCTIONS)
 #if __has_builtin(__builtin_reduce_min)
 #define REDUCE_MIN(v) __builtin_reduce_min(v)
 #endif
@@ -393,7 +395,11 @@ HOT MASKP sphere_lanes(const __global SpherePacket* pk, int k, const RayPacket* 
     REALP ll = sqrt(lx * lx + ly * ly + lz * lz);
     REALP disc = a * (radius - ll) * (radius + ll);
     MASKP crossed = lanes & (disc >= (REAL)0) & (a != (REAL)0);
-    if (!lane_mask(crossed)) return crossed;
+    if (!lane_mask(crossed)) {
+        // The callers mask t0 and t1 with the crossed lanes: they must still hold values.
+        *t0 = *t1 = (REALP)(REAL_INF);
+        return crossed;
+    }
     REALP fl = sqrt(fx * fx + fy * fy + fz * fz);
     // fmax keeps sqrt's argument non-negative; lanes with disc < 0 (or NaN) are masked.
     REALP q = -(b + copysign(sqrt(fmax(disc, (REALP)(0))), b));

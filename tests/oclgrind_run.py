@@ -24,6 +24,7 @@ SCENES = Path(__file__).resolve().parent.parent / "scenes"
 # The shipped scenes between them switch on every feature of KernelConfig but the study
 # variants (tests/test_oclgrind.py checks); a few pixels of each, every pixel a sample or two.
 WIDTH, HEIGHT, SPP = 6, 4, 2
+PACKET_SPP = 5
 # Every study variant at once, on the scene with the most primitive kinds.
 VARIANTS = (("sphere_textbook", True), ("offset_fixed_eps", True),
             ("triangle_no_fp64_fallback", True), ("triangle_moller_trumbore", True),
@@ -50,6 +51,11 @@ def renders(device: str | None) -> dict[str, np.ndarray]:
             settings = RenderSettings(width=WIDTH, height=HEIGHT, spp=SPP, device=device,
                                       precision=precision)
             out[f"{path.stem}/{precision}"] = render(scene, settings).image
+        # The sample-packet walk with more samples than the hybrid's threshold, so that packets
+        # (not only lanes gone on ray by ray) run.
+        settings = RenderSettings(width=WIDTH, height=HEIGHT, spp=PACKET_SPP, device=device,
+                                  traversal="sample_packet")
+        out[f"{path.stem}/sample_packet"] = render(scene, settings).image
         if path.name in VARIANT_SCENES:
             settings = RenderSettings(width=WIDTH, height=HEIGHT, spp=SPP, device=device,
                                       variants=VARIANTS)

@@ -54,6 +54,9 @@ def configs() -> dict[str, KernelConfig]:
             out[f"{precision}-all-but-{name}"] = make(every - {name})
         for name in VARIANTS:
             out[f"{precision}-all+{name}"] = make(every | {name})
+        for lanes in (4, 8, 16):
+            out[f"{precision}-all+sample_packet{lanes}"] = make(
+                every, traversal="sample_packet", packet_lanes=lanes)
     return out
 
 

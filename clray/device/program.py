@@ -34,8 +34,10 @@ ALLOWED_BUILD_OPTIONS = frozenset({
 # llvm.experimental.noalias.scope.decl that LLVM's inliner leaves where it inlines a function
 # returning a struct (the hidden noalias sret pointer). The always_inline helpers (HOT) are
 # inlined even at -O0, so for Oclgrind they become plain inline and nothing is optimised: with
-# optimisation on, Oclgrind 21.10 crashes (SIGSEGV) while creating the render kernel.
-OCLGRIND_BUILD_OPTIONS = ("-DHOT=inline", "-cl-opt-disable")
+# optimisation on, Oclgrind 21.10 crashes (SIGSEGV) while creating the render kernel. Nor can
+# it run llvm.vector.reduce.*, which clang's __builtin_reduce_or/min in the sample packets
+# become: PORTABLE_REDUCTIONS makes them loops.
+OCLGRIND_BUILD_OPTIONS = ("-DHOT=inline", "-cl-opt-disable", "-DPORTABLE_REDUCTIONS")
 
 
 def device_build_options(device: cl.Device) -> tuple[str, ...]:

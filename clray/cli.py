@@ -519,6 +519,8 @@ def _stats_table(stats: dict) -> list[str]:
         tuning = stats["tuning"]
         rows.append(("tuning", f"{tuning['label']} ({tuning['source']}; BVH width "
                                f"{tuning['bvh_width']})"))
+    if "traversal" in stats:
+        rows.append(("traversal", stats["traversal"]))
     for key, label in _TIMES:
         note = {"kernel_s": f"  ({stats['launches']} launches, device time)",
                 "render_s": "  (bvh to read-back)"}.get(key, "")
@@ -534,7 +536,7 @@ def _stats_table(stats: dict) -> list[str]:
     rows.append(("non-finite pixels", f"{stats['nonfinite_pixels']:,}"))
     if "clipped_pixels" in stats:
         rows.append(("clipped pixels", f"{stats['clipped_pixels']:,}  (a channel over 1)"))
-    known = {"scene", "output", "device", "tuning", "width", "height", "spp", "max_depth",
+    known = {"scene", "output", "device", "tuning", "traversal", "width", "height", "spp", "max_depth",
              "min_weight",
              "seed", "precision", "clipped_pixels", "launches", "rays", "mrays_per_s",
              "device_bytes", "nonfinite_pixels",

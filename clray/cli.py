@@ -536,10 +536,9 @@ def _stats_table(stats: dict) -> list[str]:
     rows.append(("non-finite pixels", f"{stats['nonfinite_pixels']:,}"))
     if "clipped_pixels" in stats:
         rows.append(("clipped pixels", f"{stats['clipped_pixels']:,}  (a channel over 1)"))
-    known = {"scene", "output", "device", "tuning", "traversal", "width", "height", "spp", "max_depth",
-             "min_weight",
-             "seed", "precision", "clipped_pixels", "launches", "rays", "mrays_per_s",
-             "device_bytes", "nonfinite_pixels",
+    known = {"scene", "output", "device", "tuning", "traversal", "width", "height", "spp",
+             "max_depth", "min_weight", "seed", "precision", "clipped_pixels", "launches",
+             "rays", "mrays_per_s", "device_bytes", "nonfinite_pixels",
              *(key for key, _ in _TIMES)}
     rows += [(key, _format_stat(value)) for key, value in stats.items() if key not in known]
     width = max(len(label) for label, _ in rows)

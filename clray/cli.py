@@ -24,7 +24,6 @@ import pyopencl as cl
 
 from clray import __version__
 from clray.device.context import list_devices
-from clray.device.program import TRAVERSALS
 from clray.errors import EXIT_OK, EXIT_RUNTIME, EXIT_USAGE, ClrayError, SceneError, one_line
 from clray.image_io import (
     FLOAT_SUFFIXES,
@@ -42,6 +41,7 @@ from clray.render import RenderResult, RenderSettings, render
 from clray.scene import limits
 from clray.scene.load import load_scene
 from clray.scene.model import Scene
+from clray.tuning.knobs import TRAVERSALS
 
 EXIT_INTERRUPTED = 130  # 128 + SIGINT, as shells report it
 SEED_MAX = limits.MAX_SEED
@@ -169,7 +169,8 @@ def _build_parser() -> _Parser:
                    help="arithmetic in the kernels (double needs cl_khr_fp64; default: float)")
     r.add_argument("--traversal", choices=TRAVERSALS, default=None,
                    help="how rays walk the BVH: 'single' (every ray alone) or 'sample_packet' "
-                        "(a pixel's samples together; the same image); default: single "
+                        "(a pixel's samples together; the same image); default: the tuning's "
+                        "traversal knob, single unless `clray tune` stored sample_packet "
                         "(docs/acceleration.md, Sample packets)")
     encoding = r.add_mutually_exclusive_group()
     encoding.add_argument("--linear", dest="linear", action="store_true", default=None,

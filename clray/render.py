@@ -16,19 +16,14 @@ import pyopencl as cl
 from clray.device.context import describe, queue_for, select_device
 from clray.device.launch import render_packed
 from clray.device.pack import PackedScene, pack_scene
-from clray.device.program import (
-    TRAVERSALS,
-    bvh_width_for,
-    packet_lanes_for,
-    traversal_for,
-)
+from clray.device.program import bvh_width_for, packet_lanes_for, traversal_for
 from clray.errors import SettingsError
 from clray.image_io import Encoding, write_image
 from clray.scene import limits as L
 from clray.scene.check import check_scene
 from clray.scene.load import load_scene
 from clray.scene.model import Scene
-from clray.tuning.knobs import Tuning
+from clray.tuning.knobs import BUILD_KNOBS, IMAGE_KNOBS, TRAVERSALS, Tuning, TuningError
 from clray.tuning.store import chosen_tuning
 
 
@@ -45,7 +40,7 @@ class RenderSettings:
     min_weight: float | None = None
     device: str | None = None  # clray.device.context.select_device spec
     precision: str = "float"  # "float" | "double"
-    # How rays walk the BVH (clray.device.program.TRAVERSALS); None: the device's default.
+    # How rays walk the BVH (clray.tuning.knobs.TRAVERSALS); None: the tuning's traversal knob.
     traversal: str | None = None
     # progress(done, total) in pixel-samples (pixels x spp): called with done = 0 before the
     # first launch, then after each launch, rising to done = total; several times a second.
@@ -128,14 +123,31 @@ def warn_deep_tree(scene: Scene, resolved: dict[str, int | float]) -> None:
                       stacklevel=3)
 
 
+def kernel_switches(tuning: Tuning, settings: RenderSettings, device: cl.Device) -> dict:
+    """The KernelConfig fields the tuning's kernel and build knobs set: the traversal (the
+    settings' where given), the packet's lanes (the device's where the tuning leaves them to
+    it), the study variants it switches on and their build options."""
+    traversal = settings.traversal or tuning.traversal or traversal_for(device)
+    switches: dict[str, object] = {"traversal": traversal}
+    if traversal == "sample_packet":
+        lanes = tuning.packet_lanes or packet_lanes_for(device, settings.precision)
+        if tuning.packet_min_lanes >= lanes:
+            raise TuningError(f"packet_min_lanes {tuning.packet_min_lanes} is not below the "
+                              f"{lanes} packet lanes of {device.name.strip()!r}")
+        switches.update(packet_lanes=lanes, packet_min_lanes=tuning.packet_min_lanes)
+    switches.update({name: getattr(tuning, name) for name in IMAGE_KNOBS
+                     if name not in BUILD_KNOBS})
+    if tuning.build_options():
+        switches["build_options"] = tuning.build_options()
+    return switches
+
+
 def pack_for(scene: Scene, settings: RenderSettings, device: cl.Device) -> PackedScene:
     """The checked `scene` packed for `device` with `settings`: what render() launches, and
     what each worker of a distributed render packs once for all its tiles. The knobs are the
     settings' tuning, else the device's tuning file's (clray.tuning.store.chosen_tuning)."""
     tuning = settings.tuning or chosen_tuning(device, settings.stored_tuning)[0]
-    switches = {"traversal": settings.traversal or traversal_for(device),
-                "packet_lanes": packet_lanes_for(device, settings.precision),
-                **dict(settings.variants)}
+    switches = {**kernel_switches(tuning, settings, device), **dict(settings.variants)}
     return pack_scene(scene, precision=settings.precision,
                       bvh_width=tuning.bvh_width or bvh_width_for(device, settings.precision),
                       queue=queue_for(device), tuning=tuning,

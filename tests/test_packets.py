@@ -18,11 +18,12 @@ from test_intersect import mesh_gen, random_mix, random_units
 
 from clray.device.launch import intersect_rays
 from clray.device.pack import pack_scene
-from clray.device.program import TRAVERSALS, traversal_for
+from clray.device.program import traversal_for
 from clray.errors import SettingsError
 from clray.render import RenderSettings, render
 from clray.scene import model as M
 from clray.scene.load import load_scene, scene_from_dict
+from clray.tuning.knobs import TRAVERSALS
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENES = sorted((ROOT / "scenes").glob("*.toml"))

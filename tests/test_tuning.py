@@ -18,10 +18,12 @@ from clray import __version__, cli
 from clray.accel import bvh as bvh_module
 from clray.accel import wide as wide_module
 from clray.device.pack import pack_scene
-from clray.render import RenderSettings, render
+from clray.device.program import ALLOWED_BUILD_OPTIONS, KernelConfig, packet_lanes_for
+from clray.render import RenderSettings, pack_for, render
 from clray.scene.load import load_scene
 from clray.study import compare
 from clray.tuning import DEFAULT_TUNING, KNOB_TABLE, KNOBS, Tuning, TuningError, store
+from clray.tuning.knobs import BUILD_KNOBS, IMAGE_KNOBS, build_option
 
 ROOT = Path(__file__).resolve().parent.parent
 SPHERES = ROOT / "scenes" / "spheres.toml"
@@ -73,7 +75,7 @@ def test_every_knob_is_a_tuning_field_with_a_legal_default_among_its_tried_value
         assert knob.legal(knob.default), knob.name
         assert knob.default in knob.tried, knob.name
         assert all(knob.legal(v) for v in knob.tried), knob.name
-        assert knob.acts in ("host", "host+kernel", "kernel", "launch")
+        assert knob.acts in ("host", "host+kernel", "kernel", "build", "launch")
 
 
 def test_the_constants_at_their_sites_are_the_table_defaults() -> None:
@@ -82,6 +84,13 @@ def test_the_constants_at_their_sites_are_the_table_defaults() -> None:
     assert bvh_module.MAX_LEAF_SIZE == KNOBS["max_leaf_size"].default
     assert wide_module.FOLD_PACKETS == KNOBS["fold_packets"].default
     assert RenderSettings().tuning is None  # a render takes the table's (or a tuning file's)
+    assert KernelConfig().traversal == KNOBS["traversal"].default == "single"
+    assert KernelConfig().packet_min_lanes == KNOBS["packet_min_lanes"].default
+    # The study variants are off by default: the default build is the exact one.
+    assert all(KNOBS[name].default is False for name in IMAGE_KNOBS)
+    assert {"cl_mad_enable", "cl_unsafe_math_optimizations", "cl_fast_relaxed_math",
+            "sphere_textbook", "triangle_moller_trumbore", "fresnel_schlick"} == set(IMAGE_KNOBS)
+    assert all(build_option(name) in ALLOWED_BUILD_OPTIONS for name in BUILD_KNOBS)
 
 
 @pytest.mark.parametrize(("values", "words"), [
@@ -92,6 +101,13 @@ def test_the_constants_at_their_sites_are_the_table_defaults() -> None:
     ({"first_launch_pixel_samples": 100, "max_launch_pixel_samples": 10},
      "max_launch_pixel_samples 10 is below"),
     ({"launch_growth": True}, "launch_growth: expected an integer"),
+    ({"traversal": "packet"}, "traversal: expected single or sample_packet"),
+    ({"traversal": "sample_packet", "packet_lanes": 12}, "packet_lanes: expected 4, 8, 16"),
+    ({"traversal": "sample_packet", "packet_lanes": 4, "packet_min_lanes": 4},
+     "packet_min_lanes 4 is not below packet_lanes 4"),
+    ({"packet_lanes": 16}, "packet_lanes 16 acts only with traversal sample_packet"),
+    ({"packet_min_lanes": 0}, "packet_min_lanes 0 acts only with traversal sample_packet"),
+    ({"cl_mad_enable": 1}, "cl_mad_enable: expected True or False"),
 ])
 def test_illegal_knobs_and_broken_restrictions_are_refused(values, words) -> None:
     with pytest.raises(TuningError, match=words):
@@ -116,6 +132,44 @@ def test_host_knobs_change_the_packed_bvh(crowd) -> None:
         assert other.tuning == Tuning(**knobs)
         assert (other.nodes.tobytes(), other.prim_refs.tobytes()) != (
             one.nodes.tobytes(), one.prim_refs.tobytes()), knobs
+
+
+def options_with(cl_device, scene, tuning: Tuning, **settings) -> list[str]:
+    return pack_for(scene, RenderSettings(**SMALL, tuning=tuning, **settings),
+                    cl_device).config.options()
+
+
+def test_kernel_and_build_knobs_change_the_kernel_build(cl_device, spheres) -> None:
+    default = options_with(cl_device, spheres, DEFAULT_TUNING)
+    assert "-DTRAVERSAL=TRAVERSAL_SINGLE" in default
+    assert not any(o.startswith(("-DPACKET_", "-cl-")) for o in default)
+    packets = Tuning(traversal="sample_packet")
+    auto = packet_lanes_for(cl_device)
+    assert set(options_with(cl_device, spheres, packets)) - set(default) == {
+        "-DTRAVERSAL=TRAVERSAL_SAMPLE_PACKET", f"-DPACKET_LANES={auto}",
+        f"-DPACKET_MIN_LANES={KNOBS['packet_min_lanes'].default}"}
+    for knobs, option in (({"packet_lanes": 16}, "-DPACKET_LANES=16"),
+                          ({"packet_lanes": 4}, "-DPACKET_LANES=4"),
+                          ({"packet_min_lanes": 0}, "-DPACKET_MIN_LANES=0"),
+                          ({"packet_lanes": 16, "packet_min_lanes": 9}, "-DPACKET_MIN_LANES=9")):
+        changed = set(options_with(cl_device, spheres, Tuning(traversal="sample_packet", **knobs)))
+        assert option in changed and option not in options_with(cl_device, spheres, packets)
+    # RenderSettings.traversal overrides the knob, and then the packet knobs do not act.
+    forced = options_with(cl_device, spheres, Tuning(traversal="sample_packet", packet_lanes=16),
+                          traversal="single")
+    assert forced == default
+    for name in IMAGE_KNOBS:
+        option = (build_option(name) if name in BUILD_KNOBS else f"-D{name.upper()}=1")
+        changed = options_with(cl_device, spheres, Tuning(**{name: True}))
+        assert option in changed and option not in default, name
+        assert len(set(changed) - set(default)) == 1, name
+
+
+def test_packet_min_lanes_must_be_below_the_devices_own_lanes(cl_device, spheres) -> None:
+    auto = packet_lanes_for(cl_device)
+    with pytest.raises(TuningError, match=f"packet_min_lanes {auto} is not below the {auto}"):
+        options_with(cl_device, spheres, Tuning(traversal="sample_packet",
+                                                packet_min_lanes=auto))
 
 
 def test_traversal_cost_reaches_the_sah() -> None:

@@ -13,6 +13,7 @@ import pyopencl as cl
 
 from clray.device.context import context_for, device_type, has_fp64
 from clray.errors import DeviceError
+from clray.tuning.knobs import KNOBS
 
 # The top-level kernels/ folder, installed as this package (pyproject.toml's package-dir), so a
 # wheel, an sdist and an editable install all read the same files.
@@ -77,10 +78,11 @@ class KernelConfig:
     precision: str = "float"  # "float" | "double"
     # How rays walk the BVH (TRAVERSALS; docs/acceleration.md): "single", every ray alone, or
     # "sample_packet", a pixel's samples in packets of packet_lanes vector lanes, lanes going on
-    # ray by ray where at most packet_min_lanes of them reach a subtree.
-    traversal: str = "single"
+    # ray by ray where at most packet_min_lanes of them reach a subtree. Knobs of the table
+    # (clray.tuning.knobs); the packer passes packet_lanes as the tuning's or the device's.
+    traversal: str = KNOBS["traversal"].default
     packet_lanes: int = 8
-    packet_min_lanes: int = 2
+    packet_min_lanes: int = KNOBS["packet_min_lanes"].default
     # Study variants (clray study): the textbook formulas the defaults replace.
     sphere_textbook: bool = False
     offset_fixed_eps: bool = False
@@ -160,16 +162,14 @@ def bvh_width_for(device: cl.Device, precision: str = "float") -> int:
     return 8 if width >= 8 else 4
 
 
-TRAVERSALS = ("single", "sample_packet")
-
-
 def traversal_for(device: cl.Device) -> str:
-    """The traversal a device renders with by default: the single-ray walk on every device for
-    now. On PoCL's CPU device sample packets give the same image but are not faster yet
-    (docs/acceleration.md, Sample packets); on a GPU a work-item's lanes are work-items already,
-    and a packet's private state would cut occupancy."""
+    """The traversal a device renders with by default: the knob table's, the single-ray walk,
+    on every device for now. On PoCL's CPU device sample packets give the same image but are
+    not faster yet (docs/acceleration.md, Sample packets); on a GPU a work-item's lanes are
+    work-items already, and a packet's private state would cut occupancy. `clray tune` tries
+    both and stores the faster for the device."""
     del device  # one default for all devices until a device measures faster with packets
-    return "single"
+    return KNOBS["traversal"].default
 
 
 def packet_lanes_for(device: cl.Device, precision: str = "float") -> int:

@@ -15,7 +15,7 @@ from clray.device.context import describe, select_device
 from clray.errors import ClrayError
 from clray.scene.load import load_scene
 from clray.tuning import report
-from clray.tuning.knobs import DEFAULT_TUNING, Tuning
+from clray.tuning.knobs import DEFAULT_TUNING, IMAGE_KNOBS, Tuning
 from clray.tuning.store import save_tuning
 from clray.tuning.tuner import PIXEL_TOLERANCE, Trial, Tuner, best_configuration, confirm
 
@@ -74,6 +74,10 @@ def run_tune(paths: Sequence[Path], out: Path, *, device: str | None = None,
               "tolerance": (f"at most max(2, 0.2 % of the pixels) may differ by over "
                             f"{PIXEL_TOLERANCE if allow_error is None else allow_error:.3g}, "
                             "and no pixel may turn non-finite"),
+              "variants": (f"tried under --allow-error {allow_error:g}: "
+                           if allow_error is not None else
+                           "not tried (they change the image; --allow-error E tries them): ")
+              + ", ".join(IMAGE_KNOBS),
               "best": None, "tuning_file": None}
     confirmed = []
     if best is not None:
@@ -103,6 +107,7 @@ def run_tune(paths: Sequence[Path], out: Path, *, device: str | None = None,
     report.write_report(out, header, trials, best[0] if best else None, confirmed, plotted)
     rejected = sum(not t.verified for t in trials)
     say(f"tried {len(trials)} configurations on {describe(cl_device)}, {rejected} rejected")
+    say(f"study variants {header['variants']}")
     for c in confirmed:
         say(f"{c['scene']}: default {c['default_kernel_s'] * 1e3:.3g} ms, tuned "
             f"{c['tuned_kernel_s'] * 1e3:.3g} ms ({c['speedup']:.3f}x, interleaved renders)")

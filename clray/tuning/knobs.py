@@ -14,8 +14,9 @@ from dataclasses import asdict, dataclass, fields
 from typing import Literal
 
 # Where a knob acts. host: how the packed scene is built (a new BVH, new buffers); kernel: a -D
-# switch of the render kernel's build; launch: how the host launches the built kernel.
-Acts = Literal["host", "host+kernel", "kernel", "launch"]
+# switch of the render kernel's build; build: an option of the kernel's compiler (-cl-...);
+# launch: how the host launches the built kernel.
+Acts = Literal["host", "host+kernel", "kernel", "build", "launch"]
 
 
 @dataclass(frozen=True)
@@ -27,6 +28,9 @@ class Knob:
     legal_text: str  # `legal` in words, for docs and errors
     tried: tuple  # the values `clray tune` tries, the default among them
     why: str  # what it trades
+    # A study variant (clray.study): a different formula or a relaxed build, faster perhaps but
+    # not the default's image. `clray tune` tries it only under --allow-error E.
+    changes_image: bool = False
 
 
 def _int_in(low: int, high: int) -> Callable[[object], bool]:
@@ -37,9 +41,22 @@ def _power_of_two_upto(high: int) -> Callable[[object], bool]:
     return lambda v: _int_in(1, high)(v) and v & (v - 1) == 0
 
 
+def _one_of(*values: object) -> Callable[[object], bool]:
+    return lambda v: any(v == x and type(v) is type(x) for x in values)
+
+
 def _number_in(low: float, high: float) -> Callable[[object], bool]:
     return lambda v: (isinstance(v, int | float) and not isinstance(v, bool)
                       and low < v <= high)
+
+
+TRAVERSALS = ("single", "sample_packet")
+PACKET_LANES = (4, 8, 16)
+
+
+def _variant(name: str, acts: Acts, why: str) -> Knob:
+    return Knob(name, acts, False, _one_of(False, True), "True or False", (False, True), why,
+                changes_image=True)
 
 
 # Largest count in one of a leaf's sections (clray.accel.wide.LEAF_FIELD_MASK): the bound of
@@ -76,6 +93,34 @@ KNOB_TABLE: tuple[Knob, ...] = (
          "a wide node whose children are all leaves, and which one leaf of at most this many "
          "packet tests would cover, is folded into that leaf: choosing among a few packets is "
          "not worth a node visit"),
+    Knob("traversal", "kernel", "single", _one_of(*TRAVERSALS),
+         "single or sample_packet", TRAVERSALS,
+         "how rays walk the BVH (the -D TRAVERSAL, docs/acceleration.md): every ray alone, or "
+         "a pixel's samples in packets of packet_lanes vector lanes; RenderSettings.traversal "
+         "and --traversal override it"),
+    Knob("packet_lanes", "kernel", None, lambda v: v is None or _one_of(*PACKET_LANES)(v),
+         "4, 8, 16, or None: the device's preferred vector width of the arithmetic's type "
+         "(8 floats on AVX2, 16 on AVX-512), within 4 to 16", (None, 4, 16),
+         "rays in a sample packet (the -D PACKET_LANES; only with traversal sample_packet): "
+         "wider packets share more node visits, and lose more lanes where rays diverge"),
+    Knob("packet_min_lanes", "kernel", 2, _int_in(0, 15),
+         "an integer, 0 to 15, below packet_lanes", (0, 2, 4),
+         "the hybrid walk's switch-over (the -D PACKET_MIN_LANES; only with traversal "
+         "sample_packet): where at most this many lanes reach a subtree they go on ray by ray"),
+    _variant("cl_mad_enable", "build",
+             "-cl-mad-enable: a * b + c may be one fused or less exact instruction"),
+    _variant("cl_unsafe_math_optimizations", "build",
+             "-cl-unsafe-math-optimizations: reassociation and approximations IEEE 754 forbids"),
+    _variant("cl_fast_relaxed_math", "build",
+             "-cl-fast-relaxed-math: the unsafe optimisations, and no infinities or NaNs"),
+    _variant("sphere_textbook", "kernel",
+             "the textbook sphere quadratic (the -D SPHERE_TEXTBOOK), which cancels "
+             "catastrophically far from the sphere"),
+    _variant("triangle_moller_trumbore", "kernel",
+             "Moller-Trumbore triangles (the -D TRIANGLE_MOLLER_TRUMBORE), not watertight: "
+             "rays may slip between triangles sharing an edge"),
+    _variant("fresnel_schlick", "kernel",
+             "Schlick's approximation of Fresnel (the -D FRESNEL_SCHLICK): a model change"),
     Knob("first_launch_pixel_samples", "launch", 1 << 16, _int_in(1, 1 << 30),
          "an integer, 1 to 2^30", (1 << 16,),
          "pixel-samples of a render's first launch (band of rows), before its rate is known"),
@@ -96,6 +141,20 @@ KNOBS: dict[str, Knob] = {knob.name: knob for knob in KNOB_TABLE}
 # Tuner once for each combination of their values, with the others as Kernel Tuner's
 # tunable parameters.
 HOST_KNOBS = tuple(k.name for k in KNOB_TABLE if k.acts.startswith("host"))
+# The compiler options: Kernel Tuner fixes them for a run, so they join the host knobs' loop.
+BUILD_KNOBS = tuple(k.name for k in KNOB_TABLE if k.acts == "build")
+# The -D switches Kernel Tuner searches (as #defines of the same names, upper case), with the
+# launch's work-group width.
+KERNEL_KNOBS = tuple(k.name for k in KNOB_TABLE if k.acts == "kernel")
+# The study variants, tried only under --allow-error.
+IMAGE_KNOBS = tuple(k.name for k in KNOB_TABLE if k.changes_image)
+# The packet knobs, which act only with traversal sample_packet.
+PACKET_KNOBS = ("packet_lanes", "packet_min_lanes")
+
+
+def build_option(name: str) -> str:
+    """The compiler option of a build knob: cl_mad_enable -> -cl-mad-enable."""
+    return "-" + name.replace("_", "-")
 
 
 def restriction_problems(values: dict[str, object]) -> list[str]:
@@ -108,6 +167,14 @@ def restriction_problems(values: dict[str, object]) -> list[str]:
         problems.append(f"max_launch_pixel_samples {values['max_launch_pixel_samples']} is "
                         f"below first_launch_pixel_samples "
                         f"{values['first_launch_pixel_samples']}")
+    lanes = values["packet_lanes"]
+    if lanes is not None and values["packet_min_lanes"] >= lanes:
+        problems.append(f"packet_min_lanes {values['packet_min_lanes']} is not below "
+                        f"packet_lanes {lanes}")
+    if values["traversal"] != "sample_packet":
+        problems += [f"{name} {values[name]} acts only with traversal sample_packet (leave it "
+                     f"at {KNOBS[name].default!r} with {values['traversal']})"
+                     for name in PACKET_KNOBS if values[name] != KNOBS[name].default]
     return problems
 
 
@@ -125,6 +192,15 @@ class Tuning:
     max_leaf_size: int = KNOBS["max_leaf_size"].default
     largest_leaf: int = KNOBS["largest_leaf"].default
     fold_packets: int = KNOBS["fold_packets"].default
+    traversal: str = KNOBS["traversal"].default
+    packet_lanes: int | None = KNOBS["packet_lanes"].default
+    packet_min_lanes: int = KNOBS["packet_min_lanes"].default
+    cl_mad_enable: bool = KNOBS["cl_mad_enable"].default
+    cl_unsafe_math_optimizations: bool = KNOBS["cl_unsafe_math_optimizations"].default
+    cl_fast_relaxed_math: bool = KNOBS["cl_fast_relaxed_math"].default
+    sphere_textbook: bool = KNOBS["sphere_textbook"].default
+    triangle_moller_trumbore: bool = KNOBS["triangle_moller_trumbore"].default
+    fresnel_schlick: bool = KNOBS["fresnel_schlick"].default
     first_launch_pixel_samples: int = KNOBS["first_launch_pixel_samples"].default
     max_launch_pixel_samples: int = KNOBS["max_launch_pixel_samples"].default
     launch_seconds: float = KNOBS["launch_seconds"].default
@@ -149,6 +225,10 @@ class Tuning:
 
     def host(self) -> dict[str, object]:
         return {name: getattr(self, name) for name in HOST_KNOBS}
+
+    def build_options(self) -> tuple[str, ...]:
+        """The compiler options the build knobs switch on."""
+        return tuple(build_option(name) for name in BUILD_KNOBS if getattr(self, name))
 
     def label(self) -> str:
         """The configuration in one line: `default`, or the changed knobs."""

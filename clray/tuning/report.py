@@ -81,6 +81,8 @@ def write_report(out: Path, header: dict, trials: Sequence[Trial], best_key: str
         "configuration's image is checked against the default configuration's: "
         f"{header['tolerance']}.",
         "",
+        f"Study variants: {header['variants']}.",
+        "",
     ]
     for scene in scenes:
         rows = [t for t in trials if t.scene == scene]

@@ -31,12 +31,23 @@ import pyopencl as cl
 from clray import metrics
 from clray.device.launch import render_packed
 from clray.device.pack import PackedScene
-from clray.device.program import bvh_width_for, kernel_source
+from clray.device.program import bvh_width_for, kernel_source, packet_lanes_for
 from clray.errors import ClrayError, DeviceError
 from clray.render import RenderSettings, pack_for
 from clray.scene.load import load_scene
 from clray.study import fail_allowance
-from clray.tuning.knobs import DEFAULT_TUNING, HOST_KNOBS, KNOB_TABLE, KNOBS, Tuning, TuningError
+from clray.tuning.knobs import (
+    BUILD_KNOBS,
+    DEFAULT_TUNING,
+    HOST_KNOBS,
+    IMAGE_KNOBS,
+    KERNEL_KNOBS,
+    KNOB_TABLE,
+    KNOBS,
+    TRAVERSALS,
+    Tuning,
+    TuningError,
+)
 
 INSTALL_HINT = "pip install 'clray[tune]'"
 # Kernel Tuner's name for the work-group's x size: the work_group_width knob.
@@ -48,6 +59,30 @@ ITERATIONS = 7  # timed launches per configuration, Kernel Tuner's default
 # A Kernel Tuner run needs a few seconds of budget to start (a compile, a reference launch).
 MIN_RUN_BUDGET_S = 2.0
 CONFIRM_ROUNDS = 5
+# The knobs of one Kernel Tuner run's fixed setup: the packed scene's (host) and the compiler's
+# options (build), which Kernel Tuner passes unchanged to every configuration it builds.
+OUTER_KNOBS = HOST_KNOBS + BUILD_KNOBS
+
+
+def kernel_define(name: str) -> str:
+    """The kernel's macro of a kernel knob, Kernel Tuner's tunable parameter of that name."""
+    return name.upper()
+
+
+def define_value(name: str, value: Any) -> int:
+    """A kernel knob's value as the kernel's macro takes it: the traversal's index (the
+    kernel's TRAVERSAL_SINGLE 0, TRAVERSAL_SAMPLE_PACKET 1), a switch's 0 or 1."""
+    return TRAVERSALS.index(value) if name == "traversal" else int(value)
+
+
+def knob_value(name: str, define: int, auto_lanes: int) -> Any:
+    """The knob's value of Kernel Tuner's parameter: define_value's inverse, with the
+    device's own packet lanes as None (the default) so the default has one key."""
+    if name == "traversal":
+        return TRAVERSALS[define]
+    if name == "packet_lanes":
+        return None if define == auto_lanes else int(define)
+    return bool(define) if isinstance(KNOBS[name].default, bool) else int(define)
 
 
 def import_kernel_tuner() -> Any:
@@ -104,10 +139,11 @@ class Tolerance:
 
 
 def host_configurations(space: dict[str, Sequence], seed: int = 0) -> list[dict[str, Any]]:
-    """Every combination of the host knobs' values in `space`, in the order they are tried:
-    the default first, then each single-knob change from it, then the rest in a seeded random
-    order, so a short budget still covers each knob once. Illegal combinations are left out."""
-    names = list(HOST_KNOBS)
+    """Every combination of the host and build knobs' values in `space`, in the order they are
+    tried: the default first, then each single-knob change from it, then the rest in a seeded
+    random order, so a short budget still covers each knob once. Illegal combinations are left
+    out."""
+    names = list(OUTER_KNOBS)
     default = {n: KNOBS[n].default for n in names}
     combos = [dict(zip(names, values, strict=True))
               for values in itertools.product(*(space[n] for n in names))]
@@ -130,6 +166,15 @@ def host_configurations(space: dict[str, Sequence], seed: int = 0) -> list[dict[
 
 def default_space() -> dict[str, tuple]:
     return {knob.name: knob.tried for knob in KNOB_TABLE}
+
+
+def allowed_space(space: dict[str, Sequence], allow_error: float | None) -> dict[str, tuple]:
+    """`space` with the study variants held at their defaults (off) unless --allow-error
+    allows images that differ from the default's."""
+    if allow_error is not None:
+        return {name: tuple(values) for name, values in space.items()}
+    return {name: (KNOBS[name].default,) if name in IMAGE_KNOBS else tuple(values)
+            for name, values in space.items()}
 
 
 def _arguments(packed: PackedScene) -> tuple[list, int]:
@@ -184,7 +229,8 @@ class Tuner:
         self.strategy = strategy
         self.budget_s = budget_s
         self.allow_error = allow_error
-        self.space = {**default_space(), **(space or {})}
+        self.space = allowed_space({**default_space(), **(space or {})}, allow_error)
+        self.auto_lanes = packet_lanes_for(device)
         self.iterations = iterations
         self.size = size
         # False: the kernel and launch knobs are searched with the first (default) host
@@ -222,6 +268,9 @@ class Tuner:
         height, width = run.reference.shape[:2]
         check = _image_check(image_index, run.reference, self.tolerance(run.reference))
         tune_params = kernel_space
+        # The kernel knobs' -D switches come from Kernel Tuner's #defines instead.
+        tuned = tuple(f"-D{kernel_define(name)}=" for name in KERNEL_KNOBS)
+        options = [o for o in packed.config.options() if not o.startswith(tuned)]
         answer = [None] * len(args)
         answer[image_index] = args[image_index]
         cache = self.out / "cache" / _slug(self.device.name) / run.name / f"{_slug(base.label())}"
@@ -232,7 +281,8 @@ class Tuner:
             warnings.simplefilter("ignore")
             results, _env = self.kt.tune_kernel(
                 "render", self.source, (width, height), args, tune_params,
-                answer=answer, observers=[check], compiler_options=packed.config.options(),
+                answer=answer, observers=[check], compiler_options=options,
+                restrictions=lambda params: self._legal(base, params),
                 lang="OpenCL", platform=platform, device=device, iterations=self.iterations,
                 strategy=self.strategy,
                 # Brute force takes no options: it tries every kernel configuration.
@@ -243,9 +293,25 @@ class Tuner:
         self.trials += trials
         return trials
 
+    def _tuning(self, base: Tuning, params: dict) -> Tuning:
+        """The configuration of Kernel Tuner's parameters on the run's host and build knobs."""
+        kernel = {name: knob_value(name, params[kernel_define(name)], self.auto_lanes)
+                  for name in KERNEL_KNOBS if kernel_define(name) in params}
+        return Tuning(**{**base.values(), **kernel,
+                         "work_group_width": int(params[BLOCK_SIZE_X])})
+
+    def _legal(self, base: Tuning, params: dict) -> bool:
+        """Kernel Tuner's restriction: the knob table's, with the packet's lanes resolved
+        (packet_min_lanes below the device's own where packet_lanes is left to it)."""
+        try:
+            tuning = self._tuning(base, params)
+        except TuningError:
+            return False
+        return tuning.packet_min_lanes < (tuning.packet_lanes or self.auto_lanes)
+
     def _trial(self, scene: str, base: Tuning, result: dict) -> Trial:
         extra = {k: result[k] for k in self.extra_params}
-        tuning = Tuning(**{**base.values(), "work_group_width": int(result[BLOCK_SIZE_X])})
+        tuning = self._tuning(base, result)
         time_ms = result.get("time")
         if not isinstance(time_ms, int | float) or "__error__" in result:
             problem = f"failed: {type(time_ms).__name__ if time_ms is not None else 'error'}"
@@ -259,6 +325,18 @@ class Tuner:
         return Trial(scene, tuning, statistics.median(times) if times else float(time_ms), times,
                      float(result.get("compile_time", 0)), verified,
                      int(result.get("pixels_off", 0)), problem, extra)
+
+    def kernel_params(self, only: Tuning | None = None) -> dict[str, list[int]]:
+        """Kernel Tuner's tunable parameters of the kernel knobs: the values of the space, or
+        `only`'s; the device's own packet lanes where None (the default) stands for them."""
+        params = {}
+        for name in KERNEL_KNOBS:
+            values = [getattr(only, name)] if only is not None else self.space[name]
+            if name == "packet_lanes":
+                values = [v or self.auto_lanes for v in values]
+            defines = [define_value(name, v) for v in values]
+            params[kernel_define(name)] = list(dict.fromkeys(defines))
+        return params
 
     def tune(self, paths: Sequence[Path]) -> list[Trial]:
         """Every scene, host configuration by host configuration, until the budget is spent
@@ -278,7 +356,7 @@ class Tuner:
             self.runs.append(run)
             deadline = start + self.budget_s * (i + 1) / len(paths)
             kernel_space = {BLOCK_SIZE_X: list(self.space["work_group_width"]),
-                            **self.extra_params}
+                            **self.kernel_params(), **self.extra_params}
             for host in hosts:
                 left = deadline - time.monotonic()
                 if left < MIN_RUN_BUDGET_S:
@@ -290,6 +368,7 @@ class Tuner:
                            default=None)
                 if best is not None and not self.search_every_host:
                     kernel_space = {BLOCK_SIZE_X: [best.tuning.work_group_width],
+                                    **self.kernel_params(best.tuning),
                                     **{k: [v] for k, v in best.extra.items()}}
         return self.trials
 

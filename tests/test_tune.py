@@ -18,6 +18,7 @@ from clray.tuning import tuner as tuner_module
 
 ROOT = Path(__file__).resolve().parent.parent
 SPHERES = ROOT / "scenes" / "spheres.toml"
+FRESNEL = ROOT / "scenes" / "fresnel.toml"
 SIZE = (48, 27)
 # Host knobs at their defaults, two work-group widths: two configurations, the default one of them.
 TWO = {**{k.name: (k.default,) for k in KNOB_TABLE}, "work_group_width": (16, 64)}
@@ -83,7 +84,9 @@ def test_tune_command_stores_the_winner_that_render_then_uses(
     assert code == 0, err
     assert "clray: tried 2 configurations" in err and "0 rejected" in err
     assert "interleaved renders" in err
+    assert "study variants not tried (they change the image; --allow-error E tries them)" in err
     report = (out / "report.md").read_text()
+    assert "Study variants: not tried" in report and "cl_fast_relaxed_math" in report
     assert "**default**" in report and "**best**" in report
     results = json.loads((out / "results.json").read_text())
     assert len(results["trials"]) == 2
@@ -146,3 +149,65 @@ def test_later_host_configurations_keep_the_best_kernel_knobs(kernel_tuner, cl_d
     best = min(first, key=lambda t: t.time_ms)
     assert [t.tuning.work_group_width for t in later] == [best.tuning.work_group_width]
     assert all(t.verified for t in trials)
+
+
+def test_tune_tries_both_traversals_as_kernel_defines_and_picks_one(
+        kernel_tuner, cl_device, tmp_path, monkeypatch) -> None:
+    calls = []
+    tune_kernel = kernel_tuner.interface.tune_kernel
+
+    def recording(*args, **kwargs):
+        calls.append((args[4], kwargs["compiler_options"]))
+        return tune_kernel(*args, **kwargs)
+
+    monkeypatch.setattr(kernel_tuner.interface, "tune_kernel", recording)
+    trials = tune(cl_device, tmp_path, space={**TWO, "work_group_width": (64,),
+                                              "traversal": ("single", "sample_packet")})
+    # One Kernel Tuner run, the traversal its #define TRAVERSAL, no longer a compiler option.
+    [(params, options)] = calls
+    assert params["TRAVERSAL"] == [0, 1]
+    assert not any(o.startswith(("-DTRAVERSAL=", "-DPACKET_")) for o in options)
+    assert sorted(t.tuning.traversal for t in trials) == ["sample_packet", "single"]
+    assert all(t.verified and t.time_ms > 0 and t.compile_ms > 0 for t in trials)
+    assert {t.tuning for t in trials} == {Tuning(), Tuning(traversal="sample_packet")}
+    best = tuner_module.best_configuration(trials, ["spheres"])
+    assert best[1]["spheres"].tuning == min(trials, key=lambda t: t.time_ms).tuning
+
+
+def test_packet_knobs_act_only_with_sample_packets_and_below_the_lanes(
+        kernel_tuner, cl_device, tmp_path) -> None:
+    trials = tune(cl_device, tmp_path, space={
+        **TWO, "work_group_width": (64,), "traversal": ("single", "sample_packet"),
+        "packet_lanes": (4,), "packet_min_lanes": (2, 4)})
+    # Single rays once, with the default packet knobs, which they ignore; packets of 4 lanes
+    # with 2 (4 is not below 4).
+    assert {t.tuning for t in trials} == {
+        Tuning(), Tuning(traversal="sample_packet", packet_lanes=4, packet_min_lanes=2)}
+
+
+VARIANTS = {**TWO, "work_group_width": (64,), "fresnel_schlick": (False, True),
+            "cl_mad_enable": (False, True)}
+
+
+def test_study_variants_are_not_tried_without_allow_error(kernel_tuner, cl_device,
+                                                          tmp_path) -> None:
+    trials = tuner_module.Tuner(cl_device, tmp_path, space=VARIANTS, size=SIZE, iterations=2,
+                                budget_s=300).tune([FRESNEL])
+    assert [t.tuning for t in trials] == [Tuning()]
+
+
+def test_study_variants_are_tried_under_allow_error_and_rejected_beyond_it(
+        kernel_tuner, cl_device, tmp_path) -> None:
+    trials = tuner_module.Tuner(cl_device, tmp_path, space=VARIANTS, size=SIZE, iterations=2,
+                                budget_s=300, allow_error=1e-4).tune([FRESNEL])
+    # The default build's run tries Schlick's Fresnel, rejected; the -cl-mad-enable run keeps
+    # the best kernel knobs found (as every later host or build configuration does).
+    assert [(t.tuning.cl_mad_enable, t.tuning.fresnel_schlick) for t in trials] == [
+        (False, False), (False, True), (True, False)]
+    default = next(t for t in trials if t.tuning == Tuning())
+    assert default.verified
+    # Schlick's approximation moves the glass balls' rims by far more than 1e-4.
+    schlick = [t for t in trials if t.tuning.fresnel_schlick]
+    assert all(not t.verified and "by over 0.0001" in t.problem for t in schlick)
+    best = tuner_module.best_configuration(trials, ["fresnel"])
+    assert not best[1]["fresnel"].tuning.fresnel_schlick

@@ -44,6 +44,7 @@ from clray.tuning.knobs import (
     KERNEL_KNOBS,
     KNOB_TABLE,
     KNOBS,
+    PACKET_KNOBS,
     TRAVERSALS,
     Tuning,
     TuningError,
@@ -276,13 +277,18 @@ class Tuner:
         cache = self.out / "cache" / _slug(self.device.name) / run.name / f"{_slug(base.label())}"
         cache.parent.mkdir(parents=True, exist_ok=True)
         platform, device = _platform_indices(self.device)
+
+        # A def, not a lambda: Kernel Tuner rewrites a lambda restriction from its source text.
+        def legal(params: dict) -> bool:
+            return self._legal(base, params, kernel_space)
+
         with warnings.catch_warnings():
             # Kernel Tuner warns where a structured buffer meets a struct pointer: expected.
             warnings.simplefilter("ignore")
             results, _env = self.kt.tune_kernel(
                 "render", self.source, (width, height), args, tune_params,
                 answer=answer, observers=[check], compiler_options=options,
-                restrictions=lambda params: self._legal(base, params),
+                restrictions=legal,
                 lang="OpenCL", platform=platform, device=device, iterations=self.iterations,
                 strategy=self.strategy,
                 # Brute force takes no options: it tries every kernel configuration.
@@ -297,12 +303,20 @@ class Tuner:
         """The configuration of Kernel Tuner's parameters on the run's host and build knobs."""
         kernel = {name: knob_value(name, params[kernel_define(name)], self.auto_lanes)
                   for name in KERNEL_KNOBS if kernel_define(name) in params}
+        if kernel.get("traversal", base.traversal) != "sample_packet":
+            # The single-ray walk ignores the packet's #defines: its knobs keep their defaults.
+            kernel = {k: v for k, v in kernel.items() if k not in PACKET_KNOBS}
         return Tuning(**{**base.values(), **kernel,
                          "work_group_width": int(params[BLOCK_SIZE_X])})
 
-    def _legal(self, base: Tuning, params: dict) -> bool:
+    def _legal(self, base: Tuning, params: dict, space: dict[str, list]) -> bool:
         """Kernel Tuner's restriction: the knob table's, with the packet's lanes resolved
-        (packet_min_lanes below the device's own where packet_lanes is left to it)."""
+        (packet_min_lanes below the device's own where packet_lanes is left to it), and the
+        single-ray walk built once, with the packet knobs' first values, which it ignores."""
+        if (TRAVERSALS[params["TRAVERSAL"]] != "sample_packet"
+                and any(params[kernel_define(n)] != space[kernel_define(n)][0]
+                        for n in PACKET_KNOBS)):
+            return False
         try:
             tuning = self._tuning(base, params)
         except TuningError:

@@ -178,11 +178,11 @@ def test_packet_knobs_act_only_with_sample_packets_and_below_the_lanes(
         kernel_tuner, cl_device, tmp_path) -> None:
     trials = tune(cl_device, tmp_path, space={
         **TWO, "work_group_width": (64,), "traversal": ("single", "sample_packet"),
-        "packet_lanes": (4,), "packet_min_lanes": (2, 4)})
-    # Single rays once, with the default packet knobs, which they ignore; packets of 4 lanes
-    # with 2 (4 is not below 4).
+        "packet_lanes": (16,), "packet_min_lanes": (2, 16)})
+    # Single rays once, with the default packet knobs, which they ignore; packets of 16 lanes
+    # (no CPU's own width here, so not folded into the default) with 2 (16 is not below 16).
     assert {t.tuning for t in trials} == {
-        Tuning(), Tuning(traversal="sample_packet", packet_lanes=4, packet_min_lanes=2)}
+        Tuning(), Tuning(traversal="sample_packet", packet_lanes=16, packet_min_lanes=2)}
 
 
 VARIANTS = {**TWO, "work_group_width": (64,), "fresnel_schlick": (False, True),

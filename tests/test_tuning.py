@@ -152,6 +152,8 @@ def test_kernel_and_build_knobs_change_the_kernel_build(cl_device, spheres) -> N
                           ({"packet_lanes": 4}, "-DPACKET_LANES=4"),
                           ({"packet_min_lanes": 0}, "-DPACKET_MIN_LANES=0"),
                           ({"packet_lanes": 16, "packet_min_lanes": 9}, "-DPACKET_MIN_LANES=9")):
+        if knobs.get("packet_lanes") == auto and len(knobs) == 1:
+            continue  # the device's own width: the same build as the default's
         changed = set(options_with(cl_device, spheres, Tuning(traversal="sample_packet", **knobs)))
         assert option in changed and option not in options_with(cl_device, spheres, packets)
     # RenderSettings.traversal overrides the knob, and then the packet knobs do not act.

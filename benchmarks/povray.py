@@ -3,13 +3,15 @@
 benchmarks/povray/ holds POV-Ray versions of scenes/spheres.toml (spheres.pov) and of the
 generated mesh scene (bumpy.pov, whose mesh2 `write_mesh_pov` writes from the generator's OBJ).
 `bench.py --povray auto` runs them through `Interleaved`, one POV-Ray trace after each timed clray
-render. Only POV-Ray's own statistics are used: its trace time, with the parse time apart.
+render at the same samples per pixel: 1 (no antialiasing) and, by default, 16 (`+AM1 +A0.0 +R4`).
+Only POV-Ray's own statistics are used: its trace time, with the parse time apart.
 
 Imported by bench.py from its file (benchmarks/ is not a package).
 """
 
 from __future__ import annotations
 
+import math
 import re
 import shutil
 import statistics
@@ -30,10 +32,30 @@ MESH_INCLUDE = "bumpy_mesh.inc"
 _TIMES = {"parse": "Parse Time", "trace": "Trace Time"}
 _TIME = r"{}:.*?\(([0-9.]+) seconds\)\s*using \d+ thread\(s\) with ([0-9.]+) CPU-seconds"
 _COUNTS = {"traced": "Rays", "reflected": "Reflected Rays", "shadow_tests": "Shadow Ray Tests"}
+# "Pixels:  15330   Samples:  230400   Smpls/Pxl: 15.03": the antialiasing samples (0 without
+# antialiasing). Smpls/Pxl divides by POV-Ray's pixel count, which with antialiasing counts
+# more pixels than the image has (those it traces again for its neighbour tests), so the image's
+# own size divides here.
+_SAMPLES = r"^Pixels:\s+\d+\s+Samples:\s+(\d+)"
+# POV-Ray's Antialias_Depth (+R) is 1 to 9; method 1 samples a pixel on a depth x depth grid.
+MAX_AA_DEPTH = 9
 
 
 def available() -> bool:
     return shutil.which("povray") is not None
+
+
+def antialias_options(samples: int) -> list[str]:
+    """POV-Ray's options for `samples` camera rays a pixel: `-A` for 1; otherwise non-adaptive
+    supersampling (method 1) of every pixel (threshold 0.0) on a grid of sqrt(samples) squared,
+    the counterpart of clray's stratified samples. `samples` must be 1 or a square up to 81."""
+    if samples == 1:
+        return ["-A"]
+    depth = math.isqrt(max(samples, 0))
+    if depth * depth != samples or not 2 <= depth <= MAX_AA_DEPTH:
+        raise ValueError(f"POV-Ray samples a pixel on a square grid: expected 1 or a square "
+                         f"from 4 to {MAX_AA_DEPTH ** 2}, got {samples}")
+    return ["+AM1", "+A0.0", f"+R{depth}"]
 
 
 def _read_obj(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -71,15 +93,19 @@ def write_mesh_pov(obj_scene_dir: Path, out_dir: Path) -> Path:
     return Path(shutil.copy(POV_DIR / POV_FILES["mesh"], out_dir))
 
 
-def trace_time(pov_file: Path, width: int, height: int, threads: int = 2) -> dict:
-    """Render `pov_file` once, in its own folder, and return POV-Ray's reported figures:
-    `version`, `threads`, `parse_s`, `trace_s` (wall), `parse_cpu_s`, `trace_cpu_s` (all threads),
-    `rays` (its ray counts) and `image` (the PNG it wrote)."""
-    image = pov_file.with_suffix(".png")
+def trace_time(pov_file: Path, width: int, height: int, threads: int = 2,
+               samples: int = 1) -> dict:
+    """Render `pov_file` once, in its own folder, with `samples` camera rays a pixel
+    (`antialias_options`), and return POV-Ray's reported figures: `version`, `threads`,
+    `parse_s`, `trace_s` (wall), `parse_cpu_s`, `trace_cpu_s` (all threads), `rays` (its ray
+    counts), `samples_per_pixel` (its antialiasing samples over the image's pixels; 1 without
+    antialiasing) and `image` (the PNG it wrote)."""
+    image = pov_file.with_name(f"{pov_file.stem}_{samples}spp.png")
     # Every option that changes the work is given, so povray.ini settings cannot. The working
     # folder is the scene's: POV-Ray's default I/O restrictions allow reads and writes there.
-    cmd = ["povray", pov_file.name, f"+W{width}", f"+H{height}", "-D", "-A", "+Q9",
-           f"+WT{threads}", "+FN", f"+O{image.name}", "File_Gamma=1.0"]
+    cmd = ["povray", pov_file.name, f"+W{width}", f"+H{height}", "-D",
+           *antialias_options(samples), "+Q9", f"+WT{threads}", "+FN", f"+O{image.name}",
+           "File_Gamma=1.0"]
     proc = subprocess.run(cmd, cwd=pov_file.parent, capture_output=True, text=True)
     log = proc.stdout + proc.stderr
     if proc.returncode != 0:
@@ -94,6 +120,9 @@ def trace_time(pov_file: Path, width: int, height: int, threads: int = 2) -> dic
     # POV-Ray leaves out a counter that stayed 0 (no "Reflected Rays" without reflection).
     result["rays"] = {key: int(m.group(1)) if (m := re.search(rf"^{label}:\s+(\d+)", log, re.M))
                       else 0 for key, label in _COUNTS.items()}
+    found = re.search(_SAMPLES, log, re.M)
+    aa_samples = int(found.group(1)) if found else 0
+    result["samples_per_pixel"] = aa_samples / (width * height) if aa_samples else 1.0
     result["image"] = image
     return result
 
@@ -106,7 +135,8 @@ def mean_abs_diff(png: Path, clray_image: np.ndarray) -> float:
 
 
 class Interleaved:
-    """POV-Ray traces of one benchmark scene, taken one at a time between clray's renders."""
+    """POV-Ray traces of one benchmark scene, taken one at a time between clray's renders, at
+    one or more sample counts (camera rays a pixel), each with its own runs."""
 
     def __init__(self, scene: str, clray_scene: Path, work_dir: Path, width: int, height: int,
                  threads: int) -> None:
@@ -116,24 +146,29 @@ class Interleaved:
         else:
             self.pov_file = Path(shutil.copy(POV_DIR / POV_FILES[scene], work_dir))
         self.scene, self.width, self.height, self.threads = scene, width, height, threads
-        self.runs: list[dict] = []
+        self.runs: dict[int, list[dict]] = {}
 
-    def trace(self) -> None:
-        self.runs.append(trace_time(self.pov_file, self.width, self.height, self.threads))
+    def trace(self, samples: int = 1) -> None:
+        self.runs.setdefault(samples, []).append(
+            trace_time(self.pov_file, self.width, self.height, self.threads, samples))
 
-    def summary(self, kernel_s: float, clray_image: np.ndarray) -> dict:
-        """The `povray` object of a scene in bench.py's JSON (see benchmarks/README.md)."""
-        trace_runs = [run["trace_s"] for run in self.runs]
+    def summary(self, samples: int, kernel_s: float, clray_image: np.ndarray) -> dict:
+        """One entry of a scene's `povray` object in bench.py's JSON (benchmarks/README.md):
+        the traces at `samples` against clray's median `kernel_s` at as many samples."""
+        runs = self.runs[samples]
+        trace_runs = [run["trace_s"] for run in runs]
         trace_s = statistics.median(trace_runs)
-        last = self.runs[-1]
+        last = runs[-1]
         return {
             "version": last["version"],
             "threads": self.threads,
             "file": str((POV_DIR / POV_FILES[self.scene]).relative_to(HERE.parent)),
+            "options": antialias_options(samples),
+            "samples_per_pixel": last["samples_per_pixel"],
             "trace_s_runs": trace_runs,
             "trace_s": trace_s,
-            "parse_s": statistics.median(run["parse_s"] for run in self.runs),
-            "trace_cpu_s": statistics.median(run["trace_cpu_s"] for run in self.runs),
+            "parse_s": statistics.median(run["parse_s"] for run in runs),
+            "trace_cpu_s": statistics.median(run["trace_cpu_s"] for run in runs),
             "ratio_trace_over_kernel": trace_s / kernel_s,
             "rays": last["rays"],
             "mean_abs_diff": mean_abs_diff(last["image"], clray_image),

@@ -299,6 +299,8 @@ def _build_parser() -> _Parser:
     pr.add_argument("--device", metavar="SPEC", help="OpenCL device, as for render")
     pr.add_argument("-W", "--width", type=size, metavar="N", help="image width in pixels")
     pr.add_argument("-H", "--height", type=size, metavar="N", help="image height in pixels")
+    pr.add_argument("--spp", type=_int_in(1, limits.MAX_SPP), metavar="N",
+                    help="samples per pixel (default: the scene's [render] spp)")
     pr.add_argument("--repeat", type=_int_in(1, MAX_REPEAT), default=3, metavar="N",
                     help="timed renders of each variant after a warm-up; medians (default: 3)")
     pr.add_argument("--no-tuning", dest="stored_tuning", action="store_false",
@@ -770,8 +772,8 @@ def _profile(args: argparse.Namespace) -> int:
     from clray.profile import profile_scene
 
     with _warnings_as_lines(quiet=False, verbose=False):
-        settings = RenderSettings(width=args.width, height=args.height, device=args.device,
-                                  stored_tuning=args.stored_tuning)
+        settings = RenderSettings(width=args.width, height=args.height, spp=args.spp,
+                                  device=args.device, stored_tuning=args.stored_tuning)
         prof = profile_scene(args.scene, settings, args.repeat)
     if args.json:
         print(json.dumps(prof, indent=2))

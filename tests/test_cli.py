@@ -114,6 +114,9 @@ def files_in(directory: Path) -> list[str]:
     ["render", "{scene}", "--stats-json", "sub/"],
     ["render", "{scene}", "-o", "out.png", "--stats-json", "out.png"],
     ["study", "{scene}", "--out", "d", "--repeat", str(2**31)],
+    ["profile", "{scene}", "--spp", "0"],
+    ["profile", "{scene}", "--spp", "sixteen"],
+    ["profile", "{scene}", "--spp", "4097"],
     ["render", "{scene}", "--precision", "half"],
     ["render", "{scene}", "-q", "-v"],
     ["render", "{scene}", "--no-such-flag"],
@@ -138,6 +141,13 @@ def test_help_exits_0(capsys) -> None:
     for flag in ("--output", "--width", "--height", "--spp", "--max-depth", "--seed",
                  "--device", "--precision", "--linear", "--srgb", "--exposure", "--png-bits",
                  "--stats-json", "--quiet", "--verbose"):
+        assert flag in out
+
+
+def test_profile_help_names_its_flags(capsys) -> None:
+    code, out, _ = run(capsys, "profile", "--help")
+    assert code == 0
+    for flag in ("--device", "--width", "--height", "--spp", "--repeat", "--no-tuning", "--json"):
         assert flag in out
 
 

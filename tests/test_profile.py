@@ -42,6 +42,19 @@ def test_profile_figures_add_up_and_match_the_render(cl_device, capsys) -> None:
     assert prof["tuning"] == "default"
 
 
+def test_profile_spp_replaces_the_scenes_samples(cl_device, capsys) -> None:
+    # spheres.toml renders 1 spp: --spp 3 must reach the kernel, not only the printed figures.
+    code = cli.main(["profile", str(SPHERES), "-W", "16", "-H", "10", "--spp", "3",
+                     "--repeat", "1", "--json"])
+    prof = json.loads(capsys.readouterr().out)
+    assert code == 0
+    assert prof["spp"] == 3
+    assert prof["rays"]["primary"] == 16 * 10 * 3
+    assert prof["time_split"]["parts"]["primary"]["rays"] == 16 * 10 * 3
+    rendered = render(SPHERES, RenderSettings(width=16, height=10, spp=3))
+    assert prof["rays"] == rendered.stats["rays"]
+
+
 def test_profile_prints_a_summary(cl_device, capsys) -> None:
     assert cli.main(["profile", str(SPHERES), "-W", "32", "-H", "18", "--repeat", "1"]) == 0
     lines = capsys.readouterr().out.splitlines()

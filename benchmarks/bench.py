@@ -112,7 +112,7 @@ def command_wall_s(path: Path, device_spec: str | None) -> list[float]:
 
 
 def bench_scene(name: str, path: Path, device: cl.Device, device_spec: str | None,
-                repeat: int, povray_dir: Path | None = None, profile: bool = True,
+                repeat: int, povray_dir: Path | None = None, split: bool = True,
                 povray_spp: tuple[int, ...] = (1,)) -> dict:
     # The first load in this process also pays the first reads of the files and of the loader's
     # code paths: it is reported apart, and load_s is the median of LOAD_RUNS loads after it.
@@ -206,7 +206,7 @@ def bench_scene(name: str, path: Path, device: cl.Device, device_spec: str | Non
     walls = command_wall_s(path, device_spec)
     result["command_wall_s"] = statistics.median(walls)
     result["command_wall_runs_s"] = walls
-    if profile:
+    if split:
         result["time_split"] = profile.time_split(packed, device, repeat)
         result["tests_per_ray"] = profile.tests_per_ray(packed, device)
     result["targets"] = {

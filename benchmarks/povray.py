@@ -96,10 +96,8 @@ def write_mesh_pov(obj_scene_dir: Path, out_dir: Path) -> Path:
 def trace_time(pov_file: Path, width: int, height: int, threads: int = 2,
                samples: int = 1) -> dict:
     """Render `pov_file` once, in its own folder, with `samples` camera rays a pixel
-    (`antialias_options`), and return POV-Ray's reported figures: `version`, `threads`,
-    `parse_s`, `trace_s` (wall), `parse_cpu_s`, `trace_cpu_s` (all threads), `rays` (its ray
-    counts), `samples_per_pixel` (its antialiasing samples over the image's pixels; 1 without
-    antialiasing) and `image` (the PNG it wrote)."""
+    (`antialias_options`), and return `read_statistics` of its log with `threads` and `image`
+    (the PNG it wrote) added."""
     image = pov_file.with_name(f"{pov_file.stem}_{samples}spp.png")
     # Every option that changes the work is given, so povray.ini settings cannot. The working
     # folder is the scene's: POV-Ray's default I/O restrictions allow reads and writes there.
@@ -110,20 +108,28 @@ def trace_time(pov_file: Path, width: int, height: int, threads: int = 2,
     log = proc.stdout + proc.stderr
     if proc.returncode != 0:
         raise RuntimeError(f"povray failed on {pov_file.name} ({proc.returncode}):\n{log[-2000:]}")
+    return {**read_statistics(log, width * height, pov_file.name), "threads": threads,
+            "image": image}
+
+
+def read_statistics(log: str, pixels: int, name: str) -> dict:
+    """POV-Ray's figures from the log of a render of `pixels` pixels (`name` for messages):
+    `version`, `parse_s`, `trace_s` (wall), `parse_cpu_s`, `trace_cpu_s` (all threads), `rays`
+    (its ray counts) and `samples_per_pixel` (its antialiasing samples over the image's pixels;
+    1 without antialiasing)."""
     version = re.search(r"Ray Tracer Version (\S+)", log)
-    result: dict = {"version": version.group(1) if version else None, "threads": threads}
+    result: dict = {"version": version.group(1) if version else None}
     for key, label in _TIMES.items():
         found = re.search(_TIME.format(label), log)
         if found is None:
-            raise RuntimeError(f"povray printed no '{label}' for {pov_file.name}")
+            raise RuntimeError(f"povray printed no '{label}' for {name}")
         result[f"{key}_s"], result[f"{key}_cpu_s"] = float(found.group(1)), float(found.group(2))
     # POV-Ray leaves out a counter that stayed 0 (no "Reflected Rays" without reflection).
     result["rays"] = {key: int(m.group(1)) if (m := re.search(rf"^{label}:\s+(\d+)", log, re.M))
                       else 0 for key, label in _COUNTS.items()}
     found = re.search(_SAMPLES, log, re.M)
     aa_samples = int(found.group(1)) if found else 0
-    result["samples_per_pixel"] = aa_samples / (width * height) if aa_samples else 1.0
-    result["image"] = image
+    result["samples_per_pixel"] = aa_samples / pixels if aa_samples else 1.0
     return result
 
 

@@ -567,7 +567,7 @@ HOT void packet_walk_closest(const SceneRefs* s, const Ray* rays, const RayPacke
 #endif
 
 // closest_hit for each lane of `bits` (hits of the others: no hit).
-HOT void packet_closest(const SceneRefs* s, const Ray* rays, int bits, Hit* hits) {
+STAGE void packet_closest(const SceneRefs* s, const Ray* rays, int bits, Hit* hits) {
     for (int j = 0; j < PACKET_LANES; ++j) {
         hits[j].t = REAL_INF;
         hits[j].ref = -1;
@@ -713,8 +713,8 @@ HOT int packet_blocked(const SceneRefs* s, const Ray* rays, const REAL* tmax_lan
 #endif
 
 // transmission() for each lane of `bits`, into filter[lane].
-HOT void packet_transmission(const SceneRefs* s, const Ray* rays, const REAL* tmax, int bits,
-                             REAL3* filter) {
+STAGE void packet_transmission(const SceneRefs* s, const Ray* rays, const REAL* tmax, int bits,
+                               REAL3* filter) {
 #if !HAS_TRANSMISSION && !HAS_INSTANCES && HAS_BVH
     int blocked = packet_blocked(s, rays, tmax, bits);
     for (int j = 0; j < PACKET_LANES; ++j) {

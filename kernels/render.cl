@@ -97,8 +97,8 @@ inline REAL refract_media(const SceneRefs* s, const RayTask* in, RayTask* out, i
 #endif
 
 // The primary ray of pixel sample `sample`.
-inline void sample_ray(const __global Camera* camera, const __global Params* params, int x,
-                       int y, int sample, uint pixel, REAL3* o, REAL3* d) {
+STAGE void sample_ray(const __global Camera* camera, const __global Params* params, int x,
+                      int y, int sample, uint pixel, REAL3* o, REAL3* d) {
     int spp = params->spp;
     REAL2 pos = sample_position(x, y, sample, spp, params->seed, pixel);
 #if HAS_THIN_LENS || HAS_ORTHOGRAPHIC
@@ -117,8 +117,8 @@ typedef struct {
     bool entering;
 } ShadePoint;
 
-HOT ShadePoint shade_point(const SceneRefs* s, const __global Camera* camera, const Ray* ray,
-                           const Hit* hit) {
+STAGE ShadePoint shade_point(const SceneRefs* s, const __global Camera* camera, const Ray* ray,
+                             const Hit* hit) {
     ShadePoint pt;
     pt.sf = surface_at(s, ray, hit,
                        material_needs_uv(s, crossing_material(s, hit->ref, hit->instance)));

@@ -316,8 +316,8 @@ HOT REAL phong_power(REAL x, REAL s) {
 // tmax) and what the light brings if nothing blocks it: direction l, attenuation and n.l. False
 // when the light gives nothing there, and no shadow ray is traced. key: the pixel sample, which
 // picks area lights' samples.
-HOT bool light_ray(const SceneRefs* s, const Surface* sf, REAL3 n, int i, SampleKey key,
-                   REAL3* l_out, REAL* atten_out, REAL* ndl_out, Ray* shadow, REAL* tmax_out) {
+STAGE bool light_ray(const SceneRefs* s, const Surface* sf, REAL3 n, int i, SampleKey key,
+                     REAL3* l_out, REAL* atten_out, REAL* ndl_out, Ray* shadow, REAL* tmax_out) {
     const __global Light* light = s->lights + i;
     REAL3 l;
     REAL atten = 1;
@@ -371,8 +371,8 @@ HOT bool light_ray(const SceneRefs* s, const Surface* sf, REAL3 n, int i, Sample
 }
 
 // Light i's diffuse and specular term, `filter` being the light its shadow ray let through.
-HOT REAL3 light_term(const SceneRefs* s, int i, REAL3 n, REAL3 v, REAL3 c,
-                     const __global Material* m, REAL3 l, REAL atten, REAL ndl, REAL3 filter) {
+STAGE REAL3 light_term(const SceneRefs* s, int i, REAL3 n, REAL3 v, REAL3 c,
+                       const __global Material* m, REAL3 l, REAL atten, REAL ndl, REAL3 filter) {
     REAL3 refl = (REAL)2 * ndl * n - l;
     REAL rv = dot(refl, v);
     REAL spec = rv > (REAL)0 ? phong_power(rv, TO_REAL(m->shininess)) : (REAL)0;

@@ -8,13 +8,13 @@ The kernels mark their stages STAGE (kernels/real.h): the camera ray (`sample_ra
 set-up (`make_ray`), the closest hit (`closest_hit`, and for sample packets `packet_closest`),
 the shading point (`shade_point`), a light's shadow ray (`light_ray`) and term (`light_term`),
 and the shadow ray's walk (`transmission`, `packet_transmission`). The stage-profiling build
-(KernelConfig.stage_profile, -DSTAGE_PROFILE=1) keeps each a function of its own; one render of each scene runs under
-`valgrind --tool=callgrind` with one PoCL thread, counting inside the render kernel only, and
-each stage's instructions are its inclusive count (what it and everything it calls execute),
-with its number of calls. Stages nest (make_ray runs inside sample_ray's caller and inside
-light_ray), so the shares do not add up to 100 %; `other` is the kernel's own remainder (the
-ray tree, accumulation). Calls that are not inlined cost instructions of their own: the
-profiling build's total is reported beside the normal build's, so the overhead is in view.
+(KernelConfig.stage_profile, -DSTAGE_PROFILE=1) keeps each a function of its own; one render
+of each scene runs under `valgrind --tool=callgrind` with one PoCL thread, counting inside the
+render kernel only. A stage's count is inclusive (it and everything it calls), with its number of
+calls. Stages nest (light_ray sets up its shadow ray with make_ray), so the shares do not add
+up to 100 %; what no stage holds is the ray tree's own bookkeeping and the sample packets'
+gathering of lanes. Calls that are not inlined cost instructions of their own: the profiling
+build's total is reported beside the normal build's, so the overhead is in view.
 
 Needs valgrind and PoCL's CPU device. Measures only; each count takes about a minute.
 """
@@ -125,9 +125,10 @@ def count_stages(scene: Path, traversal: str, spp: int, size: tuple[int, int],
 
 
 def _summary(name: str, traversal: str, spp: int, result: dict) -> str:
-    lines = [f"{name}, {traversal}, {spp} spp: {result['instructions'] / result['samples']:.0f} "
-             f"instructions a sample ({result['instructions_profiling_build'] / result['samples']:.0f}"
-             " in the profiling build)"]
+    samples = result["samples"]
+    lines = [f"{name}, {traversal}, {spp} spp: {result['instructions'] / samples:.0f} "
+             f"instructions a sample ({result['instructions_profiling_build'] / samples:.0f} "
+             "in the profiling build)"]
     for stage in STAGES:
         s = result["stages"].get(stage)
         if s:

@@ -2,7 +2,8 @@
 
     python benchmarks/private_memory.py [--json benchmarks/results/private_memory.json]
 
-For float and double and several ray-tree depths, the model's stacks (the ray stack and the
+For each traversal scheme (the single-ray walk, sample packets of 8 and 16 lanes), float and
+double and several ray-tree depths, the model's stacks (the ray stack and the
 BVH traversal stack, clray.device.program.private_stack_bytes, which the render-time warning
 uses) beside what clang 15's AMDGPU back end (gfx90a, -O2) gives the render kernel: its
 scratch (private segment) bytes and vector registers. Without ROCm's device library the math
@@ -31,6 +32,8 @@ from clray.device.program import (
 )
 
 DEPTHS = (1, 4, 8)
+# (traversal, packet lanes): the packet's lanes set its per-lane state (rays, hits, shading).
+SCHEMES = (("single", 1), ("sample_packet", 8), ("sample_packet", 16))
 
 
 def amdgpu_render_usage(config: KernelConfig, clang: str) -> dict[str, int]:
@@ -55,14 +58,17 @@ def main() -> None:
     if clang is None:
         sys.exit("private_memory: clang not found (Debian: apt-get install clang)")
     rows = []
-    for precision in ("float", "double"):
-        for depth in DEPTHS:
-            config = KernelConfig(precision=precision, max_depth=depth, bvh_stack_size=32,
-                                  **dict.fromkeys(FEATURE_SWITCHES, True))
-            row = {"precision": precision, "max_depth": depth, "bvh_stack_size": 32,
-                   **private_stack_bytes(config), **amdgpu_render_usage(config, clang)}
-            print(json.dumps(row), flush=True)
-            rows.append(row)
+    for traversal, lanes in SCHEMES:
+        for precision in ("float", "double"):
+            for depth in DEPTHS:
+                config = KernelConfig(precision=precision, max_depth=depth, bvh_stack_size=32,
+                                      traversal=traversal, packet_lanes=lanes,
+                                      **dict.fromkeys(FEATURE_SWITCHES, True))
+                row = {"traversal": traversal, "packet_lanes": lanes if lanes > 1 else None,
+                       "precision": precision, "max_depth": depth, "bvh_stack_size": 32,
+                       **private_stack_bytes(config), **amdgpu_render_usage(config, clang)}
+                print(json.dumps(row), flush=True)
+                rows.append(row)
     if args.json:
         args.json.write_text(json.dumps({"compiler": "clang 15, amdgcn-amd-amdhsa gfx90a -O2, "
                                                      "no device library",

@@ -123,11 +123,17 @@ def warn_deep_tree(scene: Scene, resolved: dict[str, int | float]) -> None:
                       stacklevel=3)
 
 
-def kernel_switches(tuning: Tuning, settings: RenderSettings, device: cl.Device) -> dict:
+def kernel_switches(tuning: Tuning, settings: RenderSettings, device: cl.Device,
+                    spp: int) -> dict:
     """The KernelConfig fields the tuning's kernel and build knobs set: the traversal (the
     settings' where given), the packet's lanes (the device's where the tuning leaves them to
-    it), the study variants it switches on and their build options."""
+    it), the study variants it switches on and their build options. With one sample a pixel
+    there is no sample packet to trace, and the single-ray build renders: the packet build's
+    code costs the same rays about a fifth more instructions (docs/acceleration.md, Where a
+    sample's instructions go)."""
     traversal = settings.traversal or tuning.traversal or traversal_for(device)
+    if spp == 1:
+        traversal = "single"
     switches: dict[str, object] = {"traversal": traversal}
     if traversal == "sample_packet":
         lanes = tuning.packet_lanes or packet_lanes_for(device, settings.precision)
@@ -147,11 +153,12 @@ def pack_for(scene: Scene, settings: RenderSettings, device: cl.Device) -> Packe
     what each worker of a distributed render packs once for all its tiles. The knobs are the
     settings' tuning, else the device's tuning file's (clray.tuning.store.chosen_tuning)."""
     tuning = settings.tuning or chosen_tuning(device, settings.stored_tuning)[0]
-    switches = {**kernel_switches(tuning, settings, device), **dict(settings.variants)}
+    resolved = resolved_settings(scene, settings)
+    switches = {**kernel_switches(tuning, settings, device, resolved["spp"]),
+                **dict(settings.variants)}
     return pack_scene(scene, precision=settings.precision,
                       bvh_width=tuning.bvh_width or bvh_width_for(device, settings.precision),
-                      queue=queue_for(device), tuning=tuning,
-                      **resolved_settings(scene, settings), **switches)
+                      queue=queue_for(device), tuning=tuning, **resolved, **switches)
 
 
 def render(scene: Scene | str | os.PathLike, settings: RenderSettings | None = None

@@ -311,7 +311,7 @@ HOT int push_instances(const SceneRefs* s, int slot, int count, const Ray* r, RE
 HOT void walk_closest(const SceneRefs* s, const Ray* world, int child, int count, Hit* found);
 #endif
 
-HOT Hit closest_hit(const SceneRefs* s, const Ray* world) {
+STAGE Hit closest_hit(const SceneRefs* s, const Ray* world) {
     Hit hit;
     hit.t = REAL_INF;
     hit.ref = -1;
@@ -521,7 +521,7 @@ HOT REAL3 walk_transmission(const SceneRefs* s, const Ray* world, int child, int
 #endif
 
 // Light reaching the end of a shadow segment: 0 at the first opaque crossing.
-HOT REAL3 transmission(const SceneRefs* s, const Ray* world, REAL tmax) {
+STAGE REAL3 transmission(const SceneRefs* s, const Ray* world, REAL tmax) {
     REAL3 filter = (REAL3)(1, 1, 1);
 #if HAS_PLANES
     for (int i = 0; i < s->n_planes; ++i) {

@@ -16,7 +16,7 @@ typedef struct {
     REAL sx, sy, sz; // ... and the shear that maps d to +z (set only where triangles exist)
 } Ray;
 
-HOT Ray make_ray(REAL3 o, REAL3 d) {
+STAGE Ray make_ray(REAL3 o, REAL3 d) {
     Ray r;
     r.o = o;
     r.d = d;

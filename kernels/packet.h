@@ -567,7 +567,7 @@ HOT void packet_walk_closest(const SceneRefs* s, const Ray* rays, const RayPacke
 #endif
 
 // closest_hit for each lane of `bits` (hits of the others: no hit).
-HOT void packet_closest(const SceneRefs* s, const Ray* rays, int bits, Hit* hits) {
+STAGE void packet_closest(const SceneRefs* s, const Ray* rays, int bits, Hit* hits) {
     for (int j = 0; j < PACKET_LANES; ++j) {
         hits[j].t = REAL_INF;
         hits[j].ref = -1;
@@ -713,8 +713,8 @@ HOT int packet_blocked(const SceneRefs* s, const Ray* rays, const REAL* tmax_lan
 #endif
 
 // transmission() for each lane of `bits`, into filter[lane].
-HOT void packet_transmission(const SceneRefs* s, const Ray* rays, const REAL* tmax, int bits,
-                             REAL3* filter) {
+STAGE void packet_transmission(const SceneRefs* s, const Ray* rays, const REAL* tmax, int bits,
+                               REAL3* filter) {
 #if !HAS_TRANSMISSION && !HAS_INSTANCES && HAS_BVH
     int blocked = packet_blocked(s, rays, tmax, bits);
     for (int j = 0; j < PACKET_LANES; ++j) {
@@ -729,16 +729,17 @@ HOT void packet_transmission(const SceneRefs* s, const Ray* rays, const REAL* tm
 #endif
 }
 
-// shade_direct for the lanes of `bits`, each at its own surface point, with one shadow-ray
-// packet per light. key.sample: lane 0's sample. The per-lane arithmetic is shade_direct's.
-HOT void packet_direct(const SceneRefs* s, const Surface* sf, const REAL3* n, const REAL3* v,
-                       const REAL3* c, const int* material, REAL3 ambient_light, SampleKey key,
-                       int bits, REAL3* direct, int* shadow_rays) {
+// shade_direct for the lanes of `bits`, each at its own shading point pt[j] seen along
+// rays[j], with one shadow-ray packet per light. key.sample: lane 0's sample. The per-lane
+// arithmetic is shade_direct's.
+HOT void packet_direct(const SceneRefs* s, const ShadePoint* pt, const Ray* seen,
+                       REAL3 ambient_light, SampleKey key, int bits, REAL3* direct,
+                       int* shadow_rays) {
     int first = key.sample;
     for (int rest = bits; rest; rest &= rest - 1) {
         int j = lowest_bit(rest);
-        direct[j] = TO_REAL(s->materials[material[j]].ambient) * c[j] * ambient_light +
-                    TO_REAL3(s->materials[material[j]].emission);
+        const __global Material* m = s->materials + pt[j].sf.material;
+        direct[j] = TO_REAL(m->ambient) * pt[j].c * ambient_light + TO_REAL3(m->emission);
     }
     for (int i = 0; i < s->n_lights; ++i) {
         Ray rays[PACKET_LANES];
@@ -748,7 +749,7 @@ HOT void packet_direct(const SceneRefs* s, const Surface* sf, const REAL3* n, co
         for (int rest = bits; rest; rest &= rest - 1) {
             int j = lowest_bit(rest);
             key.sample = first + j;
-            if (light_ray(s, sf + j, n[j], i, key, l + j, atten + j, ndl + j, rays + j,
+            if (light_ray(s, &pt[j].sf, pt[j].n, i, key, l + j, atten + j, ndl + j, rays + j,
                           tmax + j)) {
                 shot |= 1 << j;
             }
@@ -767,8 +768,9 @@ HOT void packet_direct(const SceneRefs* s, const Surface* sf, const REAL3* n, co
         for (int rest = shot; rest; rest &= rest - 1) {
             int j = lowest_bit(rest);
             if (max_comp3(filter[j]) <= (REAL)0) continue;
-            direct[j] += light_term(s, i, n[j], v[j], c[j], s->materials + material[j], l[j],
-                                    atten[j], ndl[j], filter[j]);
+            direct[j] += light_term(s, i, pt[j].n, -seen[j].d, pt[j].c,
+                                    s->materials + pt[j].sf.material, l[j], atten[j], ndl[j],
+                                    filter[j]);
         }
     }
 }

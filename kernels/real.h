@@ -40,6 +40,17 @@ typedef int4 MASK4;
 #define HOT inline __attribute__((always_inline))
 #endif
 
+// STAGE marks the functions that are the renderer's stages: the camera ray, the closest hit,
+// the shading point, a light's shadow ray and term, the shadow ray's transmission, the ray
+// set-up, and the sample packets' walks. They inline as HOT ones do; the stage-profiling build
+// (-DSTAGE_PROFILE=1, benchmarks/stages.py) keeps each a function of its own, so a profiler
+// can say how many instructions each stage takes.
+#if defined(STAGE_PROFILE) && STAGE_PROFILE
+#define STAGE __attribute__((noinline))
+#else
+#define STAGE HOT
+#endif
+
 #define REAL_INF ((REAL)INFINITY)
 #define PI_R ((REAL)3.14159265358979323846)
 

@@ -97,8 +97,8 @@ inline REAL refract_media(const SceneRefs* s, const RayTask* in, RayTask* out, i
 #endif
 
 // The primary ray of pixel sample `sample`.
-inline void sample_ray(const __global Camera* camera, const __global Params* params, int x,
-                       int y, int sample, uint pixel, REAL3* o, REAL3* d) {
+STAGE void sample_ray(const __global Camera* camera, const __global Params* params, int x,
+                      int y, int sample, uint pixel, REAL3* o, REAL3* d) {
     int spp = params->spp;
     REAL2 pos = sample_position(x, y, sample, spp, params->seed, pixel);
 #if HAS_THIN_LENS || HAS_ORTHOGRAPHIC
@@ -108,26 +108,6 @@ inline void sample_ray(const __global Camera* camera, const __global Params* par
     *o = TO_REAL3(camera->position);
     *d = camera_direction(camera, pos, params->width, params->height);
 #endif
-}
-
-// What shading a hit needs: its surface, its side, the normal facing the ray and its colour.
-typedef struct {
-    Surface sf;
-    REAL3 n, c;
-    bool entering;
-} ShadePoint;
-
-HOT ShadePoint shade_point(const SceneRefs* s, const __global Camera* camera, const Ray* ray,
-                           const Hit* hit) {
-    ShadePoint pt;
-    pt.sf = surface_at(s, ray, hit,
-                       material_needs_uv(s, crossing_material(s, hit->ref, hit->instance)));
-    pt.entering = dot(ray->d, pt.sf.n_g) < (REAL)0;
-    REAL3 n_f = pt.entering ? pt.sf.n_g : -pt.sf.n_g;
-    pt.n = dot(pt.sf.n_s, ray->d) < (REAL)0 ? pt.sf.n_s : -pt.sf.n_s;
-    pt.c = surface_color(s, s->materials + pt.sf.material, pt.sf.p + TO_REAL3(camera->world),
-                         n_f, pt.sf.uv);
-    return pt;
 }
 
 #if SAMPLE_PACKETS
@@ -153,21 +133,13 @@ HOT void trace_sample_packet(const SceneRefs* s, const __global Camera* camera,
     }
     int bits = (1 << lanes) - 1;
     packet_closest(s, pk->ray, bits, pk->hit);
-    Surface sf[PACKET_LANES];
-    REAL3 n[PACKET_LANES], v[PACKET_LANES], c[PACKET_LANES];
-    int material[PACKET_LANES];
     int lit = 0;
     for (int j = 0; j < lanes; ++j) {
         if (!(pk->hit[j].t < REAL_INF)) continue;
         lit |= 1 << j;
         pk->pt[j] = shade_point(s, camera, pk->ray + j, pk->hit + j);
-        sf[j] = pk->pt[j].sf;
-        n[j] = pk->pt[j].n;
-        v[j] = -pk->ray[j].d;
-        c[j] = pk->pt[j].c;
-        material[j] = pk->pt[j].sf.material;
     }
-    packet_direct(s, sf, n, v, c, material, TO_REAL3(params->ambient), key, lit, pk->direct,
+    packet_direct(s, pk->pt, pk->ray, TO_REAL3(params->ambient), key, lit, pk->direct,
                   shadow_rays);
 }
 #endif

@@ -9,6 +9,7 @@
 #include "intersect.h"
 #include "bvh.h"
 #include "lights.h"
+#include "texture.h"
 
 // Error bounds are pbrt-style: gamma(n) times the magnitudes the point was computed from. Sixteen
 // roundings is generous for every formula here and still a tiny fraction of the scene's scale.
@@ -316,8 +317,8 @@ HOT REAL phong_power(REAL x, REAL s) {
 // tmax) and what the light brings if nothing blocks it: direction l, attenuation and n.l. False
 // when the light gives nothing there, and no shadow ray is traced. key: the pixel sample, which
 // picks area lights' samples.
-HOT bool light_ray(const SceneRefs* s, const Surface* sf, REAL3 n, int i, SampleKey key,
-                   REAL3* l_out, REAL* atten_out, REAL* ndl_out, Ray* shadow, REAL* tmax_out) {
+STAGE bool light_ray(const SceneRefs* s, const Surface* sf, REAL3 n, int i, SampleKey key,
+                     REAL3* l_out, REAL* atten_out, REAL* ndl_out, Ray* shadow, REAL* tmax_out) {
     const __global Light* light = s->lights + i;
     REAL3 l;
     REAL atten = 1;
@@ -371,8 +372,8 @@ HOT bool light_ray(const SceneRefs* s, const Surface* sf, REAL3 n, int i, Sample
 }
 
 // Light i's diffuse and specular term, `filter` being the light its shadow ray let through.
-HOT REAL3 light_term(const SceneRefs* s, int i, REAL3 n, REAL3 v, REAL3 c,
-                     const __global Material* m, REAL3 l, REAL atten, REAL ndl, REAL3 filter) {
+STAGE REAL3 light_term(const SceneRefs* s, int i, REAL3 n, REAL3 v, REAL3 c,
+                       const __global Material* m, REAL3 l, REAL atten, REAL ndl, REAL3 filter) {
     REAL3 refl = (REAL)2 * ndl * n - l;
     REAL rv = dot(refl, v);
     REAL spec = rv > (REAL)0 ? phong_power(rv, TO_REAL(m->shininess)) : (REAL)0;
@@ -398,6 +399,26 @@ HOT REAL3 shade_direct(const SceneRefs* s, const Surface* sf, REAL3 n, REAL3 v, 
         result += light_term(s, i, n, v, c, m, l, atten, ndl, filter);
     }
     return result;
+}
+
+// What shading a hit needs: its surface, its side, the normal facing the ray and its colour.
+typedef struct {
+    Surface sf;
+    REAL3 n, c;
+    bool entering;
+} ShadePoint;
+
+STAGE ShadePoint shade_point(const SceneRefs* s, const __global Camera* camera, const Ray* ray,
+                             const Hit* hit) {
+    ShadePoint pt;
+    pt.sf = surface_at(s, ray, hit,
+                       material_needs_uv(s, crossing_material(s, hit->ref, hit->instance)));
+    pt.entering = dot(ray->d, pt.sf.n_g) < (REAL)0;
+    REAL3 n_f = pt.entering ? pt.sf.n_g : -pt.sf.n_g;
+    pt.n = dot(pt.sf.n_s, ray->d) < (REAL)0 ? pt.sf.n_s : -pt.sf.n_s;
+    pt.c = surface_color(s, s->materials + pt.sf.material, pt.sf.p + TO_REAL3(camera->world),
+                         n_f, pt.sf.uv);
+    return pt;
 }
 
 #endif

@@ -157,3 +157,10 @@ def test_default_traversal_is_reported(cl_device):
     assert render(scene, RenderSettings(width=8, height=6, spp=2)).stats["traversal"] == want
     chosen = render(scene, RenderSettings(width=8, height=6, spp=2, traversal="sample_packet"))
     assert chosen.stats["traversal"] == "sample_packet"
+
+
+def test_one_sample_a_pixel_renders_with_the_single_ray_build(cl_device):
+    # No packet is traced at 1 spp, and the packet build's code would cost every ray more.
+    scene = load_scene(ROOT / "scenes" / "spheres.toml")
+    one = render(scene, RenderSettings(width=8, height=6, spp=1, traversal="sample_packet"))
+    assert one.stats["traversal"] == "single"

@@ -1,0 +1,176 @@
+"""Instructions per stage of the render kernel: where a sample's work goes, counted by valgrind.
+
+    python benchmarks/stages.py [--scenes spheres,mesh] [--spp 1,16] [--size 32x18]
+                                [--traversals single,sample_packet]
+                                [--json benchmarks/results/stages.json] [--mesh-dir DIR]
+
+The kernels mark their stages STAGE (kernels/real.h): the camera ray (`sample_ray`), the ray
+set-up (`make_ray`), the closest hit (`closest_hit`, and for sample packets `packet_closest`),
+the shading point (`shade_point`), a light's shadow ray (`light_ray`) and term (`light_term`),
+and the shadow ray's walk (`transmission`, `packet_transmission`). The stage-profiling build
+(KernelConfig.stage_profile, -DSTAGE_PROFILE=1) keeps each a function of its own; one render
+of each scene runs under `valgrind --tool=callgrind` with one PoCL thread, counting inside the
+render kernel only. A stage's count is inclusive (it and everything it calls), with its number of
+calls. Stages nest (light_ray sets up its shadow ray with make_ray), so the shares do not add
+up to 100 %; what no stage holds is the ray tree's own bookkeeping and the sample packets'
+gathering of lanes. Calls that are not inlined cost instructions of their own: the profiling
+build's total is reported beside the normal build's, so the overhead is in view.
+
+Needs valgrind and PoCL's CPU device. Measures only; each count takes about a minute.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import re
+import shutil
+import subprocess
+import sys
+import tempfile
+from collections import defaultdict
+from pathlib import Path
+
+HERE = Path(__file__).resolve().parent
+ROOT = HERE.parent
+KERNEL_FUNCTION = "_pocl_kernel_render_workgroup"
+STAGES = ("sample_ray", "make_ray", "closest_hit", "packet_closest", "shade_point", "light_ray",
+          "transmission", "packet_transmission", "light_term")
+
+# Runs in the child: one render; prints the rays it traced.
+_RENDER = """
+import dataclasses, json, sys
+from clray.device.context import select_device
+from clray.device.launch import render_packed
+from clray.device.pack import pack_scene
+from clray.scene.load import load_scene
+path, traversal, spp, width, height, profile = sys.argv[1:7]
+scene = load_scene(path)
+r = scene.render
+packed = pack_scene(scene, width=int(width), height=int(height), spp=int(spp),
+                    max_depth=r.max_depth, seed=r.seed, traversal=traversal)
+config = dataclasses.replace(packed.config, stage_profile=profile == "1")
+_, stats = render_packed(dataclasses.replace(packed, config=config), select_device("pocl"))
+print(json.dumps(stats["rays"]))
+"""
+
+
+def _callgrind_stages(out_file: Path) -> dict[str, dict[str, int]]:
+    """Inclusive instructions and calls of each stage, and the kernel's total, from a
+    callgrind output file (its call records: `cfn=` names the callee, the `calls=` line after
+    it counts calls, the line after that holds the inclusive cost)."""
+    names: dict[str, str] = {}
+    totals: dict[str, dict[str, int]] = defaultdict(lambda: {"instructions": 0, "calls": 0})
+    callee = None
+    lines = out_file.read_text().splitlines()
+    for i, line in enumerate(lines):
+        named = re.match(r"c?fn=\((\d+)\)(?: (.*))?", line)
+        if named:
+            ident, name = named.groups()
+            if name:
+                names[ident] = name
+            callee = names.get(ident) if line.startswith("cfn=") else None
+            continue
+        if line.startswith("calls=") and callee is not None:
+            calls = int(line.split()[0].split("=")[1])
+            cost = int(lines[i + 1].split()[1])
+            for stage in STAGES:
+                if callee == stage or callee.startswith(stage + "."):
+                    totals[stage]["calls"] += calls
+                    totals[stage]["instructions"] += cost
+            callee = None
+    return dict(totals)
+
+
+def _run(scene: Path, traversal: str, spp: int, size: tuple[int, int], profile: bool,
+         out_file: Path | None) -> dict:
+    env = {**os.environ, "POCL_MAX_PTHREAD_COUNT": "1"}
+    command = [sys.executable, "-c", _RENDER, str(scene), traversal, str(spp), str(size[0]),
+               str(size[1]), "1" if profile else "0"]
+    if out_file is not None:
+        command = ["valgrind", "--tool=callgrind", f"--callgrind-out-file={out_file}",
+                   f"--toggle-collect={KERNEL_FUNCTION}*", *command]
+    done = subprocess.run(command, capture_output=True, text=True, cwd=ROOT, env=env,
+                          check=True)
+    result = {"rays": json.loads(done.stdout.strip().splitlines()[-1])}
+    if out_file is not None:
+        collected = re.findall(r"Collected\s*:\s*(\d+)", done.stderr)
+        if not collected:
+            raise RuntimeError(f"no instruction count in valgrind's output:\n{done.stderr}")
+        result["instructions"] = int(collected[-1])
+    return result
+
+
+def count_stages(scene: Path, traversal: str, spp: int, size: tuple[int, int],
+                 tmp: Path) -> dict:
+    """The normal build's instructions and the profiling build's, by stage."""
+    out_file = tmp / "callgrind.out"
+    # Plain renders first fill PoCL's kernel cache, so no compiler runs under valgrind.
+    _run(scene, traversal, spp, size, False, None)
+    normal = _run(scene, traversal, spp, size, False, out_file)
+    _run(scene, traversal, spp, size, True, None)
+    profiled = _run(scene, traversal, spp, size, True, out_file)
+    stages = _callgrind_stages(out_file)
+    total = profiled["instructions"]
+    samples = size[0] * size[1] * spp
+    report = {}
+    for stage, s in stages.items():
+        report[stage] = {**s, "share": s["instructions"] / total,
+                         "per_call": s["instructions"] / s["calls"] if s["calls"] else None,
+                         "per_sample": s["instructions"] / samples}
+    return {"rays": normal["rays"], "samples": samples,
+            "instructions": normal["instructions"],
+            "instructions_profiling_build": total, "stages": report}
+
+
+def _summary(name: str, traversal: str, spp: int, result: dict) -> str:
+    samples = result["samples"]
+    lines = [f"{name}, {traversal}, {spp} spp: {result['instructions'] / samples:.0f} "
+             f"instructions a sample ({result['instructions_profiling_build'] / samples:.0f} "
+             "in the profiling build)"]
+    for stage in STAGES:
+        s = result["stages"].get(stage)
+        if s:
+            lines.append(f"  {stage:20s} {100 * s['share']:5.1f} %  {s['per_sample']:6.0f} a "
+                         f"sample  {s['per_call']:6.0f} a call  ({s['calls']} calls)")
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--scenes", default="spheres,mesh")
+    parser.add_argument("--spp", default="1,16", help="comma-separated samples per pixel")
+    parser.add_argument("--size", default="32x18", metavar="WxH")
+    parser.add_argument("--traversals", default="single,sample_packet")
+    parser.add_argument("--json", default=str(HERE / "results" / "stages.json"))
+    parser.add_argument("--mesh-dir", help="where to write the mesh scene (default: a temporary "
+                        "folder)")
+    args = parser.parse_args(argv)
+    if shutil.which("valgrind") is None:
+        sys.exit("stages.py needs valgrind (Debian: apt-get install valgrind)")
+    width, height = (int(v) for v in args.size.lower().split("x"))
+    names = [n for n in args.scenes.split(",") if n]
+    results: dict = {}
+    with tempfile.TemporaryDirectory() as tmp_name:
+        tmp = Path(tmp_name)
+        scenes = {"spheres": ROOT / "scenes" / "spheres.toml"}
+        if "mesh" in names:
+            mesh_dir = Path(args.mesh_dir or tmp / "mesh")
+            subprocess.run([sys.executable, str(HERE / "make_mesh_scene.py"), "--out",
+                            str(mesh_dir)], check=True, capture_output=True)
+            scenes["mesh"] = mesh_dir / "bumpy.toml"
+        for name in names:
+            for spp in (int(v) for v in args.spp.split(",")):
+                for traversal in args.traversals.split(","):
+                    result = count_stages(scenes[name], traversal, spp, (width, height), tmp)
+                    results.setdefault(name, {}).setdefault(str(spp), {})[traversal] = result
+                    print(_summary(name, traversal, spp, result), flush=True)
+    Path(args.json).parent.mkdir(parents=True, exist_ok=True)
+    Path(args.json).write_text(json.dumps({"size": [width, height], "scenes": results},
+                                          indent=2) + "\n")
+    print(f"wrote {args.json}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,58 @@
+"""The stage-profiling build (KernelConfig.stage_profile, benchmarks/stages.py) counts the
+renderer's stages as functions of their own: it must render what the normal build renders, or
+its counts would describe another computation."""
+
+from __future__ import annotations
+
+import dataclasses
+import importlib.util
+import re
+from pathlib import Path
+
+import numpy as np
+import pyopencl as cl
+import pytest
+
+from clray.device.launch import render_packed
+from clray.device.pack import pack_scene
+from clray.device.program import kernel_source
+from clray.scene.load import load_scene
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _stages() -> tuple[str, ...]:
+    # benchmarks/ is not a package; the benchmark is imported straight from its file.
+    spec = importlib.util.spec_from_file_location("stages", ROOT / "benchmarks" / "stages.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module.STAGES
+
+
+def test_every_counted_stage_is_a_stage_function():
+    # benchmarks/stages.py looks these names up in the profile: each must be marked STAGE, or
+    # it would be inlined in the profiling build too and counted as nothing.
+    source = kernel_source()
+    for stage in _stages():
+        assert re.search(rf"^STAGE \w+ {stage}\(", source, re.MULTILINE), stage
+
+
+@pytest.mark.filterwarnings("ignore::pyopencl.CompilerWarning")
+@pytest.mark.parametrize("traversal", ["single", "sample_packet"])
+@pytest.mark.parametrize("name", ["spheres", "textured"])
+def test_stage_profile_build_renders_the_same_image(cl_device: cl.Device, name: str,
+                                                    traversal: str):
+    if not cl_device.platform.name.startswith("Portable Computing Language"):
+        # A compiler may contract a * b + c into fma differently once a stage is no longer
+        # inlined into its caller; PoCL does not contract.
+        pytest.skip("bit-exact equality of the two builds is checked on PoCL")
+    scene = load_scene(ROOT / "scenes" / f"{name}.toml")
+    packed = pack_scene(scene, width=24, height=16, spp=4, max_depth=scene.render.max_depth,
+                        seed=scene.render.seed, traversal=traversal)
+    profiled = dataclasses.replace(packed, config=dataclasses.replace(packed.config,
+                                                                      stage_profile=True))
+    normal_image, normal_stats = render_packed(packed, cl_device)
+    profiled_image, profiled_stats = render_packed(profiled, cl_device)
+    assert normal_stats["rays"]["total"] > normal_stats["rays"]["primary"]
+    assert normal_stats["rays"] == profiled_stats["rays"]
+    assert np.array_equal(normal_image, profiled_image)

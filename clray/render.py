@@ -129,7 +129,7 @@ def kernel_switches(tuning: Tuning, settings: RenderSettings, device: cl.Device,
     settings' where given), the packet's lanes (the device's where the tuning leaves them to
     it), the study variants it switches on and their build options. With one sample a pixel
     there is no sample packet to trace, and the single-ray build renders: the packet build's
-    code costs the same rays about a fifth more instructions (docs/acceleration.md, Where a
+    code costs the same rays 21 to 29 % more instructions (docs/acceleration.md, Where a
     sample's instructions go)."""
     traversal = settings.traversal or tuning.traversal or traversal_for(device)
     if spp == 1:

@@ -25,10 +25,12 @@ SCENES = Path(__file__).resolve().parent.parent / "scenes"
 # variants (tests/test_oclgrind.py checks); a few pixels of each, every pixel a sample or two.
 WIDTH, HEIGHT, SPP = 6, 4, 2
 PACKET_SPP = 5
-# Every study variant at once, on the scene with the most primitive kinds.
+# Every study variant at once (and the counting and stage-profiling builds), on the scene with
+# the most primitive kinds.
 VARIANTS = (("sphere_textbook", True), ("offset_fixed_eps", True),
             ("triangle_no_fp64_fallback", True), ("triangle_moller_trumbore", True),
-            ("fresnel_schlick", True), ("fp64_spheres", True), ("count_tests", True))
+            ("fresnel_schlick", True), ("fp64_spheres", True), ("count_tests", True),
+            ("stage_profile", True))
 VARIANT_SCENES = ("primitives.toml", "fresnel.toml")
 
 

@@ -301,6 +301,9 @@ def _build_parser() -> _Parser:
     pr.add_argument("-H", "--height", type=size, metavar="N", help="image height in pixels")
     pr.add_argument("--spp", type=_int_in(1, limits.MAX_SPP), metavar="N",
                     help="samples per pixel (default: the scene's [render] spp)")
+    pr.add_argument("--traversal", choices=TRAVERSALS, default=None,
+                    help="how rays walk the BVH, as for render (default: the tuning's "
+                         "traversal knob; with 1 spp always single)")
     pr.add_argument("--repeat", type=_int_in(1, MAX_REPEAT), default=3, metavar="N",
                     help="timed renders of each variant after a warm-up; medians (default: 3)")
     pr.add_argument("--no-tuning", dest="stored_tuning", action="store_false",
@@ -773,14 +776,15 @@ def _profile(args: argparse.Namespace) -> int:
 
     with _warnings_as_lines(quiet=False, verbose=False):
         settings = RenderSettings(width=args.width, height=args.height, spp=args.spp,
-                                  device=args.device, stored_tuning=args.stored_tuning)
+                                  device=args.device, stored_tuning=args.stored_tuning,
+                                  traversal=args.traversal)
         prof = profile_scene(args.scene, settings, args.repeat)
     if args.json:
         print(json.dumps(prof, indent=2))
         return EXIT_OK
     rays, tests = prof["rays"], prof["tests_per_ray"]
     lines = [f"{prof['scene']}: {prof['width']}x{prof['height']}, {prof['spp']} spp on "
-             f"{prof['device']} (tuning: {prof['tuning']})",
+             f"{prof['device']} (tuning: {prof['tuning']}, traversal: {prof['traversal']})",
              f"rays: {rays['total']:,} ({rays['primary']:,} primary, {rays['secondary']:,} "
              f"secondary, {rays['shadow']:,} shadow); kernel {prof['kernel_s'] * 1e3:.3g} ms, "
              f"{prof['mrays_per_s']:.3g} Mrays/s (median of {prof['repeat']})"]

@@ -142,6 +142,7 @@ def profile_scene(path: Path, settings: RenderSettings, repeat: int = 3) -> dict
         "height": height,
         "spp": int(packed.params[0]["spp"]),
         "tuning": packed.tuning.label(),
+        "traversal": packed.config.traversal,
         "repeat": repeat,
         "rays": stats["rays"],
         "kernel_s": split["variant_kernel_s"]["full"],

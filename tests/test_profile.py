@@ -55,6 +55,18 @@ def test_profile_spp_replaces_the_scenes_samples(cl_device, capsys) -> None:
     assert prof["rays"] == rendered.stats["rays"]
 
 
+@pytest.mark.parametrize("spp", [1, 2])
+def test_profile_traversal_reaches_the_kernel(cl_device, capsys, spp) -> None:
+    # Sample packets trace the same rays; with one sample a pixel the single-ray build renders.
+    code = cli.main(["profile", str(SPHERES), "-W", "12", "-H", "8", "--spp", str(spp),
+                     "--traversal", "sample_packet", "--repeat", "1", "--json"])
+    prof = json.loads(capsys.readouterr().out)
+    assert code == 0
+    assert prof["traversal"] == ("sample_packet" if spp > 1 else "single")
+    rendered = render(SPHERES, RenderSettings(width=12, height=8, spp=spp, traversal="single"))
+    assert prof["rays"] == rendered.stats["rays"]
+
+
 def test_profile_prints_a_summary(cl_device, capsys) -> None:
     assert cli.main(["profile", str(SPHERES), "-W", "32", "-H", "18", "--repeat", "1"]) == 0
     lines = capsys.readouterr().out.splitlines()

@@ -132,15 +132,17 @@ def kernel_switches(tuning: Tuning, settings: RenderSettings, device: cl.Device,
     code costs the same rays 21 to 29 % more instructions (docs/acceleration.md, Where a
     sample's instructions go)."""
     traversal = settings.traversal or tuning.traversal or traversal_for(device)
-    if spp == 1:
-        traversal = "single"
     switches: dict[str, object] = {"traversal": traversal}
     if traversal == "sample_packet":
+        # Checked whatever the spp: a tuning that cannot build is an error at 1 spp too.
         lanes = tuning.packet_lanes or packet_lanes_for(device, settings.precision)
         if tuning.packet_min_lanes >= lanes:
             raise TuningError(f"packet_min_lanes {tuning.packet_min_lanes} is not below the "
                               f"{lanes} packet lanes of {device.name.strip()!r}")
-        switches.update(packet_lanes=lanes, packet_min_lanes=tuning.packet_min_lanes)
+        if spp == 1:
+            switches["traversal"] = "single"
+        else:
+            switches.update(packet_lanes=lanes, packet_min_lanes=tuning.packet_min_lanes)
     switches.update({name: getattr(tuning, name) for name in IMAGE_KNOBS
                      if name not in BUILD_KNOBS})
     if tuning.build_options():

@@ -132,7 +132,8 @@ def kernel_switches(tuning: Tuning, settings: RenderSettings, device: cl.Device,
     code costs the same rays 21 to 29 % more instructions (docs/acceleration.md, Where a
     sample's instructions go)."""
     traversal = settings.traversal or tuning.traversal or traversal_for(device)
-    switches: dict[str, object] = {"traversal": traversal}
+    switches: dict[str, object] = {"traversal": traversal,
+                                   "implicit_vectorization": tuning.implicit_vectorization}
     if traversal == "sample_packet":
         # Checked whatever the spp: a tuning that cannot build is an error at 1 spp too.
         lanes = tuning.packet_lanes or packet_lanes_for(device, settings.precision)

@@ -42,6 +42,23 @@
 #define TRAVERSAL TRAVERSAL_SINGLE
 #endif
 #define SAMPLE_PACKETS (TRAVERSAL == TRAVERSAL_SAMPLE_PACKET)
+
+// IMPLICIT_VECTORIZATION 0 (the default) asks a driver that packs work-items into a vector's
+// lanes (Intel's CPU runtime, 8 or 16 a thread) to run one work-item a thread instead: the
+// pixels' walks diverge and every node or primitive load becomes a gather, so the packed
+// kernel ran 2.3x (spheres) to 3.7x (mesh) slower there (docs/acceleration.md). The hint is
+// that compiler's own attribute; a compiler without it (PoCL, GPUs) builds the kernel as it is.
+#ifndef IMPLICIT_VECTORIZATION
+#define IMPLICIT_VECTORIZATION 0
+#endif
+#if !IMPLICIT_VECTORIZATION && defined(__has_attribute)
+#if __has_attribute(intel_vec_len_hint)
+#define WORK_ITEM_LANES __attribute__((intel_vec_len_hint(1)))
+#endif
+#endif
+#ifndef WORK_ITEM_LANES
+#define WORK_ITEM_LANES
+#endif
 #if SAMPLE_PACKETS
 #include "packet.h"
 #endif
@@ -144,7 +161,7 @@ HOT void trace_sample_packet(const SceneRefs* s, const __global Camera* camera,
 }
 #endif
 
-__kernel void render(SCENE_BUFFER_PARAMS, __global float4* image, __global int4* ray_counts,
+__kernel WORK_ITEM_LANES void render(SCENE_BUFFER_PARAMS, __global float4* image, __global int4* ray_counts,
                      __global int4* test_counts, int row_offset) {
     int x = get_global_id(0), y = get_global_id(1) + row_offset;
     int width = params->width, height = params->height;
@@ -290,7 +307,7 @@ inline void report_hit(const SceneRefs* s, const Ray* ray, const Hit* hit, __glo
 // Closest hit for given rays, for tests and tools: t (inf on a miss), the primitive reference
 // and the surface's outward geometric normal. Uses the same scene buffers as render. With
 // sample packets a work-item takes PACKET_LANES rays as one packet (the host pads the last).
-__kernel void intersect_rays(__global const float4* origins, __global const float4* directions,
+__kernel WORK_ITEM_LANES void intersect_rays(__global const float4* origins, __global const float4* directions,
                              SCENE_BUFFER_PARAMS, __global float4* hits, __global int* refs) {
     int i = get_global_id(0);
     SceneRefs s = scene_refs(SCENE_BUFFER_ARGS);

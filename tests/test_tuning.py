@@ -7,6 +7,7 @@ from __future__ import annotations
 import dataclasses
 import importlib
 import json
+import uuid
 import warnings
 from pathlib import Path
 
@@ -17,8 +18,15 @@ import pytest
 from clray import __version__, cli
 from clray.accel import bvh as bvh_module
 from clray.accel import wide as wide_module
+from clray.device.context import context_for
 from clray.device.pack import pack_scene
-from clray.device.program import ALLOWED_BUILD_OPTIONS, KernelConfig, packet_lanes_for
+from clray.device.program import (
+    ALLOWED_BUILD_OPTIONS,
+    KernelConfig,
+    device_build_options,
+    kernel_source,
+    packet_lanes_for,
+)
 from clray.render import RenderSettings, pack_for, render
 from clray.scene.load import load_scene
 from clray.study import compare
@@ -167,6 +175,39 @@ def test_kernel_and_build_knobs_change_the_kernel_build(cl_device, spheres) -> N
         changed = options_with(cl_device, spheres, Tuning(**{name: True}))
         assert option in changed and option not in default, name
         assert len(set(changed) - set(default)) == 1, name
+
+
+def test_implicit_vectorization_is_a_kernel_switch_that_keeps_the_image(cl_device,
+                                                                        spheres) -> None:
+    default = options_with(cl_device, spheres, DEFAULT_TUNING)
+    packed = options_with(cl_device, spheres, Tuning(implicit_vectorization=True))
+    assert "-DIMPLICIT_VECTORIZATION=0" in default
+    assert set(packed) - set(default) == {"-DIMPLICIT_VECTORIZATION=1"}
+    one = render(spheres, RenderSettings(**SMALL))
+    lanes = render(spheres, RenderSettings(**SMALL, tuning=Tuning(implicit_vectorization=True)))
+    assert lanes.stats["rays"] == one.stats["rays"]
+    assert compare(lanes.image, one.image)["status"] == "pass"
+
+
+def _vectorizer_report(device: cl.Device, config: KernelConfig) -> str:
+    # A source of its own: a program pyopencl reloads from its binary cache has no compiler log.
+    source = kernel_source() + f"\n// {uuid.uuid4()}\n"
+    options = [*config.options(), *device_build_options(device)]
+    program = cl.Program(context_for(device), source).build(options=options)
+    log = program.get_build_info(device, cl.program_build_info.LOG)
+    return " ".join(line for line in log.splitlines() if 'Kernel "render"' in line)
+
+
+def test_intels_runtime_packs_work_items_only_when_the_switch_lets_it(cl_device,
+                                                                      spheres) -> None:
+    # Intel's CPU compiler says in its build log whether it packed the kernel's work-items
+    # into a vector's lanes; the default build must ask it not to (the intel_vec_len_hint).
+    if "Intel" not in cl_device.platform.name:
+        pytest.skip("only Intel's CPU runtime packs work-items into vector lanes")
+    config = pack_for(spheres, RenderSettings(**SMALL), cl_device).config
+    assert "was not vectorized" in _vectorizer_report(cl_device, config)
+    packed = dataclasses.replace(config, implicit_vectorization=True)
+    assert "was successfully vectorized" in _vectorizer_report(cl_device, packed)
 
 
 def test_packet_min_lanes_must_be_below_the_devices_own_lanes(cl_device, spheres) -> None:

@@ -83,6 +83,8 @@ class KernelConfig:
     traversal: str = KNOBS["traversal"].default
     packet_lanes: int = 8
     packet_min_lanes: int = KNOBS["packet_min_lanes"].default
+    # Whether a driver may pack work-items into a vector's lanes (the knob of that name).
+    implicit_vectorization: bool = KNOBS["implicit_vectorization"].default
     # Study variants (clray study): the textbook formulas the defaults replace.
     sphere_textbook: bool = False
     offset_fixed_eps: bool = False

@@ -10,6 +10,7 @@ import json
 import uuid
 import warnings
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pyopencl as cl
@@ -23,6 +24,7 @@ from clray.device.pack import pack_scene
 from clray.device.program import (
     ALLOWED_BUILD_OPTIONS,
     KernelConfig,
+    bvh_width_for,
     device_build_options,
     kernel_source,
     packet_lanes_for,
@@ -187,6 +189,23 @@ def test_implicit_vectorization_is_a_kernel_switch_that_keeps_the_image(cl_devic
     lanes = render(spheres, RenderSettings(**SMALL, tuning=Tuning(implicit_vectorization=True)))
     assert lanes.stats["rays"] == one.stats["rays"]
     assert compare(lanes.image, one.image)["status"] == "pass"
+
+
+def test_vector_width_is_the_preferred_or_the_native_one() -> None:
+    # Intel's CPU runtime prefers 1 float (it would pack work-items) over AVX2's native 8; a
+    # GPU has 1 of each; PoCL on AVX2 prefers 8 floats and 4 doubles, on AVX-512 16 and 8.
+    def device(preferred_float, native_float, preferred_double, native_double):
+        return SimpleNamespace(preferred_vector_width_float=preferred_float,
+                               native_vector_width_float=native_float,
+                               preferred_vector_width_double=preferred_double,
+                               native_vector_width_double=native_double)
+
+    intel, gpu = device(1, 8, 1, 4), device(1, 1, 1, 1)
+    avx2, avx512 = device(8, 8, 4, 4), device(16, 16, 8, 8)
+    assert [bvh_width_for(d) for d in (intel, gpu, avx2, avx512)] == [8, 4, 8, 8]
+    assert [bvh_width_for(d, "double") for d in (intel, gpu, avx2, avx512)] == [4, 4, 4, 8]
+    assert [packet_lanes_for(d) for d in (intel, gpu, avx2, avx512)] == [8, 4, 8, 16]
+    assert [packet_lanes_for(d, "double") for d in (intel, gpu, avx2, avx512)] == [4, 4, 4, 8]
 
 
 def _vectorizer_report(device: cl.Device, config: KernelConfig) -> str:

@@ -158,13 +158,22 @@ def private_memory_warning(config: KernelConfig, device_type: str) -> str | None
             "expect spills to slow memory")
 
 
+def vector_width(device: cl.Device, precision: str = "float") -> int:
+    """The vector width of the arithmetic's type that a work-item's own vectors get: the
+    device's preferred width, or its native one where that is wider. A driver that packs
+    work-items into a vector's lanes reports a preferred width of 1 (Intel's CPU runtime), but
+    the render kernels ask it for one work-item a thread (KernelConfig.implicit_vectorization),
+    whose vectors then have the hardware's native width (8 floats on AVX2)."""
+    if precision == "double":
+        return max(device.preferred_vector_width_double, device.native_vector_width_double)
+    return max(device.preferred_vector_width_float, device.native_vector_width_float)
+
+
 def bvh_width_for(device: cl.Device, precision: str = "float") -> int:
-    """Children per BVH node for this device and arithmetic: 8 where the device prefers vectors
-    of 8 or more of that type (float on AVX CPUs), else 4 (double on AVX2, GPUs). Either width
-    is correct on any device; the node's slab test runs on vectors of this width."""
-    width = (device.preferred_vector_width_double if precision == "double"
-             else device.preferred_vector_width_float)
-    return 8 if width >= 8 else 4
+    """Children per BVH node for this device and arithmetic: 8 where its vectors of that type
+    are 8 wide or more (float on AVX CPUs), else 4 (double on AVX2, GPUs). Either width is
+    correct on any device; the node's slab test runs on vectors of this width."""
+    return 8 if vector_width(device, precision) >= 8 else 4
 
 
 def traversal_for(device: cl.Device) -> str:
@@ -178,10 +187,9 @@ def traversal_for(device: cl.Device) -> str:
 
 
 def packet_lanes_for(device: cl.Device, precision: str = "float") -> int:
-    """Rays in a sample packet: the device's preferred vector width of the arithmetic type
-    (8 floats on AVX2, 16 on AVX-512), within 4 to 16."""
-    width = (device.preferred_vector_width_double if precision == "double"
-             else device.preferred_vector_width_float)
+    """Rays in a sample packet: the device's vector width of the arithmetic type (vector_width:
+    8 floats on AVX2, 16 on AVX-512), within 4 to 16."""
+    width = vector_width(device, precision)
     return 16 if width >= 16 else (8 if width >= 8 else 4)
 
 

@@ -71,8 +71,8 @@ KNOB_TABLE: tuple[Knob, ...] = (
          "a group and gives their private memory one thread's stack, which a deep ray stack "
          "overflows; on PoCL 64 costs nothing against its own choice"),
     Knob("bvh_width", "host+kernel", None, lambda v: v is None or v in (4, 8),
-         "4, 8, or None: 8 where the device prefers vectors of 8 or more of the arithmetic's "
-         "type (float on AVX CPUs), else 4", (None, 4, 8),
+         "4, 8, or None: 8 where the device's vectors of the arithmetic's type are 8 wide or "
+         "more (its preferred or native width: float on AVX CPUs), else 4", (None, 4, 8),
          "children per BVH node (the -D BVH_WIDTH of the node's vector slab test): wider "
          "nodes mean fewer visits, each testing more boxes"),
     Knob("traversal_cost", "host", 1.5, _number_in(0.0, 16.0), "a number over 0, at most 16",
@@ -99,7 +99,7 @@ KNOB_TABLE: tuple[Knob, ...] = (
          "a pixel's samples in packets of packet_lanes vector lanes; RenderSettings.traversal "
          "and --traversal override it"),
     Knob("packet_lanes", "kernel", None, lambda v: v is None or _one_of(*PACKET_LANES)(v),
-         "4, 8, 16, or None: the device's preferred vector width of the arithmetic's type "
+         "4, 8, 16, or None: the device's vector width of the arithmetic's type "
          "(8 floats on AVX2, 16 on AVX-512), within 4 to 16", (None, 4, 16),
          "rays in a sample packet (the -D PACKET_LANES; only with traversal sample_packet): "
          "wider packets share more node visits, and lose more lanes where rays diverge"),

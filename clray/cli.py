@@ -170,8 +170,9 @@ def _build_parser() -> _Parser:
     r.add_argument("--traversal", choices=TRAVERSALS, default=None,
                    help="how rays walk the BVH: 'single' (every ray alone) or 'sample_packet' "
                         "(a pixel's samples together; the same image); default: the tuning's "
-                        "traversal knob, single unless `clray tune` stored sample_packet "
-                        "(docs/acceleration.md, Sample packets)")
+                        "traversal knob, else the device's own: sample_packet on Intel's CPU "
+                        "runtime, single elsewhere; 1 spp always single (docs/acceleration.md, "
+                        "Sample packets)")
     encoding = r.add_mutually_exclusive_group()
     encoding.add_argument("--linear", dest="linear", action="store_true", default=None,
                           help="write PNG values linear, tagged gamma 1.0 (default: the sRGB "

@@ -12,9 +12,10 @@ from pathlib import Path
 import pytest
 
 from clray import cli
-from clray.device.program import kernel_source
+from clray.device.program import kernel_source, traversal_for
 from clray.tuning import KNOB_TABLE, Tuning
 from clray.tuning import tuner as tuner_module
+from clray.tuning.knobs import TRAVERSALS
 
 ROOT = Path(__file__).resolve().parent.parent
 SPHERES = ROOT / "scenes" / "spheres.toml"
@@ -167,9 +168,12 @@ def test_tune_tries_both_traversals_as_kernel_defines_and_picks_one(
     [(params, options)] = calls
     assert params["TRAVERSAL"] == [0, 1]
     assert not any(o.startswith(("-DTRAVERSAL=", "-DPACKET_")) for o in options)
-    assert sorted(t.tuning.traversal for t in trials) == ["sample_packet", "single"]
+    # The device's own traversal is the knob's None (the default's key).
+    own = traversal_for(cl_device)
+    assert sorted(t.tuning.traversal or own for t in trials) == ["sample_packet", "single"]
     assert all(t.verified and t.time_ms > 0 and t.compile_ms > 0 for t in trials)
-    assert {t.tuning for t in trials} == {Tuning(), Tuning(traversal="sample_packet")}
+    other = next(name for name in TRAVERSALS if name != own)
+    assert {t.tuning for t in trials} == {Tuning(), Tuning(traversal=other)}
     best = tuner_module.best_configuration(trials, ["spheres"])
     assert best[1]["spheres"].tuning == min(trials, key=lambda t: t.time_ms).tuning
 
@@ -181,8 +185,14 @@ def test_packet_knobs_act_only_with_sample_packets_and_below_the_lanes(
         "packet_lanes": (16,), "packet_min_lanes": (2, 16)})
     # Single rays once, with the default packet knobs, which they ignore; packets of 16 lanes
     # (no CPU's own width here, so not folded into the default) with 2 (16 is not below 16).
+    own = traversal_for(cl_device)
+
+    def knob(traversal: str) -> str | None:
+        return None if traversal == own else traversal
+
     assert {t.tuning for t in trials} == {
-        Tuning(), Tuning(traversal="sample_packet", packet_lanes=16, packet_min_lanes=2)}
+        Tuning(traversal=knob("single")),
+        Tuning(traversal=knob("sample_packet"), packet_lanes=16, packet_min_lanes=2)}
 
 
 VARIANTS = {**TWO, "work_group_width": (64,), "fresnel_schlick": (False, True),

@@ -28,6 +28,7 @@ from clray.device.program import (
     device_build_options,
     kernel_source,
     packet_lanes_for,
+    traversal_for,
 )
 from clray.render import RenderSettings, pack_for, render
 from clray.scene.load import load_scene
@@ -94,7 +95,8 @@ def test_the_constants_at_their_sites_are_the_table_defaults() -> None:
     assert bvh_module.MAX_LEAF_SIZE == KNOBS["max_leaf_size"].default
     assert wide_module.FOLD_PACKETS == KNOBS["fold_packets"].default
     assert RenderSettings().tuning is None  # a render takes the table's (or a tuning file's)
-    assert KernelConfig().traversal == KNOBS["traversal"].default == "single"
+    # The traversal knob's None is the device's own (traversal_for); a build names one.
+    assert KNOBS["traversal"].default is None and KernelConfig().traversal == "single"
     assert KernelConfig().packet_min_lanes == KNOBS["packet_min_lanes"].default
     # The study variants are off by default: the default build is the exact one.
     assert all(KNOBS[name].default is False for name in IMAGE_KNOBS)
@@ -111,12 +113,14 @@ def test_the_constants_at_their_sites_are_the_table_defaults() -> None:
     ({"first_launch_pixel_samples": 100, "max_launch_pixel_samples": 10},
      "max_launch_pixel_samples 10 is below"),
     ({"launch_growth": True}, "launch_growth: expected an integer"),
-    ({"traversal": "packet"}, "traversal: expected single or sample_packet"),
+    ({"traversal": "packet"}, "traversal: expected single, sample_packet, or None"),
     ({"traversal": "sample_packet", "packet_lanes": 12}, "packet_lanes: expected 4, 8, 16"),
     ({"traversal": "sample_packet", "packet_lanes": 4, "packet_min_lanes": 4},
      "packet_min_lanes 4 is not below packet_lanes 4"),
-    ({"packet_lanes": 16}, "packet_lanes 16 acts only with traversal sample_packet"),
-    ({"packet_min_lanes": 0}, "packet_min_lanes 0 acts only with traversal sample_packet"),
+    ({"traversal": "single", "packet_lanes": 16},
+     "packet_lanes 16 acts only with traversal sample_packet"),
+    ({"traversal": "single", "packet_min_lanes": 0},
+     "packet_min_lanes 0 acts only with traversal sample_packet"),
     ({"cl_mad_enable": 1}, "cl_mad_enable: expected True or False"),
 ])
 def test_illegal_knobs_and_broken_restrictions_are_refused(values, words) -> None:
@@ -152,7 +156,11 @@ def options_with(cl_device, scene, tuning: Tuning, **settings) -> list[str]:
 
 
 def test_kernel_and_build_knobs_change_the_kernel_build(cl_device, spheres) -> None:
-    default = options_with(cl_device, spheres, DEFAULT_TUNING)
+    own = traversal_for(cl_device)
+    assert f"-DTRAVERSAL=TRAVERSAL_{own.upper()}" in options_with(cl_device, spheres,
+                                                                 DEFAULT_TUNING)
+    # The other knobs against the single-ray build (the device's own traversal or not).
+    default = options_with(cl_device, spheres, Tuning(traversal="single"))
     assert "-DTRAVERSAL=TRAVERSAL_SINGLE" in default
     assert not any(o.startswith(("-DPACKET_", "-cl-")) for o in default)
     packets = Tuning(traversal="sample_packet")
@@ -174,7 +182,7 @@ def test_kernel_and_build_knobs_change_the_kernel_build(cl_device, spheres) -> N
     assert forced == default
     for name in IMAGE_KNOBS:
         option = (build_option(name) if name in BUILD_KNOBS else f"-D{name.upper()}=1")
-        changed = options_with(cl_device, spheres, Tuning(**{name: True}))
+        changed = options_with(cl_device, spheres, Tuning(traversal="single", **{name: True}))
         assert option in changed and option not in default, name
         assert len(set(changed) - set(default)) == 1, name
 

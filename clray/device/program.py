@@ -80,7 +80,7 @@ class KernelConfig:
     # "sample_packet", a pixel's samples in packets of packet_lanes vector lanes, lanes going on
     # ray by ray where at most packet_min_lanes of them reach a subtree. Knobs of the table
     # (clray.tuning.knobs); the packer passes packet_lanes as the tuning's or the device's.
-    traversal: str = KNOBS["traversal"].default
+    traversal: str = "single"
     packet_lanes: int = 8
     packet_min_lanes: int = KNOBS["packet_min_lanes"].default
     # Whether a driver may pack work-items into a vector's lanes (the knob of that name).
@@ -176,14 +176,24 @@ def bvh_width_for(device: cl.Device, precision: str = "float") -> int:
     return 8 if vector_width(device, precision) >= 8 else 4
 
 
+# The drivers whose CPU device renders faster with sample packets, by platform name: Intel's
+# CPU runtime, 1.20x (spheres) and 1.24x (mesh) at 16 spp, 1280 x 720 (docs/acceleration.md,
+# Intel's CPU runtime).
+SAMPLE_PACKET_PLATFORMS = ("Intel(R) OpenCL",)
+
+
 def traversal_for(device: cl.Device) -> str:
-    """The traversal a device renders with by default: the knob table's, the single-ray walk,
-    on every device for now. On PoCL's CPU device sample packets give the same image but are
-    not faster yet (docs/acceleration.md, Sample packets); on a GPU a work-item's lanes are
-    work-items already, and a packet's private state would cut occupancy. `clray tune` tries
-    both and stores the faster for the device."""
-    del device  # one default for all devices until a device measures faster with packets
-    return KNOBS["traversal"].default
+    """The traversal a device renders with where neither the settings nor the tuning name
+    one: sample packets on the CPU devices of SAMPLE_PACKET_PLATFORMS, where they measured
+    faster; the single-ray walk elsewhere. On PoCL's CPU device sample packets give the same
+    image but are not faster (docs/acceleration.md, Sample packets); on a GPU a work-item's
+    lanes are work-items already, and a packet's private state would cut occupancy. `clray
+    tune` tries both and stores the faster for the device. With one sample a pixel every
+    device renders with the single-ray build (clray.render.kernel_switches)."""
+    if (device.platform.name.strip() in SAMPLE_PACKET_PLATFORMS
+            and device_type(device) == "CPU"):
+        return "sample_packet"
+    return "single"
 
 
 def packet_lanes_for(device: cl.Device, precision: str = "float") -> int:

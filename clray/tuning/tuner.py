@@ -31,7 +31,12 @@ import pyopencl as cl
 from clray import metrics
 from clray.device.launch import render_packed
 from clray.device.pack import PackedScene
-from clray.device.program import bvh_width_for, kernel_source, packet_lanes_for
+from clray.device.program import (
+    bvh_width_for,
+    kernel_source,
+    packet_lanes_for,
+    traversal_for,
+)
 from clray.errors import ClrayError, DeviceError
 from clray.render import RenderSettings, pack_for
 from clray.scene.load import load_scene
@@ -76,14 +81,15 @@ def define_value(name: str, value: Any) -> int:
     return TRAVERSALS.index(value) if name == "traversal" else int(value)
 
 
-def knob_value(name: str, define: int, auto_lanes: int) -> Any:
+def knob_value(name: str, define: int, auto: dict[str, Any]) -> Any:
     """The knob's value of Kernel Tuner's parameter: define_value's inverse, with the
-    device's own packet lanes as None (the default) so the default has one key."""
+    device's own value of a knob whose None stands for it (auto: the traversal, the packet
+    lanes) as None, so the default has one key."""
     if name == "traversal":
-        return TRAVERSALS[define]
-    if name == "packet_lanes":
-        return None if define == auto_lanes else int(define)
-    return bool(define) if isinstance(KNOBS[name].default, bool) else int(define)
+        value = TRAVERSALS[define]
+    else:
+        value = bool(define) if isinstance(KNOBS[name].default, bool) else int(define)
+    return None if name in auto and value == auto[name] else value
 
 
 def import_kernel_tuner() -> Any:
@@ -231,7 +237,8 @@ class Tuner:
         self.budget_s = budget_s
         self.allow_error = allow_error
         self.space = allowed_space({**default_space(), **(space or {})}, allow_error)
-        self.auto_lanes = packet_lanes_for(device)
+        # The device's own values of the kernel knobs whose None stands for them.
+        self.auto = {"traversal": traversal_for(device), "packet_lanes": packet_lanes_for(device)}
         self.iterations = iterations
         self.size = size
         # False: the kernel and launch knobs are searched with the first (default) host
@@ -301,9 +308,9 @@ class Tuner:
 
     def _tuning(self, base: Tuning, params: dict) -> Tuning:
         """The configuration of Kernel Tuner's parameters on the run's host and build knobs."""
-        kernel = {name: knob_value(name, params[kernel_define(name)], self.auto_lanes)
+        kernel = {name: knob_value(name, params[kernel_define(name)], self.auto)
                   for name in KERNEL_KNOBS if kernel_define(name) in params}
-        if kernel.get("traversal", base.traversal) != "sample_packet":
+        if (kernel.get("traversal", base.traversal) or self.auto["traversal"]) != "sample_packet":
             # The single-ray walk ignores the packet's #defines: its knobs keep their defaults.
             kernel = {k: v for k, v in kernel.items() if k not in PACKET_KNOBS}
         return Tuning(**{**base.values(), **kernel,
@@ -321,7 +328,7 @@ class Tuner:
             tuning = self._tuning(base, params)
         except TuningError:
             return False
-        return tuning.packet_min_lanes < (tuning.packet_lanes or self.auto_lanes)
+        return tuning.packet_min_lanes < (tuning.packet_lanes or self.auto["packet_lanes"])
 
     def _trial(self, scene: str, base: Tuning, result: dict) -> Trial:
         extra = {k: result[k] for k in self.extra_params}
@@ -342,12 +349,13 @@ class Tuner:
 
     def kernel_params(self, only: Tuning | None = None) -> dict[str, list[int]]:
         """Kernel Tuner's tunable parameters of the kernel knobs: the values of the space, or
-        `only`'s; the device's own packet lanes where None (the default) stands for them."""
+        `only`'s; the device's own traversal and packet lanes where None (the default) stands
+        for them."""
         params = {}
         for name in KERNEL_KNOBS:
             values = [getattr(only, name)] if only is not None else self.space[name]
-            if name == "packet_lanes":
-                values = [v or self.auto_lanes for v in values]
+            if name in self.auto:
+                values = [self.auto[name] if v is None else v for v in values]
             defines = [define_value(name, v) for v in values]
             params[kernel_define(name)] = list(dict.fromkeys(defines))
         return params

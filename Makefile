@@ -22,4 +22,4 @@ test: setup
 	$(PYTHON_VENV) -m pytest -q
 
 lint: setup
-	.venv/bin/ruff check clray tests
+	.venv/bin/ruff check clray tests benchmarks

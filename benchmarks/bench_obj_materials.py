@@ -79,7 +79,7 @@ def main() -> None:
                  "100_runs": write_grid(Path(tmp), args.side, 100),
                  "2000_runs": write_grid(Path(tmp), args.side, 2000)}
         times: dict[str, list[float]] = {k: [] for k in files}
-        for name, path in files.items():  # warm-up
+        for path in files.values():  # warm-up
             load(path)
         for _ in range(args.repeat):
             for name, path in files.items():

@@ -30,7 +30,7 @@ PACKET_SPP = 5
 VARIANTS = (("sphere_textbook", True), ("offset_fixed_eps", True),
             ("triangle_no_fp64_fallback", True), ("triangle_moller_trumbore", True),
             ("fresnel_schlick", True), ("fp64_spheres", True), ("count_tests", True),
-            ("stage_profile", True))
+            ("stage_profile", True), ("implicit_vectorization", True))
 VARIANT_SCENES = ("primitives.toml", "fresnel.toml")
 
 

@@ -304,7 +304,7 @@ def _build_parser() -> _Parser:
                     help="samples per pixel (default: the scene's [render] spp)")
     pr.add_argument("--traversal", choices=TRAVERSALS, default=None,
                     help="how rays walk the BVH, as for render (default: the tuning's "
-                         "traversal knob; with 1 spp always single)")
+                         "traversal knob, else the device's own; with 1 spp always single)")
     pr.add_argument("--repeat", type=_int_in(1, MAX_REPEAT), default=3, metavar="N",
                     help="timed renders of each variant after a warm-up; medians (default: 3)")
     pr.add_argument("--no-tuning", dest="stored_tuning", action="store_false",

@@ -216,6 +216,18 @@ def test_vector_width_is_the_preferred_or_the_native_one() -> None:
     assert [packet_lanes_for(d, "double") for d in (intel, gpu, avx2, avx512)] == [4, 4, 4, 8]
 
 
+def test_each_device_has_its_own_traversal() -> None:
+    # Sample packets where they measured faster (Intel's CPU runtime), the single-ray walk on
+    # PoCL, on GPUs, and on anything else.
+    def device(platform: str, kind: int) -> SimpleNamespace:
+        return SimpleNamespace(platform=SimpleNamespace(name=platform), type=kind)
+
+    assert traversal_for(device("Intel(R) OpenCL", cl.device_type.CPU)) == "sample_packet"
+    assert traversal_for(device("Intel(R) OpenCL Graphics", cl.device_type.GPU)) == "single"
+    assert traversal_for(device("Portable Computing Language", cl.device_type.CPU)) == "single"
+    assert traversal_for(device("NVIDIA CUDA", cl.device_type.GPU)) == "single"
+
+
 def _vectorizer_report(device: cl.Device, config: KernelConfig) -> str:
     # A source of its own: a program pyopencl reloads from its binary cache has no compiler log.
     source = kernel_source() + f"\n// {uuid.uuid4()}\n"

@@ -163,7 +163,7 @@ MUTATIONS: tuple[Mutation, ...] = (
     m("types.prim_cone_code", "kernels/clray_types.h",
       "#define PRIM_CONE 4", "#define PRIM_CONE 7", LAYOUT),
     m("types.point_light_code", "kernels/clray_types.h",
-      "#define LIGHT_POINT 0", "#define LIGHT_POINT 2", *KERNEL_SCENES),
+      "#define LIGHT_POINT 0", "#define LIGHT_POINT 2", LAYOUT, *KERNEL_SCENES),
     m("types.material_fields_swapped", "kernels/clray_types.h",
       "float ambient, diffuse, specular, shininess;",
       "float diffuse, ambient, specular, shininess;",

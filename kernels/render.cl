@@ -46,7 +46,7 @@
 // IMPLICIT_VECTORIZATION 0 (the default) asks a driver that packs work-items into a vector's
 // lanes (Intel's CPU runtime, 8 or 16 a thread) to run one work-item a thread instead: the
 // pixels' walks diverge and every node or primitive load becomes a gather, so the packed
-// kernel ran 2.3x (spheres) to 3.7x (mesh) slower there (docs/acceleration.md). The hint is
+// kernel ran 2.1x (spheres) to 3.5x (mesh) slower there (docs/acceleration.md). The hint is
 // that compiler's own attribute; a compiler without it (PoCL, GPUs) builds the kernel as it is.
 #ifndef IMPLICIT_VECTORIZATION
 #define IMPLICIT_VECTORIZATION 0
@@ -161,8 +161,9 @@ HOT void trace_sample_packet(const SceneRefs* s, const __global Camera* camera,
 }
 #endif
 
-__kernel WORK_ITEM_LANES void render(SCENE_BUFFER_PARAMS, __global float4* image, __global int4* ray_counts,
-                     __global int4* test_counts, int row_offset) {
+__kernel WORK_ITEM_LANES void render(SCENE_BUFFER_PARAMS, __global float4* image,
+                                     __global int4* ray_counts, __global int4* test_counts,
+                                     int row_offset) {
     int x = get_global_id(0), y = get_global_id(1) + row_offset;
     int width = params->width, height = params->height;
     if (x >= width || y >= height) return;
@@ -307,8 +308,10 @@ inline void report_hit(const SceneRefs* s, const Ray* ray, const Hit* hit, __glo
 // Closest hit for given rays, for tests and tools: t (inf on a miss), the primitive reference
 // and the surface's outward geometric normal. Uses the same scene buffers as render. With
 // sample packets a work-item takes PACKET_LANES rays as one packet (the host pads the last).
-__kernel WORK_ITEM_LANES void intersect_rays(__global const float4* origins, __global const float4* directions,
-                             SCENE_BUFFER_PARAMS, __global float4* hits, __global int* refs) {
+__kernel WORK_ITEM_LANES void intersect_rays(__global const float4* origins,
+                                             __global const float4* directions,
+                                             SCENE_BUFFER_PARAMS, __global float4* hits,
+                                             __global int* refs) {
     int i = get_global_id(0);
     SceneRefs s = scene_refs(SCENE_BUFFER_ARGS);
 #if COUNT_TESTS

@@ -113,8 +113,8 @@ KNOB_TABLE: tuple[Knob, ...] = (
          (False, True),
          "whether a driver that packs work-items into a vector's lanes may (the -D "
          "IMPLICIT_VECTORIZATION; Intel's CPU runtime packs 8 or 16 a thread unless the kernel "
-         "asks for one): the pixels' walks diverge and their node loads become gathers, 2.3x "
-         "to 3.7x slower there at 1 spp. Drivers that do not pack (PoCL, GPUs) ignore it"),
+         "asks for one): the pixels' walks diverge and their node loads become gathers, 2.1x "
+         "to 3.5x slower there at 1 spp. Drivers that do not pack (PoCL, GPUs) ignore it"),
     _variant("cl_mad_enable", "build",
              "-cl-mad-enable: a * b + c may be one fused or less exact instruction"),
     _variant("cl_unsafe_math_optimizations", "build",

@@ -168,11 +168,12 @@ def _build_parser() -> _Parser:
     r.add_argument("--precision", choices=limits.PRECISIONS, default="float",
                    help="arithmetic in the kernels (double needs cl_khr_fp64; default: float)")
     r.add_argument("--traversal", choices=TRAVERSALS, default=None,
-                   help="how rays walk the BVH: 'single' (every ray alone) or 'sample_packet' "
-                        "(a pixel's samples together; the same image); default: the tuning's "
+                   help="how rays walk the BVH: 'single' (every ray alone), 'sample_packet' "
+                        "(a pixel's samples together) or 'group_packet' (a work-group's tile "
+                        "of pixels together), each the same image; default: the tuning's "
                         "traversal knob, else the device's own: sample_packet on Intel's CPU "
-                        "runtime, single elsewhere; 1 spp always single (docs/acceleration.md, "
-                        "Sample packets)")
+                        "runtime, single elsewhere; with sample packets 1 spp is always single "
+                        "(docs/acceleration.md)")
     encoding = r.add_mutually_exclusive_group()
     encoding.add_argument("--linear", dest="linear", action="store_true", default=None,
                           help="write PNG values linear, tagged gamma 1.0 (default: the sRGB "
@@ -304,7 +305,7 @@ def _build_parser() -> _Parser:
                     help="samples per pixel (default: the scene's [render] spp)")
     pr.add_argument("--traversal", choices=TRAVERSALS, default=None,
                     help="how rays walk the BVH, as for render (default: the tuning's "
-                         "traversal knob, else the device's own; with 1 spp always single)")
+                         "traversal knob, else the device's own)")
     pr.add_argument("--repeat", type=_int_in(1, MAX_REPEAT), default=3, metavar="N",
                     help="timed renders of each variant after a warm-up; medians (default: 3)")
     pr.add_argument("--no-tuning", dest="stored_tuning", action="store_false",

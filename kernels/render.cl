@@ -9,9 +9,10 @@
 // cannot intersect); COUNT_TESTS (the instrumented build: box and primitive tests per pixel).
 // HAS_SPOT_LIGHTS, HAS_AREA_LIGHTS (0 or 1): the scene has spot lights, area lights.
 // HAS_INSTANCES (0 or 1): the scene places groups by transforms (kernels/bvh.h walks into them).
-// TRAVERSAL: TRAVERSAL_SINGLE (every ray walks the BVH alone) or TRAVERSAL_SAMPLE_PACKET (a
+// TRAVERSAL: TRAVERSAL_SINGLE (every ray walks the BVH alone), TRAVERSAL_SAMPLE_PACKET (a
 // pixel's samples' primary and shadow rays walk it in packets of PACKET_LANES, kernels/packet.h;
-// PACKET_MIN_LANES: below it, lanes go on ray by ray).
+// PACKET_MIN_LANES: below it, lanes go on ray by ray) or TRAVERSAL_GROUP_PACKET (a work-group's
+// pixels walk it together, kernels/group.h).
 #include "real.h"
 #include "clray_types.h"
 #include "scene.h"
@@ -38,10 +39,12 @@
 
 #define TRAVERSAL_SINGLE 0
 #define TRAVERSAL_SAMPLE_PACKET 1
+#define TRAVERSAL_GROUP_PACKET 2
 #ifndef TRAVERSAL
 #define TRAVERSAL TRAVERSAL_SINGLE
 #endif
 #define SAMPLE_PACKETS (TRAVERSAL == TRAVERSAL_SAMPLE_PACKET)
+#define GROUP_PACKETS (TRAVERSAL == TRAVERSAL_GROUP_PACKET)
 
 // IMPLICIT_VECTORIZATION 0 (the default) asks a driver that packs work-items into a vector's
 // lanes (Intel's CPU runtime, 8 or 16 a thread) to run one work-item a thread instead: the
@@ -51,7 +54,8 @@
 #ifndef IMPLICIT_VECTORIZATION
 #define IMPLICIT_VECTORIZATION 0
 #endif
-#if !IMPLICIT_VECTORIZATION && defined(__has_attribute)
+// Group packets are written for that packing: their work-items share each node.
+#if !IMPLICIT_VECTORIZATION && !GROUP_PACKETS && defined(__has_attribute)
 #if __has_attribute(intel_vec_len_hint)
 #define WORK_ITEM_LANES __attribute__((intel_vec_len_hint(1)))
 #endif
@@ -61,6 +65,9 @@
 #endif
 #if SAMPLE_PACKETS
 #include "packet.h"
+#endif
+#if GROUP_PACKETS
+#include "group.h"
 #endif
 
 // One node of the ray tree, waiting on the explicit stack (OpenCL C has no recursion).
@@ -161,12 +168,147 @@ HOT void trace_sample_packet(const SceneRefs* s, const __global Camera* camera,
 }
 #endif
 
+#if MAX_DEPTH > 0
+// Push the reflected and refracted rays of a shaded hit (ray, pt) of `task`: returns the rays
+// pushed.
+inline int spawn_secondary(const SceneRefs* s, const __global Params* params, RayTask* stack,
+                           int* sp, const RayTask* task, const Ray* ray, const ShadePoint* pt) {
+    if (task->depth >= MAX_DEPTH) return 0;
+    const __global Material* m = s->materials + pt->sf.material;
+    REAL3 n = pt->n;
+    int pushed = 0;
+    REAL kr = TO_REAL(m->reflect);
+#if HAS_REFRACTION
+    REAL kt = TO_REAL(m->transmit);
+    if (kt > (REAL)0) {
+        RayTask next;
+        REAL eta = refract_media(s, task, &next, pt->sf.material, pt->entering);
+        REAL cos_i = -dot(ray->d, n);
+        REAL k = (REAL)1 - eta * eta * ((REAL)1 - cos_i * cos_i);
+        if (k < (REAL)0) {
+            kr += kt;  // total internal reflection
+        } else {
+#if HAS_FRESNEL
+            if (m->fresnel) {
+                REAL f = fresnel_reflectance(eta, cos_i, sqrt(k));
+                kr += f * kt;
+                kt *= (REAL)1 - f;
+            }
+#endif
+            next.d = normalize(eta * ray->d + (eta * cos_i - sqrt(k)) * n);
+            pushed += spawn(stack, sp, &next, &pt->sf, task->weight * kt, task->depth,
+                            params->min_weight);
+        }
+    }
+#endif
+    if (kr > (REAL)0) {
+        RayTask next = *task;  // a reflection stays in the same media
+        next.d = ray->d - (REAL)2 * dot(ray->d, n) * n;
+        pushed += spawn(stack, sp, &next, &pt->sf, task->weight * kr, task->depth,
+                        params->min_weight);
+    }
+    return pushed;
+}
+#endif
+
+// Light from the sky where a ray of weight `weight` leaves the scene in direction d.
+inline REAL3 sky(const __global Params* params, const __global float4* texels, REAL3 d,
+                 REAL3 weight) {
+#if HAS_BACKGROUND_GRADIENT || HAS_BACKGROUND_IMAGE
+    return weight * background_radiance(params, texels, d);
+#else
+    return weight * TO_REAL3(params->background);
+#endif
+}
+
+// The sample's primary ray as the ray tree's root task.
+inline RayTask primary_task(const __global Camera* camera, const __global Params* params, int x,
+                            int y, int sample, uint pixel) {
+    RayTask task;
+    sample_ray(camera, params, x, y, sample, pixel, &task.o, &task.d);
+    task.weight = (REAL3)(1, 1, 1);
+    task.depth = 0;
+    task.media_count = 0;
+    return task;
+}
+
+#if GROUP_PACKETS
+// shade_direct for the group: every work-item takes part in each light's shadow walk, with a
+// shadow ray where `shaded` and the light reaches the point.
+inline REAL3 group_direct(const SceneRefs* s, Group* g, const ShadePoint* pt, REAL3 v,
+                          REAL3 ambient_light, SampleKey key, bool shaded, int* shadow_rays) {
+    const __global Material* m = s->materials + (shaded ? pt->sf.material : 0);
+    REAL3 result = (REAL3)(0, 0, 0);
+    if (shaded) result = TO_REAL(m->ambient) * pt->c * ambient_light + TO_REAL3(m->emission);
+    for (int i = 0; i < s->n_lights; ++i) {
+        REAL3 l = (REAL3)(0, 0, 0);
+        REAL atten = 0, ndl = 0, tmax = 0;
+        Ray shadow = make_ray((REAL3)(0, 0, 0), (REAL3)(0, 0, 1));
+        bool lit = shaded && light_ray(s, &pt->sf, pt->n, i, key, &l, &atten, &ndl, &shadow,
+                                       &tmax);
+        if (lit) (*shadow_rays)++;
+        REAL3 filter = group_transmission(s, g, &shadow, tmax, lit);
+        if (lit && max_comp3(filter) > (REAL)0) {
+            result += light_term(s, i, pt->n, v, pt->c, m, l, atten, ndl, filter);
+        }
+    }
+    return result;
+}
+
+// A pixel's radiance summed over its samples, its rays walking with the group's: every
+// work-item of the group runs it, those outside the image (`live` false) without rays. Each
+// pass of the loop takes one ray of the tree from every work-item that has one left.
+inline REAL3 group_pixel(const SceneRefs* s, Group* g, const __global Camera* camera,
+                         const __global Params* params, const __global float4* texels, int x,
+                         int y, uint pixel, bool live, int* secondary_rays, int* shadow_rays) {
+    REAL3 sum = (REAL3)(0, 0, 0), ambient = TO_REAL3(params->ambient);
+    int spp = params->spp;
+    SampleKey key = sample_key(params->seed, pixel, spp);
+    for (int sample = 0; sample < spp; ++sample) {
+        key.sample = sample;
+        RayTask stack[RAY_STACK_SIZE];
+        int sp = 0;
+        if (live) stack[sp++] = primary_task(camera, params, x, y, sample, pixel);
+        for (;;) {
+            bool has = sp > 0;
+            if (!group_any(g, has)) break;
+            RayTask task;
+            task.o = task.d = task.weight = (REAL3)(0, 0, 1);
+            task.depth = 0;
+            task.media_count = 0;
+            if (has) task = stack[--sp];
+            Ray ray = make_ray(task.o, task.d);
+            Hit hit = group_closest(s, g, &ray, has);
+            bool shaded = has && hit.t < REAL_INF;
+            if (has && !shaded) sum += sky(params, texels, task.d, task.weight);
+            ShadePoint pt;
+            if (shaded) pt = shade_point(s, camera, &ray, &hit);
+            REAL3 direct = group_direct(s, g, &pt, -ray.d, ambient, key, shaded, shadow_rays);
+            if (!shaded) continue;
+            sum += task.weight * direct;
+#if MAX_DEPTH > 0
+            *secondary_rays += spawn_secondary(s, params, stack, &sp, &task, &ray, &pt);
+#endif
+        }
+    }
+    return sum;
+}
+#endif
+
 __kernel WORK_ITEM_LANES void render(SCENE_BUFFER_PARAMS, __global float4* image,
                                      __global int4* ray_counts, __global int4* test_counts,
                                      int row_offset) {
     int x = get_global_id(0), y = get_global_id(1) + row_offset;
     int width = params->width, height = params->height;
+#if GROUP_PACKETS
+    // No early return: the work-items past the image's edge ride along in the group's walks.
+    bool live = x < width && y < height;
+    __local GroupPosts posts;
+    Group g;
+    group_init(&g, &posts, get_local_id(1) * get_local_size(0) + get_local_id(0));
+#else
     if (x >= width || y >= height) return;
+#endif
 
     SceneRefs s = scene_refs(SCENE_BUFFER_ARGS);
 #if COUNT_TESTS
@@ -176,10 +318,13 @@ __kernel WORK_ITEM_LANES void render(SCENE_BUFFER_PARAMS, __global float4* image
 
     uint pixel = (uint)(y * width + x);
     int spp = params->spp;
-    REAL3 background = TO_REAL3(params->background), ambient = TO_REAL3(params->ambient);
-    REAL3 sum = (REAL3)(0, 0, 0);
     int secondary_rays = 0, shadow_rays = 0;
-
+#if GROUP_PACKETS
+    REAL3 sum = group_pixel(&s, &g, camera, params, texels, x, y, pixel, live, &secondary_rays,
+                            &shadow_rays);
+    if (!live) return;
+#else
+    REAL3 sum = (REAL3)(0, 0, 0), ambient = TO_REAL3(params->ambient);
     SampleKey key = sample_key(params->seed, pixel, spp);
 #if SAMPLE_PACKETS
     // With one sample a pixel there is no packet: its rays go alone.
@@ -200,12 +345,12 @@ __kernel WORK_ITEM_LANES void render(SCENE_BUFFER_PARAMS, __global float4* image
             // The packet drew the sample's ray already.
             stack[0].o = packet.ray[lane].o;
             stack[0].d = packet.ray[lane].d;
+            stack[0].weight = (REAL3)(1, 1, 1);
+            stack[0].depth = 0;
+            stack[0].media_count = 0;
         } else
 #endif
-        sample_ray(camera, params, x, y, sample, pixel, &stack[0].o, &stack[0].d);
-        stack[0].weight = (REAL3)(1, 1, 1);
-        stack[0].depth = 0;
-        stack[0].media_count = 0;
+        stack[0] = primary_task(camera, params, x, y, sample, pixel);
         sp = 1;
         while (sp > 0) {
             RayTask task = stack[--sp];
@@ -219,11 +364,7 @@ __kernel WORK_ITEM_LANES void render(SCENE_BUFFER_PARAMS, __global float4* image
             Hit hit = closest_hit(&s, &ray);
 #endif
             if (!(hit.t < REAL_INF)) {
-#if HAS_BACKGROUND_GRADIENT || HAS_BACKGROUND_IMAGE
-                sum += task.weight * background_radiance(params, texels, task.d);
-#else
-                sum += task.weight * background;
-#endif
+                sum += sky(params, texels, task.d, task.weight);
                 continue;
             }
 #if SAMPLE_PACKETS
@@ -231,54 +372,21 @@ __kernel WORK_ITEM_LANES void render(SCENE_BUFFER_PARAMS, __global float4* image
 #else
             ShadePoint pt = shade_point(&s, camera, &ray, &hit);
 #endif
-            Surface sf = pt.sf;
-            const __global Material* m = materials + sf.material;
-            bool entering = pt.entering;
-            REAL3 n = pt.n;
+            const __global Material* m = materials + pt.sf.material;
 #if SAMPLE_PACKETS
             sum += task.weight * (packed ? packet.direct[lane]
-                                         : shade_direct(&s, &sf, n, -ray.d, pt.c, m, ambient,
-                                                        key, &shadow_rays));
+                                         : shade_direct(&s, &pt.sf, pt.n, -ray.d, pt.c, m,
+                                                        ambient, key, &shadow_rays));
 #else
-            sum += task.weight * shade_direct(&s, &sf, n, -ray.d, pt.c, m, ambient, key,
+            sum += task.weight * shade_direct(&s, &pt.sf, pt.n, -ray.d, pt.c, m, ambient, key,
                                               &shadow_rays);
 #endif
 #if MAX_DEPTH > 0
-            if (task.depth < MAX_DEPTH) {
-                REAL kr = TO_REAL(m->reflect);
-#if HAS_REFRACTION
-                REAL kt = TO_REAL(m->transmit);
-                if (kt > (REAL)0) {
-                    RayTask next;
-                    REAL eta = refract_media(&s, &task, &next, sf.material, entering);
-                    REAL cos_i = -dot(ray.d, n);
-                    REAL k = (REAL)1 - eta * eta * ((REAL)1 - cos_i * cos_i);
-                    if (k < (REAL)0) {
-                        kr += kt;  // total internal reflection
-                    } else {
-#if HAS_FRESNEL
-                        if (m->fresnel) {
-                            REAL f = fresnel_reflectance(eta, cos_i, sqrt(k));
-                            kr += f * kt;
-                            kt *= (REAL)1 - f;
-                        }
-#endif
-                        next.d = normalize(eta * ray.d + (eta * cos_i - sqrt(k)) * n);
-                        secondary_rays += spawn(stack, &sp, &next, &sf, task.weight * kt,
-                                                task.depth, params->min_weight);
-                    }
-                }
-#endif
-                if (kr > (REAL)0) {
-                    RayTask next = task;  // a reflection stays in the same media
-                    next.d = ray.d - (REAL)2 * dot(ray.d, n) * n;
-                    secondary_rays += spawn(stack, &sp, &next, &sf, task.weight * kr,
-                                            task.depth, params->min_weight);
-                }
-            }
+            secondary_rays += spawn_secondary(&s, params, stack, &sp, &task, &ray, &pt);
 #endif
         }
     }
+#endif
     REAL3 mean = sum / (REAL)spp;
     // The output buffers hold this launch's band of rows only, so that an image of any size
     // renders within the device's largest allocation.
@@ -307,7 +415,8 @@ inline void report_hit(const SceneRefs* s, const Ray* ray, const Hit* hit, __glo
 
 // Closest hit for given rays, for tests and tools: t (inf on a miss), the primitive reference
 // and the surface's outward geometric normal. Uses the same scene buffers as render. With
-// sample packets a work-item takes PACKET_LANES rays as one packet (the host pads the last).
+// sample packets a work-item takes PACKET_LANES rays as one packet, with group packets a
+// work-group's rays walk together (the host pads the last group).
 __kernel WORK_ITEM_LANES void intersect_rays(__global const float4* origins,
                                              __global const float4* directions,
                                              SCENE_BUFFER_PARAMS, __global float4* hits,
@@ -329,6 +438,14 @@ __kernel WORK_ITEM_LANES void intersect_rays(__global const float4* origins,
     for (int j = 0; j < PACKET_LANES; ++j) {
         report_hit(&s, rays + j, found + j, hits + first + j, refs + first + j);
     }
+#elif GROUP_PACKETS
+    // A work-group's rays walk as one group packet (the host pads the last group).
+    __local GroupPosts posts;
+    Group g;
+    group_init(&g, &posts, get_local_id(0));
+    Ray ray = make_ray(TO_REAL3(origins[i]), TO_REAL3(directions[i]));
+    Hit hit = group_closest(&s, &g, &ray, true);
+    report_hit(&s, &ray, &hit, hits + i, refs + i);
 #else
     Ray ray = make_ray(TO_REAL3(origins[i]), TO_REAL3(directions[i]));
     Hit hit = closest_hit(&s, &ray);

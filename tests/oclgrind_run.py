@@ -19,6 +19,7 @@ from clray.device.pack import pack_scene
 from clray.reference import camera_rays
 from clray.render import RenderSettings, render
 from clray.scene.load import load_scene
+from clray.tuning.knobs import Tuning
 
 SCENES = Path(__file__).resolve().parent.parent / "scenes"
 # The shipped scenes between them switch on every feature of KernelConfig but the study
@@ -58,6 +59,12 @@ def renders(device: str | None) -> dict[str, np.ndarray]:
         settings = RenderSettings(width=WIDTH, height=HEIGHT, spp=PACKET_SPP, device=device,
                                   traversal="sample_packet")
         out[f"{path.stem}/sample_packet"] = render(scene, settings).image
+        # Group packets in 4 x 4 tiles: the image's 6 columns leave two of the second tile's
+        # work-items outside it, riding along in the group's walks.
+        settings = RenderSettings(width=WIDTH, height=HEIGHT, spp=SPP, device=device,
+                                  traversal="group_packet", tuning=Tuning(group_side=4),
+                                  stored_tuning=False)
+        out[f"{path.stem}/group_packet"] = render(scene, settings).image
         if path.name in VARIANT_SCENES:
             settings = RenderSettings(width=WIDTH, height=HEIGHT, spp=SPP, device=device,
                                       variants=VARIANTS)
@@ -72,7 +79,13 @@ def intersections(device: str | None) -> dict[str, np.ndarray]:
     o, d, _ = camera_rays(scene, WIDTH, HEIGHT, 1, 0)
     eye = np.asarray(scene.camera.position)
     t, n, ref = intersect_rays(packed, select_device(device), o - eye, d)
-    return {"intersect/t": t, "intersect/n": n, "intersect/ref": ref}
+    out = {"intersect/t": t, "intersect/n": n, "intersect/ref": ref}
+    # The rays as group packets of 16 (the last padded).
+    packed = pack_scene(scene, width=WIDTH, height=HEIGHT, spp=1, max_depth=0, seed=0,
+                        traversal="group_packet", tuning=Tuning(group_side=4))
+    t, n, ref = intersect_rays(packed, select_device(device), o - eye, d)
+    out.update({"intersect/group_t": t, "intersect/group_n": n, "intersect/group_ref": ref})
+    return out
 
 
 def bvh(device: str | None) -> dict[str, np.ndarray]:

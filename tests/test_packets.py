@@ -1,10 +1,11 @@
-"""Sample packets (KernelConfig.traversal "sample_packet", kernels/packet.h) against the
-single-ray walk they replace: every lane must find the hit the single-ray walk finds for the
-same ray, and every render the same image.
+"""Sample packets (KernelConfig.traversal "sample_packet", kernels/packet.h) and group packets
+("group_packet", kernels/group.h) against the single-ray walk they replace: every lane or
+work-item must find the hit the single-ray walk finds for the same ray, and every render the
+same image.
 
-The packet walk visits nodes in another order and tests each shape lane-wise with the single-ray
-formulas, the same operations in the same order, so hits are compared exactly: a different t
-or primitive would mean a lane missed a node, tested a shape another way, or dropped a hit.
+The packet walks visit nodes in another order and test each shape with the single-ray formulas,
+the same operations in the same order, so hits are compared exactly: a different t or
+primitive would mean a lane missed a node, tested a shape another way, or dropped a hit.
 """
 
 from __future__ import annotations
@@ -23,7 +24,7 @@ from clray.errors import SettingsError
 from clray.render import RenderSettings, render
 from clray.scene import model as M
 from clray.scene.load import load_scene, scene_from_dict
-from clray.tuning.knobs import TRAVERSALS
+from clray.tuning.knobs import TRAVERSALS, Tuning
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENES = sorted((ROOT / "scenes").glob("*.toml"))
@@ -113,17 +114,57 @@ def test_mesh_packets_find_the_single_ray_hits(cl_device, min_lanes):
     assert np.array_equal(t1, t2)
 
 
-def _render_both(scene: M.Scene | Path, **size: int) -> tuple[np.ndarray, np.ndarray]:
-    images = [render(scene, RenderSettings(spp=SPP, traversal=traversal, **size)).image
-              for traversal in TRAVERSALS]
+@pytest.mark.filterwarnings("ignore::pyopencl.CompilerWarning")
+@pytest.mark.parametrize("side", [4, 8])
+def test_group_packets_find_the_single_ray_hits(cl_device, side):
+    """Random mixes of every shape, rays in groups from nearly parallel to unrelated, and a
+    mesh seen from outside and from inside, walked by work-groups of side * side rays."""
+    _require_exact_arithmetic(cl_device)
+    rng = np.random.default_rng(22)
+    group = side * side
+    scene = random_mix(rng, (0.0, 0.0, 0.0))
+    parts = [_packets(rng, 20, group, spread) for spread in (1e-3, 3e-2, 1.0)]
+    vertices, faces, _ = mesh_gen.bumpy_mesh(4, (0.0, 0.0, -6.0), 2.0)
+    mesh = M.Scene(None, M.RenderOptions(),
+                   M.Camera(position=(0.0, 0.0, 0.0), look_at=(0.0, 0.0, -1.0)),
+                   (M.Material("m"),), (), (M.Mesh(vertices=vertices, faces=faces, material=0),))
+    _, inside_d = _packets(rng, 20, group, 1e-2)
+    centres = rng.uniform(-0.5, 0.5, (20, 3)) + np.array([0.0, 0.0, -6.0])
+    inside_o = np.repeat(centres, group, axis=0).astype(np.float32)
+    for world, (o, d) in ((scene, [np.concatenate(x) for x in zip(*parts, strict=True)]),
+                          (mesh, (inside_o, inside_d))):
+        # One ray fewer than whole groups: the last group is padded.
+        o, d = o[:-1], d[:-1]
+        t1, _, r1 = _hits(cl_device, world, o, d, "float", traversal="single")
+        t2, _, r2 = _hits(cl_device, world, o, d, "float", traversal="group_packet",
+                          tuning=Tuning(group_side=side))
+        assert (r1 >= 0).mean() > 0.3
+        assert np.array_equal(r1, r2), f"{np.sum(r1 != r2)} of {len(r1)} rays hit another shape"
+        assert np.array_equal(t1, t2), f"t differs in {np.sum(t1 != t2)} rays"
+
+
+def _render_both(scene: M.Scene | Path, traversal: str, tuning: Tuning,
+                 **size: int) -> tuple[np.ndarray, np.ndarray]:
+    """The single-ray walk's image and the packet traversal's. Sizes that are not whole tiles
+    leave some of a group packet's work-items outside the image."""
+    images = [render(scene, RenderSettings(spp=SPP, traversal=name, tuning=knobs,
+                                           stored_tuning=False, **size)).image
+              for name, knobs in (("single", Tuning()), (traversal, tuning))]
     return images[0], images[1]
 
 
+# Each packet traversal, group packets in the default 8 x 8 tiles for the example scenes and
+# in 4 x 4 tiles for the hard cases.
+PACKETS = [("sample_packet", Tuning()), ("group_packet", Tuning())]
+HARD_PACKETS = [("sample_packet", Tuning()), ("group_packet", Tuning(group_side=4))]
+
+
 @pytest.mark.filterwarnings("ignore::pyopencl.CompilerWarning")
+@pytest.mark.parametrize(("traversal", "tuning"), PACKETS, ids=[p for p, _ in PACKETS])
 @pytest.mark.parametrize("path", SCENES, ids=[p.stem for p in SCENES])
-def test_example_scene_renders_the_same_with_sample_packets(cl_device, path):
+def test_example_scene_renders_the_same_with_packets(cl_device, path, traversal, tuning):
     _require_exact_arithmetic(cl_device)
-    single, packets = _render_both(path, width=40, height=30)
+    single, packets = _render_both(path, traversal, tuning, width=40, height=30)
     assert np.array_equal(single, packets, equal_nan=True), (
         f"{np.sum(np.any(single != packets, axis=2))} pixels differ")
 
@@ -136,10 +177,13 @@ def _hard_cases() -> list:
 
 
 @pytest.mark.filterwarnings("ignore::pyopencl.CompilerWarning")
+@pytest.mark.parametrize(("traversal", "tuning"), HARD_PACKETS,
+                         ids=[p for p, _ in HARD_PACKETS])
 @pytest.mark.parametrize("case", _hard_cases(), ids=lambda c: c.name)
-def test_hard_case_renders_the_same_with_sample_packets(cl_device, case):
+def test_hard_case_renders_the_same_with_packets(cl_device, case, traversal, tuning):
     _require_exact_arithmetic(cl_device)
-    single, packets = _render_both(scene_from_dict(case.scene), width=40, height=30)
+    single, packets = _render_both(scene_from_dict(case.scene), traversal, tuning, width=38,
+                                   height=30)
     assert np.array_equal(single, packets, equal_nan=True), (
         f"{np.sum(np.any(single != packets, axis=2))} pixels differ")
 

@@ -195,6 +195,20 @@ def test_packet_knobs_act_only_with_sample_packets_and_below_the_lanes(
         Tuning(traversal=knob("sample_packet"), packet_lanes=16, packet_min_lanes=2)}
 
 
+def test_group_packets_are_searched_in_square_tiles(kernel_tuner, cl_device, tmp_path) -> None:
+    trials = tune(cl_device, tmp_path, space={
+        **TWO, "work_group_width": (64,), "traversal": ("single", "group_packet"),
+        "group_side": (4, 8)})
+    own = traversal_for(cl_device)
+    # Single rays in row segments of 64; group packets in tiles of 4 x 4 and 8 x 8, each
+    # verified against the default's image.
+    assert {t.tuning for t in trials} == {
+        Tuning(traversal=None if own == "single" else "single"),
+        Tuning(traversal="group_packet", group_side=4),
+        Tuning(traversal="group_packet", group_side=8)}
+    assert all(t.verified and t.time_ms > 0 for t in trials)
+
+
 VARIANTS = {**TWO, "work_group_width": (64,), "fresnel_schlick": (False, True),
             "cl_mad_enable": (False, True)}
 

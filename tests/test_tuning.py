@@ -113,7 +113,7 @@ def test_the_constants_at_their_sites_are_the_table_defaults() -> None:
     ({"first_launch_pixel_samples": 100, "max_launch_pixel_samples": 10},
      "max_launch_pixel_samples 10 is below"),
     ({"launch_growth": True}, "launch_growth: expected an integer"),
-    ({"traversal": "packet"}, "traversal: expected single, sample_packet, or None"),
+    ({"traversal": "packet"}, "traversal: expected single, sample_packet, group_packet, or None"),
     ({"traversal": "sample_packet", "packet_lanes": 12}, "packet_lanes: expected 4, 8, 16"),
     ({"traversal": "sample_packet", "packet_lanes": 4, "packet_min_lanes": 4},
      "packet_min_lanes 4 is not below packet_lanes 4"),
@@ -121,6 +121,11 @@ def test_the_constants_at_their_sites_are_the_table_defaults() -> None:
      "packet_lanes 16 acts only with traversal sample_packet"),
     ({"traversal": "single", "packet_min_lanes": 0},
      "packet_min_lanes 0 acts only with traversal sample_packet"),
+    ({"traversal": "group_packet", "packet_lanes": 8},
+     "packet_lanes 8 acts only with traversal sample_packet"),
+    ({"traversal": "group_packet", "group_side": 6}, "group_side: expected 4 or 8"),
+    ({"traversal": "sample_packet", "group_side": 4},
+     "group_side 4 acts only with traversal group_packet"),
     ({"cl_mad_enable": 1}, "cl_mad_enable: expected True or False"),
 ])
 def test_illegal_knobs_and_broken_restrictions_are_refused(values, words) -> None:

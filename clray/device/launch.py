@@ -88,6 +88,21 @@ def _group_width(kernel: cl.Kernel, device: cl.Device, tuning: Tuning) -> int:
     return max(1, min(tuning.work_group_width, limit))
 
 
+def _local_size(kernel: cl.Kernel, device: cl.Device, packed: PackedScene) -> tuple[int, int]:
+    """The launch's work-group: a row segment (_group_width), or with group packets the tile of
+    group_side x group_side pixels that walk the BVH together, which the device must take
+    whole."""
+    if packed.config.traversal != "group_packet":
+        return _group_width(kernel, device, packed.tuning), 1
+    side = packed.tuning.group_side
+    limit = kernel.get_work_group_info(cl.kernel_work_group_info.WORK_GROUP_SIZE, device)
+    if side * side > limit:
+        raise DeviceError(f"{describe(device)} runs at most {limit} work-items a group for this "
+                          f"kernel, under group packets' {side} x {side}: render with a "
+                          "smaller group_side or another traversal")
+    return side, side
+
+
 def render_packed(packed: PackedScene, device: cl.Device,
                   progress: Callable[[int, int], None] | None = None,
                   rows: tuple[int, int] | None = None) -> tuple[np.ndarray, dict]:
@@ -104,7 +119,12 @@ def render_packed(packed: PackedScene, device: cl.Device,
     height = end - first
     try:
         buffers = _scene_buffers(ctx, packed)
-        band_bytes = width * capacity * 16
+        kernel = cl.Kernel(program, "render")
+        group_width, group_height = _local_size(kernel, device, packed)
+        # A band's launch covers whole work-groups: the rows past the band (below the image,
+        # or the next band's, rendered again there) land in the buffers' spare rows.
+        spare = group_height - 1
+        band_bytes = width * (capacity + spare) * 16
         image_buf = cl.Buffer(ctx, cl.mem_flags.WRITE_ONLY, band_bytes)
         counts_buf = cl.Buffer(ctx, cl.mem_flags.WRITE_ONLY, band_bytes)
         count_tests = packed.config.count_tests
@@ -114,8 +134,6 @@ def render_packed(packed: PackedScene, device: cl.Device,
         band_counts = np.empty((capacity * width, 4), dtype=np.int32)
         totals = np.zeros(4, dtype=np.int64)
         test_totals = np.zeros(4, dtype=np.int64)
-        kernel = cl.Kernel(program, "render")
-        group_width = _group_width(kernel, device, packed.tuning)
         padded_width = -(-width // group_width) * group_width
         row_samples = width * spp
         if progress is not None:
@@ -125,8 +143,9 @@ def render_packed(packed: PackedScene, device: cl.Device,
             band = min(capacity, next_band_rows(row_samples, band, band_s, height - row0,
                                                 packed.tuning))
             kernel.set_args(*buffers, image_buf, counts_buf, tests_buf, np.int32(first + row0))
-            event = cl.enqueue_nd_range_kernel(queue, kernel, (padded_width, band),
-                                               (group_width, 1))
+            padded_band = -(-band // group_height) * group_height
+            event = cl.enqueue_nd_range_kernel(queue, kernel, (padded_width, padded_band),
+                                               (group_width, group_height))
             event.wait()
             # Device time, not wall time: the first launch's wall time holds one-off costs
             # (PoCL compiles the work-group function then) that say nothing of the rate.
@@ -169,14 +188,18 @@ def intersect_rays(packed: PackedScene, device: cl.Device, origins: np.ndarray,
     """Closest hits of rays given in the packed (camera-relative) frame: (t, normal, ref),
     t = inf and ref = -1 on a miss. For tests and tools; runs the render kernel's code. With
     sample packets (packed.config.traversal), rays k * lanes .. k * lanes + lanes - 1 walk the
-    BVH as one packet."""
+    BVH as one packet; with group packets, each work-group's group_side ** 2 rays."""
     program, _ = build_program(device, packed.config)
     queue = queue_for(device)
     ctx = queue.context
     n = len(origins)
-    lanes = packed.config.packet_lanes if packed.config.traversal == "sample_packet" else 1
+    traversal = packed.config.traversal
+    lanes = packed.config.packet_lanes if traversal == "sample_packet" else 1
+    # A group packet's rays are a work-group's: the launch covers whole groups.
+    group = packed.tuning.group_side ** 2 if traversal == "group_packet" else None
+    padding = group or lanes
     # The last packet padded with copies of the last ray.
-    padded = -(-max(n, 1) // lanes) * lanes
+    padded = -(-max(n, 1) // padding) * padding
     o4 = np.zeros((padded, 4), dtype=np.float32)
     d4 = np.zeros((padded, 4), dtype=np.float32)
     o4[:n, :3] = origins
@@ -186,8 +209,8 @@ def intersect_rays(packed: PackedScene, device: cl.Device, origins: np.ndarray,
     args = [_buffer(ctx, o4), _buffer(ctx, d4), *_scene_buffers(ctx, packed)]
     hits_buf = cl.Buffer(ctx, cl.mem_flags.WRITE_ONLY, padded * 16)
     refs_buf = cl.Buffer(ctx, cl.mem_flags.WRITE_ONLY, padded * 4)
-    cl.Kernel(program, "intersect_rays")(queue, (padded // lanes,), None, *args, hits_buf,
-                                         refs_buf)
+    cl.Kernel(program, "intersect_rays")(queue, (padded // lanes,), group and (group,), *args,
+                                         hits_buf, refs_buf)
     hits = np.empty((padded, 4), dtype=np.float32)
     refs = np.empty(padded, dtype=np.int32)
     cl.enqueue_copy(queue, hits, hits_buf)

@@ -76,9 +76,10 @@ class KernelConfig:
     bvh_width: int = 8
     bvh_stack_size: int = 32
     precision: str = "float"  # "float" | "double"
-    # How rays walk the BVH (TRAVERSALS; docs/acceleration.md): "single", every ray alone, or
+    # How rays walk the BVH (TRAVERSALS; docs/acceleration.md): "single", every ray alone,
     # "sample_packet", a pixel's samples in packets of packet_lanes vector lanes, lanes going on
-    # ray by ray where at most packet_min_lanes of them reach a subtree. Knobs of the table
+    # ray by ray where at most packet_min_lanes of them reach a subtree, or "group_packet", a
+    # work-group's pixels together (the launch's tiles: the group_side knob). Knobs of the table
     # (clray.tuning.knobs); the packer passes packet_lanes as the tuning's or the device's.
     traversal: str = "single"
     packet_lanes: int = 8

@@ -50,7 +50,8 @@ def _number_in(low: float, high: float) -> Callable[[object], bool]:
                       and low < v <= high)
 
 
-TRAVERSALS = ("single", "sample_packet")
+TRAVERSALS = ("single", "sample_packet", "group_packet")
+GROUP_SIDES = (4, 8)
 PACKET_LANES = (4, 8, 16)
 
 
@@ -94,12 +95,12 @@ KNOB_TABLE: tuple[Knob, ...] = (
          "packet tests would cover, is folded into that leaf: choosing among a few packets is "
          "not worth a node visit"),
     Knob("traversal", "kernel", None, lambda v: v is None or _one_of(*TRAVERSALS)(v),
-         "single, sample_packet, or None: the device's own (sample_packet on Intel's CPU "
-         "runtime, where it measured 1.07x to 1.12x at 16 spp; single elsewhere)",
+         "single, sample_packet, group_packet, or None: the device's own (sample_packet on "
+         "Intel's CPU runtime, where it measured 1.07x to 1.12x at 16 spp; single elsewhere)",
          (None, *TRAVERSALS),
-         "how rays walk the BVH (the -D TRAVERSAL, docs/acceleration.md): every ray alone, or "
-         "a pixel's samples in packets of packet_lanes vector lanes; RenderSettings.traversal "
-         "and --traversal override it"),
+         "how rays walk the BVH (the -D TRAVERSAL, docs/acceleration.md): every ray alone, "
+         "a pixel's samples in packets of packet_lanes vector lanes, or a work-group's tile of "
+         "pixels together; RenderSettings.traversal and --traversal override it"),
     Knob("packet_lanes", "kernel", None, lambda v: v is None or _one_of(*PACKET_LANES)(v),
          "4, 8, 16, or None: the device's vector width of the arithmetic's type "
          "(8 floats on AVX2, 16 on AVX-512), within 4 to 16", (None, 4, 16),
@@ -109,6 +110,10 @@ KNOB_TABLE: tuple[Knob, ...] = (
          "an integer, 0 to 15, below packet_lanes", (0, 2, 4),
          "the hybrid walk's switch-over (the -D PACKET_MIN_LANES; only with traversal "
          "sample_packet): where at most this many lanes reach a subtree they go on ray by ray"),
+    Knob("group_side", "launch", 8, _one_of(*GROUP_SIDES), "4 or 8", GROUP_SIDES,
+         "the work-group's tile of group_side x group_side pixels, which walk the BVH together "
+         "(only with traversal group_packet): larger tiles share more node visits and visit "
+         "more nodes that few of their rays need"),
     Knob("implicit_vectorization", "kernel", False, _one_of(False, True), "True or False",
          (False, True),
          "whether a driver that packs work-items into a vector's lanes may (the -D "
@@ -179,10 +184,14 @@ def restriction_problems(values: dict[str, object]) -> list[str]:
     if lanes is not None and values["packet_min_lanes"] >= lanes:
         problems.append(f"packet_min_lanes {values['packet_min_lanes']} is not below "
                         f"packet_lanes {lanes}")
-    if values["traversal"] == "single":
+    if values["traversal"] in ("single", "group_packet"):
         problems += [f"{name} {values[name]} acts only with traversal sample_packet (leave it "
-                     f"at {KNOBS[name].default!r} with single)"
+                     f"at {KNOBS[name].default!r} with {values['traversal']})"
                      for name in PACKET_KNOBS if values[name] != KNOBS[name].default]
+    if (values["traversal"] in ("single", "sample_packet")
+            and values["group_side"] != KNOBS["group_side"].default):
+        problems.append(f"group_side {values['group_side']} acts only with traversal "
+                        "group_packet")
     return problems
 
 
@@ -203,6 +212,7 @@ class Tuning:
     traversal: str | None = KNOBS["traversal"].default
     packet_lanes: int | None = KNOBS["packet_lanes"].default
     packet_min_lanes: int = KNOBS["packet_min_lanes"].default
+    group_side: int = KNOBS["group_side"].default
     implicit_vectorization: bool = KNOBS["implicit_vectorization"].default
     cl_mad_enable: bool = KNOBS["cl_mad_enable"].default
     cl_unsafe_math_optimizations: bool = KNOBS["cl_unsafe_math_optimizations"].default

@@ -56,8 +56,10 @@ from clray.tuning.knobs import (
 )
 
 INSTALL_HINT = "pip install 'clray[tune]'"
-# Kernel Tuner's name for the work-group's x size: the work_group_width knob.
+# Kernel Tuner's names for the work-group's sizes: a row segment of work_group_width (y 1), or
+# with traversal group_packet a tile of group_side x group_side.
 BLOCK_SIZE_X = "block_size_x"
+BLOCK_SIZE_Y = "block_size_y"
 # Pixels off by more than this from the default's image count against a configuration, unless
 # --allow-error gives another bound: the study's float-vs-double threshold (clray.study).
 PIXEL_TOLERANCE = 2 / 255
@@ -310,19 +312,31 @@ class Tuner:
         """The configuration of Kernel Tuner's parameters on the run's host and build knobs."""
         kernel = {name: knob_value(name, params[kernel_define(name)], self.auto)
                   for name in KERNEL_KNOBS if kernel_define(name) in params}
-        if (kernel.get("traversal", base.traversal) or self.auto["traversal"]) != "sample_packet":
+        traversal = kernel.get("traversal", base.traversal) or self.auto["traversal"]
+        if traversal != "sample_packet":
             # The single-ray walk ignores the packet's #defines: its knobs keep their defaults.
             kernel = {k: v for k, v in kernel.items() if k not in PACKET_KNOBS}
-        return Tuning(**{**base.values(), **kernel,
-                         "work_group_width": int(params[BLOCK_SIZE_X])})
+        if traversal == "group_packet":
+            launch = {"group_side": int(params[BLOCK_SIZE_Y])}
+        else:
+            launch = {"work_group_width": int(params[BLOCK_SIZE_X])}
+        return Tuning(**{**base.values(), **kernel, **launch})
 
     def _legal(self, base: Tuning, params: dict, space: dict[str, list]) -> bool:
         """Kernel Tuner's restriction: the knob table's, with the packet's lanes resolved
         (packet_min_lanes below the device's own where packet_lanes is left to it), and the
         single-ray walk built once, with the packet knobs' first values, which it ignores."""
-        if (TRAVERSALS[params["TRAVERSAL"]] != "sample_packet"
+        traversal = TRAVERSALS[params["TRAVERSAL"]]
+        if (traversal != "sample_packet"
                 and any(params[kernel_define(n)] != space[kernel_define(n)][0]
                         for n in PACKET_KNOBS)):
+            return False
+        # A group packet's work-group is a square tile; every other a row segment.
+        x, y = params[BLOCK_SIZE_X], params[BLOCK_SIZE_Y]
+        if traversal == "group_packet":
+            if x != y or y not in self.space["group_side"]:
+                return False
+        elif y != 1 or x not in self.space["work_group_width"]:
             return False
         try:
             tuning = self._tuning(base, params)
@@ -346,6 +360,21 @@ class Tuner:
         return Trial(scene, tuning, statistics.median(times) if times else float(time_ms), times,
                      float(result.get("compile_time", 0)), verified,
                      int(result.get("pixels_off", 0)), problem, extra)
+
+    def block_params(self, only: Tuning | None = None) -> dict[str, list[int]]:
+        """Kernel Tuner's work-group sizes: the work_group_width values as row segments and,
+        where group packets are searched, the group_side values as tiles (_legal pairs them
+        with their traversals); or `only`'s."""
+        if only is not None:
+            if (only.traversal or self.auto["traversal"]) == "group_packet":
+                return {BLOCK_SIZE_X: [only.group_side], BLOCK_SIZE_Y: [only.group_side]}
+            return {BLOCK_SIZE_X: [only.work_group_width], BLOCK_SIZE_Y: [1]}
+        widths, heights = list(self.space["work_group_width"]), [1]
+        if "group_packet" in [v or self.auto["traversal"] for v in self.space["traversal"]]:
+            sides = list(self.space["group_side"])
+            widths, heights = widths + sides, heights + sides
+        return {BLOCK_SIZE_X: list(dict.fromkeys(widths)),
+                BLOCK_SIZE_Y: list(dict.fromkeys(heights))}
 
     def kernel_params(self, only: Tuning | None = None) -> dict[str, list[int]]:
         """Kernel Tuner's tunable parameters of the kernel knobs: the values of the space, or
@@ -377,8 +406,8 @@ class Tuner:
             run = self.prepare(path)
             self.runs.append(run)
             deadline = start + self.budget_s * (i + 1) / len(paths)
-            kernel_space = {BLOCK_SIZE_X: list(self.space["work_group_width"]),
-                            **self.kernel_params(), **self.extra_params}
+            kernel_space = {**self.block_params(), **self.kernel_params(),
+                            **self.extra_params}
             for host in hosts:
                 left = deadline - time.monotonic()
                 if left < MIN_RUN_BUDGET_S:
@@ -389,7 +418,7 @@ class Tuner:
                 best = min((t for t in trials if t.verified), key=lambda t: t.time_ms,
                            default=None)
                 if best is not None and not self.search_every_host:
-                    kernel_space = {BLOCK_SIZE_X: [best.tuning.work_group_width],
+                    kernel_space = {**self.block_params(best.tuning),
                                     **self.kernel_params(best.tuning),
                                     **{k: [v] for k, v in best.extra.items()}}
         return self.trials

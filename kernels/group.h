@@ -1,0 +1,258 @@
+// Group packets (TRAVERSAL_GROUP_PACKET): a work-group's pixels (the host launches square
+// tiles, clray.device.launch) walk the BVH together, one node at a time for the whole group. The node's index and
+// boxes are the same for every work-item, so a driver that packs work-items into a vector's
+// lanes (Intel's CPU runtime) loads them once, not as a gather per lane, and tests the boxes
+// against a vector of rays. Each work-item keeps its own ray, hit and entry t's, and tests a
+// leaf with the single-ray code (walk_closest, walk_transmission: instances too) where its own
+// ray reaches it.
+//
+// A step of the walk is one barrier: each work-item tests the group's node against its ray and
+// posts which children it crosses (and where it enters them) in __local memory; after the
+// barrier every work-item reads all the posts and takes the same next step, so the group's
+// stack is the same in every work-item's private memory and no work-item waits for another to
+// write it. The posts alternate between two halves of the __local arrays, step by step, so a
+// work-item may post the next step while others still read this one. Every work-item of the
+// group calls group_any, group_closest and group_transmission the same number of times (they
+// hold the barriers); a work-item without a ray rides along inactive.
+//
+// Each work-item finds the hit the single-ray walk finds: it tests the crossings the
+// single-ray walk tests, in another order, and the closest with its ties does not depend on
+// the order. Shadow rays visit the leaves in the single-ray walk's order, so a filter's product
+// is the same too.
+#ifndef CLRAY_GROUP_H
+#define CLRAY_GROUP_H
+
+#include "real.h"
+#include "clray_types.h"
+#include "scene.h"
+#include "hit.h"
+#include "bvh.h"
+
+// The group's posts, three steps' worth: the OR of the children the work-items cross, the
+// group's nearest entry into each, and the farthest its hits can still reach, gathered by
+// atomics on non-negative floats' bits (which order as the floats do; a double is rounded
+// outward to float first). A half is cleared a step before it is posted to, when every
+// work-item has read it two steps before.
+#define GROUP_NONE (-1)
+typedef struct {
+    int bits[3];
+    int near[3][BVH_WIDTH];
+    int reach[3];
+} GroupPosts;
+
+typedef struct {
+    __local GroupPosts* posts;
+    int lid;    // the work-item's index in the group
+    int step;   // the part of the posts the next step posts to (0 to 2): the same in every
+                // work-item
+} Group;
+
+inline int lower_bits(REAL t) {
+#ifdef USE_DOUBLE
+    return as_int(convert_float_rtn(t));
+#else
+    return as_int(t);
+#endif
+}
+
+inline int upper_bits(REAL t) {
+#ifdef USE_DOUBLE
+    return as_int(convert_float_rtp(t));
+#else
+    return as_int(t);
+#endif
+}
+
+// The next step: the part after next cleared by the first work-item.
+inline void group_clear(Group* g) {
+    __local GroupPosts* p = g->posts;
+    int next = g->step == 2 ? 0 : g->step + 1;
+    if (g->lid == 0) {
+        p->bits[next] = 0;
+        p->reach[next] = GROUP_NONE;
+        for (int k = 0; k < BVH_WIDTH; ++k) p->near[next][k] = as_int(INFINITY);
+    }
+}
+
+// The group's start, in every work-item before its first walk: the first part cleared.
+inline void group_init(Group* g, __local GroupPosts* posts, int lid) {
+    g->posts = posts;
+    g->lid = lid;
+    g->step = 2;
+    group_clear(g);
+    g->step = 0;
+    barrier(CLK_LOCAL_MEM_FENCE);
+}
+
+// Post the work-item's crossed children (bits), where it enters them and its reach (< 0:
+// none), and wait for the group's. Returns the group's bits; *reach its farthest reach
+// (-inf: none), near[k] its nearest entry into child k.
+inline int group_post(Group* g, int bits, const REAL* tnear, REAL reach, REAL* group_reach,
+                      REAL* near) {
+    __local GroupPosts* p = g->posts;
+    int q = g->step;
+    group_clear(g);
+    if (bits) atomic_or(&p->bits[q], bits);
+    for (int k = 0; k < BVH_WIDTH; ++k) {
+        if ((bits >> k) & 1) atomic_min(&p->near[q][k], lower_bits(tnear[k]));
+    }
+    if (reach >= (REAL)0) atomic_max(&p->reach[q], upper_bits(reach));
+    barrier(CLK_LOCAL_MEM_FENCE);
+    int r = p->reach[q];
+    *group_reach = r == GROUP_NONE ? -REAL_INF : (REAL)as_float(r);
+    for (int k = 0; k < BVH_WIDTH; ++k) near[k] = (REAL)as_float(p->near[q][k]);
+    g->step = q == 2 ? 0 : q + 1;
+    return p->bits[q];
+}
+
+// Whether any work-item of the group has `v`: the same answer in every work-item.
+inline bool group_any(Group* g, bool v) {
+    REAL tnear[BVH_WIDTH], near[BVH_WIDTH], reach;
+    return group_post(g, v ? 1 : 0, tnear, -1, &reach, near) != 0;
+}
+
+#if HAS_BVH
+// The group's walk below the root: the closest hit of the work-item's ray where `active`
+// (closest: into *hit, which holds the planes' closest or t = inf), or the light its shadow
+// segment (0, tmax) lets through (into *filter).
+inline void group_walk(const SceneRefs* s, Group* g, const Ray* r, bool active, bool closest,
+                       REAL tmax, Hit* hit, REAL3* filter) {
+    // The group's stack: (child, count) entries as in BvhNode with the group's nearest entry t,
+    // and the work-item's own entry t (-1: its ray does not enter).
+    int stack_child[BVH_STACK_SIZE], stack_count[BVH_STACK_SIZE];
+    REAL stack_t[BVH_STACK_SIZE], own_t[BVH_STACK_SIZE];
+    int sp = 0;
+    int child = 0, count = 0;
+    REAL t = active ? (REAL)0 : (REAL)-1;
+    for (;;) {
+        bool live = active && (closest || max_comp3(*filter) > (REAL)0);
+        REAL reach = closest ? tie_reach(hit->t) : tmax;
+        bool here = live && t >= (REAL)0 && t <= reach;
+        REAL tnear[BVH_WIDTH];
+        for (int k = 0; k < BVH_WIDTH; ++k) tnear[k] = 0;
+        int bits = 0;
+        if (count > 0) {
+            if (here && closest) walk_closest(s, r, child, count, hit);
+            if (here && !closest) *filter = walk_transmission(s, r, child, count, tmax, *filter);
+        } else if (here) {
+            const __global BvhNode* node = s->nodes + child;
+#if COUNT_TESTS
+            if (closest) {
+                COUNT(s, closest_boxes, used_children(node));
+            } else {
+                COUNT(s, shadow_boxes, used_children(node));
+            }
+#endif
+            bits = node_children(node, r, reach, tnear);
+        }
+        live = active && (closest || max_comp3(*filter) > (REAL)0);
+        REAL group_reach, near_t[BVH_WIDTH];
+        int any = group_post(g, bits, tnear, live ? (closest ? tie_reach(hit->t) : tmax) : -1,
+                             &group_reach, near_t);
+        if (count == 0 && any) {
+            const __global BvhNode* node = s->nodes + child;
+            if (closest) {
+                // The nearest child for the group next; the others pushed so that nearer ones
+                // pop first (an insertion into this node's part of the stack).
+                int near = lowest_bit(any);
+                int rest = any & (any - 1);
+                int base = sp;
+                while (rest) {
+                    int far = lowest_bit(rest);
+                    rest &= rest - 1;
+                    if (near_t[far] < near_t[near]) {
+                        int swap = far;
+                        far = near;
+                        near = swap;
+                    }
+                    REAL far_t = near_t[far];
+                    int at = sp++;
+                    while (at > base && stack_t[at - 1] < far_t) {
+                        stack_child[at] = stack_child[at - 1];
+                        stack_count[at] = stack_count[at - 1];
+                        stack_t[at] = stack_t[at - 1];
+                        own_t[at] = own_t[at - 1];
+                        at--;
+                    }
+                    stack_child[at] = node->child[far];
+                    stack_count[at] = node->count[far];
+                    stack_t[at] = far_t;
+                    own_t[at] = (bits >> far) & 1 ? tnear[far] : (REAL)-1;
+                }
+                child = node->child[near];
+                count = node->count[near];
+                t = (bits >> near) & 1 ? tnear[near] : (REAL)-1;
+                continue;
+            }
+            // Shadow rays, as walk_transmission: every crossed child pushed, the last popped
+            // first. Any entry will do for pruning: a shadow ray's reach is its whole segment.
+            for (int rest = any; rest; rest &= rest - 1) {
+                int k = lowest_bit(rest);
+                stack_child[sp] = node->child[k];
+                stack_count[sp] = node->count[k];
+                stack_t[sp] = 0;
+                own_t[sp++] = (bits >> k) & 1 ? (REAL)0 : (REAL)-1;
+            }
+        }
+        // Entries that no work-item's hits can reach any more are dropped.
+        while (sp > 0 && stack_t[sp - 1] > group_reach) sp--;
+        if (sp == 0) break;
+        --sp;
+        child = stack_child[sp];
+        count = stack_count[sp];
+        t = own_t[sp];
+    }
+}
+#endif
+
+// closest_hit for the group: every work-item calls it; the hit of the work-item's ray where
+// `active` (t = inf otherwise).
+inline Hit group_closest(const SceneRefs* s, Group* g, const Ray* r, bool active) {
+    Hit hit;
+    hit.t = REAL_INF;
+    hit.ref = -1;
+    hit.part = 0;
+    hit.b1 = 0;
+    hit.b2 = 0;
+    hit.instance = -1;
+#if HAS_PLANES
+    if (active) {
+        for (int i = 0; i < s->n_planes; ++i) {
+            Crossings c = intersect_plane(s->planes + i, r);
+            consider_hit(&hit, &c, (PRIM_PLANE << PRIM_TYPE_SHIFT) | i, -1);
+        }
+    }
+#endif
+#if HAS_BVH
+    REAL3 unused = (REAL3)(0, 0, 0);
+    if (s->n_nodes > 0) group_walk(s, g, r, active, true, 0, &hit, &unused);
+#endif
+    return hit;
+}
+
+// transmission for the group: every work-item calls it; the light reaching the end of the
+// work-item's shadow segment where `active`.
+inline REAL3 group_transmission(const SceneRefs* s, Group* g, const Ray* r, REAL tmax,
+                                bool active) {
+    REAL3 filter = (REAL3)(1, 1, 1);
+#if HAS_PLANES
+    if (active) {
+        for (int i = 0; i < s->n_planes; ++i) {
+            Crossings c = intersect_plane(s->planes + i, r);
+            if (!filter_crossings(s, &c, (PRIM_PLANE << PRIM_TYPE_SHIFT) | i, -1, tmax,
+                                  &filter)) {
+                filter = (REAL3)(0, 0, 0);
+                break;
+            }
+        }
+    }
+#endif
+#if HAS_BVH
+    Hit unused;
+    unused.t = REAL_INF;
+    if (s->n_nodes > 0) group_walk(s, g, r, active, false, tmax, &unused, &filter);
+#endif
+    return active ? filter : (REAL3)(0, 0, 0);
+}
+
+#endif

@@ -2,7 +2,8 @@
 
     python benchmarks/private_memory.py [--json benchmarks/results/private_memory.json]
 
-For each traversal scheme (the single-ray walk, sample packets of 8 and 16 lanes), float and
+For each traversal scheme (the single-ray walk, sample packets of 8 and 16 lanes, group
+packets), float and
 double and several ray-tree depths, the model's stacks (the ray stack and the
 BVH traversal stack, clray.device.program.private_stack_bytes, which the render-time warning
 uses) beside what clang 15's AMDGPU back end (gfx90a, -O2) gives the render kernel: its
@@ -33,7 +34,7 @@ from clray.device.program import (
 
 DEPTHS = (1, 4, 8)
 # (traversal, packet lanes): the packet's lanes set its per-lane state (rays, hits, shading).
-SCHEMES = (("single", 1), ("sample_packet", 8), ("sample_packet", 16))
+SCHEMES = (("single", 1), ("sample_packet", 8), ("sample_packet", 16), ("group_packet", 1))
 
 
 def amdgpu_render_usage(config: KernelConfig, clang: str) -> dict[str, int]:

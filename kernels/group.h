@@ -108,6 +108,7 @@ inline int group_post(Group* g, int bits, const REAL* tnear, REAL reach, REAL* g
 // Whether any work-item of the group has `v`: the same answer in every work-item.
 inline bool group_any(Group* g, bool v) {
     REAL tnear[BVH_WIDTH], near[BVH_WIDTH], reach;
+    for (int k = 0; k < BVH_WIDTH; ++k) tnear[k] = 0;
     return group_post(g, v ? 1 : 0, tnear, -1, &reach, near) != 0;
 }
 

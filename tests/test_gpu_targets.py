@@ -57,6 +57,9 @@ def configs() -> dict[str, KernelConfig]:
         for lanes in (4, 8, 16):
             out[f"{precision}-all+sample_packet{lanes}"] = make(
                 every, traversal="sample_packet", packet_lanes=lanes)
+        out[f"{precision}-all+group_packet"] = make(every, traversal="group_packet")
+        out[f"{precision}-none+group_packet"] = make(set(), max_depth=0,
+                                                     traversal="group_packet")
     return out
 
 

@@ -135,7 +135,9 @@ def private_stack_bytes(config: KernelConfig) -> dict[str, int]:
     """Bytes per work-item of the kernel's private stacks: the ray stack (RayTask entries,
     MAX_DEPTH + 1 of them with refraction, else 1) and the BVH traversal stacks, BVH_STACK_SIZE
     levels of (child, count, entry t) for closest hits and of (child, count) for shadow rays,
-    as kernels/render.cl and bvh.h declare them. A 3-vector takes four elements' room. The
+    as kernels/render.cl and bvh.h declare them; group packets add the group's stack (child,
+    count, the group's and the work-item's entry t; kernels/group.h), the single-ray walks
+    testing its leaves. A 3-vector takes four elements' room. The
     rest of the kernel's private memory does not grow with the settings (benchmarks/
     private_memory.py measures it)."""
     real = 8 if config.precision == "double" else 4
@@ -143,6 +145,8 @@ def private_stack_bytes(config: KernelConfig) -> dict[str, int]:
     task = -(-task // (4 * real)) * (4 * real)  # aligned to its REAL3
     ray = task * (config.max_depth + 1 if config.has_refraction else 1)
     bvh = config.bvh_stack_size * ((4 + 4 + real) + (4 + 4))
+    if config.traversal == "group_packet":
+        bvh += config.bvh_stack_size * (4 + 4 + 2 * real)
     return {"ray_stack": ray, "bvh_stack": bvh, "total": ray + bvh}
 
 

@@ -153,10 +153,10 @@ def _render_both(scene: M.Scene | Path, traversal: str, tuning: Tuning,
     return images[0], images[1]
 
 
-# Each packet traversal, group packets in the default 8 x 8 tiles for the example scenes and
-# in 4 x 4 tiles for the hard cases.
+# Each packet traversal, group packets in the default 4 x 4 tiles for the example scenes and
+# in 8 x 8 tiles for the hard cases.
 PACKETS = [("sample_packet", Tuning()), ("group_packet", Tuning())]
-HARD_PACKETS = [("sample_packet", Tuning()), ("group_packet", Tuning(group_side=4))]
+HARD_PACKETS = [("sample_packet", Tuning()), ("group_packet", Tuning(group_side=8))]
 
 
 @pytest.mark.filterwarnings("ignore::pyopencl.CompilerWarning")

@@ -110,7 +110,7 @@ KNOB_TABLE: tuple[Knob, ...] = (
          "an integer, 0 to 15, below packet_lanes", (0, 2, 4),
          "the hybrid walk's switch-over (the -D PACKET_MIN_LANES; only with traversal "
          "sample_packet): where at most this many lanes reach a subtree they go on ray by ray"),
-    Knob("group_side", "launch", 8, _one_of(*GROUP_SIDES), "4 or 8", GROUP_SIDES,
+    Knob("group_side", "launch", 4, _one_of(*GROUP_SIDES), "4 or 8", GROUP_SIDES,
          "the work-group's tile of group_side x group_side pixels, which walk the BVH together "
          "(only with traversal group_packet): larger tiles share more node visits and visit "
          "more nodes that few of their rays need"),

@@ -113,95 +113,134 @@ inline bool group_any(Group* g, bool v) {
 }
 
 #if HAS_BVH
+// The group's stack, the same in every work-item: (child, count) entries as in BvhNode with
+// the group's nearest entry t, and the work-item's own entry t (-1: its ray does not enter).
+typedef struct {
+    int child[BVH_STACK_SIZE], count[BVH_STACK_SIZE];
+    REAL t[BVH_STACK_SIZE], own_t[BVH_STACK_SIZE];
+    int sp;
+} GroupStack;
+
+// Where the group's walk is: a tree entry and the work-item's own entry t into it.
+typedef struct {
+    int child, count;
+    REAL t;
+} GroupEntry;
+
+// The work-item's part of a step at `at`: a leaf tested with the single-ray walk where its ray
+// reaches it, or a node's children it crosses (bits; where it enters them in tnear).
+inline int group_visit(const SceneRefs* s, const Ray* r, GroupEntry at, bool live, bool closest,
+                       REAL tmax, Hit* hit, REAL3* filter, REAL* tnear) {
+    REAL reach = closest ? tie_reach(hit->t) : tmax;
+    for (int k = 0; k < BVH_WIDTH; ++k) tnear[k] = 0;
+    if (!(live && at.t >= (REAL)0 && at.t <= reach)) return 0;
+    if (at.count > 0) {
+        if (closest) {
+            walk_closest(s, r, at.child, at.count, hit);
+        } else {
+            *filter = walk_transmission(s, r, at.child, at.count, tmax, *filter);
+        }
+        return 0;
+    }
+    const __global BvhNode* node = s->nodes + at.child;
+#if COUNT_TESTS
+    if (closest) {
+        COUNT(s, closest_boxes, used_children(node));
+    } else {
+        COUNT(s, shadow_boxes, used_children(node));
+    }
+#endif
+    return node_children(node, r, reach, tnear);
+}
+
+// A closest-hit step's children (any: crossed by some work-item): the nearest for the group
+// is visited next, the others pushed so that nearer ones pop first (an insertion into this
+// node's part of the stack).
+inline GroupEntry group_push_closest(GroupStack* st, const __global BvhNode* node, int any,
+                                     int bits, const REAL* tnear, const REAL* near_t) {
+    int near = lowest_bit(any);
+    int rest = any & (any - 1);
+    int base = st->sp;
+    while (rest) {
+        int far = lowest_bit(rest);
+        rest &= rest - 1;
+        if (near_t[far] < near_t[near]) {
+            int swap = far;
+            far = near;
+            near = swap;
+        }
+        int at = st->sp++;
+        while (at > base && st->t[at - 1] < near_t[far]) {
+            st->child[at] = st->child[at - 1];
+            st->count[at] = st->count[at - 1];
+            st->t[at] = st->t[at - 1];
+            st->own_t[at] = st->own_t[at - 1];
+            at--;
+        }
+        st->child[at] = node->child[far];
+        st->count[at] = node->count[far];
+        st->t[at] = near_t[far];
+        st->own_t[at] = (bits >> far) & 1 ? tnear[far] : (REAL)-1;
+    }
+    GroupEntry next;
+    next.child = node->child[near];
+    next.count = node->count[near];
+    next.t = (bits >> near) & 1 ? tnear[near] : (REAL)-1;
+    return next;
+}
+
+// A shadow step's children, as walk_transmission pushes them: every crossed child, the last
+// popped first. Their group t is 0: a shadow ray's reach is its whole segment.
+inline void group_push_shadow(GroupStack* st, const __global BvhNode* node, int any, int bits) {
+    for (int rest = any; rest; rest &= rest - 1) {
+        int k = lowest_bit(rest);
+        st->child[st->sp] = node->child[k];
+        st->count[st->sp] = node->count[k];
+        st->t[st->sp] = 0;
+        st->own_t[st->sp++] = (bits >> k) & 1 ? (REAL)0 : (REAL)-1;
+    }
+}
+
+// The stack's top that some work-item's hits can still reach (the group's farthest reach),
+// into *at; false when none is left.
+inline bool group_pop(GroupStack* st, REAL reach, GroupEntry* at) {
+    while (st->sp > 0 && st->t[st->sp - 1] > reach) st->sp--;
+    if (st->sp == 0) return false;
+    --st->sp;
+    at->child = st->child[st->sp];
+    at->count = st->count[st->sp];
+    at->t = st->own_t[st->sp];
+    return true;
+}
+
 // The group's walk below the root: the closest hit of the work-item's ray where `active`
 // (closest: into *hit, which holds the planes' closest or t = inf), or the light its shadow
 // segment (0, tmax) lets through (into *filter).
 inline void group_walk(const SceneRefs* s, Group* g, const Ray* r, bool active, bool closest,
                        REAL tmax, Hit* hit, REAL3* filter) {
-    // The group's stack: (child, count) entries as in BvhNode with the group's nearest entry t,
-    // and the work-item's own entry t (-1: its ray does not enter).
-    int stack_child[BVH_STACK_SIZE], stack_count[BVH_STACK_SIZE];
-    REAL stack_t[BVH_STACK_SIZE], own_t[BVH_STACK_SIZE];
-    int sp = 0;
-    int child = 0, count = 0;
-    REAL t = active ? (REAL)0 : (REAL)-1;
+    GroupStack st;
+    st.sp = 0;
+    GroupEntry at;
+    at.child = 0;
+    at.count = 0;
+    at.t = active ? (REAL)0 : (REAL)-1;
     for (;;) {
         bool live = active && (closest || max_comp3(*filter) > (REAL)0);
-        REAL reach = closest ? tie_reach(hit->t) : tmax;
-        bool here = live && t >= (REAL)0 && t <= reach;
         REAL tnear[BVH_WIDTH];
-        for (int k = 0; k < BVH_WIDTH; ++k) tnear[k] = 0;
-        int bits = 0;
-        if (count > 0) {
-            if (here && closest) walk_closest(s, r, child, count, hit);
-            if (here && !closest) *filter = walk_transmission(s, r, child, count, tmax, *filter);
-        } else if (here) {
-            const __global BvhNode* node = s->nodes + child;
-#if COUNT_TESTS
-            if (closest) {
-                COUNT(s, closest_boxes, used_children(node));
-            } else {
-                COUNT(s, shadow_boxes, used_children(node));
-            }
-#endif
-            bits = node_children(node, r, reach, tnear);
-        }
+        int bits = group_visit(s, r, at, live, closest, tmax, hit, filter, tnear);
         live = active && (closest || max_comp3(*filter) > (REAL)0);
         REAL group_reach, near_t[BVH_WIDTH];
         int any = group_post(g, bits, tnear, live ? (closest ? tie_reach(hit->t) : tmax) : -1,
                              &group_reach, near_t);
-        if (count == 0 && any) {
-            const __global BvhNode* node = s->nodes + child;
+        if (at.count == 0 && any) {
+            const __global BvhNode* node = s->nodes + at.child;
             if (closest) {
-                // The nearest child for the group next; the others pushed so that nearer ones
-                // pop first (an insertion into this node's part of the stack).
-                int near = lowest_bit(any);
-                int rest = any & (any - 1);
-                int base = sp;
-                while (rest) {
-                    int far = lowest_bit(rest);
-                    rest &= rest - 1;
-                    if (near_t[far] < near_t[near]) {
-                        int swap = far;
-                        far = near;
-                        near = swap;
-                    }
-                    REAL far_t = near_t[far];
-                    int at = sp++;
-                    while (at > base && stack_t[at - 1] < far_t) {
-                        stack_child[at] = stack_child[at - 1];
-                        stack_count[at] = stack_count[at - 1];
-                        stack_t[at] = stack_t[at - 1];
-                        own_t[at] = own_t[at - 1];
-                        at--;
-                    }
-                    stack_child[at] = node->child[far];
-                    stack_count[at] = node->count[far];
-                    stack_t[at] = far_t;
-                    own_t[at] = (bits >> far) & 1 ? tnear[far] : (REAL)-1;
-                }
-                child = node->child[near];
-                count = node->count[near];
-                t = (bits >> near) & 1 ? tnear[near] : (REAL)-1;
+                at = group_push_closest(&st, node, any, bits, tnear, near_t);
                 continue;
             }
-            // Shadow rays, as walk_transmission: every crossed child pushed, the last popped
-            // first. Any entry will do for pruning: a shadow ray's reach is its whole segment.
-            for (int rest = any; rest; rest &= rest - 1) {
-                int k = lowest_bit(rest);
-                stack_child[sp] = node->child[k];
-                stack_count[sp] = node->count[k];
-                stack_t[sp] = 0;
-                own_t[sp++] = (bits >> k) & 1 ? (REAL)0 : (REAL)-1;
-            }
+            group_push_shadow(&st, node, any, bits);
         }
-        // Entries that no work-item's hits can reach any more are dropped.
-        while (sp > 0 && stack_t[sp - 1] > group_reach) sp--;
-        if (sp == 0) break;
-        --sp;
-        child = stack_child[sp];
-        count = stack_count[sp];
-        t = own_t[sp];
+        if (!group_pop(&st, group_reach, &at)) break;
     }
 }
 #endif

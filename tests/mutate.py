@@ -336,7 +336,7 @@ MUTATIONS: tuple[Mutation, ...] = (
       "return weight * TO_REAL3(params->background);", "return TO_REAL3(params->background);",
       *KERNEL_SCENES),
     m("group.pushed_entries_lost", "kernels/group.h",
-      "own_t[at] = (bits >> far) & 1 ? tnear[far] : (REAL)-1;", "own_t[at] = (REAL)-1;",
+      "st->own_t[at] = (bits >> far) & 1 ? tnear[far] : (REAL)-1;", "st->own_t[at] = (REAL)-1;",
       "tests/test_packets.py::test_group_packets_find_the_single_ray_hits"),
     # clray/device
     m("program.native_width_ignored", "clray/device/program.py",

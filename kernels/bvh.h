@@ -311,7 +311,8 @@ HOT int push_instances(const SceneRefs* s, int slot, int count, const Ray* r, RE
 HOT void walk_closest(const SceneRefs* s, const Ray* world, int child, int count, Hit* found);
 #endif
 
-STAGE Hit closest_hit(const SceneRefs* s, const Ray* world) {
+// A query's start: no hit, t = inf.
+inline Hit no_hit(void) {
     Hit hit;
     hit.t = REAL_INF;
     hit.ref = -1;
@@ -319,11 +320,23 @@ STAGE Hit closest_hit(const SceneRefs* s, const Ray* world) {
     hit.b1 = 0;
     hit.b2 = 0;
     hit.instance = -1;
+    return hit;
+}
+
 #if HAS_PLANES
+// The planes' crossings into *hit: a short list, tested before the BVH (they are unbounded).
+HOT void consider_planes(const SceneRefs* s, const Ray* r, Hit* hit) {
     for (int i = 0; i < s->n_planes; ++i) {
-        Crossings c = intersect_plane(s->planes + i, world);
-        consider_hit(&hit, &c, (PRIM_PLANE << PRIM_TYPE_SHIFT) | i, -1);
+        Crossings c = intersect_plane(s->planes + i, r);
+        consider_hit(hit, &c, (PRIM_PLANE << PRIM_TYPE_SHIFT) | i, -1);
     }
+}
+#endif
+
+STAGE Hit closest_hit(const SceneRefs* s, const Ray* world) {
+    Hit hit = no_hit();
+#if HAS_PLANES
+    consider_planes(s, world, &hit);
 #endif
 #if HAS_BVH
     if (s->n_nodes > 0) walk_closest(s, world, 0, 0, &hit);
@@ -520,16 +533,25 @@ HOT REAL3 walk_transmission(const SceneRefs* s, const Ray* world, int child, int
                             REAL tmax, REAL3 filter);
 #endif
 
+#if HAS_PLANES
+// The light the planes let through a shadow segment (0, tmax), into *filter; false at the
+// first opaque crossing.
+HOT bool planes_transmission(const SceneRefs* s, const Ray* r, REAL tmax, REAL3* filter) {
+    for (int i = 0; i < s->n_planes; ++i) {
+        Crossings c = intersect_plane(s->planes + i, r);
+        if (!filter_crossings(s, &c, (PRIM_PLANE << PRIM_TYPE_SHIFT) | i, -1, tmax, filter)) {
+            return false;
+        }
+    }
+    return true;
+}
+#endif
+
 // Light reaching the end of a shadow segment: 0 at the first opaque crossing.
 STAGE REAL3 transmission(const SceneRefs* s, const Ray* world, REAL tmax) {
     REAL3 filter = (REAL3)(1, 1, 1);
 #if HAS_PLANES
-    for (int i = 0; i < s->n_planes; ++i) {
-        Crossings c = intersect_plane(s->planes + i, world);
-        if (!filter_crossings(s, &c, (PRIM_PLANE << PRIM_TYPE_SHIFT) | i, -1, tmax, &filter)) {
-            return (REAL3)(0, 0, 0);
-        }
-    }
+    if (!planes_transmission(s, world, tmax, &filter)) return (REAL3)(0, 0, 0);
 #endif
 #if HAS_BVH
     if (s->n_nodes > 0) filter = walk_transmission(s, world, 0, 0, tmax, filter);

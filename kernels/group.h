@@ -248,20 +248,9 @@ inline void group_walk(const SceneRefs* s, Group* g, const Ray* r, bool active, 
 // closest_hit for the group: every work-item calls it; the hit of the work-item's ray where
 // `active` (t = inf otherwise).
 inline Hit group_closest(const SceneRefs* s, Group* g, const Ray* r, bool active) {
-    Hit hit;
-    hit.t = REAL_INF;
-    hit.ref = -1;
-    hit.part = 0;
-    hit.b1 = 0;
-    hit.b2 = 0;
-    hit.instance = -1;
+    Hit hit = no_hit();
 #if HAS_PLANES
-    if (active) {
-        for (int i = 0; i < s->n_planes; ++i) {
-            Crossings c = intersect_plane(s->planes + i, r);
-            consider_hit(&hit, &c, (PRIM_PLANE << PRIM_TYPE_SHIFT) | i, -1);
-        }
-    }
+    if (active) consider_planes(s, r, &hit);
 #endif
 #if HAS_BVH
     REAL3 unused = (REAL3)(0, 0, 0);
@@ -276,20 +265,10 @@ inline REAL3 group_transmission(const SceneRefs* s, Group* g, const Ray* r, REAL
                                 bool active) {
     REAL3 filter = (REAL3)(1, 1, 1);
 #if HAS_PLANES
-    if (active) {
-        for (int i = 0; i < s->n_planes; ++i) {
-            Crossings c = intersect_plane(s->planes + i, r);
-            if (!filter_crossings(s, &c, (PRIM_PLANE << PRIM_TYPE_SHIFT) | i, -1, tmax,
-                                  &filter)) {
-                filter = (REAL3)(0, 0, 0);
-                break;
-            }
-        }
-    }
+    if (active && !planes_transmission(s, r, tmax, &filter)) filter = (REAL3)(0, 0, 0);
 #endif
 #if HAS_BVH
-    Hit unused;
-    unused.t = REAL_INF;
+    Hit unused = no_hit();
     if (s->n_nodes > 0) group_walk(s, g, r, active, false, tmax, &unused, &filter);
 #endif
     return active ? filter : (REAL3)(0, 0, 0);

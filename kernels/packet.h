@@ -568,14 +568,7 @@ HOT void packet_walk_closest(const SceneRefs* s, const Ray* rays, const RayPacke
 
 // closest_hit for each lane of `bits` (hits of the others: no hit).
 STAGE void packet_closest(const SceneRefs* s, const Ray* rays, int bits, Hit* hits) {
-    for (int j = 0; j < PACKET_LANES; ++j) {
-        hits[j].t = REAL_INF;
-        hits[j].ref = -1;
-        hits[j].part = 0;
-        hits[j].b1 = 0;
-        hits[j].b2 = 0;
-        hits[j].instance = -1;
-    }
+    for (int j = 0; j < PACKET_LANES; ++j) hits[j] = no_hit();
 #if HAS_INSTANCES || !HAS_BVH
     // Instances are walked ray by ray.
     for (int rest = bits; rest; rest &= rest - 1) {
@@ -584,13 +577,8 @@ STAGE void packet_closest(const SceneRefs* s, const Ray* rays, int bits, Hit* hi
     }
 #else
 #if HAS_PLANES
-    for (int rest = bits; rest; rest &= rest - 1) {
-        int j = lowest_bit(rest);
-        for (int i = 0; i < s->n_planes; ++i) {
-            Crossings c = intersect_plane(s->planes + i, rays + j);
-            consider_hit(hits + j, &c, (PRIM_PLANE << PRIM_TYPE_SHIFT) | i, -1);
-        }
-    }
+    for (int rest = bits; rest; rest &= rest - 1) consider_planes(s, rays + lowest_bit(rest),
+                                                                   hits + lowest_bit(rest));
 #endif
     if (s->n_nodes == 0) return;
     RayPacket p = ray_packet(rays);
@@ -653,15 +641,8 @@ HOT int packet_blocked(const SceneRefs* s, const Ray* rays, const REAL* tmax_lan
 #if HAS_PLANES
     for (int rest = bits; rest; rest &= rest - 1) {
         int j = lowest_bit(rest);
-        for (int i = 0; i < s->n_planes; ++i) {
-            Crossings c = intersect_plane(s->planes + i, rays + j);
-            REAL3 filter = (REAL3)(1, 1, 1);
-            if (!filter_crossings(s, &c, (PRIM_PLANE << PRIM_TYPE_SHIFT) | i, -1,
-                                  tmax_lanes[j], &filter)) {
-                blocked |= 1 << j;
-                break;
-            }
-        }
+        REAL3 filter = (REAL3)(1, 1, 1);
+        if (!planes_transmission(s, rays + j, tmax_lanes[j], &filter)) blocked |= 1 << j;
     }
 #endif
     if (s->n_nodes == 0 || blocked == bits) return blocked;

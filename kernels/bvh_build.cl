@@ -156,8 +156,8 @@ static void bin_child(BuildTask *c, const Bins *bins, int from, int to, int star
     c->start = start;
 }
 
-static void write_node(__global BinaryNode *nodes, __global uchar *used, const BuildTask *t, int first,
-                       int count) {
+static void write_node(__global BinaryNode *nodes, __global uchar *used, const BuildTask *t,
+                       int first, int count) {
     BinaryNode nd;
     nd.lo[0] = t->lo.x; nd.lo[1] = t->lo.y; nd.lo[2] = t->lo.z;
     nd.hi[0] = t->hi.x; nd.hi[1] = t->hi.y; nd.hi[2] = t->hi.z;
@@ -167,8 +167,8 @@ static void write_node(__global BinaryNode *nodes, __global uchar *used, const B
     used[t->pos] = 1;
 }
 
-static void write_leaf(const BuildTask *t, __global const BuildPrim *src, __global BinaryNode *nodes,
-                       __global uchar *used, __global int *order) {
+static void write_leaf(const BuildTask *t, __global const BuildPrim *src,
+                       __global BinaryNode *nodes, __global uchar *used, __global int *order) {
     write_node(nodes, used, t, t->start, t->count);
     for (int i = t->start; i < t->start + t->count; i++) order[i] = as_int(src[i].c.w);
 }
@@ -228,9 +228,10 @@ static int process(const BuildTask *t, __global BuildPrim *buf0, __global BuildP
 }
 
 // One level: every task split once, its children (count -1: none) to out[2g], out[2g + 1].
-__kernel void split_level(__global const BuildTask *in, __global BuildTask *out, __global BuildPrim *buf0,
-                          __global BuildPrim *buf1, __global BinaryNode *nodes, __global uchar *used,
-                          __global int *order, int max_leaf, int sah_max_leaf) {
+__kernel void split_level(__global const BuildTask *in, __global BuildTask *out,
+                          __global BuildPrim *buf0, __global BuildPrim *buf1,
+                          __global BinaryNode *nodes, __global uchar *used, __global int *order,
+                          int max_leaf, int sah_max_leaf) {
     int g = get_global_id(0);
     BuildTask t = in[g], l, r;
     if (!process(&t, buf0, buf1, nodes, used, order, max_leaf, sah_max_leaf, &l, &r)) {

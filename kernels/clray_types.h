@@ -114,8 +114,8 @@ typedef struct {
     float4 up;        // unit up times half the image-plane height at distance 1
     float4 world;     // the packed frame's origin in world space: solid textures need world p
     // Thin lens (HAS_THIN_LENS): unit right and up times the lens radius; w of lens_u is one
-    // over the focus distance. Orthographic cameras (HAS_ORTHOGRAPHIC) read right and up as the view's
-    // half extents in world units.
+    // over the focus distance. Orthographic cameras (HAS_ORTHOGRAPHIC) read right and up as the
+    // view's half extents in world units.
     float4 lens_u;
     float4 lens_v;
 } Camera;

@@ -1,16 +1,17 @@
 // Group packets (TRAVERSAL_GROUP_PACKET): a work-group's pixels (the host launches square
-// tiles, clray.device.launch) walk the BVH together, one node at a time for the whole group. The node's index and
-// boxes are the same for every work-item, so a driver that packs work-items into a vector's
-// lanes (Intel's CPU runtime) loads them once, not as a gather per lane, and tests the boxes
-// against a vector of rays. Each work-item keeps its own ray, hit and entry t's, and tests a
-// leaf with the single-ray code (walk_closest, walk_transmission: instances too) where its own
-// ray reaches it.
+// tiles, clray.device.launch) walk the BVH together, one node at a time for the whole group.
+// The node's index and boxes are the same for every work-item, so a driver that packs
+// work-items into a vector's lanes (Intel's CPU runtime, GPUs) can load them once, not as a
+// gather per lane, and test the boxes against a vector of rays. Each work-item keeps its own
+// ray, hit and entry t's, and tests a leaf with the single-ray code (walk_closest,
+// walk_transmission: instances too) where its own ray reaches it. On both CPU devices measured
+// the walk is slower than the single-ray walk (docs/acceleration.md, Group packets).
 //
 // A step of the walk is one barrier: each work-item tests the group's node against its ray and
 // posts which children it crosses (and where it enters them) in __local memory; after the
 // barrier every work-item reads all the posts and takes the same next step, so the group's
 // stack is the same in every work-item's private memory and no work-item waits for another to
-// write it. The posts alternate between two halves of the __local arrays, step by step, so a
+// write it. The posts rotate through three parts of the __local arrays, step by step, so a
 // work-item may post the next step while others still read this one. Every work-item of the
 // group calls group_any, group_closest and group_transmission the same number of times (they
 // hold the barriers); a work-item without a ray rides along inactive.
@@ -31,8 +32,8 @@
 // The group's posts, three steps' worth: the OR of the children the work-items cross, the
 // group's nearest entry into each, and the farthest its hits can still reach, gathered by
 // atomics on non-negative floats' bits (which order as the floats do; a double is rounded
-// outward to float first). A half is cleared a step before it is posted to, when every
-// work-item has read it two steps before.
+// outward to float first). A part is cleared by the first work-item in the step before it is
+// posted to: every work-item has passed the barrier after which that part was last read.
 #define GROUP_NONE (-1)
 typedef struct {
     int bits[3];
@@ -63,7 +64,7 @@ inline int upper_bits(REAL t) {
 #endif
 }
 
-// The next step: the part after next cleared by the first work-item.
+// The part the next step posts to, cleared by the first work-item.
 inline void group_clear(Group* g) {
     __local GroupPosts* p = g->posts;
     int next = g->step == 2 ? 0 : g->step + 1;

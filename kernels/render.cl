@@ -5,8 +5,9 @@
 // HAS_TEXTURES, HAS_TRANSMISSION, HAS_REFRACTION, HAS_FRESNEL, HAS_THIN_LENS, HAS_ORTHOGRAPHIC,
 // HAS_BACKGROUND_GRADIENT, HAS_BACKGROUND_IMAGE (0 or 1), MAX_DEPTH, BVH_WIDTH, BVH_STACK_SIZE,
 // USE_DOUBLE, the study variants SPHERE_TEXTBOOK, OFFSET_FIXED_EPS, TRIANGLE_NO_FP64_FALLBACK,
-// TRIANGLE_MOLLER_TRUMBORE, FRESNEL_SCHLICK; FP64_SPHERES (the packer's per-scene fp64 path for spheres float32
-// cannot intersect); COUNT_TESTS (the instrumented build: box and primitive tests per pixel).
+// TRIANGLE_MOLLER_TRUMBORE, FRESNEL_SCHLICK; FP64_SPHERES (the packer's per-scene fp64 path
+// for spheres float32 cannot intersect); COUNT_TESTS (the instrumented build: box and
+// primitive tests per pixel).
 // HAS_SPOT_LIGHTS, HAS_AREA_LIGHTS (0 or 1): the scene has spot lights, area lights.
 // HAS_INSTANCES (0 or 1): the scene places groups by transforms (kernels/bvh.h walks into them).
 // TRAVERSAL: TRAVERSAL_SINGLE (every ray walks the BVH alone), TRAVERSAL_SAMPLE_PACKET (a

@@ -124,8 +124,8 @@ def test_the_constants_at_their_sites_are_the_table_defaults() -> None:
     ({"traversal": "group_packet", "packet_lanes": 8},
      "packet_lanes 8 acts only with traversal sample_packet"),
     ({"traversal": "group_packet", "group_side": 6}, "group_side: expected 4 or 8"),
-    ({"traversal": "sample_packet", "group_side": 4},
-     "group_side 4 acts only with traversal group_packet"),
+    ({"traversal": "sample_packet", "group_side": 8},
+     "group_side 8 acts only with traversal group_packet"),
     ({"cl_mad_enable": 1}, "cl_mad_enable: expected True or False"),
 ])
 def test_illegal_knobs_and_broken_restrictions_are_refused(values, words) -> None:

@@ -48,17 +48,11 @@ typedef struct {
                 // work-item
 } Group;
 
-inline int lower_bits(REAL t) {
+// A non-negative t as int bits that order as the floats do, for the posts' atomics; a double
+// rounded to float downward (a lower bound) or upward.
+inline int order_bits(REAL t, bool up) {
 #ifdef USE_DOUBLE
-    return as_int(convert_float_rtn(t));
-#else
-    return as_int(t);
-#endif
-}
-
-inline int upper_bits(REAL t) {
-#ifdef USE_DOUBLE
-    return as_int(convert_float_rtp(t));
+    return as_int(up ? convert_float_rtp(t) : convert_float_rtn(t));
 #else
     return as_int(t);
 #endif
@@ -95,9 +89,9 @@ inline int group_post(Group* g, int bits, const REAL* tnear, REAL reach, REAL* g
     group_clear(g);
     if (bits) atomic_or(&p->bits[q], bits);
     for (int k = 0; k < BVH_WIDTH; ++k) {
-        if ((bits >> k) & 1) atomic_min(&p->near[q][k], lower_bits(tnear[k]));
+        if ((bits >> k) & 1) atomic_min(&p->near[q][k], order_bits(tnear[k], false));
     }
-    if (reach >= (REAL)0) atomic_max(&p->reach[q], upper_bits(reach));
+    if (reach >= (REAL)0) atomic_max(&p->reach[q], order_bits(reach, true));
     barrier(CLK_LOCAL_MEM_FENCE);
     int r = p->reach[q];
     *group_reach = r == GROUP_NONE ? -REAL_INF : (REAL)as_float(r);

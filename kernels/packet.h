@@ -720,7 +720,7 @@ HOT void packet_direct(const SceneRefs* s, const ShadePoint* pt, const Ray* seen
     for (int rest = bits; rest; rest &= rest - 1) {
         int j = lowest_bit(rest);
         const __global Material* m = s->materials + pt[j].sf.material;
-        direct[j] = TO_REAL(m->ambient) * pt[j].c * ambient_light + TO_REAL3(m->emission);
+        direct[j] = surface_glow(m, pt[j].c, ambient_light);
     }
     for (int i = 0; i < s->n_lights; ++i) {
         Ray rays[PACKET_LANES];

@@ -222,15 +222,23 @@ inline REAL3 sky(const __global Params* params, const __global float4* texels, R
 #endif
 }
 
-// The sample's primary ray as the ray tree's root task.
-inline RayTask primary_task(const __global Camera* camera, const __global Params* params, int x,
-                            int y, int sample, uint pixel) {
+// The ray tree's root task: a primary ray (o, d), in no medium, of full weight.
+inline RayTask root_task(REAL3 o, REAL3 d) {
     RayTask task;
-    sample_ray(camera, params, x, y, sample, pixel, &task.o, &task.d);
+    task.o = o;
+    task.d = d;
     task.weight = (REAL3)(1, 1, 1);
     task.depth = 0;
     task.media_count = 0;
     return task;
+}
+
+// The sample's primary ray as the ray tree's root task.
+inline RayTask primary_task(const __global Camera* camera, const __global Params* params, int x,
+                            int y, int sample, uint pixel) {
+    REAL3 o, d;
+    sample_ray(camera, params, x, y, sample, pixel, &o, &d);
+    return root_task(o, d);
 }
 
 #if GROUP_PACKETS
@@ -240,7 +248,7 @@ inline REAL3 group_direct(const SceneRefs* s, Group* g, const ShadePoint* pt, RE
                           REAL3 ambient_light, SampleKey key, bool shaded, int* shadow_rays) {
     const __global Material* m = s->materials + (shaded ? pt->sf.material : 0);
     REAL3 result = (REAL3)(0, 0, 0);
-    if (shaded) result = TO_REAL(m->ambient) * pt->c * ambient_light + TO_REAL3(m->emission);
+    if (shaded) result = surface_glow(m, pt->c, ambient_light);
     for (int i = 0; i < s->n_lights; ++i) {
         REAL3 l = (REAL3)(0, 0, 0);
         REAL atten = 0, ndl = 0, tmax = 0;
@@ -273,11 +281,8 @@ inline REAL3 group_pixel(const SceneRefs* s, Group* g, const __global Camera* ca
         for (;;) {
             bool has = sp > 0;
             if (!group_any(g, has)) break;
-            RayTask task;
-            task.o = task.d = task.weight = (REAL3)(0, 0, 1);
-            task.depth = 0;
-            task.media_count = 0;
-            if (has) task = stack[--sp];
+            // A work-item without a ray walks a stand-in, inactive.
+            RayTask task = has ? stack[--sp] : root_task((REAL3)(0, 0, 0), (REAL3)(0, 0, 1));
             Ray ray = make_ray(task.o, task.d);
             Hit hit = group_closest(s, g, &ray, has);
             bool shaded = has && hit.t < REAL_INF;
@@ -344,11 +349,7 @@ __kernel WORK_ITEM_LANES void render(SCENE_BUFFER_PARAMS, __global float4* image
         }
         if (spp > 1) {
             // The packet drew the sample's ray already.
-            stack[0].o = packet.ray[lane].o;
-            stack[0].d = packet.ray[lane].d;
-            stack[0].weight = (REAL3)(1, 1, 1);
-            stack[0].depth = 0;
-            stack[0].media_count = 0;
+            stack[0] = root_task(packet.ray[lane].o, packet.ray[lane].d);
         } else
 #endif
         stack[0] = primary_task(camera, params, x, y, sample, pixel);

@@ -382,12 +382,17 @@ STAGE REAL3 light_term(const SceneRefs* s, int i, REAL3 n, REAL3 v, REAL3 c,
     return atten * TO_REAL3(light->color) * filter * (diffuse * ndl * c + specular * spec);
 }
 
+// What a surface of colour c gives whatever the lights: its ambient term and its emission.
+inline REAL3 surface_glow(const __global Material* m, REAL3 c, REAL3 ambient_light) {
+    return TO_REAL(m->ambient) * c * ambient_light + TO_REAL3(m->emission);
+}
+
 // Ambient plus, for each light on the lit side, diffuse and specular times the light that
 // reaches p through the shadow ray. key: the pixel sample, which picks area lights' samples.
 HOT REAL3 shade_direct(const SceneRefs* s, const Surface* sf, REAL3 n, REAL3 v, REAL3 c,
                           const __global Material* m, REAL3 ambient_light, SampleKey key,
                           int* shadow_rays) {
-    REAL3 result = TO_REAL(m->ambient) * c * ambient_light + TO_REAL3(m->emission);
+    REAL3 result = surface_glow(m, c, ambient_light);
     for (int i = 0; i < s->n_lights; ++i) {
         REAL3 l;
         REAL atten, ndl, tmax;

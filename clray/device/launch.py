@@ -209,8 +209,9 @@ def intersect_rays(packed: PackedScene, device: cl.Device, origins: np.ndarray,
     args = [_buffer(ctx, o4), _buffer(ctx, d4), *_scene_buffers(ctx, packed)]
     hits_buf = cl.Buffer(ctx, cl.mem_flags.WRITE_ONLY, padded * 16)
     refs_buf = cl.Buffer(ctx, cl.mem_flags.WRITE_ONLY, padded * 4)
-    cl.Kernel(program, "intersect_rays")(queue, (padded // lanes,), group and (group,), *args,
-                                         hits_buf, refs_buf)
+    local = (group,) if group else None
+    cl.Kernel(program, "intersect_rays")(queue, (padded // lanes,), local, *args, hits_buf,
+                                         refs_buf)
     hits = np.empty((padded, 4), dtype=np.float32)
     refs = np.empty(padded, dtype=np.int32)
     cl.enqueue_copy(queue, hits, hits_buf)

@@ -146,9 +146,10 @@ typedef struct {
 } SamplePacket;
 
 // Samples first .. first + lanes - 1 of the pixel, to the end of their direct light.
-HOT void trace_sample_packet(const SceneRefs* s, const __global Camera* camera,
-                             const __global Params* params, int x, int y, uint pixel,
-                             SampleKey key, int lanes, SamplePacket* pk, int* shadow_rays) {
+OUT_OF_LINE void trace_sample_packet(const SceneRefs* s, const __global Camera* camera,
+                                     const __global Params* params, int x, int y, uint pixel,
+                                     SampleKey key, int lanes, SamplePacket* pk,
+                                     int* shadow_rays) {
     int first = key.sample;
     for (int j = 0; j < PACKET_LANES; ++j) {
         REAL3 o, d;

@@ -11,6 +11,7 @@ primitive would mean a lane missed a node, tested a shape another way, or droppe
 from __future__ import annotations
 
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pyopencl as cl
@@ -21,7 +22,7 @@ from clray.device.launch import intersect_rays
 from clray.device.pack import pack_scene
 from clray.device.program import traversal_for
 from clray.errors import SettingsError
-from clray.render import RenderSettings, render
+from clray.render import RenderSettings, kernel_switches, render
 from clray.scene import model as M
 from clray.scene.load import load_scene, scene_from_dict
 from clray.tuning.knobs import TRAVERSALS, Tuning
@@ -198,9 +199,32 @@ def test_default_traversal_is_reported(cl_device):
     assert want in TRAVERSALS
     scene = load_scene(ROOT / "scenes" / "spheres.toml")
     assert RenderSettings().traversal is None
-    assert render(scene, RenderSettings(width=8, height=6, spp=2)).stats["traversal"] == want
+    # 16 samples fill a packet of any width (4 to 16 lanes).
+    assert render(scene, RenderSettings(width=8, height=6, spp=16)).stats["traversal"] == want
     chosen = render(scene, RenderSettings(width=8, height=6, spp=2, traversal="sample_packet"))
     assert chosen.stats["traversal"] == "sample_packet"
+
+
+def test_a_devices_own_sample_packets_need_a_full_packet() -> None:
+    # Intel's CPU runtime (8 float lanes on AVX2) renders with sample packets of its own accord
+    # only where a pixel's samples fill one; a traversal named by the settings or the tuning
+    # is used from 2 samples a pixel.
+    intel = SimpleNamespace(name="CPU", platform=SimpleNamespace(name="Intel(R) OpenCL"),
+                            type=cl.device_type.CPU, preferred_vector_width_float=1,
+                            native_vector_width_float=8, preferred_vector_width_double=1,
+                            native_vector_width_double=4)
+
+    def traversal(spp: int, settings: RenderSettings, tuning: Tuning) -> str:
+        return kernel_switches(tuning, settings, intel, spp)["traversal"]
+
+    own, named = RenderSettings(), RenderSettings(traversal="sample_packet")
+    assert [traversal(spp, own, Tuning()) for spp in (1, 4, 7, 8, 16)] == [
+        "single", "single", "single", "sample_packet", "sample_packet"]
+    assert [traversal(spp, named, Tuning()) for spp in (1, 2, 4)] == [
+        "single", "sample_packet", "sample_packet"]
+    tuned = Tuning(traversal="sample_packet")
+    assert [traversal(spp, own, tuned) for spp in (1, 2)] == ["single", "sample_packet"]
+    assert traversal(4, own, Tuning(packet_lanes=4)) == "sample_packet"
 
 
 def test_one_sample_a_pixel_renders_with_the_single_ray_build(cl_device):

@@ -194,7 +194,8 @@ def traversal_for(device: cl.Device) -> str:
     image but are not faster (docs/acceleration.md, Sample packets); on a GPU a work-item's
     lanes are work-items already, and a packet's private state would cut occupancy. `clray
     tune` tries both and stores the faster for the device. With one sample a pixel every
-    device renders with the single-ray build (clray.render.kernel_switches)."""
+    device renders with the single-ray build, and a device's own sample packets only where a
+    pixel's samples fill a packet (clray.render.kernel_switches)."""
     if (device.platform.name.strip() in SAMPLE_PACKET_PLATFORMS
             and device_type(device) == "CPU"):
         return "sample_packet"

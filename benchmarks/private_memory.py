@@ -2,7 +2,8 @@
 
     python benchmarks/private_memory.py [--json benchmarks/results/private_memory.json]
 
-For each traversal scheme (the single-ray walk, sample packets of 8 and 16 lanes, group
+For each traversal scheme (the single-ray walk, sample packets of 8 and 16 lanes, sample
+packets of 8 lanes in a scene without refraction, whose chains keep every level's light, group
 packets), float and
 double and several ray-tree depths, the model's stacks (the ray stack and the
 BVH traversal stack, clray.device.program.private_stack_bytes, which the render-time warning
@@ -10,8 +11,8 @@ uses) beside what clang 15's AMDGPU back end (gfx90a, -O2) gives the render kern
 scratch (private segment) bytes and vector registers. Without ROCm's device library the math
 builtins stay external calls, for each of which the back end would add 16 KiB of assumed callee
 stack; `-amdgpu-assume-external-call-stack-size=0` leaves the kernel's own scratch. The scene's
-features are all on. Needs clang; each configuration takes 10 to 30 s to compile. Measures
-only.
+features are all on (but refraction for the chains). Needs clang; each configuration takes 10
+to 30 s to compile. Measures only.
 """
 
 from __future__ import annotations
@@ -33,8 +34,10 @@ from clray.device.program import (
 )
 
 DEPTHS = (1, 4, 8)
-# (traversal, packet lanes): the packet's lanes set its per-lane state (rays, hits, shading).
-SCHEMES = (("single", 1), ("sample_packet", 8), ("sample_packet", 16), ("group_packet", 1))
+# (traversal, packet lanes, refraction): the packet's lanes set its per-lane state (rays, hits,
+# shading); without refraction sample packets trace chains (kernels/render.cl, PACKET_CHAINS).
+SCHEMES = (("single", 1, True), ("sample_packet", 8, True), ("sample_packet", 16, True),
+           ("sample_packet", 8, False), ("group_packet", 1, True))
 
 
 def amdgpu_render_usage(config: KernelConfig, clang: str) -> dict[str, int]:
@@ -59,13 +62,15 @@ def main() -> None:
     if clang is None:
         sys.exit("private_memory: clang not found (Debian: apt-get install clang)")
     rows = []
-    for traversal, lanes in SCHEMES:
+    for traversal, lanes, refraction in SCHEMES:
         for precision in ("float", "double"):
             for depth in DEPTHS:
                 config = KernelConfig(precision=precision, max_depth=depth, bvh_stack_size=32,
                                       traversal=traversal, packet_lanes=lanes,
-                                      **dict.fromkeys(FEATURE_SWITCHES, True))
+                                      **{**dict.fromkeys(FEATURE_SWITCHES, True),
+                                         "has_refraction": refraction})
                 row = {"traversal": traversal, "packet_lanes": lanes if lanes > 1 else None,
+                       "refraction": refraction,
                        "precision": precision, "max_depth": depth, "bvh_stack_size": 32,
                        **private_stack_bytes(config), **amdgpu_render_usage(config, clang)}
                 print(json.dumps(row), flush=True)

@@ -84,13 +84,21 @@ inline REAL medium_ior(const SceneRefs* s, const RayTask* task) {
                                  : (REAL)1;
 }
 
+// The mirror image of direction d in a surface of normal n.
+inline REAL3 mirror(REAL3 d, REAL3 n) { return d - (REAL)2 * dot(d, n) * n; }
+
+// A ray too faint to matter (weight below min_weight) is not traced: inside glass the tree
+// doubles at every level, so deep trees need the cut.
+inline bool too_faint(REAL3 weight, float min_weight) {
+    return fmax(fmax(weight.x, weight.y), weight.z) < (REAL)min_weight;
+}
+
 // Push a secondary ray whose direction (and media) are set: it starts off the surface on the
-// side it leaves to, one level deeper in the ray tree. A ray too faint to matter (weight
-// below min_weight) is dropped: inside glass the tree doubles at every level, so deep trees
-// need the cut. Returns the rays pushed (0 or 1).
+// side it leaves to, one level deeper in the ray tree, unless it is too faint. Returns the rays
+// pushed (0 or 1).
 inline int spawn(RayTask* stack, int* sp, RayTask* next, const Surface* sf, REAL3 weight,
                  int depth, float min_weight) {
-    if (fmax(fmax(weight.x, weight.y), weight.z) < (REAL)min_weight) return 0;
+    if (too_faint(weight, min_weight)) return 0;
     next->o = offset_origin(sf, next->d);
     next->weight = weight;
     next->depth = depth + 1;
@@ -135,41 +143,6 @@ STAGE void sample_ray(const __global Camera* camera, const __global Params* para
 #endif
 }
 
-#if SAMPLE_PACKETS
-// A packet of a pixel's samples after its primary rays: each lane's ray, hit, shading point
-// and direct light (shade_direct's, its shadow rays traced as packets).
-typedef struct {
-    Ray ray[PACKET_LANES];
-    Hit hit[PACKET_LANES];
-    ShadePoint pt[PACKET_LANES];
-    REAL3 direct[PACKET_LANES];
-} SamplePacket;
-
-// Samples first .. first + lanes - 1 of the pixel, to the end of their direct light.
-OUT_OF_LINE void trace_sample_packet(const SceneRefs* s, const __global Camera* camera,
-                                     const __global Params* params, int x, int y, uint pixel,
-                                     SampleKey key, int lanes, SamplePacket* pk,
-                                     int* shadow_rays) {
-    int first = key.sample;
-    for (int j = 0; j < PACKET_LANES; ++j) {
-        REAL3 o, d;
-        // Lanes past the pixel's last sample ride along as copies of its first.
-        sample_ray(camera, params, x, y, first + (j < lanes ? j : 0), pixel, &o, &d);
-        pk->ray[j] = make_ray(o, d);
-    }
-    int bits = (1 << lanes) - 1;
-    packet_closest(s, pk->ray, bits, pk->hit);
-    int lit = 0;
-    for (int j = 0; j < lanes; ++j) {
-        if (!(pk->hit[j].t < REAL_INF)) continue;
-        lit |= 1 << j;
-        pk->pt[j] = shade_point(s, camera, pk->ray + j, pk->hit + j);
-    }
-    packet_direct(s, pk->pt, pk->ray, TO_REAL3(params->ambient), key, lit, pk->direct,
-                  shadow_rays);
-}
-#endif
-
 #if MAX_DEPTH > 0
 // Push the reflected and refracted rays of a shaded hit (ray, pt) of `task`: returns the rays
 // pushed.
@@ -205,7 +178,7 @@ inline int spawn_secondary(const SceneRefs* s, const __global Params* params, Ra
 #endif
     if (kr > (REAL)0) {
         RayTask next = *task;  // a reflection stays in the same media
-        next.d = ray->d - (REAL)2 * dot(ray->d, n) * n;
+        next.d = mirror(ray->d, n);
         pushed += spawn(stack, sp, &next, &pt->sf, task->weight * kr, task->depth,
                         params->min_weight);
     }
@@ -241,6 +214,104 @@ inline RayTask primary_task(const __global Camera* camera, const __global Params
     sample_ray(camera, params, x, y, sample, pixel, &o, &d);
     return root_task(o, d);
 }
+
+#if SAMPLE_PACKETS
+// Without refraction a sample's ray tree is a chain of reflections, so a packet's samples go
+// down their chains together, level by level, the reflected rays as packets too. With it a
+// tree can branch, and only the primary rays go as packets.
+#define PACKET_CHAINS (!HAS_REFRACTION)
+
+// A packet of a pixel's samples. With chains: what each level of each lane's chain adds to its
+// sample, weight[level][lane] * light[level][lane] for `levels` levels, added as the ray tree
+// adds it (one expression, so the multiply-add contracts as it does there). Without: each
+// lane's primary ray, hit, shading point and direct light (shade_direct's, its shadow rays
+// traced as packets), from which the ray tree goes on ray by ray.
+typedef struct {
+    Ray ray[PACKET_LANES];
+    Hit hit[PACKET_LANES];
+    ShadePoint pt[PACKET_LANES];
+    REAL3 direct[PACKET_LANES];
+#if PACKET_CHAINS
+    REAL3 light[MAX_DEPTH + 1][PACKET_LANES], weight[MAX_DEPTH + 1][PACKET_LANES];
+    int levels[PACKET_LANES];
+#endif
+} SamplePacket;
+
+#if PACKET_CHAINS
+// The lanes of `bits` from their primary rays pk->ray to the ends of their chains: each level's
+// light (the sky, weighted, where a ray leaves; else the direct light, with the ray's weight
+// beside it), and the reflected ray where the material reflects and the ray is not too faint,
+// as spawn_secondary makes it.
+HOT void trace_chains(const SceneRefs* s, const __global Camera* camera,
+                      const __global Params* params, SampleKey key, int bits, SamplePacket* pk,
+                      int* secondary_rays, int* shadow_rays) {
+    REAL3 weight[PACKET_LANES];
+    for (int j = 0; j < PACKET_LANES; ++j) weight[j] = (REAL3)(1, 1, 1);
+    for (int depth = 0; bits; ++depth) {
+        packet_closest(s, pk->ray, bits, pk->hit);
+        int lit = 0;
+        for (int rest = bits; rest; rest &= rest - 1) {
+            int j = lowest_bit(rest);
+            pk->levels[j] = depth + 1;
+            if (!(pk->hit[j].t < REAL_INF)) {
+                pk->light[depth][j] = sky(params, s->texels, pk->ray[j].d, weight[j]);
+                pk->weight[depth][j] = (REAL3)(1, 1, 1);
+                continue;
+            }
+            lit |= 1 << j;
+            pk->pt[j] = shade_point(s, camera, pk->ray + j, pk->hit + j);
+        }
+        packet_direct(s, pk->pt, pk->ray, TO_REAL3(params->ambient), key, lit, pk->direct,
+                      shadow_rays);
+        // Lanes that end here keep their rays: the packet reads every lane.
+        bits = 0;
+        for (int rest = lit; rest; rest &= rest - 1) {
+            int j = lowest_bit(rest);
+            pk->light[depth][j] = pk->direct[j];
+            pk->weight[depth][j] = weight[j];
+            if (depth >= MAX_DEPTH) continue;
+            REAL kr = TO_REAL(s->materials[pk->pt[j].sf.material].reflect);
+            REAL3 w = weight[j] * kr;
+            if (!(kr > (REAL)0) || too_faint(w, params->min_weight)) continue;
+            REAL3 d = mirror(pk->ray[j].d, pk->pt[j].n);
+            pk->ray[j] = make_ray(offset_origin(&pk->pt[j].sf, d), d);
+            weight[j] = w;
+            bits |= 1 << j;
+            (*secondary_rays)++;
+        }
+    }
+}
+#endif
+
+// Samples first .. first + lanes - 1 of the pixel: with chains to their ends, without to the
+// end of their primary rays' direct light.
+OUT_OF_LINE void trace_sample_packet(const SceneRefs* s, const __global Camera* camera,
+                                     const __global Params* params, int x, int y, uint pixel,
+                                     SampleKey key, int lanes, SamplePacket* pk,
+                                     int* secondary_rays, int* shadow_rays) {
+    int first = key.sample;
+    for (int j = 0; j < PACKET_LANES; ++j) {
+        REAL3 o, d;
+        // Lanes past the pixel's last sample ride along as copies of its first.
+        sample_ray(camera, params, x, y, first + (j < lanes ? j : 0), pixel, &o, &d);
+        pk->ray[j] = make_ray(o, d);
+    }
+    int bits = (1 << lanes) - 1;
+#if PACKET_CHAINS
+    trace_chains(s, camera, params, key, bits, pk, secondary_rays, shadow_rays);
+#else
+    packet_closest(s, pk->ray, bits, pk->hit);
+    int lit = 0;
+    for (int j = 0; j < lanes; ++j) {
+        if (!(pk->hit[j].t < REAL_INF)) continue;
+        lit |= 1 << j;
+        pk->pt[j] = shade_point(s, camera, pk->ray + j, pk->hit + j);
+    }
+    packet_direct(s, pk->pt, pk->ray, TO_REAL3(params->ambient), key, lit, pk->direct,
+                  shadow_rays);
+#endif
+}
+#endif
 
 #if GROUP_PACKETS
 // shade_direct for the group: every work-item takes part in each light's shadow walk, with a
@@ -346,8 +417,18 @@ __kernel WORK_ITEM_LANES void render(SCENE_BUFFER_PARAMS, __global float4* image
         lane = sample % PACKET_LANES;
         if (spp > 1 && lane == 0) {
             trace_sample_packet(&s, camera, params, x, y, pixel, key,
-                                min(PACKET_LANES, spp - sample), &packet, &shadow_rays);
+                                min(PACKET_LANES, spp - sample), &packet, &secondary_rays,
+                                &shadow_rays);
         }
+#if PACKET_CHAINS
+        if (spp > 1) {
+            // The packet traced the sample's chain: its light, added in the ray tree's order.
+            for (int level = 0; level < packet.levels[lane]; ++level) {
+                sum += packet.weight[level][lane] * packet.light[level][lane];
+            }
+            continue;
+        }
+#endif
         if (spp > 1) {
             // The packet drew the sample's ray already.
             stack[0] = root_task(packet.ray[lane].o, packet.ray[lane].d);

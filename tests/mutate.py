@@ -312,7 +312,7 @@ MUTATIONS: tuple[Mutation, ...] = (
       "math.cos(math.radians(inner))", "math.cos(math.radians(light.angle))", LIGHTS),
     # kernels/render.cl
     m("render.reflection_half", "kernels/render.cl",
-      "next.d = ray->d - (REAL)2 * dot(ray->d, n) * n;", "next.d = ray->d - dot(ray->d, n) * n;",
+      "return d - (REAL)2 * dot(d, n) * n;", "return d - dot(d, n) * n;",
       *KERNEL_SCENES),
     m("render.tir_weight_lost", "kernels/render.cl",
       "kr += kt;  // total internal reflection", "// total internal reflection", *KERNEL_SCENES,

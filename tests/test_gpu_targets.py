@@ -147,3 +147,14 @@ def test_private_stacks_grow_in_the_compiled_kernel_as_the_model_says() -> None:
     assert model > 0 and measured == model
     model, measured = growth(dataclasses.replace(base, bvh_stack_size=32))
     assert model > 0 and model <= measured <= 1.25 * model
+
+
+def test_sample_packet_chains_grow_in_the_compiled_kernel_as_the_model_says() -> None:
+    # Without refraction a sample packet keeps each ray-tree level's light and weight for
+    # every lane: a level more adds exactly those to the compiled kernel's scratch.
+    base = KernelConfig(has_spheres=True, max_depth=1, bvh_stack_size=16,
+                        traversal="sample_packet", packet_lanes=8)
+    deeper = dataclasses.replace(base, max_depth=5)
+    model = private_stack_bytes(deeper)["total"] - private_stack_bytes(base)["total"]
+    assert model == 4 * 8 * 2 * 16
+    assert amdgpu_scratch(deeper) - amdgpu_scratch(base) == model

@@ -186,7 +186,7 @@ def bvh_width_for(device: cl.Device, precision: str = "float") -> int:
 
 
 # The drivers whose CPU device renders faster with sample packets, by platform name: Intel's
-# CPU runtime, 1.07x to 1.21x (spheres) and 1.08x to 1.12x (mesh) at 16 spp, 1280 x 720
+# CPU runtime, 1.50x (spheres, with the chains) and 1.08x to 1.31x (mesh) at 16 spp, 1280 x 720
 # (docs/acceleration.md, Intel's CPU runtime).
 SAMPLE_PACKET_PLATFORMS = ("Intel(R) OpenCL",)
 

@@ -154,8 +154,9 @@ def test_host_knobs_change_the_packed_bvh(crowd) -> None:
 
 
 def options_with(cl_device, scene, tuning: Tuning, **settings) -> list[str]:
-    # Two samples a pixel: with one the single-ray build renders whatever the traversal.
-    settings = {"spp": 2, **settings}
+    # Sixteen samples a pixel: with one the single-ray build renders whatever the traversal,
+    # and a device's own sample packets need a pixel's samples to fill a packet (4 to 16 lanes).
+    settings = {"spp": 16, **settings}
     return pack_for(scene, RenderSettings(**SMALL, tuning=tuning, **settings),
                     cl_device).config.options()
 

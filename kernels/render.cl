@@ -237,6 +237,24 @@ typedef struct {
 #endif
 } SamplePacket;
 
+// The closest hits of the lanes `bits` of pk->ray, their shading points and direct light
+// (pk->hit, pk->pt, pk->direct): returns the lanes that hit something.
+HOT int shade_packet(const SceneRefs* s, const __global Camera* camera,
+                     const __global Params* params, SampleKey key, int bits, SamplePacket* pk,
+                     int* shadow_rays) {
+    packet_closest(s, pk->ray, bits, pk->hit);
+    int lit = 0;
+    for (int rest = bits; rest; rest &= rest - 1) {
+        int j = lowest_bit(rest);
+        if (!(pk->hit[j].t < REAL_INF)) continue;
+        lit |= 1 << j;
+        pk->pt[j] = shade_point(s, camera, pk->ray + j, pk->hit + j);
+    }
+    packet_direct(s, pk->pt, pk->ray, TO_REAL3(params->ambient), key, lit, pk->direct,
+                  shadow_rays);
+    return lit;
+}
+
 #if PACKET_CHAINS
 // The lanes of `bits` from their primary rays pk->ray to the ends of their chains: each level's
 // light (the sky, weighted, where a ray leaves; else the direct light, with the ray's weight
@@ -248,25 +266,18 @@ HOT void trace_chains(const SceneRefs* s, const __global Camera* camera,
     REAL3 weight[PACKET_LANES];
     for (int j = 0; j < PACKET_LANES; ++j) weight[j] = (REAL3)(1, 1, 1);
     for (int depth = 0; bits; ++depth) {
-        packet_closest(s, pk->ray, bits, pk->hit);
-        int lit = 0;
-        for (int rest = bits; rest; rest &= rest - 1) {
+        int lit = shade_packet(s, camera, params, key, bits, pk, shadow_rays);
+        // Lanes that end here keep their rays: the packet reads every lane.
+        int live = bits;
+        bits = 0;
+        for (int rest = live; rest; rest &= rest - 1) {
             int j = lowest_bit(rest);
             pk->levels[j] = depth + 1;
-            if (!(pk->hit[j].t < REAL_INF)) {
+            if (!((lit >> j) & 1)) {
                 pk->light[depth][j] = sky(params, s->texels, pk->ray[j].d, weight[j]);
                 pk->weight[depth][j] = (REAL3)(1, 1, 1);
                 continue;
             }
-            lit |= 1 << j;
-            pk->pt[j] = shade_point(s, camera, pk->ray + j, pk->hit + j);
-        }
-        packet_direct(s, pk->pt, pk->ray, TO_REAL3(params->ambient), key, lit, pk->direct,
-                      shadow_rays);
-        // Lanes that end here keep their rays: the packet reads every lane.
-        bits = 0;
-        for (int rest = lit; rest; rest &= rest - 1) {
-            int j = lowest_bit(rest);
             pk->light[depth][j] = pk->direct[j];
             pk->weight[depth][j] = weight[j];
             if (depth >= MAX_DEPTH) continue;
@@ -300,15 +311,7 @@ OUT_OF_LINE void trace_sample_packet(const SceneRefs* s, const __global Camera* 
 #if PACKET_CHAINS
     trace_chains(s, camera, params, key, bits, pk, secondary_rays, shadow_rays);
 #else
-    packet_closest(s, pk->ray, bits, pk->hit);
-    int lit = 0;
-    for (int j = 0; j < lanes; ++j) {
-        if (!(pk->hit[j].t < REAL_INF)) continue;
-        lit |= 1 << j;
-        pk->pt[j] = shade_point(s, camera, pk->ray + j, pk->hit + j);
-    }
-    packet_direct(s, pk->pt, pk->ray, TO_REAL3(params->ambient), key, lit, pk->direct,
-                  shadow_rays);
+    shade_packet(s, camera, params, key, bits, pk, shadow_rays);
 #endif
 }
 #endif
@@ -440,7 +443,7 @@ __kernel WORK_ITEM_LANES void render(SCENE_BUFFER_PARAMS, __global float4* image
             RayTask task = stack[--sp];
 #if SAMPLE_PACKETS
             // A primary ray of a packet: its hit and direct light are known.
-            bool packed = spp > 1 && task.depth == 0;
+            bool packed = !PACKET_CHAINS && spp > 1 && task.depth == 0;
             Ray ray = packed ? packet.ray[lane] : make_ray(task.o, task.d);
             Hit hit = packed ? packet.hit[lane] : closest_hit(&s, &ray);
 #else

@@ -1,7 +1,7 @@
 """Instructions per stage of the render kernel: where a sample's work goes, counted by valgrind.
 
     python benchmarks/stages.py [--scenes spheres,mesh] [--spp 1,16] [--size 32x18]
-                                [--traversals single,sample_packet]
+                                [--rows START:STOP] [--traversals single,sample_packet]
                                 [--json benchmarks/results/stages.json] [--mesh-dir DIR]
 
 The kernels mark their stages STAGE (kernels/real.h): the camera ray (`sample_ray`), the ray
@@ -15,6 +15,12 @@ calls. Stages nest (light_ray sets up its shadow ray with make_ray), so the shar
 up to 100 %; what no stage holds is the ray tree's own bookkeeping and the sample packets'
 gathering of lanes. Calls that are not inlined cost instructions of their own: the profiling
 build's total is reported beside the normal build's, so the overhead is in view.
+
+A pixel's samples are as coherent as the image is large: at 32 x 18 a pixel covers what 1,600
+pixels of a 1280 x 720 image do, so a change that pays off where a pixel's rays stay together
+(packets) is best counted on a band of a full-size image: `--size 1280x720 --rows 360:361`
+renders that row only (the rows a distributed render's tile would), the same values as in the
+whole image.
 
 Needs valgrind and PoCL's CPU device. Measures only; each count takes about a minute.
 """
@@ -45,13 +51,14 @@ from clray.device.context import select_device
 from clray.device.launch import render_packed
 from clray.device.pack import pack_scene
 from clray.scene.load import load_scene
-path, traversal, spp, width, height, profile = sys.argv[1:7]
+path, traversal, spp, width, height, profile, first, end = sys.argv[1:9]
 scene = load_scene(path)
 r = scene.render
 packed = pack_scene(scene, width=int(width), height=int(height), spp=int(spp),
                     max_depth=r.max_depth, seed=r.seed, traversal=traversal)
 config = dataclasses.replace(packed.config, stage_profile=profile == "1")
-_, stats = render_packed(dataclasses.replace(packed, config=config), select_device("pocl"))
+_, stats = render_packed(dataclasses.replace(packed, config=config), select_device("pocl"),
+                         rows=(int(first), int(end)))
 print(json.dumps(stats["rays"]))
 """
 
@@ -83,11 +90,11 @@ def _callgrind_stages(out_file: Path) -> dict[str, dict[str, int]]:
     return dict(totals)
 
 
-def _run(scene: Path, traversal: str, spp: int, size: tuple[int, int], profile: bool,
-         out_file: Path | None) -> dict:
+def _run(scene: Path, traversal: str, spp: int, size: tuple[int, int], rows: tuple[int, int],
+         profile: bool, out_file: Path | None) -> dict:
     env = {**os.environ, "POCL_MAX_PTHREAD_COUNT": "1"}
     command = [sys.executable, "-c", _RENDER, str(scene), traversal, str(spp), str(size[0]),
-               str(size[1]), "1" if profile else "0"]
+               str(size[1]), "1" if profile else "0", str(rows[0]), str(rows[1])]
     if out_file is not None:
         command = ["valgrind", "--tool=callgrind", f"--callgrind-out-file={out_file}",
                    f"--toggle-collect={KERNEL_FUNCTION}*", *command]
@@ -103,17 +110,18 @@ def _run(scene: Path, traversal: str, spp: int, size: tuple[int, int], profile: 
 
 
 def count_stages(scene: Path, traversal: str, spp: int, size: tuple[int, int],
-                 tmp: Path) -> dict:
-    """The normal build's instructions and the profiling build's, by stage."""
+                 rows: tuple[int, int], tmp: Path) -> dict:
+    """The normal build's instructions and the profiling build's, by stage, for the image's
+    rows [rows[0], rows[1])."""
     out_file = tmp / "callgrind.out"
     # Plain renders first fill PoCL's kernel cache, so no compiler runs under valgrind.
-    _run(scene, traversal, spp, size, False, None)
-    normal = _run(scene, traversal, spp, size, False, out_file)
-    _run(scene, traversal, spp, size, True, None)
-    profiled = _run(scene, traversal, spp, size, True, out_file)
+    _run(scene, traversal, spp, size, rows, False, None)
+    normal = _run(scene, traversal, spp, size, rows, False, out_file)
+    _run(scene, traversal, spp, size, rows, True, None)
+    profiled = _run(scene, traversal, spp, size, rows, True, out_file)
     stages = _callgrind_stages(out_file)
     total = profiled["instructions"]
-    samples = size[0] * size[1] * spp
+    samples = size[0] * (rows[1] - rows[0]) * spp
     report = {}
     for stage, s in stages.items():
         report[stage] = {**s, "share": s["instructions"] / total,
@@ -142,6 +150,8 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--scenes", default="spheres,mesh")
     parser.add_argument("--spp", default="1,16", help="comma-separated samples per pixel")
     parser.add_argument("--size", default="32x18", metavar="WxH")
+    parser.add_argument("--rows", metavar="START:STOP",
+                        help="count only these rows of the image (default: all of them)")
     parser.add_argument("--traversals", default="single,sample_packet")
     parser.add_argument("--json", default=str(HERE / "results" / "stages.json"))
     parser.add_argument("--mesh-dir", help="where to write the mesh scene (default: a temporary "
@@ -150,6 +160,11 @@ def main(argv: list[str] | None = None) -> None:
     if shutil.which("valgrind") is None:
         sys.exit("stages.py needs valgrind (Debian: apt-get install valgrind)")
     width, height = (int(v) for v in args.size.lower().split("x"))
+    rows = (0, height)
+    if args.rows:
+        rows = tuple(int(v) for v in args.rows.split(":"))
+        if len(rows) != 2 or not 0 <= rows[0] < rows[1] <= height:
+            sys.exit(f"--rows {args.rows}: expected START:STOP within the image's {height} rows")
     names = [n for n in args.scenes.split(",") if n]
     results: dict = {}
     with tempfile.TemporaryDirectory() as tmp_name:
@@ -163,11 +178,13 @@ def main(argv: list[str] | None = None) -> None:
         for name in names:
             for spp in (int(v) for v in args.spp.split(",")):
                 for traversal in args.traversals.split(","):
-                    result = count_stages(scenes[name], traversal, spp, (width, height), tmp)
+                    result = count_stages(scenes[name], traversal, spp, (width, height), rows,
+                                          tmp)
                     results.setdefault(name, {}).setdefault(str(spp), {})[traversal] = result
                     print(_summary(name, traversal, spp, result), flush=True)
     Path(args.json).parent.mkdir(parents=True, exist_ok=True)
-    Path(args.json).write_text(json.dumps({"size": [width, height], "scenes": results},
+    Path(args.json).write_text(json.dumps({"size": [width, height], "rows": list(rows),
+                                           "scenes": results},
                                           indent=2) + "\n")
     print(f"wrote {args.json}")
 

@@ -180,6 +180,51 @@ HOT RayPacket ray_packet(const Ray* rays) {
     return p;
 }
 
+// d . e lane by lane, as dot() has it on PoCL: the rounded products added left to right, not
+// fused. Each product is a statement of its own: OpenCL C contracts a * b + c into an fma only
+// within one expression.
+HOT REALP dot_lanes(REALP ax, REALP ay, REALP az, REALP bx, REALP by, REALP bz) {
+    REALP xx = ax * bx;
+    REALP yy = ay * by;
+    REALP zz = az * bz;
+    REALP xy = xx + yy;
+    return xy + zz;
+}
+
+// Lane j's ray, as make_ray made it, for the single-ray code's fallbacks.
+HOT Ray lane_ray(const RayPacket* p, int j) {
+    REAL f[9][PACKET_LANES];
+    VSTOREP(p->ox, 0, f[0]);
+    VSTOREP(p->oy, 0, f[1]);
+    VSTOREP(p->oz, 0, f[2]);
+    VSTOREP(p->dx, 0, f[3]);
+    VSTOREP(p->dy, 0, f[4]);
+    VSTOREP(p->dz, 0, f[5]);
+    VSTOREP(p->ix, 0, f[6]);
+    VSTOREP(p->iy, 0, f[7]);
+    VSTOREP(p->iz, 0, f[8]);
+    Ray r;
+    r.o = (REAL3)(f[0][j], f[1][j], f[2][j]);
+    r.d = (REAL3)(f[3][j], f[4][j], f[5][j]);
+    r.inv_d = (REAL3)(f[6][j], f[7][j], f[8][j]);
+#if HAS_TRIANGLES
+    LANE_INT axis[3][PACKET_LANES];
+    VSTOREP(p->kx, 0, axis[0]);
+    VSTOREP(p->ky, 0, axis[1]);
+    VSTOREP(p->kz, 0, axis[2]);
+    VSTOREP(p->sx, 0, f[0]);
+    VSTOREP(p->sy, 0, f[1]);
+    VSTOREP(p->sz, 0, f[2]);
+    r.kx = (int)axis[0][j];
+    r.ky = (int)axis[1][j];
+    r.kz = (int)axis[2][j];
+    r.sx = f[0][j];
+    r.sy = f[1][j];
+    r.sz = f[2][j];
+#endif
+    return r;
+}
+
 // The lanes' hits (Hit, lane by lane; instances are not walked by packets).
 typedef struct {
     REALP t, b1, b2;
@@ -694,8 +739,8 @@ STAGE void packet_closest(const SceneRefs* s, const Ray* rays, int bits, Hit* hi
 
 #if !HAS_TRANSMISSION && !HAS_INSTANCES && HAS_BVH
 // Lanes of `bits` that a leaf blocks within (0, tmax): packet_blocks lane-wise.
-HOT int leaf_blocks_lanes(const SceneRefs* s, int slot, int count, const Ray* rays,
-                          const RayPacket* p, REALP tmax, const REAL* tmax_lanes, int bits) {
+HOT int leaf_blocks_lanes(const SceneRefs* s, int slot, int count, const RayPacket* p,
+                          REALP tmax, const REAL* tmax_lanes, int bits) {
     MASKP lanes = lanes_of(bits);
     int tri_packets = section_packets(count, PRIM_TRIANGLE);
     int sphere_packets = section_packets(count, PRIM_SPHERE);
@@ -704,7 +749,8 @@ HOT int leaf_blocks_lanes(const SceneRefs* s, int slot, int count, const Ray* ra
         for (int rest = bits; rest; rest &= rest - 1) {
             int j = lowest_bit(rest);
             REAL3 filter = (REAL3)(1, 1, 1);
-            if (!leaf_transmission(s, slot, count, rays + j, -1, tmax_lanes[j], &filter)) {
+            Ray r = lane_ray(p, j);
+            if (!leaf_transmission(s, slot, count, &r, -1, tmax_lanes[j], &filter)) {
                 blocked |= 1 << j;
             }
         }
@@ -740,21 +786,34 @@ HOT int leaf_blocks_lanes(const SceneRefs* s, int slot, int count, const Ray* ra
     return blocked;
 }
 
+#if HAS_PLANES
+// The lanes of `bits` that a plane blocks within (0, tmax): planes_transmission in an opaque
+// scene, intersect_plane's arithmetic lane-wise.
+HOT int planes_blocked_lanes(const SceneRefs* s, const RayPacket* p, REALP tmax, int bits) {
+    MASKP blocked = (MASKP)(0);
+    for (int i = 0; i < s->n_planes; ++i) {
+        REAL3 n = TO_REAL3(s->planes[i].normal), q = TO_REAL3(s->planes[i].point);
+        REALP nx = (REALP)(n.x), ny = (REALP)(n.y), nz = (REALP)(n.z);
+        REALP dn = dot_lanes(p->dx, p->dy, p->dz, nx, ny, nz);
+        REALP t = dot_lanes((REALP)(q.x) - p->ox, (REALP)(q.y) - p->oy, (REALP)(q.z) - p->oz, nx,
+                            ny, nz) /
+                  dn;
+        blocked |= (dn != (REAL)0) & isfinite(t) & (t > (REAL)0) & (t < tmax);
+    }
+    return bits & lane_mask(blocked);
+}
+#endif
+
 // The lanes of `bits` whose shadow segment (0, tmax) some shape blocks, in an opaque scene:
 // every crossed child is walked (any order) until every lane is blocked.
-HOT int packet_blocked(const SceneRefs* s, const Ray* rays, const REAL* tmax_lanes, int bits) {
+HOT int packet_blocked(const SceneRefs* s, const RayPacket* p, const REAL* tmax_lanes, int bits) {
+    REALP tmax = VLOADP(0, tmax_lanes);
     int blocked = 0;
 #if HAS_PLANES
-    for (int rest = bits; rest; rest &= rest - 1) {
-        int j = lowest_bit(rest);
-        REAL3 filter = (REAL3)(1, 1, 1);
-        if (!planes_transmission(s, rays + j, tmax_lanes[j], &filter)) blocked |= 1 << j;
-    }
+    blocked = planes_blocked_lanes(s, p, tmax, bits);
 #endif
     if (s->n_nodes == 0 || blocked == bits) return blocked;
-    RayPacket p = ray_packet(rays);
-    PacketBounds b = packet_bounds(&p, bits & ~blocked);
-    REALP tmax = VLOADP(0, tmax_lanes);
+    PacketBounds b = packet_bounds(p, bits & ~blocked);
     int stack_child[BVH_STACK_SIZE], stack_count[BVH_STACK_SIZE], stack_lanes[BVH_STACK_SIZE];
     int sp = 0;
     stack_child[sp] = 0;
@@ -767,7 +826,7 @@ HOT int packet_blocked(const SceneRefs* s, const Ray* rays, const REAL* tmax_lan
         if (!lanes) continue;
         if (count > 0) {
             COUNT(s, shadow_prims, leaf_prims(s, child, count));
-            blocked |= leaf_blocks_lanes(s, child, count, rays, &p, tmax, tmax_lanes, lanes);
+            blocked |= leaf_blocks_lanes(s, child, count, p, tmax, tmax_lanes, lanes);
             if (blocked == bits) return blocked;
             continue;
         }
@@ -775,8 +834,9 @@ HOT int packet_blocked(const SceneRefs* s, const Ray* rays, const REAL* tmax_lan
             // Too few lanes to pay for the packet: the single-ray walk, lane by lane.
             for (int rest = lanes; rest; rest &= rest - 1) {
                 int j = lowest_bit(rest);
-                REAL3 filter = walk_transmission(s, rays + j, child, count, tmax_lanes[j],
-                                                 (REAL3)(1, 1, 1));
+                Ray r = lane_ray(p, j);
+                REAL3 filter =
+                    walk_transmission(s, &r, child, count, tmax_lanes[j], (REAL3)(1, 1, 1));
                 if (max_comp3(filter) <= (REAL)0) blocked |= 1 << j;
             }
             if (blocked == bits) return blocked;
@@ -789,7 +849,7 @@ HOT int packet_blocked(const SceneRefs* s, const Ray* rays, const REAL* tmax_lan
         for (; maybe; maybe &= maybe - 1) {
             int c = lowest_bit(maybe);
             MASKP crossed;
-            box_lanes(node, c, &p, tmax, &crossed);
+            box_lanes(node, c, p, tmax, &crossed);
             int crossing = lane_mask(crossed & active);
             if (!crossing) continue;
             stack_child[sp] = node->child[c];
@@ -805,7 +865,8 @@ HOT int packet_blocked(const SceneRefs* s, const Ray* rays, const REAL* tmax_lan
 STAGE void packet_transmission(const SceneRefs* s, const Ray* rays, const REAL* tmax, int bits,
                                REAL3* filter) {
 #if !HAS_TRANSMISSION && !HAS_INSTANCES && HAS_BVH
-    int blocked = packet_blocked(s, rays, tmax, bits);
+    RayPacket p = ray_packet(rays);
+    int blocked = packet_blocked(s, &p, tmax, bits);
     for (int j = 0; j < PACKET_LANES; ++j) {
         filter[j] = (blocked >> j) & 1 ? (REAL3)(0, 0, 0) : (REAL3)(1, 1, 1);
     }
@@ -816,52 +877,6 @@ STAGE void packet_transmission(const SceneRefs* s, const Ray* rays, const REAL* 
         filter[j] = transmission(s, rays + j, tmax[j]);
     }
 #endif
-}
-
-// shade_direct for the lanes of `bits`, each at its own shading point pt[j] seen along
-// rays[j], with one shadow-ray packet per light. key.sample: lane 0's sample. The per-lane
-// arithmetic is shade_direct's.
-HOT void packet_direct(const SceneRefs* s, const ShadePoint* pt, const Ray* seen,
-                       REAL3 ambient_light, SampleKey key, int bits, REAL3* direct,
-                       int* shadow_rays) {
-    int first = key.sample;
-    for (int rest = bits; rest; rest &= rest - 1) {
-        int j = lowest_bit(rest);
-        const __global Material* m = s->materials + pt[j].sf.material;
-        direct[j] = surface_glow(m, pt[j].c, ambient_light);
-    }
-    for (int i = 0; i < s->n_lights; ++i) {
-        Ray rays[PACKET_LANES];
-        REAL3 l[PACKET_LANES], filter[PACKET_LANES];
-        REAL atten[PACKET_LANES], ndl[PACKET_LANES], tmax[PACKET_LANES];
-        int shot = 0;
-        for (int rest = bits; rest; rest &= rest - 1) {
-            int j = lowest_bit(rest);
-            key.sample = first + j;
-            if (light_ray(s, &pt[j].sf, pt[j].n, i, key, l + j, atten + j, ndl + j, rays + j,
-                          tmax + j)) {
-                shot |= 1 << j;
-            }
-        }
-        if (!shot) continue;
-        *shadow_rays += popcount(shot);
-        // Lanes without a shadow ray ride along as copies of one that has.
-        int spare = lowest_bit(shot);
-        for (int j = 0; j < PACKET_LANES; ++j) {
-            if (!((shot >> j) & 1)) {
-                rays[j] = rays[spare];
-                tmax[j] = tmax[spare];
-            }
-        }
-        packet_transmission(s, rays, tmax, shot, filter);
-        for (int rest = shot; rest; rest &= rest - 1) {
-            int j = lowest_bit(rest);
-            if (max_comp3(filter[j]) <= (REAL)0) continue;
-            direct[j] += light_term(s, i, pt[j].n, -seen[j].d, pt[j].c,
-                                    s->materials + pt[j].sf.material, l[j], atten[j], ndl[j],
-                                    filter[j]);
-        }
-    }
 }
 
 #endif

@@ -66,6 +66,7 @@
 #endif
 #if SAMPLE_PACKETS
 #include "packet.h"
+#include "packet_light.h"
 #endif
 #if GROUP_PACKETS
 #include "group.h"

@@ -1,0 +1,254 @@
+// A sample packet's direct light (TRAVERSAL_SAMPLE_PACKET): shade_direct for every lane, its
+// shadow rays one packet per light. Towards a point light in an opaque scene the shadow rays
+// are set up lane-wise, light_ray's arithmetic for all lanes at once, straight into the
+// packet's lanes (docs/acceleration.md, Sample packets); other lights, and lanes whose
+// distances leave length_lanes's range, go through light_ray lane by lane.
+#ifndef CLRAY_PACKET_LIGHT_H
+#define CLRAY_PACKET_LIGHT_H
+
+#include "real.h"
+#include "clray_types.h"
+#include "scene.h"
+#include "hit.h"
+#include "intersect.h"
+#include "lights.h"
+#include "shading.h"
+#include "packet.h"
+
+#define POINT_LIGHT_LANES (!HAS_TRANSMISSION && !HAS_INSTANCES && HAS_BVH)
+
+#if POINT_LIGHT_LANES
+// length() lane-wise: sqrt of dot_lanes, which is what PoCL's length() computes wherever the
+// squared length is within [2^-90, 2^90]; outside it, length() scales against underflow and
+// overflow. False where a lane of `lanes` is outside that range (or NaN).
+HOT bool length_lanes(REALP x, REALP y, REALP z, MASKP lanes, REALP* len) {
+    REALP dd = dot_lanes(x, y, z, x, y, z);
+    MASKP inside = (dd >= (REAL)0x1p-90) & (dd <= (REAL)0x1p90);
+    *len = sqrt(fmax(dd, (REALP)(0)));
+    return !lane_mask(lanes & ~inside);
+}
+
+// The lanes' shading points, coordinate by coordinate: what light_ray reads of a ShadePoint.
+typedef struct {
+    REALP px, py, pz, err, gx, gy, gz, nx, ny, nz;
+} SurfaceLanes;
+
+// pt[j] for each lane of `bits`; the other lanes hold a copy of one of those.
+HOT SurfaceLanes surface_lanes(const ShadePoint* pt, int bits) {
+    REAL f[10][PACKET_LANES];
+    int spare = lowest_bit(bits);
+    for (int j = 0; j < PACKET_LANES; ++j) {
+        const ShadePoint* q = pt + (((bits >> j) & 1) ? j : spare);
+        f[0][j] = q->sf.p.x;
+        f[1][j] = q->sf.p.y;
+        f[2][j] = q->sf.p.z;
+        f[3][j] = q->sf.err;
+        f[4][j] = q->sf.n_g.x;
+        f[5][j] = q->sf.n_g.y;
+        f[6][j] = q->sf.n_g.z;
+        f[7][j] = q->n.x;
+        f[8][j] = q->n.y;
+        f[9][j] = q->n.z;
+    }
+    SurfaceLanes q;
+    q.px = VLOADP(0, f[0]);
+    q.py = VLOADP(0, f[1]);
+    q.pz = VLOADP(0, f[2]);
+    q.err = VLOADP(0, f[3]);
+    q.gx = VLOADP(0, f[4]);
+    q.gy = VLOADP(0, f[5]);
+    q.gz = VLOADP(0, f[6]);
+    q.nx = VLOADP(0, f[7]);
+    q.ny = VLOADP(0, f[8]);
+    q.nz = VLOADP(0, f[9]);
+    return q;
+}
+
+// x, y or z lane by lane, as axis k says.
+HOT MASKP pick_axis_lanes(MASKP x, MASKP y, MASKP z, MASKP k) {
+    return k == (MASKP)(0) ? x : (k == (MASKP)(1) ? y : z);
+}
+
+// make_ray(o, d) for every lane, into a packet; `lanes`: those whose permutation counts for
+// RayPacket.uniform (the others ride along).
+HOT RayPacket make_ray_packet(REALP ox, REALP oy, REALP oz, REALP dx, REALP dy, REALP dz,
+                              int lanes) {
+    RayPacket p;
+    p.ox = ox;
+    p.oy = oy;
+    p.oz = oz;
+    p.dx = dx;
+    p.dy = dy;
+    p.dz = dz;
+    p.ix = (REAL)1 / dx;
+    p.iy = (REAL)1 / dy;
+    p.iz = (REAL)1 / dz;
+    p.dd = dot_lanes(dx, dy, dz, dx, dy, dz);
+#if HAS_TRIANGLES
+    REALP ax = fabs(dx), ay = fabs(dy), az = fabs(dz);
+    const MASKP zero = (MASKP)(0), one = (MASKP)(1), two = (MASKP)(2);
+    p.kz = ax > ay ? (ax > az ? zero : two) : (ay > az ? one : two);
+    p.kx = p.kz == two ? zero : p.kz + one;
+    p.ky = p.kx == two ? zero : p.kx + one;
+    REALP along = p.kz == zero ? dx : (p.kz == one ? dy : dz);
+    MASKP swap = along < (REAL)0;
+    MASKP kx = swap ? p.ky : p.kx;
+    p.ky = swap ? p.kx : p.ky;
+    p.kx = kx;
+    REALP across_x = p.kx == zero ? dx : (p.kx == one ? dy : dz);
+    REALP across_y = p.ky == zero ? dx : (p.ky == one ? dy : dz);
+    p.sx = -across_x / along;
+    p.sy = -across_y / along;
+    p.sz = (REAL)1 / along;
+    LANE_INT axis[3][PACKET_LANES];
+    VSTOREP(p.kx, 0, axis[0]);
+    VSTOREP(p.ky, 0, axis[1]);
+    VSTOREP(p.kz, 0, axis[2]);
+    int first = lowest_bit(lanes);
+    p.akx = (int)axis[0][first];
+    p.aky = (int)axis[1][first];
+    p.akz = (int)axis[2][first];
+    MASKP same = (p.kx == (MASKP)(p.akx)) & (p.ky == (MASKP)(p.aky)) & (p.kz == (MASKP)(p.akz));
+    p.uniform = (lane_mask(same) & lanes) == lanes;
+    p.okx = p.akx == 0 ? p.ox : (p.akx == 1 ? p.oy : p.oz);
+    p.oky = p.aky == 0 ? p.ox : (p.aky == 1 ? p.oy : p.oz);
+    p.okz = p.akz == 0 ? p.ox : (p.akz == 1 ? p.oy : p.oz);
+#endif
+    return p;
+}
+
+// What light_ray gives for a point light on every lane of `bits`, lane-wise: the lanes it
+// reaches (*shot), their shadow rays (*rays, up to tmax), l, attenuation and n . l. False
+// where a lane's distance is outside length_lanes's range: the caller then goes lane by lane.
+HOT bool point_light_lanes(const __global Light* light, const SurfaceLanes* q, int bits,
+                           RayPacket* rays, REALP* tmax, REALP* lx, REALP* ly, REALP* lz,
+                           REALP* atten, REALP* ndl, int* shot) {
+    MASKP lanes = lanes_of(bits);
+    REAL3 target = TO_REAL3(light->position);
+    REALP tx = (REALP)(target.x), ty = (REALP)(target.y), tz = (REALP)(target.z);
+    REALP dist;
+    if (!length_lanes(tx - q->px, ty - q->py, tz - q->pz, lanes, &dist)) return false;
+    // A light at the hit point lights nothing.
+    MASKP lit = lanes & (dist > q->err);
+    *lx = (tx - q->px) / dist;
+    *ly = (ty - q->py) / dist;
+    *lz = (tz - q->pz) / dist;
+    REAL3 k = TO_REAL3(light->attenuation);
+    REALP denom = (REALP)(k.x) + k.y * dist + k.z * dist * dist;
+    *atten = denom > (REAL)0 ? fmin((REALP)(1), (REAL)1 / denom) : (REALP)(1);
+    *ndl = dot_lanes(q->nx, q->ny, q->nz, *lx, *ly, *lz);
+    lit &= *ndl > (REAL)0;
+    // offset_origin(sf, l)
+#if OFFSET_FIXED_EPS
+    REALP d = (REALP)(1e-4);
+#else
+    REALP d = q->err * (fabs(q->gx) + fabs(q->gy) + fabs(q->gz));
+#endif
+    MASKP out = dot_lanes(*lx, *ly, *lz, q->gx, q->gy, q->gz) > (REAL)0;
+    REALP ox = out ? q->px + d * q->gx : q->px - d * q->gx;
+    REALP oy = out ? q->py + d * q->gy : q->py - d * q->gy;
+    REALP oz = out ? q->pz + d * q->gz : q->pz - d * q->gz;
+    REALP span;
+    if (!length_lanes(tx - ox, ty - oy, tz - oz, lit, &span)) return false;
+    MASKP away = span > (REAL)0;
+    REALP dx = away ? (tx - ox) / span : *lx;
+    REALP dy = away ? (ty - oy) / span : *ly;
+    REALP dz = away ? (tz - oz) / span : *lz;
+    *tmax = span * ((REAL)1 - gamma_n(ERR_ROUNDINGS));
+    *shot = lane_mask(lit);
+    if (*shot) *rays = make_ray_packet(ox, oy, oz, dx, dy, dz, *shot);
+    return true;
+}
+
+// Light i's terms on the lanes of `bits`, a point light's shadow rays set up lane-wise: adds
+// to direct[j]. False (nothing added) where point_light_lanes declines.
+HOT bool point_light_direct(const SceneRefs* s, const ShadePoint* pt, const Ray* seen, int i,
+                            const SurfaceLanes* q, int bits, REAL3* direct, int* shadow_rays) {
+    RayPacket rays;
+    REALP tmax, lx, ly, lz, atten, ndl;
+    int shot;
+    if (!point_light_lanes(s->lights + i, q, bits, &rays, &tmax, &lx, &ly, &lz, &atten, &ndl,
+                           &shot)) {
+        return false;
+    }
+    if (!shot) return true;
+    *shadow_rays += popcount(shot);
+    REAL f[6][PACKET_LANES];
+    VSTOREP(tmax, 0, f[0]);
+    int blocked = packet_blocked(s, &rays, f[0], shot);
+    VSTOREP(lx, 0, f[0]);
+    VSTOREP(ly, 0, f[1]);
+    VSTOREP(lz, 0, f[2]);
+    VSTOREP(atten, 0, f[3]);
+    VSTOREP(ndl, 0, f[4]);
+    for (int rest = shot & ~blocked; rest; rest &= rest - 1) {
+        int j = lowest_bit(rest);
+        REAL3 l = (REAL3)(f[0][j], f[1][j], f[2][j]);
+        direct[j] += light_term(s, i, pt[j].n, -seen[j].d, pt[j].c,
+                                s->materials + pt[j].sf.material, l, f[3][j], f[4][j],
+                                (REAL3)(1, 1, 1));
+    }
+    return true;
+}
+#endif
+
+// shade_direct for the lanes of `bits`, each at its own shading point pt[j] seen along
+// seen[j], with one shadow-ray packet per light. key.sample: lane 0's sample. The per-lane
+// arithmetic is shade_direct's.
+HOT void packet_direct(const SceneRefs* s, const ShadePoint* pt, const Ray* seen,
+                       REAL3 ambient_light, SampleKey key, int bits, REAL3* direct,
+                       int* shadow_rays) {
+    int first = key.sample;
+    for (int rest = bits; rest; rest &= rest - 1) {
+        int j = lowest_bit(rest);
+        const __global Material* m = s->materials + pt[j].sf.material;
+        direct[j] = surface_glow(m, pt[j].c, ambient_light);
+    }
+    if (!bits) return;
+#if POINT_LIGHT_LANES
+    SurfaceLanes q;
+    bool gathered = false;
+#endif
+    for (int i = 0; i < s->n_lights; ++i) {
+#if POINT_LIGHT_LANES
+        if (s->lights[i].kind == LIGHT_POINT) {
+            if (!gathered) q = surface_lanes(pt, bits);
+            gathered = true;
+            if (point_light_direct(s, pt, seen, i, &q, bits, direct, shadow_rays)) continue;
+        }
+#endif
+        Ray rays[PACKET_LANES];
+        REAL3 l[PACKET_LANES], filter[PACKET_LANES];
+        REAL atten[PACKET_LANES], ndl[PACKET_LANES], tmax[PACKET_LANES];
+        int shot = 0;
+        for (int rest = bits; rest; rest &= rest - 1) {
+            int j = lowest_bit(rest);
+            key.sample = first + j;
+            if (light_ray(s, &pt[j].sf, pt[j].n, i, key, l + j, atten + j, ndl + j, rays + j,
+                          tmax + j)) {
+                shot |= 1 << j;
+            }
+        }
+        if (!shot) continue;
+        *shadow_rays += popcount(shot);
+        // Lanes without a shadow ray ride along as copies of one that has.
+        int spare = lowest_bit(shot);
+        for (int j = 0; j < PACKET_LANES; ++j) {
+            if (!((shot >> j) & 1)) {
+                rays[j] = rays[spare];
+                tmax[j] = tmax[spare];
+            }
+        }
+        packet_transmission(s, rays, tmax, shot, filter);
+        for (int rest = shot; rest; rest &= rest - 1) {
+            int j = lowest_bit(rest);
+            if (max_comp3(filter[j]) <= (REAL)0) continue;
+            direct[j] += light_term(s, i, pt[j].n, -seen[j].d, pt[j].c,
+                                    s->materials + pt[j].sf.material, l[j], atten[j], ndl[j],
+                                    filter[j]);
+        }
+    }
+}
+
+
+#endif

@@ -185,21 +185,21 @@ def bvh_width_for(device: cl.Device, precision: str = "float") -> int:
     return 8 if vector_width(device, precision) >= 8 else 4
 
 
-# The drivers whose CPU device renders faster with sample packets, by platform name: Intel's
-# CPU runtime, 1.50x (spheres, with the chains) and 1.08x to 1.31x (mesh) at 16 spp, 1280 x 720
-# (docs/acceleration.md, Intel's CPU runtime).
-SAMPLE_PACKET_PLATFORMS = ("Intel(R) OpenCL",)
+# The drivers whose CPU device renders faster with sample packets, by platform name, at 16 spp,
+# 1280 x 720 (docs/acceleration.md, Sample packets): PoCL, 1.63x (spheres) and 1.34x (mesh), at
+# 8 spp 1.59x and 1.17x; Intel's CPU runtime, 1.50x (spheres, with the chains) and 1.08x to
+# 1.31x (mesh).
+SAMPLE_PACKET_PLATFORMS = ("Portable Computing Language", "Intel(R) OpenCL")
 
 
 def traversal_for(device: cl.Device) -> str:
     """The traversal a device renders with where neither the settings nor the tuning name
     one: sample packets on the CPU devices of SAMPLE_PACKET_PLATFORMS, where they measured
-    faster; the single-ray walk elsewhere. On PoCL's CPU device sample packets give the same
-    image but are not faster (docs/acceleration.md, Sample packets); on a GPU a work-item's
-    lanes are work-items already, and a packet's private state would cut occupancy. `clray
-    tune` tries both and stores the faster for the device. With one sample a pixel every
-    device renders with the single-ray build, and a device's own sample packets only where a
-    pixel's samples fill a packet (clray.render.kernel_switches)."""
+    faster; the single-ray walk elsewhere. On a GPU a work-item's lanes are work-items
+    already, and a packet's private state would cut occupancy. `clray tune` tries both and
+    stores the faster for the device. With one sample a pixel every device renders with the
+    single-ray build, and a device's own sample packets only where a pixel's samples fill a
+    packet (clray.render.kernel_switches)."""
     if (device.platform.name.strip() in SAMPLE_PACKET_PLATFORMS
             and device_type(device) == "CPU"):
         return "sample_packet"

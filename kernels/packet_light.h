@@ -117,6 +117,82 @@ HOT RayPacket make_ray_packet(REALP ox, REALP oy, REALP oz, REALP dx, REALP dy, 
     return p;
 }
 
+// What light_term reads of each lane's shading point beyond SurfaceLanes: the direction to the
+// eye, the surface colour and the material's diffuse, specular and shininess.
+typedef struct {
+    REALP vx, vy, vz, cx, cy, cz, diffuse, specular, shininess;
+} TermLanes;
+
+// As surface_lanes, for light_term.
+HOT TermLanes term_lanes(const SceneRefs* s, const ShadePoint* pt, const Ray* seen, int bits) {
+    REAL f[9][PACKET_LANES];
+    int spare = lowest_bit(bits);
+    for (int j = 0; j < PACKET_LANES; ++j) {
+        int k = ((bits >> j) & 1) ? j : spare;
+        const __global Material* m = s->materials + pt[k].sf.material;
+        REAL3 v = -seen[k].d;
+        f[0][j] = v.x;
+        f[1][j] = v.y;
+        f[2][j] = v.z;
+        f[3][j] = pt[k].c.x;
+        f[4][j] = pt[k].c.y;
+        f[5][j] = pt[k].c.z;
+        f[6][j] = TO_REAL(m->diffuse);
+        f[7][j] = TO_REAL(m->specular);
+        f[8][j] = TO_REAL(m->shininess);
+    }
+    TermLanes t;
+    t.vx = VLOADP(0, f[0]);
+    t.vy = VLOADP(0, f[1]);
+    t.vz = VLOADP(0, f[2]);
+    t.cx = VLOADP(0, f[3]);
+    t.cy = VLOADP(0, f[4]);
+    t.cz = VLOADP(0, f[5]);
+    t.diffuse = VLOADP(0, f[6]);
+    t.specular = VLOADP(0, f[7]);
+    t.shininess = VLOADP(0, f[8]);
+    return t;
+}
+
+// phong_power lane-wise where every lane's exponent is a whole number within [0, 4096] (the
+// caller checks): each lane's multiplications are phong_power's, in the same order.
+HOT REALP phong_power_lanes(REALP x, REALP s) {
+    REAL e[PACKET_LANES];
+    LANE_INT k[PACKET_LANES];
+    VSTOREP(s, 0, e);
+    for (int j = 0; j < PACKET_LANES; ++j) k[j] = (LANE_INT)e[j];
+    MASKP n = VLOADP(0, k);
+    REALP r = (REALP)(1);
+    while (lane_mask(n != (MASKP)(0))) {
+        r = (n & (MASKP)(1)) != (MASKP)(0) ? r * x : r;
+        x *= x;
+        n >>= (MASKP)(1);
+    }
+    return r;
+}
+
+// light_term of a point light on every lane, with nothing filtered (an unblocked lane of an
+// opaque scene): the same arithmetic in the same order (the filter's factor 1 is exact), into
+// (tx, ty, tz). False where a lane of `lanes` has an exponent phong_power_lanes cannot take.
+HOT bool light_term_lanes(const __global Light* light, const SurfaceLanes* q, const TermLanes* m,
+                          MASKP lanes, REALP lx, REALP ly, REALP lz, REALP atten, REALP ndl,
+                          REALP* tx, REALP* ty, REALP* tz) {
+    MASKP whole = (m->shininess >= (REAL)0) & (m->shininess <= (REAL)4096) &
+                  (m->shininess == floor(m->shininess));
+    if (lane_mask(lanes & ~whole)) return false;
+    REALP rx = (REAL)2 * ndl * q->nx - lx;
+    REALP ry = (REAL)2 * ndl * q->ny - ly;
+    REALP rz = (REAL)2 * ndl * q->nz - lz;
+    REALP rv = dot_lanes(rx, ry, rz, m->vx, m->vy, m->vz);
+    REALP spec = rv > (REAL)0 ? phong_power_lanes(rv, whole ? m->shininess : (REALP)(0))
+                              : (REALP)(0);
+    REAL3 color = TO_REAL3(light->color);
+    *tx = atten * color.x * (m->diffuse * ndl * m->cx + m->specular * spec);
+    *ty = atten * color.y * (m->diffuse * ndl * m->cy + m->specular * spec);
+    *tz = atten * color.z * (m->diffuse * ndl * m->cz + m->specular * spec);
+    return true;
+}
+
 // What light_ray gives for a point light on every lane of `bits`, lane-wise: the lanes it
 // reaches (*shot), their shadow rays (*rays, up to tmax), l, attenuation and n . l. False
 // where a lane's distance is outside length_lanes's range: the caller then goes lane by lane.
@@ -163,25 +239,38 @@ HOT bool point_light_lanes(const __global Light* light, const SurfaceLanes* q, i
 // Light i's terms on the lanes of `bits`, a point light's shadow rays set up lane-wise: adds
 // to direct[j]. False (nothing added) where point_light_lanes declines.
 HOT bool point_light_direct(const SceneRefs* s, const ShadePoint* pt, const Ray* seen, int i,
-                            const SurfaceLanes* q, int bits, REAL3* direct, int* shadow_rays) {
+                            const SurfaceLanes* q, const TermLanes* m, int bits, REAL3* direct,
+                            int* shadow_rays) {
+    const __global Light* light = s->lights + i;
     RayPacket rays;
     REALP tmax, lx, ly, lz, atten, ndl;
     int shot;
-    if (!point_light_lanes(s->lights + i, q, bits, &rays, &tmax, &lx, &ly, &lz, &atten, &ndl,
-                           &shot)) {
+    if (!point_light_lanes(light, q, bits, &rays, &tmax, &lx, &ly, &lz, &atten, &ndl, &shot)) {
         return false;
     }
     if (!shot) return true;
     *shadow_rays += popcount(shot);
     REAL f[6][PACKET_LANES];
     VSTOREP(tmax, 0, f[0]);
-    int blocked = packet_blocked(s, &rays, f[0], shot);
+    int lit = shot & ~packet_blocked(s, &rays, f[0], shot);
+    if (!lit) return true;
+    REALP tx, ty, tz;
+    if (light_term_lanes(light, q, m, lanes_of(lit), lx, ly, lz, atten, ndl, &tx, &ty, &tz)) {
+        VSTOREP(tx, 0, f[0]);
+        VSTOREP(ty, 0, f[1]);
+        VSTOREP(tz, 0, f[2]);
+        for (int rest = lit; rest; rest &= rest - 1) {
+            int j = lowest_bit(rest);
+            direct[j] += (REAL3)(f[0][j], f[1][j], f[2][j]);
+        }
+        return true;
+    }
     VSTOREP(lx, 0, f[0]);
     VSTOREP(ly, 0, f[1]);
     VSTOREP(lz, 0, f[2]);
     VSTOREP(atten, 0, f[3]);
     VSTOREP(ndl, 0, f[4]);
-    for (int rest = shot & ~blocked; rest; rest &= rest - 1) {
+    for (int rest = lit; rest; rest &= rest - 1) {
         int j = lowest_bit(rest);
         REAL3 l = (REAL3)(f[0][j], f[1][j], f[2][j]);
         direct[j] += light_term(s, i, pt[j].n, -seen[j].d, pt[j].c,
@@ -207,14 +296,18 @@ HOT void packet_direct(const SceneRefs* s, const ShadePoint* pt, const Ray* seen
     if (!bits) return;
 #if POINT_LIGHT_LANES
     SurfaceLanes q;
+    TermLanes m;
     bool gathered = false;
 #endif
     for (int i = 0; i < s->n_lights; ++i) {
 #if POINT_LIGHT_LANES
         if (s->lights[i].kind == LIGHT_POINT) {
-            if (!gathered) q = surface_lanes(pt, bits);
-            gathered = true;
-            if (point_light_direct(s, pt, seen, i, &q, bits, direct, shadow_rays)) continue;
+            if (!gathered) {
+                q = surface_lanes(pt, bits);
+                m = term_lanes(s, pt, seen, bits);
+                gathered = true;
+            }
+            if (point_light_direct(s, pt, seen, i, &q, &m, bits, direct, shadow_rays)) continue;
         }
 #endif
         Ray rays[PACKET_LANES];

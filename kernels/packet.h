@@ -283,6 +283,38 @@ HOT void consider_lanes(PacketHit* h, MASKP crossed, REALP t, int ref, int part,
     h->b2 = take ? b2 : h->b2;
 }
 
+// no_hit() in every lane.
+HOT PacketHit no_hit_lanes(void) {
+    PacketHit h;
+    h.t = (REALP)(REAL_INF);
+    h.b1 = (REALP)(0);
+    h.b2 = (REALP)(0);
+    h.ref = (MASKP)(-1);
+    h.part = (MASKP)(0);
+    return h;
+}
+
+#if HAS_PLANES
+// consider_planes on every lane of `lanes`: intersect_plane's arithmetic lane-wise, each
+// crossing through consider_hit's rules (consider_lanes).
+HOT void consider_planes_lanes(const SceneRefs* s, const RayPacket* p, MASKP lanes,
+                               PacketHit* h) {
+    for (int i = 0; i < s->n_planes; ++i) {
+        REAL3 n = TO_REAL3(s->planes[i].normal), q = TO_REAL3(s->planes[i].point);
+        REALP nx = (REALP)(n.x), ny = (REALP)(n.y), nz = (REALP)(n.z);
+        REALP dn = dot_lanes(p->dx, p->dy, p->dz, nx, ny, nz);
+        REALP t = dot_lanes((REALP)(q.x) - p->ox, (REALP)(q.y) - p->oy, (REALP)(q.z) - p->oz, nx,
+                            ny, nz) /
+                  dn;
+        MASKP crossed = lanes & (dn != (REAL)0) & isfinite(t);
+        if (lane_mask(crossed)) {
+            consider_lanes(h, crossed, t, (PRIM_PLANE << PRIM_TYPE_SHIFT) | i, 0, (REALP)(0),
+                           (REALP)(0));
+        }
+    }
+}
+#endif
+
 // One axis of node_children's slab test, for one box against every lane: the same
 // compare-selects (a NaN from 0 * inf never narrows the interval) and widened far bound.
 HOT void slab_axis_lanes(REAL lo, REAL hi, REALP o, REALP inv, REAL widen, REALP* t0,
@@ -716,23 +748,23 @@ HOT void packet_walk_closest(const SceneRefs* s, const Ray* rays, const RayPacke
 
 // closest_hit for each lane of `bits` (hits of the others: no hit).
 STAGE void packet_closest(const SceneRefs* s, const Ray* rays, int bits, Hit* hits) {
-    for (int j = 0; j < PACKET_LANES; ++j) hits[j] = no_hit();
 #if HAS_INSTANCES || !HAS_BVH
     // Instances are walked ray by ray.
+    for (int j = 0; j < PACKET_LANES; ++j) hits[j] = no_hit();
     for (int rest = bits; rest; rest &= rest - 1) {
         int j = lowest_bit(rest);
         hits[j] = closest_hit(s, rays + j);
     }
 #else
-#if HAS_PLANES
-    for (int rest = bits; rest; rest &= rest - 1) consider_planes(s, rays + lowest_bit(rest),
-                                                                   hits + lowest_bit(rest));
-#endif
-    if (s->n_nodes == 0) return;
     RayPacket p = ray_packet(rays);
-    PacketBounds b = packet_bounds(&p, bits);
-    PacketHit h = packet_hit(hits);
-    packet_walk_closest(s, rays, &p, &b, bits, &h);
+    PacketHit h = no_hit_lanes();
+#if HAS_PLANES
+    consider_planes_lanes(s, &p, lanes_of(bits), &h);
+#endif
+    if (s->n_nodes > 0) {
+        PacketBounds b = packet_bounds(&p, bits);
+        packet_walk_closest(s, rays, &p, &b, bits, &h);
+    }
     store_hits(&h, hits);
 #endif
 }

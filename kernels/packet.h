@@ -25,14 +25,21 @@
 
 // REALP: one REAL per lane; MASKP: what comparing two REALP gives (int lanes for float, long
 // for double), also the type of per-lane integers that selects mix with REALP.
+// UINTP: one uint per lane (the samplers' hashes); TO_REALP converts it to REALP.
+#define PACKET_PASTE_(a, b) a##b
+#define PACKET_PASTE(a, b) PACKET_PASTE_(a, b)
 #ifdef USE_DOUBLE
 #define PACKET_TYPES(n) \
     typedef double##n REALP; \
-    typedef long##n MASKP;
+    typedef long##n MASKP; \
+    typedef uint##n UINTP;
+#define TO_REALP PACKET_PASTE(convert_double, PACKET_LANES)
 #else
 #define PACKET_TYPES(n) \
     typedef float##n REALP; \
-    typedef int##n MASKP;
+    typedef int##n MASKP; \
+    typedef uint##n UINTP;
+#define TO_REALP PACKET_PASTE(convert_float, PACKET_LANES)
 #endif
 
 #if PACKET_LANES == 16
@@ -191,38 +198,109 @@ HOT REALP dot_lanes(REALP ax, REALP ay, REALP az, REALP bx, REALP by, REALP bz) 
     return xy + zz;
 }
 
-// Lane j's ray, as make_ray made it, for the single-ray code's fallbacks.
-HOT Ray lane_ray(const RayPacket* p, int j) {
-    REAL f[9][PACKET_LANES];
-    VSTOREP(p->ox, 0, f[0]);
-    VSTOREP(p->oy, 0, f[1]);
-    VSTOREP(p->oz, 0, f[2]);
-    VSTOREP(p->dx, 0, f[3]);
-    VSTOREP(p->dy, 0, f[4]);
-    VSTOREP(p->dz, 0, f[5]);
-    VSTOREP(p->ix, 0, f[6]);
-    VSTOREP(p->iy, 0, f[7]);
-    VSTOREP(p->iz, 0, f[8]);
-    Ray r;
-    r.o = (REAL3)(f[0][j], f[1][j], f[2][j]);
-    r.d = (REAL3)(f[3][j], f[4][j], f[5][j]);
-    r.inv_d = (REAL3)(f[6][j], f[7][j], f[8][j]);
-#if HAS_TRIANGLES
+// A packet's rays lane by lane: the arrays that ray_from_lanes reads.
+typedef struct {
+    REAL f[12][PACKET_LANES];
     LANE_INT axis[3][PACKET_LANES];
-    VSTOREP(p->kx, 0, axis[0]);
-    VSTOREP(p->ky, 0, axis[1]);
-    VSTOREP(p->kz, 0, axis[2]);
-    VSTOREP(p->sx, 0, f[0]);
-    VSTOREP(p->sy, 0, f[1]);
-    VSTOREP(p->sz, 0, f[2]);
-    r.kx = (int)axis[0][j];
-    r.ky = (int)axis[1][j];
-    r.kz = (int)axis[2][j];
-    r.sx = f[0][j];
-    r.sy = f[1][j];
-    r.sz = f[2][j];
+} RayLanes;
+
+HOT void store_ray_lanes(const RayPacket* p, RayLanes* r) {
+    VSTOREP(p->ox, 0, r->f[0]);
+    VSTOREP(p->oy, 0, r->f[1]);
+    VSTOREP(p->oz, 0, r->f[2]);
+    VSTOREP(p->dx, 0, r->f[3]);
+    VSTOREP(p->dy, 0, r->f[4]);
+    VSTOREP(p->dz, 0, r->f[5]);
+    VSTOREP(p->ix, 0, r->f[6]);
+    VSTOREP(p->iy, 0, r->f[7]);
+    VSTOREP(p->iz, 0, r->f[8]);
+#if HAS_TRIANGLES
+    VSTOREP(p->sx, 0, r->f[9]);
+    VSTOREP(p->sy, 0, r->f[10]);
+    VSTOREP(p->sz, 0, r->f[11]);
+    VSTOREP(p->kx, 0, r->axis[0]);
+    VSTOREP(p->ky, 0, r->axis[1]);
+    VSTOREP(p->kz, 0, r->axis[2]);
+#endif
+}
+
+// Lane j's ray, as make_ray made it.
+HOT Ray ray_from_lanes(const RayLanes* l, int j) {
+    Ray r;
+    r.o = (REAL3)(l->f[0][j], l->f[1][j], l->f[2][j]);
+    r.d = (REAL3)(l->f[3][j], l->f[4][j], l->f[5][j]);
+    r.inv_d = (REAL3)(l->f[6][j], l->f[7][j], l->f[8][j]);
+#if HAS_TRIANGLES
+    r.sx = l->f[9][j];
+    r.sy = l->f[10][j];
+    r.sz = l->f[11][j];
+    r.kx = (int)l->axis[0][j];
+    r.ky = (int)l->axis[1][j];
+    r.kz = (int)l->axis[2][j];
 #endif
     return r;
+}
+
+// Lane j's ray, for the single-ray code's fallbacks.
+HOT Ray lane_ray(const RayPacket* p, int j) {
+    RayLanes l;
+    store_ray_lanes(p, &l);
+    return ray_from_lanes(&l, j);
+}
+
+// make_ray(o, d) for every lane, into a packet; `lanes`: those whose permutation counts for
+// RayPacket.uniform (the others ride along).
+HOT RayPacket make_ray_packet(REALP ox, REALP oy, REALP oz, REALP dx, REALP dy, REALP dz,
+                              int lanes) {
+    RayPacket p;
+    p.ox = ox;
+    p.oy = oy;
+    p.oz = oz;
+    p.dx = dx;
+    p.dy = dy;
+    p.dz = dz;
+    p.ix = (REAL)1 / dx;
+    p.iy = (REAL)1 / dy;
+    p.iz = (REAL)1 / dz;
+    p.dd = dot_lanes(dx, dy, dz, dx, dy, dz);
+#if HAS_TRIANGLES
+    REALP ax = fabs(dx), ay = fabs(dy), az = fabs(dz);
+    const MASKP zero = (MASKP)(0), one = (MASKP)(1), two = (MASKP)(2);
+    p.kz = ax > ay ? (ax > az ? zero : two) : (ay > az ? one : two);
+    p.kx = p.kz == two ? zero : p.kz + one;
+    p.ky = p.kx == two ? zero : p.kx + one;
+    REALP along = p.kz == zero ? dx : (p.kz == one ? dy : dz);
+    MASKP swap = along < (REAL)0;
+    MASKP kx = swap ? p.ky : p.kx;
+    p.ky = swap ? p.kx : p.ky;
+    p.kx = kx;
+    REALP across_x = p.kx == zero ? dx : (p.kx == one ? dy : dz);
+    REALP across_y = p.ky == zero ? dx : (p.ky == one ? dy : dz);
+    p.sx = -across_x / along;
+    p.sy = -across_y / along;
+    p.sz = (REAL)1 / along;
+    LANE_INT axis[3][PACKET_LANES];
+    VSTOREP(p.kx, 0, axis[0]);
+    VSTOREP(p.ky, 0, axis[1]);
+    VSTOREP(p.kz, 0, axis[2]);
+    int first = lowest_bit(lanes);
+    p.akx = (int)axis[0][first];
+    p.aky = (int)axis[1][first];
+    p.akz = (int)axis[2][first];
+    MASKP same = (p.kx == (MASKP)(p.akx)) & (p.ky == (MASKP)(p.aky)) & (p.kz == (MASKP)(p.akz));
+    p.uniform = (lane_mask(same) & lanes) == lanes;
+    p.okx = p.akx == 0 ? p.ox : (p.akx == 1 ? p.oy : p.oz);
+    p.oky = p.aky == 0 ? p.ox : (p.aky == 1 ? p.oy : p.oz);
+    p.okz = p.akz == 0 ? p.ox : (p.akz == 1 ? p.oy : p.oz);
+#endif
+    return p;
+}
+
+// Each lane's ray as make_ray made it, into rays[0 .. PACKET_LANES - 1].
+HOT void packet_rays(const RayPacket* p, Ray* rays) {
+    RayLanes l;
+    store_ray_lanes(p, &l);
+    for (int j = 0; j < PACKET_LANES; ++j) rays[j] = ray_from_lanes(&l, j);
 }
 
 // The lanes' hits (Hit, lane by lane; instances are not walked by packets).
@@ -746,8 +824,10 @@ HOT void packet_walk_closest(const SceneRefs* s, const Ray* rays, const RayPacke
 
 #endif
 
-// closest_hit for each lane of `bits` (hits of the others: no hit).
-STAGE void packet_closest(const SceneRefs* s, const Ray* rays, int bits, Hit* hits) {
+// closest_hit for each lane of `bits` (hits of the others: no hit); `drawn`: the rays as a
+// packet already, or 0.
+STAGE void packet_closest(const SceneRefs* s, const Ray* rays, const RayPacket* drawn, int bits,
+                          Hit* hits) {
 #if HAS_INSTANCES || !HAS_BVH
     // Instances are walked ray by ray.
     for (int j = 0; j < PACKET_LANES; ++j) hits[j] = no_hit();
@@ -756,7 +836,7 @@ STAGE void packet_closest(const SceneRefs* s, const Ray* rays, int bits, Hit* hi
         hits[j] = closest_hit(s, rays + j);
     }
 #else
-    RayPacket p = ray_packet(rays);
+    RayPacket p = drawn ? *drawn : ray_packet(rays);
     PacketHit h = no_hit_lanes();
 #if HAS_PLANES
     consider_planes_lanes(s, &p, lanes_of(bits), &h);

@@ -64,59 +64,6 @@ HOT SurfaceLanes surface_lanes(const ShadePoint* pt, int bits) {
     return q;
 }
 
-// x, y or z lane by lane, as axis k says.
-HOT MASKP pick_axis_lanes(MASKP x, MASKP y, MASKP z, MASKP k) {
-    return k == (MASKP)(0) ? x : (k == (MASKP)(1) ? y : z);
-}
-
-// make_ray(o, d) for every lane, into a packet; `lanes`: those whose permutation counts for
-// RayPacket.uniform (the others ride along).
-HOT RayPacket make_ray_packet(REALP ox, REALP oy, REALP oz, REALP dx, REALP dy, REALP dz,
-                              int lanes) {
-    RayPacket p;
-    p.ox = ox;
-    p.oy = oy;
-    p.oz = oz;
-    p.dx = dx;
-    p.dy = dy;
-    p.dz = dz;
-    p.ix = (REAL)1 / dx;
-    p.iy = (REAL)1 / dy;
-    p.iz = (REAL)1 / dz;
-    p.dd = dot_lanes(dx, dy, dz, dx, dy, dz);
-#if HAS_TRIANGLES
-    REALP ax = fabs(dx), ay = fabs(dy), az = fabs(dz);
-    const MASKP zero = (MASKP)(0), one = (MASKP)(1), two = (MASKP)(2);
-    p.kz = ax > ay ? (ax > az ? zero : two) : (ay > az ? one : two);
-    p.kx = p.kz == two ? zero : p.kz + one;
-    p.ky = p.kx == two ? zero : p.kx + one;
-    REALP along = p.kz == zero ? dx : (p.kz == one ? dy : dz);
-    MASKP swap = along < (REAL)0;
-    MASKP kx = swap ? p.ky : p.kx;
-    p.ky = swap ? p.kx : p.ky;
-    p.kx = kx;
-    REALP across_x = p.kx == zero ? dx : (p.kx == one ? dy : dz);
-    REALP across_y = p.ky == zero ? dx : (p.ky == one ? dy : dz);
-    p.sx = -across_x / along;
-    p.sy = -across_y / along;
-    p.sz = (REAL)1 / along;
-    LANE_INT axis[3][PACKET_LANES];
-    VSTOREP(p.kx, 0, axis[0]);
-    VSTOREP(p.ky, 0, axis[1]);
-    VSTOREP(p.kz, 0, axis[2]);
-    int first = lowest_bit(lanes);
-    p.akx = (int)axis[0][first];
-    p.aky = (int)axis[1][first];
-    p.akz = (int)axis[2][first];
-    MASKP same = (p.kx == (MASKP)(p.akx)) & (p.ky == (MASKP)(p.aky)) & (p.kz == (MASKP)(p.akz));
-    p.uniform = (lane_mask(same) & lanes) == lanes;
-    p.okx = p.akx == 0 ? p.ox : (p.akx == 1 ? p.oy : p.oz);
-    p.oky = p.aky == 0 ? p.ox : (p.aky == 1 ? p.oy : p.oz);
-    p.okz = p.akz == 0 ? p.ox : (p.akz == 1 ? p.oy : p.oz);
-#endif
-    return p;
-}
-
 // What light_term reads of each lane's shading point beyond SurfaceLanes: the direction to the
 // eye, the surface colour and the material's diffuse, specular and shininess.
 typedef struct {

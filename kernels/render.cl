@@ -66,6 +66,7 @@
 #endif
 #if SAMPLE_PACKETS
 #include "packet.h"
+#include "packet_camera.h"
 #include "packet_light.h"
 #endif
 #if GROUP_PACKETS
@@ -239,11 +240,12 @@ typedef struct {
 } SamplePacket;
 
 // The closest hits of the lanes `bits` of pk->ray, their shading points and direct light
-// (pk->hit, pk->pt, pk->direct): returns the lanes that hit something.
+// (pk->hit, pk->pt, pk->direct): returns the lanes that hit something. `drawn`: pk->ray as a
+// packet already, or 0.
 HOT int shade_packet(const SceneRefs* s, const __global Camera* camera,
                      const __global Params* params, SampleKey key, int bits, SamplePacket* pk,
-                     int* shadow_rays) {
-    packet_closest(s, pk->ray, bits, pk->hit);
+                     const RayPacket* drawn, int* shadow_rays) {
+    packet_closest(s, pk->ray, drawn, bits, pk->hit);
     int lit = 0;
     for (int rest = bits; rest; rest &= rest - 1) {
         int j = lowest_bit(rest);
@@ -263,11 +265,12 @@ HOT int shade_packet(const SceneRefs* s, const __global Camera* camera,
 // as spawn_secondary makes it.
 HOT void trace_chains(const SceneRefs* s, const __global Camera* camera,
                       const __global Params* params, SampleKey key, int bits, SamplePacket* pk,
-                      int* secondary_rays, int* shadow_rays) {
+                      const RayPacket* drawn, int* secondary_rays, int* shadow_rays) {
     REAL3 weight[PACKET_LANES];
     for (int j = 0; j < PACKET_LANES; ++j) weight[j] = (REAL3)(1, 1, 1);
     for (int depth = 0; bits; ++depth) {
-        int lit = shade_packet(s, camera, params, key, bits, pk, shadow_rays);
+        int lit =
+            shade_packet(s, camera, params, key, bits, pk, depth ? 0 : drawn, shadow_rays);
         // Lanes that end here keep their rays: the packet reads every lane.
         int live = bits;
         bits = 0;
@@ -302,7 +305,15 @@ OUT_OF_LINE void trace_sample_packet(const SceneRefs* s, const __global Camera* 
                                      SampleKey key, int lanes, SamplePacket* pk,
                                      int* secondary_rays, int* shadow_rays) {
     int first = key.sample;
-    for (int j = 0; j < PACKET_LANES; ++j) {
+    RayPacket primary;
+    const RayPacket* drawn = 0;
+#if CAMERA_LANES
+    if (camera_ray_lanes(camera, params, x, y, first, lanes, pixel, &primary)) {
+        packet_rays(&primary, pk->ray);
+        drawn = &primary;
+    }
+#endif
+    for (int j = 0; j < PACKET_LANES && !drawn; ++j) {
         REAL3 o, d;
         // Lanes past the pixel's last sample ride along as copies of its first.
         sample_ray(camera, params, x, y, first + (j < lanes ? j : 0), pixel, &o, &d);
@@ -310,9 +321,9 @@ OUT_OF_LINE void trace_sample_packet(const SceneRefs* s, const __global Camera* 
     }
     int bits = (1 << lanes) - 1;
 #if PACKET_CHAINS
-    trace_chains(s, camera, params, key, bits, pk, secondary_rays, shadow_rays);
+    trace_chains(s, camera, params, key, bits, pk, drawn, secondary_rays, shadow_rays);
 #else
-    shade_packet(s, camera, params, key, bits, pk, shadow_rays);
+    shade_packet(s, camera, params, key, bits, pk, drawn, shadow_rays);
 #endif
 }
 #endif
@@ -522,7 +533,7 @@ __kernel WORK_ITEM_LANES void intersect_rays(__global const float4* origins,
     for (int j = 0; j < PACKET_LANES; ++j) {
         rays[j] = make_ray(TO_REAL3(origins[first + j]), TO_REAL3(directions[first + j]));
     }
-    packet_closest(&s, rays, ALL_LANES, found);
+    packet_closest(&s, rays, 0, ALL_LANES, found);
     for (int j = 0; j < PACKET_LANES; ++j) {
         report_hit(&s, rays + j, found + j, hits + first + j, refs + first + j);
     }

@@ -37,7 +37,9 @@ from clray.device.context import describe, queue_for, select_device
 from clray.device.launch import render_packed
 from clray.device.pack import pack_scene
 from clray.device.program import KernelConfig, bvh_width_for
+from clray.render import RenderSettings, kernel_switches
 from clray.scene.load import load_scene
+from clray.tuning.knobs import Tuning
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
@@ -148,7 +150,11 @@ def bench_scene(name: str, path: Path, device: cl.Device, device_spec: str | Non
     pov = (_module("povray").Interleaved(name, path, povray_dir, r.width, r.height,
                                          os.cpu_count() or 1) if povray_dir else None)
     pov_spp = povray_spp if pov else ()
-    at_spp = {n: pack_scene(scene, **{**settings, "spp": n}) for n in pov_spp if n != r.spp}
+    # At other sample counts the device's own kernel switches, as a render picks them (sample
+    # packets on CPU devices where a pixel's samples fill one).
+    at_spp = {n: pack_scene(scene, **{**settings, "spp": n},
+                            **kernel_switches(Tuning(), RenderSettings(), device, n))
+              for n in pov_spp if n != r.spp}
     for other in at_spp.values():
         render_packed(other, device)
     spp_runs: dict[int, list[float]] = {n: [] for n in pov_spp}

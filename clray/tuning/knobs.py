@@ -96,7 +96,8 @@ KNOB_TABLE: tuple[Knob, ...] = (
          "not worth a node visit"),
     Knob("traversal", "kernel", None, lambda v: v is None or _one_of(*TRAVERSALS)(v),
          "single, sample_packet, group_packet, or None: the device's own (sample_packet on "
-         "Intel's CPU runtime, where it measured 1.07x to 1.21x at 16 spp; single elsewhere)",
+         "the CPU devices of PoCL and Intel's CPU runtime, 1.4x to 1.8x at 16 spp; single "
+         "elsewhere)",
          (None, *TRAVERSALS),
          "how rays walk the BVH (the -D TRAVERSAL, docs/acceleration.md): every ray alone, "
          "a pixel's samples in packets of packet_lanes vector lanes, or a work-group's tile of "

@@ -189,6 +189,45 @@ def test_hard_case_renders_the_same_with_packets(cl_device, case, traversal, tun
         f"{np.sum(np.any(single != packets, axis=2))} pixels differ")
 
 
+def _lane_wise_scene(shininess: float, light: list[float]) -> M.Scene:
+    """Two shiny spheres on a plane under one point light, seen by the pinhole camera: every
+    lane-wise set-up of a sample packet (camera rays, the point light's shadow rays and terms,
+    planes) has work to do."""
+    shiny = {"color": [0.9, 0.6, 0.3], "ambient": 0.1, "diffuse": 0.6, "specular": 0.8,
+             "shininess": shininess, "reflect": 0.3}
+    return scene_from_dict({
+        "render": {"width": 40, "height": 30, "max_depth": 2, "ambient": [1.0, 1.0, 1.0]},
+        "camera": {"position": [0, 2, 6], "look_at": [0, 0.5, 0], "vfov": 45},
+        "materials": {"shiny": shiny},
+        "lights": [{"type": "point", "position": light, "color": [1.0, 1.0, 1.0]}],
+        "objects": [{"type": "plane", "point": [0, 0, 0], "normal": [0, 1, 0],
+                     "material": "shiny"},
+                    {"type": "sphere", "center": [-0.8, 0.7, 0], "radius": 0.7,
+                     "material": "shiny"},
+                    {"type": "sphere", "center": [0.9, 0.5, -0.5], "radius": 0.5,
+                     "material": "shiny"}]})
+
+
+# A whole specular exponent and a near light take the lane-wise paths; a fractional exponent
+# (phong_power's exp2 and log2) and a light so far that its squared distance overflows float
+# (where length() scales and sqrt(d . d) is infinite) must go lane by lane, and still give the
+# single-ray image. Each fallback removed, its case fails.
+LANE_WISE = {"lane_wise": (32.0, [3.0, 5.0, 4.0]),
+             "fractional_shininess": (12.5, [3.0, 5.0, 4.0]),
+             "light_beyond_2^64": (32.0, [3e19, 5e19, 4e19])}
+
+
+@pytest.mark.filterwarnings("ignore::pyopencl.CompilerWarning")
+@pytest.mark.parametrize("case", list(LANE_WISE))
+def test_lane_wise_set_ups_render_the_single_ray_image(cl_device, case):
+    _require_exact_arithmetic(cl_device)
+    scene = _lane_wise_scene(*LANE_WISE[case])
+    single, packets = _render_both(scene, "sample_packet", Tuning(), width=40, height=30)
+    assert np.mean(single[..., 0] > 0.2) > 0.2, "the scene should be mostly lit"
+    assert np.array_equal(single, packets, equal_nan=True), (
+        f"{np.sum(np.any(single != packets, axis=2))} pixels differ")
+
+
 def test_traversal_setting_is_checked():
     with pytest.raises(SettingsError, match="traversal"):
         RenderSettings(traversal="packets")

@@ -373,18 +373,23 @@ HOT PacketHit no_hit_lanes(void) {
 }
 
 #if HAS_PLANES
-// consider_planes on every lane of `lanes`: intersect_plane's arithmetic lane-wise, each
-// crossing through consider_hit's rules (consider_lanes).
+// intersect_plane lane-wise: the lanes that cross the plane, with their t.
+HOT MASKP plane_lanes(const __global Plane* plane, const RayPacket* p, REALP* t) {
+    REAL3 n = TO_REAL3(plane->normal), q = TO_REAL3(plane->point);
+    REALP nx = (REALP)(n.x), ny = (REALP)(n.y), nz = (REALP)(n.z);
+    REALP dn = dot_lanes(p->dx, p->dy, p->dz, nx, ny, nz);
+    *t = dot_lanes((REALP)(q.x) - p->ox, (REALP)(q.y) - p->oy, (REALP)(q.z) - p->oz, nx, ny, nz) /
+         dn;
+    return (dn != (REAL)0) & isfinite(*t);
+}
+
+// consider_planes on every lane of `lanes`, each crossing through consider_hit's rules
+// (consider_lanes).
 HOT void consider_planes_lanes(const SceneRefs* s, const RayPacket* p, MASKP lanes,
                                PacketHit* h) {
     for (int i = 0; i < s->n_planes; ++i) {
-        REAL3 n = TO_REAL3(s->planes[i].normal), q = TO_REAL3(s->planes[i].point);
-        REALP nx = (REALP)(n.x), ny = (REALP)(n.y), nz = (REALP)(n.z);
-        REALP dn = dot_lanes(p->dx, p->dy, p->dz, nx, ny, nz);
-        REALP t = dot_lanes((REALP)(q.x) - p->ox, (REALP)(q.y) - p->oy, (REALP)(q.z) - p->oz, nx,
-                            ny, nz) /
-                  dn;
-        MASKP crossed = lanes & (dn != (REAL)0) & isfinite(t);
+        REALP t;
+        MASKP crossed = lanes & plane_lanes(s->planes + i, p, &t);
         if (lane_mask(crossed)) {
             consider_lanes(h, crossed, t, (PRIM_PLANE << PRIM_TYPE_SHIFT) | i, 0, (REALP)(0),
                            (REALP)(0));
@@ -900,17 +905,12 @@ HOT int leaf_blocks_lanes(const SceneRefs* s, int slot, int count, const RayPack
 
 #if HAS_PLANES
 // The lanes of `bits` that a plane blocks within (0, tmax): planes_transmission in an opaque
-// scene, intersect_plane's arithmetic lane-wise.
+// scene, lane-wise.
 HOT int planes_blocked_lanes(const SceneRefs* s, const RayPacket* p, REALP tmax, int bits) {
     MASKP blocked = (MASKP)(0);
     for (int i = 0; i < s->n_planes; ++i) {
-        REAL3 n = TO_REAL3(s->planes[i].normal), q = TO_REAL3(s->planes[i].point);
-        REALP nx = (REALP)(n.x), ny = (REALP)(n.y), nz = (REALP)(n.z);
-        REALP dn = dot_lanes(p->dx, p->dy, p->dz, nx, ny, nz);
-        REALP t = dot_lanes((REALP)(q.x) - p->ox, (REALP)(q.y) - p->oy, (REALP)(q.z) - p->oz, nx,
-                            ny, nz) /
-                  dn;
-        blocked |= (dn != (REAL)0) & isfinite(t) & (t > (REAL)0) & (t < tmax);
+        REALP t;
+        blocked |= plane_lanes(s->planes + i, p, &t) & (t > (REAL)0) & (t < tmax);
     }
     return bits & lane_mask(blocked);
 }

@@ -494,6 +494,42 @@ HOT int node_children_interval(const __global BvhNode* node, const PacketBounds*
     return lane_bits(MASK_TO_INTW(t0 <= t1) & used);
 }
 
+// A leaf packet's PACKET_WIDTH shapes in a node's vector: the upper half of an 8-wide one
+// repeats the lower, and its bits are dropped.
+HOT REALW shape_vector(REAL4 v) {
+#if BVH_WIDTH == 8
+    return (REALW)(v, v);
+#else
+    return v;
+#endif
+}
+
+// The shapes of a leaf packet that some lane may cross within [0, tmax], as bits: their boxes
+// (lo, hi) against the packet's intervals, node_children_interval's test. The shapes' own tests
+// round, so a box grows by 2^-12 of its coordinates' and the origins' magnitude, far more than
+// their rounding can move a crossing (a few ulps of that magnitude): a shape left out is one
+// that no lane's test would report. A margin that overflows (or a NaN) keeps the shape in: the
+// slab test's selects then leave its [t0, t1] as it was.
+HOT int shapes_interval(REAL4 lo_x, REAL4 hi_x, REAL4 lo_y, REAL4 hi_y, REAL4 lo_z, REAL4 hi_z,
+                        const PacketBounds* b, REAL tmax) {
+    REAL reach = (REAL)0;
+    for (int axis = 0; axis < 3; ++axis) {
+        reach = fmax(reach, fmax(fabs(b->olo[axis]), fabs(b->ohi[axis])));
+    }
+    REAL4 size = fmax(fmax(fmax(fabs(lo_x), fabs(hi_x)), fmax(fabs(lo_y), fabs(hi_y))),
+                      fmax(fabs(lo_z), fabs(hi_z)));
+    REAL4 margin = (size + reach) * (REAL)0x1p-12;
+    const REAL widen = (REAL)1 + (REAL)2 * gamma_n(3);
+    REALW t0 = (REALW)(0), t1 = (REALW)(tmax);
+    slab_axis_interval(shape_vector(lo_x - margin), shape_vector(hi_x + margin), b, 0, widen,
+                       &t0, &t1);
+    slab_axis_interval(shape_vector(lo_y - margin), shape_vector(hi_y + margin), b, 1, widen,
+                       &t0, &t1);
+    slab_axis_interval(shape_vector(lo_z - margin), shape_vector(hi_z + margin), b, 2, widen,
+                       &t0, &t1);
+    return lane_bits(MASK_TO_INTW(t0 <= t1)) & ((1 << PACKET_WIDTH) - 1);
+}
+
 #if HAS_TRIANGLES && !TRIANGLE_MOLLER_TRUMBORE
 HOT REALP pick_lanes(REALP x, REALP y, REALP z, MASKP k) {
     return k == (MASKP)(0) ? x : (k == (MASKP)(1) ? y : z);
@@ -669,6 +705,30 @@ HOT MASKP sphere_lanes(const __global SpherePacket* pk, int k, const RayPacket* 
 #endif
 
 #if HAS_BVH && !HAS_INSTANCES
+#if TRIANGLE_LANES
+// shapes_interval for a triangle packet: each triangle's box of its corners.
+HOT int triangles_interval(const __global TrianglePacket* pk, const PacketBounds* b, REAL tmax) {
+    REAL4 x0 = TO_REAL4(vload4(0, pk->x0)), x1 = TO_REAL4(vload4(0, pk->x1)),
+          x2 = TO_REAL4(vload4(0, pk->x2));
+    REAL4 y0 = TO_REAL4(vload4(0, pk->y0)), y1 = TO_REAL4(vload4(0, pk->y1)),
+          y2 = TO_REAL4(vload4(0, pk->y2));
+    REAL4 z0 = TO_REAL4(vload4(0, pk->z0)), z1 = TO_REAL4(vload4(0, pk->z1)),
+          z2 = TO_REAL4(vload4(0, pk->z2));
+    return shapes_interval(fmin(fmin(x0, x1), x2), fmax(fmax(x0, x1), x2),
+                           fmin(fmin(y0, y1), y2), fmax(fmax(y0, y1), y2),
+                           fmin(fmin(z0, z1), z2), fmax(fmax(z0, z1), z2), b, tmax);
+}
+#endif
+
+#if SPHERE_LANES
+// shapes_interval for a sphere packet: each sphere's box, its centre +- its radius.
+HOT int spheres_interval(const __global SpherePacket* pk, const PacketBounds* b, REAL tmax) {
+    REAL4 x = TO_REAL4(vload4(0, pk->x)), y = TO_REAL4(vload4(0, pk->y)),
+          z = TO_REAL4(vload4(0, pk->z)), r = fabs(TO_REAL4(vload4(0, pk->radius)));
+    return shapes_interval(x - r, x + r, y - r, y + r, z - r, z + r, b, tmax);
+}
+#endif
+
 // Whether a leaf holds shapes that have no lane-wise test: its other primitives, and the
 // packets of the study variants' formulas.
 HOT bool leaf_ray_by_ray(int count) {
@@ -682,10 +742,11 @@ HOT bool leaf_ray_by_ray(int count) {
     return ray_by_ray;
 }
 
-// Closest hits of the lanes `bits` in a leaf: its triangles and spheres lane-wise, its other
-// shapes (and the study variants' formulas) ray by ray, as leaf_closest has them.
+// Closest hits of the lanes `bits` in a leaf: its triangles and spheres lane-wise (those that
+// shapes_interval leaves in, on the packet's intervals b), its other shapes (and the study
+// variants' formulas) ray by ray, as leaf_closest has them.
 HOT void leaf_closest_lanes(const SceneRefs* s, int slot, int count, const Ray* rays,
-                            const RayPacket* p, int bits, PacketHit* h) {
+                            const RayPacket* p, const PacketBounds* b, int bits, PacketHit* h) {
     MASKP lanes = lanes_of(bits);
     int tri_packets = section_packets(count, PRIM_TRIANGLE);
     int sphere_packets = section_packets(count, PRIM_SPHERE);
@@ -699,12 +760,18 @@ HOT void leaf_closest_lanes(const SceneRefs* s, int slot, int count, const Ray* 
         *h = packet_hit(hits);
         return;
     }
+    // As far as any lane's hit may still be replaced (consider_lanes's tie reach).
+    REALP reach = h->t + (REAL)2 * tie_gamma() * h->t;
+    REAL tmax = max_lanes(lanes ? reach : (REALP)(0));
 #if TRIANGLE_LANES
     for (int end = slot + tri_packets * PACKET_WIDTH; slot < end; slot += PACKET_WIDTH) {
         const __global TrianglePacket* pk = s->triangle_packets + slot / PACKET_WIDTH;
+        int maybe = triangles_interval(pk, b, tmax);
+        if (!maybe) continue;
         PickedCorners picked;
         if (p->uniform) picked = pick_corners(pk, p);
-        for (int k = 0; k < PACKET_WIDTH; ++k) {
+        for (; maybe; maybe &= maybe - 1) {
+            int k = lowest_bit(maybe);
             int ref = s->prim_refs[slot + k];
             if (ref < 0) break;  // padding: the packet's last lanes
             REALP t, b1, b2;
@@ -716,7 +783,8 @@ HOT void leaf_closest_lanes(const SceneRefs* s, int slot, int count, const Ray* 
 #if SPHERE_LANES
     for (int end = slot + sphere_packets * PACKET_WIDTH; slot < end; slot += PACKET_WIDTH) {
         const __global SpherePacket* pk = s->sphere_packets + slot / PACKET_WIDTH;
-        for (int k = 0; k < PACKET_WIDTH; ++k) {
+        for (int maybe = spheres_interval(pk, b, tmax); maybe; maybe &= maybe - 1) {
+            int k = lowest_bit(maybe);
             int ref = s->prim_refs[slot + k];
             if (ref < 0) break;
             REALP t0, t1;
@@ -783,7 +851,7 @@ HOT void packet_walk_closest(const SceneRefs* s, const Ray* rays, const RayPacke
     for (;;) {
         if (count > 0) {
             COUNT(s, closest_prims, leaf_prims(s, child, count));
-            leaf_closest_lanes(s, child, count, rays, p, bits, h);
+            leaf_closest_lanes(s, child, count, rays, p, b, bits, h);
         } else if (popcount(bits) <= PACKET_MIN_LANES) {
             // Too few lanes to pay for the packet: the single-ray walk, lane by lane.
             Hit hits[PACKET_LANES];
@@ -855,9 +923,10 @@ STAGE void packet_closest(const SceneRefs* s, const Ray* rays, const RayPacket* 
 }
 
 #if !HAS_TRANSMISSION && !HAS_INSTANCES && HAS_BVH
-// Lanes of `bits` that a leaf blocks within (0, tmax): packet_blocks lane-wise.
+// Lanes of `bits` that a leaf blocks within (0, tmax): packet_blocks lane-wise, for the shapes
+// that shapes_interval leaves in (b: the packet's intervals).
 HOT int leaf_blocks_lanes(const SceneRefs* s, int slot, int count, const RayPacket* p,
-                          REALP tmax, const REAL* tmax_lanes, int bits) {
+                          const PacketBounds* b, REALP tmax, const REAL* tmax_lanes, int bits) {
     MASKP lanes = lanes_of(bits);
     int tri_packets = section_packets(count, PRIM_TRIANGLE);
     int sphere_packets = section_packets(count, PRIM_SPHERE);
@@ -873,12 +942,16 @@ HOT int leaf_blocks_lanes(const SceneRefs* s, int slot, int count, const RayPack
         }
         return blocked;
     }
+    REAL reach = max_lanes(lanes ? tmax : (REALP)(0));
 #if TRIANGLE_LANES
     for (int end = slot + tri_packets * PACKET_WIDTH; slot < end; slot += PACKET_WIDTH) {
         const __global TrianglePacket* pk = s->triangle_packets + slot / PACKET_WIDTH;
+        int maybe = triangles_interval(pk, b, reach);
+        if (!maybe) continue;
         PickedCorners picked;
         if (p->uniform) picked = pick_corners(pk, p);
-        for (int k = 0; k < PACKET_WIDTH; ++k) {
+        for (; maybe; maybe &= maybe - 1) {
+            int k = lowest_bit(maybe);
             if (s->prim_refs[slot + k] < 0) break;
             REALP t, b1, b2;
             MASKP crossed = lanes & triangle_lanes(pk, &picked, k, p, &t, &b1, &b2);
@@ -890,7 +963,8 @@ HOT int leaf_blocks_lanes(const SceneRefs* s, int slot, int count, const RayPack
 #if SPHERE_LANES
     for (int end = slot + sphere_packets * PACKET_WIDTH; slot < end; slot += PACKET_WIDTH) {
         const __global SpherePacket* pk = s->sphere_packets + slot / PACKET_WIDTH;
-        for (int k = 0; k < PACKET_WIDTH; ++k) {
+        for (int maybe = spheres_interval(pk, b, reach); maybe; maybe &= maybe - 1) {
+            int k = lowest_bit(maybe);
             if (s->prim_refs[slot + k] < 0) break;
             REALP t0, t1;
             MASKP crossed = sphere_lanes(pk, k, p, lanes, &t0, &t1);
@@ -938,7 +1012,7 @@ HOT int packet_blocked(const SceneRefs* s, const RayPacket* p, const REAL* tmax_
         if (!lanes) continue;
         if (count > 0) {
             COUNT(s, shadow_prims, leaf_prims(s, child, count));
-            blocked |= leaf_blocks_lanes(s, child, count, p, tmax, tmax_lanes, lanes);
+            blocked |= leaf_blocks_lanes(s, child, count, p, &b, tmax, tmax_lanes, lanes);
             if (blocked == bits) return blocked;
             continue;
         }

@@ -11,7 +11,9 @@ warm-up and then `--per-round` times, timed by OpenCL profiling events. Medians 
 reported per ref and scene, with the ratio to the first ref. Alternating the refs spreads the
 machine's load changes over all of them, which separate runs at different times do not.
 `REF:TRAVERSAL` (e.g. `WORKTREE:sample_packet`) renders with that KernelConfig traversal, for
-commits that have it; a plain REF with KernelConfig's default. `--spp` and `--size` replace the
+commits that have it, and `REF:sample_packet:LANES` with packets of LANES rays (KernelConfig's
+packet_lanes, 8 where not given, whatever the device's own); a plain REF with KernelConfig's
+default. `--spp` and `--size` replace the
 scenes' own.
 """
 
@@ -46,11 +48,14 @@ try:
 except ImportError:  # a commit from before clray.device.launch
     from clray.render import render_packed
 from clray.scene.load import load_scene
-path, repeat, spec, traversal = sys.argv[1], int(sys.argv[2]), sys.argv[3] or None, sys.argv[4]
+path, repeat, spec, variant = sys.argv[1], int(sys.argv[2]), sys.argv[3] or None, sys.argv[4]
 spp, width, height = (int(v) for v in sys.argv[5:8])
 scene = load_scene(path)
 r = scene.render
+traversal, _, lanes = variant.partition(":")
 switches = {"traversal": traversal} if traversal else {}
+if lanes:
+    switches["packet_lanes"] = int(lanes)
 packed = pack_scene(scene, width=width or r.width, height=height or r.height,
                     spp=spp or r.spp, max_depth=r.max_depth, seed=r.seed, **switches)
 device = select_device(spec)
@@ -65,9 +70,9 @@ print(json.dumps({"kernel_s": times, "rays": stats["rays"]["total"],
 
 
 def _split_ref(ref: str) -> tuple[str, str]:
-    """(commit, traversal or "") of a REF[:TRAVERSAL] argument."""
-    commit, _, traversal = ref.partition(":")
-    return commit, traversal
+    """(commit, "TRAVERSAL[:LANES]" or "") of a REF[:TRAVERSAL[:LANES]] argument."""
+    commit, _, variant = ref.partition(":")
+    return commit, variant
 
 
 def _worktree(ref: str, tmp: Path) -> Path:
@@ -89,11 +94,11 @@ def _scene_paths(names: list[str], tmp: Path) -> dict[str, Path]:
     return {name: paths[name] for name in names}
 
 
-def _measure(tree: Path, scene: Path, repeat: int, device: str | None, traversal: str,
+def _measure(tree: Path, scene: Path, repeat: int, device: str | None, variant: str,
              shape: tuple[int, int, int]) -> dict:
     env = {**os.environ, "PYTHONPATH": str(tree)}
     out = subprocess.run([sys.executable, "-c", _MEASURE, str(scene), str(repeat), device or "",
-                          traversal, *(str(v) for v in shape)],
+                          variant, *(str(v) for v in shape)],
                          check=True, capture_output=True, text=True, cwd=tree, env=env).stdout
     return json.loads(out.splitlines()[-1])
 

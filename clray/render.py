@@ -139,7 +139,7 @@ def kernel_switches(tuning: Tuning, settings: RenderSettings, device: cl.Device,
                                    "implicit_vectorization": tuning.implicit_vectorization}
     if traversal == "sample_packet":
         # Checked whatever the spp: a tuning that cannot build is an error at 1 spp too.
-        lanes = tuning.packet_lanes or packet_lanes_for(device, settings.precision)
+        lanes = tuning.packet_lanes or packet_lanes_for(device, settings.precision, spp)
         if tuning.packet_min_lanes >= lanes:
             raise TuningError(f"packet_min_lanes {tuning.packet_min_lanes} is not below the "
                               f"{lanes} packet lanes of {device.name.strip()!r}")

@@ -170,7 +170,7 @@ def test_kernel_and_build_knobs_change_the_kernel_build(cl_device, spheres) -> N
     assert "-DTRAVERSAL=TRAVERSAL_SINGLE" in default
     assert not any(o.startswith(("-DPACKET_", "-cl-")) for o in default)
     packets = Tuning(traversal="sample_packet")
-    auto = packet_lanes_for(cl_device)
+    auto = packet_lanes_for(cl_device, spp=16)
     assert set(options_with(cl_device, spheres, packets)) - set(default) == {
         "-DTRAVERSAL=TRAVERSAL_SAMPLE_PACKET", f"-DPACKET_LANES={auto}",
         f"-DPACKET_MIN_LANES={KNOBS['packet_min_lanes'].default}"}
@@ -220,6 +220,10 @@ def test_vector_width_is_the_preferred_or_the_native_one() -> None:
     assert [bvh_width_for(d, "double") for d in (intel, gpu, avx2, avx512)] == [4, 4, 4, 8]
     assert [packet_lanes_for(d) for d in (intel, gpu, avx2, avx512)] == [8, 4, 8, 16]
     assert [packet_lanes_for(d, "double") for d in (intel, gpu, avx2, avx512)] == [4, 4, 4, 8]
+    # Where a pixel's samples fill them, 16 lanes on a device 8 wide too (two vectors a test).
+    assert [packet_lanes_for(d, spp=16) for d in (intel, gpu, avx2, avx512)] == [16, 4, 16, 16]
+    assert [packet_lanes_for(d, spp=15) for d in (intel, gpu, avx2, avx512)] == [8, 4, 8, 16]
+    assert [packet_lanes_for(d, "double", 16) for d in (intel, gpu, avx2, avx512)] == [4, 4, 4, 16]
 
 
 def test_each_device_has_its_own_traversal() -> None:
@@ -257,10 +261,12 @@ def test_intels_runtime_packs_work_items_only_when_the_switch_lets_it(cl_device,
 
 
 def test_packet_min_lanes_must_be_below_the_devices_own_lanes(cl_device, spheres) -> None:
-    auto = packet_lanes_for(cl_device)
+    # At 8 spp: the device's lanes are its vector width (8 or 16 on CPUs, 4 on GPUs), and a
+    # packet_min_lanes of 16 the knob itself refuses.
+    auto = packet_lanes_for(cl_device, spp=8)
     with pytest.raises(TuningError, match=f"packet_min_lanes {auto} is not below the {auto}"):
         options_with(cl_device, spheres, Tuning(traversal="sample_packet",
-                                                packet_min_lanes=auto))
+                                                packet_min_lanes=auto), spp=8)
 
 
 def test_traversal_cost_reaches_the_sah() -> None:

@@ -219,6 +219,7 @@ class SceneRun:
     settings: RenderSettings
     reference: np.ndarray
     default_packed: PackedScene
+    spp: int
 
 
 class Tuner:
@@ -260,7 +261,7 @@ class Tuner:
                                   tuning=DEFAULT_TUNING)
         packed = pack_for(scene, settings, self.device)
         reference, _ = render_packed(packed, self.device)
-        return SceneRun(path.stem, path, settings, reference, packed)
+        return SceneRun(path.stem, path, settings, reference, packed, scene.render.spp)
 
     def tolerance(self, reference: np.ndarray) -> Tolerance:
         n = reference.shape[0] * reference.shape[1]
@@ -405,6 +406,9 @@ class Tuner:
         for i, path in enumerate(paths):
             run = self.prepare(path)
             self.runs.append(run)
+            # A render's own packet lanes depend on its samples a pixel: None stands for the
+            # scene's.
+            self.auto["packet_lanes"] = packet_lanes_for(self.device, spp=run.spp)
             deadline = start + self.budget_s * (i + 1) / len(paths)
             kernel_space = {**self.block_params(), **self.kernel_params(),
                             **self.extra_params}

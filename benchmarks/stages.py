@@ -16,6 +16,9 @@ up to 100 %; what no stage holds is the ray tree's own bookkeeping and the sampl
 gathering of lanes. Calls that are not inlined cost instructions of their own: the profiling
 build's total is reported beside the normal build's, so the overhead is in view.
 
+Sample packets have the lanes a render gives them on PoCL's device at that many samples a
+pixel (`clray.device.program.packet_lanes_for`: 16 on AVX2 at 16 spp).
+
 A pixel's samples are as coherent as the image is large: at 32 x 18 a pixel covers what 1,600
 pixels of a 1280 x 720 image do, so a change that pays off where a pixel's rays stay together
 (packets) is best counted on a band of a full-size image: `--size 1280x720 --rows 360:361`
@@ -50,14 +53,20 @@ import dataclasses, json, sys
 from clray.device.context import select_device
 from clray.device.launch import render_packed
 from clray.device.pack import pack_scene
+from clray.device.program import packet_lanes_for
 from clray.scene.load import load_scene
 path, traversal, spp, width, height, profile, first, end = sys.argv[1:9]
 scene = load_scene(path)
 r = scene.render
+device = select_device("pocl")
+# Sample packets as a render packs them: the device's own lanes for this many samples.
+lanes = {}
+if traversal == "sample_packet":
+    lanes["packet_lanes"] = packet_lanes_for(device, spp=int(spp))
 packed = pack_scene(scene, width=int(width), height=int(height), spp=int(spp),
-                    max_depth=r.max_depth, seed=r.seed, traversal=traversal)
+                    max_depth=r.max_depth, seed=r.seed, traversal=traversal, **lanes)
 config = dataclasses.replace(packed.config, stage_profile=profile == "1")
-_, stats = render_packed(dataclasses.replace(packed, config=config), select_device("pocl"),
+_, stats = render_packed(dataclasses.replace(packed, config=config), device,
                          rows=(int(first), int(end)))
 print(json.dumps(stats["rays"]))
 """

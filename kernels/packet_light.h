@@ -17,18 +17,8 @@
 
 #define POINT_LIGHT_LANES (!HAS_TRANSMISSION && !HAS_INSTANCES && HAS_BVH)
 
-#if POINT_LIGHT_LANES
-// length() lane-wise: sqrt of dot_lanes, which is what PoCL's length() computes wherever the
-// squared length is within [2^-90, 2^90]; outside it, length() scales against underflow and
-// overflow. False where a lane of `lanes` is outside that range (or NaN).
-HOT bool length_lanes(REALP x, REALP y, REALP z, MASKP lanes, REALP* len) {
-    REALP dd = dot_lanes(x, y, z, x, y, z);
-    MASKP inside = (dd >= (REAL)0x1p-90) & (dd <= (REAL)0x1p90);
-    *len = sqrt(fmax(dd, (REALP)(0)));
-    return !lane_mask(lanes & ~inside);
-}
-
-// The lanes' shading points, coordinate by coordinate: what light_ray reads of a ShadePoint.
+// The lanes' shading points, coordinate by coordinate: what light_ray and a reflected ray's
+// set-up read of a ShadePoint.
 typedef struct {
     REALP px, py, pz, err, gx, gy, gz, nx, ny, nz;
 } SurfaceLanes;
@@ -62,6 +52,32 @@ HOT SurfaceLanes surface_lanes(const ShadePoint* pt, int bits) {
     q.ny = VLOADP(0, f[8]);
     q.nz = VLOADP(0, f[9]);
     return q;
+}
+
+// offset_origin(sf, w) for every lane, into (ox, oy, oz): the same operations in the same
+// order.
+HOT void offset_origin_lanes(const SurfaceLanes* q, REALP wx, REALP wy, REALP wz, REALP* ox,
+                             REALP* oy, REALP* oz) {
+#if OFFSET_FIXED_EPS
+    REALP d = (REALP)(1e-4);
+#else
+    REALP d = q->err * (fabs(q->gx) + fabs(q->gy) + fabs(q->gz));
+#endif
+    MASKP out = dot_lanes(wx, wy, wz, q->gx, q->gy, q->gz) > (REAL)0;
+    *ox = out ? q->px + d * q->gx : q->px - d * q->gx;
+    *oy = out ? q->py + d * q->gy : q->py - d * q->gy;
+    *oz = out ? q->pz + d * q->gz : q->pz - d * q->gz;
+}
+
+#if POINT_LIGHT_LANES
+// length() lane-wise: sqrt of dot_lanes, which is what PoCL's length() computes wherever the
+// squared length is within [2^-90, 2^90]; outside it, length() scales against underflow and
+// overflow. False where a lane of `lanes` is outside that range (or NaN).
+HOT bool length_lanes(REALP x, REALP y, REALP z, MASKP lanes, REALP* len) {
+    REALP dd = dot_lanes(x, y, z, x, y, z);
+    MASKP inside = (dd >= (REAL)0x1p-90) & (dd <= (REAL)0x1p90);
+    *len = sqrt(fmax(dd, (REALP)(0)));
+    return !lane_mask(lanes & ~inside);
 }
 
 // What light_term reads of each lane's shading point beyond SurfaceLanes: the direction to the
@@ -161,16 +177,8 @@ HOT bool point_light_lanes(const __global Light* light, const SurfaceLanes* q, i
     *atten = denom > (REAL)0 ? fmin((REALP)(1), (REAL)1 / denom) : (REALP)(1);
     *ndl = dot_lanes(q->nx, q->ny, q->nz, *lx, *ly, *lz);
     lit &= *ndl > (REAL)0;
-    // offset_origin(sf, l)
-#if OFFSET_FIXED_EPS
-    REALP d = (REALP)(1e-4);
-#else
-    REALP d = q->err * (fabs(q->gx) + fabs(q->gy) + fabs(q->gz));
-#endif
-    MASKP out = dot_lanes(*lx, *ly, *lz, q->gx, q->gy, q->gz) > (REAL)0;
-    REALP ox = out ? q->px + d * q->gx : q->px - d * q->gx;
-    REALP oy = out ? q->py + d * q->gy : q->py - d * q->gy;
-    REALP oz = out ? q->pz + d * q->gz : q->pz - d * q->gz;
+    REALP ox, oy, oz;
+    offset_origin_lanes(q, *lx, *ly, *lz, &ox, &oy, &oz);
     REALP span;
     if (!length_lanes(tx - ox, ty - oy, tz - oz, lit, &span)) return false;
     MASKP away = span > (REAL)0;
@@ -229,11 +237,11 @@ HOT bool point_light_direct(const SceneRefs* s, const ShadePoint* pt, const Ray*
 #endif
 
 // shade_direct for the lanes of `bits`, each at its own shading point pt[j] seen along
-// seen[j], with one shadow-ray packet per light. key.sample: lane 0's sample. The per-lane
-// arithmetic is shade_direct's.
+// seen[j] (q: their surface_lanes), with one shadow-ray packet per light. key.sample: lane 0's
+// sample. The per-lane arithmetic is shade_direct's.
 HOT void packet_direct(const SceneRefs* s, const ShadePoint* pt, const Ray* seen,
-                       REAL3 ambient_light, SampleKey key, int bits, REAL3* direct,
-                       int* shadow_rays) {
+                       const SurfaceLanes* q, REAL3 ambient_light, SampleKey key, int bits,
+                       REAL3* direct, int* shadow_rays) {
     int first = key.sample;
     for (int rest = bits; rest; rest &= rest - 1) {
         int j = lowest_bit(rest);
@@ -242,7 +250,6 @@ HOT void packet_direct(const SceneRefs* s, const ShadePoint* pt, const Ray* seen
     }
     if (!bits) return;
 #if POINT_LIGHT_LANES
-    SurfaceLanes q;
     TermLanes m;
     bool gathered = false;
 #endif
@@ -250,11 +257,10 @@ HOT void packet_direct(const SceneRefs* s, const ShadePoint* pt, const Ray* seen
 #if POINT_LIGHT_LANES
         if (s->lights[i].kind == LIGHT_POINT) {
             if (!gathered) {
-                q = surface_lanes(pt, bits);
                 m = term_lanes(s, pt, seen, bits);
                 gathered = true;
             }
-            if (point_light_direct(s, pt, seen, i, &q, &m, bits, direct, shadow_rays)) continue;
+            if (point_light_direct(s, pt, seen, i, q, &m, bits, direct, shadow_rays)) continue;
         }
 #endif
         Ray rays[PACKET_LANES];

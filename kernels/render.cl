@@ -224,27 +224,29 @@ inline RayTask primary_task(const __global Camera* camera, const __global Params
 #define PACKET_CHAINS (!HAS_REFRACTION)
 
 // A packet of a pixel's samples. With chains: what each level of each lane's chain adds to its
-// sample, weight[level][lane] * light[level][lane] for `levels` levels, added as the ray tree
-// adds it (one expression, so the multiply-add contracts as it does there). Without: each
-// lane's primary ray, hit, shading point and direct light (shade_direct's, its shadow rays
-// traced as packets), from which the ray tree goes on ray by ray.
+// sample, weight * light[level][lane] for `levels` levels (weight's components
+// weight[level][0..2][lane]), added as the ray tree adds it (one expression, so the
+// multiply-add contracts as it does there). Without: each lane's primary ray, hit, shading
+// point and direct light (shade_direct's, its shadow rays traced as packets), from which the
+// ray tree goes on ray by ray.
 typedef struct {
     Ray ray[PACKET_LANES];
     Hit hit[PACKET_LANES];
     ShadePoint pt[PACKET_LANES];
     REAL3 direct[PACKET_LANES];
 #if PACKET_CHAINS
-    REAL3 light[MAX_DEPTH + 1][PACKET_LANES], weight[MAX_DEPTH + 1][PACKET_LANES];
+    REAL3 light[MAX_DEPTH + 1][PACKET_LANES];
+    REAL weight[MAX_DEPTH + 1][3][PACKET_LANES];
     int levels[PACKET_LANES];
 #endif
 } SamplePacket;
 
-// The closest hits of the lanes `bits` of pk->ray, their shading points and direct light
-// (pk->hit, pk->pt, pk->direct): returns the lanes that hit something. `drawn`: pk->ray as a
-// packet already, or 0.
+// The closest hits of the lanes `bits` of pk->ray, their shading points (pk->pt, and as lanes
+// in *q) and direct light (pk->hit, pk->pt, pk->direct): returns the lanes that hit something.
+// `drawn`: pk->ray as a packet already, or 0.
 HOT int shade_packet(const SceneRefs* s, const __global Camera* camera,
                      const __global Params* params, SampleKey key, int bits, SamplePacket* pk,
-                     const RayPacket* drawn, int* shadow_rays) {
+                     const RayPacket* drawn, SurfaceLanes* q, int* shadow_rays) {
     packet_closest(s, pk->ray, drawn, bits, pk->hit);
     int lit = 0;
     for (int rest = bits; rest; rest &= rest - 1) {
@@ -253,47 +255,73 @@ HOT int shade_packet(const SceneRefs* s, const __global Camera* camera,
         lit |= 1 << j;
         pk->pt[j] = shade_point(s, camera, pk->ray + j, pk->hit + j);
     }
-    packet_direct(s, pk->pt, pk->ray, TO_REAL3(params->ambient), key, lit, pk->direct,
+    if (lit) *q = surface_lanes(pk->pt, lit);
+    packet_direct(s, pk->pt, pk->ray, q, TO_REAL3(params->ambient), key, lit, pk->direct,
                   shadow_rays);
     return lit;
 }
 
 #if PACKET_CHAINS
-// The lanes of `bits` from their primary rays pk->ray to the ends of their chains: each level's
-// light (the sky, weighted, where a ray leaves; else the direct light, with the ray's weight
-// beside it), and the reflected ray where the material reflects and the ray is not too faint,
-// as spawn_secondary makes it.
+// Lane j's ray weight at a level of its chain.
+inline REAL3 chain_weight(const SamplePacket* pk, int level, int j) {
+    return (REAL3)(pk->weight[level][0][j], pk->weight[level][1][j], pk->weight[level][2][j]);
+}
+
+// The reflected rays of the lanes `lit` (their shading points q, their rays `rays`, of weight
+// w) where the material reflects and the ray is not too faint, as spawn_secondary makes them
+// but lane-wise: mirror, offset_origin and make_ray's operations in the same order. Returns
+// the lanes that go on, their rays in *rays and pk->ray, their weights in w.
+HOT int reflect_lanes(const SceneRefs* s, const __global Params* params, int lit,
+                      const SurfaceLanes* q, RayPacket* rays, SamplePacket* pk, REALP* w) {
+    REAL k[PACKET_LANES];
+    for (int j = 0; j < PACKET_LANES; ++j) {
+        k[j] = ((lit >> j) & 1) ? TO_REAL(s->materials[pk->pt[j].sf.material].reflect) : 0;
+    }
+    REALP kr = VLOADP(0, k);
+    REALP rx = w[0] * kr, ry = w[1] * kr, rz = w[2] * kr;
+    // too_faint's comparison negated, so that a NaN weight goes on as it does there.
+    MASKP faint = fmax(fmax(rx, ry), rz) < (REAL)params->min_weight;
+    int bits = lit & lane_mask((kr > (REAL)0) & ~faint);
+    if (!bits) return 0;
+    REALP twice = (REAL)2 * dot_lanes(rays->dx, rays->dy, rays->dz, q->nx, q->ny, q->nz);
+    REALP dx = rays->dx - twice * q->nx;
+    REALP dy = rays->dy - twice * q->ny;
+    REALP dz = rays->dz - twice * q->nz;
+    REALP ox, oy, oz;
+    offset_origin_lanes(q, dx, dy, dz, &ox, &oy, &oz);
+    *rays = make_ray_packet(ox, oy, oz, dx, dy, dz, bits);
+    packet_rays(rays, pk->ray);
+    w[0] = rx;
+    w[1] = ry;
+    w[2] = rz;
+    return bits;
+}
+
+// The lanes of `bits` from their primary rays (pk->ray, as the packet `rays`) to the ends of
+// their chains: each level's light (the sky, weighted, where a ray leaves; else the direct
+// light, with the ray's weight beside it), and the reflected rays (reflect_lanes).
 HOT void trace_chains(const SceneRefs* s, const __global Camera* camera,
                       const __global Params* params, SampleKey key, int bits, SamplePacket* pk,
-                      const RayPacket* drawn, int* secondary_rays, int* shadow_rays) {
-    REAL3 weight[PACKET_LANES];
-    for (int j = 0; j < PACKET_LANES; ++j) weight[j] = (REAL3)(1, 1, 1);
+                      RayPacket rays, int* secondary_rays, int* shadow_rays) {
+    REALP w[3] = {(REALP)(1), (REALP)(1), (REALP)(1)};
     for (int depth = 0; bits; ++depth) {
-        int lit =
-            shade_packet(s, camera, params, key, bits, pk, depth ? 0 : drawn, shadow_rays);
-        // Lanes that end here keep their rays: the packet reads every lane.
-        int live = bits;
-        bits = 0;
-        for (int rest = live; rest; rest &= rest - 1) {
+        SurfaceLanes q;
+        int lit = shade_packet(s, camera, params, key, bits, pk, &rays, &q, shadow_rays);
+        for (int c = 0; c < 3; ++c) VSTOREP(w[c], 0, pk->weight[depth][c]);
+        for (int rest = bits; rest; rest &= rest - 1) {
             int j = lowest_bit(rest);
             pk->levels[j] = depth + 1;
-            if (!((lit >> j) & 1)) {
-                pk->light[depth][j] = sky(params, s->texels, pk->ray[j].d, weight[j]);
-                pk->weight[depth][j] = (REAL3)(1, 1, 1);
+            if ((lit >> j) & 1) {
+                pk->light[depth][j] = pk->direct[j];
                 continue;
             }
-            pk->light[depth][j] = pk->direct[j];
-            pk->weight[depth][j] = weight[j];
-            if (depth >= MAX_DEPTH) continue;
-            REAL kr = TO_REAL(s->materials[pk->pt[j].sf.material].reflect);
-            REAL3 w = weight[j] * kr;
-            if (!(kr > (REAL)0) || too_faint(w, params->min_weight)) continue;
-            REAL3 d = mirror(pk->ray[j].d, pk->pt[j].n);
-            pk->ray[j] = make_ray(offset_origin(&pk->pt[j].sf, d), d);
-            weight[j] = w;
-            bits |= 1 << j;
-            (*secondary_rays)++;
+            pk->light[depth][j] =
+                sky(params, s->texels, pk->ray[j].d, chain_weight(pk, depth, j));
+            for (int c = 0; c < 3; ++c) pk->weight[depth][c][j] = 1;
         }
+        if (depth >= MAX_DEPTH || !lit) break;
+        bits = reflect_lanes(s, params, lit, &q, &rays, pk, w);
+        *secondary_rays += popcount(bits);
     }
 }
 #endif
@@ -321,9 +349,11 @@ OUT_OF_LINE void trace_sample_packet(const SceneRefs* s, const __global Camera* 
     }
     int bits = (1 << lanes) - 1;
 #if PACKET_CHAINS
-    trace_chains(s, camera, params, key, bits, pk, drawn, secondary_rays, shadow_rays);
+    trace_chains(s, camera, params, key, bits, pk, drawn ? primary : ray_packet(pk->ray),
+                 secondary_rays, shadow_rays);
 #else
-    shade_packet(s, camera, params, key, bits, pk, drawn, shadow_rays);
+    SurfaceLanes q;
+    shade_packet(s, camera, params, key, bits, pk, drawn, &q, shadow_rays);
 #endif
 }
 #endif
@@ -439,7 +469,7 @@ __kernel WORK_ITEM_LANES void render(SCENE_BUFFER_PARAMS, __global float4* image
         if (spp > 1) {
             // The packet traced the sample's chain: its light, added in the ray tree's order.
             for (int level = 0; level < packet.levels[lane]; ++level) {
-                sum += packet.weight[level][lane] * packet.light[level][lane];
+                sum += chain_weight(&packet, level, lane) * packet.light[level][lane];
             }
             continue;
         }

@@ -268,17 +268,18 @@ inline REAL3 chain_weight(const SamplePacket* pk, int level, int j) {
 }
 
 // The reflected rays of the lanes `lit` (their shading points q, their rays `rays`, of weight
-// w) where the material reflects and the ray is not too faint, as spawn_secondary makes them
+// (wx, wy, wz)) where the material reflects and the ray is not too faint, as spawn_secondary makes them
 // but lane-wise: mirror, offset_origin and make_ray's operations in the same order. Returns
-// the lanes that go on, their rays in *rays and pk->ray, their weights in w.
-HOT int reflect_lanes(const SceneRefs* s, const __global Params* params, int lit,
-                      const SurfaceLanes* q, RayPacket* rays, SamplePacket* pk, REALP* w) {
+// the lanes that go on, their rays in *rays and pk->ray, their weights in (wx, wy, wz).
+OUT_OF_LINE int reflect_lanes(const SceneRefs* s, const __global Params* params, int lit,
+                              const SurfaceLanes* q, RayPacket* rays, SamplePacket* pk,
+                              REALP* wx, REALP* wy, REALP* wz) {
     REAL k[PACKET_LANES];
     for (int j = 0; j < PACKET_LANES; ++j) {
         k[j] = ((lit >> j) & 1) ? TO_REAL(s->materials[pk->pt[j].sf.material].reflect) : 0;
     }
     REALP kr = VLOADP(0, k);
-    REALP rx = w[0] * kr, ry = w[1] * kr, rz = w[2] * kr;
+    REALP rx = *wx * kr, ry = *wy * kr, rz = *wz * kr;
     // too_faint's comparison negated, so that a NaN weight goes on as it does there.
     MASKP faint = fmax(fmax(rx, ry), rz) < (REAL)params->min_weight;
     int bits = lit & lane_mask((kr > (REAL)0) & ~faint);
@@ -291,23 +292,25 @@ HOT int reflect_lanes(const SceneRefs* s, const __global Params* params, int lit
     offset_origin_lanes(q, dx, dy, dz, &ox, &oy, &oz);
     *rays = make_ray_packet(ox, oy, oz, dx, dy, dz, bits);
     packet_rays(rays, pk->ray);
-    w[0] = rx;
-    w[1] = ry;
-    w[2] = rz;
+    *wx = rx;
+    *wy = ry;
+    *wz = rz;
     return bits;
 }
 
-// The lanes of `bits` from their primary rays (pk->ray, as the packet `rays`) to the ends of
+// The lanes of `bits` from their primary rays (pk->ray, as the packet *rays) to the ends of
 // their chains: each level's light (the sky, weighted, where a ray leaves; else the direct
 // light, with the ray's weight beside it), and the reflected rays (reflect_lanes).
 HOT void trace_chains(const SceneRefs* s, const __global Camera* camera,
                       const __global Params* params, SampleKey key, int bits, SamplePacket* pk,
-                      RayPacket rays, int* secondary_rays, int* shadow_rays) {
-    REALP w[3] = {(REALP)(1), (REALP)(1), (REALP)(1)};
+                      RayPacket* rays, int* secondary_rays, int* shadow_rays) {
+    REALP wx = (REALP)(1), wy = (REALP)(1), wz = (REALP)(1);
     for (int depth = 0; bits; ++depth) {
         SurfaceLanes q;
-        int lit = shade_packet(s, camera, params, key, bits, pk, &rays, &q, shadow_rays);
-        for (int c = 0; c < 3; ++c) VSTOREP(w[c], 0, pk->weight[depth][c]);
+        int lit = shade_packet(s, camera, params, key, bits, pk, rays, &q, shadow_rays);
+        VSTOREP(wx, 0, pk->weight[depth][0]);
+        VSTOREP(wy, 0, pk->weight[depth][1]);
+        VSTOREP(wz, 0, pk->weight[depth][2]);
         for (int rest = bits; rest; rest &= rest - 1) {
             int j = lowest_bit(rest);
             pk->levels[j] = depth + 1;
@@ -320,7 +323,7 @@ HOT void trace_chains(const SceneRefs* s, const __global Camera* camera,
             for (int c = 0; c < 3; ++c) pk->weight[depth][c][j] = 1;
         }
         if (depth >= MAX_DEPTH || !lit) break;
-        bits = reflect_lanes(s, params, lit, &q, &rays, pk, w);
+        bits = reflect_lanes(s, params, lit, &q, rays, pk, &wx, &wy, &wz);
         *secondary_rays += popcount(bits);
     }
 }
@@ -349,8 +352,8 @@ OUT_OF_LINE void trace_sample_packet(const SceneRefs* s, const __global Camera* 
     }
     int bits = (1 << lanes) - 1;
 #if PACKET_CHAINS
-    trace_chains(s, camera, params, key, bits, pk, drawn ? primary : ray_packet(pk->ray),
-                 secondary_rays, shadow_rays);
+    if (!drawn) primary = ray_packet(pk->ray);
+    trace_chains(s, camera, params, key, bits, pk, &primary, secondary_rays, shadow_rays);
 #else
     SurfaceLanes q;
     shade_packet(s, camera, params, key, bits, pk, drawn, &q, shadow_rays);

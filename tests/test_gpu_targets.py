@@ -161,3 +161,13 @@ def test_sample_packet_chains_grow_in_the_compiled_kernel_as_the_model_says() ->
     model = private_stack_bytes(deeper)["total"] - private_stack_bytes(base)["total"]
     assert model == 3 * 8 * (16 + 12)
     assert amdgpu_scratch(deeper) - amdgpu_scratch(base) == model
+
+
+def test_widest_sample_packet_chains_build_for_amdgpu() -> None:
+    # A full build, not a syntax check: 16 lanes of doubles, every feature but refraction (so
+    # the packet traces its chains). With the reflected rays' lane-wise set-up inlined into the
+    # chains' level loop, clang 15's AMDGPU register allocator ran out of registers.
+    config = KernelConfig(**{**dict.fromkeys(FEATURES, True), "has_refraction": False},
+                          precision="double", max_depth=4, bvh_stack_size=32,
+                          traversal="sample_packet", packet_lanes=16)
+    assert amdgpu_scratch(config) > private_stack_bytes(config)["total"]

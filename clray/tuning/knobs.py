@@ -104,7 +104,8 @@ KNOB_TABLE: tuple[Knob, ...] = (
          "pixels together; RenderSettings.traversal and --traversal override it"),
     Knob("packet_lanes", "kernel", None, lambda v: v is None or _one_of(*PACKET_LANES)(v),
          "4, 8, 16, or None: the device's vector width of the arithmetic's type "
-         "(8 floats on AVX2, 16 on AVX-512), within 4 to 16", (None, 4, 16),
+         "(8 floats on AVX2, 16 on AVX-512), within 4 to 16, and 16 on 8-wide devices "
+         "where a pixel has 16 samples or more", (None, 4, 8, 16),
          "rays in a sample packet (the -D PACKET_LANES; only with traversal sample_packet): "
          "wider packets share more node visits, and lose more lanes where rays diverge"),
     Knob("packet_min_lanes", "kernel", 2, _int_in(0, 15),

@@ -2,7 +2,8 @@
 // shadow rays one packet per light. Towards a point light in an opaque scene the shadow rays
 // are set up lane-wise, light_ray's arithmetic for all lanes at once, straight into the
 // packet's lanes (docs/acceleration.md, Sample packets); other lights, and lanes whose
-// distances leave length_lanes's range, go through light_ray lane by lane.
+// distances leave length_lanes's range, go through light_ray lane by lane. The shading
+// points as lanes (surface_lanes, offset_origin_lanes) serve the chains' reflected rays too.
 #ifndef CLRAY_PACKET_LIGHT_H
 #define CLRAY_PACKET_LIGHT_H
 

@@ -268,9 +268,11 @@ inline REAL3 chain_weight(const SamplePacket* pk, int level, int j) {
 }
 
 // The reflected rays of the lanes `lit` (their shading points q, their rays `rays`, of weight
-// (wx, wy, wz)) where the material reflects and the ray is not too faint, as spawn_secondary makes them
-// but lane-wise: mirror, offset_origin and make_ray's operations in the same order. Returns
-// the lanes that go on, their rays in *rays and pk->ray, their weights in (wx, wy, wz).
+// (wx, wy, wz)) where the material reflects and the ray is not too faint, as spawn_secondary
+// makes them but lane-wise: mirror, offset_origin and make_ray's operations in the same
+// order. Returns the lanes that go on, their rays in *rays and pk->ray, their weights in
+// (wx, wy, wz). Out of line: inlined into trace_chains' loop, 16 lanes of doubles ran clang
+// 15's AMDGPU register allocator out of registers.
 OUT_OF_LINE int reflect_lanes(const SceneRefs* s, const __global Params* params, int lit,
                               const SurfaceLanes* q, RayPacket* rays, SamplePacket* pk,
                               REALP* wx, REALP* wy, REALP* wz) {

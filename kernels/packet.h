@@ -361,6 +361,11 @@ HOT void consider_lanes(PacketHit* h, MASKP crossed, REALP t, int ref, int part,
     h->b2 = take ? b2 : h->b2;
 }
 
+// How far each lane's hit may still be replaced: its t plus consider_lanes's tie reach.
+HOT REALP tie_reach_lanes(const PacketHit* h) {
+    return h->t + (REAL)2 * tie_gamma() * h->t;
+}
+
 // no_hit() in every lane.
 HOT PacketHit no_hit_lanes(void) {
     PacketHit h;
@@ -433,6 +438,7 @@ HOT REALP box_lanes(const __global BvhNode* node, int c, const RayPacket* p, REA
 typedef struct {
     REAL olo[3], ohi[3], ilo[3], ihi[3];
     int sign[3];
+    REAL origin_size;  // the largest magnitude of an origin's coordinate (shapes_interval)
 } PacketBounds;
 
 HOT void axis_bounds(REALP o, REALP inv, MASKP active, int axis, PacketBounds* b) {
@@ -451,6 +457,10 @@ HOT PacketBounds packet_bounds(const RayPacket* p, int bits) {
     axis_bounds(p->ox, p->ix, active, 0, &b);
     axis_bounds(p->oy, p->iy, active, 1, &b);
     axis_bounds(p->oz, p->iz, active, 2, &b);
+    b.origin_size = (REAL)0;
+    for (int axis = 0; axis < 3; ++axis) {
+        b.origin_size = fmax(b.origin_size, fmax(fabs(b.olo[axis]), fabs(b.ohi[axis])));
+    }
     // The reductions pass NaNs by: a lane with one bounds nothing.
     MASKP nan = isnan(p->ox) | isnan(p->oy) | isnan(p->oz) | isnan(p->ix) | isnan(p->iy) |
                 isnan(p->iz);
@@ -512,13 +522,9 @@ HOT REALW shape_vector(REAL4 v) {
 // slab test's selects then leave its [t0, t1] as it was.
 HOT int shapes_interval(REAL4 lo_x, REAL4 hi_x, REAL4 lo_y, REAL4 hi_y, REAL4 lo_z, REAL4 hi_z,
                         const PacketBounds* b, REAL tmax) {
-    REAL reach = (REAL)0;
-    for (int axis = 0; axis < 3; ++axis) {
-        reach = fmax(reach, fmax(fabs(b->olo[axis]), fabs(b->ohi[axis])));
-    }
     REAL4 size = fmax(fmax(fmax(fabs(lo_x), fabs(hi_x)), fmax(fabs(lo_y), fabs(hi_y))),
                       fmax(fabs(lo_z), fabs(hi_z)));
-    REAL4 margin = (size + reach) * (REAL)0x1p-12;
+    REAL4 margin = (size + b->origin_size) * (REAL)0x1p-12;
     const REAL widen = (REAL)1 + (REAL)2 * gamma_n(3);
     REALW t0 = (REALW)(0), t1 = (REALW)(tmax);
     slab_axis_interval(shape_vector(lo_x - margin), shape_vector(hi_x + margin), b, 0, widen,
@@ -760,9 +766,7 @@ HOT void leaf_closest_lanes(const SceneRefs* s, int slot, int count, const Ray* 
         *h = packet_hit(hits);
         return;
     }
-    // As far as any lane's hit may still be replaced (consider_lanes's tie reach).
-    REALP reach = h->t + (REAL)2 * tie_gamma() * h->t;
-    REAL tmax = max_lanes(lanes ? reach : (REALP)(0));
+    REAL tmax = max_lanes(lanes ? tie_reach_lanes(h) : (REALP)(0));
 #if TRIANGLE_LANES
     for (int end = slot + tri_packets * PACKET_WIDTH; slot < end; slot += PACKET_WIDTH) {
         const __global TrianglePacket* pk = s->triangle_packets + slot / PACKET_WIDTH;
@@ -837,8 +841,7 @@ HOT int node_children_lanes(const __global BvhNode* node, const RayPacket* p,
 // Lanes that a subtree entered at `t` (the nearest lane's entry) can still give a hit: those
 // whose hit is not nearer than t (beyond the tie reach, as closest_hit skips a pop).
 HOT int reaching_lanes(const PacketHit* h, REAL t, int bits) {
-    REALP reach = h->t + (REAL)2 * tie_gamma() * h->t;
-    return bits & lane_mask(reach >= (REALP)(t));
+    return bits & lane_mask(tie_reach_lanes(h) >= (REALP)(t));
 }
 
 // The BVH part of closest_hit for the lanes `bits`, from the hits in *h.
@@ -866,9 +869,8 @@ HOT void packet_walk_closest(const SceneRefs* s, const Ray* rays, const RayPacke
             COUNT(s, closest_boxes, used_children(node));
             int c_child[BVH_WIDTH], c_count[BVH_WIDTH], c_lanes[BVH_WIDTH];
             REAL c_t[BVH_WIDTH];
-            REALP reach = h->t + (REAL)2 * tie_gamma() * h->t;
-            int n =
-                node_children_lanes(node, p, b, reach, bits, c_child, c_count, c_lanes, c_t);
+            int n = node_children_lanes(node, p, b, tie_reach_lanes(h), bits, c_child, c_count,
+                                        c_lanes, c_t);
             if (n > 0) {
                 // Go on with the nearest; push the others farthest first, so nearer ones pop
                 // first.
@@ -942,11 +944,11 @@ HOT int leaf_blocks_lanes(const SceneRefs* s, int slot, int count, const RayPack
         }
         return blocked;
     }
-    REAL reach = max_lanes(lanes ? tmax : (REALP)(0));
+    REAL tmax_packet = max_lanes(lanes ? tmax : (REALP)(0));
 #if TRIANGLE_LANES
     for (int end = slot + tri_packets * PACKET_WIDTH; slot < end; slot += PACKET_WIDTH) {
         const __global TrianglePacket* pk = s->triangle_packets + slot / PACKET_WIDTH;
-        int maybe = triangles_interval(pk, b, reach);
+        int maybe = triangles_interval(pk, b, tmax_packet);
         if (!maybe) continue;
         PickedCorners picked;
         if (p->uniform) picked = pick_corners(pk, p);
@@ -963,7 +965,7 @@ HOT int leaf_blocks_lanes(const SceneRefs* s, int slot, int count, const RayPack
 #if SPHERE_LANES
     for (int end = slot + sphere_packets * PACKET_WIDTH; slot < end; slot += PACKET_WIDTH) {
         const __global SpherePacket* pk = s->sphere_packets + slot / PACKET_WIDTH;
-        for (int maybe = spheres_interval(pk, b, reach); maybe; maybe &= maybe - 1) {
+        for (int maybe = spheres_interval(pk, b, tmax_packet); maybe; maybe &= maybe - 1) {
             int k = lowest_bit(maybe);
             if (s->prim_refs[slot + k] < 0) break;
             REALP t0, t1;

@@ -900,9 +900,9 @@ HOT void packet_walk_closest(const SceneRefs* s, const Ray* rays, const RayPacke
 #endif
 
 // closest_hit for each lane of `bits` (hits of the others: no hit); `drawn`: the rays as a
-// packet already, or 0.
+// packet already, or 0. `lanes`, where not 0, gets the hits as lanes too (not with instances).
 STAGE void packet_closest(const SceneRefs* s, const Ray* rays, const RayPacket* drawn, int bits,
-                          Hit* hits) {
+                          Hit* hits, PacketHit* lanes) {
 #if HAS_INSTANCES || !HAS_BVH
     // Instances are walked ray by ray.
     for (int j = 0; j < PACKET_LANES; ++j) hits[j] = no_hit();
@@ -921,6 +921,7 @@ STAGE void packet_closest(const SceneRefs* s, const Ray* rays, const RayPacket* 
         packet_walk_closest(s, rays, &p, &b, bits, &h);
     }
     store_hits(&h, hits);
+    if (lanes) *lanes = h;
 #endif
 }
 

@@ -68,6 +68,7 @@
 #include "packet.h"
 #include "packet_camera.h"
 #include "packet_light.h"
+#include "packet_surface.h"
 #endif
 #if GROUP_PACKETS
 #include "group.h"
@@ -247,15 +248,27 @@ typedef struct {
 HOT int shade_packet(const SceneRefs* s, const __global Camera* camera,
                      const __global Params* params, SampleKey key, int bits, SamplePacket* pk,
                      const RayPacket* drawn, SurfaceLanes* q, int* shadow_rays) {
-    packet_closest(s, pk->ray, drawn, bits, pk->hit);
     int lit = 0;
+#if SURFACE_LANES
+    PacketHit h;
+    packet_closest(s, pk->ray, drawn, bits, pk->hit, &h);
+    lit = bits & lane_mask(h.t < REAL_INF);
+    int left = lit;
+    if (drawn && lit) left = shade_point_lanes(s, camera, drawn, &h, pk->hit, lit, pk->pt, q);
+#else
+    packet_closest(s, pk->ray, drawn, bits, pk->hit, 0);
     for (int rest = bits; rest; rest &= rest - 1) {
         int j = lowest_bit(rest);
-        if (!(pk->hit[j].t < REAL_INF)) continue;
-        lit |= 1 << j;
+        if (pk->hit[j].t < REAL_INF) lit |= 1 << j;
+    }
+    int left = lit;
+#endif
+    for (int rest = left; rest; rest &= rest - 1) {
+        int j = lowest_bit(rest);
         pk->pt[j] = shade_point(s, camera, pk->ray + j, pk->hit + j);
     }
-    if (lit) *q = surface_lanes(pk->pt, lit);
+    // Lanes that shade_point shaded join the others' coordinates.
+    if (left) *q = surface_lanes(pk->pt, lit);
     packet_direct(s, pk->pt, pk->ray, q, TO_REAL3(params->ambient), key, lit, pk->direct,
                   shadow_rays);
     return lit;
@@ -568,7 +581,7 @@ __kernel WORK_ITEM_LANES void intersect_rays(__global const float4* origins,
     for (int j = 0; j < PACKET_LANES; ++j) {
         rays[j] = make_ray(TO_REAL3(origins[first + j]), TO_REAL3(directions[first + j]));
     }
-    packet_closest(&s, rays, 0, ALL_LANES, found);
+    packet_closest(&s, rays, 0, ALL_LANES, found, 0);
     for (int j = 0; j < PACKET_LANES; ++j) {
         report_hit(&s, rays + j, found + j, hits + first + j, refs + first + j);
     }

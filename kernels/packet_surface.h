@@ -1,0 +1,481 @@
+// A sample packet's shading points lane-wise (TRAVERSAL_SAMPLE_PACKET): shade_point's
+// arithmetic for every lane at once, for the shapes whose surfaces are a few vector operations
+// (triangles, spheres, planes) and untextured materials. The operations are shade_point's, in
+// its order and with its contractions (one expression where it has one, a statement of its own
+// where it has none), so each lane's ShadePoint is bit for bit the one shade_point gives
+// (tests/test_packets.py compares the images of both schemes pixel for pixel). Lanes of other
+// shapes, textured materials and lengths outside length()'s plain range are left to
+// shade_point.
+#ifndef CLRAY_PACKET_SURFACE_H
+#define CLRAY_PACKET_SURFACE_H
+
+#include "real.h"
+#include "clray_types.h"
+#include "scene.h"
+#include "hit.h"
+#include "shading.h"
+#include "packet.h"
+#include "packet_light.h"
+
+// Instances map their surfaces through matrices, and a double sphere build re-projects in
+// double: those stay with shade_point.
+#define SURFACE_LANES (!HAS_INSTANCES && HAS_BVH && !SPHERE_FP64)
+
+#if SURFACE_LANES
+// The per-lane records that a lane's shape and material give its surface: for a triangle its
+// corners (a, b, c) and vertex normals (na, nb, nc), for a sphere its centre (a) and radius
+// (b.x), for a plane its normal (a) and point (b); the material's colour and, for a checker
+// texture, its cell size, second colour and blend.
+typedef struct {
+    REALP red, green, blue, ax, ay, az, bx, by, bz;
+#if HAS_TRIANGLES
+    REALP cx, cy, cz;
+#if HAS_VERTEX_NORMALS
+    REALP nax, nay, naz, nbx, nby, nbz, ncx, ncy, ncz;
+    MASKP smooth;
+#endif
+#endif
+#if HAS_TEXTURES
+    REALP size, blend, red2, green2, blue2;
+    MASKP checker;
+#endif
+    MASKP kind;
+    int material[PACKET_LANES];
+} ShapeLanes;
+
+// The rows of shape_lanes' table: only those of the shapes and textures a build has.
+enum {
+    ROW_COLOR = 0,
+    ROW_A = 3,
+    ROW_B = 6,
+    ROW_C = 9,
+#if HAS_TRIANGLES
+    ROW_NORMALS = 12,
+#else
+    ROW_NORMALS = 9,
+#endif
+#if HAS_TRIANGLES && HAS_VERTEX_NORMALS
+    ROW_CHECKER = ROW_NORMALS + 9,
+#else
+    ROW_CHECKER = ROW_NORMALS,
+#endif
+#if HAS_TEXTURES
+    SHAPE_FIELDS = ROW_CHECKER + 5
+#else
+    SHAPE_FIELDS = ROW_CHECKER
+#endif
+};
+
+// Lane k's shape record into column k of f; its smoothness and whether its texture is a
+// checker. False where shade_point must shade the lane: another shape, an image texture, or
+// vertex texture coordinates.
+HOT bool shape_record(const SceneRefs* s, const Hit* hit, REAL f[SHAPE_FIELDS][PACKET_LANES],
+                      int k, int* material, LANE_INT* smooth, LANE_INT* checker) {
+    int i = hit->ref & PRIM_INDEX_MASK;
+    *smooth = 0;
+    *checker = 0;
+    switch (hit->ref >> PRIM_TYPE_SHIFT) {
+#if HAS_TRIANGLES
+        case PRIM_TRIANGLE: {
+            Triangle tri = s->triangles[i];
+            if (tri.material & TRIANGLE_UV) return false;
+            const __global TrianglePacket* pk = s->triangle_packets + hit->part / PACKET_WIDTH;
+            int lane = hit->part % PACKET_WIDTH;
+            f[ROW_A][k] = (REAL)pk->x0[lane];
+            f[ROW_A + 1][k] = (REAL)pk->y0[lane];
+            f[ROW_A + 2][k] = (REAL)pk->z0[lane];
+            f[ROW_B][k] = (REAL)pk->x1[lane];
+            f[ROW_B + 1][k] = (REAL)pk->y1[lane];
+            f[ROW_B + 2][k] = (REAL)pk->z1[lane];
+            f[ROW_C][k] = (REAL)pk->x2[lane];
+            f[ROW_C + 1][k] = (REAL)pk->y2[lane];
+            f[ROW_C + 2][k] = (REAL)pk->z2[lane];
+#if HAS_VERTEX_NORMALS
+            if (tri.material & TRIANGLE_SMOOTH) {
+                *smooth = -1;
+                int v[3] = {tri.v0, tri.v1, tri.v2};
+                for (int c = 0; c < 3; ++c) {
+                    REAL3 n = TO_REAL3(s->normals[v[c]]);
+                    f[ROW_NORMALS + 3 * c][k] = n.x;
+                    f[ROW_NORMALS + 3 * c + 1][k] = n.y;
+                    f[ROW_NORMALS + 3 * c + 2][k] = n.z;
+                }
+            }
+#endif
+            *material = tri.material & TRIANGLE_MATERIAL_MASK;
+            break;
+        }
+#endif
+#if HAS_SPHERES
+        case PRIM_SPHERE: {
+            const __global Sphere* sp = s->spheres + i;
+            REAL4 c = TO_REAL4(sp->center_radius);
+            f[ROW_A][k] = c.x;
+            f[ROW_A + 1][k] = c.y;
+            f[ROW_A + 2][k] = c.z;
+            f[ROW_B][k] = c.w;
+            *material = sp->material;
+            break;
+        }
+#endif
+#if HAS_PLANES
+        case PRIM_PLANE: {
+            const __global Plane* pl = s->planes + i;
+            REAL3 n = TO_REAL3(pl->normal), q = TO_REAL3(pl->point);
+            f[ROW_A][k] = n.x;
+            f[ROW_A + 1][k] = n.y;
+            f[ROW_A + 2][k] = n.z;
+            f[ROW_B][k] = q.x;
+            f[ROW_B + 1][k] = q.y;
+            f[ROW_B + 2][k] = q.z;
+            *material = pl->material;
+            break;
+        }
+#endif
+        default:
+            return false;
+    }
+    const __global Material* m = s->materials + *material;
+    REAL3 color = TO_REAL3(m->color);
+    f[ROW_COLOR][k] = color.x;
+    f[ROW_COLOR + 1][k] = color.y;
+    f[ROW_COLOR + 2][k] = color.z;
+#if HAS_TEXTURES
+    if (m->texture >= 0) {
+        const __global Texture* tx = s->textures + m->texture;
+        if (tx->kind != TEXTURE_CHECKER) return false;
+        *checker = -1;
+        REAL3 color2 = TO_REAL3(tx->color2);
+        f[ROW_CHECKER][k] = TO_REAL(tx->size);
+        f[ROW_CHECKER + 1][k] = TO_REAL(tx->blend);
+        f[ROW_CHECKER + 2][k] = color2.x;
+        f[ROW_CHECKER + 3][k] = color2.y;
+        f[ROW_CHECKER + 4][k] = color2.z;
+    }
+#endif
+    return true;
+}
+
+// The shape records of the lanes of `lit` (hits[j]); the other lanes hold a copy of one of
+// those. *left: the lanes whose records shape_record declines.
+HOT ShapeLanes shape_lanes(const SceneRefs* s, const Hit* hits, int lit, int* left) {
+    REAL f[SHAPE_FIELDS][PACKET_LANES];
+    LANE_INT kind[PACKET_LANES], smooth[PACKET_LANES], checker[PACKET_LANES];
+    ShapeLanes g;
+    // Each kind fills its own rows: the others are zeros, so that every kind's arithmetic
+    // runs on defined numbers in every lane.
+    for (int row = 0; row < SHAPE_FIELDS; ++row) VSTOREP((REALP)(0), 0, f[row]);
+    int spare = lowest_bit(lit);
+    *left = 0;
+    for (int j = 0; j < PACKET_LANES; ++j) {
+        int k = ((lit >> j) & 1) ? j : spare;
+        kind[j] = hits[k].ref >> PRIM_TYPE_SHIFT;
+        if (!shape_record(s, hits + k, f, j, g.material + j, smooth + j, checker + j)) {
+            *left |= 1 << k;
+            kind[j] = -1;
+        }
+    }
+    *left &= lit;
+    g.red = VLOADP(0, f[ROW_COLOR]);
+    g.green = VLOADP(0, f[ROW_COLOR + 1]);
+    g.blue = VLOADP(0, f[ROW_COLOR + 2]);
+    g.ax = VLOADP(0, f[ROW_A]);
+    g.ay = VLOADP(0, f[ROW_A + 1]);
+    g.az = VLOADP(0, f[ROW_A + 2]);
+    g.bx = VLOADP(0, f[ROW_B]);
+    g.by = VLOADP(0, f[ROW_B + 1]);
+    g.bz = VLOADP(0, f[ROW_B + 2]);
+#if HAS_TRIANGLES
+    g.cx = VLOADP(0, f[ROW_C]);
+    g.cy = VLOADP(0, f[ROW_C + 1]);
+    g.cz = VLOADP(0, f[ROW_C + 2]);
+#if HAS_VERTEX_NORMALS
+    g.nax = VLOADP(0, f[ROW_NORMALS]);
+    g.nay = VLOADP(0, f[ROW_NORMALS + 1]);
+    g.naz = VLOADP(0, f[ROW_NORMALS + 2]);
+    g.nbx = VLOADP(0, f[ROW_NORMALS + 3]);
+    g.nby = VLOADP(0, f[ROW_NORMALS + 4]);
+    g.nbz = VLOADP(0, f[ROW_NORMALS + 5]);
+    g.ncx = VLOADP(0, f[ROW_NORMALS + 6]);
+    g.ncy = VLOADP(0, f[ROW_NORMALS + 7]);
+    g.ncz = VLOADP(0, f[ROW_NORMALS + 8]);
+    g.smooth = VLOADP(0, smooth);
+#endif
+#endif
+#if HAS_TEXTURES
+    g.size = VLOADP(0, f[ROW_CHECKER]);
+    g.blend = VLOADP(0, f[ROW_CHECKER + 1]);
+    g.red2 = VLOADP(0, f[ROW_CHECKER + 2]);
+    g.green2 = VLOADP(0, f[ROW_CHECKER + 3]);
+    g.blue2 = VLOADP(0, f[ROW_CHECKER + 4]);
+    g.checker = VLOADP(0, checker);
+#endif
+    g.kind = VLOADP(0, kind);
+    return g;
+}
+
+// length() lane-wise: the square root of dot_lanes where the squared length is within
+// [2^-90, 2^90] (length_lanes) or the vector is zero. Lanes where it is not (a squared length
+// that underflows to zero among them: length() scales those) are added to *outside.
+HOT REALP plain_length_lanes(REALP x, REALP y, REALP z, MASKP* outside) {
+    REALP dd = dot_lanes(x, y, z, x, y, z);
+    MASKP zero = (x == (REAL)0) & (y == (REAL)0) & (z == (REAL)0);
+    *outside |= ~(zero | ((dd >= (REAL)0x1p-90) & (dd <= (REAL)0x1p90)));
+    return sqrt(fmax(dd, (REALP)(0)));
+}
+
+// safe_normalize lane-wise, for the lanes that plain_length_lanes can measure.
+HOT void safe_normalize_lanes(REALP* x, REALP* y, REALP* z, MASKP* outside) {
+    REALP len = plain_length_lanes(*x, *y, *z, outside);
+    MASKP some = len > (REAL)0;
+    *x = some ? *x / len : *x;
+    *y = some ? *y / len : *y;
+    *z = some ? *z / len : *z;
+}
+
+// shape_surface's point, error bound and normals, lane-wise.
+typedef struct {
+    REALP px, py, pz, err, gx, gy, gz, sx, sy, sz;
+} SurfaceOfLanes;
+
+// Where `mine`, *sf takes v.
+HOT void take_surface(MASKP mine, const SurfaceOfLanes* v, SurfaceOfLanes* sf) {
+    sf->px = mine ? v->px : sf->px;
+    sf->py = mine ? v->py : sf->py;
+    sf->pz = mine ? v->pz : sf->pz;
+    sf->err = mine ? v->err : sf->err;
+    sf->gx = mine ? v->gx : sf->gx;
+    sf->gy = mine ? v->gy : sf->gy;
+    sf->gz = mine ? v->gz : sf->gz;
+    sf->sx = mine ? v->sx : sf->sx;
+    sf->sy = mine ? v->sy : sf->sy;
+    sf->sz = mine ? v->sz : sf->sz;
+}
+
+#if HAS_TRIANGLES
+// shape_surface's triangle case: the point from the barycentrics, pulled towards the centroid,
+// the winding's normal and the blended vertex normal.
+HOT SurfaceOfLanes triangle_surface_lanes(const ShapeLanes* g, const RayPacket* r,
+                                          const PacketHit* h, MASKP* outside) {
+    SurfaceOfLanes v;
+    REAL gamma = gamma_n(ERR_ROUNDINGS);
+    REALP b1 = h->b1, b2 = h->b2, b0 = (REAL)1 - b1 - b2;
+    v.px = b0 * g->ax + b1 * g->bx + b2 * g->cx;
+    v.py = b0 * g->ay + b1 * g->by + b2 * g->cy;
+    v.pz = b0 * g->az + b1 * g->bz + b2 * g->cz;
+    REALP ex = fabs(b0 * g->ax) + fabs(b1 * g->bx) + fabs(b2 * g->cx);
+    REALP ey = fabs(b0 * g->ay) + fabs(b1 * g->by) + fabs(b2 * g->cy);
+    REALP ez = fabs(b0 * g->az) + fabs(b1 * g->bz) + fabs(b2 * g->cz);
+    v.err = gamma * fmax(ex, fmax(ey, ez));
+    REALP tx = (g->ax + g->bx + g->cx) / (REAL)3 - v.px;
+    REALP ty = (g->ay + g->by + g->cy) / (REAL)3 - v.py;
+    REALP tz = (g->az + g->bz + g->cz) / (REAL)3 - v.pz;
+    REALP reach = plain_length_lanes(tx, ty, tz, outside);
+    REALP k = fmin((REAL)4 * v.err, (REAL)0.5 * reach) / reach;
+    MASKP move = reach > (REAL)0;
+    v.px = move ? v.px + k * tx : v.px;
+    v.py = move ? v.py + k * ty : v.py;
+    v.pz = move ? v.pz + k * tz : v.pz;
+    // cross(p1 - p0, p2 - p0) as PoCL's cross() has it: each product rounded, none fused.
+    REALP e1x = g->bx - g->ax, e1y = g->by - g->ay, e1z = g->bz - g->az;
+    REALP e2x = g->cx - g->ax, e2y = g->cy - g->ay, e2z = g->cz - g->az;
+    REALP yz = e1y * e2z;
+    REALP zy = e1z * e2y;
+    REALP zx = e1z * e2x;
+    REALP xz = e1x * e2z;
+    REALP xy = e1x * e2y;
+    REALP yx = e1y * e2x;
+    REALP nx = yz - zy, ny = zx - xz, nz = xy - yx;
+    safe_normalize_lanes(&nx, &ny, &nz, outside);
+    // A degenerate triangle has no normal: it faces the ray.
+    MASKP some = dot_lanes(nx, ny, nz, nx, ny, nz) > (REAL)0;
+    v.gx = some ? nx : -r->dx;
+    v.gy = some ? ny : -r->dy;
+    v.gz = some ? nz : -r->dz;
+    v.sx = v.gx;
+    v.sy = v.gy;
+    v.sz = v.gz;
+#if HAS_VERTEX_NORMALS
+    if (lane_mask(g->smooth)) {
+        REALP sx = b0 * g->nax + b1 * g->nbx + b2 * g->ncx;
+        REALP sy = b0 * g->nay + b1 * g->nby + b2 * g->ncy;
+        REALP sz = b0 * g->naz + b1 * g->nbz + b2 * g->ncz;
+        MASKP wide = (MASKP)(0);
+        safe_normalize_lanes(&sx, &sy, &sz, &wide);
+        *outside |= g->smooth & wide;
+        MASKP blend = g->smooth & (dot_lanes(sx, sy, sz, sx, sy, sz) > (REAL)0);
+        v.sx = blend ? sx : v.sx;
+        v.sy = blend ? sy : v.sy;
+        v.sz = blend ? sz : v.sz;
+    }
+#endif
+    return v;
+}
+#endif
+
+#if HAS_SPHERES
+// shape_surface's sphere case: the point re-projected onto the sphere along its normal.
+HOT SurfaceOfLanes sphere_surface_lanes(const ShapeLanes* g, const RayPacket* r,
+                                        const PacketHit* h, MASKP* outside) {
+    SurfaceOfLanes v;
+    REAL gamma = gamma_n(ERR_ROUNDINGS);
+    REALP px = r->ox + h->t * r->dx;
+    REALP py = r->oy + h->t * r->dy;
+    REALP pz = r->oz + h->t * r->dz;
+    REALP nx = px - g->ax, ny = py - g->ay, nz = pz - g->az;
+    safe_normalize_lanes(&nx, &ny, &nz, outside);
+    v.px = g->ax + g->bx * nx;
+    v.py = g->ay + g->bx * ny;
+    v.pz = g->az + g->bx * nz;
+    v.gx = v.sx = nx;
+    v.gy = v.sy = ny;
+    v.gz = v.sz = nz;
+    v.err = gamma * (fmax(fabs(g->ax), fmax(fabs(g->ay), fabs(g->az))) + g->bx);
+    return v;
+}
+#endif
+
+#if HAS_PLANES
+// shape_surface's plane case: the point projected onto the plane.
+HOT SurfaceOfLanes plane_surface_lanes(const ShapeLanes* g, const RayPacket* r,
+                                       const PacketHit* h) {
+    SurfaceOfLanes v;
+    REAL gamma = gamma_n(ERR_ROUNDINGS);
+    REALP px = r->ox + h->t * r->dx;
+    REALP py = r->oy + h->t * r->dy;
+    REALP pz = r->oz + h->t * r->dz;
+    REALP e = dot_lanes(px - g->bx, py - g->by, pz - g->bz, g->ax, g->ay, g->az);
+    v.px = px - e * g->ax;
+    v.py = py - e * g->ay;
+    v.pz = pz - e * g->az;
+    v.gx = v.sx = g->ax;
+    v.gy = v.sy = g->ay;
+    v.gz = v.sz = g->az;
+    v.err = gamma * (fmax(fabs(v.px), fmax(fabs(v.py), fabs(v.pz))) +
+                     fmax(fabs(g->bx), fmax(fabs(g->by), fabs(g->bz))));
+    return v;
+}
+#endif
+
+#if HAS_TEXTURES
+// surface_color's checker, lane-wise: where g->checker, g's colour becomes the texture's.
+HOT void checker_lanes(ShapeLanes* g, const __global Camera* camera, const SurfaceOfLanes* sf,
+                       MASKP entering) {
+    REAL3 world = TO_REAL3(camera->world);
+    REALP nx = entering ? sf->gx : -sf->gx;
+    REALP ny = entering ? sf->gy : -sf->gy;
+    REALP nz = entering ? sf->gz : -sf->gz;
+    REALP size = g->size;
+    REALP qx = (sf->px + world.x - (REAL)0.25 * size * nx) / size;
+    REALP qy = (sf->py + world.y - (REAL)0.25 * size * ny) / size;
+    REALP qz = (sf->pz + world.z - (REAL)0.25 * size * nz) / size;
+    REALP cells = floor(qx) + floor(qy) + floor(qz);
+    REALP odd = cells - (REAL)2 * floor(cells * (REAL)0.5);
+    MASKP second = odd == (REAL)1;
+    REALP red = second ? g->red2 : g->red;
+    REALP green = second ? g->green2 : g->green;
+    REALP blue = second ? g->blue2 : g->blue;
+    REALP blend = g->blend;
+    g->red = g->checker ? blend * red + ((REAL)1 - blend) * g->red : g->red;
+    g->green = g->checker ? blend * green + ((REAL)1 - blend) * g->green : g->green;
+    g->blue = g->checker ? blend * blue + ((REAL)1 - blend) * g->blue : g->blue;
+}
+#endif
+
+// The lanes' ShadePoints into pt[j] for the lanes of `lit` that this can shade, and every lit
+// lane's coordinates into *q; returns the lanes left to shade_point (their pt[j] and q's lanes
+// are not written).
+HOT int shade_point_lanes(const SceneRefs* s, const __global Camera* camera, const RayPacket* r,
+                          const PacketHit* h, const Hit* hits, int lit, ShadePoint* pt,
+                          SurfaceLanes* q) {
+    int left;
+    ShapeLanes g = shape_lanes(s, hits, lit, &left);
+    if (left == lit) return left;
+    SurfaceOfLanes sf = {0};
+    MASKP outside = (MASKP)(0);
+#if HAS_TRIANGLES
+    MASKP triangles = g.kind == (MASKP)(PRIM_TRIANGLE);
+    if (lane_mask(triangles)) {
+        MASKP wide = (MASKP)(0);
+        SurfaceOfLanes v = triangle_surface_lanes(&g, r, h, &wide);
+        outside |= triangles & wide;
+        take_surface(triangles, &v, &sf);
+    }
+#endif
+#if HAS_SPHERES
+    MASKP spheres = g.kind == (MASKP)(PRIM_SPHERE);
+    if (lane_mask(spheres)) {
+        MASKP wide = (MASKP)(0);
+        SurfaceOfLanes v = sphere_surface_lanes(&g, r, h, &wide);
+        outside |= spheres & wide;
+        take_surface(spheres, &v, &sf);
+    }
+#endif
+#if HAS_PLANES
+    MASKP planes = g.kind == (MASKP)(PRIM_PLANE);
+    if (lane_mask(planes)) {
+        SurfaceOfLanes v = plane_surface_lanes(&g, r, h);
+        take_surface(planes, &v, &sf);
+    }
+#endif
+    left |= lane_mask(outside);
+    left &= lit;
+    MASKP entering = dot_lanes(r->dx, r->dy, r->dz, sf.gx, sf.gy, sf.gz) < (REAL)0;
+    MASKP toward = dot_lanes(sf.sx, sf.sy, sf.sz, r->dx, r->dy, r->dz) < (REAL)0;
+#if HAS_TEXTURES
+    if (lane_mask(g.checker)) checker_lanes(&g, camera, &sf, entering);
+#endif
+    q->px = sf.px;
+    q->py = sf.py;
+    q->pz = sf.pz;
+    q->err = sf.err;
+    q->gx = sf.gx;
+    q->gy = sf.gy;
+    q->gz = sf.gz;
+    q->nx = toward ? sf.sx : -sf.sx;
+    q->ny = toward ? sf.sy : -sf.sy;
+    q->nz = toward ? sf.sz : -sf.sz;
+    REAL f[16][PACKET_LANES];
+    LANE_INT in[PACKET_LANES];
+    VSTOREP(sf.px, 0, f[0]);
+    VSTOREP(sf.py, 0, f[1]);
+    VSTOREP(sf.pz, 0, f[2]);
+    VSTOREP(sf.err, 0, f[3]);
+    VSTOREP(sf.gx, 0, f[4]);
+    VSTOREP(sf.gy, 0, f[5]);
+    VSTOREP(sf.gz, 0, f[6]);
+    VSTOREP(sf.sx, 0, f[7]);
+    VSTOREP(sf.sy, 0, f[8]);
+    VSTOREP(sf.sz, 0, f[9]);
+    VSTOREP(q->nx, 0, f[10]);
+    VSTOREP(q->ny, 0, f[11]);
+    VSTOREP(q->nz, 0, f[12]);
+    VSTOREP(g.red, 0, f[13]);
+    VSTOREP(g.green, 0, f[14]);
+    VSTOREP(g.blue, 0, f[15]);
+    VSTOREP(entering, 0, in);
+    for (int rest = lit & ~left; rest; rest &= rest - 1) {
+        int j = lowest_bit(rest);
+        ShadePoint* p = pt + j;
+        p->sf.p = (REAL3)(f[0][j], f[1][j], f[2][j]);
+        p->sf.err = f[3][j];
+        p->sf.n_g = (REAL3)(f[4][j], f[5][j], f[6][j]);
+        p->sf.n_s = (REAL3)(f[7][j], f[8][j], f[9][j]);
+        p->n = (REAL3)(f[10][j], f[11][j], f[12][j]);
+        p->c = (REAL3)(f[13][j], f[14][j], f[15][j]);
+        p->entering = in[j] != 0;
+        p->sf.material = g.material[j];
+        // shape_surface's (u, v): a triangle's barycentrics, (0, 0) for the others (no
+        // texture reads them here).
+        p->sf.uv = (REAL2)(0, 0);
+#if HAS_TRIANGLES
+        if (hits[j].ref >> PRIM_TYPE_SHIFT == PRIM_TRIANGLE) {
+            p->sf.uv = (REAL2)(hits[j].b1, hits[j].b2);
+        }
+#endif
+    }
+    return left;
+}
+#endif
+
+#endif

@@ -55,6 +55,20 @@ HOT SurfaceLanes surface_lanes(const ShadePoint* pt, int bits) {
     return q;
 }
 
+// Where `mine`, *q takes v's lanes.
+HOT void merge_surface_lanes(SurfaceLanes v, MASKP mine, SurfaceLanes* q) {
+    q->px = mine ? v.px : q->px;
+    q->py = mine ? v.py : q->py;
+    q->pz = mine ? v.pz : q->pz;
+    q->err = mine ? v.err : q->err;
+    q->gx = mine ? v.gx : q->gx;
+    q->gy = mine ? v.gy : q->gy;
+    q->gz = mine ? v.gz : q->gz;
+    q->nx = mine ? v.nx : q->nx;
+    q->ny = mine ? v.ny : q->ny;
+    q->nz = mine ? v.nz : q->nz;
+}
+
 // offset_origin(sf, w) for every lane, into (ox, oy, oz): the same operations in the same
 // order.
 HOT void offset_origin_lanes(const SurfaceLanes* q, REALP wx, REALP wy, REALP wz, REALP* ox,
@@ -68,6 +82,41 @@ HOT void offset_origin_lanes(const SurfaceLanes* q, REALP wx, REALP wy, REALP wz
     *ox = out ? q->px + d * q->gx : q->px - d * q->gx;
     *oy = out ? q->py + d * q->gy : q->py - d * q->gy;
     *oz = out ? q->pz + d * q->gz : q->pz - d * q->gz;
+}
+
+// SurfaceLanes row by row, for the lanes that go on one at a time.
+typedef struct {
+    REAL f[10][PACKET_LANES];
+} SurfaceRows;
+
+HOT void store_surface_lanes(const SurfaceLanes* q, SurfaceRows* r) {
+    VSTOREP(q->px, 0, r->f[0]);
+    VSTOREP(q->py, 0, r->f[1]);
+    VSTOREP(q->pz, 0, r->f[2]);
+    VSTOREP(q->err, 0, r->f[3]);
+    VSTOREP(q->gx, 0, r->f[4]);
+    VSTOREP(q->gy, 0, r->f[5]);
+    VSTOREP(q->gz, 0, r->f[6]);
+    VSTOREP(q->nx, 0, r->f[7]);
+    VSTOREP(q->ny, 0, r->f[8]);
+    VSTOREP(q->nz, 0, r->f[9]);
+}
+
+// Lane j's surface as light_ray reads it (p, err, n_g; material: the caller's).
+HOT Surface surface_of_lane(const SurfaceRows* r, int j) {
+    Surface sf;
+    sf.p = (REAL3)(r->f[0][j], r->f[1][j], r->f[2][j]);
+    sf.err = r->f[3][j];
+    sf.n_g = (REAL3)(r->f[4][j], r->f[5][j], r->f[6][j]);
+    sf.n_s = sf.n_g;
+    sf.uv = (REAL2)(0, 0);
+    sf.material = 0;
+    return sf;
+}
+
+// Lane j's shading normal n (ShadePoint.n).
+HOT REAL3 normal_of_lane(const SurfaceRows* r, int j) {
+    return (REAL3)(r->f[7][j], r->f[8][j], r->f[9][j]);
 }
 
 #if POINT_LIGHT_LANES
@@ -226,10 +275,12 @@ HOT bool point_light_direct(const SceneRefs* s, const ShadePoint* pt, const Ray*
     VSTOREP(lz, 0, f[2]);
     VSTOREP(atten, 0, f[3]);
     VSTOREP(ndl, 0, f[4]);
+    SurfaceRows rows;
+    store_surface_lanes(q, &rows);
     for (int rest = lit; rest; rest &= rest - 1) {
         int j = lowest_bit(rest);
         REAL3 l = (REAL3)(f[0][j], f[1][j], f[2][j]);
-        direct[j] += light_term(s, i, pt[j].n, -seen[j].d, pt[j].c,
+        direct[j] += light_term(s, i, normal_of_lane(&rows, j), -seen[j].d, pt[j].c,
                                 s->materials + pt[j].sf.material, l, f[3][j], f[4][j],
                                 (REAL3)(1, 1, 1));
     }
@@ -237,9 +288,10 @@ HOT bool point_light_direct(const SceneRefs* s, const ShadePoint* pt, const Ray*
 }
 #endif
 
-// shade_direct for the lanes of `bits`, each at its own shading point pt[j] seen along
-// seen[j] (q: their surface_lanes), with one shadow-ray packet per light. key.sample: lane 0's
-// sample. The per-lane arithmetic is shade_direct's.
+// shade_direct for the lanes of `bits`, each at its own shading point seen along seen[j] (its
+// surface and normal in q, its colour and material in pt[j]: the rest of pt[j] is not read),
+// with one shadow-ray packet per light. key.sample: lane 0's sample. The per-lane arithmetic
+// is shade_direct's.
 HOT void packet_direct(const SceneRefs* s, const ShadePoint* pt, const Ray* seen,
                        const SurfaceLanes* q, REAL3 ambient_light, SampleKey key, int bits,
                        REAL3* direct, int* shadow_rays) {
@@ -254,6 +306,9 @@ HOT void packet_direct(const SceneRefs* s, const ShadePoint* pt, const Ray* seen
     TermLanes m;
     bool gathered = false;
 #endif
+    // The other lights' rays are set up lane by lane.
+    SurfaceRows points;
+    bool stored = false;
     for (int i = 0; i < s->n_lights; ++i) {
 #if POINT_LIGHT_LANES
         if (s->lights[i].kind == LIGHT_POINT) {
@@ -264,6 +319,10 @@ HOT void packet_direct(const SceneRefs* s, const ShadePoint* pt, const Ray* seen
             if (point_light_direct(s, pt, seen, i, q, &m, bits, direct, shadow_rays)) continue;
         }
 #endif
+        if (!stored) {
+            store_surface_lanes(q, &points);
+            stored = true;
+        }
         Ray rays[PACKET_LANES];
         REAL3 l[PACKET_LANES], filter[PACKET_LANES];
         REAL atten[PACKET_LANES], ndl[PACKET_LANES], tmax[PACKET_LANES];
@@ -271,8 +330,9 @@ HOT void packet_direct(const SceneRefs* s, const ShadePoint* pt, const Ray* seen
         for (int rest = bits; rest; rest &= rest - 1) {
             int j = lowest_bit(rest);
             key.sample = first + j;
-            if (light_ray(s, &pt[j].sf, pt[j].n, i, key, l + j, atten + j, ndl + j, rays + j,
-                          tmax + j)) {
+            Surface sf = surface_of_lane(&points, j);
+            if (light_ray(s, &sf, normal_of_lane(&points, j), i, key, l + j, atten + j, ndl + j,
+                          rays + j, tmax + j)) {
                 shot |= 1 << j;
             }
         }
@@ -290,7 +350,7 @@ HOT void packet_direct(const SceneRefs* s, const ShadePoint* pt, const Ray* seen
         for (int rest = shot; rest; rest &= rest - 1) {
             int j = lowest_bit(rest);
             if (max_comp3(filter[j]) <= (REAL)0) continue;
-            direct[j] += light_term(s, i, pt[j].n, -seen[j].d, pt[j].c,
+            direct[j] += light_term(s, i, normal_of_lane(&points, j), -seen[j].d, pt[j].c,
                                     s->materials + pt[j].sf.material, l[j], atten[j], ndl[j],
                                     filter[j]);
         }

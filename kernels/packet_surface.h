@@ -382,12 +382,52 @@ HOT void checker_lanes(ShapeLanes* g, const __global Camera* camera, const Surfa
 }
 #endif
 
-// The lanes' ShadePoints into pt[j] for the lanes of `lit` that this can shade, and every lit
-// lane's coordinates into *q; returns the lanes left to shade_point (their pt[j] and q's lanes
-// are not written).
+// The rest of each ShadePoint of the lanes of `done`, beside their colours and materials.
+HOT void store_shade_points(const SurfaceOfLanes* sf, const SurfaceLanes* q, MASKP entering,
+                            const Hit* hits, int done, ShadePoint* pt) {
+    REAL f[13][PACKET_LANES];
+    LANE_INT in[PACKET_LANES];
+    VSTOREP(sf->px, 0, f[0]);
+    VSTOREP(sf->py, 0, f[1]);
+    VSTOREP(sf->pz, 0, f[2]);
+    VSTOREP(sf->err, 0, f[3]);
+    VSTOREP(sf->gx, 0, f[4]);
+    VSTOREP(sf->gy, 0, f[5]);
+    VSTOREP(sf->gz, 0, f[6]);
+    VSTOREP(sf->sx, 0, f[7]);
+    VSTOREP(sf->sy, 0, f[8]);
+    VSTOREP(sf->sz, 0, f[9]);
+    VSTOREP(q->nx, 0, f[10]);
+    VSTOREP(q->ny, 0, f[11]);
+    VSTOREP(q->nz, 0, f[12]);
+    VSTOREP(entering, 0, in);
+    for (int rest = done; rest; rest &= rest - 1) {
+        int j = lowest_bit(rest);
+        ShadePoint* p = pt + j;
+        p->sf.p = (REAL3)(f[0][j], f[1][j], f[2][j]);
+        p->sf.err = f[3][j];
+        p->sf.n_g = (REAL3)(f[4][j], f[5][j], f[6][j]);
+        p->sf.n_s = (REAL3)(f[7][j], f[8][j], f[9][j]);
+        p->n = (REAL3)(f[10][j], f[11][j], f[12][j]);
+        p->entering = in[j] != 0;
+        // shape_surface's (u, v): a triangle's barycentrics, (0, 0) for the others (no
+        // texture reads them here).
+        p->sf.uv = (REAL2)(0, 0);
+#if HAS_TRIANGLES
+        if (hits[j].ref >> PRIM_TYPE_SHIFT == PRIM_TRIANGLE) {
+            p->sf.uv = (REAL2)(hits[j].b1, hits[j].b2);
+        }
+#endif
+    }
+}
+
+// shade_point for the lanes of `lit` that this can shade: their coordinates into *q, their
+// colours and materials into pt[j], and where `whole` the rest of pt[j] too (without it, what
+// the chains read of pt[j] is all that is written). Returns the lanes left to shade_point
+// (their lanes of q and their pt[j] are not written).
 HOT int shade_point_lanes(const SceneRefs* s, const __global Camera* camera, const RayPacket* r,
-                          const PacketHit* h, const Hit* hits, int lit, ShadePoint* pt,
-                          SurfaceLanes* q) {
+                          const PacketHit* h, const Hit* hits, int lit, bool whole,
+                          ShadePoint* pt, SurfaceLanes* q) {
     int left;
     ShapeLanes g = shape_lanes(s, hits, lit, &left);
     if (left == lit) return left;
@@ -435,45 +475,17 @@ HOT int shade_point_lanes(const SceneRefs* s, const __global Camera* camera, con
     q->nx = toward ? sf.sx : -sf.sx;
     q->ny = toward ? sf.sy : -sf.sy;
     q->nz = toward ? sf.sz : -sf.sz;
-    REAL f[16][PACKET_LANES];
-    LANE_INT in[PACKET_LANES];
-    VSTOREP(sf.px, 0, f[0]);
-    VSTOREP(sf.py, 0, f[1]);
-    VSTOREP(sf.pz, 0, f[2]);
-    VSTOREP(sf.err, 0, f[3]);
-    VSTOREP(sf.gx, 0, f[4]);
-    VSTOREP(sf.gy, 0, f[5]);
-    VSTOREP(sf.gz, 0, f[6]);
-    VSTOREP(sf.sx, 0, f[7]);
-    VSTOREP(sf.sy, 0, f[8]);
-    VSTOREP(sf.sz, 0, f[9]);
-    VSTOREP(q->nx, 0, f[10]);
-    VSTOREP(q->ny, 0, f[11]);
-    VSTOREP(q->nz, 0, f[12]);
-    VSTOREP(g.red, 0, f[13]);
-    VSTOREP(g.green, 0, f[14]);
-    VSTOREP(g.blue, 0, f[15]);
-    VSTOREP(entering, 0, in);
-    for (int rest = lit & ~left; rest; rest &= rest - 1) {
+    REAL color[3][PACKET_LANES];
+    VSTOREP(g.red, 0, color[0]);
+    VSTOREP(g.green, 0, color[1]);
+    VSTOREP(g.blue, 0, color[2]);
+    int done = lit & ~left;
+    for (int rest = done; rest; rest &= rest - 1) {
         int j = lowest_bit(rest);
-        ShadePoint* p = pt + j;
-        p->sf.p = (REAL3)(f[0][j], f[1][j], f[2][j]);
-        p->sf.err = f[3][j];
-        p->sf.n_g = (REAL3)(f[4][j], f[5][j], f[6][j]);
-        p->sf.n_s = (REAL3)(f[7][j], f[8][j], f[9][j]);
-        p->n = (REAL3)(f[10][j], f[11][j], f[12][j]);
-        p->c = (REAL3)(f[13][j], f[14][j], f[15][j]);
-        p->entering = in[j] != 0;
-        p->sf.material = g.material[j];
-        // shape_surface's (u, v): a triangle's barycentrics, (0, 0) for the others (no
-        // texture reads them here).
-        p->sf.uv = (REAL2)(0, 0);
-#if HAS_TRIANGLES
-        if (hits[j].ref >> PRIM_TYPE_SHIFT == PRIM_TRIANGLE) {
-            p->sf.uv = (REAL2)(hits[j].b1, hits[j].b2);
-        }
-#endif
+        pt[j].c = (REAL3)(color[0][j], color[1][j], color[2][j]);
+        pt[j].sf.material = g.material[j];
     }
+    if (whole && done) store_shade_points(&sf, q, entering, hits, done, pt);
     return left;
 }
 #endif

@@ -242,8 +242,9 @@ typedef struct {
 #endif
 } SamplePacket;
 
-// The closest hits of the lanes `bits` of pk->ray, their shading points (pk->pt, and as lanes
-// in *q) and direct light (pk->hit, pk->pt, pk->direct): returns the lanes that hit something.
+// The closest hits of the lanes `bits` of pk->ray (pk->hit), their shading points (as lanes in
+// *q; in pk->pt their colours and materials, and with chains lane-wise shading points no more,
+// shade_point_lanes) and direct light (pk->direct): returns the lanes that hit something.
 // `drawn`: pk->ray as a packet already, or 0.
 HOT int shade_packet(const SceneRefs* s, const __global Camera* camera,
                      const __global Params* params, SampleKey key, int bits, SamplePacket* pk,
@@ -254,7 +255,10 @@ HOT int shade_packet(const SceneRefs* s, const __global Camera* camera,
     packet_closest(s, pk->ray, drawn, bits, pk->hit, &h);
     lit = bits & lane_mask(h.t < REAL_INF);
     int left = lit;
-    if (drawn && lit) left = shade_point_lanes(s, camera, drawn, &h, pk->hit, lit, pk->pt, q);
+    // Without chains the ray tree reads the primary rays' whole ShadePoints.
+    if (drawn && lit) {
+        left = shade_point_lanes(s, camera, drawn, &h, pk->hit, lit, !PACKET_CHAINS, pk->pt, q);
+    }
 #else
     packet_closest(s, pk->ray, drawn, bits, pk->hit, 0);
     for (int rest = bits; rest; rest &= rest - 1) {
@@ -267,8 +271,11 @@ HOT int shade_packet(const SceneRefs* s, const __global Camera* camera,
         int j = lowest_bit(rest);
         pk->pt[j] = shade_point(s, camera, pk->ray + j, pk->hit + j);
     }
-    // Lanes that shade_point shaded join the others' coordinates.
-    if (left) *q = surface_lanes(pk->pt, lit);
+    if (left == lit && lit) {
+        *q = surface_lanes(pk->pt, lit);
+    } else if (left) {
+        merge_surface_lanes(surface_lanes(pk->pt, left), lanes_of(left), q);
+    }
     packet_direct(s, pk->pt, pk->ray, q, TO_REAL3(params->ambient), key, lit, pk->direct,
                   shadow_rays);
     return lit;

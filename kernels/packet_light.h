@@ -84,6 +84,12 @@ HOT void offset_origin_lanes(const SurfaceLanes* q, REALP wx, REALP wy, REALP wz
     *oz = out ? q->pz + d * q->gz : q->pz - d * q->gz;
 }
 
+// What light_term reads of each lane's shading point beyond SurfaceLanes: the direction to the
+// eye, the surface colour and the material's diffuse, specular and shininess.
+typedef struct {
+    REALP vx, vy, vz, cx, cy, cz, diffuse, specular, shininess;
+} TermLanes;
+
 // SurfaceLanes row by row, for the lanes that go on one at a time.
 typedef struct {
     REAL f[10][PACKET_LANES];
@@ -129,12 +135,6 @@ HOT bool length_lanes(REALP x, REALP y, REALP z, MASKP lanes, REALP* len) {
     *len = sqrt(fmax(dd, (REALP)(0)));
     return !lane_mask(lanes & ~inside);
 }
-
-// What light_term reads of each lane's shading point beyond SurfaceLanes: the direction to the
-// eye, the surface colour and the material's diffuse, specular and shininess.
-typedef struct {
-    REALP vx, vy, vz, cx, cy, cz, diffuse, specular, shininess;
-} TermLanes;
 
 // As surface_lanes, for light_term.
 HOT TermLanes term_lanes(const SceneRefs* s, const ShadePoint* pt, const Ray* seen, int bits) {
@@ -289,12 +289,13 @@ HOT bool point_light_direct(const SceneRefs* s, const ShadePoint* pt, const Ray*
 #endif
 
 // shade_direct for the lanes of `bits`, each at its own shading point seen along seen[j] (its
-// surface and normal in q, its colour and material in pt[j]: the rest of pt[j] is not read),
+// surface and normal in q, its colour and material in pt[j]: the rest of pt[j] is not read;
+// terms: their TermLanes, or 0),
 // with one shadow-ray packet per light. key.sample: lane 0's sample. The per-lane arithmetic
 // is shade_direct's.
 HOT void packet_direct(const SceneRefs* s, const ShadePoint* pt, const Ray* seen,
-                       const SurfaceLanes* q, REAL3 ambient_light, SampleKey key, int bits,
-                       REAL3* direct, int* shadow_rays) {
+                       const SurfaceLanes* q, const TermLanes* terms, REAL3 ambient_light,
+                       SampleKey key, int bits, REAL3* direct, int* shadow_rays) {
     int first = key.sample;
     for (int rest = bits; rest; rest &= rest - 1) {
         int j = lowest_bit(rest);
@@ -303,8 +304,10 @@ HOT void packet_direct(const SceneRefs* s, const ShadePoint* pt, const Ray* seen
     }
     if (!bits) return;
 #if POINT_LIGHT_LANES
+    // The point lights' terms read the lanes' materials as lanes: given, or gathered once.
     TermLanes m;
-    bool gathered = false;
+    bool gathered = terms != 0;
+    if (gathered) m = *terms;
 #endif
     // The other lights' rays are set up lane by lane.
     SurfaceRows points;

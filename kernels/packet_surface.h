@@ -24,10 +24,10 @@
 #if SURFACE_LANES
 // The per-lane records that a lane's shape and material give its surface: for a triangle its
 // corners (a, b, c) and vertex normals (na, nb, nc), for a sphere its centre (a) and radius
-// (b.x), for a plane its normal (a) and point (b); the material's colour and, for a checker
-// texture, its cell size, second colour and blend.
+// (b.x), for a plane its normal (a) and point (b); the material's colour, diffuse, specular
+// and shininess and, for a checker texture, its cell size, second colour and blend.
 typedef struct {
-    REALP red, green, blue, ax, ay, az, bx, by, bz;
+    REALP red, green, blue, diffuse, specular, shininess, ax, ay, az, bx, by, bz;
 #if HAS_TRIANGLES
     REALP cx, cy, cz;
 #if HAS_VERTEX_NORMALS
@@ -46,13 +46,14 @@ typedef struct {
 // The rows of shape_lanes' table: only those of the shapes and textures a build has.
 enum {
     ROW_COLOR = 0,
-    ROW_A = 3,
-    ROW_B = 6,
-    ROW_C = 9,
+    ROW_TERM = 3,
+    ROW_A = 6,
+    ROW_B = 9,
+    ROW_C = 12,
 #if HAS_TRIANGLES
-    ROW_NORMALS = 12,
+    ROW_NORMALS = 15,
 #else
-    ROW_NORMALS = 9,
+    ROW_NORMALS = 12,
 #endif
 #if HAS_TRIANGLES && HAS_VERTEX_NORMALS
     ROW_CHECKER = ROW_NORMALS + 9,
@@ -140,6 +141,9 @@ HOT bool shape_record(const SceneRefs* s, const Hit* hit, REAL f[SHAPE_FIELDS][P
     f[ROW_COLOR][k] = color.x;
     f[ROW_COLOR + 1][k] = color.y;
     f[ROW_COLOR + 2][k] = color.z;
+    f[ROW_TERM][k] = TO_REAL(m->diffuse);
+    f[ROW_TERM + 1][k] = TO_REAL(m->specular);
+    f[ROW_TERM + 2][k] = TO_REAL(m->shininess);
 #if HAS_TEXTURES
     if (m->texture >= 0) {
         const __global Texture* tx = s->textures + m->texture;
@@ -179,6 +183,9 @@ HOT ShapeLanes shape_lanes(const SceneRefs* s, const Hit* hits, int lit, int* le
     g.red = VLOADP(0, f[ROW_COLOR]);
     g.green = VLOADP(0, f[ROW_COLOR + 1]);
     g.blue = VLOADP(0, f[ROW_COLOR + 2]);
+    g.diffuse = VLOADP(0, f[ROW_TERM]);
+    g.specular = VLOADP(0, f[ROW_TERM + 1]);
+    g.shininess = VLOADP(0, f[ROW_TERM + 2]);
     g.ax = VLOADP(0, f[ROW_A]);
     g.ay = VLOADP(0, f[ROW_A + 1]);
     g.az = VLOADP(0, f[ROW_A + 2]);
@@ -421,13 +428,13 @@ HOT void store_shade_points(const SurfaceOfLanes* sf, const SurfaceLanes* q, MAS
     }
 }
 
-// shade_point for the lanes of `lit` that this can shade: their coordinates into *q, their
-// colours and materials into pt[j], and where `whole` the rest of pt[j] too (without it, what
-// the chains read of pt[j] is all that is written). Returns the lanes left to shade_point
-// (their lanes of q and their pt[j] are not written).
+// shade_point for the lanes of `lit` that this can shade: their coordinates into *q, what
+// light_term reads into *terms, their colours and materials into pt[j], and where `whole` the
+// rest of pt[j] too (without it, what the chains read of pt[j] is all that is written).
+// Returns the lanes left to shade_point (their lanes of q, terms and pt[j] are not written).
 HOT int shade_point_lanes(const SceneRefs* s, const __global Camera* camera, const RayPacket* r,
                           const PacketHit* h, const Hit* hits, int lit, bool whole,
-                          ShadePoint* pt, SurfaceLanes* q) {
+                          ShadePoint* pt, SurfaceLanes* q, TermLanes* terms) {
     int left;
     ShapeLanes g = shape_lanes(s, hits, lit, &left);
     if (left == lit) return left;
@@ -475,6 +482,15 @@ HOT int shade_point_lanes(const SceneRefs* s, const __global Camera* camera, con
     q->nx = toward ? sf.sx : -sf.sx;
     q->ny = toward ? sf.sy : -sf.sy;
     q->nz = toward ? sf.sz : -sf.sz;
+    terms->vx = -r->dx;
+    terms->vy = -r->dy;
+    terms->vz = -r->dz;
+    terms->cx = g.red;
+    terms->cy = g.green;
+    terms->cz = g.blue;
+    terms->diffuse = g.diffuse;
+    terms->specular = g.specular;
+    terms->shininess = g.shininess;
     REAL color[3][PACKET_LANES];
     VSTOREP(g.red, 0, color[0]);
     VSTOREP(g.green, 0, color[1]);

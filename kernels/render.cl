@@ -255,9 +255,11 @@ HOT int shade_packet(const SceneRefs* s, const __global Camera* camera,
     packet_closest(s, pk->ray, drawn, bits, pk->hit, &h);
     lit = bits & lane_mask(h.t < REAL_INF);
     int left = lit;
+    TermLanes terms;
     // Without chains the ray tree reads the primary rays' whole ShadePoints.
     if (drawn && lit) {
-        left = shade_point_lanes(s, camera, drawn, &h, pk->hit, lit, !PACKET_CHAINS, pk->pt, q);
+        left = shade_point_lanes(s, camera, drawn, &h, pk->hit, lit, !PACKET_CHAINS, pk->pt, q,
+                                 &terms);
     }
 #else
     packet_closest(s, pk->ray, drawn, bits, pk->hit, 0);
@@ -276,7 +278,13 @@ HOT int shade_packet(const SceneRefs* s, const __global Camera* camera,
     } else if (left) {
         merge_surface_lanes(surface_lanes(pk->pt, left), lanes_of(left), q);
     }
-    packet_direct(s, pk->pt, pk->ray, q, TO_REAL3(params->ambient), key, lit, pk->direct,
+#if SURFACE_LANES
+    // The lanes that shade_point shaded have no TermLanes: all are gathered then.
+    const TermLanes* given = left ? 0 : &terms;
+#else
+    const TermLanes* given = 0;
+#endif
+    packet_direct(s, pk->pt, pk->ray, q, given, TO_REAL3(params->ambient), key, lit, pk->direct,
                   shadow_rays);
     return lit;
 }

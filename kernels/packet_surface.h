@@ -1,11 +1,11 @@
 // A sample packet's shading points lane-wise (TRAVERSAL_SAMPLE_PACKET): shade_point's
 // arithmetic for every lane at once, for the shapes whose surfaces are a few vector operations
-// (triangles, spheres, planes) and untextured materials. The operations are shade_point's, in
-// its order and with its contractions (one expression where it has one, a statement of its own
-// where it has none), so each lane's ShadePoint is bit for bit the one shade_point gives
-// (tests/test_packets.py compares the images of both schemes pixel for pixel). Lanes of other
-// shapes, textured materials and lengths outside length()'s plain range are left to
-// shade_point.
+// (triangles, spheres, planes) and materials without a texture or with a checker. The
+// operations are shade_point's, in its order and with its contractions (one expression where
+// it has one, a statement of its own where it has none), so each lane's ShadePoint is bit for
+// bit the one shade_point gives (tests/test_packets.py compares the images of both schemes
+// pixel for pixel). Lanes of other shapes, image textures, vertex texture coordinates and
+// lengths outside length()'s plain range are left to shade_point.
 #ifndef CLRAY_PACKET_SURFACE_H
 #define CLRAY_PACKET_SURFACE_H
 

@@ -296,11 +296,9 @@ HOT RayPacket make_ray_packet(REALP ox, REALP oy, REALP oz, REALP dx, REALP dy, 
     return p;
 }
 
-// Each lane's ray as make_ray made it, into rays[0 .. PACKET_LANES - 1].
-HOT void packet_rays(const RayPacket* p, Ray* rays) {
-    RayLanes l;
-    store_ray_lanes(p, &l);
-    for (int j = 0; j < PACKET_LANES; ++j) rays[j] = ray_from_lanes(&l, j);
+// Lane j's direction, as make_ray made it.
+HOT REAL3 direction_of_lane(const RayLanes* l, int j) {
+    return (REAL3)(l->f[3][j], l->f[4][j], l->f[5][j]);
 }
 
 // The lanes' hits (Hit, lane by lane; instances are not walked by packets).
@@ -441,22 +439,81 @@ typedef struct {
     REAL origin_size;  // the largest magnitude of an origin's coordinate (shapes_interval)
 } PacketBounds;
 
-HOT void axis_bounds(REALP o, REALP inv, MASKP active, int axis, PacketBounds* b) {
-    b->olo[axis] = min_lanes(active ? o : (REALP)(REAL_INF));
-    b->ohi[axis] = max_lanes(active ? o : (REALP)(-REAL_INF));
-    b->ilo[axis] = min_lanes(active ? inv : (REALP)(REAL_INF));
-    b->ihi[axis] = max_lanes(active ? inv : (REALP)(-REAL_INF));
-    bool positive = b->ilo[axis] > (REAL)0 && b->ihi[axis] < REAL_INF;
-    bool negative = b->ihi[axis] < (REAL)0 && b->ilo[axis] > -REAL_INF;
-    b->sign[axis] = positive ? 1 : (negative ? -1 : 0);
+// The twelve extremes are reduced together, not one by one: each vector's lanes are first
+// folded to eight, then pairs of vectors share each step's shuffles (fold_pairs), so that one
+// minimum instruction works for two or four of them at once.
+#ifdef USE_DOUBLE
+typedef double8 REAL8;
+#else
+typedef float8 REAL8;
+#endif
+#if PACKET_LANES == 16
+#define TO_EIGHT(v, HALF) HALF(v)
+#elif PACKET_LANES == 8
+#define TO_EIGHT(v, HALF) (v)
+#else
+#define TO_EIGHT(v, HALF) ((REAL8)((v), (v)))
+#endif
+#define LESSER(a, b) ((a) < (b) ? (a) : (b))
+#define GREATER(a, b) ((a) > (b) ? (a) : (b))
+
+// Lanes 0..7 of a and of b folded to four each by PICK: a's at lanes 0, 1, 4, 5, b's at 2, 3,
+// 6, 7 (shuffles within each half of the vector, one instruction each on x86).
+#define FOLD_PAIRS(a, b, PICK) \
+    PICK((REAL8)((a).s02, (b).s02, (a).s46, (b).s46), (REAL8)((a).s13, (b).s13, (a).s57, (b).s57))
+
+// The least lane of each of a, b, c and d, in that order.
+HOT REAL4 least_of_four(REAL8 a, REAL8 b, REAL8 c, REAL8 d) {
+    REAL8 ab = FOLD_PAIRS(a, b, LESSER), cd = FOLD_PAIRS(c, d, LESSER);
+    REAL8 e = FOLD_PAIRS(ab, cd, LESSER);
+    return LESSER(e.lo, e.hi);
+}
+
+// The greatest lane of each of a, b, c and d, in that order.
+HOT REAL4 greatest_of_four(REAL8 a, REAL8 b, REAL8 c, REAL8 d) {
+    REAL8 ab = FOLD_PAIRS(a, b, GREATER), cd = FOLD_PAIRS(c, d, GREATER);
+    REAL8 e = FOLD_PAIRS(ab, cd, GREATER);
+    return GREATER(e.lo, e.hi);
+}
+
+HOT int axis_sign(REAL ilo, REAL ihi) {
+    bool positive = ilo > (REAL)0 && ihi < REAL_INF;
+    bool negative = ihi < (REAL)0 && ilo > -REAL_INF;
+    return positive ? 1 : (negative ? -1 : 0);
 }
 
 HOT PacketBounds packet_bounds(const RayPacket* p, int bits) {
     MASKP active = lanes_of(bits);
+    const REALP inf = (REALP)(REAL_INF);
+    REAL8 lox = TO_EIGHT(active ? p->ox : inf, MIN_OF_HALVES);
+    REAL8 loy = TO_EIGHT(active ? p->oy : inf, MIN_OF_HALVES);
+    REAL8 loz = TO_EIGHT(active ? p->oz : inf, MIN_OF_HALVES);
+    REAL8 lix = TO_EIGHT(active ? p->ix : inf, MIN_OF_HALVES);
+    REAL8 liy = TO_EIGHT(active ? p->iy : inf, MIN_OF_HALVES);
+    REAL8 liz = TO_EIGHT(active ? p->iz : inf, MIN_OF_HALVES);
+    REAL8 hox = TO_EIGHT(active ? p->ox : -inf, MAX_OF_HALVES);
+    REAL8 hoy = TO_EIGHT(active ? p->oy : -inf, MAX_OF_HALVES);
+    REAL8 hoz = TO_EIGHT(active ? p->oz : -inf, MAX_OF_HALVES);
+    REAL8 hix = TO_EIGHT(active ? p->ix : -inf, MAX_OF_HALVES);
+    REAL8 hiy = TO_EIGHT(active ? p->iy : -inf, MAX_OF_HALVES);
+    REAL8 hiz = TO_EIGHT(active ? p->iz : -inf, MAX_OF_HALVES);
+    REAL4 lo = least_of_four(lox, loy, loz, lix), lo_rest = least_of_four(liy, liz, liy, liz);
+    REAL4 hi = greatest_of_four(hox, hoy, hoz, hix);
+    REAL4 hi_rest = greatest_of_four(hiy, hiz, hiy, hiz);
     PacketBounds b;
-    axis_bounds(p->ox, p->ix, active, 0, &b);
-    axis_bounds(p->oy, p->iy, active, 1, &b);
-    axis_bounds(p->oz, p->iz, active, 2, &b);
+    b.olo[0] = lo.x;
+    b.olo[1] = lo.y;
+    b.olo[2] = lo.z;
+    b.ilo[0] = lo.w;
+    b.ilo[1] = lo_rest.x;
+    b.ilo[2] = lo_rest.y;
+    b.ohi[0] = hi.x;
+    b.ohi[1] = hi.y;
+    b.ohi[2] = hi.z;
+    b.ihi[0] = hi.w;
+    b.ihi[1] = hi_rest.x;
+    b.ihi[2] = hi_rest.y;
+    for (int axis = 0; axis < 3; ++axis) b.sign[axis] = axis_sign(b.ilo[axis], b.ihi[axis]);
     b.origin_size = (REAL)0;
     for (int axis = 0; axis < 3; ++axis) {
         b.origin_size = fmax(b.origin_size, fmax(fabs(b.olo[axis]), fabs(b.ohi[axis])));
@@ -751,7 +808,7 @@ HOT bool leaf_ray_by_ray(int count) {
 // Closest hits of the lanes `bits` in a leaf: its triangles and spheres lane-wise (those that
 // shapes_interval leaves in, on the packet's intervals b), its other shapes (and the study
 // variants' formulas) ray by ray, as leaf_closest has them.
-HOT void leaf_closest_lanes(const SceneRefs* s, int slot, int count, const Ray* rays,
+HOT void leaf_closest_lanes(const SceneRefs* s, int slot, int count, const RayLanes* rays,
                             const RayPacket* p, const PacketBounds* b, int bits, PacketHit* h) {
     MASKP lanes = lanes_of(bits);
     int tri_packets = section_packets(count, PRIM_TRIANGLE);
@@ -761,7 +818,8 @@ HOT void leaf_closest_lanes(const SceneRefs* s, int slot, int count, const Ray* 
         store_hits(h, hits);
         for (int rest = bits; rest; rest &= rest - 1) {
             int j = lowest_bit(rest);
-            leaf_closest(s, slot, count, rays + j, -1, hits + j);
+            Ray r = ray_from_lanes(rays, j);
+            leaf_closest(s, slot, count, &r, -1, hits + j);
         }
         *h = packet_hit(hits);
         return;
@@ -845,7 +903,7 @@ HOT int reaching_lanes(const PacketHit* h, REAL t, int bits) {
 }
 
 // The BVH part of closest_hit for the lanes `bits`, from the hits in *h.
-HOT void packet_walk_closest(const SceneRefs* s, const Ray* rays, const RayPacket* p,
+HOT void packet_walk_closest(const SceneRefs* s, const RayLanes* rays, const RayPacket* p,
                              const PacketBounds* b, int bits, PacketHit* h) {
     int stack_child[BVH_STACK_SIZE], stack_count[BVH_STACK_SIZE], stack_lanes[BVH_STACK_SIZE];
     REAL stack_t[BVH_STACK_SIZE];
@@ -861,7 +919,8 @@ HOT void packet_walk_closest(const SceneRefs* s, const Ray* rays, const RayPacke
             store_hits(h, hits);
             for (int rest = bits; rest; rest &= rest - 1) {
                 int j = lowest_bit(rest);
-                walk_closest(s, rays + j, child, count, hits + j);
+                Ray r = ray_from_lanes(rays, j);
+                walk_closest(s, &r, child, count, hits + j);
             }
             *h = packet_hit(hits);
         } else {
@@ -899,26 +958,27 @@ HOT void packet_walk_closest(const SceneRefs* s, const Ray* rays, const RayPacke
 
 #endif
 
-// closest_hit for each lane of `bits` (hits of the others: no hit); `drawn`: the rays as a
-// packet already, or 0. `lanes`, where not 0, gets the hits as lanes too (not with instances).
-STAGE void packet_closest(const SceneRefs* s, const Ray* rays, const RayPacket* drawn, int bits,
+// closest_hit for each lane of `bits` of the packet p (hits of the others: no hit); `rays`: the
+// same rays lane by lane, for the lanes that go on alone. `lanes`, where not 0, gets the hits
+// as lanes too (not with instances).
+STAGE void packet_closest(const SceneRefs* s, const RayPacket* p, const RayLanes* rays, int bits,
                           Hit* hits, PacketHit* lanes) {
 #if HAS_INSTANCES || !HAS_BVH
     // Instances are walked ray by ray.
     for (int j = 0; j < PACKET_LANES; ++j) hits[j] = no_hit();
     for (int rest = bits; rest; rest &= rest - 1) {
         int j = lowest_bit(rest);
-        hits[j] = closest_hit(s, rays + j);
+        Ray r = ray_from_lanes(rays, j);
+        hits[j] = closest_hit(s, &r);
     }
 #else
-    RayPacket p = drawn ? *drawn : ray_packet(rays);
     PacketHit h = no_hit_lanes();
 #if HAS_PLANES
-    consider_planes_lanes(s, &p, lanes_of(bits), &h);
+    consider_planes_lanes(s, p, lanes_of(bits), &h);
 #endif
     if (s->n_nodes > 0) {
-        PacketBounds b = packet_bounds(&p, bits);
-        packet_walk_closest(s, rays, &p, &b, bits, &h);
+        PacketBounds b = packet_bounds(p, bits);
+        packet_walk_closest(s, rays, p, &b, bits, &h);
     }
     store_hits(&h, hits);
     if (lanes) *lanes = h;

@@ -87,7 +87,7 @@ HOT void offset_origin_lanes(const SurfaceLanes* q, REALP wx, REALP wy, REALP wz
 // What light_term reads of each lane's shading point beyond SurfaceLanes: the direction to the
 // eye, the surface colour and the material's diffuse, specular and shininess.
 typedef struct {
-    REALP vx, vy, vz, cx, cy, cz, diffuse, specular, shininess;
+    REALP vx, vy, vz, cx, cy, cz, diffuse, specular, shininess, ambient, ex, ey, ez;
 } TermLanes;
 
 // SurfaceLanes row by row, for the lanes that go on one at a time.
@@ -125,7 +125,13 @@ HOT REAL3 normal_of_lane(const SurfaceRows* r, int j) {
     return (REAL3)(r->f[7][j], r->f[8][j], r->f[9][j]);
 }
 
-#if POINT_LIGHT_LANES
+// Lane j of rows of light (x, y, z) plus v: the sums lane by lane of light that went lane by lane.
+HOT void add_to_lane(REAL rows[3][PACKET_LANES], int j, REAL3 v) {
+    rows[0][j] += v.x;
+    rows[1][j] += v.y;
+    rows[2][j] += v.z;
+}
+
 // length() lane-wise: sqrt of dot_lanes, which is what PoCL's length() computes wherever the
 // squared length is within [2^-90, 2^90]; outside it, length() scales against underflow and
 // overflow. False where a lane of `lanes` is outside that range (or NaN).
@@ -137,13 +143,14 @@ HOT bool length_lanes(REALP x, REALP y, REALP z, MASKP lanes, REALP* len) {
 }
 
 // As surface_lanes, for light_term.
-HOT TermLanes term_lanes(const SceneRefs* s, const ShadePoint* pt, const Ray* seen, int bits) {
-    REAL f[9][PACKET_LANES];
+HOT TermLanes term_lanes(const SceneRefs* s, const ShadePoint* pt, const RayLanes* seen,
+                         int bits) {
+    REAL f[13][PACKET_LANES];
     int spare = lowest_bit(bits);
     for (int j = 0; j < PACKET_LANES; ++j) {
         int k = ((bits >> j) & 1) ? j : spare;
         const __global Material* m = s->materials + pt[k].sf.material;
-        REAL3 v = -seen[k].d;
+        REAL3 v = -direction_of_lane(seen, k);
         f[0][j] = v.x;
         f[1][j] = v.y;
         f[2][j] = v.z;
@@ -153,6 +160,11 @@ HOT TermLanes term_lanes(const SceneRefs* s, const ShadePoint* pt, const Ray* se
         f[6][j] = TO_REAL(m->diffuse);
         f[7][j] = TO_REAL(m->specular);
         f[8][j] = TO_REAL(m->shininess);
+        REAL3 e = TO_REAL3(m->emission);
+        f[9][j] = TO_REAL(m->ambient);
+        f[10][j] = e.x;
+        f[11][j] = e.y;
+        f[12][j] = e.z;
     }
     TermLanes t;
     t.vx = VLOADP(0, f[0]);
@@ -164,9 +176,14 @@ HOT TermLanes term_lanes(const SceneRefs* s, const ShadePoint* pt, const Ray* se
     t.diffuse = VLOADP(0, f[6]);
     t.specular = VLOADP(0, f[7]);
     t.shininess = VLOADP(0, f[8]);
+    t.ambient = VLOADP(0, f[9]);
+    t.ex = VLOADP(0, f[10]);
+    t.ey = VLOADP(0, f[11]);
+    t.ez = VLOADP(0, f[12]);
     return t;
 }
 
+#if POINT_LIGHT_LANES
 // phong_power lane-wise where every lane's exponent is a whole number within [0, 4096] (the
 // caller checks): each lane's multiplications are phong_power's, in the same order.
 HOT REALP phong_power_lanes(REALP x, REALP s) {
@@ -243,9 +260,9 @@ HOT bool point_light_lanes(const __global Light* light, const SurfaceLanes* q, i
 
 // Light i's terms on the lanes of `bits`, a point light's shadow rays set up lane-wise: adds
 // to direct[j]. False (nothing added) where point_light_lanes declines.
-HOT bool point_light_direct(const SceneRefs* s, const ShadePoint* pt, const Ray* seen, int i,
-                            const SurfaceLanes* q, const TermLanes* m, int bits, REAL3* direct,
-                            int* shadow_rays) {
+HOT bool point_light_direct(const SceneRefs* s, const ShadePoint* pt, const RayLanes* seen,
+                            int i, const SurfaceLanes* q, const TermLanes* m, int bits,
+                            REAL direct[3][PACKET_LANES], int* shadow_rays) {
     const __global Light* light = s->lights + i;
     RayPacket rays;
     REALP tmax, lx, ly, lz, atten, ndl;
@@ -261,13 +278,11 @@ HOT bool point_light_direct(const SceneRefs* s, const ShadePoint* pt, const Ray*
     if (!lit) return true;
     REALP tx, ty, tz;
     if (light_term_lanes(light, q, m, lanes_of(lit), lx, ly, lz, atten, ndl, &tx, &ty, &tz)) {
-        VSTOREP(tx, 0, f[0]);
-        VSTOREP(ty, 0, f[1]);
-        VSTOREP(tz, 0, f[2]);
-        for (int rest = lit; rest; rest &= rest - 1) {
-            int j = lowest_bit(rest);
-            direct[j] += (REAL3)(f[0][j], f[1][j], f[2][j]);
-        }
+        MASKP mine = lanes_of(lit);
+        REALP dx = VLOADP(0, direct[0]), dy = VLOADP(0, direct[1]), dz = VLOADP(0, direct[2]);
+        VSTOREP(mine ? dx + tx : dx, 0, direct[0]);
+        VSTOREP(mine ? dy + ty : dy, 0, direct[1]);
+        VSTOREP(mine ? dz + tz : dz, 0, direct[2]);
         return true;
     }
     VSTOREP(lx, 0, f[0]);
@@ -280,46 +295,39 @@ HOT bool point_light_direct(const SceneRefs* s, const ShadePoint* pt, const Ray*
     for (int rest = lit; rest; rest &= rest - 1) {
         int j = lowest_bit(rest);
         REAL3 l = (REAL3)(f[0][j], f[1][j], f[2][j]);
-        direct[j] += light_term(s, i, normal_of_lane(&rows, j), -seen[j].d, pt[j].c,
-                                s->materials + pt[j].sf.material, l, f[3][j], f[4][j],
-                                (REAL3)(1, 1, 1));
+        add_to_lane(direct, j,
+                    light_term(s, i, normal_of_lane(&rows, j), -direction_of_lane(seen, j),
+                               pt[j].c, s->materials + pt[j].sf.material, l, f[3][j], f[4][j],
+                               (REAL3)(1, 1, 1)));
     }
     return true;
 }
 #endif
 
-// shade_direct for the lanes of `bits`, each at its own shading point seen along seen[j] (its
-// surface and normal in q, its colour and material in pt[j]: the rest of pt[j] is not read;
-// terms: their TermLanes, or 0),
-// with one shadow-ray packet per light. key.sample: lane 0's sample. The per-lane arithmetic
-// is shade_direct's.
-HOT void packet_direct(const SceneRefs* s, const ShadePoint* pt, const Ray* seen,
+// shade_direct for the lanes of `bits`, each at its own shading point seen along its ray in
+// `seen` (its surface and normal in q, its colour and material in pt[j]: the rest of pt[j] is
+// not read; terms: their TermLanes, or 0), into the rows of `direct`, with one shadow-ray packet per
+// light. key.sample: lane 0's sample. The per-lane arithmetic is shade_direct's, in its order:
+// the glow first, then each light's term added.
+HOT void packet_direct(const SceneRefs* s, const ShadePoint* pt, const RayLanes* seen,
                        const SurfaceLanes* q, const TermLanes* terms, REAL3 ambient_light,
-                       SampleKey key, int bits, REAL3* direct, int* shadow_rays) {
+                       SampleKey key, int bits, REAL direct[3][PACKET_LANES], int* shadow_rays) {
     int first = key.sample;
-    for (int rest = bits; rest; rest &= rest - 1) {
-        int j = lowest_bit(rest);
-        const __global Material* m = s->materials + pt[j].sf.material;
-        direct[j] = surface_glow(m, pt[j].c, ambient_light);
-    }
     if (!bits) return;
-#if POINT_LIGHT_LANES
-    // The point lights' terms read the lanes' materials as lanes: given, or gathered once.
-    TermLanes m;
-    bool gathered = terms != 0;
-    if (gathered) m = *terms;
-#endif
+    // The lanes' materials as lanes (given, or gathered once): surface_glow's arithmetic on
+    // every lane, and the point lights' terms.
+    TermLanes m = terms ? *terms : term_lanes(s, pt, seen, bits);
+    VSTOREP(m.ambient * m.cx * ambient_light.x + m.ex, 0, direct[0]);
+    VSTOREP(m.ambient * m.cy * ambient_light.y + m.ey, 0, direct[1]);
+    VSTOREP(m.ambient * m.cz * ambient_light.z + m.ez, 0, direct[2]);
     // The other lights' rays are set up lane by lane.
     SurfaceRows points;
     bool stored = false;
     for (int i = 0; i < s->n_lights; ++i) {
 #if POINT_LIGHT_LANES
-        if (s->lights[i].kind == LIGHT_POINT) {
-            if (!gathered) {
-                m = term_lanes(s, pt, seen, bits);
-                gathered = true;
-            }
-            if (point_light_direct(s, pt, seen, i, q, &m, bits, direct, shadow_rays)) continue;
+        if (s->lights[i].kind == LIGHT_POINT &&
+            point_light_direct(s, pt, seen, i, q, &m, bits, direct, shadow_rays)) {
+            continue;
         }
 #endif
         if (!stored) {
@@ -353,9 +361,11 @@ HOT void packet_direct(const SceneRefs* s, const ShadePoint* pt, const Ray* seen
         for (int rest = shot; rest; rest &= rest - 1) {
             int j = lowest_bit(rest);
             if (max_comp3(filter[j]) <= (REAL)0) continue;
-            direct[j] += light_term(s, i, normal_of_lane(&points, j), -seen[j].d, pt[j].c,
-                                    s->materials + pt[j].sf.material, l[j], atten[j], ndl[j],
-                                    filter[j]);
+            add_to_lane(direct, j,
+                        light_term(s, i, normal_of_lane(&points, j),
+                                   -direction_of_lane(seen, j), pt[j].c,
+                                   s->materials + pt[j].sf.material, l[j], atten[j], ndl[j],
+                                   filter[j]));
         }
     }
 }

@@ -24,10 +24,12 @@
 #if SURFACE_LANES
 // The per-lane records that a lane's shape and material give its surface: for a triangle its
 // corners (a, b, c) and vertex normals (na, nb, nc), for a sphere its centre (a) and radius
-// (b.x), for a plane its normal (a) and point (b); the material's colour, diffuse, specular
-// and shininess and, for a checker texture, its cell size, second colour and blend.
+// (b.x), for a plane its normal (a) and point (b); the material's colour, diffuse, specular,
+// shininess, ambient and emission and, for a checker texture, its cell size, second colour
+// and blend.
 typedef struct {
-    REALP red, green, blue, diffuse, specular, shininess, ax, ay, az, bx, by, bz;
+    REALP red, green, blue, diffuse, specular, shininess, ambient, ex, ey, ez, ax, ay, az, bx, by,
+        bz;
 #if HAS_TRIANGLES
     REALP cx, cy, cz;
 #if HAS_VERTEX_NORMALS
@@ -47,13 +49,14 @@ typedef struct {
 enum {
     ROW_COLOR = 0,
     ROW_TERM = 3,
-    ROW_A = 6,
-    ROW_B = 9,
-    ROW_C = 12,
+    ROW_GLOW = 6,
+    ROW_A = 10,
+    ROW_B = 13,
+    ROW_C = 16,
 #if HAS_TRIANGLES
-    ROW_NORMALS = 15,
+    ROW_NORMALS = 19,
 #else
-    ROW_NORMALS = 12,
+    ROW_NORMALS = 16,
 #endif
 #if HAS_TRIANGLES && HAS_VERTEX_NORMALS
     ROW_CHECKER = ROW_NORMALS + 9,
@@ -144,6 +147,11 @@ HOT bool shape_record(const SceneRefs* s, const Hit* hit, REAL f[SHAPE_FIELDS][P
     f[ROW_TERM][k] = TO_REAL(m->diffuse);
     f[ROW_TERM + 1][k] = TO_REAL(m->specular);
     f[ROW_TERM + 2][k] = TO_REAL(m->shininess);
+    REAL3 emission = TO_REAL3(m->emission);
+    f[ROW_GLOW][k] = TO_REAL(m->ambient);
+    f[ROW_GLOW + 1][k] = emission.x;
+    f[ROW_GLOW + 2][k] = emission.y;
+    f[ROW_GLOW + 3][k] = emission.z;
 #if HAS_TEXTURES
     if (m->texture >= 0) {
         const __global Texture* tx = s->textures + m->texture;
@@ -160,32 +168,61 @@ HOT bool shape_record(const SceneRefs* s, const Hit* hit, REAL f[SHAPE_FIELDS][P
     return true;
 }
 
+// Lane 0's record (column 0 of f, its material, smoothness and checker) in every lane: what
+// shape_lanes' gather gives where every lane hit the same shape.
+HOT void copy_record(REAL f[SHAPE_FIELDS][PACKET_LANES], int* material, LANE_INT* kind,
+                     LANE_INT* smooth, LANE_INT* checker) {
+    for (int row = 0; row < SHAPE_FIELDS; ++row) VSTOREP((REALP)(f[row][0]), 0, f[row]);
+    for (int j = 1; j < PACKET_LANES; ++j) {
+        material[j] = material[0];
+        kind[j] = kind[0];
+        smooth[j] = smooth[0];
+        checker[j] = checker[0];
+    }
+}
+
 // The shape records of the lanes of `lit` (hits[j]); the other lanes hold a copy of one of
-// those. *left: the lanes whose records shape_record declines.
-HOT ShapeLanes shape_lanes(const SceneRefs* s, const Hit* hits, int lit, int* left) {
+// those. `same`: every lane of lit hit the shape of its lowest lane (as a pixel's samples
+// mostly do), whose record is then read once. *left: the lanes whose records shape_record
+// declines.
+HOT ShapeLanes shape_lanes(const SceneRefs* s, const Hit* hits, int lit, bool same, int* left) {
     REAL f[SHAPE_FIELDS][PACKET_LANES];
     LANE_INT kind[PACKET_LANES], smooth[PACKET_LANES], checker[PACKET_LANES];
     ShapeLanes g;
-    // Each kind fills its own rows: the others are zeros, so that every kind's arithmetic
-    // runs on defined numbers in every lane.
-    for (int row = 0; row < SHAPE_FIELDS; ++row) VSTOREP((REALP)(0), 0, f[row]);
     int spare = lowest_bit(lit);
     *left = 0;
-    for (int j = 0; j < PACKET_LANES; ++j) {
-        int k = ((lit >> j) & 1) ? j : spare;
-        kind[j] = hits[k].ref >> PRIM_TYPE_SHIFT;
-        if (!shape_record(s, hits + k, f, j, g.material + j, smooth + j, checker + j)) {
-            *left |= 1 << k;
-            kind[j] = -1;
+    if (same) {
+        for (int row = 0; row < SHAPE_FIELDS; ++row) f[row][0] = 0;
+        kind[0] = hits[spare].ref >> PRIM_TYPE_SHIFT;
+        if (!shape_record(s, hits + spare, f, 0, g.material, smooth, checker)) {
+            *left = lit;
+            kind[0] = -1;
         }
+        copy_record(f, g.material, kind, smooth, checker);
+    } else {
+        // Each kind fills its own rows: the others are zeros, so that every kind's arithmetic
+        // runs on defined numbers in every lane.
+        for (int row = 0; row < SHAPE_FIELDS; ++row) VSTOREP((REALP)(0), 0, f[row]);
+        for (int j = 0; j < PACKET_LANES; ++j) {
+            int k = ((lit >> j) & 1) ? j : spare;
+            kind[j] = hits[k].ref >> PRIM_TYPE_SHIFT;
+            if (!shape_record(s, hits + k, f, j, g.material + j, smooth + j, checker + j)) {
+                *left |= 1 << k;
+                kind[j] = -1;
+            }
+        }
+        *left &= lit;
     }
-    *left &= lit;
     g.red = VLOADP(0, f[ROW_COLOR]);
     g.green = VLOADP(0, f[ROW_COLOR + 1]);
     g.blue = VLOADP(0, f[ROW_COLOR + 2]);
     g.diffuse = VLOADP(0, f[ROW_TERM]);
     g.specular = VLOADP(0, f[ROW_TERM + 1]);
     g.shininess = VLOADP(0, f[ROW_TERM + 2]);
+    g.ambient = VLOADP(0, f[ROW_GLOW]);
+    g.ex = VLOADP(0, f[ROW_GLOW + 1]);
+    g.ey = VLOADP(0, f[ROW_GLOW + 2]);
+    g.ez = VLOADP(0, f[ROW_GLOW + 3]);
     g.ax = VLOADP(0, f[ROW_A]);
     g.ay = VLOADP(0, f[ROW_A + 1]);
     g.az = VLOADP(0, f[ROW_A + 2]);
@@ -436,7 +473,10 @@ HOT int shade_point_lanes(const SceneRefs* s, const __global Camera* camera, con
                           const PacketHit* h, const Hit* hits, int lit, bool whole,
                           ShadePoint* pt, SurfaceLanes* q, TermLanes* terms) {
     int left;
-    ShapeLanes g = shape_lanes(s, hits, lit, &left);
+    const Hit* first = hits + lowest_bit(lit);
+    MASKP other = (h->ref != (MASKP)(first->ref)) | (h->part != (MASKP)(first->part));
+    bool same = !lane_mask(lanes_of(lit) & other);
+    ShapeLanes g = shape_lanes(s, hits, lit, same, &left);
     if (left == lit) return left;
     SurfaceOfLanes sf = {0};
     MASKP outside = (MASKP)(0);
@@ -491,6 +531,10 @@ HOT int shade_point_lanes(const SceneRefs* s, const __global Camera* camera, con
     terms->diffuse = g.diffuse;
     terms->specular = g.specular;
     terms->shininess = g.shininess;
+    terms->ambient = g.ambient;
+    terms->ex = g.ex;
+    terms->ey = g.ey;
+    terms->ez = g.ez;
     REAL color[3][PACKET_LANES];
     VSTOREP(g.red, 0, color[0]);
     VSTOREP(g.green, 0, color[1]);

@@ -231,38 +231,38 @@ inline RayTask primary_task(const __global Camera* camera, const __global Params
 // point and direct light (shade_direct's, its shadow rays traced as packets), from which the
 // ray tree goes on ray by ray.
 typedef struct {
-    Ray ray[PACKET_LANES];
+    RayLanes ray;  // lane j's ray: ray_from_lanes(&ray, j)
     Hit hit[PACKET_LANES];
     ShadePoint pt[PACKET_LANES];
-    REAL3 direct[PACKET_LANES];
+    REAL direct[3][PACKET_LANES];  // rows x, y, z
 #if PACKET_CHAINS
-    REAL3 light[MAX_DEPTH + 1][PACKET_LANES];
+    REAL light[MAX_DEPTH + 1][3][PACKET_LANES];
     REAL weight[MAX_DEPTH + 1][3][PACKET_LANES];
     int levels[PACKET_LANES];
 #endif
 } SamplePacket;
 
-// The closest hits of the lanes `bits` of pk->ray (pk->hit), their shading points (as lanes in
-// *q; in pk->pt their colours and materials, and with chains lane-wise shading points no more,
-// shade_point_lanes) and direct light (pk->direct): returns the lanes that hit something.
-// `drawn`: pk->ray as a packet already, or 0.
+// The closest hits of the lanes `bits` of the packet `rays` (pk->ray: the same rays lane by
+// lane) into pk->hit, their shading points (as lanes in *q; in pk->pt their colours and
+// materials, and with chains lane-wise shading points no more, shade_point_lanes) and direct
+// light (pk->direct): returns the lanes that hit something.
 HOT int shade_packet(const SceneRefs* s, const __global Camera* camera,
                      const __global Params* params, SampleKey key, int bits, SamplePacket* pk,
-                     const RayPacket* drawn, SurfaceLanes* q, int* shadow_rays) {
+                     const RayPacket* rays, SurfaceLanes* q, int* shadow_rays) {
     int lit = 0;
 #if SURFACE_LANES
     PacketHit h;
-    packet_closest(s, pk->ray, drawn, bits, pk->hit, &h);
+    packet_closest(s, rays, &pk->ray, bits, pk->hit, &h);
     lit = bits & lane_mask(h.t < REAL_INF);
     int left = lit;
     TermLanes terms;
     // Without chains the ray tree reads the primary rays' whole ShadePoints.
-    if (drawn && lit) {
-        left = shade_point_lanes(s, camera, drawn, &h, pk->hit, lit, !PACKET_CHAINS, pk->pt, q,
+    if (lit) {
+        left = shade_point_lanes(s, camera, rays, &h, pk->hit, lit, !PACKET_CHAINS, pk->pt, q,
                                  &terms);
     }
 #else
-    packet_closest(s, pk->ray, drawn, bits, pk->hit, 0);
+    packet_closest(s, rays, &pk->ray, bits, pk->hit, 0);
     for (int rest = bits; rest; rest &= rest - 1) {
         int j = lowest_bit(rest);
         if (pk->hit[j].t < REAL_INF) lit |= 1 << j;
@@ -271,7 +271,8 @@ HOT int shade_packet(const SceneRefs* s, const __global Camera* camera,
 #endif
     for (int rest = left; rest; rest &= rest - 1) {
         int j = lowest_bit(rest);
-        pk->pt[j] = shade_point(s, camera, pk->ray + j, pk->hit + j);
+        Ray ray = ray_from_lanes(&pk->ray, j);
+        pk->pt[j] = shade_point(s, camera, &ray, pk->hit + j);
     }
     if (left == lit && lit) {
         *q = surface_lanes(pk->pt, lit);
@@ -284,8 +285,8 @@ HOT int shade_packet(const SceneRefs* s, const __global Camera* camera,
 #else
     const TermLanes* given = 0;
 #endif
-    packet_direct(s, pk->pt, pk->ray, q, given, TO_REAL3(params->ambient), key, lit, pk->direct,
-                  shadow_rays);
+    packet_direct(s, pk->pt, &pk->ray, q, given, TO_REAL3(params->ambient), key, lit,
+                  pk->direct, shadow_rays);
     return lit;
 }
 
@@ -293,6 +294,11 @@ HOT int shade_packet(const SceneRefs* s, const __global Camera* camera,
 // Lane j's ray weight at a level of its chain.
 inline REAL3 chain_weight(const SamplePacket* pk, int level, int j) {
     return (REAL3)(pk->weight[level][0][j], pk->weight[level][1][j], pk->weight[level][2][j]);
+}
+
+// Lane j's light at a level of its chain.
+inline REAL3 chain_light(const SamplePacket* pk, int level, int j) {
+    return (REAL3)(pk->light[level][0][j], pk->light[level][1][j], pk->light[level][2][j]);
 }
 
 // The reflected rays of the lanes `lit` (their shading points q, their rays `rays`, of weight
@@ -321,7 +327,7 @@ OUT_OF_LINE int reflect_lanes(const SceneRefs* s, const __global Params* params,
     REALP ox, oy, oz;
     offset_origin_lanes(q, dx, dy, dz, &ox, &oy, &oz);
     *rays = make_ray_packet(ox, oy, oz, dx, dy, dz, bits);
-    packet_rays(rays, pk->ray);
+    store_ray_lanes(rays, &pk->ray);
     *wx = rx;
     *wy = ry;
     *wz = rz;
@@ -341,15 +347,18 @@ HOT void trace_chains(const SceneRefs* s, const __global Camera* camera,
         VSTOREP(wx, 0, pk->weight[depth][0]);
         VSTOREP(wy, 0, pk->weight[depth][1]);
         VSTOREP(wz, 0, pk->weight[depth][2]);
+        for (int c = 0; c < 3 && lit; ++c) {
+            VSTOREP(VLOADP(0, pk->direct[c]), 0, pk->light[depth][c]);
+        }
         for (int rest = bits; rest; rest &= rest - 1) {
             int j = lowest_bit(rest);
             pk->levels[j] = depth + 1;
-            if ((lit >> j) & 1) {
-                pk->light[depth][j] = pk->direct[j];
-                continue;
-            }
-            pk->light[depth][j] =
-                sky(params, s->texels, pk->ray[j].d, chain_weight(pk, depth, j));
+            if ((lit >> j) & 1) continue;
+            REAL3 leaving = sky(params, s->texels, direction_of_lane(&pk->ray, j),
+                                chain_weight(pk, depth, j));
+            pk->light[depth][0][j] = leaving.x;
+            pk->light[depth][1][j] = leaving.y;
+            pk->light[depth][2][j] = leaving.z;
             for (int c = 0; c < 3; ++c) pk->weight[depth][c][j] = 1;
         }
         if (depth >= MAX_DEPTH || !lit) break;
@@ -367,26 +376,27 @@ OUT_OF_LINE void trace_sample_packet(const SceneRefs* s, const __global Camera* 
                                      int* secondary_rays, int* shadow_rays) {
     int first = key.sample;
     RayPacket primary;
-    const RayPacket* drawn = 0;
+    bool drawn = false;
 #if CAMERA_LANES
-    if (camera_ray_lanes(camera, params, x, y, first, lanes, pixel, &primary)) {
-        packet_rays(&primary, pk->ray);
-        drawn = &primary;
-    }
+    drawn = camera_ray_lanes(camera, params, x, y, first, lanes, pixel, &primary);
 #endif
-    for (int j = 0; j < PACKET_LANES && !drawn; ++j) {
-        REAL3 o, d;
-        // Lanes past the pixel's last sample ride along as copies of its first.
-        sample_ray(camera, params, x, y, first + (j < lanes ? j : 0), pixel, &o, &d);
-        pk->ray[j] = make_ray(o, d);
+    if (!drawn) {
+        Ray rays[PACKET_LANES];
+        for (int j = 0; j < PACKET_LANES; ++j) {
+            REAL3 o, d;
+            // Lanes past the pixel's last sample ride along as copies of its first.
+            sample_ray(camera, params, x, y, first + (j < lanes ? j : 0), pixel, &o, &d);
+            rays[j] = make_ray(o, d);
+        }
+        primary = ray_packet(rays);
     }
+    store_ray_lanes(&primary, &pk->ray);
     int bits = (1 << lanes) - 1;
 #if PACKET_CHAINS
-    if (!drawn) primary = ray_packet(pk->ray);
     trace_chains(s, camera, params, key, bits, pk, &primary, secondary_rays, shadow_rays);
 #else
     SurfaceLanes q;
-    shade_packet(s, camera, params, key, bits, pk, drawn, &q, shadow_rays);
+    shade_packet(s, camera, params, key, bits, pk, &primary, &q, shadow_rays);
 #endif
 }
 #endif
@@ -502,14 +512,15 @@ __kernel WORK_ITEM_LANES void render(SCENE_BUFFER_PARAMS, __global float4* image
         if (spp > 1) {
             // The packet traced the sample's chain: its light, added in the ray tree's order.
             for (int level = 0; level < packet.levels[lane]; ++level) {
-                sum += chain_weight(&packet, level, lane) * packet.light[level][lane];
+                sum += chain_weight(&packet, level, lane) * chain_light(&packet, level, lane);
             }
             continue;
         }
 #endif
         if (spp > 1) {
             // The packet drew the sample's ray already.
-            stack[0] = root_task(packet.ray[lane].o, packet.ray[lane].d);
+            Ray drawn = ray_from_lanes(&packet.ray, lane);
+            stack[0] = root_task(drawn.o, drawn.d);
         } else
 #endif
         stack[0] = primary_task(camera, params, x, y, sample, pixel);
@@ -519,7 +530,7 @@ __kernel WORK_ITEM_LANES void render(SCENE_BUFFER_PARAMS, __global float4* image
 #if SAMPLE_PACKETS
             // A primary ray of a packet: its hit and direct light are known.
             bool packed = !PACKET_CHAINS && spp > 1 && task.depth == 0;
-            Ray ray = packed ? packet.ray[lane] : make_ray(task.o, task.d);
+            Ray ray = packed ? ray_from_lanes(&packet.ray, lane) : make_ray(task.o, task.d);
             Hit hit = packed ? packet.hit[lane] : closest_hit(&s, &ray);
 #else
             Ray ray = make_ray(task.o, task.d);
@@ -536,7 +547,9 @@ __kernel WORK_ITEM_LANES void render(SCENE_BUFFER_PARAMS, __global float4* image
 #endif
             const __global Material* m = materials + pt.sf.material;
 #if SAMPLE_PACKETS
-            sum += task.weight * (packed ? packet.direct[lane]
+            REAL3 packed_direct = (REAL3)(packet.direct[0][lane], packet.direct[1][lane],
+                                          packet.direct[2][lane]);
+            sum += task.weight * (packed ? packed_direct
                                          : shade_direct(&s, &pt.sf, pt.n, -ray.d, pt.c, m,
                                                         ambient, key, &shadow_rays));
 #else
@@ -596,7 +609,10 @@ __kernel WORK_ITEM_LANES void intersect_rays(__global const float4* origins,
     for (int j = 0; j < PACKET_LANES; ++j) {
         rays[j] = make_ray(TO_REAL3(origins[first + j]), TO_REAL3(directions[first + j]));
     }
-    packet_closest(&s, rays, 0, ALL_LANES, found, 0);
+    RayPacket p = ray_packet(rays);
+    RayLanes lanes;
+    store_ray_lanes(&p, &lanes);
+    packet_closest(&s, &p, &lanes, ALL_LANES, found, 0);
     for (int j = 0; j < PACKET_LANES; ++j) {
         report_hit(&s, rays + j, found + j, hits + first + j, refs + first + j);
     }

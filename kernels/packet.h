@@ -25,7 +25,8 @@
 
 // REALP: one REAL per lane; MASKP: what comparing two REALP gives (int lanes for float, long
 // for double), also the type of per-lane integers that selects mix with REALP.
-// UINTP: one uint per lane (the samplers' hashes); TO_REALP converts it to REALP.
+// UINTP: one uint per lane (the samplers' hashes); TO_REALP converts it to REALP, TO_MASKP a
+// REALP to whole numbers (towards zero, as a cast does).
 #define PACKET_PASTE_(a, b) a##b
 #define PACKET_PASTE(a, b) PACKET_PASTE_(a, b)
 #ifdef USE_DOUBLE
@@ -34,12 +35,14 @@
     typedef long##n MASKP; \
     typedef uint##n UINTP;
 #define TO_REALP PACKET_PASTE(convert_double, PACKET_LANES)
+#define TO_MASKP PACKET_PASTE(convert_long, PACKET_LANES)
 #else
 #define PACKET_TYPES(n) \
     typedef float##n REALP; \
     typedef int##n MASKP; \
     typedef uint##n UINTP;
 #define TO_REALP PACKET_PASTE(convert_float, PACKET_LANES)
+#define TO_MASKP PACKET_PASTE(convert_int, PACKET_LANES)
 #endif
 
 #if PACKET_LANES == 16

@@ -87,7 +87,7 @@ HOT void offset_origin_lanes(const SurfaceLanes* q, REALP wx, REALP wy, REALP wz
 // What light_term reads of each lane's shading point beyond SurfaceLanes: the direction to the
 // eye, the surface colour and the material's diffuse, specular and shininess.
 typedef struct {
-    REALP vx, vy, vz, cx, cy, cz, diffuse, specular, shininess, ambient, ex, ey, ez;
+    REALP vx, vy, vz, cx, cy, cz, diffuse, specular, shininess, ambient, ex, ey, ez, reflect;
 } TermLanes;
 
 // SurfaceLanes row by row, for the lanes that go on one at a time.
@@ -145,7 +145,7 @@ HOT bool length_lanes(REALP x, REALP y, REALP z, MASKP lanes, REALP* len) {
 // As surface_lanes, for light_term.
 HOT TermLanes term_lanes(const SceneRefs* s, const ShadePoint* pt, const RayLanes* seen,
                          int bits) {
-    REAL f[13][PACKET_LANES];
+    REAL f[14][PACKET_LANES];
     int spare = lowest_bit(bits);
     for (int j = 0; j < PACKET_LANES; ++j) {
         int k = ((bits >> j) & 1) ? j : spare;
@@ -165,6 +165,7 @@ HOT TermLanes term_lanes(const SceneRefs* s, const ShadePoint* pt, const RayLane
         f[10][j] = e.x;
         f[11][j] = e.y;
         f[12][j] = e.z;
+        f[13][j] = TO_REAL(m->reflect);
     }
     TermLanes t;
     t.vx = VLOADP(0, f[0]);
@@ -180,6 +181,7 @@ HOT TermLanes term_lanes(const SceneRefs* s, const ShadePoint* pt, const RayLane
     t.ex = VLOADP(0, f[10]);
     t.ey = VLOADP(0, f[11]);
     t.ez = VLOADP(0, f[12]);
+    t.reflect = VLOADP(0, f[13]);
     return t;
 }
 
@@ -187,11 +189,7 @@ HOT TermLanes term_lanes(const SceneRefs* s, const ShadePoint* pt, const RayLane
 // phong_power lane-wise where every lane's exponent is a whole number within [0, 4096] (the
 // caller checks): each lane's multiplications are phong_power's, in the same order.
 HOT REALP phong_power_lanes(REALP x, REALP s) {
-    REAL e[PACKET_LANES];
-    LANE_INT k[PACKET_LANES];
-    VSTOREP(s, 0, e);
-    for (int j = 0; j < PACKET_LANES; ++j) k[j] = (LANE_INT)e[j];
-    MASKP n = VLOADP(0, k);
+    MASKP n = TO_MASKP(s);
     REALP r = (REALP)(1);
     while (lane_mask(n != (MASKP)(0))) {
         r = (n & (MASKP)(1)) != (MASKP)(0) ? r * x : r;
@@ -306,27 +304,25 @@ HOT bool point_light_direct(const SceneRefs* s, const ShadePoint* pt, const RayL
 
 // shade_direct for the lanes of `bits`, each at its own shading point seen along its ray in
 // `seen` (its surface and normal in q, its colour and material in pt[j]: the rest of pt[j] is
-// not read; terms: their TermLanes, or 0), into the rows of `direct`, with one shadow-ray packet per
+// not read; m: their TermLanes), into the rows of `direct`, with one shadow-ray packet per
 // light. key.sample: lane 0's sample. The per-lane arithmetic is shade_direct's, in its order:
 // the glow first, then each light's term added.
 HOT void packet_direct(const SceneRefs* s, const ShadePoint* pt, const RayLanes* seen,
-                       const SurfaceLanes* q, const TermLanes* terms, REAL3 ambient_light,
+                       const SurfaceLanes* q, const TermLanes* m, REAL3 ambient_light,
                        SampleKey key, int bits, REAL direct[3][PACKET_LANES], int* shadow_rays) {
     int first = key.sample;
     if (!bits) return;
-    // The lanes' materials as lanes (given, or gathered once): surface_glow's arithmetic on
-    // every lane, and the point lights' terms.
-    TermLanes m = terms ? *terms : term_lanes(s, pt, seen, bits);
-    VSTOREP(m.ambient * m.cx * ambient_light.x + m.ex, 0, direct[0]);
-    VSTOREP(m.ambient * m.cy * ambient_light.y + m.ey, 0, direct[1]);
-    VSTOREP(m.ambient * m.cz * ambient_light.z + m.ez, 0, direct[2]);
+    // surface_glow's arithmetic on every lane.
+    VSTOREP(m->ambient * m->cx * ambient_light.x + m->ex, 0, direct[0]);
+    VSTOREP(m->ambient * m->cy * ambient_light.y + m->ey, 0, direct[1]);
+    VSTOREP(m->ambient * m->cz * ambient_light.z + m->ez, 0, direct[2]);
     // The other lights' rays are set up lane by lane.
     SurfaceRows points;
     bool stored = false;
     for (int i = 0; i < s->n_lights; ++i) {
 #if POINT_LIGHT_LANES
         if (s->lights[i].kind == LIGHT_POINT &&
-            point_light_direct(s, pt, seen, i, q, &m, bits, direct, shadow_rays)) {
+            point_light_direct(s, pt, seen, i, q, m, bits, direct, shadow_rays)) {
             continue;
         }
 #endif

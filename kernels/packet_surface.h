@@ -25,11 +25,11 @@
 // The per-lane records that a lane's shape and material give its surface: for a triangle its
 // corners (a, b, c) and vertex normals (na, nb, nc), for a sphere its centre (a) and radius
 // (b.x), for a plane its normal (a) and point (b); the material's colour, diffuse, specular,
-// shininess, ambient and emission and, for a checker texture, its cell size, second colour
-// and blend.
+// shininess, ambient, emission and reflectance and, for a checker texture, its cell size,
+// second colour and blend.
 typedef struct {
-    REALP red, green, blue, diffuse, specular, shininess, ambient, ex, ey, ez, ax, ay, az, bx, by,
-        bz;
+    REALP red, green, blue, diffuse, specular, shininess, ambient, ex, ey, ez, reflect, ax, ay, az,
+        bx, by, bz;
 #if HAS_TRIANGLES
     REALP cx, cy, cz;
 #if HAS_VERTEX_NORMALS
@@ -50,13 +50,14 @@ enum {
     ROW_COLOR = 0,
     ROW_TERM = 3,
     ROW_GLOW = 6,
-    ROW_A = 10,
-    ROW_B = 13,
-    ROW_C = 16,
+    ROW_REFLECT = 10,
+    ROW_A = 11,
+    ROW_B = 14,
+    ROW_C = 17,
 #if HAS_TRIANGLES
-    ROW_NORMALS = 19,
+    ROW_NORMALS = 20,
 #else
-    ROW_NORMALS = 16,
+    ROW_NORMALS = 17,
 #endif
 #if HAS_TRIANGLES && HAS_VERTEX_NORMALS
     ROW_CHECKER = ROW_NORMALS + 9,
@@ -70,14 +71,13 @@ enum {
 #endif
 };
 
-// Lane k's shape record into column k of f; its smoothness and whether its texture is a
-// checker. False where shade_point must shade the lane: another shape, an image texture, or
-// vertex texture coordinates.
+// Lane k's shape record into column k of f (its corners, centre or plane), its material and
+// smoothness. False where shade_point must shade the lane: another shape or vertex texture
+// coordinates.
 HOT bool shape_record(const SceneRefs* s, const Hit* hit, REAL f[SHAPE_FIELDS][PACKET_LANES],
-                      int k, int* material, LANE_INT* smooth, LANE_INT* checker) {
+                      int k, int* material, LANE_INT* smooth) {
     int i = hit->ref & PRIM_INDEX_MASK;
     *smooth = 0;
-    *checker = 0;
     switch (hit->ref >> PRIM_TYPE_SHIFT) {
 #if HAS_TRIANGLES
         case PRIM_TRIANGLE: {
@@ -107,7 +107,7 @@ HOT bool shape_record(const SceneRefs* s, const Hit* hit, REAL f[SHAPE_FIELDS][P
             }
 #endif
             *material = tri.material & TRIANGLE_MATERIAL_MASK;
-            break;
+            return true;
         }
 #endif
 #if HAS_SPHERES
@@ -119,7 +119,7 @@ HOT bool shape_record(const SceneRefs* s, const Hit* hit, REAL f[SHAPE_FIELDS][P
             f[ROW_A + 2][k] = c.z;
             f[ROW_B][k] = c.w;
             *material = sp->material;
-            break;
+            return true;
         }
 #endif
 #if HAS_PLANES
@@ -133,13 +133,19 @@ HOT bool shape_record(const SceneRefs* s, const Hit* hit, REAL f[SHAPE_FIELDS][P
             f[ROW_B + 1][k] = q.y;
             f[ROW_B + 2][k] = q.z;
             *material = pl->material;
-            break;
+            return true;
         }
 #endif
         default:
             return false;
     }
-    const __global Material* m = s->materials + *material;
+}
+
+// Material `material`'s record into column k of f, and whether its texture is a checker.
+// False where shade_point must shade its lanes: an image texture.
+HOT bool material_record(const SceneRefs* s, int material, REAL f[SHAPE_FIELDS][PACKET_LANES],
+                         int k, LANE_INT* checker) {
+    const __global Material* m = s->materials + material;
     REAL3 color = TO_REAL3(m->color);
     f[ROW_COLOR][k] = color.x;
     f[ROW_COLOR + 1][k] = color.y;
@@ -152,6 +158,8 @@ HOT bool shape_record(const SceneRefs* s, const Hit* hit, REAL f[SHAPE_FIELDS][P
     f[ROW_GLOW + 1][k] = emission.x;
     f[ROW_GLOW + 2][k] = emission.y;
     f[ROW_GLOW + 3][k] = emission.z;
+    f[ROW_REFLECT][k] = TO_REAL(m->reflect);
+    *checker = 0;
 #if HAS_TEXTURES
     if (m->texture >= 0) {
         const __global Texture* tx = s->textures + m->texture;
@@ -168,51 +176,80 @@ HOT bool shape_record(const SceneRefs* s, const Hit* hit, REAL f[SHAPE_FIELDS][P
     return true;
 }
 
-// Lane 0's record (column 0 of f, its material, smoothness and checker) in every lane: what
-// shape_lanes' gather gives where every lane hit the same shape.
-HOT void copy_record(REAL f[SHAPE_FIELDS][PACKET_LANES], int* material, LANE_INT* kind,
-                     LANE_INT* smooth, LANE_INT* checker) {
-    for (int row = 0; row < SHAPE_FIELDS; ++row) VSTOREP((REALP)(f[row][0]), 0, f[row]);
-    for (int j = 1; j < PACKET_LANES; ++j) {
-        material[j] = material[0];
-        kind[j] = kind[0];
-        smooth[j] = smooth[0];
-        checker[j] = checker[0];
-    }
+// Rows [first, end) of f: column 0 in every column.
+HOT void copy_column(REAL f[SHAPE_FIELDS][PACKET_LANES], int first, int end) {
+    for (int row = first; row < end; ++row) VSTOREP((REALP)(f[row][0]), 0, f[row]);
 }
 
-// The shape records of the lanes of `lit` (hits[j]); the other lanes hold a copy of one of
-// those. `same`: every lane of lit hit the shape of its lowest lane (as a pixel's samples
-// mostly do), whose record is then read once. *left: the lanes whose records shape_record
-// declines.
+// The records of the lanes of `lit` (hits[j]): each lane's shape and its material's; the
+// other lanes hold a copy of one of those. `same`: every lane of lit hit the shape of its
+// lowest lane (as a pixel's samples mostly do), whose records are then read once; where the
+// shapes differ and their materials do not (a mesh), the material's record is read once.
+// *left: the lanes whose records shape_record or material_record declines.
 HOT ShapeLanes shape_lanes(const SceneRefs* s, const Hit* hits, int lit, bool same, int* left) {
     REAL f[SHAPE_FIELDS][PACKET_LANES];
     LANE_INT kind[PACKET_LANES], smooth[PACKET_LANES], checker[PACKET_LANES];
     ShapeLanes g;
     int spare = lowest_bit(lit);
-    *left = 0;
+    // Each kind fills its own rows: the others are zeros, so that every kind's arithmetic runs
+    // on defined numbers in every lane.
     if (same) {
         for (int row = 0; row < SHAPE_FIELDS; ++row) f[row][0] = 0;
-        kind[0] = hits[spare].ref >> PRIM_TYPE_SHIFT;
-        if (!shape_record(s, hits + spare, f, 0, g.material, smooth, checker)) {
-            *left = lit;
-            kind[0] = -1;
-        }
-        copy_record(f, g.material, kind, smooth, checker);
     } else {
-        // Each kind fills its own rows: the others are zeros, so that every kind's arithmetic
-        // runs on defined numbers in every lane.
         for (int row = 0; row < SHAPE_FIELDS; ++row) VSTOREP((REALP)(0), 0, f[row]);
+    }
+    int shaped = 0;  // lanes j whose shape_record was read
+    for (int j = 0; j < (same ? 1 : PACKET_LANES); ++j) {
+        int k = same || !((lit >> j) & 1) ? spare : j;
+        kind[j] = hits[k].ref >> PRIM_TYPE_SHIFT;
+        g.material[j] = 0;
+        if (shape_record(s, hits + k, f, j, g.material + j, smooth + j)) shaped |= 1 << j;
+    }
+    int material = g.material[lowest_bit(shaped)];
+    bool one_material = same;
+    if (!same && shaped) {
+        one_material = true;
+        for (int rest = shaped; rest; rest &= rest - 1) {
+            one_material &= g.material[lowest_bit(rest)] == material;
+        }
+    }
+    int textured = 0;  // lanes j whose material_record declines
+    if (one_material) {
+        checker[0] = 0;
+        if (shaped && !material_record(s, material, f, 0, checker)) textured = ALL_LANES;
+        copy_column(f, 0, ROW_A);
+#if HAS_TEXTURES
+        copy_column(f, ROW_CHECKER, SHAPE_FIELDS);
+#endif
+        for (int j = 1; j < PACKET_LANES; ++j) checker[j] = checker[0];
+    } else {
         for (int j = 0; j < PACKET_LANES; ++j) {
-            int k = ((lit >> j) & 1) ? j : spare;
-            kind[j] = hits[k].ref >> PRIM_TYPE_SHIFT;
-            if (!shape_record(s, hits + k, f, j, g.material + j, smooth + j, checker + j)) {
-                *left |= 1 << k;
-                kind[j] = -1;
+            checker[j] = 0;
+            if (((shaped >> j) & 1) && !material_record(s, g.material[j], f, j, checker + j)) {
+                textured |= 1 << j;
             }
         }
-        *left &= lit;
     }
+    if (same) {
+        copy_column(f, ROW_A, ROW_CHECKER);
+        shaped = shaped ? ALL_LANES : 0;
+        for (int j = 1; j < PACKET_LANES; ++j) {
+            g.material[j] = g.material[0];
+            kind[j] = kind[0];
+            smooth[j] = smooth[0];
+        }
+    }
+    // Lane j declined: its sample's lane (j, or for a lane outside lit the spare it copies)
+    // goes to shade_point.
+    int declined = ~shaped | textured;
+    *left = 0;
+    for (int j = 0; j < PACKET_LANES; ++j) {
+        if ((declined >> j) & 1) {
+            kind[j] = -1;
+            *left |= 1 << (((lit >> j) & 1) ? j : spare);
+        }
+    }
+    *left &= lit;
     g.red = VLOADP(0, f[ROW_COLOR]);
     g.green = VLOADP(0, f[ROW_COLOR + 1]);
     g.blue = VLOADP(0, f[ROW_COLOR + 2]);
@@ -223,6 +260,7 @@ HOT ShapeLanes shape_lanes(const SceneRefs* s, const Hit* hits, int lit, bool sa
     g.ex = VLOADP(0, f[ROW_GLOW + 1]);
     g.ey = VLOADP(0, f[ROW_GLOW + 2]);
     g.ez = VLOADP(0, f[ROW_GLOW + 3]);
+    g.reflect = VLOADP(0, f[ROW_REFLECT]);
     g.ax = VLOADP(0, f[ROW_A]);
     g.ay = VLOADP(0, f[ROW_A + 1]);
     g.az = VLOADP(0, f[ROW_A + 2]);
@@ -535,6 +573,7 @@ HOT int shade_point_lanes(const SceneRefs* s, const __global Camera* camera, con
     terms->ex = g.ex;
     terms->ey = g.ey;
     terms->ez = g.ez;
+    terms->reflect = g.reflect;
     REAL color[3][PACKET_LANES];
     VSTOREP(g.red, 0, color[0]);
     VSTOREP(g.green, 0, color[1]);

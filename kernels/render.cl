@@ -244,22 +244,22 @@ typedef struct {
 
 // The closest hits of the lanes `bits` of the packet `rays` (pk->ray: the same rays lane by
 // lane) into pk->hit, their shading points (as lanes in *q; in pk->pt their colours and
-// materials, and with chains lane-wise shading points no more, shade_point_lanes) and direct
-// light (pk->direct): returns the lanes that hit something.
+// materials, and with chains lane-wise shading points no more, shade_point_lanes), their
+// materials' factors (*terms) and direct light (pk->direct): returns the lanes that hit
+// something.
 HOT int shade_packet(const SceneRefs* s, const __global Camera* camera,
                      const __global Params* params, SampleKey key, int bits, SamplePacket* pk,
-                     const RayPacket* rays, SurfaceLanes* q, int* shadow_rays) {
+                     const RayPacket* rays, SurfaceLanes* q, TermLanes* terms, int* shadow_rays) {
     int lit = 0;
 #if SURFACE_LANES
     PacketHit h;
     packet_closest(s, rays, &pk->ray, bits, pk->hit, &h);
     lit = bits & lane_mask(h.t < REAL_INF);
     int left = lit;
-    TermLanes terms;
     // Without chains the ray tree reads the primary rays' whole ShadePoints.
     if (lit) {
         left = shade_point_lanes(s, camera, rays, &h, pk->hit, lit, !PACKET_CHAINS, pk->pt, q,
-                                 &terms);
+                                 terms);
     }
 #else
     packet_closest(s, rays, &pk->ray, bits, pk->hit, 0);
@@ -279,13 +279,9 @@ HOT int shade_packet(const SceneRefs* s, const __global Camera* camera,
     } else if (left) {
         merge_surface_lanes(surface_lanes(pk->pt, left), lanes_of(left), q);
     }
-#if SURFACE_LANES
     // The lanes that shade_point shaded have no TermLanes: all are gathered then.
-    const TermLanes* given = left ? 0 : &terms;
-#else
-    const TermLanes* given = 0;
-#endif
-    packet_direct(s, pk->pt, &pk->ray, q, given, TO_REAL3(params->ambient), key, lit,
+    if (left) *terms = term_lanes(s, pk->pt, &pk->ray, lit);
+    packet_direct(s, pk->pt, &pk->ray, q, terms, TO_REAL3(params->ambient), key, lit,
                   pk->direct, shadow_rays);
     return lit;
 }
@@ -301,20 +297,16 @@ inline REAL3 chain_light(const SamplePacket* pk, int level, int j) {
     return (REAL3)(pk->light[level][0][j], pk->light[level][1][j], pk->light[level][2][j]);
 }
 
-// The reflected rays of the lanes `lit` (their shading points q, their rays `rays`, of weight
-// (wx, wy, wz)) where the material reflects and the ray is not too faint, as spawn_secondary
+// The reflected rays of the lanes `lit` (their shading points q, their materials' reflectances
+// in m, their rays `rays`, of weight (wx, wy, wz)) where the material reflects and the ray is not too faint, as spawn_secondary
 // makes them but lane-wise: mirror, offset_origin and make_ray's operations in the same
 // order. Returns the lanes that go on, their rays in *rays and pk->ray, their weights in
 // (wx, wy, wz). Out of line: inlined into trace_chains' loop, 16 lanes of doubles ran clang
 // 15's AMDGPU register allocator out of registers.
-OUT_OF_LINE int reflect_lanes(const SceneRefs* s, const __global Params* params, int lit,
-                              const SurfaceLanes* q, RayPacket* rays, SamplePacket* pk,
-                              REALP* wx, REALP* wy, REALP* wz) {
-    REAL k[PACKET_LANES];
-    for (int j = 0; j < PACKET_LANES; ++j) {
-        k[j] = ((lit >> j) & 1) ? TO_REAL(s->materials[pk->pt[j].sf.material].reflect) : 0;
-    }
-    REALP kr = VLOADP(0, k);
+OUT_OF_LINE int reflect_lanes(const __global Params* params, int lit, const SurfaceLanes* q,
+                              const TermLanes* m, RayPacket* rays, SamplePacket* pk, REALP* wx,
+                              REALP* wy, REALP* wz) {
+    REALP kr = lanes_of(lit) ? m->reflect : (REALP)(0);
     REALP rx = *wx * kr, ry = *wy * kr, rz = *wz * kr;
     // too_faint's comparison negated, so that a NaN weight goes on as it does there.
     MASKP faint = fmax(fmax(rx, ry), rz) < (REAL)params->min_weight;
@@ -343,7 +335,8 @@ HOT void trace_chains(const SceneRefs* s, const __global Camera* camera,
     REALP wx = (REALP)(1), wy = (REALP)(1), wz = (REALP)(1);
     for (int depth = 0; bits; ++depth) {
         SurfaceLanes q;
-        int lit = shade_packet(s, camera, params, key, bits, pk, rays, &q, shadow_rays);
+        TermLanes m;
+        int lit = shade_packet(s, camera, params, key, bits, pk, rays, &q, &m, shadow_rays);
         VSTOREP(wx, 0, pk->weight[depth][0]);
         VSTOREP(wy, 0, pk->weight[depth][1]);
         VSTOREP(wz, 0, pk->weight[depth][2]);
@@ -362,7 +355,7 @@ HOT void trace_chains(const SceneRefs* s, const __global Camera* camera,
             for (int c = 0; c < 3; ++c) pk->weight[depth][c][j] = 1;
         }
         if (depth >= MAX_DEPTH || !lit) break;
-        bits = reflect_lanes(s, params, lit, &q, rays, pk, &wx, &wy, &wz);
+        bits = reflect_lanes(params, lit, &q, &m, rays, pk, &wx, &wy, &wz);
         *secondary_rays += popcount(bits);
     }
 }
@@ -396,7 +389,8 @@ OUT_OF_LINE void trace_sample_packet(const SceneRefs* s, const __global Camera* 
     trace_chains(s, camera, params, key, bits, pk, &primary, secondary_rays, shadow_rays);
 #else
     SurfaceLanes q;
-    shade_packet(s, camera, params, key, bits, pk, &primary, &q, shadow_rays);
+    TermLanes m;
+    shade_packet(s, camera, params, key, bits, pk, &primary, &q, &m, shadow_rays);
 #endif
 }
 #endif

@@ -310,41 +310,49 @@ typedef struct {
     MASKP ref, part;
 } PacketHit;
 
-HOT PacketHit packet_hit(const Hit* hits) {
+// The lanes' hits row by row, for the lanes that go on one at a time (hit_of_lane).
+typedef struct {
     REAL t[PACKET_LANES], b1[PACKET_LANES], b2[PACKET_LANES];
-    LANE_INT ref[PACKET_LANES], part[PACKET_LANES];
-    for (int k = 0; k < PACKET_LANES; ++k) {
-        t[k] = hits[k].t;
-        b1[k] = hits[k].b1;
-        b2[k] = hits[k].b2;
-        ref[k] = hits[k].ref;
-        part[k] = hits[k].part;
-    }
-    PacketHit h;
-    h.t = VLOADP(0, t);
-    h.b1 = VLOADP(0, b1);
-    h.b2 = VLOADP(0, b2);
-    h.ref = VLOADP(0, ref);
-    h.part = VLOADP(0, part);
+    LANE_INT ref[PACKET_LANES], part[PACKET_LANES], instance[PACKET_LANES];
+} HitLanes;
+
+HOT Hit hit_of_lane(const HitLanes* r, int j) {
+    Hit h;
+    h.t = r->t[j];
+    h.b1 = r->b1[j];
+    h.b2 = r->b2[j];
+    h.ref = (int)r->ref[j];
+    h.part = (int)r->part[j];
+    h.instance = (int)r->instance[j];
     return h;
 }
 
-HOT void store_hits(const PacketHit* h, Hit* hits) {
-    REAL t[PACKET_LANES], b1[PACKET_LANES], b2[PACKET_LANES];
-    LANE_INT ref[PACKET_LANES], part[PACKET_LANES];
-    VSTOREP(h->t, 0, t);
-    VSTOREP(h->b1, 0, b1);
-    VSTOREP(h->b2, 0, b2);
-    VSTOREP(h->ref, 0, ref);
-    VSTOREP(h->part, 0, part);
-    for (int k = 0; k < PACKET_LANES; ++k) {
-        hits[k].t = t[k];
-        hits[k].b1 = b1[k];
-        hits[k].b2 = b2[k];
-        hits[k].ref = (int)ref[k];
-        hits[k].part = (int)part[k];
-        hits[k].instance = -1;
-    }
+HOT void set_hit_lane(HitLanes* r, int j, const Hit* h) {
+    r->t[j] = h->t;
+    r->b1[j] = h->b1;
+    r->b2[j] = h->b2;
+    r->ref[j] = h->ref;
+    r->part[j] = h->part;
+    r->instance[j] = h->instance;
+}
+
+HOT PacketHit packet_hit(const HitLanes* r) {
+    PacketHit h;
+    h.t = VLOADP(0, r->t);
+    h.b1 = VLOADP(0, r->b1);
+    h.b2 = VLOADP(0, r->b2);
+    h.ref = VLOADP(0, r->ref);
+    h.part = VLOADP(0, r->part);
+    return h;
+}
+
+HOT void store_hits(const PacketHit* h, HitLanes* r) {
+    VSTOREP(h->t, 0, r->t);
+    VSTOREP(h->b1, 0, r->b1);
+    VSTOREP(h->b2, 0, r->b2);
+    VSTOREP(h->ref, 0, r->ref);
+    VSTOREP(h->part, 0, r->part);
+    VSTOREP((MASKP)(-1), 0, r->instance);
 }
 
 // consider_hit on every lane of `crossed`, for one shape (ref, part) crossed at t: the same
@@ -817,14 +825,16 @@ HOT void leaf_closest_lanes(const SceneRefs* s, int slot, int count, const RayLa
     int tri_packets = section_packets(count, PRIM_TRIANGLE);
     int sphere_packets = section_packets(count, PRIM_SPHERE);
     if (leaf_ray_by_ray(count) || popcount(bits) <= PACKET_MIN_LANES) {
-        Hit hits[PACKET_LANES];
-        store_hits(h, hits);
+        HitLanes hits;
+        store_hits(h, &hits);
         for (int rest = bits; rest; rest &= rest - 1) {
             int j = lowest_bit(rest);
             Ray r = ray_from_lanes(rays, j);
-            leaf_closest(s, slot, count, &r, -1, hits + j);
+            Hit hit = hit_of_lane(&hits, j);
+            leaf_closest(s, slot, count, &r, -1, &hit);
+            set_hit_lane(&hits, j, &hit);
         }
-        *h = packet_hit(hits);
+        *h = packet_hit(&hits);
         return;
     }
     REAL tmax = max_lanes(lanes ? tie_reach_lanes(h) : (REALP)(0));
@@ -918,14 +928,16 @@ HOT void packet_walk_closest(const SceneRefs* s, const RayLanes* rays, const Ray
             leaf_closest_lanes(s, child, count, rays, p, b, bits, h);
         } else if (popcount(bits) <= PACKET_MIN_LANES) {
             // Too few lanes to pay for the packet: the single-ray walk, lane by lane.
-            Hit hits[PACKET_LANES];
-            store_hits(h, hits);
+            HitLanes hits;
+            store_hits(h, &hits);
             for (int rest = bits; rest; rest &= rest - 1) {
                 int j = lowest_bit(rest);
                 Ray r = ray_from_lanes(rays, j);
-                walk_closest(s, &r, child, count, hits + j);
+                Hit hit = hit_of_lane(&hits, j);
+                walk_closest(s, &r, child, count, &hit);
+                set_hit_lane(&hits, j, &hit);
             }
-            *h = packet_hit(hits);
+            *h = packet_hit(&hits);
         } else {
             const __global BvhNode* node = s->nodes + child;
             COUNT(s, closest_boxes, used_children(node));
@@ -965,14 +977,16 @@ HOT void packet_walk_closest(const SceneRefs* s, const RayLanes* rays, const Ray
 // same rays lane by lane, for the lanes that go on alone. `lanes`, where not 0, gets the hits
 // as lanes too (not with instances).
 STAGE void packet_closest(const SceneRefs* s, const RayPacket* p, const RayLanes* rays, int bits,
-                          Hit* hits, PacketHit* lanes) {
+                          HitLanes* hits, PacketHit* lanes) {
 #if HAS_INSTANCES || !HAS_BVH
     // Instances are walked ray by ray.
-    for (int j = 0; j < PACKET_LANES; ++j) hits[j] = no_hit();
+    Hit none = no_hit();
+    for (int j = 0; j < PACKET_LANES; ++j) set_hit_lane(hits, j, &none);
     for (int rest = bits; rest; rest &= rest - 1) {
         int j = lowest_bit(rest);
         Ray r = ray_from_lanes(rays, j);
-        hits[j] = closest_hit(s, &r);
+        Hit hit = closest_hit(s, &r);
+        set_hit_lane(hits, j, &hit);
     }
 #else
     PacketHit h = no_hit_lanes();

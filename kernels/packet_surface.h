@@ -71,20 +71,20 @@ enum {
 #endif
 };
 
-// Lane k's shape record into column k of f (its corners, centre or plane), its material and
-// smoothness. False where shade_point must shade the lane: another shape or vertex texture
-// coordinates.
-HOT bool shape_record(const SceneRefs* s, const Hit* hit, REAL f[SHAPE_FIELDS][PACKET_LANES],
+// The record of the shape hit as (ref, part) into column k of f (its corners, centre or
+// plane), its material and smoothness. False where shade_point must shade the lane: another
+// shape or vertex texture coordinates.
+HOT bool shape_record(const SceneRefs* s, int ref, int part, REAL f[SHAPE_FIELDS][PACKET_LANES],
                       int k, int* material, LANE_INT* smooth) {
-    int i = hit->ref & PRIM_INDEX_MASK;
+    int i = ref & PRIM_INDEX_MASK;
     *smooth = 0;
-    switch (hit->ref >> PRIM_TYPE_SHIFT) {
+    switch (ref >> PRIM_TYPE_SHIFT) {
 #if HAS_TRIANGLES
         case PRIM_TRIANGLE: {
             Triangle tri = s->triangles[i];
             if (tri.material & TRIANGLE_UV) return false;
-            const __global TrianglePacket* pk = s->triangle_packets + hit->part / PACKET_WIDTH;
-            int lane = hit->part % PACKET_WIDTH;
+            const __global TrianglePacket* pk = s->triangle_packets + part / PACKET_WIDTH;
+            int lane = part % PACKET_WIDTH;
             f[ROW_A][k] = (REAL)pk->x0[lane];
             f[ROW_A + 1][k] = (REAL)pk->y0[lane];
             f[ROW_A + 2][k] = (REAL)pk->z0[lane];
@@ -181,12 +181,14 @@ HOT void copy_column(REAL f[SHAPE_FIELDS][PACKET_LANES], int first, int end) {
     for (int row = first; row < end; ++row) VSTOREP((REALP)(f[row][0]), 0, f[row]);
 }
 
-// The records of the lanes of `lit` (hits[j]): each lane's shape and its material's; the
-// other lanes hold a copy of one of those. `same`: every lane of lit hit the shape of its
-// lowest lane (as a pixel's samples mostly do), whose records are then read once; where the
-// shapes differ and their materials do not (a mesh), the material's record is read once.
+// The records of the lanes of `lit` (their hits in rows): each lane's shape and its
+// material's; the other lanes hold a copy of one of those. `same`: every lane of lit hit the
+// shape of its lowest lane (as a pixel's samples mostly do), whose records are then read once;
+// where the shapes differ and their materials do not (a mesh), the material's record is read
+// once.
 // *left: the lanes whose records shape_record or material_record declines.
-HOT ShapeLanes shape_lanes(const SceneRefs* s, const Hit* hits, int lit, bool same, int* left) {
+HOT ShapeLanes shape_lanes(const SceneRefs* s, const HitLanes* hits, int lit, bool same,
+                           int* left) {
     REAL f[SHAPE_FIELDS][PACKET_LANES];
     LANE_INT kind[PACKET_LANES], smooth[PACKET_LANES], checker[PACKET_LANES];
     ShapeLanes g;
@@ -201,9 +203,12 @@ HOT ShapeLanes shape_lanes(const SceneRefs* s, const Hit* hits, int lit, bool sa
     int shaped = 0;  // lanes j whose shape_record was read
     for (int j = 0; j < (same ? 1 : PACKET_LANES); ++j) {
         int k = same || !((lit >> j) & 1) ? spare : j;
-        kind[j] = hits[k].ref >> PRIM_TYPE_SHIFT;
+        int ref = (int)hits->ref[k];
+        kind[j] = ref >> PRIM_TYPE_SHIFT;
         g.material[j] = 0;
-        if (shape_record(s, hits + k, f, j, g.material + j, smooth + j)) shaped |= 1 << j;
+        if (shape_record(s, ref, (int)hits->part[k], f, j, g.material + j, smooth + j)) {
+            shaped |= 1 << j;
+        }
     }
     int material = g.material[lowest_bit(shaped)];
     bool one_material = same;
@@ -466,7 +471,7 @@ HOT void checker_lanes(ShapeLanes* g, const __global Camera* camera, const Surfa
 
 // The rest of each ShadePoint of the lanes of `done`, beside their colours and materials.
 HOT void store_shade_points(const SurfaceOfLanes* sf, const SurfaceLanes* q, MASKP entering,
-                            const Hit* hits, int done, ShadePoint* pt) {
+                            const HitLanes* hits, int done, ShadePoint* pt) {
     REAL f[13][PACKET_LANES];
     LANE_INT in[PACKET_LANES];
     VSTOREP(sf->px, 0, f[0]);
@@ -496,8 +501,8 @@ HOT void store_shade_points(const SurfaceOfLanes* sf, const SurfaceLanes* q, MAS
         // texture reads them here).
         p->sf.uv = (REAL2)(0, 0);
 #if HAS_TRIANGLES
-        if (hits[j].ref >> PRIM_TYPE_SHIFT == PRIM_TRIANGLE) {
-            p->sf.uv = (REAL2)(hits[j].b1, hits[j].b2);
+        if (hits->ref[j] >> PRIM_TYPE_SHIFT == PRIM_TRIANGLE) {
+            p->sf.uv = (REAL2)(hits->b1[j], hits->b2[j]);
         }
 #endif
     }
@@ -508,11 +513,12 @@ HOT void store_shade_points(const SurfaceOfLanes* sf, const SurfaceLanes* q, MAS
 // rest of pt[j] too (without it, what the chains read of pt[j] is all that is written).
 // Returns the lanes left to shade_point (their lanes of q, terms and pt[j] are not written).
 HOT int shade_point_lanes(const SceneRefs* s, const __global Camera* camera, const RayPacket* r,
-                          const PacketHit* h, const Hit* hits, int lit, bool whole,
+                          const PacketHit* h, const HitLanes* hits, int lit, bool whole,
                           ShadePoint* pt, SurfaceLanes* q, TermLanes* terms) {
     int left;
-    const Hit* first = hits + lowest_bit(lit);
-    MASKP other = (h->ref != (MASKP)(first->ref)) | (h->part != (MASKP)(first->part));
+    int first = lowest_bit(lit);
+    MASKP other = (h->ref != (MASKP)(hits->ref[first])) |
+                  (h->part != (MASKP)(hits->part[first]));
     bool same = !lane_mask(lanes_of(lit) & other);
     ShapeLanes g = shape_lanes(s, hits, lit, same, &left);
     if (left == lit) return left;

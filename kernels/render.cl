@@ -232,7 +232,7 @@ inline RayTask primary_task(const __global Camera* camera, const __global Params
 // ray tree goes on ray by ray.
 typedef struct {
     RayLanes ray;  // lane j's ray: ray_from_lanes(&ray, j)
-    Hit hit[PACKET_LANES];
+    HitLanes hit;  // lane j's closest hit: hit_of_lane(&hit, j)
     ShadePoint pt[PACKET_LANES];
     REAL direct[3][PACKET_LANES];  // rows x, y, z
 #if PACKET_CHAINS
@@ -253,26 +253,27 @@ HOT int shade_packet(const SceneRefs* s, const __global Camera* camera,
     int lit = 0;
 #if SURFACE_LANES
     PacketHit h;
-    packet_closest(s, rays, &pk->ray, bits, pk->hit, &h);
+    packet_closest(s, rays, &pk->ray, bits, &pk->hit, &h);
     lit = bits & lane_mask(h.t < REAL_INF);
     int left = lit;
     // Without chains the ray tree reads the primary rays' whole ShadePoints.
     if (lit) {
-        left = shade_point_lanes(s, camera, rays, &h, pk->hit, lit, !PACKET_CHAINS, pk->pt, q,
+        left = shade_point_lanes(s, camera, rays, &h, &pk->hit, lit, !PACKET_CHAINS, pk->pt, q,
                                  terms);
     }
 #else
-    packet_closest(s, rays, &pk->ray, bits, pk->hit, 0);
+    packet_closest(s, rays, &pk->ray, bits, &pk->hit, 0);
     for (int rest = bits; rest; rest &= rest - 1) {
         int j = lowest_bit(rest);
-        if (pk->hit[j].t < REAL_INF) lit |= 1 << j;
+        if (pk->hit.t[j] < REAL_INF) lit |= 1 << j;
     }
     int left = lit;
 #endif
     for (int rest = left; rest; rest &= rest - 1) {
         int j = lowest_bit(rest);
         Ray ray = ray_from_lanes(&pk->ray, j);
-        pk->pt[j] = shade_point(s, camera, &ray, pk->hit + j);
+        Hit hit = hit_of_lane(&pk->hit, j);
+        pk->pt[j] = shade_point(s, camera, &ray, &hit);
     }
     if (left == lit && lit) {
         *q = surface_lanes(pk->pt, lit);
@@ -297,12 +298,13 @@ inline REAL3 chain_light(const SamplePacket* pk, int level, int j) {
     return (REAL3)(pk->light[level][0][j], pk->light[level][1][j], pk->light[level][2][j]);
 }
 
-// The reflected rays of the lanes `lit` (their shading points q, their materials' reflectances
-// in m, their rays `rays`, of weight (wx, wy, wz)) where the material reflects and the ray is not too faint, as spawn_secondary
-// makes them but lane-wise: mirror, offset_origin and make_ray's operations in the same
-// order. Returns the lanes that go on, their rays in *rays and pk->ray, their weights in
-// (wx, wy, wz). Out of line: inlined into trace_chains' loop, 16 lanes of doubles ran clang
-// 15's AMDGPU register allocator out of registers.
+// The reflected rays of the lanes `lit` (their shading points q, their materials'
+// reflectances in m, their rays `rays`, of weight (wx, wy, wz)) where the material reflects
+// and the ray is not too faint, as spawn_secondary makes them but lane-wise: mirror,
+// offset_origin and make_ray's operations in the same order. Returns the lanes that go on,
+// their rays in *rays and pk->ray, their weights in (wx, wy, wz). Out of line: inlined into
+// trace_chains' loop, 16 lanes of doubles ran clang 15's AMDGPU register allocator out of
+// registers.
 OUT_OF_LINE int reflect_lanes(const __global Params* params, int lit, const SurfaceLanes* q,
                               const TermLanes* m, RayPacket* rays, SamplePacket* pk, REALP* wx,
                               REALP* wy, REALP* wz) {
@@ -525,7 +527,7 @@ __kernel WORK_ITEM_LANES void render(SCENE_BUFFER_PARAMS, __global float4* image
             // A primary ray of a packet: its hit and direct light are known.
             bool packed = !PACKET_CHAINS && spp > 1 && task.depth == 0;
             Ray ray = packed ? ray_from_lanes(&packet.ray, lane) : make_ray(task.o, task.d);
-            Hit hit = packed ? packet.hit[lane] : closest_hit(&s, &ray);
+            Hit hit = packed ? hit_of_lane(&packet.hit, lane) : closest_hit(&s, &ray);
 #else
             Ray ray = make_ray(task.o, task.d);
             Hit hit = closest_hit(&s, &ray);
@@ -599,16 +601,17 @@ __kernel WORK_ITEM_LANES void intersect_rays(__global const float4* origins,
 #if SAMPLE_PACKETS
     int first = i * PACKET_LANES;
     Ray rays[PACKET_LANES];
-    Hit found[PACKET_LANES];
+    HitLanes found;
     for (int j = 0; j < PACKET_LANES; ++j) {
         rays[j] = make_ray(TO_REAL3(origins[first + j]), TO_REAL3(directions[first + j]));
     }
     RayPacket p = ray_packet(rays);
     RayLanes lanes;
     store_ray_lanes(&p, &lanes);
-    packet_closest(&s, &p, &lanes, ALL_LANES, found, 0);
+    packet_closest(&s, &p, &lanes, ALL_LANES, &found, 0);
     for (int j = 0; j < PACKET_LANES; ++j) {
-        report_hit(&s, rays + j, found + j, hits + first + j, refs + first + j);
+        Hit hit = hit_of_lane(&found, j);
+        report_hit(&s, rays + j, &hit, hits + first + j, refs + first + j);
     }
 #elif GROUP_PACKETS
     // A work-group's rays walk as one group packet (the host pads the last group).

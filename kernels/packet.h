@@ -99,6 +99,12 @@ HOT int lane_mask(MASKP m) { return (int)REDUCE_OR(m & LANE_BITS); }
 // The lanes of `bits` as a comparison result.
 HOT MASKP lanes_of(int bits) { return ((MASKP)(bits) & LANE_BITS) != (MASKP)(0); }
 
+// LESSER and GREATER are compare-selects, one instruction on x86 where fmin and fmax take
+// three or four for their NaN rules: for numbers that cannot be NaN, or where a NaN must
+// give zero (GREATER(x, 0) is fmax(x, 0) for every x but -0, whose square root is zero too).
+#define LESSER(a, b) ((a) < (b) ? (a) : (b))
+#define GREATER(a, b) ((a) > (b) ? (a) : (b))
+
 // The smallest and the largest lane, by halves with compare-selects, each level one vector
 // minimum or maximum. Clang's __builtin_reduce_min and _max keep fmin's NaN rules, which x86
 // has no instruction for: they cost several times more (packet_bounds's twelve reductions took
@@ -361,7 +367,8 @@ HOT void consider_lanes(PacketHit* h, MASKP crossed, REALP t, int ref, int part,
                         REALP b2) {
     MASKP take = crossed & (t > (REAL)0) & (t < REAL_INF);
     MASKP none = h->ref < (MASKP)(0);
-    REALP tol = none ? (REALP)(0) : (REALP)(tie_gamma()) * fmax(t, h->t);
+    // GREATER for consider_hit's fmax: the same wherever h->t is a number (it always is).
+    REALP tol = none ? (REALP)(0) : (REALP)(tie_gamma()) * GREATER(t, h->t);
     take &= none | (t < h->t - tol) | ((t <= h->t + tol) & ((MASKP)(ref) < h->ref));
     h->t = take ? t : h->t;
     h->ref = take ? (MASKP)(ref) : h->ref;
@@ -394,7 +401,8 @@ HOT MASKP plane_lanes(const __global Plane* plane, const RayPacket* p, REALP* t)
     REALP dn = dot_lanes(p->dx, p->dy, p->dz, nx, ny, nz);
     *t = dot_lanes((REALP)(q.x) - p->ox, (REALP)(q.y) - p->oy, (REALP)(q.z) - p->oz, nx, ny, nz) /
          dn;
-    return (dn != (REAL)0) & isfinite(*t);
+    // isfinite as one comparison: PoCL's vector isfinite tests the bits in integer lanes.
+    return (dn != (REAL)0) & (fabs(*t) < REAL_INF);
 }
 
 // consider_planes on every lane of `lanes`, each crossing through consider_hit's rules
@@ -465,9 +473,6 @@ typedef float8 REAL8;
 #else
 #define TO_EIGHT(v, HALF) ((REAL8)((v), (v)))
 #endif
-#define LESSER(a, b) ((a) < (b) ? (a) : (b))
-#define GREATER(a, b) ((a) > (b) ? (a) : (b))
-
 // Lanes 0..7 of a and of b folded to four each by PICK: a's at lanes 0, 1, 4, 5, b's at 2, 3,
 // 6, 7 (shuffles within each half of the vector, one instruction each on x86).
 #define FOLD_PAIRS(a, b, PICK) \
@@ -525,13 +530,12 @@ HOT PacketBounds packet_bounds(const RayPacket* p, int bits) {
     b.ihi[1] = hi_rest.x;
     b.ihi[2] = hi_rest.y;
     for (int axis = 0; axis < 3; ++axis) b.sign[axis] = axis_sign(b.ilo[axis], b.ihi[axis]);
-    b.origin_size = (REAL)0;
-    for (int axis = 0; axis < 3; ++axis) {
-        b.origin_size = fmax(b.origin_size, fmax(fabs(b.olo[axis]), fabs(b.ohi[axis])));
-    }
-    // The reductions pass NaNs by: a lane with one bounds nothing.
-    MASKP nan = isnan(p->ox) | isnan(p->oy) | isnan(p->oz) | isnan(p->ix) | isnan(p->iy) |
-                isnan(p->iz);
+    REAL4 size = fmax(fabs(lo), fabs(hi));  // x, y, z: the origins' (w: a reciprocal's)
+    b.origin_size = fmax(fmax(size.x, size.y), size.z);
+    // The reductions pass NaNs by: a lane with one bounds nothing. (x != x, not isnan: PoCL's
+    // vector isnan tests the bits in integer lanes, several instructions a vector.)
+    MASKP nan = (p->ox != p->ox) | (p->oy != p->oy) | (p->oz != p->oz) | (p->ix != p->ix) |
+                (p->iy != p->iy) | (p->iz != p->iz);
     if (lane_mask(active & nan)) b.sign[0] = b.sign[1] = b.sign[2] = 0;
     return b;
 }
@@ -590,8 +594,8 @@ HOT REALW shape_vector(REAL4 v) {
 // slab test's selects then leave its [t0, t1] as it was.
 HOT int shapes_interval(REAL4 lo_x, REAL4 hi_x, REAL4 lo_y, REAL4 hi_y, REAL4 lo_z, REAL4 hi_z,
                         const PacketBounds* b, REAL tmax) {
-    REAL4 size = fmax(fmax(fmax(fabs(lo_x), fabs(hi_x)), fmax(fabs(lo_y), fabs(hi_y))),
-                      fmax(fabs(lo_z), fabs(hi_z)));
+    REAL4 size = GREATER(GREATER(GREATER(fabs(lo_x), fabs(hi_x)), GREATER(fabs(lo_y), fabs(hi_y))),
+                         GREATER(fabs(lo_z), fabs(hi_z)));
     REAL4 margin = (size + b->origin_size) * (REAL)0x1p-12;
     const REAL widen = (REAL)1 + (REAL)2 * gamma_n(3);
     REALW t0 = (REALW)(0), t1 = (REALW)(tmax);
@@ -767,7 +771,7 @@ HOT MASKP sphere_lanes(const __global SpherePacket* pk, int k, const RayPacket* 
     }
     REALP fl = sqrt(fx * fx + fy * fy + fz * fz);
     // fmax keeps sqrt's argument non-negative; lanes with disc < 0 (or NaN) are masked.
-    REALP q = -(b + copysign(sqrt(fmax(disc, (REALP)(0))), b));
+    REALP q = -(b + copysign(sqrt(GREATER(disc, (REALP)(0))), b));
     REALP r0 = ((fl - radius) * (fl + radius)) / q, r1 = q / a;
     *t0 = fmin(r0, r1);
     *t1 = fmax(r0, r1);
@@ -788,9 +792,9 @@ HOT int triangles_interval(const __global TrianglePacket* pk, const PacketBounds
           y2 = TO_REAL4(vload4(0, pk->y2));
     REAL4 z0 = TO_REAL4(vload4(0, pk->z0)), z1 = TO_REAL4(vload4(0, pk->z1)),
           z2 = TO_REAL4(vload4(0, pk->z2));
-    return shapes_interval(fmin(fmin(x0, x1), x2), fmax(fmax(x0, x1), x2),
-                           fmin(fmin(y0, y1), y2), fmax(fmax(y0, y1), y2),
-                           fmin(fmin(z0, z1), z2), fmax(fmax(z0, z1), z2), b, tmax);
+    return shapes_interval(LESSER(LESSER(x0, x1), x2), GREATER(GREATER(x0, x1), x2),
+                           LESSER(LESSER(y0, y1), y2), GREATER(GREATER(y0, y1), y2),
+                           LESSER(LESSER(z0, z1), z2), GREATER(GREATER(z0, z1), z2), b, tmax);
 }
 #endif
 

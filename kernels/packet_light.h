@@ -138,7 +138,7 @@ HOT void add_to_lane(REAL rows[3][PACKET_LANES], int j, REAL3 v) {
 HOT bool length_lanes(REALP x, REALP y, REALP z, MASKP lanes, REALP* len) {
     REALP dd = dot_lanes(x, y, z, x, y, z);
     MASKP inside = (dd >= (REAL)0x1p-90) & (dd <= (REAL)0x1p90);
-    *len = sqrt(fmax(dd, (REALP)(0)));
+    *len = sqrt(GREATER(dd, (REALP)(0)));
     return !lane_mask(lanes & ~inside);
 }
 
@@ -239,7 +239,7 @@ HOT bool point_light_lanes(const __global Light* light, const SurfaceLanes* q, i
     *lz = (tz - q->pz) / dist;
     REAL3 k = TO_REAL3(light->attenuation);
     REALP denom = (REALP)(k.x) + k.y * dist + k.z * dist * dist;
-    *atten = denom > (REAL)0 ? fmin((REALP)(1), (REAL)1 / denom) : (REALP)(1);
+    *atten = denom > (REAL)0 ? LESSER((REALP)(1), (REAL)1 / denom) : (REALP)(1);
     *ndl = dot_lanes(q->nx, q->ny, q->nz, *lx, *ly, *lz);
     lit &= *ndl > (REAL)0;
     REALP ox, oy, oz;

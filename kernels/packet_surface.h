@@ -308,7 +308,7 @@ HOT REALP plain_length_lanes(REALP x, REALP y, REALP z, MASKP* outside) {
     REALP dd = dot_lanes(x, y, z, x, y, z);
     MASKP zero = (x == (REAL)0) & (y == (REAL)0) & (z == (REAL)0);
     *outside |= ~(zero | ((dd >= (REAL)0x1p-90) & (dd <= (REAL)0x1p90)));
-    return sqrt(fmax(dd, (REALP)(0)));
+    return sqrt(GREATER(dd, (REALP)(0)));
 }
 
 // safe_normalize lane-wise, for the lanes that plain_length_lanes can measure.

@@ -500,22 +500,25 @@ HOT int axis_sign(REAL ilo, REAL ihi) {
 
 HOT PacketBounds packet_bounds(const RayPacket* p, int bits) {
     MASKP active = lanes_of(bits);
-    const REALP inf = (REALP)(REAL_INF);
-    REAL8 lox = TO_EIGHT(active ? p->ox : inf, MIN_OF_HALVES);
-    REAL8 loy = TO_EIGHT(active ? p->oy : inf, MIN_OF_HALVES);
-    REAL8 loz = TO_EIGHT(active ? p->oz : inf, MIN_OF_HALVES);
-    REAL8 lix = TO_EIGHT(active ? p->ix : inf, MIN_OF_HALVES);
-    REAL8 liy = TO_EIGHT(active ? p->iy : inf, MIN_OF_HALVES);
-    REAL8 liz = TO_EIGHT(active ? p->iz : inf, MIN_OF_HALVES);
-    REAL8 hox = TO_EIGHT(active ? p->ox : -inf, MAX_OF_HALVES);
-    REAL8 hoy = TO_EIGHT(active ? p->oy : -inf, MAX_OF_HALVES);
-    REAL8 hoz = TO_EIGHT(active ? p->oz : -inf, MAX_OF_HALVES);
-    REAL8 hix = TO_EIGHT(active ? p->ix : -inf, MAX_OF_HALVES);
-    REAL8 hiy = TO_EIGHT(active ? p->iy : -inf, MAX_OF_HALVES);
-    REAL8 hiz = TO_EIGHT(active ? p->iz : -inf, MAX_OF_HALVES);
-    REAL4 lo = least_of_four(lox, loy, loz, lix), lo_rest = least_of_four(liy, liz, liy, liz);
-    REAL4 hi = greatest_of_four(hox, hoy, hoz, hix);
-    REAL4 hi_rest = greatest_of_four(hiy, hiz, hiy, hiz);
+    // Origins and reciprocals, x, y, z each; lanes outside `bits` (a packet's lanes mostly all
+    // take part) as +inf for the least and -inf for the greatest.
+    REALP low[6] = {p->ox, p->oy, p->oz, p->ix, p->iy, p->iz};
+    REALP high[6] = {p->ox, p->oy, p->oz, p->ix, p->iy, p->iz};
+    if (bits != ALL_LANES) {
+        for (int k = 0; k < 6; ++k) {
+            low[k] = active ? low[k] : (REALP)(REAL_INF);
+            high[k] = active ? high[k] : (REALP)(-REAL_INF);
+        }
+    }
+    REAL8 l[6], h[6];
+    for (int k = 0; k < 6; ++k) {
+        l[k] = TO_EIGHT(low[k], MIN_OF_HALVES);
+        h[k] = TO_EIGHT(high[k], MAX_OF_HALVES);
+    }
+    REAL4 lo = least_of_four(l[0], l[1], l[2], l[3]);
+    REAL4 lo_rest = least_of_four(l[4], l[5], l[4], l[5]);
+    REAL4 hi = greatest_of_four(h[0], h[1], h[2], h[3]);
+    REAL4 hi_rest = greatest_of_four(h[4], h[5], h[4], h[5]);
     PacketBounds b;
     b.olo[0] = lo.x;
     b.olo[1] = lo.y;

@@ -71,11 +71,11 @@ enum {
 #endif
 };
 
-// The record of the shape hit as (ref, part) into column k of f (its corners, centre or
-// plane), its material and smoothness. False where shade_point must shade the lane: another
-// shape or vertex texture coordinates.
-HOT bool shape_record(const SceneRefs* s, int ref, int part, REAL f[SHAPE_FIELDS][PACKET_LANES],
-                      int k, int* material, LANE_INT* smooth) {
+// The record of the shape hit as (ref, part) into f (row r at f[r * stride]: its corners,
+// centre or plane), its material and smoothness. False where shade_point must shade the lane:
+// another shape or vertex texture coordinates.
+HOT bool shape_record(const SceneRefs* s, int ref, int part, REAL* f, int stride, int* material,
+                      LANE_INT* smooth) {
     int i = ref & PRIM_INDEX_MASK;
     *smooth = 0;
     switch (ref >> PRIM_TYPE_SHIFT) {
@@ -85,24 +85,24 @@ HOT bool shape_record(const SceneRefs* s, int ref, int part, REAL f[SHAPE_FIELDS
             if (tri.material & TRIANGLE_UV) return false;
             const __global TrianglePacket* pk = s->triangle_packets + part / PACKET_WIDTH;
             int lane = part % PACKET_WIDTH;
-            f[ROW_A][k] = (REAL)pk->x0[lane];
-            f[ROW_A + 1][k] = (REAL)pk->y0[lane];
-            f[ROW_A + 2][k] = (REAL)pk->z0[lane];
-            f[ROW_B][k] = (REAL)pk->x1[lane];
-            f[ROW_B + 1][k] = (REAL)pk->y1[lane];
-            f[ROW_B + 2][k] = (REAL)pk->z1[lane];
-            f[ROW_C][k] = (REAL)pk->x2[lane];
-            f[ROW_C + 1][k] = (REAL)pk->y2[lane];
-            f[ROW_C + 2][k] = (REAL)pk->z2[lane];
+            f[ROW_A * stride] = (REAL)pk->x0[lane];
+            f[(ROW_A + 1) * stride] = (REAL)pk->y0[lane];
+            f[(ROW_A + 2) * stride] = (REAL)pk->z0[lane];
+            f[ROW_B * stride] = (REAL)pk->x1[lane];
+            f[(ROW_B + 1) * stride] = (REAL)pk->y1[lane];
+            f[(ROW_B + 2) * stride] = (REAL)pk->z1[lane];
+            f[ROW_C * stride] = (REAL)pk->x2[lane];
+            f[(ROW_C + 1) * stride] = (REAL)pk->y2[lane];
+            f[(ROW_C + 2) * stride] = (REAL)pk->z2[lane];
 #if HAS_VERTEX_NORMALS
             if (tri.material & TRIANGLE_SMOOTH) {
                 *smooth = -1;
                 int v[3] = {tri.v0, tri.v1, tri.v2};
                 for (int c = 0; c < 3; ++c) {
                     REAL3 n = TO_REAL3(s->normals[v[c]]);
-                    f[ROW_NORMALS + 3 * c][k] = n.x;
-                    f[ROW_NORMALS + 3 * c + 1][k] = n.y;
-                    f[ROW_NORMALS + 3 * c + 2][k] = n.z;
+                    f[(ROW_NORMALS + 3 * c) * stride] = n.x;
+                    f[(ROW_NORMALS + 3 * c + 1) * stride] = n.y;
+                    f[(ROW_NORMALS + 3 * c + 2) * stride] = n.z;
                 }
             }
 #endif
@@ -114,10 +114,10 @@ HOT bool shape_record(const SceneRefs* s, int ref, int part, REAL f[SHAPE_FIELDS
         case PRIM_SPHERE: {
             const __global Sphere* sp = s->spheres + i;
             REAL4 c = TO_REAL4(sp->center_radius);
-            f[ROW_A][k] = c.x;
-            f[ROW_A + 1][k] = c.y;
-            f[ROW_A + 2][k] = c.z;
-            f[ROW_B][k] = c.w;
+            f[ROW_A * stride] = c.x;
+            f[(ROW_A + 1) * stride] = c.y;
+            f[(ROW_A + 2) * stride] = c.z;
+            f[ROW_B * stride] = c.w;
             *material = sp->material;
             return true;
         }
@@ -126,12 +126,12 @@ HOT bool shape_record(const SceneRefs* s, int ref, int part, REAL f[SHAPE_FIELDS
         case PRIM_PLANE: {
             const __global Plane* pl = s->planes + i;
             REAL3 n = TO_REAL3(pl->normal), q = TO_REAL3(pl->point);
-            f[ROW_A][k] = n.x;
-            f[ROW_A + 1][k] = n.y;
-            f[ROW_A + 2][k] = n.z;
-            f[ROW_B][k] = q.x;
-            f[ROW_B + 1][k] = q.y;
-            f[ROW_B + 2][k] = q.z;
+            f[ROW_A * stride] = n.x;
+            f[(ROW_A + 1) * stride] = n.y;
+            f[(ROW_A + 2) * stride] = n.z;
+            f[ROW_B * stride] = q.x;
+            f[(ROW_B + 1) * stride] = q.y;
+            f[(ROW_B + 2) * stride] = q.z;
             *material = pl->material;
             return true;
         }
@@ -141,24 +141,25 @@ HOT bool shape_record(const SceneRefs* s, int ref, int part, REAL f[SHAPE_FIELDS
     }
 }
 
-// Material `material`'s record into column k of f, and whether its texture is a checker.
+// Material `material`'s record into f (row r at f[r * stride]), and whether its texture is a
+// checker.
 // False where shade_point must shade its lanes: an image texture.
-HOT bool material_record(const SceneRefs* s, int material, REAL f[SHAPE_FIELDS][PACKET_LANES],
-                         int k, LANE_INT* checker) {
+HOT bool material_record(const SceneRefs* s, int material, REAL* f, int stride,
+                         LANE_INT* checker) {
     const __global Material* m = s->materials + material;
     REAL3 color = TO_REAL3(m->color);
-    f[ROW_COLOR][k] = color.x;
-    f[ROW_COLOR + 1][k] = color.y;
-    f[ROW_COLOR + 2][k] = color.z;
-    f[ROW_TERM][k] = TO_REAL(m->diffuse);
-    f[ROW_TERM + 1][k] = TO_REAL(m->specular);
-    f[ROW_TERM + 2][k] = TO_REAL(m->shininess);
+    f[ROW_COLOR * stride] = color.x;
+    f[(ROW_COLOR + 1) * stride] = color.y;
+    f[(ROW_COLOR + 2) * stride] = color.z;
+    f[ROW_TERM * stride] = TO_REAL(m->diffuse);
+    f[(ROW_TERM + 1) * stride] = TO_REAL(m->specular);
+    f[(ROW_TERM + 2) * stride] = TO_REAL(m->shininess);
     REAL3 emission = TO_REAL3(m->emission);
-    f[ROW_GLOW][k] = TO_REAL(m->ambient);
-    f[ROW_GLOW + 1][k] = emission.x;
-    f[ROW_GLOW + 2][k] = emission.y;
-    f[ROW_GLOW + 3][k] = emission.z;
-    f[ROW_REFLECT][k] = TO_REAL(m->reflect);
+    f[ROW_GLOW * stride] = TO_REAL(m->ambient);
+    f[(ROW_GLOW + 1) * stride] = emission.x;
+    f[(ROW_GLOW + 2) * stride] = emission.y;
+    f[(ROW_GLOW + 3) * stride] = emission.z;
+    f[ROW_REFLECT * stride] = TO_REAL(m->reflect);
     *checker = 0;
 #if HAS_TEXTURES
     if (m->texture >= 0) {
@@ -166,11 +167,11 @@ HOT bool material_record(const SceneRefs* s, int material, REAL f[SHAPE_FIELDS][
         if (tx->kind != TEXTURE_CHECKER) return false;
         *checker = -1;
         REAL3 color2 = TO_REAL3(tx->color2);
-        f[ROW_CHECKER][k] = TO_REAL(tx->size);
-        f[ROW_CHECKER + 1][k] = TO_REAL(tx->blend);
-        f[ROW_CHECKER + 2][k] = color2.x;
-        f[ROW_CHECKER + 3][k] = color2.y;
-        f[ROW_CHECKER + 4][k] = color2.z;
+        f[ROW_CHECKER * stride] = TO_REAL(tx->size);
+        f[(ROW_CHECKER + 1) * stride] = TO_REAL(tx->blend);
+        f[(ROW_CHECKER + 2) * stride] = color2.x;
+        f[(ROW_CHECKER + 3) * stride] = color2.y;
+        f[(ROW_CHECKER + 4) * stride] = color2.z;
     }
 #endif
     return true;
@@ -181,47 +182,110 @@ HOT void copy_column(REAL f[SHAPE_FIELDS][PACKET_LANES], int first, int end) {
     for (int row = first; row < end; ++row) VSTOREP((REALP)(f[row][0]), 0, f[row]);
 }
 
+// Row r of a record table as lanes: f[r * PACKET_LANES ...] lane by lane, or where `one` the
+// single record f[r] in every lane.
+#define RECORD_ROW(f, r, one) ((one) ? (REALP)((f)[r]) : VLOADP(0, (f) + (r) * PACKET_LANES))
+
+// The rows of a record table (f: a row of PACKET_LANES lanes each) or of one record (`one`, a
+// constant at each call) into g's lanes.
+HOT void shape_rows(const REAL* f, bool one, ShapeLanes* g) {
+    g->red = RECORD_ROW(f, ROW_COLOR, one);
+    g->green = RECORD_ROW(f, ROW_COLOR + 1, one);
+    g->blue = RECORD_ROW(f, ROW_COLOR + 2, one);
+    g->diffuse = RECORD_ROW(f, ROW_TERM, one);
+    g->specular = RECORD_ROW(f, ROW_TERM + 1, one);
+    g->shininess = RECORD_ROW(f, ROW_TERM + 2, one);
+    g->ambient = RECORD_ROW(f, ROW_GLOW, one);
+    g->ex = RECORD_ROW(f, ROW_GLOW + 1, one);
+    g->ey = RECORD_ROW(f, ROW_GLOW + 2, one);
+    g->ez = RECORD_ROW(f, ROW_GLOW + 3, one);
+    g->reflect = RECORD_ROW(f, ROW_REFLECT, one);
+    g->ax = RECORD_ROW(f, ROW_A, one);
+    g->ay = RECORD_ROW(f, ROW_A + 1, one);
+    g->az = RECORD_ROW(f, ROW_A + 2, one);
+    g->bx = RECORD_ROW(f, ROW_B, one);
+    g->by = RECORD_ROW(f, ROW_B + 1, one);
+    g->bz = RECORD_ROW(f, ROW_B + 2, one);
+#if HAS_TRIANGLES
+    g->cx = RECORD_ROW(f, ROW_C, one);
+    g->cy = RECORD_ROW(f, ROW_C + 1, one);
+    g->cz = RECORD_ROW(f, ROW_C + 2, one);
+#if HAS_VERTEX_NORMALS
+    g->nax = RECORD_ROW(f, ROW_NORMALS, one);
+    g->nay = RECORD_ROW(f, ROW_NORMALS + 1, one);
+    g->naz = RECORD_ROW(f, ROW_NORMALS + 2, one);
+    g->nbx = RECORD_ROW(f, ROW_NORMALS + 3, one);
+    g->nby = RECORD_ROW(f, ROW_NORMALS + 4, one);
+    g->nbz = RECORD_ROW(f, ROW_NORMALS + 5, one);
+    g->ncx = RECORD_ROW(f, ROW_NORMALS + 6, one);
+    g->ncy = RECORD_ROW(f, ROW_NORMALS + 7, one);
+    g->ncz = RECORD_ROW(f, ROW_NORMALS + 8, one);
+#endif
+#endif
+#if HAS_TEXTURES
+    g->size = RECORD_ROW(f, ROW_CHECKER, one);
+    g->blend = RECORD_ROW(f, ROW_CHECKER + 1, one);
+    g->red2 = RECORD_ROW(f, ROW_CHECKER + 2, one);
+    g->green2 = RECORD_ROW(f, ROW_CHECKER + 3, one);
+    g->blue2 = RECORD_ROW(f, ROW_CHECKER + 4, one);
+#endif
+}
+
+// shape_lanes where every lane of lit hit the shape of its lowest lane (as a pixel's samples
+// mostly do): that shape's and its material's records read once, into every lane.
+HOT ShapeLanes one_shape_lanes(const SceneRefs* s, const HitLanes* hits, int lit, int* left) {
+    // Each kind fills its own rows: the others are zeros, so that every kind's arithmetic runs
+    // on defined numbers in every lane.
+    REAL f[SHAPE_FIELDS];
+    for (int row = 0; row < SHAPE_FIELDS; ++row) f[row] = 0;
+    ShapeLanes g;
+    int first = lowest_bit(lit), material = 0;
+    int ref = (int)hits->ref[first];
+    LANE_INT smooth = 0, checker = 0;
+    bool shaded = shape_record(s, ref, (int)hits->part[first], f, 1, &material, &smooth) &&
+                  material_record(s, material, f, 1, &checker);
+    *left = shaded ? 0 : lit;
+    shape_rows(f, true, &g);
+#if HAS_TRIANGLES && HAS_VERTEX_NORMALS
+    g.smooth = (MASKP)(smooth);
+#endif
+#if HAS_TEXTURES
+    g.checker = (MASKP)(checker);
+#endif
+    g.kind = (MASKP)(shaded ? ref >> PRIM_TYPE_SHIFT : -1);
+    for (int j = 0; j < PACKET_LANES; ++j) g.material[j] = material;
+    return g;
+}
+
 // The records of the lanes of `lit` (their hits in rows): each lane's shape and its
-// material's; the other lanes hold a copy of one of those. `same`: every lane of lit hit the
-// shape of its lowest lane (as a pixel's samples mostly do), whose records are then read once;
-// where the shapes differ and their materials do not (a mesh), the material's record is read
-// once.
-// *left: the lanes whose records shape_record or material_record declines.
-HOT ShapeLanes shape_lanes(const SceneRefs* s, const HitLanes* hits, int lit, bool same,
-                           int* left) {
+// material's; the other lanes hold a copy of one of those. Where the shapes differ and their
+// materials do not (a mesh), the material's record is read once. *left: the lanes whose
+// records shape_record or material_record declines.
+HOT ShapeLanes shape_lanes(const SceneRefs* s, const HitLanes* hits, int lit, int* left) {
     REAL f[SHAPE_FIELDS][PACKET_LANES];
     LANE_INT kind[PACKET_LANES], smooth[PACKET_LANES], checker[PACKET_LANES];
     ShapeLanes g;
     int spare = lowest_bit(lit);
-    // Each kind fills its own rows: the others are zeros, so that every kind's arithmetic runs
-    // on defined numbers in every lane.
-    if (same) {
-        for (int row = 0; row < SHAPE_FIELDS; ++row) f[row][0] = 0;
-    } else {
-        for (int row = 0; row < SHAPE_FIELDS; ++row) VSTOREP((REALP)(0), 0, f[row]);
-    }
+    for (int row = 0; row < SHAPE_FIELDS; ++row) VSTOREP((REALP)(0), 0, f[row]);
     int shaped = 0;  // lanes j whose shape_record was read
-    for (int j = 0; j < (same ? 1 : PACKET_LANES); ++j) {
-        int k = same || !((lit >> j) & 1) ? spare : j;
+    for (int j = 0; j < PACKET_LANES; ++j) {
+        int k = ((lit >> j) & 1) ? j : spare;
         int ref = (int)hits->ref[k];
         kind[j] = ref >> PRIM_TYPE_SHIFT;
         g.material[j] = 0;
-        if (shape_record(s, ref, (int)hits->part[k], f, j, g.material + j, smooth + j)) {
+        if (shape_record(s, ref, (int)hits->part[k], &f[0][j], PACKET_LANES, g.material + j,
+                         smooth + j)) {
             shaped |= 1 << j;
         }
     }
     int material = g.material[lowest_bit(shaped)];
-    bool one_material = same;
-    if (!same && shaped) {
-        one_material = true;
-        for (int rest = shaped; rest; rest &= rest - 1) {
-            one_material &= g.material[lowest_bit(rest)] == material;
-        }
+    bool one_material = shaped != 0;
+    for (int rest = shaped; rest; rest &= rest - 1) {
+        one_material &= g.material[lowest_bit(rest)] == material;
     }
     int textured = 0;  // lanes j whose material_record declines
     if (one_material) {
-        checker[0] = 0;
-        if (shaped && !material_record(s, material, f, 0, checker)) textured = ALL_LANES;
+        if (!material_record(s, material, &f[0][0], PACKET_LANES, checker)) textured = ALL_LANES;
         copy_column(f, 0, ROW_A);
 #if HAS_TEXTURES
         copy_column(f, ROW_CHECKER, SHAPE_FIELDS);
@@ -230,18 +294,10 @@ HOT ShapeLanes shape_lanes(const SceneRefs* s, const HitLanes* hits, int lit, bo
     } else {
         for (int j = 0; j < PACKET_LANES; ++j) {
             checker[j] = 0;
-            if (((shaped >> j) & 1) && !material_record(s, g.material[j], f, j, checker + j)) {
+            if (((shaped >> j) & 1) &&
+                !material_record(s, g.material[j], &f[0][j], PACKET_LANES, checker + j)) {
                 textured |= 1 << j;
             }
-        }
-    }
-    if (same) {
-        copy_column(f, ROW_A, ROW_CHECKER);
-        shaped = shaped ? ALL_LANES : 0;
-        for (int j = 1; j < PACKET_LANES; ++j) {
-            g.material[j] = g.material[0];
-            kind[j] = kind[0];
-            smooth[j] = smooth[0];
         }
     }
     // Lane j declined: its sample's lane (j, or for a lane outside lit the spare it copies)
@@ -255,46 +311,11 @@ HOT ShapeLanes shape_lanes(const SceneRefs* s, const HitLanes* hits, int lit, bo
         }
     }
     *left &= lit;
-    g.red = VLOADP(0, f[ROW_COLOR]);
-    g.green = VLOADP(0, f[ROW_COLOR + 1]);
-    g.blue = VLOADP(0, f[ROW_COLOR + 2]);
-    g.diffuse = VLOADP(0, f[ROW_TERM]);
-    g.specular = VLOADP(0, f[ROW_TERM + 1]);
-    g.shininess = VLOADP(0, f[ROW_TERM + 2]);
-    g.ambient = VLOADP(0, f[ROW_GLOW]);
-    g.ex = VLOADP(0, f[ROW_GLOW + 1]);
-    g.ey = VLOADP(0, f[ROW_GLOW + 2]);
-    g.ez = VLOADP(0, f[ROW_GLOW + 3]);
-    g.reflect = VLOADP(0, f[ROW_REFLECT]);
-    g.ax = VLOADP(0, f[ROW_A]);
-    g.ay = VLOADP(0, f[ROW_A + 1]);
-    g.az = VLOADP(0, f[ROW_A + 2]);
-    g.bx = VLOADP(0, f[ROW_B]);
-    g.by = VLOADP(0, f[ROW_B + 1]);
-    g.bz = VLOADP(0, f[ROW_B + 2]);
-#if HAS_TRIANGLES
-    g.cx = VLOADP(0, f[ROW_C]);
-    g.cy = VLOADP(0, f[ROW_C + 1]);
-    g.cz = VLOADP(0, f[ROW_C + 2]);
-#if HAS_VERTEX_NORMALS
-    g.nax = VLOADP(0, f[ROW_NORMALS]);
-    g.nay = VLOADP(0, f[ROW_NORMALS + 1]);
-    g.naz = VLOADP(0, f[ROW_NORMALS + 2]);
-    g.nbx = VLOADP(0, f[ROW_NORMALS + 3]);
-    g.nby = VLOADP(0, f[ROW_NORMALS + 4]);
-    g.nbz = VLOADP(0, f[ROW_NORMALS + 5]);
-    g.ncx = VLOADP(0, f[ROW_NORMALS + 6]);
-    g.ncy = VLOADP(0, f[ROW_NORMALS + 7]);
-    g.ncz = VLOADP(0, f[ROW_NORMALS + 8]);
+    shape_rows(&f[0][0], false, &g);
+#if HAS_TRIANGLES && HAS_VERTEX_NORMALS
     g.smooth = VLOADP(0, smooth);
 #endif
-#endif
 #if HAS_TEXTURES
-    g.size = VLOADP(0, f[ROW_CHECKER]);
-    g.blend = VLOADP(0, f[ROW_CHECKER + 1]);
-    g.red2 = VLOADP(0, f[ROW_CHECKER + 2]);
-    g.green2 = VLOADP(0, f[ROW_CHECKER + 3]);
-    g.blue2 = VLOADP(0, f[ROW_CHECKER + 4]);
     g.checker = VLOADP(0, checker);
 #endif
     g.kind = VLOADP(0, kind);
@@ -520,7 +541,8 @@ HOT int shade_point_lanes(const SceneRefs* s, const __global Camera* camera, con
     MASKP other = (h->ref != (MASKP)(hits->ref[first])) |
                   (h->part != (MASKP)(hits->part[first]));
     bool same = !lane_mask(lanes_of(lit) & other);
-    ShapeLanes g = shape_lanes(s, hits, lit, same, &left);
+    ShapeLanes g =
+        same ? one_shape_lanes(s, hits, lit, &left) : shape_lanes(s, hits, lit, &left);
     if (left == lit) return left;
     SurfaceOfLanes sf = {0};
     MASKP outside = (MASKP)(0);

@@ -459,7 +459,7 @@ typedef struct {
 } PacketBounds;
 
 // The twelve extremes are reduced together, not one by one: each vector's lanes are first
-// folded to eight, then pairs of vectors share each step's shuffles (fold_pairs), so that one
+// folded to eight, then pairs of vectors share each step's shuffles (FOLD_PAIRS), so that one
 // minimum instruction works for two or four of them at once.
 #ifdef USE_DOUBLE
 typedef double8 REAL8;
@@ -510,6 +510,14 @@ HOT PacketBounds packet_bounds(const RayPacket* p, int bits) {
             high[k] = active ? high[k] : (REALP)(-REAL_INF);
         }
     }
+#ifdef PORTABLE_REDUCTIONS
+    // Oclgrind 21.10 crashes on FOLD_PAIRS' two-vector shuffles: one extreme at a time there.
+    REAL4 lo = (REAL4)(min_lanes(low[0]), min_lanes(low[1]), min_lanes(low[2]), min_lanes(low[3]));
+    REAL4 lo_rest = (REAL4)(min_lanes(low[4]), min_lanes(low[5]), 0, 0);
+    REAL4 hi =
+        (REAL4)(max_lanes(high[0]), max_lanes(high[1]), max_lanes(high[2]), max_lanes(high[3]));
+    REAL4 hi_rest = (REAL4)(max_lanes(high[4]), max_lanes(high[5]), 0, 0);
+#else
     REAL8 l[6], h[6];
     for (int k = 0; k < 6; ++k) {
         l[k] = TO_EIGHT(low[k], MIN_OF_HALVES);
@@ -519,6 +527,7 @@ HOT PacketBounds packet_bounds(const RayPacket* p, int bits) {
     REAL4 lo_rest = least_of_four(l[4], l[5], l[4], l[5]);
     REAL4 hi = greatest_of_four(h[0], h[1], h[2], h[3]);
     REAL4 hi_rest = greatest_of_four(h[4], h[5], h[4], h[5]);
+#endif
     PacketBounds b;
     b.olo[0] = lo.x;
     b.olo[1] = lo.y;

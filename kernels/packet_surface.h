@@ -278,7 +278,7 @@ HOT ShapeLanes shape_lanes(const SceneRefs* s, const HitLanes* hits, int lit, in
             shaped |= 1 << j;
         }
     }
-    int material = g.material[lowest_bit(shaped)];
+    int material = shaped ? g.material[lowest_bit(shaped)] : 0;
     bool one_material = shaped != 0;
     for (int rest = shaped; rest; rest &= rest - 1) {
         one_material &= g.material[lowest_bit(rest)] == material;

@@ -771,6 +771,15 @@ HOT MASKP sphere_lanes(const __global SpherePacket* pk, int k, const RayPacket* 
     REALP fz = r->oz - (REALP)(TO_REAL(pk->z[k]));
     REALP radius = (REALP)(TO_REAL(pk->radius[k]));
     REALP b = fx * r->dx + fy * r->dy + fz * r->dz;
+    REALP fl = sqrt(fx * fx + fy * fy + fz * fz);
+    REALP c = (fl - radius) * (fl + radius);
+    // A lane starting outside the sphere (c >= 0) and heading away from its centre (b > 0), as
+    // shadow and reflected rays leave a sphere, has no root ahead: q < 0 below, so both roots
+    // are <= 0, which the callers decline. Where every lane is so, nothing more to compute.
+    if (!lane_mask(lanes & ~((b > (REAL)0) & (c >= (REAL)0)))) {
+        *t0 = *t1 = (REALP)(REAL_INF);
+        return (MASKP)(0);
+    }
     REALP along = b / a;
     REALP lx = fx - along * r->dx, ly = fy - along * r->dy, lz = fz - along * r->dz;
     REALP ll = sqrt(lx * lx + ly * ly + lz * lz);
@@ -781,10 +790,9 @@ HOT MASKP sphere_lanes(const __global SpherePacket* pk, int k, const RayPacket* 
         *t0 = *t1 = (REALP)(REAL_INF);
         return crossed;
     }
-    REALP fl = sqrt(fx * fx + fy * fy + fz * fz);
     // fmax keeps sqrt's argument non-negative; lanes with disc < 0 (or NaN) are masked.
     REALP q = -(b + copysign(sqrt(GREATER(disc, (REALP)(0))), b));
-    REALP r0 = ((fl - radius) * (fl + radius)) / q, r1 = q / a;
+    REALP r0 = c / q, r1 = q / a;
     *t0 = fmin(r0, r1);
     *t1 = fmax(r0, r1);
     return crossed & (q != (REAL)0);

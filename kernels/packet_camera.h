@@ -40,11 +40,19 @@ HOT bool camera_ray_lanes(const __global Camera* camera, const __global Params* 
     int ny = (spp + nx - 1) / nx;
     uint sample[PACKET_LANES];
     REAL column[PACKET_LANES], row[PACKET_LANES];
+    // The packet's samples are consecutive: their cells follow the first's along its row, one
+    // integer division a packet rather than one a lane.
+    int first_column = first % nx, first_row = first / nx;
+    int c = first_column, r = first_row;
     for (int j = 0; j < PACKET_LANES; ++j) {
-        int s = first + (j < lanes ? j : 0);
-        sample[j] = (uint)s;
-        column[j] = (REAL)(s % nx);
-        row[j] = (REAL)(s / nx);
+        bool own = j < lanes;
+        sample[j] = (uint)(own ? first + j : first);
+        column[j] = (REAL)(own ? c : first_column);
+        row[j] = (REAL)(own ? r : first_row);
+        if (++c == nx) {
+            c = 0;
+            ++r;
+        }
     }
     UINTP samples = VLOADP(0, sample);
     uint pixel_key = pcg_hash(pcg_hash(params->seed) ^ pixel);

@@ -24,6 +24,26 @@ typedef struct {
     REALP px, py, pz, err, gx, gy, gz, nx, ny, nz;
 } SurfaceLanes;
 
+// Each lane's material and its colour at the shading point (texture looked up), as rows: what
+// light_term reads of a ShadePoint besides its surface and normal.
+typedef struct {
+    REAL c[3][PACKET_LANES];
+    int material[PACKET_LANES];
+} MaterialRows;
+
+// Lane j of *mr from its ShadePoint.
+HOT void set_material_row(MaterialRows* mr, int j, const ShadePoint* pt) {
+    mr->c[0][j] = pt->c.x;
+    mr->c[1][j] = pt->c.y;
+    mr->c[2][j] = pt->c.z;
+    mr->material[j] = pt->sf.material;
+}
+
+// Lane j's colour in *mr.
+HOT REAL3 color_of_lane(const MaterialRows* mr, int j) {
+    return (REAL3)(mr->c[0][j], mr->c[1][j], mr->c[2][j]);
+}
+
 // pt[j] for each lane of `bits`; the other lanes hold a copy of one of those.
 HOT SurfaceLanes surface_lanes(const ShadePoint* pt, int bits) {
     REAL f[10][PACKET_LANES];
@@ -142,21 +162,21 @@ HOT bool length_lanes(REALP x, REALP y, REALP z, MASKP lanes, REALP* len) {
     return !lane_mask(lanes & ~inside);
 }
 
-// As surface_lanes, for light_term.
-HOT TermLanes term_lanes(const SceneRefs* s, const ShadePoint* pt, const RayLanes* seen,
+// As surface_lanes, for light_term (mr: the lanes' materials and colours).
+HOT TermLanes term_lanes(const SceneRefs* s, const MaterialRows* mr, const RayLanes* seen,
                          int bits) {
     REAL f[14][PACKET_LANES];
     int spare = lowest_bit(bits);
     for (int j = 0; j < PACKET_LANES; ++j) {
         int k = ((bits >> j) & 1) ? j : spare;
-        const __global Material* m = s->materials + pt[k].sf.material;
+        const __global Material* m = s->materials + mr->material[k];
         REAL3 v = -direction_of_lane(seen, k);
         f[0][j] = v.x;
         f[1][j] = v.y;
         f[2][j] = v.z;
-        f[3][j] = pt[k].c.x;
-        f[4][j] = pt[k].c.y;
-        f[5][j] = pt[k].c.z;
+        f[3][j] = mr->c[0][k];
+        f[4][j] = mr->c[1][k];
+        f[5][j] = mr->c[2][k];
         f[6][j] = TO_REAL(m->diffuse);
         f[7][j] = TO_REAL(m->specular);
         f[8][j] = TO_REAL(m->shininess);
@@ -258,7 +278,7 @@ HOT bool point_light_lanes(const __global Light* light, const SurfaceLanes* q, i
 
 // Light i's terms on the lanes of `bits`, a point light's shadow rays set up lane-wise: adds
 // to direct[j]. False (nothing added) where point_light_lanes declines.
-HOT bool point_light_direct(const SceneRefs* s, const ShadePoint* pt, const RayLanes* seen,
+HOT bool point_light_direct(const SceneRefs* s, const MaterialRows* mr, const RayLanes* seen,
                             int i, const SurfaceLanes* q, const TermLanes* m, int bits,
                             REAL direct[3][PACKET_LANES], int* shadow_rays) {
     const __global Light* light = s->lights + i;
@@ -295,7 +315,8 @@ HOT bool point_light_direct(const SceneRefs* s, const ShadePoint* pt, const RayL
         REAL3 l = (REAL3)(f[0][j], f[1][j], f[2][j]);
         add_to_lane(direct, j,
                     light_term(s, i, normal_of_lane(&rows, j), -direction_of_lane(seen, j),
-                               pt[j].c, s->materials + pt[j].sf.material, l, f[3][j], f[4][j],
+                               color_of_lane(mr, j),
+                               s->materials + mr->material[j], l, f[3][j], f[4][j],
                                (REAL3)(1, 1, 1)));
     }
     return true;
@@ -303,11 +324,10 @@ HOT bool point_light_direct(const SceneRefs* s, const ShadePoint* pt, const RayL
 #endif
 
 // shade_direct for the lanes of `bits`, each at its own shading point seen along its ray in
-// `seen` (its surface and normal in q, its colour and material in pt[j]: the rest of pt[j] is
-// not read; m: their TermLanes), into the rows of `direct`, with one shadow-ray packet per
+// `seen` (its surface and normal in q, its colour and material in mr; m: their TermLanes), into the rows of `direct`, with one shadow-ray packet per
 // light. key.sample: lane 0's sample. The per-lane arithmetic is shade_direct's, in its order:
 // the glow first, then each light's term added.
-HOT void packet_direct(const SceneRefs* s, const ShadePoint* pt, const RayLanes* seen,
+HOT void packet_direct(const SceneRefs* s, const MaterialRows* mr, const RayLanes* seen,
                        const SurfaceLanes* q, const TermLanes* m, REAL3 ambient_light,
                        SampleKey key, int bits, REAL direct[3][PACKET_LANES], int* shadow_rays) {
     int first = key.sample;
@@ -322,7 +342,7 @@ HOT void packet_direct(const SceneRefs* s, const ShadePoint* pt, const RayLanes*
     for (int i = 0; i < s->n_lights; ++i) {
 #if POINT_LIGHT_LANES
         if (s->lights[i].kind == LIGHT_POINT &&
-            point_light_direct(s, pt, seen, i, q, m, bits, direct, shadow_rays)) {
+            point_light_direct(s, mr, seen, i, q, m, bits, direct, shadow_rays)) {
             continue;
         }
 #endif
@@ -359,8 +379,9 @@ HOT void packet_direct(const SceneRefs* s, const ShadePoint* pt, const RayLanes*
             if (max_comp3(filter[j]) <= (REAL)0) continue;
             add_to_lane(direct, j,
                         light_term(s, i, normal_of_lane(&points, j),
-                                   -direction_of_lane(seen, j), pt[j].c,
-                                   s->materials + pt[j].sf.material, l[j], atten[j], ndl[j],
+                                   -direction_of_lane(seen, j),
+                                   color_of_lane(mr, j),
+                                   s->materials + mr->material[j], l[j], atten[j], ndl[j],
                                    filter[j]));
         }
     }

@@ -530,12 +530,12 @@ HOT void store_shade_points(const SurfaceOfLanes* sf, const SurfaceLanes* q, MAS
 }
 
 // shade_point for the lanes of `lit` that this can shade: their coordinates into *q, what
-// light_term reads into *terms, their colours and materials into pt[j], and where `whole` the
-// rest of pt[j] too (without it, what the chains read of pt[j] is all that is written).
-// Returns the lanes left to shade_point (their lanes of q, terms and pt[j] are not written).
+// light_term reads into *terms, their colours and materials into *mr, and where `whole` into
+// pt[j] too, with the rest of the ShadePoint (the chains read none of it). Returns the lanes
+// left to shade_point (their lanes of q, terms, mr and pt[j] are not written).
 HOT int shade_point_lanes(const SceneRefs* s, const __global Camera* camera, const RayPacket* r,
                           const PacketHit* h, const HitLanes* hits, int lit, bool whole,
-                          ShadePoint* pt, SurfaceLanes* q, TermLanes* terms) {
+                          ShadePoint* pt, SurfaceLanes* q, TermLanes* terms, MaterialRows* mr) {
     int left;
     int first = lowest_bit(lit);
     MASKP other = (h->ref != (MASKP)(hits->ref[first])) |
@@ -602,17 +602,19 @@ HOT int shade_point_lanes(const SceneRefs* s, const __global Camera* camera, con
     terms->ey = g.ey;
     terms->ez = g.ez;
     terms->reflect = g.reflect;
-    REAL color[3][PACKET_LANES];
-    VSTOREP(g.red, 0, color[0]);
-    VSTOREP(g.green, 0, color[1]);
-    VSTOREP(g.blue, 0, color[2]);
+    // Every lane's row: shade_packet then writes the lanes left to shade_point.
+    VSTOREP(g.red, 0, mr->c[0]);
+    VSTOREP(g.green, 0, mr->c[1]);
+    VSTOREP(g.blue, 0, mr->c[2]);
+    for (int j = 0; j < PACKET_LANES; ++j) mr->material[j] = g.material[j];
     int done = lit & ~left;
+    if (!whole || !done) return left;
     for (int rest = done; rest; rest &= rest - 1) {
         int j = lowest_bit(rest);
-        pt[j].c = (REAL3)(color[0][j], color[1][j], color[2][j]);
-        pt[j].sf.material = g.material[j];
+        pt[j].c = color_of_lane(mr, j);
+        pt[j].sf.material = mr->material[j];
     }
-    if (whole && done) store_shade_points(&sf, q, entering, hits, done, pt);
+    store_shade_points(&sf, q, entering, hits, done, pt);
     return left;
 }
 #endif

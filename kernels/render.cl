@@ -224,33 +224,29 @@ inline RayTask primary_task(const __global Camera* camera, const __global Params
 // tree can branch, and only the primary rays go as packets.
 #define PACKET_CHAINS (!HAS_REFRACTION)
 
-// A packet of a pixel's samples. With chains: what each level of each lane's chain adds to its
-// sample, weight * light[level][lane] for `levels` levels (weight's components
-// weight[level][0..2][lane]), added as the ray tree adds it (one expression, so the
-// multiply-add contracts as it does there). Without: each lane's primary ray, hit, shading
-// point and direct light (shade_direct's, its shadow rays traced as packets), from which the
-// ray tree goes on ray by ray.
+// A packet of a pixel's samples. With chains: each lane's sample radiance, the light its
+// chain's levels add, level by level as the ray tree adds it. Without: each lane's primary
+// ray, hit, shading point and direct light (shade_direct's, its shadow rays traced as
+// packets), from which the ray tree goes on ray by ray.
 typedef struct {
     RayLanes ray;  // lane j's ray: ray_from_lanes(&ray, j)
     HitLanes hit;  // lane j's closest hit: hit_of_lane(&hit, j)
     ShadePoint pt[PACKET_LANES];
     REAL direct[3][PACKET_LANES];  // rows x, y, z
 #if PACKET_CHAINS
-    REAL light[MAX_DEPTH + 1][3][PACKET_LANES];
-    REAL weight[MAX_DEPTH + 1][3][PACKET_LANES];
-    int levels[PACKET_LANES];
+    REAL radiance[3][PACKET_LANES];  // rows x, y, z
 #endif
 } SamplePacket;
 
 // The closest hits of the lanes `bits` of the packet `rays` (pk->ray: the same rays lane by
-// lane) into pk->hit, their shading points (as lanes in *q; in pk->pt their colours and
-// materials, and with chains lane-wise shading points no more, shade_point_lanes), their
-// materials' factors (*terms) and direct light (pk->direct): returns the lanes that hit
-// something.
+// lane) into pk->hit, their shading points (as lanes in *q; without chains in pk->pt too,
+// which the ray tree reads on), their materials' factors (*terms) and direct light
+// (pk->direct): returns the lanes that hit something.
 HOT int shade_packet(const SceneRefs* s, const __global Camera* camera,
                      const __global Params* params, SampleKey key, int bits, SamplePacket* pk,
                      const RayPacket* rays, SurfaceLanes* q, TermLanes* terms, int* shadow_rays) {
     int lit = 0;
+    MaterialRows mr;
 #if SURFACE_LANES
     PacketHit h;
     packet_closest(s, rays, &pk->ray, bits, &pk->hit, &h);
@@ -259,7 +255,7 @@ HOT int shade_packet(const SceneRefs* s, const __global Camera* camera,
     // Without chains the ray tree reads the primary rays' whole ShadePoints.
     if (lit) {
         left = shade_point_lanes(s, camera, rays, &h, &pk->hit, lit, !PACKET_CHAINS, pk->pt, q,
-                                 terms);
+                                 terms, &mr);
     }
 #else
     packet_closest(s, rays, &pk->ray, bits, &pk->hit, 0);
@@ -274,6 +270,7 @@ HOT int shade_packet(const SceneRefs* s, const __global Camera* camera,
         Ray ray = ray_from_lanes(&pk->ray, j);
         Hit hit = hit_of_lane(&pk->hit, j);
         pk->pt[j] = shade_point(s, camera, &ray, &hit);
+        set_material_row(&mr, j, pk->pt + j);
     }
     if (left == lit && lit) {
         *q = surface_lanes(pk->pt, lit);
@@ -281,21 +278,53 @@ HOT int shade_packet(const SceneRefs* s, const __global Camera* camera,
         merge_surface_lanes(surface_lanes(pk->pt, left), lanes_of(left), q);
     }
     // The lanes that shade_point shaded have no TermLanes: all are gathered then.
-    if (left) *terms = term_lanes(s, pk->pt, &pk->ray, lit);
-    packet_direct(s, pk->pt, &pk->ray, q, terms, TO_REAL3(params->ambient), key, lit,
+    if (left) *terms = term_lanes(s, &mr, &pk->ray, lit);
+    packet_direct(s, &mr, &pk->ray, q, terms, TO_REAL3(params->ambient), key, lit,
                   pk->direct, shadow_rays);
     return lit;
 }
 
 #if PACKET_CHAINS
-// Lane j's ray weight at a level of its chain.
-inline REAL3 chain_weight(const SamplePacket* pk, int level, int j) {
-    return (REAL3)(pk->weight[level][0][j], pk->weight[level][1][j], pk->weight[level][2][j]);
+// Lane j's sample radiance.
+inline REAL3 sample_radiance(const SamplePacket* pk, int j) {
+    return (REAL3)(pk->radiance[0][j], pk->radiance[1][j], pk->radiance[2][j]);
 }
 
-// Lane j's light at a level of its chain.
-inline REAL3 chain_light(const SamplePacket* pk, int level, int j) {
-    return (REAL3)(pk->light[level][0][j], pk->light[level][1][j], pk->light[level][2][j]);
+// What the lanes `leaving`, whose rays (pk->ray) of weight (wx, wy, wz) leave the scene, add
+// to their radiance: sky's light, added as the ray tree adds it (the product rounded, then
+// added).
+HOT void add_sky_lanes(const __global Params* params, const __global float4* texels,
+                       int leaving, SamplePacket* pk, REALP wx, REALP wy, REALP wz) {
+    MASKP out = lanes_of(leaving);
+#if HAS_BACKGROUND_GRADIENT || HAS_BACKGROUND_IMAGE
+    // The background depends on the direction: sky's own arithmetic, lane by lane (the rows
+    // cleared first: the other lanes are not added, but must hold values).
+    REAL sky_rows[3][PACKET_LANES];
+    for (int c = 0; c < 3; ++c) VSTOREP((REALP)(0), 0, sky_rows[c]);
+    REAL wr[3][PACKET_LANES];
+    VSTOREP(wx, 0, wr[0]);
+    VSTOREP(wy, 0, wr[1]);
+    VSTOREP(wz, 0, wr[2]);
+    for (int rest = leaving; rest; rest &= rest - 1) {
+        int j = lowest_bit(rest);
+        REAL3 light = sky(params, texels, direction_of_lane(&pk->ray, j),
+                          (REAL3)(wr[0][j], wr[1][j], wr[2][j]));
+        sky_rows[0][j] = light.x;
+        sky_rows[1][j] = light.y;
+        sky_rows[2][j] = light.z;
+    }
+    REALP lx = VLOADP(0, sky_rows[0]), ly = VLOADP(0, sky_rows[1]), lz = VLOADP(0, sky_rows[2]);
+#else
+    REAL3 background = TO_REAL3(params->background);
+    REALP lx = wx * background.x;
+    REALP ly = wy * background.y;
+    REALP lz = wz * background.z;
+#endif
+    REALP rx = VLOADP(0, pk->radiance[0]), ry = VLOADP(0, pk->radiance[1]),
+          rz = VLOADP(0, pk->radiance[2]);
+    VSTOREP(out ? rx + lx : rx, 0, pk->radiance[0]);
+    VSTOREP(out ? ry + ly : ry, 0, pk->radiance[1]);
+    VSTOREP(out ? rz + lz : rz, 0, pk->radiance[2]);
 }
 
 // The reflected rays of the lanes `lit` (their shading points q, their materials'
@@ -335,27 +364,27 @@ HOT void trace_chains(const SceneRefs* s, const __global Camera* camera,
                       const __global Params* params, SampleKey key, int bits, SamplePacket* pk,
                       RayPacket* rays, int* secondary_rays, int* shadow_rays) {
     REALP wx = (REALP)(1), wy = (REALP)(1), wz = (REALP)(1);
+    // The radiance stays in memory across a level: in registers, 16 lanes of doubles ran clang
+    // 15's AMDGPU register allocator out of registers.
+    for (int c = 0; c < 3; ++c) VSTOREP((REALP)(0), 0, pk->radiance[c]);
     for (int depth = 0; bits; ++depth) {
         SurfaceLanes q;
         TermLanes m;
         int lit = shade_packet(s, camera, params, key, bits, pk, rays, &q, &m, shadow_rays);
-        VSTOREP(wx, 0, pk->weight[depth][0]);
-        VSTOREP(wy, 0, pk->weight[depth][1]);
-        VSTOREP(wz, 0, pk->weight[depth][2]);
-        for (int c = 0; c < 3 && lit; ++c) {
-            VSTOREP(VLOADP(0, pk->direct[c]), 0, pk->light[depth][c]);
+        if (lit) {
+            // The ray tree's radiance += weight * direct: one expression, so that the
+            // multiply-add contracts as it does there.
+            MASKP on = lanes_of(lit);
+            REALP rx = VLOADP(0, pk->radiance[0]), ry = VLOADP(0, pk->radiance[1]),
+                  rz = VLOADP(0, pk->radiance[2]);
+            REALP ax = rx + wx * VLOADP(0, pk->direct[0]);
+            REALP ay = ry + wy * VLOADP(0, pk->direct[1]);
+            REALP az = rz + wz * VLOADP(0, pk->direct[2]);
+            VSTOREP(on ? ax : rx, 0, pk->radiance[0]);
+            VSTOREP(on ? ay : ry, 0, pk->radiance[1]);
+            VSTOREP(on ? az : rz, 0, pk->radiance[2]);
         }
-        for (int rest = bits; rest; rest &= rest - 1) {
-            int j = lowest_bit(rest);
-            pk->levels[j] = depth + 1;
-            if ((lit >> j) & 1) continue;
-            REAL3 leaving = sky(params, s->texels, direction_of_lane(&pk->ray, j),
-                                chain_weight(pk, depth, j));
-            pk->light[depth][0][j] = leaving.x;
-            pk->light[depth][1][j] = leaving.y;
-            pk->light[depth][2][j] = leaving.z;
-            for (int c = 0; c < 3; ++c) pk->weight[depth][c][j] = 1;
-        }
+        if (bits & ~lit) add_sky_lanes(params, s->texels, bits & ~lit, pk, wx, wy, wz);
         if (depth >= MAX_DEPTH || !lit) break;
         bits = reflect_lanes(params, lit, &q, &m, rays, pk, &wx, &wy, &wz);
         *secondary_rays += popcount(bits);
@@ -434,6 +463,7 @@ inline REAL3 group_pixel(const SceneRefs* s, Group* g, const __global Camera* ca
         RayTask stack[RAY_STACK_SIZE];
         int sp = 0;
         if (live) stack[sp++] = primary_task(camera, params, x, y, sample, pixel);
+        REAL3 radiance = (REAL3)(0, 0, 0);  // the sample's, then the pixel's sum, as render's
         for (;;) {
             bool has = sp > 0;
             if (!group_any(g, has)) break;
@@ -442,16 +472,17 @@ inline REAL3 group_pixel(const SceneRefs* s, Group* g, const __global Camera* ca
             Ray ray = make_ray(task.o, task.d);
             Hit hit = group_closest(s, g, &ray, has);
             bool shaded = has && hit.t < REAL_INF;
-            if (has && !shaded) sum += sky(params, texels, task.d, task.weight);
+            if (has && !shaded) radiance += sky(params, texels, task.d, task.weight);
             ShadePoint pt;
             if (shaded) pt = shade_point(s, camera, &ray, &hit);
             REAL3 direct = group_direct(s, g, &pt, -ray.d, ambient, key, shaded, shadow_rays);
             if (!shaded) continue;
-            sum += task.weight * direct;
+            radiance += task.weight * direct;
 #if MAX_DEPTH > 0
             *secondary_rays += spawn_secondary(s, params, stack, &sp, &task, &ray, &pt);
 #endif
         }
+        sum += radiance;
     }
     return sum;
 }
@@ -506,10 +537,8 @@ __kernel WORK_ITEM_LANES void render(SCENE_BUFFER_PARAMS, __global float4* image
         }
 #if PACKET_CHAINS
         if (spp > 1) {
-            // The packet traced the sample's chain: its light, added in the ray tree's order.
-            for (int level = 0; level < packet.levels[lane]; ++level) {
-                sum += chain_weight(&packet, level, lane) * chain_light(&packet, level, lane);
-            }
+            // The packet traced the sample's chain.
+            sum += sample_radiance(&packet, lane);
             continue;
         }
 #endif
@@ -521,6 +550,9 @@ __kernel WORK_ITEM_LANES void render(SCENE_BUFFER_PARAMS, __global float4* image
 #endif
         stack[0] = primary_task(camera, params, x, y, sample, pixel);
         sp = 1;
+        // The sample's own radiance first, then the pixel's sum: a sample packet sums its
+        // lanes' samples so, each lane's levels in the same order.
+        REAL3 radiance = (REAL3)(0, 0, 0);
         while (sp > 0) {
             RayTask task = stack[--sp];
 #if SAMPLE_PACKETS
@@ -533,7 +565,7 @@ __kernel WORK_ITEM_LANES void render(SCENE_BUFFER_PARAMS, __global float4* image
             Hit hit = closest_hit(&s, &ray);
 #endif
             if (!(hit.t < REAL_INF)) {
-                sum += sky(params, texels, task.d, task.weight);
+                radiance += sky(params, texels, task.d, task.weight);
                 continue;
             }
 #if SAMPLE_PACKETS
@@ -545,17 +577,18 @@ __kernel WORK_ITEM_LANES void render(SCENE_BUFFER_PARAMS, __global float4* image
 #if SAMPLE_PACKETS
             REAL3 packed_direct = (REAL3)(packet.direct[0][lane], packet.direct[1][lane],
                                           packet.direct[2][lane]);
-            sum += task.weight * (packed ? packed_direct
+            radiance += task.weight * (packed ? packed_direct
                                          : shade_direct(&s, &pt.sf, pt.n, -ray.d, pt.c, m,
                                                         ambient, key, &shadow_rays));
 #else
-            sum += task.weight * shade_direct(&s, &pt.sf, pt.n, -ray.d, pt.c, m, ambient, key,
-                                              &shadow_rays);
+            radiance += task.weight * shade_direct(&s, &pt.sf, pt.n, -ray.d, pt.c, m, ambient,
+                                                   key, &shadow_rays);
 #endif
 #if MAX_DEPTH > 0
             secondary_rays += spawn_secondary(&s, params, stack, &sp, &task, &ray, &pt);
 #endif
         }
+        sum += radiance;
     }
 #endif
     REAL3 mean = sum / (REAL)spp;

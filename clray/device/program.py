@@ -136,8 +136,8 @@ def private_stack_bytes(config: KernelConfig) -> dict[str, int]:
     MAX_DEPTH + 1 of them with refraction, else 1) and the BVH traversal stacks, BVH_STACK_SIZE
     levels of (child, count, entry t) for closest hits and of (child, count) for shadow rays,
     as kernels/render.cl and bvh.h declare them; sample packets without refraction add their
-    chains to the ray stack (each level's light and weight, three numbers each, for every
-    lane: render.cl's SamplePacket); group packets add the group's stack (child, count,
+    chains' radiance to the ray stack (three numbers for every lane, whatever the depth:
+    render.cl's SamplePacket); group packets add the group's stack (child, count,
     the group's and the work-item's entry t; kernels/group.h), the single-ray walks testing its
     leaves. A 3-vector takes four elements' room. The
     rest of the kernel's private memory does not grow with the settings (benchmarks/
@@ -147,7 +147,7 @@ def private_stack_bytes(config: KernelConfig) -> dict[str, int]:
     task = -(-task // (4 * real)) * (4 * real)  # aligned to its REAL3
     ray = task * (config.max_depth + 1 if config.has_refraction else 1)
     if config.traversal == "sample_packet" and not config.has_refraction:
-        ray += (config.max_depth + 1) * config.packet_lanes * (3 + 3) * real
+        ray += 3 * config.packet_lanes * real
     bvh = config.bvh_stack_size * ((4 + 4 + real) + (4 + 4))
     if config.traversal == "group_packet":
         bvh += config.bvh_stack_size * (4 + 4 + 2 * real)

@@ -3,8 +3,8 @@
     python benchmarks/private_memory.py [--json benchmarks/results/private_memory.json]
 
 For each traversal scheme (the single-ray walk, sample packets of 8 and 16 lanes, sample
-packets of 8 and 16 lanes in a scene without refraction, whose chains keep every level's light,
-group packets), float and
+packets of 8 and 16 lanes in a scene without refraction, which trace chains and keep only each
+lane's radiance, group packets), float and
 double and several ray-tree depths, the model's stacks (the ray stack and the
 BVH traversal stack, clray.device.program.private_stack_bytes, which the render-time warning
 uses) beside what clang 15's AMDGPU back end (gfx90a, -O2) gives the render kernel: its

@@ -315,18 +315,18 @@ HOT bool point_light_direct(const SceneRefs* s, const MaterialRows* mr, const Ra
         REAL3 l = (REAL3)(f[0][j], f[1][j], f[2][j]);
         add_to_lane(direct, j,
                     light_term(s, i, normal_of_lane(&rows, j), -direction_of_lane(seen, j),
-                               color_of_lane(mr, j),
-                               s->materials + mr->material[j], l, f[3][j], f[4][j],
-                               (REAL3)(1, 1, 1)));
+                               color_of_lane(mr, j), s->materials + mr->material[j], l,
+                               f[3][j], f[4][j], (REAL3)(1, 1, 1)));
     }
     return true;
 }
 #endif
 
 // shade_direct for the lanes of `bits`, each at its own shading point seen along its ray in
-// `seen` (its surface and normal in q, its colour and material in mr; m: their TermLanes), into the rows of `direct`, with one shadow-ray packet per
-// light. key.sample: lane 0's sample. The per-lane arithmetic is shade_direct's, in its order:
-// the glow first, then each light's term added.
+// `seen` (its surface and normal in q, its colour and material in mr; m: their TermLanes),
+// into the rows of `direct`, with one shadow-ray packet per light. key.sample: lane 0's
+// sample. The per-lane arithmetic is shade_direct's, in its order: the glow first, then each
+// light's term added.
 HOT void packet_direct(const SceneRefs* s, const MaterialRows* mr, const RayLanes* seen,
                        const SurfaceLanes* q, const TermLanes* m, REAL3 ambient_light,
                        SampleKey key, int bits, REAL direct[3][PACKET_LANES], int* shadow_rays) {
@@ -379,8 +379,7 @@ HOT void packet_direct(const SceneRefs* s, const MaterialRows* mr, const RayLane
             if (max_comp3(filter[j]) <= (REAL)0) continue;
             add_to_lane(direct, j,
                         light_term(s, i, normal_of_lane(&points, j),
-                                   -direction_of_lane(seen, j),
-                                   color_of_lane(mr, j),
+                                   -direction_of_lane(seen, j), color_of_lane(mr, j),
                                    s->materials + mr->material[j], l[j], atten[j], ndl[j],
                                    filter[j]));
         }

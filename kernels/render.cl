@@ -578,8 +578,8 @@ __kernel WORK_ITEM_LANES void render(SCENE_BUFFER_PARAMS, __global float4* image
             REAL3 packed_direct = (REAL3)(packet.direct[0][lane], packet.direct[1][lane],
                                           packet.direct[2][lane]);
             radiance += task.weight * (packed ? packed_direct
-                                         : shade_direct(&s, &pt.sf, pt.n, -ray.d, pt.c, m,
-                                                        ambient, key, &shadow_rays));
+                                              : shade_direct(&s, &pt.sf, pt.n, -ray.d, pt.c, m,
+                                                             ambient, key, &shadow_rays));
 #else
             radiance += task.weight * shade_direct(&s, &pt.sf, pt.n, -ray.d, pt.c, m, ambient,
                                                    key, &shadow_rays);

@@ -14,7 +14,7 @@ machine's load changes over all of them, which separate runs at different times 
 commits that have it, and `REF:sample_packet:LANES` with packets of LANES rays (KernelConfig's
 packet_lanes, 8 where not given, whatever the device's own); a plain REF with KernelConfig's
 default. `--spp` and `--size` replace the
-scenes' own.
+scenes' own. `--scenes` takes spheres, mesh (the generated 327k-triangle mesh) or scene files.
 """
 
 from __future__ import annotations
@@ -86,12 +86,13 @@ def _worktree(ref: str, tmp: Path) -> Path:
 
 
 def _scene_paths(names: list[str], tmp: Path) -> dict[str, Path]:
+    """Scene file of each name: spheres, mesh (generated) or a path to a scene file."""
     paths = {"spheres": ROOT / "scenes" / "spheres.toml"}
     if "mesh" in names:
         subprocess.run([sys.executable, str(HERE / "make_mesh_scene.py"), "--out",
                         str(tmp / "mesh")], check=True, capture_output=True)
         paths["mesh"] = tmp / "mesh" / "bumpy.toml"
-    return {name: paths[name] for name in names}
+    return {name: paths.get(name) or Path(name).resolve() for name in names}
 
 
 def _measure(tree: Path, scene: Path, repeat: int, device: str | None, variant: str,
@@ -108,7 +109,8 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("refs", nargs="+", help="commits to compare; WORKTREE = files as they are")
     parser.add_argument("--rounds", type=int, default=5)
     parser.add_argument("--per-round", type=int, default=3)
-    parser.add_argument("--scenes", default="spheres,mesh")
+    parser.add_argument("--scenes", default="spheres,mesh", help="comma-separated: spheres, "
+                        "mesh (generated) or paths to scene files")
     parser.add_argument("--device", default=None)
     parser.add_argument("--json", type=Path, default=HERE / "results" / "compare.json")
     parser.add_argument("--spp", type=int, default=0, help="samples per pixel (default: the "
@@ -119,8 +121,10 @@ def main(argv: list[str] | None = None) -> None:
     width, _, height = args.size.partition("x")
     shape = (args.spp, int(width or 0), int(height or 0))
     names = [s for s in args.scenes.split(",") if s]
-    if set(names) - {"spheres", "mesh"} or args.rounds < 1 or args.per_round < 1:
-        parser.error("scenes are spheres and mesh; --rounds and --per-round must be >= 1")
+    unknown = [n for n in names if n not in ("spheres", "mesh") and not Path(n).is_file()]
+    if unknown or args.rounds < 1 or args.per_round < 1:
+        parser.error(f"scenes are spheres, mesh or scene files (not found: {unknown}); "
+                     "--rounds and --per-round must be >= 1")
 
     with tempfile.TemporaryDirectory(prefix="clray-compare-") as tmp_name:
         tmp = Path(tmp_name)
@@ -158,7 +162,7 @@ def main(argv: list[str] | None = None) -> None:
                            "image_mean": means[ref][name], "rays": rays[ref][name],
                            "mrays_per_s": rays[ref][name] / median * 1e-6,
                            "speedup_vs_first": statistics.median(times[base][name]) / median}
-            print(f"{ref:>12} {name:>8}: kernel {median:.4f} s (median of "
+            print(f"{ref:>12} {Path(name).stem:>8}: kernel {median:.4f} s (median of "
                   f"{len(times[ref][name])}), {entry[name]['mrays_per_s']:.2f} Mrays/s, "
                   f"x{entry[name]['speedup_vs_first']:.2f} vs {base}")
         report["refs"][ref] = entry

@@ -1,0 +1,30 @@
+"""benchmarks/compare.py's scene arguments: the named benchmark scenes and scene files."""
+
+from __future__ import annotations
+
+import importlib.util
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+# benchmarks/ is not a package; the module is imported straight from its file.
+_spec = importlib.util.spec_from_file_location("compare", ROOT / "benchmarks" / "compare.py")
+compare = importlib.util.module_from_spec(_spec)
+_spec.loader.exec_module(compare)
+
+
+def test_scene_names_and_files(tmp_path: Path) -> None:
+    scene = tmp_path / "lights.toml"
+    scene.write_text("", encoding="utf-8")
+    paths = compare._scene_paths(["spheres", str(scene)], tmp_path)
+    assert paths == {"spheres": ROOT / "scenes" / "spheres.toml", str(scene): scene.resolve()}
+
+
+def test_unknown_scene_is_a_usage_error(tmp_path: Path,
+                                        capsys: pytest.CaptureFixture[str]) -> None:
+    missing = tmp_path / "missing.toml"
+    with pytest.raises(SystemExit) as exit_info:
+        compare.main(["HEAD", "--scenes", f"spheres,{missing}"])
+    assert exit_info.value.code == 2
+    assert str(missing) in capsys.readouterr().err

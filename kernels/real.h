@@ -36,6 +36,15 @@ typedef int4 MASK4;
 // The traversal and intersection helpers run once per node or primitive test: a call that is
 // not inlined costs as much as the test (PoCL does not inline everything marked inline).
 // Oclgrind builds with -DHOT=inline (clray/device/program.py, device_build_options).
+// Vectors wider than the target's (a sample packet's 16 floats, or 8 doubles, on AVX2; a wide
+// node's 8 doubles) are passed between functions in a way an AVX-512 build would pass
+// otherwise, and clang warns so at every such function (-Wpsabi): hundreds of warnings, whose
+// count PoCL prints to the terminal at a render's first build. Every function is built into
+// the same program, so the calling convention is the compiler's own business.
+#if defined(__clang__)
+#pragma clang diagnostic ignored "-Wpsabi"
+#endif
+
 #ifndef HOT
 #define HOT inline __attribute__((always_inline))
 #endif

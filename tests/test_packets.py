@@ -10,6 +10,8 @@ primitive would mean a lane missed a node, tested a shape another way, or droppe
 
 from __future__ import annotations
 
+import uuid
+import warnings
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -20,7 +22,7 @@ from test_intersect import mesh_gen, random_mix, random_units
 
 from clray.device.launch import intersect_rays
 from clray.device.pack import pack_scene
-from clray.device.program import traversal_for
+from clray.device.program import KernelConfig, kernel_source, traversal_for
 from clray.errors import SettingsError
 from clray.render import RenderSettings, kernel_switches, render
 from clray.scene import model as M
@@ -271,3 +273,23 @@ def test_one_sample_a_pixel_renders_with_the_single_ray_build(cl_device):
     scene = load_scene(ROOT / "scenes" / "spheres.toml")
     one = render(scene, RenderSettings(width=8, height=6, spp=1, traversal="sample_packet"))
     assert one.stats["traversal"] == "single"
+
+
+@pytest.mark.parametrize(("precision", "lanes"), [("float", 16), ("double", 8)])
+def test_wide_packets_build_without_warnings(cl_ctx: cl.Context, precision: str,
+                                             lanes: int) -> None:
+    """Packets wider than an AVX2 target's vectors made clang warn at every function that
+    passes them (-Wpsabi): 257 warnings, whose count PoCL printed at a render's first build.
+    The build log must stay empty of warnings; the source carries a fresh comment, so that no
+    driver or pyopencl cache answers the build without compiling."""
+    config = KernelConfig(has_spheres=True, has_planes=True, has_triangles=True, max_depth=2,
+                          traversal="sample_packet", packet_lanes=lanes, precision=precision)
+    device = cl_ctx.devices[0]
+    if precision == "double" and not device.double_fp_config:
+        pytest.skip(f"{device.name.strip()} has no double precision")
+    source = f"// {uuid.uuid4()}\n" + kernel_source()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", cl.CompilerWarning)
+        program = cl.Program(cl_ctx, source).build(options=config.options())
+    log = program.get_build_info(device, cl.program_build_info.LOG)
+    assert [line for line in log.splitlines() if "warning" in line.lower()] == []

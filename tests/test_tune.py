@@ -12,7 +12,8 @@ from pathlib import Path
 import pytest
 
 from clray import cli
-from clray.device.program import kernel_source, traversal_for
+from clray.device.program import kernel_source
+from clray.render import RenderSettings, kernel_switches
 from clray.tuning import KNOB_TABLE, Tuning
 from clray.tuning import tuner as tuner_module
 from clray.tuning.knobs import TRAVERSALS
@@ -32,9 +33,24 @@ def kernel_tuner():
                                                       "pip install 'clray[tune]'")
 
 
-def tune(cl_device, out: Path, **options) -> list[tuner_module.Trial]:
+def tune(cl_device, out: Path, scene: Path = SPHERES, **options) -> list[tuner_module.Trial]:
     options = {"space": TWO, "size": SIZE, "iterations": 3, "budget_s": 300, **options}
-    return tuner_module.Tuner(cl_device, out, **options).tune([SPHERES])
+    return tuner_module.Tuner(cl_device, out, **options).tune([scene])
+
+
+def own_traversal(device, spp: int) -> str:
+    """The walk a default render builds on `device` at `spp` samples a pixel."""
+    return kernel_switches(Tuning(), RenderSettings(), device, spp)["traversal"]
+
+
+def spheres_at(folder: Path, spp: int) -> Path:
+    """The spheres scene with `spp` samples a pixel (spheres.toml has 1, where no sample
+    packet is built), under its own name."""
+    text = SPHERES.read_text(encoding="utf-8")
+    assert text.count("spp = 1\n") == 1
+    path = folder / "spheres.toml"
+    path.write_text(text.replace("spp = 1\n", f"spp = {spp}\n"), encoding="utf-8")
+    return path
 
 
 def test_brute_force_tries_verifies_and_times_each_configuration_then_resumes(
@@ -57,6 +73,58 @@ def test_brute_force_tries_verifies_and_times_each_configuration_then_resumes(
         (t.tuning.work_group_width, t.time_ms) for t in trials)
     assert all(t.compile_ms == 0 for t in again)
     assert all(t.compile_ms > 0 for t in trials)
+
+
+def test_brute_force_stops_where_the_budget_ends_the_default_first(
+        kernel_tuner, cl_device, tmp_path, monkeypatch) -> None:
+    limits = []
+    tune_kernel = kernel_tuner.interface.tune_kernel
+
+    def recording(*args, **kwargs):
+        limits.append(kwargs["strategy_options"]["time_limit"])
+        return tune_kernel(*args, **kwargs)
+
+    monkeypatch.setattr(kernel_tuner.interface, "tune_kernel", recording)
+    # The budget ends after two configurations, as a time limit would (Kernel Tuner's runner
+    # asks its budget before each one).
+    monkeypatch.setattr(kernel_tuner.util.TuningBudget, "is_done",
+                        lambda budget: budget.num_fevals >= 2)
+    trials = tune(cl_device, tmp_path, space={**TWO, "work_group_width": (16, 32, 64, 128)})
+    assert len(limits) == 1 and 0 < limits[0] <= 300
+    # The default first, then one that changes one parameter from it; the rest not tried.
+    assert [t.tuning for t in trials] == [Tuning(), Tuning(work_group_width=16)]
+    assert all(t.verified for t in trials)
+
+
+def test_short_renders_are_confirmed_over_more_rounds(kernel_tuner, cl_device,
+                                                      tmp_path) -> None:
+    """A 48 x 27 render takes about a millisecond: 5 rounds of it measure the machine's noise,
+    so the confirmation takes as many rounds as make a second of renders, at most 40."""
+    tuner = tuner_module.Tuner(cl_device, tmp_path, space=TWO, size=SIZE)
+    run = tuner.prepare(SPHERES)
+    confirmed = tuner_module.confirm(run, Tuning(work_group_width=16), cl_device)
+    assert confirmed["rounds"] == tuner_module.MAX_CONFIRM_ROUNDS
+    assert len(confirmed["default_runs_s"]) == len(confirmed["tuned_runs_s"]) == 40
+    assert sum(confirmed["tuned_runs_s"]) < tuner_module.CONFIRM_SECONDS
+
+
+def test_one_sample_a_pixel_times_no_packet_build(kernel_tuner, cl_device, tmp_path,
+                                                  monkeypatch) -> None:
+    calls = []
+    tune_kernel = kernel_tuner.interface.tune_kernel
+
+    def recording(*args, **kwargs):
+        calls.append(args[4])
+        return tune_kernel(*args, **kwargs)
+
+    monkeypatch.setattr(kernel_tuner.interface, "tune_kernel", recording)
+    # spheres.toml has 1 sample a pixel: its renders build the single-ray walk whatever the
+    # traversal knob says, so sample packets are not a configuration of their own.
+    trials = tune(cl_device, tmp_path, space={**TWO, "work_group_width": (64,),
+                                              "traversal": ("single", "sample_packet")})
+    [params] = calls
+    assert params["TRAVERSAL"] == [TRAVERSALS.index("single")]
+    assert [t.tuning for t in trials] == [Tuning()]
 
 
 def test_a_configuration_that_drops_shadows_is_rejected_and_never_chosen(
@@ -162,14 +230,15 @@ def test_tune_tries_both_traversals_as_kernel_defines_and_picks_one(
         return tune_kernel(*args, **kwargs)
 
     monkeypatch.setattr(kernel_tuner.interface, "tune_kernel", recording)
-    trials = tune(cl_device, tmp_path, space={**TWO, "work_group_width": (64,),
-                                              "traversal": ("single", "sample_packet")})
+    trials = tune(cl_device, tmp_path, spheres_at(tmp_path, 16),
+                  space={**TWO, "work_group_width": (64,),
+                         "traversal": ("single", "sample_packet")})
     # One Kernel Tuner run, the traversal its #define TRAVERSAL, no longer a compiler option.
     [(params, options)] = calls
     assert params["TRAVERSAL"] == [0, 1]
     assert not any(o.startswith(("-DTRAVERSAL=", "-DPACKET_")) for o in options)
     # The device's own traversal is the knob's None (the default's key).
-    own = traversal_for(cl_device)
+    own = own_traversal(cl_device, 16)
     assert sorted(t.tuning.traversal or own for t in trials) == ["sample_packet", "single"]
     assert all(t.verified and t.time_ms > 0 and t.compile_ms > 0 for t in trials)
     other = next(name for name in TRAVERSALS if name != own)
@@ -180,30 +249,29 @@ def test_tune_tries_both_traversals_as_kernel_defines_and_picks_one(
 
 def test_packet_knobs_act_only_with_sample_packets_and_below_the_lanes(
         kernel_tuner, cl_device, tmp_path) -> None:
-    trials = tune(cl_device, tmp_path, space={
+    trials = tune(cl_device, tmp_path, spheres_at(tmp_path, 16), space={
         **TWO, "work_group_width": (64,), "traversal": ("single", "sample_packet"),
-        "packet_lanes": (16,), "packet_min_lanes": (2, 16)})
-    # Single rays once, with the default packet knobs, which they ignore; packets of 16 lanes
-    # (no CPU's own width here, so not folded into the default) with 2 (16 is not below 16).
-    own = traversal_for(cl_device)
+        "packet_lanes": (4,), "packet_min_lanes": (2, 4)})
+    # Single rays once, with the default packet knobs, which they ignore; packets of 4 lanes
+    # (no CPU's own width, so not folded into the default) with 2 (4 is not below 4).
+    own = own_traversal(cl_device, 16)
 
     def knob(traversal: str) -> str | None:
         return None if traversal == own else traversal
 
     assert {t.tuning for t in trials} == {
         Tuning(traversal=knob("single")),
-        Tuning(traversal=knob("sample_packet"), packet_lanes=16, packet_min_lanes=2)}
+        Tuning(traversal=knob("sample_packet"), packet_lanes=4, packet_min_lanes=2)}
 
 
 def test_group_packets_are_searched_in_square_tiles(kernel_tuner, cl_device, tmp_path) -> None:
     trials = tune(cl_device, tmp_path, space={
         **TWO, "work_group_width": (64,), "traversal": ("single", "group_packet"),
         "group_side": (4, 8)})
-    own = traversal_for(cl_device)
-    # Single rays in row segments of 64; group packets in tiles of 4 x 4 and 8 x 8, each
-    # verified against the default's image.
+    # Single rays in row segments of 64 (at 1 spp the default's walk); group packets in tiles
+    # of 4 x 4 and 8 x 8, each verified against the default's image.
     assert {t.tuning for t in trials} == {
-        Tuning(traversal=None if own == "single" else "single"),
+        Tuning(),
         Tuning(traversal="group_packet"),
         Tuning(traversal="group_packet", group_side=8)}
     assert all(t.verified and t.time_ms > 0 for t in trials)

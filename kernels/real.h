@@ -33,9 +33,6 @@ typedef int4 MASK4;
 #define TO_REAL(x) (x)
 #endif
 
-// The traversal and intersection helpers run once per node or primitive test: a call that is
-// not inlined costs as much as the test (PoCL does not inline everything marked inline).
-// Oclgrind builds with -DHOT=inline (clray/device/program.py, device_build_options).
 // Vectors wider than the target's (a sample packet's 16 floats, or 8 doubles, on AVX2; a wide
 // node's 8 doubles) are passed between functions in a way an AVX-512 build would pass
 // otherwise, and clang warns so at every such function (-Wpsabi): hundreds of warnings, whose
@@ -45,6 +42,9 @@ typedef int4 MASK4;
 #pragma clang diagnostic ignored "-Wpsabi"
 #endif
 
+// The traversal and intersection helpers run once per node or primitive test: a call that is
+// not inlined costs as much as the test (PoCL does not inline everything marked inline).
+// Oclgrind builds with -DHOT=inline (clray/device/program.py, device_build_options).
 #ifndef HOT
 #define HOT inline __attribute__((always_inline))
 #endif

@@ -43,6 +43,19 @@ def own_traversal(device, spp: int) -> str:
     return kernel_switches(Tuning(), RenderSettings(), device, spp)["traversal"]
 
 
+def record_tune_kernel(kernel_tuner, monkeypatch) -> list[tuple[tuple, dict]]:
+    """The arguments of every Kernel Tuner run the tuner starts, which still runs."""
+    calls = []
+    tune_kernel = kernel_tuner.interface.tune_kernel
+
+    def recording(*args, **kwargs):
+        calls.append((args, kwargs))
+        return tune_kernel(*args, **kwargs)
+
+    monkeypatch.setattr(kernel_tuner.interface, "tune_kernel", recording)
+    return calls
+
+
 def spheres_at(folder: Path, spp: int) -> Path:
     """The spheres scene with `spp` samples a pixel (spheres.toml has 1, where no sample
     packet is built), under its own name."""
@@ -77,19 +90,13 @@ def test_brute_force_tries_verifies_and_times_each_configuration_then_resumes(
 
 def test_brute_force_stops_where_the_budget_ends_the_default_first(
         kernel_tuner, cl_device, tmp_path, monkeypatch) -> None:
-    limits = []
-    tune_kernel = kernel_tuner.interface.tune_kernel
-
-    def recording(*args, **kwargs):
-        limits.append(kwargs["strategy_options"]["time_limit"])
-        return tune_kernel(*args, **kwargs)
-
-    monkeypatch.setattr(kernel_tuner.interface, "tune_kernel", recording)
+    calls = record_tune_kernel(kernel_tuner, monkeypatch)
     # The budget ends after two configurations, as a time limit would (Kernel Tuner's runner
     # asks its budget before each one).
     monkeypatch.setattr(kernel_tuner.util.TuningBudget, "is_done",
                         lambda budget: budget.num_fevals >= 2)
     trials = tune(cl_device, tmp_path, space={**TWO, "work_group_width": (16, 32, 64, 128)})
+    limits = [kwargs["strategy_options"]["time_limit"] for _args, kwargs in calls]
     assert len(limits) == 1 and 0 < limits[0] <= 300
     # The default first, then one that changes one parameter from it; the rest not tried.
     assert [t.tuning for t in trials] == [Tuning(), Tuning(work_group_width=16)]
@@ -110,19 +117,12 @@ def test_short_renders_are_confirmed_over_more_rounds(kernel_tuner, cl_device,
 
 def test_one_sample_a_pixel_times_no_packet_build(kernel_tuner, cl_device, tmp_path,
                                                   monkeypatch) -> None:
-    calls = []
-    tune_kernel = kernel_tuner.interface.tune_kernel
-
-    def recording(*args, **kwargs):
-        calls.append(args[4])
-        return tune_kernel(*args, **kwargs)
-
-    monkeypatch.setattr(kernel_tuner.interface, "tune_kernel", recording)
+    calls = record_tune_kernel(kernel_tuner, monkeypatch)
     # spheres.toml has 1 sample a pixel: its renders build the single-ray walk whatever the
     # traversal knob says, so sample packets are not a configuration of their own.
     trials = tune(cl_device, tmp_path, space={**TWO, "work_group_width": (64,),
                                               "traversal": ("single", "sample_packet")})
-    [params] = calls
+    [params] = [args[4] for args, _kwargs in calls]
     assert params["TRAVERSAL"] == [TRAVERSALS.index("single")]
     assert [t.tuning for t in trials] == [Tuning()]
 
@@ -222,19 +222,12 @@ def test_later_host_configurations_keep_the_best_kernel_knobs(kernel_tuner, cl_d
 
 def test_tune_tries_both_traversals_as_kernel_defines_and_picks_one(
         kernel_tuner, cl_device, tmp_path, monkeypatch) -> None:
-    calls = []
-    tune_kernel = kernel_tuner.interface.tune_kernel
-
-    def recording(*args, **kwargs):
-        calls.append((args[4], kwargs["compiler_options"]))
-        return tune_kernel(*args, **kwargs)
-
-    monkeypatch.setattr(kernel_tuner.interface, "tune_kernel", recording)
+    calls = record_tune_kernel(kernel_tuner, monkeypatch)
     trials = tune(cl_device, tmp_path, spheres_at(tmp_path, 16),
                   space={**TWO, "work_group_width": (64,),
                          "traversal": ("single", "sample_packet")})
     # One Kernel Tuner run, the traversal its #define TRAVERSAL, no longer a compiler option.
-    [(params, options)] = calls
+    [(params, options)] = [(args[4], kwargs["compiler_options"]) for args, kwargs in calls]
     assert params["TRAVERSAL"] == [0, 1]
     assert not any(o.startswith(("-DTRAVERSAL=", "-DPACKET_")) for o in options)
     # The device's own traversal is the knob's None (the default's key).

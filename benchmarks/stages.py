@@ -1,6 +1,6 @@
 """Instructions per stage of the render kernel: where a sample's work goes, counted by valgrind.
 
-    python benchmarks/stages.py [--scenes spheres,mesh] [--spp 1,16] [--size 32x18]
+    python benchmarks/stages.py [--scenes spheres,mesh,SCENE.toml] [--spp 1,16] [--size 32x18]
                                 [--rows START:STOP] [--traversals single,sample_packet]
                                 [--json benchmarks/results/stages.json] [--mesh-dir DIR]
 
@@ -31,6 +31,7 @@ Needs valgrind and PoCL's CPU device. Measures only; each count takes about a mi
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import json
 import os
 import re
@@ -154,20 +155,27 @@ def _summary(name: str, traversal: str, spp: int, result: dict) -> str:
     return "\n".join(lines)
 
 
+def _compare():
+    """benchmarks/compare.py, whose scene names and files this script shares."""
+    spec = importlib.util.spec_from_file_location("compare", HERE / "compare.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--scenes", default="spheres,mesh")
+    parser.add_argument("--scenes", default="spheres,mesh", help="comma-separated: spheres, "
+                        "mesh (generated) or paths to scene files")
     parser.add_argument("--spp", default="1,16", help="comma-separated samples per pixel")
     parser.add_argument("--size", default="32x18", metavar="WxH")
     parser.add_argument("--rows", metavar="START:STOP",
                         help="count only these rows of the image (default: all of them)")
     parser.add_argument("--traversals", default="single,sample_packet")
     parser.add_argument("--json", default=str(HERE / "results" / "stages.json"))
-    parser.add_argument("--mesh-dir", help="where to write the mesh scene (default: a temporary "
-                        "folder)")
+    parser.add_argument("--mesh-dir", help="where to write the mesh scene (its folder mesh/ "
+                        "there; default: a temporary folder)")
     args = parser.parse_args(argv)
-    if shutil.which("valgrind") is None:
-        sys.exit("stages.py needs valgrind (Debian: apt-get install valgrind)")
     width, height = (int(v) for v in args.size.lower().split("x"))
     rows = (0, height)
     if args.rows:
@@ -175,15 +183,15 @@ def main(argv: list[str] | None = None) -> None:
         if len(rows) != 2 or not 0 <= rows[0] < rows[1] <= height:
             sys.exit(f"--rows {args.rows}: expected START:STOP within the image's {height} rows")
     names = [n for n in args.scenes.split(",") if n]
+    unknown = [n for n in names if n not in ("spheres", "mesh") and not Path(n).is_file()]
+    if unknown:
+        parser.error(f"scenes are spheres, mesh or scene files (not found: {unknown})")
+    if shutil.which("valgrind") is None:
+        sys.exit("stages.py needs valgrind (Debian: apt-get install valgrind)")
     results: dict = {}
     with tempfile.TemporaryDirectory() as tmp_name:
         tmp = Path(tmp_name)
-        scenes = {"spheres": ROOT / "scenes" / "spheres.toml"}
-        if "mesh" in names:
-            mesh_dir = Path(args.mesh_dir or tmp / "mesh")
-            subprocess.run([sys.executable, str(HERE / "make_mesh_scene.py"), "--out",
-                            str(mesh_dir)], check=True, capture_output=True)
-            scenes["mesh"] = mesh_dir / "bumpy.toml"
+        scenes = _compare()._scene_paths(names, Path(args.mesh_dir) if args.mesh_dir else tmp)
         for name in names:
             for spp in (int(v) for v in args.spp.split(",")):
                 for traversal in args.traversals.split(","):

@@ -1,4 +1,5 @@
-"""benchmarks/compare.py's scene arguments: the named benchmark scenes and scene files."""
+"""The benchmarks' scene arguments (compare.py, stages.py): the named benchmark scenes and scene
+files."""
 
 from __future__ import annotations
 
@@ -12,6 +13,9 @@ ROOT = Path(__file__).resolve().parent.parent
 _spec = importlib.util.spec_from_file_location("compare", ROOT / "benchmarks" / "compare.py")
 compare = importlib.util.module_from_spec(_spec)
 _spec.loader.exec_module(compare)
+_spec = importlib.util.spec_from_file_location("stages", ROOT / "benchmarks" / "stages.py")
+stages = importlib.util.module_from_spec(_spec)
+_spec.loader.exec_module(stages)
 
 
 def test_scene_names_and_files(tmp_path: Path) -> None:
@@ -21,10 +25,13 @@ def test_scene_names_and_files(tmp_path: Path) -> None:
     assert paths == {"spheres": ROOT / "scenes" / "spheres.toml", str(scene): scene.resolve()}
 
 
-def test_unknown_scene_is_a_usage_error(tmp_path: Path,
+@pytest.mark.parametrize("script", ["compare", "stages"])
+def test_unknown_scene_is_a_usage_error(script: str, tmp_path: Path,
                                         capsys: pytest.CaptureFixture[str]) -> None:
     missing = tmp_path / "missing.toml"
+    args = {"compare": ["HEAD"], "stages": []}[script]
     with pytest.raises(SystemExit) as exit_info:
-        compare.main(["HEAD", "--scenes", f"spheres,{missing}"])
+        {"compare": compare, "stages": stages}[script].main([*args, "--scenes",
+                                                             f"spheres,{missing}"])
     assert exit_info.value.code == 2
     assert str(missing) in capsys.readouterr().err

@@ -156,13 +156,19 @@ inline Crossings intersect_sphere(const __global Sphere* s, const Ray* r) {
 #endif
 
 #if HAS_PLANES
-inline Crossings intersect_plane(const __global Plane* pl, const Ray* r) {
-    Crossings c = no_crossings();
+// Where r crosses the plane: its t, or infinity where it never does (parallel, or so nearly
+// that t overflows).
+inline REAL plane_t(const __global Plane* pl, const Ray* r) {
     REAL3 n = TO_REAL3(pl->normal);
     REAL dn = dot(r->d, n);
-    if (dn == (REAL)0) return c;  // parallel: never crossed
+    if (dn == (REAL)0) return REAL_INF;  // parallel: never crossed
     REAL t = dot(TO_REAL3(pl->point) - r->o, n) / dn;
-    if (isfinite(t)) c.t[0] = t;
+    return isfinite(t) ? t : REAL_INF;
+}
+
+inline Crossings intersect_plane(const __global Plane* pl, const Ray* r) {
+    Crossings c = no_crossings();
+    c.t[0] = plane_t(pl, r);
     return c;
 }
 #endif

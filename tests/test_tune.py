@@ -103,6 +103,26 @@ def test_brute_force_stops_where_the_budget_ends_the_default_first(
     assert all(t.verified for t in trials)
 
 
+def test_timed_launches_are_waited_for_not_polled(kernel_tuner, cl_device, tmp_path,
+                                                   monkeypatch) -> None:
+    """Kernel Tuner polls a launch's status in a loop that, on a CPU device, takes a core from
+    the kernel it times: the tuner's launches are finished before it polls."""
+    from kernel_tuner.backends.opencl import OpenCLFunctions
+
+    polls: list[bool] = []
+    kernel_finished = OpenCLFunctions.kernel_finished
+
+    def recording(self) -> bool:
+        polls.append(kernel_finished(self))
+        return polls[-1]
+
+    monkeypatch.setattr(OpenCLFunctions, "kernel_finished", recording)
+    # 160 x 90 takes milliseconds a launch: a poll straight after it would find it running.
+    trials = tune(cl_device, tmp_path, size=(160, 90))
+    assert len(trials) == 2 and all(t.verified for t in trials)
+    assert len(polls) >= 2 * 3 and all(polls)
+
+
 def test_short_renders_are_confirmed_over_more_rounds(kernel_tuner, cl_device,
                                                       tmp_path) -> None:
     """A 48 x 27 render takes about a millisecond: 5 rounds of it measure the machine's noise,

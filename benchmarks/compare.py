@@ -85,7 +85,12 @@ def _worktree(ref: str, tmp: Path) -> Path:
     return path
 
 
-def _scene_paths(names: list[str], tmp: Path) -> dict[str, Path]:
+def unknown_scenes(names: list[str]) -> list[str]:
+    """The names that are neither spheres, mesh nor a scene file."""
+    return [n for n in names if n not in ("spheres", "mesh") and not Path(n).is_file()]
+
+
+def scene_paths(names: list[str], tmp: Path) -> dict[str, Path]:
     """Scene file of each name: spheres, mesh (generated) or a path to a scene file."""
     paths = {"spheres": ROOT / "scenes" / "spheres.toml"}
     if "mesh" in names:
@@ -121,7 +126,7 @@ def main(argv: list[str] | None = None) -> None:
     width, _, height = args.size.partition("x")
     shape = (args.spp, int(width or 0), int(height or 0))
     names = [s for s in args.scenes.split(",") if s]
-    unknown = [n for n in names if n not in ("spheres", "mesh") and not Path(n).is_file()]
+    unknown = unknown_scenes(names)
     if unknown or args.rounds < 1 or args.per_round < 1:
         parser.error(f"scenes are spheres, mesh or scene files (not found: {unknown}); "
                      "--rounds and --per-round must be >= 1")
@@ -131,7 +136,7 @@ def main(argv: list[str] | None = None) -> None:
         commits = {_split_ref(ref)[0] for ref in args.refs}
         commit_trees = {commit: _worktree(commit, tmp) for commit in commits}
         trees = {ref: commit_trees[_split_ref(ref)[0]] for ref in args.refs}
-        scenes = _scene_paths(names, tmp)
+        scenes = scene_paths(names, tmp)
         times: dict[str, dict[str, list[float]]] = {r: {n: [] for n in names} for r in args.refs}
         means: dict[str, dict[str, float]] = {r: {} for r in args.refs}
         rays: dict[str, dict[str, int]] = {r: {} for r in args.refs}

@@ -183,7 +183,8 @@ def main(argv: list[str] | None = None) -> None:
         if len(rows) != 2 or not 0 <= rows[0] < rows[1] <= height:
             sys.exit(f"--rows {args.rows}: expected START:STOP within the image's {height} rows")
     names = [n for n in args.scenes.split(",") if n]
-    unknown = [n for n in names if n not in ("spheres", "mesh") and not Path(n).is_file()]
+    compare = _compare()
+    unknown = compare.unknown_scenes(names)
     if unknown:
         parser.error(f"scenes are spheres, mesh or scene files (not found: {unknown})")
     if shutil.which("valgrind") is None:
@@ -191,7 +192,7 @@ def main(argv: list[str] | None = None) -> None:
     results: dict = {}
     with tempfile.TemporaryDirectory() as tmp_name:
         tmp = Path(tmp_name)
-        scenes = _compare()._scene_paths(names, Path(args.mesh_dir) if args.mesh_dir else tmp)
+        scenes = compare.scene_paths(names, Path(args.mesh_dir) if args.mesh_dir else tmp)
         for name in names:
             for spp in (int(v) for v in args.spp.split(",")):
                 for traversal in args.traversals.split(","):

@@ -21,7 +21,7 @@ _spec.loader.exec_module(stages)
 def test_scene_names_and_files(tmp_path: Path) -> None:
     scene = tmp_path / "lights.toml"
     scene.write_text("", encoding="utf-8")
-    paths = compare._scene_paths(["spheres", str(scene)], tmp_path)
+    paths = compare.scene_paths(["spheres", str(scene)], tmp_path)
     assert paths == {"spheres": ROOT / "scenes" / "spheres.toml", str(scene): scene.resolve()}
 
 

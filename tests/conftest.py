@@ -5,6 +5,11 @@ A test that asks for `cl_device` (or `cl_ctx`) runs once per OpenCL device, with
 CLRAY_TEST_DEVICES. While it runs, CLRAY_DEVICE names that device, so render(), the CLI and any
 subprocess it starts use the same device as the test. Without an OpenCL platform such tests
 skip, except under CI (CI set) or CLRAY_REQUIRE_DEVICE=1, where a missing device must fail.
+
+The machines the suite runs on differ in vector width (AVX2: 8 floats, AVX-512: 16), and the
+device's width picks the default packet lanes and BVH width. `--lanes 8` or `--lanes 16` (or
+CLRAY_TEST_LANES) makes every real device report that float width (half of it for double) to
+clray in this process, so one machine runs the suite as the other kind would (.ci/run does).
 """
 
 from __future__ import annotations
@@ -17,10 +22,12 @@ from pathlib import Path
 import pyopencl as cl
 import pytest
 
+from clray.device import program as program_module
 from clray.device.context import DeviceInfo, context_for, list_devices, select_device
 from clray.errors import DeviceError
 
 SELECT_ENV = "CLRAY_TEST_DEVICES"
+LANES_ENV = "CLRAY_TEST_LANES"
 # A platform's first word names it well ("Intel(R) OpenCL", "NVIDIA CUDA", "AMD Accelerated
 # Parallel Processing"), except PoCL's.
 PLATFORM_SHORT_NAMES = {"portable computing language": "pocl"}
@@ -35,6 +42,10 @@ def pytest_addoption(parser: pytest.Parser) -> None:
                      help="run device tests only on these OpenCL devices: ids such as pocl-cpu "
                           "or prefixes such as pocl, comma-separated or repeated (default: "
                           f"${SELECT_ENV}, else every device found)")
+    parser.addoption("--lanes", type=int, choices=(4, 8, 16), default=None,
+                     help="make every device report this float vector width to clray, as a "
+                          f"machine of that width would (default: ${LANES_ENV}, else the "
+                          "device's own)")
 
 
 def _device_required() -> bool:
@@ -94,6 +105,8 @@ def pytest_terminal_summary(terminalreporter: pytest.TerminalReporter,
     if not listed:
         listed = f"none ({config.stash[NO_DEVICE_KEY]})"
     terminalreporter.write_line(f"OpenCL test devices: {listed}")
+    if forced_lanes(config):
+        terminalreporter.write_line(f"Vector width forced to {forced_lanes(config)} floats")
 
 
 def pytest_generate_tests(metafunc: pytest.Metafunc) -> None:
@@ -138,6 +151,40 @@ def _own_cache_directory(tmp_path_factory: pytest.TempPathFactory,
         user_cache = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
         monkeypatch.setenv("POCL_CACHE_DIR", str(Path(user_cache) / "pocl" / "kcache"))
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path_factory.mktemp("xdg-cache")))
+
+
+def forced_lanes(config: pytest.Config) -> int | None:
+    """The float vector width the run forces on its devices (--lanes, CLRAY_TEST_LANES)."""
+    lanes = config.getoption("lanes") or os.environ.get(LANES_ENV, "").strip()
+    return int(lanes) if lanes else None
+
+
+def force_vector_width(monkeypatch: pytest.MonkeyPatch, lanes: int) -> None:
+    """Real devices report `lanes` floats (lanes // 2 doubles) to clray's vector_width, which
+    picks the default packet lanes and BVH width; stand-in devices (SimpleNamespace) keep the
+    real function, which tests of vector_width itself call."""
+    own = program_module.vector_width
+
+    def forced(device, precision: str = "float") -> int:
+        if not isinstance(device, cl.Device):
+            return own(device, precision)
+        return lanes // 2 if precision == "double" else lanes
+
+    monkeypatch.setattr(program_module, "vector_width", forced)
+
+
+@pytest.fixture(autouse=True)
+def _forced_lanes(request: pytest.FixtureRequest, monkeypatch: pytest.MonkeyPatch) -> None:
+    lanes = forced_lanes(request.config)
+    if lanes:
+        force_vector_width(monkeypatch, lanes)
+
+
+@pytest.fixture(params=(8, 16), ids=("lanes8", "lanes16"))
+def lane_width(request: pytest.FixtureRequest, monkeypatch: pytest.MonkeyPatch) -> int:
+    """A test that depends on the device's vector width runs at both widths on any machine."""
+    force_vector_width(monkeypatch, request.param)
+    return request.param
 
 
 @pytest.fixture(scope="session")

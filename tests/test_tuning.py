@@ -260,11 +260,18 @@ def test_intels_runtime_packs_work_items_only_when_the_switch_lets_it(cl_device,
     assert "was successfully vectorized" in _vectorizer_report(cl_device, packed)
 
 
-def test_packet_min_lanes_must_be_below_the_devices_own_lanes(cl_device, spheres) -> None:
-    # At 8 spp: the device's lanes are its vector width (8 or 16 on CPUs, 4 on GPUs), and a
-    # packet_min_lanes of 16 the knob itself refuses.
+def test_packet_min_lanes_must_be_below_the_devices_own_lanes(cl_device, spheres,
+                                                              lane_width) -> None:
+    # At 8 spp the device's lanes are its vector width: 8 on AVX2, 16 on AVX-512.
     auto = packet_lanes_for(cl_device, spp=8)
-    with pytest.raises(TuningError, match=f"packet_min_lanes {auto} is not below the {auto}"):
+    assert auto == lane_width
+    below = options_with(cl_device, spheres, Tuning(traversal="sample_packet",
+                                                    packet_min_lanes=auto - 1), spp=8)
+    assert f"-DPACKET_MIN_LANES={auto - 1}" in below
+    # 8 lanes: the device's lanes refuse 8. 16 lanes: the knob's own range (0 to 15) answers.
+    refusal = (f"packet_min_lanes {auto} is not below the {auto}" if auto < 16
+               else "packet_min_lanes: expected an integer, 0 to 15")
+    with pytest.raises(TuningError, match=refusal):
         options_with(cl_device, spheres, Tuning(traversal="sample_packet",
                                                 packet_min_lanes=auto), spp=8)
 

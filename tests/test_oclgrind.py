@@ -81,3 +81,22 @@ def test_kernels_run_clean_under_oclgrind(cl_device, oclgrind_results) -> None:
             tol = 1e-12 if name.endswith("/double") else 1e-4
             np.testing.assert_allclose(theirs, image, rtol=tol, atol=tol, err_msg=name)
 
+
+
+@pytest.mark.parametrize("args", [(), ("--spp", "4", "--precision", "double")],
+                         ids=["float", "double-4spp"])
+def test_a_render_makes_no_invalid_api_call(tmp_path, args) -> None:
+    # The whole command as a user runs it, pyopencl's program cache on (in this test's own
+    # cache directory): every device query clray or pyopencl makes must be one the device's
+    # OpenCL version and extensions define. Any Oclgrind report fails, API errors included.
+    env = {**os.environ}
+    for name in ("CLRAY_DEVICE", "PYOPENCL_NO_CACHE", "PYOPENCL_CTX"):
+        env.pop(name, None)
+    out = tmp_path / "tiny.png"
+    run = subprocess.run([OCLGRIND, "--check-api", "--uninitialized", sys.executable, "-m",
+                          "clray", "render", str(R.SCENES / "spheres.toml"), "-W", "6",
+                          "-H", "4", "-o", str(out), *args], env=env, cwd=tmp_path,
+                         capture_output=True, text=True, timeout=600)
+    lines = [line for line in run.stderr.splitlines() if line.strip()]
+    assert run.returncode == 0 and out.exists(), run.stderr[-4000:]
+    assert len(lines) == 1 and lines[0].startswith("clray: wrote"), run.stderr[-4000:]

@@ -7,6 +7,7 @@ from dataclasses import dataclass
 from functools import cache
 
 import pyopencl as cl
+import pyopencl.characterize
 
 from clray.errors import DeviceError
 
@@ -54,8 +55,40 @@ def _all_devices() -> list[tuple[str, cl.Device]]:
     return found
 
 
+def opencl_version(device: cl.Device) -> tuple[int, int]:
+    """The device's OpenCL version, from its version string ("OpenCL 3.0 CUDA ...")."""
+    try:
+        major, minor = device.version.split()[1].split(".")[:2]
+        return int(major), int(minor)
+    except (IndexError, ValueError):
+        return (1, 0)
+
+
 def has_fp64(device: cl.Device) -> bool:
-    return "cl_khr_fp64" in device.extensions.split() or device.double_fp_config != 0
+    # CL_DEVICE_DOUBLE_FP_CONFIG is core from OpenCL 1.2 only: an older device without the
+    # extension answers the query with CL_INVALID_VALUE.
+    if "cl_khr_fp64" in device.extensions.split():
+        return True
+    return opencl_version(device) >= (1, 2) and device.double_fp_config != 0
+
+
+_pyopencl_nv_compute_capability = pyopencl.characterize.nv_compute_capability
+
+
+def _nv_compute_capability(device: cl.Device) -> tuple[int, int] | None:
+    """pyopencl's nv_compute_capability, asked only of devices whose
+    cl_nv_device_attribute_query defines the query. pyopencl asks every device that is not
+    PoCL's on each build (has_src_build_cache) and each kernel's first launch (the argument
+    size check), and the others answer CL_INVALID_VALUE: an API error that Oclgrind's
+    --check-api reports and a GPU driver may log."""
+    if "cl_nv_device_attribute_query" not in device.extensions.split():
+        return None
+    return _pyopencl_nv_compute_capability(device)
+
+
+# pyopencl looks the function up in its module at each call (characterize's own callers, and
+# the invoker's import inside the function).
+pyopencl.characterize.nv_compute_capability = _nv_compute_capability
 
 
 def list_devices() -> list[DeviceInfo]:

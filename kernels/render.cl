@@ -1,4 +1,9 @@
-// Kernel entry points only. One work-item per pixel; the host launches bands of rows.
+// The ray tree and the render kernels. One work-item per pixel; the host launches bands of rows.
+// This file holds the ray tree (the media stack, reflected and refracted rays, the sky; walked
+// with an explicit stack), the drivers of each traversal scheme (sample packets: shade_packet,
+// trace_chains, reflect_lanes, trace_sample_packet; group packets: group_direct, group_pixel)
+// and the two kernels, render and intersect_rays (closest hits of given rays, for tests). The
+// queries, shading and packets' lane-wise arithmetic are in the headers it includes.
 //
 // Build switches (all from clray/device/program.py's KernelConfig): HAS_PLANES, HAS_SPHERES,
 // HAS_BOXES, HAS_CYLINDERS, HAS_CONES, HAS_TRIANGLES, HAS_VERTEX_NORMALS, HAS_VERTEX_UVS,

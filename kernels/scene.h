@@ -3,7 +3,7 @@
 //
 // SCENE_BUFFERS is that order, X(element type, name) per buffer. The kernels' parameter lists
 // (SCENE_BUFFER_PARAMS), the calls that pass them on (SCENE_BUFFER_ARGS) and SceneRefs' fields
-// all expand it, and the host sets arguments from clray/device/buffers.py's SCENE_BUFFERS, which
+// all expand it, and the host sets arguments from clray/device/layout.py's SCENE_BUFFERS, which
 // tests/test_layout.py checks against this list on the device: name, type and position. A new
 // buffer is one line here and one there (and its struct in clray_types.h).
 #ifndef CLRAY_SCENE_H

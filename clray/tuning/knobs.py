@@ -1,9 +1,11 @@
 """Every performance knob of the renderer, in one table: where it acts, its default, its legal
 values, the values `clray tune` tries, and the restrictions between knobs (docs/tuning.md).
 
-A knob changes how fast an image renders, never which image: every legal configuration renders
-the default's image within the scene's float tolerance (clray.tuning.verify checks it for every
-configuration `clray tune` tries). This module imports nothing of clray's, so the modules whose
+A knob changes how fast an image renders, not which image: every legal configuration renders
+the default's image within the scene's float tolerance (clray.tuning.tuner's image check, an
+output observer of Kernel Tuner's, checks it for every configuration `clray tune` tries). The
+study variants are the exception: they change the image, and `clray tune` tries them only under
+--allow-error. This module imports nothing of clray's, so the modules whose
 constants it replaces (clray.render, clray.accel.bvh, clray.accel.wide) can read it.
 """
 

@@ -1,6 +1,7 @@
-"""The ranges that README.md's flag table and docs/scene_format.md's [render] table give are
-those of the one limits table (clray.scene.limits) that the loader, the command line and
-RenderSettings check by: a limit changed in the code must be changed in the docs too."""
+"""The ranges that the flag tables (docs/cli.md's for `clray render`, README.md's summary of it)
+and docs/scene_format.md's [render] table give are those of the one limits table
+(clray.scene.limits) that the loader, the command line and RenderSettings check by: a limit
+changed in the code must be changed in the docs too."""
 
 from __future__ import annotations
 
@@ -9,11 +10,17 @@ from pathlib import Path
 
 import pytest
 
+from clray.cli import _build_parser
 from clray.scene import limits
 
 ROOT = Path(__file__).resolve().parent.parent
 
-# README flag -> the [render] key whose range it takes.
+# The flag tables: (file, the heading their table follows).
+FLAG_TABLES = {
+    "docs/cli.md": "## `clray render`",
+    "README.md": "## Command line",
+}
+# Flag -> the [render] key whose range it takes.
 FLAG_KEYS = {
     "--width": "width",
     "--height": "height",
@@ -23,6 +30,9 @@ FLAG_KEYS = {
     "--min-weight": "min_weight",
     "--exposure": "exposure",
 }
+# Flags whose range only the command line checks (clray/cli.py), not the limits table: the
+# range is tried on the parser itself.
+PARSER_RANGES = {"--dask-workers", "--dask-timeout"}
 _NUMBER = r"-?\d+(?:\.\d+)?(?:\^\d+)?(?: ?- ?1)?"
 
 
@@ -57,10 +67,14 @@ def table_rows(path: Path, header: str, section: str | None = None) -> list[list
     return rows
 
 
-def readme_flag_ranges() -> dict[str, tuple[float, float]]:
-    """Flag -> (low, high) of every `A to B` range in README.md's flag table."""
+def flag_rows(doc: str) -> list[list[str]]:
+    return table_rows(ROOT / doc, "| flag | meaning |", FLAG_TABLES[doc])
+
+
+def flag_ranges(doc: str) -> dict[str, tuple[float, float]]:
+    """Flag -> (low, high) of every `A to B` range in the doc's flag table."""
     found: dict[str, tuple[float, float]] = {}
-    for flag_cell, meaning in table_rows(ROOT / "README.md", "| flag | meaning |"):
+    for flag_cell, meaning in flag_rows(doc):
         flags = re.findall(r"--[a-z-]+", flag_cell)
         # "0 (none) to 16": a bound may be followed by a word in brackets.
         match = re.search(rf"({_NUMBER})(?: \([^)]*\))? to ({_NUMBER})\b", meaning)
@@ -70,9 +84,9 @@ def readme_flag_ranges() -> dict[str, tuple[float, float]]:
     return found
 
 
-def readme_flag_choices() -> dict[str, tuple[str, ...]]:
+def flag_choices(doc: str) -> dict[str, tuple[str, ...]]:
     """Flag -> the choices its metavar lists (`--png-bits 8\\|16`)."""
-    rows = table_rows(ROOT / "README.md", "| flag | meaning |")
+    rows = flag_rows(doc)
     choice = re.compile(r"`(--[a-z-]+) (\w+(?:\\\|\w+)+)`")
     return {m.group(1): tuple(m.group(2).split("\\|"))
             for cell, _ in rows if (m := choice.fullmatch(cell))}
@@ -85,22 +99,43 @@ def test_number_reads_the_docs_forms() -> None:
     assert number("2^32-1") == 2**32 - 1
 
 
+@pytest.mark.parametrize("doc", sorted(FLAG_TABLES))
 @pytest.mark.parametrize("flag", sorted(FLAG_KEYS))
-def test_readme_flag_range_is_the_code_range(flag: str) -> None:
-    ranges = readme_flag_ranges()
-    assert flag in ranges, f"README.md's flag table gives no 'A to B' range for {flag}"
+def test_flag_range_is_the_code_range(doc: str, flag: str) -> None:
+    ranges = flag_ranges(doc)
+    assert flag in ranges, f"{doc}'s flag table gives no 'A to B' range for {flag}"
     assert ranges[flag] == code_range(FLAG_KEYS[flag])
 
 
-def test_readme_flag_choices_are_the_code_choices() -> None:
-    choices = readme_flag_choices()
+@pytest.mark.parametrize("doc", sorted(FLAG_TABLES))
+def test_flag_choices_are_the_code_choices(doc: str) -> None:
+    choices = flag_choices(doc)
     assert choices["--png-bits"] == tuple(map(str, limits.PNG_BITS))
     assert choices["--precision"] == limits.PRECISIONS
 
 
-def test_every_readme_range_is_checked() -> None:
-    """A range added to the flag table for a flag this test does not know must be added here."""
-    assert set(readme_flag_ranges()) == set(FLAG_KEYS)
+def accepts(flag: str, value: float) -> bool:
+    """Whether `clray render` takes `flag value` (a local cluster's flags with --dask)."""
+    text = str(int(value)) if value == int(value) else str(value)
+    try:
+        _build_parser().parse_args(["render", "scene.toml", "--dask", flag, text])
+    except SystemExit:
+        return False
+    return True
+
+
+@pytest.mark.parametrize("flag", sorted(PARSER_RANGES))
+def test_cli_only_range_is_the_parser_range(flag: str) -> None:
+    low, high = flag_ranges("docs/cli.md")[flag]
+    step = 1 if low == int(low) and high == int(high) else low / 2
+    assert accepts(flag, low) and accepts(flag, high)
+    assert not accepts(flag, low - step) and not accepts(flag, high + step)
+
+
+@pytest.mark.parametrize("doc", sorted(FLAG_TABLES))
+def test_every_flag_range_is_checked(doc: str) -> None:
+    """A range added to a flag table for a flag this test does not know must be added here."""
+    assert set(flag_ranges(doc)) - PARSER_RANGES == set(FLAG_KEYS)
 
 
 @pytest.mark.parametrize("key", [*limits.RENDER_INTEGERS, *limits.RENDER_NUMBERS])

@@ -1,4 +1,4 @@
-# `make demo` renders the example scene, `make test` runs the tests; both first run
+# `make demo` renders the example scene (16 samples a pixel: smooth edges), `make test` runs the tests; both first run
 # scripts/setup.sh, which installs whatever is missing and is quick when nothing is.
 PYTHON_VENV := .venv/bin/python
 # Written by scripts/setup_intel_opencl.sh (opt-in; CI runs it): the system's OpenCL drivers plus
@@ -11,7 +11,7 @@ setup:
 	@bash scripts/setup.sh
 
 demo: setup
-	$(PYTHON_VENV) -m clray render scenes/spheres.toml -o spheres.png
+	$(PYTHON_VENV) -m clray render scenes/spheres.toml --spp 16 -o spheres.png
 
 test: setup
 	@if [ -d "$(ICD_VENDORS)" ] && [ -z "$${OCL_ICD_VENDORS:-}" ]; then \

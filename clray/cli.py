@@ -9,10 +9,14 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import errno
 import functools
 import json
 import os
 import secrets
+import select
+import stat
+import struct
 import sys
 import time
 import warnings
@@ -322,31 +326,34 @@ def _build_parser() -> _Parser:
 
 
 def _model_flags(parser: argparse.ArgumentParser) -> None:
-    from clray.model_scene import VIEWS
+    from clray.model_scene import DEFAULT_VIEW, VIEWS
 
-    parser.add_argument("--view", choices=tuple(VIEWS), default="three-quarter",
+    # Default None, not DEFAULT_VIEW: render refuses --view with a scene file, whose own
+    # [camera] sets the view, and so must see whether it was given.
+    parser.add_argument("--view", choices=tuple(VIEWS), default=None,
                         help="a mesh file's automatic camera: where it looks from "
-                             "(default: three-quarter)")
+                             f"(default: {DEFAULT_VIEW})")
     parser.add_argument("--ground", action="store_true",
                         help="a mesh file's automatic scene: add a ground plane under it")
 
 
 def _load(args: argparse.Namespace) -> Scene:
     """The scene file, or a mesh file's automatic scene."""
-    from clray.model_scene import is_mesh_file, load_model_scene
+    from clray.model_scene import DEFAULT_VIEW, is_mesh_file, load_model_scene
 
     if is_mesh_file(args.scene):
-        return load_model_scene(args.scene, args.view, args.ground)
+        return load_model_scene(args.scene, args.view or DEFAULT_VIEW, args.ground)
     return load_scene(args.scene)
 
 
 def _scene(args: argparse.Namespace) -> int:
-    from clray.model_scene import is_mesh_file, model_scene_data, to_toml
+    from clray.model_scene import DEFAULT_VIEW, is_mesh_file, model_scene_data, to_toml
 
     if not is_mesh_file(args.model):
         raise SceneError(args.model, None, "expected a mesh file (.obj, .ply, .npz)")
-    data = model_scene_data(args.model, args.view, args.ground)
-    header = (f"The automatic scene of {args.model.as_posix()} (clray scene --view {args.view}"
+    view = args.view or DEFAULT_VIEW
+    data = model_scene_data(args.model, view, args.ground)
+    header = (f"The automatic scene of {args.model.as_posix()} (clray scene --view {view}"
               f"{' --ground' if args.ground else ''}).")
     _to_stdout(to_toml(data, header).encode("utf-8"))
     return EXIT_OK
@@ -364,6 +371,7 @@ def _parse(argv: list[str] | None) -> argparse.Namespace:
             parser.error("--frames writes files: give -o and --stats-json file names")
         if args.resume and args.frames is None:
             parser.error("--resume applies to --frames")
+        _check_still_output(parser, args)
         if args.stats_json == STDOUT and args.output == STDOUT:
             parser.error("-o - and --stats-json - would both write to standard output")
         if args.stats_json is not None and _same_file(args.stats_json, args.output):
@@ -377,6 +385,24 @@ def _parse(argv: list[str] | None) -> argparse.Namespace:
     return args
 
 
+def _check_still_output(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
+    """Flags that a render would otherwise accept and ignore are refused with the reason."""
+    from clray.model_scene import is_mesh_file
+    from clray.sequence import frame_path
+
+    if not is_mesh_file(args.scene):
+        given = [flag for flag, on in (("--view", args.view is not None),
+                                       ("--ground", args.ground)) if on]
+        if given:
+            verb = "applies" if len(given) == 1 else "apply"
+            parser.error(f"{' and '.join(given)} {verb} to a mesh file (.obj, .ply, .npz); "
+                         f"{args.scene} is a scene file, whose [camera] and objects are its own")
+    if (args.frames is None and args.output != STDOUT
+            and frame_path(args.output, 0) != frame_path(args.output, 1)):
+        parser.error(f"-o {args.output} holds a frame number: give --frames A:B to render "
+                     "frames, or a name without % for a still")
+
+
 def _same_file(a: Path, b: Path) -> bool:
     return os.path.abspath(a) == os.path.abspath(b)
 
@@ -385,6 +411,32 @@ def _to_stdout(payload: bytes) -> None:
     sys.stdout.flush()
     sys.stdout.buffer.write(payload)
     sys.stdout.buffer.flush()
+    try:
+        fd = sys.stdout.fileno()
+    except OSError:  # io.UnsupportedOperation: stdout replaced by an object without a file
+        return
+    _wait_until_read(fd)
+
+
+def _wait_until_read(fd: int) -> None:
+    """Into a pipe, return once the reader has taken every byte; raise BrokenPipeError where it
+    closed the pipe first. A write succeeds as soon as the bytes fit the pipe's buffer (64 KiB
+    on Linux), so without this `-o - | head -c 10` would exit 0 and `-o - | true` 1, by timing
+    alone; now both are the same closed pipe, exit 1. Elsewhere (a file, a terminal, a system
+    without FIONREAD) the write itself is the answer."""
+    if not stat.S_ISFIFO(os.fstat(fd).st_mode) or not hasattr(select, "poll"):
+        return
+    import fcntl
+    import termios
+
+    watch = select.poll()
+    watch.register(fd, select.POLLERR)  # a pipe's write end reports POLLERR once unread
+    while True:
+        unread = struct.unpack("i", fcntl.ioctl(fd, termios.FIONREAD, b"\0" * 4))[0]
+        if unread == 0:
+            return
+        if watch.poll(50):
+            raise BrokenPipeError(errno.EPIPE, os.strerror(errno.EPIPE))
 
 
 def _say(message: str) -> None:
@@ -393,18 +445,17 @@ def _say(message: str) -> None:
 
 def _check_writable(path: Path) -> None:
     """Before rendering, so that a typo in -o or a read-only folder does not cost a whole
-    render: the folder must exist and take a new file, which a probe file (removed at once)
-    shows more reliably than permission bits (root, read-only mounts, ACLs)."""
+    render: the folder (made where missing) must take a new file, which a probe file (removed
+    at once) shows more reliably than permission bits (root, read-only mounts, ACLs)."""
     path = output_target(path)
     if is_special_file(path):
         if not os.access(path, os.W_OK):
             raise ClrayError(f"cannot write {path}: permission denied")
         return
     folder = path.parent
+    _make_folder(path, folder)
     probe = folder / f".{path.name[:100]}.{os.getpid()}.{secrets.token_hex(4)}.probe"
     try:
-        if not folder.is_dir():
-            raise ClrayError(f"cannot write {path}: directory {folder} does not exist")
         if path.is_dir():
             raise ClrayError(f"cannot write {path}: it is a directory")
         # The name itself may be refused (too long, a NUL byte) where the probe's is not.
@@ -418,6 +469,21 @@ def _check_writable(path: Path) -> None:
         os.unlink(probe)
     except OSError as err:
         raise ClrayError(f"cannot write {path}: {err.strerror or err}") from err
+
+
+def _make_folder(path: Path, folder: Path) -> None:
+    """The output's folder, made with its parents where missing (`-o out/frame_%04d.png` in a
+    fresh checkout), as users of other renderers expect; an existing file on the way is named."""
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except (FileExistsError, NotADirectoryError):
+        blocking = next((p for p in (folder, *folder.parents) if p.exists() and not p.is_dir()),
+                        folder)
+        raise ClrayError(f"cannot write {path}: {blocking} is a file, not a directory"
+                         ) from None
+    except OSError as err:
+        raise ClrayError(f"cannot write {path}: cannot make directory {folder}: "
+                         f"{err.strerror or err}") from err
 
 
 def _write(path: Path, write: Callable[[], None]) -> None:

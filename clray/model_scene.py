@@ -22,6 +22,7 @@ from clray.scene.model import Mesh, Scene, unit
 
 MESH_SUFFIXES = (".obj", ".ply", ".npz")
 # Unit directions from the model's centre to the camera, and the camera's up.
+DEFAULT_VIEW = "three-quarter"
 VIEWS: dict[str, tuple[tuple[float, float, float], tuple[float, float, float]]] = {
     # 45 degrees round from the front, 25 degrees up: the usual three-quarter view.
     "three-quarter": ((0.6409, 0.4226, 0.6409), (0.0, 1.0, 0.0)),
@@ -44,7 +45,7 @@ def is_mesh_file(path: Path) -> bool:
     return path.suffix.lower() in MESH_SUFFIXES
 
 
-def model_scene_data(path: Path, view: str = "three-quarter", ground: bool = False) -> dict:
+def model_scene_data(path: Path, view: str = DEFAULT_VIEW, ground: bool = False) -> dict:
     """Scene data for the mesh file `path` (relative names are relative to the working
     directory, and written so)."""
     name = path.as_posix()
@@ -89,7 +90,7 @@ def model_scene_data(path: Path, view: str = "three-quarter", ground: bool = Fal
     return data
 
 
-def load_model_scene(path: Path, view: str = "three-quarter", ground: bool = False) -> Scene:
+def load_model_scene(path: Path, view: str = DEFAULT_VIEW, ground: bool = False) -> Scene:
     return scene_from_dict(model_scene_data(path, view, ground))
 
 

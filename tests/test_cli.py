@@ -189,13 +189,6 @@ def test_unknown_device_exits_4(capsys, scene, tmp_path) -> None:
     assert files_in(tmp_path) == ["scene.toml"]
 
 
-def test_output_directory_missing_exits_1_before_rendering(capsys, scene, tmp_path) -> None:
-    code, _, err = run(capsys, "render", scene, "-o", tmp_path / "no" / "out.png")
-    assert code == 1
-    assert_one_error_line(err)
-    assert str(tmp_path / "no" / "out.png") in err
-
-
 def test_unwritable_output_exits_1_and_leaves_no_temp_file(capsys, cl_device, scene,
                                                            tmp_path) -> None:
     (tmp_path / "taken.png").mkdir()  # a directory where the image should go
@@ -553,3 +546,103 @@ def test_closed_stdout_is_not_a_traceback(cl_device, unbuffered: str) -> None:
         os.close(write_end)
     assert done.returncode == 1
     assert done.stderr == ""
+
+
+def test_missing_output_folders_are_made(cl_device, scene, tmp_path, capsys) -> None:
+    code, _, err = run(capsys, "render", scene, *TINY, "-o", tmp_path / "out" / "deep" / "a.png")
+    assert code == 0, err
+    assert Image.open(tmp_path / "out" / "deep" / "a.png").size == (32, 24)
+
+
+def test_missing_frame_folders_are_made(cl_device, tmp_path, capsys, monkeypatch) -> None:
+    monkeypatch.chdir(tmp_path)
+    pattern = tmp_path / "frames" / "orbit_%04d.png"
+    code, _, err = run(capsys, "render", ROOT / "scenes" / "orbit.toml", *TINY,
+                       "--frames", "0:2", "-o", pattern)
+    assert code == 0, err
+    assert sorted(p.name for p in (tmp_path / "frames").iterdir()) == ["orbit_0000.png",
+                                                                       "orbit_0001.png"]
+
+
+def test_a_file_in_the_output_path_is_named(scene, tmp_path, capsys) -> None:
+    (tmp_path / "afile").write_text("not a folder")
+    code, _, err = run(capsys, "render", scene, *TINY, "-o", tmp_path / "afile" / "x.png")
+    assert code == 1
+    assert_one_error_line(err)
+    assert f"{tmp_path / 'afile'} is a file, not a directory" in err
+
+
+@pytest.mark.parametrize("flags", [["--view", "front"], ["--ground"],
+                                   ["--view", "top", "--ground"]])
+def test_mesh_flags_with_a_scene_file_are_refused(scene, capsys, flags) -> None:
+    code, out, err = run(capsys, "render", scene, *TINY, *flags)
+    assert code == EXIT_USAGE and out == ""
+    assert_one_error_line(err)
+    assert "to a mesh file" in err and "is a scene file" in err
+    assert not list(scene.parent.glob("*.png"))
+
+
+def test_a_frame_pattern_without_frames_is_refused(scene, tmp_path, capsys) -> None:
+    code, _, err = run(capsys, "render", scene, *TINY, "-o", tmp_path / "x_%04d.png")
+    assert code == EXIT_USAGE
+    assert_one_error_line(err)
+    assert "holds a frame number: give --frames" in err
+    assert not list(tmp_path.glob("x_*"))
+
+
+def test_a_percent_sign_in_a_still_name_is_kept(cl_device, scene, tmp_path, capsys) -> None:
+    code, _, err = run(capsys, "render", scene, *TINY, "-o", tmp_path / "100%.png")
+    assert code == 0, err
+    assert (tmp_path / "100%.png").is_file()
+
+
+@pytest.mark.parametrize("reader", ["head -c 10", "true", "sleep 0.5"])
+def test_a_reader_that_leaves_early_is_one_exit_code(cl_device, scene, reader) -> None:
+    # Whether the reader closes the pipe before clray writes (true), after taking part of the
+    # image (head), or without reading (sleep), the image did not arrive: exit 1, one line.
+    shell = (f"{sys.executable} -m clray render {scene} {' '.join(TINY)} -o - | "
+             f"{reader} > /dev/null; exit ${{PIPESTATUS[0]}}")
+    done = subprocess.run(["bash", "-c", shell], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 1, done.stderr
+    assert done.stderr == "clray: error: cannot write -: Broken pipe\n"
+
+
+def test_a_reader_that_takes_everything_gets_exit_0(cl_device, scene) -> None:
+    shell = (f"{sys.executable} -m clray render {scene} {' '.join(TINY)} -o - | "
+             "(sleep 0.3; cat) | wc -c; exit ${PIPESTATUS[0]}")
+    done = subprocess.run(["bash", "-c", shell], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    assert int(done.stdout) > 100 and "wrote -" in done.stderr
+
+
+def test_the_demo_is_anti_aliased() -> None:
+    # The first picture a newcomer sees: several samples a pixel, not jagged 1-spp edges.
+    recipe = subprocess.run(["make", "-n", "demo"], cwd=ROOT, capture_output=True, text=True,
+                            check=True).stdout
+    render_line = next(line for line in recipe.splitlines() if "clray render" in line)
+    spp = re.search(r"--spp (\d+)", render_line)
+    assert spp and int(spp.group(1)) >= 4, render_line
+
+
+@pytest.mark.parametrize(("objects", "lights", "material", "warning"), [
+    (False, True, "", "the scene has no objects: the image is the background alone"),
+    (True, False, "", "no lights and no material with ambient or emission: every object "
+                      "renders black"),
+    (True, False, "ambient = 0.2", "the scene has no lights: surfaces show only their ambient"),
+    (True, True, "", None),
+])
+def test_a_scene_that_renders_black_says_why(cl_device, tmp_scene, tmp_path, capsys, objects,
+                                             lights, material, warning) -> None:
+    text = ("[camera]\nposition = [0, 0, 5]\nlook_at = [0, 0, 0]\n"
+            f"[materials.red]\ncolor = [1, 0, 0]\n{material}\n")
+    if lights:
+        text += '[[lights]]\ntype = "point"\nposition = [2, 2, 2]\n'
+    if objects:
+        text += '[[objects]]\ntype = "sphere"\ncenter = [0, 0, 0]\nradius = 1\nmaterial = "red"\n'
+    code, _, err = run(capsys, "render", tmp_scene(text), *TINY, "-o", tmp_path / "x.png")
+    assert code == 0, err
+    warnings_seen = [line for line in err.splitlines() if "warning" in line]
+    if warning is None:
+        assert warnings_seen == []
+    else:
+        assert len(warnings_seen) == 1 and warning in warnings_seen[0]

@@ -120,10 +120,24 @@ def _scene(data: Any, v: Values, assets: Assets) -> tuple[Scene, Animation | Non
     if glowing and len(lights) + glowing > L.MAX_LIGHTS:
         raise v.error("objects", f"{glowing} emissive triangles and {len(lights)} lights are "
                       f"over the limit of {L.MAX_LIGHTS} lights")
-    scene = dataclasses.replace(scene, warnings=(*assets.warnings, *scene_warnings(scene)))
+    scene = dataclasses.replace(scene, warnings=(*assets.warnings, *content_warnings(scene),
+                                                 *scene_warnings(scene)))
     object.__setattr__(scene, "checked", True)  # frozen: the one field the loader sets
     animation = _animation(data, v, assets) if "animation" in data else None
     return scene, animation
+
+
+def content_warnings(scene: Scene) -> tuple[str, ...]:
+    """What makes a valid scene render black or empty, said before the render rather than
+    left for the user to find in the image: no objects, or nothing to light them."""
+    if not scene.objects:
+        return ("the scene has no objects: the image is the background alone",)
+    if scene.lights:
+        return ()
+    if any(m.ambient > 0 or any(m.emission) for m in scene.materials):
+        return ("the scene has no lights: surfaces show only their ambient term and emission",)
+    return ("the scene has no lights and no material with ambient or emission: every object "
+            "renders black",)
 
 
 def _animation(data: dict, v: Values, assets: Assets) -> Animation:

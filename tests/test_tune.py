@@ -316,3 +316,65 @@ def test_study_variants_are_tried_under_allow_error_and_rejected_beyond_it(
     assert all(not t.verified and "by over 0.0001" in t.problem for t in schlick)
     best = tuner_module.best_configuration(trials, ["fresnel"])
     assert not best[1]["fresnel"].tuning.fresnel_schlick
+
+
+def test_plot_keeps_long_configuration_labels_inside_the_figure() -> None:
+    pytest.importorskip("matplotlib", reason="plots are the 'plot' extra")
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from clray.tuning import report
+
+    many = Tuning(work_group_width=128, bvh_width=8, traversal_cost=2.5, max_leaf_size=8,
+                  largest_leaf=32, fold_packets=8, cl_mad_enable=True,
+                  cl_unsafe_math_optimizations=True, sphere_textbook=True,
+                  triangle_moller_trumbore=True, launch_seconds=0.5)
+    trials = [tuner_module.Trial(scene, tuning, ms, [ms], 100.0, True, 0)
+              for scene in ("spheres", "fresnel")
+              for tuning, ms in ((Tuning(), 3.0), (many, 2.0), (Tuning(work_group_width=16), 2.5))]
+    fig = report.plot_figure(trials, trials[1].key())
+    renderer = fig.canvas.get_renderer()
+    texts = [t for ax in fig.axes for t in (*ax.get_yticklabels(), ax.xaxis.label, ax.title)]
+    assert any("launch_seconds=0.5" in t.get_text() for t in texts)
+    for text in texts:
+        box = text.get_window_extent(renderer)
+        assert fig.bbox.x0 <= box.x0 and box.x1 <= fig.bbox.x1, text.get_text()
+        assert fig.bbox.y0 <= box.y0 and box.y1 <= fig.bbox.y1, text.get_text()
+    plt.close(fig)
+
+
+def confirmation(ratios: list[float]) -> dict:
+    """A confirm() record whose rounds' paired ratios (default / tuned) are `ratios`."""
+    return {"round_ratios": tuner_module._quartiles(ratios)}
+
+
+@pytest.mark.parametrize(("ratios", "stored"), [
+    ([1.30, 1.25, 1.35, 1.28, 1.31], True),  # every round faster: a gain
+    ([1.20, 0.90, 1.10, 0.95, 1.05], False),  # median 1.05x, half the rounds slower: noise
+    ([2.00, 0.99, 1.01, 1.00, 1.02], False),  # one lucky round claims 2x
+    ([0.90, 0.92, 0.88, 0.91, 0.93], False),  # slower
+])
+def test_a_winner_is_stored_only_beyond_the_renders_own_spread(ratios, stored) -> None:
+    verdict = tuner_module.confirmed_gain([confirmation(ratios)])
+    assert verdict["beyond_spread"] is stored
+    lower, upper = verdict["spread"]
+    assert lower <= verdict["gain"] <= upper
+    assert verdict["gain"] == pytest.approx(sorted(ratios)[2])
+
+
+def test_every_scene_counts_in_the_verdict() -> None:
+    # A clear gain on one scene and a loss on the other: the geometric means decide.
+    gain = confirmation([1.5, 1.5, 1.5, 1.5])
+    loss = confirmation([0.6, 0.6, 0.6, 0.6])
+    assert not tuner_module.confirmed_gain([gain, loss])["beyond_spread"]
+    assert tuner_module.confirmed_gain([gain, gain])["beyond_spread"]
+    assert tuner_module.confirmed_gain([gain, {"round_ratios": None}])["gain"] is None
+
+
+def test_an_image_too_small_to_time_is_warned_of(kernel_tuner, cl_device, tmp_path) -> None:
+    tuner = tuner_module.Tuner(cl_device, tmp_path, space=TWO, size=SIZE)
+    with pytest.warns(UserWarning, match=r"spheres: the default renders 48x27 in .* ms, too "
+                                         r"short to time .* tune at the size you render"):
+        tuner.prepare(SPHERES)

@@ -7,10 +7,14 @@ from __future__ import annotations
 import json
 from collections.abc import Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from clray.image_io import write_bytes_atomically
 from clray.tuning.knobs import DEFAULT_TUNING
 from clray.tuning.tuner import Trial
+
+if TYPE_CHECKING:
+    import matplotlib.figure
 
 PLOT_NAME = "tune.png"
 
@@ -40,9 +44,53 @@ def write_results(out: Path, header: dict, trials: Sequence[Trial]) -> Path:
     return path
 
 
+# Characters a line of a bar's label holds; longer labels wrap between knobs. An unwrapped label
+# of many knobs is wider than the figure, and matplotlib then cuts it at the left edge.
+LABEL_WIDTH = 48
+_LINE_IN = 0.13  # inches a line of the labels' 7-point text takes, with its leading
+
+
+def wrapped(text: str, width: int = LABEL_WIDTH) -> str:
+    """`text`, a label's comma-separated knobs, on lines of at most `width` characters where
+    the knobs allow (a knob longer than a line keeps a line of its own)."""
+    lines: list[str] = []
+    for part in text.split(", "):
+        if lines and len(lines[-1]) + 2 + len(part) <= width:
+            lines[-1] += ", " + part
+        else:
+            lines.append(part)
+    return ",\n".join(lines)
+
+
+def plot_figure(trials: Sequence[Trial], best_key: str | None) -> matplotlib.figure.Figure:
+    """Per scene, every verified configuration's kernel time, fastest first, the default and
+    the best coloured, each bar as tall as its label's lines need."""
+    import matplotlib.pyplot as plt
+
+    scenes = list(dict.fromkeys(t.scene for t in trials))
+    rows = {s: sorted((t for t in trials if t.scene == s and t.verified), key=lambda t: t.time_ms)
+            for s in scenes}
+    labels = {s: [wrapped(label(t)) for t in rows[s]] for s in scenes}
+    row_in = _LINE_IN * max((lab.count("\n") + 1 for ls in labels.values() for lab in ls),
+                            default=1) + 0.15
+    # Inches per scene: its title and time axis, and its bars.
+    heights = [1.2 + row_in * max(len(rows[s]), 1) for s in scenes]
+    fig, axes = plt.subplots(len(scenes), 1, squeeze=False, figsize=(9, sum(heights)),
+                             height_ratios=heights)
+    for ax, scene in zip(axes[:, 0], scenes, strict=True):
+        colours = ["tab:orange" if _is_default(t) else "tab:green" if t.key() == best_key
+                   else "tab:blue" for t in rows[scene]]
+        ax.barh(range(len(rows[scene])), [t.time_ms for t in rows[scene]], color=colours)
+        ax.set_yticks(range(len(rows[scene])), labels[scene], fontsize=7)
+        ax.invert_yaxis()
+        ax.set_xlabel("kernel ms (median of Kernel Tuner's runs; orange: default, green: best)")
+        ax.set_title(scene)
+    fig.tight_layout()
+    return fig
+
+
 def plot(out: Path, trials: Sequence[Trial], best_key: str | None) -> bool:
-    """DIR/tune.png: per scene, every verified configuration's kernel time, fastest first, the
-    default and the best coloured; False where matplotlib is missing."""
+    """DIR/tune.png, plot_figure's; False where matplotlib is missing."""
     try:
         import matplotlib
 
@@ -50,20 +98,7 @@ def plot(out: Path, trials: Sequence[Trial], best_key: str | None) -> bool:
         import matplotlib.pyplot as plt
     except ImportError:
         return False
-    scenes = list(dict.fromkeys(t.scene for t in trials))
-    fig, axes = plt.subplots(len(scenes), 1, figsize=(9, 1.5 + 0.28 * max(
-        sum(t.scene == s and t.verified for t in trials) for s in scenes)), squeeze=False)
-    for ax, scene in zip(axes[:, 0], scenes, strict=True):
-        rows = sorted((t for t in trials if t.scene == scene and t.verified),
-                      key=lambda t: t.time_ms)
-        colours = ["tab:orange" if _is_default(t) else "tab:green" if t.key() == best_key
-                   else "tab:blue" for t in rows]
-        ax.barh(range(len(rows)), [t.time_ms for t in rows], color=colours)
-        ax.set_yticks(range(len(rows)), [label(t) for t in rows], fontsize=7)
-        ax.invert_yaxis()
-        ax.set_xlabel("kernel ms (median of Kernel Tuner's runs; orange: default, green: best)")
-        ax.set_title(scene)
-    fig.tight_layout()
+    fig = plot_figure(trials, best_key)
     fig.savefig(out / PLOT_NAME, dpi=110)
     plt.close(fig)
     return True

@@ -4,7 +4,6 @@ results, report and plot written to the output folder."""
 
 from __future__ import annotations
 
-import math
 import sys
 import time
 from collections.abc import Callable, Sequence
@@ -17,7 +16,14 @@ from clray.scene.load import load_scene
 from clray.tuning import report
 from clray.tuning.knobs import DEFAULT_TUNING, IMAGE_KNOBS, Tuning
 from clray.tuning.store import save_tuning
-from clray.tuning.tuner import PIXEL_TOLERANCE, Trial, Tuner, best_configuration, confirm
+from clray.tuning.tuner import (
+    PIXEL_TOLERANCE,
+    Trial,
+    Tuner,
+    best_configuration,
+    confirm,
+    confirmed_gain,
+)
 
 
 class _Progress:
@@ -46,6 +52,14 @@ class _Progress:
     def close(self) -> None:
         if self.bar is not None:
             self.bar.close()
+
+
+def _verdict_text(verdict: dict) -> str:
+    if verdict["gain"] is None:
+        return "the interleaved renders were too few to measure a spread"
+    lower, upper = verdict["spread"]
+    return (f"{verdict['gain']:.3f}x in interleaved renders, within their own spread "
+            f"(rounds' middle half {lower:.3f}x to {upper:.3f}x)")
 
 
 def run_tune(paths: Sequence[Path], out: Path, *, device: str | None = None,
@@ -90,13 +104,15 @@ def run_tune(paths: Sequence[Path], out: Path, *, device: str | None = None,
         confirmed = [confirm(runs[s], winner.tuning, cl_device) for s in scenes]
         header["confirmed"] = confirmed
         # Kernel Tuner times one launch over the whole image; renders launch in bands. Where
-        # the interleaved renders do not confirm the gain, the defaults are what is stored.
-        gain = math.prod(c["speedup"] for c in confirmed) ** (1 / len(confirmed))
-        stored = winner.tuning if gain >= 1 else DEFAULT_TUNING
+        # the interleaved renders do not show the gain beyond their own spread, the defaults
+        # are what is stored.
+        verdict = confirmed_gain(confirmed)
+        header["confirmed_gain"] = verdict
+        stored = winner.tuning if verdict["beyond_spread"] else DEFAULT_TUNING
         header["stored"] = stored.values()
-        if stored is DEFAULT_TUNING:
-            say(f"best in Kernel Tuner's runs: {header['best']['label']}, but slower than the "
-                f"default in interleaved renders ({gain:.3f}x): storing the defaults")
+        if stored is DEFAULT_TUNING and winner.tuning != DEFAULT_TUNING:
+            say(f"best in Kernel Tuner's runs: {header['best']['label']}, but "
+                f"{_verdict_text(verdict)}: storing the defaults")
         # A winner that needs a switch outside the knob table (a test's) is not stored.
         if save and not any(winner.extra.values()):
             header["tuning_file"] = str(save_tuning(cl_device, stored, {

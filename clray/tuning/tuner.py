@@ -68,6 +68,9 @@ ITERATIONS = 7  # timed launches per configuration, Kernel Tuner's default
 # A Kernel Tuner run needs a few seconds of budget to start (a compile, a reference launch).
 MIN_RUN_BUDGET_S = 2.0
 CONFIRM_ROUNDS = 5
+# A render shorter than this is timed mostly as noise: at 160x90 (about 1 ms on a 2-core CPU)
+# Kernel Tuner's table claimed 2.00x that interleaved renders measured at 1.02x.
+MIN_TIMED_KERNEL_S = 0.02
 # The confirming renders' rounds grow until each side renders for about this long (at most
 # MAX_CONFIRM_ROUNDS): 5 rounds of 10 ms renders on a shared 2-core machine confirmed gains of
 # 1.47x and 1.64x that 40 rounds measured at 0.99x and 1.01x.
@@ -311,7 +314,13 @@ class Tuner:
         settings = RenderSettings(width=self.size[0], height=self.size[1],
                                   tuning=DEFAULT_TUNING)
         packed = pack_for(scene, settings, self.device)
-        reference, _ = render_packed(packed, self.device)
+        reference, stats = render_packed(packed, self.device)
+        if stats["kernel_s"] < MIN_TIMED_KERNEL_S:
+            height, width = reference.shape[:2]
+            warnings.warn(f"{path.stem}: the default renders {width}x{height} in "
+                          f"{stats['kernel_s'] * 1e3:.2g} ms, too short to time against the "
+                          f"machine's noise (under {MIN_TIMED_KERNEL_S * 1e3:.0f} ms): tune at "
+                          "the size you render, or larger (-W, -H)", stacklevel=2)
         return SceneRun(path.stem, path, settings, reference, packed, scene.render.spp)
 
     def tolerance(self, reference: np.ndarray) -> Tolerance:
@@ -551,6 +560,35 @@ def confirm(run: SceneRun, tuning: Tuning, device: cl.Device,
         for name, packed in (("default", run.default_packed), ("tuned", tuned)):
             times[name].append(render_packed(packed, device)[1]["kernel_s"])
     default_s, tuned_s = (statistics.median(times[n]) for n in ("default", "tuned"))
+    # Each round's pair ran back to back, so its ratio sees the same machine load: the spread
+    # of the ratios is the measurement's own noise.
+    ratios = [d / t for d, t in zip(times["default"], times["tuned"], strict=True) if t > 0]
     return {"scene": run.name, "rounds": rounds, "default_kernel_s": default_s,
             "tuned_kernel_s": tuned_s, "speedup": default_s / tuned_s if tuned_s else None,
+            "round_ratios": _quartiles(ratios),
             "default_runs_s": times["default"], "tuned_runs_s": times["tuned"]}
+
+
+def _quartiles(values: Sequence[float]) -> list[float] | None:
+    """[lower quartile, median, upper quartile], or None for fewer than two values."""
+    if len(values) < 2:
+        return None
+    lower, median, upper = statistics.quantiles(values, n=4, method="inclusive")
+    return [lower, median, upper]
+
+
+def confirmed_gain(confirmed: Sequence[dict]) -> dict:
+    """The interleaved renders' verdict on a winner, over every scene (geometric means): its
+    median gain, the rounds' middle half, and whether the gain stands beyond that spread,
+    which it does where the tuned render was faster in at least three rounds of four (the
+    lower quartile of the paired ratios above 1). A gain inside the spread is noise: storing
+    it would change every later render on the device for nothing."""
+    spans = [c["round_ratios"] for c in confirmed if c.get("round_ratios")]
+    if not spans or len(spans) < len(confirmed):
+        return {"gain": None, "spread": None, "beyond_spread": False}
+
+    def mean(values: list[float]) -> float:
+        return math.prod(values) ** (1 / len(values))
+
+    lower, gain, upper = (mean([span[i] for span in spans]) for i in range(3))
+    return {"gain": gain, "spread": [lower, upper], "beyond_spread": lower > 1}

@@ -1068,14 +1068,40 @@ def test_texture_modes_keep_their_scale(tmp_path, array, expected):
     assert np.allclose(image, expected, atol=1e-7)
 
 
-def test_truncated_texture_is_a_scene_error(tmp_path):
+@pytest.mark.parametrize("name", ["t.png", "t.jpg", "t.bmp"])
+def test_truncated_texture_is_a_scene_error_that_says_so(tmp_path, name):
     from PIL import Image
 
-    Image.new("RGB", (64, 64), (10, 20, 30)).save(tmp_path / "t.png")
-    data = (tmp_path / "t.png").read_bytes()
-    (tmp_path / "t.png").write_bytes(data[: len(data) // 2])
+    pixels = np.random.default_rng(0).integers(0, 256, (64, 64, 3), dtype=np.uint8)
+    Image.fromarray(pixels).save(tmp_path / name)
+    data = (tmp_path / name).read_bytes()
+    (tmp_path / name).write_bytes(data[: len(data) // 2])
+    message = load_error_at(texture_scene(name), tmp_path)
+    # Pillow's "OSError: image file is truncated" named a Python class, not the problem.
+    assert message == (f"scene.toml: materials.m0.texture.file: cannot read image {name}: "
+                       "the file is truncated (it ends before its image data does)")
+
+
+def test_texture_in_no_known_format_says_so_without_naming_a_stream(tmp_path):
+    (tmp_path / "t.png").write_bytes(b"\x89PNG\r\n\x1a\n but no chunks")
     message = load_error_at(texture_scene("t.png"), tmp_path)
-    assert message.startswith("scene.toml: materials.m0.texture.file: cannot read image t.png: ")
+    assert message == ("scene.toml: materials.m0.texture.file: cannot read image t.png: not an "
+                       "image in a format Pillow reads, or its header is damaged")
+
+
+def test_damaged_texture_data_is_told_in_pillows_words_without_its_class(tmp_path):
+    from PIL import Image
+
+    pixels = np.random.default_rng(0).integers(0, 256, (64, 64, 3), dtype=np.uint8)
+    Image.fromarray(pixels).save(tmp_path / "t.jpg")
+    data = bytearray((tmp_path / "t.jpg").read_bytes())
+    data[len(data) // 2 : len(data) // 2 + 20] = b"\xff" * 20
+    (tmp_path / "t.jpg").write_bytes(bytes(data))
+    message = load_error_at(texture_scene("t.jpg"), tmp_path)
+    # Pillow's own words in the brackets, e.g. "broken data stream when reading image file".
+    assert message.startswith("scene.toml: materials.m0.texture.file: cannot read image t.jpg: "
+                              "the image data is damaged or unsupported (")
+    assert "Error" not in message
 
 
 def test_c_library_messages_while_decoding_become_warning_text(capfd):

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import struct
 import sys
 import tempfile
 import warnings
@@ -58,9 +59,26 @@ def read_texture(stream: BinaryIO, texels_left: int) -> tuple[np.ndarray, bool, 
         except Exception as exc:
             # Pillow's format plugins raise many types on malformed files (OSError,
             # SyntaxError, struct.error, EOFError, IndexError, ...): all mean a bad file.
-            raise TextureError(f"{type(exc).__name__}: {exc}") from None
+            raise TextureError(_bad_file(exc)) from None
     told = [str(w.message) for w in caught if _worth_telling(w)]
     return texels, deep, told + [f"libtiff: {line}" for line in printed if line.strip()]
+
+
+def _bad_file(exc: Exception) -> str:
+    """What Pillow's exception says is wrong with the file, in words and without the type's
+    name: the user can act on "truncated", not on "OSError"."""
+    from PIL import UnidentifiedImageError
+
+    text = str(exc).strip()
+    if isinstance(exc, UnidentifiedImageError):
+        # Its text names the stream object ("<_io.BufferedReader name=...>"), not the problem.
+        return "not an image in a format Pillow reads, or its header is damaged"
+    if isinstance(exc, (EOFError, struct.error)) or "truncated" in text.lower():
+        # "image file is truncated (12 bytes not processed)", "Truncated File Read", or a
+        # header field read past the end ("unpack requires a buffer of 4 bytes").
+        return "the file is truncated (it ends before its image data does)"
+    return f"the image data is damaged or unsupported ({text})" if text else \
+        "the image data is damaged or unsupported"
 
 
 @contextlib.contextmanager

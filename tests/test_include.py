@@ -119,6 +119,13 @@ def test_self_include(tmp_path: Path) -> None:
      "lib.toml: objectz: unknown key"),
     ({"s.toml": 'include = "lib.toml"\n' + CAMERA},
      "s.toml: include: expected a list of file names"),
+    # The value as written, not its Python type ("got list", "got int", "got dict").
+    ({"lib.json": "[1, 2]", "s.toml": 'include = ["lib.json"]\n' + CAMERA},
+     "lib.json: expected a table at the top level, got [1, 2]"),
+    ({"lib.toml": "render = 5\n", "s.toml": 'include = ["lib.toml"]\n' + CAMERA},
+     "lib.toml: render: expected a table, got 5"),
+    ({"lib.toml": "objects = { a = 1 }\n", "s.toml": 'include = ["lib.toml"]\n' + CAMERA},
+     "lib.toml: objects: expected an array of tables, got a table"),
 ])
 def test_errors_name_the_file_and_key_where_written(tmp_path: Path, files: dict,
                                                     message: str) -> None:

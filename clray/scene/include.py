@@ -25,6 +25,7 @@ from typing import Any
 from clray.errors import SceneError
 from clray.scene import limits as L
 from clray.scene.files import UnreadableFile
+from clray.scene.values import show
 
 _KEYS = ("include", "render", "camera", "materials", "groups", "lights", "objects", "animation")
 _NAMED = ("materials", "groups")  # tables merged by name
@@ -86,8 +87,7 @@ def expand_includes(data: Any, path: Path | None, read: Callable[[Path], Any]
 def _merge(data: Any, path: Path | None, chain: tuple[Path, ...], merged: dict, origins: Origins,
            top_dir: Path, read: Callable[[Path], Any]) -> None:
     if not isinstance(data, dict):
-        raise SceneError(path, None, f"expected a table at the top level, got "
-                         f"{type(data).__name__}")
+        raise SceneError(path, None, f"expected a table at the top level, got {show(data)}")
     for key in data:
         if key not in _KEYS:
             raise SceneError(path, key, f"unknown key (expected one of: {', '.join(_KEYS)})")
@@ -128,7 +128,7 @@ def _merge_tables(data: dict, own: dict, path: Path | None, merged: dict,
     for table in (*_NAMED, "render"):
         value = data.get(table, {})
         if not isinstance(value, dict):
-            raise SceneError(path, table, f"expected a table, got {type(value).__name__}")
+            raise SceneError(path, table, f"expected a table, got {show(value)}")
     for table in _NAMED:
         defined = getattr(origins, table)
         for name, spec in own.get(table, {}).items():
@@ -141,8 +141,7 @@ def _merge_tables(data: dict, own: dict, path: Path | None, merged: dict,
     for table in ("lights", "objects"):
         items = own.get(table, [])
         if not isinstance(items, list):
-            raise SceneError(path, table, f"expected an array of tables, got "
-                             f"{type(items).__name__}")
+            raise SceneError(path, table, f"expected an array of tables, got {show(items)}")
         merged[table].extend(items)
         getattr(origins, table).extend((file, i) for i in range(len(items)))
     for key, value in data.get("render", {}).items():

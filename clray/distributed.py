@@ -88,8 +88,12 @@ def connect(address: str | None, workers: int = LOCAL_WORKERS,
     try:
         client = distributed.Client(address, timeout=timeout)
     except (OSError, TimeoutError, ValueError) as err:
-        raise ClrayError(f"cannot connect to the Dask scheduler at {address}: "
-                         f"{str(err).splitlines()[0] if str(err) else type(err).__name__}"
+        # An exception without a message says nothing but its type, which is no reason a user
+        # can act on: say what the type means instead.
+        reason = (str(err).strip().splitlines()[0] if str(err).strip() else
+                  f"no answer within {timeout:g} s" if isinstance(err, TimeoutError) else
+                  "the connection failed")
+        raise ClrayError(f"cannot connect to the Dask scheduler at {address}: {reason}"
                          ) from None
     with client:
         try:

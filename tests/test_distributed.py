@@ -14,6 +14,7 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+from types import SimpleNamespace
 
 import pytest
 
@@ -194,6 +195,25 @@ def test_unreachable_scheduler_is_one_line_in_time(tmp_path):
     assert len(lines) == 1, done.stderr
     assert lines[0].startswith(f"clray: error: cannot connect to the Dask scheduler at "
                                f"tcp://127.0.0.1:{port}")
+
+
+@pytest.mark.parametrize(("err", "reason"), [
+    (TimeoutError(), "no answer within 2 s"),
+    (OSError(), "the connection failed"),
+    (OSError("Timed out trying to connect\nafter 2 s"), "Timed out trying to connect"),
+])
+def test_a_failed_connection_says_why_without_a_class_name(monkeypatch, err, reason):
+    from clray import distributed as module
+    from clray.errors import ClrayError
+
+    def refuse(address, timeout):
+        raise err
+
+    monkeypatch.setattr(module, "import_distributed", lambda: SimpleNamespace(Client=refuse))
+    with pytest.raises(ClrayError) as info, module.connect("tcp://10.0.0.1:8786", timeout=2):
+        pass
+    assert str(info.value) == ("cannot connect to the Dask scheduler at tcp://10.0.0.1:8786: "
+                               f"{reason}")
 
 
 @needs_dask

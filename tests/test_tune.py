@@ -378,3 +378,17 @@ def test_an_image_too_small_to_time_is_warned_of(kernel_tuner, cl_device, tmp_pa
     with pytest.warns(UserWarning, match=r"spheres: the default renders 48x27 in .* ms, too "
                                          r"short to time .* tune at the size you render"):
         tuner.prepare(SPHERES)
+
+
+def test_configurations_kernel_tuner_did_not_time_say_why_in_words(kernel_tuner) -> None:
+    from kernel_tuner import util
+
+    assert tuner_module.failure({"time": util.CompilationFailedConfig(),
+                                 "__error__": util.CompilationFailedConfig()}) == (
+        "failed: the kernel build failed")
+    # Read back from Kernel Tuner's cache file, the error is its class name as text.
+    assert tuner_module.failure({"time": "InvalidConfig"}) == (
+        "failed: not a valid configuration on this device")
+    assert tuner_module.failure({"time": util.RuntimeFailedConfig()}).startswith(
+        "failed: the launch failed")
+    assert tuner_module.failure({"time": None}) == "failed: not timed"

@@ -156,6 +156,21 @@ class Trial:
         return json.dumps({**self.tuning.values(), **self.extra}, sort_keys=True)
 
 
+# Kernel Tuner marks a configuration it did not time with an error object whose text is its
+# class name (and its cache file holds that text): the report says what each means instead.
+_FAILURES = {
+    "InvalidConfig": "not a valid configuration on this device",
+    "CompilationFailedConfig": "the kernel build failed",
+    "RuntimeFailedConfig": "the launch failed (too many resources asked of the device)",
+}
+
+
+def failure(result: dict) -> str:
+    """Why Kernel Tuner has no time for the configuration of `result`, one of its results."""
+    error = str(result.get("__error__", result.get("time")))
+    return "failed: " + _FAILURES.get(error, "not timed")
+
+
 @dataclass(frozen=True)
 class Tolerance:
     """A configuration passes when it makes no more non-finite pixels than the default and at
@@ -419,9 +434,8 @@ class Tuner:
         tuning = self._tuning(base, result)
         time_ms = result.get("time")
         if not isinstance(time_ms, int | float) or "__error__" in result:
-            problem = f"failed: {type(time_ms).__name__ if time_ms is not None else 'error'}"
             return Trial(scene, tuning, None, [], float(result.get("compile_time", 0)), False,
-                         0, problem, extra)
+                         0, failure(result), extra)
         verified = bool(result.get("verified", 0))
         problem = None if verified else result.get("problem") or "image differs"
         times = [float(t) for t in result.get("times", [])]

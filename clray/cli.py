@@ -27,7 +27,7 @@ from typing import Any, NoReturn
 import pyopencl as cl
 
 from clray import __version__
-from clray.device.context import list_devices
+from clray.device.context import default_device, list_devices
 from clray.errors import EXIT_OK, EXIT_RUNTIME, EXIT_USAGE, ClrayError, SceneError, one_line
 from clray.image_io import (
     FLOAT_SUFFIXES,
@@ -890,8 +890,10 @@ def _tuned(spec: str) -> str:
 
 
 def _devices(args: argparse.Namespace) -> int:
+    _, default_spec, why = default_device()
     rows = [(d.spec, d.type, d.name, d.platform, f"{d.compute_units} CU",
-             f"fp64 {'yes' if d.fp64 else 'no'}", f"driver {d.driver_version}", _tuned(d.spec))
+             f"fp64 {'yes' if d.fp64 else 'no'}", f"driver {d.driver_version}", _tuned(d.spec),
+             f"renders by default ({why})" if d.spec == default_spec else "")
             for d in list_devices()]
     widths = [max(len(row[i]) for row in rows) for i in range(len(rows[0]))]
     for row in rows:

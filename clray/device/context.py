@@ -102,13 +102,10 @@ def list_devices() -> list[DeviceInfo]:
 
 def select_device(spec: str | None = None) -> cl.Device:
     """`spec`: "P:D" indices (PYOPENCL_CTX syntax, "P" alone means its first device) or a
-    case-insensitive substring of the platform or device name. Without one: CLRAY_DEVICE, then
-    PYOPENCL_CTX, then the first CPU device, then the first device."""
-    spec = spec or os.environ.get("CLRAY_DEVICE") or os.environ.get("PYOPENCL_CTX") or None
+    case-insensitive substring of the platform or device name. Without one: default_device."""
+    if not spec:
+        return default_device()[0]
     devices = _all_devices()
-    if spec is None:
-        cpus = [d for _, d in devices if d.type & cl.device_type.CPU]
-        return cpus[0] if cpus else devices[0][1]
     spec = spec.strip()
     if ":" not in spec and spec.isdigit():
         spec = f"{spec}:0"
@@ -123,6 +120,24 @@ def select_device(spec: str | None = None) -> cl.Device:
             return device
     known = ", ".join(f"{s} {d.name.strip()}" for s, d in devices)
     raise DeviceError(f"no OpenCL device matches {spec!r} (devices: {known})")
+
+
+def default_device() -> tuple[cl.Device, str, str]:
+    """(device, spec, why): the device a render uses where neither --device nor the settings
+    name one. CLRAY_DEVICE, then PYOPENCL_CTX, then the first CPU device: renders have been
+    measured on CPU drivers, where sample packets run (clray.device.program.traversal_for),
+    and no other device has yet been measured faster."""
+    devices = _all_devices()
+    for variable in ("CLRAY_DEVICE", "PYOPENCL_CTX"):
+        value = os.environ.get(variable)
+        if value:
+            chosen = select_device(value)
+            spec = next(s for s, d in devices if d == chosen)
+            return chosen, spec, f"{variable}={value}"
+    cpus = [(s, d) for s, d in devices if d.type & cl.device_type.CPU]
+    if cpus:
+        return cpus[0][1], cpus[0][0], "the first CPU device"
+    return devices[0][1], devices[0][0], "the first device: there is no CPU device"
 
 
 @cache

@@ -9,7 +9,7 @@ from collections.abc import Callable
 import numpy as np
 import pyopencl as cl
 
-from clray.device.context import describe, queue_for
+from clray.device.context import describe, device_type, queue_for
 from clray.device.pack import PackedScene
 from clray.device.program import build_program
 from clray.errors import DeviceError
@@ -79,13 +79,40 @@ def band_capacity(packed: PackedScene, global_mem: int, max_alloc: int) -> int:
                       room // (outputs * row_bytes)))
 
 
+def check_argument_bytes(n_buffers: int, n_ints: int, device: cl.Device) -> None:
+    """A launch's arguments within the device's CL_DEVICE_MAX_PARAMETER_SIZE (1,024 bytes at
+    least; NVIDIA's 4,352): one pointer a buffer and 4 bytes an int. A driver past it fails
+    the launch with a bare CL_INVALID_KERNEL_ARGS, or, as pyopencl warns of on NVIDIA, the
+    build."""
+    need = n_buffers * device.address_bits // 8 + 4 * n_ints
+    if need > device.max_parameter_size:
+        raise DeviceError(f"the render kernel's {n_buffers} buffers and {n_ints} ints take "
+                          f"{need} bytes of arguments, over {describe(device)}'s "
+                          f"CL_DEVICE_MAX_PARAMETER_SIZE of {device.max_parameter_size}")
+
+
 def _group_width(kernel: cl.Kernel, device: cl.Device, tuning: Tuning) -> int:
     """Work-items per work-group, one row segment: the work_group_width knob, within the
     kernel's limit on the device. Never left to the driver: PoCL puts up to 4096 work-items in
     a group and gives them their private memory on one thread's stack, which a deep ray stack
     (MAX_DEPTH + 1 tasks of 80 bytes each, per work-item) overflows: a segfault at depth 28."""
     limit = kernel.get_work_group_info(cl.kernel_work_group_info.WORK_GROUP_SIZE, device)
-    return max(1, min(tuning.work_group_width, limit))
+    width = max(1, min(tuning.work_group_width, limit))
+    if device_type(device) != "GPU":
+        return width
+    return gpu_group_width(width, limit, kernel.get_work_group_info(
+        cl.kernel_work_group_info.PREFERRED_WORK_GROUP_SIZE_MULTIPLE, device))
+
+
+def gpu_group_width(width: int, limit: int, multiple: int) -> int:
+    """A GPU's work-group: whole warps or wavefronts (the kernel's preferred multiple, 32 on
+    NVIDIA), so that no SIMT lane of a group's last one idles; the knob's width rounded down
+    to a multiple, at least one multiple where the kernel's limit allows it. CPU drivers'
+    multiples (128 on Intel's runtime) describe implicit vectorization across work-items,
+    which the render kernels turn off, so there the knob's width stands."""
+    if multiple <= 1 or multiple > limit:
+        return width
+    return max(multiple, width // multiple * multiple)
 
 
 def _local_size(kernel: cl.Kernel, device: cl.Device, packed: PackedScene) -> tuple[int, int]:
@@ -101,6 +128,20 @@ def _local_size(kernel: cl.Kernel, device: cl.Device, packed: PackedScene) -> tu
                           f"kernel, under group packets' {side} x {side}: render with a "
                           "smaller group_side or another traversal")
     return side, side
+
+
+# What a launch that runs out of a device's resources can lower, in the knob table's and the
+# scene format's names: registers and private memory grow with the ray tree's depth and with
+# sample packets' lanes, and a group's share of them with its width.
+RESOURCE_HINT = ("; the kernel needs more registers or private memory than the device has for "
+                 "a group: lower work_group_width (a tuning knob) or max_depth, or render with "
+                 "--traversal single")
+
+
+def _resource_hint(err: cl.Error) -> str:
+    code = getattr(err, "code", None)
+    return RESOURCE_HINT if code in (cl.status_code.OUT_OF_RESOURCES,
+                                     cl.status_code.INVALID_WORK_GROUP_SIZE) else ""
 
 
 def render_packed(packed: PackedScene, device: cl.Device,
@@ -119,6 +160,7 @@ def render_packed(packed: PackedScene, device: cl.Device,
     height = end - first
     try:
         buffers = _scene_buffers(ctx, packed)
+        check_argument_bytes(len(buffers) + 3, 1, device)
         kernel = cl.Kernel(program, "render")
         group_width, group_height = _local_size(kernel, device, packed)
         # A band's launch covers whole work-groups: the rows past the band (below the image,
@@ -166,7 +208,8 @@ def render_packed(packed: PackedScene, device: cl.Device,
                 progress(row0 * row_samples, height * row_samples)
         queue.finish()
     except cl.Error as err:
-        raise DeviceError(f"OpenCL error while rendering on {describe(device)}: {err}") from err
+        raise DeviceError(f"OpenCL error while rendering on {describe(device)}: {err}"
+                          f"{_resource_hint(err)}") from err
     rays = {"primary": int(totals[0]), "secondary": int(totals[1]), "shadow": int(totals[2])}
     rays["total"] = sum(rays.values())
     stats = {

@@ -1,0 +1,83 @@
+"""GPU-shaped launch policy and device limits, checked without a GPU: whole warps a work-group,
+a launch's arguments within the device's parameter size, resource errors that say what to
+lower, and the device a render picks by default, said by `clray devices`."""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+import pyopencl as cl
+import pytest
+
+from clray.device import context, launch
+from clray.device.launch import RESOURCE_HINT, check_argument_bytes, gpu_group_width
+from clray.errors import DeviceError
+
+
+@pytest.mark.parametrize(("width", "limit", "multiple", "expected"), [
+    (64, 1024, 32, 64),  # the default: two NVIDIA warps
+    (48, 1024, 32, 32),  # rounded down to whole warps
+    (16, 1024, 32, 32),  # at least one warp
+    (16, 1024, 64, 64),  # an AMD wavefront
+    (128, 96, 32, 96),  # the kernel's limit (already applied to width by the caller) stands
+    (16, 24, 32, 16),  # a kernel whose limit is under a warp keeps the knob's width
+    (16, 1024, 1, 16),  # no preference
+])
+def test_gpu_groups_are_whole_warps(width, limit, multiple, expected) -> None:
+    assert gpu_group_width(min(width, limit), limit, multiple) == expected
+
+
+def fake_device(parameter_bytes: int, address_bits: int = 64) -> SimpleNamespace:
+    return SimpleNamespace(max_parameter_size=parameter_bytes, address_bits=address_bits,
+                           name="Tiny GPU", driver_version="1.0",
+                           platform=SimpleNamespace(name="Fake"))
+
+
+def test_launch_arguments_within_the_parameter_size() -> None:
+    check_argument_bytes(60, 1, fake_device(1024))  # 484 bytes
+    check_argument_bytes(127, 1, fake_device(1024))  # 1,020 bytes
+    with pytest.raises(DeviceError, match=r"128 buffers and 1 ints take 1028 bytes of "
+                                          r"arguments, over Tiny GPU .* of 1024"):
+        check_argument_bytes(128, 1, fake_device(1024))
+    check_argument_bytes(128, 1, fake_device(1024, address_bits=32))
+
+
+def test_the_render_kernels_arguments_fit_any_device() -> None:
+    # OpenCL guarantees 1,024 bytes of arguments on every device: the render kernel with every
+    # scene buffer must fit them with 64-bit pointers.
+    from clray.device.layout import SCENE_BUFFERS
+
+    check_argument_bytes(len(SCENE_BUFFERS) + 3, 1, fake_device(1024))
+
+
+@pytest.mark.parametrize(("code", "hinted"), [("OUT_OF_RESOURCES", True),
+                                              ("INVALID_WORK_GROUP_SIZE", True),
+                                              ("INVALID_VALUE", False)])
+def test_resource_errors_say_what_to_lower(code, hinted) -> None:
+    err = SimpleNamespace(code=getattr(cl.status_code, code))
+    assert (launch._resource_hint(err) == RESOURCE_HINT) is hinted
+    assert "work_group_width" in RESOURCE_HINT and "max_depth" in RESOURCE_HINT
+
+
+def test_the_default_device_and_why(cl_device, monkeypatch) -> None:
+    monkeypatch.delenv("CLRAY_DEVICE", raising=False)
+    monkeypatch.delenv("PYOPENCL_CTX", raising=False)
+    device, spec, why = context.default_device()
+    types = {d.spec: d.type for d in context.list_devices()}
+    if "CPU" in types.values():
+        assert types[spec] == "CPU" and why == "the first CPU device"
+        assert spec == next(s for s, t in types.items() if t == "CPU")
+    assert context.select_device() == device
+    monkeypatch.setenv("CLRAY_DEVICE", spec)
+    assert context.default_device()[1:] == (spec, f"CLRAY_DEVICE={spec}")
+
+
+def test_clray_devices_marks_the_default(cl_device, capsys) -> None:
+    from clray import cli
+
+    assert cli.main(["devices"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    marked = [line for line in lines if "renders by default" in line]
+    assert len(marked) == 1
+    # The suite names the test's device in CLRAY_DEVICE.
+    assert cl_device.name.strip() in marked[0] and "(CLRAY_DEVICE=" in marked[0]

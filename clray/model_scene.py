@@ -4,7 +4,7 @@ The scene is built as scene data (the dict a TOML file parses to), so that what 
 writes is exactly what `clray render` renders: a camera framing the mesh's bounding sphere
 from the chosen view, a key and a fill light (directional, so they light any size of model
 alike) plus the ambient light, the file's own materials (or a plain grey where it has none),
-and optionally a ground plane under the model. README.md (Looking at a model) describes it.
+and optionally a ground plane under the model. docs/cli.md (A mesh file) describes it.
 """
 
 from __future__ import annotations

@@ -29,6 +29,17 @@ def one_line(text: str) -> str:
     return "".join(c if c.isprintable() else _escape(c) for c in text)
 
 
+def utf8_problem(raw: bytes, err: UnicodeDecodeError) -> str:
+    """Where `raw` stops being UTF-8, as an editor shows the place: "line 3, column 7: not
+    valid UTF-8 (byte 0xff)". The decoder's byte offset is no help to find it in an editor."""
+    before = raw[: err.start].decode("utf-8")  # valid: the decoder stopped at the first error
+    line = before.count("\n") + 1
+    column = len(before) - before.rfind("\n")  # characters, 1-based
+    bad = " ".join(f"0x{b:02x}" for b in raw[err.start : err.end])
+    return (f"line {line}, column {column}: not valid UTF-8 "
+            f"({'byte' if err.end - err.start == 1 else 'bytes'} {bad})")
+
+
 class ClrayError(Exception):
     """Base class: the message is one line, fit to print without a traceback."""
 

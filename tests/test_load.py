@@ -400,6 +400,21 @@ def test_missing_scene_file(tmp_path):
         load_scene(tmp_path / "nope.toml")
 
 
+@pytest.mark.parametrize(("name", "raw", "where"), [
+    # Columns count characters: "é" is two bytes and one column.
+    ("scene.toml", b'[render]\nwidth = 64\n# caf\xc3\xa9 \xff\n', "line 3, column 8: not "
+     "valid UTF-8 (byte 0xff)"),
+    ("scene.json", b'{\n  "render": {"width": 64\xfe}}', "line 2, column 25: not valid UTF-8 "
+     "(byte 0xfe)"),
+    ("scene.toml", b"\xe2\x82", "line 1, column 1: not valid UTF-8 (bytes 0xe2 0x82)"),
+])
+def test_invalid_utf8_is_told_by_line_and_column(tmp_path, name, raw, where):
+    (tmp_path / name).write_bytes(raw)
+    with pytest.raises(SceneError) as info:
+        load_scene(tmp_path / name)
+    assert str(info.value) == f"{name}: {where}"
+
+
 def test_json_top_level_must_be_a_table(tmp_path):
     path = tmp_path / "list.json"
     path.write_text("[1, 2]")

@@ -15,7 +15,7 @@ import tomllib
 from pathlib import Path
 from typing import Any
 
-from clray.errors import SceneError
+from clray.errors import SceneError, utf8_problem
 
 # The depth reported for a file too deeply nested for the parsers: no scene value nests more
 # than 4 deep, so such a file is in error whatever the parser's own limit.
@@ -35,7 +35,7 @@ def parse_scene_text(raw: bytes, suffix: str, path: Path) -> Any:
     try:
         text = raw.decode("utf-8")
     except UnicodeDecodeError as exc:
-        raise SceneError(path, None, f"not valid UTF-8 (byte {exc.start})") from None
+        raise SceneError(path, None, utf8_problem(raw, exc)) from None
     kind = "TOML" if suffix == ".toml" else "JSON"
     try:
         return tomllib.loads(text) if suffix == ".toml" else json.loads(text)

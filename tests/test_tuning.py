@@ -368,6 +368,16 @@ def test_a_tuning_file_that_is_not_json_is_ignored(cl_device) -> None:
         assert store.load_tuning(cl_device) is None
 
 
+def test_a_tuning_file_that_is_not_utf8_is_ignored_with_its_line_and_column(cl_device) -> None:
+    path = store.tuning_path(cl_device)
+    path.parent.mkdir(parents=True)
+    path.write_bytes(b'{\n  "format": 1\xff\n}')
+    with pytest.warns(UserWarning) as caught:
+        assert store.load_tuning(cl_device) is None
+    assert [str(w.message) for w in caught] == [
+        f"ignoring tuning file {path}: line 2, column 14: not valid UTF-8 (byte 0xff)"]
+
+
 def test_cache_directory_follows_xdg(monkeypatch, tmp_path) -> None:
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
     assert store.cache_dir() == tmp_path / "clray"

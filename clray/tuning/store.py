@@ -18,6 +18,7 @@ from pathlib import Path
 
 import pyopencl as cl
 
+from clray.errors import utf8_problem
 from clray.tuning.knobs import DEFAULT_TUNING, Tuning, TuningError
 
 FORMAT = 1
@@ -71,17 +72,19 @@ def load_tuning(device: cl.Device) -> tuple[Tuning, Path] | None:
     a warning naming the file where one exists but is invalid or stale)."""
     path = tuning_path(device)
     try:
-        text = path.read_text(encoding="utf-8")
+        raw = path.read_bytes()
     except FileNotFoundError:
         return None
-    except (OSError, UnicodeDecodeError) as err:
-        warnings.warn(f"ignoring tuning file {path}: {err}", stacklevel=2)
+    except OSError as err:
+        warnings.warn(f"ignoring tuning file {path}: {err.strerror or err}", stacklevel=2)
         return None
     try:
-        record = json.loads(text)
+        record = json.loads(raw.decode("utf-8"))
         problem = _problem(record, device_key(device))
         if problem is None:
             return Tuning.from_values(record["tuning"]), path
+    except UnicodeDecodeError as err:
+        problem = utf8_problem(raw, err)
     except json.JSONDecodeError as err:
         problem = f"not JSON ({err})"
     except (TuningError, TypeError) as err:

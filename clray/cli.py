@@ -175,8 +175,9 @@ def _build_parser() -> _Parser:
                    help="how rays walk the BVH: 'single' (every ray alone), 'sample_packet' "
                         "(a pixel's samples together) or 'group_packet' (a work-group's tile "
                         "of pixels together), each the same image; default: the tuning's "
-                        "traversal knob, else the device's own: sample_packet on Intel's CPU "
-                        "runtime, single elsewhere; with sample packets 1 spp is always single "
+                        "traversal knob, else the device's own: sample_packet on the CPU devices "
+                        "of PoCL and Intel's runtime, single elsewhere (GPUs); with sample "
+                        "packets 1 spp is always single "
                         "(docs/acceleration.md)")
     encoding = r.add_mutually_exclusive_group()
     encoding.add_argument("--linear", dest="linear", action="store_true", default=None,
@@ -203,7 +204,7 @@ def _build_parser() -> _Parser:
                       help="print progress lines where stderr is not a terminal (a terminal "
                            "always gets a progress bar), compiler warnings and a table of "
                            "timings, ray counts and device memory")
-    cluster = r.add_argument_group("animation and Dask (README.md: Animation, Beyond one machine)")
+    cluster = r.add_argument_group("animation and Dask (docs/distributed.md)")
     cluster.add_argument("--frames", type=_frames, metavar="A:B",
                          help="render frames A to B-1 of the scene's [animation] ('A:' to the "
                               "last, 'N' one frame) to -o with a frame number, e.g. "

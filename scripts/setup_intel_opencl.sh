@@ -10,7 +10,7 @@ cd "$(dirname "$0")/.."
 venv_python=.venv/bin/python
 vendors=.venv/opencl-vendors
 log=.venv/intel-opencl-setup.log
-# Pinned to the versions the suite was last checked against (see Troubleshooting in README.md).
+# Pinned to the versions the suite was last checked against (docs/testing.md).
 packages=(intel-opencl-rt==2026.2.0 intel-cmplr-lib-rt==2026.2.0)
 intel_platform="Intel(R) OpenCL"
 

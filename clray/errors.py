@@ -40,6 +40,12 @@ def utf8_problem(raw: bytes, err: UnicodeDecodeError) -> str:
             f"({'byte' if err.end - err.start == 1 else 'bytes'} {bad})")
 
 
+def plural(count: int, noun: str, nouns: str | None = None) -> str:
+    """`count` with the noun in the form that count takes: "1 tile", "0 tiles", "2 tiles";
+    `nouns` for a plural not made with an s ("1 vertex", "3 vertices")."""
+    return f"{count} {noun if count == 1 else nouns or noun + 's'}"
+
+
 class ClrayError(Exception):
     """Base class: the message is one line, fit to print without a traceback."""
 

@@ -767,6 +767,10 @@ ERRORS = [
         "objects[2].faces[0]: index -1 out of range",
     ),
     (
+        obj(type="mesh", vertices=[[0, 0, 0]], faces=[[0, 0, 1]]),
+        "objects[2].faces[0]: index 1 out of range (0-based, 1 vertex)",
+    ),
+    (
         obj(type="mesh", vertices=[[0, 0, 0], [1, 0, 0], [0, 1, 0]], faces=[[0, 1, 2, 0]]),
         "objects[2].faces[0]: expected 3 vertex indices, got [0, 1, 2, 0]",
     ),
@@ -821,6 +825,8 @@ ERRORS = [
      "animation.tracks[0].values[1]: expected the shape of values[0]"),
     (anim({"key": "camera.vfov", "frames": [0, 9], "values": [30, "wide"]}),
      'animation.tracks[0].values[1]: expected a number, got "wide"'),
+    (anim({"key": "camera.vfov", "frames": [0], "values": [["wide"]]}),
+     'animation.tracks[0].values[0]: expected 1 number, got ["wide"]'),
     (anim({"key": "objects[5].center", "frames": [0], "values": [[0, 0, 0]]}),
      "animation.tracks[0].key: objects[5] is not in the scene"),
     (anim({"key": "camera.positon", "frames": [0], "values": [[0, 0, 0]]}),
@@ -1013,8 +1019,29 @@ def test_mesh_triangle_limit_counts_every_instance(monkeypatch):
     monkeypatch.setattr(limits, "MAX_TRIANGLES", 2)
     mesh = {"type": "mesh", **TRI}
     message = load_error(scene(objects=[mesh, mesh, mesh]))
-    assert message == ("scene.toml: objects[2]: 1 triangles is over what is left (0) of the "
+    assert message == ("scene.toml: objects[2]: 1 triangle is over what is left (0) of the "
                        "limit of 2 triangles for all meshes")
+
+
+def test_counts_of_one_take_the_singular(monkeypatch, tmp_path):
+    from PIL import Image
+
+    monkeypatch.setattr(limits, "MAX_LIGHTS", 2)
+    glow = {"type": "mesh", **TRI, "material": {"emission": [1, 1, 1]}}
+    point = {"type": "point", "position": [0, 5, 0]}
+    assert load_error(scene(objects=[glow], lights=[point, point])) == (
+        "scene.toml: objects: 1 emissive triangle and 2 lights are over the limit of 2 lights")
+    monkeypatch.setattr(limits, "MAX_BULK_SPHERES", 1)
+    spheres = {"type": "spheres", "centers": [[0, 0, 0]], "radius": 1}
+    assert load_error(scene(objects=[spheres, spheres])) == (
+        "scene.toml: objects[1]: 1 sphere is over what is left (0) of the limit of 1 spheres "
+        "for all spheres objects")
+    monkeypatch.setattr(limits, "MAX_TEXELS", 1)
+    for name in ("a.png", "b.png"):
+        Image.new("RGB", (1, 1)).save(tmp_path / name)
+    assert load_error_at(texture_scene("a.png", "b.png"), tmp_path) == (
+        "scene.toml: materials.m1.texture.file: cannot read image b.png: image is 1x1 = 1 texel, "
+        "over what is left (0) of the limit of 1 texels for all textures")
 
 
 def png_header_only(path: Path, width: int, height: int) -> None:

@@ -133,6 +133,25 @@ def test_ascii_errors_name_file_and_element(edit, where, text):
     assert "bad.ply" in message and where in message and text in message, message
 
 
+_HEADER = b"ply\nformat ascii 1.0\nelement vertex %d\nproperty float x\nproperty float y\n" \
+    b"property float z\nelement face 1\n"
+
+
+@pytest.mark.parametrize(("data", "message"), [
+    (_HEADER % 1 + b"property list uchar int vertex_indices\nend_header\n0 0 0\n3 0 0 1\n",
+     "bad.ply: element face: record 0: vertex index 1 out of range (1 vertex)"),
+    (_HEADER % 3 + b"property list uchar int vertex_indices\nelement extra 1\nproperty float w\n"
+     b"end_header\n0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n1 2\n",
+     "bad.ply: element extra, line 16: expected 1 number, got 2"),
+    (_HEADER % 3 + b"property float q\nproperty list uchar int vertex_indices\nend_header\n"
+     b"0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n",
+     "bad.ply: element face, line 14: expected 1 number and a list (its length first), got "
+     "b'3 0 1 2'"),
+])
+def test_counts_of_one_take_the_singular(data, message):
+    assert _errors(data) == message
+
+
 def test_zero_normal_is_an_error():
     data = ply_bytes("ascii").replace(b"0 0 0 0 0 1", b"0 0 0 0 0 0", 1)
     assert "zero-length normal" in _errors(data)

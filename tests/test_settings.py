@@ -125,7 +125,7 @@ def _scene(objects: tuple, *, camera: M.Camera | None = None, **render: object) 
 
 @pytest.mark.parametrize(("scene", "message"), [
     (_scene((M.Sphere((0, 0, 0), 1.0, 5),)),
-     "objects[0].material: expected the index of one of the scene's 1 materials, got 5"),
+     "objects[0].material: expected the index of one of the scene's 1 material, got 5"),
     (_scene((M.Sphere((0, 0, 0), 1.0, 0),), camera=M.Camera((0, 0, 5), (0, 0, 0), up=(0, 0, 1))),
      "camera.up: must not be parallel to the view direction"),
     (_scene((M.Sphere((0, 0, 0), -1.0, 0),)), "objects[0].radius: must be > 0, got -1.0"),

@@ -15,6 +15,7 @@ from typing import Any, BinaryIO
 
 import numpy as np
 
+from clray.errors import plural
 from clray.scene import limits as L
 from clray.scene.colour import srgb_decode
 from clray.scene.files import UnreadableFile, open_regular, read_at_most
@@ -182,7 +183,7 @@ class Assets:
         """Count a mesh's triangles against the limit for all meshes."""
         if count > self.triangles_left:
             raise self.values.error(
-                key, f"{count} triangles is over what is left ({self.triangles_left}) of "
+                key, f"{plural(count, 'triangle')} is over what is left ({self.triangles_left}) of "
                 f"the limit of {L.MAX_TRIANGLES} triangles for all meshes"
             )
         self.triangles_left -= count
@@ -224,6 +225,6 @@ class Assets:
         """Count a `spheres` object's spheres against the limit for all of them."""
         if count > self.spheres_left:
             raise self.values.error(
-                key, f"{count} spheres is over what is left ({self.spheres_left}) of the "
+                key, f"{plural(count, 'sphere')} is over what is left ({self.spheres_left}) of the "
                 f"limit of {L.MAX_BULK_SPHERES} spheres for all spheres objects")
         self.spheres_left -= count

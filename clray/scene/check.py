@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from clray.errors import SceneError
+from clray.errors import SceneError, plural
 from clray.scene import model as M
 from clray.scene.load import scene_from_dict
 
@@ -173,7 +173,7 @@ def _material_index(material: Any, key: str, names: list[str]) -> int:
     if (isinstance(material, bool) or not isinstance(material, int | np.integer)
             or not 0 <= material < len(names)):
         raise SceneError(None, f"{key}.material", f"expected the index of one of the scene's "
-                         f"{len(names)} materials, got {material!r}")
+                         f"{plural(len(names), 'material')}, got {material!r}")
     return int(material)
 
 

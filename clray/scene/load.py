@@ -15,7 +15,7 @@ import dataclasses
 from pathlib import Path
 from typing import Any
 
-from clray.errors import SceneError
+from clray.errors import SceneError, plural
 from clray.scene import limits as L
 from clray.scene.animation import Animation, parse_animation, put, show_path
 from clray.scene.assets import Assets
@@ -118,8 +118,8 @@ def _scene(data: Any, v: Values, assets: Assets) -> tuple[Scene, Animation | Non
     )
     glowing = len(emissive_triangles(scene))
     if glowing and len(lights) + glowing > L.MAX_LIGHTS:
-        raise v.error("objects", f"{glowing} emissive triangles and {len(lights)} lights are "
-                      f"over the limit of {L.MAX_LIGHTS} lights")
+        raise v.error("objects", f"{plural(glowing, 'emissive triangle')} and "
+                      f"{plural(len(lights), 'light')} are over the limit of {L.MAX_LIGHTS} lights")
     scene = dataclasses.replace(scene, warnings=(*assets.warnings, *content_warnings(scene),
                                                  *scene_warnings(scene)))
     object.__setattr__(scene, "checked", True)  # frozen: the one field the loader sets

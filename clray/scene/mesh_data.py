@@ -7,6 +7,7 @@ from typing import Any
 
 import numpy as np
 
+from clray.errors import plural
 from clray.scene.model import unit
 from clray.scene.obj import ObjMesh
 from clray.scene.values import Values, show
@@ -66,6 +67,7 @@ def face_indices(v: Values, value: Any, key: str, n_vertices: int) -> np.ndarray
         i = int(np.flatnonzero(outside)[0])
         j = next(j for j in faces[i].tolist() if not 0 <= j < n_vertices)
         raise v.error(
-            f"{key}[{i}]", f"index {show(j)} out of range (0-based, {n_vertices} vertices)"
+            f"{key}[{i}]", f"index {show(j)} out of range (0-based, "
+            f"{plural(n_vertices, 'vertex', 'vertices')})"
         )
     return faces.astype(np.int64)

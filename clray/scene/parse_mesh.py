@@ -7,6 +7,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from clray.errors import plural
 from clray.scene import limits as L
 from clray.scene.assets import Assets
 from clray.scene.mesh_data import mesh_arrays
@@ -89,7 +90,7 @@ def _face_materials(spec: dict, key: str, n_faces: int, v: Values,
     if outside.any():
         i = int(np.flatnonzero(outside)[0])
         raise v.error(f"{key}.material_index[{i}]", f"index {index[i]} out of range "
-                      f"(0-based, {len(refs)} materials)")
+                      f"(0-based, {plural(len(refs), 'material')})")
     return refs[index]
 
 

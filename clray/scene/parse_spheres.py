@@ -7,6 +7,7 @@ from typing import Any
 
 import numpy as np
 
+from clray.errors import plural
 from clray.scene import limits as L
 from clray.scene.assets import SPHERE_ARRAYS, Assets
 from clray.scene.model import Spheres
@@ -42,7 +43,7 @@ def parse_spheres(spec: dict, key: str, material: int | None, v: Values, assets:
     if outside.any():
         i = int(np.flatnonzero(outside)[0])
         raise v.error(f"{key}.material_index[{i}]", f"index {index[i]} out of range "
-                      f"(0-based, {len(refs)} materials)")
+                      f"(0-based, {plural(len(refs), 'material')})")
     return Spheres(centers, radii, refs[index])
 
 

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from clray.errors import SceneError
+from clray.errors import SceneError, plural
 from clray.scene.limits import MAX_MAGNITUDE
 from clray.scene.model import unit
 from clray.scene.obj import ObjMesh, _fan
@@ -242,8 +242,9 @@ class _Reader:
                 for p, w in zip(props[at + 1:], words[at + 1 + k:], strict=True):
                     columns[p.name].append(float(w))
             except (ValueError, IndexError):
-                raise self.error(where, f"expected {len(props) - 1} numbers and a list (its "
-                                 f"length first), got {b' '.join(words)[:60]!r}") from None
+                raise self.error(where, f"expected {plural(len(props) - 1, 'number')} and a "
+                                 f"list (its length first), got {b' '.join(words)[:60]!r}"
+                                 ) from None
             counts.append(k)
         out: dict[str, object] = {p.name: np.array(columns[p.name]) for p in props
                                   if p.count_type is None}
@@ -283,7 +284,7 @@ class _Reader:
         for i, line in enumerate(lines):
             if len(line.split()) != want:
                 raise self.error(f"element {el.name}, line {first_line + i}",
-                                 f"expected {want} numbers, got {len(line.split())}")
+                                 f"expected {plural(want, 'number')}, got {len(line.split())}")
 
 
 def read_ply(data: bytes, path: Path) -> PlyMesh:
@@ -333,7 +334,8 @@ def _mesh(reader: _Reader, columns: dict[str, dict[str, object]]) -> PlyMesh:
     if len(outside):
         face_of = int(np.searchsorted(np.cumsum(counts), outside[0], side="right"))
         raise reader.error("element face", f"record {face_of}: vertex index "
-                           f"{int(items[outside[0]])} out of range ({len(vertices)} vertices)")
+                           f"{int(items[outside[0]])} out of range "
+                           f"({plural(len(vertices), 'vertex', 'vertices')})")
     faces = items[_fan(counts)]
     return PlyMesh(ObjMesh(vertices, faces, normals, uvs), colors)
 

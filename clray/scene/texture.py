@@ -19,6 +19,7 @@ from typing import TYPE_CHECKING, BinaryIO
 
 import numpy as np
 
+from clray.errors import plural
 from clray.scene import limits as L
 
 if TYPE_CHECKING:
@@ -121,7 +122,7 @@ def _check_size(size: tuple[int, int], texels_left: int) -> None:
         )
     if width * height > texels_left:
         raise TextureError(
-            f"image is {width}x{height} = {width * height} texels, over what is left "
+            f"image is {width}x{height} = {plural(width * height, 'texel')}, over what is left "
             f"({texels_left}) of the limit of {L.MAX_TEXELS} texels for all textures"
         )
 

@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from clray.errors import SceneError
+from clray.errors import SceneError, plural
 from clray.scene import limits as L
 from clray.scene.model import unit
 
@@ -198,7 +198,7 @@ class Values:
             or len(value) != n
             or not all(is_number(v) for v in value)
         ):
-            raise self.error(key, f"expected {n} numbers, got {show(value)}")
+            raise self.error(key, f"expected {plural(n, 'number')}, got {show(value)}")
         for v in value:
             problem = out_of_range(v, limit)
             if problem:
@@ -229,7 +229,7 @@ class Values:
 
     def points(self, value: Any, key: str, exactly: int | None = None) -> tuple[Vec3, ...]:
         if not isinstance(value, list) or (exactly is not None and len(value) != exactly):
-            what = f"{exactly} points" if exactly else "a list of points"
+            what = plural(exactly, "point") if exactly else "a list of points"
             raise self.error(key, f"expected {what}, got {show(value)}")
         return tuple(self.vec3(p, f"{key}[{i}]") for i, p in enumerate(value))
 
@@ -245,8 +245,9 @@ class Values:
         shown = "x".join("N" if n is None else str(n) for n in shape)
         if (a.dtype.kind not in kinds or a.ndim != len(shape)
                 or any(n is not None and n != m for n, m in zip(shape, a.shape, strict=True))):
-            what = "integers" if integer else "numbers"
-            raise self.error(key, f"expected an array of {shown} {what}, got {show(value)}")
+            noun = "integer" if integer else "number"
+            what = f"{shown} {noun}" if shown == "1" else f"{shown} {noun}s"
+            raise self.error(key, f"expected an array of {what}, got {show(value)}")
         if not integer:
             bad = ~np.isfinite(a) | (np.abs(a) > L.MAX_MAGNITUDE)
             if bad.any():

@@ -9,6 +9,7 @@ import json
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from clray import cli
@@ -392,3 +393,28 @@ def test_configurations_kernel_tuner_did_not_time_say_why_in_words(kernel_tuner)
     assert tuner_module.failure({"time": util.RuntimeFailedConfig()}).startswith(
         "failed: the launch failed")
     assert tuner_module.failure({"time": None}) == "failed: not timed"
+
+
+def test_counts_of_one_take_the_singular(kernel_tuner, tmp_path, monkeypatch, capsys) -> None:
+    monkeypatch.setattr(tuner_module, "default_space",
+                        lambda: {**TWO, "work_group_width": (64,)})
+    out = tmp_path / "tuned"
+    code = cli.main(["tune", str(SPHERES), "-W", "48", "-H", "27", "--budget", "300",
+                     "--out", str(out), "--no-save"])
+    err = capsys.readouterr().err
+    assert code == 0, err
+    assert "clray: tried 1 configuration on " in err
+    assert "1 configuration tried, 0 rejected" in (out / "report.md").read_text()
+
+
+@pytest.mark.parametrize(("image", "reason"), [
+    (np.array([[[0.5, 0, 0], [0, 0, 0]]], np.float32),
+     "1 pixel differs from the default's image by over 0.01 (at most 0 may)"),
+    (np.array([[[0.5, 0, 0], [0.5, 0, 0]]], np.float32),
+     "2 pixels differ from the default's image by over 0.01 (at most 0 may)"),
+    (np.array([[[np.nan, 0, 0], [0, 0, 0]]], np.float32),
+     "1 more non-finite pixel than the default"),
+])
+def test_rejections_count_pixels_in_the_right_form(image, reason) -> None:
+    tolerance = tuner_module.Tolerance(0.01, 0)
+    assert tolerance.check(image, np.zeros((1, 2, 3), np.float32))[2] == reason

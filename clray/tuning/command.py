@@ -11,7 +11,7 @@ from pathlib import Path
 from typing import Any
 
 from clray.device.context import describe, select_device
-from clray.errors import ClrayError
+from clray.errors import ClrayError, plural
 from clray.scene.load import load_scene
 from clray.tuning import report
 from clray.tuning.knobs import DEFAULT_TUNING, IMAGE_KNOBS, Tuning
@@ -122,7 +122,8 @@ def run_tune(paths: Sequence[Path], out: Path, *, device: str | None = None,
     plotted = report.plot(out, trials, best[0] if best else None)
     report.write_report(out, header, trials, best[0] if best else None, confirmed, plotted)
     rejected = sum(not t.verified for t in trials)
-    say(f"tried {len(trials)} configurations on {describe(cl_device)}, {rejected} rejected")
+    say(f"tried {plural(len(trials), 'configuration')} on {describe(cl_device)}, "
+        f"{rejected} rejected")
     say(f"study variants {header['variants']}")
     for c in confirmed:
         say(f"{c['scene']}: default {c['default_kernel_s'] * 1e3:.3g} ms, tuned "

@@ -9,6 +9,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from clray.errors import plural
 from clray.image_io import write_bytes_atomically
 from clray.tuning.knobs import DEFAULT_TUNING
 from clray.tuning.tuner import Trial
@@ -134,7 +135,7 @@ def write_report(out: Path, header: dict, trials: Sequence[Trial], best_key: str
             lines.append(f"| {label(t)} | {time_ms} | {ratio} | {t.compile_ms:.0f} | "
                          f"{image} | {mark} |")
         rejected = [t for t in rows if not t.verified]
-        lines += ["", f"{len(rows)} configurations tried, {len(rejected)} rejected "
+        lines += ["", f"{plural(len(rows), 'configuration')} tried, {len(rejected)} rejected "
                       "(never chosen).", ""]
     if confirmed:
         lines += ["## Tuned against default, interleaved", "",

@@ -38,7 +38,7 @@ from clray.device.program import (
     packet_lanes_for,
     traversal_for,
 )
-from clray.errors import ClrayError, DeviceError
+from clray.errors import ClrayError, DeviceError, plural
 from clray.render import RenderSettings, kernel_switches, pack_for
 from clray.scene.load import load_scene
 from clray.study import fail_allowance
@@ -183,9 +183,11 @@ class Tolerance:
         off = metrics.count_over(image, reference, self.threshold)
         extra_nonfinite = metrics.nonfinite_count(image) - metrics.nonfinite_count(reference)
         if extra_nonfinite > 0:
-            return False, off, f"{extra_nonfinite} more non-finite pixels than the default"
+            return False, off, (f"{plural(extra_nonfinite, 'more non-finite pixel')} than the "
+                                "default")
         if off > self.allowance:
-            return False, off, (f"{off} pixels differ from the default's image by over "
+            return False, off, (f"{plural(off, 'pixel')} {'differs' if off == 1 else 'differ'} "
+                                "from the default's image by over "
                                 f"{self.threshold:.3g} (at most {self.allowance} may)")
         return True, off, None
 

@@ -46,7 +46,7 @@ from clray.scene.check import check_scene
 from clray.scene.load import load_scene
 from clray.scene.model import Scene
 from clray.sequence import Sequence
-from clray.study import study_scene
+from clray.study import scene_line, study_scene, variant_line
 
 if TYPE_CHECKING:
     from distributed import Client
@@ -313,7 +313,8 @@ def study_scenes(client: Client, paths: Iterable[Path], variants: Iterable, repe
     index = {t.key: i for i, t in enumerate(tasks)}
     for task, records in import_distributed().as_completed(tasks, with_results=True):
         by_path[index[task.key]] = records
+        if records:
+            say(scene_line(records[0]))
         for r in records:
-            say(f"{r['scene']}: {r['variant']}: {r['kernel_s_median'] * 1e3:.3g} ms, rmse "
-                f"{r['rmse']}, {r['status']} (on {r['worker']})")
+            say(f"{variant_line(r)} (on {r['worker']})")
     return [r for i in range(len(paths)) for r in by_path[i]]

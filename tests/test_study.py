@@ -153,3 +153,55 @@ def test_cli_study(tmp_path: Path, tmp_scene, cl_device: cl.Device,
 
 def test_cli_study_needs_out(tmp_scene) -> None:
     assert main(["study", str(tmp_scene(SCENE))]) == 2
+
+
+def _full(variant: str, rmse: float, over: int, nonfinite: int = 0, **fields: object) -> dict:
+    """A record as study_scene makes it, of a 64x48 image: the allowance is 6 pixels."""
+    n_pixels = 64 * 48
+    status = "pass" if nonfinite == 0 and over <= study.fail_allowance(n_pixels) else "FAIL"
+    return {"scene": "glass", "scene_file": "scenes/glass.toml", "variant": variant,
+            "width": 64, "height": 48, "kernel_s_median": 0.0131, "rmse": rmse,
+            "psnr_db": 47.4, "max_abs": 0.123, "over_1_255": over, "over_2_255": over,
+            "nonfinite": nonfinite, "status": status, "scene_warnings": [], **fields}
+
+
+GLASS = [_full("double", 0.0, 0), _full("float (default)", 0.004273047055896146, 13),
+         _full("-cl-mad-enable", 0.0021, 6), _full("-cl-fast-relaxed-math", 0.0044, 1, 1)]
+
+
+def test_progress_lines_say_what_is_compared_and_why_a_variant_fails() -> None:
+    assert study.scene_line(GLASS[0]) == (
+        "glass at 64x48: each variant's image against the double build's (the reference); "
+        "FAIL: a NaN or infinite pixel, or over 6 of the 3072 pixels off by more than 2/255")
+    assert [study.variant_line(r) for r in GLASS] == [
+        "glass: double: 13.1 ms, the reference",
+        # Three significant digits, not the 17 of the float's repr.
+        "glass: float (default): 13.1 ms, RMSE 0.00427, FAIL: 13 pixels off by over 2/255, "
+        "6 allowed",
+        "glass: -cl-mad-enable: 13.1 ms, RMSE 0.0021, pass",
+        "glass: -cl-fast-relaxed-math: 13.1 ms, RMSE 0.0044, FAIL: 1 pixel NaN or infinite"]
+
+
+def test_report_says_what_is_compared_the_tolerance_and_why_a_variant_fails(
+        tmp_path: Path) -> None:
+    study.write_report(GLASS, tmp_path, 1, "a device", {})
+    report = (tmp_path / "report.md").read_text()
+    assert "median of 1 timed run after a warm-up" in report
+    assert "compared pixel by pixel with the image of the **double** variant" in report
+    assert ("`scenes/glass.toml` at 64x48. FAIL: a NaN or infinite pixel, or over 6 of the "
+            "3072 pixels off by more than 2/255.") in report
+    assert "The float default fails here too" in report
+    assert ("| glass | reference | **FAIL**: 13 pixels off by over 2/255, 6 allowed | pass | "
+            "**FAIL**: 1 pixel NaN or infinite |") in report
+    assert report.count("| **FAIL**: 13 pixels off by over 2/255, 6 allowed |") == 2
+    study.write_report(GLASS, tmp_path, 3, "a device", {})
+    assert "median of 3 timed runs" in (tmp_path / "report.md").read_text()
+
+
+def test_one_dask_worker_is_named_in_the_singular(tmp_path: Path) -> None:
+    def one_worker(paths, variants, repeat, base, say) -> list[dict]:
+        return [{**r, "worker": "w:1", "device": "a device"} for r in GLASS]
+
+    study.run_study([Path("scenes/glass.toml")], tmp_path, run_scenes=one_worker)
+    device = json.loads((tmp_path / "results.json").read_text())["device"]
+    assert device.startswith("1 Dask worker (a device), each scene's variants")

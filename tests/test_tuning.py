@@ -131,8 +131,10 @@ def test_the_constants_at_their_sites_are_the_table_defaults() -> None:
 def test_illegal_knobs_and_broken_restrictions_are_refused(values, words) -> None:
     with pytest.raises(TuningError, match=words):
         Tuning(**values)
-    with pytest.raises(TuningError, match="unknown knob"):
+    with pytest.raises(TuningError, match=r"^1 unknown knob: work_group_size$"):
         Tuning.from_values({"work_group_size": 64})
+    with pytest.raises(TuningError, match=r"^2 unknown knobs: lanes, work_group_size$"):
+        Tuning.from_values({"work_group_size": 64, "lanes": 8})
 
 
 def test_host_knobs_change_the_packed_bvh(crowd) -> None:

@@ -15,6 +15,8 @@ from collections.abc import Callable
 from dataclasses import asdict, dataclass, fields
 from typing import Literal
 
+from clray.errors import plural
+
 # Where a knob acts. host: how the packed scene is built (a new BVH, new buffers); kernel: a -D
 # switch of the render kernel's build; build: an option of the kernel's compiler (-cl-...);
 # launch: how the host launches the built kernel.
@@ -263,7 +265,8 @@ class Tuning:
         """From a mapping of knob names (a tuning file's), refusing names no knob has."""
         unknown = set(values) - {f.name for f in fields(cls)}
         if unknown:
-            raise TuningError(f"unknown knob(s): {', '.join(sorted(unknown))}")
+            raise TuningError(f"{plural(len(unknown), 'unknown knob')}: "
+                              f"{', '.join(sorted(unknown))}")
         return cls(**values)
 
 

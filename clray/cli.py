@@ -28,7 +28,15 @@ import pyopencl as cl
 
 from clray import __version__
 from clray.device.context import default_device, list_devices
-from clray.errors import EXIT_OK, EXIT_RUNTIME, EXIT_USAGE, ClrayError, SceneError, one_line
+from clray.errors import (
+    EXIT_OK,
+    EXIT_RUNTIME,
+    EXIT_USAGE,
+    ClrayError,
+    SceneError,
+    one_line,
+    plural,
+)
 from clray.image_io import (
     FLOAT_SUFFIXES,
     SUFFIXES,
@@ -504,7 +512,7 @@ class _ProgressLines:
         self.tiles = ""
 
     def note_tiles(self, done: int, submitted: int) -> None:
-        self.tiles = f", {done} of {submitted} tiles"
+        self.tiles = f", {done} of {plural(submitted, 'tile')}"
 
     def __call__(self, done: int, total: int) -> None:
         if done == 0:
@@ -538,7 +546,7 @@ class _ProgressBar:
     def note_tiles(self, done: int, submitted: int) -> None:
         # A distributed render's tiles, as they arrive from the cluster's workers.
         if self.bar is not None:
-            self.bar.set_postfix_str(f"{done}/{submitted} tiles")
+            self.bar.set_postfix_str(f"{done}/{plural(submitted, 'tile')}")
 
     def close(self) -> None:
         if self.bar is not None:
@@ -597,7 +605,8 @@ def _stats_table(stats: dict) -> list[str]:
     if "traversal" in stats:
         rows.append(("traversal", stats["traversal"]))
     for key, label in _TIMES:
-        note = {"kernel_s": f"  ({stats['launches']} launches, device time)",
+        note = {"kernel_s": f"  ({plural(stats['launches'], 'launch', 'launches')}, "
+                            "device time)",
                 "render_s": "  (bvh to read-back)"}.get(key, "")
         rows.append((label, f"{stats[key]:8.3f} s{note}"))
     rays = stats["rays"]
@@ -698,7 +707,9 @@ def _render(args: argparse.Namespace) -> int:
 
     if not args.quiet and stats["nonfinite_pixels"]:
         kept = "kept" if output.suffix.lower() in FLOAT_SUFFIXES else "written black"
-        _say(f"warning: {stats['nonfinite_pixels']} pixels are NaN or infinite ({kept})")
+        n = stats["nonfinite_pixels"]
+        _say(f"warning: {plural(n, 'pixel')} {'is' if n == 1 else 'are'} NaN or infinite "
+             f"({kept})")
     if args.verbose:
         _say("stats:")
         for line in _stats_table(stats):
@@ -729,7 +740,8 @@ def _cluster(args: argparse.Namespace) -> contextlib.AbstractContextManager:
 
 
 def _say_dask(stats: dict, unit: str) -> None:
-    _say(f"dask: {stats[unit]} {unit} on {stats['workers']} workers at {stats['scheduler']}, "
+    _say(f"dask: {plural(stats[unit], unit[:-1], unit)} on {plural(stats['workers'], 'worker')} "
+         f"at {stats['scheduler']}, "
          f"scene {_size(stats['scene_bytes'])} sent to each ({_size(stats['bytes_sent'])}), "
          f"{_size(stats['result_bytes'])} of images back")
 
@@ -790,7 +802,9 @@ def _render_frames(args: argparse.Namespace, started: float) -> int:
         if dask_stats is not None:
             _say_dask(dask_stats, "frames")
         skipped = f", {stats['skipped']} complete already" if stats["skipped"] else ""
-        _say(f"wrote {len(records)} frames of {frames.start}-{frames.stop - 1} to "
+        span = (f"frame {frames.start}" if len(frames) == 1
+                else f"frames {frames.start}-{frames.stop - 1}")
+        _say(f"wrote {plural(len(records), 'frame')} of {span} to "
              f"{args.output}{skipped} (wall {stats['total_s']:.3g} s)")
     return EXIT_OK
 
@@ -813,7 +827,8 @@ def _study(args: argparse.Namespace) -> int:
             records = study(run_scenes=functools.partial(study_scenes, client))
     if not args.quiet:
         failed = sum(r["status"] == "FAIL" for r in records)
-        _say(f"wrote {args.out / 'report.md'} ({len(records)} renders, {failed} failing)")
+        _say(f"wrote {args.out / 'report.md'} ({plural(len(records), 'render')}, "
+             f"{failed} failing)")
     return EXIT_OK
 
 

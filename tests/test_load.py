@@ -132,7 +132,8 @@ def test_minimal_scene_gets_every_default():
     assert s.render == RenderOptions()
     assert s.camera == Camera((0.0, 0.0, 5.0), (0.0, 0.0, 0.0), (0.0, 1.0, 0.0), 40.0, None)
     assert s.materials == () and s.lights == () and s.objects == ()
-    assert s.warnings == ()
+    # Only the empty scene's own warning: nothing of float accuracy.
+    assert s.warnings == ("the scene has no objects: the image is the background alone",)
 
 
 def test_full_toml_file(tmp_path):

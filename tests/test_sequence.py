@@ -163,7 +163,7 @@ def test_render_frames_then_resume(cl_device, tmp_path, capsys):
     stats = tmp_path / "stats.json"
     assert cli.main(["render", *args, "--frames", "0:3", "--resume",
                      "--stats-json", str(stats)]) == 0
-    assert "wrote 1 frames of 0-2" in capsys.readouterr().err
+    assert "wrote 1 frame of frames 0-2" in capsys.readouterr().err
     assert frame_path(pattern, 0).stat().st_mtime_ns == stamp  # not written again
     record = json.loads(stats.read_text())
     assert [f["frame"] for f in record["frames"]] == [2] and record["skipped"] == 2
@@ -214,3 +214,10 @@ values = [1, 3]
     assert sphere.center == (0.5, -1.0, 2.0)
     assert sphere.radius == 1.5
     assert sequence.scene(4).objects[0].center == (2.0, -4.0, 8.0)
+
+
+def test_one_frame_is_said_in_the_singular(cl_device, tmp_path, capsys):
+    pattern = tmp_path / "f_%04d.png"
+    assert cli.main(["render", str(ROOT / "scenes" / "orbit.toml"), "-W", "16", "-H", "9",
+                     "--frames", "2:3", "-o", str(pattern)]) == 0
+    assert f"wrote 1 frame of frame 2 to {pattern}" in capsys.readouterr().err

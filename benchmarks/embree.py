@@ -1,0 +1,496 @@
+"""Embree 4's single rays beside clray's single-ray walk: primary rays of the bumpy mesh.
+
+    python benchmarks/embree.py [--json benchmarks/results/embree.json] [--repeat 5]
+                                [--size 1280x720] [--subdivisions 7] [--device SPEC]
+                                [--packet-spp 16] [--instructions] [--mesh-dir DIR]
+
+Needs the `embree` extra (`pip install -e '.[embree]'`, or `pip install embreex`); without it
+the benchmark says so and exits with status 2.
+
+The scene: benchmarks/make_mesh_scene.py's mesh scene (the 327,680-triangle bumpy icosphere at
+seven subdivisions, its camera, size and background) with the mesh alone: no plane and no
+lights, written as its own scene file. The rays: one a pixel through the pixel centres, made in
+float64 by clray's reference camera (`clray.reference.sampling.camera_rays`, the kernels'
+camera), camera-relative as clray packs a scene and rounded to float32. Embree gets the mesh's
+vertices in the same frame (float64 minus the eye, rounded to float32, as `pack_scene` does),
+so both trace the same float32 rays through the same float32 triangles.
+
+- Embree: embreex's `rtcore_scene.EmbreeScene` with one `mesh_construction.TriangleMesh`;
+  `EmbreeScene.run(origins, directions, output=1)` is a Cython loop that calls Embree's
+  single-ray `rtcIntersect1` once a ray on the calling thread (embreex 4.4 binds no packet or
+  stream call: its `rtcore_scene` module imports `rtcIntersect1` and `rtcOccluded1` only), so
+  it runs on one thread. The first run commits the scene (Embree's BVH build, on TBB's
+  threads) and is not timed. Timed by wall clock and by the process's CPU time.
+- clray, on the OpenCL device (PoCL's CPU device by default: one thread a core): the render
+  kernel at 1 spp, max depth 0, no lights, built for the single-ray walk
+  (`KernelConfig.traversal = "single"`, as `clray render` builds 1-spp renders): each
+  work-item makes its camera ray, walks the BVH to the closest hit and shades it by the ambient
+  term. That is the headline (`render`). Beside it the `intersect_rays` kernel on the very rays
+  Embree traces (`intersect`: reads a ray, walks, writes t, the geometric normal and the
+  primitive), from which the hits are compared. Both timed by OpenCL profiling events (kernel
+  time) and by the process's CPU time around the launch.
+- With `--packet-spp N` (default 16, 0: none), the render kernel at N samples a pixel as a
+  render builds it on the device (sample packets on CPU devices), for the issue's "sample
+  packets against Embree's single rays".
+
+Rates: Mrays/s by the kernel's (or Embree's) wall time; per core, clray's divided by the
+device's compute units (CPU threads for PoCL), Embree's per thread as it is; and by CPU time
+(`mrays_per_cpu_s`), which holds better than wall time while other work shares the cores. The
+sides run in turns (Embree, clray render, clray intersect, packets) after a warm-up of each,
+`--repeat` rounds, so load changes fall on all of them; medians and the spread of the runs are
+reported.
+
+Hits: a ray hits where its t is finite (clray) or Embree's geomID is set. `hits` compares
+Embree's and `intersect`'s (same rays): rays whose hit masks differ, and the relative t
+difference where both hit. `render_hits` compares the render's image (a hit pixel is not the
+background) with Embree's mask: the render makes its rays in float32 itself, so a silhouette
+pixel may differ.
+
+`--instructions` (needs valgrind and PoCL) also counts the render kernel's instructions a ray
+with benchmarks/instructions.py's `primary` variant of the same scene file (one PoCL thread,
+the kernel only); the 327k-triangle BVH is built under valgrind too, so this adds a minute or
+more. Measures only: nothing is asserted.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib.util
+import json
+import platform
+import re
+import shutil
+import statistics
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+HERE = Path(__file__).resolve().parent
+ROOT = HERE.parent
+INSTALL_HINT = ("benchmarks/embree.py needs embreex (Embree 4's Python binding): "
+                ".venv/bin/pip install embreex   (or: pip install -e '.[embree]')")
+# Embree's geomID of a ray that hit nothing (RTC_INVALID_GEOMETRY_ID) as embreex's int32.
+EMBREE_MISS = -1
+# Relative t difference within which two hits of one ray agree (float32 intersections of the
+# same triangle differ by a few ulps; a neighbouring triangle across an edge by about as much).
+T_RTOL = 1e-4
+# The clay material of make_mesh_scene.py's scene; shading does not change the walk.
+SCENE_TEMPLATE = """\
+# benchmarks/embree.py: make_mesh_scene.py's mesh scene, the mesh alone (no plane, no lights).
+[render]
+width = {width}
+height = {height}
+spp = 1
+max_depth = 0
+background = {background}
+
+[camera]
+position = {position}
+look_at = {look_at}
+up = {up}
+{fov}
+
+[materials.clay]
+color = [0.85, 0.45, 0.25]
+ambient = 0.1
+diffuse = 0.8
+
+[[objects]]
+type = "mesh"
+file = "bumpy.obj"
+material = "clay"
+"""
+
+
+def _module(name: str):
+    # benchmarks/ is not a package: load its modules from their files.
+    spec = importlib.util.spec_from_file_location(name, HERE / f"{name}.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def import_embreex() -> tuple[Any, Any, str] | None:
+    """(rtcore_scene, mesh_construction, embreex version), or None where embreex is absent."""
+    try:
+        import embreex
+        from embreex import mesh_construction, rtcore_scene
+    except ImportError:
+        return None
+    return rtcore_scene, mesh_construction, getattr(embreex, "__version__", "unknown")
+
+
+def compare_hits(t_a: np.ndarray, t_b: np.ndarray, rtol: float = T_RTOL) -> dict:
+    """How two tracers' closest hits of the same rays agree: t per ray, inf (or nan) on a miss.
+    `mask_mismatches`: rays one hits and the other misses; over the rays both hit, the largest
+    and median relative t difference and how many differ by more than `rtol`. `agree`: no mask
+    mismatch and no t beyond `rtol`."""
+    t_a = np.asarray(t_a, dtype=np.float64).ravel()
+    t_b = np.asarray(t_b, dtype=np.float64).ravel()
+    if t_a.shape != t_b.shape:
+        raise ValueError(f"hit arrays differ in length: {t_a.size} and {t_b.size}")
+    hit_a, hit_b = np.isfinite(t_a), np.isfinite(t_b)
+    both = hit_a & hit_b
+    rel = np.abs(t_a[both] - t_b[both]) / np.maximum(np.abs(t_b[both]), np.finfo(np.float64).tiny)
+    mismatches = int(np.count_nonzero(hit_a != hit_b))
+    beyond = int(np.count_nonzero(rel > rtol))
+    return {
+        "rays": int(t_a.size),
+        "hits_a": int(np.count_nonzero(hit_a)),
+        "hits_b": int(np.count_nonzero(hit_b)),
+        "hit_fraction": float(np.count_nonzero(hit_b) / t_b.size) if t_b.size else 0.0,
+        "mask_mismatches": mismatches,
+        "mask_agreement": float(1.0 - mismatches / t_a.size) if t_a.size else 1.0,
+        "both_hit": int(np.count_nonzero(both)),
+        "t_rel_diff_max": float(rel.max()) if rel.size else 0.0,
+        "t_rel_diff_median": float(np.median(rel)) if rel.size else 0.0,
+        "t_rtol": rtol,
+        "t_beyond_rtol": beyond,
+        "agree": mismatches == 0 and beyond == 0,
+    }
+
+
+def write_scene(out: Path, width: int, height: int, subdivisions: int) -> Path:
+    """make_mesh_scene.py's scene in `out` (bumpy.obj, bumpy.toml), and beside it the mesh
+    alone at width x height (mesh_only.toml, its camera and background): that file's path."""
+    make = _module("make_mesh_scene")
+    make.main(["--out", str(out), "--subdivisions", str(subdivisions)])
+    from clray.scene.load import load_scene
+
+    full = load_scene(out / "bumpy.toml")
+    cam, background = full.camera, full.render.background
+    if cam.type != "perspective" or cam.aperture > 0 or not isinstance(background, tuple):
+        raise RuntimeError("make_mesh_scene.py's scene no longer has a pinhole camera and a "
+                           "plain background: update benchmarks/embree.py's scene")
+    fov = f"vfov = {cam.vfov!r}" if cam.hfov is None else f"hfov = {cam.hfov!r}"
+    text = SCENE_TEMPLATE.format(width=width, height=height, background=list(background),
+                                 position=list(cam.position), look_at=list(cam.look_at),
+                                 up=list(cam.up), fov=fov)
+    path = out / "mesh_only.toml"
+    path.write_text(text, encoding="ascii")
+    return path
+
+
+def primary_rays(scene, width: int, height: int) -> tuple[np.ndarray, np.ndarray]:
+    """(origins, directions), float32 (N, 3), camera-relative: one ray a pixel through its
+    centre, row by row from the top, as clray's camera makes them (in float64, then rounded)."""
+    from clray.reference.sampling import camera_rays
+
+    origins, directions, _ = camera_rays(scene, width, height, 1, scene.render.seed)
+    eye = np.asarray(scene.camera.position, dtype=np.float64)
+    return ((origins - eye).astype(np.float32), np.ascontiguousarray(directions,
+                                                                      dtype=np.float32))
+
+
+def camera_relative_triangles(scene) -> np.ndarray:
+    """(F, 3, 3) float32: the scene's meshes' triangles, camera-relative as pack_scene stores
+    their vertices (float64 minus the eye, then rounded)."""
+    from clray.scene import model as M
+
+    eye = np.asarray(scene.camera.position, dtype=np.float64)
+    meshes = [obj for obj in scene.objects if isinstance(obj, M.Mesh)]
+    vertices = [(mesh.vertices - eye).astype(np.float32)[mesh.faces] for mesh in meshes]
+    return np.ascontiguousarray(np.concatenate(vertices))
+
+
+class EmbreeSide:
+    """Embree 4 through embreex: one scene of one triangle mesh, rays by rtcIntersect1."""
+
+    def __init__(self, embree: tuple[Any, Any, str], triangles: np.ndarray,
+                 origins: np.ndarray, directions: np.ndarray):
+        rtcore_scene, mesh_construction, _ = embree
+        self.scene = rtcore_scene.EmbreeScene()
+        self.mesh = mesh_construction.TriangleMesh(self.scene, triangles)
+        self.origins, self.directions = origins, directions
+        start = time.perf_counter()
+        self.run()  # commits the scene: Embree's BVH build
+        self.commit_and_first_run_s = time.perf_counter() - start
+
+    def run(self) -> dict:
+        wall, cpu = time.perf_counter(), time.process_time()
+        out = self.scene.run(self.origins, self.directions, output=1)
+        wall, cpu = time.perf_counter() - wall, time.process_time() - cpu
+        t = np.where(out["geomID"] != EMBREE_MISS, out["tfar"], np.float32(np.inf))
+        return {"wall_s": wall, "cpu_s": cpu, "t": t}
+
+
+class ClraySide:
+    """clray's render kernel (single-ray walk, 1 spp, depth 0, no lights), its intersect_rays
+    kernel on given rays, and optionally the render at packet_spp samples a pixel."""
+
+    def __init__(self, scene, device, origins: np.ndarray, directions: np.ndarray,
+                 packet_spp: int):
+        from clray.device.context import queue_for
+        from clray.device.pack import pack_scene
+        from clray.device.program import bvh_width_for
+        from clray.render import RenderSettings, kernel_switches
+        from clray.tuning.knobs import Tuning
+
+        r = scene.render
+        self.device = device
+        settings = {"width": r.width, "height": r.height, "max_depth": 0, "seed": r.seed,
+                    "bvh_width": bvh_width_for(device), "queue": queue_for(device)}
+        # As `clray render --traversal single` packs a 1-spp render (and as a plain 1-spp
+        # render does: one sample a pixel makes no sample packet).
+        single = kernel_switches(Tuning(), RenderSettings(traversal="single"), device, 1)
+        self.packed = pack_scene(scene, spp=1, **settings, **single)
+        if self.packed.config.traversal != "single" or self.packed.config.max_depth != 0:
+            raise RuntimeError(f"expected the single-ray walk at depth 0, got "
+                               f"{self.packed.config.traversal} at {self.packed.config.max_depth}")
+        self.bvh_s = self.packed.bvh_s
+        self.background = np.asarray(r.background, dtype=np.float32)
+        self.packets = None
+        if packet_spp:
+            switches = kernel_switches(Tuning(), RenderSettings(), device, packet_spp)
+            self.packets = pack_scene(scene, spp=packet_spp, **settings, **switches)
+        self._intersect_setup(origins, directions)
+
+    def _intersect_setup(self, origins: np.ndarray, directions: np.ndarray) -> None:
+        # intersect_rays (clray.device.launch) builds its buffers on every call; here they are
+        # made once, so a run times the kernel alone. The same kernel and arguments.
+        import pyopencl as cl
+
+        from clray.device.context import queue_for
+        from clray.device.launch import _buffer, _scene_buffers
+        from clray.device.program import build_program
+
+        program, _ = build_program(self.device, self.packed.config)
+        self.queue = queue_for(self.device)
+        ctx = self.queue.context
+        self.n = len(origins)
+        o4 = np.zeros((self.n, 4), dtype=np.float32)
+        d4 = np.zeros((self.n, 4), dtype=np.float32)
+        o4[:, :3], d4[:, :3] = origins, directions
+        self.hits_buf = cl.Buffer(ctx, cl.mem_flags.WRITE_ONLY, self.n * 16)
+        self.refs_buf = cl.Buffer(ctx, cl.mem_flags.WRITE_ONLY, self.n * 4)
+        # Held here: a kernel's arguments do not keep their buffers alive.
+        self.buffers = [_buffer(ctx, o4), _buffer(ctx, d4), *_scene_buffers(ctx, self.packed),
+                        self.hits_buf, self.refs_buf]
+        self.kernel = cl.Kernel(program, "intersect_rays")
+        self.kernel.set_args(*self.buffers)
+
+    def render(self, packets: bool = False) -> dict:
+        from clray.device.launch import render_packed
+
+        cpu = time.process_time()
+        image, stats = render_packed(self.packets if packets else self.packed, self.device)
+        cpu = time.process_time() - cpu
+        out = {"kernel_s": stats["kernel_s"], "cpu_s": cpu, "rays": stats["rays"]["total"]}
+        if not packets:
+            # A pixel the walk hit is shaded (ambient term of the clay), not the background.
+            out["hit"] = np.any(image.reshape(-1, 3) != self.background, axis=1)
+        return out
+
+    def intersect(self) -> dict:
+        import pyopencl as cl
+
+        cpu = time.process_time()
+        event = cl.enqueue_nd_range_kernel(self.queue, self.kernel, (self.n,), None)
+        event.wait()
+        cpu = time.process_time() - cpu
+        hits = np.empty((self.n, 4), dtype=np.float32)
+        cl.enqueue_copy(self.queue, hits, self.hits_buf)
+        self.queue.finish()
+        return {"kernel_s": (event.profile.end - event.profile.start) * 1e-9, "cpu_s": cpu,
+                "t": hits[:, 3]}
+
+
+def spread(values: list[float]) -> dict:
+    """Median, smallest and largest of runs, and every run."""
+    return {"median": statistics.median(values), "min": min(values), "max": max(values),
+            "runs": values}
+
+
+def rates(rays: int, seconds: list[float], cpu_seconds: list[float], workers: int) -> dict:
+    """Mrays/s of each run by wall (or kernel) time, per worker, and by CPU time."""
+    per_s = [rays / s * 1e-6 for s in seconds]
+    return {"rays": rays, "seconds": spread(seconds), "cpu_seconds": spread(cpu_seconds),
+            "mrays_per_s": spread(per_s),
+            "mrays_per_s_per_worker": spread([v / workers for v in per_s]),
+            "mrays_per_cpu_s": spread([rays / s * 1e-6 for s in cpu_seconds])}
+
+
+def cpu_model() -> dict:
+    """The host CPU's model name and the vector extensions that matter here."""
+    model, flags = platform.processor() or None, set()
+    try:
+        for line in Path("/proc/cpuinfo").read_text(encoding="utf-8").splitlines():
+            key, _, value = line.partition(":")
+            if key.strip() == "model name" and model in (None, "", "x86_64"):
+                model = value.strip()
+            elif key.strip() == "flags" and not flags:
+                flags = set(value.split())
+    except OSError:
+        pass
+    return {"cpu_model": model, "avx2": "avx2" in flags, "avx512f": "avx512f" in flags}
+
+
+def count_instructions(scene_file: Path) -> dict:
+    """benchmarks/instructions.py's count of the render kernel's `primary` variant (depth 0,
+    no lights: the single-ray walk of the camera rays and their ambient shading)."""
+    instructions = _module("instructions")
+    instructions._render(scene_file, "primary", valgrind=False)  # fills PoCL's kernel cache
+    counted = instructions._render(scene_file, "primary", valgrind=True)
+    rays = counted["rays"]["primary"]
+    return {"instructions": counted["instructions"], "rays": rays,
+            "instructions_per_ray": counted["instructions"] / rays}
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--json", type=Path, default=HERE / "results" / "embree.json")
+    parser.add_argument("--repeat", type=int, default=5, help="timed rounds after a warm-up")
+    parser.add_argument("--size", default="1280x720", metavar="WxH")
+    parser.add_argument("--subdivisions", type=int, default=7,
+                        help="of the icosphere (7: 327,680 triangles)")
+    parser.add_argument("--device", default=None, help="OpenCL device spec, as clray render's")
+    parser.add_argument("--packet-spp", type=int, default=16,
+                        help="also time the render at this many samples a pixel as a render "
+                             "builds it (sample packets on CPU devices); 0: not")
+    parser.add_argument("--instructions", action="store_true",
+                        help="count the render kernel's instructions a ray under valgrind")
+    parser.add_argument("--mesh-dir", type=Path, default=None,
+                        help="where to write the scene (default: a temporary folder)")
+    args = parser.parse_args(argv)
+    width, _, height = args.size.partition("x")
+    if not (width.isdigit() and height.isdigit() and int(width) > 0 and int(height) > 0):
+        parser.error(f"--size is WxH, got {args.size!r}")
+    if args.repeat < 1 or args.packet_spp < 0 or args.subdivisions < 0:
+        parser.error("--repeat must be >= 1, --packet-spp and --subdivisions >= 0")
+    if args.instructions and shutil.which("valgrind") is None:
+        parser.error("--instructions needs valgrind (Debian: apt-get install valgrind)")
+    embree = import_embreex()
+    if embree is None:
+        print(INSTALL_HINT, file=sys.stderr)
+        sys.exit(2)
+    width, height = int(width), int(height)
+
+    from clray.device.context import select_device
+    from clray.scene.load import load_scene
+
+    bench = _module("bench")
+    with tempfile.TemporaryDirectory(prefix="clray-embree-") as tmp:
+        out = args.mesh_dir or Path(tmp) / "mesh"
+        scene_file = write_scene(out, width, height, args.subdivisions)
+        scene = load_scene(scene_file)
+        device = select_device(args.device)
+        workers = device.max_compute_units
+        origins, directions = primary_rays(scene, width, height)
+        triangles = camera_relative_triangles(scene)
+
+        start = time.perf_counter()
+        embree_side = EmbreeSide(embree, triangles, origins, directions)
+        embree_build_s = time.perf_counter() - start
+        clray_side = ClraySide(scene, device, origins, directions, args.packet_spp)
+        # Warm-up of each: PoCL compiles the work-group functions at the first launch.
+        clray_side.render()
+        clray_side.intersect()
+        if args.packet_spp:
+            clray_side.render(packets=True)
+        embree_side.run()
+
+        runs: dict[str, list[dict]] = {"embree": [], "render": [], "intersect": [], "packets": []}
+        for round_index in range(args.repeat):
+            runs["embree"].append(embree_side.run())
+            runs["render"].append(clray_side.render())
+            runs["intersect"].append(clray_side.intersect())
+            if args.packet_spp:
+                runs["packets"].append(clray_side.render(packets=True))
+            print(f"round {round_index + 1}/{args.repeat}: embree "
+                  f"{runs['embree'][-1]['wall_s']:.4f} s, clray render "
+                  f"{runs['render'][-1]['kernel_s']:.4f} s, intersect "
+                  f"{runs['intersect'][-1]['kernel_s']:.4f} s", file=sys.stderr)
+        counted = count_instructions(scene_file) if args.instructions else None
+
+    n = len(origins)
+    embree_rates = rates(n, [r["wall_s"] for r in runs["embree"]],
+                         [r["cpu_s"] for r in runs["embree"]], 1)
+    sides = {"render": rates(runs["render"][-1]["rays"], [r["kernel_s"] for r in runs["render"]],
+                             [r["cpu_s"] for r in runs["render"]], workers),
+             "intersect": rates(n, [r["kernel_s"] for r in runs["intersect"]],
+                                [r["cpu_s"] for r in runs["intersect"]], workers)}
+    if args.packet_spp:
+        sides["packets"] = rates(runs["packets"][-1]["rays"],
+                                 [r["kernel_s"] for r in runs["packets"]],
+                                 [r["cpu_s"] for r in runs["packets"]], workers)
+        sides["packets"]["spp"] = args.packet_spp
+        sides["packets"]["traversal"] = clray_side.packets.config.traversal
+        sides["packets"]["packet_lanes"] = clray_side.packets.config.packet_lanes
+    embree_t = runs["embree"][-1]["t"]
+    hits = compare_hits(runs["intersect"][-1]["t"], embree_t)
+    render_hits = compare_hits(np.where(runs["render"][-1]["hit"], 1.0, np.inf),
+                               np.where(np.isfinite(embree_t), 1.0, np.inf))
+
+    def median(d: dict, key: str) -> float:
+        return d[key]["median"]
+
+    embree_thread = median(embree_rates, "mrays_per_s_per_worker")
+    ratios = {}
+    for name, side in sides.items():
+        per_round = [c / e for c, e in zip(side["mrays_per_s_per_worker"]["runs"],
+                                           embree_rates["mrays_per_s"]["runs"], strict=True)]
+        ratios[name] = {
+            "per_core_vs_embree_per_thread": median(side, "mrays_per_s_per_worker")
+            / embree_thread,
+            "per_round": spread(per_round),
+            "per_cpu_s_vs_embree_per_cpu_s": median(side, "mrays_per_cpu_s")
+            / median(embree_rates, "mrays_per_cpu_s"),
+        }
+    environment = bench.environment(device)
+    report = {
+        "benchmark": "embree",
+        "repeat": args.repeat,
+        "width": width,
+        "height": height,
+        "scene": "make_mesh_scene.py's mesh alone (no plane, no lights), 1 ray a pixel",
+        "subdivisions": args.subdivisions,
+        "triangles": len(triangles),
+        "rays": n,
+        **environment,
+        "clray_workers": workers,
+        "bvh_width": clray_side.packed.config.bvh_width,
+        "traversal": clray_side.packed.config.traversal,
+        "clray_bvh_s": clray_side.bvh_s,
+        "embreex_version": embree[2],
+        # embreex's version numbers follow the Embree release its wheels bundle.
+        "embree_version": (re.match(r"\d+\.\d+\.\d+", embree[2]) or [None])[0],
+        "embree_threads": 1,
+        "embree_call": "rtcIntersect1 (embreex EmbreeScene.run, a Cython loop over rays)",
+        "embree_commit_and_first_run_s": embree_side.commit_and_first_run_s,
+        "embree_build_s": embree_build_s,
+        **cpu_model(),
+        "embree": embree_rates,
+        "clray": sides,
+        "ratios": ratios,
+        "hits": hits,
+        "render_hits": render_hits,
+        "instructions": counted,
+    }
+    args.json.parent.mkdir(parents=True, exist_ok=True)
+    args.json.write_text(json.dumps(report, indent=2) + "\n", encoding="utf-8")
+
+    print(f"{n} rays ({width}x{height}), {len(triangles)} triangles, {hits['hit_fraction']:.1%} "
+          f"hit; {environment['device']}, {workers} compute units; embree {embree[2]}")
+    print(f"  embree rtcIntersect1, 1 thread: {embree_thread:.2f} Mrays/s (runs "
+          f"{embree_rates['mrays_per_s']['min']:.2f} to {embree_rates['mrays_per_s']['max']:.2f}),"
+          f" {median(embree_rates, 'mrays_per_cpu_s'):.2f} Mrays per CPU s")
+    for name, side in sides.items():
+        per = side["mrays_per_s_per_worker"]
+        print(f"  clray {name}: {median(side, 'mrays_per_s'):.2f} Mrays/s, {per['median']:.2f} a "
+              f"core (runs {per['min']:.2f} to {per['max']:.2f}), "
+              f"{median(side, 'mrays_per_cpu_s'):.2f} Mrays per CPU s; per core / embree per "
+              f"thread x{ratios[name]['per_core_vs_embree_per_thread']:.2f}")
+    print(f"  hits (intersect vs embree): {hits['mask_mismatches']} of {n} rays differ, t within "
+          f"{hits['t_rel_diff_max']:.1e} (relative); render vs embree: "
+          f"{render_hits['mask_mismatches']} pixels differ")
+    if counted:
+        print(f"  render kernel: {counted['instructions_per_ray']:.0f} instructions a ray")
+    print(f"wrote {args.json}")
+
+
+if __name__ == "__main__":
+    main()

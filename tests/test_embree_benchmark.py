@@ -1,0 +1,85 @@
+"""benchmarks/embree.py: the hit comparison (always), and a tiny run of the whole benchmark where
+embreex (the `embree` extra, which CI does not install) is present."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+from pathlib import Path
+
+import numpy as np
+import pyopencl as cl
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+# benchmarks/ is not a package; the benchmark is imported straight from its file.
+_spec = importlib.util.spec_from_file_location("embree_benchmark",
+                                               ROOT / "benchmarks" / "embree.py")
+embree_benchmark = importlib.util.module_from_spec(_spec)
+_spec.loader.exec_module(embree_benchmark)
+compare_hits = embree_benchmark.compare_hits
+
+
+def test_same_hits_agree() -> None:
+    t = np.array([1.0, np.inf, 2.5, np.inf], dtype=np.float32)
+    got = compare_hits(t, t.copy())
+    assert got["agree"] and got["mask_mismatches"] == 0 and got["t_rel_diff_max"] == 0.0
+    assert got["rays"] == 4 and got["hits_a"] == got["hits_b"] == got["both_hit"] == 2
+    assert got["hit_fraction"] == 0.5
+
+
+def test_a_ray_hit_by_one_side_only_is_a_mismatch() -> None:
+    got = compare_hits(np.array([1.0, 2.0, np.inf]), np.array([1.0, np.inf, np.inf]))
+    assert got["mask_mismatches"] == 1 and not got["agree"]
+    assert got["mask_agreement"] == pytest.approx(2 / 3)
+
+
+def test_t_within_and_beyond_tolerance() -> None:
+    close = compare_hits(np.array([1.0 + 1e-6, 3.0]), np.array([1.0, 3.0]))
+    assert close["agree"] and close["t_rel_diff_max"] == pytest.approx(1e-6)
+    far = compare_hits(np.array([1.01, 3.0]), np.array([1.0, 3.0]), rtol=1e-3)
+    assert not far["agree"] and far["t_beyond_rtol"] == 1 and far["mask_mismatches"] == 0
+
+
+def test_nan_is_a_miss_and_lengths_must_match() -> None:
+    assert compare_hits(np.array([np.nan]), np.array([np.inf]))["agree"]
+    with pytest.raises(ValueError, match="length"):
+        compare_hits(np.zeros(2), np.zeros(3))
+
+
+def test_without_embreex_the_benchmark_says_how_to_install_it(
+        monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:
+    monkeypatch.setattr(embree_benchmark, "import_embreex", lambda: None)
+    with pytest.raises(SystemExit) as exit_info:
+        embree_benchmark.main(["--repeat", "1"])
+    assert exit_info.value.code == 2
+    assert "pip install embreex" in capsys.readouterr().err
+
+
+def test_tiny_run_agrees_with_embree(cl_device: cl.Device, tmp_path: Path,
+                                     monkeypatch: pytest.MonkeyPatch) -> None:
+    pytest.importorskip("embreex")
+    if not cl_device.platform.name.startswith("Portable Computing Language"):
+        pytest.skip("the benchmark is read on PoCL's CPU device")
+    out = tmp_path / "embree.json"
+    embree_benchmark.main(["--size", "64x36", "--subdivisions", "4", "--repeat", "1",
+                           "--packet-spp", "4", "--json", str(out),
+                           "--mesh-dir", str(tmp_path / "mesh")])
+    report = json.loads(out.read_text(encoding="utf-8"))
+    for key in ("device", "driver_version", "pocl_version", "compute_units", "cpu_model",
+                "embreex_version", "embree_version", "embree", "clray", "ratios", "hits",
+                "render_hits", "triangles", "rays"):
+        assert key in report, key
+    assert report["rays"] == 64 * 36 and report["triangles"] == 20 * 4**4
+    assert report["traversal"] == "single"
+    assert set(report["clray"]) == {"render", "intersect", "packets"}
+    for side in (report["embree"], *report["clray"].values()):
+        assert side["mrays_per_s"]["median"] > 0 and len(side["mrays_per_s"]["runs"]) == 1
+    assert report["clray"]["render"]["rays"] == 64 * 36
+    assert report["clray"]["packets"]["rays"] == 64 * 36 * 4
+    assert report["ratios"]["render"]["per_core_vs_embree_per_thread"] > 0
+    hits = report["hits"]
+    assert hits["agree"], hits
+    assert 0.05 < hits["hit_fraction"] < 0.5
+    assert report["render_hits"]["mask_mismatches"] <= 1
+    assert report["instructions"] is None

@@ -1,0 +1,54 @@
+#!/usr/bin/env bash
+# One prepared command for a GPU machine without a network (docs/gpu.md):
+#
+#   bash scripts/gpu_check.sh OUT_DIR            on the GPU machine, .gpu-wheels/ carried along
+#   bash scripts/gpu_check.sh OUT_DIR --cpu      the same steps on PoCL at tiny sizes (CI)
+#
+# Installs clray's needs from .gpu-wheels/ (scripts/gpu_wheels.sh fills it) into a temporary
+# folder, never into the system Python; makes NVIDIA's OpenCL driver visible to pyopencl's ICD
+# loader; then lists the devices, runs the kernel tests on the GPU, compares every example
+# scene with the CPU's image, profiles spheres and the 327,680-triangle mesh, times kernel
+# builds with the driver's register figures and runs `clray tune`, each step under a time limit
+# of its own. Writes OUT_DIR/gpu_check.json (every figure), OUT_DIR/gpu_check.log and a few
+# more files (8 at most, each under 16 MiB) within 8 minutes. Exit 0 when every step passed.
+#
+# PYTHON picks the interpreter (default: python3; with --cpu, .venv/bin/python where it exists).
+# Further options go to scripts/gpu_check.py (--deadline S, --keep-work, --from-wheels).
+set -uo pipefail
+
+repo=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
+
+if [ $# -lt 1 ] || [ "${1#-}" != "$1" ]; then
+    echo "usage: bash scripts/gpu_check.sh OUT_DIR [--cpu] [--deadline S] [--keep-work]" >&2
+    exit 2
+fi
+out=$1
+shift
+
+cpu=0
+for arg in "$@"; do
+    if [ "$arg" = "--cpu" ]; then
+        cpu=1
+    fi
+done
+
+python=${PYTHON:-}
+if [ -z "$python" ]; then
+    if [ "$cpu" = 1 ] && [ -x "$repo/.venv/bin/python" ]; then
+        python=$repo/.venv/bin/python
+    else
+        python=python3
+    fi
+fi
+
+mkdir -p "$out" || exit 2
+# The driver keeps to its own deadline (450 s, 420 s with --cpu); this limit only catches a
+# driver that hangs itself, within the 8 minutes a GPU run has.
+limit=${GPU_CHECK_LIMIT:-475}
+PYTHONUNBUFFERED=1 timeout -k 5 "$limit" "$python" "$repo/scripts/gpu_check.py" "$out" "$@"
+rc=$?
+if [ "$rc" = 124 ] || [ "$rc" = 137 ]; then
+    echo "gpu_check: stopped after ${limit} s; $out/gpu_check.json holds the steps finished" |
+        tee -a "$out/gpu_check.log" >&2
+fi
+exit "$rc"

@@ -1,0 +1,608 @@
+"""The steps of scripts/gpu_check.py that import clray, one subcommand each, each run in a
+process of its own (docs/gpu.md):
+
+    software      --json F                         what imports, and from where
+    device-info   --json F --type GPU [--platform NVIDIA]
+    references    --out NPZ --size WxH [--device SPEC]   every example scene, for a later compare
+    reference-info --reference NPZ --json F
+    compare       --reference NPZ --json F --png-dir D [--device SPEC]
+    builds        --json F --device SPEC --scene NAME=PATH ... --spp N ... --scenes-dir DIR
+    nv-build      --config JSON --device SPEC      one build, its log's register figures
+
+scripts/gpu_wheels.sh runs `references` here on PoCL, so the GPU machine, which has no CPU
+OpenCL device, compares its images with CPU ones. Results are JSON files rewritten after each
+item, so a step stopped at its time limit keeps what it finished.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import datetime
+import hashlib
+import importlib
+import importlib.metadata
+import json
+import os
+import re
+import subprocess
+import sys
+import tempfile
+import time
+import warnings
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+
+import numpy as np
+
+REPO = Path(__file__).resolve().parents[1]
+SCENES_DIR = REPO / "scenes"
+# The images' file names under --png-dir: the GPU's, the CPU reference's, their difference.
+PNG_NAMES = ("scene_gpu.png", "scene_cpu.png", "scene_diff.png")
+# The difference image: white at this difference in a channel; pixels over the comparison's
+# 2/255 in red.
+DIFF_WHITE = 8 / 255
+LOG_CHARS = 4000
+# The packing of a scene for its kernel configuration only: the size does not change it.
+CONFIG_SIZE = (64, 36)
+
+# NVIDIA's PTX assembler's figures (-cl-nv-verbose, passed on as ptxas --verbose), in both
+# forms its versions print: "Used 64 registers, 0 bytes spill stores, 0 bytes spill loads" on
+# one line, or "Function properties for K" followed by "N bytes stack frame, N bytes spill
+# stores, N bytes spill loads" and then "Used N registers, ...".
+PTXAS_ENTRY = re.compile(r"Compiling entry function '([^']+)'")
+PTXAS_PROPERTIES = re.compile(r"Function properties for '?([^'\s]+)'?")
+PTXAS_FIGURES = {
+    "registers": re.compile(r"Used (\d+) registers"),
+    "spill_stores_bytes": re.compile(r"(\d+) bytes spill stores"),
+    "spill_loads_bytes": re.compile(r"(\d+) bytes spill loads"),
+    "stack_frame_bytes": re.compile(r"(\d+) bytes stack frame"),
+    "barriers": re.compile(r"used (\d+) barriers"),
+    "shared_bytes": re.compile(r"(\d+) bytes smem"),
+    "constant0_bytes": re.compile(r"(\d+) bytes cmem\[0\]"),
+}
+PTXAS_COMPILE_MS = re.compile(r"Compile time = ([0-9.]+) ms")
+
+
+def parse_ptxas_log(text: str) -> dict[str, dict]:
+    """Function name -> its figures from a build log of NVIDIA's OpenCL compiler built with
+    -cl-nv-verbose: registers, spill stores and loads, stack frame (bytes) and the rest of
+    PTXAS_FIGURES that the line gives; `entry` True for kernels. "Used N registers" belongs to
+    the entry function being compiled; a stack-and-spill line to the function whose
+    properties were announced last."""
+    functions: dict[str, dict] = {}
+    entry: str | None = None
+    described: str | None = None
+    for line in text.splitlines():
+        match = PTXAS_ENTRY.search(line)
+        if match:
+            entry = described = match.group(1)
+            functions.setdefault(entry, {})["entry"] = True
+            continue
+        match = PTXAS_PROPERTIES.search(line)
+        if match:
+            described = match.group(1)
+            functions.setdefault(described, {})
+            continue
+        figures: dict[str, float] = {key: int(m.group(1)) for key, pattern
+                                     in PTXAS_FIGURES.items() if (m := pattern.search(line))}
+        compile_ms = PTXAS_COMPILE_MS.search(line)
+        if compile_ms:
+            figures["compile_ms"] = float(compile_ms.group(1))
+        if not figures:
+            continue
+        if "registers" in figures or "compile_ms" in figures:
+            owner = entry or described or "?"
+        else:
+            owner = described or entry or "?"
+        functions.setdefault(owner, {}).update(figures)
+    return functions
+
+
+def write_json(path: Path, data: object) -> None:
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(json.dumps(data, indent=2, default=str) + "\n", encoding="utf-8")
+    tmp.replace(path)
+
+
+def now_utc() -> str:
+    return datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds")
+
+
+def source_digest() -> str:
+    """SHA-256 of the clray package's sources and kernels, as imported: equal here and on the
+    GPU machine when both run the same clray (editable install or assembled package)."""
+    from importlib.resources import files
+
+    digest = hashlib.sha256()
+    for package, skip in (("clray", {"kernels", "__pycache__"}), ("clray.kernels",
+                                                                    {"__pycache__"})):
+        root = Path(str(files(package)))
+        for path in sorted(root.rglob("*")):
+            rel = path.relative_to(root)
+            if (path.is_file() and path.suffix in (".py", ".cl", ".h")
+                    and not skip.intersection(rel.parts[:-1])):
+                digest.update(f"{package}/{rel.as_posix()}\0".encode())
+                digest.update(path.read_bytes())
+    return digest.hexdigest()
+
+
+def git_commit() -> str | None:
+    try:
+        done = subprocess.run(["git", "-C", str(REPO), "rev-parse", "HEAD"], capture_output=True,
+                              text=True, timeout=10, check=False)
+    except (OSError, subprocess.SubprocessError):
+        return None
+    return done.stdout.strip() if done.returncode == 0 else None
+
+
+# --- software ---------------------------------------------------------------------------------
+
+SOFTWARE = {"numpy": "numpy", "pyopencl": "pyopencl", "pytools": "pytools",
+            "platformdirs": "platformdirs", "PIL": "pillow", "tqdm": "tqdm",
+            "kernel_tuner": "kernel_tuner", "pytest": "pytest", "xdist": "pytest-xdist",
+            "pytest_timeout": "pytest-timeout", "hypothesis": "hypothesis",
+            "matplotlib": "matplotlib", "clray": "clray"}
+
+
+def cmd_software(args: argparse.Namespace) -> int:
+    packages: dict[str, str | None] = {}
+    problems: dict[str, str] = {}
+    for module, dist in SOFTWARE.items():
+        try:
+            importlib.import_module(module)
+        except Exception as err:
+            packages[module] = None
+            problems[module] = f"{type(err).__name__}: {err}"
+            continue
+        try:
+            packages[module] = importlib.metadata.version(dist)
+        except importlib.metadata.PackageNotFoundError:
+            packages[module] = "unknown"
+    clray, pyopencl = sys.modules.get("clray"), sys.modules.get("pyopencl")
+    write_json(args.json, {
+        "python": sys.version, "packages": packages, "problems": problems,
+        "clray_file": getattr(clray, "__file__", None),
+        "pyopencl_file": getattr(pyopencl, "__file__", None),
+        "source_sha256": source_digest() if clray else None})
+    for module in ("numpy", "pyopencl", "clray"):
+        if packages[module] is None:
+            print(f"{module} does not import: {problems[module]}", file=sys.stderr)
+            return 1
+    return 0
+
+
+# --- devices ----------------------------------------------------------------------------------
+
+def suite_test_ids() -> dict[str, str]:
+    """Device spec -> the id tests/conftest.py gives the device (`--cl-device ID`)."""
+    sys.path.insert(0, str(REPO / "tests"))
+    try:
+        import conftest
+
+        return {d.spec: test_id for test_id, d in conftest._all_test_devices().items()}
+    except Exception as err:
+        print(f"the suite's device ids are not known: {err}", file=sys.stderr)
+        return {}
+    finally:
+        sys.path.remove(str(REPO / "tests"))
+
+
+def device_record(spec: str) -> dict:
+    import pyopencl as cl
+
+    from clray.device.context import device_type, has_fp64, select_device
+
+    d = select_device(spec)
+    record = {
+        "spec": spec, "name": d.name.strip(), "type": device_type(d),
+        "platform": d.platform.name.strip(), "platform_version": d.platform.version.strip(),
+        "vendor": d.vendor.strip(), "version": d.version.strip(),
+        "driver_version": d.driver_version.strip(),
+        "opencl_c_version": d.opencl_c_version.strip(),
+        "compute_units": d.max_compute_units, "max_clock_mhz": d.max_clock_frequency,
+        "global_mem_bytes": d.global_mem_size, "local_mem_bytes": d.local_mem_size,
+        "max_mem_alloc_bytes": d.max_mem_alloc_size,
+        "max_work_group_size": d.max_work_group_size, "fp64": has_fp64(d),
+        "preferred_vector_width_float": d.preferred_vector_width_float,
+        "native_vector_width_float": d.native_vector_width_float,
+        "nv_compiler_options": "cl_nv_compiler_options" in d.extensions,
+    }
+    if "cl_nv_device_attribute_query" in d.extensions:
+        for name in ("compute_capability_major_nv", "compute_capability_minor_nv",
+                     "registers_per_block_nv", "warp_size_nv", "kernel_exec_timeout_nv",
+                     "integrated_memory_nv"):
+            try:
+                record[name] = getattr(d, name)
+            except (AttributeError, cl.Error):
+                record[name] = None
+    return record
+
+
+def cmd_device_info(args: argparse.Namespace) -> int:
+    from clray.device.context import list_devices
+    from clray.errors import DeviceError
+
+    try:
+        listed = list_devices()
+    except DeviceError as err:
+        write_json(args.json, {"devices": [], "target": None, "problem": str(err)})
+        print(f"no OpenCL device: {err}", file=sys.stderr)
+        return 0
+    ids = suite_test_ids()
+    devices = []
+    for info in listed:
+        record = device_record(info.spec)
+        record["test_id"] = ids.get(info.spec)
+        devices.append(record)
+    of_type = [d for d in devices if d["type"] == args.type]
+    preferred = [d for d in of_type if args.platform.lower() in d["platform"].lower()]
+    target = (preferred or of_type or [None])[0]
+    write_json(args.json, {"devices": devices, "target": target})
+    for d in devices:
+        mark = "*" if d is target else " "
+        print(f"{mark} {d['spec']}  {d['type']}  {d['name']} ({d['platform']}, "
+              f"{d['version']}, driver {d['driver_version']}), suite id {d['test_id']}")
+    return 0
+
+
+# --- references and the comparison ------------------------------------------------------------
+
+def example_scenes(folder: Path = SCENES_DIR) -> list[Path]:
+    return sorted(folder.glob("*.toml"))
+
+
+def render_scene(path: Path, width: int, height: int, device: str | None) -> tuple[np.ndarray,
+                                                                                    dict]:
+    from clray.render import RenderSettings, render
+    from clray.scene.load import load_scene
+
+    scene = load_scene(path)
+    result = render(scene, RenderSettings(width=width, height=height, device=device,
+                                          stored_tuning=False))
+    return result.image.astype(np.float32), {
+        "spp": int(scene.render.spp), "kernel_s": result.stats.get("kernel_s"),
+        "traversal": result.stats.get("traversal")}
+
+
+def cmd_references(args: argparse.Namespace) -> int:
+    from clray.device.context import describe, select_device
+
+    width, height = args.size
+    images: dict[str, np.ndarray] = {}
+    scenes: dict[str, dict] = {}
+    for path in example_scenes(args.scenes_dir):
+        start = time.perf_counter()
+        image, stats = render_scene(path, width, height, args.device)
+        images[f"image_{path.stem}"] = image
+        scenes[path.stem] = {**stats, "wall_s": round(time.perf_counter() - start, 3)}
+        print(f"{path.stem}: {width}x{height}, {stats['spp']} spp, "
+              f"{time.perf_counter() - start:.1f} s", flush=True)
+    meta = {"width": width, "height": height, "scenes": scenes,
+            "device": describe(select_device(args.device)), "source_sha256": source_digest(),
+            "commit": git_commit(), "created_utc": now_utc()}
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = args.out.with_name(args.out.stem + ".tmp.npz")
+    np.savez_compressed(tmp, meta=np.array(json.dumps(meta)), **images)
+    tmp.replace(args.out)
+    print(f"wrote {args.out} ({args.out.stat().st_size:,} bytes)")
+    return 0
+
+
+def load_reference(path: Path) -> tuple[dict, dict[str, np.ndarray]]:
+    with np.load(path, allow_pickle=False) as data:
+        meta = json.loads(str(data["meta"]))
+        images = {name.removeprefix("image_"): data[name] for name in data.files
+                  if name.startswith("image_")}
+    return meta, images
+
+
+def cmd_reference_info(args: argparse.Namespace) -> int:
+    meta, images = load_reference(args.reference)
+    digest = source_digest()
+    meta.update(file=str(args.reference), file_bytes=args.reference.stat().st_size,
+                current=meta.get("source_sha256") == digest, source_sha256_here=digest,
+                images=len(images))
+    write_json(args.json, meta)
+    print(f"{len(images)} reference images, {meta['width']}x{meta['height']}, from "
+          f"{meta['device']} ({'current' if meta['current'] else 'STALE'} sources)")
+    return 0
+
+
+def difference_image(a: np.ndarray, b: np.ndarray, threshold: float = 2 / 255) -> np.ndarray:
+    """Grey from black (equal) to white (DIFF_WHITE apart in a channel), red where a pixel
+    differs by more than `threshold` (the comparison's), magenta where either is not finite."""
+    diff = np.abs(a.astype(np.float64) - b.astype(np.float64))
+    nonfinite = ~(np.isfinite(a) & np.isfinite(b)).all(axis=-1)
+    worst = np.where(nonfinite, 0.0, np.nan_to_num(diff).max(axis=-1))
+    grey = np.clip(worst / DIFF_WHITE, 0.0, 1.0)
+    image = np.repeat(grey[..., None], 3, axis=-1)
+    image[worst > threshold] = (1.0, 0.0, 0.0)
+    image[nonfinite] = (1.0, 0.0, 1.0)
+    return image.astype(np.float32)
+
+
+def worst_scene(results: dict[str, dict]) -> str | None:
+    compared = {k: v for k, v in results.items() if "over_2_255" in v}
+    if not compared:
+        return None
+    return max(compared, key=lambda k: (compared[k]["status"] != "pass",
+                                        compared[k]["nonfinite"], compared[k]["over_2_255"],
+                                        compared[k]["rmse"] or 0.0))
+
+
+def cmd_compare(args: argparse.Namespace) -> int:
+    from clray.device.context import describe, select_device
+    from clray.image_io import Encoding, write_image
+    from clray.study import compare  # the study's float-against-double test
+
+    meta, references = load_reference(args.reference)
+    width, height = meta["width"], meta["height"]
+    report: dict = {"reference": {k: meta[k] for k in ("device", "width", "height",
+                                                       "created_utc", "commit")},
+                    "device": describe(select_device(args.device)),
+                    "rule": "clray.study.compare: no non-finite pixel, and at most max(2, 0.2 % "
+                            "of the pixels) differ from the CPU's by over 2/255 in a channel",
+                    "results": {}}
+    images: dict[str, np.ndarray] = {}
+    failed = False
+    for stem, reference in references.items():
+        path = args.scenes_dir / f"{stem}.toml"
+        record: dict = {}
+        report["results"][stem] = record
+        try:
+            start = time.perf_counter()
+            image, stats = render_scene(path, width, height, args.device)
+            record.update(stats, wall_s=round(time.perf_counter() - start, 3),
+                          cpu_kernel_s=meta["scenes"].get(stem, {}).get("kernel_s"))
+            record.update(compare(image, reference))
+            images[stem] = image
+        except Exception as err:
+            record.update(status="error", error=f"{type(err).__name__}: {err}")
+            failed = True
+        print(f"{stem}: {record.get('status')} ({record.get('over_2_255')} pixels over 2/255, "
+              f"rmse {record.get('rmse')})", flush=True)
+        write_json(args.json, report)
+    worst = worst_scene(report["results"])
+    if worst is not None and args.png_dir is not None:
+        gpu, cpu = images[worst], references[worst]
+        for name, image, encoding in zip(
+                PNG_NAMES, (gpu, cpu, difference_image(gpu, cpu)),
+                (Encoding(), Encoding(), Encoding(linear=True)), strict=True):
+            write_image(args.png_dir / name, image, encoding)
+        report["pngs"] = {"scene": worst, "files": list(PNG_NAMES),
+                          "diff": f"white at {DIFF_WHITE * 255:.0f}/255 in a channel, red over "
+                                  "2/255, magenta where not finite"}
+    write_json(args.json, report)
+    return 1 if failed else 0
+
+
+# --- kernel builds ----------------------------------------------------------------------------
+
+def scene_config(path: Path, device: object, spp: int | None = None,
+                 **settings: object) -> object:
+    from clray.render import RenderSettings, pack_for
+    from clray.scene.load import load_scene
+
+    w, h = CONFIG_SIZE
+    packed = pack_for(load_scene(path), RenderSettings(width=w, height=h, spp=spp,
+                                                      stored_tuning=False, **settings), device)
+    return packed.config
+
+
+def config_json(config: object) -> str:
+    return json.dumps(dataclasses.asdict(config))
+
+
+def config_from_json(text: str) -> object:
+    from clray.device.program import KernelConfig
+
+    fields = json.loads(text)
+    fields["build_options"] = tuple(fields["build_options"])
+    return KernelConfig(**fields)
+
+
+def cold_and_warm(config: object, device_spec: str) -> dict:
+    """Seconds a new process takes to build `config` with every cache empty (PoCL's, NVIDIA's,
+    pyopencl's), then again with those caches as the first left them."""
+    from clray.profile import build_seconds
+
+    saved = {k: os.environ.get(k) for k in ("CUDA_CACHE_PATH", "XDG_CACHE_HOME",
+                                             "CUDA_CACHE_DISABLE")}
+    with tempfile.TemporaryDirectory(prefix="clray-build-") as tmp:
+        os.environ["CUDA_CACHE_PATH"] = str(Path(tmp) / "nv")
+        os.environ["XDG_CACHE_HOME"] = str(Path(tmp) / "xdg")
+        os.environ.pop("CUDA_CACHE_DISABLE", None)
+        try:
+            cold = build_seconds(config, device_spec, Path(tmp) / "pocl")
+            warm = build_seconds(config, device_spec, Path(tmp) / "pocl")
+        finally:
+            for key, value in saved.items():
+                if value is None:
+                    os.environ.pop(key, None)
+                else:
+                    os.environ[key] = value
+    return {"cold_s": round(cold, 4), "warm_s": round(warm, 4)}
+
+
+def cmd_builds(args: argparse.Namespace) -> int:
+    from clray.device.context import has_fp64, select_device
+    from clray.device.program import private_stack_bytes
+
+    end = time.monotonic() + args.time_limit
+    device = select_device(args.device)
+    verbose = "cl_nv_compiler_options" in device.extensions
+    report: dict = {"verbose": verbose, "cold_warm": {}, "configurations": [],
+                    "unfinished": []}
+    if not verbose:
+        report["note"] = ("the device has no cl_nv_compiler_options: no -cl-nv-verbose, no "
+                          "register figures")
+
+    # Each configuration once, with every label that builds it.
+    configs: dict[tuple[str, ...], dict] = {}
+
+    def add(label: str, config: object) -> None:
+        key = tuple(config.options())
+        entry = configs.setdefault(key, {"labels": [], "config": config})
+        entry["labels"].append(label)
+
+    named = dict(args.scene)
+    for name, path in named.items():
+        for spp in args.spp:
+            add(f"{name} {spp} spp", scene_config(path, device, spp))
+    spheres = named.get("spheres")
+    if spheres is not None:
+        most = max(args.spp)
+        for traversal in ("sample_packet", "group_packet"):
+            add(f"spheres {most} spp {traversal}",
+                scene_config(spheres, device, most, traversal=traversal))
+        if has_fp64(device):
+            add("spheres 1 spp double", scene_config(spheres, device, 1, precision="double"))
+    if args.examples:
+        for path in example_scenes(args.scenes_dir):
+            add(f"{path.stem} (example)", scene_config(path, device))
+    print(f"{len(configs)} configurations", flush=True)
+
+    # Cold and warm builds, one after another (parallel builds would slow each other).
+    for name, path in named.items():
+        if time.monotonic() > end:
+            report["unfinished"].append(f"cold/warm {name}")
+            continue
+        config = scene_config(path, device, args.spp[0])
+        report["cold_warm"][name] = {"spp": args.spp[0], **cold_and_warm(config, args.device)}
+        print(f"{name}: {report['cold_warm'][name]}", flush=True)
+        write_json(args.json, report)
+
+    # Every configuration built once more with -cl-nv-verbose where the driver takes it, in
+    # parallel processes (builds are the driver's, on the host's cores), NVIDIA's cache off so
+    # the PTX assembler runs and speaks.
+    env = dict(os.environ, CUDA_CACHE_DISABLE="1", PYOPENCL_NO_CACHE="1")
+    records = [{"labels": entry["labels"], "options": " ".join(key),
+                "private_stack_bytes": private_stack_bytes(entry["config"])}
+               for key, entry in configs.items()]
+    report["configurations"] = records
+
+    def build(index: int) -> None:
+        record = records[index]
+        left = end - time.monotonic()
+        if left < 2:
+            record["status"] = "not reached"
+            report["unfinished"].append(", ".join(record["labels"]))
+            return
+        entry = list(configs.values())[index]
+        cmd = [sys.executable, __file__, "nv-build", "--config", config_json(entry["config"]),
+               "--device", args.device]
+        try:
+            done = subprocess.run(cmd, capture_output=True, text=True, timeout=left, env=env,
+                                  check=False)
+        except subprocess.TimeoutExpired:
+            record["status"] = "timeout"
+            return
+        if done.returncode != 0:
+            record.update(status="failed", error=done.stderr.strip()[-LOG_CHARS:])
+            return
+        record.update(status="ok", **json.loads(done.stdout.strip().splitlines()[-1]))
+
+    workers = max(1, min(8, len(records), os.cpu_count() or 1))
+    with ThreadPoolExecutor(max_workers=workers) as pool:
+        for index, _ in enumerate(pool.map(build, range(len(records)))):
+            record = records[index]
+            render = record.get("kernels", {}).get("render", {})
+            print(f"{'; '.join(record['labels'])}: {record.get('status')}, "
+                  f"{record.get('build_s', 0):.2f} s, registers {render.get('registers')}, "
+                  f"spills {render.get('spill_stores_bytes')}/"
+                  f"{render.get('spill_loads_bytes')} bytes", flush=True)
+            write_json(args.json, report)
+    write_json(args.json, report)
+    return 0 if all(r.get("status") == "ok" for r in records) and not report["unfinished"] else 1
+
+
+def cmd_nv_build(args: argparse.Namespace) -> int:
+    import pyopencl as cl
+
+    from clray.device.context import context_for, select_device
+    from clray.device.program import device_build_options, kernel_source
+
+    config = config_from_json(args.config)
+    device = select_device(args.device)
+    verbose = "cl_nv_compiler_options" in device.extensions
+    options = [*config.options(), *device_build_options(device)]
+    if verbose:
+        options.append("-cl-nv-verbose")
+    program = cl.Program(context_for(device), kernel_source())
+    start = time.perf_counter()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # pyopencl repeats a non-empty build log as a warning
+        program.build(options=options)
+    seconds = time.perf_counter() - start
+    log = program.get_build_info(device, cl.program_build_info.LOG) or ""
+    print(json.dumps({"build_s": round(seconds, 4), "verbose": verbose,
+                      "kernels": parse_ptxas_log(log), "log": log.strip()[-LOG_CHARS:]}))
+    return 0
+
+
+# --- command line -----------------------------------------------------------------------------
+
+def _size(text: str) -> tuple[int, int]:
+    w, _, h = text.lower().partition("x")
+    return int(w), int(h)
+
+
+def _named(text: str) -> tuple[str, Path]:
+    name, sep, path = text.partition("=")
+    if not sep:
+        raise argparse.ArgumentTypeError(f"expected NAME=PATH, got {text!r}")
+    return name, Path(path)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="scripts/gpu_check_steps.py",
+                                     description=__doc__.splitlines()[0])
+    sub = parser.add_subparsers(dest="command", required=True)
+    p = sub.add_parser("software")
+    p.add_argument("--json", type=Path, required=True)
+    p.set_defaults(run=cmd_software)
+    p = sub.add_parser("device-info")
+    p.add_argument("--json", type=Path, required=True)
+    p.add_argument("--type", default="GPU", choices=("GPU", "CPU", "ACCELERATOR"))
+    p.add_argument("--platform", default="", help="preferred platform (name substring)")
+    p.set_defaults(run=cmd_device_info)
+    p = sub.add_parser("references")
+    p.add_argument("--out", type=Path, required=True)
+    p.add_argument("--size", type=_size, default=(160, 90))
+    p.add_argument("--device")
+    p.add_argument("--scenes-dir", type=Path, default=SCENES_DIR)
+    p.set_defaults(run=cmd_references)
+    p = sub.add_parser("reference-info")
+    p.add_argument("--reference", type=Path, required=True)
+    p.add_argument("--json", type=Path, required=True)
+    p.set_defaults(run=cmd_reference_info)
+    p = sub.add_parser("compare")
+    p.add_argument("--reference", type=Path, required=True)
+    p.add_argument("--json", type=Path, required=True)
+    p.add_argument("--png-dir", type=Path)
+    p.add_argument("--device")
+    p.add_argument("--scenes-dir", type=Path, default=SCENES_DIR)
+    p.set_defaults(run=cmd_compare)
+    p = sub.add_parser("builds")
+    p.add_argument("--json", type=Path, required=True)
+    p.add_argument("--device", required=True)
+    p.add_argument("--scene", type=_named, action="append", default=[])
+    p.add_argument("--spp", type=int, action="append", default=[])
+    p.add_argument("--scenes-dir", type=Path, default=SCENES_DIR)
+    p.add_argument("--time-limit", type=float, default=60.0)
+    p.add_argument("--no-examples", dest="examples", action="store_false",
+                   help="only the named scenes' configurations, not every example scene's")
+    p.set_defaults(run=cmd_builds)
+    p = sub.add_parser("nv-build")
+    p.add_argument("--config", required=True)
+    p.add_argument("--device", required=True)
+    p.set_defaults(run=cmd_nv_build)
+    args = parser.parse_args(argv)
+    if getattr(args, "spp", None) == []:
+        args.spp = [1]
+    return args.run(args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

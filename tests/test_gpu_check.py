@@ -1,0 +1,352 @@
+"""scripts/gpu_check.sh, the prepared command for a GPU machine (docs/gpu.md): its parts that
+need no GPU (finding NVIDIA's OpenCL driver, the ICD vendors folder, the PTX assembler's
+register figures, the wheels, the time limits), and a whole run of its --cpu mode, the same
+steps on PoCL at tiny sizes, so that a first GPU run fails only for GPU reasons."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import time
+import zipfile
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "scripts"))
+
+import gpu_check as G  # noqa: E402
+import gpu_check_plugin as P  # noqa: E402
+import gpu_check_steps as S  # noqa: E402
+
+# --- NVIDIA's OpenCL driver ---------------------------------------------------------------
+
+
+def _touch(path: Path) -> Path:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_bytes(b"")
+    return path
+
+
+def test_the_driver_is_found_in_the_first_driver_folder_that_has_it(tmp_path: Path) -> None:
+    empty, lib64, lib = tmp_path / "x86_64-linux-gnu", tmp_path / "lib64", tmp_path / "lib"
+    empty.mkdir()
+    found = _touch(lib64 / "libnvidia-opencl.so.1")
+    _touch(lib / "libnvidia-opencl.so.1")
+    path, looked = G.find_nvidia_opencl([empty, lib64, lib], listing="")
+    assert path == found
+    assert looked == [str(empty), str(lib64)]
+
+
+def test_a_versioned_driver_library_is_found_without_its_link(tmp_path: Path) -> None:
+    found = _touch(tmp_path / "lib64" / "libnvidia-opencl.so.580.159.03")
+    _touch(tmp_path / "lib64" / "libnvidia-opencl.so.580.159.03.txt")
+    assert G.find_nvidia_opencl([tmp_path / "lib64"], listing="")[0] == found
+
+
+def test_the_driver_is_found_through_ldconfig(tmp_path: Path) -> None:
+    lib = _touch(tmp_path / "elsewhere" / "libnvidia-opencl.so.1")
+    listing = ("1234 libs found in cache `/etc/ld.so.cache'\n"
+               "\tlibnvidia-opencl.so.1 (libc6,x86-64) => /nonexistent/libnvidia-opencl.so.1\n"
+               f"\tlibnvidia-opencl.so.1 (libc6,x86-64) => {lib}\n"
+               "\tlibnvidia-ml.so.1 (libc6,x86-64) => /usr/lib/libnvidia-ml.so.1\n")
+    path, looked = G.find_nvidia_opencl([tmp_path / "none"], listing=listing)
+    assert path == lib
+    assert looked == [str(tmp_path / "none"), "ldconfig -p"]
+
+
+def test_no_driver_says_where_it_looked(tmp_path: Path) -> None:
+    path, looked = G.find_nvidia_opencl([tmp_path / "a", tmp_path / "b"],
+                                        listing="\tlibOpenCL.so.1 (libc6,x86-64) => /x\n")
+    assert path is None
+    assert looked == [str(tmp_path / "a"), str(tmp_path / "b"), "ldconfig -p"]
+
+
+def test_vendors_folder_names_the_driver_and_keeps_the_other_drivers(tmp_path: Path) -> None:
+    lib = _touch(tmp_path / "usr" / "local" / "nvidia" / "lib64" / "libnvidia-opencl.so.1")
+    system = tmp_path / "etc" / "OpenCL" / "vendors"
+    system.mkdir(parents=True)
+    (system / "pocl.icd").write_text("libpocl.so.2\n")
+    # A driver already listed by the system is not listed twice (two NVIDIA platforms).
+    (system / "nvidia-container.icd").write_text("libnvidia-opencl.so.1\n")
+    (system / "README").write_text("not an icd\n")
+    vendors = tmp_path / "vendors"
+    written = G.write_vendors(vendors, lib, system)
+    assert sorted(p.name for p in vendors.iterdir()) == ["nvidia.icd", "pocl.icd"]
+    assert sorted(written) == sorted(vendors.iterdir())
+    assert (vendors / "nvidia.icd").read_text() == f"{lib}\n"
+    assert (vendors / "pocl.icd").read_text() == "libpocl.so.2\n"
+    # Without a system folder, NVIDIA's alone.
+    alone = G.write_vendors(tmp_path / "alone", lib, tmp_path / "missing")
+    assert [p.name for p in alone] == ["nvidia.icd"]
+
+
+def test_driver_version_is_read_from_the_library_the_link_names(tmp_path: Path) -> None:
+    real = _touch(tmp_path / "libnvidia-opencl.so.580.159.03")
+    link = tmp_path / "libnvidia-opencl.so.1"
+    link.symlink_to(real.name)
+    assert G.driver_version_from_name(link) == "580.159.03"
+    assert G.driver_version_from_name(_touch(tmp_path / "other" / "libnvidia-opencl.so.1")) is None
+
+
+# --- The PTX assembler's figures ----------------------------------------------------------
+
+# NVIDIA's OpenCL build log with -cl-nv-verbose (ptxas --verbose), as recent drivers print it:
+# a non-inlined helper's properties, then the kernel's, then its registers.
+NV_VERBOSE_LOG = """\
+ptxas info    : 0 bytes gmem
+ptxas info    : Compiling entry function 'render' for 'sm_90'
+ptxas info    : Function properties for trace_shadow
+    32 bytes stack frame, 8 bytes spill stores, 12 bytes spill loads
+ptxas info    : Function properties for render
+    400 bytes stack frame, 96 bytes spill stores, 104 bytes spill loads
+ptxas info    : Used 255 registers, used 0 barriers, 400 bytes cumulative stack size, \
+596 bytes cmem[0], 24 bytes cmem[2]
+ptxas info    : Compile time = 4321.250 ms
+ptxas info    : Compiling entry function 'intersect_rays' for 'sm_90'
+ptxas info    : Function properties for intersect_rays
+    0 bytes stack frame, 0 bytes spill stores, 0 bytes spill loads
+ptxas info    : Used 72 registers, used 0 barriers, 412 bytes cmem[0]
+"""
+
+# Older drivers' one-line form.
+NV_VERBOSE_ONE_LINE = """\
+ptxas info    : Compiling entry function 'render' for 'sm_80'
+ptxas info    : Used 64 registers, 0 bytes spill stores, 0 bytes spill loads, 16384 bytes smem
+"""
+
+
+def test_registers_and_spills_are_read_per_kernel() -> None:
+    figures = S.parse_ptxas_log(NV_VERBOSE_LOG)
+    assert figures["render"] == {
+        "entry": True, "registers": 255, "barriers": 0, "stack_frame_bytes": 400,
+        "spill_stores_bytes": 96, "spill_loads_bytes": 104, "constant0_bytes": 596,
+        "compile_ms": 4321.25}
+    assert figures["intersect_rays"] == {
+        "entry": True, "registers": 72, "barriers": 0, "stack_frame_bytes": 0,
+        "spill_stores_bytes": 0, "spill_loads_bytes": 0, "constant0_bytes": 412}
+    assert figures["trace_shadow"] == {"stack_frame_bytes": 32, "spill_stores_bytes": 8,
+                                       "spill_loads_bytes": 12}
+
+
+def test_the_one_line_form_is_read_too() -> None:
+    assert S.parse_ptxas_log(NV_VERBOSE_ONE_LINE) == {"render": {
+        "entry": True, "registers": 64, "spill_stores_bytes": 0, "spill_loads_bytes": 0,
+        "shared_bytes": 16384}}
+
+
+def test_a_log_without_ptxas_lines_gives_nothing() -> None:
+    assert S.parse_ptxas_log("") == {}
+    assert S.parse_ptxas_log("warning: something about -Wpsabi\n") == {}
+
+
+# --- Wheels, the package, output limits ---------------------------------------------------
+
+
+def test_wheels_unpack_as_pip_installs_them(tmp_path: Path) -> None:
+    wheel = tmp_path / "demo-1.0-cp312-cp312-manylinux_2_28_x86_64.whl"
+    with zipfile.ZipFile(wheel, "w") as z:
+        z.writestr("demo/__init__.py", "X = 1\n")
+        z.writestr("demo/.libs/libdemo.so.1", b"\x7fELF")
+        z.writestr("demo-1.0.dist-info/METADATA", "Name: demo\n")
+        z.writestr("demo-1.0.data/platlib/demo_ext.py", "Y = 2\n")
+        z.writestr("demo-1.0.data/scripts/demo-tool", "#!/bin/sh\n")
+    site = tmp_path / "site"
+    G.unzip_wheels([wheel], site)
+    assert (site / "demo" / "__init__.py").read_text() == "X = 1\n"
+    assert (site / "demo" / ".libs" / "libdemo.so.1").exists()
+    assert (site / "demo-1.0.dist-info" / "METADATA").exists()
+    assert (site / "demo_ext.py").read_text() == "Y = 2\n"
+    assert not any("demo-tool" in p.name for p in site.rglob("*"))
+
+
+def test_the_package_is_assembled_as_its_wheel_lays_it_out(tmp_path: Path) -> None:
+    package = G.assemble_package(ROOT, tmp_path)
+    assert (package / "__init__.py").exists()
+    assert (package / "kernels" / "render.cl").exists()
+    assert (package / "kernels" / "__init__.py").exists()
+    assert (tmp_path / "tests" / "reference_check.py").exists()
+    assert not list(package.rglob("__pycache__"))
+
+
+def test_long_logs_are_cut_to_their_head_and_tail(tmp_path: Path) -> None:
+    log = tmp_path / "a.log"
+    log.write_bytes(b"head" + b"x" * 10_000 + b"tail")
+    assert not G.cap_file(log, 20_000)
+    assert G.cap_file(log, 4096)
+    text = log.read_bytes()
+    assert len(text) <= 4096 and text.startswith(b"head") and text.endswith(b"tail")
+    lines = "\n".join(str(i) for i in range(500))
+    cut = G.head_and_tail(lines, 3, 2)
+    assert cut.splitlines() == ["0", "1", "2", "[... 495 lines ...]", "498", "499"]
+
+
+# --- Time limits --------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("mode", [G.GPU_MODE, G.CPU_MODE], ids=lambda m: m.name)
+def test_every_step_has_a_limit_and_the_run_fits_its_time(mode: G.Mode) -> None:
+    assert set(mode.limits) == set(G.STEP_ORDER)
+    assert sum(limit.min_s for limit in mode.limits.values()) < mode.deadline_s / 2
+    # The GPU machine gives a run 8 minutes; the shell's last-resort limit is inside them.
+    assert mode.deadline_s + 25 <= 480
+    assert mode.tune_budget(mode.limits["tune"].cap_s) <= mode.limits["tune"].cap_s
+
+
+def test_a_step_gets_its_cap_or_what_later_steps_leave(tmp_path: Path) -> None:
+    check = G.Check(tmp_path / "out", G.GPU_MODE, wheels=None, python=sys.executable,
+                    work=tmp_path / "work")
+    check.deadline = time.monotonic() + 1000
+    assert check.limit_for("setup") == pytest.approx(60)
+    reserve_after_profiles = sum(G.GPU_MODE.limits[s].min_s for s in ("builds", "tune"))
+    check.deadline = time.monotonic() + 100
+    assert check.limit_for("profiles") == pytest.approx(100 - reserve_after_profiles, abs=1)
+    check.deadline = time.monotonic() - 5
+    assert check.limit_for("tune") == 0
+
+
+def test_a_child_past_its_limit_is_stopped_with_its_children(tmp_path: Path) -> None:
+    start = time.monotonic()
+    result = G.run_child(["bash", "-c", "sleep 30 & sleep 30; echo never"], 1.0,
+                         env=dict(os.environ), cwd=tmp_path, output=tmp_path / "out.txt")
+    assert result.timed_out and not result.ok
+    assert time.monotonic() - start < 10
+    assert "never" not in result.output
+
+
+# --- The kernel tests' results ------------------------------------------------------------
+
+
+def test_test_results_are_counted_from_the_plugins_lines(tmp_path: Path) -> None:
+    lines = tmp_path / "results.jsonl"
+    records = [
+        {"collected": 4},
+        {"nodeid": "t.py::a[nvidia-gpu]", "when": "call", "outcome": "passed",
+         "duration_s": 1.5, "message": ""},
+        {"nodeid": "t.py::b[nvidia-gpu]", "when": "call", "outcome": "failed",
+         "duration_s": 0.5, "message": "assert 3 <= 2"},
+        {"nodeid": "t.py::b[nvidia-gpu]", "when": "teardown", "outcome": "error",
+         "duration_s": 0.1, "message": "teardown broke"},
+        {"nodeid": "t.py::c[nvidia-gpu]", "when": "setup", "outcome": "skipped",
+         "duration_s": 0.0, "message": "no fp64"},
+    ]
+    lines.write_text("".join(json.dumps(r) + "\n" for r in records) + '{"nodeid": "t.py::d')
+    summary = G.summarise_test_results(lines)
+    assert summary["collected"] == 4
+    assert summary["counts"] == {"passed": 1, "failed": 1, "error": 0, "skipped": 1}
+    assert summary["failures"] == {"t.py::b[nvidia-gpu]": "assert 3 <= 2"}
+    assert summary["slowest"][0] == {"nodeid": "t.py::a[nvidia-gpu]", "seconds": 1.5}
+    assert G.summarise_test_results(tmp_path / "none.jsonl")["counts"]["passed"] == 0
+
+
+def test_the_plugin_records_outcomes_not_passing_set_ups() -> None:
+    def report(when: str, outcome: str, longrepr: object = None) -> pytest.TestReport:
+        return pytest.TestReport("t.py::a", ("t.py", 1, "a"), {}, outcome, longrepr, when)
+
+    assert P.result_line(report("setup", "passed")) is None
+    assert P.result_line(report("teardown", "passed")) is None
+    assert P.result_line(report("call", "passed"))["outcome"] == "passed"
+    assert P.result_line(report("setup", "skipped", ("t.py", 1, "Skipped: no fp64")))[
+        "outcome"] == "skipped"
+    failed = P.result_line(report("setup", "failed", "x" * 5000))
+    assert failed["outcome"] == "error"
+    assert len(failed["message"]) <= P.MESSAGE_CHARS + 3
+
+
+def test_the_named_test_files_run_first_in_their_order() -> None:
+    items = [SimpleNamespace(path=Path("tests") / name, n=i) for i, name in enumerate(
+        ["test_a.py", "test_b.py", "test_render.py", "test_b.py", "test_layout.py"])]
+    ordered = P.first_files_first(items, ["test_layout.py", "test_render.py", "missing.py"])
+    assert [item.n for item in ordered] == [4, 2, 0, 1, 3]
+
+
+def test_pytest_summary_line_is_found() -> None:
+    output = "....F\n=== short test summary info ===\nFAILED t.py::b\n1 failed, 4 passed in 2s\n"
+    assert G.last_summary_line(output) == "1 failed, 4 passed in 2s"
+    assert G.last_summary_line("") is None
+
+
+# --- The scene comparison's images --------------------------------------------------------
+
+
+def test_difference_image_marks_pixels_over_the_threshold() -> None:
+    a = np.zeros((2, 3, 3), np.float32)
+    b = a.copy()
+    b[0, 0] = 1 / 255  # under 2/255: grey
+    b[0, 1, 2] = 0.5  # over: red
+    b[1, 2] = np.nan  # not finite: magenta
+    diff = S.difference_image(a, b)
+    assert diff.shape == (2, 3, 3) and np.isfinite(diff).all()
+    assert np.allclose(diff[0, 0], (1 / 8,) * 3)
+    assert tuple(diff[0, 1]) == (1.0, 0.0, 0.0)
+    assert tuple(diff[1, 2]) == (1.0, 0.0, 1.0)
+    assert tuple(diff[1, 0]) == (0.0, 0.0, 0.0)
+
+
+def test_the_worst_scene_is_the_failing_one_then_the_most_pixels_off() -> None:
+    ok = {"status": "pass", "nonfinite": 0, "over_2_255": 3, "rmse": 0.01}
+    results = {"a": ok, "b": {**ok, "over_2_255": 5}, "c": {"status": "error"}}
+    assert S.worst_scene(results) == "b"
+    results["d"] = {**ok, "status": "FAIL", "over_2_255": 1}
+    assert S.worst_scene(results) == "d"
+    assert S.worst_scene({"c": {"status": "error"}}) is None
+
+
+# --- A whole --cpu run --------------------------------------------------------------------
+
+
+def _has_pocl() -> bool:
+    from clray.device.context import list_devices
+    from clray.errors import DeviceError
+
+    try:
+        return any(d.platform == "Portable Computing Language" for d in list_devices())
+    except DeviceError:
+        return False
+
+
+@pytest.mark.slow
+def test_cpu_mode_runs_every_step_on_pocl(tmp_path: Path) -> None:
+    if not _has_pocl():
+        if os.environ.get("CI", "").lower() not in ("", "0", "false") or os.environ.get(
+                "CLRAY_REQUIRE_DEVICE") == "1":
+            pytest.fail("no PoCL device, and CI needs one")
+        pytest.skip("no PoCL device")
+    out = tmp_path / "out"
+    env = {k: v for k, v in os.environ.items() if k not in ("CLRAY_DEVICE", "PYOPENCL_CTX")}
+    env["PYTHON"] = sys.executable
+    done = subprocess.run(["bash", str(ROOT / "scripts" / "gpu_check.sh"), str(out), "--cpu"],
+                          capture_output=True, text=True, env=env, timeout=600, check=False)
+    summary = done.stdout[done.stdout.rfind("summary:"):] if "summary:" in done.stdout else ""
+    assert done.returncode == 0, (summary or done.stdout[-3000:]) + done.stderr[-3000:]
+
+    files = [p for p in out.rglob("*") if p.is_file()]
+    assert 0 < len(files) <= 8
+    assert all(p.stat().st_size < 16 * 2**20 for p in files)
+    assert all(p.name.replace(".", "").replace("_", "").replace("-", "").isalnum()
+               for p in files)
+    assert (out / "gpu_check.log").stat().st_size > 0
+    data = json.loads((out / "gpu_check.json").read_text())
+    assert list(data["steps"]) == list(G.STEP_ORDER)
+    assert {name: step["status"] for name, step in data["steps"].items()} == {
+        name: "ok" for name in G.STEP_ORDER}
+    assert data["device"]["platform"] == "Portable Computing Language"
+    assert data["software"]["clray_file"].endswith(str(Path("root", "clray", "__init__.py")))
+    assert data["kernel_tests"]["counts"]["passed"] > 0
+    assert data["kernel_tests"]["counts"]["failed"] == 0
+    scenes = data["scenes"]["results"]
+    assert set(scenes) == {p.stem for p in (ROOT / "scenes").glob("*.toml")}
+    assert all(r["status"] == "pass" for r in scenes.values())
+    assert {p.name for p in files} >= {"gpu_check.json", "gpu_check.log", *S.PNG_NAMES}
+    profiles = data["profiles"]
+    assert [(p["scene"], p["spp"]) for p in profiles] == [
+        ("spheres", 1), ("spheres", 4), ("mesh", 1), ("mesh", 4)]
+    assert all(p["profile"]["mrays_per_s"] > 0 for p in profiles)
+    assert set(data["builds"]["cold_warm"]) == {"spheres", "mesh"}
+    assert all(c["status"] == "ok" for c in data["builds"]["configurations"])
+    assert data["tune"]["results"]["best"]["label"]

@@ -9,7 +9,9 @@ skip, except under CI (CI set) or CLRAY_REQUIRE_DEVICE=1, where a missing device
 The machines the suite runs on differ in vector width (AVX2: 8 floats, AVX-512: 16), and the
 device's width picks the default packet lanes and BVH width. `--lanes 8` or `--lanes 16` (or
 CLRAY_TEST_LANES) makes every real device report that float width (half of it for double) to
-clray in this process, so one machine runs the suite as the other kind would (.ci/run does).
+clray in this process, so one machine runs the suite as the other kind would; `--lanes other`
+gives each device the width it does not have (16 where it has 8 or fewer, else 8), which is
+how .ci/run checks both kinds on whichever it gets.
 """
 
 from __future__ import annotations
@@ -28,6 +30,7 @@ from clray.errors import DeviceError
 
 SELECT_ENV = "CLRAY_TEST_DEVICES"
 LANES_ENV = "CLRAY_TEST_LANES"
+OTHER_LANES = "other"
 # A platform's first word names it well ("Intel(R) OpenCL", "NVIDIA CUDA", "AMD Accelerated
 # Parallel Processing"), except PoCL's.
 PLATFORM_SHORT_NAMES = {"portable computing language": "pocl"}
@@ -42,10 +45,10 @@ def pytest_addoption(parser: pytest.Parser) -> None:
                      help="run device tests only on these OpenCL devices: ids such as pocl-cpu "
                           "or prefixes such as pocl, comma-separated or repeated (default: "
                           f"${SELECT_ENV}, else every device found)")
-    parser.addoption("--lanes", type=int, choices=(4, 8, 16), default=None,
+    parser.addoption("--lanes", choices=("4", "8", "16", OTHER_LANES), default=None,
                      help="make every device report this float vector width to clray, as a "
-                          f"machine of that width would (default: ${LANES_ENV}, else the "
-                          "device's own)")
+                          "machine of that width would; 'other': 16 where the device has 8 or "
+                          f"fewer, else 8 (default: ${LANES_ENV}, else the device's own)")
 
 
 def _device_required() -> bool:
@@ -105,8 +108,11 @@ def pytest_terminal_summary(terminalreporter: pytest.TerminalReporter,
     if not listed:
         listed = f"none ({config.stash[NO_DEVICE_KEY]})"
     terminalreporter.write_line(f"OpenCL test devices: {listed}")
-    if forced_lanes(config):
-        terminalreporter.write_line(f"Vector width forced to {forced_lanes(config)} floats")
+    lanes = forced_lanes(config)
+    if lanes:
+        width = ("the width each device lacks (16 where it has 8 or fewer, else 8)"
+                 if lanes == OTHER_LANES else f"{lanes} floats")
+        terminalreporter.write_line(f"Vector width forced to {width}")
 
 
 def pytest_generate_tests(metafunc: pytest.Metafunc) -> None:
@@ -153,22 +159,24 @@ def _own_cache_directory(tmp_path_factory: pytest.TempPathFactory,
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path_factory.mktemp("xdg-cache")))
 
 
-def forced_lanes(config: pytest.Config) -> int | None:
-    """The float vector width the run forces on its devices (--lanes, CLRAY_TEST_LANES)."""
-    lanes = config.getoption("lanes") or os.environ.get(LANES_ENV, "").strip()
-    return int(lanes) if lanes else None
+def forced_lanes(config: pytest.Config) -> str | None:
+    """The float vector width the run forces on its devices (--lanes, CLRAY_TEST_LANES):
+    "4", "8", "16" or "other"."""
+    return config.getoption("lanes") or os.environ.get(LANES_ENV, "").strip() or None
 
 
-def force_vector_width(monkeypatch: pytest.MonkeyPatch, lanes: int) -> None:
+def force_vector_width(monkeypatch: pytest.MonkeyPatch, lanes: int | str) -> None:
     """Real devices report `lanes` floats (lanes // 2 doubles) to clray's vector_width, which
-    picks the default packet lanes and BVH width; stand-in devices (SimpleNamespace) keep the
-    real function, which tests of vector_width itself call."""
+    picks the default packet lanes and BVH width; with "other", the width the device does not
+    have. Stand-in devices (SimpleNamespace) keep the real function, which tests of
+    vector_width itself call."""
     own = program_module.vector_width
 
     def forced(device, precision: str = "float") -> int:
         if not isinstance(device, cl.Device):
             return own(device, precision)
-        return lanes // 2 if precision == "double" else lanes
+        floats = int(lanes) if lanes != OTHER_LANES else (8 if own(device) >= 16 else 16)
+        return floats // 2 if precision == "double" else floats
 
     monkeypatch.setattr(program_module, "vector_width", forced)
 

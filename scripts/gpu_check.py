@@ -91,6 +91,7 @@ class Mode:
     spps: tuple[int, ...]
     mesh_subdivisions: int
     profile_repeat: int
+    min_profile_s: float  # what the profiles step keeps back for each run still to come
     reference_size: tuple[int, int]  # --cpu renders its own references at this size
     tune_size: tuple[int, int]
     kernel_tests: tuple[str, ...]  # test files, in order; "*": every other one after them
@@ -112,6 +113,7 @@ STEP_ORDER = ("setup", "icd", "devices", "kernel_tests", "references", "scenes",
 GPU_MODE = Mode(
     name="gpu", device_type="GPU", platform="NVIDIA",
     sizes=((1920, 1080), (3840, 2160)), spps=(1, 16), mesh_subdivisions=7, profile_repeat=3,
+    min_profile_s=10.0,
     reference_size=(160, 90), tune_size=(1920, 1080),
     kernel_tests=(*PRIORITY_TESTS, "*"), build_examples=True,
     deadline_s=450.0,
@@ -124,6 +126,7 @@ GPU_MODE = Mode(
 CPU_MODE = Mode(
     name="cpu", device_type="CPU", platform="Portable Computing Language",
     sizes=((64, 36),), spps=(1, 4), mesh_subdivisions=3, profile_repeat=1,
+    min_profile_s=4.0,
     reference_size=(32, 18), tune_size=(64, 36),
     kernel_tests=("test_layout.py",), build_examples=False,
     deadline_s=420.0,
@@ -501,6 +504,13 @@ class Check:
                                                          else ""))
         self.write_json()
 
+    def jobs(self) -> int:
+        """Processes that build kernels at once: half the GPU machine's cores, at most 8 (the
+        driver compiles on the host); two with --cpu."""
+        if self.mode.name == "cpu":
+            return 2
+        return max(1, min(8, (os.cpu_count() or 2) // 2))
+
     def need_device(self) -> str:
         if self.target is None:
             raise Skip("no device to run on (see the devices step)")
@@ -588,6 +598,10 @@ class Check:
         if not listed.ok or not info.ok:
             raise StepError("`clray devices` or the device listing failed (see the log)")
         if target is None:
+            if self.mode.name == "gpu":  # the ICD loader says what it tried, into the log
+                self.child("devices", [self.python, "-c", "import pyopencl as cl; print("
+                           "[p.name for p in cl.get_platforms()])"], 20,
+                           env=dict(self.env, OCL_ICD_DEBUG="15"))
             raise StepError(f"no {self.mode.device_type} OpenCL device among "
                             f"{len(found['devices'])} found")
         self.data["device"] = target
@@ -614,8 +628,8 @@ class Check:
                "--cl-device", self.test_device or self.mode.platform.split()[0].lower()]
         cmd += [f"--ignore={REPO / 'tests' / name}" for name in NOT_KERNEL_TESTS]
         workers = self.test_workers
-        if workers is None:  # on the GPU machine, 8 of its 16 cores build kernels at once
-            workers = max(1, min(8, (os.cpu_count() or 2) // 2)) if self.mode.name == "gpu" else 0
+        if workers is None:
+            workers = self.jobs() if self.mode.name == "gpu" else 0
         if workers and not software.get("xdist"):
             self.say("kernel_tests: no pytest-xdist: the tests run in one process")
             workers = 0
@@ -687,7 +701,7 @@ class Check:
         result_file = self.work / "scenes.json"
         run = self.steps_child("scenes", [
             "compare", "--reference", self.reference, "--device", device, "--json", result_file,
-            "--png-dir", self.out], limit)
+            "--png-dir", self.out, "--jobs", str(self.jobs())], limit)
         if result_file.exists():
             self.data["scenes"] = json.loads(result_file.read_text(encoding="utf-8"))
         scenes = self.data.get("scenes", {}).get("results", {})
@@ -734,14 +748,15 @@ class Check:
             if left < 3:
                 record["status"] = "skipped"
                 continue
-            # What is left, shared by this run and those after it, each getting at least its
-            # equal share and at most twice that.
-            share = left / (len(runs) - i)
+            # The first runs build the kernels (later ones find them in the driver's cache):
+            # a run may take what is left but a few seconds for each run after it.
+            after = len(runs) - i - 1
+            run_limit = max(left / (after + 1), left - after * self.mode.min_profile_s)
             out_file = self.work / f"profile_{i}.json"
             run = self.child("profiles", [
                 self.python, "-m", "clray", "profile", path, "-W", str(w), "-H", str(h),
                 "--spp", str(spp), "--repeat", str(self.mode.profile_repeat), "--json",
-                "--no-tuning", "--device", device], min(left, 2 * share), stdout=out_file)
+                "--no-tuning", "--device", device], run_limit, stdout=out_file)
             record["seconds"] = round(run.seconds, 2)
             if run.ok:
                 record["status"] = "ok"

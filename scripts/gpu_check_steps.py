@@ -331,41 +331,86 @@ def worst_scene(results: dict[str, dict]) -> str | None:
                                         compared[k]["rmse"] or 0.0))
 
 
-def cmd_compare(args: argparse.Namespace) -> int:
-    from clray.device.context import describe, select_device
-    from clray.image_io import Encoding, write_image
+def compare_scenes(args: argparse.Namespace, stems: list[str], meta: dict,
+                   references: dict[str, np.ndarray], report: dict) -> bool:
+    """Render each of `stems` on the device and compare it with its reference, in this
+    process: records into report["results"], images into args.images_dir. False on an
+    error."""
     from clray.study import compare  # the study's float-against-double test
 
-    meta, references = load_reference(args.reference)
-    width, height = meta["width"], meta["height"]
-    report: dict = {"reference": {k: meta[k] for k in ("device", "width", "height",
-                                                       "created_utc", "commit")},
-                    "device": describe(select_device(args.device)),
-                    "rule": "clray.study.compare: no non-finite pixel, and at most max(2, 0.2 % "
-                            "of the pixels) differ from the CPU's by over 2/255 in a channel",
-                    "results": {}}
-    images: dict[str, np.ndarray] = {}
-    failed = False
-    for stem, reference in references.items():
-        path = args.scenes_dir / f"{stem}.toml"
+    ok = True
+    for stem in stems:
         record: dict = {}
         report["results"][stem] = record
         try:
             start = time.perf_counter()
-            image, stats = render_scene(path, width, height, args.device)
+            image, stats = render_scene(args.scenes_dir / f"{stem}.toml", meta["width"],
+                                        meta["height"], args.device)
             record.update(stats, wall_s=round(time.perf_counter() - start, 3),
                           cpu_kernel_s=meta["scenes"].get(stem, {}).get("kernel_s"))
-            record.update(compare(image, reference))
-            images[stem] = image
+            record.update(compare(image, references[stem]))
+            np.save(args.images_dir / f"{stem}.npy", image)
         except Exception as err:
             record.update(status="error", error=f"{type(err).__name__}: {err}")
-            failed = True
+            ok = False
         print(f"{stem}: {record.get('status')} ({record.get('over_2_255')} pixels over 2/255, "
               f"rmse {record.get('rmse')})", flush=True)
         write_json(args.json, report)
+    return ok
+
+
+def compare_in_processes(args: argparse.Namespace, stems: list[str], report: dict) -> bool:
+    """compare_scenes in args.jobs processes at once (the driver's kernel builds use the
+    host's cores), their records merged into `report` as they come."""
+    parts = Path(tempfile.mkdtemp(prefix="clray-compare-"))
+    groups = [stems[i::args.jobs] for i in range(args.jobs) if stems[i::args.jobs]]
+    procs = []
+    for k, group in enumerate(groups):
+        procs.append(subprocess.Popen([
+            sys.executable, __file__, "compare", "--reference", str(args.reference),
+            "--json", str(parts / f"{k}.json"), "--device", args.device or "",
+            "--scenes-dir", str(args.scenes_dir), "--images-dir", str(args.images_dir),
+            "--only", ",".join(group), "--jobs", "1"]))
+
+    def merge() -> None:
+        found: dict[str, dict] = {}
+        for k in range(len(groups)):
+            try:
+                found.update(json.loads((parts / f"{k}.json").read_text(encoding="utf-8"))
+                             ["results"])
+            except (OSError, ValueError, KeyError):
+                continue  # not written yet, or being replaced
+        report["results"] = {stem: found[stem] for stem in stems if stem in found}
+        write_json(args.json, report)
+
+    while any(p.poll() is None for p in procs):
+        time.sleep(0.5)
+        merge()
+    merge()
+    return all(p.returncode == 0 for p in procs)
+
+
+def cmd_compare(args: argparse.Namespace) -> int:
+    from clray.device.context import describe, select_device
+    from clray.image_io import Encoding, write_image
+
+    meta, references = load_reference(args.reference)
+    stems = [s for s in references if not args.only or s in args.only.split(",")]
+    report: dict = {"reference": {k: meta[k] for k in ("device", "width", "height",
+                                                       "created_utc", "commit")},
+                    "device": describe(select_device(args.device)), "jobs": args.jobs,
+                    "rule": "clray.study.compare: no non-finite pixel, and at most max(2, 0.2 % "
+                            "of the pixels) differ from the CPU's by over 2/255 in a channel",
+                    "results": {}}
+    if args.images_dir is None:
+        args.images_dir = Path(tempfile.mkdtemp(prefix="clray-compare-images-"))
+    if args.jobs > 1 and len(stems) > 1:
+        ok = compare_in_processes(args, stems, report)
+    else:
+        ok = compare_scenes(args, stems, meta, references, report)
     worst = worst_scene(report["results"])
     if worst is not None and args.png_dir is not None:
-        gpu, cpu = images[worst], references[worst]
+        gpu, cpu = np.load(args.images_dir / f"{worst}.npy"), references[worst]
         for name, image, encoding in zip(
                 PNG_NAMES, (gpu, cpu, difference_image(gpu, cpu)),
                 (Encoding(), Encoding(), Encoding(linear=True)), strict=True):
@@ -374,7 +419,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
                           "diff": f"white at {DIFF_WHITE * 255:.0f}/255 in a channel, red over "
                                   "2/255, magenta where not finite"}
     write_json(args.json, report)
-    return 1 if failed else 0
+    return 0 if ok else 1
 
 
 # --- kernel builds ----------------------------------------------------------------------------
@@ -583,6 +628,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--png-dir", type=Path)
     p.add_argument("--device")
     p.add_argument("--scenes-dir", type=Path, default=SCENES_DIR)
+    p.add_argument("--jobs", type=int, default=1, help="processes rendering at once")
+    p.add_argument("--only", help="these scenes alone, comma-separated")
+    p.add_argument("--images-dir", type=Path, help="where each rendered image goes (.npy)")
     p.set_defaults(run=cmd_compare)
     p = sub.add_parser("builds")
     p.add_argument("--json", type=Path, required=True)

@@ -380,6 +380,7 @@ class Check:
         self.target: str | None = None  # the device spec the steps run on
         self.test_device: str | None = None  # the suite's id prefix for it (--cl-device)
         self.mesh_scene: Path | None = None
+        self.step_end = float("inf")  # when the running step's limit runs out
         self.reference: Path | None = None
         self.data: dict = {
             "schema": 1,
@@ -455,6 +456,8 @@ class Check:
     def child(self, name: str, cmd: Sequence[str], limit_s: float, *, cwd: Path | None = None,
               env: dict[str, str] | None = None, output: Path | None = None,
               stdout: Path | None = None, log_output: bool = True) -> ChildResult:
+        # No child outlives its step's limit, whatever the step asked for.
+        limit_s = max(1.0, min(limit_s, self.step_end - time.monotonic()))
         self.say(f"{name}: $ {' '.join(map(str, cmd))}   (limit {limit_s:.0f} s)")
         result = run_child([str(c) for c in cmd], limit_s, env=env or self.env,
                            cwd=cwd or self.work / "root",
@@ -485,6 +488,7 @@ class Check:
         record: dict = {"limit_s": round(limit, 1)}
         self.data["steps"][name] = record
         start = time.monotonic()
+        self.step_end = start + limit
         if limit < 1.0:
             outcome = StepOutcome("skipped", "no time left before the deadline")
         else:

@@ -34,4 +34,4 @@ test-other-lanes: setup
 	$(PYTHON_VENV) -m pytest -q --lanes other $(LANE_TESTS)
 
 lint: setup
-	.venv/bin/ruff check clray tests benchmarks
+	.venv/bin/ruff check clray tests benchmarks scripts

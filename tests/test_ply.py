@@ -155,3 +155,131 @@ def test_counts_of_one_take_the_singular(data, message):
 def test_zero_normal_is_an_error():
     data = ply_bytes("ascii").replace(b"0 0 0 0 0 1", b"0 0 0 0 0 0", 1)
     assert "zero-length normal" in _errors(data)
+
+
+# -- issue 43: readers that never crash, scans as scanners write them --------------------------
+
+_TRIANGLE = (b"element vertex 3\nproperty float x\nproperty float y\nproperty float z\n")
+
+
+def _binary(header: bytes, body: bytes) -> bytes:
+    return b"ply\nformat binary_little_endian 1.0\n" + header + b"end_header\n" + body
+
+
+def _ascii(header: bytes, body: bytes) -> bytes:
+    return b"ply\nformat ascii 1.0\n" + header + b"end_header\n" + body
+
+
+@pytest.mark.parametrize("name", ["x", "ny", "red"])
+@pytest.mark.parametrize("fmt", ["ascii", "binary"])
+def test_a_vertex_property_declared_as_a_list_is_an_error(name, fmt):
+    props = ["x", "y", "z", "nx", "ny", "nz", "red", "green", "blue"]
+    header = b"element vertex 1\n" + b"".join(
+        (b"property list uchar int %s\n" if p == name else b"property float %s\n") % p.encode()
+        for p in props) + b"element face 0\nproperty list uchar int vertex_indices\n"
+    if fmt == "ascii":
+        data = _ascii(header, " ".join("1 5" if p == name else "1" for p in props).encode()
+                      + b"\n")
+    else:
+        data = _binary(header, b"".join(struct.pack("<Bi", 1, 5) if p == name else
+                                        struct.pack("<f", 1) for p in props))
+    message = _errors(data)
+    assert message == f"bad.ply: element vertex: {name} must be a number, not a list " \
+        f"(property TYPE {name})"
+
+
+@pytest.mark.parametrize(("count", "text"), [
+    ("9" * 5000, "a count of 5000 digits records cannot fit in a file of {} bytes"),
+    ("99999999999", "99999999999 records cannot fit in a file of {} bytes"),
+    ("0" * 5000 + "3", "file ends after 1 of 3 records"),  # leading zeros are a count
+])
+def test_an_element_count_beyond_the_file_is_an_error(count, text):
+    data = _ascii(b"element vertex " + count.encode() + b"\nproperty float x\n", b"0\n")
+    assert _errors(data) == f"bad.ply: element vertex: {text.format(len(data))}"
+
+
+def _mixed(n: int) -> bytes:
+    header = _TRIANGLE + b"element face %d\nproperty list uchar int vertex_indices\n" % n
+    body = struct.pack("<9f", 0, 0, 0, 1, 0, 0, 0, 1, 0)
+    body += (struct.pack("<B3i", 3, 0, 1, 2) + struct.pack("<B4i", 4, 0, 1, 2, 0)) * (n // 2)
+    return _binary(header.replace(b"vertex 3", b"vertex 3"), body)
+
+
+def test_binary_lists_of_changing_length_load_in_linear_time():
+    # Triangles and quads alternating: 160k records took 14 s (quadratic) before.
+    import time
+
+    data = _mixed(160_000)
+    start = time.perf_counter()
+    mesh = read_ply(data, Path("m.ply")).mesh
+    assert time.perf_counter() - start < 10
+    assert mesh.faces.shape == (240_000, 3)
+    np.testing.assert_array_equal(mesh.faces[:3], [[0, 1, 2], [0, 1, 2], [0, 2, 0]])
+
+
+def test_changing_lists_match_ascii_and_truncation_is_named():
+    binary = read_ply(_mixed(6), Path("m.ply")).mesh
+    ascii_ = _ascii(_TRIANGLE + b"element face 6\nproperty list uchar int vertex_indices\n",
+                    b"0 0 0\n1 0 0\n0 1 0\n" + b"3 0 1 2\n4 0 1 2 0\n" * 3)
+    np.testing.assert_array_equal(binary.faces, read_ply(ascii_, Path("m.ply")).mesh.faces)
+    assert _errors(_mixed(6)[:-3]) == "bad.ply: element face: file ends after 5 of 6 records"
+
+
+_MESHLAB = (_TRIANGLE + b"element face 1\nproperty list uchar int vertex_indices\n"
+            b"property list uchar float texcoord\nproperty list uchar int extra\n"
+            b"property uchar flags\n")
+
+
+@pytest.mark.parametrize("fmt", ["ascii", "binary"])
+def test_face_texcoord_and_a_second_integer_list_are_read_past(fmt):
+    # MeshLab writes per-corner UVs as a float list; a second integer list is read past too.
+    if fmt == "ascii":
+        data = _ascii(_MESHLAB, b"0 0 0\n1 0 0\n0 1 0\n3 0 1 2 6 0 0 1 0 0 1 2 7 8 9\n")
+    else:
+        data = _binary(_MESHLAB, struct.pack("<9f", 0, 0, 0, 1, 0, 0, 0, 1, 0)
+                       + struct.pack("<B3iB6fB2iB", 3, 0, 1, 2, 6, 0, 0, 1, 0, 0, 1, 2, 7, 8, 9))
+    mesh = read_ply(data, Path("m.ply")).mesh
+    np.testing.assert_array_equal(mesh.faces, [[0, 1, 2]])
+
+
+def test_a_float_vertex_list_is_an_error():
+    data = _ascii(_TRIANGLE + b"element face 1\nproperty list uchar float vertex_indices\n",
+                  b"0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n")
+    assert _errors(data) == ("bad.ply: element face: vertex_indices must be a list of an "
+                             "integer type")
+
+
+# Six vertices on a zigzag: a strip 0 1 2 3 4 5 gives four triangles, all facing +z.
+_ZIGZAG = b"0 0 0\n0 1 0\n1 0 0\n1 1 0\n2 0 0\n2 1 0\n"
+
+
+def _strips(body: bytes, records: int, fmt: str = "ascii") -> bytes:
+    header = (b"element vertex 6\nproperty float x\nproperty float y\nproperty float z\n"
+              b"element tristrips %d\nproperty list int int vertex_indices\n" % records)
+    if fmt == "ascii":
+        return _ascii(header, _ZIGZAG + body)
+    verts = np.array(_ZIGZAG.split(), dtype=np.float32).tobytes()
+    rows = [list(map(int, line.split())) for line in body.decode().splitlines()]
+    return _binary(header, verts + b"".join(struct.pack(f"<{len(r)}i", *r) for r in rows))
+
+
+@pytest.mark.parametrize("fmt", ["ascii", "binary"])
+def test_tristrips_give_triangles_of_one_orientation(fmt):
+    # One record: a strip of two triangles, a restart, a strip whose repeated 3s (two
+    # degenerate triangles, dropped) keep the parity; then a second record.
+    data = _strips(b"11 0 1 2 3 -1 2 3 3 3 4 5\n4 2 3 4 5\n", 2, fmt)
+    faces = read_ply(data, Path("s.ply")).mesh.faces
+    expected = [[0, 1, 2], [2, 1, 3],  # 0 1 2 3: even as read, odd with the first two swapped
+                [4, 3, 5],  # 2 3 3 3 4 5: (2 3 3), (3 3 3), (3 3 4) dropped; odd (4 3 5)
+                [2, 3, 4], [4, 3, 5]]  # 2 3 4 5
+    np.testing.assert_array_equal(faces, expected)
+    verts = read_ply(data, Path("s.ply")).mesh.vertices
+    tri = verts[faces]
+    normals = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    assert np.all(normals[:, 2] < 0)  # one orientation, the first triangle's (-z)
+
+
+def test_tristrips_errors_name_the_element():
+    assert _errors(_strips(b"3 0 1 9\n", 1)) == \
+        "bad.ply: element tristrips: record 0: vertex index 9 out of range (6 vertices)"
+    assert "element tristrips" in _errors(_strips(b"3 0 1 -2\n", 1))

@@ -3,14 +3,17 @@
 The vertex element gives positions (x, y, z), and where present normals (nx, ny, nz), texture
 coordinates (u, v; s, t; texture_u, texture_v) and colours (red, green, blue); the face
 element's list property (vertex_indices or vertex_index) gives polygons, fan-triangulated as
-the OBJ reader does. Other elements (edge, material, ...) and properties are read past and
-ignored. Binary elements are read with one numpy view per run of records of one size, so a
-million-face triangle mesh is one view; only a list whose length changes from record to
-record costs a run each (docs/scene_format.md compares this reader with plyfile and trimesh).
+the OBJ reader does, and a tristrips element's gives triangle strips (-1 restarts a strip).
+Other elements (edge, material, ...) and properties, lists among them (MeshLab's per-corner
+`texcoord`), are read past and ignored. Binary elements are read with one numpy view where
+every record has one size (a million-face triangle mesh); where list lengths change from
+record to record, one pass finds where each record starts and numpy gathers the values
+(docs/scene_format.md compares this reader with plyfile and trimesh).
 """
 
 from __future__ import annotations
 
+import struct
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -27,6 +30,8 @@ _TYPES = {
     "int": "i4", "int32": "i4", "uint": "u4", "uint32": "u4",
     "float": "f4", "float32": "f4", "double": "f8", "float64": "f8",
 }
+# A list's count type as a struct code, for the record-by-record pass over varying lists.
+_STRUCT_CODES = {"i1": "b", "u1": "B", "i2": "h", "u2": "H", "i4": "i", "u4": "I"}
 _FORMATS = {"ascii": None, "binary_little_endian": "<", "binary_big_endian": ">"}
 _UV_NAMES = (("u", "v"), ("s", "t"), ("texture_u", "texture_v"), ("texture_s", "texture_t"))
 _FACE_LISTS = ("vertex_indices", "vertex_index")
@@ -93,8 +98,17 @@ class _Reader:
                 fmt = words[1]
             elif words[0] == "element":
                 if len(words) != 3 or not (words[2].isascii() and words[2].isdigit()):
-                    raise self.error(where, f"expected 'element NAME COUNT', got {line.strip()!r}")
-                elements.append((words[1], int(words[2]), []))
+                    raise self.error(where, f"expected 'element NAME COUNT', got "
+                                     f"{line.strip()[:80]!r}")
+                # Every record takes a byte at least: a count above the file's size cannot be
+                # met, and one of thousands of digits is refused before int() (Python's
+                # integer-string limit) sees it.
+                digits = words[2].lstrip("0") or "0"
+                if len(digits) > len(str(len(self.data))) or int(digits) > len(self.data):
+                    shown = digits if len(digits) <= 20 else f"a count of {len(digits)} digits"
+                    raise self.error(f"element {words[1][:40]}", f"{shown} records cannot fit "
+                                     f"in a file of {plural(len(self.data), 'byte')}")
+                elements.append((words[1], int(digits), []))
             elif words[0] == "property":
                 if not elements:
                     raise self.error(where, "property before any element")
@@ -115,8 +129,10 @@ class _Reader:
         if len(words) == 5 and words[1] == "list":
             if words[2] not in _TYPES or words[3] not in _TYPES:
                 raise self.error(where, f"unknown type in {' '.join(words)!r}")
-            if _TYPES[words[2]][0] not in "iu" or _TYPES[words[3]][0] not in "iu":
-                raise self.error(where, "a list's count and items must be integer types")
+            # Items may be of any type (MeshLab writes `property list uchar float texcoord`),
+            # the count must be an integer.
+            if _TYPES[words[2]][0] not in "iu":
+                raise self.error(where, "a list's count must be of an integer type")
             return _Property(words[4], _TYPES[words[3]], _TYPES[words[2]])
         if len(words) != 3 or words[1] not in _TYPES:
             raise self.error(where, f"expected 'property TYPE NAME' (TYPE one of "
@@ -130,11 +146,7 @@ class _Reader:
         buf = memoryview(self.data)
         out: dict[str, dict[str, object]] = {}
         for el in elements:
-            lists = [p for p in el.properties if p.count_type is not None]
-            if len(lists) > 1:
-                raise self.error(f"element {el.name}", "more than one list property per "
-                                 "element is not supported")
-            if not lists:
+            if not el.has_list():
                 dtype = np.dtype([(p.name, order + p.type) for p in el.properties])
                 size = dtype.itemsize * el.count
                 if offset + size > len(buf):
@@ -143,51 +155,104 @@ class _Reader:
                 out[el.name] = {p.name: records[p.name] for p in el.properties}
                 offset += size
             else:
-                out[el.name], offset = self.binary_lists(buf, el, offset, order)
+                read = self.binary_uniform(buf, el, offset, order)
+                if read is None:
+                    read = self.binary_lists(el, offset, order)
+                out[el.name], offset = read
         return out
 
-    def binary_lists(self, buf: memoryview, el: _Element, offset: int, order: str
+    def binary_uniform(self, buf: memoryview, el: _Element, offset: int, order: str
+                       ) -> tuple[dict[str, object], int] | None:
+        """An element whose every list has the first record's length (a triangle mesh's
+        faces) as one numpy view; None where a length changes (or the file ends early)."""
+        fields, at = [], offset
+        for p in el.properties:
+            if p.count_type is None:
+                fields.append((p.name, order + p.type))
+                at += np.dtype(p.type).itemsize
+                continue
+            count_dtype = np.dtype(order + p.count_type)
+            if at + count_dtype.itemsize > len(buf):
+                return None
+            k = int(np.frombuffer(buf, count_dtype, 1, at)[0])
+            if k < 0 or k * np.dtype(p.type).itemsize > len(buf) - at:
+                return None
+            fields += [(f"\0count {p.name}", count_dtype), (p.name, order + p.type, (k,))]
+            at += count_dtype.itemsize + k * np.dtype(p.type).itemsize
+        dtype = np.dtype(fields)
+        if offset + dtype.itemsize * el.count > len(buf):
+            return None
+        view = np.frombuffer(buf, dtype, el.count, offset)
+        # Each record's lengths equal the first's: then, record by record, every record
+        # starts where the view puts it, and the view is the element.
+        columns: dict[str, object] = {}
+        for p in el.properties:
+            if p.count_type is None:
+                columns[p.name] = view[p.name]
+                continue
+            counts = view[f"\0count {p.name}"].astype(np.int64)
+            if np.any(counts != counts[:1]):
+                return None
+            columns[p.name] = (counts, _as_items(view[p.name].reshape(-1), p))
+        return columns, offset + dtype.itemsize * el.count
+
+    def binary_lists(self, el: _Element, offset: int, order: str
                      ) -> tuple[dict[str, object], int]:
-        """An element with one list property: runs of records whose lists have one length,
-        each run read as one numpy view."""
+        """An element whose list lengths change from record to record (triangles and quads
+        mixed): one pass over the records finds where each starts and its lists' lengths
+        (the only sequential part: a record starts where the one before ends), then numpy
+        gathers every property at once. Linear in the records: a run of records of one
+        length per numpy view was quadratic where lengths alternate."""
         props = el.properties
-        at = next(i for i, p in enumerate(props) if p.count_type is not None)
-        lst = props[at]
-        before = sum(np.dtype(p.type).itemsize for p in props[:at])
-        count_dtype = np.dtype(order + lst.count_type)
-        runs: list[np.ndarray] = []
-        done = 0
-        while done < el.count:
-            if offset + before + count_dtype.itemsize > len(buf):
-                raise self.truncated(el, done)
-            k = int(np.frombuffer(buf, count_dtype, 1, offset + before)[0])
-            if k < 0:
-                raise self.error(f"element {el.name}", f"record {done}: list length {k}")
-            if k * np.dtype(lst.type).itemsize > len(buf) - offset:
-                raise self.truncated(el, done)
-            fields = [(p.name, order + p.type) for p in props[:at]]
-            fields += [("_count", count_dtype), ("_items", order + lst.type, (k,))]
-            fields += [(p.name, order + p.type) for p in props[at + 1:]]
-            dtype = np.dtype(fields)
-            fit = min(el.count - done, (len(buf) - offset) // dtype.itemsize)
-            if fit == 0:
-                raise self.truncated(el, done)
-            view = np.frombuffer(buf, dtype, fit, offset)
-            other = np.flatnonzero(view["_count"] != k)
-            n = fit if len(other) == 0 else int(other[0])
-            runs.append(view[:n])
-            done += n
-            offset += n * dtype.itemsize
-        counts = np.concatenate([r["_count"].astype(np.int64) for r in runs]) if runs else \
-            np.zeros(0, dtype=np.int64)
-        items = (np.concatenate([r["_items"].reshape(-1).astype(np.int64) for r in runs])
-                 if runs else np.zeros(0, dtype=np.int64))
-        columns: dict[str, object] = {lst.name: (counts, items)}
-        for p in props:
-            if p is not lst:
-                columns[p.name] = (np.concatenate([r[p.name] for r in runs]) if runs
-                                   else np.zeros(0, dtype=p.type))
-        return columns, offset
+        sizes = [np.dtype(p.type).itemsize for p in props]
+        # The record as (fixed bytes before a list, the list's count reader, count size,
+        # item size) per list, and the fixed bytes after the last list.
+        segments, gap = [], 0
+        for p, size in zip(props, sizes, strict=True):
+            if p.count_type is None:
+                gap += size
+                continue
+            count = struct.Struct(order + _STRUCT_CODES[p.count_type])
+            segments.append((gap, count.unpack_from, count.size, size))
+            gap = 0
+        tail = gap
+        data, end = self.data, len(self.data)
+        starts: list[int] = []
+        lengths: list[list[int]] = [[] for _ in segments]
+        at = offset
+        for record in range(el.count):
+            starts.append(at)
+            for (before, unpack, count_size, item_size), found in zip(segments, lengths,
+                                                                     strict=True):
+                at += before
+                if at + count_size > end:
+                    raise self.truncated(el, record)
+                k = unpack(data, at)[0]
+                if k < 0:
+                    raise self.error(f"element {el.name}", f"record {record}: list length {k}")
+                found.append(k)
+                at += count_size + k * item_size
+            at += tail
+            if at > end:
+                raise self.truncated(el, record)
+        raw = np.frombuffer(data, np.uint8)
+        position = np.array(starts, dtype=np.int64)
+        columns: dict[str, object] = {}
+        lists = iter(lengths)
+        for p, size in zip(props, sizes, strict=True):
+            dtype = np.dtype(order + p.type)
+            if p.count_type is None:
+                columns[p.name] = _gather(raw, position, dtype)
+                position = position + size
+                continue
+            counts = np.array(next(lists), dtype=np.int64)
+            count_size = np.dtype(p.count_type).itemsize
+            first = np.repeat(position + count_size, counts)
+            within = np.arange(len(first)) - np.repeat(np.cumsum(counts) - counts, counts)
+            items = _gather(raw, first + within * size, dtype)
+            columns[p.name] = (counts, _as_items(items, p))
+            position = position + count_size + counts * size
+        return columns, at
 
     def truncated(self, el: _Element, records: int) -> SceneError:
         return self.error(f"element {el.name}", f"file ends after {records} of {el.count} "
@@ -219,36 +284,49 @@ class _Reader:
             values = self.ascii_numbers(tokens, el, lines, first_line).reshape(el.count,
                                                                                 len(props))
             return {p.name: self.typed(values[:, i], p, el) for i, p in enumerate(props)}
-        rows = [line.split() for line in lines]
-        at = next(i for i, p in enumerate(props) if p.count_type is not None)
-        if any(p.count_type is not None for p in props[at + 1:]):
-            raise self.error(f"element {el.name}", "more than one list property per element "
-                             "is not supported")
-        columns: dict[str, list] = {p.name: [] for p in props}
-        counts, items = [], []
-        for i, words in enumerate(rows):
-            where = f"element {el.name}, line {first_line + i}"
+        scalars: dict[str, list[float]] = {p.name: [] for p in props if p.count_type is None}
+        lists: dict[str, tuple[list[int], list]] = {p.name: ([], []) for p in props
+                                                    if p.count_type is not None}
+        n_lists = len(lists)
+        for i, line in enumerate(lines):
+            words = line.split()
+            at = 0
             try:
-                k = int(words[at])
-                want = len(props) + k
-                if k < 0 or len(words) != want:
+                for p in props:
+                    if p.count_type is None:
+                        scalars[p.name].append(float(words[at]))
+                        at += 1
+                        continue
+                    # int() of bytes takes ASCII digits only; a count of thousands of digits
+                    # is a ValueError (Python's integer-string limit) like any bad count.
+                    k = int(words[at])
+                    listed = words[at + 1:at + 1 + k]
+                    if k < 0 or len(listed) != k:
+                        raise ValueError
+                    if np.dtype(p.type).kind == "f":
+                        values: list = [float(w) for w in listed]
+                    else:
+                        values = [int(w) for w in listed]
+                        if any(abs(v) >= 2**62 for v in values):
+                            raise ValueError
+                    lists[p.name][0].append(k)
+                    lists[p.name][1].extend(values)
+                    at += 1 + k
+                if at != len(words):
                     raise ValueError
-                for p, w in zip(props[:at], words[:at], strict=True):
-                    columns[p.name].append(float(w))
-                listed = [int(w) for w in words[at + 1:at + 1 + k]]
-                if any(abs(v) >= 2**62 for v in listed):
-                    raise ValueError
-                items.extend(listed)
-                for p, w in zip(props[at + 1:], words[at + 1 + k:], strict=True):
-                    columns[p.name].append(float(w))
             except (ValueError, IndexError):
-                raise self.error(where, f"expected {plural(len(props) - 1, 'number')} and a "
-                                 f"list (its length first), got {b' '.join(words)[:60]!r}"
-                                 ) from None
-            counts.append(k)
-        out: dict[str, object] = {p.name: np.array(columns[p.name]) for p in props
-                                  if p.count_type is None}
-        out[props[at].name] = (np.array(counts, dtype=np.int64), np.array(items, dtype=np.int64))
+                shape = ("a list (its length first)" if n_lists == 1 else
+                         f"{n_lists} lists (each its length first)")
+                raise self.error(f"element {el.name}, line {first_line + i}",
+                                 f"expected {plural(len(scalars), 'number')} and {shape}, got "
+                                 f"{b' '.join(words)[:60]!r}") from None
+        out: dict[str, object] = {name: np.array(v, dtype=np.float64)
+                                  for name, v in scalars.items()}
+        for p in props:
+            if p.count_type is not None:
+                counts, items = lists[p.name]
+                kind = np.float64 if np.dtype(p.type).kind == "f" else np.int64
+                out[p.name] = (np.array(counts, dtype=np.int64), np.array(items, dtype=kind))
         return out
 
     def typed(self, values: np.ndarray, prop: _Property, el: _Element) -> np.ndarray:
@@ -303,11 +381,11 @@ def _mesh(reader: _Reader, columns: dict[str, dict[str, object]]) -> PlyMesh:
     vertex = columns.get("vertex")
     if vertex is None or not all(name in vertex for name in "xyz"):
         raise reader.error("element vertex", "needs an element vertex with x, y, z properties")
-    vertices = _stack(vertex, ("x", "y", "z"))
+    vertices = _stack(reader, vertex, ("x", "y", "z"))
     _check_numbers(reader, vertices, "element vertex", "x, y, z")
     normals = None
     if all(name in vertex for name in ("nx", "ny", "nz")):
-        normals = _stack(vertex, ("nx", "ny", "nz"))
+        normals = _stack(reader, vertex, ("nx", "ny", "nz"))
         _check_numbers(reader, normals, "element vertex", "nx, ny, nz")
         zero = np.flatnonzero(~np.any(normals != 0.0, axis=1))
         if len(zero):
@@ -316,32 +394,100 @@ def _mesh(reader: _Reader, columns: dict[str, dict[str, object]]) -> PlyMesh:
     uvs = None
     for pair in _UV_NAMES:
         if all(name in vertex for name in pair):
-            uvs = _stack(vertex, pair)
+            uvs = _stack(reader, vertex, pair)
             _check_numbers(reader, uvs, "element vertex", ", ".join(pair))
             break
-    colors = _colors(vertex)
-    face = columns.get("face")
-    name = next((n for n in _FACE_LISTS if face is not None and n in face), None)
-    if name is None or not isinstance(face[name], tuple):
-        raise reader.error("element face", "needs an element face with a vertex_indices list")
-    counts, items = face[name]
-    small = np.flatnonzero(counts < 3)
-    if len(small):
-        i = int(small[0])
-        raise reader.error("element face", f"record {i}: a face needs at least 3 vertices, "
-                           f"got {int(counts[i])}")
-    outside = np.flatnonzero((items < 0) | (items >= len(vertices)))
-    if len(outside):
-        face_of = int(np.searchsorted(np.cumsum(counts), outside[0], side="right"))
-        raise reader.error("element face", f"record {face_of}: vertex index "
-                           f"{int(items[outside[0]])} out of range "
-                           f"({plural(len(vertices), 'vertex', 'vertices')})")
-    faces = items[_fan(counts)]
+    colors = _colors(reader, vertex)
+    parts = []
+    face = _index_list(reader, columns, "face", len(vertices))
+    if face is not None:
+        counts, items = face
+        small = np.flatnonzero(counts < 3)
+        if len(small):
+            i = int(small[0])
+            raise reader.error("element face", f"record {i}: a face needs at least 3 "
+                               f"vertices, got {int(counts[i])}")
+        parts.append(items[_fan(counts)])
+    strips = _index_list(reader, columns, "tristrips", len(vertices))
+    if strips is not None:
+        parts.append(_strip_triangles(*strips))
+    if not parts:
+        raise reader.error("element face", "needs an element face (or tristrips) with a "
+                           "vertex_indices list")
+    faces = parts[0] if len(parts) == 1 else np.concatenate(parts)
     return PlyMesh(ObjMesh(vertices, faces, normals, uvs), colors)
 
 
-def _stack(columns: dict[str, object], names: tuple[str, ...]) -> np.ndarray:
+def _index_list(reader: _Reader, columns: dict[str, dict[str, object]], element: str,
+                n_vertices: int) -> tuple[np.ndarray, np.ndarray] | None:
+    """(counts, items) of the element's vertex_indices list, checked: integers in range, and
+    for tristrips -1 too (a restart)."""
+    table = columns.get(element)
+    name = next((n for n in _FACE_LISTS if table is not None and n in table), None)
+    if name is None:
+        return None
+    where = f"element {element}"
+    if not isinstance(table[name], tuple):
+        raise reader.error(where, f"{name} must be a list (property list TYPE TYPE {name})")
+    counts, items = table[name]
+    if items.dtype.kind not in "iu":
+        raise reader.error(where, f"{name} must be a list of an integer type")
+    low = -1 if element == "tristrips" else 0
+    outside = np.flatnonzero((items < low) | (items >= n_vertices))
+    if len(outside):
+        record = int(np.searchsorted(np.cumsum(counts), outside[0], side="right"))
+        raise reader.error(where, f"record {record}: vertex index {int(items[outside[0]])} "
+                           f"out of range ({plural(n_vertices, 'vertex', 'vertices')})")
+    return counts, items
+
+
+def _strip_triangles(counts: np.ndarray, items: np.ndarray) -> np.ndarray:
+    """(T, 3) triangles of triangle strips: each record a strip, -1 restarting it.
+
+    The winding rule is OpenGL's GL_TRIANGLE_STRIP, which the Stanford scans' strips (the
+    Cyberware and zipper tools behind the bunny, dragon and Buddha, written for SGI's GL)
+    follow: triangle j of a strip is (s[j], s[j+1], s[j+2]) for even j and (s[j+1], s[j],
+    s[j+2]) for odd j, so every triangle keeps the orientation of the first. Degenerate
+    triangles (two corners alike, which strips use to turn corners or join) are dropped."""
+    n = len(items)
+    if n < 3:
+        return np.zeros((0, 3), dtype=np.int64)
+    # A strip starts at each record's first item and after each -1.
+    begins = np.zeros(n, dtype=bool)
+    begins[(np.cumsum(counts) - counts)[counts > 0]] = True
+    begins[1:] |= items[:-1] == -1
+    start = np.maximum.accumulate(np.where(begins, np.arange(n), 0))
+    j = np.arange(n - 2)
+    # A triangle at j: its three items in one strip (no -1, no record or restart between).
+    ok = (start[j] == start[j + 2]) & (items[j] >= 0) & (items[j + 1] >= 0) & (items[j + 2] >= 0)
+    j = j[ok]
+    odd = (j - start[j]) % 2 == 1
+    a, b, c = items[j], items[j + 1], items[j + 2]
+    tris = np.stack([np.where(odd, b, a), np.where(odd, a, b), c], axis=1)
+    keep = (tris[:, 0] != tris[:, 1]) & (tris[:, 1] != tris[:, 2]) & (tris[:, 0] != tris[:, 2])
+    return tris[keep]
+
+
+def _stack(reader: _Reader, columns: dict[str, object], names: tuple[str, ...]) -> np.ndarray:
+    for n in names:
+        if isinstance(columns[n], tuple):
+            raise reader.error("element vertex", f"{n} must be a number, not a list "
+                               f"(property TYPE {n})")
     return np.stack([np.asarray(columns[n], dtype=np.float64) for n in names], axis=1)
+
+
+def _gather(raw: np.ndarray, positions: np.ndarray, dtype: np.dtype) -> np.ndarray:
+    """Values of `dtype` starting at byte `positions` of `raw`, gathered a byte lane at a
+    time (index arrays of one int64 per value, not per byte)."""
+    out = np.empty((len(positions), dtype.itemsize), dtype=np.uint8)
+    for lane in range(dtype.itemsize):
+        out[:, lane] = raw[positions + lane]
+    return out.view(dtype).reshape(-1)
+
+
+def _as_items(items: np.ndarray, prop: _Property) -> np.ndarray:
+    """A list's items: int64 for integer types (indices), float64 otherwise."""
+    return items.astype(np.float64 if np.dtype(prop.type).kind == "f" else np.int64)
 
 
 def _check_numbers(reader: _Reader, values: np.ndarray, where: str, names: str) -> None:
@@ -352,9 +498,10 @@ def _check_numbers(reader: _Reader, values: np.ndarray, where: str, names: str) 
                            f"{MAX_MAGNITUDE:g} in magnitude")
 
 
-def _colors(vertex: dict[str, object]) -> np.ndarray | None:
+def _colors(reader: _Reader, vertex: dict[str, object]) -> np.ndarray | None:
     for names in (("red", "green", "blue"), ("diffuse_red", "diffuse_green", "diffuse_blue")):
         if all(n in vertex for n in names):
+            _stack(reader, vertex, names)  # numbers, not lists
             raw = [np.asarray(vertex[n]) for n in names]
             scale = 255.0 if raw[0].dtype.kind in "iu" else 1.0
             return np.clip(np.stack(raw, axis=1).astype(np.float64) / scale, 0.0, 1.0)

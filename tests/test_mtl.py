@@ -100,6 +100,9 @@ def test_missing_library_is_a_warning_naming_file_and_line(tmp_path):
     ("Ni 0", "Ni: must be in"),
     ("d 1.5", "d: must be in [0, 1]"),
     ("illum 11", "illum: expected an integer 0-10"),
+    ("illum \u00b9", "illum: expected an integer 0-10, got '\u00b9'"),  # isdigit() takes it
+    ("illum " + "9" * 5000, "illum: expected an integer 0-10, got '9999"),  # int() limit
+    ("illum 1 2", "illum: expected an integer 0-10"),
     ("Kd spectral file.rfl", "the spectral form is not supported"),
 ])
 def test_malformed_values_are_errors_naming_file_and_line(tmp_path, line, message):
@@ -107,6 +110,12 @@ def test_malformed_values_are_errors_naming_file_and_line(tmp_path, line, messag
     with pytest.raises(SceneError) as info:
         scene_of(tmp_path)
     assert "m.mtl: line 6:" in str(info.value) and message in str(info.value)
+
+
+def test_illum_leading_zeros_are_read(tmp_path):
+    write(tmp_path, WALL_AND_PANEL, WALL.replace("illum 1", "illum " + "0" * 5000 + "1"))
+    mesh = scene_of(tmp_path).objects[0]
+    assert mesh is not None
 
 
 def test_unmodelled_keys_warn_once_per_key_and_file(tmp_path):

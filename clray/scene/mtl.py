@@ -133,9 +133,13 @@ def _number(path: Path, number: int, key: str, args: list[str]) -> float:
 
 
 def _illum(path: Path, number: int, args: list[str]) -> int:
-    if len(args) != 1 or not args[0].isdigit() or int(args[0]) > 10:
-        raise _error(path, number, "illum", f"expected an integer 0-10, got {' '.join(args)!r}")
-    return int(args[0])
+    # ASCII digits only (str.isdigit() takes '¹', which int() refuses), and leading zeros
+    # stripped before int(): thousands of digits would hit Python's integer-string limit.
+    digits = (args[0].lstrip("0") or "0") if len(args) == 1 else ""
+    if not (digits.isascii() and digits.isdigit() and len(digits) <= 2 and int(digits) <= 10):
+        raise _error(path, number, "illum", f"expected an integer 0-10, got "
+                     f"{' '.join(args)[:40]!r}")
+    return int(digits)
 
 
 def _texture_map(path: Path, number: int, key: str, args: list[str]) -> TextureMap:

@@ -8,6 +8,7 @@ import dataclasses
 import re
 import shutil
 import subprocess
+from pathlib import Path
 
 import pytest
 
@@ -23,6 +24,7 @@ from clray.device.program import (
 
 # The newest versioned clang first: Debian's PoCL brings clang-15, whose figures the scratch test
 # was measured with, while the unversioned `clang` may be an older default.
+ROOT = Path(__file__).resolve().parent.parent
 CLANG = next((c for c in (*(f"clang-{v}" for v in range(20, 13, -1)), "clang")
               if shutil.which(c)), None)
 pytestmark = pytest.mark.skipif(CLANG is None,
@@ -173,3 +175,39 @@ def test_widest_sample_packet_chains_build_for_amdgpu() -> None:
                           precision="double", max_depth=4, bvh_stack_size=32,
                           traversal="sample_packet", packet_lanes=16)
     assert amdgpu_scratch(config) > private_stack_bytes(config)["total"]
+
+
+def scene_configs() -> dict[str, KernelConfig]:
+    """The kernel configuration a GPU would build for each example scene and hard case (the
+    single-ray walk, a GPU's own traversal, at the scene's spp and depth), one per distinct
+    build."""
+    import sys
+
+    from clray.device.pack import pack_scene
+    from clray.scene.load import load_scene, scene_from_dict
+
+    sys.path.insert(0, str(ROOT / "tests" / "hard_cases"))
+    from cases import CASES
+
+    scenes = {p.stem: load_scene(p) for p in sorted((ROOT / "scenes").glob("*.toml"))}
+    scenes.update({case.name: scene_from_dict(case.scene) for case in CASES})
+    configs: dict[tuple[str, ...], tuple[str, KernelConfig]] = {}
+    for name, scene in scenes.items():
+        for precision in ("float", "double"):
+            config = pack_scene(scene, width=8, height=4, spp=scene.render.spp,
+                                max_depth=scene.render.max_depth, seed=0,
+                                precision=precision, traversal="single").config
+            configs.setdefault(tuple(config.options()), (f"{name}-{precision}", config))
+    return dict(configs.values())
+
+
+@pytest.mark.parametrize("target", TARGETS[1:])
+def test_every_scene_configuration_builds_for_gpu_back_ends(target: str) -> None:
+    # Whole builds to the target's assembly (PTX, AMDGPU ISA), not only the front end's check:
+    # what a GPU driver would compile for each example scene and hard case.
+    source = kernel_source()
+    configs = scene_configs()
+    assert len(configs) >= 10
+    for name, config in configs.items():
+        assembly = compile_cl(target, config.options(), source, "-S", "-O2", "-o", "-")
+        assert ".entry render" in assembly or "render:" in assembly, name

@@ -335,7 +335,7 @@ def _build_parser() -> _Parser:
 
 
 def _model_flags(parser: argparse.ArgumentParser) -> None:
-    from clray.model_scene import DEFAULT_VIEW, VIEWS
+    from clray.model_scene import DEFAULT_UP, DEFAULT_VIEW, UP_ROTATIONS, VIEWS
 
     # Default None, not DEFAULT_VIEW: render refuses --view with a scene file, whose own
     # [camera] sets the view, and so must see whether it was given.
@@ -344,26 +344,31 @@ def _model_flags(parser: argparse.ArgumentParser) -> None:
                              f"(default: {DEFAULT_VIEW})")
     parser.add_argument("--ground", action="store_true",
                         help="a mesh file's automatic scene: add a ground plane under it")
+    parser.add_argument("--up", choices=tuple(UP_ROTATIONS), default=None,
+                        help="a mesh file's automatic scene: the model's axis that points up "
+                             f"(default: {DEFAULT_UP}; scans are often z)")
 
 
 def _load(args: argparse.Namespace) -> Scene:
     """The scene file, or a mesh file's automatic scene."""
-    from clray.model_scene import DEFAULT_VIEW, is_mesh_file, load_model_scene
+    from clray.model_scene import DEFAULT_UP, DEFAULT_VIEW, is_mesh_file, load_model_scene
 
     if is_mesh_file(args.scene):
-        return load_model_scene(args.scene, args.view or DEFAULT_VIEW, args.ground)
+        return load_model_scene(args.scene, args.view or DEFAULT_VIEW, args.ground,
+                                args.up or DEFAULT_UP)
     return load_scene(args.scene)
 
 
 def _scene(args: argparse.Namespace) -> int:
-    from clray.model_scene import DEFAULT_VIEW, is_mesh_file, model_scene_data, to_toml
+    from clray.model_scene import DEFAULT_UP, DEFAULT_VIEW, is_mesh_file, model_scene_data, to_toml
 
     if not is_mesh_file(args.model):
         raise SceneError(args.model, None, "expected a mesh file (.obj, .ply, .npz)")
     view = args.view or DEFAULT_VIEW
-    data = model_scene_data(args.model, view, args.ground)
+    up = args.up or DEFAULT_UP
+    data = model_scene_data(args.model, view, args.ground, up)
     header = (f"The automatic scene of {args.model.as_posix()} (clray scene --view {view}"
-              f"{' --ground' if args.ground else ''}).")
+              f"{' --ground' if args.ground else ''}{f' --up {up}' if args.up else ''}).")
     _to_stdout(to_toml(data, header).encode("utf-8"))
     return EXIT_OK
 
@@ -401,7 +406,8 @@ def _check_still_output(parser: argparse.ArgumentParser, args: argparse.Namespac
 
     if not is_mesh_file(args.scene):
         given = [flag for flag, on in (("--view", args.view is not None),
-                                       ("--ground", args.ground)) if on]
+                                       ("--ground", args.ground),
+                                       ("--up", args.up is not None)) if on]
         if given:
             verb = "applies" if len(given) == 1 else "apply"
             parser.error(f"{' and '.join(given)} {verb} to a mesh file (.obj, .ply, .npz); "

@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 
 from clray.errors import SceneError
+from clray.scene.limits import MAX_MAGNITUDE
 from clray.scene.load import scene_from_dict
 from clray.scene.model import Mesh, Scene, unit
 
@@ -30,6 +31,18 @@ VIEWS: dict[str, tuple[tuple[float, float, float], tuple[float, float, float]]] 
     "side": ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0)),
     "top": ((0.0, 1.0, 0.0), (0.0, 0.0, -1.0)),
     "iso": ((0.5774, 0.5774, 0.5774), (0.0, 1.0, 0.0)),
+}
+# --up: the rotation that turns the named model axis to +y, the up of VIEWS (each a proper
+# rotation, det +1, so the winding and normals stay as they are). Z-up is the scanners' and
+# CAD's convention; with it the model's -y side faces the front view, as in Blender.
+DEFAULT_UP = "y"
+UP_ROTATIONS: dict[str, tuple[tuple[int, int, int], ...]] = {
+    "y": ((1, 0, 0), (0, 1, 0), (0, 0, 1)),
+    "-y": ((1, 0, 0), (0, -1, 0), (0, 0, -1)),
+    "z": ((1, 0, 0), (0, 0, 1), (0, -1, 0)),
+    "-z": ((1, 0, 0), (0, 0, -1), (0, 1, 0)),
+    "x": ((0, -1, 0), (1, 0, 0), (0, 0, 1)),
+    "-x": ((0, 1, 0), (-1, 0, 0), (0, 0, 1)),
 }
 VFOV = 35.0
 # The bounding sphere's radius over the half-height of the view: a little room round it.
@@ -45,9 +58,10 @@ def is_mesh_file(path: Path) -> bool:
     return path.suffix.lower() in MESH_SUFFIXES
 
 
-def model_scene_data(path: Path, view: str = DEFAULT_VIEW, ground: bool = False) -> dict:
+def model_scene_data(path: Path, view: str = DEFAULT_VIEW, ground: bool = False,
+                     up: str = DEFAULT_UP) -> dict:
     """Scene data for the mesh file `path` (relative names are relative to the working
-    directory, and written so)."""
+    directory, and written so); `up` names the model's axis that points up."""
     name = path.as_posix()
     try:
         probe = scene_from_dict({"camera": {"position": [0, 0, 1], "look_at": [0, 0, 0]},
@@ -59,16 +73,40 @@ def model_scene_data(path: Path, view: str = DEFAULT_VIEW, ground: bool = False)
         raise SceneError(path, None, err.message) from None
     mesh = probe.objects[0]
     assert isinstance(mesh, Mesh)
-    lo, hi = mesh.vertices.min(axis=0), mesh.vertices.max(axis=0)
-    center = (lo + hi) / 2.0
-    radius = max(float(np.linalg.norm(mesh.vertices - center, axis=1).max()), 1e-6)
-    toward, up = (np.array(v) for v in VIEWS[view])
+    toward, view_up = (np.array(v) for v in VIEWS[view])
+    rotation = np.array(UP_ROTATIONS[up], dtype=np.float64)
+    matrix, offset = rotation, np.zeros(3)
+    vertices = mesh.vertices @ matrix.T
+    center, radius, lo = _bounds(vertices)
     distance = MARGIN * radius / math.sin(math.radians(VFOV) / 2.0)
+    if np.max(np.abs(center)) + distance > MAX_MAGNITUDE / 2:
+        # Vertices up to 1e30 are valid, but a camera framing them from outside would stand
+        # beyond the scene's limit (camera.position, a key the user never wrote). Rather
+        # than refuse a mesh a scene file renders, the automatic scene moves the model's
+        # centre to the origin and scales it by a power of 2 until the camera fits (half the
+        # limit: room for the rounding of the written numbers).
+        shrink = 2.0 ** -max(0, math.ceil(math.log2(distance / (MAX_MAGNITUDE / 4))))
+        matrix, offset = shrink * rotation, -shrink * center
+    transform = None
+    if up != DEFAULT_UP or offset.any():
+        transform = [[*_plain(matrix[i]), *_plain(offset[i:i + 1])] for i in range(3)]
+        transform.append([0.0, 0.0, 0.0, 1.0])
+        # Framed from the vertices as the written (rounded) transform places them.
+        written = np.array(transform)
+        vertices = mesh.vertices @ written[:3, :3].T + written[:3, 3]
+        center, radius, lo = _bounds(vertices)
+        distance = MARGIN * radius / math.sin(math.radians(VFOV) / 2.0)
+    if np.max(np.abs(center)) + distance > MAX_MAGNITUDE:
+        raise SceneError(path, None, f"the automatic camera cannot frame a model this large "
+                         f"(it would stand beyond {MAX_MAGNITUDE:g}); write a scene file")
+    up = view_up
     right = unit(np.cross(-toward, up))
     true_up = np.cross(right, -toward)
     key = unit(toward + 0.8 * true_up - 0.6 * right)
     fill = unit(toward + 0.2 * true_up + 0.9 * right)
     obj: dict[str, Any] = {"type": "mesh", "file": name}
+    if transform is not None:
+        obj["transform"] = {"matrix": transform}
     data: dict[str, Any] = {
         "render": {"width": 640, "height": 480, "background": [0.05, 0.05, 0.07],
                    "ambient": [AMBIENT] * 3, "max_depth": 4},
@@ -90,8 +128,19 @@ def model_scene_data(path: Path, view: str = DEFAULT_VIEW, ground: bool = False)
     return data
 
 
-def load_model_scene(path: Path, view: str = DEFAULT_VIEW, ground: bool = False) -> Scene:
-    return scene_from_dict(model_scene_data(path, view, ground))
+def load_model_scene(path: Path, view: str = DEFAULT_VIEW, ground: bool = False,
+                     up: str = DEFAULT_UP) -> Scene:
+    return scene_from_dict(model_scene_data(path, view, ground, up))
+
+
+def _bounds(vertices: np.ndarray) -> tuple[np.ndarray, float, np.ndarray]:
+    """(centre of the bounding box, radius of the sphere about it, the box's low corner)."""
+    lo, hi = vertices.min(axis=0), vertices.max(axis=0)
+    center = (lo + hi) / 2.0
+    # A floor on the radius for a mesh of one point; relative to the model's size where
+    # it has one, so a small model is not framed as a big one.
+    radius = float(np.linalg.norm(vertices - center, axis=1).max())
+    return center, max(radius, 1e-6 * max(float(np.max(np.abs(center))), 1.0)), lo
 
 
 def _plain(v: np.ndarray) -> list[float]:
@@ -126,4 +175,6 @@ def _value(v: Any) -> str:
         return json.dumps(v)  # a TOML basic string: the same escapes
     if isinstance(v, list):
         return "[" + ", ".join(_value(x) for x in v) + "]"
+    if isinstance(v, dict):  # an inline table: the mesh's transform
+        return "{" + ", ".join(f"{key} = {_value(x)}" for key, x in v.items()) + "}"
     return repr(v)

@@ -104,3 +104,77 @@ def test_an_npz_mesh_renders_from_the_command_line(cl_device, tmp_path, monkeypa
 def test_a_missing_mesh_file_is_named(tmp_path, capsys):
     assert main(["scene", str(tmp_path / "none.obj")]) == 3
     assert "none.obj: file not found" in capsys.readouterr().err
+
+
+# -- --up and models at the coordinate limit (issue 43) ----------------------------------------
+
+_Y_UP = np.array([[0, 0, 0], [1, 0, 0], [0, 2, 0], [0, 0, 3], [1, 2, 3]], dtype=float)
+_FACES = [[1, 2, 3], [1, 3, 4], [2, 3, 4], [1, 2, 5]]
+
+
+def _obj(path: Path, vertices: np.ndarray) -> Path:
+    path.write_text("".join(f"v {x!r} {y!r} {z!r}\n" for x, y, z in vertices.tolist())
+                    + "".join(f"f {a} {b} {c}\n" for a, b, c in _FACES))
+    return path
+
+
+@pytest.mark.parametrize("up", ["z", "-z", "x", "-x", "-y"])
+def test_up_gives_the_scene_of_the_model_rotated_to_y_up(tmp_path, monkeypatch, up):
+    from clray.model_scene import UP_ROTATIONS
+
+    monkeypatch.chdir(tmp_path)
+    rotation = np.array(UP_ROTATIONS[up], dtype=float)
+    # The same model with `up` pointing up: rotated back (R^T) from the Y-up one.
+    _obj(tmp_path / "yup.obj", _Y_UP)
+    _obj(tmp_path / "other.obj", _Y_UP @ rotation)
+    assert np.allclose((_Y_UP @ rotation) @ rotation.T, _Y_UP)
+    for ground in (False, True):
+        plain = model_scene_data(Path("yup.obj"), "front", ground)
+        turned = model_scene_data(Path("other.obj"), "front", ground, up=up)
+        assert "transform" not in plain["objects"][0]
+        assert turned["objects"][0].pop("transform") == {"matrix": [
+            *[[float(x) for x in row] + [0.0] for row in rotation], [0.0, 0.0, 0.0, 1.0]]}
+        turned["objects"][0]["file"] = "yup.obj"
+        assert turned == plain
+        a, b = (load_model_scene(Path(n), "front", ground, u) for n, u in
+                (("yup.obj", "y"), ("other.obj", up)))
+        np.testing.assert_allclose(b.objects[0].vertices, a.objects[0].vertices, atol=1e-12)
+        np.testing.assert_array_equal(b.objects[0].faces, a.objects[0].faces)
+
+
+def test_up_with_a_scene_file_is_a_usage_error(capsys):
+    assert main(["render", "scene.toml", "--up", "z"]) == 2
+    assert "--up applies to a mesh file" in capsys.readouterr().err
+
+
+def test_scene_command_writes_up(tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)
+    _obj(tmp_path / "m.obj", _Y_UP)
+    assert main(["scene", "m.obj", "--up", "z"]) == 0
+    out = capsys.readouterr().out
+    assert out.startswith("# The automatic scene of m.obj (clray scene --view three-quarter "
+                          "--up z).")
+    assert "transform = {matrix = [[1.0, 0.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0], [0.0, -1.0, " \
+        "0.0, 0.0], [0.0, 0.0, 0.0, 1.0]]}" in out
+    (tmp_path / "m.toml").write_text(out)
+    written, direct = load_scene(tmp_path / "m.toml"), load_model_scene(Path("m.obj"), up="z")
+    np.testing.assert_array_equal(written.objects[0].vertices, direct.objects[0].vertices)
+    assert written.camera == direct.camera
+
+
+@pytest.mark.parametrize("corner", [1e30, -1e30])
+def test_a_model_at_the_coordinate_limit_is_framed_within_it(tmp_path, monkeypatch, corner):
+    # Valid vertices up to 1e30: the camera framing them from outside would stand beyond the
+    # limit, which was refused as camera.position, a key the user never wrote.
+    monkeypatch.chdir(tmp_path)
+    _obj(tmp_path / "big.obj", np.array([[0, 0, 0], [corner, 0, 0], [0, corner, 0],
+                                         [0, 0, corner], [corner, corner, corner]]))
+    scene = load_model_scene(Path("big.obj"), ground=True)
+    mesh = scene.objects[0]
+    assert np.max(np.abs(scene.camera.position)) <= 1e30
+    assert np.max(np.abs(mesh.vertices)) <= 1e30
+    # Still framed: the camera looks at the model's centre, from outside its sphere.
+    centre = (mesh.vertices.min(axis=0) + mesh.vertices.max(axis=0)) / 2
+    radius = np.linalg.norm(mesh.vertices - centre, axis=1).max()
+    np.testing.assert_allclose(scene.camera.look_at, centre, atol=radius * 1e-5)
+    assert np.linalg.norm(np.asarray(scene.camera.position) - centre) > radius

@@ -277,7 +277,10 @@ def obj_text(rng: random.Random) -> bytes:
 MTL_KEYS = ["Ka", "Kd", "Ks", "Tf", "Ke", "Ns", "Ni", "d", "Tr", "illum", "map_Kd", "bump",
             "Pr", "newmtl", "", "#", "map_Kd -s", "map_Kd -o", "d -halo"]
 MTL_VALUES = ["0", "1", "0.5", "-1", "1e30", "1e400", "nan", "x", "11", "10", "spectral f.rfl",
-              "xyz 1 1 1", "t.png", "missing.png", "dir", "fifo.obj", "bomb.png", "1 1", "a b c"]
+              "xyz 1 1 1", "t.png", "missing.png", "dir", "fifo.obj", "bomb.png", "1 1", "a b c",
+              # isdigit() takes a superscript, int() does not; thousands of digits hit
+              # Python's integer-string limit; leading zeros are still a number.
+              "\u00b9", "9" * 5000, "0" * 5000 + "7", "\u0663"]
 
 
 def mtl_text(rng: random.Random) -> tuple[bytes, bytes]:
@@ -307,18 +310,29 @@ def ply_bytes(rng: random.Random) -> bytes:
         vertex += ["property float nx", "property float ny", "property float nz"]
     count_type, count_code = rng.choice([("uchar", "B"), ("uchar", "B"), ("char", "b"),
                                          ("uint", "I"), ("float", "f")])
+    face_element = rng.choice(["face", "face", "tristrips"])  # strips: -1 restarts them
     face = [f"property list {count_type} int vertex_indices"]
-    header = ["ply", f"format {fmt} 1.0", "element vertex 4", *vertex, "element face 2", *face,
-              "end_header"]
+    header = ["ply", f"format {fmt} 1.0", "element vertex 4", *vertex, f"element {face_element} 2",
+              *face, "end_header"]
     if rng.random() < 0.5:
         at = rng.randrange(len(header))
         header[at] = rng.choice(["element vertex 99999999999", "element face 0", "property x",
                                  "property float x", "property list uchar float q",
-                                 "element vertex \u00b2", "comment", "format ascii 2.0", ""])
+                                 "element vertex \u00b2", "comment", "format ascii 2.0", "",
+                                 "element face " + "9" * 5000, "element vertex 0" + "0" * 5000,
+                                 "property list uchar int x", "property list uchar int ny",
+                                 "property list uchar int red", "element tristrips 1",
+                                 # MeshLab's per-corner UVs, and a second list to read past.
+                                 "property list uchar float texcoord",
+                                 "property list uchar int vertex_indices",
+                                 "property list uchar float vertex_indices"])
     n_props = len(vertex)
     values = [[rng.choice([0.0, 1.0, 0.5, -1.0, 1e30, 3e38, math.nan, math.inf]) if
                rng.random() < 0.1 else float(i % 2 + k) for k in range(n_props)] for i in range(4)]
     faces = [[3, 0, 1, 2], [rng.choice([3, 4, 2, 0, 255, -1]), 0, 2, 3, rng.choice([1, 4, -1])]]
+    if rng.random() < 0.3:  # lists whose length changes from record to record
+        faces = [[k, *rng.choice([[0, 1, 2, 3, 0], [3, -1, 2, 1, 0], [0, 0, 1, 2, 3]])[:k]]
+                 for k in (rng.choice([3, 4, 5]) for _ in range(2))]
     if fmt == "ascii":
         body = "\n".join(" ".join(f"{v:g}" for v in row) for row in values) + "\n"
         body += "\n".join(" ".join(str(v) for v in f[:max(f[0], 0) + 1]) for f in faces) + "\n"

@@ -1,5 +1,6 @@
 // What a ray that hits nothing sees (docs/rendering.md, Background): the background colour, a
 // vertical gradient, or an equirectangular environment image, by the build.
+// sky: that light, weighted, where a ray of the tree leaves the scene.
 #ifndef CLRAY_BACKGROUND_H
 #define CLRAY_BACKGROUND_H
 
@@ -41,6 +42,16 @@ inline REAL3 background_radiance(__global const Params* params, __global const f
     return mix(top, bottom, fy);
 #else
     return TO_REAL3(params->background);
+#endif
+}
+
+// Light from the sky where a ray of weight `weight` leaves the scene in direction d.
+inline REAL3 sky(const __global Params* params, const __global float4* texels, REAL3 d,
+                 REAL3 weight) {
+#if HAS_BACKGROUND_GRADIENT || HAS_BACKGROUND_IMAGE
+    return weight * background_radiance(params, texels, d);
+#else
+    return weight * TO_REAL3(params->background);
 #endif
 }
 

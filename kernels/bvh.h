@@ -1,5 +1,7 @@
 // Scene queries: closest hit and shadow transmission over the planes (a short list: they are
 // unbounded) and the wide BVH of every bounded primitive (clray_types.h: BvhNode).
+// closest_hit and transmission walk it ray by ray; the sample packets' walk (packet.h) and the
+// group's (group.h) run these walks for lanes and work-items that go on alone.
 #ifndef CLRAY_BVH_H
 #define CLRAY_BVH_H
 
@@ -7,7 +9,8 @@
 #include "clray_types.h"
 #include "scene.h"
 #include "hit.h"
-#include "intersect.h"
+#include "ray.h"
+#include "shapes.h"
 
 // BVH_STACK_SIZE: set by the host from the tree (clray/accel/wide.py: stack_size), so no walk
 // can overflow it.
@@ -45,68 +48,6 @@ HOT int lane_bits(INTW m) { return lane_bits4(m); }
 #else
 #error "BVH_WIDTH must be 4 or 8"
 #endif
-
-// Triangles and spheres are tested in packets (leaf_closest, leaf_transmission), the other
-// primitives one by one.
-HOT Crossings intersect_prim(const SceneRefs* s, int ref, const Ray* r) {
-    int i = ref & PRIM_INDEX_MASK;
-    switch (ref >> PRIM_TYPE_SHIFT) {
-#if HAS_PLANES
-        case PRIM_PLANE:
-            return intersect_plane(s->planes + i, r);
-#endif
-#if HAS_SPHERES
-        case PRIM_SPHERE:
-            return intersect_sphere(s->spheres + i, r);
-#endif
-#if HAS_BOXES
-        case PRIM_BOX:
-            return intersect_box(s->boxes + i, r);
-#endif
-#if HAS_CYLINDERS
-        case PRIM_CYLINDER:
-            return intersect_cylinder(s->cylinders + i, r);
-#endif
-#if HAS_CONES
-        case PRIM_CONE:
-            return intersect_cone(s->cones + i, r);
-#endif
-        default:
-            return no_crossings();
-    }
-}
-
-inline int prim_material(const SceneRefs* s, int ref) {
-    int i = ref & PRIM_INDEX_MASK;
-    switch (ref >> PRIM_TYPE_SHIFT) {
-#if HAS_PLANES
-        case PRIM_PLANE:
-            return s->planes[i].material;
-#endif
-#if HAS_SPHERES
-        case PRIM_SPHERE:
-            return s->spheres[i].material;
-#endif
-#if HAS_BOXES
-        case PRIM_BOX:
-            return s->boxes[i].material;
-#endif
-#if HAS_CYLINDERS
-        case PRIM_CYLINDER:
-            return s->cylinders[i].material;
-#endif
-#if HAS_CONES
-        case PRIM_CONE:
-            return s->cones[i].material;
-#endif
-#if HAS_TRIANGLES
-        case PRIM_TRIANGLE:
-            return s->triangles[i].material & TRIANGLE_MATERIAL_MASK;
-#endif
-        default:
-            return 0;
-    }
-}
 
 // Of two crossings that tie in t, whether (instance, ref) goes before the hit: the scene's own
 // primitives first, by reference, which orders by type and then by scene order
@@ -194,50 +135,6 @@ inline int leaf_prims(const SceneRefs* s, int slot, int count) {
     return n;
 }
 #endif
-
-// The crossings of a packet's PACKET_WIDTH shapes: bit k set where lane k is crossed, its
-// crossings in c[k]. kind: PRIM_TRIANGLE or PRIM_SPHERE. A triangle's part is its slot, where
-// shading finds its corners (shading.h).
-HOT int packet_crossings(const SceneRefs* s, int kind, int slot, const Ray* r, Crossings* c) {
-    int bits = 0;
-    REAL t0[PACKET_WIDTH], t1[PACKET_WIDTH], b1[PACKET_WIDTH], b2[PACKET_WIDTH];
-#if HAS_TRIANGLES
-    if (kind == PRIM_TRIANGLE) {
-        bits = intersect_triangle_packet(s->triangle_packets + slot / PACKET_WIDTH, r, t0, b1,
-                                         b2);
-        for (int rest = bits; rest; rest &= rest - 1) {
-            int k = lowest_bit(rest);
-            c[k] = no_crossings();
-            c[k].t[0] = t0[k];
-            c[k].part[0] = slot + k;
-            c[k].b1 = b1[k];
-            c[k].b2 = b2[k];
-        }
-    }
-#endif
-#if HAS_SPHERES
-    if (kind == PRIM_SPHERE) {
-#if SPHERE_FP64 || SPHERE_TEXTBOOK
-        // These variants keep their scalar formula, lane by lane.
-        for (int k = 0; k < PACKET_WIDTH; ++k) {
-            int ref = s->prim_refs[slot + k];
-            if (ref < 0) continue;
-            c[k] = intersect_sphere(s->spheres + (ref & PRIM_INDEX_MASK), r);
-            if (c[k].t[0] < REAL_INF || c[k].t[1] < REAL_INF) bits |= 1 << k;
-        }
-#else
-        bits = intersect_sphere_packet(s->sphere_packets + slot / PACKET_WIDTH, r, t0, t1);
-        for (int rest = bits; rest; rest &= rest - 1) {
-            int k = lowest_bit(rest);
-            c[k] = no_crossings();
-            c[k].t[0] = t0[k];
-            c[k].t[1] = t1[k];
-        }
-#endif
-    }
-#endif
-    return bits;
-}
 
 // Packets in a leaf's triangle or sphere section.
 HOT int section_packets(int count, int kind) {
@@ -344,6 +241,36 @@ STAGE Hit closest_hit(const SceneRefs* s, const Ray* world) {
     return hit;
 }
 
+// Of a node's crossed children (bits; where the ray enters them in tnear), the nearest, which
+// the walk goes on with; the others are pushed so that nearer ones pop first (an insertion
+// into this node's part of the stack, which holds at most BVH_WIDTH - 1 entries).
+HOT int push_far_children(const __global BvhNode* node, int bits, const REAL* tnear,
+                          int* stack_child, int* stack_count, REAL* stack_t, int* sp) {
+    int near = lowest_bit(bits);
+    bits &= bits - 1;
+    int base = *sp;
+    while (bits) {
+        int far = lowest_bit(bits);
+        bits &= bits - 1;
+        if (tnear[far] < tnear[near]) {
+            int swap = far;
+            far = near;
+            near = swap;
+        }
+        int at = (*sp)++;
+        while (at > base && stack_t[at - 1] < tnear[far]) {
+            stack_child[at] = stack_child[at - 1];
+            stack_count[at] = stack_count[at - 1];
+            stack_t[at] = stack_t[at - 1];
+            at--;
+        }
+        stack_child[at] = node->child[far];
+        stack_count[at] = node->count[far];
+        stack_t[at] = tnear[far];
+    }
+    return near;
+}
+
 #if HAS_BVH
 // The closest hit below the tree entry (child, count) (as in BvhNode; (0, 0) is the root) that
 // goes before *found: closest_hit's walk, which the packet walk also runs for single lanes
@@ -394,31 +321,9 @@ HOT void walk_closest(const SceneRefs* s, const Ray* world, int child, int count
             REAL tnear[BVH_WIDTH];
             int bits = node_children(node, r, tie_reach(hit.t), tnear);
             if (bits) {
-                // Go on with the nearest crossed child; push the others so that nearer ones
-                // pop first (an insertion into this node's part of the stack, which holds at
-                // most BVH_WIDTH - 1 entries).
-                int near = lowest_bit(bits);
-                bits &= bits - 1;
-                int base = sp;
-                while (bits) {
-                    int far = lowest_bit(bits);
-                    bits &= bits - 1;
-                    if (tnear[far] < tnear[near]) {
-                        int swap = far;
-                        far = near;
-                        near = swap;
-                    }
-                    int at = sp++;
-                    while (at > base && stack_t[at - 1] < tnear[far]) {
-                        stack_child[at] = stack_child[at - 1];
-                        stack_count[at] = stack_count[at - 1];
-                        stack_t[at] = stack_t[at - 1];
-                        at--;
-                    }
-                    stack_child[at] = node->child[far];
-                    stack_count[at] = node->count[far];
-                    stack_t[at] = tnear[far];
-                }
+                // Go on with the nearest crossed child; push the others.
+                int near = push_far_children(node, bits, tnear, stack_child, stack_count,
+                                             stack_t, &sp);
                 child = node->child[near];
                 count = node->count[near];
                 continue;

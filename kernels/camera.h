@@ -1,23 +1,14 @@
+// Camera rays (docs/rendering.md, Camera): a pinhole's, an orthographic camera's and a thin
+// lens's, for a pixel sample (sample_ray); for sample packets a pinhole's rays lane-wise.
 #ifndef CLRAY_CAMERA_H
 #define CLRAY_CAMERA_H
 
 #include "real.h"
 #include "clray_types.h"
 #include "rng.h"
-
-// Sample s of spp inside pixel (x, y), in pixel units: the centre for one sample, else a jittered
-// point in cell (s mod nx, s div nx) of an nx x ny grid.
-inline REAL2 sample_position(int x, int y, int s, int spp, uint seed, uint pixel) {
-    if (spp == 1) return (REAL2)((REAL)x + (REAL)0.5, (REAL)y + (REAL)0.5);
-    // Integer ceil(sqrt(spp)): a float sqrt may be 3 ulp off and round a square up.
-    int nx = 1;
-    while (nx * nx < spp) nx++;
-    int ny = (spp + nx - 1) / nx;
-    REAL r0 = rng_uniform(seed, pixel, (uint)s, 0u);
-    REAL r1 = rng_uniform(seed, pixel, (uint)s, 1u);
-    return (REAL2)((REAL)x + ((REAL)(s % nx) + r0) / (REAL)nx,
-                   (REAL)y + ((REAL)(s / nx) + r1) / (REAL)ny);
-}
+#include "sampling.h"
+#include "ray.h"
+#include "lanes.h"
 
 // Image point `sample` (pixel units) as (x, y) in [-1, 1] on the image plane, y up.
 inline REAL2 image_plane_point(REAL2 sample, int width, int height) {
@@ -34,21 +25,6 @@ inline REAL3 camera_direction(const __global Camera* camera, REAL2 sample, int w
 }
 
 #if HAS_THIN_LENS || HAS_ORTHOGRAPHIC
-#if HAS_THIN_LENS
-// Sample s's point on the lens disc, in (right, up) coordinates times the lens radius: spp
-// angular strata, taken in an order permuted per pixel (keyed by the bits of r_2 of the sample
-// index spp, which no sample uses) so that a sample's stratum is independent of its cell in the
-// pixel and of its light points, with the angle jittered in the stratum by r_2 and the radius
-// sqrt(r_3) (uniform over the disc).
-inline REAL2 lens_sample(int s, int spp, uint seed, uint pixel) {
-    int stratum = (int)permute_stratum((uint)s, (uint)spp, rng_bits(seed, pixel, (uint)spp, 2u));
-    REAL angle = (REAL)2 * PI_R * ((REAL)stratum + rng_uniform(seed, pixel, (uint)s, 2u)) /
-                 (REAL)spp;
-    REAL rho = sqrt(rng_uniform(seed, pixel, (uint)s, 3u));
-    return (REAL2)(rho * cos(angle), rho * sin(angle));
-}
-#endif
-
 // The camera ray of sample s at image point `sample` (pixel units): from the eye (a
 // perspective camera) or from the image point on the view plane (orthographic), then, with a
 // lens, from a point of the lens towards the same point of the focus plane.
@@ -76,6 +52,78 @@ inline void camera_ray(const __global Camera* camera, REAL2 sample, int width, i
     *d = normalize(aim);
 #endif
 }
+#endif
+
+// The primary ray of pixel sample `sample`.
+STAGE void sample_ray(const __global Camera* camera, const __global Params* params, int x,
+                      int y, int sample, uint pixel, REAL3* o, REAL3* d) {
+    int spp = params->spp;
+    REAL2 pos = sample_position(x, y, sample, spp, params->seed, pixel);
+#if HAS_THIN_LENS || HAS_ORTHOGRAPHIC
+    camera_ray(camera, pos, params->width, params->height, sample, spp, params->seed, pixel, o,
+               d);
+#else
+    *o = TO_REAL3(camera->position);
+    *d = camera_direction(camera, pos, params->width, params->height);
+#endif
+}
+
+#if SAMPLE_PACKETS
+#define CAMERA_LANES (!HAS_THIN_LENS && !HAS_ORTHOGRAPHIC)
+
+#if CAMERA_LANES
+// sample_ray for samples first .. first + lanes - 1 of pixel (x, y), one a lane (the lanes past
+// the last hold copies of the first), into *p. False where the pixel has one sample (its
+// centre) or a direction's squared length is outside [2^-90, 2^90], where normalize() scales
+// against overflow and underflow and is no longer d * rsqrt(d . d): the caller then draws
+// lane by lane.
+HOT bool camera_ray_lanes(const __global Camera* camera, const __global Params* params, int x,
+                          int y, int first, int lanes, uint pixel, RayPacket* p) {
+    int spp = params->spp;
+    if (spp == 1) return false;
+    // sample_position's grid of nx x ny cells.
+    int nx = 1;
+    while (nx * nx < spp) nx++;
+    int ny = (spp + nx - 1) / nx;
+    uint sample[PACKET_LANES];
+    REAL column[PACKET_LANES], row[PACKET_LANES];
+    // The packet's samples are consecutive: their cells follow the first's along its row, one
+    // integer division a packet rather than one a lane.
+    int first_column = first % nx, first_row = first / nx;
+    int c = first_column, r = first_row;
+    for (int j = 0; j < PACKET_LANES; ++j) {
+        bool own = j < lanes;
+        sample[j] = (uint)(own ? first + j : first);
+        column[j] = (REAL)(own ? c : first_column);
+        row[j] = (REAL)(own ? r : first_row);
+        if (++c == nx) {
+            c = 0;
+            ++r;
+        }
+    }
+    UINTP samples = VLOADP(0, sample);
+    uint pixel_key = pcg_hash(pcg_hash(params->seed) ^ pixel);
+    REALP r0 = rng_uniform_lanes(pixel_key, samples, 0u);
+    REALP r1 = rng_uniform_lanes(pixel_key, samples, 1u);
+    REALP sx = (REAL)x + (VLOADP(0, column) + r0) / (REAL)nx;
+    REALP sy = (REAL)y + (VLOADP(0, row) + r1) / (REAL)ny;
+    // image_plane_point, then camera_direction.
+    REALP px = (REAL)2 * sx / (REAL)params->width - (REAL)1;
+    REALP py = (REAL)1 - (REAL)2 * sy / (REAL)params->height;
+    REAL3 forward = TO_REAL3(camera->forward), right = TO_REAL3(camera->right),
+          up = TO_REAL3(camera->up);
+    REALP dx = (REALP)(forward.x) + px * right.x + py * up.x;
+    REALP dy = (REALP)(forward.y) + px * right.y + py * up.y;
+    REALP dz = (REALP)(forward.z) + px * right.z + py * up.z;
+    REALP dd = dot_lanes(dx, dy, dz, dx, dy, dz);
+    if (lane_mask(~((dd >= (REAL)0x1p-90) & (dd <= (REAL)0x1p90)))) return false;
+    REALP scale = rsqrt(dd);
+    REAL3 o = TO_REAL3(camera->position);
+    *p = make_ray_packet((REALP)(o.x), (REALP)(o.y), (REALP)(o.z), dx * scale, dy * scale,
+                         dz * scale, (1 << lanes) - 1);
+    return true;
+}
+#endif
 #endif
 
 #endif

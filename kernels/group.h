@@ -28,6 +28,9 @@
 #include "scene.h"
 #include "hit.h"
 #include "bvh.h"
+#include "lanes.h"
+
+#if GROUP_PACKETS
 
 // The group's posts, three steps' worth: the OR of the children the work-items cross, the
 // group's nearest entry into each, and the farthest its hits can still reach, gathered by
@@ -268,5 +271,6 @@ inline REAL3 group_transmission(const SceneRefs* s, Group* g, const Ray* r, REAL
 #endif
     return active ? filter : (REAL3)(0, 0, 0);
 }
+#endif
 
 #endif

@@ -1,9 +1,11 @@
 // Counter-based random numbers: a pure function of (seed, pixel, sample, dimension), so an image
 // does not depend on launch order, tiling or device.
+// For sample packets rng_uniform lane-wise.
 #ifndef CLRAY_RNG_H
 #define CLRAY_RNG_H
 
 #include "real.h"
+#include "lanes.h"
 
 inline uint pcg_hash(uint x) {
     uint state = x * 747796405u + 2891336453u;
@@ -57,5 +59,18 @@ inline uint permute_stratum(uint i, uint n, uint key) {
     // key % n first: i + key could wrap past 2^32, which is no multiple of n.
     return (i + key % n) % n;
 }
+
+#if SAMPLE_PACKETS
+// rng_uniform(seed, pixel, sample[j], dim) in lane j; pixel_key: the pixel's first two hashes,
+// pcg_hash(pcg_hash(seed) ^ pixel). The integer arithmetic is pcg_hash's, lane-wise.
+HOT REALP rng_uniform_lanes(uint pixel_key, UINTP sample, uint dim) {
+    UINTP x = (UINTP)(pixel_key) ^ ((UINTP)(4u) * sample + (UINTP)(dim));
+    UINTP state = x * (UINTP)(747796405u) + (UINTP)(2891336453u);
+    UINTP word = ((state >> ((state >> (UINTP)(28u)) + (UINTP)(4u))) ^ state) *
+                 (UINTP)(277803737u);
+    UINTP bits = (word >> (UINTP)(22u)) ^ word;
+    return TO_REALP(bits >> (UINTP)(8u)) * (REAL)(1.0 / 16777216.0);
+}
+#endif
 
 #endif

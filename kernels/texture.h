@@ -1,10 +1,13 @@
-// Surface colour: the material colour, or a texel blended with it (docs/rendering.md).
+// Surface colour: the material colour, or a texel blended with it (docs/rendering.md); for
+// sample packets the checker lane-wise.
 #ifndef CLRAY_TEXTURE_H
 #define CLRAY_TEXTURE_H
 
 #include "real.h"
 #include "clray_types.h"
 #include "scene.h"
+#include "lanes.h"
+#include "shape.h"
 
 #if HAS_TEXTURES
 inline REAL3 texel_at(const SceneRefs* s, const __global Texture* tx, int x, int y) {
@@ -70,5 +73,30 @@ inline REAL3 surface_color(const SceneRefs* s, const __global Material* m, REAL3
 #endif
     return color;
 }
+
+#if SURFACE_LANES && HAS_TEXTURES
+// surface_color's checker, lane-wise: where g->checker, g's colour becomes the texture's.
+HOT void checker_lanes(ShapeLanes* g, const __global Camera* camera, const SurfaceOfLanes* sf,
+                       MASKP entering) {
+    REAL3 world = TO_REAL3(camera->world);
+    REALP nx = entering ? sf->gx : -sf->gx;
+    REALP ny = entering ? sf->gy : -sf->gy;
+    REALP nz = entering ? sf->gz : -sf->gz;
+    REALP size = g->size;
+    REALP qx = (sf->px + world.x - (REAL)0.25 * size * nx) / size;
+    REALP qy = (sf->py + world.y - (REAL)0.25 * size * ny) / size;
+    REALP qz = (sf->pz + world.z - (REAL)0.25 * size * nz) / size;
+    REALP cells = floor(qx) + floor(qy) + floor(qz);
+    REALP odd = cells - (REAL)2 * floor(cells * (REAL)0.5);
+    MASKP second = odd == (REAL)1;
+    REALP red = second ? g->red2 : g->red;
+    REALP green = second ? g->green2 : g->green;
+    REALP blue = second ? g->blue2 : g->blue;
+    REALP blend = g->blend;
+    g->red = g->checker ? blend * red + ((REAL)1 - blend) * g->red : g->red;
+    g->green = g->checker ? blend * green + ((REAL)1 - blend) * g->green : g->green;
+    g->blue = g->checker ? blend * blue + ((REAL)1 - blend) * g->blue : g->blue;
+}
+#endif
 
 #endif

@@ -1,0 +1,85 @@
+// Cones (HAS_CONES), capped or open: the side as a quadratic in t, the base cap as a disc, and
+// the surface on the side or cap crossed.
+#ifndef CLRAY_CONE_H
+#define CLRAY_CONE_H
+
+#include "real.h"
+#include "clray_types.h"
+#include "scene.h"
+#include "hit.h"
+#include "ray.h"
+#include "shape.h"
+
+#if HAS_CONES
+inline Crossings intersect_cone(const __global Cone* co, const Ray* r) {
+    Crossings c = no_crossings();
+    int n = 0;
+    REAL3 axis = TO_REAL3(co->axis_height);
+    REAL tan_a = TO_REAL(co->apex_tan.w), height = TO_REAL(co->axis_height.w);
+    REAL3 f = r->o - TO_REAL3(co->apex_tan);
+    REAL fa = dot(f, axis), da = dot(r->d, axis);
+    REAL3 fp = f - fa * axis, dp = r->d - da * axis;
+    // |perp|^2 = tan^2 s^2 with s the distance along the axis: a quadratic in t.
+    REAL k2 = tan_a * tan_a;
+    REAL a = dot(dp, dp) - k2 * da * da;
+    REAL b = dot(fp, dp) - k2 * fa * da;
+    REAL cc = dot(fp, fp) - k2 * fa * fa;
+    REAL ts[2];
+    int roots = 0;
+    if (a != (REAL)0) {
+        if (quadratic_roots(a, b, cc, difference_of_products(b, b, a, cc), &ts[0], &ts[1])) {
+            roots = 2;
+        }
+    } else if (b != (REAL)0) {
+        // A ray parallel to a generator line crosses the double cone once.
+        ts[0] = -cc / ((REAL)2 * b);
+        roots = 1;
+    }
+    add_side_roots(&c, &n, ts, roots, fa, da, height);
+    if (co->capped && da != (REAL)0) {
+        REAL tc = (height - fa) / da;
+        REAL3 q = fp + tc * dp;
+        REAL rb = height * tan_a;
+        if (dot(q, q) <= rb * rb * ((REAL)1 + gamma_n(8))) add_candidate(&c, &n, tc, 1);
+    }
+    if (n == 1) c.t[1] = REAL_INF;
+    return c;
+}
+
+// shape_surface for a cone: the point on its side (hit->part 0) or base cap (1).
+HOT Surface cone_surface(const SceneRefs* s, const Ray* r, const Hit* hit, bool want_uv) {
+    Surface sf;
+    int i = hit->ref & PRIM_INDEX_MASK;
+    REAL3 p = r->o + hit->t * r->d;
+    REAL gamma = gamma_n(ERR_ROUNDINGS);
+    sf.uv = (REAL2)(0, 0);
+    const __global Cone* co = s->cones + i;
+    REAL3 apex = TO_REAL3(co->apex_tan), axis = TO_REAL3(co->axis_height);
+    REAL tan_a = TO_REAL(co->apex_tan.w), height = TO_REAL(co->axis_height.w);
+    REAL3 q = p - apex;
+    REAL h = dot(q, axis);
+    if (hit->part == 0) {
+        REAL3 radial = q - h * axis;
+        REAL rl = length(radial);
+        if (rl > (REAL)0) {
+            radial /= rl;
+            p = apex + h * axis + (h * tan_a) * radial;
+            // Outward normal of |perp| = tan * s is radial - tan * axis, normalised.
+            sf.n_g = (radial - tan_a * axis) / sqrt((REAL)1 + tan_a * tan_a);
+        } else {
+            sf.n_g = -axis;  // the apex: any choice is a limit; point back out
+        }
+    } else {
+        p += (height - h) * axis;
+        sf.n_g = axis;
+    }
+    if (want_uv) sf.uv = axial_uv(q, axis, h / height, hit->part, height * tan_a);
+    sf.err = gamma * (max_abs3(p) + max_abs3(apex) + height * ((REAL)1 + tan_a));
+    sf.material = co->material;
+    sf.p = p;
+    sf.n_s = sf.n_g;
+    return sf;
+}
+#endif
+
+#endif

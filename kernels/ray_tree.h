@@ -1,0 +1,147 @@
+// A sample's ray tree (docs/rendering.md): the primary ray's task, and at each shaded hit the
+// reflected and refracted rays pushed on an explicit stack (OpenCL C has no recursion), with
+// the media stack that refraction walks through nested glass.
+#ifndef CLRAY_RAY_TREE_H
+#define CLRAY_RAY_TREE_H
+
+#include "real.h"
+#include "clray_types.h"
+#include "scene.h"
+#include "hit.h"
+#include "ray.h"
+#include "surface.h"
+#include "camera.h"
+#include "fresnel.h"
+
+// The media a ray can be inside at once (nested glass); a deeper one is not recorded.
+#define MEDIA_DEPTH 4
+// Depth first, a task pushes at most two children (refraction and reflection), so the stack
+// holds at most one waiting task per level: MAX_DEPTH + 1 entries. Without refraction a task
+// pushes at most one, and one entry is enough whatever the depth.
+#if HAS_REFRACTION
+#define RAY_STACK_SIZE (MAX_DEPTH + 1)
+#else
+#define RAY_STACK_SIZE 1
+#endif
+
+// One node of the ray tree, waiting on the explicit stack (OpenCL C has no recursion).
+typedef struct {
+    REAL3 o, d, weight;
+    int depth;
+    int media_count;  // materials the ray is inside, innermost last
+    int media[MEDIA_DEPTH];
+} RayTask;
+
+inline REAL medium_ior(const SceneRefs* s, const RayTask* task) {
+    return task->media_count > 0 ? TO_REAL(s->materials[task->media[task->media_count - 1]].ior)
+                                 : (REAL)1;
+}
+
+// The mirror image of direction d in a surface of normal n.
+inline REAL3 mirror(REAL3 d, REAL3 n) { return d - (REAL)2 * dot(d, n) * n; }
+
+// A ray too faint to matter (weight below min_weight) is not traced: inside glass the tree
+// doubles at every level, so deep trees need the cut.
+inline bool too_faint(REAL3 weight, float min_weight) {
+    return fmax(fmax(weight.x, weight.y), weight.z) < (REAL)min_weight;
+}
+
+// Push a secondary ray whose direction (and media) are set: it starts off the surface on the
+// side it leaves to, one level deeper in the ray tree, unless it is too faint. Returns the rays
+// pushed (0 or 1).
+inline int spawn(RayTask* stack, int* sp, RayTask* next, const Surface* sf, REAL3 weight,
+                 int depth, float min_weight) {
+    if (too_faint(weight, min_weight)) return 0;
+    next->o = offset_origin(sf, next->d);
+    next->weight = weight;
+    next->depth = depth + 1;
+    stack[(*sp)++] = *next;
+    return 1;
+}
+
+#if HAS_REFRACTION
+// The refracted ray's media and eta = n1 / n2 at a surface of material m.
+inline REAL refract_media(const SceneRefs* s, const RayTask* in, RayTask* out, int m,
+                          bool entering) {
+    out->media_count = in->media_count;
+    for (int k = 0; k < MEDIA_DEPTH; ++k) out->media[k] = in->media[k];
+    REAL ior_m = TO_REAL(s->materials[m].ior);
+    if (entering) {
+        REAL n1 = medium_ior(s, in);
+        if (out->media_count < MEDIA_DEPTH) out->media[out->media_count++] = m;
+        return n1 / ior_m;
+    }
+    for (int k = out->media_count - 1; k >= 0; --k) {
+        if (out->media[k] == m) {
+            for (int j = k; j < out->media_count - 1; ++j) out->media[j] = out->media[j + 1];
+            out->media_count--;
+            break;
+        }
+    }
+    return ior_m / medium_ior(s, out);
+}
+#endif
+
+#if MAX_DEPTH > 0
+// Push the reflected and refracted rays of a shaded hit (ray, pt) of `task`: returns the rays
+// pushed.
+inline int spawn_secondary(const SceneRefs* s, const __global Params* params, RayTask* stack,
+                           int* sp, const RayTask* task, const Ray* ray, const ShadePoint* pt) {
+    if (task->depth >= MAX_DEPTH) return 0;
+    const __global Material* m = s->materials + pt->sf.material;
+    REAL3 n = pt->n;
+    int pushed = 0;
+    REAL kr = TO_REAL(m->reflect);
+#if HAS_REFRACTION
+    REAL kt = TO_REAL(m->transmit);
+    if (kt > (REAL)0) {
+        RayTask next;
+        REAL eta = refract_media(s, task, &next, pt->sf.material, pt->entering);
+        REAL cos_i = -dot(ray->d, n);
+        REAL k = (REAL)1 - eta * eta * ((REAL)1 - cos_i * cos_i);
+        if (k < (REAL)0) {
+            kr += kt;  // total internal reflection
+        } else {
+#if HAS_FRESNEL
+            if (m->fresnel) {
+                REAL f = fresnel_reflectance(eta, cos_i, sqrt(k));
+                kr += f * kt;
+                kt *= (REAL)1 - f;
+            }
+#endif
+            next.d = normalize(eta * ray->d + (eta * cos_i - sqrt(k)) * n);
+            pushed += spawn(stack, sp, &next, &pt->sf, task->weight * kt, task->depth,
+                            params->min_weight);
+        }
+    }
+#endif
+    if (kr > (REAL)0) {
+        RayTask next = *task;  // a reflection stays in the same media
+        next.d = mirror(ray->d, n);
+        pushed += spawn(stack, sp, &next, &pt->sf, task->weight * kr, task->depth,
+                        params->min_weight);
+    }
+    return pushed;
+}
+#endif
+
+// The ray tree's root task: a primary ray (o, d), in no medium, of full weight.
+inline RayTask root_task(REAL3 o, REAL3 d) {
+    RayTask task;
+    task.o = o;
+    task.d = d;
+    task.weight = (REAL3)(1, 1, 1);
+    task.depth = 0;
+    task.media_count = 0;
+    return task;
+}
+
+// The sample's primary ray as the ray tree's root task.
+inline RayTask primary_task(const __global Camera* camera, const __global Params* params, int x,
+                            int y, int sample, uint pixel) {
+    REAL3 o, d;
+    sample_ray(camera, params, x, y, sample, pixel, &o, &d);
+    return root_task(o, d);
+}
+
+#endif

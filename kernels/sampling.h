@@ -1,0 +1,103 @@
+// Where a pixel sample's random numbers (rng.h) go: its point in the pixel (a jittered grid),
+// on the lens (permuted angular strata) and on each area light (stratified over the pixel's
+// samples, on a square or mapped to a disc).
+#ifndef CLRAY_SAMPLING_H
+#define CLRAY_SAMPLING_H
+
+#include "real.h"
+#include "clray_types.h"
+#include "rng.h"
+
+// Sample s of spp inside pixel (x, y), in pixel units: the centre for one sample, else a jittered
+// point in cell (s mod nx, s div nx) of an nx x ny grid.
+inline REAL2 sample_position(int x, int y, int s, int spp, uint seed, uint pixel) {
+    if (spp == 1) return (REAL2)((REAL)x + (REAL)0.5, (REAL)y + (REAL)0.5);
+    // Integer ceil(sqrt(spp)): a float sqrt may be 3 ulp off and round a square up.
+    int nx = 1;
+    while (nx * nx < spp) nx++;
+    int ny = (spp + nx - 1) / nx;
+    REAL r0 = rng_uniform(seed, pixel, (uint)s, 0u);
+    REAL r1 = rng_uniform(seed, pixel, (uint)s, 1u);
+    return (REAL2)((REAL)x + ((REAL)(s % nx) + r0) / (REAL)nx,
+                   (REAL)y + ((REAL)(s / nx) + r1) / (REAL)ny);
+}
+
+#if HAS_THIN_LENS
+// Sample s's point on the lens disc, in (right, up) coordinates times the lens radius: spp
+// angular strata, taken in an order permuted per pixel (keyed by the bits of r_2 of the sample
+// index spp, which no sample uses) so that a sample's stratum is independent of its cell in the
+// pixel and of its light points, with the angle jittered in the stratum by r_2 and the radius
+// sqrt(r_3) (uniform over the disc).
+inline REAL2 lens_sample(int s, int spp, uint seed, uint pixel) {
+    int stratum = (int)permute_stratum((uint)s, (uint)spp, rng_bits(seed, pixel, (uint)spp, 2u));
+    REAL angle = (REAL)2 * PI_R * ((REAL)stratum + rng_uniform(seed, pixel, (uint)s, 2u)) /
+                 (REAL)spp;
+    REAL rho = sqrt(rng_uniform(seed, pixel, (uint)s, 3u));
+    return (REAL2)(rho * cos(angle), rho * sin(angle));
+}
+#endif
+
+// Which pixel sample is being shaded: area lights draw their sample point from it.
+typedef struct {
+    uint seed, pixel;
+    int sample, spp;
+    int nx;  // columns of the light's strata: ceil(sqrt(spp)), as the pixel's grid
+} SampleKey;
+
+// A pixel's key, its sample still to be set.
+inline SampleKey sample_key(uint seed, uint pixel, int spp) {
+    SampleKey k;
+    k.seed = seed;
+    k.pixel = pixel;
+    k.sample = 0;
+    k.spp = spp;
+    // Integer ceil(sqrt(spp)), as sample_position has it.
+    k.nx = 1;
+    while (k.nx * k.nx < spp) k.nx++;
+    return k;
+}
+
+#if HAS_AREA_LIGHTS
+// A light's random stream has its own key: the counter 2^31 | light is above every
+// 4 sample + dim the pixel's jitter uses (spp <= 4096), so the two never share a hash input.
+inline uint light_key(SampleKey k, int light) {
+    return pcg_hash(pcg_hash(pcg_hash(k.seed) ^ k.pixel) ^ (0x80000000u | (uint)light));
+}
+
+inline REAL light_uniform(uint key, int sample, uint dim) {
+    return (REAL)(pcg_hash(key ^ (2u * (uint)sample + dim)) >> 8) * (REAL)(1.0 / 16777216.0);
+}
+
+// A point of the unit square for this light at this pixel sample. The spp samples take the
+// spp strata of a grid of rows of nx cells (the last row may hold fewer, its cells as much
+// wider as the row is shorter, so every stratum has area 1/spp), each stratum once: sample s
+// takes stratum permute_stratum(s), a permutation drawn per pixel and light, so that a light's
+// strata are independent of the pixel's jitter cells and of every other light's strata.
+inline REAL2 light_square(SampleKey k, int light) {
+    uint key = light_key(k, light);
+    int stratum = (int)permute_stratum((uint)k.sample, (uint)k.spp, key);
+    int row = stratum / k.nx, col = stratum % k.nx;
+    int cells = min(k.nx, k.spp - row * k.nx);
+    REAL r0 = light_uniform(key, k.sample, 0u), r1 = light_uniform(key, k.sample, 1u);
+    return (REAL2)(((REAL)col + r0) / (REAL)cells,
+                   ((REAL)(row * k.nx) + r1 * (REAL)cells) / (REAL)k.spp);
+}
+
+// Shirley and Chiu's concentric map of the unit square onto the unit disc: area-preserving, so
+// the strata stay strata.
+inline REAL2 concentric_disc(REAL2 u) {
+    REAL a = (REAL)2 * u.x - (REAL)1, b = (REAL)2 * u.y - (REAL)1;
+    if (a == (REAL)0 && b == (REAL)0) return (REAL2)(0, 0);
+    REAL r, phi;
+    if (fabs(a) > fabs(b)) {
+        r = a;
+        phi = (PI_R / (REAL)4) * (b / a);
+    } else {
+        r = b;
+        phi = PI_R / (REAL)2 - (PI_R / (REAL)4) * (a / b);
+    }
+    return (REAL2)(r * cos(phi), r * sin(phi));
+}
+#endif
+
+#endif

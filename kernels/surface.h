@@ -1,0 +1,214 @@
+// The hit's surface in the scene's frame (surface_at: the shape's surface, mapped out of its
+// instance), where a ray spawned from it starts (offset_origin), and the shading point built
+// on it (ShadePoint; shading.h); for sample packets the lanes' shading points (SurfaceLanes).
+#ifndef CLRAY_SURFACE_H
+#define CLRAY_SURFACE_H
+
+#include "real.h"
+#include "clray_types.h"
+#include "scene.h"
+#include "hit.h"
+#include "ray.h"
+#include "lanes.h"
+#include "shapes.h"
+#include "bvh.h"
+
+#if HAS_INSTANCES
+// n_g and n_s go to the scene's frame by the transpose of to_object's linear part M (the
+// inverse transpose of to_world's), which keeps them normal to the surface and on its outward
+// side. Not normalised: its length says how M stretches distances along the normal.
+inline REAL3 instance_normal(const __global Instance* in, REAL3 n) {
+    return n.x * TO_REAL3(in->to_object[0]) + n.y * TO_REAL3(in->to_object[1]) +
+           n.z * TO_REAL3(in->to_object[2]);
+}
+
+inline REAL abs_sum3(REAL3 v) { return fabs(v.x) + fabs(v.y) + fabs(v.z); }
+
+// The surface of a hit inside an instance: found in the group's frame, then mapped to the
+// scene's. Its error bound covers three things: the group-frame bound mapped through the
+// linear part A of to_world (the sum of |A| bounds its largest stretch); the rounding of that
+// map; and how far a ray spawned here moves when mapped back into the group's frame by
+// to_object M, which must not carry its origin back through the surface: a distance e there
+// is at most e / |M^T n| along the normal here. The matrices are float32 in every build and M
+// is only the rounded inverse of A, so out and back moves a point by float32 roundings of
+// |M| |A| |p| even in the double build: those terms count float32 roundings.
+HOT Surface instance_surface(const SceneRefs* s, const Ray* r, const Hit* hit, bool want_uv) {
+    const __global Instance* in = s->instances + hit->instance;
+    Ray group_ray = instance_ray(in, r);
+    Surface sf = shape_surface(s, &group_ray, hit, want_uv);
+    REAL4 p = (REAL4)(sf.p, (REAL)1);
+    REAL4 a0 = TO_REAL4(in->to_world[0]), a1 = TO_REAL4(in->to_world[1]),
+          a2 = TO_REAL4(in->to_world[2]);
+    REAL4 m0 = TO_REAL4(in->to_object[0]), m1 = TO_REAL4(in->to_object[1]),
+          m2 = TO_REAL4(in->to_object[2]);
+    REAL3 world = (REAL3)(dot(a0, p), dot(a1, p), dot(a2, p));
+    REAL4 ap = fabs(p);
+    REAL3 mapped = (REAL3)(dot(fabs(a0), ap), dot(fabs(a1), ap), dot(fabs(a2), ap));
+    REAL stretch = abs_sum3(a0.xyz) + abs_sum3(a1.xyz) + abs_sum3(a2.xyz);
+    REAL4 aw = (REAL4)(fabs(world) + mapped, (REAL)1);
+    REAL back = fmax(dot(fabs(m0), aw), fmax(dot(fabs(m1), aw), dot(fabs(m2), aw)));
+    REAL3 n_g = instance_normal(in, sf.n_g);
+    REAL along = length(n_g);
+    REAL gamma = fmax(gamma_n(ERR_ROUNDINGS), (REAL)(ERR_ROUNDINGS * FLT_EPSILON));
+    sf.err = sf.err * stretch + gamma * (max_abs3(world) + max_comp3(mapped)) +
+             (along > (REAL)0 ? gamma * back / along : (REAL)0);
+    sf.p = world;
+    sf.n_g = safe_normalize(n_g);
+    sf.n_s = safe_normalize(instance_normal(in, sf.n_s));
+    if (in->material >= 0) sf.material = in->material;
+    return sf;
+}
+#endif
+
+// The hit's surface in the scene's frame.
+HOT Surface surface_at(const SceneRefs* s, const Ray* r, const Hit* hit, bool want_uv) {
+#if HAS_INSTANCES
+    if (hit->instance >= 0) return instance_surface(s, r, hit, want_uv);
+#ifdef USE_DOUBLE
+    // Instances' surfaces lie where their float32 matrices put them, in every build: a scene
+    // surface that meets one (a glass base standing on the floor) needs offsets of float32
+    // size too, or a ray spawned from it can start on the wrong side of the instance's.
+    Surface sf = shape_surface(s, r, hit, want_uv);
+    sf.err = fmax(sf.err, (REAL)(ERR_ROUNDINGS * FLT_EPSILON) * max_abs3(sf.p));
+    return sf;
+#endif
+#endif
+    return shape_surface(s, r, hit, want_uv);
+}
+
+// Move p off the surface to the side of n_g that w leaves on, by the error bound along the
+// normal: the spawned ray then starts beyond any rounding of p and needs no t epsilon.
+inline REAL3 offset_origin(const Surface* sf, REAL3 w) {
+#if OFFSET_FIXED_EPS
+    REAL d = (REAL)1e-4;
+#else
+    REAL d = sf->err * (fabs(sf->n_g.x) + fabs(sf->n_g.y) + fabs(sf->n_g.z));
+#endif
+    return dot(w, sf->n_g) > (REAL)0 ? sf->p + d * sf->n_g : sf->p - d * sf->n_g;
+}
+
+// What shading a hit needs: its surface, its side, the normal facing the ray and its colour.
+typedef struct {
+    Surface sf;
+    REAL3 n, c;
+    bool entering;
+} ShadePoint;
+
+// A closest hit as intersect_rays reports it: the outward geometric normal and t (inf on a
+// miss), and the primitive reference (-1).
+inline void report_hit(const SceneRefs* s, const Ray* ray, const Hit* hit, __global float4* out,
+                       __global int* ref) {
+    if (hit->t < REAL_INF) {
+        Surface sf = surface_at(s, ray, hit, false);
+        *out = (float4)((float)sf.n_g.x, (float)sf.n_g.y, (float)sf.n_g.z, (float)hit->t);
+        *ref = hit->ref;
+    } else {
+        *out = (float4)(0.0f, 0.0f, 0.0f, INFINITY);
+        *ref = -1;
+    }
+}
+
+#if SAMPLE_PACKETS
+// The lanes' shading points, coordinate by coordinate: what light_ray and a reflected ray's
+// set-up read of a ShadePoint.
+typedef struct {
+    REALP px, py, pz, err, gx, gy, gz, nx, ny, nz;
+} SurfaceLanes;
+
+// pt[j] for each lane of `bits`; the other lanes hold a copy of one of those.
+HOT SurfaceLanes surface_lanes(const ShadePoint* pt, int bits) {
+    REAL f[10][PACKET_LANES];
+    int spare = lowest_bit(bits);
+    for (int j = 0; j < PACKET_LANES; ++j) {
+        const ShadePoint* q = pt + (((bits >> j) & 1) ? j : spare);
+        f[0][j] = q->sf.p.x;
+        f[1][j] = q->sf.p.y;
+        f[2][j] = q->sf.p.z;
+        f[3][j] = q->sf.err;
+        f[4][j] = q->sf.n_g.x;
+        f[5][j] = q->sf.n_g.y;
+        f[6][j] = q->sf.n_g.z;
+        f[7][j] = q->n.x;
+        f[8][j] = q->n.y;
+        f[9][j] = q->n.z;
+    }
+    SurfaceLanes q;
+    q.px = VLOADP(0, f[0]);
+    q.py = VLOADP(0, f[1]);
+    q.pz = VLOADP(0, f[2]);
+    q.err = VLOADP(0, f[3]);
+    q.gx = VLOADP(0, f[4]);
+    q.gy = VLOADP(0, f[5]);
+    q.gz = VLOADP(0, f[6]);
+    q.nx = VLOADP(0, f[7]);
+    q.ny = VLOADP(0, f[8]);
+    q.nz = VLOADP(0, f[9]);
+    return q;
+}
+
+// Where `mine`, *q takes v's lanes.
+HOT void merge_surface_lanes(SurfaceLanes v, MASKP mine, SurfaceLanes* q) {
+    q->px = mine ? v.px : q->px;
+    q->py = mine ? v.py : q->py;
+    q->pz = mine ? v.pz : q->pz;
+    q->err = mine ? v.err : q->err;
+    q->gx = mine ? v.gx : q->gx;
+    q->gy = mine ? v.gy : q->gy;
+    q->gz = mine ? v.gz : q->gz;
+    q->nx = mine ? v.nx : q->nx;
+    q->ny = mine ? v.ny : q->ny;
+    q->nz = mine ? v.nz : q->nz;
+}
+
+// offset_origin(sf, w) for every lane, into (ox, oy, oz): the same operations in the same
+// order.
+HOT void offset_origin_lanes(const SurfaceLanes* q, REALP wx, REALP wy, REALP wz, REALP* ox,
+                             REALP* oy, REALP* oz) {
+#if OFFSET_FIXED_EPS
+    REALP d = (REALP)(1e-4);
+#else
+    REALP d = q->err * (fabs(q->gx) + fabs(q->gy) + fabs(q->gz));
+#endif
+    MASKP out = dot_lanes(wx, wy, wz, q->gx, q->gy, q->gz) > (REAL)0;
+    *ox = out ? q->px + d * q->gx : q->px - d * q->gx;
+    *oy = out ? q->py + d * q->gy : q->py - d * q->gy;
+    *oz = out ? q->pz + d * q->gz : q->pz - d * q->gz;
+}
+
+// SurfaceLanes row by row, for the lanes that go on one at a time.
+typedef struct {
+    REAL f[10][PACKET_LANES];
+} SurfaceRows;
+
+HOT void store_surface_lanes(const SurfaceLanes* q, SurfaceRows* r) {
+    VSTOREP(q->px, 0, r->f[0]);
+    VSTOREP(q->py, 0, r->f[1]);
+    VSTOREP(q->pz, 0, r->f[2]);
+    VSTOREP(q->err, 0, r->f[3]);
+    VSTOREP(q->gx, 0, r->f[4]);
+    VSTOREP(q->gy, 0, r->f[5]);
+    VSTOREP(q->gz, 0, r->f[6]);
+    VSTOREP(q->nx, 0, r->f[7]);
+    VSTOREP(q->ny, 0, r->f[8]);
+    VSTOREP(q->nz, 0, r->f[9]);
+}
+
+// Lane j's surface as light_ray reads it (p, err, n_g; material: the caller's).
+HOT Surface surface_of_lane(const SurfaceRows* r, int j) {
+    Surface sf;
+    sf.p = (REAL3)(r->f[0][j], r->f[1][j], r->f[2][j]);
+    sf.err = r->f[3][j];
+    sf.n_g = (REAL3)(r->f[4][j], r->f[5][j], r->f[6][j]);
+    sf.n_s = sf.n_g;
+    sf.uv = (REAL2)(0, 0);
+    sf.material = 0;
+    return sf;
+}
+
+// Lane j's shading normal n (ShadePoint.n).
+HOT REAL3 normal_of_lane(const SurfaceRows* r, int j) {
+    return (REAL3)(r->f[7][j], r->f[8][j], r->f[9][j]);
+}
+#endif
+
+#endif

@@ -1,0 +1,419 @@
+// Triangles (HAS_TRIANGLES), in leaf packets of four (clray_types.h: TrianglePacket): the
+// watertight test of Woop, Benthin and Wald on a packet's four triangles (or the study's
+// Moller-Trumbore), the same lane-wise on a sample packet's rays, one triangle at a time, and
+// the surface from the barycentrics, with vertex normals and texture coordinates.
+#ifndef CLRAY_TRIANGLE_H
+#define CLRAY_TRIANGLE_H
+
+#include "real.h"
+#include "clray_types.h"
+#include "scene.h"
+#include "hit.h"
+#include "ray.h"
+#include "lanes.h"
+#include "shape.h"
+
+#if HAS_TRIANGLES
+#if TRIANGLE_MOLLER_TRUMBORE
+// Study variant: the textbook Moller-Trumbore test. Not watertight: rays aimed at an edge
+// shared by two triangles can miss both.
+inline Crossings intersect_triangle(REAL3 p0, REAL3 p1, REAL3 p2, const Ray* r) {
+    Crossings c = no_crossings();
+    REAL3 e1 = p1 - p0, e2 = p2 - p0;
+    REAL3 pv = cross(r->d, e2);
+    REAL det = dot(e1, pv);
+    if (det == (REAL)0) return c;
+    REAL inv_det = (REAL)1 / det;
+    REAL3 tv = r->o - p0;
+    REAL u = dot(tv, pv) * inv_det;
+    if (u < (REAL)0 || u > (REAL)1) return c;
+    REAL3 qv = cross(tv, e1);
+    REAL v = dot(r->d, qv) * inv_det;
+    if (v < (REAL)0 || u + v > (REAL)1) return c;
+    REAL t = dot(e2, qv) * inv_det;
+    if (!(t > (REAL)0) || !isfinite(t)) return c;
+    c.t[0] = t;
+    c.b1 = u;
+    c.b2 = v;
+    return c;
+}
+#endif
+
+// Hits of a ray with the triangles of a packet: bit k set where lane k is crossed, with its t
+// and barycentrics in t[k], b1[k], b2[k]. Padding lanes hold NaN corners and are never crossed.
+#if TRIANGLE_MOLLER_TRUMBORE
+// The study variant tests lane by lane with the scalar formula.
+HOT int intersect_triangle_packet(const __global TrianglePacket* pk, const Ray* r, REAL* t,
+                                  REAL* b1, REAL* b2) {
+    int bits = 0;
+    for (int k = 0; k < PACKET_WIDTH; ++k) {
+        Crossings c = intersect_triangle((REAL3)(pk->x0[k], pk->y0[k], pk->z0[k]),
+                                         (REAL3)(pk->x1[k], pk->y1[k], pk->z1[k]),
+                                         (REAL3)(pk->x2[k], pk->y2[k], pk->z2[k]), r);
+        // Every lane's t, a miss's infinite: packet_blocks compares all four lanes.
+        t[k] = c.t[0];
+        if (c.t[0] < REAL_INF) {
+            bits |= 1 << k;
+            b1[k] = c.b1;
+            b2[k] = c.b2;
+        }
+    }
+    return bits;
+}
+#else
+HOT REAL4 pick4(REAL4 x, REAL4 y, REAL4 z, int k) { return k == 0 ? x : (k == 1 ? y : z); }
+
+// Woop, Benthin, Wald, "Watertight Ray/Triangle Intersection", JCGT 2013, as in pbrt-v4, on four
+// triangles at once: edge functions in a ray-aligned sheared frame, so rays at shared edges hit
+// one side or both. An edge function that rounds to exactly zero is recomputed in double.
+HOT int intersect_triangle_packet(const __global TrianglePacket* pk, const Ray* r, REAL* t,
+                                  REAL* b1, REAL* b2) {
+    REAL4 ox = (REAL4)(r->o.x), oy = (REAL4)(r->o.y), oz = (REAL4)(r->o.z);
+    REAL4 ax = TO_REAL4(vload4(0, pk->x0)) - ox, ay = TO_REAL4(vload4(0, pk->y0)) - oy,
+          az = TO_REAL4(vload4(0, pk->z0)) - oz;
+    REAL4 bx = TO_REAL4(vload4(0, pk->x1)) - ox, by = TO_REAL4(vload4(0, pk->y1)) - oy,
+          bz = TO_REAL4(vload4(0, pk->z1)) - oz;
+    REAL4 cx = TO_REAL4(vload4(0, pk->x2)) - ox, cy = TO_REAL4(vload4(0, pk->y2)) - oy,
+          cz = TO_REAL4(vload4(0, pk->z2)) - oz;
+    REAL4 p0x = pick4(ax, ay, az, r->kx), p0y = pick4(ax, ay, az, r->ky),
+          p0z = pick4(ax, ay, az, r->kz);
+    REAL4 p1x = pick4(bx, by, bz, r->kx), p1y = pick4(bx, by, bz, r->ky),
+          p1z = pick4(bx, by, bz, r->kz);
+    REAL4 p2x = pick4(cx, cy, cz, r->kx), p2y = pick4(cx, cy, cz, r->ky),
+          p2z = pick4(cx, cy, cz, r->kz);
+    REAL4 sx = (REAL4)(r->sx), sy = (REAL4)(r->sy);
+    p0x += sx * p0z;
+    p0y += sy * p0z;
+    p1x += sx * p1z;
+    p1y += sy * p1z;
+    p2x += sx * p2z;
+    p2y += sy * p2z;
+    REAL4 e0 = difference_of_products4(p1x, p2y, p1y, p2x);
+    REAL4 e1 = difference_of_products4(p2x, p0y, p2y, p0x);
+    REAL4 e2 = difference_of_products4(p0x, p1y, p0y, p1x);
+#if !defined(USE_DOUBLE) && defined(cl_khr_fp64) && !TRIANGLE_NO_FP64_FALLBACK
+    int zero = lane_bits4((e0 == 0.0f) | (e1 == 0.0f) | (e2 == 0.0f));
+    if (zero) {
+        float q[6][4], e[3][4];
+        vstore4(p0x, 0, q[0]);
+        vstore4(p0y, 0, q[1]);
+        vstore4(p1x, 0, q[2]);
+        vstore4(p1y, 0, q[3]);
+        vstore4(p2x, 0, q[4]);
+        vstore4(p2y, 0, q[5]);
+        vstore4(e0, 0, e[0]);
+        vstore4(e1, 0, e[1]);
+        vstore4(e2, 0, e[2]);
+        for (int k = 0; k < PACKET_WIDTH; ++k) {
+            if (!(zero & (1 << k))) continue;
+            e[0][k] = (float)((double)q[2][k] * (double)q[5][k] - (double)q[3][k] * q[4][k]);
+            e[1][k] = (float)((double)q[4][k] * (double)q[1][k] - (double)q[5][k] * q[0][k]);
+            e[2][k] = (float)((double)q[0][k] * (double)q[3][k] - (double)q[1][k] * q[2][k]);
+        }
+        e0 = vload4(0, e[0]);
+        e1 = vload4(0, e[1]);
+        e2 = vload4(0, e[2]);
+    }
+#endif
+    MASK4 mixed = ((e0 < 0) | (e1 < 0) | (e2 < 0)) & ((e0 > 0) | (e1 > 0) | (e2 > 0));
+    REAL4 det = e0 + e1 + e2;
+    REAL4 sz = (REAL4)(r->sz);
+    p0z *= sz;
+    p1z *= sz;
+    p2z *= sz;
+    REAL4 t_scaled = e0 * p0z + e1 * p1z + e2 * p2z;
+    // A zero or NaN det fails both sign tests.
+    MASK4 ahead = ((det < 0) & (t_scaled < 0)) | ((det > 0) & (t_scaled > 0));
+    int bits = lane_bits4(convert_int4(ahead & ~mixed));
+    if (bits) {
+        REAL4 inv_det = (REAL)1 / det;
+        vstore4(t_scaled * inv_det, 0, t);
+        vstore4(e1 * inv_det, 0, b1);
+        vstore4(e2 * inv_det, 0, b2);
+    }
+    return bits;
+}
+#endif
+
+#if SAMPLE_PACKETS && !TRIANGLE_MOLLER_TRUMBORE
+HOT REALP pick_lanes(REALP x, REALP y, REALP z, MASKP k) {
+    return k == (MASKP)(0) ? x : (k == (MASKP)(1) ? y : z);
+}
+
+// Triangle k's corners relative to each lane's origin, in each lane's permuted axes.
+typedef struct {
+    REALP p0x, p0y, p0z, p1x, p1y, p1z, p2x, p2y, p2z;
+} CornerLanes;
+
+// A leaf packet's corners along the packet's permuted axes (RayPacket akx, aky, akz): corner
+// j's coordinates of its PACKET_WIDTH triangles, picked with one vector select each for all
+// of them, where every lane shares the permutation.
+typedef struct {
+    float x[3][PACKET_WIDTH], y[3][PACKET_WIDTH], z[3][PACKET_WIDTH];
+} PickedCorners;
+
+HOT float4 pick_axis4(float4 x, float4 y, float4 z, int k) {
+    return k == 0 ? x : (k == 1 ? y : z);
+}
+
+HOT void pick_corner(const __global float* x, const __global float* y, const __global float* z,
+                     const RayPacket* r, int j, PickedCorners* q) {
+    float4 vx = vload4(0, x), vy = vload4(0, y), vz = vload4(0, z);
+    vstore4(pick_axis4(vx, vy, vz, r->akx), 0, q->x[j]);
+    vstore4(pick_axis4(vx, vy, vz, r->aky), 0, q->y[j]);
+    vstore4(pick_axis4(vx, vy, vz, r->akz), 0, q->z[j]);
+}
+
+HOT PickedCorners pick_corners(const __global TrianglePacket* pk, const RayPacket* r) {
+    PickedCorners q;
+    pick_corner(pk->x0, pk->y0, pk->z0, r, 0, &q);
+    pick_corner(pk->x1, pk->y1, pk->z1, r, 1, &q);
+    pick_corner(pk->x2, pk->y2, pk->z2, r, 2, &q);
+    return q;
+}
+
+// Triangle k's corners relative to each lane's origin, in each lane's permuted axes; `picked`:
+// the packet's pick_corners where the lanes share the permutation.
+HOT CornerLanes triangle_corners_lanes(const __global TrianglePacket* pk,
+                                       const PickedCorners* picked, int k, const RayPacket* r) {
+    CornerLanes q;
+    if (r->uniform) {
+        q.p0x = (REALP)(TO_REAL(picked->x[0][k])) - r->okx;
+        q.p0y = (REALP)(TO_REAL(picked->y[0][k])) - r->oky;
+        q.p0z = (REALP)(TO_REAL(picked->z[0][k])) - r->okz;
+        q.p1x = (REALP)(TO_REAL(picked->x[1][k])) - r->okx;
+        q.p1y = (REALP)(TO_REAL(picked->y[1][k])) - r->oky;
+        q.p1z = (REALP)(TO_REAL(picked->z[1][k])) - r->okz;
+        q.p2x = (REALP)(TO_REAL(picked->x[2][k])) - r->okx;
+        q.p2y = (REALP)(TO_REAL(picked->y[2][k])) - r->oky;
+        q.p2z = (REALP)(TO_REAL(picked->z[2][k])) - r->okz;
+        return q;
+    }
+    REALP ax = (REALP)(TO_REAL(pk->x0[k])) - r->ox, ay = (REALP)(TO_REAL(pk->y0[k])) - r->oy,
+          az = (REALP)(TO_REAL(pk->z0[k])) - r->oz;
+    REALP bx = (REALP)(TO_REAL(pk->x1[k])) - r->ox, by = (REALP)(TO_REAL(pk->y1[k])) - r->oy,
+          bz = (REALP)(TO_REAL(pk->z1[k])) - r->oz;
+    REALP cx = (REALP)(TO_REAL(pk->x2[k])) - r->ox, cy = (REALP)(TO_REAL(pk->y2[k])) - r->oy,
+          cz = (REALP)(TO_REAL(pk->z2[k])) - r->oz;
+    q.p0x = pick_lanes(ax, ay, az, r->kx);
+    q.p0y = pick_lanes(ax, ay, az, r->ky);
+    q.p0z = pick_lanes(ax, ay, az, r->kz);
+    q.p1x = pick_lanes(bx, by, bz, r->kx);
+    q.p1y = pick_lanes(bx, by, bz, r->ky);
+    q.p1z = pick_lanes(bx, by, bz, r->kz);
+    q.p2x = pick_lanes(cx, cy, cz, r->kx);
+    q.p2y = pick_lanes(cx, cy, cz, r->ky);
+    q.p2z = pick_lanes(cx, cy, cz, r->kz);
+    return q;
+}
+
+// Triangle k of a packet against every lane: intersect_triangle_packet's watertight test with
+// the triangle and the ray's roles swapped (one triangle, PACKET_LANES rays), the same
+// operations in the same order. Crossed lanes come back with t and barycentrics.
+HOT MASKP triangle_lanes(const __global TrianglePacket* pk, const PickedCorners* picked, int k,
+                         const RayPacket* r, REALP* t, REALP* b1, REALP* b2) {
+    CornerLanes corners = triangle_corners_lanes(pk, picked, k, r);
+    REALP p0x = corners.p0x, p0y = corners.p0y, p0z = corners.p0z;
+    REALP p1x = corners.p1x, p1y = corners.p1y, p1z = corners.p1z;
+    REALP p2x = corners.p2x, p2y = corners.p2y, p2z = corners.p2z;
+    p0x += r->sx * p0z;
+    p0y += r->sy * p0z;
+    p1x += r->sx * p1z;
+    p1y += r->sy * p1z;
+    p2x += r->sx * p2z;
+    p2y += r->sy * p2z;
+    REALP e0 = difference_of_products_lanes(p1x, p2y, p1y, p2x);
+    REALP e1 = difference_of_products_lanes(p2x, p0y, p2y, p0x);
+    REALP e2 = difference_of_products_lanes(p0x, p1y, p0y, p1x);
+#if !defined(USE_DOUBLE) && defined(cl_khr_fp64) && !TRIANGLE_NO_FP64_FALLBACK
+    int zero = lane_mask((e0 == 0.0f) | (e1 == 0.0f) | (e2 == 0.0f));
+    if (zero) {
+        float q[6][PACKET_LANES], e[3][PACKET_LANES];
+        VSTOREP(p0x, 0, q[0]);
+        VSTOREP(p0y, 0, q[1]);
+        VSTOREP(p1x, 0, q[2]);
+        VSTOREP(p1y, 0, q[3]);
+        VSTOREP(p2x, 0, q[4]);
+        VSTOREP(p2y, 0, q[5]);
+        VSTOREP(e0, 0, e[0]);
+        VSTOREP(e1, 0, e[1]);
+        VSTOREP(e2, 0, e[2]);
+        for (int j = 0; j < PACKET_LANES; ++j) {
+            if (!(zero & (1 << j))) continue;
+            e[0][j] = (float)((double)q[2][j] * (double)q[5][j] - (double)q[3][j] * q[4][j]);
+            e[1][j] = (float)((double)q[4][j] * (double)q[1][j] - (double)q[5][j] * q[0][j]);
+            e[2][j] = (float)((double)q[0][j] * (double)q[3][j] - (double)q[1][j] * q[2][j]);
+        }
+        e0 = VLOADP(0, e[0]);
+        e1 = VLOADP(0, e[1]);
+        e2 = VLOADP(0, e[2]);
+    }
+#endif
+    MASKP mixed = ((e0 < 0) | (e1 < 0) | (e2 < 0)) & ((e0 > 0) | (e1 > 0) | (e2 > 0));
+    REALP det = e0 + e1 + e2;
+    p0z *= r->sz;
+    p1z *= r->sz;
+    p2z *= r->sz;
+    REALP t_scaled = e0 * p0z + e1 * p1z + e2 * p2z;
+    // A zero or NaN det fails both sign tests.
+    MASKP ahead = ((det < 0) & (t_scaled < 0)) | ((det > 0) & (t_scaled > 0));
+    REALP inv_det = (REAL)1 / det;
+    *t = t_scaled * inv_det;
+    *b1 = e1 * inv_det;
+    *b2 = e2 * inv_det;
+    return ahead & ~mixed;
+}
+#define TRIANGLE_LANES 1
+#else
+#define TRIANGLE_LANES 0
+#endif
+
+// shape_surface for a triangle: the point from the barycentrics, pulled towards the
+// centroid, the winding's normal and the blended vertex normal.
+HOT Surface triangle_surface(const SceneRefs* s, const Ray* r, const Hit* hit, bool want_uv) {
+    Surface sf;
+    int i = hit->ref & PRIM_INDEX_MASK;
+    REAL gamma = gamma_n(ERR_ROUNDINGS);
+    Triangle tri = s->triangles[i];
+    // The corners from the hit's packet lane (its part is its slot, shapes.h:
+    // packet_crossings): the mesh's float32 vertices, which the device does not keep.
+    const __global TrianglePacket* pk = s->triangle_packets + hit->part / PACKET_WIDTH;
+    int lane = hit->part % PACKET_WIDTH;
+    REAL3 p0 = (REAL3)((REAL)pk->x0[lane], (REAL)pk->y0[lane], (REAL)pk->z0[lane]);
+    REAL3 p1 = (REAL3)((REAL)pk->x1[lane], (REAL)pk->y1[lane], (REAL)pk->z1[lane]);
+    REAL3 p2 = (REAL3)((REAL)pk->x2[lane], (REAL)pk->y2[lane], (REAL)pk->z2[lane]);
+    REAL b1 = hit->b1, b2 = hit->b2, b0 = (REAL)1 - b1 - b2;
+    REAL3 p = b0 * p0 + b1 * p1 + b2 * p2;
+    sf.err = gamma * max_comp3(fabs(b0 * p0) + fabs(b1 * p1) + fabs(b2 * p2));
+    // A hit on an edge also lies on the neighbouring triangle's plane, so a ray spawned
+    // from it (offset along this normal only) could start on that plane and leave
+    // through a concave edge at t = 0. Pulling the point a few error bounds towards
+    // this triangle's centroid, within the triangle, takes it off that plane.
+    REAL3 to_centroid = (p0 + p1 + p2) / (REAL)3 - p;
+    REAL reach = length(to_centroid);
+    if (reach > (REAL)0) {
+        p += fmin((REAL)4 * sf.err, (REAL)0.5 * reach) / reach * to_centroid;
+    }
+    REAL3 n = safe_normalize(cross(p1 - p0, p2 - p0));
+    // A degenerate triangle has no normal: let it face the ray.
+    sf.n_g = dot(n, n) > (REAL)0 ? n : -r->d;
+    sf.uv = (REAL2)(b1, b2);
+#if HAS_VERTEX_NORMALS
+    if (tri.material & TRIANGLE_SMOOTH) {
+        REAL3 ns = b0 * TO_REAL3(s->normals[tri.v0]) +
+                   b1 * TO_REAL3(s->normals[tri.v1]) +
+                   b2 * TO_REAL3(s->normals[tri.v2]);
+        sf.n_s = safe_normalize(ns);
+    }
+#endif
+#if HAS_VERTEX_UVS
+    if (tri.material & TRIANGLE_UV) {
+        sf.uv = b0 * TO_REAL2(s->uvs[tri.v0]) + b1 * TO_REAL2(s->uvs[tri.v1]) +
+                b2 * TO_REAL2(s->uvs[tri.v2]);
+    }
+#endif
+    sf.material = tri.material & TRIANGLE_MATERIAL_MASK;
+    sf.p = p;
+#if HAS_VERTEX_NORMALS
+    if ((tri.material & TRIANGLE_SMOOTH) && dot(sf.n_s, sf.n_s) > (REAL)0) return sf;
+#endif
+    sf.n_s = sf.n_g;
+    return sf;
+}
+
+#if SURFACE_LANES
+// triangle_surface lane-wise: the point from the barycentrics, pulled towards the centroid,
+// the winding's normal and the blended vertex normal.
+HOT SurfaceOfLanes triangle_surface_lanes(const ShapeLanes* g, const RayPacket* r,
+                                          const PacketHit* h, MASKP* outside) {
+    SurfaceOfLanes v;
+    REAL gamma = gamma_n(ERR_ROUNDINGS);
+    REALP b1 = h->b1, b2 = h->b2, b0 = (REAL)1 - b1 - b2;
+    v.px = b0 * g->ax + b1 * g->bx + b2 * g->cx;
+    v.py = b0 * g->ay + b1 * g->by + b2 * g->cy;
+    v.pz = b0 * g->az + b1 * g->bz + b2 * g->cz;
+    REALP ex = fabs(b0 * g->ax) + fabs(b1 * g->bx) + fabs(b2 * g->cx);
+    REALP ey = fabs(b0 * g->ay) + fabs(b1 * g->by) + fabs(b2 * g->cy);
+    REALP ez = fabs(b0 * g->az) + fabs(b1 * g->bz) + fabs(b2 * g->cz);
+    v.err = gamma * fmax(ex, fmax(ey, ez));
+    REALP tx = (g->ax + g->bx + g->cx) / (REAL)3 - v.px;
+    REALP ty = (g->ay + g->by + g->cy) / (REAL)3 - v.py;
+    REALP tz = (g->az + g->bz + g->cz) / (REAL)3 - v.pz;
+    REALP reach = plain_length_lanes(tx, ty, tz, outside);
+    REALP k = fmin((REAL)4 * v.err, (REAL)0.5 * reach) / reach;
+    MASKP move = reach > (REAL)0;
+    v.px = move ? v.px + k * tx : v.px;
+    v.py = move ? v.py + k * ty : v.py;
+    v.pz = move ? v.pz + k * tz : v.pz;
+    // cross(p1 - p0, p2 - p0) as PoCL's cross() has it: each product rounded, none fused.
+    REALP e1x = g->bx - g->ax, e1y = g->by - g->ay, e1z = g->bz - g->az;
+    REALP e2x = g->cx - g->ax, e2y = g->cy - g->ay, e2z = g->cz - g->az;
+    REALP yz = e1y * e2z;
+    REALP zy = e1z * e2y;
+    REALP zx = e1z * e2x;
+    REALP xz = e1x * e2z;
+    REALP xy = e1x * e2y;
+    REALP yx = e1y * e2x;
+    REALP nx = yz - zy, ny = zx - xz, nz = xy - yx;
+    safe_normalize_lanes(&nx, &ny, &nz, outside);
+    // A degenerate triangle has no normal: it faces the ray.
+    MASKP some = dot_lanes(nx, ny, nz, nx, ny, nz) > (REAL)0;
+    v.gx = some ? nx : -r->dx;
+    v.gy = some ? ny : -r->dy;
+    v.gz = some ? nz : -r->dz;
+    v.sx = v.gx;
+    v.sy = v.gy;
+    v.sz = v.gz;
+#if HAS_VERTEX_NORMALS
+    if (lane_mask(g->smooth)) {
+        REALP sx = b0 * g->nax + b1 * g->nbx + b2 * g->ncx;
+        REALP sy = b0 * g->nay + b1 * g->nby + b2 * g->ncy;
+        REALP sz = b0 * g->naz + b1 * g->nbz + b2 * g->ncz;
+        MASKP wide = (MASKP)(0);
+        safe_normalize_lanes(&sx, &sy, &sz, &wide);
+        *outside |= g->smooth & wide;
+        MASKP blend = g->smooth & (dot_lanes(sx, sy, sz, sx, sy, sz) > (REAL)0);
+        v.sx = blend ? sx : v.sx;
+        v.sy = blend ? sy : v.sy;
+        v.sz = blend ? sz : v.sz;
+    }
+#endif
+    return v;
+}
+
+// shape_record for a triangle: its corners (a, b, c) and vertex normals (na, nb, nc). False
+// with vertex texture coordinates.
+HOT bool triangle_record(const SceneRefs* s, int i, int part, REAL* f, int stride, int* material,
+                         LANE_INT* smooth) {
+    Triangle tri = s->triangles[i];
+    if (tri.material & TRIANGLE_UV) return false;
+    const __global TrianglePacket* pk = s->triangle_packets + part / PACKET_WIDTH;
+    int lane = part % PACKET_WIDTH;
+    f[ROW_A * stride] = (REAL)pk->x0[lane];
+    f[(ROW_A + 1) * stride] = (REAL)pk->y0[lane];
+    f[(ROW_A + 2) * stride] = (REAL)pk->z0[lane];
+    f[ROW_B * stride] = (REAL)pk->x1[lane];
+    f[(ROW_B + 1) * stride] = (REAL)pk->y1[lane];
+    f[(ROW_B + 2) * stride] = (REAL)pk->z1[lane];
+    f[ROW_C * stride] = (REAL)pk->x2[lane];
+    f[(ROW_C + 1) * stride] = (REAL)pk->y2[lane];
+    f[(ROW_C + 2) * stride] = (REAL)pk->z2[lane];
+#if HAS_VERTEX_NORMALS
+    if (tri.material & TRIANGLE_SMOOTH) {
+        *smooth = -1;
+        int v[3] = {tri.v0, tri.v1, tri.v2};
+        for (int c = 0; c < 3; ++c) {
+            REAL3 n = TO_REAL3(s->normals[v[c]]);
+            f[(ROW_NORMALS + 3 * c) * stride] = n.x;
+            f[(ROW_NORMALS + 3 * c + 1) * stride] = n.y;
+            f[(ROW_NORMALS + 3 * c + 2) * stride] = n.z;
+        }
+    }
+#endif
+    *material = tri.material & TRIANGLE_MATERIAL_MASK;
+    return true;
+}
+#endif
+#endif
+
+#endif

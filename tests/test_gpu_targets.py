@@ -201,6 +201,13 @@ def scene_configs() -> dict[str, KernelConfig]:
     return dict(configs.values())
 
 
+# libclc's OpenCL builtins for nvptx64 (Debian: libclc-15): linked in, every function a PTX
+# build calls is defined, and a remaining `.extern .func` is a function of ours that the module
+# declares but never defines, which NVIDIA's PTX assembler refuses ("Unresolved extern
+# function"): C99's plain `inline`, which gives no definition when the call is not inlined.
+LIBCLC_NVPTX = Path("/usr/lib/clc/nvptx64--nvidiacl.bc")
+
+
 @pytest.mark.parametrize("target", TARGETS[1:])
 def test_every_scene_configuration_builds_for_gpu_back_ends(target: str) -> None:
     # Whole builds to the target's assembly (PTX, AMDGPU ISA), not only the front end's check:
@@ -208,6 +215,31 @@ def test_every_scene_configuration_builds_for_gpu_back_ends(target: str) -> None
     source = kernel_source()
     configs = scene_configs()
     assert len(configs) >= 10
+    builtins = (("-Xclang", "-mlink-builtin-bitcode", "-Xclang", str(LIBCLC_NVPTX),
+                 "-Wno-linker-warnings")
+                if target.startswith("nvptx") and LIBCLC_NVPTX.exists() else ())
     for name, config in configs.items():
-        assembly = compile_cl(target, config.options(), source, "-S", "-O2", "-o", "-")
+        assembly = compile_cl(target, config.options(), source, "-S", "-O2", *builtins,
+                              "-o", "-")
         assert ".entry render" in assembly or "render:" in assembly, name
+        if builtins:
+            assert not undefined_functions(assembly), (
+                f"{name}: declared, never defined: {undefined_functions(assembly)}")
+
+
+# A PTX function header: optional return parameter, name, parameters, then `;` for a
+# declaration or `{` for a definition.
+PTX_FUNCTION = re.compile(r"\.func\s+(?:\([^)]*\)\s*)?(\w+)\s*(?:\([^)]*\))?\s*"
+                          r"(?:\.noreturn\s*)?([;{])")
+
+
+def undefined_functions(ptx: str) -> list[str]:
+    found = PTX_FUNCTION.findall(ptx)
+    return sorted({n for n, end in found if end == ";"} - {n for n, end in found if end == "{"})
+
+
+def test_undefined_functions_are_found_in_ptx() -> None:
+    ptx = (".func  (.param .b32 func_retval0) lone\n(\n\t.param .b64 lone_param_0\n)\n;\n"
+           ".func kept\n(\n)\n;\n.func kept\n(\n)\n{\n\tret;\n}\n"
+           ".visible .entry render(\n)\n{\n}\n")
+    assert undefined_functions(ptx) == ["lone"]

@@ -8,13 +8,13 @@
 #include "clray_types.h"
 
 #if HAS_BACKGROUND_IMAGE
-inline REAL3 environment_texel(__global const float4* texels, __global const Params* params,
+static inline REAL3 environment_texel(__global const float4* texels, __global const Params* params,
                                int x, int y) {
     return TO_REAL3(texels[params->background_texels + y * params->background_width + x]);
 }
 #endif
 
-inline REAL3 background_radiance(__global const Params* params, __global const float4* texels,
+static inline REAL3 background_radiance(__global const Params* params, __global const float4* texels,
                                  REAL3 d) {
 #if HAS_BACKGROUND_GRADIENT || HAS_BACKGROUND_IMAGE
     // Reflected directions are unit only to rounding; the mapping wants them exactly unit.
@@ -46,7 +46,7 @@ inline REAL3 background_radiance(__global const Params* params, __global const f
 }
 
 // Light from the sky where a ray of weight `weight` leaves the scene in direction d.
-inline REAL3 sky(const __global Params* params, const __global float4* texels, REAL3 d,
+static inline REAL3 sky(const __global Params* params, const __global float4* texels, REAL3 d,
                  REAL3 weight) {
 #if HAS_BACKGROUND_GRADIENT || HAS_BACKGROUND_IMAGE
     return weight * background_radiance(params, texels, d);

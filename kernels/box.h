@@ -11,7 +11,7 @@
 #include "shape.h"
 
 #if HAS_BOXES
-inline Crossings intersect_box(const __global Box* b, const Ray* r) {
+static inline Crossings intersect_box(const __global Box* b, const Ray* r) {
     Crossings c = no_crossings();
     REAL t0 = -REAL_INF, t1 = REAL_INF;
     int p0 = 0, p1 = 0;

@@ -52,7 +52,7 @@ HOT int lane_bits(INTW m) { return lane_bits4(m); }
 // Of two crossings that tie in t, whether (instance, ref) goes before the hit: the scene's own
 // primitives first, by reference, which orders by type and then by scene order
 // (docs/rendering.md); then instances in scene order, within one by reference.
-inline bool tie_before(const Hit* hit, int ref, int instance) {
+static inline bool tie_before(const Hit* hit, int ref, int instance) {
 #if HAS_INSTANCES
     if (instance != hit->instance) return instance < hit->instance;
 #endif
@@ -67,7 +67,7 @@ inline bool tie_before(const Hit* hit, int ref, int instance) {
 // The relative width of a tie. An instance's crossings come through its float32 matrices in
 // every build, so where instances exist ties count float32 roundings in the double build too:
 // a box standing on a plane in an instance must tie with the plane there as it does in float.
-inline REAL tie_gamma(void) {
+static inline REAL tie_gamma(void) {
 #if HAS_INSTANCES
     return fmax(gamma_n(TIE_ROUNDINGS), (REAL)(TIE_ROUNDINGS * FLT_EPSILON / 2));
 #else
@@ -75,7 +75,7 @@ inline REAL tie_gamma(void) {
 #endif
 }
 
-inline void consider_hit(Hit* hit, const Crossings* c, int ref, int instance) {
+static inline void consider_hit(Hit* hit, const Crossings* c, int ref, int instance) {
     int k = c->t[0] > (REAL)0 ? 0 : 1;
     REAL t = c->t[k];
     if (!(t > (REAL)0) || !(t < REAL_INF)) return;
@@ -92,7 +92,7 @@ inline void consider_hit(Hit* hit, const Crossings* c, int ref, int instance) {
 }
 
 // How far past the closest hit a crossing can still tie with it.
-inline REAL tie_reach(REAL t) { return t + (REAL)2 * tie_gamma() * t; }
+static inline REAL tie_reach(REAL t) { return t + (REAL)2 * tie_gamma() * t; }
 
 // One axis of the vector slab test, with the scalar slab_interval's rules: compare-select so a
 // NaN from 0 * inf never narrows the interval, and the far bound widened by `widen`.
@@ -122,12 +122,12 @@ HOT int node_children(const __global BvhNode* node, const Ray* r, REAL tmax, REA
 }
 
 #if COUNT_TESTS
-inline int used_children(const __global BvhNode* node) {
+static inline int used_children(const __global BvhNode* node) {
     return popcount(lane_bits(VLOADW(0, node->child) >= 0));
 }
 
 // Primitives a leaf tests: its packets' real shapes and its others.
-inline int leaf_prims(const SceneRefs* s, int slot, int count) {
+static inline int leaf_prims(const SceneRefs* s, int slot, int count) {
     int packets =
         (count >> LEAF_TRIANGLE_SHIFT) + ((count >> LEAF_SPHERE_SHIFT) & LEAF_FIELD_MASK);
     int n = count & LEAF_FIELD_MASK;
@@ -209,7 +209,7 @@ HOT void walk_closest(const SceneRefs* s, const Ray* world, int child, int count
 #endif
 
 // A query's start: no hit, t = inf.
-inline Hit no_hit(void) {
+static inline Hit no_hit(void) {
     Hit hit;
     hit.t = REAL_INF;
     hit.ref = -1;
@@ -341,7 +341,7 @@ HOT void walk_closest(const SceneRefs* s, const Ray* world, int child, int count
 
 // The material a crossing shades or filters with: the instance's, where it replaces its
 // group's.
-inline int crossing_material(const SceneRefs* s, int ref, int instance) {
+static inline int crossing_material(const SceneRefs* s, int ref, int instance) {
 #if HAS_INSTANCES
     if (instance >= 0 && s->instances[instance].material >= 0) {
         return s->instances[instance].material;
@@ -352,7 +352,7 @@ inline int crossing_material(const SceneRefs* s, int ref, int instance) {
 
 // Multiply in transmit * colour for each crossing of a primitive within (0, tmax); false once
 // no light is left.
-inline bool filter_crossings(const SceneRefs* s, const Crossings* c, int ref, int instance,
+static inline bool filter_crossings(const SceneRefs* s, const Crossings* c, int ref, int instance,
                              REAL tmax, REAL3* filter) {
     for (int k = 0; k < 2; ++k) {
         if (c->t[k] > (REAL)0 && c->t[k] < tmax) {

@@ -11,12 +11,12 @@
 #include "lanes.h"
 
 // Image point `sample` (pixel units) as (x, y) in [-1, 1] on the image plane, y up.
-inline REAL2 image_plane_point(REAL2 sample, int width, int height) {
+static inline REAL2 image_plane_point(REAL2 sample, int width, int height) {
     return (REAL2)((REAL)2 * sample.x / (REAL)width - (REAL)1,
                    (REAL)1 - (REAL)2 * sample.y / (REAL)height);
 }
 
-inline REAL3 camera_direction(const __global Camera* camera, REAL2 sample, int width,
+static inline REAL3 camera_direction(const __global Camera* camera, REAL2 sample, int width,
                               int height) {
     REAL2 p = image_plane_point(sample, width, height);
     REAL3 d = TO_REAL3(camera->forward) + p.x * TO_REAL3(camera->right) +
@@ -28,7 +28,7 @@ inline REAL3 camera_direction(const __global Camera* camera, REAL2 sample, int w
 // The camera ray of sample s at image point `sample` (pixel units): from the eye (a
 // perspective camera) or from the image point on the view plane (orthographic), then, with a
 // lens, from a point of the lens towards the same point of the focus plane.
-inline void camera_ray(const __global Camera* camera, REAL2 sample, int width, int height,
+static inline void camera_ray(const __global Camera* camera, REAL2 sample, int width, int height,
                        int s, int spp, uint seed, uint pixel, REAL3* o, REAL3* d) {
     REAL2 p = image_plane_point(sample, width, height);
     REAL3 across = p.x * TO_REAL3(camera->right) + p.y * TO_REAL3(camera->up);

@@ -11,7 +11,7 @@
 #include "shape.h"
 
 #if HAS_CONES
-inline Crossings intersect_cone(const __global Cone* co, const Ray* r) {
+static inline Crossings intersect_cone(const __global Cone* co, const Ray* r) {
     Crossings c = no_crossings();
     int n = 0;
     REAL3 axis = TO_REAL3(co->axis_height);

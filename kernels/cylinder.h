@@ -11,7 +11,7 @@
 #include "shape.h"
 
 #if HAS_CYLINDERS
-inline Crossings intersect_cylinder(const __global Cylinder* cy, const Ray* r) {
+static inline Crossings intersect_cylinder(const __global Cylinder* cy, const Ray* r) {
     Crossings c = no_crossings();
     int n = 0;
     REAL3 axis = TO_REAL3(cy->axis_height);

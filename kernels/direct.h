@@ -18,7 +18,7 @@
 #include "packet.h"
 
 // What a surface of colour c gives whatever the lights: its ambient term and its emission.
-inline REAL3 surface_glow(const __global Material* m, REAL3 c, REAL3 ambient_light) {
+static inline REAL3 surface_glow(const __global Material* m, REAL3 c, REAL3 ambient_light) {
     return TO_REAL(m->ambient) * c * ambient_light + TO_REAL3(m->emission);
 }
 

@@ -7,7 +7,7 @@
 
 #if HAS_FRESNEL
 // eta = n1 / n2; cos_i, cos_t >= 0 the cosines of the incident and refracted rays.
-inline REAL fresnel_reflectance(REAL eta, REAL cos_i, REAL cos_t) {
+static inline REAL fresnel_reflectance(REAL eta, REAL cos_i, REAL cos_t) {
 #if FRESNEL_SCHLICK
     REAL r0 = ((REAL)1 - eta) / ((REAL)1 + eta);  // eta > 0: IORs are positive
     r0 *= r0;

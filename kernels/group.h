@@ -53,7 +53,7 @@ typedef struct {
 
 // A non-negative t as int bits that order as the floats do, for the posts' atomics; a double
 // rounded to float downward (a lower bound) or upward.
-inline int order_bits(REAL t, bool up) {
+static inline int order_bits(REAL t, bool up) {
 #ifdef USE_DOUBLE
     return as_int(up ? convert_float_rtp(t) : convert_float_rtn(t));
 #else
@@ -62,7 +62,7 @@ inline int order_bits(REAL t, bool up) {
 }
 
 // The part the next step posts to, cleared by the first work-item.
-inline void group_clear(Group* g) {
+static inline void group_clear(Group* g) {
     __local GroupPosts* p = g->posts;
     int next = g->step == 2 ? 0 : g->step + 1;
     if (g->lid == 0) {
@@ -73,7 +73,7 @@ inline void group_clear(Group* g) {
 }
 
 // The group's start, in every work-item before its first walk: the first part cleared.
-inline void group_init(Group* g, __local GroupPosts* posts, int lid) {
+static inline void group_init(Group* g, __local GroupPosts* posts, int lid) {
     g->posts = posts;
     g->lid = lid;
     g->step = 2;
@@ -85,7 +85,7 @@ inline void group_init(Group* g, __local GroupPosts* posts, int lid) {
 // Post the work-item's crossed children (bits), where it enters them and its reach (< 0:
 // none), and wait for the group's. Returns the group's bits; *reach its farthest reach
 // (-inf: none), near[k] its nearest entry into child k.
-inline int group_post(Group* g, int bits, const REAL* tnear, REAL reach, REAL* group_reach,
+static inline int group_post(Group* g, int bits, const REAL* tnear, REAL reach, REAL* group_reach,
                       REAL* near) {
     __local GroupPosts* p = g->posts;
     int q = g->step;
@@ -104,7 +104,7 @@ inline int group_post(Group* g, int bits, const REAL* tnear, REAL reach, REAL* g
 }
 
 // Whether any work-item of the group has `v`: the same answer in every work-item.
-inline bool group_any(Group* g, bool v) {
+static inline bool group_any(Group* g, bool v) {
     REAL tnear[BVH_WIDTH], near[BVH_WIDTH], reach;
     for (int k = 0; k < BVH_WIDTH; ++k) tnear[k] = 0;
     return group_post(g, v ? 1 : 0, tnear, -1, &reach, near) != 0;
@@ -127,7 +127,7 @@ typedef struct {
 
 // The work-item's part of a step at `at`: a leaf tested with the single-ray walk where its ray
 // reaches it, or a node's children it crosses (bits; where it enters them in tnear).
-inline int group_visit(const SceneRefs* s, const Ray* r, GroupEntry at, bool live, bool closest,
+static inline int group_visit(const SceneRefs* s, const Ray* r, GroupEntry at, bool live, bool closest,
                        REAL tmax, Hit* hit, REAL3* filter, REAL* tnear) {
     REAL reach = closest ? tie_reach(hit->t) : tmax;
     for (int k = 0; k < BVH_WIDTH; ++k) tnear[k] = 0;
@@ -154,7 +154,7 @@ inline int group_visit(const SceneRefs* s, const Ray* r, GroupEntry at, bool liv
 // A closest-hit step's children (any: crossed by some work-item): the nearest for the group
 // is visited next, the others pushed so that nearer ones pop first (an insertion into this
 // node's part of the stack).
-inline GroupEntry group_push_closest(GroupStack* st, const __global BvhNode* node, int any,
+static inline GroupEntry group_push_closest(GroupStack* st, const __global BvhNode* node, int any,
                                      int bits, const REAL* tnear, const REAL* near_t) {
     int near = lowest_bit(any);
     int rest = any & (any - 1);
@@ -189,7 +189,7 @@ inline GroupEntry group_push_closest(GroupStack* st, const __global BvhNode* nod
 
 // A shadow step's children, as walk_transmission pushes them: every crossed child, the last
 // popped first. Their group t is 0: a shadow ray's reach is its whole segment.
-inline void group_push_shadow(GroupStack* st, const __global BvhNode* node, int any, int bits) {
+static inline void group_push_shadow(GroupStack* st, const __global BvhNode* node, int any, int bits) {
     for (int rest = any; rest; rest &= rest - 1) {
         int k = lowest_bit(rest);
         st->child[st->sp] = node->child[k];
@@ -201,7 +201,7 @@ inline void group_push_shadow(GroupStack* st, const __global BvhNode* node, int 
 
 // The stack's top that some work-item's hits can still reach (the group's farthest reach),
 // into *at; false when none is left.
-inline bool group_pop(GroupStack* st, REAL reach, GroupEntry* at) {
+static inline bool group_pop(GroupStack* st, REAL reach, GroupEntry* at) {
     while (st->sp > 0 && st->t[st->sp - 1] > reach) st->sp--;
     if (st->sp == 0) return false;
     --st->sp;
@@ -214,7 +214,7 @@ inline bool group_pop(GroupStack* st, REAL reach, GroupEntry* at) {
 // The group's walk below the root: the closest hit of the work-item's ray where `active`
 // (closest: into *hit, which holds the planes' closest or t = inf), or the light its shadow
 // segment (0, tmax) lets through (into *filter).
-inline void group_walk(const SceneRefs* s, Group* g, const Ray* r, bool active, bool closest,
+static inline void group_walk(const SceneRefs* s, Group* g, const Ray* r, bool active, bool closest,
                        REAL tmax, Hit* hit, REAL3* filter) {
     GroupStack st;
     st.sp = 0;
@@ -245,7 +245,7 @@ inline void group_walk(const SceneRefs* s, Group* g, const Ray* r, bool active, 
 
 // closest_hit for the group: every work-item calls it; the hit of the work-item's ray where
 // `active` (t = inf otherwise).
-inline Hit group_closest(const SceneRefs* s, Group* g, const Ray* r, bool active) {
+static inline Hit group_closest(const SceneRefs* s, Group* g, const Ray* r, bool active) {
     Hit hit = no_hit();
 #if HAS_PLANES
     if (active) consider_planes(s, r, &hit);
@@ -259,7 +259,7 @@ inline Hit group_closest(const SceneRefs* s, Group* g, const Ray* r, bool active
 
 // transmission for the group: every work-item calls it; the light reaching the end of the
 // work-item's shadow segment where `active`.
-inline REAL3 group_transmission(const SceneRefs* s, Group* g, const Ray* r, REAL tmax,
+static inline REAL3 group_transmission(const SceneRefs* s, Group* g, const Ray* r, REAL tmax,
                                 bool active) {
     REAL3 filter = (REAL3)(1, 1, 1);
 #if HAS_PLANES

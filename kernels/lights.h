@@ -17,7 +17,7 @@
 #if HAS_SPOT_LIGHTS
 // 1 inside the inner cone, 0 outside the outer one, smoothstep in cos between; cos_i == cos_o
 // is a hard edge, and never reaches the division.
-inline REAL spot_factor(const __global Light* light, REAL3 l) {
+static inline REAL spot_factor(const __global Light* light, REAL3 l) {
     REAL cos_t = -dot(l, TO_REAL3(light->axis_u));
     REAL cos_o = TO_REAL(light->axis_u.w), cos_i = TO_REAL(light->axis_v.w);
     if (!(cos_t > cos_o)) return 0;
@@ -38,7 +38,7 @@ inline REAL spot_factor(const __global Light* light, REAL3 l) {
 // that weight * colour is the sample's estimate of the irradiance on a surface facing it.
 // False when the sample gives nothing: behind a one-sided light, p inside a sphere light, a
 // sample point within p's error bound.
-inline bool sample_area_light(const __global Light* light, REAL3 p, REAL err, REAL2 u,
+static inline bool sample_area_light(const __global Light* light, REAL3 p, REAL err, REAL2 u,
                               REAL3* target, REAL* weight) {
     REAL3 c = TO_REAL3(light->position);
     if (light->kind == LIGHT_SPHERE) {

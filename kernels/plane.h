@@ -14,7 +14,7 @@
 #if HAS_PLANES
 // Where r crosses the plane: its t, or infinity where it never does (parallel, or so nearly
 // that t overflows).
-inline REAL plane_t(const __global Plane* pl, const Ray* r) {
+static inline REAL plane_t(const __global Plane* pl, const Ray* r) {
     REAL3 n = TO_REAL3(pl->normal);
     REAL dn = dot(r->d, n);
     if (dn == (REAL)0) return REAL_INF;  // parallel: never crossed
@@ -22,7 +22,7 @@ inline REAL plane_t(const __global Plane* pl, const Ray* r) {
     return isfinite(t) ? t : REAL_INF;
 }
 
-inline Crossings intersect_plane(const __global Plane* pl, const Ray* r) {
+static inline Crossings intersect_plane(const __global Plane* pl, const Ray* r) {
     Crossings c = no_crossings();
     c.t[0] = plane_t(pl, r);
     return c;

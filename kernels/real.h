@@ -70,28 +70,28 @@ typedef int4 MASK4;
 #define PI_R ((REAL)3.14159265358979323846)
 
 // pbrt's bound on n chained roundings: gamma(n) = n u / (1 - n u), u the unit roundoff.
-inline REAL gamma_n(int n) {
+static inline REAL gamma_n(int n) {
     const REAL u = REAL_EPSILON * (REAL)0.5;
     return (REAL)n * u / ((REAL)1 - (REAL)n * u);
 }
 
-inline REAL max_abs3(REAL3 v) {
+static inline REAL max_abs3(REAL3 v) {
     REAL3 a = fabs(v);
     return fmax(a.x, fmax(a.y, a.z));
 }
 
-inline REAL max_comp3(REAL3 v) { return fmax(v.x, fmax(v.y, v.z)); }
+static inline REAL max_comp3(REAL3 v) { return fmax(v.x, fmax(v.y, v.z)); }
 
-inline REAL comp3(REAL3 v, int k) { return k == 0 ? v.x : (k == 1 ? v.y : v.z); }
+static inline REAL comp3(REAL3 v, int k) { return k == 0 ? v.x : (k == 1 ? v.y : v.z); }
 
 // Normalise, leaving a zero vector zero instead of making NaN.
-inline REAL3 safe_normalize(REAL3 v) {
+static inline REAL3 safe_normalize(REAL3 v) {
     REAL len = length(v);
     return len > (REAL)0 ? v / len : v;
 }
 
 // a*b - c*d without catastrophic cancellation (Kahan's algorithm with FMA).
-inline REAL difference_of_products(REAL a, REAL b, REAL c, REAL d) {
+static inline REAL difference_of_products(REAL a, REAL b, REAL c, REAL d) {
     REAL cd = c * d;
     REAL err = fma(-c, d, cd);
     REAL dop = fma(a, b, -cd);
@@ -119,7 +119,7 @@ HOT int lane_bits4(int4 m) { return or_lanes4(m & (int4)(1, 2, 4, 8)); }
 HOT int lowest_bit(int bits) { return 31 - clz(bits & -bits); }
 
 // An orthonormal pair perpendicular to unit a, the frame() of docs/rendering.md.
-inline void frame(REAL3 a, REAL3* e1, REAL3* e2) {
+static inline void frame(REAL3 a, REAL3* e1, REAL3* e2) {
     REAL3 h = fabs(a.x) < (REAL)0.9 ? (REAL3)(1, 0, 0) : (REAL3)(0, 1, 0);
     *e1 = safe_normalize(cross(a, h));
     *e2 = cross(a, *e1);

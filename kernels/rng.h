@@ -7,19 +7,19 @@
 #include "real.h"
 #include "lanes.h"
 
-inline uint pcg_hash(uint x) {
+static inline uint pcg_hash(uint x) {
     uint state = x * 747796405u + 2891336453u;
     uint word = ((state >> ((state >> 28u) + 4u)) ^ state) * 277803737u;
     return (word >> 22u) ^ word;
 }
 
 // The 32 hashed bits behind r_dim of (seed, pixel, sample).
-inline uint rng_bits(uint seed, uint pixel, uint sample, uint dim) {
+static inline uint rng_bits(uint seed, uint pixel, uint sample, uint dim) {
     return pcg_hash(pcg_hash(pcg_hash(seed) ^ pixel) ^ (4u * sample + dim));
 }
 
 // Uniform in [0, 1) with 24 bits, exact in float and double.
-inline REAL rng_uniform(uint seed, uint pixel, uint sample, uint dim) {
+static inline REAL rng_uniform(uint seed, uint pixel, uint sample, uint dim) {
     return (REAL)(rng_bits(seed, pixel, sample, dim) >> 8) * (REAL)(1.0 / 16777216.0);
 }
 
@@ -29,7 +29,7 @@ inline REAL rng_uniform(uint seed, uint pixel, uint sample, uint dim) {
 // (a fixed pairing would tie, say, the light point to the position in the pixel, and leave each
 // pixel a bias no spp removes). The rounds are a bijection on [0, w], w + 1 the power of two at
 // or above n; walking it from i < n ends at a value below n (i's own cycle holds one).
-inline uint permute_stratum(uint i, uint n, uint key) {
+static inline uint permute_stratum(uint i, uint n, uint key) {
     uint w = n - 1u;
     w |= w >> 1;
     w |= w >> 2;

@@ -10,7 +10,7 @@
 
 // Sample s of spp inside pixel (x, y), in pixel units: the centre for one sample, else a jittered
 // point in cell (s mod nx, s div nx) of an nx x ny grid.
-inline REAL2 sample_position(int x, int y, int s, int spp, uint seed, uint pixel) {
+static inline REAL2 sample_position(int x, int y, int s, int spp, uint seed, uint pixel) {
     if (spp == 1) return (REAL2)((REAL)x + (REAL)0.5, (REAL)y + (REAL)0.5);
     // Integer ceil(sqrt(spp)): a float sqrt may be 3 ulp off and round a square up.
     int nx = 1;
@@ -28,7 +28,7 @@ inline REAL2 sample_position(int x, int y, int s, int spp, uint seed, uint pixel
 // index spp, which no sample uses) so that a sample's stratum is independent of its cell in the
 // pixel and of its light points, with the angle jittered in the stratum by r_2 and the radius
 // sqrt(r_3) (uniform over the disc).
-inline REAL2 lens_sample(int s, int spp, uint seed, uint pixel) {
+static inline REAL2 lens_sample(int s, int spp, uint seed, uint pixel) {
     int stratum = (int)permute_stratum((uint)s, (uint)spp, rng_bits(seed, pixel, (uint)spp, 2u));
     REAL angle = (REAL)2 * PI_R * ((REAL)stratum + rng_uniform(seed, pixel, (uint)s, 2u)) /
                  (REAL)spp;
@@ -45,7 +45,7 @@ typedef struct {
 } SampleKey;
 
 // A pixel's key, its sample still to be set.
-inline SampleKey sample_key(uint seed, uint pixel, int spp) {
+static inline SampleKey sample_key(uint seed, uint pixel, int spp) {
     SampleKey k;
     k.seed = seed;
     k.pixel = pixel;
@@ -60,11 +60,11 @@ inline SampleKey sample_key(uint seed, uint pixel, int spp) {
 #if HAS_AREA_LIGHTS
 // A light's random stream has its own key: the counter 2^31 | light is above every
 // 4 sample + dim the pixel's jitter uses (spp <= 4096), so the two never share a hash input.
-inline uint light_key(SampleKey k, int light) {
+static inline uint light_key(SampleKey k, int light) {
     return pcg_hash(pcg_hash(pcg_hash(k.seed) ^ k.pixel) ^ (0x80000000u | (uint)light));
 }
 
-inline REAL light_uniform(uint key, int sample, uint dim) {
+static inline REAL light_uniform(uint key, int sample, uint dim) {
     return (REAL)(pcg_hash(key ^ (2u * (uint)sample + dim)) >> 8) * (REAL)(1.0 / 16777216.0);
 }
 
@@ -73,7 +73,7 @@ inline REAL light_uniform(uint key, int sample, uint dim) {
 // wider as the row is shorter, so every stratum has area 1/spp), each stratum once: sample s
 // takes stratum permute_stratum(s), a permutation drawn per pixel and light, so that a light's
 // strata are independent of the pixel's jitter cells and of every other light's strata.
-inline REAL2 light_square(SampleKey k, int light) {
+static inline REAL2 light_square(SampleKey k, int light) {
     uint key = light_key(k, light);
     int stratum = (int)permute_stratum((uint)k.sample, (uint)k.spp, key);
     int row = stratum / k.nx, col = stratum % k.nx;
@@ -85,7 +85,7 @@ inline REAL2 light_square(SampleKey k, int light) {
 
 // Shirley and Chiu's concentric map of the unit square onto the unit disc: area-preserving, so
 // the strata stay strata.
-inline REAL2 concentric_disc(REAL2 u) {
+static inline REAL2 concentric_disc(REAL2 u) {
     REAL a = (REAL)2 * u.x - (REAL)1, b = (REAL)2 * u.y - (REAL)1;
     if (a == (REAL)0 && b == (REAL)0) return (REAL2)(0, 0);
     REAL r, phi;

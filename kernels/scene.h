@@ -64,7 +64,7 @@ typedef struct {
 #endif
 } SceneRefs;
 
-inline SceneRefs scene_refs(SCENE_BUFFER_PARAMS) {
+static inline SceneRefs scene_refs(SCENE_BUFFER_PARAMS) {
     SceneRefs s;
     SCENE_BUFFERS(SCENE_REFS_SET, )
     s.n_planes = params->n_planes;

@@ -22,7 +22,7 @@ typedef struct {
     REAL b1, b2;  // triangle barycentrics of the (single) crossing
 } Crossings;
 
-inline Crossings no_crossings(void) {
+static inline Crossings no_crossings(void) {
     Crossings c;
     c.t[0] = REAL_INF;
     c.t[1] = REAL_INF;
@@ -35,7 +35,7 @@ inline Crossings no_crossings(void) {
 
 // Keep the smallest and largest of the valid candidates: a convex solid is crossed at most
 // twice, and near rims several surfaces may claim the same crossing.
-inline void add_candidate(Crossings* c, int* n, REAL t, int part) {
+static inline void add_candidate(Crossings* c, int* n, REAL t, int part) {
     if (*n == 0) {
         c->t[0] = t;
         c->part[0] = part;
@@ -61,7 +61,7 @@ inline void add_candidate(Crossings* c, int* n, REAL t, int part) {
 
 // Roots of a t^2 + 2 b t + c = 0 from the Press pair: no subtractive cancellation in either.
 // disc is b^2 - a c, computed by the caller in whichever stable form fits the shape.
-inline bool quadratic_roots(REAL a, REAL b, REAL c, REAL disc, REAL* t0, REAL* t1) {
+static inline bool quadratic_roots(REAL a, REAL b, REAL c, REAL disc, REAL* t0, REAL* t1) {
     if (!(disc >= (REAL)0) || a == (REAL)0) return false;
     REAL q = -(b + copysign(sqrt(disc), b));
     if (q == (REAL)0) return false;  // tangent at the origin itself: no crossing ahead
@@ -74,7 +74,7 @@ inline bool quadratic_roots(REAL a, REAL b, REAL c, REAL disc, REAL* t0, REAL* t
 // Slab test against [lo, hi] within (tmin, tmax). Compare-select keeps a NaN from 0 * inf (a
 // zero direction component with the origin on a slab plane) out of the interval, and the far
 // bound is widened by 1 + 2 gamma(3) so no ray slips past an edge (Ize 2013, pbrt).
-inline bool slab_interval(REAL3 lo, REAL3 hi, const Ray* r, REAL* tmin, REAL* tmax, int* part0,
+static inline bool slab_interval(REAL3 lo, REAL3 hi, const Ray* r, REAL* tmin, REAL* tmax, int* part0,
                           int* part1) {
     REAL t0 = *tmin, t1 = *tmax;
     const REAL widen = (REAL)1 + (REAL)2 * gamma_n(3);
@@ -109,7 +109,7 @@ inline bool slab_interval(REAL3 lo, REAL3 hi, const Ray* r, REAL* tmin, REAL* tm
 #if HAS_CYLINDERS || HAS_CONES
 // Keep the side-surface roots whose axial coordinate fa + t da lies in [0, height], widened by a
 // rounding bound so a ray at a rim is not lost between the side and the cap.
-inline void add_side_roots(Crossings* c, int* n, const REAL* ts, int count, REAL fa, REAL da,
+static inline void add_side_roots(Crossings* c, int* n, const REAL* ts, int count, REAL fa, REAL da,
                            REAL height) {
     for (int i = 0; i < count; ++i) {
         REAL s = fa + ts[i] * da;
@@ -135,24 +135,24 @@ inline void add_side_roots(Crossings* c, int* n, const REAL* ts, int count, REAL
 // roundings is generous for every formula here and still a tiny fraction of the scene's scale.
 #define ERR_ROUNDINGS 16
 
-inline REAL3 set_comp3(REAL3 v, int k, REAL value) {
+static inline REAL3 set_comp3(REAL3 v, int k, REAL value) {
     if (k == 0) v.x = value;
     else if (k == 1) v.y = value;
     else v.z = value;
     return v;
 }
 
-inline REAL angle_u(REAL y, REAL x) { return (REAL)0.5 + atan2(y, x) / ((REAL)2 * PI_R); }
+static inline REAL angle_u(REAL y, REAL x) { return (REAL)0.5 + atan2(y, x) / ((REAL)2 * PI_R); }
 
 // A cap disc's (u, v): its frame coordinates mapped from [-radius, radius] to [0, 1].
-inline REAL2 disc_uv(REAL3 q, REAL3 e1, REAL3 e2, REAL radius) {
+static inline REAL2 disc_uv(REAL3 q, REAL3 e1, REAL3 e2, REAL radius) {
     return (REAL2)((REAL)0.5 + (REAL)0.5 * dot(q, e1) / radius,
                    (REAL)0.5 + (REAL)0.5 * dot(q, e2) / radius);
 }
 
 // (u, v) of a cylinder or cone: around the axis and along it on the side (part 0), the cap
 // disc of radius cap_radius otherwise. q is the hit point relative to the base or apex.
-inline REAL2 axial_uv(REAL3 q, REAL3 axis, REAL along, int part, REAL cap_radius) {
+static inline REAL2 axial_uv(REAL3 q, REAL3 axis, REAL along, int part, REAL cap_radius) {
     REAL3 e1, e2;
     frame(axis, &e1, &e2);
     if (part == 0) return (REAL2)(angle_u(dot(q, e2), dot(q, e1)), along);

@@ -48,7 +48,7 @@ HOT Crossings intersect_prim(const SceneRefs* s, int ref, const Ray* r) {
     }
 }
 
-inline int prim_material(const SceneRefs* s, int ref) {
+static inline int prim_material(const SceneRefs* s, int ref) {
     int i = ref & PRIM_INDEX_MASK;
     switch (ref >> PRIM_TYPE_SHIFT) {
 #if HAS_PLANES

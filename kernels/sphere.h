@@ -15,7 +15,7 @@
 
 #if HAS_SPHERES
 #if SPHERE_FP64
-inline Crossings intersect_sphere(const __global Sphere* s, const Ray* r) {
+static inline Crossings intersect_sphere(const __global Sphere* s, const Ray* r) {
     Crossings c = no_crossings();
     double3 center = convert_double3(s->center_radius.xyz);
     double radius = (double)s->center_radius.w;
@@ -34,7 +34,7 @@ inline Crossings intersect_sphere(const __global Sphere* s, const Ray* r) {
     return c;
 }
 #else
-inline Crossings intersect_sphere(const __global Sphere* s, const Ray* r) {
+static inline Crossings intersect_sphere(const __global Sphere* s, const Ray* r) {
     Crossings c = no_crossings();
     REAL3 center = TO_REAL3(s->center_radius);
     REAL radius = TO_REAL(s->center_radius.w);

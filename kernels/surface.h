@@ -17,12 +17,12 @@
 // n_g and n_s go to the scene's frame by the transpose of to_object's linear part M (the
 // inverse transpose of to_world's), which keeps them normal to the surface and on its outward
 // side. Not normalised: its length says how M stretches distances along the normal.
-inline REAL3 instance_normal(const __global Instance* in, REAL3 n) {
+static inline REAL3 instance_normal(const __global Instance* in, REAL3 n) {
     return n.x * TO_REAL3(in->to_object[0]) + n.y * TO_REAL3(in->to_object[1]) +
            n.z * TO_REAL3(in->to_object[2]);
 }
 
-inline REAL abs_sum3(REAL3 v) { return fabs(v.x) + fabs(v.y) + fabs(v.z); }
+static inline REAL abs_sum3(REAL3 v) { return fabs(v.x) + fabs(v.y) + fabs(v.z); }
 
 // The surface of a hit inside an instance: found in the group's frame, then mapped to the
 // scene's. Its error bound covers three things: the group-frame bound mapped through the
@@ -78,7 +78,7 @@ HOT Surface surface_at(const SceneRefs* s, const Ray* r, const Hit* hit, bool wa
 
 // Move p off the surface to the side of n_g that w leaves on, by the error bound along the
 // normal: the spawned ray then starts beyond any rounding of p and needs no t epsilon.
-inline REAL3 offset_origin(const Surface* sf, REAL3 w) {
+static inline REAL3 offset_origin(const Surface* sf, REAL3 w) {
 #if OFFSET_FIXED_EPS
     REAL d = (REAL)1e-4;
 #else
@@ -96,7 +96,7 @@ typedef struct {
 
 // A closest hit as intersect_rays reports it: the outward geometric normal and t (inf on a
 // miss), and the primitive reference (-1).
-inline void report_hit(const SceneRefs* s, const Ray* ray, const Hit* hit, __global float4* out,
+static inline void report_hit(const SceneRefs* s, const Ray* ray, const Hit* hit, __global float4* out,
                        __global int* ref) {
     if (hit->t < REAL_INF) {
         Surface sf = surface_at(s, ray, hit, false);

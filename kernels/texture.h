@@ -10,18 +10,18 @@
 #include "shape.h"
 
 #if HAS_TEXTURES
-inline REAL3 texel_at(const SceneRefs* s, const __global Texture* tx, int x, int y) {
+static inline REAL3 texel_at(const SceneRefs* s, const __global Texture* tx, int x, int y) {
     return TO_REAL3(s->texels[tx->texel_offset + y * tx->width + x]);
 }
 
 // Wrap a coordinate into [0, 1); a non-finite one (a degenerate uv) maps to 0.
-inline REAL wrap01(REAL x) {
+static inline REAL wrap01(REAL x) {
     if (!isfinite(x)) return 0;
     REAL f = x - floor(x);
     return f < (REAL)1 ? f : 0;
 }
 
-inline REAL3 image_texel(const SceneRefs* s, const __global Texture* tx, REAL2 uv) {
+static inline REAL3 image_texel(const SceneRefs* s, const __global Texture* tx, REAL2 uv) {
     int w = tx->width, h = tx->height;
     REAL sx = wrap01(uv.x * TO_REAL(tx->repeat_u)) * (REAL)w - (REAL)0.5;
     REAL sy = ((REAL)1 - wrap01(uv.y * TO_REAL(tx->repeat_v))) * (REAL)h - (REAL)0.5;
@@ -37,7 +37,7 @@ inline REAL3 image_texel(const SceneRefs* s, const __global Texture* tx, REAL2 u
 
 // 3D checker at the hit point moved a quarter cell into the surface (n_f faces the viewer),
 // so a surface lying on a cell boundary gets one stable colour.
-inline REAL3 checker_texel(const __global Texture* tx, REAL3 color, REAL3 p, REAL3 n_f) {
+static inline REAL3 checker_texel(const __global Texture* tx, REAL3 color, REAL3 p, REAL3 n_f) {
     REAL size = TO_REAL(tx->size);
     REAL3 q = (p - (REAL)0.25 * size * n_f) / size;
     REAL cells = floor(q.x) + floor(q.y) + floor(q.z);
@@ -49,7 +49,7 @@ inline REAL3 checker_texel(const __global Texture* tx, REAL3 color, REAL3 p, REA
 #endif
 
 // Only image textures read (u, v); the checker is a solid texture of the hit point.
-inline bool material_needs_uv(const SceneRefs* s, int material) {
+static inline bool material_needs_uv(const SceneRefs* s, int material) {
 #if HAS_TEXTURES
     int t = s->materials[material].texture;
     return t >= 0 && s->textures[t].kind == TEXTURE_IMAGE;
@@ -59,7 +59,7 @@ inline bool material_needs_uv(const SceneRefs* s, int material) {
 }
 
 // p_world: the hit point in world space (the checker is a world-space solid texture).
-inline REAL3 surface_color(const SceneRefs* s, const __global Material* m, REAL3 p_world,
+static inline REAL3 surface_color(const SceneRefs* s, const __global Material* m, REAL3 p_world,
                            REAL3 n_f, REAL2 uv) {
     REAL3 color = TO_REAL3(m->color);
 #if HAS_TEXTURES

@@ -17,7 +17,7 @@
 #if TRIANGLE_MOLLER_TRUMBORE
 // Study variant: the textbook Moller-Trumbore test. Not watertight: rays aimed at an edge
 // shared by two triangles can miss both.
-inline Crossings intersect_triangle(REAL3 p0, REAL3 p1, REAL3 p2, const Ray* r) {
+static inline Crossings intersect_triangle(REAL3 p0, REAL3 p1, REAL3 p2, const Ray* r) {
     Crossings c = no_crossings();
     REAL3 e1 = p1 - p0, e2 = p2 - p0;
     REAL3 pv = cross(r->d, e2);

@@ -18,6 +18,7 @@
 #include "direct.h"
 #include "camera.h"
 #include "background.h"
+#include "ray_tree.h"
 
 #if SAMPLE_PACKETS
 // Without refraction a sample's ray tree is a chain of reflections, so a packet's samples go
@@ -224,6 +225,69 @@ OUT_OF_LINE void trace_sample_packet(const SceneRefs* s, const __global Camera* 
     TermLanes m;
     shade_packet(s, camera, params, key, bits, pk, &primary, &q, &m, shadow_rays);
 #endif
+}
+
+#if !PACKET_CHAINS
+// The root of lane `lane`'s ray tree, whose primary ray the packet traced (its hit, shading
+// point and direct light are known): its light added to *radiance (the sky's, or the direct
+// light, weighted) and its reflected and refracted rays pushed. Returns the rays on the stack.
+HOT int packed_root(const SceneRefs* s, const __global Params* params, const SamplePacket* pk,
+                    int lane, RayTask* stack, REAL3* radiance, int* secondary_rays) {
+    int sp = 0;
+    Ray ray = ray_from_lanes(&pk->ray, lane);
+    RayTask task = root_task(ray.o, ray.d);
+    Hit hit = hit_of_lane(&pk->hit, lane);
+    if (!(hit.t < REAL_INF)) {
+        *radiance += sky(params, s->texels, task.d, task.weight);
+        return sp;
+    }
+    REAL3 direct = (REAL3)(pk->direct[0][lane], pk->direct[1][lane], pk->direct[2][lane]);
+    *radiance += task.weight * direct;
+#if MAX_DEPTH > 0
+    *secondary_rays += spawn_secondary(s, params, stack, &sp, &task, &ray, pk->pt + lane);
+#endif
+    return sp;
+}
+#endif
+
+// pixel_radiance with sample packets: the pixel's samples PACKET_LANES at a time
+// (trace_sample_packet), with chains to their ends, without from their primary rays' hits on,
+// ray by ray. With one sample a pixel there is no packet: its rays go alone.
+HOT REAL3 packet_pixel_radiance(const SceneRefs* s, const __global Camera* camera,
+                                const __global Params* params, int x, int y, uint pixel,
+                                int* secondary_rays, int* shadow_rays) {
+    REAL3 sum = (REAL3)(0, 0, 0);
+    int spp = params->spp;
+    SampleKey key = sample_key(params->seed, pixel, spp);
+    SamplePacket packet;
+    for (int sample = 0; sample < spp; ++sample) {
+        key.sample = sample;
+        int lane = sample % PACKET_LANES;
+        if (spp > 1 && lane == 0) {
+            trace_sample_packet(s, camera, params, x, y, pixel, key,
+                                min(PACKET_LANES, spp - sample), &packet, secondary_rays,
+                                shadow_rays);
+        }
+#if PACKET_CHAINS
+        if (spp > 1) {
+            // The packet traced the sample's chain.
+            sum += sample_radiance(&packet, lane);
+            continue;
+        }
+#endif
+        RayTask stack[RAY_STACK_SIZE];
+        REAL3 radiance = (REAL3)(0, 0, 0);
+        int sp = 1;
+#if !PACKET_CHAINS
+        if (spp > 1) {
+            sp = packed_root(s, params, &packet, lane, stack, &radiance, secondary_rays);
+        } else
+#endif
+        stack[0] = primary_task(camera, params, x, y, sample, pixel);
+        sum += tree_radiance(s, camera, params, key, stack, sp, radiance, secondary_rays,
+                             shadow_rays);
+    }
+    return sum;
 }
 #endif
 

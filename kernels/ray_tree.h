@@ -1,6 +1,7 @@
 // A sample's ray tree (docs/rendering.md): the primary ray's task, and at each shaded hit the
 // reflected and refracted rays pushed on an explicit stack (OpenCL C has no recursion), with
-// the media stack that refraction walks through nested glass.
+// the media stack that refraction walks through nested glass; the tree's light (tree_radiance),
+// and a pixel's, its samples' trees traced ray by ray (pixel_radiance, the single-ray scheme).
 #ifndef CLRAY_RAY_TREE_H
 #define CLRAY_RAY_TREE_H
 
@@ -9,9 +10,13 @@
 #include "scene.h"
 #include "hit.h"
 #include "ray.h"
+#include "bvh.h"
 #include "surface.h"
+#include "shading.h"
+#include "direct.h"
 #include "camera.h"
 #include "fresnel.h"
+#include "background.h"
 
 // The media a ray can be inside at once (nested glass); a deeper one is not recorded.
 #define MEDIA_DEPTH 4
@@ -142,6 +147,51 @@ inline RayTask primary_task(const __global Camera* camera, const __global Params
     REAL3 o, d;
     sample_ray(camera, params, x, y, sample, pixel, &o, &d);
     return root_task(o, d);
+}
+
+// The light of a sample's ray tree from the sp tasks on the stack, added to `radiance` task by
+// task: where a task's ray leaves the scene the sky's, else the direct light at its hit,
+// weighted, with its reflected and refracted rays pushed.
+HOT REAL3 tree_radiance(const SceneRefs* s, const __global Camera* camera,
+                        const __global Params* params, SampleKey key, RayTask* stack, int sp,
+                        REAL3 radiance, int* secondary_rays, int* shadow_rays) {
+    REAL3 ambient = TO_REAL3(params->ambient);
+    while (sp > 0) {
+        RayTask task = stack[--sp];
+        Ray ray = make_ray(task.o, task.d);
+        Hit hit = closest_hit(s, &ray);
+        if (!(hit.t < REAL_INF)) {
+            radiance += sky(params, s->texels, task.d, task.weight);
+            continue;
+        }
+        ShadePoint pt = shade_point(s, camera, &ray, &hit);
+        const __global Material* m = s->materials + pt.sf.material;
+        radiance += task.weight * shade_direct(s, &pt.sf, pt.n, -ray.d, pt.c, m, ambient, key,
+                                               shadow_rays);
+#if MAX_DEPTH > 0
+        *secondary_rays += spawn_secondary(s, params, stack, &sp, &task, &ray, &pt);
+#endif
+    }
+    return radiance;
+}
+
+// Pixel (x, y)'s radiance summed over its samples, each sample's ray tree traced ray by ray:
+// the sample's own radiance first, then the pixel's sum (a sample packet sums its lanes'
+// samples so, each lane's levels in the same order).
+HOT REAL3 pixel_radiance(const SceneRefs* s, const __global Camera* camera,
+                         const __global Params* params, int x, int y, uint pixel,
+                         int* secondary_rays, int* shadow_rays) {
+    REAL3 sum = (REAL3)(0, 0, 0);
+    int spp = params->spp;
+    SampleKey key = sample_key(params->seed, pixel, spp);
+    for (int sample = 0; sample < spp; ++sample) {
+        key.sample = sample;
+        RayTask stack[RAY_STACK_SIZE];
+        stack[0] = primary_task(camera, params, x, y, sample, pixel);
+        sum += tree_radiance(s, camera, params, key, stack, 1, (REAL3)(0, 0, 0), secondary_rays,
+                             shadow_rays);
+    }
+    return sum;
 }
 
 #endif

@@ -1,8 +1,8 @@
 // The kernels: render (one work-item per pixel; the host launches bands of rows) and
 // intersect_rays (closest hits of given rays, for tests and tools). What they run is in the
-// headers: a sample's ray tree (ray_tree.h) over the scene's queries (bvh.h) and shading
-// (shading.h, direct.h), and the drivers of the sample-packet and group-packet schemes
-// (packet_trace.h, group_trace.h).
+// headers: a pixel's samples and their ray trees (ray_tree.h: pixel_radiance) over the scene's
+// queries (bvh.h) and shading (shading.h, direct.h), or the same by the sample-packet and
+// group-packet schemes (packet_trace.h: packet_pixel_radiance, group_trace.h: group_pixel).
 //
 // Build switches (all from clray/device/program.py's KernelConfig): HAS_PLANES, HAS_SPHERES,
 // HAS_BOXES, HAS_CYLINDERS, HAS_CONES, HAS_TRIANGLES, HAS_VERTEX_NORMALS, HAS_VERTEX_UVS,
@@ -82,80 +82,11 @@ __kernel WORK_ITEM_LANES void render(SCENE_BUFFER_PARAMS, __global float4* image
     REAL3 sum = group_pixel(&s, &g, camera, params, texels, x, y, pixel, live, &secondary_rays,
                             &shadow_rays);
     if (!live) return;
+#elif SAMPLE_PACKETS
+    REAL3 sum = packet_pixel_radiance(&s, camera, params, x, y, pixel, &secondary_rays,
+                                      &shadow_rays);
 #else
-    REAL3 sum = (REAL3)(0, 0, 0), ambient = TO_REAL3(params->ambient);
-    SampleKey key = sample_key(params->seed, pixel, spp);
-#if SAMPLE_PACKETS
-    // With one sample a pixel there is no packet: its rays go alone.
-    SamplePacket packet;
-    int lane = 0;
-#endif
-    for (int sample = 0; sample < spp; ++sample) {
-        key.sample = sample;
-        RayTask stack[RAY_STACK_SIZE];
-        int sp = 0;
-#if SAMPLE_PACKETS
-        lane = sample % PACKET_LANES;
-        if (spp > 1 && lane == 0) {
-            trace_sample_packet(&s, camera, params, x, y, pixel, key,
-                                min(PACKET_LANES, spp - sample), &packet, &secondary_rays,
-                                &shadow_rays);
-        }
-#if PACKET_CHAINS
-        if (spp > 1) {
-            // The packet traced the sample's chain.
-            sum += sample_radiance(&packet, lane);
-            continue;
-        }
-#endif
-        if (spp > 1) {
-            // The packet drew the sample's ray already.
-            Ray drawn = ray_from_lanes(&packet.ray, lane);
-            stack[0] = root_task(drawn.o, drawn.d);
-        } else
-#endif
-        stack[0] = primary_task(camera, params, x, y, sample, pixel);
-        sp = 1;
-        // The sample's own radiance first, then the pixel's sum: a sample packet sums its
-        // lanes' samples so, each lane's levels in the same order.
-        REAL3 radiance = (REAL3)(0, 0, 0);
-        while (sp > 0) {
-            RayTask task = stack[--sp];
-#if SAMPLE_PACKETS
-            // A primary ray of a packet: its hit and direct light are known.
-            bool packed = !PACKET_CHAINS && spp > 1 && task.depth == 0;
-            Ray ray = packed ? ray_from_lanes(&packet.ray, lane) : make_ray(task.o, task.d);
-            Hit hit = packed ? hit_of_lane(&packet.hit, lane) : closest_hit(&s, &ray);
-#else
-            Ray ray = make_ray(task.o, task.d);
-            Hit hit = closest_hit(&s, &ray);
-#endif
-            if (!(hit.t < REAL_INF)) {
-                radiance += sky(params, texels, task.d, task.weight);
-                continue;
-            }
-#if SAMPLE_PACKETS
-            ShadePoint pt = packed ? packet.pt[lane] : shade_point(&s, camera, &ray, &hit);
-#else
-            ShadePoint pt = shade_point(&s, camera, &ray, &hit);
-#endif
-            const __global Material* m = materials + pt.sf.material;
-#if SAMPLE_PACKETS
-            REAL3 packed_direct = (REAL3)(packet.direct[0][lane], packet.direct[1][lane],
-                                          packet.direct[2][lane]);
-            radiance += task.weight * (packed ? packed_direct
-                                              : shade_direct(&s, &pt.sf, pt.n, -ray.d, pt.c, m,
-                                                             ambient, key, &shadow_rays));
-#else
-            radiance += task.weight * shade_direct(&s, &pt.sf, pt.n, -ray.d, pt.c, m, ambient,
-                                                   key, &shadow_rays);
-#endif
-#if MAX_DEPTH > 0
-            secondary_rays += spawn_secondary(&s, params, stack, &sp, &task, &ray, &pt);
-#endif
-        }
-        sum += radiance;
-    }
+    REAL3 sum = pixel_radiance(&s, camera, params, x, y, pixel, &secondary_rays, &shadow_rays);
 #endif
     REAL3 mean = sum / (REAL)spp;
     // The output buffers hold this launch's band of rows only, so that an image of any size

@@ -132,10 +132,10 @@ def content_warnings(scene: Scene) -> tuple[str, ...]:
     left for the user to find in the image: no objects, or nothing to light them."""
     if not scene.objects:
         return ("the scene has no objects: the image is the background alone",)
-    if scene.lights:
+    # Without lights, ambient terms and emission still show the objects (the hard cases light
+    # scenes so on purpose): only a scene that must render black is told.
+    if scene.lights or any(m.ambient > 0 or any(m.emission) for m in scene.materials):
         return ()
-    if any(m.ambient > 0 or any(m.emission) for m in scene.materials):
-        return ("the scene has no lights: surfaces show only their ambient term and emission",)
     return ("the scene has no lights and no material with ambient or emission: every object "
             "renders black",)
 

@@ -9,13 +9,13 @@
 
 #if HAS_BACKGROUND_IMAGE
 static inline REAL3 environment_texel(__global const float4* texels, __global const Params* params,
-                               int x, int y) {
+                                      int x, int y) {
     return TO_REAL3(texels[params->background_texels + y * params->background_width + x]);
 }
 #endif
 
-static inline REAL3 background_radiance(__global const Params* params, __global const float4* texels,
-                                 REAL3 d) {
+static inline REAL3 background_radiance(__global const Params* params,
+                                        __global const float4* texels, REAL3 d) {
 #if HAS_BACKGROUND_GRADIENT || HAS_BACKGROUND_IMAGE
     // Reflected directions are unit only to rounding; the mapping wants them exactly unit.
     REAL3 u = safe_normalize(d);
@@ -47,7 +47,7 @@ static inline REAL3 background_radiance(__global const Params* params, __global 
 
 // Light from the sky where a ray of weight `weight` leaves the scene in direction d.
 static inline REAL3 sky(const __global Params* params, const __global float4* texels, REAL3 d,
-                 REAL3 weight) {
+                        REAL3 weight) {
 #if HAS_BACKGROUND_GRADIENT || HAS_BACKGROUND_IMAGE
     return weight * background_radiance(params, texels, d);
 #else

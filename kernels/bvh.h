@@ -353,7 +353,7 @@ static inline int crossing_material(const SceneRefs* s, int ref, int instance) {
 // Multiply in transmit * colour for each crossing of a primitive within (0, tmax); false once
 // no light is left.
 static inline bool filter_crossings(const SceneRefs* s, const Crossings* c, int ref, int instance,
-                             REAL tmax, REAL3* filter) {
+                                    REAL tmax, REAL3* filter) {
     for (int k = 0; k < 2; ++k) {
         if (c->t[k] > (REAL)0 && c->t[k] < tmax) {
 #if HAS_TRANSMISSION

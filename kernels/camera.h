@@ -17,7 +17,7 @@ static inline REAL2 image_plane_point(REAL2 sample, int width, int height) {
 }
 
 static inline REAL3 camera_direction(const __global Camera* camera, REAL2 sample, int width,
-                              int height) {
+                                     int height) {
     REAL2 p = image_plane_point(sample, width, height);
     REAL3 d = TO_REAL3(camera->forward) + p.x * TO_REAL3(camera->right) +
               p.y * TO_REAL3(camera->up);
@@ -29,7 +29,7 @@ static inline REAL3 camera_direction(const __global Camera* camera, REAL2 sample
 // perspective camera) or from the image point on the view plane (orthographic), then, with a
 // lens, from a point of the lens towards the same point of the focus plane.
 static inline void camera_ray(const __global Camera* camera, REAL2 sample, int width, int height,
-                       int s, int spp, uint seed, uint pixel, REAL3* o, REAL3* d) {
+                              int s, int spp, uint seed, uint pixel, REAL3* o, REAL3* d) {
     REAL2 p = image_plane_point(sample, width, height);
     REAL3 across = p.x * TO_REAL3(camera->right) + p.y * TO_REAL3(camera->up);
     // aim: from the origin to the ray's point on the focus plane, per unit of focus distance

@@ -86,7 +86,7 @@ static inline void group_init(Group* g, __local GroupPosts* posts, int lid) {
 // none), and wait for the group's. Returns the group's bits; *reach its farthest reach
 // (-inf: none), near[k] its nearest entry into child k.
 static inline int group_post(Group* g, int bits, const REAL* tnear, REAL reach, REAL* group_reach,
-                      REAL* near) {
+                             REAL* near) {
     __local GroupPosts* p = g->posts;
     int q = g->step;
     group_clear(g);
@@ -127,8 +127,8 @@ typedef struct {
 
 // The work-item's part of a step at `at`: a leaf tested with the single-ray walk where its ray
 // reaches it, or a node's children it crosses (bits; where it enters them in tnear).
-static inline int group_visit(const SceneRefs* s, const Ray* r, GroupEntry at, bool live, bool closest,
-                       REAL tmax, Hit* hit, REAL3* filter, REAL* tnear) {
+static inline int group_visit(const SceneRefs* s, const Ray* r, GroupEntry at, bool live,
+                              bool closest, REAL tmax, Hit* hit, REAL3* filter, REAL* tnear) {
     REAL reach = closest ? tie_reach(hit->t) : tmax;
     for (int k = 0; k < BVH_WIDTH; ++k) tnear[k] = 0;
     if (!(live && at.t >= (REAL)0 && at.t <= reach)) return 0;
@@ -155,7 +155,7 @@ static inline int group_visit(const SceneRefs* s, const Ray* r, GroupEntry at, b
 // is visited next, the others pushed so that nearer ones pop first (an insertion into this
 // node's part of the stack).
 static inline GroupEntry group_push_closest(GroupStack* st, const __global BvhNode* node, int any,
-                                     int bits, const REAL* tnear, const REAL* near_t) {
+                                            int bits, const REAL* tnear, const REAL* near_t) {
     int near = lowest_bit(any);
     int rest = any & (any - 1);
     int base = st->sp;
@@ -189,7 +189,8 @@ static inline GroupEntry group_push_closest(GroupStack* st, const __global BvhNo
 
 // A shadow step's children, as walk_transmission pushes them: every crossed child, the last
 // popped first. Their group t is 0: a shadow ray's reach is its whole segment.
-static inline void group_push_shadow(GroupStack* st, const __global BvhNode* node, int any, int bits) {
+static inline void group_push_shadow(GroupStack* st, const __global BvhNode* node, int any,
+                                     int bits) {
     for (int rest = any; rest; rest &= rest - 1) {
         int k = lowest_bit(rest);
         st->child[st->sp] = node->child[k];
@@ -215,7 +216,7 @@ static inline bool group_pop(GroupStack* st, REAL reach, GroupEntry* at) {
 // (closest: into *hit, which holds the planes' closest or t = inf), or the light its shadow
 // segment (0, tmax) lets through (into *filter).
 static inline void group_walk(const SceneRefs* s, Group* g, const Ray* r, bool active, bool closest,
-                       REAL tmax, Hit* hit, REAL3* filter) {
+                              REAL tmax, Hit* hit, REAL3* filter) {
     GroupStack st;
     st.sp = 0;
     GroupEntry at;
@@ -260,7 +261,7 @@ static inline Hit group_closest(const SceneRefs* s, Group* g, const Ray* r, bool
 // transmission for the group: every work-item calls it; the light reaching the end of the
 // work-item's shadow segment where `active`.
 static inline REAL3 group_transmission(const SceneRefs* s, Group* g, const Ray* r, REAL tmax,
-                                bool active) {
+                                       bool active) {
     REAL3 filter = (REAL3)(1, 1, 1);
 #if HAS_PLANES
     if (active && !planes_transmission(s, r, tmax, &filter)) filter = (REAL3)(0, 0, 0);

@@ -23,7 +23,8 @@
 // shade_direct for the group: every work-item takes part in each light's shadow walk, with a
 // shadow ray where `shaded` and the light reaches the point.
 static inline REAL3 group_direct(const SceneRefs* s, Group* g, const ShadePoint* pt, REAL3 v,
-                          REAL3 ambient_light, SampleKey key, bool shaded, int* shadow_rays) {
+                                 REAL3 ambient_light, SampleKey key, bool shaded,
+                                 int* shadow_rays) {
     const __global Material* m = s->materials + (shaded ? pt->sf.material : 0);
     REAL3 result = (REAL3)(0, 0, 0);
     if (shaded) result = surface_glow(m, pt->c, ambient_light);
@@ -46,8 +47,9 @@ static inline REAL3 group_direct(const SceneRefs* s, Group* g, const ShadePoint*
 // work-item of the group runs it, those outside the image (`live` false) without rays. Each
 // pass of the loop takes one ray of the tree from every work-item that has one left.
 static inline REAL3 group_pixel(const SceneRefs* s, Group* g, const __global Camera* camera,
-                         const __global Params* params, const __global float4* texels, int x,
-                         int y, uint pixel, bool live, int* secondary_rays, int* shadow_rays) {
+                                const __global Params* params, const __global float4* texels, int x,
+                                int y, uint pixel, bool live, int* secondary_rays,
+                                int* shadow_rays) {
     REAL3 sum = (REAL3)(0, 0, 0), ambient = TO_REAL3(params->ambient);
     int spp = params->spp;
     SampleKey key = sample_key(params->seed, pixel, spp);

@@ -88,7 +88,7 @@ HOT int shade_packet(const SceneRefs* s, const __global Camera* camera,
 
 #if PACKET_CHAINS
 // Lane j's sample radiance.
-inline REAL3 sample_radiance(const SamplePacket* pk, int j) {
+static inline REAL3 sample_radiance(const SamplePacket* pk, int j) {
     return (REAL3)(pk->radiance[0][j], pk->radiance[1][j], pk->radiance[2][j]);
 }
 

@@ -37,25 +37,25 @@ typedef struct {
     int media[MEDIA_DEPTH];
 } RayTask;
 
-inline REAL medium_ior(const SceneRefs* s, const RayTask* task) {
+static inline REAL medium_ior(const SceneRefs* s, const RayTask* task) {
     return task->media_count > 0 ? TO_REAL(s->materials[task->media[task->media_count - 1]].ior)
                                  : (REAL)1;
 }
 
 // The mirror image of direction d in a surface of normal n.
-inline REAL3 mirror(REAL3 d, REAL3 n) { return d - (REAL)2 * dot(d, n) * n; }
+static inline REAL3 mirror(REAL3 d, REAL3 n) { return d - (REAL)2 * dot(d, n) * n; }
 
 // A ray too faint to matter (weight below min_weight) is not traced: inside glass the tree
 // doubles at every level, so deep trees need the cut.
-inline bool too_faint(REAL3 weight, float min_weight) {
+static inline bool too_faint(REAL3 weight, float min_weight) {
     return fmax(fmax(weight.x, weight.y), weight.z) < (REAL)min_weight;
 }
 
 // Push a secondary ray whose direction (and media) are set: it starts off the surface on the
 // side it leaves to, one level deeper in the ray tree, unless it is too faint. Returns the rays
 // pushed (0 or 1).
-inline int spawn(RayTask* stack, int* sp, RayTask* next, const Surface* sf, REAL3 weight,
-                 int depth, float min_weight) {
+static inline int spawn(RayTask* stack, int* sp, RayTask* next, const Surface* sf, REAL3 weight,
+                        int depth, float min_weight) {
     if (too_faint(weight, min_weight)) return 0;
     next->o = offset_origin(sf, next->d);
     next->weight = weight;
@@ -66,8 +66,8 @@ inline int spawn(RayTask* stack, int* sp, RayTask* next, const Surface* sf, REAL
 
 #if HAS_REFRACTION
 // The refracted ray's media and eta = n1 / n2 at a surface of material m.
-inline REAL refract_media(const SceneRefs* s, const RayTask* in, RayTask* out, int m,
-                          bool entering) {
+static inline REAL refract_media(const SceneRefs* s, const RayTask* in, RayTask* out, int m,
+                                 bool entering) {
     out->media_count = in->media_count;
     for (int k = 0; k < MEDIA_DEPTH; ++k) out->media[k] = in->media[k];
     REAL ior_m = TO_REAL(s->materials[m].ior);
@@ -90,8 +90,9 @@ inline REAL refract_media(const SceneRefs* s, const RayTask* in, RayTask* out, i
 #if MAX_DEPTH > 0
 // Push the reflected and refracted rays of a shaded hit (ray, pt) of `task`: returns the rays
 // pushed.
-inline int spawn_secondary(const SceneRefs* s, const __global Params* params, RayTask* stack,
-                           int* sp, const RayTask* task, const Ray* ray, const ShadePoint* pt) {
+static inline int spawn_secondary(const SceneRefs* s, const __global Params* params, RayTask* stack,
+                                  int* sp, const RayTask* task, const Ray* ray,
+                                  const ShadePoint* pt) {
     if (task->depth >= MAX_DEPTH) return 0;
     const __global Material* m = s->materials + pt->sf.material;
     REAL3 n = pt->n;
@@ -131,7 +132,7 @@ inline int spawn_secondary(const SceneRefs* s, const __global Params* params, Ra
 #endif
 
 // The ray tree's root task: a primary ray (o, d), in no medium, of full weight.
-inline RayTask root_task(REAL3 o, REAL3 d) {
+static inline RayTask root_task(REAL3 o, REAL3 d) {
     RayTask task;
     task.o = o;
     task.d = d;
@@ -142,8 +143,8 @@ inline RayTask root_task(REAL3 o, REAL3 d) {
 }
 
 // The sample's primary ray as the ray tree's root task.
-inline RayTask primary_task(const __global Camera* camera, const __global Params* params, int x,
-                            int y, int sample, uint pixel) {
+static inline RayTask primary_task(const __global Camera* camera, const __global Params* params,
+                                   int x, int y, int sample, uint pixel) {
     REAL3 o, d;
     sample_ray(camera, params, x, y, sample, pixel, &o, &d);
     return root_task(o, d);

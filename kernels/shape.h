@@ -74,8 +74,8 @@ static inline bool quadratic_roots(REAL a, REAL b, REAL c, REAL disc, REAL* t0, 
 // Slab test against [lo, hi] within (tmin, tmax). Compare-select keeps a NaN from 0 * inf (a
 // zero direction component with the origin on a slab plane) out of the interval, and the far
 // bound is widened by 1 + 2 gamma(3) so no ray slips past an edge (Ize 2013, pbrt).
-static inline bool slab_interval(REAL3 lo, REAL3 hi, const Ray* r, REAL* tmin, REAL* tmax, int* part0,
-                          int* part1) {
+static inline bool slab_interval(REAL3 lo, REAL3 hi, const Ray* r, REAL* tmin, REAL* tmax,
+                                 int* part0, int* part1) {
     REAL t0 = *tmin, t1 = *tmax;
     const REAL widen = (REAL)1 + (REAL)2 * gamma_n(3);
     for (int k = 0; k < 3; ++k) {
@@ -110,7 +110,7 @@ static inline bool slab_interval(REAL3 lo, REAL3 hi, const Ray* r, REAL* tmin, R
 // Keep the side-surface roots whose axial coordinate fa + t da lies in [0, height], widened by a
 // rounding bound so a ray at a rim is not lost between the side and the cap.
 static inline void add_side_roots(Crossings* c, int* n, const REAL* ts, int count, REAL fa, REAL da,
-                           REAL height) {
+                                  REAL height) {
     for (int i = 0; i < count; ++i) {
         REAL s = fa + ts[i] * da;
         REAL tol = gamma_n(8) * (fabs(fa) + fabs(ts[i] * da) + height);

@@ -96,8 +96,8 @@ typedef struct {
 
 // A closest hit as intersect_rays reports it: the outward geometric normal and t (inf on a
 // miss), and the primitive reference (-1).
-static inline void report_hit(const SceneRefs* s, const Ray* ray, const Hit* hit, __global float4* out,
-                       __global int* ref) {
+static inline void report_hit(const SceneRefs* s, const Ray* ray, const Hit* hit,
+                              __global float4* out, __global int* ref) {
     if (hit->t < REAL_INF) {
         Surface sf = surface_at(s, ray, hit, false);
         *out = (float4)((float)sf.n_g.x, (float)sf.n_g.y, (float)sf.n_g.z, (float)hit->t);

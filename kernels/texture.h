@@ -60,7 +60,7 @@ static inline bool material_needs_uv(const SceneRefs* s, int material) {
 
 // p_world: the hit point in world space (the checker is a world-space solid texture).
 static inline REAL3 surface_color(const SceneRefs* s, const __global Material* m, REAL3 p_world,
-                           REAL3 n_f, REAL2 uv) {
+                                  REAL3 n_f, REAL2 uv) {
     REAL3 color = TO_REAL3(m->color);
 #if HAS_TEXTURES
     if (m->texture >= 0) {

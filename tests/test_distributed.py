@@ -158,7 +158,7 @@ def test_cli_dask_still_equals_local(cl_device, tmp_path, capsys):
     assert cli.main([*args, "-o", str(tmp_path / "dask.pfm"), "--dask", "--dask-workers",
                      "2"]) == 0
     err = capsys.readouterr().err
-    assert "dask: 1 tiles on 2 workers" in err or "dask: 2 tiles on 2 workers" in err, err
+    assert "dask: 1 tile on 2 workers" in err or "dask: 2 tiles on 2 workers" in err, err
     assert (read_pfm(tmp_path / "dask.pfm").tobytes()
             == read_pfm(tmp_path / "local.pfm").tobytes())
 
@@ -174,7 +174,7 @@ def test_cli_dask_frames_render_and_resume(cl_device, tmp_path, capsys):
     assert cli.main(["render", scene, *size, "--frames", "0:3", "-o", str(dask), "--dask",
                      "--resume"]) == 0
     err = capsys.readouterr().err
-    assert "dask: 1 frames on 2 workers" in err and "2 complete already" in err, err
+    assert "dask: 1 frame on 2 workers" in err and "2 complete already" in err, err
     for f in range(3):
         assert (read_pfm(tmp_path / f"d_{f:02d}.pfm").tobytes()
                 == read_pfm(tmp_path / f"l_{f:02d}.pfm").tobytes())

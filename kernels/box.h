@@ -24,28 +24,22 @@ static inline Crossings intersect_box(const __global Box* b, const Ray* r) {
     return c;
 }
 
-// shape_surface for a box: the point on the face crossed (hit->part: axis * 2 + side).
-HOT Surface box_surface(const SceneRefs* s, const Ray* r, const Hit* hit, bool want_uv) {
-    Surface sf;
-    int i = hit->ref & PRIM_INDEX_MASK;
-    REAL3 p = r->o + hit->t * r->d;
-    REAL gamma = gamma_n(ERR_ROUNDINGS);
-    sf.uv = (REAL2)(0, 0);
-    const __global Box* b = s->boxes + i;
+// shape_surface's part for a box: *p, the ray's point on entry, put on the face crossed
+// (hit->part: axis * 2 + side); its normal, error bound (gamma: the bound's factor), material
+// and (u, v) into *sf.
+HOT void box_surface(const __global Box* b, const Ray* r, const Hit* hit, bool want_uv,
+                     REAL gamma, REAL3* p, Surface* sf) {
     REAL3 lo = TO_REAL3(b->lo), hi = TO_REAL3(b->hi);
     int axis = hit->part / 2, side = hit->part % 2;
-    p = set_comp3(p, axis, comp3(side ? hi : lo, axis));
-    sf.n_g = set_comp3((REAL3)(0, 0, 0), axis, side ? (REAL)1 : (REAL)-1);
+    *p = set_comp3(*p, axis, comp3(side ? hi : lo, axis));
+    sf->n_g = set_comp3((REAL3)(0, 0, 0), axis, side ? (REAL)1 : (REAL)-1);
     // The box's own magnitude too: a hit at the packed origin still gets an offset.
-    sf.err = gamma * (max_abs3(lo) + max_abs3(hi));
+    sf->err = gamma * (max_abs3(lo) + max_abs3(hi));
     int a1 = (axis + 1) % 3, a2 = (axis + 2) % 3;
     REAL w1 = comp3(hi, a1) - comp3(lo, a1), w2 = comp3(hi, a2) - comp3(lo, a2);
-    sf.uv = (REAL2)(w1 > (REAL)0 ? (comp3(p, a1) - comp3(lo, a1)) / w1 : (REAL)0,
-                    w2 > (REAL)0 ? (comp3(p, a2) - comp3(lo, a2)) / w2 : (REAL)0);
-    sf.material = b->material;
-    sf.p = p;
-    sf.n_s = sf.n_g;
-    return sf;
+    sf->uv = (REAL2)(w1 > (REAL)0 ? (comp3(*p, a1) - comp3(lo, a1)) / w1 : (REAL)0,
+                     w2 > (REAL)0 ? (comp3(*p, a2) - comp3(lo, a2)) / w2 : (REAL)0);
+    sf->material = b->material;
 }
 #endif
 

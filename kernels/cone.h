@@ -11,7 +11,7 @@
 #include "shape.h"
 
 #if HAS_CONES
-static inline Crossings intersect_cone(const __global Cone* co, const Ray* r) {
+static OUT_OF_LINE Crossings intersect_cone(const __global Cone* co, const Ray* r) {
     Crossings c = no_crossings();
     int n = 0;
     REAL3 axis = TO_REAL3(co->axis_height);
@@ -46,39 +46,33 @@ static inline Crossings intersect_cone(const __global Cone* co, const Ray* r) {
     return c;
 }
 
-// shape_surface for a cone: the point on its side (hit->part 0) or base cap (1).
-HOT Surface cone_surface(const SceneRefs* s, const Ray* r, const Hit* hit, bool want_uv) {
-    Surface sf;
-    int i = hit->ref & PRIM_INDEX_MASK;
-    REAL3 p = r->o + hit->t * r->d;
-    REAL gamma = gamma_n(ERR_ROUNDINGS);
-    sf.uv = (REAL2)(0, 0);
-    const __global Cone* co = s->cones + i;
+// shape_surface's part for a cone: *p, the ray's point on entry, put on its side (hit->part 0)
+// or base cap (1); its outward normal, error bound (gamma: the bound's factor), material and,
+// where want_uv, its (u, v) into *sf.
+HOT void cone_surface(const __global Cone* co, const Ray* r, const Hit* hit, bool want_uv,
+                      REAL gamma, REAL3* p, Surface* sf) {
     REAL3 apex = TO_REAL3(co->apex_tan), axis = TO_REAL3(co->axis_height);
     REAL tan_a = TO_REAL(co->apex_tan.w), height = TO_REAL(co->axis_height.w);
-    REAL3 q = p - apex;
+    REAL3 q = *p - apex;
     REAL h = dot(q, axis);
     if (hit->part == 0) {
         REAL3 radial = q - h * axis;
         REAL rl = length(radial);
         if (rl > (REAL)0) {
             radial /= rl;
-            p = apex + h * axis + (h * tan_a) * radial;
+            *p = apex + h * axis + (h * tan_a) * radial;
             // Outward normal of |perp| = tan * s is radial - tan * axis, normalised.
-            sf.n_g = (radial - tan_a * axis) / sqrt((REAL)1 + tan_a * tan_a);
+            sf->n_g = (radial - tan_a * axis) / sqrt((REAL)1 + tan_a * tan_a);
         } else {
-            sf.n_g = -axis;  // the apex: any choice is a limit; point back out
+            sf->n_g = -axis;  // the apex: any choice is a limit; point back out
         }
     } else {
-        p += (height - h) * axis;
-        sf.n_g = axis;
+        *p += (height - h) * axis;
+        sf->n_g = axis;
     }
-    if (want_uv) sf.uv = axial_uv(q, axis, h / height, hit->part, height * tan_a);
-    sf.err = gamma * (max_abs3(p) + max_abs3(apex) + height * ((REAL)1 + tan_a));
-    sf.material = co->material;
-    sf.p = p;
-    sf.n_s = sf.n_g;
-    return sf;
+    if (want_uv) sf->uv = axial_uv(q, axis, h / height, hit->part, height * tan_a);
+    sf->err = gamma * (max_abs3(*p) + max_abs3(apex) + height * ((REAL)1 + tan_a));
+    sf->material = co->material;
 }
 #endif
 

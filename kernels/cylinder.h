@@ -11,7 +11,7 @@
 #include "shape.h"
 
 #if HAS_CYLINDERS
-static inline Crossings intersect_cylinder(const __global Cylinder* cy, const Ray* r) {
+static OUT_OF_LINE Crossings intersect_cylinder(const __global Cylinder* cy, const Ray* r) {
     Crossings c = no_crossings();
     int n = 0;
     REAL3 axis = TO_REAL3(cy->axis_height);
@@ -42,33 +42,27 @@ static inline Crossings intersect_cylinder(const __global Cylinder* cy, const Ra
     return c;
 }
 
-// shape_surface for a cylinder: the point on its side (hit->part 0) or cap (1, 2).
-HOT Surface cylinder_surface(const SceneRefs* s, const Ray* r, const Hit* hit, bool want_uv) {
-    Surface sf;
-    int i = hit->ref & PRIM_INDEX_MASK;
-    REAL3 p = r->o + hit->t * r->d;
-    REAL gamma = gamma_n(ERR_ROUNDINGS);
-    sf.uv = (REAL2)(0, 0);
-    const __global Cylinder* cy = s->cylinders + i;
+// shape_surface's part for a cylinder: *p, the ray's point on entry, put on its side
+// (hit->part 0) or cap (1, 2); its outward normal, error bound (gamma: the bound's factor),
+// material and, where want_uv, its (u, v) into *sf.
+HOT void cylinder_surface(const __global Cylinder* cy, const Ray* r, const Hit* hit, bool want_uv,
+                          REAL gamma, REAL3* p, Surface* sf) {
     REAL3 base = TO_REAL3(cy->base_radius), axis = TO_REAL3(cy->axis_height);
     REAL radius = TO_REAL(cy->base_radius.w), height = TO_REAL(cy->axis_height.w);
-    REAL3 q = p - base;
+    REAL3 q = *p - base;
     REAL h = dot(q, axis);
     if (hit->part == 0) {
         REAL3 radial = safe_normalize(q - h * axis);
-        p = base + h * axis + radius * radial;
-        sf.n_g = radial;
+        *p = base + h * axis + radius * radial;
+        sf->n_g = radial;
     } else {
         REAL cap = hit->part == 2 ? height : (REAL)0;
-        p += (cap - h) * axis;
-        sf.n_g = hit->part == 2 ? axis : -axis;
+        *p += (cap - h) * axis;
+        sf->n_g = hit->part == 2 ? axis : -axis;
     }
-    if (want_uv) sf.uv = axial_uv(q, axis, h / height, hit->part, radius);
-    sf.err = gamma * (max_abs3(p) + max_abs3(base) + radius + height);
-    sf.material = cy->material;
-    sf.p = p;
-    sf.n_s = sf.n_g;
-    return sf;
+    if (want_uv) sf->uv = axial_uv(q, axis, h / height, hit->part, radius);
+    sf->err = gamma * (max_abs3(*p) + max_abs3(base) + radius + height);
+    sf->material = cy->material;
 }
 #endif
 

@@ -38,8 +38,8 @@ static inline REAL spot_factor(const __global Light* light, REAL3 l) {
 // that weight * colour is the sample's estimate of the irradiance on a surface facing it.
 // False when the sample gives nothing: behind a one-sided light, p inside a sphere light, a
 // sample point within p's error bound.
-static inline bool sample_area_light(const __global Light* light, REAL3 p, REAL err, REAL2 u,
-                                     REAL3* target, REAL* weight) {
+static OUT_OF_LINE bool sample_area_light(const __global Light* light, REAL3 p, REAL err, REAL2 u,
+                                          REAL3* target, REAL* weight) {
     REAL3 c = TO_REAL3(light->position);
     if (light->kind == LIGHT_SPHERE) {
         // Uniform over the cone of directions the sphere fills (pbrt's sphere sampling):

@@ -256,7 +256,7 @@ HOT int packed_root(const SceneRefs* s, const __global Params* params, const Sam
 HOT REAL3 packet_pixel_radiance(const SceneRefs* s, const __global Camera* camera,
                                 const __global Params* params, int x, int y, uint pixel,
                                 int* secondary_rays, int* shadow_rays) {
-    REAL3 sum = (REAL3)(0, 0, 0);
+    REAL3 sum = (REAL3)(0, 0, 0), ambient = TO_REAL3(params->ambient);
     int spp = params->spp;
     SampleKey key = sample_key(params->seed, pixel, spp);
     SamplePacket packet;
@@ -284,8 +284,8 @@ HOT REAL3 packet_pixel_radiance(const SceneRefs* s, const __global Camera* camer
         } else
 #endif
         stack[0] = primary_task(camera, params, x, y, sample, pixel);
-        sum += tree_radiance(s, camera, params, key, stack, sp, radiance, secondary_rays,
-                             shadow_rays);
+        sum += tree_radiance(s, camera, params, key, ambient, stack, sp, radiance,
+                             secondary_rays, shadow_rays);
     }
     return sum;
 }

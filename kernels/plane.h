@@ -28,28 +28,22 @@ static inline Crossings intersect_plane(const __global Plane* pl, const Ray* r) 
     return c;
 }
 
-// shape_surface for a plane: the point projected onto it.
-HOT Surface plane_surface(const SceneRefs* s, const Ray* r, const Hit* hit, bool want_uv) {
-    Surface sf;
-    int i = hit->ref & PRIM_INDEX_MASK;
-    REAL3 p = r->o + hit->t * r->d;
-    REAL gamma = gamma_n(ERR_ROUNDINGS);
-    sf.uv = (REAL2)(0, 0);
-    const __global Plane* pl = s->planes + i;
+// shape_surface's part for a plane: *p, the ray's point on entry, projected onto the plane;
+// its normal, error bound (gamma: the bound's factor), material and, where want_uv, its (u, v)
+// into *sf.
+HOT void plane_surface(const __global Plane* pl, const Ray* r, const Hit* hit, bool want_uv,
+                       REAL gamma, REAL3* p, Surface* sf) {
     REAL3 n = TO_REAL3(pl->normal), q = TO_REAL3(pl->point);
-    p -= dot(p - q, n) * n;
-    sf.n_g = n;
-    sf.err = gamma * (max_abs3(p) + max_abs3(q));
+    *p -= dot(*p - q, n) * n;
+    sf->n_g = n;
+    sf->err = gamma * (max_abs3(*p) + max_abs3(q));
     if (want_uv) {
         REAL3 e1, e2;
         frame(n, &e1, &e2);
-        sf.uv = (REAL2)(dot(p - q, e1) + TO_REAL(pl->point.w),
-                        dot(p - q, e2) + TO_REAL(pl->normal.w));
+        sf->uv = (REAL2)(dot(*p - q, e1) + TO_REAL(pl->point.w),
+                         dot(*p - q, e2) + TO_REAL(pl->normal.w));
     }
-    sf.material = pl->material;
-    sf.p = p;
-    sf.n_s = sf.n_g;
-    return sf;
+    sf->material = pl->material;
 }
 
 #if SAMPLE_PACKETS

@@ -151,12 +151,13 @@ static inline RayTask primary_task(const __global Camera* camera, const __global
 }
 
 // The light of a sample's ray tree from the sp tasks on the stack, added to `radiance` task by
-// task: where a task's ray leaves the scene the sky's, else the direct light at its hit,
-// weighted, with its reflected and refracted rays pushed.
+// task: where a task's ray leaves the scene the sky's, else the direct light at its hit
+// (ambient: the scene's ambient light), weighted, with its reflected and refracted rays
+// pushed.
 HOT REAL3 tree_radiance(const SceneRefs* s, const __global Camera* camera,
-                        const __global Params* params, SampleKey key, RayTask* stack, int sp,
-                        REAL3 radiance, int* secondary_rays, int* shadow_rays) {
-    REAL3 ambient = TO_REAL3(params->ambient);
+                        const __global Params* params, SampleKey key, REAL3 ambient,
+                        RayTask* stack, int sp, REAL3 radiance, int* secondary_rays,
+                        int* shadow_rays) {
     while (sp > 0) {
         RayTask task = stack[--sp];
         Ray ray = make_ray(task.o, task.d);
@@ -182,15 +183,15 @@ HOT REAL3 tree_radiance(const SceneRefs* s, const __global Camera* camera,
 HOT REAL3 pixel_radiance(const SceneRefs* s, const __global Camera* camera,
                          const __global Params* params, int x, int y, uint pixel,
                          int* secondary_rays, int* shadow_rays) {
-    REAL3 sum = (REAL3)(0, 0, 0);
+    REAL3 sum = (REAL3)(0, 0, 0), ambient = TO_REAL3(params->ambient);
     int spp = params->spp;
     SampleKey key = sample_key(params->seed, pixel, spp);
     for (int sample = 0; sample < spp; ++sample) {
         key.sample = sample;
         RayTask stack[RAY_STACK_SIZE];
         stack[0] = primary_task(camera, params, x, y, sample, pixel);
-        sum += tree_radiance(s, camera, params, key, stack, 1, (REAL3)(0, 0, 0), secondary_rays,
-                             shadow_rays);
+        sum += tree_radiance(s, camera, params, key, ambient, stack, 1, (REAL3)(0, 0, 0),
+                             secondary_rays, shadow_rays);
     }
     return sum;
 }

@@ -63,7 +63,13 @@ typedef int4 MASK4;
 // OUT_OF_LINE keeps a function that runs once for many rays, and holds their state in large
 // private arrays, out of its caller: inlined, the sample packet's tracing made PoCL compile
 // the kernel's ray-by-ray ray tree around its registers and arrays, and the packet build ran
-// 5 % more instructions a sample and took 10 % longer (docs/acceleration.md).
+// 5 % more instructions a sample and took 10 % longer (docs/acceleration.md). It also keeps
+// out of line the helpers that PoCL left there while they were C99's plain inline (which
+// defines nothing a call can reach, 2d03750): sample_position, lens_sample, light_square,
+// sample_area_light, image_texel, intersect_cylinder and intersect_cone, out of line in every
+// build that had them. Made static inline they were inlined: sample_position alone made the
+// spheres' single-ray kernel run 2.9 % more instructions (docs/acceleration.md, Kernels by
+// concept).
 #define OUT_OF_LINE __attribute__((noinline))
 
 #define REAL_INF ((REAL)INFINITY)

@@ -10,7 +10,7 @@
 
 // Sample s of spp inside pixel (x, y), in pixel units: the centre for one sample, else a jittered
 // point in cell (s mod nx, s div nx) of an nx x ny grid.
-static inline REAL2 sample_position(int x, int y, int s, int spp, uint seed, uint pixel) {
+static OUT_OF_LINE REAL2 sample_position(int x, int y, int s, int spp, uint seed, uint pixel) {
     if (spp == 1) return (REAL2)((REAL)x + (REAL)0.5, (REAL)y + (REAL)0.5);
     // Integer ceil(sqrt(spp)): a float sqrt may be 3 ulp off and round a square up.
     int nx = 1;
@@ -28,7 +28,7 @@ static inline REAL2 sample_position(int x, int y, int s, int spp, uint seed, uin
 // index spp, which no sample uses) so that a sample's stratum is independent of its cell in the
 // pixel and of its light points, with the angle jittered in the stratum by r_2 and the radius
 // sqrt(r_3) (uniform over the disc).
-static inline REAL2 lens_sample(int s, int spp, uint seed, uint pixel) {
+static OUT_OF_LINE REAL2 lens_sample(int s, int spp, uint seed, uint pixel) {
     int stratum = (int)permute_stratum((uint)s, (uint)spp, rng_bits(seed, pixel, (uint)spp, 2u));
     REAL angle = (REAL)2 * PI_R * ((REAL)stratum + rng_uniform(seed, pixel, (uint)s, 2u)) /
                  (REAL)spp;
@@ -73,7 +73,7 @@ static inline REAL light_uniform(uint key, int sample, uint dim) {
 // wider as the row is shorter, so every stratum has area 1/spp), each stratum once: sample s
 // takes stratum permute_stratum(s), a permutation drawn per pixel and light, so that a light's
 // strata are independent of the pixel's jitter cells and of every other light's strata.
-static inline REAL2 light_square(SampleKey k, int light) {
+static OUT_OF_LINE REAL2 light_square(SampleKey k, int light) {
     uint key = light_key(k, light);
     int stratum = (int)permute_stratum((uint)k.sample, (uint)k.spp, key);
     int row = stratum / k.nx, col = stratum % k.nx;

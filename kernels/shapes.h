@@ -127,42 +127,50 @@ HOT int packet_crossings(const SceneRefs* s, int kind, int slot, const Ray* r, C
 // want_uv: the material samples an image texture. Only then are (u, v) computed: a sphere's
 // atan2 and asin cost as much as the rest of its shading. r and the primitive in one frame.
 HOT Surface shape_surface(const SceneRefs* s, const Ray* r, const Hit* hit, bool want_uv) {
+    Surface sf;
+    int i = hit->ref & PRIM_INDEX_MASK;
+    REAL3 p = r->o + hit->t * r->d;
+    REAL gamma = gamma_n(ERR_ROUNDINGS);
+    sf.uv = (REAL2)(0, 0);
     switch (hit->ref >> PRIM_TYPE_SHIFT) {
 #if HAS_PLANES
         case PRIM_PLANE:
-            return plane_surface(s, r, hit, want_uv);
+            plane_surface(s->planes + i, r, hit, want_uv, gamma, &p, &sf);
+            break;
 #endif
 #if HAS_SPHERES
         case PRIM_SPHERE:
-            return sphere_surface(s, r, hit, want_uv);
+            sphere_surface(s->spheres + i, r, hit, want_uv, gamma, &p, &sf);
+            break;
 #endif
 #if HAS_BOXES
         case PRIM_BOX:
-            return box_surface(s, r, hit, want_uv);
+            box_surface(s->boxes + i, r, hit, want_uv, gamma, &p, &sf);
+            break;
 #endif
 #if HAS_CYLINDERS
         case PRIM_CYLINDER:
-            return cylinder_surface(s, r, hit, want_uv);
+            cylinder_surface(s->cylinders + i, r, hit, want_uv, gamma, &p, &sf);
+            break;
 #endif
 #if HAS_CONES
         case PRIM_CONE:
-            return cone_surface(s, r, hit, want_uv);
+            cone_surface(s->cones + i, r, hit, want_uv, gamma, &p, &sf);
+            break;
 #endif
 #if HAS_TRIANGLES
         case PRIM_TRIANGLE:
             return triangle_surface(s, r, hit, want_uv);
 #endif
-        default: {
-            Surface sf;
-            sf.uv = (REAL2)(0, 0);
+        default:
             sf.n_g = -r->d;
             sf.err = 0;
             sf.material = 0;
-            sf.p = r->o + hit->t * r->d;
-            sf.n_s = sf.n_g;
-            return sf;
-        }
+            break;
     }
+    sf.p = p;
+    sf.n_s = sf.n_g;
+    return sf;
 }
 
 #if SURFACE_LANES

@@ -136,14 +136,11 @@ HOT MASKP sphere_lanes(const __global SpherePacket* pk, int k, const RayPacket* 
 #define SPHERE_LANES 0
 #endif
 
-// shape_surface for a sphere: the point re-projected onto it along its normal.
-HOT Surface sphere_surface(const SceneRefs* s, const Ray* r, const Hit* hit, bool want_uv) {
-    Surface sf;
-    int i = hit->ref & PRIM_INDEX_MASK;
-    REAL3 p = r->o + hit->t * r->d;
-    REAL gamma = gamma_n(ERR_ROUNDINGS);
-    sf.uv = (REAL2)(0, 0);
-    const __global Sphere* sp = s->spheres + i;
+// shape_surface's part for a sphere: *p, the ray's point on entry, re-projected onto the
+// sphere along its normal; the normal, error bound (gamma: the bound's factor), material and,
+// where want_uv, its (u, v) into *sf.
+HOT void sphere_surface(const __global Sphere* sp, const Ray* r, const Hit* hit, bool want_uv,
+                        REAL gamma, REAL3* p, Surface* sf) {
 #if SPHERE_FP64
     // Re-projecting in float would round p at the scale of the centre (ulp(1e5) is
     // 0.008): do it in double, so the bound is the float rounding of p alone.
@@ -154,25 +151,22 @@ HOT Surface sphere_surface(const SceneRefs* s, const Ray* r, const Hit* hit, boo
     nd = nl > 0.0 ? nd / nl : nd;
     pd = cd + (double)sp->center_radius.w * nd;
     REAL3 n = convert_float3(nd);
-    p = convert_float3(pd);
-    sf.n_g = n;
-    sf.err = gamma * max_abs3(p);
+    *p = convert_float3(pd);
+    sf->n_g = n;
+    sf->err = gamma * max_abs3(*p);
 #else
     REAL3 c = TO_REAL3(sp->center_radius);
     REAL radius = TO_REAL(sp->center_radius.w);
-    REAL3 n = safe_normalize(p - c);
-    p = c + radius * n;
-    sf.n_g = n;
-    sf.err = gamma * (max_abs3(c) + radius);
+    REAL3 n = safe_normalize(*p - c);
+    *p = c + radius * n;
+    sf->n_g = n;
+    sf->err = gamma * (max_abs3(c) + radius);
 #endif
     if (want_uv) {
-        sf.uv = (REAL2)(angle_u(n.x, n.z),
-                        (REAL)0.5 + asin(clamp(n.y, (REAL)-1, (REAL)1)) / PI_R);
+        sf->uv = (REAL2)(angle_u(n.x, n.z),
+                         (REAL)0.5 + asin(clamp(n.y, (REAL)-1, (REAL)1)) / PI_R);
     }
-    sf.material = sp->material;
-    sf.p = p;
-    sf.n_s = sf.n_g;
-    return sf;
+    sf->material = sp->material;
 }
 
 #if SURFACE_LANES

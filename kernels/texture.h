@@ -21,7 +21,7 @@ static inline REAL wrap01(REAL x) {
     return f < (REAL)1 ? f : 0;
 }
 
-static inline REAL3 image_texel(const SceneRefs* s, const __global Texture* tx, REAL2 uv) {
+static OUT_OF_LINE REAL3 image_texel(const SceneRefs* s, const __global Texture* tx, REAL2 uv) {
     int w = tx->width, h = tx->height;
     REAL sx = wrap01(uv.x * TO_REAL(tx->repeat_u)) * (REAL)w - (REAL)0.5;
     REAL sy = ((REAL)1 - wrap01(uv.y * TO_REAL(tx->repeat_v))) * (REAL)h - (REAL)0.5;

@@ -366,7 +366,8 @@ MUTATIONS: tuple[Mutation, ...] = (
       LAYOUT, INTERSECT),
     # clray/accel
     m("context.fp64_ignored", "clray/device/context.py",
-      'return "cl_khr_fp64" in device.extensions.split() or device.double_fp_config != 0',
+      'if "cl_khr_fp64" in device.extensions.split():\n        return True\n'
+      '    return opencl_version(device) >= (1, 2) and device.double_fp_config != 0',
       "return False", RENDER, HARD),
     m("bvh_device.bin_index_clamped_short", "kernels/bvh_build.cl",
       "return clamp((int)((c - cmin) * scale), 0, N_BINS - 1);",

@@ -35,7 +35,8 @@ from clray.device.program import (
 
 DEPTHS = (1, 4, 8)
 # (traversal, packet lanes, refraction): the packet's lanes set its per-lane state (rays, hits,
-# shading); without refraction sample packets trace chains (kernels/render.cl, PACKET_CHAINS).
+# shading); without refraction sample packets trace chains (kernels/packet_trace.h,
+# PACKET_CHAINS).
 SCHEMES = (("single", 1, True), ("sample_packet", 8, True), ("sample_packet", 16, True),
            ("sample_packet", 8, False), ("sample_packet", 16, False), ("group_packet", 1, True))
 

@@ -128,20 +128,19 @@ FEATURE_SWITCHES = tuple(f.name for f in fields(KernelConfig) if f.type == "bool
 # registers per lane on AMD's: about 1 KiB. Private arrays indexed at run time (the ray and
 # BVH stacks) live in registers only below that; above it they spill to slow off-chip memory.
 GPU_REGISTER_BYTES = 1024
-MEDIA_DEPTH = 4  # kernels/render.cl: the media a ray task carries
+MEDIA_DEPTH = 4  # kernels/ray_tree.h: the media a ray task carries
 
 
 def private_stack_bytes(config: KernelConfig) -> dict[str, int]:
     """Bytes per work-item of the kernel's private stacks: the ray stack (RayTask entries,
     MAX_DEPTH + 1 of them with refraction, else 1) and the BVH traversal stacks, BVH_STACK_SIZE
     levels of (child, count, entry t) for closest hits and of (child, count) for shadow rays,
-    as kernels/render.cl and bvh.h declare them; sample packets without refraction add their
-    chains' radiance to the ray stack (three numbers for every lane, whatever the depth:
-    render.cl's SamplePacket); group packets add the group's stack (child, count,
-    the group's and the work-item's entry t; kernels/group.h), the single-ray walks testing its
-    leaves. A 3-vector takes four elements' room. The
-    rest of the kernel's private memory does not grow with the settings (benchmarks/
-    private_memory.py measures it)."""
+    as kernels/ray_tree.h, packet_trace.h and bvh.h declare them; sample packets without
+    refraction add their chains' radiance to the ray stack (three numbers for every lane,
+    whatever the depth: packet_trace.h's SamplePacket); group packets add the group's stack
+    (child, count, the group's and the work-item's entry t; kernels/group.h), the single-ray
+    walks testing its leaves. A 3-vector takes four elements' room. The rest of the kernel's
+    private memory does not grow with the settings (benchmarks/private_memory.py measures it)."""
     real = 8 if config.precision == "double" else 4
     task = 3 * 4 * real + 4 + 4 + 4 * MEDIA_DEPTH
     task = -(-task // (4 * real)) * (4 * real)  # aligned to its REAL3

@@ -6,10 +6,11 @@ wavefront (all live rays of one generation in arrays, their reflected and refrac
 forming the next generation). Slow, but each formula can be checked against the page by eye.
 
 Its modules mirror the kernel headers, and its functions carry the kernels' names, so the two
-can be read side by side: sampling (kernels/rng.h, camera.h), intersect (intersect.h), bvh
-(bvh.h: closest_hit, transmission), shading (shading.h: surface_at, offset_origin,
-shade_direct), lights (lights.h), fresnel (fresnel.h), texture (texture.h), background
-(background.h), render (render.cl: refract_media, the ray tree), vectors (real.h).
+can be read side by side: sampling (kernels/rng.h, camera.h), intersect (the shapes' headers:
+sphere.h, plane.h, box.h, cylinder.h, cone.h, triangle.h), bvh (bvh.h: closest_hit,
+transmission), shading (surface.h: surface_at, offset_origin; direct.h: shade_direct), lights
+(lights.h), fresnel (fresnel.h), texture (texture.h), background (background.h), render
+(ray_tree.h: refract_media, the ray tree), vectors (real.h).
 """
 
 from clray.reference.background import background_radiance, environment_texel, equirect_uv

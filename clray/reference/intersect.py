@@ -1,4 +1,5 @@
-"""Ray-primitive crossings of the oracle (kernels/intersect.h), in float64 by the textbook
+"""Ray-primitive crossings of the oracle (the intersect_* functions of
+kernels/sphere.h, plane.h, box.h, cylinder.h, cone.h and triangle.h), in float64 by the textbook
 formulas: every place a ray's line crosses a surface, as (t, part) pairs with t = inf where
 there is none (t may be negative: callers keep t > 0). `part` tells the surface function
 (clray.reference.shading) which face was hit."""

@@ -1,4 +1,4 @@
-"""The oracle's ray tree (kernels/render.cl): camera rays traced as a wavefront, each
+"""The oracle's ray tree (kernels/ray_tree.h): camera rays traced as a wavefront, each
 generation's hits shaded by shade_direct, their reflected and refracted children (with the
 media each carries) forming the next generation."""
 

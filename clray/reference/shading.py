@@ -1,4 +1,5 @@
-"""Surfaces and direct light of the oracle (kernels/shading.h): each shape's outward normal and
+"""Surfaces and direct light of the oracle (kernels/surface.h, the shapes' headers and
+direct.h): each shape's outward normal and
 (u, v) at a hit, the surface record of a hit, the offset that starts a spawned ray off it, and
 shade_direct, the ambient, diffuse and specular light that reaches it from every light."""
 

@@ -18,7 +18,7 @@ from clray.device.launch import render_packed
 from clray.device.pack import PackedScene, pack_scene
 from clray.device.program import bvh_width_for, packet_lanes_for, traversal_for
 from clray.errors import SettingsError
-from clray.image_io import Encoding, write_image
+from clray.image_io import Encoding, image_bytes, write_image
 from clray.scene import limits as L
 from clray.scene.check import check_scene
 from clray.scene.load import load_scene
@@ -90,6 +90,10 @@ class RenderResult:
     def save(self, path: str | Path) -> None:
         """Write the image, the suffix picking the format (.png, .pfm, .exr)."""
         write_image(path, self.image, self.encoding)
+
+    def _repr_png_(self) -> bytes:
+        """The PNG that save() writes, for Jupyter and IPython to show the result inline."""
+        return image_bytes(".png", self.image, self.encoding)
 
 
 def _overrides(scene: Scene, settings: RenderSettings, names: tuple[str, ...]) -> dict:

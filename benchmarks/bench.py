@@ -37,9 +37,9 @@ from clray.device.context import describe, queue_for, select_device
 from clray.device.launch import render_packed
 from clray.device.pack import pack_scene
 from clray.device.program import KernelConfig, bvh_width_for
+from clray.knobs import Tuning
 from clray.render import RenderSettings, kernel_switches
 from clray.scene.load import load_scene
-from clray.tuning.knobs import Tuning
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent

@@ -227,8 +227,8 @@ class ClraySide:
         from clray.device.context import queue_for
         from clray.device.pack import pack_scene
         from clray.device.program import bvh_width_for
+        from clray.knobs import Tuning
         from clray.render import RenderSettings, kernel_switches
-        from clray.tuning.knobs import Tuning
 
         r = scene.render
         self.device = device

@@ -48,12 +48,12 @@ from clray.image_io import (
     output_target,
     write_bytes_atomically,
 )
+from clray.knobs import TRAVERSALS
 from clray.metrics import nonfinite_count
 from clray.render import RenderResult, RenderSettings, render
 from clray.scene import limits
 from clray.scene.load import load_scene
 from clray.scene.model import Scene
-from clray.tuning.knobs import TRAVERSALS
 
 EXIT_INTERRUPTED = 130  # 128 + SIGINT, as shells report it
 SEED_MAX = limits.MAX_SEED

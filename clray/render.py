@@ -19,11 +19,11 @@ from clray.device.pack import PackedScene, pack_scene
 from clray.device.program import bvh_width_for, packet_lanes_for, traversal_for
 from clray.errors import SettingsError
 from clray.image_io import Encoding, image_bytes, write_image
+from clray.knobs import BUILD_KNOBS, IMAGE_KNOBS, TRAVERSALS, Tuning, TuningError
 from clray.scene import limits as L
 from clray.scene.check import check_scene
 from clray.scene.load import load_scene
 from clray.scene.model import Scene
-from clray.tuning.knobs import BUILD_KNOBS, IMAGE_KNOBS, TRAVERSALS, Tuning, TuningError
 from clray.tuning.store import chosen_tuning
 
 
@@ -40,7 +40,7 @@ class RenderSettings:
     min_weight: float | None = None
     device: str | None = None  # clray.device.context.select_device spec
     precision: str = "float"  # "float" | "double"
-    # How rays walk the BVH (clray.tuning.knobs.TRAVERSALS); None: the tuning's traversal knob.
+    # How rays walk the BVH (clray.knobs.TRAVERSALS); None: the tuning's traversal knob.
     traversal: str | None = None
     # progress(done, total) in pixel-samples (pixels x spp): called with done = 0 before the
     # first launch, then after each launch, rising to done = total; several times a second.

@@ -61,26 +61,16 @@ VARIANTS: tuple[Variant, ...] = (
                  "so it differs from the reference by more than rounding"),
 )
 
-# A variant fails a scene when any pixel is non-finite or more pixels than this differ from the
-# reference by over 2/255: a handful of silhouette pixels may legitimately flip between builds.
-FAIL_FRACTION = 0.002
-FAIL_MIN_PIXELS = 2
-
-
-def fail_allowance(n_pixels: int) -> int:
-    return max(FAIL_MIN_PIXELS, math.floor(FAIL_FRACTION * n_pixels))
-
-
 def tolerance_text(width: int, height: int) -> str:
     """What FAIL means at this image size, with the figures."""
     n_pixels = width * height
-    return (f"FAIL: a NaN or infinite pixel, or over {fail_allowance(n_pixels)} of the "
+    return (f"FAIL: a NaN or infinite pixel, or over {metrics.fail_allowance(n_pixels)} of the "
             f"{n_pixels} pixels off by more than 2/255")
 
 
 def failure_reason(record: dict) -> str | None:
     """Why the record's variant FAILs its scene, in figures; None where it passes."""
-    allowed = fail_allowance(record["width"] * record["height"])
+    allowed = metrics.fail_allowance(record["width"] * record["height"])
     reasons = []
     if record["nonfinite"]:
         reasons.append(f"{plural(record['nonfinite'], 'pixel')} NaN or infinite")
@@ -136,7 +126,8 @@ def compare(image: np.ndarray, reference: np.ndarray) -> dict:
         "over_1_255": metrics.count_over(image, reference, 1 / 255),
         "over_2_255": over_2,
         "nonfinite": nonfinite,
-        "status": "pass" if nonfinite == 0 and over_2 <= fail_allowance(n_pixels) else "FAIL",
+        "status": ("pass" if nonfinite == 0 and over_2 <= metrics.fail_allowance(n_pixels)
+                   else "FAIL"),
     }
 
 
@@ -310,7 +301,8 @@ def write_report(records: list[dict], out: Path, repeat: int, device: str,
         "px > 1/255 and px > 2/255 count the pixels with any channel off by more than that.",
         "",
         "Tolerance: a variant FAILs a scene when any pixel is NaN or infinite, or when over "
-        f"max({FAIL_MIN_PIXELS}, {FAIL_FRACTION:.1%} of the pixels) are off by more than 2/255 "
+        f"max({metrics.FAIL_MIN_PIXELS}, {metrics.FAIL_FRACTION:.1%} of the pixels) are off by "
+        "more than 2/255 "
         "(each scene's section gives the figure): a few pixels on silhouettes may flip between "
         "builds, and no more. FAIL says that the image is not the reference's, not that it is "
         "worse than the float default's: where the default fails too, float rounding alone "

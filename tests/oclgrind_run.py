@@ -16,10 +16,10 @@ from clray.device.bvh_build import build_bvh_on
 from clray.device.context import queue_for, select_device
 from clray.device.launch import intersect_rays
 from clray.device.pack import pack_scene
+from clray.knobs import Tuning
 from clray.reference import camera_rays
 from clray.render import RenderSettings, render
 from clray.scene.load import load_scene
-from clray.tuning.knobs import Tuning
 
 SCENES = Path(__file__).resolve().parent.parent / "scenes"
 # The shipped scenes between them switch on every feature of KernelConfig but the study

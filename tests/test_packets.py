@@ -24,10 +24,10 @@ from clray.device.launch import intersect_rays
 from clray.device.pack import pack_scene
 from clray.device.program import KernelConfig, kernel_source, traversal_for
 from clray.errors import SettingsError
+from clray.knobs import TRAVERSALS, Tuning
 from clray.render import RenderSettings, kernel_switches, render
 from clray.scene import model as M
 from clray.scene.load import load_scene, scene_from_dict
-from clray.tuning.knobs import TRAVERSALS, Tuning
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENES = sorted((ROOT / "scenes").glob("*.toml"))

@@ -10,7 +10,7 @@ import numpy as np
 import pyopencl as cl
 import pytest
 
-from clray import study
+from clray import metrics, study
 from clray.cli import main
 
 SCENE = """
@@ -158,7 +158,7 @@ def test_cli_study_needs_out(tmp_scene) -> None:
 def _full(variant: str, rmse: float, over: int, nonfinite: int = 0, **fields: object) -> dict:
     """A record as study_scene makes it, of a 64x48 image: the allowance is 6 pixels."""
     n_pixels = 64 * 48
-    status = "pass" if nonfinite == 0 and over <= study.fail_allowance(n_pixels) else "FAIL"
+    status = "pass" if nonfinite == 0 and over <= metrics.fail_allowance(n_pixels) else "FAIL"
     return {"scene": "glass", "scene_file": "scenes/glass.toml", "variant": variant,
             "width": 64, "height": 48, "kernel_s_median": 0.0131, "rmse": rmse,
             "psnr_db": 47.4, "max_abs": 0.123, "over_1_255": over, "over_2_255": over,

@@ -14,10 +14,10 @@ import pytest
 
 from clray import cli
 from clray.device.program import kernel_source
+from clray.knobs import TRAVERSALS
 from clray.render import RenderSettings, kernel_switches
 from clray.tuning import KNOB_TABLE, Tuning
 from clray.tuning import tuner as tuner_module
-from clray.tuning.knobs import TRAVERSALS
 
 ROOT = Path(__file__).resolve().parent.parent
 SPHERES = ROOT / "scenes" / "spheres.toml"

@@ -1,4 +1,4 @@
-"""The knob table (clray.tuning.knobs): every knob acts where the table says, the defaults are
+"""The knob table (clray.knobs): every knob acts where the table says, the defaults are
 the table's, tuned renders give the default's image, and per-device tuning files are picked up,
 or ignored with a warning when invalid or stale (clray.tuning.store)."""
 
@@ -30,11 +30,11 @@ from clray.device.program import (
     packet_lanes_for,
     traversal_for,
 )
+from clray.knobs import BUILD_KNOBS, IMAGE_KNOBS, build_option
 from clray.render import RenderSettings, pack_for, render
 from clray.scene.load import load_scene
 from clray.study import compare
 from clray.tuning import DEFAULT_TUNING, KNOB_TABLE, KNOBS, Tuning, TuningError, store
-from clray.tuning.knobs import BUILD_KNOBS, IMAGE_KNOBS, build_option
 
 ROOT = Path(__file__).resolve().parent.parent
 SPHERES = ROOT / "scenes" / "spheres.toml"

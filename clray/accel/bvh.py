@@ -18,7 +18,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from clray.tuning.knobs import KNOBS
+from clray.knobs import KNOBS
 
 # SAH bins along the axis of largest centroid extent. 16 is where binned SAH stops gaining
 # quality for its cost (Wald 2007, "On fast construction of SAH-based BVHs").

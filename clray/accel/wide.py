@@ -30,7 +30,7 @@ import numpy as np
 
 from clray.accel import prim_refs as P
 from clray.accel.bvh import Bvh
-from clray.tuning.knobs import KNOBS
+from clray.knobs import KNOBS
 
 PACKET_WIDTH = 4
 LEAF_TRIANGLE_SHIFT = 16

@@ -13,7 +13,7 @@ from clray.device.context import describe, device_type, queue_for
 from clray.device.pack import PackedScene
 from clray.device.program import build_program
 from clray.errors import DeviceError
-from clray.tuning.knobs import DEFAULT_TUNING, Tuning
+from clray.knobs import DEFAULT_TUNING, Tuning
 
 # Launches are sized by the time they take, not by their work, so that progress advances
 # several times a second on any device and no launch nears a GPU watchdog, while a small render

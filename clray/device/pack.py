@@ -18,10 +18,10 @@ from clray.accel.wide import LEAF_FIELD_MASK, PACKET_WIDTH, WideBvh, collapse
 from clray.device import layout as L
 from clray.device.bvh_build import build_bvh_on
 from clray.device.program import KernelConfig
+from clray.knobs import DEFAULT_TUNING, Tuning
 from clray.scene import model as M
 from clray.scene.emitters import scene_lights
 from clray.scene.scale import needs_fp64_spheres
-from clray.tuning.knobs import DEFAULT_TUNING, Tuning
 
 # Primitive count from which pack_scene builds the BVH on the device when given a queue.
 DEVICE_BUILD_MIN = 20000

@@ -13,7 +13,7 @@ import pyopencl as cl
 
 from clray.device.context import context_for, device_type, has_fp64
 from clray.errors import DeviceError
-from clray.tuning.knobs import KNOBS
+from clray.knobs import KNOBS
 
 # The top-level kernels/ folder, installed as this package (pyproject.toml's package-dir), so a
 # wheel, an sdist and an editable install all read the same files.
@@ -80,7 +80,7 @@ class KernelConfig:
     # "sample_packet", a pixel's samples in packets of packet_lanes vector lanes, lanes going on
     # ray by ray where at most packet_min_lanes of them reach a subtree, or "group_packet", a
     # work-group's pixels together (the launch's tiles: the group_side knob). Knobs of the table
-    # (clray.tuning.knobs); the packer passes packet_lanes as the tuning's or the device's.
+    # (clray.knobs); the packer passes packet_lanes as the tuning's or the device's.
     traversal: str = "single"
     packet_lanes: int = 8
     packet_min_lanes: int = KNOBS["packet_min_lanes"].default

@@ -11,7 +11,7 @@ from typing import TYPE_CHECKING
 
 from clray.errors import plural
 from clray.image_io import write_bytes_atomically
-from clray.tuning.knobs import DEFAULT_TUNING
+from clray.knobs import DEFAULT_TUNING
 from clray.tuning.tuner import Trial
 
 if TYPE_CHECKING:

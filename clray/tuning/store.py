@@ -19,7 +19,7 @@ from pathlib import Path
 import pyopencl as cl
 
 from clray.errors import utf8_problem
-from clray.tuning.knobs import DEFAULT_TUNING, Tuning, TuningError
+from clray.knobs import DEFAULT_TUNING, Tuning, TuningError
 
 FORMAT = 1
 

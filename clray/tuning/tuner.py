@@ -1,4 +1,4 @@
-"""`clray tune`: search the knobs of clray.tuning.knobs for the fastest configuration on one
+"""`clray tune`: search the knobs of clray.knobs for the fastest configuration on one
 device, with Kernel Tuner (docs/tuning.md: why one Kernel Tuner run per host configuration).
 
 For each scene, the default configuration renders the reference image through clray's own
@@ -39,10 +39,7 @@ from clray.device.program import (
     traversal_for,
 )
 from clray.errors import ClrayError, DeviceError, plural
-from clray.render import RenderSettings, kernel_switches, pack_for
-from clray.scene.load import load_scene
-from clray.study import fail_allowance
-from clray.tuning.knobs import (
+from clray.knobs import (
     BUILD_KNOBS,
     DEFAULT_TUNING,
     HOST_KNOBS,
@@ -55,6 +52,9 @@ from clray.tuning.knobs import (
     Tuning,
     TuningError,
 )
+from clray.metrics import fail_allowance
+from clray.render import RenderSettings, kernel_switches, pack_for
+from clray.scene.load import load_scene
 
 INSTALL_HINT = "pip install 'clray[tune]'"
 # Kernel Tuner's names for the work-group's sizes: a row segment of work_group_width (y 1), or

@@ -1,0 +1,213 @@
+"""Big models: load, BVH, pack and kernel seconds, host peak memory and device bytes a
+triangle of the bumpy icosphere as a binary PLY at several sizes, as `clray render MODEL.ply`
+runs them.
+
+    python benchmarks/scale.py [--subdivisions 7,8,9] [--json benchmarks/results/scale.json]
+                               [--mesh-dir DIR] [--mitsuba {auto,off}] [--plot docs/scale.png]
+
+Each size is written once as a binary little-endian PLY (float x, y, z; uchar/int faces, the
+layout scanners and MeshLab write) and rendered in a fresh process (ru_maxrss is a process's
+peak): the automatic scene of `clray render MODEL` (clray.model_scene), 1280 x 720, 1 spp,
+packed as render() packs it for the device (the BVH on the device where it is large). A small
+mesh is rendered first in the same process so that the kernel builds and the device BVH
+build's program come from the caches, not the compiler: `build_s` is what remains. The peak
+is read after load, after pack and after the render, so each stage's share is in view.
+
+Mitsuba 3's load of the same file (its PLY reader and, where built with it, Embree's BVH: a
+`scalar_rgb` scene of one `ply` shape) runs in a process of its own beside clray's where the
+`mitsuba` package is installed; otherwise the row says so. Measures only.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib.util
+import json
+import platform
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+HERE = Path(__file__).resolve().parent
+ROOT = HERE.parent
+MIB = 1024.0 * 1024.0
+
+# Runs in the child: one size; prints one JSON line.
+_CLRAY = """
+import json, resource, sys, time
+from pathlib import Path
+from clray.device.context import describe, select_device
+from clray.device.launch import render_packed
+from clray.model_scene import load_model_scene
+from clray.render import RenderSettings, pack_for
+
+def peak():
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
+
+path, warm = Path(sys.argv[1]), Path(sys.argv[2])
+settings = RenderSettings(width=1280, height=720, spp=1)
+device = select_device(None)
+render_packed(pack_for(load_model_scene(warm), settings, device), device)
+out = {"device": describe(device), "rss_before": peak()}
+t = time.perf_counter()
+scene = load_model_scene(path)
+out["load_s"] = time.perf_counter() - t
+out["peak_after_load"] = peak()
+t = time.perf_counter()
+packed = pack_for(scene, settings, device)
+out["bvh_s"] = packed.bvh_s
+out["pack_s"] = time.perf_counter() - t - packed.bvh_s
+out["peak_after_pack"] = peak()
+out["device_bytes"] = packed.device_bytes()
+out["triangles"] = int(len(packed.triangles))
+_, stats = render_packed(packed, device)
+out["build_s"], out["kernel_s"] = stats["build_s"], stats["kernel_s"]
+out["peak_after_render"] = peak()
+print(json.dumps(out))
+"""
+
+_MITSUBA = """
+import json, resource, sys, time
+import mitsuba as mi
+mi.set_variant("scalar_rgb")
+t = time.perf_counter()
+scene = mi.load_dict({"type": "scene", "mesh": {"type": "ply", "filename": sys.argv[1]}})
+out = {"load_s": time.perf_counter() - t, "mitsuba": mi.__version__,
+       "peak": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024}
+print(json.dumps(out))
+"""
+
+
+def _mesh_module():
+    spec = importlib.util.spec_from_file_location("make_mesh_scene", HERE / "make_mesh_scene.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def write_ply(path: Path, subdivisions: int) -> int:
+    """The bumpy icosphere of benchmarks/make_mesh_scene.py as a binary PLY (positions and
+    faces only); returns its triangle count."""
+    mesh = _mesh_module()
+    vertices, faces, _ = mesh.bumpy_mesh(subdivisions, mesh.SCENE_CENTER, mesh.SCENE_RADIUS)
+    face = np.empty(len(faces), dtype=[("n", "u1"), ("v", "<i4", (3,))])
+    face["n"], face["v"] = 3, faces
+    header = (f"ply\nformat binary_little_endian 1.0\nelement vertex {len(vertices)}\n"
+              "property float x\nproperty float y\nproperty float z\n"
+              f"element face {len(faces)}\nproperty list uchar int vertex_indices\nend_header\n")
+    with path.open("wb") as f:
+        f.write(header.encode("ascii"))
+        f.write(vertices.astype("<f4").tobytes())
+        f.write(face.tobytes())
+    return len(faces)
+
+
+def _child(code: str, *args: str) -> dict:
+    done = subprocess.run([sys.executable, "-c", code, *args], capture_output=True, text=True,
+                          cwd=ROOT)
+    if done.returncode != 0:
+        return {"error": done.stderr.strip().splitlines()[-1][:300] if done.stderr else
+                f"exit {done.returncode}"}
+    return json.loads(done.stdout.strip().splitlines()[-1])
+
+
+def _has_mitsuba() -> bool:
+    return importlib.util.find_spec("mitsuba") is not None
+
+
+def measure(path: Path, warm: Path, mitsuba: bool) -> dict:
+    row = _child(_CLRAY, str(path), str(warm))
+    if "error" not in row:
+        triangles = row["triangles"]
+        device = sum(row["device_bytes"].values())
+        row["device_bytes_total"] = device
+        row["device_bytes_per_triangle"] = device / triangles
+        row["load_bvh_pack_s"] = row["load_s"] + row["bvh_s"] + row["pack_s"]
+        row["host_peak"] = row["peak_after_render"]
+        row["host_peak_over_device"] = row["host_peak"] / device
+        row["mtriangles_per_s_bvh"] = triangles / row["bvh_s"] / 1e6
+    row["file_bytes"] = path.stat().st_size
+    row["mitsuba"] = _child(_MITSUBA, str(path)) if mitsuba else "not installed"
+    return row
+
+
+def _summary(s: int, row: dict) -> str:
+    if "error" in row:
+        return f"{s} subdivisions: {row['error']}"
+    mitsuba = row["mitsuba"]
+    if isinstance(mitsuba, dict):
+        mitsuba = (f"{mitsuba['load_s']:.2f} s, peak {mitsuba['peak'] / MIB:.0f} MiB"
+                   if "load_s" in mitsuba else mitsuba["error"])
+    return (f"{s} subdivisions, {row['triangles']:,} triangles: load {row['load_s']:.2f} s, "
+            f"bvh {row['bvh_s']:.2f} s, pack {row['pack_s']:.2f} s (together "
+            f"{row['load_bvh_pack_s']:.2f} s), build {row['build_s']:.2f} s, kernel "
+            f"{row['kernel_s']:.2f} s; host peak {row['host_peak'] / MIB:.0f} MiB "
+            f"({row['host_peak_over_device']:.2f}x device), device "
+            f"{row['device_bytes_total'] / MIB:.1f} MiB = "
+            f"{row['device_bytes_per_triangle']:.1f} B a triangle; Mitsuba 3: {mitsuba}")
+
+
+def plot(rows: dict[str, dict], out: Path) -> None:
+    """Seconds by stage and host peak / device memory against triangles (the `plot` extra)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    done = [r for r in rows.values() if "error" not in r]
+    tris = np.array([r["triangles"] for r in done]) / 1e6
+    fig, (ax_t, ax_m) = plt.subplots(1, 2, figsize=(10, 4))
+    for key in ("load_s", "bvh_s", "pack_s", "kernel_s"):
+        ax_t.plot(tris, [r[key] for r in done], "o-", label=key[:-2])
+    mitsuba = [(t, r["mitsuba"]["load_s"]) for t, r in zip(tris, done, strict=True)
+               if isinstance(r["mitsuba"], dict) and "load_s" in r["mitsuba"]]
+    if mitsuba:
+        ax_t.plot(*zip(*mitsuba, strict=True), "k--", label="Mitsuba 3 load")
+    ax_t.set(xlabel="million triangles", ylabel="seconds", title="time by stage")
+    ax_t.legend()
+    ax_m.plot(tris, [r["host_peak"] / MIB for r in done], "o-", label="host peak (ru_maxrss)")
+    ax_m.plot(tris, [r["device_bytes_total"] / MIB for r in done], "o-", label="device buffers")
+    ax_m.set(xlabel="million triangles", ylabel="MiB", title="memory")
+    ax_m.legend()
+    fig.suptitle(f"clray render MODEL.ply, bumpy icosphere ({done[0]['device']})", fontsize=9)
+    fig.tight_layout()
+    fig.savefig(out, dpi=90)
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--subdivisions", default="7,8,9", help="comma-separated sizes "
+                        "(10: 21 M triangles, about 10 GB of host memory today)")
+    parser.add_argument("--json", type=Path, default=HERE / "results" / "scale.json")
+    parser.add_argument("--mesh-dir", type=Path, help="keep the PLY files here (default: a "
+                        "temporary folder)")
+    parser.add_argument("--mitsuba", choices=("auto", "off"), default="auto")
+    parser.add_argument("--plot", type=Path, help="write the figure here (needs matplotlib)")
+    args = parser.parse_args(argv)
+    mitsuba = args.mitsuba == "auto" and _has_mitsuba()
+    rows: dict[str, dict] = {}
+    with tempfile.TemporaryDirectory() as tmp_name:
+        folder = args.mesh_dir or Path(tmp_name)
+        folder.mkdir(parents=True, exist_ok=True)
+        warm = folder / "bumpy3.ply"
+        write_ply(warm, 3)
+        for s in (int(v) for v in args.subdivisions.split(",")):
+            path = folder / f"bumpy{s}.ply"
+            if not path.exists():
+                write_ply(path, s)
+            rows[str(s)] = measure(path, warm, mitsuba)
+            print(_summary(s, rows[str(s)]), flush=True)
+    args.json.parent.mkdir(parents=True, exist_ok=True)
+    args.json.write_text(json.dumps({"python": platform.python_version(),
+                                     "numpy": np.__version__, "sizes": rows}, indent=2) + "\n")
+    print(f"wrote {args.json}")
+    if args.plot:
+        plot(rows, args.plot)
+        print(f"wrote {args.plot}")
+
+
+if __name__ == "__main__":
+    main()

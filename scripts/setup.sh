@@ -39,7 +39,7 @@ fi
 # Reinstall only when pyproject.toml (dependencies, extras) is newer than the last install.
 if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ]; then
     say "installing clray (editable) with dev tools into .venv"
-    "$venv_python" -m pip install -q --disable-pip-version-check -e '.[dev,plot,exr,dask,tune]'
+    "$venv_python" -m pip install -q --disable-pip-version-check -e '.[dev,plot,exr,dask,tune,denoise]'
     touch "$stamp"
 fi
 

@@ -1,0 +1,86 @@
+"""Denoising (clray.denoise, docs/denoising.md): against a clean synthetic image, and the
+one-line error when the optional binding is missing."""
+
+from __future__ import annotations
+
+import sys
+
+import numpy as np
+import pytest
+
+from clray.denoise import DENOISE_MISSING, check_denoiser, denoise
+from clray.errors import ClrayError
+from clray.metrics import rmse
+
+
+def _clean_scene() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(image, albedo, normal) of a lit checkerboard floor and a disc: smooth lighting times a
+    texture with sharp edges, which a denoiser must keep."""
+    height, width = 96, 128
+    y, x = np.mgrid[0:height, 0:width].astype(np.float64)
+    checker = ((x // 16 + y // 16) % 2).astype(bool)
+    albedo = np.where(checker[..., None], (0.8, 0.7, 0.2), (0.15, 0.3, 0.7))
+    disc = (x - 80) ** 2 + (y - 40) ** 2 < 22 ** 2
+    albedo[disc] = (0.9, 0.9, 0.9)
+    normal = np.zeros((height, width, 3))
+    normal[..., 1] = 1.0
+    dz = np.sqrt(np.clip(1 - ((x - 80) ** 2 + (y - 40) ** 2) / 22 ** 2, 0, 1))
+    normal[disc] = np.stack([(x - 80) / 22, (40 - y) / 22, dz], -1)[disc]
+    light = 0.4 + 1.2 * np.exp(-((x - 30) ** 2 + (y - 70) ** 2) / 2000)
+    shade = np.clip(0.3 + 0.7 * normal[..., 1:2] + 0.5 * normal[..., 2:], 0, None)
+    image = albedo * light[..., None] * shade
+    return (image.astype(np.float32), albedo.astype(np.float32),
+            (normal / np.linalg.norm(normal, axis=-1, keepdims=True)).astype(np.float32))
+
+
+def _noisy(image: np.ndarray, samples: int) -> np.ndarray:
+    """Monte Carlo-like noise: the mean of `samples` exponential draws a pixel, unbiased."""
+    rng = np.random.default_rng(3)
+    return (image * rng.gamma(samples, 1 / samples, image.shape)).astype(np.float32)
+
+
+@pytest.mark.parametrize("guided", [False, True], ids=("alone", "guided"))
+def test_denoising_brings_a_noisy_image_closer_to_the_clean_one(guided: bool) -> None:
+    pytest.importorskip("pyoidn")
+    clean, albedo, normal = _clean_scene()
+    noisy = _noisy(clean, 4)
+    guides = {"albedo": albedo, "normal": normal} if guided else {}
+    denoised = denoise(noisy, **guides)
+    assert denoised.dtype == np.float32 and denoised.shape == clean.shape
+    assert rmse(denoised, clean) < 0.5 * rmse(noisy, clean)
+
+
+def test_guides_keep_the_texture_edges() -> None:
+    pytest.importorskip("pyoidn")
+    clean, albedo, normal = _clean_scene()
+    noisy = _noisy(clean, 2)
+    assert rmse(denoise(noisy, albedo, normal), clean) < rmse(denoise(noisy), clean)
+
+
+def test_non_finite_pixels_count_as_black() -> None:
+    pytest.importorskip("pyoidn")
+    clean, albedo, normal = _clean_scene()
+    noisy = _noisy(clean, 4)
+    noisy[10, 10] = (np.nan, np.inf, -np.inf)
+    denoised = denoise(noisy, albedo, normal)
+    assert np.isfinite(denoised).all()
+    assert rmse(denoised, clean) < 0.5 * rmse(np.nan_to_num(noisy, posinf=0, neginf=0), clean)
+
+
+def test_mismatched_passes_are_refused() -> None:
+    pytest.importorskip("pyoidn")
+    clean, albedo, normal = _clean_scene()
+    with pytest.raises(ValueError, match="albedo pass has shape"):
+        denoise(clean, albedo[:-1], normal)
+    with pytest.raises(ValueError, match="normal pass only with the albedo"):
+        denoise(clean, normal=normal)
+
+
+def test_missing_binding_names_the_extra(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setitem(sys.modules, "pyoidn", None)  # import pyoidn raises ImportError
+    with pytest.raises(ClrayError) as err:
+        check_denoiser()
+    assert str(err.value) == DENOISE_MISSING
+    assert "pip install 'clray[denoise]'" in DENOISE_MISSING and "\n" not in DENOISE_MISSING
+    with pytest.raises(ClrayError, match=r"clray\[denoise\]"):
+        denoise(np.zeros((2, 2, 3), np.float32))

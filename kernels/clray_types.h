@@ -15,6 +15,7 @@
 #define PRIM_CONE 4
 #define PRIM_TRIANGLE 5
 #define PRIM_INSTANCE 6
+#define PRIM_TORUS 7
 #define PRIM_TYPE_SHIFT 28
 #define PRIM_INDEX_MASK 0x0FFFFFFF
 
@@ -65,6 +66,13 @@ typedef struct {
     int capped;
     int pad0, pad1;
 } Cone;
+
+typedef struct {
+    float4 centre_major;  // xyz centre, w major radius (the circle's)
+    float4 axis_minor;    // xyz unit axis, w minor radius (the tube's), 0 < minor <= major
+    int material;
+    int pad0, pad1, pad2;
+} Torus;
 
 // Triangle.material: the material index in the low 24 bits, and these flags above it.
 #define TRIANGLE_MATERIAL_MASK 0x00FFFFFF

@@ -363,6 +363,21 @@ static inline bool filter_crossings(const SceneRefs* s, const Crossings* c, int 
     return true;
 }
 
+#if HAS_TORI && HAS_TRANSMISSION
+// filter_crossings for a torus, which a line can cross four times: every crossing in (0, tmax).
+static inline bool filter_torus_crossings(const SceneRefs* s, int ref, const Ray* r, int instance,
+                                          REAL tmax, REAL3* filter) {
+    REAL t[TORUS_ROOTS];
+    int n = torus_crossings(s->tori + (ref & PRIM_INDEX_MASK), r, t);
+    const __global Material* m = s->materials + crossing_material(s, ref, instance);
+    for (int k = 0; k < n && t[k] < tmax; ++k) {
+        *filter *= TO_REAL(m->transmit) * TO_REAL3(m->color);
+        if (max_comp3(*filter) <= (REAL)0) return false;
+    }
+    return true;
+}
+#endif
+
 #if !HAS_TRANSMISSION
 // Whether any shape of a packet crosses the segment (0, tmax): in an opaque scene that is all a
 // shadow ray needs, decided on the lanes' t without building their Crossings.
@@ -420,6 +435,12 @@ HOT bool leaf_transmission(const SceneRefs* s, int slot, int count, const Ray* r
     }
     for (int k = 0; k < (count & LEAF_FIELD_MASK); ++k) {
         int ref = s->prim_refs[slot + k];
+#if HAS_TORI && HAS_TRANSMISSION
+        if ((ref >> PRIM_TYPE_SHIFT) == PRIM_TORUS) {
+            if (!filter_torus_crossings(s, ref, r, instance, tmax, filter)) return false;
+            continue;
+        }
+#endif
         Crossings other = intersect_prim(s, ref, r);
         if (!filter_crossings(s, &other, ref, instance, tmax, filter)) return false;
     }

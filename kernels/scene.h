@@ -19,6 +19,7 @@
     X(Box, boxes) SEP                       \
     X(Cylinder, cylinders) SEP              \
     X(Cone, cones) SEP                      \
+    X(Torus, tori) SEP                      \
     X(Triangle, triangles) SEP              \
     X(TrianglePacket, triangle_packets) SEP \
     X(SpherePacket, sphere_packets) SEP     \
@@ -42,7 +43,8 @@
 #define SCENE_BUFFER_ARGS SCENE_BUFFERS(SCENE_BUFFER_ARG, SCENE_COMMA)
 
 // Whether the build has a BVH to walk: the planes, unbounded, are tested one by one.
-#define HAS_BVH (HAS_SPHERES || HAS_BOXES || HAS_CYLINDERS || HAS_CONES || HAS_TRIANGLES)
+#define HAS_BVH \
+    (HAS_SPHERES || HAS_BOXES || HAS_CYLINDERS || HAS_CONES || HAS_TORI || HAS_TRIANGLES)
 
 // COUNT_TESTS (the instrumented build of benchmarks/bench.py): box and primitive tests per
 // work-item, for closest-hit and shadow queries apart.

@@ -16,6 +16,7 @@
 #include "box.h"
 #include "cylinder.h"
 #include "cone.h"
+#include "torus.h"
 #include "triangle.h"
 
 // Triangles and spheres are tested in packets (leaf_closest, leaf_transmission), the other
@@ -42,6 +43,10 @@ HOT Crossings intersect_prim(const SceneRefs* s, int ref, const Ray* r) {
 #if HAS_CONES
         case PRIM_CONE:
             return intersect_cone(s->cones + i, r);
+#endif
+#if HAS_TORI
+        case PRIM_TORUS:
+            return intersect_torus(s->tori + i, r);
 #endif
         default:
             return no_crossings();
@@ -70,6 +75,10 @@ static inline int prim_material(const SceneRefs* s, int ref) {
 #if HAS_CONES
         case PRIM_CONE:
             return s->cones[i].material;
+#endif
+#if HAS_TORI
+        case PRIM_TORUS:
+            return s->tori[i].material;
 #endif
 #if HAS_TRIANGLES
         case PRIM_TRIANGLE:
@@ -156,6 +165,11 @@ HOT Surface shape_surface(const SceneRefs* s, const Ray* r, const Hit* hit, bool
 #if HAS_CONES
         case PRIM_CONE:
             cone_surface(s->cones + i, r, hit, want_uv, gamma, &p, &sf);
+            break;
+#endif
+#if HAS_TORI
+        case PRIM_TORUS:
+            torus_surface(s->tori + i, want_uv, gamma, &p, &sf);
             break;
 #endif
 #if HAS_TRIANGLES

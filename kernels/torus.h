@@ -221,6 +221,42 @@ static inline int torus_crossings(const __global Torus* tr, const Ray* r, REAL* 
     }
     return count;
 }
+
+// A torus's first two crossings ahead, as every shape reports them (shape.h): closest-hit takes
+// the first. Shadow rays, which count every crossing, take all of them (bvh.h:
+// filter_torus_crossings).
+static OUT_OF_LINE Crossings intersect_torus(const __global Torus* tr, const Ray* r) {
+    REAL t[TORUS_ROOTS];
+    torus_crossings(tr, r, t);
+    Crossings c = no_crossings();
+    c.t[0] = t[0];
+    c.t[1] = t[1];
+    return c;
+}
+
+// shape_surface's part for a torus: *p, the ray's point on entry, re-projected onto the tube
+// along its normal (from the nearest point of the circle); its outward normal, error bound
+// (gamma: the bound's factor), material and, where want_uv, (u, v): around the axis and around
+// the tube (0 and 1 on the inner equator, 0.5 on the outer).
+HOT void torus_surface(const __global Torus* tr, bool want_uv, REAL gamma, REAL3* p,
+                       Surface* sf) {
+    REAL3 c = TO_REAL3(tr->centre_major), axis = normalize(TO_REAL3(tr->axis_minor));
+    REAL major = TO_REAL(tr->centre_major.w), minor = TO_REAL(tr->axis_minor.w);
+    REAL3 q = *p - c;
+    REAL h = dot(q, axis);
+    REAL3 radial = q - h * axis, e1, e2;
+    REAL rho = length(radial);
+    frame(axis, &e1, &e2);
+    REAL3 nr = rho > (REAL)0 ? radial / rho : e1;  // on the axis (minor = major): any radial
+    REAL3 n = safe_normalize(q - major * nr);
+    *p = c + major * nr + minor * n;
+    sf->n_g = n;
+    sf->err = gamma * (max_abs3(*p) + max_abs3(c) + major + minor);
+    if (want_uv) {
+        sf->uv = (REAL2)(angle_u(dot(q, e2), dot(q, e1)), angle_u(dot(n, axis), dot(n, nr)));
+    }
+    sf->material = tr->material;
+}
 #endif
 
 #endif

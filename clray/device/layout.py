@@ -19,6 +19,7 @@ from clray.accel.prim_refs import PRIM_INDEX_MASK as PRIM_INDEX_MASK
 from clray.accel.prim_refs import PRIM_INSTANCE as PRIM_INSTANCE
 from clray.accel.prim_refs import PRIM_PLANE as PRIM_PLANE
 from clray.accel.prim_refs import PRIM_SPHERE as PRIM_SPHERE
+from clray.accel.prim_refs import PRIM_TORUS as PRIM_TORUS
 from clray.accel.prim_refs import PRIM_TRIANGLE as PRIM_TRIANGLE
 from clray.accel.prim_refs import PRIM_TYPE_SHIFT as PRIM_TYPE_SHIFT
 from clray.accel.wide import BVH_WIDTHS as BVH_WIDTHS
@@ -56,6 +57,7 @@ CYLINDER = _struct([("base_radius", _F4), ("axis_height", _F4), ("material", "<i
                     ("capped", "<i4"), ("pad0", "<i4"), ("pad1", "<i4")])
 CONE = _struct([("apex_tan", _F4), ("axis_height", _F4), ("material", "<i4"),
                 ("capped", "<i4"), ("pad0", "<i4"), ("pad1", "<i4")])
+TORUS = _struct([("centre_major", _F4), ("axis_minor", _F4), ("material", "<i4"), *_PAD])
 TRIANGLE = _struct([("v0", "<i4"), ("v1", "<i4"), ("v2", "<i4"), ("material", "<i4")])
 MATERIAL = _struct([("color", _F4), ("ambient", "<f4"), ("diffuse", "<f4"),
                     ("specular", "<f4"), ("shininess", "<f4"), ("reflect", "<f4"),
@@ -97,6 +99,7 @@ STRUCTS: dict[str, np.dtype] = {
     "Box": BOX,
     "Cylinder": CYLINDER,
     "Cone": CONE,
+    "Torus": TORUS,
     "Triangle": TRIANGLE,
     "Material": MATERIAL,
     "Texture": TEXTURE,
@@ -137,6 +140,7 @@ SCENE_BUFFERS: tuple[SceneBuffer, ...] = tuple(SceneBuffer(name, element) for na
     ("boxes", "Box"),
     ("cylinders", "Cylinder"),
     ("cones", "Cone"),
+    ("tori", "Torus"),
     ("triangles", "Triangle"),
     ("triangle_packets", "TrianglePacket"),  # one per PACKET_WIDTH slots of prim_refs
     ("sphere_packets", "SpherePacket"),  # likewise (spheres only)

@@ -194,6 +194,25 @@ def _pack_cylinders(objs: _Placed, bounded: _Bounded) -> np.ndarray:
     return cylinders
 
 
+def _pack_tori(objs: _Placed, bounded: _Bounded) -> np.ndarray:
+    tori = _records(L.TORUS, len(objs.objects))
+    for i, (o, origin) in enumerate(zip(objs.objects, objs.origins, strict=True)):
+        tori[i]["centre_major"] = _f4(np.asarray(o.center) - origin, o.major)
+        tori[i]["axis_minor"] = _f4(o.axis, o.minor)
+        tori[i]["material"] = o.material
+    if len(tori):
+        # Bounds of the stored (float32) shape: the circle's extent on each world axis, and the
+        # tube's radius around it.
+        centre = tori["centre_major"][:, :3].astype(np.float64)
+        axis = tori["axis_minor"][:, :3].astype(np.float64)
+        axis /= np.linalg.norm(axis, axis=1)[:, None]
+        ext = (tori["centre_major"][:, 3:].astype(np.float64)
+               * np.sqrt(np.clip(1.0 - axis * axis, 0.0, 1.0))
+               + tori["axis_minor"][:, 3:].astype(np.float64))
+        bounded.add(L.PRIM_TORUS, centre - ext, centre + ext, objs.owners)
+    return tori
+
+
 def _pack_cones(objs: _Placed, bounded: _Bounded) -> np.ndarray:
     cones = _records(L.CONE, len(objs.objects))
     lo, hi = [], []
@@ -527,12 +546,12 @@ def _by_kind(objects: tuple[M.SceneObject, ...], groups: list[M.Group], eye: np.
              ) -> dict[type, _Placed]:
     """The scene's objects (stored relative to the eye) and then each group's (in its own
     frame), sorted by the array they pack into: Sphere (with Spheres), Plane, Box, Cylinder,
-    Cone, Triangle (with Mesh)."""
+    Cone, Torus, Triangle (with Mesh)."""
     owned = [(obj, eye, 0) for obj in objects if not isinstance(obj, M.Instance)]
     owned += [(obj, np.zeros(3), g + 1) for g, group in enumerate(groups) for obj in group.objects]
     array_of = {M.Spheres: M.Sphere, M.Mesh: M.Triangle}
     kinds = {}
-    for kind in (M.Sphere, M.Plane, M.Box, M.Cylinder, M.Cone, M.Triangle):
+    for kind in (M.Sphere, M.Plane, M.Box, M.Cylinder, M.Cone, M.Torus, M.Triangle):
         mine = [item for item in owned if array_of.get(type(item[0]), type(item[0])) is kind]
         kinds[kind] = _Placed([item[0] for item in mine],
                               np.array([item[1] for item in mine]).reshape(-1, 3),
@@ -597,6 +616,7 @@ def pack_scene(scene: M.Scene, *, width: int, height: int, spp: int, max_depth: 
     boxes = _pack_boxes(kinds[M.Box], bounded)
     cylinders = _pack_cylinders(kinds[M.Cylinder], bounded)
     cones = _pack_cones(kinds[M.Cone], bounded)
+    tori = _pack_tori(kinds[M.Torus], bounded)
     tris = _pack_triangles(kinds[M.Triangle], bounded)
     wide, instance_records, bvh_s = _pack_bvh(bounded, len(groups), instances, group_of, eye,
                                               bvh_width, queue, tuning)
@@ -621,6 +641,7 @@ def pack_scene(scene: M.Scene, *, width: int, height: int, spp: int, max_depth: 
         has_boxes=len(boxes) > 0,
         has_cylinders=len(cylinders) > 0,
         has_cones=len(cones) > 0,
+        has_tori=len(tori) > 0,
         has_triangles=len(tris.triangles) > 0,
         has_vertex_normals=len(tris.normals) > 0,
         has_vertex_uvs=len(tris.uvs) > 0,
@@ -633,7 +654,8 @@ def pack_scene(scene: M.Scene, *, width: int, height: int, spp: int, max_depth: 
         **{"fp64_spheres": len(spheres) > 0 and needs_fp64_spheres(scene), **variants},
     )
     return PackedScene(camera=camera, params=params, planes=planes, spheres=spheres,
-                       boxes=boxes, cylinders=cylinders, cones=cones, triangles=tris.triangles,
+                       boxes=boxes, cylinders=cylinders, cones=cones, tori=tori,
+                       triangles=tris.triangles,
                        triangle_packets=triangle_packets, sphere_packets=sphere_packets,
                        normals=tris.normals, uvs=tris.uvs, nodes=wide.nodes,
                        prim_refs=wide.prim_refs, materials=materials, textures=textures,

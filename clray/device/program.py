@@ -56,6 +56,7 @@ class KernelConfig:
     has_boxes: bool = False
     has_cylinders: bool = False
     has_cones: bool = False
+    has_tori: bool = False
     has_triangles: bool = False
     has_vertex_normals: bool = False
     has_vertex_uvs: bool = False

@@ -22,12 +22,15 @@ from clray.scene.model import (
     SceneObject,
     Sphere,
     Spheres,
+    Torus,
     Triangle,
 )
 
 # Ties in t go to the earlier type in this order, then to the earlier object in the scene.
-# Triangles (loose and mesh) come last and are intersected as one batch.
-TIE_ORDER: tuple[type, ...] = (Plane, Sphere, Box, Cylinder, Cone)
+# Triangles (loose and mesh), intersected as one batch, come after the shapes of TIE_ORDER and
+# before those of AFTER_TRIANGLES (the kernels' type codes: clray.accel.prim_refs).
+TIE_ORDER: tuple[type, ...] = (Plane, Sphere, Box, Cylinder, Cone, Torus)
+AFTER_TRIANGLES: tuple[type, ...] = (Torus,)
 # Rays x triangles handled per numpy step: bounds memory to a few tens of MB.
 _TRIANGLE_BATCH = 1 << 17
 # Crossings whose t differ by at most this, relative to t, tie (docs/rendering.md): 64 roundings,
@@ -149,28 +152,46 @@ class Geometry:
         best_t = np.full(n, np.inf)
         best_shape = np.full(n, -1, dtype=np.int64)
         best_part = np.zeros(n, dtype=np.int64)
+        best_tri = np.full(n, -1, dtype=np.int64)
+        best_b = np.zeros((n, 2))
+        nearest = _Nearest(best_t, best_shape, best_part, best_tri, best_b)
+        self._nearest_shapes(o, d, nearest, after_triangles=False)
+        self._nearest_triangles(o, d, nearest)
+        self._nearest_shapes(o, d, nearest, after_triangles=True)
+        return nearest
+
+    def _nearest_shapes(self, o: np.ndarray, d: np.ndarray, nearest: _Nearest,
+                        after_triangles: bool) -> None:
+        """The shapes' crossings into `nearest`: those of TIE_ORDER before the triangles, or
+        those of AFTER_TRIANGLES."""
+        best_t, best_shape, best_part = nearest.t, nearest.shape, nearest.part
         for k, (_, ob) in enumerate(self.shapes):
+            if (type(ob) in AFTER_TRIANGLES) != after_triangles:
+                continue
             for t, part in INTERSECT[type(ob)](ob, o, d):
                 # Shapes come in tie order: a later one wins only when nearer beyond a tie.
                 better = (t > 0.0) & (t < _tie_floor(best_t, t))
                 best_t[better] = t[better]
                 best_shape[better] = k
                 best_part[better] = part[better]
-        best_tri = np.full(n, -1, dtype=np.int64)
-        best_b = np.zeros((n, 2))
+                nearest.triangle[better] = -1
+
+    def _nearest_triangles(self, o: np.ndarray, d: np.ndarray, nearest: _Nearest) -> None:
+        n = len(o)
+        best_t, best_shape, best_tri, best_b = (nearest.t, nearest.shape, nearest.triangle,
+                                                nearest.b)
         rows = np.arange(n)
         for batch in self._triangle_batches(n):
             t, b1, b2 = intersect_triangle(self.tri_v[batch], o, d)
             # The first (in file order) of the triangles that tie with the batch's nearest.
-            nearest = t.min(axis=1, keepdims=True)
-            j = np.argmax(t <= nearest + TIE_TOLERANCE * nearest, axis=1)
+            closest = t.min(axis=1, keepdims=True)
+            j = np.argmax(t <= closest + TIE_TOLERANCE * closest, axis=1)
             tj = t[rows, j]
             better = tj < _tie_floor(best_t, tj)
             best_t[better] = tj[better]
             best_shape[better] = -1
             best_tri[better] = batch.start + j[better]
             best_b[better] = np.stack([b1[rows, j], b2[rows, j]], axis=-1)[better]
-        return _Nearest(best_t, best_shape, best_part, best_tri, best_b)
 
     def _hit_record(self, nearest: _Nearest, o: np.ndarray, d: np.ndarray) -> SceneHit:
         """Normals, uv, object and material at the nearest crossings."""

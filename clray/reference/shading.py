@@ -28,6 +28,7 @@ from clray.scene.model import (
     Sphere,
     SphereLight,
     SpotLight,
+    Torus,
     TriangleLight,
 )
 
@@ -90,6 +91,21 @@ def _cone_surface(c: Cone, p: np.ndarray, part: np.ndarray) -> tuple[np.ndarray,
     return n, np.where((part == 0)[:, None], side_uv, cap_uv)
 
 
+def _torus_surface(tr: Torus, p: np.ndarray, part: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Away from the circle's nearest point; (u, v) around the axis and around the tube (0.5
+    on the outer equator)."""
+    centre, axis = vec(tr.center), vec(tr.axis)
+    e1, e2 = frame(axis)
+    q = p - centre
+    radial = q - (q @ axis)[:, None] * axis
+    rho = np.linalg.norm(radial, axis=-1)
+    nr = np.where((rho > 0.0)[:, None], radial / np.where(rho > 0.0, rho, 1.0)[:, None], e1)
+    n = safe_normalize(q - tr.major * nr)
+    uv = np.stack([0.5 + np.arctan2(q @ e2, q @ e1) / (2 * np.pi),
+                   0.5 + np.arctan2(n @ axis, np.sum(n * nr, axis=-1)) / (2 * np.pi)], axis=-1)
+    return n, uv
+
+
 # A shape's (outward geometric normal, uv) at points p on it, `part` the face its crossing hit.
 SHAPE_SURFACE: dict[type, Callable[..., tuple[np.ndarray, np.ndarray]]] = {
     Plane: _plane_surface,
@@ -97,6 +113,7 @@ SHAPE_SURFACE: dict[type, Callable[..., tuple[np.ndarray, np.ndarray]]] = {
     Box: _box_surface,
     Cylinder: _cylinder_surface,
     Cone: _cone_surface,
+    Torus: _torus_surface,
 }
 
 

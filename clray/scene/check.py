@@ -20,7 +20,8 @@ from clray.scene.load import scene_from_dict
 
 _OBJECT_TYPES: dict[type, str] = {
     M.Sphere: "sphere", M.Plane: "plane", M.Box: "box", M.Triangle: "triangle",
-    M.Mesh: "mesh", M.Cylinder: "cylinder", M.Cone: "cone", M.Spheres: "spheres",
+    M.Mesh: "mesh", M.Cylinder: "cylinder", M.Cone: "cone", M.Torus: "torus",
+    M.Spheres: "spheres",
 }
 _MESH_ARRAYS = ("vertices", "faces", "normals", "uvs")
 

@@ -282,13 +282,25 @@ class Cone:
     capped: bool = True
 
 
+@dataclass(frozen=True)
+class Torus:
+    """The points at distance `minor` from the circle of radius `major` about `axis` through
+    `center` (a ring: minor <= major)."""
+
+    center: Vec3
+    axis: Vec3  # unit, the circle's normal
+    major: float
+    minor: float
+    material: int
+
+
 @dataclass(frozen=True, eq=False)
 class Group:
     """Objects defined once, in their own frame, to be placed by instances. Identity matters:
     instances of one Group share its primitives and BVH on the device."""
 
     name: str
-    objects: tuple[Sphere | Spheres | Box | Triangle | Mesh | Cylinder | Cone, ...]
+    objects: tuple[Sphere | Spheres | Box | Triangle | Mesh | Cylinder | Cone | Torus, ...]
 
 
 @dataclass(frozen=True, eq=False)
@@ -301,7 +313,8 @@ class Instance:
     material: int | None = None
 
 
-SceneObject = Sphere | Spheres | Plane | Box | Triangle | Mesh | Cylinder | Cone | Instance
+SceneObject = (Sphere | Spheres | Plane | Box | Triangle | Mesh | Cylinder | Cone | Torus
+               | Instance)
 
 
 @dataclass(frozen=True)

@@ -18,6 +18,7 @@ from clray.scene.model import (
     Plane,
     SceneObject,
     Sphere,
+    Torus,
     Triangle,
 )
 from clray.scene.parse_materials import MaterialTable
@@ -36,6 +37,7 @@ OBJECT_KEYS: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
     "mesh": ((), ("file", "vertices", "faces", "normals", "uvs", "materials", "material_index")),
     "cylinder": (("base", "axis", "radius", "height"), ("capped",)),
     "cone": (("apex", "axis", "angle", "height"), ("capped",)),
+    "torus": (("center", "axis", "major_radius", "minor_radius"), ()),
     "spheres": ((), ("file", "centers", "radii", "radius", "materials", "material_index")),
     "instance": (("group",), ()),
 }
@@ -146,6 +148,8 @@ class ObjectParser:
             return Triangle(v.points(spec["vertices"], k("vertices"), exactly=3), material)
         if kind == "mesh":
             return parse_mesh(spec, key, material, v, assets, self.materials)
+        if kind == "torus":
+            return self.torus(spec, key, material)
         capped = v.boolean(spec.get("capped", True), k("capped"))
         axis = v.direction(spec["axis"], k("axis"))
         height = v.length(spec["height"], k("height"))
@@ -166,6 +170,18 @@ class ObjectParser:
             material=material,
             capped=capped,
         )
+
+    def torus(self, spec: dict, key: str, material: int) -> Torus:
+        v = self.v
+        major = v.length(spec["major_radius"], f"{key}.major_radius")
+        minor = v.length(spec["minor_radius"], f"{key}.minor_radius")
+        # A minor radius past the major one folds the tube through the axis (a spindle torus),
+        # whose inner surface the ring's formulas do not describe.
+        if minor > major:
+            raise v.error(f"{key}.minor_radius",
+                          f"must be at most major_radius ({show(major)}), got {show(minor)}")
+        return Torus(v.vec3(spec["center"], f"{key}.center"),
+                     v.direction(spec["axis"], f"{key}.axis"), major, minor, material)
 
     def box(self, spec: dict, key: str, material: int) -> Box:
         v = self.v

@@ -28,7 +28,7 @@ TINY_LENGTH = 1e-18
 HUGE_LENGTH = 1e18
 
 _KIND = {M.Sphere: "sphere", M.Box: "box", M.Triangle: "triangle", M.Mesh: "mesh",
-         M.Cylinder: "cylinder", M.Cone: "cone"}
+         M.Cylinder: "cylinder", M.Cone: "cone", M.Torus: "torus"}
 
 
 @dataclass(frozen=True)
@@ -52,6 +52,9 @@ def _centre_size(obj: M.SceneObject) -> tuple[np.ndarray, float]:
         apex, axis = np.asarray(obj.apex), np.asarray(obj.axis)
         rim = obj.height * float(np.tan(np.radians(obj.angle)))
         return apex + axis * obj.height / 2.0, float(max(obj.height, rim))
+    if isinstance(obj, M.Torus):
+        # The tube is what a ray must resolve: a thin ring far away is the hard case.
+        return np.asarray(obj.center, dtype=np.float64), float(obj.minor)
     points = np.asarray(obj.vertices, dtype=np.float64)  # Triangle or Mesh
     lo, hi = points.min(axis=0), points.max(axis=0)
     return (lo + hi) / 2.0, float(np.max(hi - lo))

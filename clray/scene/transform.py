@@ -1,10 +1,11 @@
 """Objects placed by an affine transform, applied on the host in float64 where that is exact.
 
 A transform x -> A x + t maps a triangle to a triangle and a plane to a plane whatever A is. A
-sphere, cylinder or cone stays one only under a similarity (A = s R, R orthogonal: rotation,
-uniform scale, mirroring), and an axis-aligned box stays one only when A maps axes onto axes (a
-signed permutation times a diagonal scale). Other transforms of those are intersected in the
-object's own frame instead (the loader makes it an instance); `place` says why it cannot.
+sphere, cylinder, cone or torus stays one only under a similarity (A = s R, R orthogonal:
+rotation, uniform scale, mirroring), and an axis-aligned box stays one only when A maps axes
+onto axes (a signed permutation times a diagonal scale). Other transforms of those are
+intersected in the object's own frame instead (the loader makes it an instance); `place` says
+why it cannot.
 """
 
 from __future__ import annotations
@@ -74,7 +75,8 @@ def place(obj: M.SceneObject, a: np.ndarray, t: np.ndarray) -> M.SceneObject | s
         return dataclasses.replace(obj, min=tuple(lo.tolist()), max=tuple(hi.tolist()))
     s = similarity_scale(a)
     if s is None:
-        return "scales or shears unevenly, which a sphere, cylinder or cone does not survive"
+        return ("scales or shears unevenly, which a sphere, cylinder, cone or torus does not "
+                "survive")
     if isinstance(obj, M.Sphere):
         return dataclasses.replace(obj, center=_point(a, t, obj.center), radius=obj.radius * s)
     if isinstance(obj, M.Cylinder):
@@ -84,6 +86,10 @@ def place(obj: M.SceneObject, a: np.ndarray, t: np.ndarray) -> M.SceneObject | s
     if isinstance(obj, M.Cone):
         return dataclasses.replace(obj, apex=_point(a, t, obj.apex),
                                    axis=_direction(a, obj.axis), height=obj.height * s)
+    if isinstance(obj, M.Torus):
+        return dataclasses.replace(obj, center=_point(a, t, obj.center),
+                                   axis=_direction(a, obj.axis), major=obj.major * s,
+                                   minor=obj.minor * s)
     if isinstance(obj, M.Spheres):
         return dataclasses.replace(obj, centers=obj.centers @ a.T + t, radii=obj.radii * s)
     raise TypeError(f"no placement for {type(obj).__name__}")

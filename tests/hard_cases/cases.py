@@ -815,6 +815,48 @@ def sheared_cylinder() -> HardCase:
     return HardCase("sheared_cylinder", scene, check)
 
 
+def meridian_hit(d: np.ndarray, height: float, major: float, minor: float
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """For unit rays from an eye on a torus's axis (the y axis through the origin, the eye at y
+    = height), each in a plane through the axis where the tube is a circle of radius `minor`
+    about (rho, y) = (major, 0): (the ray's distance from that circle's centre, the y of the
+    outward normal where it first crosses it; NaN where it does not)."""
+    dy = d[..., 1]
+    dh = np.hypot(d[..., 0], d[..., 2])
+    dist = np.abs(major * dy + height * dh)
+    along = major * dh - height * dy
+    with np.errstate(invalid="ignore"):
+        t = along - np.sqrt(minor * minor - dist * dist)
+    return dist, (height + t * dy) / minor
+
+
+def torus_on_axis(name: str, height: float, major: float, minor: float, look_at: list,
+                  vfov: float, lit: bool) -> HardCase:
+    """A torus seen from a point of its axis: thin (minor/major 1e-4), far (the eye 2,000
+    units off, the ray's origin that far from the tube in the kernel), or lit from above,
+    where acne would show as the ambient 0.1. Flat-coloured, each pixel must be the colour where
+    its ray passes the tube's circle within 0.97 minor and black beyond 1.03 minor; lit, the
+    Lambert value of the closed-form normal (a light straight down the axis casts no shadow of
+    the torus on itself)."""
+    torus = {"type": "torus", "center": [0, 0, 0], "axis": [0, 1, 0], "major_radius": major,
+             "minor_radius": minor, "material": "m"}
+    scene = _scene([torus], camera={"position": [0, height, 0], "look_at": look_at,
+                                    "up": [0, 0, 1], "vfov": vfov},
+                   materials={"m": MATTE if lit else FLAT}, width=47, height=35,
+                   lights=[{"type": "directional", "direction": [0, -1, 0]}] if lit else None)
+
+    def check(image: np.ndarray, s: Scene) -> None:
+        _, d = primary_rays(s)
+        dist, normal_y = meridian_hit(d, height, major, minor)
+        inside = dist < 0.97 * minor
+        value = (0.1 + 0.9 * normal_y[inside])[:, None] if lit else COLOR
+        close(image, inside, value, 2 / 255 if lit else 1e-6,
+              "on the tube" + (" (acne shows as 0.1)" if lit else ""))
+        close(image, dist > 1.03 * minor, (0, 0, 0), 0.0, "beside the tube")
+
+    return HardCase(name, scene, check)
+
+
 CASES: tuple[HardCase, ...] = (
     far_sphere(1e3, 1e-3),
     far_sphere(1e4, 1e-2),
@@ -849,6 +891,10 @@ CASES: tuple[HardCase, ...] = (
     thin_ellipsoid(edge_on=False),
     rotated_box(),
     sheared_cylinder(),
+    torus_on_axis("torus_down_the_axis", 3.0, 1.0, 0.5, [0, 0, 0], 70, lit=False),
+    torus_on_axis("torus_thin_1e-4", 1.0, 1.0, 1e-4, [1, 0, 0], 0.06, lit=False),
+    torus_on_axis("torus_far_2e3", 2000.0, 1.0, 0.25, [1, 0, 0], 0.03, lit=False),
+    torus_on_axis("torus_lit_acne", 4.0, 1.0, 0.4, [0, 0, 0], 50, lit=True),
 )
 
 

@@ -48,8 +48,8 @@ def device_crossings(device: cl.Device, o: np.ndarray, d: np.ndarray, torus: Tor
     source = kernel_source("torus.h") + PROBE
     program = cl.Program(ctx, source).build(options=options)
     record = np.zeros(1, dtype=L.TORUS)
-    record["centre_major"][0] = (*torus.center, torus.major)
-    record["axis_minor"][0] = (*torus.axis, torus.minor)
+    record["centre_major"][0] = (*torus.center, torus.major_radius)
+    record["axis_minor"][0] = (*torus.axis, torus.minor_radius)
     mf = cl.mem_flags
     buffers = [cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=a) for a in
                (np.ascontiguousarray(o, np.float32), np.ascontiguousarray(d, np.float32), record)]
@@ -70,7 +70,7 @@ def stored(torus: Torus) -> Torus:
 
     axis = f32(torus.axis)
     return Torus(tuple(f32(torus.center)), tuple(axis / np.linalg.norm(axis)),
-                 float(f32(torus.major)), float(f32(torus.minor)), 0)
+                 float(f32(torus.major_radius)), float(f32(torus.minor_radius)), 0)
 
 
 def aimed(rng: np.random.Generator, torus: Torus, n: int, dist: float
@@ -82,8 +82,8 @@ def aimed(rng: np.random.Generator, torus: Torus, n: int, dist: float
     e1 /= np.linalg.norm(e1)
     e2 = np.cross(axis, e1)
     phi, theta = rng.uniform(0, 2 * np.pi, (2, n))
-    off = 1.5 * torus.minor * np.sqrt(rng.uniform(0, 1, n))
-    ring = torus.major + off * np.cos(theta)
+    off = 1.5 * torus.minor_radius * np.sqrt(rng.uniform(0, 1, n))
+    ring = torus.major_radius + off * np.cos(theta)
     target = (np.asarray(torus.center) + (ring * np.cos(phi))[:, None] * e1
               + (ring * np.sin(phi))[:, None] * e2 + (off * np.sin(theta))[:, None] * axis)
     dirs = rng.normal(size=(n, 3))
@@ -97,7 +97,7 @@ def tube_distance(torus: Torus, p: np.ndarray) -> np.ndarray:
     q = p - np.asarray(torus.center)
     z = q @ np.asarray(torus.axis)
     rho = np.linalg.norm(q - z[:, None] * np.asarray(torus.axis), axis=1)
-    return np.abs(np.hypot(rho - torus.major, z) - torus.minor)
+    return np.abs(np.hypot(rho - torus.major_radius, z) - torus.minor_radius)
 
 
 def _axis(v: tuple) -> tuple:
@@ -257,4 +257,4 @@ def test_a_similarity_moves_the_torus_itself():
     assert isinstance(placed, Torus)
     assert np.allclose(placed.center, (2, 1, 0))
     assert np.allclose(np.abs(placed.axis), (0, 0, 1))
-    assert (placed.major, placed.minor) == (2.0, 0.5)
+    assert (placed.major_radius, placed.minor_radius) == (2.0, 0.5)

@@ -197,8 +197,8 @@ def _pack_cylinders(objs: _Placed, bounded: _Bounded) -> np.ndarray:
 def _pack_tori(objs: _Placed, bounded: _Bounded) -> np.ndarray:
     tori = _records(L.TORUS, len(objs.objects))
     for i, (o, origin) in enumerate(zip(objs.objects, objs.origins, strict=True)):
-        tori[i]["centre_major"] = _f4(np.asarray(o.center) - origin, o.major)
-        tori[i]["axis_minor"] = _f4(o.axis, o.minor)
+        tori[i]["centre_major"] = _f4(np.asarray(o.center) - origin, o.major_radius)
+        tori[i]["axis_minor"] = _f4(o.axis, o.minor_radius)
         tori[i]["material"] = o.material
     if len(tori):
         # Bounds of the stored (float32) shape: the circle's extent on each world axis, and the

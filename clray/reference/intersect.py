@@ -140,8 +140,8 @@ def _tube_distance(tr: Torus, q: np.ndarray, u: np.ndarray) -> tuple[np.ndarray,
     rho = np.linalg.norm(radial, axis=-1)
     with np.errstate(divide="ignore", invalid="ignore"):
         rho_slope = np.where(rho > 0.0, np.sum(radial * u, axis=-1) / rho, 0.0)
-    return ((rho - tr.major) ** 2 + z * z - tr.minor**2,
-            2.0 * (rho - tr.major) * rho_slope + 2.0 * z * uz)
+    return ((rho - tr.major_radius) ** 2 + z * z - tr.minor_radius**2,
+            2.0 * (rho - tr.major_radius) * rho_slope + 2.0 * z * uz)
 
 
 def intersect_torus(tr: Torus, o: np.ndarray, d: np.ndarray) -> Crossings:
@@ -156,9 +156,9 @@ def intersect_torus(tr: Torus, o: np.ndarray, d: np.ndarray) -> Crossings:
     s0 = -dot(o - centre, u)
     q = o - centre + s0[:, None] * u
     qq = dot(q, q)
-    big_s = qq + tr.major**2 - tr.minor**2
+    big_s = qq + tr.major_radius**2 - tr.minor_radius**2
     qa, ua = q @ axis, u @ axis
-    r2 = 4.0 * tr.major**2
+    r2 = 4.0 * tr.major_radius**2
     # (s^2 + S)^2 - 4 R^2 (s^2 + q.q - (qa + s ua)^2), as q.u = 0: monic, no cubic term.
     coeffs = np.stack([np.zeros_like(qa), 2.0 * big_s - r2 * (1.0 - ua * ua),
                        2.0 * r2 * qa * ua, big_s * big_s - r2 * (qq - qa * qa)], axis=-1)
@@ -166,7 +166,7 @@ def intersect_torus(tr: Torus, o: np.ndarray, d: np.ndarray) -> Crossings:
     companion[:, 0, :] = -coeffs
     companion[:, 1, 0] = companion[:, 2, 1] = companion[:, 3, 2] = 1.0
     roots = np.linalg.eigvals(companion)
-    real = np.abs(roots.imag) <= 1e-7 * (tr.major + tr.minor)
+    real = np.abs(roots.imag) <= 1e-7 * (tr.major_radius + tr.minor_radius)
     s = np.where(real, roots.real, np.nan)
     for _ in range(8):
         g, slope = _tube_distance(tr, q[:, None, :] + s[..., None] * u[:, None, :],

@@ -100,7 +100,7 @@ def _torus_surface(tr: Torus, p: np.ndarray, part: np.ndarray) -> tuple[np.ndarr
     radial = q - (q @ axis)[:, None] * axis
     rho = np.linalg.norm(radial, axis=-1)
     nr = np.where((rho > 0.0)[:, None], radial / np.where(rho > 0.0, rho, 1.0)[:, None], e1)
-    n = safe_normalize(q - tr.major * nr)
+    n = safe_normalize(q - tr.major_radius * nr)
     uv = np.stack([0.5 + np.arctan2(q @ e2, q @ e1) / (2 * np.pi),
                    0.5 + np.arctan2(n @ axis, np.sum(n * nr, axis=-1)) / (2 * np.pi)], axis=-1)
     return n, uv

@@ -284,13 +284,13 @@ class Cone:
 
 @dataclass(frozen=True)
 class Torus:
-    """The points at distance `minor` from the circle of radius `major` about `axis` through
-    `center` (a ring: minor <= major)."""
+    """The points at distance `minor_radius` from the circle of radius `major_radius` about
+    `axis` through `center` (a ring: minor_radius <= major_radius)."""
 
     center: Vec3
     axis: Vec3  # unit, the circle's normal
-    major: float
-    minor: float
+    major_radius: float
+    minor_radius: float
     material: int
 
 

@@ -54,7 +54,7 @@ def _centre_size(obj: M.SceneObject) -> tuple[np.ndarray, float]:
         return apex + axis * obj.height / 2.0, float(max(obj.height, rim))
     if isinstance(obj, M.Torus):
         # The tube is what a ray must resolve: a thin ring far away is the hard case.
-        return np.asarray(obj.center, dtype=np.float64), float(obj.minor)
+        return np.asarray(obj.center, dtype=np.float64), float(obj.minor_radius)
     points = np.asarray(obj.vertices, dtype=np.float64)  # Triangle or Mesh
     lo, hi = points.min(axis=0), points.max(axis=0)
     return (lo + hi) / 2.0, float(np.max(hi - lo))

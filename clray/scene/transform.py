@@ -88,8 +88,8 @@ def place(obj: M.SceneObject, a: np.ndarray, t: np.ndarray) -> M.SceneObject | s
                                    axis=_direction(a, obj.axis), height=obj.height * s)
     if isinstance(obj, M.Torus):
         return dataclasses.replace(obj, center=_point(a, t, obj.center),
-                                   axis=_direction(a, obj.axis), major=obj.major * s,
-                                   minor=obj.minor * s)
+                                   axis=_direction(a, obj.axis), major_radius=obj.major_radius * s,
+                                   minor_radius=obj.minor_radius * s)
     if isinstance(obj, M.Spheres):
         return dataclasses.replace(obj, centers=obj.centers @ a.T + t, radii=obj.radii * s)
     raise TypeError(f"no placement for {type(obj).__name__}")

@@ -14,12 +14,13 @@ import numpy as np
 import pyopencl as cl
 
 from clray.device.context import describe, queue_for, select_device
-from clray.device.launch import render_packed
+from clray.device.launch import render_packed, render_passes_packed
 from clray.device.pack import PackedScene, pack_scene
 from clray.device.program import bvh_width_for, packet_lanes_for, traversal_for
 from clray.errors import SettingsError
 from clray.image_io import Encoding, image_bytes, write_image
 from clray.knobs import BUILD_KNOBS, IMAGE_KNOBS, TRAVERSALS, Tuning, TuningError
+from clray.passes import pass_problem, passes_of
 from clray.scene import limits as L
 from clray.scene.check import check_scene
 from clray.scene.load import load_scene
@@ -54,6 +55,9 @@ class RenderSettings:
     # tune`, where stored_tuning and one exists, else the knob table's defaults.
     tuning: Tuning | None = None
     stored_tuning: bool = True
+    # Passes (clray.passes.PASS_NAMES; docs/passes.md) to render beside the image, into
+    # RenderResult.aovs: a second kernel after the render's, built in only when asked.
+    aovs: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
         # The scene file's [render] rules (clray.scene.limits), in the same words.
@@ -70,7 +74,8 @@ class RenderSettings:
                    ("tuning", lambda v: None if isinstance(v, Tuning)
                     else "expected a clray.tuning.Tuning"),
                    ("stored_tuning",
-                    lambda v: None if isinstance(v, bool) else "expected True or False")]
+                    lambda v: None if isinstance(v, bool) else "expected True or False"),
+                   ("aovs", pass_problem)]
         for name, problem_of in checks:
             value = getattr(self, name)
             problem = None if value is None else problem_of(value)
@@ -86,6 +91,10 @@ class RenderResult:
     image: np.ndarray  # (H, W, 3) float32, linear, may hold non-finite values
     stats: dict
     encoding: Encoding = field(default_factory=Encoding)  # how save() writes a PNG
+    # The passes RenderSettings.aovs asked for, by name (docs/passes.md): depth (H, W) float32,
+    # inf where no sample hit; normal, albedo, position (H, W, 3) float32; object, material,
+    # instance (H, W) int32, -1 on a miss.
+    aovs: dict[str, np.ndarray] = field(default_factory=dict)
 
     def save(self, path: str | Path) -> None:
         """Write the image, the suffix picking the format (.png, .pfm, .exr)."""
@@ -165,7 +174,7 @@ def pack_for(scene: Scene, settings: RenderSettings, device: cl.Device) -> Packe
     tuning = settings.tuning or chosen_tuning(device, settings.stored_tuning)[0]
     resolved = resolved_settings(scene, settings)
     switches = {**kernel_switches(tuning, settings, device, resolved["spp"]),
-                **dict(settings.variants)}
+                "passes": bool(settings.aovs), **dict(settings.variants)}
     return pack_scene(scene, precision=settings.precision,
                       bvh_width=tuning.bvh_width or bvh_width_for(device, settings.precision),
                       queue=queue_for(device), tuning=tuning, **resolved, **switches)
@@ -190,6 +199,11 @@ def render(scene: Scene | str | os.PathLike, settings: RenderSettings | None = N
     packed = pack_for(scene, settings, device)
     pack_s = time.perf_counter() - start - packed.bvh_s
     image, stats = render_packed(packed, device, settings.progress)
+    aovs = {}
+    if settings.aovs:
+        passes_start = time.perf_counter()
+        aovs = passes_of(render_passes_packed(packed, device), scene, settings.aovs)
+        stats["passes_s"] = time.perf_counter() - passes_start
     stats = {
         **resolved,
         "device": describe(device),
@@ -204,4 +218,4 @@ def render(scene: Scene | str | os.PathLike, settings: RenderSettings | None = N
         **stats,
         "total_s": time.perf_counter() - start,
     }
-    return RenderResult(image, stats, encoding)
+    return RenderResult(image, stats, encoding, aovs)

@@ -96,6 +96,9 @@ class KernelConfig:
     fp64_spheres: bool = False
     # The instrumented build: render_packed then reports box and primitive tests.
     count_tests: bool = False
+    # The passes build (RenderSettings.aovs): render_passes too, beside the render kernel. A
+    # render without passes builds without it, the very program it built before passes.
+    passes: bool = False
     # The stage-profiling build (benchmarks/stages.py): the renderer's stages (STAGE in
     # kernels/real.h) stay functions of their own, for a profiler to count.
     stage_profile: bool = False

@@ -15,10 +15,11 @@ from typing import Any, BinaryIO
 
 import numpy as np
 
-from clray.errors import plural
+from clray.errors import SceneError, plural
 from clray.scene import limits as L
 from clray.scene.colour import srgb_decode
-from clray.scene.files import UnreadableFile, open_regular, read_at_most
+from clray.scene.files import UnreadableFile, open_regular, read_at_most, read_regular
+from clray.scene.gltf import GltfModel, read_gltf
 from clray.scene.mesh_data import mesh_arrays
 from clray.scene.mtl import MtlLibrary, parse_mtl
 from clray.scene.obj import ObjMesh, parse_obj
@@ -42,6 +43,7 @@ class Assets:
         # By id() of the stored texels, which self.textures keeps alive for the assets' life.
         self.decoded_textures: dict[int, np.ndarray] = {}
         self.meshes: dict[tuple[int, int], ObjMesh] = {}
+        self.models: dict[tuple[int, int], GltfModel] = {}  # glTF files
         # MTL libraries by (device, inode): (the library, its identity).
         self.libraries: dict[tuple[int, int], MtlLibrary] = {}
         self.texels_left = L.MAX_TEXELS
@@ -52,7 +54,7 @@ class Assets:
         """Fresh budgets over the same files already read: a keyframe's scene does not read a
         mesh or texture again."""
         other = Assets(self.values, self.base)
-        other.textures, other.meshes = self.textures, self.meshes
+        other.textures, other.meshes, other.models = self.textures, self.meshes, self.models
         other.decoded_textures = self.decoded_textures
         return other
 
@@ -133,6 +135,30 @@ class Assets:
                 else:
                     self.meshes[identity] = parse_obj(data, self.base / name)
         return self.meshes[identity]
+
+    def gltf_model(self, name: Any, key: str) -> tuple[GltfModel, tuple[int, int]]:
+        """A .gltf or .glb file's model (clray.scene.gltf), read once, with its identity; the
+        buffers and images it names are relative to it."""
+        stream, identity = self.open_file(name, key, L.MAX_MESH_BYTES)
+        with stream:
+            if identity not in self.models:
+                try:
+                    data = read_at_most(stream, L.MAX_MESH_BYTES)
+                except UnreadableFile as exc:
+                    raise self.values.error(key, f"{exc}: {file_name(name)}") from None
+                path = self.base / name
+
+                def read_file(relative: str, where: str) -> bytes:
+                    try:
+                        return read_regular(path.parent / relative, L.MAX_MESH_BYTES)
+                    except UnreadableFile as exc:
+                        raise SceneError(path, where, f"cannot read {file_name(relative)}: "
+                                         f"{exc}") from None
+
+                model = read_gltf(data, path, read_file)
+                self.warnings.extend(f"{key}: {file_name(name)}: {w}" for w in model.warnings)
+                self.models[identity] = model
+        return self.models[identity], identity
 
     def ply_mesh(self, data: bytes, key: str, name: str) -> ObjMesh:
         ply = read_ply(data, self.base / name)

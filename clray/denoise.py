@@ -8,6 +8,7 @@ import numpy as np
 
 from clray.errors import ClrayError
 
+DENOISE_GUIDES = ("albedo", "normal")  # the passes that guide OIDN's RT filter
 DENOISE_MISSING = "denoising needs Open Image Denoise's binding: pip install 'clray[denoise]'"
 
 

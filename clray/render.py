@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 import pyopencl as cl
 
+from clray.denoise import DENOISE_GUIDES, check_denoiser, denoise
 from clray.device.context import describe, queue_for, select_device
 from clray.device.launch import render_packed, render_passes_packed
 from clray.device.pack import PackedScene, pack_scene
@@ -58,6 +59,12 @@ class RenderSettings:
     # Passes (clray.passes.PASS_NAMES; docs/passes.md) to render beside the image, into
     # RenderResult.aovs: a second kernel after the render's, built in only when asked.
     aovs: tuple[str, ...] = ()
+    # Denoise the image with Open Image Denoise (clray.denoise, the `denoise` extra), guided by
+    # the albedo and normal passes, traced for it whether or not aovs names them.
+    denoise: bool = False
+    # on_band(first row, its rows of the image) after each band of rows arrives, linear
+    # float32, not yet denoised: a view of the image being filled (copy what you keep).
+    on_band: Callable[[int, np.ndarray], None] | None = field(default=None, compare=False)
 
     def __post_init__(self) -> None:
         # The scene file's [render] rules (clray.scene.limits), in the same words.
@@ -75,15 +82,18 @@ class RenderSettings:
                     else "expected a clray.tuning.Tuning"),
                    ("stored_tuning",
                     lambda v: None if isinstance(v, bool) else "expected True or False"),
-                   ("aovs", pass_problem)]
+                   ("aovs", pass_problem),
+                   ("denoise",
+                    lambda v: None if isinstance(v, bool) else "expected True or False")]
         for name, problem_of in checks:
             value = getattr(self, name)
             problem = None if value is None else problem_of(value)
             if problem:
                 raise SettingsError(f"RenderSettings.{name}: {problem}, got {value!r}")
-        if self.progress is not None and not callable(self.progress):
-            raise SettingsError(f"RenderSettings.progress: expected a callable, "
-                                f"got {self.progress!r}")
+        for name in ("progress", "on_band"):
+            if getattr(self, name) is not None and not callable(getattr(self, name)):
+                raise SettingsError(f"RenderSettings.{name}: expected a callable, "
+                                    f"got {getattr(self, name)!r}")
 
 
 @dataclass(frozen=True)
@@ -95,6 +105,9 @@ class RenderResult:
     # inf where no sample hit; normal, albedo, position (H, W, 3) float32; object, material,
     # instance (H, W) int32, -1 on a miss.
     aovs: dict[str, np.ndarray] = field(default_factory=dict)
+    # Where RenderSettings.denoise was set, the image before denoising (image is the denoised
+    # one); else None.
+    noisy: np.ndarray | None = None
 
     def save(self, path: str | Path) -> None:
         """Write the image, the suffix picking the format (.png, .pfm, .exr)."""
@@ -103,6 +116,12 @@ class RenderResult:
     def _repr_png_(self) -> bytes:
         """The PNG that save() writes, for Jupyter and IPython to show the result inline."""
         return image_bytes(".png", self.image, self.encoding)
+
+
+def traced_passes(settings: RenderSettings) -> tuple[str, ...]:
+    """The passes a render traces: the settings' aovs, and the denoiser's guides."""
+    guides = DENOISE_GUIDES if settings.denoise else ()
+    return settings.aovs + tuple(name for name in guides if name not in settings.aovs)
 
 
 def _overrides(scene: Scene, settings: RenderSettings, names: tuple[str, ...]) -> dict:
@@ -174,7 +193,7 @@ def pack_for(scene: Scene, settings: RenderSettings, device: cl.Device) -> Packe
     tuning = settings.tuning or chosen_tuning(device, settings.stored_tuning)[0]
     resolved = resolved_settings(scene, settings)
     switches = {**kernel_switches(tuning, settings, device, resolved["spp"]),
-                "passes": bool(settings.aovs), **dict(settings.variants)}
+                "passes": bool(traced_passes(settings)), **dict(settings.variants)}
     return pack_scene(scene, precision=settings.precision,
                       bvh_width=tuning.bvh_width or bvh_width_for(device, settings.precision),
                       queue=queue_for(device), tuning=tuning, **resolved, **switches)
@@ -190,6 +209,8 @@ def render(scene: Scene | str | os.PathLike, settings: RenderSettings | None = N
     encoding = png_encoding(scene, settings)
     resolved = resolved_settings(scene, settings)
     warn_deep_tree(scene, resolved)
+    if settings.denoise:
+        check_denoiser()  # before any device work
     device = select_device(settings.device)
     if settings.tuning is None:
         tuning, tuning_source = chosen_tuning(device, settings.stored_tuning)
@@ -198,12 +219,18 @@ def render(scene: Scene | str | os.PathLike, settings: RenderSettings | None = N
         tuning_source = "given"
     packed = pack_for(scene, settings, device)
     pack_s = time.perf_counter() - start - packed.bvh_s
-    image, stats = render_packed(packed, device, settings.progress)
-    aovs = {}
-    if settings.aovs:
+    image, stats = render_packed(packed, device, settings.progress, on_band=settings.on_band)
+    aovs: dict[str, np.ndarray] = {}
+    if traced_passes(settings):
         passes_start = time.perf_counter()
-        aovs = passes_of(render_passes_packed(packed, device), scene, settings.aovs)
+        aovs = passes_of(render_passes_packed(packed, device), scene, traced_passes(settings))
         stats["passes_s"] = time.perf_counter() - passes_start
+    noisy = None
+    if settings.denoise:
+        denoise_start = time.perf_counter()
+        noisy, image = image, denoise(image, aovs["albedo"], aovs["normal"])
+        stats["denoise_s"] = time.perf_counter() - denoise_start
+        aovs = {name: aovs[name] for name in settings.aovs}
     stats = {
         **resolved,
         "device": describe(device),
@@ -218,4 +245,4 @@ def render(scene: Scene | str | os.PathLike, settings: RenderSettings | None = N
         **stats,
         "total_s": time.perf_counter() - start,
     }
-    return RenderResult(image, stats, encoding, aovs)
+    return RenderResult(image, stats, encoding, aovs, noisy)

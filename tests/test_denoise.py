@@ -3,14 +3,19 @@ one-line error when the optional binding is missing."""
 
 from __future__ import annotations
 
+import importlib
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
 
 from clray.denoise import DENOISE_MISSING, check_denoiser, denoise
-from clray.errors import ClrayError
+from clray.errors import ClrayError, SettingsError
 from clray.metrics import rmse
+from clray.render import RenderSettings, render
+
+ROOT = Path(__file__).resolve().parent.parent
 
 
 def _clean_scene() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -84,3 +89,32 @@ def test_missing_binding_names_the_extra(monkeypatch: pytest.MonkeyPatch) -> Non
     assert "pip install 'clray[denoise]'" in DENOISE_MISSING and "\n" not in DENOISE_MISSING
     with pytest.raises(ClrayError, match=r"clray\[denoise\]"):
         denoise(np.zeros((2, 2, 3), np.float32))
+
+
+SMALL = {"width": 48, "height": 27, "spp": 4}
+
+
+def test_render_denoises_and_keeps_the_noisy_image(cl_device) -> None:
+    pytest.importorskip("pyoidn")
+    scene = ROOT / "scenes" / "soft_lights.toml"
+    plain = render(scene, RenderSettings(**SMALL))
+    result = render(scene, RenderSettings(**SMALL, denoise=True, aovs=("depth",)))
+    np.testing.assert_array_equal(result.noisy, plain.image)
+    assert result.image.shape == plain.image.shape and result.image.dtype == np.float32
+    assert not np.array_equal(result.image, plain.image)
+    # The guides were traced for the denoiser, but only the passes asked for are kept.
+    assert list(result.aovs) == ["depth"]
+    assert result.stats["denoise_s"] > 0 and plain.noisy is None
+
+
+def test_render_without_the_binding_fails_before_the_device(monkeypatch) -> None:
+    monkeypatch.setitem(sys.modules, "pyoidn", None)
+    module = importlib.import_module("clray.render")  # clray.render is also the function
+    monkeypatch.setattr(module, "select_device", lambda spec: pytest.fail("device used"))
+    with pytest.raises(ClrayError, match=r"clray\[denoise\]"):
+        render(ROOT / "scenes" / "soft_lights.toml", RenderSettings(**SMALL, denoise=True))
+
+
+def test_denoise_setting_is_checked() -> None:
+    with pytest.raises(SettingsError, match=r"RenderSettings\.denoise: expected True or False"):
+        RenderSettings(denoise="yes")

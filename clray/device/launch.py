@@ -149,10 +149,13 @@ def _resource_hint(err: cl.Error) -> str:
 
 def render_packed(packed: PackedScene, device: cl.Device,
                   progress: Callable[[int, int], None] | None = None,
-                  rows: tuple[int, int] | None = None) -> tuple[np.ndarray, dict]:
+                  rows: tuple[int, int] | None = None,
+                  on_band: Callable[[int, np.ndarray], None] | None = None
+                  ) -> tuple[np.ndarray, dict]:
     """Launch the kernel over a packed scene: (image, stats without load/pack times). With
     `rows` = (start, stop), only those rows of the image (a tile of a distributed render): the
-    same values, bit for bit, as those rows of the whole image."""
+    same values, bit for bit, as those rows of the whole image. on_band(first row, its rows of
+    the image) hears each band as it arrives (a notebook's progressive display)."""
     capacity = band_capacity(packed, device.global_mem_size, device.max_mem_alloc_size)
     program, build_s = build_program(device, packed.config)
     queue = queue_for(device)
@@ -206,6 +209,8 @@ def render_packed(packed: PackedScene, device: cl.Device,
             if count_tests:
                 cl.enqueue_copy(queue, band_counts[:pixels], tests_buf)
                 test_totals += np.einsum("ij->j", band_counts[:pixels], dtype=np.int64)
+            if on_band is not None:
+                on_band(first + row0, image[row0:row0 + band])
             row0 += band
             if progress is not None:
                 progress(row0 * row_samples, height * row_samples)

@@ -27,6 +27,7 @@ from typing import Any, NoReturn
 import pyopencl as cl
 
 from clray import __version__
+from clray.denoise import check_denoiser
 from clray.device.context import default_device, list_devices
 from clray.errors import (
     EXIT_OK,
@@ -203,6 +204,10 @@ def _build_parser() -> _Parser:
     r.add_argument("--no-tuning", dest="stored_tuning", action="store_false",
                    help="render with the knob table's defaults, not the device's tuning file "
                         "that `clray tune` wrote (docs/tuning.md)")
+    r.add_argument("--denoise", action="store_true",
+                   help="denoise the image with Intel Open Image Denoise, guided by the albedo "
+                        "and normal passes, before it is written (pip install "
+                        "'clray[denoise]'; docs/denoising.md)")
     r.add_argument("--stats-json", type=_file_path, metavar="PATH",
                    help="write timings, sizes and ray counts as JSON ('-': standard output)")
     talk = r.add_mutually_exclusive_group()
@@ -661,6 +666,8 @@ def _render(args: argparse.Namespace) -> int:
     if args.stats_json not in (None, STDOUT):
         _check_writable(args.stats_json)
 
+    if args.denoise:
+        check_denoiser()  # before any work: says how to install the binding where it is missing
     if args.dask is not None:
         from clray.distributed import import_distributed
 
@@ -735,7 +742,7 @@ def _settings(args: argparse.Namespace, progress: Callable[[int, int], None] | N
         seed=args.seed, min_weight=args.min_weight, device=args.device,
         precision=args.precision, traversal=args.traversal, progress=progress,
         linear=args.linear, exposure=args.exposure, png_bits=args.png_bits,
-        stored_tuning=args.stored_tuning)
+        stored_tuning=args.stored_tuning, denoise=args.denoise)
 
 
 def _cluster(args: argparse.Namespace) -> contextlib.AbstractContextManager:

@@ -4,16 +4,20 @@ one-line error when the optional binding is missing."""
 from __future__ import annotations
 
 import importlib
+import json
 import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 
+from clray import cli
 from clray.denoise import DENOISE_MISSING, check_denoiser, denoise
 from clray.errors import ClrayError, SettingsError
+from clray.image_io import read_pfm
 from clray.metrics import rmse
 from clray.render import RenderSettings, render
+from clray.scene.load import load_scene
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -118,3 +122,39 @@ def test_render_without_the_binding_fails_before_the_device(monkeypatch) -> None
 def test_denoise_setting_is_checked() -> None:
     with pytest.raises(SettingsError, match=r"RenderSettings\.denoise: expected True or False"):
         RenderSettings(denoise="yes")
+
+
+def test_cli_denoise_writes_the_denoised_image(capsys, tmp_path: Path) -> None:
+    pytest.importorskip("pyoidn")
+    scene = ROOT / "scenes" / "soft_lights.toml"
+    size = ["-W", str(SMALL["width"]), "-H", str(SMALL["height"]), "--spp", str(SMALL["spp"])]
+    out, stats = tmp_path / "out.pfm", tmp_path / "stats.json"
+    assert cli.main(["render", str(scene), "-o", str(out), *size, "--denoise", "-q",
+                     "--stats-json", str(stats)]) == 0
+    expected = render(scene, RenderSettings(**SMALL, denoise=True))
+    # OIDN on the CPU gives the same values for the same input, call after call.
+    np.testing.assert_array_equal(read_pfm(out), expected.image)
+    assert json.loads(stats.read_text())["denoise_s"] > 0
+    # No pass files beside it: the guides were traced for the denoiser, not asked for.
+    assert sorted(tmp_path.iterdir()) == sorted([out, stats])
+
+
+def test_cli_denoise_without_the_binding_is_one_line(capsys, monkeypatch,
+                                                     tmp_path: Path) -> None:
+    monkeypatch.setitem(sys.modules, "pyoidn", None)
+    out = tmp_path / "out.png"
+    code = cli.main(["render", str(ROOT / "scenes" / "soft_lights.toml"), "-o", str(out),
+                     "--denoise"])
+    err = capsys.readouterr().err
+    assert code == 1 and not out.exists()
+    assert err.strip().splitlines() == [f"clray: error: {DENOISE_MISSING}"]
+
+
+def test_dask_still_refuses_to_denoise() -> None:
+    pytest.importorskip("distributed")
+    from clray.distributed import render_still
+
+    # Refused before the client is used: tiles trace no passes to guide the denoiser.
+    with pytest.raises(SettingsError, match="cannot be denoised"):
+        render_still(None, load_scene(ROOT / "scenes" / "soft_lights.toml"),
+                     RenderSettings(denoise=True))

@@ -1,6 +1,12 @@
 """Denoising a rendered image with Intel Open Image Denoise (docs/denoising.md), through the
 pyoidn binding, an optional extra: OIDN's RT filter on the linear image, guided by the albedo
-and normal passes where given."""
+and normal passes where given, each first denoised on its own.
+
+The passes are means over a pixel's samples, so they are noisy wherever those samples see
+different things: a defocused or minified texture's albedo at a few samples a pixel. Given as
+they are, OIDN keeps the image's noise where the guide shows the same pattern (depth_of_field
+at 4 spp: rmse 0.058 before, 0.053 after); OIDN's manual advises denoising each guide with the
+same filter first and telling the filter they are clean (0.026; docs/denoising.md)."""
 
 from __future__ import annotations
 
@@ -26,16 +32,36 @@ def check_denoiser() -> None:
     _binding()
 
 
-def _guide(name: str, values: np.ndarray | None, shape: tuple[int, ...], low: float
-           ) -> np.ndarray | None:
-    """A guide pass as OIDN takes it: the image's shape, float32, finite, within [low, 1]."""
+def _guide(pyoidn, name: str, values: np.ndarray | None, shape: tuple[int, ...],
+           low: float) -> np.ndarray | None:
+    """A guide pass as OIDN takes it (the image's shape, float32, finite, within [low, 1]),
+    denoised by the RT filter given that pass alone."""
     if values is None:
         return None
     values = np.asarray(values)
     if values.shape != shape:
         raise ValueError(f"the {name} pass has shape {values.shape}; the image has {shape}")
-    return np.clip(np.nan_to_num(values.astype(np.float32), nan=0.0, posinf=0.0, neginf=0.0),
-                   low, 1.0)
+    guide = np.clip(np.nan_to_num(values.astype(np.float32), nan=0.0, posinf=0.0, neginf=0.0),
+                    low, 1.0)
+    clean = np.empty_like(guide)
+    device = pyoidn.Device()
+    try:
+        device.commit()
+        pass_filter = pyoidn.Filter(device, pyoidn.OIDN_FILTER_TYPE_RT)
+        try:
+            pass_filter.set_image(name, guide, pyoidn.OIDN_FORMAT_FLOAT3)
+            pass_filter.set_image(pyoidn.OIDN_IMAGE_OUTPUT, clean, pyoidn.OIDN_FORMAT_FLOAT3)
+            pass_filter.set_quality(pyoidn.OIDN_QUALITY_HIGH)
+            pass_filter.commit()
+            pass_filter.execute()
+        finally:
+            pass_filter.release()
+        error = device.get_error()
+    finally:
+        device.release()
+    if error:
+        raise ClrayError(f"Open Image Denoise failed on the {name} pass: {error}")
+    return clean
 
 
 def denoise(image: np.ndarray, albedo: np.ndarray | None = None,
@@ -43,10 +69,10 @@ def denoise(image: np.ndarray, albedo: np.ndarray | None = None,
     """The (H, W, 3) linear image denoised by OIDN's RT filter for HDR input, as float32.
 
     albedo (linear, [0, 1]) and normal (unit vectors, any fixed space) are the render's passes
-    of the same shape; OIDN takes the normal only together with the albedo. A non-finite value
-    of the image counts as black, as in a PNG (docs/rendering.md): a neural filter would spread
-    one NaN over its whole neighbourhood. Raises ClrayError naming the extra when the binding is
-    missing, ValueError for shapes that do not match."""
+    of the same shape, each denoised first; OIDN takes the normal only with the albedo. A
+    non-finite value of the image counts as black, as in a PNG (docs/rendering.md): a neural
+    filter would spread one NaN over its whole neighbourhood. Raises ClrayError naming the extra
+    when the binding is missing, ValueError for shapes that do not match."""
     pyoidn = _binding()
     image = np.asarray(image)
     if image.ndim != 3 or image.shape[2] != 3 or 0 in image.shape:
@@ -57,8 +83,9 @@ def denoise(image: np.ndarray, albedo: np.ndarray | None = None,
     colour = np.clip(np.nan_to_num(image.astype(np.float32), nan=0.0, posinf=0.0, neginf=0.0),
                      0.0, None)
     try:
-        return np.asarray(pyoidn.denoise(colour, albedo=_guide("albedo", albedo, image.shape, 0.0),
-                                         normal=_guide("normal", normal, image.shape, -1.0),
-                                         hdr=True), dtype=np.float32)
+        albedo = _guide(pyoidn, "albedo", albedo, image.shape, 0.0)
+        normal = _guide(pyoidn, "normal", normal, image.shape, -1.0)
+        return np.asarray(pyoidn.denoise(colour, albedo=albedo, normal=normal, hdr=True,
+                                         clean_aux=albedo is not None), dtype=np.float32)
     except RuntimeError as err:  # OIDN's own failure, e.g. a CPU it does not support
         raise ClrayError(f"Open Image Denoise failed: {err}") from None

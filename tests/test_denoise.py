@@ -111,6 +111,18 @@ def test_render_denoises_and_keeps_the_noisy_image(cl_device) -> None:
     assert result.stats["denoise_s"] > 0 and plain.noisy is None
 
 
+def test_noisy_guides_of_a_defocused_texture_do_not_keep_the_noise(cl_device) -> None:
+    """depth_of_field's blurred checkerboard gives an albedo pass as noisy as the image at 4 spp:
+    taken as it is, OIDN kept the noise (rmse 0.0535 against 0.0584 undenoised; denoising the
+    guides first: 0.0269)."""
+    pytest.importorskip("pyoidn")
+    scene = ROOT / "scenes" / "depth_of_field.toml"
+    size = {"width": 160, "height": 100}
+    reference = render(scene, RenderSettings(**size, spp=256, seed=7)).image
+    result = render(scene, RenderSettings(**size, spp=4, denoise=True))
+    assert rmse(result.image, reference) < 0.6 * rmse(result.noisy, reference)
+
+
 def test_render_without_the_binding_fails_before_the_device(monkeypatch) -> None:
     monkeypatch.setitem(sys.modules, "pyoidn", None)
     module = importlib.import_module("clray.render")  # clray.render is also the function

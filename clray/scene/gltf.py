@@ -105,8 +105,8 @@ class _Reader:
         self.path = path
         self.read_file = read_file  # (relative name, JSON path) -> bytes, or SceneError
         self.doc: dict = {}
-        self.bin: bytes | None = None
-        self.buffers: dict[int, bytes] = {}
+        self.bin: memoryview | None = None  # a view: the chunk is not copied
+        self.buffers: dict[int, bytes | memoryview] = {}
         self.warnings: list[str] = []
 
     def error(self, where: str | None, message: str) -> SceneError:
@@ -164,13 +164,13 @@ class _Reader:
             if at + 8 + size > length:
                 raise self.error(None, f"truncated .glb: chunk at byte {at} of {size} bytes "
                                  f"runs past the end ({length})")
-            chunks.append((kind, data[at + 8 : at + 8 + size]))
+            chunks.append((kind, memoryview(data)[at + 8 : at + 8 + size]))
             at += 8 + size
         if not chunks or chunks[0][0] != _CHUNK_JSON:
             raise self.error(None, ".glb: the first chunk must be JSON")
         if len(chunks) > 1 and chunks[1][0] == _CHUNK_BIN:
             self.bin = chunks[1][1]
-        return chunks[0][1]
+        return bytes(chunks[0][1])
 
     # -- checked JSON values ----------------------------------------------------------------
 
@@ -221,7 +221,7 @@ class _Reader:
 
     # -- buffers and accessors ----------------------------------------------------------------
 
-    def buffer(self, index: int, where: str) -> bytes:
+    def buffer(self, index: int, where: str) -> bytes | memoryview:
         if index in self.buffers:
             return self.buffers[index]
         spec, path = self.entry("buffers", index, where)
@@ -256,7 +256,7 @@ class _Reader:
                              "URIs are read")
         return self.read_file(name, where)
 
-    def view(self, index: Any, where: str) -> tuple[bytes, int, int, int | None]:
+    def view(self, index: Any, where: str) -> tuple[bytes | memoryview, int, int, int | None]:
         """(buffer, offset, length, byteStride) of a buffer view."""
         spec, path = self.entry("bufferViews", index, where)
         data = self.buffer(self.integer(spec, "buffer", path), f"{path}.buffer")
@@ -470,7 +470,7 @@ class _Reader:
                 return self.uri(spec["uri"], f"{path}.uri")
             if "bufferView" in spec:
                 data, offset, length, _ = self.view(spec["bufferView"], f"{path}.bufferView")
-                return data[offset : offset + length]
+                return bytes(data[offset : offset + length])
             raise self.error(path, "neither uri nor bufferView")
 
         return read
@@ -610,6 +610,11 @@ def _triangles(indices: np.ndarray, mode: int) -> np.ndarray:
 def _merged(parts: list[dict]) -> tuple[ObjMesh, np.ndarray | None]:
     """One mesh of a glTF mesh's primitives: normals, uvs and colours where every primitive
     has them (uvs where any has, zero elsewhere: only a textured material reads them)."""
+    if len(parts) == 1:  # most meshes: nothing to join
+        p = parts[0]
+        groups = np.full(len(p["faces"]), p["material"], dtype=np.int64)
+        return (ObjMesh(p["vertices"], p["faces"].astype(np.int64), p.get("normals"),
+                        p.get("uvs"), (), groups), p.get("colors"))
     starts = np.cumsum([0] + [len(p["vertices"]) for p in parts])
     vertices = np.concatenate([p["vertices"] for p in parts])
     faces = np.concatenate([p["faces"] + s for p, s in zip(parts, starts, strict=False)])

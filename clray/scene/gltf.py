@@ -385,6 +385,8 @@ class _Reader:
         if "COLOR_0" in attributes:
             color = self.attribute(attributes, "COLOR_0", apath, ("VEC3", "VEC4"), n)
             part["colors"] = np.clip(color[:, :3], 0.0, 1.0)
+            self.warn("vertex colours (COLOR_0) are not rendered (the faces take their "
+                      "material's colour)")
         if any(name.startswith(("JOINTS_", "WEIGHTS_")) for name in attributes):
             self.warn("skins are not modelled (meshes render in their bind pose)")
         if "indices" in spec:

@@ -17,8 +17,9 @@ from typing import Any
 import numpy as np
 
 from clray.errors import SceneError
-from clray.scene.gltf import GLTF_SUFFIXES, GltfCamera
-from clray.scene.limits import MAX_MAGNITUDE
+from clray.scene.files import UnreadableFile, read_regular
+from clray.scene.gltf import GLTF_SUFFIXES, GltfCamera, read_gltf_camera
+from clray.scene.limits import MAX_MAGNITUDE, MAX_MESH_BYTES
 from clray.scene.load import scene_from_dict
 from clray.scene.model import Instance, Mesh, Scene, unit
 
@@ -165,12 +166,11 @@ def probe_camera(path: Path) -> GltfCamera | None:
     """A glTF file's first camera (None for other files, and glTF files without one)."""
     if path.suffix.lower() not in GLTF_SUFFIXES:
         return None
-    from clray.scene.assets import Assets
-    from clray.scene.values import Values
-
-    values = Values(None)
-    model, _ = Assets(values, Path.cwd()).gltf_model(path.as_posix(), "file")
-    return model.camera
+    # The probe's scene has read the file already: it can be read again, and only its JSON.
+    try:
+        return read_gltf_camera(read_regular(path, MAX_MESH_BYTES), path)
+    except UnreadableFile as exc:
+        raise SceneError(path, None, str(exc)) from None
 
 
 def _file_camera(found: GltfCamera, matrix: np.ndarray, offset: np.ndarray

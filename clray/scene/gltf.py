@@ -593,6 +593,16 @@ def read_gltf(data: bytes, path: Path, read_file: Callable[[str, str], bytes]) -
                      camera, tuple(r.warnings))
 
 
+def read_gltf_camera(data: bytes, path: Path) -> GltfCamera | None:
+    """The file's first camera (None without one), its buffers left unread."""
+    r = _Reader(path, lambda name, where: b"")
+    r.document(data)
+    for index, node, matrix in r.walk():
+        if "camera" in node:
+            return r.camera(node["camera"], matrix, f"nodes[{index}]")
+    return None
+
+
 def _triangles(indices: np.ndarray, mode: int) -> np.ndarray:
     """(F, 3) corners of a primitive's triangles, strips and fans wound as OpenGL's rules."""
     if mode == 4:

@@ -110,6 +110,8 @@ def _encode_float64(values: np.ndarray, encoding: Encoding) -> np.ndarray:
 _BUCKET_SHIFT = 15
 _ONE_BITS = 0x3F800000  # 1.0f
 _INF_BITS = 0x7F800000
+# Samples the table encodes at a time (_srgb8_by_table).
+_ENCODE_SLICE = 1 << 20
 
 
 @functools.cache
@@ -144,10 +146,18 @@ def _srgb8_table() -> tuple[np.ndarray, np.ndarray]:
 def _srgb8_by_table(values: np.ndarray) -> np.ndarray:
     bits = np.ascontiguousarray(values, dtype=np.float32).view(np.uint32)
     top, starts_at = _srgb8_table()
-    bucket = bits >> _BUCKET_SHIFT
-    # One code below the bucket's top where the top's code starts later in it (never where it
-    # starts at 0).
-    return top[bucket] - (bits < starts_at[bucket])
+    codes = np.empty(bits.shape, dtype=top.dtype)
+    flat_bits, flat_codes = bits.reshape(-1), codes.reshape(-1)
+    # A slice at a time: the whole image's buckets and thresholds (10 bytes a sample) would
+    # take more memory than the float image itself (a 16384 x 16384 image: 6 GiB more).
+    for start in range(0, flat_bits.size, _ENCODE_SLICE):
+        part = flat_bits[start:start + _ENCODE_SLICE]
+        bucket = part >> _BUCKET_SHIFT
+        # One code below the bucket's top where the top's code starts later in it (never where
+        # it starts at 0).
+        np.subtract(top[bucket], part < starts_at[bucket],
+                    out=flat_codes[start:start + _ENCODE_SLICE])
+    return codes
 
 
 def to_png_samples(image: np.ndarray, encoding: Encoding = Encoding()) -> np.ndarray:
@@ -205,7 +215,7 @@ def png_bytes(pixels: np.ndarray, linear: bool = False) -> bytes:
         b"\x89PNG\r\n\x1a\n",
         _png_chunk(b"IHDR", header),
         tag,
-        _png_chunk(b"IDAT", zlib.compress(filtered.tobytes(), 1)),
+        _png_chunk(b"IDAT", zlib.compress(filtered.data, 1)),
         _png_chunk(b"IEND", b""),
     ))
 

@@ -166,3 +166,14 @@ def test_srgb_table_gives_the_formulas_codes() -> None:
     image = np.repeat(np.concatenate([values, special])[:, None, None], 3, axis=2)
     assert np.array_equal(image_io.to_png_samples(image),
                           image_io.to_png_samples(image.astype(np.float64)))
+
+
+def test_table_encodes_slice_by_slice(monkeypatch):
+    # An image of several slices (the last one short) gets the formula's codes everywhere:
+    # the table's slices neither skip nor repeat samples.
+    monkeypatch.setattr(image_io, "_ENCODE_SLICE", 7)
+    rng = np.random.default_rng(5)
+    image = rng.uniform(-0.2, 1.3, (5, 9, 3)).astype(np.float32)
+    image[0, 0] = [np.nan, np.inf, -np.inf]
+    samples = image_io.to_png_samples(image)
+    np.testing.assert_array_equal(samples, image_io._encode_float64(image, Encoding()))

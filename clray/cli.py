@@ -45,6 +45,7 @@ from clray.image_io import (
     check_writer,
     clipped_pixels,
     image_bytes,
+    image_host_bytes,
     is_special_file,
     output_target,
     write_bytes_atomically,
@@ -681,6 +682,7 @@ def _render(args: argparse.Namespace) -> int:
         if not args.quiet:
             for warning in scene.warnings:
                 _say(f"warning: {warning}")
+            _note_image_memory(args, scene)
         with _progress(quiet=args.quiet, verbose=args.verbose) as progress:
             settings = _settings(args, progress)
             if args.dask is None:
@@ -733,6 +735,22 @@ def _render(args: argparse.Namespace) -> int:
         _say(f"wrote {output} ({width}x{height}, {stats['spp']} spp, "
              f"wall {stats['total_s']:.3g} s, kernel {stats['kernel_s']:.3g} s)")
     return EXIT_OK
+
+
+# Above this much host memory for the image, render says how much before it starts.
+LARGE_IMAGE_BYTES = 2 << 30
+
+
+def _note_image_memory(args: argparse.Namespace, scene: Scene) -> None:
+    """One line before a render whose image takes more than LARGE_IMAGE_BYTES of host memory:
+    a 16384 x 16384 image takes several GiB, and a machine short of it should hear so first."""
+    width = args.width or scene.render.width
+    height = args.height or scene.render.height
+    suffix = ".png" if args.output == STDOUT else check_suffix(args.output)
+    need = image_host_bytes(width, height, suffix)
+    if need > LARGE_IMAGE_BYTES:
+        _say(f"note: a {width} x {height} image takes about {need / (1 << 30):.1f} GiB of host "
+             f"memory (the float image and its {suffix[1:].upper()} encoding)")
 
 
 def _settings(args: argparse.Namespace, progress: Callable[[int, int], None] | None

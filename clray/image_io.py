@@ -309,6 +309,19 @@ def exr_bytes(image: np.ndarray) -> bytes:
         return Path(path).read_bytes()
 
 
+# Host bytes a pixel: the (H, W, 3) float32 image a render returns, and at most what writing it
+# takes beside it, tracemalloc's peak of image_bytes (tests/test_image_io.py checks them; EXR's
+# is the Python side's, OpenEXR's own buffers come on top).
+FLOAT_IMAGE_BYTES = 12
+WRITE_BYTES = {".png": 18, ".pfm": 26, ".exr": 14}
+
+
+def image_host_bytes(width: int, height: int, suffix: str) -> int:
+    """About the most host memory a render's image of width x height takes, from the float
+    image to its file written as `suffix` (.png, .pfm or .exr)."""
+    return width * height * (FLOAT_IMAGE_BYTES + WRITE_BYTES[suffix])
+
+
 def check_writer(path: str | Path) -> None:
     """Raise ClrayError if the format `path`'s suffix picks cannot be written here, so that
     the command can tell before rendering."""

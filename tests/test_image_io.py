@@ -177,3 +177,26 @@ def test_table_encodes_slice_by_slice(monkeypatch):
     image[0, 0] = [np.nan, np.inf, -np.inf]
     samples = image_io.to_png_samples(image)
     np.testing.assert_array_equal(samples, image_io._encode_float64(image, Encoding()))
+
+
+@pytest.mark.parametrize("suffix", [".png", ".pfm", ".exr"])
+def test_image_host_bytes_bound_the_writers_memory(suffix):
+    # image_host_bytes' figure a pixel bounds what writing an image takes beside it (numpy's
+    # and Python's allocations, which tracemalloc sees), for an image that compresses badly and
+    # is larger than the PNG table's slice of samples (whose temporaries do not grow with it).
+    import tracemalloc
+
+    if suffix == ".exr":
+        pytest.importorskip("OpenEXR")
+    height, width = 768, 1024
+    image = np.random.default_rng(2).uniform(-0.1, 1.3, (height, width, 3)).astype(np.float32)
+    image_io.image_bytes(suffix, image[:1, :1])  # the PNG table is built once, not per image
+    tracemalloc.start()
+    try:
+        image_io.image_bytes(suffix, image)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert peak <= image_io.WRITE_BYTES[suffix] * height * width
+    assert (image_io.image_host_bytes(width, height, suffix)
+            == (image.nbytes + image_io.WRITE_BYTES[suffix] * height * width))

@@ -221,10 +221,13 @@ def png_bytes(pixels: np.ndarray, linear: bool = False) -> bytes:
 
 
 def pfm_bytes(image: np.ndarray) -> bytes:
-    """Colour PFM, little-endian (negative scale), rows stored bottom to top as the format says."""
-    pixels = np.asarray(_as_rgb(image), dtype="<f4")
-    height, width, _ = pixels.shape
-    header = f"PF\n{width} {height}\n-1.0\n".encode("ascii")
+    """Colour PFM of an (H, W, 3) image, or greyscale ("Pf") of an (H, W) one (a pass of one
+    number a pixel), little-endian (negative scale), rows stored bottom to top as the format
+    says."""
+    grey = np.ndim(image) == 2 and 0 not in np.shape(image)
+    pixels = np.asarray(image if grey else _as_rgb(image), dtype="<f4")
+    height, width = pixels.shape[:2]
+    header = f"{'Pf' if grey else 'PF'}\n{width} {height}\n-1.0\n".encode("ascii")
     return header + np.ascontiguousarray(pixels[::-1]).tobytes()
 
 
@@ -293,8 +296,9 @@ def write_bytes_atomically(path: str | Path, payload: bytes) -> None:
         raise
 
 
-def exr_bytes(image: np.ndarray) -> bytes:
-    """Float32 RGB OpenEXR, ZIP-compressed; needs the optional OpenEXR package."""
+def exr_bytes(image: np.ndarray, channels: dict[str, np.ndarray] | None = None) -> bytes:
+    """Float32 RGB OpenEXR, ZIP-compressed, with more float32 `channels` of the image's size by
+    their full names (a layer's, "depth.Z"); needs the optional OpenEXR package."""
     try:
         import OpenEXR
     except ImportError:
@@ -305,7 +309,9 @@ def exr_bytes(image: np.ndarray) -> bytes:
     # temporary file, whose bytes then go through write_bytes_atomically like every format.
     with tempfile.TemporaryDirectory(prefix="clray-exr-") as folder:
         path = os.path.join(folder, "image.exr")
-        OpenEXR.File(header, {"RGB": pixels}).write(path)
+        more = {name: np.ascontiguousarray(values, dtype=np.float32)
+                for name, values in (channels or {}).items()}
+        OpenEXR.File(header, {"RGB": pixels, **more}).write(path)
         return Path(path).read_bytes()
 
 

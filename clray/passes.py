@@ -1,13 +1,24 @@
 """Passes (AOVs; docs/passes.md): what a render's primary rays meet, as named arrays beside the
 image. The kernel (kernels/passes.h, render.cl's render_passes) writes four raw outputs;
 this module names the passes, turns those outputs into them (the primitive references into
-the scene's object indices) and draws the false-colour previews."""
+the scene's object indices), writes them (layers of an OpenEXR image, else one PFM a pass
+beside it) and draws their false-colour previews."""
 
 from __future__ import annotations
+
+from pathlib import Path
 
 import numpy as np
 
 from clray.device import layout as L
+from clray.image_io import (
+    Encoding,
+    check_suffix,
+    exr_bytes,
+    image_bytes,
+    pfm_bytes,
+    write_bytes_atomically,
+)
 from clray.scene import model as M
 
 # The passes a render can ask for, in the order files list them.
@@ -100,8 +111,8 @@ def passes_of(raw: dict[str, np.ndarray], scene: M.Scene,
 
 
 def preview(name: str, values: np.ndarray) -> np.ndarray:
-    """A false-colour (H, W, 3) float32 picture of pass `name` in [0, 1] for a PNG: depth from
-    near (white) to far (black) over its finite range, normals and positions mapped from their
+    """A false-colour (H, W, 3) float32 picture of pass `name` in [0, 1] for a PNG: depth as
+    inverse depth (white nearest, darker farther), normals from [-1, 1] and positions from their
     range to [0, 1] per axis, albedo as it is, indices as distinct hues; black on a miss."""
     if name == "albedo":
         return np.clip(values, 0.0, 1.0).astype(np.float32)
@@ -113,11 +124,11 @@ def preview(name: str, values: np.ndarray) -> np.ndarray:
         rgb[values < 0] = 0.0
         return rgb.astype(np.float32)
     if name == "depth":
-        finite = np.isfinite(values)
-        near, far = ((values[finite].min(), values[finite].max()) if finite.any()
-                     else (0.0, 1.0))
-        span = far - near if far > near else 1.0
-        grey = np.where(finite, 1.0 - 0.9 * (values - near) / span, 0.0)
+        # Inverse depth, nearest / depth: a ground plane running to the horizon, whose far
+        # end would squeeze a linear scale's near objects into one grey, falls off smoothly.
+        finite = np.isfinite(values) & (values > 0)
+        near = values[finite].min() if finite.any() else 1.0
+        grey = np.where(finite, near / np.where(finite, values, 1.0), 0.0)
         return np.repeat(grey[..., None], 3, axis=2).astype(np.float32)
     if name == "normal":
         rgb = np.clip(0.5 * values + 0.5, 0.0, 1.0)
@@ -126,3 +137,56 @@ def preview(name: str, values: np.ndarray) -> np.ndarray:
     lo, hi = values.min(axis=(0, 1)), values.max(axis=(0, 1))
     span = np.where(hi > lo, hi - lo, 1.0)
     return np.clip((values - lo) / span, 0.0, 1.0).astype(np.float32)
+
+
+# Each pass's channels in an OpenEXR file: layer "name", channels "name.X" ... (the indices
+# as float32, exact below 2**24, as EXR has no signed integers).
+EXR_CHANNELS = {"depth": ("Z",), "normal": ("X", "Y", "Z"), "albedo": ("R", "G", "B"),
+                "position": ("X", "Y", "Z"), "object": ("id",), "material": ("id",),
+                "instance": ("id",)}
+
+
+def exr_channels(aovs: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """The passes as OpenEXR channels by full name ("normal.X"), float32 (H, W) each."""
+    out = {}
+    for name, values in aovs.items():
+        planes = values[..., None] if values.ndim == 2 else values
+        for k, channel in enumerate(EXR_CHANNELS[name]):
+            out[f"{name}.{channel}"] = planes[..., k].astype(np.float32)
+    return out
+
+
+def beside(image_path: str | Path, name: str, suffix: str) -> Path:
+    """A pass's file beside the image: out.png -> out.depth.pfm."""
+    path = Path(image_path)
+    return path.with_name(f"{path.stem}.{name}{suffix}")
+
+
+def pass_paths(image_path: str | Path, names: tuple[str, ...], previews: bool
+               ) -> list[Path]:
+    """The files besides the image that writing passes `names` with it makes: one PFM a pass
+    (none for an OpenEXR image, whose layers hold them) and, with `previews`, one PNG a pass."""
+    exr = Path(image_path).suffix.lower() == ".exr"
+    files = [] if exr else [beside(image_path, name, ".pfm") for name in names]
+    return files + ([beside(image_path, name, ".png") for name in names] if previews else [])
+
+
+def write_with_passes(path: str | Path, image: np.ndarray, encoding: Encoding,
+                      aovs: dict[str, np.ndarray], previews: bool = False) -> None:
+    """The image at `path` (its suffix picks the format), with its passes as layers of the
+    same file where that is OpenEXR, else one PFM a pass beside it (pass_paths), and with
+    `previews` a false-colour PNG of each. Every file whole or not at all."""
+    suffix = check_suffix(path)
+    if suffix == ".exr":
+        write_bytes_atomically(path, exr_bytes(image, exr_channels(aovs)))
+    else:
+        for name, values in aovs.items():
+            write_bytes_atomically(beside(path, name, ".pfm"),
+                                   pfm_bytes(values.astype(np.float32)))
+        write_bytes_atomically(path, image_bytes(suffix, image, encoding))
+    if previews:
+        for name, values in aovs.items():
+            # The previews' values are what to show, not light: linear PNG, as they are.
+            write_bytes_atomically(beside(path, name, ".png"),
+                                   image_bytes(".png", preview(name, values),
+                                               Encoding(linear=True)))

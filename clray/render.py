@@ -19,9 +19,9 @@ from clray.device.launch import render_packed, render_passes_packed
 from clray.device.pack import PackedScene, pack_scene
 from clray.device.program import bvh_width_for, packet_lanes_for, traversal_for
 from clray.errors import SettingsError
-from clray.image_io import Encoding, image_bytes, write_image
+from clray.image_io import Encoding, image_bytes
 from clray.knobs import BUILD_KNOBS, IMAGE_KNOBS, TRAVERSALS, Tuning, TuningError
-from clray.passes import pass_problem, passes_of
+from clray.passes import pass_problem, passes_of, write_with_passes
 from clray.scene import limits as L
 from clray.scene.check import check_scene
 from clray.scene.load import load_scene
@@ -109,9 +109,11 @@ class RenderResult:
     # one); else None.
     noisy: np.ndarray | None = None
 
-    def save(self, path: str | Path) -> None:
-        """Write the image, the suffix picking the format (.png, .pfm, .exr)."""
-        write_image(path, self.image, self.encoding)
+    def save(self, path: str | Path, previews: bool = False) -> None:
+        """Write the image, the suffix picking the format (.png, .pfm, .exr), and its passes
+        (docs/passes.md): layers of the same file where it is .exr, else one PFM a pass beside
+        it (out.depth.pfm), and with `previews` a false-colour PNG of each (out.depth.png)."""
+        write_with_passes(path, self.image, self.encoding, self.aovs, previews)
 
     def _repr_png_(self) -> bytes:
         """The PNG that save() writes, for Jupyter and IPython to show the result inline."""

@@ -1,19 +1,22 @@
 """Passes (AOVs): depth and normal against closed forms for a sphere and a plane under the
 pinhole and the orthographic camera, in the float and double builds; albedo against the
 material colour and a checker texture; the object, material and instance indices against the
-float64 reference's closest hits (clray.reference), with instances; means over samples; and
-the settings' checks."""
+float64 reference's closest hits (clray.reference), with instances; means over samples; the
+settings' checks; and the command line's --aov files (PFMs, EXR layers, previews) and errors."""
 
 from __future__ import annotations
 
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import pyopencl as cl
 import pytest
+from PIL import Image
 
+from clray import cli
 from clray.device.context import has_fp64
-from clray.errors import SettingsError
+from clray.errors import EXIT_USAGE, SettingsError
 from clray.passes import PASS_NAMES, preview
 from clray.reference import camera_rays
 from clray.reference.bvh import intersect_scene
@@ -254,3 +257,117 @@ def test_previews_are_pictures_in_the_unit_range(name: str) -> None:
     assert np.all((picture >= 0) & (picture <= 1))
     if name == "depth":
         assert np.all(picture[0, 0] == 0) and picture[1:].max() == 1.0
+
+
+# --- the command line: --aov, --aov-preview, the files they write -----------------------------
+
+SCENE_FILE = """
+[render]
+width = 32
+height = 24
+spp = 4
+[camera]
+position = [0, 1, 6]
+look_at = [0, 0.5, 0]
+[materials.red]
+color = [0.9, 0.2, 0.1]
+[materials.floor]
+color = [0.7, 0.7, 0.7]
+[[lights]]
+type = "point"
+position = [3, 5, 4]
+[[objects]]
+type = "plane"
+point = [0, 0, 0]
+normal = [0, 1, 0]
+material = "floor"
+[[objects]]
+type = "sphere"
+center = [0, 1, 0]
+radius = 1
+material = "red"
+"""
+
+
+@pytest.fixture
+def scene_file(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
+    monkeypatch.chdir(tmp_path)
+    path = tmp_path / "scene.toml"
+    path.write_text(SCENE_FILE)
+    return path
+
+
+def _read_pfm_any(path: Path) -> np.ndarray:
+    """A colour ("PF") or greyscale ("Pf") little-endian PFM, row 0 at the top."""
+    data = path.read_bytes()
+    kind, size, scale, pixels = data.split(b"\n", 3)
+    width, height = map(int, size.split())
+    assert float(scale) < 0
+    channels = 3 if kind == b"PF" else 1
+    values = np.frombuffer(pixels, dtype="<f4").reshape(height, width, channels)[::-1]
+    return values[..., 0] if channels == 1 else values
+
+
+def _cli(capsys: pytest.CaptureFixture, *argv: str | Path) -> tuple[int, str, str]:
+    code = cli.main([str(a) for a in argv])
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def test_cli_writes_one_pfm_a_pass_beside_the_image_and_previews(
+        capsys: pytest.CaptureFixture, scene_file: Path, tmp_path: Path,
+        cl_device: cl.Device) -> None:
+    code, _, err = _cli(capsys, "render", scene_file, "-o", "out.png", "--aov",
+                        "depth,normal,object", "--aov-preview", "-q")
+    assert code == 0, err
+    assert sorted(p.name for p in tmp_path.iterdir()) == [
+        "out.depth.pfm", "out.depth.png", "out.normal.pfm", "out.normal.png", "out.object.pfm",
+        "out.object.png", "out.png", "scene.toml"]
+    want = render(scene_file, RenderSettings(aovs=("depth", "normal", "object"))).aovs
+    assert np.array_equal(_read_pfm_any(tmp_path / "out.depth.pfm"), want["depth"])
+    assert np.array_equal(_read_pfm_any(tmp_path / "out.normal.pfm"), want["normal"])
+    assert np.array_equal(_read_pfm_any(tmp_path / "out.object.pfm"),
+                          want["object"].astype(np.float32))
+    assert set(np.unique(want["object"])) == {-1, 0, 1}
+    with Image.open(tmp_path / "out.depth.png") as picture:
+        assert picture.size == (32, 24) and picture.mode == "RGB"
+
+
+def test_cli_writes_the_passes_as_layers_of_one_exr(
+        capsys: pytest.CaptureFixture, scene_file: Path, tmp_path: Path,
+        cl_device: cl.Device) -> None:
+    exr = pytest.importorskip("OpenEXR")
+    code, _, err = _cli(capsys, "render", scene_file, "-o", "out.exr", "--aov",
+                        "albedo,depth,instance")
+    assert code == 0, err
+    assert "wrote passes albedo,depth,instance: layers of out.exr" in err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out.exr", "scene.toml"]
+    result = render(scene_file, RenderSettings(aovs=("albedo", "depth", "instance")))
+    channels = {name: c.pixels for name, c in
+                exr.File(str(tmp_path / "out.exr"), separate_channels=True).channels().items()}
+    assert sorted(channels) == ["B", "G", "R", "albedo.B", "albedo.G", "albedo.R", "depth.Z",
+                                "instance.id"]
+    assert np.array_equal(np.stack([channels[c] for c in "RGB"], axis=-1), result.image)
+    assert np.array_equal(channels["depth.Z"], result.aovs["depth"])
+    albedo = np.stack([channels[f"albedo.{c}"] for c in "RGB"], axis=-1)
+    assert np.array_equal(albedo, result.aovs["albedo"])
+    assert np.all(channels["instance.id"] == -1)
+
+
+@pytest.mark.parametrize("argv, words", [
+    (["--aov", "depth,shadow"], "unknown pass 'shadow'; expected some of depth, normal"),
+    (["--aov", ""], "unknown pass ''"),
+    (["--aov", "depth,depth"], "a pass is named twice"),
+    (["--aov-preview"], "--aov-preview applies to --aov"),
+    (["--aov", "depth", "-o", "-"], "not with -o -"),
+    (["--aov", "depth", "--frames", "0:2", "-o", "f_%04d.png"], "not with --frames"),
+    (["--aov", "depth", "-o", "out.png", "--stats-json", "out.depth.pfm"],
+     "--stats-json and the out.depth.pfm pass file"),
+])
+def test_cli_pass_usage_errors_exit_2_in_one_line(capsys: pytest.CaptureFixture,
+                                                  scene_file: Path, tmp_path: Path,
+                                                  argv: list[str], words: str) -> None:
+    code, out, err = _cli(capsys, "render", scene_file, *argv)
+    assert code == EXIT_USAGE and out == ""
+    assert len(err.splitlines()) == 1 and err.startswith("clray: error: ") and words in err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["scene.toml"]

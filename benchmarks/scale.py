@@ -6,12 +6,12 @@ runs them.
                                [--mesh-dir DIR] [--mitsuba {auto,off}] [--plot docs/scale.png]
 
 Each size is written once as a binary little-endian PLY (float x, y, z; uchar/int faces, the
-layout scanners and MeshLab write) and rendered in a fresh process (ru_maxrss is a process's
-peak): the automatic scene of `clray render MODEL` (clray.model_scene), 1280 x 720, 1 spp,
-packed as render() packs it for the device (the BVH on the device where it is large). A small
-mesh is rendered first in the same process so that the kernel builds and the device BVH
-build's program come from the caches, not the compiler: `build_s` is what remains. The peak
-is read after load, after pack and after the render, so each stage's share is in view.
+layout scanners and MeshLab write) and rendered in a fresh process (its peak resident memory,
+VmHWM, is its own): the automatic scene of `clray render MODEL` (clray.model_scene), 1280 x
+720, 1 spp, packed as render() packs it for the device (the BVH on the device where it is
+large). A small mesh is rendered first in the same process so that the kernel builds and the
+device BVH build's program come from the caches, not the compiler: `build_s` is what remains.
+The peak is read after load, after pack and after the render, so each stage's share is in view.
 
 Mitsuba 3's load of the same file (its PLY reader and, where built with it, Embree's BVH: a
 `scalar_rgb` scene of one `ply` shape) runs in a process of its own beside clray's where the
@@ -35,17 +35,27 @@ HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
 MIB = 1024.0 * 1024.0
 
-# Runs in the child: one size; prints one JSON line.
-_CLRAY = """
+# The children's peak resident bytes: VmHWM, which starts afresh at exec; ru_maxrss starts from
+# the parent's resident size at the fork (the mesh writer's, for a big mesh).
+_PEAK = """
 import json, resource, sys, time
+
+def peak():
+    try:
+        with open("/proc/self/status") as f:
+            return next(int(line.split()[1]) * 1024 for line in f if line.startswith("VmHWM:"))
+    except (OSError, StopIteration):
+        return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
+"""
+
+# Runs in the child: one size; prints one JSON line.
+_CLRAY = _PEAK + """
 from pathlib import Path
 from clray.device.context import describe, select_device
 from clray.device.launch import render_packed
 from clray.model_scene import load_model_scene
 from clray.render import RenderSettings, pack_for
 
-def peak():
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
 
 path, warm = Path(sys.argv[1]), Path(sys.argv[2])
 settings = RenderSettings(width=1280, height=720, spp=1)
@@ -69,14 +79,13 @@ out["peak_after_render"] = peak()
 print(json.dumps(out))
 """
 
-_MITSUBA = """
-import json, resource, sys, time
+_MITSUBA = _PEAK + """
 import mitsuba as mi
 mi.set_variant("scalar_rgb")
 t = time.perf_counter()
 scene = mi.load_dict({"type": "scene", "mesh": {"type": "ply", "filename": sys.argv[1]}})
 out = {"load_s": time.perf_counter() - t, "mitsuba": mi.__version__,
-       "peak": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024}
+       "peak": peak()}
 print(json.dumps(out))
 """
 
@@ -180,7 +189,7 @@ def plot(rows: dict[str, dict], out: Path) -> None:
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--subdivisions", default="7,8,9", help="comma-separated sizes "
-                        "(10: 21 M triangles, about 10 GB of host memory today)")
+                        "(10: 21 M triangles, about 8 GB of host memory today)")
     parser.add_argument("--json", type=Path, default=HERE / "results" / "scale.json")
     parser.add_argument("--mesh-dir", type=Path, help="keep the PLY files here (default: a "
                         "temporary folder)")

@@ -16,6 +16,7 @@ from clray.denoise import DENOISE_MISSING, check_denoiser, denoise
 from clray.errors import ClrayError, SettingsError
 from clray.image_io import read_pfm
 from clray.metrics import rmse
+from clray.passes import pass_paths
 from clray.render import RenderSettings, render
 from clray.scene.load import load_scene
 
@@ -170,3 +171,19 @@ def test_dask_still_refuses_to_denoise() -> None:
     with pytest.raises(SettingsError, match="cannot be denoised"):
         render_still(None, load_scene(ROOT / "scenes" / "soft_lights.toml"),
                      RenderSettings(denoise=True))
+
+
+def test_cli_denoise_with_aov_writes_the_passes_as_rendered(capsys, tmp_path: Path) -> None:
+    """The passes asked for are the render's own, not the guides as the denoiser cleaned them."""
+    pytest.importorskip("pyoidn")
+    scene = ROOT / "scenes" / "depth_of_field.toml"
+    size = ["-W", str(SMALL["width"]), "-H", str(SMALL["height"]), "--spp", str(SMALL["spp"])]
+    out = tmp_path / "out.pfm"
+    assert cli.main(["render", str(scene), "-o", str(out), *size, "--denoise", "--aov",
+                     "albedo,depth", "-q"]) == 0
+    plain = render(scene, RenderSettings(**SMALL, aovs=("albedo", "depth")))
+    denoised = render(scene, RenderSettings(**SMALL, aovs=("albedo", "depth"), denoise=True))
+    np.testing.assert_array_equal(denoised.aovs["albedo"], plain.aovs["albedo"])
+    np.testing.assert_array_equal(read_pfm(out), denoised.image)
+    np.testing.assert_array_equal(read_pfm(pass_paths(out, ("albedo",), False)[0]),
+                                  plain.aovs["albedo"])

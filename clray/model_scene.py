@@ -129,6 +129,9 @@ def model_scene_data(path: Path, view: str = DEFAULT_VIEW, ground: bool = False,
     }
     if all(m.face_materials is None for m in _meshes(probe)):  # the file brings none
         data["materials"]["model"] = MODEL_MATERIAL
+        if any(m.colors is not None for m in _meshes(probe)):
+            # Vertex colours multiply the material's: white shows them as the file has them.
+            data["materials"]["model"] = {**MODEL_MATERIAL, "color": [1.0, 1.0, 1.0]}
         obj["material"] = "model"
     if ground:
         data["materials"]["ground"] = GROUND_MATERIAL

@@ -342,3 +342,65 @@ def test_scene_command_writes_a_toml_of_the_model(capsys, tmp_path, monkeypatch)
     written = tomllib.loads((tmp_path / "box.toml").read_text())
     assert written["objects"] == [{"type": "mesh", "file": "BoxTextured.glb"}]
     assert written["camera"] == model_scene_data(MODELS / "BoxTextured.glb")["camera"]
+
+
+# -- vertex colours (PLY red/green/blue, glTF COLOR_0) --------------------------------------
+
+
+def colored_scene(mesh: M.Mesh) -> M.Scene:
+    """The mesh seen head-on under ambient light alone: each pixel is its colour."""
+    return M.Scene(None, M.RenderOptions(width=48, height=36, ambient=(1, 1, 1)),
+                   M.Camera((0.5, 0.5, 3.0), (0.5, 0.5, 0.0), vfov=30.0),
+                   (M.Material("m", color=(1.0, 0.5, 1.0), ambient=1.0, diffuse=0.0),),
+                   (), (mesh,))
+
+
+def test_vertex_colours_blend_across_each_face_as_the_reference(cl_device):
+    from tests.reference_check import Tolerance, assert_kernel_matches_reference
+
+    vertices = np.array([[-1.0, -1, 0], [2, -1, 0], [0.5, 2, 0]])
+    colors = np.array([[1.0, 0, 0], [0, 1, 0], [0, 0, 1]])
+    mesh = M.Mesh(vertices, np.array([[0, 1, 2]]), 0, colors=colors)
+    scene = colored_scene(mesh)
+    assert_kernel_matches_reference(scene, Tolerance(rmse=1e-4, err=1e-3, off=0))
+    from clray.render import render
+
+    image = render(scene).image.astype(np.float64)
+    # The centre pixel looks at (0.5, 0.5, 0): barycentrics by hand, in float64, times the
+    # material's colour (1, 0.5, 1).
+    b = np.linalg.solve(np.vstack([vertices[:, :2].T, np.ones(3)]), [0.5, 0.5, 1.0])
+    np.testing.assert_allclose(image[18, 24], (b @ colors) * [1, 0.5, 1], atol=0.02)
+
+
+def test_instanced_vertex_colours_match_the_reference(cl_device, tmp_path):
+    from tests.reference_check import Tolerance, assert_kernel_matches_reference
+
+    b = Builder()
+    cube = b.mesh(CUBE_VERTICES - 0.5, CUBE_FACES, colors=CUBE_VERTICES)
+    b.node(mesh=cube, translation=[-0.8, 0, 0])
+    b.node(mesh=cube, translation=[0.8, 0, 0], rotation=[0, 0.38268343, 0, 0.92387953])
+    loaded = load(b.save(tmp_path / "c.glb"))
+    assert all(isinstance(o, M.Instance) for o in loaded.objects)
+    np.testing.assert_array_equal(loaded.objects[0].group.objects[0].colors, CUBE_VERTICES)
+    scene = M.Scene(None, M.RenderOptions(width=48, height=36, ambient=(0.3, 0.3, 0.3)),
+                    M.Camera((1.0, 1.5, 4.0), (0.0, 0.0, 0.0), vfov=40.0),
+                    (M.Material("m", ambient=1.0, diffuse=0.8),),
+                    (M.DirectionalLight((-0.3, -0.8, -0.5)),), loaded.objects)
+    assert_kernel_matches_reference(scene, Tolerance(rmse=2e-3, err=0.02, off=3))
+
+
+def test_ply_colours_are_srgb_decoded_and_rendered(cl_device, tmp_path, monkeypatch):
+    from clray.scene.colour import srgb_decode
+
+    header = ("ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\n"
+              "property float z\nproperty uchar red\nproperty uchar green\nproperty uchar blue\n"
+              "element face 1\nproperty list uchar int vertex_indices\nend_header\n")
+    body = "-1 -1 0 255 0 0\n2 -1 0 0 128 0\n0.5 2 0 0 0 64\n3 0 1 2\n"
+    (tmp_path / "c.ply").write_text(header + body)
+    scene = load(tmp_path / "c.ply")
+    (mesh,) = scene.objects
+    np.testing.assert_allclose(mesh.colors, srgb_decode(np.array(
+        [[255, 0, 0], [0, 128, 0], [0, 0, 64]]) / 255.0))
+    assert not any("colour" in w for w in scene.warnings)
+    monkeypatch.chdir(tmp_path)  # the automatic scene's material is white: colours as given
+    assert model_scene_data(Path("c.ply"))["materials"]["model"]["color"] == [1.0, 1.0, 1.0]

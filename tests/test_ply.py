@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from clray.errors import SceneError
+from clray.scene.colour import srgb_decode
 from clray.scene.load import scene_from_dict
 from clray.scene.obj import parse_obj
 from clray.scene.ply import read_ply
@@ -89,7 +90,8 @@ def test_scene_mesh_file_takes_ply(tmp_path):
     mesh = scene.objects[0]
     np.testing.assert_array_equal(mesh.vertices, VERTS.astype(np.float32) + np.array([1, 0, 0]))
     assert len(mesh.faces) == len(FANNED)
-    assert any("vertex colours are not rendered yet" in w for w in scene.warnings)
+    # The file's (sRGB) colours, decoded, carried to the mesh (rendered: test_gltf).
+    np.testing.assert_allclose(mesh.colors, srgb_decode(COLORS / 255.0))
 
 
 def _errors(data: bytes) -> str:

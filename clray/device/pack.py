@@ -122,6 +122,7 @@ class _Triangles:
     vertices: np.ndarray  # (V, 4) float32, camera-relative
     normals: np.ndarray
     uvs: np.ndarray
+    colors: np.ndarray  # (V, 4) float32 linear rgb, w unused; (0, 4) without vertex colours
 
 
 def _pack_planes(objs: list[M.Plane], eye: np.ndarray) -> np.ndarray:
@@ -220,7 +221,7 @@ def _pack_triangles(objs: _Placed, bounded: _Bounded) -> _Triangles:
     if not objs.objects:
         empty = np.zeros((0, 4), dtype=np.float32)
         return _Triangles(_records(L.TRIANGLE, 0), empty, empty.copy(),
-                          np.zeros((0, 2), np.float32))
+                          np.zeros((0, 2), np.float32), empty.copy())
     sources = []  # (vertices, faces, normals, uvs, material or one per face) per object
     for obj in objs.objects:
         if isinstance(obj, M.Triangle):
@@ -239,11 +240,16 @@ def _pack_triangles(objs: _Placed, bounded: _Bounded) -> _Triangles:
     has_uvs = any(src[3] is not None for src in sources)
     normals = np.zeros((n_vertices if has_normals else 0, 4), dtype=np.float32)
     uvs = np.zeros((n_vertices if has_uvs else 0, 2), dtype=np.float32)
+    tints = [getattr(obj, "colors", None) for obj in objs.objects]
+    colors = np.zeros((n_vertices if any(c is not None for c in tints) else 0, 4), np.float32)
     faces, flags = [], []
-    for (v, f, n, u, material), off in zip(sources, offsets, strict=True):
+    for (v, f, n, u, material), off, c in zip(sources, offsets, tints, strict=True):
         faces.append(f + off)
         bits = material | (L.TRIANGLE_SMOOTH if n is not None else 0)
         bits |= L.TRIANGLE_UV if u is not None else 0
+        if c is not None:
+            bits |= L.TRIANGLE_COLOR
+            colors[off:off + len(v), :3] = c
         flags.append(np.broadcast_to(np.asarray(bits, dtype=np.int64), len(f)))
         if n is not None:
             normals[off:off + len(v), :3] = n
@@ -262,7 +268,7 @@ def _pack_triangles(objs: _Placed, bounded: _Bounded) -> _Triangles:
     hi = np.maximum(np.maximum(c0, c1), c2)[:, :3].astype(np.float64)
     lo = np.minimum(np.minimum(c0, c1, out=c0), c2, out=c0)[:, :3].astype(np.float64)
     bounded.add(L.PRIM_TRIANGLE, lo, hi, np.repeat(objs.owners, [len(f) for f in faces]))
-    return _Triangles(triangles, vertices, normals, uvs)
+    return _Triangles(triangles, vertices, normals, uvs, colors)
 
 
 def _build_wide(lo: np.ndarray, hi: np.ndarray, refs: np.ndarray, width: int,
@@ -628,6 +634,7 @@ def pack_scene(scene: M.Scene, *, width: int, height: int, spp: int, max_depth: 
         has_triangles=len(tris.triangles) > 0,
         has_vertex_normals=len(tris.normals) > 0,
         has_vertex_uvs=len(tris.uvs) > 0,
+        has_vertex_colors=len(tris.colors) > 0,
         has_textures=len(textures) > 0,
         has_instances=len(instances) > 0,
         **_scene_switches(scene, max_depth),
@@ -639,7 +646,8 @@ def pack_scene(scene: M.Scene, *, width: int, height: int, spp: int, max_depth: 
     return PackedScene(camera=camera, params=params, planes=planes, spheres=spheres,
                        boxes=boxes, cylinders=cylinders, cones=cones, triangles=tris.triangles,
                        triangle_packets=triangle_packets, sphere_packets=sphere_packets,
-                       normals=tris.normals, uvs=tris.uvs, nodes=wide.nodes,
+                       normals=tris.normals, uvs=tris.uvs, colors=tris.colors,
+                       nodes=wide.nodes,
                        prim_refs=wide.prim_refs, materials=materials, textures=textures,
                        texels=texels, lights=lights, instances=instance_records,
                        config=config, bvh_s=bvh_s, tuning=tuning)

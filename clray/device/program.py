@@ -59,6 +59,7 @@ class KernelConfig:
     has_triangles: bool = False
     has_vertex_normals: bool = False
     has_vertex_uvs: bool = False
+    has_vertex_colors: bool = False  # a mesh's vertex colours tint its faces
     has_textures: bool = False
     has_transmission: bool = False  # some material transmits: shadow rays filter
     has_refraction: bool = False

@@ -8,6 +8,7 @@ budgets (texels, triangles, bulk spheres) are what is left of clray.scene.limits
 
 from __future__ import annotations
 
+import dataclasses
 import io
 import zipfile
 from pathlib import Path
@@ -162,11 +163,10 @@ class Assets:
 
     def ply_mesh(self, data: bytes, key: str, name: str) -> ObjMesh:
         ply = read_ply(data, self.base / name)
-        if ply.colors is not None:
-            # Colours per vertex would need a per-vertex colour buffer on the device.
-            self.warnings.append(f"{key}: {file_name(name)}: vertex colours are not rendered "
-                                 "yet (the mesh takes its material's colour)")
-        return ply.mesh
+        if ply.colors is None:
+            return ply.mesh
+        # Scanners and MeshLab write display (sRGB) colours, as 8-bit images hold.
+        return dataclasses.replace(ply.mesh, colors=srgb_decode(ply.colors))
 
     def material_library(self, path: Path, where: str
                          ) -> tuple[MtlLibrary, tuple[int, int]] | None:
@@ -196,12 +196,12 @@ class Assets:
             arrays = {n: loaded[n] for n in loaded.files}
         except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
             raise self.values.error(key, f"cannot read {file_name(name)}: {exc}") from None
-        known = ("vertices", "faces", "normals", "uvs")
+        known = ("vertices", "faces", "normals", "uvs", "colors")
         unknown = sorted(set(arrays) - set(known))
         if unknown or "vertices" not in arrays or "faces" not in arrays:
             raise self.values.error(
                 key, f"{file_name(name)} holds {', '.join(sorted(arrays)) or 'nothing'} "
-                f"(expected vertices, faces and optionally normals, uvs)")
+                f"(expected vertices, faces and optionally normals, uvs, colors)")
         # Errors name the array.
         return mesh_arrays(self.values, arrays, f"{key}: {file_name(name)}: ")
 

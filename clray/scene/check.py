@@ -22,7 +22,7 @@ _OBJECT_TYPES: dict[type, str] = {
     M.Sphere: "sphere", M.Plane: "plane", M.Box: "box", M.Triangle: "triangle",
     M.Mesh: "mesh", M.Cylinder: "cylinder", M.Cone: "cone", M.Spheres: "spheres",
 }
-_MESH_ARRAYS = ("vertices", "faces", "normals", "uvs")
+_MESH_ARRAYS = ("vertices", "faces", "normals", "uvs", "colors")
 
 
 def check_scene(scene: M.Scene) -> M.Scene:

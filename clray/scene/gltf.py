@@ -86,7 +86,6 @@ class GltfModel:
     model's frame) for every node with a mesh, in depth-first order."""
 
     meshes: tuple[ObjMesh | None, ...]
-    colors: tuple[np.ndarray | None, ...]  # COLOR_0 (V, 3) linear, per mesh
     placements: tuple[tuple[int, np.ndarray], ...]
     materials: tuple[GltfMaterial, ...]
     images: tuple[Callable[[], bytes], ...]  # each image's encoded bytes, read when used
@@ -342,7 +341,7 @@ class _Reader:
 
     # -- meshes -------------------------------------------------------------------------------
 
-    def mesh(self, index: int) -> tuple[ObjMesh | None, np.ndarray | None]:
+    def mesh(self, index: int) -> ObjMesh | None:
         spec, path = self.entry("meshes", index, "nodes[].mesh")
         parts = []
         for j, value in enumerate(self.items(spec, "primitives", f"{path}.primitives")):
@@ -352,9 +351,7 @@ class _Reader:
                 parts.append(part)
         if "weights" in spec:
             self.warn("morph targets are not modelled (meshes render in their base shape)")
-        if not parts:
-            return None, None
-        return _merged(parts)
+        return _merged(parts) if parts else None
 
     def primitive(self, spec: dict, path: str) -> dict | None:
         mode = spec.get("mode", 4)
@@ -384,9 +381,7 @@ class _Reader:
             part["uvs"] = np.column_stack([uv[:, 0], 1.0 - uv[:, 1]])  # glTF's v runs down
         if "COLOR_0" in attributes:
             color = self.attribute(attributes, "COLOR_0", apath, ("VEC3", "VEC4"), n)
-            part["colors"] = np.clip(color[:, :3], 0.0, 1.0)
-            self.warn("vertex colours (COLOR_0) are not rendered (the faces take their "
-                      "material's colour)")
+            part["colors"] = np.clip(color[:, :3], 0.0, 1.0)  # linear, as glTF has them
         if any(name.startswith(("JOINTS_", "WEIGHTS_")) for name in attributes):
             self.warn("skins are not modelled (meshes render in their bind pose)")
         if "indices" in spec:
@@ -584,13 +579,12 @@ def read_gltf(data: bytes, path: Path, read_file: Callable[[str, str], bytes]) -
             camera = r.camera(node["camera"], matrix, f"nodes[{index}]")
     used = sorted({m for m, _ in placements})
     meshes: list[ObjMesh | None] = [None] * len(r.items(r.doc, "meshes"))
-    colors: list[np.ndarray | None] = [None] * len(meshes)
     for m in used:
-        meshes[m], colors[m] = r.mesh(m)
+        meshes[m] = r.mesh(m)
     materials = tuple(r.material(i) for i in range(len(r.items(r.doc, "materials"))))
     images = tuple(r.image(i) for i in range(len(r.items(r.doc, "images"))))
-    return GltfModel(tuple(meshes), tuple(colors), tuple(placements), materials, images,
-                     camera, tuple(r.warnings))
+    return GltfModel(tuple(meshes), tuple(placements), materials, images, camera,
+                     tuple(r.warnings))
 
 
 def read_gltf_camera(data: bytes, path: Path) -> GltfCamera | None:
@@ -619,30 +613,30 @@ def _triangles(indices: np.ndarray, mode: int) -> np.ndarray:
     return np.column_stack([np.full(n, indices[0]), indices[k + 1], indices[k + 2]])
 
 
-def _merged(parts: list[dict]) -> tuple[ObjMesh, np.ndarray | None]:
-    """One mesh of a glTF mesh's primitives: normals, uvs and colours where every primitive
-    has them (uvs where any has, zero elsewhere: only a textured material reads them)."""
+def _merged(parts: list[dict]) -> ObjMesh:
+    """One mesh of a glTF mesh's primitives: normals where every primitive has them, uvs and
+    colours where any has (zero uvs elsewhere: only a textured material reads them; white,
+    which tints nothing, for colours)."""
     if len(parts) == 1:  # most meshes: nothing to join
         p = parts[0]
         groups = np.full(len(p["faces"]), p["material"], dtype=np.int64)
-        return (ObjMesh(p["vertices"], p["faces"].astype(np.int64), p.get("normals"),
-                        p.get("uvs"), (), groups), p.get("colors"))
+        return ObjMesh(p["vertices"], p["faces"].astype(np.int64), p.get("normals"),
+                       p.get("uvs"), (), groups, colors=p.get("colors"))
     starts = np.cumsum([0] + [len(p["vertices"]) for p in parts])
     vertices = np.concatenate([p["vertices"] for p in parts])
     faces = np.concatenate([p["faces"] + s for p, s in zip(parts, starts, strict=False)])
     groups = np.concatenate([np.full(len(p["faces"]), p["material"], dtype=np.int64)
                              for p in parts])
 
-    def joined(name: str, width: int, fill: bool) -> np.ndarray | None:
+    def joined(name: str, width: int, fill: float | None) -> np.ndarray | None:
         have = [p.get(name) is not None for p in parts]
-        if not all(have) and not (fill and any(have)):
+        if not all(have) and not (fill is not None and any(have)):
             return None
         return np.concatenate([p[name] if p.get(name) is not None
-                               else np.zeros((len(p["vertices"]), width)) for p in parts])
+                               else np.full((len(p["vertices"]), width), fill) for p in parts])
 
-    mesh = ObjMesh(vertices, faces.astype(np.int64), joined("normals", 3, False),
-                   joined("uvs", 2, True), (), groups)
-    return mesh, joined("colors", 3, False)
+    return ObjMesh(vertices, faces.astype(np.int64), joined("normals", 3, None),
+                   joined("uvs", 2, 0.0), (), groups, colors=joined("colors", 3, 1.0))
 
 
 def _is_int(value: Any) -> bool:

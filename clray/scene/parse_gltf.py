@@ -163,16 +163,21 @@ def _placeable(world: np.ndarray) -> bool:
 
 
 def _joined(parts: list[ObjMesh]) -> ObjMesh:
-    """One mesh of several; normals and uvs kept where every part has them."""
+    """One mesh of several; normals and uvs kept where every part has them, colours where
+    any has (white, which tints nothing, elsewhere)."""
     starts = np.cumsum([0] + [len(p.vertices) for p in parts])
 
     def joined(name: str) -> np.ndarray | None:
         values = [getattr(p, name) for p in parts]
         return None if any(x is None for x in values) else np.concatenate(values)
 
+    colors = None
+    if any(p.colors is not None for p in parts):
+        colors = np.concatenate([np.ones((len(p.vertices), 3)) if p.colors is None
+                                 else p.colors for p in parts])
     return ObjMesh(np.concatenate([p.vertices for p in parts]),
                    np.concatenate([p.faces + s for p, s in zip(parts, starts, strict=False)]),
-                   joined("normals"), joined("uvs"), (), joined("face_groups"))
+                   joined("normals"), joined("uvs"), (), joined("face_groups"), colors=colors)
 
 
 def _mesh(obj: ObjMesh, face_materials: np.ndarray, own: bool) -> Mesh:
@@ -181,5 +186,6 @@ def _mesh(obj: ObjMesh, face_materials: np.ndarray, own: bool) -> Mesh:
     return Mesh(vertices=np.ascontiguousarray(obj.vertices, dtype=np.float64),
                 faces=np.ascontiguousarray(obj.faces, dtype=np.int64),
                 material=int(face_materials[0]), normals=obj.normals, uvs=obj.uvs,
+                colors=obj.colors,
                 face_materials=None if not own else np.ascontiguousarray(face_materials,
                                                                           dtype=np.int64))

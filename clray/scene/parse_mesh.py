@@ -52,6 +52,7 @@ def parse_mesh(spec: dict, key: str, material: int | None, v: Values, assets: As
         normals=normals,
         uvs=uvs,
         face_materials=face_materials,
+        colors=obj.colors,
     )
 
 
@@ -112,7 +113,7 @@ def _mesh_source(spec: dict, key: str, v: Values, assets: Assets) -> ObjMesh:
     inline = "vertices" in spec or "faces" in spec
     if "file" in spec and inline:
         raise v.error(key, "give file or vertices + faces, not both")
-    for name in ("normals", "uvs"):
+    for name in ("normals", "uvs", "colors"):
         if name in spec and not inline:
             raise v.error(f"{key}.{name}", "only with vertices + faces (an OBJ file "
                           "gives its own)")

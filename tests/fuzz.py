@@ -460,6 +460,9 @@ def gltf_bytes(rng: random.Random) -> tuple[str, bytes]:
             "index": b.image(texels)}
         b.doc["meshes"][0]["primitives"][0]["attributes"]["TEXCOORD_0"] = b.accessor(
             np.zeros((8, 2), np.float32), "VEC2")
+    if rng.random() < 0.3:  # vertex colours, in range or not
+        b.doc["meshes"][0]["primitives"][0]["attributes"]["COLOR_0"] = b.accessor(
+            np.float32(rng.choice([0.5, 2.0, -1.0])) * np.ones((8, 3), np.float32), "VEC3")
     glb = rng.random() < 0.5
     doc = b.document(None if glb else "data:application/octet-stream;base64,"
                      + base64.b64encode(b.blob).decode())

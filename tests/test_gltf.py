@@ -404,3 +404,16 @@ def test_ply_colours_are_srgb_decoded_and_rendered(cl_device, tmp_path, monkeypa
     assert not any("colour" in w for w in scene.warnings)
     monkeypatch.chdir(tmp_path)  # the automatic scene's material is white: colours as given
     assert model_scene_data(Path("c.ply"))["materials"]["model"]["color"] == [1.0, 1.0, 1.0]
+
+
+def test_a_python_scene_keeps_its_vertex_colours_and_checks_them():
+    from clray.scene.check import check_scene
+
+    colors = np.array([[1.0, 0, 0], [0, 1, 0], [0, 0, 1]])
+    mesh = M.Mesh(np.array([[-1.0, -1, 0], [2, -1, 0], [0.5, 2, 0]]), np.array([[0, 1, 2]]), 0,
+                  colors=colors)
+    checked = check_scene(colored_scene(mesh))
+    np.testing.assert_array_equal(checked.objects[0].colors, colors)
+    bad = M.Mesh(mesh.vertices, mesh.faces, 0, colors=colors * 2)
+    with pytest.raises(SceneError, match=r"objects\[0\].colors: must be linear values in"):
+        check_scene(colored_scene(bad))

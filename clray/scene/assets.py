@@ -120,15 +120,17 @@ class Assets:
     # -- meshes ---------------------------------------------------------------------------
 
     def mesh_file(self, name: Any, key: str) -> ObjMesh:
-        """A mesh from an OBJ file, or a .npz of arrays."""
-        stream, identity = self.open_file(name, key, L.MAX_MESH_BYTES)
+        """A mesh from an OBJ or PLY file, or a .npz of arrays."""
+        suffix = Path(str(name)).suffix.lower()
+        # PLY's ASCII form is held to MAX_MESH_BYTES by read_ply, once its header is read.
+        limit = L.MAX_BINARY_MESH_BYTES if suffix in (".ply", ".npz") else L.MAX_MESH_BYTES
+        stream, identity = self.open_file(name, key, limit)
         with stream:
             if identity not in self.meshes:
                 try:
-                    data = read_at_most(stream, L.MAX_MESH_BYTES)
+                    data = read_at_most(stream, limit)
                 except UnreadableFile as exc:
                     raise self.values.error(key, f"{exc}: {file_name(name)}") from None
-                suffix = Path(str(name)).suffix.lower()
                 if suffix == ".npz":
                     self.meshes[identity] = self.npz_mesh(data, key, name)
                 elif suffix == ".ply":

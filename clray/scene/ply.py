@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from clray.errors import SceneError, plural
+from clray.scene import limits
 from clray.scene.limits import MAX_MAGNITUDE
 from clray.scene.model import unit
 from clray.scene.obj import ObjMesh, _fan
@@ -371,6 +372,11 @@ def read_ply(data: bytes, path: Path) -> PlyMesh:
     reader = _Reader(data, path)
     fmt, elements, body = reader.header()
     if fmt == "ascii":
+        if len(data) > limits.MAX_MESH_BYTES:
+            # Text is parsed token by token, at several times its size in memory: binary files
+            # alone (numpy views of their blocks) may be as large as MAX_BINARY_MESH_BYTES.
+            raise reader.error(None, f"an ASCII PLY file is at most {limits.MAX_MESH_BYTES} "
+                               f"bytes, this one has {len(data)} (write it as binary)")
         columns = reader.ascii(elements, body)
     else:
         columns = reader.binary(elements, body, _FORMATS[fmt])

@@ -174,6 +174,10 @@ def render_still(client: Client, scene: Scene, settings: RenderSettings | None =
         # The denoiser needs the whole image's albedo and normal passes, which tiles lack.
         raise SettingsError("--denoise (RenderSettings.denoise): a still rendered in tiles on "
                             "Dask cannot be denoised; render it without --dask")
+    if settings.aovs:
+        # Tiles render the image only (render_packed); their passes would be lost unasked.
+        raise SettingsError("RenderSettings.aovs: a still rendered in tiles on Dask has no "
+                            "passes; render it without Dask")
     started = time.perf_counter()
     scene = check_scene(scene)
     encoding = png_encoding(scene, settings)

@@ -371,3 +371,12 @@ def test_cli_pass_usage_errors_exit_2_in_one_line(capsys: pytest.CaptureFixture,
     assert code == EXIT_USAGE and out == ""
     assert len(err.splitlines()) == 1 and err.startswith("clray: error: ") and words in err
     assert sorted(p.name for p in tmp_path.iterdir()) == ["scene.toml"]
+
+
+def test_a_dask_still_refuses_passes_before_any_work() -> None:
+    pytest.importorskip("distributed")
+    from clray.distributed import render_still
+
+    # Refused before the client is used: tiles render the image only.
+    with pytest.raises(SettingsError, match="has no passes"):
+        render_still(None, _scene(CAMERAS["pinhole"]), RenderSettings(aovs=("depth",)))

@@ -17,6 +17,7 @@ from PIL import Image
 from clray import cli
 from clray.device.context import has_fp64
 from clray.errors import EXIT_USAGE, SettingsError
+from clray.knobs import Tuning
 from clray.passes import PASS_NAMES, preview
 from clray.reference import camera_rays
 from clray.reference.bvh import intersect_scene
@@ -380,3 +381,17 @@ def test_a_dask_still_refuses_passes_before_any_work() -> None:
     # Refused before the client is used: tiles render the image only.
     with pytest.raises(SettingsError, match="has no passes"):
         render_still(None, _scene(CAMERAS["pinhole"]), RenderSettings(aovs=("depth",)))
+
+
+@pytest.mark.parametrize("traversal", ["sample_packet", "group_packet"])
+def test_passes_are_the_same_in_bands_and_under_every_traversal(traversal: str,
+                                                                 cl_device: cl.Device) -> None:
+    # Bands of 3 rows (10 launches of render_passes, each at its row offset) in another
+    # scheme's build give the passes of one launch in the single-ray build, bit for bit.
+    scene = _index_scene(CAMERAS["pinhole"], 4)
+    whole = render(scene, RenderSettings(aovs=ALL, traversal="single", stored_tuning=False))
+    rows = Tuning(first_launch_pixel_samples=W * 4 * 3, max_launch_pixel_samples=W * 4 * 3)
+    banded = render(scene, RenderSettings(aovs=ALL, traversal=traversal, tuning=rows))
+    assert banded.stats["traversal"] == traversal and banded.stats["launches"] == 10
+    for name in ALL:
+        assert np.array_equal(banded.aovs[name], whole.aovs[name]), name

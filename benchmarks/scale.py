@@ -23,6 +23,7 @@ from __future__ import annotations
 import argparse
 import importlib.util
 import json
+import os
 import platform
 import subprocess
 import sys
@@ -177,11 +178,12 @@ def plot(rows: dict[str, dict], out: Path) -> None:
         ax_t.plot(*zip(*mitsuba, strict=True), "k--", label="Mitsuba 3 load")
     ax_t.set(xlabel="million triangles", ylabel="seconds", title="time by stage")
     ax_t.legend()
-    ax_m.plot(tris, [r["host_peak"] / MIB for r in done], "o-", label="host peak (ru_maxrss)")
+    ax_m.plot(tris, [r["host_peak"] / MIB for r in done], "o-", label="host peak (VmHWM)")
     ax_m.plot(tris, [r["device_bytes_total"] / MIB for r in done], "o-", label="device buffers")
     ax_m.set(xlabel="million triangles", ylabel="MiB", title="memory")
     ax_m.legend()
-    fig.suptitle(f"clray render MODEL.ply, bumpy icosphere ({done[0]['device']})", fontsize=9)
+    fig.suptitle(f"clray render MODEL.ply, bumpy icosphere ({done[0]['device']}; "
+                 f"{os.cpu_count()} CPUs, shared)", fontsize=9)
     fig.tight_layout()
     fig.savefig(out, dpi=90)
 

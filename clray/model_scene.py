@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 
 from clray.errors import SceneError
+from clray.scene.assets import meshes_read_once
 from clray.scene.files import UnreadableFile, read_regular
 from clray.scene.gltf import GLTF_SUFFIXES, GltfCamera, read_gltf_camera
 from clray.scene.limits import MAX_MAGNITUDE, MAX_MESH_BYTES
@@ -143,7 +144,8 @@ def model_scene_data(path: Path, view: str = DEFAULT_VIEW, ground: bool = False,
 
 def load_model_scene(path: Path, view: str = DEFAULT_VIEW, ground: bool = False,
                      up: str = DEFAULT_UP) -> Scene:
-    return scene_from_dict(model_scene_data(path, view, ground, up))
+    with meshes_read_once():  # framing the model and loading its scene read the file once
+        return scene_from_dict(model_scene_data(path, view, ground, up))
 
 
 def _meshes(scene: Scene) -> list[Mesh]:

@@ -11,6 +11,9 @@ from __future__ import annotations
 import dataclasses
 import io
 import zipfile
+from collections.abc import Iterator
+from contextlib import contextmanager
+from contextvars import ContextVar
 from pathlib import Path
 from typing import Any, BinaryIO
 
@@ -31,6 +34,21 @@ from clray.scene.values import Values, file_name
 # What a `spheres` object's .npz may hold (a .npy holds centers, or centers and radii).
 SPHERE_ARRAYS = ("centers", "radii", "material_index")
 _DECODE_SLICE = 1 << 20  # texel values decoded from sRGB at a time
+# The meshes read within meshes_read_once(), which every Assets made there shares.
+_SHARED_MESHES: ContextVar[dict | None] = ContextVar("clray_shared_meshes", default=None)
+
+
+@contextmanager
+def meshes_read_once() -> Iterator[None]:
+    """Scenes loaded within it read each mesh file once between them: the automatic scene of a
+    model file loads it to frame it, then as the scene (for a 5 M-triangle PLY, half the
+    load). Meshes only: a mesh file's reading adds no warning that the second scene would
+    then miss, as a texture's or a glTF file's does."""
+    token = _SHARED_MESHES.set({})
+    try:
+        yield
+    finally:
+        _SHARED_MESHES.reset(token)
 
 
 class Assets:
@@ -43,7 +61,8 @@ class Assets:
         self.textures: dict[tuple[int, int], tuple[np.ndarray, bool]] = {}
         # By id() of the stored texels, which self.textures keeps alive for the assets' life.
         self.decoded_textures: dict[int, np.ndarray] = {}
-        self.meshes: dict[tuple[int, int], ObjMesh] = {}
+        shared = _SHARED_MESHES.get()
+        self.meshes: dict[tuple[int, int], ObjMesh] = {} if shared is None else shared
         self.models: dict[tuple[int, int], GltfModel] = {}  # glTF files
         # MTL libraries by (device, inode): (the library, its identity).
         self.libraries: dict[tuple[int, int], MtlLibrary] = {}

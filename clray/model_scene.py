@@ -79,7 +79,10 @@ def model_scene_data(path: Path, view: str = DEFAULT_VIEW, ground: bool = False,
     rotation = np.array(UP_ROTATIONS[up], dtype=np.float64)
     matrix, offset = rotation, np.zeros(3)
     model = np.concatenate(meshes)
-    vertices = model @ matrix.T
+    # einsum, not `model @ matrix.T`: numpy's matmul of millions of rows by a 3 x 3 took
+    # 1.3 s for a 2.6 M-vertex model, einsum 0.18 s, the same numbers for these rotations
+    # (each row a coordinate, signed).
+    vertices = np.einsum("ij,kj->ik", model, matrix)
     center, radius, lo = _bounds(vertices)
     distance = MARGIN * radius / math.sin(math.radians(VFOV) / 2.0)
     if np.max(np.abs(center)) + distance > MAX_MAGNITUDE / 2:

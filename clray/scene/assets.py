@@ -161,18 +161,21 @@ class Assets:
     def gltf_model(self, name: Any, key: str) -> tuple[GltfModel, tuple[int, int]]:
         """A .gltf or .glb file's model (clray.scene.gltf), read once, with its identity; the
         buffers and images it names are relative to it."""
-        stream, identity = self.open_file(name, key, L.MAX_MESH_BYTES)
+        # A .glb's and a .bin's arrays are numpy views, as a binary PLY's; a .gltf is JSON.
+        binary = Path(str(name)).suffix.lower() == ".glb"
+        limit = L.MAX_BINARY_MESH_BYTES if binary else L.MAX_MESH_BYTES
+        stream, identity = self.open_file(name, key, limit)
         with stream:
             if identity not in self.models:
                 try:
-                    data = read_at_most(stream, L.MAX_MESH_BYTES)
+                    data = read_at_most(stream, limit)
                 except UnreadableFile as exc:
                     raise self.values.error(key, f"{exc}: {file_name(name)}") from None
                 path = self.base / name
 
                 def read_file(relative: str, where: str) -> bytes:
                     try:
-                        return read_regular(path.parent / relative, L.MAX_MESH_BYTES)
+                        return read_regular(path.parent / relative, L.MAX_BINARY_MESH_BYTES)
                     except UnreadableFile as exc:
                         raise SceneError(path, where, f"cannot read {file_name(relative)}: "
                                          f"{exc}") from None

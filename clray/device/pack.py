@@ -394,13 +394,18 @@ def _triangle_packets(prim_refs: np.ndarray, tris: _Triangles) -> np.ndarray:
     used = _through_last(is_tri)
     slots, is_tri = slots[:used], is_tri[:used]
     lane_tri = np.where(is_tri, slots & L.PRIM_INDEX_MASK, 0)
+    # Each lane's whole TRIANGLE record (v0, v1, v2, material) at once: one take of 16-byte
+    # rows, not three of a strided field.
+    records = np.take(tris.triangles.view(np.int32).reshape(-1, 4), lane_tri, axis=0)
     packets = np.empty((len(slots), 3, 3, PACKET_WIDTH), dtype=np.float32)
     # Corner by corner, whole vertex rows taken (np.take along axis 0: a fancy index with a
     # slice is several times slower), then the record's order: corner, axis, lane.
-    for k, name in enumerate(("v0", "v1", "v2")):
-        corner = np.take(tris.vertices, tris.triangles[name].take(lane_tri), axis=0)
+    for k in range(3):
+        corner = np.take(tris.vertices, records[..., k], axis=0)
         packets[:, k] = corner[..., :3].transpose(0, 2, 1)
-    packets[np.broadcast_to(~is_tri[:, None, None, :], packets.shape)] = np.nan
+    # NaN in the lanes of the few packets that are not all triangles.
+    partial = np.flatnonzero(~is_tri.all(axis=1))
+    packets[partial] = np.where(is_tri[partial, None, None, :], packets[partial], np.nan)
     return packets.reshape(len(slots), -1).view(L.TRIANGLE_PACKET).ravel()
 
 

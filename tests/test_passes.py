@@ -395,3 +395,19 @@ def test_passes_are_the_same_in_bands_and_under_every_traversal(traversal: str,
     assert banded.stats["traversal"] == traversal and banded.stats["launches"] == 10
     for name in ALL:
         assert np.array_equal(banded.aovs[name], whole.aovs[name]), name
+
+
+@pytest.mark.parametrize("camera", sorted(CAMERAS))
+def test_normals_are_outward_not_turned_to_the_viewer(camera: str, cl_device: cl.Device) -> None:
+    # From inside a sphere every ray meets its inner side: the pass holds the outward normal
+    # (p - centre) / radius, which points away from the camera, not the one shading faces it.
+    big = M.Sphere((0.0, 0.0, 0.0), 30.0, 0)
+    scene = _scene(CAMERAS[camera], objects=(big,))
+    result = render(scene, RenderSettings(aovs=("normal", "position")))
+    o, d, _ = camera_rays(scene)
+    oc = o - np.asarray(big.center)
+    b = np.einsum("ij,ij->i", oc, d)
+    t = -b + np.sqrt(b * b - (np.einsum("ij,ij->i", oc, oc) - big.radius ** 2))
+    want = ((o + t[:, None] * d - np.asarray(big.center)) / big.radius).reshape(H, W, 3)
+    assert np.all(np.einsum("ijk,ijk->ij", want, d.reshape(H, W, 3)) > 0)
+    assert np.abs(result.aovs["normal"] - want).max() <= 1e-5

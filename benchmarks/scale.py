@@ -6,12 +6,12 @@ runs them.
                                [--mesh-dir DIR] [--mitsuba {auto,off}] [--plot docs/scale.png]
 
 Each size is written once as a binary little-endian PLY (float x, y, z; uchar/int faces, the
-layout scanners and MeshLab write) and rendered in a fresh process (ru_maxrss is a process's
-peak): the automatic scene of `clray render MODEL` (clray.model_scene), 1280 x 720, 1 spp,
-packed as render() packs it for the device (the BVH on the device where it is large). A small
-mesh is rendered first in the same process so that the kernel builds and the device BVH
-build's program come from the caches, not the compiler: `build_s` is what remains. The peak
-is read after load, after pack and after the render, so each stage's share is in view.
+layout scanners and MeshLab write) and rendered in a fresh process (its peak resident memory,
+VmHWM, is its own): the automatic scene of `clray render MODEL` (clray.model_scene), 1280 x
+720, 1 spp, packed as render() packs it for the device (the BVH on the device where it is
+large). A small mesh is rendered first in the same process so that the kernel builds and the
+device BVH build's program come from the caches, not the compiler: `build_s` is what remains.
+The peak is read after load, after pack and after the render, so each stage's share is in view.
 
 Mitsuba 3's load of the same file (its PLY reader and, where built with it, Embree's BVH: a
 `scalar_rgb` scene of one `ply` shape) runs in a process of its own beside clray's where the
@@ -23,6 +23,7 @@ from __future__ import annotations
 import argparse
 import importlib.util
 import json
+import os
 import platform
 import subprocess
 import sys
@@ -35,17 +36,27 @@ HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
 MIB = 1024.0 * 1024.0
 
-# Runs in the child: one size; prints one JSON line.
-_CLRAY = """
+# The children's peak resident bytes: VmHWM, which starts afresh at exec; ru_maxrss starts from
+# the parent's resident size at the fork (the mesh writer's, for a big mesh).
+_PEAK = """
 import json, resource, sys, time
+
+def peak():
+    try:
+        with open("/proc/self/status") as f:
+            return next(int(line.split()[1]) * 1024 for line in f if line.startswith("VmHWM:"))
+    except (OSError, StopIteration):
+        return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
+"""
+
+# Runs in the child: one size; prints one JSON line.
+_CLRAY = _PEAK + """
 from pathlib import Path
 from clray.device.context import describe, select_device
 from clray.device.launch import render_packed
 from clray.model_scene import load_model_scene
 from clray.render import RenderSettings, pack_for
 
-def peak():
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
 
 path, warm = Path(sys.argv[1]), Path(sys.argv[2])
 settings = RenderSettings(width=1280, height=720, spp=1)
@@ -69,14 +80,13 @@ out["peak_after_render"] = peak()
 print(json.dumps(out))
 """
 
-_MITSUBA = """
-import json, resource, sys, time
+_MITSUBA = _PEAK + """
 import mitsuba as mi
 mi.set_variant("scalar_rgb")
 t = time.perf_counter()
 scene = mi.load_dict({"type": "scene", "mesh": {"type": "ply", "filename": sys.argv[1]}})
 out = {"load_s": time.perf_counter() - t, "mitsuba": mi.__version__,
-       "peak": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024}
+       "peak": peak()}
 print(json.dumps(out))
 """
 
@@ -168,11 +178,12 @@ def plot(rows: dict[str, dict], out: Path) -> None:
         ax_t.plot(*zip(*mitsuba, strict=True), "k--", label="Mitsuba 3 load")
     ax_t.set(xlabel="million triangles", ylabel="seconds", title="time by stage")
     ax_t.legend()
-    ax_m.plot(tris, [r["host_peak"] / MIB for r in done], "o-", label="host peak (ru_maxrss)")
+    ax_m.plot(tris, [r["host_peak"] / MIB for r in done], "o-", label="host peak (VmHWM)")
     ax_m.plot(tris, [r["device_bytes_total"] / MIB for r in done], "o-", label="device buffers")
     ax_m.set(xlabel="million triangles", ylabel="MiB", title="memory")
     ax_m.legend()
-    fig.suptitle(f"clray render MODEL.ply, bumpy icosphere ({done[0]['device']})", fontsize=9)
+    fig.suptitle(f"clray render MODEL.ply, bumpy icosphere ({done[0]['device']}; "
+                 f"{os.cpu_count()} CPUs, shared)", fontsize=9)
     fig.tight_layout()
     fig.savefig(out, dpi=90)
 
@@ -180,7 +191,7 @@ def plot(rows: dict[str, dict], out: Path) -> None:
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--subdivisions", default="7,8,9", help="comma-separated sizes "
-                        "(10: 21 M triangles, about 10 GB of host memory today)")
+                        "(10: 21 M triangles, about 8 GB of host memory today)")
     parser.add_argument("--json", type=Path, default=HERE / "results" / "scale.json")
     parser.add_argument("--mesh-dir", type=Path, help="keep the PLY files here (default: a "
                         "temporary folder)")

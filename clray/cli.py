@@ -27,6 +27,7 @@ from typing import Any, NoReturn
 import pyopencl as cl
 
 from clray import __version__
+from clray.denoise import check_denoiser
 from clray.device.context import default_device, list_devices
 from clray.errors import (
     EXIT_OK,
@@ -44,12 +45,14 @@ from clray.image_io import (
     check_writer,
     clipped_pixels,
     image_bytes,
+    image_host_bytes,
     is_special_file,
     output_target,
     write_bytes_atomically,
 )
 from clray.knobs import TRAVERSALS
 from clray.metrics import nonfinite_count
+from clray.passes import PASS_NAMES, pass_paths, pass_problem
 from clray.render import RenderResult, RenderSettings, render
 from clray.scene import limits
 from clray.scene.load import load_scene
@@ -203,6 +206,18 @@ def _build_parser() -> _Parser:
     r.add_argument("--no-tuning", dest="stored_tuning", action="store_false",
                    help="render with the knob table's defaults, not the device's tuning file "
                         "that `clray tune` wrote (docs/tuning.md)")
+    r.add_argument("--denoise", action="store_true",
+                   help="denoise the image with Intel Open Image Denoise, guided by the albedo "
+                        "and normal passes, before it is written (pip install "
+                        "'clray[denoise]'; docs/denoising.md)")
+    r.add_argument("--aov", type=_flag_value(lambda text: tuple(text.split(",")), pass_problem),
+                   metavar="PASSES",
+                   help=f"also render these passes, comma-separated: {','.join(PASS_NAMES)} "
+                        "(docs/passes.md); written as layers of an .exr output, else one PFM "
+                        "a pass beside the image (out.depth.pfm)")
+    r.add_argument("--aov-preview", action="store_true",
+                   help="with --aov: also a false-colour PNG of each pass beside the image "
+                        "(out.depth.png)")
     r.add_argument("--stats-json", type=_file_path, metavar="PATH",
                    help="write timings, sizes and ray counts as JSON ('-': standard output)")
     talk = r.add_mutually_exclusive_group()
@@ -396,6 +411,7 @@ def _parse(argv: list[str] | None) -> argparse.Namespace:
         if png_only and args.output.suffix.lower() in FLOAT_SUFFIXES:
             parser.error(f"{', '.join(png_only)} applies to PNG output only; "
                          f"{args.output.suffix} holds the linear radiance as rendered")
+        _check_pass_flags(parser, args)
     return args
 
 
@@ -416,6 +432,23 @@ def _check_still_output(parser: argparse.ArgumentParser, args: argparse.Namespac
             and frame_path(args.output, 0) != frame_path(args.output, 1)):
         parser.error(f"-o {args.output} holds a frame number: give --frames A:B to render "
                      "frames, or a name without % for a still")
+
+
+def _check_pass_flags(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
+    """--aov renders one still's passes into files: refused where there is none to write."""
+    if args.aov_preview and not args.aov:
+        parser.error("--aov-preview applies to --aov")
+    if not args.aov:
+        return
+    refused = [flag for flag, on in (("-o -", args.output == STDOUT),
+                                     ("--frames", args.frames is not None),
+                                     ("--dask", args.dask is not None)) if on]
+    if refused:
+        parser.error(f"--aov writes a still's passes to files beside it, not with "
+                     f"{' or '.join(refused)}")
+    for path in pass_paths(args.output, args.aov, args.aov_preview):
+        if args.stats_json is not None and _same_file(args.stats_json, path):
+            parser.error(f"--stats-json and the {path.name} pass file are the same file")
 
 
 def _same_file(a: Path, b: Path) -> bool:
@@ -660,7 +693,12 @@ def _render(args: argparse.Namespace) -> int:
         check_writer(output)
     if args.stats_json not in (None, STDOUT):
         _check_writable(args.stats_json)
+    if args.aov:
+        for path in pass_paths(output, args.aov, args.aov_preview):
+            _check_writable(path)
 
+    if args.denoise:
+        check_denoiser()  # before any work: says how to install the binding where it is missing
     if args.dask is not None:
         from clray.distributed import import_distributed
 
@@ -674,6 +712,7 @@ def _render(args: argparse.Namespace) -> int:
         if not args.quiet:
             for warning in scene.warnings:
                 _say(f"warning: {warning}")
+            _note_image_memory(args, scene)
         with _progress(quiet=args.quiet, verbose=args.verbose) as progress:
             settings = _settings(args, progress)
             if args.dask is None:
@@ -689,7 +728,7 @@ def _render(args: argparse.Namespace) -> int:
     if output == STDOUT:
         _write(output, lambda: _to_stdout(image_bytes(".png", result.image, result.encoding)))
     else:
-        _write(output, lambda: result.save(output))
+        _write(output, lambda: result.save(output, previews=args.aov_preview))
     height, width, _ = result.image.shape
     stats = {
         **result.stats,
@@ -725,7 +764,28 @@ def _render(args: argparse.Namespace) -> int:
             _say_dask(stats["dask"], "tiles")
         _say(f"wrote {output} ({width}x{height}, {stats['spp']} spp, "
              f"wall {stats['total_s']:.3g} s, kernel {stats['kernel_s']:.3g} s)")
+        if args.aov:
+            files = ", ".join(p.name for p in pass_paths(output, args.aov, args.aov_preview))
+            if output.suffix.lower() == ".exr":
+                files = f"layers of {output.name}" + (f"; previews {files}" if files else "")
+            _say(f"wrote passes {','.join(args.aov)}: {files}")
     return EXIT_OK
+
+
+# Above this much host memory for the image, render says how much before it starts.
+LARGE_IMAGE_BYTES = 2 << 30
+
+
+def _note_image_memory(args: argparse.Namespace, scene: Scene) -> None:
+    """One line before a render whose image takes more than LARGE_IMAGE_BYTES of host memory:
+    a 16384 x 16384 image takes several GiB, and a machine short of it should hear so first."""
+    width = args.width or scene.render.width
+    height = args.height or scene.render.height
+    suffix = ".png" if args.output == STDOUT else check_suffix(args.output)
+    need = image_host_bytes(width, height, suffix)
+    if need > LARGE_IMAGE_BYTES:
+        _say(f"note: a {width} x {height} image takes about {need / (1 << 30):.1f} GiB of host "
+             f"memory (the float image and its {suffix[1:].upper()} encoding)")
 
 
 def _settings(args: argparse.Namespace, progress: Callable[[int, int], None] | None
@@ -735,7 +795,7 @@ def _settings(args: argparse.Namespace, progress: Callable[[int, int], None] | N
         seed=args.seed, min_weight=args.min_weight, device=args.device,
         precision=args.precision, traversal=args.traversal, progress=progress,
         linear=args.linear, exposure=args.exposure, png_bits=args.png_bits,
-        stored_tuning=args.stored_tuning)
+        stored_tuning=args.stored_tuning, denoise=args.denoise, aovs=args.aov or ())
 
 
 def _cluster(args: argparse.Namespace) -> contextlib.AbstractContextManager:

@@ -32,7 +32,7 @@ import pyopencl as cl
 from clray.device.context import describe, select_device
 from clray.device.launch import render_packed
 from clray.device.pack import PackedScene
-from clray.errors import ClrayError
+from clray.errors import ClrayError, SettingsError
 from clray.render import (
     RenderResult,
     RenderSettings,
@@ -170,6 +170,14 @@ def render_still(client: Client, scene: Scene, settings: RenderSettings | None =
     hears pixel-samples as tiles arrive; on_tile(tiles done, tiles submitted) after each."""
     distributed = import_distributed()
     settings = settings or RenderSettings()
+    if settings.denoise:
+        # The denoiser needs the whole image's albedo and normal passes, which tiles lack.
+        raise SettingsError("--denoise (RenderSettings.denoise): a still rendered in tiles on "
+                            "Dask cannot be denoised; render it without --dask")
+    if settings.aovs:
+        # Tiles render the image only (render_packed); their passes would be lost unasked.
+        raise SettingsError("RenderSettings.aovs: a still rendered in tiles on Dask has no "
+                            "passes; render it without Dask")
     started = time.perf_counter()
     scene = check_scene(scene)
     encoding = png_encoding(scene, settings)

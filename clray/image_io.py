@@ -110,6 +110,8 @@ def _encode_float64(values: np.ndarray, encoding: Encoding) -> np.ndarray:
 _BUCKET_SHIFT = 15
 _ONE_BITS = 0x3F800000  # 1.0f
 _INF_BITS = 0x7F800000
+# Samples the table encodes at a time (_srgb8_by_table).
+_ENCODE_SLICE = 1 << 20
 
 
 @functools.cache
@@ -144,10 +146,18 @@ def _srgb8_table() -> tuple[np.ndarray, np.ndarray]:
 def _srgb8_by_table(values: np.ndarray) -> np.ndarray:
     bits = np.ascontiguousarray(values, dtype=np.float32).view(np.uint32)
     top, starts_at = _srgb8_table()
-    bucket = bits >> _BUCKET_SHIFT
-    # One code below the bucket's top where the top's code starts later in it (never where it
-    # starts at 0).
-    return top[bucket] - (bits < starts_at[bucket])
+    codes = np.empty(bits.shape, dtype=top.dtype)
+    flat_bits, flat_codes = bits.reshape(-1), codes.reshape(-1)
+    # A slice at a time: the whole image's buckets and thresholds (10 bytes a sample) would
+    # take more memory than the float image itself (a 16384 x 16384 image: 6 GiB more).
+    for start in range(0, flat_bits.size, _ENCODE_SLICE):
+        part = flat_bits[start:start + _ENCODE_SLICE]
+        bucket = part >> _BUCKET_SHIFT
+        # One code below the bucket's top where the top's code starts later in it (never where
+        # it starts at 0).
+        np.subtract(top[bucket], part < starts_at[bucket],
+                    out=flat_codes[start:start + _ENCODE_SLICE])
+    return codes
 
 
 def to_png_samples(image: np.ndarray, encoding: Encoding = Encoding()) -> np.ndarray:
@@ -205,16 +215,19 @@ def png_bytes(pixels: np.ndarray, linear: bool = False) -> bytes:
         b"\x89PNG\r\n\x1a\n",
         _png_chunk(b"IHDR", header),
         tag,
-        _png_chunk(b"IDAT", zlib.compress(filtered.tobytes(), 1)),
+        _png_chunk(b"IDAT", zlib.compress(filtered.data, 1)),
         _png_chunk(b"IEND", b""),
     ))
 
 
 def pfm_bytes(image: np.ndarray) -> bytes:
-    """Colour PFM, little-endian (negative scale), rows stored bottom to top as the format says."""
-    pixels = np.asarray(_as_rgb(image), dtype="<f4")
-    height, width, _ = pixels.shape
-    header = f"PF\n{width} {height}\n-1.0\n".encode("ascii")
+    """Colour PFM of an (H, W, 3) image, or greyscale ("Pf") of an (H, W) one (a pass of one
+    number a pixel), little-endian (negative scale), rows stored bottom to top as the format
+    says."""
+    grey = np.ndim(image) == 2 and 0 not in np.shape(image)
+    pixels = np.asarray(image if grey else _as_rgb(image), dtype="<f4")
+    height, width = pixels.shape[:2]
+    header = f"{'Pf' if grey else 'PF'}\n{width} {height}\n-1.0\n".encode("ascii")
     return header + np.ascontiguousarray(pixels[::-1]).tobytes()
 
 
@@ -283,8 +296,9 @@ def write_bytes_atomically(path: str | Path, payload: bytes) -> None:
         raise
 
 
-def exr_bytes(image: np.ndarray) -> bytes:
-    """Float32 RGB OpenEXR, ZIP-compressed; needs the optional OpenEXR package."""
+def exr_bytes(image: np.ndarray, channels: dict[str, np.ndarray] | None = None) -> bytes:
+    """Float32 RGB OpenEXR, ZIP-compressed, with more float32 `channels` of the image's size by
+    their full names (a layer's, "depth.Z"); needs the optional OpenEXR package."""
     try:
         import OpenEXR
     except ImportError:
@@ -295,8 +309,23 @@ def exr_bytes(image: np.ndarray) -> bytes:
     # temporary file, whose bytes then go through write_bytes_atomically like every format.
     with tempfile.TemporaryDirectory(prefix="clray-exr-") as folder:
         path = os.path.join(folder, "image.exr")
-        OpenEXR.File(header, {"RGB": pixels}).write(path)
+        more = {name: np.ascontiguousarray(values, dtype=np.float32)
+                for name, values in (channels or {}).items()}
+        OpenEXR.File(header, {"RGB": pixels, **more}).write(path)
         return Path(path).read_bytes()
+
+
+# Host bytes a pixel: the (H, W, 3) float32 image a render returns, and at most what writing it
+# takes beside it, tracemalloc's peak of image_bytes (tests/test_image_io.py checks them; EXR's
+# is the Python side's, OpenEXR's own buffers come on top).
+FLOAT_IMAGE_BYTES = 12
+WRITE_BYTES = {".png": 18, ".pfm": 26, ".exr": 14}
+
+
+def image_host_bytes(width: int, height: int, suffix: str) -> int:
+    """About the most host memory a render's image of width x height takes, from the float
+    image to its file written as `suffix` (.png, .pfm or .exr)."""
+    return width * height * (FLOAT_IMAGE_BYTES + WRITE_BYTES[suffix])
 
 
 def check_writer(path: str | Path) -> None:

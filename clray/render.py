@@ -13,13 +13,15 @@ from pathlib import Path
 import numpy as np
 import pyopencl as cl
 
+from clray.denoise import DENOISE_GUIDES, check_denoiser, denoise
 from clray.device.context import describe, queue_for, select_device
-from clray.device.launch import render_packed
+from clray.device.launch import render_packed, render_passes_packed
 from clray.device.pack import PackedScene, pack_scene
 from clray.device.program import bvh_width_for, packet_lanes_for, traversal_for
 from clray.errors import SettingsError
-from clray.image_io import Encoding, image_bytes, write_image
+from clray.image_io import Encoding, image_bytes
 from clray.knobs import BUILD_KNOBS, IMAGE_KNOBS, TRAVERSALS, Tuning, TuningError
+from clray.passes import pass_problem, passes_of, write_with_passes
 from clray.scene import limits as L
 from clray.scene.check import check_scene
 from clray.scene.load import load_scene
@@ -54,6 +56,15 @@ class RenderSettings:
     # tune`, where stored_tuning and one exists, else the knob table's defaults.
     tuning: Tuning | None = None
     stored_tuning: bool = True
+    # Passes (clray.passes.PASS_NAMES; docs/passes.md) to render beside the image, into
+    # RenderResult.aovs: a second kernel after the render's, built in only when asked.
+    aovs: tuple[str, ...] = ()
+    # Denoise the image with Open Image Denoise (clray.denoise, the `denoise` extra), guided by
+    # the albedo and normal passes, traced for it whether or not aovs names them.
+    denoise: bool = False
+    # on_band(first row, its rows of the image) after each band of rows arrives, linear
+    # float32, not yet denoised: a view of the image being filled (copy what you keep).
+    on_band: Callable[[int, np.ndarray], None] | None = field(default=None, compare=False)
 
     def __post_init__(self) -> None:
         # The scene file's [render] rules (clray.scene.limits), in the same words.
@@ -70,15 +81,19 @@ class RenderSettings:
                    ("tuning", lambda v: None if isinstance(v, Tuning)
                     else "expected a clray.tuning.Tuning"),
                    ("stored_tuning",
+                    lambda v: None if isinstance(v, bool) else "expected True or False"),
+                   ("aovs", pass_problem),
+                   ("denoise",
                     lambda v: None if isinstance(v, bool) else "expected True or False")]
         for name, problem_of in checks:
             value = getattr(self, name)
             problem = None if value is None else problem_of(value)
             if problem:
                 raise SettingsError(f"RenderSettings.{name}: {problem}, got {value!r}")
-        if self.progress is not None and not callable(self.progress):
-            raise SettingsError(f"RenderSettings.progress: expected a callable, "
-                                f"got {self.progress!r}")
+        for name in ("progress", "on_band"):
+            if getattr(self, name) is not None and not callable(getattr(self, name)):
+                raise SettingsError(f"RenderSettings.{name}: expected a callable, "
+                                    f"got {getattr(self, name)!r}")
 
 
 @dataclass(frozen=True)
@@ -86,14 +101,29 @@ class RenderResult:
     image: np.ndarray  # (H, W, 3) float32, linear, may hold non-finite values
     stats: dict
     encoding: Encoding = field(default_factory=Encoding)  # how save() writes a PNG
+    # The passes RenderSettings.aovs asked for, by name (docs/passes.md): depth (H, W) float32,
+    # inf where no sample hit; normal, albedo, position (H, W, 3) float32; object, material,
+    # instance (H, W) int32, -1 on a miss.
+    aovs: dict[str, np.ndarray] = field(default_factory=dict)
+    # Where RenderSettings.denoise was set, the image before denoising (image is the denoised
+    # one); else None.
+    noisy: np.ndarray | None = None
 
-    def save(self, path: str | Path) -> None:
-        """Write the image, the suffix picking the format (.png, .pfm, .exr)."""
-        write_image(path, self.image, self.encoding)
+    def save(self, path: str | Path, previews: bool = False) -> None:
+        """Write the image, the suffix picking the format (.png, .pfm, .exr), and its passes
+        (docs/passes.md): layers of the same file where it is .exr, else one PFM a pass beside
+        it (out.depth.pfm), and with `previews` a false-colour PNG of each (out.depth.png)."""
+        write_with_passes(path, self.image, self.encoding, self.aovs, previews)
 
     def _repr_png_(self) -> bytes:
         """The PNG that save() writes, for Jupyter and IPython to show the result inline."""
         return image_bytes(".png", self.image, self.encoding)
+
+
+def traced_passes(settings: RenderSettings) -> tuple[str, ...]:
+    """The passes a render traces: the settings' aovs, and the denoiser's guides."""
+    guides = DENOISE_GUIDES if settings.denoise else ()
+    return settings.aovs + tuple(name for name in guides if name not in settings.aovs)
 
 
 def _overrides(scene: Scene, settings: RenderSettings, names: tuple[str, ...]) -> dict:
@@ -165,7 +195,7 @@ def pack_for(scene: Scene, settings: RenderSettings, device: cl.Device) -> Packe
     tuning = settings.tuning or chosen_tuning(device, settings.stored_tuning)[0]
     resolved = resolved_settings(scene, settings)
     switches = {**kernel_switches(tuning, settings, device, resolved["spp"]),
-                **dict(settings.variants)}
+                "passes": bool(traced_passes(settings)), **dict(settings.variants)}
     return pack_scene(scene, precision=settings.precision,
                       bvh_width=tuning.bvh_width or bvh_width_for(device, settings.precision),
                       queue=queue_for(device), tuning=tuning, **resolved, **switches)
@@ -181,6 +211,8 @@ def render(scene: Scene | str | os.PathLike, settings: RenderSettings | None = N
     encoding = png_encoding(scene, settings)
     resolved = resolved_settings(scene, settings)
     warn_deep_tree(scene, resolved)
+    if settings.denoise:
+        check_denoiser()  # before any device work
     device = select_device(settings.device)
     if settings.tuning is None:
         tuning, tuning_source = chosen_tuning(device, settings.stored_tuning)
@@ -189,7 +221,18 @@ def render(scene: Scene | str | os.PathLike, settings: RenderSettings | None = N
         tuning_source = "given"
     packed = pack_for(scene, settings, device)
     pack_s = time.perf_counter() - start - packed.bvh_s
-    image, stats = render_packed(packed, device, settings.progress)
+    image, stats = render_packed(packed, device, settings.progress, on_band=settings.on_band)
+    aovs: dict[str, np.ndarray] = {}
+    if traced_passes(settings):
+        passes_start = time.perf_counter()
+        aovs = passes_of(render_passes_packed(packed, device), scene, traced_passes(settings))
+        stats["passes_s"] = time.perf_counter() - passes_start
+    noisy = None
+    if settings.denoise:
+        denoise_start = time.perf_counter()
+        noisy, image = image, denoise(image, aovs["albedo"], aovs["normal"])
+        stats["denoise_s"] = time.perf_counter() - denoise_start
+        aovs = {name: aovs[name] for name in settings.aovs}
     stats = {
         **resolved,
         "device": describe(device),
@@ -204,4 +247,4 @@ def render(scene: Scene | str | os.PathLike, settings: RenderSettings | None = N
         **stats,
         "total_s": time.perf_counter() - start,
     }
-    return RenderResult(image, stats, encoding)
+    return RenderResult(image, stats, encoding, aovs, noisy)

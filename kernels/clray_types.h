@@ -78,9 +78,10 @@ typedef struct {
 #define TRIANGLE_MATERIAL_MASK 0x00FFFFFF
 #define TRIANGLE_SMOOTH (1 << 24)  // blend the vertex normals
 #define TRIANGLE_UV (1 << 25)      // blend the vertex texture coordinates
+#define TRIANGLE_COLOR (1 << 26)   // blend the vertex colours (times the material's colour)
 
 typedef struct {
-    int v0, v1, v2;  // indices into the vertex arrays (positions, normals, uvs)
+    int v0, v1, v2;  // indices into the vertex arrays (positions, normals, uvs, colors)
     int material;    // index and flags, see above
 } Triangle;
 

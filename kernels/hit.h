@@ -20,6 +20,9 @@ typedef struct {
     REAL err;   // bound on the rounding error of p, per component
     REAL2 uv;
     int material;
+#if HAS_VERTEX_COLORS
+    REAL3 tint;  // the vertex colours blended (white off vertex-coloured triangles)
+#endif
 } Surface;
 
 #endif

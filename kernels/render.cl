@@ -1,5 +1,6 @@
-// The kernels: render (one work-item per pixel; the host launches bands of rows) and
-// intersect_rays (closest hits of given rays, for tests and tools). What they run is in the
+// The kernels: render (one work-item per pixel; the host launches bands of rows),
+// intersect_rays (closest hits of given rays, for tests and tools) and, in a passes build only,
+// render_passes (a pixel's passes, passes.h). What they run is in the
 // headers: a pixel's samples and their ray trees (ray_tree.h: pixel_radiance) over the scene's
 // queries (bvh.h) and shading (shading.h, direct.h), or the same by the sample-packet and
 // group-packet schemes (packet_trace.h: packet_pixel_radiance, group_trace.h: group_pixel).
@@ -14,6 +15,8 @@
 // primitive tests per pixel).
 // HAS_SPOT_LIGHTS, HAS_AREA_LIGHTS (0 or 1): the scene has spot lights, area lights.
 // HAS_INSTANCES (0 or 1): the scene places groups by transforms (kernels/bvh.h walks into them).
+// PASSES (0 or 1): the build has render_passes, for a render that asks for passes; without it
+// the program is the same text as before passes existed.
 // TRAVERSAL: TRAVERSAL_SINGLE (every ray walks the BVH alone), TRAVERSAL_SAMPLE_PACKET (a
 // pixel's samples' primary and shadow rays walk it in packets of PACKET_LANES, kernels/packet.h;
 // PACKET_MIN_LANES: below it, lanes go on ray by ray) or TRAVERSAL_GROUP_PACKET (a work-group's
@@ -35,6 +38,9 @@
 #include "packet_trace.h"
 #include "group.h"
 #include "group_trace.h"
+#if PASSES
+#include "passes.h"
+#endif
 
 // IMPLICIT_VECTORIZATION 0 (the default) asks a driver that packs work-items into a vector's
 // lanes (Intel's CPU runtime, 8 or 16 a thread) to run one work-item a thread instead: the
@@ -143,3 +149,33 @@ __kernel WORK_ITEM_LANES void intersect_rays(__global const float4* origins,
     report_hit(&s, &ray, &hit, hits + i, refs + i);
 #endif
 }
+
+#if PASSES
+// A pixel's passes (passes.h), one work-item per pixel over a band of rows as render's: normal
+// and depth, position, albedo, and the nearest sample's primitive reference, instance and
+// material. Depth, position and normal are the means over the samples that hit (the normal
+// renormalised; depth inf, position and normal 0 where none hit), albedo the mean over all.
+__kernel WORK_ITEM_LANES void render_passes(SCENE_BUFFER_PARAMS, __global float4* geometry,
+                                            __global float4* position, __global float4* albedo,
+                                            __global int4* indices, int row_offset) {
+    int x = get_global_id(0), y = get_global_id(1) + row_offset;
+    int width = params->width;
+    if (x >= width || y >= params->height) return;
+    SceneRefs s = scene_refs(SCENE_BUFFER_ARGS);
+#if COUNT_TESTS
+    TestCounts counts = {0, 0, 0, 0};
+    s.counts = &counts;
+#endif
+    PixelPasses p = pixel_passes(&s, camera, params, x, y, (uint)(y * width + x));
+    REAL hits = (REAL)p.hits;
+    REAL3 normal = p.hits > 0 ? safe_normalize(p.normal) : (REAL3)(0, 0, 0);
+    REAL3 where = p.hits > 0 ? p.position / hits : (REAL3)(0, 0, 0);
+    REAL3 colour = p.albedo / (REAL)params->spp;
+    int slot = get_global_id(1) * width + x;
+    geometry[slot] = (float4)((float)normal.x, (float)normal.y, (float)normal.z,
+                              p.hits > 0 ? (float)(p.depth / hits) : INFINITY);
+    position[slot] = (float4)((float)where.x, (float)where.y, (float)where.z, 0.0f);
+    albedo[slot] = (float4)((float)colour.x, (float)colour.y, (float)colour.z, 0.0f);
+    indices[slot] = (int4)(p.ref, p.instance, p.material, 0);
+}
+#endif

@@ -25,6 +25,7 @@
     X(SpherePacket, sphere_packets) SEP     \
     X(float4, normals) SEP                  \
     X(float2, uvs) SEP                      \
+    X(float4, colors) SEP                   \
     X(BvhNode, nodes) SEP                   \
     X(int, prim_refs) SEP                   \
     X(Material, materials) SEP              \

@@ -25,6 +25,9 @@ STAGE ShadePoint shade_point(const SceneRefs* s, const __global Camera* camera, 
     pt.n = dot(pt.sf.n_s, ray->d) < (REAL)0 ? pt.sf.n_s : -pt.sf.n_s;
     pt.c = surface_color(s, s->materials + pt.sf.material, pt.sf.p + TO_REAL3(camera->world),
                          n_f, pt.sf.uv);
+#if HAS_VERTEX_COLORS
+    pt.c *= pt.sf.tint;
+#endif
     return pt;
 }
 
@@ -306,6 +309,9 @@ HOT void store_shade_points(const SurfaceOfLanes* sf, const SurfaceLanes* q, MAS
         // shape_surface's (u, v): a triangle's barycentrics, (0, 0) for the others (no
         // texture reads them here).
         p->sf.uv = (REAL2)(0, 0);
+#if HAS_VERTEX_COLORS
+        p->sf.tint = (REAL3)(1, 1, 1);  // vertex-coloured triangles are shade_point's
+#endif
 #if HAS_TRIANGLES
         if (hits->ref[j] >> PRIM_TYPE_SHIFT == PRIM_TRIANGLE) {
             p->sf.uv = (REAL2)(hits->b1[j], hits->b2[j]);

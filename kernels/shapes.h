@@ -141,6 +141,9 @@ HOT Surface shape_surface(const SceneRefs* s, const Ray* r, const Hit* hit, bool
     REAL3 p = r->o + hit->t * r->d;
     REAL gamma = gamma_n(ERR_ROUNDINGS);
     sf.uv = (REAL2)(0, 0);
+#if HAS_VERTEX_COLORS
+    sf.tint = (REAL3)(1, 1, 1);
+#endif
     switch (hit->ref >> PRIM_TYPE_SHIFT) {
 #if HAS_PLANES
         case PRIM_PLANE:

@@ -202,6 +202,9 @@ HOT Surface surface_of_lane(const SurfaceRows* r, int j) {
     sf.n_s = sf.n_g;
     sf.uv = (REAL2)(0, 0);
     sf.material = 0;
+#if HAS_VERTEX_COLORS
+    sf.tint = (REAL3)(1, 1, 1);
+#endif
     return sf;
 }
 

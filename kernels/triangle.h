@@ -312,6 +312,13 @@ HOT Surface triangle_surface(const SceneRefs* s, const Ray* r, const Hit* hit, b
                 b2 * TO_REAL2(s->uvs[tri.v2]);
     }
 #endif
+#if HAS_VERTEX_COLORS
+    sf.tint = (REAL3)(1, 1, 1);
+    if (tri.material & TRIANGLE_COLOR) {
+        sf.tint = b0 * TO_REAL3(s->colors[tri.v0]) + b1 * TO_REAL3(s->colors[tri.v1]) +
+                  b2 * TO_REAL3(s->colors[tri.v2]);
+    }
+#endif
     sf.material = tri.material & TRIANGLE_MATERIAL_MASK;
     sf.p = p;
 #if HAS_VERTEX_NORMALS
@@ -382,11 +389,11 @@ HOT SurfaceOfLanes triangle_surface_lanes(const ShapeLanes* g, const RayPacket* 
 }
 
 // shape_record for a triangle: its corners (a, b, c) and vertex normals (na, nb, nc). False
-// with vertex texture coordinates.
+// with vertex texture coordinates or colours.
 HOT bool triangle_record(const SceneRefs* s, int i, int part, REAL* f, int stride, int* material,
                          LANE_INT* smooth) {
     Triangle tri = s->triangles[i];
-    if (tri.material & TRIANGLE_UV) return false;
+    if (tri.material & (TRIANGLE_UV | TRIANGLE_COLOR)) return false;
     const __global TrianglePacket* pk = s->triangle_packets + part / PACKET_WIDTH;
     int lane = part % PACKET_WIDTH;
     f[ROW_A * stride] = (REAL)pk->x0[lane];

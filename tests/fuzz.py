@@ -20,6 +20,7 @@ hypothesis as part of the normal suite.
 from __future__ import annotations
 
 import argparse
+import base64
 import contextlib
 import io
 import json
@@ -47,7 +48,7 @@ from clray import cli
 from clray.errors import SceneError
 from clray.scene.load import load_scene
 
-STRATEGIES = ("scene", "bytes", "obj", "mtl", "ply", "texture", "flags")
+STRATEGIES = ("scene", "bytes", "obj", "mtl", "ply", "gltf", "texture", "flags")
 CASE_SECONDS = 30  # a case still running after this is a hang
 
 # -- hostile values -------------------------------------------------------------------------------
@@ -445,6 +446,63 @@ class _Hang(Exception):
     pass
 
 
+def gltf_bytes(rng: random.Random) -> tuple[str, bytes]:
+    """(name, bytes) of a small glTF (an instanced mesh under a parent node, a textured
+    material), .glb or .gltf with a data: URI, its JSON mutated (a value replaced by a hostile
+    one, a key deleted, an accessor or view pointed out of range), or its bytes cut or
+    mutated."""
+    from tests.gltf_files import glb_bytes, instanced_cubes
+
+    b = instanced_cubes()
+    if rng.random() < 0.5:
+        texels = np.zeros((2, 2, 3), np.uint8)
+        b.doc["materials"][0]["pbrMetallicRoughness"]["baseColorTexture"] = {
+            "index": b.image(texels)}
+        b.doc["meshes"][0]["primitives"][0]["attributes"]["TEXCOORD_0"] = b.accessor(
+            np.zeros((8, 2), np.float32), "VEC2")
+    if rng.random() < 0.3:  # vertex colours, in range or not
+        b.doc["meshes"][0]["primitives"][0]["attributes"]["COLOR_0"] = b.accessor(
+            np.float32(rng.choice([0.5, 2.0, -1.0])) * np.ones((8, 3), np.float32), "VEC3")
+    glb = rng.random() < 0.5
+    doc = b.document(None if glb else "data:application/octet-stream;base64,"
+                     + base64.b64encode(b.blob).decode())
+    for _ in range(rng.randint(0, 4)):
+        _mutate_json(doc, rng)
+    blob = bytes(b.blob)
+    raw = glb_bytes(doc, blob) if glb else json.dumps(doc).encode()
+    cut = rng.random()
+    if cut < 0.15:
+        raw = raw[: rng.randrange(len(raw))]
+    elif cut < 0.3:
+        raw = byte_mutate(raw, rng)
+    return ("case.glb" if glb else "case.gltf"), raw
+
+
+_GLTF_VALUES: list[Any] = [-1, 0, 1, 2, 3, 7, 99, 2**31, 10**400, 1e300, -0.5, 0.5, None, "x",
+                           [], {}, [0, 0, 0, 0], True, 4, 5, 6, 5126, 5125, 5121, 5120, "VEC4",
+                           "SCALAR", "MAT4", "data:,", "../m.obj", "/etc/x", "fifo.obj", "dir",
+                           "KHR_draco_mesh_compression"]
+
+
+def _mutate_json(doc: Any, rng: random.Random) -> None:
+    """Replace or delete one value somewhere in `doc`."""
+    node, depth = doc, rng.randint(1, 6)
+    for _ in range(depth):
+        keys = list(node) if isinstance(node, dict) else list(range(len(node))) \
+            if isinstance(node, list) else []
+        if not keys:
+            return
+        key = rng.choice(keys)
+        child = node[key]
+        if not isinstance(child, dict | list) or rng.random() < 0.3:
+            if isinstance(node, dict) and rng.random() < 0.2:
+                del node[key]
+            else:
+                node[key] = rng.choice(_GLTF_VALUES + NUMBERS[:20])
+            return
+        node = child
+
+
 def make_workdir(folder: Path) -> None:
     """The files cases may name besides their own: valid, 16-bit and broken textures, a mesh,
     a FIFO, a symlink loop, a directory, a regular file where a folder is expected."""
@@ -490,6 +548,11 @@ def generate(strategy: str, rng: random.Random) -> Case:
         data = base_scene(rng)
         data["objects"].append({"type": "mesh", "file": "case.ply"})
         return _with_data(Case(strategy, {"case.ply": ply_bytes(rng)}), data)
+    if strategy == "gltf":
+        data = base_scene(rng)
+        name, raw = gltf_bytes(rng)
+        data["objects"].append({"type": "mesh", "file": name})
+        return _with_data(Case(strategy, {name: raw}), data)
     if strategy == "texture":
         data = base_scene(rng)
         raw, suffix = texture_bytes(rng)
@@ -580,7 +643,10 @@ _LOCATED = re.compile(r'^[^:]+: (line \d+: |(?:[\w\[\].-]|"(?:[^"\\]|\\.)*"(?:\.
                       r"|^[^:]+: (element [^:,]+(, line \d+)?|header line \d+): ")
 _FILE_LEVEL = ("cannot read scene file", "not valid UTF-8", "unknown scene file type",
                "expected a table at the top level", "cannot read mesh file", "not a PLY file",
-               "no end_header line", "no format line", "header of over")
+               "no end_header line", "no format line", "header of over",
+               # A glTF file's whole-file errors (its other errors name the JSON path).
+               "truncated .glb", "not glTF JSON", "JSON nested too deeply",
+               "expected a JSON object at the top level", ".glb version", ".glb: the first")
 
 
 def _check_scene_error(message: str) -> str | None:

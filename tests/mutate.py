@@ -62,6 +62,7 @@ INSTANCES = "tests/test_instances.py"
 CAMERA = "tests/test_camera.py"
 FRESNEL = "tests/test_fresnel.py"
 BACKGROUND = "tests/test_background.py"
+PASSES = "tests/test_passes.py"
 # The kernel-vs-reference scenes and the closed forms, without test_render.py's slower checks.
 KERNEL_SCENES = (f"{RENDER}::test_kernel_matches_reference",
                  f"{RENDER}::test_plane_under_directional_light_is_uniform",
@@ -422,6 +423,24 @@ MUTATIONS: tuple[Mutation, ...] = (
       "np.minimum(1.0, 1.0 / denom)", "1.0 / denom", REFERENCE, *KERNEL_SCENES),
     m("reference.specular_from_direction", "clray/reference/shading.py",
       "rv = dot(r, -d)", "rv = dot(r, d)", REFERENCE),
+    # passes (kernels/passes.h, render.cl's render_passes, clray/passes.py, launch.py)
+    m("passes.normal_facing_the_ray", "kernels/passes.h",
+      "out.normal += pt.sf.n_s;", "out.normal += pt.n;", PASSES),
+    m("passes.depth_over_every_sample", "kernels/render.cl",
+      "(float)(p.depth / hits)", "(float)(p.depth / (REAL)params->spp)", PASSES),
+    m("passes.position_camera_relative", "kernels/passes.h",
+      "out.position += pt.sf.p + TO_REAL3(camera->world);", "out.position += pt.sf.p;",
+      PASSES),
+    m("passes.albedo_over_hits", "kernels/render.cl",
+      "REAL3 colour = p.albedo / (REAL)params->spp;",
+      "REAL3 colour = p.albedo / fmax(hits, (REAL)1);", PASSES),
+    m("passes.instance_dropped", "kernels/passes.h",
+      "out.instance = found ? hit.instance : -1;", "out.instance = -1;", PASSES),
+    m("passes.object_not_the_instance", "clray/passes.py",
+      "    objects[inside] = instance_objects(scene)[instances[inside]]\n", "", PASSES),
+    m("passes.bands_at_the_first_row", "clray/device/launch.py",
+      "kernel.set_args(*buffers, *band_buffers, np.int32(first + row0))",
+      "kernel.set_args(*buffers, *band_buffers, np.int32(first))", PASSES),
 )
 
 

@@ -274,9 +274,50 @@ def test_device_build_runs_on_the_device(cl_queue, monkeypatch):
     assert build_bvh_on(cl_queue, lo[:4], lo[:4] + 0.1, 4).nodes.size == 1
 
 
+class _StandInDevice:
+    """The test's device with other memory limits (CL_DEVICE_MAX_MEM_ALLOC_SIZE,
+    CL_DEVICE_GLOBAL_MEM_SIZE)."""
+
+    def __init__(self, device: object, max_alloc: int, global_mem: int) -> None:
+        self.device = device
+        self.max_mem_alloc_size = max_alloc
+        self.global_mem_size = global_mem
+
+    def __getattr__(self, name: str) -> object:
+        return getattr(self.device, name)
+
+
 def test_device_build_only_where_node_slots_fit_in_ints(cl_queue):
-    assert bvh_build.supports(cl_queue.device, 2**30)
-    assert not bvh_build.supports(cl_queue.device, 2**30 + 1)
+    roomy = _StandInDevice(cl_queue.device, 1 << 50, 1 << 52)
+    assert bvh_build.supports(roomy, 2**30)
+    assert not bvh_build.supports(roomy, 2**30 + 1)
+
+
+def test_device_build_only_where_its_buffers_fit_the_device(cl_queue):
+    # 5.24 M triangles: the padded node slots (2N - 1 of 32 bytes, 320 MiB) are the largest
+    # buffer, and all of them take about 1.1 GiB.
+    n = 5_242_880
+    sizes = bvh_build.build_buffer_bytes(n)
+    assert max(sizes, key=sizes.get) == "nodes"
+    assert sizes["nodes"] == 32 * (2 * n - 1)
+    largest, total = sizes["nodes"], sum(sizes.values())
+    device = cl_queue.device
+    assert bvh_build.supports(_StandInDevice(device, largest, total), n)
+    assert not bvh_build.supports(_StandInDevice(device, largest - 1, total), n)
+    assert not bvh_build.supports(_StandInDevice(device, largest, total - 1), n)
+
+
+def test_device_build_over_the_largest_allocation_builds_on_the_host(cl_queue, monkeypatch):
+    # A device whose largest allocation cannot hold the build's buffers: the host builds the
+    # same tree, and the device build is never tried (its buffers would fail to allocate).
+    def device_build(*args: object) -> None:
+        raise RuntimeError("device build")
+
+    monkeypatch.setattr(bvh_build, "build", device_build)
+    lo = np.random.default_rng(1).uniform(-1, 1, (300, 3))
+    small = _StandInDevice(cl_queue.device, 1 << 10, 1 << 30)
+    queue = type("Queue", (), {"device": small})()
+    assert_same_tree(build_bvh_on(queue, lo, lo + 0.1, 4), build_bvh(lo, lo + 0.1, 4))
 
 
 def test_device_build_of_mesh_triangles(cl_queue):

@@ -646,3 +646,24 @@ def test_a_scene_that_renders_black_says_why(cl_device, tmp_scene, tmp_path, cap
         assert warnings_seen == []
     else:
         assert len(warnings_seen) == 1 and warning in warnings_seen[0]
+
+
+def test_large_image_memory_noted_before_rendering(capsys, scene, monkeypatch) -> None:
+    # The note comes before any render (stopped here: a 16384 x 16384 render takes minutes)
+    # and names the size and the memory; small images, and -q, say nothing.
+    def stop(*_args, **_kwargs):
+        raise ClrayError("stopped")
+
+    monkeypatch.setattr(cli, "render", stop)
+    code, _, err = run(capsys, "render", scene, "-W", "16384", "-H", "16384", "-o", "big.png")
+    assert code == 1
+    assert err.splitlines() == ["clray: note: a 16384 x 16384 image takes about 7.5 GiB of host "
+                                "memory (the float image and its PNG encoding)",
+                                "clray: error: stopped"]
+    code, _, err = run(capsys, "render", scene, "-W", "16384", "-H", "16384", "-o", "big.pfm")
+    assert err.splitlines()[0].endswith("about 9.5 GiB of host memory (the float image and its "
+                                        "PFM encoding)")
+    code, _, err = run(capsys, "render", scene, "-W", "8192", "-H", "8192", "-o", "big.png")
+    assert err.splitlines() == ["clray: error: stopped"]  # 1.9 GiB: no note
+    code, _, err = run(capsys, "render", scene, "-W", "16384", "-H", "16384", "-q")
+    assert err.splitlines() == ["clray: error: stopped"]

@@ -62,6 +62,12 @@ def configs() -> dict[str, KernelConfig]:
         out[f"{precision}-all+group_packet"] = make(every, traversal="group_packet")
         out[f"{precision}-none+group_packet"] = make(set(), max_depth=0,
                                                      traversal="group_packet")
+        # The passes kernel (render_passes) beside each traversal's render kernel, and alone
+        # with nothing else switched on.
+        for traversal in ("sample_packet", "group_packet"):
+            out[f"{precision}-all+passes+{traversal}"] = make(every | {"passes"},
+                                                               traversal=traversal)
+        out[f"{precision}-none+passes"] = make({"passes"}, max_depth=0)
     return out
 
 

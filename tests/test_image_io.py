@@ -166,3 +166,37 @@ def test_srgb_table_gives_the_formulas_codes() -> None:
     image = np.repeat(np.concatenate([values, special])[:, None, None], 3, axis=2)
     assert np.array_equal(image_io.to_png_samples(image),
                           image_io.to_png_samples(image.astype(np.float64)))
+
+
+def test_table_encodes_slice_by_slice(monkeypatch):
+    # An image of several slices (the last one short) gets the formula's codes everywhere:
+    # the table's slices neither skip nor repeat samples.
+    monkeypatch.setattr(image_io, "_ENCODE_SLICE", 7)
+    rng = np.random.default_rng(5)
+    image = rng.uniform(-0.2, 1.3, (5, 9, 3)).astype(np.float32)
+    image[0, 0] = [np.nan, np.inf, -np.inf]
+    samples = image_io.to_png_samples(image)
+    np.testing.assert_array_equal(samples, image_io._encode_float64(image, Encoding()))
+
+
+@pytest.mark.parametrize("suffix", [".png", ".pfm", ".exr"])
+def test_image_host_bytes_bound_the_writers_memory(suffix):
+    # image_host_bytes' figure a pixel bounds what writing an image takes beside it (numpy's
+    # and Python's allocations, which tracemalloc sees), for an image that compresses badly and
+    # is larger than the PNG table's slice of samples (whose temporaries do not grow with it).
+    import tracemalloc
+
+    if suffix == ".exr":
+        pytest.importorskip("OpenEXR")
+    height, width = 768, 1024
+    image = np.random.default_rng(2).uniform(-0.1, 1.3, (height, width, 3)).astype(np.float32)
+    image_io.image_bytes(suffix, image[:1, :1])  # the PNG table is built once, not per image
+    tracemalloc.start()
+    try:
+        image_io.image_bytes(suffix, image)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert peak <= image_io.WRITE_BYTES[suffix] * height * width
+    assert (image_io.image_host_bytes(width, height, suffix)
+            == (image.nbytes + image_io.WRITE_BYTES[suffix] * height * width))

@@ -178,3 +178,27 @@ def test_a_model_at_the_coordinate_limit_is_framed_within_it(tmp_path, monkeypat
     radius = np.linalg.norm(mesh.vertices - centre, axis=1).max()
     np.testing.assert_allclose(scene.camera.look_at, centre, atol=radius * 1e-5)
     assert np.linalg.norm(np.asarray(scene.camera.position) - centre) > radius
+
+
+
+@pytest.mark.parametrize("name", ["scan.ply", "cornell_box.obj"])
+def test_the_automatic_scene_reads_its_mesh_file_once(name, monkeypatch):
+    # Framing the model and loading its scene share one read of the file (for a 5 M-triangle
+    # PLY, half the load); each automatic scene, and a scene loaded after, reads it afresh.
+    import clray.scene.assets as assets
+    from clray.scene.load import scene_from_dict
+
+    reads = []
+    for reader in ("read_ply", "parse_obj"):
+        real = getattr(assets, reader)
+        monkeypatch.setattr(assets, reader,
+                            lambda *a, real=real, **k: reads.append(1) or real(*a, **k))
+    path = ROOT / "scenes" / "meshes" / name
+    scene = load_model_scene(path)
+    assert len(reads) == 1
+    load_model_scene(path)
+    assert len(reads) == 2
+    again = scene_from_dict(model_scene_data(path))
+    assert len(reads) == 4
+    np.testing.assert_array_equal(again.objects[0].vertices, scene.objects[0].vertices)
+    np.testing.assert_array_equal(again.objects[0].faces, scene.objects[0].faces)

@@ -1,16 +1,25 @@
-"""Render results in notebooks: the PNG Jupyter shows (_repr_png_)."""
+"""Render results in notebooks: the PNG Jupyter shows (_repr_png_), and the progressive
+display of bands (clray.notebook) through a stand-in for IPython.display."""
 
 from __future__ import annotations
 
 import io
+import sys
+import types
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import pytest
 from PIL import Image
 
-from clray.image_io import Encoding
-from clray.render import RenderResult
+from clray.errors import ClrayError
+from clray.image_io import Encoding, to_png_samples
+from clray.notebook import show_progressive
+from clray.render import RenderResult, RenderSettings, render
+from clray.tuning import Tuning
+
+ROOT = Path(__file__).resolve().parent.parent
 
 
 def _decoded(png: bytes) -> np.ndarray:
@@ -31,3 +40,61 @@ def test_repr_png_is_the_png_save_writes(tmp_path: Path, encoding: Encoding) -> 
     assert _decoded(shown).shape == (9, 13, 3)
     np.testing.assert_array_equal(_decoded(shown), _decoded(saved))
     assert shown == saved
+
+
+class _FakeDisplay:
+    """IPython.display's Image and display(display_id=True), recording what is shown."""
+
+    def __init__(self) -> None:
+        self.shown: list[bytes] = []
+
+    class Image:
+        def __init__(self, data: bytes) -> None:
+            self.data = data
+
+    def display(self, obj: _FakeDisplay.Image, display_id: bool) -> object:
+        assert display_id is True
+        self.shown.append(obj.data)
+        fake = self
+
+        class Handle:
+            def update(self, new: _FakeDisplay.Image) -> None:
+                fake.shown.append(new.data)
+
+        return Handle()
+
+
+def _fake_ipython(monkeypatch: pytest.MonkeyPatch) -> _FakeDisplay:
+    display = _FakeDisplay()
+    package = types.ModuleType("IPython")
+    package.display = display
+    monkeypatch.setitem(sys.modules, "IPython", package)
+    return display
+
+
+def test_show_progressive_shows_each_band_then_the_result(cl_device, monkeypatch) -> None:
+    display = _fake_ipython(monkeypatch)
+    width, height, rows = 24, 9, 3
+    # Bands of three rows: three bands, each its own update.
+    settings = RenderSettings(width=width, height=height, spp=2, tuning=Tuning(
+        first_launch_pixel_samples=width * 2 * rows, max_launch_pixel_samples=width * 2 * rows))
+    heard = []
+    scene = ROOT / "scenes" / "soft_lights.toml"
+    result = show_progressive(scene, replace(settings, on_band=lambda first, band: heard.append(
+        (first, band.shape[0]))))
+    np.testing.assert_array_equal(result.image, render(scene, settings).image)
+    assert heard == [(0, 3), (3, 3), (6, 3)]  # the caller's own hook still hears every band
+    # Black at first, then the rows so far over black, then the result's own PNG.
+    assert len(display.shown) == 1 + 3 + 1
+    assert display.shown[-1] == result._repr_png_()
+    expected = np.zeros_like(result.image)
+    assert np.array_equal(_decoded(display.shown[0]), to_png_samples(expected))
+    for band, png in enumerate(display.shown[1:-1]):
+        expected[band * rows:(band + 1) * rows] = result.image[band * rows:(band + 1) * rows]
+        np.testing.assert_array_equal(_decoded(png), to_png_samples(expected, result.encoding))
+
+
+def test_show_progressive_without_ipython_says_so(monkeypatch) -> None:
+    monkeypatch.setitem(sys.modules, "IPython", None)
+    with pytest.raises(ClrayError, match="IPython"):
+        show_progressive(ROOT / "scenes" / "soft_lights.toml")

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from clray.errors import SceneError
+from clray.scene.colour import srgb_decode
 from clray.scene.load import scene_from_dict
 from clray.scene.obj import parse_obj
 from clray.scene.ply import read_ply
@@ -89,7 +90,8 @@ def test_scene_mesh_file_takes_ply(tmp_path):
     mesh = scene.objects[0]
     np.testing.assert_array_equal(mesh.vertices, VERTS.astype(np.float32) + np.array([1, 0, 0]))
     assert len(mesh.faces) == len(FANNED)
-    assert any("vertex colours are not rendered yet" in w for w in scene.warnings)
+    # The file's (sRGB) colours, decoded, carried to the mesh (rendered: test_gltf).
+    np.testing.assert_allclose(mesh.colors, srgb_decode(COLORS / 255.0))
 
 
 def _errors(data: bytes) -> str:
@@ -279,3 +281,31 @@ def test_tristrips_errors_name_the_element():
     assert _errors(_strips(b"3 0 1 9\n", 1)) == \
         "bad.ply: element tristrips: record 0: vertex index 9 out of range (6 vertices)"
     assert "element tristrips" in _errors(_strips(b"3 0 1 -2\n", 1))
+
+
+def test_binary_mesh_files_may_be_larger_than_text_ones(tmp_path, monkeypatch):
+    # Binary PLY (numpy views of its blocks) and .npz meshes are held to MAX_BINARY_MESH_BYTES;
+    # text is parsed at several times its size, so an ASCII PLY or an OBJ is held to
+    # MAX_MESH_BYTES, which these files are over here.
+    from clray.scene import limits
+
+    binary, text = ply_bytes("binary_little_endian"), ply_bytes("ascii")
+    monkeypatch.setattr(limits, "MAX_MESH_BYTES", min(len(binary), len(text)) - 1)
+    monkeypatch.setattr(limits, "MAX_BINARY_MESH_BYTES", max(len(binary), len(text)))
+    (tmp_path / "b.ply").write_bytes(binary)
+    (tmp_path / "a.ply").write_bytes(text)
+    (tmp_path / "m.obj").write_bytes(b"v 0 0 0\nv 1 0 0\nv 0 1 0\n" * 40 + b"f 1 2 3\n")
+
+    def load(name: str):
+        return scene_from_dict({"camera": {"position": [0, 0, 5], "look_at": [0, 0, 0]},
+                                "objects": [{"type": "mesh", "file": name}]}, tmp_path / "s.toml")
+
+    assert len(load("b.ply").objects[0].faces) == len(FANNED)
+    with pytest.raises(SceneError, match=r"a\.ply: an ASCII PLY file is at most \d+ bytes, this "
+                                         r"one has \d+ \(write it as binary\)"):
+        load("a.ply")
+    with pytest.raises(SceneError, match=r"objects\[0\]\.file: .*over the limit"):
+        load("m.obj")
+    monkeypatch.setattr(limits, "MAX_BINARY_MESH_BYTES", len(binary) - 1)
+    with pytest.raises(SceneError, match=r"over the limit"):
+        load("b.ply")

@@ -205,6 +205,9 @@ def _lay_out_leaves(first: np.ndarray, count: np.ndarray,
     sizes, ranks = [], np.zeros(refs.size, dtype=np.int64)
     for sec in range(3):
         member = section == sec
+        if not member.any():  # a mesh alone has triangles only: nothing to rank
+            sizes.append(np.zeros(n_leaves, dtype=np.int64))
+            continue
         running = np.cumsum(member) - member
         if refs.size:
             ranks[member] = (running - running[offsets][leaf])[member]

@@ -64,8 +64,21 @@ def build_bvh_on(queue: cl.CommandQueue, lo: np.ndarray, hi: np.ndarray,
 
 def supports(device: cl.Device, n: int) -> bool:
     """The kernels cost splits in float64, as the host build does, and index node slots
-    (2N - 1 of them) with ints."""
-    return has_fp64(device) and 2 * n - 1 <= np.iinfo(np.int32).max
+    (2N - 1 of them) with ints; every buffer of the build fits the device's largest allocation
+    (CL_DEVICE_MAX_MEM_ALLOC_SIZE, a quarter of its memory on PoCL and NVIDIA) and all of
+    them its memory. Where they do not, the host builds the same tree, slower."""
+    sizes = build_buffer_bytes(n)
+    return (has_fp64(device) and 2 * n - 1 <= np.iinfo(np.int32).max
+            and max(sizes.values()) <= device.max_mem_alloc_size
+            and sum(sizes.values()) <= device.global_mem_size)
+
+
+def build_buffer_bytes(n: int) -> dict[str, int]:
+    """Bytes of each buffer build() makes for n primitives."""
+    slots = 2 * n - 1
+    return {"lo": 24 * n, "hi": 24 * n, "prims": BUILD_PRIM.itemsize * n,
+            "prims_swap": BUILD_PRIM.itemsize * n, "nodes": BINARY_NODE.itemsize * slots,
+            "used": slots, "order": 4 * n}
 
 
 @cache

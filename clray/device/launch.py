@@ -56,10 +56,12 @@ def next_band_rows(row_samples: int, last_rows: int, last_s: float, rows_left: i
 MAX_BAND_BYTES = 256 << 20
 
 
-def band_capacity(packed: PackedScene, global_mem: int, max_alloc: int) -> int:
-    """The most rows one launch may render: its output buffers within the device's largest
-    allocation and, beside the scene's buffers, within its global memory. Refuses (DeviceError)
-    a scene whose own buffers do not fit, before any buffer exists."""
+def band_capacity(packed: PackedScene, global_mem: int, max_alloc: int,
+                  outputs: int | None = None) -> int:
+    """The most rows one launch may render: its output buffers (`outputs` of 16 bytes a pixel:
+    the render kernel's where None) within the device's largest allocation and, beside the
+    scene's buffers, within its global memory. Refuses (DeviceError) a scene whose own buffers
+    do not fit, before any buffer exists."""
     width, height = int(packed.params[0]["width"]), int(packed.params[0]["height"])
     scene = packed.device_bytes()
     mib = 1 << 20
@@ -68,7 +70,8 @@ def band_capacity(packed: PackedScene, global_mem: int, max_alloc: int) -> int:
         raise DeviceError(f"the {largest} buffer needs {scene[largest] / mib:.0f} MiB, over the "
                           f"device's largest allocation ({max_alloc / mib:.0f} MiB): render a "
                           "smaller scene")
-    outputs = 3 if packed.config.count_tests else 2
+    if outputs is None:
+        outputs = 3 if packed.config.count_tests else 2
     row_bytes = 16 * width
     room = global_mem - sum(scene.values())
     if room < outputs * row_bytes:
@@ -146,10 +149,13 @@ def _resource_hint(err: cl.Error) -> str:
 
 def render_packed(packed: PackedScene, device: cl.Device,
                   progress: Callable[[int, int], None] | None = None,
-                  rows: tuple[int, int] | None = None) -> tuple[np.ndarray, dict]:
+                  rows: tuple[int, int] | None = None,
+                  on_band: Callable[[int, np.ndarray], None] | None = None
+                  ) -> tuple[np.ndarray, dict]:
     """Launch the kernel over a packed scene: (image, stats without load/pack times). With
     `rows` = (start, stop), only those rows of the image (a tile of a distributed render): the
-    same values, bit for bit, as those rows of the whole image."""
+    same values, bit for bit, as those rows of the whole image. on_band(first row, its rows of
+    the image) hears each band as it arrives (a notebook's progressive display)."""
     capacity = band_capacity(packed, device.global_mem_size, device.max_mem_alloc_size)
     program, build_s = build_program(device, packed.config)
     queue = queue_for(device)
@@ -203,6 +209,8 @@ def render_packed(packed: PackedScene, device: cl.Device,
             if count_tests:
                 cl.enqueue_copy(queue, band_counts[:pixels], tests_buf)
                 test_totals += np.einsum("ij->j", band_counts[:pixels], dtype=np.int64)
+            if on_band is not None:
+                on_band(first + row0, image[row0:row0 + band])
             row0 += band
             if progress is not None:
                 progress(row0 * row_samples, height * row_samples)
@@ -224,6 +232,56 @@ def render_packed(packed: PackedScene, device: cl.Device,
         stats["tests"] = dict(zip(("closest_boxes", "closest_prims", "shadow_boxes",
                                    "shadow_prims"), map(int, test_totals), strict=True))
     return image, stats
+
+
+# render_passes' outputs (kernels/render.cl), 16 bytes a pixel each: normal and depth,
+# position, albedo, and the nearest sample's (primitive reference, instance, material, 0).
+PASS_OUTPUTS = (("geometry", np.float32), ("position", np.float32), ("albedo", np.float32),
+                ("indices", np.int32))
+
+
+def render_passes_packed(packed: PackedScene, device: cl.Device,
+                         rows: tuple[int, int] | None = None) -> dict[str, np.ndarray]:
+    """Launch render_passes over a scene packed for passes (packed.config.passes): its outputs
+    by PASS_OUTPUTS' names, (H, W, 4) each, for `rows` = (start, stop) as render_packed. In
+    bands of rows sized as render_packed's, by their time and within the device's memory."""
+    if not packed.config.passes:
+        raise ValueError("render_passes_packed needs a scene packed with passes=True")
+    capacity = band_capacity(packed, device.global_mem_size, device.max_mem_alloc_size,
+                             outputs=len(PASS_OUTPUTS))
+    program, _ = build_program(device, packed.config)
+    queue = queue_for(device)
+    ctx = queue.context
+    params = packed.params[0]
+    width, spp = int(params["width"]), int(params["spp"])
+    first, end = rows if rows is not None else (0, int(params["height"]))
+    height = end - first
+    out = {name: np.empty((height, width, 4), dtype=dtype) for name, dtype in PASS_OUTPUTS}
+    try:
+        buffers = _scene_buffers(ctx, packed)
+        check_argument_bytes(len(buffers) + len(PASS_OUTPUTS), 1, device)
+        kernel = cl.Kernel(program, "render_passes")
+        group_width = _group_width(kernel, device, packed.tuning)
+        padded_width = -(-width // group_width) * group_width
+        band_buffers = [cl.Buffer(ctx, cl.mem_flags.WRITE_ONLY, width * capacity * 16)
+                        for _ in PASS_OUTPUTS]
+        row0, band, band_s = 0, 0, 0.0
+        while row0 < height:
+            band = min(capacity, next_band_rows(width * spp, band, band_s, height - row0,
+                                                packed.tuning))
+            kernel.set_args(*buffers, *band_buffers, np.int32(first + row0))
+            event = cl.enqueue_nd_range_kernel(queue, kernel, (padded_width, band),
+                                               (group_width, 1))
+            event.wait()
+            band_s = (event.profile.end - event.profile.start) * 1e-9
+            for (name, _), buf in zip(PASS_OUTPUTS, band_buffers, strict=True):
+                cl.enqueue_copy(queue, out[name][row0:row0 + band], buf)
+            row0 += band
+        queue.finish()
+    except cl.Error as err:
+        raise DeviceError(f"OpenCL error while rendering passes on {describe(device)}: {err}"
+                          f"{_resource_hint(err)}") from err
+    return out
 
 
 def intersect_rays(packed: PackedScene, device: cl.Device, origins: np.ndarray,

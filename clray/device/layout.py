@@ -118,6 +118,7 @@ STRUCTS: dict[str, np.dtype] = {
 TRIANGLE_MATERIAL_MASK = 0x00FFFFFF
 TRIANGLE_SMOOTH = 1 << 24
 TRIANGLE_UV = 1 << 25
+TRIANGLE_COLOR = 1 << 26
 
 
 @dataclass(frozen=True)
@@ -145,9 +146,10 @@ SCENE_BUFFERS: tuple[SceneBuffer, ...] = tuple(SceneBuffer(name, element) for na
     ("triangle_packets", "TrianglePacket"),  # one per PACKET_WIDTH slots of prim_refs
     ("sphere_packets", "SpherePacket"),  # likewise (spheres only)
     # No vertex positions: shading reads a triangle's corners from its packet (the same float32
-    # numbers), so the device keeps only the per-vertex normals and uvs, or nothing.
+    # numbers), so the device keeps only the per-vertex normals, uvs and colours, or nothing.
     ("normals", "float4"),
     ("uvs", "float2"),
+    ("colors", "float4"),  # linear rgb, w unused
     ("nodes", "BvhNode"),  # bvh_node_dtype(bvh_width), root first
     ("prim_refs", "int"),  # leaves laid out as clray.accel.wide describes
     ("materials", "Material"),

@@ -122,6 +122,7 @@ class _Triangles:
     vertices: np.ndarray  # (V, 4) float32, camera-relative
     normals: np.ndarray
     uvs: np.ndarray
+    colors: np.ndarray  # (V, 4) float32 linear rgb, w unused; (0, 4) without vertex colours
 
 
 def _pack_planes(objs: list[M.Plane], eye: np.ndarray) -> np.ndarray:
@@ -239,7 +240,7 @@ def _pack_triangles(objs: _Placed, bounded: _Bounded) -> _Triangles:
     if not objs.objects:
         empty = np.zeros((0, 4), dtype=np.float32)
         return _Triangles(_records(L.TRIANGLE, 0), empty, empty.copy(),
-                          np.zeros((0, 2), np.float32))
+                          np.zeros((0, 2), np.float32), empty.copy())
     sources = []  # (vertices, faces, normals, uvs, material or one per face) per object
     for obj in objs.objects:
         if isinstance(obj, M.Triangle):
@@ -258,29 +259,37 @@ def _pack_triangles(objs: _Placed, bounded: _Bounded) -> _Triangles:
     has_uvs = any(src[3] is not None for src in sources)
     normals = np.zeros((n_vertices if has_normals else 0, 4), dtype=np.float32)
     uvs = np.zeros((n_vertices if has_uvs else 0, 2), dtype=np.float32)
-    faces, flags = [], []
-    for (v, f, n, u, material), off in zip(sources, offsets, strict=True):
-        faces.append(f + off)
+    tints = [getattr(obj, "colors", None) for obj in objs.objects]
+    colors = np.zeros((n_vertices if any(c is not None for c in tints) else 0, 4), np.float32)
+    n_faces = [len(src[1]) for src in sources]
+    triangles = _records(L.TRIANGLE, sum(n_faces))
+    # The records as rows of four int32 (v0, v1, v2, material), written source by source: no
+    # joined face list beside them (24 bytes a triangle, twice).
+    rows = triangles.view(np.int32).reshape(-1, 4)
+    start = 0
+    for (v, f, n, u, material), off, c, k in zip(sources, offsets, tints, n_faces, strict=True):
+        rows[start:start + k, :3] = f + off if off else f
         bits = material | (L.TRIANGLE_SMOOTH if n is not None else 0)
         bits |= L.TRIANGLE_UV if u is not None else 0
-        flags.append(np.broadcast_to(np.asarray(bits, dtype=np.int64), len(f)))
+        if c is not None:
+            bits |= L.TRIANGLE_COLOR
+            colors[off:off + len(v), :3] = c
+        rows[start:start + k, 3] = bits
+        start += k
         if n is not None:
             normals[off:off + len(v), :3] = n
             normals[off:off + len(v), 3] = 1.0
         if u is not None:
             uvs[off:off + len(v)] = u
-    all_faces = np.concatenate(faces)
-    triangles = _records(L.TRIANGLE, len(all_faces))
-    triangles["v0"], triangles["v1"], triangles["v2"] = all_faces.T
-    triangles["material"] = np.concatenate(flags)
-    # Corner by corner: elementwise minima of three (F, 3) arrays take a tenth of the time of
+    # Corner by corner: elementwise minima of three (F, 4) arrays take a tenth of the time of
     # a reduction over the middle axis of (F, 3, 3), and float32 minima widened are the same
-    # numbers as float64 minima of the widened corners.
-    c0, c1, c2 = (vertices[all_faces[:, k], :3] for k in range(3))
-    lo = np.minimum(np.minimum(c0, c1), c2).astype(np.float64)
-    hi = np.maximum(np.maximum(c0, c1), c2).astype(np.float64)
-    bounded.add(L.PRIM_TRIANGLE, lo, hi, np.repeat(objs.owners, [len(f) for f in faces]))
-    return _Triangles(triangles, vertices, normals, uvs)
+    # numbers as float64 minima of the widened corners. Whole rows taken (np.take along axis
+    # 0), not vertices[index, :3]: numpy's fancy index with a slice is four times slower.
+    c0, c1, c2 = (np.take(vertices, rows[:, k], axis=0) for k in range(3))
+    hi = np.maximum(np.maximum(c0, c1), c2)[:, :3].astype(np.float64)
+    lo = np.minimum(np.minimum(c0, c1, out=c0), c2, out=c0)[:, :3].astype(np.float64)
+    bounded.add(L.PRIM_TRIANGLE, lo, hi, np.repeat(objs.owners, n_faces))
+    return _Triangles(triangles, vertices, normals, uvs, colors)
 
 
 def _build_wide(lo: np.ndarray, hi: np.ndarray, refs: np.ndarray, width: int,
@@ -405,12 +414,20 @@ def _triangle_packets(prim_refs: np.ndarray, tris: _Triangles) -> np.ndarray:
     # None past the last packet that holds a triangle: the kernel never reads them.
     used = _through_last(is_tri)
     slots, is_tri = slots[:used], is_tri[:used]
-    faces = tris.triangles[["v0", "v1", "v2"]].view(np.int32).reshape(-1, 4)[:, :3]
-    # (packet, lane, corner, axis), then the record's order: corner, axis, lane.
-    corners = tris.vertices[faces[np.where(is_tri, slots & L.PRIM_INDEX_MASK, 0)], :3]
-    corners[~is_tri] = np.nan
-    packed = np.ascontiguousarray(corners.transpose(0, 2, 3, 1)).reshape(len(slots), -1)
-    return packed.view(L.TRIANGLE_PACKET).ravel()
+    lane_tri = np.where(is_tri, slots & L.PRIM_INDEX_MASK, 0)
+    # Each lane's whole TRIANGLE record (v0, v1, v2, material) at once: one take of 16-byte
+    # rows, not three of a strided field.
+    records = np.take(tris.triangles.view(np.int32).reshape(-1, 4), lane_tri, axis=0)
+    packets = np.empty((len(slots), 3, 3, PACKET_WIDTH), dtype=np.float32)
+    # Corner by corner, whole vertex rows taken (np.take along axis 0: a fancy index with a
+    # slice is several times slower), then the record's order: corner, axis, lane.
+    for k in range(3):
+        corner = np.take(tris.vertices, records[..., k], axis=0)
+        packets[:, k] = corner[..., :3].transpose(0, 2, 1)
+    # NaN in the lanes of the few packets that are not all triangles.
+    partial = np.flatnonzero(~is_tri.all(axis=1))
+    packets[partial] = np.where(is_tri[partial, None, None, :], packets[partial], np.nan)
+    return packets.reshape(len(slots), -1).view(L.TRIANGLE_PACKET).ravel()
 
 
 def _sphere_packets(prim_refs: np.ndarray, spheres: np.ndarray) -> np.ndarray:
@@ -645,6 +662,7 @@ def pack_scene(scene: M.Scene, *, width: int, height: int, spp: int, max_depth: 
         has_triangles=len(tris.triangles) > 0,
         has_vertex_normals=len(tris.normals) > 0,
         has_vertex_uvs=len(tris.uvs) > 0,
+        has_vertex_colors=len(tris.colors) > 0,
         has_textures=len(textures) > 0,
         has_instances=len(instances) > 0,
         **_scene_switches(scene, max_depth),
@@ -657,7 +675,8 @@ def pack_scene(scene: M.Scene, *, width: int, height: int, spp: int, max_depth: 
                        boxes=boxes, cylinders=cylinders, cones=cones, tori=tori,
                        triangles=tris.triangles,
                        triangle_packets=triangle_packets, sphere_packets=sphere_packets,
-                       normals=tris.normals, uvs=tris.uvs, nodes=wide.nodes,
+                       normals=tris.normals, uvs=tris.uvs, colors=tris.colors,
+                       nodes=wide.nodes,
                        prim_refs=wide.prim_refs, materials=materials, textures=textures,
                        texels=texels, lights=lights, instances=instance_records,
                        config=config, bvh_s=bvh_s, tuning=tuning)

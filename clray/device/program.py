@@ -60,6 +60,7 @@ class KernelConfig:
     has_triangles: bool = False
     has_vertex_normals: bool = False
     has_vertex_uvs: bool = False
+    has_vertex_colors: bool = False  # a mesh's vertex colours tint its faces
     has_textures: bool = False
     has_transmission: bool = False  # some material transmits: shadow rays filter
     has_refraction: bool = False
@@ -97,6 +98,9 @@ class KernelConfig:
     fp64_spheres: bool = False
     # The instrumented build: render_packed then reports box and primitive tests.
     count_tests: bool = False
+    # The passes build (RenderSettings.aovs): render_passes too, beside the render kernel. A
+    # render without passes builds without it, the very program it built before passes.
+    passes: bool = False
     # The stage-profiling build (benchmarks/stages.py): the renderer's stages (STAGE in
     # kernels/real.h) stay functions of their own, for a profiler to count.
     stage_profile: bool = False

@@ -55,6 +55,7 @@ class SceneHit(NamedTuple):
     obj: np.ndarray  # (N,) index into scene.objects
     face: np.ndarray  # (N,) triangle index within a mesh (0 for a Triangle object), else -1
     material: np.ndarray  # (N,) index into scene.materials
+    tint: np.ndarray  # (N, 3) blended vertex colours (Mesh.colors), ones elsewhere
 
 
 class _Nearest(NamedTuple):
@@ -101,9 +102,11 @@ class Geometry:
 
     def _flatten_triangles(self, indexed: list[tuple[int, SceneObject]]) -> None:
         """Loose triangles and mesh faces as (T, 3, ...) arrays, with their object, face and
-        material; NaN vertex normals / uvs mark triangles without them."""
+        material; NaN vertex normals / uvs mark triangles without them, white vertex colours
+        those without colours."""
         # Each list starts with an empty block so that a scene without triangles concatenates.
         verts, normals, uvs = [np.zeros((0, 3, 3))], [np.zeros((0, 3, 3))], [np.zeros((0, 3, 2))]
+        tints = [np.zeros((0, 3, 3))]
         obj, face, mat = ([np.zeros(0, dtype=np.int64)] for _ in range(3))
         for i, ob in indexed:
             if isinstance(ob, Triangle):
@@ -111,6 +114,7 @@ class Geometry:
                 verts.append(tri)
                 normals.append(np.full((1, 3, 3), np.nan))
                 uvs.append(np.full((1, 3, 2), np.nan))
+                tints.append(np.ones((1, 3, 3)))
                 faces = np.zeros(1, dtype=np.int64)
             elif isinstance(ob, Mesh):
                 f = np.asarray(ob.faces, dtype=np.int64)
@@ -119,6 +123,8 @@ class Geometry:
                 uv = np.full((len(f), 3, 2), np.nan) if ob.uvs is None else ob.uvs[f]
                 normals.append(np.asarray(nrm, dtype=np.float64))
                 uvs.append(np.asarray(uv, dtype=np.float64))
+                tints.append(np.ones((len(f), 3, 3)) if ob.colors is None
+                             else np.asarray(ob.colors, dtype=np.float64)[f])
                 faces = np.arange(len(f), dtype=np.int64)
             else:
                 continue
@@ -131,6 +137,7 @@ class Geometry:
         self.tri_v = np.concatenate(verts)
         self.tri_n = np.concatenate(normals)
         self.tri_uv = np.concatenate(uvs)
+        self.tri_tint = np.concatenate(tints)
         self.tri_obj = np.concatenate(obj)
         self.tri_face = np.concatenate(face)
         self.tri_mat = np.concatenate(mat)
@@ -203,6 +210,7 @@ class Geometry:
         obj = np.full(n, -1, dtype=np.int64)
         face = np.full(n, -1, dtype=np.int64)
         material = np.full(n, -1, dtype=np.int64)
+        tint = np.ones((n, 3))
         for k, (i, ob) in enumerate(self.shapes):
             m = nearest.shape == k
             if m.any():
@@ -223,7 +231,8 @@ class Geometry:
             blended_uv = np.sum(bary * self.tri_uv[tri], axis=1)
             uv[m] = np.where(np.isnan(blended_uv), np.stack([b1, b2], axis=-1), blended_uv)
             obj[m], face[m], material[m] = self.tri_obj[tri], self.tri_face[tri], self.tri_mat[tri]
-        return SceneHit(nearest.t, normal, shading, uv, obj, face, material)
+            tint[m] = np.sum(bary * self.tri_tint[tri], axis=1)
+        return SceneHit(nearest.t, normal, shading, uv, obj, face, material, tint)
 
     def transmission(
         self, o: np.ndarray, d: np.ndarray, tmax: np.ndarray, filters: np.ndarray
@@ -268,7 +277,7 @@ class _Placement(NamedTuple):
         better = (local.t > 0.0) & (local.t < _tie_floor(hit.t, local.t))
         if not better.any():
             return hit
-        t, normal, shading, uv, obj, face, material = (np.array(field) for field in hit)
+        t, normal, shading, uv, obj, face, material, tint = (np.array(field) for field in hit)
         t[better] = local.t[better]
         normal[better] = safe_normalize(local.normal[better] @ self.inverse)
         shading[better] = safe_normalize(local.shading_normal[better] @ self.inverse)
@@ -277,7 +286,8 @@ class _Placement(NamedTuple):
         face[better] = local.face[better]
         replaced = self.instance.material
         material[better] = local.material[better] if replaced is None else replaced
-        return SceneHit(t, normal, shading, uv, obj, face, material)
+        tint[better] = local.tint[better]
+        return SceneHit(t, normal, shading, uv, obj, face, material, tint)
 
 
 def intersect_scene(scene: Scene, origins: np.ndarray, directions: np.ndarray) -> SceneHit:

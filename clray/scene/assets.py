@@ -8,17 +8,22 @@ budgets (texels, triangles, bulk spheres) are what is left of clray.scene.limits
 
 from __future__ import annotations
 
+import dataclasses
 import io
 import zipfile
+from collections.abc import Iterator
+from contextlib import contextmanager
+from contextvars import ContextVar
 from pathlib import Path
 from typing import Any, BinaryIO
 
 import numpy as np
 
-from clray.errors import plural
+from clray.errors import SceneError, plural
 from clray.scene import limits as L
 from clray.scene.colour import srgb_decode
-from clray.scene.files import UnreadableFile, open_regular, read_at_most
+from clray.scene.files import UnreadableFile, open_regular, read_at_most, read_regular
+from clray.scene.gltf import GltfModel, read_gltf
 from clray.scene.mesh_data import mesh_arrays
 from clray.scene.mtl import MtlLibrary, parse_mtl
 from clray.scene.obj import ObjMesh, parse_obj
@@ -29,6 +34,21 @@ from clray.scene.values import Values, file_name
 # What a `spheres` object's .npz may hold (a .npy holds centers, or centers and radii).
 SPHERE_ARRAYS = ("centers", "radii", "material_index")
 _DECODE_SLICE = 1 << 20  # texel values decoded from sRGB at a time
+# The meshes read within meshes_read_once(), which every Assets made there shares.
+_SHARED_MESHES: ContextVar[dict | None] = ContextVar("clray_shared_meshes", default=None)
+
+
+@contextmanager
+def meshes_read_once() -> Iterator[None]:
+    """Scenes loaded within it read each mesh file once between them: the automatic scene of a
+    model file loads it to frame it, then as the scene (for a 5 M-triangle PLY, half the
+    load). Meshes only: a mesh file's reading adds no warning that the second scene would
+    then miss, as a texture's or a glTF file's does."""
+    token = _SHARED_MESHES.set({})
+    try:
+        yield
+    finally:
+        _SHARED_MESHES.reset(token)
 
 
 class Assets:
@@ -41,7 +61,9 @@ class Assets:
         self.textures: dict[tuple[int, int], tuple[np.ndarray, bool]] = {}
         # By id() of the stored texels, which self.textures keeps alive for the assets' life.
         self.decoded_textures: dict[int, np.ndarray] = {}
-        self.meshes: dict[tuple[int, int], ObjMesh] = {}
+        shared = _SHARED_MESHES.get()
+        self.meshes: dict[tuple[int, int], ObjMesh] = {} if shared is None else shared
+        self.models: dict[tuple[int, int], GltfModel] = {}  # glTF files
         # MTL libraries by (device, inode): (the library, its identity).
         self.libraries: dict[tuple[int, int], MtlLibrary] = {}
         self.texels_left = L.MAX_TEXELS
@@ -52,7 +74,7 @@ class Assets:
         """Fresh budgets over the same files already read: a keyframe's scene does not read a
         mesh or texture again."""
         other = Assets(self.values, self.base)
-        other.textures, other.meshes = self.textures, self.meshes
+        other.textures, other.meshes, other.models = self.textures, self.meshes, self.models
         other.decoded_textures = self.decoded_textures
         return other
 
@@ -117,15 +139,17 @@ class Assets:
     # -- meshes ---------------------------------------------------------------------------
 
     def mesh_file(self, name: Any, key: str) -> ObjMesh:
-        """A mesh from an OBJ file, or a .npz of arrays."""
-        stream, identity = self.open_file(name, key, L.MAX_MESH_BYTES)
+        """A mesh from an OBJ or PLY file, or a .npz of arrays."""
+        suffix = Path(str(name)).suffix.lower()
+        # PLY's ASCII form is held to MAX_MESH_BYTES by read_ply, once its header is read.
+        limit = L.MAX_BINARY_MESH_BYTES if suffix in (".ply", ".npz") else L.MAX_MESH_BYTES
+        stream, identity = self.open_file(name, key, limit)
         with stream:
             if identity not in self.meshes:
                 try:
-                    data = read_at_most(stream, L.MAX_MESH_BYTES)
+                    data = read_at_most(stream, limit)
                 except UnreadableFile as exc:
                     raise self.values.error(key, f"{exc}: {file_name(name)}") from None
-                suffix = Path(str(name)).suffix.lower()
                 if suffix == ".npz":
                     self.meshes[identity] = self.npz_mesh(data, key, name)
                 elif suffix == ".ply":
@@ -134,13 +158,39 @@ class Assets:
                     self.meshes[identity] = parse_obj(data, self.base / name)
         return self.meshes[identity]
 
+    def gltf_model(self, name: Any, key: str) -> tuple[GltfModel, tuple[int, int]]:
+        """A .gltf or .glb file's model (clray.scene.gltf), read once, with its identity; the
+        buffers and images it names are relative to it."""
+        # A .glb's and a .bin's arrays are numpy views, as a binary PLY's; a .gltf is JSON.
+        binary = Path(str(name)).suffix.lower() == ".glb"
+        limit = L.MAX_BINARY_MESH_BYTES if binary else L.MAX_MESH_BYTES
+        stream, identity = self.open_file(name, key, limit)
+        with stream:
+            if identity not in self.models:
+                try:
+                    data = read_at_most(stream, limit)
+                except UnreadableFile as exc:
+                    raise self.values.error(key, f"{exc}: {file_name(name)}") from None
+                path = self.base / name
+
+                def read_file(relative: str, where: str) -> bytes:
+                    try:
+                        return read_regular(path.parent / relative, L.MAX_BINARY_MESH_BYTES)
+                    except UnreadableFile as exc:
+                        raise SceneError(path, where, f"cannot read {file_name(relative)}: "
+                                         f"{exc}") from None
+
+                model = read_gltf(data, path, read_file)
+                self.warnings.extend(f"{key}: {file_name(name)}: {w}" for w in model.warnings)
+                self.models[identity] = model
+        return self.models[identity], identity
+
     def ply_mesh(self, data: bytes, key: str, name: str) -> ObjMesh:
         ply = read_ply(data, self.base / name)
-        if ply.colors is not None:
-            # Colours per vertex would need a per-vertex colour buffer on the device.
-            self.warnings.append(f"{key}: {file_name(name)}: vertex colours are not rendered "
-                                 "yet (the mesh takes its material's colour)")
-        return ply.mesh
+        if ply.colors is None:
+            return ply.mesh
+        # Scanners and MeshLab write display (sRGB) colours, as 8-bit images hold.
+        return dataclasses.replace(ply.mesh, colors=srgb_decode(ply.colors))
 
     def material_library(self, path: Path, where: str
                          ) -> tuple[MtlLibrary, tuple[int, int]] | None:
@@ -170,12 +220,12 @@ class Assets:
             arrays = {n: loaded[n] for n in loaded.files}
         except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
             raise self.values.error(key, f"cannot read {file_name(name)}: {exc}") from None
-        known = ("vertices", "faces", "normals", "uvs")
+        known = ("vertices", "faces", "normals", "uvs", "colors")
         unknown = sorted(set(arrays) - set(known))
         if unknown or "vertices" not in arrays or "faces" not in arrays:
             raise self.values.error(
                 key, f"{file_name(name)} holds {', '.join(sorted(arrays)) or 'nothing'} "
-                f"(expected vertices, faces and optionally normals, uvs)")
+                f"(expected vertices, faces and optionally normals, uvs, colors)")
         # Errors name the array.
         return mesh_arrays(self.values, arrays, f"{key}: {file_name(name)}: ")
 

@@ -23,7 +23,7 @@ _OBJECT_TYPES: dict[type, str] = {
     M.Mesh: "mesh", M.Cylinder: "cylinder", M.Cone: "cone", M.Torus: "torus",
     M.Spheres: "spheres",
 }
-_MESH_ARRAYS = ("vertices", "faces", "normals", "uvs")
+_MESH_ARRAYS = ("vertices", "faces", "normals", "uvs", "colors")
 
 
 def check_scene(scene: M.Scene) -> M.Scene:

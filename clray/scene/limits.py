@@ -93,7 +93,10 @@ MAX_LIGHTS = 10_000
 # radiance by it, and a sphere light's radius squares, in float32.
 MAX_LIGHT_AREA = 1e30
 MAX_SPOT_ANGLE = 180.0  # a spot light's half-angle, degrees: below it, exclusive
-MAX_TRIANGLES = 2**24  # all meshes together, each instance counted
+# All meshes together, each instance counted: 33.5 M, about 12 GB of host memory at the
+# 350 bytes a triangle that load, BVH and pack peak at (docs/scale.md); primitive
+# references index 2^28.
+MAX_TRIANGLES = 2**25
 MAX_BULK_SPHERES = 2**24  # all `spheres` objects together
 MAX_ARRAY_BYTES = 256 * 2**20  # a .npy/.npz file of spheres
 MAX_TEXTURE_SIDE = 16384
@@ -102,4 +105,7 @@ MAX_TEXELS = 2**26  # all distinct texture files together: 768 MiB as float32 RG
 MIB = 2**20
 MAX_SCENE_BYTES = 64 * MIB
 MAX_MESH_BYTES = 256 * MIB  # the OBJ reader peaks near 13 bytes of memory per byte of file
+# A binary PLY or .npz mesh: numpy reads its blocks in place, so a file costs little more
+# than its own size (21 M triangles as a binary PLY: 400 MB).
+MAX_BINARY_MESH_BYTES = 1024 * MIB
 MAX_TEXTURE_BYTES = 256 * MIB

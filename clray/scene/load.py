@@ -105,8 +105,9 @@ def _scene(data: Any, v: Values, assets: Assets) -> tuple[Scene, Animation | Non
         for name, spec in v.table(data.get("groups", {}), "groups").items()
     }
     placed = tuple(
-        objects.object(spec, f"objects[{i}]")
+        obj
         for i, spec in enumerate(v.items(data.get("objects", []), "objects", L.MAX_OBJECTS))
+        for obj in objects.objects(spec, f"objects[{i}]")
     )
     scene = Scene(
         path=v.path,

@@ -18,16 +18,19 @@ def mesh_arrays(v: Values, source: dict, prefix: str) -> ObjMesh:
     numpy arrays or lists; errors name the array as `prefix` + its name."""
     vertices = vertex_values(v, source["vertices"], f"{prefix}vertices", None, 3)
     faces = face_indices(v, source["faces"], f"{prefix}faces", len(vertices))
-    normals, uvs = (None if n not in source else vertex_values(
+    normals, uvs, colors = (None if n not in source else vertex_values(
         v, source[n], f"{prefix}{n}", len(vertices), size) for n, size in (("normals", 3),
-                                                                           ("uvs", 2)))
+                                                                           ("uvs", 2),
+                                                                           ("colors", 3)))
+    if colors is not None and not np.all((colors >= 0) & (colors <= 1)):
+        raise v.error(f"{prefix}colors", "must be linear values in [0, 1]")
     if normals is not None:
         zero = ~np.any(normals != 0, axis=1)
         if zero.any():
             raise v.error(f"{prefix}normals[{int(np.flatnonzero(zero)[0])}]",
                           "must be a nonzero vector")
         normals = unit(normals)
-    return ObjMesh(vertices, faces, normals, uvs)
+    return ObjMesh(vertices, faces, normals, uvs, colors=colors)
 
 
 def vertex_values(v: Values, value: Any, key: str, n_vertices: int | None, size: int

@@ -258,6 +258,9 @@ class Mesh:
     # (F,) int64 indices into Scene.materials, one per face (an OBJ file's `usemtl`); None:
     # every face takes `material`.
     face_materials: np.ndarray | None = None
+    # (V, 3) float64 linear vertex colours in [0, 1], blended across each face and multiplying
+    # its material's colour (a PLY file's red, green, blue; glTF's COLOR_0).
+    colors: np.ndarray | None = None
 
 
 @dataclass(frozen=True)

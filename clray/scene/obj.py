@@ -40,6 +40,8 @@ class ObjMesh:
     face_groups: np.ndarray | None = None
     # `mtllib` statements: (line, file name as written) each, in file order.
     material_libraries: tuple[tuple[int, str], ...] = ()
+    # (V, 3) float64 linear vertex colours in [0, 1] (PLY, glTF and inline meshes; not OBJ).
+    colors: np.ndarray | None = None
 
 
 # The bytes `bytes.split()` treats as whitespace, so token boundaries found with numpy agree

@@ -3,6 +3,7 @@ transform (vertices, normals and winding) while loading, with one material or on
 
 from __future__ import annotations
 
+import dataclasses
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -30,32 +31,17 @@ def parse_mesh(spec: dict, key: str, material: int | None, v: Values, assets: As
     if obj.face_groups is not None and material is not None and "material" not in spec:
         face_materials = obj_face_materials(obj, spec["file"], f"{key}.file", material, v,
                                             assets, materials)
-    vertices, faces, normals, uvs = obj.vertices, obj.faces, obj.normals, obj.uvs
-    if len(faces) == 0:
+    if len(obj.faces) == 0:
         raise v.error(key, "mesh has no faces")
-    assets.take_triangles(len(faces), key)
+    assets.take_triangles(len(obj.faces), key)
     tkey = f"{key}.transform"
-    a, offset = parse_transform(spec.get("transform", {}), tkey, v)
     # Without a transform the vertices are used as read: a 327k-triangle mesh spends a
     # fifth of its load time in the matrix product otherwise.
-    identity = "transform" not in spec
-    if not identity:
-        vertices = vertices.reshape(-1, 3) @ a.T + offset
-    if not np.all(np.abs(vertices) <= L.MAX_MAGNITUDE):
-        raise v.error(
-            tkey, f"moves vertices beyond {L.MAX_MAGNITUDE:g} in magnitude "
-            f"(largest {np.max(np.abs(vertices)):.3g})"
-        )
-    if normals is not None and not identity:
-        # Normals follow the inverse transpose of A (n @ A^-1 as rows): they stay
-        # perpendicular to the surface under non-uniform scale and shear. Unit normals
-        # under a matrix whose singular values are at least MIN_LENGTH stay finite. They
-        # arrive unit (the OBJ reader and mesh_arrays normalise them).
-        normals = unit(normals @ np.linalg.inv(a))
-    if np.linalg.det(a) < 0:
-        # A mirroring transform turns the winding inside out; swapping two corners keeps
-        # (v1 - v0) x (v2 - v0) pointing outward, which refraction relies on.
-        faces = faces[:, [0, 2, 1]]
+    if "transform" in spec:
+        obj = transformed(obj, *parse_transform(spec["transform"], tkey, v), tkey, v)
+    else:
+        _within_limits(obj.vertices, tkey, v)
+    vertices, faces, normals, uvs = obj.vertices, obj.faces, obj.normals, obj.uvs
     if face_materials is None:
         face_materials = _face_materials(spec, key, len(faces), v, materials)
     return Mesh(
@@ -66,7 +52,35 @@ def parse_mesh(spec: dict, key: str, material: int | None, v: Values, assets: As
         normals=normals,
         uvs=uvs,
         face_materials=face_materials,
+        colors=obj.colors,
     )
+
+
+def transformed(obj: ObjMesh, a: np.ndarray, offset: np.ndarray, tkey: str, v: Values
+                ) -> ObjMesh:
+    """`obj` placed by x -> A x + offset: vertices, normals and winding."""
+    vertices = obj.vertices.reshape(-1, 3) @ a.T + offset
+    _within_limits(vertices, tkey, v)
+    normals, faces = obj.normals, obj.faces
+    if normals is not None:
+        # Normals follow the inverse transpose of A (n @ A^-1 as rows): they stay
+        # perpendicular to the surface under non-uniform scale and shear. Unit normals
+        # under a matrix whose singular values are at least MIN_LENGTH stay finite. They
+        # arrive unit (the OBJ reader and mesh_arrays normalise them).
+        normals = unit(normals @ np.linalg.inv(a))
+    if np.linalg.det(a) < 0:
+        # A mirroring transform turns the winding inside out; swapping two corners keeps
+        # (v1 - v0) x (v2 - v0) pointing outward, which refraction relies on.
+        faces = faces[:, [0, 2, 1]]
+    return dataclasses.replace(obj, vertices=vertices, normals=normals, faces=faces)
+
+
+def _within_limits(vertices: np.ndarray, tkey: str, v: Values) -> None:
+    if not np.all(np.abs(vertices) <= L.MAX_MAGNITUDE):
+        raise v.error(
+            tkey, f"moves vertices beyond {L.MAX_MAGNITUDE:g} in magnitude "
+            f"(largest {np.max(np.abs(vertices)):.3g})"
+        )
 
 
 def _face_materials(spec: dict, key: str, n_faces: int, v: Values,
@@ -99,7 +113,7 @@ def _mesh_source(spec: dict, key: str, v: Values, assets: Assets) -> ObjMesh:
     inline = "vertices" in spec or "faces" in spec
     if "file" in spec and inline:
         raise v.error(key, "give file or vertices + faces, not both")
-    for name in ("normals", "uvs"):
+    for name in ("normals", "uvs", "colors"):
         if name in spec and not inline:
             raise v.error(f"{key}.{name}", "only with vertices + faces (an OBJ file "
                           "gives its own)")

@@ -9,6 +9,7 @@ import numpy as np
 
 from clray.scene import limits as L
 from clray.scene.assets import Assets
+from clray.scene.gltf import is_gltf_file
 from clray.scene.model import (
     Box,
     Cone,
@@ -21,6 +22,7 @@ from clray.scene.model import (
     Torus,
     Triangle,
 )
+from clray.scene.parse_gltf import gltf_objects
 from clray.scene.parse_materials import MaterialTable
 from clray.scene.parse_mesh import parse_mesh
 from clray.scene.parse_spheres import parse_spheres
@@ -34,7 +36,8 @@ OBJECT_KEYS: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
     "plane": (("point", "normal"), ()),
     "box": (("min", "max"), ()),
     "triangle": (("vertices",), ()),
-    "mesh": ((), ("file", "vertices", "faces", "normals", "uvs", "materials", "material_index")),
+    "mesh": ((), ("file", "vertices", "faces", "normals", "uvs", "colors", "materials",
+                  "material_index")),
     "cylinder": (("base", "axis", "radius", "height"), ("capped",)),
     "cone": (("apex", "axis", "angle", "height"), ("capped",)),
     "torus": (("center", "axis", "major_radius", "minor_radius"), ()),
@@ -57,10 +60,12 @@ class ObjectParser:
         items = v.items(spec["objects"], f"{key}.objects", L.MAX_OBJECTS)
         if not items:
             raise v.error(f"{key}.objects", "a group needs at least one object")
-        return Group(name, tuple(self.object(item, f"{key}.objects[{i}]", in_group=True)
-                                 for i, item in enumerate(items)))
+        return Group(name, tuple(obj for i, item in enumerate(items)
+                                 for obj in self.objects(item, f"{key}.objects[{i}]", True)))
 
-    def object(self, spec: dict, key: str, in_group: bool = False) -> SceneObject:
+    def objects(self, spec: dict, key: str, in_group: bool = False
+                ) -> tuple[SceneObject, ...]:
+        """An entry's object, or a glTF file's objects (clray.scene.parse_gltf)."""
         v = self.v
         kind = v.kind(spec, key, OBJECT_KEYS)
         allowed = ("type", "material", *OBJECT_KEYS[kind][0], *OBJECT_KEYS[kind][1],
@@ -70,6 +75,16 @@ class ObjectParser:
         if in_group and kind in ("instance", "plane"):
             raise v.error(f"{key}.type", "a group holds bounded primitives: no planes "
                           "(unbounded) and no instances (groups do not nest)")
+        if kind == "mesh" and "file" in spec and is_gltf_file(v.string(spec["file"],
+                                                                       f"{key}.file")):
+            if "vertices" in spec or "faces" in spec:
+                raise v.error(key, "give file or vertices + faces, not both")
+            return gltf_objects(spec, key, in_group, v, self.assets, self.materials)
+        return (self.object(spec, key, kind, in_group),)
+
+    def object(self, spec: dict, key: str, kind: str, in_group: bool) -> SceneObject:
+        """One object of a checked entry of type `kind`."""
+        v = self.v
         if kind == "instance":
             return self.instance(spec, key)
         obj = self.unplaced(spec, key, kind)

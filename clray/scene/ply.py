@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from clray.errors import SceneError, plural
+from clray.scene import limits
 from clray.scene.limits import MAX_MAGNITUDE
 from clray.scene.model import unit
 from clray.scene.obj import ObjMesh, _fan
@@ -371,6 +372,11 @@ def read_ply(data: bytes, path: Path) -> PlyMesh:
     reader = _Reader(data, path)
     fmt, elements, body = reader.header()
     if fmt == "ascii":
+        if len(data) > limits.MAX_MESH_BYTES:
+            # Text is parsed token by token, at several times its size in memory: binary files
+            # alone (numpy views of their blocks) may be as large as MAX_BINARY_MESH_BYTES.
+            raise reader.error(None, f"an ASCII PLY file is at most {limits.MAX_MESH_BYTES} "
+                               f"bytes, this one has {len(data)} (write it as binary)")
         columns = reader.ascii(elements, body)
     else:
         columns = reader.binary(elements, body, _FORMATS[fmt])
@@ -407,7 +413,9 @@ def _mesh(reader: _Reader, columns: dict[str, dict[str, object]]) -> PlyMesh:
             i = int(small[0])
             raise reader.error("element face", f"record {i}: a face needs at least 3 "
                                f"vertices, got {int(counts[i])}")
-        parts.append(items[_fan(counts)])
+        # A triangle mesh's items are its faces as they are: no fan to gather (a copy of
+        # 24 bytes a triangle).
+        parts.append(items.reshape(-1, 3) if np.all(counts == 3) else items[_fan(counts)])
     strips = _index_list(reader, columns, "tristrips", len(vertices))
     if strips is not None:
         parts.append(_strip_triangles(*strips))

@@ -1,0 +1,56 @@
+"""Renders in Jupyter: a RenderResult shows itself (RenderResult._repr_png_); show_progressive
+shows the bands of rows as they arrive, through IPython's display, which every notebook has
+and clray does not require."""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+
+import numpy as np
+
+from clray.errors import ClrayError
+from clray.image_io import png_bytes, to_png_samples
+from clray.render import RenderResult, RenderSettings, png_encoding, render, resolved_settings
+from clray.scene.check import check_scene
+from clray.scene.load import load_scene
+from clray.scene.model import Scene
+
+IPYTHON_MISSING = "show_progressive needs IPython's display (run it in Jupyter or IPython)"
+
+
+def _display():
+    try:
+        from IPython import display
+    except ImportError:
+        raise ClrayError(IPYTHON_MISSING) from None
+    return display
+
+
+def show_progressive(scene: Scene | str | os.PathLike,
+                     settings: RenderSettings | None = None) -> RenderResult:
+    """Render as render() does, showing the image in the notebook as each band of rows
+    arrives (rows still to come are black), then the finished image (denoised where the
+    settings ask). Returns the result; settings.on_band, if any, still hears every band."""
+    display = _display()
+    settings = settings or RenderSettings()
+    scene = load_scene(scene) if isinstance(scene, str | os.PathLike) else check_scene(scene)
+    resolved = resolved_settings(scene, settings)
+    encoding = png_encoding(scene, settings)
+    canvas = np.zeros((resolved["height"], resolved["width"], 3), dtype=np.float32)
+
+    def frame() -> object:
+        return display.Image(data=png_bytes(to_png_samples(canvas, encoding), encoding.linear))
+
+    handle = display.display(frame(), display_id=True)
+    user_hook = settings.on_band
+
+    def on_band(first_row: int, rows: np.ndarray) -> None:
+        canvas[first_row:first_row + len(rows)] = rows
+        handle.update(frame())
+        if user_hook is not None:
+            user_hook(first_row, rows)
+
+    result = render(scene, dataclasses.replace(settings, on_band=on_band))
+    handle.update(display.Image(data=result._repr_png_()))
+    return result

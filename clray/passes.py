@@ -1,0 +1,192 @@
+"""Passes (AOVs; docs/passes.md): what a render's primary rays meet, as named arrays beside the
+image. The kernel (kernels/passes.h, render.cl's render_passes) writes four raw outputs;
+this module names the passes, turns those outputs into them (the primitive references into
+the scene's object indices), writes them (layers of an OpenEXR image, else one PFM a pass
+beside it) and draws their false-colour previews."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from clray.device import layout as L
+from clray.image_io import (
+    Encoding,
+    check_suffix,
+    exr_bytes,
+    image_bytes,
+    pfm_bytes,
+    write_bytes_atomically,
+)
+from clray.scene import model as M
+
+# The passes a render can ask for, in the order files list them.
+PASS_NAMES = ("depth", "normal", "albedo", "position", "object", "material", "instance")
+# The passes of one number a pixel: depth float32, the indices int32 (-1 on a miss).
+SCALAR_PASSES = ("depth", "object", "material", "instance")
+INDEX_PASSES = ("object", "material", "instance")
+
+
+def pass_problem(names: object) -> str | None:
+    """What is wrong with a tuple of pass names, or None."""
+    if not isinstance(names, tuple) or not all(isinstance(n, str) for n in names):
+        return "expected a tuple of pass names"
+    unknown = [n for n in names if n not in PASS_NAMES]
+    if unknown:
+        return (f"unknown pass {unknown[0]!r}; expected some of {', '.join(PASS_NAMES)}")
+    if len(set(names)) != len(names):
+        return "a pass is named twice"
+    return None
+
+
+# Each primitive kind's packed array, with the scene objects that pack into it
+# (clray.device.pack._by_kind: Sphere with Spheres, Triangle with Mesh) and the primitives
+# each object makes there.
+_KINDS = ((L.PRIM_PLANE, (M.Plane,)), (L.PRIM_SPHERE, (M.Sphere, M.Spheres)),
+          (L.PRIM_BOX, (M.Box,)), (L.PRIM_CYLINDER, (M.Cylinder,)), (L.PRIM_CONE, (M.Cone,)),
+          (L.PRIM_TRIANGLE, (M.Triangle, M.Mesh)))
+
+
+def _primitives(obj: M.SceneObject) -> int:
+    if isinstance(obj, M.Spheres):
+        return len(obj.radii)
+    if isinstance(obj, M.Mesh):
+        return len(obj.faces)
+    return 1
+
+
+def object_of_primitive(scene: M.Scene) -> dict[int, np.ndarray]:
+    """Per primitive kind (layout.PRIM_*), the scene object (index in scene.objects) of each
+    primitive the packer stores in that kind's array, in its order: the scene's own objects
+    first, in scene order, then the groups' (-1: the object is the instance the hit was in)."""
+    instances = [obj for obj in scene.objects if isinstance(obj, M.Instance)]
+    groups = list({id(inst.group): inst.group for inst in instances}.values())
+    table = {}
+    for kind, types in _KINDS:
+        owners = [(i, obj) for i, obj in enumerate(scene.objects) if isinstance(obj, types)]
+        if kind != L.PRIM_PLANE:
+            owners += [(-1, obj) for group in groups for obj in group.objects
+                       if isinstance(obj, types)]
+        table[kind] = np.repeat(np.array([i for i, _ in owners], dtype=np.int32),
+                                [_primitives(obj) for _, obj in owners]).astype(np.int32)
+    return table
+
+
+def instance_objects(scene: M.Scene) -> np.ndarray:
+    """The index in scene.objects of each instance, in the order the packer numbers them."""
+    return np.array([i for i, obj in enumerate(scene.objects) if isinstance(obj, M.Instance)],
+                    dtype=np.int32)
+
+
+def object_indices(scene: M.Scene, refs: np.ndarray, instances: np.ndarray) -> np.ndarray:
+    """The scene object of each primitive reference (-1: none) met in instance `instances`
+    (-1: in none): its own object's index, or the instance's."""
+    objects = np.full(refs.shape, -1, dtype=np.int32)
+    kinds = refs >> L.PRIM_TYPE_SHIFT
+    index = refs & L.PRIM_INDEX_MASK
+    for kind, table in object_of_primitive(scene).items():
+        mine = (refs >= 0) & (kinds == kind)
+        objects[mine] = table[index[mine]]
+    inside = instances >= 0
+    objects[inside] = instance_objects(scene)[instances[inside]]
+    return objects
+
+
+def passes_of(raw: dict[str, np.ndarray], scene: M.Scene,
+              names: tuple[str, ...]) -> dict[str, np.ndarray]:
+    """The passes `names` from render_passes' outputs (clray.device.launch.PASS_OUTPUTS, by
+    name, (H, W, 4) each)."""
+    geometry, indices = raw["geometry"], raw["indices"]
+    made = {
+        "depth": lambda: geometry[..., 3],
+        "normal": lambda: geometry[..., :3],
+        "albedo": lambda: raw["albedo"][..., :3],
+        "position": lambda: raw["position"][..., :3],
+        "object": lambda: object_indices(scene, indices[..., 0], indices[..., 1]),
+        "instance": lambda: indices[..., 1],
+        "material": lambda: indices[..., 2],
+    }
+    return {name: np.ascontiguousarray(made[name]()) for name in names}
+
+
+def preview(name: str, values: np.ndarray) -> np.ndarray:
+    """A false-colour (H, W, 3) float32 picture of pass `name` in [0, 1] for a PNG: depth as
+    inverse depth (white nearest, darker farther), normals from [-1, 1] and positions from their
+    range to [0, 1] per axis, albedo as it is, indices as distinct hues; black on a miss."""
+    if name == "albedo":
+        return np.clip(values, 0.0, 1.0).astype(np.float32)
+    if name in INDEX_PASSES:
+        # A golden-ratio walk round the hue circle: neighbouring indices far apart.
+        hue = (values.astype(np.float64) * 0.618033988749895) % 1.0
+        rgb = np.clip(np.abs((hue[..., None] * 6.0 + np.array([0.0, 4.0, 2.0])) % 6.0 - 3.0)
+                      - 1.0, 0.0, 1.0)
+        rgb[values < 0] = 0.0
+        return rgb.astype(np.float32)
+    if name == "depth":
+        # Inverse depth, nearest / depth: a ground plane running to the horizon, whose far
+        # end would squeeze a linear scale's near objects into one grey, falls off smoothly.
+        finite = np.isfinite(values) & (values > 0)
+        near = values[finite].min() if finite.any() else 1.0
+        grey = np.where(finite, near / np.where(finite, values, 1.0), 0.0)
+        return np.repeat(grey[..., None], 3, axis=2).astype(np.float32)
+    if name == "normal":
+        rgb = np.clip(0.5 * values + 0.5, 0.0, 1.0)
+        rgb[~values.any(axis=2)] = 0.0
+        return rgb.astype(np.float32)
+    lo, hi = values.min(axis=(0, 1)), values.max(axis=(0, 1))
+    span = np.where(hi > lo, hi - lo, 1.0)
+    return np.clip((values - lo) / span, 0.0, 1.0).astype(np.float32)
+
+
+# Each pass's channels in an OpenEXR file: layer "name", channels "name.X" ... (the indices
+# as float32, exact below 2**24, as EXR has no signed integers).
+EXR_CHANNELS = {"depth": ("Z",), "normal": ("X", "Y", "Z"), "albedo": ("R", "G", "B"),
+                "position": ("X", "Y", "Z"), "object": ("id",), "material": ("id",),
+                "instance": ("id",)}
+
+
+def exr_channels(aovs: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """The passes as OpenEXR channels by full name ("normal.X"), float32 (H, W) each."""
+    out = {}
+    for name, values in aovs.items():
+        planes = values[..., None] if values.ndim == 2 else values
+        for k, channel in enumerate(EXR_CHANNELS[name]):
+            out[f"{name}.{channel}"] = planes[..., k].astype(np.float32)
+    return out
+
+
+def beside(image_path: str | Path, name: str, suffix: str) -> Path:
+    """A pass's file beside the image: out.png -> out.depth.pfm."""
+    path = Path(image_path)
+    return path.with_name(f"{path.stem}.{name}{suffix}")
+
+
+def pass_paths(image_path: str | Path, names: tuple[str, ...], previews: bool
+               ) -> list[Path]:
+    """The files besides the image that writing passes `names` with it makes: one PFM a pass
+    (none for an OpenEXR image, whose layers hold them) and, with `previews`, one PNG a pass."""
+    exr = Path(image_path).suffix.lower() == ".exr"
+    files = [] if exr else [beside(image_path, name, ".pfm") for name in names]
+    return files + ([beside(image_path, name, ".png") for name in names] if previews else [])
+
+
+def write_with_passes(path: str | Path, image: np.ndarray, encoding: Encoding,
+                      aovs: dict[str, np.ndarray], previews: bool = False) -> None:
+    """The image at `path` (its suffix picks the format), with its passes as layers of the
+    same file where that is OpenEXR, else one PFM a pass beside it (pass_paths), and with
+    `previews` a false-colour PNG of each. Every file whole or not at all."""
+    suffix = check_suffix(path)
+    if suffix == ".exr":
+        write_bytes_atomically(path, exr_bytes(image, exr_channels(aovs)))
+    else:
+        for name, values in aovs.items():
+            write_bytes_atomically(beside(path, name, ".pfm"),
+                                   pfm_bytes(values.astype(np.float32)))
+        write_bytes_atomically(path, image_bytes(suffix, image, encoding))
+    if previews:
+        for name, values in aovs.items():
+            # The previews' values are what to show, not light: linear PNG, as they are.
+            write_bytes_atomically(beside(path, name, ".png"),
+                                   image_bytes(".png", preview(name, values),
+                                               Encoding(linear=True)))

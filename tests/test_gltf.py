@@ -1,0 +1,419 @@
+"""glTF 2.0 files (clray.scene.gltf, clray.scene.parse_gltf): the node hierarchy's placements
+and instances against float64 numpy, texture orientation, the material rule, the file's camera,
+every warning and refusal, the exit-3 command, and the Khronos sample model rendered."""
+
+from __future__ import annotations
+
+import math
+import struct
+import tomllib
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from clray.cli import main
+from clray.errors import SceneError
+from clray.model_scene import model_scene_data
+from clray.reference.texture import image_texel
+from clray.scene import model as M
+from clray.scene.emitters import emissive_triangles
+from clray.scene.gltf import GltfMaterial
+from clray.scene.load import scene_from_dict
+from clray.scene.parse_gltf import gltf_material
+from tests.gltf_files import CUBE_FACES, CUBE_VERTICES, Builder, glb_bytes, instanced_cubes
+
+ROOT = Path(__file__).resolve().parents[1]
+MODELS = ROOT / "scenes" / "models"
+
+
+def load(path: Path, **spec) -> M.Scene:
+    return scene_from_dict({"camera": {"position": [0, 0, 30], "look_at": [0, 0, 0]},
+                            "objects": [{"type": "mesh", "file": path.name, **spec}]},
+                           path.parent / "scene.toml")
+
+
+def world_vertices(scene: M.Scene) -> list[np.ndarray]:
+    out = []
+    for obj in scene.objects:
+        if isinstance(obj, M.Mesh):
+            out.append(obj.vertices[obj.faces])
+        else:
+            a, t = obj.matrix[:, :3], obj.matrix[:, 3]
+            mesh = obj.group.objects[0]
+            out.append(mesh.vertices[mesh.faces] @ a.T + t)
+    return out
+
+
+def rotation_z(degrees: float) -> np.ndarray:
+    c, s = math.cos(math.radians(degrees)), math.sin(math.radians(degrees))
+    return np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]])
+
+
+@pytest.mark.parametrize("suffix", [".glb", ".gltf"])
+def test_a_mesh_of_several_nodes_becomes_instances_of_one_group(tmp_path, suffix):
+    path = instanced_cubes().save(tmp_path / f"m{suffix}")
+    scene = load(path, transform={"scale": 2, "translate": [1, 0, 0]})
+    baked, *instances = scene.objects
+    assert isinstance(baked, M.Mesh) and len(baked.faces) == 1
+    assert len(instances) == 3 and all(isinstance(i, M.Instance) for i in instances)
+    assert len({id(i.group) for i in instances}) == 1  # one copy on the device
+    # float64 by hand: the object's transform after the parent's and the child's translation.
+    for k in range(3):
+        expected = 2 * (CUBE_VERTICES[CUBE_FACES] + [3.0 * k, 10, 0]) + [1, 0, 0]
+        got = world_vertices(scene)[1 + k]
+        np.testing.assert_allclose(got, expected, rtol=0, atol=1e-12)
+    # The triangle: scale 2, a quarter turn about z, translate z -5 (TRS), then the object's.
+    tri = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], dtype=np.float64)
+    expected = 2 * ((2 * tri) @ rotation_z(90).T + [0, 0, -5]) + [1, 0, 0]
+    np.testing.assert_allclose(baked.vertices[baked.faces[0]], expected, atol=1e-6)
+
+
+def test_inside_a_group_the_placements_are_copies(tmp_path):
+    instanced_cubes().save(tmp_path / "m.glb")
+    scene = scene_from_dict({"camera": {"position": [0, 0, 30], "look_at": [0, 0, 0]},
+                             "groups": {"g": {"objects": [{"type": "mesh", "file": "m.glb"}]}},
+                             "objects": [{"type": "instance", "group": "g"}]},
+                            tmp_path / "s.toml")
+    (inst,) = scene.objects
+    (mesh,) = inst.group.objects
+    assert len(mesh.faces) == 3 * 12 + 1
+    lo, hi = mesh.vertices.min(axis=0), mesh.vertices.max(axis=0)
+    np.testing.assert_allclose(lo, [-2, 0, -5], atol=1e-6)
+    np.testing.assert_allclose(hi, [7, 11, 1], atol=1e-6)
+
+
+def test_a_matrix_node_with_a_mirror_keeps_faces_outward(tmp_path):
+    b = Builder()
+    cube = b.mesh(CUBE_VERTICES - 0.5, CUBE_FACES)
+    m = np.array([[-1.0, 0.3, 0, 4], [0, 2, 0, 5], [0, 0, 1, 6], [0, 0, 0, 1]])
+    b.node(mesh=cube, matrix=m.T.reshape(-1).tolist())  # glTF's matrices are column-major
+    (mesh,) = load(b.save(tmp_path / "m.glb")).objects
+    np.testing.assert_allclose(mesh.vertices, (CUBE_VERTICES - 0.5) @ m[:3, :3].T + m[:3, 3],
+                               atol=1e-12)
+    corners = mesh.vertices[mesh.faces]
+    normal = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+    outward = corners.mean(axis=1) - [4, 5, 6]
+    assert np.all(np.sum(normal * outward, axis=1) > 0)
+
+
+def test_texture_v_runs_down_the_image(tmp_path):
+    """glTF's (0, 0) is the image's top-left corner; clray's v runs up the image."""
+    texels = np.zeros((2, 2, 3), dtype=np.uint8)
+    texels[0, 0] = (255, 0, 0)  # the top-left texel red
+    texels[1, 1] = (0, 0, 255)  # the bottom-right blue
+    b = Builder()
+    texture = b.image(texels)
+    mat = b.material(pbrMetallicRoughness={"baseColorTexture": {"index": texture},
+                                           "baseColorFactor": [1, 1, 0.5, 1]})
+    quad = b.mesh([[0, 0, 0], [1, 0, 0], [1, 1, 0]], [[0, 1, 2]], mat,
+                  uvs=[[0.25, 0.25], [0.75, 0.75], [0.75, 0.25]])
+    b.node(mesh=quad)
+    scene = load(b.save(tmp_path / "t.gltf"))
+    (mesh,) = scene.objects
+    texture = scene.materials[mesh.material].texture
+    got = image_texel(texture.image, mesh.uvs[:, 0], mesh.uvs[:, 1], texture.repeat)
+    # Texel centres, times baseColorFactor (glTF multiplies; clray's texture holds the product).
+    np.testing.assert_allclose(got, [[1, 0, 0], [0, 0, 0.5], [0, 0, 0]], atol=1e-6)
+
+
+def test_material_rule():
+    def rule(metallic, roughness, **kw):
+        base = dict(name="m", color=(0.5, 0.6, 0.7), alpha=1.0, emission=(0, 0, 0),
+                    texture=None)
+        return gltf_material(GltfMaterial(metallic=metallic, roughness=roughness,
+                                          **{**base, **kw}), None)
+
+    rough = rule(0.0, 1.0)
+    assert (rough.diffuse, rough.reflect, rough.specular, rough.color) == (
+        1.0, 0.0, 0.0, (0.5, 0.6, 0.7))
+    mirror = rule(1.0, 0.0)
+    assert (mirror.diffuse, mirror.reflect, mirror.specular) == (0.0, 1.0, 1.0)
+    half = rule(0.5, 0.5)
+    assert half.reflect == pytest.approx(0.25) and half.diffuse == pytest.approx(0.75)
+    # Blinn-Phong's 2 / alpha^2 - 2 for alpha = 0.25, over 4 for Phong's wider lobe.
+    assert half.shininess == pytest.approx((2 / 0.25**2 - 2) / 4)
+    assert rule(0.0, 0.5, alpha=0.25).transmit == 0.75
+    assert rule(0.0, 1.0, emission=(1, 0.5, 0)).emission == (1, 0.5, 0)
+
+
+def test_emissive_faces_light_the_scene_and_are_not_instanced(tmp_path):
+    b = Builder()
+    glow = b.material(emissiveFactor=[1, 0.5, 0.25])
+    cube = b.mesh(CUBE_VERTICES, CUBE_FACES, glow)
+    b.node(mesh=cube)
+    b.node(mesh=cube, translation=[2, 0, 0])
+    scene = load(b.save(tmp_path / "e.glb"))
+    assert all(isinstance(o, M.Mesh) for o in scene.objects)
+    lights = emissive_triangles(scene)
+    assert len(lights) == 24 and lights[0].color == (1.0, 0.5, 0.25)
+
+
+def test_the_scene_material_replaces_the_files(tmp_path):
+    instanced_cubes().save(tmp_path / "m.glb")
+    scene = scene_from_dict({"camera": {"position": [0, 0, 30], "look_at": [0, 0, 0]},
+                             "materials": {"blue": {"color": [0, 0, 1]}},
+                             "objects": [{"type": "mesh", "file": "m.glb",
+                                          "material": "blue"}]}, tmp_path / "s.toml")
+    meshes = [o if isinstance(o, M.Mesh) else o.group.objects[0] for o in scene.objects]
+    assert all(m.face_materials is None and m.material == 0 for m in meshes)
+
+
+def test_the_files_first_camera_frames_the_automatic_scene(tmp_path, monkeypatch):
+    b = instanced_cubes()
+    b.doc["cameras"] = [{"type": "perspective",
+                         "perspective": {"yfov": 0.5, "aspectRatio": 2.0, "znear": 0.1}},
+                        {"type": "orthographic", "orthographic": {"xmag": 1, "ymag": 1}}]
+    b.node(camera=0, translation=[1, 2, 3], rotation=[0, 0.7071067811865476, 0,
+                                                      0.7071067811865476])
+    b.node(camera=1)
+    b.save(tmp_path / "c.glb")
+    monkeypatch.chdir(tmp_path)
+    data = model_scene_data(Path("c.glb"))
+    camera = data["camera"]
+    assert data["render"]["width"] == 2 * data["render"]["height"]
+    assert camera["vfov"] == pytest.approx(math.degrees(0.5), rel=1e-5)
+    np.testing.assert_allclose(camera["position"], [1, 2, 3])
+    # A quarter turn about y turns the camera's -z view to -x.
+    np.testing.assert_allclose(camera["look_at"], [0, 2, 3], atol=1e-6)
+    np.testing.assert_allclose(camera["up"], [0, 1, 0], atol=1e-6)
+    turned = model_scene_data(Path("c.glb"), up="z")["camera"]  # --up z turns it too
+    np.testing.assert_allclose(turned["position"], [1, 3, -2], atol=1e-6)
+
+
+def test_orthographic_camera(tmp_path, monkeypatch):
+    b = instanced_cubes()
+    b.doc["cameras"] = [{"type": "orthographic", "orthographic": {"xmag": 3, "ymag": 1.5}}]
+    b.node(camera=0, translation=[0, 0, 20])
+    b.save(tmp_path / "o.gltf")
+    monkeypatch.chdir(tmp_path)
+    data = model_scene_data(Path("o.gltf"))
+    assert data["camera"]["type"] == "orthographic" and data["camera"]["height"] == 3.0
+    assert data["render"]["width"] == 2 * data["render"]["height"]
+
+
+def warnings_of(tmp_path, doc_edit, name="w.glb") -> tuple[str, ...]:
+    b = instanced_cubes()
+    doc_edit(b)
+    return load(b.save(tmp_path / name)).warnings
+
+
+@pytest.mark.parametrize("edit, needle", [
+    (lambda b: b.doc["meshes"][1]["primitives"][0].update(mode=0), "mode POINTS"),
+    (lambda b: b.doc["meshes"][1]["primitives"][0].update(mode=1), "mode LINES"),
+    (lambda b: b.doc["nodes"][0].update(skin=0), "skins"),
+    (lambda b: b.doc["meshes"][0]["primitives"][0].update(targets=[{}]), "morph targets"),
+    (lambda b: b.doc.update(animations=[{"channels": []}]), "animations"),
+    (lambda b: b.doc.update(extensionsUsed=["KHR_materials_clearcoat"]),
+     "KHR_materials_clearcoat"),
+    (lambda b: b.doc["materials"][0].update(normalTexture={"index": 0}), "normalTexture"),
+    (lambda b: b.doc["materials"][0].update(emissiveTexture={"index": 0}), "emissiveTexture"),
+    (lambda b: b.doc["materials"][0].update(alphaMode="MASK"), "alphaMode MASK"),
+])
+def test_unsupported_things_are_one_warning_each(tmp_path, edit, needle):
+    warned = [w for w in warnings_of(tmp_path, edit) if needle in w]
+    assert len(warned) == 1, warned
+    assert "w.glb" in warned[0]
+
+
+def test_strips_and_fans_are_triangles(tmp_path):
+    b = Builder()
+    quad = [[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0]]
+    b.node(mesh=b.mesh(quad, [0, 1, 2, 3], mode=5))
+    b.node(mesh=b.mesh(quad, [0, 1, 3, 2], mode=6), translation=[0, 0, 1])
+    (mesh,) = load(b.save(tmp_path / "s.glb")).objects
+    strip, fan = mesh.faces.reshape(2, 2, 3)
+    np.testing.assert_array_equal(strip, [[0, 1, 2], [2, 1, 3]])
+    np.testing.assert_array_equal(fan, [[4, 5, 7], [4, 7, 6]])
+
+
+def test_sparse_accessor_replaces_values(tmp_path):
+    b = Builder()
+    cube = b.mesh(CUBE_VERTICES, CUBE_FACES)
+    b.node(mesh=cube)
+    where = b.view(np.array([7], np.uint16).tobytes())
+    value = b.view(np.array([[5, 5, 5]], np.float32).tobytes())
+    b.doc["accessors"][0]["sparse"] = {"count": 1, "indices": {"bufferView": where,
+                                                                "componentType": 5123},
+                                       "values": {"bufferView": value}}
+    (mesh,) = load(b.save(tmp_path / "s.glb")).objects
+    np.testing.assert_array_equal(mesh.vertices[7], [5, 5, 5])
+    np.testing.assert_array_equal(mesh.vertices[:7], CUBE_VERTICES[:7])
+
+
+def broken_cases(tmp_path: Path) -> dict[str, tuple[Path, str]]:
+    """name -> (file, what the one-line message must say)."""
+    good = instanced_cubes()
+    glb = good.glb()
+    cases = {}
+
+    def doc(name: str, edit, needle: str, suffix=".glb") -> None:
+        b = instanced_cubes()
+        edit(b.doc)
+        cases[name] = (b.save(tmp_path / f"{name}{suffix}"), needle)
+
+    (tmp_path / "truncated.glb").write_bytes(glb[: len(glb) - 7])
+    cases["truncated"] = (tmp_path / "truncated.glb", "truncated .glb")
+    (tmp_path / "json.gltf").write_bytes(b'{"asset": {"version": "2.0"}, "nodes": [')
+    cases["json"] = (tmp_path / "json.gltf", "not glTF JSON")
+    doc("accessor", lambda d: d["meshes"][0]["primitives"][0].update(indices=99),
+        "meshes[0].primitives[0].indices: 99 is not an index into accessors")
+    doc("count", lambda d: d["accessors"][0].update(count=10**6),
+        "accessors[0]: 1000000 elements")
+    doc("index", lambda d: d["meshes"][0]["primitives"][0].update(material=5),
+        "material: 5 is not an index into materials")
+    doc("cycle", lambda d: d["nodes"][0].update(children=[3]), "reached twice")
+    doc("draco", lambda d: d.update(extensionsRequired=["KHR_draco_mesh_compression"]),
+        "KHR_draco_mesh_compression")
+    doc("version", lambda d: d["asset"].update(version="1.0"), "asset.version")
+    missing = instanced_cubes().save(tmp_path / "missing.gltf")
+    missing.with_suffix(".bin").unlink()
+    cases["missing_bin"] = (missing, "buffers[0].uri: cannot read missing.bin: file not found")
+    bad = glb_bytes({"asset": {"version": "2.0"}}, b"")
+    (tmp_path / "nothing.glb").write_bytes(bad)
+    cases["nothing"] = (tmp_path / "nothing.glb", "no triangles to render")
+    return cases
+
+
+CASES = ("truncated", "json", "accessor", "count", "index", "cycle", "draco", "version",
+         "missing_bin", "nothing")
+
+
+@pytest.mark.parametrize("name", CASES)
+def test_broken_files_are_scene_errors(tmp_path, name):
+    path, needle = broken_cases(tmp_path)[name]
+    with pytest.raises(SceneError) as caught:
+        load(path)
+    assert needle in str(caught.value)
+    assert path.name in str(caught.value)
+
+
+@pytest.mark.parametrize("name", ["truncated", "accessor", "missing_bin"])
+def test_broken_file_exits_3_with_one_line(capsys, tmp_path, name):
+    path, needle = broken_cases(tmp_path)[name]
+    out = tmp_path / "out.png"
+    assert main(["render", str(path), "-o", str(out), "-W", "8", "-H", "6"]) == 3
+    err = capsys.readouterr().err
+    lines = [line for line in err.splitlines() if not line.startswith("clray: warning:")]
+    assert len(lines) == 1 and lines[0].startswith("clray: error: "), err
+    assert needle in lines[0] and path.name in lines[0]
+    assert not out.exists()
+
+
+def test_glb_header_lengths_are_checked(tmp_path):
+    glb = bytearray(instanced_cubes().glb())
+    struct.pack_into("<I", glb, 12, 10**6)  # the JSON chunk runs past the end
+    (tmp_path / "c.glb").write_bytes(bytes(glb))
+    with pytest.raises(SceneError, match="runs past the end"):
+        load(tmp_path / "c.glb")
+
+
+def test_sample_model_loads_as_the_gltf_and_glb_alike():
+    glb, gltf = load(MODELS / "BoxTextured.glb"), load(MODELS / "BoxTextured" /
+                                                       "BoxTextured.gltf")
+    (a,), (b,) = glb.objects, gltf.objects
+    np.testing.assert_array_equal(a.vertices, b.vertices)
+    np.testing.assert_array_equal(a.uvs, b.uvs)
+    # The node's matrix turns the cube a quarter about x: still the cube [-0.5, 0.5]^3.
+    np.testing.assert_allclose(a.vertices.min(axis=0), [-0.5] * 3)
+    texture = glb.materials[a.material].texture
+    assert texture is not None and texture.image.shape[2] == 3
+
+
+@pytest.mark.parametrize("name", ["BoxTextured.glb", "BoxTextured/BoxTextured.gltf"])
+def test_sample_model_renders_with_its_texture(cl_device, tmp_path, name):
+    from PIL import Image
+
+    out = tmp_path / "box.png"
+    assert main(["render", str(MODELS / name), "-o", str(out), "-W", "64", "-H", "48",
+                 "-q"]) == 0
+    image = np.asarray(Image.open(out).convert("RGB")).astype(int)
+    # The Cesium logo's green and blue are seen, not only the white and grey of the box.
+    green = (image[..., 1] > image[..., 0] + 30) & (image[..., 1] > image[..., 2])
+    blue = (image[..., 2] > image[..., 0] + 40)
+    assert green.sum() > 20 and blue.sum() > 20
+
+
+def test_scene_command_writes_a_toml_of_the_model(capsys, tmp_path, monkeypatch):
+    monkeypatch.chdir(MODELS)
+    assert main(["scene", "BoxTextured.glb"]) == 0
+    (tmp_path / "box.toml").write_text(capsys.readouterr().out)
+    monkeypatch.chdir(tmp_path)
+    written = tomllib.loads((tmp_path / "box.toml").read_text())
+    assert written["objects"] == [{"type": "mesh", "file": "BoxTextured.glb"}]
+    assert written["camera"] == model_scene_data(MODELS / "BoxTextured.glb")["camera"]
+
+
+# -- vertex colours (PLY red/green/blue, glTF COLOR_0) --------------------------------------
+
+
+def colored_scene(mesh: M.Mesh) -> M.Scene:
+    """The mesh seen head-on under ambient light alone: each pixel is its colour."""
+    return M.Scene(None, M.RenderOptions(width=48, height=36, ambient=(1, 1, 1)),
+                   M.Camera((0.5, 0.5, 3.0), (0.5, 0.5, 0.0), vfov=30.0),
+                   (M.Material("m", color=(1.0, 0.5, 1.0), ambient=1.0, diffuse=0.0),),
+                   (), (mesh,))
+
+
+def test_vertex_colours_blend_across_each_face_as_the_reference(cl_device):
+    from tests.reference_check import Tolerance, assert_kernel_matches_reference
+
+    vertices = np.array([[-1.0, -1, 0], [2, -1, 0], [0.5, 2, 0]])
+    colors = np.array([[1.0, 0, 0], [0, 1, 0], [0, 0, 1]])
+    mesh = M.Mesh(vertices, np.array([[0, 1, 2]]), 0, colors=colors)
+    scene = colored_scene(mesh)
+    assert_kernel_matches_reference(scene, Tolerance(rmse=1e-4, err=1e-3, off=0))
+    from clray.render import render
+
+    image = render(scene).image.astype(np.float64)
+    # The centre pixel looks at (0.5, 0.5, 0): barycentrics by hand, in float64, times the
+    # material's colour (1, 0.5, 1).
+    b = np.linalg.solve(np.vstack([vertices[:, :2].T, np.ones(3)]), [0.5, 0.5, 1.0])
+    np.testing.assert_allclose(image[18, 24], (b @ colors) * [1, 0.5, 1], atol=0.02)
+
+
+def test_instanced_vertex_colours_match_the_reference(cl_device, tmp_path):
+    from tests.reference_check import Tolerance, assert_kernel_matches_reference
+
+    b = Builder()
+    cube = b.mesh(CUBE_VERTICES - 0.5, CUBE_FACES, colors=CUBE_VERTICES)
+    b.node(mesh=cube, translation=[-0.8, 0, 0])
+    b.node(mesh=cube, translation=[0.8, 0, 0], rotation=[0, 0.38268343, 0, 0.92387953])
+    loaded = load(b.save(tmp_path / "c.glb"))
+    assert all(isinstance(o, M.Instance) for o in loaded.objects)
+    np.testing.assert_array_equal(loaded.objects[0].group.objects[0].colors, CUBE_VERTICES)
+    scene = M.Scene(None, M.RenderOptions(width=48, height=36, ambient=(0.3, 0.3, 0.3)),
+                    M.Camera((1.0, 1.5, 4.0), (0.0, 0.0, 0.0), vfov=40.0),
+                    (M.Material("m", ambient=1.0, diffuse=0.8),),
+                    (M.DirectionalLight((-0.3, -0.8, -0.5)),), loaded.objects)
+    assert_kernel_matches_reference(scene, Tolerance(rmse=2e-3, err=0.02, off=3))
+
+
+def test_ply_colours_are_srgb_decoded_and_rendered(cl_device, tmp_path, monkeypatch):
+    from clray.scene.colour import srgb_decode
+
+    header = ("ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\n"
+              "property float z\nproperty uchar red\nproperty uchar green\nproperty uchar blue\n"
+              "element face 1\nproperty list uchar int vertex_indices\nend_header\n")
+    body = "-1 -1 0 255 0 0\n2 -1 0 0 128 0\n0.5 2 0 0 0 64\n3 0 1 2\n"
+    (tmp_path / "c.ply").write_text(header + body)
+    scene = load(tmp_path / "c.ply")
+    (mesh,) = scene.objects
+    np.testing.assert_allclose(mesh.colors, srgb_decode(np.array(
+        [[255, 0, 0], [0, 128, 0], [0, 0, 64]]) / 255.0))
+    assert not any("colour" in w for w in scene.warnings)
+    monkeypatch.chdir(tmp_path)  # the automatic scene's material is white: colours as given
+    assert model_scene_data(Path("c.ply"))["materials"]["model"]["color"] == [1.0, 1.0, 1.0]
+
+
+def test_a_python_scene_keeps_its_vertex_colours_and_checks_them():
+    from clray.scene.check import check_scene
+
+    colors = np.array([[1.0, 0, 0], [0, 1, 0], [0, 0, 1]])
+    mesh = M.Mesh(np.array([[-1.0, -1, 0], [2, -1, 0], [0.5, 2, 0]]), np.array([[0, 1, 2]]), 0,
+                  colors=colors)
+    checked = check_scene(colored_scene(mesh))
+    np.testing.assert_array_equal(checked.objects[0].colors, colors)
+    bad = M.Mesh(mesh.vertices, mesh.faces, 0, colors=colors * 2)
+    with pytest.raises(SceneError, match=r"objects\[0\].colors: must be linear values in"):
+        check_scene(colored_scene(bad))

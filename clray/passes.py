@@ -45,7 +45,7 @@ def pass_problem(names: object) -> str | None:
 # each object makes there.
 _KINDS = ((L.PRIM_PLANE, (M.Plane,)), (L.PRIM_SPHERE, (M.Sphere, M.Spheres)),
           (L.PRIM_BOX, (M.Box,)), (L.PRIM_CYLINDER, (M.Cylinder,)), (L.PRIM_CONE, (M.Cone,)),
-          (L.PRIM_TRIANGLE, (M.Triangle, M.Mesh)))
+          (L.PRIM_TORUS, (M.Torus,)), (L.PRIM_TRIANGLE, (M.Triangle, M.Mesh)))
 
 
 def _primitives(obj: M.SceneObject) -> int:

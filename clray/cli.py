@@ -435,17 +435,17 @@ def _check_still_output(parser: argparse.ArgumentParser, args: argparse.Namespac
 
 
 def _check_pass_flags(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
-    """--aov renders one still's passes into files: refused where there is none to write."""
+    """--aov writes the passes into files beside the image (each frame's with --frames):
+    refused where there are none, or where the render has no passes (a Dask still's tiles)."""
     if args.aov_preview and not args.aov:
         parser.error("--aov-preview applies to --aov")
     if not args.aov:
         return
-    refused = [flag for flag, on in (("-o -", args.output == STDOUT),
-                                     ("--frames", args.frames is not None),
-                                     ("--dask", args.dask is not None)) if on]
-    if refused:
-        parser.error(f"--aov writes a still's passes to files beside it, not with "
-                     f"{' or '.join(refused)}")
+    if args.output == STDOUT:
+        parser.error("--aov writes the passes to files beside the image, not with -o -")
+    if args.dask is not None and args.frames is None:
+        parser.error("--aov: a still rendered in tiles on Dask has no passes; render it "
+                     "without --dask (frames with --frames have theirs)")
     for path in pass_paths(args.output, args.aov, args.aov_preview):
         if args.stats_json is not None and _same_file(args.stats_json, path):
             parser.error(f"--stats-json and the {path.name} pass file are the same file")
@@ -829,6 +829,9 @@ def _render_frames(args: argparse.Namespace, started: float) -> int:
         frames = frames_in(args.frames, sequence.animation)
         check_pattern(args.output, len(frames))
         _check_writable(frame_path(args.output, frames[0]))
+        for path in pass_paths(frame_path(args.output, frames[0]), args.aov or (),
+                               args.aov_preview):
+            _check_writable(path)
         todo = frames_to_render(frames, args.output, args.resume)
         first = sequence.scene(frames[0])
         if not args.quiet:
@@ -844,7 +847,7 @@ def _render_frames(args: argparse.Namespace, started: float) -> int:
 
             def done(frame: int, result: RenderResult) -> None:
                 path = frame_path(args.output, frame)
-                _write(path, lambda: result.save(path))
+                _write(path, lambda: result.save(path, previews=args.aov_preview))
                 records.append({"frame": frame, "output": str(path), **result.stats})
                 if progress is not None:
                     progress(len(records) * samples, len(todo) * samples)

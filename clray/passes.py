@@ -175,18 +175,18 @@ def write_with_passes(path: str | Path, image: np.ndarray, encoding: Encoding,
                       aovs: dict[str, np.ndarray], previews: bool = False) -> None:
     """The image at `path` (its suffix picks the format), with its passes as layers of the
     same file where that is OpenEXR, else one PFM a pass beside it (pass_paths), and with
-    `previews` a false-colour PNG of each. Every file whole or not at all."""
+    `previews` a false-colour PNG of each. Every file whole or not at all, the image last: where
+    it exists, so do its passes' files (what --frames --resume relies on)."""
     suffix = check_suffix(path)
-    if suffix == ".exr":
-        write_bytes_atomically(path, exr_bytes(image, exr_channels(aovs)))
-    else:
-        for name, values in aovs.items():
+    for name, values in aovs.items():
+        if suffix != ".exr":
             write_bytes_atomically(beside(path, name, ".pfm"),
                                    pfm_bytes(values.astype(np.float32)))
-        write_bytes_atomically(path, image_bytes(suffix, image, encoding))
-    if previews:
-        for name, values in aovs.items():
+        if previews:
             # The previews' values are what to show, not light: linear PNG, as they are.
             write_bytes_atomically(beside(path, name, ".png"),
                                    image_bytes(".png", preview(name, values),
                                                Encoding(linear=True)))
+    channels = exr_channels(aovs) if suffix == ".exr" else {}
+    write_bytes_atomically(path, exr_bytes(image, channels) if suffix == ".exr"
+                           else image_bytes(suffix, image, encoding))

@@ -355,13 +355,28 @@ def test_cli_writes_the_passes_as_layers_of_one_exr(
     assert np.all(channels["instance.id"] == -1)
 
 
+def test_cli_frames_get_their_passes_beside_each(capsys: pytest.CaptureFixture,
+                                                  tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                                  cl_device: cl.Device) -> None:
+    monkeypatch.chdir(tmp_path)
+    orbit = Path(__file__).resolve().parent.parent / "scenes" / "orbit.toml"
+    code, _, err = _cli(capsys, "render", orbit, "--frames", "0:2", "-W", "16", "-H", "12",
+                        "-o", "out/f_%04d.png", "--aov", "depth,object", "--aov-preview", "-q")
+    assert code == 0, err
+    assert sorted(p.name for p in (tmp_path / "out").iterdir()) == sorted(
+        f"f_{frame:04d}{part}" for frame in (0, 1)
+        for part in (".png", ".depth.pfm", ".object.pfm", ".depth.png", ".object.png"))
+    depths = [_read_pfm_any(tmp_path / "out" / f"f_{frame:04d}.depth.pfm") for frame in (0, 1)]
+    assert depths[0].shape == (12, 16) and not np.array_equal(depths[0], depths[1])
+
+
 @pytest.mark.parametrize("argv, words", [
     (["--aov", "depth,shadow"], "unknown pass 'shadow'; expected some of depth, normal"),
     (["--aov", ""], "unknown pass ''"),
     (["--aov", "depth,depth"], "a pass is named twice"),
     (["--aov-preview"], "--aov-preview applies to --aov"),
     (["--aov", "depth", "-o", "-"], "not with -o -"),
-    (["--aov", "depth", "--frames", "0:2", "-o", "f_%04d.png"], "not with --frames"),
+    (["--aov", "depth", "--dask"], "a still rendered in tiles on Dask has no passes"),
     (["--aov", "depth", "-o", "out.png", "--stats-json", "out.depth.pfm"],
      "--stats-json and the out.depth.pfm pass file"),
 ])

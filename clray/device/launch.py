@@ -241,10 +241,12 @@ PASS_OUTPUTS = (("geometry", np.float32), ("position", np.float32), ("albedo", n
 
 
 def render_passes_packed(packed: PackedScene, device: cl.Device,
-                         rows: tuple[int, int] | None = None) -> dict[str, np.ndarray]:
-    """Launch render_passes over a scene packed for passes (packed.config.passes): its outputs
-    by PASS_OUTPUTS' names, (H, W, 4) each, for `rows` = (start, stop) as render_packed. In
-    bands of rows sized as render_packed's, by their time and within the device's memory."""
+                         rows: tuple[int, int] | None = None
+                         ) -> tuple[dict[str, np.ndarray], dict]:
+    """Launch render_passes over a scene packed for passes (packed.config.passes): (its outputs
+    by PASS_OUTPUTS' names, (H, W, 4) each, stats: passes_kernel_s, the launches' device time,
+    and passes_launches), for `rows` = (start, stop) as render_packed. In bands of rows sized
+    as render_packed's, by their time and within the device's memory."""
     if not packed.config.passes:
         raise ValueError("render_passes_packed needs a scene packed with passes=True")
     capacity = band_capacity(packed, device.global_mem_size, device.max_mem_alloc_size,
@@ -265,7 +267,7 @@ def render_passes_packed(packed: PackedScene, device: cl.Device,
         padded_width = -(-width // group_width) * group_width
         band_buffers = [cl.Buffer(ctx, cl.mem_flags.WRITE_ONLY, width * capacity * 16)
                         for _ in PASS_OUTPUTS]
-        row0, band, band_s = 0, 0, 0.0
+        row0, band, band_s, kernel_s, launches = 0, 0, 0.0, 0.0, 0
         while row0 < height:
             band = min(capacity, next_band_rows(width * spp, band, band_s, height - row0,
                                                 packed.tuning))
@@ -274,6 +276,8 @@ def render_passes_packed(packed: PackedScene, device: cl.Device,
                                                (group_width, 1))
             event.wait()
             band_s = (event.profile.end - event.profile.start) * 1e-9
+            kernel_s += band_s
+            launches += 1
             for (name, _), buf in zip(PASS_OUTPUTS, band_buffers, strict=True):
                 cl.enqueue_copy(queue, out[name][row0:row0 + band], buf)
             row0 += band
@@ -281,7 +285,7 @@ def render_passes_packed(packed: PackedScene, device: cl.Device,
     except cl.Error as err:
         raise DeviceError(f"OpenCL error while rendering passes on {describe(device)}: {err}"
                           f"{_resource_hint(err)}") from err
-    return out
+    return out, {"passes_kernel_s": kernel_s, "passes_launches": launches}
 
 
 def intersect_rays(packed: PackedScene, device: cl.Device, origins: np.ndarray,

@@ -46,12 +46,10 @@ from clray.image_io import (
     clipped_pixels,
     image_bytes,
     image_host_bytes,
-    is_special_file,
-    output_target,
-    write_bytes_atomically,
 )
 from clray.knobs import TRAVERSALS
 from clray.metrics import nonfinite_count
+from clray.output import is_special_file, output_target, write_bytes_atomically
 from clray.passes import PASS_NAMES, pass_paths, pass_problem
 from clray.render import RenderResult, RenderSettings, render
 from clray.scene import limits
@@ -964,7 +962,7 @@ def _profile(args: argparse.Namespace) -> int:
 
 def _tuned(spec: str) -> str:
     from clray.device.context import select_device
-    from clray.tuning.store import load_tuning
+    from clray.device.tuning_files import load_tuning
 
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")

@@ -16,8 +16,6 @@ import io
 import math
 import numbers
 import os
-import secrets
-import stat
 import struct
 import tempfile
 import zlib
@@ -28,6 +26,7 @@ import numpy as np
 
 from clray.errors import ClrayError
 from clray.metrics import per_pixel
+from clray.output import write_bytes_atomically
 from clray.scene import limits
 from clray.scene.colour import srgb_encode
 
@@ -251,49 +250,6 @@ def read_pfm(path: str | Path) -> np.ndarray:
                          f"bytes of pixels, has {len(data) - offset})")
     pixels = np.frombuffer(data, dtype=dtype, count=count, offset=offset)
     return pixels.reshape(height, width, 3)[::-1].astype(np.float32)
-
-
-def output_target(path: str | Path) -> Path:
-    """Where writing `path` lands: a symlink's final target (its folder must take the file),
-    else `path` itself. Writing there keeps the link a link and never writes elsewhere."""
-    path = Path(path)
-    try:
-        linked = path.is_symlink()
-    except (OSError, ValueError):  # a name the system refuses: the writer reports it
-        return path
-    return Path(os.path.realpath(path)) if linked else path
-
-
-def is_special_file(path: Path) -> bool:
-    """An existing file that is not a regular file: a device (/dev/stdout), a pipe."""
-    try:
-        mode = os.stat(path).st_mode
-    except OSError:
-        return False
-    return not (stat.S_ISREG(mode) or stat.S_ISDIR(mode))
-
-
-def write_bytes_atomically(path: str | Path, payload: bytes) -> None:
-    """Write `payload` so that `path` is either untouched or complete, never partial.
-
-    Through a symlink the target is replaced, not the link. A device or pipe cannot be
-    replaced by a rename (it would become a regular file): it is written directly."""
-    path = output_target(path)
-    if is_special_file(path):
-        with open(path, "wb") as stream:
-            stream.write(payload)
-        return
-    # Same directory, so os.replace is a rename on one file system; created with 0o666 rather
-    # than through mkstemp so the finished file gets the usual umask-derived permissions.
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.{secrets.token_hex(4)}.tmp")
-    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
-    try:
-        with os.fdopen(fd, "wb") as stream:
-            stream.write(payload)
-        os.replace(tmp, path)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
 
 
 def exr_bytes(image: np.ndarray, channels: dict[str, np.ndarray] | None = None) -> bytes:

@@ -18,6 +18,7 @@ from clray.device.context import describe, queue_for, select_device
 from clray.device.launch import render_packed, render_passes_packed
 from clray.device.pack import PackedScene, pack_scene
 from clray.device.program import bvh_width_for, packet_lanes_for, traversal_for
+from clray.device.tuning_files import chosen_tuning
 from clray.errors import SettingsError
 from clray.image_io import Encoding, image_bytes
 from clray.knobs import BUILD_KNOBS, IMAGE_KNOBS, TRAVERSALS, Tuning, TuningError
@@ -26,7 +27,6 @@ from clray.scene import limits as L
 from clray.scene.check import check_scene
 from clray.scene.load import load_scene
 from clray.scene.model import Scene
-from clray.tuning.store import chosen_tuning
 
 
 @dataclass(frozen=True)
@@ -191,7 +191,7 @@ def kernel_switches(tuning: Tuning, settings: RenderSettings, device: cl.Device,
 def pack_for(scene: Scene, settings: RenderSettings, device: cl.Device) -> PackedScene:
     """The checked `scene` packed for `device` with `settings`: what render() launches, and
     what each worker of a distributed render packs once for all its tiles. The knobs are the
-    settings' tuning, else the device's tuning file's (clray.tuning.store.chosen_tuning)."""
+    settings' tuning, else the device's tuning file's (clray.device.tuning_files.chosen_tuning)."""
     tuning = settings.tuning or chosen_tuning(device, settings.stored_tuning)[0]
     resolved = resolved_settings(scene, settings)
     switches = {**kernel_switches(tuning, settings, device, resolved["spp"]),

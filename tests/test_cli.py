@@ -270,7 +270,7 @@ def test_verbose_progress_lines_follow_pixel_samples(capsys, cl_device, scene,
                                                      monkeypatch) -> None:
     # Bands of four rows: the knob table's defaults, as every render without a tuning file
     # takes them, changed.
-    monkeypatch.setattr("clray.tuning.store.DEFAULT_TUNING", Tuning(
+    monkeypatch.setattr("clray.device.tuning_files.DEFAULT_TUNING", Tuning(
         first_launch_pixel_samples=32 * 4, max_launch_pixel_samples=32 * 4))
     code, _, err = run(capsys, "render", scene, *TINY, "-v")
     assert code == 0

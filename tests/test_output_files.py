@@ -9,7 +9,8 @@ from pathlib import Path
 import numpy as np
 
 from clray.cli import main
-from clray.image_io import read_pfm, write_bytes_atomically
+from clray.image_io import read_pfm
+from clray.output import write_bytes_atomically
 
 ROOT = Path(__file__).resolve().parent.parent
 

@@ -1,6 +1,6 @@
 """The knob table (clray.knobs): every knob acts where the table says, the defaults are
 the table's, tuned renders give the default's image, and per-device tuning files are picked up,
-or ignored with a warning when invalid or stale (clray.tuning.store)."""
+or ignored with a warning when invalid or stale (clray.device.tuning_files)."""
 
 from __future__ import annotations
 
@@ -19,6 +19,7 @@ import pytest
 from clray import __version__, cli
 from clray.accel import bvh as bvh_module
 from clray.accel import wide as wide_module
+from clray.device import tuning_files as store
 from clray.device.context import context_for
 from clray.device.pack import pack_scene
 from clray.device.program import (
@@ -34,7 +35,7 @@ from clray.knobs import BUILD_KNOBS, IMAGE_KNOBS, build_option
 from clray.render import RenderSettings, pack_for, render
 from clray.scene.load import load_scene
 from clray.study import compare
-from clray.tuning import DEFAULT_TUNING, KNOB_TABLE, KNOBS, Tuning, TuningError, store
+from clray.tuning import DEFAULT_TUNING, KNOB_TABLE, KNOBS, Tuning, TuningError
 
 ROOT = Path(__file__).resolve().parent.parent
 SPHERES = ROOT / "scenes" / "spheres.toml"

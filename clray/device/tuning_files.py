@@ -20,6 +20,7 @@ import pyopencl as cl
 
 from clray.errors import utf8_problem
 from clray.knobs import DEFAULT_TUNING, Tuning, TuningError
+from clray.output import write_bytes_atomically
 
 FORMAT = 1
 
@@ -105,8 +106,6 @@ def chosen_tuning(device: cl.Device, stored: bool = True) -> tuple[Tuning, str]:
 def save_tuning(device: cl.Device, tuning: Tuning, summary: dict) -> Path:
     """Store `tuning` as the device's winner (whole or not at all), with `summary` (what was
     tuned, and the times) beside it for people reading the file."""
-    from clray.image_io import write_bytes_atomically
-
     path = tuning_path(device)
     path.parent.mkdir(parents=True, exist_ok=True)
     record = {"format": FORMAT, **device_key(device), "tuning": tuning.values(),

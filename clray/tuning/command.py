@@ -11,11 +11,11 @@ from pathlib import Path
 from typing import Any
 
 from clray.device.context import describe, select_device
+from clray.device.tuning_files import save_tuning
 from clray.errors import ClrayError, plural
 from clray.knobs import DEFAULT_TUNING, IMAGE_KNOBS, Tuning
 from clray.scene.load import load_scene
 from clray.tuning import report
-from clray.tuning.store import save_tuning
 from clray.tuning.tuner import (
     PIXEL_TOLERANCE,
     Trial,

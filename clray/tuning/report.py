@@ -10,8 +10,8 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from clray.errors import plural
-from clray.image_io import write_bytes_atomically
 from clray.knobs import DEFAULT_TUNING
+from clray.output import write_bytes_atomically
 from clray.tuning.tuner import Trial
 
 if TYPE_CHECKING:

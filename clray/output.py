@@ -1,0 +1,53 @@
+"""Output files written whole: a file that is either untouched or complete, never partial,
+through symlinks to their targets, and straight into devices and pipes. Images (clray.image_io),
+stats and tuning files (clray.device.tuning_files) are all written this way."""
+
+from __future__ import annotations
+
+import os
+import secrets
+import stat
+from pathlib import Path
+
+
+def output_target(path: str | Path) -> Path:
+    """Where writing `path` lands: a symlink's final target (its folder must take the file),
+    else `path` itself. Writing there keeps the link a link and never writes elsewhere."""
+    path = Path(path)
+    try:
+        linked = path.is_symlink()
+    except (OSError, ValueError):  # a name the system refuses: the writer reports it
+        return path
+    return Path(os.path.realpath(path)) if linked else path
+
+
+def is_special_file(path: Path) -> bool:
+    """An existing file that is not a regular file: a device (/dev/stdout), a pipe."""
+    try:
+        mode = os.stat(path).st_mode
+    except OSError:
+        return False
+    return not (stat.S_ISREG(mode) or stat.S_ISDIR(mode))
+
+
+def write_bytes_atomically(path: str | Path, payload: bytes) -> None:
+    """Write `payload` so that `path` is either untouched or complete, never partial.
+
+    Through a symlink the target is replaced, not the link. A device or pipe cannot be
+    replaced by a rename (it would become a regular file): it is written directly."""
+    path = output_target(path)
+    if is_special_file(path):
+        with open(path, "wb") as stream:
+            stream.write(payload)
+        return
+    # Same directory, so os.replace is a rename on one file system; created with 0o666 rather
+    # than through mkstemp so the finished file gets the usual umask-derived permissions.
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.{secrets.token_hex(4)}.tmp")
+    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
+    try:
+        with os.fdopen(fd, "wb") as stream:
+            stream.write(payload)
+        os.replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise

@@ -80,28 +80,34 @@ static inline int sign_changes(const REAL* c, int degree, REAL* ends, int n_ends
     return count;
 }
 
+// [lo, the roots of a derivative in (lo, hi) ascending, hi] into ends; returns their count.
+static inline int split_at(REAL lo, REAL hi, const REAL* inner, int n, REAL* ends) {
+    ends[0] = lo;
+    for (int k = 0; k < n; ++k) ends[k + 1] = inner[k];
+    ends[n + 1] = hi;
+    return n + 2;
+}
+
 // The sign changes of the quartic c within [lo, hi], ascending, into roots; returns their count.
-// The derivatives' roots split [lo, hi] into monotone pieces, degree by degree: the cubic
-// derivative's linear third derivative, then the second, then the first.
+// The derivatives' roots split [lo, hi] into monotone pieces, degree by degree: the third
+// derivative's (linear) root, then the second derivative's roots, then the first's. Each stage
+// is written out (no pointer chosen at run time between the polynomials): Intel's CPU compiler,
+// vectorising work-items, lost every crossing where one loop picked its arrays by pointer.
 static inline int quartic_roots_in(const REAL* c, REAL lo, REAL hi, REAL* roots) {
-    REAL d1[4], d2[3], d3[2];
+    REAL d1[4], d2[3];
     for (int k = 0; k < 4; ++k) d1[k] = (REAL)(k + 1) * c[k + 1];
     for (int k = 0; k < 3; ++k) d2[k] = (REAL)(k + 1) * d1[k + 1];
-    for (int k = 0; k < 2; ++k) d3[k] = (REAL)(k + 1) * d2[k + 1];
     REAL ends[TORUS_ROOTS + 2], inner[TORUS_ROOTS];
     int n = 0;
-    if (d3[1] != (REAL)0) {
-        REAL x = -d3[0] / d3[1];
+    // The third derivative, d2[1] + 2 d2[2] x: its one root.
+    REAL d3_0 = d2[1], d3_1 = (REAL)2 * d2[2];
+    if (d3_1 != (REAL)0) {
+        REAL x = -d3_0 / d3_1;
         if (x > lo && x < hi) inner[n++] = x;
     }
-    for (int degree = 2; degree <= 4; ++degree) {
-        ends[0] = lo;
-        for (int k = 0; k < n; ++k) ends[k + 1] = inner[k];
-        ends[n + 1] = hi;
-        const REAL* p = degree == 2 ? d2 : (degree == 3 ? d1 : c);
-        n = sign_changes(p, degree, ends, n + 2, degree == 4 ? roots : inner);
-    }
-    return n;
+    n = sign_changes(d2, 2, ends, split_at(lo, hi, inner, n, ends), inner);
+    n = sign_changes(d1, 3, ends, split_at(lo, hi, inner, n, ends), inner);
+    return sign_changes(c, 4, ends, split_at(lo, hi, inner, n, ends), roots);
 }
 
 // The torus's local quartic along the ray e(sg) = e0 + sg u (u a unit vector) in the frame of
@@ -170,7 +176,7 @@ static inline int shell_pieces(REAL3 o, REAL3 u, REAL3 axis, REAL major, REAL mi
     }
     REAL3 l = op - (B / A) * up;
     REAL ll = length(l);
-    REAL o0, o1, i0, i1;
+    REAL o0 = (REAL)0, o1 = (REAL)0, i0 = (REAL)0, i1 = (REAL)0;
     if (!quadratic_roots(A, B, (lop - outer) * (lop + outer), A * (outer - ll) * (outer + ll),
                          &o0, &o1)) {
         return 0;

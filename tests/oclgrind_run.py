@@ -33,6 +33,11 @@ VARIANTS = (("sphere_textbook", True), ("offset_fixed_eps", True),
             ("fresnel_schlick", True), ("fp64_spheres", True), ("count_tests", True),
             ("stage_profile", True), ("implicit_vectorization", True))
 VARIANT_SCENES = ("primitives.toml", "fresnel.toml")
+# Every pass, on the scene with the most primitive kinds: the passes build (KernelConfig.passes),
+# which the scenes alone do not switch on.
+PASSES = ("depth", "normal", "albedo", "position", "object", "material", "instance")
+PASS_SCENE = "primitives.toml"
+RUN_SWITCHES = ("passes",)
 
 
 def nv_compute_capability_if_nvidia(device: cl.Device) -> tuple[int, int] | None:
@@ -65,6 +70,12 @@ def renders(device: str | None) -> dict[str, np.ndarray]:
                                   traversal="group_packet", tuning=Tuning(group_side=4),
                                   stored_tuning=False)
         out[f"{path.stem}/group_packet"] = render(scene, settings).image
+        if path.name == PASS_SCENE:
+            settings = RenderSettings(width=WIDTH, height=HEIGHT, spp=SPP, device=device,
+                                      aovs=PASSES)
+            result = render(scene, settings)
+            out[f"{path.stem}/passes"] = result.image
+            out.update({f"{path.stem}/pass_{name}": a for name, a in result.aovs.items()})
         if path.name in VARIANT_SCENES:
             settings = RenderSettings(width=WIDTH, height=HEIGHT, spp=SPP, device=device,
                                       variants=VARIANTS)

@@ -58,7 +58,7 @@ def test_the_scenes_switch_on_every_feature() -> None:
         config = pack_scene(load_scene(path), width=R.WIDTH, height=R.HEIGHT, spp=R.SPP,
                             max_depth=4, seed=0).config
         on |= {f.name for f in dataclasses.fields(config) if getattr(config, f.name) is True}
-    on |= {name for name, _ in R.VARIANTS}
+    on |= {name for name, _ in R.VARIANTS} | set(R.RUN_SWITCHES)
     switches = {f.name for f in dataclasses.fields(KernelConfig) if f.type == "bool"}
     assert switches and on >= switches, sorted(switches - on)
 

@@ -175,9 +175,7 @@ def _build_parser() -> _Parser:
                    help="do not trace reflected or refracted rays of a weight below W (POV-Ray's "
                         "adc_bailout; default 0: every ray to --max-depth). Inside glass the ray "
                         "tree doubles at every bounce: set W (e.g. 0.004) for depths above ~20")
-    r.add_argument("--device", metavar="SPEC",
-                   help="OpenCL device: 'P:D' indices as in PYOPENCL_CTX, or a name substring "
-                        "(default: CLRAY_DEVICE, PYOPENCL_CTX, then the first CPU device)")
+    _device_flag(r)
     r.add_argument("--precision", choices=limits.PRECISIONS, default="float",
                    help="arithmetic in the kernels (double needs cl_khr_fp64; default: float)")
     r.add_argument("--traversal", choices=TRAVERSALS, default=None,
@@ -259,7 +257,7 @@ def _build_parser() -> _Parser:
                     help="image width for every scene (default: each scene's own)")
     st.add_argument("-H", "--height", type=size, metavar="N",
                     help="image height for every scene (default: each scene's own)")
-    st.add_argument("--device", metavar="SPEC", help="OpenCL device, as for render")
+    _device_flag(st)
     st.add_argument("--dask", nargs="?", const="", metavar="ADDRESS",
                     help="render on a Dask cluster, one task a scene (each scene's variants on "
                          "one worker, so that their times compare), as for render")
@@ -291,7 +289,7 @@ def _build_parser() -> _Parser:
                     "'clray[tune]'.")
     t.add_argument("scenes", type=_scene_path, nargs="+", metavar="SCENE",
                    help="scene files (.toml or .json)")
-    t.add_argument("--device", metavar="SPEC", help="OpenCL device, as for render")
+    _device_flag(t)
     t.add_argument("--strategy", default="brute_force", metavar="S",
                    help="Kernel Tuner's search strategy over the kernel and launch knobs of "
                         "each host configuration: brute_force (default), random_sample, "
@@ -324,7 +322,7 @@ def _build_parser() -> _Parser:
                     "scene's device bytes.")
     pr.add_argument("scene", type=_scene_path, metavar="SCENE",
                     help="scene file (.toml or .json)")
-    pr.add_argument("--device", metavar="SPEC", help="OpenCL device, as for render")
+    _device_flag(pr)
     pr.add_argument("-W", "--width", type=size, metavar="N", help="image width in pixels")
     pr.add_argument("-H", "--height", type=size, metavar="N", help="image height in pixels")
     pr.add_argument("--spp", type=_int_in(1, limits.MAX_SPP), metavar="N",
@@ -530,6 +528,23 @@ def _make_folder(path: Path, folder: Path) -> None:
     except OSError as err:
         raise ClrayError(f"cannot write {path}: cannot make directory {folder}: "
                          f"{err.strerror or err}") from err
+
+
+def _device_flag(parser: argparse.ArgumentParser) -> None:
+    """--device, the same for every command that renders."""
+    parser.add_argument("--device", metavar="SPEC",
+                        help="OpenCL device: 'P:D' indices as in PYOPENCL_CTX, or a name "
+                             "substring (default: CLRAY_DEVICE, PYOPENCL_CTX, then the first "
+                             "CPU device)")
+
+
+def _write_stats(path: Path, stats: dict) -> None:
+    """--stats-json: the stats as JSON, to standard output ('-') or whole into a file."""
+    payload = (json.dumps(stats, indent=2, default=str) + "\n").encode("utf-8")
+    if path == STDOUT:
+        _write(path, lambda: _to_stdout(payload))
+    else:
+        _write(path, lambda: write_bytes_atomically(path, payload))
 
 
 def _write(path: Path, write: Callable[[], None]) -> None:
@@ -741,12 +756,7 @@ def _render(args: argparse.Namespace) -> int:
     if output == STDOUT or output.suffix.lower() == ".png":
         stats["clipped_pixels"] = clipped_pixels(result.image, result.encoding.exposure)
     if args.stats_json is not None:
-        text = json.dumps(stats, indent=2, default=str) + "\n"
-        if args.stats_json == STDOUT:
-            _write(args.stats_json, lambda: _to_stdout(text.encode("utf-8")))
-        else:
-            _write(args.stats_json,
-                   lambda: write_bytes_atomically(args.stats_json, text.encode("utf-8")))
+        _write_stats(args.stats_json, stats)
 
     if not args.quiet and stats["nonfinite_pixels"]:
         kept = "kept" if output.suffix.lower() in FLOAT_SUFFIXES else "written black"
@@ -863,8 +873,7 @@ def _render_frames(args: argparse.Namespace, started: float) -> int:
     if dask_stats is not None:
         stats["dask"] = dask_stats
     if args.stats_json is not None:
-        text = json.dumps(stats, indent=2, default=str) + "\n"
-        _write(args.stats_json, lambda: write_bytes_atomically(args.stats_json, text.encode()))
+        _write_stats(args.stats_json, stats)
     if not args.quiet:
         if dask_stats is not None:
             _say_dask(dask_stats, "frames")

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
+from typing import NamedTuple
 
 import numpy as np
 import pyopencl as cl
@@ -147,6 +148,27 @@ def _resource_hint(err: cl.Error) -> str:
                                      cl.status_code.INVALID_WORK_GROUP_SIZE) else ""
 
 
+class _Launch(NamedTuple):
+    """What a launch over a packed scene starts from: the program (and its build time), the
+    queue, the image's width and samples a pixel, and the rows asked for, from `first` on."""
+
+    program: cl.Program
+    build_s: float
+    queue: cl.CommandQueue
+    width: int
+    spp: int
+    first: int
+    height: int
+
+
+def _launch_of(packed: PackedScene, device: cl.Device, rows: tuple[int, int] | None) -> _Launch:
+    program, build_s = build_program(device, packed.config)
+    params = packed.params[0]
+    first, end = rows if rows is not None else (0, int(params["height"]))
+    return _Launch(program, build_s, queue_for(device), int(params["width"]),
+                   int(params["spp"]), first, end - first)
+
+
 def render_packed(packed: PackedScene, device: cl.Device,
                   progress: Callable[[int, int], None] | None = None,
                   rows: tuple[int, int] | None = None,
@@ -157,13 +179,8 @@ def render_packed(packed: PackedScene, device: cl.Device,
     same values, bit for bit, as those rows of the whole image. on_band(first row, its rows of
     the image) hears each band as it arrives (a notebook's progressive display)."""
     capacity = band_capacity(packed, device.global_mem_size, device.max_mem_alloc_size)
-    program, build_s = build_program(device, packed.config)
-    queue = queue_for(device)
+    program, build_s, queue, width, spp, first, height = _launch_of(packed, device, rows)
     ctx = queue.context
-    params = packed.params[0]
-    width, spp = int(params["width"]), int(params["spp"])
-    first, end = rows if rows is not None else (0, int(params["height"]))
-    height = end - first
     try:
         buffers = _scene_buffers(ctx, packed)
         check_argument_bytes(len(buffers) + 3, 1, device)
@@ -251,13 +268,8 @@ def render_passes_packed(packed: PackedScene, device: cl.Device,
         raise ValueError("render_passes_packed needs a scene packed with passes=True")
     capacity = band_capacity(packed, device.global_mem_size, device.max_mem_alloc_size,
                              outputs=len(PASS_OUTPUTS))
-    program, _ = build_program(device, packed.config)
-    queue = queue_for(device)
+    program, _, queue, width, spp, first, height = _launch_of(packed, device, rows)
     ctx = queue.context
-    params = packed.params[0]
-    width, spp = int(params["width"]), int(params["spp"])
-    first, end = rows if rows is not None else (0, int(params["height"]))
-    height = end - first
     out = {name: np.empty((height, width, 4), dtype=dtype) for name, dtype in PASS_OUTPUTS}
     try:
         buffers = _scene_buffers(ctx, packed)

@@ -174,7 +174,7 @@ def bench_scene(name: str, path: Path, device: cl.Device, device_spec: str | Non
             pov.trace(n)
     kernel_s = statistics.median(runs)
 
-    n_tri = len(packed.triangles)
+    n_tri = packed.triangle_count()
     device_bytes = stats["device_bytes"]
     result = {
         "scene": name,

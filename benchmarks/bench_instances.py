@@ -136,7 +136,7 @@ def bench(path: Path, device, repeat: int) -> dict:
         rays = stats["rays"]["total"]
     kernel_s = statistics.median(runs)
     device_bytes = packed.device_bytes()
-    return {"instances": len(packed.instances), "triangles": len(packed.triangles),
+    return {"instances": len(packed.instances), "triangles": packed.triangle_count(),
             "load_s": load_s, "bvh_s": packed.bvh_s, "device_bytes": sum(device_bytes.values()),
             "device_bytes_by_buffer": device_bytes, "kernel_s": kernel_s, "kernel_runs_s": runs,
             "rays": rays, "mrays_per_s": rays / kernel_s * 1e-6}

@@ -95,7 +95,7 @@ def main() -> None:
         for name in ("none", "100_runs"):
             scene = load(files[name])[1]
             packed = pack_scene(scene, width=320, height=240, spp=1, max_depth=4, seed=0)
-            n_tri = len(packed.triangles)
+            n_tri = packed.triangle_count()
             sizes = packed.device_bytes()
             run = render(scene, RenderSettings(width=320, height=240))
             result["device"][name] = {

@@ -334,13 +334,13 @@ HOT void walk_closest(const SceneRefs* s, const Ray* world, int child, int count
 
 // The material a crossing shades or filters with: the instance's, where it replaces its
 // group's.
-static inline int crossing_material(const SceneRefs* s, int ref, int instance) {
+static inline int crossing_material(const SceneRefs* s, int ref, int part, int instance) {
 #if HAS_INSTANCES
     if (instance >= 0 && s->instances[instance].material >= 0) {
         return s->instances[instance].material;
     }
 #endif
-    return prim_material(s, ref);
+    return prim_material(s, ref, part);
 }
 
 // Multiply in transmit * colour for each crossing of a primitive within (0, tmax); false once
@@ -350,7 +350,8 @@ static inline bool filter_crossings(const SceneRefs* s, const Crossings* c, int 
     for (int k = 0; k < 2; ++k) {
         if (c->t[k] > (REAL)0 && c->t[k] < tmax) {
 #if HAS_TRANSMISSION
-            const __global Material* m = s->materials + crossing_material(s, ref, instance);
+            const __global Material* m =
+                s->materials + crossing_material(s, ref, c->part[k], instance);
             *filter *= TO_REAL(m->transmit) * TO_REAL3(m->color);
             if (max_comp3(*filter) <= (REAL)0) return false;
 #else
@@ -369,7 +370,7 @@ static inline bool filter_torus_crossings(const SceneRefs* s, int ref, const Ray
                                           REAL tmax, REAL3* filter) {
     REAL t[TORUS_ROOTS];
     int n = torus_crossings(s->tori + (ref & PRIM_INDEX_MASK), r, t);
-    const __global Material* m = s->materials + crossing_material(s, ref, instance);
+    const __global Material* m = s->materials + crossing_material(s, ref, 0, instance);
     for (int k = 0; k < n && t[k] < tmax; ++k) {
         *filter *= TO_REAL(m->transmit) * TO_REAL3(m->color);
         if (max_comp3(*filter) <= (REAL)0) return false;

@@ -80,8 +80,10 @@ typedef struct {
 #define TRIANGLE_UV (1 << 25)      // blend the vertex texture coordinates
 #define TRIANGLE_COLOR (1 << 26)   // blend the vertex colours (times the material's colour)
 
+// One a triangle slot, in prim_refs' order (a hit's part is its slot), not in the scene's
+// order: the hits of neighbouring rays then read neighbouring records (clray/device/pack.py).
 typedef struct {
-    int v0, v1, v2;  // indices into the vertex arrays (positions, normals, uvs, colors)
+    int v0, v1, v2;  // indices into the vertex arrays (normals, uvs, colors)
     int material;    // index and flags, see above
 } Triangle;
 

@@ -19,7 +19,8 @@ STAGE ShadePoint shade_point(const SceneRefs* s, const __global Camera* camera, 
                              const Hit* hit) {
     ShadePoint pt;
     pt.sf = surface_at(s, ray, hit,
-                       material_needs_uv(s, crossing_material(s, hit->ref, hit->instance)));
+                       material_needs_uv(s, crossing_material(s, hit->ref, hit->part,
+                                                             hit->instance)));
     pt.entering = dot(ray->d, pt.sf.n_g) < (REAL)0;
     REAL3 n_f = pt.entering ? pt.sf.n_g : -pt.sf.n_g;
     pt.n = dot(pt.sf.n_s, ray->d) < (REAL)0 ? pt.sf.n_s : -pt.sf.n_s;

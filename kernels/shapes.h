@@ -53,7 +53,10 @@ HOT Crossings intersect_prim(const SceneRefs* s, int ref, const Ray* r) {
     }
 }
 
-static inline int prim_material(const SceneRefs* s, int ref) {
+// part: the crossing's part, which for a triangle is its slot (its Triangle record's index:
+// the records are in prim_refs' order, so that the hits of neighbouring rays read
+// neighbouring records).
+static inline int prim_material(const SceneRefs* s, int ref, int part) {
     int i = ref & PRIM_INDEX_MASK;
     switch (ref >> PRIM_TYPE_SHIFT) {
 #if HAS_PLANES
@@ -82,7 +85,7 @@ static inline int prim_material(const SceneRefs* s, int ref) {
 #endif
 #if HAS_TRIANGLES
         case PRIM_TRIANGLE:
-            return s->triangles[i].material & TRIANGLE_MATERIAL_MASK;
+            return s->triangles[part].material & TRIANGLE_MATERIAL_MASK;
 #endif
         default:
             return 0;
@@ -201,7 +204,7 @@ HOT bool shape_record(const SceneRefs* s, int ref, int part, REAL* f, int stride
     switch (ref >> PRIM_TYPE_SHIFT) {
 #if HAS_TRIANGLES
         case PRIM_TRIANGLE:
-            return triangle_record(s, i, part, f, stride, material, smooth);
+            return triangle_record(s, part, f, stride, material, smooth);
 #endif
 #if HAS_SPHERES
         case PRIM_SPHERE:

@@ -272,9 +272,8 @@ HOT MASKP triangle_lanes(const __global TrianglePacket* pk, const PickedCorners*
 // centroid, the winding's normal and the blended vertex normal.
 HOT Surface triangle_surface(const SceneRefs* s, const Ray* r, const Hit* hit, bool want_uv) {
     Surface sf;
-    int i = hit->ref & PRIM_INDEX_MASK;
     REAL gamma = gamma_n(ERR_ROUNDINGS);
-    Triangle tri = s->triangles[i];
+    Triangle tri = s->triangles[hit->part];
     // The corners from the hit's packet lane (its part is its slot, shapes.h:
     // packet_crossings): the mesh's float32 vertices, which the device does not keep.
     const __global TrianglePacket* pk = s->triangle_packets + hit->part / PACKET_WIDTH;
@@ -390,9 +389,9 @@ HOT SurfaceOfLanes triangle_surface_lanes(const ShapeLanes* g, const RayPacket* 
 
 // shape_record for a triangle: its corners (a, b, c) and vertex normals (na, nb, nc). False
 // with vertex texture coordinates or colours.
-HOT bool triangle_record(const SceneRefs* s, int i, int part, REAL* f, int stride, int* material,
+HOT bool triangle_record(const SceneRefs* s, int part, REAL* f, int stride, int* material,
                          LANE_INT* smooth) {
-    Triangle tri = s->triangles[i];
+    Triangle tri = s->triangles[part];
     if (tri.material & (TRIANGLE_UV | TRIANGLE_COLOR)) return false;
     const __global TrianglePacket* pk = s->triangle_packets + part / PACKET_WIDTH;
     int lane = part % PACKET_WIDTH;

@@ -10,11 +10,15 @@ from __future__ import annotations
 
 import importlib.util
 import shutil
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import pytest
 
+from clray.accel.prim_refs import PRIM_INDEX_MASK, PRIM_TRIANGLE, PRIM_TYPE_SHIFT
+from clray.device.layout import TRIANGLE_COLOR, TRIANGLE_MATERIAL_MASK, TRIANGLE_SMOOTH
+from clray.device.pack import pack_scene
 from clray.metrics import count_over, max_abs, nonfinite_count, rmse
 from clray.reference import render_reference
 from clray.render import render
@@ -233,3 +237,44 @@ def test_mesh_transform_renders_like_pretransformed_vertices(tmp_path):
     assert count_over(untransformed, b, 2 / 255) > 100
     assert rmse(a, b) < 1e-4
     assert count_over(a, b, 2 / 255) <= 2
+
+
+def test_triangle_records_are_the_slots_triangles_with_their_vertex_data():
+    """The device's Triangle records are one a slot of prim_refs (a hit's part is its slot)
+    and its vertex arrays are renumbered in the slots' order: every slot's record must still
+    name its triangle's material, flags and, through the new numbering, its corners' normals,
+    uvs and colours. Two meshes (one with per-face materials) make the offsets and flags
+    differ between triangles."""
+    vertices, faces, normals = mesh_gen.bumpy_mesh(2)
+    rng = np.random.default_rng(7)
+    uvs = rng.random((len(vertices), 2))
+    colors = rng.random((len(vertices), 3))
+    face_materials = rng.integers(0, 2, len(faces))
+    smooth = M.Mesh(vertices=vertices, faces=faces, material=0, normals=normals, uvs=uvs,
+                    face_materials=face_materials)
+    tinted = M.Mesh(vertices=vertices + 3.0, faces=faces[::-1].copy(), material=1,
+                    colors=colors)
+    scene = leak_scene(smooth, M.Camera(position=(0, 0, 6), look_at=(0, 0, 0), vfov=40),
+                       (0, 5, 5), M.Material("red", color=(1, 0, 0)))
+    scene = replace(scene, objects=(smooth, tinted),
+                    materials=(*scene.materials, M.Material("green", color=(0, 1, 0))))
+    packed = pack_scene(scene, width=8, height=8, spp=1, max_depth=0, seed=0)
+    refs = packed.prim_refs[:len(packed.triangles)]
+    slots = np.flatnonzero((refs >= 0) & ((refs >> PRIM_TYPE_SHIFT) == PRIM_TRIANGLE))
+    assert len(slots) == 2 * len(faces)
+    records = packed.triangles.view(np.int32).reshape(-1, 4)[slots]
+    index = refs[slots] & PRIM_INDEX_MASK  # the scene's triangle: smooth's, then tinted's
+    mine = index < len(faces)
+    face = np.where(mine[:, None], faces[index % len(faces)], faces[::-1][index % len(faces)])
+    material = records[:, 3]
+    assert np.array_equal(material & TRIANGLE_MATERIAL_MASK,
+                          np.where(mine, face_materials[index % len(faces)], 1))
+    assert np.array_equal((material & TRIANGLE_SMOOTH) != 0, mine)
+    assert np.array_equal((material & TRIANGLE_COLOR) != 0, ~mine)
+    for k in range(3):
+        corner = records[:, k]
+        assert np.array_equal(packed.normals[corner[mine], :3],
+                              normals[face[mine, k]].astype(np.float32))
+        assert np.array_equal(packed.uvs[corner[mine]], uvs[face[mine, k]].astype(np.float32))
+        assert np.array_equal(packed.colors[corner[~mine], :3],
+                              colors[face[~mine, k]].astype(np.float32))

@@ -8,7 +8,9 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field, make_dataclass
+from typing import Any
 
 import numpy as np
 import pyopencl as cl
@@ -392,42 +394,66 @@ def _pack_materials(materials: list[M.Material]) -> tuple[np.ndarray, np.ndarray
     return records, textures, texels
 
 
+def _point_fields(rec: np.void, light: M.PointLight | M.SpotLight, eye: np.ndarray) -> None:
+    rec["position"] = f4(np.asarray(light.position) - eye)
+    rec["attenuation"] = f4(light.attenuation)
+
+
+def _spot_fields(rec: np.void, light: M.SpotLight, eye: np.ndarray) -> None:
+    _point_fields(rec, light, eye)
+    inner = light.angle if light.inner_angle is None else light.inner_angle
+    rec["axis_u"] = f4(light.direction, math.cos(math.radians(light.angle)))
+    rec["axis_v"] = f4((0.0, 0.0, 0.0), math.cos(math.radians(inner)))
+
+
+def _directional_fields(rec: np.void, light: M.DirectionalLight, eye: np.ndarray) -> None:
+    rec["position"] = f4(light.direction)
+
+
+def _rect_fields(rec: np.void, light: M.RectLight, eye: np.ndarray) -> None:
+    rec["position"] = f4(np.asarray(light.corner) - eye)
+    rec["axis_u"], rec["axis_v"] = f4(light.u), f4(light.v)
+    rec["color"] = f4(light.color, M.rect_area(light.u, light.v))
+
+
+def _triangle_fields(rec: np.void, light: M.TriangleLight, eye: np.ndarray) -> None:
+    v0, v1, v2 = (np.asarray(v, dtype=np.float64) for v in light.vertices)
+    rec["position"] = f4(v0 - eye)
+    rec["axis_u"], rec["axis_v"] = f4(v1 - v0), f4(v2 - v0)
+    rec["color"] = f4(light.color, M.rect_area(v1 - v0, v2 - v0) / 2.0)
+
+
+def _disc_fields(rec: np.void, light: M.DiscLight, eye: np.ndarray) -> None:
+    rec["position"] = f4(np.asarray(light.center) - eye, light.radius)
+    rec["axis_u"] = f4(light.normal)
+    rec["color"] = f4(light.color, math.pi * light.radius**2)
+
+
+def _sphere_fields(rec: np.void, light: M.SphereLight, eye: np.ndarray) -> None:
+    rec["position"] = f4(np.asarray(light.center) - eye, light.radius)
+
+
+# Each light class's kind (a LIGHT_* label of clray_types.h: the kernels compare kinds for
+# equality only, so the codes carry no order) and the fields of its record beside the colour
+# (the area lights' colour carries their area in w).
+LIGHT_RECORDS: dict[type, tuple[int, Callable[[np.void, Any, np.ndarray], None]]] = {
+    M.PointLight: (L.LIGHT_POINT, _point_fields),
+    M.DirectionalLight: (L.LIGHT_DIRECTIONAL, _directional_fields),
+    M.SpotLight: (L.LIGHT_SPOT, _spot_fields),
+    M.RectLight: (L.LIGHT_RECT, _rect_fields),
+    M.DiscLight: (L.LIGHT_DISC, _disc_fields),
+    M.SphereLight: (L.LIGHT_SPHERE, _sphere_fields),
+    M.TriangleLight: (L.LIGHT_TRIANGLE, _triangle_fields),
+}
+
+
 def _pack_lights(lights: list[M.Light], eye: np.ndarray) -> np.ndarray:
     records = _records(L.LIGHT, len(lights))
     for i, light in enumerate(lights):
-        rec = records[i]
-        rec["color"] = f4(light.color)
-        if isinstance(light, M.PointLight | M.SpotLight):
-            rec["kind"] = L.LIGHT_POINT
-            rec["position"] = f4(np.asarray(light.position) - eye)
-            rec["attenuation"] = f4(light.attenuation)
-            if isinstance(light, M.SpotLight):
-                inner = light.angle if light.inner_angle is None else light.inner_angle
-                rec["kind"] = L.LIGHT_SPOT
-                rec["axis_u"] = f4(light.direction, math.cos(math.radians(light.angle)))
-                rec["axis_v"] = f4((0.0, 0.0, 0.0), math.cos(math.radians(inner)))
-        elif isinstance(light, M.RectLight):
-            rec["kind"] = L.LIGHT_RECT
-            rec["position"] = f4(np.asarray(light.corner) - eye)
-            rec["axis_u"], rec["axis_v"] = f4(light.u), f4(light.v)
-            rec["color"] = f4(light.color, M.rect_area(light.u, light.v))
-        elif isinstance(light, M.TriangleLight):
-            v0, v1, v2 = (np.asarray(v, dtype=np.float64) for v in light.vertices)
-            rec["kind"] = L.LIGHT_TRIANGLE
-            rec["position"] = f4(v0 - eye)
-            rec["axis_u"], rec["axis_v"] = f4(v1 - v0), f4(v2 - v0)
-            rec["color"] = f4(light.color, M.rect_area(v1 - v0, v2 - v0) / 2.0)
-        elif isinstance(light, M.DiscLight):
-            rec["kind"] = L.LIGHT_DISC
-            rec["position"] = f4(np.asarray(light.center) - eye, light.radius)
-            rec["axis_u"] = f4(light.normal)
-            rec["color"] = f4(light.color, math.pi * light.radius**2)
-        elif isinstance(light, M.SphereLight):
-            rec["kind"] = L.LIGHT_SPHERE
-            rec["position"] = f4(np.asarray(light.center) - eye, light.radius)
-        else:
-            rec["kind"] = L.LIGHT_DIRECTIONAL
-            rec["position"] = f4(light.direction)
+        kind, fields = LIGHT_RECORDS[type(light)]
+        records[i]["kind"] = kind
+        records[i]["color"] = f4(light.color)
+        fields(records[i], light, eye)
     return records
 
 

@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
+import json
+import math
 from pathlib import Path
+from typing import Any
 
 EXIT_OK = 0
 EXIT_RUNTIME = 1
@@ -44,6 +47,34 @@ def plural(count: int, noun: str, nouns: str | None = None) -> str:
     """`count` with the noun in the form that count takes: "1 tile", "0 tiles", "2 tiles";
     `nouns` for a plural not made with an s ("1 vertex", "3 vertices")."""
     return f"{count} {noun if count == 1 else nouns or noun + 's'}"
+
+
+SHOW_ITEMS = 8  # array elements (and defined names) shown in a message
+_SHOW_DEPTH = 3  # nested arrays shown in a message
+
+
+def show(value: Any, depth: int = 0) -> str:
+    """A value as the user wrote it, short enough for a one-line message."""
+    if isinstance(value, bool):
+        text = "true" if value else "false"
+    elif isinstance(value, str):
+        text = json.dumps(value[:100], ensure_ascii=False)
+    elif isinstance(value, int) and value.bit_length() > 200:
+        # repr() of a huge integer is slow, and past 4300 digits refused.
+        text = f"an integer of about {int(value.bit_length() * math.log10(2)) + 1} digits"
+    elif isinstance(value, int | float):
+        text = repr(value)
+    elif isinstance(value, list | tuple):
+        if depth >= _SHOW_DEPTH:
+            text = "[...]"
+        else:
+            shown = [show(v, depth + 1) for v in value[:SHOW_ITEMS]]
+            text = "[" + ", ".join(shown + ["..."] * (len(value) > SHOW_ITEMS)) + "]"
+    elif isinstance(value, dict):
+        text = "a table"
+    else:
+        text = type(value).__name__
+    return text if len(text) <= 60 else text[:57] + "..."
 
 
 class ClrayError(Exception):

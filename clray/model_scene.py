@@ -22,7 +22,8 @@ from clray.scene.files import UnreadableFile, read_regular
 from clray.scene.gltf import GLTF_SUFFIXES, GltfCamera, read_gltf_camera
 from clray.scene.limits import MAX_MAGNITUDE, MAX_MESH_BYTES
 from clray.scene.load import scene_from_dict
-from clray.scene.model import Instance, Mesh, Scene, unit
+from clray.scene.model import Instance, Mesh, Scene
+from clray.vectors import unit
 
 MESH_SUFFIXES = (".obj", ".ply", ".npz", *GLTF_SUFFIXES)
 # Unit directions from the model's centre to the camera, and the camera's up.

@@ -20,6 +20,7 @@ from clray.image_io import (
     write_bytes_atomically,
 )
 from clray.scene import model as M
+from clray.shapes import SHAPE_OF, SHAPES
 
 # The passes a render can ask for, in the order files list them.
 PASS_NAMES = ("depth", "normal", "albedo", "position", "object", "material", "instance")
@@ -41,16 +42,15 @@ def pass_problem(names: object) -> str | None:
 
 
 # Each primitive kind's packed array, with the scene objects that pack into it
-# (clray.device.pack._by_kind: Sphere with Spheres, Triangle with Mesh) and the primitives
-# each object makes there.
-_KINDS = ((L.PRIM_PLANE, (M.Plane,)), (L.PRIM_SPHERE, (M.Sphere, M.Spheres)),
-          (L.PRIM_BOX, (M.Box,)), (L.PRIM_CYLINDER, (M.Cylinder,)), (L.PRIM_CONE, (M.Cone,)),
-          (L.PRIM_TORUS, (M.Torus,)), (L.PRIM_TRIANGLE, (M.Triangle, M.Mesh)))
+# (clray.device.pack._by_kind: each shape's, Triangle with Mesh) and the primitives each object
+# makes there.
+_KINDS = ((L.PRIM_PLANE, (M.Plane,)), *((shape.prim, shape.types) for shape in SHAPES),
+          (L.PRIM_TRIANGLE, (M.Triangle, M.Mesh)))
 
 
 def _primitives(obj: M.SceneObject) -> int:
-    if isinstance(obj, M.Spheres):
-        return len(obj.radii)
+    if type(obj) in SHAPE_OF:
+        return SHAPE_OF[type(obj)].primitives(obj)
     if isinstance(obj, M.Mesh):
         return len(obj.faces)
     return 1

@@ -33,6 +33,12 @@ static inline REAL spot_factor(const __global Light* light, REAL3 l) {
 // most pi L, so only a sample within about 1e-10 light sizes of the shaded point reaches it.
 #define AREA_WEIGHT_MAX ((REAL)1e20)
 
+// The lights sampled over their area. Kinds are labels (clray_types.h): named, never ordered.
+static inline bool is_area_light(int kind) {
+    return kind == LIGHT_RECT || kind == LIGHT_DISC || kind == LIGHT_SPHERE ||
+           kind == LIGHT_TRIANGLE;
+}
+
 // One sample point `target` of an area light seen from p, and its weight: the factor that
 // multiplies the light's colour (its radiance) in place of a point light's attenuation, so
 // that weight * colour is the sample's estimate of the irradiance on a surface facing it.
@@ -122,7 +128,7 @@ STAGE bool light_ray(const SceneRefs* s, const Surface* sf, REAL3 n, int i, Samp
     // Where a shadow ray towards a light at a finite place aims: the light, or its sample.
     REAL3 target = TO_REAL3(light->position);
 #if HAS_AREA_LIGHTS
-    if (light->kind >= LIGHT_RECT) {
+    if (is_area_light(light->kind)) {
         if (!sample_area_light(light, sf->p, sf->err, light_square(key, i), &target, &atten)) {
             return false;
         }

@@ -12,7 +12,8 @@ PACKAGE = Path(__file__).resolve().parent.parent / "clray"
 # Lowest first. A module belongs to the first layer with a prefix that names it or a package
 # above it; within a layer imports go either way.
 LAYERS: list[tuple[str, tuple[str, ...]]] = [
-    ("base", ("clray.errors", "clray.metrics", "clray.knobs", "clray.output")),
+    ("base", ("clray.errors", "clray.metrics", "clray.knobs", "clray.output", "clray.vectors")),
+    ("shapes", ("clray.shapes",)),
     ("scene/accel", ("clray.scene", "clray.accel")),
     ("device", ("clray.device",)),
     ("render/cli", ("clray", "clray.render", "clray.image_io", "clray.cli", "clray.__main__",

@@ -118,3 +118,16 @@ def test_packed_scene_fields_are_the_scene_buffers() -> None:
 
     fields = list(PackedScene.__dataclass_fields__)
     assert fields[:len(layout.SCENE_BUFFERS)] == [b.name for b in layout.SCENE_BUFFERS]
+
+
+def test_light_kinds_are_labels_one_a_light_class() -> None:
+    from clray.device.pack import LIGHT_RECORDS
+    from clray.scene import model as M
+
+    names = [name for name in _defined_constants() if name.startswith("LIGHT_")]
+    assert sorted(kind for kind, _ in LIGHT_RECORDS.values()) == sorted(
+        getattr(layout, name) for name in names)
+    assert set(LIGHT_RECORDS) == {*M.Light.__args__, M.TriangleLight}
+    # The kernels name the kinds they mean: no comparison orders them.
+    kernels = "".join(kernel_source(name) for name in ("lights.h", "direct.h", "shading.h"))
+    assert re.findall(r"kind\s*[<>]|LIGHT_[A-Z]+\s*[<>]|[<>]=?\s*LIGHT_", kernels) == []

@@ -698,7 +698,7 @@ ERRORS = [
         "objects[2].radius2: unknown key (expected one of: type, material, center, radius, "
         "transform)",
     ),
-    (obj(type="teapot"), 'objects[2].type: unknown type "teapot" (expected one of: sphere, plane,'),
+    (obj(type="teapot"), 'objects[2].type: unknown type "teapot" (expected one of: sphere, box,'),
     (obj(type=3), "objects[2].type: unknown type 3"),
     (scene(objects=[3]), "objects[0]: expected a table, got 3"),
     (

@@ -14,16 +14,15 @@ import pyopencl as cl
 import pytest
 
 from clray import metrics
-from clray.device import layout as L
 from clray.device.context import context_for, queue_for
 from clray.device.program import device_build_options, kernel_source
 from clray.errors import SceneError
 from clray.reference import camera_rays, render_reference
 from clray.reference.bvh import intersect_scene
-from clray.reference.intersect import intersect_torus
 from clray.render import RenderSettings, render
 from clray.scene.load import scene_from_dict
 from clray.scene.model import Instance, Torus
+from clray.shapes.torus import TORUS, intersect_torus
 
 PROBE = r"""
 __kernel void probe(__global const float* o, __global const float* d, __global const Torus* tr,
@@ -48,7 +47,7 @@ def device_crossings(device: cl.Device, o: np.ndarray, d: np.ndarray, torus: Tor
         options.append("-DUSE_DOUBLE")
     source = kernel_source("torus.h") + PROBE
     program = cl.Program(ctx, source).build(options=options)
-    record = np.zeros(1, dtype=L.TORUS)
+    record = np.zeros(1, dtype=TORUS.record)
     record["centre_major"][0] = (*torus.center, torus.major_radius)
     record["axis_minor"][0] = (*torus.axis, torus.minor_radius)
     mf = cl.mem_flags

@@ -31,6 +31,7 @@ import numpy as np
 from clray.accel import prim_refs as P
 from clray.accel.bvh import Bvh
 from clray.knobs import KNOBS
+from clray.shapes.sphere import SPHERE
 
 PACKET_WIDTH = 4
 LEAF_TRIANGLE_SHIFT = 16
@@ -155,7 +156,7 @@ def _foldable(slots: np.ndarray, first: np.ndarray, count: np.ndarray, open_area
     # Primitives of each kind per leaf slot, from prefix sums over the leaves' references.
     kind = order_refs >> P.PRIM_TYPE_SHIFT
     sums = [np.concatenate([[0], np.cumsum(kind == k)])
-            for k in (P.PRIM_TRIANGLE, P.PRIM_SPHERE, P.PRIM_INSTANCE)]
+            for k in (P.PRIM_TRIANGLE, SPHERE.prim, P.PRIM_INSTANCE)]
     lo = np.where(leaf, first[slots], 0)
     n = np.where(leaf, count[slots], 0)
     tri, sph, inst = ((s[lo + n] - s[lo]).sum(axis=1) for s in sums)
@@ -201,7 +202,7 @@ def _lay_out_leaves(first: np.ndarray, count: np.ndarray,
     offsets = np.concatenate([[0], np.cumsum(count)[:-1]]).astype(np.int64)
     refs = order_refs[np.repeat(first - offsets, count) + np.arange(count.sum())]
     kind = refs >> P.PRIM_TYPE_SHIFT
-    section = np.where(kind == P.PRIM_TRIANGLE, 0, np.where(kind == P.PRIM_SPHERE, 1, 2))
+    section = np.where(kind == P.PRIM_TRIANGLE, 0, np.where(kind == SPHERE.prim, 1, 2))
     sizes, ranks = [], np.zeros(refs.size, dtype=np.int64)
     for sec in range(3):
         member = section == sec

@@ -12,14 +12,9 @@ import numpy as np
 # The layouts the host algorithms define (clray.accel), mirrored by the kernels like the rest.
 from clray.accel.bvh import BINARY_NODE as BINARY_NODE
 from clray.accel.bvh import N_BINS as N_BINS
-from clray.accel.prim_refs import PRIM_BOX as PRIM_BOX
-from clray.accel.prim_refs import PRIM_CONE as PRIM_CONE
-from clray.accel.prim_refs import PRIM_CYLINDER as PRIM_CYLINDER
 from clray.accel.prim_refs import PRIM_INDEX_MASK as PRIM_INDEX_MASK
 from clray.accel.prim_refs import PRIM_INSTANCE as PRIM_INSTANCE
 from clray.accel.prim_refs import PRIM_PLANE as PRIM_PLANE
-from clray.accel.prim_refs import PRIM_SPHERE as PRIM_SPHERE
-from clray.accel.prim_refs import PRIM_TORUS as PRIM_TORUS
 from clray.accel.prim_refs import PRIM_TRIANGLE as PRIM_TRIANGLE
 from clray.accel.prim_refs import PRIM_TYPE_SHIFT as PRIM_TYPE_SHIFT
 from clray.accel.wide import BVH_WIDTHS as BVH_WIDTHS
@@ -28,6 +23,12 @@ from clray.accel.wide import LEAF_SPHERE_SHIFT as LEAF_SPHERE_SHIFT
 from clray.accel.wide import LEAF_TRIANGLE_SHIFT as LEAF_TRIANGLE_SHIFT
 from clray.accel.wide import PACKET_WIDTH as PACKET_WIDTH
 from clray.accel.wide import bvh_node_dtype as bvh_node_dtype
+from clray.shapes import SHAPES
+
+# Each analytic shape's PRIM_* code under its name in clray_types.h (PRIM_SPHERE, PRIM_TORUS),
+# set from its module (clray.shapes) so that a new shape needs no line here.
+PRIMS: dict[str, int] = {shape.prim_name: shape.prim for shape in SHAPES}
+globals().update(PRIMS)
 
 LIGHT_POINT = 0
 LIGHT_DIRECTIONAL = 1
@@ -50,14 +51,7 @@ def _struct(fields: list) -> np.dtype:
                      for name, spec in fields])
 
 
-SPHERE = _struct([("center_radius", _F4), ("material", "<i4"), *_PAD])
 PLANE = _struct([("point", _F4), ("normal", _F4), ("material", "<i4"), *_PAD])
-BOX = _struct([("lo", _F4), ("hi", _F4), ("material", "<i4"), *_PAD])
-CYLINDER = _struct([("base_radius", _F4), ("axis_height", _F4), ("material", "<i4"),
-                    ("capped", "<i4"), ("pad0", "<i4"), ("pad1", "<i4")])
-CONE = _struct([("apex_tan", _F4), ("axis_height", _F4), ("material", "<i4"),
-                ("capped", "<i4"), ("pad0", "<i4"), ("pad1", "<i4")])
-TORUS = _struct([("centre_major", _F4), ("axis_minor", _F4), ("material", "<i4"), *_PAD])
 TRIANGLE = _struct([("v0", "<i4"), ("v1", "<i4"), ("v2", "<i4"), ("material", "<i4")])
 MATERIAL = _struct([("color", _F4), ("ambient", "<f4"), ("diffuse", "<f4"),
                     ("specular", "<f4"), ("shininess", "<f4"), ("reflect", "<f4"),
@@ -94,12 +88,8 @@ BUILD_TASK = _struct([("lo", _F4), ("hi", _F4), ("clo", _F4), ("chi", _F4), ("st
 
 # Struct name in clray_types.h -> dtype; the layout test walks this.
 STRUCTS: dict[str, np.dtype] = {
-    "Sphere": SPHERE,
     "Plane": PLANE,
-    "Box": BOX,
-    "Cylinder": CYLINDER,
-    "Cone": CONE,
-    "Torus": TORUS,
+    **{shape.struct: shape.record for shape in SHAPES},
     "Triangle": TRIANGLE,
     "Material": MATERIAL,
     "Texture": TEXTURE,
@@ -137,11 +127,7 @@ SCENE_BUFFERS: tuple[SceneBuffer, ...] = tuple(SceneBuffer(name, element) for na
     ("camera", "Camera"),  # one record
     ("params", "Params"),  # one record
     ("planes", "Plane"),
-    ("spheres", "Sphere"),
-    ("boxes", "Box"),
-    ("cylinders", "Cylinder"),
-    ("cones", "Cone"),
-    ("tori", "Torus"),
+    *((shape.buffer, shape.struct) for shape in SHAPES),  # one array a shape
     ("triangles", "Triangle"),
     ("triangle_packets", "TrianglePacket"),  # one per PACKET_WIDTH slots of prim_refs
     ("sphere_packets", "SpherePacket"),  # likewise (spheres only)

@@ -8,7 +8,9 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field, make_dataclass
+from typing import Any
 
 import numpy as np
 import pyopencl as cl
@@ -22,6 +24,9 @@ from clray.knobs import DEFAULT_TUNING, Tuning
 from clray.scene import model as M
 from clray.scene.emitters import scene_lights
 from clray.scene.scale import needs_fp64_spheres
+from clray.shapes import SHAPE_OF, SHAPES
+from clray.shapes.shape import Shape, f4
+from clray.shapes.sphere import SPHERE
 
 # Primitive count from which pack_scene builds the BVH on the device when given a queue.
 DEVICE_BUILD_MIN = 20000
@@ -61,17 +66,8 @@ PackedScene = make_dataclass(
 PackedScene.__module__ = __name__  # pickled by reference: a Dask worker finds it here
 
 
-def _f4(v: np.ndarray | tuple, w: float = 0.0) -> np.ndarray:
-    return np.array([*np.asarray(v, dtype=np.float64), w], dtype=np.float32)
-
-
 def _records(dtype: np.dtype, n: int) -> np.ndarray:
     return np.zeros(n, dtype=dtype)
-
-
-def _disc_extent(axis: np.ndarray, radius: float) -> np.ndarray:
-    """Half-extent per world axis of a disc of this radius across unit `axis`."""
-    return radius * np.sqrt(np.clip(1.0 - axis * axis, 0.0, 1.0))
 
 
 def texture_frame(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -143,104 +139,19 @@ def _pack_planes(objs: list[M.Plane], eye: np.ndarray) -> np.ndarray:
         nearest = n * np.dot(point, n)
         e1, e2 = texture_frame(n)
         shift = nearest - point
-        planes[i]["point"] = _f4(nearest, np.dot(shift, e1))
-        planes[i]["normal"] = _f4(n, np.dot(shift, e2))
+        planes[i]["point"] = f4(nearest, np.dot(shift, e1))
+        planes[i]["normal"] = f4(n, np.dot(shift, e2))
         planes[i]["material"] = o.material
     return planes
 
 
-def _pack_spheres(objs: _Placed, bounded: _Bounded) -> np.ndarray:
-    """Sphere objects and `spheres` arrays, in scene order: one record per sphere."""
-    blocks = [(o.centers, o.radii, o.materials) if isinstance(o, M.Spheres) else
-              ([o.center], [o.radius], [o.material]) for o in objs.objects]
-    centers, radii, materials = (
-        np.concatenate([np.asarray(b[k], dtype=dtype).reshape(shape) for b in blocks])
-        if blocks else np.zeros((0, *shape[1:]), dtype=dtype)
-        for k, dtype, shape in ((0, np.float64, (-1, 3)), (1, np.float64, (-1,)),
-                                (2, np.int32, (-1,))))
-    sizes = [len(b[1]) for b in blocks]
-    spheres = _records(L.SPHERE, len(centers))
-    spheres["center_radius"][:, :3] = centers - np.repeat(objs.origins, sizes, axis=0)
-    spheres["center_radius"][:, 3] = radii
-    spheres["material"] = materials
-    if len(spheres):
-        cr = spheres["center_radius"].astype(np.float64)
-        bounded.add(L.PRIM_SPHERE, cr[:, :3] - cr[:, 3:], cr[:, :3] + cr[:, 3:],
-                    np.repeat(objs.owners, sizes))
-    return spheres
-
-
-def _pack_boxes(objs: _Placed, bounded: _Bounded) -> np.ndarray:
-    boxes = _records(L.BOX, len(objs.objects))
-    for i, (o, origin) in enumerate(zip(objs.objects, objs.origins, strict=True)):
-        boxes[i]["lo"] = _f4(np.asarray(o.min) - origin)
-        boxes[i]["hi"] = _f4(np.asarray(o.max) - origin)
-        boxes[i]["material"] = o.material
-    if len(boxes):
-        bounded.add(L.PRIM_BOX, boxes["lo"][:, :3].astype(np.float64),
-                    boxes["hi"][:, :3].astype(np.float64), objs.owners)
-    return boxes
-
-
-def _pack_cylinders(objs: _Placed, bounded: _Bounded) -> np.ndarray:
-    cylinders = _records(L.CYLINDER, len(objs.objects))
-    lo, hi = [], []
-    for i, (o, origin) in enumerate(zip(objs.objects, objs.origins, strict=True)):
-        rec = cylinders[i]
-        rec["base_radius"] = _f4(np.asarray(o.base) - origin, o.radius)
-        rec["axis_height"] = _f4(o.axis, o.height)
-        rec["material"] = o.material
-        rec["capped"] = int(o.capped)
-        # Bounds of the stored (float32) shape, so they hold what the kernel intersects.
-        base = rec["base_radius"][:3].astype(np.float64)
-        axis = rec["axis_height"][:3].astype(np.float64)
-        top = base + axis * float(rec["axis_height"][3])
-        ext = _disc_extent(axis, float(rec["base_radius"][3]))
-        lo.append(np.minimum(base, top) - ext)
-        hi.append(np.maximum(base, top) + ext)
-    if lo:
-        bounded.add(L.PRIM_CYLINDER, np.array(lo), np.array(hi), objs.owners)
-    return cylinders
-
-
-def _pack_tori(objs: _Placed, bounded: _Bounded) -> np.ndarray:
-    tori = _records(L.TORUS, len(objs.objects))
-    for i, (o, origin) in enumerate(zip(objs.objects, objs.origins, strict=True)):
-        tori[i]["centre_major"] = _f4(np.asarray(o.center) - origin, o.major_radius)
-        tori[i]["axis_minor"] = _f4(o.axis, o.minor_radius)
-        tori[i]["material"] = o.material
-    if len(tori):
-        # Bounds of the stored (float32) shape: the circle's extent on each world axis, and the
-        # tube's radius around it.
-        centre = tori["centre_major"][:, :3].astype(np.float64)
-        axis = tori["axis_minor"][:, :3].astype(np.float64)
-        axis /= np.linalg.norm(axis, axis=1)[:, None]
-        ext = (tori["centre_major"][:, 3:].astype(np.float64)
-               * np.sqrt(np.clip(1.0 - axis * axis, 0.0, 1.0))
-               + tori["axis_minor"][:, 3:].astype(np.float64))
-        bounded.add(L.PRIM_TORUS, centre - ext, centre + ext, objs.owners)
-    return tori
-
-
-def _pack_cones(objs: _Placed, bounded: _Bounded) -> np.ndarray:
-    cones = _records(L.CONE, len(objs.objects))
-    lo, hi = [], []
-    for i, (o, origin) in enumerate(zip(objs.objects, objs.origins, strict=True)):
-        rec = cones[i]
-        rec["apex_tan"] = _f4(np.asarray(o.apex) - origin, np.tan(np.radians(o.angle)))
-        rec["axis_height"] = _f4(o.axis, o.height)
-        rec["material"] = o.material
-        rec["capped"] = int(o.capped)
-        apex = rec["apex_tan"][:3].astype(np.float64)
-        axis = rec["axis_height"][:3].astype(np.float64)
-        length = float(rec["axis_height"][3])
-        base = apex + axis * length
-        ext = _disc_extent(axis, length * float(rec["apex_tan"][3]))
-        lo.append(np.minimum(apex, base - ext))
-        hi.append(np.maximum(apex, base + ext))
-    if lo:
-        bounded.add(L.PRIM_CONE, np.array(lo), np.array(hi), objs.owners)
-    return cones
+def _pack_shape(shape: Shape, objs: _Placed, bounded: _Bounded) -> np.ndarray:
+    """One shape's records (clray.shapes), their bounds added to the BVH's input."""
+    records, lo, hi = shape.pack(objs.objects, objs.origins)
+    if len(records):
+        sizes = [shape.primitives(obj) for obj in objs.objects]
+        bounded.add(shape.prim, lo, hi, np.repeat(objs.owners, sizes))
+    return records
 
 
 def _pack_triangles(objs: _Placed, bounded: _Bounded) -> _Triangles:
@@ -473,7 +384,7 @@ def _sphere_packets(prim_refs: np.ndarray, spheres: np.ndarray) -> np.ndarray:
     if len(spheres) == 0:
         return _records(L.SPHERE_PACKET, 0)
     slots = prim_refs.reshape(-1, PACKET_WIDTH).astype(np.int64)
-    is_sphere = (slots >= 0) & ((slots >> L.PRIM_TYPE_SHIFT) == L.PRIM_SPHERE)
+    is_sphere = (slots >= 0) & ((slots >> L.PRIM_TYPE_SHIFT) == SPHERE.prim)
     used = _through_last(is_sphere)
     slots, is_sphere = slots[:used], is_sphere[:used]
     cr = spheres["center_radius"][np.where(is_sphere, slots & L.PRIM_INDEX_MASK, 0)]
@@ -489,16 +400,16 @@ def _pack_materials(materials: list[M.Material]) -> tuple[np.ndarray, np.ndarray
     records = _records(L.MATERIAL, len(materials))
     for i, m in enumerate(materials):
         rec = records[i]
-        rec["color"] = _f4(m.color)
+        rec["color"] = f4(m.color)
         for key in ("ambient", "diffuse", "specular", "shininess", "reflect", "transmit", "ior"):
             rec[key] = getattr(m, key)
         rec["texture"] = L.TEXTURE_NONE
         rec["fresnel"] = int(m.fresnel)
-        rec["emission"] = _f4(m.emission)
+        rec["emission"] = f4(m.emission)
         if m.texture is None:
             continue
         tex = np.zeros((), dtype=L.TEXTURE)
-        tex["color2"] = _f4(m.texture.color2)
+        tex["color2"] = f4(m.texture.color2)
         tex["size"] = m.texture.size
         tex["repeat_u"], tex["repeat_v"] = m.texture.repeat
         tex["blend"] = m.texture.blend
@@ -521,42 +432,66 @@ def _pack_materials(materials: list[M.Material]) -> tuple[np.ndarray, np.ndarray
     return records, textures, texels
 
 
+def _point_fields(rec: np.void, light: M.PointLight | M.SpotLight, eye: np.ndarray) -> None:
+    rec["position"] = f4(np.asarray(light.position) - eye)
+    rec["attenuation"] = f4(light.attenuation)
+
+
+def _spot_fields(rec: np.void, light: M.SpotLight, eye: np.ndarray) -> None:
+    _point_fields(rec, light, eye)
+    inner = light.angle if light.inner_angle is None else light.inner_angle
+    rec["axis_u"] = f4(light.direction, math.cos(math.radians(light.angle)))
+    rec["axis_v"] = f4((0.0, 0.0, 0.0), math.cos(math.radians(inner)))
+
+
+def _directional_fields(rec: np.void, light: M.DirectionalLight, eye: np.ndarray) -> None:
+    rec["position"] = f4(light.direction)
+
+
+def _rect_fields(rec: np.void, light: M.RectLight, eye: np.ndarray) -> None:
+    rec["position"] = f4(np.asarray(light.corner) - eye)
+    rec["axis_u"], rec["axis_v"] = f4(light.u), f4(light.v)
+    rec["color"] = f4(light.color, M.rect_area(light.u, light.v))
+
+
+def _triangle_fields(rec: np.void, light: M.TriangleLight, eye: np.ndarray) -> None:
+    v0, v1, v2 = (np.asarray(v, dtype=np.float64) for v in light.vertices)
+    rec["position"] = f4(v0 - eye)
+    rec["axis_u"], rec["axis_v"] = f4(v1 - v0), f4(v2 - v0)
+    rec["color"] = f4(light.color, M.rect_area(v1 - v0, v2 - v0) / 2.0)
+
+
+def _disc_fields(rec: np.void, light: M.DiscLight, eye: np.ndarray) -> None:
+    rec["position"] = f4(np.asarray(light.center) - eye, light.radius)
+    rec["axis_u"] = f4(light.normal)
+    rec["color"] = f4(light.color, math.pi * light.radius**2)
+
+
+def _sphere_fields(rec: np.void, light: M.SphereLight, eye: np.ndarray) -> None:
+    rec["position"] = f4(np.asarray(light.center) - eye, light.radius)
+
+
+# Each light class's kind (a LIGHT_* label of clray_types.h: the kernels compare kinds for
+# equality only, so the codes carry no order) and the fields of its record beside the colour
+# (the area lights' colour carries their area in w).
+LIGHT_RECORDS: dict[type, tuple[int, Callable[[np.void, Any, np.ndarray], None]]] = {
+    M.PointLight: (L.LIGHT_POINT, _point_fields),
+    M.DirectionalLight: (L.LIGHT_DIRECTIONAL, _directional_fields),
+    M.SpotLight: (L.LIGHT_SPOT, _spot_fields),
+    M.RectLight: (L.LIGHT_RECT, _rect_fields),
+    M.DiscLight: (L.LIGHT_DISC, _disc_fields),
+    M.SphereLight: (L.LIGHT_SPHERE, _sphere_fields),
+    M.TriangleLight: (L.LIGHT_TRIANGLE, _triangle_fields),
+}
+
+
 def _pack_lights(lights: list[M.Light], eye: np.ndarray) -> np.ndarray:
     records = _records(L.LIGHT, len(lights))
     for i, light in enumerate(lights):
-        rec = records[i]
-        rec["color"] = _f4(light.color)
-        if isinstance(light, M.PointLight | M.SpotLight):
-            rec["kind"] = L.LIGHT_POINT
-            rec["position"] = _f4(np.asarray(light.position) - eye)
-            rec["attenuation"] = _f4(light.attenuation)
-            if isinstance(light, M.SpotLight):
-                inner = light.angle if light.inner_angle is None else light.inner_angle
-                rec["kind"] = L.LIGHT_SPOT
-                rec["axis_u"] = _f4(light.direction, math.cos(math.radians(light.angle)))
-                rec["axis_v"] = _f4((0.0, 0.0, 0.0), math.cos(math.radians(inner)))
-        elif isinstance(light, M.RectLight):
-            rec["kind"] = L.LIGHT_RECT
-            rec["position"] = _f4(np.asarray(light.corner) - eye)
-            rec["axis_u"], rec["axis_v"] = _f4(light.u), _f4(light.v)
-            rec["color"] = _f4(light.color, M.rect_area(light.u, light.v))
-        elif isinstance(light, M.TriangleLight):
-            v0, v1, v2 = (np.asarray(v, dtype=np.float64) for v in light.vertices)
-            rec["kind"] = L.LIGHT_TRIANGLE
-            rec["position"] = _f4(v0 - eye)
-            rec["axis_u"], rec["axis_v"] = _f4(v1 - v0), _f4(v2 - v0)
-            rec["color"] = _f4(light.color, M.rect_area(v1 - v0, v2 - v0) / 2.0)
-        elif isinstance(light, M.DiscLight):
-            rec["kind"] = L.LIGHT_DISC
-            rec["position"] = _f4(np.asarray(light.center) - eye, light.radius)
-            rec["axis_u"] = _f4(light.normal)
-            rec["color"] = _f4(light.color, math.pi * light.radius**2)
-        elif isinstance(light, M.SphereLight):
-            rec["kind"] = L.LIGHT_SPHERE
-            rec["position"] = _f4(np.asarray(light.center) - eye, light.radius)
-        else:
-            rec["kind"] = L.LIGHT_DIRECTIONAL
-            rec["position"] = _f4(light.direction)
+        kind, fields = LIGHT_RECORDS[type(light)]
+        records[i]["kind"] = kind
+        records[i]["color"] = f4(light.color)
+        fields(records[i], light, eye)
     return records
 
 
@@ -564,17 +499,17 @@ def _pack_camera(camera: M.Camera, eye: np.ndarray, width: int, height: int) -> 
     forward, right, up, half_w, half_h = camera.basis(width, height)
     record = np.zeros(1, dtype=L.CAMERA)
     record[0]["position"] = 0.0
-    record[0]["forward"] = _f4(forward)
-    record[0]["right"] = _f4(right * half_w)
-    record[0]["up"] = _f4(up * half_h)
-    record[0]["world"] = _f4(eye)
+    record[0]["forward"] = f4(forward)
+    record[0]["right"] = f4(right * half_w)
+    record[0]["up"] = f4(up * half_h)
+    record[0]["world"] = f4(eye)
     if camera.aperture > 0:
         focus = camera.focus_distance
         if focus is None:
             focus = float(np.linalg.norm(np.subtract(camera.look_at, camera.position)))
         radius = camera.aperture / 2.0
-        record[0]["lens_u"] = _f4(right * radius, 1.0 / focus)
-        record[0]["lens_v"] = _f4(up * radius)
+        record[0]["lens_u"] = f4(right * radius, 1.0 / focus)
+        record[0]["lens_v"] = f4(up * radius)
     return record
 
 
@@ -583,11 +518,11 @@ def _pack_background(background: M.Vec3 | M.Background, params: np.ndarray,
     """Fill the params' background fields; the texels with an environment image appended."""
     p = params[0]
     if not isinstance(background, M.Background):
-        p["background"] = _f4(background)
+        p["background"] = f4(background)
         return texels
     if background.kind == "gradient":
-        p["background"] = _f4(background.bottom)
-        p["background_top"] = _f4(background.top)
+        p["background"] = f4(background.bottom)
+        p["background_top"] = f4(background.top)
         return texels
     img = np.asarray(background.image, dtype=np.float32)
     rgba = np.zeros((img.shape[0] * img.shape[1], 4), dtype=np.float32)
@@ -600,13 +535,13 @@ def _pack_background(background: M.Vec3 | M.Background, params: np.ndarray,
 def _by_kind(objects: tuple[M.SceneObject, ...], groups: list[M.Group], eye: np.ndarray
              ) -> dict[type, _Placed]:
     """The scene's objects (stored relative to the eye) and then each group's (in its own
-    frame), sorted by the array they pack into: Sphere (with Spheres), Plane, Box, Cylinder,
-    Cone, Torus, Triangle (with Mesh)."""
+    frame), sorted by the array they pack into: Plane, each shape's model (a `spheres` array
+    with Sphere), Triangle (with Mesh)."""
     owned = [(obj, eye, 0) for obj in objects if not isinstance(obj, M.Instance)]
     owned += [(obj, np.zeros(3), g + 1) for g, group in enumerate(groups) for obj in group.objects]
-    array_of = {M.Spheres: M.Sphere, M.Mesh: M.Triangle}
+    array_of = {M.Mesh: M.Triangle, **{t: shape.model for t, shape in SHAPE_OF.items()}}
     kinds = {}
-    for kind in (M.Sphere, M.Plane, M.Box, M.Cylinder, M.Cone, M.Torus, M.Triangle):
+    for kind in (M.Plane, *(shape.model for shape in SHAPES), M.Triangle):
         mine = [item for item in owned if array_of.get(type(item[0]), type(item[0])) is kind]
         kinds[kind] = _Placed([item[0] for item in mine],
                               np.array([item[1] for item in mine]).reshape(-1, 3),
@@ -667,11 +602,7 @@ def pack_scene(scene: M.Scene, *, width: int, height: int, spp: int, max_depth: 
 
     bounded = _Bounded()
     planes = _pack_planes(kinds[M.Plane].objects, eye)
-    spheres = _pack_spheres(kinds[M.Sphere], bounded)
-    boxes = _pack_boxes(kinds[M.Box], bounded)
-    cylinders = _pack_cylinders(kinds[M.Cylinder], bounded)
-    cones = _pack_cones(kinds[M.Cone], bounded)
-    tori = _pack_tori(kinds[M.Torus], bounded)
+    shapes = {shape.buffer: _pack_shape(shape, kinds[shape.model], bounded) for shape in SHAPES}
     tris = _pack_triangles(kinds[M.Triangle], bounded)
     wide, instance_records, bvh_s = _pack_bvh(bounded, len(groups), instances, group_of, eye,
                                               bvh_width, queue, tuning)
@@ -681,7 +612,7 @@ def pack_scene(scene: M.Scene, *, width: int, height: int, spp: int, max_depth: 
         tris = _in_slot_order(records, is_tri, tris)
     else:
         triangle_packets = _records(L.TRIANGLE_PACKET, 0)
-    sphere_packets = _sphere_packets(wide.prim_refs, spheres)
+    sphere_packets = _sphere_packets(wide.prim_refs, shapes[SPHERE.buffer])
     materials, textures, texels = _pack_materials(scene.materials)
     lights = _pack_lights(scene_lights(scene), eye)
     camera = _pack_camera(scene.camera, eye, width, height)
@@ -689,7 +620,7 @@ def pack_scene(scene: M.Scene, *, width: int, height: int, spp: int, max_depth: 
     params = np.zeros(1, dtype=L.PARAMS)
     p = params[0]
     texels = _pack_background(scene.render.background, params, texels)
-    p["ambient"] = _f4(scene.render.ambient)
+    p["ambient"] = f4(scene.render.ambient)
     p["width"], p["height"], p["spp"], p["max_depth"] = width, height, spp, max_depth
     p["seed"], p["min_weight"] = seed, min_weight
     p["n_planes"], p["n_lights"] = len(planes), len(lights)
@@ -697,11 +628,7 @@ def pack_scene(scene: M.Scene, *, width: int, height: int, spp: int, max_depth: 
 
     config = KernelConfig(
         has_planes=len(planes) > 0,
-        has_spheres=len(spheres) > 0,
-        has_boxes=len(boxes) > 0,
-        has_cylinders=len(cylinders) > 0,
-        has_cones=len(cones) > 0,
-        has_tori=len(tori) > 0,
+        **{shape.switch: len(shapes[shape.buffer]) > 0 for shape in SHAPES},
         has_triangles=len(tris.triangles) > 0,
         has_vertex_normals=len(tris.normals) > 0,
         has_vertex_uvs=len(tris.uvs) > 0,
@@ -712,10 +639,10 @@ def pack_scene(scene: M.Scene, *, width: int, height: int, spp: int, max_depth: 
         bvh_width=bvh_width,
         bvh_stack_size=_stack_size_option(wide.stack_size),
         precision=precision,
-        **{"fp64_spheres": len(spheres) > 0 and needs_fp64_spheres(scene), **variants},
+        **{"fp64_spheres": len(shapes[SPHERE.buffer]) > 0 and needs_fp64_spheres(scene),
+           **variants},
     )
-    return PackedScene(camera=camera, params=params, planes=planes, spheres=spheres,
-                       boxes=boxes, cylinders=cylinders, cones=cones, tori=tori,
+    return PackedScene(camera=camera, params=params, planes=planes, **shapes,
                        triangles=tris.triangles,
                        triangle_packets=triangle_packets, sphere_packets=sphere_packets,
                        normals=tris.normals, uvs=tris.uvs, colors=tris.colors,

@@ -6,7 +6,7 @@ import hashlib
 import re
 import time
 import warnings
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, fields, make_dataclass
 from importlib.resources import files
 
 import pyopencl as cl
@@ -14,6 +14,7 @@ import pyopencl as cl
 from clray.device.context import context_for, device_type, has_fp64
 from clray.errors import DeviceError
 from clray.knobs import KNOBS
+from clray.shapes import SHAPES
 
 # The top-level kernels/ folder, installed as this package (pyproject.toml's package-dir), so a
 # wheel, an sdist and an editable install all read the same files.
@@ -46,17 +47,19 @@ def device_build_options(device: cl.Device) -> tuple[str, ...]:
     return OCLGRIND_BUILD_OPTIONS if device.platform.name.strip() == "Oclgrind" else ()
 
 
+# The analytic shapes' switches (HAS_SPHERES, ..., HAS_TORI: Shape.switch), fields of every
+# KernelConfig made from the registry, so that a new shape needs no line here.
+_ShapeSwitches = make_dataclass("_ShapeSwitches", [(shape.switch, "bool", False)
+                                                   for shape in SHAPES], frozen=True)
+_ShapeSwitches.__module__ = __name__  # pickled by reference, as KernelConfig is
+
+
 @dataclass(frozen=True)
-class KernelConfig:
+class KernelConfig(_ShapeSwitches):
     """Only switches that remove code or fix loop bounds; everything else is a kernel
-    argument, so a new scene rarely means a new build."""
+    argument, so a new scene rarely means a new build. Besides the shapes' switches:"""
 
     has_planes: bool = False
-    has_spheres: bool = False
-    has_boxes: bool = False
-    has_cylinders: bool = False
-    has_cones: bool = False
-    has_tori: bool = False
     has_triangles: bool = False
     has_vertex_normals: bool = False
     has_vertex_uvs: bool = False

@@ -1,16 +1,18 @@
 """An independent float64 numpy renderer: the test oracle for the OpenCL kernels.
 
-It implements docs/rendering.md literally and shares no code with the kernels or the packer:
+It implements docs/rendering.md literally and shares no code with the kernels or the packer
+(each analytic shape's crossings and surface sit in the shape's module, clray.shapes, beside
+its packer but sharing no formula with it):
 every ray is intersected with every primitive by brute force, and the ray tree is walked as a
 wavefront (all live rays of one generation in arrays, their reflected and refracted children
 forming the next generation). Slow, but each formula can be checked against the page by eye.
 
 Its modules mirror the kernel headers, and its functions carry the kernels' names, so the two
-can be read side by side: sampling (kernels/rng.h, camera.h), intersect (the shapes' headers:
-sphere.h, plane.h, box.h, cylinder.h, cone.h, triangle.h), bvh (bvh.h: closest_hit,
+can be read side by side: sampling (kernels/rng.h, camera.h), intersect (plane.h, triangle.h;
+the shapes' intersect_* are clray.shapes'), bvh (bvh.h: closest_hit,
 transmission), shading (surface.h: surface_at, offset_origin; direct.h: shade_direct), lights
 (lights.h), fresnel (fresnel.h), texture (texture.h), background (background.h), render
-(ray_tree.h: refract_media, the ray tree), vectors (real.h).
+(ray_tree.h: refract_media, the ray tree); clray.vectors mirrors real.h.
 """
 
 from clray.reference.background import background_radiance, environment_texel, equirect_uv

@@ -5,8 +5,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from clray.reference.vectors import safe_normalize, vec
 from clray.scene.model import Background
+from clray.vectors import safe_normalize, vec
 
 
 def equirect_uv(d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

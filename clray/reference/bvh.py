@@ -7,14 +7,11 @@ from typing import NamedTuple
 
 import numpy as np
 
+from clray.accel.prim_refs import PRIM_TRIANGLE
 from clray.reference.intersect import INTERSECT, intersect_triangle
 from clray.reference.shading import SHAPE_SURFACE
 from clray.reference.texture import MaterialTable
-from clray.reference.vectors import safe_normalize
 from clray.scene.model import (
-    Box,
-    Cone,
-    Cylinder,
     Instance,
     Mesh,
     Plane,
@@ -22,15 +19,19 @@ from clray.scene.model import (
     SceneObject,
     Sphere,
     Spheres,
-    Torus,
     Triangle,
 )
+from clray.shapes import SHAPES
+from clray.vectors import safe_normalize
 
-# Ties in t go to the earlier type in this order, then to the earlier object in the scene.
-# Triangles (loose and mesh), intersected as one batch, come after the shapes of TIE_ORDER and
-# before those of AFTER_TRIANGLES (the kernels' type codes: clray.accel.prim_refs).
-TIE_ORDER: tuple[type, ...] = (Plane, Sphere, Box, Cylinder, Cone, Torus)
-AFTER_TRIANGLES: tuple[type, ...] = (Torus,)
+# Ties in t go to the earlier type in this order, then to the earlier object in the scene: the
+# kernels' type codes (clray.accel.prim_refs, Shape.prim). Triangles (loose and mesh),
+# intersected as one batch, come after the shapes of TIE_ORDER with smaller codes and before
+# those of AFTER_TRIANGLES.
+TIE_ORDER: tuple[type, ...] = (Plane, *(shape.model for shape in
+                                        sorted(SHAPES, key=lambda shape: shape.prim)))
+AFTER_TRIANGLES: tuple[type, ...] = tuple(shape.model for shape in SHAPES
+                                          if shape.prim > PRIM_TRIANGLE)
 # Rays x triangles handled per numpy step: bounds memory to a few tens of MB.
 _TRIANGLE_BATCH = 1 << 17
 # Crossings whose t differ by at most this, relative to t, tie (docs/rendering.md): 64 roundings,

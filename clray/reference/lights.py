@@ -7,8 +7,8 @@ from typing import NamedTuple
 
 import numpy as np
 
-from clray.reference.vectors import frame, safe_normalize, vec
 from clray.scene.model import DiscLight, RectLight, SphereLight, SpotLight, TriangleLight
+from clray.vectors import frame, safe_normalize, vec
 
 # An area light sample's weight is clamped here, as in the kernels (kernels/lights.h).
 AREA_WEIGHT_MAX = 1e20

@@ -15,9 +15,9 @@ from clray.reference.lights import SampleKey
 from clray.reference.sampling import _settings, camera_rays
 from clray.reference.shading import Surface, offset_origin, shade_direct, surface_at
 from clray.reference.texture import MaterialTable, surface_color
-from clray.reference.vectors import dot, safe_normalize, vec
 from clray.scene.emitters import scene_lights
 from clray.scene.model import Scene
+from clray.vectors import dot, safe_normalize, vec
 
 MEDIA_DEPTH = 4  # nesting depth of the media stack a ray carries
 

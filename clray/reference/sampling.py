@@ -7,8 +7,8 @@ import math
 
 import numpy as np
 
-from clray.reference.vectors import safe_normalize as _normalize
 from clray.scene.model import Camera, Scene
+from clray.vectors import safe_normalize as _normalize
 
 
 def pcg_hash(x: np.ndarray | int) -> np.ndarray:

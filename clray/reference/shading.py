@@ -1,11 +1,10 @@
 """Surfaces and direct light of the oracle (kernels/surface.h, the shapes' headers and
-direct.h): each shape's outward normal and
-(u, v) at a hit, the surface record of a hit, the offset that starts a spawned ray off it, and
-shade_direct, the ambient, diffuse and specular light that reaches it from every light."""
+direct.h): each shape's outward normal and (u, v) at a hit (the analytic shapes' from their
+modules, clray.shapes), the surface record of a hit, the offset that starts a spawned ray off
+it, and shade_direct, the ambient, diffuse and specular light that reaches it from every light."""
 
 from __future__ import annotations
 
-import math
 from collections.abc import Callable
 from typing import NamedTuple
 
@@ -14,33 +13,22 @@ import numpy as np
 from clray.reference.lights import SampleKey, sample_area_light, spot_factor
 from clray.reference.sampling import light_square
 from clray.reference.texture import MaterialTable
-from clray.reference.vectors import dot, frame, safe_normalize, vec
 from clray.scene.model import (
-    Box,
-    Cone,
-    Cylinder,
     DirectionalLight,
     DiscLight,
     Light,
     Plane,
     PointLight,
     RectLight,
-    Sphere,
     SphereLight,
     SpotLight,
-    Torus,
     TriangleLight,
 )
+from clray.shapes import SHAPES
+from clray.vectors import dot, frame, safe_normalize, vec
 
 # (origins, directions, tmax, filters) -> (N, 3): the filter of every crossing before tmax.
 Transmission = Callable[[np.ndarray, np.ndarray, np.ndarray, np.ndarray], np.ndarray]
-
-
-def _sphere_surface(s: Sphere, p: np.ndarray, part: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    q = (p - vec(s.center)) / s.radius
-    u = 0.5 + np.arctan2(q[:, 0], q[:, 2]) / (2.0 * np.pi)
-    v = 0.5 + np.arcsin(np.clip(q[:, 1], -1.0, 1.0)) / np.pi
-    return safe_normalize(q), np.stack([u, v], axis=-1)
 
 
 def _plane_surface(pl: Plane, p: np.ndarray, part: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -50,71 +38,10 @@ def _plane_surface(pl: Plane, p: np.ndarray, part: np.ndarray) -> tuple[np.ndarr
     return np.broadcast_to(n, p.shape).copy(), np.stack([q @ e1, q @ e2], axis=-1)
 
 
-def _box_surface(b: Box, p: np.ndarray, part: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    lo, hi = vec(b.min), vec(b.max)
-    axis = part // 2
-    rows = np.arange(len(p))
-    n = np.zeros_like(p)
-    n[rows, axis] = np.where(part % 2 == 1, 1.0, -1.0)
-    a1, a2 = (axis + 1) % 3, (axis + 2) % 3
-    u = (p[rows, a1] - lo[a1]) / (hi[a1] - lo[a1])
-    v = (p[rows, a2] - lo[a2]) / (hi[a2] - lo[a2])
-    return n, np.stack([u, v], axis=-1)
-
-
-def _cylinder_surface(
-    c: Cylinder, p: np.ndarray, part: np.ndarray
-) -> tuple[np.ndarray, np.ndarray]:
-    base, axis = vec(c.base), vec(c.axis)
-    e1, e2 = frame(axis)
-    q = p - base
-    h = q @ axis
-    side_n = safe_normalize(q - h[:, None] * axis)
-    n = np.where((part == 0)[:, None], side_n, np.where((part == 1)[:, None], -axis, axis))
-    side_uv = np.stack([0.5 + np.arctan2(q @ e2, q @ e1) / (2 * np.pi), h / c.height], axis=-1)
-    cap_uv = np.stack([0.5 + 0.5 * (q @ e1) / c.radius, 0.5 + 0.5 * (q @ e2) / c.radius], axis=-1)
-    return n, np.where((part == 0)[:, None], side_uv, cap_uv)
-
-
-def _cone_surface(c: Cone, p: np.ndarray, part: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    apex, axis = vec(c.apex), vec(c.axis)
-    cos2 = math.cos(math.radians(c.angle)) ** 2
-    radius = c.height * math.tan(math.radians(c.angle))
-    e1, e2 = frame(axis)
-    q = p - apex
-    h = q @ axis
-    # Minus the gradient of (q.axis)^2 - cos^2 |q|^2, which points out of the cone.
-    side_n = safe_normalize(cos2 * q - h[:, None] * axis)
-    n = np.where((part == 0)[:, None], side_n, axis)
-    side_uv = np.stack([0.5 + np.arctan2(q @ e2, q @ e1) / (2 * np.pi), h / c.height], axis=-1)
-    cap_uv = np.stack([0.5 + 0.5 * (q @ e1) / radius, 0.5 + 0.5 * (q @ e2) / radius], axis=-1)
-    return n, np.where((part == 0)[:, None], side_uv, cap_uv)
-
-
-def _torus_surface(tr: Torus, p: np.ndarray, part: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Away from the circle's nearest point; (u, v) around the axis and around the tube (0.5
-    on the outer equator)."""
-    centre, axis = vec(tr.center), vec(tr.axis)
-    e1, e2 = frame(axis)
-    q = p - centre
-    radial = q - (q @ axis)[:, None] * axis
-    rho = np.linalg.norm(radial, axis=-1)
-    nr = np.where((rho > 0.0)[:, None], radial / np.where(rho > 0.0, rho, 1.0)[:, None], e1)
-    n = safe_normalize(q - tr.major_radius * nr)
-    uv = np.stack([0.5 + np.arctan2(q @ e2, q @ e1) / (2 * np.pi),
-                   0.5 + np.arctan2(n @ axis, np.sum(n * nr, axis=-1)) / (2 * np.pi)], axis=-1)
-    return n, uv
-
-
 # A shape's (outward geometric normal, uv) at points p on it, `part` the face its crossing hit.
+# The analytic shapes' are in their modules (clray.shapes).
 SHAPE_SURFACE: dict[type, Callable[..., tuple[np.ndarray, np.ndarray]]] = {
-    Plane: _plane_surface,
-    Sphere: _sphere_surface,
-    Box: _box_surface,
-    Cylinder: _cylinder_surface,
-    Cone: _cone_surface,
-    Torus: _torus_surface,
-}
+    Plane: _plane_surface, **{shape.model: shape.surface for shape in SHAPES}}
 
 
 class Surface(NamedTuple):

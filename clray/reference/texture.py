@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from clray.reference.vectors import vec
 from clray.scene.model import Material, Texture
+from clray.vectors import vec
 
 
 class MaterialTable:

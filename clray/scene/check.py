@@ -17,11 +17,11 @@ import numpy as np
 from clray.errors import SceneError, plural
 from clray.scene import model as M
 from clray.scene.load import scene_from_dict
+from clray.shapes import SHAPES
 
 _OBJECT_TYPES: dict[type, str] = {
-    M.Sphere: "sphere", M.Plane: "plane", M.Box: "box", M.Triangle: "triangle",
-    M.Mesh: "mesh", M.Cylinder: "cylinder", M.Cone: "cone", M.Torus: "torus",
-    M.Spheres: "spheres",
+    **{shape.model: shape.kind for shape in SHAPES}, M.Plane: "plane", M.Triangle: "triangle",
+    M.Mesh: "mesh", M.Spheres: "spheres",
 }
 _MESH_ARRAYS = ("vertices", "faces", "normals", "uvs", "colors")
 

@@ -32,8 +32,8 @@ import numpy as np
 
 from clray.errors import SceneError, plural
 from clray.scene.limits import MAX_MAGNITUDE, MAX_OBJECTS, MAX_TRIANGLES
-from clray.scene.model import unit
 from clray.scene.obj import ObjMesh
+from clray.vectors import unit
 
 GLTF_SUFFIXES = (".gltf", ".glb")
 _GLB_MAGIC = b"glTF"

@@ -8,9 +8,9 @@ from typing import Any
 import numpy as np
 
 from clray.errors import plural
-from clray.scene.model import unit
 from clray.scene.obj import ObjMesh
 from clray.scene.values import Values, show
+from clray.vectors import unit
 
 
 def mesh_arrays(v: Values, source: dict, prefix: str) -> ObjMesh:

@@ -7,23 +7,24 @@ Objects refer to materials by index into `Scene.materials`.
 
 from __future__ import annotations
 
+import functools
+import operator
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-Vec3 = tuple[float, float, float]
-
-
-def unit(v: np.ndarray) -> np.ndarray:
-    """`v` (..., 3) scaled to unit length along its last axis. Dividing by the largest
-    component first keeps the squares in range: a vector such as (1e-200, 1e-200, 0) would
-    otherwise have a norm of 0, and one near 1e200 an infinite one. Zero rows stay zero."""
-    a = np.asarray(v, dtype=np.float64)
-    peak = np.max(np.abs(a), axis=-1, keepdims=True)
-    a = np.divide(a, peak, out=np.zeros_like(a), where=peak > 0)
-    norm = np.linalg.norm(a, axis=-1, keepdims=True)
-    return np.divide(a, norm, out=np.zeros_like(a), where=norm > 0)
+# The analytic shapes live in clray.shapes, one module each; re-exported here, where scenes
+# are built in Python.
+from clray.shapes import SHAPES
+from clray.shapes.box import Box as Box
+from clray.shapes.cone import Cone as Cone
+from clray.shapes.cylinder import Cylinder as Cylinder
+from clray.shapes.sphere import Sphere as Sphere
+from clray.shapes.sphere import Spheres as Spheres
+from clray.shapes.torus import Torus as Torus
+from clray.vectors import Vec3 as Vec3
+from clray.vectors import unit
 
 
 @dataclass(frozen=True)
@@ -210,33 +211,9 @@ class RenderOptions:
 
 
 @dataclass(frozen=True)
-class Sphere:
-    center: Vec3
-    radius: float
-    material: int
-
-
-@dataclass(frozen=True, eq=False)
-class Spheres:
-    """Many spheres given as arrays (particles, molecules): one object in the scene, packed and
-    intersected exactly as that many Sphere objects in this order would be."""
-
-    centers: np.ndarray  # (N, 3) float64
-    radii: np.ndarray  # (N,) float64, each > 0
-    materials: np.ndarray  # (N,) int64 indices into Scene.materials
-
-
-@dataclass(frozen=True)
 class Plane:
     point: Vec3
     normal: Vec3  # unit
-    material: int
-
-
-@dataclass(frozen=True)
-class Box:
-    min: Vec3
-    max: Vec3
     material: int
 
 
@@ -263,47 +240,13 @@ class Mesh:
     colors: np.ndarray | None = None
 
 
-@dataclass(frozen=True)
-class Cylinder:
-    base: Vec3  # centre of the bottom cap
-    axis: Vec3  # unit, from the bottom cap to the top cap
-    radius: float
-    height: float
-    material: int
-    capped: bool = True
-
-
-@dataclass(frozen=True)
-class Cone:
-    """One nappe: the apex, widening along `axis` to a base disc at distance `height`."""
-
-    apex: Vec3
-    axis: Vec3  # unit, from the apex towards the base
-    angle: float  # half-angle, degrees, in (0, 90)
-    height: float
-    material: int
-    capped: bool = True
-
-
-@dataclass(frozen=True)
-class Torus:
-    """The points at distance `minor_radius` from the circle of radius `major_radius` about
-    `axis` through `center` (a ring: minor_radius <= major_radius)."""
-
-    center: Vec3
-    axis: Vec3  # unit, the circle's normal
-    major_radius: float
-    minor_radius: float
-    material: int
-
-
 @dataclass(frozen=True, eq=False)
 class Group:
     """Objects defined once, in their own frame, to be placed by instances. Identity matters:
     instances of one Group share its primitives and BVH on the device."""
 
     name: str
-    objects: tuple[Sphere | Spheres | Box | Triangle | Mesh | Cylinder | Cone | Torus, ...]
+    objects: tuple[SceneObject, ...]  # bounded ones: no planes, no instances
 
 
 @dataclass(frozen=True, eq=False)
@@ -316,8 +259,9 @@ class Instance:
     material: int | None = None
 
 
-SceneObject = (Sphere | Spheres | Plane | Box | Triangle | Mesh | Cylinder | Cone | Torus
-               | Instance)
+# Planes, triangles, meshes, instances and every shape of the registry (clray.shapes.SHAPES).
+SceneObject = functools.reduce(operator.or_, (t for shape in SHAPES for t in shape.types),
+                               Plane | Triangle | Mesh | Instance)
 
 
 @dataclass(frozen=True)

@@ -23,7 +23,7 @@ import numpy as np
 from clray.errors import SceneError
 from clray.scene.files import UnreadableFile, read_regular
 from clray.scene.limits import MAX_MAGNITUDE, MAX_MESH_BYTES
-from clray.scene.model import unit
+from clray.vectors import unit
 
 
 @dataclass(frozen=True, eq=False)

@@ -5,8 +5,9 @@ from __future__ import annotations
 import numpy as np
 
 from clray.scene import limits as L
-from clray.scene.model import Camera, unit
+from clray.scene.model import Camera
 from clray.scene.values import Values, show
+from clray.vectors import unit
 
 CAMERA_KEYS = ("position", "look_at", "up", "vfov", "hfov", "type", "width", "height",
                "aperture", "focus_distance")

@@ -12,11 +12,12 @@ from clray.errors import plural
 from clray.scene import limits as L
 from clray.scene.assets import Assets
 from clray.scene.mesh_data import mesh_arrays
-from clray.scene.model import Mesh, unit
+from clray.scene.model import Mesh
 from clray.scene.obj import ObjMesh
 from clray.scene.obj_materials import obj_face_materials
 from clray.scene.parse_transform import parse_transform
 from clray.scene.values import Values, show
+from clray.vectors import unit
 
 if TYPE_CHECKING:
     from clray.scene.parse_materials import MaterialTable

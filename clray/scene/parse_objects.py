@@ -10,18 +10,7 @@ import numpy as np
 from clray.scene import limits as L
 from clray.scene.assets import Assets
 from clray.scene.gltf import is_gltf_file
-from clray.scene.model import (
-    Box,
-    Cone,
-    Cylinder,
-    Group,
-    Instance,
-    Plane,
-    SceneObject,
-    Sphere,
-    Torus,
-    Triangle,
-)
+from clray.scene.model import Group, Instance, Plane, SceneObject, Triangle
 from clray.scene.parse_gltf import gltf_objects
 from clray.scene.parse_materials import MaterialTable
 from clray.scene.parse_mesh import parse_mesh
@@ -29,18 +18,16 @@ from clray.scene.parse_spheres import parse_spheres
 from clray.scene.parse_transform import parse_transform
 from clray.scene.transform import place
 from clray.scene.values import Values, show, show_defined
+from clray.shapes import SHAPE_KINDS
 
-# Per object type: (required keys, optional keys), besides `type`, `material` and `transform`.
+# Per object type: (required keys, optional keys), besides `type`, `material` and `transform`:
+# the shapes' (clray.shapes), then the types that are not shapes of that kind.
 OBJECT_KEYS: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
-    "sphere": (("center", "radius"), ()),
+    **{kind: shape.keys for kind, shape in SHAPE_KINDS.items()},
     "plane": (("point", "normal"), ()),
-    "box": (("min", "max"), ()),
     "triangle": (("vertices",), ()),
     "mesh": ((), ("file", "vertices", "faces", "normals", "uvs", "colors", "materials",
                   "material_index")),
-    "cylinder": (("base", "axis", "radius", "height"), ("capped",)),
-    "cone": (("apex", "axis", "angle", "height"), ("capped",)),
-    "torus": (("center", "axis", "major_radius", "minor_radius"), ()),
     "spheres": ((), ("file", "centers", "radii", "radius", "materials", "material_index")),
     "instance": (("group",), ()),
 }
@@ -147,66 +134,11 @@ class ObjectParser:
         material = self.materials.for_object(spec, key)
         if kind == "spheres":
             return parse_spheres(spec, key, material, v, assets, self.materials)
-
-        def k(name: str) -> str:
-            return f"{key}.{name}"
-
-        if kind == "sphere":
-            radius = v.length(spec["radius"], k("radius"))
-            return Sphere(v.vec3(spec["center"], k("center")), radius, material)
+        if kind in SHAPE_KINDS:
+            return SHAPE_KINDS[kind].parse(spec, key, material, v)
         if kind == "plane":
-            normal = v.direction(spec["normal"], k("normal"))
-            return Plane(v.vec3(spec["point"], k("point")), normal, material)
-        if kind == "box":
-            return self.box(spec, key, material)
+            normal = v.direction(spec["normal"], f"{key}.normal")
+            return Plane(v.vec3(spec["point"], f"{key}.point"), normal, material)
         if kind == "triangle":
-            return Triangle(v.points(spec["vertices"], k("vertices"), exactly=3), material)
-        if kind == "mesh":
-            return parse_mesh(spec, key, material, v, assets, self.materials)
-        if kind == "torus":
-            return self.torus(spec, key, material)
-        capped = v.boolean(spec.get("capped", True), k("capped"))
-        axis = v.direction(spec["axis"], k("axis"))
-        height = v.length(spec["height"], k("height"))
-        if kind == "cylinder":
-            return Cylinder(
-                base=v.vec3(spec["base"], k("base")),
-                axis=axis,
-                radius=v.length(spec["radius"], k("radius")),
-                height=height,
-                material=material,
-                capped=capped,
-            )
-        return Cone(
-            apex=v.vec3(spec["apex"], k("apex")),
-            axis=axis,
-            angle=v.open_range(spec["angle"], k("angle"), 0, 90),
-            height=height,
-            material=material,
-            capped=capped,
-        )
-
-    def torus(self, spec: dict, key: str, material: int) -> Torus:
-        v = self.v
-        major = v.length(spec["major_radius"], f"{key}.major_radius")
-        minor = v.length(spec["minor_radius"], f"{key}.minor_radius")
-        # A minor radius past the major one folds the tube through the axis (a spindle torus),
-        # whose inner surface the ring's formulas do not describe.
-        if minor > major:
-            raise v.error(f"{key}.minor_radius",
-                          f"must be at most major_radius ({show(major)}), got {show(minor)}")
-        return Torus(v.vec3(spec["center"], f"{key}.center"),
-                     v.direction(spec["axis"], f"{key}.axis"), major, minor, material)
-
-    def box(self, spec: dict, key: str, material: int) -> Box:
-        v = self.v
-        lo = v.vec3(spec["min"], f"{key}.min")
-        hi = v.vec3(spec["max"], f"{key}.max")
-        if any(a > b for a, b in zip(lo, hi, strict=True)):
-            raise v.error(
-                f"{key}.max", f"must be >= min on every axis, got min {show(lo)}, max {show(hi)}"
-            )
-        # A box flat on one axis is a rectangle and still renders; one on all three is not.
-        if lo == hi:
-            raise v.error(f"{key}.max", f"must differ from min, got {show(hi)} for both")
-        return Box(lo, hi, material)
+            return Triangle(v.points(spec["vertices"], f"{key}.vertices", exactly=3), material)
+        return parse_mesh(spec, key, material, v, assets, self.materials)

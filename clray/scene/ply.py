@@ -22,8 +22,8 @@ import numpy as np
 from clray.errors import SceneError, plural
 from clray.scene import limits
 from clray.scene.limits import MAX_MAGNITUDE
-from clray.scene.model import unit
 from clray.scene.obj import ObjMesh, _fan
+from clray.vectors import unit
 
 _TYPES = {
     "char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1",

@@ -19,6 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from clray.scene import model as M
+from clray.shapes import SHAPE_OF, SHAPES
 
 # Distance (or coordinate magnitude) over the length to resolve above which float32 is not enough.
 RATIO_LIMIT = 1e4
@@ -27,8 +28,7 @@ RATIO_LIMIT = 1e4
 TINY_LENGTH = 1e-18
 HUGE_LENGTH = 1e18
 
-_KIND = {M.Sphere: "sphere", M.Box: "box", M.Triangle: "triangle", M.Mesh: "mesh",
-         M.Cylinder: "cylinder", M.Cone: "cone", M.Torus: "torus"}
+_KIND = {M.Triangle: "triangle", M.Mesh: "mesh", **{shape.model: shape.kind for shape in SHAPES}}
 
 
 @dataclass(frozen=True)
@@ -40,21 +40,8 @@ class ScaleReport:
 
 def _centre_size(obj: M.SceneObject) -> tuple[np.ndarray, float]:
     """A representative centre and the length the intersection has to resolve."""
-    if isinstance(obj, M.Sphere):
-        return np.asarray(obj.center, dtype=np.float64), float(obj.radius)
-    if isinstance(obj, M.Box):
-        lo, hi = np.asarray(obj.min, dtype=np.float64), np.asarray(obj.max, dtype=np.float64)
-        return (lo + hi) / 2.0, float(np.max(hi - lo))
-    if isinstance(obj, M.Cylinder):
-        base, axis = np.asarray(obj.base), np.asarray(obj.axis)
-        return base + axis * obj.height / 2.0, float(max(obj.radius, obj.height))
-    if isinstance(obj, M.Cone):
-        apex, axis = np.asarray(obj.apex), np.asarray(obj.axis)
-        rim = obj.height * float(np.tan(np.radians(obj.angle)))
-        return apex + axis * obj.height / 2.0, float(max(obj.height, rim))
-    if isinstance(obj, M.Torus):
-        # The tube is what a ray must resolve: a thin ring far away is the hard case.
-        return np.asarray(obj.center, dtype=np.float64), float(obj.minor_radius)
+    if type(obj) in SHAPE_OF:
+        return SHAPE_OF[type(obj)].centre_size(obj)
     points = np.asarray(obj.vertices, dtype=np.float64)  # Triangle or Mesh
     lo, hi = points.min(axis=0), points.max(axis=0)
     return (lo + hi) / 2.0, float(np.max(hi - lo))

@@ -16,40 +16,12 @@ from typing import Any
 
 import numpy as np
 
-from clray.errors import SceneError, plural
+from clray.errors import SHOW_ITEMS, SceneError, plural, show
 from clray.scene import limits as L
-from clray.scene.model import unit
-
-Vec3 = tuple[float, float, float]
+from clray.vectors import Vec3, unit
 
 _BARE_KEY = re.compile(r"[A-Za-z0-9_-]+")
 _PLAIN_NAME = re.compile(r"[\w./+-]{1,100}")
-SHOW_ITEMS = 8  # array elements (and defined names) shown in a message
-_SHOW_DEPTH = 3  # nested arrays shown in a message
-
-
-def show(value: Any, depth: int = 0) -> str:
-    """A value as the user wrote it, short enough for a one-line message."""
-    if isinstance(value, bool):
-        text = "true" if value else "false"
-    elif isinstance(value, str):
-        text = json.dumps(value[:100], ensure_ascii=False)
-    elif isinstance(value, int) and value.bit_length() > 200:
-        # repr() of a huge integer is slow, and past 4300 digits refused.
-        text = f"an integer of about {int(value.bit_length() * math.log10(2)) + 1} digits"
-    elif isinstance(value, int | float):
-        text = repr(value)
-    elif isinstance(value, list | tuple):
-        if depth >= _SHOW_DEPTH:
-            text = "[...]"
-        else:
-            shown = [show(v, depth + 1) for v in value[:SHOW_ITEMS]]
-            text = "[" + ", ".join(shown + ["..."] * (len(value) > SHOW_ITEMS)) + "]"
-    elif isinstance(value, dict):
-        text = "a table"
-    else:
-        text = type(value).__name__
-    return text if len(text) <= 60 else text[:57] + "..."
 
 
 def show_defined(names: list[str]) -> str:

@@ -1,0 +1,40 @@
+"""float64 vector helpers, as kernels/real.h has them for the kernels: the scene's checks, the
+shapes (clray.shapes) and the float64 reference renderer (clray.reference) share them."""
+
+from __future__ import annotations
+
+import numpy as np
+
+Vec3 = tuple[float, float, float]
+
+
+def unit(v: np.ndarray) -> np.ndarray:
+    """`v` (..., 3) scaled to unit length along its last axis. Dividing by the largest
+    component first keeps the squares in range: a vector such as (1e-200, 1e-200, 0) would
+    otherwise have a norm of 0, and one near 1e200 an infinite one. Zero rows stay zero."""
+    a = np.asarray(v, dtype=np.float64)
+    peak = np.max(np.abs(a), axis=-1, keepdims=True)
+    a = np.divide(a, peak, out=np.zeros_like(a), where=peak > 0)
+    norm = np.linalg.norm(a, axis=-1, keepdims=True)
+    return np.divide(a, norm, out=np.zeros_like(a), where=norm > 0)
+
+
+def dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    return np.sum(a * b, axis=-1)
+
+
+def safe_normalize(v: np.ndarray) -> np.ndarray:
+    # A zero vector (a ray through a cone's apex) stays zero rather than becoming NaN.
+    length = np.linalg.norm(v, axis=-1, keepdims=True)
+    return v / np.where(length > 0.0, length, 1.0)
+
+
+def vec(v: tuple[float, float, float]) -> np.ndarray:
+    return np.asarray(v, dtype=np.float64)
+
+
+def frame(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """frame(a) of docs/rendering.md: two unit vectors completing the unit vector a."""
+    h = np.array([1.0, 0.0, 0.0]) if abs(a[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    e1 = safe_normalize(np.cross(a, h))
+    return e1, np.cross(a, e1)

@@ -30,10 +30,13 @@ STAGE Ray make_ray(REAL3 o, REAL3 d) {
         r.kx = r.ky;
         r.ky = swap;
     }
-    // dz != 0: it is the largest component of a non-zero direction.
-    r.sx = -comp3(d, r.kx) / dz;
-    r.sy = -comp3(d, r.ky) / dz;
-    r.sz = (REAL)1 / dz;
+    // dz != 0: it is the largest component of a non-zero direction. One vector division, not
+    // three: each lane is the same correctly rounded quotient, and a ray's set-up had waited
+    // on three divisions in turn (docs/acceleration.md).
+    REAL3 shear = (REAL3)(-comp3(d, r.kx), -comp3(d, r.ky), (REAL)1) / dz;
+    r.sx = shear.x;
+    r.sy = shear.y;
+    r.sz = shear.z;
 #endif
     return r;
 }

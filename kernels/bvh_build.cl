@@ -35,23 +35,36 @@ static float4 step_up(float4 f, int4 need) {
     return as_float4(select(bits, stepped, need));
 }
 
+// Nearest, then one step outwards where that went inwards: the host's rounding.
+static void round_prim(double4 a, double4 b, int i, __global BuildPrim *prims) {
+    float4 fa = convert_float4(a), fb = convert_float4(b);
+    BuildPrim p;
+    p.lo = step_down(fa, convert_int4(convert_double4(fa) > a));
+    p.hi = step_up(fb, convert_int4(convert_double4(fb) < b));
+    p.c = convert_float4(0.5 * (a + b));
+    p.c.w = as_float(i);
+    prims[i] = p;
+}
+
+// Element by element, not vload3: a 3-vector's fourth (padding) lane is undefined, and
+// Oclgrind tracks it into the whole double4 built from it.
 __kernel void round_prims(__global const double *lo, __global const double *hi,
                           __global BuildPrim *prims, int n, int chunk) {
     int end = min(n, (int)(get_global_id(0) + 1) * chunk);
-    for (int i = get_global_id(0) * chunk; i < end; i++) {
-        // Element by element, not vload3: a 3-vector's fourth (padding) lane is undefined,
-        // and Oclgrind tracks it into the whole double4 built from it.
-        double4 a = (double4)(lo[3 * i], lo[3 * i + 1], lo[3 * i + 2], 0.0);
-        double4 b = (double4)(hi[3 * i], hi[3 * i + 1], hi[3 * i + 2], 0.0);
-        // Nearest, then one step outwards where that went inwards: the host's rounding.
-        float4 fa = convert_float4(a), fb = convert_float4(b);
-        BuildPrim p;
-        p.lo = step_down(fa, convert_int4(convert_double4(fa) > a));
-        p.hi = step_up(fb, convert_int4(convert_double4(fb) < b));
-        p.c = convert_float4(0.5 * (a + b));
-        p.c.w = as_float(i);
-        prims[i] = p;
-    }
+    for (int i = get_global_id(0) * chunk; i < end; i++)
+        round_prim((double4)(lo[3 * i], lo[3 * i + 1], lo[3 * i + 2], 0.0),
+                   (double4)(hi[3 * i], hi[3 * i + 1], hi[3 * i + 2], 0.0), i, prims);
+}
+
+// Float bounds (a mesh's triangles, whose corners are floats): widened to double, the same
+// numbers as the host's float64 copy of them would be, at half the bytes.
+__kernel void round_prims_float(__global const float *lo, __global const float *hi,
+                                __global BuildPrim *prims, int n, int chunk) {
+    int end = min(n, (int)(get_global_id(0) + 1) * chunk);
+    for (int i = get_global_id(0) * chunk; i < end; i++)
+        round_prim(convert_double4((float4)(lo[3 * i], lo[3 * i + 1], lo[3 * i + 2], 0.0f)),
+                   convert_double4((float4)(hi[3 * i], hi[3 * i + 1], hi[3 * i + 2], 0.0f)),
+                   i, prims);
 }
 
 // Bounds and centroid bounds of prims[start, start + count) into t.

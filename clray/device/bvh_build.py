@@ -52,31 +52,39 @@ def build_options() -> list[str]:
 
 
 def build_bvh_on(queue: cl.CommandQueue, lo: np.ndarray, hi: np.ndarray,
-                 max_leaf_size: int = 4, *, largest_leaf: int | None = None) -> Bvh:
+                 max_leaf_size: int = 4, *, largest_leaf: int | None = None,
+                 padded: bool = False) -> Bvh:
     """clray.accel.bvh.build_bvh's tree, built on the queue's device where it can be (float64,
-    int slot indices: supports), several times faster than the host build; else on the host."""
+    int slot indices: supports), several times faster than the host build; else on the host.
+
+    padded: a device build's nodes are left at their padded depth-first slots (2N - 1, the
+    unused ones uninitialised), which keep the depth-first links: for clray.accel.wide.collapse,
+    which reads only the nodes it reaches from the root, without the compaction's pass over
+    every slot. Not for sah_cost, which reads every node."""
     lo, hi, largest = checked_bounds(lo, hi, max_leaf_size, largest_leaf)
     n = lo.shape[0]
-    if n > max_leaf_size and supports(queue.device, n):
-        return Bvh(*build(queue, lo, hi, max_leaf_size, largest))
+    if n > max_leaf_size and supports(queue.device, n, lo.itemsize):
+        return Bvh(*build(queue, lo, hi, max_leaf_size, largest, not padded))
     return build_bvh(lo, hi, max_leaf_size, largest_leaf=largest)
 
 
-def supports(device: cl.Device, n: int) -> bool:
+def supports(device: cl.Device, n: int, bound_bytes: int = 8) -> bool:
     """The kernels cost splits in float64, as the host build does, and index node slots
     (2N - 1 of them) with ints; every buffer of the build fits the device's largest allocation
     (CL_DEVICE_MAX_MEM_ALLOC_SIZE, a quarter of its memory on PoCL and NVIDIA) and all of
-    them its memory. Where they do not, the host builds the same tree, slower."""
-    sizes = build_buffer_bytes(n)
+    them its memory. Where they do not, the host builds the same tree, slower. bound_bytes:
+    of one coordinate of the bounds (8 for float64, 4 for float32)."""
+    sizes = build_buffer_bytes(n, bound_bytes)
     return (has_fp64(device) and 2 * n - 1 <= np.iinfo(np.int32).max
             and max(sizes.values()) <= device.max_mem_alloc_size
             and sum(sizes.values()) <= device.global_mem_size)
 
 
-def build_buffer_bytes(n: int) -> dict[str, int]:
-    """Bytes of each buffer build() makes for n primitives."""
+def build_buffer_bytes(n: int, bound_bytes: int = 8) -> dict[str, int]:
+    """Bytes of each buffer build() makes for n primitives with bounds of `bound_bytes` a
+    coordinate."""
     slots = 2 * n - 1
-    return {"lo": 24 * n, "hi": 24 * n, "prims": BUILD_PRIM.itemsize * n,
+    return {"lo": 3 * bound_bytes * n, "hi": 3 * bound_bytes * n, "prims": BUILD_PRIM.itemsize * n,
             "prims_swap": BUILD_PRIM.itemsize * n, "nodes": BINARY_NODE.itemsize * slots,
             "used": slots, "order": 4 * n}
 
@@ -90,8 +98,9 @@ def _kernels(context: cl.Context) -> dict[str, cl.Kernel]:
 
 
 def build(queue: cl.CommandQueue, lo: np.ndarray, hi: np.ndarray, max_leaf: int,
-          sah_max_leaf: int) -> tuple[np.ndarray, np.ndarray]:
-    """(nodes, order) for N primitives with float64 bounds `lo`, `hi` (N, 3), N > max_leaf."""
+          sah_max_leaf: int, compact: bool = True) -> tuple[np.ndarray, np.ndarray]:
+    """(nodes, order) for N primitives with float64 or float32 bounds `lo`, `hi` (N, 3),
+    N > max_leaf; the nodes compacted, or at their padded slots (build_bvh_on)."""
     n = lo.shape[0]
     slots = 2 * n - 1
     kernels = _kernels(queue.context)
@@ -106,8 +115,13 @@ def build(queue: cl.CommandQueue, lo: np.ndarray, hi: np.ndarray, max_leaf: int,
     root = np.empty(1, dtype=BUILD_TASK)
     bufs = [_host_buffer(queue, a) for a in (*prims, padded, used, order, root)]
     chunk = -(-n // _ROUND_ITEMS)
-    kernels["round_prims"](queue, (-(-n // chunk),), (1,), lo_buf, hi_buf, bufs[0],
-                           np.int32(n), np.int32(chunk))
+    round_prims = kernels["round_prims_float" if lo.dtype == np.float32 else "round_prims"]
+    round_prims(queue, (-(-n // chunk),), (1,), lo_buf, hi_buf, bufs[0], np.int32(n),
+                np.int32(chunk))
+    # The copies of the bounds are done with once rounded: the runtime frees them when the
+    # kernel is done, before the build's own buffers fill.
+    lo_buf.release()
+    hi_buf.release()
     kernels["root_task"](queue, (1,), (1,), bufs[0], np.int32(n), bufs[5])
     shared = (*bufs[:5], np.int32(max_leaf), np.int32(sah_max_leaf))
 
@@ -117,7 +131,7 @@ def build(queue: cl.CommandQueue, lo: np.ndarray, hi: np.ndarray, max_leaf: int,
                                   *shared)
     for buf, array in zip(bufs[2:5], (padded, used, order), strict=True):
         _sync(queue, buf, array)
-    return _compact(padded, used.view(bool)), order
+    return (_compact(padded, used.view(bool)) if compact else padded), order
 
 
 def _host_buffer(queue: cl.CommandQueue, array: np.ndarray) -> cl.Buffer:

@@ -106,22 +106,44 @@ static int bin_of(float c, float cmin, float scale) {
 
 static float along(float4 v, int axis) { return axis == 0 ? v.x : axis == 1 ? v.y : v.z; }
 
-static void fill_bins(Bins *bins, __global const BuildPrim *src, int start, int count, int axis,
-                      float cmin, float scale) {
+static void clear_bins(Bins *bins) {
     for (int k = 0; k < N_BINS; k++) {
         bins->count[k] = 0;
         bins->lo[k] = bins->clo[k] = (float4)(INFINITY);
         bins->hi[k] = bins->chi[k] = (float4)(-INFINITY);
     }
-    for (int i = start; i < start + count; i++) {
-        BuildPrim p = src[i];
-        int b = bin_of(along(p.c, axis), cmin, scale);
-        float4 c = (float4)(p.c.xyz, 0.0f);
-        bins->count[b]++;
-        bins->lo[b] = fmin(bins->lo[b], p.lo);
-        bins->hi[b] = fmax(bins->hi[b], p.hi);
-        bins->clo[b] = fmin(bins->clo[b], c);
-        bins->chi[b] = fmax(bins->chi[b], c);
+}
+
+static void add_to_bin(Bins *bins, int b, BuildPrim p) {
+    float4 c = (float4)(p.c.xyz, 0.0f);
+    bins->count[b]++;
+    bins->lo[b] = fmin(bins->lo[b], p.lo);
+    bins->hi[b] = fmax(bins->hi[b], p.hi);
+    bins->clo[b] = fmin(bins->clo[b], c);
+    bins->chi[b] = fmax(bins->chi[b], c);
+}
+
+// Neighbours in a node's order are near in space and often share a bin: alternate primitives
+// go to two sets of bins, so one's updates need not wait for the other's, then the sets are
+// merged (minima, maxima and counts: the same bins in any order).
+static void fill_bins(Bins *bins, __global const BuildPrim *src, int start, int count, int axis,
+                      float cmin, float scale) {
+    Bins odd;
+    clear_bins(bins);
+    clear_bins(&odd);
+    int i = start, end = start + count;
+    for (; i + 1 < end; i += 2) {
+        BuildPrim p = src[i], q = src[i + 1];
+        add_to_bin(bins, bin_of(along(p.c, axis), cmin, scale), p);
+        add_to_bin(&odd, bin_of(along(q.c, axis), cmin, scale), q);
+    }
+    if (i < end) add_to_bin(bins, bin_of(along(src[i].c, axis), cmin, scale), src[i]);
+    for (int k = 0; k < N_BINS; k++) {
+        bins->count[k] += odd.count[k];
+        bins->lo[k] = fmin(bins->lo[k], odd.lo[k]);
+        bins->hi[k] = fmax(bins->hi[k], odd.hi[k]);
+        bins->clo[k] = fmin(bins->clo[k], odd.clo[k]);
+        bins->chi[k] = fmax(bins->chi[k], odd.chi[k]);
     }
 }
 

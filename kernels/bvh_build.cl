@@ -191,32 +191,36 @@ static void bin_child(BuildTask *c, const Bins *bins, int from, int to, int star
     c->start = start;
 }
 
-static void write_node(__global BinaryNode *nodes, __global uchar *used, const BuildTask *t,
-                       int first, int count) {
+static void write_node(__global BinaryNode *nodes, const BuildTask *t, int first, int count) {
     BinaryNode nd;
     nd.lo[0] = t->lo.x; nd.lo[1] = t->lo.y; nd.lo[2] = t->lo.z;
     nd.hi[0] = t->hi.x; nd.hi[1] = t->hi.y; nd.hi[2] = t->hi.z;
     nd.first = first;
     nd.count = count;
     nodes[t->pos] = nd;
-    used[t->pos] = 1;
 }
 
 static void write_leaf(const BuildTask *t, __global const BuildPrim *src,
-                       __global BinaryNode *nodes, __global uchar *used, __global int *order) {
-    write_node(nodes, used, t, t->start, t->count);
+                       __global BinaryNode *nodes, __global int *order) {
+    write_node(nodes, t, t->start, t->count);
     for (int i = t->start; i < t->start + t->count; i++) order[i] = as_int(src[i].c.w);
 }
 
 // Writes the task's node. Returns 0 for a leaf, or 1 after stably partitioning its primitives
-// (left side first) into the other buffer and filling in the two child tasks.
+// (left side first) into the other buffer and filling in the two child tasks, whose nodes are a
+// pair of slots (left, then right: the node's `first` is the left one). A task over primitives
+// [s, s + c) has slots 2s + 1 .. 2s + 2c - 2 for the nodes below it (at most 2c - 2): split
+// after nl primitives, its children's ranges are those of [s, s + nl) and [s + nl, s + c), and
+// the two slots between them, 2(s + nl) - 1 and 2(s + nl), are the pair's. That is where
+// split_level puts it (next 0); build_subtrees instead takes pairs in turn from the start of its
+// task's range (*next), so a subtree's nodes are written together, not strewn over its range.
 static int process(const BuildTask *t, __global BuildPrim *buf0, __global BuildPrim *buf1,
-                   __global BinaryNode *nodes, __global uchar *used, __global int *order,
-                   int max_leaf, int sah_max_leaf, BuildTask *left, BuildTask *right) {
+                   __global BinaryNode *nodes, __global int *order, int max_leaf,
+                   int sah_max_leaf, int *next, BuildTask *left, BuildTask *right) {
     __global BuildPrim *src = t->flip ? buf1 : buf0, *dst = t->flip ? buf0 : buf1;
     int start = t->start, count = t->count;
     if (count <= max_leaf) {
-        write_leaf(t, src, nodes, used, order);
+        write_leaf(t, src, nodes, order);
         return 0;
     }
     float ext[3] = {t->chi.x - t->clo.x, t->chi.y - t->clo.y, t->chi.z - t->clo.z};
@@ -228,7 +232,7 @@ static int process(const BuildTask *t, __global BuildPrim *buf0, __global BuildP
     // Coincident centroids (or a reciprocal that overflows): split at the median instead.
     if (!(isfinite(scale) && scale > 0.0f)) {
         if (count <= sah_max_leaf) {
-            write_leaf(t, src, nodes, used, order);
+            write_leaf(t, src, nodes, order);
             return 0;
         }
         for (int i = start; i < start + count; i++) dst[i] = src[i];
@@ -242,7 +246,7 @@ static int process(const BuildTask *t, __global BuildPrim *buf0, __global BuildP
         double a_node = half_area(t->lo, t->hi);
         if (count <= sah_max_leaf
             && TRAVERSAL_COST * a_node + best_cost >= (double)packets(count) * a_node) {
-            write_leaf(t, src, nodes, used, order);
+            write_leaf(t, src, nodes, order);
             return 0;
         }
         bin_child(left, &bins, 0, best, start);
@@ -254,10 +258,10 @@ static int process(const BuildTask *t, __global BuildPrim *buf0, __global BuildP
             else dst[il++] = p;
         }
     }
-    int nl = left->count;
-    write_node(nodes, used, t, t->pos + 2 * nl, 0);
-    left->pos = t->pos + 1;
-    right->pos = t->pos + 2 * nl;
+    int kids = next ? (*next += 2) - 2 : 2 * (start + left->count) - 1;
+    write_node(nodes, t, kids, 0);
+    left->pos = kids;
+    right->pos = kids + 1;
     left->flip = right->flip = !t->flip;
     return 1;
 }
@@ -265,11 +269,11 @@ static int process(const BuildTask *t, __global BuildPrim *buf0, __global BuildP
 // One level: every task split once, its children (count -1: none) to out[2g], out[2g + 1].
 __kernel void split_level(__global const BuildTask *in, __global BuildTask *out,
                           __global BuildPrim *buf0, __global BuildPrim *buf1,
-                          __global BinaryNode *nodes, __global uchar *used, __global int *order,
-                          int max_leaf, int sah_max_leaf) {
+                          __global BinaryNode *nodes, __global int *order, int max_leaf,
+                          int sah_max_leaf) {
     int g = get_global_id(0);
     BuildTask t = in[g], l, r;
-    if (!process(&t, buf0, buf1, nodes, used, order, max_leaf, sah_max_leaf, &l, &r)) {
+    if (!process(&t, buf0, buf1, nodes, order, max_leaf, sah_max_leaf, 0, &l, &r)) {
         l.count = -1;
         r.count = -1;
     }
@@ -277,16 +281,16 @@ __kernel void split_level(__global const BuildTask *in, __global BuildTask *out,
     out[2 * g + 1] = r;
 }
 
-// Each task's whole subtree.
+// Each task's whole subtree, its nodes in the pairs of slots from the start of its range on.
 __kernel void build_subtrees(__global const BuildTask *tasks, __global BuildPrim *buf0,
                              __global BuildPrim *buf1, __global BinaryNode *nodes,
-                             __global uchar *used, __global int *order, int max_leaf,
-                             int sah_max_leaf) {
+                             __global int *order, int max_leaf, int sah_max_leaf) {
     BuildTask stack[STACK];
     int sp = 0;
     BuildTask cur = tasks[get_global_id(0)], l, r;
+    int next = 2 * cur.start + 1;
     for (;;) {
-        if (process(&cur, buf0, buf1, nodes, used, order, max_leaf, sah_max_leaf, &l, &r)) {
+        if (process(&cur, buf0, buf1, nodes, order, max_leaf, sah_max_leaf, &next, &l, &r)) {
             if (l.count >= r.count) {
                 stack[sp++] = l;
                 cur = r;

@@ -266,14 +266,17 @@ def test_float32_bounds_build_the_float64_tree(cl_queue):
     assert bvh_build.build_buffer_bytes(5000, 4)["lo"] == 12 * 5000
 
 
-def test_padded_device_tree_collapses_to_the_same_wide_tree(cl_queue):
-    # The device build's padded slots keep the depth-first links, so the collapse, which reads
-    # only the nodes it reaches, makes the same wide tree from them as from the compact ones.
+def test_device_layout_collapses_to_the_same_wide_tree(cl_queue):
+    # The device build's own layout (children in pairs, each subtree's nodes in its own range of
+    # slots) holds the depth-first tree: renumbered, it is the host's, and the collapse, which
+    # reads only the nodes it reaches, makes the same wide tree from it as from the host's.
     lo, hi = _random_set(KINDS[0], 20000, np.random.default_rng(9))
     refs = (5 << 28) | np.arange(20000)
-    padded = build_bvh_on(cl_queue, lo, hi, padded=True)
-    assert padded.nodes.size == 2 * 20000 - 1
-    a, b = collapse(padded, refs, 8), collapse(build_bvh(lo, hi), refs, 8)
+    own = build_bvh_on(cl_queue, lo, hi, pairs=True)
+    host = build_bvh(lo, hi)
+    assert own.pairs and own.nodes.size == 2 * 20000 - 1
+    assert_same_tree(bvh_build.build(cl_queue, lo, hi, 4, max_leaf_count(4)), host)
+    a, b = collapse(own, refs, 8), collapse(host, refs, 8)
     assert a.nodes.tobytes() == b.nodes.tobytes()
     assert np.array_equal(a.prim_refs, b.prim_refs) and a.stack_size == b.stack_size
 

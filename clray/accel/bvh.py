@@ -53,10 +53,15 @@ class Bvh:
     An inner node's left child is the next node and its `first` is the right child's index,
     with count 0. A leaf's primitives are `order[first:first + count]`, and `order[k]` is an
     index into the primitives given to `build_bvh`.
+
+    pairs: the device build's own layout instead (clray.device.bvh_build), root first: an inner
+    node's `first` is its left child and the right child follows it; slots no node reached are
+    uninitialised, so only a walk from the root (clray.accel.wide.collapse) may read them.
     """
 
     nodes: np.ndarray
     order: np.ndarray
+    pairs: bool = False
 
 
 def max_leaf_count(max_leaf_size: int) -> int:

@@ -78,7 +78,7 @@ def collapse(bvh: Bvh, refs: np.ndarray, width: int,
     """Wide BVH of `width` children per node from a binary `bvh` over primitives whose
     references (PRIM_* << PRIM_TYPE_SHIFT | index) are `refs[i]` for build input i.
     `fold_packets`: the folding bound (None: FOLD_PACKETS). The collapse reads only the nodes
-    it reaches from the root, so `bvh.nodes` may be the device build's padded slots."""
+    it reaches from the root, so `bvh` may be in the device build's layout (Bvh.pairs)."""
     if width not in BVH_WIDTHS:
         raise ValueError(f"BVH width must be 4 or 8, got {width}")
     dtype = bvh_node_dtype(width)
@@ -86,7 +86,7 @@ def collapse(bvh: Bvh, refs: np.ndarray, width: int,
         return WideBvh(np.zeros(0, dtype), np.zeros(0, np.int32), width, 1)
     order_refs = _refs_in_order(refs, bvh.order)
     kinds = _Kinds(order_refs >> P.PRIM_TYPE_SHIFT)
-    levels = _levels(bvh.nodes.view(_OPAQUE), width)
+    levels = _levels(bvh.nodes.view(_OPAQUE), width, bvh.pairs)
     slots = np.concatenate([lv[0] for lv in levels])  # binary node per child slot, -1 none
     # Its record (NaN bounds for none), joined as opaque items: numpy copies those far faster.
     rec = np.concatenate([lv[1].view(_OPAQUE) for lv in levels]).view(BINARY_NODE)
@@ -155,9 +155,9 @@ def _empty_records(shape: tuple[int, ...]) -> np.ndarray:
     return rec
 
 
-def _levels(nodes: np.ndarray, width: int) -> list[tuple[np.ndarray, np.ndarray]]:
+def _levels(nodes: np.ndarray, width: int, pairs: bool) -> list[tuple[np.ndarray, np.ndarray]]:
     """The wide tree level by level: (m, width) binary node per child slot (-1 for none), and
-    its BINARY_NODE record. `nodes`: the binary nodes as opaque records."""
+    its BINARY_NODE record. `nodes`: the binary nodes as opaque records; pairs: Bvh.pairs."""
     root = nodes[:1].view(BINARY_NODE)
     if root["count"][0] > 0:
         # A leaf root still needs a wide node above it: its one child is the root itself.
@@ -168,38 +168,45 @@ def _levels(nodes: np.ndarray, width: int) -> list[tuple[np.ndarray, np.ndarray]
         levels = [(slots, rec)]
     else:
         levels = [_open_children(np.zeros(1, np.int64), root["first"].astype(np.int64), nodes,
-                                 width)]
+                                 width, pairs)]
     while True:
         slots, rec = levels[-1]
         inner = (slots >= 0) & (rec["count"] == 0)
         if not inner.any():
             return levels
         levels.append(_open_children(slots[inner], rec["first"][inner].astype(np.int64), nodes,
-                                     width))
+                                     width, pairs))
 
 
-def _open_children(parents: np.ndarray, first: np.ndarray, nodes: np.ndarray,
-                   width: int) -> tuple[np.ndarray, np.ndarray]:
+def _open_children(parents: np.ndarray, first: np.ndarray, nodes: np.ndarray, width: int,
+                   pairs: bool) -> tuple[np.ndarray, np.ndarray]:
     """Child slots and their records of the wide nodes grown from binary inner nodes `parents`
-    (whose right children are `first`)."""
+    (with `first` their nodes' field: Bvh's two layouts)."""
     m = parents.size
     rows = np.arange(m)
     slots = np.full((m, width), -1, dtype=np.int64)
     rec = _empty_records((m, width))
     area = np.full((m, width), -1.0)  # an inner child's area, -1 for a leaf or no child
-    _place(slots, rec, area, rows, 0, parents + 1, nodes)  # depth-first: the left child is next
-    _place(slots, rec, area, rows, 1, first, nodes)
+    left, right = _children(parents, first, pairs)
+    _place(slots, rec, area, rows, 0, left, nodes)
+    _place(slots, rec, area, rows, 1, right, nodes)
     for filled in range(2, width):
         k = np.argmax(area, axis=1)
         open_rows = rows[area[rows, k] >= 0]
         if open_rows.size == 0:
             break
         k = k[open_rows]
-        opened = slots[open_rows, k]
-        right = rec["first"][open_rows, k].astype(np.int64)
-        _place(slots, rec, area, open_rows, k, opened + 1, nodes)
+        left, right = _children(slots[open_rows, k], rec["first"][open_rows, k].astype(np.int64),
+                                pairs)
+        _place(slots, rec, area, open_rows, k, left, nodes)
         _place(slots, rec, area, open_rows, filled, right, nodes)
     return slots, rec
+
+
+def _children(node: np.ndarray, first: np.ndarray, pairs: bool) -> tuple[np.ndarray, np.ndarray]:
+    """Left and right children of inner nodes: depth-first, the left child is the next node and
+    `first` the right one; in pairs, `first` is the left child and the right one follows."""
+    return (first, first + 1) if pairs else (node + 1, first)
 
 
 def _place(slots: np.ndarray, rec: np.ndarray, area: np.ndarray, rows: np.ndarray,

@@ -306,7 +306,7 @@ def _build_wide(lo: np.ndarray, hi: np.ndarray, refs: np.ndarray, width: int,
               {"max_leaf_size": tuning.max_leaf_size, "largest_leaf": tuning.largest_leaf})
     on_device = (queue is not None and len(lo) >= DEVICE_BUILD_MIN
                  and tuning.traversal_cost == TRAVERSAL_COST)
-    binary = (build_bvh_on(queue, lo, hi, **leaves, padded=True) if on_device
+    binary = (build_bvh_on(queue, lo, hi, **leaves, pairs=True) if on_device
               else build_bvh(lo, hi, traversal_cost=tuning.traversal_cost, **leaves))
     return collapse(binary, refs, width, tuning.fold_packets)
 

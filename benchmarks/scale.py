@@ -30,6 +30,7 @@ import importlib.util
 import json
 import os
 import platform
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -180,6 +181,9 @@ def against(ref: str, path: Path, warm: Path, rounds: int) -> dict:
         archive = subprocess.run(["git", "archive", ref], cwd=ROOT, capture_output=True,
                                  check=True).stdout
         subprocess.run(["tar", "-x", "-C", str(export)], input=archive, check=True)
+        # The checkout maps kernels/ to clray.kernels (pyproject.toml); an export imported
+        # from its folder needs them there, or the installed checkout's kernels are found.
+        shutil.copytree(export / "kernels", export / "clray" / "kernels")
         for _ in range(rounds):
             for name, source in ((ref, export), ("worktree", ROOT)):
                 load = os.getloadavg()[0]

@@ -264,6 +264,7 @@ def test_float32_bounds_build_the_float64_tree(cl_queue):
     assert_same_tree(build_bvh(lo, hi), expected)
     assert_same_tree(build_bvh_on(cl_queue, lo, hi), expected)
     assert bvh_build.build_buffer_bytes(5000, 4)["lo"] == 12 * 5000
+    assert bvh_build.build_buffer_bytes(5000, 4)["prims"] == 32 * 5000
 
 
 def test_device_layout_collapses_to_the_same_wide_tree(cl_queue):

@@ -44,6 +44,7 @@ _ROUND_ITEMS = 256
 # past this many one-level launches its remaining subtrees are built as they are.
 _MAX_LEVEL_LAUNCHES = 24
 BUILD_FILE = "bvh_build.cl"
+_FLOAT_PRIM = np.dtype((np.void, 32))
 
 
 def build_options() -> list[str]:
@@ -83,16 +84,23 @@ def build_buffer_bytes(n: int, bound_bytes: int = 8) -> dict[str, int]:
     """Bytes of each buffer build() makes for n primitives with bounds of `bound_bytes` a
     coordinate."""
     slots = 2 * n - 1
-    return {"lo": 3 * bound_bytes * n, "hi": 3 * bound_bytes * n, "prims": BUILD_PRIM.itemsize * n,
-            "prims_swap": BUILD_PRIM.itemsize * n, "nodes": BINARY_NODE.itemsize * slots,
-            "order": 4 * n}
+    prim = _prim_dtype(bound_bytes).itemsize
+    return {"lo": 3 * bound_bytes * n, "hi": 3 * bound_bytes * n, "prims": prim * n,
+            "prims_swap": prim * n, "nodes": BINARY_NODE.itemsize * slots, "order": 4 * n}
+
+
+def _prim_dtype(bound_bytes: int) -> np.dtype:
+    """The build's primitive record: for float bounds their own rounding, the bounds alone
+    (kernels/bvh_build.cl, Prim under FLOAT_BOUNDS: 32 bytes), else BuildPrim (48)."""
+    return _FLOAT_PRIM if bound_bytes == 4 else BUILD_PRIM
 
 
 @cache
-def _kernels(context: cl.Context) -> dict[str, cl.Kernel]:
+def _kernels(context: cl.Context, float_bounds: bool) -> dict[str, cl.Kernel]:
     # Kernel objects are kept: pyopencl makes a new one on every attribute access.
+    options = build_options() + list(device_build_options(context.devices[0]))
     program = cl.Program(context, kernel_source(BUILD_FILE)).build(
-        options=build_options() + list(device_build_options(context.devices[0])))
+        options=options + (["-DFLOAT_BOUNDS"] if float_bounds else []))
     return {k.function_name: k for k in program.all_kernels()}
 
 
@@ -102,19 +110,20 @@ def build(queue: cl.CommandQueue, lo: np.ndarray, hi: np.ndarray, max_leaf: int,
     N > max_leaf: depth-first, or in the build's own layout (Bvh.pairs)."""
     n = lo.shape[0]
     slots = 2 * n - 1
-    kernels = _kernels(queue.context)
+    float_bounds = lo.dtype == np.float32
+    kernels = _kernels(queue.context, float_bounds)
     # Every buffer lives in numpy memory: a CPU device then works in place, and numpy reuses
     # freed memory where a fresh device allocation page-faults in all over again each build.
     lo_buf = _input_buffer(queue, np.ascontiguousarray(lo))
     hi_buf = _input_buffer(queue, np.ascontiguousarray(hi))
-    prims = [np.empty(n, dtype=BUILD_PRIM), np.empty(n, dtype=BUILD_PRIM)]
+    prims = [np.empty(n, dtype=_prim_dtype(lo.itemsize)) for _ in range(2)]
     # Uninitialised: the pages a subtree's range does not reach are never touched.
     nodes = np.empty(slots, dtype=BINARY_NODE)
     order = np.empty(n, dtype=np.int32)
     root = np.empty(1, dtype=BUILD_TASK)
     bufs = [_host_buffer(queue, a) for a in (*prims, nodes, order, root)]
     chunk = -(-n // _ROUND_ITEMS)
-    round_prims = kernels["round_prims_float" if lo.dtype == np.float32 else "round_prims"]
+    round_prims = kernels["round_prims_float" if float_bounds else "round_prims"]
     round_prims(queue, (-(-n // chunk),), (1,), lo_buf, hi_buf, bufs[0], np.int32(n),
                 np.int32(chunk))
     # The copies of the bounds are done with once rounded: the runtime frees them when the

@@ -4,6 +4,7 @@ runs them.
 
     python benchmarks/scale.py [--subdivisions 7,8,9] [--json benchmarks/results/scale.json]
                                [--mesh-dir DIR] [--mitsuba {auto,off}] [--plot docs/scale.png]
+                               [--against REF [--rounds 3]]
 
 Each size is written once as a binary little-endian PLY (float x, y, z; uchar/int faces, the
 layout scanners and MeshLab write) and rendered in a fresh process (its peak resident memory,
@@ -16,6 +17,10 @@ The peak is read after load, after pack and after the render, so each stage's sh
 Mitsuba 3's load of the same file (its PLY reader and, where built with it, Embree's BVH: a
 `scalar_rgb` scene of one `ply` shape) runs in a process of its own beside clray's where the
 `mitsuba` package is installed; otherwise the row says so. Measures only.
+
+--against REF measures the largest size only, the working tree and commit REF in turns (the
+machine's load falls on both alike), and writes each one's medians and every run with the load
+average before it.
 """
 
 from __future__ import annotations
@@ -25,6 +30,7 @@ import importlib.util
 import json
 import os
 import platform
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -115,9 +121,12 @@ def write_ply(path: Path, subdivisions: int) -> int:
     return len(faces)
 
 
-def _child(code: str, *args: str) -> dict:
+def _child(code: str, *args: str, source: Path = ROOT) -> dict:
+    """Runs `code` in a fresh process importing clray from `source` (a checkout's root): its
+    cwd, which `python -c` puts first on the path."""
+    env = {**os.environ, "PYTHONPATH": str(source)} if source != ROOT else None
     done = subprocess.run([sys.executable, "-c", code, *args], capture_output=True, text=True,
-                          cwd=ROOT)
+                          cwd=source, env=env)
     if done.returncode != 0:
         return {"error": done.stderr.strip().splitlines()[-1][:300] if done.stderr else
                 f"exit {done.returncode}"}
@@ -128,8 +137,8 @@ def _has_mitsuba() -> bool:
     return importlib.util.find_spec("mitsuba") is not None
 
 
-def measure(path: Path, warm: Path, mitsuba: bool) -> dict:
-    row = _child(_CLRAY, str(path), str(warm))
+def measure(path: Path, warm: Path, mitsuba: bool, source: Path = ROOT) -> dict:
+    row = _child(_CLRAY, str(path), str(warm), source=source)
     if "error" not in row:
         triangles = row["triangles"]
         device = sum(row["device_bytes"].values())
@@ -158,6 +167,34 @@ def _summary(s: int, row: dict) -> str:
             f"({row['host_peak_over_device']:.2f}x device), device "
             f"{row['device_bytes_total'] / MIB:.1f} MiB = "
             f"{row['device_bytes_per_triangle']:.1f} B a triangle; Mitsuba 3: {mitsuba}")
+
+
+def against(ref: str, path: Path, warm: Path, rounds: int) -> dict:
+    """The working tree and commit `ref` (exported whole by git archive) measured in turns,
+    `rounds` times each, with the load average before each run: the stages' medians and
+    the runs."""
+    keys = ("load_s", "bvh_s", "pack_s", "load_bvh_pack_s", "mtriangles_per_s_bvh",
+            "host_peak")
+    runs: dict[str, list[dict]] = {ref: [], "worktree": []}
+    with tempfile.TemporaryDirectory() as tmp_name:
+        export = Path(tmp_name)
+        archive = subprocess.run(["git", "archive", ref], cwd=ROOT, capture_output=True,
+                                 check=True).stdout
+        subprocess.run(["tar", "-x", "-C", str(export)], input=archive, check=True)
+        # The checkout maps kernels/ to clray.kernels (pyproject.toml); an export imported
+        # from its folder needs them there, or the installed checkout's kernels are found.
+        shutil.copytree(export / "kernels", export / "clray" / "kernels")
+        for _ in range(rounds):
+            for name, source in ((ref, export), ("worktree", ROOT)):
+                load = os.getloadavg()[0]
+                row = measure(path, warm, False, source)
+                runs[name].append({"load_average": load, **{k: row.get(k) for k in keys},
+                                   **({"error": row["error"]} if "error" in row else {})})
+                print(name, json.dumps(runs[name][-1]), flush=True)
+    medians = {name: {k: float(np.median([r[k] for r in rs if k in r and r[k] is not None]))
+                      for k in keys if any(r.get(k) is not None for r in rs)}
+               for name, rs in runs.items()}
+    return {"ref": ref, "medians": medians, "runs": runs}
 
 
 def plot(rows: dict[str, dict], out: Path) -> None:
@@ -197,6 +234,9 @@ def main(argv: list[str] | None = None) -> None:
                         "temporary folder)")
     parser.add_argument("--mitsuba", choices=("auto", "off"), default="auto")
     parser.add_argument("--plot", type=Path, help="write the figure here (needs matplotlib)")
+    parser.add_argument("--against", metavar="REF", help="measure the largest size only, in "
+                        "turns with commit REF, for --rounds rounds (no Mitsuba)")
+    parser.add_argument("--rounds", type=int, default=3)
     args = parser.parse_args(argv)
     mitsuba = args.mitsuba == "auto" and _has_mitsuba()
     rows: dict[str, dict] = {}
@@ -205,17 +245,22 @@ def main(argv: list[str] | None = None) -> None:
         folder.mkdir(parents=True, exist_ok=True)
         warm = folder / "bumpy3.ply"
         write_ply(warm, 3)
-        for s in (int(v) for v in args.subdivisions.split(",")):
+        sizes = [int(v) for v in args.subdivisions.split(",")]
+        for s in sizes[-1:] if args.against else sizes:
             path = folder / f"bumpy{s}.ply"
             if not path.exists():
                 write_ply(path, s)
+            if args.against:
+                rows[str(s)] = against(args.against, path, warm, args.rounds)
+                print(json.dumps(rows[str(s)]["medians"]), flush=True)
+                continue
             rows[str(s)] = measure(path, warm, mitsuba)
             print(_summary(s, rows[str(s)]), flush=True)
     args.json.parent.mkdir(parents=True, exist_ok=True)
     args.json.write_text(json.dumps({"python": platform.python_version(),
                                      "numpy": np.__version__, "sizes": rows}, indent=2) + "\n")
     print(f"wrote {args.json}")
-    if args.plot:
+    if args.plot and not args.against:
         plot(rows, args.plot)
         print(f"wrote {args.plot}")
 

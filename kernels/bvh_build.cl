@@ -18,6 +18,37 @@ typedef struct {
 } Bins;
 
 
+#ifdef FLOAT_BOUNDS
+// Float bounds (a mesh's triangles, whose corners are floats) are their own rounding, and the
+// centroid, 0.5 (lo + hi) in double, is found from them again wherever it is needed: a
+// primitive is its bounds alone, the index in lo.w, 32 bytes where BuildPrim takes 48 (every
+// level of the build reads and writes each primitive).
+typedef struct {
+    float4 lo, hi;
+} Prim;
+
+static float4 centroid(Prim p) {
+    float4 c = convert_float4(0.5 * (convert_double4(p.lo) + convert_double4(p.hi)));
+    return (float4)(c.xyz, 0.0f);
+}
+
+static int prim_index(Prim p) { return as_int(p.lo.w); }
+
+// By vload3 with the fourth lane set: Oclgrind took floats loaded one by one into a vector
+// for uninitialised.
+__kernel void round_prims_float(__global const float *lo, __global const float *hi,
+                                __global Prim *prims, int n, int chunk) {
+    int end = min(n, (int)(get_global_id(0) + 1) * chunk);
+    for (int i = get_global_id(0) * chunk; i < end; i++) {
+        Prim p;
+        p.lo = (float4)(vload3(i, lo), as_float(i));
+        p.hi = (float4)(vload3(i, hi), 0.0f);
+        prims[i] = p;
+    }
+}
+#else
+typedef BuildPrim Prim;
+
 // Float32 values one step towards -inf (down) or +inf (up) where `need` is set. Integer
 // arithmetic on the bits and selects, four lanes at once: about half the values need the step,
 // at random, and branching on that costs several times the rest of the pass.
@@ -35,17 +66,21 @@ static float4 step_up(float4 f, int4 need) {
     return as_float4(select(bits, stepped, need));
 }
 
+static float4 centroid(Prim p) { return (float4)(p.c.xyz, 0.0f); }
+
+static int prim_index(Prim p) { return as_int(p.c.w); }
+
+// Nearest, then one step outwards where that went inwards: the host's rounding.
 __kernel void round_prims(__global const double *lo, __global const double *hi,
-                          __global BuildPrim *prims, int n, int chunk) {
+                          __global Prim *prims, int n, int chunk) {
     int end = min(n, (int)(get_global_id(0) + 1) * chunk);
     for (int i = get_global_id(0) * chunk; i < end; i++) {
         // Element by element, not vload3: a 3-vector's fourth (padding) lane is undefined,
         // and Oclgrind tracks it into the whole double4 built from it.
         double4 a = (double4)(lo[3 * i], lo[3 * i + 1], lo[3 * i + 2], 0.0);
         double4 b = (double4)(hi[3 * i], hi[3 * i + 1], hi[3 * i + 2], 0.0);
-        // Nearest, then one step outwards where that went inwards: the host's rounding.
         float4 fa = convert_float4(a), fb = convert_float4(b);
-        BuildPrim p;
+        Prim p;
         p.lo = step_down(fa, convert_int4(convert_double4(fa) > a));
         p.hi = step_up(fb, convert_int4(convert_double4(fb) < b));
         p.c = convert_float4(0.5 * (a + b));
@@ -53,13 +88,14 @@ __kernel void round_prims(__global const double *lo, __global const double *hi,
         prims[i] = p;
     }
 }
+#endif
 
 // Bounds and centroid bounds of prims[start, start + count) into t.
-static void bound(__global const BuildPrim *prims, int start, int count, BuildTask *t) {
+static void bound(__global const Prim *prims, int start, int count, BuildTask *t) {
     float4 lo = (float4)(INFINITY), hi = (float4)(-INFINITY), clo = lo, chi = hi;
     for (int i = start; i < start + count; i++) {
-        BuildPrim p = prims[i];
-        float4 c = (float4)(p.c.xyz, 0.0f);
+        Prim p = prims[i];
+        float4 c = centroid(p);
         lo = fmin(lo, p.lo);
         hi = fmax(hi, p.hi);
         clo = fmin(clo, c);
@@ -69,7 +105,7 @@ static void bound(__global const BuildPrim *prims, int start, int count, BuildTa
     t->start = start; t->count = count;
 }
 
-__kernel void root_task(__global const BuildPrim *prims, int n, __global BuildTask *root) {
+__kernel void root_task(__global const Prim *prims, int n, __global BuildTask *root) {
     BuildTask t;
     bound(prims, 0, n, &t);
     t.pos = 0;
@@ -93,22 +129,48 @@ static int bin_of(float c, float cmin, float scale) {
 
 static float along(float4 v, int axis) { return axis == 0 ? v.x : axis == 1 ? v.y : v.z; }
 
-static void fill_bins(Bins *bins, __global const BuildPrim *src, int start, int count, int axis,
-                      float cmin, float scale) {
+static void clear_bins(Bins *bins) {
     for (int k = 0; k < N_BINS; k++) {
         bins->count[k] = 0;
         bins->lo[k] = bins->clo[k] = (float4)(INFINITY);
         bins->hi[k] = bins->chi[k] = (float4)(-INFINITY);
     }
-    for (int i = start; i < start + count; i++) {
-        BuildPrim p = src[i];
-        int b = bin_of(along(p.c, axis), cmin, scale);
-        float4 c = (float4)(p.c.xyz, 0.0f);
-        bins->count[b]++;
-        bins->lo[b] = fmin(bins->lo[b], p.lo);
-        bins->hi[b] = fmax(bins->hi[b], p.hi);
-        bins->clo[b] = fmin(bins->clo[b], c);
-        bins->chi[b] = fmax(bins->chi[b], c);
+}
+
+static void add_to_bin(Bins *bins, int b, Prim p, float4 c) {
+    bins->count[b]++;
+    bins->lo[b] = fmin(bins->lo[b], p.lo);
+    bins->hi[b] = fmax(bins->hi[b], p.hi);
+    bins->clo[b] = fmin(bins->clo[b], c);
+    bins->chi[b] = fmax(bins->chi[b], c);
+}
+
+// Neighbours in a node's order are near in space and often share a bin: alternate primitives
+// go to two sets of bins, so one's updates need not wait for the other's, then the sets are
+// merged (minima, maxima and counts: the same bins in any order).
+static void fill_bins(Bins *bins, __global const Prim *src, int start, int count, int axis,
+                      float cmin, float scale) {
+    Bins odd;
+    clear_bins(bins);
+    clear_bins(&odd);
+    int i = start, end = start + count;
+    for (; i + 1 < end; i += 2) {
+        Prim p = src[i], q = src[i + 1];
+        float4 cp = centroid(p), cq = centroid(q);
+        add_to_bin(bins, bin_of(along(cp, axis), cmin, scale), p, cp);
+        add_to_bin(&odd, bin_of(along(cq, axis), cmin, scale), q, cq);
+    }
+    if (i < end) {
+        Prim p = src[i];
+        float4 c = centroid(p);
+        add_to_bin(bins, bin_of(along(c, axis), cmin, scale), p, c);
+    }
+    for (int k = 0; k < N_BINS; k++) {
+        bins->count[k] += odd.count[k];
+        bins->lo[k] = fmin(bins->lo[k], odd.lo[k]);
+        bins->hi[k] = fmax(bins->hi[k], odd.hi[k]);
+        bins->clo[k] = fmin(bins->clo[k], odd.clo[k]);
+        bins->chi[k] = fmax(bins->chi[k], odd.chi[k]);
     }
 }
 
@@ -156,32 +218,36 @@ static void bin_child(BuildTask *c, const Bins *bins, int from, int to, int star
     c->start = start;
 }
 
-static void write_node(__global BinaryNode *nodes, __global uchar *used, const BuildTask *t,
-                       int first, int count) {
+static void write_node(__global BinaryNode *nodes, const BuildTask *t, int first, int count) {
     BinaryNode nd;
     nd.lo[0] = t->lo.x; nd.lo[1] = t->lo.y; nd.lo[2] = t->lo.z;
     nd.hi[0] = t->hi.x; nd.hi[1] = t->hi.y; nd.hi[2] = t->hi.z;
     nd.first = first;
     nd.count = count;
     nodes[t->pos] = nd;
-    used[t->pos] = 1;
 }
 
-static void write_leaf(const BuildTask *t, __global const BuildPrim *src,
-                       __global BinaryNode *nodes, __global uchar *used, __global int *order) {
-    write_node(nodes, used, t, t->start, t->count);
-    for (int i = t->start; i < t->start + t->count; i++) order[i] = as_int(src[i].c.w);
+static void write_leaf(const BuildTask *t, __global const Prim *src,
+                       __global BinaryNode *nodes, __global int *order) {
+    write_node(nodes, t, t->start, t->count);
+    for (int i = t->start; i < t->start + t->count; i++) order[i] = prim_index(src[i]);
 }
 
 // Writes the task's node. Returns 0 for a leaf, or 1 after stably partitioning its primitives
-// (left side first) into the other buffer and filling in the two child tasks.
-static int process(const BuildTask *t, __global BuildPrim *buf0, __global BuildPrim *buf1,
-                   __global BinaryNode *nodes, __global uchar *used, __global int *order,
-                   int max_leaf, int sah_max_leaf, BuildTask *left, BuildTask *right) {
-    __global BuildPrim *src = t->flip ? buf1 : buf0, *dst = t->flip ? buf0 : buf1;
+// (left side first) into the other buffer and filling in the two child tasks, whose nodes are a
+// pair of slots (left, then right: the node's `first` is the left one). A task over primitives
+// [s, s + c) has slots 2s + 1 .. 2s + 2c - 2 for the nodes below it (at most 2c - 2): split
+// after nl primitives, its children's ranges are those of [s, s + nl) and [s + nl, s + c), and
+// the two slots between them, 2(s + nl) - 1 and 2(s + nl), are the pair's. That is where
+// split_level puts it (next 0); build_subtrees instead takes pairs in turn from the start of its
+// task's range (*next), so a subtree's nodes are written together, not strewn over its range.
+static int process(const BuildTask *t, __global Prim *buf0, __global Prim *buf1,
+                   __global BinaryNode *nodes, __global int *order, int max_leaf,
+                   int sah_max_leaf, int *next, BuildTask *left, BuildTask *right) {
+    __global Prim *src = t->flip ? buf1 : buf0, *dst = t->flip ? buf0 : buf1;
     int start = t->start, count = t->count;
     if (count <= max_leaf) {
-        write_leaf(t, src, nodes, used, order);
+        write_leaf(t, src, nodes, order);
         return 0;
     }
     float ext[3] = {t->chi.x - t->clo.x, t->chi.y - t->clo.y, t->chi.z - t->clo.z};
@@ -193,7 +259,7 @@ static int process(const BuildTask *t, __global BuildPrim *buf0, __global BuildP
     // Coincident centroids (or a reciprocal that overflows): split at the median instead.
     if (!(isfinite(scale) && scale > 0.0f)) {
         if (count <= sah_max_leaf) {
-            write_leaf(t, src, nodes, used, order);
+            write_leaf(t, src, nodes, order);
             return 0;
         }
         for (int i = start; i < start + count; i++) dst[i] = src[i];
@@ -207,34 +273,34 @@ static int process(const BuildTask *t, __global BuildPrim *buf0, __global BuildP
         double a_node = half_area(t->lo, t->hi);
         if (count <= sah_max_leaf
             && TRAVERSAL_COST * a_node + best_cost >= (double)packets(count) * a_node) {
-            write_leaf(t, src, nodes, used, order);
+            write_leaf(t, src, nodes, order);
             return 0;
         }
         bin_child(left, &bins, 0, best, start);
         bin_child(right, &bins, best + 1, N_BINS - 1, start + left->count);
         int il = start, ir = right->start;
         for (int i = start; i < start + count; i++) {
-            BuildPrim p = src[i];
-            if (bin_of(along(p.c, axis), cmin, scale) > best) dst[ir++] = p;
+            Prim p = src[i];
+            if (bin_of(along(centroid(p), axis), cmin, scale) > best) dst[ir++] = p;
             else dst[il++] = p;
         }
     }
-    int nl = left->count;
-    write_node(nodes, used, t, t->pos + 2 * nl, 0);
-    left->pos = t->pos + 1;
-    right->pos = t->pos + 2 * nl;
+    int kids = next ? (*next += 2) - 2 : 2 * (start + left->count) - 1;
+    write_node(nodes, t, kids, 0);
+    left->pos = kids;
+    right->pos = kids + 1;
     left->flip = right->flip = !t->flip;
     return 1;
 }
 
 // One level: every task split once, its children (count -1: none) to out[2g], out[2g + 1].
 __kernel void split_level(__global const BuildTask *in, __global BuildTask *out,
-                          __global BuildPrim *buf0, __global BuildPrim *buf1,
-                          __global BinaryNode *nodes, __global uchar *used, __global int *order,
-                          int max_leaf, int sah_max_leaf) {
+                          __global Prim *buf0, __global Prim *buf1,
+                          __global BinaryNode *nodes, __global int *order, int max_leaf,
+                          int sah_max_leaf) {
     int g = get_global_id(0);
     BuildTask t = in[g], l, r;
-    if (!process(&t, buf0, buf1, nodes, used, order, max_leaf, sah_max_leaf, &l, &r)) {
+    if (!process(&t, buf0, buf1, nodes, order, max_leaf, sah_max_leaf, 0, &l, &r)) {
         l.count = -1;
         r.count = -1;
     }
@@ -242,16 +308,16 @@ __kernel void split_level(__global const BuildTask *in, __global BuildTask *out,
     out[2 * g + 1] = r;
 }
 
-// Each task's whole subtree.
-__kernel void build_subtrees(__global const BuildTask *tasks, __global BuildPrim *buf0,
-                             __global BuildPrim *buf1, __global BinaryNode *nodes,
-                             __global uchar *used, __global int *order, int max_leaf,
-                             int sah_max_leaf) {
+// Each task's whole subtree, its nodes in the pairs of slots from the start of its range on.
+__kernel void build_subtrees(__global const BuildTask *tasks, __global Prim *buf0,
+                             __global Prim *buf1, __global BinaryNode *nodes,
+                             __global int *order, int max_leaf, int sah_max_leaf) {
     BuildTask stack[STACK];
     int sp = 0;
     BuildTask cur = tasks[get_global_id(0)], l, r;
+    int next = 2 * cur.start + 1;
     for (;;) {
-        if (process(&cur, buf0, buf1, nodes, used, order, max_leaf, sah_max_leaf, &l, &r)) {
+        if (process(&cur, buf0, buf1, nodes, order, max_leaf, sah_max_leaf, &next, &l, &r)) {
             if (l.count >= r.count) {
                 stack[sp++] = l;
                 cur = r;

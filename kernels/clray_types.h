@@ -161,7 +161,8 @@ typedef struct {
 
 // The binary tree that the BVH build makes (clray/accel/bvh.py on the host, kernels/bvh_build.cl
 // on the device) and clray/accel/wide.py collapses: for an inner node (count 0) `first` is its
-// right child (its left child is the next node), for a leaf its first slot in the build's order.
+// right child (its left child is the next node; in the device build's own layout, `first` is its
+// left child and the right one follows it), for a leaf its first slot in the build's order.
 typedef struct {
     float lo[3];
     int first;

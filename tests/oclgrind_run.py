@@ -1,7 +1,7 @@
 """Run every kernel on tiny inputs on the current default device and save what they return:
 tests/test_oclgrind.py runs this under Oclgrind (CLRAY_DEVICE=oclgrind) and on PoCL, and
 compares. Usage: python tests/oclgrind_run.py OUT.npz DEVICE PARTS (PARTS: renders,
-intersections,bvh)."""
+intersections,bvh,bvh_float)."""
 
 from __future__ import annotations
 
@@ -101,14 +101,29 @@ def intersections(device: str | None) -> dict[str, np.ndarray]:
 
 def bvh(device: str | None) -> dict[str, np.ndarray]:
     """The device BVH build over 300 random boxes (the packer uses it from 20000 on)."""
-    rng = np.random.default_rng(5)
-    lo = rng.uniform(-10, 10, (300, 3))
-    hi = lo + rng.uniform(0.01, 2, (300, 3))
+    lo, hi = _boxes()
     tree = build_bvh_on(queue_for(select_device(device)), lo, hi, 2)
     return {"bvh/nodes": tree.nodes.view(np.uint8), "bvh/order": tree.order}
 
 
-PARTS = {"renders": renders, "intersections": intersections, "bvh": bvh}
+def bvh_float(device: str | None) -> dict[str, np.ndarray]:
+    """The same from float32 bounds (a mesh's: the build's float path). A run of its own:
+    under Oclgrind a second build in one process reads the first one's buffers' memory as
+    uninitialised (so it did before float bounds, for two float64 builds)."""
+    lo, hi = _boxes()
+    tree = build_bvh_on(queue_for(select_device(device)), lo.astype(np.float32),
+                        hi.astype(np.float32), 2)
+    return {"bvh/float_nodes": tree.nodes.view(np.uint8), "bvh/float_order": tree.order}
+
+
+def _boxes() -> tuple[np.ndarray, np.ndarray]:
+    rng = np.random.default_rng(5)
+    lo = rng.uniform(-10, 10, (300, 3))
+    return lo, lo + rng.uniform(0.01, 2, (300, 3))
+
+
+PARTS = {"renders": renders, "intersections": intersections, "bvh": bvh,
+         "bvh_float": bvh_float}
 
 
 def main(out: str, device: str, parts: str) -> None:

@@ -12,6 +12,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
+from clray.accel import bvh as bvh_module
 from clray.accel.bvh import (
     BINARY_NODE,
     N_BINS,
@@ -23,7 +24,7 @@ from clray.accel.bvh import (
     packets,
     sah_cost,
 )
-from clray.accel.wide import PACKET_WIDTH
+from clray.accel.wide import PACKET_WIDTH, collapse
 from clray.device import bvh_build
 from clray.device.bvh_build import build_bvh_on
 from clray.device.context import queue_for
@@ -245,6 +246,40 @@ def test_device_build_of_a_lopsided_set(cl_queue):
     bvh = build_bvh_on(cl_queue, lo, hi, 1)
     check_bvh(bvh, lo, hi, 1)
     assert_same_tree(bvh, build_bvh(lo, hi, 1))
+
+
+def test_float32_bounds_build_the_float64_tree(cl_queue):
+    # A mesh's bounds come as float32 (its corners are floats): both builds take them as they
+    # are and build the tree of their float64 copies. A float32 sum for the centroids would
+    # overflow near the largest floats (where halving it is otherwise exact).
+    rng = np.random.default_rng(5)
+    c = rng.uniform(-1e6, 1e6, (5000, 3)).astype(np.float32)
+    e = rng.exponential(0.3, (5000, 3)).astype(np.float32)
+    lo, hi = c - e, c + e
+    lo[:8], hi[:8] = np.float32(3e38), np.float32(3.2e38)
+    wide_lo, wide_hi = lo.astype(np.float64), hi.astype(np.float64)
+    # The rounded boxes and centroids the host build bins, the same numbers from either.
+    assert np.array_equal(bvh_module._round_out(lo, hi), bvh_module._round_out(wide_lo, wide_hi))
+    expected = build_bvh(wide_lo, wide_hi)
+    assert_same_tree(build_bvh(lo, hi), expected)
+    assert_same_tree(build_bvh_on(cl_queue, lo, hi), expected)
+    assert bvh_build.build_buffer_bytes(5000, 4)["lo"] == 12 * 5000
+    assert bvh_build.build_buffer_bytes(5000, 4)["prims"] == 32 * 5000
+
+
+def test_device_layout_collapses_to_the_same_wide_tree(cl_queue):
+    # The device build's own layout (children in pairs, each subtree's nodes in its own range of
+    # slots) holds the depth-first tree: renumbered, it is the host's, and the collapse, which
+    # reads only the nodes it reaches, makes the same wide tree from it as from the host's.
+    lo, hi = _random_set(KINDS[0], 20000, np.random.default_rng(9))
+    refs = (5 << 28) | np.arange(20000)
+    own = build_bvh_on(cl_queue, lo, hi, pairs=True)
+    host = build_bvh(lo, hi)
+    assert own.pairs and own.nodes.size == 2 * 20000 - 1
+    assert_same_tree(bvh_build.build(cl_queue, lo, hi, 4, max_leaf_count(4)), host)
+    a, b = collapse(own, refs, 8), collapse(host, refs, 8)
+    assert a.nodes.tobytes() == b.nodes.tobytes()
+    assert np.array_equal(a.prim_refs, b.prim_refs) and a.stack_size == b.stack_size
 
 
 def test_device_rounding_at_the_edges_of_float32(cl_queue):

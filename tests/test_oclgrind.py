@@ -25,9 +25,10 @@ pytestmark = pytest.mark.skipif(
     OCLGRIND is None, reason="oclgrind is not installed (Debian: apt-get install oclgrind)")
 # The render and intersection kernels with race detection too; the BVH build without it:
 # with --data-races on, Oclgrind 21.10 takes the primitives round_prims wrote into a
-# USE_HOST_PTR buffer for uninitialised when root_task reads them (docs/rendering.md).
+# USE_HOST_PTR buffer for uninitialised when root_task reads them (docs/rendering.md), as it
+# does in a second build in one process: the float-bounds build runs on its own.
 RUNS = {"renders,intersections": ("--check-api", "--uninitialized", "--data-races"),
-        "bvh": ("--check-api", "--uninitialized")}
+        "bvh": ("--check-api", "--uninitialized"), "bvh_float": ("--check-api", "--uninitialized")}
 
 
 @pytest.fixture(scope="module")
@@ -64,7 +65,7 @@ def test_the_scenes_switch_on_every_feature() -> None:
 
 
 def test_kernels_run_clean_under_oclgrind(cl_device, oclgrind_results) -> None:
-    here = {**R.renders(None), **R.intersections(None), **R.bvh(None)}
+    here = {**R.renders(None), **R.intersections(None), **R.bvh(None), **R.bvh_float(None)}
     assert set(here) == set(oclgrind_results)
     for name, image in here.items():
         theirs = oclgrind_results[name]

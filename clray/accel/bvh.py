@@ -53,10 +53,15 @@ class Bvh:
     An inner node's left child is the next node and its `first` is the right child's index,
     with count 0. A leaf's primitives are `order[first:first + count]`, and `order[k]` is an
     index into the primitives given to `build_bvh`.
+
+    pairs: the device build's own layout instead (clray.device.bvh_build), root first: an inner
+    node's `first` is its left child and the right child follows it; slots no node reached are
+    uninitialised, so only a walk from the root (clray.accel.wide.collapse) may read them.
     """
 
     nodes: np.ndarray
     order: np.ndarray
+    pairs: bool = False
 
 
 def max_leaf_count(max_leaf_size: int) -> int:
@@ -81,10 +86,12 @@ def sah_cost(nodes: np.ndarray, traversal_cost: float = TRAVERSAL_COST) -> float
 
 def checked_bounds(lo: np.ndarray, hi: np.ndarray, max_leaf_size: int,
                    largest_leaf: int | None) -> tuple[np.ndarray, np.ndarray, int]:
-    """build_bvh's arguments checked (ValueError names the bad one): the bounds as float64 and
+    """build_bvh's arguments checked (ValueError names the bad one): the bounds as float64,
+    or float32 where both are (a mesh's: the same numbers at half the bytes, uncopied), and
     the largest leaf."""
-    lo = np.asarray(lo, dtype=np.float64)
-    hi = np.asarray(hi, dtype=np.float64)
+    lo, hi = np.asarray(lo), np.asarray(hi)
+    if not lo.dtype == hi.dtype == np.float32:
+        lo, hi = lo.astype(np.float64, copy=False), hi.astype(np.float64, copy=False)
     if lo.ndim != 2 or lo.shape[1] != 3 or lo.shape != hi.shape:
         raise ValueError(f"bounds must both have shape (N, 3), got {lo.shape} and {hi.shape}")
     if max_leaf_size < 1:
@@ -101,7 +108,8 @@ def checked_bounds(lo: np.ndarray, hi: np.ndarray, max_leaf_size: int,
 
 def build_bvh(lo: np.ndarray, hi: np.ndarray, max_leaf_size: int = MAX_LEAF_SIZE, *,
               largest_leaf: int | None = None, traversal_cost: float = TRAVERSAL_COST) -> Bvh:
-    """Build a BVH over N primitives with float64 bounds `lo`, `hi` of shape (N, 3).
+    """Build a BVH over N primitives with bounds `lo`, `hi` of shape (N, 3) (float64, or
+    float32 for both: the same tree as their float64 copies).
 
     Nodes of at most `max_leaf_size` primitives are always leaves; nodes of up to
     `largest_leaf` (default `max_leaf_count(max_leaf_size)`) are leaves when SAH says a split
@@ -122,7 +130,8 @@ def _round_out(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
     hi32 = hi.T.astype(np.float32)
     prim[0:3] = np.where(lo32 > lo.T, np.nextafter(lo32, np.float32(-np.inf)), lo32)
     prim[3:6] = np.where(hi32 < hi.T, np.nextafter(hi32, np.float32(np.inf)), hi32)
-    prim[6:9] = (0.5 * (lo.T + hi.T)).astype(np.float32)
+    # Summed in float64 whatever the bounds' type, as the device build does.
+    prim[6:9] = (0.5 * np.add(lo.T, hi.T, dtype=np.float64)).astype(np.float32)
     return prim
 
 

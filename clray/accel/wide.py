@@ -29,7 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from clray.accel import prim_refs as P
-from clray.accel.bvh import Bvh
+from clray.accel.bvh import BINARY_NODE, Bvh
 from clray.knobs import KNOBS
 from clray.shapes.sphere import SPHERE
 
@@ -44,6 +44,11 @@ BVH_WIDTHS = (4, 8)
 # packets, other primitives one each) would cover is folded into that leaf. A tunable knob
 # (clray.tuning): its default comes from the knob table.
 FOLD_PACKETS = KNOBS["fold_packets"].default
+# Binary nodes as opaque 32-byte items: numpy takes and copies those far faster than structs.
+_OPAQUE = np.dtype((np.void, BINARY_NODE.itemsize))
+_EMPTY = np.array([([np.nan] * 3, -1, [np.nan] * 3, 0)], dtype=BINARY_NODE)
+# The leaf section of each primitive kind that has one of its own; any other kind: 2.
+_SECTION = {P.PRIM_TRIANGLE: 0, SPHERE.prim: 1}
 
 
 def bvh_node_dtype(width: int) -> np.dtype:
@@ -73,93 +78,165 @@ def collapse(bvh: Bvh, refs: np.ndarray, width: int,
              fold_packets: int | None = None) -> WideBvh:
     """Wide BVH of `width` children per node from a binary `bvh` over primitives whose
     references (PRIM_* << PRIM_TYPE_SHIFT | index) are `refs[i]` for build input i.
-    `fold_packets`: the folding bound (None: FOLD_PACKETS)."""
+    `fold_packets`: the folding bound (None: FOLD_PACKETS). The collapse reads only the nodes
+    it reaches from the root, so `bvh` may be in the device build's layout (Bvh.pairs)."""
     if width not in BVH_WIDTHS:
         raise ValueError(f"BVH width must be 4 or 8, got {width}")
     dtype = bvh_node_dtype(width)
-    b = bvh.nodes
-    if b.size == 0:
+    if bvh.nodes.size == 0:
         return WideBvh(np.zeros(0, dtype), np.zeros(0, np.int32), width, 1)
-    count = b["count"].astype(np.int64)
-    first = b["first"].astype(np.int64)
-    # Bounds as one (nodes + 1, 6) array whose last row, NaN, is what slot -1 reads.
-    bounds = np.full((b.size + 1, 6), np.nan, dtype=np.float32)
-    bounds[:-1, :3] = b["lo"]
-    bounds[:-1, 3:] = b["hi"]
-    ext = np.maximum(bounds[:-1, 3:].astype(np.float64) - bounds[:-1, :3], 0)
-    half_area = ext[:, 0] * ext[:, 1] + ext[:, 1] * ext[:, 2] + ext[:, 2] * ext[:, 0]
-    # The area of each node that can be opened (an inner node), -1 otherwise and for slot -1.
-    open_area = np.append(np.where(count == 0, half_area, -1.0), -1.0)
-
-    order_refs = refs[bvh.order].astype(np.int64)
-    levels = _levels(first, open_area, count[0] > 0, width)
-    fold = _foldable(np.concatenate(levels), first, count, open_area, order_refs,
-                     FOLD_PACKETS if fold_packets is None else fold_packets)
-    if fold is not None:
-        # Each folded node's binary node becomes one leaf over its leaves' primitives, which
-        # are contiguous (a subtree's are). It was never opened, so the collapse above it
-        # opens the same nodes as before.
-        node, fold_first, fold_count = fold
-        first, count, open_area = first.copy(), count.copy(), open_area.copy()
-        first[node], count[node], open_area[node] = fold_first, fold_count, -1.0
-        levels = _levels(first, open_area, count[0] > 0, width)
-    slots = np.concatenate(levels)  # binary node per child slot, -1 for none
+    order_refs = _refs_in_order(refs, bvh.order)
+    kinds = _Kinds(order_refs >> P.PRIM_TYPE_SHIFT)
+    levels = _levels(bvh.nodes.view(_OPAQUE), width, bvh.pairs)
+    slots = np.concatenate([lv[0] for lv in levels])  # binary node per child slot, -1 none
+    # Its record (NaN bounds for none), joined as opaque items: numpy copies those far faster.
+    rec = np.concatenate([lv[1].view(_OPAQUE) for lv in levels]).view(BINARY_NODE)
+    level_rows = np.cumsum([0] + [lv[0].shape[0] for lv in levels])
+    keep = _fold(slots, rec, kinds, FOLD_PACKETS if fold_packets is None else fold_packets)
+    if keep is not None:
+        slots, rec = slots[keep], rec.view(_OPAQUE)[keep].view(BINARY_NODE)
+        level_rows = np.concatenate([[0], np.cumsum(keep)])[level_rows]
     n_wide = slots.shape[0]
 
     used = slots >= 0
-    is_inner = open_area[slots] >= 0
+    is_inner = used & (rec["count"] == 0)
     is_leaf = used & ~is_inner
     # Wide nodes are numbered level by level, children in slot order: the k-th inner slot (row-
     # major) is wide node k + 1.
     child = np.full(slots.shape, -1, dtype=np.int32)
     child[is_inner] = np.arange(1, int(is_inner.sum()) + 1)
     leaf_first, leaf_count, prim_refs = _lay_out_leaves(
-        first[slots[is_leaf]], count[slots[is_leaf]], order_refs)
+        rec["first"][is_leaf].astype(np.int64), rec["count"][is_leaf].astype(np.int64),
+        order_refs, kinds)
     child[is_leaf] = leaf_first
     packed_count = np.zeros(slots.shape, dtype=np.int32)
     packed_count[is_leaf] = leaf_count
 
     # The node records as rows of 8 lanes-wide fields: 6 bound fields, then child and count.
     rows = np.empty((n_wide, 8, width), dtype=np.float32)
-    rows[:, :6] = bounds[slots].transpose(0, 2, 1)
+    rows[:, 0:3] = rec["lo"].transpose(0, 2, 1)
+    rows[:, 3:6] = rec["hi"].transpose(0, 2, 1)
     rows[:, 6].view(np.int32)[...] = child
     rows[:, 7].view(np.int32)[...] = packed_count
     nodes = rows.reshape(n_wide, -1).view(dtype).ravel()
-    level_rows = np.cumsum([0] + [lv.shape[0] for lv in levels])
     return WideBvh(nodes, prim_refs, width, _stack_size(child, is_inner, used, level_rows))
 
 
-def _levels(first: np.ndarray, open_area: np.ndarray, leaf_root: bool,
-            width: int) -> list[np.ndarray]:
-    """The wide tree level by level: (m, width) binary node per child slot, -1 for none."""
-    # A leaf root still needs a wide node above it: its one child is the root itself.
-    if leaf_root:
-        levels = [np.array([[0] + [-1] * (width - 1)])]
+def _refs_in_order(refs: np.ndarray, order: np.ndarray) -> np.ndarray:
+    """refs[order]. A mesh alone numbers its references as its primitives, refs[i] = refs[0] +
+    i: then a sum, where a gather in tree order (random access, 0.3 s for 5 M) would do."""
+    if refs.size and refs[-1] - refs[0] == refs.size - 1 and np.all(np.diff(refs) == 1):
+        return order.astype(refs.dtype) + refs[0]
+    return refs[order]
+
+
+class _Kinds:
+    """The primitive kind of each slot of the build's `order`. A mesh alone has one kind, whose
+    count in a leaf is the leaf's count: the prefix sums of a kind are made only for mixed
+    primitives, and only when asked."""
+
+    def __init__(self, kind: np.ndarray) -> None:
+        self.kind = kind
+        self.only = int(kind[0]) if kind.size and kind.min() == kind.max() else None
+        self._sums: dict[int, np.ndarray] = {}
+
+    def in_leaves(self, k: int, first: np.ndarray, count: np.ndarray) -> np.ndarray:
+        """Primitives of kind k in each run order[first:first + count]."""
+        if self.only is not None:
+            return count if k == self.only else np.zeros_like(count)
+        if k not in self._sums:
+            self._sums[k] = np.concatenate([[0], np.cumsum(self.kind == k)])
+        return self._sums[k][first + count] - self._sums[k][first]
+
+
+def _empty_records(shape: tuple[int, ...]) -> np.ndarray:
+    """BINARY_NODE records of empty child slots: NaN bounds (what a node's unused lane holds)."""
+    rec = np.empty(shape, dtype=BINARY_NODE)
+    rec.view(_OPAQUE)[...] = _EMPTY.view(_OPAQUE)[0]
+    return rec
+
+
+def _levels(nodes: np.ndarray, width: int, pairs: bool) -> list[tuple[np.ndarray, np.ndarray]]:
+    """The wide tree level by level: (m, width) binary node per child slot (-1 for none), and
+    its BINARY_NODE record. `nodes`: the binary nodes as opaque records; pairs: Bvh.pairs."""
+    root = nodes[:1].view(BINARY_NODE)
+    if root["count"][0] > 0:
+        # A leaf root still needs a wide node above it: its one child is the root itself.
+        slots = np.full((1, width), -1, dtype=np.int64)
+        slots[0, 0] = 0
+        rec = _empty_records((1, width))
+        rec[0, 0] = root[0]
+        levels = [(slots, rec)]
     else:
-        levels = [_open_children(np.array([0]), first, open_area, width)]
+        levels = [_open_children(np.zeros(1, np.int64), root["first"].astype(np.int64), nodes,
+                                 width, pairs)]
     while True:
-        inner = levels[-1][open_area[levels[-1]] >= 0]
-        if inner.size == 0:
+        slots, rec = levels[-1]
+        inner = (slots >= 0) & (rec["count"] == 0)
+        if not inner.any():
+            return levels
+        levels.append(_open_children(slots[inner], rec["first"][inner].astype(np.int64), nodes,
+                                     width, pairs))
+
+
+def _open_children(parents: np.ndarray, first: np.ndarray, nodes: np.ndarray, width: int,
+                   pairs: bool) -> tuple[np.ndarray, np.ndarray]:
+    """Child slots and their records of the wide nodes grown from binary inner nodes `parents`
+    (with `first` their nodes' field: Bvh's two layouts)."""
+    m = parents.size
+    rows = np.arange(m)
+    slots = np.full((m, width), -1, dtype=np.int64)
+    rec = _empty_records((m, width))
+    area = np.full((m, width), -1.0)  # an inner child's area, -1 for a leaf or no child
+    left, right = _children(parents, first, pairs)
+    _place(slots, rec, area, rows, 0, left, nodes)
+    _place(slots, rec, area, rows, 1, right, nodes)
+    for filled in range(2, width):
+        k = np.argmax(area, axis=1)
+        open_rows = rows[area[rows, k] >= 0]
+        if open_rows.size == 0:
             break
-        levels.append(_open_children(inner, first, open_area, width))
-    return levels
+        k = k[open_rows]
+        left, right = _children(slots[open_rows, k], rec["first"][open_rows, k].astype(np.int64),
+                                pairs)
+        _place(slots, rec, area, open_rows, k, left, nodes)
+        _place(slots, rec, area, open_rows, filled, right, nodes)
+    return slots, rec
 
 
-def _foldable(slots: np.ndarray, first: np.ndarray, count: np.ndarray, open_area: np.ndarray,
-              order_refs: np.ndarray, fold_packets: int
-              ) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
-    """The wide nodes (rows of `slots`) to fold into one leaf, as (binary node, first, count)
-    of that leaf, or None."""
+def _children(node: np.ndarray, first: np.ndarray, pairs: bool) -> tuple[np.ndarray, np.ndarray]:
+    """Left and right children of inner nodes: depth-first, the left child is the next node and
+    `first` the right one; in pairs, `first` is the left child and the right one follows."""
+    return (first, first + 1) if pairs else (node + 1, first)
+
+
+def _place(slots: np.ndarray, rec: np.ndarray, area: np.ndarray, rows: np.ndarray,
+           col: np.ndarray | int, node: np.ndarray, nodes: np.ndarray) -> None:
+    """Binary nodes `node` into child slots (rows, col), with their records and areas."""
+    taken = nodes.take(node)
+    slots[rows, col] = node
+    rec.view(_OPAQUE)[rows, col] = taken
+    taken = taken.view(BINARY_NODE)
+    ext = np.maximum(taken["hi"].astype(np.float64) - taken["lo"], 0)
+    half_area = ext[:, 0] * ext[:, 1] + ext[:, 1] * ext[:, 2] + ext[:, 2] * ext[:, 0]
+    area[rows, col] = np.where(taken["count"] == 0, half_area, -1.0)
+
+
+def _fold(slots: np.ndarray, rec: np.ndarray, kinds: _Kinds, fold_packets: int
+          ) -> np.ndarray | None:
+    """Folds each wide node (row of `slots`) of leaves only that one leaf of at most
+    `fold_packets` packet tests would cover into that leaf: the record of its parent's slot, in
+    `rec`, becomes a leaf over its leaves' primitives, which are contiguous (a subtree's are).
+    Returns the rows to keep, or None where none folds. A folded node was never opened, so the
+    collapse above it opened the same nodes as it would have with the leaf in its place."""
     used = slots >= 0
-    is_inner = open_area[slots] >= 0
+    count = rec["count"].astype(np.int64)
+    is_inner = used & (count == 0)
     leaf = used & ~is_inner
-    # Primitives of each kind per leaf slot, from prefix sums over the leaves' references.
-    kind = order_refs >> P.PRIM_TYPE_SHIFT
-    sums = [np.concatenate([[0], np.cumsum(kind == k)])
-            for k in (P.PRIM_TRIANGLE, SPHERE.prim, P.PRIM_INSTANCE)]
-    lo = np.where(leaf, first[slots], 0)
-    n = np.where(leaf, count[slots], 0)
-    tri, sph, inst = ((s[lo + n] - s[lo]).sum(axis=1) for s in sums)
+    first = np.where(leaf, rec["first"], 0).astype(np.int64)
+    n = np.where(leaf, count, 0)
+    tri, sph, inst = (kinds.in_leaves(k, first, n).sum(axis=1)
+                      for k in (P.PRIM_TRIANGLE, SPHERE.prim, P.PRIM_INSTANCE))
     total = n.sum(axis=1)
     tests = -(-tri // PACKET_WIDTH) - (-sph // PACKET_WIDTH) + (total - tri - sph)
     # Wide node k + 1 grew from the k-th inner slot; the root (row 0) stays. Nodes over
@@ -168,65 +245,62 @@ def _foldable(slots: np.ndarray, first: np.ndarray, count: np.ndarray, open_area
     fold[0] = False
     if not fold.any():
         return None
-    node = slots[is_inner][fold[1:]]
-    start = np.where(leaf, first[slots], np.iinfo(np.int64).max).min(axis=1)
-    return node, start[fold], total[fold]
+    parent = np.flatnonzero(is_inner)[fold[1:]]
+    start = np.where(leaf, rec["first"], np.iinfo(np.int32).max).min(axis=1)
+    flat = rec.reshape(-1)
+    flat["first"][parent] = start[fold]
+    flat["count"][parent] = total[fold]
+    return ~fold
 
 
-def _open_children(parents: np.ndarray, first: np.ndarray, open_area: np.ndarray,
-                   width: int) -> np.ndarray:
-    """(m, width) child slots of the wide nodes grown from binary inner nodes `parents`."""
-    m = parents.size
-    rows = np.arange(m)
-    slots = np.full((m, width), -1, dtype=np.int64)
-    slots[:, 0] = parents + 1  # depth-first layout: the left child is the next node
-    slots[:, 1] = first[parents]
-    for filled in range(2, width):
-        area = open_area[slots]
-        k = np.argmax(area, axis=1)
-        open_rows = rows[area[rows, k] >= 0]
-        if open_rows.size == 0:
-            break
-        opened = slots[open_rows, k[open_rows]]
-        slots[open_rows, k[open_rows]] = opened + 1
-        slots[open_rows, filled] = first[opened]
-    return slots
-
-
-def _lay_out_leaves(first: np.ndarray, count: np.ndarray,
-                    order_refs: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _lay_out_leaves(first: np.ndarray, count: np.ndarray, order_refs: np.ndarray,
+                    kinds: _Kinds) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Each leaf's refs in its sections (triangle packets, sphere packets, others), each in
     build order: (start slot, packed count, prim_refs)."""
     n_leaves = first.size
-    leaf = np.repeat(np.arange(n_leaves), count)
     offsets = np.concatenate([[0], np.cumsum(count)[:-1]]).astype(np.int64)
-    refs = order_refs[np.repeat(first - offsets, count) + np.arange(count.sum())]
+    position = np.arange(int(count.sum()))
+    refs = order_refs[np.repeat(first - offsets, count) + position]
+    if kinds.only is not None:
+        # One section, at the start of each leaf: slots are ranks within the leaf.
+        section = _SECTION.get(kinds.only, 2)
+        sizes = [count if s == section else np.zeros(n_leaves, np.int64) for s in range(3)]
+    else:
+        sizes, position = _sections(refs, count, offsets)
+    tri_packets = -(-sizes[0] // PACKET_WIDTH)
+    sphere_packets = -(-sizes[1] // PACKET_WIDTH)
+    if np.any(sizes[2] > LEAF_FIELD_MASK) or np.any(sphere_packets > LEAF_FIELD_MASK):
+        raise ValueError(f"a leaf holds more than {LEAF_FIELD_MASK} of one section")
+    padded = -(-((tri_packets + sphere_packets) * PACKET_WIDTH + sizes[2]) // PACKET_WIDTH)
+    start = np.concatenate([[0], np.cumsum(padded * PACKET_WIDTH)[:-1]]).astype(np.int64)
+    prim_refs = np.full(int(padded.sum()) * PACKET_WIDTH, NO_REF, dtype=np.int32)
+    prim_refs[np.repeat(start - offsets, count) + position] = refs
+    packed = ((tri_packets << LEAF_TRIANGLE_SHIFT) | (sphere_packets << LEAF_SPHERE_SHIFT)
+              | sizes[2])
+    return start, packed, prim_refs
+
+
+def _sections(refs: np.ndarray, count: np.ndarray, offsets: np.ndarray
+              ) -> tuple[list[np.ndarray], np.ndarray]:
+    """Mixed leaves: each section's size per leaf, and each ref's slot from its leaf's start
+    (section start plus its rank in the section, in build order) plus its leaf's offset in
+    `refs` (which the caller's scatter subtracts again)."""
+    n_leaves = count.size
+    leaf = np.repeat(np.arange(n_leaves), count)
     kind = refs >> P.PRIM_TYPE_SHIFT
     section = np.where(kind == P.PRIM_TRIANGLE, 0, np.where(kind == SPHERE.prim, 1, 2))
     sizes, ranks = [], np.zeros(refs.size, dtype=np.int64)
     for sec in range(3):
         member = section == sec
-        if not member.any():  # a mesh alone has triangles only: nothing to rank
-            sizes.append(np.zeros(n_leaves, dtype=np.int64))
-            continue
         running = np.cumsum(member) - member
         if refs.size:
             ranks[member] = (running - running[offsets][leaf])[member]
         sizes.append(np.bincount(leaf[member], minlength=n_leaves).astype(np.int64))
-    tri_packets = -(-sizes[0] // PACKET_WIDTH)
-    sphere_packets = -(-sizes[1] // PACKET_WIDTH)
-    if np.any(sizes[2] > LEAF_FIELD_MASK) or np.any(sphere_packets > LEAF_FIELD_MASK):
-        raise ValueError(f"a leaf holds more than {LEAF_FIELD_MASK} of one section")
-    section_start = np.stack([np.zeros(n_leaves, np.int64), tri_packets * PACKET_WIDTH,
-                              (tri_packets + sphere_packets) * PACKET_WIDTH])
-    size = section_start[2] + sizes[2]
-    padded = -(-size // PACKET_WIDTH) * PACKET_WIDTH
-    start = np.concatenate([[0], np.cumsum(padded)[:-1]]).astype(np.int64)
-    prim_refs = np.full(int(padded.sum()), NO_REF, dtype=np.int32)
-    prim_refs[start[leaf] + section_start[section, leaf] + ranks] = refs
-    packed = ((tri_packets << LEAF_TRIANGLE_SHIFT) | (sphere_packets << LEAF_SPHERE_SHIFT)
-              | sizes[2])
-    return start, packed, prim_refs
+    tri_slots = -(-sizes[0] // PACKET_WIDTH) * PACKET_WIDTH
+    sphere_slots = -(-sizes[1] // PACKET_WIDTH) * PACKET_WIDTH
+    section_start = np.stack([np.zeros(n_leaves, np.int64), tri_slots,
+                              tri_slots + sphere_slots])
+    return sizes, offsets[leaf] + section_start[section, leaf] + ranks
 
 
 def _stack_size(child: np.ndarray, is_inner: np.ndarray, used: np.ndarray,

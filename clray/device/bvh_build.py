@@ -6,10 +6,11 @@ run the plain recursive build, one subtree per work-item. The top few levels, wh
 fewer nodes than cores, are split one level per launch (one work-item per node) until there are
 enough subtrees to keep every core busy.
 
-Every node is written at its position in a padded depth-first layout: a subtree over c
-primitives gets 2c - 1 slots (as many as its nodes could ever need), so a node's position
-depends only on its ancestors' splits and no work-item waits for another's subtree size.
-Dropping the unused slots, in order, leaves exactly the depth-first layout.
+Nodes go to 2N - 1 slots, each subtree's to a range of its own: a subtree over primitives
+[s, s + c) gets the 2c - 2 slots from 2s + 1 for the nodes below it (as many as they could ever
+need), so no work-item waits for another's subtree size, and its nodes are written as a pair of
+children at a time (kernels/bvh_build.cl, process): the layout of Bvh.pairs, which the collapse
+into the wide tree reads as it is. The tree is renumbered depth-first on the host where asked.
 
 The kernels repeat the host build's arithmetic operation for operation (float32 binning, float64
 costs, no contraction into fma), so both builds give the same tree.
@@ -43,6 +44,7 @@ _ROUND_ITEMS = 256
 # past this many one-level launches its remaining subtrees are built as they are.
 _MAX_LEVEL_LAUNCHES = 24
 BUILD_FILE = "bvh_build.cl"
+_FLOAT_PRIM = np.dtype((np.void, 32))
 
 
 def build_options() -> list[str]:
@@ -52,72 +54,92 @@ def build_options() -> list[str]:
 
 
 def build_bvh_on(queue: cl.CommandQueue, lo: np.ndarray, hi: np.ndarray,
-                 max_leaf_size: int = 4, *, largest_leaf: int | None = None) -> Bvh:
+                 max_leaf_size: int = 4, *, largest_leaf: int | None = None,
+                 pairs: bool = False) -> Bvh:
     """clray.accel.bvh.build_bvh's tree, built on the queue's device where it can be (float64,
-    int slot indices: supports), several times faster than the host build; else on the host."""
+    int slot indices: supports), several times faster than the host build; else on the host.
+
+    pairs: a device build's tree is left in its own layout (Bvh.pairs), for
+    clray.accel.wide.collapse, without the pass that renumbers it depth-first."""
     lo, hi, largest = checked_bounds(lo, hi, max_leaf_size, largest_leaf)
     n = lo.shape[0]
-    if n > max_leaf_size and supports(queue.device, n):
-        return Bvh(*build(queue, lo, hi, max_leaf_size, largest))
+    if n > max_leaf_size and supports(queue.device, n, lo.itemsize):
+        return build(queue, lo, hi, max_leaf_size, largest, not pairs)
     return build_bvh(lo, hi, max_leaf_size, largest_leaf=largest)
 
 
-def supports(device: cl.Device, n: int) -> bool:
+def supports(device: cl.Device, n: int, bound_bytes: int = 8) -> bool:
     """The kernels cost splits in float64, as the host build does, and index node slots
     (2N - 1 of them) with ints; every buffer of the build fits the device's largest allocation
     (CL_DEVICE_MAX_MEM_ALLOC_SIZE, a quarter of its memory on PoCL and NVIDIA) and all of
-    them its memory. Where they do not, the host builds the same tree, slower."""
-    sizes = build_buffer_bytes(n)
+    them its memory. Where they do not, the host builds the same tree, slower. bound_bytes:
+    of one coordinate of the bounds (8 for float64, 4 for float32)."""
+    sizes = build_buffer_bytes(n, bound_bytes)
     return (has_fp64(device) and 2 * n - 1 <= np.iinfo(np.int32).max
             and max(sizes.values()) <= device.max_mem_alloc_size
             and sum(sizes.values()) <= device.global_mem_size)
 
 
-def build_buffer_bytes(n: int) -> dict[str, int]:
-    """Bytes of each buffer build() makes for n primitives."""
+def build_buffer_bytes(n: int, bound_bytes: int = 8) -> dict[str, int]:
+    """Bytes of each buffer build() makes for n primitives with bounds of `bound_bytes` a
+    coordinate."""
     slots = 2 * n - 1
-    return {"lo": 24 * n, "hi": 24 * n, "prims": BUILD_PRIM.itemsize * n,
-            "prims_swap": BUILD_PRIM.itemsize * n, "nodes": BINARY_NODE.itemsize * slots,
-            "used": slots, "order": 4 * n}
+    prim = _prim_dtype(bound_bytes).itemsize
+    return {"lo": 3 * bound_bytes * n, "hi": 3 * bound_bytes * n, "prims": prim * n,
+            "prims_swap": prim * n, "nodes": BINARY_NODE.itemsize * slots, "order": 4 * n}
+
+
+def _prim_dtype(bound_bytes: int) -> np.dtype:
+    """The build's primitive record: for float bounds their own rounding, the bounds alone
+    (kernels/bvh_build.cl, Prim under FLOAT_BOUNDS: 32 bytes), else BuildPrim (48)."""
+    return _FLOAT_PRIM if bound_bytes == 4 else BUILD_PRIM
 
 
 @cache
-def _kernels(context: cl.Context) -> dict[str, cl.Kernel]:
+def _kernels(context: cl.Context, float_bounds: bool) -> dict[str, cl.Kernel]:
     # Kernel objects are kept: pyopencl makes a new one on every attribute access.
+    options = build_options() + list(device_build_options(context.devices[0]))
     program = cl.Program(context, kernel_source(BUILD_FILE)).build(
-        options=build_options() + list(device_build_options(context.devices[0])))
+        options=options + (["-DFLOAT_BOUNDS"] if float_bounds else []))
     return {k.function_name: k for k in program.all_kernels()}
 
 
 def build(queue: cl.CommandQueue, lo: np.ndarray, hi: np.ndarray, max_leaf: int,
-          sah_max_leaf: int) -> tuple[np.ndarray, np.ndarray]:
-    """(nodes, order) for N primitives with float64 bounds `lo`, `hi` (N, 3), N > max_leaf."""
+          sah_max_leaf: int, depth_first: bool = True) -> Bvh:
+    """The tree over N primitives with float64 or float32 bounds `lo`, `hi` (N, 3),
+    N > max_leaf: depth-first, or in the build's own layout (Bvh.pairs)."""
     n = lo.shape[0]
     slots = 2 * n - 1
-    kernels = _kernels(queue.context)
+    float_bounds = lo.dtype == np.float32
+    kernels = _kernels(queue.context, float_bounds)
     # Every buffer lives in numpy memory: a CPU device then works in place, and numpy reuses
     # freed memory where a fresh device allocation page-faults in all over again each build.
     lo_buf = _input_buffer(queue, np.ascontiguousarray(lo))
     hi_buf = _input_buffer(queue, np.ascontiguousarray(hi))
-    prims = [np.empty(n, dtype=BUILD_PRIM), np.empty(n, dtype=BUILD_PRIM)]
-    padded = np.empty(slots, dtype=BINARY_NODE)
-    used = np.zeros(slots, dtype=np.uint8)
+    prims = [np.empty(n, dtype=_prim_dtype(lo.itemsize)) for _ in range(2)]
+    # Uninitialised: the pages a subtree's range does not reach are never touched.
+    nodes = np.empty(slots, dtype=BINARY_NODE)
     order = np.empty(n, dtype=np.int32)
     root = np.empty(1, dtype=BUILD_TASK)
-    bufs = [_host_buffer(queue, a) for a in (*prims, padded, used, order, root)]
+    bufs = [_host_buffer(queue, a) for a in (*prims, nodes, order, root)]
     chunk = -(-n // _ROUND_ITEMS)
-    kernels["round_prims"](queue, (-(-n // chunk),), (1,), lo_buf, hi_buf, bufs[0],
-                           np.int32(n), np.int32(chunk))
-    kernels["root_task"](queue, (1,), (1,), bufs[0], np.int32(n), bufs[5])
-    shared = (*bufs[:5], np.int32(max_leaf), np.int32(sah_max_leaf))
+    round_prims = kernels["round_prims_float" if float_bounds else "round_prims"]
+    round_prims(queue, (-(-n // chunk),), (1,), lo_buf, hi_buf, bufs[0], np.int32(n),
+                np.int32(chunk))
+    # The copies of the bounds are done with once rounded: the runtime frees them when the
+    # kernel is done, before the build's own buffers fill.
+    lo_buf.release()
+    hi_buf.release()
+    kernels["root_task"](queue, (1,), (1,), bufs[0], np.int32(n), bufs[4])
+    shared = (*bufs[:4], np.int32(max_leaf), np.int32(sah_max_leaf))
 
-    tasks = _split_levels(queue, kernels["split_level"], bufs[5], shared)
+    tasks = _split_levels(queue, kernels["split_level"], bufs[4], shared)
     if tasks.size:
         kernels["build_subtrees"](queue, (tasks.size,), (1,), _input_buffer(queue, tasks),
                                   *shared)
-    for buf, array in zip(bufs[2:5], (padded, used, order), strict=True):
+    for buf, array in zip(bufs[2:4], (nodes, order), strict=True):
         _sync(queue, buf, array)
-    return _compact(padded, used.view(bool)), order
+    return Bvh(_depth_first(nodes), order) if depth_first else Bvh(nodes, order, pairs=True)
 
 
 def _host_buffer(queue: cl.CommandQueue, array: np.ndarray) -> cl.Buffer:
@@ -159,12 +181,29 @@ def _split_levels(queue: cl.CommandQueue, split_level: cl.Kernel, root_buf: cl.B
     return tasks
 
 
-def _compact(padded: np.ndarray, used: np.ndarray) -> np.ndarray:
-    """Drop the unused slots; inner nodes' `first` goes from padded to compact positions."""
-    index = np.cumsum(used, dtype=np.int32) - 1
-    # Whole records as opaque 32-byte items: numpy copies those far faster than structs.
+def _depth_first(nodes: np.ndarray) -> np.ndarray:
+    """The build's tree (Bvh.pairs) renumbered depth-first, a level at a time from the root:
+    subtree sizes bottom-up, then each node's position top-down (left child next, right child
+    after the left subtree)."""
+    levels = [np.zeros(1, dtype=np.int64)]  # slots, level by level; children in pairs
+    inner = []  # which of a level's nodes are inner: the next level holds their children
+    while True:
+        inner.append(nodes["count"][levels[-1]] == 0)
+        if not inner[-1].any():
+            break
+        first = nodes["first"][levels[-1][inner[-1]]].astype(np.int64)
+        levels.append(np.stack([first, first + 1], axis=1).ravel())
+    size = [np.ones(level.size, dtype=np.int64) for level in levels]
+    for k in range(len(levels) - 2, -1, -1):
+        size[k][inner[k]] += size[k + 1].reshape(-1, 2).sum(axis=1)
+    position = [np.zeros(1, dtype=np.int64)]
+    for k in range(1, len(levels)):
+        parent = position[k - 1][inner[k - 1]]
+        left_size = size[k].reshape(-1, 2)[:, 0]
+        position.append(np.stack([parent + 1, parent + 1 + left_size], axis=1).ravel())
     opaque = np.dtype((np.void, BINARY_NODE.itemsize))
-    nodes = np.compress(used, padded.view(opaque)).view(BINARY_NODE)
-    first = nodes["first"]
-    np.copyto(first, index[first], where=nodes["count"] == 0)
-    return nodes
+    out = np.empty(int(size[0][0]), dtype=BINARY_NODE)
+    out.view(opaque)[np.concatenate(position)] = nodes.view(opaque)[np.concatenate(levels)]
+    for k in range(len(levels) - 1):
+        out["first"][position[k][inner[k]]] = position[k + 1].reshape(-1, 2)[:, 1]
+    return out

@@ -204,9 +204,11 @@ def _pack_triangles(objs: _Placed, bounded: _Bounded) -> _Triangles:
     # a reduction over the middle axis of (F, 3, 3), and float32 minima widened are the same
     # numbers as float64 minima of the widened corners. Whole rows taken (np.take along axis
     # 0), not vertices[index, :3]: numpy's fancy index with a slice is four times slower.
+    # The bounds stay float32 (the BVH builds take them as the same numbers as their float64
+    # copies would be): 24 B a triangle less, and no copy.
     c0, c1, c2 = (np.take(vertices, rows[:, k], axis=0) for k in range(3))
-    hi = np.maximum(np.maximum(c0, c1), c2)[:, :3].astype(np.float64)
-    lo = np.minimum(np.minimum(c0, c1, out=c0), c2, out=c0)[:, :3].astype(np.float64)
+    hi = np.ascontiguousarray(np.maximum(np.maximum(c0, c1), c2)[:, :3])
+    lo = np.ascontiguousarray(np.minimum(np.minimum(c0, c1, out=c0), c2, out=c0)[:, :3])
     bounded.add(L.PRIM_TRIANGLE, lo, hi, np.repeat(objs.owners, n_faces))
     return _Triangles(triangles, vertices, normals, uvs, colors)
 
@@ -223,7 +225,7 @@ def _build_wide(lo: np.ndarray, hi: np.ndarray, refs: np.ndarray, width: int,
               {"max_leaf_size": tuning.max_leaf_size, "largest_leaf": tuning.largest_leaf})
     on_device = (queue is not None and len(lo) >= DEVICE_BUILD_MIN
                  and tuning.traversal_cost == TRAVERSAL_COST)
-    binary = (build_bvh_on(queue, lo, hi, **leaves) if on_device
+    binary = (build_bvh_on(queue, lo, hi, **leaves, pairs=True) if on_device
               else build_bvh(lo, hi, traversal_cost=tuning.traversal_cost, **leaves))
     return collapse(binary, refs, width, tuning.fold_packets)
 

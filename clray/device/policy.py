@@ -8,7 +8,7 @@ clray.knobs.TRAVERSAL_TABLE; this module decides which of them a device renders 
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import pyopencl as cl
 
@@ -85,7 +85,7 @@ class DevicePlan:
     precision: str
     # The KernelConfig fields the device, the settings and the tuning set (the scene's are the
     # packer's): the traversal and its defines, the kernel and build knobs, passes, variants.
-    switches: dict[str, object] = field(default_factory=dict)
+    switches: dict[str, object]
 
     def pack_arguments(self) -> dict[str, object]:
         """pack_scene's keyword arguments of the plan (with the scene's sizes and a queue

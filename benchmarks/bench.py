@@ -36,9 +36,9 @@ from clray import profile
 from clray.device.context import describe, queue_for, select_device
 from clray.device.launch import render_packed
 from clray.device.pack import pack_scene
-from clray.device.program import KernelConfig, bvh_width_for
+from clray.device.policy import device_plan
+from clray.device.program import KernelConfig
 from clray.knobs import Tuning
-from clray.render import RenderSettings, kernel_switches
 from clray.scene.load import load_scene
 
 HERE = Path(__file__).resolve().parent
@@ -130,7 +130,8 @@ def bench_scene(name: str, path: Path, device: cl.Device, device_spec: str | Non
 
     r = scene.render
     settings = {"width": r.width, "height": r.height, "spp": r.spp, "max_depth": r.max_depth,
-                "seed": r.seed, "bvh_width": bvh_width_for(device), "queue": queue_for(device)}
+                "seed": r.seed, "queue": queue_for(device),
+                "bvh_width": device_plan(device, spp=r.spp, tuning=Tuning()).bvh_width}
     # Packed twice: the first pack may compile the device BVH build, the second is what a
     # render with warm caches pays.
     bvh_first_s = pack_scene(scene, **settings).bvh_s
@@ -153,7 +154,7 @@ def bench_scene(name: str, path: Path, device: cl.Device, device_spec: str | Non
     # At other sample counts the device's own kernel switches, as a render picks them (sample
     # packets on CPU devices where a pixel's samples fill one).
     at_spp = {n: pack_scene(scene, **{**settings, "spp": n},
-                            **kernel_switches(Tuning(), RenderSettings(), device, n))
+                            **device_plan(device, spp=n, tuning=Tuning()).switches)
               for n in pov_spp if n != r.spp}
     for other in at_spp.values():
         render_packed(other, device)

@@ -36,7 +36,8 @@ sys.path.insert(0, str(ROOT))
 from clray.device.context import queue_for, select_device  # noqa: E402
 from clray.device.launch import render_packed  # noqa: E402
 from clray.device.pack import pack_scene  # noqa: E402
-from clray.device.program import bvh_width_for  # noqa: E402
+from clray.device.policy import device_plan  # noqa: E402
+from clray.knobs import Tuning  # noqa: E402
 from clray.scene.load import load_scene  # noqa: E402
 
 GRID = (40, 25)  # instances along x and z, one of them at the origin
@@ -125,7 +126,8 @@ def bench(path: Path, device, repeat: int) -> dict:
     scene = load_scene(path)
     load_s = time.perf_counter() - start
     settings = {"width": 1280, "height": 720, "spp": 1, "max_depth": 0, "seed": 0,
-                "bvh_width": bvh_width_for(device), "queue": queue_for(device)}
+                "queue": queue_for(device),
+                "bvh_width": device_plan(device, spp=1, tuning=Tuning()).bvh_width}
     pack_scene(scene, **settings)  # compiles the device BVH build once
     packed = pack_scene(scene, **settings)
     render_packed(packed, device)  # warm-up: program build and first launch

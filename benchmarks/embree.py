@@ -226,18 +226,17 @@ class ClraySide:
                  packet_spp: int):
         from clray.device.context import queue_for
         from clray.device.pack import pack_scene
-        from clray.device.program import bvh_width_for
+        from clray.device.policy import device_plan
         from clray.knobs import Tuning
-        from clray.render import RenderSettings, kernel_switches
 
         r = scene.render
         self.device = device
-        settings = {"width": r.width, "height": r.height, "max_depth": 0, "seed": r.seed,
-                    "bvh_width": bvh_width_for(device), "queue": queue_for(device)}
         # As `clray render --traversal single` packs a 1-spp render (and as a plain 1-spp
         # render does: one sample a pixel makes no sample packet).
-        single = kernel_switches(Tuning(), RenderSettings(traversal="single"), device, 1)
-        self.packed = pack_scene(scene, spp=1, **settings, **single)
+        single = device_plan(device, spp=1, traversal="single", tuning=Tuning())
+        settings = {"width": r.width, "height": r.height, "max_depth": 0, "seed": r.seed,
+                    "bvh_width": single.bvh_width, "queue": queue_for(device)}
+        self.packed = pack_scene(scene, spp=1, **settings, **single.switches)
         if self.packed.config.traversal != "single" or self.packed.config.max_depth != 0:
             raise RuntimeError(f"expected the single-ray walk at depth 0, got "
                                f"{self.packed.config.traversal} at {self.packed.config.max_depth}")
@@ -245,7 +244,7 @@ class ClraySide:
         self.background = np.asarray(r.background, dtype=np.float32)
         self.packets = None
         if packet_spp:
-            switches = kernel_switches(Tuning(), RenderSettings(), device, packet_spp)
+            switches = device_plan(device, spp=packet_spp, tuning=Tuning()).switches
             self.packets = pack_scene(scene, spp=packet_spp, **settings, **switches)
         self._intersect_setup(origins, directions)
 

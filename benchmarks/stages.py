@@ -17,7 +17,7 @@ gathering of lanes. Calls that are not inlined cost instructions of their own: t
 build's total is reported beside the normal build's, so the overhead is in view.
 
 Sample packets have the lanes a render gives them on PoCL's device at that many samples a
-pixel (`clray.device.program.packet_lanes_for`: 16 on AVX2 at 16 spp).
+pixel (`clray.device.policy.packet_lanes_for`: 16 on AVX2 at 16 spp).
 
 A pixel's samples are as coherent as the image is large: at 32 x 18 a pixel covers what 1,600
 pixels of a 1280 x 720 image do, so a change that pays off where a pixel's rays stay together
@@ -54,7 +54,7 @@ import dataclasses, json, sys
 from clray.device.context import select_device
 from clray.device.launch import render_packed
 from clray.device.pack import pack_scene
-from clray.device.program import packet_lanes_for
+from clray.device.policy import packet_lanes_for
 from clray.scene.load import load_scene
 path, traversal, spp, width, height, profile, first, end = sys.argv[1:9]
 scene = load_scene(path)

@@ -54,7 +54,43 @@ def _number_in(low: float, high: float) -> Callable[[object], bool]:
                       and low < v <= high)
 
 
-TRAVERSALS = ("single", "sample_packet", "group_packet")
+@dataclass(frozen=True)
+class TraversalScheme:
+    """A way rays walk the BVH: a value of the traversal knob, and its kernel build."""
+
+    name: str  # the knob's value; the build's -D TRAVERSAL=TRAVERSAL_<NAME> (kernels/lanes.h)
+    # The knobs that act only with this scheme: a configuration of another leaves them at
+    # their defaults (restriction_problems).
+    knobs: tuple[str, ...] = ()
+    # The KernelConfig fields this scheme's build takes as -D NAME=value beside TRAVERSAL.
+    defines: tuple[str, ...] = ()
+    # A pixel's samples traced together, packet_lanes of them: a render with one sample a
+    # pixel builds the single-ray walk instead (clray.device.policy.device_plan).
+    packs_samples: bool = False
+    # Launched in square work-groups of group_side x group_side pixels that walk the BVH
+    # together, not in row segments of work_group_width (clray.device.launch).
+    tiles: bool = False
+
+
+# The traversal schemes (docs/acceleration.md), in the order of kernels/lanes.h's
+# TRAVERSAL_* codes, which `clray tune` passes as a scheme's index: a new scheme is one entry
+# here, its code there and its kernel header.
+TRAVERSAL_TABLE: tuple[TraversalScheme, ...] = (
+    TraversalScheme("single"),
+    TraversalScheme("sample_packet", knobs=("packet_lanes", "packet_min_lanes"),
+                    defines=("packet_lanes", "packet_min_lanes"), packs_samples=True),
+    TraversalScheme("group_packet", knobs=("group_side",), tiles=True),
+)
+TRAVERSAL_SCHEMES: dict[str, TraversalScheme] = {t.name: t for t in TRAVERSAL_TABLE}
+
+
+def other_schemes_knobs(traversal: str) -> tuple[str, ...]:
+    """The knobs that act only with traversal schemes other than `traversal`."""
+    return tuple(name for scheme in TRAVERSAL_TABLE if scheme.name != traversal
+                 for name in scheme.knobs)
+
+
+TRAVERSALS = tuple(TRAVERSAL_SCHEMES)
 GROUP_SIDES = (4, 8)
 PACKET_LANES = (4, 8, 16)
 
@@ -167,8 +203,6 @@ BUILD_KNOBS = tuple(k.name for k in KNOB_TABLE if k.acts == "build")
 KERNEL_KNOBS = tuple(k.name for k in KNOB_TABLE if k.acts == "kernel")
 # The study variants, tried only under --allow-error.
 IMAGE_KNOBS = tuple(k.name for k in KNOB_TABLE if k.changes_image)
-# The packet knobs, which act only with traversal sample_packet.
-PACKET_KNOBS = ("packet_lanes", "packet_min_lanes")
 
 
 def build_option(name: str) -> str:
@@ -190,14 +224,13 @@ def restriction_problems(values: dict[str, object]) -> list[str]:
     if lanes is not None and values["packet_min_lanes"] >= lanes:
         problems.append(f"packet_min_lanes {values['packet_min_lanes']} is not below "
                         f"packet_lanes {lanes}")
-    if values["traversal"] in ("single", "group_packet"):
-        problems += [f"{name} {values[name]} acts only with traversal sample_packet (leave it "
-                     f"at {KNOBS[name].default!r} with {values['traversal']})"
-                     for name in PACKET_KNOBS if values[name] != KNOBS[name].default]
-    if (values["traversal"] in ("single", "sample_packet")
-            and values["group_side"] != KNOBS["group_side"].default):
-        problems.append(f"group_side {values['group_side']} acts only with traversal "
-                        "group_packet")
+    # A scheme's own knobs, where another scheme is named (None may be any device's own).
+    traversal = values["traversal"]
+    for scheme in TRAVERSAL_TABLE:
+        if traversal is not None and traversal != scheme.name:
+            problems += [f"{name} {values[name]} acts only with traversal {scheme.name} (leave "
+                         f"it at {KNOBS[name].default!r} with {traversal})"
+                         for name in scheme.knobs if values[name] != KNOBS[name].default]
     return problems
 
 

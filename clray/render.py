@@ -7,7 +7,7 @@ import os
 import time
 import warnings
 from collections.abc import Callable
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -17,11 +17,10 @@ from clray.denoise import DENOISE_GUIDES, check_denoiser, denoise
 from clray.device.context import describe, queue_for, select_device
 from clray.device.launch import render_packed, render_passes_packed
 from clray.device.pack import PackedScene, pack_scene
-from clray.device.program import bvh_width_for, packet_lanes_for, traversal_for
-from clray.device.tuning_files import chosen_tuning
+from clray.device.policy import DevicePlan, device_plan
 from clray.errors import SettingsError
 from clray.image_io import Encoding, image_bytes
-from clray.knobs import BUILD_KNOBS, IMAGE_KNOBS, TRAVERSALS, Tuning, TuningError
+from clray.knobs import TRAVERSALS, Tuning
 from clray.passes import pass_problem, passes_of, write_with_passes
 from clray.scene import limits as L
 from clray.scene.check import check_scene
@@ -157,48 +156,23 @@ def warn_deep_tree(scene: Scene, resolved: dict[str, int | float]) -> None:
                       stacklevel=3)
 
 
-def kernel_switches(tuning: Tuning, settings: RenderSettings, device: cl.Device,
-                    spp: int) -> dict:
-    """The KernelConfig fields the tuning's kernel and build knobs set: the traversal (the
-    settings' where given), the packet's lanes (the device's where the tuning leaves them to
-    it), the study variants it switches on and their build options. With one sample a pixel
-    there is no sample packet to trace, and the single-ray build renders: the packet build's
-    code costs the same rays 21 to 29 % more instructions (docs/acceleration.md, Where a
-    sample's instructions go). A device's own sample packets (neither the settings nor the
-    tuning name a traversal) are used only where a pixel's samples fill a packet: on Intel's
-    CPU runtime 4 samples in 8 lanes measured slower than the single-ray walk."""
-    named = settings.traversal or tuning.traversal
-    traversal = named or traversal_for(device)
-    switches: dict[str, object] = {"traversal": traversal,
-                                   "implicit_vectorization": tuning.implicit_vectorization}
-    if traversal == "sample_packet":
-        # Checked whatever the spp: a tuning that cannot build is an error at 1 spp too.
-        lanes = tuning.packet_lanes or packet_lanes_for(device, settings.precision, spp)
-        if tuning.packet_min_lanes >= lanes:
-            raise TuningError(f"packet_min_lanes {tuning.packet_min_lanes} is not below the "
-                              f"{lanes} packet lanes of {device.name.strip()!r}")
-        if spp == 1 or (named is None and spp < lanes):
-            switches["traversal"] = "single"
-        else:
-            switches.update(packet_lanes=lanes, packet_min_lanes=tuning.packet_min_lanes)
-    switches.update({name: getattr(tuning, name) for name in IMAGE_KNOBS
-                     if name not in BUILD_KNOBS})
-    if tuning.build_options():
-        switches["build_options"] = tuning.build_options()
-    return switches
+def plan_for(scene: Scene, settings: RenderSettings, device: cl.Device) -> DevicePlan:
+    """The device policy's plan (clray.device.policy.device_plan) of rendering `scene` with
+    `settings` on `device`: its knobs, traversal, packet lanes, BVH width and switches."""
+    return device_plan(device, spp=resolved_settings(scene, settings)["spp"],
+                       precision=settings.precision, traversal=settings.traversal,
+                       tuning=settings.tuning, stored_tuning=settings.stored_tuning,
+                       passes=bool(traced_passes(settings)), variants=settings.variants)
 
 
-def pack_for(scene: Scene, settings: RenderSettings, device: cl.Device) -> PackedScene:
-    """The checked `scene` packed for `device` with `settings`: what render() launches, and
-    what each worker of a distributed render packs once for all its tiles. The knobs are the
-    settings' tuning, else the device's tuning file's (clray.device.tuning_files.chosen_tuning)."""
-    tuning = settings.tuning or chosen_tuning(device, settings.stored_tuning)[0]
-    resolved = resolved_settings(scene, settings)
-    switches = {**kernel_switches(tuning, settings, device, resolved["spp"]),
-                "passes": bool(traced_passes(settings)), **dict(settings.variants)}
-    return pack_scene(scene, precision=settings.precision,
-                      bvh_width=tuning.bvh_width or bvh_width_for(device, settings.precision),
-                      queue=queue_for(device), tuning=tuning, **resolved, **switches)
+def pack_for(scene: Scene, settings: RenderSettings, device: cl.Device,
+             plan: DevicePlan | None = None) -> PackedScene:
+    """The checked `scene` packed for `device` with `settings` as `plan` (plan_for's where not
+    given) decides: what render() launches, and what each worker of a distributed render packs
+    once for all its tiles."""
+    plan = plan or plan_for(scene, settings, device)
+    return pack_scene(scene, queue=queue_for(device), **resolved_settings(scene, settings),
+                      **plan.pack_arguments())
 
 
 def render(scene: Scene | str | os.PathLike, settings: RenderSettings | None = None
@@ -214,12 +188,8 @@ def render(scene: Scene | str | os.PathLike, settings: RenderSettings | None = N
     if settings.denoise:
         check_denoiser()  # before any device work
     device = select_device(settings.device)
-    if settings.tuning is None:
-        tuning, tuning_source = chosen_tuning(device, settings.stored_tuning)
-        settings = replace(settings, tuning=tuning)
-    else:
-        tuning_source = "given"
-    packed = pack_for(scene, settings, device)
+    plan = plan_for(scene, settings, device)
+    packed = pack_for(scene, settings, device, plan)
     pack_s = time.perf_counter() - start - packed.bvh_s
     image, stats = render_packed(packed, device, settings.progress, on_band=settings.on_band)
     aovs: dict[str, np.ndarray] = {}
@@ -242,7 +212,7 @@ def render(scene: Scene | str | os.PathLike, settings: RenderSettings | None = N
         "precision": settings.precision,
         # Which configuration rendered: its source, the knobs changed from the defaults, every
         # knob's value, and the BVH width that "auto" (None) picked.
-        "tuning": {"source": tuning_source, "label": packed.tuning.label(),
+        "tuning": {"source": plan.tuning_source, "label": packed.tuning.label(),
                    **packed.tuning.values(), "bvh_width": packed.config.bvh_width},
         "traversal": packed.config.traversal,
         "bvh_s": packed.bvh_s,

@@ -24,7 +24,7 @@ from pathlib import Path
 import pyopencl as cl
 import pytest
 
-from clray.device import program as program_module
+from clray.device import policy as policy_module
 from clray.device.context import DeviceInfo, context_for, list_devices, select_device
 from clray.errors import DeviceError
 
@@ -170,7 +170,7 @@ def force_vector_width(monkeypatch: pytest.MonkeyPatch, lanes: int | str) -> Non
     picks the default packet lanes and BVH width; with "other", the width the device does not
     have. Stand-in devices (SimpleNamespace) keep the real function, which tests of
     vector_width itself call."""
-    own = program_module.vector_width
+    own = policy_module.vector_width
 
     def forced(device, precision: str = "float") -> int:
         if not isinstance(device, cl.Device):
@@ -178,7 +178,7 @@ def force_vector_width(monkeypatch: pytest.MonkeyPatch, lanes: int | str) -> Non
         floats = int(lanes) if lanes != OTHER_LANES else (8 if own(device) >= 16 else 16)
         return floats // 2 if precision == "double" else floats
 
-    monkeypatch.setattr(program_module, "vector_width", forced)
+    monkeypatch.setattr(policy_module, "vector_width", forced)
 
 
 @pytest.fixture(autouse=True)

@@ -341,11 +341,11 @@ MUTATIONS: tuple[Mutation, ...] = (
       "st->own_t[at] = (bits >> far) & 1 ? tnear[far] : (REAL)-1;", "st->own_t[at] = (REAL)-1;",
       "tests/test_packets.py::test_group_packets_find_the_single_ray_hits"),
     # clray/device
-    m("program.native_width_ignored", "clray/device/program.py",
+    m("policy.native_width_ignored", "clray/device/policy.py",
       "return max(device.preferred_vector_width_float, device.native_vector_width_float)",
       "return device.preferred_vector_width_float",
       "tests/test_tuning.py::test_vector_width_is_the_preferred_or_the_native_one"),
-    m("program.packets_on_no_device", "clray/device/program.py",
+    m("policy.packets_on_no_device", "clray/device/policy.py",
       '        return "sample_packet"\n    return "single"',
       '        return "single"\n    return "single"',
       "tests/test_tuning.py::test_each_device_has_its_own_traversal"),

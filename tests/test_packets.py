@@ -22,10 +22,11 @@ from test_intersect import mesh_gen, random_mix, random_units
 
 from clray.device.launch import intersect_rays
 from clray.device.pack import pack_scene
-from clray.device.program import KernelConfig, kernel_source, traversal_for
+from clray.device.policy import device_plan, traversal_for
+from clray.device.program import KernelConfig, kernel_source
 from clray.errors import SettingsError
 from clray.knobs import TRAVERSALS, Tuning
-from clray.render import RenderSettings, kernel_switches, render
+from clray.render import RenderSettings, render
 from clray.scene import model as M
 from clray.scene.load import load_scene, scene_from_dict
 
@@ -256,7 +257,7 @@ def test_a_devices_own_sample_packets_need_a_full_packet() -> None:
                             native_vector_width_double=4)
 
     def traversal(spp: int, settings: RenderSettings, tuning: Tuning) -> str:
-        return kernel_switches(tuning, settings, intel, spp)["traversal"]
+        return device_plan(intel, spp=spp, traversal=settings.traversal, tuning=tuning).traversal
 
     own, named = RenderSettings(), RenderSettings(traversal="sample_packet")
     assert [traversal(spp, own, Tuning()) for spp in (1, 4, 7, 8, 16)] == [

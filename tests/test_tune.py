@@ -13,9 +13,9 @@ import numpy as np
 import pytest
 
 from clray import cli
+from clray.device.policy import device_plan
 from clray.device.program import kernel_source
 from clray.knobs import TRAVERSALS
-from clray.render import RenderSettings, kernel_switches
 from clray.tuning import KNOB_TABLE, Tuning
 from clray.tuning import tuner as tuner_module
 
@@ -41,7 +41,7 @@ def tune(cl_device, out: Path, scene: Path = SPHERES, **options) -> list[tuner_m
 
 def own_traversal(device, spp: int) -> str:
     """The walk a default render builds on `device` at `spp` samples a pixel."""
-    return kernel_switches(Tuning(), RenderSettings(), device, spp)["traversal"]
+    return device_plan(device, spp=spp, tuning=Tuning()).traversal
 
 
 def record_tune_kernel(kernel_tuner, monkeypatch) -> list[tuple[tuple, dict]]:

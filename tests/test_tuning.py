@@ -22,14 +22,12 @@ from clray.accel import wide as wide_module
 from clray.device import tuning_files as store
 from clray.device.context import context_for
 from clray.device.pack import pack_scene
+from clray.device.policy import bvh_width_for, packet_lanes_for, traversal_for
 from clray.device.program import (
     ALLOWED_BUILD_OPTIONS,
     KernelConfig,
-    bvh_width_for,
     device_build_options,
     kernel_source,
-    packet_lanes_for,
-    traversal_for,
 )
 from clray.knobs import BUILD_KNOBS, IMAGE_KNOBS, build_option
 from clray.render import RenderSettings, pack_for, render

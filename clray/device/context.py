@@ -125,7 +125,7 @@ def select_device(spec: str | None = None) -> cl.Device:
 def default_device() -> tuple[cl.Device, str, str]:
     """(device, spec, why): the device a render uses where neither --device nor the settings
     name one. CLRAY_DEVICE, then PYOPENCL_CTX, then the first CPU device: renders have been
-    measured on CPU drivers, where sample packets run (clray.device.program.traversal_for),
+    measured on CPU drivers, where sample packets run (clray.device.policy.traversal_for),
     and no other device has yet been measured faster."""
     devices = _all_devices()
     for variable in ("CLRAY_DEVICE", "PYOPENCL_CTX"):

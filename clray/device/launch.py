@@ -14,7 +14,7 @@ from clray.device.context import describe, device_type, queue_for
 from clray.device.pack import PackedScene
 from clray.device.program import build_program
 from clray.errors import DeviceError
-from clray.knobs import DEFAULT_TUNING, Tuning
+from clray.knobs import DEFAULT_TUNING, TRAVERSAL_SCHEMES, Tuning
 
 # Launches are sized by the time they take, not by their work, so that progress advances
 # several times a second on any device and no launch nears a GPU watchdog, while a small render
@@ -123,7 +123,7 @@ def _local_size(kernel: cl.Kernel, device: cl.Device, packed: PackedScene) -> tu
     """The launch's work-group: a row segment (_group_width), or with group packets the tile of
     group_side x group_side pixels that walk the BVH together, which the device must take
     whole."""
-    if packed.config.traversal != "group_packet":
+    if not TRAVERSAL_SCHEMES[packed.config.traversal].tiles:
         return _group_width(kernel, device, packed.tuning), 1
     side = packed.tuning.group_side
     limit = kernel.get_work_group_info(cl.kernel_work_group_info.WORK_GROUP_SIZE, device)
@@ -310,10 +310,10 @@ def intersect_rays(packed: PackedScene, device: cl.Device, origins: np.ndarray,
     queue = queue_for(device)
     ctx = queue.context
     n = len(origins)
-    traversal = packed.config.traversal
-    lanes = packed.config.packet_lanes if traversal == "sample_packet" else 1
+    scheme = TRAVERSAL_SCHEMES[packed.config.traversal]
+    lanes = packed.config.packet_lanes if scheme.packs_samples else 1
     # A group packet's rays are a work-group's: the launch covers whole groups.
-    group = packed.tuning.group_side ** 2 if traversal == "group_packet" else None
+    group = packed.tuning.group_side ** 2 if scheme.tiles else None
     padding = group or lanes
     # The last packet padded with copies of the last ray.
     padded = -(-max(n, 1) // padding) * padding

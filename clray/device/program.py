@@ -13,7 +13,7 @@ import pyopencl as cl
 
 from clray.device.context import context_for, device_type, has_fp64
 from clray.errors import DeviceError
-from clray.knobs import KNOBS
+from clray.knobs import KNOBS, TRAVERSAL_SCHEMES
 from clray.shapes import SHAPES
 
 # The top-level kernels/ folder, installed as this package (pyproject.toml's package-dir), so a
@@ -81,11 +81,12 @@ class KernelConfig(_ShapeSwitches):
     bvh_width: int = 8
     bvh_stack_size: int = 32
     precision: str = "float"  # "float" | "double"
-    # How rays walk the BVH (TRAVERSALS; docs/acceleration.md): "single", every ray alone,
-    # "sample_packet", a pixel's samples in packets of packet_lanes vector lanes, lanes going on
-    # ray by ray where at most packet_min_lanes of them reach a subtree, or "group_packet", a
-    # work-group's pixels together (the launch's tiles: the group_side knob). Knobs of the table
-    # (clray.knobs); the packer passes packet_lanes as the tuning's or the device's.
+    # How rays walk the BVH (clray.knobs.TRAVERSAL_TABLE, which names the fields each scheme's
+    # build takes as -D; docs/acceleration.md): "single", every ray alone, "sample_packet", a
+    # pixel's samples in packets of packet_lanes vector lanes, lanes going on ray by ray where
+    # at most packet_min_lanes of them reach a subtree, or "group_packet", a work-group's
+    # pixels together (the launch's tiles: the group_side knob). Knobs of the table
+    # (clray.knobs); clray.device.policy.device_plan sets them for the device.
     traversal: str = "single"
     packet_lanes: int = 8
     packet_min_lanes: int = KNOBS["packet_min_lanes"].default
@@ -119,9 +120,8 @@ class KernelConfig(_ShapeSwitches):
         defines.append(f"-DBVH_WIDTH={self.bvh_width}")
         defines.append(f"-DBVH_STACK_SIZE={self.bvh_stack_size}")
         defines.append(f"-DTRAVERSAL=TRAVERSAL_{self.traversal.upper()}")
-        if self.traversal == "sample_packet":
-            defines.append(f"-DPACKET_LANES={self.packet_lanes}")
-            defines.append(f"-DPACKET_MIN_LANES={self.packet_min_lanes}")
+        defines += [f"-D{name.upper()}={getattr(self, name)}"
+                    for name in TRAVERSAL_SCHEMES[self.traversal].defines]
         if self.precision == "double":
             defines.append("-DUSE_DOUBLE=1")
         return sorted(defines) + sorted(self.build_options)
@@ -172,60 +172,6 @@ def private_memory_warning(config: KernelConfig, device_type: str) -> str | None
             f"{stacks['ray_stack']}, BVH {stacks['bvh_stack']}; max_depth {config.max_depth}, "
             f"{config.precision}) exceed the {GPU_REGISTER_BYTES} a GPU keeps in registers: "
             "expect spills to slow memory")
-
-
-def vector_width(device: cl.Device, precision: str = "float") -> int:
-    """The vector width of the arithmetic's type that a work-item's own vectors get: the
-    device's preferred width, or its native one where that is wider. A driver that packs
-    work-items into a vector's lanes reports a preferred width of 1 (Intel's CPU runtime), but
-    the render kernels ask it for one work-item a thread (KernelConfig.implicit_vectorization),
-    whose vectors then have the hardware's native width (8 floats on AVX2)."""
-    if precision == "double":
-        return max(device.preferred_vector_width_double, device.native_vector_width_double)
-    return max(device.preferred_vector_width_float, device.native_vector_width_float)
-
-
-def bvh_width_for(device: cl.Device, precision: str = "float") -> int:
-    """Children per BVH node for this device and arithmetic: 8 where its vectors of that type
-    are 8 wide or more (float on AVX CPUs), else 4 (double on AVX2, GPUs). Either width is
-    correct on any device; the node's slab test runs on vectors of this width."""
-    return 8 if vector_width(device, precision) >= 8 else 4
-
-
-# The drivers whose CPU device renders faster with sample packets, by platform name, at 16 spp,
-# 1280 x 720 (docs/acceleration.md, Sample packets): PoCL, 1.63x (spheres) and 1.34x (mesh), at
-# 8 spp 1.59x and 1.17x; Intel's CPU runtime, 1.50x (spheres, with the chains) and 1.08x to
-# 1.31x (mesh).
-SAMPLE_PACKET_PLATFORMS = ("Portable Computing Language", "Intel(R) OpenCL")
-
-
-def traversal_for(device: cl.Device) -> str:
-    """The traversal a device renders with where neither the settings nor the tuning name
-    one: sample packets on the CPU devices of SAMPLE_PACKET_PLATFORMS, where they measured
-    faster; the single-ray walk elsewhere. On a GPU a work-item's lanes are work-items
-    already, and a packet's private state would cut occupancy. `clray tune` tries both and
-    stores the faster for the device. With one sample a pixel every device renders with the
-    single-ray build, and a device's own sample packets only where a pixel's samples fill a
-    packet (clray.render.kernel_switches)."""
-    if (device.platform.name.strip() in SAMPLE_PACKET_PLATFORMS
-            and device_type(device) == "CPU"):
-        return "sample_packet"
-    return "single"
-
-
-def packet_lanes_for(device: cl.Device, precision: str = "float", spp: int | None = None) -> int:
-    """Rays in a sample packet: the device's vector width of the arithmetic type (vector_width:
-    8 floats on AVX2, 16 on AVX-512), within 4 to 16; 16 on a device 8 wide too where a pixel's
-    `spp` samples fill them. A packet of two vectors shares each node's interval test, each
-    leaf's shape boxes and the lane bookkeeping among twice the rays, and each lane-wise test
-    costs two vector operations instead of one: at 16 spp (1280 x 720, AVX2) 16 lanes were
-    1.09x (spheres) and 1.28x (mesh) faster than 8 on PoCL 3.1, 1.19x and 1.10x on Intel's
-    CPU runtime (docs/acceleration.md, Sample packets)."""
-    width = vector_width(device, precision)
-    lanes = 16 if width >= 16 else (8 if width >= 8 else 4)
-    if lanes == 8 and spp is not None and spp >= 16:
-        return 16
-    return lanes
 
 
 def kernel_source(name: str = ENTRY_FILE) -> str:

@@ -32,12 +32,8 @@ import pyopencl as cl
 from clray import metrics
 from clray.device.launch import render_packed
 from clray.device.pack import PackedScene
-from clray.device.program import (
-    bvh_width_for,
-    kernel_source,
-    packet_lanes_for,
-    traversal_for,
-)
+from clray.device.policy import DevicePlan, device_plan
+from clray.device.program import kernel_source
 from clray.errors import ClrayError, DeviceError, plural
 from clray.knobs import (
     BUILD_KNOBS,
@@ -47,13 +43,14 @@ from clray.knobs import (
     KERNEL_KNOBS,
     KNOB_TABLE,
     KNOBS,
-    PACKET_KNOBS,
+    TRAVERSAL_SCHEMES,
     TRAVERSALS,
     Tuning,
     TuningError,
+    other_schemes_knobs,
 )
 from clray.metrics import fail_allowance
-from clray.render import RenderSettings, kernel_switches, pack_for
+from clray.render import RenderSettings, pack_for
 from clray.scene.load import load_scene
 
 INSTALL_HINT = "pip install 'clray[tune]'"
@@ -308,11 +305,12 @@ class Tuner:
         self.budget_s = budget_s
         self.allow_error = allow_error
         self.space = allowed_space({**default_space(), **(space or {})}, allow_error)
-        # The device's own values of the kernel knobs whose None stands for them.
-        self.auto = {"traversal": traversal_for(device), "packet_lanes": packet_lanes_for(device)}
         # The samples a pixel of the scene being tuned, on which the traversal a render builds
-        # depends (rendered_traversal).
+        # depends (rendered_traversal), and the device's own values of the kernel knobs whose
+        # None stands for them, at those samples (set_scene_spp).
         self.spp = 16
+        self.auto: dict[str, Any] = {}
+        self.set_scene_spp(self.spp)
         self.iterations = iterations
         self.size = size
         # False: the kernel and launch knobs are searched with the first (default) host
@@ -400,10 +398,11 @@ class Tuner:
         kernel = {name: knob_value(name, params[kernel_define(name)], self.auto)
                   for name in KERNEL_KNOBS if kernel_define(name) in params}
         traversal = kernel.get("traversal", base.traversal) or self.auto["traversal"]
-        if traversal != "sample_packet":
-            # The single-ray walk ignores the packet's #defines: its knobs keep their defaults.
-            kernel = {k: v for k, v in kernel.items() if k not in PACKET_KNOBS}
-        if traversal == "group_packet":
+        # A scheme's build ignores other schemes' #defines (the single-ray walk the packet's):
+        # their knobs keep their defaults.
+        others = other_schemes_knobs(traversal)
+        kernel = {k: v for k, v in kernel.items() if k not in others}
+        if TRAVERSAL_SCHEMES[traversal].tiles:
             launch = {"group_side": int(params[BLOCK_SIZE_Y])}
         else:
             launch = {"work_group_width": int(params[BLOCK_SIZE_X])}
@@ -412,15 +411,15 @@ class Tuner:
     def _legal(self, base: Tuning, params: dict, space: dict[str, list]) -> bool:
         """Kernel Tuner's restriction: the knob table's, with the packet's lanes resolved
         (packet_min_lanes below the device's own where packet_lanes is left to it), and the
-        single-ray walk built once, with the packet knobs' first values, which it ignores."""
+        single-ray walk built once, with the packet knobs' first values, which it ignores (as
+        every scheme other schemes' kernel knobs)."""
         traversal = TRAVERSALS[params["TRAVERSAL"]]
-        if (traversal != "sample_packet"
-                and any(params[kernel_define(n)] != space[kernel_define(n)][0]
-                        for n in PACKET_KNOBS)):
+        if any(params[kernel_define(n)] != space[kernel_define(n)][0]
+               for n in other_schemes_knobs(traversal) if n in KERNEL_KNOBS):
             return False
         # A group packet's work-group is a square tile; every other a row segment.
         x, y = params[BLOCK_SIZE_X], params[BLOCK_SIZE_Y]
-        if traversal == "group_packet":
+        if TRAVERSAL_SCHEMES[traversal].tiles:
             if x != y or y not in self.space["group_side"]:
                 return False
         elif y != 1 or x not in self.space["work_group_width"]:
@@ -452,11 +451,12 @@ class Tuner:
         where group packets are searched, the group_side values as tiles (_legal pairs them
         with their traversals); or `only`'s."""
         if only is not None:
-            if (only.traversal or self.auto["traversal"]) == "group_packet":
+            if TRAVERSAL_SCHEMES[only.traversal or self.auto["traversal"]].tiles:
                 return {BLOCK_SIZE_X: [only.group_side], BLOCK_SIZE_Y: [only.group_side]}
             return {BLOCK_SIZE_X: [only.work_group_width], BLOCK_SIZE_Y: [1]}
         widths, heights = list(self.space["work_group_width"]), [1]
-        if "group_packet" in [v or self.auto["traversal"] for v in self.space["traversal"]]:
+        if any(TRAVERSAL_SCHEMES[v or self.auto["traversal"]].tiles
+               for v in self.space["traversal"]):
             sides = list(self.space["group_side"])
             widths, heights = widths + sides, heights + sides
         return {BLOCK_SIZE_X: list(dict.fromkeys(widths)),
@@ -477,20 +477,30 @@ class Tuner:
             params[kernel_define(name)] = list(dict.fromkeys(defines))
         return params
 
+    def plan(self, tuning: Tuning) -> DevicePlan:
+        """The device policy's plan of a render of the scene being tuned with `tuning`."""
+        return device_plan(self.device, spp=self.spp, tuning=tuning)
+
+    def set_scene_spp(self, spp: int) -> None:
+        """Tune for a scene of `spp` samples a pixel: a render's own traversal and packet lanes
+        depend on them, and so the values that None stands for."""
+        self.spp = spp
+        own = self.plan(DEFAULT_TUNING)
+        self.auto = {"traversal": own.traversal, "packet_lanes": own.packet_lanes}
+
     def rendered_traversal(self, traversal: str | None) -> str:
         """The walk a render of the scene being tuned builds with the knob's `traversal` (as
-        clray.render.kernel_switches decides: one sample a pixel is no packet): the kernel that
-        Kernel Tuner builds and times for it, so a scene at 1 spp times no packet builds, which
-        its renders never use."""
-        tuning = Tuning(traversal=traversal)
-        return kernel_switches(tuning, RenderSettings(), self.device, self.spp)["traversal"]
+        the device policy decides: one sample a pixel is no packet): the kernel that Kernel
+        Tuner builds and times for it, so a scene at 1 spp times no packet builds, which its
+        renders never use."""
+        return self.plan(Tuning(traversal=traversal)).traversal
 
     def tune(self, paths: Sequence[Path]) -> list[Trial]:
         """Every scene, host configuration by host configuration, until the budget is spent
         (each scene gets an equal share)."""
         # bvh_width None means the device's own width: the same tree as that width given,
         # tried once (as None, the default, where both are in the space).
-        auto = bvh_width_for(self.device)
+        auto = self.plan(DEFAULT_TUNING).bvh_width
         hosts, seen = [], set()
         for host in host_configurations(self.space):
             resolved = json.dumps({**host, "bvh_width": host["bvh_width"] or auto})
@@ -501,11 +511,7 @@ class Tuner:
         for i, path in enumerate(paths):
             run = self.prepare(path)
             self.runs.append(run)
-            # A render's own packet lanes depend on its samples a pixel: None stands for the
-            # scene's.
-            self.auto["packet_lanes"] = packet_lanes_for(self.device, spp=run.spp)
-            self.spp = run.spp
-            self.auto["traversal"] = self.rendered_traversal(None)
+            self.set_scene_spp(run.spp)
             deadline = start + self.budget_s * (i + 1) / len(paths)
             kernel_space = {**self.block_params(), **self.kernel_params(),
                             **self.extra_params}

@@ -593,7 +593,7 @@ def pack_scene(scene: M.Scene, *, width: int, height: int, spp: int, max_depth: 
                seed: int, min_weight: float = 0.0, precision: str = "float",
                bvh_width: int = 8, queue: cl.CommandQueue | None = None,
                tuning: Tuning = DEFAULT_TUNING, **variants: object) -> PackedScene:
-    """`bvh_width`: children per BVH node (4 or 8; clray.device.program.bvh_width_for picks
+    """`bvh_width`: children per BVH node (4 or 8; clray.device.policy.bvh_width_for picks
     one per device). `queue`: build large BVHs on its device (the same tree as the host
     build). `tuning`: the other knobs of the BVH build, and of the launches (kept in the
     PackedScene). `variants` are extra KernelConfig fields (study switches, options)."""

@@ -53,7 +53,9 @@ typedef int4 MASK4;
 // the shading point, a light's shadow ray and term, the shadow ray's transmission, the ray
 // set-up, and the sample packets' walks. They inline as HOT ones do; the stage-profiling build
 // (-DSTAGE_PROFILE=1, benchmarks/stages.py) keeps each a function of its own, so a profiler
-// can say how many instructions each stage takes.
+// can say how many instructions each stage takes. The closest hit and the shadow ray's walk,
+// single-ray and packet, are OUT_OF_LINE in every build (issue 42: the cold build), so both
+// builds keep them as functions.
 #if defined(STAGE_PROFILE) && STAGE_PROFILE
 #define STAGE __attribute__((noinline))
 #else

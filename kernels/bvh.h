@@ -230,11 +230,7 @@ HOT void consider_planes(const SceneRefs* s, const Ray* r, Hit* hit) {
 }
 #endif
 
-// Out of line (OUT_OF_LINE; issue 42, cold build): once a ray, and a walk's worth of work a
-// call. Inlined beside the shading, lights and the shadow walk, the single-ray kernel was one
-// function that PoCL compiled whole: textured's cold build 3.0 -> 2.0 CPU-s, spheres' 2.0 -> 1.3
-// (benchmarks/cold_build.py, docs/acceleration.md).
-OUT_OF_LINE Hit closest_hit(const SceneRefs* s, const Ray* world) {
+STAGE Hit closest_hit(const SceneRefs* s, const Ray* world) {
     Hit hit = no_hit();
 #if HAS_PLANES
     consider_planes(s, world, &hit);
@@ -479,8 +475,7 @@ HOT bool planes_transmission(const SceneRefs* s, const Ray* r, REAL tmax, REAL3*
 #endif
 
 // Light reaching the end of a shadow segment: 0 at the first opaque crossing.
-// Out of line: once a shadow ray (issue 42, cold build; see closest_hit).
-OUT_OF_LINE REAL3 transmission(const SceneRefs* s, const Ray* world, REAL tmax) {
+STAGE REAL3 transmission(const SceneRefs* s, const Ray* world, REAL tmax) {
     REAL3 filter = (REAL3)(1, 1, 1);
 #if HAS_PLANES
     if (!planes_transmission(s, world, tmax, &filter)) return (REAL3)(0, 0, 0);

@@ -13,7 +13,10 @@ A part's figure carries the noise of two medians. Box and primitive tests come f
 instrumented build (KernelConfig.count_tests), rendered once and untimed: its counters cost time
 of their own. Build times are measured in new processes, so this process's program cache does
 not answer them: cold with an empty PoCL kernel cache, warm with that cache filled (on other
-drivers, which keep their own caches, both are what a new process pays).
+drivers, which keep their own caches, both are what a new process pays). Both time
+`clBuildProgram` only: PoCL compiles the work-group function at a kernel's first launch, about as
+long again on the CPU, which `benchmarks/cold_build.py` adds (docs/acceleration.md, The cold
+build a new user waits for).
 """
 
 from __future__ import annotations

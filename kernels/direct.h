@@ -101,7 +101,8 @@ HOT bool point_light_direct(const SceneRefs* s, const MaterialRows* mr, const Ra
 // into the rows of `direct`, with one shadow-ray packet per light. key.sample: lane 0's
 // sample. The per-lane arithmetic is shade_direct's, in its order: the glow first, then each
 // light's term added.
-HOT void packet_direct(const SceneRefs* s, const MaterialRows* mr, const RayLanes* seen,
+// Out of line: once per packet and level (issue 42, cold build; see packet_closest).
+OUT_OF_LINE void packet_direct(const SceneRefs* s, const MaterialRows* mr, const RayLanes* seen,
                        const SurfaceLanes* q, const TermLanes* m, REAL3 ambient_light,
                        SampleKey key, int bits, REAL direct[3][PACKET_LANES], int* shadow_rays) {
     int first = key.sample;

@@ -453,7 +453,11 @@ HOT void packet_walk_closest(const SceneRefs* s, const RayLanes* rays, const Ray
 // closest_hit for each lane of `bits` of the packet p (hits of the others: no hit); `rays`: the
 // same rays lane by lane, for the lanes that go on alone. `lanes`, where not 0, gets the hits
 // as lanes too (not with instances).
-STAGE void packet_closest(const SceneRefs* s, const RayPacket* p, const RayLanes* rays, int bits,
+// Out of line (OUT_OF_LINE; issue 42, cold build): called once per packet, so the call costs
+// nothing measurable beside the walk, and the sample-packet kernel's largest function (PoCL
+// compiles it whole) shrinks: cornell_box's cold build 6.4 -> 3.9 CPU-s with the others below
+// (benchmarks/cold_build.py, docs/acceleration.md).
+OUT_OF_LINE void packet_closest(const SceneRefs* s, const RayPacket* p, const RayLanes* rays, int bits,
                           HitLanes* hits, PacketHit* lanes) {
 #if HAS_INSTANCES || !HAS_BVH
     // Instances are walked ray by ray.
@@ -549,7 +553,9 @@ HOT int planes_blocked_lanes(const SceneRefs* s, const RayPacket* p, REALP tmax,
 
 // The lanes of `bits` whose shadow segment (0, tmax) some shape blocks, in an opaque scene:
 // every crossed child is walked (any order) until every lane is blocked.
-HOT int packet_blocked(const SceneRefs* s, const RayPacket* p, const REAL* tmax_lanes, int bits) {
+// Out of line: once per light per packet, and called from two places (point_light_direct,
+// packet_transmission), so its walk is compiled once (issue 42, cold build).
+OUT_OF_LINE int packet_blocked(const SceneRefs* s, const RayPacket* p, const REAL* tmax_lanes, int bits) {
     REALP tmax = VLOADP(0, tmax_lanes);
     int blocked = 0;
 #if HAS_PLANES
@@ -605,7 +611,8 @@ HOT int packet_blocked(const SceneRefs* s, const RayPacket* p, const REAL* tmax_
 #endif
 
 // transmission() for each lane of `bits`, into filter[lane].
-STAGE void packet_transmission(const SceneRefs* s, const Ray* rays, const REAL* tmax, int bits,
+// Out of line: once per light per packet (issue 42, cold build; see packet_closest).
+OUT_OF_LINE void packet_transmission(const SceneRefs* s, const Ray* rays, const REAL* tmax, int bits,
                                REAL3* filter) {
 #if !HAS_TRANSMISSION && !HAS_INSTANCES && HAS_BVH
     RayPacket p = ray_packet(rays);

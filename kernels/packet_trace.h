@@ -250,6 +250,18 @@ HOT int packed_root(const SceneRefs* s, const __global Params* params, const Sam
 }
 #endif
 
+// tree_radiance out of line (issue 42, cold build): with chains it runs only at one sample a
+// pixel, without them once a sample, after its packet (a ray tree's worth of work a call).
+// Inlined, it put a second copy of the single-ray walks, shading and lights into the kernel's
+// largest function beside the packets' own.
+OUT_OF_LINE REAL3 sample_tree_radiance(const SceneRefs* s, const __global Camera* camera,
+                                       const __global Params* params, SampleKey key,
+                                       REAL3 ambient, RayTask* stack, int sp, REAL3 radiance,
+                                       int* secondary_rays, int* shadow_rays) {
+    return tree_radiance(s, camera, params, key, ambient, stack, sp, radiance, secondary_rays,
+                         shadow_rays);
+}
+
 // pixel_radiance with sample packets: the pixel's samples PACKET_LANES at a time
 // (trace_sample_packet), with chains to their ends, without from their primary rays' hits on,
 // ray by ray. With one sample a pixel there is no packet: its rays go alone.
@@ -284,8 +296,8 @@ HOT REAL3 packet_pixel_radiance(const SceneRefs* s, const __global Camera* camer
         } else
 #endif
         stack[0] = primary_task(camera, params, x, y, sample, pixel);
-        sum += tree_radiance(s, camera, params, key, ambient, stack, sp, radiance,
-                             secondary_rays, shadow_rays);
+        sum += sample_tree_radiance(s, camera, params, key, ambient, stack, sp, radiance,
+                                    secondary_rays, shadow_rays);
     }
     return sum;
 }

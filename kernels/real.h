@@ -53,7 +53,10 @@ typedef int4 MASK4;
 // the shading point, a light's shadow ray and term, the shadow ray's transmission, the ray
 // set-up, and the sample packets' walks. They inline as HOT ones do; the stage-profiling build
 // (-DSTAGE_PROFILE=1, benchmarks/stages.py) keeps each a function of its own, so a profiler
-// can say how many instructions each stage takes.
+// can say how many instructions each stage takes. The sample packets' walks (packet_closest,
+// packet_transmission) are OUT_OF_LINE in every build (issue 42: the cold build). The
+// single-ray closest_hit and transmission out of line cut spheres' cold build 2.0 -> 1.3 CPU-s
+// but made its 1-spp render 14 % slower (benchmarks/compare.py): they stay STAGEs.
 #if defined(STAGE_PROFILE) && STAGE_PROFILE
 #define STAGE __attribute__((noinline))
 #else

@@ -60,9 +60,9 @@ COMMAND_RUNS = 3
 LOAD_RUNS = 3
 
 
-def _module(name: str):
-    # benchmarks/ is not a package: load its modules from their files.
-    spec = importlib.util.spec_from_file_location(name, HERE / f"{name}.py")
+def _module(name: str, folder: Path = HERE):
+    # benchmarks/ and scripts/ are not packages: load their modules from their files.
+    spec = importlib.util.spec_from_file_location(name, folder / f"{name}.py")
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     return module
@@ -180,7 +180,7 @@ def bench_scene(name: str, path: Path, device: cl.Device, device_spec: str | Non
     result = {
         "scene": name,
         "file": (str(path.relative_to(ROOT)) if path.is_relative_to(ROOT)
-                 else f"{path.name} (from benchmarks/make_mesh_scene.py)"),
+                 else f"{path.name} (from scripts/make_mesh_scene.py)"),
         "width": r.width,
         "height": r.height,
         "spp": r.spp,
@@ -288,7 +288,7 @@ def main(argv: list[str] | None = None) -> None:
         if "mesh" in names:
             mesh_dir = args.mesh_dir or Path(tmp) / "mesh"
             start = time.perf_counter()
-            _module("make_mesh_scene").main(["--out", str(mesh_dir)])
+            _module("make_mesh_scene", ROOT / "scripts").main(["--out", str(mesh_dir)])
             generate_s = time.perf_counter() - start
             paths["mesh"] = mesh_dir / "bumpy.toml"
         povray_dir = (Path(tmp) / "povray"

@@ -29,8 +29,9 @@ HERE = Path(__file__).resolve().parent
 
 
 def _mesh_module():
-    # benchmarks/ is not a package: load the generator from its file.
-    spec = importlib.util.spec_from_file_location("make_mesh_scene", HERE / "make_mesh_scene.py")
+    # scripts/ is not a package: load the generator from its file.
+    spec = importlib.util.spec_from_file_location(
+        "make_mesh_scene", HERE.parent / "scripts" / "make_mesh_scene.py")
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     return module
@@ -52,7 +53,7 @@ def sphere_bounds(n: int, seed: int = 1) -> tuple[np.ndarray, np.ndarray]:
 
 def _device_queue(n: int):
     """The default device's queue, or None where there is none or it cannot build over n."""
-    from clray.device import bvh_build
+    from clray.device import bvh_builder
     from clray.device.context import queue_for, select_device
     from clray.errors import DeviceError
 
@@ -60,7 +61,7 @@ def _device_queue(n: int):
         device = select_device()
     except DeviceError:
         return None
-    return queue_for(device) if bvh_build.supports(device, n) else None
+    return queue_for(device) if bvh_builder.supports(device, n) else None
 
 
 def _describe(bvh: Bvh, runs: list[float], n: int, max_leaf_size: int) -> dict:
@@ -115,7 +116,7 @@ def main(argv: list[str] | None = None) -> None:
     for name, (lo, hi) in cases.items():
         builders = {"host": lambda lo=lo, hi=hi: build_bvh(lo, hi, args.max_leaf_size)}
         if queue is not None:
-            from clray.device.bvh_build import build_bvh_on
+            from clray.device.bvh_builder import build_bvh_on
 
             builders["device"] = lambda lo=lo, hi=hi: build_bvh_on(queue, lo, hi,
                                                                    args.max_leaf_size)

@@ -45,7 +45,7 @@ GRID = (40, 25)  # instances along x and z, one of them at the origin
 
 def _make_mesh(folder: Path) -> Path:
     spec = importlib.util.spec_from_file_location("make_mesh_scene",
-                                                  ROOT / "benchmarks" / "make_mesh_scene.py")
+                                                  ROOT / "scripts" / "make_mesh_scene.py")
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     path = folder / "bumpy.obj"

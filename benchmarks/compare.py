@@ -94,7 +94,7 @@ def scene_paths(names: list[str], tmp: Path) -> dict[str, Path]:
     """Scene file of each name: spheres, mesh (generated) or a path to a scene file."""
     paths = {"spheres": ROOT / "scenes" / "spheres.toml"}
     if "mesh" in names:
-        subprocess.run([sys.executable, str(HERE / "make_mesh_scene.py"), "--out",
+        subprocess.run([sys.executable, str(ROOT / "scripts" / "make_mesh_scene.py"), "--out",
                         str(tmp / "mesh")], check=True, capture_output=True)
         paths["mesh"] = tmp / "mesh" / "bumpy.toml"
     return {name: paths.get(name) or Path(name).resolve() for name in names}

@@ -7,7 +7,7 @@
 Needs the `embree` extra (`pip install -e '.[embree]'`, or `pip install embreex`); without it
 the benchmark says so and exits with status 2.
 
-The scene: benchmarks/make_mesh_scene.py's mesh scene (the 327,680-triangle bumpy icosphere at
+The scene: scripts/make_mesh_scene.py's mesh scene (the 327,680-triangle bumpy icosphere at
 seven subdivisions, its camera, size and background) with the mesh alone: no plane and no
 lights, written as its own scene file. The rays: one a pixel through the pixel centres, made in
 float64 by clray's reference camera (`clray.reference.sampling.camera_rays`, the kernels'
@@ -106,9 +106,9 @@ material = "clay"
 """
 
 
-def _module(name: str):
-    # benchmarks/ is not a package: load its modules from their files.
-    spec = importlib.util.spec_from_file_location(name, HERE / f"{name}.py")
+def _module(name: str, folder: Path = HERE):
+    # benchmarks/ and scripts/ are not packages: load their modules from their files.
+    spec = importlib.util.spec_from_file_location(name, folder / f"{name}.py")
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     return module
@@ -157,7 +157,7 @@ def compare_hits(t_a: np.ndarray, t_b: np.ndarray, rtol: float = T_RTOL) -> dict
 def write_scene(out: Path, width: int, height: int, subdivisions: int) -> Path:
     """make_mesh_scene.py's scene in `out` (bumpy.obj, bumpy.toml), and beside it the mesh
     alone at width x height (mesh_only.toml, its camera and background): that file's path."""
-    make = _module("make_mesh_scene")
+    make = _module("make_mesh_scene", ROOT / "scripts")
     make.main(["--out", str(out), "--subdivisions", str(subdivisions)])
     from clray.scene.load import load_scene
 

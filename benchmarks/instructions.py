@@ -109,7 +109,7 @@ def main(argv: list[str] | None = None) -> None:
         scenes = {"spheres": ROOT / "scenes" / "spheres.toml"}
         if "mesh" in names:
             mesh_dir = Path(args.mesh_dir or Path(tmp) / "mesh")
-            subprocess.run([sys.executable, str(HERE / "make_mesh_scene.py"), "--out",
+            subprocess.run([sys.executable, str(ROOT / "scripts" / "make_mesh_scene.py"), "--out",
                             str(mesh_dir)], check=True, capture_output=True)
             scenes["mesh"] = mesh_dir / "bumpy.toml"
         results = {}

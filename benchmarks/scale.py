@@ -98,14 +98,15 @@ print(json.dumps(out))
 
 
 def _mesh_module():
-    spec = importlib.util.spec_from_file_location("make_mesh_scene", HERE / "make_mesh_scene.py")
+    spec = importlib.util.spec_from_file_location(
+        "make_mesh_scene", HERE.parent / "scripts" / "make_mesh_scene.py")
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     return module
 
 
 def write_ply(path: Path, subdivisions: int) -> int:
-    """The bumpy icosphere of benchmarks/make_mesh_scene.py as a binary PLY (positions and
+    """The bumpy icosphere of scripts/make_mesh_scene.py as a binary PLY (positions and
     faces only); returns its triangle count."""
     mesh = _mesh_module()
     vertices, faces, _ = mesh.bumpy_mesh(subdivisions, mesh.SCENE_CENTER, mesh.SCENE_RADIUS)

@@ -722,10 +722,10 @@ class Check:
     def step_mesh_scene(self, limit: float) -> StepOutcome:
         folder = self.work / "mesh"
         run = self.child("mesh_scene", [
-            self.python, REPO / "benchmarks" / "make_mesh_scene.py", "--out", folder,
+            self.python, REPO / "scripts" / "make_mesh_scene.py", "--out", folder,
             "--subdivisions", str(self.mode.mesh_subdivisions)], limit)
         if not run.ok:
-            raise StepError("benchmarks/make_mesh_scene.py failed")
+            raise StepError("scripts/make_mesh_scene.py failed")
         self.mesh_scene = folder / "bumpy.toml"
         triangles = 20 * 4 ** self.mode.mesh_subdivisions
         self.data["mesh_scene"] = {"subdivisions": self.mode.mesh_subdivisions,

@@ -373,7 +373,7 @@ MUTATIONS: tuple[Mutation, ...] = (
     m("bvh_device.bin_index_clamped_short", "kernels/bvh_build.cl",
       "return clamp((int)((c - cmin) * scale), 0, N_BINS - 1);",
       "return clamp((int)((c - cmin) * scale), 0, N_BINS - 2);", BVH),
-    m("bvh_device.bins_not_the_hosts", "clray/device/bvh_build.py",
+    m("bvh_device.bins_not_the_hosts", "clray/device/bvh_builder.py",
       'f"-DN_BINS={N_BINS}"', '"-DN_BINS=8"', BVH),
     m("bvh_host.bounds_not_rounded_out", "clray/accel/bvh.py",
       "np.where(hi32 < hi.T, np.nextafter(hi32, np.float32(np.inf)), hi32)", "hi32", BVH),

@@ -12,7 +12,7 @@ import numpy as np
 import pyopencl as cl
 import pyopencl.characterize
 
-from clray.device.bvh_build import build_bvh_on
+from clray.device.bvh_builder import build_bvh_on
 from clray.device.context import queue_for, select_device
 from clray.device.launch import intersect_rays
 from clray.device.pack import pack_scene

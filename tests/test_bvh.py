@@ -25,8 +25,8 @@ from clray.accel.bvh import (
     sah_cost,
 )
 from clray.accel.wide import PACKET_WIDTH, collapse
-from clray.device import bvh_build
-from clray.device.bvh_build import build_bvh_on
+from clray.device import bvh_builder
+from clray.device.bvh_builder import build_bvh_on
 from clray.device.context import queue_for
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -35,7 +35,7 @@ ROOT = Path(__file__).resolve().parents[1]
 def _load_mesh_module():
     # benchmarks/ is not a package; the generator is imported straight from its file.
     spec = importlib.util.spec_from_file_location(
-        "make_mesh_scene", ROOT / "benchmarks" / "make_mesh_scene.py")
+        "make_mesh_scene", ROOT / "scripts" / "make_mesh_scene.py")
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     return module
@@ -200,7 +200,7 @@ def test_rejects_bad_leaf_size():
 
 @pytest.fixture(scope="module")
 def cl_queue(cl_device):
-    if not bvh_build.supports(cl_device, 1):
+    if not bvh_builder.supports(cl_device, 1):
         pytest.skip("the device build needs float64")
     return queue_for(cl_device)
 
@@ -263,8 +263,8 @@ def test_float32_bounds_build_the_float64_tree(cl_queue):
     expected = build_bvh(wide_lo, wide_hi)
     assert_same_tree(build_bvh(lo, hi), expected)
     assert_same_tree(build_bvh_on(cl_queue, lo, hi), expected)
-    assert bvh_build.build_buffer_bytes(5000, 4)["lo"] == 12 * 5000
-    assert bvh_build.build_buffer_bytes(5000, 4)["prims"] == 32 * 5000
+    assert bvh_builder.build_buffer_bytes(5000, 4)["lo"] == 12 * 5000
+    assert bvh_builder.build_buffer_bytes(5000, 4)["prims"] == 32 * 5000
 
 
 def test_device_layout_collapses_to_the_same_wide_tree(cl_queue):
@@ -276,7 +276,7 @@ def test_device_layout_collapses_to_the_same_wide_tree(cl_queue):
     own = build_bvh_on(cl_queue, lo, hi, pairs=True)
     host = build_bvh(lo, hi)
     assert own.pairs and own.nodes.size == 2 * 20000 - 1
-    assert_same_tree(bvh_build.build(cl_queue, lo, hi, 4, max_leaf_count(4)), host)
+    assert_same_tree(bvh_builder.build(cl_queue, lo, hi, 4, max_leaf_count(4)), host)
     a, b = collapse(own, refs, 8), collapse(host, refs, 8)
     assert a.nodes.tobytes() == b.nodes.tobytes()
     assert np.array_equal(a.prim_refs, b.prim_refs) and a.stack_size == b.stack_size
@@ -302,7 +302,7 @@ def test_device_build_runs_on_the_device(cl_queue, monkeypatch):
     def device_build(*args: object) -> None:
         raise RuntimeError("device build")
 
-    monkeypatch.setattr(bvh_build, "build", device_build)
+    monkeypatch.setattr(bvh_builder, "build", device_build)
     lo = np.random.default_rng(0).uniform(-1, 1, (10, 3))
     with pytest.raises(RuntimeError, match="device build"):
         build_bvh_on(cl_queue, lo, lo + 0.1, 4)
@@ -324,22 +324,22 @@ class _StandInDevice:
 
 def test_device_build_only_where_node_slots_fit_in_ints(cl_queue):
     roomy = _StandInDevice(cl_queue.device, 1 << 50, 1 << 52)
-    assert bvh_build.supports(roomy, 2**30)
-    assert not bvh_build.supports(roomy, 2**30 + 1)
+    assert bvh_builder.supports(roomy, 2**30)
+    assert not bvh_builder.supports(roomy, 2**30 + 1)
 
 
 def test_device_build_only_where_its_buffers_fit_the_device(cl_queue):
     # 5.24 M triangles: the padded node slots (2N - 1 of 32 bytes, 320 MiB) are the largest
     # buffer, and all of them take about 1.1 GiB.
     n = 5_242_880
-    sizes = bvh_build.build_buffer_bytes(n)
+    sizes = bvh_builder.build_buffer_bytes(n)
     assert max(sizes, key=sizes.get) == "nodes"
     assert sizes["nodes"] == 32 * (2 * n - 1)
     largest, total = sizes["nodes"], sum(sizes.values())
     device = cl_queue.device
-    assert bvh_build.supports(_StandInDevice(device, largest, total), n)
-    assert not bvh_build.supports(_StandInDevice(device, largest - 1, total), n)
-    assert not bvh_build.supports(_StandInDevice(device, largest, total - 1), n)
+    assert bvh_builder.supports(_StandInDevice(device, largest, total), n)
+    assert not bvh_builder.supports(_StandInDevice(device, largest - 1, total), n)
+    assert not bvh_builder.supports(_StandInDevice(device, largest, total - 1), n)
 
 
 def test_device_build_over_the_largest_allocation_builds_on_the_host(cl_queue, monkeypatch):
@@ -348,7 +348,7 @@ def test_device_build_over_the_largest_allocation_builds_on_the_host(cl_queue, m
     def device_build(*args: object) -> None:
         raise RuntimeError("device build")
 
-    monkeypatch.setattr(bvh_build, "build", device_build)
+    monkeypatch.setattr(bvh_builder, "build", device_build)
     lo = np.random.default_rng(1).uniform(-1, 1, (300, 3))
     small = _StandInDevice(cl_queue.device, 1 << 10, 1 << 30)
     queue = type("Queue", (), {"device": small})()

@@ -100,7 +100,7 @@ def loops(graph: dict[str, set[str]]) -> list[set[str]]:
 def test_the_graph_is_read() -> None:
     graph = import_graph()
     assert "clray.device.launch" in graph["clray.render"]
-    assert "clray.accel.bvh" in graph["clray.device.bvh_build"]
+    assert "clray.accel.bvh" in graph["clray.device.bvh_builder"]
     assert len(graph) > 30
 
 

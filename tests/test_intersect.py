@@ -43,7 +43,7 @@ TYPE_CODE = {M.Plane: L.PRIM_PLANE, M.Sphere: L.PRIM_SPHERE, M.Box: L.PRIM_BOX,
 def _load_mesh_module():
     # benchmarks/ is not a package; the generator is imported straight from its file.
     spec = importlib.util.spec_from_file_location(
-        "make_mesh_scene", ROOT / "benchmarks" / "make_mesh_scene.py")
+        "make_mesh_scene", ROOT / "scripts" / "make_mesh_scene.py")
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     return module

@@ -186,7 +186,7 @@ def test_small_nodes_of_leaves_are_folded_into_one_leaf(width, monkeypatch):
     # Below the root, no wide node holds only leaves that one leaf of FOLD_PACKETS packet tests
     # could cover: such a node is that leaf of its parent instead.
     spec = importlib.util.spec_from_file_location(
-        "make_mesh_scene", ROOT / "benchmarks" / "make_mesh_scene.py")
+        "make_mesh_scene", ROOT / "scripts" / "make_mesh_scene.py")
     mesh_gen = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(mesh_gen)
     vertices, faces, _ = mesh_gen.bumpy_mesh(4)

@@ -1,4 +1,4 @@
-// The mesh scene of benchmarks/make_mesh_scene.py for POV-Ray 3.7: same camera, image, light,
+// The mesh scene of scripts/make_mesh_scene.py for POV-Ray 3.7: same camera, image, light,
 // plane and Phong terms as bumpy.toml, so both renderers trace the same rays. The mesh itself,
 // bumpy_mesh.inc (a mesh2 of the generator's bumpy.obj, tens of MB), is written next to this
 // file by benchmarks/povray.py. Render at +W1280 +H720 without antialiasing.

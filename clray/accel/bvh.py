@@ -54,7 +54,7 @@ class Bvh:
     with count 0. A leaf's primitives are `order[first:first + count]`, and `order[k]` is an
     index into the primitives given to `build_bvh`.
 
-    pairs: the device build's own layout instead (clray.device.bvh_build), root first: an inner
+    pairs: the device build's own layout instead (clray.device.bvh_builder), root first: an inner
     node's `first` is its left child and the right child follows it; slots no node reached are
     uninitialised, so only a walk from the root (clray.accel.wide.collapse) may read them.
     """
@@ -114,7 +114,7 @@ def build_bvh(lo: np.ndarray, hi: np.ndarray, max_leaf_size: int = MAX_LEAF_SIZE
     Nodes of at most `max_leaf_size` primitives are always leaves; nodes of up to
     `largest_leaf` (default `max_leaf_count(max_leaf_size)`) are leaves when SAH says a split
     would not pay; `traversal_cost` is the SAH's cost of a node visit against one packet
-    test. clray.device.bvh_build builds the same tree on an OpenCL device (with the default
+    test. clray.device.bvh_builder builds the same tree on an OpenCL device (with the default
     traversal cost, which it compiles in).
     """
     lo, hi, largest = checked_bounds(lo, hi, max_leaf_size, largest_leaf)

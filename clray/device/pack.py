@@ -18,7 +18,7 @@ import pyopencl as cl
 from clray.accel.bvh import TRAVERSAL_COST, build_bvh
 from clray.accel.wide import LEAF_FIELD_MASK, PACKET_WIDTH, WideBvh, collapse
 from clray.device import layout as L
-from clray.device.bvh_build import build_bvh_on
+from clray.device.bvh_builder import build_bvh_on
 from clray.device.program import KernelConfig
 from clray.knobs import DEFAULT_TUNING, Tuning
 from clray.scene import model as M

@@ -1,13 +1,13 @@
 """Generate the benchmark mesh scene: a bumpy icosphere on a ground plane, one point light.
 
-    python benchmarks/make_mesh_scene.py --out DIR [--subdivisions 7]
+    python scripts/make_mesh_scene.py --out DIR [--subdivisions 7]
 
 writes DIR/bumpy.obj (positions, vertex normals, faces `a//a b//b c//c`) and DIR/bumpy.toml.
 Seven subdivisions give 327,680 triangles. The bumps come from a fixed sum of sinusoids of the
 unit-sphere position, not a random generator, so every run and machine writes the same mesh.
 
-Tests and other benchmarks import `icosphere` and `bumpy_mesh` from this file by path
-(benchmarks/ is not a package).
+Tests, benchmarks and scripts/gpu_check.py use `icosphere` and `bumpy_mesh` from this file by path
+(scripts/ is not a package).
 """
 
 from __future__ import annotations
@@ -109,7 +109,7 @@ def write_obj(path: Path, vertices: np.ndarray, faces: np.ndarray, normals: np.n
 
 
 SCENE_TOML = """\
-# Benchmark mesh scene, written by benchmarks/make_mesh_scene.py ({triangles} triangles).
+# Benchmark mesh scene, written by scripts/make_mesh_scene.py ({triangles} triangles).
 [render]
 width = 1280
 height = 720

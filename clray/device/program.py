@@ -147,16 +147,18 @@ def private_stack_bytes(config: KernelConfig) -> dict[str, int]:
     refraction add their chains' radiance to the ray stack (three numbers for every lane,
     whatever the depth: packet_trace.h's SamplePacket); group packets add the group's stack
     (child, count, the group's and the work-item's entry t; kernels/group.h), the single-ray
-    walks testing its leaves. A 3-vector takes four elements' room. The rest of the kernel's
-    private memory does not grow with the settings (benchmarks/private_memory.py measures it)."""
+    walks testing its leaves (each told by its TraversalScheme's packs_samples and tiles). A
+    3-vector takes four elements' room. The rest of the kernel's private memory does not grow
+    with the settings (benchmarks/private_memory.py measures it)."""
     real = 8 if config.precision == "double" else 4
     task = 3 * 4 * real + 4 + 4 + 4 * MEDIA_DEPTH
     task = -(-task // (4 * real)) * (4 * real)  # aligned to its REAL3
+    scheme = TRAVERSAL_SCHEMES[config.traversal]
     ray = task * (config.max_depth + 1 if config.has_refraction else 1)
-    if config.traversal == "sample_packet" and not config.has_refraction:
+    if scheme.packs_samples and not config.has_refraction:
         ray += 3 * config.packet_lanes * real
     bvh = config.bvh_stack_size * ((4 + 4 + real) + (4 + 4))
-    if config.traversal == "group_packet":
+    if scheme.tiles:  # a tile's work-items walk together on the group's own stack
         bvh += config.bvh_stack_size * (4 + 4 + 2 * real)
     return {"ray_stack": ray, "bvh_stack": bvh, "total": ray + bvh}
 

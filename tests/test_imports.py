@@ -13,7 +13,7 @@ PACKAGE = Path(__file__).resolve().parent.parent / "clray"
 # above it; within a layer imports go either way.
 LAYERS: list[tuple[str, tuple[str, ...]]] = [
     ("base", ("clray.errors", "clray.metrics", "clray.knobs", "clray.output", "clray.vectors")),
-    ("shapes", ("clray.shapes",)),
+    ("shapes/lights", ("clray.shapes", "clray.lights")),
     ("scene/accel", ("clray.scene", "clray.accel")),
     ("device", ("clray.device",)),
     ("render/cli", ("clray", "clray.render", "clray.image_io", "clray.cli", "clray.__main__",

@@ -121,13 +121,27 @@ def test_packed_scene_fields_are_the_scene_buffers() -> None:
 
 
 def test_light_kinds_are_labels_one_a_light_class() -> None:
-    from clray.device.pack import LIGHT_RECORDS
+    from clray.lights import LIGHTS
     from clray.scene import model as M
 
     names = [name for name in _defined_constants() if name.startswith("LIGHT_")]
-    assert sorted(kind for kind, _ in LIGHT_RECORDS.values()) == sorted(
-        getattr(layout, name) for name in names)
-    assert set(LIGHT_RECORDS) == {*M.Light.__args__, M.TriangleLight}
+    # Every label of the header is one kind's of the registry, under the kind's name.
+    assert sorted(names) == sorted(light.code_name for light in LIGHTS)
+    assert len({light.code for light in LIGHTS}) == len(LIGHTS)
+    assert {light.model for light in LIGHTS} == {*M.Light.__args__, M.TriangleLight}
     # The kernels name the kinds they mean: no comparison orders them.
     kernels = "".join(kernel_source(name) for name in ("lights.h", "direct.h", "shading.h"))
     assert re.findall(r"kind\s*[<>]|LIGHT_[A-Z]+\s*[<>]|[<>]=?\s*LIGHT_", kernels) == []
+
+
+def test_the_kernels_sample_the_area_lights_of_the_registry() -> None:
+    from clray.lights import LIGHTS
+
+    body = re.search(r"bool is_area_light\(int kind\) \{(.*?)\}", kernel_source("lights.h"),
+                     flags=re.DOTALL)
+    assert body is not None
+    assert sorted(re.findall(r"LIGHT_[A-Z]+", body.group(1))) == sorted(
+        light.code_name for light in LIGHTS if light.area)
+    # A kind's own switch is a build switch of the kernels.
+    switches = {light.switch for light in LIGHTS if light.switch}
+    assert switches and switches <= set(KernelConfig.__dataclass_fields__)

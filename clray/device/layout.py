@@ -23,6 +23,7 @@ from clray.accel.wide import LEAF_SPHERE_SHIFT as LEAF_SPHERE_SHIFT
 from clray.accel.wide import LEAF_TRIANGLE_SHIFT as LEAF_TRIANGLE_SHIFT
 from clray.accel.wide import PACKET_WIDTH as PACKET_WIDTH
 from clray.accel.wide import bvh_node_dtype as bvh_node_dtype
+from clray.lights import LIGHTS
 from clray.shapes import SHAPES
 
 # Each analytic shape's PRIM_* code under its name in clray_types.h (PRIM_SPHERE, PRIM_TORUS),
@@ -30,13 +31,10 @@ from clray.shapes import SHAPES
 PRIMS: dict[str, int] = {shape.prim_name: shape.prim for shape in SHAPES}
 globals().update(PRIMS)
 
-LIGHT_POINT = 0
-LIGHT_DIRECTIONAL = 1
-LIGHT_SPOT = 2
-LIGHT_RECT = 3
-LIGHT_DISC = 4
-LIGHT_SPHERE = 5
-LIGHT_TRIANGLE = 6
+# Each light kind's LIGHT_* label under its name in clray_types.h (LIGHT_RECT), set from its
+# module (clray.lights) as the shapes' codes are.
+LIGHT_CODES: dict[str, int] = {light.code_name: light.code for light in LIGHTS}
+globals().update(LIGHT_CODES)
 
 TEXTURE_NONE = -1
 TEXTURE_CHECKER = 0

@@ -6,11 +6,8 @@ authored far from the origin keeps its precision near the eye.
 
 from __future__ import annotations
 
-import math
 import time
-from collections.abc import Callable
 from dataclasses import dataclass, field, make_dataclass
-from typing import Any
 
 import numpy as np
 import pyopencl as cl
@@ -21,6 +18,7 @@ from clray.device import layout as L
 from clray.device.bvh_builder import build_bvh_on
 from clray.device.program import KernelConfig
 from clray.knobs import DEFAULT_TUNING, Tuning
+from clray.lights import LIGHT_OF, LIGHTS
 from clray.scene import model as M
 from clray.scene.emitters import scene_lights
 from clray.scene.scale import needs_fp64_spheres
@@ -434,66 +432,13 @@ def _pack_materials(materials: list[M.Material]) -> tuple[np.ndarray, np.ndarray
     return records, textures, texels
 
 
-def _point_fields(rec: np.void, light: M.PointLight | M.SpotLight, eye: np.ndarray) -> None:
-    rec["position"] = f4(np.asarray(light.position) - eye)
-    rec["attenuation"] = f4(light.attenuation)
-
-
-def _spot_fields(rec: np.void, light: M.SpotLight, eye: np.ndarray) -> None:
-    _point_fields(rec, light, eye)
-    inner = light.angle if light.inner_angle is None else light.inner_angle
-    rec["axis_u"] = f4(light.direction, math.cos(math.radians(light.angle)))
-    rec["axis_v"] = f4((0.0, 0.0, 0.0), math.cos(math.radians(inner)))
-
-
-def _directional_fields(rec: np.void, light: M.DirectionalLight, eye: np.ndarray) -> None:
-    rec["position"] = f4(light.direction)
-
-
-def _rect_fields(rec: np.void, light: M.RectLight, eye: np.ndarray) -> None:
-    rec["position"] = f4(np.asarray(light.corner) - eye)
-    rec["axis_u"], rec["axis_v"] = f4(light.u), f4(light.v)
-    rec["color"] = f4(light.color, M.rect_area(light.u, light.v))
-
-
-def _triangle_fields(rec: np.void, light: M.TriangleLight, eye: np.ndarray) -> None:
-    v0, v1, v2 = (np.asarray(v, dtype=np.float64) for v in light.vertices)
-    rec["position"] = f4(v0 - eye)
-    rec["axis_u"], rec["axis_v"] = f4(v1 - v0), f4(v2 - v0)
-    rec["color"] = f4(light.color, M.rect_area(v1 - v0, v2 - v0) / 2.0)
-
-
-def _disc_fields(rec: np.void, light: M.DiscLight, eye: np.ndarray) -> None:
-    rec["position"] = f4(np.asarray(light.center) - eye, light.radius)
-    rec["axis_u"] = f4(light.normal)
-    rec["color"] = f4(light.color, math.pi * light.radius**2)
-
-
-def _sphere_fields(rec: np.void, light: M.SphereLight, eye: np.ndarray) -> None:
-    rec["position"] = f4(np.asarray(light.center) - eye, light.radius)
-
-
-# Each light class's kind (a LIGHT_* label of clray_types.h: the kernels compare kinds for
-# equality only, so the codes carry no order) and the fields of its record beside the colour
-# (the area lights' colour carries their area in w).
-LIGHT_RECORDS: dict[type, tuple[int, Callable[[np.void, Any, np.ndarray], None]]] = {
-    M.PointLight: (L.LIGHT_POINT, _point_fields),
-    M.DirectionalLight: (L.LIGHT_DIRECTIONAL, _directional_fields),
-    M.SpotLight: (L.LIGHT_SPOT, _spot_fields),
-    M.RectLight: (L.LIGHT_RECT, _rect_fields),
-    M.DiscLight: (L.LIGHT_DISC, _disc_fields),
-    M.SphereLight: (L.LIGHT_SPHERE, _sphere_fields),
-    M.TriangleLight: (L.LIGHT_TRIANGLE, _triangle_fields),
-}
-
-
 def _pack_lights(lights: list[M.Light], eye: np.ndarray) -> np.ndarray:
     records = _records(L.LIGHT, len(lights))
     for i, light in enumerate(lights):
-        kind, fields = LIGHT_RECORDS[type(light)]
-        records[i]["kind"] = kind
-        records[i]["color"] = f4(light.color)
-        fields(records[i], light, eye)
+        kind = LIGHT_OF[type(light)]
+        records[i]["kind"] = kind.code
+        records[i]["color"] = f4(light.color)  # w: an area light's area, from its fields
+        kind.fields(records[i], light, eye)
     return records
 
 
@@ -572,8 +517,7 @@ def _scene_switches(scene: M.Scene, max_depth: int) -> dict[str, object]:
     return {
         "has_transmission": any_transmit,
         "has_refraction": any_transmit and max_depth > 0,
-        "has_spot_lights": any(isinstance(x, M.SpotLight) for x in scene.lights),
-        "has_area_lights": any(isinstance(x, M.AreaLight) for x in scene_lights(scene)),
+        **_light_switches(scene_lights(scene)),
         "has_fresnel": max_depth > 0 and any(m.fresnel and m.transmit > 0
                                              for m in scene.materials),
         "has_thin_lens": scene.camera.aperture > 0,
@@ -582,6 +526,16 @@ def _scene_switches(scene: M.Scene, max_depth: int) -> dict[str, object]:
         "has_background_image": background_kind == "image",
         "max_depth": max_depth if (any_reflect or any_transmit) else 0,
     }
+
+
+def _light_switches(lights: list[M.Light]) -> dict[str, bool]:
+    """The lights' KernelConfig switches: each kind's own (has_spot_lights) and has_area_lights,
+    on where a light of the scene needs them."""
+    kinds = {LIGHT_OF[type(light)] for light in lights}
+    switches = {kind.switch: False for kind in LIGHTS if kind.switch}
+    switches.update({kind.switch: True for kind in kinds if kind.switch})
+    switches["has_area_lights"] = any(kind.area for kind in kinds)
+    return switches
 
 
 def _stack_size_option(stack_size: int) -> int:

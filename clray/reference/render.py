@@ -11,8 +11,7 @@ import numpy as np
 from clray.reference.background import background_radiance
 from clray.reference.bvh import Geometry
 from clray.reference.fresnel import fresnel_reflectance, fresnel_schlick
-from clray.reference.lights import SampleKey
-from clray.reference.sampling import _settings, camera_rays
+from clray.reference.sampling import SampleKey, _settings, camera_rays
 from clray.reference.shading import Surface, offset_origin, shade_direct, surface_at
 from clray.reference.texture import MaterialTable, surface_color
 from clray.scene.emitters import scene_lights

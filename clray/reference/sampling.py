@@ -4,6 +4,7 @@ pixel and lens samples, the area lights' stratified squares, and the primary ray
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 
@@ -78,6 +79,16 @@ def sample_grid(spp: int) -> tuple[int, int]:
     if nx * nx < spp:
         nx += 1
     return nx, -(-spp // nx)
+
+
+class SampleKey(NamedTuple):
+    """What picks each ray's area light samples: the image seed, and the ray's pixel and
+    sample (arrays, one per ray) of spp."""
+
+    seed: int
+    pixel: np.ndarray
+    sample: np.ndarray
+    spp: int
 
 
 def light_square(

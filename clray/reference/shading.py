@@ -10,22 +10,13 @@ from typing import NamedTuple
 
 import numpy as np
 
-from clray.reference.lights import SampleKey, sample_area_light, spot_factor
-from clray.reference.sampling import light_square
+from clray.lights import LIGHT_OF
+from clray.lights.light import Toward
+from clray.reference.sampling import SampleKey, light_square
 from clray.reference.texture import MaterialTable
-from clray.scene.model import (
-    DirectionalLight,
-    DiscLight,
-    Light,
-    Plane,
-    PointLight,
-    RectLight,
-    SphereLight,
-    SpotLight,
-    TriangleLight,
-)
+from clray.scene.model import Light, Plane
 from clray.shapes import SHAPES
-from clray.vectors import dot, frame, safe_normalize, vec
+from clray.vectors import dot, frame, vec
 
 # (origins, directions, tmax, filters) -> (N, 3): the filter of every crossing before tmax.
 Transmission = Callable[[np.ndarray, np.ndarray, np.ndarray, np.ndarray], np.ndarray]
@@ -93,7 +84,7 @@ def shade_direct(sf: Surface, d: np.ndarray, c: np.ndarray, mats: MaterialTable,
             continue
         shadow = np.zeros((len(sf.p), 3))
         shadow[lit] = _shadow_filter(sf, lit, l_dir, target, mats, transmission,
-                                     isinstance(light, TriangleLight))
+                                     LIGHT_OF[type(light)].on_a_face)
         r = 2.0 * ndotl[:, None] * n - l_dir
         rv = dot(r, -d)
         spec = np.zeros(len(sf.p))
@@ -104,32 +95,13 @@ def shade_direct(sf: Surface, d: np.ndarray, c: np.ndarray, mats: MaterialTable,
     return result
 
 
-def _light_toward(light: Light, index: int, sf: Surface, key: SampleKey
-                  ) -> tuple[np.ndarray | None, np.ndarray, np.ndarray, np.ndarray]:
-    """(where a shadow ray aims: the light, its sample, or None for a directional light;
-    unit direction towards it; attenuation; usable) for light number `index`."""
-    p, eps = sf.p, sf.err
-    if isinstance(light, RectLight | DiscLight | SphereLight | TriangleLight):
-        u1, u2 = light_square(key.seed, key.pixel, key.sample, key.spp, index)
-        target, atten, usable = sample_area_light(light, p, eps, u1, u2)
-        return target, safe_normalize(target - p), atten, usable
-    if isinstance(light, PointLight | SpotLight):
-        target = np.broadcast_to(vec(light.position), p.shape)
-        to_light = target - p
-        dist = np.linalg.norm(to_light, axis=-1)
-        l_dir = to_light / np.where(dist > 0.0, dist, 1.0)[:, None]
-        kc, kl, kq = light.attenuation
-        denom = kc + kl * dist + kq * dist * dist
-        with np.errstate(divide="ignore"):
-            atten = np.where(denom > 0.0, np.minimum(1.0, 1.0 / denom), 1.0)
-        usable = dist > eps
-        if isinstance(light, SpotLight):
-            atten = atten * spot_factor(light, l_dir)
-            usable &= atten > 0.0
-        return target, l_dir, atten, usable
-    assert isinstance(light, DirectionalLight)
-    l_dir = np.broadcast_to(-vec(light.direction), p.shape)
-    return None, l_dir, np.ones(len(p)), np.ones(len(p), dtype=bool)
+def _light_toward(light: Light, index: int, sf: Surface, key: SampleKey) -> Toward:
+    """What light number `index` brings to the surface points (clray.lights.light.Toward);
+    area lights sample the pixel sample's point of the unit square picked for them."""
+    kind = LIGHT_OF[type(light)]
+    square = (light_square(key.seed, key.pixel, key.sample, key.spp, index) if kind.area
+              else None)
+    return kind.toward(light, sf.p, sf.err, square)
 
 
 def _shadow_filter(sf: Surface, lit: np.ndarray, l_dir: np.ndarray, target: np.ndarray | None,

@@ -15,6 +15,7 @@ from typing import Any
 import numpy as np
 
 from clray.errors import SceneError, plural
+from clray.lights import LIGHT_OF, LISTED
 from clray.scene import model as M
 from clray.scene.load import scene_from_dict
 from clray.shapes import SHAPES
@@ -135,12 +136,6 @@ def _image_source(image: M.Texture | M.Background) -> dict:
     return spec
 
 
-_LIGHT_TYPES: dict[type, str] = {
-    M.PointLight: "point", M.DirectionalLight: "directional", M.SpotLight: "spot",
-    M.RectLight: "rect", M.DiscLight: "disc", M.SphereLight: "sphere",
-}
-
-
 def _background(background: M.Background) -> dict:
     if background.kind == "gradient":
         return {"type": "gradient", "bottom": _plain(background.bottom),
@@ -149,12 +144,12 @@ def _background(background: M.Background) -> dict:
 
 
 def _light(light: M.Light, i: int) -> dict:
-    kind = _LIGHT_TYPES.get(type(light))
-    if kind is None:
-        shown = ", ".join(t.__name__ for t in _LIGHT_TYPES)
+    kind = LIGHT_OF.get(type(light))
+    if kind is None or not kind.listed:
+        shown = ", ".join(k.model.__name__ for k in LISTED.values())
         raise SceneError(None, f"lights[{i}]", f"expected one of {shown}, got "
                          f"{type(light).__name__}")
-    return {"type": kind, **_fields(light)}
+    return {"type": kind.kind, **_fields(light)}
 
 
 def _instance(obj: M.Instance, key: str, names: list[str],

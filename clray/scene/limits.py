@@ -92,7 +92,6 @@ MAX_LIGHTS = 10_000
 # Rect, disc and sphere lights' emitting area (|u x v|, pi radius^2): the kernels multiply
 # radiance by it, and a sphere light's radius squares, in float32.
 MAX_LIGHT_AREA = 1e30
-MAX_SPOT_ANGLE = 180.0  # a spot light's half-angle, degrees: below it, exclusive
 # All meshes together, each instance counted: 33.5 M, about 12 GB of host memory at the
 # 350 bytes a triangle that load, BVH and pack peak at (docs/scale.md); primitive
 # references index 2^28.

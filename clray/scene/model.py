@@ -14,8 +14,17 @@ from pathlib import Path
 
 import numpy as np
 
-# The analytic shapes live in clray.shapes, one module each; re-exported here, where scenes
-# are built in Python.
+# The analytic shapes and the light kinds live in clray.shapes and clray.lights, one module
+# each; re-exported here, where scenes are built in Python.
+from clray.lights import LIGHTS, LISTED
+from clray.lights.directional import DirectionalLight as DirectionalLight
+from clray.lights.disc import DiscLight as DiscLight
+from clray.lights.point import PointLight as PointLight
+from clray.lights.rect import RectLight as RectLight
+from clray.lights.rect import rect_area as rect_area
+from clray.lights.sphere import SphereLight as SphereLight
+from clray.lights.spot import SpotLight as SpotLight
+from clray.lights.triangle import TriangleLight as TriangleLight
 from clray.shapes import SHAPES
 from clray.shapes.box import Box as Box
 from clray.shapes.cone import Cone as Cone
@@ -63,86 +72,10 @@ class Material:
     emission: Vec3 = (0.0, 0.0, 0.0)
 
 
-@dataclass(frozen=True)
-class PointLight:
-    position: Vec3
-    color: Vec3 = (1.0, 1.0, 1.0)
-    attenuation: Vec3 = (1.0, 0.0, 0.0)  # constant, linear, quadratic
-
-
-@dataclass(frozen=True)
-class DirectionalLight:
-    direction: Vec3  # unit; the way the light travels
-    color: Vec3 = (1.0, 1.0, 1.0)
-
-
-@dataclass(frozen=True)
-class SpotLight:
-    """A point light lighting only a cone: full inside `inner_angle`, nothing outside
-    `angle` (half-angles in degrees), smoothstep in cos between."""
-
-    position: Vec3
-    direction: Vec3  # unit; the cone's axis, the way the light travels
-    angle: float
-    color: Vec3 = (1.0, 1.0, 1.0)
-    attenuation: Vec3 = (1.0, 0.0, 0.0)  # constant, linear, quadratic
-    inner_angle: float | None = None  # None: equal to `angle`, a hard edge
-
-
-# Area lights: `color` is the emitted radiance, the same from every point and in every
-# direction the light emits in (docs/rendering.md, Lights).
-
-
-@dataclass(frozen=True)
-class RectLight:
-    """The parallelogram corner + s u + t v (s, t in [0, 1]); emits to the side of
-    cross(u, v) only."""
-
-    corner: Vec3
-    u: Vec3
-    v: Vec3
-    color: Vec3 = (1.0, 1.0, 1.0)
-
-
-def rect_area(u: Vec3, v: Vec3) -> float:
-    """|u x v|, the parallelogram's area, computed with both edges scaled to unit length first
-    so that no product underflows or overflows."""
-    nu, nv = float(np.max(np.abs(u))), float(np.max(np.abs(v)))
-    if nu == 0.0 or nv == 0.0:
-        return 0.0
-    return float(np.linalg.norm(np.cross(np.asarray(u) / nu, np.asarray(v) / nv))) * nu * nv
-
-
-@dataclass(frozen=True)
-class DiscLight:
-    """A disc that emits to the side its (unit) normal points to."""
-
-    center: Vec3
-    normal: Vec3
-    radius: float
-    color: Vec3 = (1.0, 1.0, 1.0)
-
-
-@dataclass(frozen=True)
-class SphereLight:
-    """A sphere that emits outwards from every point of its surface."""
-
-    center: Vec3
-    radius: float
-    color: Vec3 = (1.0, 1.0, 1.0)
-
-
-@dataclass(frozen=True)
-class TriangleLight:
-    """An emissive mesh face (clray.scene.emitters): emits to the side of
-    cross(v1 - v0, v2 - v0) only. Made from the meshes, never given in a scene file."""
-
-    vertices: tuple[Vec3, Vec3, Vec3]
-    color: Vec3 = (1.0, 1.0, 1.0)
-
-
-AreaLight = RectLight | DiscLight | SphereLight | TriangleLight
-Light = PointLight | DirectionalLight | SpotLight | RectLight | DiscLight | SphereLight
+# The lights a scene file names (an emissive mesh face's TriangleLight is made by the loader)
+# and those sampled over their area, from the registry (clray.lights.LIGHTS).
+Light = functools.reduce(operator.or_, (light.model for light in LISTED.values()))
+AreaLight = functools.reduce(operator.or_, (light.model for light in LIGHTS if light.area))
 
 
 @dataclass(frozen=True)

@@ -189,6 +189,14 @@ class Values:
             raise self.error(key, f"must be <= {limit:g}, got {show(value)}")
         return (x, y, z)
 
+    def light_area(self, area: float, key: str, what: str) -> float:
+        """An area light's emitting area (`what` says how it was found): the kernels divide by
+        and multiply with it, so it must be a normal float32 number, far from overflow."""
+        if not L.MIN_LENGTH <= area <= L.MAX_LIGHT_AREA:
+            raise self.error(key, f"the light's area ({what}) must be in [{L.MIN_LENGTH:g}, "
+                             f"{L.MAX_LIGHT_AREA:g}], got {area:.3g}")
+        return area
+
     def color(self, value: Any, key: str) -> Vec3:
         return self.non_negative(value, key, L.MAX_COLOR)
 

@@ -165,6 +165,8 @@ def _placeable(world: np.ndarray) -> bool:
 def _joined(parts: list[ObjMesh]) -> ObjMesh:
     """One mesh of several; normals and uvs kept where every part has them, colours where
     any has (white, which tints nothing, elsewhere)."""
+    if len(parts) == 1:  # one placed mesh: its arrays as they are, no copies
+        return dataclasses.replace(parts[0], material_names=(), material_libraries=())
     starts = np.cumsum([0] + [len(p.vertices) for p in parts])
 
     def joined(name: str) -> np.ndarray | None:

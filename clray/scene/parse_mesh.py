@@ -60,6 +60,13 @@ def parse_mesh(spec: dict, key: str, material: int | None, v: Values, assets: As
 def transformed(obj: ObjMesh, a: np.ndarray, offset: np.ndarray, tkey: str, v: Values
                 ) -> ObjMesh:
     """`obj` placed by x -> A x + offset: vertices, normals and winding."""
+    if np.array_equal(a, np.eye(3)) and not np.any(offset):
+        # The identity (a glTF node without a transform) moves nothing: its product would
+        # give every coordinate back, at the cost of a pass over millions of vertices. The
+        # normals are made unit again, as below.
+        _within_limits(obj.vertices, tkey, v)
+        normals = None if obj.normals is None else unit(obj.normals)
+        return dataclasses.replace(obj, normals=normals)
     vertices = obj.vertices.reshape(-1, 3) @ a.T + offset
     _within_limits(vertices, tkey, v)
     normals, faces = obj.normals, obj.faces

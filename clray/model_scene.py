@@ -23,7 +23,7 @@ from clray.scene.gltf import GLTF_SUFFIXES, GltfCamera, read_gltf_camera
 from clray.scene.limits import MAX_MAGNITUDE, MAX_MESH_BYTES
 from clray.scene.load import scene_from_dict
 from clray.scene.model import Instance, Mesh, Scene
-from clray.vectors import unit
+from clray.vectors import bounds, unit
 
 MESH_SUFFIXES = (".obj", ".ply", ".npz", *GLTF_SUFFIXES)
 # Unit directions from the model's centre to the camera, and the camera's up.
@@ -82,8 +82,8 @@ def model_scene_data(path: Path, view: str = DEFAULT_VIEW, ground: bool = False,
     model = np.concatenate(meshes)
     # einsum, not `model @ matrix.T`: numpy's matmul of millions of rows by a 3 x 3 took
     # 1.3 s for a 2.6 M-vertex model, einsum 0.18 s, the same numbers for these rotations
-    # (each row a coordinate, signed).
-    vertices = np.einsum("ij,kj->ik", model, matrix)
+    # (each row a coordinate, signed); the default up needs no turn at all.
+    vertices = model if up == DEFAULT_UP else np.einsum("ij,kj->ik", model, matrix)
     center, radius, lo = _bounds(vertices)
     distance = MARGIN * radius / math.sin(math.radians(VFOV) / 2.0)
     if np.max(np.abs(center)) + distance > MAX_MAGNITUDE / 2:
@@ -203,11 +203,13 @@ def _file_camera(found: GltfCamera, matrix: np.ndarray, offset: np.ndarray
 
 def _bounds(vertices: np.ndarray) -> tuple[np.ndarray, float, np.ndarray]:
     """(centre of the bounding box, radius of the sphere about it, the box's low corner)."""
-    lo, hi = vertices.min(axis=0), vertices.max(axis=0)
+    lo, hi = bounds(vertices)
     center = (lo + hi) / 2.0
     # A floor on the radius for a mesh of one point; relative to the model's size where
-    # it has one, so a small model is not framed as a big one.
-    radius = float(np.linalg.norm(vertices - center, axis=1).max())
+    # it has one, so a small model is not framed as a big one. The largest square's root
+    # is the largest length (a rounded root is monotonic), taken a coordinate at a time.
+    d = [vertices[:, k] - center[k] for k in range(3)]
+    radius = float(np.sqrt((d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).max()))
     return center, max(radius, 1e-6 * max(float(np.max(np.abs(center))), 1.0)), lo
 
 

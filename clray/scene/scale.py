@@ -20,6 +20,7 @@ import numpy as np
 
 from clray.scene import model as M
 from clray.shapes import SHAPE_OF, SHAPES
+from clray.vectors import bounds
 
 # Distance (or coordinate magnitude) over the length to resolve above which float32 is not enough.
 RATIO_LIMIT = 1e4
@@ -43,7 +44,7 @@ def _centre_size(obj: M.SceneObject) -> tuple[np.ndarray, float]:
     if type(obj) in SHAPE_OF:
         return SHAPE_OF[type(obj)].centre_size(obj)
     points = np.asarray(obj.vertices, dtype=np.float64)  # Triangle or Mesh
-    lo, hi = points.min(axis=0), points.max(axis=0)
+    lo, hi = bounds(points)
     return (lo + hi) / 2.0, float(np.max(hi - lo))
 
 

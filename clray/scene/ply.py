@@ -481,7 +481,11 @@ def _stack(reader: _Reader, columns: dict[str, object], names: tuple[str, ...]) 
         if isinstance(columns[n], tuple):
             raise reader.error("element vertex", f"{n} must be a number, not a list "
                                f"(property TYPE {n})")
-    return np.stack([np.asarray(columns[n], dtype=np.float64) for n in names], axis=1)
+    # Each column converted into its place: no float64 copy of each before the stacking.
+    out = np.empty((len(columns[names[0]]), len(names)), dtype=np.float64)
+    for k, n in enumerate(names):
+        out[:, k] = columns[n]
+    return out
 
 
 def _gather(raw: np.ndarray, positions: np.ndarray, dtype: np.dtype) -> np.ndarray:

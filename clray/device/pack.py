@@ -18,7 +18,7 @@ import pyopencl as cl
 from clray.accel.bvh import TRAVERSAL_COST, build_bvh
 from clray.accel.wide import LEAF_FIELD_MASK, PACKET_WIDTH, WideBvh, collapse
 from clray.device import layout as L
-from clray.device.bvh_build import build_bvh_on
+from clray.device.bvh_build import build_bvh_from
 from clray.device.program import KernelConfig
 from clray.knobs import DEFAULT_TUNING, Tuning
 from clray.scene import model as M
@@ -252,21 +252,23 @@ def _triangle_bounds(vertices: np.ndarray, rows: np.ndarray) -> tuple[np.ndarray
 def _build_wide(prims: list[np.ndarray], width: int, queue: cl.CommandQueue | None,
                 tuning: Tuning, one_per_leaf: bool = False) -> WideBvh:
     """prims: [lo, hi, refs], emptied here: where the caller holds the arrays nowhere else
-    (_Bounded.take), the bounds are freed once the binary tree is built, before the collapse
-    (24 B a triangle). one_per_leaf: every leaf holds one primitive, so each one's box is a
-    lane of its parent's vector slab test (the scene's tree where it holds instances)."""
-    lo, hi, refs = prims
-    prims.clear()
+    (_Bounded.take), the bounds (24 B a triangle) are freed once the device build has copied
+    them (build_bvh_from), or the host build is done, before the collapse. one_per_leaf:
+    every leaf holds one primitive, so each one's box is a lane of its parent's vector slab
+    test (the scene's tree where it holds instances)."""
+    refs = prims.pop()
     # Below DEVICE_BUILD_MIN primitives the host build takes milliseconds, less than fetching
     # the device build's program from the cache.
     # The device build compiles the default traversal cost in: another one builds on the host.
     leaves = ({"max_leaf_size": 1, "largest_leaf": 1} if one_per_leaf else
               {"max_leaf_size": tuning.max_leaf_size, "largest_leaf": tuning.largest_leaf})
-    on_device = (queue is not None and len(lo) >= DEVICE_BUILD_MIN
+    on_device = (queue is not None and len(prims[0]) >= DEVICE_BUILD_MIN
                  and tuning.traversal_cost == TRAVERSAL_COST)
-    binary = (build_bvh_on(queue, lo, hi, **leaves, pairs=True) if on_device
-              else build_bvh(lo, hi, traversal_cost=tuning.traversal_cost, **leaves))
-    del lo, hi
+    if on_device:
+        binary = build_bvh_from(queue, prims, **leaves, pairs=True)
+    else:
+        binary = build_bvh(*prims, traversal_cost=tuning.traversal_cost, **leaves)
+        prims.clear()
     return collapse(binary, refs, width, tuning.fold_packets)
 
 
@@ -388,15 +390,16 @@ def _triangle_packets(records: np.ndarray, is_tri: np.ndarray, vertices: np.ndar
     packets = np.empty((len(records), 3, 3, PACKET_WIDTH), dtype=np.float32)
     # Corner by corner, whole vertex rows taken (np.take along axis 0: a fancy index with a
     # slice is several times slower), then the record's order: corner, axis, lane. A chunk of
-    # packets at a time: a corner of every slot took 16 B a slot, beside its int64 index.
+    # packets at a time: a corner of every slot took 16 B a slot, beside its int64 index,
+    # and the packets that are not all triangles (a leaf's last) two copies of theirs.
     for at in range(0, len(records), _CHUNK):
         part = slice(at, at + _CHUNK)
         for k in range(3):
             corner = np.take(vertices, records[part, :, k], axis=0)
             packets[part, k] = corner[..., :3].transpose(0, 2, 1)
-    # NaN in the lanes of the few packets that are not all triangles.
-    partial = np.flatnonzero(~is_tri.all(axis=1))
-    packets[partial] = np.where(is_tri[partial, None, None, :], packets[partial], np.nan)
+        # NaN in the lanes of the packets that are not all triangles.
+        partial = at + np.flatnonzero(~is_tri[part].all(axis=1))
+        packets[partial] = np.where(is_tri[partial, None, None, :], packets[partial], np.nan)
     return packets.reshape(len(records), -1).view(L.TRIANGLE_PACKET).ravel()
 
 

@@ -140,12 +140,14 @@ def test_pack_of_a_mesh_peaks_within_its_device_bytes_beside_the_build(cl_device
 
 def test_cpu_device_reads_scene_buffers_in_place(cl_ctx):
     # A CPU device's memory is the host's: a copy of each scene buffer doubled the scene in
-    # host memory while it rendered. A misaligned view is copied (aligned loads of float4).
+    # host memory while it rendered. Rows placed otherwise across the cache lines than in the
+    # device's own allocation are copied (a float4 row 4 bytes off its 16).
     device = cl_ctx.devices[0]
     if not device.type & cl.device_type.CPU or is_oclgrind(device):
         pytest.skip("copied where the device is not the host (and on Oclgrind)")
-    array = np.arange(1024, dtype=np.float32)
+    array = np.arange(4096, dtype=np.float32).reshape(-1, 4)
     buf = launch_module._buffer(cl_ctx, array)
     assert buf.flags & cl.mem_flags.USE_HOST_PTR
     assert np.shares_memory(buf.get_host_array(array.shape, array.dtype), array)
-    assert not launch_module._buffer(cl_ctx, array[1:]).flags & cl.mem_flags.USE_HOST_PTR
+    shifted = array.reshape(-1)[1:-3].reshape(-1, 4)
+    assert not launch_module._buffer(cl_ctx, shifted).flags & cl.mem_flags.USE_HOST_PTR

@@ -25,6 +25,7 @@ from clray.knobs import DEFAULT_TUNING, TRAVERSAL_SCHEMES, Tuning
 # depend on the bands.
 
 
+
 def _buffer(ctx: cl.Context, array: np.ndarray) -> cl.Buffer:
     """A buffer the kernels only read. A CPU device reads the array in place (USE_HOST_PTR;
     pyopencl keeps the array alive with the buffer): a copy took the scene's bytes a second
@@ -34,10 +35,14 @@ def _buffer(ctx: cl.Context, array: np.ndarray) -> cl.Buffer:
     # OpenCL has no zero-sized buffers: an empty array becomes one zeroed element.
     data = np.ascontiguousarray(array if array.size else np.zeros(1, dtype=array.dtype))
     device = ctx.devices[0]
-    # The kernels may load a record's float4 fields (the widest type of kernels/clray_types.h)
-    # with aligned loads: in place only at a multiple of 16 bytes, as numpy's allocations are.
+    # In place only where the elements (records, or rows of a float4 array) lie across the
+    # cache lines as in the device's own allocation (aligned to a line at least): a wide node
+    # over five lines where it would span four, or a float4 off its 16 bytes, would cost the
+    # kernels. numpy's large arrays start 16 bytes into a page: the nodes (256-byte records
+    # of the 8-wide tree) are copied, the other large buffers read in place.
+    element = data.nbytes // len(data)
     in_place = (bool(device.type & cl.device_type.CPU) and not is_oclgrind(device)
-                and data.ctypes.data % 16 == 0)
+                and data.ctypes.data % math.gcd(element, device.global_mem_cacheline_size) == 0)
     where = cl.mem_flags.USE_HOST_PTR if in_place else cl.mem_flags.COPY_HOST_PTR
     return cl.Buffer(ctx, cl.mem_flags.READ_ONLY | where, hostbuf=data)
 

@@ -25,7 +25,6 @@ from clray.knobs import DEFAULT_TUNING, TRAVERSAL_SCHEMES, Tuning
 # depend on the bands.
 
 
-
 def _buffer(ctx: cl.Context, array: np.ndarray) -> cl.Buffer:
     """A buffer the kernels only read. A CPU device reads the array in place (USE_HOST_PTR;
     pyopencl keeps the array alive with the buffer): a copy took the scene's bytes a second

@@ -87,7 +87,7 @@ class _Bounded:
 
     References are int32 (prim_refs' type: a kind and an index fit it) and owners are kept as
     runs, an owner per object and its primitive count: for 5 M triangles, int64 references and
-    an owner a primitive took 80 MB beside the bounds."""
+    an owner a primitive took 80 MiB beside the bounds."""
 
     def __init__(self) -> None:
         self.lo: list[np.ndarray] = []
@@ -196,8 +196,8 @@ def _pack_triangles(objs: _Placed, bounded: _Bounded) -> _Triangles:
         # Made relative in float64, then rounded, a chunk at a time: no float64 copy of
         # every vertex beside the float32 ones.
         for at in range(0, len(v), _CHUNK):
-            rows = slice(off + at, off + min(at + _CHUNK, len(v)))
-            vertices[rows, :3] = v[at:at + _CHUNK] - origin
+            dest = slice(off + at, off + min(at + _CHUNK, len(v)))
+            vertices[dest, :3] = v[at:at + _CHUNK] - origin
     has_normals = any(src[2] is not None for src in sources)
     has_uvs = any(src[3] is not None for src in sources)
     normals = np.zeros((n_vertices if has_normals else 0, 4), dtype=np.float32)

@@ -276,7 +276,7 @@ def test_device_layout_collapses_to_the_same_wide_tree(cl_queue):
     own = build_bvh_on(cl_queue, lo, hi, pairs=True)
     host = build_bvh(lo, hi)
     assert own.pairs and own.nodes.size == 2 * 20000 - 1
-    assert_same_tree(bvh_builder.build(cl_queue, lo, hi, 4, max_leaf_count(4)), host)
+    assert_same_tree(bvh_builder.build(cl_queue, [lo, hi], 4, max_leaf_count(4)), host)
     a, b = collapse(own, refs, 8), collapse(host, refs, 8)
     assert a.nodes.tobytes() == b.nodes.tobytes()
     assert np.array_equal(a.prim_refs, b.prim_refs) and a.stack_size == b.stack_size

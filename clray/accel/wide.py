@@ -92,6 +92,9 @@ def collapse(bvh: Bvh, refs: np.ndarray, width: int,
     # Its record (NaN bounds for none), joined as opaque items: numpy copies those far faster.
     rec = np.concatenate([lv[1].view(_OPAQUE) for lv in levels]).view(BINARY_NODE)
     level_rows = np.cumsum([0] + [lv[0].shape[0] for lv in levels])
+    # Joined above: the levels' own arrays (a third of the collapse's peak) freed before the
+    # fold and the leaves' layout.
+    del levels
     keep = _fold(slots, rec, kinds, FOLD_PACKETS if fold_packets is None else fold_packets)
     if keep is not None:
         slots, rec = slots[keep], rec.view(_OPAQUE)[keep].view(BINARY_NODE)

@@ -61,10 +61,23 @@ def build_bvh_on(queue: cl.CommandQueue, lo: np.ndarray, hi: np.ndarray,
 
     pairs: a device build's tree is left in its own layout (Bvh.pairs), for
     clray.accel.wide.collapse, without the pass that renumbers it depth-first."""
-    lo, hi, largest = checked_bounds(lo, hi, max_leaf_size, largest_leaf)
+    return build_bvh_from(queue, [lo, hi], max_leaf_size, largest_leaf=largest_leaf,
+                          pairs=pairs)
+
+
+def build_bvh_from(queue: cl.CommandQueue, bounds: list[np.ndarray], max_leaf_size: int = 4,
+                   *, largest_leaf: int | None = None, pairs: bool = False) -> Bvh:
+    """build_bvh_on's tree from `bounds` = [lo, hi], a list this call empties: where the
+    caller holds the arrays nowhere else, the device build frees them once its kernels have
+    their copies, before its own buffers fill (a mesh's float bounds, 24 B a triangle, were
+    the pack's largest arrays beside them at 5.24 M triangles: docs/scale.md)."""
+    lo, hi, largest = checked_bounds(*bounds, max_leaf_size, largest_leaf)
+    bounds.clear()
     n = lo.shape[0]
     if n > max_leaf_size and supports(queue.device, n, lo.itemsize):
-        return build(queue, lo, hi, max_leaf_size, largest, not pairs)
+        bounds += [lo, hi]
+        del lo, hi
+        return build(queue, bounds, max_leaf_size, largest, not pairs)
     return build_bvh(lo, hi, max_leaf_size, largest_leaf=largest)
 
 
@@ -104,11 +117,14 @@ def _kernels(context: cl.Context, float_bounds: bool) -> dict[str, cl.Kernel]:
     return {k.function_name: k for k in program.all_kernels()}
 
 
-def build(queue: cl.CommandQueue, lo: np.ndarray, hi: np.ndarray, max_leaf: int,
+def build(queue: cl.CommandQueue, bounds: list[np.ndarray], max_leaf: int,
           sah_max_leaf: int, depth_first: bool = True) -> Bvh:
-    """The tree over N primitives with float64 or float32 bounds `lo`, `hi` (N, 3),
-    N > max_leaf: depth-first, or in the build's own layout (Bvh.pairs)."""
-    n = lo.shape[0]
+    """The tree over N primitives with float64 or float32 bounds [lo, hi] (N, 3), N >
+    max_leaf: depth-first, or in the build's own layout (Bvh.pairs). `bounds` is emptied
+    (build_bvh_from)."""
+    lo, hi = bounds
+    bounds.clear()
+    n, bound_bytes = lo.shape[0], lo.itemsize
     slots = 2 * n - 1
     float_bounds = lo.dtype == np.float32
     kernels = _kernels(queue.context, float_bounds)
@@ -116,7 +132,8 @@ def build(queue: cl.CommandQueue, lo: np.ndarray, hi: np.ndarray, max_leaf: int,
     # freed memory where a fresh device allocation page-faults in all over again each build.
     lo_buf = _input_buffer(queue, np.ascontiguousarray(lo))
     hi_buf = _input_buffer(queue, np.ascontiguousarray(hi))
-    prims = [np.empty(n, dtype=_prim_dtype(lo.itemsize)) for _ in range(2)]
+    del lo, hi
+    prims = [np.empty(n, dtype=_prim_dtype(bound_bytes)) for _ in range(2)]
     # Uninitialised: the pages a subtree's range does not reach are never touched.
     nodes = np.empty(slots, dtype=BINARY_NODE)
     order = np.empty(n, dtype=np.int32)

@@ -12,7 +12,7 @@ import pyopencl as cl
 
 from clray.device.context import describe, device_type, queue_for
 from clray.device.pack import PackedScene
-from clray.device.program import build_program
+from clray.device.program import build_program, is_oclgrind
 from clray.errors import DeviceError
 from clray.knobs import DEFAULT_TUNING, TRAVERSAL_SCHEMES, Tuning
 
@@ -26,10 +26,24 @@ from clray.knobs import DEFAULT_TUNING, TRAVERSAL_SCHEMES, Tuning
 
 
 def _buffer(ctx: cl.Context, array: np.ndarray) -> cl.Buffer:
+    """A buffer the kernels only read. A CPU device reads the array in place (USE_HOST_PTR;
+    pyopencl keeps the array alive with the buffer): a copy took the scene's bytes a second
+    time in host memory, 343 MiB for the 5.24 M-triangle mesh (docs/scale.md). Elsewhere a
+    copy: a GPU's memory, and Oclgrind, which takes a USE_HOST_PTR buffer's contents for
+    uninitialised."""
     # OpenCL has no zero-sized buffers: an empty array becomes one zeroed element.
-    data = array if array.size else np.zeros(1, dtype=array.dtype)
-    return cl.Buffer(ctx, cl.mem_flags.READ_ONLY | cl.mem_flags.COPY_HOST_PTR,
-                     hostbuf=np.ascontiguousarray(data))
+    data = np.ascontiguousarray(array if array.size else np.zeros(1, dtype=array.dtype))
+    device = ctx.devices[0]
+    # In place only where the elements (records, or rows of a float4 array) lie across the
+    # cache lines as in the device's own allocation (aligned to a line at least): a wide node
+    # over five lines where it would span four, or a float4 off its 16 bytes, would cost the
+    # kernels. numpy's large arrays start 16 bytes into a page: the nodes (256-byte records
+    # of the 8-wide tree) are copied, the other large buffers read in place.
+    element = data.nbytes // len(data)
+    in_place = (bool(device.type & cl.device_type.CPU) and not is_oclgrind(device)
+                and data.ctypes.data % math.gcd(element, device.global_mem_cacheline_size) == 0)
+    where = cl.mem_flags.USE_HOST_PTR if in_place else cl.mem_flags.COPY_HOST_PTR
+    return cl.Buffer(ctx, cl.mem_flags.READ_ONLY | where, hostbuf=data)
 
 
 def _scene_buffers(ctx: cl.Context, packed: PackedScene) -> list[cl.Buffer]:

@@ -15,7 +15,7 @@ import pyopencl as cl
 from clray.accel.bvh import TRAVERSAL_COST, build_bvh
 from clray.accel.wide import LEAF_FIELD_MASK, PACKET_WIDTH, WideBvh, collapse
 from clray.device import layout as L
-from clray.device.bvh_builder import build_bvh_on
+from clray.device.bvh_builder import build_bvh_from
 from clray.device.program import KernelConfig
 from clray.knobs import DEFAULT_TUNING, Tuning
 from clray.lights import LIGHT_OF, LIGHTS
@@ -28,6 +28,9 @@ from clray.shapes.sphere import SPHERE
 
 # Primitive count from which pack_scene builds the BVH on the device when given a queue.
 DEVICE_BUILD_MIN = 20000
+# Rows (vertices, triangles, packets) that the pack's gathers take at a time: their
+# temporaries stay a few MiB however large the mesh (docs/scale.md, Where the memory goes).
+_CHUNK = 1 << 16
 
 
 def _device_bytes(self: PackedScene) -> dict[str, int]:
@@ -78,33 +81,50 @@ def texture_frame(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 class _Bounded:
     """Bounds and references of the primitives that go into a BVH, kind by kind, with the
-    owner of each: 0 for the scene, g + 1 for group g (each owner gets its own BVH)."""
+    owner of each: 0 for the scene, g + 1 for group g (each owner gets its own BVH).
+
+    References are int32 (prim_refs' type: a kind and an index fit it) and owners are kept as
+    runs, an owner per object and its primitive count: for 5 M triangles, int64 references and
+    an owner a primitive took 80 MiB beside the bounds."""
 
     def __init__(self) -> None:
         self.lo: list[np.ndarray] = []
         self.hi: list[np.ndarray] = []
         self.refs: list[np.ndarray] = []
-        self.owners: list[np.ndarray] = []
+        self.owners: list[np.ndarray] = []  # runs: an owner per object...
+        self.sizes: list[np.ndarray] = []  # ...and its primitives
 
-    def add(self, kind: int, lo: np.ndarray, hi: np.ndarray, owners: np.ndarray) -> None:
+    def add(self, kind: int, lo: np.ndarray, hi: np.ndarray, owners: np.ndarray,
+            sizes: np.ndarray) -> None:
+        """Primitives of one kind; `owners` (one per object) own `sizes` of them each."""
         self.lo.append(lo)
         self.hi.append(hi)
-        self.refs.append((kind << L.PRIM_TYPE_SHIFT) | np.arange(len(lo), dtype=np.int64))
+        self.refs.append((kind << L.PRIM_TYPE_SHIFT) | np.arange(len(lo), dtype=np.int32))
         self.owners.append(np.asarray(owners, dtype=np.int64))
+        self.sizes.append(np.asarray(sizes, dtype=np.int64))
 
     def owned_by(self, owner: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(lo, hi, refs) of one owner's primitives."""
         if not self.lo:
-            return np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0, dtype=np.int64)
+            return np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0, dtype=np.int32)
         if len(self.lo) > 1:
             # Joined once: a scene with groups asks once per owner.
-            self.lo, self.hi, self.refs, self.owners = (
-                [np.concatenate(part)] for part in (self.lo, self.hi, self.refs, self.owners))
-        lo, hi, refs, owners = self.lo[0], self.hi[0], self.refs[0], self.owners[0]
-        mine = owners == owner
-        if mine.all():
+            self.lo, self.hi, self.refs, self.owners, self.sizes = (
+                [np.concatenate(part)] for part in (self.lo, self.hi, self.refs, self.owners,
+                                                    self.sizes))
+        lo, hi, refs = self.lo[0], self.hi[0], self.refs[0]
+        runs = self.owners[0] == owner
+        if runs.all():
             return lo, hi, refs
+        mine = np.repeat(runs, self.sizes[0])
         return lo[mine], hi[mine], refs[mine]
+
+    def take(self, owner: int) -> list[np.ndarray]:
+        """[lo, hi, refs] of the last owner built: this _Bounded lets go of its arrays, so
+        that _build_wide can free the bounds before the collapse."""
+        prims = list(self.owned_by(owner))
+        self.lo, self.hi, self.refs, self.owners, self.sizes = [], [], [], [], []
+        return prims
 
 
 @dataclass(frozen=True)
@@ -148,7 +168,7 @@ def _pack_shape(shape: Shape, objs: _Placed, bounded: _Bounded) -> np.ndarray:
     records, lo, hi = shape.pack(objs.objects, objs.origins)
     if len(records):
         sizes = [shape.primitives(obj) for obj in objs.objects]
-        bounded.add(shape.prim, lo, hi, np.repeat(objs.owners, sizes))
+        bounded.add(shape.prim, lo, hi, objs.owners, sizes)
     return records
 
 
@@ -170,8 +190,12 @@ def _pack_triangles(objs: _Placed, bounded: _Bounded) -> _Triangles:
     offsets = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.int64)
     n_vertices = int(sum(counts))
     vertices = np.zeros((n_vertices, 4), dtype=np.float32)
-    vertices[:, :3] = (np.concatenate([src[0] for src in sources])
-                       - np.repeat(objs.origins, counts, axis=0))
+    for (v, *_), origin, off in zip(sources, objs.origins, offsets, strict=True):
+        # Made relative in float64, then rounded, a chunk at a time: no float64 copy of
+        # every vertex beside the float32 ones.
+        for at in range(0, len(v), _CHUNK):
+            dest = slice(off + at, off + min(at + _CHUNK, len(v)))
+            vertices[dest, :3] = v[at:at + _CHUNK] - origin
     has_normals = any(src[2] is not None for src in sources)
     has_uvs = any(src[3] is not None for src in sources)
     normals = np.zeros((n_vertices if has_normals else 0, 4), dtype=np.float32)
@@ -198,33 +222,51 @@ def _pack_triangles(objs: _Placed, bounded: _Bounded) -> _Triangles:
             normals[off:off + len(v), 3] = 1.0
         if u is not None:
             uvs[off:off + len(v)] = u
-    # Corner by corner: elementwise minima of three (F, 4) arrays take a tenth of the time of
-    # a reduction over the middle axis of (F, 3, 3), and float32 minima widened are the same
-    # numbers as float64 minima of the widened corners. Whole rows taken (np.take along axis
-    # 0), not vertices[index, :3]: numpy's fancy index with a slice is four times slower.
-    # The bounds stay float32 (the BVH builds take them as the same numbers as their float64
-    # copies would be): 24 B a triangle less, and no copy.
-    c0, c1, c2 = (np.take(vertices, rows[:, k], axis=0) for k in range(3))
-    hi = np.ascontiguousarray(np.maximum(np.maximum(c0, c1), c2)[:, :3])
-    lo = np.ascontiguousarray(np.minimum(np.minimum(c0, c1, out=c0), c2, out=c0)[:, :3])
-    bounded.add(L.PRIM_TRIANGLE, lo, hi, np.repeat(objs.owners, n_faces))
+    lo, hi = _triangle_bounds(vertices, rows)
+    bounded.add(L.PRIM_TRIANGLE, lo, hi, objs.owners, n_faces)
     return _Triangles(triangles, vertices, normals, uvs, colors)
 
 
-def _build_wide(lo: np.ndarray, hi: np.ndarray, refs: np.ndarray, width: int,
-                queue: cl.CommandQueue | None, tuning: Tuning,
-                one_per_leaf: bool = False) -> WideBvh:
-    """one_per_leaf: every leaf holds one primitive, so each one's box is a lane of its
-    parent's vector slab test (the scene's tree where it holds instances)."""
+def _triangle_bounds(vertices: np.ndarray, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(lo, hi) (F, 3) float32 of the triangles whose records are `rows` (F, 4) int32.
+
+    Corner by corner: elementwise minima of three (F, 4) arrays take a tenth of the time of a
+    reduction over the middle axis of (F, 3, 3), and float32 minima widened are the same
+    numbers as float64 minima of the widened corners. Whole rows taken (np.take along axis
+    0), not vertices[index, :3]: numpy's fancy index with a slice is four times slower. The
+    bounds stay float32 (the BVH builds take them as the same numbers as their float64 copies
+    would be). A chunk of triangles at a time: the corners of them all took 48 B a triangle
+    beside the bounds."""
+    lo = np.empty((len(rows), 3), dtype=np.float32)
+    hi = np.empty((len(rows), 3), dtype=np.float32)
+    for at in range(0, len(rows), _CHUNK):
+        part = rows[at:at + _CHUNK]
+        c0, c1, c2 = (np.take(vertices, part[:, k], axis=0) for k in range(3))
+        hi[at:at + _CHUNK] = np.maximum(np.maximum(c0, c1), c2)[:, :3]
+        lo[at:at + _CHUNK] = np.minimum(np.minimum(c0, c1, out=c0), c2, out=c0)[:, :3]
+    return lo, hi
+
+
+def _build_wide(prims: list[np.ndarray], width: int, queue: cl.CommandQueue | None,
+                tuning: Tuning, one_per_leaf: bool = False) -> WideBvh:
+    """prims: [lo, hi, refs], emptied here: where the caller holds the arrays nowhere else
+    (_Bounded.take), the bounds (24 B a triangle) are freed once the device build has copied
+    them (build_bvh_from), or the host build is done, before the collapse. one_per_leaf:
+    every leaf holds one primitive, so each one's box is a lane of its parent's vector slab
+    test (the scene's tree where it holds instances)."""
+    refs = prims.pop()
     # Below DEVICE_BUILD_MIN primitives the host build takes milliseconds, less than fetching
     # the device build's program from the cache.
     # The device build compiles the default traversal cost in: another one builds on the host.
     leaves = ({"max_leaf_size": 1, "largest_leaf": 1} if one_per_leaf else
               {"max_leaf_size": tuning.max_leaf_size, "largest_leaf": tuning.largest_leaf})
-    on_device = (queue is not None and len(lo) >= DEVICE_BUILD_MIN
+    on_device = (queue is not None and len(prims[0]) >= DEVICE_BUILD_MIN
                  and tuning.traversal_cost == TRAVERSAL_COST)
-    binary = (build_bvh_on(queue, lo, hi, **leaves, pairs=True) if on_device
-              else build_bvh(lo, hi, traversal_cost=tuning.traversal_cost, **leaves))
+    if on_device:
+        binary = build_bvh_from(queue, prims, **leaves, pairs=True)
+    else:
+        binary = build_bvh(*prims, traversal_cost=tuning.traversal_cost, **leaves)
+        prims.clear()
     return collapse(binary, refs, width, tuning.fold_packets)
 
 
@@ -262,7 +304,7 @@ def _pack_instances(instances: list[M.Instance], group_of: np.ndarray,
     records["lo"][:, :3] = np.nextafter(plo.astype(np.float32), np.float32(-np.inf))
     records["hi"][:, :3] = np.nextafter(phi.astype(np.float32), np.float32(np.inf))
     bounded.add(L.PRIM_INSTANCE, records["lo"][:, :3].astype(np.float64),
-                records["hi"][:, :3].astype(np.float64), np.zeros(len(instances)))
+                records["hi"][:, :3].astype(np.float64), [0], [len(instances)])
     return records
 
 
@@ -285,15 +327,15 @@ def _pack_bvh(bounded: _Bounded, n_groups: int, instances: list[M.Instance],
     group_trees, group_bounds = [], []
     for g in range(n_groups):
         lo, hi, refs = bounded.owned_by(g + 1)
-        group_trees.append(_build_wide(lo, hi, refs, width, queue, tuning))
+        group_trees.append(_build_wide([lo, hi, refs], width, queue, tuning))
         group_bounds.append((lo.min(axis=0), hi.max(axis=0)))
     # The scene's tree comes first (its root is node 0): the groups' roots are known after it.
     records = _pack_instances(instances, group_of, group_bounds, eye, bounded)
-    lo, hi, refs = bounded.owned_by(0)
+    prims = bounded.take(0)
     # Where instances are most of the scene's tree, one primitive a leaf; a large mesh of the
     # scene's own beside a few instances keeps its packed leaves.
-    wide = _build_wide(lo, hi, refs, width, queue, tuning,
-                       one_per_leaf=bool(instances) and 2 * len(instances) >= len(refs))
+    wide = _build_wide(prims, width, queue, tuning,
+                       one_per_leaf=bool(instances) and 2 * len(instances) >= len(prims[2]))
     if not instances:
         return wide, records, time.perf_counter() - start
     # Nodes: the scene's tree first, then each group's. Slots: the groups' first, so that the
@@ -345,13 +387,17 @@ def _triangle_packets(records: np.ndarray, is_tri: np.ndarray, vertices: np.ndar
     (_slot_records), coordinate by coordinate, NaN in slots that hold no triangle."""
     packets = np.empty((len(records), 3, 3, PACKET_WIDTH), dtype=np.float32)
     # Corner by corner, whole vertex rows taken (np.take along axis 0: a fancy index with a
-    # slice is several times slower), then the record's order: corner, axis, lane.
-    for k in range(3):
-        corner = np.take(vertices, records[..., k], axis=0)
-        packets[:, k] = corner[..., :3].transpose(0, 2, 1)
-    # NaN in the lanes of the few packets that are not all triangles.
-    partial = np.flatnonzero(~is_tri.all(axis=1))
-    packets[partial] = np.where(is_tri[partial, None, None, :], packets[partial], np.nan)
+    # slice is several times slower), then the record's order: corner, axis, lane. A chunk of
+    # packets at a time: a corner of every slot took 16 B a slot, beside its int64 index,
+    # and the packets that are not all triangles (a leaf's last) two copies of theirs.
+    for at in range(0, len(records), _CHUNK):
+        part = slice(at, at + _CHUNK)
+        for k in range(3):
+            corner = np.take(vertices, records[part, :, k], axis=0)
+            packets[part, k] = corner[..., :3].transpose(0, 2, 1)
+        # NaN in the lanes of the packets that are not all triangles.
+        partial = at + np.flatnonzero(~is_tri[part].all(axis=1))
+        packets[partial] = np.where(is_tri[partial, None, None, :], packets[partial], np.nan)
     return packets.reshape(len(records), -1).view(L.TRIANGLE_PACKET).ravel()
 
 

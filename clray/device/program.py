@@ -42,9 +42,13 @@ ALLOWED_BUILD_OPTIONS = frozenset({
 OCLGRIND_BUILD_OPTIONS = ("-DHOT=inline", "-cl-opt-disable", "-DPORTABLE_REDUCTIONS")
 
 
+def is_oclgrind(device: cl.Device) -> bool:
+    return device.platform.name.strip() == "Oclgrind"
+
+
 def device_build_options(device: cl.Device) -> tuple[str, ...]:
     """Options a device's compiler needs whatever the configuration."""
-    return OCLGRIND_BUILD_OPTIONS if device.platform.name.strip() == "Oclgrind" else ()
+    return OCLGRIND_BUILD_OPTIONS if is_oclgrind(device) else ()
 
 
 # The analytic shapes' switches (HAS_SPHERES, ..., HAS_TORI: Shape.switch), fields of every

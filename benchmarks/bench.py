@@ -52,7 +52,7 @@ TARGETS = {
              "build_s": 2.0, "build_warm_s": 0.2},
 }
 # Device buffers that scale with the triangle count.
-MESH_BUFFERS = ("triangles", "triangle_packets", "nodes", "prim_refs")
+MESH_BUFFERS = ("triangles", "triangle_materials", "triangle_packets", "nodes", "prim_refs")
 # POV-Ray trace time / clray kernel time the sample-packet issue asks for at 16 samples a pixel
 # (at least); reported, never asserted.
 POVRAY_RATIO_TARGETS = {16: 12.0}

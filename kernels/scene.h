@@ -21,6 +21,7 @@
     X(Cone, cones) SEP                      \
     X(Torus, tori) SEP                      \
     X(Triangle, triangles) SEP              \
+    X(int, triangle_materials) SEP          \
     X(TrianglePacket, triangle_packets) SEP \
     X(SpherePacket, sphere_packets) SEP     \
     X(float4, normals) SEP                  \
@@ -46,6 +47,12 @@
 // Whether the build has a BVH to walk: the planes, unbounded, are tested one by one.
 #define HAS_BVH \
     (HAS_SPHERES || HAS_BOXES || HAS_CYLINDERS || HAS_CONES || HAS_TORI || HAS_TRIANGLES)
+
+// Whether some triangle has vertex normals, uvs or colours. Then each triangle slot has a
+// Triangle record in `triangles` (vertex indices and material word); else it has only its
+// material word in `triangle_materials`, 4 bytes a slot instead of 16, as nothing else of the
+// record would be read (clray/device/pack.py: _in_slot_order packs the one these switches read).
+#define HAS_VERTEX_ATTRIBUTES (HAS_VERTEX_NORMALS || HAS_VERTEX_UVS || HAS_VERTEX_COLORS)
 
 // COUNT_TESTS (the instrumented build of benchmarks/bench.py): box and primitive tests per
 // work-item, for closest-hit and shadow queries apart.

@@ -53,8 +53,8 @@ HOT Crossings intersect_prim(const SceneRefs* s, int ref, const Ray* r) {
     }
 }
 
-// part: the crossing's part, which for a triangle is its slot (its Triangle record's index:
-// the records are in prim_refs' order, so that the hits of neighbouring rays read
+// part: the crossing's part, which for a triangle is its slot (the index of its Triangle record
+// or material word: these are in prim_refs' order, so that the hits of neighbouring rays read
 // neighbouring records).
 static inline int prim_material(const SceneRefs* s, int ref, int part) {
     int i = ref & PRIM_INDEX_MASK;
@@ -85,7 +85,7 @@ static inline int prim_material(const SceneRefs* s, int ref, int part) {
 #endif
 #if HAS_TRIANGLES
         case PRIM_TRIANGLE:
-            return s->triangles[part].material & TRIANGLE_MATERIAL_MASK;
+            return triangle_material(s, part) & TRIANGLE_MATERIAL_MASK;
 #endif
         default:
             return 0;

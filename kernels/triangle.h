@@ -268,12 +268,26 @@ HOT MASKP triangle_lanes(const __global TrianglePacket* pk, const PickedCorners*
 #define TRIANGLE_LANES 0
 #endif
 
+// A triangle slot's material word (the index and the TRIANGLE_* flags): its Triangle record's
+// where the scene has vertex attributes, else the slot's entry of triangle_materials, which
+// holds the word alone (scene.h: HAS_VERTEX_ATTRIBUTES).
+HOT int triangle_material(const SceneRefs* s, int slot) {
+#if HAS_VERTEX_ATTRIBUTES
+    return s->triangles[slot].material;
+#else
+    return s->triangle_materials[slot];
+#endif
+}
+
 // shape_surface for a triangle: the point from the barycentrics, pulled towards the
 // centroid, the winding's normal and the blended vertex normal.
 HOT Surface triangle_surface(const SceneRefs* s, const Ray* r, const Hit* hit, bool want_uv) {
     Surface sf;
     REAL gamma = gamma_n(ERR_ROUNDINGS);
-    Triangle tri = s->triangles[hit->part];
+    int word = triangle_material(s, hit->part);
+#if HAS_VERTEX_ATTRIBUTES
+    Triangle tri = s->triangles[hit->part];  // its vertex indices, beside the word
+#endif
     // The corners from the hit's packet lane (its part is its slot, shapes.h:
     // packet_crossings): the mesh's float32 vertices, which the device does not keep.
     const __global TrianglePacket* pk = s->triangle_packets + hit->part / PACKET_WIDTH;
@@ -298,7 +312,7 @@ HOT Surface triangle_surface(const SceneRefs* s, const Ray* r, const Hit* hit, b
     sf.n_g = dot(n, n) > (REAL)0 ? n : -r->d;
     sf.uv = (REAL2)(b1, b2);
 #if HAS_VERTEX_NORMALS
-    if (tri.material & TRIANGLE_SMOOTH) {
+    if (word & TRIANGLE_SMOOTH) {
         REAL3 ns = b0 * TO_REAL3(s->normals[tri.v0]) +
                    b1 * TO_REAL3(s->normals[tri.v1]) +
                    b2 * TO_REAL3(s->normals[tri.v2]);
@@ -306,22 +320,22 @@ HOT Surface triangle_surface(const SceneRefs* s, const Ray* r, const Hit* hit, b
     }
 #endif
 #if HAS_VERTEX_UVS
-    if (tri.material & TRIANGLE_UV) {
+    if (word & TRIANGLE_UV) {
         sf.uv = b0 * TO_REAL2(s->uvs[tri.v0]) + b1 * TO_REAL2(s->uvs[tri.v1]) +
                 b2 * TO_REAL2(s->uvs[tri.v2]);
     }
 #endif
 #if HAS_VERTEX_COLORS
     sf.tint = (REAL3)(1, 1, 1);
-    if (tri.material & TRIANGLE_COLOR) {
+    if (word & TRIANGLE_COLOR) {
         sf.tint = b0 * TO_REAL3(s->colors[tri.v0]) + b1 * TO_REAL3(s->colors[tri.v1]) +
                   b2 * TO_REAL3(s->colors[tri.v2]);
     }
 #endif
-    sf.material = tri.material & TRIANGLE_MATERIAL_MASK;
+    sf.material = word & TRIANGLE_MATERIAL_MASK;
     sf.p = p;
 #if HAS_VERTEX_NORMALS
-    if ((tri.material & TRIANGLE_SMOOTH) && dot(sf.n_s, sf.n_s) > (REAL)0) return sf;
+    if ((word & TRIANGLE_SMOOTH) && dot(sf.n_s, sf.n_s) > (REAL)0) return sf;
 #endif
     sf.n_s = sf.n_g;
     return sf;
@@ -391,8 +405,8 @@ HOT SurfaceOfLanes triangle_surface_lanes(const ShapeLanes* g, const RayPacket* 
 // with vertex texture coordinates or colours.
 HOT bool triangle_record(const SceneRefs* s, int part, REAL* f, int stride, int* material,
                          LANE_INT* smooth) {
-    Triangle tri = s->triangles[part];
-    if (tri.material & (TRIANGLE_UV | TRIANGLE_COLOR)) return false;
+    int word = triangle_material(s, part);
+    if (word & (TRIANGLE_UV | TRIANGLE_COLOR)) return false;
     const __global TrianglePacket* pk = s->triangle_packets + part / PACKET_WIDTH;
     int lane = part % PACKET_WIDTH;
     f[ROW_A * stride] = (REAL)pk->x0[lane];
@@ -405,8 +419,9 @@ HOT bool triangle_record(const SceneRefs* s, int part, REAL* f, int stride, int*
     f[(ROW_C + 1) * stride] = (REAL)pk->y2[lane];
     f[(ROW_C + 2) * stride] = (REAL)pk->z2[lane];
 #if HAS_VERTEX_NORMALS
-    if (tri.material & TRIANGLE_SMOOTH) {
+    if (word & TRIANGLE_SMOOTH) {
         *smooth = -1;
+        Triangle tri = s->triangles[part];
         int v[3] = {tri.v0, tri.v1, tri.v2};
         for (int c = 0; c < 3; ++c) {
             REAL3 n = TO_REAL3(s->normals[v[c]]);
@@ -416,7 +431,7 @@ HOT bool triangle_record(const SceneRefs* s, int part, REAL* f, int stride, int*
         }
     }
 #endif
-    *material = tri.material & TRIANGLE_MATERIAL_MASK;
+    *material = word & TRIANGLE_MATERIAL_MASK;
     return true;
 }
 #endif

@@ -91,7 +91,7 @@ def test_group_primitives_are_packed_once_however_many_instances() -> None:
     many = pack_scene(scene_from_dict(pawn_scene(
         [{"transform": {"translate": [x, 0, z]}} for x in range(-10, 10) for z in range(-5, 5)])),
         width=8, height=8, spp=1, max_depth=3, seed=0)
-    for name in ("spheres", "boxes", "cylinders", "triangles"):
+    for name in ("spheres", "boxes", "cylinders", "triangles", "triangle_materials"):
         assert len(getattr(many, name)) == len(getattr(one, name)), name
     assert len(many.instances) == 200 and many.instances.dtype == INSTANCE
     # What grows is the instance records and the scene's BVH over them (a leaf of four slots

@@ -21,7 +21,7 @@ from clray.device.layout import TRIANGLE_COLOR, TRIANGLE_MATERIAL_MASK, TRIANGLE
 from clray.device.pack import pack_scene
 from clray.metrics import count_over, max_abs, nonfinite_count, rmse
 from clray.reference import render_reference
-from clray.render import render
+from clray.render import RenderSettings, render
 from clray.scene import model as M
 from clray.scene.load import load_scene
 from clray.scene.obj import read_obj
@@ -278,3 +278,76 @@ def test_triangle_records_are_the_slots_triangles_with_their_vertex_data():
         assert np.array_equal(packed.uvs[corner[mine]], uvs[face[mine, k]].astype(np.float32))
         assert np.array_equal(packed.colors[corner[~mine], :3],
                               colors[face[~mine, k]].astype(np.float32))
+
+
+# The two layouts of a triangle slot's record (clray.device.layout.SCENE_BUFFERS, kernels/scene.h:
+# HAS_VERTEX_ATTRIBUTES): the whole Triangle record where some triangle has vertex normals, uvs
+# or colours, the material word alone where none has.
+
+FACE_MATERIALS = (M.Material("red", color=(0.9, 0.1, 0.1), ambient=0.2, diffuse=0.8),
+                  M.Material("green", color=(0.1, 0.9, 0.1), ambient=0.2, diffuse=0.8),
+                  M.Material("blue", color=(0.1, 0.1, 0.9), ambient=0.2, diffuse=0.8))
+
+
+def face_material_scene(**attributes: np.ndarray) -> M.Scene:
+    """The bumpy sphere with one of three materials a face (at random, so that neighbouring
+    slots differ), and the vertex attributes given (normals, uvs, colors)."""
+    vertices, faces, _ = mesh_gen.bumpy_mesh(2)
+    face_materials = np.random.default_rng(3).integers(0, 3, len(faces))
+    mesh = M.Mesh(vertices=vertices, faces=faces, material=0, face_materials=face_materials,
+                  **attributes)
+    camera = M.Camera(position=(0.3, 0.4, 3.2), look_at=(0, 0, 0), vfov=45)
+    options = M.RenderOptions(width=64, height=48, max_depth=0, background=(0.0, 0.0, 0.0))
+    return M.Scene(None, options, camera, FACE_MATERIALS,
+                   (M.PointLight((2.0, 3.0, 4.0), color=(1.0, 1.0, 1.0)),), (mesh,))
+
+
+def test_triangle_slots_keep_only_the_material_word_without_vertex_attributes():
+    """4 bytes a slot (the material word) for a mesh without vertex attributes, the 16-byte
+    Triangle record with them; the same words either way, in the same slots."""
+    vertices = mesh_gen.bumpy_mesh(2)[0]
+    bare, smooth = (pack_scene(face_material_scene(**attributes), width=8, height=8, spp=1,
+                               max_depth=0, seed=0)
+                    for attributes in ({}, {"normals": vertices}))
+    slots = 4 * len(bare.triangle_packets)
+    assert bare.device_bytes()["triangles"] == 0
+    assert bare.device_bytes()["triangle_materials"] == 4 * slots
+    assert smooth.device_bytes()["triangles"] == 16 * slots
+    assert smooth.device_bytes()["triangle_materials"] == 0
+    # The kernels read the layout that the vertex switches pick (HAS_VERTEX_ATTRIBUTES).
+    assert not (bare.config.has_vertex_normals or bare.config.has_vertex_uvs
+                or bare.config.has_vertex_colors)
+    assert smooth.config.has_vertex_normals
+    assert np.array_equal(bare.prim_refs, smooth.prim_refs)
+    words = smooth.triangles["material"]
+    assert np.array_equal(bare.triangle_materials, words & TRIANGLE_MATERIAL_MASK)
+    refs = bare.prim_refs[:slots]
+    is_tri = (refs >= 0) & ((refs >> PRIM_TYPE_SHIFT) == PRIM_TRIANGLE)
+    face_materials = bare.triangle_materials[is_tri]
+    assert np.array_equal(np.bincount(face_materials, minlength=3),
+                          np.bincount(face_material_scene().objects[0].face_materials))
+
+
+@pytest.mark.parametrize("precision, traversal", [("float", "single"), ("double", "single"),
+                                                  ("float", "sample_packet"),
+                                                  ("float", "group_packet")])
+def test_face_materials_render_alike_from_either_record_layout(precision, traversal):
+    """Three materials a face at random: the kernel must find each hit's word in the layout it
+    was packed in (the material word alone, or the Triangle record of a mesh with vertex uvs,
+    which an untextured material does not use). Both against the float64 reference, with the
+    tolerances of the textured mesh above; a word read from the wrong place or slot gives a
+    face the wrong one of three far-apart colours."""
+    scene = face_material_scene()
+    uvs = np.random.default_rng(5).random((len(scene.objects[0].vertices), 2))
+    settings = RenderSettings(spp=4, precision=precision, traversal=traversal)
+    bare = render(scene, settings).image
+    with_uvs = render(face_material_scene(uvs=uvs), settings).image
+    want = render_reference(scene, spp=4)
+    # Every material shows: the faces' colours are in the image, off the black background.
+    lit = bare.max(axis=2) > 0.05
+    for channel in range(3):
+        assert np.count_nonzero(lit & (np.argmax(bare, axis=2) == channel)) > 100
+    for got in (bare, with_uvs):
+        assert nonfinite_count(got) == 0
+        assert rmse(got, want) < 9.5e-7
+        assert max_abs(got, want) < 1.5e-5

@@ -126,7 +126,11 @@ SCENE_BUFFERS: tuple[SceneBuffer, ...] = tuple(SceneBuffer(name, element) for na
     ("params", "Params"),  # one record
     ("planes", "Plane"),
     *((shape.buffer, shape.struct) for shape in SHAPES),  # one array a shape
+    # A Triangle record a slot where some triangle has vertex normals, uvs or colours (the
+    # kernels' HAS_VERTEX_ATTRIBUTES, kernels/scene.h); else none, and instead each slot's
+    # material word alone, 4 bytes, as the kernels then read nothing else of the record.
     ("triangles", "Triangle"),
+    ("triangle_materials", "int"),
     ("triangle_packets", "TrianglePacket"),  # one per PACKET_WIDTH slots of prim_refs
     ("sphere_packets", "SpherePacket"),  # likewise (spheres only)
     # No vertex positions: shading reads a triangle's corners from its packet (the same float32

@@ -39,8 +39,8 @@ def _device_bytes(self: PackedScene) -> dict[str, int]:
 
 
 def _triangle_count(self: PackedScene) -> int:
-    """The triangles of the scene and its groups (the Triangle records are one a slot of
-    prim_refs, the packets' padding slots included)."""
+    """The triangles of the scene and its groups (the Triangle records or material words are
+    one a slot of prim_refs, the packets' padding slots included)."""
     refs = self.prim_refs
     return int(np.count_nonzero((refs >= 0) & ((refs >> L.PRIM_TYPE_SHIFT) == L.PRIM_TRIANGLE)))
 
@@ -140,11 +140,14 @@ class _Placed:
 
 @dataclass(frozen=True)
 class _Triangles:
-    triangles: np.ndarray
+    triangles: np.ndarray  # TRIANGLE records: the scene's order, then the device's (_in_slot_order)
     vertices: np.ndarray  # (V, 4) float32, camera-relative
     normals: np.ndarray
     uvs: np.ndarray
     colors: np.ndarray  # (V, 4) float32 linear rgb, w unused; (0, 4) without vertex colours
+    # The device's material words one a slot (int32) where it keeps no TRIANGLE records
+    # (_in_slot_order); else empty.
+    material_words: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int32))
 
 
 def _pack_planes(objs: list[M.Plane], eye: np.ndarray) -> np.ndarray:
@@ -407,20 +410,26 @@ def _in_slot_order(records: np.ndarray, is_tri: np.ndarray, tris: _Triangles) ->
     renumbered in the order the slots use them. A ray's hit then reads a record and vertices
     near its neighbours' instead of wherever the file put them: on the 327,680-triangle
     bumpy mesh, 1 spp, this took a third of the render kernel's cache misses to memory
-    (docs/acceleration.md). The same numbers, so the same images."""
+    (docs/acceleration.md). The same numbers, so the same images.
+
+    Without vertex normals, uvs and colours the kernels read nothing of a record but its
+    material word (kernels/scene.h: HAS_VERTEX_ATTRIBUTES, set by the switches that these
+    arrays' sizes set), so the device keeps the words alone: 4 bytes a slot instead of 16."""
     normals, uvs, colors = tris.normals, tris.uvs, tris.colors
-    if len(normals) or len(uvs) or len(colors):
-        # Each vertex keyed by a slot that uses it (numpy's assignment keeps one of them:
-        # any is near the others), unused vertices last; the new numbering sorts the keys.
-        key = np.full(len(tris.vertices), records.shape[0] * PACKET_WIDTH, dtype=np.int64)
-        uses = records[..., :3]
-        key[uses[is_tri].ravel()] = np.repeat(np.flatnonzero(is_tri.ravel()), 3)
-        order = np.argsort(key, kind="stable")
-        renumber = np.empty(len(order), dtype=np.int32)
-        renumber[order] = np.arange(len(order), dtype=np.int32)
-        records = records.copy()
-        records[..., :3] = np.where(is_tri[..., None], renumber[uses], 0)
-        normals, uvs, colors = (a[order] if len(a) else a for a in (normals, uvs, colors))
+    if not (len(normals) or len(uvs) or len(colors)):
+        return _Triangles(_records(L.TRIANGLE, 0), tris.vertices, normals, uvs, colors,
+                          np.ascontiguousarray(records[..., 3]).ravel())
+    # Each vertex keyed by a slot that uses it (numpy's assignment keeps one of them: any is
+    # near the others), unused vertices last; the new numbering sorts the keys.
+    key = np.full(len(tris.vertices), records.shape[0] * PACKET_WIDTH, dtype=np.int64)
+    uses = records[..., :3]
+    key[uses[is_tri].ravel()] = np.repeat(np.flatnonzero(is_tri.ravel()), 3)
+    order = np.argsort(key, kind="stable")
+    renumber = np.empty(len(order), dtype=np.int32)
+    renumber[order] = np.arange(len(order), dtype=np.int32)
+    records = records.copy()
+    records[..., :3] = np.where(is_tri[..., None], renumber[uses], 0)
+    normals, uvs, colors = (a[order] if len(a) else a for a in (normals, uvs, colors))
     triangles = np.ascontiguousarray(records).reshape(-1, 4).view(L.TRIANGLE).ravel()
     return _Triangles(triangles, tris.vertices, normals, uvs, colors)
 
@@ -631,7 +640,7 @@ def pack_scene(scene: M.Scene, *, width: int, height: int, spp: int, max_depth: 
     config = KernelConfig(
         has_planes=len(planes) > 0,
         **{shape.switch: len(shapes[shape.buffer]) > 0 for shape in SHAPES},
-        has_triangles=len(tris.triangles) > 0,
+        has_triangles=len(triangle_packets) > 0,
         has_vertex_normals=len(tris.normals) > 0,
         has_vertex_uvs=len(tris.uvs) > 0,
         has_vertex_colors=len(tris.colors) > 0,
@@ -645,7 +654,7 @@ def pack_scene(scene: M.Scene, *, width: int, height: int, spp: int, max_depth: 
            **variants},
     )
     return PackedScene(camera=camera, params=params, planes=planes, **shapes,
-                       triangles=tris.triangles,
+                       triangles=tris.triangles, triangle_materials=tris.material_words,
                        triangle_packets=triangle_packets, sphere_packets=sphere_packets,
                        normals=tris.normals, uvs=tris.uvs, colors=tris.colors,
                        nodes=wide.nodes,

@@ -215,6 +215,24 @@ HOT int push_instances(const SceneRefs* s, int slot, int count, const Ray* r, RE
 HOT void walk_closest(const SceneRefs* s, const Ray* world, int child, int count, Hit* found);
 #endif
 
+#if HAS_INSTANCES
+// walk_closest's step into instance *child (an ENTER_INSTANCE entry): the scene's ray in its
+// group's frame into *group_ray, a LEAVE_INSTANCE entry (t -inf: never skipped) pushed to bring
+// the scene's ray back, and the group's root as the next entry (*child, *count). Returns the
+// new stack size.
+HOT int enter_instance(const SceneRefs* s, const Ray* world, Ray* group_ray, int* child,
+                       int* count, int* stack_child, int* stack_count, REAL* stack_t, int sp) {
+    const __global Instance* in = s->instances + *child;
+    *group_ray = instance_ray(in, world);
+    stack_child[sp] = 0;
+    stack_count[sp] = LEAVE_INSTANCE;
+    stack_t[sp++] = -REAL_INF;
+    *child = in->root_child;
+    *count = in->root_count;
+    return sp;
+}
+#endif
+
 // A query's start: no hit, t = inf.
 static inline Hit no_hit(void) {
     Hit hit;
@@ -262,8 +280,8 @@ HOT void walk_closest(const SceneRefs* s, const Ray* world, int child, int count
     int sp = 0;
     const Ray* r = world;
 #if HAS_INSTANCES
-    // Inside an instance the walk goes on in its group's BVH with the ray in the group's frame,
-    // above a LEAVE_INSTANCE entry (t -inf: never skipped) that brings the scene's ray back.
+    // Inside an instance the walk goes on in its group's BVH with the ray in the group's frame
+    // (enter_instance).
     Ray group_ray;
     int instance = -1;
 #else
@@ -279,15 +297,10 @@ HOT void walk_closest(const SceneRefs* s, const Ray* world, int child, int count
                                     stack_count, stack_t, sp);
             }
         } else if (count == ENTER_INSTANCE) {
-            const __global Instance* in = s->instances + child;
             instance = child;
-            group_ray = instance_ray(in, world);
+            sp = enter_instance(s, world, &group_ray, &child, &count, stack_child, stack_count,
+                                stack_t, sp);
             r = &group_ray;
-            stack_child[sp] = 0;
-            stack_count[sp] = LEAVE_INSTANCE;
-            stack_t[sp++] = -REAL_INF;
-            child = in->root_child;
-            count = in->root_count;
             continue;
         } else if (count == LEAVE_INSTANCE) {
             instance = -1;

@@ -91,31 +91,38 @@ static inline void consider_hit(Hit* hit, const Crossings* c, int ref, int insta
     }
 }
 
-// How far past the closest hit a crossing can still tie with it.
-static inline REAL tie_reach(REAL t) { return t + (REAL)2 * tie_gamma() * t; }
+// How far past the closest hit (at t) a crossing can still tie with it, lane by lane for
+// vectors (real.h, Twins).
+#define DEFINE_TIE_REACH(SPEC, T, NAME) \
+    SPEC T NAME(T t) { return t + (REAL)2 * tie_gamma() * t; }
+DEFINE_TIE_REACH(static inline, REAL, tie_reach)
 
 // One axis of the vector slab test, with the scalar slab_interval's rules: compare-select so a
-// NaN from 0 * inf never narrows the interval, and the far bound widened by `widen`.
-HOT void slab_axis(REALW lo, REALW hi, REAL o, REAL inv, REAL widen, REALW* t0, REALW* t1) {
-    REALW tn = (lo - (REALW)(o)) * (REALW)(inv);
-    REALW tf = (hi - (REALW)(o)) * (REALW)(inv);
-    REALW near = tn > tf ? tf : tn;
-    REALW far = (tn > tf ? tn : tf) * widen;
-    *t0 = near > *t0 ? near : *t0;
-    *t1 = far < *t1 ? far : *t1;
-}
+// NaN from 0 * inf never narrows the interval, and the far bound widened by `widen`. For a
+// wide node's boxes against one ray (REALW) and for one box against a sample packet's lanes
+// (REALP, packet.h), lane by lane the same (real.h, Twins).
+#define DEFINE_SLAB_AXIS(T, NAME)                                          \
+    HOT void NAME(T lo, T hi, T o, T inv, REAL widen, T* t0, T* t1) {      \
+        T tn = (lo - o) * inv;                                             \
+        T tf = (hi - o) * inv;                                             \
+        T near = tn > tf ? tf : tn;                                        \
+        T far = (tn > tf ? tn : tf) * widen;                               \
+        *t0 = near > *t0 ? near : *t0;                                     \
+        *t1 = far < *t1 ? far : *t1;                                       \
+    }
+DEFINE_SLAB_AXIS(REALW, slab_axis)
 
 // The children of a node whose boxes the ray crosses within [0, tmax], as bits, and where it
 // enters each (tnear, meaningful for the crossed ones): one vector slab test for all children.
 HOT int node_children(const __global BvhNode* node, const Ray* r, REAL tmax, REAL* tnear) {
     const REAL widen = (REAL)1 + (REAL)2 * gamma_n(3);
     REALW t0 = (REALW)(0), t1 = (REALW)(tmax);
-    slab_axis(TO_REALW(VLOADW(0, node->lo_x)), TO_REALW(VLOADW(0, node->hi_x)), r->o.x,
-              r->inv_d.x, widen, &t0, &t1);
-    slab_axis(TO_REALW(VLOADW(0, node->lo_y)), TO_REALW(VLOADW(0, node->hi_y)), r->o.y,
-              r->inv_d.y, widen, &t0, &t1);
-    slab_axis(TO_REALW(VLOADW(0, node->lo_z)), TO_REALW(VLOADW(0, node->hi_z)), r->o.z,
-              r->inv_d.z, widen, &t0, &t1);
+    slab_axis(TO_REALW(VLOADW(0, node->lo_x)), TO_REALW(VLOADW(0, node->hi_x)), (REALW)(r->o.x),
+              (REALW)(r->inv_d.x), widen, &t0, &t1);
+    slab_axis(TO_REALW(VLOADW(0, node->lo_y)), TO_REALW(VLOADW(0, node->hi_y)), (REALW)(r->o.y),
+              (REALW)(r->inv_d.y), widen, &t0, &t1);
+    slab_axis(TO_REALW(VLOADW(0, node->lo_z)), TO_REALW(VLOADW(0, node->hi_z)), (REALW)(r->o.z),
+              (REALW)(r->inv_d.z), widen, &t0, &t1);
     VSTOREW(t0, 0, tnear);
     INTW used = VLOADW(0, node->child) >= 0;
     return lane_bits(MASK_TO_INTW(t0 <= t1) & used);
@@ -208,6 +215,24 @@ HOT int push_instances(const SceneRefs* s, int slot, int count, const Ray* r, RE
 HOT void walk_closest(const SceneRefs* s, const Ray* world, int child, int count, Hit* found);
 #endif
 
+#if HAS_INSTANCES
+// walk_closest's step into instance *child (an ENTER_INSTANCE entry): the scene's ray in its
+// group's frame into *group_ray, a LEAVE_INSTANCE entry (t -inf: never skipped) pushed to bring
+// the scene's ray back, and the group's root as the next entry (*child, *count). Returns the
+// new stack size.
+HOT int enter_instance(const SceneRefs* s, const Ray* world, Ray* group_ray, int* child,
+                       int* count, int* stack_child, int* stack_count, REAL* stack_t, int sp) {
+    const __global Instance* in = s->instances + *child;
+    *group_ray = instance_ray(in, world);
+    stack_child[sp] = 0;
+    stack_count[sp] = LEAVE_INSTANCE;
+    stack_t[sp++] = -REAL_INF;
+    *child = in->root_child;
+    *count = in->root_count;
+    return sp;
+}
+#endif
+
 // A query's start: no hit, t = inf.
 static inline Hit no_hit(void) {
     Hit hit;
@@ -255,8 +280,8 @@ HOT void walk_closest(const SceneRefs* s, const Ray* world, int child, int count
     int sp = 0;
     const Ray* r = world;
 #if HAS_INSTANCES
-    // Inside an instance the walk goes on in its group's BVH with the ray in the group's frame,
-    // above a LEAVE_INSTANCE entry (t -inf: never skipped) that brings the scene's ray back.
+    // Inside an instance the walk goes on in its group's BVH with the ray in the group's frame
+    // (enter_instance).
     Ray group_ray;
     int instance = -1;
 #else
@@ -272,15 +297,10 @@ HOT void walk_closest(const SceneRefs* s, const Ray* world, int child, int count
                                     stack_count, stack_t, sp);
             }
         } else if (count == ENTER_INSTANCE) {
-            const __global Instance* in = s->instances + child;
             instance = child;
-            group_ray = instance_ray(in, world);
+            sp = enter_instance(s, world, &group_ray, &child, &count, stack_child, stack_count,
+                                stack_t, sp);
             r = &group_ray;
-            stack_child[sp] = 0;
-            stack_count[sp] = LEAVE_INSTANCE;
-            stack_t[sp++] = -REAL_INF;
-            child = in->root_child;
-            count = in->root_count;
             continue;
         } else if (count == LEAVE_INSTANCE) {
             instance = -1;

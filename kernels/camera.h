@@ -73,6 +73,8 @@ STAGE void sample_ray(const __global Camera* camera, const __global Params* para
 #define CAMERA_LANES (!HAS_THIN_LENS && !HAS_ORTHOGRAPHIC)
 
 #if CAMERA_LANES
+DEFINE_JITTER(REALP, jitter_lanes)
+
 // sample_ray for samples first .. first + lanes - 1 of pixel (x, y), one a lane (the lanes past
 // the last hold copies of the first), into *p. False where the pixel has one sample (its
 // centre) or a direction's squared length is outside [2^-90, 2^90], where normalize() scales
@@ -83,8 +85,7 @@ HOT bool camera_ray_lanes(const __global Camera* camera, const __global Params* 
     int spp = params->spp;
     if (spp == 1) return false;
     // sample_position's grid of nx x ny cells.
-    int nx = 1;
-    while (nx * nx < spp) nx++;
+    int nx = grid_columns(spp);
     int ny = (spp + nx - 1) / nx;
     uint sample[PACKET_LANES];
     REAL column[PACKET_LANES], row[PACKET_LANES];
@@ -106,8 +107,8 @@ HOT bool camera_ray_lanes(const __global Camera* camera, const __global Params* 
     uint pixel_key = pcg_hash(pcg_hash(params->seed) ^ pixel);
     REALP r0 = rng_uniform_lanes(pixel_key, samples, 0u);
     REALP r1 = rng_uniform_lanes(pixel_key, samples, 1u);
-    REALP sx = (REAL)x + (VLOADP(0, column) + r0) / (REAL)nx;
-    REALP sy = (REAL)y + (VLOADP(0, row) + r1) / (REAL)ny;
+    REALP sx = jitter_lanes(x, VLOADP(0, column), r0, nx);
+    REALP sy = jitter_lanes(y, VLOADP(0, row), r1, ny);
     // image_plane_point, then camera_direction.
     REALP px = (REAL)2 * sx / (REAL)params->width - (REAL)1;
     REALP py = (REAL)1 - (REAL)2 * sy / (REAL)params->height;

@@ -105,12 +105,6 @@ HOT int lane_mask(MASKP m) { return (int)REDUCE_OR(m & LANE_BITS); }
 // The lanes of `bits` as a comparison result.
 HOT MASKP lanes_of(int bits) { return ((MASKP)(bits) & LANE_BITS) != (MASKP)(0); }
 
-// LESSER and GREATER are compare-selects, one instruction on x86 where fmin and fmax take
-// three or four for their NaN rules: for numbers that cannot be NaN, or where a NaN must
-// give zero (GREATER(x, 0) is fmax(x, 0) for every x but -0, whose square root is zero too).
-#define LESSER(a, b) ((a) < (b) ? (a) : (b))
-#define GREATER(a, b) ((a) > (b) ? (a) : (b))
-
 // The smallest and the largest lane, by halves with compare-selects, each level one vector
 // minimum or maximum. Clang's __builtin_reduce_min and _max keep fmin's NaN rules, which x86
 // has no instruction for: they cost several times more (packet_bounds's twelve reductions took
@@ -378,12 +372,7 @@ HOT PacketHit no_hit_lanes(void) {
     return h;
 }
 
-HOT REALP difference_of_products_lanes(REALP a, REALP b, REALP c, REALP d) {
-    REALP cd = c * d;
-    REALP err = fma(-c, d, cd);
-    REALP dop = fma(a, b, -cd);
-    return dop + err;
-}
+DEFINE_DIFFERENCE_OF_PRODUCTS(HOT, REALP, difference_of_products_lanes)
 
 // length() lane-wise: the square root of dot_lanes where the squared length is within
 // [2^-90, 2^90] (length_lanes) or the vector is zero. Lanes where it is not (a squared length

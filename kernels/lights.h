@@ -101,19 +101,40 @@ static OUT_OF_LINE bool sample_area_light(const __global Light* light, REAL3 p, 
 }
 #endif
 
+// A light's falloff at distance dist: 1 / (k.x + k.y dist + k.z dist^2) (k: its attenuation),
+// at most 1, and 1 where the denominator is not positive; lane by lane for vectors (real.h,
+// Twins). LESSER, not fmin: a positive denominator's reciprocal is never NaN.
+#define DEFINE_FALLOFF(T, NAME)                                                  \
+    HOT T NAME(const __global Light* light, T dist) {                            \
+        REAL3 k = TO_REAL3(light->attenuation);                                  \
+        T denom = (T)(k.x) + k.y * dist + k.z * dist * dist;                     \
+        return denom > (REAL)0 ? LESSER((T)(1), (REAL)1 / denom) : (T)(1);       \
+    }
+DEFINE_FALLOFF(REAL, falloff)
+
 // x^s for the specular term: by repeated squaring where s is a whole number up to 4096 (at most
 // 2 log2(s) multiplications: x in [0.5, 1] within 0.8 s ulp of x^s, 100 ulp for s = 128, far
 // below a 16-bit code), else as exp2(s log2 x) (about 0.35 s ulp). Squaring took the spheres
 // scene's kernel 9 to 14 % faster than exp2 and log2; PoCL's full-precision pow costs several
 // times more than either.
+// The squaring: x^n for whole n >= 0, lane by lane for vectors (real.h, Twins; N: T's integers,
+// ANY: whether a comparison of Ns holds in any lane).
+#define DEFINE_POWER_BY_SQUARING(T, N, ANY, NAME)        \
+    HOT T NAME(T x, N n) {                               \
+        T r = (T)(1);                                    \
+        while (ANY(n != 0)) {                            \
+            r = (n & 1) != 0 ? r * x : r;                \
+            x *= x;                                      \
+            n >>= 1;                                     \
+        }                                                \
+        return r;                                        \
+    }
+#define ANY_SCALAR(m) (m)
+DEFINE_POWER_BY_SQUARING(REAL, int, ANY_SCALAR, power_by_squaring)
+
 HOT REAL phong_power(REAL x, REAL s) {
     if (!(s >= (REAL)0 && s <= (REAL)4096 && s == floor(s))) return exp2(s * log2(x));
-    REAL r = 1;
-    for (int n = (int)s; n; n >>= 1) {
-        if (n & 1) r *= x;
-        x *= x;
-    }
-    return r;
+    return power_by_squaring(x, (int)s);
 }
 
 // Light i's shadow ray from the surface (origin off it, towards the light or its sample, up to
@@ -140,9 +161,7 @@ STAGE bool light_ray(const SceneRefs* s, const Surface* sf, REAL3 n, int i, Samp
         REAL dist = length(to_light);
         if (!(dist > sf->err)) return false;  // a light at the hit point lights nothing
         l = to_light / dist;
-        REAL3 k = TO_REAL3(light->attenuation);
-        REAL denom = k.x + k.y * dist + k.z * dist * dist;
-        atten = denom > (REAL)0 ? fmin((REAL)1, (REAL)1 / denom) : (REAL)1;
+        atten = falloff(light, dist);
 #if HAS_SPOT_LIGHTS
         if (light->kind == LIGHT_SPOT) {
             atten *= spot_factor(light, l);
@@ -195,22 +214,15 @@ typedef struct {
 } TermLanes;
 
 #if POINT_LIGHT_LANES
+DEFINE_FALLOFF(REALP, falloff_lanes)
+
 // phong_power lane-wise where every lane's exponent is a whole number within [0, 4096] (the
 // caller checks): each lane's multiplications are phong_power's, in the same order.
-HOT REALP phong_power_lanes(REALP x, REALP s) {
-    MASKP n = TO_MASKP(s);
-    REALP r = (REALP)(1);
-    while (lane_mask(n != (MASKP)(0))) {
-        r = (n & (MASKP)(1)) != (MASKP)(0) ? r * x : r;
-        x *= x;
-        n >>= (MASKP)(1);
-    }
-    return r;
-}
+DEFINE_POWER_BY_SQUARING(REALP, MASKP, lane_mask, power_by_squaring_lanes)
 
 // light_term of a point light on every lane, with nothing filtered (an unblocked lane of an
 // opaque scene): the same arithmetic in the same order (the filter's factor 1 is exact), into
-// (tx, ty, tz). False where a lane of `lanes` has an exponent phong_power_lanes cannot take.
+// (tx, ty, tz). False where a lane of `lanes` has an exponent power_by_squaring_lanes cannot take.
 HOT bool light_term_lanes(const __global Light* light, const SurfaceLanes* q, const TermLanes* m,
                           MASKP lanes, REALP lx, REALP ly, REALP lz, REALP atten, REALP ndl,
                           REALP* tx, REALP* ty, REALP* tz) {
@@ -221,8 +233,9 @@ HOT bool light_term_lanes(const __global Light* light, const SurfaceLanes* q, co
     REALP ry = (REAL)2 * ndl * q->ny - ly;
     REALP rz = (REAL)2 * ndl * q->nz - lz;
     REALP rv = dot_lanes(rx, ry, rz, m->vx, m->vy, m->vz);
-    REALP spec = rv > (REAL)0 ? phong_power_lanes(rv, whole ? m->shininess : (REALP)(0))
-                              : (REALP)(0);
+    REALP spec = rv > (REAL)0
+                     ? power_by_squaring_lanes(rv, TO_MASKP(whole ? m->shininess : (REALP)(0)))
+                     : (REALP)(0);
     REAL3 color = TO_REAL3(light->color);
     *tx = atten * color.x * (m->diffuse * ndl * m->cx + m->specular * spec);
     *ty = atten * color.y * (m->diffuse * ndl * m->cy + m->specular * spec);
@@ -246,9 +259,7 @@ HOT bool point_light_lanes(const __global Light* light, const SurfaceLanes* q, i
     *lx = (tx - q->px) / dist;
     *ly = (ty - q->py) / dist;
     *lz = (tz - q->pz) / dist;
-    REAL3 k = TO_REAL3(light->attenuation);
-    REALP denom = (REALP)(k.x) + k.y * dist + k.z * dist * dist;
-    *atten = denom > (REAL)0 ? LESSER((REALP)(1), (REAL)1 / denom) : (REALP)(1);
+    *atten = falloff_lanes(light, dist);
     *ndl = dot_lanes(q->nx, q->ny, q->nz, *lx, *ly, *lz);
     lit &= *ndl > (REAL)0;
     REALP ox, oy, oz;

@@ -35,9 +35,7 @@ HOT void consider_lanes(PacketHit* h, MASKP crossed, REALP t, int ref, int part,
 }
 
 // How far each lane's hit may still be replaced: its t plus consider_lanes's tie reach.
-HOT REALP tie_reach_lanes(const PacketHit* h) {
-    return h->t + (REAL)2 * tie_gamma() * h->t;
-}
+DEFINE_TIE_REACH(HOT, REALP, tie_reach_lanes)
 
 #if HAS_PLANES
 // consider_planes on every lane of `lanes`, each crossing through consider_hit's rules
@@ -55,29 +53,20 @@ HOT void consider_planes_lanes(const SceneRefs* s, const RayPacket* p, MASKP lan
 }
 #endif
 
-// One axis of node_children's slab test, for one box against every lane: the same
-// compare-selects (a NaN from 0 * inf never narrows the interval) and widened far bound.
-HOT void slab_axis_lanes(REAL lo, REAL hi, REALP o, REALP inv, REAL widen, REALP* t0,
-                         REALP* t1) {
-    REALP tn = ((REALP)(lo) - o) * inv;
-    REALP tf = ((REALP)(hi) - o) * inv;
-    REALP near = tn > tf ? tf : tn;
-    REALP far = (tn > tf ? tn : tf) * widen;
-    *t0 = near > *t0 ? near : *t0;
-    *t1 = far < *t1 ? far : *t1;
-}
+// One axis of node_children's slab test (bvh.h), for one box against every lane.
+DEFINE_SLAB_AXIS(REALP, slab_axis_lanes)
 
 // Where each lane enters box c of a node, within [0, tmax]; crossed lanes in *crossed.
 HOT REALP box_lanes(const __global BvhNode* node, int c, const RayPacket* p, REALP tmax,
                     MASKP* crossed) {
     const REAL widen = (REAL)1 + (REAL)2 * gamma_n(3);
     REALP t0 = (REALP)(0), t1 = tmax;
-    slab_axis_lanes(TO_REAL(node->lo_x[c]), TO_REAL(node->hi_x[c]), p->ox, p->ix, widen, &t0,
-                    &t1);
-    slab_axis_lanes(TO_REAL(node->lo_y[c]), TO_REAL(node->hi_y[c]), p->oy, p->iy, widen, &t0,
-                    &t1);
-    slab_axis_lanes(TO_REAL(node->lo_z[c]), TO_REAL(node->hi_z[c]), p->oz, p->iz, widen, &t0,
-                    &t1);
+    slab_axis_lanes((REALP)(TO_REAL(node->lo_x[c])), (REALP)(TO_REAL(node->hi_x[c])), p->ox,
+                    p->ix, widen, &t0, &t1);
+    slab_axis_lanes((REALP)(TO_REAL(node->lo_y[c])), (REALP)(TO_REAL(node->hi_y[c])), p->oy,
+                    p->iy, widen, &t0, &t1);
+    slab_axis_lanes((REALP)(TO_REAL(node->lo_z[c])), (REALP)(TO_REAL(node->hi_z[c])), p->oz,
+                    p->iz, widen, &t0, &t1);
     *crossed = t0 <= t1;
     return t0;
 }
@@ -314,7 +303,7 @@ HOT void leaf_closest_lanes(const SceneRefs* s, int slot, int count, const RayLa
         *h = packet_hit(&hits);
         return;
     }
-    REAL tmax = max_lanes(lanes ? tie_reach_lanes(h) : (REALP)(0));
+    REAL tmax = max_lanes(lanes ? tie_reach_lanes(h->t) : (REALP)(0));
 #if TRIANGLE_LANES
     for (int end = slot + tri_packets * PACKET_WIDTH; slot < end; slot += PACKET_WIDTH) {
         const __global TrianglePacket* pk = s->triangle_packets + slot / PACKET_WIDTH;
@@ -389,7 +378,7 @@ HOT int node_children_lanes(const __global BvhNode* node, const RayPacket* p,
 // Lanes that a subtree entered at `t` (the nearest lane's entry) can still give a hit: those
 // whose hit is not nearer than t (beyond the tie reach, as closest_hit skips a pop).
 HOT int reaching_lanes(const PacketHit* h, REAL t, int bits) {
-    return bits & lane_mask(tie_reach_lanes(h) >= (REALP)(t));
+    return bits & lane_mask(tie_reach_lanes(h->t) >= (REALP)(t));
 }
 
 // The BVH part of closest_hit for the lanes `bits`, from the hits in *h.
@@ -420,7 +409,7 @@ HOT void packet_walk_closest(const SceneRefs* s, const RayLanes* rays, const Ray
             COUNT(s, closest_boxes, used_children(node));
             int c_child[BVH_WIDTH], c_count[BVH_WIDTH], c_lanes[BVH_WIDTH];
             REAL c_t[BVH_WIDTH];
-            int n = node_children_lanes(node, p, b, tie_reach_lanes(h), bits, c_child, c_count,
+            int n = node_children_lanes(node, p, b, tie_reach_lanes(h->t), bits, c_child, c_count,
                                         c_lanes, c_t);
             if (n > 0) {
                 // Go on with the nearest; push the others farthest first, so nearer ones pop

@@ -99,21 +99,32 @@ static inline REAL3 safe_normalize(REAL3 v) {
     return len > (REAL)0 ? v / len : v;
 }
 
-// a*b - c*d without catastrophic cancellation (Kahan's algorithm with FMA).
-static inline REAL difference_of_products(REAL a, REAL b, REAL c, REAL d) {
-    REAL cd = c * d;
-    REAL err = fma(-c, d, cd);
-    REAL dop = fma(a, b, -cd);
-    return dop + err;
-}
+// LESSER and GREATER are compare-selects, one instruction on x86 where fmin and fmax take
+// three or four for their NaN rules: for numbers that cannot be NaN, or where a NaN must
+// give zero (GREATER(x, 0) is fmax(x, 0) for every x but -0, whose square root is zero too).
+// Scalars and vectors alike (a vector's comparison selects lane by lane).
+#define LESSER(a, b) ((a) < (b) ? (a) : (b))
+#define GREATER(a, b) ((a) > (b) ? (a) : (b))
 
-// a*b - c*d four lanes at once, the same arithmetic as difference_of_products in each.
-HOT REAL4 difference_of_products4(REAL4 a, REAL4 b, REAL4 c, REAL4 d) {
-    REAL4 cd = c * d;
-    REAL4 err = fma(-c, d, cd);
-    REAL4 dop = fma(a, b, -cd);
-    return dop + err;
-}
+// Twins: a formula that one ray and a packet's lanes (a leaf packet's four triangles, a sample
+// packet's rays) both need is written once, as a DEFINE_ macro that defines it for a type T,
+// REAL or a vector of REALs: OpenCL's vector types take the same operators, builtins, selects
+// (a ? b : c lane by lane) and comparisons (giving M: int for REAL, MASK4 or MASKP for vectors),
+// so each lane gets the scalar's arithmetic in the scalar's order, and the same rounding, as
+// tests/test_packets.py checks. Each definition is the code that each of the twins was before
+// (docs/acceleration.md, Twins), so it costs no instruction.
+
+// a*b - c*d without catastrophic cancellation (Kahan's algorithm with FMA), lane by lane.
+#define DEFINE_DIFFERENCE_OF_PRODUCTS(SPEC, T, NAME) \
+    SPEC T NAME(T a, T b, T c, T d) {                \
+        T cd = c * d;                                \
+        T err = fma(-c, d, cd);                      \
+        T dop = fma(a, b, -cd);                      \
+        return dop + err;                            \
+    }
+DEFINE_DIFFERENCE_OF_PRODUCTS(static inline, REAL, difference_of_products)
+// Four triangles of a leaf packet at once.
+DEFINE_DIFFERENCE_OF_PRODUCTS(HOT, REAL4, difference_of_products4)
 
 // The OR of four lanes, as a tree over halves: fewer shuffles than OR-ing them one by one.
 HOT int or_lanes4(int4 b) {

@@ -7,11 +7,14 @@
 #include "real.h"
 #include "lanes.h"
 
-static inline uint pcg_hash(uint x) {
-    uint state = x * 747796405u + 2891336453u;
-    uint word = ((state >> ((state >> 28u) + 4u)) ^ state) * 277803737u;
-    return (word >> 22u) ^ word;
-}
+// PCG's output hash of x, lane by lane for vectors of uints (real.h, Twins).
+#define DEFINE_PCG_HASH(SPEC, T, NAME)                                  \
+    SPEC T NAME(T x) {                                                  \
+        T state = x * 747796405u + 2891336453u;                         \
+        T word = ((state >> ((state >> 28u) + 4u)) ^ state) * 277803737u; \
+        return (word >> 22u) ^ word;                                    \
+    }
+DEFINE_PCG_HASH(static inline, uint, pcg_hash)
 
 // The 32 hashed bits behind r_dim of (seed, pixel, sample).
 static inline uint rng_bits(uint seed, uint pixel, uint sample, uint dim) {
@@ -61,14 +64,12 @@ static inline uint permute_stratum(uint i, uint n, uint key) {
 }
 
 #if SAMPLE_PACKETS
+DEFINE_PCG_HASH(HOT, UINTP, pcg_hash_lanes)
+
 // rng_uniform(seed, pixel, sample[j], dim) in lane j; pixel_key: the pixel's first two hashes,
-// pcg_hash(pcg_hash(seed) ^ pixel). The integer arithmetic is pcg_hash's, lane-wise.
+// pcg_hash(pcg_hash(seed) ^ pixel).
 HOT REALP rng_uniform_lanes(uint pixel_key, UINTP sample, uint dim) {
-    UINTP x = (UINTP)(pixel_key) ^ ((UINTP)(4u) * sample + (UINTP)(dim));
-    UINTP state = x * (UINTP)(747796405u) + (UINTP)(2891336453u);
-    UINTP word = ((state >> ((state >> (UINTP)(28u)) + (UINTP)(4u))) ^ state) *
-                 (UINTP)(277803737u);
-    UINTP bits = (word >> (UINTP)(22u)) ^ word;
+    UINTP bits = pcg_hash_lanes((UINTP)(pixel_key) ^ ((UINTP)(4u) * sample + (UINTP)(dim)));
     return TO_REALP(bits >> (UINTP)(8u)) * (REAL)(1.0 / 16777216.0);
 }
 #endif

@@ -8,18 +8,30 @@
 #include "clray_types.h"
 #include "rng.h"
 
+// The columns of a pixel's grid of spp samples (and of an area light's strata): the integer
+// ceil(sqrt(spp)), as a float sqrt may be 3 ulp off and round a square up. Its rows:
+// (spp + nx - 1) / nx.
+static inline int grid_columns(int spp) {
+    int nx = 1;
+    while (nx * nx < spp) nx++;
+    return nx;
+}
+
+// A coordinate of a jittered sample in pixel units: pixel plus (cell + r) / n, r in [0, 1),
+// of n cells; lane by lane for vectors (real.h, Twins).
+#define DEFINE_JITTER(T, NAME) \
+    HOT T NAME(int pixel, T cell, T r, int n) { return (REAL)pixel + (cell + r) / (REAL)n; }
+DEFINE_JITTER(REAL, jitter)
+
 // Sample s of spp inside pixel (x, y), in pixel units: the centre for one sample, else a jittered
 // point in cell (s mod nx, s div nx) of an nx x ny grid.
 static OUT_OF_LINE REAL2 sample_position(int x, int y, int s, int spp, uint seed, uint pixel) {
     if (spp == 1) return (REAL2)((REAL)x + (REAL)0.5, (REAL)y + (REAL)0.5);
-    // Integer ceil(sqrt(spp)): a float sqrt may be 3 ulp off and round a square up.
-    int nx = 1;
-    while (nx * nx < spp) nx++;
+    int nx = grid_columns(spp);
     int ny = (spp + nx - 1) / nx;
     REAL r0 = rng_uniform(seed, pixel, (uint)s, 0u);
     REAL r1 = rng_uniform(seed, pixel, (uint)s, 1u);
-    return (REAL2)((REAL)x + ((REAL)(s % nx) + r0) / (REAL)nx,
-                   (REAL)y + ((REAL)(s / nx) + r1) / (REAL)ny);
+    return (REAL2)(jitter(x, (REAL)(s % nx), r0, nx), jitter(y, (REAL)(s / nx), r1, ny));
 }
 
 #if HAS_THIN_LENS
@@ -52,8 +64,7 @@ static inline SampleKey sample_key(uint seed, uint pixel, int spp) {
     k.sample = 0;
     k.spp = spp;
     // Integer ceil(sqrt(spp)), as sample_position has it.
-    k.nx = 1;
-    while (k.nx * k.nx < spp) k.nx++;
+    k.nx = grid_columns(spp);
     return k;
 }
 

@@ -63,6 +63,31 @@ static inline Crossings intersect_sphere(const __global Sphere* s, const Ray* r)
 #endif  // SPHERE_FP64
 
 #if HAS_SPHERES && !SPHERE_FP64 && !SPHERE_TEXTBOOK
+// intersect_sphere's Hearn-Baker formula, written once (real.h, Twins) for a leaf packet's four
+// spheres against one ray (REAL4) and for one sphere against a sample packet's rays (REALP):
+// b^2 - a c as a (r - |l|)(r + |l|), l the centre's offset from the line (f: the origin less
+// the centre, d the direction, a = d . d, b = f . d).
+#define DEFINE_SPHERE_DISC(T, NAME)                                                   \
+    HOT T NAME(T a, T b, T fx, T fy, T fz, T dx, T dy, T dz, T radius) {              \
+        T along = b / a;                                                              \
+        T lx = fx - along * dx, ly = fy - along * dy, lz = fz - along * dz;           \
+        T ll = sqrt(lx * lx + ly * ly + lz * lz);                                     \
+        return a * (radius - ll) * (radius + ll);                                     \
+    }
+// quadratic_roots's Press pair lane by lane, into t0 <= t1 (c = f . f - r^2); gives q, which
+// is zero where there is no root ahead. GREATER keeps sqrt's argument non-negative: lanes with
+// disc < 0 (or NaN) are masked by the caller.
+#define DEFINE_SPHERE_ROOTS(T, NAME)                                                  \
+    HOT T NAME(T a, T b, T c, T disc, T* t0, T* t1) {                                 \
+        T q = -(b + copysign(sqrt(GREATER(disc, (T)(0))), b));                        \
+        T r0 = c / q, r1 = q / a;                                                     \
+        *t0 = fmin(r0, r1);                                                           \
+        *t1 = fmax(r0, r1);                                                           \
+        return q;                                                                     \
+    }
+DEFINE_SPHERE_DISC(REAL4, sphere_disc4)
+DEFINE_SPHERE_ROOTS(REAL4, sphere_roots4)
+
 // intersect_sphere's Hearn-Baker formula on the four spheres of a packet: bit k set where lane
 // k has roots t0[k] <= t1[k]. Padding lanes hold NaN and have none.
 HOT int intersect_sphere_packet(const __global SpherePacket* pk, const Ray* r, REAL* t0,
@@ -75,28 +100,27 @@ HOT int intersect_sphere_packet(const __global SpherePacket* pk, const Ray* r, R
     REAL4 radius = TO_REAL4(vload4(0, pk->radius));
     REAL4 dx = (REAL4)(r->d.x), dy = (REAL4)(r->d.y), dz = (REAL4)(r->d.z);
     REAL4 b = fx * dx + fy * dy + fz * dz;
-    REAL4 along = b / a;
-    REAL4 lx = fx - along * dx, ly = fy - along * dy, lz = fz - along * dz;
-    REAL4 ll = sqrt(lx * lx + ly * ly + lz * lz);
-    REAL4 disc = (REAL4)(a) * (radius - ll) * (radius + ll);
+    REAL4 disc = sphere_disc4((REAL4)(a), b, fx, fy, fz, dx, dy, dz, radius);
     // Most packets a ray reaches miss in every lane: stop before the other square roots and
     // divisions, on the same disc the roots below are masked by.
     MASK4 crossed = disc >= (REAL)0;
     if (!lane_bits4(convert_int4(crossed))) return 0;
     REAL4 fl = sqrt(fx * fx + fy * fy + fz * fz);
-    // fmax keeps sqrt's argument non-negative; lanes with disc < 0 (or NaN) are masked below.
-    REAL4 q = -(b + copysign(sqrt(fmax(disc, (REAL4)(0))), b));
-    MASK4 roots = crossed & (q != (REAL)0);
-    REAL4 r0 = ((fl - radius) * (fl + radius)) / q, r1 = q / a;
-    vstore4(fmin(r0, r1), 0, t0);
-    vstore4(fmax(r0, r1), 0, t1);
-    return lane_bits4(convert_int4(roots));
+    REAL4 lo, hi;
+    REAL4 q = sphere_roots4((REAL4)(a), b, (fl - radius) * (fl + radius), disc, &lo, &hi);
+    vstore4(lo, 0, t0);
+    vstore4(hi, 0, t1);
+    return lane_bits4(convert_int4(crossed & (q != (REAL)0)));
 }
 #endif
 
 #if SAMPLE_PACKETS && !SPHERE_FP64 && !SPHERE_TEXTBOOK
+DEFINE_SPHERE_DISC(REALP, sphere_disc_lanes)
+DEFINE_SPHERE_ROOTS(REALP, sphere_roots_lanes)
+
 // Sphere k of a packet against every lane: intersect_sphere_packet's Hearn-Baker formula with
-// the roles swapped. Lanes with roots t0 <= t1 come back set.
+// the roles swapped (sphere_disc_lanes, sphere_roots_lanes). Lanes with roots t0 <= t1 come
+// back set.
 HOT MASKP sphere_lanes(const __global SpherePacket* pk, int k, const RayPacket* r, MASKP lanes,
                        REALP* t0, REALP* t1) {
     REALP a = r->dd;
@@ -114,21 +138,14 @@ HOT MASKP sphere_lanes(const __global SpherePacket* pk, int k, const RayPacket* 
         *t0 = *t1 = (REALP)(REAL_INF);
         return (MASKP)(0);
     }
-    REALP along = b / a;
-    REALP lx = fx - along * r->dx, ly = fy - along * r->dy, lz = fz - along * r->dz;
-    REALP ll = sqrt(lx * lx + ly * ly + lz * lz);
-    REALP disc = a * (radius - ll) * (radius + ll);
+    REALP disc = sphere_disc_lanes(a, b, fx, fy, fz, r->dx, r->dy, r->dz, radius);
     MASKP crossed = lanes & (disc >= (REAL)0) & (a != (REAL)0);
     if (!lane_mask(crossed)) {
         // The callers mask t0 and t1 with the crossed lanes: they must still hold values.
         *t0 = *t1 = (REALP)(REAL_INF);
         return crossed;
     }
-    // fmax keeps sqrt's argument non-negative; lanes with disc < 0 (or NaN) are masked.
-    REALP q = -(b + copysign(sqrt(GREATER(disc, (REALP)(0))), b));
-    REALP r0 = c / q, r1 = q / a;
-    *t0 = fmin(r0, r1);
-    *t1 = fmax(r0, r1);
+    REALP q = sphere_roots_lanes(a, b, c, disc, t0, t1);
     return crossed & (q != (REAL)0);
 }
 #define SPHERE_LANES 1

@@ -76,14 +76,21 @@ HOT Surface surface_at(const SceneRefs* s, const Ray* r, const Hit* hit, bool wa
     return shape_surface(s, r, hit, want_uv);
 }
 
+// How far offset_origin moves a point along n_g = (gx, gy, gz): the error bound err along the
+// normal (or the study's fixed 1e-4); lane by lane for vectors (real.h, Twins).
+#if OFFSET_FIXED_EPS
+#define DEFINE_OFFSET_DISTANCE(T, NAME) \
+    HOT T NAME(T err, T gx, T gy, T gz) { return (T)(1e-4); }
+#else
+#define DEFINE_OFFSET_DISTANCE(T, NAME) \
+    HOT T NAME(T err, T gx, T gy, T gz) { return err * (fabs(gx) + fabs(gy) + fabs(gz)); }
+#endif
+DEFINE_OFFSET_DISTANCE(REAL, offset_distance)
+
 // Move p off the surface to the side of n_g that w leaves on, by the error bound along the
 // normal: the spawned ray then starts beyond any rounding of p and needs no t epsilon.
 static inline REAL3 offset_origin(const Surface* sf, REAL3 w) {
-#if OFFSET_FIXED_EPS
-    REAL d = (REAL)1e-4;
-#else
-    REAL d = sf->err * (fabs(sf->n_g.x) + fabs(sf->n_g.y) + fabs(sf->n_g.z));
-#endif
+    REAL d = offset_distance(sf->err, sf->n_g.x, sf->n_g.y, sf->n_g.z);
     return dot(w, sf->n_g) > (REAL)0 ? sf->p + d * sf->n_g : sf->p - d * sf->n_g;
 }
 
@@ -160,15 +167,13 @@ HOT void merge_surface_lanes(SurfaceLanes v, MASKP mine, SurfaceLanes* q) {
     q->nz = mine ? v.nz : q->nz;
 }
 
+DEFINE_OFFSET_DISTANCE(REALP, offset_distance_lanes)
+
 // offset_origin(sf, w) for every lane, into (ox, oy, oz): the same operations in the same
 // order.
 HOT void offset_origin_lanes(const SurfaceLanes* q, REALP wx, REALP wy, REALP wz, REALP* ox,
                              REALP* oy, REALP* oz) {
-#if OFFSET_FIXED_EPS
-    REALP d = (REALP)(1e-4);
-#else
-    REALP d = q->err * (fabs(q->gx) + fabs(q->gy) + fabs(q->gz));
-#endif
+    REALP d = offset_distance_lanes(q->err, q->gx, q->gy, q->gz);
     MASKP out = dot_lanes(wx, wy, wz, q->gx, q->gy, q->gz) > (REAL)0;
     *ox = out ? q->px + d * q->gx : q->px - d * q->gx;
     *oy = out ? q->py + d * q->gy : q->py - d * q->gy;

@@ -35,16 +35,23 @@ static OUT_OF_LINE REAL3 image_texel(const SceneRefs* s, const __global Texture*
     return mix(top, bottom, fy);
 }
 
+// Whether the checker's cell holding q (in cells) is an odd one, lane by lane for vectors
+// (real.h, Twins; M: what comparing Ts gives). The parity of the integer-valued sum, exactly
+// (fmod is a slow library call here); beyond 2^24 (2^53 in double) every sum is even, and a NaN
+// or inf is neither.
+#define DEFINE_CHECKER_ODD(T, M, NAME)                                  \
+    HOT M NAME(T qx, T qy, T qz) {                                      \
+        T cells = floor(qx) + floor(qy) + floor(qz);                    \
+        return cells - (REAL)2 * floor(cells * (REAL)0.5) == (REAL)1;   \
+    }
+DEFINE_CHECKER_ODD(REAL, int, checker_odd)
+
 // 3D checker at the hit point moved a quarter cell into the surface (n_f faces the viewer),
 // so a surface lying on a cell boundary gets one stable colour.
 static inline REAL3 checker_texel(const __global Texture* tx, REAL3 color, REAL3 p, REAL3 n_f) {
     REAL size = TO_REAL(tx->size);
     REAL3 q = (p - (REAL)0.25 * size * n_f) / size;
-    REAL cells = floor(q.x) + floor(q.y) + floor(q.z);
-    // The parity of an integer-valued cells, exactly (fmod is a slow library call here).
-    // Beyond 2^24 (2^53 in double) every value is even, and a NaN or inf is neither.
-    REAL odd = cells - (REAL)2 * floor(cells * (REAL)0.5);
-    return odd == (REAL)1 ? TO_REAL3(tx->color2) : color;
+    return checker_odd(q.x, q.y, q.z) ? TO_REAL3(tx->color2) : color;
 }
 #endif
 
@@ -75,6 +82,8 @@ static inline REAL3 surface_color(const SceneRefs* s, const __global Material* m
 }
 
 #if SURFACE_LANES && HAS_TEXTURES
+DEFINE_CHECKER_ODD(REALP, MASKP, checker_odd_lanes)
+
 // surface_color's checker, lane-wise: where g->checker, g's colour becomes the texture's.
 HOT void checker_lanes(ShapeLanes* g, const __global Camera* camera, const SurfaceOfLanes* sf,
                        MASKP entering) {
@@ -86,9 +95,7 @@ HOT void checker_lanes(ShapeLanes* g, const __global Camera* camera, const Surfa
     REALP qx = (sf->px + world.x - (REAL)0.25 * size * nx) / size;
     REALP qy = (sf->py + world.y - (REAL)0.25 * size * ny) / size;
     REALP qz = (sf->pz + world.z - (REAL)0.25 * size * nz) / size;
-    REALP cells = floor(qx) + floor(qy) + floor(qz);
-    REALP odd = cells - (REAL)2 * floor(cells * (REAL)0.5);
-    MASKP second = odd == (REAL)1;
+    MASKP second = checker_odd_lanes(qx, qy, qz);
     REALP red = second ? g->red2 : g->red;
     REALP green = second ? g->green2 : g->green;
     REALP blue = second ? g->blue2 : g->blue;

@@ -61,7 +61,77 @@ HOT int intersect_triangle_packet(const __global TrianglePacket* pk, const Ray* 
     return bits;
 }
 #else
-HOT REAL4 pick4(REAL4 x, REAL4 y, REAL4 z, int k) { return k == 0 ? x : (k == 1 ? y : z); }
+// The watertight test after the corners, written once (real.h, Twins) for a leaf packet's four
+// triangles against one ray (REAL4) and for one triangle against a sample packet's rays (REALP):
+// corners (p0x .. p2z) relative to the ray's origin, in its permuted axes; (sx, sy, sz) its
+// shear. Gives the lanes crossed ahead of the origin, with the edge functions e1, e2, their sum
+// det and t scaled by det, for the caller's division.
+#if !defined(USE_DOUBLE) && defined(cl_khr_fp64) && !TRIANGLE_NO_FP64_FALLBACK
+// An edge function that rounds to exactly zero is recomputed in double (N lanes; BITS: a
+// comparison's lanes as bits; VSTORE, VLOAD: T's).
+#define DEFINE_EXACT_ZERO_EDGES(T, N, BITS, VSTORE, VLOAD, NAME)                              \
+    HOT void NAME(T p0x, T p0y, T p1x, T p1y, T p2x, T p2y, T* e0, T* e1, T* e2) {            \
+        int zero = BITS((*e0 == 0.0f) | (*e1 == 0.0f) | (*e2 == 0.0f));                       \
+        if (!zero) return;                                                                    \
+        float q[6][N], e[3][N];                                                               \
+        VSTORE(p0x, 0, q[0]);                                                                 \
+        VSTORE(p0y, 0, q[1]);                                                                 \
+        VSTORE(p1x, 0, q[2]);                                                                 \
+        VSTORE(p1y, 0, q[3]);                                                                 \
+        VSTORE(p2x, 0, q[4]);                                                                 \
+        VSTORE(p2y, 0, q[5]);                                                                 \
+        VSTORE(*e0, 0, e[0]);                                                                 \
+        VSTORE(*e1, 0, e[1]);                                                                 \
+        VSTORE(*e2, 0, e[2]);                                                                 \
+        for (int k = 0; k < N; ++k) {                                                         \
+            if (!(zero & (1 << k))) continue;                                                 \
+            e[0][k] = (float)((double)q[2][k] * (double)q[5][k] - (double)q[3][k] * q[4][k]); \
+            e[1][k] = (float)((double)q[4][k] * (double)q[1][k] - (double)q[5][k] * q[0][k]); \
+            e[2][k] = (float)((double)q[0][k] * (double)q[3][k] - (double)q[1][k] * q[2][k]); \
+        }                                                                                     \
+        *e0 = VLOAD(0, e[0]);                                                                 \
+        *e1 = VLOAD(0, e[1]);                                                                 \
+        *e2 = VLOAD(0, e[2]);                                                                 \
+    }
+#else
+#define DEFINE_EXACT_ZERO_EDGES(T, N, BITS, VSTORE, VLOAD, NAME) \
+    HOT void NAME(T p0x, T p0y, T p1x, T p1y, T p2x, T p2y, T* e0, T* e1, T* e2) {}
+#endif
+// M: what comparing Ts gives; DOP: difference_of_products for T; EXACT: DEFINE_EXACT_ZERO_EDGES's.
+#define DEFINE_WATERTIGHT(T, M, DOP, EXACT, NAME)                                            \
+    HOT M NAME(T p0x, T p0y, T p0z, T p1x, T p1y, T p1z, T p2x, T p2y, T p2z, T sx, T sy,    \
+               T sz, T* e1_out, T* e2_out, T* det_out, T* t_scaled_out) {                    \
+        p0x += sx * p0z;                                                                     \
+        p0y += sy * p0z;                                                                     \
+        p1x += sx * p1z;                                                                     \
+        p1y += sy * p1z;                                                                     \
+        p2x += sx * p2z;                                                                     \
+        p2y += sy * p2z;                                                                     \
+        T e0 = DOP(p1x, p2y, p1y, p2x);                                                      \
+        T e1 = DOP(p2x, p0y, p2y, p0x);                                                      \
+        T e2 = DOP(p0x, p1y, p0y, p1x);                                                      \
+        EXACT(p0x, p0y, p1x, p1y, p2x, p2y, &e0, &e1, &e2);                                  \
+        M mixed = ((e0 < 0) | (e1 < 0) | (e2 < 0)) & ((e0 > 0) | (e1 > 0) | (e2 > 0));      \
+        T det = e0 + e1 + e2;                                                                \
+        p0z *= sz;                                                                           \
+        p1z *= sz;                                                                           \
+        p2z *= sz;                                                                           \
+        T t_scaled = e0 * p0z + e1 * p1z + e2 * p2z;                                         \
+        /* A zero or NaN det fails both sign tests. */                                       \
+        M ahead = ((det < 0) & (t_scaled < 0)) | ((det > 0) & (t_scaled > 0));               \
+        *e1_out = e1;                                                                        \
+        *e2_out = e2;                                                                        \
+        *det_out = det;                                                                      \
+        *t_scaled_out = t_scaled;                                                            \
+        return ahead & ~mixed;                                                               \
+    }
+DEFINE_EXACT_ZERO_EDGES(REAL4, PACKET_WIDTH, lane_bits4, vstore4, vload4, exact_zero_edges4)
+DEFINE_WATERTIGHT(REAL4, MASK4, difference_of_products4, exact_zero_edges4, watertight4)
+
+// Coordinate k (0, 1, 2: x, y, z) of a point, lane by lane where K is a vector (real.h, Twins).
+#define DEFINE_PICK(T, K, NAME) \
+    HOT T NAME(T x, T y, T z, K k) { return k == 0 ? x : (k == 1 ? y : z); }
+DEFINE_PICK(REAL4, int, pick4)
 
 // Woop, Benthin, Wald, "Watertight Ray/Triangle Intersection", JCGT 2013, as in pbrt-v4, on four
 // triangles at once: edge functions in a ray-aligned sheared frame, so rays at shared edges hit
@@ -81,50 +151,10 @@ HOT int intersect_triangle_packet(const __global TrianglePacket* pk, const Ray* 
           p1z = pick4(bx, by, bz, r->kz);
     REAL4 p2x = pick4(cx, cy, cz, r->kx), p2y = pick4(cx, cy, cz, r->ky),
           p2z = pick4(cx, cy, cz, r->kz);
-    REAL4 sx = (REAL4)(r->sx), sy = (REAL4)(r->sy);
-    p0x += sx * p0z;
-    p0y += sy * p0z;
-    p1x += sx * p1z;
-    p1y += sy * p1z;
-    p2x += sx * p2z;
-    p2y += sy * p2z;
-    REAL4 e0 = difference_of_products4(p1x, p2y, p1y, p2x);
-    REAL4 e1 = difference_of_products4(p2x, p0y, p2y, p0x);
-    REAL4 e2 = difference_of_products4(p0x, p1y, p0y, p1x);
-#if !defined(USE_DOUBLE) && defined(cl_khr_fp64) && !TRIANGLE_NO_FP64_FALLBACK
-    int zero = lane_bits4((e0 == 0.0f) | (e1 == 0.0f) | (e2 == 0.0f));
-    if (zero) {
-        float q[6][4], e[3][4];
-        vstore4(p0x, 0, q[0]);
-        vstore4(p0y, 0, q[1]);
-        vstore4(p1x, 0, q[2]);
-        vstore4(p1y, 0, q[3]);
-        vstore4(p2x, 0, q[4]);
-        vstore4(p2y, 0, q[5]);
-        vstore4(e0, 0, e[0]);
-        vstore4(e1, 0, e[1]);
-        vstore4(e2, 0, e[2]);
-        for (int k = 0; k < PACKET_WIDTH; ++k) {
-            if (!(zero & (1 << k))) continue;
-            e[0][k] = (float)((double)q[2][k] * (double)q[5][k] - (double)q[3][k] * q[4][k]);
-            e[1][k] = (float)((double)q[4][k] * (double)q[1][k] - (double)q[5][k] * q[0][k]);
-            e[2][k] = (float)((double)q[0][k] * (double)q[3][k] - (double)q[1][k] * q[2][k]);
-        }
-        e0 = vload4(0, e[0]);
-        e1 = vload4(0, e[1]);
-        e2 = vload4(0, e[2]);
-    }
-#endif
-    MASK4 mixed = ((e0 < 0) | (e1 < 0) | (e2 < 0)) & ((e0 > 0) | (e1 > 0) | (e2 > 0));
-    REAL4 det = e0 + e1 + e2;
-    REAL4 sz = (REAL4)(r->sz);
-    p0z *= sz;
-    p1z *= sz;
-    p2z *= sz;
-    REAL4 t_scaled = e0 * p0z + e1 * p1z + e2 * p2z;
-    // A zero or NaN det fails both sign tests.
-    MASK4 ahead = ((det < 0) & (t_scaled < 0)) | ((det > 0) & (t_scaled > 0));
-    int bits = lane_bits4(convert_int4(ahead & ~mixed));
+    REAL4 e1, e2, det, t_scaled;
+    MASK4 crossed = watertight4(p0x, p0y, p0z, p1x, p1y, p1z, p2x, p2y, p2z, (REAL4)(r->sx),
+                                (REAL4)(r->sy), (REAL4)(r->sz), &e1, &e2, &det, &t_scaled);
+    int bits = lane_bits4(convert_int4(crossed));
     if (bits) {
         REAL4 inv_det = (REAL)1 / det;
         vstore4(t_scaled * inv_det, 0, t);
@@ -136,9 +166,7 @@ HOT int intersect_triangle_packet(const __global TrianglePacket* pk, const Ray* 
 #endif
 
 #if SAMPLE_PACKETS && !TRIANGLE_MOLLER_TRUMBORE
-HOT REALP pick_lanes(REALP x, REALP y, REALP z, MASKP k) {
-    return k == (MASKP)(0) ? x : (k == (MASKP)(1) ? y : z);
-}
+DEFINE_PICK(REALP, MASKP, pick_lanes)
 
 // Triangle k's corners relative to each lane's origin, in each lane's permuted axes.
 typedef struct {
@@ -152,9 +180,7 @@ typedef struct {
     float x[3][PACKET_WIDTH], y[3][PACKET_WIDTH], z[3][PACKET_WIDTH];
 } PickedCorners;
 
-HOT float4 pick_axis4(float4 x, float4 y, float4 z, int k) {
-    return k == 0 ? x : (k == 1 ? y : z);
-}
+DEFINE_PICK(float4, int, pick_axis4)
 
 HOT void pick_corner(const __global float* x, const __global float* y, const __global float* z,
                      const RayPacket* r, int j, PickedCorners* q) {
@@ -207,61 +233,24 @@ HOT CornerLanes triangle_corners_lanes(const __global TrianglePacket* pk,
     return q;
 }
 
+DEFINE_EXACT_ZERO_EDGES(REALP, PACKET_LANES, lane_mask, VSTOREP, VLOADP, exact_zero_edges_lanes)
+DEFINE_WATERTIGHT(REALP, MASKP, difference_of_products_lanes, exact_zero_edges_lanes,
+                  watertight_lanes)
+
 // Triangle k of a packet against every lane: intersect_triangle_packet's watertight test with
-// the triangle and the ray's roles swapped (one triangle, PACKET_LANES rays), the same
-// operations in the same order. Crossed lanes come back with t and barycentrics.
+// the triangle and the ray's roles swapped (one triangle, PACKET_LANES rays), written once
+// (watertight_lanes). Crossed lanes come back with t and barycentrics.
 HOT MASKP triangle_lanes(const __global TrianglePacket* pk, const PickedCorners* picked, int k,
                          const RayPacket* r, REALP* t, REALP* b1, REALP* b2) {
-    CornerLanes corners = triangle_corners_lanes(pk, picked, k, r);
-    REALP p0x = corners.p0x, p0y = corners.p0y, p0z = corners.p0z;
-    REALP p1x = corners.p1x, p1y = corners.p1y, p1z = corners.p1z;
-    REALP p2x = corners.p2x, p2y = corners.p2y, p2z = corners.p2z;
-    p0x += r->sx * p0z;
-    p0y += r->sy * p0z;
-    p1x += r->sx * p1z;
-    p1y += r->sy * p1z;
-    p2x += r->sx * p2z;
-    p2y += r->sy * p2z;
-    REALP e0 = difference_of_products_lanes(p1x, p2y, p1y, p2x);
-    REALP e1 = difference_of_products_lanes(p2x, p0y, p2y, p0x);
-    REALP e2 = difference_of_products_lanes(p0x, p1y, p0y, p1x);
-#if !defined(USE_DOUBLE) && defined(cl_khr_fp64) && !TRIANGLE_NO_FP64_FALLBACK
-    int zero = lane_mask((e0 == 0.0f) | (e1 == 0.0f) | (e2 == 0.0f));
-    if (zero) {
-        float q[6][PACKET_LANES], e[3][PACKET_LANES];
-        VSTOREP(p0x, 0, q[0]);
-        VSTOREP(p0y, 0, q[1]);
-        VSTOREP(p1x, 0, q[2]);
-        VSTOREP(p1y, 0, q[3]);
-        VSTOREP(p2x, 0, q[4]);
-        VSTOREP(p2y, 0, q[5]);
-        VSTOREP(e0, 0, e[0]);
-        VSTOREP(e1, 0, e[1]);
-        VSTOREP(e2, 0, e[2]);
-        for (int j = 0; j < PACKET_LANES; ++j) {
-            if (!(zero & (1 << j))) continue;
-            e[0][j] = (float)((double)q[2][j] * (double)q[5][j] - (double)q[3][j] * q[4][j]);
-            e[1][j] = (float)((double)q[4][j] * (double)q[1][j] - (double)q[5][j] * q[0][j]);
-            e[2][j] = (float)((double)q[0][j] * (double)q[3][j] - (double)q[1][j] * q[2][j]);
-        }
-        e0 = VLOADP(0, e[0]);
-        e1 = VLOADP(0, e[1]);
-        e2 = VLOADP(0, e[2]);
-    }
-#endif
-    MASKP mixed = ((e0 < 0) | (e1 < 0) | (e2 < 0)) & ((e0 > 0) | (e1 > 0) | (e2 > 0));
-    REALP det = e0 + e1 + e2;
-    p0z *= r->sz;
-    p1z *= r->sz;
-    p2z *= r->sz;
-    REALP t_scaled = e0 * p0z + e1 * p1z + e2 * p2z;
-    // A zero or NaN det fails both sign tests.
-    MASKP ahead = ((det < 0) & (t_scaled < 0)) | ((det > 0) & (t_scaled > 0));
+    CornerLanes q = triangle_corners_lanes(pk, picked, k, r);
+    REALP e1, e2, det, t_scaled;
+    MASKP crossed = watertight_lanes(q.p0x, q.p0y, q.p0z, q.p1x, q.p1y, q.p1z, q.p2x, q.p2y, q.p2z,
+                                     r->sx, r->sy, r->sz, &e1, &e2, &det, &t_scaled);
     REALP inv_det = (REAL)1 / det;
     *t = t_scaled * inv_det;
     *b1 = e1 * inv_det;
     *b2 = e2 * inv_det;
-    return ahead & ~mixed;
+    return crossed;
 }
 #define TRIANGLE_LANES 1
 #else

@@ -208,13 +208,13 @@ typedef struct {
 
 // A group of primitives placed by an affine transform (HAS_INSTANCES). The group's primitives
 // sit in the same arrays as the scene's, in the group's own frame, under their own BVH (its root
-// node `root`). Rows of the 3x4 matrices [L | t]: x -> L x + t. to_object maps the packed
-// (camera-relative) frame to the group's, to_world back. Its bounds in the packed frame are its
-// lane's in the scene BVH's node (or, in a leaf beside other primitives, not kept: the group's
-// root node culls as they would).
+// node `root`). Rows of the 3x4 matrix [L | t]: x -> L x + t. to_object maps the packed
+// (camera-relative) frame to the group's; the way back is its inverse, computed where a hit is
+// shaded (kernels/surface.h: instance_to_world). Its bounds in the packed frame are its lane's
+// in the scene BVH's node (or, in a leaf beside other primitives, not kept: the group's root
+// node culls as they would). 64 bytes.
 typedef struct {
     float4 to_object[3];
-    float4 to_world[3];
     int root;
     int material;  // replaces every material of the group, or -1
     int pad0, pad1;

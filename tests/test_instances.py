@@ -108,6 +108,25 @@ def test_group_primitives_are_packed_once_however_many_instances() -> None:
     assert not np.any((refs >> PRIM_TYPE_SHIFT) == PRIM_INSTANCE)
 
 
+def scattered_bytes(n: int, bvh_width: int) -> int:
+    """Device bytes of the pawn scene with n instances scattered and turned at random."""
+    rng = np.random.default_rng(1)
+    placements = [{"transform": {"translate": [float(x), 0.0, float(z)],
+                                 "rotate": rng.uniform(0, 360, 3).round(1).tolist()}}
+                  for x, z in rng.uniform(-50, 50, (n, 2))]
+    packed = pack_scene(scene_from_dict(pawn_scene(placements)), width=8, height=8, spp=1,
+                        max_depth=3, seed=0, bvh_width=bvh_width)
+    return sum(packed.device_bytes().values())
+
+
+@pytest.mark.parametrize("bvh_width", [4, 8])
+@pytest.mark.parametrize("n", [250, 500])
+def test_a_further_instance_costs_at_most_128_device_bytes(n: int, bvh_width: int) -> None:
+    # Issue 43: what n more instances add to every buffer, the scene tree's nodes included,
+    # divided by n (the 64-byte record and the instance's share of fuller nodes).
+    assert (scattered_bytes(2 * n, bvh_width) - scattered_bytes(n, bvh_width)) / n <= 128
+
+
 def ellipsoid_t(o: np.ndarray, d: np.ndarray, radii: np.ndarray) -> np.ndarray:
     """Nearest positive t of rays with the ellipsoid sum (x / radii)^2 = 1 (float64)."""
     oo, dd = o / radii, d / radii

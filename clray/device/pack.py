@@ -16,7 +16,7 @@ import numpy as np
 import pyopencl as cl
 
 from clray.accel.bvh import TRAVERSAL_COST, build_bvh
-from clray.accel.wide import LEAF_FIELD_MASK, PACKET_WIDTH, WideBvh, collapse
+from clray.accel.wide import LEAF_FIELD_MASK, PACKET_WIDTH, WideBvh, collapse, fill_nodes
 from clray.device import layout as L
 from clray.device.bvh_build import build_bvh_on
 from clray.device.program import KernelConfig
@@ -239,7 +239,7 @@ _INSTANCE_BOUND_SLACK = 1e-5
 def _pack_instances(instances: list[M.Instance], group_of: np.ndarray,
                     group_bounds: list[tuple[np.ndarray, np.ndarray]], eye: np.ndarray,
                     bounded: _Bounded) -> np.ndarray:
-    """INSTANCE records (matrices in the packed, camera-relative frame; roots left for the
+    """INSTANCE records (to_object in the packed, camera-relative frame; roots left for the
     caller), their bounds added to the scene's BVH input (the records do not keep them: an
     instance's box is its lane's in the scene tree, kernels/clray_types.h). group_of: each
     one's group index. All instances at once: a thousand cost a few milliseconds."""
@@ -249,7 +249,6 @@ def _pack_instances(instances: list[M.Instance], group_of: np.ndarray,
     to_world = np.array([inst.matrix for inst in instances], dtype=np.float64)
     to_world[:, :, 3] -= eye
     linear_inverse = np.linalg.inv(to_world[:, :, :3])
-    records["to_world"] = to_world
     records["to_object"] = np.concatenate(
         [linear_inverse, -(linear_inverse @ to_world[:, :, 3:])], axis=2)
     records["material"] = [-1 if inst.material is None else inst.material for inst in instances]
@@ -319,11 +318,13 @@ def _pack_bvh(bounded: _Bounded, n_groups: int, instances: list[M.Instance],
     lo, hi, refs = bounded.owned_by(0)
     # Where instances are most of the scene's tree, one primitive a leaf; a large mesh of the
     # scene's own beside a few instances keeps its packed leaves.
-    wide = _build_wide(lo, hi, refs, width, queue, tuning,
-                       one_per_leaf=bool(instances) and 2 * len(instances) >= len(refs))
+    one_per_leaf = bool(instances) and 2 * len(instances) >= len(refs)
+    wide = _build_wide(lo, hi, refs, width, queue, tuning, one_per_leaf=one_per_leaf)
     if not instances:
         return wide, records, time.perf_counter() - start
     wide = _instance_lanes(wide)
+    if one_per_leaf:
+        wide = fill_nodes(wide)
     # Nodes: the scene's tree first, then each group's. Slots: the groups' first, so that the
     # scene's leaves of instances come last and need no packets (_triangle_packets).
     slot_offsets = np.cumsum([0] + [len(tree.prim_refs) for tree in group_trees])

@@ -368,23 +368,28 @@ def fill_nodes(wide: WideBvh) -> WideBvh:
                     break
 
     fill(0)
-    # Number the nodes left breadth first from the root, and lay them out.
+    # Number the nodes left breadth first from the root, and lay them out: empty lanes have NaN
+    # bounds, child -1 and count 0, as the collapse leaves them.
     order, at = [0], 0
     while at < len(order):
         order.extend(lane[1] for lane in lanes[order[at]] if inner(lane))
         at += 1
     number = {old: new for new, old in enumerate(order)}
-    rows = np.full((len(order), 8, width), np.nan, dtype=np.float32)
-    rows[:, 6].view(np.int32)[...] = -1  # empty lanes: NaN bounds, child -1, count 0
-    rows[:, 7].view(np.int32)[...] = 0
+    bounds = np.full((len(order), 6, width), np.nan, dtype=np.float32)
+    kids = np.full((len(order), width), -1, dtype=np.int32)
+    counts = np.zeros((len(order), width), dtype=np.int32)
     pushed = np.zeros(len(order), dtype=np.int64)
     for new, old in enumerate(order):
         for k, (b, c, n) in enumerate(lanes[old]):
-            rows[new, 0:6, k] = b
-            rows[new, 6, k:k + 1].view(np.int32)[0] = number[c] if n == 0 else c
-            rows[new, 7, k:k + 1].view(np.int32)[0] = n
+            bounds[new, :, k] = b
+            kids[new, k] = number[c] if n == 0 else c
+            counts[new, k] = n
             if n == 0:
+                # The stack bound as _stack_size counts it.
                 pushed[number[c]] = pushed[new] + len(lanes[old]) - 1
+    nodes = np.zeros(len(order), dtype=bvh_node_dtype(width))
+    for f, field in enumerate(fields):
+        nodes[field] = bounds[:, f]
+    nodes["child"], nodes["count"] = kids, counts
     used = np.array([len(lanes[old]) for old in order])
-    nodes = rows.reshape(len(order), -1).view(bvh_node_dtype(width)).ravel()
     return WideBvh(nodes, wide.prim_refs, width, int((pushed + used - 1).max()) + 1)

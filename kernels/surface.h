@@ -28,17 +28,22 @@ static inline REAL abs_sum3(REAL3 v) { return fabs(v.x) + fabs(v.y) + fabs(v.z);
 // instance less): A = adj(M) / det(M) from the cross products of M's rows, a = -A m, in REAL.
 // M is scaled by a power of two first (exact), so the cofactors neither overflow nor underflow
 // within the magnitudes the host allows (clray/scene/limits.py). det is not 0 for a matrix the
-// host inverted; a float32 one too near singular for its cofactors (cond beyond 1e19) gives a
-// zero A, whose point the error bound's residual term below then pushes off by its whole miss.
+// host inverted unless it is too near singular for REAL's cofactors: then A is zero, and the
+// error bound's residual term below pushes the point off by its whole miss.
 HOT void instance_to_world(const __global Instance* in, REAL4* a0, REAL4* a1, REAL4* a2) {
     REAL4 m0 = TO_REAL4(in->to_object[0]), m1 = TO_REAL4(in->to_object[1]),
           m2 = TO_REAL4(in->to_object[2]);
-    int e;
-    frexp(fmax(max_abs3(m0.xyz), fmax(max_abs3(m1.xyz), max_abs3(m2.xyz))), &e);
-    REAL3 r0 = ldexp(m0.xyz, -e), r1 = ldexp(m1.xyz, -e), r2 = ldexp(m2.xyz, -e);
+    // big = r 2^e with r in [0.5, 1): frexp's exponent, from ilogb (Oclgrind's check of
+    // uninitialised memory rejects frexp's pointer argument). The rows are scaled by multiplying
+    // with 2^-e, exact as ldexp is (Oclgrind's ldexp of a vector by one int returned wrong
+    // numbers).
+    REAL big = fmax(max_abs3(m0.xyz), fmax(max_abs3(m1.xyz), max_abs3(m2.xyz)));
+    int e = big > (REAL)0 ? ilogb(big) + 1 : 0;
+    REAL down = ldexp((REAL)1, -e);
+    REAL3 r0 = m0.xyz * down, r1 = m1.xyz * down, r2 = m2.xyz * down;
     REAL3 c0 = cross(r1, r2), c1 = cross(r2, r0), c2 = cross(r0, r1);
     REAL det = dot(r0, c0);
-    REAL scale = det != (REAL)0 ? ldexp((REAL)1 / det, -e) : (REAL)0;
+    REAL scale = det != (REAL)0 ? down / det : (REAL)0;
     REAL3 m = (REAL3)(m0.w, m1.w, m2.w);
     REAL3 l0 = (REAL3)(c0.x, c1.x, c2.x) * scale, l1 = (REAL3)(c0.y, c1.y, c2.y) * scale,
           l2 = (REAL3)(c0.z, c1.z, c2.z) * scale;

@@ -179,33 +179,21 @@ HOT Ray instance_ray(const __global Instance* in, const Ray* r) {
                     (REAL3)(dot(m0, d), dot(m1, d), dot(m2, d)));
 }
 
-// Push the instances among a scene leaf's other primitives whose bounds the ray crosses within
-// (0, tmax) as ENTER_INSTANCE entries. Where the walk keeps entry t's (stack_t not 0) they go in
-// nearest on top, as a node's children do. Returns the new stack size.
-HOT int push_instances(const SceneRefs* s, int slot, int count, const Ray* r, REAL tmax,
-                       int* stack_child, int* stack_count, REAL* stack_t, int sp) {
+// Push the instances among a scene leaf's other primitives as ENTER_INSTANCE entries, in
+// reference order, with entry t 0 where the walk keeps entry t's (stack_t not 0). Only a leaf
+// where instances sit beside other primitives holds them (an instance alone is its node's lane,
+// its box tested there); their boxes are not kept: the group's root node, its children's boxes
+// in the group's frame, culls the ray there as the box would. Returns the new stack size.
+HOT int push_instances(const SceneRefs* s, int slot, int count, int* stack_child,
+                       int* stack_count, REAL* stack_t, int sp) {
     slot += (section_packets(count, PRIM_TRIANGLE) + section_packets(count, PRIM_SPHERE)) *
             PACKET_WIDTH;
-    int base = sp;
     for (int k = 0; k < (count & LEAF_FIELD_MASK); ++k) {
         int ref = s->prim_refs[slot + k];
         if ((ref >> PRIM_TYPE_SHIFT) != PRIM_INSTANCE) continue;
-        const __global Instance* in = s->instances + (ref & PRIM_INDEX_MASK);
-        REAL t0 = 0, t1 = tmax;
-        int p0, p1;
-        if (!slab_interval(TO_REAL3(in->lo), TO_REAL3(in->hi), r, &t0, &t1, &p0, &p1)) continue;
-        int at = sp++;
-        if (stack_t) {
-            while (at > base && stack_t[at - 1] < t0) {
-                stack_child[at] = stack_child[at - 1];
-                stack_count[at] = stack_count[at - 1];
-                stack_t[at] = stack_t[at - 1];
-                at--;
-            }
-            stack_t[at] = t0;
-        }
-        stack_child[at] = ref & PRIM_INDEX_MASK;
-        stack_count[at] = ENTER_INSTANCE;
+        if (stack_t) stack_t[sp] = 0;
+        stack_child[sp] = ref & PRIM_INDEX_MASK;
+        stack_count[sp++] = ENTER_INSTANCE;
     }
     return sp;
 }
@@ -227,8 +215,8 @@ HOT int enter_instance(const SceneRefs* s, const Ray* world, Ray* group_ray, int
     stack_child[sp] = 0;
     stack_count[sp] = LEAVE_INSTANCE;
     stack_t[sp++] = -REAL_INF;
-    *child = in->root_child;
-    *count = in->root_count;
+    *child = in->root;  // the group's root node
+    *count = 0;
     return sp;
 }
 #endif
@@ -293,8 +281,7 @@ HOT void walk_closest(const SceneRefs* s, const Ray* world, int child, int count
             leaf_closest(s, child, count, r, instance, &hit);
 #if HAS_INSTANCES
             if (instance < 0) {
-                sp = push_instances(s, child, count, r, tie_reach(hit.t), stack_child,
-                                    stack_count, stack_t, sp);
+                sp = push_instances(s, child, count, stack_child, stack_count, stack_t, sp);
             }
         } else if (count == ENTER_INSTANCE) {
             instance = child;
@@ -533,7 +520,7 @@ HOT REAL3 walk_transmission(const SceneRefs* s, const Ray* world, int child, int
             }
 #if HAS_INSTANCES
             if (instance < 0) {
-                sp = push_instances(s, child, count, r, tmax, stack_child, stack_count, 0, sp);
+                sp = push_instances(s, child, count, stack_child, stack_count, 0, sp);
             }
 #endif
             continue;
@@ -546,8 +533,8 @@ HOT REAL3 walk_transmission(const SceneRefs* s, const Ray* world, int child, int
             r = &group_ray;
             stack_child[sp] = 0;
             stack_count[sp++] = LEAVE_INSTANCE;
-            stack_child[sp] = in->root_child;
-            stack_count[sp++] = in->root_count;
+            stack_child[sp] = in->root;
+            stack_count[sp++] = 0;
             continue;
         }
         if (count == LEAVE_INSTANCE) {

@@ -146,8 +146,9 @@ typedef struct {
 
 // A wide BVH node (clray/accel/wide.py): up to BVH_WIDTH (4 or 8, a build option) children with
 // their bounds axis by axis, so one vector slab test covers them all. child[k] is an inner
-// child's node index, or a leaf's first slot in prim_refs, or -1 for an empty slot; count[k] is 0
-// for an inner child and a leaf's section sizes (below) for a leaf. Bounds are rounded
+// child's node index, or a leaf's first slot in prim_refs, or an instance's index, or -1 for an
+// empty slot; count[k] is 0 for an inner child, a leaf's section sizes (below) for a leaf, and
+// ENTER_INSTANCE (below) for an instance, whose box is then its lane's. Bounds are rounded
 // outwards to float32 on the host, so they hold in the double build too. Only builds that set
 // BVH_WIDTH have it (the device BVH build does not).
 #ifdef BVH_WIDTH
@@ -207,19 +208,21 @@ typedef struct {
 
 // A group of primitives placed by an affine transform (HAS_INSTANCES). The group's primitives
 // sit in the same arrays as the scene's, in the group's own frame, under their own BVH (its root
-// the (root_child, root_count) entry). Rows of the 3x4 matrices [L | t]: x -> L x + t.
-// to_object maps the packed (camera-relative) frame to the group's, to_world back.
+// node `root`). Rows of the 3x4 matrix [L | t]: x -> L x + t. to_object maps the packed
+// (camera-relative) frame to the group's; the way back is its inverse, computed where a hit is
+// shaded (kernels/surface.h: instance_to_world). Its bounds in the packed frame are its lane's
+// in the scene BVH's node (or, in a leaf beside other primitives, not kept: the group's root
+// node culls as they would). 64 bytes.
 typedef struct {
     float4 to_object[3];
-    float4 to_world[3];
-    float4 lo, hi;  // its bounds in the packed frame, rounded outwards; w unused
-    int root_child, root_count;
+    int root;
     int material;  // replaces every material of the group, or -1
-    int pad0;
+    int pad0, pad1;
 } Instance;
 
-// Traversal-stack entries that are not a node or a leaf (kernels/bvh.h), told by their count:
-// enter instance `child` (its ref is in the scene BVH's leaf), and go back to the scene's ray.
+// Traversal-stack entries and node lanes that are not a node or a leaf (kernels/bvh.h), told by
+// their count: enter instance `child` (a lane of the scene BVH's node, or a ref in its leaf),
+// and go back to the scene's ray.
 #define ENTER_INSTANCE (-1)
 #define LEAVE_INSTANCE (-2)
 

@@ -125,14 +125,15 @@ typedef struct {
     REAL t;
 } GroupEntry;
 
-// The work-item's part of a step at `at`: a leaf tested with the single-ray walk where its ray
-// reaches it, or a node's children it crosses (bits; where it enters them in tnear).
+// The work-item's part of a step at `at`: a leaf or an instance (count ENTER_INSTANCE) walked
+// with the single-ray walk where its ray reaches it, or a node's children it crosses (bits;
+// where it enters them in tnear).
 static inline int group_visit(const SceneRefs* s, const Ray* r, GroupEntry at, bool live,
                               bool closest, REAL tmax, Hit* hit, REAL3* filter, REAL* tnear) {
     REAL reach = closest ? tie_reach(hit->t) : tmax;
     for (int k = 0; k < BVH_WIDTH; ++k) tnear[k] = 0;
     if (!(live && at.t >= (REAL)0 && at.t <= reach)) return 0;
-    if (at.count > 0) {
+    if (at.count != 0) {
         if (closest) {
             walk_closest(s, r, at.child, at.count, hit);
         } else {

@@ -84,9 +84,8 @@ def m(name: str, path: str, old: str, new: str, *tests: str) -> Mutation:
 
 MUTATIONS: tuple[Mutation, ...] = (
     # instances (kernels/bvh.h, kernels/surface.h, clray/device/pack.py)
-    m("instances.normal_by_to_world", "kernels/surface.h",
-      "return n.x * TO_REAL3(in->to_object[0])", "return n.x * TO_REAL3(in->to_world[0])",
-      INSTANCES, HARD),
+    m("instances.to_world_not_the_inverse", "kernels/surface.h",
+      "c1 = cross(r2, r0)", "c1 = cross(r0, r2)", INSTANCES, HARD),
     m("instances.double_bound_in_double_roundings", "kernels/surface.h",
       "REAL gamma = fmax(gamma_n(ERR_ROUNDINGS), (REAL)(ERR_ROUNDINGS * FLT_EPSILON));",
       "REAL gamma = gamma_n(ERR_ROUNDINGS);", HARD),

@@ -21,6 +21,7 @@ from clray.accel.wide import (
     PACKET_WIDTH,
     WideBvh,
     collapse,
+    fill_nodes,
 )
 from clray.device import layout as L
 from clray.device.launch import render_packed
@@ -146,6 +147,34 @@ def test_wide_nodes_are_full_unless_only_leaves_are_left(width):
     assert used[0] == width
     assert not np.any(has_inner & (used < width))
     assert np.all(used >= 2)
+
+
+@pytest.mark.parametrize("width", [4, 8])
+@pytest.mark.parametrize("n", [1, 2, 9, 300])
+def test_filled_nodes_keep_every_primitive_under_boxes_that_hold_it(width, n):
+    rng = np.random.default_rng(n + width)
+    c = rng.uniform(-10, 10, (n, 3))
+    e = rng.exponential(0.5, (n, 3))
+    refs = _refs(np.full(n, L.PRIM_INSTANCE))
+    wide = collapse(build_bvh(c - e, c + e, max_leaf_size=1, largest_leaf=1), refs, width)
+    filled = fill_nodes(wide)
+    check_wide(filled, c - e, c + e, refs)
+    assert filled.nodes.size <= wide.nodes.size
+
+
+@pytest.mark.parametrize(("width", "rows"), [(4, 16), (8, 32)])
+def test_filled_nodes_of_a_balanced_tree_are_fuller(width, rows):
+    # A grid of 32 x rows equal boxes, one a leaf: the binary tree is balanced, 9 or 10 levels
+    # deep, and the greedy collapse leaves a bottom level of two-child nodes (9 levels is no
+    # multiple of log2 4 = 2, nor 10 of log2 8 = 3).
+    x, z = np.meshgrid(np.arange(32.0), np.arange(float(rows)))
+    c = np.stack([x.ravel() * 2, np.zeros(x.size), z.ravel() * 2], axis=1)
+    refs = _refs(np.full(x.size, L.PRIM_INSTANCE))
+    wide = collapse(build_bvh(c - 0.5, c + 0.5, max_leaf_size=1, largest_leaf=1), refs, width)
+    filled = fill_nodes(wide)
+    check_wide(filled, c - 0.5, c + 0.5, refs)
+    used = (filled.nodes["child"] >= 0).sum(axis=1)
+    assert used.mean() > 0.75 * width > (wide.nodes["child"] >= 0).sum(axis=1).mean()
 
 
 def test_empty_and_leaf_root():

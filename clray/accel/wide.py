@@ -317,3 +317,82 @@ def _stack_size(child: np.ndarray, is_inner: np.ndarray, used: np.ndarray,
         inner = is_inner[lo:hi]
         pushed[kids[inner]] = np.repeat(pushed[lo:hi] + extra[lo:hi], inner.sum(axis=1))
     return int((pushed + extra).max()) + 1
+
+
+def fill_nodes(wide: WideBvh) -> WideBvh:
+    """The same tree with fewer, fuller nodes: where a node has room, an inner child's lanes
+    move up into it (the child goes; the boxes stay the same), and inner children whose lanes
+    fit in one node together are merged (their parent's lane gets the union of their boxes).
+    For a tree of one primitive a leaf (the scene's tree over instances, clray/device/pack.py),
+    whose greedy collapse above leaves many nodes of two or three children where a balanced
+    binary tree's depth is not a multiple of log2(width): each lane there is an instance's
+    record-sized share of node bytes. A Python loop over the nodes: for trees of thousands."""
+    width = wide.width
+    if wide.nodes.size == 0:
+        return wide
+    fields = ("lo_x", "lo_y", "lo_z", "hi_x", "hi_y", "hi_z")
+    # Each node's used lanes as [lo(3), hi(3), child, count] lists.
+    box = np.stack([wide.nodes[f] for f in fields], axis=-1).astype(np.float64)
+    child, count = wide.nodes["child"], wide.nodes["count"]
+    lanes = [[(box[i, k], int(child[i, k]), int(count[i, k])) for k in range(width)
+              if child[i, k] >= 0] for i in range(wide.nodes.size)]
+
+    def inner(lane: tuple) -> bool:
+        return lane[2] == 0
+
+    def fill(i: int) -> None:
+        for lane in lanes[i]:
+            if inner(lane):
+                fill(lane[1])
+        changed = True
+        while changed:
+            changed = False
+            # Move up the smallest inner child that fits in the room left.
+            for k, lane in sorted(enumerate(lanes[i]), key=lambda kl: len(lanes[kl[1][1]])
+                                  if inner(kl[1]) else width + 1):
+                if inner(lane) and len(lanes[i]) - 1 + len(lanes[lane[1]]) <= width:
+                    lanes[i][k:k + 1] = lanes[lane[1]]
+                    changed = True
+                    break
+            if changed:
+                continue
+            # Merge two inner children whose lanes fit in one node.
+            kids = sorted((k for k, lane in enumerate(lanes[i]) if inner(lane)),
+                          key=lambda k: len(lanes[lanes[i][k][1]]))
+            for a, b in itertools.combinations(kids, 2):
+                na, nb = lanes[i][a][1], lanes[i][b][1]
+                if len(lanes[na]) + len(lanes[nb]) <= width:
+                    lanes[na] = lanes[na] + lanes[nb]
+                    joined = np.concatenate([np.minimum(lanes[i][a][0][:3], lanes[i][b][0][:3]),
+                                             np.maximum(lanes[i][a][0][3:], lanes[i][b][0][3:])])
+                    lanes[i][a] = (joined, na, 0)
+                    del lanes[i][b]
+                    changed = True
+                    break
+
+    fill(0)
+    # Number the nodes left breadth first from the root, and lay them out: empty lanes have NaN
+    # bounds, child -1 and count 0, as the collapse leaves them.
+    order, at = [0], 0
+    while at < len(order):
+        order.extend(lane[1] for lane in lanes[order[at]] if inner(lane))
+        at += 1
+    number = {old: new for new, old in enumerate(order)}
+    bounds = np.full((len(order), 6, width), np.nan, dtype=np.float32)
+    kids = np.full((len(order), width), -1, dtype=np.int32)
+    counts = np.zeros((len(order), width), dtype=np.int32)
+    pushed = np.zeros(len(order), dtype=np.int64)
+    for new, old in enumerate(order):
+        for k, (b, c, n) in enumerate(lanes[old]):
+            bounds[new, :, k] = b
+            kids[new, k] = number[c] if n == 0 else c
+            counts[new, k] = n
+            if n == 0:
+                # The stack bound as _stack_size counts it.
+                pushed[number[c]] = pushed[new] + len(lanes[old]) - 1
+    nodes = np.zeros(len(order), dtype=bvh_node_dtype(width))
+    for f, field in enumerate(fields):
+        nodes[field] = bounds[:, f]
+    nodes["child"], nodes["count"] = kids, counts
+    used = np.array([len(lanes[old]) for old in order])
+    return WideBvh(nodes, wide.prim_refs, width, int((pushed + used - 1).max()) + 1)

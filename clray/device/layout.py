@@ -67,10 +67,9 @@ PARAMS = _struct([("background", _F4), ("ambient", _F4), ("width", "<i4"), ("hei
                   ("n_lights", "<i4"), ("n_nodes", "<i4"), ("min_weight", "<f4"),
                   ("background_texels", "<i4"), ("background_width", "<i4"),
                   ("background_height", "<i4"), ("background_top", _F4)])
-INSTANCE = _struct([("to_object", ("<f4", (3, 4))), ("to_world", ("<f4", (3, 4))),
-                    ("lo", _F4), ("hi", _F4), ("root_child", "<i4"), ("root_count", "<i4"),
-                    ("material", "<i4"), ("pad0", "<i4")])
-# Traversal-stack entries that are not nodes or leaves (kernels/bvh.h): count < 0.
+INSTANCE = _struct([("to_object", ("<f4", (3, 4))), ("root", "<i4"), ("material", "<i4"),
+                    ("pad0", "<i4"), ("pad1", "<i4")])
+# Traversal-stack entries and node lanes that are not nodes or leaves (kernels/bvh.h): count < 0.
 ENTER_INSTANCE = -1
 LEAVE_INSTANCE = -2
 

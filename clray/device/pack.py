@@ -13,7 +13,7 @@ import numpy as np
 import pyopencl as cl
 
 from clray.accel.bvh import TRAVERSAL_COST, build_bvh
-from clray.accel.wide import LEAF_FIELD_MASK, PACKET_WIDTH, WideBvh, collapse
+from clray.accel.wide import LEAF_FIELD_MASK, PACKET_WIDTH, WideBvh, collapse, fill_nodes
 from clray.device import layout as L
 from clray.device.bvh_builder import build_bvh_from
 from clray.device.program import KernelConfig
@@ -282,16 +282,16 @@ _INSTANCE_BOUND_SLACK = 1e-5
 def _pack_instances(instances: list[M.Instance], group_of: np.ndarray,
                     group_bounds: list[tuple[np.ndarray, np.ndarray]], eye: np.ndarray,
                     bounded: _Bounded) -> np.ndarray:
-    """INSTANCE records (matrices and bounds in the packed, camera-relative frame; roots left
-    for the caller), their bounds added to the scene's BVH input. group_of: each one's group
-    index. All instances at once: a thousand cost a few milliseconds."""
+    """INSTANCE records (to_object in the packed, camera-relative frame; roots left for the
+    caller), their bounds added to the scene's BVH input (the records do not keep them: an
+    instance's box is its lane's in the scene tree, kernels/clray_types.h). group_of: each
+    one's group index. All instances at once: a thousand cost a few milliseconds."""
     records = _records(L.INSTANCE, len(instances))
     if not instances:
         return records
     to_world = np.array([inst.matrix for inst in instances], dtype=np.float64)
     to_world[:, :, 3] -= eye
     linear_inverse = np.linalg.inv(to_world[:, :, :3])
-    records["to_world"] = to_world
     records["to_object"] = np.concatenate(
         [linear_inverse, -(linear_inverse @ to_world[:, :, 3:])], axis=2)
     records["material"] = [-1 if inst.material is None else inst.material for inst in instances]
@@ -304,11 +304,35 @@ def _pack_instances(instances: list[M.Instance], group_of: np.ndarray,
     plo, phi = placed.min(axis=1), placed.max(axis=1)
     slack = _INSTANCE_BOUND_SLACK * (np.abs(placed).max(axis=(1, 2)) + (phi - plo).max(axis=1))
     plo, phi = plo - slack[:, None], phi + slack[:, None]
-    records["lo"][:, :3] = np.nextafter(plo.astype(np.float32), np.float32(-np.inf))
-    records["hi"][:, :3] = np.nextafter(phi.astype(np.float32), np.float32(np.inf))
-    bounded.add(L.PRIM_INSTANCE, records["lo"][:, :3].astype(np.float64),
-                records["hi"][:, :3].astype(np.float64), [0], [len(instances)])
+    bounded.add(L.PRIM_INSTANCE,
+                np.nextafter(plo.astype(np.float32), np.float32(-np.inf)).astype(np.float64),
+                np.nextafter(phi.astype(np.float32), np.float32(np.inf)).astype(np.float64),
+                [0], [len(instances)])
     return records
+
+
+def _instance_lanes(wide: WideBvh) -> WideBvh:
+    """The scene's tree with each leaf that holds one instance alone made an instance lane of
+    its node (child: the instance's index, count ENTER_INSTANCE; the lane's box is the
+    instance's, kernels/clray_types.h) and its slots dropped: no leaf of four slots, and no
+    second test of the box the node's vector test has just passed."""
+    nodes = wide.nodes.copy()
+    child, count = nodes["child"], nodes["count"]
+    refs = wide.prim_refs
+    alone = count == 1  # one primitive outside the packets
+    alone[alone] = (refs[child[alone]] >> L.PRIM_TYPE_SHIFT) == L.PRIM_INSTANCE
+    if not alone.any():
+        return wide
+    dropped = np.zeros(len(refs) // PACKET_WIDTH, dtype=bool)
+    dropped[child[alone] // PACKET_WIDTH] = True
+    child[alone] = refs[child[alone]] & L.PRIM_INDEX_MASK
+    count[alone] = L.ENTER_INSTANCE
+    # Leaves start at multiples of PACKET_WIDTH: each moves down by the slots dropped before it.
+    kept_before = np.cumsum(~dropped) - ~dropped
+    leaf = count > 0
+    child[leaf] = kept_before[child[leaf] // PACKET_WIDTH] * PACKET_WIDTH
+    prim_refs = refs.reshape(-1, PACKET_WIDTH)[~dropped].ravel()
+    return WideBvh(nodes, prim_refs, wide.width, wide.stack_size)
 
 
 def _appended(wide: WideBvh, node_offset: int, slot_offset: int) -> np.ndarray:
@@ -337,10 +361,13 @@ def _pack_bvh(bounded: _Bounded, n_groups: int, instances: list[M.Instance],
     prims = bounded.take(0)
     # Where instances are most of the scene's tree, one primitive a leaf; a large mesh of the
     # scene's own beside a few instances keeps its packed leaves.
-    wide = _build_wide(prims, width, queue, tuning,
-                       one_per_leaf=bool(instances) and 2 * len(instances) >= len(prims[2]))
+    one_per_leaf = bool(instances) and 2 * len(instances) >= len(prims[2])
+    wide = _build_wide(prims, width, queue, tuning, one_per_leaf=one_per_leaf)
     if not instances:
         return wide, records, time.perf_counter() - start
+    wide = _instance_lanes(wide)
+    if one_per_leaf:
+        wide = fill_nodes(wide)
     # Nodes: the scene's tree first, then each group's. Slots: the groups' first, so that the
     # scene's leaves of instances come last and need no packets (_triangle_packets).
     slot_offsets = np.cumsum([0] + [len(tree.prim_refs) for tree in group_trees])
@@ -350,9 +377,9 @@ def _pack_bvh(bounded: _Bounded, n_groups: int, instances: list[M.Instance],
         roots.append(n_nodes)
         nodes.append(_appended(tree, n_nodes, int(slot_offset)))
         n_nodes += len(tree.nodes)
-    records["root_child"] = np.array(roots, dtype=np.int64)[group_of]
-    # At a leaf the walk pushes the leaf's instances, then one LEAVE_INSTANCE entry and the
-    # group's walk above it.
+    records["root"] = np.array(roots, dtype=np.int64)[group_of]
+    # At a leaf the walk pushes the leaf's instances (an instance lane is pushed as a node's
+    # child), then one LEAVE_INSTANCE entry and the group's walk above it.
     leaf = wide.nodes["count"] > 0
     per_leaf = int(np.max(wide.nodes["count"][leaf] & LEAF_FIELD_MASK, initial=0))
     stack_size = (wide.stack_size + per_leaf + 1 +

@@ -259,10 +259,13 @@ HOT MASKP triangle_lanes(const __global TrianglePacket* pk, const PickedCorners*
 
 // A triangle slot's material word (the index and the TRIANGLE_* flags): its Triangle record's
 // where the scene has vertex attributes, else the slot's entry of triangle_materials, which
-// holds the word alone (scene.h: HAS_VERTEX_ATTRIBUTES).
+// holds the word alone (scene.h: HAS_VERTEX_ATTRIBUTES), or its one entry where every
+// triangle has the same word (HAS_ONE_TRIANGLE_MATERIAL: a model of one material).
 HOT int triangle_material(const SceneRefs* s, int slot) {
 #if HAS_VERTEX_ATTRIBUTES
     return s->triangles[slot].material;
+#elif HAS_ONE_TRIANGLE_MATERIAL
+    return s->triangle_materials[0];
 #else
     return s->triangle_materials[slot];
 #endif

@@ -351,3 +351,28 @@ def test_face_materials_render_alike_from_either_record_layout(precision, traver
         assert nonfinite_count(got) == 0
         assert rmse(got, want) < 9.5e-7
         assert max_abs(got, want) < 1.5e-5
+
+
+@pytest.mark.parametrize("precision", ["float", "double"])
+def test_a_mesh_of_one_material_keeps_one_word(precision):
+    """Every face of material 1 (not the first, so a word read from a padding slot's zeros
+    shows as red): the device keeps the one word (4 bytes in all) and the kernels read it for
+    every hit (HAS_ONE_TRIANGLE_MATERIAL), against the float64 reference; three materials
+    keep a word a slot."""
+    scene = face_material_scene()
+    mesh = scene.objects[0]
+    one = replace(scene, objects=(replace(
+        mesh, face_materials=np.ones(len(mesh.faces), dtype=np.int64)),))
+    packed = pack_scene(one, width=8, height=8, spp=1, max_depth=0, seed=0)
+    assert packed.config.has_one_triangle_material
+    assert packed.device_bytes()["triangle_materials"] == 4
+    assert not pack_scene(scene, width=8, height=8, spp=1, max_depth=0,
+                          seed=0).config.has_one_triangle_material
+    got = render(one, RenderSettings(spp=4, precision=precision)).image
+    want = render_reference(one, spp=4)
+    lit = got.max(axis=2) > 0.05
+    assert np.count_nonzero(lit) > 500
+    assert np.all(np.argmax(got[lit], axis=1) == 1)  # green, material 1, everywhere
+    assert nonfinite_count(got) == 0
+    assert rmse(got, want) < 9.5e-7
+    assert max_abs(got, want) < 1.5e-5

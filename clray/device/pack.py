@@ -146,8 +146,9 @@ class _Triangles:
     uvs: np.ndarray
     colors: np.ndarray  # (V, 4) float32 linear rgb, w unused; (0, 4) without vertex colours
     # The device's material words one a slot (int32) where it keeps no TRIANGLE records
-    # (_in_slot_order); else empty.
+    # (_in_slot_order), or the one word every triangle has; else empty.
     material_words: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int32))
+    one_material: bool = False  # material_words is the one word of every triangle
 
 
 def _pack_planes(objs: list[M.Plane], eye: np.ndarray) -> np.ndarray:
@@ -441,11 +442,18 @@ def _in_slot_order(records: np.ndarray, is_tri: np.ndarray, tris: _Triangles) ->
 
     Without vertex normals, uvs and colours the kernels read nothing of a record but its
     material word (kernels/scene.h: HAS_VERTEX_ATTRIBUTES, set by the switches that these
-    arrays' sizes set), so the device keeps the words alone: 4 bytes a slot instead of 16."""
+    arrays' sizes set), so the device keeps the words alone: 4 bytes a slot instead of 16;
+    and where every triangle's word is the same (a model of one material), that word alone
+    (KernelConfig.has_one_triangle_material)."""
     normals, uvs, colors = tris.normals, tris.uvs, tris.colors
     if not (len(normals) or len(uvs) or len(colors)):
+        words = np.ascontiguousarray(records[..., 3])
+        first = words[is_tri][:1]
+        if len(first) and np.all(words[is_tri] == first[0]):
+            return _Triangles(_records(L.TRIANGLE, 0), tris.vertices, normals, uvs, colors,
+                              first, one_material=True)
         return _Triangles(_records(L.TRIANGLE, 0), tris.vertices, normals, uvs, colors,
-                          np.ascontiguousarray(records[..., 3]).ravel())
+                          words.ravel())
     # Each vertex keyed by a slot that uses it (numpy's assignment keeps one of them: any is
     # near the others), unused vertices last; the new numbering sorts the keys.
     key = np.full(len(tris.vertices), records.shape[0] * PACKET_WIDTH, dtype=np.int64)
@@ -671,6 +679,7 @@ def pack_scene(scene: M.Scene, *, width: int, height: int, spp: int, max_depth: 
         has_vertex_normals=len(tris.normals) > 0,
         has_vertex_uvs=len(tris.uvs) > 0,
         has_vertex_colors=len(tris.colors) > 0,
+        has_one_triangle_material=tris.one_material,
         has_textures=len(textures) > 0,
         has_instances=len(instances) > 0,
         **_scene_switches(scene, max_depth),

@@ -68,6 +68,8 @@ class KernelConfig(_ShapeSwitches):
     has_vertex_normals: bool = False
     has_vertex_uvs: bool = False
     has_vertex_colors: bool = False  # a mesh's vertex colours tint its faces
+    # Every triangle's material word is the same and no vertex attributes: the device keeps one.
+    has_one_triangle_material: bool = False
     has_textures: bool = False
     has_transmission: bool = False  # some material transmits: shadow rays filter
     has_refraction: bool = False

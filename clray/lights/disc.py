@@ -7,7 +7,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from clray.lights.light import LightChecks, LightKind, Square, Toward, area_sample
+from clray.lights.light import (
+    LightChecks,
+    LightKind,
+    Square,
+    Toward,
+    area_sample,
+    centre_and_radius,
+)
 from clray.shapes.shape import f4
 from clray.vectors import Vec3, frame, vec
 
@@ -23,9 +30,7 @@ class DiscLight:
 
 
 def parse(spec: dict, key: str, color: Vec3, v: LightChecks) -> DiscLight:
-    radius = v.length(spec["radius"], f"{key}.radius")
-    center = v.vec3(spec["center"], f"{key}.center")
-    v.light_area(math.pi * radius * radius, f"{key}.radius", "pi radius^2")
+    center, radius = centre_and_radius(spec, key, v)
     return DiscLight(center, v.direction(spec["normal"], f"{key}.normal"), radius, color)
 
 

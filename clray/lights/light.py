@@ -10,6 +10,7 @@ base layer: a light's parser gets the scene's value checks (`LightChecks`) from 
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, NamedTuple, Protocol
@@ -85,6 +86,15 @@ class LightKind:
     def listed(self) -> bool:
         """Whether a scene file may name it."""
         return self.parse is not None
+
+
+def centre_and_radius(spec: dict, key: str, v: LightChecks) -> tuple[Vec3, float]:
+    """A round light's `center` and `radius` (disc, sphere), its area pi radius^2 within the
+    kernels' range."""
+    radius = v.length(spec["radius"], f"{key}.radius")
+    center = v.vec3(spec["center"], f"{key}.center")
+    v.light_area(math.pi * radius * radius, f"{key}.radius", "pi radius^2")
+    return center, radius
 
 
 def area_sample(y: np.ndarray, normal: np.ndarray, area: float, p: np.ndarray,

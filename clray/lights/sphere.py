@@ -2,12 +2,11 @@
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
 
-from clray.lights.light import LightChecks, LightKind, Square, Toward, aimed
+from clray.lights.light import LightChecks, LightKind, Square, Toward, aimed, centre_and_radius
 from clray.shapes.shape import f4
 from clray.vectors import Vec3, safe_normalize, vec
 
@@ -22,9 +21,7 @@ class SphereLight:
 
 
 def parse(spec: dict, key: str, color: Vec3, v: LightChecks) -> SphereLight:
-    radius = v.length(spec["radius"], f"{key}.radius")
-    center = v.vec3(spec["center"], f"{key}.center")
-    v.light_area(math.pi * radius * radius, f"{key}.radius", "pi radius^2")
+    center, radius = centre_and_radius(spec, key, v)
     return SphereLight(center, radius, color)
 
 

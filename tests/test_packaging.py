@@ -58,6 +58,16 @@ def test_every_kernel_file_is_package_data() -> None:
     assert not missed, f"kernel files outside package-data {patterns}: {missed}"
 
 
+def test_every_subpackage_is_in_the_wheel() -> None:
+    # The wheel's package list is written out (pyproject.toml): a new folder of the package that
+    # it misses imports from the checkout but not from an install.
+    listed = set(_pyproject()["tool"]["setuptools"]["packages"])
+    package = ROOT / "clray"
+    found = {".".join(init.parent.relative_to(ROOT).parts) for init in package.rglob("__init__.py")}
+    assert {"clray", "clray.shapes", "clray.lights"} <= found  # the scan found them
+    assert found - listed == set()
+
+
 def test_every_include_resolves_in_the_package() -> None:
     sources = _kernel_sources()
     for name, lines in sources.items():

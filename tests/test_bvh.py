@@ -20,6 +20,7 @@ from clray.accel.bvh import (
     TRAVERSAL_COST,
     Bvh,
     build_bvh,
+    checked_bounds,
     max_leaf_count,
     packets,
     sah_cost,
@@ -188,6 +189,23 @@ def test_coincident_primitives_are_split_to_bounded_leaves():
 def test_rejects_bad_bounds(lo, hi):
     with pytest.raises(ValueError):
         build_bvh(lo, hi)
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+@pytest.mark.parametrize(("value", "where", "message"), [
+    (np.nan, "lo", "finite"), (-np.inf, "lo", "finite"), (np.inf, "hi", "finite"),
+    (-1e39, "lo", "float32 range"), (2.0, "lo", "lo > hi"),
+])
+def test_rejects_one_bad_bound_past_the_first_rows(dtype, value, where, message):
+    """One bad value among many good ones, in the last row (the checks go a block of rows at
+    a time): named for what is wrong."""
+    n = 3 * (1 << 16) + 5
+    bounds = {"lo": np.zeros((n, 3), dtype), "hi": np.ones((n, 3), dtype)}
+    if value == -1e39 and dtype == np.float32:
+        value = -np.inf  # float32 cannot hold it: its rounding is the case
+    bounds[where][-1, 1] = value
+    with pytest.raises(ValueError, match=message):
+        checked_bounds(bounds["lo"], bounds["hi"], 4, None)
 
 
 def test_rejects_bad_leaf_size():

@@ -14,6 +14,7 @@ import pytest
 from test_intersect import mesh_gen
 
 from clray.device import bvh_builder
+from clray.device.buffers import read_only_buffer
 from clray.device.context import queue_for
 from clray.device.launch import band_capacity
 from clray.device.pack import pack_scene
@@ -89,24 +90,25 @@ def _mesh_scene(subdivisions: int) -> M.Scene:
 
 def test_pack_frees_a_meshs_bounds_before_the_device_build_fills(cl_device, monkeypatch):
     # The mesh's float32 bounds (24 B a triangle) are the device build's input alone: the pack
-    # hands them over (build_bvh_from), and once the build's kernels have their copies nothing
-    # holds them, before the build's primitives and node slots fill.
+    # hands them over (build_bvh_from), and once the build's first kernel has read them (in
+    # place on a CPU device, else from copies) nothing holds them, before the build's
+    # primitives and node slots fill.
     scene = _mesh_scene(5)
     if not bvh_builder.supports(cl_device, 20480, 4):
         pytest.skip("the device does not build BVHs")
     copied, checked = [], []
-    real_input, real_split = bvh_builder._input_buffer, bvh_builder._split_levels
+    real_input, real_split = bvh_builder.read_only_buffer, bvh_builder._split_levels
 
-    def input_buffer(queue: cl.CommandQueue, array: np.ndarray) -> cl.Buffer:
+    def input_buffer(ctx: cl.Context, array: np.ndarray) -> cl.Buffer:
         if array.ndim == 2:  # the bounds, not the task lists
             copied.append(weakref.ref(array))
-        return real_input(queue, array)
+        return real_input(ctx, array)
 
     def split_levels(*args: object) -> np.ndarray:
         checked.append([ref() is None for ref in copied])
         return real_split(*args)
 
-    monkeypatch.setattr(bvh_builder, "_input_buffer", input_buffer)
+    monkeypatch.setattr(bvh_builder, "read_only_buffer", input_buffer)
     monkeypatch.setattr(bvh_builder, "_split_levels", split_levels)
     pack_scene(scene, width=64, height=48, spp=1, max_depth=0, seed=0,
                queue=queue_for(cl_device))
@@ -146,8 +148,8 @@ def test_cpu_device_reads_scene_buffers_in_place(cl_ctx):
     if not device.type & cl.device_type.CPU or is_oclgrind(device):
         pytest.skip("copied where the device is not the host (and on Oclgrind)")
     array = np.arange(4096, dtype=np.float32).reshape(-1, 4)
-    buf = launch_module._buffer(cl_ctx, array)
+    buf = read_only_buffer(cl_ctx, array)
     assert buf.flags & cl.mem_flags.USE_HOST_PTR
     assert np.shares_memory(buf.get_host_array(array.shape, array.dtype), array)
     shifted = array.reshape(-1)[1:-3].reshape(-1, 4)
-    assert not launch_module._buffer(cl_ctx, shifted).flags & cl.mem_flags.USE_HOST_PTR
+    assert not read_only_buffer(cl_ctx, shifted).flags & cl.mem_flags.USE_HOST_PTR

@@ -31,6 +31,7 @@ from clray.accel.bvh import (
     build_bvh,
     checked_bounds,
 )
+from clray.device.buffers import read_only_buffer
 from clray.device.context import has_fp64
 from clray.device.layout import BINARY_NODE, BUILD_PRIM, BUILD_TASK
 from clray.device.program import device_build_options, kernel_source
@@ -130,8 +131,10 @@ def build(queue: cl.CommandQueue, bounds: list[np.ndarray], max_leaf: int,
     kernels = _kernels(queue.context, float_bounds)
     # Every buffer lives in numpy memory: a CPU device then works in place, and numpy reuses
     # freed memory where a fresh device allocation page-faults in all over again each build.
-    lo_buf = _input_buffer(queue, np.ascontiguousarray(lo))
-    hi_buf = _input_buffer(queue, np.ascontiguousarray(hi))
+    # The bounds are read in place where the device can (read_only_buffer): a copy of them was
+    # 24 B a triangle more of fresh memory.
+    lo_buf = read_only_buffer(queue.context, lo)
+    hi_buf = read_only_buffer(queue.context, hi)
     del lo, hi
     prims = [np.empty(n, dtype=_prim_dtype(bound_bytes)) for _ in range(2)]
     # Uninitialised: the pages a subtree's range does not reach are never touched.
@@ -142,18 +145,19 @@ def build(queue: cl.CommandQueue, bounds: list[np.ndarray], max_leaf: int,
     chunk = -(-n // _ROUND_ITEMS)
     round_prims = kernels["round_prims_float" if float_bounds else "round_prims"]
     round_prims(queue, (-(-n // chunk),), (1,), lo_buf, hi_buf, bufs[0], np.int32(n),
-                np.int32(chunk))
-    # The copies of the bounds are done with once rounded: the runtime frees them when the
-    # kernel is done, before the build's own buffers fill.
+                np.int32(chunk)).wait()
+    # The bounds are done with once rounded: freed (the arrays, where read in place, now that
+    # the kernel is done) before the build's own buffers fill.
     lo_buf.release()
     hi_buf.release()
+    del lo_buf, hi_buf
     kernels["root_task"](queue, (1,), (1,), bufs[0], np.int32(n), bufs[4])
     shared = (*bufs[:4], np.int32(max_leaf), np.int32(sah_max_leaf))
 
     tasks = _split_levels(queue, kernels["split_level"], bufs[4], shared)
     if tasks.size:
-        kernels["build_subtrees"](queue, (tasks.size,), (1,), _input_buffer(queue, tasks),
-                                  *shared)
+        kernels["build_subtrees"](queue, (tasks.size,), (1,),
+                                  read_only_buffer(queue.context, tasks), *shared)
     for buf, array in zip(bufs[2:4], (nodes, order), strict=True):
         _sync(queue, buf, array)
     return Bvh(_depth_first(nodes), order) if depth_first else Bvh(nodes, order, pairs=True)
@@ -161,14 +165,6 @@ def build(queue: cl.CommandQueue, bounds: list[np.ndarray], max_leaf: int,
 
 def _host_buffer(queue: cl.CommandQueue, array: np.ndarray) -> cl.Buffer:
     return cl.Buffer(queue.context, cl.mem_flags.READ_WRITE | cl.mem_flags.USE_HOST_PTR,
-                     hostbuf=array)
-
-
-def _input_buffer(queue: cl.CommandQueue, array: np.ndarray) -> cl.Buffer:
-    """A copy of `array` that the kernels only read. Copied, not used in place: Oclgrind
-    takes the contents of a USE_HOST_PTR buffer for uninitialised, and the bounds and task
-    lists are small beside the build's own arrays."""
-    return cl.Buffer(queue.context, cl.mem_flags.READ_ONLY | cl.mem_flags.COPY_HOST_PTR,
                      hostbuf=array)
 
 
@@ -193,7 +189,7 @@ def _split_levels(queue: cl.CommandQueue, split_level: cl.Kernel, root_buf: cl.B
         tasks = out[out["count"] >= 0]
         if not 0 < tasks.size < enough:
             break
-        in_buf = _input_buffer(queue, tasks)
+        in_buf = read_only_buffer(queue.context, tasks)
         m = tasks.size
     return tasks
 

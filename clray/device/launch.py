@@ -10,9 +10,10 @@ from typing import NamedTuple
 import numpy as np
 import pyopencl as cl
 
+from clray.device.buffers import read_only_buffer
 from clray.device.context import describe, device_type, queue_for
 from clray.device.pack import PackedScene
-from clray.device.program import build_program, is_oclgrind
+from clray.device.program import build_program
 from clray.errors import DeviceError
 from clray.knobs import DEFAULT_TUNING, TRAVERSAL_SCHEMES, Tuning
 
@@ -25,30 +26,9 @@ from clray.knobs import DEFAULT_TUNING, TRAVERSAL_SCHEMES, Tuning
 # depend on the bands.
 
 
-def _buffer(ctx: cl.Context, array: np.ndarray) -> cl.Buffer:
-    """A buffer the kernels only read. A CPU device reads the array in place (USE_HOST_PTR;
-    pyopencl keeps the array alive with the buffer): a copy took the scene's bytes a second
-    time in host memory, 343 MiB for the 5.24 M-triangle mesh (docs/scale.md). Elsewhere a
-    copy: a GPU's memory, and Oclgrind, which takes a USE_HOST_PTR buffer's contents for
-    uninitialised."""
-    # OpenCL has no zero-sized buffers: an empty array becomes one zeroed element.
-    data = np.ascontiguousarray(array if array.size else np.zeros(1, dtype=array.dtype))
-    device = ctx.devices[0]
-    # In place only where the elements (records, or rows of a float4 array) lie across the
-    # cache lines as in the device's own allocation (aligned to a line at least): a wide node
-    # over five lines where it would span four, or a float4 off its 16 bytes, would cost the
-    # kernels. numpy's large arrays start 16 bytes into a page: the nodes (256-byte records
-    # of the 8-wide tree) are copied, the other large buffers read in place.
-    element = data.nbytes // len(data)
-    in_place = (bool(device.type & cl.device_type.CPU) and not is_oclgrind(device)
-                and data.ctypes.data % math.gcd(element, device.global_mem_cacheline_size) == 0)
-    where = cl.mem_flags.USE_HOST_PTR if in_place else cl.mem_flags.COPY_HOST_PTR
-    return cl.Buffer(ctx, cl.mem_flags.READ_ONLY | where, hostbuf=data)
-
-
 def _scene_buffers(ctx: cl.Context, packed: PackedScene) -> list[cl.Buffer]:
     """The scene's buffers on the device, in the kernels' parameter order (SCENE_BUFFERS)."""
-    return [_buffer(ctx, array) for array in packed.buffers().values()]
+    return [read_only_buffer(ctx, array) for array in packed.buffers().values()]
 
 
 def next_band_rows(row_samples: int, last_rows: int, last_s: float, rows_left: int,
@@ -337,7 +317,7 @@ def intersect_rays(packed: PackedScene, device: cl.Device, origins: np.ndarray,
     d4[:n, :3] = directions
     o4[n:] = o4[n - 1] if n else 0
     d4[n:] = d4[n - 1] if n else 0
-    args = [_buffer(ctx, o4), _buffer(ctx, d4), *_scene_buffers(ctx, packed)]
+    args = [read_only_buffer(ctx, o4), read_only_buffer(ctx, d4), *_scene_buffers(ctx, packed)]
     hits_buf = cl.Buffer(ctx, cl.mem_flags.WRITE_ONLY, padded * 16)
     refs_buf = cl.Buffer(ctx, cl.mem_flags.WRITE_ONLY, padded * 4)
     local = (group,) if group else None

@@ -12,6 +12,17 @@
 // first, so each deferred entry at least halves the count and 64 covers any int count.
 #define STACK 64
 
+// Componentwise minimum and maximum of bounds and centroids, which are never NaN (the host
+// checks the bounds: clray.accel.bvh.checked_bounds) but start at +-INFINITY in empty bins: a
+// compare and select, one instruction on x86 (minps), where fmin's NaN rules took three and
+// OpenCL leaves min() undefined for infinities. The host build's np.minimum gives the same.
+static float4 lesser(float4 a, float4 b) { return select(b, a, a < b); }
+static float4 greater(float4 a, float4 b) { return select(b, a, a > b); }
+
+// Primitives from which fill_bins alternates two sets of bins; below it, clearing and merging
+// the second set cost more than the overlap saves.
+#define TWO_SETS_FROM 64
+
 typedef struct {
     int count[N_BINS];
     float4 lo[N_BINS], hi[N_BINS], clo[N_BINS], chi[N_BINS];
@@ -21,8 +32,8 @@ typedef struct {
 #ifdef FLOAT_BOUNDS
 // Float bounds (a mesh's triangles, whose corners are floats) are their own rounding, and the
 // centroid, 0.5 (lo + hi) in double, is found from them again wherever it is needed: a
-// primitive is its bounds alone, the index in lo.w, 32 bytes where BuildPrim takes 48 (every
-// level of the build reads and writes each primitive).
+// primitive is its bounds alone, the index in lo.w (its bin of the moment in hi.w: add_to_bin),
+// 32 bytes where BuildPrim takes 48 (every level of the build reads and writes each primitive).
 typedef struct {
     float4 lo, hi;
 } Prim;
@@ -96,10 +107,10 @@ static void bound(__global const Prim *prims, int start, int count, BuildTask *t
     for (int i = start; i < start + count; i++) {
         Prim p = prims[i];
         float4 c = centroid(p);
-        lo = fmin(lo, p.lo);
-        hi = fmax(hi, p.hi);
-        clo = fmin(clo, c);
-        chi = fmax(chi, c);
+        lo = lesser(lo, p.lo);
+        hi = greater(hi, p.hi);
+        clo = lesser(clo, c);
+        chi = greater(chi, c);
     }
     t->lo = lo; t->hi = hi; t->clo = clo; t->chi = chi;
     t->start = start; t->count = count;
@@ -137,50 +148,64 @@ static void clear_bins(Bins *bins) {
     }
 }
 
-static void add_to_bin(Bins *bins, int b, Prim p, float4 c) {
+// The primitive's bin is also kept in its hi.w (unused otherwise, and overwritten on every
+// level), for the partition that follows to read instead of finding it again (a third of
+// the partition's instructions).
+static void add_to_bin(Bins *bins, __global Prim *at, int b, Prim p, float4 c) {
+    at->hi.w = as_float(b);
     bins->count[b]++;
-    bins->lo[b] = fmin(bins->lo[b], p.lo);
-    bins->hi[b] = fmax(bins->hi[b], p.hi);
-    bins->clo[b] = fmin(bins->clo[b], c);
-    bins->chi[b] = fmax(bins->chi[b], c);
+    bins->lo[b] = lesser(bins->lo[b], p.lo);
+    bins->hi[b] = greater(bins->hi[b], p.hi);
+    bins->clo[b] = lesser(bins->clo[b], c);
+    bins->chi[b] = greater(bins->chi[b], c);
 }
 
 // Neighbours in a node's order are near in space and often share a bin: alternate primitives
 // go to two sets of bins, so one's updates need not wait for the other's, then the sets are
 // merged (minima, maxima and counts: the same bins in any order).
-static void fill_bins(Bins *bins, __global const Prim *src, int start, int count, int axis,
+static void fill_bins(Bins *bins, __global Prim *src, int start, int count, int axis,
                       float cmin, float scale) {
-    Bins odd;
     clear_bins(bins);
-    clear_bins(&odd);
     int i = start, end = start + count;
-    for (; i + 1 < end; i += 2) {
-        Prim p = src[i], q = src[i + 1];
-        float4 cp = centroid(p), cq = centroid(q);
-        add_to_bin(bins, bin_of(along(cp, axis), cmin, scale), p, cp);
-        add_to_bin(&odd, bin_of(along(cq, axis), cmin, scale), q, cq);
+    if (count >= TWO_SETS_FROM) {
+        Bins odd;
+        clear_bins(&odd);
+        for (; i + 1 < end; i += 2) {
+            Prim p = src[i], q = src[i + 1];
+            float4 cp = centroid(p), cq = centroid(q);
+            add_to_bin(bins, src + i, bin_of(along(cp, axis), cmin, scale), p, cp);
+            add_to_bin(&odd, src + i + 1, bin_of(along(cq, axis), cmin, scale), q, cq);
+        }
+        for (int k = 0; k < N_BINS; k++) {
+            bins->count[k] += odd.count[k];
+            bins->lo[k] = lesser(bins->lo[k], odd.lo[k]);
+            bins->hi[k] = greater(bins->hi[k], odd.hi[k]);
+            bins->clo[k] = lesser(bins->clo[k], odd.clo[k]);
+            bins->chi[k] = greater(bins->chi[k], odd.chi[k]);
+        }
     }
-    if (i < end) {
+    for (; i < end; i++) {
         Prim p = src[i];
         float4 c = centroid(p);
-        add_to_bin(bins, bin_of(along(c, axis), cmin, scale), p, c);
-    }
-    for (int k = 0; k < N_BINS; k++) {
-        bins->count[k] += odd.count[k];
-        bins->lo[k] = fmin(bins->lo[k], odd.lo[k]);
-        bins->hi[k] = fmax(bins->hi[k], odd.hi[k]);
-        bins->clo[k] = fmin(bins->clo[k], odd.clo[k]);
-        bins->chi[k] = fmax(bins->chi[k], odd.chi[k]);
+        add_to_bin(bins, src + i, bin_of(along(c, axis), cmin, scale), p, c);
     }
 }
 
-// The bin to split after, from prefix and suffix unions, costed as the host costs it.
+// The bin to split after, from prefix and suffix unions, costed as the host costs it. An empty
+// bin changes neither union nor count: its suffix area is the next bin's, and a split after it
+// costs exactly what the split after the last non-empty bin before it did, which the strict
+// comparison keeps. Skipping them leaves the choice as it was; small nodes, most of a tree,
+// leave most of their bins empty.
 static int best_split(const Bins *bins, int count, double *best_cost) {
     double a_right[N_BINS - 1];
     float4 lo = (float4)(INFINITY), hi = (float4)(-INFINITY);
     for (int k = N_BINS - 1; k > 0; k--) {
-        lo = fmin(lo, bins->lo[k]);
-        hi = fmax(hi, bins->hi[k]);
+        if (bins->count[k] == 0 && k < N_BINS - 1) {
+            a_right[k - 1] = a_right[k];
+            continue;
+        }
+        lo = lesser(lo, bins->lo[k]);
+        hi = greater(hi, bins->hi[k]);
         a_right[k - 1] = half_area(lo, hi);
     }
     lo = (float4)(INFINITY);
@@ -188,8 +213,9 @@ static int best_split(const Bins *bins, int count, double *best_cost) {
     int n_left = 0, best = 0;
     *best_cost = INFINITY;
     for (int k = 0; k < N_BINS - 1; k++) {
-        lo = fmin(lo, bins->lo[k]);
-        hi = fmax(hi, bins->hi[k]);
+        if (bins->count[k] == 0) continue;
+        lo = lesser(lo, bins->lo[k]);
+        hi = greater(hi, bins->hi[k]);
         n_left += bins->count[k];
         int n_right = count - n_left;
         double cost = n_left == 0 || n_right == 0 ? INFINITY
@@ -209,10 +235,10 @@ static void bin_child(BuildTask *c, const Bins *bins, int from, int to, int star
     c->hi = c->chi = (float4)(-INFINITY);
     c->count = 0;
     for (int k = from; k <= to; k++) {
-        c->lo = fmin(c->lo, bins->lo[k]);
-        c->hi = fmax(c->hi, bins->hi[k]);
-        c->clo = fmin(c->clo, bins->clo[k]);
-        c->chi = fmax(c->chi, bins->chi[k]);
+        c->lo = lesser(c->lo, bins->lo[k]);
+        c->hi = greater(c->hi, bins->hi[k]);
+        c->clo = lesser(c->clo, bins->clo[k]);
+        c->chi = greater(c->chi, bins->chi[k]);
         c->count += bins->count[k];
     }
     c->start = start;
@@ -281,7 +307,7 @@ static int process(const BuildTask *t, __global Prim *buf0, __global Prim *buf1,
         int il = start, ir = right->start;
         for (int i = start; i < start + count; i++) {
             Prim p = src[i];
-            if (bin_of(along(centroid(p), axis), cmin, scale) > best) dst[ir++] = p;
+            if (as_int(p.hi.w) > best) dst[ir++] = p;
             else dst[il++] = p;
         }
     }

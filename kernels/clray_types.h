@@ -172,7 +172,8 @@ typedef struct {
 } BinaryNode;
 
 // The device build's primitive: its bounds rounded outwards and its centroid, vectors so that it
-// is three aligned loads; the primitive's index rides in the centroid's w.
+// is three aligned loads; the primitive's index rides in the centroid's w, its bin of the moment
+// in hi.w (kernels/bvh_build.cl, add_to_bin).
 typedef struct {
     float4 lo, hi, c;
 } BuildPrim;

@@ -88,31 +88,60 @@ def _mesh_scene(subdivisions: int) -> M.Scene:
                    (M.Mesh(vertices=vertices, faces=faces, material=0),))
 
 
-def test_pack_frees_a_meshs_bounds_before_the_device_build_fills(cl_device, monkeypatch):
-    # The mesh's float32 bounds (24 B a triangle) are the device build's input alone: the pack
-    # hands them over (build_bvh_from), and once the build's first kernel has read them (in
-    # place on a CPU device, else from copies) nothing holds them, before the build's
-    # primitives and node slots fill.
+def test_a_meshs_bounds_are_the_device_builds_primitives(cl_device, monkeypatch):
+    # The pack writes a mesh's float32 bounds (24 B a triangle) into the device build's own
+    # primitive records (bvh_builder.float_prims): the build takes them as its first buffer,
+    # with no bounds beside it and no copy of them on the device.
     scene = _mesh_scene(5)
     if not bvh_builder.supports(cl_device, 20480, 4):
         pytest.skip("the device does not build BVHs")
-    copied, checked = [], []
-    real_input, real_split = bvh_builder.read_only_buffer, bvh_builder._split_levels
+    read, given = [], []
+    real_read, real_prims_of = bvh_builder.read_only_buffer, bvh_builder._prims_of
 
-    def input_buffer(ctx: cl.Context, array: np.ndarray) -> cl.Buffer:
+    def read_only_buffer(ctx: cl.Context, array: np.ndarray) -> cl.Buffer:
+        read.append(array.ndim)
+        return real_read(ctx, array)
+
+    def prims_of(lo: np.ndarray, hi: np.ndarray) -> np.ndarray | None:
+        given.append(real_prims_of(lo, hi))
+        return given[-1]
+
+    monkeypatch.setattr(bvh_builder, "read_only_buffer", read_only_buffer)
+    monkeypatch.setattr(bvh_builder, "_prims_of", prims_of)
+    pack_scene(scene, width=64, height=48, spp=1, max_depth=0, seed=0,
+               queue=queue_for(cl_device))
+    assert len(given) == 1 and given[0] is not None and len(given[0]) == 20480
+    assert 2 not in read  # only the task lists (1-D) were read from the host
+
+
+def test_device_build_frees_other_bounds_before_its_buffers_fill(cl_device, monkeypatch):
+    # Bounds that are not the build's records (float64: spheres, boxes; or float32 from
+    # elsewhere) are rounded into them by a kernel that reads them in place on a CPU device;
+    # once it is done nothing holds them, before the build's primitives and node slots fill.
+    rng = np.random.default_rng(3)
+    if not bvh_builder.supports(cl_device, 20480, 8):
+        pytest.skip("the device does not build BVHs")
+    queue = queue_for(cl_device)
+    copied, checked = [], []
+    real_read, real_split = bvh_builder.read_only_buffer, bvh_builder._split_levels
+
+    def read_only_buffer(ctx: cl.Context, array: np.ndarray) -> cl.Buffer:
         if array.ndim == 2:  # the bounds, not the task lists
             copied.append(weakref.ref(array))
-        return real_input(ctx, array)
+        return real_read(ctx, array)
 
     def split_levels(*args: object) -> np.ndarray:
         checked.append([ref() is None for ref in copied])
         return real_split(*args)
 
-    monkeypatch.setattr(bvh_builder, "read_only_buffer", input_buffer)
+    monkeypatch.setattr(bvh_builder, "read_only_buffer", read_only_buffer)
     monkeypatch.setattr(bvh_builder, "_split_levels", split_levels)
-    pack_scene(scene, width=64, height=48, spp=1, max_depth=0, seed=0,
-               queue=queue_for(cl_device))
-    assert checked == [[True, True]]
+    for dtype in (np.float64, np.float32):
+        centres = rng.uniform(-1.0, 1.0, (20480, 3))
+        bounds = [(centres - 0.01).astype(dtype), (centres + 0.01).astype(dtype)]
+        bvh_builder.build_bvh_from(queue, bounds, 4)
+        assert bounds == []
+    assert checked == [[True, True], [True, True, True, True]]
 
 
 def test_pack_of_a_mesh_peaks_within_its_device_bytes_beside_the_build(cl_device):

@@ -26,7 +26,14 @@ def read_only_buffer(ctx: cl.Context, array: np.ndarray) -> cl.Buffer:
     # kernels. numpy's large arrays start 16 bytes into a page: the nodes (256-byte records
     # of the 8-wide tree) are copied, the other large buffers read in place.
     element = data.nbytes // len(data)
-    in_place = (bool(device.type & cl.device_type.CPU) and not is_oclgrind(device)
+    in_place = (reads_host_memory(device)
                 and data.ctypes.data % math.gcd(element, device.global_mem_cacheline_size) == 0)
     where = cl.mem_flags.USE_HOST_PTR if in_place else cl.mem_flags.COPY_HOST_PTR
     return cl.Buffer(ctx, cl.mem_flags.READ_ONLY | where, hostbuf=data)
+
+
+def reads_host_memory(device: cl.Device) -> bool:
+    """Whether the device's kernels read a USE_HOST_PTR buffer's host memory as it is: a CPU
+    device's memory is the host's. Not Oclgrind, which takes the contents of such a buffer for
+    uninitialised."""
+    return bool(device.type & cl.device_type.CPU) and not is_oclgrind(device)

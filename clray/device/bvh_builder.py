@@ -31,7 +31,7 @@ from clray.accel.bvh import (
     build_bvh,
     checked_bounds,
 )
-from clray.device.buffers import read_only_buffer
+from clray.device.buffers import read_only_buffer, reads_host_memory
 from clray.device.context import has_fp64
 from clray.device.layout import BINARY_NODE, BUILD_PRIM, BUILD_TASK
 from clray.device.program import device_build_options, kernel_source
@@ -80,6 +80,31 @@ def build_bvh_from(queue: cl.CommandQueue, bounds: list[np.ndarray], max_leaf_si
         del lo, hi
         return build(queue, bounds, max_leaf_size, largest, not pairs)
     return build_bvh(lo, hi, max_leaf_size, largest_leaf=largest)
+
+
+def float_prims(n: int) -> tuple[np.ndarray, np.ndarray]:
+    """(lo, hi): (n, 3) float32 views, for the caller to fill with n primitives' bounds, of
+    records laid out as the device build's float primitives (kernels/bvh_build.cl, Prim under
+    FLOAT_BOUNDS: lo, the index, hi, a spare word). A device build over bounds that are
+    these views whole takes their records as its first primitive buffer (_prims_of) where the
+    device reads host memory: no copy of the bounds and no pass that rounds them in. Any
+    other use sees plain bounds."""
+    records = np.empty((n, 8), dtype=np.float32)
+    records[:, 3] = np.arange(n, dtype=np.int32).view(np.float32)
+    records[:, 7] = 0.0
+    return records[:, 0:3], records[:, 4:7]
+
+
+def _prims_of(lo: np.ndarray, hi: np.ndarray) -> np.ndarray | None:
+    """The float primitive records whose whole lo and hi columns `lo` and `hi` are
+    (float_prims), as the build's records; else None."""
+    records = lo.base
+    if (records is None or hi.base is not records or records.dtype != np.float32
+            or records.shape != (len(lo), 8) or not records.flags.c_contiguous
+            or lo.ctypes.data != records.ctypes.data
+            or hi.ctypes.data != records.ctypes.data + 16):
+        return None
+    return records.view(_FLOAT_PRIM).reshape(len(lo))
 
 
 def supports(device: cl.Device, n: int, bound_bytes: int = 8) -> bool:
@@ -131,26 +156,20 @@ def build(queue: cl.CommandQueue, bounds: list[np.ndarray], max_leaf: int,
     kernels = _kernels(queue.context, float_bounds)
     # Every buffer lives in numpy memory: a CPU device then works in place, and numpy reuses
     # freed memory where a fresh device allocation page-faults in all over again each build.
-    # The bounds are read in place where the device can (read_only_buffer): a copy of them was
-    # 24 B a triangle more of fresh memory.
-    lo_buf = read_only_buffer(queue.context, lo)
-    hi_buf = read_only_buffer(queue.context, hi)
-    del lo, hi
-    prims = [np.empty(n, dtype=_prim_dtype(bound_bytes)) for _ in range(2)]
+    # Records the caller filled (float_prims) are the first primitive buffer where the device
+    # reads host memory in place; elsewhere they are bounds like any others.
+    given = (_prims_of(lo, hi) if float_bounds and reads_host_memory(queue.device)
+             else None)
+    prims = [np.empty(n, dtype=_prim_dtype(bound_bytes)) if given is None else given,
+             np.empty(n, dtype=_prim_dtype(bound_bytes))]
     # Uninitialised: the pages a subtree's range does not reach are never touched.
     nodes = np.empty(slots, dtype=BINARY_NODE)
     order = np.empty(n, dtype=np.int32)
     root = np.empty(1, dtype=BUILD_TASK)
     bufs = [_host_buffer(queue, a) for a in (*prims, nodes, order, root)]
-    chunk = -(-n // _ROUND_ITEMS)
-    round_prims = kernels["round_prims_float" if float_bounds else "round_prims"]
-    round_prims(queue, (-(-n // chunk),), (1,), lo_buf, hi_buf, bufs[0], np.int32(n),
-                np.int32(chunk)).wait()
-    # The bounds are done with once rounded: freed (the arrays, where read in place, now that
-    # the kernel is done) before the build's own buffers fill.
-    lo_buf.release()
-    hi_buf.release()
-    del lo_buf, hi_buf
+    if given is None:
+        _round_in(queue, kernels, lo, hi, bufs[0])
+    del lo, hi, given
     kernels["root_task"](queue, (1,), (1,), bufs[0], np.int32(n), bufs[4])
     shared = (*bufs[:4], np.int32(max_leaf), np.int32(sah_max_leaf))
 
@@ -161,6 +180,22 @@ def build(queue: cl.CommandQueue, bounds: list[np.ndarray], max_leaf: int,
     for buf, array in zip(bufs[2:4], (nodes, order), strict=True):
         _sync(queue, buf, array)
     return Bvh(_depth_first(nodes), order) if depth_first else Bvh(nodes, order, pairs=True)
+
+
+def _round_in(queue: cl.CommandQueue, kernels: dict[str, cl.Kernel], lo: np.ndarray,
+              hi: np.ndarray, prims: cl.Buffer) -> None:
+    """The bounds as the build's primitive records, rounded outwards where they are float64.
+    Read in place where the device can (read_only_buffer): a copy of them was 24 B a triangle
+    more of fresh memory. Done before returning, so that the caller may free them."""
+    n = len(lo)
+    lo_buf = read_only_buffer(queue.context, lo)
+    hi_buf = read_only_buffer(queue.context, hi)
+    chunk = -(-n // _ROUND_ITEMS)
+    round_prims = kernels["round_prims_float" if lo.dtype == np.float32 else "round_prims"]
+    round_prims(queue, (-(-n // chunk),), (1,), lo_buf, hi_buf, prims, np.int32(n),
+                np.int32(chunk)).wait()
+    lo_buf.release()
+    hi_buf.release()
 
 
 def _host_buffer(queue: cl.CommandQueue, array: np.ndarray) -> cl.Buffer:

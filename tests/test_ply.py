@@ -309,3 +309,21 @@ def test_binary_mesh_files_may_be_larger_than_text_ones(tmp_path, monkeypatch):
     monkeypatch.setattr(limits, "MAX_BINARY_MESH_BYTES", len(binary) - 1)
     with pytest.raises(SceneError, match=r"over the limit"):
         load("b.ply")
+
+
+@pytest.mark.parametrize("fmt", FORMATS)
+def test_vertex_indices_are_int32_in_native_order(fmt):
+    # The kernels index vertices with int32: a file's indices are kept as int32 (12 bytes a
+    # triangle, not an int64 copy of 24), in the machine's byte order whatever the file's.
+    faces = read_ply(ply_bytes(fmt, [[0, 1, 2]] * 4), Path("m.ply")).mesh.faces
+    assert faces.dtype == np.dtype(np.int32) and faces.dtype.isnative
+    np.testing.assert_array_equal(faces, [[0, 1, 2]] * 4)
+
+
+@pytest.mark.parametrize("index", [2**31, 2**32 - 1])
+def test_an_unsigned_index_past_int32_is_out_of_range_not_wrapped(index):
+    # uint32 indices from 2**31 on would be negative as int32: the range is checked first.
+    header = _TRIANGLE + b"element face 1\nproperty list uchar uint vertex_indices\n"
+    body = struct.pack("<9f", *range(9)) + struct.pack("<B3I", 3, 0, 1, index)
+    with pytest.raises(SceneError, match=rf"record 0: vertex index {index} out of range"):
+        read_ply(_binary(header, body), Path("m.ply"))

@@ -161,7 +161,7 @@ class Mesh:
     """A triangle mesh, already transformed to world space on the host in float64."""
 
     vertices: np.ndarray  # (V, 3) float64
-    faces: np.ndarray  # (F, 3) int64 indices into vertices
+    faces: np.ndarray  # (F, 3) int64 indices into vertices; int32 as a PLY file stores them
     material: int
     normals: np.ndarray | None = None  # (V, 3) float64 unit vertex normals: smooth shading
     uvs: np.ndarray | None = None  # (V, 2) float64 texture coordinates

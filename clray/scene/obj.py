@@ -31,7 +31,7 @@ class ObjMesh:
     """One shared vertex index for positions, normals and UVs, as the renderer wants it."""
 
     vertices: np.ndarray  # (V, 3) float64
-    faces: np.ndarray  # (F, 3) int64, fan-triangulated polygons in file order
+    faces: np.ndarray  # (F, 3) int64 (int32 from a PLY file), fan-triangulated, in file order
     normals: np.ndarray | None = None  # (V, 3) float64, unit length
     uvs: np.ndarray | None = None  # (V, 2) float64
     # Materials named by `usemtl`, in order of first use; face_groups gives each triangle's

@@ -47,7 +47,9 @@ def parse_mesh(spec: dict, key: str, material: int | None, v: Values, assets: As
         face_materials = _face_materials(spec, key, len(faces), v, materials)
     return Mesh(
         vertices=np.ascontiguousarray(vertices),
-        faces=np.ascontiguousarray(faces, dtype=np.int64),
+        # A PLY file's int32 indices stay int32 (Mesh.faces).
+        faces=np.ascontiguousarray(faces, dtype=np.int32 if faces.dtype == np.int32
+                                   else np.int64),
         # Per-face materials leave `material` unused; the first face's keeps it valid.
         material=int(face_materials[0]) if material is None else material,
         normals=normals,

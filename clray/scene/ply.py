@@ -191,9 +191,12 @@ class _Reader:
             if p.count_type is None:
                 columns[p.name] = view[p.name]
                 continue
-            counts = view[f"\0count {p.name}"].astype(np.int64)
-            if np.any(counts != counts[:1]):
+            lengths = view[f"\0count {p.name}"]
+            if np.any(lengths != lengths[:1]):
                 return None
+            # One length for every record: a read-only broadcast of it, not an int64 a record.
+            counts = np.broadcast_to(np.int64(lengths[0]) if len(lengths) else np.int64(0),
+                                     lengths.shape)
             columns[p.name] = (counts, _as_items(view[p.name].reshape(-1), p))
         return columns, offset + dtype.itemsize * el.count
 
@@ -441,14 +444,19 @@ def _index_list(reader: _Reader, columns: dict[str, dict[str, object]], element:
     if items.dtype.kind not in "iu":
         raise reader.error(where, f"{name} must be a list of an integer type")
     low = -1 if element == "tristrips" else 0
-    if not len(items) or (items.min() >= low and items.max() < n_vertices):
-        return counts, items  # by reductions: no boolean arrays of every index
-    outside = np.flatnonzero((items < low) | (items >= n_vertices))
-    if len(outside):
-        record = int(np.searchsorted(np.cumsum(counts), outside[0], side="right"))
-        raise reader.error(where, f"record {record}: vertex index {int(items[outside[0]])} "
+    # Checked by reductions, with no boolean array of every index unless one is out of range.
+    if len(items) and not (items.min() >= low and items.max() < n_vertices):
+        outside = np.flatnonzero((items < low) | (items >= n_vertices))[0]
+        record = int(np.searchsorted(np.cumsum(counts), outside, side="right"))
+        raise reader.error(where, f"record {record}: vertex index {int(items[outside])} "
                            f"out of range ({plural(n_vertices, 'vertex', 'vertices')})")
-    return counts, items
+    # int32 where every vertex index fits it (the kernels index vertices with int32): a file's
+    # int32 indices as they are, not an int64 copy (12 bytes a triangle, not 24).
+    return counts, items.astype(_index_type(n_vertices), copy=False)
+
+
+def _index_type(n_vertices: int) -> type:
+    return np.int32 if n_vertices <= np.iinfo(np.int32).max else np.int64
 
 
 def _strip_triangles(counts: np.ndarray, items: np.ndarray) -> np.ndarray:
@@ -500,8 +508,9 @@ def _gather(raw: np.ndarray, positions: np.ndarray, dtype: np.dtype) -> np.ndarr
 
 
 def _as_items(items: np.ndarray, prop: _Property) -> np.ndarray:
-    """A list's items: int64 for integer types (indices), float64 otherwise."""
-    return items.astype(np.float64 if np.dtype(prop.type).kind == "f" else np.int64)
+    """A list's items: integer types as the file has them (indices, which _index_list checks
+    and then narrows), float64 otherwise."""
+    return items.astype(np.float64) if np.dtype(prop.type).kind == "f" else items
 
 
 def _check_numbers(reader: _Reader, values: np.ndarray, where: str, names: str) -> None:

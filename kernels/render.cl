@@ -60,8 +60,8 @@
 #define WORK_ITEM_LANES
 #endif
 
-__kernel WORK_ITEM_LANES void render(SCENE_BUFFER_PARAMS, __global float4* image,
-                                     __global int4* ray_counts, __global int4* test_counts,
+__kernel WORK_ITEM_LANES void render(SCENE_BUFFER_PARAMS, __global float* image,
+                                     __global int2* ray_counts, __global int4* test_counts,
                                      int row_offset) {
     int x = get_global_id(0), y = get_global_id(1) + row_offset;
     int width = params->width, height = params->height;
@@ -98,8 +98,11 @@ __kernel WORK_ITEM_LANES void render(SCENE_BUFFER_PARAMS, __global float4* image
     // The output buffers hold this launch's band of rows only, so that an image of any size
     // renders within the device's largest allocation.
     int slot = get_global_id(1) * width + x;
-    image[slot] = (float4)((float)mean.x, (float)mean.y, (float)mean.z, 0.0f);
-    ray_counts[slot] = (int4)(spp, secondary_rays, shadow_rays, 0);
+    // 20 bytes a pixel, not two float4s' 32: the radiance as three packed floats, which the
+    // host copies straight into its image's rows, and the secondary and shadow rays (every
+    // pixel traces spp primary rays: the host counts those).
+    vstore3((float3)((float)mean.x, (float)mean.y, (float)mean.z), slot, image);
+    ray_counts[slot] = (int2)(secondary_rays, shadow_rays);
 #if COUNT_TESTS
     test_counts[slot] = (int4)(counts.closest_boxes, counts.closest_prims, counts.shadow_boxes,
                                counts.shadow_prims);

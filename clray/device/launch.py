@@ -45,7 +45,7 @@ def next_band_rows(row_samples: int, last_rows: int, last_s: float, rows_left: i
     return int(max(1, min(rows_left, rows)))
 
 
-# The output buffers (radiance, ray counts, test counts: 16 bytes a pixel each) hold one band of
+# The output buffers (test counts 16 bytes a pixel, radiance 12, ray counts 8) hold one band of
 # rows, at most this many bytes each: any image the format allows renders on any device, in
 # bands, and a CPU device does not double the image in its memory.
 MAX_BAND_BYTES = 256 << 20
@@ -54,9 +54,9 @@ MAX_BAND_BYTES = 256 << 20
 def band_capacity(packed: PackedScene, global_mem: int, max_alloc: int,
                   outputs: int | None = None) -> int:
     """The most rows one launch may render: its output buffers (`outputs` of 16 bytes a pixel:
-    the render kernel's where None) within the device's largest allocation and, beside the
-    scene's buffers, within its global memory. Refuses (DeviceError) a scene whose own buffers
-    do not fit, before any buffer exists."""
+    the render kernel's where None, its 12 and 8 bytes taken as 16) within the device's
+    largest allocation and, beside the scene's buffers, within its global memory. Refuses
+    (DeviceError) a scene whose own buffers do not fit, before any buffer exists."""
     width, height = int(packed.params[0]["width"]), int(packed.params[0]["height"])
     scene = packed.device_bytes()
     mib = 1 << 20
@@ -184,14 +184,16 @@ def render_packed(packed: PackedScene, device: cl.Device,
         # or the next band's, rendered again there) land in the buffers' spare rows.
         spare = group_height - 1
         band_bytes = width * (capacity + spare) * 16
-        image_buf = cl.Buffer(ctx, cl.mem_flags.WRITE_ONLY, band_bytes)
-        counts_buf = cl.Buffer(ctx, cl.mem_flags.WRITE_ONLY, band_bytes)
+        # A pixel's radiance, three floats: a band's rows are the image's, copied in place.
+        image_buf = cl.Buffer(ctx, cl.mem_flags.WRITE_ONLY, band_bytes // 16 * 12)
+        # A pixel's secondary and shadow rays (int2); its spp primary rays are counted here.
+        counts_buf = cl.Buffer(ctx, cl.mem_flags.WRITE_ONLY, band_bytes // 2)
         count_tests = packed.config.count_tests
         tests_buf = cl.Buffer(ctx, cl.mem_flags.WRITE_ONLY, band_bytes if count_tests else 16)
         image = np.empty((height, width, 3), dtype=np.float32)
-        band_image = np.empty((capacity, width, 4), dtype=np.float32)
-        band_counts = np.empty((capacity * width, 4), dtype=np.int32)
-        totals = np.zeros(4, dtype=np.int64)
+        band_counts = np.empty((capacity * width, 2), dtype=np.int32)
+        band_tests = np.empty((capacity * width if count_tests else 0, 4), dtype=np.int32)
+        totals = np.zeros(3, dtype=np.int64)
         test_totals = np.zeros(4, dtype=np.int64)
         padded_width = -(-width // group_width) * group_width
         row_samples = width * spp
@@ -212,14 +214,14 @@ def render_packed(packed: PackedScene, device: cl.Device,
             kernel_s += band_s
             launches += 1
             pixels = band * width
-            cl.enqueue_copy(queue, band_image[:band], image_buf)
+            cl.enqueue_copy(queue, image[row0:row0 + band], image_buf)
             cl.enqueue_copy(queue, band_counts[:pixels], counts_buf)
-            image[row0:row0 + band] = band_image[:band, :, :3]
+            totals[0] += pixels * spp
             # einsum sums int32 columns into int64 about 3x faster than sum(axis=0, dtype=...).
-            totals += np.einsum("ij->j", band_counts[:pixels], dtype=np.int64)
+            totals[1:] += np.einsum("ij->j", band_counts[:pixels], dtype=np.int64)
             if count_tests:
-                cl.enqueue_copy(queue, band_counts[:pixels], tests_buf)
-                test_totals += np.einsum("ij->j", band_counts[:pixels], dtype=np.int64)
+                cl.enqueue_copy(queue, band_tests[:pixels], tests_buf)
+                test_totals += np.einsum("ij->j", band_tests[:pixels], dtype=np.int64)
             if on_band is not None:
                 on_band(first + row0, image[row0:row0 + band])
             row0 += band

@@ -179,10 +179,15 @@ HOT REAL3 tree_radiance(const SceneRefs* s, const __global Camera* camera,
 
 // Pixel (x, y)'s radiance summed over its samples, each sample's ray tree traced ray by ray:
 // the sample's own radiance first, then the pixel's sum (a sample packet sums its lanes'
-// samples so, each lane's levels in the same order).
-HOT REAL3 pixel_radiance(const SceneRefs* s, const __global Camera* camera,
-                         const __global Params* params, int x, int y, uint pixel,
-                         int* secondary_rays, int* shadow_rays) {
+// samples so, each lane's levels in the same order). OUT_OF_LINE (issue 42: the cold build):
+// PoCL inlines a kernel's body into its work-item loop and that loop into both work-group
+// functions it makes (_pocl_kernel_render, _workgroup and _workgroup_fast), so the single-ray
+// renderer, all inlined into the render kernel, was optimised and compiled to machine code
+// three times at the first launch; out of line it is compiled once, for a call a pixel
+// (docs/acceleration.md, The kernel's body compiled once, 2026-12-05).
+OUT_OF_LINE REAL3 pixel_radiance(const SceneRefs* s, const __global Camera* camera,
+                                 const __global Params* params, int x, int y, uint pixel,
+                                 int* secondary_rays, int* shadow_rays) {
     REAL3 sum = (REAL3)(0, 0, 0), ambient = TO_REAL3(params->ambient);
     int spp = params->spp;
     SampleKey key = sample_key(params->seed, pixel, spp);

@@ -314,7 +314,7 @@ MUTATIONS: tuple[Mutation, ...] = (
       "f4((0.0, 0.0, 0.0), math.cos(math.radians(light.angle)))", LIGHTS),
     # kernels/ray_tree.h and background.h (sky)
     m("render.reflection_half", "kernels/ray_tree.h",
-      "return d - (REAL)2 * dot(d, n) * n;", "return d - dot(d, n) * n;",
+      "{ return d - (REAL)2 * dn * n; }", "{ return d - dn * n; }",
       *KERNEL_SCENES),
     m("render.tir_weight_lost", "kernels/ray_tree.h",
       "kr += kt;  // total internal reflection", "// total internal reflection", *KERNEL_SCENES,

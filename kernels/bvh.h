@@ -221,17 +221,8 @@ HOT int enter_instance(const SceneRefs* s, const Ray* world, Ray* group_ray, int
 }
 #endif
 
-// A query's start: no hit, t = inf.
-static inline Hit no_hit(void) {
-    Hit hit;
-    hit.t = REAL_INF;
-    hit.ref = -1;
-    hit.part = 0;
-    hit.b1 = 0;
-    hit.b2 = 0;
-    hit.instance = -1;
-    return hit;
-}
+// A query's start: no hit, t = inf (hit.h: DEFINE_NO_HIT).
+DEFINE_NO_HIT(static inline, Hit, REAL, int, no_hit, h.instance = -1;)
 
 #if HAS_PLANES
 // The planes' crossings into *hit: a short list, tested before the BVH (they are unbounded).

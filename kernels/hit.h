@@ -25,4 +25,19 @@ typedef struct {
 #endif
 } Surface;
 
+// A query's start: no hit, t = inf; for one ray (H: Hit) or every lane (PacketHit, T and M
+// its REALP and MASKP), written once (real.h, Twins). REST: what the one form has beyond the
+// other (a single ray's instance).
+#define DEFINE_NO_HIT(SPEC, H, T, M, NAME, REST) \
+    SPEC H NAME(void) {                          \
+        H h;                                     \
+        h.t = (T)(REAL_INF);                     \
+        h.ref = (M)(-1);                         \
+        h.part = (M)(0);                         \
+        h.b1 = (T)(0);                           \
+        h.b2 = (T)(0);                           \
+        REST                                     \
+        return h;                                \
+    }
+
 #endif

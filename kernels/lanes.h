@@ -362,15 +362,7 @@ HOT void store_hits(const PacketHit* h, HitLanes* r) {
 }
 
 // no_hit() in every lane.
-HOT PacketHit no_hit_lanes(void) {
-    PacketHit h;
-    h.t = (REALP)(REAL_INF);
-    h.b1 = (REALP)(0);
-    h.b2 = (REALP)(0);
-    h.ref = (MASKP)(-1);
-    h.part = (MASKP)(0);
-    return h;
-}
+DEFINE_NO_HIT(HOT, PacketHit, REALP, MASKP, no_hit_lanes, )
 
 DEFINE_DIFFERENCE_OF_PRODUCTS(HOT, REALP, difference_of_products_lanes)
 

@@ -193,6 +193,14 @@ STAGE bool light_ray(const SceneRefs* s, const Surface* sf, REAL3 n, int i, Samp
     return true;
 }
 
+// A light's diffuse and specular term, written once (real.h, Twins): for one ray (C: REAL3, its
+// channels at once; S: REAL) or one channel of a packet's lanes (C and S: REALP).
+#define DEFINE_PHONG_TERM(SPEC, C, S, NAME)                                                \
+    SPEC C NAME(S atten, C color, C filter, S diffuse, S ndl, C c, S specular, S spec) {  \
+        return atten * color * filter * (diffuse * ndl * c + specular * spec);           \
+    }
+DEFINE_PHONG_TERM(HOT, REAL3, REAL, phong_term)
+
 // Light i's diffuse and specular term, `filter` being the light its shadow ray let through.
 STAGE REAL3 light_term(const SceneRefs* s, int i, REAL3 n, REAL3 v, REAL3 c,
                        const __global Material* m, REAL3 l, REAL atten, REAL ndl, REAL3 filter) {
@@ -201,7 +209,7 @@ STAGE REAL3 light_term(const SceneRefs* s, int i, REAL3 n, REAL3 v, REAL3 c,
     REAL spec = rv > (REAL)0 ? phong_power(rv, TO_REAL(m->shininess)) : (REAL)0;
     REAL diffuse = TO_REAL(m->diffuse), specular = TO_REAL(m->specular);
     const __global Light* light = s->lights + i;
-    return atten * TO_REAL3(light->color) * filter * (diffuse * ndl * c + specular * spec);
+    return phong_term(atten, TO_REAL3(light->color), filter, diffuse, ndl, c, specular, spec);
 }
 
 #if SAMPLE_PACKETS
@@ -219,10 +227,12 @@ DEFINE_FALLOFF(REALP, falloff_lanes)
 // phong_power lane-wise where every lane's exponent is a whole number within [0, 4096] (the
 // caller checks): each lane's multiplications are phong_power's, in the same order.
 DEFINE_POWER_BY_SQUARING(REALP, MASKP, lane_mask, power_by_squaring_lanes)
+DEFINE_PHONG_TERM(HOT, REALP, REALP, phong_term_lanes)
 
 // light_term of a point light on every lane, with nothing filtered (an unblocked lane of an
-// opaque scene): the same arithmetic in the same order (the filter's factor 1 is exact), into
-// (tx, ty, tz). False where a lane of `lanes` has an exponent power_by_squaring_lanes cannot take.
+// opaque scene): the same arithmetic in the same order (phong_term's; the filter's factor 1 is
+// exact, and the compiler drops it), into (tx, ty, tz). False where a lane of `lanes` has an
+// exponent power_by_squaring_lanes cannot take.
 HOT bool light_term_lanes(const __global Light* light, const SurfaceLanes* q, const TermLanes* m,
                           MASKP lanes, REALP lx, REALP ly, REALP lz, REALP atten, REALP ndl,
                           REALP* tx, REALP* ty, REALP* tz) {
@@ -237,9 +247,10 @@ HOT bool light_term_lanes(const __global Light* light, const SurfaceLanes* q, co
                      ? power_by_squaring_lanes(rv, TO_MASKP(whole ? m->shininess : (REALP)(0)))
                      : (REALP)(0);
     REAL3 color = TO_REAL3(light->color);
-    *tx = atten * color.x * (m->diffuse * ndl * m->cx + m->specular * spec);
-    *ty = atten * color.y * (m->diffuse * ndl * m->cy + m->specular * spec);
-    *tz = atten * color.z * (m->diffuse * ndl * m->cz + m->specular * spec);
+    const REALP one = (REALP)(1);
+    *tx = phong_term_lanes(atten, (REALP)(color.x), one, m->diffuse, ndl, m->cx, m->specular, spec);
+    *ty = phong_term_lanes(atten, (REALP)(color.y), one, m->diffuse, ndl, m->cy, m->specular, spec);
+    *tz = phong_term_lanes(atten, (REALP)(color.z), one, m->diffuse, ndl, m->cz, m->specular, spec);
     return true;
 }
 

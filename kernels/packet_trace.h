@@ -129,6 +129,9 @@ HOT void add_sky_lanes(const __global Params* params, const __global float4* tex
     VSTOREP(out ? rz + lz : rz, 0, pk->radiance[2]);
 }
 
+// mirror lane by lane, one component at a time.
+DEFINE_MIRROR(HOT, REALP, REALP, mirror_lanes)
+
 // The reflected rays of the lanes `lit` (their shading points q, their materials'
 // reflectances in m, their rays `rays`, of weight (wx, wy, wz)) where the material reflects
 // and the ray is not too faint, as spawn_secondary makes them but lane-wise: mirror,
@@ -145,10 +148,10 @@ OUT_OF_LINE int reflect_lanes(const __global Params* params, int lit, const Surf
     MASKP faint = fmax(fmax(rx, ry), rz) < (REAL)params->min_weight;
     int bits = lit & lane_mask((kr > (REAL)0) & ~faint);
     if (!bits) return 0;
-    REALP twice = (REAL)2 * dot_lanes(rays->dx, rays->dy, rays->dz, q->nx, q->ny, q->nz);
-    REALP dx = rays->dx - twice * q->nx;
-    REALP dy = rays->dy - twice * q->ny;
-    REALP dz = rays->dz - twice * q->nz;
+    REALP dn = dot_lanes(rays->dx, rays->dy, rays->dz, q->nx, q->ny, q->nz);
+    REALP dx = mirror_lanes(rays->dx, dn, q->nx);
+    REALP dy = mirror_lanes(rays->dy, dn, q->ny);
+    REALP dz = mirror_lanes(rays->dz, dn, q->nz);
     REALP ox, oy, oz;
     offset_origin_lanes(q, dx, dy, dz, &ox, &oy, &oz);
     *rays = make_ray_packet(ox, oy, oz, dx, dy, dz, bits);

@@ -42,8 +42,14 @@ static inline REAL medium_ior(const SceneRefs* s, const RayTask* task) {
                                  : (REAL)1;
 }
 
-// The mirror image of direction d in a surface of normal n.
-static inline REAL3 mirror(REAL3 d, REAL3 n) { return d - (REAL)2 * dot(d, n) * n; }
+// The mirror image of direction d in a surface of normal n (dn = d . n): for one ray (C: REAL3,
+// its components at once; S: REAL) or one component of a packet's lanes (C and S: REALP),
+// written once (real.h, Twins).
+#define DEFINE_MIRROR(SPEC, C, S, NAME) \
+    SPEC C NAME(C d, S dn, C n) { return d - (REAL)2 * dn * n; }
+DEFINE_MIRROR(static inline, REAL3, REAL, mirror_of)
+
+static inline REAL3 mirror(REAL3 d, REAL3 n) { return mirror_of(d, dot(d, n), n); }
 
 // A ray too faint to matter (weight below min_weight) is not traced: inside glass the tree
 // doubles at every level, so deep trees need the cut.

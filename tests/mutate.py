@@ -257,7 +257,8 @@ MUTATIONS: tuple[Mutation, ...] = (
     m("shading.no_scene_ambient", "kernels/direct.h",
       "TO_REAL(m->ambient) * c * ambient_light", "TO_REAL(m->ambient) * c", *KERNEL_SCENES),
     m("shading.shadow_filter_ignored", "kernels/lights.h",
-      "atten * TO_REAL3(light->color) * filter *", "atten * TO_REAL3(light->color) *",
+      "phong_term(atten, TO_REAL3(light->color), filter,",
+      "phong_term(atten, TO_REAL3(light->color), (REAL3)(1),",
       *KERNEL_SCENES),
     m("shading.offset_one_side", "kernels/surface.h",
       "return dot(w, sf->n_g) > (REAL)0 ? sf->p + d * sf->n_g : sf->p - d * sf->n_g;",
@@ -313,7 +314,7 @@ MUTATIONS: tuple[Mutation, ...] = (
       "f4((0.0, 0.0, 0.0), math.cos(math.radians(light.angle)))", LIGHTS),
     # kernels/ray_tree.h and background.h (sky)
     m("render.reflection_half", "kernels/ray_tree.h",
-      "return d - (REAL)2 * dot(d, n) * n;", "return d - dot(d, n) * n;",
+      "{ return d - (REAL)2 * dn * n; }", "{ return d - dn * n; }",
       *KERNEL_SCENES),
     m("render.tir_weight_lost", "kernels/ray_tree.h",
       "kr += kt;  // total internal reflection", "// total internal reflection", *KERNEL_SCENES,

@@ -191,7 +191,15 @@ HOT REAL3 tree_radiance(const SceneRefs* s, const __global Camera* camera,
 // renderer, all inlined into the render kernel, was optimised and compiled to machine code
 // three times at the first launch; out of line it is compiled once, for a call a pixel
 // (docs/acceleration.md, The kernel's body compiled once, 2026-12-05).
-OUT_OF_LINE REAL3 pixel_radiance(const SceneRefs* s, const __global Camera* camera,
+// Where a driver may pack work-items into a vector's lanes (IMPLICIT_VECTORIZATION, an Intel
+// CPU runtime's knob), a call stops it from packing the kernel, and on GPU targets a call
+// costs a stack of private memory (the amdgcn build's scratch grew by it): inlined there.
+#if IMPLICIT_VECTORIZATION || defined(__AMDGCN__) || defined(__NVPTX__)
+#define PIXEL_RADIANCE_LINKAGE HOT
+#else
+#define PIXEL_RADIANCE_LINKAGE OUT_OF_LINE
+#endif
+PIXEL_RADIANCE_LINKAGE REAL3 pixel_radiance(const SceneRefs* s, const __global Camera* camera,
                                  const __global Params* params, int x, int y, uint pixel,
                                  int* secondary_rays, int* shadow_rays) {
     REAL3 sum = (REAL3)(0, 0, 0), ambient = TO_REAL3(params->ambient);

@@ -253,8 +253,9 @@ class ClraySide:
         # made once, so a run times the kernel alone. The same kernel and arguments.
         import pyopencl as cl
 
+        from clray.device.buffers import read_only_buffer
         from clray.device.context import queue_for
-        from clray.device.launch import _buffer, _scene_buffers
+        from clray.device.launch import _scene_buffers
         from clray.device.program import build_program
 
         program, _ = build_program(self.device, self.packed.config)
@@ -267,8 +268,8 @@ class ClraySide:
         self.hits_buf = cl.Buffer(ctx, cl.mem_flags.WRITE_ONLY, self.n * 16)
         self.refs_buf = cl.Buffer(ctx, cl.mem_flags.WRITE_ONLY, self.n * 4)
         # Held here: a kernel's arguments do not keep their buffers alive.
-        self.buffers = [_buffer(ctx, o4), _buffer(ctx, d4), *_scene_buffers(ctx, self.packed),
-                        self.hits_buf, self.refs_buf]
+        self.buffers = [read_only_buffer(ctx, o4), read_only_buffer(ctx, d4),
+                        *_scene_buffers(ctx, self.packed), self.hits_buf, self.refs_buf]
         self.kernel = cl.Kernel(program, "intersect_rays")
         self.kernel.set_args(*self.buffers)
 

@@ -83,3 +83,21 @@ def test_tiny_run_agrees_with_embree(cl_device: cl.Device, tmp_path: Path,
     assert 0.05 < hits["hit_fraction"] < 0.5
     assert report["render_hits"]["mask_mismatches"] <= 1
     assert report["instructions"] is None
+
+
+def test_clray_side_runs_without_embreex(cl_device: cl.Device, tmp_path: Path) -> None:
+    # The clray half of the benchmark uses the launch module's internals, which CI's runs
+    # without embreex would otherwise never import: its walk and its render must see the same
+    # hits on the same rays.
+    from clray.scene.load import load_scene
+
+    scene_file = embree_benchmark.write_scene(tmp_path / "mesh", 48, 27, 3)
+    scene = load_scene(scene_file)
+    origins, directions = embree_benchmark.primary_rays(scene, 48, 27)
+    side = embree_benchmark.ClraySide(scene, cl_device, origins, directions, 0)
+    walked = side.intersect()
+    rendered = side.render()
+    assert rendered["rays"] == 48 * 27
+    hit = np.isfinite(walked["t"]) & (walked["t"] > 0)
+    assert 0 < hit.sum() < hit.size
+    assert np.count_nonzero(hit != rendered["hit"]) <= 1

@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 
 from clray.errors import SceneError
+from clray.host_memory import small_pages
 from clray.scene.assets import meshes_read_once
 from clray.scene.files import UnreadableFile, read_regular
 from clray.scene.gltf import GLTF_SUFFIXES, GltfCamera, read_gltf_camera
@@ -62,6 +63,7 @@ def is_mesh_file(path: Path) -> bool:
     return path.suffix.lower() in MESH_SUFFIXES
 
 
+@small_pages
 def model_scene_data(path: Path, view: str = DEFAULT_VIEW, ground: bool = False,
                      up: str = DEFAULT_UP) -> dict:
     """Scene data for the mesh file `path` (relative names are relative to the working

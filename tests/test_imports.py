@@ -12,7 +12,8 @@ PACKAGE = Path(__file__).resolve().parent.parent / "clray"
 # Lowest first. A module belongs to the first layer with a prefix that names it or a package
 # above it; within a layer imports go either way.
 LAYERS: list[tuple[str, tuple[str, ...]]] = [
-    ("base", ("clray.errors", "clray.metrics", "clray.knobs", "clray.output", "clray.vectors")),
+    ("base", ("clray.errors", "clray.metrics", "clray.knobs", "clray.output", "clray.vectors",
+              "clray.host_memory")),
     ("shapes/lights", ("clray.shapes", "clray.lights")),
     ("scene/accel", ("clray.scene", "clray.accel")),
     ("device", ("clray.device",)),

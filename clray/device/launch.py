@@ -15,6 +15,7 @@ from clray.device.context import describe, device_type, queue_for
 from clray.device.pack import PackedScene
 from clray.device.program import build_program
 from clray.errors import DeviceError
+from clray.host_memory import small_pages
 from clray.knobs import DEFAULT_TUNING, TRAVERSAL_SCHEMES, Tuning
 
 # Launches are sized by the time they take, not by their work, so that progress advances
@@ -163,6 +164,7 @@ def _launch_of(packed: PackedScene, device: cl.Device, rows: tuple[int, int] | N
                    int(params["spp"]), first, end - first)
 
 
+@small_pages
 def render_packed(packed: PackedScene, device: cl.Device,
                   progress: Callable[[int, int], None] | None = None,
                   rows: tuple[int, int] | None = None,
@@ -253,6 +255,7 @@ PASS_OUTPUTS = (("geometry", np.float32), ("position", np.float32), ("albedo", n
                 ("indices", np.int32))
 
 
+@small_pages
 def render_passes_packed(packed: PackedScene, device: cl.Device,
                          rows: tuple[int, int] | None = None
                          ) -> tuple[dict[str, np.ndarray], dict]:

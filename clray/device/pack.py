@@ -17,6 +17,7 @@ from clray.accel.wide import LEAF_FIELD_MASK, PACKET_WIDTH, WideBvh, collapse, f
 from clray.device import layout as L
 from clray.device.bvh_builder import build_bvh_from, float_prims
 from clray.device.program import KernelConfig
+from clray.host_memory import small_pages
 from clray.knobs import DEFAULT_TUNING, Tuning
 from clray.lights import LIGHT_OF, LIGHTS
 from clray.scene import model as M
@@ -635,6 +636,7 @@ def _stack_size_option(stack_size: int) -> int:
     return max(16, -(-stack_size // 16) * 16)
 
 
+@small_pages
 def pack_scene(scene: M.Scene, *, width: int, height: int, spp: int, max_depth: int,
                seed: int, min_weight: float = 0.0, precision: str = "float",
                bvh_width: int = 8, queue: cl.CommandQueue | None = None,

@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import Any
 
 from clray.errors import SceneError, plural
+from clray.host_memory import small_pages
 from clray.scene import limits as L
 from clray.scene.animation import Animation, parse_animation, put, show_path
 from clray.scene.assets import Assets
@@ -62,6 +63,7 @@ def _read_scene_file(path: Path) -> Any:
     return parse_scene_text(read_regular(path, L.MAX_SCENE_BYTES), suffix, path)
 
 
+@small_pages
 def scene_from_dict(data: dict, path: str | Path | None = None) -> Scene:
     """Validate parsed scene data. `path` names the file in errors; texture, mesh and included
     scene files are relative to its folder (the working directory when there is no path)."""

@@ -1,0 +1,87 @@
+"""clray/host_memory.py: the big stages run with numpy's huge-page advice off, put it back
+after, and leave it alone where the user set NUMPY_MADVISE_HUGEPAGE."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from types import SimpleNamespace
+
+import pytest
+
+from clray import host_memory
+from clray.device import launch, pack
+from clray.scene.load import load_scene
+
+try:  # numpy 2
+    from numpy._core.multiarray import _get_madvise_hugepage, _set_madvise_hugepage
+except ImportError:  # numpy 1.26
+    from numpy.core.multiarray import _get_madvise_hugepage, _set_madvise_hugepage
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+@pytest.fixture
+def advice_on(monkeypatch: pytest.MonkeyPatch):
+    monkeypatch.delenv("NUMPY_MADVISE_HUGEPAGE", raising=False)
+    before = _set_madvise_hugepage(True)
+    yield
+    _set_madvise_hugepage(before)
+
+
+class _Seen(Exception):
+    """Raised from inside a stage with the advice it saw."""
+
+    def __init__(self, advice: bool) -> None:
+        super().__init__(advice)
+        self.advice = advice
+
+
+def _probe(*_args, **_kwargs):
+    raise _Seen(_get_madvise_hugepage())
+
+
+def test_a_stage_runs_without_the_advice_and_puts_it_back(advice_on: None) -> None:
+    seen = []
+    inner = host_memory.small_pages(lambda: seen.append(_get_madvise_hugepage()))
+    outer = host_memory.small_pages(lambda: (inner(), seen.append(_get_madvise_hugepage())))
+    outer()
+    assert seen == [False, False]
+    assert _get_madvise_hugepage() is True
+
+
+def test_the_advice_returns_when_a_stage_raises(advice_on: None) -> None:
+    with pytest.raises(_Seen) as seen:
+        host_memory.small_pages(_probe)()
+    assert seen.value.advice is False
+    assert _get_madvise_hugepage() is True
+
+
+def test_a_users_setting_is_left_alone(advice_on: None, monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv("NUMPY_MADVISE_HUGEPAGE", "1")
+    with pytest.raises(_Seen) as seen:
+        host_memory.small_pages(_probe)()
+    assert seen.value.advice is True
+
+
+def test_loading_packing_and_rendering_run_in_small_pages(
+        advice_on: None, monkeypatch: pytest.MonkeyPatch) -> None:
+    scene_file = ROOT / "scenes" / "spheres.toml"
+    monkeypatch.setattr("clray.scene.load.ObjectParser", _probe)
+    with pytest.raises(_Seen) as seen:
+        load_scene(scene_file)
+    assert seen.value.advice is False
+    monkeypatch.undo()
+    monkeypatch.delenv("NUMPY_MADVISE_HUGEPAGE", raising=False)
+    scene = load_scene(scene_file)
+    with monkeypatch.context() as patched:
+        patched.setattr(pack, "_by_kind", _probe)
+        with pytest.raises(_Seen) as seen:
+            pack.pack_scene(scene, width=8, height=8, spp=1, max_depth=1, seed=0)
+        assert seen.value.advice is False
+    monkeypatch.setattr(launch, "band_capacity", _probe)
+    packed = pack.pack_scene(scene, width=8, height=8, spp=1, max_depth=1, seed=0, passes=True)
+    for stage in (launch.render_packed, launch.render_passes_packed):
+        with pytest.raises(_Seen) as seen:
+            stage(packed, SimpleNamespace(global_mem_size=1 << 30, max_mem_alloc_size=1 << 28))
+        assert seen.value.advice is False
+    assert _get_madvise_hugepage() is True

@@ -120,7 +120,6 @@ __kernel void root_task(__global const Prim *prims, int n, __global BuildTask *r
     BuildTask t;
     bound(prims, 0, n, &t);
     t.pos = 0;
-    t.flip = 0;
     *root = t;
 }
 
@@ -259,21 +258,49 @@ static void write_leaf(const BuildTask *t, __global const Prim *src,
     for (int i = t->start; i < t->start + t->count; i++) order[i] = prim_index(src[i]);
 }
 
+// The task's primitives [start, start + count) stably partitioned in place, the nl whose bin
+// (hi.w) is at most `best` first. The smaller side waits in `stash` while the other is
+// compacted towards its end of the range (forwards for the left side, backwards for the
+// right), then is copied in after it: at most count / 2 primitives, at stash[start / 2 ..],
+// which no other task's range reaches (floor(s / 2) + floor(c / 2) <= floor((s + c) / 2)), so
+// the stash is half the primitives where a second buffer of them all took twice that.
+static void partition(__global Prim *prims, __global Prim *stash, int start, int count,
+                      int nl, int best) {
+    __global Prim *wait = stash + start / 2;
+    int end = start + count, k = 0;
+    if (count - nl <= nl) {
+        int il = start;
+        for (int i = start; i < end; i++) {
+            Prim p = prims[i];
+            if (as_int(p.hi.w) > best) wait[k++] = p;
+            else prims[il++] = p;
+        }
+        for (int j = 0; j < k; j++) prims[il + j] = wait[j];
+    } else {
+        int ir = end;
+        for (int i = end - 1; i >= start; i--) {
+            Prim p = prims[i];
+            if (as_int(p.hi.w) > best) prims[--ir] = p;
+            else wait[k++] = p;
+        }
+        for (int j = 0; j < k; j++) prims[start + j] = wait[k - 1 - j];
+    }
+}
+
 // Writes the task's node. Returns 0 for a leaf, or 1 after stably partitioning its primitives
-// (left side first) into the other buffer and filling in the two child tasks, whose nodes are a
+// (left side first, in place) and filling in the two child tasks, whose nodes are a
 // pair of slots (left, then right: the node's `first` is the left one). A task over primitives
 // [s, s + c) has slots 2s + 1 .. 2s + 2c - 2 for the nodes below it (at most 2c - 2): split
 // after nl primitives, its children's ranges are those of [s, s + nl) and [s + nl, s + c), and
 // the two slots between them, 2(s + nl) - 1 and 2(s + nl), are the pair's. That is where
 // split_level puts it (next 0); build_subtrees instead takes pairs in turn from the start of its
 // task's range (*next), so a subtree's nodes are written together, not strewn over its range.
-static int process(const BuildTask *t, __global Prim *buf0, __global Prim *buf1,
+static int process(const BuildTask *t, __global Prim *prims, __global Prim *stash,
                    __global BinaryNode *nodes, __global int *order, int max_leaf,
                    int sah_max_leaf, int *next, BuildTask *left, BuildTask *right) {
-    __global Prim *src = t->flip ? buf1 : buf0, *dst = t->flip ? buf0 : buf1;
     int start = t->start, count = t->count;
     if (count <= max_leaf) {
-        write_leaf(t, src, nodes, order);
+        write_leaf(t, prims, nodes, order);
         return 0;
     }
     float ext[3] = {t->chi.x - t->clo.x, t->chi.y - t->clo.y, t->chi.z - t->clo.z};
@@ -285,48 +312,41 @@ static int process(const BuildTask *t, __global Prim *buf0, __global Prim *buf1,
     // Coincident centroids (or a reciprocal that overflows): split at the median instead.
     if (!(isfinite(scale) && scale > 0.0f)) {
         if (count <= sah_max_leaf) {
-            write_leaf(t, src, nodes, order);
+            write_leaf(t, prims, nodes, order);
             return 0;
         }
-        for (int i = start; i < start + count; i++) dst[i] = src[i];
-        bound(dst, start, count / 2, left);
-        bound(dst, start + count / 2, count - count / 2, right);
+        bound(prims, start, count / 2, left);
+        bound(prims, start + count / 2, count - count / 2, right);
     } else {
         Bins bins;
-        fill_bins(&bins, src, start, count, axis, cmin, scale);
+        fill_bins(&bins, prims, start, count, axis, cmin, scale);
         double best_cost;
         int best = best_split(&bins, count, &best_cost);
         double a_node = half_area(t->lo, t->hi);
         if (count <= sah_max_leaf
             && TRAVERSAL_COST * a_node + best_cost >= (double)packets(count) * a_node) {
-            write_leaf(t, src, nodes, order);
+            write_leaf(t, prims, nodes, order);
             return 0;
         }
         bin_child(left, &bins, 0, best, start);
         bin_child(right, &bins, best + 1, N_BINS - 1, start + left->count);
-        int il = start, ir = right->start;
-        for (int i = start; i < start + count; i++) {
-            Prim p = src[i];
-            if (as_int(p.hi.w) > best) dst[ir++] = p;
-            else dst[il++] = p;
-        }
+        partition(prims, stash, start, count, left->count, best);
     }
     int kids = next ? (*next += 2) - 2 : 2 * (start + left->count) - 1;
     write_node(nodes, t, kids, 0);
     left->pos = kids;
     right->pos = kids + 1;
-    left->flip = right->flip = !t->flip;
     return 1;
 }
 
 // One level: every task split once, its children (count -1: none) to out[2g], out[2g + 1].
 __kernel void split_level(__global const BuildTask *in, __global BuildTask *out,
-                          __global Prim *buf0, __global Prim *buf1,
+                          __global Prim *prims, __global Prim *stash,
                           __global BinaryNode *nodes, __global int *order, int max_leaf,
                           int sah_max_leaf) {
     int g = get_global_id(0);
     BuildTask t = in[g], l, r;
-    if (!process(&t, buf0, buf1, nodes, order, max_leaf, sah_max_leaf, 0, &l, &r)) {
+    if (!process(&t, prims, stash, nodes, order, max_leaf, sah_max_leaf, 0, &l, &r)) {
         l.count = -1;
         r.count = -1;
     }
@@ -335,15 +355,15 @@ __kernel void split_level(__global const BuildTask *in, __global BuildTask *out,
 }
 
 // Each task's whole subtree, its nodes in the pairs of slots from the start of its range on.
-__kernel void build_subtrees(__global const BuildTask *tasks, __global Prim *buf0,
-                             __global Prim *buf1, __global BinaryNode *nodes,
+__kernel void build_subtrees(__global const BuildTask *tasks, __global Prim *prims,
+                             __global Prim *stash, __global BinaryNode *nodes,
                              __global int *order, int max_leaf, int sah_max_leaf) {
     BuildTask stack[STACK];
     int sp = 0;
     BuildTask cur = tasks[get_global_id(0)], l, r;
     int next = 2 * cur.start + 1;
     for (;;) {
-        if (process(&cur, buf0, buf1, nodes, order, max_leaf, sah_max_leaf, &next, &l, &r)) {
+        if (process(&cur, prims, stash, nodes, order, max_leaf, sah_max_leaf, &next, &l, &r)) {
             if (l.count >= r.count) {
                 stack[sp++] = l;
                 cur = r;

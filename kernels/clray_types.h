@@ -179,12 +179,10 @@ typedef struct {
 } BuildPrim;
 
 // A subtree the device build has still to split: its bounds and centroid bounds, its
-// primitives, its node's slot, and `flip`: which of the two primitive buffers holds its
-// primitives. Each split moves them to the other one, so a stable partition is one pass and
-// needs no copy back.
+// primitives and its node's slot (then padding, as the float4s align it anyway).
 typedef struct {
     float4 lo, hi, clo, chi;
-    int start, count, pos, flip;
+    int start, count, pos, pad0;
 } BuildTask;
 
 // A leaf's triangles sit first in its prim_refs slots, in packets of PACKET_WIDTH (padded with

@@ -165,7 +165,7 @@ def test_pack_of_a_mesh_peaks_within_its_device_bytes_beside_the_build(cl_device
     finally:
         tracemalloc.stop()
     build = bvh_builder.build_buffer_bytes(n, 4)
-    own = build["prims"] + build["prims_swap"] + build["nodes"] + build["order"]
+    own = build["prims"] + build["prims_stash"] + build["nodes"] + build["order"]
     assert peak - own <= sum(packed.device_bytes().values())
 
 

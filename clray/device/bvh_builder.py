@@ -125,7 +125,14 @@ def build_buffer_bytes(n: int, bound_bytes: int = 8) -> dict[str, int]:
     slots = 2 * n - 1
     prim = _prim_dtype(bound_bytes).itemsize
     return {"lo": 3 * bound_bytes * n, "hi": 3 * bound_bytes * n, "prims": prim * n,
-            "prims_swap": prim * n, "nodes": BINARY_NODE.itemsize * slots, "order": 4 * n}
+            "prims_stash": prim * _stash_count(n), "nodes": BINARY_NODE.itemsize * slots,
+            "order": 4 * n}
+
+
+def _stash_count(n: int) -> int:
+    """Primitives the partition's stash holds: the smaller side of any split, n // 2 at most
+    (one where that is none: an empty buffer is not a buffer)."""
+    return max(n // 2, 1)
 
 
 def _prim_dtype(bound_bytes: int) -> np.dtype:
@@ -160,8 +167,10 @@ def build(queue: cl.CommandQueue, bounds: list[np.ndarray], max_leaf: int,
     # reads host memory in place; elsewhere they are bounds like any others.
     given = (_prims_of(lo, hi) if float_bounds and reads_host_memory(queue.device)
              else None)
+    # The primitives, partitioned in place, and the stash of the smaller side of a split
+    # (kernels/bvh_build.cl, partition): half as many.
     prims = [np.empty(n, dtype=_prim_dtype(bound_bytes)) if given is None else given,
-             np.empty(n, dtype=_prim_dtype(bound_bytes))]
+             np.empty(_stash_count(n), dtype=_prim_dtype(bound_bytes))]
     # Uninitialised: the pages a subtree's range does not reach are never touched.
     nodes = np.empty(slots, dtype=BINARY_NODE)
     order = np.empty(n, dtype=np.int32)

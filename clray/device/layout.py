@@ -77,11 +77,11 @@ TRIANGLE_PACKET = _struct([(f"{c}{k}", _F4) for k in range(3) for c in "xyz"])
 SPHERE_PACKET = _struct([("x", _F4), ("y", _F4), ("z", _F4), ("radius", _F4)])
 
 # The device BVH build's records (kernels/bvh_build.cl): a primitive's bounds rounded outwards
-# and its centroid, its index in the centroid's w; a subtree still to build, `flip` saying which
-# of the two primitive buffers holds its primitives.
+# and its centroid, its index in the centroid's w; a subtree still to build (the kernels' struct
+# ends in padding to its float4 alignment).
 BUILD_PRIM = _struct([("lo", _F4), ("hi", _F4), ("c", _F4)])
 BUILD_TASK = _struct([("lo", _F4), ("hi", _F4), ("clo", _F4), ("chi", _F4), ("start", "<i4"),
-                      ("count", "<i4"), ("pos", "<i4"), ("flip", "<i4")])
+                      ("count", "<i4"), ("pos", "<i4"), ("pad0", "<i4")])
 
 # Struct name in clray_types.h -> dtype; the layout test walks this.
 STRUCTS: dict[str, np.dtype] = {

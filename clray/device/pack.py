@@ -7,6 +7,7 @@ authored far from the origin keeps its precision near the eye.
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field, make_dataclass
 
 import numpy as np
@@ -32,6 +33,12 @@ DEVICE_BUILD_MIN = 20000
 # Rows (vertices, triangles, packets) that the pack's gathers take at a time: their
 # temporaries stay a few MiB however large the mesh (docs/scale.md, Where the memory goes).
 _CHUNK = 1 << 16
+
+
+def _by_chunks(n: int, work: Callable[[slice], None]) -> None:
+    """work(rows) for each _CHUNK of range(n)."""
+    for at in range(0, n, _CHUNK):
+        work(slice(at, min(at + _CHUNK, n)))
 
 
 def _device_bytes(self: PackedScene) -> dict[str, int]:
@@ -373,7 +380,7 @@ def _pack_bvh(bounded: _Bounded, n_groups: int, instances: list[M.Instance],
     if one_per_leaf:
         wide = fill_nodes(wide)
     # Nodes: the scene's tree first, then each group's. Slots: the groups' first, so that the
-    # scene's leaves of instances come last and need no packets (_triangle_packets).
+    # scene's leaves of instances come last and need no packets (_slot_triangles).
     slot_offsets = np.cumsum([0] + [len(tree.prim_refs) for tree in group_trees])
     nodes, roots = [_appended(wide, 0, int(slot_offsets[-1]))], []
     n_nodes = len(wide.nodes)
@@ -399,48 +406,50 @@ def _through_last(is_kind: np.ndarray) -> int:
     return int(holding[-1]) + 1 if len(holding) else 0
 
 
-def _slot_records(prim_refs: np.ndarray, tris: _Triangles) -> tuple[np.ndarray, np.ndarray]:
-    """The triangles' (v0, v1, v2, material) records one a slot of prim_refs, as (packets,
-    PACKET_WIDTH, 4) int32 through the last packet that holds a triangle (zeros in the slots
-    that hold none), and which slots hold one."""
+def _slot_triangles(prim_refs: np.ndarray, tris: _Triangles) -> tuple[np.ndarray, _Triangles]:
+    """The triangle packets, one per PACKET_WIDTH slots of prim_refs through the last packet
+    that holds a triangle (the kernel reads none past it), and the triangles as the device
+    keeps them (_in_slot_order).
+
+    A chunk of packets at a time: each slot's (v0, v1, v2, material) record is taken (one take
+    of 16-byte rows, not three of a strided field), its corners go into the packet, and the
+    record is kept (the slot's material word alone where the device keeps no more). Records of
+    every slot at once took 16 B a slot beside the packets, at the pack's peak."""
     slots = prim_refs.reshape(-1, PACKET_WIDTH)
     is_tri = (slots >= 0) & ((slots >> L.PRIM_TYPE_SHIFT) == L.PRIM_TRIANGLE)
-    # None past the last packet that holds a triangle: the kernel never reads them.
     used = _through_last(is_tri)
     slots, is_tri = slots[:used], is_tri[:used]
-    # Each lane's whole record at once: one take of 16-byte rows, not three of a strided field.
-    records = np.take(tris.triangles.view(np.int32).reshape(-1, 4),
-                      np.where(is_tri, slots & L.PRIM_INDEX_MASK, 0), axis=0)
-    records[~is_tri] = 0
-    return records, is_tri
+    rows = tris.triangles.view(np.int32).reshape(-1, 4)
+    whole = bool(len(tris.normals) or len(tris.uvs) or len(tris.colors))
+    kept = np.empty((used, PACKET_WIDTH, 4) if whole else (used, PACKET_WIDTH), np.int32)
+    packets = np.empty((used, 3, 3, PACKET_WIDTH), dtype=np.float32)
 
-
-def _triangle_packets(records: np.ndarray, is_tri: np.ndarray, vertices: np.ndarray
-                      ) -> np.ndarray:
-    """One TrianglePacket per PACKET_WIDTH slots: the corners of the slots' triangles
-    (_slot_records), coordinate by coordinate, NaN in slots that hold no triangle."""
-    packets = np.empty((len(records), 3, 3, PACKET_WIDTH), dtype=np.float32)
-    # Corner by corner, whole vertex rows taken (np.take along axis 0: a fancy index with a
-    # slice is several times slower), then the record's order: corner, axis, lane. A chunk of
-    # packets at a time: a corner of every slot took 16 B a slot, beside its int64 index,
-    # and the packets that are not all triangles (a leaf's last) two copies of theirs.
-    for at in range(0, len(records), _CHUNK):
-        part = slice(at, at + _CHUNK)
+    def gather(part: slice) -> None:
+        records = np.take(rows, np.where(is_tri[part], slots[part] & L.PRIM_INDEX_MASK, 0),
+                          axis=0)
+        records[~is_tri[part]] = 0
+        # Corner by corner, whole vertex rows taken (np.take along axis 0: a fancy index with
+        # a slice is several times slower), then the packet's order: corner, axis, lane.
         for k in range(3):
-            corner = np.take(vertices, records[part, :, k], axis=0)
+            corner = np.take(tris.vertices, records[:, :, k], axis=0)
             packets[part, k] = corner[..., :3].transpose(0, 2, 1)
         # NaN in the lanes of the packets that are not all triangles.
-        partial = at + np.flatnonzero(~is_tri[part].all(axis=1))
+        partial = part.start + np.flatnonzero(~is_tri[part].all(axis=1))
         packets[partial] = np.where(is_tri[partial, None, None, :], packets[partial], np.nan)
-    return packets.reshape(len(records), -1).view(L.TRIANGLE_PACKET).ravel()
+        kept[part] = records if whole else records[..., 3]
+    _by_chunks(used, gather)
+    return (packets.reshape(used, -1).view(L.TRIANGLE_PACKET).ravel(),
+            _in_slot_order(kept, is_tri, tris))
 
 
-def _in_slot_order(records: np.ndarray, is_tri: np.ndarray, tris: _Triangles) -> _Triangles:
-    """The device's triangle records and vertex arrays: the records one a slot, as the
-    kernels read them (a hit's part is its slot), and the vertex normals, uvs and colours
-    renumbered in the order the slots use them. A ray's hit then reads a record and vertices
-    near its neighbours' instead of wherever the file put them: on the 327,680-triangle
-    bumpy mesh, 1 spp, this took a third of the render kernel's cache misses to memory
+def _in_slot_order(kept: np.ndarray, is_tri: np.ndarray, tris: _Triangles) -> _Triangles:
+    """The device's triangle records and vertex arrays from `kept`, the slots' records
+    (packets, PACKET_WIDTH, 4), or their material words (packets, PACKET_WIDTH) where the
+    triangles have no vertex normals, uvs or colours: the records one a slot, as the kernels
+    read them (a hit's part is its slot), and the vertex normals, uvs and colours renumbered
+    in the order the slots use them. A ray's hit then reads a record and vertices near its
+    neighbours' instead of wherever the file put them: on the 327,680-triangle bumpy mesh,
+    1 spp, this took a third of the render kernel's cache misses to memory
     (docs/acceleration.md). The same numbers, so the same images.
 
     Without vertex normals, uvs and colours the kernels read nothing of a record but its
@@ -449,26 +458,25 @@ def _in_slot_order(records: np.ndarray, is_tri: np.ndarray, tris: _Triangles) ->
     and where every triangle's word is the same (a model of one material), that word alone
     (KernelConfig.has_one_triangle_material)."""
     normals, uvs, colors = tris.normals, tris.uvs, tris.colors
-    if not (len(normals) or len(uvs) or len(colors)):
-        words = np.ascontiguousarray(records[..., 3])
-        first = words[is_tri][:1]
-        if len(first) and np.all(words[is_tri] == first[0]):
-            return _Triangles(_records(L.TRIANGLE, 0), tris.vertices, normals, uvs, colors,
-                              first, one_material=True)
-        return _Triangles(_records(L.TRIANGLE, 0), tris.vertices, normals, uvs, colors,
-                          words.ravel())
+    if kept.ndim == 2:
+        words = kept.ravel()
+        if is_tri.any():
+            first = words[np.argmax(is_tri.ravel())]
+            if not np.any((kept != first) & is_tri):
+                return _Triangles(_records(L.TRIANGLE, 0), tris.vertices, normals, uvs,
+                                  colors, np.array([first], dtype=np.int32), one_material=True)
+        return _Triangles(_records(L.TRIANGLE, 0), tris.vertices, normals, uvs, colors, words)
     # Each vertex keyed by a slot that uses it (numpy's assignment keeps one of them: any is
     # near the others), unused vertices last; the new numbering sorts the keys.
-    key = np.full(len(tris.vertices), records.shape[0] * PACKET_WIDTH, dtype=np.int64)
-    uses = records[..., :3]
+    key = np.full(len(tris.vertices), kept.shape[0] * PACKET_WIDTH, dtype=np.int64)
+    uses = kept[..., :3]
     key[uses[is_tri].ravel()] = np.repeat(np.flatnonzero(is_tri.ravel()), 3)
     order = np.argsort(key, kind="stable")
     renumber = np.empty(len(order), dtype=np.int32)
     renumber[order] = np.arange(len(order), dtype=np.int32)
-    records = records.copy()
-    records[..., :3] = np.where(is_tri[..., None], renumber[uses], 0)
+    kept[..., :3] = np.where(is_tri[..., None], renumber[uses], 0)
     normals, uvs, colors = (a[order] if len(a) else a for a in (normals, uvs, colors))
-    triangles = np.ascontiguousarray(records).reshape(-1, 4).view(L.TRIANGLE).ravel()
+    triangles = kept.reshape(-1, 4).view(L.TRIANGLE).ravel()
     return _Triangles(triangles, tris.vertices, normals, uvs, colors)
 
 
@@ -657,9 +665,7 @@ def pack_scene(scene: M.Scene, *, width: int, height: int, spp: int, max_depth: 
     wide, instance_records, bvh_s = _pack_bvh(bounded, len(groups), instances, group_of, eye,
                                               bvh_width, queue, tuning)
     if len(tris.triangles):
-        records, is_tri = _slot_records(wide.prim_refs, tris)
-        triangle_packets = _triangle_packets(records, is_tri, tris.vertices)
-        tris = _in_slot_order(records, is_tri, tris)
+        triangle_packets, tris = _slot_triangles(wide.prim_refs, tris)
     else:
         triangle_packets = _records(L.TRIANGLE_PACKET, 0)
     sphere_packets = _sphere_packets(wide.prim_refs, shapes[SPHERE.buffer])

@@ -147,8 +147,31 @@ class _Placed:
 
 
 @dataclass(frozen=True)
+class _Faces:
+    """The scene's triangles in its order, as (v0, v1, v2, material word) records: written out
+    (F, 4) with `word` None, or, where the scene's triangles are one mesh of one material, the
+    mesh's own int32 faces (F, 3) and that word: no copy of them (16 B a triangle) beside the
+    mesh through the BVH build."""
+
+    corners: np.ndarray  # int32, vertex indices in the first three columns
+    word: int | None = None
+
+    def __len__(self) -> int:
+        return len(self.corners)
+
+    def take(self, index: np.ndarray) -> np.ndarray:
+        """The records of triangles `index`, shaped index.shape + (4,)."""
+        if self.word is None:
+            return np.take(self.corners, index, axis=0)
+        records = np.empty((*index.shape, 4), dtype=np.int32)
+        records[..., :3] = np.take(self.corners, index, axis=0)
+        records[..., 3] = self.word
+        return records
+
+
+@dataclass(frozen=True)
 class _Triangles:
-    triangles: np.ndarray  # TRIANGLE records: the scene's order, then the device's (_in_slot_order)
+    faces: _Faces  # the scene's triangles, in its order
     vertices: np.ndarray  # (V, 4) float32, camera-relative
     normals: np.ndarray
     uvs: np.ndarray
@@ -157,6 +180,8 @@ class _Triangles:
     # (_in_slot_order), or the one word every triangle has; else empty.
     material_words: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int32))
     one_material: bool = False  # material_words is the one word of every triangle
+    # The device's TRIANGLE records one a slot (_in_slot_order), where it keeps them.
+    triangles: np.ndarray = field(default_factory=lambda: _records(L.TRIANGLE, 0))
 
 
 def _pack_planes(objs: list[M.Plane], eye: np.ndarray) -> np.ndarray:
@@ -188,7 +213,7 @@ def _pack_triangles(objs: _Placed, bounded: _Bounded) -> _Triangles:
     """Loose triangles and meshes as one indexed triangle list over shared vertex arrays."""
     if not objs.objects:
         empty = np.zeros((0, 4), dtype=np.float32)
-        return _Triangles(_records(L.TRIANGLE, 0), empty, empty.copy(),
+        return _Triangles(_Faces(np.zeros((0, 4), np.int32)), empty, empty.copy(),
                           np.zeros((0, 2), np.float32), empty.copy())
     sources = []  # (vertices, faces, normals, uvs, material or one per face) per object
     for obj in objs.objects:
@@ -205,9 +230,10 @@ def _pack_triangles(objs: _Placed, bounded: _Bounded) -> _Triangles:
     for (v, *_), origin, off in zip(sources, objs.origins, offsets, strict=True):
         # Made relative in float64, then rounded, a chunk at a time: no float64 copy of
         # every vertex beside the float32 ones.
-        for at in range(0, len(v), _CHUNK):
-            dest = slice(off + at, off + min(at + _CHUNK, len(v)))
-            vertices[dest, :3] = v[at:at + _CHUNK] - origin
+        def relative(part: slice, v: np.ndarray = v, origin: np.ndarray = origin,
+                     off: int = off) -> None:
+            vertices[off + part.start:off + part.stop, :3] = v[part] - origin
+        _by_chunks(len(v), relative)
     has_normals = any(src[2] is not None for src in sources)
     has_uvs = any(src[3] is not None for src in sources)
     normals = np.zeros((n_vertices if has_normals else 0, 4), dtype=np.float32)
@@ -215,35 +241,44 @@ def _pack_triangles(objs: _Placed, bounded: _Bounded) -> _Triangles:
     tints = [getattr(obj, "colors", None) for obj in objs.objects]
     colors = np.zeros((n_vertices if any(c is not None for c in tints) else 0, 4), np.float32)
     n_faces = [len(src[1]) for src in sources]
-    triangles = _records(L.TRIANGLE, sum(n_faces))
-    # The records as rows of four int32 (v0, v1, v2, material), written source by source: no
-    # joined face list beside them (24 bytes a triangle, twice).
-    rows = triangles.view(np.int32).reshape(-1, 4)
-    start = 0
-    for (v, f, n, u, material), off, c, k in zip(sources, offsets, tints, n_faces, strict=True):
-        rows[start:start + k, :3] = f + off if off else f
-        bits = material | (L.TRIANGLE_SMOOTH if n is not None else 0)
-        bits |= L.TRIANGLE_UV if u is not None else 0
+    faces = _scene_faces(sources, offsets, tints)
+    for (v, _, n, u, _), off, c in zip(sources, offsets, tints, strict=True):
         if c is not None:
-            bits |= L.TRIANGLE_COLOR
             colors[off:off + len(v), :3] = c
-        rows[start:start + k, 3] = bits
-        start += k
         if n is not None:
             normals[off:off + len(v), :3] = n
             normals[off:off + len(v), 3] = 1.0
         if u is not None:
             uvs[off:off + len(v)] = u
-    lo, hi = _triangle_bounds(vertices, rows)
+    lo, hi = _triangle_bounds(vertices, faces.corners)
     bounded.add(L.PRIM_TRIANGLE, lo, hi, objs.owners, n_faces)
-    return _Triangles(triangles, vertices, normals, uvs, colors)
+    return _Triangles(faces, vertices, normals, uvs, colors)
 
 
-def _triangle_bounds(vertices: np.ndarray, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(lo, hi) (F, 3) float32 of the triangles whose records are `rows` (F, 4) int32: views
-    of the device build's primitive records (bvh_builder.float_prims), which a build over
-    these triangles alone takes as they are: no bounds beside its primitives (24 B a
-    triangle) and no pass that copies them in.
+def _scene_faces(sources: list[tuple], offsets: np.ndarray, tints: list) -> _Faces:
+    """The sources' triangles as _Faces: one mesh of one material keeps its int32 faces;
+    otherwise the records are written source by source (no joined face list beside them)."""
+    words = [material | (L.TRIANGLE_SMOOTH if n is not None else 0)
+             | (L.TRIANGLE_UV if u is not None else 0) | (L.TRIANGLE_COLOR if c is not None else 0)
+             for (_, _, n, u, material), c in zip(sources, tints, strict=True)]
+    faces = sources[0][1]
+    if len(sources) == 1 and np.ndim(words[0]) == 0 and faces.dtype == np.int32 \
+            and faces.flags.c_contiguous:
+        return _Faces(faces, int(words[0]))
+    rows = np.empty((sum(len(src[1]) for src in sources), 4), dtype=np.int32)
+    start = 0
+    for (_, f, *_), off, word in zip(sources, offsets, words, strict=True):
+        rows[start:start + len(f), :3] = f + off if off else f
+        rows[start:start + len(f), 3] = word
+        start += len(f)
+    return _Faces(rows)
+
+
+def _triangle_bounds(vertices: np.ndarray, corners: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(lo, hi) (F, 3) float32 of the triangles whose vertex indices are the first three
+    columns of `corners` (F, 3 or 4) int32: views of the device build's primitive records
+    (bvh_builder.float_prims), which a build over these triangles alone takes as they are: no
+    bounds beside its primitives (24 B a triangle) and no pass that copies them in.
 
     Corner by corner: elementwise minima of three (F, 4) arrays take a tenth of the time of a
     reduction over the middle axis of (F, 3, 3), and float32 minima widened are the same
@@ -252,12 +287,13 @@ def _triangle_bounds(vertices: np.ndarray, rows: np.ndarray) -> tuple[np.ndarray
     bounds stay float32 (the BVH builds take them as the same numbers as their float64 copies
     would be). A chunk of triangles at a time: the corners of them all took 48 B a triangle
     beside the bounds."""
-    lo, hi = float_prims(len(rows))
-    for at in range(0, len(rows), _CHUNK):
-        part = rows[at:at + _CHUNK]
-        c0, c1, c2 = (np.take(vertices, part[:, k], axis=0) for k in range(3))
-        hi[at:at + _CHUNK] = np.maximum(np.maximum(c0, c1), c2)[:, :3]
-        lo[at:at + _CHUNK] = np.minimum(np.minimum(c0, c1, out=c0), c2, out=c0)[:, :3]
+    lo, hi = float_prims(len(corners))
+
+    def bound(part: slice) -> None:
+        c0, c1, c2 = (np.take(vertices, corners[part, k], axis=0) for k in range(3))
+        hi[part] = np.maximum(np.maximum(c0, c1), c2)[:, :3]
+        lo[part] = np.minimum(np.minimum(c0, c1, out=c0), c2, out=c0)[:, :3]
+    _by_chunks(len(corners), bound)
     return lo, hi
 
 
@@ -419,14 +455,12 @@ def _slot_triangles(prim_refs: np.ndarray, tris: _Triangles) -> tuple[np.ndarray
     is_tri = (slots >= 0) & ((slots >> L.PRIM_TYPE_SHIFT) == L.PRIM_TRIANGLE)
     used = _through_last(is_tri)
     slots, is_tri = slots[:used], is_tri[:used]
-    rows = tris.triangles.view(np.int32).reshape(-1, 4)
     whole = bool(len(tris.normals) or len(tris.uvs) or len(tris.colors))
     kept = np.empty((used, PACKET_WIDTH, 4) if whole else (used, PACKET_WIDTH), np.int32)
     packets = np.empty((used, 3, 3, PACKET_WIDTH), dtype=np.float32)
 
     def gather(part: slice) -> None:
-        records = np.take(rows, np.where(is_tri[part], slots[part] & L.PRIM_INDEX_MASK, 0),
-                          axis=0)
+        records = tris.faces.take(np.where(is_tri[part], slots[part] & L.PRIM_INDEX_MASK, 0))
         records[~is_tri[part]] = 0
         # Corner by corner, whole vertex rows taken (np.take along axis 0: a fancy index with
         # a slice is several times slower), then the packet's order: corner, axis, lane.
@@ -463,9 +497,9 @@ def _in_slot_order(kept: np.ndarray, is_tri: np.ndarray, tris: _Triangles) -> _T
         if is_tri.any():
             first = words[np.argmax(is_tri.ravel())]
             if not np.any((kept != first) & is_tri):
-                return _Triangles(_records(L.TRIANGLE, 0), tris.vertices, normals, uvs,
-                                  colors, np.array([first], dtype=np.int32), one_material=True)
-        return _Triangles(_records(L.TRIANGLE, 0), tris.vertices, normals, uvs, colors, words)
+                return _Triangles(tris.faces, tris.vertices, normals, uvs, colors,
+                                  np.array([first], dtype=np.int32), one_material=True)
+        return _Triangles(tris.faces, tris.vertices, normals, uvs, colors, words)
     # Each vertex keyed by a slot that uses it (numpy's assignment keeps one of them: any is
     # near the others), unused vertices last; the new numbering sorts the keys.
     key = np.full(len(tris.vertices), kept.shape[0] * PACKET_WIDTH, dtype=np.int64)
@@ -477,7 +511,7 @@ def _in_slot_order(kept: np.ndarray, is_tri: np.ndarray, tris: _Triangles) -> _T
     kept[..., :3] = np.where(is_tri[..., None], renumber[uses], 0)
     normals, uvs, colors = (a[order] if len(a) else a for a in (normals, uvs, colors))
     triangles = kept.reshape(-1, 4).view(L.TRIANGLE).ravel()
-    return _Triangles(triangles, tris.vertices, normals, uvs, colors)
+    return _Triangles(tris.faces, tris.vertices, normals, uvs, colors, triangles=triangles)
 
 
 def _sphere_packets(prim_refs: np.ndarray, spheres: np.ndarray) -> np.ndarray:
@@ -664,7 +698,7 @@ def pack_scene(scene: M.Scene, *, width: int, height: int, spp: int, max_depth: 
     tris = _pack_triangles(kinds[M.Triangle], bounded)
     wide, instance_records, bvh_s = _pack_bvh(bounded, len(groups), instances, group_of, eye,
                                               bvh_width, queue, tuning)
-    if len(tris.triangles):
+    if len(tris.faces):
         triangle_packets, tris = _slot_triangles(wide.prim_refs, tris)
     else:
         triangle_packets = _records(L.TRIANGLE_PACKET, 0)

@@ -18,6 +18,16 @@
 #include "fresnel.h"
 #include "background.h"
 
+// SERIAL_WORK_ITEMS: the driver runs a work-group's work-items one after another, a pass of a
+// loop each on one CPU thread (PoCL's CPU device; Intel's CPU runtime as the render kernels ask
+// it, IMPLICIT_VECTORIZATION 0), not side by side in a vector's lanes (that runtime packing
+// them) or in a GPU's (the amdgcn and nvptx targets).
+#if IMPLICIT_VECTORIZATION || defined(__AMDGCN__) || defined(__NVPTX__)
+#define SERIAL_WORK_ITEMS 0
+#else
+#define SERIAL_WORK_ITEMS 1
+#endif
+
 // The media a ray can be inside at once (nested glass); a deeper one is not recorded.
 #define MEDIA_DEPTH 4
 // Depth first, a task pushes at most two children (refraction and reflection), so the stack
@@ -185,30 +195,35 @@ HOT REAL3 tree_radiance(const SceneRefs* s, const __global Camera* camera,
 
 // Pixel (x, y)'s radiance summed over its samples, each sample's ray tree traced ray by ray:
 // the sample's own radiance first, then the pixel's sum (a sample packet sums its lanes'
-// samples so, each lane's levels in the same order). OUT_OF_LINE (issue 42: the cold build):
-// PoCL inlines a kernel's body into its work-item loop and that loop into both work-group
-// functions it makes (_pocl_kernel_render, _workgroup and _workgroup_fast), so the single-ray
-// renderer, all inlined into the render kernel, was optimised and compiled to machine code
-// three times at the first launch; out of line it is compiled once, for a call a pixel
-// (docs/acceleration.md, The kernel's body compiled once, 2026-12-05).
+// samples so, each lane's levels in the same order). (first_o, first_d) is sample 0's primary
+// ray (sample_ray), which the render kernel makes ahead of the walks (render.cl).
+// OUT_OF_LINE (issue 42: the cold build): PoCL inlines a kernel's body into its work-item
+// loop and that loop into both work-group functions it makes (_pocl_kernel_render, _workgroup
+// and _workgroup_fast), so the single-ray renderer, all inlined into the render kernel, was
+// optimised and compiled to machine code three times at the first launch; out of line it is
+// compiled once, for a call a pixel (docs/acceleration.md, The kernel's body compiled once,
+// 2026-12-05). Inlined it ran 14 to 17 % faster, for cold builds 1.4 to 2.3 times as long (The
+// render kernel's camera rays ahead of its walks, 2026-12-05).
 // Where a driver may pack work-items into a vector's lanes (IMPLICIT_VECTORIZATION, an Intel
 // CPU runtime's knob), a call stops it from packing the kernel, and on GPU targets a call
 // costs a stack of private memory (the amdgcn build's scratch grew by it): inlined there.
-#if IMPLICIT_VECTORIZATION || defined(__AMDGCN__) || defined(__NVPTX__)
-#define PIXEL_RADIANCE_LINKAGE HOT
-#else
+#if SERIAL_WORK_ITEMS
 #define PIXEL_RADIANCE_LINKAGE OUT_OF_LINE
+#else
+#define PIXEL_RADIANCE_LINKAGE HOT
 #endif
 PIXEL_RADIANCE_LINKAGE REAL3 pixel_radiance(const SceneRefs* s, const __global Camera* camera,
                                  const __global Params* params, int x, int y, uint pixel,
-                                 int* secondary_rays, int* shadow_rays) {
+                                 REAL3 first_o, REAL3 first_d, int* secondary_rays,
+                                 int* shadow_rays) {
     REAL3 sum = (REAL3)(0, 0, 0), ambient = TO_REAL3(params->ambient);
     int spp = params->spp;
     SampleKey key = sample_key(params->seed, pixel, spp);
     for (int sample = 0; sample < spp; ++sample) {
         key.sample = sample;
         RayTask stack[RAY_STACK_SIZE];
-        stack[0] = primary_task(camera, params, x, y, sample, pixel);
+        stack[0] = sample == 0 ? root_task(first_o, first_d)
+                               : primary_task(camera, params, x, y, sample, pixel);
         sum += tree_radiance(s, camera, params, key, ambient, stack, 1, (REAL3)(0, 0, 0),
                              secondary_rays, shadow_rays);
     }

@@ -71,7 +71,21 @@ __kernel WORK_ITEM_LANES void render(SCENE_BUFFER_PARAMS, __global float* image,
     __local GroupPosts posts;
     Group g;
     group_init(&g, &posts, get_local_id(1) * get_local_size(0) + get_local_id(0));
+#elif SAMPLE_PACKETS
+    if (x >= width || y >= height) return;
 #else
+    // Sample 0's camera ray, made by every work-item of the group (one past the image's edge
+    // too: no return before a barrier) before any walks. A CPU driver runs the work-items
+    // one after another in a loop, which it splits at the barrier: the camera rays' chains of
+    // dependent divisions and square root then overlap from pixel to pixel in a loop of their
+    // own, where ahead of each walk the walk waited on them (docs/acceleration.md, The render
+    // kernel's camera rays ahead of its walks, 2026-12-05). A GPU runs its work-items side
+    // by side already: no barrier there.
+    REAL3 first_o, first_d;
+    sample_ray(camera, params, x, y, 0, (uint)(y * width + x), &first_o, &first_d);
+#if SERIAL_WORK_ITEMS
+    barrier(CLK_LOCAL_MEM_FENCE);
+#endif
     if (x >= width || y >= height) return;
 #endif
 
@@ -92,7 +106,8 @@ __kernel WORK_ITEM_LANES void render(SCENE_BUFFER_PARAMS, __global float* image,
     REAL3 sum = packet_pixel_radiance(&s, camera, params, x, y, pixel, &secondary_rays,
                                       &shadow_rays);
 #else
-    REAL3 sum = pixel_radiance(&s, camera, params, x, y, pixel, &secondary_rays, &shadow_rays);
+    REAL3 sum = pixel_radiance(&s, camera, params, x, y, pixel, first_o, first_d,
+                               &secondary_rays, &shadow_rays);
 #endif
     REAL3 mean = sum / (REAL)spp;
     // The output buffers hold this launch's band of rows only, so that an image of any size

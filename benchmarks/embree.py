@@ -55,6 +55,7 @@ more. Measures only: nothing is asserted.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import importlib.util
 import json
 import platform
@@ -258,7 +259,8 @@ class ClraySide:
         from clray.device.launch import _scene_buffers
         from clray.device.program import build_program
 
-        program, _ = build_program(self.device, self.packed.config)
+        program, _ = build_program(self.device,
+                                   dataclasses.replace(self.packed.config, intersect_rays=True))
         self.queue = queue_for(self.device)
         ctx = self.queue.context
         self.n = len(origins)

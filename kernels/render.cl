@@ -1,5 +1,6 @@
 // The kernels: render (one work-item per pixel; the host launches bands of rows),
-// intersect_rays (closest hits of given rays, for tests and tools) and, in a passes build only,
+// in an intersection build intersect_rays (closest hits of given rays, for tests and tools)
+// and, in a passes build only,
 // render_passes (a pixel's passes, passes.h). What they run is in the
 // headers: a pixel's samples and their ray trees (ray_tree.h: pixel_radiance) over the scene's
 // queries (bvh.h) and shading (shading.h, direct.h), or the same by the sample-packet and
@@ -16,7 +17,8 @@
 // HAS_SPOT_LIGHTS, HAS_AREA_LIGHTS (0 or 1): the scene has spot lights, area lights.
 // HAS_INSTANCES (0 or 1): the scene places groups by transforms (kernels/bvh.h walks into them).
 // PASSES (0 or 1): the build has render_passes, for a render that asks for passes; without it
-// the program is the same text as before passes existed.
+// the program is the same text as before passes existed. INTERSECT_RAYS (0 or 1): the build has
+// intersect_rays (clray.device.launch.intersect_rays).
 // TRAVERSAL: TRAVERSAL_SINGLE (every ray walks the BVH alone), TRAVERSAL_SAMPLE_PACKET (a
 // pixel's samples' primary and shadow rays walk it in packets of PACKET_LANES, kernels/packet.h;
 // PACKET_MIN_LANES: below it, lanes go on ray by ray) or TRAVERSAL_GROUP_PACKET (a work-group's
@@ -125,9 +127,12 @@ __kernel WORK_ITEM_LANES void render(SCENE_BUFFER_PARAMS, __global float* image,
 }
 
 // Closest hit for given rays, for tests and tools: t (inf on a miss), the primitive reference
-// and the surface's outward geometric normal. Uses the same scene buffers as render. With
+// and the surface's outward geometric normal. In the intersection build only (INTERSECT_RAYS):
+// in every render's program, clang optimised it at clBuildProgram for nothing (issue 42, the
+// cold build). Uses the same scene buffers as render. With
 // sample packets a work-item takes PACKET_LANES rays as one packet, with group packets a
 // work-group's rays walk together (the host pads the last group).
+#if INTERSECT_RAYS
 __kernel WORK_ITEM_LANES void intersect_rays(__global const float4* origins,
                                              __global const float4* directions,
                                              SCENE_BUFFER_PARAMS, __global float4* hits,
@@ -167,6 +172,7 @@ __kernel WORK_ITEM_LANES void intersect_rays(__global const float4* origins,
     report_hit(&s, &ray, &hit, hits + i, refs + i);
 #endif
 }
+#endif
 
 #if PASSES
 // A pixel's passes (passes.h), one work-item per pixel over a band of rows as render's: normal

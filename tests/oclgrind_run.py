@@ -34,10 +34,11 @@ VARIANTS = (("sphere_textbook", True), ("offset_fixed_eps", True),
             ("stage_profile", True), ("implicit_vectorization", True))
 VARIANT_SCENES = ("primitives.toml", "fresnel.toml")
 # Every pass, on the scene with the most primitive kinds: the passes build (KernelConfig.passes),
-# which the scenes alone do not switch on.
+# which the scenes alone do not switch on; likewise intersections() runs the intersection build
+# (KernelConfig.intersect_rays, which clray.device.launch.intersect_rays asks for).
 PASSES = ("depth", "normal", "albedo", "position", "object", "material", "instance")
 PASS_SCENE = "primitives.toml"
-RUN_SWITCHES = ("passes",)
+RUN_SWITCHES = ("passes", "intersect_rays")
 
 
 def nv_compute_capability_if_nvidia(device: cl.Device) -> tuple[int, int] | None:

@@ -8,6 +8,7 @@ render kernel's `render.so`."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import shutil
@@ -17,6 +18,9 @@ from pathlib import Path
 
 import pyopencl as cl
 import pytest
+
+from clray.device.context import context_for
+from clray.device.program import KernelConfig, build_program, kernel_source
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -56,3 +60,31 @@ def test_single_ray_renderer_is_compiled_once(cl_device: cl.Device, tmp_path: Pa
     # renderer: 602 to 1,000 bytes against pixel_radiance's 9,069 on PoCL 3.1 (AVX-512).
     for name, size in kernels.items():
         assert size < sizes["pixel_radiance"] / 4, (name, size, sizes["pixel_radiance"])
+
+
+def test_hot_helpers_leave_no_copy_in_the_program(cl_device: cl.Device) -> None:
+    """A HOT helper is static (kernels/real.h): once clang's -O2 at clBuildProgram has inlined
+    it, it is dropped, not kept, optimised and written beside its inlined copies (issue 42,
+    docs/acceleration.md: The cold build's optimiser). Checked in the program's binary, which on
+    PoCL is its program.bc: an out-of-line helper's name is there, an inlined HOT one's is not."""
+    if cl_device.platform.name.strip() != "Portable Computing Language":
+        pytest.skip("the program's binary is PoCL's program.bc")
+    source = (kernel_source("real.h") +
+              "\nHOT int hot_probe(int x) { return x * 3; }\n"
+              "OUT_OF_LINE int kept_probe(int x) { return x + 1; }\n"
+              "__kernel void probe(__global int* a) { a[0] = kept_probe(hot_probe(a[0])); }\n")
+    program = cl.Program(context_for(cl_device), source).build()
+    binary = bytes(program.get_info(cl.program_info.BINARIES)[0])
+    assert b"kept_probe" in binary, "the binary holds no function names: the check is blind"
+    assert b"hot_probe" not in binary, "an inlined HOT helper was kept in program.bc"
+
+
+def test_a_render_build_has_no_intersect_rays(cl_device: cl.Device) -> None:
+    """intersect_rays is in the intersection build only (KernelConfig.intersect_rays): in a
+    render's program clang optimised it at clBuildProgram for nothing (issue 42)."""
+    config = KernelConfig(has_spheres=True, has_triangles=True, max_depth=2)
+    render, _ = build_program(cl_device, config)
+    assert render.get_info(cl.program_info.KERNEL_NAMES).split(";") == ["render"]
+    both, _ = build_program(cl_device, dataclasses.replace(config, intersect_rays=True))
+    assert sorted(both.get_info(cl.program_info.KERNEL_NAMES).split(";")) == [
+        "intersect_rays", "render"]

@@ -108,7 +108,7 @@ def test_kernels_take_the_scene_buffers_where_the_host_sets_them(cl_ctx: cl.Cont
     # render: the buffers first; intersect_rays: after the rays' origins and directions
     # (clray.device.launch sets the arguments in this order).
     program = cl.Program(cl_ctx, kernel_source()).build(
-        options=[*KernelConfig().options(), "-cl-kernel-arg-info"])
+        options=[*KernelConfig(intersect_rays=True).options(), "-cl-kernel-arg-info"])
     assert _scene_parameters(cl.Kernel(program, "render"), 0) == _HOST_BUFFERS
     assert _scene_parameters(cl.Kernel(program, "intersect_rays"), 2) == _HOST_BUFFERS
 

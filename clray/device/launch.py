@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
+from dataclasses import replace
 from typing import NamedTuple
 
 import numpy as np
@@ -305,7 +306,7 @@ def intersect_rays(packed: PackedScene, device: cl.Device, origins: np.ndarray,
     t = inf and ref = -1 on a miss. For tests and tools; runs the render kernel's code. With
     sample packets (packed.config.traversal), rays k * lanes .. k * lanes + lanes - 1 walk the
     BVH as one packet; with group packets, each work-group's group_side ** 2 rays."""
-    program, _ = build_program(device, packed.config)
+    program, _ = build_program(device, replace(packed.config, intersect_rays=True))
     queue = queue_for(device)
     ctx = queue.context
     n = len(origins)

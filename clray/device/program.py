@@ -111,6 +111,11 @@ class KernelConfig(_ShapeSwitches):
     # The passes build (RenderSettings.aovs): render_passes too, beside the render kernel. A
     # render without passes builds without it, the very program it built before passes.
     passes: bool = False
+    # The intersection build (clray.device.launch.intersect_rays, for tests and tools): the
+    # intersect_rays kernel too, beside render. A render builds without it: clang's -O2 at
+    # clBuildProgram optimised its copy of the closest-hit walk in every render's cold build
+    # (issue 42: textured 0.06 CPU-s; docs/acceleration.md, The cold build's optimiser).
+    intersect_rays: bool = False
     # The stage-profiling build (benchmarks/stages.py): the renderer's stages (STAGE in
     # kernels/real.h) stay functions of their own, for a profiler to count.
     stage_profile: bool = False

@@ -6,8 +6,10 @@ authored far from the origin keeps its precision near the eye.
 
 from __future__ import annotations
 
+import os
 import time
 from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field, make_dataclass
 
 import numpy as np
@@ -36,9 +38,18 @@ _CHUNK = 1 << 16
 
 
 def _by_chunks(n: int, work: Callable[[slice], None]) -> None:
-    """work(rows) for each _CHUNK of range(n)."""
-    for at in range(0, n, _CHUNK):
-        work(slice(at, min(at + _CHUNK, n)))
+    """work(rows) for each _CHUNK of range(n), on as many threads as the process may run at
+    once: numpy's gathers, minima and copies let go of the GIL, and a chunk writes its own rows
+    alone, so the pack's passes over a big mesh use every core, as the device build does."""
+    parts = [slice(at, min(at + _CHUNK, n)) for at in range(0, n, _CHUNK)]
+    threads = min(len(parts), len(os.sched_getaffinity(0)))
+    if threads <= 1:
+        for part in parts:
+            work(part)
+        return
+    with ThreadPoolExecutor(threads) as pool:
+        for _ in pool.map(work, parts):  # drained, so that a chunk's error is raised here
+            pass
 
 
 def _device_bytes(self: PackedScene) -> dict[str, int]:

@@ -6,12 +6,15 @@ from __future__ import annotations
 from pathlib import Path
 from types import SimpleNamespace
 
+import numpy as np
 import pyopencl as cl
 import pytest
 
+from clray.device import program
+from clray.device.launch import render_packed
 from clray.device.pack import pack_scene
 from clray.device.policy import device_plan
-from clray.device.program import KernelConfig
+from clray.device.program import GPU_BUILD_OPTIONS, KernelConfig, device_build_options
 from clray.knobs import TRAVERSAL_SCHEMES, TRAVERSAL_TABLE, Tuning, TuningError
 from clray.render import RenderSettings, pack_for, plan_for, resolved_settings
 from clray.scene.load import load_scene
@@ -138,3 +141,28 @@ def test_a_render_packs_what_its_plan_says(cl_device) -> None:
                                        **plan.pack_arguments()).config
     assert (packed.config.traversal, packed.config.bvh_width) == (plan.traversal,
                                                                   plan.bvh_width)
+
+
+def test_gpu_devices_are_built_as_gpus_whatever_their_compiler_defines() -> None:
+    # NVIDIA's compiler names neither __NVPTX__ nor __AMDGCN__: the host says a GPU is one.
+    def device(kind: int, platform: str = "NVIDIA CUDA") -> SimpleNamespace:
+        return SimpleNamespace(type=kind, platform=SimpleNamespace(name=platform))
+
+    assert device_build_options(device(cl.device_type.GPU)) == GPU_BUILD_OPTIONS
+    assert device_build_options(device(cl.device_type.CPU, "Portable Computing Language")) == ()
+    assert "-DSERIAL_WORK_ITEMS=0" not in device_build_options(device(cl.device_type.CPU,
+                                                                      "Oclgrind"))
+
+
+@pytest.mark.parametrize("scene_name", ["spheres", "glass"])
+def test_the_gpu_build_renders_the_cpu_builds_image(cl_device: cl.Device, scene_name: str,
+                                                     monkeypatch: pytest.MonkeyPatch) -> None:
+    # The render kernel as a GPU builds it (no barrier before the walks, the renderer inlined),
+    # run on this CPU device: the same image, bit for bit, as the CPU's build.
+    scene = load_scene(ROOT / "scenes" / f"{scene_name}.toml")
+    settings = RenderSettings(width=64, height=36, spp=1)
+    cpu_image, _ = render_packed(pack_for(scene, settings, cl_device), cl_device)
+    monkeypatch.setattr(program, "device_build_options", lambda device: GPU_BUILD_OPTIONS)
+    gpu_image, _ = render_packed(pack_for(scene, settings, cl_device), cl_device)
+    assert any(GPU_BUILD_OPTIONS[0] in options for *_, options in program._programs)
+    assert np.array_equal(cpu_image, gpu_image, equal_nan=True)

@@ -46,9 +46,17 @@ def is_oclgrind(device: cl.Device) -> bool:
     return device.platform.name.strip() == "Oclgrind"
 
 
+# A GPU runs a work-group's work-items side by side (kernels/ray_tree.h, SERIAL_WORK_ITEMS):
+# no barrier to overlap camera rays, and the renderer inlined. Said by the host, since a
+# vendor's compiler need not define the target macros (__NVPTX__, __AMDGCN__) clang's do.
+GPU_BUILD_OPTIONS = ("-DSERIAL_WORK_ITEMS=0",)
+
+
 def device_build_options(device: cl.Device) -> tuple[str, ...]:
     """Options a device's compiler needs whatever the configuration."""
-    return OCLGRIND_BUILD_OPTIONS if is_oclgrind(device) else ()
+    if is_oclgrind(device):
+        return OCLGRIND_BUILD_OPTIONS
+    return GPU_BUILD_OPTIONS if device.type & cl.device_type.GPU else ()
 
 
 # The analytic shapes' switches (HAS_SPHERES, ..., HAS_TORI: Shape.switch), fields of every

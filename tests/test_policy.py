@@ -144,7 +144,7 @@ def test_a_render_packs_what_its_plan_says(cl_device) -> None:
 
 
 def test_gpu_devices_are_built_as_gpus_whatever_their_compiler_defines() -> None:
-    # NVIDIA's compiler names neither __NVPTX__ nor __AMDGCN__: the host says a GPU is one.
+    # A vendor's compiler need not define clang's __NVPTX__ or __AMDGCN__: the host says so.
     def device(kind: int, platform: str = "NVIDIA CUDA") -> SimpleNamespace:
         return SimpleNamespace(type=kind, platform=SimpleNamespace(name=platform))
 

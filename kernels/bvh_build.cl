@@ -114,6 +114,7 @@ static void bound(__global const Prim *prims, int start, int count, BuildTask *t
     }
     t->lo = lo; t->hi = hi; t->clo = clo; t->chi = chi;
     t->start = start; t->count = count;
+    t->pad0 = 0;  // written, so that a task is copied with no uninitialised word
 }
 
 __kernel void root_task(__global const Prim *prims, int n, __global BuildTask *root) {
@@ -241,6 +242,7 @@ static void bin_child(BuildTask *c, const Bins *bins, int from, int to, int star
         c->count += bins->count[k];
     }
     c->start = start;
+    c->pad0 = 0;  // written, so that a task is copied with no uninitialised word
 }
 
 static void write_node(__global BinaryNode *nodes, const BuildTask *t, int first, int count) {

@@ -199,7 +199,8 @@ HOT REAL3 tree_radiance(const SceneRefs* s, const __global Camera* camera,
 // Pixel (x, y)'s radiance summed over its samples, each sample's ray tree traced ray by ray:
 // the sample's own radiance first, then the pixel's sum (a sample packet sums its lanes'
 // samples so, each lane's levels in the same order). (first_o, first_d) is sample 0's primary
-// ray (sample_ray), which the render kernel makes ahead of the walks (render.cl).
+// ray (sample_ray), which the render kernel makes ahead of the walks where SERIAL_WORK_ITEMS
+// (render.cl); elsewhere it is unused.
 // OUT_OF_LINE (issue 42: the cold build): PoCL inlines a kernel's body into its work-item
 // loop and that loop into both work-group functions it makes (_pocl_kernel_render, _workgroup
 // and _workgroup_fast), so the single-ray renderer, all inlined into the render kernel, was
@@ -225,8 +226,8 @@ PIXEL_RADIANCE_LINKAGE REAL3 pixel_radiance(const SceneRefs* s, const __global C
     for (int sample = 0; sample < spp; ++sample) {
         key.sample = sample;
         RayTask stack[RAY_STACK_SIZE];
-        stack[0] = sample == 0 ? root_task(first_o, first_d)
-                               : primary_task(camera, params, x, y, sample, pixel);
+        stack[0] = SERIAL_WORK_ITEMS && sample == 0
+            ? root_task(first_o, first_d) : primary_task(camera, params, x, y, sample, pixel);
         sum += tree_radiance(s, camera, params, key, ambient, stack, 1, (REAL3)(0, 0, 0),
                              secondary_rays, shadow_rays);
     }

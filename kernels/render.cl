@@ -83,9 +83,12 @@ __kernel WORK_ITEM_LANES void render(SCENE_BUFFER_PARAMS, __global float* image,
     // own, where ahead of each walk the walk waited on them (docs/acceleration.md, The render
     // kernel's camera rays ahead of its walks, 2026-12-05). A GPU runs its work-items side
     // by side already: no barrier there.
-    REAL3 first_o, first_d;
-    sample_ray(camera, params, x, y, 0, (uint)(y * width + x), &first_o, &first_d);
+    // Elsewhere sample 0's ray is made with the others (pixel_radiance): Intel's runtime,
+    // packing work-items (IMPLICIT_VECTORIZATION) with the stages out of line (STAGE_PROFILE),
+    // rendered wrong pixels from the ray made here (tests/test_oclgrind.py).
+    REAL3 first_o = (REAL3)(0, 0, 0), first_d = (REAL3)(0, 0, 0);
 #if SERIAL_WORK_ITEMS
+    sample_ray(camera, params, x, y, 0, (uint)(y * width + x), &first_o, &first_d);
     barrier(CLK_LOCAL_MEM_FENCE);
 #endif
     if (x >= width || y >= height) return;

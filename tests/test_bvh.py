@@ -208,6 +208,17 @@ def test_rejects_one_bad_bound_past_the_first_rows(dtype, value, where, message)
         checked_bounds(bounds["lo"], bounds["hi"], 4, None)
 
 
+def test_values_checked_skips_the_value_scans_but_not_the_shape_checks():
+    # The caller's word (bounds made from checked values) stands in for the scans of every
+    # value; shapes and leaf sizes are still checked.
+    lo, hi = np.zeros((5, 3)), np.full((5, 3), np.nan)
+    with pytest.raises(ValueError, match="finite"):
+        checked_bounds(lo, hi, 4, None)
+    assert checked_bounds(lo, hi, 4, None, values_checked=True)[2] == max_leaf_count(4)
+    with pytest.raises(ValueError, match="shape"):
+        checked_bounds(lo[:, :2], hi[:, :2], 4, None, values_checked=True)
+
+
 def test_rejects_bad_leaf_size():
     with pytest.raises(ValueError):
         build_bvh(np.zeros((2, 3)), np.ones((2, 3)), max_leaf_size=0)

@@ -4,6 +4,7 @@ and for the render's buffers stays near the scene's device bytes (docs/scale.md)
 
 from __future__ import annotations
 
+import dataclasses
 import importlib
 import tracemalloc
 import weakref
@@ -112,6 +113,36 @@ def test_a_meshs_bounds_are_the_device_builds_primitives(cl_device, monkeypatch)
                queue=queue_for(cl_device))
     assert len(given) == 1 and given[0] is not None and len(given[0]) == 20480
     assert 2 not in read  # only the task lists (1-D) were read from the host
+
+
+@pytest.mark.filterwarnings("ignore:overflow encountered:RuntimeWarning")
+def test_a_meshs_finite_vertices_spare_the_builds_scans_of_its_bounds(cl_device, monkeypatch):
+    # Triangle boxes made from finite float32 vertices are finite with lo <= hi, so the build
+    # skips its three passes over the bounds (0.14 s at 5.24 M triangles); bounds of other
+    # kinds, or a vertex that float32 cannot hold, keep them.
+    if not bvh_builder.supports(cl_device, 20480, 4):
+        pytest.skip("the device does not build BVHs")
+    said, real = [], bvh_builder.checked_bounds
+
+    def checked_bounds(*args: object) -> tuple:
+        said.append(args[-1])
+        return real(*args)
+
+    monkeypatch.setattr(bvh_builder, "checked_bounds", checked_bounds)
+    settings = {"width": 64, "height": 48, "spp": 1, "max_depth": 0, "seed": 0,
+                "queue": queue_for(cl_device)}
+    scene = _mesh_scene(5)
+    pack_scene(scene, **settings)
+    pack_scene(dataclasses.replace(scene, objects=(*scene.objects, M.Sphere((0, 0, 0), 1, 0))),
+               **settings)
+    assert said == [True, False]
+    mesh = scene.objects[0]
+    vertices = mesh.vertices.copy()
+    vertices[7] = (1e39, 0.0, 0.0)  # inf in float32
+    with pytest.raises(ValueError, match="finite"):
+        pack_scene(dataclasses.replace(scene, objects=(
+            dataclasses.replace(mesh, vertices=vertices),)), **settings)
+    assert said[2:] == [False]
 
 
 def test_device_build_frees_other_bounds_before_its_buffers_fill(cl_device, monkeypatch):

@@ -87,10 +87,13 @@ def sah_cost(nodes: np.ndarray, traversal_cost: float = TRAVERSAL_COST) -> float
 
 
 def checked_bounds(lo: np.ndarray, hi: np.ndarray, max_leaf_size: int,
-                   largest_leaf: int | None) -> tuple[np.ndarray, np.ndarray, int]:
+                   largest_leaf: int | None, values_checked: bool = False
+                   ) -> tuple[np.ndarray, np.ndarray, int]:
     """build_bvh's arguments checked (ValueError names the bad one): the bounds as float64,
     or float32 where both are (a mesh's: the same numbers at half the bytes, uncopied), and
-    the largest leaf."""
+    the largest leaf. values_checked: the caller made the bounds from values it checked
+    (finite, within float32's range) as minima and maxima, so lo <= hi holds by construction
+    and the scans of every value (0.14 s at 5.24 M triangles) are skipped."""
     lo, hi = np.asarray(lo), np.asarray(hi)
     if not lo.dtype == hi.dtype == np.float32:
         lo, hi = lo.astype(np.float64, copy=False), hi.astype(np.float64, copy=False)
@@ -101,18 +104,29 @@ def checked_bounds(lo: np.ndarray, hi: np.ndarray, max_leaf_size: int,
     largest = max_leaf_count(max_leaf_size) if largest_leaf is None else largest_leaf
     if largest < max_leaf_size:
         raise ValueError(f"largest_leaf {largest} is below max_leaf_size {max_leaf_size}")
-    if lo.size and not (_within_float32(lo) and _within_float32(hi)):
-        raise ValueError("primitive bounds must be finite and within float32 range")
-    if any(np.any(lo[at:at + _CHECK_ROWS] > hi[at:at + _CHECK_ROWS])
-           for at in range(0, len(lo), _CHECK_ROWS)):
-        raise ValueError("primitive bounds have lo > hi")
+    if lo.size and not values_checked:
+        _check_values(lo, hi)
     return lo, hi, largest
 
 
+def _check_values(lo: np.ndarray, hi: np.ndarray) -> None:
+    """Every bound finite and within float32's range, and lo <= hi. By reductions, not a
+    boolean array the size of the bounds: at 5.24 M triangles those temporaries took 0.4 s,
+    most of it the first touch of their memory. A NaN fails lo <= hi; once lo <= hi holds,
+    every value lies between lo's minimum and hi's maximum, so those two bound the range:
+    three passes over the bounds where a minimum and a maximum of each took five."""
+    ordered = all(np.all(lo[at:at + _CHECK_ROWS] <= hi[at:at + _CHECK_ROWS])
+                  for at in range(0, len(lo), _CHECK_ROWS))
+    if ordered and lo.min() >= -_F32_MAX and hi.max() <= _F32_MAX:
+        return
+    if not (_within_float32(lo) and _within_float32(hi)):
+        raise ValueError("primitive bounds must be finite and within float32 range")
+    raise ValueError("primitive bounds have lo > hi")
+
+
 def _within_float32(a: np.ndarray) -> bool:
-    """Every value finite and within float32's range. By reductions, not a boolean array the
-    size of the bounds: at 5.24 M triangles those temporaries took 0.4 s, most of it the first
-    touch of their memory. A NaN makes the minimum and maximum NaN, which fail both tests."""
+    """Every value finite and within float32's range (a NaN makes the minimum and maximum
+    NaN, which fail both tests)."""
     return bool(a.min() >= -_F32_MAX) and bool(a.max() <= _F32_MAX)
 
 

@@ -67,12 +67,14 @@ def build_bvh_on(queue: cl.CommandQueue, lo: np.ndarray, hi: np.ndarray,
 
 
 def build_bvh_from(queue: cl.CommandQueue, bounds: list[np.ndarray], max_leaf_size: int = 4,
-                   *, largest_leaf: int | None = None, pairs: bool = False) -> Bvh:
+                   *, largest_leaf: int | None = None, pairs: bool = False,
+                   values_checked: bool = False) -> Bvh:
     """build_bvh_on's tree from `bounds` = [lo, hi], a list this call empties: where the
     caller holds the arrays nowhere else, the device build frees them once its kernels have
     their copies, before its own buffers fill (a mesh's float bounds, 24 B a triangle, were
-    the pack's largest arrays beside them at 5.24 M triangles: docs/scale.md)."""
-    lo, hi, largest = checked_bounds(*bounds, max_leaf_size, largest_leaf)
+    the pack's largest arrays beside them at 5.24 M triangles: docs/scale.md).
+    values_checked: as for clray.accel.bvh.checked_bounds."""
+    lo, hi, largest = checked_bounds(*bounds, max_leaf_size, largest_leaf, values_checked)
     bounds.clear()
     n = lo.shape[0]
     if n > max_leaf_size and supports(queue.device, n, lo.itemsize):

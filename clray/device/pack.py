@@ -35,6 +35,8 @@ DEVICE_BUILD_MIN = 20000
 # Rows (vertices, triangles, packets) that the pack's gathers take at a time: their
 # temporaries stay a few MiB however large the mesh (docs/scale.md, Where the memory goes).
 _CHUNK = 1 << 16
+# The largest float32: float32 vertices within it are finite.
+_F32_MAX = float(np.finfo(np.float32).max)
 
 
 def _by_chunks(n: int, work: Callable[[slice], None]) -> None:
@@ -112,10 +114,15 @@ class _Bounded:
         self.refs: list[np.ndarray] = []
         self.owners: list[np.ndarray] = []  # runs: an owner per object...
         self.sizes: list[np.ndarray] = []  # ...and its primitives
+        # Whether each kind's bounds were made from checked values (checked_bounds).
+        self.checked: list[bool] = []
 
     def add(self, kind: int, lo: np.ndarray, hi: np.ndarray, owners: np.ndarray,
-            sizes: np.ndarray) -> None:
-        """Primitives of one kind; `owners` (one per object) own `sizes` of them each."""
+            sizes: np.ndarray, checked: bool = False) -> None:
+        """Primitives of one kind; `owners` (one per object) own `sizes` of them each.
+        checked: the bounds are minima and maxima of values known to be finite and within
+        float32's range (clray.accel.bvh.checked_bounds's values_checked)."""
+        self.checked.append(checked)
         self.lo.append(lo)
         self.hi.append(hi)
         self.refs.append((kind << L.PRIM_TYPE_SHIFT) | np.arange(len(lo), dtype=np.int32))
@@ -131,6 +138,7 @@ class _Bounded:
             self.lo, self.hi, self.refs, self.owners, self.sizes = (
                 [np.concatenate(part)] for part in (self.lo, self.hi, self.refs, self.owners,
                                                     self.sizes))
+            self.checked = [all(self.checked)]
         lo, hi, refs = self.lo[0], self.hi[0], self.refs[0]
         runs = self.owners[0] == owner
         if runs.all():
@@ -143,7 +151,12 @@ class _Bounded:
         that _build_wide can free the bounds before the collapse."""
         prims = list(self.owned_by(owner))
         self.lo, self.hi, self.refs, self.owners, self.sizes = [], [], [], [], []
+        self.checked = []
         return prims
+
+    def values_checked(self) -> bool:
+        """Every kind's bounds made from checked values (add's `checked`)."""
+        return bool(self.checked) and all(self.checked)
 
 
 @dataclass(frozen=True)
@@ -262,7 +275,10 @@ def _pack_triangles(objs: _Placed, bounded: _Bounded) -> _Triangles:
         if u is not None:
             uvs[off:off + len(v)] = u
     lo, hi = _triangle_bounds(vertices, faces.corners)
-    bounded.add(L.PRIM_TRIANGLE, lo, hi, objs.owners, n_faces)
+    # Every vertex finite: then so is every triangle's box, and lo <= hi by construction. Two
+    # passes over the vertices spare the BVH build's three over six bounds a triangle.
+    bounded.add(L.PRIM_TRIANGLE, lo, hi, objs.owners, n_faces,
+                checked=bool(vertices.min() >= -_F32_MAX) and bool(vertices.max() <= _F32_MAX))
     return _Triangles(faces, vertices, normals, uvs, colors)
 
 
@@ -309,12 +325,13 @@ def _triangle_bounds(vertices: np.ndarray, corners: np.ndarray) -> tuple[np.ndar
 
 
 def _build_wide(prims: list[np.ndarray], width: int, queue: cl.CommandQueue | None,
-                tuning: Tuning, one_per_leaf: bool = False) -> WideBvh:
+                tuning: Tuning, one_per_leaf: bool = False,
+                values_checked: bool = False) -> WideBvh:
     """prims: [lo, hi, refs], emptied here: where the caller holds the arrays nowhere else
     (_Bounded.take), the bounds (24 B a triangle) are freed once the device build has copied
     them (build_bvh_from), or the host build is done, before the collapse. one_per_leaf:
     every leaf holds one primitive, so each one's box is a lane of its parent's vector slab
-    test (the scene's tree where it holds instances)."""
+    test (the scene's tree where it holds instances). values_checked: _Bounded's."""
     refs = prims.pop()
     # Below DEVICE_BUILD_MIN primitives the host build takes milliseconds, less than fetching
     # the device build's program from the cache.
@@ -324,7 +341,8 @@ def _build_wide(prims: list[np.ndarray], width: int, queue: cl.CommandQueue | No
     on_device = (queue is not None and len(prims[0]) >= DEVICE_BUILD_MIN
                  and tuning.traversal_cost == TRAVERSAL_COST)
     if on_device:
-        binary = build_bvh_from(queue, prims, **leaves, pairs=True)
+        binary = build_bvh_from(queue, prims, **leaves, pairs=True,
+                                values_checked=values_checked)
     else:
         binary = build_bvh(*prims, traversal_cost=tuning.traversal_cost, **leaves)
         prims.clear()
@@ -412,15 +430,18 @@ def _pack_bvh(bounded: _Bounded, n_groups: int, instances: list[M.Instance],
     group_trees, group_bounds = [], []
     for g in range(n_groups):
         lo, hi, refs = bounded.owned_by(g + 1)
-        group_trees.append(_build_wide([lo, hi, refs], width, queue, tuning))
+        group_trees.append(_build_wide([lo, hi, refs], width, queue, tuning,
+                                       values_checked=bounded.values_checked()))
         group_bounds.append((lo.min(axis=0), hi.max(axis=0)))
     # The scene's tree comes first (its root is node 0): the groups' roots are known after it.
     records = _pack_instances(instances, group_of, group_bounds, eye, bounded)
+    values_checked = bounded.values_checked()
     prims = bounded.take(0)
     # Where instances are most of the scene's tree, one primitive a leaf; a large mesh of the
     # scene's own beside a few instances keeps its packed leaves.
     one_per_leaf = bool(instances) and 2 * len(instances) >= len(prims[2])
-    wide = _build_wide(prims, width, queue, tuning, one_per_leaf=one_per_leaf)
+    wide = _build_wide(prims, width, queue, tuning, one_per_leaf=one_per_leaf,
+                       values_checked=values_checked)
     if not instances:
         return wide, records, time.perf_counter() - start
     wide = _instance_lanes(wide)

@@ -46,7 +46,6 @@ BVH_WIDTHS = (4, 8)
 FOLD_PACKETS = KNOBS["fold_packets"].default
 # Binary nodes as opaque 32-byte items: numpy takes and copies those far faster than structs.
 _OPAQUE = np.dtype((np.void, BINARY_NODE.itemsize))
-_EMPTY = np.array([([np.nan] * 3, -1, [np.nan] * 3, 0)], dtype=BINARY_NODE)
 # The leaf section of each primitive kind that has one of its own; any other kind: 2.
 _SECTION = {P.PRIM_TRIANGLE: 0, SPHERE.prim: 1}
 
@@ -87,38 +86,41 @@ def collapse(bvh: Bvh, refs: np.ndarray, width: int,
         return WideBvh(np.zeros(0, dtype), np.zeros(0, np.int32), width, 1)
     order_refs = _refs_in_order(refs, bvh.order)
     kinds = _Kinds(order_refs >> P.PRIM_TYPE_SHIFT)
-    levels = _levels(bvh.nodes.view(_OPAQUE), width, bvh.pairs)
-    slots = np.concatenate([lv[0] for lv in levels])  # binary node per child slot, -1 none
-    # Its record (NaN bounds for none), joined as opaque items: numpy copies those far faster.
-    rec = np.concatenate([lv[1].view(_OPAQUE) for lv in levels]).view(BINARY_NODE)
+    nodes = bvh.nodes.view(_OPAQUE)
+    levels = _levels(nodes, width, bvh.pairs)
+    # Per child slot: its binary node (-1 none) and that node's first and count fields.
+    slots, first, count = (np.concatenate([lv[f] for lv in levels]) for f in range(3))
     level_rows = np.cumsum([0] + [lv[0].shape[0] for lv in levels])
-    # Joined above: the levels' own arrays (a third of the collapse's peak) freed before the
-    # fold and the leaves' layout.
     del levels
-    keep = _fold(slots, rec, kinds, FOLD_PACKETS if fold_packets is None else fold_packets)
+    keep = _fold(slots, first, count, kinds,
+                 FOLD_PACKETS if fold_packets is None else fold_packets)
     if keep is not None:
-        slots, rec = slots[keep], rec.view(_OPAQUE)[keep].view(BINARY_NODE)
+        slots, first, count = slots[keep], first[keep], count[keep]
         level_rows = np.concatenate([[0], np.cumsum(keep)])[level_rows]
     n_wide = slots.shape[0]
 
     used = slots >= 0
-    is_inner = used & (rec["count"] == 0)
+    is_inner = used & (count == 0)
     is_leaf = used & ~is_inner
     # Wide nodes are numbered level by level, children in slot order: the k-th inner slot (row-
     # major) is wide node k + 1.
     child = np.full(slots.shape, -1, dtype=np.int32)
     child[is_inner] = np.arange(1, int(is_inner.sum()) + 1)
     leaf_first, leaf_count, prim_refs = _lay_out_leaves(
-        rec["first"][is_leaf].astype(np.int64), rec["count"][is_leaf].astype(np.int64),
-        order_refs, kinds)
+        first[is_leaf].astype(np.int64), count[is_leaf].astype(np.int64), order_refs, kinds)
     child[is_leaf] = leaf_first
     packed_count = np.zeros(slots.shape, dtype=np.int32)
     packed_count[is_leaf] = leaf_count
 
     # The node records as rows of 8 lanes-wide fields: 6 bound fields, then child and count.
+    # The bounds are each slot's binary node's (a folded slot keeps its node's box), NaN in an
+    # unused lane.
     rows = np.empty((n_wide, 8, width), dtype=np.float32)
-    rows[:, 0:3] = rec["lo"].transpose(0, 2, 1)
-    rows[:, 3:6] = rec["hi"].transpose(0, 2, 1)
+    boxes = nodes.take(np.where(used, slots, 0)).view(BINARY_NODE)
+    rows[:, 0:3] = boxes["lo"].transpose(0, 2, 1)
+    rows[:, 3:6] = boxes["hi"].transpose(0, 2, 1)
+    del boxes
+    rows[:, 0:6].transpose(0, 2, 1)[~used] = np.nan
     rows[:, 6].view(np.int32)[...] = child
     rows[:, 7].view(np.int32)[...] = packed_count
     nodes = rows.reshape(n_wide, -1).view(dtype).ravel()
@@ -143,68 +145,68 @@ class _Kinds:
         self.only = int(kind[0]) if kind.size and kind.min() == kind.max() else None
         self._sums: dict[int, np.ndarray] = {}
 
-    def in_leaves(self, k: int, first: np.ndarray, count: np.ndarray) -> np.ndarray:
-        """Primitives of kind k in each run order[first:first + count]."""
+    def leaf_total(self, k: int, first: np.ndarray, count: np.ndarray, total: np.ndarray
+                   ) -> np.ndarray:
+        """Primitives of kind k in each row's runs order[first:first + count] (count 0 for a
+        slot that is not a leaf); `total`: each row's count, all kinds."""
         if self.only is not None:
-            return count if k == self.only else np.zeros_like(count)
+            return total if k == self.only else np.zeros_like(total)
         if k not in self._sums:
             self._sums[k] = np.concatenate([[0], np.cumsum(self.kind == k)])
-        return self._sums[k][first + count] - self._sums[k][first]
+        first = np.where(count > 0, first, 0)
+        return (self._sums[k][first + count] - self._sums[k][first]).sum(axis=1)
 
 
-def _empty_records(shape: tuple[int, ...]) -> np.ndarray:
-    """BINARY_NODE records of empty child slots: NaN bounds (what a node's unused lane holds)."""
-    rec = np.empty(shape, dtype=BINARY_NODE)
-    rec.view(_OPAQUE)[...] = _EMPTY.view(_OPAQUE)[0]
-    return rec
+# A wide level: per child slot (m, width), its binary node (-1 none) and that node's first and
+# count fields (0 where none), int32.
+_Level = tuple[np.ndarray, np.ndarray, np.ndarray]
 
 
-def _levels(nodes: np.ndarray, width: int, pairs: bool) -> list[tuple[np.ndarray, np.ndarray]]:
-    """The wide tree level by level: (m, width) binary node per child slot (-1 for none), and
-    its BINARY_NODE record. `nodes`: the binary nodes as opaque records; pairs: Bvh.pairs."""
+def _levels(nodes: np.ndarray, width: int, pairs: bool) -> list[_Level]:
+    """The wide tree level by level. `nodes`: the binary nodes as opaque records; pairs:
+    Bvh.pairs."""
     root = nodes[:1].view(BINARY_NODE)
     if root["count"][0] > 0:
         # A leaf root still needs a wide node above it: its one child is the root itself.
-        slots = np.full((1, width), -1, dtype=np.int64)
-        slots[0, 0] = 0
-        rec = _empty_records((1, width))
-        rec[0, 0] = root[0]
-        levels = [(slots, rec)]
+        level = tuple(np.zeros((1, width), dtype=np.int32) for _ in range(3))
+        level[0][0, 1:] = -1
+        level[1][0, 0], level[2][0, 0] = root["first"][0], root["count"][0]
+        levels = [level]
     else:
         levels = [_open_children(np.zeros(1, np.int64), root["first"].astype(np.int64), nodes,
                                  width, pairs)]
     while True:
-        slots, rec = levels[-1]
-        inner = (slots >= 0) & (rec["count"] == 0)
+        slots, first, count = levels[-1]
+        inner = (slots >= 0) & (count == 0)
         if not inner.any():
             return levels
-        levels.append(_open_children(slots[inner], rec["first"][inner].astype(np.int64), nodes,
-                                     width, pairs))
+        levels.append(_open_children(slots[inner].astype(np.int64),
+                                     first[inner].astype(np.int64), nodes, width, pairs))
 
 
 def _open_children(parents: np.ndarray, first: np.ndarray, nodes: np.ndarray, width: int,
-                   pairs: bool) -> tuple[np.ndarray, np.ndarray]:
-    """Child slots and their records of the wide nodes grown from binary inner nodes `parents`
-    (with `first` their nodes' field: Bvh's two layouts)."""
+                   pairs: bool) -> _Level:
+    """The level of wide nodes grown from binary inner nodes `parents` (with `first` their
+    nodes' field: Bvh's two layouts)."""
     m = parents.size
     rows = np.arange(m)
-    slots = np.full((m, width), -1, dtype=np.int64)
-    rec = _empty_records((m, width))
+    level = (np.full((m, width), -1, dtype=np.int32), np.zeros((m, width), dtype=np.int32),
+             np.zeros((m, width), dtype=np.int32))
     area = np.full((m, width), -1.0)  # an inner child's area, -1 for a leaf or no child
     left, right = _children(parents, first, pairs)
-    _place(slots, rec, area, rows, 0, left, nodes)
-    _place(slots, rec, area, rows, 1, right, nodes)
+    _place(level, area, rows, 0, left, nodes)
+    _place(level, area, rows, 1, right, nodes)
     for filled in range(2, width):
         k = np.argmax(area, axis=1)
         open_rows = rows[area[rows, k] >= 0]
         if open_rows.size == 0:
             break
         k = k[open_rows]
-        left, right = _children(slots[open_rows, k], rec["first"][open_rows, k].astype(np.int64),
-                                pairs)
-        _place(slots, rec, area, open_rows, k, left, nodes)
-        _place(slots, rec, area, open_rows, filled, right, nodes)
-    return slots, rec
+        left, right = _children(level[0][open_rows, k].astype(np.int64),
+                                level[1][open_rows, k].astype(np.int64), pairs)
+        _place(level, area, open_rows, k, left, nodes)
+        _place(level, area, open_rows, filled, right, nodes)
+    return level
 
 
 def _children(node: np.ndarray, first: np.ndarray, pairs: bool) -> tuple[np.ndarray, np.ndarray]:
@@ -213,34 +215,33 @@ def _children(node: np.ndarray, first: np.ndarray, pairs: bool) -> tuple[np.ndar
     return (first, first + 1) if pairs else (node + 1, first)
 
 
-def _place(slots: np.ndarray, rec: np.ndarray, area: np.ndarray, rows: np.ndarray,
-           col: np.ndarray | int, node: np.ndarray, nodes: np.ndarray) -> None:
-    """Binary nodes `node` into child slots (rows, col), with their records and areas."""
-    taken = nodes.take(node)
-    slots[rows, col] = node
-    rec.view(_OPAQUE)[rows, col] = taken
-    taken = taken.view(BINARY_NODE)
+def _place(level: _Level, area: np.ndarray, rows: np.ndarray, col: np.ndarray | int,
+           node: np.ndarray, nodes: np.ndarray) -> None:
+    """Binary nodes `node` into child slots (rows, col) of `level`, with their areas."""
+    taken = nodes.take(node).view(BINARY_NODE)
+    level[0][rows, col] = node
+    level[1][rows, col] = taken["first"]
+    level[2][rows, col] = taken["count"]
     ext = np.maximum(taken["hi"].astype(np.float64) - taken["lo"], 0)
     half_area = ext[:, 0] * ext[:, 1] + ext[:, 1] * ext[:, 2] + ext[:, 2] * ext[:, 0]
     area[rows, col] = np.where(taken["count"] == 0, half_area, -1.0)
 
 
-def _fold(slots: np.ndarray, rec: np.ndarray, kinds: _Kinds, fold_packets: int
-          ) -> np.ndarray | None:
+def _fold(slots: np.ndarray, first: np.ndarray, count: np.ndarray, kinds: _Kinds,
+          fold_packets: int) -> np.ndarray | None:
     """Folds each wide node (row of `slots`) of leaves only that one leaf of at most
-    `fold_packets` packet tests would cover into that leaf: the record of its parent's slot, in
-    `rec`, becomes a leaf over its leaves' primitives, which are contiguous (a subtree's are).
-    Returns the rows to keep, or None where none folds. A folded node was never opened, so the
-    collapse above it opened the same nodes as it would have with the leaf in its place."""
+    `fold_packets` packet tests would cover into that leaf: its parent's slot, in `first` and
+    `count`, becomes a leaf over its leaves' primitives, which are contiguous (a subtree's
+    are). Returns the rows to keep, or None where none folds. A folded node was never opened,
+    so the collapse above it opened the same nodes as it would have with the leaf in its
+    place."""
     used = slots >= 0
-    count = rec["count"].astype(np.int64)
     is_inner = used & (count == 0)
     leaf = used & ~is_inner
-    first = np.where(leaf, rec["first"], 0).astype(np.int64)
-    n = np.where(leaf, count, 0)
-    tri, sph, inst = (kinds.in_leaves(k, first, n).sum(axis=1)
-                      for k in (P.PRIM_TRIANGLE, SPHERE.prim, P.PRIM_INSTANCE))
+    n = np.where(leaf, count, 0).astype(np.int64)
     total = n.sum(axis=1)
+    tri, sph, inst = (kinds.leaf_total(k, first, n, total)
+                      for k in (P.PRIM_TRIANGLE, SPHERE.prim, P.PRIM_INSTANCE))
     tests = -(-tri // PACKET_WIDTH) - (-sph // PACKET_WIDTH) + (total - tri - sph)
     # Wide node k + 1 grew from the k-th inner slot; the root (row 0) stays. Nodes over
     # instances stay: their boxes are lanes of one vector test, where a leaf would test each.
@@ -249,10 +250,9 @@ def _fold(slots: np.ndarray, rec: np.ndarray, kinds: _Kinds, fold_packets: int
     if not fold.any():
         return None
     parent = np.flatnonzero(is_inner)[fold[1:]]
-    start = np.where(leaf, rec["first"], np.iinfo(np.int32).max).min(axis=1)
-    flat = rec.reshape(-1)
-    flat["first"][parent] = start[fold]
-    flat["count"][parent] = total[fold]
+    start = np.where(leaf, first, np.iinfo(np.int32).max).min(axis=1)
+    first.reshape(-1)[parent] = start[fold]
+    count.reshape(-1)[parent] = total[fold]
     return ~fold
 
 

@@ -1,4 +1,5 @@
-"""Fresh host memory in small pages while clray reads, packs and renders big scenes.
+"""Host memory and cores while clray reads, packs and renders big scenes: fresh memory in small
+pages, and passes over big arrays a chunk of rows at a time on every core.
 
 numpy advises the kernel to back every large array with transparent huge pages
 (madvise(MADV_HUGEPAGE)). On virtual machines whose balloon reports free memory back to the
@@ -16,6 +17,7 @@ import functools
 import os
 import threading
 from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 from typing import ParamSpec, TypeVar
 
 try:  # numpy 2
@@ -60,3 +62,23 @@ def small_pages(stage: Callable[P, R]) -> Callable[P, R]:
         finally:
             _leave()
     return run
+
+
+# Rows (vertices, triangles, packets, wide nodes) that a chunked pass takes at a time: its
+# temporaries stay a few MiB however large the mesh (docs/scale.md, Where the memory goes).
+CHUNK_ROWS = 1 << 16
+
+
+def by_chunks(n: int, work: Callable[[slice], None]) -> None:
+    """work(rows) for each CHUNK_ROWS of range(n), on as many threads as the process may run
+    at once: numpy's gathers, minima and copies let go of the GIL, and a chunk writes its own
+    rows alone, so the passes over a big mesh use every core, as the device build does."""
+    parts = [slice(at, min(at + CHUNK_ROWS, n)) for at in range(0, n, CHUNK_ROWS)]
+    threads = min(len(parts), len(os.sched_getaffinity(0)))
+    if threads <= 1:
+        for part in parts:
+            work(part)
+        return
+    with ThreadPoolExecutor(threads) as pool:
+        for _ in pool.map(work, parts):  # drained, so that a chunk's error is raised here
+            pass

@@ -30,6 +30,7 @@ import numpy as np
 
 from clray.accel import prim_refs as P
 from clray.accel.bvh import BINARY_NODE, Bvh
+from clray.host_memory import by_chunks
 from clray.knobs import KNOBS
 from clray.shapes.sphere import SPHERE
 
@@ -116,11 +117,13 @@ def collapse(bvh: Bvh, refs: np.ndarray, width: int,
     # The bounds are each slot's binary node's (a folded slot keeps its node's box), NaN in an
     # unused lane.
     rows = np.empty((n_wide, 8, width), dtype=np.float32)
-    boxes = nodes.take(np.where(used, slots, 0)).view(BINARY_NODE)
-    rows[:, 0:3] = boxes["lo"].transpose(0, 2, 1)
-    rows[:, 3:6] = boxes["hi"].transpose(0, 2, 1)
-    del boxes
-    rows[:, 0:6].transpose(0, 2, 1)[~used] = np.nan
+
+    def lay_out_boxes(part: slice) -> None:
+        boxes = nodes.take(np.where(used[part], slots[part], 0)).view(BINARY_NODE)
+        rows[part, 0:3] = boxes["lo"].transpose(0, 2, 1)
+        rows[part, 3:6] = boxes["hi"].transpose(0, 2, 1)
+        rows[part, 0:6].transpose(0, 2, 1)[~used[part]] = np.nan
+    by_chunks(n_wide, lay_out_boxes)
     rows[:, 6].view(np.int32)[...] = child
     rows[:, 7].view(np.int32)[...] = packed_count
     nodes = rows.reshape(n_wide, -1).view(dtype).ravel()
@@ -187,25 +190,29 @@ def _levels(nodes: np.ndarray, width: int, pairs: bool) -> list[_Level]:
 def _open_children(parents: np.ndarray, first: np.ndarray, nodes: np.ndarray, width: int,
                    pairs: bool) -> _Level:
     """The level of wide nodes grown from binary inner nodes `parents` (with `first` their
-    nodes' field: Bvh's two layouts)."""
+    nodes' field: Bvh's two layouts). Each node grows alone: chunks of them on every core."""
     m = parents.size
-    rows = np.arange(m)
     level = (np.full((m, width), -1, dtype=np.int32), np.zeros((m, width), dtype=np.int32),
              np.zeros((m, width), dtype=np.int32))
-    area = np.full((m, width), -1.0)  # an inner child's area, -1 for a leaf or no child
-    left, right = _children(parents, first, pairs)
-    _place(level, area, rows, 0, left, nodes)
-    _place(level, area, rows, 1, right, nodes)
-    for filled in range(2, width):
-        k = np.argmax(area, axis=1)
-        open_rows = rows[area[rows, k] >= 0]
-        if open_rows.size == 0:
-            break
-        k = k[open_rows]
-        left, right = _children(level[0][open_rows, k].astype(np.int64),
-                                level[1][open_rows, k].astype(np.int64), pairs)
-        _place(level, area, open_rows, k, left, nodes)
-        _place(level, area, open_rows, filled, right, nodes)
+
+    def grow(part: slice) -> None:
+        mine = tuple(field[part] for field in level)
+        rows = np.arange(part.stop - part.start)
+        area = np.full((rows.size, width), -1.0)  # an inner child's, -1 for a leaf or none
+        left, right = _children(parents[part], first[part], pairs)
+        _place(mine, area, rows, 0, left, nodes)
+        _place(mine, area, rows, 1, right, nodes)
+        for filled in range(2, width):
+            k = np.argmax(area, axis=1)
+            open_rows = rows[area[rows, k] >= 0]
+            if open_rows.size == 0:
+                break
+            k = k[open_rows]
+            left, right = _children(mine[0][open_rows, k].astype(np.int64),
+                                    mine[1][open_rows, k].astype(np.int64), pairs)
+            _place(mine, area, open_rows, k, left, nodes)
+            _place(mine, area, open_rows, filled, right, nodes)
+    by_chunks(m, grow)
     return level
 
 

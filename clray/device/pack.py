@@ -6,10 +6,7 @@ authored far from the origin keeps its precision near the eye.
 
 from __future__ import annotations
 
-import os
 import time
-from collections.abc import Callable
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field, make_dataclass
 
 import numpy as np
@@ -20,7 +17,7 @@ from clray.accel.wide import LEAF_FIELD_MASK, PACKET_WIDTH, WideBvh, collapse, f
 from clray.device import layout as L
 from clray.device.bvh_builder import build_bvh_from, float_prims
 from clray.device.program import KernelConfig
-from clray.host_memory import small_pages
+from clray.host_memory import by_chunks, small_pages
 from clray.knobs import DEFAULT_TUNING, Tuning
 from clray.lights import LIGHT_OF, LIGHTS
 from clray.scene import model as M
@@ -32,26 +29,8 @@ from clray.shapes.sphere import SPHERE
 
 # Primitive count from which pack_scene builds the BVH on the device when given a queue.
 DEVICE_BUILD_MIN = 20000
-# Rows (vertices, triangles, packets) that the pack's gathers take at a time: their
-# temporaries stay a few MiB however large the mesh (docs/scale.md, Where the memory goes).
-_CHUNK = 1 << 16
 # The largest float32: float32 vertices within it are finite.
 _F32_MAX = float(np.finfo(np.float32).max)
-
-
-def _by_chunks(n: int, work: Callable[[slice], None]) -> None:
-    """work(rows) for each _CHUNK of range(n), on as many threads as the process may run at
-    once: numpy's gathers, minima and copies let go of the GIL, and a chunk writes its own rows
-    alone, so the pack's passes over a big mesh use every core, as the device build does."""
-    parts = [slice(at, min(at + _CHUNK, n)) for at in range(0, n, _CHUNK)]
-    threads = min(len(parts), len(os.sched_getaffinity(0)))
-    if threads <= 1:
-        for part in parts:
-            work(part)
-        return
-    with ThreadPoolExecutor(threads) as pool:
-        for _ in pool.map(work, parts):  # drained, so that a chunk's error is raised here
-            pass
 
 
 def _device_bytes(self: PackedScene) -> dict[str, int]:
@@ -257,7 +236,7 @@ def _pack_triangles(objs: _Placed, bounded: _Bounded) -> _Triangles:
         def relative(part: slice, v: np.ndarray = v, origin: np.ndarray = origin,
                      off: int = off) -> None:
             vertices[off + part.start:off + part.stop, :3] = v[part] - origin
-        _by_chunks(len(v), relative)
+        by_chunks(len(v), relative)
     has_normals = any(src[2] is not None for src in sources)
     has_uvs = any(src[3] is not None for src in sources)
     normals = np.zeros((n_vertices if has_normals else 0, 4), dtype=np.float32)
@@ -320,7 +299,7 @@ def _triangle_bounds(vertices: np.ndarray, corners: np.ndarray) -> tuple[np.ndar
         c0, c1, c2 = (np.take(vertices, corners[part, k], axis=0) for k in range(3))
         hi[part] = np.maximum(np.maximum(c0, c1), c2)[:, :3]
         lo[part] = np.minimum(np.minimum(c0, c1, out=c0), c2, out=c0)[:, :3]
-    _by_chunks(len(corners), bound)
+    by_chunks(len(corners), bound)
     return lo, hi
 
 
@@ -503,7 +482,7 @@ def _slot_triangles(prim_refs: np.ndarray, tris: _Triangles) -> tuple[np.ndarray
         partial = part.start + np.flatnonzero(~is_tri[part].all(axis=1))
         packets[partial] = np.where(is_tri[partial, None, None, :], packets[partial], np.nan)
         kept[part] = records if whole else records[..., 3]
-    _by_chunks(used, gather)
+    by_chunks(used, gather)
     return (packets.reshape(used, -1).view(L.TRIANGLE_PACKET).ravel(),
             _in_slot_order(kept, is_tri, tris))
 

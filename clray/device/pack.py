@@ -220,13 +220,10 @@ def _pack_shape(shape: Shape, objs: _Placed, bounded: _Bounded) -> np.ndarray:
     return records
 
 
-def _pack_triangles(objs: _Placed, bounded: _Bounded) -> _Triangles:
-    """Loose triangles and meshes as one indexed triangle list over shared vertex arrays."""
-    if not objs.objects:
-        empty = np.zeros((0, 4), dtype=np.float32)
-        return _Triangles(_Faces(np.zeros((0, 4), np.int32)), empty, empty.copy(),
-                          np.zeros((0, 2), np.float32), empty.copy())
-    sources = []  # (vertices, faces, normals, uvs, material or one per face) per object
+def _triangle_sources(objs: _Placed) -> list[tuple]:
+    """(vertices, faces, normals, uvs, material or one per face) of each loose triangle and
+    mesh, in the scene's order: the mesh's own arrays."""
+    sources = []
     for obj in objs.objects:
         if isinstance(obj, M.Triangle):
             sources.append((np.asarray(obj.vertices, dtype=np.float64), np.array([[0, 1, 2]]),
@@ -234,9 +231,43 @@ def _pack_triangles(objs: _Placed, bounded: _Bounded) -> _Triangles:
         else:
             material = obj.material if obj.face_materials is None else obj.face_materials
             sources.append((obj.vertices, obj.faces, obj.normals, obj.uvs, material))
-    counts = [len(src[0]) for src in sources]
-    offsets = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.int64)
-    n_vertices = int(sum(counts))
+    return sources
+
+
+def _vertex_offsets(sources: list[tuple]) -> np.ndarray:
+    """Each source's first row in the shared vertex arrays."""
+    return np.concatenate([[0], np.cumsum([len(src[0]) for src in sources])[:-1]]).astype(np.int64)
+
+
+def _pack_triangles(objs: _Placed, sources: list[tuple], bounded: _Bounded) -> _Faces:
+    """Loose triangles and meshes (`sources`: _triangle_sources) as one indexed triangle list
+    over shared vertex arrays, their bounds added to the BVH's input. The vertex arrays
+    themselves are made after the BVH (_vertex_arrays): the bounds are taken from the
+    sources' own vertices, so the camera-relative float32 ones (16 B a vertex) are not held
+    through the build and the collapse, where the pack's host memory peaks."""
+    if not objs.objects:
+        return _Faces(np.zeros((0, 4), np.int32))
+    tints = [getattr(obj, "colors", None) for obj in objs.objects]
+    faces = _scene_faces(sources, _vertex_offsets(sources), tints)
+    lo, hi = float_prims(len(faces))
+    start = 0
+    for (v, f, *_), origin in zip(sources, objs.origins, strict=True):
+        rows = slice(start, start + len(f))
+        _triangle_bounds(v, f, origin, lo[rows], hi[rows])
+        start += len(f)
+    bounded.add(L.PRIM_TRIANGLE, lo, hi, objs.owners, [len(src[1]) for src in sources])
+    return faces
+
+
+def _vertex_arrays(objs: _Placed, sources: list[tuple], faces: _Faces) -> _Triangles:
+    """The triangles with their vertex arrays: positions relative to each source's origin
+    (the eye, or 0 in a group) rounded to float32, normals, uvs and colours."""
+    if not objs.objects:
+        empty = np.zeros((0, 4), dtype=np.float32)
+        return _Triangles(faces, empty, empty.copy(), np.zeros((0, 2), np.float32),
+                          empty.copy())
+    offsets = _vertex_offsets(sources)
+    n_vertices = int(sum(len(src[0]) for src in sources))
     vertices = np.zeros((n_vertices, 4), dtype=np.float32)
     for (v, *_), origin, off in zip(sources, objs.origins, offsets, strict=True):
         # Made relative in float64, then rounded, a chunk at a time: no float64 copy of
@@ -251,8 +282,6 @@ def _pack_triangles(objs: _Placed, bounded: _Bounded) -> _Triangles:
     uvs = np.zeros((n_vertices if has_uvs else 0, 2), dtype=np.float32)
     tints = [getattr(obj, "colors", None) for obj in objs.objects]
     colors = np.zeros((n_vertices if any(c is not None for c in tints) else 0, 4), np.float32)
-    n_faces = [len(src[1]) for src in sources]
-    faces = _scene_faces(sources, offsets, tints)
     for (v, _, n, u, _), off, c in zip(sources, offsets, tints, strict=True):
         if c is not None:
             colors[off:off + len(v), :3] = c
@@ -261,8 +290,6 @@ def _pack_triangles(objs: _Placed, bounded: _Bounded) -> _Triangles:
             normals[off:off + len(v), 3] = 1.0
         if u is not None:
             uvs[off:off + len(v)] = u
-    lo, hi = _triangle_bounds(vertices, faces.corners)
-    bounded.add(L.PRIM_TRIANGLE, lo, hi, objs.owners, n_faces)
     return _Triangles(faces, vertices, normals, uvs, colors)
 
 
@@ -285,27 +312,25 @@ def _scene_faces(sources: list[tuple], offsets: np.ndarray, tints: list) -> _Fac
     return _Faces(rows)
 
 
-def _triangle_bounds(vertices: np.ndarray, corners: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(lo, hi) (F, 3) float32 of the triangles whose vertex indices are the first three
-    columns of `corners` (F, 3 or 4) int32: views of the device build's primitive records
-    (bvh_builder.float_prims), which a build over these triangles alone takes as they are: no
-    bounds beside its primitives (24 B a triangle) and no pass that copies them in.
+def _triangle_bounds(vertices: np.ndarray, faces: np.ndarray, origin: np.ndarray,
+                     lo: np.ndarray, hi: np.ndarray) -> None:
+    """Fills lo and hi (F, 3) float32, rows of the device build's primitive records
+    (bvh_builder.float_prims, which a build over these triangles alone takes as they are: no
+    bounds beside its primitives and no pass that copies them in), with the bounds of
+    triangles `faces` (F, 3) of `vertices` (V, 3) made relative to `origin` and rounded to
+    float32: the bounds of the float32 vertices that _vertex_arrays makes after the BVH.
+    Subtracting the origin and rounding are monotonic, so the rounded extremes of the corners
+    are the extremes of the rounded corners, the same numbers, without those vertices.
 
-    Corner by corner: elementwise minima of three (F, 4) arrays take a tenth of the time of a
-    reduction over the middle axis of (F, 3, 3), and float32 minima widened are the same
-    numbers as float64 minima of the widened corners. Whole rows taken (np.take along axis
-    0), not vertices[index, :3]: numpy's fancy index with a slice is four times slower. The
-    bounds stay float32 (the BVH builds take them as the same numbers as their float64 copies
-    would be). A chunk of triangles at a time: the corners of them all took 48 B a triangle
-    beside the bounds."""
-    lo, hi = float_prims(len(corners))
-
+    Corner by corner: elementwise minima of three (F, 3) arrays take a tenth of the time of a
+    reduction over the middle axis of (F, 3, 3). Whole rows taken (np.take along axis 0): numpy's
+    fancy index with a slice is four times slower. A chunk of triangles at a time: the corners
+    of them all took 72 B a triangle beside the bounds."""
     def bound(part: slice) -> None:
-        c0, c1, c2 = (np.take(vertices, corners[part, k], axis=0) for k in range(3))
-        hi[part] = np.maximum(np.maximum(c0, c1), c2)[:, :3]
-        lo[part] = np.minimum(np.minimum(c0, c1, out=c0), c2, out=c0)[:, :3]
-    _by_chunks(len(corners), bound)
-    return lo, hi
+        c0, c1, c2 = (np.take(vertices, faces[part, k], axis=0) for k in range(3))
+        hi[part] = np.maximum(np.maximum(c0, c1), c2) - origin
+        lo[part] = np.minimum(np.minimum(c0, c1, out=c0), c2, out=c0) - origin
+    _by_chunks(len(faces), bound)
 
 
 def _build_wide(prims: list[np.ndarray], width: int, queue: cl.CommandQueue | None,
@@ -706,9 +731,11 @@ def pack_scene(scene: M.Scene, *, width: int, height: int, spp: int, max_depth: 
     bounded = _Bounded()
     planes = _pack_planes(kinds[M.Plane].objects, eye)
     shapes = {shape.buffer: _pack_shape(shape, kinds[shape.model], bounded) for shape in SHAPES}
-    tris = _pack_triangles(kinds[M.Triangle], bounded)
+    sources = _triangle_sources(kinds[M.Triangle])
+    faces = _pack_triangles(kinds[M.Triangle], sources, bounded)
     wide, instance_records, bvh_s = _pack_bvh(bounded, len(groups), instances, group_of, eye,
                                               bvh_width, queue, tuning)
+    tris = _vertex_arrays(kinds[M.Triangle], sources, faces)
     if len(tris.faces):
         triangle_packets, tris = _slot_triangles(wide.prim_refs, tris)
     else:

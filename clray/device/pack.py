@@ -20,7 +20,7 @@ from clray.accel.wide import LEAF_FIELD_MASK, PACKET_WIDTH, WideBvh, collapse, f
 from clray.device import layout as L
 from clray.device.bvh_builder import build_bvh_from, float_prims
 from clray.device.program import KernelConfig
-from clray.host_memory import small_pages
+from clray.host_memory import small_pages, trim_heap
 from clray.knobs import DEFAULT_TUNING, Tuning
 from clray.lights import LIGHT_OF, LIGHTS
 from clray.scene import model as M
@@ -735,6 +735,9 @@ def pack_scene(scene: M.Scene, *, width: int, height: int, spp: int, max_depth: 
     faces = _pack_triangles(kinds[M.Triangle], sources, bounded)
     wide, instance_records, bvh_s = _pack_bvh(bounded, len(groups), instances, group_of, eye,
                                               bvh_width, queue, tuning)
+    # The build's and the collapse's temporaries, freed: their heap pages go back before
+    # the packets take their place.
+    trim_heap()
     tris = _vertex_arrays(kinds[M.Triangle], sources, faces)
     if len(tris.faces):
         triangle_packets, tris = _slot_triangles(wide.prim_refs, tris)

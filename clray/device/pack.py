@@ -241,41 +241,43 @@ def _vertex_offsets(sources: list[tuple]) -> np.ndarray:
 
 def _pack_triangles(objs: _Placed, sources: list[tuple], bounded: _Bounded) -> _Faces:
     """Loose triangles and meshes (`sources`: _triangle_sources) as one indexed triangle list
-    over shared vertex arrays, their bounds added to the BVH's input. The vertex arrays
-    themselves are made after the BVH (_vertex_arrays): the bounds are taken from the
-    sources' own vertices, so the camera-relative float32 ones (16 B a vertex) are not held
-    through the build and the collapse, where the pack's host memory peaks."""
+    over shared vertex arrays, their bounds added to the BVH's input. The camera-relative
+    vertices the bounds are taken from are let go before the BVH build and made again after
+    it (_vertex_arrays): 16 B a vertex not held through the build and the collapse, where the
+    pack's host memory peaks, for a second pass over the vertices."""
     if not objs.objects:
         return _Faces(np.zeros((0, 4), np.int32))
     tints = [getattr(obj, "colors", None) for obj in objs.objects]
     faces = _scene_faces(sources, _vertex_offsets(sources), tints)
-    lo, hi = float_prims(len(faces))
-    start = 0
-    for (v, f, *_), origin in zip(sources, objs.origins, strict=True):
-        rows = slice(start, start + len(f))
-        _triangle_bounds(v, f, origin, lo[rows], hi[rows])
-        start += len(f)
+    lo, hi = _triangle_bounds(_relative_vertices(objs, sources), faces.corners)
     bounded.add(L.PRIM_TRIANGLE, lo, hi, objs.owners, [len(src[1]) for src in sources])
     return faces
 
 
+def _relative_vertices(objs: _Placed, sources: list[tuple]) -> np.ndarray:
+    """(V, 4) float32: the sources' vertices relative to each one's origin (the eye, or 0 in
+    a group), made relative in float64 and then rounded, a chunk at a time: no float64 copy
+    of every vertex beside the float32 ones."""
+    vertices = np.zeros((int(sum(len(src[0]) for src in sources)), 4), dtype=np.float32)
+    for (v, *_), origin, off in zip(sources, objs.origins, _vertex_offsets(sources),
+                                    strict=True):
+        def relative(part: slice, v: np.ndarray = v, origin: np.ndarray = origin,
+                     off: int = off) -> None:
+            vertices[off + part.start:off + part.stop, :3] = v[part] - origin
+        _by_chunks(len(v), relative)
+    return vertices
+
+
 def _vertex_arrays(objs: _Placed, sources: list[tuple], faces: _Faces) -> _Triangles:
-    """The triangles with their vertex arrays: positions relative to each source's origin
-    (the eye, or 0 in a group) rounded to float32, normals, uvs and colours."""
+    """The triangles with their vertex arrays: positions (_relative_vertices), normals, uvs
+    and colours."""
     if not objs.objects:
         empty = np.zeros((0, 4), dtype=np.float32)
         return _Triangles(faces, empty, empty.copy(), np.zeros((0, 2), np.float32),
                           empty.copy())
     offsets = _vertex_offsets(sources)
-    n_vertices = int(sum(len(src[0]) for src in sources))
-    vertices = np.zeros((n_vertices, 4), dtype=np.float32)
-    for (v, *_), origin, off in zip(sources, objs.origins, offsets, strict=True):
-        # Made relative in float64, then rounded, a chunk at a time: no float64 copy of
-        # every vertex beside the float32 ones.
-        def relative(part: slice, v: np.ndarray = v, origin: np.ndarray = origin,
-                     off: int = off) -> None:
-            vertices[off + part.start:off + part.stop, :3] = v[part] - origin
-        _by_chunks(len(v), relative)
+    vertices = _relative_vertices(objs, sources)
+    n_vertices = len(vertices)
     has_normals = any(src[2] is not None for src in sources)
     has_uvs = any(src[3] is not None for src in sources)
     normals = np.zeros((n_vertices if has_normals else 0, 4), dtype=np.float32)
@@ -312,25 +314,27 @@ def _scene_faces(sources: list[tuple], offsets: np.ndarray, tints: list) -> _Fac
     return _Faces(rows)
 
 
-def _triangle_bounds(vertices: np.ndarray, faces: np.ndarray, origin: np.ndarray,
-                     lo: np.ndarray, hi: np.ndarray) -> None:
-    """Fills lo and hi (F, 3) float32, rows of the device build's primitive records
-    (bvh_builder.float_prims, which a build over these triangles alone takes as they are: no
-    bounds beside its primitives and no pass that copies them in), with the bounds of
-    triangles `faces` (F, 3) of `vertices` (V, 3) made relative to `origin` and rounded to
-    float32: the bounds of the float32 vertices that _vertex_arrays makes after the BVH.
-    Subtracting the origin and rounding are monotonic, so the rounded extremes of the corners
-    are the extremes of the rounded corners, the same numbers, without those vertices.
+def _triangle_bounds(vertices: np.ndarray, corners: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(lo, hi) (F, 3) float32 of the triangles whose vertex indices are the first three
+    columns of `corners` (F, 3 or 4) int32: views of the device build's primitive records
+    (bvh_builder.float_prims), which a build over these triangles alone takes as they are: no
+    bounds beside its primitives (24 B a triangle) and no pass that copies them in.
 
-    Corner by corner: elementwise minima of three (F, 3) arrays take a tenth of the time of a
-    reduction over the middle axis of (F, 3, 3). Whole rows taken (np.take along axis 0): numpy's
-    fancy index with a slice is four times slower. A chunk of triangles at a time: the corners
-    of them all took 72 B a triangle beside the bounds."""
+    Corner by corner: elementwise minima of three (F, 4) arrays take a tenth of the time of a
+    reduction over the middle axis of (F, 3, 3), and float32 minima widened are the same
+    numbers as float64 minima of the widened corners. Whole rows taken (np.take along axis
+    0), not vertices[index, :3]: numpy's fancy index with a slice is four times slower. The
+    bounds stay float32 (the BVH builds take them as the same numbers as their float64 copies
+    would be). A chunk of triangles at a time: the corners of them all took 48 B a triangle
+    beside the bounds."""
+    lo, hi = float_prims(len(corners))
+
     def bound(part: slice) -> None:
-        c0, c1, c2 = (np.take(vertices, faces[part, k], axis=0) for k in range(3))
-        hi[part] = np.maximum(np.maximum(c0, c1), c2) - origin
-        lo[part] = np.minimum(np.minimum(c0, c1, out=c0), c2, out=c0) - origin
-    _by_chunks(len(faces), bound)
+        c0, c1, c2 = (np.take(vertices, corners[part, k], axis=0) for k in range(3))
+        hi[part] = np.maximum(np.maximum(c0, c1), c2)[:, :3]
+        lo[part] = np.minimum(np.minimum(c0, c1, out=c0), c2, out=c0)[:, :3]
+    _by_chunks(len(corners), bound)
+    return lo, hi
 
 
 def _build_wide(prims: list[np.ndarray], width: int, queue: cl.CommandQueue | None,

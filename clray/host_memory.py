@@ -10,7 +10,7 @@ pack touch about 1 GB of fresh arrays, so clray's big stages run with numpy's ad
 NUMPY_MADVISE_HUGEPAGE chooses for themselves: clray then leaves numpy's setting alone.
 
 Freed arrays of up to 32 MiB stay in the C library's heap, not the kernel's (`trim_heap`):
-a stage hands them back where it has freed many.
+they go back when the last stage ends, and where the pack has freed many.
 """
 
 from __future__ import annotations
@@ -18,7 +18,6 @@ from __future__ import annotations
 import ctypes
 import functools
 import os
-import platform
 import threading
 from collections.abc import Callable
 from typing import ParamSpec, TypeVar
@@ -34,7 +33,17 @@ R = TypeVar("R")
 _lock = threading.Lock()
 _depth = 0
 _before = True
-_LIBC = ctypes.CDLL(None) if platform.libc_ver()[0] == "glibc" else None
+
+
+def _glibc() -> ctypes.CDLL | None:
+    try:
+        found = os.confstr("CS_GNU_LIBC_VERSION") or ""
+    except (ValueError, OSError):  # a system without the name, or without confstr
+        found = ""
+    return ctypes.CDLL(None) if found.startswith("glibc") else None
+
+
+_LIBC = _glibc()
 
 
 def trim_heap() -> None:
@@ -51,35 +60,34 @@ def trim_heap() -> None:
         _LIBC.malloc_trim(0)
 
 
-def _enter() -> None:
+def _enter(advice: bool) -> None:
     global _depth, _before
     with _lock:
-        if _depth == 0:
+        if _depth == 0 and advice:
             _before = _set_madvise_hugepage(False)
         _depth += 1
 
 
-def _leave() -> None:
+def _leave(advice: bool) -> None:
     global _depth
     with _lock:
         _depth -= 1
         if _depth == 0:
-            _set_madvise_hugepage(_before)
+            if advice:
+                _set_madvise_hugepage(_before)
+            trim_heap()
 
 
 def small_pages(stage: Callable[P, R]) -> Callable[P, R]:
-    """`stage` runs with numpy's huge-page advice off, unless NUMPY_MADVISE_HUGEPAGE is set,
-    and hands the heap's free pages back when it ends (trim_heap).
-    Nested and concurrent stages share one switch: the advice returns when the last ends."""
+    """`stage` runs with numpy's huge-page advice off, unless NUMPY_MADVISE_HUGEPAGE is set.
+    Nested and concurrent stages share one switch: the advice returns when the last ends,
+    and the heap's free pages go back to the kernel then (trim_heap)."""
     @functools.wraps(stage)
     def run(*args: P.args, **kwargs: P.kwargs) -> R:
-        ours = "NUMPY_MADVISE_HUGEPAGE" not in os.environ
-        if ours:
-            _enter()
+        advice = "NUMPY_MADVISE_HUGEPAGE" not in os.environ
+        _enter(advice)
         try:
             return stage(*args, **kwargs)
         finally:
-            if ours:
-                _leave()
-            trim_heap()
+            _leave(advice)
     return run

@@ -52,7 +52,7 @@ def trim_heap() -> None:
     and smaller ones from heaps that shrink only from their top; the threshold starts at
     128 KiB and rises to the size of each mapped block freed, up to 32 MiB. So once a big
     model's first large arrays are gone, its many arrays of 1 to 32 MiB come from the heap,
-    and what they held stays with the process when they are freed: 141 MiB after the
+    and what they held stays with the process when they are freed: 138 MiB after the
     5.24 M-triangle mesh's BVH collapse, held through the rest of the pack and the render
     (docs/scale.md). Called where a stage has freed many such arrays: each call walks the
     heap's free blocks. Other C libraries: nothing to do here."""

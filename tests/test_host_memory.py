@@ -1,5 +1,6 @@
 """clray/host_memory.py: the big stages run with numpy's huge-page advice off, put it back
-after, and leave it alone where the user set NUMPY_MADVISE_HUGEPAGE."""
+after, and leave it alone where the user set NUMPY_MADVISE_HUGEPAGE; they hand glibc's free
+heap pages back when they end."""
 
 from __future__ import annotations
 

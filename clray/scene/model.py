@@ -158,7 +158,8 @@ class Triangle:
 
 @dataclass(frozen=True, eq=False)
 class Mesh:
-    """A triangle mesh, already transformed to world space on the host in float64."""
+    """A triangle mesh, already transformed to world space on the host (in float64 where a
+    transform moved it)."""
 
     # (V, 3) float64; float32 where a PLY file stores them so (half the bytes): each use
     # widens them to float64 before any arithmetic, which is exact.

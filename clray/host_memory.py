@@ -36,9 +36,11 @@ _before = True
 
 
 def _glibc() -> ctypes.CDLL | None:
+    """The C library where it is glibc (the name confstr gives it), else None."""
+    confstr = getattr(os, "confstr", None)  # none on Windows
     try:
-        found = os.confstr("CS_GNU_LIBC_VERSION") or ""
-    except (ValueError, OSError):  # a system without the name, or without confstr
+        found = (confstr("CS_GNU_LIBC_VERSION") if confstr else None) or ""
+    except (ValueError, OSError):  # a system without the name (macOS, musl)
         found = ""
     return ctypes.CDLL(None) if found.startswith("glibc") else None
 

@@ -327,3 +327,45 @@ def test_an_unsigned_index_past_int32_is_out_of_range_not_wrapped(index):
     body = struct.pack("<9f", *range(9)) + struct.pack("<B3I", 3, 0, 1, index)
     with pytest.raises(SceneError, match=rf"record 0: vertex index {index} out of range"):
         read_ply(_binary(header, body), Path("m.ply"))
+
+
+def _positions_ply(path: Path, vertices: np.ndarray, kind: str) -> None:
+    """A binary PLY of `vertices` (as properties of `kind`: float or double) fanned into
+    triangles (0, k, k + 1)."""
+    header = (f"ply\nformat binary_little_endian 1.0\nelement vertex {len(vertices)}\n"
+              + "".join(f"property {kind} {axis}\n" for axis in "xyz")
+              + f"element face {len(vertices) - 2}\nproperty list uchar int vertex_indices\n"
+              "end_header\n")
+    face = np.empty(len(vertices) - 2, dtype=[("n", "u1"), ("v", "<i4", (3,))])
+    face["n"] = 3
+    face["v"] = [[0, k, k + 1] for k in range(1, len(vertices) - 1)]
+    path.write_bytes(header.encode() + vertices.astype("<f4" if kind == "float" else "<f8")
+                     .tobytes() + face.tobytes())
+
+
+def test_float_positions_stay_float32_and_pack_as_doubles(tmp_path):
+    # A file's 4-byte positions stay float32 in the mesh (12 B a vertex for as long as the
+    # scene is kept, not 24: docs/scale.md); every use widens them exactly, so the automatic
+    # scene and its packed buffers are those of the same numbers read as doubles.
+    from clray.device.pack import pack_scene
+    from clray.model_scene import _bounds, load_model_scene, model_scene_data
+
+    rng = np.random.default_rng(7)
+    vertices = (rng.uniform(-1.0, 1.0, (40, 3)) * [3.0, 1.0, 0.3] + [1e3, -7.0, 0.1]).astype(
+        np.float32)
+    _positions_ply(tmp_path / "f.ply", vertices, "float")
+    _positions_ply(tmp_path / "d.ply", vertices, "double")
+    assert read_ply((tmp_path / "f.ply").read_bytes(), Path("f.ply")).mesh.vertices.dtype == \
+        np.float32
+    assert read_ply((tmp_path / "d.ply").read_bytes(), Path("d.ply")).mesh.vertices.dtype == \
+        np.float64
+    data = [model_scene_data(tmp_path / name) for name in ("f.ply", "d.ply")]
+    assert data[0]["camera"] == data[1]["camera"]
+    # The frame before its numbers are rounded for the file: centre, radius, low corner.
+    for single, double in zip(_bounds(vertices), _bounds(vertices.astype(np.float64)),
+                              strict=True):
+        np.testing.assert_array_equal(single, double)
+    packed = [pack_scene(load_model_scene(tmp_path / name), width=32, height=24, spp=1,
+                         max_depth=0, seed=0).buffers() for name in ("f.ply", "d.ply")]
+    for name, array in packed[0].items():
+        assert array.tobytes() == packed[1][name].tobytes(), name

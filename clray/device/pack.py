@@ -17,7 +17,7 @@ from clray.accel.wide import LEAF_FIELD_MASK, PACKET_WIDTH, WideBvh, collapse, f
 from clray.device import layout as L
 from clray.device.bvh_builder import build_bvh_from, float_prims
 from clray.device.program import KernelConfig
-from clray.host_memory import by_chunks, small_pages
+from clray.host_memory import by_chunks, small_pages, trim_heap
 from clray.knobs import DEFAULT_TUNING, Tuning
 from clray.lights import LIGHT_OF, LIGHTS
 from clray.scene import model as M
@@ -212,13 +212,10 @@ def _pack_shape(shape: Shape, objs: _Placed, bounded: _Bounded) -> np.ndarray:
     return records
 
 
-def _pack_triangles(objs: _Placed, bounded: _Bounded) -> _Triangles:
-    """Loose triangles and meshes as one indexed triangle list over shared vertex arrays."""
-    if not objs.objects:
-        empty = np.zeros((0, 4), dtype=np.float32)
-        return _Triangles(_Faces(np.zeros((0, 4), np.int32)), empty, empty.copy(),
-                          np.zeros((0, 2), np.float32), empty.copy())
-    sources = []  # (vertices, faces, normals, uvs, material or one per face) per object
+def _triangle_sources(objs: _Placed) -> list[tuple]:
+    """(vertices, faces, normals, uvs, material or one per face) of each loose triangle and
+    mesh, in the scene's order: the mesh's own arrays."""
+    sources = []
     for obj in objs.objects:
         if isinstance(obj, M.Triangle):
             sources.append((np.asarray(obj.vertices, dtype=np.float64), np.array([[0, 1, 2]]),
@@ -226,25 +223,63 @@ def _pack_triangles(objs: _Placed, bounded: _Bounded) -> _Triangles:
         else:
             material = obj.material if obj.face_materials is None else obj.face_materials
             sources.append((obj.vertices, obj.faces, obj.normals, obj.uvs, material))
-    counts = [len(src[0]) for src in sources]
-    offsets = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.int64)
-    n_vertices = int(sum(counts))
-    vertices = np.zeros((n_vertices, 4), dtype=np.float32)
-    for (v, *_), origin, off in zip(sources, objs.origins, offsets, strict=True):
-        # Made relative in float64, then rounded, a chunk at a time: no float64 copy of
-        # every vertex beside the float32 ones.
+    return sources
+
+
+def _vertex_offsets(sources: list[tuple]) -> np.ndarray:
+    """Each source's first row in the shared vertex arrays."""
+    return np.concatenate([[0], np.cumsum([len(src[0]) for src in sources])[:-1]]).astype(np.int64)
+
+
+def _pack_triangles(objs: _Placed, sources: list[tuple], bounded: _Bounded) -> _Faces:
+    """Loose triangles and meshes (`sources`: _triangle_sources) as one indexed triangle list
+    over shared vertex arrays, their bounds added to the BVH's input. The camera-relative
+    vertices the bounds are taken from are let go before the BVH build and made again after
+    it (_vertex_arrays): 16 B a vertex not held through the build and the collapse, where the
+    pack's host memory peaks, for a second pass over the vertices."""
+    if not objs.objects:
+        return _Faces(np.zeros((0, 4), np.int32))
+    tints = [getattr(obj, "colors", None) for obj in objs.objects]
+    faces = _scene_faces(sources, _vertex_offsets(sources), tints)
+    vertices = _relative_vertices(objs, sources)
+    lo, hi = _triangle_bounds(vertices, faces.corners)
+    # Every vertex finite: then so is every triangle's box, and lo <= hi by construction. Two
+    # passes over the vertices spare the BVH build's three over six bounds a triangle.
+    bounded.add(L.PRIM_TRIANGLE, lo, hi, objs.owners, [len(src[1]) for src in sources],
+                checked=bool(vertices.min() >= -_F32_MAX) and bool(vertices.max() <= _F32_MAX))
+    return faces
+
+
+def _relative_vertices(objs: _Placed, sources: list[tuple]) -> np.ndarray:
+    """(V, 4) float32: the sources' vertices relative to each one's origin (the eye, or 0 in
+    a group), made relative in float64 and then rounded, a chunk at a time: no float64 copy
+    of every vertex beside the float32 ones."""
+    vertices = np.zeros((int(sum(len(src[0]) for src in sources)), 4), dtype=np.float32)
+    for (v, *_), origin, off in zip(sources, objs.origins, _vertex_offsets(sources),
+                                    strict=True):
         def relative(part: slice, v: np.ndarray = v, origin: np.ndarray = origin,
                      off: int = off) -> None:
             vertices[off + part.start:off + part.stop, :3] = v[part] - origin
         by_chunks(len(v), relative)
+    return vertices
+
+
+def _vertex_arrays(objs: _Placed, sources: list[tuple], faces: _Faces) -> _Triangles:
+    """The triangles with their vertex arrays: positions (_relative_vertices), normals, uvs
+    and colours."""
+    if not objs.objects:
+        empty = np.zeros((0, 4), dtype=np.float32)
+        return _Triangles(faces, empty, empty.copy(), np.zeros((0, 2), np.float32),
+                          empty.copy())
+    offsets = _vertex_offsets(sources)
+    vertices = _relative_vertices(objs, sources)
+    n_vertices = len(vertices)
     has_normals = any(src[2] is not None for src in sources)
     has_uvs = any(src[3] is not None for src in sources)
     normals = np.zeros((n_vertices if has_normals else 0, 4), dtype=np.float32)
     uvs = np.zeros((n_vertices if has_uvs else 0, 2), dtype=np.float32)
     tints = [getattr(obj, "colors", None) for obj in objs.objects]
     colors = np.zeros((n_vertices if any(c is not None for c in tints) else 0, 4), np.float32)
-    n_faces = [len(src[1]) for src in sources]
-    faces = _scene_faces(sources, offsets, tints)
     for (v, _, n, u, _), off, c in zip(sources, offsets, tints, strict=True):
         if c is not None:
             colors[off:off + len(v), :3] = c
@@ -253,11 +288,6 @@ def _pack_triangles(objs: _Placed, bounded: _Bounded) -> _Triangles:
             normals[off:off + len(v), 3] = 1.0
         if u is not None:
             uvs[off:off + len(v)] = u
-    lo, hi = _triangle_bounds(vertices, faces.corners)
-    # Every vertex finite: then so is every triangle's box, and lo <= hi by construction. Two
-    # passes over the vertices spare the BVH build's three over six bounds a triangle.
-    bounded.add(L.PRIM_TRIANGLE, lo, hi, objs.owners, n_faces,
-                checked=bool(vertices.min() >= -_F32_MAX) and bool(vertices.max() <= _F32_MAX))
     return _Triangles(faces, vertices, normals, uvs, colors)
 
 
@@ -706,9 +736,14 @@ def pack_scene(scene: M.Scene, *, width: int, height: int, spp: int, max_depth: 
     bounded = _Bounded()
     planes = _pack_planes(kinds[M.Plane].objects, eye)
     shapes = {shape.buffer: _pack_shape(shape, kinds[shape.model], bounded) for shape in SHAPES}
-    tris = _pack_triangles(kinds[M.Triangle], bounded)
+    sources = _triangle_sources(kinds[M.Triangle])
+    faces = _pack_triangles(kinds[M.Triangle], sources, bounded)
     wide, instance_records, bvh_s = _pack_bvh(bounded, len(groups), instances, group_of, eye,
                                               bvh_width, queue, tuning)
+    # The build's and the collapse's temporaries, freed: their heap pages go back before
+    # the packets take their place.
+    trim_heap()
+    tris = _vertex_arrays(kinds[M.Triangle], sources, faces)
     if len(tris.faces):
         triangle_packets, tris = _slot_triangles(wide.prim_refs, tris)
     else:

@@ -30,7 +30,7 @@ def emissive_triangles(scene: Scene) -> tuple[TriangleLight, ...]:
         glowing = np.flatnonzero(np.any(emission[material] > 0, axis=1))
         if len(glowing) == 0:
             continue
-        corners = obj.vertices[obj.faces[glowing]]
+        corners = obj.vertices[obj.faces[glowing]].astype(np.float64)  # float32 from a PLY
         area = np.linalg.norm(np.cross(corners[:, 1] - corners[:, 0],
                                        corners[:, 2] - corners[:, 0]), axis=1) / 2.0
         for k in np.flatnonzero(area >= L.MIN_LENGTH).tolist():

@@ -158,9 +158,12 @@ class Triangle:
 
 @dataclass(frozen=True, eq=False)
 class Mesh:
-    """A triangle mesh, already transformed to world space on the host in float64."""
+    """A triangle mesh, already transformed to world space on the host (in float64 where a
+    transform moved it)."""
 
-    vertices: np.ndarray  # (V, 3) float64
+    # (V, 3) float64; float32 where a PLY file stores them so (half the bytes): each use
+    # widens them to float64 before any arithmetic, which is exact.
+    vertices: np.ndarray
     faces: np.ndarray  # (F, 3) int64 indices into vertices; int32 as a PLY file stores them
     material: int
     normals: np.ndarray | None = None  # (V, 3) float64 unit vertex normals: smooth shading

@@ -30,7 +30,7 @@ from clray.vectors import unit
 class ObjMesh:
     """One shared vertex index for positions, normals and UVs, as the renderer wants it."""
 
-    vertices: np.ndarray  # (V, 3) float64
+    vertices: np.ndarray  # (V, 3) float64; float32 as a PLY file stores them (Mesh.vertices)
     faces: np.ndarray  # (F, 3) int64 (int32 from a PLY file), fan-triangulated, in file order
     normals: np.ndarray | None = None  # (V, 3) float64, unit length
     uvs: np.ndarray | None = None  # (V, 2) float64

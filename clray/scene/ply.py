@@ -390,7 +390,11 @@ def _mesh(reader: _Reader, columns: dict[str, dict[str, object]]) -> PlyMesh:
     vertex = columns.get("vertex")
     if vertex is None or not all(name in vertex for name in "xyz"):
         raise reader.error("element vertex", "needs an element vertex with x, y, z properties")
-    vertices = _stack(reader, vertex, ("x", "y", "z"))
+    # Positions the file stores as 4-byte floats stay float32 (Mesh.vertices): 12 B a vertex
+    # for as long as the scene is kept, not 24, and every use widens them exactly.
+    single = all(getattr(vertex[n], "dtype", None) in (np.dtype("<f4"), np.dtype(">f4"))
+                 for n in "xyz")
+    vertices = _stack(reader, vertex, ("x", "y", "z"), np.float32 if single else np.float64)
     _check_numbers(reader, vertices, "element vertex", "x, y, z")
     normals = None
     if all(name in vertex for name in ("nx", "ny", "nz")):
@@ -486,13 +490,14 @@ def _strip_triangles(counts: np.ndarray, items: np.ndarray) -> np.ndarray:
     return tris[keep]
 
 
-def _stack(reader: _Reader, columns: dict[str, object], names: tuple[str, ...]) -> np.ndarray:
+def _stack(reader: _Reader, columns: dict[str, object], names: tuple[str, ...],
+           dtype: type = np.float64) -> np.ndarray:
     for n in names:
         if isinstance(columns[n], tuple):
             raise reader.error("element vertex", f"{n} must be a number, not a list "
                                f"(property TYPE {n})")
     # Each column converted into its place: no float64 copy of each before the stacking.
-    out = np.empty((len(columns[names[0]]), len(names)), dtype=np.float64)
+    out = np.empty((len(columns[names[0]]), len(names)), dtype=dtype)
     for k, n in enumerate(names):
         out[:, k] = columns[n]
     return out

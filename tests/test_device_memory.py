@@ -201,48 +201,6 @@ def test_pack_of_a_mesh_peaks_within_its_device_bytes_beside_the_build(cl_device
     assert peak - own <= sum(packed.device_bytes().values())
 
 
-def test_pack_holds_no_vertex_array_through_the_bvh(cl_device, monkeypatch):
-    # The camera-relative float32 vertices (16 B a vertex) the bounds are taken from are let
-    # go before the device BVH build and made again after the collapse: at the build's start
-    # the pack's host allocations (numpy's, which tracemalloc sees) are the build's input (its
-    # primitive records and int32 references), and at the collapse's start the tree (node
-    # slots and order) and the references, with less than a vertex array beside them. The
-    # pack held those vertices through both, where its host memory peaks (issue 43).
-    scene = _mesh_scene(6)
-    mesh = scene.objects[0]
-    mesh = M.Mesh(vertices=mesh.vertices, faces=mesh.faces.astype(np.int32), material=0)
-    scene = dataclasses.replace(scene, objects=(mesh,))  # int32 faces, as a PLY file's
-    n, n_vertices = len(mesh.faces), len(mesh.vertices)
-    if not bvh_builder.supports(cl_device, n, 4):
-        pytest.skip("the device does not build BVHs")
-    beside = {}
-    real_build, real_collapse = pack_module.build_bvh_from, pack_module.collapse
-
-    def build_bvh_from(queue: cl.CommandQueue, bounds: list, *args: object,
-                       **kwargs: object) -> object:
-        beside["build"] = (tracemalloc.get_traced_memory()[0]
-                           - bvh_builder.build_buffer_bytes(n, 4)["prims"] - 4 * n)
-        return real_build(queue, bounds, *args, **kwargs)
-
-    def collapse(bvh: object, refs: np.ndarray, *args: object, **kwargs: object) -> object:
-        beside["collapse"] = (tracemalloc.get_traced_memory()[0] - bvh.nodes.nbytes
-                              - bvh.order.nbytes - refs.nbytes)
-        return real_collapse(bvh, refs, *args, **kwargs)
-
-    settings = {"width": 64, "height": 48, "spp": 1, "max_depth": 0, "seed": 0,
-                "queue": queue_for(cl_device)}
-    pack_scene(scene, **settings)  # the build's program compiled before measuring
-    monkeypatch.setattr(pack_module, "build_bvh_from", build_bvh_from)
-    monkeypatch.setattr(pack_module, "collapse", collapse)
-    tracemalloc.start()
-    try:
-        pack_scene(scene, **settings)
-    finally:
-        tracemalloc.stop()
-    assert set(beside) == {"build", "collapse"}
-    assert max(beside.values()) < 16 * n_vertices, beside
-
-
 def test_cpu_device_reads_scene_buffers_in_place(cl_ctx):
     # A CPU device's memory is the host's: a copy of each scene buffer doubled the scene in
     # host memory while it rendered. Rows placed otherwise across the cache lines than in the

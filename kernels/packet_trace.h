@@ -275,22 +275,19 @@ OUT_OF_LINE REAL3 sample_tree_radiance(const SceneRefs* s, const __global Camera
 HOT REAL3 packet_pixel_radiance(const SceneRefs* s, const __global Camera* camera,
                                 const __global Params* params, int x, int y, uint pixel,
                                 int* secondary_rays, int* shadow_rays) {
-    REAL3 sum = (REAL3)(0, 0, 0);
-#if !PACKET_CHAINS
-    REAL3 ambient = TO_REAL3(params->ambient);
-#endif
+    REAL3 sum = (REAL3)(0, 0, 0), ambient = TO_REAL3(params->ambient);
     int spp = params->spp;
     SampleKey key = sample_key(params->seed, pixel, spp);
     SamplePacket packet;
     for (int sample = 0; sample < spp; ++sample) {
         key.sample = sample;
         int lane = sample % PACKET_LANES;
-#if PACKET_CHAINS
-        if (lane == 0) {
+        if ((PACKET_CHAINS || spp > 1) && lane == 0) {
             trace_sample_packet(s, camera, params, x, y, pixel, key,
                                 min(PACKET_LANES, spp - sample), &packet, secondary_rays,
                                 shadow_rays);
         }
+#if PACKET_CHAINS
         // The packet traced the sample's chain.
         sum += sample_radiance(&packet, lane);
 #else
@@ -298,15 +295,9 @@ HOT REAL3 packet_pixel_radiance(const SceneRefs* s, const __global Camera* camer
         REAL3 radiance = (REAL3)(0, 0, 0);
         int sp = 1;
         if (spp > 1) {
-            if (lane == 0) {
-                trace_sample_packet(s, camera, params, x, y, pixel, key,
-                                    min(PACKET_LANES, spp - sample), &packet, secondary_rays,
-                                    shadow_rays);
-            }
             sp = packed_root(s, params, &packet, lane, stack, &radiance, secondary_rays);
-        } else {
-            stack[0] = primary_task(camera, params, x, y, sample, pixel);
-        }
+        } else
+        stack[0] = primary_task(camera, params, x, y, sample, pixel);
         sum += sample_tree_radiance(s, camera, params, key, ambient, stack, sp, radiance,
                                     secondary_rays, shadow_rays);
 #endif

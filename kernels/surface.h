@@ -52,8 +52,8 @@ HOT void instance_to_world(const __global Instance* in, REAL4* a0, REAL4* a1, RE
     *a2 = (REAL4)(l2, -dot(l2, m));
 }
 
-// The surface of a hit inside an instance, sf (shape_surface's, found in the group's frame),
-// mapped to the scene's by to_world. Its error bound covers four things: the group-frame bound mapped through
+// The surface of a hit inside an instance: found in the group's frame, then mapped to the
+// scene's by to_world. Its error bound covers four things: the group-frame bound mapped through
 // A (the sum of |A| bounds its largest stretch); the rounding of that map; how far the point,
 // mapped back into the group's frame by to_object's M (as a ray spawned here is), misses the
 // group-frame point (the residual: A is a computed inverse, exact only to the roundings of
@@ -61,7 +61,10 @@ HOT void instance_to_world(const __global Instance* in, REAL4* a0, REAL4* a1, RE
 // not be carried back through the surface: a distance e in the group's frame is at most
 // e / |M^T n| along the normal here. M is float32 in every build, so the rounding terms count
 // float32 roundings even in the double build.
-HOT Surface instance_surface(const __global Instance* in, Surface sf) {
+HOT Surface instance_surface(const SceneRefs* s, const Ray* r, const Hit* hit, bool want_uv) {
+    const __global Instance* in = s->instances + hit->instance;
+    Ray group_ray = instance_ray(in, r);
+    Surface sf = shape_surface(s, &group_ray, hit, want_uv);
     REAL4 p = (REAL4)(sf.p, (REAL)1);
     REAL4 a0, a1, a2;
     instance_to_world(in, &a0, &a1, &a2);
@@ -88,26 +91,20 @@ HOT Surface instance_surface(const __global Instance* in, Surface sf) {
 }
 #endif
 
-// The hit's surface in the scene's frame. shape_surface, every shape's surface, is called once,
-// in the frame of the shape hit (its instance's or the scene's): called in both branches it was
-// inlined twice, and its second copy made instances' renderer a sixth larger to compile at the
-// first launch (issue 42: pixel_radiance 34,663 -> 28,640 bytes).
+// The hit's surface in the scene's frame.
 HOT Surface surface_at(const SceneRefs* s, const Ray* r, const Hit* hit, bool want_uv) {
 #if HAS_INSTANCES
-    Ray frame_ray = *r;
-    if (hit->instance >= 0) frame_ray = instance_ray(s->instances + hit->instance, r);
-    Surface sf = shape_surface(s, &frame_ray, hit, want_uv);
-    if (hit->instance >= 0) return instance_surface(s->instances + hit->instance, sf);
+    if (hit->instance >= 0) return instance_surface(s, r, hit, want_uv);
 #ifdef USE_DOUBLE
     // Instances' surfaces lie where their float32 matrices put them, in every build: a scene
     // surface that meets one (a glass base standing on the floor) needs offsets of float32
     // size too, or a ray spawned from it can start on the wrong side of the instance's.
+    Surface sf = shape_surface(s, r, hit, want_uv);
     sf.err = fmax(sf.err, (REAL)(ERR_ROUNDINGS * FLT_EPSILON) * max_abs3(sf.p));
-#endif
     return sf;
-#else
-    return shape_surface(s, r, hit, want_uv);
 #endif
+#endif
+    return shape_surface(s, r, hit, want_uv);
 }
 
 // How far offset_origin moves a point along n_g = (gx, gy, gz): the error bound err along the

@@ -90,13 +90,12 @@ def test_a_render_build_has_no_intersect_rays(cl_device: cl.Device) -> None:
         "intersect_rays", "render"]
 
 
-def _program_binary(device: cl.Device, config: KernelConfig, prefix: str = "") -> bytes:
-    """PoCL's binary of the program built from `prefix` and the kernels with `config`: its
-    program.bc, clang's -O2 output, with its functions' names."""
+def _program_binary(device: cl.Device, config: KernelConfig) -> bytes:
+    """PoCL's binary of the kernels built with `config`: its program.bc, clang's -O2 output,
+    with its functions' names."""
     if device.platform.name.strip() != "Portable Computing Language":
         pytest.skip("the program's binary is PoCL's program.bc")
-    program = cl.Program(context_for(device), prefix + kernel_source()).build(
-        options=config.options())
+    program = cl.Program(context_for(device), kernel_source()).build(options=config.options())
     return bytes(program.get_info(cl.program_info.BINARIES)[0])
 
 
@@ -114,30 +113,3 @@ def test_packet_chains_build_has_no_ray_tree(cl_device: cl.Device) -> None:
                                                            has_transmission=True))
     assert b"sample_tree_radiance" in trees
 
-
-def _llvm_ir(bitcode: bytes) -> str | None:
-    """The text of PoCL's program.bc (in its poclbin after a 4-byte length), by the first
-    llvm-dis that reads it; None where none does."""
-    start = bitcode.find(b"BC\xc0\xde")
-    module = bitcode[start:start + int.from_bytes(bitcode[start - 4:start], "little")]
-    for tool in ("llvm-dis-15", "llvm-dis"):
-        if shutil.which(tool):
-            done = subprocess.run([tool, "-o", "-", "-"], input=module, capture_output=True)
-            if done.returncode == 0:
-                return done.stdout.decode()
-    return None
-
-
-def test_instances_build_has_one_shapes_surface(cl_device: cl.Device) -> None:
-    """surface_at calls shape_surface (every shape's surface) once, in the frame of the shape
-    hit: called for an instance's hits and for the scene's, it was inlined twice, and
-    instances' pixel_radiance was 34,663 bytes instead of 28,640 to compile at the first launch
-    (issue 42). Counted in clang's output with the HOT helpers kept out of line."""
-    config = KernelConfig(has_spheres=True, has_boxes=True, has_planes=True,
-                          has_triangles=True, has_instances=True, max_depth=2)
-    ir = _llvm_ir(_program_binary(cl_device, config,
-                                  "#define HOT static __attribute__((noinline))\n"))
-    if ir is None:
-        pytest.skip("needs llvm-dis for PoCL's LLVM")
-    calls = [line for line in ir.splitlines() if "call" in line and "@shape_surface(" in line]
-    assert len(calls) == 1, calls

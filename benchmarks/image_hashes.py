@@ -11,8 +11,8 @@ python benchmarks/image_hashes.py --json after.json --against before.json  # and
 ```
 
 Each scene renders at --size (96x54 by default) with the traversal single at 1 and 16 samples
-per pixel, sample_packet at 1 and 16 (at 1 spp the packet build runs its single-ray code, at 16
-its packets) and, for the example scenes, group_packet at 4. The scenes' own depth, seed and
+per pixel, sample_packet at 1 and 16 (at 1 spp render() builds the single-ray kernel for it, at
+16 the packets) and, for the example scenes, group_packet at 4. The scenes' own depth, seed and
 lights are kept. The knobs are the defaults (stored_tuning off), so a tuning file written by
 `clray tune` does not change what is hashed. --against exits 1 where a hash differs or a
 render is missing. The JSON holds the device, the settings, and per render its key, sha256,

@@ -251,12 +251,11 @@ HOT int packed_root(const SceneRefs* s, const __global Params* params, const Sam
 #endif
     return sp;
 }
-#endif
 
-// tree_radiance out of line (issue 42, cold build): with chains it runs only at one sample a
-// pixel, without them once a sample, after its packet (a ray tree's worth of work a call).
-// Inlined, it put a second copy of the single-ray walks, shading and lights into the kernel's
-// largest function beside the packets' own.
+// tree_radiance out of line (issue 42, cold build): once a sample, after its packet, or alone
+// at one sample a pixel (a ray tree's worth of work a call). Inlined, it put a second copy of
+// the single-ray walks, shading and lights into the kernel's largest function beside the
+// packets' own.
 OUT_OF_LINE REAL3 sample_tree_radiance(const SceneRefs* s, const __global Camera* camera,
                                        const __global Params* params, SampleKey key,
                                        REAL3 ambient, RayTask* stack, int sp, REAL3 radiance,
@@ -264,10 +263,15 @@ OUT_OF_LINE REAL3 sample_tree_radiance(const SceneRefs* s, const __global Camera
     return tree_radiance(s, camera, params, key, ambient, stack, sp, radiance, secondary_rays,
                          shadow_rays);
 }
+#endif
 
 // pixel_radiance with sample packets: the pixel's samples PACKET_LANES at a time
-// (trace_sample_packet), with chains to their ends, without from their primary rays' hits on,
-// ray by ray. With one sample a pixel there is no packet: its rays go alone.
+// (trace_sample_packet). With chains the packets trace them to their ends, even one sample a
+// pixel (a packet of one lane): the build then holds no ray-by-ray tree (issue 42: it was
+// 8,858 of cornell_box's 72,874 bytes of code compiled at the first launch, and clray's
+// renders build this kernel only above 1 spp, clray.device.policy.device_plan). Without
+// chains a tree can branch: from the primary rays' hits on, ray by ray, and with one sample a
+// pixel there is no packet, its rays go alone.
 HOT REAL3 packet_pixel_radiance(const SceneRefs* s, const __global Camera* camera,
                                 const __global Params* params, int x, int y, uint pixel,
                                 int* secondary_rays, int* shadow_rays) {
@@ -278,29 +282,25 @@ HOT REAL3 packet_pixel_radiance(const SceneRefs* s, const __global Camera* camer
     for (int sample = 0; sample < spp; ++sample) {
         key.sample = sample;
         int lane = sample % PACKET_LANES;
-        if (spp > 1 && lane == 0) {
+        if ((PACKET_CHAINS || spp > 1) && lane == 0) {
             trace_sample_packet(s, camera, params, x, y, pixel, key,
                                 min(PACKET_LANES, spp - sample), &packet, secondary_rays,
                                 shadow_rays);
         }
 #if PACKET_CHAINS
-        if (spp > 1) {
-            // The packet traced the sample's chain.
-            sum += sample_radiance(&packet, lane);
-            continue;
-        }
-#endif
+        // The packet traced the sample's chain.
+        sum += sample_radiance(&packet, lane);
+#else
         RayTask stack[RAY_STACK_SIZE];
         REAL3 radiance = (REAL3)(0, 0, 0);
         int sp = 1;
-#if !PACKET_CHAINS
         if (spp > 1) {
             sp = packed_root(s, params, &packet, lane, stack, &radiance, secondary_rays);
         } else
-#endif
         stack[0] = primary_task(camera, params, x, y, sample, pixel);
         sum += sample_tree_radiance(s, camera, params, key, ambient, stack, sp, radiance,
                                     secondary_rays, shadow_rays);
+#endif
     }
     return sum;
 }

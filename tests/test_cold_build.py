@@ -88,3 +88,28 @@ def test_a_render_build_has_no_intersect_rays(cl_device: cl.Device) -> None:
     both, _ = build_program(cl_device, dataclasses.replace(config, intersect_rays=True))
     assert sorted(both.get_info(cl.program_info.KERNEL_NAMES).split(";")) == [
         "intersect_rays", "render"]
+
+
+def _program_binary(device: cl.Device, config: KernelConfig) -> bytes:
+    """PoCL's binary of the kernels built with `config`: its program.bc, clang's -O2 output,
+    with its functions' names."""
+    if device.platform.name.strip() != "Portable Computing Language":
+        pytest.skip("the program's binary is PoCL's program.bc")
+    program = cl.Program(context_for(device), kernel_source()).build(options=config.options())
+    return bytes(program.get_info(cl.program_info.BINARIES)[0])
+
+
+def test_packet_chains_build_has_no_ray_tree(cl_device: cl.Device) -> None:
+    """Without refraction the sample packets trace each sample's chain to its end, at any spp
+    (kernels/packet_trace.h): the build holds no ray-by-ray tree, which was 8,858 of
+    cornell_box's 72,874 bytes of code compiled at the first launch (issue 42). With refraction
+    a sample's tree can branch and goes on ray by ray after its packet."""
+    config = KernelConfig(has_spheres=True, has_planes=True, has_area_lights=True, max_depth=3,
+                          traversal="sample_packet")
+    chains = _program_binary(cl_device, config)
+    assert b"trace_sample_packet" in chains, "the binary holds no function names: blind check"
+    assert b"sample_tree_radiance" not in chains
+    trees = _program_binary(cl_device, dataclasses.replace(config, has_refraction=True,
+                                                           has_transmission=True))
+    assert b"sample_tree_radiance" in trees
+

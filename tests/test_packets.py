@@ -10,6 +10,7 @@ primitive would mean a lane missed a node, tested a shape another way, or droppe
 
 from __future__ import annotations
 
+import dataclasses
 import uuid
 import warnings
 from pathlib import Path
@@ -20,13 +21,13 @@ import pyopencl as cl
 import pytest
 from test_intersect import mesh_gen, random_mix, random_units
 
-from clray.device.launch import intersect_rays
+from clray.device.launch import intersect_rays, render_packed
 from clray.device.pack import pack_scene
 from clray.device.policy import device_plan, traversal_for
 from clray.device.program import KernelConfig, kernel_source
 from clray.errors import SettingsError
 from clray.knobs import TRAVERSALS, Tuning
-from clray.render import RenderSettings, render
+from clray.render import RenderSettings, pack_for, plan_for, render
 from clray.scene import model as M
 from clray.scene.load import load_scene, scene_from_dict
 
@@ -294,3 +295,23 @@ def test_wide_packets_build_without_warnings(cl_ctx: cl.Context, precision: str,
         program = cl.Program(cl_ctx, source).build(options=config.options())
     log = program.get_build_info(device, cl.program_build_info.LOG)
     assert [line for line in log.splitlines() if "warning" in line.lower()] == []
+
+
+@pytest.mark.parametrize("name", ["spheres", "cornell_box"])
+def test_packet_build_at_one_sample_traces_a_packet_of_one(cl_device, name):
+    """With chains (no refraction) the sample-packet build holds no ray-by-ray tree (issue 42,
+    kernels/packet_trace.h): launched at 1 spp, which clray's renders never do
+    (test_one_sample_a_pixel_renders_with_the_single_ray_build), it traces packets of one lane,
+    and must render the single-ray build's image."""
+    _require_exact_arithmetic(cl_device)
+    scene = load_scene(ROOT / "scenes" / f"{name}.toml")
+    one = RenderSettings(width=24, height=18, spp=1, stored_tuning=False)
+    packets = plan_for(scene, dataclasses.replace(one, spp=16, traversal="sample_packet"),
+                       cl_device)
+    assert packets.traversal == "sample_packet"
+    packed = pack_for(scene, one, cl_device, packets)
+    assert packed.config.traversal == "sample_packet" and not packed.config.has_refraction
+    image, _ = render_packed(packed, cl_device)
+    single, _ = render_packed(pack_for(scene, one, cl_device), cl_device)
+    assert np.array_equal(single, image, equal_nan=True), (
+        f"{np.sum(np.any(single != image, axis=2))} pixels differ")

@@ -275,7 +275,10 @@ OUT_OF_LINE REAL3 sample_tree_radiance(const SceneRefs* s, const __global Camera
 HOT REAL3 packet_pixel_radiance(const SceneRefs* s, const __global Camera* camera,
                                 const __global Params* params, int x, int y, uint pixel,
                                 int* secondary_rays, int* shadow_rays) {
-    REAL3 sum = (REAL3)(0, 0, 0), ambient = TO_REAL3(params->ambient);
+    REAL3 sum = (REAL3)(0, 0, 0);
+#if !PACKET_CHAINS
+    REAL3 ambient = TO_REAL3(params->ambient);  // the ray-by-ray trees' (chains have their own)
+#endif
     int spp = params->spp;
     SampleKey key = sample_key(params->seed, pixel, spp);
     SamplePacket packet;

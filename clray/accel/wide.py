@@ -30,7 +30,7 @@ import numpy as np
 
 from clray.accel import prim_refs as P
 from clray.accel.bvh import BINARY_NODE, Bvh
-from clray.host_memory import by_chunks
+from clray.host_memory import aligned_empty, by_chunks
 from clray.knobs import KNOBS
 from clray.shapes.sphere import SPHERE
 
@@ -116,7 +116,9 @@ def collapse(bvh: Bvh, refs: np.ndarray, width: int,
     # The node records as rows of 8 lanes-wide fields: 6 bound fields, then child and count.
     # The bounds are each slot's binary node's (a folded slot keeps its node's box), NaN in an
     # unused lane.
-    rows = np.empty((n_wide, 8, width), dtype=np.float32)
+    # Each node aligned to its own size, which a cache line of any size divides: a CPU device
+    # reads the nodes in place (clray/device/buffers.py, read_only_buffer).
+    rows = aligned_empty((n_wide, 8, width), np.float32, dtype.itemsize)
 
     def lay_out_boxes(part: slice) -> None:
         boxes = nodes.take(np.where(used[part], slots[part], 0)).view(BINARY_NODE)

@@ -119,14 +119,15 @@ def _check_values(lo: np.ndarray, hi: np.ndarray) -> None:
                   for at in range(0, len(lo), _CHECK_ROWS))
     if ordered and lo.min() >= -_F32_MAX and hi.max() <= _F32_MAX:
         return
-    if not (_within_float32(lo) and _within_float32(hi)):
+    if not (within_float32(lo) and within_float32(hi)):
         raise ValueError("primitive bounds must be finite and within float32 range")
     raise ValueError("primitive bounds have lo > hi")
 
 
-def _within_float32(a: np.ndarray) -> bool:
+def within_float32(a: np.ndarray) -> bool:
     """Every value finite and within float32's range (a NaN makes the minimum and maximum
-    NaN, which fail both tests)."""
+    NaN, which fail both tests): values that minima and maxima may be taken of for bounds
+    that checked_bounds need not scan (its values_checked)."""
     return bool(a.min() >= -_F32_MAX) and bool(a.max() <= _F32_MAX)
 
 

@@ -115,9 +115,8 @@ def collapse(bvh: Bvh, refs: np.ndarray, width: int,
 
     # The node records as rows of 8 lanes-wide fields: 6 bound fields, then child and count.
     # The bounds are each slot's binary node's (a folded slot keeps its node's box), NaN in an
-    # unused lane.
-    # Each node aligned to its own size, which a cache line of any size divides: a CPU device
-    # reads the nodes in place (clray/device/buffers.py, read_only_buffer).
+    # unused lane. Each node is aligned to its own size, which a cache line of any size
+    # divides: a CPU device reads the nodes in place (clray/device/buffers.py).
     rows = aligned_empty((n_wide, 8, width), np.float32, dtype.itemsize)
 
     def lay_out_boxes(part: slice) -> None:

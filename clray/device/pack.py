@@ -12,7 +12,7 @@ from dataclasses import dataclass, field, make_dataclass
 import numpy as np
 import pyopencl as cl
 
-from clray.accel.bvh import TRAVERSAL_COST, build_bvh
+from clray.accel.bvh import TRAVERSAL_COST, build_bvh, within_float32
 from clray.accel.wide import LEAF_FIELD_MASK, PACKET_WIDTH, WideBvh, collapse, fill_nodes
 from clray.device import layout as L
 from clray.device.bvh_builder import build_bvh_from, float_prims
@@ -29,8 +29,6 @@ from clray.shapes.sphere import SPHERE
 
 # Primitive count from which pack_scene builds the BVH on the device when given a queue.
 DEVICE_BUILD_MIN = 20000
-# The largest float32: float32 vertices within it are finite.
-_F32_MAX = float(np.finfo(np.float32).max)
 
 
 def _device_bytes(self: PackedScene) -> dict[str, int]:
@@ -248,7 +246,7 @@ def _pack_triangles(objs: _Placed, sources: list[tuple], bounded: _Bounded
     # Every vertex finite: then so is every triangle's box, and lo <= hi by construction. Two
     # passes over the vertices spare the BVH build's three over six bounds a triangle.
     bounded.add(L.PRIM_TRIANGLE, lo, hi, objs.owners, [len(src[1]) for src in sources],
-                checked=bool(vertices.min() >= -_F32_MAX) and bool(vertices.max() <= _F32_MAX))
+                checked=within_float32(vertices))
     return faces, vertices
 
 

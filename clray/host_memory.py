@@ -100,16 +100,23 @@ def small_pages(stage: Callable[P, R]) -> Callable[P, R]:
     return run
 
 
-# Rows (vertices, triangles, packets, wide nodes) that a chunked pass takes at a time: its
-# temporaries stay a few MiB however large the mesh (docs/scale.md, Where the memory goes).
+# Vertices, triangles or child slots that a chunked pass takes at a time: its temporaries stay
+# a few MiB however large the mesh (docs/scale.md, Where the memory goes).
 CHUNK_ROWS = 1 << 16
 
 
-def by_chunks(n: int, work: Callable[[slice], None]) -> None:
-    """work(rows) for each CHUNK_ROWS of range(n), on as many threads as the process may run
-    at once: numpy's gathers, minima and copies let go of the GIL, and a chunk writes its own
-    rows alone, so the passes over a big mesh use every core, as the device build does."""
-    parts = [slice(at, min(at + CHUNK_ROWS, n)) for at in range(0, n, CHUNK_ROWS)]
+def by_chunks(n: int, work: Callable[[slice], None], row_items: int = 1) -> None:
+    """work(rows) for each chunk of range(n), on as many threads as the process may run at
+    once: numpy's gathers, minima and copies let go of the GIL, and a chunk writes its own rows
+    alone, so the passes over a big mesh use every core, as the device build does.
+
+    A chunk holds CHUNK_ROWS items: rows of `row_items` items each (a packet's slots, a wide
+    node's children) come CHUNK_ROWS // row_items at a time. Each thread's temporaries stay in
+    the C library's heap for that thread when freed, where malloc_trim does not reach (glibc
+    trims only the main heap's top): chunks of 65,536 packets held 46 MiB there through the
+    5.24 M-triangle mesh's pack (docs/scale.md)."""
+    step = max(1, CHUNK_ROWS // row_items)
+    parts = [slice(at, min(at + step, n)) for at in range(0, n, step)]
     threads = min(len(parts), len(os.sched_getaffinity(0)))
     if threads <= 1:
         for part in parts:

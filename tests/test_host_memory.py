@@ -9,6 +9,7 @@ import sys
 from pathlib import Path
 from types import SimpleNamespace
 
+import numpy as np
 import pytest
 
 from clray import host_memory
@@ -137,3 +138,18 @@ def test_a_stage_hands_the_heaps_free_pages_back() -> None:
     given_back, above = (int(x) for x in done.stdout.split())
     assert given_back > 48 * (1 << 20)
     assert above == 8 << 20
+
+
+@pytest.mark.parametrize("row_items", [1, 16, host_memory.CHUNK_ROWS * 2])
+def test_chunks_cover_the_rows_once_with_chunk_rows_items_each(row_items: int) -> None:
+    n = 3 * host_memory.CHUNK_ROWS // max(1, row_items // 2) + 5
+    seen = np.zeros(n, dtype=np.int64)
+    parts: list[slice] = []
+
+    def work(part: slice) -> None:
+        parts.append(part)
+        seen[part] += 1
+
+    host_memory.by_chunks(n, work, row_items=row_items)
+    assert np.all(seen == 1)
+    assert max(p.stop - p.start for p in parts) == max(1, host_memory.CHUNK_ROWS // row_items)

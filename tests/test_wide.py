@@ -121,6 +121,21 @@ def test_collapse_of_random_boxes(width, n):
     check_wide(wide, c - e, c + e, refs)
 
 
+@pytest.mark.parametrize("width", [4, 8])
+def test_a_run_of_references_given_by_its_first_is_the_run_itself(width):
+    # The pack hands a mesh alone's references as their first (L.PRIM_TRIANGLE << shift):
+    # the tree must be the one of the references written out.
+    rng = np.random.default_rng(width)
+    c = rng.uniform(-10, 10, (3000, 3))
+    e = rng.exponential(0.3, (3000, 3))
+    first = L.PRIM_TRIANGLE << L.PRIM_TYPE_SHIFT
+    bvh = build_bvh(c - e, c + e)
+    run, written = collapse(bvh, first, width), collapse(bvh, first + np.arange(3000), width)
+    assert np.array_equal(run.prim_refs, written.prim_refs)
+    assert run.nodes.tobytes() == written.nodes.tobytes()
+    check_wide(run, c - e, c + e, first + np.arange(3000))
+
+
 @settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(n=st.integers(1, 400), seed=st.integers(0, 2**32 - 1), width=st.sampled_from([4, 8]),
        leaf=st.sampled_from([1, 4, 16]), tri_share=st.sampled_from([0.0, 0.5, 1.0]))

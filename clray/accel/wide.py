@@ -74,10 +74,11 @@ class WideBvh:
     stack_size: int
 
 
-def collapse(bvh: Bvh, refs: np.ndarray, width: int,
+def collapse(bvh: Bvh, refs: np.ndarray | int, width: int,
              fold_packets: int | None = None) -> WideBvh:
     """Wide BVH of `width` children per node from a binary `bvh` over primitives whose
-    references (PRIM_* << PRIM_TYPE_SHIFT | index) are `refs[i]` for build input i.
+    references (PRIM_* << PRIM_TYPE_SHIFT | index) are `refs[i]` for build input i (`refs + i`
+    where refs is an int: a run of one kind's primitives, as a mesh alone's are).
     `fold_packets`: the folding bound (None: FOLD_PACKETS). The collapse reads only the nodes
     it reaches from the root, so `bvh` may be in the device build's layout (Bvh.pairs)."""
     if width not in BVH_WIDTHS:
@@ -124,16 +125,18 @@ def collapse(bvh: Bvh, refs: np.ndarray, width: int,
         rows[part, 0:3] = boxes["lo"].transpose(0, 2, 1)
         rows[part, 3:6] = boxes["hi"].transpose(0, 2, 1)
         rows[part, 0:6].transpose(0, 2, 1)[~used[part]] = np.nan
-    by_chunks(n_wide, lay_out_boxes)
+    by_chunks(n_wide, lay_out_boxes, row_items=width)
     rows[:, 6].view(np.int32)[...] = child
     rows[:, 7].view(np.int32)[...] = packed_count
     nodes = rows.reshape(n_wide, -1).view(dtype).ravel()
     return WideBvh(nodes, prim_refs, width, _stack_size(child, is_inner, used, level_rows))
 
 
-def _refs_in_order(refs: np.ndarray, order: np.ndarray) -> np.ndarray:
+def _refs_in_order(refs: np.ndarray | int, order: np.ndarray) -> np.ndarray:
     """refs[order]. A mesh alone numbers its references as its primitives, refs[i] = refs[0] +
     i: then a sum, where a gather in tree order (random access, 0.3 s for 5 M) would do."""
+    if isinstance(refs, int):
+        return np.add(order, refs, dtype=np.int32)
     if refs.size and refs[-1] - refs[0] == refs.size - 1 and np.all(np.diff(refs) == 1):
         return order.astype(refs.dtype) + refs[0]
     return refs[order]
@@ -213,7 +216,7 @@ def _open_children(parents: np.ndarray, first: np.ndarray, nodes: np.ndarray, wi
                                     mine[1][open_rows, k].astype(np.int64), pairs)
             _place(mine, area, open_rows, k, left, nodes)
             _place(mine, area, open_rows, filled, right, nodes)
-    by_chunks(m, grow)
+    by_chunks(m, grow, row_items=width)
     return level
 
 

@@ -88,7 +88,10 @@ class _Bounded:
     def __init__(self) -> None:
         self.lo: list[np.ndarray] = []
         self.hi: list[np.ndarray] = []
-        self.refs: list[np.ndarray] = []
+        # Each kind's references, or the first of them where they run on from it (refs + i):
+        # an array of 4 B a primitive is made only where groups or kinds are joined, or after
+        # the build (collapse), not beside the device build's primitives (21 MiB at 5.24 M).
+        self.refs: list[np.ndarray | int] = []
         self.owners: list[np.ndarray] = []  # runs: an owner per object...
         self.sizes: list[np.ndarray] = []  # ...and its primitives
         # Whether each kind's bounds were made from checked values (checked_bounds).
@@ -102,16 +105,19 @@ class _Bounded:
         self.checked.append(checked)
         self.lo.append(lo)
         self.hi.append(hi)
-        self.refs.append((kind << L.PRIM_TYPE_SHIFT) | np.arange(len(lo), dtype=np.int32))
+        self.refs.append(int(kind) << L.PRIM_TYPE_SHIFT)
         self.owners.append(np.asarray(owners, dtype=np.int64))
         self.sizes.append(np.asarray(sizes, dtype=np.int64))
 
-    def owned_by(self, owner: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(lo, hi, refs) of one owner's primitives."""
+    def owned_by(self, owner: int) -> tuple[np.ndarray, np.ndarray, np.ndarray | int]:
+        """(lo, hi, refs) of one owner's primitives; refs as collapse takes them (an array, or
+        the first of a run)."""
         if not self.lo:
             return np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0, dtype=np.int32)
         if len(self.lo) > 1:
             # Joined once: a scene with groups asks once per owner.
+            self.refs = [_ref_array(refs, len(lo)) for refs, lo in zip(self.refs, self.lo,
+                                                                        strict=True)]
             self.lo, self.hi, self.refs, self.owners, self.sizes = (
                 [np.concatenate(part)] for part in (self.lo, self.hi, self.refs, self.owners,
                                                     self.sizes))
@@ -121,9 +127,9 @@ class _Bounded:
         if runs.all():
             return lo, hi, refs
         mine = np.repeat(runs, self.sizes[0])
-        return lo[mine], hi[mine], refs[mine]
+        return lo[mine], hi[mine], _ref_array(refs, len(lo))[mine]
 
-    def take(self, owner: int) -> list[np.ndarray]:
+    def take(self, owner: int) -> list:
         """[lo, hi, refs] of the last owner built: this _Bounded lets go of its arrays, so
         that _build_wide can free the bounds before the collapse."""
         prims = list(self.owned_by(owner))
@@ -134,6 +140,11 @@ class _Bounded:
     def values_checked(self) -> bool:
         """Every kind's bounds made from checked values (add's `checked`)."""
         return bool(self.checked) and all(self.checked)
+
+
+def _ref_array(refs: np.ndarray | int, n: int) -> np.ndarray:
+    """n references as an array: `refs` itself, or the run from the first reference `refs`."""
+    return refs + np.arange(n, dtype=np.int32) if isinstance(refs, int) else refs
 
 
 @dataclass(frozen=True)
@@ -229,16 +240,14 @@ def _vertex_offsets(sources: list[tuple]) -> np.ndarray:
     return np.concatenate([[0], np.cumsum([len(src[0]) for src in sources])[:-1]]).astype(np.int64)
 
 
-def _pack_triangles(objs: _Placed, sources: list[tuple], bounded: _Bounded
-                    ) -> tuple[_Faces, np.ndarray]:
+def _pack_triangles(objs: _Placed, sources: list[tuple], bounded: _Bounded) -> _Faces:
     """Loose triangles and meshes (`sources`: _triangle_sources) as one indexed triangle list
-    over shared vertex arrays, their bounds added to the BVH's input: the faces and the
-    camera-relative vertices (_relative_vertices) the bounds are taken from. The vertices
-    stay for the packets after the BVH: letting them go through the build and making them
-    again cut nothing from the pack's peak (the packets' stage is higher) and cost 0.05 to
-    0.07 s at 5.24 M triangles (docs/scale.md)."""
+    over shared vertex arrays, their bounds, taken from the camera-relative vertices
+    (_relative_vertices), added to the BVH's input. The vertices are let go before the BVH
+    build and made again for the packets (_vertex_arrays): the build is the pack's highest
+    stage without them (8 B a triangle; 574 -> 534 MiB at 5.24 M triangles, docs/scale.md)."""
     if not objs.objects:
-        return _Faces(np.zeros((0, 4), np.int32)), np.zeros((0, 4), dtype=np.float32)
+        return _Faces(np.zeros((0, 4), np.int32))
     tints = [getattr(obj, "colors", None) for obj in objs.objects]
     faces = _scene_faces(sources, _vertex_offsets(sources), tints)
     vertices = _relative_vertices(objs, sources)
@@ -247,7 +256,7 @@ def _pack_triangles(objs: _Placed, sources: list[tuple], bounded: _Bounded
     # passes over the vertices spare the BVH build's three over six bounds a triangle.
     bounded.add(L.PRIM_TRIANGLE, lo, hi, objs.owners, [len(src[1]) for src in sources],
                 checked=within_float32(vertices))
-    return faces, vertices
+    return faces
 
 
 def _relative_vertices(objs: _Placed, sources: list[tuple]) -> np.ndarray:
@@ -264,14 +273,14 @@ def _relative_vertices(objs: _Placed, sources: list[tuple]) -> np.ndarray:
     return vertices
 
 
-def _vertex_arrays(objs: _Placed, sources: list[tuple], faces: _Faces, vertices: np.ndarray
-                   ) -> _Triangles:
-    """The triangles with their vertex arrays: positions (_pack_triangles'), normals, uvs
-    and colours."""
+def _vertex_arrays(objs: _Placed, sources: list[tuple], faces: _Faces) -> _Triangles:
+    """The triangles with their vertex arrays: camera-relative positions (as _pack_triangles
+    made them for the bounds), normals, uvs and colours."""
     if not objs.objects:
         empty = np.zeros((0, 4), dtype=np.float32)
         return _Triangles(faces, empty, empty.copy(), np.zeros((0, 2), np.float32),
                           empty.copy())
+    vertices = _relative_vertices(objs, sources)
     offsets = _vertex_offsets(sources)
     n_vertices = len(vertices)
     has_normals = any(src[2] is not None for src in sources)
@@ -329,7 +338,7 @@ def _triangle_bounds(vertices: np.ndarray, corners: np.ndarray) -> tuple[np.ndar
         c0, c1, c2 = (np.take(vertices, corners[part, k], axis=0) for k in range(3))
         hi[part] = np.maximum(np.maximum(c0, c1), c2)[:, :3]
         lo[part] = np.minimum(np.minimum(c0, c1, out=c0), c2, out=c0)[:, :3]
-    by_chunks(len(corners), bound)
+    by_chunks(len(corners), bound, row_items=4)
     return lo, hi
 
 
@@ -448,7 +457,7 @@ def _pack_bvh(bounded: _Bounded, n_groups: int, instances: list[M.Instance],
     prims = bounded.take(0)
     # Where instances are most of the scene's tree, one primitive a leaf; a large mesh of the
     # scene's own beside a few instances keeps its packed leaves.
-    one_per_leaf = bool(instances) and 2 * len(instances) >= len(prims[2])
+    one_per_leaf = bool(instances) and 2 * len(instances) >= len(prims[0])
     wide = _build_wide(prims, width, queue, tuning, one_per_leaf=one_per_leaf,
                        values_checked=values_checked)
     if not instances:
@@ -497,7 +506,10 @@ def _slot_triangles(prim_refs: np.ndarray, tris: _Triangles) -> tuple[np.ndarray
     used = _through_last(is_tri)
     slots, is_tri = slots[:used], is_tri[:used]
     whole = bool(len(tris.normals) or len(tris.uvs) or len(tris.colors))
-    kept = np.empty((used, PACKET_WIDTH, 4) if whole else (used, PACKET_WIDTH), np.int32)
+    # A mesh of one material (_Faces.word) keeps its one word: nothing a slot to keep.
+    one_word = None if whole else tris.faces.word
+    kept = (None if one_word is not None else
+            np.empty((used, PACKET_WIDTH, 4) if whole else (used, PACKET_WIDTH), np.int32))
     packets = np.empty((used, 3, 3, PACKET_WIDTH), dtype=np.float32)
 
     def gather(part: slice) -> None:
@@ -511,10 +523,15 @@ def _slot_triangles(prim_refs: np.ndarray, tris: _Triangles) -> tuple[np.ndarray
         # NaN in the lanes of the packets that are not all triangles.
         partial = part.start + np.flatnonzero(~is_tri[part].all(axis=1))
         packets[partial] = np.where(is_tri[partial, None, None, :], packets[partial], np.nan)
-        kept[part] = records if whole else records[..., 3]
-    by_chunks(used, gather)
-    return (packets.reshape(used, -1).view(L.TRIANGLE_PACKET).ravel(),
-            _in_slot_order(kept, is_tri, tris))
+        if kept is not None:
+            kept[part] = records if whole else records[..., 3]
+    by_chunks(used, gather, row_items=PACKET_WIDTH)
+    packets = packets.reshape(used, -1).view(L.TRIANGLE_PACKET).ravel()
+    if one_word is not None:
+        return packets, _Triangles(tris.faces, tris.vertices, tris.normals, tris.uvs,
+                                   tris.colors, np.array([one_word], dtype=np.int32),
+                                   one_material=True)
+    return packets, _in_slot_order(kept, is_tri, tris)
 
 
 def _in_slot_order(kept: np.ndarray, is_tri: np.ndarray, tris: _Triangles) -> _Triangles:
@@ -737,13 +754,13 @@ def pack_scene(scene: M.Scene, *, width: int, height: int, spp: int, max_depth: 
     planes = _pack_planes(kinds[M.Plane].objects, eye)
     shapes = {shape.buffer: _pack_shape(shape, kinds[shape.model], bounded) for shape in SHAPES}
     sources = _triangle_sources(kinds[M.Triangle])
-    faces, vertices = _pack_triangles(kinds[M.Triangle], sources, bounded)
+    faces = _pack_triangles(kinds[M.Triangle], sources, bounded)
     wide, instance_records, bvh_s = _pack_bvh(bounded, len(groups), instances, group_of, eye,
                                               bvh_width, queue, tuning)
     # The build's and the collapse's temporaries, freed: their heap pages go back before
     # the packets take their place.
     trim_heap()
-    tris = _vertex_arrays(kinds[M.Triangle], sources, faces, vertices)
+    tris = _vertex_arrays(kinds[M.Triangle], sources, faces)
     if len(tris.faces):
         triangle_packets, tris = _slot_triangles(wide.prim_refs, tris)
     else:

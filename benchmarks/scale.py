@@ -80,6 +80,7 @@ out["pack_s"] = time.perf_counter() - t - packed.bvh_s
 out["peak_after_pack"] = peak()
 out["device_bytes"] = packed.device_bytes()
 out["triangles"] = packed.triangle_count()
+del scene  # as clray render hands its scene to render(), which lets it go once packed
 _, stats = render_packed(packed, device)
 out["build_s"], out["kernel_s"] = stats["build_s"], stats["kernel_s"]
 out["peak_after_render"] = peak()

@@ -729,7 +729,11 @@ def _render(args: argparse.Namespace) -> int:
         with _progress(quiet=args.quiet, verbose=args.verbose) as progress:
             settings = _settings(args, progress)
             if args.dask is None:
-                result = render(scene, settings)
+                # Handed over: render holds the scene alone, and a big model's mesh goes once
+                # it is packed (clray.render.render).
+                hand_over = [scene]
+                del scene
+                result = render(hand_over.pop, settings)
             else:
                 from clray.distributed import render_still
 

@@ -175,12 +175,21 @@ def pack_for(scene: Scene, settings: RenderSettings, device: cl.Device,
                       **plan.pack_arguments())
 
 
-def render(scene: Scene | str | os.PathLike, settings: RenderSettings | None = None
-           ) -> RenderResult:
-    """Render a scene, or the scene file at a path. A scene built in Python is first checked
-    by the scene file's rules (clray.scene.check): SceneError names the bad value."""
+def render(scene: Scene | str | os.PathLike | Callable[[], Scene],
+           settings: RenderSettings | None = None) -> RenderResult:
+    """Render a scene, the scene file at a path, or the scene a callable returns. A scene built
+    in Python is first checked by the scene file's rules (clray.scene.check): SceneError names
+    the bad value.
+
+    Given a path or a callable, render holds the scene alone and lets it go once it is packed
+    (unless passes need it after the render): a big model's mesh (18 B a triangle from a PLY
+    file) is not held beside the packed scene while it renders. `clray render` hands its
+    scene over so (a list's `pop`)."""
     settings = settings or RenderSettings()
-    scene = load_scene(scene) if isinstance(scene, str | os.PathLike) else check_scene(scene)
+    if isinstance(scene, str | os.PathLike):
+        scene = load_scene(scene)
+    else:
+        scene = check_scene(scene() if callable(scene) else scene)
     start = time.perf_counter()
     encoding = png_encoding(scene, settings)
     resolved = resolved_settings(scene, settings)
@@ -191,6 +200,8 @@ def render(scene: Scene | str | os.PathLike, settings: RenderSettings | None = N
     plan = plan_for(scene, settings, device)
     packed = pack_for(scene, settings, device, plan)
     pack_s = time.perf_counter() - start - packed.bvh_s
+    if not traced_passes(settings):
+        del scene  # where render holds it alone, the scene's arrays go before the render's
     image, stats = render_packed(packed, device, settings.progress, on_band=settings.on_band)
     aovs: dict[str, np.ndarray] = {}
     if traced_passes(settings):

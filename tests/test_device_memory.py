@@ -5,6 +5,7 @@ and for the render's buffers stays near the scene's device bytes (docs/scale.md)
 from __future__ import annotations
 
 import dataclasses
+import gc
 import importlib
 import tracemalloc
 import weakref
@@ -203,6 +204,46 @@ def test_pack_of_a_mesh_peaks_within_its_device_bytes_beside_the_build(cl_device
     assert peak - own <= sum(packed.device_bytes().values())
 
 
+def test_the_device_build_starts_beside_the_primitives_and_faces_alone(cl_device, monkeypatch):
+    # When the device build starts, the pack holds the build's primitive records (32 B a
+    # triangle, its bounds written in) and the triangle records (16 B: this mesh's int64 faces
+    # are written out), and no more: the camera-relative vertices are let go, to be made again
+    # for the packets, and a mesh's references are a run, not an array (4 B a triangle). Both
+    # were held through the build, the pack's highest stage (docs/scale.md).
+    scene = _mesh_scene(6)
+    n = len(scene.objects[0].faces)
+    if not bvh_builder.supports(cl_device, n, 4):
+        pytest.skip("the device does not build BVHs")
+    settings = {"width": 64, "height": 48, "spp": 1, "max_depth": 0, "seed": 0,
+                "queue": queue_for(cl_device)}
+    pack_scene(scene, **settings)  # the build's program compiled before measuring
+    held = []
+    build = bvh_builder.build
+
+    def spy(*args, **kwargs):
+        held.append(tracemalloc.get_traced_memory()[0])
+        return build(*args, **kwargs)
+
+    monkeypatch.setattr(bvh_builder, "build", spy)
+    tracemalloc.start()
+    try:
+        pack_scene(scene, **settings)
+    finally:
+        tracemalloc.stop()
+    assert len(held) == 1
+    assert held[0] <= n * (32 + 16) + 64 * 1024
+
+
+def test_triangle_count_counts_the_triangle_slots(cl_device):
+    # Packed a chunk at a time: every triangle of the mesh once, and not the sphere beside it.
+    scene = _mesh_scene(6)
+    n = len(scene.objects[0].faces)
+    scene = dataclasses.replace(scene, objects=(*scene.objects, M.Sphere((0, 0, 0), 0.1, 0)))
+    packed = pack_scene(scene, width=64, height=48, spp=1, max_depth=0, seed=0,
+                        queue=queue_for(cl_device))
+    assert packed.triangle_count() == n
+
+
 @pytest.mark.parametrize("width", [4, 8])
 def test_cpu_device_reads_the_wide_nodes_in_place(cl_ctx, width):
     # The collapse aligns its nodes to their own size: in numpy's usual place, 16 bytes into a
@@ -232,3 +273,31 @@ def test_cpu_device_reads_scene_buffers_in_place(cl_ctx):
     assert np.shares_memory(buf.get_host_array(array.shape, array.dtype), array)
     shifted = array.reshape(-1)[1:-3].reshape(-1, 4)
     assert not read_only_buffer(cl_ctx, shifted).flags & cl.mem_flags.USE_HOST_PTR
+
+
+def test_render_lets_a_handed_over_scene_go_before_the_render(cl_device, monkeypatch):
+    # Given a callable (as clray render hands its scene over), render holds the scene alone
+    # and lets it go once packed: a big model's mesh is not held beside the packed scene
+    # while the kernel runs. A scene the caller passes in stays the caller's.
+    render_module = importlib.import_module("clray.render")
+    faces = []
+    alive = []
+    render_packed = render_module.render_packed
+
+    def spy(*args, **kwargs):
+        gc.collect()
+        alive.append(faces[-1]() is not None)
+        return render_packed(*args, **kwargs)
+
+    def handed_over() -> M.Scene:
+        scene = _mesh_scene(2)
+        faces.append(weakref.ref(scene.objects[0].faces))
+        return scene
+
+    monkeypatch.setattr(render_module, "render_packed", spy)
+    settings = RenderSettings(width=32, height=24)
+    first = render(handed_over, settings)
+    kept = handed_over()
+    second = render(kept, settings)
+    assert alive == [False, True]
+    assert np.array_equal(first.image, second.image)

@@ -9,6 +9,7 @@ import gc
 import importlib
 import tracemalloc
 import weakref
+from pathlib import Path
 
 import numpy as np
 import pyopencl as cl
@@ -26,8 +27,10 @@ from clray.device.program import is_oclgrind
 from clray.errors import DeviceError
 from clray.render import RenderSettings, render
 from clray.scene import model as M
+from clray.scene.load import load_scene
 
 MIB = 1 << 20
+ROOT = Path(__file__).resolve().parent.parent
 # `clray.render` the attribute is the function; the module is needed for monkeypatching.
 launch_module = importlib.import_module("clray.device.launch")
 pack_module = importlib.import_module("clray.device.pack")
@@ -258,6 +261,19 @@ def test_cpu_device_reads_the_wide_nodes_in_place(cl_ctx, width):
                          np.arange(n, dtype=np.int32), width).nodes
         assert nodes.ctypes.data % nodes.itemsize == 0
         assert read_only_buffer(cl_ctx, nodes).flags & cl.mem_flags.USE_HOST_PTR
+
+
+def test_cpu_device_reads_a_scene_with_instances_nodes_in_place(cl_ctx):
+    # The scene's tree and its groups' trees are joined into nodes aligned as the collapse
+    # aligns one tree's: joined by np.concatenate, they were copied for the render.
+    device = cl_ctx.devices[0]
+    if not device.type & cl.device_type.CPU or is_oclgrind(device):
+        pytest.skip("copied where the device is not the host (and on Oclgrind)")
+    packed = pack_scene(load_scene(ROOT / "scenes" / "instances.toml"), width=64, height=48,
+                        spp=1, max_depth=2, seed=0)
+    assert len(packed.instances) > 0
+    assert packed.nodes.ctypes.data % packed.nodes.itemsize == 0
+    assert read_only_buffer(cl_ctx, packed.nodes).flags & cl.mem_flags.USE_HOST_PTR
 
 
 def test_cpu_device_reads_scene_buffers_in_place(cl_ctx):

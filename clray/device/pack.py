@@ -17,7 +17,7 @@ from clray.accel.wide import LEAF_FIELD_MASK, PACKET_WIDTH, WideBvh, collapse, f
 from clray.device import layout as L
 from clray.device.bvh_builder import build_bvh_from, float_prims
 from clray.device.program import KernelConfig
-from clray.host_memory import CHUNK_ROWS, by_chunks, small_pages, trim_heap
+from clray.host_memory import CHUNK_ROWS, aligned_empty, by_chunks, small_pages, trim_heap
 from clray.knobs import DEFAULT_TUNING, Tuning
 from clray.lights import LIGHT_OF, LIGHTS
 from clray.scene import model as M
@@ -459,13 +459,13 @@ def _instance_lanes(wide: WideBvh) -> WideBvh:
     return WideBvh(nodes, prim_refs, wide.width, wide.stack_size)
 
 
-def _appended(wide: WideBvh, node_offset: int, slot_offset: int) -> np.ndarray:
-    """A group's nodes with their children renumbered for its place after the scene's tree:
-    inner children by node_offset, leaves by slot_offset."""
-    nodes = wide.nodes.copy()
+def _append(nodes: np.ndarray, wide: WideBvh, node_offset: int, slot_offset: int) -> None:
+    """Writes a tree's nodes into `nodes` (its rows of the scene's joined nodes) with their
+    children renumbered for its place there: inner children by node_offset, leaves by
+    slot_offset."""
+    nodes[...] = wide.nodes
     inner = (nodes["count"] == 0) & (nodes["child"] >= 0)
     nodes["child"] += np.where(inner, node_offset, np.where(nodes["count"] > 0, slot_offset, 0))
-    return nodes
 
 
 def _pack_bvh(bounded: _Bounded, n_groups: int, instances: list[M.Instance],
@@ -498,13 +498,17 @@ def _pack_bvh(bounded: _Bounded, n_groups: int, instances: list[M.Instance],
     # Nodes: the scene's tree first, then each group's. Slots: the groups' first, so that the
     # scene's leaves of instances come last and need no packets (_slot_triangles).
     slot_offsets = np.cumsum([0] + [len(tree.prim_refs) for tree in group_trees])
-    nodes, roots = [_appended(wide, 0, int(slot_offsets[-1]))], []
-    n_nodes = len(wide.nodes)
-    for tree, slot_offset in zip(group_trees, slot_offsets[:-1], strict=True):
-        roots.append(n_nodes)
-        nodes.append(_appended(tree, n_nodes, int(slot_offset)))
-        n_nodes += len(tree.nodes)
-    records["root"] = np.array(roots, dtype=np.int64)[group_of]
+    node_offsets = np.cumsum([0, len(wide.nodes)] + [len(tree.nodes) for tree in group_trees])
+    # Allocated aligned to a node's size, as the collapse allocates a tree's: a CPU device
+    # reads them in place (clray/device/buffers.py), where joined by np.concatenate they
+    # were copied for the render.
+    dtype = wide.nodes.dtype
+    nodes = aligned_empty((int(node_offsets[-1]),), dtype, dtype.itemsize)
+    _append(nodes[:len(wide.nodes)], wide, 0, int(slot_offsets[-1]))
+    for tree, slot_offset, start, stop in zip(group_trees, slot_offsets[:-1], node_offsets[1:-1],
+                                              node_offsets[2:], strict=True):
+        _append(nodes[start:stop], tree, int(start), int(slot_offset))
+    records["root"] = node_offsets[1:-1].astype(np.int64)[group_of]
     # At a leaf the walk pushes the leaf's instances (an instance lane is pushed as a node's
     # child), then one LEAVE_INSTANCE entry and the group's walk above it.
     leaf = wide.nodes["count"] > 0
@@ -512,7 +516,7 @@ def _pack_bvh(bounded: _Bounded, n_groups: int, instances: list[M.Instance],
     stack_size = (wide.stack_size + per_leaf + 1 +
                   max(tree.stack_size for tree in group_trees))
     prim_refs = np.concatenate([*(tree.prim_refs for tree in group_trees), wide.prim_refs])
-    return (WideBvh(np.concatenate(nodes), prim_refs, width, stack_size), records,
+    return (WideBvh(nodes, prim_refs, width, stack_size), records,
             time.perf_counter() - start)
 
 

@@ -182,6 +182,19 @@ def test_device_build_frees_other_bounds_before_its_buffers_fill(cl_device, monk
     assert checked == [[True, True], [True, True, True, True]]
 
 
+def _device_built_mesh(cl_device: cl.Device) -> tuple[M.Scene, int, dict]:
+    """The 81,920-triangle mesh scene, its triangle count and pack_scene's settings for a
+    device BVH build, packed once so that the build's program is compiled before measuring."""
+    scene = _mesh_scene(6)
+    n = len(scene.objects[0].faces)
+    if not bvh_builder.supports(cl_device, n, 4):
+        pytest.skip("the device does not build BVHs")
+    settings = {"width": 64, "height": 48, "spp": 1, "max_depth": 0, "seed": 0,
+                "queue": queue_for(cl_device)}
+    pack_scene(scene, **settings)
+    return scene, n, settings
+
+
 def test_pack_of_a_mesh_peaks_within_its_device_bytes_beside_the_build(cl_device):
     # The pack's host allocations (numpy's, which tracemalloc sees) at their peak, beside the
     # device BVH build's own buffers (its primitives, node slots and order: the build's, sized
@@ -189,13 +202,7 @@ def test_pack_of_a_mesh_peaks_within_its_device_bytes_beside_the_build(cl_device
     # held the mesh's bounds, int64 references and an owner a triangle through the build and
     # the collapse, and gathered every corner at once: 1.24 times the device bytes there at
     # 81,920 triangles (issue 43).
-    scene = _mesh_scene(6)
-    n = len(scene.objects[0].faces)
-    if not bvh_builder.supports(cl_device, n, 4):
-        pytest.skip("the device does not build BVHs")
-    settings = {"width": 64, "height": 48, "spp": 1, "max_depth": 0, "seed": 0,
-                "queue": queue_for(cl_device)}
-    pack_scene(scene, **settings)  # the build's program compiled before measuring
+    scene, n, settings = _device_built_mesh(cl_device)
     tracemalloc.start()
     try:
         packed = pack_scene(scene, **settings)
@@ -210,16 +217,11 @@ def test_pack_of_a_mesh_peaks_within_its_device_bytes_beside_the_build(cl_device
 def test_the_device_build_starts_beside_the_primitives_and_faces_alone(cl_device, monkeypatch):
     # When the device build starts, the pack holds the build's primitive records (32 B a
     # triangle, its bounds written in) and the triangle records (16 B: this mesh's int64 faces
-    # are written out), and no more: the camera-relative vertices are let go, to be made again
-    # for the packets, and a mesh's references are a run, not an array (4 B a triangle). Both
-    # were held through the build, the pack's highest stage (docs/scale.md).
-    scene = _mesh_scene(6)
-    n = len(scene.objects[0].faces)
-    if not bvh_builder.supports(cl_device, n, 4):
-        pytest.skip("the device does not build BVHs")
-    settings = {"width": 64, "height": 48, "spp": 1, "max_depth": 0, "seed": 0,
-                "queue": queue_for(cl_device)}
-    pack_scene(scene, **settings)  # the build's program compiled before measuring
+    # are written out), and no more: the camera-relative vertices (16 B a vertex) are let go
+    # (a mesh alone's packets take its own vertices), and a mesh's references are a run, not
+    # an array (4 B a triangle). Both were held through the build, the pack's highest stage
+    # (docs/scale.md).
+    scene, n, settings = _device_built_mesh(cl_device)
     held = []
     build = bvh_builder.build
 

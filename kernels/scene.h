@@ -5,7 +5,8 @@
 // (SCENE_BUFFER_PARAMS), the calls that pass them on (SCENE_BUFFER_ARGS) and SceneRefs' fields
 // all expand it, and the host sets arguments from clray/device/layout.py's SCENE_BUFFERS, which
 // tests/test_layout.py checks against this list on the device: name, type and position. A new
-// buffer is one line here and one there (and its struct in clray_types.h).
+// buffer is one line here and one there (and its struct in clray_types.h), and one in
+// scene_refs under the switch of the code that reads it.
 #ifndef CLRAY_SCENE_H
 #define CLRAY_SCENE_H
 
@@ -40,7 +41,6 @@
 #define SCENE_BUFFER_PARAM(type, name) __global const type* name
 #define SCENE_BUFFER_ARG(type, name) name
 #define SCENE_REFS_FIELD(type, name) __global const type* name;
-#define SCENE_REFS_SET(type, name) s.name = name;
 #define SCENE_BUFFER_PARAMS SCENE_BUFFERS(SCENE_BUFFER_PARAM, SCENE_COMMA)
 #define SCENE_BUFFER_ARGS SCENE_BUFFERS(SCENE_BUFFER_ARG, SCENE_COMMA)
 
@@ -74,9 +74,63 @@ typedef struct {
 #endif
 } SceneRefs;
 
+// Only the buffers that the build's switches let a kernel read are set: the single-ray render
+// kernel makes a SceneRefs for each work-item (PoCL gives each its own copy of a variable whose
+// address a call takes) and its out-of-line pixel_radiance cannot tell the compiler which
+// fields it reads, so each set field is a store a pixel. On the 327,680-triangle mesh at depth
+// 0 (docs/acceleration.md, The render kernel's SceneRefs, 2026-12-05): 682 -> 656 instructions
+// a ray. The others stay unset; a new buffer needs its line here too, under the switch that
+// builds the code reading it.
 static inline SceneRefs scene_refs(SCENE_BUFFER_PARAMS) {
     SceneRefs s;
-    SCENE_BUFFERS(SCENE_REFS_SET, )
+    s.camera = camera;
+    s.params = params;
+    s.materials = materials;
+    s.lights = lights;
+#if HAS_PLANES
+    s.planes = planes;
+#endif
+#if HAS_SPHERES
+    s.spheres = spheres;
+    s.sphere_packets = sphere_packets;
+#endif
+#if HAS_BOXES
+    s.boxes = boxes;
+#endif
+#if HAS_CYLINDERS
+    s.cylinders = cylinders;
+#endif
+#if HAS_CONES
+    s.cones = cones;
+#endif
+#if HAS_TORI
+    s.tori = tori;
+#endif
+#if HAS_TRIANGLES
+    s.triangles = triangles;
+    s.triangle_materials = triangle_materials;
+    s.triangle_packets = triangle_packets;
+#endif
+#if HAS_VERTEX_NORMALS
+    s.normals = normals;
+#endif
+#if HAS_VERTEX_UVS
+    s.uvs = uvs;
+#endif
+#if HAS_VERTEX_COLORS
+    s.colors = colors;
+#endif
+#if HAS_BVH
+    s.nodes = nodes;
+    s.prim_refs = prim_refs;
+#endif
+#if HAS_TEXTURES || HAS_BACKGROUND_IMAGE
+    s.textures = textures;
+    s.texels = texels;
+#endif
+#if HAS_INSTANCES
+    s.instances = instances;
+#endif
     s.n_planes = params->n_planes;
     s.n_nodes = params->n_nodes;
     s.n_lights = params->n_lights;

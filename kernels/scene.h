@@ -6,7 +6,7 @@
 // all expand it, and the host sets arguments from clray/device/layout.py's SCENE_BUFFERS, which
 // tests/test_layout.py checks against this list on the device: name, type and position. A new
 // buffer is one line here and one there (and its struct in clray_types.h), and one in
-// scene_refs under the switch of the code that reads it.
+// SCENE_BUFFERS_READ below, under the switch of the code that reads it.
 #ifndef CLRAY_SCENE_H
 #define CLRAY_SCENE_H
 
@@ -66,71 +66,99 @@ typedef struct {
 #define COUNT(s, field, n)
 #endif
 
+// SCENE_BUFFERS_READ: the buffers that the build's kernels read, each under the switch of the
+// code that reads it; SceneRefs has fields for these only, so a read outside its switch does
+// not compile. Why not all 22: the single-ray render kernel makes a SceneRefs for each
+// work-item (PoCL gives each its own copy of a variable whose address a call takes) and passes
+// it to pixel_radiance, out of line (ray_tree.h), which the compiler cannot see read only some
+// fields: each field was a store a pixel. The 327,680-triangle mesh at depth 0 went from 682
+// to 656 instructions a ray (docs/acceleration.md, The render kernel's SceneRefs, 2026-12-05).
+// texels is in every build: the sky's calls pass it whether or not a background image reads it.
+#if HAS_PLANES
+#define SCENE_READS_PLANES(X) X(Plane, planes)
+#else
+#define SCENE_READS_PLANES(X)
+#endif
+#if HAS_SPHERES
+#define SCENE_READS_SPHERES(X) X(Sphere, spheres) X(SpherePacket, sphere_packets)
+#else
+#define SCENE_READS_SPHERES(X)
+#endif
+#if HAS_BOXES
+#define SCENE_READS_BOXES(X) X(Box, boxes)
+#else
+#define SCENE_READS_BOXES(X)
+#endif
+#if HAS_CYLINDERS
+#define SCENE_READS_CYLINDERS(X) X(Cylinder, cylinders)
+#else
+#define SCENE_READS_CYLINDERS(X)
+#endif
+#if HAS_CONES
+#define SCENE_READS_CONES(X) X(Cone, cones)
+#else
+#define SCENE_READS_CONES(X)
+#endif
+#if HAS_TORI
+#define SCENE_READS_TORI(X) X(Torus, tori)
+#else
+#define SCENE_READS_TORI(X)
+#endif
+#if HAS_TRIANGLES
+#define SCENE_READS_TRIANGLES(X) \
+    X(Triangle, triangles) X(int, triangle_materials) X(TrianglePacket, triangle_packets)
+#else
+#define SCENE_READS_TRIANGLES(X)
+#endif
+#if HAS_VERTEX_NORMALS
+#define SCENE_READS_NORMALS(X) X(float4, normals)
+#else
+#define SCENE_READS_NORMALS(X)
+#endif
+#if HAS_VERTEX_UVS
+#define SCENE_READS_UVS(X) X(float2, uvs)
+#else
+#define SCENE_READS_UVS(X)
+#endif
+#if HAS_VERTEX_COLORS
+#define SCENE_READS_COLORS(X) X(float4, colors)
+#else
+#define SCENE_READS_COLORS(X)
+#endif
+#if HAS_BVH
+#define SCENE_READS_BVH(X) X(BvhNode, nodes) X(int, prim_refs)
+#else
+#define SCENE_READS_BVH(X)
+#endif
+#if HAS_TEXTURES
+#define SCENE_READS_TEXTURES(X) X(Texture, textures)
+#else
+#define SCENE_READS_TEXTURES(X)
+#endif
+#if HAS_INSTANCES
+#define SCENE_READS_INSTANCES(X) X(Instance, instances)
+#else
+#define SCENE_READS_INSTANCES(X)
+#endif
+#define SCENE_BUFFERS_READ(X)                                                                 \
+    X(Camera, camera) X(Params, params) X(Material, materials) X(float4, texels)            \
+    X(Light, lights) SCENE_READS_PLANES(X) SCENE_READS_SPHERES(X) SCENE_READS_BOXES(X)      \
+    SCENE_READS_CYLINDERS(X) SCENE_READS_CONES(X) SCENE_READS_TORI(X)                       \
+    SCENE_READS_TRIANGLES(X) SCENE_READS_NORMALS(X) SCENE_READS_UVS(X) SCENE_READS_COLORS(X) \
+    SCENE_READS_BVH(X) SCENE_READS_TEXTURES(X) SCENE_READS_INSTANCES(X)
+#define SCENE_REFS_SET(type, name) s.name = name;
+
 typedef struct {
-    SCENE_BUFFERS(SCENE_REFS_FIELD, )
+    SCENE_BUFFERS_READ(SCENE_REFS_FIELD)
     int n_planes, n_nodes, n_lights;  // from params, read once
 #if COUNT_TESTS
     TestCounts* counts;  // the caller's, set after scene_refs
 #endif
 } SceneRefs;
 
-// Only the buffers that the build's switches let a kernel read are set: the single-ray render
-// kernel makes a SceneRefs for each work-item (PoCL gives each its own copy of a variable whose
-// address a call takes) and its out-of-line pixel_radiance cannot tell the compiler which
-// fields it reads, so each set field is a store a pixel. On the 327,680-triangle mesh at depth
-// 0 (docs/acceleration.md, The render kernel's SceneRefs, 2026-12-05): 682 -> 656 instructions
-// a ray. The others stay unset; a new buffer needs its line here too, under the switch that
-// builds the code reading it.
 static inline SceneRefs scene_refs(SCENE_BUFFER_PARAMS) {
     SceneRefs s;
-    s.camera = camera;
-    s.params = params;
-    s.materials = materials;
-    s.lights = lights;
-#if HAS_PLANES
-    s.planes = planes;
-#endif
-#if HAS_SPHERES
-    s.spheres = spheres;
-    s.sphere_packets = sphere_packets;
-#endif
-#if HAS_BOXES
-    s.boxes = boxes;
-#endif
-#if HAS_CYLINDERS
-    s.cylinders = cylinders;
-#endif
-#if HAS_CONES
-    s.cones = cones;
-#endif
-#if HAS_TORI
-    s.tori = tori;
-#endif
-#if HAS_TRIANGLES
-    s.triangles = triangles;
-    s.triangle_materials = triangle_materials;
-    s.triangle_packets = triangle_packets;
-#endif
-#if HAS_VERTEX_NORMALS
-    s.normals = normals;
-#endif
-#if HAS_VERTEX_UVS
-    s.uvs = uvs;
-#endif
-#if HAS_VERTEX_COLORS
-    s.colors = colors;
-#endif
-#if HAS_BVH
-    s.nodes = nodes;
-    s.prim_refs = prim_refs;
-#endif
-#if HAS_TEXTURES || HAS_BACKGROUND_IMAGE
-    s.textures = textures;
-    s.texels = texels;
-#endif
-#if HAS_INSTANCES
-    s.instances = instances;
-#endif
+    SCENE_BUFFERS_READ(SCENE_REFS_SET)
     s.n_planes = params->n_planes;
     s.n_nodes = params->n_nodes;
     s.n_lights = params->n_lights;

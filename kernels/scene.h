@@ -73,7 +73,8 @@ typedef struct {
 // it to pixel_radiance, out of line (ray_tree.h), which the compiler cannot see read only some
 // fields: each field was a store a pixel. The 327,680-triangle mesh at depth 0 went from 682
 // to 656 instructions a ray (docs/acceleration.md, The render kernel's SceneRefs, 2026-12-05).
-// texels is in every build: the sky's calls pass it whether or not a background image reads it.
+// texels is in every build (the sky's calls pass it whether or not a background image reads
+// it), and nodes and prim_refs (bvh.h's leaf helpers are built whether or not HAS_BVH).
 #if HAS_PLANES
 #define SCENE_READS_PLANES(X) X(Plane, planes)
 #else
@@ -125,11 +126,6 @@ typedef struct {
 #else
 #define SCENE_READS_COLORS(X)
 #endif
-#if HAS_BVH
-#define SCENE_READS_BVH(X) X(BvhNode, nodes) X(int, prim_refs)
-#else
-#define SCENE_READS_BVH(X)
-#endif
 #if HAS_TEXTURES
 #define SCENE_READS_TEXTURES(X) X(Texture, textures)
 #else
@@ -140,12 +136,13 @@ typedef struct {
 #else
 #define SCENE_READS_INSTANCES(X)
 #endif
-#define SCENE_BUFFERS_READ(X)                                                                 \
-    X(Camera, camera) X(Params, params) X(Material, materials) X(float4, texels)            \
-    X(Light, lights) SCENE_READS_PLANES(X) SCENE_READS_SPHERES(X) SCENE_READS_BOXES(X)      \
-    SCENE_READS_CYLINDERS(X) SCENE_READS_CONES(X) SCENE_READS_TORI(X)                       \
-    SCENE_READS_TRIANGLES(X) SCENE_READS_NORMALS(X) SCENE_READS_UVS(X) SCENE_READS_COLORS(X) \
-    SCENE_READS_BVH(X) SCENE_READS_TEXTURES(X) SCENE_READS_INSTANCES(X)
+#define SCENE_BUFFERS_READ(X)                                                               \
+    X(Camera, camera) X(Params, params) X(Material, materials) X(float4, texels)          \
+    X(Light, lights) X(BvhNode, nodes) X(int, prim_refs) SCENE_READS_PLANES(X)           \
+    SCENE_READS_SPHERES(X) SCENE_READS_BOXES(X) SCENE_READS_CYLINDERS(X)                  \
+    SCENE_READS_CONES(X) SCENE_READS_TORI(X) SCENE_READS_TRIANGLES(X)                     \
+    SCENE_READS_NORMALS(X) SCENE_READS_UVS(X) SCENE_READS_COLORS(X) SCENE_READS_TEXTURES(X) \
+    SCENE_READS_INSTANCES(X)
 #define SCENE_REFS_SET(type, name) s.name = name;
 
 typedef struct {

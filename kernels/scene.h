@@ -1,9 +1,9 @@
-// The scene as the kernels see it: its buffers in one order, and SceneRefs, the view of them
-// that every query and shading function takes.
+// The scene as the kernels see it: its buffers in one order, and SceneRefs, the view of those
+// a build reads that every query and shading function takes.
 //
 // SCENE_BUFFERS is that order, X(element type, name) per buffer. The kernels' parameter lists
-// (SCENE_BUFFER_PARAMS), the calls that pass them on (SCENE_BUFFER_ARGS) and SceneRefs' fields
-// all expand it, and the host sets arguments from clray/device/layout.py's SCENE_BUFFERS, which
+// (SCENE_BUFFER_PARAMS) and the calls that pass them on (SCENE_BUFFER_ARGS) expand it, and
+// the host sets arguments from clray/device/layout.py's SCENE_BUFFERS, which
 // tests/test_layout.py checks against this list on the device: name, type and position. A new
 // buffer is one line here and one there (and its struct in clray_types.h), and one in
 // SCENE_BUFFERS_READ below, under the switch of the code that reads it.
@@ -72,7 +72,7 @@ typedef struct {
 // work-item (PoCL gives each its own copy of a variable whose address a call takes) and passes
 // it to pixel_radiance, out of line (ray_tree.h), which the compiler cannot see read only some
 // fields: each field was a store a pixel. The 327,680-triangle mesh at depth 0 went from 682
-// to 656 instructions a ray (docs/acceleration.md, The render kernel's SceneRefs, 2026-12-05).
+// to 658 instructions a ray (docs/acceleration.md, The render kernel's SceneRefs, 2026-12-05).
 // texels is in every build (the sky's calls pass it whether or not a background image reads
 // it), and nodes and prim_refs (bvh.h's leaf helpers are built whether or not HAS_BVH).
 #if HAS_PLANES

@@ -19,19 +19,17 @@
 #include "torus.h"
 #include "triangle.h"
 
-// Triangles and spheres are tested in packets (leaf_closest, leaf_transmission), the other
-// primitives one by one.
-HOT Crossings intersect_prim(const SceneRefs* s, int ref, const Ray* r) {
+// The shapes a leaf tests one by one (its third section, clray/accel/wide.py): boxes,
+// cylinders, cones and tori. Triangles and spheres are tested in packets (leaf_closest,
+// leaf_transmission) and planes are not in the BVH (consider_planes), so none of them has a
+// case here: an inlined sphere and plane test that never ran was compiled into both walks.
+// OUT_OF_LINE (issue 42, the cold build): both walks, closest hit and shadow, called it, and
+// its switch and box test were compiled into the renderer twice; out of line they are compiled
+// once, and only a leaf's one-by-one shapes pay the call (docs/acceleration.md, The rare
+// shapes' test compiled once, 2026-12-05).
+static OUT_OF_LINE Crossings intersect_prim(const SceneRefs* s, int ref, const Ray* r) {
     int i = ref & PRIM_INDEX_MASK;
     switch (ref >> PRIM_TYPE_SHIFT) {
-#if HAS_PLANES
-        case PRIM_PLANE:
-            return intersect_plane(s->planes + i, r);
-#endif
-#if HAS_SPHERES
-        case PRIM_SPHERE:
-            return intersect_sphere(s->spheres + i, r);
-#endif
 #if HAS_BOXES
         case PRIM_BOX:
             return intersect_box(s->boxes + i, r);

@@ -27,6 +27,11 @@
 // its switch and box test were compiled into the renderer twice; out of line they are compiled
 // once, and only a leaf's one-by-one shapes pay the call (docs/acceleration.md, The rare
 // shapes' test compiled once, 2026-12-05).
+// HAS_ONE_BY_ONE_SHAPES: whether a leaf can hold one; without, the walks compile no loop over
+// that section (which then holds instances only, entered by push_instances): a call that never
+// ran grew the mesh's and cornell_box's code.
+#define HAS_ONE_BY_ONE_SHAPES (HAS_BOXES || HAS_CYLINDERS || HAS_CONES || HAS_TORI)
+#if HAS_ONE_BY_ONE_SHAPES
 static OUT_OF_LINE Crossings intersect_prim(const SceneRefs* s, int ref, const Ray* r) {
     int i = ref & PRIM_INDEX_MASK;
     switch (ref >> PRIM_TYPE_SHIFT) {
@@ -50,6 +55,7 @@ static OUT_OF_LINE Crossings intersect_prim(const SceneRefs* s, int ref, const R
             return no_crossings();
     }
 }
+#endif
 
 // part: the crossing's part, which for a triangle is its slot (the index of its Triangle record
 // or material word: these are in prim_refs' order, so that the hits of neighbouring rays read

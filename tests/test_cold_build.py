@@ -62,27 +62,6 @@ def test_single_ray_renderer_is_compiled_once(cl_device: cl.Device, tmp_path: Pa
         assert size < sizes["pixel_radiance"] / 4, (name, size, sizes["pixel_radiance"])
 
 
-def test_one_by_one_shapes_are_tested_out_of_line(cl_device: cl.Device, tmp_path: Path) -> None:
-    """A leaf's one-by-one shapes (boxes, cylinders, cones, tori) go through one out-of-line
-    intersect_prim (kernels/shapes.h), compiled once for both walks, not inlined into the
-    closest-hit and the shadow walk (issue 42: primitives' render.so 39,269 -> 37,069 bytes of
-    code). Checked in the machine code PoCL keeps for the primitives scene, every shape kind."""
-    if cl_device.platform.name.strip() != "Portable Computing Language":
-        pytest.skip("the work-group functions and their kept files are PoCL's")
-    if shutil.which("nm") is None:
-        pytest.skip("needs nm (binutils)")
-    env = dict(os.environ, POCL_CACHE_DIR=str(tmp_path),
-               POCL_LEAVE_KERNEL_COMPILER_TEMP_FILES="1")
-    subprocess.run([sys.executable, str(ROOT / "benchmarks" / "cold_build.py"), "--child",
-                    str(ROOT / "scenes" / "primitives.toml")],
-                   capture_output=True, text=True, env=env, cwd=ROOT, check=True)
-    libraries = list(tmp_path.glob("*/*/render/*/render.so"))
-    assert len(libraries) == 1, libraries
-    sizes = _symbol_sizes(libraries[0])
-    assert "pixel_radiance" in sizes, "the renderer was inlined: the check is blind"
-    assert "intersect_prim" in sizes, "the one-by-one shapes' test was inlined into the walks"
-
-
 def test_hot_helpers_leave_no_copy_in_the_program(cl_device: cl.Device) -> None:
     """A HOT helper is static (kernels/real.h): once clang's -O2 at clBuildProgram has inlined
     it, it is dropped, not kept, optimised and written beside its inlined copies (issue 42,

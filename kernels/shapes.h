@@ -19,21 +19,28 @@
 #include "torus.h"
 #include "triangle.h"
 
-// The shapes a leaf tests one by one (its third section, clray/accel/wide.py): boxes,
-// cylinders, cones and tori. Triangles and spheres are tested in packets (leaf_closest,
-// leaf_transmission) and planes are not in the BVH (consider_planes), so none of them has a
-// case here: an inlined sphere and plane test that never ran was compiled into both walks
-// (issue 42, the cold build: docs/acceleration.md, The one-by-one shapes' dead cases,
-// 2026-12-05).
-// Inlined (HOT): out of line, compiled once for both walks, primitives' 1-spp render ran
-// 2.5 % more instructions.
-// HAS_ONE_BY_ONE_SHAPES: whether a leaf can hold one; without, the walks compile no loop over
-// that section, which then holds instances only (entered by push_instances).
+// Triangles and spheres are tested in packets (leaf_closest, leaf_transmission), the other
+// primitives one by one. No leaf reaches the sphere and plane cases (spheres go in packets,
+// planes are not in the BVH: clray/accel/wide.py), but left out they ran primitives' 1-spp
+// render 0.18 % more instructions (clang laid the walks out anew), so they stay.
+// HAS_ONE_BY_ONE_SHAPES: whether a leaf can hold a box, cylinder, cone or torus; without, the
+// walks compile no loop over a leaf's one-by-one section, which then holds instances only
+// (entered by push_instances): spheres' 1-spp render ran 1.2 % fewer instructions and its code
+// shrank 12 % (issue 42, the cold build: docs/acceleration.md, The one-by-one shapes' loop
+// compiled only where they exist, 2026-12-05).
 #define HAS_ONE_BY_ONE_SHAPES (HAS_BOXES || HAS_CYLINDERS || HAS_CONES || HAS_TORI)
 #if HAS_ONE_BY_ONE_SHAPES
 HOT Crossings intersect_prim(const SceneRefs* s, int ref, const Ray* r) {
     int i = ref & PRIM_INDEX_MASK;
     switch (ref >> PRIM_TYPE_SHIFT) {
+#if HAS_PLANES
+        case PRIM_PLANE:
+            return intersect_plane(s->planes + i, r);
+#endif
+#if HAS_SPHERES
+        case PRIM_SPHERE:
+            return intersect_sphere(s->spheres + i, r);
+#endif
 #if HAS_BOXES
         case PRIM_BOX:
             return intersect_box(s->boxes + i, r);

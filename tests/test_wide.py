@@ -227,8 +227,9 @@ def test_both_widths_render_the_same_image(cl_device, scene_file):
 
 @pytest.mark.parametrize("scene_file", ["primitives.toml", "instances.toml"])
 def test_leaves_test_no_plane_sphere_or_triangle_one_by_one(scene_file):
-    # The kernels' one-by-one test (kernels/shapes.h: intersect_prim) has no case for them:
-    # planes stay out of the BVH, spheres and triangles go in their leaves' packets.
+    # A build without boxes, cylinders, cones and tori compiles no loop over a leaf's
+    # one-by-one section (kernels/shapes.h: HAS_ONE_BY_ONE_SHAPES): planes must stay out of
+    # the BVH, spheres and triangles in their leaves' packets.
     packed = pack_scene(load_scene(ROOT / "scenes" / scene_file), width=8, height=8, spp=1,
                         max_depth=1, seed=0)
     wide = WideBvh(packed.nodes, packed.prim_refs, 8, 0)

@@ -161,11 +161,13 @@ HOT void leaf_closest(const SceneRefs* s, int slot, int count, const Ray* r, int
             }
         }
     }
+#if HAS_ONE_BY_ONE_SHAPES
     for (int k = 0; k < (count & LEAF_FIELD_MASK); ++k) {
         int ref = s->prim_refs[slot + k];
         Crossings other = intersect_prim(s, ref, r);
         consider_hit(hit, &other, ref, instance);
     }
+#endif
 }
 
 #if HAS_INSTANCES
@@ -432,6 +434,7 @@ HOT bool leaf_transmission(const SceneRefs* s, int slot, int count, const Ray* r
 #endif
         }
     }
+#if HAS_ONE_BY_ONE_SHAPES
     for (int k = 0; k < (count & LEAF_FIELD_MASK); ++k) {
         int ref = s->prim_refs[slot + k];
 #if HAS_TORI && HAS_TRANSMISSION
@@ -443,6 +446,7 @@ HOT bool leaf_transmission(const SceneRefs* s, int slot, int count, const Ray* r
         Crossings other = intersect_prim(s, ref, r);
         if (!filter_crossings(s, &other, ref, instance, tmax, filter)) return false;
     }
+#endif
     return true;
 }
 

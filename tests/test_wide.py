@@ -225,6 +225,23 @@ def test_both_widths_render_the_same_image(cl_device, scene_file):
     np.testing.assert_allclose(images[0], images[1], rtol=0, atol=1e-6)
 
 
+@pytest.mark.parametrize("scene_file", ["primitives.toml", "instances.toml"])
+def test_leaves_test_no_plane_sphere_or_triangle_one_by_one(scene_file):
+    # A build without boxes, cylinders, cones and tori compiles no loop over a leaf's
+    # one-by-one section (kernels/shapes.h: HAS_ONE_BY_ONE_SHAPES): planes must stay out of
+    # the BVH, spheres and triangles in their leaves' packets.
+    packed = pack_scene(load_scene(ROOT / "scenes" / scene_file), width=8, height=8, spp=1,
+                        max_depth=1, seed=0)
+    wide = WideBvh(packed.nodes, packed.prim_refs, 8, 0)
+    leaves = (packed.nodes["count"] > 0) & (packed.nodes["child"] >= 0)
+    kinds = np.concatenate([_leaf_sections(wide, int(slot), int(count))[2]
+                            for slot, count in zip(packed.nodes["child"][leaves],
+                                                   packed.nodes["count"][leaves], strict=True)])
+    kinds = set((kinds >> L.PRIM_TYPE_SHIFT).tolist())
+    assert kinds & {L.PRIM_BOX, L.PRIM_CYLINDER, L.PRIM_CONE}, "no one-by-one shape: blind"
+    assert not kinds & {L.PRIM_PLANE, L.PRIM_SPHERE, L.PRIM_TRIANGLE}, kinds
+
+
 @pytest.mark.parametrize("width", [4, 8])
 def test_small_nodes_of_leaves_are_folded_into_one_leaf(width, monkeypatch):
     # Below the root, no wide node holds only leaves that one leaf of FOLD_PACKETS packet tests

@@ -273,8 +273,9 @@ def _pack_triangles(objs: _Placed, sources: list[tuple], bounded: _Bounded) -> _
     """Loose triangles and meshes (`sources`: _triangle_sources) as one indexed triangle list
     over shared vertex arrays, their bounds, taken from the camera-relative vertices
     (_relative_vertices), added to the BVH's input. The vertices are let go before the BVH
-    build and made again for the packets (_vertex_arrays): the build is the pack's highest
-    stage without them (8 B a triangle; 574 -> 534 MiB at 5.24 M triangles, docs/scale.md)."""
+    build, the pack's highest stage (16 B a vertex: 40 MiB at 5.24 M triangles,
+    docs/scale.md); the packets take them again (_vertex_arrays: a mesh alone's own vertices,
+    made relative as they are taken, or the vertices of several made again)."""
     if not objs.objects:
         return _Faces(np.zeros((0, 4), np.int32))
     tints = [getattr(obj, "colors", None) for obj in objs.objects]

@@ -61,11 +61,18 @@ def test_each_shape_has_its_struct_buffer_and_switch_in_the_kernels() -> None:
 
 
 def test_the_kernels_switch_on_no_shape_the_registry_lacks() -> None:
-    # shapes.h's switches over a primitive's type: every shape's, and those of the primitives
-    # the layers name themselves (and a triangle's vertex colours).
-    switches = set(re.findall(r"HAS_[A-Z_]+", (KERNELS / "shapes.h").read_text(encoding="utf-8")))
-    others = {"HAS_PLANES", "HAS_TRIANGLES", "HAS_VERTEX_COLORS"}
+    # shapes.h's switches over a primitive's type: every shape's, those of the primitives the
+    # layers name themselves (and a triangle's vertex colours), and HAS_ONE_BY_ONE_SHAPES, made
+    # of the switches of every shape a leaf tests one by one: all but the sphere, which the
+    # collapse lays out in packets (clray.accel.wide).
+    shapes_h = (KERNELS / "shapes.h").read_text(encoding="utf-8")
+    switches = set(re.findall(r"HAS_[A-Z_]+", shapes_h))
+    others = {"HAS_PLANES", "HAS_TRIANGLES", "HAS_VERTEX_COLORS", "HAS_ONE_BY_ONE_SHAPES"}
     assert switches - others == {s.switch.upper() for s in SHAPES}
+    one_by_one = re.search(r"^#define HAS_ONE_BY_ONE_SHAPES (.*)$", shapes_h, flags=re.MULTILINE)
+    assert one_by_one is not None
+    assert set(re.findall(r"HAS_[A-Z_]+", one_by_one.group(1))) == {
+        s.switch.upper() for s in SHAPES if s.prim != layout.PRIMS["PRIM_SPHERE"]}
 
 
 def test_the_names_are_one_name() -> None:

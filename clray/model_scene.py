@@ -207,8 +207,7 @@ def _file_camera(found: GltfCamera, matrix: np.ndarray, offset: np.ndarray
 
 def _bounds(vertices: np.ndarray) -> tuple[np.ndarray, float, np.ndarray]:
     """(centre of the bounding box, radius of the sphere about it, the box's low corner)."""
-    # Widened before the centre is taken: a PLY file's float32 positions (Mesh.vertices).
-    lo, hi = (b.astype(np.float64) for b in bounds(vertices))
+    lo, hi = bounds(vertices)
     center = (lo + hi) / 2.0
     # A floor on the radius for a mesh of one point; relative to the model's size where
     # it has one, so a small model is not framed as a big one. The largest square's root

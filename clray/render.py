@@ -200,14 +200,15 @@ def render(scene: Scene | str | os.PathLike | Callable[[], Scene],
     plan = plan_for(scene, settings, device)
     packed = pack_for(scene, settings, device, plan)
     pack_s = time.perf_counter() - start - packed.bvh_s
-    if not traced_passes(settings):
+    passes = traced_passes(settings)
+    if not passes:
         del scene  # where render holds it alone, the scene's arrays go before the render's
     image, stats = render_packed(packed, device, settings.progress, on_band=settings.on_band)
     aovs: dict[str, np.ndarray] = {}
-    if traced_passes(settings):
+    if passes:
         passes_start = time.perf_counter()
         raw, pass_stats = render_passes_packed(packed, device)
-        aovs = passes_of(raw, scene, traced_passes(settings))
+        aovs = passes_of(raw, scene, passes)
         # passes_s: the wall time, with the host's work and PoCL's first-launch compile of the
         # passes kernel; passes_kernel_s: the launches' device time.
         stats.update(pass_stats, passes_s=time.perf_counter() - passes_start)

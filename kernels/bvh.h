@@ -149,7 +149,12 @@ HOT int section_packets(int count, int kind) {
                                  : (count >> LEAF_SPHERE_SHIFT) & LEAF_FIELD_MASK;
 }
 
-HOT void leaf_closest(const SceneRefs* s, int slot, int count, const Ray* r, int instance,
+#if HAS_ONE_BY_ONE_SHAPES || HAS_INSTANCES
+#define LEAF_CLOSEST OUT_OF_LINE
+#else
+#define LEAF_CLOSEST HOT
+#endif
+LEAF_CLOSEST void leaf_closest(const SceneRefs* s, int slot, int count, const Ray* r, int instance,
                       Hit* hit) {
     Crossings c[PACKET_WIDTH];
     for (int section = 0; section < 2; ++section) {

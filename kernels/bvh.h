@@ -149,18 +149,8 @@ HOT int section_packets(int count, int kind) {
                                  : (count >> LEAF_SPHERE_SHIFT) & LEAF_FIELD_MASK;
 }
 
-// The closest-hit walk's leaf tests out of line where leaves hold boxes, cylinders, cones or
-// tori, for the reason leaf_transmission's are (below): primitives' cold build 1.51 -> 1.38
-// CPU-s, its render 1.6 % fewer instructions. Not with instances: the call on every leaf of
-// every instance made their render 12 % slower (docs/acceleration.md, The leaves' tests out
-// of line).
-#if HAS_ONE_BY_ONE_SHAPES && !HAS_INSTANCES
-#define LEAF_CLOSEST OUT_OF_LINE
-#else
-#define LEAF_CLOSEST HOT
-#endif
-LEAF_CLOSEST void leaf_closest(const SceneRefs* s, int slot, int count, const Ray* r,
-                               int instance, Hit* hit) {
+HOT void leaf_closest(const SceneRefs* s, int slot, int count, const Ray* r, int instance,
+                      Hit* hit) {
     Crossings c[PACKET_WIDTH];
     for (int section = 0; section < 2; ++section) {
         int kind = section == 0 ? PRIM_TRIANGLE : PRIM_SPHERE;
@@ -429,8 +419,10 @@ HOT bool packet_blocks(const SceneRefs* s, int kind, int slot, const Ray* r, REA
 // functions compiled faster than in one (the optimisers' passes grow faster than linearly in
 // a function's size): cold builds 3 to 8 % shorter, renders' instructions -2.2 to +0.4 %
 // (glass -2.2 %, primitives -1.7 %, instances -0.04 %, tori +0.4 %). Where leaves hold only
-// triangles and spheres, whose leaf tests are small, they stay inlined (docs/acceleration.md,
-// The leaves' tests out of line).
+// triangles and spheres, whose leaf tests are small, they stay inlined. leaf_closest out of
+// line as well cut primitives' cold build 1.51 -> 1.38 CPU-s, but Intel's CPU runtime 2026.2
+// then found a box where a triangle was nearer (tests/test_intersect.py), so it stays inline
+// (docs/acceleration.md, The leaves' tests out of line).
 #if HAS_ONE_BY_ONE_SHAPES || HAS_INSTANCES
 #define LEAF_TRANSMISSION OUT_OF_LINE
 #else

@@ -149,6 +149,10 @@ HOT int section_packets(int count, int kind) {
                                  : (count >> LEAF_SPHERE_SHIFT) & LEAF_FIELD_MASK;
 }
 
+// Inline in every build. Out of line where leaves hold one-by-one shapes, as leaf_transmission
+// is, it cut primitives' cold build 1.51 -> 1.38 CPU-s, but Intel's CPU runtime 2026.2 then
+// found a box where a triangle was nearer (tests/test_intersect.py; docs/acceleration.md, The
+// leaves' tests out of line).
 HOT void leaf_closest(const SceneRefs* s, int slot, int count, const Ray* r, int instance,
                       Hit* hit) {
     Crossings c[PACKET_WIDTH];
@@ -419,10 +423,8 @@ HOT bool packet_blocks(const SceneRefs* s, int kind, int slot, const Ray* r, REA
 // functions compiled faster than in one (the optimisers' passes grow faster than linearly in
 // a function's size): cold builds 3 to 8 % shorter, renders' instructions -2.2 to +0.4 %
 // (glass -2.2 %, primitives -1.7 %, instances -0.04 %, tori +0.4 %). Where leaves hold only
-// triangles and spheres, whose leaf tests are small, they stay inlined. leaf_closest out of
-// line as well cut primitives' cold build 1.51 -> 1.38 CPU-s, but Intel's CPU runtime 2026.2
-// then found a box where a triangle was nearer (tests/test_intersect.py), so it stays inline
-// (docs/acceleration.md, The leaves' tests out of line).
+// triangles and spheres, whose leaf tests are small, they stay inlined (docs/acceleration.md,
+// The leaves' tests out of line).
 #if HAS_ONE_BY_ONE_SHAPES || HAS_INSTANCES
 #define LEAF_TRANSMISSION OUT_OF_LINE
 #else

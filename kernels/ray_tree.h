@@ -17,6 +17,7 @@
 #include "camera.h"
 #include "fresnel.h"
 #include "background.h"
+#include "lanes.h"
 
 // SERIAL_WORK_ITEMS: the driver runs a work-group's work-items one after another, a pass of a
 // loop each on one CPU thread (PoCL's CPU device; Intel's CPU runtime as the render kernels ask
@@ -198,40 +199,89 @@ HOT REAL3 tree_radiance(const SceneRefs* s, const __global Camera* camera,
 
 // Pixel (x, y)'s radiance summed over its samples, each sample's ray tree traced ray by ray:
 // the sample's own radiance first, then the pixel's sum (a sample packet sums its lanes'
-// samples so, each lane's levels in the same order). (first_o, first_d) is sample 0's primary
-// ray (sample_ray), which the render kernel makes ahead of the walks where SERIAL_WORK_ITEMS
-// (render.cl); elsewhere it is unused.
-// OUT_OF_LINE (issue 42: the cold build): PoCL inlines a kernel's body into its work-item
-// loop and that loop into both work-group functions it makes (_pocl_kernel_render, _workgroup
-// and _workgroup_fast), so the single-ray renderer, all inlined into the render kernel, was
-// optimised and compiled to machine code three times at the first launch; out of line it is
-// compiled once, for a call a pixel (docs/acceleration.md, The kernel's body compiled once,
-// 2026-12-05). Inlined it ran 14 to 17 % faster, for cold builds 1.4 to 2.3 times as long (The
-// render kernel's camera rays ahead of its walks, 2026-12-05).
-// Where a driver may pack work-items into a vector's lanes (IMPLICIT_VECTORIZATION, an Intel
-// CPU runtime's knob), a call stops it from packing the kernel, and on GPU targets a call
-// costs a stack of private memory (the amdgcn build's scratch grew by it): inlined there.
-#if SERIAL_WORK_ITEMS
-#define PIXEL_RADIANCE_LINKAGE OUT_OF_LINE
-#else
-#define PIXEL_RADIANCE_LINKAGE HOT
-#endif
-PIXEL_RADIANCE_LINKAGE REAL3 pixel_radiance(const SceneRefs* s, const __global Camera* camera,
-                                 const __global Params* params, int x, int y, uint pixel,
-                                 REAL3 first_o, REAL3 first_d, int* secondary_rays,
-                                 int* shadow_rays) {
+// samples so, each lane's levels in the same order). With `first`, sample 0's primary ray is
+// that task, made ahead (render_segment); without (0), made here as the others.
+HOT REAL3 pixel_radiance(const SceneRefs* s, const __global Camera* camera,
+                         const __global Params* params, int x, int y, uint pixel,
+                         const RayTask* first, int* secondary_rays, int* shadow_rays) {
     REAL3 sum = (REAL3)(0, 0, 0), ambient = TO_REAL3(params->ambient);
     int spp = params->spp;
     SampleKey key = sample_key(params->seed, pixel, spp);
     for (int sample = 0; sample < spp; ++sample) {
         key.sample = sample;
         RayTask stack[RAY_STACK_SIZE];
-        stack[0] = SERIAL_WORK_ITEMS && sample == 0
-            ? root_task(first_o, first_d) : primary_task(camera, params, x, y, sample, pixel);
+        stack[0] = first && sample == 0 ? *first
+                                        : primary_task(camera, params, x, y, sample, pixel);
         sum += tree_radiance(s, camera, params, key, ambient, stack, 1, (REAL3)(0, 0, 0),
                              secondary_rays, shadow_rays);
     }
     return sum;
 }
+
+// A pixel's output in the launch's band (slot: its place there; the buffers hold the band's
+// rows only, so that an image of any size renders within the device's largest allocation):
+// the mean radiance as three packed floats, which the host copies straight into its image's
+// rows, and the secondary and shadow rays (the host counts the spp primary rays): 20 bytes a
+// pixel, not two float4s' 32.
+HOT void store_pixel(__global float* image, __global int2* ray_counts, int slot, REAL3 sum,
+                     int spp, int secondary_rays, int shadow_rays) {
+    REAL3 mean = sum / (REAL)spp;
+    vstore3((float3)((float)mean.x, (float)mean.y, (float)mean.z), slot, image);
+    ray_counts[slot] = (int2)(secondary_rays, shadow_rays);
+}
+
+#if SERIAL_WORK_ITEMS && !SAMPLE_PACKETS && !GROUP_PACKETS
+// Where work-items run one after another (SERIAL_WORK_ITEMS) the single-ray render kernel's
+// first work-item of a group renders the group's row segment: `count` pixels of row y from
+// x = first on, written from band slot `slot` on; the group's other work-items do nothing.
+// A CPU driver runs a group's work-items in a loop on one thread anyway; written here, the
+// loop is the renderer's own:
+// - out of line, the renderer is compiled once. PoCL inlines a kernel's body into its
+//   work-item loop and that loop into the two work-group functions it makes
+//   (_pocl_kernel_render, _workgroup and _workgroup_fast): the renderer inlined into the
+//   kernel was optimised and compiled to machine code three times at the first launch (issue
+//   42, the cold build);
+// - pixel_radiance inlined into this loop, not called once a pixel: the call (its prologue,
+//   SceneRefs copied for it, no overlap across it) cost 14 to 17 % of the mesh's 1-spp render;
+// - the camera rays of CAMERA_AHEAD pixels made before their walks: each is a chain of
+//   dependent divisions and a square root, which overlap from pixel to pixel in a loop of
+//   their own, where ahead of each walk the walk waited on its ray
+// (docs/acceleration.md, The single-ray render's row segments, 2026-12-05).
+#define RENDER_SEGMENTS 1
+#define CAMERA_AHEAD 16
+OUT_OF_LINE void render_segment(SceneRefs* s, const __global Camera* camera,
+                                const __global Params* params, __global float* image,
+                                __global int2* ray_counts, __global int4* test_counts,
+                                int first, int y, int count, int slot) {
+    int width = params->width, spp = params->spp;
+    for (int start = 0; start < count; start += CAMERA_AHEAD) {
+        int n = min(CAMERA_AHEAD, count - start);
+        RayTask rays[CAMERA_AHEAD];
+        for (int i = 0; i < n; ++i) {
+            int x = first + start + i;
+            REAL3 o, d;
+            sample_ray(camera, params, x, y, 0, (uint)(y * width + x), &o, &d);
+            rays[i] = root_task(o, d);
+        }
+        for (int i = 0; i < n; ++i) {
+            int x = first + start + i, secondary_rays = 0, shadow_rays = 0;
+#if COUNT_TESTS
+            TestCounts counts = {0, 0, 0, 0};
+            s->counts = &counts;
+#endif
+            REAL3 sum = pixel_radiance(s, camera, params, x, y, (uint)(y * width + x),
+                                       rays + i, &secondary_rays, &shadow_rays);
+            store_pixel(image, ray_counts, slot + start + i, sum, spp, secondary_rays,
+                        shadow_rays);
+#if COUNT_TESTS
+            test_counts[slot + start + i] = (int4)(counts.closest_boxes, counts.closest_prims,
+                                                   counts.shadow_boxes, counts.shadow_prims);
+#endif
+        }
+    }
+}
+#else
+#define RENDER_SEGMENTS 0
+#endif
 
 #endif

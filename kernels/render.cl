@@ -2,7 +2,8 @@
 // in an intersection build intersect_rays (closest hits of given rays, for tests and tools)
 // and, in a passes build only,
 // render_passes (a pixel's passes, passes.h). What they run is in the
-// headers: a pixel's samples and their ray trees (ray_tree.h: pixel_radiance) over the scene's
+// headers: a pixel's samples and their ray trees (ray_tree.h: pixel_radiance, on a CPU a row
+// segment of them, render_segment) over the scene's
 // queries (bvh.h) and shading (shading.h, direct.h), or the same by the sample-packet and
 // group-packet schemes (packet_trace.h: packet_pixel_radiance, group_trace.h: group_pixel).
 //
@@ -67,30 +68,21 @@ __kernel WORK_ITEM_LANES void render(SCENE_BUFFER_PARAMS, __global float* image,
                                      int row_offset) {
     int x = get_global_id(0), y = get_global_id(1) + row_offset;
     int width = params->width, height = params->height;
+#if RENDER_SEGMENTS
+    // The group's first work-item renders its row segment (ray_tree.h: render_segment).
+    if (get_local_id(0) == 0 && x < width && y < height) {
+        SceneRefs s = scene_refs(SCENE_BUFFER_ARGS);
+        render_segment(&s, camera, params, image, ray_counts, test_counts, x, y,
+                       min((int)get_local_size(0), width - x), (int)get_global_id(1) * width + x);
+    }
+#else
 #if GROUP_PACKETS
     // No early return: the work-items past the image's edge ride along in the group's walks.
     bool live = x < width && y < height;
     __local GroupPosts posts;
     Group g;
     group_init(&g, &posts, get_local_id(1) * get_local_size(0) + get_local_id(0));
-#elif SAMPLE_PACKETS
-    if (x >= width || y >= height) return;
 #else
-    // Sample 0's camera ray, made by every work-item of the group (one past the image's edge
-    // too: no return before a barrier) before any walks. A CPU driver runs the work-items
-    // one after another in a loop, which it splits at the barrier: the camera rays' chains of
-    // dependent divisions and square root then overlap from pixel to pixel in a loop of their
-    // own, where ahead of each walk the walk waited on them (docs/acceleration.md, The render
-    // kernel's camera rays ahead of its walks, 2026-12-05). A GPU runs its work-items side
-    // by side already: no barrier there.
-    // Elsewhere sample 0's ray is made with the others (pixel_radiance): Intel's runtime,
-    // packing work-items (IMPLICIT_VECTORIZATION) with the stages out of line (STAGE_PROFILE),
-    // rendered wrong pixels from the ray made here (tests/test_oclgrind.py).
-    REAL3 first_o = (REAL3)(0, 0, 0), first_d = (REAL3)(0, 0, 0);
-#if SERIAL_WORK_ITEMS
-    sample_ray(camera, params, x, y, 0, (uint)(y * width + x), &first_o, &first_d);
-    barrier(CLK_LOCAL_MEM_FENCE);
-#endif
     if (x >= width || y >= height) return;
 #endif
 
@@ -101,7 +93,6 @@ __kernel WORK_ITEM_LANES void render(SCENE_BUFFER_PARAMS, __global float* image,
 #endif
 
     uint pixel = (uint)(y * width + x);
-    int spp = params->spp;
     int secondary_rays = 0, shadow_rays = 0;
 #if GROUP_PACKETS
     REAL3 sum = group_pixel(&s, &g, camera, params, texels, x, y, pixel, live, &secondary_rays,
@@ -111,21 +102,16 @@ __kernel WORK_ITEM_LANES void render(SCENE_BUFFER_PARAMS, __global float* image,
     REAL3 sum = packet_pixel_radiance(&s, camera, params, x, y, pixel, &secondary_rays,
                                       &shadow_rays);
 #else
-    REAL3 sum = pixel_radiance(&s, camera, params, x, y, pixel, first_o, first_d,
-                               &secondary_rays, &shadow_rays);
+    // A GPU's work-items, side by side: a pixel each.
+    REAL3 sum = pixel_radiance(&s, camera, params, x, y, pixel, 0, &secondary_rays,
+                               &shadow_rays);
 #endif
-    REAL3 mean = sum / (REAL)spp;
-    // The output buffers hold this launch's band of rows only, so that an image of any size
-    // renders within the device's largest allocation.
     int slot = get_global_id(1) * width + x;
-    // 20 bytes a pixel, not two float4s' 32: the radiance as three packed floats, which the
-    // host copies straight into its image's rows, and the secondary and shadow rays (every
-    // pixel traces spp primary rays: the host counts those).
-    vstore3((float3)((float)mean.x, (float)mean.y, (float)mean.z), slot, image);
-    ray_counts[slot] = (int2)(secondary_rays, shadow_rays);
+    store_pixel(image, ray_counts, slot, sum, params->spp, secondary_rays, shadow_rays);
 #if COUNT_TESTS
     test_counts[slot] = (int4)(counts.closest_boxes, counts.closest_prims, counts.shadow_boxes,
                                counts.shadow_prims);
+#endif
 #endif
 }
 

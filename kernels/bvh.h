@@ -418,14 +418,19 @@ HOT bool packet_blocks(const SceneRefs* s, int kind, int slot, const Ray* r, REA
 }
 #endif
 
-// Out of line in builds whose leaves hold one-by-one shapes or instances. The code is the same
-// size either way (primitives' render.so 39,269 -> 38,941 bytes), yet the renderer in two
-// functions compiled faster than in one (the optimisers' passes grow faster than linearly in
-// a function's size): cold builds 3 to 8 % shorter, renders' instructions -2.2 to +0.4 %
-// (glass -2.2 %, primitives -1.7 %, instances -0.04 %, tori +0.4 %). Where leaves hold only
-// triangles and spheres, whose leaf tests are small, they stay inlined (docs/acceleration.md,
-// The leaves' tests out of line).
-#if HAS_ONE_BY_ONE_SHAPES || HAS_INSTANCES
+// LARGE_LEAF_TESTS: the build's leaves can hold one-by-one shapes or instances, whose tests
+// are large. There the renderer is compiled as more functions than one (this one and
+// ray_tree.h's pixel_radiance), since the optimisers' passes grow faster than linearly in a
+// function's size; where leaves hold only triangles and spheres, the build is small enough to
+// inline them (issue 42, the cold build).
+#define LARGE_LEAF_TESTS (HAS_ONE_BY_ONE_SHAPES || HAS_INSTANCES)
+
+// Out of line where LARGE_LEAF_TESTS. The code is the same size either way (primitives'
+// render.so 39,269 -> 38,941 bytes), yet the renderer in two functions compiled faster than in
+// one: cold builds 3 to 8 % shorter, renders' instructions -2.2 to +0.4 % (glass -2.2 %,
+// primitives -1.7 %, instances -0.04 %, tori +0.4 %) (docs/acceleration.md, The leaves' tests
+// out of line).
+#if LARGE_LEAF_TESTS
 #define LEAF_TRANSMISSION OUT_OF_LINE
 #else
 #define LEAF_TRANSMISSION HOT

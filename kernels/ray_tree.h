@@ -31,6 +31,8 @@
 #define SERIAL_WORK_ITEMS 1
 #endif
 #endif
+// The single-ray render's row segments (render_segment, below): where work-items run serially.
+#define RENDER_SEGMENTS (SERIAL_WORK_ITEMS && !SAMPLE_PACKETS && !GROUP_PACKETS)
 
 // The media a ray can be inside at once (nested glass); a deeper one is not recorded.
 #define MEDIA_DEPTH 4
@@ -201,7 +203,17 @@ HOT REAL3 tree_radiance(const SceneRefs* s, const __global Camera* camera,
 // the sample's own radiance first, then the pixel's sum (a sample packet sums its lanes'
 // samples so, each lane's levels in the same order). With `first`, sample 0's primary ray is
 // that task, made ahead (render_segment); without (0), made here as the others.
-HOT REAL3 pixel_radiance(const SceneRefs* s, const __global Camera* camera,
+// Inlined into render_segment's loop, where a call a pixel cost 4 to 7 % of the mesh's 1-spp
+// render, except where LARGE_LEAF_TESTS (bvh.h): there it stays a function of its own, whose
+// call from render_segment's loop costs the same, for a build that is not 0.05 to 0.07 CPU-s
+// longer (clBuildProgram; docs/acceleration.md, The single-ray render's row segments). A GPU
+// build inlines it into the render kernel.
+#if RENDER_SEGMENTS && LARGE_LEAF_TESTS
+#define PIXEL_RADIANCE OUT_OF_LINE
+#else
+#define PIXEL_RADIANCE HOT
+#endif
+PIXEL_RADIANCE REAL3 pixel_radiance(const SceneRefs* s, const __global Camera* camera,
                          const __global Params* params, int x, int y, uint pixel,
                          const RayTask* first, int* secondary_rays, int* shadow_rays) {
     REAL3 sum = (REAL3)(0, 0, 0), ambient = TO_REAL3(params->ambient);
@@ -230,7 +242,7 @@ HOT void store_pixel(__global float* image, __global int2* ray_counts, int slot,
     ray_counts[slot] = (int2)(secondary_rays, shadow_rays);
 }
 
-#if SERIAL_WORK_ITEMS && !SAMPLE_PACKETS && !GROUP_PACKETS
+#if RENDER_SEGMENTS
 // Where work-items run one after another (SERIAL_WORK_ITEMS) the single-ray render kernel's
 // first work-item of a group renders the group's row segment: `count` pixels of row y from
 // x = first on, written from band slot `slot` on; the group's other work-items do nothing.
@@ -247,7 +259,6 @@ HOT void store_pixel(__global float* image, __global int2* ray_counts, int slot,
 //   dependent divisions and a square root, which overlap from pixel to pixel in a loop of
 //   their own, where ahead of each walk the walk waited on its ray
 // (docs/acceleration.md, The single-ray render's row segments, 2026-12-05).
-#define RENDER_SEGMENTS 1
 #define CAMERA_AHEAD 16
 OUT_OF_LINE void render_segment(SceneRefs* s, const __global Camera* camera,
                                 const __global Params* params, __global float* image,
@@ -280,8 +291,6 @@ OUT_OF_LINE void render_segment(SceneRefs* s, const __global Camera* camera,
         }
     }
 }
-#else
-#define RENDER_SEGMENTS 0
 #endif
 
 #endif

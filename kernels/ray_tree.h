@@ -203,11 +203,10 @@ HOT REAL3 tree_radiance(const SceneRefs* s, const __global Camera* camera,
 // the sample's own radiance first, then the pixel's sum (a sample packet sums its lanes'
 // samples so, each lane's levels in the same order). With `first`, sample 0's primary ray is
 // that task, made ahead (render_segment); without (0), made here as the others.
-// Inlined into render_segment's loop, where a call a pixel cost 4 to 7 % of the mesh's 1-spp
-// render, except where LARGE_LEAF_TESTS (bvh.h): there it stays a function of its own, whose
-// call from render_segment's loop costs the same, for a build that is not 0.05 to 0.07 CPU-s
-// longer (clBuildProgram; docs/acceleration.md, The single-ray render's row segments). A GPU
-// build inlines it into the render kernel.
+// Inlined into render_segment's loop, where a call a pixel cost 3 to 4 % of the mesh's 1-spp
+// render's CPU time, except where LARGE_LEAF_TESTS (bvh.h): there it stays a function of its
+// own, for a clBuildProgram not 0.04 to 0.06 CPU-s longer (docs/acceleration.md, The
+// single-ray render's row segments). A GPU build inlines it into the render kernel.
 #if RENDER_SEGMENTS && LARGE_LEAF_TESTS
 #define PIXEL_RADIANCE OUT_OF_LINE
 #else
@@ -248,16 +247,18 @@ HOT void store_pixel(__global float* image, __global int2* ray_counts, int slot,
 // x = first on, written from band slot `slot` on; the group's other work-items do nothing.
 // A CPU driver runs a group's work-items in a loop on one thread anyway; written here, the
 // loop is the renderer's own:
+// - PoCL's work-item loop had cost more than the pixels' work where rays are cheap: a pass a
+//   pixel, SceneRefs' 22 pointers copied for the call, the call's prologue. A group's pixels in
+//   this loop ran the mesh's primary rays (1 spp, 13 % hit) in 0.032 s, not 0.050, and 620
+//   instructions a ray, not 677; whole scenes at 1 spp 5 to 11 % faster;
 // - out of line, the renderer is compiled once. PoCL inlines a kernel's body into its
 //   work-item loop and that loop into the two work-group functions it makes
-//   (_pocl_kernel_render, _workgroup and _workgroup_fast): the renderer inlined into the
-//   kernel was optimised and compiled to machine code three times at the first launch (issue
-//   42, the cold build);
-// - pixel_radiance inlined into this loop, not called once a pixel: the call (its prologue,
-//   SceneRefs copied for it, no overlap across it) cost 14 to 17 % of the mesh's 1-spp render;
-// - the camera rays of CAMERA_AHEAD pixels made before their walks: each is a chain of
+//   (_pocl_kernel_render, _workgroup and _workgroup_fast): a renderer inlined into the kernel
+//   was optimised and compiled to machine code three times at the first launch (issue 42);
+// - the camera rays of CAMERA_AHEAD pixels are made before their walks: each is a chain of
 //   dependent divisions and a square root, which overlap from pixel to pixel in a loop of
-//   their own, where ahead of each walk the walk waited on its ray
+//   their own, where ahead of each walk the walk waited on its ray (one ahead, not 16: the
+//   kernel 8 % slower)
 // (docs/acceleration.md, The single-ray render's row segments, 2026-12-05).
 #define CAMERA_AHEAD 16
 OUT_OF_LINE void render_segment(SceneRefs* s, const __global Camera* camera,

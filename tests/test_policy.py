@@ -157,7 +157,7 @@ def test_gpu_devices_are_built_as_gpus_whatever_their_compiler_defines() -> None
 @pytest.mark.parametrize("scene_name", ["spheres", "glass"])
 def test_the_gpu_build_renders_the_cpu_builds_image(cl_device: cl.Device, scene_name: str,
                                                      monkeypatch: pytest.MonkeyPatch) -> None:
-    # The render kernel as a GPU builds it (no barrier before the walks, the renderer inlined),
+    # The render kernel as a GPU builds it (a pixel a work-item, the renderer inlined),
     # run on this CPU device: the same image, bit for bit, as the CPU's build.
     scene = load_scene(ROOT / "scenes" / f"{scene_name}.toml")
     settings = RenderSettings(width=64, height=36, spp=1)

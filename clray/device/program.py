@@ -47,7 +47,8 @@ def is_oclgrind(device: cl.Device) -> bool:
 
 
 # A GPU runs a work-group's work-items side by side (kernels/ray_tree.h, SERIAL_WORK_ITEMS):
-# no barrier to overlap camera rays, and the renderer inlined. Said by the host, since a
+# a pixel a work-item, the renderer inlined, not a group's row segment rendered by its first
+# work-item (render_segment). Said by the host, since a
 # vendor's compiler need not define the target macros (__NVPTX__, __AMDGCN__) clang's do.
 GPU_BUILD_OPTIONS = ("-DSERIAL_WORK_ITEMS=0",)
 

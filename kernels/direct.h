@@ -43,7 +43,7 @@ HOT REAL3 shade_direct(const SceneRefs* s, const Surface* sf, REAL3 n, REAL3 v, 
 
 #if SAMPLE_PACKETS
 // Lane j of rows of light (x, y, z) plus v: the sums lane by lane of light that went lane by lane.
-HOT void add_to_lane(REAL rows[3][PACKET_LANES], int j, REAL3 v) {
+HOT void add_to_lane(REAL (*rows)[PACKET_LANES], int j, REAL3 v) {
     rows[0][j] += v.x;
     rows[1][j] += v.y;
     rows[2][j] += v.z;
@@ -54,7 +54,7 @@ HOT void add_to_lane(REAL rows[3][PACKET_LANES], int j, REAL3 v) {
 // to direct[j]. False (nothing added) where point_light_lanes declines.
 HOT bool point_light_direct(const SceneRefs* s, const MaterialRows* mr, const RayLanes* seen,
                             int i, const SurfaceLanes* q, const TermLanes* m, int bits,
-                            REAL direct[3][PACKET_LANES], int* shadow_rays) {
+                            REAL (*direct)[PACKET_LANES], int* shadow_rays) {
     const __global Light* light = s->lights + i;
     RayPacket rays;
     REALP tmax, lx, ly, lz, atten, ndl;
@@ -104,7 +104,7 @@ HOT bool point_light_direct(const SceneRefs* s, const MaterialRows* mr, const Ra
 // Out of line: once per packet and level (issue 42, cold build; see packet_closest).
 OUT_OF_LINE void packet_direct(const SceneRefs* s, const MaterialRows* mr, const RayLanes* seen,
                        const SurfaceLanes* q, const TermLanes* m, REAL3 ambient_light,
-                       SampleKey key, int bits, REAL direct[3][PACKET_LANES], int* shadow_rays) {
+                       SampleKey key, int bits, REAL (*direct)[PACKET_LANES], int* shadow_rays) {
     int first = key.sample;
     if (!bits) return;
     // surface_glow's arithmetic on every lane.

@@ -37,9 +37,13 @@ typedef int4 MASK4;
 // node's 8 doubles) are passed between functions in a way an AVX-512 build would pass
 // otherwise, and clang warns so at every such function (-Wpsabi): hundreds of warnings, whose
 // count PoCL prints to the terminal at a render's first build. Every function is built into
-// the same program, so the calling convention is the compiler's own business.
-#if defined(__clang__)
+// the same program, so the calling convention is the compiler's own business. Only where the
+// compiler knows the warning: NVIDIA's OpenCL compiler (driver 580) warned of the unknown
+// group itself and wrote "1 warning generated." to the terminal at every build.
+#if defined(__clang__) && defined(__has_warning)
+#if __has_warning("-Wpsabi")
 #pragma clang diagnostic ignored "-Wpsabi"
+#endif
 #endif
 
 // The traversal and intersection helpers run once per node or primitive test: a call that is

@@ -14,7 +14,12 @@ from clray.device import program
 from clray.device.launch import render_packed
 from clray.device.pack import pack_scene
 from clray.device.policy import device_plan
-from clray.device.program import GPU_BUILD_OPTIONS, KernelConfig, device_build_options
+from clray.device.program import (
+    CORRECTLY_ROUNDED,
+    GPU_BUILD_OPTIONS,
+    KernelConfig,
+    device_build_options,
+)
 from clray.knobs import TRAVERSAL_SCHEMES, TRAVERSAL_TABLE, Tuning, TuningError
 from clray.render import RenderSettings, pack_for, plan_for, resolved_settings
 from clray.scene.load import load_scene
@@ -149,6 +154,10 @@ def test_gpu_devices_are_built_as_gpus_whatever_their_compiler_defines() -> None
         return SimpleNamespace(type=kind, platform=SimpleNamespace(name=platform))
 
     assert device_build_options(device(cl.device_type.GPU)) == GPU_BUILD_OPTIONS
+    # Float division and square root correctly rounded where the GPU can do it.
+    rounding = SimpleNamespace(type=cl.device_type.GPU, platform=SimpleNamespace(name="NVIDIA"),
+                               single_fp_config=cl.device_fp_config.CORRECTLY_ROUNDED_DIVIDE_SQRT)
+    assert device_build_options(rounding) == (*GPU_BUILD_OPTIONS, CORRECTLY_ROUNDED)
     assert device_build_options(device(cl.device_type.CPU, "Portable Computing Language")) == ()
     assert "-DSERIAL_WORK_ITEMS=0" not in device_build_options(device(cl.device_type.CPU,
                                                                       "Oclgrind"))

@@ -20,6 +20,7 @@ from pathlib import Path
 import pyopencl as cl
 import pytest
 
+from clray.device import program as program_module
 from clray.device.context import context_for
 from clray.device.program import KernelConfig, build_program, kernel_source
 
@@ -131,3 +132,23 @@ def test_large_leaf_builds_keep_leaf_shadow_tests_and_pixels_out_of_line(
         kept = _program_binary(cl_device, dataclasses.replace(config, **switches))
         assert b"leaf_transmission" in kept, switches
         assert b"pixel_radiance" in kept, switches
+
+
+def test_a_failing_binary_cache_falls_back_to_a_plain_build(
+        cl_device: cl.Device, monkeypatch: pytest.MonkeyPatch) -> None:
+    """pyopencl builds without its binary cache when the cache fails (another process holding
+    its lock, an unwritable folder), but only where PYOPENCL_CACHE_FAILURE_FATAL is set:
+    unset, it raised KeyError instead (clray/device/program.py sets it empty)."""
+    import pyopencl.cache
+    import pyopencl.characterize
+
+    def failing(*args, **kwargs):
+        raise OSError("the cache's lock is held by another process")
+
+    # pyopencl uses its cache where the driver keeps none of its own (Intel's runtime; not PoCL).
+    monkeypatch.setattr(pyopencl.characterize, "has_src_build_cache", lambda device: False)
+    monkeypatch.setattr(pyopencl.cache, "retrieve_from_cache", failing)
+    monkeypatch.setattr(program_module, "_programs", {})
+    with pytest.warns(UserWarning, match="caching failed"):
+        built, seconds = build_program(cl_device, KernelConfig(has_spheres=True, max_depth=1))
+    assert seconds > 0 and built.get_info(cl.program_info.NUM_KERNELS) >= 1

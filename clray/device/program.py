@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import hashlib
+import os
 import re
 import time
 import warnings
@@ -231,6 +232,12 @@ def kernel_source(name: str = ENTRY_FILE) -> str:
 
 
 _programs: dict[tuple[int, str, tuple[str, ...]], cl.Program] = {}
+
+# pyopencl (2026.1.4) builds without its binary cache when the cache fails (a lock that another
+# process holds, a cache folder that cannot be written), unless this variable is set non-empty;
+# it reads the variable without a default, so unset, a cache failure raised KeyError
+# ('PYOPENCL_CACHE_FAILURE_FATAL') instead (seen in CI while other processes built).
+os.environ.setdefault("PYOPENCL_CACHE_FAILURE_FATAL", "")
 
 
 def build_program(device: cl.Device, config: KernelConfig) -> tuple[cl.Program, float]:

@@ -67,8 +67,9 @@ after=$(OCL_ICD_VENDORS="$PWD/$vendors.new" "$venv_python" -c "$list_platforms" 
 if [ "$after" != "$expected" ]; then
     give_up "with it the platforms are [${after//$'\n'/, }], expected [${expected//$'\n'/, }]"
 fi
-# A platform that lists is not yet one that compiles: build and run one kernel on it.
-if ! OCL_ICD_VENDORS="$PWD/$vendors.new" "$venv_python" -c '
+# A platform that lists is not yet one that compiles: build and run one kernel on it. Past
+# pyopencl's binary cache: a lock that a killed process left there failed this check once.
+if ! PYOPENCL_NO_CACHE=1 OCL_ICD_VENDORS="$PWD/$vendors.new" "$venv_python" -c '
 import numpy as np
 import pyopencl as cl
 import sys

@@ -233,12 +233,17 @@ PIXEL_RADIANCE REAL3 pixel_radiance(const SceneRefs* s, const __global Camera* c
 // rows only, so that an image of any size renders within the device's largest allocation):
 // the mean radiance as three packed floats, which the host copies straight into its image's
 // rows, and the secondary and shadow rays (the host counts the spp primary rays): 20 bytes a
-// pixel, not two float4s' 32.
-HOT void store_pixel(__global float* image, __global int2* ray_counts, int slot, REAL3 sum,
-                     int spp, int secondary_rays, int shadow_rays) {
+// pixel, not two float4s' 32. In the instrumented build, also the pixel's tests (s->counts).
+HOT void store_pixel(const SceneRefs* s, __global float* image, __global int2* ray_counts,
+                     __global int4* test_counts, int slot, REAL3 sum, int spp,
+                     int secondary_rays, int shadow_rays) {
     REAL3 mean = sum / (REAL)spp;
     vstore3((float3)((float)mean.x, (float)mean.y, (float)mean.z), slot, image);
     ray_counts[slot] = (int2)(secondary_rays, shadow_rays);
+#if COUNT_TESTS
+    test_counts[slot] = (int4)(s->counts->closest_boxes, s->counts->closest_prims,
+                               s->counts->shadow_boxes, s->counts->shadow_prims);
+#endif
 }
 
 #if RENDER_SEGMENTS
@@ -283,12 +288,8 @@ OUT_OF_LINE void render_segment(SceneRefs* s, const __global Camera* camera,
 #endif
             REAL3 sum = pixel_radiance(s, camera, params, x, y, (uint)(y * width + x),
                                        rays + i, &secondary_rays, &shadow_rays);
-            store_pixel(image, ray_counts, slot + start + i, sum, spp, secondary_rays,
-                        shadow_rays);
-#if COUNT_TESTS
-            test_counts[slot + start + i] = (int4)(counts.closest_boxes, counts.closest_prims,
-                                                   counts.shadow_boxes, counts.shadow_prims);
-#endif
+            store_pixel(s, image, ray_counts, test_counts, slot + start + i, sum, spp,
+                        secondary_rays, shadow_rays);
         }
     }
 }

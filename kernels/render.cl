@@ -107,11 +107,8 @@ __kernel WORK_ITEM_LANES void render(SCENE_BUFFER_PARAMS, __global float* image,
                                &shadow_rays);
 #endif
     int slot = get_global_id(1) * width + x;
-    store_pixel(image, ray_counts, slot, sum, params->spp, secondary_rays, shadow_rays);
-#if COUNT_TESTS
-    test_counts[slot] = (int4)(counts.closest_boxes, counts.closest_prims, counts.shadow_boxes,
-                               counts.shadow_prims);
-#endif
+    store_pixel(&s, image, ray_counts, test_counts, slot, sum, params->spp, secondary_rays,
+                shadow_rays);
 #endif
 }
 

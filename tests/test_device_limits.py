@@ -64,12 +64,41 @@ def test_the_default_device_and_why(cl_device, monkeypatch) -> None:
     monkeypatch.delenv("PYOPENCL_CTX", raising=False)
     device, spec, why = context.default_device()
     types = {d.spec: d.type for d in context.list_devices()}
-    if "CPU" in types.values():
+    if any(context.is_discrete_gpu(d) for _, d in context._all_devices()):
+        assert types[spec] == "GPU" and context.is_discrete_gpu(device)
+    elif "CPU" in types.values():
         assert types[spec] == "CPU" and why == "the first CPU device"
         assert spec == next(s for s, t in types.items() if t == "CPU")
     assert context.select_device() == device
     monkeypatch.setenv("CLRAY_DEVICE", spec)
     assert context.default_device()[1:] == (spec, f"CLRAY_DEVICE={spec}")
+
+
+def _listed(*kinds: tuple[str, int, bool]) -> list[tuple[str, SimpleNamespace]]:
+    """Devices as _all_devices lists them, from (type, compute units, host unified memory)."""
+    flags = {"CPU": cl.device_type.CPU, "GPU": cl.device_type.GPU,
+             "ACCELERATOR": cl.device_type.ACCELERATOR}
+    return [(f"{i}:0", SimpleNamespace(type=flags[kind], max_compute_units=units,
+                                       host_unified_memory=unified))
+            for i, (kind, units, unified) in enumerate(kinds)]
+
+
+@pytest.mark.parametrize(("kinds", "chosen", "why"), [
+    ((("CPU", 16, True), ("GPU", 132, False)), "1:0", "a GPU with its own memory"),
+    ((("CPU", 16, True), ("GPU", 24, False), ("GPU", 132, False)), "2:0", "a GPU"),
+    ((("GPU", 24, True), ("CPU", 16, True)), "1:0", "the first CPU device"),
+    ((("ACCELERATOR", 4, False), ("CPU", 2, True), ("CPU", 8, True)), "1:0", "the first CPU"),
+    ((("GPU", 24, True),), "0:0", "the first device: there is no CPU device"),
+])
+def test_a_gpu_of_its_own_memory_renders_by_default(monkeypatch, kinds, chosen, why) -> None:
+    # Issue 41: where a GPU is present and measured faster, a user need not know --device. An
+    # integrated GPU (sharing the host's memory) is not measured, and the CPU stays the default.
+    monkeypatch.delenv("CLRAY_DEVICE", raising=False)
+    monkeypatch.delenv("PYOPENCL_CTX", raising=False)
+    listed = _listed(*kinds)
+    monkeypatch.setattr(context, "_all_devices", lambda: listed)
+    device, spec, reason = context.default_device()
+    assert spec == chosen and device is dict(listed)[chosen] and reason.startswith(why)
 
 
 def test_clray_devices_marks_the_default(cl_device, capsys) -> None:

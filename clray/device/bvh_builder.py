@@ -31,10 +31,10 @@ from clray.accel.bvh import (
     build_bvh,
     checked_bounds,
 )
-from clray.device.buffers import read_only_buffer, reads_host_memory
+from clray.device.buffers import read_only_buffer
 from clray.device.context import has_fp64
 from clray.device.layout import BINARY_NODE, BUILD_PRIM, BUILD_TASK
-from clray.device.program import device_build_options, kernel_source
+from clray.device.program import device_build_options, is_oclgrind, kernel_source
 from clray.host_memory import by_chunks
 
 # Subtrees per compute unit before the per-subtree kernel takes over: enough that one large
@@ -89,8 +89,8 @@ def float_prims(n: int) -> tuple[np.ndarray, np.ndarray]:
     """(lo, hi): (n, 3) float32 views, for the caller to fill with n primitives' bounds, of
     records laid out as the device build's float primitives (kernels/bvh_build.cl, Prim under
     FLOAT_BOUNDS: lo, the index, hi, a spare word). A device build over bounds that are
-    these views whole takes their records as its first primitive buffer (_prims_of) where the
-    device reads host memory: no copy of the bounds and no pass that rounds them in. Any
+    these views whole takes their records as its first primitive buffer (_prims_of), on every
+    device but Oclgrind: no copy of the bounds and no pass that rounds them in. Any
     other use sees plain bounds. The index and spare words are written a chunk at a time on
     every core: their first touch of the records' fresh memory (32 B a primitive) is most of
     the time this takes."""
@@ -171,9 +171,12 @@ def build(queue: cl.CommandQueue, bounds: list[np.ndarray], max_leaf: int,
     kernels = _kernels(queue.context, float_bounds)
     # Every buffer lives in numpy memory: a CPU device then works in place, and numpy reuses
     # freed memory where a fresh device allocation page-faults in all over again each build.
-    # Records the caller filled (float_prims) are the first primitive buffer where the device
-    # reads host memory in place; elsewhere they are bounds like any others.
-    given = (_prims_of(lo, hi) if float_bounds and reads_host_memory(queue.device)
+    # Records the caller filled (float_prims) are the first primitive buffer: a USE_HOST_PTR
+    # buffer's contents are its host memory's at creation, which a CPU device then reads in
+    # place and a GPU copies once, with no bounds beside them (the first GPU run found the
+    # packer holding both). Not on Oclgrind, which takes such contents for
+    # uninitialised: there they are bounds like any others.
+    given = (_prims_of(lo, hi) if float_bounds and not is_oclgrind(queue.device)
              else None)
     # The primitives, partitioned in place, and the stash of the smaller side of a split
     # (kernels/bvh_build.cl, partition): half as many.

@@ -108,7 +108,7 @@ class Mode:
 
 
 STEP_ORDER = ("setup", "icd", "devices", "kernel_tests", "references", "scenes", "mesh_scene",
-              "profiles", "builds", "tune")
+              "profiles", "builds", "cpu_beside", "tune")
 
 GPU_MODE = Mode(
     name="gpu", device_type="GPU", platform="NVIDIA",
@@ -121,7 +121,7 @@ GPU_MODE = Mode(
             "kernel_tests": StepLimit(110, 20), "references": StepLimit(20, 5),
             "scenes": StepLimit(75, 20), "mesh_scene": StepLimit(40, 10),
             "profiles": StepLimit(130, 30), "builds": StepLimit(60, 15),
-            "tune": StepLimit(180, 30)})
+            "cpu_beside": StepLimit(45, 10), "tune": StepLimit(180, 30)})
 
 CPU_MODE = Mode(
     name="cpu", device_type="CPU", platform="Portable Computing Language",
@@ -135,7 +135,7 @@ CPU_MODE = Mode(
             "kernel_tests": StepLimit(90, 15), "references": StepLimit(120, 15),
             "scenes": StepLimit(90, 15), "mesh_scene": StepLimit(30, 5),
             "profiles": StepLimit(150, 20), "builds": StepLimit(120, 15),
-            "tune": StepLimit(60, 15)})
+            "cpu_beside": StepLimit(60, 10), "tune": StepLimit(60, 15)})
 
 
 # --- NVIDIA's OpenCL driver for pyopencl's ICD loader --------------------------------------
@@ -802,6 +802,47 @@ class Check:
         if not run.ok or len(built) < len(configs) or builds.get("unfinished"):
             raise StepError(text + " (see the log)")
         return StepOutcome("ok", text)
+
+    def step_cpu_beside(self, limit: float) -> StepOutcome:
+        """The profiled scenes rendered whole at the first size and the most samples, by the
+        device a render takes with no --device (clray.device.context.default_device: a GPU
+        with its own memory where there is one) and by the machine's CPU device: the figures
+        behind that default. In --cpu mode both are PoCL's device."""
+        self.need_device()
+        cpus = [d for d in self.data.get("devices", []) if d["type"] == "CPU"]
+        if not cpus:
+            return StepOutcome("skipped", "no CPU device beside the target")
+        (w, h), spp = self.mode.sizes[0], max(self.mode.spps)
+        env = {k: v for k, v in self.env.items() if k != "CLRAY_DEVICE"}
+        renders: dict = {}
+        self.data["cpu_beside"] = {"width": w, "height": h, "spp": spp,
+                                   "cpu": cpus[0]["name"], "renders": renders}
+        for scene, path in self.profile_scenes().items():
+            for label, flags in (("default", []), ("cpu", ["--device", cpus[0]["spec"]])):
+                stats = self.work / f"beside_{scene}_{label}.json"
+                run = self.child("cpu_beside", [
+                    self.python, "-m", "clray", "render", path, "-W", str(w), "-H", str(h),
+                    "--spp", str(spp), "--no-tuning", "-q", "-o",
+                    self.work / f"beside_{scene}_{label}.png", "--stats-json", stats, *flags],
+                    limit, env=env)
+                if not run.ok or not stats.exists():
+                    self.write_json()
+                    if run.timed_out:
+                        return StepOutcome("timeout", f"{scene} on the {label} device")
+                    raise StepError(f"{scene} on the {label} device: exit {run.rc}")
+                found = json.loads(stats.read_text(encoding="utf-8"))
+                renders.setdefault(scene, {})[label] = {
+                    k: found[k] for k in ("device", "traversal", "build_s", "kernel_s",
+                                          "render_s", "total_s")}
+            pair = renders[scene]
+            pair["cpu_over_default_kernel"] = pair["cpu"]["kernel_s"] / max(
+                pair["default"]["kernel_s"], 1e-9)
+            self.write_json()
+        chosen = {r["default"]["device"] for r in renders.values()}
+        ratios = ", ".join(f"{scene} x{r['cpu_over_default_kernel']:.1f}"
+                           for scene, r in renders.items())
+        return StepOutcome("ok", f"default device {' / '.join(sorted(chosen))}; the CPU's "
+                                 f"kernel time over the default's: {ratios}")
 
     def step_tune(self, limit: float) -> StepOutcome:
         device = self.need_device()

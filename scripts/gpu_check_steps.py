@@ -447,27 +447,50 @@ def config_from_json(text: str) -> object:
     return KernelConfig(**fields)
 
 
+# A one-line kernel's build in a new process, the driver's own floor under a warm build.
+FLOOR_BUILD = """
+import sys, time
+import pyopencl as cl
+from clray.device.context import context_for, select_device
+context = context_for(select_device(sys.argv[1]))
+start = time.perf_counter()
+cl.Program(context, "__kernel void k(__global float* a) { a[0] = 1.0f; }").build()
+print(time.perf_counter() - start)
+"""
+
+
 def cold_and_warm(config: object, device_spec: str) -> dict:
     """Seconds a new process takes to build `config` with every cache empty (PoCL's, NVIDIA's,
-    pyopencl's), then again with those caches as the first left them."""
+    pyopencl's), then again with those caches as the first left them: twice (the spread),
+    once more without pyopencl's binary cache (the driver's own cache of sources alone), and a
+    one-line kernel's warm build (the driver's floor). Issue 41 asks for warm <= 0.1 s; the
+    first GPU run measured 0.136 to 0.158 s, with nothing to say where it went."""
     from clray.profile import build_seconds
 
     saved = {k: os.environ.get(k) for k in ("CUDA_CACHE_PATH", "XDG_CACHE_HOME",
-                                             "CUDA_CACHE_DISABLE")}
+                                             "CUDA_CACHE_DISABLE", "PYOPENCL_NO_CACHE")}
     with tempfile.TemporaryDirectory(prefix="clray-build-") as tmp:
         os.environ["CUDA_CACHE_PATH"] = str(Path(tmp) / "nv")
         os.environ["XDG_CACHE_HOME"] = str(Path(tmp) / "xdg")
         os.environ.pop("CUDA_CACHE_DISABLE", None)
+        pocl = Path(tmp) / "pocl"
         try:
-            cold = build_seconds(config, device_spec, Path(tmp) / "pocl")
-            warm = build_seconds(config, device_spec, Path(tmp) / "pocl")
+            times = {"cold_s": build_seconds(config, device_spec, pocl),
+                     "warm_s": build_seconds(config, device_spec, pocl),
+                     "warm_again_s": build_seconds(config, device_spec, pocl)}
+            os.environ["PYOPENCL_NO_CACHE"] = "1"
+            times["warm_without_pyopencl_cache_s"] = build_seconds(config, device_spec, pocl)
+            floor = [sys.executable, "-c", FLOOR_BUILD, device_spec]
+            subprocess.run(floor, check=True, capture_output=True, text=True)
+            times["floor_warm_s"] = float(subprocess.run(
+                floor, check=True, capture_output=True, text=True).stdout.split()[-1])
         finally:
             for key, value in saved.items():
                 if value is None:
                     os.environ.pop(key, None)
                 else:
                     os.environ[key] = value
-    return {"cold_s": round(cold, 4), "warm_s": round(warm, 4)}
+    return {key: round(value, 4) for key, value in times.items()}
 
 
 def cmd_builds(args: argparse.Namespace) -> int:

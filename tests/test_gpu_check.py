@@ -203,7 +203,7 @@ def test_a_step_gets_its_cap_or_what_later_steps_leave(tmp_path: Path) -> None:
                     work=tmp_path / "work")
     check.deadline = time.monotonic() + 1000
     assert check.limit_for("setup") == pytest.approx(60)
-    reserve_after_profiles = sum(G.GPU_MODE.limits[s].min_s for s in ("builds", "tune"))
+    reserve_after_profiles = sum(G.GPU_MODE.limits[s].min_s for s in ("builds", "cpu_beside", "tune"))
     check.deadline = time.monotonic() + 100
     assert check.limit_for("profiles") == pytest.approx(100 - reserve_after_profiles, abs=1)
     check.deadline = time.monotonic() - 5
@@ -348,5 +348,12 @@ def test_cpu_mode_runs_every_step_on_pocl(tmp_path: Path) -> None:
         ("spheres", 1), ("spheres", 4), ("mesh", 1), ("mesh", 4)]
     assert all(p["profile"]["mrays_per_s"] > 0 for p in profiles)
     assert set(data["builds"]["cold_warm"]) == {"spheres", "mesh"}
+    assert all(set(times) == {"spp", "cold_s", "warm_s", "warm_again_s",
+                              "warm_without_pyopencl_cache_s", "floor_warm_s"}
+               and min(times.values()) > 0 for times in data["builds"]["cold_warm"].values())
+    beside = data["cpu_beside"]["renders"]
+    assert set(beside) == {"spheres", "mesh"}
+    assert all(r["default"]["device"] == r["cpu"]["device"] == data["scenes"]["device"]
+               and r["cpu_over_default_kernel"] > 0 for r in beside.values())
     assert all(c["status"] == "ok" for c in data["builds"]["configurations"])
     assert data["tune"]["results"]["best"]["label"]

@@ -107,6 +107,9 @@ class Mode:
         return max(5.0, min(150.0, limit - 45.0))
 
 
+# The walks the profiles step measures beside the device's default.
+PACKET_TRAVERSALS = ("sample_packet", "group_packet")
+
 STEP_ORDER = ("setup", "icd", "devices", "kernel_tests", "references", "scenes", "mesh_scene",
               "profiles", "builds", "cpu_beside", "tune")
 
@@ -741,13 +744,20 @@ class Check:
     def step_profiles(self, limit: float) -> StepOutcome:
         device = self.need_device()
         end = time.monotonic() + limit
-        runs = [(scene, path, size, spp) for size in self.mode.sizes
-                for scene, path in self.profile_scenes().items() for spp in self.mode.spps]
+        # The device's default walk at every size and sample count, then the two packet
+        # schemes at the first size and the most samples: issue 41 asks for the packets
+        # measured on a GPU, or removed.
+        scenes = self.profile_scenes().items()
+        runs = [(scene, path, size, spp, None) for size in self.mode.sizes
+                for scene, path in scenes for spp in self.mode.spps]
+        runs += [(scene, path, self.mode.sizes[0], max(self.mode.spps), traversal)
+                 for traversal in PACKET_TRAVERSALS for scene, path in scenes]
         records = []
         self.data["profiles"] = records
-        for i, (scene, path, (w, h), spp) in enumerate(runs):
+        for i, (scene, path, (w, h), spp, traversal) in enumerate(runs):
             left = end - time.monotonic()
-            record: dict = {"scene": scene, "width": w, "height": h, "spp": spp}
+            record: dict = {"scene": scene, "width": w, "height": h, "spp": spp,
+                            "traversal": traversal or "default"}
             records.append(record)
             if left < 3:
                 record["status"] = "skipped"
@@ -760,7 +770,8 @@ class Check:
             run = self.child("profiles", [
                 self.python, "-m", "clray", "profile", path, "-W", str(w), "-H", str(h),
                 "--spp", str(spp), "--repeat", str(self.mode.profile_repeat), "--json",
-                "--no-tuning", "--device", device], run_limit, stdout=out_file)
+                "--no-tuning", "--device", device,
+                *(["--traversal", traversal] if traversal else [])], run_limit, stdout=out_file)
             record["seconds"] = round(run.seconds, 2)
             if run.ok:
                 record["status"] = "ok"

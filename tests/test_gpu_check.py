@@ -203,7 +203,8 @@ def test_a_step_gets_its_cap_or_what_later_steps_leave(tmp_path: Path) -> None:
                     work=tmp_path / "work")
     check.deadline = time.monotonic() + 1000
     assert check.limit_for("setup") == pytest.approx(60)
-    reserve_after_profiles = sum(G.GPU_MODE.limits[s].min_s for s in ("builds", "cpu_beside", "tune"))
+    reserve_after_profiles = sum(G.GPU_MODE.limits[s].min_s
+                                 for s in ("builds", "cpu_beside", "tune"))
     check.deadline = time.monotonic() + 100
     assert check.limit_for("profiles") == pytest.approx(100 - reserve_after_profiles, abs=1)
     check.deadline = time.monotonic() - 5
@@ -344,8 +345,12 @@ def test_cpu_mode_runs_every_step_on_pocl(tmp_path: Path) -> None:
     assert all(r["status"] == "pass" for r in scenes.values())
     assert {p.name for p in files} >= {"gpu_check.json", "gpu_check.log", *S.PNG_NAMES}
     profiles = data["profiles"]
-    assert [(p["scene"], p["spp"]) for p in profiles] == [
-        ("spheres", 1), ("spheres", 4), ("mesh", 1), ("mesh", 4)]
+    assert [(p["scene"], p["spp"], p["traversal"]) for p in profiles] == [
+        ("spheres", 1, "default"), ("spheres", 4, "default"), ("mesh", 1, "default"),
+        ("mesh", 4, "default"), ("spheres", 4, "sample_packet"), ("mesh", 4, "sample_packet"),
+        ("spheres", 4, "group_packet"), ("mesh", 4, "group_packet")]
+    assert [p["profile"]["traversal"] for p in profiles[4:]] == [p["traversal"]
+                                                                for p in profiles[4:]]
     assert all(p["profile"]["mrays_per_s"] > 0 for p in profiles)
     assert set(data["builds"]["cold_warm"]) == {"spheres", "mesh"}
     assert all(set(times) == {"spp", "cold_s", "warm_s", "warm_again_s",

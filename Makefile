@@ -5,7 +5,7 @@ PYTHON_VENV := .venv/bin/python
 # Intel's CPU runtime. Only the tests use it, so `make demo` keeps the system's default device.
 ICD_VENDORS := $(CURDIR)/.venv/opencl-vendors
 
-.PHONY: setup demo test test-other-lanes lint
+.PHONY: setup demo test test-other-lanes test-opencl-ulps lint
 
 setup:
 	@bash scripts/setup.sh
@@ -32,6 +32,22 @@ test-other-lanes: setup
 	fi; \
 	echo "$(PYTHON_VENV) -m pytest -q --lanes other $(LANE_TESTS)"; \
 	$(PYTHON_VENV) -m pytest -q --lanes other $(LANE_TESTS)
+
+# The tests that compare with an oracle, their kernels built with the transcendental builtins off
+# by OpenCL's whole error bounds, upwards and downwards (tests/conftest.py, --opencl-ulps), on
+# PoCL: a GPU's builtins may be that far off where the CPU's are within an ulp.
+ULPS_TESTS := tests/hard_cases tests/test_render.py tests/test_background.py tests/test_camera.py \
+	tests/test_depth.py tests/test_torus.py tests/test_area_lights.py tests/test_fresnel.py \
+	tests/test_reference.py tests/test_intersect.py tests/test_instances.py
+
+test-opencl-ulps: setup
+	@if [ -d "$(ICD_VENDORS)" ] && [ -z "$${OCL_ICD_VENDORS:-}" ]; then \
+	    export OCL_ICD_VENDORS="$(ICD_VENDORS)"; \
+	fi; \
+	for off in 1 -1; do \
+	    echo "$(PYTHON_VENV) -m pytest -q --cl-device pocl --opencl-ulps=$$off $(ULPS_TESTS)"; \
+	    $(PYTHON_VENV) -m pytest -q --cl-device pocl --opencl-ulps=$$off $(ULPS_TESTS) || exit 1; \
+	done
 
 lint: setup
 	.venv/bin/ruff check clray tests benchmarks scripts

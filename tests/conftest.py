@@ -12,6 +12,12 @@ CLRAY_TEST_LANES) makes every real device report that float width (half of it fo
 clray in this process, so one machine runs the suite as the other kind would; `--lanes other`
 gives each device the width it does not have (16 where it has 8 or fewer, else 8), which is
 how .ci/run checks both kinds on whichever it gets.
+
+The CPU drivers' sin, cos, atan2 and the like are within an ulp; OpenCL lets a device be 3 to
+6 ulps off, and a GPU may be. `--opencl-ulps 1` (or -1, or CLRAY_TEST_OPENCL_ULPS) builds the
+render kernels in this process with those builtins off by the whole of their bounds in that
+direction (kernels/real.h, MATH_ULPS_OFF), so the tests that compare against an oracle show
+whether they hold on any OpenCL device, not only on the CPU's (`make test-opencl-ulps`).
 """
 
 from __future__ import annotations
@@ -25,11 +31,13 @@ import pyopencl as cl
 import pytest
 
 from clray.device import policy as policy_module
+from clray.device import program as program_module
 from clray.device.context import DeviceInfo, context_for, list_devices, select_device
 from clray.errors import DeviceError
 
 SELECT_ENV = "CLRAY_TEST_DEVICES"
 LANES_ENV = "CLRAY_TEST_LANES"
+ULPS_ENV = "CLRAY_TEST_OPENCL_ULPS"
 OTHER_LANES = "other"
 # A platform's first word names it well ("Intel(R) OpenCL", "NVIDIA CUDA", "AMD Accelerated
 # Parallel Processing"), except PoCL's.
@@ -49,6 +57,10 @@ def pytest_addoption(parser: pytest.Parser) -> None:
                      help="make every device report this float vector width to clray, as a "
                           "machine of that width would; 'other': 16 where the device has 8 or "
                           f"fewer, else 8 (default: ${LANES_ENV}, else the device's own)")
+    parser.addoption("--opencl-ulps", choices=("1", "-1"), default=None,
+                     help="build the render kernels with sin, cos, tan, asin, atan2, exp2 and "
+                          "log2 off by OpenCL's whole error bound for them, upwards (1) or "
+                          f"downwards (-1) (default: ${ULPS_ENV}, else the device's own)")
 
 
 def _device_required() -> bool:
@@ -113,6 +125,9 @@ def pytest_terminal_summary(terminalreporter: pytest.TerminalReporter,
         width = ("the width each device lacks (16 where it has 8 or fewer, else 8)"
                  if lanes == OTHER_LANES else f"{lanes} floats")
         terminalreporter.write_line(f"Vector width forced to {width}")
+    ulps = forced_ulps(config)
+    if ulps:
+        terminalreporter.write_line(f"Builtins off by OpenCL's bounds (MATH_ULPS_OFF={ulps})")
 
 
 def pytest_generate_tests(metafunc: pytest.Metafunc) -> None:
@@ -186,6 +201,22 @@ def _forced_lanes(request: pytest.FixtureRequest, monkeypatch: pytest.MonkeyPatc
     lanes = forced_lanes(request.config)
     if lanes:
         force_vector_width(monkeypatch, lanes)
+
+
+def forced_ulps(config: pytest.Config) -> str | None:
+    """The direction ("1" or "-1") in which the run's kernels have their builtins off by
+    OpenCL's bounds (--opencl-ulps, CLRAY_TEST_OPENCL_ULPS), or None."""
+    return config.getoption("opencl_ulps") or os.environ.get(ULPS_ENV, "").strip() or None
+
+
+@pytest.fixture(autouse=True)
+def _forced_ulps(request: pytest.FixtureRequest, monkeypatch: pytest.MonkeyPatch) -> None:
+    # The builds of this process only: a subprocess (the CLI's tests) builds as it always does.
+    ulps = forced_ulps(request.config)
+    if ulps:
+        own = program_module.device_build_options
+        monkeypatch.setattr(program_module, "device_build_options",
+                            lambda device: (*own(device), f"-DMATH_ULPS_OFF={ulps}"))
 
 
 @pytest.fixture(params=(8, 16), ids=("lanes8", "lanes16"))

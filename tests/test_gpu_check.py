@@ -343,6 +343,7 @@ def test_cpu_mode_runs_every_step_on_pocl(tmp_path: Path) -> None:
     scenes = data["scenes"]["results"]
     assert set(scenes) == {p.stem for p in (ROOT / "scenes").glob("*.toml")}
     assert all(r["status"] == "pass" for r in scenes.values())
+    assert all(r["cpu_opencl_ulps_over_2_255"] >= 0 for r in scenes.values())
     assert {p.name for p in files} >= {"gpu_check.json", "gpu_check.log", *S.PNG_NAMES}
     profiles = data["profiles"]
     assert [(p["scene"], p["spp"], p["traversal"]) for p in profiles] == [
@@ -362,3 +363,15 @@ def test_cpu_mode_runs_every_step_on_pocl(tmp_path: Path) -> None:
                and r["cpu_over_default_kernel"] > 0 for r in beside.values())
     assert all(c["status"] == "ok" for c in data["builds"]["configurations"])
     assert data["tune"]["results"]["best"]["label"]
+
+
+@pytest.mark.parametrize(("status", "over", "nonfinite", "spread", "judged"), [
+    ("pass", 0, 0, 0, "pass"),
+    ("FAIL", 45, 0, 50, "pass"),  # the first GPU run's depth_of_field, within the CPU's spread
+    ("FAIL", 45, 0, 44, "FAIL"),
+    ("FAIL", 3, 1, 50, "FAIL"),  # a non-finite pixel is never rounding
+])
+def test_a_scene_within_the_cpus_spread_at_opencl_accuracy_passes(status, over, nonfinite,
+                                                                  spread, judged) -> None:
+    record = {"status": status, "over_2_255": over, "nonfinite": nonfinite}
+    assert S.judged(record, spread) == judged

@@ -77,7 +77,7 @@ def test_the_default_device_and_why(cl_device, monkeypatch) -> None:
 def _listed(*kinds: tuple[str, int, bool]) -> list[tuple[str, SimpleNamespace]]:
     """Devices as _all_devices lists them, from (type, compute units, host unified memory)."""
     flags = {"CPU": cl.device_type.CPU, "GPU": cl.device_type.GPU,
-             "ACCELERATOR": cl.device_type.ACCELERATOR}
+             "ACCELERATOR": cl.device_type.ACCELERATOR, "ALL": cl.device_type.ALL}
     return [(f"{i}:0", SimpleNamespace(type=flags[kind], max_compute_units=units,
                                        host_unified_memory=unified))
             for i, (kind, units, unified) in enumerate(kinds)]
@@ -89,6 +89,8 @@ def _listed(*kinds: tuple[str, int, bool]) -> list[tuple[str, SimpleNamespace]]:
     ((("GPU", 24, True), ("CPU", 16, True)), "1:0", "the first CPU device"),
     ((("ACCELERATOR", 4, False), ("CPU", 2, True), ("CPU", 8, True)), "1:0", "the first CPU"),
     ((("GPU", 24, True),), "0:0", "the first device: there is no CPU device"),
+    # Oclgrind's simulator says it is every type, and shares no memory with the host.
+    ((("ALL", 1, False), ("CPU", 2, True)), "0:0", "the first CPU device"),
 ])
 def test_a_gpu_of_its_own_memory_renders_by_default(monkeypatch, kinds, chosen, why) -> None:
     # Issue 41: where a GPU is present and measured faster, a user need not know --device. An

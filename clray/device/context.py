@@ -149,8 +149,9 @@ def default_device() -> tuple[cl.Device, str, str]:
 
 def is_discrete_gpu(device: cl.Device) -> bool:
     """A GPU with memory of its own (CL_DEVICE_HOST_UNIFIED_MEMORY false, a query OpenCL 2.0
-    deprecated but every driver still answers; one that does not is taken for discrete)."""
-    if not device.type & cl.device_type.GPU:
+    deprecated but every driver still answers; one that does not is taken for discrete). A
+    GPU by device_type: not Oclgrind's simulator, whose type has every bit set."""
+    if device_type(device) != "GPU":
         return False
     try:
         return not device.host_unified_memory

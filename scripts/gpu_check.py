@@ -124,7 +124,7 @@ GPU_MODE = Mode(
             "kernel_tests": StepLimit(110, 20), "references": StepLimit(20, 5),
             "scenes": StepLimit(75, 20), "mesh_scene": StepLimit(40, 10),
             "profiles": StepLimit(130, 30), "builds": StepLimit(60, 15),
-            "cpu_beside": StepLimit(45, 10), "tune": StepLimit(180, 30)})
+            "cpu_beside": StepLimit(45, 10), "tune": StepLimit(90, 30)})
 
 CPU_MODE = Mode(
     name="cpu", device_type="CPU", platform="Portable Computing Language",

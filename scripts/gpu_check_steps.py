@@ -188,10 +188,19 @@ def suite_test_ids() -> dict[str, str]:
         sys.path.remove(str(REPO / "tests"))
 
 
+def fp_config_names(config: int) -> list[str]:
+    """CL_DEVICE_*_FP_CONFIG's flags by name (DENORM, FMA, CORRECTLY_ROUNDED_DIVIDE_SQRT...)."""
+    import pyopencl as cl
+
+    return [name for name in dir(cl.device_fp_config)
+            if name.isupper() and config & getattr(cl.device_fp_config, name)]
+
+
 def device_record(spec: str) -> dict:
     import pyopencl as cl
 
     from clray.device.context import device_type, has_fp64, select_device
+    from clray.device.program import device_build_options
 
     d = select_device(spec)
     record = {
@@ -207,6 +216,13 @@ def device_record(spec: str) -> dict:
         "preferred_vector_width_float": d.preferred_vector_width_float,
         "native_vector_width_float": d.native_vector_width_float,
         "nv_compiler_options": "cl_nv_compiler_options" in d.extensions,
+        "host_unified_memory": bool(d.host_unified_memory),
+        # What the float and double arithmetic promise (denormals kept, FMA, division and
+        # square root correctly rounded): the GPU's images differ from the CPU's by these.
+        "single_fp_config": fp_config_names(d.single_fp_config),
+        "double_fp_config": fp_config_names(d.double_fp_config) if has_fp64(d) else [],
+        # What every render build adds for this device (clray.device.program).
+        "device_build_options": list(device_build_options(d)),
     }
     if "cl_nv_device_attribute_query" in d.extensions:
         for name in ("compute_capability_major_nv", "compute_capability_minor_nv",

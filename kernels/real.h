@@ -78,11 +78,11 @@ typedef int4 MASK4;
 // the kernel's ray-by-ray ray tree around its registers and arrays, and the packet build ran
 // 5 % more instructions a sample and took 10 % longer (docs/acceleration.md). It also keeps
 // out of line the helpers that PoCL left there while they were C99's plain inline (which
-// defines nothing a call can reach, 2d03750): sample_position, lens_sample, light_square,
-// sample_area_light, image_texel, intersect_cylinder and intersect_cone, out of line in every
-// build that had them. Made static inline they were inlined: sample_position alone made the
-// spheres' single-ray kernel run 2.9 % more instructions (docs/acceleration.md, Kernels by
-// concept).
+// defines nothing a call can reach, 2d03750): sample_position's jitter (jittered_position),
+// lens_sample, light_square, sample_area_light, image_texel, intersect_cylinder and
+// intersect_cone, out of line in every build that had them. Made static inline they were
+// inlined: sample_position alone made the spheres' single-ray kernel run 2.9 % more
+// instructions (docs/acceleration.md, Kernels by concept).
 #define OUT_OF_LINE __attribute__((noinline))
 
 // MATH_ULPS_OFF (+1 or -1; tests only, tests/conftest.py --opencl-ulps): sin, cos, tan, asin,

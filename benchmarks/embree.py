@@ -28,7 +28,9 @@ so both trace the same float32 rays through the same float32 triangles.
   term. That is the headline (`render`). Beside it the `intersect_rays` kernel on the very rays
   Embree traces (`intersect`: reads a ray, walks, writes t, the geometric normal and the
   primitive), from which the hits are compared. Both timed by OpenCL profiling events (kernel
-  time) and by the process's CPU time around the launch.
+  time) and by the process's CPU time around the launch. And the render again in a child
+  process held to one core (`render_one_core`: its CPU affinity one CPU, PoCL's threads one),
+  a core's own rate beside Embree's one thread.
 - With `--packet-spp N` (default 16, 0: none), the render kernel at N samples a pixel as a
   render builds it on the device (sample packets on CPU devices), for the issue's "sample
   packets against Embree's single rays".
@@ -212,9 +214,18 @@ class EmbreeSide:
         self.commit_and_first_run_s = time.perf_counter() - start
 
     def run(self) -> dict:
-        wall, cpu = time.perf_counter(), time.process_time()
-        out = self.scene.run(self.origins, self.directions, output=1)
-        wall, cpu = time.perf_counter() - wall, time.process_time() - cpu
+        # On the one CPU the one-core render's child has (OneCoreSide), as that child is: this
+        # thread only (Linux pins the calling thread), given back its CPUs after.
+        import os
+
+        cpus = os.sched_getaffinity(0)
+        os.sched_setaffinity(0, {min(cpus)})
+        try:
+            wall, cpu = time.perf_counter(), time.process_time()
+            out = self.scene.run(self.origins, self.directions, output=1)
+            wall, cpu = time.perf_counter() - wall, time.process_time() - cpu
+        finally:
+            os.sched_setaffinity(0, cpus)
         t = np.where(out["geomID"] != EMBREE_MISS, out["tfar"], np.float32(np.inf))
         return {"wall_s": wall, "cpu_s": cpu, "t": t}
 
@@ -301,6 +312,60 @@ class ClraySide:
                 "t": hits[:, 3]}
 
 
+class OneCoreSide:
+    """clray's render (ClraySide.render's single-ray 1-spp kernel) in a child process held to
+    one core: its CPU affinity one CPU, and PoCL's worker threads one
+    (POCL_MAX_PTHREAD_COUNT), so that "a core" is a core's own rate, as Embree's one thread
+    is, and not the whole device's divided by its cores (two threads share the cores' caches
+    and clock: on the 2-core machine the one-core render ran 3 to 17 % faster than half the
+    two-core one). The child renders once for each round the parent asks for."""
+
+    def __init__(self, scene_file: Path, device_spec: str | None):
+        import os
+        import subprocess
+
+        cmd = [sys.executable, str(Path(__file__).resolve()), "--one-core-child",
+               str(scene_file)] + (["--device", device_spec] if device_spec else [])
+        env = dict(os.environ, POCL_MAX_PTHREAD_COUNT="1")
+        self.child = subprocess.Popen(cmd, stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                                      text=True, env=env)
+        self._answer()  # packed, built and warmed up
+
+    def _answer(self) -> dict:
+        line = self.child.stdout.readline()
+        if not line:
+            raise RuntimeError(f"the one-core render's child ended (exit {self.child.wait()})")
+        return json.loads(line)
+
+    def run(self) -> dict:
+        self.child.stdin.write("run\n")
+        self.child.stdin.flush()
+        return self._answer()
+
+    def close(self) -> None:
+        self.child.stdin.close()
+        self.child.wait()
+
+
+def one_core_child(scene_file: Path, device_spec: str | None) -> None:
+    """OneCoreSide's process: the render packed as ClraySide packs it, then one timed render
+    a line of standard input, each answered with a line of JSON."""
+    import os
+
+    from clray.device.context import select_device
+    from clray.scene.load import load_scene
+
+    os.sched_setaffinity(0, {min(os.sched_getaffinity(0))})
+    scene = load_scene(scene_file)
+    side = ClraySide(scene, select_device(device_spec), *primary_rays(scene, 1, 1), 0)
+    side.render()
+    print(json.dumps({"ready": True}), flush=True)
+    for _ in sys.stdin:
+        done = side.render()
+        print(json.dumps({"kernel_s": done["kernel_s"], "cpu_s": done["cpu_s"],
+                          "rays": done["rays"]}), flush=True)
+
+
 def spread(values: list[float]) -> dict:
     """Median, smallest and largest of runs, and every run."""
     return {"median": statistics.median(values), "min": min(values), "max": max(values),
@@ -357,7 +422,11 @@ def main(argv: list[str] | None = None) -> None:
                         help="count the render kernel's instructions a ray under valgrind")
     parser.add_argument("--mesh-dir", type=Path, default=None,
                         help="where to write the scene (default: a temporary folder)")
+    parser.add_argument("--one-core-child", type=Path, default=None, help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
+    if args.one_core_child is not None:
+        one_core_child(args.one_core_child, args.device)
+        return
     width, _, height = args.size.partition("x")
     if not (width.isdigit() and height.isdigit() and int(width) > 0 and int(height) > 0):
         parser.error(f"--size is WxH, got {args.size!r}")
@@ -388,6 +457,7 @@ def main(argv: list[str] | None = None) -> None:
         embree_side = EmbreeSide(embree, triangles, origins, directions)
         embree_build_s = time.perf_counter() - start
         clray_side = ClraySide(scene, device, origins, directions, args.packet_spp)
+        one_core = OneCoreSide(scene_file, args.device)
         # Warm-up of each: PoCL compiles the work-group functions at the first launch.
         clray_side.render()
         clray_side.intersect()
@@ -395,17 +465,21 @@ def main(argv: list[str] | None = None) -> None:
             clray_side.render(packets=True)
         embree_side.run()
 
-        runs: dict[str, list[dict]] = {"embree": [], "render": [], "intersect": [], "packets": []}
+        runs: dict[str, list[dict]] = {"embree": [], "render": [], "render_one_core": [],
+                                       "intersect": [], "packets": []}
         for round_index in range(args.repeat):
             runs["embree"].append(embree_side.run())
             runs["render"].append(clray_side.render())
+            runs["render_one_core"].append(one_core.run())
             runs["intersect"].append(clray_side.intersect())
             if args.packet_spp:
                 runs["packets"].append(clray_side.render(packets=True))
             print(f"round {round_index + 1}/{args.repeat}: embree "
                   f"{runs['embree'][-1]['wall_s']:.4f} s, clray render "
                   f"{runs['render'][-1]['kernel_s']:.4f} s, intersect "
-                  f"{runs['intersect'][-1]['kernel_s']:.4f} s", file=sys.stderr)
+                  f"{runs['intersect'][-1]['kernel_s']:.4f} s, render on one core "
+                  f"{runs['render_one_core'][-1]['kernel_s']:.4f} s", file=sys.stderr)
+        one_core.close()
         counted = count_instructions(scene_file) if args.instructions else None
 
     n = len(origins)
@@ -413,6 +487,9 @@ def main(argv: list[str] | None = None) -> None:
                          [r["cpu_s"] for r in runs["embree"]], 1)
     sides = {"render": rates(runs["render"][-1]["rays"], [r["kernel_s"] for r in runs["render"]],
                              [r["cpu_s"] for r in runs["render"]], workers),
+             "render_one_core": rates(runs["render_one_core"][-1]["rays"],
+                                      [r["kernel_s"] for r in runs["render_one_core"]],
+                                      [r["cpu_s"] for r in runs["render_one_core"]], 1),
              "intersect": rates(n, [r["kernel_s"] for r in runs["intersect"]],
                                 [r["cpu_s"] for r in runs["intersect"]], workers)}
     if args.packet_spp:

@@ -72,10 +72,12 @@ def test_tiny_run_agrees_with_embree(cl_device: cl.Device, tmp_path: Path,
         assert key in report, key
     assert report["rays"] == 64 * 36 and report["triangles"] == 20 * 4**4
     assert report["traversal"] == "single"
-    assert set(report["clray"]) == {"render", "intersect", "packets"}
+    assert set(report["clray"]) == {"render", "render_one_core", "intersect", "packets"}
     for side in (report["embree"], *report["clray"].values()):
         assert side["mrays_per_s"]["median"] > 0 and len(side["mrays_per_s"]["runs"]) == 1
     assert report["clray"]["render"]["rays"] == 64 * 36
+    # The one-core child renders the very render the parent does.
+    assert report["clray"]["render_one_core"]["rays"] == 64 * 36
     assert report["clray"]["packets"]["rays"] == 64 * 36 * 4
     assert report["ratios"]["render"]["per_core_vs_embree_per_thread"] > 0
     hits = report["hits"]

@@ -60,10 +60,12 @@ import argparse
 import dataclasses
 import importlib.util
 import json
+import os
 import platform
 import re
 import shutil
 import statistics
+import subprocess
 import sys
 import tempfile
 import time
@@ -216,8 +218,6 @@ class EmbreeSide:
     def run(self) -> dict:
         # On the one CPU the one-core render's child has (OneCoreSide), as that child is: this
         # thread only (Linux pins the calling thread), given back its CPUs after.
-        import os
-
         cpus = os.sched_getaffinity(0)
         os.sched_setaffinity(0, {min(cpus)})
         try:
@@ -232,10 +232,11 @@ class EmbreeSide:
 
 class ClraySide:
     """clray's render kernel (single-ray walk, 1 spp, depth 0, no lights), its intersect_rays
-    kernel on given rays, and optionally the render at packet_spp samples a pixel."""
+    kernel on given rays (none: the render alone), and optionally the render at packet_spp
+    samples a pixel."""
 
-    def __init__(self, scene, device, origins: np.ndarray, directions: np.ndarray,
-                 packet_spp: int):
+    def __init__(self, scene, device, origins: np.ndarray | None,
+                 directions: np.ndarray | None, packet_spp: int):
         from clray.device.context import queue_for
         from clray.device.pack import pack_scene
         from clray.device.policy import device_plan
@@ -258,7 +259,8 @@ class ClraySide:
         if packet_spp:
             switches = device_plan(device, spp=packet_spp, tuning=Tuning()).switches
             self.packets = pack_scene(scene, spp=packet_spp, **settings, **switches)
-        self._intersect_setup(origins, directions)
+        if origins is not None:
+            self._intersect_setup(origins, directions)
 
     def _intersect_setup(self, origins: np.ndarray, directions: np.ndarray) -> None:
         # intersect_rays (clray.device.launch) builds its buffers on every call; here they are
@@ -321,9 +323,6 @@ class OneCoreSide:
     two-core one). The child renders once for each round the parent asks for."""
 
     def __init__(self, scene_file: Path, device_spec: str | None):
-        import os
-        import subprocess
-
         cmd = [sys.executable, str(Path(__file__).resolve()), "--one-core-child",
                str(scene_file)] + (["--device", device_spec] if device_spec else [])
         env = dict(os.environ, POCL_MAX_PTHREAD_COUNT="1")
@@ -350,14 +349,12 @@ class OneCoreSide:
 def one_core_child(scene_file: Path, device_spec: str | None) -> None:
     """OneCoreSide's process: the render packed as ClraySide packs it, then one timed render
     a line of standard input, each answered with a line of JSON."""
-    import os
-
     from clray.device.context import select_device
     from clray.scene.load import load_scene
 
     os.sched_setaffinity(0, {min(os.sched_getaffinity(0))})
     scene = load_scene(scene_file)
-    side = ClraySide(scene, select_device(device_spec), *primary_rays(scene, 1, 1), 0)
+    side = ClraySide(scene, select_device(device_spec), None, None, 0)
     side.render()
     print(json.dumps({"ready": True}), flush=True)
     for _ in sys.stdin:

@@ -91,6 +91,11 @@ typedef int4 MASK4;
 // GPU's need not be: a test that passes only with the CPU's accuracy does not show that the
 // kernels hold on any OpenCL device (the first GPU run failed one, docs/gpu.md).
 #if defined(MATH_ULPS_OFF) && MATH_ULPS_OFF
+#ifdef cl_khr_fp64
+#define MATH_ULPS_OFF_DOUBLE(DEFINITION) DEFINITION
+#else
+#define MATH_ULPS_OFF_DOUBLE(DEFINITION)
+#endif
 // WRAPPER: the wrapper's name; CALL: the builtin's call (a driver's macro for it expanded).
 #define DEFINE_ULPS_OFF(T, WRAPPER, CALL, ULPS, PARAMS)                                \
     static inline __attribute__((overloadable)) T WRAPPER PARAMS {                     \
@@ -101,11 +106,6 @@ typedef int4 MASK4;
 #define DEFINE_ULPS_OFF_1(NAME, ULPS)                                                  \
     DEFINE_ULPS_OFF(float, NAME##_ulps_off, NAME(x), ULPS, (float x))                  \
     MATH_ULPS_OFF_DOUBLE(DEFINE_ULPS_OFF(double, NAME##_ulps_off, NAME(x), ULPS, (double x)))
-#ifdef cl_khr_fp64
-#define MATH_ULPS_OFF_DOUBLE(DEFINITION) DEFINITION
-#else
-#define MATH_ULPS_OFF_DOUBLE(DEFINITION)
-#endif
 DEFINE_ULPS_OFF_1(sin, 4)
 DEFINE_ULPS_OFF_1(cos, 4)
 DEFINE_ULPS_OFF_1(tan, 4)

@@ -17,6 +17,7 @@ item, so a step stopped at its time limit keeps what it finished.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import dataclasses
 import datetime
 import hashlib
@@ -273,19 +274,14 @@ def render_scene(path: Path, width: int, height: int, device: str | None,
     """The scene at `path` rendered as `clray render` would at this size; with `ulps_off` (1
     or -1), its kernels' transcendental builtins off by OpenCL's bounds in that direction
     (kernels/real.h, MATH_ULPS_OFF)."""
-    from clray.device import program
+    from clray.device.program import math_ulps_off
     from clray.render import RenderSettings, render
     from clray.scene.load import load_scene
 
     scene = load_scene(path)
-    own = program.device_build_options
-    if ulps_off:
-        program.device_build_options = lambda d: (*own(d), f"-DMATH_ULPS_OFF={ulps_off}")
-    try:
+    with math_ulps_off(ulps_off) if ulps_off else contextlib.nullcontext():
         result = render(scene, RenderSettings(width=width, height=height, device=device,
                                               stored_tuning=False))
-    finally:
-        program.device_build_options = own
     return result.image.astype(np.float32), {
         "spp": int(scene.render.spp), "kernel_s": result.stats.get("kernel_s"),
         "traversal": result.stats.get("traversal")}

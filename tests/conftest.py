@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import os
 import re
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import pyopencl as cl
@@ -210,13 +210,14 @@ def forced_ulps(config: pytest.Config) -> str | None:
 
 
 @pytest.fixture(autouse=True)
-def _forced_ulps(request: pytest.FixtureRequest, monkeypatch: pytest.MonkeyPatch) -> None:
+def _forced_ulps(request: pytest.FixtureRequest) -> Iterator[None]:
     # The builds of this process only: a subprocess (the CLI's tests) builds as it always does.
     ulps = forced_ulps(request.config)
-    if ulps:
-        own = program_module.device_build_options
-        monkeypatch.setattr(program_module, "device_build_options",
-                            lambda device: (*own(device), f"-DMATH_ULPS_OFF={ulps}"))
+    if not ulps:
+        yield
+        return
+    with program_module.math_ulps_off(int(ulps)):
+        yield
 
 
 @pytest.fixture(params=(8, 16), ids=("lanes8", "lanes16"))

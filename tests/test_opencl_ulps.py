@@ -12,7 +12,7 @@ import pytest
 from conftest import forced_ulps
 
 from clray.device.context import context_for, has_fp64, queue_for
-from clray.device.program import kernel_source
+from clray.device.program import kernel_source, math_ulps_off, ulps_off_option
 from clray.render import RenderSettings, render
 from clray.scene.load import load_scene
 
@@ -39,7 +39,7 @@ __kernel void builtins(__global const T* x, __global T* out) {
 
 def _builtins(device: cl.Device, dtype: type, x: np.ndarray, off: int) -> np.ndarray:
     type_name = "double" if dtype == np.float64 else "float"
-    options = [f"-DT={type_name}"] + ([f"-DMATH_ULPS_OFF={off}"] if off else [])
+    options = [f"-DT={type_name}"] + ([ulps_off_option(off)] if off else [])
     program = cl.Program(context_for(device), kernel_source("real.h") + KERNEL).build(options)
     queue = queue_for(device)
     mf = cl.mem_flags
@@ -67,20 +67,18 @@ def test_each_builtin_is_off_by_its_whole_bound(cl_device, dtype, off) -> None:
     assert np.all(moved != own)
 
 
-def test_a_render_built_with_builtins_off_differs(cl_device, monkeypatch, request) -> None:
+def test_a_render_built_with_builtins_off_differs(cl_device, request) -> None:
     # The gate of `--opencl-ulps`: the render's build takes the switch (here the panorama's
     # atan2 and asin); were it dropped, the lane would test the device's own builtins again.
-    from clray.device import program
-
     if forced_ulps(request.config):
         pytest.skip("--opencl-ulps builds every render with the switch already")
 
     scene = load_scene(ROOT / "scenes" / "environment.toml")
     settings = RenderSettings(width=48, height=27, spp=1, stored_tuning=False)
     own = render(scene, settings).image
-    base = program.device_build_options
-    monkeypatch.setattr(program, "device_build_options",
-                        lambda device: (*base(device), "-DMATH_ULPS_OFF=1"))
-    moved = render(scene, settings).image
+    with math_ulps_off(1):
+        moved = render(scene, settings).image
+    # And once it is over, renders are built as before.
+    np.testing.assert_array_equal(render(scene, settings).image, own)
     assert not np.array_equal(own, moved)
     assert np.abs(own - moved).max() < 1e-3

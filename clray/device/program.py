@@ -7,6 +7,8 @@ import os
 import re
 import time
 import warnings
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, fields, make_dataclass
 from importlib.resources import files
 
@@ -62,14 +64,39 @@ CORRECTLY_ROUNDED = "-cl-fp32-correctly-rounded-divide-sqrt"
 
 
 def device_build_options(device: cl.Device) -> tuple[str, ...]:
-    """Options a device's compiler needs whatever the configuration."""
+    """Options a device's compiler needs whatever the configuration (and math_ulps_off's,
+    while it lasts)."""
     if is_oclgrind(device):
-        return OCLGRIND_BUILD_OPTIONS
+        return OCLGRIND_BUILD_OPTIONS + _ulps_off
     if not device.type & cl.device_type.GPU:
-        return ()
+        return _ulps_off
     rounded = (getattr(device, "single_fp_config", 0)
                & cl.device_fp_config.CORRECTLY_ROUNDED_DIVIDE_SQRT)
-    return GPU_BUILD_OPTIONS + ((CORRECTLY_ROUNDED,) if rounded else ())
+    return GPU_BUILD_OPTIONS + ((CORRECTLY_ROUNDED,) if rounded else ()) + _ulps_off
+
+
+def ulps_off_option(direction: int) -> str:
+    """The build option of kernels/real.h's MATH_ULPS_OFF: the transcendental builtins off by
+    OpenCL's whole error bounds for them, upwards (1) or downwards (-1)."""
+    return f"-DMATH_ULPS_OFF={direction}"
+
+
+# math_ulps_off's option while it lasts, else none.
+_ulps_off: tuple[str, ...] = ()
+
+
+@contextmanager
+def math_ulps_off(direction: int) -> Iterator[None]:
+    """While it lasts, every kernel this process builds has its transcendental builtins off by
+    OpenCL's bounds in `direction` (ulps_off_option): for the tests' --opencl-ulps and
+    scripts/gpu_check_steps.py's references, which show what a device as inaccurate as
+    OpenCL allows would render. Never set by a render."""
+    global _ulps_off
+    outer, _ulps_off = _ulps_off, (ulps_off_option(direction),)
+    try:
+        yield
+    finally:
+        _ulps_off = outer
 
 
 # The analytic shapes' switches (HAS_SPHERES, ..., HAS_TORI: Shape.switch), fields of every

@@ -354,8 +354,9 @@ def test_cpu_mode_runs_every_step_on_pocl(tmp_path: Path) -> None:
                                                                 for p in profiles[4:]]
     assert all(p["profile"]["mrays_per_s"] > 0 for p in profiles)
     assert set(data["builds"]["cold_warm"]) == {"spheres", "mesh"}
-    assert all(set(times) == {"spp", "cold_s", "warm_s", "warm_again_s",
-                              "warm_without_pyopencl_cache_s", "floor_warm_s"}
+    assert all(set(times) == {"spp", "cold_s", "warm_s", "warm_again_s", "context_cold_s",
+                              "context_warm_s", "warm_without_pyopencl_cache_s",
+                              "floor_warm_s"}
                and min(times.values()) > 0 for times in data["builds"]["cold_warm"].values())
     beside = data["cpu_beside"]["renders"]
     assert set(beside) == {"spheres", "mesh"}

@@ -280,9 +280,12 @@ def build_program(device: cl.Device, config: KernelConfig) -> tuple[cl.Program, 
     key = (device.int_ptr, hashlib.sha256(source.encode()).hexdigest(), options)
     if key in _programs:
         return _programs[key], 0.0
+    # The context comes before the clock: a process makes it once, whatever it builds
+    # (clray.profile's context_s times it apart).
+    context = context_for(device)
     start = time.perf_counter()
     try:
-        program = cl.Program(context_for(device), source).build(options=list(options))
+        program = cl.Program(context, source).build(options=list(options))
     except cl.RuntimeError as err:
         log = str(err).strip().splitlines()
         detail = " | ".join(line.strip() for line in log if "error" in line.lower())[:2000]

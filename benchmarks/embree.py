@@ -404,7 +404,7 @@ def count_instructions(scene_file: Path) -> dict:
             "instructions_per_ray": counted["instructions"] / rays}
 
 
-def main(argv: list[str] | None = None) -> None:
+def parse_arguments(argv: list[str] | None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--json", type=Path, default=HERE / "results" / "embree.json")
     parser.add_argument("--repeat", type=int, default=5, help="timed rounds after a warm-up")
@@ -422,32 +422,125 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--one-core-child", type=Path, default=None, help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
     if args.one_core_child is not None:
-        one_core_child(args.one_core_child, args.device)
-        return
+        return args
     width, _, height = args.size.partition("x")
     if not (width.isdigit() and height.isdigit() and int(width) > 0 and int(height) > 0):
         parser.error(f"--size is WxH, got {args.size!r}")
+    args.width, args.height = int(width), int(height)
     if args.repeat < 1 or args.packet_spp < 0 or args.subdivisions < 0:
         parser.error("--repeat must be >= 1, --packet-spp and --subdivisions >= 0")
     if args.instructions and shutil.which("valgrind") is None:
         parser.error("--instructions needs valgrind (Debian: apt-get install valgrind)")
+    return args
+
+
+def timed_rounds(args: argparse.Namespace, embree_side: EmbreeSide, clray_side: ClraySide,
+                 one_core: OneCoreSide) -> dict[str, list[dict]]:
+    """Each side's runs, interleaved round by round after a warm-up of each."""
+    # PoCL compiles the work-group functions at the first launch.
+    clray_side.render()
+    clray_side.intersect()
+    if args.packet_spp:
+        clray_side.render(packets=True)
+    embree_side.run()
+    runs: dict[str, list[dict]] = {"embree": [], "render": [], "render_one_core": [],
+                                   "intersect": [], "packets": []}
+    for round_index in range(args.repeat):
+        runs["embree"].append(embree_side.run())
+        runs["render"].append(clray_side.render())
+        runs["render_one_core"].append(one_core.run())
+        runs["intersect"].append(clray_side.intersect())
+        if args.packet_spp:
+            runs["packets"].append(clray_side.render(packets=True))
+        print(f"round {round_index + 1}/{args.repeat}: embree "
+              f"{runs['embree'][-1]['wall_s']:.4f} s, clray render "
+              f"{runs['render'][-1]['kernel_s']:.4f} s, intersect "
+              f"{runs['intersect'][-1]['kernel_s']:.4f} s, render on one core "
+              f"{runs['render_one_core'][-1]['kernel_s']:.4f} s", file=sys.stderr)
+    return runs
+
+
+def clray_rates(runs: dict[str, list[dict]], rays: int, workers: int,
+                clray_side: ClraySide) -> dict:
+    """rates() of each clray side: the render's, the one-core render's, intersect_rays' on
+    the `rays` Embree traces, and the packets' where they ran."""
+    def of(name: str, n: int, per: int) -> dict:
+        return rates(n, [r["kernel_s"] for r in runs[name]], [r["cpu_s"] for r in runs[name]],
+                     per)
+
+    sides = {"render": of("render", runs["render"][-1]["rays"], workers),
+             "render_one_core": of("render_one_core", runs["render_one_core"][-1]["rays"], 1),
+             "intersect": of("intersect", rays, workers)}
+    if runs["packets"]:
+        config = clray_side.packets.config
+        sides["packets"] = {**of("packets", runs["packets"][-1]["rays"], workers),
+                            "spp": int(clray_side.packets.params[0]["spp"]),
+                            "traversal": config.traversal, "packet_lanes": config.packet_lanes}
+    return sides
+
+
+def ratios_to_embree(sides: dict, embree_rates: dict) -> dict:
+    """Each clray side's rate a core over Embree's a thread: of the medians, round by round,
+    and per CPU second."""
+    ratios = {}
+    for name, side in sides.items():
+        per_round = [c / e for c, e in zip(side["mrays_per_s_per_worker"]["runs"],
+                                           embree_rates["mrays_per_s"]["runs"], strict=True)]
+        ratios[name] = {
+            "per_core_vs_embree_per_thread": side["mrays_per_s_per_worker"]["median"]
+            / embree_rates["mrays_per_s_per_worker"]["median"],
+            "per_round": spread(per_round),
+            "per_cpu_s_vs_embree_per_cpu_s": side["mrays_per_cpu_s"]["median"]
+            / embree_rates["mrays_per_cpu_s"]["median"],
+        }
+    return ratios
+
+
+def print_summary(report: dict, json_path: Path) -> None:
+    embree_rates, hits = report["embree"], report["hits"]
+    print(f"{report['rays']} rays ({report['width']}x{report['height']}), "
+          f"{report['triangles']} triangles, {hits['hit_fraction']:.1%} hit; "
+          f"{report['device']}, {report['clray_workers']} compute units; "
+          f"embree {report['embreex_version']}")
+    print(f"  embree rtcIntersect1, 1 thread: "
+          f"{embree_rates['mrays_per_s_per_worker']['median']:.2f} Mrays/s (runs "
+          f"{embree_rates['mrays_per_s']['min']:.2f} to {embree_rates['mrays_per_s']['max']:.2f}),"
+          f" {embree_rates['mrays_per_cpu_s']['median']:.2f} Mrays per CPU s")
+    for name, side in report["clray"].items():
+        per = side["mrays_per_s_per_worker"]
+        print(f"  clray {name}: {side['mrays_per_s']['median']:.2f} Mrays/s, "
+              f"{per['median']:.2f} a core (runs {per['min']:.2f} to {per['max']:.2f}), "
+              f"{side['mrays_per_cpu_s']['median']:.2f} Mrays per CPU s; per core / embree per "
+              f"thread x{report['ratios'][name]['per_core_vs_embree_per_thread']:.2f}")
+    print(f"  hits (intersect vs embree): {hits['mask_mismatches']} of {report['rays']} rays "
+          f"differ, t within {hits['t_rel_diff_max']:.1e} (relative); render vs embree: "
+          f"{report['render_hits']['mask_mismatches']} pixels differ")
+    if report["instructions"]:
+        print(f"  render kernel: {report['instructions']['instructions_per_ray']:.0f} "
+              "instructions a ray")
+    print(f"wrote {json_path}")
+
+
+def main(argv: list[str] | None = None) -> None:
+    args = parse_arguments(argv)
+    if args.one_core_child is not None:
+        one_core_child(args.one_core_child, args.device)
+        return
     embree = import_embreex()
     if embree is None:
         print(INSTALL_HINT, file=sys.stderr)
         sys.exit(2)
-    width, height = int(width), int(height)
 
     from clray.device.context import select_device
     from clray.scene.load import load_scene
 
-    bench = _module("bench")
     with tempfile.TemporaryDirectory(prefix="clray-embree-") as tmp:
         out = args.mesh_dir or Path(tmp) / "mesh"
-        scene_file = write_scene(out, width, height, args.subdivisions)
+        scene_file = write_scene(out, args.width, args.height, args.subdivisions)
         scene = load_scene(scene_file)
         device = select_device(args.device)
         workers = device.max_compute_units
-        origins, directions = primary_rays(scene, width, height)
+        origins, directions = primary_rays(scene, args.width, args.height)
         triangles = camera_relative_triangles(scene)
 
         start = time.perf_counter()
@@ -455,78 +548,25 @@ def main(argv: list[str] | None = None) -> None:
         embree_build_s = time.perf_counter() - start
         clray_side = ClraySide(scene, device, origins, directions, args.packet_spp)
         one_core = OneCoreSide(scene_file, args.device)
-        # Warm-up of each: PoCL compiles the work-group functions at the first launch.
-        clray_side.render()
-        clray_side.intersect()
-        if args.packet_spp:
-            clray_side.render(packets=True)
-        embree_side.run()
-
-        runs: dict[str, list[dict]] = {"embree": [], "render": [], "render_one_core": [],
-                                       "intersect": [], "packets": []}
-        for round_index in range(args.repeat):
-            runs["embree"].append(embree_side.run())
-            runs["render"].append(clray_side.render())
-            runs["render_one_core"].append(one_core.run())
-            runs["intersect"].append(clray_side.intersect())
-            if args.packet_spp:
-                runs["packets"].append(clray_side.render(packets=True))
-            print(f"round {round_index + 1}/{args.repeat}: embree "
-                  f"{runs['embree'][-1]['wall_s']:.4f} s, clray render "
-                  f"{runs['render'][-1]['kernel_s']:.4f} s, intersect "
-                  f"{runs['intersect'][-1]['kernel_s']:.4f} s, render on one core "
-                  f"{runs['render_one_core'][-1]['kernel_s']:.4f} s", file=sys.stderr)
+        runs = timed_rounds(args, embree_side, clray_side, one_core)
         one_core.close()
         counted = count_instructions(scene_file) if args.instructions else None
 
     n = len(origins)
     embree_rates = rates(n, [r["wall_s"] for r in runs["embree"]],
                          [r["cpu_s"] for r in runs["embree"]], 1)
-    sides = {"render": rates(runs["render"][-1]["rays"], [r["kernel_s"] for r in runs["render"]],
-                             [r["cpu_s"] for r in runs["render"]], workers),
-             "render_one_core": rates(runs["render_one_core"][-1]["rays"],
-                                      [r["kernel_s"] for r in runs["render_one_core"]],
-                                      [r["cpu_s"] for r in runs["render_one_core"]], 1),
-             "intersect": rates(n, [r["kernel_s"] for r in runs["intersect"]],
-                                [r["cpu_s"] for r in runs["intersect"]], workers)}
-    if args.packet_spp:
-        sides["packets"] = rates(runs["packets"][-1]["rays"],
-                                 [r["kernel_s"] for r in runs["packets"]],
-                                 [r["cpu_s"] for r in runs["packets"]], workers)
-        sides["packets"]["spp"] = args.packet_spp
-        sides["packets"]["traversal"] = clray_side.packets.config.traversal
-        sides["packets"]["packet_lanes"] = clray_side.packets.config.packet_lanes
+    sides = clray_rates(runs, n, workers, clray_side)
     embree_t = runs["embree"][-1]["t"]
-    hits = compare_hits(runs["intersect"][-1]["t"], embree_t)
-    render_hits = compare_hits(np.where(runs["render"][-1]["hit"], 1.0, np.inf),
-                               np.where(np.isfinite(embree_t), 1.0, np.inf))
-
-    def median(d: dict, key: str) -> float:
-        return d[key]["median"]
-
-    embree_thread = median(embree_rates, "mrays_per_s_per_worker")
-    ratios = {}
-    for name, side in sides.items():
-        per_round = [c / e for c, e in zip(side["mrays_per_s_per_worker"]["runs"],
-                                           embree_rates["mrays_per_s"]["runs"], strict=True)]
-        ratios[name] = {
-            "per_core_vs_embree_per_thread": median(side, "mrays_per_s_per_worker")
-            / embree_thread,
-            "per_round": spread(per_round),
-            "per_cpu_s_vs_embree_per_cpu_s": median(side, "mrays_per_cpu_s")
-            / median(embree_rates, "mrays_per_cpu_s"),
-        }
-    environment = bench.environment(device)
     report = {
         "benchmark": "embree",
         "repeat": args.repeat,
-        "width": width,
-        "height": height,
+        "width": args.width,
+        "height": args.height,
         "scene": "make_mesh_scene.py's mesh alone (no plane, no lights), 1 ray a pixel",
         "subdivisions": args.subdivisions,
         "triangles": len(triangles),
         "rays": n,
-        **environment,
+        **_module("bench").environment(device),
         "clray_workers": workers,
         "bvh_width": clray_side.packed.config.bvh_width,
         "traversal": clray_side.packed.config.traversal,
@@ -541,32 +581,15 @@ def main(argv: list[str] | None = None) -> None:
         **cpu_model(),
         "embree": embree_rates,
         "clray": sides,
-        "ratios": ratios,
-        "hits": hits,
-        "render_hits": render_hits,
+        "ratios": ratios_to_embree(sides, embree_rates),
+        "hits": compare_hits(runs["intersect"][-1]["t"], embree_t),
+        "render_hits": compare_hits(np.where(runs["render"][-1]["hit"], 1.0, np.inf),
+                                    np.where(np.isfinite(embree_t), 1.0, np.inf)),
         "instructions": counted,
     }
     args.json.parent.mkdir(parents=True, exist_ok=True)
     args.json.write_text(json.dumps(report, indent=2) + "\n", encoding="utf-8")
-
-    print(f"{n} rays ({width}x{height}), {len(triangles)} triangles, {hits['hit_fraction']:.1%} "
-          f"hit; {environment['device']}, {workers} compute units; embree {embree[2]}")
-    print(f"  embree rtcIntersect1, 1 thread: {embree_thread:.2f} Mrays/s (runs "
-          f"{embree_rates['mrays_per_s']['min']:.2f} to {embree_rates['mrays_per_s']['max']:.2f}),"
-          f" {median(embree_rates, 'mrays_per_cpu_s'):.2f} Mrays per CPU s")
-    for name, side in sides.items():
-        per = side["mrays_per_s_per_worker"]
-        print(f"  clray {name}: {median(side, 'mrays_per_s'):.2f} Mrays/s, {per['median']:.2f} a "
-              f"core (runs {per['min']:.2f} to {per['max']:.2f}), "
-              f"{median(side, 'mrays_per_cpu_s'):.2f} Mrays per CPU s; per core / embree per "
-              f"thread x{ratios[name]['per_core_vs_embree_per_thread']:.2f}")
-    print(f"  hits (intersect vs embree): {hits['mask_mismatches']} of {n} rays differ, t within "
-          f"{hits['t_rel_diff_max']:.1e} (relative); render vs embree: "
-          f"{render_hits['mask_mismatches']} pixels differ")
-    if counted:
-        print(f"  render kernel: {counted['instructions_per_ray']:.0f} instructions a ray")
-    print(f"wrote {args.json}")
-
+    print_summary(report, args.json)
 
 if __name__ == "__main__":
     main()

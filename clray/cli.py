@@ -148,7 +148,18 @@ def _build_parser() -> _Parser:
     parser = _Parser(prog="clray", description="Whitted ray tracer running as OpenCL kernels.")
     parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
     commands = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    for add_command in (_render_command, _study_command, _scene_command, _tune_command,
+                        _profile_command, _devices_command):
+        add_command(commands)
+    return parser
 
+
+# Image sizes a command takes (-W, -H).
+_image_size = _int_in(1, limits.MAX_IMAGE_SIZE)
+
+
+def _render_command(commands: Any) -> None:
+    """`clray render`."""
     r = commands.add_parser(
         "render", help="render a scene file to an image",
         description="Render SCENE. Flags override the scene file's [render] values.")
@@ -162,9 +173,8 @@ def _build_parser() -> _Parser:
                         "and .exr are float32 linear radiance, every value kept; .exr needs "
                         "pip install 'clray[exr]'); '-' writes PNG to standard output; default: "
                         "SCENE's stem + .png in the current directory")
-    size = _int_in(1, limits.MAX_IMAGE_SIZE)
-    r.add_argument("-W", "--width", type=size, metavar="N", help="image width in pixels")
-    r.add_argument("-H", "--height", type=size, metavar="N", help="image height in pixels")
+    r.add_argument("-W", "--width", type=_image_size, metavar="N", help="image width in pixels")
+    r.add_argument("-H", "--height", type=_image_size, metavar="N", help="image height in pixels")
     r.add_argument("--spp", type=_int_in(1, limits.MAX_SPP), metavar="N",
                    help="samples per pixel")
     r.add_argument("--max-depth", type=_int_in(0, limits.MAX_DEPTH), metavar="N",
@@ -186,6 +196,144 @@ def _build_parser() -> _Parser:
                         "of PoCL and Intel's runtime, single elsewhere (GPUs); with sample "
                         "packets 1 spp is always single "
                         "(docs/acceleration.md)")
+    _image_flags(r)
+    r.add_argument("--stats-json", type=_file_path, metavar="PATH",
+                   help="write timings, sizes and ray counts as JSON ('-': standard output)")
+    talk = r.add_mutually_exclusive_group()
+    talk.add_argument("-q", "--quiet", action="store_true",
+                      help="print nothing on success, not even the progress bar")
+    talk.add_argument("-v", "--verbose", action="store_true",
+                      help="print progress lines where stderr is not a terminal (a terminal "
+                           "always gets a progress bar), compiler warnings and a table of "
+                           "timings, ray counts and device memory")
+    cluster = r.add_argument_group("animation and Dask (docs/distributed.md)")
+    cluster.add_argument("--frames", type=_frames, metavar="A:B",
+                         help="render frames A to B-1 of the scene's [animation] ('A:' to the "
+                              "last, 'N' one frame) to -o with a frame number, e.g. "
+                              "-o out/frame_%%04d.png (default: SCENE's stem + _%%04d.png)")
+    cluster.add_argument("--resume", action="store_true",
+                         help="with --frames: skip frames whose file exists (files are written "
+                              "whole or not at all)")
+    _dask_flags(cluster, "render on a Dask cluster: a still in tiles, frames one task each; at "
+                         "ADDRESS (tcp://host:8786), else on a local cluster of --dask-workers "
+                         "processes. Needs pip install 'clray[dask]'")
+    r.set_defaults(run=_render)
+
+
+def _study_command(commands: Any) -> None:
+    """`clray study`."""
+    st = commands.add_parser(
+        "study", help="kernel time against error for variants of the kernel",
+        description="Render each SCENE with every kernel variant (float/double, build options, "
+                    "textbook formulas) and compare with the double build: writes "
+                    "DIR/results.json, DIR/report.md and a time-vs-error PNG per scene "
+                    "(needs matplotlib, the 'plot' extra; skipped with a note otherwise).")
+    st.add_argument("scenes", type=_scene_path, nargs="+", metavar="SCENE",
+                    help="scene files (.toml or .json)")
+    st.add_argument("--out", type=Path, required=True, metavar="DIR", help="output folder")
+    st.add_argument("--repeat", type=_int_in(1, MAX_REPEAT), default=3, metavar="N",
+                    help="timed runs per variant after a warm-up; the median is reported "
+                         "(default: 3)")
+    st.add_argument("-W", "--width", type=_image_size, metavar="N",
+                    help="image width for every scene (default: each scene's own)")
+    st.add_argument("-H", "--height", type=_image_size, metavar="N",
+                    help="image height for every scene (default: each scene's own)")
+    _device_flag(st)
+    _dask_flags(st, "render on a Dask cluster, one task a scene (each scene's variants on one "
+                    "worker, so that their times compare), as for render")
+    st.add_argument("-q", "--quiet", action="store_true", help="print nothing on success")
+    st.set_defaults(run=_study)
+
+
+def _scene_command(commands: Any) -> None:
+    """`clray scene`."""
+    sc = commands.add_parser(
+        "scene", help="write the automatic scene of a mesh file as TOML",
+        description="Write to standard output the scene `clray render MODEL` renders: an "
+                    "editable TOML file that loads and renders the same. Its mesh file name is "
+                    "MODEL as given, relative to the working directory: save the scene there "
+                    "(or edit the name).")
+    sc.add_argument("model", type=_scene_path, metavar="MODEL",
+                    help="mesh file (.obj, .ply, .npz)")
+    _model_flags(sc)
+    sc.set_defaults(run=_scene)
+
+
+def _tune_command(commands: Any) -> None:
+    """`clray tune`."""
+    t = commands.add_parser(
+        "tune", help="search the performance knobs for the fastest configuration on a device",
+        description="Try configurations of the performance knobs (docs/tuning.md) on each "
+                    "SCENE with Kernel Tuner, each verified against the default's image; "
+                    "store the fastest as the device's tuning file, which later renders use, "
+                    "and write DIR/report.md, DIR/results.json, DIR/tune.png and Kernel "
+                    "Tuner's cache files (a second run continues). Needs pip install "
+                    "'clray[tune]'.")
+    t.add_argument("scenes", type=_scene_path, nargs="+", metavar="SCENE",
+                   help="scene files (.toml or .json)")
+    _device_flag(t)
+    t.add_argument("--strategy", default="brute_force", metavar="S",
+                   help="Kernel Tuner's search strategy over the kernel and launch knobs of "
+                        "each host configuration: brute_force (default), random_sample, "
+                        "greedy_ils, genetic_algorithm, bayes_opt, ...")
+    t.add_argument("--budget", type=_number_in(0.0, 86400.0), default=120.0, metavar="SECONDS",
+                   help="tuning time, shared equally by the scenes (default: 120)")
+    t.add_argument("--allow-error", type=_number_in(0.0, 1.0), metavar="E",
+                   help="accept configurations whose pixels differ from the default's by up to "
+                        "E (default: the scene's float tolerance, 2/255)")
+    t.add_argument("--out", type=Path, default=Path("clray-tune"), metavar="DIR",
+                   help="output folder (default: clray-tune)")
+    t.add_argument("-W", "--width", type=_image_size, metavar="N",
+                   help="image width for every scene (default: each scene's own)")
+    t.add_argument("-H", "--height", type=_image_size, metavar="N",
+                   help="image height for every scene (default: each scene's own)")
+    t.add_argument("--search-every-host", action="store_true",
+                   help="search the kernel and launch knobs again for every host configuration "
+                        "(default: with the first, the default; later host configurations keep "
+                        "the best found so far, one build each)")
+    t.add_argument("--no-save", dest="save", action="store_false",
+                   help="do not store the winner as the device's tuning file")
+    t.add_argument("-q", "--quiet", action="store_true", help="print nothing on success")
+    t.set_defaults(run=_tune)
+
+
+def _profile_command(commands: Any) -> None:
+    """`clray profile`."""
+    pr = commands.add_parser(
+        "profile", help="where a scene's render time goes: rays, tests and time by ray kind",
+        description="Profile SCENE: rays by kind, Mrays/s and kernel time by kind (from "
+                    "renders without lights and bounces, differenced), box and primitive tests "
+                    "per ray (the COUNT_TESTS build), kernel build time cold and warm, and the "
+                    "scene's device bytes.")
+    pr.add_argument("scene", type=_scene_path, metavar="SCENE",
+                    help="scene file (.toml or .json)")
+    _device_flag(pr)
+    pr.add_argument("-W", "--width", type=_image_size, metavar="N", help="image width in pixels")
+    pr.add_argument("-H", "--height", type=_image_size, metavar="N", help="image height in pixels")
+    pr.add_argument("--spp", type=_int_in(1, limits.MAX_SPP), metavar="N",
+                    help="samples per pixel (default: the scene's [render] spp)")
+    pr.add_argument("--traversal", choices=TRAVERSALS, default=None,
+                    help="how rays walk the BVH, as for render (default: the tuning's "
+                         "traversal knob, else the device's own)")
+    pr.add_argument("--repeat", type=_int_in(1, MAX_REPEAT), default=3, metavar="N",
+                    help="timed renders of each variant after a warm-up; medians (default: 3)")
+    pr.add_argument("--no-tuning", dest="stored_tuning", action="store_false",
+                    help="profile the knob table's defaults, not the device's tuning file")
+    pr.add_argument("--json", action="store_true", help="print the profile as JSON on stdout")
+    pr.set_defaults(run=_profile)
+
+
+def _devices_command(commands: Any) -> None:
+    """`clray devices`."""
+    d = commands.add_parser("devices", help="list OpenCL devices, one per line",
+                            description="List OpenCL devices: spec, type, name, platform, "
+                                        "compute units, fp64 support, driver version, and "
+                                        "whether `clray tune` left a tuning file for it.")
+    d.set_defaults(run=_devices)
+
+
+def _image_flags(r: argparse.ArgumentParser) -> None:
+    """`clray render`'s flags for what is written: the PNG encoding, passes, the denoiser."""
     encoding = r.add_mutually_exclusive_group()
     encoding.add_argument("--linear", dest="linear", action="store_true", default=None,
                           help="write PNG values linear, tagged gamma 1.0 (default: the sRGB "
@@ -214,135 +362,15 @@ def _build_parser() -> _Parser:
     r.add_argument("--aov-preview", action="store_true",
                    help="with --aov: also a false-colour PNG of each pass beside the image "
                         "(out.depth.png)")
-    r.add_argument("--stats-json", type=_file_path, metavar="PATH",
-                   help="write timings, sizes and ray counts as JSON ('-': standard output)")
-    talk = r.add_mutually_exclusive_group()
-    talk.add_argument("-q", "--quiet", action="store_true",
-                      help="print nothing on success, not even the progress bar")
-    talk.add_argument("-v", "--verbose", action="store_true",
-                      help="print progress lines where stderr is not a terminal (a terminal "
-                           "always gets a progress bar), compiler warnings and a table of "
-                           "timings, ray counts and device memory")
-    cluster = r.add_argument_group("animation and Dask (docs/distributed.md)")
-    cluster.add_argument("--frames", type=_frames, metavar="A:B",
-                         help="render frames A to B-1 of the scene's [animation] ('A:' to the "
-                              "last, 'N' one frame) to -o with a frame number, e.g. "
-                              "-o out/frame_%%04d.png (default: SCENE's stem + _%%04d.png)")
-    cluster.add_argument("--resume", action="store_true",
-                         help="with --frames: skip frames whose file exists (files are written "
-                              "whole or not at all)")
-    cluster.add_argument("--dask", nargs="?", const="", metavar="ADDRESS",
-                         help="render on a Dask cluster: a still in tiles, frames one task "
-                              "each; at ADDRESS (tcp://host:8786), else on a local cluster of "
-                              "--dask-workers processes. Needs pip install 'clray[dask]'")
-    cluster.add_argument("--dask-workers", type=_int_in(1, 256), metavar="N",
-                         help="worker processes of the local cluster (default: 2)")
-    cluster.add_argument("--dask-timeout", type=_number_in(0.1, 3600), default=10.0,
-                         metavar="S", help="seconds to wait for the scheduler (default: 10)")
-    r.set_defaults(run=_render)
 
-    st = commands.add_parser(
-        "study", help="kernel time against error for variants of the kernel",
-        description="Render each SCENE with every kernel variant (float/double, build options, "
-                    "textbook formulas) and compare with the double build: writes "
-                    "DIR/results.json, DIR/report.md and a time-vs-error PNG per scene "
-                    "(needs matplotlib, the 'plot' extra; skipped with a note otherwise).")
-    st.add_argument("scenes", type=_scene_path, nargs="+", metavar="SCENE",
-                    help="scene files (.toml or .json)")
-    st.add_argument("--out", type=Path, required=True, metavar="DIR", help="output folder")
-    st.add_argument("--repeat", type=_int_in(1, MAX_REPEAT), default=3, metavar="N",
-                    help="timed runs per variant after a warm-up; the median is reported "
-                         "(default: 3)")
-    st.add_argument("-W", "--width", type=size, metavar="N",
-                    help="image width for every scene (default: each scene's own)")
-    st.add_argument("-H", "--height", type=size, metavar="N",
-                    help="image height for every scene (default: each scene's own)")
-    _device_flag(st)
-    st.add_argument("--dask", nargs="?", const="", metavar="ADDRESS",
-                    help="render on a Dask cluster, one task a scene (each scene's variants on "
-                         "one worker, so that their times compare), as for render")
-    st.add_argument("--dask-workers", type=_int_in(1, 256), metavar="N",
-                    help="worker processes of the local cluster (default: 2)")
-    st.add_argument("--dask-timeout", type=_number_in(0.1, 3600), default=10.0, metavar="S",
-                    help="seconds to wait for the scheduler (default: 10)")
-    st.add_argument("-q", "--quiet", action="store_true", help="print nothing on success")
-    st.set_defaults(run=_study)
 
-    sc = commands.add_parser(
-        "scene", help="write the automatic scene of a mesh file as TOML",
-        description="Write to standard output the scene `clray render MODEL` renders: an "
-                    "editable TOML file that loads and renders the same. Its mesh file name is "
-                    "MODEL as given, relative to the working directory: save the scene there "
-                    "(or edit the name).")
-    sc.add_argument("model", type=_scene_path, metavar="MODEL",
-                    help="mesh file (.obj, .ply, .npz)")
-    _model_flags(sc)
-    sc.set_defaults(run=_scene)
-
-    t = commands.add_parser(
-        "tune", help="search the performance knobs for the fastest configuration on a device",
-        description="Try configurations of the performance knobs (docs/tuning.md) on each "
-                    "SCENE with Kernel Tuner, each verified against the default's image; "
-                    "store the fastest as the device's tuning file, which later renders use, "
-                    "and write DIR/report.md, DIR/results.json, DIR/tune.png and Kernel "
-                    "Tuner's cache files (a second run continues). Needs pip install "
-                    "'clray[tune]'.")
-    t.add_argument("scenes", type=_scene_path, nargs="+", metavar="SCENE",
-                   help="scene files (.toml or .json)")
-    _device_flag(t)
-    t.add_argument("--strategy", default="brute_force", metavar="S",
-                   help="Kernel Tuner's search strategy over the kernel and launch knobs of "
-                        "each host configuration: brute_force (default), random_sample, "
-                        "greedy_ils, genetic_algorithm, bayes_opt, ...")
-    t.add_argument("--budget", type=_number_in(0.0, 86400.0), default=120.0, metavar="SECONDS",
-                   help="tuning time, shared equally by the scenes (default: 120)")
-    t.add_argument("--allow-error", type=_number_in(0.0, 1.0), metavar="E",
-                   help="accept configurations whose pixels differ from the default's by up to "
-                        "E (default: the scene's float tolerance, 2/255)")
-    t.add_argument("--out", type=Path, default=Path("clray-tune"), metavar="DIR",
-                   help="output folder (default: clray-tune)")
-    t.add_argument("-W", "--width", type=size, metavar="N",
-                   help="image width for every scene (default: each scene's own)")
-    t.add_argument("-H", "--height", type=size, metavar="N",
-                   help="image height for every scene (default: each scene's own)")
-    t.add_argument("--search-every-host", action="store_true",
-                   help="search the kernel and launch knobs again for every host configuration "
-                        "(default: with the first, the default; later host configurations keep "
-                        "the best found so far, one build each)")
-    t.add_argument("--no-save", dest="save", action="store_false",
-                   help="do not store the winner as the device's tuning file")
-    t.add_argument("-q", "--quiet", action="store_true", help="print nothing on success")
-    t.set_defaults(run=_tune)
-
-    pr = commands.add_parser(
-        "profile", help="where a scene's render time goes: rays, tests and time by ray kind",
-        description="Profile SCENE: rays by kind, Mrays/s and kernel time by kind (from "
-                    "renders without lights and bounces, differenced), box and primitive tests "
-                    "per ray (the COUNT_TESTS build), kernel build time cold and warm, and the "
-                    "scene's device bytes.")
-    pr.add_argument("scene", type=_scene_path, metavar="SCENE",
-                    help="scene file (.toml or .json)")
-    _device_flag(pr)
-    pr.add_argument("-W", "--width", type=size, metavar="N", help="image width in pixels")
-    pr.add_argument("-H", "--height", type=size, metavar="N", help="image height in pixels")
-    pr.add_argument("--spp", type=_int_in(1, limits.MAX_SPP), metavar="N",
-                    help="samples per pixel (default: the scene's [render] spp)")
-    pr.add_argument("--traversal", choices=TRAVERSALS, default=None,
-                    help="how rays walk the BVH, as for render (default: the tuning's "
-                         "traversal knob, else the device's own)")
-    pr.add_argument("--repeat", type=_int_in(1, MAX_REPEAT), default=3, metavar="N",
-                    help="timed renders of each variant after a warm-up; medians (default: 3)")
-    pr.add_argument("--no-tuning", dest="stored_tuning", action="store_false",
-                    help="profile the knob table's defaults, not the device's tuning file")
-    pr.add_argument("--json", action="store_true", help="print the profile as JSON on stdout")
-    pr.set_defaults(run=_profile)
-
-    d = commands.add_parser("devices", help="list OpenCL devices, one per line",
-                            description="List OpenCL devices: spec, type, name, platform, "
-                                        "compute units, fp64 support, driver version, and "
-                                        "whether `clray tune` left a tuning file for it.")
-    d.set_defaults(run=_devices)
-    return parser
+def _dask_flags(group: Any, dask_help: str) -> None:
+    """--dask, --dask-workers and --dask-timeout (docs/distributed.md)."""
+    group.add_argument("--dask", nargs="?", const="", metavar="ADDRESS", help=dask_help)
+    group.add_argument("--dask-workers", type=_int_in(1, 256), metavar="N",
+                       help="worker processes of the local cluster (default: 2)")
+    group.add_argument("--dask-timeout", type=_number_in(0.1, 3600), default=10.0,
+                       metavar="S", help="seconds to wait for the scheduler (default: 10)")
 
 
 def _model_flags(parser: argparse.ArgumentParser) -> None:

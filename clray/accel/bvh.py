@@ -245,49 +245,8 @@ class _Builder:
         offsets = np.zeros(m, dtype=np.int64)
         np.cumsum(count[:-1], out=offsets[1:])
         seg, rank = _segment_ranks(count, offsets, p)
-        prim = self.prim
-
-        # Bin centroids along each node's axis of largest centroid extent.
-        extent = cbounds[:, 3:] - cbounds[:, :3]
-        axis = np.argmax(extent, axis=1)
-        rows = np.arange(m)
-        cmin = cbounds[rows, axis]
-        cext = extent[rows, axis].astype(np.float64)
-        with np.errstate(divide="ignore", over="ignore"):
-            scale = (N_BINS / cext).astype(np.float32)
-        # Coincident centroids (or an extent so small its reciprocal overflows) leave nothing to
-        # bin: those nodes are split at the median of their (arbitrary) order instead.
-        binnable = np.isfinite(scale) & (scale > 0)
-        scale[~binnable] = 0
-        c = prim.ravel().take((6 + axis)[seg] * p + np.arange(p))
-        b = ((c - cmin[seg]) * scale[seg]).astype(np.int64)
-        np.clip(b, 0, N_BINS - 1, out=b)
-        key = seg * N_BINS + b
-        bin_count = np.bincount(key, minlength=m * N_BINS).reshape(m, N_BINS)
-        bin_lo = np.full((3, m * N_BINS), np.inf, dtype=np.float32)
-        bin_hi = np.full((3, m * N_BINS), -np.inf, dtype=np.float32)
-        for d in range(3):
-            np.minimum.at(bin_lo[d], key, prim[d])
-            np.maximum.at(bin_hi[d], key, prim[3 + d])
-        bin_lo = bin_lo.reshape(3, m, N_BINS).transpose(1, 2, 0)
-        bin_hi = bin_hi.reshape(3, m, N_BINS).transpose(1, 2, 0)
-
-        # SAH cost of splitting after bin k (k = 0 .. N_BINS-2), from prefix and suffix unions.
-        n_left = np.cumsum(bin_count, axis=1)[:, :-1]
-        n_right = count[:, None] - n_left
-        a_left = _half_area(np.minimum.accumulate(bin_lo, axis=1),
-                            np.maximum.accumulate(bin_hi, axis=1))[:, :-1]
-        a_right = _half_area(np.minimum.accumulate(bin_lo[:, ::-1], axis=1),
-                             np.maximum.accumulate(bin_hi[:, ::-1], axis=1))[:, -2::-1]
-        cost = a_left * packets(n_left) + a_right * packets(n_right)
-        cost[(n_left == 0) | (n_right == 0)] = np.inf
-        best = np.argmin(cost, axis=1)
-        best_cost = cost[rows, best]
-        a_node = _half_area(bounds[:, :3], bounds[:, 3:])
-        # Compared multiplied through by the node's area, so flat and point nodes need no care.
-        sah_leaf = ((self.traversal_cost * a_node + best_cost >= packets(count) * a_node)
-                    | ~binnable)
-        leaf = sah_leaf & (count <= self.sah_leaf)
+        b, binnable, bins = self._bins(cbounds, seg, m)
+        best, leaf = self._sah_choice(bounds, count, binnable, *bins)
 
         # Partition: stable within each side, left side first, so the final `order` lists the
         # leaves' primitives in depth-first order and a subtree's primitives are contiguous.
@@ -349,6 +308,60 @@ class _Builder:
             return None
         return _Active(ch_node[go], ch_bounds[go, :6], ch_bounds[go, 6:], ch_start[go],
                        ch_count[go])
+
+    def _bins(self, cbounds: np.ndarray, seg: np.ndarray, m: int
+              ) -> tuple[np.ndarray, np.ndarray, tuple[np.ndarray, np.ndarray, np.ndarray]]:
+        """Bin the `m` active nodes' primitives by centroid along each node's axis of largest
+        centroid extent: (each primitive's bin, which nodes could be binned, and per node and
+        bin the primitive count and the bounds' low and high corners)."""
+        prim = self.prim
+        p = self.ids.size
+        extent = cbounds[:, 3:] - cbounds[:, :3]
+        axis = np.argmax(extent, axis=1)
+        rows = np.arange(m)
+        cmin = cbounds[rows, axis]
+        cext = extent[rows, axis].astype(np.float64)
+        with np.errstate(divide="ignore", over="ignore"):
+            scale = (N_BINS / cext).astype(np.float32)
+        # Coincident centroids (or an extent so small its reciprocal overflows) leave nothing to
+        # bin: those nodes are split at the median of their (arbitrary) order instead.
+        binnable = np.isfinite(scale) & (scale > 0)
+        scale[~binnable] = 0
+        c = prim.ravel().take((6 + axis)[seg] * p + np.arange(p))
+        b = ((c - cmin[seg]) * scale[seg]).astype(np.int64)
+        np.clip(b, 0, N_BINS - 1, out=b)
+        key = seg * N_BINS + b
+        bin_count = np.bincount(key, minlength=m * N_BINS).reshape(m, N_BINS)
+        bin_lo = np.full((3, m * N_BINS), np.inf, dtype=np.float32)
+        bin_hi = np.full((3, m * N_BINS), -np.inf, dtype=np.float32)
+        for d in range(3):
+            np.minimum.at(bin_lo[d], key, prim[d])
+            np.maximum.at(bin_hi[d], key, prim[3 + d])
+        bin_lo = bin_lo.reshape(3, m, N_BINS).transpose(1, 2, 0)
+        bin_hi = bin_hi.reshape(3, m, N_BINS).transpose(1, 2, 0)
+        return b, binnable, (bin_count, bin_lo, bin_hi)
+
+    def _sah_choice(self, bounds: np.ndarray, count: np.ndarray, binnable: np.ndarray,
+                    bin_count: np.ndarray, bin_lo: np.ndarray, bin_hi: np.ndarray
+                    ) -> tuple[np.ndarray, np.ndarray]:
+        """(each node's best split bin, whether it stays a leaf) by the surface area
+        heuristic."""
+        # SAH cost of splitting after bin k (k = 0 .. N_BINS-2), from prefix and suffix unions.
+        n_left = np.cumsum(bin_count, axis=1)[:, :-1]
+        n_right = count[:, None] - n_left
+        a_left = _half_area(np.minimum.accumulate(bin_lo, axis=1),
+                            np.maximum.accumulate(bin_hi, axis=1))[:, :-1]
+        a_right = _half_area(np.minimum.accumulate(bin_lo[:, ::-1], axis=1),
+                             np.maximum.accumulate(bin_hi[:, ::-1], axis=1))[:, -2::-1]
+        cost = a_left * packets(n_left) + a_right * packets(n_right)
+        cost[(n_left == 0) | (n_right == 0)] = np.inf
+        best = np.argmin(cost, axis=1)
+        best_cost = cost[np.arange(count.size), best]
+        a_node = _half_area(bounds[:, :3], bounds[:, 3:])
+        # Compared multiplied through by the node's area, so flat and point nodes need no care.
+        sah_leaf = ((self.traversal_cost * a_node + best_cost >= packets(count) * a_node)
+                    | ~binnable)
+        return best, sah_leaf & (count <= self.sah_leaf)
 
     def _flatten(self) -> Bvh:
         """Renumber the breadth-first tree depth-first: subtree sizes bottom-up, then each

@@ -22,7 +22,7 @@ static inline REAL3 camera_direction(const __global Camera* camera, REAL2 sample
     REAL2 p = image_plane_point(sample, width, height);
     REAL3 d = TO_REAL3(camera->forward) + p.x * TO_REAL3(camera->right) +
               p.y * TO_REAL3(camera->up);
-    return normalize(d);
+    return normalize3(d);
 }
 
 #if HAS_THIN_LENS || HAS_ORTHOGRAPHIC
@@ -47,10 +47,10 @@ static inline void camera_ray(const __global Camera* camera, REAL2 sample, int w
     REAL3 lens = l.x * TO_REAL3(camera->lens_u) + l.y * TO_REAL3(camera->lens_v);
     // aim's component along forward is 1 and the lens lies across forward, so this is at
     // least 1 long; the loader keeps lens / focus distance below 1e6, well inside float32.
-    *d = normalize(aim - TO_REAL(camera->lens_u.w) * lens);
+    *d = normalize3(aim - TO_REAL(camera->lens_u.w) * lens);
     *o += lens;
 #else
-    *d = normalize(aim);
+    *d = normalize3(aim);
 #endif
 }
 #endif
@@ -77,8 +77,8 @@ DEFINE_JITTER(REALP, jitter_lanes)
 
 // sample_ray for samples first .. first + lanes - 1 of pixel (x, y), one a lane (the lanes past
 // the last hold copies of the first), into *p. False where the pixel has one sample (its
-// centre) or a direction's squared length is outside [2^-90, 2^90], where normalize() scales
-// against overflow and underflow and is no longer d * rsqrt(d . d): the caller then draws
+// centre) or a direction's squared length is outside [2^-90, 2^90], where normalize3 takes the
+// builtin, which scales against overflow and underflow: the caller then draws
 // lane by lane.
 HOT bool camera_ray_lanes(const __global Camera* camera, const __global Params* params, int x,
                           int y, int first, int lanes, uint pixel, RayPacket* p) {

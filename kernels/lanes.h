@@ -153,7 +153,7 @@ HOT RayPacket ray_packet(const Ray* rays) {
         f[6][k] = r->inv_d.x;
         f[7][k] = r->inv_d.y;
         f[8][k] = r->inv_d.z;
-        f[9][k] = dot(r->d, r->d);
+        f[9][k] = dot3(r->d, r->d);
     }
     RayPacket p;
     p.ox = VLOADP(0, f[0]);
@@ -196,16 +196,8 @@ HOT RayPacket ray_packet(const Ray* rays) {
     return p;
 }
 
-// d . e lane by lane, as dot() has it on PoCL: the rounded products added left to right, not
-// fused. Each product is a statement of its own: OpenCL C contracts a * b + c into an fma only
-// within one expression.
-HOT REALP dot_lanes(REALP ax, REALP ay, REALP az, REALP bx, REALP by, REALP bz) {
-    REALP xx = ax * bx;
-    REALP yy = ay * by;
-    REALP zz = az * bz;
-    REALP xy = xx + yy;
-    return xy + zz;
-}
+// dot3 lane by lane (real.h: the rounded products added left to right, not fused).
+DEFINE_DOT(HOT, REALP, dot_lanes)
 
 // A packet's rays lane by lane: the arrays that ray_from_lanes reads.
 typedef struct {
@@ -366,9 +358,9 @@ DEFINE_NO_HIT(HOT, PacketHit, REALP, MASKP, no_hit_lanes, )
 
 DEFINE_DIFFERENCE_OF_PRODUCTS(HOT, REALP, difference_of_products_lanes)
 
-// length() lane-wise: the square root of dot_lanes where the squared length is within
-// [2^-90, 2^90] (length_lanes) or the vector is zero. Lanes where it is not (a squared length
-// that underflows to zero among them: length() scales those) are added to *outside.
+// length3 lane-wise (real.h): the square root of dot_lanes where the squared length is within
+// [2^-90, 2^90] or the vector is zero. Lanes where it is not (a squared length that underflows
+// to zero among them: the builtin length() scales those) are added to *outside.
 HOT REALP plain_length_lanes(REALP x, REALP y, REALP z, MASKP* outside) {
     REALP dd = dot_lanes(x, y, z, x, y, z);
     MASKP zero = (x == (REAL)0) & (y == (REAL)0) & (z == (REAL)0);
@@ -385,9 +377,8 @@ HOT void safe_normalize_lanes(REALP* x, REALP* y, REALP* z, MASKP* outside) {
     *z = some ? *z / len : *z;
 }
 
-// length() lane-wise: sqrt of dot_lanes, which is what PoCL's length() computes wherever the
-// squared length is within [2^-90, 2^90]; outside it, length() scales against underflow and
-// overflow. False where a lane of `lanes` is outside that range (or NaN).
+// length3 lane-wise (real.h): sqrt of dot_lanes. False where a lane of `lanes` has a squared
+// length outside [2^-90, 2^90] (or NaN), where length3 takes the builtin, which scales.
 HOT bool length_lanes(REALP x, REALP y, REALP z, MASKP lanes, REALP* len) {
     REALP dd = dot_lanes(x, y, z, x, y, z);
     MASKP inside = (dd >= (REAL)0x1p-90) & (dd <= (REAL)0x1p90);

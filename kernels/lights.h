@@ -158,7 +158,7 @@ STAGE bool light_ray(const SceneRefs* s, const Surface* sf, REAL3 n, int i, Samp
 #endif
     if (light->kind != LIGHT_DIRECTIONAL) {
         REAL3 to_light = target - sf->p;
-        REAL dist = length(to_light);
+        REAL dist = length3(to_light);
         if (!(dist > sf->err)) return false;  // a light at the hit point lights nothing
         l = to_light / dist;
         atten = falloff(light, dist);
@@ -171,7 +171,7 @@ STAGE bool light_ray(const SceneRefs* s, const Surface* sf, REAL3 n, int i, Samp
     } else {
         l = -safe_normalize(TO_REAL3(light->position));
     }
-    REAL ndl = dot(n, l);
+    REAL ndl = dot3(n, l);
     if (!(ndl > (REAL)0)) return false;
     REAL3 origin = offset_origin(sf, l);
     // Aimed from the offset origin itself: a ray parallel to l from there passes beside a
@@ -181,7 +181,7 @@ STAGE bool light_ray(const SceneRefs* s, const Surface* sf, REAL3 n, int i, Samp
     REAL tmax = REAL_INF;
     if (light->kind != LIGHT_DIRECTIONAL) {
         REAL3 to_light = target - origin;
-        REAL span = length(to_light);
+        REAL span = length3(to_light);
         shadow_dir = span > (REAL)0 ? to_light / span : l;
         tmax = span * ((REAL)1 - gamma_n(ERR_ROUNDINGS));
     }
@@ -205,7 +205,7 @@ DEFINE_PHONG_TERM(HOT, REAL3, REAL, phong_term)
 STAGE REAL3 light_term(const SceneRefs* s, int i, REAL3 n, REAL3 v, REAL3 c,
                        const __global Material* m, REAL3 l, REAL atten, REAL ndl, REAL3 filter) {
     REAL3 refl = (REAL)2 * ndl * n - l;
-    REAL rv = dot(refl, v);
+    REAL rv = dot3(refl, v);
     REAL spec = rv > (REAL)0 ? phong_power(rv, TO_REAL(m->shininess)) : (REAL)0;
     REAL diffuse = TO_REAL(m->diffuse), specular = TO_REAL(m->specular);
     const __global Light* light = s->lights + i;

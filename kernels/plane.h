@@ -16,9 +16,9 @@
 // that t overflows).
 static inline REAL plane_t(const __global Plane* pl, const Ray* r) {
     REAL3 n = TO_REAL3(pl->normal);
-    REAL dn = dot(r->d, n);
+    REAL dn = dot3(r->d, n);
     if (dn == (REAL)0) return REAL_INF;  // parallel: never crossed
-    REAL t = dot(TO_REAL3(pl->point) - r->o, n) / dn;
+    REAL t = dot3(TO_REAL3(pl->point) - r->o, n) / dn;
     return isfinite(t) ? t : REAL_INF;
 }
 
@@ -34,7 +34,7 @@ static inline Crossings intersect_plane(const __global Plane* pl, const Ray* r) 
 HOT void plane_surface(const __global Plane* pl, const Ray* r, const Hit* hit, bool want_uv,
                        REAL gamma, REAL3* p, Surface* sf) {
     REAL3 n = TO_REAL3(pl->normal), q = TO_REAL3(pl->point);
-    *p -= dot(*p - q, n) * n;
+    *p -= dot3(*p - q, n) * n;
     sf->n_g = n;
     sf->err = gamma * (max_abs3(*p) + max_abs3(q));
     if (want_uv) {

@@ -65,7 +65,7 @@ static inline REAL medium_ior(const SceneRefs* s, const RayTask* task) {
     SPEC C NAME(C d, S dn, C n) { return d - (REAL)2 * dn * n; }
 DEFINE_MIRROR(static inline, REAL3, REAL, mirror_of)
 
-static inline REAL3 mirror(REAL3 d, REAL3 n) { return mirror_of(d, dot(d, n), n); }
+static inline REAL3 mirror(REAL3 d, REAL3 n) { return mirror_of(d, dot3(d, n), n); }
 
 // A ray too faint to matter (weight below min_weight) is not traced: inside glass the tree
 // doubles at every level, so deep trees need the cut.

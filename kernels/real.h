@@ -130,6 +130,36 @@ MATH_ULPS_OFF_DOUBLE(DEFINE_ULPS_OFF(double, atan2_ulps_off, atan2(y, x), 6, (do
 #define atan2(y, x) atan2_ulps_off(y, x)
 #define exp2(x) exp2_ulps_off(x)
 #define log2(x) log2_ulps_off(x)
+// The geometric builtins have no error bound in OpenCL, and "can be implemented using
+// contractions": here dot() fuses its products (last to first up, first to last down; the CPU
+// drivers' round each), and length() and normalize() take that dot product (normalize()
+// dividing by the length where the CPU drivers multiply by rsqrt). Where the squared length is
+// outside [2^-90, 2^90] they are the driver's, which scales against overflow and underflow.
+#define DEFINE_FUSED_DOT(T, T3, T4)                                                     \
+    static inline __attribute__((overloadable)) T dot_fused(T3 a, T3 b) {              \
+        return MATH_ULPS_OFF > 0 ? fma(a.z, b.z, fma(a.y, b.y, a.x * b.x))            \
+                                 : fma(a.x, b.x, fma(a.y, b.y, a.z * b.z));           \
+    }                                                                                  \
+    static inline __attribute__((overloadable)) T dot_fused(T4 a, T4 b) {              \
+        return MATH_ULPS_OFF > 0 ? fma(a.w, b.w, dot_fused(a.xyz, b.xyz))              \
+                                 : fma(a.x, b.x, fma(a.y, b.y, fma(a.z, b.z, a.w * b.w))); \
+    }                                                                                  \
+    static inline __attribute__((overloadable)) T length_fused(T3 v) {                 \
+        T dd = dot_fused(v, v);                                                        \
+        return dd >= (T)0x1p-90 && dd <= (T)0x1p90 ? sqrt(dd) : length(v);             \
+    }                                                                                  \
+    static inline __attribute__((overloadable)) T3 normalize_fused(T3 v) {             \
+        T dd = dot_fused(v, v);                                                        \
+        return dd >= (T)0x1p-90 && dd <= (T)0x1p90 ? v / sqrt(dd) : normalize(v);      \
+    }
+DEFINE_FUSED_DOT(float, float3, float4)
+MATH_ULPS_OFF_DOUBLE(DEFINE_FUSED_DOT(double, double3, double4))
+#undef dot
+#undef length
+#undef normalize
+#define dot(a, b) dot_fused(a, b)
+#define length(v) length_fused(v)
+#define normalize(v) normalize_fused(v)
 #endif
 
 #define REAL_INF ((REAL)INFINITY)
@@ -150,11 +180,6 @@ static inline REAL max_comp3(REAL3 v) { return fmax(v.x, fmax(v.y, v.z)); }
 
 static inline REAL comp3(REAL3 v, int k) { return k == 0 ? v.x : (k == 1 ? v.y : v.z); }
 
-// Normalise, leaving a zero vector zero instead of making NaN.
-static inline REAL3 safe_normalize(REAL3 v) {
-    REAL len = length(v);
-    return len > (REAL)0 ? v / len : v;
-}
 
 // LESSER and GREATER are compare-selects, one instruction on x86 where fmin and fmax take
 // three or four for their NaN rules: for numbers that cannot be NaN, or where a NaN must
@@ -170,6 +195,54 @@ static inline REAL3 safe_normalize(REAL3 v) {
 // so each lane gets the scalar's arithmetic in the scalar's order, and the same rounding, as
 // tests/test_packets.py checks. Each definition is the code that each of the twins was before
 // (docs/acceleration.md, Twins), so it costs no instruction.
+
+// The geometry that a ray and its lane-wise twins share: d . e, length, normalize and cross,
+// written out. OpenCL leaves the builtins' rounding to the device (its geometric functions
+// "can be implemented using contractions"): PoCL's and Intel's round each product and add left
+// to right, another device may fuse them, and the twins then part by an ulp. Here each product
+// is a statement of its own (OpenCL C contracts a * b + c into an fma only within one
+// expression), so both twins round as the CPU drivers' builtins do, on any device
+// (tests/test_packets.py, built with --opencl-ulps, where the builtins fuse). Where a squared
+// length is outside [2^-90, 2^90] the builtins scale against overflow and underflow: the
+// single ray takes them there, and the lane-wise twins leave such lanes to it.
+#define DEFINE_DOT(SPEC, T, NAME)                                    \
+    SPEC T NAME(T ax, T ay, T az, T bx, T by, T bz) {                \
+        T xx = ax * bx;                                              \
+        T yy = ay * by;                                              \
+        T zz = az * bz;                                              \
+        T xy = xx + yy;                                              \
+        return xy + zz;                                              \
+    }
+DEFINE_DOT(static inline, REAL, dot_of)
+
+static inline REAL dot3(REAL3 a, REAL3 b) { return dot_of(a.x, a.y, a.z, b.x, b.y, b.z); }
+
+// A squared length whose square root needs no scaling (the twins' range).
+static inline bool plain_squared_length(REAL dd) {
+    return dd >= (REAL)0x1p-90 && dd <= (REAL)0x1p90;
+}
+
+static inline REAL length3(REAL3 v) {
+    REAL dd = dot3(v, v);
+    return plain_squared_length(dd) ? sqrt(dd) : length(v);
+}
+
+static inline REAL3 normalize3(REAL3 v) {
+    REAL dd = dot3(v, v);
+    return plain_squared_length(dd) ? v * rsqrt(dd) : normalize(v);
+}
+
+static inline REAL3 cross3(REAL3 a, REAL3 b) {
+    REAL3 ab = a.yzx * b.zxy;
+    REAL3 ba = a.zxy * b.yzx;
+    return ab - ba;
+}
+
+// Normalise, leaving a zero vector zero instead of making NaN.
+static inline REAL3 safe_normalize(REAL3 v) {
+    REAL len = length3(v);
+    return len > (REAL)0 ? v / len : v;
+}
 
 // a*b - c*d without catastrophic cancellation (Kahan's algorithm with FMA), lane by lane.
 #define DEFINE_DIFFERENCE_OF_PRODUCTS(SPEC, T, NAME) \

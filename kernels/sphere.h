@@ -92,7 +92,7 @@ DEFINE_SPHERE_ROOTS(REAL4, sphere_roots4)
 // k has roots t0[k] <= t1[k]. Padding lanes hold NaN and have none.
 HOT int intersect_sphere_packet(const __global SpherePacket* pk, const Ray* r, REAL* t0,
                                 REAL* t1) {
-    REAL a = dot(r->d, r->d);
+    REAL a = dot3(r->d, r->d);
     if (a == (REAL)0) return 0;
     REAL4 fx = (REAL4)(r->o.x) - TO_REAL4(vload4(0, pk->x));
     REAL4 fy = (REAL4)(r->o.y) - TO_REAL4(vload4(0, pk->y));

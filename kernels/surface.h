@@ -122,7 +122,7 @@ DEFINE_OFFSET_DISTANCE(REAL, offset_distance)
 // normal: the spawned ray then starts beyond any rounding of p and needs no t epsilon.
 static inline REAL3 offset_origin(const Surface* sf, REAL3 w) {
     REAL d = offset_distance(sf->err, sf->n_g.x, sf->n_g.y, sf->n_g.z);
-    return dot(w, sf->n_g) > (REAL)0 ? sf->p + d * sf->n_g : sf->p - d * sf->n_g;
+    return dot3(w, sf->n_g) > (REAL)0 ? sf->p + d * sf->n_g : sf->p - d * sf->n_g;
 }
 
 // What shading a hit needs: its surface, its side, the normal facing the ray and its colour.

@@ -295,13 +295,13 @@ HOT Surface triangle_surface(const SceneRefs* s, const Ray* r, const Hit* hit, b
     // through a concave edge at t = 0. Pulling the point a few error bounds towards
     // this triangle's centroid, within the triangle, takes it off that plane.
     REAL3 to_centroid = (p0 + p1 + p2) / (REAL)3 - p;
-    REAL reach = length(to_centroid);
+    REAL reach = length3(to_centroid);
     if (reach > (REAL)0) {
         p += fmin((REAL)4 * sf.err, (REAL)0.5 * reach) / reach * to_centroid;
     }
-    REAL3 n = safe_normalize(cross(p1 - p0, p2 - p0));
+    REAL3 n = safe_normalize(cross3(p1 - p0, p2 - p0));
     // A degenerate triangle has no normal: let it face the ray.
-    sf.n_g = dot(n, n) > (REAL)0 ? n : -r->d;
+    sf.n_g = dot3(n, n) > (REAL)0 ? n : -r->d;
     sf.uv = (REAL2)(b1, b2);
 #if HAS_VERTEX_NORMALS
     if (word & TRIANGLE_SMOOTH) {
@@ -327,7 +327,7 @@ HOT Surface triangle_surface(const SceneRefs* s, const Ray* r, const Hit* hit, b
     sf.material = word & TRIANGLE_MATERIAL_MASK;
     sf.p = p;
 #if HAS_VERTEX_NORMALS
-    if ((word & TRIANGLE_SMOOTH) && dot(sf.n_s, sf.n_s) > (REAL)0) return sf;
+    if ((word & TRIANGLE_SMOOTH) && dot3(sf.n_s, sf.n_s) > (REAL)0) return sf;
 #endif
     sf.n_s = sf.n_g;
     return sf;
@@ -357,7 +357,7 @@ HOT SurfaceOfLanes triangle_surface_lanes(const ShapeLanes* g, const RayPacket* 
     v.px = move ? v.px + k * tx : v.px;
     v.py = move ? v.py + k * ty : v.py;
     v.pz = move ? v.pz + k * tz : v.pz;
-    // cross(p1 - p0, p2 - p0) as PoCL's cross() has it: each product rounded, none fused.
+    // cross3(p1 - p0, p2 - p0) (real.h): each product rounded, none fused.
     REALP e1x = g->bx - g->ax, e1y = g->by - g->ay, e1z = g->bz - g->az;
     REALP e2x = g->cx - g->ax, e2y = g->cy - g->ay, e2z = g->cz - g->az;
     REALP yz = e1y * e2z;

@@ -33,12 +33,14 @@ test-other-lanes: setup
 	echo "$(PYTHON_VENV) -m pytest -q --lanes other $(LANE_TESTS)"; \
 	$(PYTHON_VENV) -m pytest -q --lanes other $(LANE_TESTS)
 
-# The tests that compare with an oracle, their kernels built with the transcendental builtins off
-# by OpenCL's whole error bounds, upwards and downwards (tests/conftest.py, --opencl-ulps), on
-# PoCL: a GPU's builtins may be that far off where the CPU's are within an ulp.
+# The tests that compare with an oracle, and those that hold a ray's image to its lane-wise
+# twins' bit for bit, their kernels built with the transcendental builtins off by OpenCL's whole
+# error bounds, upwards and downwards, and the geometric builtins fused (tests/conftest.py,
+# --opencl-ulps; kernels/real.h, MATH_ULPS_OFF), on PoCL: a GPU's builtins may be so where the
+# CPU's are within an ulp and round every product.
 ULPS_TESTS := tests/hard_cases tests/test_render.py tests/test_background.py tests/test_camera.py \
 	tests/test_depth.py tests/test_torus.py tests/test_area_lights.py tests/test_fresnel.py \
-	tests/test_reference.py tests/test_intersect.py tests/test_instances.py
+	tests/test_reference.py tests/test_intersect.py tests/test_instances.py tests/test_packets.py
 
 test-opencl-ulps: setup
 	@if [ -d "$(ICD_VENDORS)" ] && [ -z "$${OCL_ICD_VENDORS:-}" ]; then \

@@ -125,7 +125,7 @@ static inline int spawn_secondary(const SceneRefs* s, const __global Params* par
     if (kt > (REAL)0) {
         RayTask next;
         REAL eta = refract_media(s, task, &next, pt->sf.material, pt->entering);
-        REAL cos_i = -dot(ray->d, n);
+        REAL cos_i = -dot3(ray->d, n);
         REAL k = (REAL)1 - eta * eta * ((REAL)1 - cos_i * cos_i);
         if (k < (REAL)0) {
             kr += kt;  // total internal reflection
@@ -137,7 +137,7 @@ static inline int spawn_secondary(const SceneRefs* s, const __global Params* par
                 kt *= (REAL)1 - f;
             }
 #endif
-            next.d = normalize(eta * ray->d + (eta * cos_i - sqrt(k)) * n);
+            next.d = normalize3(eta * ray->d + (eta * cos_i - sqrt(k)) * n);
             pushed += spawn(stack, sp, &next, &pt->sf, task->weight * kt, task->depth,
                             params->min_weight);
         }

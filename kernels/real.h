@@ -135,7 +135,10 @@ MATH_ULPS_OFF_DOUBLE(DEFINE_ULPS_OFF(double, atan2_ulps_off, atan2(y, x), 6, (do
 // drivers' round each), and length() and normalize() take that dot product (normalize()
 // dividing by the length where the CPU drivers multiply by rsqrt). Where the squared length is
 // outside [2^-90, 2^90] they are the driver's, which scales against overflow and underflow.
-#define DEFINE_FUSED_DOT(T, T3, T4)                                                     \
+#define DEFINE_FUSED_DOT(T, T2, T3, T4)                                                 \
+    static inline __attribute__((overloadable)) T dot_fused(T2 a, T2 b) {              \
+        return MATH_ULPS_OFF > 0 ? fma(a.y, b.y, a.x * b.x) : fma(a.x, b.x, a.y * b.y);  \
+    }                                                                                  \
     static inline __attribute__((overloadable)) T dot_fused(T3 a, T3 b) {              \
         return MATH_ULPS_OFF > 0 ? fma(a.z, b.z, fma(a.y, b.y, a.x * b.x))            \
                                  : fma(a.x, b.x, fma(a.y, b.y, a.z * b.z));           \
@@ -152,8 +155,8 @@ MATH_ULPS_OFF_DOUBLE(DEFINE_ULPS_OFF(double, atan2_ulps_off, atan2(y, x), 6, (do
         T dd = dot_fused(v, v);                                                        \
         return dd >= (T)0x1p-90 && dd <= (T)0x1p90 ? v / sqrt(dd) : normalize(v);      \
     }
-DEFINE_FUSED_DOT(float, float3, float4)
-MATH_ULPS_OFF_DOUBLE(DEFINE_FUSED_DOT(double, double3, double4))
+DEFINE_FUSED_DOT(float, float2, float3, float4)
+MATH_ULPS_OFF_DOUBLE(DEFINE_FUSED_DOT(double, double2, double3, double4))
 #undef dot
 #undef length
 #undef normalize

@@ -1,6 +1,7 @@
-"""MATH_ULPS_OFF (kernels/real.h), the switch behind `--opencl-ulps`: each builtin it wraps
-returns the device's own result moved by exactly OpenCL's error bound for it, in the asked
-direction, for float and double, and a render built with it differs from one without."""
+"""MATH_ULPS_OFF (kernels/real.h), the switch behind `--opencl-ulps`: each transcendental builtin
+it wraps returns the device's own result moved by exactly OpenCL's error bound for it, in the
+asked direction, for float and double; dot(), length() and normalize() fuse the products as a
+device may; and a render built with it differs from one without."""
 
 from __future__ import annotations
 
@@ -65,6 +66,65 @@ def test_each_builtin_is_off_by_its_whole_bound(cl_device, dtype, off) -> None:
     assert np.all(np.isfinite(own))
     np.testing.assert_array_equal(moved, expected)
     assert np.all(moved != own)
+
+
+GEOMETRY_KERNEL = """
+__kernel void geometry(__global const T* a, __global const T* b, __global T* out) {
+    int i = get_global_id(0);
+    T3 u = vload3(i, a), v = vload3(i, b);
+    __global T* o = out + 5 * i;
+    o[0] = dot(u, v);
+    o[1] = length(u);
+    vstore3(normalize(u), 0, o + 2);
+}
+"""
+
+
+def _geometry(device: cl.Device, dtype: type, a: np.ndarray, b: np.ndarray,
+              off: int) -> np.ndarray:
+    type_name = "double" if dtype == np.float64 else "float"
+    options = [f"-DT={type_name}", f"-DT3={type_name}3"] + ([ulps_off_option(off)] if off else [])
+    program = cl.Program(context_for(device),
+                         kernel_source("real.h") + GEOMETRY_KERNEL).build(options)
+    queue = queue_for(device)
+    mf = cl.mem_flags
+    bufs = [cl.Buffer(queue.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=x) for x in (a, b)]
+    out = np.empty((len(a), 5), dtype=dtype)
+    out_buf = cl.Buffer(queue.context, mf.WRITE_ONLY, out.nbytes)
+    program.geometry(queue, (len(a),), None, *bufs, out_buf)
+    cl.enqueue_copy(queue, out, out_buf)
+    return out
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64], ids=["float", "double"])
+@pytest.mark.parametrize("off", [1, -1])
+def test_geometric_builtins_fuse_their_products(cl_device, dtype, off) -> None:
+    # The float64/longdouble oracle of the fused chain: fma rounds once, so each step is the
+    # exact product plus the running sum, rounded to dtype.
+    if dtype == np.float64 and not has_fp64(cl_device):
+        pytest.skip("the device has no cl_khr_fp64")
+    rng = np.random.default_rng(3)
+    a = rng.uniform(-3, 3, (64, 3)).astype(dtype)
+    b = rng.uniform(-3, 3, (64, 3)).astype(dtype)
+    moved = _geometry(cl_device, dtype, a, b, off)
+    wide = np.longdouble
+
+    def fused_dot(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+        order = (0, 1, 2) if off > 0 else (2, 1, 0)
+        acc = (u[:, order[0]] * v[:, order[0]]).astype(dtype)
+        for k in order[1:]:
+            acc = (wide(1) * u[:, k].astype(wide) * v[:, k].astype(wide) + acc).astype(dtype)
+        return acc
+
+    if np.finfo(wide).nmant < 2 * np.finfo(dtype).nmant + 2:
+        pytest.skip("this platform's long double cannot hold a double product exactly")
+    dd = fused_dot(a, a)
+    np.testing.assert_array_equal(moved[:, 0], fused_dot(a, b))
+    np.testing.assert_array_equal(moved[:, 1], np.sqrt(dd))
+    np.testing.assert_array_equal(moved[:, 2:], a / np.sqrt(dd)[:, None])
+    # And the device's own dot rounds every product (the CPU drivers): somewhere they part.
+    own = _geometry(cl_device, dtype, a, b, 0)
+    assert np.any(own[:, 0] != moved[:, 0])
 
 
 def test_a_render_built_with_builtins_off_differs(cl_device, request) -> None:

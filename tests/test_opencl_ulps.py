@@ -20,13 +20,14 @@ from clray.scene.load import load_scene
 ROOT = Path(__file__).resolve().parent.parent
 
 # The builtins and OpenCL's bounds for them (ulps), in the kernel's order.
-BOUNDS = {"sin": 4, "cos": 4, "tan": 4, "asin": 4, "atan2": 6, "exp2": 3, "log2": 3}
+BOUNDS = {"sin": 4, "cos": 4, "tan": 4, "asin": 4, "atan2": 6, "exp2": 3, "log2": 3,
+          "rsqrt": 2}
 
 KERNEL = """
 __kernel void builtins(__global const T* x, __global T* out) {
     int i = get_global_id(0);
     T v = x[i];
-    __global T* o = out + 7 * i;
+    __global T* o = out + 8 * i;
     o[0] = sin(v);
     o[1] = cos(v);
     o[2] = tan(v);
@@ -34,6 +35,7 @@ __kernel void builtins(__global const T* x, __global T* out) {
     o[4] = atan2(v, (T)1.5);
     o[5] = exp2(v);
     o[6] = log2(v + (T)4);
+    o[7] = rsqrt(fabs(v) + (T)0.5);
 }
 """
 
@@ -45,7 +47,7 @@ def _builtins(device: cl.Device, dtype: type, x: np.ndarray, off: int) -> np.nda
     queue = queue_for(device)
     mf = cl.mem_flags
     x_buf = cl.Buffer(queue.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=x)
-    out = np.empty((len(x), 7), dtype=dtype)
+    out = np.empty((len(x), len(BOUNDS)), dtype=dtype)
     out_buf = cl.Buffer(queue.context, mf.WRITE_ONLY, out.nbytes)
     program.builtins(queue, (len(x),), None, x_buf, out_buf)
     cl.enqueue_copy(queue, out, out_buf)

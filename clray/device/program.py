@@ -77,7 +77,8 @@ def device_build_options(device: cl.Device) -> tuple[str, ...]:
 
 def ulps_off_option(direction: int) -> str:
     """The build option of kernels/real.h's MATH_ULPS_OFF: the transcendental builtins off by
-    OpenCL's whole error bounds for them, upwards (1) or downwards (-1)."""
+    OpenCL's whole error bounds for them, upwards (1) or downwards (-1), and the geometric
+    builtins' products fused."""
     return f"-DMATH_ULPS_OFF={direction}"
 
 

@@ -145,7 +145,12 @@ MATH_ULPS_OFF_DOUBLE(DEFINE_RSQRT_ULPS_OFF_ALL(double))
 // drivers' round each), and length() and normalize() take that dot product (normalize()
 // dividing by the length where the CPU drivers multiply by rsqrt). Where the squared length is
 // outside [2^-90, 2^90] they are the driver's, which scales against overflow and underflow.
+// mix(), a common function that may be "implemented using contractions" too, fuses its product
+// with the sum (the CPU drivers round the product first).
 #define DEFINE_FUSED_DOT(T, T2, T3, T4)                                                 \
+    static inline __attribute__((overloadable)) T3 mix_fused(T3 x, T3 y, T a) {        \
+        return fma(y - x, (T3)(a), x);                                                 \
+    }                                                                                  \
     static inline __attribute__((overloadable)) T dot_fused(T2 a, T2 b) {              \
         return MATH_ULPS_OFF > 0 ? fma(a.y, b.y, a.x * b.x) : fma(a.x, b.x, a.y * b.y);  \
     }                                                                                  \
@@ -170,6 +175,8 @@ MATH_ULPS_OFF_DOUBLE(DEFINE_FUSED_DOT(double, double2, double3, double4))
 #undef dot
 #undef length
 #undef normalize
+#undef mix
+#define mix(x, y, a) mix_fused(x, y, a)
 #define dot(a, b) dot_fused(a, b)
 #define length(v) length_fused(v)
 #define normalize(v) normalize_fused(v)

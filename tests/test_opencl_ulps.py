@@ -1,7 +1,7 @@
 """MATH_ULPS_OFF (kernels/real.h), the switch behind `--opencl-ulps`: each transcendental builtin
 it wraps returns the device's own result moved by exactly OpenCL's error bound for it, in the
-asked direction, for float and double; dot(), length() and normalize() fuse the products as a
-device may; and a render built with it differs from one without."""
+asked direction, for float and double; dot(), length(), normalize() and mix() fuse the products
+as a device may; and a render built with it differs from one without."""
 
 from __future__ import annotations
 
@@ -74,10 +74,11 @@ GEOMETRY_KERNEL = """
 __kernel void geometry(__global const T* a, __global const T* b, __global T* out) {
     int i = get_global_id(0);
     T3 u = vload3(i, a), v = vload3(i, b);
-    __global T* o = out + 5 * i;
+    __global T* o = out + 8 * i;
     o[0] = dot(u, v);
     o[1] = length(u);
     vstore3(normalize(u), 0, o + 2);
+    vstore3(mix(u, v, (T)0.3), 0, o + 5);
 }
 """
 
@@ -91,7 +92,7 @@ def _geometry(device: cl.Device, dtype: type, a: np.ndarray, b: np.ndarray,
     queue = queue_for(device)
     mf = cl.mem_flags
     bufs = [cl.Buffer(queue.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=x) for x in (a, b)]
-    out = np.empty((len(a), 5), dtype=dtype)
+    out = np.empty((len(a), 8), dtype=dtype)
     out_buf = cl.Buffer(queue.context, mf.WRITE_ONLY, out.nbytes)
     program.geometry(queue, (len(a),), None, *bufs, out_buf)
     cl.enqueue_copy(queue, out, out_buf)
@@ -100,7 +101,7 @@ def _geometry(device: cl.Device, dtype: type, a: np.ndarray, b: np.ndarray,
 
 @pytest.mark.parametrize("dtype", [np.float32, np.float64], ids=["float", "double"])
 @pytest.mark.parametrize("off", [1, -1])
-def test_geometric_builtins_fuse_their_products(cl_device, dtype, off) -> None:
+def test_geometric_builtins_and_mix_fuse_their_products(cl_device, dtype, off) -> None:
     # The float64/longdouble oracle of the fused chain: fma rounds once, so each step is the
     # exact product plus the running sum, rounded to dtype.
     if dtype == np.float64 and not has_fp64(cl_device):
@@ -123,7 +124,10 @@ def test_geometric_builtins_fuse_their_products(cl_device, dtype, off) -> None:
     dd = fused_dot(a, a)
     np.testing.assert_array_equal(moved[:, 0], fused_dot(a, b))
     np.testing.assert_array_equal(moved[:, 1], np.sqrt(dd))
-    np.testing.assert_array_equal(moved[:, 2:], a / np.sqrt(dd)[:, None])
+    np.testing.assert_array_equal(moved[:, 2:5], a / np.sqrt(dd)[:, None])
+    span = (b - a).astype(dtype)
+    np.testing.assert_array_equal(
+        moved[:, 5:], (span.astype(wide) * wide(dtype(0.3)) + a.astype(wide)).astype(dtype))
     # And the device's own dot rounds every product (the CPU drivers): somewhere they part.
     own = _geometry(cl_device, dtype, a, b, 0)
     assert np.any(own[:, 0] != moved[:, 0])

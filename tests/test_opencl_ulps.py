@@ -5,6 +5,7 @@ as a device may; and a render built with it differs from one without."""
 
 from __future__ import annotations
 
+from fractions import Fraction
 from pathlib import Path
 
 import numpy as np
@@ -38,18 +39,26 @@ __kernel void builtins(__global const T* x, __global T* out) {
 """
 
 
-def _builtins(device: cl.Device, dtype: type, x: np.ndarray, off: int) -> np.ndarray:
+def _run(device: cl.Device, dtype: type, kernel: str, inputs: tuple[np.ndarray, ...],
+         columns: int, off: int) -> np.ndarray:
+    """`kernel`'s one kernel over `inputs` (one row a work-item), built with T the dtype's
+    type and T3 its 3-vector, and MATH_ULPS_OFF=off where off: its `columns` outputs a row."""
     type_name = "double" if dtype == np.float64 else "float"
-    options = [f"-DT={type_name}"] + ([ulps_off_option(off)] if off else [])
-    program = cl.Program(context_for(device), kernel_source("real.h") + KERNEL).build(options)
+    options = [f"-DT={type_name}", f"-DT3={type_name}3"] + ([ulps_off_option(off)] if off else [])
+    program = cl.Program(context_for(device), kernel_source("real.h") + kernel).build(options)
     queue = queue_for(device)
     mf = cl.mem_flags
-    x_buf = cl.Buffer(queue.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=x)
-    out = np.empty((len(x), len(BOUNDS)), dtype=dtype)
+    bufs = [cl.Buffer(queue.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=x)
+            for x in inputs]
+    out = np.empty((len(inputs[0]), columns), dtype=dtype)
     out_buf = cl.Buffer(queue.context, mf.WRITE_ONLY, out.nbytes)
-    program.builtins(queue, (len(x),), None, x_buf, out_buf)
+    program.all_kernels()[0](queue, (len(inputs[0]),), None, *bufs, out_buf)
     cl.enqueue_copy(queue, out, out_buf)
     return out
+
+
+def _builtins(device: cl.Device, dtype: type, x: np.ndarray, off: int) -> np.ndarray:
+    return _run(device, dtype, KERNEL, (x,), len(BOUNDS), off)
 
 
 @pytest.mark.parametrize("dtype", [np.float32, np.float64], ids=["float", "double"])
@@ -83,49 +92,54 @@ __kernel void geometry(__global const T* a, __global const T* b, __global T* out
 
 def _geometry(device: cl.Device, dtype: type, a: np.ndarray, b: np.ndarray,
               off: int) -> np.ndarray:
-    type_name = "double" if dtype == np.float64 else "float"
-    options = [f"-DT={type_name}", f"-DT3={type_name}3"] + ([ulps_off_option(off)] if off else [])
-    program = cl.Program(context_for(device),
-                         kernel_source("real.h") + GEOMETRY_KERNEL).build(options)
-    queue = queue_for(device)
-    mf = cl.mem_flags
-    bufs = [cl.Buffer(queue.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=x) for x in (a, b)]
-    out = np.empty((len(a), 8), dtype=dtype)
-    out_buf = cl.Buffer(queue.context, mf.WRITE_ONLY, out.nbytes)
-    program.geometry(queue, (len(a),), None, *bufs, out_buf)
-    cl.enqueue_copy(queue, out, out_buf)
-    return out
+    return _run(device, dtype, GEOMETRY_KERNEL, (a, b), 8, off)
+
+
+def _rounded(exact: Fraction, dtype: type) -> float:
+    """`exact` rounded once to dtype, to nearest, ties to even."""
+    near = dtype(float(exact))
+    candidates = [near, np.nextafter(near, dtype(np.inf)), np.nextafter(near, dtype(-np.inf))]
+    bits = np.uint64 if dtype == np.float64 else np.uint32
+    return min(candidates, key=lambda c: (abs(Fraction(float(c)) - exact),
+                                          int(np.array(c).view(bits)) & 1))
+
+
+def _fused(terms: list[tuple[np.ndarray, np.ndarray]], dtype: type) -> np.ndarray:
+    """An fma chain's value: the first product rounded to dtype, then each further product
+    added exactly to the running sum and the sum rounded once."""
+    (u, v), rest = terms[0], terms[1:]
+    acc = (u * v).astype(dtype)
+    for u, v in rest:
+        acc = np.array([_rounded(Fraction(float(x)) * Fraction(float(y)) + Fraction(float(z)),
+                                 dtype) for x, y, z in zip(u, v, acc, strict=True)], dtype=dtype)
+    return acc
 
 
 @pytest.mark.parametrize("dtype", [np.float32, np.float64], ids=["float", "double"])
 @pytest.mark.parametrize("off", [1, -1])
 def test_geometric_builtins_and_mix_fuse_their_products(cl_device, dtype, off) -> None:
-    # The float64/longdouble oracle of the fused chain: fma rounds once, so each step is the
-    # exact product plus the running sum, rounded to dtype.
+    # The oracle of the fused chain (_fused): fma rounds once, so each step is the exact
+    # product plus the running sum, rounded to dtype.
     if dtype == np.float64 and not has_fp64(cl_device):
         pytest.skip("the device has no cl_khr_fp64")
     rng = np.random.default_rng(3)
     a = rng.uniform(-3, 3, (64, 3)).astype(dtype)
     b = rng.uniform(-3, 3, (64, 3)).astype(dtype)
     moved = _geometry(cl_device, dtype, a, b, off)
-    wide = np.longdouble
+    order = (0, 1, 2) if off > 0 else (2, 1, 0)
 
     def fused_dot(u: np.ndarray, v: np.ndarray) -> np.ndarray:
-        order = (0, 1, 2) if off > 0 else (2, 1, 0)
-        acc = (u[:, order[0]] * v[:, order[0]]).astype(dtype)
-        for k in order[1:]:
-            acc = (wide(1) * u[:, k].astype(wide) * v[:, k].astype(wide) + acc).astype(dtype)
-        return acc
+        return _fused([(u[:, k], v[:, k]) for k in order], dtype)
 
-    if np.finfo(wide).nmant < 2 * np.finfo(dtype).nmant + 2:
-        pytest.skip("this platform's long double cannot hold a double product exactly")
     dd = fused_dot(a, a)
     np.testing.assert_array_equal(moved[:, 0], fused_dot(a, b))
     np.testing.assert_array_equal(moved[:, 1], np.sqrt(dd))
     np.testing.assert_array_equal(moved[:, 2:5], a / np.sqrt(dd)[:, None])
     span = (b - a).astype(dtype)
-    np.testing.assert_array_equal(
-        moved[:, 5:], (span.astype(wide) * wide(dtype(0.3)) + a.astype(wide)).astype(dtype))
+    mixed = [_fused([(a[:, k], np.ones(len(a), dtype)), (span[:, k],
+                                                          np.full(len(a), 0.3, dtype))], dtype)
+             for k in range(3)]
+    np.testing.assert_array_equal(moved[:, 5:], np.stack(mixed, axis=1))
     # And the device's own dot rounds every product (the CPU drivers): somewhere they part.
     own = _geometry(cl_device, dtype, a, b, 0)
     assert np.any(own[:, 0] != moved[:, 0])

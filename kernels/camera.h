@@ -118,7 +118,7 @@ HOT bool camera_ray_lanes(const __global Camera* camera, const __global Params* 
     REALP dy = (REALP)(forward.y) + px * right.y + py * up.y;
     REALP dz = (REALP)(forward.z) + px * right.z + py * up.z;
     REALP dd = dot_lanes(dx, dy, dz, dx, dy, dz);
-    if (lane_mask(~((dd >= (REAL)0x1p-90) & (dd <= (REAL)0x1p90)))) return false;
+    if (lane_mask(~plain_squared_length_lanes(dd))) return false;
     REALP len = sqrt(dd);
     REAL3 o = TO_REAL3(camera->position);
     *p = make_ray_packet((REALP)(o.x), (REALP)(o.y), (REALP)(o.z), dx / len, dy / len, dz / len,

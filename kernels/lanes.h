@@ -198,6 +198,8 @@ HOT RayPacket ray_packet(const Ray* rays) {
 
 // dot3 lane by lane (real.h: the rounded products added left to right, not fused).
 DEFINE_DOT(HOT, REALP, dot_lanes)
+// plain_squared_length lane by lane: the lanes that length_lanes and its kin can measure.
+DEFINE_PLAIN_SQUARED_LENGTH(HOT, REALP, MASKP, plain_squared_length_lanes)
 
 // A packet's rays lane by lane: the arrays that ray_from_lanes reads.
 typedef struct {
@@ -364,7 +366,7 @@ DEFINE_DIFFERENCE_OF_PRODUCTS(HOT, REALP, difference_of_products_lanes)
 HOT REALP plain_length_lanes(REALP x, REALP y, REALP z, MASKP* outside) {
     REALP dd = dot_lanes(x, y, z, x, y, z);
     MASKP zero = (x == (REAL)0) & (y == (REAL)0) & (z == (REAL)0);
-    *outside |= ~(zero | ((dd >= (REAL)0x1p-90) & (dd <= (REAL)0x1p90)));
+    *outside |= ~(zero | plain_squared_length_lanes(dd));
     return sqrt(GREATER(dd, (REALP)(0)));
 }
 
@@ -381,7 +383,7 @@ HOT void safe_normalize_lanes(REALP* x, REALP* y, REALP* z, MASKP* outside) {
 // length outside [2^-90, 2^90] (or NaN), where length3 takes the builtin, which scales.
 HOT bool length_lanes(REALP x, REALP y, REALP z, MASKP lanes, REALP* len) {
     REALP dd = dot_lanes(x, y, z, x, y, z);
-    MASKP inside = (dd >= (REAL)0x1p-90) & (dd <= (REAL)0x1p90);
+    MASKP inside = plain_squared_length_lanes(dd);
     *len = sqrt(GREATER(dd, (REALP)(0)));
     return !lane_mask(lanes & ~inside);
 }

@@ -227,10 +227,11 @@ DEFINE_DOT(static inline, REAL, dot_of)
 
 static inline REAL dot3(REAL3 a, REAL3 b) { return dot_of(a.x, a.y, a.z, b.x, b.y, b.z); }
 
-// A squared length whose square root needs no scaling (the twins' range).
-static inline bool plain_squared_length(REAL dd) {
-    return dd >= (REAL)0x1p-90 && dd <= (REAL)0x1p90;
-}
+// A squared length whose square root needs no scaling (the twins' range): M is int for REAL
+// (1 or 0) and a lane mask for vectors, as their comparisons give.
+#define DEFINE_PLAIN_SQUARED_LENGTH(SPEC, T, M, NAME)                 \
+    SPEC M NAME(T dd) { return (dd >= (T)0x1p-90) & (dd <= (T)0x1p90); }
+DEFINE_PLAIN_SQUARED_LENGTH(static inline, REAL, int, plain_squared_length)
 
 static inline REAL length3(REAL3 v) {
     REAL dd = dot3(v, v);

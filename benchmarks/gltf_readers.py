@@ -3,7 +3,8 @@ the message for a truncated file, on a generated .glb (a grid of ~1M vertices, 2
 positions, normals and indices in one binary chunk).
 
 Each reader runs in its own process (peak RSS is per process), interleaved over --repeat rounds;
-medians are reported. pygltflib and trimesh are not clray dependencies: install them to compare.
+medians are reported (benchmarks/readers.py, shared with the PLY script). pygltflib and trimesh
+are not clray dependencies: install them to compare.
 pygltflib parses the JSON only; the accessors are then read with numpy as clray does.
 
     python benchmarks/gltf_readers.py --out gltf_readers.json
@@ -11,18 +12,15 @@ pygltflib parses the JSON only; the accessors are then read with numpy as clray 
 
 from __future__ import annotations
 
-import argparse
-import json
-import platform
-import subprocess
 import sys
-import tempfile
 from pathlib import Path
-from statistics import median
 
 import numpy as np
 
+# benchmarks/ is not a package: with the repository root on the path it imports as a namespace
+# package, as tests/ does.
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from benchmarks.readers import compare
 from tests.gltf_files import Builder
 
 # (import, read): the import is timed apart, as clray's own import is outside the reader.
@@ -41,22 +39,6 @@ READERS = {
                 "s = trimesh.load(P, process=False, force='scene')\n"
                 "n = sum(len(g.faces) for g in s.geometry.values())"),
 }
-_RUN = """
-import json, resource, sys, time
-from pathlib import Path
-P = Path(sys.argv[1])
-t = time.perf_counter()
-{head}
-out = {{"import_s": time.perf_counter() - t}}
-t = time.perf_counter()
-try:
-{body}
-    out.update(seconds=time.perf_counter() - t, faces=n)
-except Exception as exc:
-    out["error"] = (type(exc).__name__ + ": " + str(exc))[:300]
-out["peak_rss_mib"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
-print(json.dumps(out))
-"""
 
 
 def grid_glb(path: Path, side: int) -> int:
@@ -77,43 +59,8 @@ def grid_glb(path: Path, side: int) -> int:
     return len(faces)
 
 
-def run(reader: str, path: Path) -> dict:
-    head, read = READERS[reader]
-    body = "\n".join("    " + line for line in read.splitlines())
-    done = subprocess.run([sys.executable, "-c", _RUN.format(head=head, body=body), str(path)],
-                          capture_output=True, text=True, check=True)
-    return json.loads(done.stdout.strip().splitlines()[-1])
-
-
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--side", type=int, default=1000, help="vertices per side (V = side^2)")
-    parser.add_argument("--repeat", type=int, default=3)
-    parser.add_argument("--out", type=Path, required=True)
-    args = parser.parse_args()
-    with tempfile.TemporaryDirectory() as tmp:
-        path = Path(tmp) / "grid.glb"
-        n_faces = grid_glb(path, args.side)
-        truncated = Path(tmp) / "truncated.glb"
-        truncated.write_bytes(path.read_bytes()[:path.stat().st_size * 3 // 4])
-        runs: dict[str, list[dict]] = {name: [] for name in READERS}
-        for _ in range(args.repeat):
-            for name in READERS:  # interleaved, so drifting load hits all alike
-                runs[name].append(run(name, path))
-        result = {
-            "machine": {"cpu": platform.processor() or platform.machine(),
-                        "python": platform.python_version()},
-            "file": {"triangles": n_faces, "bytes": path.stat().st_size},
-            "readers": {name: {
-                "median_s": median(r["seconds"] for r in rs),
-                "median_import_s": median(r["import_s"] for r in rs),
-                "median_peak_rss_mib": median(r["peak_rss_mib"] for r in rs),
-                "faces": rs[0].get("faces"),
-                "truncated_file": run(name, truncated).get("error", "(no error)"),
-            } for name, rs in runs.items()},
-        }
-    args.out.write_text(json.dumps(result, indent=2) + "\n")
-    print(json.dumps(result, indent=2))
+    compare(__doc__, READERS, "grid.glb", lambda path, side: {"triangles": grid_glb(path, side)})
 
 
 if __name__ == "__main__":

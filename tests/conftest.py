@@ -1,4 +1,5 @@
-"""Shared fixtures: the OpenCL devices the suite runs on, and a helper that writes scene files.
+"""Shared fixtures: the OpenCL devices the suite runs on, and a helper that writes scene files;
+and scripts/make_mesh_scene.py as a module for the tests that build meshes with it.
 
 A test that asks for `cl_device` (or `cl_ctx`) runs once per OpenCL device, with ids such as
 `pocl-cpu` and `intel-cpu`: all devices found, or those named by `--cl-device` or
@@ -24,10 +25,12 @@ OpenCL device, not only on the CPU's (`make test-opencl-ulps`).
 
 from __future__ import annotations
 
+import importlib.util
 import os
 import re
 from collections.abc import Callable, Iterator
 from pathlib import Path
+from types import ModuleType
 
 import pyopencl as cl
 import pytest
@@ -245,3 +248,13 @@ def tmp_scene(tmp_path: Path) -> Callable[..., Path]:
         return path
 
     return write
+
+
+def load_mesh_generator() -> ModuleType:
+    """scripts/make_mesh_scene.py (bumpy_mesh, icosphere, main, ...) as a module: scripts/ is not
+    a package, so the generator is loaded straight from its file."""
+    path = Path(__file__).resolve().parents[1] / "scripts" / "make_mesh_scene.py"
+    spec = importlib.util.spec_from_file_location("make_mesh_scene", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module

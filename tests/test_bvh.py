@@ -2,12 +2,11 @@
 
 from __future__ import annotations
 
-import importlib.util
 import math
-from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import load_mesh_generator
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
@@ -30,19 +29,7 @@ from clray.device import bvh_builder
 from clray.device.bvh_builder import build_bvh_on
 from clray.device.context import queue_for
 
-ROOT = Path(__file__).resolve().parents[1]
-
-
-def _load_mesh_module():
-    # benchmarks/ is not a package; the generator is imported straight from its file.
-    spec = importlib.util.spec_from_file_location(
-        "make_mesh_scene", ROOT / "scripts" / "make_mesh_scene.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
-mesh_gen = _load_mesh_module()
+mesh_gen = load_mesh_generator()
 
 
 def check_bvh(bvh: Bvh, lo: np.ndarray, hi: np.ndarray, max_leaf_size: int) -> None:

@@ -15,13 +15,12 @@ near a surface cannot get t below the float32 resolution of its coordinates.
 
 from __future__ import annotations
 
-import importlib.util
 import math
-from pathlib import Path
 
 import numpy as np
 import pyopencl as cl
 import pytest
+from conftest import load_mesh_generator
 
 from clray.device import layout as L
 from clray.device.launch import intersect_rays
@@ -29,7 +28,6 @@ from clray.device.pack import pack_scene
 from clray.reference import intersect_scene
 from clray.scene import model as M
 
-ROOT = Path(__file__).resolve().parents[1]
 RTOL = 1e-5
 RTOL_GRAZING = 1e-4
 # At a cone's apex the two roots coincide: the square root of a rounded-to-zero discriminant
@@ -38,18 +36,7 @@ RTOL_APEX = 1e-3
 
 TYPE_CODE = {M.Plane: L.PRIM_PLANE, M.Sphere: L.PRIM_SPHERE, M.Box: L.PRIM_BOX,
              M.Cylinder: L.PRIM_CYLINDER, M.Cone: L.PRIM_CONE}
-
-
-def _load_mesh_module():
-    # benchmarks/ is not a package; the generator is imported straight from its file.
-    spec = importlib.util.spec_from_file_location(
-        "make_mesh_scene", ROOT / "scripts" / "make_mesh_scene.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
-mesh_gen = _load_mesh_module()
+mesh_gen = load_mesh_generator()
 
 
 def ref(kind: int, index: int) -> int:

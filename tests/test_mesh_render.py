@@ -8,13 +8,13 @@ its pixel.
 
 from __future__ import annotations
 
-import importlib.util
 import shutil
 from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import load_mesh_generator
 
 from clray.accel.prim_refs import PRIM_INDEX_MASK, PRIM_TRIANGLE, PRIM_TYPE_SHIFT
 from clray.device.layout import TRIANGLE_COLOR, TRIANGLE_MATERIAL_MASK, TRIANGLE_SMOOTH
@@ -26,23 +26,11 @@ from clray.scene import model as M
 from clray.scene.load import load_scene
 from clray.scene.obj import read_obj
 
-ROOT = Path(__file__).resolve().parents[1]
 DATA = Path(__file__).resolve().parent / "data"
 W, H = 96, 72
 # render() picks the default device: skip (via the fixture) where no OpenCL platform exists.
 pytestmark = pytest.mark.usefixtures("cl_device")
-
-
-def _load_mesh_module():
-    # benchmarks/ is not a package; the generator is imported straight from its file.
-    spec = importlib.util.spec_from_file_location(
-        "make_mesh_scene", ROOT / "scripts" / "make_mesh_scene.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
-mesh_gen = _load_mesh_module()
+mesh_gen = load_mesh_generator()
 
 RED = M.Material("red", color=(1.0, 0.0, 0.0), ambient=0.3, diffuse=0.7, specular=0.5,
                  shininess=20.0)

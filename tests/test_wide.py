@@ -2,12 +2,12 @@
 
 from __future__ import annotations
 
-import importlib.util
 import itertools
 from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import load_mesh_generator
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -246,11 +246,7 @@ def test_leaves_test_no_plane_sphere_or_triangle_one_by_one(scene_file):
 def test_small_nodes_of_leaves_are_folded_into_one_leaf(width, monkeypatch):
     # Below the root, no wide node holds only leaves that one leaf of FOLD_PACKETS packet tests
     # could cover: such a node is that leaf of its parent instead.
-    spec = importlib.util.spec_from_file_location(
-        "make_mesh_scene", ROOT / "scripts" / "make_mesh_scene.py")
-    mesh_gen = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mesh_gen)
-    vertices, faces, _ = mesh_gen.bumpy_mesh(4)
+    vertices, faces, _ = load_mesh_generator().bumpy_mesh(4)
     tri = vertices[faces]
     lo, hi = tri.min(axis=1), tri.max(axis=1)
     refs = _refs(np.full(len(faces), L.PRIM_TRIANGLE))

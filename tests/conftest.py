@@ -1,5 +1,5 @@
 """Shared fixtures: the OpenCL devices the suite runs on, and a helper that writes scene files;
-and scripts/make_mesh_scene.py as a module for the tests that build meshes with it.
+and a loader of the benchmarks' and scripts' files as modules (they are not packages).
 
 A test that asks for `cl_device` (or `cl_ctx`) runs once per OpenCL device, with ids such as
 `pocl-cpu` and `intel-cpu`: all devices found, or those named by `--cl-device` or
@@ -250,11 +250,16 @@ def tmp_scene(tmp_path: Path) -> Callable[..., Path]:
     return write
 
 
-def load_mesh_generator() -> ModuleType:
-    """scripts/make_mesh_scene.py (bumpy_mesh, icosphere, main, ...) as a module: scripts/ is not
-    a package, so the generator is loaded straight from its file."""
-    path = Path(__file__).resolve().parents[1] / "scripts" / "make_mesh_scene.py"
-    spec = importlib.util.spec_from_file_location("make_mesh_scene", path)
+def module_from_file(path: Path, name: str) -> ModuleType:
+    """The Python file at path, executed as a module named name: benchmarks/ and scripts/ are
+    not packages, so the tests load what they check of them straight from their files."""
+    spec = importlib.util.spec_from_file_location(name, path)
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     return module
+
+
+def load_mesh_generator() -> ModuleType:
+    """scripts/make_mesh_scene.py (bumpy_mesh, icosphere, main, ...) as a module."""
+    return module_from_file(
+        Path(__file__).resolve().parents[1] / "scripts" / "make_mesh_scene.py", "make_mesh_scene")

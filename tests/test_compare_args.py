@@ -3,19 +3,14 @@ files."""
 
 from __future__ import annotations
 
-import importlib.util
 from pathlib import Path
 
 import pytest
+from conftest import module_from_file
 
 ROOT = Path(__file__).resolve().parent.parent
-# benchmarks/ is not a package; the module is imported straight from its file.
-_spec = importlib.util.spec_from_file_location("compare", ROOT / "benchmarks" / "compare.py")
-compare = importlib.util.module_from_spec(_spec)
-_spec.loader.exec_module(compare)
-_spec = importlib.util.spec_from_file_location("stages", ROOT / "benchmarks" / "stages.py")
-stages = importlib.util.module_from_spec(_spec)
-_spec.loader.exec_module(stages)
+compare = module_from_file(ROOT / "benchmarks" / "compare.py", "compare")
+stages = module_from_file(ROOT / "benchmarks" / "stages.py", "stages")
 
 
 def test_scene_names_and_files(tmp_path: Path) -> None:

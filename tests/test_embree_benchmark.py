@@ -3,20 +3,16 @@ embreex (the `embree` extra, which CI does not install) is present."""
 
 from __future__ import annotations
 
-import importlib.util
 import json
 from pathlib import Path
 
 import numpy as np
 import pyopencl as cl
 import pytest
+from conftest import module_from_file
 
 ROOT = Path(__file__).resolve().parent.parent
-# benchmarks/ is not a package; the benchmark is imported straight from its file.
-_spec = importlib.util.spec_from_file_location("embree_benchmark",
-                                               ROOT / "benchmarks" / "embree.py")
-embree_benchmark = importlib.util.module_from_spec(_spec)
-_spec.loader.exec_module(embree_benchmark)
+embree_benchmark = module_from_file(ROOT / "benchmarks" / "embree.py", "embree_benchmark")
 compare_hits = embree_benchmark.compare_hits
 
 

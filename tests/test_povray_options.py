@@ -3,17 +3,14 @@ from POV-Ray's statistics (the logs below are excerpts of POV-Ray 3.7.0.10's own
 
 from __future__ import annotations
 
-import importlib.util
 import re
 from pathlib import Path
 
 import pytest
+from conftest import module_from_file
 
 ROOT = Path(__file__).resolve().parent.parent
-# benchmarks/ is not a package; the module is imported straight from its file.
-_spec = importlib.util.spec_from_file_location("povray", ROOT / "benchmarks" / "povray.py")
-povray = importlib.util.module_from_spec(_spec)
-_spec.loader.exec_module(povray)
+povray = module_from_file(ROOT / "benchmarks" / "povray.py", "povray")
 
 # A 32x18 render of spheres.pov with +AM1 +A0.0 +R4 (the figures as POV-Ray printed them).
 LOG_16 = """\

@@ -5,13 +5,13 @@ its counts would describe another computation."""
 from __future__ import annotations
 
 import dataclasses
-import importlib.util
 import re
 from pathlib import Path
 
 import numpy as np
 import pyopencl as cl
 import pytest
+from conftest import module_from_file
 
 from clray.device.launch import render_packed
 from clray.device.pack import pack_scene
@@ -22,11 +22,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def _stages() -> tuple[str, ...]:
-    # benchmarks/ is not a package; the benchmark is imported straight from its file.
-    spec = importlib.util.spec_from_file_location("stages", ROOT / "benchmarks" / "stages.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module.STAGES
+    return module_from_file(ROOT / "benchmarks" / "stages.py", "stages").STAGES
 
 
 def test_every_counted_stage_is_a_stage_function():

@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import functools
 import io
-import math
 import numbers
 import os
 import struct
@@ -73,8 +72,10 @@ class Encoding:
 
 def is_exposure(value: object) -> bool:
     """Whether `value` is an exposure in stops (EXPOSURE_RULE), however it arrives."""
+    # The bound alone, which NaN and the infinities fail too (math.isfinite raises on a Python
+    # int past a float's range).
     return (not isinstance(value, bool) and isinstance(value, numbers.Real)
-            and math.isfinite(value) and abs(value) <= limits.MAX_EXPOSURE)
+            and abs(value) <= limits.MAX_EXPOSURE)
 
 
 def _as_rgb(image: np.ndarray) -> np.ndarray:

@@ -285,6 +285,8 @@ def test_cli_scene_and_render_settings_reach_the_same_encoding(capsys, cl_device
 
 @pytest.mark.parametrize(("kwargs", "needle"), [
     ({"exposure": float("nan")}, r"RenderSettings.exposure: must be finite, got nan"),
+    # An int past a float's range is out of range, not an OverflowError from math.isfinite.
+    ({"exposure": 10**400}, r"RenderSettings.exposure: must be in \[-\d+, \d+\]"),
     ({"png_bits": 4}, r"RenderSettings.png_bits: expected 8 or 16, got 4"),
     ({"linear": 1}, r"RenderSettings.linear: expected True or False, got 1"),
 ])

@@ -266,6 +266,11 @@ def broken_cases(tmp_path: Path) -> dict[str, tuple[Path, str]]:
     doc("draco", lambda d: d.update(extensionsRequired=["KHR_draco_mesh_compression"]),
         "KHR_draco_mesh_compression")
     doc("version", lambda d: d["asset"].update(version="1.0"), "asset.version")
+    # JSON values of the wrong kind where a number is looked up or compared (found by the fuzzer):
+    doc("component", lambda d: d["accessors"][0].update(componentType=[5126]),
+        "accessors[0].componentType: expected one of 5120")
+    doc("huge", lambda d: d["nodes"][0].update(translation=[10**400, 0, 0]),
+        "nodes[0].translation: expected 3 numbers")
     missing = instanced_cubes().save(tmp_path / "missing.gltf")
     missing.with_suffix(".bin").unlink()
     cases["missing_bin"] = (missing, "buffers[0].uri: cannot read missing.bin: file not found")
@@ -276,7 +281,7 @@ def broken_cases(tmp_path: Path) -> dict[str, tuple[Path, str]]:
 
 
 CASES = ("truncated", "json", "accessor", "count", "index", "cycle", "draco", "version",
-         "missing_bin", "nothing")
+         "component", "huge", "missing_bin", "nothing")
 
 
 @pytest.mark.parametrize("name", CASES)

@@ -278,7 +278,7 @@ class _Reader:
             raise self.error(f"{path}.type", f"expected {' or '.join(widths)} here, got "
                              f"{_shown(kind)}")
         component = spec.get("componentType")
-        if component not in _COMPONENTS:
+        if not _is_int(component) or component not in _COMPONENTS:
             raise self.error(f"{path}.componentType", f"expected one of "
                              f"{', '.join(map(str, _COMPONENTS))}, got {_shown(component)}")
         dtype = np.dtype("<" + _COMPONENTS[component])
@@ -325,7 +325,7 @@ class _Reader:
                              f"{len(values)} elements")
         indices = self.table(sparse.get("indices"), f"{path}.indices")
         index_type = indices.get("componentType")
-        if index_type not in (5121, 5123, 5125):
+        if not _is_int(index_type) or index_type not in (5121, 5123, 5125):
             raise self.error(f"{path}.indices.componentType", f"expected 5121, 5123 or 5125, "
                              f"got {_shown(index_type)}")
         where = self.strided(indices, f"{path}.indices",
@@ -644,8 +644,10 @@ def _is_int(value: Any) -> bool:
 
 
 def _is_number(value: Any) -> bool:
+    # The bound alone, which NaN and the infinities fail too: JSON's integers have no bound, and
+    # math.isfinite raises on one past a float's range, where the comparison is exact.
     return (isinstance(value, int | float) and not isinstance(value, bool)
-            and math.isfinite(value) and abs(value) <= MAX_MAGNITUDE)
+            and abs(value) <= MAX_MAGNITUDE)
 
 
 def _vec(v: np.ndarray) -> tuple[float, float, float]:

@@ -72,7 +72,7 @@ def number_problem(value: object, low: float, high: float) -> str | None:
     """What is wrong with `value` as a number in [low, high] (None if nothing)."""
     if not isinstance(value, numbers.Real) or isinstance(value, bool):
         return "expected a number"
-    if not math.isfinite(value):
+    if not isinstance(value, numbers.Integral) and not math.isfinite(value):  # ints are finite
         return "must be finite"
     if not low <= value <= high:
         return f"must be in [{low:g}, {high:g}]"

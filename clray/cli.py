@@ -57,6 +57,9 @@ from clray.scene.load import load_scene
 from clray.scene.model import Scene
 
 EXIT_INTERRUPTED = 130  # 128 + SIGINT, as shells report it
+# Output folders this command made, so that a command that fails leaves no trace of them: its
+# checks make them before the work.
+_MADE_FOLDERS: list[Path] = []
 SEED_MAX = limits.MAX_SEED
 MAX_REPEAT = 1000
 
@@ -545,9 +548,12 @@ def _check_writable(path: Path) -> None:
 
 def _make_folder(path: Path, folder: Path) -> None:
     """The output's folder, made with its parents where missing (`-o out/frame_%04d.png` in a
-    fresh checkout), as users of other renderers expect; an existing file on the way is named."""
+    fresh checkout), as users of other renderers expect; an existing file on the way is named.
+    The folders made are noted in _MADE_FOLDERS, for main to take back if the command fails."""
+    missing = [p for p in (folder, *folder.parents) if not p.exists()]
     try:
         folder.mkdir(parents=True, exist_ok=True)
+        _MADE_FOLDERS.extend(p.absolute() for p in missing)
     except (FileExistsError, NotADirectoryError):
         blocking = next((p for p in (folder, *folder.parents) if p.exists() and not p.is_dir()),
                         folder)
@@ -1030,6 +1036,18 @@ def main(argv: list[str] | None = None) -> int:
         args = _parse(argv)
     except SystemExit as done:  # argparse exits for --help and for usage errors
         return int(done.code or 0)
+    _MADE_FOLDERS.clear()
+    code = EXIT_RUNTIME
+    try:
+        code = _run(args)
+    finally:
+        if code != EXIT_OK:
+            _remove_made_folders()
+    return code
+
+
+def _run(args: argparse.Namespace) -> int:
+    """The command, its errors as the exit codes of the README."""
     try:
         return args.run(args)
     except ClrayError as err:
@@ -1044,6 +1062,17 @@ def main(argv: list[str] | None = None) -> int:
     except BrokenPipeError:
         _quiet_stdout()
         return EXIT_RUNTIME
+
+
+def _remove_made_folders() -> None:
+    """The output folders this command made, where they are still empty (an animation's frames
+    written before a failure stay, for --resume)."""
+    for folder in sorted(_MADE_FOLDERS, key=lambda p: len(p.parts), reverse=True):
+        try:
+            folder.rmdir()
+        except OSError:
+            pass
+    _MADE_FOLDERS.clear()
 
 
 def run_command() -> NoReturn:

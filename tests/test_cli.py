@@ -564,6 +564,24 @@ def test_missing_frame_folders_are_made(cl_device, tmp_path, capsys, monkeypatch
                                                                        "orbit_0001.png"]
 
 
+def test_a_failed_render_takes_back_the_folders_it_made(tmp_path, capsys) -> None:
+    # The checks make the outputs' folders before the scene is read; a scene that fails to load
+    # must leave none of them, the deepest nested in one another's included.
+    keep = tmp_path / "kept"
+    (keep / "held").mkdir(parents=True)
+    (keep / "held" / "old.png").write_text("")
+    missing = tmp_path / "nothere.toml"
+    code, _, err = run(capsys, "render", missing, "-o", tmp_path / "out" / "a.png",
+                       "--stats-json", tmp_path / "out" / "deep" / "er" / "s.json",
+                       "--aov", "depth", "--aov-preview")
+    assert code == 3
+    assert_one_error_line(err)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["kept"]
+    code, _, err = run(capsys, "render", missing, "-o", keep / "held" / "new" / "a.png")
+    assert code == 3
+    assert sorted(p.name for p in (keep / "held").iterdir()) == ["old.png"]
+
+
 def test_a_file_in_the_output_path_is_named(scene, tmp_path, capsys) -> None:
     (tmp_path / "afile").write_text("not a folder")
     code, _, err = run(capsys, "render", scene, *TINY, "-o", tmp_path / "afile" / "x.png")

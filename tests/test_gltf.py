@@ -227,6 +227,20 @@ def test_strips_and_fans_are_triangles(tmp_path):
     np.testing.assert_array_equal(fan, [[4, 5, 7], [4, 7, 6]])
 
 
+def test_a_primitive_without_a_whole_triangle_draws_nothing(tmp_path):
+    # Two indices (found by the fuzzer): no triangle, so the mesh is left out as a mesh of
+    # points is, not a mesh of no faces; alone in the file it is "no triangles to render".
+    b = Builder()
+    b.node(mesh=b.mesh(CUBE_VERTICES, CUBE_FACES))
+    b.node(mesh=b.mesh([[0, 0, 0], [1, 0, 0], [0, 1, 0]], [0, 1]))
+    (mesh,) = load(b.save(tmp_path / "two.glb")).objects
+    np.testing.assert_array_equal(mesh.faces, CUBE_FACES)
+    alone = Builder()
+    alone.node(mesh=alone.mesh([[0, 0, 0], [1, 0, 0], [0, 1, 0]], [0, 1]))
+    with pytest.raises(SceneError, match="no triangles to render"):
+        load(alone.save(tmp_path / "alone.glb"))
+
+
 def test_sparse_accessor_replaces_values(tmp_path):
     b = Builder()
     cube = b.mesh(CUBE_VERTICES, CUBE_FACES)

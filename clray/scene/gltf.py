@@ -347,7 +347,9 @@ class _Reader:
         for j, value in enumerate(self.items(spec, "primitives", f"{path}.primitives")):
             part = self.primitive(self.table(value, f"{path}.primitives[{j}]"),
                                   f"{path}.primitives[{j}]")
-            if part is not None:
+            # A primitive of fewer than three indices has no triangle: it draws nothing, as
+            # points and lines do not.
+            if part is not None and len(part["faces"]):
                 parts.append(part)
         if "weights" in spec:
             self.warn("morph targets are not modelled (meshes render in their base shape)")

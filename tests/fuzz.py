@@ -639,8 +639,9 @@ def _remove(path: Path) -> None:
 # A scene error names a key path (`objects[3].radius`, `materials."x".ior`) or a line.
 _LOCATED = re.compile(r'^[^:]+: (line \d+: |(?:[\w\[\].-]|"(?:[^"\\]|\\.)*"(?:\.\.\.)?)+: '
                       r"|.*\(at (line \d+|end of document))"
-                      # A PLY file's element (and line), or header line.
-                      r"|^[^:]+: (element [^:,]+(, line \d+)?|header line \d+): ")
+                      # A PLY file's element (its name a word of any characters, as the
+                      # header gives it) and line, or header line.
+                      r"|^[^:]+: (element \S+?(, line \d+)?|header line \d+): ")
 _FILE_LEVEL = ("cannot read scene file", "not valid UTF-8", "unknown scene file type",
                "expected a table at the top level", "cannot read mesh file", "not a PLY file",
                "no end_header line", "no format line", "header of over",

@@ -59,6 +59,10 @@ def test_the_base_scene_renders(cl_device, work):
     ("m.obj: line 3: f: bad vertex reference '1/'", None),
     ("s.toml: invalid TOML: Expected '=' (at line 2, column 3)", None),
     ("s.toml: cannot read scene file: not a regular file", None),
+    # A PLY element's name is a word of any characters (the fuzzer's "verte,x").
+    ("c.ply: element verte,x: 99 records cannot fit in a file of 470 bytes", None),
+    ("c.ply: element vertex, line 12: x must be a number", None),
+    ("c.ply: element vertex bad", "message names neither a key nor a line"),
     ("s.toml: something went wrong", "message names neither a key nor a line"),
     ("s.toml: objects[0]: two\nlines", "message spans lines"),
 ])

@@ -75,8 +75,9 @@ def model_scene_data(path: Path, view: str = DEFAULT_VIEW, ground: bool = False,
     except SceneError as err:
         if err.file is not None:  # an error inside the mesh file names it already
             raise
-        # Not a scene file's key: the mesh file itself could not be opened.
-        raise SceneError(path, None, err.message) from None
+        # Not a scene file's key: the mesh file itself could not be opened, said as a scene
+        # file that cannot be read is (the reason ends with the path as given).
+        raise SceneError(path, None, f"cannot read mesh file: {err.message}") from None
     meshes = _placed_meshes(probe)
     toward, view_up = (np.array(v) for v in VIEWS[view])
     rotation = np.array(UP_ROTATIONS[up], dtype=np.float64)
@@ -183,7 +184,7 @@ def probe_camera(path: Path) -> GltfCamera | None:
     try:
         return read_gltf_camera(read_regular(path, MAX_MESH_BYTES), path)
     except UnreadableFile as exc:
-        raise SceneError(path, None, str(exc)) from None
+        raise SceneError(path, None, f"cannot read mesh file: {exc}") from None
 
 
 def _file_camera(found: GltfCamera, matrix: np.ndarray, offset: np.ndarray

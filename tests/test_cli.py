@@ -419,6 +419,23 @@ def test_fifo_scene_exits_3_without_blocking(capsys, tmp_path, monkeypatch) -> N
     assert err == "clray: error: pipe.toml: cannot read scene file: not a regular file\n"
 
 
+@pytest.mark.parametrize("command", ["render", "scene"])
+def test_an_unreadable_mesh_file_is_said_as_a_scene_file_is(capsys, tmp_path, monkeypatch,
+                                                            command) -> None:
+    # A mesh file given for its automatic scene: "cannot read mesh file", and why, as for a
+    # scene file (the fuzzer's FIFO and symbolic-link loop).
+    monkeypatch.chdir(tmp_path)
+    os.mkfifo(tmp_path / "pipe.obj")
+    os.symlink("loop.ply", tmp_path / "loop.ply")
+    for name, why in [("pipe.obj", "not a regular file: pipe.obj"),
+                      ("loop.ply", "loop.ply"), ("gone.glb", "file not found: gone.glb")]:
+        code, out, err = run(capsys, command, name)
+        assert code == 3 and out == ""
+        assert_one_error_line(err)
+        assert err.startswith(f"clray: error: {name}: cannot read mesh file: "), err
+        assert err.rstrip().endswith(why), err
+
+
 def test_python_warnings_become_clray_warning_lines(capsys, scene, monkeypatch) -> None:
     def warn_and_fail(*_args, **_kwargs):
         warnings.warn("overflow encountered in cast", RuntimeWarning, stacklevel=1)

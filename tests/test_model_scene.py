@@ -103,7 +103,7 @@ def test_an_npz_mesh_renders_from_the_command_line(cl_device, tmp_path, monkeypa
 
 def test_a_missing_mesh_file_is_named(tmp_path, capsys):
     assert main(["scene", str(tmp_path / "none.obj")]) == 3
-    assert "none.obj: file not found" in capsys.readouterr().err
+    assert "none.obj: cannot read mesh file: file not found" in capsys.readouterr().err
 
 
 # -- --up and models at the coordinate limit (issue 43) ----------------------------------------

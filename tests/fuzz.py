@@ -407,13 +407,22 @@ FLAG_VALUES = {
     "-o": ["out.png", "out.pfm", "", ".", "..", "out.jpg", "out", "dir", "dir/", "nodir/x.png",
            "file/x.png", "x\ny.png", "OUT.PNG", "a" * 300 + ".png"],
     "--stats-json": ["s.json", "", ".", "dir", "dir/", "nodir/s.json", "out.png", "x\ny.json"],
+    "--min-weight": ["0", "0.5", "1", "-1", "nan", "inf", "1e-40", "2"],
+    "--exposure": ["0", "-2", "3.5", "nan", "-inf", "1e400", "-1e9", "40"],
+    "--png-bits": ["8", "16", "4", "", "8.0"],
+    "--aov": ["depth", "normal,albedo", "depth,depth", "nothing", "", ",", "DEPTH"],
+    "--frames": ["0", "0:2", "5", "-1", "a:b", "3:1", "0:99999999"],
+    # A scene file's camera is its own: these apply to mesh files only.
+    "--view": ["front", "top", "iso", "x"],
+    "--up": ["y", "z", "-z", "w"],
 }
-FLAG_SWITCHES = ["--srgb", "--linear", "-q", "-v", "--no-such-flag", "-W"]
+FLAG_SWITCHES = ["--srgb", "--linear", "-q", "-v", "--no-such-flag", "-W", "--aov-preview",
+                 "--resume", "--ground", "--no-tuning"]
 
 
 def flags(rng: random.Random) -> list[str]:
     argv = ["render", rng.choice(["scene.toml", "scene.json", "missing.toml", "fifo.toml", "dir",
-                                  "", "scene.yaml"])]
+                                  "", "scene.yaml", "m.obj", "fifo.obj", "loop.obj"])]
     for _ in range(rng.randint(0, 5)):
         if rng.random() < 0.15:
             argv.append(rng.choice(FLAG_SWITCHES))

@@ -49,6 +49,17 @@ from clray.image_io import (
 )
 from clray.knobs import TRAVERSALS
 from clray.metrics import nonfinite_count
+from clray.model_scene import (
+    DEFAULT_UP,
+    DEFAULT_VIEW,
+    MESH_FILE,
+    UP_ROTATIONS,
+    VIEWS,
+    is_mesh_file,
+    load_model_scene,
+    model_scene_data,
+    to_toml,
+)
 from clray.output import is_special_file, output_target, write_bytes_atomically
 from clray.passes import PASS_NAMES, pass_paths, pass_problem
 from clray.render import RenderResult, RenderSettings, render
@@ -167,8 +178,8 @@ def _render_command(commands: Any) -> None:
         "render", help="render a scene file to an image",
         description="Render SCENE. Flags override the scene file's [render] values.")
     r.add_argument("scene", type=_scene_path, metavar="SCENE",
-                   help="scene file (.toml or .json), or a mesh file (.obj, .ply, .npz) to "
-                        "render with an automatic camera and lights")
+                   help=f"scene file (.toml or .json), or a {MESH_FILE} to render with an "
+                        "automatic camera and lights")
     _model_flags(r)
     r.add_argument("-o", "--output", type=_image_path, metavar="OUT",
                    help=f"output image, by suffix: {', '.join(SUFFIXES)} (.png is 8- or "
@@ -257,7 +268,7 @@ def _scene_command(commands: Any) -> None:
                     "MODEL as given, relative to the working directory: save the scene there "
                     "(or edit the name).")
     sc.add_argument("model", type=_scene_path, metavar="MODEL",
-                    help="mesh file (.obj, .ply, .npz)")
+                    help=MESH_FILE)
     _model_flags(sc)
     sc.set_defaults(run=_scene)
 
@@ -377,8 +388,6 @@ def _dask_flags(group: Any, dask_help: str) -> None:
 
 
 def _model_flags(parser: argparse.ArgumentParser) -> None:
-    from clray.model_scene import DEFAULT_UP, DEFAULT_VIEW, UP_ROTATIONS, VIEWS
-
     # Default None, not DEFAULT_VIEW: render refuses --view with a scene file, whose own
     # [camera] sets the view, and so must see whether it was given.
     parser.add_argument("--view", choices=tuple(VIEWS), default=None,
@@ -393,8 +402,6 @@ def _model_flags(parser: argparse.ArgumentParser) -> None:
 
 def _load(args: argparse.Namespace) -> Scene:
     """The scene file, or a mesh file's automatic scene."""
-    from clray.model_scene import DEFAULT_UP, DEFAULT_VIEW, is_mesh_file, load_model_scene
-
     if is_mesh_file(args.scene):
         return load_model_scene(args.scene, args.view or DEFAULT_VIEW, args.ground,
                                 args.up or DEFAULT_UP)
@@ -402,10 +409,8 @@ def _load(args: argparse.Namespace) -> Scene:
 
 
 def _scene(args: argparse.Namespace) -> int:
-    from clray.model_scene import DEFAULT_UP, DEFAULT_VIEW, is_mesh_file, model_scene_data, to_toml
-
     if not is_mesh_file(args.model):
-        raise SceneError(args.model, None, "expected a mesh file (.obj, .ply, .npz)")
+        raise SceneError(args.model, None, f"expected a {MESH_FILE}")
     view = args.view or DEFAULT_VIEW
     up = args.up or DEFAULT_UP
     data = model_scene_data(args.model, view, args.ground, up)
@@ -444,7 +449,6 @@ def _parse(argv: list[str] | None) -> argparse.Namespace:
 
 def _check_still_output(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
     """Flags that a render would otherwise accept and ignore are refused with the reason."""
-    from clray.model_scene import is_mesh_file
     from clray.sequence import frame_path
 
     if not is_mesh_file(args.scene):
@@ -453,7 +457,7 @@ def _check_still_output(parser: argparse.ArgumentParser, args: argparse.Namespac
                                        ("--up", args.up is not None)) if on]
         if given:
             verb = "applies" if len(given) == 1 else "apply"
-            parser.error(f"{' and '.join(given)} {verb} to a mesh file (.obj, .ply, .npz); "
+            parser.error(f"{' and '.join(given)} {verb} to a {MESH_FILE}; "
                          f"{args.scene} is a scene file, whose [camera] and objects are its own")
     if (args.frames is None and args.output != STDOUT
             and frame_path(args.output, 0) != frame_path(args.output, 1)):

@@ -27,6 +27,8 @@ from clray.scene.model import Instance, Mesh, Scene
 from clray.vectors import bounds, unit
 
 MESH_SUFFIXES = (".obj", ".ply", ".npz", *GLTF_SUFFIXES)
+# For help and messages: "mesh file (.obj, .ply, .npz, .gltf, .glb)".
+MESH_FILE = f"mesh file ({', '.join(MESH_SUFFIXES)})"
 # Unit directions from the model's centre to the camera, and the camera's up.
 DEFAULT_VIEW = "three-quarter"
 VIEWS: dict[str, tuple[tuple[float, float, float], tuple[float, float, float]]] = {

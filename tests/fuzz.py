@@ -420,9 +420,20 @@ FLAG_SWITCHES = ["--srgb", "--linear", "-q", "-v", "--no-such-flag", "-W", "--ao
                  "--resume", "--ground", "--no-tuning"]
 
 
+MESH_FILES = ["m.obj", "fifo.obj", "loop.obj", "missing.ply", "dir", "t.png", ""]
+SCENE_FLAGS = ["--view", "--up"]  # `clray scene`'s own, with the switch --ground
+
+
 def flags(rng: random.Random) -> list[str]:
+    if rng.random() < 0.1:  # `clray scene MODEL`: the automatic scene written out
+        argv = ["scene", rng.choice(MESH_FILES)]
+        for _ in range(rng.randint(0, 3)):
+            flag = rng.choice([*SCENE_FLAGS, "--ground", "-o"])
+            argv += [flag] if flag == "--ground" else [flag, rng.choice(
+                FLAG_VALUES[flag])]
+        return argv
     argv = ["render", rng.choice(["scene.toml", "scene.json", "missing.toml", "fifo.toml", "dir",
-                                  "", "scene.yaml", "m.obj", "fifo.obj", "loop.obj"])]
+                                  "", "scene.yaml", *MESH_FILES[:3]])]
     for _ in range(rng.randint(0, 5)):
         if rng.random() < 0.15:
             argv.append(rng.choice(FLAG_SWITCHES))
@@ -654,6 +665,7 @@ _LOCATED = re.compile(r'^[^:]+: (line \d+: |(?:[\w\[\].-]|"(?:[^"\\]|\\.)*"(?:\.
 _FILE_LEVEL = ("cannot read scene file", "not valid UTF-8", "unknown scene file type",
                "expected a table at the top level", "cannot read mesh file", "not a PLY file",
                "no end_header line", "no format line", "header of over",
+               "expected a mesh file",  # `clray scene` given a file of another kind
                # A glTF file's whole-file errors (its other errors name the JSON path).
                "truncated .glb", "not glTF JSON", "JSON nested too deeply",
                "expected a JSON object at the top level", ".glb version", ".glb: the first")
@@ -694,7 +706,9 @@ def _run_cli(argv: list[str], work: Path, before: set[str]) -> Outcome:
     cwd = os.getcwd()
     os.chdir(work)
     try:
-        with contextlib.redirect_stderr(err), contextlib.redirect_stdout(io.StringIO()):
+        # stdout with a binary buffer beneath, as a terminal's: `clray scene` writes bytes.
+        out = io.TextIOWrapper(io.BytesIO(), encoding="utf-8")
+        with contextlib.redirect_stderr(err), contextlib.redirect_stdout(out):
             code = cli.main(argv)
     finally:
         os.chdir(cwd)

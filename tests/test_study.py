@@ -151,6 +151,15 @@ def test_cli_study(tmp_path: Path, tmp_scene, cl_device: cl.Device,
     assert (tmp_path / "o" / "report.md").exists()
 
 
+def test_a_failed_study_takes_back_its_out_folder(tmp_path: Path, capsys) -> None:
+    # The folder is made (and shown writable) before the scenes render; a scene that does not
+    # load ends the study with no folder left behind.
+    out = tmp_path / "o" / "deep"
+    assert main(["study", str(tmp_path / "nothere.toml"), "--out", str(out)]) == 3
+    assert "cannot read scene file" in capsys.readouterr().err
+    assert list(tmp_path.iterdir()) == []
+
+
 def test_cli_study_needs_out(tmp_scene) -> None:
     assert main(["study", str(tmp_scene(SCENE))]) == 2
 

@@ -553,11 +553,17 @@ def _check_writable(path: Path) -> None:
 def _make_folder(path: Path, folder: Path) -> None:
     """The output's folder, made with its parents where missing (`-o out/frame_%04d.png` in a
     fresh checkout), as users of other renderers expect; an existing file on the way is named.
-    The folders made are noted in _MADE_FOLDERS, for main to take back if the command fails."""
-    missing = [p for p in (folder, *folder.parents) if not p.exists()]
+    Each folder this command makes is noted in _MADE_FOLDERS as it is made, for main to take
+    back if the command fails; one that exists is never noted (`new/../kept` names `kept`)."""
     try:
-        folder.mkdir(parents=True, exist_ok=True)
-        _MADE_FOLDERS.extend(p.absolute() for p in missing)
+        for level in (*reversed(folder.parents), folder):  # from the top down
+            try:
+                os.mkdir(level)
+            except FileExistsError:
+                if not level.is_dir():
+                    raise
+                continue
+            _MADE_FOLDERS.append(level.absolute())
     except (FileExistsError, NotADirectoryError):
         blocking = next((p for p in (folder, *folder.parents) if p.exists() and not p.is_dir()),
                         folder)
@@ -587,6 +593,10 @@ def _write_stats(path: Path, stats: dict) -> None:
 
 def _write(path: Path, write: Callable[[], None]) -> None:
     try:
+        if path != STDOUT:
+            # Made again: another clray that made the same new folder and failed has taken it
+            # back (renders started side by side into one new folder).
+            output_target(path).parent.mkdir(parents=True, exist_ok=True)
         write()
     except OSError as err:
         raise ClrayError(f"cannot write {path}: {err.strerror or err}") from err
@@ -1073,7 +1083,7 @@ def _run(args: argparse.Namespace) -> int:
 def _remove_made_folders() -> None:
     """The output folders this command made, where they are still empty (an animation's frames
     written before a failure stay, for --resume)."""
-    for folder in sorted(_MADE_FOLDERS, key=lambda p: len(p.parts), reverse=True):
+    for folder in reversed(_MADE_FOLDERS):  # each after the folders made in it
         try:
             folder.rmdir()
         except OSError:

@@ -597,6 +597,36 @@ def test_a_failed_render_takes_back_the_folders_it_made(tmp_path, capsys) -> Non
     code, _, err = run(capsys, "render", missing, "-o", keep / "held" / "new" / "a.png")
     assert code == 3
     assert sorted(p.name for p in (keep / "held").iterdir()) == ["old.png"]
+    # Empty folders the user had stay, however the path reaches them.
+    (keep / "empty").mkdir()
+    for output in (keep / "empty" / "new" / "a.png", tmp_path / "new" / ".." / "kept" / "empty"
+                   / "a.png"):
+        assert run(capsys, "render", missing, "-o", output)[0] == 3
+        assert sorted(p.name for p in tmp_path.iterdir()) == ["kept"]
+        assert (keep / "empty").is_dir() and not any((keep / "empty").iterdir())
+    # A folder made before a later level's name is refused (too long) is taken back too.
+    code, _, err = run(capsys, "render", missing, "-o", tmp_path / "made" / ("a" * 300) / "x.png")
+    assert code == 1, err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["kept"]
+
+
+def test_the_output_folder_is_made_again_for_the_write(cl_device, scene, tmp_path, capsys,
+                                                       monkeypatch) -> None:
+    # Renders started side by side into one new folder: one that fails takes the folder back
+    # (above) while another renders, whose image and stats must still land.
+    real = cli.render
+
+    def render_while_the_folder_goes(*args, **kwargs):
+        result = real(*args, **kwargs)
+        (tmp_path / "new").rmdir()
+        return result
+
+    monkeypatch.setattr(cli, "render", render_while_the_folder_goes)
+    code, _, err = run(capsys, "render", scene, *TINY, "-o", tmp_path / "new" / "a.png",
+                       "--stats-json", tmp_path / "new" / "s.json")
+    assert code == 0, err
+    assert Image.open(tmp_path / "new" / "a.png").size == (32, 24)
+    assert json.loads((tmp_path / "new" / "s.json").read_text())
 
 
 def test_a_file_in_the_output_path_is_named(scene, tmp_path, capsys) -> None:

@@ -19,9 +19,9 @@ import numpy as np
 from clray.errors import SceneError
 from clray.host_memory import CHUNK_ROWS, by_chunks, small_pages
 from clray.scene.assets import meshes_read_once
-from clray.scene.files import UnreadableFile, read_regular
+from clray.scene.files import UnreadableFile, open_regular, read_regular
 from clray.scene.gltf import GLTF_SUFFIXES, GltfCamera, read_gltf_camera
-from clray.scene.limits import MAX_MAGNITUDE, MAX_MESH_BYTES
+from clray.scene.limits import MAX_BINARY_MESH_BYTES, MAX_MAGNITUDE, MAX_MESH_BYTES
 from clray.scene.load import scene_from_dict
 from clray.scene.model import Instance, Mesh, Scene
 from clray.vectors import bounds, unit
@@ -72,14 +72,20 @@ def model_scene_data(path: Path, view: str = DEFAULT_VIEW, ground: bool = False,
     directory, and written so); `up` names the model's axis that points up."""
     name = path.as_posix()
     try:
+        # Opened first, so that a file that cannot be opened is said as a scene file that cannot
+        # be read is; the probe reads it under the size limit of its kind.
+        open_regular(path, MAX_BINARY_MESH_BYTES)[0].close()
+    except UnreadableFile as exc:
+        raise SceneError(path, None, f"cannot read mesh file: {exc}") from None
+    try:
         probe = scene_from_dict({"camera": {"position": [0, 0, 1], "look_at": [0, 0, 0]},
                                  "objects": [{"type": "mesh", "file": name}]})
     except SceneError as err:
         if err.file is not None:  # an error inside the mesh file names it already
             raise
-        # Not a scene file's key: the mesh file itself could not be opened, said as a scene
-        # file that cannot be read is (the reason ends with the path as given).
-        raise SceneError(path, None, f"cannot read mesh file: {err.message}") from None
+        # Not a scene file's key (the probe's): what the file holds, or its size over its
+        # kind's limit.
+        raise SceneError(path, None, err.message) from None
     meshes = _placed_meshes(probe)
     toward, view_up = (np.array(v) for v in VIEWS[view])
     rotation = np.array(UP_ROTATIONS[up], dtype=np.float64)

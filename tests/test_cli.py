@@ -427,13 +427,13 @@ def test_an_unreadable_mesh_file_is_said_as_a_scene_file_is(capsys, tmp_path, mo
     monkeypatch.chdir(tmp_path)
     os.mkfifo(tmp_path / "pipe.obj")
     os.symlink("loop.ply", tmp_path / "loop.ply")
-    for name, why in [("pipe.obj", "not a regular file: pipe.obj"),
-                      ("loop.ply", "loop.ply"), ("gone.glb", "file not found: gone.glb")]:
+    for name, why in [("pipe.obj", "not a regular file"),
+                      ("loop.ply", "Too many levels of symbolic links"),
+                      ("gone.glb", "file not found")]:
         code, out, err = run(capsys, command, name)
         assert code == 3 and out == ""
         assert_one_error_line(err)
-        assert err.startswith(f"clray: error: {name}: cannot read mesh file: "), err
-        assert err.rstrip().endswith(why), err
+        assert err == f"clray: error: {name}: cannot read mesh file: {why}\n"
 
 
 def test_python_warnings_become_clray_warning_lines(capsys, scene, monkeypatch) -> None:

@@ -233,8 +233,12 @@ def test_a_primitive_without_a_whole_triangle_draws_nothing(tmp_path):
     b = Builder()
     b.node(mesh=b.mesh(CUBE_VERTICES, CUBE_FACES))
     b.node(mesh=b.mesh([[0, 0, 0], [1, 0, 0], [0, 1, 0]], [0, 1]))
-    (mesh,) = load(b.save(tmp_path / "two.glb")).objects
+    loaded = load(b.save(tmp_path / "two.glb"))
+    (mesh,) = loaded.objects
     np.testing.assert_array_equal(mesh.faces, CUBE_FACES)
+    assert [w for w in loaded.warnings if "fewer than three indices" in w] == [
+        "objects[0].file: two.glb: primitives of fewer than three indices are not drawn (no "
+        "whole triangle)"]
     alone = Builder()
     alone.node(mesh=alone.mesh([[0, 0, 0], [1, 0, 0], [0, 1, 0]], [0, 1]))
     with pytest.raises(SceneError, match="no triangles to render"):
@@ -283,6 +287,9 @@ def broken_cases(tmp_path: Path) -> dict[str, tuple[Path, str]]:
     # JSON values of the wrong kind where a number is looked up or compared (found by the fuzzer):
     doc("component", lambda d: d["accessors"][0].update(componentType=[5126]),
         "accessors[0].componentType: expected one of 5120")
+    # An integer, as the glTF schema says: 5126.0 is refused (it hashes as 5126 does).
+    doc("component_float", lambda d: d["accessors"][0].update(componentType=5126.0),
+        "accessors[0].componentType: expected one of 5120")
     doc("huge", lambda d: d["nodes"][0].update(translation=[10**400, 0, 0]),
         "nodes[0].translation: expected 3 numbers")
     missing = instanced_cubes().save(tmp_path / "missing.gltf")
@@ -295,7 +302,7 @@ def broken_cases(tmp_path: Path) -> dict[str, tuple[Path, str]]:
 
 
 CASES = ("truncated", "json", "accessor", "count", "index", "cycle", "draco", "version",
-         "component", "huge", "missing_bin", "nothing")
+         "component", "component_float", "huge", "missing_bin", "nothing")
 
 
 @pytest.mark.parametrize("name", CASES)

@@ -347,10 +347,13 @@ class _Reader:
         for j, value in enumerate(self.items(spec, "primitives", f"{path}.primitives")):
             part = self.primitive(self.table(value, f"{path}.primitives[{j}]"),
                                   f"{path}.primitives[{j}]")
-            # A primitive of fewer than three indices has no triangle: it draws nothing, as
-            # points and lines do not.
-            if part is not None and len(part["faces"]):
-                parts.append(part)
+            if part is None:
+                continue
+            if not len(part["faces"]):
+                self.warn("primitives of fewer than three indices are not drawn (no whole "
+                          "triangle)")
+                continue
+            parts.append(part)
         if "weights" in spec:
             self.warn("morph targets are not modelled (meshes render in their base shape)")
         return _merged(parts) if parts else None

@@ -85,6 +85,12 @@ typedef int4 MASK4;
 // instructions (docs/acceleration.md, Kernels by concept).
 #define OUT_OF_LINE __attribute__((noinline))
 
+// A squared length whose square root needs no scaling against overflow and underflow (the
+// twins' range, below, and the fused builtins' of the accuracy build): M is int for a scalar
+// (1 or 0) and a lane mask for vectors, as their comparisons give.
+#define DEFINE_PLAIN_SQUARED_LENGTH(SPEC, T, M, NAME)                 \
+    SPEC M NAME(T dd) { return (dd >= (T)0x1p-90) & (dd <= (T)0x1p90); }
+
 // MATH_ULPS_OFF (+1 or -1; tests only, tests/conftest.py --opencl-ulps): sin, cos, tan, asin,
 // atan2, exp2 and log2 return results off by OpenCL's error bounds for them (4, 4, 4, 4, 6, 3
 // and 3 ulps, float and double alike) in that direction. The CPU drivers' are within an ulp, a
@@ -152,13 +158,15 @@ MATH_ULPS_OFF_DOUBLE(DEFINE_ULPS_OFF(double, atan2_ulps_off, atan2(y, x), 6, (do
         return MATH_ULPS_OFF > 0 ? fma(a.w, b.w, dot_fused(a.xyz, b.xyz))              \
                                  : fma(a.x, b.x, fma(a.y, b.y, fma(a.z, b.z, a.w * b.w))); \
     }                                                                                  \
+    DEFINE_PLAIN_SQUARED_LENGTH(static inline __attribute__((overloadable)), T, int,  \
+                                plain_fused)                                           \
     static inline __attribute__((overloadable)) T length_fused(T3 v) {                 \
         T dd = dot_fused(v, v);                                                        \
-        return dd >= (T)0x1p-90 && dd <= (T)0x1p90 ? sqrt(dd) : length(v);             \
+        return plain_fused(dd) ? sqrt(dd) : length(v);                                 \
     }                                                                                  \
     static inline __attribute__((overloadable)) T3 normalize_fused(T3 v) {             \
         T dd = dot_fused(v, v);                                                        \
-        return dd >= (T)0x1p-90 && dd <= (T)0x1p90 ? v / sqrt(dd) : normalize(v);      \
+        return plain_fused(dd) ? v / sqrt(dd) : normalize(v);                          \
     }
 DEFINE_FUSED_DOT(float, float2, float3, float4)
 MATH_ULPS_OFF_DOUBLE(DEFINE_FUSED_DOT(double, double2, double3, double4))
@@ -227,10 +235,7 @@ DEFINE_DOT(static inline, REAL, dot_of)
 
 static inline REAL dot3(REAL3 a, REAL3 b) { return dot_of(a.x, a.y, a.z, b.x, b.y, b.z); }
 
-// A squared length whose square root needs no scaling (the twins' range): M is int for REAL
-// (1 or 0) and a lane mask for vectors, as their comparisons give.
-#define DEFINE_PLAIN_SQUARED_LENGTH(SPEC, T, M, NAME)                 \
-    SPEC M NAME(T dd) { return (dd >= (T)0x1p-90) & (dd <= (T)0x1p90); }
+// The twins' range (DEFINE_PLAIN_SQUARED_LENGTH, above; the lanes' in lanes.h).
 DEFINE_PLAIN_SQUARED_LENGTH(static inline, REAL, int, plain_squared_length)
 
 static inline REAL length3(REAL3 v) {

@@ -428,9 +428,8 @@ def flags(rng: random.Random) -> list[str]:
     if rng.random() < 0.1:  # `clray scene MODEL`: the automatic scene written out
         argv = ["scene", rng.choice(MESH_FILES)]
         for _ in range(rng.randint(0, 3)):
-            flag = rng.choice([*SCENE_FLAGS, "--ground", "-o"])
-            argv += [flag] if flag == "--ground" else [flag, rng.choice(
-                FLAG_VALUES[flag])]
+            flag = rng.choice([*SCENE_FLAGS, "--ground"])
+            argv += [flag] if flag == "--ground" else [flag, rng.choice(FLAG_VALUES[flag])]
         return argv
     argv = ["render", rng.choice(["scene.toml", "scene.json", "missing.toml", "fifo.toml", "dir",
                                   "", "scene.yaml", *MESH_FILES[:3]])]

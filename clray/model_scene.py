@@ -21,7 +21,7 @@ from clray.host_memory import CHUNK_ROWS, by_chunks, small_pages
 from clray.scene.assets import meshes_read_once
 from clray.scene.files import UnreadableFile, open_regular, read_regular
 from clray.scene.gltf import GLTF_SUFFIXES, GltfCamera, read_gltf_camera
-from clray.scene.limits import MAX_BINARY_MESH_BYTES, MAX_MAGNITUDE, MAX_MESH_BYTES
+from clray.scene.limits import MAX_MAGNITUDE, mesh_bytes_limit
 from clray.scene.load import scene_from_dict
 from clray.scene.model import Instance, Mesh, Scene
 from clray.vectors import bounds, unit
@@ -72,9 +72,9 @@ def model_scene_data(path: Path, view: str = DEFAULT_VIEW, ground: bool = False,
     directory, and written so); `up` names the model's axis that points up."""
     name = path.as_posix()
     try:
-        # Opened first, so that a file that cannot be opened is said as a scene file that cannot
-        # be read is; the probe reads it under the size limit of its kind.
-        open_regular(path, MAX_BINARY_MESH_BYTES)[0].close()
+        # Opened first, so that a file that cannot be opened (or is over its kind's limit) is
+        # said as a scene file that cannot be read is.
+        open_regular(path, mesh_bytes_limit(path.suffix.lower()))[0].close()
     except UnreadableFile as exc:
         raise SceneError(path, None, f"cannot read mesh file: {exc}") from None
     try:
@@ -190,7 +190,7 @@ def probe_camera(path: Path) -> GltfCamera | None:
         return None
     # The probe's scene has read the file already: it can be read again, and only its JSON.
     try:
-        return read_gltf_camera(read_regular(path, MAX_MESH_BYTES), path)
+        return read_gltf_camera(read_regular(path, mesh_bytes_limit(path.suffix.lower())), path)
     except UnreadableFile as exc:
         raise SceneError(path, None, f"cannot read mesh file: {exc}") from None
 

@@ -141,8 +141,7 @@ class Assets:
     def mesh_file(self, name: Any, key: str) -> ObjMesh:
         """A mesh from an OBJ or PLY file, or a .npz of arrays."""
         suffix = Path(str(name)).suffix.lower()
-        # PLY's ASCII form is held to MAX_MESH_BYTES by read_ply, once its header is read.
-        limit = L.MAX_BINARY_MESH_BYTES if suffix in (".ply", ".npz") else L.MAX_MESH_BYTES
+        limit = L.mesh_bytes_limit(suffix)
         stream, identity = self.open_file(name, key, limit)
         with stream:
             if identity not in self.meshes:
@@ -162,8 +161,7 @@ class Assets:
         """A .gltf or .glb file's model (clray.scene.gltf), read once, with its identity; the
         buffers and images it names are relative to it."""
         # A .glb's and a .bin's arrays are numpy views, as a binary PLY's; a .gltf is JSON.
-        binary = Path(str(name)).suffix.lower() == ".glb"
-        limit = L.MAX_BINARY_MESH_BYTES if binary else L.MAX_MESH_BYTES
+        limit = L.mesh_bytes_limit(Path(str(name)).suffix.lower())
         stream, identity = self.open_file(name, key, limit)
         with stream:
             if identity not in self.models:

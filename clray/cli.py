@@ -552,26 +552,23 @@ def _check_writable(path: Path) -> None:
 
 def _make_folder(path: Path, folder: Path) -> None:
     """The output's folder, made with its parents where missing (`-o out/frame_%04d.png` in a
-    fresh checkout), as users of other renderers expect; an existing file on the way is named.
+    fresh checkout), as users of other renderers expect; what stands in the way is named.
     Each folder this command makes is noted in _MADE_FOLDERS as it is made, for main to take
     back if the command fails; one that exists is never noted (`new/../kept` names `kept`)."""
-    try:
-        for level in (*reversed(folder.parents), folder):  # from the top down
-            try:
-                os.mkdir(level)
-            except FileExistsError:
-                if not level.is_dir():
-                    raise
+    for level in (*reversed(folder.parents), folder):  # from the top down
+        try:
+            os.mkdir(level)
+        except (OSError, ValueError) as err:  # ValueError: a NUL byte in the name
+            # os.path's tests, not Path's: they answer False for a name too long.
+            if os.path.isdir(level):
                 continue
-            _MADE_FOLDERS.append(level.absolute())
-    except (FileExistsError, NotADirectoryError):
-        blocking = next((p for p in (folder, *folder.parents) if p.exists() and not p.is_dir()),
-                        folder)
-        raise ClrayError(f"cannot write {path}: {blocking} is a file, not a directory"
-                         ) from None
-    except OSError as err:
-        raise ClrayError(f"cannot write {path}: cannot make directory {folder}: "
-                         f"{err.strerror or err}") from err
+            if isinstance(err, FileExistsError):
+                what = "a broken symbolic link" if os.path.islink(level) else "a file"
+                raise ClrayError(f"cannot write {path}: {level} is {what}, not a directory"
+                                 ) from None
+            raise ClrayError(f"cannot write {path}: cannot make directory {level}: "
+                             f"{getattr(err, 'strerror', None) or err}") from None
+        _MADE_FOLDERS.append(level.absolute())
 
 
 def _device_flag(parser: argparse.ArgumentParser) -> None:
@@ -596,7 +593,7 @@ def _write(path: Path, write: Callable[[], None]) -> None:
         if path != STDOUT:
             # Made again: another clray that made the same new folder and failed has taken it
             # back (renders started side by side into one new folder).
-            output_target(path).parent.mkdir(parents=True, exist_ok=True)
+            _make_folder(path, output_target(path).parent)
         write()
     except OSError as err:
         raise ClrayError(f"cannot write {path}: {err.strerror or err}") from err

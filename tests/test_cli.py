@@ -24,6 +24,7 @@ from clray import cli
 from clray.device.context import has_fp64
 from clray.errors import EXIT_USAGE, ClrayError
 from clray.image_io import read_pfm
+from clray.scene import limits
 from clray.tuning import Tuning
 
 SCENE = """\
@@ -427,9 +428,14 @@ def test_an_unreadable_mesh_file_is_said_as_a_scene_file_is(capsys, tmp_path, mo
     monkeypatch.chdir(tmp_path)
     os.mkfifo(tmp_path / "pipe.obj")
     os.symlink("loop.ply", tmp_path / "loop.ply")
+    big = limits.MAX_MESH_BYTES + 1  # an OBJ's limit, below a binary mesh's (sparse)
+    with open(tmp_path / "big.obj", "wb") as stream:
+        stream.truncate(big)
     for name, why in [("pipe.obj", "not a regular file"),
                       ("loop.ply", "Too many levels of symbolic links"),
-                      ("gone.glb", "file not found")]:
+                      ("gone.glb", "file not found"),
+                      ("big.obj", f"{big} bytes is over the limit of {limits.MAX_MESH_BYTES} "
+                                  "bytes")]:
         code, out, err = run(capsys, command, name)
         assert code == 3 and out == ""
         assert_one_error_line(err)
@@ -635,6 +641,17 @@ def test_a_file_in_the_output_path_is_named(scene, tmp_path, capsys) -> None:
     assert code == 1
     assert_one_error_line(err)
     assert f"{tmp_path / 'afile'} is a file, not a directory" in err
+
+
+def test_a_broken_link_in_the_output_path_is_named(scene, tmp_path, capsys) -> None:
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "gone").symlink_to(out / "nowhere")
+    code, _, err = run(capsys, "render", scene, *TINY, "-o", out / "gone" / "sub" / "x.png")
+    assert code == 1
+    assert_one_error_line(err)
+    assert f"{out / 'gone'} is a broken symbolic link, not a directory" in err
+    assert [p.name for p in out.iterdir()] == ["gone"]
 
 
 @pytest.mark.parametrize("flags", [["--view", "front"], ["--ground"],

@@ -83,8 +83,7 @@ def model_scene_data(path: Path, view: str = DEFAULT_VIEW, ground: bool = False,
     except SceneError as err:
         if err.file is not None:  # an error inside the mesh file names it already
             raise
-        # Not a scene file's key (the probe's): what the file holds, or its size over its
-        # kind's limit.
+        # Not a scene file's key (the probe's): what the file holds.
         raise SceneError(path, None, err.message) from None
     meshes = _placed_meshes(probe)
     toward, view_up = (np.array(v) for v in VIEWS[view])

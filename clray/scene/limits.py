@@ -110,9 +110,9 @@ MAX_BINARY_MESH_BYTES = 1024 * MIB
 # The mesh files read so (a binary PLY's header says so too, and read_ply holds an ASCII one
 # to MAX_MESH_BYTES once it has read it).
 BINARY_MESH_SUFFIXES = (".ply", ".npz", ".glb")
+MAX_TEXTURE_BYTES = 256 * MIB
 
 
 def mesh_bytes_limit(suffix: str) -> int:
     """The largest mesh file of this suffix (lower case, with its dot) that is read."""
     return MAX_BINARY_MESH_BYTES if suffix in BINARY_MESH_SUFFIXES else MAX_MESH_BYTES
-MAX_TEXTURE_BYTES = 256 * MIB

@@ -970,6 +970,11 @@ def _tune(args: argparse.Namespace) -> int:
         return EXIT_USAGE
     from clray.tuning.command import run_tune
 
+    if args.out.exists() and not args.out.is_dir():
+        raise ClrayError(f"--out {args.out} exists and is not a directory")
+    # Made (and taken back if the tuning fails before writing in it) and shown writable before
+    # minutes of tuning.
+    _check_writable(args.out / "report.md")
     with _warnings_as_lines(quiet=args.quiet, verbose=False):
         run_tune(args.scenes, args.out, device=args.device, strategy=args.strategy,
                  budget_s=args.budget, allow_error=args.allow_error,

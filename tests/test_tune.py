@@ -15,9 +15,11 @@ import pytest
 from clray import cli
 from clray.device.policy import device_plan
 from clray.device.program import kernel_source
+from clray.errors import ClrayError
 from clray.knobs import TRAVERSALS
 from clray.tuning import KNOB_TABLE, Tuning
 from clray.tuning import tuner as tuner_module
+from clray.tuning.command import run_tune
 
 ROOT = Path(__file__).resolve().parent.parent
 SPHERES = ROOT / "scenes" / "spheres.toml"
@@ -228,6 +230,29 @@ def test_tune_refuses_a_bad_scene_before_writing_anything(kernel_tuner, capsys, 
     assert code == 3
     assert err == "clray: error: bad.toml: camera: missing required key\n"
     assert not (tmp_path / "t").exists()
+
+
+def test_tune_refuses_an_unwritable_out_before_tuning(kernel_tuner, capsys, tmp_path,
+                                                      cl_device) -> None:
+    # Checked before minutes of tuning, as render's -o is, and one line, not a traceback.
+    blocker = tmp_path / "file"
+    blocker.write_text("")
+    code = cli.main(["tune", str(SPHERES), "--budget", "1", "--out", str(blocker / "t")])
+    assert code == 1
+    assert capsys.readouterr().err == (f"clray: error: cannot write {blocker / 't' / 'report.md'}"
+                                       f": {blocker} is a file, not a directory\n")
+    with pytest.raises(ClrayError, match=f"^cannot write {blocker / 't'}: "):
+        run_tune([SPHERES], blocker / "t", budget_s=1)
+
+
+def test_a_failed_tune_takes_back_the_folders_it_made(kernel_tuner, capsys, tmp_path,
+                                                      cl_device) -> None:
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[render]\nwidth = -3\n")
+    code = cli.main(["tune", str(bad), "--out", str(tmp_path / "new" / "t")])
+    assert code == 3
+    assert capsys.readouterr().err == "clray: error: bad.toml: camera: missing required key\n"
+    assert not (tmp_path / "new").exists()
 
 
 def test_later_host_configurations_keep_the_best_kernel_knobs(kernel_tuner, cl_device,

@@ -73,7 +73,10 @@ def run_tune(paths: Sequence[Path], out: Path, *, device: str | None = None,
     cl_device = select_device(device)
     for path in paths:  # a bad scene is one line before anything is written
         load_scene(path)
-    out.mkdir(parents=True, exist_ok=True)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        raise ClrayError(f"cannot write {out}: {err.strerror or err}") from err
     progress = _Progress(budget_s, show_progress)
     tuner = Tuner(cl_device, out, strategy=strategy, budget_s=budget_s,
                   allow_error=allow_error, size=size, progress=progress, **tuner_options)

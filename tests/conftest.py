@@ -21,6 +21,11 @@ render kernels in this process with those builtins off by the whole of their bou
 direction, and the geometric ones fused (kernels/real.h, MATH_ULPS_OFF), so the tests that
 compare against an oracle, or a ray with its lane-wise twins, show whether they hold on any
 OpenCL device, not only on the CPU's (`make test-opencl-ulps`).
+
+A GPU's render kernels are built with GPU_BUILD_OPTIONS (a pixel a work-item, no row segments).
+`--gpu-build` (or CLRAY_TEST_GPU_BUILD=1) builds this process's kernels so on every device, so
+a CPU device runs the code a GPU's work-items run (`make test-opencl-ulps` does,
+with the builtins off as above: as a GPU may build and round).
 """
 
 from __future__ import annotations
@@ -43,6 +48,7 @@ from clray.errors import DeviceError
 SELECT_ENV = "CLRAY_TEST_DEVICES"
 LANES_ENV = "CLRAY_TEST_LANES"
 ULPS_ENV = "CLRAY_TEST_OPENCL_ULPS"
+GPU_BUILD_ENV = "CLRAY_TEST_GPU_BUILD"
 OTHER_LANES = "other"
 # A platform's first word names it well ("Intel(R) OpenCL", "NVIDIA CUDA", "AMD Accelerated
 # Parallel Processing"), except PoCL's.
@@ -67,6 +73,9 @@ def pytest_addoption(parser: pytest.Parser) -> None:
                           "log2 off by OpenCL's whole error bound for them, upwards (1) or "
                           "downwards (-1), and dot, length and normalize fused (default: "
                           f"${ULPS_ENV}, else the device's own)")
+    parser.addoption("--gpu-build", action="store_true", default=None,
+                     help="build the render kernels as for a GPU (one pixel a work-item) on "
+                          f"every device (default: ${GPU_BUILD_ENV}=1)")
 
 
 def _device_required() -> bool:
@@ -134,6 +143,9 @@ def pytest_terminal_summary(terminalreporter: pytest.TerminalReporter,
     ulps = forced_ulps(config)
     if ulps:
         terminalreporter.write_line(f"Builtins off by OpenCL's bounds (MATH_ULPS_OFF={ulps})")
+    if forced_gpu_build(config):
+        terminalreporter.write_line("Render kernels built as for a GPU "
+                                    f"({' '.join(program_module.GPU_BUILD_OPTIONS)})")
 
 
 def pytest_generate_tests(metafunc: pytest.Metafunc) -> None:
@@ -223,6 +235,22 @@ def _forced_ulps(request: pytest.FixtureRequest) -> Iterator[None]:
         yield
         return
     with program_module.math_ulps_off(int(ulps)):
+        yield
+
+
+def forced_gpu_build(config: pytest.Config) -> bool:
+    """Whether the run builds its render kernels as for a GPU (--gpu-build,
+    CLRAY_TEST_GPU_BUILD=1)."""
+    return bool(config.getoption("gpu_build")) or os.environ.get(GPU_BUILD_ENV, "").strip() == "1"
+
+
+@pytest.fixture(autouse=True)
+def _forced_gpu_build(request: pytest.FixtureRequest) -> Iterator[None]:
+    # The builds of this process only, as with --opencl-ulps.
+    if not forced_gpu_build(request.config):
+        yield
+        return
+    with program_module.built_as_for_a_gpu():
         yield
 
 

@@ -16,6 +16,7 @@ from clray.device.bvh_builder import build_bvh_on
 from clray.device.context import queue_for, select_device
 from clray.device.launch import intersect_rays
 from clray.device.pack import pack_scene
+from clray.device.program import built_as_for_a_gpu
 from clray.knobs import Tuning
 from clray.reference import camera_rays
 from clray.render import RenderSettings, render
@@ -60,6 +61,11 @@ def renders(device: str | None) -> dict[str, np.ndarray]:
             settings = RenderSettings(width=WIDTH, height=HEIGHT, spp=SPP, device=device,
                                       precision=precision)
             out[f"{path.stem}/{precision}"] = render(scene, settings).image
+        # As a GPU builds it: a pixel a work-item, the group's work-items side by side (no
+        # row segments), where --data-races sees what they share.
+        with built_as_for_a_gpu():
+            settings = RenderSettings(width=WIDTH, height=HEIGHT, spp=SPP, device=device)
+            out[f"{path.stem}/gpu_build"] = render(scene, settings).image
         # The sample-packet walk with more samples than the hybrid's threshold, so that packets
         # (not only lanes gone on ray by ray) run.
         settings = RenderSettings(width=WIDTH, height=HEIGHT, spp=PACKET_SPP, device=device,

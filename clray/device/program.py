@@ -67,9 +67,9 @@ def device_build_options(device: cl.Device) -> tuple[str, ...]:
     """Options a device's compiler needs whatever the configuration (and math_ulps_off's,
     while it lasts)."""
     if is_oclgrind(device):
-        return OCLGRIND_BUILD_OPTIONS + _ulps_off
+        return OCLGRIND_BUILD_OPTIONS + _as_for_a_gpu + _ulps_off
     if not device.type & cl.device_type.GPU:
-        return _ulps_off
+        return _as_for_a_gpu + _ulps_off
     rounded = (getattr(device, "single_fp_config", 0)
                & cl.device_fp_config.CORRECTLY_ROUNDED_DIVIDE_SQRT)
     return GPU_BUILD_OPTIONS + ((CORRECTLY_ROUNDED,) if rounded else ()) + _ulps_off
@@ -98,6 +98,24 @@ def math_ulps_off(direction: int) -> Iterator[None]:
         yield
     finally:
         _ulps_off = outer
+
+
+# built_as_for_a_gpu's options while it lasts, else none.
+_as_for_a_gpu: tuple[str, ...] = ()
+
+
+@contextmanager
+def built_as_for_a_gpu() -> Iterator[None]:
+    """While it lasts, every kernel this process builds on a CPU device or Oclgrind takes
+    GPU_BUILD_OPTIONS, so that it runs the code a GPU's work-items run (a pixel each, no row
+    segments): for the tests' --gpu-build and Oclgrind's data-race check of that code
+    (tests/oclgrind_run.py). Never set by a render."""
+    global _as_for_a_gpu
+    outer, _as_for_a_gpu = _as_for_a_gpu, GPU_BUILD_OPTIONS
+    try:
+        yield
+    finally:
+        _as_for_a_gpu = outer
 
 
 # The analytic shapes' switches (HAS_SPHERES, ..., HAS_TORI: Shape.switch), fields of every

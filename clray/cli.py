@@ -939,8 +939,10 @@ def _study(args: argparse.Namespace) -> int:
 
     if args.out.exists() and not args.out.is_dir():
         raise ClrayError(f"--out {args.out} exists and is not a directory")
-    # The folder made (and taken back if the study fails) and shown writable before the work.
-    _check_writable(args.out / "results.json")
+    # The folder made (and taken back if the study fails) and shown writable before the work,
+    # and no folder where a file of the study's will go.
+    for name in ("results.json", "report.md", *(f"{path.stem}.png" for path in args.scenes)):
+        _check_writable(args.out / name)
     study = functools.partial(run_study, args.scenes, args.out, repeat=args.repeat,
                               width=args.width, height=args.height, device=args.device,
                               say=(lambda _: None) if args.quiet else _say)

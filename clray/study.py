@@ -10,6 +10,7 @@ counted separately (they make RMSE NaN).
 from __future__ import annotations
 
 import argparse
+import io
 import json
 import math
 import statistics
@@ -24,7 +25,8 @@ import numpy as np
 import pyopencl as cl
 
 from clray import metrics
-from clray.errors import EXIT_OK, EXIT_RUNTIME, one_line, plural
+from clray.errors import EXIT_OK, EXIT_RUNTIME, ClrayError, one_line, plural
+from clray.output import write_bytes_atomically
 from clray.render import RenderSettings, render
 from clray.scene.load import load_scene
 from clray.scene.model import Scene
@@ -267,9 +269,20 @@ def plot_scene(records: list[dict], path: Path) -> bool:
     import matplotlib.pyplot as plt
 
     fig = plot_figure(records)
-    fig.savefig(path, bbox_inches="tight", pad_inches=0.15)
+    png = io.BytesIO()
+    fig.savefig(png, format="png", bbox_inches="tight", pad_inches=0.15)
     plt.close(fig)
+    write_output(path, png.getvalue())
     return True
+
+
+def write_output(path: Path, payload: bytes) -> None:
+    """One of the study's files, whole or not at all (a full disk, a folder in its place): a
+    one-line error, not a traceback and half a file."""
+    try:
+        write_bytes_atomically(path, payload)
+    except OSError as err:
+        raise ClrayError(f"cannot write {path}: {err.strerror or err}") from err
 
 
 def _fmt(value: float | None, spec: str) -> str:
@@ -344,7 +357,7 @@ def write_report(records: list[dict], out: Path, repeat: int, device: str,
             lines += ["", f"![time vs error, {scene}]({scene}.png)"]
     if not any(plots.values()):
         lines += ["", "Plots skipped: matplotlib is not installed (`pip install 'clray[plot]'`)."]
-    (out / "report.md").write_text("\n".join(lines) + "\n", encoding="utf-8")
+    write_output(out / "report.md", ("\n".join(lines) + "\n").encode("utf-8"))
 
 
 def run_study(paths: Sequence[Path], out: Path, *, repeat: int = 3,
@@ -357,7 +370,12 @@ def run_study(paths: Sequence[Path], out: Path, *, repeat: int = 3,
     task a scene: clray.distributed.study_scenes); its records name their device."""
     from clray.device.context import describe, select_device
 
-    out.mkdir(parents=True, exist_ok=True)
+    for path in paths:  # a bad scene is one line before minutes of rendering the others
+        load_scene(path)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        raise ClrayError(f"cannot write {out}: {err.strerror or err}") from err
     base = RenderSettings(width=width, height=height, device=device)
     records: list[dict] = []
     if run_scenes is not None:
@@ -377,9 +395,9 @@ def run_study(paths: Sequence[Path], out: Path, *, repeat: int = 3,
                    + "; ".join(sorted(set(workers.values())))
                    + "), each scene's variants all on one worker, whose name each scene's "
                    "section gives: times compare within a scene, not across scenes")
-    (out / "results.json").write_text(
-        json.dumps({"device": device_name, "repeat": repeat, "records": records}, indent=1)
-        + "\n", encoding="utf-8")
+    write_output(out / "results.json", (json.dumps(
+        {"device": device_name, "repeat": repeat, "records": records}, indent=1)
+        + "\n").encode("utf-8"))
     write_report(records, out, repeat, device_name, plots)
     return records
 
@@ -408,7 +426,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     try:
         plots = replot(args.folder)
-    except (OSError, ValueError, KeyError, TypeError) as err:
+    except (ClrayError, OSError, ValueError, KeyError, TypeError) as err:
         print(f"clray: error: cannot replot {args.folder}: {one_line(str(err))}", file=sys.stderr)
         return EXIT_RUNTIME
     if not all(plots.values()):

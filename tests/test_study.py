@@ -160,6 +160,47 @@ def test_a_failed_study_takes_back_its_out_folder(tmp_path: Path, capsys) -> Non
     assert list(tmp_path.iterdir()) == []
 
 
+def test_a_bad_scene_stops_the_study_before_any_render(tmp_path: Path, tmp_scene, capsys,
+                                                       cl_device: cl.Device,
+                                                       monkeypatch: pytest.MonkeyPatch) -> None:
+    # Every scene loads before the first renders: minutes of variants are not thrown away
+    # for a typo in the last scene.
+    rendered = []
+    monkeypatch.setattr(study, "study_scene", lambda path, *a, **k: rendered.append(path))
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[render]\nwidth = -3\n")
+    assert main(["study", str(tmp_scene(SCENE)), str(bad), "--out", str(tmp_path / "o")]) == 3
+    assert capsys.readouterr().err == "clray: error: bad.toml: camera: missing required key\n"
+    assert rendered == [] and not (tmp_path / "o").exists()
+
+
+def test_a_folder_where_a_study_file_goes_is_refused_before_rendering(
+        tmp_path: Path, tmp_scene, capsys, cl_device: cl.Device) -> None:
+    scene = tmp_scene(SCENE)
+    for name in ("report.md", f"{scene.stem}.png"):
+        out = tmp_path / name.replace(".", "_")
+        (out / name).mkdir(parents=True)
+        assert main(["study", str(scene), "--out", str(out), "-q"]) == 1
+        assert capsys.readouterr().err == (f"clray: error: cannot write {out / name}: "
+                                           "it is a directory\n")
+
+
+def test_a_study_file_that_cannot_be_written_is_one_line_and_never_half_written(
+        tmp_path: Path, tmp_scene, capsys, monkeypatch: pytest.MonkeyPatch) -> None:
+    # A full disk after the renders: results.json is there whole or not at all.
+    def full_disk(source: object, target: object) -> None:
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(study, "study_scene", lambda path, *a, **k: [])
+    monkeypatch.setattr(study, "plot_scenes", lambda records, out: {})
+    monkeypatch.setattr("os.replace", full_disk)
+    out = tmp_path / "o"
+    assert main(["study", str(tmp_scene(SCENE)), "--out", str(out), "-q"]) == 1
+    assert capsys.readouterr().err == (f"clray: error: cannot write {out / 'results.json'}: "
+                                       "No space left on device\n")
+    assert not out.exists() or list(out.iterdir()) == []
+
+
 def test_cli_study_needs_out(tmp_scene) -> None:
     assert main(["study", str(tmp_scene(SCENE))]) == 2
 

@@ -25,7 +25,7 @@ def is_special_file(path: Path) -> bool:
     """An existing file that is not a regular file: a device (/dev/stdout), a pipe."""
     try:
         mode = os.stat(path).st_mode
-    except OSError:
+    except (OSError, ValueError):  # ValueError: a NUL byte in the name; the writer reports it
         return False
     return not (stat.S_ISREG(mode) or stat.S_ISDIR(mode))
 

@@ -38,6 +38,7 @@ from clray.device.context import context_for, describe, select_device
 from clray.device.launch import render_packed
 from clray.device.pack import PackedScene
 from clray.device.program import KernelConfig, build_program
+from clray.errors import EXIT_OPENCL, ClrayError, DeviceError, one_line
 from clray.render import RenderSettings, pack_for
 from clray.scene.load import load_scene
 
@@ -119,8 +120,28 @@ def new_process_build(config: KernelConfig, device_spec: str | None,
            json.dumps(dataclasses.asdict(config))]
     if device_spec:
         cmd += ["--device", device_spec]
-    out = subprocess.run(cmd, check=True, capture_output=True, text=True, env=env).stdout
-    return {key: float(value) for key, value in json.loads(out.splitlines()[-1]).items()}
+    try:
+        done = subprocess.run(cmd, capture_output=True, text=True, env=env)
+    except OSError as err:
+        raise ClrayError(f"cannot start a new process to time the kernel build: "
+                         f"{err.strerror or err}") from None
+    if done.returncode != 0:
+        raise _child_error(done.returncode, done.stderr)
+    return {key: float(value) for key, value in json.loads(done.stdout.splitlines()[-1]).items()}
+
+
+def _child_error(returncode: int, stderr: str) -> ClrayError:
+    """The failure of a --build-only process, as the error it reported: its last line on stderr
+    (its `clray: error:` line, or a traceback's last line), of the class its exit code says."""
+    lines = [line.strip() for line in stderr.splitlines() if line.strip()]
+    if lines:
+        reason = lines[-1].removeprefix("clray: error: ")
+    elif returncode < 0:
+        reason = f"killed by signal {-returncode}"
+    else:
+        reason = f"exit status {returncode}, and no message"
+    error = DeviceError if returncode == EXIT_OPENCL else ClrayError
+    return error(one_line(f"kernel build in a new process failed: {reason}"))
 
 
 def build_seconds(config: KernelConfig, device_spec: str | None,
@@ -144,7 +165,13 @@ def profile_scene(path: Path, settings: RenderSettings, repeat: int = 3) -> dict
     """The whole profile of the scene at `path` rendered with `settings` on its device."""
     device = select_device(settings.device)
     packed = pack_for(load_scene(path), settings, device)
-    with tempfile.TemporaryDirectory(prefix="clray-profile-") as pocl_cache:
+    try:
+        cache = tempfile.TemporaryDirectory(prefix="clray-profile-")
+    except OSError as err:  # TMPDIR full or read-only, or no usable temporary folder at all
+        where = f" in {os.path.dirname(err.filename)}" if err.filename else ""
+        raise ClrayError(f"cannot make a temporary folder{where} for the cold build's kernel "
+                         f"cache: {err.strerror or err}") from None
+    with cache as pocl_cache:
         cold = build_seconds(packed.config, settings.device, Path(pocl_cache))
         warm = build_seconds(packed.config, settings.device, Path(pocl_cache))
     split = time_split(packed, device, repeat)
@@ -177,7 +204,12 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--build-only", required=True)
     parser.add_argument("--device")
     args = parser.parse_args(argv)
-    _build_only(args.build_only, args.device)
+    try:
+        _build_only(args.build_only, args.device)
+    except ClrayError as err:
+        # One line, and the exit code of its class, for new_process_build to pass on.
+        print(f"clray: error: {one_line(str(err))}", file=sys.stderr)
+        sys.exit(err.exit_code)
 
 
 if __name__ == "__main__":

@@ -7,6 +7,7 @@ import threading
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from clray.cli import main
 from clray.image_io import read_pfm
@@ -58,3 +59,21 @@ def test_render_through_a_symlinked_output(cl_device, tmp_path):
     assert link.is_symlink()
     image = read_pfm(target)
     assert image.shape == (12, 16, 3) and np.all(np.isfinite(image))
+
+
+@pytest.mark.parametrize("args", [
+    ["render", "-W", "8", "-H", "6", "-o", "a\0b.png"],
+    ["render", "-W", "8", "-H", "6", "-o", "ok.png", "--stats-json", "a\0b.json"],
+    ["tune", "--out", "a\0b"],
+    ["study", "--out", "a\0b"],
+], ids=["render-o", "stats-json", "tune-out", "study-out"])
+def test_a_nul_byte_in_an_output_name_is_a_one_line_error(cl_device, capsys, monkeypatch,
+                                                          tmp_path, args):
+    # os.stat raises ValueError, not OSError, for such a name.
+    monkeypatch.chdir(tmp_path)
+    code = main([args[0], str(ROOT / "scenes" / "spheres.toml"), *args[1:]])
+    err = capsys.readouterr().err.splitlines()
+    assert code == 1
+    assert len(err) == 1 and err[0].startswith("clray: error: cannot write a\\x00b")
+    assert err[0].endswith(": embedded null byte")
+    assert list(tmp_path.iterdir()) == []

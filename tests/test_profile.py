@@ -3,11 +3,15 @@
 from __future__ import annotations
 
 import json
+import sys
+import tempfile
 from pathlib import Path
 
 import pytest
 
-from clray import cli
+from clray import cli, profile
+from clray.device.program import KernelConfig
+from clray.errors import DeviceError
 from clray.render import RenderSettings, render
 
 SPHERES = Path(__file__).resolve().parent.parent / "scenes" / "spheres.toml"
@@ -77,3 +81,38 @@ def test_profile_prints_a_summary(cl_device, capsys) -> None:
     assert lines[5].startswith("tests per closest-hit ray: ")
     assert lines[6].startswith("kernel build: ") and "cold" in lines[6]
     assert lines[7].startswith("scene on device: ")
+
+
+def test_a_failed_build_process_is_its_own_device_error(cl_device) -> None:
+    # The new process refuses the option before it builds: its DeviceError, not a
+    # CalledProcessError with the config dumped in it.
+    config = KernelConfig(build_options=("-bogus",))
+    with pytest.raises(DeviceError, match=r"^kernel build in a new process failed: "
+                                          r"unsupported build option\(s\): -bogus$"):
+        profile.new_process_build(config, None)
+
+
+def test_profile_reports_a_crashed_build_process_in_one_line(cl_device, capsys, monkeypatch,
+                                                              tmp_path) -> None:
+    # As a build process that a full TMPDIR kills: a traceback, whose last line is the reason.
+    child = tmp_path / "python"
+    child.write_text("#!/bin/sh\necho 'Traceback (most recent call last):' >&2\n"
+                     "echo 'OSError: [Errno 28] No space left on device' >&2\nexit 1\n")
+    child.chmod(0o755)
+    monkeypatch.setattr(sys, "executable", str(child))
+    code = cli.main(["profile", str(SPHERES), "-W", "8", "-H", "6", "--repeat", "1"])
+    assert code == 1
+    assert capsys.readouterr().err.splitlines() == [
+        "clray: error: kernel build in a new process failed: OSError: [Errno 28] No space left "
+        "on device"]
+
+
+def test_profile_without_a_temporary_folder_is_an_error(cl_device, capsys, monkeypatch,
+                                                       tmp_path) -> None:
+    missing = tmp_path / "missing"
+    monkeypatch.setattr(tempfile, "tempdir", str(missing))
+    code = cli.main(["profile", str(SPHERES), "-W", "8", "-H", "6", "--repeat", "1"])
+    assert code == 1
+    assert capsys.readouterr().err.splitlines() == [
+        f"clray: error: cannot make a temporary folder in {missing} for the cold build's "
+        "kernel cache: No such file or directory"]

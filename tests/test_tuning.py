@@ -7,6 +7,8 @@ from __future__ import annotations
 import dataclasses
 import importlib
 import json
+import os
+import re
 import uuid
 import warnings
 from pathlib import Path
@@ -380,6 +382,29 @@ def test_a_tuning_file_that_is_not_utf8_is_ignored_with_its_line_and_column(cl_d
         assert store.load_tuning(cl_device) is None
     assert [str(w.message) for w in caught] == [
         f"ignoring tuning file {path}: line 2, column 14: not valid UTF-8 (byte 0xff)"]
+
+
+@pytest.mark.parametrize(("make", "words"), [
+    (lambda path: path.write_text("[" * 200_000 + "]" * 200_000), "not JSON (nested too deeply)"),
+    (lambda path: os.mkfifo(path), "not a regular file"),  # reading it would wait for a writer
+    (lambda path: path.symlink_to("/dev/zero"), "not a regular file"),  # would never end
+    (lambda path: path.write_bytes(b" " * (store.MAX_TUNING_FILE_BYTES + 1)),
+     f"{store.MAX_TUNING_FILE_BYTES + 1} bytes is over the limit"),
+], ids=["deep", "fifo", "dev-zero", "huge"])
+def test_a_tuning_file_that_cannot_be_read_safely_is_ignored(cl_device, make, words) -> None:
+    path = store.tuning_path(cl_device)
+    path.parent.mkdir(parents=True)
+    make(path)
+    with pytest.warns(UserWarning, match=re.escape(f"ignoring tuning file {path}: {words}")):
+        assert store.chosen_tuning(cl_device) == (DEFAULT_TUNING, "default")
+
+
+def test_devices_command_calls_an_unreadable_tuning_file_invalid(cl_device, capsys) -> None:
+    path = store.tuning_path(cl_device)
+    path.parent.mkdir(parents=True)
+    os.mkfifo(path)
+    assert cli.main(["devices"]) == 0
+    assert "tuning file stale or invalid" in capsys.readouterr().out
 
 
 def test_cache_directory_follows_xdg(monkeypatch, tmp_path) -> None:

@@ -21,8 +21,13 @@ import pyopencl as cl
 from clray.errors import utf8_problem
 from clray.knobs import DEFAULT_TUNING, Tuning, TuningError
 from clray.output import write_bytes_atomically
+from clray.scene.files import UnreadableFile, read_regular
 
 FORMAT = 1
+# What `clray tune` writes is the knobs and a summary of a few kB a scene tuned on (at most
+# 2 x MAX_CONFIRM_ROUNDS render times each): 1 MiB holds hundreds of scenes' worth. A larger
+# file was not written by it, and reading it whole could take the memory a render needs.
+MAX_TUNING_FILE_BYTES = 2**20
 
 
 def cache_dir() -> Path:
@@ -73,11 +78,17 @@ def load_tuning(device: cl.Device) -> tuple[Tuning, Path] | None:
     a warning naming the file where one exists but is invalid or stale)."""
     path = tuning_path(device)
     try:
-        raw = path.read_bytes()
+        os.stat(path)  # through a link, as the read goes
     except FileNotFoundError:
-        return None
-    except OSError as err:
-        warnings.warn(f"ignoring tuning file {path}: {err.strerror or err}", stacklevel=2)
+        return None  # never tuned (or a link to nothing, as before): the defaults, silently
+    except OSError:
+        pass  # there but not to be looked at: read_regular's reason is the warning
+    try:
+        # Only a regular file, opened without blocking: a FIFO there would hang every render,
+        # and a link to /dev/zero would be read until the memory runs out.
+        raw = read_regular(path, MAX_TUNING_FILE_BYTES)
+    except UnreadableFile as err:
+        warnings.warn(f"ignoring tuning file {path}: {err}", stacklevel=2)
         return None
     try:
         record = json.loads(raw.decode("utf-8"))
@@ -90,6 +101,8 @@ def load_tuning(device: cl.Device) -> tuple[Tuning, Path] | None:
         problem = f"not JSON ({err})"
     except (TuningError, TypeError) as err:
         problem = str(err)
+    except RecursionError:  # json.loads recurses once per nested array or object
+        problem = "not JSON (nested too deeply)"
     warnings.warn(f"ignoring tuning file {path}: {problem}", stacklevel=2)
     return None
 

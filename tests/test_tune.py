@@ -8,6 +8,7 @@ from __future__ import annotations
 import json
 import sys
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -19,7 +20,7 @@ from clray.errors import ClrayError
 from clray.knobs import TRAVERSALS
 from clray.tuning import KNOB_TABLE, Tuning
 from clray.tuning import tuner as tuner_module
-from clray.tuning.command import run_tune
+from clray.tuning.command import least_budget_s, run_tune, untried
 
 ROOT = Path(__file__).resolve().parent.parent
 SPHERES = ROOT / "scenes" / "spheres.toml"
@@ -253,6 +254,46 @@ def test_a_failed_tune_takes_back_the_folders_it_made(kernel_tuner, capsys, tmp_
     assert code == 3
     assert capsys.readouterr().err == "clray: error: bad.toml: camera: missing required key\n"
     assert not (tmp_path / "new").exists()
+
+
+@pytest.mark.parametrize("budget", ["0", "1"])
+def test_a_budget_too_small_to_try_anything_says_so_and_skips_the_plot(
+        kernel_tuner, cl_device, tmp_path, capsys, budget) -> None:
+    # Only the reference render fits: the plot of no rows was a matplotlib traceback, after
+    # results.json and before report.md.
+    out = tmp_path / "t"
+    code = cli.main(["tune", str(SPHERES), "-W", "32", "-H", "18", "--budget", budget,
+                     "--out", str(out)])
+    err = capsys.readouterr().err
+    assert code == 0, err
+    said = f"clray: nothing tried on spheres within the budget of {budget} s: the reference render"
+    assert said in err and "leaves a scene untried" in err
+    assert "nothing stored" in err
+    report = (out / "report.md").read_text()
+    assert "**Budget:** nothing tried on spheres" in report
+    assert "Nothing tried within the budget." in report
+    assert "Plot skipped: nothing was tried." in report
+    assert not (out / "tune.png").exists()
+    results = json.loads((out / "results.json").read_text())
+    assert results["trials"] == [] and results["untried"].startswith("nothing tried on spheres")
+
+
+def test_the_least_budget_counts_each_scenes_reference_and_a_runs_start() -> None:
+    # Scene 0's share (half) must hold its reference and a run's 2 s; scene 1's end (the whole
+    # budget) both references and 2 s.
+    assert least_budget_s([1.0]) == pytest.approx(3.0)
+    assert least_budget_s([1.0, 3.0]) == pytest.approx(6.0)
+    assert least_budget_s([3.0, 0.5]) == pytest.approx(10.0)
+    runs = [SimpleNamespace(name="a", reference_s=1.0), SimpleNamespace(name="b", reference_s=1.0)]
+    trial = tuner_module.Trial("a", Tuning(), 1.0, [1.0], 0.0, True, 0)
+    assert untried(runs, [trial], 100.0) == (
+        "nothing tried on b within the budget of 100 s: Kernel Tuner's runs started, but the "
+        "budget ended before their first configuration was timed")
+    assert untried(runs, [trial], 5.0) == (
+        "nothing tried on b within the budget of 5 s: the reference renders took 2 s of it, and "
+        "a Kernel Tuner run starts only while 2 s of a scene's share is left: a budget under "
+        "6 s leaves a scene untried")
+    assert untried(runs[:1], [trial], 5.0) is None
 
 
 def test_later_host_configurations_keep_the_best_kernel_knobs(kernel_tuner, cl_device,

@@ -17,7 +17,9 @@ from clray.knobs import DEFAULT_TUNING, IMAGE_KNOBS, Tuning
 from clray.scene.load import load_scene
 from clray.tuning import report
 from clray.tuning.tuner import (
+    MIN_RUN_BUDGET_S,
     PIXEL_TOLERANCE,
+    SceneRun,
     Trial,
     Tuner,
     best_configuration,
@@ -62,6 +64,34 @@ def _verdict_text(verdict: dict) -> str:
             f"(rounds' middle half {lower:.3f}x to {upper:.3f}x)")
 
 
+def least_budget_s(reference_s: Sequence[float]) -> float:
+    """The budget under which some scene can start no Kernel Tuner run, from the seconds each
+    scene's reference render took: scene k's share ends at budget * (k + 1) / n, by when the
+    references of scenes 0 to k have taken their time, and a run starts only while
+    MIN_RUN_BUDGET_S of it is left. A lower bound: earlier scenes' runs, where they start, take
+    time too."""
+    n = len(reference_s)
+    return max(n * (sum(reference_s[: k + 1]) + MIN_RUN_BUDGET_S) / (k + 1) for k in range(n))
+
+
+def untried(runs: Sequence[SceneRun], trials: Sequence[Trial], budget_s: float) -> str | None:
+    """The scenes on which nothing was tried within the budget and why, in words; None where
+    every scene had a configuration tried."""
+    names = [run.name for run in runs if not any(t.scene == run.name for t in trials)]
+    if not names:
+        return None
+    text = f"nothing tried on {', '.join(names)} within the budget of {budget_s:g} s"
+    least = least_budget_s([run.reference_s for run in runs])
+    if least <= budget_s:
+        return text + (": Kernel Tuner's runs started, but the budget ended before their first "
+                       "configuration was timed")
+    spent = sum(run.reference_s for run in runs)
+    return text + (f": the {'reference render' if len(runs) == 1 else 'reference renders'} took "
+                   f"{spent:.2g} s of it, and a Kernel Tuner run starts only while "
+                   f"{MIN_RUN_BUDGET_S:g} s of a scene's share is left: a budget under "
+                   f"{least:.3g} s leaves a scene untried")
+
+
 def run_tune(paths: Sequence[Path], out: Path, *, device: str | None = None,
              strategy: str = "brute_force", budget_s: float = 120.0,
              allow_error: float | None = None, size: tuple[int | None, int | None] = (None, None),
@@ -95,6 +125,7 @@ def run_tune(paths: Sequence[Path], out: Path, *, device: str | None = None,
                            if allow_error is not None else
                            "not tried (they change the image; --allow-error E tries them): ")
               + ", ".join(IMAGE_KNOBS),
+              "untried": untried(tuner.runs, trials, budget_s),
               "best": None, "tuning_file": None}
     confirmed = []
     if best is not None:
@@ -122,11 +153,13 @@ def run_tune(paths: Sequence[Path], out: Path, *, device: str | None = None,
                 "scenes": header["scenes"], "strategy": strategy, "budget_s": budget_s,
                 "best": header["best"], "confirmed": confirmed}))
     report.write_results(out, header, trials)
-    plotted = report.plot(out, trials, best[0] if best else None)
-    report.write_report(out, header, trials, best[0] if best else None, confirmed, plotted)
+    plot_skipped = report.plot(out, trials, best[0] if best else None)
+    report.write_report(out, header, trials, best[0] if best else None, confirmed, plot_skipped)
     rejected = sum(not t.verified for t in trials)
     say(f"tried {plural(len(trials), 'configuration')} on {describe(cl_device)}, "
         f"{rejected} rejected")
+    if header["untried"]:
+        say(header["untried"])
     say(f"study variants {header['variants']}")
     for c in confirmed:
         say(f"{c['scene']}: default {c['default_kernel_s'] * 1e3:.3g} ms, tuned "

@@ -287,6 +287,8 @@ class SceneRun:
     reference: np.ndarray
     default_packed: PackedScene
     spp: int
+    # Seconds the scene's load, packing and reference render took, out of the budget.
+    reference_s: float
 
 
 class Tuner:
@@ -327,6 +329,7 @@ class Tuner:
         self.runs: list[SceneRun] = []
 
     def prepare(self, path: Path) -> SceneRun:
+        start = time.monotonic()
         scene = load_scene(path)
         settings = RenderSettings(width=self.size[0], height=self.size[1],
                                   tuning=DEFAULT_TUNING)
@@ -338,7 +341,8 @@ class Tuner:
                           f"{stats['kernel_s'] * 1e3:.2g} ms, too short to time against the "
                           f"machine's noise (under {MIN_TIMED_KERNEL_S * 1e3:.0f} ms): tune at "
                           "the size you render, or larger (-W, -H)", stacklevel=2)
-        return SceneRun(path.stem, path, settings, reference, packed, scene.render.spp)
+        return SceneRun(path.stem, path, settings, reference, packed, scene.render.spp,
+                        time.monotonic() - start)
 
     def tolerance(self, reference: np.ndarray) -> Tolerance:
         n = reference.shape[0] * reference.shape[1]

@@ -6,6 +6,7 @@ the cache file resumed by a second run, and the stored winner used by `clray ren
 from __future__ import annotations
 
 import json
+import re
 import sys
 from pathlib import Path
 from types import SimpleNamespace
@@ -294,6 +295,31 @@ def test_the_least_budget_counts_each_scenes_reference_and_a_runs_start() -> Non
         "a Kernel Tuner run starts only while 2 s of a scene's share is left: a budget under "
         "6 s leaves a scene untried")
     assert untried(runs[:1], [trial], 5.0) is None
+
+
+def test_each_image_size_has_its_own_cache_and_a_broken_one_is_one_line(
+        kernel_tuner, cl_device, tmp_path) -> None:
+    # Kernel Tuner refuses a cache file of another image size: with one per scene, a second
+    # tune at another size into the same --out (by default clray-tune) was its traceback.
+    one = {**TWO, "work_group_width": (64,)}
+    tune(cl_device, tmp_path, size=(32, 18), space=one)
+    assert tune(cl_device, tmp_path, size=(40, 18), space=one)
+    (device,) = (tmp_path / "cache").iterdir()
+    assert sorted(p.name for p in (device / "spheres").iterdir()) == ["32x18", "40x18"]
+    cache = device / "spheres" / "32x18" / "default.json"
+    record = cache.read_text()
+    refused = f"^Kernel Tuner's cache file {re.escape(str(cache))}: .+: delete it, or tune into " \
+              "another --out$"
+    # Empty or cut short mid-entry (Kernel Tuner's JSONDecodeError), read as they are, not
+    # 'mended'; another kernel's (its ValueError).
+    for text in ("", record[:-40]):
+        cache.write_text(text)
+        with pytest.raises(ClrayError, match=refused):
+            tune(cl_device, tmp_path, size=(32, 18), space=one)
+        assert cache.read_text() == text
+    cache.write_text(record.replace('"render"', '"other"'))
+    with pytest.raises(ClrayError, match=refused):
+        tune(cl_device, tmp_path, size=(32, 18), space=one)
 
 
 def test_later_host_configurations_keep_the_best_kernel_knobs(kernel_tuner, cl_device,

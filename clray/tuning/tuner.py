@@ -279,6 +279,32 @@ def _slug(text: str) -> str:
     return re.sub(r"[^A-Za-z0-9.=]+", "_", text).strip("_")[:120] or "default"
 
 
+def _cache_error(cache: Path, why: str) -> ClrayError:
+    return ClrayError(f"Kernel Tuner's cache file {cache}: {why}: delete it, or tune into "
+                      "another --out")
+
+
+def check_cache(cache: Path) -> None:
+    """A cache file that Kernel Tuner would fail to read with a traceback (empty, cut short
+    mid-entry, not its format) refused in one line. Kernel Tuner itself mends one whose run
+    stopped between entries, and an empty one it would 'mend' into a lone comma: it is read
+    here without mending."""
+    if not cache.exists():
+        return
+    from kernel_tuner.util import read_cache
+
+    try:
+        # The header entries Kernel Tuner looks up before it checks them.
+        readable = {"device_name", "kernel_name", "tune_params_keys"} <= read_cache(
+            str(cache), open_cache=False).keys()
+    except OSError as err:
+        raise _cache_error(cache, err.strerror or str(err)) from None
+    except (ValueError, LookupError, TypeError, AttributeError):  # JSON's, and its shape's
+        readable = False
+    if not readable:
+        raise _cache_error(cache, "not a Kernel Tuner cache file (cut short, or changed)")
+
+
 @dataclass
 class SceneRun:
     name: str
@@ -365,8 +391,11 @@ class Tuner:
         options = [o for o in packed.config.options() if not o.startswith(tuned)]
         answer = [None] * len(args)
         answer[image_index] = args[image_index]
-        cache = self.out / "cache" / _slug(self.device.name) / run.name / f"{_slug(base.label())}"
+        # Kernel Tuner refuses a cache file of another image size: each size has its own.
+        cache = (self.out / "cache" / _slug(self.device.name) / run.name / f"{width}x{height}"
+                 / f"{_slug(base.label())}.json")
         cache.parent.mkdir(parents=True, exist_ok=True)
+        check_cache(cache)
         platform, device = _platform_indices(self.device)
 
         # A def, not a lambda: Kernel Tuner rewrites a lambda restriction from its source text.
@@ -395,6 +424,12 @@ class Tuner:
                 if "startup time" not in str(exc):
                     raise
                 return []
+            except ValueError as exc:
+                # Kernel Tuner refuses a cache file of another device, kernel or set of
+                # parameters (an older clray's knobs).
+                if "cache" not in str(exc):
+                    raise
+                raise _cache_error(cache, " ".join(str(exc).split())) from None
         trials = [self._trial(run.name, base, r) for r in results if r]
         self.trials += trials
         return trials

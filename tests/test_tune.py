@@ -223,6 +223,23 @@ def test_tune_refuses_an_unknown_strategy(kernel_tuner, capsys, tmp_path) -> Non
     assert err.endswith("got 'guesswork'\n")
 
 
+@pytest.mark.parametrize("name", ["spheres.toml", "Spheres.toml"])
+def test_tune_refuses_two_scenes_of_one_name_before_any_work(capsys, tmp_path, name) -> None:
+    # Results and caches are kept under the name: the second scene's times were the first's.
+    other = tmp_path / "x" / name
+    other.parent.mkdir()
+    other.write_text((ROOT / "scenes" / "glass.toml").read_text())
+    out = tmp_path / "t"
+    code = cli.main(["tune", str(SPHERES), str(other), "--out", str(out)])
+    assert code == 2
+    assert capsys.readouterr().err == (
+        f"clray: error: SCENE: {SPHERES} and {other} have the same name {other.stem!r}, under "
+        "which their results are kept: rename one\n")
+    assert not out.exists()
+    assert cli.main(["tune", str(SPHERES), str(SPHERES), "--out", str(out)]) == 2
+    assert capsys.readouterr().err == f"clray: error: SCENE: {SPHERES} is given twice\n"
+
+
 def test_tune_refuses_a_bad_scene_before_writing_anything(kernel_tuner, capsys, tmp_path,
                                                           cl_device) -> None:
     bad = tmp_path / "bad.toml"

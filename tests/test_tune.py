@@ -264,6 +264,42 @@ def test_tune_refuses_an_unwritable_out_before_tuning(kernel_tuner, capsys, tmp_
         run_tune([SPHERES], blocker / "t", budget_s=1)
 
 
+@pytest.mark.parametrize(("name", "why"), [("cache", "it is a file, not a directory"),
+                                         ("results.json", "it is a directory"),
+                                         ("tune.png", "it is a directory")])
+def test_tune_refuses_an_output_of_the_wrong_kind_before_tuning(kernel_tuner, capsys, tmp_path,
+                                                                name, why) -> None:
+    # A file at cache/ was a NotADirectoryError traceback after the reference render; a folder
+    # at results.json an IsADirectoryError after the whole tuning, the tuning file saved.
+    out = tmp_path / "t"
+    out.mkdir()
+    (out / name).mkdir() if name.endswith((".json", ".png")) else (out / name).write_text("")
+    code = cli.main(["tune", str(SPHERES), "-W", "32", "-H", "18", "--budget", "3", "--out",
+                     str(out)])
+    assert code == 1
+    assert capsys.readouterr().err == f"clray: error: cannot write {out / name}: {why}\n"
+
+
+def test_tune_writes_that_fail_are_one_line(kernel_tuner, cl_device, tmp_path) -> None:
+    from clray.tuning import report
+
+    # After the checks before tuning, as where another process puts a file or folder in the way.
+    (tmp_path / "cache").write_text("")
+    blocked = f"^cannot write {tmp_path / 'cache'}/.*: Not a directory$"
+    with pytest.raises(ClrayError, match=blocked):
+        tune(cl_device, tmp_path, size=(32, 18))
+    header = {"device": "d", "strategy": "s", "budget_s": 1, "iterations": 1, "tolerance": "t",
+              "variants": "v", "untried": None, "scenes": [str(SPHERES)]}
+    trials = [tuner_module.Trial("spheres", Tuning(), 1.0, [1.0], 0.0, True, 0)]
+    for name, write in (("results.json", lambda: report.write_results(tmp_path, header, trials)),
+                        ("report.md", lambda: report.write_report(tmp_path, header, trials, None,
+                                                                  [], None)),
+                        ("tune.png", lambda: report.plot(tmp_path, trials, None))):
+        (tmp_path / name).mkdir()
+        with pytest.raises(ClrayError, match=f"^cannot write {tmp_path / name}: "):
+            write()
+
+
 def test_a_failed_tune_takes_back_the_folders_it_made(kernel_tuner, capsys, tmp_path,
                                                       cl_device) -> None:
     bad = tmp_path / "bad.toml"

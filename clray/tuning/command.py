@@ -4,6 +4,7 @@ results, report and plot written to the output folder."""
 
 from __future__ import annotations
 
+import os
 import sys
 import time
 from collections.abc import Callable, Sequence
@@ -92,6 +93,17 @@ def untried(runs: Sequence[SceneRun], trials: Sequence[Trial], budget_s: float) 
                    f"{least:.3g} s leaves a scene untried")
 
 
+def check_outputs(out: Path) -> None:
+    """Before tuning, where it costs a look: an output of `out` whose name is taken by the wrong
+    kind (a folder where a file goes, or the other way round) would fail after all the work."""
+    for name in ("results.json", "report.md", report.PLOT_NAME):
+        if (out / name).is_dir():
+            raise ClrayError(f"cannot write {out / name}: it is a directory")
+    cache = out / "cache"
+    if os.path.lexists(cache) and not cache.is_dir():
+        raise ClrayError(f"cannot write {cache}: it is a file, not a directory")
+
+
 def run_tune(paths: Sequence[Path], out: Path, *, device: str | None = None,
              strategy: str = "brute_force", budget_s: float = 120.0,
              allow_error: float | None = None, size: tuple[int | None, int | None] = (None, None),
@@ -100,6 +112,7 @@ def run_tune(paths: Sequence[Path], out: Path, *, device: str | None = None,
     """Tune, confirm, store and report; returns the results' header with the winner."""
     if out.exists() and not out.is_dir():
         raise ClrayError(f"--out {out} exists and is not a directory")
+    check_outputs(out)
     cl_device = select_device(device)
     for path in paths:  # a bad scene is one line before anything is written
         load_scene(path)

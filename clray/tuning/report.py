@@ -4,12 +4,13 @@ ones listed) and DIR/tune.png (the same times as a bar chart; needs the `plot` e
 
 from __future__ import annotations
 
+import contextlib
 import json
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from clray.errors import plural
+from clray.errors import ClrayError, plural
 from clray.knobs import DEFAULT_TUNING
 from clray.output import write_bytes_atomically
 from clray.tuning.tuner import Trial
@@ -38,10 +39,20 @@ def _is_default(trial: Trial) -> bool:
     return trial.tuning == DEFAULT_TUNING and not any(trial.extra.values())
 
 
+@contextlib.contextmanager
+def writing(path: Path) -> Iterator[None]:
+    """An OSError while writing `path` (a full disk, a folder in its place) as one line."""
+    try:
+        yield
+    except OSError as err:
+        raise ClrayError(f"cannot write {path}: {err.strerror or err}") from err
+
+
 def write_results(out: Path, header: dict, trials: Sequence[Trial]) -> Path:
     path = out / "results.json"
     payload = {**header, "trials": [_record(t) for t in trials]}
-    write_bytes_atomically(path, (json.dumps(payload, indent=2) + "\n").encode("utf-8"))
+    with writing(path):
+        write_bytes_atomically(path, (json.dumps(payload, indent=2) + "\n").encode("utf-8"))
     return path
 
 
@@ -102,8 +113,11 @@ def plot(out: Path, trials: Sequence[Trial], best_key: str | None) -> str | None
     except ImportError:
         return "matplotlib is not installed (`pip install 'clray[plot]'`)"
     fig = plot_figure(trials, best_key)
-    fig.savefig(out / PLOT_NAME, dpi=110)
-    plt.close(fig)
+    try:
+        with writing(out / PLOT_NAME):
+            fig.savefig(out / PLOT_NAME, dpi=110)
+    finally:
+        plt.close(fig)
     return None
 
 
@@ -156,5 +170,6 @@ def write_report(out: Path, header: dict, trials: Sequence[Trial], best_key: str
     lines.append(f"![every configuration's time]({PLOT_NAME})" if plot_skipped is None else
                  f"Plot skipped: {plot_skipped}.")
     path = out / "report.md"
-    write_bytes_atomically(path, ("\n".join(lines) + "\n").encode("utf-8"))
+    with writing(path):
+        write_bytes_atomically(path, ("\n".join(lines) + "\n").encode("utf-8"))
     return path

@@ -394,7 +394,10 @@ class Tuner:
         # Kernel Tuner refuses a cache file of another image size: each size has its own.
         cache = (self.out / "cache" / _slug(self.device.name) / run.name / f"{width}x{height}"
                  / f"{_slug(base.label())}.json")
-        cache.parent.mkdir(parents=True, exist_ok=True)
+        try:
+            cache.parent.mkdir(parents=True, exist_ok=True)
+        except OSError as err:
+            raise ClrayError(f"cannot write {cache.parent}: {err.strerror or err}") from err
         check_cache(cache)
         platform, device = _platform_indices(self.device)
 
@@ -430,6 +433,8 @@ class Tuner:
                 if "cache" not in str(exc):
                     raise
                 raise _cache_error(cache, " ".join(str(exc).split())) from None
+            except OSError as err:  # reading or appending to the cache file: its only files
+                raise _cache_error(cache, err.strerror or str(err)) from err
         trials = [self._trial(run.name, base, r) for r in results if r]
         self.trials += trials
         return trials

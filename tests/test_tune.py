@@ -240,6 +240,43 @@ def test_tune_refuses_two_scenes_of_one_name_before_any_work(capsys, tmp_path, n
     assert capsys.readouterr().err == f"clray: error: SCENE: {SPHERES} is given twice\n"
 
 
+def test_an_unwritable_tuning_folder_is_refused_before_tuning(kernel_tuner, cl_device, capsys,
+                                                              tmp_path, monkeypatch) -> None:
+    # It was a NotADirectoryError traceback from save_tuning after all the work, with nothing
+    # written.
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "xdg"))
+    (tmp_path / "xdg").mkdir()
+    (tmp_path / "xdg" / "clray").write_text("")
+    out = tmp_path / "t"
+    code = cli.main(["tune", str(SPHERES), "-W", "32", "-H", "18", "--budget", "1", "--out",
+                     str(out)])
+    assert code == 1
+    assert capsys.readouterr().err == (
+        f"clray: error: cannot write {tmp_path / 'xdg' / 'clray' / 'tuning'}: Not a directory "
+        "(the device's tuning file goes there; --no-save stores none)\n")
+    assert not out.exists()
+
+
+def test_a_tuning_file_that_fails_to_save_keeps_the_results(kernel_tuner, cl_device, capsys,
+                                                            tmp_path, monkeypatch) -> None:
+    # The winner was stored before results.json and report.md were written: a failed save lost
+    # the whole tuning's results.
+    from clray.device.tuning_files import tuning_path
+
+    monkeypatch.setattr(tuner_module, "default_space",
+                        lambda: {**TWO, "work_group_width": (64,)})
+    tuning_path(cl_device).mkdir(parents=True)  # a folder where the file goes
+    out = tmp_path / "t"
+    code = cli.main(["tune", str(SPHERES), "-W", "48", "-H", "27", "--budget", "300",
+                     "--out", str(out)])
+    assert code == 1
+    assert capsys.readouterr().err.endswith(
+        f"clray: error: cannot write {tuning_path(cl_device)}: Is a directory (the results are "
+        f"in {out}; nothing stored)\n")
+    assert json.loads((out / "results.json").read_text())["tuning_file"] is None
+    assert "**default**" in (out / "report.md").read_text()
+
+
 def test_tune_refuses_a_bad_scene_before_writing_anything(kernel_tuner, capsys, tmp_path,
                                                           cl_device) -> None:
     bad = tmp_path / "bad.toml"

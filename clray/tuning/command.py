@@ -12,7 +12,7 @@ from pathlib import Path
 from typing import Any
 
 from clray.device.context import describe, select_device
-from clray.device.tuning_files import save_tuning
+from clray.device.tuning_files import save_tuning, tuning_path
 from clray.errors import ClrayError, plural
 from clray.knobs import DEFAULT_TUNING, IMAGE_KNOBS, Tuning
 from clray.scene.load import load_scene
@@ -120,6 +120,13 @@ def run_tune(paths: Sequence[Path], out: Path, *, device: str | None = None,
         out.mkdir(parents=True, exist_ok=True)
     except OSError as err:
         raise ClrayError(f"cannot write {out}: {err.strerror or err}") from err
+    if save:  # the winner's folder, made before the work that finds it
+        folder = tuning_path(cl_device).parent
+        try:
+            folder.mkdir(parents=True, exist_ok=True)
+        except OSError as err:
+            raise ClrayError(f"cannot write {folder}: {err.strerror or err} (the device's tuning "
+                             "file goes there; --no-save stores none)") from err
     progress = _Progress(budget_s, show_progress)
     tuner = Tuner(cl_device, out, strategy=strategy, budget_s=budget_s,
                   allow_error=allow_error, size=size, progress=progress, **tuner_options)
@@ -141,6 +148,7 @@ def run_tune(paths: Sequence[Path], out: Path, *, device: str | None = None,
               "untried": untried(tuner.runs, trials, budget_s),
               "best": None, "tuning_file": None}
     confirmed = []
+    to_store: Tuning | None = None
     if best is not None:
         per_scene = best[1]
         winner = next(iter(per_scene.values()))
@@ -162,12 +170,21 @@ def run_tune(paths: Sequence[Path], out: Path, *, device: str | None = None,
                 f"{_verdict_text(verdict)}: storing the defaults")
         # A winner that needs a switch outside the knob table (a test's) is not stored.
         if save and not any(winner.extra.values()):
-            header["tuning_file"] = str(save_tuning(cl_device, stored, {
-                "scenes": header["scenes"], "strategy": strategy, "budget_s": budget_s,
-                "best": header["best"], "confirmed": confirmed}))
+            to_store = stored
     report.write_results(out, header, trials)
     plot_skipped = report.plot(out, trials, best[0] if best else None)
     report.write_report(out, header, trials, best[0] if best else None, confirmed, plot_skipped)
+    if to_store is not None:
+        # Stored after the results are written: a tuning folder that fails now loses the
+        # stored winner, not the tuning's results.
+        try:
+            header["tuning_file"] = str(save_tuning(cl_device, to_store, {
+                "scenes": header["scenes"], "strategy": strategy, "budget_s": budget_s,
+                "best": header["best"], "confirmed": confirmed}))
+        except OSError as err:
+            raise ClrayError(f"cannot write {tuning_path(cl_device)}: {err.strerror or err} "
+                             f"(the results are in {out}; nothing stored)") from err
+        report.write_results(out, header, trials)  # again, naming the tuning file
     rejected = sum(not t.verified for t in trials)
     say(f"tried {plural(len(trials), 'configuration')} on {describe(cl_device)}, "
         f"{rejected} rejected")

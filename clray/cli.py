@@ -977,7 +977,7 @@ def _check_distinct_stems(paths: list[Path]) -> str | None:
 
 
 def _tune(args: argparse.Namespace) -> int:
-    from clray.tuning.tuner import import_kernel_tuner
+    from clray.tuning.tuner import check_strategy, import_kernel_tuner
 
     problem = _check_distinct_stems(args.scenes)
     if problem is not None:
@@ -989,6 +989,7 @@ def _tune(args: argparse.Namespace) -> int:
         _say(f"error: --strategy: expected one of {', '.join(sorted(strategies))}, got "
              f"{args.strategy!r}")
         return EXIT_USAGE
+    check_strategy(args.strategy)
     from clray.tuning.command import run_tune
 
     if args.out.exists() and not args.out.is_dir():

@@ -277,6 +277,24 @@ def test_a_tuning_file_that_fails_to_save_keeps_the_results(kernel_tuner, cl_dev
     assert "**default**" in (out / "report.md").read_text()
 
 
+@pytest.mark.parametrize(("strategy", "module", "package"), [
+    ("skopt", "skopt", "scikit-optimize"), ("pyatf_strategies", "pyatf", "pyatf"),
+    ("bayes_opt", "sklearn", "scikit-learn")])
+def test_tune_refuses_a_strategy_whose_module_is_missing_before_any_work(
+        kernel_tuner, capsys, tmp_path, monkeypatch, strategy, module, package) -> None:
+    # Kernel Tuner imports them as the strategy starts: a ModuleNotFoundError traceback after
+    # the reference render, a cache folder left.
+    monkeypatch.setitem(sys.modules, module, None)
+    out = tmp_path / "t"
+    code = cli.main(["tune", str(SPHERES), "-W", "32", "-H", "18", "--budget", "3",
+                     "--strategy", strategy, "--out", str(out)])
+    assert code == 1
+    assert capsys.readouterr().err == (
+        f"clray: error: --strategy {strategy} needs the Python module {module}, which is not "
+        f"installed: pip install {package}\n")
+    assert not out.exists()
+
+
 def test_tune_refuses_a_bad_scene_before_writing_anything(kernel_tuner, capsys, tmp_path,
                                                           cl_device) -> None:
     bad = tmp_path / "bad.toml"

@@ -13,6 +13,7 @@ configuration, makes a second run continue where the first stopped.
 
 from __future__ import annotations
 
+import importlib
 import itertools
 import json
 import math
@@ -34,7 +35,7 @@ from clray.device.launch import render_packed
 from clray.device.pack import PackedScene
 from clray.device.policy import DevicePlan, device_plan
 from clray.device.program import kernel_source
-from clray.errors import ClrayError, DeviceError, plural
+from clray.errors import ClrayError, DeviceError, one_line, plural
 from clray.knobs import (
     BUILD_KNOBS,
     DEFAULT_TUNING,
@@ -108,6 +109,34 @@ def import_kernel_tuner() -> Any:
         raise ClrayError(f"clray tune needs Kernel Tuner, which is not installed: "
                          f"{INSTALL_HINT}") from None
     return interface
+
+
+# Modules that Kernel Tuner's strategies import only once they run, after the reference renders:
+# imported before any work, so that a missing one is a line and not a traceback minutes in.
+STRATEGY_MODULES = {"skopt": ("skopt",), "pyatf_strategies": ("pyatf",),
+                    "bayes_opt": ("sklearn",)}
+# The pip package of a module, where its name is another.
+PIP_NAMES = {"skopt": "scikit-optimize", "sklearn": "scikit-learn"}
+
+
+def check_strategy(name: str) -> None:
+    """A ClrayError naming the missing module where Kernel Tuner's strategy `name` (one of its
+    strategy_map) cannot run for want of one: its own module (nsga2's imports pymoo) or those
+    it imports as it runs."""
+    try:
+        # strategy_map's entry imports the strategy's module at the first look inside.
+        import_kernel_tuner().strategy_map[name].tune  # noqa: B018
+        for module in STRATEGY_MODULES.get(name, ()):
+            importlib.import_module(module)
+    except ImportError as err:
+        # Kernel Tuner raises its own ImportError from the ModuleNotFoundError, which names it.
+        missing = next((e.name for e in (err, err.__context__)
+                        if isinstance(e, ImportError) and e.name), None)
+        if missing is None:
+            raise ClrayError(f"--strategy {name}: {one_line(str(err))}") from None
+        top = missing.partition(".")[0]
+        raise ClrayError(f"--strategy {name} needs the Python module {top}, which is not "
+                         f"installed: pip install {PIP_NAMES.get(top, top)}") from None
 
 
 def _observer_base(name: str) -> type:

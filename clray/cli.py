@@ -961,15 +961,37 @@ def _study(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
-def _tune(args: argparse.Namespace) -> int:
-    from clray.tuning.tuner import import_kernel_tuner
+def _check_distinct_stems(paths: list[Path]) -> str | None:
+    """The usage error, where two scene files share a name without its suffix (a/spheres.toml
+    and b/spheres.toml, or one file given twice): the results and caches of `clray tune` and
+    `clray study` are keyed by it, and the second scene's would be the first's. Names that
+    differ only in case count as the same, as they do on a case-insensitive file system."""
+    seen: dict[str, Path] = {}
+    for path in paths:
+        first = seen.get(path.stem.casefold())
+        if first is not None:
+            if _same_file(first, path):
+                return f"SCENE: {path} is given twice"
+            return (f"SCENE: {first} and {path} have the same name {path.stem!r}, under which "
+                    "their results are kept: rename one")
+        seen[path.stem.casefold()] = path
+    return None
 
+
+def _tune(args: argparse.Namespace) -> int:
+    from clray.tuning.tuner import check_strategy, import_kernel_tuner
+
+    problem = _check_distinct_stems(args.scenes)
+    if problem is not None:
+        _say(f"error: {problem}")
+        return EXIT_USAGE
     # Before any work: says how to install Kernel Tuner where it is missing.
     strategies = import_kernel_tuner().strategy_map
     if args.strategy not in strategies:
         _say(f"error: --strategy: expected one of {', '.join(sorted(strategies))}, got "
              f"{args.strategy!r}")
         return EXIT_USAGE
+    check_strategy(args.strategy)
     from clray.tuning.command import run_tune
 
     if args.out.exists() and not args.out.is_dir():

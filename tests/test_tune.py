@@ -6,8 +6,10 @@ the cache file resumed by a second run, and the stored winner used by `clray ren
 from __future__ import annotations
 
 import json
+import re
 import sys
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -19,7 +21,7 @@ from clray.errors import ClrayError
 from clray.knobs import TRAVERSALS
 from clray.tuning import KNOB_TABLE, Tuning
 from clray.tuning import tuner as tuner_module
-from clray.tuning.command import run_tune
+from clray.tuning.command import least_budget_s, run_tune, untried
 
 ROOT = Path(__file__).resolve().parent.parent
 SPHERES = ROOT / "scenes" / "spheres.toml"
@@ -221,6 +223,78 @@ def test_tune_refuses_an_unknown_strategy(kernel_tuner, capsys, tmp_path) -> Non
     assert err.endswith("got 'guesswork'\n")
 
 
+@pytest.mark.parametrize("name", ["spheres.toml", "Spheres.toml"])
+def test_tune_refuses_two_scenes_of_one_name_before_any_work(capsys, tmp_path, name) -> None:
+    # Results and caches are kept under the name: the second scene's times were the first's.
+    other = tmp_path / "x" / name
+    other.parent.mkdir()
+    other.write_text((ROOT / "scenes" / "glass.toml").read_text())
+    out = tmp_path / "t"
+    code = cli.main(["tune", str(SPHERES), str(other), "--out", str(out)])
+    assert code == 2
+    assert capsys.readouterr().err == (
+        f"clray: error: SCENE: {SPHERES} and {other} have the same name {other.stem!r}, under "
+        "which their results are kept: rename one\n")
+    assert not out.exists()
+    assert cli.main(["tune", str(SPHERES), str(SPHERES), "--out", str(out)]) == 2
+    assert capsys.readouterr().err == f"clray: error: SCENE: {SPHERES} is given twice\n"
+
+
+def test_an_unwritable_tuning_folder_is_refused_before_tuning(kernel_tuner, cl_device, capsys,
+                                                              tmp_path, monkeypatch) -> None:
+    # It was a NotADirectoryError traceback from save_tuning after all the work, with nothing
+    # written.
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "xdg"))
+    (tmp_path / "xdg").mkdir()
+    (tmp_path / "xdg" / "clray").write_text("")
+    out = tmp_path / "t"
+    code = cli.main(["tune", str(SPHERES), "-W", "32", "-H", "18", "--budget", "1", "--out",
+                     str(out)])
+    assert code == 1
+    assert capsys.readouterr().err == (
+        f"clray: error: cannot write {tmp_path / 'xdg' / 'clray' / 'tuning'}: Not a directory "
+        "(the device's tuning file goes there; --no-save stores none)\n")
+    assert not out.exists()
+
+
+def test_a_tuning_file_that_fails_to_save_keeps_the_results(kernel_tuner, cl_device, capsys,
+                                                            tmp_path, monkeypatch) -> None:
+    # The winner was stored before results.json and report.md were written: a failed save lost
+    # the whole tuning's results.
+    from clray.device.tuning_files import tuning_path
+
+    monkeypatch.setattr(tuner_module, "default_space",
+                        lambda: {**TWO, "work_group_width": (64,)})
+    tuning_path(cl_device).mkdir(parents=True)  # a folder where the file goes
+    out = tmp_path / "t"
+    code = cli.main(["tune", str(SPHERES), "-W", "48", "-H", "27", "--budget", "300",
+                     "--out", str(out)])
+    assert code == 1
+    assert capsys.readouterr().err.endswith(
+        f"clray: error: cannot write {tuning_path(cl_device)}: Is a directory (the results are "
+        f"in {out}; nothing stored)\n")
+    assert json.loads((out / "results.json").read_text())["tuning_file"] is None
+    assert "**default**" in (out / "report.md").read_text()
+
+
+@pytest.mark.parametrize(("strategy", "module", "package"), [
+    ("skopt", "skopt", "scikit-optimize"), ("pyatf_strategies", "pyatf", "pyatf"),
+    ("bayes_opt", "sklearn", "scikit-learn")])
+def test_tune_refuses_a_strategy_whose_module_is_missing_before_any_work(
+        kernel_tuner, capsys, tmp_path, monkeypatch, strategy, module, package) -> None:
+    # Kernel Tuner imports them as the strategy starts: a ModuleNotFoundError traceback after
+    # the reference render, a cache folder left.
+    monkeypatch.setitem(sys.modules, module, None)
+    out = tmp_path / "t"
+    code = cli.main(["tune", str(SPHERES), "-W", "32", "-H", "18", "--budget", "3",
+                     "--strategy", strategy, "--out", str(out)])
+    assert code == 1
+    assert capsys.readouterr().err == (
+        f"clray: error: --strategy {strategy} needs the Python module {module}, which is not "
+        f"installed: pip install {package}\n")
+    assert not out.exists()
+
+
 def test_tune_refuses_a_bad_scene_before_writing_anything(kernel_tuner, capsys, tmp_path,
                                                           cl_device) -> None:
     bad = tmp_path / "bad.toml"
@@ -245,6 +319,42 @@ def test_tune_refuses_an_unwritable_out_before_tuning(kernel_tuner, capsys, tmp_
         run_tune([SPHERES], blocker / "t", budget_s=1)
 
 
+@pytest.mark.parametrize(("name", "why"), [("cache", "it is a file, not a directory"),
+                                         ("results.json", "it is a directory"),
+                                         ("tune.png", "it is a directory")])
+def test_tune_refuses_an_output_of_the_wrong_kind_before_tuning(kernel_tuner, capsys, tmp_path,
+                                                                name, why) -> None:
+    # A file at cache/ was a NotADirectoryError traceback after the reference render; a folder
+    # at results.json an IsADirectoryError after the whole tuning, the tuning file saved.
+    out = tmp_path / "t"
+    out.mkdir()
+    (out / name).mkdir() if name.endswith((".json", ".png")) else (out / name).write_text("")
+    code = cli.main(["tune", str(SPHERES), "-W", "32", "-H", "18", "--budget", "3", "--out",
+                     str(out)])
+    assert code == 1
+    assert capsys.readouterr().err == f"clray: error: cannot write {out / name}: {why}\n"
+
+
+def test_tune_writes_that_fail_are_one_line(kernel_tuner, cl_device, tmp_path) -> None:
+    from clray.tuning import report
+
+    # After the checks before tuning, as where another process puts a file or folder in the way.
+    (tmp_path / "cache").write_text("")
+    blocked = f"^cannot write {tmp_path / 'cache'}/.*: Not a directory$"
+    with pytest.raises(ClrayError, match=blocked):
+        tune(cl_device, tmp_path, size=(32, 18))
+    header = {"device": "d", "strategy": "s", "budget_s": 1, "iterations": 1, "tolerance": "t",
+              "variants": "v", "untried": None, "scenes": [str(SPHERES)]}
+    trials = [tuner_module.Trial("spheres", Tuning(), 1.0, [1.0], 0.0, True, 0)]
+    for name, write in (("results.json", lambda: report.write_results(tmp_path, header, trials)),
+                        ("report.md", lambda: report.write_report(tmp_path, header, trials, None,
+                                                                  [], None)),
+                        ("tune.png", lambda: report.plot(tmp_path, trials, None))):
+        (tmp_path / name).mkdir()
+        with pytest.raises(ClrayError, match=f"^cannot write {tmp_path / name}: "):
+            write()
+
+
 def test_a_failed_tune_takes_back_the_folders_it_made(kernel_tuner, capsys, tmp_path,
                                                       cl_device) -> None:
     bad = tmp_path / "bad.toml"
@@ -253,6 +363,71 @@ def test_a_failed_tune_takes_back_the_folders_it_made(kernel_tuner, capsys, tmp_
     assert code == 3
     assert capsys.readouterr().err == "clray: error: bad.toml: camera: missing required key\n"
     assert not (tmp_path / "new").exists()
+
+
+@pytest.mark.parametrize("budget", ["0", "1"])
+def test_a_budget_too_small_to_try_anything_says_so_and_skips_the_plot(
+        kernel_tuner, cl_device, tmp_path, capsys, budget) -> None:
+    # Only the reference render fits: the plot of no rows was a matplotlib traceback, after
+    # results.json and before report.md.
+    out = tmp_path / "t"
+    code = cli.main(["tune", str(SPHERES), "-W", "32", "-H", "18", "--budget", budget,
+                     "--out", str(out)])
+    err = capsys.readouterr().err
+    assert code == 0, err
+    said = f"clray: nothing tried on spheres within the budget of {budget} s: the reference render"
+    assert said in err and "leaves a scene untried" in err
+    assert "nothing stored" in err
+    report = (out / "report.md").read_text()
+    assert "**Budget:** nothing tried on spheres" in report
+    assert "Nothing tried within the budget." in report
+    assert "Plot skipped: nothing was tried." in report
+    assert not (out / "tune.png").exists()
+    results = json.loads((out / "results.json").read_text())
+    assert results["trials"] == [] and results["untried"].startswith("nothing tried on spheres")
+
+
+def test_the_least_budget_counts_each_scenes_reference_and_a_runs_start() -> None:
+    # Scene 0's share (half) must hold its reference and a run's 2 s; scene 1's end (the whole
+    # budget) both references and 2 s.
+    assert least_budget_s([1.0]) == pytest.approx(3.0)
+    assert least_budget_s([1.0, 3.0]) == pytest.approx(6.0)
+    assert least_budget_s([3.0, 0.5]) == pytest.approx(10.0)
+    runs = [SimpleNamespace(name="a", reference_s=1.0), SimpleNamespace(name="b", reference_s=1.0)]
+    trial = tuner_module.Trial("a", Tuning(), 1.0, [1.0], 0.0, True, 0)
+    assert untried(runs, [trial], 100.0) == (
+        "nothing tried on b within the budget of 100 s: Kernel Tuner's runs started, but the "
+        "budget ended before their first configuration was timed")
+    assert untried(runs, [trial], 5.0) == (
+        "nothing tried on b within the budget of 5 s: the reference renders took 2 s of it, and "
+        "a Kernel Tuner run starts only while 2 s of a scene's share is left: a budget under "
+        "6 s leaves a scene untried")
+    assert untried(runs[:1], [trial], 5.0) is None
+
+
+def test_each_image_size_has_its_own_cache_and_a_broken_one_is_one_line(
+        kernel_tuner, cl_device, tmp_path) -> None:
+    # Kernel Tuner refuses a cache file of another image size: with one per scene, a second
+    # tune at another size into the same --out (by default clray-tune) was its traceback.
+    one = {**TWO, "work_group_width": (64,)}
+    tune(cl_device, tmp_path, size=(32, 18), space=one)
+    assert tune(cl_device, tmp_path, size=(40, 18), space=one)
+    (device,) = (tmp_path / "cache").iterdir()
+    assert sorted(p.name for p in (device / "spheres").iterdir()) == ["32x18", "40x18"]
+    cache = device / "spheres" / "32x18" / "default.json"
+    record = cache.read_text()
+    refused = f"^Kernel Tuner's cache file {re.escape(str(cache))}: .+: delete it, or tune into " \
+              "another --out$"
+    # Empty or cut short mid-entry (Kernel Tuner's JSONDecodeError), read as they are, not
+    # 'mended'; another kernel's (its ValueError).
+    for text in ("", record[:-40]):
+        cache.write_text(text)
+        with pytest.raises(ClrayError, match=refused):
+            tune(cl_device, tmp_path, size=(32, 18), space=one)
+        assert cache.read_text() == text
+    cache.write_text(record.replace('"render"', '"other"'))
+    with pytest.raises(ClrayError, match=refused):
+        tune(cl_device, tmp_path, size=(32, 18), space=one)
 
 
 def test_later_host_configurations_keep_the_best_kernel_knobs(kernel_tuner, cl_device,

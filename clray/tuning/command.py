@@ -4,6 +4,7 @@ results, report and plot written to the output folder."""
 
 from __future__ import annotations
 
+import os
 import sys
 import time
 from collections.abc import Callable, Sequence
@@ -11,13 +12,15 @@ from pathlib import Path
 from typing import Any
 
 from clray.device.context import describe, select_device
-from clray.device.tuning_files import save_tuning
+from clray.device.tuning_files import save_tuning, tuning_path
 from clray.errors import ClrayError, plural
 from clray.knobs import DEFAULT_TUNING, IMAGE_KNOBS, Tuning
 from clray.scene.load import load_scene
 from clray.tuning import report
 from clray.tuning.tuner import (
+    MIN_RUN_BUDGET_S,
     PIXEL_TOLERANCE,
+    SceneRun,
     Trial,
     Tuner,
     best_configuration,
@@ -62,6 +65,45 @@ def _verdict_text(verdict: dict) -> str:
             f"(rounds' middle half {lower:.3f}x to {upper:.3f}x)")
 
 
+def least_budget_s(reference_s: Sequence[float]) -> float:
+    """The budget under which some scene can start no Kernel Tuner run, from the seconds each
+    scene's reference render took: scene k's share ends at budget * (k + 1) / n, by when the
+    references of scenes 0 to k have taken their time, and a run starts only while
+    MIN_RUN_BUDGET_S of it is left. A lower bound: earlier scenes' runs, where they start, take
+    time too."""
+    n = len(reference_s)
+    return max(n * (sum(reference_s[: k + 1]) + MIN_RUN_BUDGET_S) / (k + 1) for k in range(n))
+
+
+def untried(runs: Sequence[SceneRun], trials: Sequence[Trial], budget_s: float) -> str | None:
+    """The scenes on which nothing was tried within the budget and why, in words; None where
+    every scene had a configuration tried."""
+    names = [run.name for run in runs if not any(t.scene == run.name for t in trials)]
+    if not names:
+        return None
+    text = f"nothing tried on {', '.join(names)} within the budget of {budget_s:g} s"
+    least = least_budget_s([run.reference_s for run in runs])
+    if least <= budget_s:
+        return text + (": Kernel Tuner's runs started, but the budget ended before their first "
+                       "configuration was timed")
+    spent = sum(run.reference_s for run in runs)
+    return text + (f": the {'reference render' if len(runs) == 1 else 'reference renders'} took "
+                   f"{spent:.2g} s of it, and a Kernel Tuner run starts only while "
+                   f"{MIN_RUN_BUDGET_S:g} s of a scene's share is left: a budget under "
+                   f"{least:.3g} s leaves a scene untried")
+
+
+def check_outputs(out: Path) -> None:
+    """Before tuning, where it costs a look: an output of `out` whose name is taken by the wrong
+    kind (a folder where a file goes, or the other way round) would fail after all the work."""
+    for name in ("results.json", "report.md", report.PLOT_NAME):
+        if (out / name).is_dir():
+            raise ClrayError(f"cannot write {out / name}: it is a directory")
+    cache = out / "cache"
+    if os.path.lexists(cache) and not cache.is_dir():
+        raise ClrayError(f"cannot write {cache}: it is a file, not a directory")
+
+
 def run_tune(paths: Sequence[Path], out: Path, *, device: str | None = None,
              strategy: str = "brute_force", budget_s: float = 120.0,
              allow_error: float | None = None, size: tuple[int | None, int | None] = (None, None),
@@ -70,6 +112,7 @@ def run_tune(paths: Sequence[Path], out: Path, *, device: str | None = None,
     """Tune, confirm, store and report; returns the results' header with the winner."""
     if out.exists() and not out.is_dir():
         raise ClrayError(f"--out {out} exists and is not a directory")
+    check_outputs(out)
     cl_device = select_device(device)
     for path in paths:  # a bad scene is one line before anything is written
         load_scene(path)
@@ -77,6 +120,13 @@ def run_tune(paths: Sequence[Path], out: Path, *, device: str | None = None,
         out.mkdir(parents=True, exist_ok=True)
     except OSError as err:
         raise ClrayError(f"cannot write {out}: {err.strerror or err}") from err
+    if save:  # the winner's folder, made before the work that finds it
+        folder = tuning_path(cl_device).parent
+        try:
+            folder.mkdir(parents=True, exist_ok=True)
+        except OSError as err:
+            raise ClrayError(f"cannot write {folder}: {err.strerror or err} (the device's tuning "
+                             "file goes there; --no-save stores none)") from err
     progress = _Progress(budget_s, show_progress)
     tuner = Tuner(cl_device, out, strategy=strategy, budget_s=budget_s,
                   allow_error=allow_error, size=size, progress=progress, **tuner_options)
@@ -95,8 +145,10 @@ def run_tune(paths: Sequence[Path], out: Path, *, device: str | None = None,
                            if allow_error is not None else
                            "not tried (they change the image; --allow-error E tries them): ")
               + ", ".join(IMAGE_KNOBS),
+              "untried": untried(tuner.runs, trials, budget_s),
               "best": None, "tuning_file": None}
     confirmed = []
+    to_store: Tuning | None = None
     if best is not None:
         per_scene = best[1]
         winner = next(iter(per_scene.values()))
@@ -118,15 +170,26 @@ def run_tune(paths: Sequence[Path], out: Path, *, device: str | None = None,
                 f"{_verdict_text(verdict)}: storing the defaults")
         # A winner that needs a switch outside the knob table (a test's) is not stored.
         if save and not any(winner.extra.values()):
-            header["tuning_file"] = str(save_tuning(cl_device, stored, {
+            to_store = stored
+    report.write_results(out, header, trials)
+    plot_skipped = report.plot(out, trials, best[0] if best else None)
+    report.write_report(out, header, trials, best[0] if best else None, confirmed, plot_skipped)
+    if to_store is not None:
+        # Stored after the results are written: a tuning folder that fails now loses the
+        # stored winner, not the tuning's results.
+        try:
+            header["tuning_file"] = str(save_tuning(cl_device, to_store, {
                 "scenes": header["scenes"], "strategy": strategy, "budget_s": budget_s,
                 "best": header["best"], "confirmed": confirmed}))
-    report.write_results(out, header, trials)
-    plotted = report.plot(out, trials, best[0] if best else None)
-    report.write_report(out, header, trials, best[0] if best else None, confirmed, plotted)
+        except OSError as err:
+            raise ClrayError(f"cannot write {tuning_path(cl_device)}: {err.strerror or err} "
+                             f"(the results are in {out}; nothing stored)") from err
+        report.write_results(out, header, trials)  # again, naming the tuning file
     rejected = sum(not t.verified for t in trials)
     say(f"tried {plural(len(trials), 'configuration')} on {describe(cl_device)}, "
         f"{rejected} rejected")
+    if header["untried"]:
+        say(header["untried"])
     say(f"study variants {header['variants']}")
     for c in confirmed:
         say(f"{c['scene']}: default {c['default_kernel_s'] * 1e3:.3g} ms, tuned "

@@ -4,12 +4,13 @@ ones listed) and DIR/tune.png (the same times as a bar chart; needs the `plot` e
 
 from __future__ import annotations
 
+import contextlib
 import json
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from clray.errors import plural
+from clray.errors import ClrayError, plural
 from clray.knobs import DEFAULT_TUNING
 from clray.output import write_bytes_atomically
 from clray.tuning.tuner import Trial
@@ -38,10 +39,20 @@ def _is_default(trial: Trial) -> bool:
     return trial.tuning == DEFAULT_TUNING and not any(trial.extra.values())
 
 
+@contextlib.contextmanager
+def writing(path: Path) -> Iterator[None]:
+    """An OSError while writing `path` (a full disk, a folder in its place) as one line."""
+    try:
+        yield
+    except OSError as err:
+        raise ClrayError(f"cannot write {path}: {err.strerror or err}") from err
+
+
 def write_results(out: Path, header: dict, trials: Sequence[Trial]) -> Path:
     path = out / "results.json"
     payload = {**header, "trials": [_record(t) for t in trials]}
-    write_bytes_atomically(path, (json.dumps(payload, indent=2) + "\n").encode("utf-8"))
+    with writing(path):
+        write_bytes_atomically(path, (json.dumps(payload, indent=2) + "\n").encode("utf-8"))
     return path
 
 
@@ -90,24 +101,30 @@ def plot_figure(trials: Sequence[Trial], best_key: str | None) -> matplotlib.fig
     return fig
 
 
-def plot(out: Path, trials: Sequence[Trial], best_key: str | None) -> bool:
-    """DIR/tune.png, plot_figure's; False where matplotlib is missing."""
+def plot(out: Path, trials: Sequence[Trial], best_key: str | None) -> str | None:
+    """DIR/tune.png, plot_figure's; where it is skipped, why (for the report)."""
+    if not trials:  # a figure needs a row of axes per scene tried
+        return "nothing was tried"
     try:
         import matplotlib
 
         matplotlib.use("Agg")
         import matplotlib.pyplot as plt
     except ImportError:
-        return False
+        return "matplotlib is not installed (`pip install 'clray[plot]'`)"
     fig = plot_figure(trials, best_key)
-    fig.savefig(out / PLOT_NAME, dpi=110)
-    plt.close(fig)
-    return True
+    try:
+        with writing(out / PLOT_NAME):
+            fig.savefig(out / PLOT_NAME, dpi=110)
+    finally:
+        plt.close(fig)
+    return None
 
 
 def write_report(out: Path, header: dict, trials: Sequence[Trial], best_key: str | None,
-                 confirmed: Sequence[dict], plotted: bool) -> Path:
-    scenes = list(dict.fromkeys(t.scene for t in trials))
+                 confirmed: Sequence[dict], plot_skipped: str | None) -> Path:
+    # Every scene, each under its name as trials know it: one the budget left untried says so.
+    scenes = [Path(s).stem for s in header["scenes"]]
     lines = [
         "# clray tune",
         "",
@@ -120,8 +137,13 @@ def write_report(out: Path, header: dict, trials: Sequence[Trial], best_key: str
         f"Study variants: {header['variants']}.",
         "",
     ]
+    if header["untried"]:
+        lines += [f"**Budget:** {header['untried']}.", ""]
     for scene in scenes:
         rows = [t for t in trials if t.scene == scene]
+        if not rows:
+            lines += [f"## {scene}", "", "Nothing tried within the budget.", ""]
+            continue
         default = next((t for t in rows if _is_default(t) and t.verified), None)
         lines += [f"## {scene}", "", "| configuration | kernel ms | vs default | build ms | "
                   "image | |", "|---|---|---|---|---|---|"]
@@ -145,8 +167,9 @@ def write_report(out: Path, header: dict, trials: Sequence[Trial], best_key: str
         lines += [f"| {c['scene']} | {c['rounds']} | {c['default_kernel_s']:.4f} | "
                   f"{c['tuned_kernel_s']:.4f} | {c['speedup']:.3f}x |" for c in confirmed]
         lines.append("")
-    lines.append(f"![every configuration's time]({PLOT_NAME})" if plotted else
-                 "Plot skipped: matplotlib is not installed (`pip install 'clray[plot]'`).")
+    lines.append(f"![every configuration's time]({PLOT_NAME})" if plot_skipped is None else
+                 f"Plot skipped: {plot_skipped}.")
     path = out / "report.md"
-    write_bytes_atomically(path, ("\n".join(lines) + "\n").encode("utf-8"))
+    with writing(path):
+        write_bytes_atomically(path, ("\n".join(lines) + "\n").encode("utf-8"))
     return path

@@ -13,6 +13,7 @@ configuration, makes a second run continue where the first stopped.
 
 from __future__ import annotations
 
+import importlib
 import itertools
 import json
 import math
@@ -34,7 +35,7 @@ from clray.device.launch import render_packed
 from clray.device.pack import PackedScene
 from clray.device.policy import DevicePlan, device_plan
 from clray.device.program import kernel_source
-from clray.errors import ClrayError, DeviceError, plural
+from clray.errors import ClrayError, DeviceError, one_line, plural
 from clray.knobs import (
     BUILD_KNOBS,
     DEFAULT_TUNING,
@@ -108,6 +109,34 @@ def import_kernel_tuner() -> Any:
         raise ClrayError(f"clray tune needs Kernel Tuner, which is not installed: "
                          f"{INSTALL_HINT}") from None
     return interface
+
+
+# Modules that Kernel Tuner's strategies import only once they run, after the reference renders:
+# imported before any work, so that a missing one is a line and not a traceback minutes in.
+STRATEGY_MODULES = {"skopt": ("skopt",), "pyatf_strategies": ("pyatf",),
+                    "bayes_opt": ("sklearn",)}
+# The pip package of a module, where its name is another.
+PIP_NAMES = {"skopt": "scikit-optimize", "sklearn": "scikit-learn"}
+
+
+def check_strategy(name: str) -> None:
+    """A ClrayError naming the missing module where Kernel Tuner's strategy `name` (one of its
+    strategy_map) cannot run for want of one: its own module (nsga2's imports pymoo) or those
+    it imports as it runs."""
+    try:
+        # strategy_map's entry imports the strategy's module at the first look inside.
+        import_kernel_tuner().strategy_map[name].tune  # noqa: B018
+        for module in STRATEGY_MODULES.get(name, ()):
+            importlib.import_module(module)
+    except ImportError as err:
+        # Kernel Tuner raises its own ImportError from the ModuleNotFoundError, which names it.
+        missing = next((e.name for e in (err, err.__context__)
+                        if isinstance(e, ImportError) and e.name), None)
+        if missing is None:
+            raise ClrayError(f"--strategy {name}: {one_line(str(err))}") from None
+        top = missing.partition(".")[0]
+        raise ClrayError(f"--strategy {name} needs the Python module {top}, which is not "
+                         f"installed: pip install {PIP_NAMES.get(top, top)}") from None
 
 
 def _observer_base(name: str) -> type:
@@ -279,6 +308,32 @@ def _slug(text: str) -> str:
     return re.sub(r"[^A-Za-z0-9.=]+", "_", text).strip("_")[:120] or "default"
 
 
+def _cache_error(cache: Path, why: str) -> ClrayError:
+    return ClrayError(f"Kernel Tuner's cache file {cache}: {why}: delete it, or tune into "
+                      "another --out")
+
+
+def check_cache(cache: Path) -> None:
+    """A cache file that Kernel Tuner would fail to read with a traceback (empty, cut short
+    mid-entry, not its format) refused in one line. Kernel Tuner itself mends one whose run
+    stopped between entries, and an empty one it would 'mend' into a lone comma: it is read
+    here without mending."""
+    if not cache.exists():
+        return
+    from kernel_tuner.util import read_cache
+
+    try:
+        # The header entries Kernel Tuner looks up before it checks them.
+        readable = {"device_name", "kernel_name", "tune_params_keys"} <= read_cache(
+            str(cache), open_cache=False).keys()
+    except OSError as err:
+        raise _cache_error(cache, err.strerror or str(err)) from None
+    except (ValueError, LookupError, TypeError, AttributeError):  # JSON's, and its shape's
+        readable = False
+    if not readable:
+        raise _cache_error(cache, "not a Kernel Tuner cache file (cut short, or changed)")
+
+
 @dataclass
 class SceneRun:
     name: str
@@ -287,6 +342,8 @@ class SceneRun:
     reference: np.ndarray
     default_packed: PackedScene
     spp: int
+    # Seconds the scene's load, packing and reference render took, out of the budget.
+    reference_s: float
 
 
 class Tuner:
@@ -327,6 +384,7 @@ class Tuner:
         self.runs: list[SceneRun] = []
 
     def prepare(self, path: Path) -> SceneRun:
+        start = time.monotonic()
         scene = load_scene(path)
         settings = RenderSettings(width=self.size[0], height=self.size[1],
                                   tuning=DEFAULT_TUNING)
@@ -338,7 +396,8 @@ class Tuner:
                           f"{stats['kernel_s'] * 1e3:.2g} ms, too short to time against the "
                           f"machine's noise (under {MIN_TIMED_KERNEL_S * 1e3:.0f} ms): tune at "
                           "the size you render, or larger (-W, -H)", stacklevel=2)
-        return SceneRun(path.stem, path, settings, reference, packed, scene.render.spp)
+        return SceneRun(path.stem, path, settings, reference, packed, scene.render.spp,
+                        time.monotonic() - start)
 
     def tolerance(self, reference: np.ndarray) -> Tolerance:
         n = reference.shape[0] * reference.shape[1]
@@ -361,8 +420,14 @@ class Tuner:
         options = [o for o in packed.config.options() if not o.startswith(tuned)]
         answer = [None] * len(args)
         answer[image_index] = args[image_index]
-        cache = self.out / "cache" / _slug(self.device.name) / run.name / f"{_slug(base.label())}"
-        cache.parent.mkdir(parents=True, exist_ok=True)
+        # Kernel Tuner refuses a cache file of another image size: each size has its own.
+        cache = (self.out / "cache" / _slug(self.device.name) / run.name / f"{width}x{height}"
+                 / f"{_slug(base.label())}.json")
+        try:
+            cache.parent.mkdir(parents=True, exist_ok=True)
+        except OSError as err:
+            raise ClrayError(f"cannot write {cache.parent}: {err.strerror or err}") from err
+        check_cache(cache)
         platform, device = _platform_indices(self.device)
 
         # A def, not a lambda: Kernel Tuner rewrites a lambda restriction from its source text.
@@ -391,6 +456,14 @@ class Tuner:
                 if "startup time" not in str(exc):
                     raise
                 return []
+            except ValueError as exc:
+                # Kernel Tuner refuses a cache file of another device, kernel or set of
+                # parameters (an older clray's knobs).
+                if "cache" not in str(exc):
+                    raise
+                raise _cache_error(cache, " ".join(str(exc).split())) from None
+            except OSError as err:  # reading or appending to the cache file: its only files
+                raise _cache_error(cache, err.strerror or str(err)) from err
         trials = [self._trial(run.name, base, r) for r in results if r]
         self.trials += trials
         return trials

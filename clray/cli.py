@@ -937,6 +937,10 @@ def _render_frames(args: argparse.Namespace, started: float) -> int:
 def _study(args: argparse.Namespace) -> int:
     from clray.study import run_study  # matplotlib and friends only when studying
 
+    problem = _check_distinct_stems(args.scenes)
+    if problem is not None:
+        _say(f"error: {problem}")
+        return EXIT_USAGE
     if args.out.exists() and not args.out.is_dir():
         raise ClrayError(f"--out {args.out} exists and is not a directory")
     # The folder made (and taken back if the study fails) and shown writable before the work,

@@ -201,6 +201,19 @@ def test_a_study_file_that_cannot_be_written_is_one_line_and_never_half_written(
     assert not out.exists() or list(out.iterdir()) == []
 
 
+def test_study_refuses_two_scenes_of_one_name(tmp_path: Path, tmp_scene, capsys) -> None:
+    # Its records, plots and report sections are keyed by the name: one would hide the other.
+    first = tmp_scene(SCENE)
+    other = tmp_path / "other" / first.name
+    other.parent.mkdir()
+    other.write_text(SCENE)
+    assert main(["study", str(first), str(other), "--out", str(tmp_path / "o")]) == 2
+    assert capsys.readouterr().err == (
+        f"clray: error: SCENE: {first} and {other} have the same name {first.stem!r}, under "
+        "which their results are kept: rename one\n")
+    assert not (tmp_path / "o").exists()
+
+
 def test_cli_study_needs_out(tmp_scene) -> None:
     assert main(["study", str(tmp_scene(SCENE))]) == 2
 

@@ -34,10 +34,11 @@ test-other-lanes: setup
 	$(PYTHON_VENV) -m pytest -q --lanes other $(LANE_TESTS)
 
 # The tests that compare with an oracle, and those that hold a ray's image to its lane-wise
-# twins' bit for bit, their kernels built with the transcendental builtins off by OpenCL's whole
-# error bounds, upwards and downwards, and the geometric builtins fused (tests/conftest.py,
-# --opencl-ulps; kernels/real.h, MATH_ULPS_OFF), on PoCL: a GPU's builtins may be so where the
-# CPU's are within an ulp and round every product.
+# twins' bit for bit, their kernels built as a GPU builds them (--gpu-build: a pixel a
+# work-item) with the transcendental builtins off by OpenCL's whole error bounds, upwards and
+# downwards, and the geometric builtins fused (tests/conftest.py, --opencl-ulps; kernels/real.h,
+# MATH_ULPS_OFF), on PoCL: a GPU's builtins may be so where the CPU's are within an ulp and
+# round every product.
 ULPS_TESTS := tests/hard_cases tests/test_render.py tests/test_background.py tests/test_camera.py \
 	tests/test_depth.py tests/test_torus.py tests/test_area_lights.py tests/test_fresnel.py \
 	tests/test_reference.py tests/test_intersect.py tests/test_instances.py tests/test_packets.py
@@ -47,8 +48,8 @@ test-opencl-ulps: setup
 	    export OCL_ICD_VENDORS="$(ICD_VENDORS)"; \
 	fi; \
 	for off in 1 -1; do \
-	    echo "$(PYTHON_VENV) -m pytest -q --cl-device pocl --opencl-ulps=$$off $(ULPS_TESTS)"; \
-	    $(PYTHON_VENV) -m pytest -q --cl-device pocl --opencl-ulps=$$off $(ULPS_TESTS) || exit 1; \
+	    echo "$(PYTHON_VENV) -m pytest -q --cl-device pocl --gpu-build --opencl-ulps=$$off $(ULPS_TESTS)"; \
+	    $(PYTHON_VENV) -m pytest -q --cl-device pocl --gpu-build --opencl-ulps=$$off $(ULPS_TESTS) || exit 1; \
 	done
 
 lint: setup

@@ -413,8 +413,9 @@ def test_each_image_size_has_its_own_cache_and_a_broken_one_is_one_line(
     tune(cl_device, tmp_path, size=(32, 18), space=one)
     assert tune(cl_device, tmp_path, size=(40, 18), space=one)
     (device,) = (tmp_path / "cache").iterdir()
-    assert sorted(p.name for p in (device / "spheres").iterdir()) == ["32x18", "40x18"]
-    cache = device / "spheres" / "32x18" / "default.json"
+    sizes = sorted((device / "spheres").iterdir())
+    assert [p.name.split("-")[0] for p in sizes] == ["32x18", "40x18"]
+    cache = sizes[0] / "default.json"
     record = cache.read_text()
     refused = f"^Kernel Tuner's cache file {re.escape(str(cache))}: .+: delete it, or tune into " \
               "another --out$"
@@ -428,6 +429,30 @@ def test_each_image_size_has_its_own_cache_and_a_broken_one_is_one_line(
     cache.write_text(record.replace('"render"', '"other"'))
     with pytest.raises(ClrayError, match=refused):
         tune(cl_device, tmp_path, size=(32, 18), space=one)
+
+
+def test_an_edited_scene_or_tolerance_takes_no_cached_verdict(kernel_tuner, cl_device,
+                                                              tmp_path) -> None:
+    # Kernel Tuner's cache holds each configuration's image verdict beside its times: an
+    # edited scene of the same name, or another --allow-error, must not take them.
+    one = {**TWO, "work_group_width": (64,)}
+    scene = tmp_path / "spheres.toml"
+    scene.write_text(SPHERES.read_text())
+    out = tmp_path / "out"
+
+    def folders() -> list[str]:
+        (device,) = (out / "cache").iterdir()
+        return sorted(p.name for p in (device / "spheres").iterdir())
+
+    tune(cl_device, out, scene, space=one)
+    first = folders()
+    tune(cl_device, out, scene, space=one)
+    assert folders() == first  # unchanged: the same cache, taken again
+    scene.write_text(SPHERES.read_text().replace("max_depth = 4", "max_depth = 1"))
+    tune(cl_device, out, scene, space=one)
+    assert len(folders()) == 2
+    tune(cl_device, out, scene, space=one, allow_error=0.5)
+    assert len(folders()) == 3
 
 
 def test_later_host_configurations_keep_the_best_kernel_knobs(kernel_tuner, cl_device,

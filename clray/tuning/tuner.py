@@ -13,6 +13,7 @@ configuration, makes a second run continue where the first stopped.
 
 from __future__ import annotations
 
+import hashlib
 import importlib
 import itertools
 import json
@@ -404,6 +405,19 @@ class Tuner:
         threshold = PIXEL_TOLERANCE if self.allow_error is None else self.allow_error
         return Tolerance(threshold, fail_allowance(n))
 
+    def cache_folder(self, run: SceneRun) -> str:
+        """The folder of a scene's cache files, one for each image size (Kernel Tuner refuses
+        a cache file of another size) and each set of what the cached verdicts and times
+        depend on: the reference image (the scene as it is now: an edited scene with the
+        same name had its old verdicts taken), the image tolerance (--allow-error), and the
+        kernel's source and the scene's default build (another clray)."""
+        height, width = run.reference.shape[:2]
+        key = hashlib.sha256(np.ascontiguousarray(run.reference).tobytes())
+        for part in (repr(self.tolerance(run.reference)), self.source,
+                     *run.default_packed.config.options()):
+            key.update(b"\0" + part.encode("utf-8"))
+        return f"{width}x{height}-{key.hexdigest()[:12]}"
+
     def run_host(self, run: SceneRun, host: dict, time_limit: float,
                  kernel_space: dict[str, list]) -> list[Trial]:
         """One Kernel Tuner run: the scene packed with `host`'s knobs, the kernel and launch
@@ -420,9 +434,8 @@ class Tuner:
         options = [o for o in packed.config.options() if not o.startswith(tuned)]
         answer = [None] * len(args)
         answer[image_index] = args[image_index]
-        # Kernel Tuner refuses a cache file of another image size: each size has its own.
-        cache = (self.out / "cache" / _slug(self.device.name) / run.name / f"{width}x{height}"
-                 / f"{_slug(base.label())}.json")
+        cache = (self.out / "cache" / _slug(self.device.name) / run.name
+                 / self.cache_folder(run) / f"{_slug(base.label())}.json")
         try:
             cache.parent.mkdir(parents=True, exist_ok=True)
         except OSError as err:

@@ -63,11 +63,17 @@ def parse_frames(text: str) -> range:
 
 def frames_in(frames: range, animation: Animation) -> range:
     """`frames` (stop -1: to the last frame) within the animation's 0 .. frames - 1."""
-    stop = animation.frames if frames.stop == -1 else frames.stop
-    if stop > animation.frames:
-        raise SettingsError(f"--frames: the animation has frames 0 to {animation.frames - 1}, "
-                            f"asked for up to {stop - 1}")
-    return range(frames.start, stop)
+    last = animation.frames - 1
+    if frames.stop == -1:
+        # `A:` past the last frame would be no frames at all, not an error, without this.
+        if frames.start > last:
+            raise SettingsError(f"--frames: the animation has frames 0 to {last}, asked for "
+                                f"{frames.start} to the last")
+        return range(frames.start, animation.frames)
+    if frames.stop - 1 > last:
+        raise SettingsError(f"--frames: the animation has frames 0 to {last}, asked for up to "
+                            f"{frames.stop - 1}")
+    return frames
 
 
 def frame_path(pattern: Path, frame: int) -> Path:

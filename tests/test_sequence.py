@@ -22,6 +22,11 @@ from clray.sequence import (
 )
 
 ROOT = Path(__file__).resolve().parent.parent
+ORBIT = ROOT / "scenes" / "orbit.toml"
+
+
+def refuse_to_render(*_args, **_kwargs):
+    raise AssertionError("rendered although the command was to fail before any work")
 
 
 def track(frames, values, interpolation="linear", path=("camera", "vfov")) -> Track:
@@ -144,6 +149,26 @@ def test_frames_argument_and_output_names():
     with pytest.raises(SettingsError, match="frame number"):
         check_pattern(Path("out.png"), 2)
     check_pattern(Path("out.png"), 1)
+
+
+def test_frames_from_past_the_last_are_refused():
+    # `A:` with A past the last frame was an empty range, and the command's frames[0] an
+    # IndexError traceback.
+    animation = Animation(frames=48, fps=24, tracks=())
+    assert frames_in(parse_frames("47:"), animation) == range(47, 48)
+    for text in ("48:", "60:"):
+        with pytest.raises(SettingsError, match=f"frames 0 to 47, asked for {text[:-1]} to the "
+                                                "last"):
+            frames_in(parse_frames(text), animation)
+
+
+def test_cli_frames_from_past_the_last_exit_2(tmp_path, capsys, monkeypatch):
+    monkeypatch.setattr("clray.sequence.render", refuse_to_render)
+    code = cli.main(["render", str(ORBIT), "--frames", "48:", "-o", str(tmp_path / "f/f_%03d.png")])
+    err = capsys.readouterr().err
+    assert code == 2 and list(tmp_path.iterdir()) == []
+    assert err == ("clray: error: --frames: the animation has frames 0 to 47, asked for 48 to "
+                   "the last\n")
 
 
 def test_resume_skips_only_existing_frames(tmp_path):

@@ -92,7 +92,7 @@ def _flag_value(convert: Callable[[str], Any], problem_of: Callable[[object], st
     their words (clray.scene.limits)."""
     def parse(text: str) -> Any:
         try:
-            value = convert(text) if len(text) <= 40 else text
+            value = convert(text)
         except ValueError:
             value = text
         problem = problem_of(value)

@@ -93,9 +93,10 @@ def check_pattern(pattern: Path, n_frames: int) -> None:
 
 
 def frames_to_render(frames: range, pattern: Path, resume: bool) -> list[int]:
-    """The frames to render: with `resume`, those whose file does not exist yet. A frame's file
-    is complete once it exists: image files are written to a temporary name and renamed."""
-    return [f for f in frames if not (resume and frame_path(pattern, f).exists())]
+    """The frames to render: with `resume`, those whose file is not a regular file yet. A
+    frame's file is complete once it exists: image files are written to a temporary name and
+    renamed. A folder of that name is no frame."""
+    return [f for f in frames if not (resume and frame_path(pattern, f).is_file())]
 
 
 def render_frames(sequence: Sequence, frames: Iterable[int], settings: RenderSettings,

@@ -178,6 +178,12 @@ def test_resume_skips_only_existing_frames(tmp_path):
     assert frames_to_render(range(0, 3), pattern, resume=False) == [0, 1, 2]
 
 
+def test_resume_takes_no_folder_for_a_frame(tmp_path):
+    pattern = tmp_path / "f_%02d.png"
+    (tmp_path / "f_01.png").mkdir()
+    assert frames_to_render(range(0, 3), pattern, resume=True) == [0, 1, 2]
+
+
 def test_render_frames_then_resume(cl_device, tmp_path, capsys):
     scene = ROOT / "scenes" / "orbit.toml"
     pattern = tmp_path / "f_%04d.pfm"

@@ -226,8 +226,8 @@ def _render_command(commands: Any) -> None:
                               "last, 'N' one frame) to -o with a frame number, e.g. "
                               "-o out/frame_%%04d.png (default: SCENE's stem + _%%04d.png)")
     cluster.add_argument("--resume", action="store_true",
-                         help="with --frames: skip frames whose file exists (files are written "
-                              "whole or not at all)")
+                         help="with --frames: skip frames whose file and pass files exist "
+                              "(files are written whole or not at all)")
     _dask_flags(cluster, "render on a Dask cluster: a still in tiles, frames one task each; at "
                          "ADDRESS (tcp://host:8786), else on a local cluster of --dask-workers "
                          "processes. Needs pip install 'clray[dask]'")
@@ -870,10 +870,11 @@ def _say_dask(stats: dict, unit: str) -> None:
 
 
 def _render_frames(args: argparse.Namespace, started: float) -> int:
-    """--frames: each frame of the scene's [animation] to its own file, skipping those that
-    exist with --resume; locally one after another, or one Dask task each."""
+    """--frames: each frame of the scene's [animation] to its own file, skipping those complete
+    (image and pass files) with --resume; locally one after another, or one Dask task each."""
     from clray.sequence import (
         check_pattern,
+        frame_files,
         frame_path,
         frames_in,
         frames_to_render,
@@ -881,15 +882,14 @@ def _render_frames(args: argparse.Namespace, started: float) -> int:
         render_frames,
     )
 
+    aovs: tuple[str, ...] = args.aov or ()
     with _warnings_as_lines(quiet=args.quiet, verbose=args.verbose):
         sequence = load_sequence(args.scene)
         frames = frames_in(args.frames, sequence.animation)
         check_pattern(args.output, len(frames))
-        _check_writable(frame_path(args.output, frames[0]))
-        for path in pass_paths(frame_path(args.output, frames[0]), args.aov or (),
-                               args.aov_preview):
+        for path in frame_files(args.output, frames[0], aovs, args.aov_preview):
             _check_writable(path)
-        todo = frames_to_render(frames, args.output, args.resume)
+        todo = frames_to_render(frames, args.output, args.resume, aovs, args.aov_preview)
         first = sequence.scene(frames[0])
         if not args.quiet:
             for warning in first.warnings:

@@ -9,6 +9,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from clray.errors import SceneError, SettingsError
+from clray.passes import pass_paths
 from clray.render import RenderResult, RenderSettings, render
 from clray.scene.animation import Animation
 from clray.scene.load import read_scene_data, scene_and_animation, scene_from_dict
@@ -92,11 +93,21 @@ def check_pattern(pattern: Path, n_frames: int) -> None:
                             "such as out/frame_%04d.png")
 
 
-def frames_to_render(frames: range, pattern: Path, resume: bool) -> list[int]:
-    """The frames to render: with `resume`, those whose file is not a regular file yet. A
-    frame's file is complete once it exists: image files are written to a temporary name and
-    renamed. A folder of that name is no frame."""
-    return [f for f in frames if not (resume and frame_path(pattern, f).is_file())]
+def frame_files(pattern: Path, frame: int, aovs: tuple[str, ...], previews: bool) -> list[Path]:
+    """The files that rendering `frame` writes: its image and its passes' files beside it."""
+    image = frame_path(pattern, frame)
+    return [image, *pass_paths(image, aovs, previews)]
+
+
+def frames_to_render(frames: range, pattern: Path, resume: bool, aovs: tuple[str, ...] = (),
+                     previews: bool = False) -> list[int]:
+    """The frames to render: with `resume`, those not complete yet. A frame is complete when its
+    image and each of its passes' files is a regular file: each is written to a temporary name
+    and renamed, so one that exists is whole. A folder of that name is not a frame, and a frame
+    written without the passes asked for now lacks them."""
+    return [f for f in frames
+            if not (resume and all(path.is_file()
+                                   for path in frame_files(pattern, f, aovs, previews)))]
 
 
 def render_frames(sequence: Sequence, frames: Iterable[int], settings: RenderSettings,

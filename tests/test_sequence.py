@@ -184,6 +184,17 @@ def test_resume_takes_no_folder_for_a_frame(tmp_path):
     assert frames_to_render(range(0, 3), pattern, resume=True) == [0, 1, 2]
 
 
+def test_resume_skips_a_frame_only_with_its_passes(tmp_path):
+    pattern = tmp_path / "f_%02d.png"
+    for name in ("f_00.png", "f_00.depth.pfm", "f_00.depth.png", "f_01.png", "f_01.depth.pfm",
+                 "f_02.png"):
+        (tmp_path / name).write_bytes(b"done")
+    (tmp_path / "f_02.depth.pfm").mkdir()
+    assert frames_to_render(range(0, 3), pattern, True, ("depth",)) == [2]
+    assert frames_to_render(range(0, 3), pattern, True, ("depth",), previews=True) == [1, 2]
+    assert frames_to_render(range(0, 3), pattern, True, ("depth", "normal")) == [0, 1, 2]
+
+
 def test_render_frames_then_resume(cl_device, tmp_path, capsys):
     scene = ROOT / "scenes" / "orbit.toml"
     pattern = tmp_path / "f_%04d.pfm"
@@ -204,6 +215,17 @@ def test_render_frames_then_resume(cl_device, tmp_path, capsys):
     single = tmp_path / "one.pfm"
     assert cli.main(["render", *args[:-1], str(single), "--frames", "1", "-q"]) == 0
     assert read_pfm(single).tobytes() == first[1].tobytes()
+
+
+def test_resume_renders_the_frames_without_the_passes_asked_for(cl_device, tmp_path, capsys):
+    pattern = tmp_path / "f_%02d.png"
+    args = ["render", str(ORBIT), "-W", "8", "-H", "4", "--spp", "1", "-o", str(pattern)]
+    assert cli.main([*args, "--frames", "0:2", "-q"]) == 0
+    assert cli.main([*args, "--frames", "0:3", "--resume", "--aov", "depth"]) == 0
+    assert "wrote 3 frames of frames 0-2" in capsys.readouterr().err
+    assert all(frame_path(tmp_path / "f_%02d.depth.pfm", f).is_file() for f in range(3))
+    assert cli.main([*args, "--frames", "0:3", "--resume", "--aov", "depth"]) == 0
+    assert "wrote 0 frames of frames 0-2 to" in capsys.readouterr().err
 
 
 def test_frames_usage_errors(tmp_path, capsys):

@@ -596,7 +596,21 @@ def _write(path: Path, write: Callable[[], None]) -> None:
             _make_folder(path, output_target(path).parent)
         write()
     except OSError as err:
-        raise ClrayError(f"cannot write {path}: {err.strerror or err}") from err
+        raise ClrayError(f"cannot write {_failed_file(err, path)}: {err.strerror or err}"
+                         ) from err
+
+
+def _failed_file(err: OSError, path: Path) -> str | Path:
+    """The file that `err` is about: an image's write writes its pass files too, and the one
+    that failed is the one to name. A rename's destination (filename2) before its source, and
+    never write_bytes_atomically's temporary name (.NAME.PID.HEX.tmp), which the user did not
+    ask for; `path` where the error names no other file."""
+    for name in (err.filename2, err.filename):
+        if isinstance(name, str | bytes):
+            name = os.fsdecode(name)
+            if not (os.path.basename(name).startswith(".") and name.endswith(".tmp")):
+                return name
+    return path
 
 
 class _ProgressLines:
@@ -890,6 +904,12 @@ def _render_frames(args: argparse.Namespace, started: float) -> int:
         for path in frame_files(args.output, frames[0], aovs, args.aov_preview):
             _check_writable(path)
         todo = frames_to_render(frames, args.output, args.resume, aovs, args.aov_preview)
+        # A folder where a later frame's file goes would fail the command only once the frames
+        # before it are rendered; a look at each name is cheap beside a probe file each.
+        for frame in todo:
+            for path in frame_files(args.output, frame, aovs, args.aov_preview):
+                if os.path.isdir(path):
+                    raise ClrayError(f"cannot write {path}: it is a directory")
         first = sequence.scene(frames[0])
         if not args.quiet:
             for warning in first.warnings:

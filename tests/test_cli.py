@@ -24,6 +24,7 @@ from clray import cli
 from clray.device.context import has_fp64
 from clray.errors import EXIT_USAGE, ClrayError
 from clray.image_io import read_pfm
+from clray.output import write_bytes_atomically
 from clray.scene import limits
 from clray.tuning import Tuning
 
@@ -129,6 +130,16 @@ def test_usage_errors_exit_2(capsys, scene, tmp_path, argv) -> None:
     assert out == ""
     assert_one_error_line(err)
     assert files_in(tmp_path) == ["scene.toml"]
+
+
+def test_a_write_error_names_the_file_that_failed(tmp_path) -> None:
+    # An image's write writes its pass files too; one of theirs was said as the image's.
+    blocker = tmp_path / "out.depth.pfm"
+    blocker.mkdir()
+    with pytest.raises(ClrayError) as info:
+        cli._write(tmp_path / "out.png", lambda: write_bytes_atomically(blocker, b"PF"))
+    assert str(info.value) == f"cannot write {blocker}: Is a directory"
+    assert files_in(tmp_path) == ["out.depth.pfm"]
 
 
 def test_bad_suffix_message_names_supported_ones(capsys, scene) -> None:

@@ -195,6 +195,24 @@ def test_resume_skips_a_frame_only_with_its_passes(tmp_path):
     assert frames_to_render(range(0, 3), pattern, True, ("depth", "normal")) == [0, 1, 2]
 
 
+@pytest.mark.parametrize("folder", ["f_01.png", "f_02.depth.pfm"])
+@pytest.mark.parametrize("resume", [[], ["--resume"]])
+def test_a_folder_in_place_of_a_frames_file_is_named_before_any_work(tmp_path, capsys,
+                                                                     monkeypatch, folder,
+                                                                     resume):
+    # A folder in place of a later frame's file failed the command only after the frames before
+    # it were rendered, named as the frame's image even where it was a pass file; with --resume
+    # a folder in place of the image counted as a complete frame.
+    monkeypatch.setattr("clray.sequence.render", refuse_to_render)
+    (tmp_path / folder).mkdir()
+    code = cli.main(["render", str(ORBIT), "--frames", "0:3", "--aov", "depth", "-o",
+                     str(tmp_path / "f_%02d.png"), *resume])
+    assert code == 1
+    assert capsys.readouterr().err == (f"clray: error: cannot write {tmp_path / folder}: it is a "
+                                       "directory\n")
+    assert sorted(p.name for p in tmp_path.iterdir()) == [folder]
+
+
 def test_render_frames_then_resume(cl_device, tmp_path, capsys):
     scene = ROOT / "scenes" / "orbit.toml"
     pattern = tmp_path / "f_%04d.pfm"

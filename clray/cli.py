@@ -467,7 +467,11 @@ def _check_still_output(parser: argparse.ArgumentParser, args: argparse.Namespac
 
 def _check_pass_flags(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
     """--aov writes the passes into files beside the image (each frame's with --frames):
-    refused where there are none, or where the render has no passes (a Dask still's tiles)."""
+    refused where there are none, or where the render has no passes (a Dask still's tiles),
+    as is --denoise, whose guides are passes."""
+    if args.denoise and args.dask is not None and args.frames is None:
+        parser.error("--denoise: a still rendered in tiles on Dask has no passes to guide the "
+                     "denoiser; render it without --dask (frames with --frames are denoised)")
     if args.aov_preview and not args.aov:
         parser.error("--aov-preview applies to --aov")
     if not args.aov:

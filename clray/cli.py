@@ -35,6 +35,7 @@ from clray.errors import (
     EXIT_USAGE,
     ClrayError,
     SceneError,
+    SettingsError,
     one_line,
     plural,
 )
@@ -421,6 +422,8 @@ def _scene(args: argparse.Namespace) -> int:
 
 
 def _parse(argv: list[str] | None) -> argparse.Namespace:
+    from clray.sequence import frame_path
+
     parser = _build_parser()
     args = parser.parse_args(argv)
     if args.command in ("render", "study") and args.dask and args.dask_workers is not None:
@@ -428,6 +431,12 @@ def _parse(argv: list[str] | None) -> argparse.Namespace:
     if args.command == "render":
         if args.output is None:
             args.output = Path(args.scene.stem + ("_%04d" if args.frames else "") + ".png")
+        if args.output != STDOUT:
+            try:
+                # Before any work, as every usage error; frame_path cannot fail after this.
+                frame_path(args.output, 0)
+            except SettingsError as err:
+                parser.error(str(err))
         if args.frames is not None and STDOUT in (args.output, args.stats_json):
             parser.error("--frames writes files: give -o and --stats-json file names")
         if args.resume and args.frames is None:

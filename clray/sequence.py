@@ -4,6 +4,7 @@ frame numbers and file names of `clray render --frames`, and the frames rendered
 from __future__ import annotations
 
 import os
+import re
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from pathlib import Path
@@ -77,9 +78,22 @@ def frames_in(frames: range, animation: Animation) -> range:
     return frames
 
 
+# A printf conversion, with the width and precision that make its text that long; `%%` too, so
+# that the `%5d` of `%%5d` (a literal `%` and `5d`) is not taken for one.
+_CONVERSION = re.compile(r"%%|%[-+ #0]*(\d*)(?:\.(\d*))?")
+# No file name is longer than this (NAME_MAX on the usual file systems).
+_MAX_NAME = 255
+
+
 def frame_path(pattern: Path, frame: int) -> Path:
     """The file of `frame`: `pattern` with its printf-style number filled in; a name without
-    one (a single frame) as it is."""
+    one (a single frame) as it is. SettingsError for a width or precision past a file name's
+    length: `%99999999999d` would build a string of that many characters first."""
+    for conversion in _CONVERSION.finditer(str(pattern)):
+        if any(len(digits) > 3 or int(digits) > _MAX_NAME
+               for digits in conversion.groups() if digits):
+            raise SettingsError(f"-o {pattern}: a frame number's width is at most {_MAX_NAME} "
+                                f"(a file name's length), got {conversion.group()}")
     try:
         return Path(str(pattern) % frame)
     except (TypeError, ValueError):

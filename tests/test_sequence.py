@@ -213,6 +213,24 @@ def test_a_folder_in_place_of_a_frames_file_is_named_before_any_work(tmp_path, c
     assert sorted(p.name for p in tmp_path.iterdir()) == [folder]
 
 
+@pytest.mark.parametrize("frames", [[], ["--frames", "0:2"]])
+@pytest.mark.parametrize("name", ["x_%99999999999d.png", "x_%.99999999999d.png",
+                                  "x_%-0256d.png"])
+def test_a_frame_number_wider_than_a_file_name_is_a_usage_error(tmp_path, capsys, frames, name):
+    # It was a MemoryError traceback: the name was built first, a string of that many digits.
+    pattern = tmp_path / name
+    code = cli.main(["render", str(ORBIT), "-o", str(pattern), *frames])
+    err = capsys.readouterr().err
+    assert code == 2 and list(tmp_path.iterdir()) == []
+    assert err.startswith(f"clray: error: -o {pattern}: a frame number's width is at most 255")
+    assert len(err.splitlines()) == 1
+
+
+def test_a_frame_number_as_wide_as_a_file_name_is_taken():
+    # `%%` is a literal `%`: the `9999d` after it is text, not a width.
+    assert frame_path(Path("x_%%9999d_%255d.png"), 1).name == "x_%9999d_" + " " * 254 + "1.png"
+
+
 def test_render_frames_then_resume(cl_device, tmp_path, capsys):
     scene = ROOT / "scenes" / "orbit.toml"
     pattern = tmp_path / "f_%04d.pfm"

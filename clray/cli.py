@@ -79,6 +79,10 @@ MAX_REPEAT = 1000
 class _Parser(argparse.ArgumentParser):
     """argparse whose usage errors are one line, like every other clray error."""
 
+    # The top-level parser's commands by name, so that the checks after parsing say which
+    # command's --help to see.
+    commands: dict[str, argparse.ArgumentParser]
+
     def error(self, message: str) -> NoReturn:
         self.exit(EXIT_USAGE, f"clray: error: {one_line(message)} (see '{self.prog} --help')\n")
 
@@ -166,6 +170,7 @@ def _build_parser() -> _Parser:
     for add_command in (_render_command, _study_command, _scene_command, _tune_command,
                         _profile_command, _devices_command):
         add_command(commands)
+    parser.commands = commands.choices
     return parser
 
 
@@ -424,8 +429,9 @@ def _scene(args: argparse.Namespace) -> int:
 def _parse(argv: list[str] | None) -> argparse.Namespace:
     from clray.sequence import frame_path
 
-    parser = _build_parser()
-    args = parser.parse_args(argv)
+    top = _build_parser()
+    args = top.parse_args(argv)
+    parser = top.commands[args.command]
     if args.command in ("render", "study") and args.dask and args.dask_workers is not None:
         parser.error("--dask-workers applies to a local cluster (--dask without ADDRESS)")
     if args.command == "render":

@@ -132,6 +132,15 @@ def test_usage_errors_exit_2(capsys, scene, tmp_path, argv) -> None:
     assert files_in(tmp_path) == ["scene.toml"]
 
 
+def test_usage_errors_after_parsing_point_to_the_commands_help(capsys, scene) -> None:
+    # They pointed to 'clray --help', which lists the commands, not the flag at fault.
+    _, _, err = run(capsys, "render", scene, "--resume")
+    assert err == "clray: error: --resume applies to --frames (see 'clray render --help')\n"
+    _, _, err = run(capsys, "study", scene, "--out", "d", "--dask", "tcp://h:1",
+                    "--dask-workers", "2")
+    assert err.endswith("(see 'clray study --help')\n")
+
+
 def test_a_write_error_names_the_file_that_failed(tmp_path) -> None:
     # An image's write writes its pass files too; one of theirs was said as the image's.
     blocker = tmp_path / "out.depth.pfm"

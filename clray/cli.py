@@ -389,8 +389,9 @@ def _dask_flags(group: Any, dask_help: str) -> None:
     group.add_argument("--dask", nargs="?", const="", metavar="ADDRESS", help=dask_help)
     group.add_argument("--dask-workers", type=_int_in(1, 256), metavar="N",
                        help="worker processes of the local cluster (default: 2)")
-    group.add_argument("--dask-timeout", type=_number_in(0.1, 3600), default=10.0,
-                       metavar="S", help="seconds to wait for the scheduler (default: 10)")
+    # Default None, not 10: a flag of --dask's given without it is refused, and so must be seen.
+    group.add_argument("--dask-timeout", type=_number_in(0.1, 3600), metavar="S",
+                       help="seconds to wait for the scheduler (default: 10)")
 
 
 def _model_flags(parser: argparse.ArgumentParser) -> None:
@@ -432,8 +433,16 @@ def _parse(argv: list[str] | None) -> argparse.Namespace:
     top = _build_parser()
     args = top.parse_args(argv)
     parser = top.commands[args.command]
-    if args.command in ("render", "study") and args.dask and args.dask_workers is not None:
-        parser.error("--dask-workers applies to a local cluster (--dask without ADDRESS)")
+    if args.command in ("render", "study"):
+        if args.dask is None:
+            given = [flag for flag, value in (("--dask-workers", args.dask_workers),
+                                              ("--dask-timeout", args.dask_timeout))
+                     if value is not None]
+            if given:
+                parser.error(f"{' and '.join(given)} "
+                             f"{'applies' if len(given) == 1 else 'apply'} to --dask")
+        elif args.dask and args.dask_workers is not None:
+            parser.error("--dask-workers applies to a local cluster (--dask without ADDRESS)")
     if args.command == "render":
         if args.output is None:
             args.output = Path(args.scene.stem + ("_%04d" if args.frames else "") + ".png")
@@ -889,10 +898,10 @@ def _settings(args: argparse.Namespace, progress: Callable[[int, int], None] | N
 
 
 def _cluster(args: argparse.Namespace) -> contextlib.AbstractContextManager:
-    from clray.distributed import LOCAL_WORKERS, connect
+    from clray.distributed import CONNECT_TIMEOUT_S, LOCAL_WORKERS, connect
 
     return connect(args.dask or None, workers=args.dask_workers or LOCAL_WORKERS,
-                   timeout=args.dask_timeout)
+                   timeout=args.dask_timeout or CONNECT_TIMEOUT_S)
 
 
 def _say_dask(stats: dict, unit: str) -> None:

@@ -132,6 +132,20 @@ def test_usage_errors_exit_2(capsys, scene, tmp_path, argv) -> None:
     assert files_in(tmp_path) == ["scene.toml"]
 
 
+@pytest.mark.parametrize(("command", "flags"), [
+    ("render", ["--dask-workers", "3"]),
+    ("render", ["--dask-timeout", "5"]),
+    ("study", ["--out", "d", "--dask-workers", "3", "--dask-timeout", "5"]),
+])
+def test_dask_flags_without_dask_are_refused(capsys, scene, tmp_path, command, flags) -> None:
+    # They were ignored: the command ran without Dask as if they had not been given.
+    code, _, err = run(capsys, command, scene, *flags)
+    assert code == 2 and files_in(tmp_path) == ["scene.toml"]
+    assert_one_error_line(err)
+    given = " and ".join(flag for flag in flags if flag.startswith("--dask"))
+    assert f"{given} {'apply' if ' and ' in given else 'applies'} to --dask" in err
+
+
 def test_usage_errors_after_parsing_point_to_the_commands_help(capsys, scene) -> None:
     # They pointed to 'clray --help', which lists the commands, not the flag at fault.
     _, _, err = run(capsys, "render", scene, "--resume")

@@ -35,6 +35,7 @@ from clray.errors import (
     EXIT_USAGE,
     ClrayError,
     SceneError,
+    SettingsError,
     one_line,
     plural,
 )
@@ -78,6 +79,10 @@ MAX_REPEAT = 1000
 class _Parser(argparse.ArgumentParser):
     """argparse whose usage errors are one line, like every other clray error."""
 
+    # The top-level parser's commands by name, so that the checks after parsing say which
+    # command's --help to see.
+    commands: dict[str, argparse.ArgumentParser]
+
     def error(self, message: str) -> NoReturn:
         self.exit(EXIT_USAGE, f"clray: error: {one_line(message)} (see '{self.prog} --help')\n")
 
@@ -92,7 +97,7 @@ def _flag_value(convert: Callable[[str], Any], problem_of: Callable[[object], st
     their words (clray.scene.limits)."""
     def parse(text: str) -> Any:
         try:
-            value = convert(text) if len(text) <= 40 else text
+            value = convert(text)
         except ValueError:
             value = text
         problem = problem_of(value)
@@ -165,6 +170,7 @@ def _build_parser() -> _Parser:
     for add_command in (_render_command, _study_command, _scene_command, _tune_command,
                         _profile_command, _devices_command):
         add_command(commands)
+    parser.commands = commands.choices
     return parser
 
 
@@ -226,8 +232,8 @@ def _render_command(commands: Any) -> None:
                               "last, 'N' one frame) to -o with a frame number, e.g. "
                               "-o out/frame_%%04d.png (default: SCENE's stem + _%%04d.png)")
     cluster.add_argument("--resume", action="store_true",
-                         help="with --frames: skip frames whose file exists (files are written "
-                              "whole or not at all)")
+                         help="with --frames: skip frames whose file and pass files exist "
+                              "(files are written whole or not at all)")
     _dask_flags(cluster, "render on a Dask cluster: a still in tiles, frames one task each; at "
                          "ADDRESS (tcp://host:8786), else on a local cluster of --dask-workers "
                          "processes. Needs pip install 'clray[dask]'")
@@ -383,8 +389,9 @@ def _dask_flags(group: Any, dask_help: str) -> None:
     group.add_argument("--dask", nargs="?", const="", metavar="ADDRESS", help=dask_help)
     group.add_argument("--dask-workers", type=_int_in(1, 256), metavar="N",
                        help="worker processes of the local cluster (default: 2)")
-    group.add_argument("--dask-timeout", type=_number_in(0.1, 3600), default=10.0,
-                       metavar="S", help="seconds to wait for the scheduler (default: 10)")
+    # Default None, not 10: a flag of --dask's given without it is refused, and so must be seen.
+    group.add_argument("--dask-timeout", type=_number_in(0.1, 3600), metavar="S",
+                       help="seconds to wait for the scheduler (default: 10)")
 
 
 def _model_flags(parser: argparse.ArgumentParser) -> None:
@@ -421,13 +428,30 @@ def _scene(args: argparse.Namespace) -> int:
 
 
 def _parse(argv: list[str] | None) -> argparse.Namespace:
-    parser = _build_parser()
-    args = parser.parse_args(argv)
-    if args.command in ("render", "study") and args.dask and args.dask_workers is not None:
-        parser.error("--dask-workers applies to a local cluster (--dask without ADDRESS)")
+    from clray.sequence import frame_path
+
+    top = _build_parser()
+    args = top.parse_args(argv)
+    parser = top.commands[args.command]
+    if args.command in ("render", "study"):
+        if args.dask is None:
+            given = [flag for flag, value in (("--dask-workers", args.dask_workers),
+                                              ("--dask-timeout", args.dask_timeout))
+                     if value is not None]
+            if given:
+                parser.error(f"{' and '.join(given)} "
+                             f"{'applies' if len(given) == 1 else 'apply'} to --dask")
+        elif args.dask and args.dask_workers is not None:
+            parser.error("--dask-workers applies to a local cluster (--dask without ADDRESS)")
     if args.command == "render":
         if args.output is None:
             args.output = Path(args.scene.stem + ("_%04d" if args.frames else "") + ".png")
+        if args.output != STDOUT:
+            try:
+                # Before any work, as every usage error; frame_path cannot fail after this.
+                frame_path(args.output, 0)
+            except SettingsError as err:
+                parser.error(str(err))
         if args.frames is not None and STDOUT in (args.output, args.stats_json):
             parser.error("--frames writes files: give -o and --stats-json file names")
         if args.resume and args.frames is None:
@@ -467,7 +491,11 @@ def _check_still_output(parser: argparse.ArgumentParser, args: argparse.Namespac
 
 def _check_pass_flags(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
     """--aov writes the passes into files beside the image (each frame's with --frames):
-    refused where there are none, or where the render has no passes (a Dask still's tiles)."""
+    refused where there are none, or where the render has no passes (a Dask still's tiles),
+    as is --denoise, whose guides are passes."""
+    if args.denoise and args.dask is not None and args.frames is None:
+        parser.error("--denoise: a still rendered in tiles on Dask has no passes to guide the "
+                     "denoiser; render it without --dask (frames with --frames are denoised)")
     if args.aov_preview and not args.aov:
         parser.error("--aov-preview applies to --aov")
     if not args.aov:
@@ -596,7 +624,21 @@ def _write(path: Path, write: Callable[[], None]) -> None:
             _make_folder(path, output_target(path).parent)
         write()
     except OSError as err:
-        raise ClrayError(f"cannot write {path}: {err.strerror or err}") from err
+        raise ClrayError(f"cannot write {_failed_file(err, path)}: {err.strerror or err}"
+                         ) from err
+
+
+def _failed_file(err: OSError, path: Path) -> str | Path:
+    """The file that `err` is about: an image's write writes its pass files too, and the one
+    that failed is the one to name. A rename's destination (filename2) before its source, and
+    never write_bytes_atomically's temporary name (.NAME.PID.HEX.tmp), which the user did not
+    ask for; `path` where the error names no other file."""
+    for name in (err.filename2, err.filename):
+        if isinstance(name, str | bytes):
+            name = os.fsdecode(name)
+            if not (os.path.basename(name).startswith(".") and name.endswith(".tmp")):
+                return name
+    return path
 
 
 class _ProgressLines:
@@ -856,10 +898,10 @@ def _settings(args: argparse.Namespace, progress: Callable[[int, int], None] | N
 
 
 def _cluster(args: argparse.Namespace) -> contextlib.AbstractContextManager:
-    from clray.distributed import LOCAL_WORKERS, connect
+    from clray.distributed import CONNECT_TIMEOUT_S, LOCAL_WORKERS, connect
 
     return connect(args.dask or None, workers=args.dask_workers or LOCAL_WORKERS,
-                   timeout=args.dask_timeout)
+                   timeout=args.dask_timeout or CONNECT_TIMEOUT_S)
 
 
 def _say_dask(stats: dict, unit: str) -> None:
@@ -870,10 +912,11 @@ def _say_dask(stats: dict, unit: str) -> None:
 
 
 def _render_frames(args: argparse.Namespace, started: float) -> int:
-    """--frames: each frame of the scene's [animation] to its own file, skipping those that
-    exist with --resume; locally one after another, or one Dask task each."""
+    """--frames: each frame of the scene's [animation] to its own file, skipping those complete
+    (image and pass files) with --resume; locally one after another, or one Dask task each."""
     from clray.sequence import (
         check_pattern,
+        frame_files,
         frame_path,
         frames_in,
         frames_to_render,
@@ -881,15 +924,20 @@ def _render_frames(args: argparse.Namespace, started: float) -> int:
         render_frames,
     )
 
+    aovs: tuple[str, ...] = args.aov or ()
     with _warnings_as_lines(quiet=args.quiet, verbose=args.verbose):
         sequence = load_sequence(args.scene)
         frames = frames_in(args.frames, sequence.animation)
         check_pattern(args.output, len(frames))
-        _check_writable(frame_path(args.output, frames[0]))
-        for path in pass_paths(frame_path(args.output, frames[0]), args.aov or (),
-                               args.aov_preview):
+        for path in frame_files(args.output, frames[0], aovs, args.aov_preview):
             _check_writable(path)
-        todo = frames_to_render(frames, args.output, args.resume)
+        todo = frames_to_render(frames, args.output, args.resume, aovs, args.aov_preview)
+        # A folder where a later frame's file goes would fail the command only once the frames
+        # before it are rendered; a look at each name is cheap beside a probe file each.
+        for frame in todo:
+            for path in frame_files(args.output, frame, aovs, args.aov_preview):
+                if os.path.isdir(path):
+                    raise ClrayError(f"cannot write {path}: it is a directory")
         first = sequence.scene(frames[0])
         if not args.quiet:
             for warning in first.warnings:

@@ -4,11 +4,13 @@ frame numbers and file names of `clray render --frames`, and the frames rendered
 from __future__ import annotations
 
 import os
+import re
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from pathlib import Path
 
 from clray.errors import SceneError, SettingsError
+from clray.passes import pass_paths
 from clray.render import RenderResult, RenderSettings, render
 from clray.scene.animation import Animation
 from clray.scene.load import read_scene_data, scene_and_animation, scene_from_dict
@@ -63,16 +65,35 @@ def parse_frames(text: str) -> range:
 
 def frames_in(frames: range, animation: Animation) -> range:
     """`frames` (stop -1: to the last frame) within the animation's 0 .. frames - 1."""
-    stop = animation.frames if frames.stop == -1 else frames.stop
-    if stop > animation.frames:
-        raise SettingsError(f"--frames: the animation has frames 0 to {animation.frames - 1}, "
-                            f"asked for up to {stop - 1}")
-    return range(frames.start, stop)
+    last = animation.frames - 1
+    if frames.stop == -1:
+        # `A:` past the last frame would be no frames at all, not an error, without this.
+        if frames.start > last:
+            raise SettingsError(f"--frames: the animation has frames 0 to {last}, asked for "
+                                f"{frames.start} to the last")
+        return range(frames.start, animation.frames)
+    if frames.stop - 1 > last:
+        raise SettingsError(f"--frames: the animation has frames 0 to {last}, asked for up to "
+                            f"{frames.stop - 1}")
+    return frames
+
+
+# A printf conversion, with the width and precision that make its text that long; `%%` too, so
+# that the `%5d` of `%%5d` (a literal `%` and `5d`) is not taken for one.
+_CONVERSION = re.compile(r"%%|%[-+ #0]*(\d*)(?:\.(\d*))?")
+# No file name is longer than this (NAME_MAX on the usual file systems).
+_MAX_NAME = 255
 
 
 def frame_path(pattern: Path, frame: int) -> Path:
     """The file of `frame`: `pattern` with its printf-style number filled in; a name without
-    one (a single frame) as it is."""
+    one (a single frame) as it is. SettingsError for a width or precision past a file name's
+    length: `%99999999999d` would build a string of that many characters first."""
+    for conversion in _CONVERSION.finditer(str(pattern)):
+        if any(len(digits) > 3 or int(digits) > _MAX_NAME
+               for digits in conversion.groups() if digits):
+            raise SettingsError(f"-o {pattern}: a frame number's width is at most {_MAX_NAME} "
+                                f"(a file name's length), got {conversion.group()}")
     try:
         return Path(str(pattern) % frame)
     except (TypeError, ValueError):
@@ -86,10 +107,21 @@ def check_pattern(pattern: Path, n_frames: int) -> None:
                             "such as out/frame_%04d.png")
 
 
-def frames_to_render(frames: range, pattern: Path, resume: bool) -> list[int]:
-    """The frames to render: with `resume`, those whose file does not exist yet. A frame's file
-    is complete once it exists: image files are written to a temporary name and renamed."""
-    return [f for f in frames if not (resume and frame_path(pattern, f).exists())]
+def frame_files(pattern: Path, frame: int, aovs: tuple[str, ...], previews: bool) -> list[Path]:
+    """The files that rendering `frame` writes: its image and its passes' files beside it."""
+    image = frame_path(pattern, frame)
+    return [image, *pass_paths(image, aovs, previews)]
+
+
+def frames_to_render(frames: range, pattern: Path, resume: bool, aovs: tuple[str, ...] = (),
+                     previews: bool = False) -> list[int]:
+    """The frames to render: with `resume`, those not complete yet. A frame is complete when its
+    image and each of its passes' files is a regular file: each is written to a temporary name
+    and renamed, so one that exists is whole. A folder of that name is not a frame, and a frame
+    written without the passes asked for now lacks them."""
+    return [f for f in frames
+            if not (resume and all(path.is_file()
+                                   for path in frame_files(pattern, f, aovs, previews)))]
 
 
 def render_frames(sequence: Sequence, frames: Iterable[int], settings: RenderSettings,

@@ -24,6 +24,7 @@ from clray import cli
 from clray.device.context import has_fp64
 from clray.errors import EXIT_USAGE, ClrayError
 from clray.image_io import read_pfm
+from clray.output import write_bytes_atomically
 from clray.scene import limits
 from clray.tuning import Tuning
 
@@ -129,6 +130,39 @@ def test_usage_errors_exit_2(capsys, scene, tmp_path, argv) -> None:
     assert out == ""
     assert_one_error_line(err)
     assert files_in(tmp_path) == ["scene.toml"]
+
+
+@pytest.mark.parametrize(("command", "flags"), [
+    ("render", ["--dask-workers", "3"]),
+    ("render", ["--dask-timeout", "5"]),
+    ("study", ["--out", "d", "--dask-workers", "3", "--dask-timeout", "5"]),
+])
+def test_dask_flags_without_dask_are_refused(capsys, scene, tmp_path, command, flags) -> None:
+    # They were ignored: the command ran without Dask as if they had not been given.
+    code, _, err = run(capsys, command, scene, *flags)
+    assert code == 2 and files_in(tmp_path) == ["scene.toml"]
+    assert_one_error_line(err)
+    given = " and ".join(flag for flag in flags if flag.startswith("--dask"))
+    assert f"{given} {'apply' if ' and ' in given else 'applies'} to --dask" in err
+
+
+def test_usage_errors_after_parsing_point_to_the_commands_help(capsys, scene) -> None:
+    # They pointed to 'clray --help', which lists the commands, not the flag at fault.
+    _, _, err = run(capsys, "render", scene, "--resume")
+    assert err == "clray: error: --resume applies to --frames (see 'clray render --help')\n"
+    _, _, err = run(capsys, "study", scene, "--out", "d", "--dask", "tcp://h:1",
+                    "--dask-workers", "2")
+    assert err.endswith("(see 'clray study --help')\n")
+
+
+def test_a_write_error_names_the_file_that_failed(tmp_path) -> None:
+    # An image's write writes its pass files too; one of theirs was said as the image's.
+    blocker = tmp_path / "out.depth.pfm"
+    blocker.mkdir()
+    with pytest.raises(ClrayError) as info:
+        cli._write(tmp_path / "out.png", lambda: write_bytes_atomically(blocker, b"PF"))
+    assert str(info.value) == f"cannot write {blocker}: Is a directory"
+    assert files_in(tmp_path) == ["out.depth.pfm"]
 
 
 def test_bad_suffix_message_names_supported_ones(capsys, scene) -> None:

@@ -173,6 +173,18 @@ def test_dask_still_refuses_to_denoise() -> None:
                      RenderSettings(denoise=True))
 
 
+def test_cli_dask_still_refuses_to_denoise_before_connecting(capsys, tmp_path: Path) -> None:
+    # A usage error before any work: it used to wait out --dask-timeout on an address where no
+    # scheduler answers, then say "cannot connect" (exit 1).
+    code = cli.main(["render", str(ROOT / "scenes" / "soft_lights.toml"), "-o",
+                     str(tmp_path / "out.png"), "--denoise", "--dask", "tcp://127.0.0.1:1",
+                     "--dask-timeout", "3"])
+    err = capsys.readouterr().err
+    assert code == 2 and list(tmp_path.iterdir()) == []
+    assert err.startswith("clray: error: --denoise: a still rendered in tiles on Dask has no "
+                          "passes") and len(err.splitlines()) == 1
+
+
 def test_cli_denoise_with_aov_writes_the_passes_as_rendered(capsys, tmp_path: Path) -> None:
     """The passes asked for are the render's own, not the guides as the denoiser cleaned them."""
     pytest.importorskip("pyoidn")

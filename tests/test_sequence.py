@@ -22,6 +22,11 @@ from clray.sequence import (
 )
 
 ROOT = Path(__file__).resolve().parent.parent
+ORBIT = ROOT / "scenes" / "orbit.toml"
+
+
+def refuse_to_render(*_args, **_kwargs):
+    raise AssertionError("rendered although the command was to fail before any work")
 
 
 def track(frames, values, interpolation="linear", path=("camera", "vfov")) -> Track:
@@ -146,11 +151,84 @@ def test_frames_argument_and_output_names():
     check_pattern(Path("out.png"), 1)
 
 
+def test_frames_from_past_the_last_are_refused():
+    # `A:` with A past the last frame was an empty range, and the command's frames[0] an
+    # IndexError traceback.
+    animation = Animation(frames=48, fps=24, tracks=())
+    assert frames_in(parse_frames("47:"), animation) == range(47, 48)
+    for text in ("48:", "60:"):
+        with pytest.raises(SettingsError, match=f"frames 0 to 47, asked for {text[:-1]} to the "
+                                                "last"):
+            frames_in(parse_frames(text), animation)
+
+
+def test_cli_frames_from_past_the_last_exit_2(tmp_path, capsys, monkeypatch):
+    monkeypatch.setattr("clray.sequence.render", refuse_to_render)
+    code = cli.main(["render", str(ORBIT), "--frames", "48:", "-o", str(tmp_path / "f/f_%03d.png")])
+    err = capsys.readouterr().err
+    assert code == 2 and list(tmp_path.iterdir()) == []
+    assert err == ("clray: error: --frames: the animation has frames 0 to 47, asked for 48 to "
+                   "the last\n")
+
+
 def test_resume_skips_only_existing_frames(tmp_path):
     pattern = tmp_path / "f_%02d.png"
     (tmp_path / "f_01.png").write_bytes(b"done")
     assert frames_to_render(range(0, 3), pattern, resume=True) == [0, 2]
     assert frames_to_render(range(0, 3), pattern, resume=False) == [0, 1, 2]
+
+
+def test_resume_takes_no_folder_for_a_frame(tmp_path):
+    pattern = tmp_path / "f_%02d.png"
+    (tmp_path / "f_01.png").mkdir()
+    assert frames_to_render(range(0, 3), pattern, resume=True) == [0, 1, 2]
+
+
+def test_resume_skips_a_frame_only_with_its_passes(tmp_path):
+    pattern = tmp_path / "f_%02d.png"
+    for name in ("f_00.png", "f_00.depth.pfm", "f_00.depth.png", "f_01.png", "f_01.depth.pfm",
+                 "f_02.png"):
+        (tmp_path / name).write_bytes(b"done")
+    (tmp_path / "f_02.depth.pfm").mkdir()
+    assert frames_to_render(range(0, 3), pattern, True, ("depth",)) == [2]
+    assert frames_to_render(range(0, 3), pattern, True, ("depth",), previews=True) == [1, 2]
+    assert frames_to_render(range(0, 3), pattern, True, ("depth", "normal")) == [0, 1, 2]
+
+
+@pytest.mark.parametrize("folder", ["f_01.png", "f_02.depth.pfm"])
+@pytest.mark.parametrize("resume", [[], ["--resume"]])
+def test_a_folder_in_place_of_a_frames_file_is_named_before_any_work(tmp_path, capsys,
+                                                                     monkeypatch, folder,
+                                                                     resume):
+    # A folder in place of a later frame's file failed the command only after the frames before
+    # it were rendered, named as the frame's image even where it was a pass file; with --resume
+    # a folder in place of the image counted as a complete frame.
+    monkeypatch.setattr("clray.sequence.render", refuse_to_render)
+    (tmp_path / folder).mkdir()
+    code = cli.main(["render", str(ORBIT), "--frames", "0:3", "--aov", "depth", "-o",
+                     str(tmp_path / "f_%02d.png"), *resume])
+    assert code == 1
+    assert capsys.readouterr().err == (f"clray: error: cannot write {tmp_path / folder}: it is a "
+                                       "directory\n")
+    assert sorted(p.name for p in tmp_path.iterdir()) == [folder]
+
+
+@pytest.mark.parametrize("frames", [[], ["--frames", "0:2"]])
+@pytest.mark.parametrize("name", ["x_%99999999999d.png", "x_%.99999999999d.png",
+                                  "x_%-0256d.png"])
+def test_a_frame_number_wider_than_a_file_name_is_a_usage_error(tmp_path, capsys, frames, name):
+    # It was a MemoryError traceback: the name was built first, a string of that many digits.
+    pattern = tmp_path / name
+    code = cli.main(["render", str(ORBIT), "-o", str(pattern), *frames])
+    err = capsys.readouterr().err
+    assert code == 2 and list(tmp_path.iterdir()) == []
+    assert err.startswith(f"clray: error: -o {pattern}: a frame number's width is at most 255")
+    assert len(err.splitlines()) == 1
+
+
+def test_a_frame_number_as_wide_as_a_file_name_is_taken():
+    # `%%` is a literal `%`: the `9999d` after it is text, not a width.
+    assert frame_path(Path("x_%%9999d_%255d.png"), 1).name == "x_%9999d_" + " " * 254 + "1.png"
 
 
 def test_render_frames_then_resume(cl_device, tmp_path, capsys):
@@ -173,6 +251,17 @@ def test_render_frames_then_resume(cl_device, tmp_path, capsys):
     single = tmp_path / "one.pfm"
     assert cli.main(["render", *args[:-1], str(single), "--frames", "1", "-q"]) == 0
     assert read_pfm(single).tobytes() == first[1].tobytes()
+
+
+def test_resume_renders_the_frames_without_the_passes_asked_for(cl_device, tmp_path, capsys):
+    pattern = tmp_path / "f_%02d.png"
+    args = ["render", str(ORBIT), "-W", "8", "-H", "4", "--spp", "1", "-o", str(pattern)]
+    assert cli.main([*args, "--frames", "0:2", "-q"]) == 0
+    assert cli.main([*args, "--frames", "0:3", "--resume", "--aov", "depth"]) == 0
+    assert "wrote 3 frames of frames 0-2" in capsys.readouterr().err
+    assert all(frame_path(tmp_path / "f_%02d.depth.pfm", f).is_file() for f in range(3))
+    assert cli.main([*args, "--frames", "0:3", "--resume", "--aov", "depth"]) == 0
+    assert "wrote 0 frames of frames 0-2 to" in capsys.readouterr().err
 
 
 def test_frames_usage_errors(tmp_path, capsys):

@@ -78,7 +78,8 @@ def connect(address: str | None, workers: int = LOCAL_WORKERS,
             timeout: float = CONNECT_TIMEOUT_S) -> Iterator[Client]:
     """A client of the scheduler at `address` (`tcp://host:8786`), or of a LocalCluster of
     `workers` worker processes (one thread each: one task at a time per device) when None.
-    An unreachable scheduler is a ClrayError after `timeout` seconds."""
+    An unreachable scheduler is a ClrayError after `timeout` seconds, an address this client
+    cannot use (malformed, or tls:// without Dask's TLS configuration) one at once."""
     distributed = import_distributed()
     if address is None:
         with distributed.LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
@@ -88,7 +89,13 @@ def connect(address: str | None, workers: int = LOCAL_WORKERS,
         return
     try:
         client = distributed.Client(address, timeout=timeout)
-    except (OSError, TimeoutError, ValueError) as err:
+    except (OSError, TimeoutError, ValueError, TypeError, ImportError, RuntimeError) as err:
+        # What Dask's comm layer raises for an address it cannot use: unreachable (OSError,
+        # TimeoutError), malformed or of an unknown scheme (ValueError), or of a scheme this
+        # client is not set up for: tls:// without Dask's TLS configuration and ucx:// without
+        # its backend (TypeError), ucx:// without ucx-py in older Dask (ImportError), a plain
+        # address where Dask's configuration requires encryption (RuntimeError). Each is the
+        # address's fault, not clray's; anything else Client() raises is a bug to show whole.
         # An exception without a message says nothing but its type, which is no reason a user
         # can act on: say what the type means instead.
         reason = (str(err).strip().splitlines()[0] if str(err).strip() else

@@ -197,6 +197,22 @@ def test_unreachable_scheduler_is_one_line_in_time(tmp_path):
                                f"tcp://127.0.0.1:{port}")
 
 
+@needs_dask
+@pytest.mark.parametrize("scheme", ["tls", "ucx"])
+def test_an_address_of_a_scheme_this_client_cannot_use_is_one_line(tmp_path, scheme):
+    # tls:// without Dask's TLS configuration and ucx:// without its backend: Dask raises
+    # TypeError (ImportError in older releases), not OSError.
+    done = subprocess.run([sys.executable, "-m", "clray", "render", str(SPHERES), "-o",
+                           str(tmp_path / "x.png"), "--dask", f"{scheme}://127.0.0.1:1",
+                           "--dask-timeout", "2"], capture_output=True, text=True, timeout=60)
+    assert done.returncode == EXIT_RUNTIME
+    lines = done.stderr.splitlines()
+    assert len(lines) == 1, done.stderr
+    assert lines[0].startswith(f"clray: error: cannot connect to the Dask scheduler at "
+                               f"{scheme}://127.0.0.1:1: ")
+    assert not (tmp_path / "x.png").exists()
+
+
 @pytest.mark.parametrize(("err", "reason"), [
     (TimeoutError(), "no answer within 2 s"),
     (OSError(), "the connection failed"),

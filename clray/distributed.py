@@ -82,8 +82,12 @@ def connect(address: str | None, workers: int = LOCAL_WORKERS,
     cannot use (malformed, or tls:// without Dask's TLS configuration) one at once."""
     distributed = import_distributed()
     if address is None:
+        # CRITICAL, not ERROR: a task that raises is logged by its worker ("Compute Failed",
+        # a block of lines with the traceback) as well as raised here, where the command
+        # reports it in one line. A worker that dies is restarted by its nanny and its tasks
+        # run again; tasks that keep killing workers reach here as KilledWorker.
         with distributed.LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                                      dashboard_address=":0", silence_logs=logging.ERROR
+                                      dashboard_address=":0", silence_logs=logging.CRITICAL
                                       ) as cluster, distributed.Client(cluster) as client:
             yield client
         return

@@ -19,7 +19,7 @@ from types import SimpleNamespace
 import pytest
 
 from clray import cli
-from clray.errors import EXIT_RUNTIME
+from clray.errors import EXIT_RUNTIME, EXIT_SCENE
 from clray.image_io import read_pfm
 from clray.render import RenderSettings, render
 from clray.scene.load import load_scene
@@ -178,6 +178,27 @@ def test_cli_dask_frames_render_and_resume(cl_device, tmp_path, capsys):
     for f in range(3):
         assert (read_pfm(tmp_path / f"d_{f:02d}.pfm").tobytes()
                 == read_pfm(tmp_path / f"l_{f:02d}.pfm").tobytes())
+
+
+@needs_dask
+def test_a_frame_failing_on_a_local_cluster_is_one_line(cl_device, tmp_path):
+    """The workers log a failed task (distributed.worker's "Compute Failed", with its
+    traceback) at ERROR; the client reports it as one line, so they must say nothing."""
+    scene = tmp_path / "overshoot.toml"
+    # A Catmull-Rom track through 0, 1, 1, 0 overshoots past 1 between its middle keys: frame 3
+    # has reflect 1.125, which loading that frame refuses.
+    scene.write_text((ROOT / "scenes" / "orbit.toml").read_text().replace(
+        'key = "materials.red.reflect"\nframes = [0, 47]\nvalues = [0.0, 0.6]',
+        'key = "materials.red.reflect"\ninterpolation = "catmull-rom"\n'
+        'frames = [0, 2, 4, 6]\nvalues = [0.0, 1.0, 1.0, 0.0]'))
+    done = subprocess.run([sys.executable, "-m", "clray", "render", str(scene), "-W", "4", "-H",
+                           "4", "--spp", "1", "--frames", "0:6", "-o",
+                           str(tmp_path / "f_%02d.png"), "--dask", "--dask-workers", "1"],
+                          capture_output=True, text=True, timeout=120)
+    assert done.returncode == EXIT_SCENE
+    assert done.stderr.splitlines() == [
+        "clray: error: overshoot.toml: materials.red.reflect: must be <= 1, got 1.125 "
+        "(animated, frame 3)"], done.stderr
 
 
 @needs_dask

@@ -41,6 +41,7 @@ from clray.render import (
     png_encoding,
     render,
     resolved_settings,
+    settings_or_default,
     warn_deep_tree,
 )
 from clray.scene.check import check_scene
@@ -181,7 +182,7 @@ def render_still(client: Client, scene: Scene, settings: RenderSettings | None =
     (default: sized by the first tiles' rate to about TILE_SECONDS each). settings.progress
     hears pixel-samples as tiles arrive; on_tile(tiles done, tiles submitted) after each."""
     distributed = import_distributed()
-    settings = settings or RenderSettings()
+    settings = settings_or_default(settings)
     if settings.denoise:
         # The denoiser needs the whole image's albedo and normal passes, which tiles lack.
         raise SettingsError("--denoise (RenderSettings.denoise): a still rendered in tiles on "
@@ -290,7 +291,7 @@ def render_sequence(client: Client, sequence: Sequence, frames: Iterable[int],
     """Render frames on the cluster, one task each, `done(frame, result)` here as each
     arrives (in any order); returns what was moved and where it ran."""
     distributed = import_distributed()
-    settings = dataclasses.replace(settings or RenderSettings(), progress=None)
+    settings = dataclasses.replace(settings_or_default(settings), progress=None)
     future, nbytes, workers = _scatter(client, sequence)
     tasks = [client.submit(_render_frame, future, frame, settings, pure=False)
              for frame in frames]

@@ -114,6 +114,18 @@ def test_scene_sent_and_packed_once_per_worker(cl_device, client):
 
 
 @needs_dask
+def test_settings_that_are_not_render_settings_are_refused_before_any_work():
+    from clray.distributed import render_sequence, render_still
+    from clray.errors import SettingsError
+
+    # No client: the settings are refused before it is asked for anything.
+    with pytest.raises(SettingsError, match=r"expected a clray\.RenderSettings or None, got dict"):
+        render_still(None, load_scene(SPHERES), {"width": 4})
+    with pytest.raises(SettingsError, match=r"expected a clray\.RenderSettings or None, got dict"):
+        render_sequence(None, None, [0], {"width": 4}, lambda frame, result: None)
+
+
+@needs_dask
 def test_deep_glass_without_min_weight_is_warned_about(cl_device, client):
     from clray.distributed import render_still
 

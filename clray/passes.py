@@ -11,9 +11,12 @@ from pathlib import Path
 import numpy as np
 
 from clray.device import layout as L
+from clray.errors import SettingsError
 from clray.image_io import (
     Encoding,
-    check_suffix,
+    as_pixels,
+    check_encoding,
+    check_writer,
     exr_bytes,
     image_bytes,
     pfm_bytes,
@@ -171,13 +174,34 @@ def pass_paths(image_path: str | Path, names: tuple[str, ...], previews: bool
     return files + ([beside(image_path, name, ".png") for name in names] if previews else [])
 
 
+def check_passes(aovs: object, size: tuple[int, ...]) -> None:
+    """SettingsError unless `aovs` holds passes as RenderResult.aovs does: a dict of known
+    pass names, each an array of real numbers of the image's `size` (H, W), with 3 values a
+    pixel but for the scalar passes."""
+    if not isinstance(aovs, dict):
+        raise SettingsError(f"aovs: expected a dict of pass arrays by name, got "
+                            f"{type(aovs).__name__}")
+    problem = pass_problem(tuple(aovs))
+    if problem:
+        raise SettingsError(f"aovs: {problem}")
+    for name, values in aovs.items():
+        shape = size + (() if name in SCALAR_PASSES else (3,))
+        pixels = as_pixels(values, f"aovs[{name!r}]", grey=True)
+        if pixels.shape != shape:
+            raise SettingsError(f"aovs[{name!r}]: expected shape {shape} (the image's size), "
+                                f"got {pixels.shape}")
+
+
 def write_with_passes(path: str | Path, image: np.ndarray, encoding: Encoding,
                       aovs: dict[str, np.ndarray], previews: bool = False) -> None:
     """The image at `path` (its suffix picks the format), with its passes as layers of the
     same file where that is OpenEXR, else one PFM a pass beside it (pass_paths), and with
     `previews` a false-colour PNG of each. Every file whole or not at all, the image last: where
-    it exists, so do its passes' files (what --frames --resume relies on)."""
-    suffix = check_suffix(path)
+    it exists, so do its passes' files (what --frames --resume relies on). Bad arguments are
+    refused before any file is written."""
+    suffix = check_writer(path)
+    check_encoding(encoding)
+    check_passes(aovs, as_pixels(image).shape[:2])
     for name, values in aovs.items():
         if suffix != ".exr":
             write_bytes_atomically(beside(path, name, ".pfm"),

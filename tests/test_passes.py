@@ -21,7 +21,7 @@ from clray.knobs import Tuning
 from clray.passes import PASS_NAMES, preview
 from clray.reference import camera_rays
 from clray.reference.bvh import intersect_scene
-from clray.render import RenderSettings, render
+from clray.render import RenderResult, RenderSettings, render
 from clray.scene import model as M
 
 W, H = 40, 30
@@ -387,6 +387,28 @@ def test_cli_pass_usage_errors_exit_2_in_one_line(capsys: pytest.CaptureFixture,
     assert code == EXIT_USAGE and out == ""
     assert len(err.splitlines()) == 1 and err.startswith("clray: error: ") and words in err
     assert sorted(p.name for p in tmp_path.iterdir()) == ["scene.toml"]
+
+
+@pytest.mark.parametrize(("aovs", "message"), [
+    ({"shadow": np.zeros((2, 3))}, "aovs: unknown pass 'shadow'; expected some of depth"),
+    ({"depth": np.zeros((3, 2))}, "aovs['depth']: expected shape (2, 3) (the image's size), "
+                                  "got (3, 2)"),
+    ({"normal": np.zeros((2, 3))}, "aovs['normal']: expected shape (2, 3, 3)"),
+    ({"depth": np.full((2, 3), "a")}, "aovs['depth']: expected an (H, W) or (H, W, 3) array"),
+    ([np.zeros((2, 3))], "aovs: expected a dict of pass arrays by name, got list"),
+])
+@pytest.mark.parametrize("suffix", [".png", ".exr"])
+def test_bad_passes_are_refused_before_any_file(tmp_path: Path, aovs: object, message: str,
+                                                suffix: str) -> None:
+    # The passes' files were written before the image; a bad one failed half way (KeyError
+    # or IndexError in the EXR's channels), leaving the passes before it.
+    result = RenderResult(np.zeros((2, 3, 3), np.float32), {},
+                          aovs={"albedo": np.zeros((2, 3, 3)), **aovs}
+                          if isinstance(aovs, dict) else aovs)  # type: ignore[arg-type]
+    with pytest.raises(SettingsError) as info:
+        result.save(tmp_path / f"out{suffix}", previews=True)
+    assert str(info.value).startswith(message)
+    assert list(tmp_path.iterdir()) == []
 
 
 def test_a_dask_still_refuses_passes_before_any_work() -> None:

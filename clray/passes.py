@@ -6,6 +6,8 @@ beside it) and draws their false-colour previews."""
 
 from __future__ import annotations
 
+import errno
+import os
 from pathlib import Path
 
 import numpy as np
@@ -198,10 +200,15 @@ def write_with_passes(path: str | Path, image: np.ndarray, encoding: Encoding,
     same file where that is OpenEXR, else one PFM a pass beside it (pass_paths), and with
     `previews` a false-colour PNG of each. Every file whole or not at all, the image last: where
     it exists, so do its passes' files (what --frames --resume relies on). Bad arguments are
-    refused before any file is written."""
+    refused before any file is written, and so is a folder where one of the files goes."""
     suffix = check_writer(path)
     check_encoding(encoding)
     check_passes(aovs, as_pixels(image).shape[:2])
+    # A folder where one of the files goes fails its write only after the files before it
+    # are written: passes left beside no image.
+    for target in (*pass_paths(path, tuple(aovs), previews), Path(path)):
+        if os.path.isdir(target):
+            raise IsADirectoryError(errno.EISDIR, os.strerror(errno.EISDIR), os.fspath(target))
     for name, values in aovs.items():
         if suffix != ".exr":
             write_bytes_atomically(beside(path, name, ".pfm"),

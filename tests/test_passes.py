@@ -411,6 +411,19 @@ def test_bad_passes_are_refused_before_any_file(tmp_path: Path, aovs: object, me
     assert list(tmp_path.iterdir()) == []
 
 
+@pytest.mark.parametrize("folder", ["out.png", "out.object.pfm", "out.object.png"])
+def test_a_folder_in_the_way_is_refused_before_any_file(tmp_path: Path, folder: str) -> None:
+    # A folder at the image's name failed its write after the passes' files were written,
+    # which stayed beside no image; one at a later pass's name left the earlier passes.
+    (tmp_path / folder).mkdir()
+    result = RenderResult(np.zeros((2, 3, 3), np.float32), {},
+                          aovs={"depth": np.zeros((2, 3)), "object": np.zeros((2, 3), np.int32)})
+    with pytest.raises(IsADirectoryError) as info:
+        result.save(tmp_path / "out.png", previews=True)
+    assert info.value.filename == str(tmp_path / folder)
+    assert sorted(p.name for p in tmp_path.iterdir()) == [folder]
+
+
 def test_a_dask_still_refuses_passes_before_any_work() -> None:
     pytest.importorskip("distributed")
     from clray.distributed import render_still

@@ -176,22 +176,24 @@ def pass_paths(image_path: str | Path, names: tuple[str, ...], previews: bool
     return files + ([beside(image_path, name, ".png") for name in names] if previews else [])
 
 
-def check_passes(aovs: object, size: tuple[int, ...]) -> None:
-    """SettingsError unless `aovs` holds passes as RenderResult.aovs does: a dict of known
-    pass names, each an array of real numbers of the image's `size` (H, W), with 3 values a
-    pixel but for the scalar passes."""
+def as_passes(aovs: object, size: tuple[int, ...]) -> dict[str, np.ndarray]:
+    """`aovs` as RenderResult.aovs holds passes, arrays by name, or SettingsError: a dict of
+    known pass names, each an array of real numbers (nested lists too) of the image's `size`
+    (H, W), with 3 values a pixel but for the scalar passes."""
     if not isinstance(aovs, dict):
         raise SettingsError(f"aovs: expected a dict of pass arrays by name, got "
                             f"{type(aovs).__name__}")
     problem = pass_problem(tuple(aovs))
     if problem:
         raise SettingsError(f"aovs: {problem}")
+    passes = {}
     for name, values in aovs.items():
         shape = size + (() if name in SCALAR_PASSES else (3,))
-        pixels = as_pixels(values, f"aovs[{name!r}]", grey=True)
-        if pixels.shape != shape:
+        passes[name] = as_pixels(values, f"aovs[{name!r}]", grey=True)
+        if passes[name].shape != shape:
             raise SettingsError(f"aovs[{name!r}]: expected shape {shape} (the image's size), "
-                                f"got {pixels.shape}")
+                                f"got {passes[name].shape}")
+    return passes
 
 
 def write_with_passes(path: str | Path, image: np.ndarray, encoding: Encoding,
@@ -203,7 +205,7 @@ def write_with_passes(path: str | Path, image: np.ndarray, encoding: Encoding,
     refused before any file is written, and so is a folder where one of the files goes."""
     suffix = check_writer(path)
     check_encoding(encoding)
-    check_passes(aovs, as_pixels(image).shape[:2])
+    aovs = as_passes(aovs, as_pixels(image).shape[:2])
     # A folder where one of the files goes fails its write only after the files before it
     # are written: passes left beside no image.
     for target in (*pass_paths(path, tuple(aovs), previews), Path(path)):
@@ -211,8 +213,7 @@ def write_with_passes(path: str | Path, image: np.ndarray, encoding: Encoding,
             raise IsADirectoryError(errno.EISDIR, os.strerror(errno.EISDIR), os.fspath(target))
     for name, values in aovs.items():
         if suffix != ".exr":
-            write_bytes_atomically(beside(path, name, ".pfm"),
-                                   pfm_bytes(values.astype(np.float32)))
+            write_bytes_atomically(beside(path, name, ".pfm"), pfm_bytes(values))
         if previews:
             # The previews' values are what to show, not light: linear PNG, as they are.
             write_bytes_atomically(beside(path, name, ".png"),

@@ -411,6 +411,16 @@ def test_bad_passes_are_refused_before_any_file(tmp_path: Path, aovs: object, me
     assert list(tmp_path.iterdir()) == []
 
 
+def test_passes_given_as_nested_lists_are_written_as_arrays_are(tmp_path: Path) -> None:
+    # The image could be a nested list; a pass so given raised AttributeError (no astype).
+    depth = [[1.0, 2.0, 3.0], [4.0, 5.0, 6.0]]
+    result = RenderResult(np.zeros((2, 3, 3), np.float32), {},
+                          aovs={"depth": depth})  # type: ignore[dict-item]
+    result.save(tmp_path / "out.png", previews=True)
+    assert np.array_equal(_read_pfm_any(tmp_path / "out.depth.pfm"), np.array(depth))
+    assert (tmp_path / "out.depth.png").is_file()
+
+
 @pytest.mark.parametrize("folder", ["out.png", "out.object.pfm", "out.object.png"])
 def test_a_folder_in_the_way_is_refused_before_any_file(tmp_path: Path, folder: str) -> None:
     # A folder at the image's name failed its write after the passes' files were written,

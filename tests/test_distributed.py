@@ -206,7 +206,7 @@ def test_a_frame_failing_on_a_local_cluster_is_one_line(cl_device, tmp_path):
     done = subprocess.run([sys.executable, "-m", "clray", "render", str(scene), "-W", "4", "-H",
                            "4", "--spp", "1", "--frames", "0:6", "-o",
                            str(tmp_path / "f_%02d.png"), "--dask", "--dask-workers", "1"],
-                          capture_output=True, text=True, timeout=120)
+                          capture_output=True, text=True, timeout=120, cwd=ROOT)
     assert done.returncode == EXIT_SCENE
     assert done.stderr.splitlines() == [
         "clray: error: overshoot.toml: materials.red.reflect: must be <= 1, got 1.125 "
@@ -237,7 +237,8 @@ def test_an_address_of_a_scheme_this_client_cannot_use_is_one_line(tmp_path, sch
     # TypeError (ImportError in older releases), not OSError.
     done = subprocess.run([sys.executable, "-m", "clray", "render", str(SPHERES), "-o",
                            str(tmp_path / "x.png"), "--dask", f"{scheme}://127.0.0.1:1",
-                           "--dask-timeout", "2"], capture_output=True, text=True, timeout=60)
+                           "--dask-timeout", "2"], capture_output=True, text=True, timeout=60,
+                          cwd=ROOT)
     assert done.returncode == EXIT_RUNTIME
     lines = done.stderr.splitlines()
     assert len(lines) == 1, done.stderr

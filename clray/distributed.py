@@ -41,6 +41,7 @@ from clray.render import (
     png_encoding,
     render,
     resolved_settings,
+    settings_or_default,
     warn_deep_tree,
 )
 from clray.scene.check import check_scene
@@ -78,17 +79,28 @@ def connect(address: str | None, workers: int = LOCAL_WORKERS,
             timeout: float = CONNECT_TIMEOUT_S) -> Iterator[Client]:
     """A client of the scheduler at `address` (`tcp://host:8786`), or of a LocalCluster of
     `workers` worker processes (one thread each: one task at a time per device) when None.
-    An unreachable scheduler is a ClrayError after `timeout` seconds."""
+    An unreachable scheduler is a ClrayError after `timeout` seconds, an address this client
+    cannot use (malformed, or tls:// without Dask's TLS configuration) one at once."""
     distributed = import_distributed()
     if address is None:
+        # CRITICAL, not ERROR: a task that raises is logged by its worker ("Compute Failed",
+        # a block of lines with the traceback) as well as raised here, where the command
+        # reports it in one line. A worker that dies is restarted by its nanny and its tasks
+        # run again; tasks that keep killing workers reach here as KilledWorker.
         with distributed.LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                                      dashboard_address=":0", silence_logs=logging.ERROR
+                                      dashboard_address=":0", silence_logs=logging.CRITICAL
                                       ) as cluster, distributed.Client(cluster) as client:
             yield client
         return
     try:
         client = distributed.Client(address, timeout=timeout)
-    except (OSError, TimeoutError, ValueError) as err:
+    except (OSError, TimeoutError, ValueError, TypeError, ImportError, RuntimeError) as err:
+        # What Dask's comm layer raises for an address it cannot use: unreachable (OSError,
+        # TimeoutError), malformed or of an unknown scheme (ValueError), or of a scheme this
+        # client is not set up for: tls:// without Dask's TLS configuration and ucx:// without
+        # its backend (TypeError), ucx:// without ucx-py in older Dask (ImportError), a plain
+        # address where Dask's configuration requires encryption (RuntimeError). Each is the
+        # address's fault, not clray's; anything else Client() raises is a bug to show whole.
         # An exception without a message says nothing but its type, which is no reason a user
         # can act on: say what the type means instead.
         reason = (str(err).strip().splitlines()[0] if str(err).strip() else
@@ -170,7 +182,7 @@ def render_still(client: Client, scene: Scene, settings: RenderSettings | None =
     (default: sized by the first tiles' rate to about TILE_SECONDS each). settings.progress
     hears pixel-samples as tiles arrive; on_tile(tiles done, tiles submitted) after each."""
     distributed = import_distributed()
-    settings = settings or RenderSettings()
+    settings = settings_or_default(settings)
     if settings.denoise:
         # The denoiser needs the whole image's albedo and normal passes, which tiles lack.
         raise SettingsError("--denoise (RenderSettings.denoise): a still rendered in tiles on "
@@ -279,7 +291,7 @@ def render_sequence(client: Client, sequence: Sequence, frames: Iterable[int],
     """Render frames on the cluster, one task each, `done(frame, result)` here as each
     arrives (in any order); returns what was moved and where it ran."""
     distributed = import_distributed()
-    settings = dataclasses.replace(settings or RenderSettings(), progress=None)
+    settings = dataclasses.replace(settings_or_default(settings), progress=None)
     future, nbytes, workers = _scatter(client, sequence)
     tasks = [client.submit(_render_frame, future, frame, settings, pure=False)
              for frame in frames]

@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from clray.errors import ClrayError
+from clray.errors import ClrayError, SettingsError
 from clray.metrics import per_pixel
 from clray.output import write_bytes_atomically
 from clray.scene import limits
@@ -37,13 +37,13 @@ EXR_MISSING = "writing .exr needs the OpenEXR package: pip install 'clray[exr]'"
 
 
 def check_suffix(path: str | Path) -> str:
-    """The lower-case suffix of `path`, or ValueError naming the supported ones."""
+    """The lower-case suffix of `path`, or SettingsError (a ValueError) naming the path and
+    the supported suffixes."""
     suffix = Path(path).suffix.lower()
     if suffix not in SUFFIXES:
-        raise ValueError(
-            f"{Path(path).name}: unsupported image type {suffix or '(no suffix)'!r}; "
-            f"use one of {', '.join(SUFFIXES)}"
-        )
+        # The whole path as given, quoted: its name alone is empty for "." or "dir/".
+        what = f"unsupported image type {suffix!r}" if suffix else "no image type suffix"
+        raise SettingsError(f"{os.fspath(path)!r}: {what}; use one of {', '.join(SUFFIXES)}")
     return suffix
 
 
@@ -62,12 +62,12 @@ class Encoding:
 
     def __post_init__(self) -> None:
         if not isinstance(self.linear, bool):
-            raise ValueError(f"linear must be True or False, got {self.linear!r}")
+            raise SettingsError(f"linear must be True or False, got {self.linear!r}")
         if not is_exposure(self.exposure):
-            raise ValueError(f"exposure must be {EXPOSURE_RULE}, got {self.exposure!r}")
+            raise SettingsError(f"exposure must be {EXPOSURE_RULE}, got {self.exposure!r}")
         if (isinstance(self.png_bits, bool) or not isinstance(self.png_bits, numbers.Integral)
                 or self.png_bits not in PNG_BITS):
-            raise ValueError(f"png_bits must be 8 or 16, got {self.png_bits!r}")
+            raise SettingsError(f"png_bits must be 8 or 16, got {self.png_bits!r}")
 
 
 def is_exposure(value: object) -> bool:
@@ -78,11 +78,25 @@ def is_exposure(value: object) -> bool:
             and abs(value) <= limits.MAX_EXPOSURE)
 
 
-def _as_rgb(image: np.ndarray) -> np.ndarray:
-    image = np.asarray(image)
-    if image.ndim != 3 or image.shape[2] != 3 or image.shape[0] == 0 or image.shape[1] == 0:
-        raise ValueError(f"expected an (H, W, 3) image, got shape {image.shape}")
-    return image
+def as_pixels(values: object, name: str = "image", grey: bool = False) -> np.ndarray:
+    """`values` as an (H, W, 3) array of real numbers, or with `grey` (H, W) too; SettingsError
+    naming the argument `name` for anything else. Complex values, strings, dates and objects
+    are refused, not cast: numpy would drop imaginary parts, fail on text with its own
+    ValueError, and turn None into NaN."""
+    shapes = "(H, W) or (H, W, 3)" if grey else "(H, W, 3)"
+    try:
+        pixels = np.asarray(values)
+    except ValueError:  # nested sequences of different lengths
+        raise SettingsError(f"{name}: expected an {shapes} array of real numbers, got "
+                            f"nested sequences of different lengths") from None
+    if pixels.dtype.kind not in "biuf":
+        raise SettingsError(f"{name}: expected an {shapes} array of real numbers, got "
+                            f"dtype {pixels.dtype}")
+    if (pixels.ndim not in ((2, 3) if grey else (3,))
+            or (pixels.ndim == 3 and pixels.shape[2] != 3) or 0 in pixels.shape):
+        raise SettingsError(f"{name}: expected an {shapes} array of real numbers, got shape "
+                            f"{pixels.shape}")
+    return pixels
 
 
 def _encode_float64(values: np.ndarray, encoding: Encoding) -> np.ndarray:
@@ -165,7 +179,7 @@ def to_png_samples(image: np.ndarray, encoding: Encoding = Encoding()) -> np.nda
     [0, 1] per channel, sRGB curve unless linear, then round to the nearest code. The float64
     formula, or for float32 images in the default encoding a table that gives its codes
     exactly, twice as fast."""
-    image = _as_rgb(image)
+    image = as_pixels(image)
     if image.dtype == np.float32 and encoding == Encoding():
         return _srgb8_by_table(image)
     return _encode_float64(image, encoding)
@@ -173,7 +187,7 @@ def to_png_samples(image: np.ndarray, encoding: Encoding = Encoding()) -> np.nda
 
 def clipped_pixels(image: np.ndarray, exposure: float = 0.0) -> int:
     """Pixels a PNG clamps: a finite channel above 1 after the exposure."""
-    scaled = _as_rgb(image)
+    scaled = as_pixels(image)
     if exposure != 0 or scaled.dtype != np.float32:
         scaled = np.asarray(scaled, dtype=np.float64) * 2.0 ** exposure
     # Both comparisons are false for NaN.
@@ -195,9 +209,9 @@ def png_bytes(pixels: np.ndarray, linear: bool = False) -> bytes:
     subtraction, byte by byte as PNG defines it for any depth), which suits rendered images,
     and zlib level 1 compresses that to within a few per cent of the default.
     """
-    pixels = _as_rgb(pixels)
+    pixels = as_pixels(pixels, "pixels")
     if pixels.dtype not in (np.uint8, np.uint16):
-        raise ValueError(f"expected uint8 or uint16 samples, got {pixels.dtype}")
+        raise SettingsError(f"pixels: expected uint8 or uint16 samples, got {pixels.dtype}")
     bits = 8 * pixels.dtype.itemsize
     height, width, _ = pixels.shape
     # PNG samples are big-endian.
@@ -224,8 +238,8 @@ def pfm_bytes(image: np.ndarray) -> bytes:
     """Colour PFM of an (H, W, 3) image, or greyscale ("Pf") of an (H, W) one (a pass of one
     number a pixel), little-endian (negative scale), rows stored bottom to top as the format
     says."""
-    grey = np.ndim(image) == 2 and 0 not in np.shape(image)
-    pixels = np.asarray(image if grey else _as_rgb(image), dtype="<f4")
+    pixels = as_pixels(image, grey=True).astype("<f4", copy=False)
+    grey = pixels.ndim == 2
     height, width = pixels.shape[:2]
     header = f"{'Pf' if grey else 'PF'}\n{width} {height}\n-1.0\n".encode("ascii")
     return header + np.ascontiguousarray(pixels[::-1]).tobytes()
@@ -260,7 +274,7 @@ def exr_bytes(image: np.ndarray, channels: dict[str, np.ndarray] | None = None) 
         import OpenEXR
     except ImportError:
         raise ClrayError(EXR_MISSING) from None
-    pixels = np.ascontiguousarray(_as_rgb(image), dtype=np.float32)
+    pixels = np.ascontiguousarray(as_pixels(image), dtype=np.float32)
     header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
     # The package writes to a file name (streams only in its newest releases): a private
     # temporary file, whose bytes then go through write_bytes_atomically like every format.
@@ -285,14 +299,24 @@ def image_host_bytes(width: int, height: int, suffix: str) -> int:
     return width * height * (FLOAT_IMAGE_BYTES + WRITE_BYTES[suffix])
 
 
-def check_writer(path: str | Path) -> None:
-    """Raise ClrayError if the format `path`'s suffix picks cannot be written here, so that
-    the command can tell before rendering."""
-    if check_suffix(path) == ".exr":
+def check_writer(path: str | Path) -> str:
+    """The suffix of `path` (check_suffix), or ClrayError if the format it picks cannot be
+    written here, so that the command can tell before rendering."""
+    suffix = check_suffix(path)
+    if suffix == ".exr":
         try:
             import OpenEXR  # noqa: F401
         except ImportError:
             raise ClrayError(EXR_MISSING) from None
+    return suffix
+
+
+def check_encoding(encoding: object) -> None:
+    """SettingsError unless `encoding` is an Encoding: a dict of its fields would fail later,
+    with an AttributeError, and only for PNG."""
+    if not isinstance(encoding, Encoding):
+        raise SettingsError(f"encoding: expected a clray.image_io.Encoding, got "
+                            f"{type(encoding).__name__}")
 
 
 def write_image(path: str | Path, image: np.ndarray, encoding: Encoding = Encoding()) -> None:
@@ -305,6 +329,7 @@ def write_image(path: str | Path, image: np.ndarray, encoding: Encoding = Encodi
 
 def image_bytes(suffix: str, image: np.ndarray, encoding: Encoding = Encoding()) -> bytes:
     """The file `write_image` writes for `suffix` (.png, .pfm or .exr), as bytes."""
+    check_encoding(encoding)
     if suffix == ".pfm":
         return pfm_bytes(image)
     if suffix == ".exr":

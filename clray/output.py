@@ -43,11 +43,19 @@ def write_bytes_atomically(path: str | Path, payload: bytes) -> None:
     # Same directory, so os.replace is a rename on one file system; created with 0o666 rather
     # than through mkstemp so the finished file gets the usual umask-derived permissions.
     tmp = path.with_name(f".{path.name}.{os.getpid()}.{secrets.token_hex(4)}.tmp")
-    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
     try:
-        with os.fdopen(fd, "wb") as stream:
-            stream.write(payload)
-        os.replace(tmp, path)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
+        fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
+        try:
+            with os.fdopen(fd, "wb") as stream:
+                stream.write(payload)
+            os.replace(tmp, path)
+        except BaseException:
+            tmp.unlink(missing_ok=True)
+            raise
+    except OSError as err:
+        if err.errno is None:
+            raise
+        # The temporary name is this function's own: the error names the file being written,
+        # as writing it directly would, for callers that show err.filename. OSError() picks
+        # the errno's subclass again (FileNotFoundError, IsADirectoryError).
+        raise OSError(err.errno, err.strerror, os.fspath(path)) from None

@@ -6,14 +6,19 @@ beside it) and draws their false-colour previews."""
 
 from __future__ import annotations
 
+import errno
+import os
 from pathlib import Path
 
 import numpy as np
 
 from clray.device import layout as L
+from clray.errors import SettingsError
 from clray.image_io import (
     Encoding,
-    check_suffix,
+    as_pixels,
+    check_encoding,
+    check_writer,
     exr_bytes,
     image_bytes,
     pfm_bytes,
@@ -171,17 +176,44 @@ def pass_paths(image_path: str | Path, names: tuple[str, ...], previews: bool
     return files + ([beside(image_path, name, ".png") for name in names] if previews else [])
 
 
+def as_passes(aovs: object, size: tuple[int, ...]) -> dict[str, np.ndarray]:
+    """`aovs` as RenderResult.aovs holds passes, arrays by name, or SettingsError: a dict of
+    known pass names, each an array of real numbers (nested lists too) of the image's `size`
+    (H, W), with 3 values a pixel but for the scalar passes."""
+    if not isinstance(aovs, dict):
+        raise SettingsError(f"aovs: expected a dict of pass arrays by name, got "
+                            f"{type(aovs).__name__}")
+    problem = pass_problem(tuple(aovs))
+    if problem:
+        raise SettingsError(f"aovs: {problem}")
+    passes = {}
+    for name, values in aovs.items():
+        shape = size + (() if name in SCALAR_PASSES else (3,))
+        passes[name] = as_pixels(values, f"aovs[{name!r}]", grey=True)
+        if passes[name].shape != shape:
+            raise SettingsError(f"aovs[{name!r}]: expected shape {shape} (the image's size), "
+                                f"got {passes[name].shape}")
+    return passes
+
+
 def write_with_passes(path: str | Path, image: np.ndarray, encoding: Encoding,
                       aovs: dict[str, np.ndarray], previews: bool = False) -> None:
     """The image at `path` (its suffix picks the format), with its passes as layers of the
     same file where that is OpenEXR, else one PFM a pass beside it (pass_paths), and with
     `previews` a false-colour PNG of each. Every file whole or not at all, the image last: where
-    it exists, so do its passes' files (what --frames --resume relies on)."""
-    suffix = check_suffix(path)
+    it exists, so do its passes' files (what --frames --resume relies on). Bad arguments are
+    refused before any file is written, and so is a folder where one of the files goes."""
+    suffix = check_writer(path)
+    check_encoding(encoding)
+    aovs = as_passes(aovs, as_pixels(image).shape[:2])
+    # A folder where one of the files goes fails its write only after the files before it
+    # are written: passes left beside no image.
+    for target in (*pass_paths(path, tuple(aovs), previews), Path(path)):
+        if os.path.isdir(target):
+            raise IsADirectoryError(errno.EISDIR, os.strerror(errno.EISDIR), os.fspath(target))
     for name, values in aovs.items():
         if suffix != ".exr":
-            write_bytes_atomically(beside(path, name, ".pfm"),
-                                   pfm_bytes(values.astype(np.float32)))
+            write_bytes_atomically(beside(path, name, ".pfm"), pfm_bytes(values))
         if previews:
             # The previews' values are what to show, not light: linear PNG, as they are.
             write_bytes_atomically(beside(path, name, ".png"),

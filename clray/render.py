@@ -3,8 +3,10 @@ scene, pack it for the device, launch it with clray.device.launch)."""
 
 from __future__ import annotations
 
+import numbers
 import os
 import time
+import typing
 import warnings
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -18,14 +20,52 @@ from clray.device.context import describe, queue_for, select_device
 from clray.device.launch import render_packed, render_passes_packed
 from clray.device.pack import PackedScene, pack_scene
 from clray.device.policy import DevicePlan, device_plan
+from clray.device.program import KernelConfig
 from clray.errors import SettingsError
 from clray.image_io import Encoding, image_bytes
-from clray.knobs import TRAVERSALS, Tuning
+from clray.knobs import KNOBS, TRAVERSALS, Tuning
 from clray.passes import pass_problem, passes_of, write_with_passes
 from clray.scene import limits as L
 from clray.scene.check import check_scene
 from clray.scene.load import load_scene
 from clray.scene.model import Scene
+
+# KernelConfig fields a variant may not set: the packer derives them from the scene (every
+# has_* switch, max_depth, bvh_stack_size: a variant naming one made pack_scene fail with a
+# TypeError), and the render from other settings (precision, passes: RenderSettings.precision,
+# aovs and denoise, which the stats and the passes' launch follow).
+RENDER_SET_FIELDS = ("max_depth", "bvh_stack_size", "precision", "passes")
+_SWITCH_TYPES = typing.get_type_hints(KernelConfig)
+# What each type of KernelConfig field takes, and whether a value is one.
+_SWITCH_VALUES: dict[object, tuple[str, Callable[[object], bool]]] = {
+    bool: ("True or False", lambda v: isinstance(v, bool)),
+    int: ("an integer", lambda v: isinstance(v, numbers.Integral) and not isinstance(v, bool)),
+    str: ("a string", lambda v: isinstance(v, str)),
+    tuple[str, ...]: ("a tuple of strings",
+                      lambda v: isinstance(v, tuple) and all(isinstance(o, str) for o in v)),
+}
+
+
+def variants_problem(variants: object) -> str | None:
+    """What is wrong with RenderSettings.variants (clray.study.Variant.switches), or None: a
+    tuple of (KernelConfig field, value) pairs, each field one the render does not set itself,
+    each value of the field's type and, for a knob (clray.knobs), one the knob allows."""
+    if not isinstance(variants, tuple) or not all(
+            isinstance(pair, tuple) and len(pair) == 2 and isinstance(pair[0], str)
+            for pair in variants):
+        return "expected a tuple of (KernelConfig field name, value) pairs"
+    for name, value in variants:
+        if name not in _SWITCH_TYPES:
+            return f"{name!r} is not a KernelConfig field"
+        if name.startswith("has_") or name in RENDER_SET_FIELDS:
+            return f"{name!r} is set by the render from the scene and settings, not by a variant"
+        takes, fits = _SWITCH_VALUES[_SWITCH_TYPES[name]]
+        if not fits(value):
+            return f"{name!r} takes {takes}, not {value!r}"
+        if name in KNOBS and not KNOBS[name].legal(value):
+            # The knob's rule up to its explanation: "4, 8, or None: 8 where ...".
+            return f"{name!r} takes {KNOBS[name].legal_text.split(': ')[0]}, not {value!r}"
+    return None
 
 
 @dataclass(frozen=True)
@@ -82,6 +122,7 @@ class RenderSettings:
                    ("stored_tuning",
                     lambda v: None if isinstance(v, bool) else "expected True or False"),
                    ("aovs", pass_problem),
+                   ("variants", variants_problem),
                    ("denoise",
                     lambda v: None if isinstance(v, bool) else "expected True or False")]
         for name, problem_of in checks:
@@ -93,6 +134,17 @@ class RenderSettings:
             if getattr(self, name) is not None and not callable(getattr(self, name)):
                 raise SettingsError(f"RenderSettings.{name}: expected a callable, "
                                     f"got {getattr(self, name)!r}")
+
+
+def settings_or_default(settings: object) -> RenderSettings:
+    """`settings`, or RenderSettings() for None; SettingsError for anything else, which would
+    fail later with an AttributeError (a dict of overrides, say)."""
+    if settings is None:
+        return RenderSettings()
+    if not isinstance(settings, RenderSettings):
+        raise SettingsError(f"settings: expected a clray.RenderSettings or None, got "
+                            f"{type(settings).__name__}")
+    return settings
 
 
 @dataclass(frozen=True)
@@ -185,7 +237,7 @@ def render(scene: Scene | str | os.PathLike | Callable[[], Scene],
     (unless passes need it after the render): a big model's mesh (18 B a triangle from a PLY
     file) is not held beside the packed scene while it renders. `clray render` hands its
     scene over so (a list's `pop`)."""
-    settings = settings or RenderSettings()
+    settings = settings_or_default(settings)
     if isinstance(scene, str | os.PathLike):
         scene = load_scene(scene)
     else:

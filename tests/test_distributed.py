@@ -19,7 +19,7 @@ from types import SimpleNamespace
 import pytest
 
 from clray import cli
-from clray.errors import EXIT_RUNTIME
+from clray.errors import EXIT_RUNTIME, EXIT_SCENE
 from clray.image_io import read_pfm
 from clray.render import RenderSettings, render
 from clray.scene.load import load_scene
@@ -114,6 +114,18 @@ def test_scene_sent_and_packed_once_per_worker(cl_device, client):
 
 
 @needs_dask
+def test_settings_that_are_not_render_settings_are_refused_before_any_work():
+    from clray.distributed import render_sequence, render_still
+    from clray.errors import SettingsError
+
+    # No client: the settings are refused before it is asked for anything.
+    with pytest.raises(SettingsError, match=r"expected a clray\.RenderSettings or None, got dict"):
+        render_still(None, load_scene(SPHERES), {"width": 4})
+    with pytest.raises(SettingsError, match=r"expected a clray\.RenderSettings or None, got dict"):
+        render_sequence(None, None, [0], {"width": 4}, lambda frame, result: None)
+
+
+@needs_dask
 def test_deep_glass_without_min_weight_is_warned_about(cl_device, client):
     from clray.distributed import render_still
 
@@ -181,6 +193,27 @@ def test_cli_dask_frames_render_and_resume(cl_device, tmp_path, capsys):
 
 
 @needs_dask
+def test_a_frame_failing_on_a_local_cluster_is_one_line(cl_device, tmp_path):
+    """The workers log a failed task (distributed.worker's "Compute Failed", with its
+    traceback) at ERROR; the client reports it as one line, so they must say nothing."""
+    scene = tmp_path / "overshoot.toml"
+    # A Catmull-Rom track through 0, 1, 1, 0 overshoots past 1 between its middle keys: frame 3
+    # has reflect 1.125, which loading that frame refuses.
+    scene.write_text((ROOT / "scenes" / "orbit.toml").read_text().replace(
+        'key = "materials.red.reflect"\nframes = [0, 47]\nvalues = [0.0, 0.6]',
+        'key = "materials.red.reflect"\ninterpolation = "catmull-rom"\n'
+        'frames = [0, 2, 4, 6]\nvalues = [0.0, 1.0, 1.0, 0.0]'))
+    done = subprocess.run([sys.executable, "-m", "clray", "render", str(scene), "-W", "4", "-H",
+                           "4", "--spp", "1", "--frames", "0:6", "-o",
+                           str(tmp_path / "f_%02d.png"), "--dask", "--dask-workers", "1"],
+                          capture_output=True, text=True, timeout=120, cwd=ROOT)
+    assert done.returncode == EXIT_SCENE
+    assert done.stderr.splitlines() == [
+        "clray: error: overshoot.toml: materials.red.reflect: must be <= 1, got 1.125 "
+        "(animated, frame 3)"], done.stderr
+
+
+@needs_dask
 def test_unreachable_scheduler_is_one_line_in_time(tmp_path):
     with socket.socket() as s:  # a port nothing listens on
         s.bind(("127.0.0.1", 0))
@@ -195,6 +228,23 @@ def test_unreachable_scheduler_is_one_line_in_time(tmp_path):
     assert len(lines) == 1, done.stderr
     assert lines[0].startswith(f"clray: error: cannot connect to the Dask scheduler at "
                                f"tcp://127.0.0.1:{port}")
+
+
+@needs_dask
+@pytest.mark.parametrize("scheme", ["tls", "ucx"])
+def test_an_address_of_a_scheme_this_client_cannot_use_is_one_line(tmp_path, scheme):
+    # tls:// without Dask's TLS configuration and ucx:// without its backend: Dask raises
+    # TypeError (ImportError in older releases), not OSError.
+    done = subprocess.run([sys.executable, "-m", "clray", "render", str(SPHERES), "-o",
+                           str(tmp_path / "x.png"), "--dask", f"{scheme}://127.0.0.1:1",
+                           "--dask-timeout", "2"], capture_output=True, text=True, timeout=60,
+                          cwd=ROOT)
+    assert done.returncode == EXIT_RUNTIME
+    lines = done.stderr.splitlines()
+    assert len(lines) == 1, done.stderr
+    assert lines[0].startswith(f"clray: error: cannot connect to the Dask scheduler at "
+                               f"{scheme}://127.0.0.1:1: ")
+    assert not (tmp_path / "x.png").exists()
 
 
 @pytest.mark.parametrize(("err", "reason"), [

@@ -7,6 +7,7 @@ import pytest
 from PIL import Image
 
 from clray import image_io
+from clray.errors import SettingsError
 from clray.image_io import (
     Encoding,
     png_bytes,
@@ -14,6 +15,7 @@ from clray.image_io import (
     to_png_samples,
     write_image,
 )
+from clray.render import RenderResult
 from clray.scene.colour import srgb_encode
 
 LINEAR = Encoding(linear=True)
@@ -94,6 +96,57 @@ def test_bad_shape_leaves_no_file(tmp_path) -> None:
     with pytest.raises(ValueError, match="shape"):
         write_image(tmp_path / "a.png", np.zeros((4, 4)))
     assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize(("name", "problem"), [
+    ("x.jpg", "unsupported image type '.jpg'"),
+    ("noext", "no image type suffix"),
+    (".", "no image type suffix"),
+])
+def test_unsupported_suffix_is_a_settings_error_naming_the_path(tmp_path, monkeypatch, name,
+                                                                problem) -> None:
+    # "." named an empty file name before (": unsupported image type ...").
+    monkeypatch.chdir(tmp_path)
+    for write in (lambda: write_image(name, np.zeros((1, 1, 3))),
+                  lambda: RenderResult(np.zeros((1, 1, 3), np.float32), {}).save(name)):
+        with pytest.raises(SettingsError) as info:
+            write()
+        assert str(info.value) == f"{name!r}: {problem}; use one of .png, .pfm, .exr"
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize(("image", "got"), [
+    (np.zeros((4, 4, 2)), "shape (4, 4, 2)"),
+    (np.zeros((0, 4, 3)), "shape (0, 4, 3)"),
+    (np.full((2, 2, 3), "a"), "dtype <U1"),
+    (np.full((2, 2, 3), None), "dtype object"),
+    (np.zeros((2, 2, 3), complex), "dtype complex128"),
+    ([[[0, 0, 0]], [[0]]], "nested sequences of different lengths"),
+])
+@pytest.mark.parametrize("suffix", [".png", ".pfm", ".exr"])
+def test_a_bad_image_is_a_settings_error_and_leaves_no_file(tmp_path, image, got,
+                                                           suffix) -> None:
+    for write in (lambda: write_image(tmp_path / f"a{suffix}", image),
+                  lambda: RenderResult(image, {}, aovs={"depth": np.zeros((2, 2))}
+                                       ).save(tmp_path / f"a{suffix}", previews=True)):
+        with pytest.raises(SettingsError) as info:
+            write()
+        assert str(info.value).startswith("image: expected an (H, W")
+        assert str(info.value).endswith(f"array of real numbers, got {got}")
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_an_encoding_that_is_not_an_encoding_is_a_settings_error(tmp_path) -> None:
+    image = np.zeros((2, 2, 3), np.float32)
+    for write in (lambda: write_image(tmp_path / "a.png", image, {"linear": True}),
+                  lambda: RenderResult(image, {}, {"linear": True},
+                                       {"depth": np.zeros((2, 2))}).save(tmp_path / "a.png")):
+        with pytest.raises(SettingsError) as info:
+            write()  # type: ignore[arg-type]
+        assert str(info.value) == "encoding: expected a clray.image_io.Encoding, got dict"
+    assert list(tmp_path.iterdir()) == []
+    with pytest.raises(SettingsError, match="png_bits must be 8 or 16"):
+        Encoding(png_bits=12)
 
 
 def test_write_replaces_existing_file_and_leaves_no_temp(tmp_path) -> None:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import errno
 import os
 import threading
 from pathlib import Path
@@ -12,6 +13,7 @@ import pytest
 from clray.cli import main
 from clray.image_io import read_pfm
 from clray.output import write_bytes_atomically
+from clray.render import RenderResult
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -34,6 +36,27 @@ def test_a_dangling_symlink_creates_its_target(tmp_path):
     write_bytes_atomically(link, b"data")
     assert link.is_symlink()
     assert (tmp_path / "made.txt").read_bytes() == b"data"
+
+
+@pytest.mark.parametrize("where", ["missing/x.png", "folder"])
+def test_an_error_names_the_file_not_its_temporary_name(tmp_path, where):
+    (tmp_path / "folder").mkdir()
+    path = tmp_path / where
+    with pytest.raises(OSError) as info:
+        write_bytes_atomically(path, b"data")
+    assert info.value.filename == str(path) and info.value.filename2 is None
+    assert info.value.errno in (errno.ENOENT, errno.EISDIR)
+    assert str(info.value).endswith(f": {str(path)!r}")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["folder"]
+    assert list((tmp_path / "folder").iterdir()) == []
+
+
+def test_a_result_with_passes_names_the_pass_file_it_cannot_write(tmp_path):
+    result = RenderResult(np.zeros((2, 2, 3), np.float32), {},
+                          aovs={"depth": np.ones((2, 2), np.float32)})
+    with pytest.raises(FileNotFoundError) as info:
+        result.save(tmp_path / "missing" / "x.png")
+    assert info.value.filename == str(tmp_path / "missing" / "x.depth.pfm")
 
 
 def test_a_pipe_is_written_not_replaced(tmp_path):

@@ -21,7 +21,7 @@ from clray.knobs import Tuning
 from clray.passes import PASS_NAMES, preview
 from clray.reference import camera_rays
 from clray.reference.bvh import intersect_scene
-from clray.render import RenderSettings, render
+from clray.render import RenderResult, RenderSettings, render
 from clray.scene import model as M
 
 W, H = 40, 30
@@ -395,6 +395,51 @@ def test_cli_takes_every_pass_at_once() -> None:
     every = ",".join(ALL)
     assert len(every) > 40
     assert cli._parse(["render", "scene.toml", "--aov", every]).aov == ALL
+
+
+@pytest.mark.parametrize(("aovs", "message"), [
+    ({"shadow": np.zeros((2, 3))}, "aovs: unknown pass 'shadow'; expected some of depth"),
+    ({"depth": np.zeros((3, 2))}, "aovs['depth']: expected shape (2, 3) (the image's size), "
+                                  "got (3, 2)"),
+    ({"normal": np.zeros((2, 3))}, "aovs['normal']: expected shape (2, 3, 3)"),
+    ({"depth": np.full((2, 3), "a")}, "aovs['depth']: expected an (H, W) or (H, W, 3) array"),
+    ([np.zeros((2, 3))], "aovs: expected a dict of pass arrays by name, got list"),
+])
+@pytest.mark.parametrize("suffix", [".png", ".exr"])
+def test_bad_passes_are_refused_before_any_file(tmp_path: Path, aovs: object, message: str,
+                                                suffix: str) -> None:
+    # The passes' files were written before the image; a bad one failed half way (KeyError
+    # or IndexError in the EXR's channels), leaving the passes before it.
+    result = RenderResult(np.zeros((2, 3, 3), np.float32), {},
+                          aovs={"albedo": np.zeros((2, 3, 3)), **aovs}
+                          if isinstance(aovs, dict) else aovs)  # type: ignore[arg-type]
+    with pytest.raises(SettingsError) as info:
+        result.save(tmp_path / f"out{suffix}", previews=True)
+    assert str(info.value).startswith(message)
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_passes_given_as_nested_lists_are_written_as_arrays_are(tmp_path: Path) -> None:
+    # The image could be a nested list; a pass so given raised AttributeError (no astype).
+    depth = [[1.0, 2.0, 3.0], [4.0, 5.0, 6.0]]
+    result = RenderResult(np.zeros((2, 3, 3), np.float32), {},
+                          aovs={"depth": depth})  # type: ignore[dict-item]
+    result.save(tmp_path / "out.png", previews=True)
+    assert np.array_equal(_read_pfm_any(tmp_path / "out.depth.pfm"), np.array(depth))
+    assert (tmp_path / "out.depth.png").is_file()
+
+
+@pytest.mark.parametrize("folder", ["out.png", "out.object.pfm", "out.object.png"])
+def test_a_folder_in_the_way_is_refused_before_any_file(tmp_path: Path, folder: str) -> None:
+    # A folder at the image's name failed its write after the passes' files were written,
+    # which stayed beside no image; one at a later pass's name left the earlier passes.
+    (tmp_path / folder).mkdir()
+    result = RenderResult(np.zeros((2, 3, 3), np.float32), {},
+                          aovs={"depth": np.zeros((2, 3)), "object": np.zeros((2, 3), np.int32)})
+    with pytest.raises(IsADirectoryError) as info:
+        result.save(tmp_path / "out.png", previews=True)
+    assert info.value.filename == str(tmp_path / folder)
+    assert sorted(p.name for p in tmp_path.iterdir()) == [folder]
 
 
 def test_a_dask_still_refuses_passes_before_any_work() -> None:

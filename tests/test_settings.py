@@ -20,6 +20,7 @@ from clray.scene.check import check_scene, scene_to_dict
 from clray.scene.load import load_scene, scene_from_dict
 
 ROOT = Path(__file__).resolve().parent.parent
+SCENE_PATH = ROOT / "scenes" / "spheres.toml"
 SCENE = {"camera": {"position": [0, 0, 5], "look_at": [0, 0, 0]},
          "materials": {"m": {"color": [0.8, 0.3, 0.2]}},
          "lights": [{"type": "point", "position": [2, 3, 4]}],
@@ -108,6 +109,39 @@ def test_settings_only_the_api_has(settings: dict, message: str) -> None:
     with pytest.raises(SettingsError) as info:
         RenderSettings(**settings)
     assert str(info.value) == message
+
+
+@pytest.mark.parametrize(("variants", "message"), [
+    (5, "expected a tuple of (KernelConfig field name, value) pairs, got 5"),
+    ((("nope", 1),), "'nope' is not a KernelConfig field, got (('nope', 1),)"),
+    ((("fresnel_schlick", 1),), "'fresnel_schlick' takes True or False, not 1"),
+    ((("build_options", "-cl-mad-enable"),), "'build_options' takes a tuple of strings"),
+    ((("bvh_width", 3),), "'bvh_width' takes 4, 8, or None, not 3"),
+    ((("traversal", "nope"),), "'traversal' takes single, sample_packet, group_packet"),
+    # Set from the scene: pack_scene got the field twice, a TypeError.
+    ((("has_planes", True),), "'has_planes' is set by the render from the scene and settings"),
+    ((("max_depth", 2),), "'max_depth' is set by the render"),
+])
+def test_variants_are_checked_on_creation(variants: object, message: str) -> None:
+    with pytest.raises(SettingsError) as info:
+        RenderSettings(variants=variants)
+    assert str(info.value).startswith(f"RenderSettings.variants: {message}")
+
+
+def test_the_study_variants_are_accepted() -> None:
+    from clray.study import VARIANTS
+
+    for variant in VARIANTS:
+        assert RenderSettings(variants=variant.switches).variants == variant.switches
+
+
+@pytest.mark.parametrize("settings", [{"width": 4}, {}, 4])
+def test_render_refuses_settings_that_are_not_render_settings(settings: object) -> None:
+    # An empty dict too, which `settings or RenderSettings()` took for the defaults.
+    with pytest.raises(SettingsError) as info:
+        render(SCENE_PATH, settings)  # type: ignore[arg-type]
+    assert str(info.value) == ("settings: expected a clray.RenderSettings or None, got "
+                               f"{type(settings).__name__}")
 
 
 def test_numpy_integers_are_integers() -> None:

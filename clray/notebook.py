@@ -11,7 +11,14 @@ import numpy as np
 
 from clray.errors import ClrayError
 from clray.image_io import png_bytes, to_png_samples
-from clray.render import RenderResult, RenderSettings, png_encoding, render, resolved_settings
+from clray.render import (
+    RenderResult,
+    RenderSettings,
+    png_encoding,
+    render,
+    resolved_settings,
+    settings_or_default,
+)
 from clray.scene.check import check_scene
 from clray.scene.load import load_scene
 from clray.scene.model import Scene
@@ -33,7 +40,7 @@ def show_progressive(scene: Scene | str | os.PathLike,
     arrives (rows still to come are black), then the finished image (denoised where the
     settings ask). Returns the result; settings.on_band, if any, still hears every band."""
     display = _display()
-    settings = settings or RenderSettings()
+    settings = settings_or_default(settings)
     scene = load_scene(scene) if isinstance(scene, str | os.PathLike) else check_scene(scene)
     resolved = resolved_settings(scene, settings)
     encoding = png_encoding(scene, settings)

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from clray.errors import ClrayError
+from clray.errors import ClrayError, SettingsError
 from clray.image_io import Encoding, to_png_samples
 from clray.notebook import show_progressive
 from clray.render import RenderResult, RenderSettings, render
@@ -98,3 +98,12 @@ def test_show_progressive_without_ipython_says_so(monkeypatch) -> None:
     monkeypatch.setitem(sys.modules, "IPython", None)
     with pytest.raises(ClrayError, match="IPython"):
         show_progressive(ROOT / "scenes" / "soft_lights.toml")
+
+
+def test_show_progressive_refuses_settings_that_are_not_render_settings(monkeypatch) -> None:
+    # As render() does: a dict of overrides had been taken for the defaults where empty, and
+    # an AttributeError otherwise.
+    _fake_ipython(monkeypatch)
+    for settings in ({}, {"width": 4}):
+        with pytest.raises(SettingsError, match=r"^settings: expected a clray\.RenderSettings"):
+            show_progressive(ROOT / "scenes" / "spheres.toml", settings)  # type: ignore[arg-type]

@@ -176,6 +176,19 @@ def pass_paths(image_path: str | Path, names: tuple[str, ...], previews: bool
     return files + ([beside(image_path, name, ".png") for name in names] if previews else [])
 
 
+def exr_holds_passes(path: Path, names: tuple[str, ...]) -> bool:
+    """Whether the OpenEXR image at `path` has every pass of `names` among its layers (a frame
+    that --resume may skip); False for a file OpenEXR cannot read, or without OpenEXR."""
+    try:
+        import OpenEXR
+
+        channels = OpenEXR.File(str(path), header_only=True).header()["channels"]
+    except (ImportError, RuntimeError, KeyError):  # OpenEXR's "Unable to open ... for read"
+        return False
+    held = {channel.name for channel in channels}
+    return all(f"{name}.{channel}" in held for name in names for channel in EXR_CHANNELS[name])
+
+
 def as_passes(aovs: object, size: tuple[int, ...]) -> dict[str, np.ndarray]:
     """`aovs` as RenderResult.aovs holds passes, arrays by name, or SettingsError: a dict of
     known pass names, each an array of real numbers (nested lists too) of the image's `size`

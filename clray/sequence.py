@@ -10,7 +10,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from clray.errors import SceneError, SettingsError
-from clray.passes import pass_paths
+from clray.passes import exr_holds_passes, pass_paths
 from clray.render import RenderResult, RenderSettings, render
 from clray.scene.animation import Animation
 from clray.scene.load import read_scene_data, scene_and_animation, scene_from_dict
@@ -78,9 +78,11 @@ def frames_in(frames: range, animation: Animation) -> range:
     return frames
 
 
-# A printf conversion, with the width and precision that make its text that long; `%%` too, so
-# that the `%5d` of `%%5d` (a literal `%` and `5d`) is not taken for one.
-_CONVERSION = re.compile(r"%%|%[-+ #0]*(\d*)(?:\.(\d*))?")
+# A printf conversion as Python's % takes it, with the width and precision that make its text
+# that long; `%%` too, so that the `%5d` of `%%5d` (a literal `%` and `5d`) is not taken for
+# one. Only whole conversions: `a%1000.png` has none (`p` is no conversion type), and is a
+# still's name as it stands.
+_CONVERSION = re.compile(r"%%|%[-+ #0]*(\d*)(?:\.(\d*))?[hlL]?[diouxXeEfFgGcrsa]")
 # No file name is longer than this (NAME_MAX on the usual file systems).
 _MAX_NAME = 255
 
@@ -119,9 +121,17 @@ def frames_to_render(frames: range, pattern: Path, resume: bool, aovs: tuple[str
     image and each of its passes' files is a regular file: each is written to a temporary name
     and renamed, so one that exists is whole. A folder of that name is not a frame, and a frame
     written without the passes asked for now lacks them."""
-    return [f for f in frames
-            if not (resume and all(path.is_file()
-                                   for path in frame_files(pattern, f, aovs, previews)))]
+    return [f for f in frames if not (resume and frame_complete(pattern, f, aovs, previews))]
+
+
+def frame_complete(pattern: Path, frame: int, aovs: tuple[str, ...], previews: bool) -> bool:
+    """Whether `frame`'s files are all there whole, its passes included: beside the image, or
+    as an OpenEXR image's layers."""
+    files = frame_files(pattern, frame, aovs, previews)
+    if not all(path.is_file() for path in files):
+        return False
+    image = files[0]
+    return not aovs or image.suffix.lower() != ".exr" or exr_holds_passes(image, aovs)
 
 
 def render_frames(sequence: Sequence, frames: Iterable[int], settings: RenderSettings,

@@ -6,11 +6,13 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from clray import cli
 from clray.errors import SceneError, SettingsError
-from clray.image_io import read_pfm
+from clray.image_io import Encoding, read_pfm
+from clray.passes import write_with_passes
 from clray.scene.animation import Animation, Track, parse_path
 from clray.sequence import (
     check_pattern,
@@ -229,6 +231,28 @@ def test_a_frame_number_wider_than_a_file_name_is_a_usage_error(tmp_path, capsys
 def test_a_frame_number_as_wide_as_a_file_name_is_taken():
     # `%%` is a literal `%`: the `9999d` after it is text, not a width.
     assert frame_path(Path("x_%%9999d_%255d.png"), 1).name == "x_%9999d_" + " " * 254 + "1.png"
+
+
+def test_a_percent_sign_that_is_no_conversion_is_part_of_a_still_name():
+    # `%1000.p` converts nothing (`p` is no conversion type): a still's name, as it always was,
+    # not a frame number too wide.
+    for name in ("a%1000.png", "runs/%1000/x.png", "a%5.png"):
+        assert frame_path(Path(name), 3) == Path(name)
+
+
+def test_resume_skips_an_exr_frame_only_with_its_passes_as_layers(tmp_path):
+    # An OpenEXR frame holds its passes as layers, not files beside it: a frame written
+    # without them counted as complete.
+    pytest.importorskip("OpenEXR")
+    pattern = tmp_path / "f_%02d.exr"
+    image = np.zeros((2, 3, 3), np.float32)
+    write_with_passes(frame_path(pattern, 0), image, Encoding(), {})
+    write_with_passes(frame_path(pattern, 1), image, Encoding(),
+                      {"depth": np.ones((2, 3), np.float32)})
+    frame_path(pattern, 2).write_bytes(b"not an OpenEXR file")
+    assert frames_to_render(range(0, 3), pattern, True) == []
+    assert frames_to_render(range(0, 3), pattern, True, ("depth",)) == [0, 2]
+    assert frames_to_render(range(0, 3), pattern, True, ("depth", "normal")) == [0, 1, 2]
 
 
 def test_render_frames_then_resume(cl_device, tmp_path, capsys):

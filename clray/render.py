@@ -9,7 +9,7 @@ import time
 import typing
 import warnings
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from pathlib import Path
 
 import numpy as np
@@ -63,8 +63,12 @@ def variants_problem(variants: object) -> str | None:
         if not fits(value):
             return f"{name!r} takes {takes}, not {value!r}"
         if name in KNOBS and not KNOBS[name].legal(value):
-            # The knob's rule up to its explanation: "4, 8, or None: 8 where ...".
-            return f"{name!r} takes {KNOBS[name].legal_text.split(': ')[0]}, not {value!r}"
+            # The knob's rule up to its explanation ("4, 8, or None: 8 where ..."), less the
+            # None that means "the device's" to a knob: a variant names a value.
+            rule = KNOBS[name].legal_text.split(": ")[0]
+            if rule.endswith(", or None"):
+                rule = f"one of {rule.removesuffix(', or None')}"
+            return f"{name!r} takes {rule}, not {value!r}"
     return None
 
 
@@ -125,9 +129,12 @@ class RenderSettings:
                    ("variants", variants_problem),
                    ("denoise",
                     lambda v: None if isinstance(v, bool) else "expected True or False")]
+        # None keeps the scene's value only where the field's default is None: precision,
+        # aovs, variants and the switches take no None (variants=None failed in the render).
+        optional = {f.name for f in fields(self) if f.default is None}
         for name, problem_of in checks:
             value = getattr(self, name)
-            problem = None if value is None else problem_of(value)
+            problem = None if value is None and name in optional else problem_of(value)
             if problem:
                 raise SettingsError(f"RenderSettings.{name}: {problem}, got {value!r}")
         for name in ("progress", "on_band"):

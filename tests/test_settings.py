@@ -104,6 +104,10 @@ def test_file_flag_and_api_accept_alike(name: str, value: object, text: str) -> 
     ({"device": 3}, "RenderSettings.device: expected a string, got 3"),
     ({"spp": True}, "RenderSettings.spp: expected an integer, got True"),
     ({"progress": 5}, "RenderSettings.progress: expected a callable, got 5"),
+    # Fields whose default is not None take no None (it failed later, in the render).
+    ({"aovs": None}, "RenderSettings.aovs: expected a tuple of pass names, got None"),
+    ({"precision": None}, "RenderSettings.precision: expected float or double, got None"),
+    ({"denoise": None}, "RenderSettings.denoise: expected True or False, got None"),
 ])
 def test_settings_only_the_api_has(settings: dict, message: str) -> None:
     with pytest.raises(SettingsError) as info:
@@ -116,8 +120,12 @@ def test_settings_only_the_api_has(settings: dict, message: str) -> None:
     ((("nope", 1),), "'nope' is not a KernelConfig field, got (('nope', 1),)"),
     ((("fresnel_schlick", 1),), "'fresnel_schlick' takes True or False, not 1"),
     ((("build_options", "-cl-mad-enable"),), "'build_options' takes a tuple of strings"),
-    ((("bvh_width", 3),), "'bvh_width' takes 4, 8, or None, not 3"),
-    ((("traversal", "nope"),), "'traversal' takes single, sample_packet, group_packet"),
+    # A knob's None means "the device's"; a variant names a value, and None is no integer.
+    ((("bvh_width", 3),), "'bvh_width' takes one of 4, 8, not 3"),
+    ((("bvh_width", None),), "'bvh_width' takes an integer, not None"),
+    # None for the tuple itself too: not "the scene's", which variants has no use for.
+    (None, "expected a tuple of (KernelConfig field name, value) pairs, got None"),
+    ((("traversal", "nope"),), "'traversal' takes one of single, sample_packet, group_packet, not"),
     # Set from the scene: pack_scene got the field twice, a TypeError.
     ((("has_planes", True),), "'has_planes' is set by the render from the scene and settings"),
     ((("max_depth", 2),), "'max_depth' is set by the render"),

@@ -624,21 +624,9 @@ def _write(path: Path, write: Callable[[], None]) -> None:
             _make_folder(path, output_target(path).parent)
         write()
     except OSError as err:
-        raise ClrayError(f"cannot write {_failed_file(err, path)}: {err.strerror or err}"
-                         ) from err
-
-
-def _failed_file(err: OSError, path: Path) -> str | Path:
-    """The file that `err` is about: an image's write writes its pass files too, and the one
-    that failed is the one to name. A rename's destination (filename2) before its source, and
-    never write_bytes_atomically's temporary name (.NAME.PID.HEX.tmp), which the user did not
-    ask for; `path` where the error names no other file."""
-    for name in (err.filename2, err.filename):
-        if isinstance(name, str | bytes):
-            name = os.fsdecode(name)
-            if not (os.path.basename(name).startswith(".") and name.endswith(".tmp")):
-                return name
-    return path
+        # The file the error names: an image's write writes its pass files too, and the one
+        # that failed is the one to name (write_bytes_atomically names each file it writes).
+        raise ClrayError(f"cannot write {err.filename or path}: {err.strerror or err}") from err
 
 
 class _ProgressLines:

@@ -405,6 +405,22 @@ def test_the_least_budget_counts_each_scenes_reference_and_a_runs_start() -> Non
     assert untried(runs[:1], [trial], 5.0) is None
 
 
+def test_the_plot_is_written_whole_or_not_at_all(tmp_path, monkeypatch) -> None:
+    # It was saved straight into tune.png: a full disk left half a PNG, and a traceback.
+    pytest.importorskip("matplotlib")
+    from clray.tuning import report
+
+    def full_disk(source: object, target: object) -> None:
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr("os.replace", full_disk)
+    trials = [tuner_module.Trial("spheres", Tuning(), 1.0, [1.0], 0.0, True, 0)]
+    with pytest.raises(ClrayError) as info:
+        report.plot(tmp_path, trials, None)
+    assert str(info.value) == f"cannot write {tmp_path / 'tune.png'}: No space left on device"
+    assert list(tmp_path.iterdir()) == []
+
+
 def test_each_image_size_has_its_own_cache_and_a_broken_one_is_one_line(
         kernel_tuner, cl_device, tmp_path) -> None:
     # Kernel Tuner refuses a cache file of another image size: with one per scene, a second

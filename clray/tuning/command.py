@@ -15,6 +15,7 @@ from clray.device.context import describe, select_device
 from clray.device.tuning_files import save_tuning, tuning_path
 from clray.errors import ClrayError, plural
 from clray.knobs import DEFAULT_TUNING, IMAGE_KNOBS, Tuning
+from clray.output import cannot_write, refuse_a_folder
 from clray.scene.load import load_scene
 from clray.tuning import report
 from clray.tuning.tuner import (
@@ -97,11 +98,10 @@ def check_outputs(out: Path) -> None:
     """Before tuning, where it costs a look: an output of `out` whose name is taken by the wrong
     kind (a folder where a file goes, or the other way round) would fail after all the work."""
     for name in ("results.json", "report.md", report.PLOT_NAME):
-        if (out / name).is_dir():
-            raise ClrayError(f"cannot write {out / name}: it is a directory")
+        refuse_a_folder(out / name)
     cache = out / "cache"
     if os.path.lexists(cache) and not cache.is_dir():
-        raise ClrayError(f"cannot write {cache}: it is a file, not a directory")
+        raise cannot_write(cache, "it is a file, not a directory")
 
 
 def run_tune(paths: Sequence[Path], out: Path, *, device: str | None = None,
@@ -119,14 +119,14 @@ def run_tune(paths: Sequence[Path], out: Path, *, device: str | None = None,
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as err:
-        raise ClrayError(f"cannot write {out}: {err.strerror or err}") from err
+        raise cannot_write(out, err) from err
     if save:  # the winner's folder, made before the work that finds it
         folder = tuning_path(cl_device).parent
         try:
             folder.mkdir(parents=True, exist_ok=True)
         except OSError as err:
-            raise ClrayError(f"cannot write {folder}: {err.strerror or err} (the device's tuning "
-                             "file goes there; --no-save stores none)") from err
+            raise cannot_write(folder, err, "the device's tuning file goes there; --no-save "
+                                            "stores none") from err
     progress = _Progress(budget_s, show_progress)
     tuner = Tuner(cl_device, out, strategy=strategy, budget_s=budget_s,
                   allow_error=allow_error, size=size, progress=progress, **tuner_options)
@@ -182,8 +182,8 @@ def run_tune(paths: Sequence[Path], out: Path, *, device: str | None = None,
                 "scenes": header["scenes"], "strategy": strategy, "budget_s": budget_s,
                 "best": header["best"], "confirmed": confirmed}))
         except OSError as err:
-            raise ClrayError(f"cannot write {tuning_path(cl_device)}: {err.strerror or err} "
-                             f"(the results are in {out}; nothing stored)") from err
+            raise cannot_write(tuning_path(cl_device), err,
+                               f"the results are in {out}; nothing stored") from err
         report.write_results(out, header, trials)  # again, naming the tuning file
     rejected = sum(not t.verified for t in trials)
     say(f"tried {plural(len(trials), 'configuration')} on {describe(cl_device)}, "

@@ -52,6 +52,7 @@ from clray.knobs import (
     other_schemes_knobs,
 )
 from clray.metrics import fail_allowance
+from clray.output import cannot_write
 from clray.render import RenderSettings, pack_for
 from clray.scene.load import load_scene
 
@@ -439,7 +440,7 @@ class Tuner:
         try:
             cache.parent.mkdir(parents=True, exist_ok=True)
         except OSError as err:
-            raise ClrayError(f"cannot write {cache.parent}: {err.strerror or err}") from err
+            raise cannot_write(cache.parent, err) from err
         check_cache(cache)
         platform, device = _platform_indices(self.device)
 

@@ -77,21 +77,28 @@ def least_budget_s(reference_s: Sequence[float]) -> float:
 
 
 def untried(runs: Sequence[SceneRun], trials: Sequence[Trial], budget_s: float) -> str | None:
-    """The scenes on which nothing was tried within the budget and why, in words; None where
-    every scene had a configuration tried."""
-    names = [run.name for run in runs if not any(t.scene == run.name for t in trials)]
-    if not names:
-        return None
-    text = f"nothing tried on {', '.join(names)} within the budget of {budget_s:g} s"
+    """The scenes on which nothing was tried within the budget and why, in words: those whose
+    Kernel Tuner runs started, and those on which none did; None where every scene had a
+    configuration tried."""
     least = least_budget_s([run.reference_s for run in runs])
-    if least <= budget_s:
-        return text + (": Kernel Tuner's runs started, but the budget ended before their first "
-                       "configuration was timed")
-    spent = sum(run.reference_s for run in runs)
-    return text + (f": the {'reference render' if len(runs) == 1 else 'reference renders'} took "
-                   f"{spent:.2g} s of it, and a Kernel Tuner run starts only while "
-                   f"{MIN_RUN_BUDGET_S:g} s of a scene's share is left: a budget under "
-                   f"{least:.3g} s leaves a scene untried")
+    if least > budget_s:
+        spent = sum(run.reference_s for run in runs)
+        not_started = (f"the {'reference render' if len(runs) == 1 else 'reference renders'} "
+                       f"took {spent:.2g} s of it, and a Kernel Tuner run starts only while "
+                       f"{MIN_RUN_BUDGET_S:g} s of a scene's share is left: a budget under "
+                       f"{least:.3g} s leaves a scene untried")
+    else:  # the reference renders left the scene a run's start: earlier scenes' runs took it
+        not_started = (f"no Kernel Tuner run started there: earlier scenes' runs left under "
+                       f"{MIN_RUN_BUDGET_S:g} s of the scene's share, the least a run starts "
+                       "with")
+    why = {True: "Kernel Tuner's runs started, but the budget ended before their first "
+                 "configuration was timed",
+           False: not_started}
+    left = [run for run in runs if not any(t.scene == run.name for t in trials)]
+    said = [f"nothing tried on {', '.join(names)} within the budget of {budget_s:g} s: {text}"
+            for started, text in why.items()
+            if (names := [run.name for run in left if run.run_started == started])]
+    return "; ".join(said) or None
 
 
 def check_outputs(out: Path) -> None:

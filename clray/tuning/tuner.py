@@ -346,6 +346,9 @@ class SceneRun:
     spp: int
     # Seconds the scene's load, packing and reference render took, out of the budget.
     reference_s: float
+    # Whether a Kernel Tuner run was started on the scene: one that was not had its share taken
+    # before it, which is what `clray tune` says of a scene left untried.
+    run_started: bool = False
 
 
 class Tuner:
@@ -608,6 +611,7 @@ class Tuner:
                 left = deadline - time.monotonic()
                 if left < MIN_RUN_BUDGET_S:
                     break
+                run.run_started = True
                 trials = self.run_host(run, host, left, kernel_space)
                 for trial in trials:
                     self.progress(run.name, trial)

@@ -61,7 +61,14 @@ from clray.model_scene import (
     model_scene_data,
     to_toml,
 )
-from clray.output import is_special_file, output_target, write_bytes_atomically
+from clray.output import (
+    cannot_write,
+    error_words,
+    is_special_file,
+    output_target,
+    refuse_a_folder,
+    write_bytes_atomically,
+)
 from clray.passes import PASS_NAMES, pass_paths, pass_problem
 from clray.render import RenderResult, RenderSettings, render
 from clray.scene import limits
@@ -557,25 +564,24 @@ def _check_writable(path: Path) -> None:
     path = output_target(path)
     if is_special_file(path):
         if not os.access(path, os.W_OK):
-            raise ClrayError(f"cannot write {path}: permission denied")
+            raise cannot_write(path, "permission denied")
         return
     folder = path.parent
     _make_folder(path, folder)
+    refuse_a_folder(path)
     probe = folder / f".{path.name[:100]}.{os.getpid()}.{secrets.token_hex(4)}.probe"
     try:
-        if path.is_dir():
-            raise ClrayError(f"cannot write {path}: it is a directory")
         # The name itself may be refused (too long, a NUL byte) where the probe's is not.
         os.stat(path)
     except FileNotFoundError:
         pass
     except (OSError, ValueError) as err:
-        raise ClrayError(f"cannot write {path}: {getattr(err, 'strerror', None) or err}") from err
+        raise cannot_write(path, err) from err
     try:
         os.close(os.open(probe, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600))
         os.unlink(probe)
     except OSError as err:
-        raise ClrayError(f"cannot write {path}: {err.strerror or err}") from err
+        raise cannot_write(path, err) from err
 
 
 def _make_folder(path: Path, folder: Path) -> None:
@@ -592,10 +598,9 @@ def _make_folder(path: Path, folder: Path) -> None:
                 continue
             if isinstance(err, FileExistsError):
                 what = "a broken symbolic link" if os.path.islink(level) else "a file"
-                raise ClrayError(f"cannot write {path}: {level} is {what}, not a directory"
-                                 ) from None
-            raise ClrayError(f"cannot write {path}: cannot make directory {level}: "
-                             f"{getattr(err, 'strerror', None) or err}") from None
+                raise cannot_write(path, f"{level} is {what}, not a directory") from None
+            raise cannot_write(path, f"cannot make directory {level}: {error_words(err)}"
+                               ) from None
         _MADE_FOLDERS.append(level.absolute())
 
 
@@ -624,21 +629,9 @@ def _write(path: Path, write: Callable[[], None]) -> None:
             _make_folder(path, output_target(path).parent)
         write()
     except OSError as err:
-        raise ClrayError(f"cannot write {_failed_file(err, path)}: {err.strerror or err}"
-                         ) from err
-
-
-def _failed_file(err: OSError, path: Path) -> str | Path:
-    """The file that `err` is about: an image's write writes its pass files too, and the one
-    that failed is the one to name. A rename's destination (filename2) before its source, and
-    never write_bytes_atomically's temporary name (.NAME.PID.HEX.tmp), which the user did not
-    ask for; `path` where the error names no other file."""
-    for name in (err.filename2, err.filename):
-        if isinstance(name, str | bytes):
-            name = os.fsdecode(name)
-            if not (os.path.basename(name).startswith(".") and name.endswith(".tmp")):
-                return name
-    return path
+        # The file the error names: an image's write writes its pass files too, and the one
+        # that failed is the one to name (write_bytes_atomically names each file it writes).
+        raise cannot_write(err.filename or path, err) from err
 
 
 class _ProgressLines:
@@ -936,8 +929,7 @@ def _render_frames(args: argparse.Namespace, started: float) -> int:
         # before it are rendered; a look at each name is cheap beside a probe file each.
         for frame in todo:
             for path in frame_files(args.output, frame, aovs, args.aov_preview):
-                if os.path.isdir(path):
-                    raise ClrayError(f"cannot write {path}: it is a directory")
+                refuse_a_folder(path)
         first = sequence.scene(frames[0])
         if not args.quiet:
             for warning in first.warnings:

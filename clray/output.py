@@ -1,13 +1,21 @@
 """Output files written whole: a file that is either untouched or complete, never partial,
 through symlinks to their targets, and straight into devices and pipes. Images (clray.image_io),
-stats and tuning files (clray.device.tuning_files) are all written this way."""
+stats and tuning files (clray.device.tuning_files) are all written this way; and the one-line
+error for an output that cannot be written."""
 
 from __future__ import annotations
 
+import io
 import os
 import secrets
 import stat
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from clray.errors import ClrayError
+
+if TYPE_CHECKING:
+    import matplotlib.figure
 
 
 def output_target(path: str | Path) -> Path:
@@ -59,3 +67,46 @@ def write_bytes_atomically(path: str | Path, payload: bytes) -> None:
         # as writing it directly would, for callers that show err.filename. OSError() picks
         # the errno's subclass again (FileNotFoundError, IsADirectoryError).
         raise OSError(err.errno, err.strerror, os.fspath(path)) from None
+
+
+def error_words(err: OSError | ValueError) -> str:
+    """What went wrong, in the system's words: an OSError's strerror ("Is a directory"), else
+    the error's text (a ValueError: a name the system refuses, a NUL byte in it)."""
+    return getattr(err, "strerror", None) or str(err)
+
+
+def cannot_write(path: str | Path, why: str | OSError | ValueError, note: str = "") -> ClrayError:
+    """The error for an output that cannot be written, `cannot write PATH: why (note)`: `why`
+    the words, or an error (error_words)."""
+    if not isinstance(why, str):
+        why = error_words(why)
+    return ClrayError(f"cannot write {path}: {why}" + (f" ({note})" if note else ""))
+
+
+def refuse_a_folder(path: str | Path) -> None:
+    """cannot_write where a folder stands where the file `path` goes: a look, before the work
+    whose result the file holds, rather than a failed write after it."""
+    if os.path.isdir(path):
+        raise cannot_write(path, "it is a directory")
+
+
+def write_output(path: str | Path, payload: bytes) -> None:
+    """write_bytes_atomically, with an OSError (a full disk, a folder in the way) as
+    cannot_write's one line naming `path`."""
+    try:
+        write_bytes_atomically(path, payload)
+    except OSError as err:
+        raise cannot_write(path, err) from err
+
+
+def figure_png(fig: matplotlib.figure.Figure, **options: Any) -> bytes:
+    """`fig` as PNG bytes (matplotlib's savefig `options`), and closed: bytes, so that the plot
+    goes whole into its file through write_output, as every output does."""
+    import matplotlib.pyplot as plt
+
+    png = io.BytesIO()
+    try:
+        fig.savefig(png, format="png", **options)
+    finally:
+        plt.close(fig)
+    return png.getvalue()

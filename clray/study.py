@@ -10,7 +10,6 @@ counted separately (they make RMSE NaN).
 from __future__ import annotations
 
 import argparse
-import io
 import json
 import math
 import statistics
@@ -26,7 +25,7 @@ import pyopencl as cl
 
 from clray import metrics
 from clray.errors import EXIT_OK, EXIT_RUNTIME, ClrayError, one_line, plural
-from clray.output import write_bytes_atomically
+from clray.output import cannot_write, figure_png, write_output
 from clray.render import RenderSettings, render
 from clray.scene.load import load_scene
 from clray.scene.model import Scene
@@ -266,23 +265,8 @@ def plot_scene(records: list[dict], path: Path) -> bool:
     except ImportError:
         return False
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig = plot_figure(records)
-    png = io.BytesIO()
-    fig.savefig(png, format="png", bbox_inches="tight", pad_inches=0.15)
-    plt.close(fig)
-    write_output(path, png.getvalue())
+    write_output(path, figure_png(plot_figure(records), bbox_inches="tight", pad_inches=0.15))
     return True
-
-
-def write_output(path: Path, payload: bytes) -> None:
-    """One of the study's files, whole or not at all (a full disk, a folder in its place): a
-    one-line error, not a traceback and half a file."""
-    try:
-        write_bytes_atomically(path, payload)
-    except OSError as err:
-        raise ClrayError(f"cannot write {path}: {err.strerror or err}") from err
 
 
 def _fmt(value: float | None, spec: str) -> str:
@@ -375,7 +359,7 @@ def run_study(paths: Sequence[Path], out: Path, *, repeat: int = 3,
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as err:
-        raise ClrayError(f"cannot write {out}: {err.strerror or err}") from err
+        raise cannot_write(out, err) from err
     base = RenderSettings(width=width, height=height, device=device)
     records: list[dict] = []
     if run_scenes is not None:

@@ -8,6 +8,7 @@ from __future__ import annotations
 import json
 import re
 import sys
+import time
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -393,16 +394,57 @@ def test_the_least_budget_counts_each_scenes_reference_and_a_runs_start() -> Non
     assert least_budget_s([1.0]) == pytest.approx(3.0)
     assert least_budget_s([1.0, 3.0]) == pytest.approx(6.0)
     assert least_budget_s([3.0, 0.5]) == pytest.approx(10.0)
-    runs = [SimpleNamespace(name="a", reference_s=1.0), SimpleNamespace(name="b", reference_s=1.0)]
+    runs = [SimpleNamespace(name="a", reference_s=1.0, run_started=True),
+            SimpleNamespace(name="b", reference_s=1.0, run_started=True)]
     trial = tuner_module.Trial("a", Tuning(), 1.0, [1.0], 0.0, True, 0)
     assert untried(runs, [trial], 100.0) == (
         "nothing tried on b within the budget of 100 s: Kernel Tuner's runs started, but the "
         "budget ended before their first configuration was timed")
+    runs[1].run_started = False
     assert untried(runs, [trial], 5.0) == (
         "nothing tried on b within the budget of 5 s: the reference renders took 2 s of it, and "
         "a Kernel Tuner run starts only while 2 s of a scene's share is left: a budget under "
         "6 s leaves a scene untried")
     assert untried(runs[:1], [trial], 5.0) is None
+
+
+def test_a_scene_whose_share_earlier_runs_took_is_not_told_its_runs_started(
+        kernel_tuner, cl_device, tmp_path, monkeypatch) -> None:
+    # A budget over least_budget_s was said as "Kernel Tuner's runs started" for every untried
+    # scene, also for one whose share the first scene's run (builds take 5 to 25 s) had taken.
+    skew = [0.0]
+    monkeypatch.setattr(tuner_module, "time", SimpleNamespace(
+        monotonic=lambda: time.monotonic() + skew[0]))
+
+    def slow_run(self, run, host, time_limit, kernel_space):
+        skew[0] += time_limit + 100.0  # past the end of the whole budget, timing nothing
+        return []
+
+    monkeypatch.setattr(tuner_module.Tuner, "run_host", slow_run)
+    tuner = tuner_module.Tuner(cl_device, tmp_path, space=TWO, size=(32, 18), budget_s=100)
+    trials = tuner.tune([SPHERES, FRESNEL])
+    assert [run.run_started for run in tuner.runs] == [True, False]
+    assert untried(tuner.runs, trials, 100) == (
+        "nothing tried on spheres within the budget of 100 s: Kernel Tuner's runs started, but "
+        "the budget ended before their first configuration was timed; nothing tried on fresnel "
+        "within the budget of 100 s: no Kernel Tuner run started there: earlier scenes' runs "
+        "left under 2 s of the scene's share, the least a run starts with")
+
+
+def test_the_plot_is_written_whole_or_not_at_all(tmp_path, monkeypatch) -> None:
+    # It was saved straight into tune.png: a full disk left half a PNG, and a traceback.
+    pytest.importorskip("matplotlib")
+    from clray.tuning import report
+
+    def full_disk(source: object, target: object) -> None:
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr("os.replace", full_disk)
+    trials = [tuner_module.Trial("spheres", Tuning(), 1.0, [1.0], 0.0, True, 0)]
+    with pytest.raises(ClrayError) as info:
+        report.plot(tmp_path, trials, None)
+    assert str(info.value) == f"cannot write {tmp_path / 'tune.png'}: No space left on device"
+    assert list(tmp_path.iterdir()) == []
 
 
 def test_each_image_size_has_its_own_cache_and_a_broken_one_is_one_line(

@@ -80,7 +80,9 @@ def load_tuning(device: cl.Device) -> tuple[Tuning, Path] | None:
     try:
         os.stat(path)  # through a link, as the read goes
     except FileNotFoundError:
-        return None  # never tuned (or a link to nothing, as before): the defaults, silently
+        # Never tuned, or a link whose target no tune has written yet (save_tuning writes
+        # through it): the defaults, silently.
+        return None
     except OSError:
         pass  # there but not to be looked at: read_regular's reason is the warning
     try:

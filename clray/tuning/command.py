@@ -15,6 +15,7 @@ from clray.device.context import describe, select_device
 from clray.device.tuning_files import save_tuning, tuning_path
 from clray.errors import ClrayError, plural
 from clray.knobs import DEFAULT_TUNING, IMAGE_KNOBS, Tuning
+from clray.output import cannot_write, refuse_a_folder
 from clray.scene.load import load_scene
 from clray.tuning import report
 from clray.tuning.tuner import (
@@ -76,32 +77,38 @@ def least_budget_s(reference_s: Sequence[float]) -> float:
 
 
 def untried(runs: Sequence[SceneRun], trials: Sequence[Trial], budget_s: float) -> str | None:
-    """The scenes on which nothing was tried within the budget and why, in words; None where
-    every scene had a configuration tried."""
-    names = [run.name for run in runs if not any(t.scene == run.name for t in trials)]
-    if not names:
-        return None
-    text = f"nothing tried on {', '.join(names)} within the budget of {budget_s:g} s"
+    """The scenes on which nothing was tried within the budget and why, in words: those whose
+    Kernel Tuner runs started, and those on which none did; None where every scene had a
+    configuration tried."""
     least = least_budget_s([run.reference_s for run in runs])
-    if least <= budget_s:
-        return text + (": Kernel Tuner's runs started, but the budget ended before their first "
-                       "configuration was timed")
-    spent = sum(run.reference_s for run in runs)
-    return text + (f": the {'reference render' if len(runs) == 1 else 'reference renders'} took "
-                   f"{spent:.2g} s of it, and a Kernel Tuner run starts only while "
-                   f"{MIN_RUN_BUDGET_S:g} s of a scene's share is left: a budget under "
-                   f"{least:.3g} s leaves a scene untried")
+    if least > budget_s:
+        spent = sum(run.reference_s for run in runs)
+        not_started = (f"the {'reference render' if len(runs) == 1 else 'reference renders'} "
+                       f"took {spent:.2g} s of it, and a Kernel Tuner run starts only while "
+                       f"{MIN_RUN_BUDGET_S:g} s of a scene's share is left: a budget under "
+                       f"{least:.3g} s leaves a scene untried")
+    else:  # the reference renders left the scene a run's start: earlier scenes' runs took it
+        not_started = (f"no Kernel Tuner run started there: earlier scenes' runs left under "
+                       f"{MIN_RUN_BUDGET_S:g} s of the scene's share, the least a run starts "
+                       "with")
+    why = {True: "Kernel Tuner's runs started, but the budget ended before their first "
+                 "configuration was timed",
+           False: not_started}
+    left = [run for run in runs if not any(t.scene == run.name for t in trials)]
+    said = [f"nothing tried on {', '.join(names)} within the budget of {budget_s:g} s: {text}"
+            for started, text in why.items()
+            if (names := [run.name for run in left if run.run_started == started])]
+    return "; ".join(said) or None
 
 
 def check_outputs(out: Path) -> None:
     """Before tuning, where it costs a look: an output of `out` whose name is taken by the wrong
     kind (a folder where a file goes, or the other way round) would fail after all the work."""
     for name in ("results.json", "report.md", report.PLOT_NAME):
-        if (out / name).is_dir():
-            raise ClrayError(f"cannot write {out / name}: it is a directory")
+        refuse_a_folder(out / name)
     cache = out / "cache"
     if os.path.lexists(cache) and not cache.is_dir():
-        raise ClrayError(f"cannot write {cache}: it is a file, not a directory")
+        raise cannot_write(cache, "it is a file, not a directory")
 
 
 def run_tune(paths: Sequence[Path], out: Path, *, device: str | None = None,
@@ -119,14 +126,14 @@ def run_tune(paths: Sequence[Path], out: Path, *, device: str | None = None,
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as err:
-        raise ClrayError(f"cannot write {out}: {err.strerror or err}") from err
+        raise cannot_write(out, err) from err
     if save:  # the winner's folder, made before the work that finds it
         folder = tuning_path(cl_device).parent
         try:
             folder.mkdir(parents=True, exist_ok=True)
         except OSError as err:
-            raise ClrayError(f"cannot write {folder}: {err.strerror or err} (the device's tuning "
-                             "file goes there; --no-save stores none)") from err
+            raise cannot_write(folder, err, "the device's tuning file goes there; --no-save "
+                                            "stores none") from err
     progress = _Progress(budget_s, show_progress)
     tuner = Tuner(cl_device, out, strategy=strategy, budget_s=budget_s,
                   allow_error=allow_error, size=size, progress=progress, **tuner_options)
@@ -182,8 +189,8 @@ def run_tune(paths: Sequence[Path], out: Path, *, device: str | None = None,
                 "scenes": header["scenes"], "strategy": strategy, "budget_s": budget_s,
                 "best": header["best"], "confirmed": confirmed}))
         except OSError as err:
-            raise ClrayError(f"cannot write {tuning_path(cl_device)}: {err.strerror or err} "
-                             f"(the results are in {out}; nothing stored)") from err
+            raise cannot_write(tuning_path(cl_device), err,
+                               f"the results are in {out}; nothing stored") from err
         report.write_results(out, header, trials)  # again, naming the tuning file
     rejected = sum(not t.verified for t in trials)
     say(f"tried {plural(len(trials), 'configuration')} on {describe(cl_device)}, "

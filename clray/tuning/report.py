@@ -4,15 +4,14 @@ ones listed) and DIR/tune.png (the same times as a bar chart; needs the `plot` e
 
 from __future__ import annotations
 
-import contextlib
 import json
-from collections.abc import Iterator, Sequence
+from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from clray.errors import ClrayError, plural
+from clray.errors import plural
 from clray.knobs import DEFAULT_TUNING
-from clray.output import write_bytes_atomically
+from clray.output import figure_png, write_output
 from clray.tuning.tuner import Trial
 
 if TYPE_CHECKING:
@@ -39,20 +38,10 @@ def _is_default(trial: Trial) -> bool:
     return trial.tuning == DEFAULT_TUNING and not any(trial.extra.values())
 
 
-@contextlib.contextmanager
-def writing(path: Path) -> Iterator[None]:
-    """An OSError while writing `path` (a full disk, a folder in its place) as one line."""
-    try:
-        yield
-    except OSError as err:
-        raise ClrayError(f"cannot write {path}: {err.strerror or err}") from err
-
-
 def write_results(out: Path, header: dict, trials: Sequence[Trial]) -> Path:
     path = out / "results.json"
     payload = {**header, "trials": [_record(t) for t in trials]}
-    with writing(path):
-        write_bytes_atomically(path, (json.dumps(payload, indent=2) + "\n").encode("utf-8"))
+    write_output(path, (json.dumps(payload, indent=2) + "\n").encode("utf-8"))
     return path
 
 
@@ -107,17 +96,10 @@ def plot(out: Path, trials: Sequence[Trial], best_key: str | None) -> str | None
         return "nothing was tried"
     try:
         import matplotlib
-
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
     except ImportError:
         return "matplotlib is not installed (`pip install 'clray[plot]'`)"
-    fig = plot_figure(trials, best_key)
-    try:
-        with writing(out / PLOT_NAME):
-            fig.savefig(out / PLOT_NAME, dpi=110)
-    finally:
-        plt.close(fig)
+    matplotlib.use("Agg")
+    write_output(out / PLOT_NAME, figure_png(plot_figure(trials, best_key), dpi=110))
     return None
 
 
@@ -170,6 +152,5 @@ def write_report(out: Path, header: dict, trials: Sequence[Trial], best_key: str
     lines.append(f"![every configuration's time]({PLOT_NAME})" if plot_skipped is None else
                  f"Plot skipped: {plot_skipped}.")
     path = out / "report.md"
-    with writing(path):
-        write_bytes_atomically(path, ("\n".join(lines) + "\n").encode("utf-8"))
+    write_output(path, ("\n".join(lines) + "\n").encode("utf-8"))
     return path

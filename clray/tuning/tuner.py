@@ -52,6 +52,7 @@ from clray.knobs import (
     other_schemes_knobs,
 )
 from clray.metrics import fail_allowance
+from clray.output import cannot_write
 from clray.render import RenderSettings, pack_for
 from clray.scene.load import load_scene
 
@@ -345,6 +346,9 @@ class SceneRun:
     spp: int
     # Seconds the scene's load, packing and reference render took, out of the budget.
     reference_s: float
+    # Whether a Kernel Tuner run was started on the scene: one that was not had its share taken
+    # before it, which is what `clray tune` says of a scene left untried.
+    run_started: bool = False
 
 
 class Tuner:
@@ -439,7 +443,7 @@ class Tuner:
         try:
             cache.parent.mkdir(parents=True, exist_ok=True)
         except OSError as err:
-            raise ClrayError(f"cannot write {cache.parent}: {err.strerror or err}") from err
+            raise cannot_write(cache.parent, err) from err
         check_cache(cache)
         platform, device = _platform_indices(self.device)
 
@@ -607,6 +611,7 @@ class Tuner:
                 left = deadline - time.monotonic()
                 if left < MIN_RUN_BUDGET_S:
                     break
+                run.run_started = True
                 trials = self.run_host(run, host, left, kernel_space)
                 for trial in trials:
                     self.progress(run.name, trial)

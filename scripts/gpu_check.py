@@ -643,7 +643,11 @@ class Check:
         if workers:
             cmd += ["-n", str(workers)]
         if software.get("pytest_timeout"):
-            cmd += ["--timeout", "60" if self.mode.name == "gpu" else "120"]
+            # The thread method: a test hung in the driver (a clFinish that never returns)
+            # takes no signal, so the signal method would wait as long as it does. A worker
+            # stopped so is replaced by pytest-xdist, and the test reported as failed.
+            cmd += ["--timeout", "60" if self.mode.name == "gpu" else "120",
+                    "--timeout-method", "thread"]
         cmd += self.kernel_test_paths()
         first = ",".join(name for name in self.mode.kernel_tests if name != "*")
         env = dict(self.env, GPU_CHECK_DEVICE_ONLY="1", GPU_CHECK_RESULTS=str(results),

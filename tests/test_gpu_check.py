@@ -5,6 +5,7 @@ steps on PoCL at tiny sizes, so that a first GPU run fails only for GPU reasons.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import re
@@ -479,6 +480,126 @@ def test_the_worst_scene_is_the_failing_one_then_the_most_pixels_off() -> None:
     results["d"] = {**ok, "status": "FAIL", "over_2_255": 1}
     assert S.worst_scene(results) == "d"
     assert S.worst_scene({"c": {"status": "error"}}) is None
+
+
+# --- The builds step -----------------------------------------------------------------------
+
+
+def test_a_process_starts_only_with_time_left_and_its_failure_is_said(tmp_path: Path) -> None:
+    now = time.monotonic()
+    assert S.in_new_process(["echo", "hi"], now + 30) == "hi\n"
+    with pytest.raises(S.OutOfTime):
+        S.in_new_process(["echo", "hi"], now + S.MIN_PROCESS_S / 2)
+    with pytest.raises(S.OutOfTime):
+        S.in_new_process(["echo", "hi"], now + 30, start_by=now)
+    with pytest.raises(ValueError, match="exit 3: the error"):
+        S.in_new_process(["bash", "-c", "echo the error >&2; exit 3"], now + 30)
+    with pytest.raises(ValueError, match="no result within 1 s"):
+        S.in_new_process(["sleep", "5"], now + 30, most_s=1)
+
+
+@dataclasses.dataclass
+class FakeConfig:
+    scene: str
+    spp: int | None = None
+    traversal: str = "default"
+    precision: str = "float"
+
+    def options(self) -> list[str]:
+        return [f"-D{k}={v}" for k, v in dataclasses.asdict(self).items()]
+
+
+def _fake_builds(monkeypatch: pytest.MonkeyPatch, calls: list[str],
+                 cold_fails: set[str] = frozenset(), left: list[int] | None = None) -> None:
+    """cmd_builds without a device: scenes pack to FakeConfigs (broken.toml does not); every
+    new process is answered here: the sample-packet build fails to compile (as on the first
+    GPU run), the group-packet one prints no JSON, the others succeed; cold builds of the
+    scenes in `cold_fails` fail; after `left[0]` processes there is no time left."""
+    import clray.device.context as context
+    import clray.device.program as program
+
+    def scene_config(path: Path, device: object, spp: int | None = None,
+                     **settings: object) -> FakeConfig:
+        if Path(path).stem == "broken":
+            raise ValueError("no such material")
+        return FakeConfig(Path(path).stem, spp, **settings)
+
+    def in_new_process(cmd: list[str], end: float, env: object = None, **kwargs: object) -> str:
+        if left is not None:
+            if left[0] <= 0:
+                raise S.OutOfTime
+            left[0] -= 1
+        if "nv-build" in cmd:
+            config = json.loads(cmd[cmd.index("--config") + 1])
+            calls.append(f"nv-build {config['scene']} {config['traversal']}")
+            if config["traversal"] == "sample_packet":
+                raise ValueError("exit 1: error: passing 'REAL __generic (*)[4]'")
+            if config["traversal"] == "group_packet":
+                return "Segmentation fault\n"
+            return json.dumps({"build_s": 0.5, "verbose": True, "log": "",
+                               "kernels": {"render": {"registers": 128}}}) + "\n"
+        if "--build-only" in cmd:
+            scene = json.loads(cmd[cmd.index("--build-only") + 1])["scene"]
+            calls.append(f"build-only {scene}")
+            if scene in cold_fails:
+                raise ValueError("exit 1: clray: error: CL_OUT_OF_RESOURCES")
+            return json.dumps({"build_s": 0.2, "context_s": 0.1}) + "\n"
+        calls.append("floor")
+        return "0.01\n"
+
+    monkeypatch.setattr(S, "scene_config", scene_config)
+    monkeypatch.setattr(S, "in_new_process", in_new_process)
+    monkeypatch.setattr(context, "select_device", lambda spec: SimpleNamespace(
+        extensions="cl_khr_fp64 cl_nv_compiler_options"))
+    monkeypatch.setattr(context, "has_fp64", lambda device: True)
+    monkeypatch.setattr(program, "private_stack_bytes", lambda config: {"total": 64})
+
+
+def test_builds_record_each_failure_and_go_on_with_the_register_figures_first(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    calls: list[str] = []
+    _fake_builds(monkeypatch, calls, cold_fails={"mesh"})
+    out = tmp_path / "builds.json"
+    rc = S.main(["builds", "--json", str(out), "--device", "x", "--no-examples",
+                 "--scene", "spheres=spheres.toml", "--scene", "mesh=mesh.toml",
+                 "--scene", "broken=broken.toml", "--spp", "1", "--spp", "4"])
+    assert rc == 1
+    report = json.loads(out.read_text())
+    status = {record["labels"][0]: record["status"] for record in report["configurations"]}
+    assert status == {"spheres 1 spp": "ok", "spheres 4 spp": "ok", "mesh 1 spp": "ok",
+                      "mesh 4 spp": "ok", "spheres 4 spp sample_packet": "failed",
+                      "spheres 4 spp group_packet": "failed", "spheres 1 spp double": "ok",
+                      "broken 1 spp": "failed", "broken 4 spp": "failed"}
+    errors = {record["labels"][0]: record.get("error", "") for record in
+              report["configurations"]}
+    assert "__generic" in errors["spheres 4 spp sample_packet"]
+    assert "JSONDecodeError" in errors["spheres 4 spp group_packet"]
+    assert "no such material" in errors["broken 1 spp"]
+    assert all(record["kernels"]["render"]["registers"] == 128
+               for record in report["configurations"] if record["status"] == "ok")
+    # The register figures before any cold or warm build.
+    first_cold = calls.index("build-only spheres")
+    assert all(call.startswith("nv-build") for call in calls[:first_cold])
+    assert not any(call.startswith("nv-build") for call in calls[first_cold:])
+    cold_warm = report["cold_warm"]
+    assert set(cold_warm["spheres"]) == {"spp", "cold_s", "warm_s", "warm_again_s",
+                                         "context_cold_s", "context_warm_s",
+                                         "warm_without_pyopencl_cache_s", "floor_warm_s"}
+    assert "CL_OUT_OF_RESOURCES" in cold_warm["mesh"]["errors"]["cold_s"]
+    assert "cold_s" not in cold_warm["mesh"] and "warm_s" not in cold_warm["mesh"]
+    assert cold_warm["broken"]["errors"]
+    assert calls.count("build-only mesh") == 1  # nothing after its failed cold build
+
+
+def test_cold_and_warm_builds_start_no_process_past_the_time_limit(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    calls: list[str] = []
+    _fake_builds(monkeypatch, calls, left=[2])
+    times = S.cold_and_warm(FakeConfig("spheres", 1), "x", time.monotonic() + 60)
+    assert calls == ["build-only spheres", "build-only spheres"]
+    assert set(times) == {"cold_s", "context_cold_s", "warm_s", "context_warm_s", "unfinished"}
+    assert times["unfinished"] == ["warm_again_s", "warm_without_pyopencl_cache_s",
+                                   "floor_warm_s"]
 
 
 # --- A whole --cpu run --------------------------------------------------------------------

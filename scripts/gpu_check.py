@@ -98,13 +98,20 @@ class Mode:
     build_examples: bool  # the builds step builds every example scene's configuration too
     deadline_s: float
     limits: dict[str, StepLimit] = field(default_factory=dict)
+    # `clray tune`: seconds of searching, the least and the most, and the seconds its
+    # reference renders, confirmation and report take beside them (the first GPU run's: 45).
+    tune_budget_range: tuple[float, float] = (5.0, 150.0)
+    tune_overhead_s: float = 45.0
 
     def tune_budget(self, limit: float) -> float:
         """Seconds of searching for `clray tune` in a step of `limit` seconds: what its
         reference renders, confirmation and report leave."""
-        if self.name == "cpu":
-            return 3.0
-        return max(5.0, min(150.0, limit - 45.0))
+        least, most = self.tune_budget_range
+        return max(least, min(most, limit - self.tune_overhead_s))
+
+    def tune_needs_s(self) -> float:
+        """The least time the tune step can finish in: its least search and the rest."""
+        return self.tune_budget_range[0] + self.tune_overhead_s
 
 
 # The walks the profiles step measures beside the device's default.
@@ -124,7 +131,8 @@ GPU_MODE = Mode(
             "kernel_tests": StepLimit(110, 20), "references": StepLimit(20, 5),
             "scenes": StepLimit(75, 20), "mesh_scene": StepLimit(40, 10),
             "profiles": StepLimit(130, 30), "builds": StepLimit(60, 15),
-            "cpu_beside": StepLimit(45, 10), "tune": StepLimit(90, 30)})
+            # tune: the least a search of 5 s needs with its 45 s of renders and report.
+            "cpu_beside": StepLimit(45, 10), "tune": StepLimit(90, 50)})
 
 CPU_MODE = Mode(
     name="cpu", device_type="CPU", platform="Portable Computing Language",
@@ -138,7 +146,9 @@ CPU_MODE = Mode(
             "kernel_tests": StepLimit(90, 15), "references": StepLimit(120, 15),
             "scenes": StepLimit(90, 15), "mesh_scene": StepLimit(30, 5),
             "profiles": StepLimit(150, 20), "builds": StepLimit(120, 15),
-            "cpu_beside": StepLimit(60, 10), "tune": StepLimit(60, 15)})
+            "cpu_beside": StepLimit(60, 10), "tune": StepLimit(60, 15)},
+    # A search of 3 s at 64x36: the step took 5 s on 2 cores.
+    tune_budget_range=(3.0, 3.0), tune_overhead_s=12.0)
 
 
 # --- NVIDIA's OpenCL driver for pyopencl's ICD loader --------------------------------------
@@ -306,26 +316,72 @@ class ChildResult:
         return self.rc == 0 and not self.timed_out
 
 
-def _stop_group(proc: subprocess.Popen) -> None:
+# How long a stopped child's process group has to end after SIGTERM, and after SIGKILL: at a
+# step's time limit, and when the run itself is stopped (the shell's `timeout -k` leaves the
+# driver 10 s for that and for writing its JSON and log).
+STOP_WAITS_S = (5.0, 5.0)
+STOP_WAITS_ON_SIGNAL_S = (3.0, 2.0)
+
+
+def group_alive(pgid: int) -> bool:
+    """Whether a process of group `pgid` still runs (a zombie waiting for its parent to read
+    its exit does not)."""
+    try:
+        os.killpg(pgid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    try:
+        entries = os.scandir("/proc")
+    except OSError:
+        return True  # no /proc: the group exists
+    with entries:
+        for entry in entries:
+            if not entry.name.isdigit():
+                continue
+            try:
+                with open(os.path.join(entry.path, "stat"), encoding="ascii",
+                          errors="replace") as f:
+                    stat = f.read()
+            except OSError:
+                continue  # ended meanwhile
+            # pid (comm) state ppid pgrp ...: comm may hold spaces and parentheses.
+            fields = stat[stat.rfind(")") + 2:].split()
+            if len(fields) > 2 and fields[2] == str(pgid) and fields[0] not in ("Z", "X"):
+                return True
+    return False
+
+
+def _stop_group(proc: subprocess.Popen, waits: tuple[float, float] = STOP_WAITS_S) -> None:
     """SIGTERM to the child's process group (pytest's workers, clray's build processes), then
-    SIGKILL to what is left after five seconds."""
-    for sig, wait in ((signal.SIGTERM, 5.0), (signal.SIGKILL, 5.0)):
+    SIGKILL to what is left of it after waits[0] seconds; each time the child and every other
+    process of its group have to end, not the child alone."""
+    for sig, wait in zip((signal.SIGTERM, signal.SIGKILL), waits, strict=True):
         try:
             os.killpg(proc.pid, sig)
         except (ProcessLookupError, PermissionError):
-            return
-        try:
-            proc.wait(timeout=wait)
-            return
-        except subprocess.TimeoutExpired:
-            continue
+            break  # the group is gone
+        give_up = time.monotonic() + wait
+        while True:
+            done = proc.poll() is not None
+            if done and not group_alive(proc.pid):
+                return
+            if time.monotonic() >= give_up:
+                break
+            time.sleep(0.05)
+    try:
+        proc.wait(timeout=1.0)
+    except subprocess.TimeoutExpired:
+        pass
 
 
 def run_child(cmd: Sequence[str], limit_s: float, *, env: dict[str, str], cwd: Path,
               output: Path, stdout: Path | None = None) -> ChildResult:
     """Run `cmd` in a new process session within `limit_s` seconds, its output appended to
-    `output` (stdout to `stdout` instead, where given); past the limit the whole process
-    group is stopped."""
+    `output` (stdout to `stdout` instead, where given). Past the limit the whole process
+    group is stopped, as it is when the child ends leaving processes of its group behind, and
+    when this run is stopped meanwhile (Stopped, KeyboardInterrupt: the exception goes on)."""
     start = time.monotonic()
     offset = output.stat().st_size if output.exists() else 0
     with open(output, "ab") as out:
@@ -335,11 +391,18 @@ def run_child(cmd: Sequence[str], limit_s: float, *, env: dict[str, str], cwd: P
                                     stdout=sink, stderr=out, start_new_session=True)
             timed_out = False
             try:
-                rc: int | None = proc.wait(timeout=max(1.0, limit_s))
-            except subprocess.TimeoutExpired:
-                timed_out = True
-                _stop_group(proc)
-                rc = proc.returncode
+                try:
+                    rc: int | None = proc.wait(timeout=max(1.0, limit_s))
+                except subprocess.TimeoutExpired:
+                    timed_out = True
+                    _stop_group(proc)
+                    rc = proc.returncode
+                else:
+                    if group_alive(proc.pid):  # its children, left running
+                        _stop_group(proc)
+            except BaseException:  # this run stopped meanwhile, even while stopping the child
+                _stop_group(proc, STOP_WAITS_ON_SIGNAL_S)
+                raise
         finally:
             if stdout:
                 sink.close()
@@ -351,6 +414,15 @@ def run_child(cmd: Sequence[str], limit_s: float, *, env: dict[str, str], cwd: P
 
 # --- The run --------------------------------------------------------------------------------
 
+def read_json(path: Path) -> dict | list | None:
+    """A step's result file, or None where there is none or it does not read (a child stopped
+    while writing it, or before)."""
+    try:
+        return json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return None
+
+
 class StepError(Exception):
     """A step's failure, said in one line."""
 
@@ -359,9 +431,29 @@ class Skip(Exception):
     """A step that cannot run here, said in one line."""
 
 
+class Stopped(BaseException):
+    """The run stopped by a signal: SIGTERM (the shell's `timeout`, the device tool), SIGINT
+    (^C). A BaseException, so that no step's `except Exception` takes it for its own failure."""
+
+    def __init__(self, signum: int) -> None:
+        super().__init__(signum)
+        self.signum = signum
+
+    @property
+    def name(self) -> str:
+        return signal.Signals(self.signum).name
+
+
+# A step's status: "running" while it runs (what a JSON read mid-step, or left by a SIGKILL,
+# says), then "ok", "skipped" (it cannot run here, for the reason its note gives: not a
+# failure), "failed", "timeout" (stopped at its time limit, or not started for want of time)
+# or "killed" (the run was stopped by a signal while it ran).
+FAILING = ("failed", "timeout", "killed", "running")
+
+
 @dataclass
 class StepOutcome:
-    status: str  # "ok", "failed", "timeout" or "skipped"
+    status: str  # "ok", "skipped", "failed", "timeout" or "killed"
     note: str = ""
 
 
@@ -384,6 +476,8 @@ class Check:
         self.test_device: str | None = None  # the suite's id prefix for it (--cl-device)
         self.mesh_scene: Path | None = None
         self.step_end = float("inf")  # when the running step's limit runs out
+        self.stopped_by: int | None = None  # the signal that stopped the run
+        self.signals_stop = False  # while the steps run, a signal raises Stopped
         self.reference: Path | None = None
         self.data: dict = {
             "schema": 1,
@@ -477,31 +571,77 @@ class Check:
 
     # -- steps
 
+    def on_signal(self, signum: int, frame: object) -> None:
+        """SIGTERM or SIGINT: the first one, while the steps run, stops the running step (its
+        children's process group too: run_child) and the run, which then writes what it has
+        (Check.run); any later one, or one during that clean-up, is noted and ignored."""
+        if self.stopped_by is None:
+            self.stopped_by = signum
+            if self.signals_stop:
+                self.signals_stop = False
+                raise Stopped(signum)
+
     def run(self) -> int:
-        self.say(f"gpu_check ({self.mode.name} mode): output in {self.out}, work in "
-                 f"{self.work}, {self.mode.deadline_s:.0f} s in all")
-        self.write_json()
+        """Every step, then the summary. Exits 0 when no step failed, ran out of time or was
+        killed (a step skipped for a stated reason is no failure), else 1; 128 + the signal's
+        number when a signal stopped the run, after the JSON and the log are written."""
+        caught = (signal.SIGTERM, signal.SIGINT)
+        previous = {sig: signal.signal(sig, self.on_signal) for sig in caught}
+        try:
+            self.say(f"gpu_check ({self.mode.name} mode): output in {self.out}, work in "
+                     f"{self.work}, {self.mode.deadline_s:.0f} s in all")
+            self.signals_stop = self.stopped_by is None
+            try:
+                if self.stopped_by is not None:  # before the handler could raise
+                    raise Stopped(self.stopped_by)
+                self.write_json()
+                for name in STEP_ORDER:
+                    self.step(name, getattr(self, f"step_{name}"))
+                self.signals_stop = False
+            except Stopped as stop:
+                self.after_stop(stop)
+            return self.finish()
+        finally:
+            for sig, handler in previous.items():
+                signal.signal(sig, handler)
+
+    def after_stop(self, stop: Stopped) -> None:
+        """The steps' records once a signal stopped the run: the one running marked killed
+        (Check.step does; here too where the signal came between its parts), the later ones
+        not run."""
+        self.say(f"stopped by {stop.name}: the running step's processes were stopped; the "
+                 "JSON and this log keep what the steps finished")
         for name in STEP_ORDER:
-            self.step(name, getattr(self, f"step_{name}"))
-        self.finish()
-        return 0 if all(s["status"] == "ok" for s in self.data["steps"].values()) else 1
+            record = self.data["steps"].get(name)
+            if record is None:
+                self.data["steps"][name] = {"status": "skipped", "seconds": 0.0,
+                                            "note": f"not run: the run was stopped by "
+                                                    f"{stop.name}"}
+            elif record.get("status") == "running":
+                record.update(status="killed", note=f"stopped by {stop.name}")
 
     def step(self, name: str, body: Callable[[float], StepOutcome]) -> None:
         limit = self.limit_for(name)
-        record: dict = {"limit_s": round(limit, 1)}
+        record: dict = {"status": "running", "limit_s": round(limit, 1)}
         self.data["steps"][name] = record
         start = time.monotonic()
         self.step_end = start + limit
+        stopped: Stopped | None = None
         if limit < 1.0:
-            outcome = StepOutcome("skipped", "no time left before the deadline")
+            outcome = StepOutcome("timeout", "not started: no time left before the deadline")
         else:
             self.say(f"== {name} (limit {limit:.0f} s)")
+            self.write_json()  # the step running, should the run end before its own record
             try:
                 outcome = body(limit)
             except Skip as why:
                 outcome = StepOutcome("skipped", str(why))
             except StepError as err:
                 outcome = StepOutcome("failed", str(err))
+            except Stopped as stop:
+                stopped = stop
+                outcome = StepOutcome("killed", f"stopped by {stop.name} after "
+                                                f"{time.monotonic() - start:.0f} s")
             except Exception as err:  # a bug here must not lose the later steps
                 self.log_raw(traceback.format_exc())
                 outcome = StepOutcome("failed", f"{type(err).__name__}: {err}")
@@ -510,6 +650,8 @@ class Check:
         self.say(f"{name}: {outcome.status.upper()}" + (f": {outcome.note}" if outcome.note
                                                          else ""))
         self.write_json()
+        if stopped is not None:
+            raise stopped
 
     def jobs(self) -> int:
         """Processes that build kernels at once: half the GPU machine's cores, at most 8 (the
@@ -643,20 +785,33 @@ class Check:
         if workers:
             cmd += ["-n", str(workers)]
         if software.get("pytest_timeout"):
-            cmd += ["--timeout", "60" if self.mode.name == "gpu" else "120"]
+            # The thread method: a test hung in the driver (a clFinish that never returns)
+            # takes no signal, so the signal method would wait as long as it does. A worker
+            # stopped so is replaced by pytest-xdist, and the test reported as failed.
+            cmd += ["--timeout", "60" if self.mode.name == "gpu" else "120",
+                    "--timeout-method", "thread"]
         cmd += self.kernel_test_paths()
         first = ",".join(name for name in self.mode.kernel_tests if name != "*")
         env = dict(self.env, GPU_CHECK_DEVICE_ONLY="1", GPU_CHECK_RESULTS=str(results),
                    GPU_CHECK_FIRST=first,
                    PYTHONPATH=os.pathsep.join([str(SCRIPTS), self.env["PYTHONPATH"]]))
         log = self.out / TESTS_LOG_NAME
-        result = self.child("kernel_tests", cmd, limit, env=env, output=log, log_output=False)
+        start = time.monotonic()
+        result: ChildResult | None = None
+        try:
+            result = self.child("kernel_tests", cmd, limit, env=env, output=log,
+                                log_output=False)
+        finally:  # also when the run is stopped meanwhile: what ran, and how
+            summary = summarise_test_results(results)
+            summary.update(workers=workers, command=" ".join(cmd[1:]),
+                           rc=result and result.rc, timed_out=bool(result and result.timed_out),
+                           seconds=round(time.monotonic() - start, 1))
+            if result is None:
+                summary["stopped"] = True
+            else:
+                summary["pytest_summary"] = last_summary_line(result.output)
+            self.data["kernel_tests"] = summary
         self.log_raw(head_and_tail(result.output, 10, 30))
-        summary = summarise_test_results(results)
-        summary.update(workers=workers, command=" ".join(cmd[1:]), rc=result.rc,
-                       timed_out=result.timed_out, seconds=round(result.seconds, 1))
-        summary["pytest_summary"] = last_summary_line(result.output)
-        self.data["kernel_tests"] = summary
         counts = summary["counts"]
         text = ", ".join(f"{n} {k}" for k, n in counts.items() if n) or "no test ran"
         if result.timed_out:
@@ -706,11 +861,14 @@ class Check:
         if self.reference is None:
             raise Skip("no CPU references (see the references step)")
         result_file = self.work / "scenes.json"
-        run = self.steps_child("scenes", [
-            "compare", "--reference", self.reference, "--device", device, "--json", result_file,
-            "--png-dir", self.out, "--jobs", str(self.jobs())], limit)
-        if result_file.exists():
-            self.data["scenes"] = json.loads(result_file.read_text(encoding="utf-8"))
+        try:
+            run = self.steps_child("scenes", [
+                "compare", "--reference", self.reference, "--device", device, "--json",
+                result_file, "--png-dir", self.out, "--jobs", str(self.jobs())], limit)
+        finally:  # rewritten after each scene: what was compared, even when stopped
+            found = read_json(result_file)
+            if found is not None:
+                self.data["scenes"] = found
         scenes = self.data.get("scenes", {}).get("results", {})
         failing = [name for name, r in scenes.items() if r.get("status") != "pass"]
         text = f"{len(scenes) - len(failing)} of {len(scenes)} scenes agree"
@@ -767,15 +925,23 @@ class Check:
             after = len(runs) - i - 1
             run_limit = max(left / (after + 1), left - after * self.mode.min_profile_s)
             out_file = self.work / f"profile_{i}.json"
-            run = self.child("profiles", [
-                self.python, "-m", "clray", "profile", path, "-W", str(w), "-H", str(h),
-                "--spp", str(spp), "--repeat", str(self.mode.profile_repeat), "--json",
-                "--no-tuning", "--device", device,
-                *(["--traversal", traversal] if traversal else [])], run_limit, stdout=out_file)
+            try:
+                run = self.child("profiles", [
+                    self.python, "-m", "clray", "profile", path, "-W", str(w), "-H", str(h),
+                    "--spp", str(spp), "--repeat", str(self.mode.profile_repeat), "--json",
+                    "--no-tuning", "--device", device,
+                    *(["--traversal", traversal] if traversal else [])], run_limit,
+                    stdout=out_file)
+            except Stopped:
+                record["status"] = "killed"
+                raise
             record["seconds"] = round(run.seconds, 2)
-            if run.ok:
+            profile = read_json(out_file) if run.ok else None
+            if profile is not None:
                 record["status"] = "ok"
-                record["profile"] = json.loads(out_file.read_text(encoding="utf-8"))
+                record["profile"] = profile
+            elif run.ok:
+                record.update(status="failed", error="no JSON on its stdout")
             else:
                 record["status"] = "timeout" if run.timed_out else "failed"
             self.write_json()
@@ -798,14 +964,19 @@ class Check:
             args += ["--spp", str(spp)]
         if not self.mode.build_examples:
             args.append("--no-examples")
-        run = self.steps_child("builds", args, limit)
-        if result_file.exists():
-            self.data["builds"] = json.loads(result_file.read_text(encoding="utf-8"))
+        try:
+            run = self.steps_child("builds", args, limit)
+        finally:  # rewritten after each build: what was built, even when stopped
+            found = read_json(result_file)
+            if found is not None:
+                self.data["builds"] = found
         builds = self.data.get("builds", {})
         configs = builds.get("configurations", [])
         built = [c for c in configs if c.get("status") == "ok"]
-        text = (f"cold/warm for {len(builds.get('cold_warm', {}))} scenes, {len(built)} of "
-                f"{len(configs)} configurations built")
+        whole = [name for name, times in builds.get("cold_warm", {}).items()
+                 if not times.get("errors") and not times.get("unfinished")]
+        text = (f"cold/warm for {len(whole)} of {len(builds.get('cold_warm', {}))} scenes, "
+                f"{len(built)} of {len(configs)} configurations built")
         if builds.get("verbose"):
             text += ", register figures from -cl-nv-verbose"
         if run.timed_out:
@@ -858,18 +1029,27 @@ class Check:
     def step_tune(self, limit: float) -> StepOutcome:
         device = self.need_device()
         w, h = self.mode.tune_size
+        needs = self.mode.tune_needs_s()
+        if limit < needs:  # it would be stopped before its report
+            return StepOutcome("timeout", f"not started: {limit:.0f} s left, clray tune needs "
+                                          f"{needs:.0f} s ({self.mode.tune_budget_range[0]:.0f}"
+                                          f" s of search, {self.mode.tune_overhead_s:.0f} s of "
+                                          "renders and report)")
         budget = self.mode.tune_budget(limit)
         folder = self.work / "tune"
-        run = self.child("tune", [
-            self.python, "-m", "clray", "tune", REPO / "scenes" / "spheres.toml", "-W", str(w),
-            "-H", str(h), "--budget", f"{budget:.0f}", "--out", folder, "--no-save",
-            "--device", device], limit)
         tune: dict = {"width": w, "height": h, "budget_s": round(budget)}
         self.data["tune"] = tune
-        if (folder / "results.json").exists():
-            tune["results"] = json.loads((folder / "results.json").read_text(encoding="utf-8"))
-        if (folder / "report.md").exists():
-            shutil.copyfile(folder / "report.md", self.out / TUNE_REPORT_NAME)
+        try:
+            run = self.child("tune", [
+                self.python, "-m", "clray", "tune", REPO / "scenes" / "spheres.toml", "-W",
+                str(w), "-H", str(h), "--budget", f"{budget:.0f}", "--out", folder,
+                "--no-save", "--device", device], limit)
+        finally:  # what it wrote, even when stopped
+            results = read_json(folder / "results.json")
+            if results is not None:
+                tune["results"] = results
+            if (folder / "report.md").exists():
+                shutil.copyfile(folder / "report.md", self.out / TUNE_REPORT_NAME)
         if run.timed_out:
             return StepOutcome("timeout", f"stopped at {limit:.0f} s")
         if not run.ok:
@@ -879,13 +1059,30 @@ class Check:
 
     # -- the end
 
-    def finish(self) -> None:
+    def finish(self) -> int:
+        """The summary in the log and the JSON, the output files' sizes; the exit status."""
         self.data["finished_utc"] = datetime.datetime.now(datetime.UTC).isoformat(
             timespec="seconds")
+        steps = self.data["steps"]
+        not_ok = {name: s["status"] for name, s in steps.items() if s["status"] in FAILING}
+        skipped = {name: s.get("note", "") for name, s in steps.items()
+                   if s["status"] == "skipped"}
+        if self.stopped_by is not None:
+            status = 128 + self.stopped_by
+            verdict = f"stopped by {signal.Signals(self.stopped_by).name}"
+        else:
+            status = 1 if not_ok else 0
+            verdict = ("every step passed or was skipped for its reason" if not not_ok else
+                       "not every step passed")
+        self.data["result"] = {"exit_status": status, "verdict": verdict,
+                               "not_ok": not_ok, "skipped": skipped}
         self.say("summary:")
-        for name, step in self.data["steps"].items():
+        for name, step in steps.items():
             self.say(f"  {name:<13} {step['status']:<8} {step.get('seconds', 0):7.1f} s  "
                      f"{step.get('note', '')}")
+        self.say(f"exit {status}: {verdict}" + (
+            f" ({', '.join(f'{n} {s}' for n, s in not_ok.items())})" if not_ok else "") + (
+            f"; skipped: {', '.join(skipped)}" if skipped else ""))
         self.data["outputs"] = {}
         self.write_json()
         for path in sorted(self.out.iterdir()):
@@ -897,6 +1094,7 @@ class Check:
                      f"{MAX_OUT_FILES} that come back from the GPU machine")
         self.data["outputs"] = {str(p.relative_to(self.out)): p.stat().st_size for p in files}
         self.write_json()
+        return status
 
 
 def summarise_test_results(path: Path) -> dict:

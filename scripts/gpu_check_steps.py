@@ -31,6 +31,7 @@ import sys
 import tempfile
 import time
 import warnings
+from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
@@ -511,50 +512,136 @@ start = time.perf_counter()
 cl.Program(context, "__kernel void k(__global float* a) { a[0] = 1.0f; }").build()
 print(time.perf_counter() - start)
 """
+# The least time worth starting a new process for (Python, pyopencl and a context: about a
+# second on the first GPU run), and the most one configuration's build may take (3.5 s there).
+MIN_PROCESS_S = 2.0
+BUILD_TIMEOUT_S = 30.0
+# What the configurations' builds leave the cold and warm builds that follow them: of the
+# step's time, this share, at most this many seconds.
+COLD_WARM_SHARE, COLD_WARM_MOST_S = 0.4, 20.0
 
 
-def cold_and_warm(config: object, device_spec: str) -> dict:
+class OutOfTime(Exception):
+    """No time left to start another process."""
+
+
+def last_line(text: str, what: str) -> str:
+    lines = [line.strip() for line in text.splitlines() if line.strip()]
+    if not lines:
+        raise ValueError(f"{what}: no output")
+    return lines[-1]
+
+
+def in_new_process(cmd: list[str], end: float, env: dict[str, str] | None = None, *,
+                   most_s: float = float("inf"), start_by: float | None = None) -> str:
+    """`cmd`'s stdout, run within what is left before `end` and at most `most_s` seconds;
+    OutOfTime where too little time is left to start it (before `start_by`, where given),
+    ValueError where it fails or runs out of time."""
+    now = time.monotonic()
+    if min(end, start_by or end) - now < MIN_PROCESS_S:
+        raise OutOfTime(f"{end - now:.1f} s left")
+    limit = min(end - now, most_s)
+    try:
+        done = subprocess.run(cmd, capture_output=True, text=True, env=env, check=False,
+                              timeout=limit)
+    except subprocess.TimeoutExpired:
+        raise ValueError(f"no result within {limit:.0f} s") from None
+    except OSError as err:
+        raise ValueError(f"cannot start it: {err}") from None
+    if done.returncode != 0:
+        lines = [line for line in done.stderr.splitlines() if line.strip()]
+        raise ValueError(f"exit {done.returncode}: "
+                         f"{lines[-1].strip() if lines else 'no message'}"[-LOG_CHARS:])
+    return done.stdout
+
+
+def timed_build(config: object, device_spec: str, pocl: Path, end: float) -> dict[str, float]:
+    """What clray.profile.new_process_build measures (`context_s`, `build_s`), in a new
+    process with PoCL's cache at `pocl`, within what is left before `end`."""
+    env = dict(os.environ, POCL_CACHE_DIR=str(pocl))
+    out = in_new_process([sys.executable, "-m", "clray.profile", "--build-only",
+                          config_json(config), "--device", device_spec], end, env)
+    return {k: float(v) for k, v in json.loads(last_line(out, "--build-only")).items()}
+
+
+def cold_and_warm(config: object, device_spec: str, end: float) -> dict:
     """Seconds a new process takes to build `config` with every cache empty (PoCL's, NVIDIA's,
     pyopencl's), then again with those caches as the first left them: twice (the spread),
     once more without pyopencl's binary cache (the driver's own cache of sources alone), and a
     one-line kernel's warm build (the driver's floor); and the context each of the first two
     made before its build. Issue 41 asks for warm <= 0.1 s; the first GPU run measured 0.136 to
-    0.158 s with the context inside the build's time."""
-    from clray.profile import build_seconds, new_process_build
-
+    0.158 s with the context inside the build's time. Each of its six processes starts only
+    while time is left before `end`; a part that fails goes under `errors` (where the cold
+    build fails, nothing after it is measured), one with no time left under `unfinished`."""
     saved = {k: os.environ.get(k) for k in ("CUDA_CACHE_PATH", "XDG_CACHE_HOME",
                                              "CUDA_CACHE_DISABLE", "PYOPENCL_NO_CACHE")}
+    times: dict[str, float] = {}
+    errors: dict[str, str] = {}
+    unfinished: list[str] = []
+    floor = [sys.executable, "-c", FLOOR_BUILD, device_spec]
+
+    def part(name: str, measure: Callable[[], dict[str, float]]) -> bool:
+        """`measure`'s figures into `times`; False where it failed or had no time."""
+        try:
+            if unfinished:  # out of time already: the rest too
+                raise OutOfTime
+            times.update(measure())
+        except OutOfTime:
+            unfinished.append(name)
+            return False
+        except (ValueError, KeyError) as err:
+            errors[name] = str(err) or type(err).__name__
+            return False
+        return True
+
+    def build(cold_or_warm: str) -> dict[str, float]:
+        found = timed_build(config, device_spec, pocl, end)
+        return {f"{cold_or_warm}_s": found["build_s"],
+                f"context_{cold_or_warm}_s": found["context_s"]}
+
+    def again(name: str) -> dict[str, float]:
+        return {name: timed_build(config, device_spec, pocl, end)["build_s"]}
+
+    def floor_warm() -> dict[str, float]:
+        in_new_process(floor, end)  # fills the driver's cache
+        return {"floor_warm_s": float(last_line(in_new_process(floor, end), "floor build"))}
+
     with tempfile.TemporaryDirectory(prefix="clray-build-") as tmp:
         os.environ["CUDA_CACHE_PATH"] = str(Path(tmp) / "nv")
         os.environ["XDG_CACHE_HOME"] = str(Path(tmp) / "xdg")
         os.environ.pop("CUDA_CACHE_DISABLE", None)
         pocl = Path(tmp) / "pocl"
         try:
-            cold = new_process_build(config, device_spec, pocl)
-            warm = new_process_build(config, device_spec, pocl)
-            times = {"cold_s": cold["build_s"], "warm_s": warm["build_s"],
-                     "warm_again_s": build_seconds(config, device_spec, pocl),
-                     "context_cold_s": cold["context_s"], "context_warm_s": warm["context_s"]}
-            os.environ["PYOPENCL_NO_CACHE"] = "1"
-            times["warm_without_pyopencl_cache_s"] = build_seconds(config, device_spec, pocl)
-            floor = [sys.executable, "-c", FLOOR_BUILD, device_spec]
-            subprocess.run(floor, check=True, capture_output=True, text=True)
-            times["floor_warm_s"] = float(subprocess.run(
-                floor, check=True, capture_output=True, text=True).stdout.split()[-1])
+            if part("cold_s", lambda: build("cold")):  # the rest needs its caches
+                part("warm_s", lambda: build("warm"))
+                part("warm_again_s", lambda: again("warm_again_s"))
+                os.environ["PYOPENCL_NO_CACHE"] = "1"
+                part("warm_without_pyopencl_cache_s",
+                     lambda: again("warm_without_pyopencl_cache_s"))
+                part("floor_warm_s", floor_warm)
         finally:
             for key, value in saved.items():
                 if value is None:
                     os.environ.pop(key, None)
                 else:
                     os.environ[key] = value
-    return {key: round(value, 4) for key, value in times.items()}
+    result: dict = {key: round(value, 4) for key, value in times.items()}
+    if errors:
+        result["errors"] = errors
+    if unfinished:
+        result["unfinished"] = unfinished
+    return result
 
 
 def cmd_builds(args: argparse.Namespace) -> int:
+    """Every configuration built with -cl-nv-verbose (the register and spill figures) first,
+    then the cold and warm builds: an error in one configuration or one scene is recorded in
+    its record and the rest go on; a new process starts only while time is left."""
     from clray.device.context import has_fp64, select_device
     from clray.device.program import private_stack_bytes
 
-    end = time.monotonic() + args.time_limit
+    start = time.monotonic()
+    end = start + args.time_limit
     device = select_device(args.device)
     verbose = "cl_nv_compiler_options" in device.extensions
     report: dict = {"verbose": verbose, "cold_warm": {}, "configurations": [],
@@ -562,84 +649,105 @@ def cmd_builds(args: argparse.Namespace) -> int:
     if not verbose:
         report["note"] = ("the device has no cl_nv_compiler_options: no -cl-nv-verbose, no "
                           "register figures")
+    write_json(args.json, report)
 
-    # Each configuration once, with every label that builds it.
+    # Each configuration once, with every label that builds it; a scene that does not pack
+    # is a failed record of its own.
     configs: dict[tuple[str, ...], dict] = {}
+    failed: list[dict] = []
 
-    def add(label: str, config: object) -> None:
-        key = tuple(config.options())
-        entry = configs.setdefault(key, {"labels": [], "config": config})
+    def add(label: str, path: Path, spp: int | None = None, **settings: object) -> object:
+        try:
+            config = scene_config(path, device, spp, **settings)
+        except Exception as err:
+            failed.append({"labels": [label], "status": "failed",
+                           "error": f"packing: {type(err).__name__}: {err}"[-LOG_CHARS:]})
+            return None
+        entry = configs.setdefault(tuple(config.options()), {"labels": [], "config": config})
         entry["labels"].append(label)
+        return config
 
     named = dict(args.scene)
+    first_config: dict[str, object] = {}  # each named scene's at the first spp: cold/warm's
     for name, path in named.items():
         for spp in args.spp:
-            add(f"{name} {spp} spp", scene_config(path, device, spp))
+            config = add(f"{name} {spp} spp", path, spp)
+            first_config.setdefault(name, config)
     spheres = named.get("spheres")
     if spheres is not None:
         most = max(args.spp)
         for traversal in ("sample_packet", "group_packet"):
-            add(f"spheres {most} spp {traversal}",
-                scene_config(spheres, device, most, traversal=traversal))
+            add(f"spheres {most} spp {traversal}", spheres, most, traversal=traversal)
         if has_fp64(device):
-            add("spheres 1 spp double", scene_config(spheres, device, 1, precision="double"))
+            add("spheres 1 spp double", spheres, 1, precision="double")
     if args.examples:
         for path in example_scenes(args.scenes_dir):
-            add(f"{path.stem} (example)", scene_config(path, device))
-    print(f"{len(configs)} configurations", flush=True)
-
-    # Cold and warm builds, one after another (parallel builds would slow each other).
-    for name, path in named.items():
-        if time.monotonic() > end:
-            report["unfinished"].append(f"cold/warm {name}")
-            continue
-        config = scene_config(path, device, args.spp[0])
-        report["cold_warm"][name] = {"spp": args.spp[0], **cold_and_warm(config, args.device)}
-        print(f"{name}: {report['cold_warm'][name]}", flush=True)
-        write_json(args.json, report)
+            add(f"{path.stem} (example)", path)
+    print(f"{len(configs)} configurations, {len(failed)} scenes that do not pack", flush=True)
 
     # Every configuration built once more with -cl-nv-verbose where the driver takes it, in
     # parallel processes (builds are the driver's, on the host's cores), NVIDIA's cache off so
-    # the PTX assembler runs and speaks.
+    # the PTX assembler runs and speaks. First: the figures a GPU run is most wanted for. A
+    # build starts while the cold and warm builds' share of the time is left, and may run on
+    # into it.
     env = dict(os.environ, CUDA_CACHE_DISABLE="1", PYOPENCL_NO_CACHE="1")
-    records = [{"labels": entry["labels"], "options": " ".join(key),
-                "private_stack_bytes": private_stack_bytes(entry["config"])}
+    entries = list(configs.values())
+    records = [{"labels": entry["labels"], "options": " ".join(key)}
                for key, entry in configs.items()]
-    report["configurations"] = records
+    report["configurations"] = records + failed
+    cold_warm_s = min(COLD_WARM_MOST_S, COLD_WARM_SHARE * args.time_limit) if named else 0.0
+    starts_until = end - cold_warm_s
 
     def build(index: int) -> None:
-        record = records[index]
-        left = end - time.monotonic()
-        if left < 2:
-            record["status"] = "not reached"
-            report["unfinished"].append(", ".join(record["labels"]))
-            return
-        entry = list(configs.values())[index]
-        cmd = [sys.executable, __file__, "nv-build", "--config", config_json(entry["config"]),
-               "--device", args.device]
+        record, entry = records[index], entries[index]
         try:
-            done = subprocess.run(cmd, capture_output=True, text=True, timeout=left, env=env,
-                                  check=False)
-        except subprocess.TimeoutExpired:
-            record["status"] = "timeout"
-            return
-        if done.returncode != 0:
-            record.update(status="failed", error=done.stderr.strip()[-LOG_CHARS:])
-            return
-        record.update(status="ok", **json.loads(done.stdout.strip().splitlines()[-1]))
+            record["private_stack_bytes"] = private_stack_bytes(entry["config"])
+            out = in_new_process([sys.executable, __file__, "nv-build", "--config",
+                                  config_json(entry["config"]), "--device", args.device],
+                                 end, env, most_s=BUILD_TIMEOUT_S, start_by=starts_until)
+            record.update(status="ok", **json.loads(last_line(out, "nv-build")))
+        except OutOfTime:
+            record["status"] = "not reached"
+        except Exception as err:  # recorded; the other configurations go on
+            record.update(status="failed", error=f"{type(err).__name__}: {err}"[-LOG_CHARS:])
 
     workers = max(1, min(8, len(records), os.cpu_count() or 1))
     with ThreadPoolExecutor(max_workers=workers) as pool:
         for index, _ in enumerate(pool.map(build, range(len(records)))):
             record = records[index]
             render = record.get("kernels", {}).get("render", {})
+            if record["status"] == "not reached":
+                report["unfinished"].append(", ".join(record["labels"]))
             print(f"{'; '.join(record['labels'])}: {record.get('status')}, "
                   f"{record.get('build_s', 0):.2f} s, registers {render.get('registers')}, "
                   f"spills {render.get('spill_stores_bytes')}/"
                   f"{render.get('spill_loads_bytes')} bytes", flush=True)
             write_json(args.json, report)
+    for record in failed:
+        print(f"{record['labels'][0]}: {record['error']}", flush=True)
+
+    # Cold and warm builds, one after another (parallel builds would slow each other).
+    for name in named:
+        config = first_config.get(name)
+        if config is None:
+            report["cold_warm"][name] = {"errors": {"cold_s": "the scene does not pack"}}
+            continue
+        if end - time.monotonic() < MIN_PROCESS_S:
+            report["unfinished"].append(f"cold/warm {name}")
+            continue
+        try:
+            times = cold_and_warm(config, args.device, end)
+        except Exception as err:  # recorded; the next scene goes on
+            times = {"errors": {"cold_s": f"{type(err).__name__}: {err}"[-LOG_CHARS:]}}
+        report["cold_warm"][name] = {"spp": args.spp[0], **times}
+        if times.get("unfinished"):
+            report["unfinished"].append(f"cold/warm {name}: {', '.join(times['unfinished'])}")
+        print(f"{name}: {report['cold_warm'][name]}", flush=True)
+        write_json(args.json, report)
     write_json(args.json, report)
-    return 0 if all(r.get("status") == "ok" for r in records) and not report["unfinished"] else 1
+    whole = all(r.get("status") == "ok" for r in report["configurations"]) and all(
+        not t.get("errors") for t in report["cold_warm"].values())
+    return 0 if whole and not report["unfinished"] else 1
 
 
 def cmd_nv_build(args: argparse.Namespace) -> int:

@@ -6,7 +6,10 @@
 #
 # - wheels for CPython 3.12 on manylinux x86-64 of every package clray, pyopencl and Kernel
 #   Tuner need there beyond what that machine's Python has (numpy, pillow, pytest, tqdm,
-#   matplotlib, scipy, pandas...), at the versions .venv has installed;
+#   matplotlib, scipy, pandas...), at the versions .venv has installed; and the pure-Python
+#   pytest plugins the kernel tests use there (pytest-xdist with execnet: 8 processes on its
+#   16 cores; pytest-timeout: a hung test stopped), at .venv's versions where it has them,
+#   else the latest;
 # - cpu_reference.npz: every example scene rendered on PoCL's CPU device here, at 160x90 with
 #   the scene's samples per pixel, which the GPU run compares its images with (the GPU machine
 #   has no CPU OpenCL device: PoCL's wheel is 58 MB, too large to carry). It records a digest
@@ -26,6 +29,10 @@ reference_size=${REFERENCE_SIZE:-160x90}
 packages=(pyopencl pytools siphash24 platformdirs typing_extensions
           kernel_tuner jsonschema jsonschema-specifications referencing rpds-py attrs
           python-constraint2 xmltodict)
+# pytest's plugins for the kernel-test step (py3-none-any wheels): .venv's version where it has
+# one, else the latest. Without them the step runs the tests in one process and cannot stop a
+# test that hangs.
+plugins=(pytest-xdist execnet pytest-timeout)
 
 say() { echo "gpu_wheels: $*" >&2; }
 
@@ -37,19 +44,37 @@ fi
 new=$dest.new
 rm -rf "$new"
 mkdir -p "$new" || exit 1
+download() {  # NAME SPEC: SPEC's wheel for the GPU machine's Python into $new
+    "$venv_python" -m pip download -q --disable-pip-version-check --no-deps \
+        --only-binary=:all: --python-version "$gpu_python" --implementation cp \
+        --platform manylinux_2_28_x86_64 --platform manylinux_2_27_x86_64 \
+        --platform manylinux_2_17_x86_64 --platform manylinux2014_x86_64 \
+        -d "$new" "$2" 2> >(grep -v "is ignored: it is neither" >&2)
+}
+installed() {  # NAME: its version in .venv, or nothing (and exit 1)
+    "$venv_python" -c 'import importlib.metadata as m, sys; print(m.version(sys.argv[1]))' \
+        "$1" 2>/dev/null
+}
 for name in "${packages[@]}"; do
-    version=$("$venv_python" -c 'import importlib.metadata as m, sys; print(m.version(sys.argv[1]))' \
-        "$name" 2>/dev/null) || {
+    version=$(installed "$name") || {
         say "$name is not installed in .venv (make setup installs clray's extras)"
         exit 1
     }
     say "$name==$version"
-    if ! "$venv_python" -m pip download -q --disable-pip-version-check --no-deps \
-        --only-binary=:all: --python-version "$gpu_python" --implementation cp \
-        --platform manylinux_2_28_x86_64 --platform manylinux_2_27_x86_64 \
-        --platform manylinux_2_17_x86_64 --platform manylinux2014_x86_64 \
-        -d "$new" "$name==$version" 2> >(grep -v "is ignored: it is neither" >&2); then
+    if ! download "$name" "$name==$version"; then
         say "no wheel of $name==$version for CPython $gpu_python on manylinux x86-64"
+        exit 1
+    fi
+done
+for name in "${plugins[@]}"; do
+    if version=$(installed "$name"); then
+        spec="$name==$version"
+    else
+        spec=$name  # not in .venv: the latest
+    fi
+    say "$spec"
+    if ! download "$name" "$spec"; then
+        say "no wheel of $spec for CPython $gpu_python"
         exit 1
     fi
 done

@@ -5,8 +5,11 @@ steps on PoCL at tiny sizes, so that a first GPU run fails only for GPU reasons.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
+import re
+import signal
 import subprocess
 import sys
 import time
@@ -195,7 +198,24 @@ def test_every_step_has_a_limit_and_the_run_fits_its_time(mode: G.Mode) -> None:
     assert sum(limit.min_s for limit in mode.limits.values()) < mode.deadline_s / 2
     # The GPU machine gives a run 8 minutes; the shell's last-resort limit is inside them.
     assert mode.deadline_s + 25 <= 480
-    assert mode.tune_budget(mode.limits["tune"].cap_s) <= mode.limits["tune"].cap_s
+    tune = mode.limits["tune"]
+    assert mode.tune_budget(tune.cap_s) + mode.tune_overhead_s <= tune.cap_s
+    # Squeezed to its minimum, the tune step still has its least search and its report.
+    assert tune.min_s >= mode.tune_needs_s()
+    assert mode.tune_budget(tune.min_s) + mode.tune_overhead_s <= tune.min_s
+
+
+def test_the_tune_step_does_not_start_without_the_time_it_needs(tmp_path: Path) -> None:
+    check = G.Check(tmp_path / "out", G.GPU_MODE, wheels=None, python=sys.executable,
+                    work=tmp_path / "work")
+    check.target = "0:0"
+
+    def child(*args: object, **kwargs: object) -> None:
+        raise AssertionError("clray tune started")
+
+    check.child = child
+    outcome = check.step_tune(G.GPU_MODE.tune_needs_s() - 1)
+    assert outcome.status == "timeout" and "not started" in outcome.note
 
 
 def test_a_step_gets_its_cap_or_what_later_steps_leave(tmp_path: Path) -> None:
@@ -211,13 +231,177 @@ def test_a_step_gets_its_cap_or_what_later_steps_leave(tmp_path: Path) -> None:
     assert check.limit_for("tune") == 0
 
 
+def _running(pid: int) -> bool:
+    """Whether process `pid` runs (a zombie its new parent has not read yet does not)."""
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+    except OSError:
+        return False
+    return stat[stat.rfind(")") + 2] not in "ZX"
+
+
+def _wait_for_lines(path: Path, count: int, seconds: float = 20.0) -> list[int]:
+    give_up = time.monotonic() + seconds
+    while time.monotonic() < give_up:
+        if path.exists() and len(lines := path.read_text().split()) >= count:
+            return [int(pid) for pid in lines]
+        time.sleep(0.05)
+    raise AssertionError(f"{path} never held {count} process ids")
+
+
+def _family(pids: Path, last: str = "sleep 33") -> str:
+    """A shell command whose two children outlive it unless stopped: one takes SIGTERM, the
+    other ignores it (only SIGKILL ends it, once the shell itself has ended)."""
+    return (f"sleep 31 & echo $! >> {pids}; (trap '' TERM; exec sleep 32) & "
+            f"echo $! >> {pids}; {last}")
+
+
+needs_proc = pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="needs /proc")
+
+
+@needs_proc
 def test_a_child_past_its_limit_is_stopped_with_its_children(tmp_path: Path) -> None:
+    pids = tmp_path / "pids"
     start = time.monotonic()
-    result = G.run_child(["bash", "-c", "sleep 30 & sleep 30; echo never"], 1.0,
+    result = G.run_child(["bash", "-c", _family(pids, "sleep 33; echo never")], 1.0,
                          env=dict(os.environ), cwd=tmp_path, output=tmp_path / "out.txt")
     assert result.timed_out and not result.ok
-    assert time.monotonic() - start < 10
+    assert time.monotonic() - start < 15
     assert "never" not in result.output
+    grandchildren = _wait_for_lines(pids, 2)
+    assert not [pid for pid in grandchildren if _running(pid)]
+
+
+@needs_proc
+def test_children_a_child_leaves_behind_are_stopped(tmp_path: Path) -> None:
+    pids = tmp_path / "pids"
+    result = G.run_child(["bash", "-c", _family(pids, "exit 0")], 20.0,
+                         env=dict(os.environ), cwd=tmp_path, output=tmp_path / "out.txt")
+    assert result.ok
+    assert not [pid for pid in _wait_for_lines(pids, 2) if _running(pid)]
+
+
+# A run of the driver whose icd step starts processes that take their time (those of
+# _family), stopped by SIGTERM (twice: the second one during the clean-up) while they run.
+STOPPED_RUN = """
+import sys
+from pathlib import Path
+sys.path.insert(0, sys.argv[1])
+import gpu_check as G
+out, work, pids, command = Path(sys.argv[2]), Path(sys.argv[3]), sys.argv[4], sys.argv[5]
+
+class Check(G.Check):
+    def step_setup(self, limit):
+        return G.StepOutcome("ok", "nothing to set up")
+
+    def step_icd(self, limit):
+        self.child("icd", ["bash", "-c", command], limit, cwd=self.work)
+        raise G.StepError("not stopped")
+
+out.mkdir()
+work.mkdir()
+sys.exit(Check(out, G.CPU_MODE, wheels=None, python=sys.executable, work=work).run())
+"""
+
+
+@needs_proc
+def test_a_run_stopped_by_sigterm_stops_its_step_and_writes_what_it_has(tmp_path: Path) -> None:
+    out, pids = tmp_path / "out", tmp_path / "pids"
+    driver = subprocess.Popen([sys.executable, "-c", STOPPED_RUN, str(ROOT / "scripts"),
+                               str(out), str(tmp_path / "work"), str(pids), _family(pids)],
+                              stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    try:
+        grandchildren = _wait_for_lines(pids, 2)
+        start = time.monotonic()
+        driver.send_signal(signal.SIGTERM)
+        time.sleep(0.2)
+        driver.send_signal(signal.SIGTERM)
+        output, _ = driver.communicate(timeout=30)
+    finally:
+        driver.kill()
+    # The shell's `timeout -k` leaves it this long before SIGKILL.
+    assert time.monotonic() - start < 10, output
+    assert driver.returncode == 128 + signal.SIGTERM, output
+    assert not [pid for pid in grandchildren if _running(pid)]
+    data = json.loads((out / "gpu_check.json").read_text())
+    steps = data["steps"]
+    assert list(steps) == list(G.STEP_ORDER)
+    assert steps["setup"]["status"] == "ok"
+    assert steps["icd"]["status"] == "killed" and "SIGTERM" in steps["icd"]["note"]
+    assert all(steps[name]["status"] == "skipped" and "SIGTERM" in steps[name]["note"]
+               for name in G.STEP_ORDER[2:])
+    assert data["result"]["exit_status"] == 128 + signal.SIGTERM
+    assert data["result"]["not_ok"] == {"icd": "killed"}
+    assert data["finished_utc"] and "gpu_check.json" in data["outputs"]
+    log = (out / "gpu_check.log").read_text()
+    assert "summary:" in log and "exit 143: stopped by SIGTERM" in log
+
+
+def test_the_shell_stops_the_driver_with_sigterm_and_gives_it_time(tmp_path: Path) -> None:
+    # PYTHON stands for the driver: it says when SIGTERM came and takes a second to end.
+    fake = tmp_path / "python"
+    fake.write_text("#!/usr/bin/env bash\n"
+                    "trap 'echo got SIGTERM; sleep 1; echo ended; exit 143' TERM\n"
+                    "sleep 60 & wait\n")
+    fake.chmod(0o755)
+    env = dict(os.environ, PYTHON=str(fake), GPU_CHECK_LIMIT="1")
+    start = time.monotonic()
+    done = subprocess.run(["bash", str(ROOT / "scripts" / "gpu_check.sh"), str(tmp_path / "o")],
+                          capture_output=True, text=True, env=env, timeout=60, check=False)
+    assert done.returncode == 124
+    assert "got SIGTERM" in done.stdout and "ended" in done.stdout
+    assert time.monotonic() - start < 15
+    # The time between SIGTERM and SIGKILL covers the driver's stop of its step's group.
+    script = (ROOT / "scripts" / "gpu_check.sh").read_text()
+    grace = int(re.search(r"^grace=(\d+)$", script, re.MULTILINE).group(1))
+    assert grace >= sum(G.STOP_WAITS_ON_SIGNAL_S) + 3
+    assert '-k "$grace"' in script
+    assert G.GPU_MODE.deadline_s + 20 + grace <= 480
+
+
+def _scripted_check(tmp_path: Path, outcomes: dict[str, object]) -> G.Check:
+    """A Check whose steps do nothing but end as `outcomes` says (a StepOutcome, or an
+    exception to raise); the others pass."""
+    (tmp_path / "out").mkdir()
+    check = G.Check(tmp_path / "out", G.GPU_MODE, wheels=None, python=sys.executable,
+                    work=tmp_path)
+
+    def step(name: str):
+        def body(limit: float) -> G.StepOutcome:
+            outcome = outcomes.get(name, G.StepOutcome("ok"))
+            if isinstance(outcome, BaseException):
+                raise outcome
+            return outcome
+        return body
+
+    for name in G.STEP_ORDER:
+        setattr(check, f"step_{name}", step(name))
+    return check
+
+
+def test_the_run_exits_0_when_steps_are_skipped_for_their_reasons(tmp_path: Path) -> None:
+    # The GPU machine has no CPU device: cpu_beside is skipped there, every time.
+    check = _scripted_check(tmp_path, {
+        "cpu_beside": G.Skip("no CPU device beside the target")})
+    assert check.run() == 0
+    result = json.loads(check.json_path.read_text())["result"]
+    assert result["exit_status"] == 0 and result["not_ok"] == {}
+    assert result["skipped"] == {"cpu_beside": "no CPU device beside the target"}
+    assert "exit 0" in check.log_path.read_text()
+    assert "skipped: cpu_beside" in check.log_path.read_text()
+
+
+@pytest.mark.parametrize("outcome", [
+    G.StepError("pytest exit 1: 3 failed"), G.StepOutcome("timeout", "stopped at 90 s"),
+    ValueError("a bug in the step")], ids=["failed", "timeout", "error"])
+def test_the_run_exits_1_when_a_step_failed_or_ran_out_of_time(tmp_path: Path,
+                                                               outcome: object) -> None:
+    check = _scripted_check(tmp_path, {"scenes": outcome,
+                                       "cpu_beside": G.Skip("no CPU device")})
+    assert check.run() == 1
+    data = json.loads(check.json_path.read_text())
+    assert list(data["result"]["not_ok"]) == ["scenes"]
+    assert data["steps"]["tune"]["status"] == "ok"  # the later steps ran
 
 
 # --- The kernel tests' results ------------------------------------------------------------
@@ -298,6 +482,126 @@ def test_the_worst_scene_is_the_failing_one_then_the_most_pixels_off() -> None:
     assert S.worst_scene({"c": {"status": "error"}}) is None
 
 
+# --- The builds step -----------------------------------------------------------------------
+
+
+def test_a_process_starts_only_with_time_left_and_its_failure_is_said(tmp_path: Path) -> None:
+    now = time.monotonic()
+    assert S.in_new_process(["echo", "hi"], now + 30) == "hi\n"
+    with pytest.raises(S.OutOfTime):
+        S.in_new_process(["echo", "hi"], now + S.MIN_PROCESS_S / 2)
+    with pytest.raises(S.OutOfTime):
+        S.in_new_process(["echo", "hi"], now + 30, start_by=now)
+    with pytest.raises(ValueError, match="exit 3: the error"):
+        S.in_new_process(["bash", "-c", "echo the error >&2; exit 3"], now + 30)
+    with pytest.raises(ValueError, match="no result within 1 s"):
+        S.in_new_process(["sleep", "5"], now + 30, most_s=1)
+
+
+@dataclasses.dataclass
+class FakeConfig:
+    scene: str
+    spp: int | None = None
+    traversal: str = "default"
+    precision: str = "float"
+
+    def options(self) -> list[str]:
+        return [f"-D{k}={v}" for k, v in dataclasses.asdict(self).items()]
+
+
+def _fake_builds(monkeypatch: pytest.MonkeyPatch, calls: list[str],
+                 cold_fails: set[str] = frozenset(), left: list[int] | None = None) -> None:
+    """cmd_builds without a device: scenes pack to FakeConfigs (broken.toml does not); every
+    new process is answered here: the sample-packet build fails to compile (as on the first
+    GPU run), the group-packet one prints no JSON, the others succeed; cold builds of the
+    scenes in `cold_fails` fail; after `left[0]` processes there is no time left."""
+    import clray.device.context as context
+    import clray.device.program as program
+
+    def scene_config(path: Path, device: object, spp: int | None = None,
+                     **settings: object) -> FakeConfig:
+        if Path(path).stem == "broken":
+            raise ValueError("no such material")
+        return FakeConfig(Path(path).stem, spp, **settings)
+
+    def in_new_process(cmd: list[str], end: float, env: object = None, **kwargs: object) -> str:
+        if left is not None:
+            if left[0] <= 0:
+                raise S.OutOfTime
+            left[0] -= 1
+        if "nv-build" in cmd:
+            config = json.loads(cmd[cmd.index("--config") + 1])
+            calls.append(f"nv-build {config['scene']} {config['traversal']}")
+            if config["traversal"] == "sample_packet":
+                raise ValueError("exit 1: error: passing 'REAL __generic (*)[4]'")
+            if config["traversal"] == "group_packet":
+                return "Segmentation fault\n"
+            return json.dumps({"build_s": 0.5, "verbose": True, "log": "",
+                               "kernels": {"render": {"registers": 128}}}) + "\n"
+        if "--build-only" in cmd:
+            scene = json.loads(cmd[cmd.index("--build-only") + 1])["scene"]
+            calls.append(f"build-only {scene}")
+            if scene in cold_fails:
+                raise ValueError("exit 1: clray: error: CL_OUT_OF_RESOURCES")
+            return json.dumps({"build_s": 0.2, "context_s": 0.1}) + "\n"
+        calls.append("floor")
+        return "0.01\n"
+
+    monkeypatch.setattr(S, "scene_config", scene_config)
+    monkeypatch.setattr(S, "in_new_process", in_new_process)
+    monkeypatch.setattr(context, "select_device", lambda spec: SimpleNamespace(
+        extensions="cl_khr_fp64 cl_nv_compiler_options"))
+    monkeypatch.setattr(context, "has_fp64", lambda device: True)
+    monkeypatch.setattr(program, "private_stack_bytes", lambda config: {"total": 64})
+
+
+def test_builds_record_each_failure_and_go_on_with_the_register_figures_first(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    calls: list[str] = []
+    _fake_builds(monkeypatch, calls, cold_fails={"mesh"})
+    out = tmp_path / "builds.json"
+    rc = S.main(["builds", "--json", str(out), "--device", "x", "--no-examples",
+                 "--scene", "spheres=spheres.toml", "--scene", "mesh=mesh.toml",
+                 "--scene", "broken=broken.toml", "--spp", "1", "--spp", "4"])
+    assert rc == 1
+    report = json.loads(out.read_text())
+    status = {record["labels"][0]: record["status"] for record in report["configurations"]}
+    assert status == {"spheres 1 spp": "ok", "spheres 4 spp": "ok", "mesh 1 spp": "ok",
+                      "mesh 4 spp": "ok", "spheres 4 spp sample_packet": "failed",
+                      "spheres 4 spp group_packet": "failed", "spheres 1 spp double": "ok",
+                      "broken 1 spp": "failed", "broken 4 spp": "failed"}
+    errors = {record["labels"][0]: record.get("error", "") for record in
+              report["configurations"]}
+    assert "__generic" in errors["spheres 4 spp sample_packet"]
+    assert "JSONDecodeError" in errors["spheres 4 spp group_packet"]
+    assert "no such material" in errors["broken 1 spp"]
+    assert all(record["kernels"]["render"]["registers"] == 128
+               for record in report["configurations"] if record["status"] == "ok")
+    # The register figures before any cold or warm build.
+    first_cold = calls.index("build-only spheres")
+    assert all(call.startswith("nv-build") for call in calls[:first_cold])
+    assert not any(call.startswith("nv-build") for call in calls[first_cold:])
+    cold_warm = report["cold_warm"]
+    assert set(cold_warm["spheres"]) == {"spp", "cold_s", "warm_s", "warm_again_s",
+                                         "context_cold_s", "context_warm_s",
+                                         "warm_without_pyopencl_cache_s", "floor_warm_s"}
+    assert "CL_OUT_OF_RESOURCES" in cold_warm["mesh"]["errors"]["cold_s"]
+    assert "cold_s" not in cold_warm["mesh"] and "warm_s" not in cold_warm["mesh"]
+    assert cold_warm["broken"]["errors"]
+    assert calls.count("build-only mesh") == 1  # nothing after its failed cold build
+
+
+def test_cold_and_warm_builds_start_no_process_past_the_time_limit(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    calls: list[str] = []
+    _fake_builds(monkeypatch, calls, left=[2])
+    times = S.cold_and_warm(FakeConfig("spheres", 1), "x", time.monotonic() + 60)
+    assert calls == ["build-only spheres", "build-only spheres"]
+    assert set(times) == {"cold_s", "context_cold_s", "warm_s", "context_warm_s", "unfinished"}
+    assert times["unfinished"] == ["warm_again_s", "warm_without_pyopencl_cache_s",
+                                   "floor_warm_s"]
+
+
 # --- A whole --cpu run --------------------------------------------------------------------
 
 
@@ -364,6 +668,44 @@ def test_cpu_mode_runs_every_step_on_pocl(tmp_path: Path) -> None:
                and r["cpu_over_default_kernel"] > 0 for r in beside.values())
     assert all(c["status"] == "ok" for c in data["builds"]["configurations"])
     assert data["tune"]["results"]["best"]["label"]
+
+
+def _processes_under(folder: Path) -> list[str]:
+    """The processes whose working folder is under `folder` (the run's children work in its
+    temporary folder, removed or not)."""
+    found = []
+    for proc in Path("/proc").iterdir():
+        try:
+            if proc.name.isdigit() and os.readlink(proc / "cwd").startswith(str(folder)) \
+                    and _running(int(proc.name)):
+                found.append((proc / "cmdline").read_bytes().replace(b"\0", b" ").decode())
+        except OSError:
+            continue
+    return found
+
+
+@pytest.mark.slow
+@needs_proc
+def test_cpu_mode_stopped_by_the_shells_limit_leaves_no_process_and_its_json(
+        tmp_path: Path) -> None:
+    # The shell stops the driver mid-step (12 s: about the profiles): SIGTERM, then the
+    # driver stops that step's processes and writes its JSON and log before SIGKILL.
+    if not _has_pocl():
+        pytest.skip("no PoCL device")
+    out, tmp = tmp_path / "out", tmp_path / "tmp"
+    tmp.mkdir()
+    env = {k: v for k, v in os.environ.items() if k not in ("CLRAY_DEVICE", "PYOPENCL_CTX")}
+    env.update(PYTHON=sys.executable, GPU_CHECK_LIMIT="12", TMPDIR=str(tmp))
+    done = subprocess.run(["bash", str(ROOT / "scripts" / "gpu_check.sh"), str(out), "--cpu"],
+                          capture_output=True, text=True, env=env, timeout=120, check=False)
+    assert done.returncode == 124, done.stdout[-3000:] + done.stderr[-3000:]
+    assert not _processes_under(tmp)
+    data = json.loads((out / "gpu_check.json").read_text())
+    statuses = [step["status"] for step in data["steps"].values()]
+    assert list(data["steps"]) == list(G.STEP_ORDER)
+    assert statuses.count("killed") <= 1 and "running" not in statuses
+    assert data["result"]["exit_status"] == 128 + signal.SIGTERM
+    assert "summary:" in (out / "gpu_check.log").read_text()
 
 
 @pytest.mark.parametrize(("status", "over", "nonfinite", "spread", "judged"), [

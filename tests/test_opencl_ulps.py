@@ -1,7 +1,11 @@
 """MATH_ULPS_OFF (kernels/real.h), the switch behind `--opencl-ulps`: each transcendental builtin
 it wraps returns the device's own result moved by exactly OpenCL's error bound for it, in the
 asked direction, for float and double; dot(), length(), normalize() and mix() fuse the products
-as a device may; and a render built with it differs from one without."""
+as a device may; and a render built with it differs from one without.
+
+The kernels here are built with the options every build for the device gets
+(device_build_options): on a GPU that offers it, float division and square root correctly
+rounded, as the CPU drivers round them, so that the fused forms' oracles hold there too."""
 
 from __future__ import annotations
 
@@ -14,7 +18,13 @@ import pytest
 from conftest import forced_ulps
 
 from clray.device.context import context_for, has_fp64, queue_for
-from clray.device.program import kernel_source, math_ulps_off, ulps_off_option
+from clray.device.program import (
+    CORRECTLY_ROUNDED,
+    device_build_options,
+    kernel_source,
+    math_ulps_off,
+    ulps_off_option,
+)
 from clray.render import RenderSettings, render
 from clray.scene.load import load_scene
 
@@ -39,12 +49,29 @@ __kernel void builtins(__global const T* x, __global T* out) {
 """
 
 
+def _device_options(device: cl.Device) -> list[str]:
+    """The options every build for `device` gets, less math_ulps_off's switch (--opencl-ulps
+    sets it for the run; the tests here set it themselves, or leave it out)."""
+    switch = ulps_off_option(1).partition("=")[0]
+    return [o for o in device_build_options(device) if o.partition("=")[0] != switch]
+
+
+def _rounds_divide_sqrt(device: cl.Device, dtype: type) -> bool:
+    """Whether the kernels here divide and take square roots correctly rounded on `device`:
+    in double always (OpenCL's bound is 0 ulp), in float on the CPU drivers and where the
+    build asks for it (CORRECTLY_ROUNDED, on a GPU that offers it)."""
+    return (dtype == np.float64 or not device.type & cl.device_type.GPU
+            or CORRECTLY_ROUNDED in _device_options(device))
+
+
 def _run(device: cl.Device, dtype: type, kernel: str, inputs: tuple[np.ndarray, ...],
          columns: int, off: int) -> np.ndarray:
-    """`kernel`'s one kernel over `inputs` (one row a work-item), built with T the dtype's
-    type and T3 its 3-vector, and MATH_ULPS_OFF=off where off: its `columns` outputs a row."""
+    """`kernel`'s one kernel over `inputs` (one row a work-item), built with the device's
+    options, T the dtype's type and T3 its 3-vector, and MATH_ULPS_OFF=off where off: its
+    `columns` outputs a row."""
     type_name = "double" if dtype == np.float64 else "float"
-    options = [f"-DT={type_name}", f"-DT3={type_name}3"] + ([ulps_off_option(off)] if off else [])
+    options = [*_device_options(device), f"-DT={type_name}", f"-DT3={type_name}3"]
+    options += [ulps_off_option(off)] if off else []
     program = cl.Program(context_for(device), kernel_source("real.h") + kernel).build(options)
     queue = queue_for(device)
     mf = cl.mem_flags
@@ -104,6 +131,11 @@ def _rounded(exact: Fraction, dtype: type) -> float:
                                           int(np.array(c).view(bits)) & 1))
 
 
+def _within_ulps(got: np.ndarray, want: np.ndarray, ulps: float) -> None:
+    spacing = np.spacing(np.abs(want).astype(want.dtype))
+    assert np.all(np.abs(got.astype(np.float64) - want) <= ulps * spacing), (got, want)
+
+
 def _fused(terms: list[tuple[np.ndarray, np.ndarray]], dtype: type) -> np.ndarray:
     """An fma chain's value: the first product rounded to dtype, then each further product
     added exactly to the running sum and the sum rounded once."""
@@ -133,16 +165,38 @@ def test_geometric_builtins_and_mix_fuse_their_products(cl_device, dtype, off) -
 
     dd = fused_dot(a, a)
     np.testing.assert_array_equal(moved[:, 0], fused_dot(a, b))
-    np.testing.assert_array_equal(moved[:, 1], np.sqrt(dd))
-    np.testing.assert_array_equal(moved[:, 2:5], a / np.sqrt(dd)[:, None])
+    if _rounds_divide_sqrt(cl_device, dtype):
+        np.testing.assert_array_equal(moved[:, 1], np.sqrt(dd))
+        np.testing.assert_array_equal(moved[:, 2:5], a / np.sqrt(dd)[:, None])
+    else:  # OpenCL's bounds: a square root 3 ulp off, a division 2.5
+        _within_ulps(moved[:, 1], np.sqrt(dd), 3)
+        _within_ulps(moved[:, 2:5], a / moved[:, 1:2], 2.5)
     span = (b - a).astype(dtype)
     mixed = [_fused([(a[:, k], np.ones(len(a), dtype)), (span[:, k],
                                                           np.full(len(a), 0.3, dtype))], dtype)
              for k in range(3)]
     np.testing.assert_array_equal(moved[:, 5:], np.stack(mixed, axis=1))
-    # And the device's own dot rounds every product (the CPU drivers): somewhere they part.
+    # The inputs tell a fused chain from one that rounds every product: somewhere they part.
+    unfused = ((a[:, 0] * b[:, 0] + a[:, 1] * b[:, 1]) + a[:, 2] * b[:, 2]).astype(dtype)
+    assert np.any(unfused != moved[:, 0])
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64], ids=["float", "double"])
+def test_the_cpus_own_dot_is_not_the_fused_one(cl_device, dtype) -> None:
+    # The CPU drivers' dot() rounds every product, so a dot() that the switch left as it was
+    # differs from both fused orders somewhere. OpenCL lets a device's own dot() fuse (a GPU's
+    # may, in either order): there the fused forms are checked against their oracle alone.
+    if not cl_device.type & cl.device_type.CPU:
+        pytest.skip("a device's own dot() may fuse its products: only the CPU drivers' is "
+                    "known not to")
+    if dtype == np.float64 and not has_fp64(cl_device):
+        pytest.skip("the device has no cl_khr_fp64")
+    rng = np.random.default_rng(3)
+    a = rng.uniform(-3, 3, (64, 3)).astype(dtype)
+    b = rng.uniform(-3, 3, (64, 3)).astype(dtype)
     own = _geometry(cl_device, dtype, a, b, 0)
-    assert np.any(own[:, 0] != moved[:, 0])
+    for off in (1, -1):
+        assert np.any(own[:, 0] != _geometry(cl_device, dtype, a, b, off)[:, 0])
 
 
 def test_a_render_built_with_builtins_off_differs(cl_device, request) -> None:

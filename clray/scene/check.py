@@ -10,6 +10,7 @@ normalised as a loaded scene is (unit directions and normals).
 from __future__ import annotations
 
 import dataclasses
+from collections import Counter
 from typing import Any
 
 import numpy as np
@@ -69,8 +70,26 @@ def _group_names(objects: tuple) -> dict[int, tuple[str, M.Group]]:
                                  f"{type(obj.group).__name__}")
             groups.setdefault(id(obj.group), obj.group)
     given = [g.name if isinstance(g.name, str) else "" for g in groups.values()]
-    return {key: (name if name and given.count(name) == 1 else f"group {i}", g)
-            for i, (key, g, name) in enumerate(zip(groups, groups.values(), given, strict=True))}
+    return dict(zip(groups, zip(_unique_names(given, "group"), groups.values(), strict=True),
+                    strict=True))
+
+
+def _unique_names(given: list[str], fallback: str) -> list[str]:
+    """A table key for each item: its own name where that is given once, else a fallback
+    (`material 3`) that is none of the names kept, nor another fallback: two items under one
+    key would leave one of them out of the table, and objects would take the other."""
+    counts = Counter(given)
+    taken = {name for name in given if name and counts[name] == 1}
+    names = []
+    for i, name in enumerate(given):
+        if not (name and counts[name] == 1):
+            name, again = f"{fallback} {i}", 1
+            while name in taken:
+                again += 1
+                name = f"{fallback} {i} ({again})"
+            taken.add(name)
+        names.append(name)
+    return names
 
 
 def _plain(value: Any) -> Any:
@@ -85,10 +104,8 @@ def _plain(value: Any) -> Any:
 
 def _material_names(materials: tuple[M.Material, ...]) -> list[str]:
     """A unique table key per material, its own name where that is unique."""
-    given = [m.name if isinstance(m, M.Material) and isinstance(m.name, str) else "" for m in
-             materials]
-    return [name if name and given.count(name) == 1 else f"material {i}"
-            for i, name in enumerate(given)]
+    return _unique_names([m.name if isinstance(m, M.Material) and isinstance(m.name, str)
+                          else "" for m in materials], "material")
 
 
 def _fields(obj: object, skip: tuple[str, ...] = ()) -> dict:

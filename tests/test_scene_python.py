@@ -5,6 +5,7 @@ no array its caller can still change."""
 
 from __future__ import annotations
 
+import types
 from typing import Any
 
 import numpy as np
@@ -47,3 +48,55 @@ def test_a_group_named_like_another_groups_fallback_is_kept() -> None:
     place = np.eye(3, 4)
     checked = check_scene(_scene(objects=(M.Instance(one, place), M.Instance(unnamed, place))))
     assert [obj.group.objects[0].radius for obj in checked.objects] == [1.0, 2.0]
+
+
+# -- the dataclasses: fields of the wrong type ----------------------------------------------
+
+def test_a_look_alike_of_a_checked_scene_is_not_one() -> None:
+    _refused(types.SimpleNamespace(checked=True), "expected a clray Scene, got SimpleNamespace")
+
+
+cyclic: list = [1.0]
+cyclic.append(cyclic)
+GROUP = M.Group("g", (SPHERE,))
+
+
+@pytest.mark.parametrize(("scene", "message"), [
+    (_scene(render=None), "render: expected a RenderOptions, got NoneType"),
+    (_scene(render={"width": 8}), "render: expected a RenderOptions, got dict"),
+    (_scene(path=5), "path: expected a path or None, got int"),
+    (_scene(objects=None), "objects: expected a tuple, got NoneType"),
+    (_scene(lights=None), "lights: expected a tuple, got NoneType"),
+    (_scene(materials=None), "materials: expected a tuple, got NoneType"),
+    (_scene(materials=(None,)), "materials[0]: expected a Material, got NoneType"),
+    (_scene(objects=(None,)), "objects[0]: expected one of Sphere"),
+    (_scene(lights=(None,)), "lights[0]: expected one of PointLight"),
+    (_scene(objects=(M.Instance(M.Group("g", None), np.eye(3, 4)),)),
+     "objects[0].group.objects: expected a tuple, got NoneType"),
+    (_scene(objects=(M.Instance(M.Group("g", (None,)), np.eye(3, 4)),)),
+     "groups.g.objects[0]: expected one of Sphere"),
+    (_scene(objects=(M.Instance(None, np.eye(3, 4)),)),
+     "objects[0].group: expected a Group, got NoneType"),
+    (_scene(camera=M.Camera(np.array(1.0), (0.0, 0.0, 0.0))),
+     "camera.position: expected 3 numbers, got 1.0"),
+    (_scene(camera=M.Camera(cyclic, (0.0, 0.0, 0.0))), "camera.position: expected 3 numbers"),
+    (_scene(camera=M.Camera(np.zeros(10**6), (0.0, 0.0, 0.0))),
+     "camera.position: expected 3 numbers, got ndarray"),
+    (_scene(render=M.RenderOptions(width=np.array(16.5))),
+     "render.width: expected an integer, got 16.5"),
+    (_scene(materials=(M.Material("m", texture=M.Texture(np.array(["a", "b"]))),)),
+     "materials.m.texture.type: unknown type ndarray"),
+    *[(_scene(objects=(M.Instance(GROUP, matrix),)),
+       "objects[0].matrix: expected an array of 3x4 numbers")
+      for matrix in (np.full((3, 4), "a"), [[1, 0, 0, 0], [0, 1], [0, 0, 1, 0]],
+                     [["1", "0", "0", "0"], ["0", "1", "0", "0"], ["0", "0", "1", "0"]],
+                     np.eye(3, 4, dtype=bool), np.eye(3, 4) * (1 + 1j),
+                     np.eye(3, 4).astype(object), cyclic, None)],
+])
+def test_a_field_of_the_wrong_type_is_named(scene: M.Scene, message: str) -> None:
+    _refused(scene, message)
+
+
+def test_a_zero_dimensional_array_is_its_number() -> None:
+    checked = check_scene(_scene(render=M.RenderOptions(width=np.array(16), height=6)))
+    assert checked.render.width == 16 and type(checked.render.width) is int

@@ -14,9 +14,14 @@ import pytest
 from clray.errors import SceneError
 from clray.scene import model as M
 from clray.scene.check import check_scene
+from clray.scene.load import scene_from_dict
 
 CAMERA = M.Camera((0.0, 0.0, 5.0), (0.0, 0.0, 0.0))
 SPHERE = M.Sphere((0.0, 0.0, 0.0), 1.0, 0)
+DATA: dict[str, Any] = {
+    "camera": {"position": [0, 0, 5], "look_at": [0, 0, 0]},
+    "materials": {"m": {"color": [0.8, 0.3, 0.2]}},
+    "objects": [{"type": "sphere", "center": [0, 0, 0], "radius": 1, "material": "m"}]}
 
 
 def _scene(**fields: Any) -> M.Scene:
@@ -100,3 +105,32 @@ def test_a_field_of_the_wrong_type_is_named(scene: M.Scene, message: str) -> Non
 def test_a_zero_dimensional_array_is_its_number() -> None:
     checked = check_scene(_scene(render=M.RenderOptions(width=np.array(16), height=6)))
     assert checked.render.width == 16 and type(checked.render.width) is int
+
+
+# -- scene_from_dict: keys --------------------------------------------------------------------
+
+SPHERE_SPEC = DATA["objects"][0]
+
+
+@pytest.mark.parametrize(("data", "message"), [
+    ({**DATA, 1: 2}, "keys must be strings, got 1"),
+    ({**DATA, (1, 2): 2}, "keys must be strings, got [1, 2]"),
+    ({**DATA, "render": {1: 2}}, "render: keys must be strings, got 1"),
+    ({**DATA, "camera": {**DATA["camera"], None: 1}}, "camera: keys must be strings, got NoneType"),
+    ({**DATA, "materials": {1: {}}}, "materials: keys must be strings, got 1"),
+    ({**DATA, "materials": {"m": {2.5: 1}}}, "materials.m: keys must be strings, got 2.5"),
+    ({**DATA, "objects": [{**SPHERE_SPEC, 0: 1}]}, "objects[0]: keys must be strings, got 0"),
+    ({**DATA, "objects": [{**SPHERE_SPEC, "transform": {1: 2}}]},
+     "objects[0].transform: keys must be strings, got 1"),
+    ({**DATA, "groups": {3: {"objects": []}}}, "groups: keys must be strings, got 3"),
+    ({**DATA, "animation": {"frames": 2, 1: 2}}, "animation: keys must be strings, got 1"),
+    # With includes the tables are merged first, by include.py.
+    ({**DATA, "include": [], 1: 2}, "keys must be strings, got 1"),
+    ({**DATA, "include": [], "materials": {1: {}}}, "materials: keys must be strings, got 1"),
+    ({**DATA, "include": [], "render": {1: {}}}, "render: keys must be strings, got 1"),
+    ({**DATA, "include": [], "groups": {1: {}}}, "groups: keys must be strings, got 1"),
+])
+def test_a_key_that_is_not_a_string_is_named(data: dict, message: str) -> None:
+    with pytest.raises(SceneError) as info:
+        scene_from_dict(data)
+    assert str(info.value) == message

@@ -40,6 +40,15 @@ def key_path(prefix: str | None, name: str) -> str:
     return f"{prefix}.{shown}" if prefix else shown
 
 
+def string_keys(table: dict, file: Path | None, key: str | None) -> dict:
+    """`table`, if every key is a string: a dict from Python may have keys of any type, which
+    no key path (nor the messages made of them) can name."""
+    for name in table:
+        if not isinstance(name, str):
+            raise SceneError(file, key, f"keys must be strings, got {show(name)}")
+    return table
+
+
 def file_name(name: str) -> str:
     """A file name for a message: as written if plain, else quoted and escaped."""
     return name if _PLAIN_NAME.fullmatch(name) else show(name)
@@ -72,11 +81,12 @@ class Values:
     def table(self, value: Any, key: str) -> dict:
         if not isinstance(value, dict):
             raise self.error(key, f"expected a table, got {show(value)}")
-        return value
+        return string_keys(value, self.path, key)
 
     def keys(
         self, table: dict, key: str | None, allowed: tuple[str, ...], required: tuple[str, ...]
     ) -> None:
+        string_keys(table, self.path, key)
         for name in table:
             if name not in allowed:
                 expected = ", ".join(allowed)

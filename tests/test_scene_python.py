@@ -11,7 +11,8 @@ from typing import Any
 import numpy as np
 import pytest
 
-from clray.errors import SceneError
+from clray.errors import SceneError, SettingsError
+from clray.render import RenderSettings
 from clray.scene import model as M
 from clray.scene.check import check_scene
 from clray.scene.load import scene_from_dict
@@ -134,3 +135,40 @@ def test_a_key_that_is_not_a_string_is_named(data: dict, message: str) -> None:
     with pytest.raises(SceneError) as info:
         scene_from_dict(data)
     assert str(info.value) == message
+
+
+# -- scene_from_dict: choices -----------------------------------------------------------------
+
+ANIMATED = {**DATA, "animation": {"frames": 2, "tracks": [
+    {"key": "objects[0].radius", "frames": [0, 1], "values": [1, 2]}]}}
+
+
+@pytest.mark.parametrize("value", [np.array([8, 16]), np.array([16]), np.array(16), 16.0, True])
+def test_png_bits_is_an_integer_not_an_array(value: Any) -> None:
+    with pytest.raises(SceneError, match=r"^render\.png_bits: expected 8 or 16, got "):
+        scene_from_dict({**DATA, "render": {"png_bits": value}})
+    with pytest.raises(SettingsError, match=r"^RenderSettings\.png_bits: expected 8 or 16, "):
+        RenderSettings(png_bits=value)
+
+
+@pytest.mark.parametrize(("data", "message"), [
+    ({**DATA, "camera": {**DATA["camera"], "type": np.array(["perspective", "orthographic"])}},
+     'camera.type: expected "perspective" or "orthographic", got ndarray'),
+    ({**DATA, "camera": {**DATA["camera"], "type": np.array(["orthographic"])}},
+     'camera.type: expected "perspective" or "orthographic", got ndarray'),
+    ({**ANIMATED, "animation": {**ANIMATED["animation"], "interpolation": np.array(["a", "b"])}},
+     'animation.interpolation: expected "linear" or "catmull-rom", got ndarray'),
+])
+def test_a_choice_given_as_an_array_is_refused(data: dict, message: str) -> None:
+    with pytest.raises(SceneError) as info:
+        scene_from_dict(data)
+    assert str(info.value) == message
+
+
+def test_numpy_choices_are_taken_as_python_values() -> None:
+    scene = scene_from_dict({**DATA, "render": {"png_bits": np.int64(16)},
+                             "camera": {**DATA["camera"], "type": np.str_("orthographic"),
+                                        "height": 2}})
+    assert type(scene.render.png_bits) is int and scene.render.png_bits == 16
+    assert type(scene.camera.type) is str and scene.camera.type == "orthographic"
+    assert RenderSettings(png_bits=np.int64(16)).png_bits == 16

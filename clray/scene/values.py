@@ -162,10 +162,10 @@ class Values:
         return value
 
     def choice(self, value: Any, key: str, allowed: tuple) -> Any:
-        if isinstance(value, bool) or value not in allowed:
+        if not L.is_choice(value, allowed):
             expected = " or ".join(show(v) for v in allowed)
             raise self.error(key, f"expected {expected}, got {show(value)}")
-        return value
+        return allowed[allowed.index(value)]  # a numpy integer or string as Python's own
 
     def string(self, value: Any, key: str) -> str:
         if not isinstance(value, str):

@@ -6,6 +6,7 @@ no array its caller can still change."""
 from __future__ import annotations
 
 import types
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -15,7 +16,7 @@ from clray.errors import SceneError, SettingsError
 from clray.render import RenderSettings
 from clray.scene import model as M
 from clray.scene.check import check_scene
-from clray.scene.load import scene_from_dict
+from clray.scene.load import load_scene, scene_from_dict
 
 CAMERA = M.Camera((0.0, 0.0, 5.0), (0.0, 0.0, 0.0))
 SPHERE = M.Sphere((0.0, 0.0, 0.0), 1.0, 0)
@@ -172,3 +173,26 @@ def test_numpy_choices_are_taken_as_python_values() -> None:
     assert type(scene.render.png_bits) is int and scene.render.png_bits == 16
     assert type(scene.camera.type) is str and scene.camera.type == "orthographic"
     assert RenderSettings(png_bits=np.int64(16)).png_bits == 16
+
+
+# -- animation key paths ----------------------------------------------------------------------
+
+@pytest.mark.parametrize("index", ["9" * 5000, "9" * 10, "\u0660", "\uff11"])
+def test_an_animation_index_of_too_many_or_non_ascii_digits_is_refused(
+        tmp_path: Path, index: str) -> None:
+    scene = tmp_path / "s.toml"
+    scene.write_text(f"""
+[camera]
+position = [0, 0, 5]
+look_at = [0, 0, 0]
+[[objects]]
+type = "sphere"
+center = [0, 0, 0]
+radius = 1
+[animation]
+frames = 2
+tracks = [{{ key = "objects[{index}].radius", frames = [0], values = [2] }}]
+""", encoding="utf-8")
+    with pytest.raises(SceneError, match=r"^s\.toml: animation\.tracks\[0\]\.key: expected a "
+                       "key path such as camera.position"):
+        load_scene(scene)

@@ -196,3 +196,41 @@ tracks = [{{ key = "objects[{index}].radius", frames = [0], values = [2] }}]
     with pytest.raises(SceneError, match=r"^s\.toml: animation\.tracks\[0\]\.key: expected a "
                        "key path such as camera.position"):
         load_scene(scene)
+
+
+# -- numpy scalars ----------------------------------------------------------------------------
+
+def test_numpy_scalars_of_every_real_type_are_numbers() -> None:
+    f32, i64 = np.float32, np.int64
+    scene = scene_from_dict({
+        "render": {"exposure": f32(1.5), "min_weight": np.float16(0.25), "width": i64(8),
+                   "ambient": [f32(0.5), i64(1), np.uint8(0)]},
+        "camera": {"position": [f32(0), i64(0), np.int32(5)], "look_at": [0, 0, 0],
+                   "vfov": f32(30)},
+        "materials": {"m": {"color": [f32(0.8), 0.3, 0.2], "reflect": f32(0.5)}},
+        "objects": [{"type": "sphere", "center": [0, 0, 0], "radius": f32(1.5),
+                     "material": "m"}]})
+    assert (scene.render.exposure, scene.render.min_weight) == (1.5, 0.25)
+    assert scene.camera.position == (0.0, 0.0, 5.0) and scene.camera.vfov == 30.0
+    assert scene.objects[0].radius == 1.5 and type(scene.objects[0].radius) is float
+    checked = check_scene(_scene(objects=(M.Sphere((f32(0), i64(0), 0.0), f32(2), 0),)))
+    assert checked.objects[0].radius == 2.0
+
+
+@pytest.mark.parametrize(("value", "message"), [
+    (np.float32("nan"), "objects[0].radius: must be finite, got nan"),
+    (np.float32("inf"), "objects[0].radius: must be finite, got inf"),
+    (np.bool_(True), "objects[0].radius: expected a number, got bool"),
+    (np.complex64(1), "objects[0].radius: expected a number, got complex64"),
+    (np.int64(-2), "objects[0].radius: must be > 0, got -2"),
+])
+def test_numpy_scalars_meet_the_number_rules(value: Any, message: str) -> None:
+    with pytest.raises(SceneError) as info:
+        scene_from_dict({**DATA, "objects": [{**SPHERE_SPEC, "radius": value}]})
+    assert str(info.value) == message
+
+
+def test_a_numpy_integer_out_of_range_is_shown_as_a_number() -> None:
+    with pytest.raises(SceneError, match=r"^render\.width: must be an integer in \[1, 16384\], "
+                       r"got 0$"):
+        scene_from_dict({**DATA, "render": {"width": np.int64(0)}})

@@ -54,6 +54,13 @@ def file_name(name: str) -> str:
     return name if _PLAIN_NAME.fullmatch(name) else show(name)
 
 
+def python_number(value: Any) -> Any:
+    """A numpy integer or float scalar (from Python callers) as Python's own, so that
+    np.float32 and np.int64 are numbers as np.float64 (a float subclass) is; anything else
+    as it is."""
+    return value.item() if isinstance(value, np.integer | np.floating) else value
+
+
 def is_number(value: Any) -> bool:
     # bool is an int subclass in Python, but `true` is not a number in a scene file.
     return isinstance(value, int | float) and not isinstance(value, bool)
@@ -114,6 +121,7 @@ class Values:
         return [self.table(item, f"{key}[{i}]") for i, item in enumerate(value)]
 
     def number(self, value: Any, key: str, limit: float = L.MAX_MAGNITUDE) -> float:
+        value = python_number(value)
         if not is_number(value):
             raise self.error(key, f"expected a number, got {show(value)}")
         problem = out_of_range(value, limit)
@@ -122,6 +130,7 @@ class Values:
         return float(value)
 
     def bounded(self, value: Any, key: str, low: float, high: float = L.MAX_MAGNITUDE) -> float:
+        value = python_number(value)  # shown as a number below, not as its numpy type
         x = self.number(value, key)
         if x < low:
             raise self.error(key, f"must be >= {low:g}, got {show(value)}")
@@ -131,6 +140,7 @@ class Values:
 
     def length(self, value: Any, key: str) -> float:
         """A strictly positive length, within float32's normal range."""
+        value = python_number(value)  # shown as a number below, not as its numpy type
         x = self.number(value, key)
         if x <= 0:
             raise self.error(key, f"must be > 0, got {show(value)}")
@@ -139,18 +149,21 @@ class Values:
         return x
 
     def open_range(self, value: Any, key: str, low: float, high: float) -> float:
+        value = python_number(value)  # shown as a number below, not as its numpy type
         x = self.number(value, key)
         if not low < x < high:
             raise self.error(key, f"must be in ({low:g}, {high:g}), got {show(value)}")
         return x
 
     def closed_range(self, value: Any, key: str, low: float, high: float) -> float:
+        value = python_number(value)  # shown as a number below, not as its numpy type
         x = self.number(value, key)
         if not low <= x <= high:
             raise self.error(key, f"must be in [{low:g}, {high:g}], got {show(value)}")
         return x
 
     def integer(self, value: Any, key: str, low: int, high: int) -> int:
+        value = python_number(value)  # shown as a number below, not as its numpy type
         problem = L.integer_problem(value, low, high)
         if problem:
             raise self.error(key, f"{problem}, got {show(value)}")
@@ -175,11 +188,10 @@ class Values:
     def numbers(
         self, value: Any, key: str, n: int, limit: float = L.MAX_MAGNITUDE
     ) -> tuple[float, ...]:
-        if (
-            not isinstance(value, list | tuple)
-            or len(value) != n
-            or not all(is_number(v) for v in value)
-        ):
+        if not isinstance(value, list | tuple) or len(value) != n:
+            raise self.error(key, f"expected {plural(n, 'number')}, got {show(value)}")
+        value = [python_number(v) for v in value]
+        if not all(is_number(v) for v in value):
             raise self.error(key, f"expected {plural(n, 'number')}, got {show(value)}")
         for v in value:
             problem = out_of_range(v, limit)

@@ -5,6 +5,7 @@ no array its caller can still change."""
 
 from __future__ import annotations
 
+import dataclasses
 import types
 from pathlib import Path
 from typing import Any
@@ -234,3 +235,71 @@ def test_a_numpy_integer_out_of_range_is_shown_as_a_number() -> None:
     with pytest.raises(SceneError, match=r"^render\.width: must be an integer in \[1, 16384\], "
                        r"got 0$"):
         scene_from_dict({**DATA, "render": {"width": np.int64(0)}})
+
+
+# -- arrays: copied, and read-only once checked -------------------------------------------------
+
+def _all_arrays(scene: M.Scene) -> list[np.ndarray]:
+    found = [m.texture.image for m in scene.materials if m.texture is not None]
+    found.append(scene.render.background.image)
+    for obj in scene.objects:
+        if isinstance(obj, M.Instance):
+            found.append(obj.matrix)
+            obj = obj.group.objects[0]
+        found += [getattr(obj, f.name) for f in dataclasses.fields(obj)]
+    return [a for a in found if isinstance(a, np.ndarray)]
+
+
+def _array_scene() -> tuple[dict, dict[str, np.ndarray]]:
+    given = {
+        "texels": np.full((2, 2, 3), 0.5, dtype=np.float32),  # as stored: no conversion
+        "sky": np.full((2, 4, 3), 0.25, dtype=np.float32),
+        "vertices": np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0]]),
+        "faces": np.array([[0, 1, 2]]),
+        "normals": np.array([[0.0, 0, 1]] * 3),
+        "uvs": np.zeros((3, 2)),
+        "colors": np.full((3, 3), 0.5),
+        "face_index": np.array([0]),
+        "centers": np.zeros((2, 3)),
+        "radii": np.ones(2),
+        "sphere_index": np.array([0, 0]),
+    }
+    mesh = {"type": "mesh", "vertices": given["vertices"], "faces": given["faces"],
+            "normals": given["normals"], "uvs": given["uvs"], "colors": given["colors"],
+            "materials": ["t"], "material_index": given["face_index"]}
+    data = {**DATA, "render": {"background": {"type": "image", "texels": given["sky"]}},
+            "materials": {"t": {"texture": {"type": "image", "texels": given["texels"]}}},
+            "groups": {"g": {"objects": [mesh]}},
+            "objects": [mesh, {"type": "spheres", "centers": given["centers"],
+                               "radii": given["radii"], "materials": ["t"],
+                               "material_index": given["sphere_index"]},
+                        {"type": "instance", "group": "g"}]}
+    return data, given
+
+
+def test_a_loaded_scene_keeps_no_array_of_its_caller_and_none_can_be_written() -> None:
+    data, given = _array_scene()
+    scene = scene_from_dict(data)
+    held = _all_arrays(scene)
+    assert len(held) == 18  # 2 images, 2 meshes of 6, 3 spheres arrays, the matrix
+    kept = [a.copy() for a in held]
+    for array in given.values():
+        array[...] = 7  # the caller changes its arrays after loading
+    for array, before in zip(held, kept, strict=True):
+        np.testing.assert_array_equal(array, before)
+        assert not array.flags.writeable
+        with pytest.raises(ValueError, match="read-only"):
+            array.flat[0] = 0
+
+
+def test_a_checked_scene_keeps_no_array_of_its_caller() -> None:
+    texels = np.full((2, 2, 3), 0.5, dtype=np.float32)
+    faces = np.array([[0, 1, 2]])
+    mesh = M.Mesh(np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0]]), faces, 0)
+    material = M.Material("t", texture=M.Texture("image", image=texels))
+    checked = check_scene(_scene(materials=(material,), objects=(mesh,)))
+    texels[...] = np.nan
+    faces[0, 2] = 10**6
+    assert np.all(checked.materials[0].texture.image == 0.5)
+    np.testing.assert_array_equal(checked.objects[0].faces, [[0, 1, 2]])
+    assert not checked.objects[0].faces.flags.writeable

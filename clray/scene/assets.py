@@ -121,7 +121,9 @@ class Assets:
         if not np.all((texels >= 0) & (texels <= 1)):
             raise self.values.error(key, "must be linear values in [0, 1]")
         self.texels_left -= width * height
-        return np.ascontiguousarray(texels, dtype=np.float32)
+        # A copy always (np.ascontiguousarray would return the caller's own float32 array,
+        # which the caller could then change under the checked scene).
+        return np.array(texels, dtype=np.float32, order="C")
 
     def decoded(self, texels: np.ndarray) -> np.ndarray:
         """`texels` decoded from sRGB to linear, once per file however often it is named."""

@@ -6,6 +6,7 @@ no array its caller can still change."""
 from __future__ import annotations
 
 import dataclasses
+import tracemalloc
 import types
 from pathlib import Path
 from typing import Any
@@ -303,3 +304,44 @@ def test_a_checked_scene_keeps_no_array_of_its_caller() -> None:
     assert np.all(checked.materials[0].texture.image == 0.5)
     np.testing.assert_array_equal(checked.objects[0].faces, [[0, 1, 2]])
     assert not checked.objects[0].faces.flags.writeable
+
+
+# -- limits before memory -----------------------------------------------------------------------
+
+def _huge(shape: tuple[int, ...], dtype: type = np.float64) -> np.ndarray:
+    """An array of any size that takes no memory: one row, broadcast."""
+    return np.broadcast_to(np.zeros(shape[-1], dtype), shape)
+
+
+MESH = {"type": "mesh", "vertices": np.zeros((3, 3)), "faces": np.array([[0, 1, 2]]),
+        "material": "m"}
+
+
+@pytest.mark.parametrize(("data", "message"), [
+    ({**DATA, "objects": [{**MESH, "faces": _huge((2**28, 3), np.uint8)}]},
+     "objects[0]: 268435456 triangles is over what is left (33554432) of the limit"),
+    ({**DATA, "objects": [{**MESH, "vertices": _huge((2**27, 3))}]},
+     "objects[0].vertices: 134217728 vertices is over the limit of 100663296 for a mesh"),
+    ({**DATA, "objects": [{**MESH, "normals": _huge((2**27, 3))}]},
+     "objects[0].normals: expected one row per vertex (3), got 134217728"),
+    ({**DATA, "objects": [{"type": "spheres", "centers": _huge((2**26, 3)), "radius": 1,
+                           "material": "m"}]},
+     "objects[0]: 67108864 spheres is over what is left (16777216) of the limit"),
+    ({**DATA, "render": {"background": {"type": "image",
+                                        "texels": _huge((20000, 20000, 3), np.float32)}}},
+     "render.background.texels: must be at least 1 and at most 16384 texels a side"),
+    ({**DATA, "materials": {"m": {"texture": {"type": "image",
+                                              "texels": _huge((16384, 16384, 3))}}}},
+     "materials.m.texture.texels: 16384x16384 texels is over what is left (67108864)"),
+])
+def test_arrays_over_a_limit_are_refused_before_they_are_converted(data: dict,
+                                                                   message: str) -> None:
+    tracemalloc.start()
+    try:
+        with pytest.raises(SceneError) as info:
+            scene_from_dict(data)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert str(info.value).startswith(message), str(info.value)
+    assert peak < 2**20, peak

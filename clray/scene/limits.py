@@ -105,6 +105,9 @@ MAX_LIGHT_AREA = 1e30
 # 350 bytes a triangle that load, BVH and pack peak at (docs/scale.md); primitive
 # references index 2^28.
 MAX_TRIANGLES = 2**25
+# A mesh given as arrays (inline, or a .npz file): three vertices a triangle of the limit
+# above, as many as its faces could ever use. Checked before the arrays are converted.
+MAX_MESH_VERTICES = 3 * MAX_TRIANGLES
 MAX_BULK_SPHERES = 2**24  # all `spheres` objects together
 MAX_ARRAY_BYTES = 256 * 2**20  # a .npy/.npz file of spheres
 MAX_TEXTURE_SIDE = 16384

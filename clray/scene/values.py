@@ -239,6 +239,21 @@ class Values:
               integer: bool = False) -> np.ndarray:
         """A numeric array (numpy, or nested lists) of `shape` (None: any length), with finite
         values within MAX_MAGNITUDE; the first bad row is named in the message."""
+        a = self.shaped_array(value, key, shape, integer)
+        if not integer:
+            bad = ~np.isfinite(a) | (np.abs(a) > L.MAX_MAGNITUDE)
+            if bad.any():
+                row = int(np.argwhere(bad)[0][0])
+                raise self.error(f"{key}[{row}]", f"must be finite and at most "
+                                 f"{L.MAX_MAGNITUDE:g} in magnitude, got {show(a[row].tolist())}")
+        return a
+
+    def shaped_array(self, value: Any, key: str, shape: tuple[int | None, ...],
+                     integer: bool = False) -> np.ndarray:
+        """`value` as an array of `shape` and a numeric type, its values not yet looked at: a
+        caller checks its size against a limit here, before array() passes over the values
+        (with temporaries as large) and anything copies them. A numpy array is not copied
+        (np.broadcast_to makes one of any size that takes no memory)."""
         try:
             a = np.asarray(value)
         except (ValueError, TypeError):
@@ -250,10 +265,14 @@ class Values:
             noun = "integer" if integer else "number"
             what = f"{shown} {noun}" if shown == "1" else f"{shown} {noun}s"
             raise self.error(key, f"expected an array of {what}, got {show(value)}")
-        if not integer:
-            bad = ~np.isfinite(a) | (np.abs(a) > L.MAX_MAGNITUDE)
-            if bad.any():
-                row = int(np.argwhere(bad)[0][0])
-                raise self.error(f"{key}[{row}]", f"must be finite and at most "
-                                 f"{L.MAX_MAGNITUDE:g} in magnitude, got {show(a[row].tolist())}")
         return a
+
+
+def rows(value: Any) -> int:
+    """How many rows a list or array has, without converting it (0 for anything else, which
+    its own check refuses)."""
+    if isinstance(value, list):
+        return len(value)
+    if isinstance(value, np.ndarray) and value.ndim:
+        return value.shape[0]
+    return 0

@@ -28,8 +28,11 @@ MAX_FPS = 1000.0
 MAX_KEYFRAMES = 1000
 MAX_TRACKS = 1000
 
-_SEGMENT = re.compile(r"([A-Za-z0-9_-]+)((?:\[\d+\])*)")
-_INDEX = re.compile(r"\[(\d+)\]")
+# An index is at most 9 ASCII digits, beyond any array's length (MAX_OBJECTS, MAX_LIGHTS):
+# int() of more than 4300 digits raises ValueError, and \d takes other scripts' digits too.
+_INDEX_DIGITS = r"[0-9]{1,9}"
+_SEGMENT = re.compile(rf"([A-Za-z0-9_-]+)((?:\[{_INDEX_DIGITS}\])*)")
+_INDEX = re.compile(rf"\[({_INDEX_DIGITS})\]")
 
 Path = tuple[str | int, ...]
 Value = float | list[float]

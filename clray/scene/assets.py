@@ -29,7 +29,7 @@ from clray.scene.mtl import MtlLibrary, parse_mtl
 from clray.scene.obj import ObjMesh, parse_obj
 from clray.scene.ply import read_ply
 from clray.scene.texture import TextureError, read_texture
-from clray.scene.values import Values, file_name
+from clray.scene.values import Values, file_name, rows
 
 # What a `spheres` object's .npz may hold (a .npy holds centers, or centers and radii).
 SPHERE_ARRAYS = ("centers", "radii", "material_index")
@@ -109,7 +109,8 @@ class Assets:
 
     def texels(self, value: Any, key: str) -> np.ndarray:
         """Linear texels given as an (H, W, 3) array (from Python), within the texel limits."""
-        texels = self.values.array(value, key, (None, None, 3))
+        # The limits by the shape alone, before any pass over (or copy of) the values.
+        texels = self.values.shaped_array(value, key, (None, None, 3))
         height, width, _ = texels.shape
         side = L.MAX_TEXTURE_SIDE
         if not 0 < min(height, width) <= max(height, width) <= side:
@@ -118,10 +119,13 @@ class Assets:
         if width * height > self.texels_left:
             raise self.values.error(key, f"{width}x{height} texels is over what is left "
                                     f"({self.texels_left}) of the limit of {L.MAX_TEXELS}")
+        texels = self.values.array(texels, key, (None, None, 3))
         if not np.all((texels >= 0) & (texels <= 1)):
             raise self.values.error(key, "must be linear values in [0, 1]")
         self.texels_left -= width * height
-        return np.ascontiguousarray(texels, dtype=np.float32)
+        # A copy always (np.ascontiguousarray would return the caller's own float32 array,
+        # which the caller could then change under the checked scene).
+        return np.array(texels, dtype=np.float32, order="C")
 
     def decoded(self, texels: np.ndarray) -> np.ndarray:
         """`texels` decoded from sRGB to linear, once per file however often it is named."""
@@ -224,16 +228,22 @@ class Assets:
             raise self.values.error(
                 key, f"{file_name(name)} holds {', '.join(sorted(arrays)) or 'nothing'} "
                 f"(expected vertices, faces and optionally normals, uvs, colors)")
+        # Before the arrays are converted (parse_mesh counts them again, taking them).
+        self.fits_triangles(rows(arrays["faces"]), key)
         # Errors name the array.
         return mesh_arrays(self.values, arrays, f"{key}: {file_name(name)}: ")
 
-    def take_triangles(self, count: int, key: str) -> None:
-        """Count a mesh's triangles against the limit for all meshes."""
+    def fits_triangles(self, count: int, key: str) -> None:
+        """Whether `count` more triangles fit the limit for all meshes: a SceneError if not."""
         if count > self.triangles_left:
             raise self.values.error(
                 key, f"{plural(count, 'triangle')} is over what is left ({self.triangles_left}) of "
                 f"the limit of {L.MAX_TRIANGLES} triangles for all meshes"
             )
+
+    def take_triangles(self, count: int, key: str) -> None:
+        """Count a mesh's triangles against the limit for all meshes."""
+        self.fits_triangles(count, key)
         self.triangles_left -= count
 
     # -- sphere arrays --------------------------------------------------------------------

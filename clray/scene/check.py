@@ -10,6 +10,8 @@ normalised as a loaded scene is (unit directions and normals).
 from __future__ import annotations
 
 import dataclasses
+from collections import Counter
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -18,6 +20,7 @@ from clray.errors import SceneError, plural
 from clray.lights import LIGHT_OF, LISTED
 from clray.scene import model as M
 from clray.scene.load import scene_from_dict
+from clray.scene.values import Values
 from clray.shapes import SHAPES
 
 _OBJECT_TYPES: dict[type, str] = {
@@ -25,20 +28,47 @@ _OBJECT_TYPES: dict[type, str] = {
     M.Mesh: "mesh", M.Spheres: "spheres",
 }
 _MESH_ARRAYS = ("vertices", "faces", "normals", "uvs", "colors")
+# No field that _plain writes as a list holds more (a triangle's 3x3 vertices, a colour):
+# a longer or deeper value goes to the loader as it is and is refused there, rather than
+# copied element by element (a self-referencing list, or a large array, never ends or fills
+# memory).
+_PLAIN_ITEMS = 16
+_PLAIN_DEPTH = 3
 
 
 def check_scene(scene: M.Scene) -> M.Scene:
     """`scene` itself if the loader made it, else the same scene checked and normalised by the
     loader; SceneError (a one-line message naming the key) if something is wrong."""
-    if getattr(scene, "checked", False):
-        return scene
+    # The type first: any object may carry an attribute named `checked`.
     if not isinstance(scene, M.Scene):
         raise SceneError(None, None, f"expected a clray Scene, got {type(scene).__name__}")
-    return scene_from_dict(scene_to_dict(scene), scene.path)
+    if scene.checked:
+        return scene
+    return scene_from_dict(scene_to_dict(scene), _path(scene.path))
+
+
+def _path(path: Any) -> Path | None:
+    if path is None:
+        return None
+    try:
+        return Path(path)
+    except TypeError:
+        raise SceneError(None, "path", f"expected a path or None, got "
+                         f"{type(path).__name__}") from None
+
+
+def _expect(value: Any, kind: type | tuple[type, ...], key: str, what: str) -> None:
+    """A Scene's (or Group's) field of the wrong type would fail in the conversion below with
+    an AttributeError or TypeError: refused first, naming the field."""
+    if not isinstance(value, kind):
+        raise SceneError(None, key, f"expected {what}, got {type(value).__name__}")
 
 
 def scene_to_dict(scene: M.Scene) -> dict:
     """The scene in the scene file's form (docs/scene_format.md), as scene_from_dict takes it."""
+    _expect(scene.render, M.RenderOptions, "render", "a RenderOptions")
+    for field in ("materials", "lights", "objects"):
+        _expect(getattr(scene, field), tuple | list, field, "a tuple")
     names = _material_names(scene.materials)
     render = {f.name: _plain(getattr(scene.render, f.name))
               for f in dataclasses.fields(M.RenderOptions)}
@@ -48,7 +78,8 @@ def scene_to_dict(scene: M.Scene) -> dict:
     return {
         "render": render,
         "camera": _camera(scene.camera),
-        "materials": {name: _material(m) for name, m in zip(names, scene.materials, strict=True)},
+        "materials": {name: _material(m, f"materials[{i}]")
+                      for i, (name, m) in enumerate(zip(names, scene.materials, strict=True))},
         "groups": {name: {"objects": [_object(obj, f"groups.{name}.objects[{j}]", names, {})
                                       for j, obj in enumerate(group.objects)]}
                    for name, group in groups.values()},
@@ -62,33 +93,52 @@ def _group_names(objects: tuple) -> dict[int, tuple[str, M.Group]]:
     """A unique table key per group the instances use (by identity), its own name where that
     is unique."""
     groups: dict[int, M.Group] = {}
-    for obj in objects:
+    for i, obj in enumerate(objects):
         if isinstance(obj, M.Instance):
-            if not isinstance(obj.group, M.Group):
-                raise SceneError(None, "group", f"expected a Group, got "
-                                 f"{type(obj.group).__name__}")
+            _expect(obj.group, M.Group, f"objects[{i}].group", "a Group")
+            _expect(obj.group.objects, tuple | list, f"objects[{i}].group.objects", "a tuple")
             groups.setdefault(id(obj.group), obj.group)
     given = [g.name if isinstance(g.name, str) else "" for g in groups.values()]
-    return {key: (name if name and given.count(name) == 1 else f"group {i}", g)
-            for i, (key, g, name) in enumerate(zip(groups, groups.values(), given, strict=True))}
+    return dict(zip(groups, zip(_unique_names(given, "group"), groups.values(), strict=True),
+                    strict=True))
 
 
-def _plain(value: Any) -> Any:
+def _unique_names(given: list[str], fallback: str) -> list[str]:
+    """A table key for each item: its own name where that is given once, else a fallback
+    (`material 3`) that is none of the names kept, nor another fallback: two items under one
+    key would leave one of them out of the table, and objects would take the other."""
+    counts = Counter(given)
+    taken = {name for name in given if name and counts[name] == 1}
+    names = []
+    for i, name in enumerate(given):
+        if not (name and counts[name] == 1):
+            name, again = f"{fallback} {i}", 1
+            while name in taken:
+                again += 1
+                name = f"{fallback} {i} ({again})"
+            taken.add(name)
+        names.append(name)
+    return names
+
+
+def _plain(value: Any, depth: int = 0) -> Any:
     """Numbers and small vectors as the parsers give them: Python scalars and lists (the
     loader refuses numpy scalars and tuples nowhere, but lists keep its messages alike)."""
-    if isinstance(value, np.generic):
+    if isinstance(value, np.ndarray) and value.ndim == 0:  # not iterable
+        value = value[()]
+    if isinstance(value, np.bool_ | np.number | np.str_):
         return value.item()
     if isinstance(value, np.ndarray | tuple | list):
-        return [_plain(v) for v in value]
+        if depth >= _PLAIN_DEPTH or len(value) > _PLAIN_ITEMS:
+            return value
+        return [_plain(v, depth + 1) for v in value]
     return value
 
 
 def _material_names(materials: tuple[M.Material, ...]) -> list[str]:
     """A unique table key per material, its own name where that is unique."""
-    given = [m.name if isinstance(m, M.Material) and isinstance(m.name, str) else "" for m in
-             materials]
-    return [name if name and given.count(name) == 1 else f"material {i}"
-            for i, name in enumerate(given)]
+    return _unique_names([m.name if isinstance(m, M.Material) and isinstance(m.name, str)
+                          else "" for m in materials], "material")
 
 
 def _fields(obj: object, skip: tuple[str, ...] = ()) -> dict:
@@ -102,10 +152,9 @@ def _camera(camera: M.Camera) -> dict:
     return _fields(camera)
 
 
-def _material(material: M.Material) -> dict:
+def _material(material: M.Material, key: str) -> dict:
     if not isinstance(material, M.Material):
-        raise SceneError(None, "materials", f"expected a Material, got "
-                         f"{type(material).__name__}")
+        raise SceneError(None, key, f"expected a Material, got {type(material).__name__}")
     spec = _fields(material, skip=("name", "texture"))
     texture = material.texture
     if texture is not None:
@@ -116,7 +165,8 @@ def _material(material: M.Material) -> dict:
 
 
 def _texture(texture: M.Texture) -> dict:
-    if texture.kind == "checker":
+    # Any kind but a string goes to the loader as it is (an array's == would not be a bool).
+    if isinstance(texture.kind, str) and texture.kind == "checker":
         return {"type": "checker", **_fields(texture, skip=(
             "kind", "file", "repeat", "colorspace", "image"))}
     return {"type": texture.kind, "repeat": _plain(texture.repeat), "blend": texture.blend,
@@ -137,7 +187,7 @@ def _image_source(image: M.Texture | M.Background) -> dict:
 
 
 def _background(background: M.Background) -> dict:
-    if background.kind == "gradient":
+    if isinstance(background.kind, str) and background.kind == "gradient":
         return {"type": "gradient", "bottom": _plain(background.bottom),
                 "top": _plain(background.top)}
     return {"type": background.kind, **_image_source(background)}
@@ -154,10 +204,9 @@ def _light(light: M.Light, i: int) -> dict:
 
 def _instance(obj: M.Instance, key: str, names: list[str],
               groups: dict[int, tuple[str, M.Group]]) -> dict:
-    matrix = np.asarray(obj.matrix, dtype=np.float64)
-    if matrix.shape != (3, 4):
-        raise SceneError(None, f"{key}.matrix", f"expected a (3, 4) array, got shape "
-                         f"{matrix.shape}")
+    # Numbers only, by the loader's array check: np.asarray(..., float64) would turn strings,
+    # booleans and complex numbers into numbers, and fail on ragged or cyclic lists.
+    matrix = Values(None).array(obj.matrix, f"{key}.matrix", (3, 4))
     spec = {"type": "instance", "group": groups[id(obj.group)][0],
             "transform": {"matrix": [*_plain(matrix), [0.0, 0.0, 0.0, 1.0]]}}
     if obj.material is not None:

@@ -25,7 +25,7 @@ from typing import Any
 from clray.errors import SceneError
 from clray.scene import limits as L
 from clray.scene.files import UnreadableFile
-from clray.scene.values import show
+from clray.scene.values import show, string_keys
 
 _KEYS = ("include", "render", "camera", "materials", "groups", "lights", "objects", "animation")
 _NAMED = ("materials", "groups")  # tables merged by name
@@ -88,7 +88,7 @@ def _merge(data: Any, path: Path | None, chain: tuple[Path, ...], merged: dict, 
            top_dir: Path, read: Callable[[Path], Any]) -> None:
     if not isinstance(data, dict):
         raise SceneError(path, None, f"expected a table at the top level, got {show(data)}")
-    for key in data:
+    for key in string_keys(data, path, None):
         if key not in _KEYS:
             raise SceneError(path, key, f"unknown key (expected one of: {', '.join(_KEYS)})")
     folder = (path or Path("scene")).resolve().parent
@@ -129,6 +129,7 @@ def _merge_tables(data: dict, own: dict, path: Path | None, merged: dict,
         value = data.get(table, {})
         if not isinstance(value, dict):
             raise SceneError(path, table, f"expected a table, got {show(value)}")
+        string_keys(value, path, table)  # materials' and groups' names key the origins
     for table in _NAMED:
         defined = getattr(origins, table)
         for name, spec in own.get(table, {}).items():

@@ -79,9 +79,18 @@ def number_problem(value: object, low: float, high: float) -> str | None:
     return None
 
 
+def is_choice(value: object, allowed: tuple) -> bool:
+    """Whether `value` is one of `allowed`. Only a value of an allowed value's kind (any
+    integer for an integer) is compared: `in` compares a numpy array element by element, so
+    that one of two elements failed on its truth value and one of one element passed."""
+    kinds = tuple({numbers.Integral if isinstance(a, numbers.Integral) else type(a)
+                   for a in allowed})
+    return isinstance(value, kinds) and not isinstance(value, bool) and value in allowed
+
+
 def choice_problem(value: object, allowed: tuple) -> str | None:
     """What is wrong with `value` as one of `allowed` (None if nothing)."""
-    if isinstance(value, bool) or value not in allowed:
+    if not is_choice(value, allowed):
         return f"expected {' or '.join(map(str, allowed))}"
     return None
 
@@ -96,6 +105,9 @@ MAX_LIGHT_AREA = 1e30
 # 350 bytes a triangle that load, BVH and pack peak at (docs/scale.md); primitive
 # references index 2^28.
 MAX_TRIANGLES = 2**25
+# A mesh given as arrays (inline, or a .npz file): three vertices a triangle of the limit
+# above, as many as its faces could ever use. Checked before the arrays are converted.
+MAX_MESH_VERTICES = 3 * MAX_TRIANGLES
 MAX_BULK_SPHERES = 2**24  # all `spheres` objects together
 MAX_ARRAY_BYTES = 256 * 2**20  # a .npy/.npz file of spheres
 MAX_TEXTURE_SIDE = 16384

@@ -12,8 +12,11 @@ from __future__ import annotations
 
 import copy
 import dataclasses
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
+
+import numpy as np
 
 from clray.errors import SceneError, plural
 from clray.host_memory import small_pages
@@ -23,7 +26,7 @@ from clray.scene.assets import Assets
 from clray.scene.emitters import emissive_triangles
 from clray.scene.files import UnreadableFile, read_regular
 from clray.scene.include import expand_includes
-from clray.scene.model import Scene
+from clray.scene.model import Background, Instance, Mesh, Scene, Spheres
 from clray.scene.parse import parse_scene_text
 from clray.scene.parse_camera import parse_camera
 from clray.scene.parse_lights import parse_light
@@ -126,8 +129,32 @@ def _scene(data: Any, v: Values, assets: Assets) -> tuple[Scene, Animation | Non
     scene = dataclasses.replace(scene, warnings=(*assets.warnings, *content_warnings(scene),
                                                  *scene_warnings(scene)))
     object.__setattr__(scene, "checked", True)  # frozen: the one field the loader sets
+    # A checked scene is not checked again, so its arrays must not change after this check:
+    # none is the caller's own (each is a copy, or a file's), and none can be written.
+    for array in _arrays(scene):
+        array.setflags(write=False)
     animation = _animation(data, v, assets) if "animation" in data else None
     return scene, animation
+
+
+def _arrays(scene: Scene) -> Iterator[np.ndarray]:
+    """Every numpy array a scene holds: texels, mesh, spheres and instance arrays (a group's
+    once, however many instances place it)."""
+    images = [m.texture.image for m in scene.materials if m.texture is not None]
+    if isinstance(scene.render.background, Background):
+        images.append(scene.render.background.image)
+    yield from (image for image in images if image is not None)
+    objects = list(scene.objects)
+    seen: set[int] = set()  # groups, by identity
+    while objects:
+        obj = objects.pop()
+        if isinstance(obj, Mesh | Spheres):
+            yield from (value for value in vars(obj).values() if isinstance(value, np.ndarray))
+        elif isinstance(obj, Instance):
+            yield obj.matrix
+            if id(obj.group) not in seen:
+                seen.add(id(obj.group))
+                objects.extend(obj.group.objects)
 
 
 def content_warnings(scene: Scene) -> tuple[str, ...]:

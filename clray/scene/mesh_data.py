@@ -8,6 +8,7 @@ from typing import Any
 import numpy as np
 
 from clray.errors import plural
+from clray.scene import limits as L
 from clray.scene.obj import ObjMesh
 from clray.scene.values import Values, show
 from clray.vectors import unit
@@ -37,17 +38,22 @@ def vertex_values(v: Values, value: Any, key: str, n_vertices: int | None, size:
                   ) -> np.ndarray:
     """Per-vertex positions, normals or (u, v): a row of `size` numbers for each vertex,
     from a list of lists (scene files: each row checked as any other numbers) or an array
-    (Python: checked at once)."""
+    (Python: checked at once). n_vertices None: the vertices themselves."""
     if isinstance(value, np.ndarray):
-        a = v.array(value, key, (None, size)).astype(np.float64)
-    elif isinstance(value, list):
-        a = np.array([v.numbers(row, f"{key}[{i}]", size) for i, row in enumerate(value)],
-                     dtype=np.float64).reshape(-1, size)
-    else:
+        value = v.shaped_array(value, key, (None, size))
+    elif not isinstance(value, list):
         raise v.error(key, f"expected a list of {size}-number rows, got {show(value)}")
-    if n_vertices is not None and len(a) != n_vertices:
-        raise v.error(key, f"expected one row per vertex ({n_vertices}), got {len(a)}")
-    return a
+    # The count first: an array from Python may be of any size, and is read and copied below.
+    count = len(value)
+    if n_vertices is None and count > L.MAX_MESH_VERTICES:
+        raise v.error(key, f"{plural(count, 'vertex', 'vertices')} is over the limit of "
+                      f"{L.MAX_MESH_VERTICES} for a mesh")
+    if n_vertices is not None and count != n_vertices:
+        raise v.error(key, f"expected one row per vertex ({n_vertices}), got {count}")
+    if isinstance(value, np.ndarray):
+        return v.array(value, key, (None, size)).astype(np.float64)
+    return np.array([v.numbers(row, f"{key}[{i}]", size) for i, row in enumerate(value)],
+                    dtype=np.float64).reshape(-1, size)
 
 
 def face_indices(v: Values, value: Any, key: str, n_vertices: int) -> np.ndarray:

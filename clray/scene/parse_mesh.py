@@ -16,7 +16,7 @@ from clray.scene.model import Mesh
 from clray.scene.obj import ObjMesh
 from clray.scene.obj_materials import obj_face_materials
 from clray.scene.parse_transform import parse_transform
-from clray.scene.values import Values, show
+from clray.scene.values import Values, rows, show
 from clray.vectors import unit
 
 if TYPE_CHECKING:
@@ -139,4 +139,6 @@ def _mesh_source(spec: dict, key: str, v: Values, assets: Assets) -> ObjMesh:
     for name in ("vertices", "faces"):
         if name not in spec:
             raise v.error(f"{key}.{name}", "missing required key")
+    # Before the arrays are converted: parse_mesh counts them again, taking them.
+    assets.fits_triangles(rows(spec["faces"]), key)
     return mesh_arrays(v, spec, f"{key}.")

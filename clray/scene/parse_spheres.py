@@ -22,9 +22,11 @@ def parse_spheres(spec: dict, key: str, material: int | None, v: Values, assets:
     arrays = _sphere_arrays(spec, key, v, assets)
     if "centers" not in arrays:
         raise v.error(key, "a spheres object needs centers (a file or the centers key)")
-    centers = v.array(arrays["centers"], f"{key}.centers", (None, 3)).astype(np.float64)
+    # Counted by the shape alone, before any pass over (or copy of) the values.
+    centers = v.shaped_array(arrays["centers"], f"{key}.centers", (None, 3))
     n = len(centers)
     assets.take_spheres(n, key)
+    centers = v.array(centers, f"{key}.centers", (None, 3)).astype(np.float64)
     radii = _radii(spec, arrays, key, n, v)
     if material is not None:
         if "material_index" in arrays:

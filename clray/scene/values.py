@@ -40,9 +40,25 @@ def key_path(prefix: str | None, name: str) -> str:
     return f"{prefix}.{shown}" if prefix else shown
 
 
+def string_keys(table: dict, file: Path | None, key: str | None) -> dict:
+    """`table`, if every key is a string: a dict from Python may have keys of any type, which
+    no key path (nor the messages made of them) can name."""
+    for name in table:
+        if not isinstance(name, str):
+            raise SceneError(file, key, f"keys must be strings, got {show(name)}")
+    return table
+
+
 def file_name(name: str) -> str:
     """A file name for a message: as written if plain, else quoted and escaped."""
     return name if _PLAIN_NAME.fullmatch(name) else show(name)
+
+
+def python_number(value: Any) -> Any:
+    """A numpy integer or float scalar (from Python callers) as Python's own, so that
+    np.float32 and np.int64 are numbers as np.float64 (a float subclass) is; anything else
+    as it is."""
+    return value.item() if isinstance(value, np.integer | np.floating) else value
 
 
 def is_number(value: Any) -> bool:
@@ -72,11 +88,12 @@ class Values:
     def table(self, value: Any, key: str) -> dict:
         if not isinstance(value, dict):
             raise self.error(key, f"expected a table, got {show(value)}")
-        return value
+        return string_keys(value, self.path, key)
 
     def keys(
         self, table: dict, key: str | None, allowed: tuple[str, ...], required: tuple[str, ...]
     ) -> None:
+        string_keys(table, self.path, key)
         for name in table:
             if name not in allowed:
                 expected = ", ".join(allowed)
@@ -104,6 +121,7 @@ class Values:
         return [self.table(item, f"{key}[{i}]") for i, item in enumerate(value)]
 
     def number(self, value: Any, key: str, limit: float = L.MAX_MAGNITUDE) -> float:
+        value = python_number(value)
         if not is_number(value):
             raise self.error(key, f"expected a number, got {show(value)}")
         problem = out_of_range(value, limit)
@@ -112,6 +130,7 @@ class Values:
         return float(value)
 
     def bounded(self, value: Any, key: str, low: float, high: float = L.MAX_MAGNITUDE) -> float:
+        value = python_number(value)  # shown as a number below, not as its numpy type
         x = self.number(value, key)
         if x < low:
             raise self.error(key, f"must be >= {low:g}, got {show(value)}")
@@ -121,6 +140,7 @@ class Values:
 
     def length(self, value: Any, key: str) -> float:
         """A strictly positive length, within float32's normal range."""
+        value = python_number(value)  # shown as a number below, not as its numpy type
         x = self.number(value, key)
         if x <= 0:
             raise self.error(key, f"must be > 0, got {show(value)}")
@@ -129,18 +149,21 @@ class Values:
         return x
 
     def open_range(self, value: Any, key: str, low: float, high: float) -> float:
+        value = python_number(value)  # shown as a number below, not as its numpy type
         x = self.number(value, key)
         if not low < x < high:
             raise self.error(key, f"must be in ({low:g}, {high:g}), got {show(value)}")
         return x
 
     def closed_range(self, value: Any, key: str, low: float, high: float) -> float:
+        value = python_number(value)  # shown as a number below, not as its numpy type
         x = self.number(value, key)
         if not low <= x <= high:
             raise self.error(key, f"must be in [{low:g}, {high:g}], got {show(value)}")
         return x
 
     def integer(self, value: Any, key: str, low: int, high: int) -> int:
+        value = python_number(value)  # shown as a number below, not as its numpy type
         problem = L.integer_problem(value, low, high)
         if problem:
             raise self.error(key, f"{problem}, got {show(value)}")
@@ -152,10 +175,10 @@ class Values:
         return value
 
     def choice(self, value: Any, key: str, allowed: tuple) -> Any:
-        if isinstance(value, bool) or value not in allowed:
+        if not L.is_choice(value, allowed):
             expected = " or ".join(show(v) for v in allowed)
             raise self.error(key, f"expected {expected}, got {show(value)}")
-        return value
+        return allowed[allowed.index(value)]  # a numpy integer or string as Python's own
 
     def string(self, value: Any, key: str) -> str:
         if not isinstance(value, str):
@@ -165,11 +188,10 @@ class Values:
     def numbers(
         self, value: Any, key: str, n: int, limit: float = L.MAX_MAGNITUDE
     ) -> tuple[float, ...]:
-        if (
-            not isinstance(value, list | tuple)
-            or len(value) != n
-            or not all(is_number(v) for v in value)
-        ):
+        if not isinstance(value, list | tuple) or len(value) != n:
+            raise self.error(key, f"expected {plural(n, 'number')}, got {show(value)}")
+        value = [python_number(v) for v in value]
+        if not all(is_number(v) for v in value):
             raise self.error(key, f"expected {plural(n, 'number')}, got {show(value)}")
         for v in value:
             problem = out_of_range(v, limit)
@@ -217,6 +239,21 @@ class Values:
               integer: bool = False) -> np.ndarray:
         """A numeric array (numpy, or nested lists) of `shape` (None: any length), with finite
         values within MAX_MAGNITUDE; the first bad row is named in the message."""
+        a = self.shaped_array(value, key, shape, integer)
+        if not integer:
+            bad = ~np.isfinite(a) | (np.abs(a) > L.MAX_MAGNITUDE)
+            if bad.any():
+                row = int(np.argwhere(bad)[0][0])
+                raise self.error(f"{key}[{row}]", f"must be finite and at most "
+                                 f"{L.MAX_MAGNITUDE:g} in magnitude, got {show(a[row].tolist())}")
+        return a
+
+    def shaped_array(self, value: Any, key: str, shape: tuple[int | None, ...],
+                     integer: bool = False) -> np.ndarray:
+        """`value` as an array of `shape` and a numeric type, its values not yet looked at: a
+        caller checks its size against a limit here, before array() passes over the values
+        (with temporaries as large) and anything copies them. A numpy array is not copied
+        (np.broadcast_to makes one of any size that takes no memory)."""
         try:
             a = np.asarray(value)
         except (ValueError, TypeError):
@@ -228,10 +265,14 @@ class Values:
             noun = "integer" if integer else "number"
             what = f"{shown} {noun}" if shown == "1" else f"{shown} {noun}s"
             raise self.error(key, f"expected an array of {what}, got {show(value)}")
-        if not integer:
-            bad = ~np.isfinite(a) | (np.abs(a) > L.MAX_MAGNITUDE)
-            if bad.any():
-                row = int(np.argwhere(bad)[0][0])
-                raise self.error(f"{key}[{row}]", f"must be finite and at most "
-                                 f"{L.MAX_MAGNITUDE:g} in magnitude, got {show(a[row].tolist())}")
         return a
+
+
+def rows(value: Any) -> int:
+    """How many rows a list or array has, without converting it (0 for anything else, which
+    its own check refuses)."""
+    if isinstance(value, list):
+        return len(value)
+    if isinstance(value, np.ndarray) and value.ndim:
+        return value.shape[0]
+    return 0

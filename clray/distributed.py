@@ -127,10 +127,32 @@ _packed: dict[tuple, PackedScene] = {}
 _device_lock = threading.Lock()
 
 
+@contextlib.contextmanager
+def _kept_warnings() -> Iterator[list[str]]:
+    """The warnings of a task, kept for its result: the client tells them as the render in one
+    process does (`clray: warning:` lines), where a worker would print them raw on its own
+    stderr, which a local cluster shares with the command's. Compiler output is noise here as
+    there (cli._warnings_as_lines): Intel's runtime reports some at every build."""
+    kept: list[str] = []
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("default")
+        warnings.simplefilter("ignore", cl.CompilerWarning)
+        try:
+            yield kept
+        finally:
+            kept.extend(str(w.message) for w in caught)
+
+
+def _tell(messages: Iterable[str]) -> None:
+    """A task's kept warnings, warned again here, in the client."""
+    for message in messages:
+        warnings.warn(message, stacklevel=3)
+
+
 def _render_tile(scene: Scene, scene_key: str, settings: RenderSettings, start: int,
                  stop: int) -> dict:
     started = time.perf_counter()
-    with _device_lock:
+    with _device_lock, _kept_warnings() as kept:
         device = select_device(settings.device)
         key = (scene_key, settings, describe(device))
         packs = key not in _packed
@@ -144,16 +166,16 @@ def _render_tile(scene: Scene, scene_key: str, settings: RenderSettings, start: 
     return {"start": start, "rows": stop - start, "image": image, "stats": stats,
             "packed": packs, "pack_s": pack_s if packs else 0.0,
             "bvh_s": packed.bvh_s if packs else 0.0, "device": describe(device),
-            "worker": f"{socket.gethostname()}:{os.getpid()}",
+            "worker": f"{socket.gethostname()}:{os.getpid()}", "warnings": kept,
             "task_s": time.perf_counter() - started}
 
 
 def _render_frame(sequence: Sequence, frame: int, settings: RenderSettings) -> dict:
     started = time.perf_counter()
-    with _device_lock:
+    with _device_lock, _kept_warnings() as kept:
         result = render(sequence.scene(frame), settings)
     return {"frame": frame, "result": result, "worker": f"{socket.gethostname()}:{os.getpid()}",
-            "task_s": time.perf_counter() - started}
+            "warnings": kept, "task_s": time.perf_counter() - started}
 
 
 # -- on the client -----------------------------------------------------------------------
@@ -223,6 +245,7 @@ def render_still(client: Client, scene: Scene, settings: RenderSettings | None =
     rows_done = 0
     for _, tile in done:
         image[tile["start"]:tile["start"] + tile["rows"]] = tile.pop("image")
+        _tell(tile.pop("warnings"))
         tiles.append(tile)
         rows_done += tile["rows"]
         if settings.progress is not None:
@@ -299,6 +322,7 @@ def render_sequence(client: Client, sequence: Sequence, frames: Iterable[int],
     result_bytes = 0
     task_s = 0.0
     for _, out in distributed.as_completed(tasks, with_results=True):
+        _tell(out["warnings"])
         by_worker[out["worker"]] = by_worker.get(out["worker"], 0) + 1
         result_bytes += out["result"].image.nbytes
         task_s += out["task_s"]

@@ -13,6 +13,7 @@ import socket
 import subprocess
 import sys
 import time
+import warnings
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -299,3 +300,27 @@ def test_cli_study_on_a_local_cluster(cl_device, tmp_path):
     assert len({r["worker"] for r in records}) == 1
     assert cli.main(["study", str(SPHERES), "--out", str(tmp_path), "--dask",
                      "tcp://127.0.0.1:1", "--dask-workers", "2"]) == 2
+
+
+@needs_dask
+def test_a_tasks_warnings_go_back_to_the_client_and_compiler_output_nowhere(monkeypatch):
+    # A worker printed them raw on its own stderr, which a local cluster shares with the
+    # command: Intel's runtime's compiler output broke the one error line of a failed frame.
+    import pyopencl as cl
+
+    from clray import distributed
+
+    def warning_render(scene: object, settings: object) -> str:
+        warnings.warn("the scene's own warning", stacklevel=1)
+        warnings.warn("build output", cl.CompilerWarning, stacklevel=1)
+        return "rendered"
+
+    monkeypatch.setattr(distributed, "render", warning_render)
+    frames = SimpleNamespace(scene=lambda frame: frame)
+    with warnings.catch_warnings(record=True) as escaped:
+        warnings.simplefilter("always")
+        out = distributed._render_frame(frames, 3, RenderSettings())  # type: ignore[arg-type]
+    assert out["result"] == "rendered" and escaped == []
+    assert out["warnings"] == ["the scene's own warning"]
+    with pytest.warns(UserWarning, match="^the scene's own warning$"):
+        distributed._tell(out["warnings"])

@@ -20,7 +20,7 @@ import struct
 import sys
 import time
 import warnings
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
 from typing import Any, NoReturn
 
@@ -974,6 +974,16 @@ def _render_frames(args: argparse.Namespace, started: float) -> int:
     return EXIT_OK
 
 
+def _check_out_folder(out: Path, names: Iterable[str]) -> None:
+    """`clray study`'s and `clray tune`'s --out, before minutes of work: a folder, made where
+    missing (and taken back if the command fails before writing in it), that takes each file
+    of `names`, with no folder where one of them goes."""
+    if out.exists() and not out.is_dir():
+        raise ClrayError(f"--out {out} exists and is not a directory")
+    for name in names:
+        _check_writable(out / name)
+
+
 def _study(args: argparse.Namespace) -> int:
     from clray.study import run_study  # matplotlib and friends only when studying
 
@@ -981,12 +991,8 @@ def _study(args: argparse.Namespace) -> int:
     if problem is not None:
         _say(f"error: {problem}")
         return EXIT_USAGE
-    if args.out.exists() and not args.out.is_dir():
-        raise ClrayError(f"--out {args.out} exists and is not a directory")
-    # The folder made (and taken back if the study fails) and shown writable before the work,
-    # and no folder where a file of the study's will go.
-    for name in ("results.json", "report.md", *(f"{path.stem}.png" for path in args.scenes)):
-        _check_writable(args.out / name)
+    _check_out_folder(args.out, ("results.json", "report.md",
+                                 *(f"{path.stem}.png" for path in args.scenes)))
     study = functools.partial(run_study, args.scenes, args.out, repeat=args.repeat,
                               width=args.width, height=args.height, device=args.device,
                               say=(lambda _: None) if args.quiet else _say)
@@ -1038,11 +1044,7 @@ def _tune(args: argparse.Namespace) -> int:
     check_strategy(args.strategy)
     from clray.tuning.command import run_tune
 
-    if args.out.exists() and not args.out.is_dir():
-        raise ClrayError(f"--out {args.out} exists and is not a directory")
-    # Made (and taken back if the tuning fails before writing in it) and shown writable before
-    # minutes of tuning.
-    _check_writable(args.out / "report.md")
+    _check_out_folder(args.out, ("report.md",))  # run_tune checks its other files' names
     with _warnings_as_lines(quiet=args.quiet, verbose=False):
         run_tune(args.scenes, args.out, device=args.device, strategy=args.strategy,
                  budget_s=args.budget, allow_error=args.allow_error,

@@ -29,6 +29,15 @@ import pyopencl as cl
 from clray import __version__
 from clray.denoise import check_denoiser
 from clray.device.context import default_device, list_devices
+from clray.distributed import (
+    CONNECT_TIMEOUT_S,
+    LOCAL_WORKERS,
+    connect,
+    import_distributed,
+    render_sequence,
+    render_still,
+    study_scenes,
+)
 from clray.errors import (
     EXIT_OK,
     EXIT_RUNTIME,
@@ -395,10 +404,11 @@ def _dask_flags(group: Any, dask_help: str) -> None:
     """--dask, --dask-workers and --dask-timeout (docs/distributed.md)."""
     group.add_argument("--dask", nargs="?", const="", metavar="ADDRESS", help=dask_help)
     group.add_argument("--dask-workers", type=_int_in(1, 256), metavar="N",
-                       help="worker processes of the local cluster (default: 2)")
+                       help=f"worker processes of the local cluster (default: {LOCAL_WORKERS})")
     # Default None, not 10: a flag of --dask's given without it is refused, and so must be seen.
     group.add_argument("--dask-timeout", type=_number_in(0.1, 3600), metavar="S",
-                       help="seconds to wait for the scheduler (default: 10)")
+                       help="seconds to wait for the scheduler "
+                            f"(default: {CONNECT_TIMEOUT_S:g})")
 
 
 def _model_flags(parser: argparse.ArgumentParser) -> None:
@@ -793,7 +803,6 @@ def _render(args: argparse.Namespace) -> int:
     if args.denoise:
         check_denoiser()  # before any work: says how to install the binding where it is missing
     if args.dask is not None:
-        from clray.distributed import import_distributed
 
         import_distributed()  # before any work: says how to install Dask where it is missing
     if args.frames is not None:
@@ -815,7 +824,6 @@ def _render(args: argparse.Namespace) -> int:
                 del scene
                 result = render(hand_over.pop, settings)
             else:
-                from clray.distributed import render_still
 
                 with _cluster(args) as client:
                     result = render_still(client, scene, settings, on_tile=getattr(
@@ -891,7 +899,6 @@ def _settings(args: argparse.Namespace, progress: Callable[[int, int], None] | N
 
 
 def _cluster(args: argparse.Namespace) -> contextlib.AbstractContextManager:
-    from clray.distributed import CONNECT_TIMEOUT_S, LOCAL_WORKERS, connect
 
     return connect(args.dask or None, workers=args.dask_workers or LOCAL_WORKERS,
                    timeout=args.dask_timeout or CONNECT_TIMEOUT_S)
@@ -953,7 +960,6 @@ def _render_frames(args: argparse.Namespace, started: float) -> int:
                 dask_stats = None
                 render_frames(sequence, todo, settings, done)
             else:
-                from clray.distributed import render_sequence
 
                 with _cluster(args) as client:
                     dask_stats = render_sequence(client, sequence, todo, settings, done)
@@ -999,7 +1005,6 @@ def _study(args: argparse.Namespace) -> int:
     if args.dask is None:
         records = study()
     else:
-        from clray.distributed import import_distributed, study_scenes
 
         import_distributed()
         with _cluster(args) as client:
@@ -1108,7 +1113,13 @@ def _tuned(spec: str) -> str:
 
 
 def _devices(args: argparse.Namespace) -> int:
-    _, default_spec, why = default_device()
+    # A CLRAY_DEVICE or PYOPENCL_CTX that names no device is what a user runs `clray devices`
+    # to mend: the list still comes, the error after it.
+    problem: ClrayError | None = None
+    try:
+        _, default_spec, why = default_device()
+    except ClrayError as err:
+        problem, default_spec, why = err, "", ""
     rows = [(d.spec, d.type, d.name, d.platform, f"{d.compute_units} CU",
              f"fp64 {'yes' if d.fp64 else 'no'}", f"driver {d.driver_version}", _tuned(d.spec),
              f"renders by default ({why})" if d.spec == default_spec else "")
@@ -1116,6 +1127,9 @@ def _devices(args: argparse.Namespace) -> int:
     widths = [max(len(row[i]) for row in rows) for i in range(len(rows[0]))]
     for row in rows:
         print("  ".join(cell.ljust(w) for cell, w in zip(row, widths, strict=True)).rstrip())
+    if problem is not None:
+        _say(f"error: {problem}")
+        return problem.exit_code
     return EXIT_OK
 
 

@@ -378,6 +378,18 @@ def test_devices_lists_one_line_per_device(capsys, cl_device) -> None:
     assert any(cl_device.name.strip() in line for line in lines)
 
 
+def test_devices_still_lists_where_clray_device_names_none(capsys, cl_device,
+                                                           monkeypatch) -> None:
+    """A bad CLRAY_DEVICE is what `clray devices` is run to mend: the list, then the error."""
+    monkeypatch.setenv("CLRAY_DEVICE", "no-such-device")
+    code, out, err = run(capsys, "devices")
+    assert code == 4
+    assert_one_error_line(err)
+    assert "no-such-device" in err
+    assert any(cl_device.name.strip() in line for line in out.splitlines())
+    assert "renders by default" not in out
+
+
 def test_python_dash_m_clray(cl_device, scene, tmp_path) -> None:
     done = subprocess.run([sys.executable, "-m", "clray", "render", str(scene), *TINY,
                            "-o", "sub.png"], capture_output=True, text=True, cwd=tmp_path,

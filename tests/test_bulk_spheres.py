@@ -129,17 +129,24 @@ def test_numpy_arrays_from_python() -> None:
      "objects[1].file: flat.npy: expected an (N, 3) or (N, 4) array, got shape (6,)"),
     ('file = "x.npz"\nradius = 1\n', {"x.npz": {"centres": np.zeros((1, 3))}},
      "objects[1].file: x.npz holds centres (expected centers, radii, material_index)"),
+    # np.load goes by a file's first bytes, not its name: each kind named as the other.
+    ('file = "a.npz"\nradius = 1\n', {"a.npz": np.zeros((1, 3))},
+     "objects[1].file: cannot read a.npz: not a .npz file"),
+    ('file = "z.npy"\nradius = 1\n', {"z.npy": {"centers": np.zeros((1, 3))}},
+     "objects[1].file: cannot read z.npy: not a .npy file"),
 ])
 def test_errors_name_the_key(tmp_path: Path, spec: str, files: dict, message: str) -> None:
     for name, content in files.items():
         if isinstance(content, bytes):
             (tmp_path / name).write_bytes(content)
         elif isinstance(content, dict):
-            np.savez(tmp_path / name, **content)
+            with (tmp_path / name).open("wb") as file:  # np.savez would add .npz to z.npy
+                np.savez(file, **content)
         elif isinstance(content, str):  # a pickled object array: never unpickled
             np.save(tmp_path / name, np.array([{"a": 1}], dtype=object), allow_pickle=True)
         else:
-            np.save(tmp_path / name, content)
+            with (tmp_path / name).open("wb") as file:  # np.save would add .npy to a.npz
+                np.save(file, content)
     path = write(tmp_path, "s.toml", HEAD + '[[objects]]\ntype = "spheres"\n' + spec)
     with pytest.raises(SceneError) as info:
         load_scene(path)
@@ -172,3 +179,42 @@ def test_mesh_npz_errors_name_the_array(tmp_path: Path) -> None:
         load_scene(path)
     assert str(info.value) == ("s.toml: objects[1].file: m.npz: faces[0]: index 3 out of range "
                                "(0-based, 3 vertices)")
+
+
+def test_a_mesh_npy_named_npz_is_refused_in_one_line(tmp_path: Path) -> None:
+    with (tmp_path / "m.npz").open("wb") as file:
+        np.save(file, np.zeros((3, 3)))
+    path = write(tmp_path, "s.toml", HEAD + '[[objects]]\ntype = "mesh"\nfile = "m.npz"\n')
+    with pytest.raises(SceneError) as info:
+        load_scene(path)
+    assert str(info.value).startswith("s.toml: objects[1].file: cannot read m.npz: not a .npz "
+                                      "file")
+
+
+def test_a_compressed_npz_is_sized_before_it_is_inflated(tmp_path: Path, monkeypatch) -> None:
+    """A few hundred kilobytes of zip hold a faces array over the triangle limit, and spheres
+    over the byte limit: refused from the headers, with no array inflated."""
+    from clray.scene import assets, limits
+
+    faces = np.zeros((limits.MAX_TRIANGLES + 1, 3), np.int32)
+    np.savez_compressed(tmp_path / "m.npz", vertices=np.zeros((3, 3)), faces=faces)
+    np.savez_compressed(tmp_path / "s.npz",
+                        centers=np.zeros((limits.MAX_ARRAY_BYTES // 24 + 1, 3)))
+    del faces
+    assert (tmp_path / "m.npz").stat().st_size < limits.MAX_ARRAY_BYTES // 100
+
+    def never(*args: object, **kwargs: object) -> None:
+        raise AssertionError("an array was inflated")
+
+    monkeypatch.setattr(assets, "npz_arrays", never)
+    mesh = write(tmp_path, "m.toml", HEAD + '[[objects]]\ntype = "mesh"\nfile = "m.npz"\n')
+    with pytest.raises(SceneError) as info:
+        load_scene(mesh)
+    assert f"{limits.MAX_TRIANGLES + 1} triangles is over what is left" in str(info.value)
+    spheres = write(tmp_path, "s.toml",
+                    HEAD + '[[objects]]\ntype = "spheres"\nfile = "s.npz"\nradius = 1\n')
+    with pytest.raises(SceneError) as info:
+        load_scene(spheres)
+    assert str(info.value).startswith("s.toml: objects[1].file: cannot read s.npz: its arrays "
+                                      f"take {(limits.MAX_ARRAY_BYTES // 24 + 1) * 24} bytes "
+                                      f"inflated, over the limit of {limits.MAX_ARRAY_BYTES}")

@@ -29,7 +29,7 @@ from clray.scene.mtl import MtlLibrary, parse_mtl
 from clray.scene.obj import ObjMesh, parse_obj
 from clray.scene.ply import read_ply
 from clray.scene.texture import TextureError, read_texture
-from clray.scene.values import Values, file_name, rows
+from clray.scene.values import Values, file_name
 
 # What a `spheres` object's .npz may hold (a .npy holds centers, or centers and radii).
 SPHERE_ARRAYS = ("centers", "radii", "material_index")
@@ -218,18 +218,21 @@ class Assets:
         """A mesh from a .npz of arrays: vertices (V, 3), faces (F, 3, 0-based), and optionally
         normals (V, 3) and uvs (V, 2); checked as inline arrays are."""
         try:
-            loaded = np.load(io.BytesIO(data), allow_pickle=False)
-            arrays = {n: loaded[n] for n in loaded.files}
-        except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
+            headers = npz_headers(data, L.mesh_bytes_limit(".npz"))
+        except ValueError as exc:
             raise self.values.error(key, f"cannot read {file_name(name)}: {exc}") from None
         known = ("vertices", "faces", "normals", "uvs", "colors")
-        unknown = sorted(set(arrays) - set(known))
-        if unknown or "vertices" not in arrays or "faces" not in arrays:
+        unknown = sorted(set(headers) - set(known))
+        if unknown or "vertices" not in headers or "faces" not in headers:
             raise self.values.error(
-                key, f"{file_name(name)} holds {', '.join(sorted(arrays)) or 'nothing'} "
+                key, f"{file_name(name)} holds {', '.join(sorted(headers)) or 'nothing'} "
                 f"(expected vertices, faces and optionally normals, uvs, colors)")
-        # Before the arrays are converted (parse_mesh counts them again, taking them).
-        self.fits_triangles(rows(arrays["faces"]), key)
+        # From the header, before the faces are inflated (parse_mesh counts them again).
+        self.fits_triangles(headers["faces"][0] if headers["faces"] else 0, key)
+        try:
+            arrays = npz_arrays(data)
+        except ValueError as exc:
+            raise self.values.error(key, f"cannot read {file_name(name)}: {exc}") from None
         # Errors name the array.
         return mesh_arrays(self.values, arrays, f"{key}: {file_name(name)}: ")
 
@@ -259,15 +262,14 @@ class Assets:
         with stream:
             try:
                 data = read_at_most(stream, L.MAX_ARRAY_BYTES)
-                loaded = np.load(io.BytesIO(data), allow_pickle=False)
                 if suffix == ".npy":
-                    return self.npy_spheres(loaded, fkey, name)
-                unknown = sorted(set(loaded.files) - set(SPHERE_ARRAYS))
+                    return self.npy_spheres(npy_array(data), fkey, name)
+                unknown = sorted(set(npz_headers(data, L.MAX_ARRAY_BYTES)) - set(SPHERE_ARRAYS))
                 if unknown:
                     raise v.error(fkey, f"{file_name(name)} holds {', '.join(unknown)} "
                                   f"(expected {', '.join(SPHERE_ARRAYS)})")
-                return {n: loaded[n] for n in loaded.files}
-            except (UnreadableFile, OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
+                return npz_arrays(data)
+            except (UnreadableFile, ValueError) as exc:
                 raise v.error(fkey, f"cannot read {file_name(name)}: {exc}") from None
 
     def npy_spheres(self, array: np.ndarray, key: str, name: str) -> dict[str, Any]:
@@ -286,3 +288,59 @@ class Assets:
                 key, f"{plural(count, 'sphere')} is over what is left ({self.spheres_left}) of the "
                 f"limit of {L.MAX_BULK_SPHERES} spheres for all spheres objects")
         self.spheres_left -= count
+
+
+# -- numpy files --------------------------------------------------------------------------
+# np.load picks a file's kind by its first bytes, whatever its name: a .npy named .npz gives an
+# array, a .npz named .npy a mapping. These read one kind each, and refuse the other.
+
+_NPY_MAGIC = b"\x93NUMPY"
+
+
+def npy_array(data: bytes) -> np.ndarray:
+    """The array of a .npy file's bytes; ValueError if they are not one."""
+    if not data.startswith(_NPY_MAGIC):
+        raise ValueError("not a .npy file (it lacks numpy's header)")
+    try:
+        return np.load(io.BytesIO(data), allow_pickle=False)
+    except (OSError, EOFError) as exc:
+        raise ValueError(str(exc)) from None
+
+
+def npz_headers(data: bytes, max_bytes: int) -> dict[str, tuple[int, ...]]:
+    """Each array's shape in a .npz file's bytes, from its .npy header alone; ValueError if
+    they are not a .npz, or if its arrays would take more than `max_bytes` once inflated: a
+    compressed .npz of a few megabytes can hold gigabytes of zeros."""
+    total = 0
+    shapes = {}
+    try:
+        with zipfile.ZipFile(io.BytesIO(data)) as archive:
+            for member in archive.infolist():
+                with archive.open(member) as stream:
+                    shape, dtype = _npy_header(stream)
+                shapes[member.filename.removesuffix(".npy")] = shape
+                total += int(np.prod(shape, dtype=object)) * dtype.itemsize
+    except (zipfile.BadZipFile, zipfile.LargeZipFile, EOFError, OSError) as exc:
+        raise ValueError(f"not a .npz file ({exc})") from None
+    if total > max_bytes:
+        raise ValueError(f"its arrays take {total} bytes inflated, over the limit of "
+                         f"{max_bytes}")
+    return shapes
+
+
+def _npy_header(stream: BinaryIO) -> tuple[tuple[int, ...], np.dtype]:
+    version = np.lib.format.read_magic(stream)
+    if version == (1, 0):
+        shape, _, dtype = np.lib.format.read_array_header_1_0(stream)
+    else:
+        shape, _, dtype = np.lib.format.read_array_header_2_0(stream)
+    return shape, dtype
+
+
+def npz_arrays(data: bytes) -> dict[str, np.ndarray]:
+    """A .npz file's arrays by name, once npz_headers has checked their size."""
+    try:
+        with np.load(io.BytesIO(data), allow_pickle=False) as loaded:
+            return {n: loaded[n] for n in loaded.files}
+    except (OSError, EOFError, zipfile.BadZipFile) as exc:
+        raise ValueError(str(exc)) from None

@@ -15,7 +15,7 @@ import threading
 
 import numpy as np
 
-from clray.errors import ClrayError
+from clray.errors import ClrayError, SettingsError
 
 DENOISE_GUIDES = ("albedo", "normal")  # the passes that guide OIDN's RT filter
 DENOISE_MISSING = "denoising needs Open Image Denoise's binding: pip install 'clray[denoise]'"
@@ -75,7 +75,7 @@ def _guide(pyoidn, name: str, values: np.ndarray | None, shape: tuple[int, ...],
         return None
     values = np.asarray(values)
     if values.shape != shape:
-        raise ValueError(f"the {name} pass has shape {values.shape}; the image has {shape}")
+        raise SettingsError(f"the {name} pass has shape {values.shape}; the image has {shape}")
     guide = np.clip(np.nan_to_num(values.astype(np.float32), nan=0.0, posinf=0.0, neginf=0.0),
                     low, 1.0)
     clean = np.empty_like(guide)
@@ -99,13 +99,14 @@ def denoise(image: np.ndarray, albedo: np.ndarray | None = None,
     of the same shape, each denoised first; OIDN takes the normal only with the albedo. A
     non-finite value of the image counts as black, as in a PNG (docs/rendering.md): a neural
     filter would spread one NaN over its whole neighbourhood. Raises ClrayError naming the extra
-    when the binding is missing, ValueError for shapes that do not match."""
+    when the binding is missing, SettingsError (a ValueError) for shapes that do not
+    match."""
     pyoidn = _binding()
     image = np.asarray(image)
     if image.ndim != 3 or image.shape[2] != 3 or 0 in image.shape:
-        raise ValueError(f"expected an (H, W, 3) image, got shape {image.shape}")
+        raise SettingsError(f"expected an (H, W, 3) image, got shape {image.shape}")
     if normal is not None and albedo is None:
-        raise ValueError("Open Image Denoise takes the normal pass only with the albedo pass")
+        raise SettingsError("Open Image Denoise takes the normal pass only with the albedo pass")
     # HDR colour must be finite and non-negative for the filter.
     colour = np.clip(np.nan_to_num(image.astype(np.float32), nan=0.0, posinf=0.0, neginf=0.0),
                      0.0, None)

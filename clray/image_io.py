@@ -255,6 +255,9 @@ def read_pfm(path: str | Path) -> np.ndarray:
         scale = float(stream.readline().strip())
     except ValueError as err:
         raise ValueError(f"{Path(path).name}: not a PFM header") from err
+    if width < 1 or height < 1:
+        raise ValueError(f"{Path(path).name}: expected a positive width and height, got {width}x"
+                         f"{height}")
     if kind != b"PF":
         raise ValueError(f"{Path(path).name}: expected a colour PFM ('PF'), got {kind[:8]!r}")
     dtype = "<f4" if scale < 0 else ">f4"

@@ -80,9 +80,9 @@ def test_non_finite_pixels_count_as_black() -> None:
 def test_mismatched_passes_are_refused() -> None:
     pytest.importorskip("pyoidn")
     clean, albedo, normal = _clean_scene()
-    with pytest.raises(ValueError, match="albedo pass has shape"):
+    with pytest.raises(SettingsError, match="albedo pass has shape"):
         denoise(clean, albedo[:-1], normal)
-    with pytest.raises(ValueError, match="normal pass only with the albedo"):
+    with pytest.raises(SettingsError, match="normal pass only with the albedo"):
         denoise(clean, normal=normal)
 
 

@@ -61,6 +61,11 @@ def test_read_pfm_rejects_truncated_and_grey_files(tmp_path) -> None:
     grey.write_bytes(b"Pf\n1 1\n-1.0\n" + bytes(4))
     with pytest.raises(ValueError, match="colour"):
         read_pfm(grey)
+    # -2 x -2 asks for 12 values, as 2 x 2 does: the header's sizes, not the bytes, are wrong.
+    negative = tmp_path / "negative.pfm"
+    negative.write_bytes(b"PF\n-2 -2\n-1.0\n" + bytes(48))
+    with pytest.raises(ValueError, match="positive width and height, got -2x-2"):
+        read_pfm(negative)
 
 
 def test_png_is_8bit_rgb_of_the_right_size(tmp_path) -> None:

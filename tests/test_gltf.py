@@ -83,6 +83,20 @@ def test_inside_a_group_the_placements_are_copies(tmp_path):
     np.testing.assert_allclose(hi, [7, 11, 1], atol=1e-6)
 
 
+def test_an_instance_past_the_limits_is_refused_by_the_copys_check(tmp_path):
+    """A node's matrix within limits still carries a mesh far out past them: the mesh is
+    placed as a copy, whose check names the transform (an instance reached the BVH build)."""
+    b = Builder()
+    cube = b.mesh(CUBE_VERTICES * 1e20, CUBE_FACES)
+    b.node(mesh=cube)
+    b.node(mesh=cube, translation=[1e20, 0, 0])
+    path = b.save(tmp_path / "m.glb")
+    with pytest.raises(SceneError) as caught:
+        load(path, transform={"scale": 1e20})
+    assert str(caught.value).endswith("objects[0].transform: moves vertices beyond 1e+30 in "
+                                      "magnitude (largest 1e+40)")
+
+
 def test_a_matrix_node_with_a_mirror_keeps_faces_outward(tmp_path):
     b = Builder()
     cube = b.mesh(CUBE_VERTICES - 0.5, CUBE_FACES)

@@ -179,6 +179,9 @@ def test_ellipsoid_hits_and_normals_against_float64(cl_device) -> None:
      "objects[1].transform.scale: must be nonzero"),
     (lambda d: d["objects"][1].update(transform={"translate": [1e31, 0, 0]}),
      "objects[1].transform.translate"),
+    # A scale within limits that carries the group's box (1.2 high) past them.
+    (lambda d: d["objects"][1].update(transform={"scale": 1e30}),
+     "objects[1].transform: moves the object beyond 1e+30 in magnitude"),
 ])
 def test_bad_groups_and_instances_name_the_key(change, message: str) -> None:
     data = copy.deepcopy(pawn_scene(PLACEMENTS))

@@ -7,6 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from clray.cli import main
 from clray.errors import SceneError
 from clray.scene import model as M
 from clray.scene.load import scene_from_dict
@@ -126,7 +127,24 @@ def test_mesh_normals_stay_perpendicular_under_shear() -> None:
     ({"matrix": [[1, 0, 0, 0]] * 4, "scale": 2}, "objects[0].transform: give matrix or scale"),
     ({"scale": 1e25}, "objects[0].transform: moves the object beyond 1e+30"),
     ({"scale": 1e-29}, "objects[0].transform: shrinks the object below 1e-30"),
+    # An ellipsoid (an instance): A and t are within limits, the placed box is not.
+    ({"scale": [1e25, 1, 1]}, "objects[0].transform: moves the object beyond 1e+30"),
 ])
 def test_bad_transforms_name_the_key(transform: dict, message: str) -> None:
     sphere = {"type": "sphere", "center": [1e6, 0, 0], "radius": 0.05}
     assert error(sphere, transform).startswith(message)
+
+
+def test_a_transform_past_float32_is_exit_3_in_one_line(capsys, tmp_path) -> None:
+    """The stretched sphere's box (1e40) reached the BVH build, a ValueError traceback."""
+    scene = tmp_path / "s.toml"
+    scene.write_text('[camera]\nposition = [0, 0, 5]\nlook_at = [0, 0, 0]\n'
+                     '[[lights]]\ntype = "point"\nposition = [0, 5, 5]\n'
+                     '[[objects]]\ntype = "sphere"\ncenter = [1e20, 0, 0]\nradius = 1\n'
+                     'transform = {scale = [1e20, 1, 1]}\n')
+    out = tmp_path / "o.png"
+    assert main(["render", str(scene), "-W", "16", "-H", "12", "-o", str(out)]) == 3
+    lines = capsys.readouterr().err.splitlines()
+    assert lines == ["clray: error: s.toml: objects[0].transform: moves the object beyond "
+                     "1e+30 in magnitude (largest 1e+40)"]
+    assert not out.exists()

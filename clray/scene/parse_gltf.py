@@ -26,6 +26,7 @@ from clray.scene.obj import ObjMesh
 from clray.scene.parse_mesh import transformed
 from clray.scene.parse_transform import parse_transform
 from clray.scene.texture import TextureError, read_texture
+from clray.scene.transform import placed_magnitude
 from clray.scene.values import Values, file_name
 
 if TYPE_CHECKING:
@@ -81,6 +82,7 @@ def gltf_objects(spec: dict, key: str, in_group: bool, v: Values, assets: Assets
     groups: dict[int, Group] = {}
     copies: list[ObjMesh] = []
     instances: list[Instance] = []
+    boxes: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # each instanced mesh's, once
     for m, matrix in model.placements:
         obj = model.meshes[m]
         if obj is None:
@@ -88,7 +90,14 @@ def gltf_objects(spec: dict, key: str, in_group: bool, v: Values, assets: Assets
         face_materials = table[obj.face_groups]
         world = top @ matrix
         glowing = np.any(emission[face_materials] > 0)
-        if uses[m] > 1 and not in_group and not glowing and _placeable(world):
+        if uses[m] > 1 and not in_group and not glowing:
+            if m not in boxes:
+                boxes[m] = (obj.vertices.min(axis=0).astype(np.float64),
+                            obj.vertices.max(axis=0).astype(np.float64))
+            instanced = _placeable(world, boxes[m])
+        else:
+            instanced = False
+        if instanced:
             if m not in groups:
                 assets.take_triangles(len(obj.faces), key)
                 groups[m] = Group(f"{key}: {file_name(spec['file'])}: meshes[{m}]",
@@ -155,11 +164,14 @@ def _texture(model: GltfModel, index: int, spec: dict, key: str, assets: Assets
     return Texture(kind="image", image=assets.decoded(texels), colorspace="srgb")
 
 
-def _placeable(world: np.ndarray) -> bool:
-    """An instance's matrix within the kernels' limits (as ObjectParser.placement checks)."""
+def _placeable(world: np.ndarray, box: tuple[np.ndarray, np.ndarray]) -> bool:
+    """An instance's matrix, and the mesh's box it places, within the kernels' limits (as
+    ObjectParser.placement checks). Where not, the copy placed on the host names the
+    problem."""
     singular = np.linalg.svd(world[:3, :3], compute_uv=False)
     return bool(np.all(np.abs(world[:3, 3]) <= L.MAX_MAGNITUDE)
-                and singular.max() <= L.MAX_MAGNITUDE and singular.min() >= L.MIN_LENGTH)
+                and singular.max() <= L.MAX_MAGNITUDE and singular.min() >= L.MIN_LENGTH
+                and placed_magnitude(*box, world[:3, :3], world[:3, 3]) <= L.MAX_MAGNITUDE)
 
 
 def _joined(parts: list[ObjMesh]) -> ObjMesh:

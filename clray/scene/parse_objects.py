@@ -16,7 +16,7 @@ from clray.scene.parse_materials import MaterialTable
 from clray.scene.parse_mesh import parse_mesh
 from clray.scene.parse_spheres import parse_spheres
 from clray.scene.parse_transform import parse_transform
-from clray.scene.transform import place
+from clray.scene.transform import object_bounds, place, placed_magnitude
 from clray.scene.values import Values, show, show_defined
 from clray.shapes import SHAPE_KINDS
 
@@ -39,6 +39,8 @@ class ObjectParser:
     def __init__(self, v: Values, assets: Assets, materials: MaterialTable) -> None:
         self.v, self.assets, self.materials = v, assets, materials
         self.groups: dict[str, Group] = {}
+        # Each group's box in its own frame, once however many instances place it.
+        self.bounds: dict[Group, tuple[np.ndarray, np.ndarray]] = {}
 
     def group(self, value: object, key: str, name: str) -> Group:
         v = self.v
@@ -87,7 +89,8 @@ class ObjectParser:
                           "group: place the instance by that transform instead")
         # A shape the transform does not keep (an ellipsoid, a box at an angle) is intersected
         # in its own frame, as a one-object group.
-        return Instance(Group(key, (obj,)), self.placement(a, offset, tkey))
+        group = Group(key, (obj,))
+        return Instance(group, self.placement(a, offset, tkey, group))
 
     def instance(self, spec: dict, key: str) -> Instance:
         v = self.v
@@ -99,15 +102,28 @@ class ObjectParser:
                     if "material" in spec else None)
         tkey = f"{key}.transform"
         a, offset = parse_transform(spec.get("transform", {}), tkey, v)
-        return Instance(self.groups[name], self.placement(a, offset, tkey), material)
+        group = self.groups[name]
+        return Instance(group, self.placement(a, offset, tkey, group), material)
 
-    def placement(self, a: np.ndarray, offset: np.ndarray, key: str) -> np.ndarray:
-        """The (3, 4) matrix [A | t] of an instance, within the magnitudes the kernels take."""
+    def placement(self, a: np.ndarray, offset: np.ndarray, key: str, group: Group
+                  ) -> np.ndarray:
+        """The (3, 4) matrix [A | t] of an instance of `group`, within the magnitudes the
+        kernels take."""
         if not np.all(np.abs(offset) <= L.MAX_MAGNITUDE):
             raise self.v.error(key, f"moves the object beyond {L.MAX_MAGNITUDE:g} in magnitude")
         singular = np.linalg.svd(a, compute_uv=False)
         if singular.max() > L.MAX_MAGNITUDE or singular.min() < L.MIN_LENGTH:
             raise self.v.error(key, f"stretches or shrinks by more than {L.MAX_MAGNITUDE:g}")
+        # A and t within limits each can still carry the group's box past float32's range
+        # (a sphere at 1e20 stretched by 1e20): its placed corners are what the BVH bounds.
+        if group not in self.bounds:
+            boxes = [object_bounds(obj) for obj in group.objects]
+            self.bounds[group] = (np.min([b[0] for b in boxes], axis=0),
+                                  np.max([b[1] for b in boxes], axis=0))
+        largest = placed_magnitude(*self.bounds[group], a, offset)
+        if not largest <= L.MAX_MAGNITUDE:
+            raise self.v.error(key, f"moves the object beyond {L.MAX_MAGNITUDE:g} in magnitude "
+                               f"(largest {largest:.3g})")
         return np.hstack([a, offset[:, None]])
 
     def within_limits(self, obj: SceneObject, key: str) -> SceneObject:

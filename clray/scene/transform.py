@@ -29,6 +29,33 @@ def rotation_matrix(degrees: tuple[float, float, float]) -> np.ndarray:
     return rot_z @ rot_y @ rot_x
 
 
+def object_bounds(obj: M.SceneObject) -> tuple[np.ndarray, np.ndarray]:
+    """The float64 (lo, hi) box of a bounded object (no plane, no instance), in its own
+    coordinates: what an instance's transform maps to the box the scene's BVH takes."""
+    if isinstance(obj, M.Spheres):
+        # The largest radius around every centre: a box a little larger than the union, in
+        # reductions rather than (N, 3) temporaries the size of millions of spheres.
+        r = float(obj.radii.max(initial=0.0))
+        return obj.centers.min(axis=0) - r, obj.centers.max(axis=0) + r
+    if isinstance(obj, M.Mesh | M.Triangle):
+        vertices = np.asarray(obj.vertices).reshape(-1, 3)
+        return (vertices.min(axis=0).astype(np.float64),
+                vertices.max(axis=0).astype(np.float64))
+    shape = SHAPE_OF.get(type(obj))
+    if shape is None:
+        raise TypeError(f"no bounds for {type(obj).__name__}")
+    _, lo, hi = shape.pack([obj], np.zeros((1, 3)))
+    return lo.min(axis=0), hi.max(axis=0)
+
+
+def placed_magnitude(lo: np.ndarray, hi: np.ndarray, a: np.ndarray, t: np.ndarray) -> float:
+    """The largest coordinate magnitude of the box (lo, hi) moved by x -> a x + t: its eight
+    corners, as clray.device.pack bounds an instance."""
+    pick = ((np.arange(8)[:, None] >> np.arange(3)) & 1).astype(bool)
+    corners = np.where(pick, hi, lo) @ a.T + t
+    return float(np.abs(corners).max())
+
+
 def place(obj: M.SceneObject, a: np.ndarray, t: np.ndarray) -> M.SceneObject | str:
     """`obj` moved by x -> a x + t, or why that cannot be done exactly."""
     if isinstance(obj, M.Triangle):

@@ -334,3 +334,56 @@ def test_one_frame_is_said_in_the_singular(cl_device, tmp_path, capsys):
     assert cli.main(["render", str(ROOT / "scenes" / "orbit.toml"), "-W", "16", "-H", "9",
                      "--frames", "2:3", "-o", str(pattern)]) == 0
     assert f"wrote 1 frame of frame 2 to {pattern}" in capsys.readouterr().err
+
+
+LIBRARY = """\
+[camera]
+position = [0, 0, 5]
+look_at = [0, 0, 0]
+[[lights]]
+type = "point"
+position = [0, 5, 5]
+[[objects]]
+type = "plane"
+point = [0, -1, 0]
+normal = [0, 1, 0]
+"""
+INCLUDING = """\
+include = ["lib.toml"]
+[[objects]]
+type = "sphere"
+center = [0, 0, 0]
+radius = 1
+[animation]
+frames = 3
+[[animation.tracks]]
+key = "{key}"
+frames = [0, 2]
+values = {values}
+"""
+
+
+def test_key_paths_name_the_including_files_own_tables(tmp_scene):
+    # objects[0] is the file's sphere, though the included plane comes first once merged: the
+    # keyframes were checked with the value put into the plane, the frames into the sphere.
+    tmp_scene(LIBRARY, "lib.toml")
+    path = tmp_scene(INCLUDING.format(key="objects[0].radius", values="[1, 2]"))
+    sequence = load_sequence(path)
+    plane, sphere = sequence.scene(1).objects
+    assert (type(plane).__name__, sphere.radius) == ("Plane", 1.5)
+
+
+def test_a_key_path_only_an_included_file_has_is_not_in_the_scene(tmp_scene, tmp_path,
+                                                                    capsys, monkeypatch):
+    """camera is lib.toml's: the frames' data has none to put a value in (a KeyError
+    traceback at the first frame), so the keyframes' check refuses it first."""
+    monkeypatch.setattr("clray.sequence.render", refuse_to_render)
+    tmp_scene(LIBRARY, "lib.toml")
+    path = tmp_scene(INCLUDING.format(key="camera.position",
+                                      values="[[0, 0, 5], [0, 1, 5]]"))
+    assert cli.main(["render", str(path), "--frames", "0:3", "-W", "16", "-H", "12",
+                     "-o", str(tmp_path / "f_%04d.png")]) == 3
+    assert capsys.readouterr().err.splitlines() == [
+        "clray: error: scene.toml: animation.tracks[0].key: camera is not in the scene "
+        "(give it a value there to animate it)"]
+    assert not list(tmp_path.glob("f_*"))

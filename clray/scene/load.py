@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import copy
 import dataclasses
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -77,10 +77,20 @@ def scene_and_animation(data: dict, path: str | Path | None = None
                         ) -> tuple[Scene, Animation | None]:
     """scene_from_dict, and the [animation] table (None without one), each keyframe checked."""
     path = None if path is None else Path(path)
-    merged, origins = expand_includes(data, path, _read_scene_file)
     values = Values(path)
+    assets = Assets(values, _base(path))
+    scene = _merged_scene(data, values, assets, _read_scene_file)
+    animation = (_animation(data, values, assets) if isinstance(data, dict)
+                 and "animation" in data else None)
+    return scene, animation
+
+
+def _merged_scene(data: Any, v: Values, assets: Assets, read: Callable[[Path], Any]) -> Scene:
+    """The scene of a file's data, its includes (read by `read`) merged in; an error found in
+    the merged data names the file and key it came from."""
+    merged, origins = expand_includes(data, v.path, read)
     try:
-        return _scene(merged, values, Assets(values, _base(path)))
+        return _scene(merged, v, assets)
     except SceneError as err:
         if origins is None:
             raise
@@ -92,8 +102,9 @@ def _base(path: Path | None) -> Path:
     return Path.cwd() if path is None else path.parent
 
 
-def _scene(data: Any, v: Values, assets: Assets) -> tuple[Scene, Animation | None]:
-    """The sections in order: render, camera, materials, lights, groups, objects, animation."""
+def _scene(data: Any, v: Values, assets: Assets) -> Scene:
+    """The sections in order: render, camera, materials, lights, groups, objects (the
+    [animation] table's keyframes are checked by the caller, against the file's own data)."""
     if not isinstance(data, dict):
         raise v.error(None, f"expected a table at the top level, got {show(data)}")
     v.keys(data, None, _TOP_KEYS, ("camera",))
@@ -133,8 +144,7 @@ def _scene(data: Any, v: Values, assets: Assets) -> tuple[Scene, Animation | Non
     # none is the caller's own (each is a copy, or a file's), and none can be written.
     for array in _arrays(scene):
         array.setflags(write=False)
-    animation = _animation(data, v, assets) if "animation" in data else None
-    return scene, animation
+    return scene
 
 
 def _arrays(scene: Scene) -> Iterator[np.ndarray]:
@@ -172,9 +182,19 @@ def content_warnings(scene: Scene) -> tuple[str, ...]:
 
 def _animation(data: dict, v: Values, assets: Assets) -> Animation:
     """The [animation] table, each keyframe checked by loading the scene with its value put
-    in: a key path or a value the scene cannot take is an error now, not at its frame."""
+    in: a key path or a value the scene cannot take is an error now, not at its frame. The
+    value is put where clray.sequence puts it, into the file's own data before its includes
+    are merged: key paths name the file's own tables (docs/scene_format.md, Animation)."""
     animation = parse_animation(v.table(data["animation"], "animation"), v)
     base = {k: value for k, value in data.items() if k != "animation"}
+    # Each included file is read once for all keyframes: merging copies nothing it changes.
+    files: dict[Path, Any] = {}
+
+    def read(file: Path) -> Any:
+        if file not in files:
+            files[file] = _read_scene_file(file)
+        return files[file]
+
     for i, track in enumerate(animation.tracks):
         key = f"animation.tracks[{i}]"
         for j, frame in enumerate(track.frames):
@@ -185,8 +205,11 @@ def _animation(data: dict, v: Values, assets: Assets) -> Animation:
                 raise v.error(f"{key}.key", f"{show_path(missing.args[0])} is not in the "
                               "scene (give it a value there to animate it)") from None
             try:
-                _scene(keyed, v, assets.sharing_files())
+                _merged_scene(keyed, v, assets.sharing_files(), read)
             except SceneError as err:
-                raise v.error(f"{key}.values[{j}]", f"{err.key}: {err.message} (frame "
+                # An error located in an included file names it (the value put in may be
+                # checked against that file's entries).
+                where = f"{err.file.name}: " if err.file not in (None, v.path) else ""
+                raise v.error(f"{key}.values[{j}]", f"{where}{err.key}: {err.message} (frame "
                               f"{frame})") from None
     return animation

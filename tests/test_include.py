@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from PIL import Image
 
 from clray.errors import SceneError
 from clray.scene.load import load_scene
@@ -66,6 +67,21 @@ def test_relative_files_are_relative_to_the_including_file(tmp_path: Path) -> No
                                   direct.materials[0].texture.image)
 
 
+def test_a_background_image_is_relative_to_the_file_that_gives_it(tmp_path: Path) -> None:
+    # A sky.png beside the including file too, which the included file's name must not reach.
+    shutil.copy(ROOT / "tests" / "data" / "texels_3x2.png", tmp_path / "sky.png")
+    (tmp_path / "sub").mkdir()
+    Image.fromarray(255 - np.array(Image.open(tmp_path / "sky.png"))).save(
+        tmp_path / "sub" / "sky.png")
+    write(tmp_path, "sub/env.toml", '[render]\nbackground = { type = "image", file = "sky.png" }\n')
+    scene = load_scene(write(tmp_path, "s.toml", 'include = ["sub/env.toml"]\n' + CAMERA))
+    direct = load_scene(write(tmp_path, "sub/d.toml", CAMERA + '[render]\n'
+                              'background = { type = "image", file = "sky.png" }\n'))
+    assert scene.render.background.file == tmp_path / "sub" / "sky.png"
+    np.testing.assert_array_equal(scene.render.background.image,
+                                  direct.render.background.image)
+
+
 def test_library_shared_by_two_includes_is_merged_once(tmp_path: Path) -> None:
     write(tmp_path, "lib.toml", GLASS)
     write(tmp_path, "a.toml", 'include = ["lib.toml"]\n')
@@ -109,6 +125,13 @@ def test_self_include(tmp_path: Path) -> None:
      'lib.toml: objects[0].material: unknown material "nope" (defined: none)'),
     ({"lib.toml": '[render]\nspp = 0\n', "s.toml": 'include = ["lib.toml"]\n' + CAMERA},
      "lib.toml: render.spp: must be an integer in [1, 4096], got 0"),
+    # A value inside a render table is the file's that gave the table.
+    ({"lib.toml": '[render]\nbackground = { type = "gradient", bottom = [2e6, 0, 0], '
+                  'top = [1, 1, 1] }\n', "s.toml": 'include = ["lib.toml"]\n' + CAMERA},
+     "lib.toml: render.background.bottom: must be <= 1e+06"),
+    ({"sub/env.toml": '[render]\nbackground = { type = "image", file = "sky.png" }\n',
+      "s.toml": 'include = ["sub/env.toml"]\n' + CAMERA},
+     "env.toml: render.background.file: file not found: sub/sky.png"),
     ({"s.toml": 'include = ["missing.toml"]\n' + CAMERA},
      "s.toml: include[0]: cannot read 'missing.toml': file not found"),
     ({"lib.toml": "[camera\n", "s.toml": 'include = ["lib.toml"]\n'},

@@ -5,12 +5,12 @@ includes, and the including file comes last. `materials` and `groups` are merged
 name defined in two files is an error naming both; `lights` and `objects` are appended in that
 order; `render` keys are merged one by one, a later file's value replacing an earlier one's (so
 the including file overrides its libraries); `camera` may be given by one file only. Relative
-file names inside an included file (textures, meshes) are relative to that file's folder, as
-they are in the file itself. A file included more than once (two files sharing a material
-library) is merged once, where it is first included. A file that includes itself, directly or
-through others, is an error showing the chain. The merged data keeps where each entry came from,
-so that an error the loader finds in it names the file and the key as they are written there
-(`lib.toml: materials.glass.ior: ...`).
+file names inside an included file (textures, meshes, a background image) are relative to that
+file's folder, as they are in the file itself. A file included more than once (two files
+sharing a material library) is merged once, where it is first included. A file that includes
+itself, directly or through others, is an error showing the chain. The merged data keeps where
+each entry came from, so that an error the loader finds in it names the file and the key as
+they are written there (`lib.toml: materials.glass.ior: ...`).
 """
 
 from __future__ import annotations
@@ -31,6 +31,7 @@ _KEYS = ("include", "render", "camera", "materials", "groups", "lights", "object
 _NAMED = ("materials", "groups")  # tables merged by name
 _BARE = re.compile(r"[A-Za-z0-9_-]+")
 _INDEXED = re.compile(r"(objects|lights)\[(\d+)\](.*)", re.S)
+_RENDER_KEY = re.compile(r"[^.\[]*")
 
 
 @dataclass
@@ -61,8 +62,10 @@ class Origins:
                 if key == prefix or key.startswith((prefix + ".", prefix + "[")):
                     return SceneError(file, key, error.message)
         head = key.split(".", 1)
-        if head[0] == "render" and len(head) == 2 and head[1] in self.render:
-            return SceneError(self.render[head[1]], key, error.message)
+        # render.KEY, or a value inside it (render.background.file): KEY's file gave it all.
+        name = _RENDER_KEY.match(head[1]).group() if len(head) == 2 else ""
+        if head[0] == "render" and name in self.render:
+            return SceneError(self.render[name], key, error.message)
         if head[0] == "camera" and self.camera is not None:
             return SceneError(self.camera, key, error.message)
         return error
@@ -113,7 +116,7 @@ def _merge(data: Any, path: Path | None, chain: tuple[Path, ...], merged: dict, 
             raise SceneError(path, f"include[{i}]", f"cannot read {name!r}: {exc}") from None
         _merge(included, target, (*chain, resolved), merged, origins, top_dir, read)
     own = {k: _relocated(v, folder, top_dir) for k, v in data.items()
-           if k in ("materials", "groups", "lights", "objects")}
+           if k in ("materials", "groups", "lights", "objects", "render")}
     _merge_tables(data, own, path, merged, origins)
     if "animation" in data:
         # Its tracks name values by the scene file's own key paths (clray.scene.animation).
@@ -145,7 +148,7 @@ def _merge_tables(data: dict, own: dict, path: Path | None, merged: dict,
             raise SceneError(path, table, f"expected an array of tables, got {show(items)}")
         merged[table].extend(items)
         getattr(origins, table).extend((file, i) for i in range(len(items)))
-    for key, value in data.get("render", {}).items():
+    for key, value in own.get("render", {}).items():
         merged["render"][key] = value
         origins.render[key] = file
     if "camera" in data:

@@ -107,6 +107,14 @@ def test_numpy_arrays_from_python() -> None:
      "objects[1].radii[1]: must be >= 1e-30, got 0"),
     ('centers = [[0, 0, 0]]\nradii = [1, 2]\n', {},
      "objects[1].radii: expected an array of 1 number, got [1, 2]"),
+    # true and false are no numbers: np.asarray took them among numbers for 1 and 0.
+    ('centers = [[0, true, 0]]\nradius = 1\n', {},
+     "objects[1].centers[0][1]: expected a number, got true"),
+    ('centers = [[0, 0, 0], [1, 1, 1]]\nradii = [1, true]\n', {},
+     "objects[1].radii[1]: expected a number, got true"),
+    ('centers = [[0, 0, 0], [1, 1, 1]]\nradius = 1\nmaterials = ["a", "a"]\n'
+     'material_index = [0, true]\n', {},
+     "objects[1].material_index[1]: expected an integer, got true"),
     ('centers = [[0, 0, 0]]\nradius = 1\nradii = [1]\n', {},
      "objects[1]: give radius or radii, not both"),
     ('centers = [[0, 0, 0]]\nradius = 1\nmaterials = ["a"]\nmaterial_index = [1]\n', {},

@@ -295,6 +295,17 @@ def test_a_python_built_mesh_with_face_materials_is_checked_and_kept():
         check_scene(bad)
 
 
+def test_a_mesh_material_index_takes_no_booleans(tmp_path):
+    # np.asarray took true among the integers for 1: the second face took material b.
+    data = {"camera": CAMERA, "materials": {"a": {}, "b": {}},
+            "objects": [{"type": "mesh", "vertices": [[0, 0, 0], [1, 0, 0], [0, 1, 0]],
+                         "faces": [[0, 1, 2], [0, 2, 1]], "materials": ["a", "b"],
+                         "material_index": [0, True]}]}
+    with pytest.raises(SceneError) as info:
+        scene_from_dict(data, tmp_path / "s.toml")
+    assert str(info.value) == "s.toml: objects[0].material_index[1]: expected an integer, got true"
+
+
 def test_inline_mesh_materials_need_an_index_per_triangle(tmp_path):
     base = {"type": "mesh", "vertices": [[0, 0, 0], [1, 0, 0], [0, 1, 0]], "faces": [[0, 1, 2]]}
     for extra, message in [({"materials": ["a"]}, "materials needs material_index"),

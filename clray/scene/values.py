@@ -254,6 +254,14 @@ class Values:
         caller checks its size against a limit here, before array() passes over the values
         (with temporaries as large) and anything copies them. A numpy array is not copied
         (np.broadcast_to makes one of any size that takes no memory)."""
+        # np.asarray takes true and false among numbers for 1 and 0 (only an all-boolean
+        # list stays boolean, which the kind check below refuses); a scene's booleans are
+        # not numbers.
+        at = _boolean_at(value, len(shape))
+        if at is not None:
+            noun = "an integer" if integer else "a number"
+            raise self.error(key + "".join(f"[{i}]" for i in at),
+                             f"expected {noun}, got {show(_item(value, at))}")
         try:
             a = np.asarray(value)
         except (ValueError, TypeError):
@@ -266,6 +274,26 @@ class Values:
             what = f"{shown} {noun}" if shown == "1" else f"{shown} {noun}s"
             raise self.error(key, f"expected an array of {what}, got {show(value)}")
         return a
+
+
+def _boolean_at(value: Any, depth: int) -> tuple[int, ...] | None:
+    """The indices of the first boolean in nested lists, `depth` levels down (the array's
+    dimensions: anything deeper fails its shape check anyway), or None."""
+    if not isinstance(value, list | tuple):
+        return None
+    for i, x in enumerate(value):
+        if isinstance(x, bool | np.bool_):
+            return (i,)
+        inner = _boolean_at(x, depth - 1) if depth > 1 else None
+        if inner is not None:
+            return (i, *inner)
+    return None
+
+
+def _item(value: Any, at: tuple[int, ...]) -> Any:
+    for i in at:
+        value = value[i]
+    return value
 
 
 def rows(value: Any) -> int:

@@ -389,6 +389,23 @@ def test_malformed_json_names_line_and_column(tmp_path):
     assert "(at line 2, column" in str(info.value)
 
 
+@pytest.mark.parametrize(("text", "where"), [
+    ('{"camera": {"position": [0, 0, 5],\n "look_at": [0, 0, 0]},\n "objects": [{"type": '
+     '"sphere", "center": [0, 0, 0], "radius": 1,\n   "radius": 2}]}', '"radius" (at line 4, '
+     'column 4)'),
+    # The same name in two objects is no duplicate; an escape spells the same key.
+    ('{"camera": {"position": [0, 0, 5], "look_at": [0, 0, 0]},\n"materials": {"a": {"ior": 1},'
+     ' "b": {"ior": 1}},\n"\\u0063amera": {}}', '"camera" (at line 3, column 1)'),
+])
+def test_json_refuses_a_duplicate_key_as_toml_does(tmp_path, text, where):
+    """json.loads kept the last value silently (the radius was 2)."""
+    path = tmp_path / "dup.json"
+    path.write_text(text)
+    with pytest.raises(SceneError) as info:
+        load_scene(path)
+    assert str(info.value) == f"dup.json: invalid JSON: duplicate key {where}"
+
+
 def test_unknown_suffix(tmp_path):
     path = tmp_path / "scene.yaml"
     path.write_text("camera: {}")

@@ -82,6 +82,24 @@ def test_a_background_image_is_relative_to_the_file_that_gives_it(tmp_path: Path
                                   direct.render.background.image)
 
 
+def test_a_linked_scene_reads_every_relative_name_beside_the_link(tmp_path: Path) -> None:
+    """Includes were read beside the link's target, textures beside the link; now both
+    beside the link, as a shell opens them. Each folder has its own library and image."""
+    texels = np.array(Image.open(ROOT / "tests" / "data" / "texels_3x2.png"))
+    for folder, ior, image in (("real", 1.5, texels), ("linked", 2.0, 255 - texels)):
+        write(tmp_path, f"{folder}/lib.toml", f'[materials.t]\nior = {ior}\n'
+              'texture = { type = "image", file = "t.png" }\n')
+        Image.fromarray(image).save(tmp_path / folder / "t.png")
+    write(tmp_path, "real/s.toml", 'include = ["lib.toml"]\n' + CAMERA + SPHERE.format("t")
+          + '[render]\nbackground = { type = "image", file = "t.png" }\n')
+    (tmp_path / "linked" / "s.toml").symlink_to(tmp_path / "real" / "s.toml")
+    scene = load_scene(tmp_path / "linked" / "s.toml")
+    assert scene.materials[0].ior == 2.0
+    np.testing.assert_array_equal(scene.materials[0].texture.image,
+                                  scene.render.background.image)
+    assert scene.render.background.file == tmp_path / "linked" / "t.png"
+
+
 def test_library_shared_by_two_includes_is_merged_once(tmp_path: Path) -> None:
     write(tmp_path, "lib.toml", GLASS)
     write(tmp_path, "a.toml", 'include = ["lib.toml"]\n')

@@ -15,7 +15,6 @@ they are written there (`lib.toml: materials.glass.ior: ...`).
 
 from __future__ import annotations
 
-import os
 import re
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -83,23 +82,28 @@ def expand_includes(data: Any, path: Path | None, read: Callable[[Path], Any]
     merged: dict[str, Any] = {"materials": {}, "groups": {}, "lights": [], "objects": [],
                               "render": {}}
     top = (path or Path("scene")).resolve()
-    _merge(data, path, (top,), merged, origins, top.parent, read)
+    _merge(data, path, (top,), merged, origins, Path(), read)
     return merged, origins
 
 
 def _merge(data: Any, path: Path | None, chain: tuple[Path, ...], merged: dict, origins: Origins,
-           top_dir: Path, read: Callable[[Path], Any]) -> None:
+           folder: Path, read: Callable[[Path], Any]) -> None:
+    """Merges `data`, read from `path`, after its includes. `folder`: the folder of `path`
+    relative to the top scene's (Path() for the top scene itself). Names are joined, never
+    resolved or normalised: a relative name is then relative to the folder of the file as
+    it was named, through any symbolic link, as the system opens it and as the loader reads
+    the top scene's textures and meshes (clray.scene.load._base); `chain` holds the resolved
+    files, which a cycle repeats however they are named."""
     if not isinstance(data, dict):
         raise SceneError(path, None, f"expected a table at the top level, got {show(data)}")
     for key in string_keys(data, path, None):
         if key not in _KEYS:
             raise SceneError(path, key, f"unknown key (expected one of: {', '.join(_KEYS)})")
-    folder = (path or Path("scene")).resolve().parent
     names = data.get("include", [])
     if not isinstance(names, list) or not all(isinstance(n, str) for n in names):
         raise SceneError(path, "include", "expected a list of file names")
     for i, name in enumerate(names):
-        target = folder / name
+        target = (path or Path("scene")).parent / name
         resolved = target.resolve()
         if resolved in chain:
             shown = " -> ".join(p.name for p in (*chain, resolved))
@@ -114,8 +118,9 @@ def _merge(data: Any, path: Path | None, chain: tuple[Path, ...], merged: dict, 
             included = read(target)
         except UnreadableFile as exc:
             raise SceneError(path, f"include[{i}]", f"cannot read {name!r}: {exc}") from None
-        _merge(included, target, (*chain, resolved), merged, origins, top_dir, read)
-    own = {k: _relocated(v, folder, top_dir) for k, v in data.items()
+        _merge(included, target, (*chain, resolved), merged, origins,
+               folder / Path(name).parent, read)
+    own = {k: _relocated(v, folder) for k, v in data.items()
            if k in ("materials", "groups", "lights", "objects", "render")}
     _merge_tables(data, own, path, merged, origins)
     if "animation" in data:
@@ -158,15 +163,16 @@ def _merge_tables(data: dict, own: dict, path: Path | None, merged: dict,
         origins.camera = file
 
 
-def _relocated(value: Any, folder: Path, top_dir: Path) -> Any:
-    """`value` with every relative `file` name made relative to the including file's folder,
-    where the loader resolves them, so it still names the same file."""
-    if folder == top_dir:
+def _relocated(value: Any, folder: Path) -> Any:
+    """`value` with every relative `file` name prefixed by `folder` (its file's folder
+    relative to the top scene's, where the loader reads them), so it still names the same
+    file."""
+    if folder == Path():
         return value
     if isinstance(value, dict):
-        return {k: (os.path.relpath(folder / v, top_dir)
+        return {k: (str(folder / v)
                     if k == "file" and isinstance(v, str) and not Path(v).is_absolute()
-                    else _relocated(v, folder, top_dir)) for k, v in value.items()}
+                    else _relocated(v, folder)) for k, v in value.items()}
     if isinstance(value, list):
-        return [_relocated(v, folder, top_dir) for v in value]
+        return [_relocated(v, folder) for v in value]
     return value

@@ -16,6 +16,8 @@ import pytest
 from clray.accel import prim_refs
 from clray.device import layout
 from clray.device.program import FEATURE_SWITCHES, KernelConfig, kernel_source
+from clray.errors import SceneError
+from clray.scene import limits as L
 from clray.scene.load import scene_from_dict
 from clray.shapes import SHAPE_KINDS, SHAPES
 from clray.shapes.shape import Shape, similarity_scale
@@ -90,6 +92,37 @@ def test_scene_keys_are_the_model_fields(shape: Shape) -> None:
     required, optional = shape.keys
     fields = {f.name for f in dataclasses.fields(shape.model)} - {"material"}
     assert fields == set(required) | set(optional)
+
+
+@pytest.mark.parametrize("shape", SHAPES, ids=lambda s: s.kind)
+def test_the_declared_lengths_are_the_fields_the_parser_takes_as_lengths(shape: Shape) -> None:
+    # A field whose 0 the scene's own check refuses as a length ("must be > 0").
+    taken = set()
+    for name, value in EXAMPLES[shape.kind].items():
+        if isinstance(value, int | float):
+            try:
+                scene_from_dict({"camera": {"position": [0, 0, 9], "look_at": [0, 0, 0]},
+                                 "objects": [{"type": shape.kind, **EXAMPLES[shape.kind],
+                                              name: 0}]})
+            except SceneError as err:
+                taken |= {name} if err.message == "must be > 0, got 0" else set()
+    fields = {f.name for t in shape.types for f in dataclasses.fields(t)}
+    assert set(shape.lengths) <= fields
+    assert taken == set(shape.lengths) & set(EXAMPLES[shape.kind])
+
+
+@pytest.mark.parametrize("shape", [s for s in SHAPES if s.lengths], ids=lambda s: s.kind)
+def test_a_transform_shrinks_no_length_below_the_limit(shape: Shape) -> None:
+    """As the scene's own values: a torus's tube shrank below 1e-30 unchecked. The example's
+    lengths are made small first (a scale below 1e-30 is refused by itself)."""
+    spec = {name: value * 1e-29 if name in shape.lengths else value
+            for name, value in EXAMPLES[shape.kind].items()}
+    smallest = min(spec[name] for name in shape.lengths if name in spec)
+    with pytest.raises(SceneError) as info:
+        scene_from_dict({"camera": {"position": [0, 0, 9], "look_at": [0, 0, 0]},
+                         "objects": [{"type": shape.kind, **spec,
+                                      "transform": {"scale": 0.5 * L.MIN_LENGTH / smallest}}]})
+    assert str(info.value).startswith("objects[0].transform: shrinks the object below 1e-30")
 
 
 def test_every_shape_has_an_example() -> None:

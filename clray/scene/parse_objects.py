@@ -18,7 +18,7 @@ from clray.scene.parse_spheres import parse_spheres
 from clray.scene.parse_transform import parse_transform
 from clray.scene.transform import object_bounds, place, placed_magnitude
 from clray.scene.values import Values, show, show_defined
-from clray.shapes import SHAPE_KINDS
+from clray.shapes import SHAPE_KINDS, SHAPE_OF
 
 # Per object type: (required keys, optional keys), besides `type`, `material` and `transform`:
 # the shapes' (clray.shapes), then the types that are not shapes of that kind.
@@ -133,7 +133,8 @@ class ObjectParser:
                   and isinstance(x, float | tuple | np.ndarray)]
         if not all(np.all(np.abs(x) <= L.MAX_MAGNITUDE) for x in values):
             raise self.v.error(key, f"moves the object beyond {L.MAX_MAGNITUDE:g} in magnitude")
-        lengths = [getattr(obj, n) for n in ("radius", "height", "radii") if hasattr(obj, n)]
+        shape = SHAPE_OF.get(type(obj))
+        lengths = [getattr(obj, n) for n in (shape.lengths if shape else ()) if hasattr(obj, n)]
         if any(np.any(np.asarray(x) < L.MIN_LENGTH) for x in lengths):
             raise self.v.error(key, f"shrinks the object below {L.MIN_LENGTH:g}")
         return obj

@@ -100,7 +100,7 @@ def box_surface(b: Box, p: np.ndarray, part: np.ndarray) -> tuple[np.ndarray, np
 
 
 BOX = Shape(
-    kind="box", model=Box, keys=(("min", "max"), ()), parse=parse, place=place,
+    kind="box", model=Box, keys=(("min", "max"), ()), lengths=(), parse=parse, place=place,
     centre_size=centre_size, prim=2, record=RECORD, buffer="boxes", switch="has_boxes",
     pack=pack, intersect=intersect_box, surface=box_surface,
 )

@@ -124,6 +124,6 @@ def cone_surface(c: Cone, p: np.ndarray, part: np.ndarray) -> tuple[np.ndarray, 
 
 CONE = Shape(
     kind="cone", model=Cone, keys=(("apex", "axis", "angle", "height"), ("capped",)),
-    parse=parse, place=place, centre_size=centre_size, prim=4, record=RECORD,
+    lengths=("height",), parse=parse, place=place, centre_size=centre_size, prim=4, record=RECORD,
     buffer="cones", switch="has_cones", pack=pack, intersect=intersect_cone, surface=cone_surface,
 )

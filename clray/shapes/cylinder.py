@@ -113,7 +113,7 @@ def cylinder_surface(c: Cylinder, p: np.ndarray, part: np.ndarray) -> tuple[np.n
 
 CYLINDER = Shape(
     kind="cylinder", model=Cylinder, keys=(("base", "axis", "radius", "height"), ("capped",)),
-    parse=parse, place=place, centre_size=centre_size, prim=3, record=RECORD,
-    buffer="cylinders", switch="has_cylinders", pack=pack, intersect=intersect_cylinder,
-    surface=cylinder_surface,
+    lengths=("radius", "height"), parse=parse, place=place, centre_size=centre_size, prim=3,
+    record=RECORD, buffer="cylinders", switch="has_cylinders", pack=pack,
+    intersect=intersect_cylinder, surface=cylinder_surface,
 )

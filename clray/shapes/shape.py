@@ -57,6 +57,9 @@ class Shape:
     model: type  # its frozen dataclass, float64 world units (clray.scene.model re-exports it)
     # (required, optional) keys besides `type`, `material` and `transform`.
     keys: tuple[tuple[str, ...], tuple[str, ...]]
+    # The model's fields (or an `also` class's) that are strictly positive lengths: the
+    # loader refuses a transform that shrinks one below MIN_LENGTH, as the scene's own value.
+    lengths: tuple[str, ...]
     # (spec, key, material, checks) -> the object its checked keys describe.
     parse: Callable[[dict, str, int, Checks], Any]
     # (object, A, t) -> the object moved by x -> A x + t, or why the shape does not survive it

@@ -96,7 +96,8 @@ def sphere_surface(s: Sphere, p: np.ndarray, part: np.ndarray) -> tuple[np.ndarr
 
 
 SPHERE = Shape(
-    kind="sphere", model=Sphere, keys=(("center", "radius"), ()), parse=parse, place=place,
+    kind="sphere", model=Sphere, keys=(("center", "radius"), ()),
+    lengths=("radius", "radii"), parse=parse, place=place,
     centre_size=centre_size, prim=1, record=RECORD, buffer="spheres", switch="has_spheres",
     pack=pack, intersect=intersect_sphere, surface=sphere_surface, also=(Spheres,),
     primitives=lambda obj: len(obj.radii) if isinstance(obj, Spheres) else 1,

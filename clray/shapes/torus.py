@@ -143,6 +143,7 @@ def torus_surface(tr: Torus, p: np.ndarray, part: np.ndarray) -> tuple[np.ndarra
 
 TORUS = Shape(
     kind="torus", model=Torus, keys=(("center", "axis", "major_radius", "minor_radius"), ()),
-    parse=parse, place=place, centre_size=centre_size, prim=7, record=RECORD, buffer="tori",
-    switch="has_tori", pack=pack, intersect=intersect_torus, surface=torus_surface,
+    lengths=("major_radius", "minor_radius"), parse=parse, place=place,
+    centre_size=centre_size, prim=7, record=RECORD, buffer="tori", switch="has_tori", pack=pack,
+    intersect=intersect_torus, surface=torus_surface,
 )

@@ -18,7 +18,7 @@ import numpy as np
 
 from clray.errors import SceneError
 from clray.host_memory import CHUNK_ROWS, by_chunks, small_pages
-from clray.scene.assets import meshes_read_once
+from clray.scene.assets import MESH_SUFFIXES, meshes_read_once
 from clray.scene.files import UnreadableFile, open_regular, read_regular
 from clray.scene.gltf import GLTF_SUFFIXES, GltfCamera, read_gltf_camera
 from clray.scene.limits import MAX_MAGNITUDE, mesh_bytes_limit
@@ -26,7 +26,6 @@ from clray.scene.load import scene_from_dict
 from clray.scene.model import Instance, Mesh, Scene
 from clray.vectors import bounds, unit
 
-MESH_SUFFIXES = (".obj", ".ply", ".npz", *GLTF_SUFFIXES)
 # For help and messages: "mesh file (.obj, .ply, .npz, .gltf, .glb)".
 MESH_FILE = f"mesh file ({', '.join(MESH_SUFFIXES)})"
 # Unit directions from the model's centre to the camera, and the camera's up.

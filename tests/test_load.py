@@ -770,6 +770,12 @@ ERRORS = [
         "objects[2]: give file or vertices + faces, not both",
     ),
     (obj(type="mesh", file="missing.obj"), "objects[2].file: file not found: missing.obj"),
+    # Refused by the suffix, before the file is opened: read as OBJ, an STL or an image gave
+    # "mesh has no faces".
+    (obj(type="mesh", file="m.stl"), 'objects[2].file: m.stl: unknown mesh file type ".stl" '
+     "(use .obj, .ply, .npz, .gltf or .glb)"),
+    (obj(type="mesh", file="mesh"), "objects[2].file: mesh: unknown mesh file type (no "
+     "suffix)"),
     (obj(type="mesh", file=3), "objects[2].file: expected a string, got 3"),
     (obj(type="mesh", vertices=[[0, 0, 0]]), "objects[2].faces: missing required key"),
     (

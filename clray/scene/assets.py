@@ -23,16 +23,19 @@ from clray.errors import SceneError, plural
 from clray.scene import limits as L
 from clray.scene.colour import srgb_decode
 from clray.scene.files import UnreadableFile, open_regular, read_at_most, read_regular
-from clray.scene.gltf import GltfModel, read_gltf
+from clray.scene.gltf import GLTF_SUFFIXES, GltfModel, read_gltf
 from clray.scene.mesh_data import mesh_arrays
 from clray.scene.mtl import MtlLibrary, parse_mtl
 from clray.scene.obj import ObjMesh, parse_obj
 from clray.scene.ply import read_ply
 from clray.scene.texture import TextureError, read_texture
-from clray.scene.values import Values, file_name
+from clray.scene.values import Values, file_name, show
 
 # What a `spheres` object's .npz may hold (a .npy holds centers, or centers and radii).
 SPHERE_ARRAYS = ("centers", "radii", "material_index")
+# A mesh `file` by its suffix: read by mesh_file, or (.gltf, .glb) by gltf_model. Any other
+# is refused by name: read as OBJ, an STL or an image only gave "mesh has no faces".
+MESH_SUFFIXES = (".obj", ".ply", ".npz", *GLTF_SUFFIXES)
 _DECODE_SLICE = 1 << 20  # texel values decoded from sRGB at a time
 # The meshes read within meshes_read_once(), which every Assets made there shares.
 _SHARED_MESHES: ContextVar[dict | None] = ContextVar("clray_shared_meshes", default=None)
@@ -144,7 +147,12 @@ class Assets:
 
     def mesh_file(self, name: Any, key: str) -> ObjMesh:
         """A mesh from an OBJ or PLY file, or a .npz of arrays."""
-        suffix = Path(str(name)).suffix.lower()
+        suffix = Path(self.values.string(name, key)).suffix.lower()
+        if suffix not in MESH_SUFFIXES:
+            expected = ", ".join(MESH_SUFFIXES[:-1]) + f" or {MESH_SUFFIXES[-1]}"
+            raise self.values.error(key, f"{file_name(name)}: unknown mesh file type "
+                                    f"{show(suffix) if suffix else '(no suffix)'} (use "
+                                    f"{expected})")
         limit = L.mesh_bytes_limit(suffix)
         stream, identity = self.open_file(name, key, limit)
         with stream:

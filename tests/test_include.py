@@ -132,6 +132,9 @@ def test_self_include(tmp_path: Path) -> None:
 @pytest.mark.parametrize(("files", "message"), [
     ({"lib.toml": GLASS, "s.toml": 'include = ["lib.toml"]\n' + CAMERA + GLASS},
      "s.toml: materials.glass: already defined in lib.toml"),
+    # Quoted as every key path is (values.key_path), not as Python's repr: 'my glass'.
+    ({"lib.toml": '[materials."my glass"]\n', "s.toml": 'include = ["lib.toml"]\n' + CAMERA
+      + '[materials."my glass"]\n'}, 's.toml: materials."my glass": already defined in lib.toml'),
     ({"lib.toml": CAMERA, "s.toml": 'include = ["lib.toml"]\n' + CAMERA},
      "s.toml: camera: already given in lib.toml"),
     ({"lib.toml": '[materials.bad]\nior = 0\n', "s.toml": 'include = ["lib.toml"]\n' + CAMERA},

@@ -24,11 +24,10 @@ from typing import Any
 from clray.errors import SceneError
 from clray.scene import limits as L
 from clray.scene.files import UnreadableFile
-from clray.scene.values import show, string_keys
+from clray.scene.values import key_path, show, string_keys
 
 _KEYS = ("include", "render", "camera", "materials", "groups", "lights", "objects", "animation")
 _NAMED = ("materials", "groups")  # tables merged by name
-_BARE = re.compile(r"[A-Za-z0-9_-]+")
 _INDEXED = re.compile(r"(objects|lights)\[(\d+)\](.*)", re.S)
 _RENDER_KEY = re.compile(r"[^.\[]*")
 
@@ -142,8 +141,7 @@ def _merge_tables(data: dict, own: dict, path: Path | None, merged: dict,
         defined = getattr(origins, table)
         for name, spec in own.get(table, {}).items():
             if name in merged[table]:
-                raise SceneError(path, f"{table}.{name}" if _BARE.fullmatch(name) else
-                                 f"{table}.{name!r}",
+                raise SceneError(path, key_path(table, name),
                                  f"already defined in {defined[name].name}")
             merged[table][name] = spec
             defined[name] = file

@@ -12,6 +12,8 @@ import pytest
 
 from clray.cli import _build_parser
 from clray.scene import limits
+from clray.scene.include import _KEYS
+from clray.scene.load import _TOP_KEYS
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -148,3 +150,35 @@ def test_scene_format_render_range_is_the_code_range(key: str) -> None:
              or re.search(rf"\[({_NUMBER}), ({_NUMBER})\]$", cell))
     assert match, f"docs/scene_format.md gives no range for {key}: {cell!r}"
     assert (number(match.group(1)), number(match.group(2))) == code_range(key)
+
+
+SCENE_FORMAT = ROOT / "docs" / "scene_format.md"
+# Rows of docs/scene_format.md's Limits table -> the count clray.scene.limits checks.
+LIMIT_COUNTS = {
+    "entries in `objects`": limits.MAX_OBJECTS,
+    "entries in `lights`": limits.MAX_LIGHTS,
+    "nesting of `include`": limits.MAX_INCLUDE_DEPTH,
+    "tracks in `[animation]`": limits.MAX_TRACKS,
+    "keyframes in all tracks together": limits.MAX_KEYFRAMES,
+}
+
+
+@pytest.mark.parametrize("what", sorted(LIMIT_COUNTS))
+def test_limits_table_count_is_the_code_limit(what: str) -> None:
+    rows = {row[0]: row[1] for row in
+            table_rows(SCENE_FORMAT, "| what | limit | why |", "## Limits")}
+    assert what in rows, f"docs/scene_format.md's Limits table has no row {what!r}"
+    count = re.match(r"[\d,]+", rows[what])
+    assert count and int(count.group().replace(",", "")) == LIMIT_COUNTS[what]
+
+
+def test_top_level_table_is_the_loaders_keys() -> None:
+    rows = table_rows(SCENE_FORMAT, "| key | type | default | meaning |", "# Scene format")
+    assert [row[0] for row in rows] == [f"`{key}`" for key in _TOP_KEYS]
+
+
+def test_an_included_files_tables_are_the_includes_keys() -> None:
+    text = " ".join(SCENE_FORMAT.read_text(encoding="utf-8").split())
+    found = re.search(r"has the same tables as a scene but `animation` \(([^)]*)\)", text)
+    assert found, "docs/scene_format.md's Includes section no longer lists an included file's"
+    assert set(re.findall(r"`(\w+)`", found.group(1))) == set(_KEYS) - {"animation"}

@@ -17,6 +17,7 @@ import re
 from dataclasses import dataclass
 from typing import Any
 
+from clray.scene import limits as L
 from clray.scene.values import Values
 
 ANIMATION_KEYS = ("frames", "fps", "interpolation", "tracks")
@@ -24,9 +25,6 @@ TRACK_KEYS = ("key", "frames", "values", "interpolation")
 INTERPOLATIONS = ("linear", "catmull-rom")
 MAX_FRAMES = 1_000_000
 MAX_FPS = 1000.0
-# Each keyframe is checked by loading the scene with its value put in: a bound on that work.
-MAX_KEYFRAMES = 1000
-MAX_TRACKS = 1000
 
 # An index is at most 9 ASCII digits, beyond any array's length (MAX_OBJECTS, MAX_LIGHTS):
 # int() of more than 4300 digits raises ValueError, and \d takes other scripts' digits too.
@@ -155,12 +153,12 @@ def parse_animation(spec: dict, v: Values) -> Animation:
     tracks = []
     keyframes = 0
     for i, track in enumerate(v.items(spec.get("tracks", []), "animation.tracks",
-                                           MAX_TRACKS)):
+                                           L.MAX_TRACKS)):
         key = f"animation.tracks[{i}]"
         tracks.append(_track(track, key, frames, default, v))
         keyframes += len(tracks[-1].frames)
-        if keyframes > MAX_KEYFRAMES:
-            raise v.error(key, f"over the limit of {MAX_KEYFRAMES} keyframes in all tracks")
+        if keyframes > L.MAX_KEYFRAMES:
+            raise v.error(key, f"over the limit of {L.MAX_KEYFRAMES} keyframes in all tracks")
     return Animation(frames=frames, fps=fps, tracks=tuple(tracks))
 
 

@@ -96,6 +96,10 @@ def choice_problem(value: object, allowed: tuple) -> str | None:
 
 
 MAX_INCLUDE_DEPTH = 16  # files including files including files ...
+# [animation]: each keyframe is checked by loading the scene with its value put in, a bound on
+# that work.
+MAX_TRACKS = 1000
+MAX_KEYFRAMES = 1000  # all tracks together
 MAX_OBJECTS = 1_000_000
 MAX_LIGHTS = 10_000
 # Rect, disc and sphere lights' emitting area (|u x v|, pi radius^2): the kernels multiply

@@ -506,9 +506,9 @@ def _pack_bvh(bounded: _Bounded, n_groups: int, instances: list[M.Instance],
     dtype = wide.nodes.dtype
     nodes = aligned_empty((int(node_offsets[-1]),), dtype, dtype.itemsize)
     _append(nodes[:len(wide.nodes)], wide, 0, int(slot_offsets[-1]))
-    for tree, slot_offset, start, stop in zip(group_trees, slot_offsets[:-1], node_offsets[1:-1],
-                                              node_offsets[2:], strict=True):
-        _append(nodes[start:stop], tree, int(start), int(slot_offset))
+    for tree, slot_offset, first, end in zip(group_trees, slot_offsets[:-1], node_offsets[1:-1],
+                                             node_offsets[2:], strict=True):
+        _append(nodes[first:end], tree, int(first), int(slot_offset))
     records["root"] = node_offsets[1:-1].astype(np.int64)[group_of]
     # At a leaf the walk pushes the leaf's instances (an instance lane is pushed as a node's
     # child), then one LEAVE_INSTANCE entry and the group's walk above it.

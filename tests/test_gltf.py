@@ -117,6 +117,20 @@ def test_texture_v_runs_down_the_image(tmp_path):
     np.testing.assert_allclose(got, [[1, 0, 0], [0, 0, 0.5], [0, 0, 0]], atol=1e-6)
 
 
+def test_joined_meshes_keep_the_uvs_of_those_that_have_them(tmp_path):
+    """A textured mesh placed beside one without TEXCOORD_0 keeps its uvs (the other's are
+    zero), as the primitives of one mesh do: dropping them all smeared the texture."""
+    b = Builder()
+    mat = b.material(pbrMetallicRoughness={"baseColorTexture": {"index": b.image(
+        np.zeros((2, 2, 3), dtype=np.uint8))}})
+    tri = [[0, 0, 0], [1, 0, 0], [0, 1, 0]]
+    b.node(mesh=b.mesh(tri, [[0, 1, 2]], mat, uvs=[[0.0, 0.0], [1.0, 0.0], [0.0, 0.75]]))
+    b.node(mesh=b.mesh(tri, [[0, 1, 2]]), translation=[3, 0, 0])
+    (mesh,) = load(b.save(tmp_path / "mix.gltf")).objects
+    assert mesh.uvs is not None
+    np.testing.assert_array_equal(mesh.uvs, [[0, 1], [1, 1], [0, 0.25], [0, 0], [0, 0], [0, 0]])
+
+
 def test_material_rule():
     def rule(metallic, roughness, **kw):
         base = dict(name="m", color=(0.5, 0.6, 0.7), alpha=1.0, emission=(0, 0, 0),

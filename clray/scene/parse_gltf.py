@@ -163,23 +163,26 @@ def _placeable(world: np.ndarray) -> bool:
 
 
 def _joined(parts: list[ObjMesh]) -> ObjMesh:
-    """One mesh of several; normals and uvs kept where every part has them, colours where
-    any has (white, which tints nothing, elsewhere)."""
+    """One mesh of several; normals kept where every part has them, uvs and colours where
+    any has (zero uvs elsewhere, as gltf._merged fills them: only a textured material reads
+    them, and a part without TEXCOORD_0 beside a textured one must not drop the latter's;
+    white, which tints nothing, for colours)."""
     if len(parts) == 1:  # one placed mesh: its arrays as they are, no copies
         return dataclasses.replace(parts[0], material_names=(), material_libraries=())
     starts = np.cumsum([0] + [len(p.vertices) for p in parts])
 
-    def joined(name: str) -> np.ndarray | None:
+    def joined(name: str, width: int, fill: float | None) -> np.ndarray | None:
         values = [getattr(p, name) for p in parts]
-        return None if any(x is None for x in values) else np.concatenate(values)
+        missing = [x is None for x in values]
+        if all(missing) or (fill is None and any(missing)):
+            return None
+        return np.concatenate([np.full((len(p.vertices), width), fill) if x is None else x
+                               for p, x in zip(parts, values, strict=True)])
 
-    colors = None
-    if any(p.colors is not None for p in parts):
-        colors = np.concatenate([np.ones((len(p.vertices), 3)) if p.colors is None
-                                 else p.colors for p in parts])
     return ObjMesh(np.concatenate([p.vertices for p in parts]),
                    np.concatenate([p.faces + s for p, s in zip(parts, starts, strict=False)]),
-                   joined("normals"), joined("uvs"), (), joined("face_groups"), colors=colors)
+                   joined("normals", 3, None), joined("uvs", 2, 0.0), (),
+                   joined("face_groups", 1, None), colors=joined("colors", 3, 1.0))
 
 
 def _mesh(obj: ObjMesh, face_materials: np.ndarray, own: bool) -> Mesh:

@@ -131,6 +131,37 @@ def test_joined_meshes_keep_the_uvs_of_those_that_have_them(tmp_path):
     np.testing.assert_array_equal(mesh.uvs, [[0, 1], [1, 1], [0, 0.25], [0, 0], [0, 0], [0, 0]])
 
 
+SMOOTH = [[0.0, 0.0, 1.0], [0.6, 0.0, 0.8], [0.0, 0.6, 0.8]]
+
+
+@pytest.mark.parametrize("join", ["nodes", "primitives"])
+def test_a_part_without_normals_shades_flat_beside_a_smooth_one(tmp_path, join):
+    """A mesh without NORMAL joined to one with them (two nodes' meshes, or two primitives
+    of one mesh) gets its face normals (flat, as glTF asks); the other keeps its own. All
+    were dropped, so the smooth part shaded flat too."""
+    b = Builder()
+    tri = [[0, 0, 0], [1, 0, 0], [0, 1, 0]]
+    smooth = b.mesh(tri, [[0, 1, 2]], normals=SMOOTH)
+    flat = b.mesh([[0, 0, 0], [0, 0, 1], [0, 1, 0], [0, 1, 1]], [[0, 1, 2], [2, 1, 3]],
+                  colors=[[1, 0, 0], [0, 1, 0], [0, 0, 1], [1, 1, 0]])
+    b.node(mesh=smooth)
+    if join == "nodes":
+        b.node(mesh=flat, translation=[3, 0, 0])
+    else:
+        b.doc["meshes"][smooth]["primitives"] += b.doc["meshes"].pop(flat)["primitives"]
+    (mesh,) = load(b.save(tmp_path / "n.gltf")).objects
+    assert mesh.normals is not None
+    np.testing.assert_allclose(mesh.normals[:3], SMOOTH, atol=1e-7)
+    # The flat part: a vertex a corner, each with its face's normal (-x by the winding).
+    np.testing.assert_array_equal(mesh.faces[1:], [[3, 4, 5], [6, 7, 8]])
+    np.testing.assert_array_equal(mesh.normals[3:], [[-1, 0, 0]] * 6)
+    corners = [[0, 0, 1], [0, 1, 0], [0, 1, 1]]
+    np.testing.assert_array_equal(mesh.vertices[3:] - mesh.vertices[3], [
+        [0, 0, 0], *corners[:2], corners[1], [0, 0, 1], corners[2]])
+    np.testing.assert_array_equal(mesh.colors[3:], [[1, 0, 0], [0, 1, 0], [0, 0, 1],
+                                                    [0, 0, 1], [0, 1, 0], [1, 1, 0]])
+
+
 def test_material_rule():
     def rule(metallic, roughness, **kw):
         base = dict(name="m", color=(0.5, 0.6, 0.7), alpha=1.0, emission=(0, 0, 0),

@@ -618,15 +618,33 @@ def _triangles(indices: np.ndarray, mode: int) -> np.ndarray:
     return np.column_stack([np.full(n, indices[0]), indices[k + 1], indices[k + 2]])
 
 
+def flat_corners(vertices: np.ndarray, faces: np.ndarray
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(corners, faces, normals) of a mesh given a vertex for each face's corner, each with
+    its face's unit normal: vertices[corners] are the new vertices, and any per-vertex array
+    is taken so too. A mesh without normals joined to one with them shades flat so (glTF
+    asks for flat normals where NORMAL is missing); a shared vertex has no one face normal.
+    A degenerate face's normal is +z: it is never hit, and vertex normals may not be zero."""
+    corners = faces.reshape(-1).astype(np.int64)
+    v = vertices[faces].astype(np.float64)
+    normals = unit(np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0]))
+    normals[~np.any(normals != 0, axis=1)] = (0.0, 0.0, 1.0)
+    return (corners, np.arange(len(corners), dtype=np.int64).reshape(-1, 3),
+            np.repeat(normals, 3, axis=0))
+
+
 def _merged(parts: list[dict]) -> ObjMesh:
-    """One mesh of a glTF mesh's primitives: normals where every primitive has them, uvs and
-    colours where any has (zero uvs elsewhere: only a textured material reads them; white,
-    which tints nothing, for colours)."""
+    """One mesh of a glTF mesh's primitives: normals where any primitive has them (its face
+    normals, flat_corners, for a primitive without), uvs and colours where any has (zero uvs
+    elsewhere: only a textured material reads them; white, which tints nothing, for
+    colours)."""
     if len(parts) == 1:  # most meshes: nothing to join
         p = parts[0]
         groups = np.full(len(p["faces"]), p["material"], dtype=np.int64)
         return ObjMesh(p["vertices"], p["faces"].astype(np.int64), p.get("normals"),
                        p.get("uvs"), (), groups, colors=p.get("colors"))
+    if any(p.get("normals") is not None for p in parts):
+        parts = [p if p.get("normals") is not None else _flat(p) for p in parts]
     starts = np.cumsum([0] + [len(p["vertices"]) for p in parts])
     vertices = np.concatenate([p["vertices"] for p in parts])
     faces = np.concatenate([p["faces"] + s for p, s in zip(parts, starts, strict=False)])
@@ -642,6 +660,14 @@ def _merged(parts: list[dict]) -> ObjMesh:
 
     return ObjMesh(vertices, faces.astype(np.int64), joined("normals", 3, None),
                    joined("uvs", 2, 0.0), (), groups, colors=joined("colors", 3, 1.0))
+
+
+def _flat(part: dict) -> dict:
+    """A primitive (primitive()'s dict) given a vertex a face corner, with its face normal."""
+    corners, faces, normals = flat_corners(part["vertices"], part["faces"])
+    flat = {name: value[corners] for name, value in part.items()
+            if name in ("vertices", "uvs", "colors") and value is not None}
+    return {**part, **flat, "faces": faces, "normals": normals}
 
 
 def _is_int(value: Any) -> bool:

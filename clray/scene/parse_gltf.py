@@ -20,7 +20,7 @@ import numpy as np
 from clray.errors import SceneError
 from clray.scene import limits as L
 from clray.scene.assets import Assets
-from clray.scene.gltf import GltfMaterial, GltfModel
+from clray.scene.gltf import GltfMaterial, GltfModel, flat_corners
 from clray.scene.model import Group, Instance, Material, Mesh, SceneObject, Texture
 from clray.scene.obj import ObjMesh
 from clray.scene.parse_mesh import transformed
@@ -163,12 +163,14 @@ def _placeable(world: np.ndarray) -> bool:
 
 
 def _joined(parts: list[ObjMesh]) -> ObjMesh:
-    """One mesh of several; normals kept where every part has them, uvs and colours where
-    any has (zero uvs elsewhere, as gltf._merged fills them: only a textured material reads
-    them, and a part without TEXCOORD_0 beside a textured one must not drop the latter's;
-    white, which tints nothing, for colours)."""
+    """One mesh of several, as gltf._merged joins primitives: normals where any part has
+    them (its face normals, flat_corners, for a part without: the others keep their smooth
+    shading), uvs and colours where any has (zero uvs elsewhere: only a textured material
+    reads them; white, which tints nothing, for colours)."""
     if len(parts) == 1:  # one placed mesh: its arrays as they are, no copies
         return dataclasses.replace(parts[0], material_names=(), material_libraries=())
+    if any(p.normals is not None for p in parts):
+        parts = [p if p.normals is not None else _flat(p) for p in parts]
     starts = np.cumsum([0] + [len(p.vertices) for p in parts])
 
     def joined(name: str, width: int, fill: float | None) -> np.ndarray | None:
@@ -183,6 +185,15 @@ def _joined(parts: list[ObjMesh]) -> ObjMesh:
                    np.concatenate([p.faces + s for p, s in zip(parts, starts, strict=False)]),
                    joined("normals", 3, None), joined("uvs", 2, 0.0), (),
                    joined("face_groups", 1, None), colors=joined("colors", 3, 1.0))
+
+
+def _flat(part: ObjMesh) -> ObjMesh:
+    """`part` given a vertex a face corner, each with its face's normal."""
+    corners, faces, normals = flat_corners(part.vertices, part.faces)
+    return dataclasses.replace(
+        part, vertices=part.vertices[corners], faces=faces, normals=normals,
+        uvs=None if part.uvs is None else part.uvs[corners],
+        colors=None if part.colors is None else part.colors[corners])
 
 
 def _mesh(obj: ObjMesh, face_materials: np.ndarray, own: bool) -> Mesh:

@@ -233,8 +233,10 @@ def _bounds(vertices: np.ndarray) -> tuple[np.ndarray, float, np.ndarray]:
 
 
 def _plain(v: np.ndarray) -> list[float]:
-    # Rounded to 6 significant digits: an editable file, and the TOML loads to these numbers.
-    return [float(f"{x:.6g}") for x in np.asarray(v, dtype=np.float64).tolist()]
+    # Plain floats, which to_toml writes as repr does (the shortest digits that read back to
+    # the same float): the TOML loads to exactly these numbers. Rounded to 6 significant
+    # digits, the camera of a 0.01-unit model 4e6 from the origin stood half a unit off.
+    return [float(x) for x in np.asarray(v, dtype=np.float64).tolist()]
 
 
 def to_toml(data: dict, header: str = "") -> str:

@@ -202,3 +202,36 @@ def test_the_automatic_scene_reads_its_mesh_file_once(name, monkeypatch):
     assert len(reads) == 4
     np.testing.assert_array_equal(again.objects[0].vertices, scene.objects[0].vertices)
     np.testing.assert_array_equal(again.objects[0].faces, scene.objects[0].faces)
+
+
+# -- the automatic camera's numbers ---------------------------------------------------------
+
+
+def _cube(path: Path, corner: tuple[float, float, float], side: float) -> Path:
+    """An OBJ cube of `side` with its low corner at `corner`."""
+    vertices = np.array(corner) + side * np.array(
+        [[x, y, z] for x in (0, 1) for y in (0, 1) for z in (0, 1)], dtype=np.float64)
+    faces = [[1, 2, 4, 3], [5, 7, 8, 6], [1, 5, 6, 2], [3, 4, 8, 7], [1, 3, 7, 5], [2, 6, 8, 4]]
+    path.write_text("".join(f"v {x!r} {y!r} {z!r}\n" for x, y, z in vertices.tolist())
+                    + "".join("f " + " ".join(map(str, f)) + "\n" for f in faces))
+    return path
+
+
+def test_the_written_camera_keeps_every_digit(tmp_path, monkeypatch, capsys):
+    # A 0.01-unit cube 4e6 from the origin (geographic coordinates): 6 significant digits
+    # moved the camera and its look_at by half a unit, 50 times the model's size.
+    monkeypatch.chdir(tmp_path)
+    _cube(tmp_path / "geo.obj", (500000.0, 4000000.0, 100.0), 0.01)
+    data = model_scene_data(Path("geo.obj"), "front")
+    direct = load_model_scene(Path("geo.obj"), "front")
+    vertices = direct.objects[0].vertices
+    centre = (vertices.min(axis=0) + vertices.max(axis=0)) / 2
+    assert data["camera"]["look_at"] == centre.tolist()
+    eye = np.array(data["camera"]["position"])
+    np.testing.assert_array_equal(eye[:2], centre[:2])  # the front view: along +z
+    assert main(["scene", "geo.obj", "--view", "front"]) == 0
+    (tmp_path / "geo.toml").write_text(capsys.readouterr().out)
+    written = load_scene(tmp_path / "geo.toml")
+    assert written.camera.position == tuple(data["camera"]["position"])
+    assert written.camera.look_at == tuple(centre.tolist())
+    assert written.camera == direct.camera and written.lights == direct.lights

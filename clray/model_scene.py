@@ -54,6 +54,10 @@ UP_ROTATIONS: dict[str, tuple[tuple[int, int, int], ...]] = {
 VFOV = 35.0
 # The bounding sphere's radius over the half-height of the view: a little room round it.
 MARGIN = 1.05
+# The smallest bounding radius the camera frames, over the centre's distance from the origin
+# (largest coordinate), and the radius it frames a model of one point at the origin with.
+RESOLVED_RADIUS = 1e-10
+POINT_RADIUS = 1e-6
 # The ambient light: dim, as files often give Ka = 1 (exporters' default) or Ka = Kd.
 AMBIENT = 0.12
 MODEL_MATERIAL = {"color": [0.8, 0.8, 0.8], "ambient": 1.0, "diffuse": 0.85,
@@ -217,10 +221,9 @@ def _bounds(vertices: np.ndarray) -> tuple[np.ndarray, float, np.ndarray]:
     """(centre of the bounding box, radius of the sphere about it, the box's low corner)."""
     lo, hi = bounds(vertices)
     center = (lo + hi) / 2.0
-    # A floor on the radius for a mesh of one point; relative to the model's size where
-    # it has one, so a small model is not framed as a big one. The largest square's root
-    # is the largest length (a rounded root is monotonic). A chunk of vertices at a time on
-    # every core: the differences of them all were three float64 arrays of fresh memory.
+    # The largest square's root is the largest length (a rounded root is monotonic). A chunk
+    # of vertices at a time on every core: the differences of them all were three float64
+    # arrays of fresh memory.
     farthest = np.zeros(-(-len(vertices) // CHUNK_ROWS))
 
     def reach(part: slice) -> None:
@@ -229,7 +232,15 @@ def _bounds(vertices: np.ndarray) -> tuple[np.ndarray, float, np.ndarray]:
             d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1] + d[:, 2] * d[:, 2]).max()
     by_chunks(len(vertices), reach)
     radius = float(np.sqrt(farthest.max(initial=0.0)))
-    return center, max(radius, 1e-6 * max(float(np.max(np.abs(center))), 1.0)), lo
+    # The model's own size, but at least RESOLVED_RADIUS of its distance from the origin: the
+    # camera's position and look_at are float64 numbers near the centre, good to about 1e-16
+    # of it, and so is the model; below this the view's direction would be a matter of
+    # rounding (the render, made camera-relative, is not the limit, and scale.py warns that
+    # such a model is beyond float32 from the camera). Only a model of one point has no size.
+    floor = RESOLVED_RADIUS * float(np.max(np.abs(center)))
+    if radius == 0.0:
+        floor = max(floor, POINT_RADIUS)
+    return center, max(radius, floor), lo
 
 
 def _plain(v: np.ndarray) -> list[float]:

@@ -207,14 +207,14 @@ def test_the_automatic_scene_reads_its_mesh_file_once(name, monkeypatch):
 # -- the automatic camera's numbers ---------------------------------------------------------
 
 
-def _cube(path: Path, corner: tuple[float, float, float], side: float) -> Path:
-    """An OBJ cube of `side` with its low corner at `corner`."""
+def _cube(path: Path, corner: tuple[float, float, float], side: float) -> np.ndarray:
+    """An OBJ cube of `side` with its low corner at `corner`; its vertices as written."""
     vertices = np.array(corner) + side * np.array(
         [[x, y, z] for x in (0, 1) for y in (0, 1) for z in (0, 1)], dtype=np.float64)
     faces = [[1, 2, 4, 3], [5, 7, 8, 6], [1, 5, 6, 2], [3, 4, 8, 7], [1, 3, 7, 5], [2, 6, 8, 4]]
     path.write_text("".join(f"v {x!r} {y!r} {z!r}\n" for x, y, z in vertices.tolist())
                     + "".join("f " + " ".join(map(str, f)) + "\n" for f in faces))
-    return path
+    return vertices
 
 
 def test_the_written_camera_keeps_every_digit(tmp_path, monkeypatch, capsys):
@@ -235,3 +235,43 @@ def test_the_written_camera_keeps_every_digit(tmp_path, monkeypatch, capsys):
     assert written.camera.position == tuple(data["camera"]["position"])
     assert written.camera.look_at == tuple(centre.tolist())
     assert written.camera == direct.camera and written.lights == direct.lights
+
+
+def _framed_radius(data: dict) -> float:
+    """The bounding radius the automatic camera frames (its distance over MARGIN / sin)."""
+    from clray.model_scene import MARGIN, VFOV
+
+    eye, at = np.array(data["camera"]["position"]), np.array(data["camera"]["look_at"])
+    return float(np.linalg.norm(eye - at)) * np.sin(np.radians(VFOV) / 2) / MARGIN
+
+
+@pytest.mark.parametrize(("corner", "side"), [((0.0, 0.0, 0.0), 2e-8),
+                                              ((-1e-8, -1e-8, -1e-8), 2e-8),
+                                              ((500000.0, 4000000.0, 100.0), 0.01),
+                                              ((0.5, 0.5, 0.5), 1e-9)])
+def test_a_small_model_is_framed_at_its_own_size(tmp_path, monkeypatch, corner, side):
+    # The floor 1e-6 * max(|centre|, 1) framed a 2e-8 model at the origin as if 1e-6, and a
+    # 0.01 one 4e6 from the origin as if 4 units.
+    monkeypatch.chdir(tmp_path)
+    vertices = _cube(tmp_path / "small.obj", corner, side)
+    # The bounding sphere of the vertices as float64 has them (1e-9 at 0.5 is not exact).
+    radius = np.linalg.norm(vertices - (vertices.min(axis=0) + vertices.max(axis=0)) / 2,
+                            axis=1).max()
+    np.testing.assert_allclose(_framed_radius(model_scene_data(Path("small.obj"), "front")), radius,
+                               rtol=1e-6)
+
+
+def test_a_model_below_what_float64_resolves_is_framed_at_the_floor(tmp_path, monkeypatch):
+    from clray.model_scene import POINT_RADIUS, RESOLVED_RADIUS
+
+    monkeypatch.chdir(tmp_path)
+    # Smaller than float64 places a camera about it, 1e20 from the origin: framed at the
+    # smallest radius float64 resolves there.
+    _cube(tmp_path / "far.obj", (1e20, 0.0, 0.0), 1e-10)
+    np.testing.assert_allclose(_framed_radius(model_scene_data(Path("far.obj"), "front")),
+                               RESOLVED_RADIUS * 1e20, rtol=1e-6)
+    # One point has no size: at the origin, framed at POINT_RADIUS; elsewhere at the floor.
+    for where, radius in ((0.0, POINT_RADIUS), (1e8, RESOLVED_RADIUS * 1e8)):
+        (tmp_path / "point.obj").write_text(f"v {where!r} 0 0\n" * 3 + "f 1 2 3\n")
+        np.testing.assert_allclose(_framed_radius(model_scene_data(Path("point.obj"), "front")),
+                                   radius, rtol=1e-6)

@@ -176,15 +176,25 @@ def _meshes(scene: Scene) -> list[Mesh]:
 
 
 def _placed_meshes(scene: Scene) -> list[np.ndarray]:
-    """The vertices of every mesh where the scene places it."""
+    """The vertices of every mesh that its faces use, where the scene places them."""
     out = []
     for obj in scene.objects:
         if isinstance(obj, Mesh):
-            out.append(obj.vertices)
+            out.append(_used_vertices(obj))
         elif isinstance(obj, Instance):
             a, t = obj.matrix[:, :3], obj.matrix[:, 3]
-            out += [m.vertices @ a.T + t for m in obj.group.objects if isinstance(m, Mesh)]
+            out += [_used_vertices(m) @ a.T + t for m in obj.group.objects
+                    if isinstance(m, Mesh)]
     return out
+
+
+def _used_vertices(mesh: Mesh) -> np.ndarray:
+    """The mesh's vertices that a face uses: an OBJ file's points and `l` lines keep vertices
+    that nothing draws, and the camera framed them (a line to (100, 100, 0) beside a triangle
+    at the origin looked at (50, 50, 0)). The array itself, not a copy, where all are used."""
+    used = np.zeros(len(mesh.vertices), dtype=bool)
+    used[mesh.faces.reshape(-1)] = True
+    return mesh.vertices if used.all() else mesh.vertices[used]
 
 
 def probe_camera(path: Path) -> GltfCamera | None:

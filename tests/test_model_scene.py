@@ -275,3 +275,13 @@ def test_a_model_below_what_float64_resolves_is_framed_at_the_floor(tmp_path, mo
         (tmp_path / "point.obj").write_text(f"v {where!r} 0 0\n" * 3 + "f 1 2 3\n")
         np.testing.assert_allclose(_framed_radius(model_scene_data(Path("point.obj"), "front")),
                                    radius, rtol=1e-6)
+
+
+def test_the_camera_frames_only_the_vertices_faces_use(tmp_path, monkeypatch):
+    # An `l` line's vertex (and a point's) draws nothing: the camera looked at (50, 50, 0).
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "l.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nv 100 100 0\nv -7 0 0\n"
+                                    "f 1 2 3\nl 1 4\np 5\n")
+    data = model_scene_data(Path("l.obj"), "front", ground=True)
+    assert data["camera"]["look_at"] == [0.5, 0.5, 0.0]
+    assert data["objects"][1]["point"] == [0.5, 0.0, 0.0]

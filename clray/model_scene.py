@@ -92,7 +92,7 @@ def model_scene_data(path: Path, view: str = DEFAULT_VIEW, ground: bool = False,
     meshes = _placed_meshes(probe)
     toward, view_up = (np.array(v) for v in VIEWS[view])
     rotation = np.array(UP_ROTATIONS[up], dtype=np.float64)
-    matrix, offset = rotation, np.zeros(3)
+    matrix, offset, shrink = rotation, np.zeros(3), 1.0
     # One mesh's vertices as they are: a joined copy of a 2.6 M-vertex model was 63 MB of
     # fresh memory.
     model = meshes[0] if len(meshes) == 1 else np.concatenate(meshes)
@@ -111,7 +111,8 @@ def model_scene_data(path: Path, view: str = DEFAULT_VIEW, ground: bool = False,
         shrink = 2.0 ** -max(0, math.ceil(math.log2(distance / (MAX_MAGNITUDE / 4))))
         matrix, offset = shrink * rotation, -shrink * center
     transform = None
-    if up != DEFAULT_UP or offset.any():
+    # A shrunk model centred on the origin has no offset, but still its scale to write.
+    if up != DEFAULT_UP or offset.any() or shrink != 1.0:
         transform = [[*_plain(matrix[i]), *_plain(offset[i:i + 1])] for i in range(3)]
         transform.append([0.0, 0.0, 0.0, 1.0])
         # Framed from the vertices as the written (rounded) transform places them.

@@ -162,13 +162,19 @@ def test_scene_command_writes_up(tmp_path, monkeypatch, capsys):
     assert written.camera == direct.camera
 
 
-@pytest.mark.parametrize("corner", [1e30, -1e30])
+@pytest.mark.parametrize("corner", [1e30, -1e30, "centred"])
 def test_a_model_at_the_coordinate_limit_is_framed_within_it(tmp_path, monkeypatch, corner):
     # Valid vertices up to 1e30: the camera framing them from outside would stand beyond the
     # limit, which was refused as camera.position, a key the user never wrote.
     monkeypatch.chdir(tmp_path)
-    _obj(tmp_path / "big.obj", np.array([[0, 0, 0], [corner, 0, 0], [0, corner, 0],
-                                         [0, 0, corner], [corner, corner, corner]]))
+    if corner == "centred":
+        # Centred on the origin: no offset to write, but the shrink was dropped with it.
+        vertices = 3e29 * np.array([[-1, -1, -1], [1, 1, 1], [1, -1, 1], [-1, 1, 1],
+                                    [1, 1, -1]])
+    else:
+        vertices = np.array([[0, 0, 0], [corner, 0, 0], [0, corner, 0], [0, 0, corner],
+                             [corner, corner, corner]])
+    _obj(tmp_path / "big.obj", vertices)
     scene = load_model_scene(Path("big.obj"), ground=True)
     mesh = scene.objects[0]
     assert np.max(np.abs(scene.camera.position)) <= 1e30

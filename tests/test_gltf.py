@@ -337,6 +337,12 @@ def broken_cases(tmp_path: Path) -> dict[str, tuple[Path, str]]:
         "accessors[0].componentType: expected one of 5120")
     doc("huge", lambda d: d["nodes"][0].update(translation=[10**400, 0, 0]),
         "nodes[0].translation: expected 3 numbers")
+    # A sparse accessor's indices and values without a buffer view: a KeyError traceback.
+    for part in ("indices", "values"):
+        doc(f"sparse_{part}", lambda d, part=part: d["accessors"][0].update(sparse={
+            "count": 1, "indices": {"bufferView": 0, "componentType": 5125},
+            "values": {"bufferView": 0}, part: {"componentType": 5125}}),
+            f"accessors[0].sparse.{part}.bufferView: missing required key")
     missing = instanced_cubes().save(tmp_path / "missing.gltf")
     missing.with_suffix(".bin").unlink()
     cases["missing_bin"] = (missing, "buffers[0].uri: cannot read missing.bin: file not found")
@@ -347,7 +353,8 @@ def broken_cases(tmp_path: Path) -> dict[str, tuple[Path, str]]:
 
 
 CASES = ("truncated", "json", "accessor", "count", "index", "cycle", "draco", "version",
-         "component", "component_float", "huge", "missing_bin", "nothing")
+         "component", "component_float", "huge", "sparse_indices", "sparse_values",
+         "missing_bin", "nothing")
 
 
 @pytest.mark.parametrize("name", CASES)
@@ -359,7 +366,7 @@ def test_broken_files_are_scene_errors(tmp_path, name):
     assert path.name in str(caught.value)
 
 
-@pytest.mark.parametrize("name", ["truncated", "accessor", "missing_bin"])
+@pytest.mark.parametrize("name", ["truncated", "accessor", "missing_bin", "sparse_values"])
 def test_broken_file_exits_3_with_one_line(capsys, tmp_path, name):
     path, needle = broken_cases(tmp_path)[name]
     out = tmp_path / "out.png"

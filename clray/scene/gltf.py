@@ -306,6 +306,8 @@ class _Reader:
 
     def strided(self, spec: dict, path: str, dtype: np.dtype, width: int, count: int
                 ) -> np.ndarray:
+        if "bufferView" not in spec:  # a sparse accessor's indices and values need one
+            raise self.error(f"{path}.bufferView", "missing required key")
         data, offset, length, stride = self.view(spec["bufferView"], f"{path}.bufferView")
         start = self.integer(spec, "byteOffset", path, 0)
         element = dtype.itemsize * width

@@ -4,6 +4,7 @@ every warning and refusal, the exit-3 command, and the Khronos sample model rend
 
 from __future__ import annotations
 
+import json
 import math
 import struct
 import tomllib
@@ -302,6 +303,51 @@ def test_sparse_accessor_replaces_values(tmp_path):
     (mesh,) = load(b.save(tmp_path / "s.glb")).objects
     np.testing.assert_array_equal(mesh.vertices[7], [5, 5, 5])
     np.testing.assert_array_equal(mesh.vertices[:7], CUBE_VERTICES[:7])
+
+
+def _zeros_file(tmp_path: Path, counts: list[int], **attributes: int) -> Path:
+    """A .gltf of one mesh a count, each a POSITION accessor of zeros (no buffer view: no
+    bytes in the file however many it declares), with more attributes of given counts."""
+    accessors = [{"componentType": 5126, "count": n, "type": "VEC3"} for n in counts]
+    extra = {}
+    for name, n in attributes.items():
+        extra[name] = len(accessors)
+        accessors.append({"componentType": 5126, "count": n,
+                          "type": "VEC2" if name == "TEXCOORD_0" else "VEC3"})
+    doc = {"asset": {"version": "2.0"}, "accessors": accessors,
+           "meshes": [{"primitives": [{"attributes": {"POSITION": i, **extra}}]}
+                      for i in range(len(counts))],
+           "nodes": [{"mesh": i} for i in range(len(counts))],
+           "scenes": [{"nodes": list(range(len(counts)))}]}
+    path = tmp_path / "z.gltf"
+    path.write_text(json.dumps(doc))
+    return path
+
+
+def test_the_declared_triangles_are_counted_before_any_array_is_built(tmp_path, monkeypatch):
+    # Two meshes each under the limit, together over it: each accessor's 50 M zeros were
+    # built (7.6 GB) before the triangles were counted. Limits made small, and any array
+    # built an error.
+    import clray.scene.gltf as gltf
+    from clray.scene import limits
+
+    monkeypatch.setattr(limits, "MAX_TRIANGLES", 4)
+    monkeypatch.setattr(limits, "MAX_MESH_VERTICES", 12)
+
+    def built(*args, **kwargs):
+        raise AssertionError("an accessor was read")
+
+    monkeypatch.setattr(gltf._Reader, "accessor", built)
+    with pytest.raises(SceneError, match=r"z\.gltf: meshes\[1\]\.primitives\[0\]: the "
+                       r"file's meshes declare 15 vertices and 5 triangles up to here, over "
+                       r"the limit of 12 vertices and 4 triangles"):
+        load(_zeros_file(tmp_path, [6, 9]))
+    with pytest.raises(SceneError, match=r"declare 13 vertices and 4 triangles"):
+        load(_zeros_file(tmp_path, [6, 7]))
+    # An attribute of more elements than the positions: refused before it is made.
+    with pytest.raises(SceneError, match=r"meshes\[0\]\.primitives\[0\]\.attributes\."
+                       r"TEXCOORD_0: 1000000 elements for 3 positions"):
+        load(_zeros_file(tmp_path, [3], TEXCOORD_0=10**6))
 
 
 def broken_cases(tmp_path: Path) -> dict[str, tuple[Path, str]]:

@@ -31,6 +31,7 @@ from urllib.parse import unquote
 import numpy as np
 
 from clray.errors import SceneError, plural
+from clray.scene import limits as L
 from clray.scene.limits import MAX_MAGNITUDE, MAX_OBJECTS, MAX_TRIANGLES
 from clray.scene.obj import ObjMesh
 from clray.vectors import unit
@@ -343,6 +344,47 @@ class _Reader:
 
     # -- meshes -------------------------------------------------------------------------------
 
+    def declared(self, used: list[int]) -> None:
+        """The vertices and triangles the meshes `used` declare, counted from the JSON against
+        the limits for all meshes (L.MAX_MESH_VERTICES, L.MAX_TRIANGLES) before any array is
+        built: each primitive's arrays are its own (float64) copies, so two accessors of
+        fifty million zeros, or one buffer view read by many primitives, would fill memory
+        before the triangles were counted. A primitive the reader refuses or leaves out is
+        not counted here (mesh() says what is wrong with it)."""
+        vertices = triangles = 0
+        for m in used:
+            spec, path = self.entry("meshes", m, "nodes[].mesh")
+            for j, value in enumerate(self.items(spec, "primitives", f"{path}.primitives")):
+                where = f"{path}.primitives[{j}]"
+                primitive = self.table(value, where)
+                mode = primitive.get("mode", 4)
+                attributes = primitive.get("attributes")
+                if (not _is_int(mode) or not 4 <= mode <= 6 or not isinstance(attributes, dict)
+                        or "POSITION" not in attributes):
+                    continue
+                apath = f"{where}.attributes"
+                n = self.count(attributes["POSITION"], f"{apath}.POSITION")
+                for name in ("NORMAL", "TEXCOORD_0", "COLOR_0"):
+                    if name in attributes:
+                        k = self.count(attributes[name], f"{apath}.{name}")
+                        if k != n:  # as attribute() says it, before k elements are made
+                            raise self.error(f"{apath}.{name}", f"{k} elements for "
+                                             f"{plural(n, 'position')}")
+                corners = (self.count(primitive["indices"], f"{where}.indices")
+                           if "indices" in primitive else n)
+                vertices += n
+                triangles += corners // 3 if mode == 4 else max(corners - 2, 0)
+                if vertices > L.MAX_MESH_VERTICES or triangles > L.MAX_TRIANGLES:
+                    raise self.error(where, f"the file's meshes declare {vertices} vertices "
+                                     f"and {triangles} triangles up to here, over the limit "
+                                     f"of {L.MAX_MESH_VERTICES} vertices and "
+                                     f"{L.MAX_TRIANGLES} triangles for all meshes")
+
+    def count(self, index: Any, where: str) -> int:
+        """An accessor's declared element count."""
+        spec, path = self.entry("accessors", index, where)
+        return self.integer(spec, "count", path, low=1)
+
     def mesh(self, index: int) -> ObjMesh | None:
         spec, path = self.entry("meshes", index, "nodes[].mesh")
         parts = []
@@ -585,6 +627,7 @@ def read_gltf(data: bytes, path: Path, read_file: Callable[[str, str], bytes]) -
         if "camera" in node and camera is None:
             camera = r.camera(node["camera"], matrix, f"nodes[{index}]")
     used = sorted({m for m, _ in placements})
+    r.declared(used)
     meshes: list[ObjMesh | None] = [None] * len(r.items(r.doc, "meshes"))
     for m in used:
         meshes[m] = r.mesh(m)

@@ -350,6 +350,52 @@ def test_the_declared_triangles_are_counted_before_any_array_is_built(tmp_path, 
         load(_zeros_file(tmp_path, [3], TEXCOORD_0=10**6))
 
 
+def _buffers_file(tmp_path: Path, uris: list[str]) -> tuple[Path, bytes]:
+    """instanced_cubes() as a .gltf whose buffer views take turns among `buffers` entries of
+    these file names (each file a copy of the one buffer); and the buffer's bytes."""
+    b = instanced_cubes()
+    doc = b.document(None)
+    doc["buffers"] = [{"byteLength": len(b.blob), "uri": uri} for uri in uris]
+    for i, view in enumerate(doc["bufferViews"]):
+        view["buffer"] = i % len(uris)
+    for uri in set(uris):
+        (tmp_path / uri).write_bytes(bytes(b.blob))
+    (tmp_path / "b.gltf").write_text(json.dumps(doc))
+    return tmp_path / "b.gltf", bytes(b.blob)
+
+
+def test_a_buffer_file_named_by_many_buffers_is_read_once(tmp_path, monkeypatch):
+    # 25 `buffers` naming one 40 MB .bin were read 25 times (1.07 GB).
+    import clray.scene.assets as assets
+    import clray.scene.files as files
+
+    path, blob = _buffers_file(tmp_path, ["m.bin"] * 5)
+    reads = []
+    for module in (assets, files):  # assets' own name for it, and read_regular's
+
+        def counted(stream, n, real=module.read_at_most):
+            data = real(stream, n)
+            reads.append(data == blob)
+            return data
+
+        monkeypatch.setattr(module, "read_at_most", counted)
+    scene = load(path)
+    assert reads.count(True) == 1
+    assert len(scene.objects) == 4  # the triangle and three instances, as from one buffer
+
+
+def test_a_gltf_files_buffer_files_share_one_limit(tmp_path, monkeypatch):
+    # Each within the limit of one file, together over it, as a .glb of them all would be.
+    from clray.scene import limits
+
+    path, blob = _buffers_file(tmp_path, ["a.bin", "b.bin"])
+    monkeypatch.setattr(limits, "MAX_BINARY_MESH_BYTES", len(blob) * 3 // 2)
+    with pytest.raises(SceneError, match=r"b\.gltf: buffers\[1\]\.uri: cannot read b\.bin: "
+                       rf"{len(blob)} bytes is over what is left \({len(blob) // 2}\) of "
+                       "the limit"):
+        load(path)
+
+
 def broken_cases(tmp_path: Path) -> dict[str, tuple[Path, str]]:
     """name -> (file, what the one-line message must say)."""
     good = instanced_cubes()

@@ -350,6 +350,27 @@ def test_the_declared_triangles_are_counted_before_any_array_is_built(tmp_path, 
         load(_zeros_file(tmp_path, [3], TEXCOORD_0=10**6))
 
 
+def test_copies_are_counted_against_the_triangle_limit_before_they_are_made(tmp_path,
+                                                                            monkeypatch):
+    # A glowing mesh is copied for each node that places it: every copy was made before
+    # their triangles were counted (a large mesh placed by many nodes filled memory).
+    import clray.scene.parse_gltf as parse_gltf
+    from clray.scene import limits
+
+    b = Builder()
+    glow = b.material(emissiveFactor=[1, 1, 1])
+    cube = b.mesh(CUBE_VERTICES, CUBE_FACES, glow)
+    for i in range(3):
+        b.node(mesh=cube, translation=[3.0 * i, 0, 0])
+    monkeypatch.setattr(limits, "MAX_TRIANGLES", 30)  # two copies of the cube's 12 fit
+    made = []
+    real = parse_gltf.transformed
+    monkeypatch.setattr(parse_gltf, "transformed", lambda *a: made.append(1) or real(*a))
+    with pytest.raises(SceneError, match="36 triangles is over what is left"):
+        load(b.save(tmp_path / "glow.glb"))
+    assert len(made) == 2
+
+
 def _buffers_file(tmp_path: Path, uris: list[str]) -> tuple[Path, bytes]:
     """instanced_cubes() as a .gltf whose buffer views take turns among `buffers` entries of
     these file names (each file a copy of the one buffer); and the buffer's bytes."""

@@ -81,6 +81,7 @@ def gltf_objects(spec: dict, key: str, in_group: bool, v: Values, assets: Assets
     groups: dict[int, Group] = {}
     copies: list[ObjMesh] = []
     instances: list[Instance] = []
+    copied = 0  # the triangles of `copies`
     for m, matrix in model.placements:
         obj = model.meshes[m]
         if obj is None:
@@ -97,6 +98,10 @@ def gltf_objects(spec: dict, key: str, in_group: bool, v: Values, assets: Assets
             continue
         if abs(np.linalg.det(world[:3, :3])) == 0.0:
             continue  # a node scaled to nothing (exporters hide parts so) draws nothing
+        # Counted before the copy is made: a large mesh placed by many glowing nodes was
+        # copied for each before the joined copies' triangles were counted.
+        assets.fits_triangles(copied + len(obj.faces), key)
+        copied += len(obj.faces)
         placed = transformed(obj, world[:3, :3], world[:3, 3], tkey, v)
         copies.append(dataclasses.replace(placed, face_groups=face_materials))
     if not copies and not instances:

@@ -435,10 +435,19 @@ def _load(args: argparse.Namespace) -> Scene:
 def _scene(args: argparse.Namespace) -> int:
     if not is_mesh_file(args.model):
         raise SceneError(args.model, None, f"expected a {MESH_FILE}")
+    name = args.model.as_posix()
+    try:
+        name.encode("utf-8")
+    except UnicodeEncodeError:
+        # Python holds the name's bytes that are not UTF-8 as lone surrogates; a TOML file is
+        # UTF-8 and has no escape for them, so the scene written could not name the file.
+        raise SceneError(args.model, None, "the file name is not UTF-8, which a TOML scene "
+                         "file cannot hold: rename the file") from None
     view = args.view or DEFAULT_VIEW
     up = args.up or DEFAULT_UP
     data = model_scene_data(args.model, view, args.ground, up)
-    header = (f"The automatic scene of {args.model.as_posix()} (clray scene --view {view}"
+    # The name as error messages show it: a control character in a comment is not TOML.
+    header = (f"The automatic scene of {one_line(name)} (clray scene --view {view}"
               f"{' --ground' if args.ground else ''}{f' --up {up}' if args.up else ''}).")
     _to_stdout(to_toml(data, header).encode("utf-8"))
     return EXIT_OK

@@ -9,7 +9,6 @@ and optionally a ground plane under the model. docs/cli.md (A mesh file) describ
 
 from __future__ import annotations
 
-import json
 import math
 from pathlib import Path
 from typing import Any
@@ -261,10 +260,30 @@ def _plain(v: np.ndarray) -> list[float]:
     return [float(x) for x in np.asarray(v, dtype=np.float64).tolist()]
 
 
+# TOML basic strings escape the quote, the backslash and every control character (U+0000 to
+# U+001F and DEL, U+007F); comments may hold none but the tab. JSON's escapes are not TOML's:
+# json.dumps leaves DEL as it is and writes a character beyond U+FFFF as a surrogate pair of
+# \u escapes, which TOML refuses.
+_STRING_ESCAPES = {**{c: f"\\u{c:04X}" for c in (*range(0x20), 0x7F)},
+                   ord('"'): '\\"', ord("\\"): "\\\\", ord("\b"): "\\b", ord("\t"): "\\t",
+                   ord("\n"): "\\n", ord("\f"): "\\f", ord("\r"): "\\r"}
+_COMMENT_ESCAPES = {c: f"\\u{c:04X}" for c in (*range(0x20), 0x7F) if c != ord("\t")}
+
+
+def toml_string(text: str) -> str:
+    """`text` as a TOML basic string, every other character as it is (UTF-8 in the file).
+    UnicodeEncodeError for a lone surrogate (a file name that is not UTF-8, as Python decodes
+    one): no TOML file holds it."""
+    text.encode("utf-8")
+    return '"' + text.translate(_STRING_ESCAPES) + '"'
+
+
 def to_toml(data: dict, header: str = "") -> str:
     """Scene data of model_scene_data as TOML: top-level tables, materials as sub-tables,
-    lights and objects as arrays of tables."""
-    lines = [f"# {line}" for line in header.splitlines()]
+    lights and objects as arrays of tables; `header` as comment lines, each control character
+    in it written as a \\uXXXX escape (a comment may not hold one)."""
+    lines = [f"# {line.translate(_COMMENT_ESCAPES)}" for line in header.split("\n")
+             if header]
     for section, value in data.items():
         if isinstance(value, list):
             for item in value:
@@ -285,7 +304,7 @@ def _value(v: Any) -> str:
     if isinstance(v, bool):
         return "true" if v else "false"
     if isinstance(v, str):
-        return json.dumps(v)  # a TOML basic string: the same escapes
+        return toml_string(v)
     if isinstance(v, list):
         return "[" + ", ".join(_value(x) for x in v) + "]"
     if isinstance(v, dict):  # an inline table: the mesh's transform

@@ -92,6 +92,47 @@ def test_toml_strings_are_escaped():
     assert 'file = "a \\"b\\"\\\\c.obj"' in text
 
 
+# Control characters and DEL (not TOML in a string or a comment unescaped), a character
+# beyond U+FFFF (json.dumps wrote it as a surrogate pair of escapes, which TOML refuses), and
+# characters TOML takes as they are.
+_ODD_NAMES = ["del\x7f.obj", "ctl\x01\x1f.obj", "emoji\U0001F600.obj", "tab\tnl\ncr\r.obj",
+              "nel\x85ls\u2028.obj", 'q"b\\.obj']
+
+
+@pytest.mark.parametrize("name", _ODD_NAMES)
+def test_toml_strings_and_comments_read_back(name):
+    import tomllib
+
+    text = to_toml({"objects": [{"type": "mesh", "file": name}]}, f"of {name}")
+    assert tomllib.loads(text)["objects"][0]["file"] == name
+    # A comment line for each of the header's lines ("\n" only: not at U+0085 or U+2028).
+    assert text.count("# ") == name.count("\n") + 1
+
+
+@pytest.mark.parametrize("name", ["del\x7f.obj", "ctl\x01.obj", "emoji\U0001F600.obj"])
+def test_a_scene_written_for_an_odd_file_name_loads(tmp_path, monkeypatch, capsys, name):
+    monkeypatch.chdir(tmp_path)
+    _obj(tmp_path / name, _Y_UP)
+    assert main(["scene", name]) == 0
+    (tmp_path / "s.toml").write_text(capsys.readouterr().out, encoding="utf-8")
+    written = load_scene(tmp_path / "s.toml")
+    np.testing.assert_array_equal(written.objects[0].vertices,
+                                  load_model_scene(Path(name)).objects[0].vertices)
+
+
+def test_a_file_name_that_is_not_utf8_is_refused_in_one_line(tmp_path, monkeypatch, capsys):
+    import os
+
+    monkeypatch.chdir(tmp_path)
+    name = os.fsdecode(b"bad\xff.obj")  # as Python has it from the command line
+    _obj(tmp_path / name, _Y_UP)
+    assert main(["scene", name]) == 3
+    out, err = capsys.readouterr()
+    assert out == ""
+    assert err == ("clray: error: bad\\udcff.obj: the file name is not UTF-8, which a TOML "
+                   "scene file cannot hold: rename the file\n")
+
+
 def test_an_npz_mesh_renders_from_the_command_line(cl_device, tmp_path, monkeypatch):
     np.savez(tmp_path / "m.npz", vertices=np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0],
                                                     [0, 0, 1.0]]),

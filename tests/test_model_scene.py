@@ -194,13 +194,32 @@ def test_scene_command_writes_up(tmp_path, monkeypatch, capsys):
     assert main(["scene", "m.obj", "--up", "z"]) == 0
     out = capsys.readouterr().out
     assert out.startswith("# The automatic scene of m.obj (clray scene --view three-quarter "
-                          "--up z).")
+                          "--up=z).")
     assert "transform = {matrix = [[1.0, 0.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0], [0.0, -1.0, " \
         "0.0, 0.0], [0.0, 0.0, 0.0, 1.0]]}" in out
     (tmp_path / "m.toml").write_text(out)
     written, direct = load_scene(tmp_path / "m.toml"), load_model_scene(Path("m.obj"), up="z")
     np.testing.assert_array_equal(written.objects[0].vertices, direct.objects[0].vertices)
     assert written.camera == direct.camera
+
+
+def test_the_header_gives_a_command_that_writes_the_same_scene(tmp_path, monkeypatch, capsys):
+    # It wrote `--up -x`, which the command line reads as --up without a value and a flag -x.
+    import shlex
+
+    monkeypatch.chdir(tmp_path)
+    _obj(tmp_path / "m.obj", _Y_UP)
+    assert main(["scene", "m.obj", "--up=-x", "--ground"]) == 0
+    out = capsys.readouterr().out
+    command = out.splitlines()[0].split("(", 1)[1].removesuffix(").")
+    assert command == "clray scene --view three-quarter --ground --up=-x"
+    assert main([*shlex.split(command)[1:], "m.obj"]) == 0
+    assert capsys.readouterr().out == out
+
+
+def test_a_negative_up_without_equals_is_told_how_to_write_it(capsys):
+    assert main(["render", "m.obj", "--up", "-z"]) == 2
+    assert "(a negative axis is written --up=-z)" in capsys.readouterr().err
 
 
 @pytest.mark.parametrize("corner", [1e30, -1e30, "centred"])

@@ -23,6 +23,8 @@ from clray.scene.gltf import GLTF_SUFFIXES, GltfCamera, read_gltf_camera
 from clray.scene.limits import MAX_MAGNITUDE, mesh_bytes_limit
 from clray.scene.load import scene_from_dict
 from clray.scene.model import Instance, Mesh, Scene
+from clray.scene.parse_camera import parse_camera
+from clray.scene.values import Values
 from clray.vectors import bounds, unit
 
 MESH_SUFFIXES = (".obj", ".ply", ".npz", *GLTF_SUFFIXES)
@@ -129,6 +131,13 @@ def model_scene_data(path: Path, view: str = DEFAULT_VIEW, ground: bool = False,
     found = probe_camera(path)
     if found is not None:  # a glTF file's own camera, turned and moved as the model is
         camera, size = _file_camera(found, matrix, offset)
+        try:
+            # Checked here, so that a camera the scene cannot take (a node placing it beyond
+            # 1e30) names the file and its node, not a [camera] key the user never wrote.
+            parse_camera(camera, Values(None))
+        except SceneError as err:
+            raise SceneError(path, found.where, f"as the automatic scene's {err.key}: "
+                             f"{err.message}") from None
         toward = unit(np.array(camera["position"]) - np.array(camera["look_at"]))
         view_up = np.array(camera["up"])
     up = view_up
@@ -216,11 +225,13 @@ def _file_camera(found: GltfCamera, matrix: np.ndarray, offset: np.ndarray
     camera: dict[str, Any] = {"position": _plain(position), "look_at": _plain(look_at),
                               "up": _plain(unit(matrix @ np.array(found.up)))}
     if found.vfov is not None:
-        camera["vfov"] = float(f"{found.vfov:.6g}")
+        # In full, as _plain writes: the reader's largest yfov, pi - 1e-6, is 179.99994
+        # degrees, which 6 digits rounded to 180, outside (0, 180).
+        camera["vfov"] = float(found.vfov)
     else:
         scale = float(np.linalg.norm(matrix @ np.array(found.up)) /
                       np.linalg.norm(found.up))
-        camera.update(type="orthographic", height=float(f"{found.height * scale:.6g}"))
+        camera.update(type="orthographic", height=float(found.height * scale))
     aspect = found.aspect if found.aspect is not None else 640 / 480
     width = 640
     height = min(max(round(width / aspect), 1), 16384)

@@ -238,6 +238,41 @@ def test_orthographic_camera(tmp_path, monkeypatch):
     assert data["render"]["width"] == 2 * data["render"]["height"]
 
 
+def test_the_widest_yfov_the_reader_takes_stays_under_180_degrees(tmp_path, monkeypatch):
+    # pi - 1e-6, the reader's bound, is 179.99994 degrees: written to 6 digits it was 180.0,
+    # which the scene refused as camera.vfov, naming neither the file nor the glTF key.
+    b = instanced_cubes()
+    b.doc["cameras"] = [{"type": "perspective", "perspective": {"yfov": math.pi - 1e-6}}]
+    b.node(camera=0, translation=[0, 0, 20])
+    b.save(tmp_path / "wide.gltf")
+    monkeypatch.chdir(tmp_path)
+    from clray.model_scene import load_model_scene
+
+    vfov = load_model_scene(Path("wide.gltf")).camera.vfov
+    assert vfov == math.degrees(math.pi - 1e-6) and vfov < 180
+
+
+@pytest.mark.parametrize(("camera", "parent", "key", "message"), [
+    ({"type": "perspective", "perspective": {"yfov": 1.0}}, {"translation": [1e30, 0, 0]},
+     "camera.position", r"must be at most 1e\+30 in magnitude, got \[2e\+30"),
+    ({"type": "orthographic", "orthographic": {"ymag": 1e30}}, {"scale": [2, 2, 2]},
+     "camera.height", r"must be at most 1e\+30 in magnitude, got 4e\+30")])
+def test_a_file_camera_the_scene_cannot_take_names_the_file_and_node(
+        tmp_path, monkeypatch, camera, parent, key, message):
+    # Each number within the limit, the nodes placing the camera beyond it: the error named
+    # only the automatic scene's [camera] key.
+    b = instanced_cubes()
+    b.doc["cameras"] = [camera]
+    child = b.node(root=False, camera=0, translation=[1e30, 0, 0] if key == "camera.position"
+                   else [0, 0, 20])
+    b.node(children=[child], **parent)
+    b.save(tmp_path / "far.gltf")
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(SceneError, match=rf"^far\.gltf: nodes\[{child}\]\.camera: as the "
+                       rf"automatic scene's {key}: {message}"):
+        model_scene_data(Path("far.gltf"))
+
+
 def warnings_of(tmp_path, doc_edit, name="w.glb") -> tuple[str, ...]:
     b = instanced_cubes()
     doc_edit(b)

@@ -77,6 +77,7 @@ class GltfCamera:
     vfov: float | None
     height: float | None
     aspect: float | None
+    where: str = ""  # the JSON path that places it, for errors: "nodes[2].camera"
 
 
 @dataclass(frozen=True, eq=False)
@@ -608,7 +609,7 @@ class _Reader:
             xmag = self.number(lens, "xmag", f"{cpath}.orthographic", ymag, 1e-12, 1e30)
             vfov, height, aspect = None, 2.0 * ymag * float(np.linalg.norm(a[:, 1])), xmag / ymag
         return GltfCamera(_vec(position), _vec(position + forward), _vec(up), vfov, height,
-                          aspect)
+                          aspect, f"{path}.camera")
 
 
 def read_gltf(data: bytes, path: Path, read_file: Callable[[str, str], bytes]) -> GltfModel:

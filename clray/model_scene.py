@@ -24,7 +24,7 @@ from clray.scene.limits import MAX_MAGNITUDE, mesh_bytes_limit
 from clray.scene.load import scene_from_dict
 from clray.scene.model import Instance, Mesh, Scene
 from clray.scene.parse_camera import parse_camera
-from clray.scene.values import Values
+from clray.scene.values import Values, file_name
 from clray.vectors import bounds, unit
 
 MESH_SUFFIXES = (".obj", ".ply", ".npz", *GLTF_SUFFIXES)
@@ -88,8 +88,11 @@ def model_scene_data(path: Path, view: str = DEFAULT_VIEW, ground: bool = False,
     except SceneError as err:
         if err.file is not None:  # an error inside the mesh file names it already
             raise
-        # Not a scene file's key (the probe's): what the file holds.
-        raise SceneError(path, None, err.message) from None
+        # Not a scene file's key (the probe's): what the file holds, and where in it (a .npz's
+        # array, "faces[3]") where the key goes on past the probe's object and file name.
+        inside = f"objects[0].file: {file_name(name)}: "
+        key = err.key[len(inside):] if err.key and err.key.startswith(inside) else None
+        raise SceneError(path, key, err.message) from None
     meshes = _placed_meshes(probe)
     toward, view_up = (np.array(v) for v in VIEWS[view])
     rotation = np.array(UP_ROTATIONS[up], dtype=np.float64)

@@ -351,3 +351,20 @@ def test_the_camera_frames_only_the_vertices_faces_use(tmp_path, monkeypatch):
     data = model_scene_data(Path("l.obj"), "front", ground=True)
     assert data["camera"]["look_at"] == [0.5, 0.5, 0.0]
     assert data["objects"][1]["point"] == [0.5, 0.0, 0.0]
+
+
+@pytest.mark.parametrize(("arrays", "where"), [
+    ({"faces": np.zeros((1, 3))}, "faces: expected an array of Nx3 integers"),
+    ({"faces": np.array([[0, 1, 5]])}, "faces[0]: index 5 out of range"),
+    ({"faces": np.array([[0, 1, 2]]), "uvs": np.zeros((3, 3))},
+     "uvs: expected an array of Nx2 numbers")])
+def test_an_npz_error_names_the_array(tmp_path, monkeypatch, capsys, arrays, where):
+    # The array's name was dropped with the probe scene's key: "f.npz: expected an array of
+    # Nx3 integers", of which array not said.
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "sub").mkdir()
+    np.savez(tmp_path / "sub" / "f.npz", vertices=np.zeros((3, 3)), **arrays)
+    for command in ("scene", "render"):
+        assert main([command, "sub/f.npz"]) == 3
+        err = capsys.readouterr().err
+        assert err.startswith(f"clray: error: f.npz: {where}") and err.count("\n") == 1, err

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from clray.cli import main
+from clray.errors import SceneError
 from clray.model_scene import VIEWS, load_model_scene, model_scene_data, to_toml
 from clray.render import render
 from clray.scene import model as M
@@ -368,3 +369,23 @@ def test_an_npz_error_names_the_array(tmp_path, monkeypatch, capsys, arrays, whe
         assert main([command, "sub/f.npz"]) == 3
         err = capsys.readouterr().err
         assert err.startswith(f"clray: error: f.npz: {where}") and err.count("\n") == 1, err
+
+
+def test_a_float16_npz_loads_without_numpy_warnings(tmp_path, monkeypatch):
+    # The magnitude bound, 1e30, was cast to float16 (inf) with a RuntimeWarning printed.
+    import warnings
+
+    monkeypatch.chdir(tmp_path)
+    vertices = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], dtype=np.float16)
+    np.savez(tmp_path / "h.npz", vertices=vertices, faces=np.array([[0, 1, 2]]))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        mesh = load_model_scene(Path("h.npz")).objects[0]
+    np.testing.assert_array_equal(mesh.vertices, [[0, 0, 0], [1, 0, 0], [0, 1, 0]])
+    # A value the writer overflowed to inf is refused in one line, as any other.
+    vertices[1, 0] = np.inf
+    np.savez(tmp_path / "h.npz", vertices=vertices, faces=np.array([[0, 1, 2]]))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        with pytest.raises(SceneError, match=r"h\.npz: vertices\[1\]: must be finite"):
+            model_scene_data(Path("h.npz"))

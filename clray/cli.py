@@ -100,6 +100,9 @@ class _Parser(argparse.ArgumentParser):
     commands: dict[str, argparse.ArgumentParser]
 
     def error(self, message: str) -> NoReturn:
+        if message == "argument --up: expected one argument":
+            # `--up -z`: argparse takes a word that starts with - for a flag.
+            message += " (a negative axis is written --up=-z)"
         self.exit(EXIT_USAGE, f"clray: error: {one_line(message)} (see '{self.prog} --help')\n")
 
 
@@ -421,7 +424,8 @@ def _model_flags(parser: argparse.ArgumentParser) -> None:
                         help="a mesh file's automatic scene: add a ground plane under it")
     parser.add_argument("--up", choices=tuple(UP_ROTATIONS), default=None,
                         help="a mesh file's automatic scene: the model's axis that points up "
-                             f"(default: {DEFAULT_UP}; scans are often z)")
+                             f"(default: {DEFAULT_UP}; scans are often z; a negative axis "
+                             "with =, --up=-z)")
 
 
 def _load(args: argparse.Namespace) -> Scene:
@@ -435,11 +439,20 @@ def _load(args: argparse.Namespace) -> Scene:
 def _scene(args: argparse.Namespace) -> int:
     if not is_mesh_file(args.model):
         raise SceneError(args.model, None, f"expected a {MESH_FILE}")
+    name = args.model.as_posix()
+    try:
+        name.encode("utf-8")
+    except UnicodeEncodeError:
+        # Python holds the name's bytes that are not UTF-8 as lone surrogates; a TOML file is
+        # UTF-8 and has no escape for them, so the scene written could not name the file.
+        raise SceneError(args.model, None, "the file name is not UTF-8, which a TOML scene "
+                         "file cannot hold: rename the file") from None
     view = args.view or DEFAULT_VIEW
     up = args.up or DEFAULT_UP
     data = model_scene_data(args.model, view, args.ground, up)
-    header = (f"The automatic scene of {args.model.as_posix()} (clray scene --view {view}"
-              f"{' --ground' if args.ground else ''}{f' --up {up}' if args.up else ''}).")
+    # The name as error messages show it: a control character in a comment is not TOML.
+    header = (f"The automatic scene of {one_line(name)} (clray scene --view {view}"
+              f"{' --ground' if args.ground else ''}{f' --up={up}' if args.up else ''}).")
     _to_stdout(to_toml(data, header).encode("utf-8"))
     return EXIT_OK
 

@@ -9,7 +9,6 @@ and optionally a ground plane under the model. docs/cli.md (A mesh file) describ
 
 from __future__ import annotations
 
-import json
 import math
 from pathlib import Path
 from typing import Any
@@ -24,6 +23,8 @@ from clray.scene.gltf import GLTF_SUFFIXES, GltfCamera, read_gltf_camera
 from clray.scene.limits import MAX_MAGNITUDE, mesh_bytes_limit
 from clray.scene.load import scene_from_dict
 from clray.scene.model import Instance, Mesh, Scene
+from clray.scene.parse_camera import parse_camera
+from clray.scene.values import Values, file_name
 from clray.vectors import bounds, unit
 
 # For help and messages: "mesh file (.obj, .ply, .npz, .gltf, .glb)".
@@ -53,6 +54,10 @@ UP_ROTATIONS: dict[str, tuple[tuple[int, int, int], ...]] = {
 VFOV = 35.0
 # The bounding sphere's radius over the half-height of the view: a little room round it.
 MARGIN = 1.05
+# The smallest bounding radius the camera frames, over the centre's distance from the origin
+# (largest coordinate), and the radius it frames a model of one point at the origin with.
+RESOLVED_RADIUS = 1e-10
+POINT_RADIUS = 1e-6
 # The ambient light: dim, as files often give Ka = 1 (exporters' default) or Ka = Kd.
 AMBIENT = 0.12
 MODEL_MATERIAL = {"color": [0.8, 0.8, 0.8], "ambient": 1.0, "diffuse": 0.85,
@@ -82,12 +87,15 @@ def model_scene_data(path: Path, view: str = DEFAULT_VIEW, ground: bool = False,
     except SceneError as err:
         if err.file is not None:  # an error inside the mesh file names it already
             raise
-        # Not a scene file's key (the probe's): what the file holds.
-        raise SceneError(path, None, err.message) from None
+        # Not a scene file's key (the probe's): what the file holds, and where in it (a .npz's
+        # array, "faces[3]") where the key goes on past the probe's object and file name.
+        inside = f"objects[0].file: {file_name(name)}: "
+        key = err.key[len(inside):] if err.key and err.key.startswith(inside) else None
+        raise SceneError(path, key, err.message) from None
     meshes = _placed_meshes(probe)
     toward, view_up = (np.array(v) for v in VIEWS[view])
     rotation = np.array(UP_ROTATIONS[up], dtype=np.float64)
-    matrix, offset = rotation, np.zeros(3)
+    matrix, offset, shrink = rotation, np.zeros(3), 1.0
     # One mesh's vertices as they are: a joined copy of a 2.6 M-vertex model was 63 MB of
     # fresh memory.
     model = meshes[0] if len(meshes) == 1 else np.concatenate(meshes)
@@ -106,7 +114,8 @@ def model_scene_data(path: Path, view: str = DEFAULT_VIEW, ground: bool = False,
         shrink = 2.0 ** -max(0, math.ceil(math.log2(distance / (MAX_MAGNITUDE / 4))))
         matrix, offset = shrink * rotation, -shrink * center
     transform = None
-    if up != DEFAULT_UP or offset.any():
+    # A shrunk model centred on the origin has no offset, but still its scale to write.
+    if up != DEFAULT_UP or offset.any() or shrink != 1.0:
         transform = [[*_plain(matrix[i]), *_plain(offset[i:i + 1])] for i in range(3)]
         transform.append([0.0, 0.0, 0.0, 1.0])
         # Framed from the vertices as the written (rounded) transform places them.
@@ -124,6 +133,13 @@ def model_scene_data(path: Path, view: str = DEFAULT_VIEW, ground: bool = False,
     found = probe_camera(path)
     if found is not None:  # a glTF file's own camera, turned and moved as the model is
         camera, size = _file_camera(found, matrix, offset)
+        try:
+            # Checked here, so that a camera the scene cannot take (a node placing it beyond
+            # 1e30) names the file and its node, not a [camera] key the user never wrote.
+            parse_camera(camera, Values(None))
+        except SceneError as err:
+            raise SceneError(path, found.where, f"as the automatic scene's {err.key}: "
+                             f"{err.message}") from None
         toward = unit(np.array(camera["position"]) - np.array(camera["look_at"]))
         view_up = np.array(camera["up"])
     up = view_up
@@ -171,15 +187,25 @@ def _meshes(scene: Scene) -> list[Mesh]:
 
 
 def _placed_meshes(scene: Scene) -> list[np.ndarray]:
-    """The vertices of every mesh where the scene places it."""
+    """The vertices of every mesh that its faces use, where the scene places them."""
     out = []
     for obj in scene.objects:
         if isinstance(obj, Mesh):
-            out.append(obj.vertices)
+            out.append(_used_vertices(obj))
         elif isinstance(obj, Instance):
             a, t = obj.matrix[:, :3], obj.matrix[:, 3]
-            out += [m.vertices @ a.T + t for m in obj.group.objects if isinstance(m, Mesh)]
+            out += [_used_vertices(m) @ a.T + t for m in obj.group.objects
+                    if isinstance(m, Mesh)]
     return out
+
+
+def _used_vertices(mesh: Mesh) -> np.ndarray:
+    """The mesh's vertices that a face uses: an OBJ file's points and `l` lines keep vertices
+    that nothing draws, and the camera framed them (a line to (100, 100, 0) beside a triangle
+    at the origin looked at (50, 50, 0)). The array itself, not a copy, where all are used."""
+    used = np.zeros(len(mesh.vertices), dtype=bool)
+    used[mesh.faces.reshape(-1)] = True
+    return mesh.vertices if used.all() else mesh.vertices[used]
 
 
 def probe_camera(path: Path) -> GltfCamera | None:
@@ -201,11 +227,13 @@ def _file_camera(found: GltfCamera, matrix: np.ndarray, offset: np.ndarray
     camera: dict[str, Any] = {"position": _plain(position), "look_at": _plain(look_at),
                               "up": _plain(unit(matrix @ np.array(found.up)))}
     if found.vfov is not None:
-        camera["vfov"] = float(f"{found.vfov:.6g}")
+        # In full, as _plain writes: the reader's largest yfov, pi - 1e-6, is 179.99994
+        # degrees, which 6 digits rounded to 180, outside (0, 180).
+        camera["vfov"] = float(found.vfov)
     else:
         scale = float(np.linalg.norm(matrix @ np.array(found.up)) /
                       np.linalg.norm(found.up))
-        camera.update(type="orthographic", height=float(f"{found.height * scale:.6g}"))
+        camera.update(type="orthographic", height=float(found.height * scale))
     aspect = found.aspect if found.aspect is not None else 640 / 480
     width = 640
     height = min(max(round(width / aspect), 1), 16384)
@@ -216,10 +244,9 @@ def _bounds(vertices: np.ndarray) -> tuple[np.ndarray, float, np.ndarray]:
     """(centre of the bounding box, radius of the sphere about it, the box's low corner)."""
     lo, hi = bounds(vertices)
     center = (lo + hi) / 2.0
-    # A floor on the radius for a mesh of one point; relative to the model's size where
-    # it has one, so a small model is not framed as a big one. The largest square's root
-    # is the largest length (a rounded root is monotonic). A chunk of vertices at a time on
-    # every core: the differences of them all were three float64 arrays of fresh memory.
+    # The largest square's root is the largest length (a rounded root is monotonic). A chunk
+    # of vertices at a time on every core: the differences of them all were three float64
+    # arrays of fresh memory.
     farthest = np.zeros(-(-len(vertices) // CHUNK_ROWS))
 
     def reach(part: slice) -> None:
@@ -228,18 +255,48 @@ def _bounds(vertices: np.ndarray) -> tuple[np.ndarray, float, np.ndarray]:
             d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1] + d[:, 2] * d[:, 2]).max()
     by_chunks(len(vertices), reach)
     radius = float(np.sqrt(farthest.max(initial=0.0)))
-    return center, max(radius, 1e-6 * max(float(np.max(np.abs(center))), 1.0)), lo
+    # The model's own size, but at least RESOLVED_RADIUS of its distance from the origin: the
+    # camera's position and look_at are float64 numbers near the centre, good to about 1e-16
+    # of it, and so is the model; below this the view's direction would be a matter of
+    # rounding (the render, made camera-relative, is not the limit, and scale.py warns that
+    # such a model is beyond float32 from the camera). Only a model of one point has no size.
+    floor = RESOLVED_RADIUS * float(np.max(np.abs(center)))
+    if radius == 0.0:
+        floor = max(floor, POINT_RADIUS)
+    return center, max(radius, floor), lo
 
 
 def _plain(v: np.ndarray) -> list[float]:
-    # Rounded to 6 significant digits: an editable file, and the TOML loads to these numbers.
-    return [float(f"{x:.6g}") for x in np.asarray(v, dtype=np.float64).tolist()]
+    # Plain floats, which to_toml writes as repr does (the shortest digits that read back to
+    # the same float): the TOML loads to exactly these numbers. Rounded to 6 significant
+    # digits, the camera of a 0.01-unit model 4e6 from the origin stood half a unit off.
+    return [float(x) for x in np.asarray(v, dtype=np.float64).tolist()]
+
+
+# TOML basic strings escape the quote, the backslash and every control character (U+0000 to
+# U+001F and DEL, U+007F); comments may hold none but the tab. JSON's escapes are not TOML's:
+# json.dumps leaves DEL as it is and writes a character beyond U+FFFF as a surrogate pair of
+# \u escapes, which TOML refuses.
+_STRING_ESCAPES = {**{c: f"\\u{c:04X}" for c in (*range(0x20), 0x7F)},
+                   ord('"'): '\\"', ord("\\"): "\\\\", ord("\b"): "\\b", ord("\t"): "\\t",
+                   ord("\n"): "\\n", ord("\f"): "\\f", ord("\r"): "\\r"}
+_COMMENT_ESCAPES = {c: f"\\u{c:04X}" for c in (*range(0x20), 0x7F) if c != ord("\t")}
+
+
+def toml_string(text: str) -> str:
+    """`text` as a TOML basic string, every other character as it is (UTF-8 in the file).
+    UnicodeEncodeError for a lone surrogate (a file name that is not UTF-8, as Python decodes
+    one): no TOML file holds it."""
+    text.encode("utf-8")
+    return '"' + text.translate(_STRING_ESCAPES) + '"'
 
 
 def to_toml(data: dict, header: str = "") -> str:
     """Scene data of model_scene_data as TOML: top-level tables, materials as sub-tables,
-    lights and objects as arrays of tables."""
-    lines = [f"# {line}" for line in header.splitlines()]
+    lights and objects as arrays of tables; `header` as comment lines, each control character
+    in it written as a \\uXXXX escape (a comment may not hold one)."""
+    lines = [f"# {line.translate(_COMMENT_ESCAPES)}" for line in header.split("\n")
+             if header]
     for section, value in data.items():
         if isinstance(value, list):
             for item in value:
@@ -260,7 +317,7 @@ def _value(v: Any) -> str:
     if isinstance(v, bool):
         return "true" if v else "false"
     if isinstance(v, str):
-        return json.dumps(v)  # a TOML basic string: the same escapes
+        return toml_string(v)
     if isinstance(v, list):
         return "[" + ", ".join(_value(x) for x in v) + "]"
     if isinstance(v, dict):  # an inline table: the mesh's transform

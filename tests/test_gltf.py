@@ -4,6 +4,7 @@ every warning and refusal, the exit-3 command, and the Khronos sample model rend
 
 from __future__ import annotations
 
+import json
 import math
 import struct
 import tomllib
@@ -131,6 +132,51 @@ def test_texture_v_runs_down_the_image(tmp_path):
     np.testing.assert_allclose(got, [[1, 0, 0], [0, 0, 0.5], [0, 0, 0]], atol=1e-6)
 
 
+def test_joined_meshes_keep_the_uvs_of_those_that_have_them(tmp_path):
+    """A textured mesh placed beside one without TEXCOORD_0 keeps its uvs (the other's are
+    zero), as the primitives of one mesh do: dropping them all smeared the texture."""
+    b = Builder()
+    mat = b.material(pbrMetallicRoughness={"baseColorTexture": {"index": b.image(
+        np.zeros((2, 2, 3), dtype=np.uint8))}})
+    tri = [[0, 0, 0], [1, 0, 0], [0, 1, 0]]
+    b.node(mesh=b.mesh(tri, [[0, 1, 2]], mat, uvs=[[0.0, 0.0], [1.0, 0.0], [0.0, 0.75]]))
+    b.node(mesh=b.mesh(tri, [[0, 1, 2]]), translation=[3, 0, 0])
+    (mesh,) = load(b.save(tmp_path / "mix.gltf")).objects
+    assert mesh.uvs is not None
+    np.testing.assert_array_equal(mesh.uvs, [[0, 1], [1, 1], [0, 0.25], [0, 0], [0, 0], [0, 0]])
+
+
+SMOOTH = [[0.0, 0.0, 1.0], [0.6, 0.0, 0.8], [0.0, 0.6, 0.8]]
+
+
+@pytest.mark.parametrize("join", ["nodes", "primitives"])
+def test_a_part_without_normals_shades_flat_beside_a_smooth_one(tmp_path, join):
+    """A mesh without NORMAL joined to one with them (two nodes' meshes, or two primitives
+    of one mesh) gets its face normals (flat, as glTF asks); the other keeps its own. All
+    were dropped, so the smooth part shaded flat too."""
+    b = Builder()
+    tri = [[0, 0, 0], [1, 0, 0], [0, 1, 0]]
+    smooth = b.mesh(tri, [[0, 1, 2]], normals=SMOOTH)
+    flat = b.mesh([[0, 0, 0], [0, 0, 1], [0, 1, 0], [0, 1, 1]], [[0, 1, 2], [2, 1, 3]],
+                  colors=[[1, 0, 0], [0, 1, 0], [0, 0, 1], [1, 1, 0]])
+    b.node(mesh=smooth)
+    if join == "nodes":
+        b.node(mesh=flat, translation=[3, 0, 0])
+    else:
+        b.doc["meshes"][smooth]["primitives"] += b.doc["meshes"].pop(flat)["primitives"]
+    (mesh,) = load(b.save(tmp_path / "n.gltf")).objects
+    assert mesh.normals is not None
+    np.testing.assert_allclose(mesh.normals[:3], SMOOTH, atol=1e-7)
+    # The flat part: a vertex a corner, each with its face's normal (-x by the winding).
+    np.testing.assert_array_equal(mesh.faces[1:], [[3, 4, 5], [6, 7, 8]])
+    np.testing.assert_array_equal(mesh.normals[3:], [[-1, 0, 0]] * 6)
+    corners = [[0, 0, 1], [0, 1, 0], [0, 1, 1]]
+    np.testing.assert_array_equal(mesh.vertices[3:] - mesh.vertices[3], [
+        [0, 0, 0], *corners[:2], corners[1], [0, 0, 1], corners[2]])
+    np.testing.assert_array_equal(mesh.colors[3:], [[1, 0, 0], [0, 1, 0], [0, 0, 1],
+                                                    [0, 0, 1], [0, 1, 0], [1, 1, 0]])
+
+
 def test_material_rule():
     def rule(metallic, roughness, **kw):
         base = dict(name="m", color=(0.5, 0.6, 0.7), alpha=1.0, emission=(0, 0, 0),
@@ -206,6 +252,41 @@ def test_orthographic_camera(tmp_path, monkeypatch):
     assert data["render"]["width"] == 2 * data["render"]["height"]
 
 
+def test_the_widest_yfov_the_reader_takes_stays_under_180_degrees(tmp_path, monkeypatch):
+    # pi - 1e-6, the reader's bound, is 179.99994 degrees: written to 6 digits it was 180.0,
+    # which the scene refused as camera.vfov, naming neither the file nor the glTF key.
+    b = instanced_cubes()
+    b.doc["cameras"] = [{"type": "perspective", "perspective": {"yfov": math.pi - 1e-6}}]
+    b.node(camera=0, translation=[0, 0, 20])
+    b.save(tmp_path / "wide.gltf")
+    monkeypatch.chdir(tmp_path)
+    from clray.model_scene import load_model_scene
+
+    vfov = load_model_scene(Path("wide.gltf")).camera.vfov
+    assert vfov == math.degrees(math.pi - 1e-6) and vfov < 180
+
+
+@pytest.mark.parametrize(("camera", "parent", "key", "message"), [
+    ({"type": "perspective", "perspective": {"yfov": 1.0}}, {"translation": [1e30, 0, 0]},
+     "camera.position", r"must be at most 1e\+30 in magnitude, got \[2e\+30"),
+    ({"type": "orthographic", "orthographic": {"ymag": 1e30}}, {"scale": [2, 2, 2]},
+     "camera.height", r"must be at most 1e\+30 in magnitude, got 4e\+30")])
+def test_a_file_camera_the_scene_cannot_take_names_the_file_and_node(
+        tmp_path, monkeypatch, camera, parent, key, message):
+    # Each number within the limit, the nodes placing the camera beyond it: the error named
+    # only the automatic scene's [camera] key.
+    b = instanced_cubes()
+    b.doc["cameras"] = [camera]
+    child = b.node(root=False, camera=0, translation=[1e30, 0, 0] if key == "camera.position"
+                   else [0, 0, 20])
+    b.node(children=[child], **parent)
+    b.save(tmp_path / "far.gltf")
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(SceneError, match=rf"^far\.gltf: nodes\[{child}\]\.camera: as the "
+                       rf"automatic scene's {key}: {message}"):
+        model_scene_data(Path("far.gltf"))
+
+
 def warnings_of(tmp_path, doc_edit, name="w.glb") -> tuple[str, ...]:
     b = instanced_cubes()
     doc_edit(b)
@@ -273,6 +354,118 @@ def test_sparse_accessor_replaces_values(tmp_path):
     np.testing.assert_array_equal(mesh.vertices[:7], CUBE_VERTICES[:7])
 
 
+def _zeros_file(tmp_path: Path, counts: list[int], **attributes: int) -> Path:
+    """A .gltf of one mesh a count, each a POSITION accessor of zeros (no buffer view: no
+    bytes in the file however many it declares), with more attributes of given counts."""
+    accessors = [{"componentType": 5126, "count": n, "type": "VEC3"} for n in counts]
+    extra = {}
+    for name, n in attributes.items():
+        extra[name] = len(accessors)
+        accessors.append({"componentType": 5126, "count": n,
+                          "type": "VEC2" if name == "TEXCOORD_0" else "VEC3"})
+    doc = {"asset": {"version": "2.0"}, "accessors": accessors,
+           "meshes": [{"primitives": [{"attributes": {"POSITION": i, **extra}}]}
+                      for i in range(len(counts))],
+           "nodes": [{"mesh": i} for i in range(len(counts))],
+           "scenes": [{"nodes": list(range(len(counts)))}]}
+    path = tmp_path / "z.gltf"
+    path.write_text(json.dumps(doc))
+    return path
+
+
+def test_the_declared_triangles_are_counted_before_any_array_is_built(tmp_path, monkeypatch):
+    # Two meshes each under the limit, together over it: each accessor's 50 M zeros were
+    # built (7.6 GB) before the triangles were counted. Limits made small, and any array
+    # built an error.
+    import clray.scene.gltf as gltf
+    from clray.scene import limits
+
+    monkeypatch.setattr(limits, "MAX_TRIANGLES", 4)
+    monkeypatch.setattr(limits, "MAX_MESH_VERTICES", 12)
+
+    def built(*args, **kwargs):
+        raise AssertionError("an accessor was read")
+
+    monkeypatch.setattr(gltf._Reader, "accessor", built)
+    with pytest.raises(SceneError, match=r"z\.gltf: meshes\[1\]\.primitives\[0\]: the "
+                       r"file's meshes declare 15 vertices and 5 triangles up to here, over "
+                       r"the limit of 12 vertices and 4 triangles"):
+        load(_zeros_file(tmp_path, [6, 9]))
+    with pytest.raises(SceneError, match=r"declare 13 vertices and 4 triangles"):
+        load(_zeros_file(tmp_path, [6, 7]))
+    # An attribute of more elements than the positions: refused before it is made.
+    with pytest.raises(SceneError, match=r"meshes\[0\]\.primitives\[0\]\.attributes\."
+                       r"TEXCOORD_0: 1000000 elements for 3 positions"):
+        load(_zeros_file(tmp_path, [3], TEXCOORD_0=10**6))
+
+
+def test_copies_are_counted_against_the_triangle_limit_before_they_are_made(tmp_path,
+                                                                            monkeypatch):
+    # A glowing mesh is copied for each node that places it: every copy was made before
+    # their triangles were counted (a large mesh placed by many nodes filled memory).
+    import clray.scene.parse_gltf as parse_gltf
+    from clray.scene import limits
+
+    b = Builder()
+    glow = b.material(emissiveFactor=[1, 1, 1])
+    cube = b.mesh(CUBE_VERTICES, CUBE_FACES, glow)
+    for i in range(3):
+        b.node(mesh=cube, translation=[3.0 * i, 0, 0])
+    monkeypatch.setattr(limits, "MAX_TRIANGLES", 30)  # two copies of the cube's 12 fit
+    made = []
+    real = parse_gltf.transformed
+    monkeypatch.setattr(parse_gltf, "transformed", lambda *a: made.append(1) or real(*a))
+    with pytest.raises(SceneError, match="36 triangles is over what is left"):
+        load(b.save(tmp_path / "glow.glb"))
+    assert len(made) == 2
+
+
+def _buffers_file(tmp_path: Path, uris: list[str]) -> tuple[Path, bytes]:
+    """instanced_cubes() as a .gltf whose buffer views take turns among `buffers` entries of
+    these file names (each file a copy of the one buffer); and the buffer's bytes."""
+    b = instanced_cubes()
+    doc = b.document(None)
+    doc["buffers"] = [{"byteLength": len(b.blob), "uri": uri} for uri in uris]
+    for i, view in enumerate(doc["bufferViews"]):
+        view["buffer"] = i % len(uris)
+    for uri in set(uris):
+        (tmp_path / uri).write_bytes(bytes(b.blob))
+    (tmp_path / "b.gltf").write_text(json.dumps(doc))
+    return tmp_path / "b.gltf", bytes(b.blob)
+
+
+def test_a_buffer_file_named_by_many_buffers_is_read_once(tmp_path, monkeypatch):
+    # 25 `buffers` naming one 40 MB .bin were read 25 times (1.07 GB).
+    import clray.scene.assets as assets
+    import clray.scene.files as files
+
+    path, blob = _buffers_file(tmp_path, ["m.bin"] * 5)
+    reads = []
+    for module in (assets, files):  # assets' own name for it, and read_regular's
+
+        def counted(stream, n, real=module.read_at_most):
+            data = real(stream, n)
+            reads.append(data == blob)
+            return data
+
+        monkeypatch.setattr(module, "read_at_most", counted)
+    scene = load(path)
+    assert reads.count(True) == 1
+    assert len(scene.objects) == 4  # the triangle and three instances, as from one buffer
+
+
+def test_a_gltf_files_buffer_files_share_one_limit(tmp_path, monkeypatch):
+    # Each within the limit of one file, together over it, as a .glb of them all would be.
+    from clray.scene import limits
+
+    path, blob = _buffers_file(tmp_path, ["a.bin", "b.bin"])
+    monkeypatch.setattr(limits, "MAX_BINARY_MESH_BYTES", len(blob) * 3 // 2)
+    with pytest.raises(SceneError, match=r"b\.gltf: buffers\[1\]\.uri: cannot read b\.bin: "
+                       rf"{len(blob)} bytes is over what is left \({len(blob) // 2}\) of "
+                       "the limit"):
+        load(path)
+
+
 def broken_cases(tmp_path: Path) -> dict[str, tuple[Path, str]]:
     """name -> (file, what the one-line message must say)."""
     good = instanced_cubes()
@@ -306,6 +499,12 @@ def broken_cases(tmp_path: Path) -> dict[str, tuple[Path, str]]:
         "accessors[0].componentType: expected one of 5120")
     doc("huge", lambda d: d["nodes"][0].update(translation=[10**400, 0, 0]),
         "nodes[0].translation: expected 3 numbers")
+    # A sparse accessor's indices and values without a buffer view: a KeyError traceback.
+    for part in ("indices", "values"):
+        doc(f"sparse_{part}", lambda d, part=part: d["accessors"][0].update(sparse={
+            "count": 1, "indices": {"bufferView": 0, "componentType": 5125},
+            "values": {"bufferView": 0}, part: {"componentType": 5125}}),
+            f"accessors[0].sparse.{part}.bufferView: missing required key")
     missing = instanced_cubes().save(tmp_path / "missing.gltf")
     missing.with_suffix(".bin").unlink()
     cases["missing_bin"] = (missing, "buffers[0].uri: cannot read missing.bin: file not found")
@@ -316,7 +515,8 @@ def broken_cases(tmp_path: Path) -> dict[str, tuple[Path, str]]:
 
 
 CASES = ("truncated", "json", "accessor", "count", "index", "cycle", "draco", "version",
-         "component", "component_float", "huge", "missing_bin", "nothing")
+         "component", "component_float", "huge", "sparse_indices", "sparse_values",
+         "missing_bin", "nothing")
 
 
 @pytest.mark.parametrize("name", CASES)
@@ -328,7 +528,7 @@ def test_broken_files_are_scene_errors(tmp_path, name):
     assert path.name in str(caught.value)
 
 
-@pytest.mark.parametrize("name", ["truncated", "accessor", "missing_bin"])
+@pytest.mark.parametrize("name", ["truncated", "accessor", "missing_bin", "sparse_values"])
 def test_broken_file_exits_3_with_one_line(capsys, tmp_path, name):
     path, needle = broken_cases(tmp_path)[name]
     out = tmp_path / "out.png"

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from clray.cli import main
+from clray.errors import SceneError
 from clray.model_scene import VIEWS, load_model_scene, model_scene_data, to_toml
 from clray.render import render
 from clray.scene import model as M
@@ -92,6 +93,47 @@ def test_toml_strings_are_escaped():
     assert 'file = "a \\"b\\"\\\\c.obj"' in text
 
 
+# Control characters and DEL (not TOML in a string or a comment unescaped), a character
+# beyond U+FFFF (json.dumps wrote it as a surrogate pair of escapes, which TOML refuses), and
+# characters TOML takes as they are.
+_ODD_NAMES = ["del\x7f.obj", "ctl\x01\x1f.obj", "emoji\U0001F600.obj", "tab\tnl\ncr\r.obj",
+              "nel\x85ls\u2028.obj", 'q"b\\.obj']
+
+
+@pytest.mark.parametrize("name", _ODD_NAMES)
+def test_toml_strings_and_comments_read_back(name):
+    import tomllib
+
+    text = to_toml({"objects": [{"type": "mesh", "file": name}]}, f"of {name}")
+    assert tomllib.loads(text)["objects"][0]["file"] == name
+    # A comment line for each of the header's lines ("\n" only: not at U+0085 or U+2028).
+    assert text.count("# ") == name.count("\n") + 1
+
+
+@pytest.mark.parametrize("name", ["del\x7f.obj", "ctl\x01.obj", "emoji\U0001F600.obj"])
+def test_a_scene_written_for_an_odd_file_name_loads(tmp_path, monkeypatch, capsys, name):
+    monkeypatch.chdir(tmp_path)
+    _obj(tmp_path / name, _Y_UP)
+    assert main(["scene", name]) == 0
+    (tmp_path / "s.toml").write_text(capsys.readouterr().out, encoding="utf-8")
+    written = load_scene(tmp_path / "s.toml")
+    np.testing.assert_array_equal(written.objects[0].vertices,
+                                  load_model_scene(Path(name)).objects[0].vertices)
+
+
+def test_a_file_name_that_is_not_utf8_is_refused_in_one_line(tmp_path, monkeypatch, capsys):
+    import os
+
+    monkeypatch.chdir(tmp_path)
+    name = os.fsdecode(b"bad\xff.obj")  # as Python has it from the command line
+    _obj(tmp_path / name, _Y_UP)
+    assert main(["scene", name]) == 3
+    out, err = capsys.readouterr()
+    assert out == ""
+    assert err == ("clray: error: bad\\udcff.obj: the file name is not UTF-8, which a TOML "
+                   "scene file cannot hold: rename the file\n")
+
+
 def test_an_npz_mesh_renders_from_the_command_line(cl_device, tmp_path, monkeypatch):
     np.savez(tmp_path / "m.npz", vertices=np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0],
                                                     [0, 0, 1.0]]),
@@ -153,7 +195,7 @@ def test_scene_command_writes_up(tmp_path, monkeypatch, capsys):
     assert main(["scene", "m.obj", "--up", "z"]) == 0
     out = capsys.readouterr().out
     assert out.startswith("# The automatic scene of m.obj (clray scene --view three-quarter "
-                          "--up z).")
+                          "--up=z).")
     assert "transform = {matrix = [[1.0, 0.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0], [0.0, -1.0, " \
         "0.0, 0.0], [0.0, 0.0, 0.0, 1.0]]}" in out
     (tmp_path / "m.toml").write_text(out)
@@ -162,13 +204,38 @@ def test_scene_command_writes_up(tmp_path, monkeypatch, capsys):
     assert written.camera == direct.camera
 
 
-@pytest.mark.parametrize("corner", [1e30, -1e30])
+def test_the_header_gives_a_command_that_writes_the_same_scene(tmp_path, monkeypatch, capsys):
+    # It wrote `--up -x`, which the command line reads as --up without a value and a flag -x.
+    import shlex
+
+    monkeypatch.chdir(tmp_path)
+    _obj(tmp_path / "m.obj", _Y_UP)
+    assert main(["scene", "m.obj", "--up=-x", "--ground"]) == 0
+    out = capsys.readouterr().out
+    command = out.splitlines()[0].split("(", 1)[1].removesuffix(").")
+    assert command == "clray scene --view three-quarter --ground --up=-x"
+    assert main([*shlex.split(command)[1:], "m.obj"]) == 0
+    assert capsys.readouterr().out == out
+
+
+def test_a_negative_up_without_equals_is_told_how_to_write_it(capsys):
+    assert main(["render", "m.obj", "--up", "-z"]) == 2
+    assert "(a negative axis is written --up=-z)" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("corner", [1e30, -1e30, "centred"])
 def test_a_model_at_the_coordinate_limit_is_framed_within_it(tmp_path, monkeypatch, corner):
     # Valid vertices up to 1e30: the camera framing them from outside would stand beyond the
     # limit, which was refused as camera.position, a key the user never wrote.
     monkeypatch.chdir(tmp_path)
-    _obj(tmp_path / "big.obj", np.array([[0, 0, 0], [corner, 0, 0], [0, corner, 0],
-                                         [0, 0, corner], [corner, corner, corner]]))
+    if corner == "centred":
+        # Centred on the origin: no offset to write, but the shrink was dropped with it.
+        vertices = 3e29 * np.array([[-1, -1, -1], [1, 1, 1], [1, -1, 1], [-1, 1, 1],
+                                    [1, 1, -1]])
+    else:
+        vertices = np.array([[0, 0, 0], [corner, 0, 0], [0, corner, 0], [0, 0, corner],
+                             [corner, corner, corner]])
+    _obj(tmp_path / "big.obj", vertices)
     scene = load_model_scene(Path("big.obj"), ground=True)
     mesh = scene.objects[0]
     assert np.max(np.abs(scene.camera.position)) <= 1e30
@@ -202,3 +269,123 @@ def test_the_automatic_scene_reads_its_mesh_file_once(name, monkeypatch):
     assert len(reads) == 4
     np.testing.assert_array_equal(again.objects[0].vertices, scene.objects[0].vertices)
     np.testing.assert_array_equal(again.objects[0].faces, scene.objects[0].faces)
+
+
+# -- the automatic camera's numbers ---------------------------------------------------------
+
+
+def _cube(path: Path, corner: tuple[float, float, float], side: float) -> np.ndarray:
+    """An OBJ cube of `side` with its low corner at `corner`; its vertices as written."""
+    vertices = np.array(corner) + side * np.array(
+        [[x, y, z] for x in (0, 1) for y in (0, 1) for z in (0, 1)], dtype=np.float64)
+    faces = [[1, 2, 4, 3], [5, 7, 8, 6], [1, 5, 6, 2], [3, 4, 8, 7], [1, 3, 7, 5], [2, 6, 8, 4]]
+    path.write_text("".join(f"v {x!r} {y!r} {z!r}\n" for x, y, z in vertices.tolist())
+                    + "".join("f " + " ".join(map(str, f)) + "\n" for f in faces))
+    return vertices
+
+
+def test_the_written_camera_keeps_every_digit(tmp_path, monkeypatch, capsys):
+    # A 0.01-unit cube 4e6 from the origin (geographic coordinates): 6 significant digits
+    # moved the camera and its look_at by half a unit, 50 times the model's size.
+    monkeypatch.chdir(tmp_path)
+    _cube(tmp_path / "geo.obj", (500000.0, 4000000.0, 100.0), 0.01)
+    data = model_scene_data(Path("geo.obj"), "front")
+    direct = load_model_scene(Path("geo.obj"), "front")
+    vertices = direct.objects[0].vertices
+    centre = (vertices.min(axis=0) + vertices.max(axis=0)) / 2
+    assert data["camera"]["look_at"] == centre.tolist()
+    eye = np.array(data["camera"]["position"])
+    np.testing.assert_array_equal(eye[:2], centre[:2])  # the front view: along +z
+    assert main(["scene", "geo.obj", "--view", "front"]) == 0
+    (tmp_path / "geo.toml").write_text(capsys.readouterr().out)
+    written = load_scene(tmp_path / "geo.toml")
+    assert written.camera.position == tuple(data["camera"]["position"])
+    assert written.camera.look_at == tuple(centre.tolist())
+    assert written.camera == direct.camera and written.lights == direct.lights
+
+
+def _framed_radius(data: dict) -> float:
+    """The bounding radius the automatic camera frames (its distance over MARGIN / sin)."""
+    from clray.model_scene import MARGIN, VFOV
+
+    eye, at = np.array(data["camera"]["position"]), np.array(data["camera"]["look_at"])
+    return float(np.linalg.norm(eye - at)) * np.sin(np.radians(VFOV) / 2) / MARGIN
+
+
+@pytest.mark.parametrize(("corner", "side"), [((0.0, 0.0, 0.0), 2e-8),
+                                              ((-1e-8, -1e-8, -1e-8), 2e-8),
+                                              ((500000.0, 4000000.0, 100.0), 0.01),
+                                              ((0.5, 0.5, 0.5), 1e-9)])
+def test_a_small_model_is_framed_at_its_own_size(tmp_path, monkeypatch, corner, side):
+    # The floor 1e-6 * max(|centre|, 1) framed a 2e-8 model at the origin as if 1e-6, and a
+    # 0.01 one 4e6 from the origin as if 4 units.
+    monkeypatch.chdir(tmp_path)
+    vertices = _cube(tmp_path / "small.obj", corner, side)
+    # The bounding sphere of the vertices as float64 has them (1e-9 at 0.5 is not exact).
+    radius = np.linalg.norm(vertices - (vertices.min(axis=0) + vertices.max(axis=0)) / 2,
+                            axis=1).max()
+    np.testing.assert_allclose(_framed_radius(model_scene_data(Path("small.obj"), "front")), radius,
+                               rtol=1e-6)
+
+
+def test_a_model_below_what_float64_resolves_is_framed_at_the_floor(tmp_path, monkeypatch):
+    from clray.model_scene import POINT_RADIUS, RESOLVED_RADIUS
+
+    monkeypatch.chdir(tmp_path)
+    # Smaller than float64 places a camera about it, 1e20 from the origin: framed at the
+    # smallest radius float64 resolves there.
+    _cube(tmp_path / "far.obj", (1e20, 0.0, 0.0), 1e-10)
+    np.testing.assert_allclose(_framed_radius(model_scene_data(Path("far.obj"), "front")),
+                               RESOLVED_RADIUS * 1e20, rtol=1e-6)
+    # One point has no size: at the origin, framed at POINT_RADIUS; elsewhere at the floor.
+    for where, radius in ((0.0, POINT_RADIUS), (1e8, RESOLVED_RADIUS * 1e8)):
+        (tmp_path / "point.obj").write_text(f"v {where!r} 0 0\n" * 3 + "f 1 2 3\n")
+        np.testing.assert_allclose(_framed_radius(model_scene_data(Path("point.obj"), "front")),
+                                   radius, rtol=1e-6)
+
+
+def test_the_camera_frames_only_the_vertices_faces_use(tmp_path, monkeypatch):
+    # An `l` line's vertex (and a point's) draws nothing: the camera looked at (50, 50, 0).
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "l.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nv 100 100 0\nv -7 0 0\n"
+                                    "f 1 2 3\nl 1 4\np 5\n")
+    data = model_scene_data(Path("l.obj"), "front", ground=True)
+    assert data["camera"]["look_at"] == [0.5, 0.5, 0.0]
+    assert data["objects"][1]["point"] == [0.5, 0.0, 0.0]
+
+
+@pytest.mark.parametrize(("arrays", "where"), [
+    ({"faces": np.zeros((1, 3))}, "faces: expected an array of Nx3 integers"),
+    ({"faces": np.array([[0, 1, 5]])}, "faces[0]: index 5 out of range"),
+    ({"faces": np.array([[0, 1, 2]]), "uvs": np.zeros((3, 3))},
+     "uvs: expected an array of Nx2 numbers")])
+def test_an_npz_error_names_the_array(tmp_path, monkeypatch, capsys, arrays, where):
+    # The array's name was dropped with the probe scene's key: "f.npz: expected an array of
+    # Nx3 integers", of which array not said.
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "sub").mkdir()
+    np.savez(tmp_path / "sub" / "f.npz", vertices=np.zeros((3, 3)), **arrays)
+    for command in ("scene", "render"):
+        assert main([command, "sub/f.npz"]) == 3
+        err = capsys.readouterr().err
+        assert err.startswith(f"clray: error: f.npz: {where}") and err.count("\n") == 1, err
+
+
+def test_a_float16_npz_loads_without_numpy_warnings(tmp_path, monkeypatch):
+    # The magnitude bound, 1e30, was cast to float16 (inf) with a RuntimeWarning printed.
+    import warnings
+
+    monkeypatch.chdir(tmp_path)
+    vertices = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], dtype=np.float16)
+    np.savez(tmp_path / "h.npz", vertices=vertices, faces=np.array([[0, 1, 2]]))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        mesh = load_model_scene(Path("h.npz")).objects[0]
+    np.testing.assert_array_equal(mesh.vertices, [[0, 0, 0], [1, 0, 0], [0, 1, 0]])
+    # A value the writer overflowed to inf is refused in one line, as any other.
+    vertices[1, 0] = np.inf
+    np.savez(tmp_path / "h.npz", vertices=vertices, faces=np.array([[0, 1, 2]]))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        with pytest.raises(SceneError, match=r"h\.npz: vertices\[1\]: must be finite"):
+            model_scene_data(Path("h.npz"))

@@ -22,7 +22,7 @@ import numpy as np
 from clray.errors import SceneError, plural
 from clray.scene import limits as L
 from clray.scene.colour import srgb_decode
-from clray.scene.files import UnreadableFile, open_regular, read_at_most, read_regular
+from clray.scene.files import UnreadableFile, open_regular, read_at_most
 from clray.scene.gltf import GLTF_SUFFIXES, GltfModel, read_gltf
 from clray.scene.mesh_data import mesh_arrays
 from clray.scene.mtl import MtlLibrary, parse_mtl
@@ -182,10 +182,28 @@ class Assets:
                 except UnreadableFile as exc:
                     raise self.values.error(key, f"{exc}: {file_name(name)}") from None
                 path = self.base / name
+                # The buffer and image files by (device, inode), each read once (25 `buffers`
+                # naming one .bin were 25 copies of it), and together within the limit of
+                # one file, as a .glb's binary chunk is.
+                files: dict[tuple[int, int], bytes] = {}
+                left = L.MAX_BINARY_MESH_BYTES
 
                 def read_file(relative: str, where: str) -> bytes:
+                    nonlocal left
                     try:
-                        return read_regular(path.parent / relative, L.MAX_BINARY_MESH_BYTES)
+                        stream, info = open_regular(path.parent / relative,
+                                                    L.MAX_BINARY_MESH_BYTES)
+                        with stream:
+                            identity = (info.st_dev, info.st_ino)
+                            if identity not in files:
+                                if info.st_size > left:
+                                    raise UnreadableFile(
+                                        f"{info.st_size} bytes is over what is left ({left}) "
+                                        f"of the limit of {L.MAX_BINARY_MESH_BYTES} bytes for "
+                                        "a glTF file's buffer and image files together")
+                                files[identity] = read_at_most(stream, left)
+                                left -= len(files[identity])
+                            return files[identity]
                     except UnreadableFile as exc:
                         raise SceneError(path, where, f"cannot read {file_name(relative)}: "
                                          f"{exc}") from None

@@ -31,6 +31,7 @@ from urllib.parse import unquote
 import numpy as np
 
 from clray.errors import SceneError, plural
+from clray.scene import limits as L
 from clray.scene.limits import MAX_MAGNITUDE, MAX_OBJECTS, MAX_TRIANGLES
 from clray.scene.obj import ObjMesh
 from clray.vectors import unit
@@ -76,6 +77,7 @@ class GltfCamera:
     vfov: float | None
     height: float | None
     aspect: float | None
+    where: str = ""  # the JSON path that places it, for errors: "nodes[2].camera"
 
 
 @dataclass(frozen=True, eq=False)
@@ -306,6 +308,8 @@ class _Reader:
 
     def strided(self, spec: dict, path: str, dtype: np.dtype, width: int, count: int
                 ) -> np.ndarray:
+        if "bufferView" not in spec:  # a sparse accessor's indices and values need one
+            raise self.error(f"{path}.bufferView", "missing required key")
         data, offset, length, stride = self.view(spec["bufferView"], f"{path}.bufferView")
         start = self.integer(spec, "byteOffset", path, 0)
         element = dtype.itemsize * width
@@ -340,6 +344,47 @@ class _Reader:
         return values
 
     # -- meshes -------------------------------------------------------------------------------
+
+    def declared(self, used: list[int]) -> None:
+        """The vertices and triangles the meshes `used` declare, counted from the JSON against
+        the limits for all meshes (L.MAX_MESH_VERTICES, L.MAX_TRIANGLES) before any array is
+        built: each primitive's arrays are its own (float64) copies, so two accessors of
+        fifty million zeros, or one buffer view read by many primitives, would fill memory
+        before the triangles were counted. A primitive the reader refuses or leaves out is
+        not counted here (mesh() says what is wrong with it)."""
+        vertices = triangles = 0
+        for m in used:
+            spec, path = self.entry("meshes", m, "nodes[].mesh")
+            for j, value in enumerate(self.items(spec, "primitives", f"{path}.primitives")):
+                where = f"{path}.primitives[{j}]"
+                primitive = self.table(value, where)
+                mode = primitive.get("mode", 4)
+                attributes = primitive.get("attributes")
+                if (not _is_int(mode) or not 4 <= mode <= 6 or not isinstance(attributes, dict)
+                        or "POSITION" not in attributes):
+                    continue
+                apath = f"{where}.attributes"
+                n = self.count(attributes["POSITION"], f"{apath}.POSITION")
+                for name in ("NORMAL", "TEXCOORD_0", "COLOR_0"):
+                    if name in attributes:
+                        k = self.count(attributes[name], f"{apath}.{name}")
+                        if k != n:  # as attribute() says it, before k elements are made
+                            raise self.error(f"{apath}.{name}", f"{k} elements for "
+                                             f"{plural(n, 'position')}")
+                corners = (self.count(primitive["indices"], f"{where}.indices")
+                           if "indices" in primitive else n)
+                vertices += n
+                triangles += corners // 3 if mode == 4 else max(corners - 2, 0)
+                if vertices > L.MAX_MESH_VERTICES or triangles > L.MAX_TRIANGLES:
+                    raise self.error(where, f"the file's meshes declare {vertices} vertices "
+                                     f"and {triangles} triangles up to here, over the limit "
+                                     f"of {L.MAX_MESH_VERTICES} vertices and "
+                                     f"{L.MAX_TRIANGLES} triangles for all meshes")
+
+    def count(self, index: Any, where: str) -> int:
+        """An accessor's declared element count."""
+        spec, path = self.entry("accessors", index, where)
+        return self.integer(spec, "count", path, low=1)
 
     def mesh(self, index: int) -> ObjMesh | None:
         spec, path = self.entry("meshes", index, "nodes[].mesh")
@@ -564,7 +609,7 @@ class _Reader:
             xmag = self.number(lens, "xmag", f"{cpath}.orthographic", ymag, 1e-12, 1e30)
             vfov, height, aspect = None, 2.0 * ymag * float(np.linalg.norm(a[:, 1])), xmag / ymag
         return GltfCamera(_vec(position), _vec(position + forward), _vec(up), vfov, height,
-                          aspect)
+                          aspect, f"{path}.camera")
 
 
 def read_gltf(data: bytes, path: Path, read_file: Callable[[str, str], bytes]) -> GltfModel:
@@ -583,6 +628,7 @@ def read_gltf(data: bytes, path: Path, read_file: Callable[[str, str], bytes]) -
         if "camera" in node and camera is None:
             camera = r.camera(node["camera"], matrix, f"nodes[{index}]")
     used = sorted({m for m, _ in placements})
+    r.declared(used)
     meshes: list[ObjMesh | None] = [None] * len(r.items(r.doc, "meshes"))
     for m in used:
         meshes[m] = r.mesh(m)
@@ -618,15 +664,33 @@ def _triangles(indices: np.ndarray, mode: int) -> np.ndarray:
     return np.column_stack([np.full(n, indices[0]), indices[k + 1], indices[k + 2]])
 
 
+def flat_corners(vertices: np.ndarray, faces: np.ndarray
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(corners, faces, normals) of a mesh given a vertex for each face's corner, each with
+    its face's unit normal: vertices[corners] are the new vertices, and any per-vertex array
+    is taken so too. A mesh without normals joined to one with them shades flat so (glTF
+    asks for flat normals where NORMAL is missing); a shared vertex has no one face normal.
+    A degenerate face's normal is +z: it is never hit, and vertex normals may not be zero."""
+    corners = faces.reshape(-1).astype(np.int64)
+    v = vertices[faces].astype(np.float64)
+    normals = unit(np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0]))
+    normals[~np.any(normals != 0, axis=1)] = (0.0, 0.0, 1.0)
+    return (corners, np.arange(len(corners), dtype=np.int64).reshape(-1, 3),
+            np.repeat(normals, 3, axis=0))
+
+
 def _merged(parts: list[dict]) -> ObjMesh:
-    """One mesh of a glTF mesh's primitives: normals where every primitive has them, uvs and
-    colours where any has (zero uvs elsewhere: only a textured material reads them; white,
-    which tints nothing, for colours)."""
+    """One mesh of a glTF mesh's primitives: normals where any primitive has them (its face
+    normals, flat_corners, for a primitive without), uvs and colours where any has (zero uvs
+    elsewhere: only a textured material reads them; white, which tints nothing, for
+    colours)."""
     if len(parts) == 1:  # most meshes: nothing to join
         p = parts[0]
         groups = np.full(len(p["faces"]), p["material"], dtype=np.int64)
         return ObjMesh(p["vertices"], p["faces"].astype(np.int64), p.get("normals"),
                        p.get("uvs"), (), groups, colors=p.get("colors"))
+    if any(p.get("normals") is not None for p in parts):
+        parts = [p if p.get("normals") is not None else _flat(p) for p in parts]
     starts = np.cumsum([0] + [len(p["vertices"]) for p in parts])
     vertices = np.concatenate([p["vertices"] for p in parts])
     faces = np.concatenate([p["faces"] + s for p, s in zip(parts, starts, strict=False)])
@@ -642,6 +706,14 @@ def _merged(parts: list[dict]) -> ObjMesh:
 
     return ObjMesh(vertices, faces.astype(np.int64), joined("normals", 3, None),
                    joined("uvs", 2, 0.0), (), groups, colors=joined("colors", 3, 1.0))
+
+
+def _flat(part: dict) -> dict:
+    """A primitive (primitive()'s dict) given a vertex a face corner, with its face normal."""
+    corners, faces, normals = flat_corners(part["vertices"], part["faces"])
+    flat = {name: value[corners] for name, value in part.items()
+            if name in ("vertices", "uvs", "colors") and value is not None}
+    return {**part, **flat, "faces": faces, "normals": normals}
 
 
 def _is_int(value: Any) -> bool:

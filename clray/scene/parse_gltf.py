@@ -20,7 +20,7 @@ import numpy as np
 from clray.errors import SceneError
 from clray.scene import limits as L
 from clray.scene.assets import Assets
-from clray.scene.gltf import GltfMaterial, GltfModel
+from clray.scene.gltf import GltfMaterial, GltfModel, flat_corners
 from clray.scene.model import Group, Instance, Material, Mesh, SceneObject, Texture
 from clray.scene.obj import ObjMesh
 from clray.scene.parse_mesh import transformed
@@ -83,6 +83,7 @@ def gltf_objects(spec: dict, key: str, in_group: bool, v: Values, assets: Assets
     copies: list[ObjMesh] = []
     instances: list[Instance] = []
     boxes: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # each instanced mesh's, once
+    copied = 0  # the triangles of `copies`
     for m, matrix in model.placements:
         obj = model.meshes[m]
         if obj is None:
@@ -106,6 +107,10 @@ def gltf_objects(spec: dict, key: str, in_group: bool, v: Values, assets: Assets
             continue
         if abs(np.linalg.det(world[:3, :3])) == 0.0:
             continue  # a node scaled to nothing (exporters hide parts so) draws nothing
+        # Counted before the copy is made: a large mesh placed by many glowing nodes was
+        # copied for each before the joined copies' triangles were counted.
+        assets.fits_triangles(copied + len(obj.faces), key)
+        copied += len(obj.faces)
         placed = transformed(obj, world[:3, :3], world[:3, 3], tkey, v)
         copies.append(dataclasses.replace(placed, face_groups=face_materials))
     if not copies and not instances:
@@ -175,23 +180,37 @@ def _placeable(world: np.ndarray, box: tuple[np.ndarray, np.ndarray]) -> bool:
 
 
 def _joined(parts: list[ObjMesh]) -> ObjMesh:
-    """One mesh of several; normals and uvs kept where every part has them, colours where
-    any has (white, which tints nothing, elsewhere)."""
+    """One mesh of several, as gltf._merged joins primitives: normals where any part has
+    them (its face normals, flat_corners, for a part without: the others keep their smooth
+    shading), uvs and colours where any has (zero uvs elsewhere: only a textured material
+    reads them; white, which tints nothing, for colours)."""
     if len(parts) == 1:  # one placed mesh: its arrays as they are, no copies
         return dataclasses.replace(parts[0], material_names=(), material_libraries=())
+    if any(p.normals is not None for p in parts):
+        parts = [p if p.normals is not None else _flat(p) for p in parts]
     starts = np.cumsum([0] + [len(p.vertices) for p in parts])
 
-    def joined(name: str) -> np.ndarray | None:
+    def joined(name: str, width: int, fill: float | None) -> np.ndarray | None:
         values = [getattr(p, name) for p in parts]
-        return None if any(x is None for x in values) else np.concatenate(values)
+        missing = [x is None for x in values]
+        if all(missing) or (fill is None and any(missing)):
+            return None
+        return np.concatenate([np.full((len(p.vertices), width), fill) if x is None else x
+                               for p, x in zip(parts, values, strict=True)])
 
-    colors = None
-    if any(p.colors is not None for p in parts):
-        colors = np.concatenate([np.ones((len(p.vertices), 3)) if p.colors is None
-                                 else p.colors for p in parts])
     return ObjMesh(np.concatenate([p.vertices for p in parts]),
                    np.concatenate([p.faces + s for p, s in zip(parts, starts, strict=False)]),
-                   joined("normals"), joined("uvs"), (), joined("face_groups"), colors=colors)
+                   joined("normals", 3, None), joined("uvs", 2, 0.0), (),
+                   joined("face_groups", 1, None), colors=joined("colors", 3, 1.0))
+
+
+def _flat(part: ObjMesh) -> ObjMesh:
+    """`part` given a vertex a face corner, each with its face's normal."""
+    corners, faces, normals = flat_corners(part.vertices, part.faces)
+    return dataclasses.replace(
+        part, vertices=part.vertices[corners], faces=faces, normals=normals,
+        uvs=None if part.uvs is None else part.uvs[corners],
+        colors=None if part.colors is None else part.colors[corners])
 
 
 def _mesh(obj: ObjMesh, face_materials: np.ndarray, own: bool) -> Mesh:

@@ -32,12 +32,14 @@ MESH_FILE = f"mesh file ({', '.join(MESH_SUFFIXES)})"
 # Unit directions from the model's centre to the camera, and the camera's up.
 DEFAULT_VIEW = "three-quarter"
 VIEWS: dict[str, tuple[tuple[float, float, float], tuple[float, float, float]]] = {
-    # 45 degrees round from the front, 25 degrees up: the usual three-quarter view.
-    "three-quarter": ((0.6409, 0.4226, 0.6409), (0.0, 1.0, 0.0)),
+    # 45 degrees round from the front, 25 degrees up: the usual three-quarter view (unit
+    # length: the camera stands at the framing's distance).
+    "three-quarter": ((math.cos(math.radians(25)) * math.sqrt(0.5), math.sin(math.radians(25)),
+                       math.cos(math.radians(25)) * math.sqrt(0.5)), (0.0, 1.0, 0.0)),
     "front": ((0.0, 0.0, 1.0), (0.0, 1.0, 0.0)),
     "side": ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0)),
     "top": ((0.0, 1.0, 0.0), (0.0, 0.0, -1.0)),
-    "iso": ((0.5774, 0.5774, 0.5774), (0.0, 1.0, 0.0)),
+    "iso": ((math.sqrt(1 / 3),) * 3, (0.0, 1.0, 0.0)),
 }
 # --up: the rotation that turns the named model axis to +y, the up of VIEWS (each a proper
 # rotation, det +1, so the winding and normals stay as they are). Z-up is the scanners' and

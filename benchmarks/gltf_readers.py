@@ -7,7 +7,8 @@ medians are reported (benchmarks/readers.py, shared with the PLY script). pygltf
 are not clray dependencies: install them to compare.
 pygltflib parses the JSON only; the accessors are then read with numpy as clray does.
 
-    python benchmarks/gltf_readers.py --out gltf_readers.json
+    python benchmarks/gltf_readers.py [--out benchmarks/results/gltf_readers.json] [--side 1000]
+                                      [--repeat 3]
 """
 
 from __future__ import annotations
@@ -59,8 +60,9 @@ def grid_glb(path: Path, side: int) -> int:
     return len(faces)
 
 
-def main() -> None:
-    compare(__doc__, READERS, "grid.glb", lambda path, side: {"triangles": grid_glb(path, side)})
+def main(argv: list[str] | None = None) -> None:
+    compare(__doc__, READERS, "grid.glb", lambda path, side: {"triangles": grid_glb(path, side)},
+            "gltf_readers.json", argv)
 
 
 if __name__ == "__main__":

@@ -2,7 +2,7 @@
 the message for a truncated file, on a generated .glb (a grid of ~1M vertices, 2M triangles,
 positions, normals and indices in one binary chunk).
 
-Each reader runs in its own process (peak RSS is per process), interleaved over --repeat rounds;
+Each reader runs in its own process (its peak, VmHWM, is its own), interleaved over --repeat rounds;
 medians are reported (benchmarks/readers.py, shared with the PLY script). pygltflib and trimesh
 are not clray dependencies: install them to compare.
 pygltflib parses the JSON only; the accessors are then read with numpy as clray does.

@@ -1,7 +1,7 @@
 """clray's PLY reader against plyfile and trimesh: load time, peak memory and the message for a
 truncated file, on a generated binary little-endian mesh (a UV sphere, ~1M vertices, normals).
 
-Each reader runs in its own process (peak RSS is per process), interleaved over --repeat rounds;
+Each reader runs in its own process (its peak, VmHWM, is its own), interleaved over --repeat rounds;
 medians are reported (benchmarks/readers.py, shared with the glTF script). plyfile and trimesh
 are not clray dependencies: install them to compare.
 

@@ -50,7 +50,7 @@ print(json.dumps(out))
 
 
 def run(readers: Readers, reader: str, path: Path) -> dict:
-    """One read of path by readers[reader] in a fresh process: its times, faces and peak RSS, or
+    """One read of path by readers[reader] in a fresh process: its times, faces and peak (VmHWM), or
     its error."""
     head, read = readers[reader]
     indent = "\n".join("    " + line for line in head.splitlines())

@@ -32,6 +32,8 @@ import numpy as np
 import pyopencl as cl
 import pyopencl.characterize
 
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from benchmarks.common import check_outputs, positive_int
 from clray import profile
 from clray.device.context import describe, queue_for, select_device
 from clray.device.launch import render_packed
@@ -258,7 +260,7 @@ def _povray_spp(parser: argparse.ArgumentParser, text: str) -> tuple[int, ...]:
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--json", type=Path, default=HERE / "results" / "bench.json")
-    parser.add_argument("--repeat", type=int, default=5)
+    parser.add_argument("--repeat", type=positive_int, default=5)
     parser.add_argument("--scenes", default="spheres,mesh",
                         help="comma-separated subset of: spheres, mesh")
     parser.add_argument("--device", default=None, help="device spec, as for `clray render`")
@@ -274,9 +276,10 @@ def main(argv: list[str] | None = None) -> None:
     args = parser.parse_args(argv)
     names = [s.strip() for s in args.scenes.split(",") if s.strip()]
     unknown = set(names) - {"spheres", "mesh"}
-    if unknown or args.repeat < 1:
-        parser.error(f"unknown scenes {sorted(unknown)}" if unknown else "--repeat must be >= 1")
+    if unknown:
+        parser.error(f"unknown scenes {sorted(unknown)}")
     povray_spp = _povray_spp(parser, args.povray_spp)
+    check_outputs(parser, json=args.json)
 
     with tempfile.TemporaryDirectory(prefix="clray-bench-") as tmp:
         # A fresh PoCL cache, set before OpenCL starts, makes this process's first builds cold
@@ -302,7 +305,6 @@ def main(argv: list[str] | None = None) -> None:
 
     report = {"benchmark": "render", "repeat": args.repeat, **environment(device),
               "scenes": results}
-    args.json.parent.mkdir(parents=True, exist_ok=True)
     args.json.write_text(json.dumps(report, indent=2) + "\n", encoding="utf-8")
     for r in results:
         print(f"{r['scene']}: load {r['load_s']:.3f} s, bvh {r['bvh_s']:.3f} s, build "

@@ -17,6 +17,7 @@ import json
 import os
 import platform
 import statistics
+import sys
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -26,6 +27,8 @@ import numpy as np
 from clray.accel.bvh import Bvh, build_bvh, max_leaf_count, sah_cost
 
 HERE = Path(__file__).resolve().parent
+sys.path.insert(0, str(HERE.parent))
+from benchmarks.common import check_outputs, positive_int  # noqa: E402
 
 
 def _mesh_module():
@@ -102,12 +105,13 @@ def bench_case(lo: np.ndarray, hi: np.ndarray, builders: dict[str, Callable[[], 
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--json", type=Path, default=HERE / "results" / "bvh.json")
-    parser.add_argument("--subdivisions", type=int, default=7)
-    parser.add_argument("--spheres", type=int, default=100_000)
-    parser.add_argument("--runs", type=int, default=7)
-    parser.add_argument("--max-leaf-size", type=int, default=4)
+    parser.add_argument("--subdivisions", type=positive_int, default=7)
+    parser.add_argument("--spheres", type=positive_int, default=100_000)
+    parser.add_argument("--runs", type=positive_int, default=7)
+    parser.add_argument("--max-leaf-size", type=positive_int, default=4)
     parser.add_argument("--host-only", action="store_true", help="skip the device build")
     args = parser.parse_args(argv)
+    check_outputs(parser, json=args.json)
 
     cases = {"mesh": mesh_bounds(args.subdivisions), "spheres": sphere_bounds(args.spheres)}
     largest = max(lo.shape[0] for lo, _ in cases.values())
@@ -133,7 +137,6 @@ def main(argv: list[str] | None = None) -> None:
         "python": platform.python_version(),
         "cpu_count": os.cpu_count(),
     }
-    args.json.parent.mkdir(parents=True, exist_ok=True)
     args.json.write_text(json.dumps(result, indent=2) + "\n", encoding="utf-8")
     for name, case in results.items():
         for builder in ("host", "device"):

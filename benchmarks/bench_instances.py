@@ -14,7 +14,11 @@ Scenes, all 1280x720, 1 spp, one point light and a ground plane:
   objects (2.6 M triangles on the device) and as eight instances of one group, same camera:
   the same image, so their kernel times compare the two-level walk with the flat one.
 For each: load time (the OBJ is read once either way), BVH build time, device bytes, kernel
-time (median of `repeat` renders after one warm-up; OpenCL profiling events) and Mrays/s.
+time (OpenCL profiling events) and Mrays/s. Every scene is first loaded, packed twice (the
+first pack compiles the device BVH build; `bvh_s` is the second's) and rendered once untimed
+(the kernel's build and first launch); then each of `repeat` rounds loads and renders every
+scene in turn, so that the machine's load drifting falls on all alike: `load_s` and `kernel_s`
+are medians of the rounds.
 """
 
 from __future__ import annotations
@@ -33,6 +37,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
+from benchmarks.common import RESULTS, check_outputs, positive_int  # noqa: E402
 from clray.device.context import queue_for, select_device  # noqa: E402
 from clray.device.launch import render_packed  # noqa: E402
 from clray.device.pack import pack_scene  # noqa: E402
@@ -121,40 +126,58 @@ def scenes(folder: Path) -> dict[str, Path]:
     return paths
 
 
-def bench(path: Path, device, repeat: int) -> dict:
-    start = time.perf_counter()
+def prepare(path: Path, device):
+    """The scene at path loaded and packed (twice: the first pack compiles the device BVH
+    build), and rendered once untimed (the kernel's build and first launch)."""
     scene = load_scene(path)
-    load_s = time.perf_counter() - start
     settings = {"width": 1280, "height": 720, "spp": 1, "max_depth": 0, "seed": 0,
                 "queue": queue_for(device),
                 "bvh_width": device_plan(device, spp=1, tuning=Tuning()).bvh_width}
-    pack_scene(scene, **settings)  # compiles the device BVH build once
+    pack_scene(scene, **settings)
     packed = pack_scene(scene, **settings)
-    render_packed(packed, device)  # warm-up: program build and first launch
-    runs, rays = [], 0
+    render_packed(packed, device)
+    return packed
+
+
+def bench(paths: dict[str, Path], device, repeat: int) -> dict[str, dict]:
+    """Each scene's figures: warmed up all, then `repeat` rounds of a load and a render of
+    every scene in turn, medians."""
+    packed = {name: prepare(path, device) for name, path in paths.items()}
+    loads: dict[str, list[float]] = {name: [] for name in paths}
+    kernels: dict[str, list[float]] = {name: [] for name in paths}
+    rays: dict[str, int] = {}
     for _ in range(repeat):
-        _, stats = render_packed(packed, device)
-        runs.append(stats["kernel_s"])
-        rays = stats["rays"]["total"]
-    kernel_s = statistics.median(runs)
-    device_bytes = packed.device_bytes()
-    return {"instances": len(packed.instances), "triangles": packed.triangle_count(),
-            "load_s": load_s, "bvh_s": packed.bvh_s, "device_bytes": sum(device_bytes.values()),
-            "device_bytes_by_buffer": device_bytes, "kernel_s": kernel_s, "kernel_runs_s": runs,
-            "rays": rays, "mrays_per_s": rays / kernel_s * 1e-6}
+        for name, path in paths.items():
+            start = time.perf_counter()
+            load_scene(path)
+            loads[name].append(time.perf_counter() - start)
+            _, stats = render_packed(packed[name], device)
+            kernels[name].append(stats["kernel_s"])
+            rays[name] = stats["rays"]["total"]
+    results = {}
+    for name, one in packed.items():
+        kernel_s = statistics.median(kernels[name])
+        device_bytes = one.device_bytes()
+        results[name] = {
+            "instances": len(one.instances), "triangles": one.triangle_count(),
+            "load_s": statistics.median(loads[name]), "load_runs_s": loads[name],
+            "bvh_s": one.bvh_s, "device_bytes": sum(device_bytes.values()),
+            "device_bytes_by_buffer": device_bytes, "kernel_s": kernel_s,
+            "kernel_runs_s": kernels[name], "rays": rays[name],
+            "mrays_per_s": rays[name] / kernel_s * 1e-6}
+    return results
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--device", default=None)
-    parser.add_argument("--repeat", type=int, default=5)
-    parser.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results" /
-                        "bench_instances.json")
-    args = parser.parse_args()
+    parser.add_argument("--repeat", type=positive_int, default=5)
+    parser.add_argument("--out", type=Path, default=RESULTS / "bench_instances.json")
+    args = parser.parse_args(argv)
+    check_outputs(parser, out=args.out)
     device = select_device(args.device)
     with tempfile.TemporaryDirectory(prefix="clray-instances-") as tmp:
-        results = {name: bench(path, device, args.repeat)
-                   for name, path in scenes(Path(tmp)).items()}
+        results = bench(scenes(Path(tmp)), device, args.repeat)
     ratios = {f"{a}/{b}": {key: results[a][key] / results[b][key] for key in (
         "load_s", "bvh_s", "device_bytes", "kernel_s", "mrays_per_s")}
         for a, b in (("one_instance", "placed"), ("thousand_instances", "one_instance"),
@@ -162,7 +185,6 @@ def main() -> None:
     report = {"benchmark": "instances", "device": device.name.strip(),
               "platform_version": device.platform.version.strip(), "repeat": args.repeat,
               "scenes": results, "ratios": ratios}
-    args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps(report, indent=1) + "\n", encoding="utf-8")
     for name, r in results.items():
         print(f"{name}: {r['instances']} instances, load {r['load_s']:.3f} s, BVH "

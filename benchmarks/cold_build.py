@@ -5,7 +5,8 @@ launch (PoCL compiles the work-group function there, on the first enqueue of a k
 size), by CPU time (the process and its threads: less noisy on a shared machine) and wall time.
 
 ```
-python benchmarks/cold_build.py --json cold.json [--scenes cornell_box,spheres] [--repeat 1]
+python benchmarks/cold_build.py [--json benchmarks/results/cold_build.json]
+                                [--scenes cornell_box,spheres] [--repeat 1] [--device SPEC]
 ```
 
 The child process builds the render kernel (`build`), then launches it twice over a 16 x 16
@@ -30,6 +31,9 @@ import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+from benchmarks.common import RESULTS, check_outputs, names_of, positive_int  # noqa: E402
+
 CROP = 16
 
 
@@ -87,21 +91,22 @@ def _median(runs: list[dict], part: str, key: str) -> float:
     return statistics.median(r[part][key] for r in runs)
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
+    paths = sorted((ROOT / "scenes").glob("*.toml"))
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--json", type=Path)
-    parser.add_argument("--scenes", help="comma-separated scene names (default: all)")
-    parser.add_argument("--repeat", type=int, default=1)
+    parser.add_argument("--json", type=Path, default=RESULTS / "cold_build.json")
+    parser.add_argument("--scenes", type=names_of(p.stem for p in paths),
+                        help="comma-separated scene names (default: all)")
+    parser.add_argument("--repeat", type=positive_int, default=1)
     parser.add_argument("--device")
     parser.add_argument("--child", help=argparse.SUPPRESS)
-    args = parser.parse_args()
+    args = parser.parse_args(argv)
     if args.child:
         print(json.dumps(child(args.child, args.device)))
         return
-    paths = sorted((ROOT / "scenes").glob("*.toml"))
+    check_outputs(parser, json=args.json)
     if args.scenes:
-        wanted = set(args.scenes.split(","))
-        paths = [p for p in paths if p.stem in wanted]
+        paths = [p for p in paths if p.stem in args.scenes]
     result = {"load_before": os.getloadavg(), "repeat": args.repeat, "scenes": {}}
     print(f"{'scene':16s} {'cold cpu':>9s} {'wall':>7s} {'build cpu':>10s} "
           f"{'1st launch cpu':>15s}  load {os.getloadavg()[0]:.1f}")
@@ -116,8 +121,8 @@ def main() -> None:
               f"{entry['build']['cpu_s']:10.2f} {entry['first_launch']['cpu_s']:15.2f}",
               flush=True)
     result["load_after"] = os.getloadavg()
-    if args.json:
-        args.json.write_text(json.dumps(result, indent=1) + "\n")
+    args.json.write_text(json.dumps(result, indent=1) + "\n")
+    print(f"wrote {args.json}")
 
 
 if __name__ == "__main__":

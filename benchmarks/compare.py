@@ -30,6 +30,8 @@ from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
+sys.path.insert(0, str(ROOT))
+from benchmarks.common import check_outputs, image_size, positive_int  # noqa: E402
 
 # Runs inside each worktree's process; only API that every compared commit has.
 _MEASURE = """
@@ -85,6 +87,16 @@ def _worktree(ref: str, tmp: Path) -> Path:
     return path
 
 
+def unknown_refs(refs: list[str]) -> list[str]:
+    """The commits of `refs` (REF[:TRAVERSAL[:LANES]]) that git does not resolve to a commit
+    here: checked before any worktree is made, so that a typo is a usage error, not a
+    traceback after the other refs' worktrees were registered."""
+    commits = dict.fromkeys(_split_ref(ref)[0] for ref in refs)
+    return [commit for commit in commits if commit != "WORKTREE" and subprocess.run(
+        ["git", "-C", str(ROOT), "rev-parse", "--verify", "--quiet", f"{commit}^{{commit}}"],
+        capture_output=True).returncode != 0]
+
+
 def unknown_scenes(names: list[str]) -> list[str]:
     """The names that are neither spheres, mesh nor a scene file."""
     return [n for n in names if n not in ("spheres", "mesh") and not Path(n).is_file()]
@@ -112,35 +124,46 @@ def _measure(tree: Path, scene: Path, repeat: int, device: str | None, variant: 
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("refs", nargs="+", help="commits to compare; WORKTREE = files as they are")
-    parser.add_argument("--rounds", type=int, default=5)
-    parser.add_argument("--per-round", type=int, default=3)
+    parser.add_argument("--rounds", type=positive_int, default=5)
+    parser.add_argument("--per-round", type=positive_int, default=3)
     parser.add_argument("--scenes", default="spheres,mesh", help="comma-separated: spheres, "
                         "mesh (generated) or paths to scene files")
     parser.add_argument("--device", default=None)
     parser.add_argument("--json", type=Path, default=HERE / "results" / "compare.json")
-    parser.add_argument("--spp", type=int, default=0, help="samples per pixel (default: the "
-                        "scene's)")
-    parser.add_argument("--size", default="", metavar="WxH", help="image size (default: the "
-                        "scene's)")
+    parser.add_argument("--spp", type=positive_int, default=None,
+                        help="samples per pixel (default: the scene's)")
+    parser.add_argument("--size", type=image_size, default=None, metavar="WxH",
+                        help="image size (default: the scene's)")
     args = parser.parse_args(argv)
-    width, _, height = args.size.partition("x")
-    shape = (args.spp, int(width or 0), int(height or 0))
+    # The child reads 0 as "the scene's own".
+    shape = (args.spp or 0, *(args.size or (0, 0)))
     names = [s for s in args.scenes.split(",") if s]
     unknown = unknown_scenes(names)
-    if unknown or args.rounds < 1 or args.per_round < 1:
-        parser.error(f"scenes are spheres, mesh or scene files (not found: {unknown}); "
-                     "--rounds and --per-round must be >= 1")
+    if unknown:
+        parser.error(f"scenes are spheres, mesh or scene files (not found: {unknown})")
+    lanes = {ref: _split_ref(ref)[1].partition(":")[2] for ref in args.refs}
+    bad_lanes = [ref for ref, n in lanes.items() if n and not (n.isdigit() and int(n) > 0)]
+    if bad_lanes:
+        parser.error(f"REF:TRAVERSAL:LANES takes a whole number of lanes: {bad_lanes}")
+    bad_refs = unknown_refs(args.refs)
+    if bad_refs:
+        parser.error(f"not a commit in {ROOT}: {', '.join(bad_refs)}")
+    check_outputs(parser, json=args.json)
 
     with tempfile.TemporaryDirectory(prefix="clray-compare-") as tmp_name:
         tmp = Path(tmp_name)
-        commits = {_split_ref(ref)[0] for ref in args.refs}
-        commit_trees = {commit: _worktree(commit, tmp) for commit in commits}
-        trees = {ref: commit_trees[_split_ref(ref)[0]] for ref in args.refs}
-        scenes = scene_paths(names, tmp)
+        commits = dict.fromkeys(_split_ref(ref)[0] for ref in args.refs)
+        commit_trees: dict[str, Path] = {}
         times: dict[str, dict[str, list[float]]] = {r: {n: [] for n in names} for r in args.refs}
         means: dict[str, dict[str, float]] = {r: {} for r in args.refs}
         rays: dict[str, dict[str, int]] = {r: {} for r in args.refs}
+        # The worktrees are made inside the try: one that fails to check out, or an interrupt
+        # between two, still removes those already registered.
         try:
+            for commit in commits:
+                commit_trees[commit] = _worktree(commit, tmp)
+            trees = {ref: commit_trees[_split_ref(ref)[0]] for ref in args.refs}
+            scenes = scene_paths(names, tmp)
             for round_index in range(args.rounds):
                 for ref in args.refs:
                     for name, path in scenes.items():
@@ -158,7 +181,8 @@ def main(argv: list[str] | None = None) -> None:
 
     base = args.refs[0]
     report = {"benchmark": "compare", "rounds": args.rounds, "per_round": args.per_round,
-              "spp": args.spp or None, "size": args.size or None, "refs": {}}
+              "spp": args.spp, "size": "x".join(map(str, args.size)) if args.size else None,
+              "refs": {}}
     for ref in args.refs:
         entry = {}
         for name in names:
@@ -171,7 +195,6 @@ def main(argv: list[str] | None = None) -> None:
                   f"{len(times[ref][name])}), {entry[name]['mrays_per_s']:.2f} Mrays/s, "
                   f"x{entry[name]['speedup_vs_first']:.2f} vs {base}")
         report["refs"][ref] = entry
-    args.json.parent.mkdir(parents=True, exist_ok=True)
     args.json.write_text(json.dumps(report, indent=2) + "\n", encoding="utf-8")
     print(f"wrote {args.json}")
 

@@ -5,6 +5,7 @@ one's cost, and the denoiser's time.
     python benchmarks/denoise.py [--json benchmarks/results/denoise.json] [--spp 4,16,64]
                                  [--reference-spp 4096] [--rounds 3] [--cache DIR]
                                  [--picture docs/denoise_depth_of_field.png]
+                                 [--picture-scene {soft_lights,depth_of_field}]
 
 Each scene renders at half its own width and height (its framing kept). The reference renders
 once with another seed than the noisy images' (their samples must not be its first ones) and is
@@ -13,8 +14,12 @@ kept as a PFM in --cache, so a second run skips it. At each spp the scene render
 noisy image (`RenderResult.noisy`) and of the denoised one against the reference; the
 render's seconds (`total_s` less `denoise_s`) and the denoiser's, medians of --rounds. Its cost
 (render, passes and denoiser) buys an undenoised render of `spp x cost / plain render's
-seconds` samples, which renders next, with its own measured seconds and rmse. Kernels are built
-by a warm-up render first, so no row holds a compile. --picture writes the noisy and denoised
+seconds` samples (the "same cost" render), with its own measured seconds and rmse. At each spp
+the plain and the denoised render first run once each untimed (their kernels' builds and
+PoCL's first-launch compiles), then once more untimed to estimate the same-cost spp, whose
+render then runs once untimed too; then each of --rounds rounds times the plain, the denoised
+and the same-cost render in turn, so that no row holds a compile and the machine's load
+drifting falls on the three alike. --picture writes the noisy and denoised
 images of --picture-scene at the lowest spp side by side as an sRGB PNG. Needs the denoise
 extra (pyoidn); without it, says so and exits with status 2. Measures only.
 """
@@ -41,6 +46,9 @@ from clray.scene.load import load_scene
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
+sys.path.insert(0, str(ROOT))
+from benchmarks.common import check_outputs, positive_int, positive_ints  # noqa: E402
+
 SCENES = ("soft_lights", "depth_of_field")
 REFERENCE_SEED = 1_000_003  # the noisy renders keep the scene's seed
 GAP = 4  # pixels between the picture's halves
@@ -59,16 +67,14 @@ def reference(scene_name: str, spp: int, cache: Path) -> np.ndarray:
         result = render(ROOT / "scenes" / f"{scene_name}.toml",
                         RenderSettings(width=width, height=height, spp=spp,
                                        seed=REFERENCE_SEED))
-        cache.mkdir(parents=True, exist_ok=True)
         write_image(path, result.image)
     return read_pfm(path)
 
 
-def _renders(scene_name: str, rounds: int, **settings: object) -> list[RenderResult]:
+def _render(scene_name: str, **settings: object) -> RenderResult:
     width, height = _size(scene_name)
-    return [render(ROOT / "scenes" / f"{scene_name}.toml",
-                   RenderSettings(width=width, height=height, **settings))
-            for _ in range(rounds)]
+    return render(ROOT / "scenes" / f"{scene_name}.toml",
+                  RenderSettings(width=width, height=height, **settings))
 
 
 def _median(results: list[RenderResult], key: str) -> float:
@@ -77,13 +83,28 @@ def _median(results: list[RenderResult], key: str) -> float:
 
 def measure(scene_name: str, spp: int, ref: np.ndarray, rounds: int) -> tuple[dict, RenderResult]:
     """One row of the table, and a denoised result for the picture."""
-    plain = _renders(scene_name, rounds, spp=spp)
-    denoised = _renders(scene_name, rounds, spp=spp, denoise=True)
+    plain_settings, denoised_settings = {"spp": spp}, {"spp": spp, "denoise": True}
+    # Warm-up: the first render of a configuration builds its kernels (the render's, the
+    # passes') and PoCL compiles at its first launch; neither belongs in a timed row.
+    for settings in (plain_settings, denoised_settings):
+        _render(scene_name, **settings)
+    # The same-cost spp must be known before the rounds, so that its render can take its
+    # turn in them: from one more untimed render of each, now warm.
+    estimate_plain_s = _render(scene_name, **plain_settings).stats["total_s"]
+    estimate_cost_s = _render(scene_name, **denoised_settings).stats["total_s"]
+    same_cost_spp = max(spp, int(spp * estimate_cost_s / estimate_plain_s))
+    same_cost_settings = {"spp": same_cost_spp}
+    _render(scene_name, **same_cost_settings)  # its own kernel where the spp changes it
+    plain: list[RenderResult] = []
+    denoised: list[RenderResult] = []
+    same_cost: list[RenderResult] = []
+    for _ in range(rounds):  # in turns: the load's drift falls on all three alike
+        plain.append(_render(scene_name, **plain_settings))
+        denoised.append(_render(scene_name, **denoised_settings))
+        same_cost.append(_render(scene_name, **same_cost_settings))
     plain_s = _median(plain, "total_s")
     denoise_s = _median(denoised, "denoise_s")
     cost_s = _median(denoised, "total_s")
-    same_cost_spp = max(spp, int(spp * cost_s / plain_s))
-    same_cost = _renders(scene_name, rounds, spp=same_cost_spp)
     row = {
         "scene": scene_name, "spp": spp,
         "rmse_noisy": rmse(denoised[0].noisy, ref),
@@ -110,26 +131,32 @@ def picture(result: RenderResult, path: Path) -> None:
                                linear=result.encoding.linear))
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--json", type=Path, default=HERE / "results" / "denoise.json")
-    parser.add_argument("--spp", default="4,16,64")
-    parser.add_argument("--reference-spp", type=int, default=4096)
-    parser.add_argument("--rounds", type=int, default=3)
+    parser.add_argument("--spp", type=positive_ints, default=[4, 16, 64],
+                        help="comma-separated samples per pixel (default: 4,16,64)")
+    parser.add_argument("--reference-spp", type=positive_int, default=4096)
+    parser.add_argument("--rounds", type=positive_int, default=3)
     parser.add_argument("--cache", type=Path, default=HERE / "results" / "denoise_references")
     parser.add_argument("--picture", type=Path)
-    parser.add_argument("--picture-scene", choices=SCENES, default="depth_of_field")
-    args = parser.parse_args()
+    parser.add_argument("--picture-scene", choices=SCENES, default="depth_of_field",
+                        help="the scene of --picture (default: depth_of_field)")
+    args = parser.parse_args(argv)
+    check_outputs(parser, json=args.json, picture=args.picture)
+    try:  # the references are written there after minutes of rendering
+        args.cache.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        parser.error(f"--cache {args.cache}: cannot make the folder ({err.strerror or err})")
     try:
         check_denoiser()
     except ClrayError as err:
         print(err, file=sys.stderr)
         sys.exit(2)
-    spps = [int(v) for v in args.spp.split(",")]
+    spps = args.spp
     rows = []
     for scene_name in SCENES:
         ref = reference(scene_name, args.reference_spp, args.cache)
-        _renders(scene_name, 1, spp=spps[0], denoise=True)  # builds the kernels
         for spp in spps:
             row, result = measure(scene_name, spp, ref, args.rounds)
             rows.append(row)
@@ -144,7 +171,6 @@ def main() -> None:
               platform.machine(), "reference_spp": args.reference_spp,
               "reference_seed": REFERENCE_SEED, "rounds": args.rounds,
               "sizes": {name: list(_size(name)) for name in SCENES}, "rows": rows}
-    args.json.parent.mkdir(parents=True, exist_ok=True)
     args.json.write_text(json.dumps(report, indent=2) + "\n")
     print(f"wrote {args.json}")
 

@@ -2,12 +2,13 @@
 the message for a truncated file, on a generated .glb (a grid of ~1M vertices, 2M triangles,
 positions, normals and indices in one binary chunk).
 
-Each reader runs in its own process (peak RSS is per process), interleaved over --repeat rounds;
+Each reader runs in its own process (its peak, VmHWM, is its own), interleaved over --repeat rounds;
 medians are reported (benchmarks/readers.py, shared with the PLY script). pygltflib and trimesh
 are not clray dependencies: install them to compare.
 pygltflib parses the JSON only; the accessors are then read with numpy as clray does.
 
-    python benchmarks/gltf_readers.py --out gltf_readers.json
+    python benchmarks/gltf_readers.py [--out benchmarks/results/gltf_readers.json] [--side 1000]
+                                      [--repeat 3]
 """
 
 from __future__ import annotations
@@ -59,8 +60,9 @@ def grid_glb(path: Path, side: int) -> int:
     return len(faces)
 
 
-def main() -> None:
-    compare(__doc__, READERS, "grid.glb", lambda path, side: {"triangles": grid_glb(path, side)})
+def main(argv: list[str] | None = None) -> None:
+    compare(__doc__, READERS, "grid.glb", lambda path, side: {"triangles": grid_glb(path, side)},
+            "gltf_readers.json", argv)
 
 
 if __name__ == "__main__":

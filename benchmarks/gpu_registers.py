@@ -8,7 +8,7 @@ under -cl-nv-verbose).
 These are compile-time figures of clang's code, not of NVIDIA's own OpenCL front end, and not
 measured on a GPU; scripts/gpu_check.sh reads the driver's figures on a GPU machine.
 
-    python benchmarks/gpu_registers.py --json benchmarks/results/gpu_registers.json
+    python benchmarks/gpu_registers.py [--arch sm_90] [--json benchmarks/results/gpu_registers.json]
 
 Needs clang-15 and libclc-15 (Debian: apt-get install clang-15 libclc-15) and ptxas on PATH.
 """
@@ -25,6 +25,8 @@ import sys
 import tempfile
 from pathlib import Path
 
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from benchmarks.common import RESULTS, check_outputs
 from clray.device.pack import pack_scene
 from clray.device.program import KernelConfig, kernel_source
 from clray.scene.load import load_scene
@@ -79,8 +81,11 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--arch", default="sm_90", help="ptxas target (default: sm_90, the "
                                                         "H100 and H200)")
-    parser.add_argument("--json", type=Path, help="write the figures here")
+    parser.add_argument("--json", type=Path, default=RESULTS / "gpu_registers.json",
+                        help="write the figures here (default: "
+                        "benchmarks/results/gpu_registers.json)")
     args = parser.parse_args(argv)
+    check_outputs(parser, json=args.json)
     missing = [name for name, found in ((CLANG, shutil.which(CLANG)),
                                         ("ptxas", shutil.which("ptxas")),
                                         (str(LIBCLC), LIBCLC.exists())) if not found]
@@ -103,9 +108,8 @@ def main(argv: list[str] | None = None) -> int:
     result = {"arch": args.arch, "ptxas": version.strip().splitlines()[-1] if version else None,
               "clang": CLANG, "libclc": str(LIBCLC), "host": platform.processor() or None,
               "spp": 16, "rows": rows}
-    if args.json:
-        args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(json.dumps(result, indent=2) + "\n")
+    args.json.write_text(json.dumps(result, indent=2) + "\n")
+    print(f"wrote {args.json}")
     return 0
 
 

@@ -26,6 +26,9 @@ from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
+sys.path.insert(0, str(ROOT))
+from benchmarks.common import check_outputs, names_of  # noqa: E402
+
 VARIANTS = ("primary", "primary_shadow", "full")
 KERNEL_FUNCTION = "_pocl_kernel_render_workgroup*"
 
@@ -97,14 +100,16 @@ def count_scene(scene: Path) -> dict:
 
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--json", default=str(HERE / "results" / "instructions.json"))
-    parser.add_argument("--scenes", default="spheres,mesh")
+    parser.add_argument("--json", type=Path, default=HERE / "results" / "instructions.json")
+    parser.add_argument("--scenes", type=names_of(("spheres", "mesh")),
+                        default=["spheres", "mesh"], help="comma-separated: spheres, mesh")
     parser.add_argument("--mesh-dir", help="where to write the mesh scene (default: a temporary "
                         "folder)")
     args = parser.parse_args(argv)
+    check_outputs(parser, json=args.json)
     if shutil.which("valgrind") is None:
         sys.exit("instructions.py needs valgrind (Debian: apt-get install valgrind)")
-    names = [n for n in args.scenes.split(",") if n]
+    names = list(dict.fromkeys(args.scenes))
     with tempfile.TemporaryDirectory() as tmp:
         scenes = {"spheres": ROOT / "scenes" / "spheres.toml"}
         if "mesh" in names:
@@ -118,8 +123,7 @@ def main(argv: list[str] | None = None) -> None:
             per = results[name]["instructions_per_ray"]
             print(f"{name}: {results[name]['instructions_per_pixel']:.0f} instructions a pixel; "
                   "a ray: " + ", ".join(f"{k} {v:.0f}" for k, v in per.items() if v is not None))
-    Path(args.json).parent.mkdir(parents=True, exist_ok=True)
-    Path(args.json).write_text(json.dumps({"scenes": results}, indent=2) + "\n")
+    args.json.write_text(json.dumps({"scenes": results}, indent=2) + "\n")
     print(f"wrote {args.json}")
 
 

@@ -1,7 +1,8 @@
 """Does loading a model take time in proportion to its file? Each format clray reads, at sizes 4x
 apart, loaded as `clray render MODEL` loads it.
 
-    python benchmarks/load_sizes.py [--sides 64,128,256,512] [--repeat 3] [--json FILE.json]
+    python benchmarks/load_sizes.py [--sides 64,128,256,512] [--formats obj,ply_binary,...]
+                                    [--repeat 3] [--json benchmarks/results/load_sizes.json]
 
 The model: a side x side grid of vertices, a gentle wave in z, two triangles a cell
 (2 (side - 1)^2 triangles), written as
@@ -18,6 +19,7 @@ checks and the scene around it; Python's and clray's imports are not timed), in 
 sizes and formats, `--repeat` rounds; the median of each is reported in seconds of wall time and
 of the process's CPU time (which holds better while other work shares the cores), with
 microseconds a triangle and the ratio of the largest size's CPU time a triangle to the smallest's
+(the sizes sorted, whatever the order of --sides)
 (1 when the load is linear in the file; the smallest carries the fixed costs of a scene, so
 the ratio of a linear loader is below 1).
 """
@@ -37,6 +39,13 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
+from benchmarks.common import (  # noqa: E402
+    RESULTS,
+    check_outputs,
+    names_of,
+    positive_int,
+    positive_ints,
+)
 from tests.gltf_files import Builder  # noqa: E402
 
 FORMATS = ("obj", "ply_binary", "ply_mixed", "ply_ascii", "ply_tristrips", "glb", "gltf")
@@ -140,14 +149,20 @@ def load(path: Path, triangles: int) -> dict:
 
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--sides", default="64,128,256,512",
+    parser.add_argument("--sides", type=positive_ints, default=[64, 128, 256, 512],
                         help="grid sides, comma-separated (512: 522,242 triangles)")
-    parser.add_argument("--formats", default=",".join(FORMATS))
-    parser.add_argument("--repeat", type=int, default=3)
-    parser.add_argument("--json", type=Path)
+    parser.add_argument("--formats", type=names_of(FORMATS), default=list(FORMATS),
+                        help=f"comma-separated, of {','.join(FORMATS)} (default: all)")
+    parser.add_argument("--repeat", type=positive_int, default=3)
+    parser.add_argument("--json", type=Path, default=RESULTS / "load_sizes.json")
     args = parser.parse_args(argv)
-    sides = [int(s) for s in args.sides.split(",")]
-    formats = args.formats.split(",")
+    # Sorted and once each: largest_over_smallest_a_triangle compares the last size with the
+    # first, which followed the order given.
+    sides = sorted(set(args.sides))
+    if sides[0] < 2:
+        parser.error("--sides: a grid of side 1 has no triangle")
+    formats = list(dict.fromkeys(args.formats))
+    check_outputs(parser, json=args.json)
     with tempfile.TemporaryDirectory() as tmp:
         files = {}
         for fmt in formats:
@@ -179,8 +194,8 @@ def main(argv: list[str] | None = None) -> None:
         per = ", ".join(f"{s['triangles']:,} {s['cpu_s']:.3f} s" for s in entry["sizes"])
         print(f"{fmt:14s} {per}; largest/smallest a triangle "
               f"{entry['largest_over_smallest_a_triangle']:.2f}")
-    if args.json:
-        args.json.write_text(json.dumps(result, indent=2) + "\n")
+    args.json.write_text(json.dumps(result, indent=2) + "\n")
+    print(f"wrote {args.json}")
 
 
 if __name__ == "__main__":

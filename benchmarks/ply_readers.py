@@ -1,11 +1,12 @@
 """clray's PLY reader against plyfile and trimesh: load time, peak memory and the message for a
 truncated file, on a generated binary little-endian mesh (a UV sphere, ~1M vertices, normals).
 
-Each reader runs in its own process (peak RSS is per process), interleaved over --repeat rounds;
+Each reader runs in its own process (its peak, VmHWM, is its own), interleaved over --repeat rounds;
 medians are reported (benchmarks/readers.py, shared with the glTF script). plyfile and trimesh
 are not clray dependencies: install them to compare.
 
-    python benchmarks/ply_readers.py --out ply_readers.json
+    python benchmarks/ply_readers.py [--out benchmarks/results/ply_readers.json] [--side 1000]
+                                     [--repeat 3]
 """
 
 from __future__ import annotations
@@ -56,8 +57,9 @@ def sphere_ply(path: Path, n_side: int) -> int:
     return len(vertex)
 
 
-def main() -> None:
-    compare(__doc__, READERS, "sphere.ply", lambda path, side: {"vertices": sphere_ply(path, side)})
+def main(argv: list[str] | None = None) -> None:
+    compare(__doc__, READERS, "sphere.ply", lambda path, side: {"vertices": sphere_ply(path, side)},
+            "ply_readers.json", argv)
 
 
 if __name__ == "__main__":

@@ -25,6 +25,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from benchmarks.common import RESULTS, check_outputs
 from clray.device.program import (
     FEATURE_SWITCHES,
     GPU_REGISTER_BYTES,
@@ -55,10 +57,13 @@ def amdgpu_render_usage(config: KernelConfig, clang: str) -> dict[str, int]:
             "vgprs": int(re.search(r"; NumVgprs: (\d+)", body).group(1))}
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--json", type=Path)
-    args = parser.parse_args()
+    parser.add_argument("--json", type=Path, default=RESULTS / "private_memory.json",
+                        help="write the rows here (default: "
+                        "benchmarks/results/private_memory.json)")
+    args = parser.parse_args(argv)
+    check_outputs(parser, json=args.json)
     clang = next((c for c in ("clang", "clang-15") if shutil.which(c)), None)
     if clang is None:
         sys.exit("private_memory: clang not found (Debian: apt-get install clang)")
@@ -76,11 +81,11 @@ def main() -> None:
                        **private_stack_bytes(config), **amdgpu_render_usage(config, clang)}
                 print(json.dumps(row), flush=True)
                 rows.append(row)
-    if args.json:
-        args.json.write_text(json.dumps({"compiler": "clang 15, amdgcn-amd-amdhsa gfx90a -O2, "
-                                                     "no device library",
-                                         "register_budget_bytes": GPU_REGISTER_BYTES,
-                                         "rows": rows}, indent=2) + "\n")
+    args.json.write_text(json.dumps({"compiler": "clang 15, amdgcn-amd-amdhsa gfx90a -O2, "
+                                                 "no device library",
+                                     "register_budget_bytes": GPU_REGISTER_BYTES,
+                                     "rows": rows}, indent=2) + "\n")
+    print(f"wrote {args.json}")
 
 
 if __name__ == "__main__":

@@ -10,9 +10,14 @@ Each size is written once as a binary little-endian PLY (float x, y, z; uchar/in
 layout scanners and MeshLab write) and rendered in a fresh process (its peak resident memory,
 VmHWM, is its own): the automatic scene of `clray render MODEL` (clray.model_scene), 1280 x
 720, 1 spp, packed as render() packs it for the device (the BVH on the device where it is
-large). A small mesh is rendered first in the same process so that the kernel builds and the
-device BVH build's program come from the caches, not the compiler: `build_s` is what remains.
-The peak is read after load, after pack and after the render, so each stage's share is in view.
+large). The process first loads, packs and renders the same file once as a warm-up, so that
+the kernel (whose build options follow the model: the BVH's stack depth) and, at 20,000
+triangles or more, the device BVH build's program are built before the timed pass, which
+finds them in the process's program cache: its `bvh_s` holds no compile and its `build_s` is
+0; the warm-up's own are `bvh_first_s` and `build_first_s` (a compile, or a load from PoCL's
+kernel cache where an earlier run filled it). The peak (VmHWM) is set back to the resident size
+after the warm-up (Linux's clear_refs; `peak_reset` says whether it was), then read after
+load, after pack and after the render, so each stage's share is in view.
 
 Mitsuba 3's load of the same file (its PLY reader and, where built with it, Embree's BVH: a
 `scalar_rgb` scene of one `ply` shape) runs in a process of its own beside clray's where the
@@ -40,20 +45,13 @@ import numpy as np
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
+sys.path.insert(0, str(ROOT))
+from benchmarks.common import PEAK_SOURCE, check_outputs, positive_int, positive_ints  # noqa: E402
+
 MIB = 1024.0 * 1024.0
 
-# The children's peak resident bytes: VmHWM, which starts afresh at exec; ru_maxrss starts from
-# the parent's resident size at the fork (the mesh writer's, for a big mesh).
-_PEAK = """
-import json, resource, sys, time
-
-def peak():
-    try:
-        with open("/proc/self/status") as f:
-            return next(int(line.split()[1]) * 1024 for line in f if line.startswith("VmHWM:"))
-    except (OSError, StopIteration):
-        return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
-"""
+# The children's peak resident bytes (VmHWM: its own, not the parent's mesh writer's).
+_PEAK = "import gc, json, sys, time\n" + PEAK_SOURCE
 
 # Runs in the child: one size; prints one JSON line.
 _CLRAY = _PEAK + """
@@ -64,11 +62,19 @@ from clray.model_scene import load_model_scene
 from clray.render import RenderSettings, pack_for
 
 
-path, warm = Path(sys.argv[1]), Path(sys.argv[2])
+path = Path(sys.argv[1])
 settings = RenderSettings(width=1280, height=720, spp=1)
 device = select_device(None)
-render_packed(pack_for(load_model_scene(warm), settings, device), device)
-out = {"device": describe(device), "rss_before": peak()}
+# Warm-up with the measured model itself: its kernel's options (BVH_STACK_SIZE follows its
+# BVH) and whether its BVH is built on the device (DEVICE_BUILD_MIN) are the timed pass's, so
+# no compile falls in the timed bvh_s or build_s. A smaller mesh built other programs.
+packed = pack_for(load_model_scene(path), settings, device)
+_, stats = render_packed(packed, device)
+out = {"device": describe(device), "bvh_first_s": packed.bvh_s, "build_first_s": stats["build_s"]}
+del packed, stats
+gc.collect()
+out["peak_reset"] = reset_peak()
+out["rss_before"] = peak()
 t = time.perf_counter()
 scene = load_model_scene(path)
 out["load_s"] = time.perf_counter() - t
@@ -139,8 +145,14 @@ def _has_mitsuba() -> bool:
     return importlib.util.find_spec("mitsuba") is not None
 
 
-def measure(path: Path, warm: Path, mitsuba: bool, source: Path = ROOT) -> dict:
-    row = _child(_CLRAY, str(path), str(warm), source=source)
+def unknown_ref(ref: str) -> bool:
+    """Whether git does not resolve `ref` to a commit here."""
+    return subprocess.run(["git", "rev-parse", "--verify", "--quiet", f"{ref}^{{commit}}"],
+                          cwd=ROOT, capture_output=True).returncode != 0
+
+
+def measure(path: Path, mitsuba: bool, source: Path = ROOT) -> dict:
+    row = _child(_CLRAY, str(path), source=source)
     if "error" not in row:
         triangles = row["triangles"]
         device = sum(row["device_bytes"].values())
@@ -164,14 +176,15 @@ def _summary(s: int, row: dict) -> str:
                    if "load_s" in mitsuba else mitsuba["error"])
     return (f"{s} subdivisions, {row['triangles']:,} triangles: load {row['load_s']:.2f} s, "
             f"bvh {row['bvh_s']:.2f} s, pack {row['pack_s']:.2f} s (together "
-            f"{row['load_bvh_pack_s']:.2f} s), build {row['build_s']:.2f} s, kernel "
+            f"{row['load_bvh_pack_s']:.2f} s), warm-up's build {row['build_first_s']:.2f} s "
+            f"and bvh {row['bvh_first_s']:.2f} s, kernel "
             f"{row['kernel_s']:.2f} s; host peak {row['host_peak'] / MIB:.0f} MiB "
             f"({row['host_peak_over_device']:.2f}x device), device "
             f"{row['device_bytes_total'] / MIB:.1f} MiB = "
             f"{row['device_bytes_per_triangle']:.1f} B a triangle; Mitsuba 3: {mitsuba}")
 
 
-def against(ref: str, path: Path, warm: Path, rounds: int) -> dict:
+def against(ref: str, path: Path, rounds: int) -> dict:
     """The working tree and commit `ref` (exported whole by git archive) measured in turns,
     `rounds` times each, with the load average before each run: the stages' medians and
     the runs."""
@@ -189,7 +202,7 @@ def against(ref: str, path: Path, warm: Path, rounds: int) -> dict:
         for _ in range(rounds):
             for name, source in ((ref, export), ("worktree", ROOT)):
                 load = os.getloadavg()[0]
-                row = measure(path, warm, False, source)
+                row = measure(path, False, source)
                 runs[name].append({"load_average": load, **{k: row.get(k) for k in keys},
                                    **({"error": row["error"]} if "error" in row else {})})
                 print(name, json.dumps(runs[name][-1]), flush=True)
@@ -229,8 +242,9 @@ def plot(rows: dict[str, dict], out: Path) -> None:
 
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--subdivisions", default="7,8,9", help="comma-separated sizes "
-                        "(10: 21 M triangles, about 8 GB of host memory today)")
+    parser.add_argument("--subdivisions", type=positive_ints, default=[7, 8, 9],
+                        help="comma-separated sizes (10: 21 M triangles, about 8 GB of host "
+                        "memory today)")
     parser.add_argument("--json", type=Path, default=HERE / "results" / "scale.json")
     parser.add_argument("--mesh-dir", type=Path, help="keep the PLY files here (default: a "
                         "temporary folder)")
@@ -238,27 +252,27 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--plot", type=Path, help="write the figure here (needs matplotlib)")
     parser.add_argument("--against", metavar="REF", help="measure the largest size only, in "
                         "turns with commit REF, for --rounds rounds (no Mitsuba)")
-    parser.add_argument("--rounds", type=int, default=3)
+    parser.add_argument("--rounds", type=positive_int, default=3)
     args = parser.parse_args(argv)
+    if args.against and unknown_ref(args.against):
+        parser.error(f"--against {args.against}: not a commit in {ROOT}")
+    check_outputs(parser, json=args.json, plot=None if args.against else args.plot)
     mitsuba = args.mitsuba == "auto" and _has_mitsuba()
     rows: dict[str, dict] = {}
     with tempfile.TemporaryDirectory() as tmp_name:
         folder = args.mesh_dir or Path(tmp_name)
         folder.mkdir(parents=True, exist_ok=True)
-        warm = folder / "bumpy3.ply"
-        write_ply(warm, 3)
-        sizes = [int(v) for v in args.subdivisions.split(",")]
-        for s in sizes[-1:] if args.against else sizes:
+        sizes = args.subdivisions
+        for s in [max(sizes)] if args.against else sizes:
             path = folder / f"bumpy{s}.ply"
             if not path.exists():
                 write_ply(path, s)
             if args.against:
-                rows[str(s)] = against(args.against, path, warm, args.rounds)
+                rows[str(s)] = against(args.against, path, args.rounds)
                 print(json.dumps(rows[str(s)]["medians"]), flush=True)
                 continue
-            rows[str(s)] = measure(path, warm, mitsuba)
+            rows[str(s)] = measure(path, mitsuba)
             print(_summary(s, rows[str(s)]), flush=True)
-    args.json.parent.mkdir(parents=True, exist_ok=True)
     args.json.write_text(json.dumps({"python": platform.python_version(),
                                      "numpy": np.__version__, "sizes": rows}, indent=2) + "\n")
     print(f"wrote {args.json}")

@@ -44,6 +44,12 @@ from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
+sys.path.insert(0, str(ROOT))
+from benchmarks.common import check_outputs, image_size, names_of, positive_ints  # noqa: E402
+
+# The traversal schemes of clray.knobs.TRAVERSALS, here without importing clray (and OpenCL)
+# into the parent, which only starts children; tests/test_benchmark_args.py checks them.
+TRAVERSALS = ("single", "sample_packet", "group_packet")
 KERNEL_FUNCTION = "_pocl_kernel_render_workgroup"
 STAGES = ("sample_ray", "make_ray", "closest_hit", "packet_closest", "shade_point", "light_ray",
           "transmission", "packet_transmission", "light_term")
@@ -167,26 +173,32 @@ def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--scenes", default="spheres,mesh", help="comma-separated: spheres, "
                         "mesh (generated) or paths to scene files")
-    parser.add_argument("--spp", default="1,16", help="comma-separated samples per pixel")
-    parser.add_argument("--size", default="32x18", metavar="WxH")
+    parser.add_argument("--spp", type=positive_ints, default=[1, 16],
+                        help="comma-separated samples per pixel")
+    parser.add_argument("--size", type=image_size, default=(32, 18), metavar="WxH")
     parser.add_argument("--rows", metavar="START:STOP",
                         help="count only these rows of the image (default: all of them)")
-    parser.add_argument("--traversals", default="single,sample_packet")
-    parser.add_argument("--json", default=str(HERE / "results" / "stages.json"))
+    parser.add_argument("--traversals", type=names_of(TRAVERSALS),
+                        default=["single", "sample_packet"],
+                        help=f"comma-separated, of {','.join(TRAVERSALS)}")
+    parser.add_argument("--json", type=Path, default=HERE / "results" / "stages.json")
     parser.add_argument("--mesh-dir", help="where to write the mesh scene (its folder mesh/ "
                         "there; default: a temporary folder)")
     args = parser.parse_args(argv)
-    width, height = (int(v) for v in args.size.lower().split("x"))
+    width, height = args.size
     rows = (0, height)
     if args.rows:
-        rows = tuple(int(v) for v in args.rows.split(":"))
-        if len(rows) != 2 or not 0 <= rows[0] < rows[1] <= height:
-            sys.exit(f"--rows {args.rows}: expected START:STOP within the image's {height} rows")
+        start, _, stop = args.rows.partition(":")
+        if not (start.isdigit() and stop.isdigit() and 0 <= int(start) < int(stop) <= height):
+            parser.error(f"--rows {args.rows}: expected START:STOP within the image's "
+                         f"{height} rows")
+        rows = (int(start), int(stop))
     names = [n for n in args.scenes.split(",") if n]
     compare = _compare()
     unknown = compare.unknown_scenes(names)
     if unknown:
         parser.error(f"scenes are spheres, mesh or scene files (not found: {unknown})")
+    check_outputs(parser, json=args.json)
     if shutil.which("valgrind") is None:
         sys.exit("stages.py needs valgrind (Debian: apt-get install valgrind)")
     results: dict = {}
@@ -194,14 +206,13 @@ def main(argv: list[str] | None = None) -> None:
         tmp = Path(tmp_name)
         scenes = compare.scene_paths(names, Path(args.mesh_dir) if args.mesh_dir else tmp)
         for name in names:
-            for spp in (int(v) for v in args.spp.split(",")):
-                for traversal in args.traversals.split(","):
+            for spp in args.spp:
+                for traversal in args.traversals:
                     result = count_stages(scenes[name], traversal, spp, (width, height), rows,
                                           tmp)
                     results.setdefault(name, {}).setdefault(str(spp), {})[traversal] = result
                     print(_summary(name, traversal, spp, result), flush=True)
-    Path(args.json).parent.mkdir(parents=True, exist_ok=True)
-    Path(args.json).write_text(json.dumps({"size": [width, height], "rows": list(rows),
+    args.json.write_text(json.dumps({"size": [width, height], "rows": list(rows),
                                            "scenes": results},
                                           indent=2) + "\n")
     print(f"wrote {args.json}")

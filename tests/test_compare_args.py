@@ -30,3 +30,47 @@ def test_unknown_scene_is_a_usage_error(script: str, tmp_path: Path,
                                                              f"spheres,{missing}"])
     assert exit_info.value.code == 2
     assert str(missing) in capsys.readouterr().err
+
+
+def _refuse_work(monkeypatch: pytest.MonkeyPatch) -> None:
+    """compare.main raises if it gets as far as a worktree, a scene or a render: a bad argument
+    must stop it before any of them."""
+    def work(*args: object, **kwargs: object) -> None:
+        raise AssertionError("compare.py started work on bad arguments")
+    for name in ("_worktree", "scene_paths", "_measure"):
+        monkeypatch.setattr(compare, name, work)
+
+
+@pytest.mark.parametrize(("args", "says"), [
+    (["HEAD", "--spp", "-4"], "--spp"),  # was a render of no samples, negative Mrays/s
+    (["HEAD", "--spp", "0"], "--spp"),
+    (["HEAD", "--size", "abc"], "--size"),  # was a ValueError traceback
+    (["HEAD", "--size", "64"], "--size"),
+    (["HEAD", "--rounds", "0"], "--rounds"),
+    (["HEAD", "--per-round", "-1"], "--per-round"),
+    # was a CalledProcessError after HEAD's worktree was registered, which stayed so
+    (["HEAD", "no-such-ref-xyz"], "no-such-ref-xyz"),
+    (["HEAD:sample_packet:many"], "LANES"),
+])
+def test_bad_arguments_are_usage_errors_before_any_work(
+        args: list[str], says: str, tmp_path: Path, capsys: pytest.CaptureFixture[str],
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    _refuse_work(monkeypatch)
+    out = tmp_path / "compare.json"
+    with pytest.raises(SystemExit) as exit_info:
+        compare.main([*args, "--scenes", "spheres", "--json", str(out)])
+    assert exit_info.value.code == 2
+    assert says in capsys.readouterr().err
+    assert not out.exists()
+
+
+def test_unwritable_json_is_refused_before_any_work(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str],
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    _refuse_work(monkeypatch)
+    blocker = tmp_path / "a_file"
+    blocker.write_text("", encoding="utf-8")
+    with pytest.raises(SystemExit) as exit_info:
+        compare.main(["HEAD", "--scenes", "spheres", "--json", str(blocker / "compare.json")])
+    assert exit_info.value.code == 2
+    assert "--json" in capsys.readouterr().err

@@ -369,3 +369,23 @@ def test_float_positions_stay_float32_and_pack_as_doubles(tmp_path):
                          max_depth=0, seed=0).buffers() for name in ("f.ply", "d.ply")]
     for name, array in packed[0].items():
         assert array.tobytes() == packed[1][name].tobytes(), name
+
+
+_FLOAT_COLOURS = (b"element vertex 3\nproperty float x\nproperty float y\nproperty float z\n"
+                  b"property float red\nproperty float green\nproperty float blue\n"
+                  b"element face 1\nproperty list uchar int vertex_indices\n")
+
+
+@pytest.mark.parametrize("value", ["nan", "inf", "-inf"])
+@pytest.mark.parametrize("fmt", ["ascii", "binary"])
+def test_non_finite_float_colours_are_refused(value, fmt):
+    # np.clip keeps a NaN, which reached the renderer as NaN pixels.
+    rows = [[0, 0, 0, 1, 1, 1], [1, 0, 0, 1, 1, 1], [0, 1, 0, 0.5, float(value), 1]]
+    if fmt == "ascii":
+        body = b"".join(" ".join(map(str, r)).encode() + b"\n" for r in rows) + b"3 0 1 2\n"
+        data = _ascii(_FLOAT_COLOURS, body)
+    else:
+        body = b"".join(struct.pack("<6f", *r) for r in rows) + struct.pack("<B3i", 3, 0, 1, 2)
+        data = _binary(_FLOAT_COLOURS, body)
+    assert _errors(data) == ("bad.ply: element vertex: record 2: red, green, blue must be "
+                             "finite and at most 1e+30 in magnitude")

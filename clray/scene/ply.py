@@ -537,5 +537,8 @@ def _colors(reader: _Reader, vertex: dict[str, object]) -> np.ndarray | None:
             _stack(reader, vertex, names)  # numbers, not lists
             raw = [np.asarray(vertex[n]) for n in names]
             scale = 255.0 if raw[0].dtype.kind in "iu" else 1.0
-            return np.clip(np.stack(raw, axis=1).astype(np.float64) / scale, 0.0, 1.0)
+            colors = np.stack(raw, axis=1).astype(np.float64) / scale
+            # np.clip keeps a NaN: it would reach the renderer as NaN pixels.
+            _check_numbers(reader, colors, "element vertex", ", ".join(names))
+            return np.clip(colors, 0.0, 1.0)
     return None

@@ -350,7 +350,10 @@ class _Reader:
     def ascii_numbers(self, tokens: list[bytes], el: _Element, lines: list[bytes],
                       first_line: int) -> np.ndarray:
         try:
-            return np.array(tokens).astype(np.float64)
+            # Token by token in C, as fast as np.array(tokens).astype(float) and parsed by the
+            # same float(): that array of fixed-width strings is as wide as the longest token,
+            # so one number of 2000 digits among 2.4 M tokens took 4.8 GB.
+            return np.fromiter(map(float, tokens), np.float64, len(tokens))
         except ValueError:
             for i, line in enumerate(lines):
                 for word in line.split():

@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 from clray.errors import SceneError
+from clray.scene import limits
 from clray.scene.colour import srgb_decode
 from clray.scene.load import scene_from_dict
 from clray.scene.obj import parse_obj
@@ -413,3 +414,33 @@ def test_one_long_number_does_not_widen_every_number():
     mesh = read_ply(data(long), Path("m.ply")).mesh
     assert mesh.vertices[0, 0] == np.float32(float(long))
     assert _peak(data(long)) < 2 * _peak(data(b"0.1"))
+
+
+def _short_faces(lists: list[list[int]], count: int) -> bytes:
+    header = _TRIANGLE + b"element face %d\nproperty list uchar int vertex_indices\n" % count
+    body = struct.pack("<9f", 0, 0, 0, 1, 0, 0, 0, 1, 0)
+    body += b"".join(struct.pack(f"<B{len(f)}i", len(f), *f) for f in lists)
+    return _binary(header, body)
+
+
+@pytest.mark.parametrize(("lists", "record", "got"), [
+    ([[]], 0, 0),
+    ([[0, 1, 2], [0, 1, 2, 0], [1], [], [1]], 2, 1),
+])
+def test_a_short_binary_face_fails_where_it_is_read(lists, record, got):
+    # The file declares 100 faces and ends after these: the short face is reported as
+    # it is read, not after a pass over every record (which here ends in a truncation).
+    assert _errors(_short_faces(lists, 100)) == (
+        f"bad.ply: element face: record {record}: a face needs at least 3 vertices, got {got}")
+
+
+@pytest.mark.parametrize("fmt", ["ascii", "binary"])
+def test_a_face_count_over_the_triangle_limit_is_refused_from_the_header(fmt, monkeypatch):
+    monkeypatch.setattr(limits, "MAX_TRIANGLES", 4)
+    # Five faces declared, none written: the header alone is refused.
+    header = _TRIANGLE + b"element face 5\nproperty list uchar int vertex_indices\n"
+    data = (_ascii if fmt == "ascii" else _binary)(header, b"")
+    assert _errors(data) == ("bad.ply: element face: 5 faces make at least as many triangles, "
+                             "over the limit of 4 for all meshes")
+    ok = _short_faces([[0, 1, 2]] * 4, 4)
+    assert read_ply(ok, Path("m.ply")).mesh.faces.shape == (4, 3)

@@ -305,3 +305,11 @@ def test_inline_mesh_materials_need_an_index_per_triangle(tmp_path):
         data = {"camera": CAMERA, "materials": {"a": {}}, "objects": [{**base, **extra}]}
         with pytest.raises(SceneError, match=message):
             scene_from_dict(data, tmp_path / "s.toml")
+
+
+def test_a_byte_order_mark_is_not_part_of_the_first_key():
+    from clray.scene.mtl import parse_mtl
+
+    library = parse_mtl(b"\xef\xbb\xbfnewmtl a\nKd 0 0 1\n", Path("m.mtl"), "m.mtl")
+    assert library.materials["a"].colors == {"Kd": (0.0, 0.0, 1.0)}
+    assert library.warnings == []

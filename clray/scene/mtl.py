@@ -63,6 +63,8 @@ def parse_mtl(data: bytes, path: Path, shown: str) -> MtlLibrary:
     materials: dict[str, MtlMaterial] = {}
     warned: dict[str, int] = {}
     current: MtlMaterial | None = None
+    # A UTF-8 byte order mark (Windows editors write one) would be part of the first key.
+    data = data.removeprefix(b"\xef\xbb\xbf")
     for number, raw in enumerate(data.split(b"\n"), start=1):
         words = raw.split(b"#", 1)[0].decode("utf-8", errors="replace").split()
         if not words:

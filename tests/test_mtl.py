@@ -269,6 +269,7 @@ def test_missing_texture_is_a_warning_and_the_material_keeps_kd(tmp_path):
     ("map_Kd", "expected an image file name"),
     ("map_Kd -s x t.png", "-s: expected numbers"),
     ("map_Kd -s 0 1 t.png", "-s: scales must be > 0"),
+    ("map_Kd -t x t.png", "-t: expected numbers"),
 ])
 def test_malformed_map_kd_is_an_error(tmp_path, line, message):
     textured_quad(tmp_path, line)
@@ -313,3 +314,18 @@ def test_a_byte_order_mark_is_not_part_of_the_first_key():
     library = parse_mtl(b"\xef\xbb\xbfnewmtl a\nKd 0 0 1\n", Path("m.mtl"), "m.mtl")
     assert library.materials["a"].colors == {"Kd": (0.0, 0.0, 1.0)}
     assert library.warnings == []
+
+
+@pytest.mark.parametrize("line, file, scale, ignored", [
+    # -s, -o and -t take u and optionally v and w: only the numbers after them are theirs.
+    ("map_Kd -t 0.1 wood.png", "wood.png", (1.0, 1.0), ("-t",)),
+    ("map_Kd -t 0.1 0.2 -s 2 wood.png", "wood.png", (2.0, 1.0), ("-t",)),
+    ("map_Kd -t 0 0 0 -o 0 -s 2 3 1 my wood.png", "my wood.png", (2.0, 3.0), ()),
+    ("map_Kd -o 0.5 -clamp on -t 0 0.5 wood.png", "wood.png", (1.0, 1.0), ("-o", "-clamp", "-t")),
+])
+def test_map_options_take_the_numbers_that_follow(line, file, scale, ignored):
+    from clray.scene.mtl import parse_mtl
+
+    texture = parse_mtl(f"newmtl a\n{line}\n".encode(), Path("m.mtl"), "m.mtl") \
+        .materials["a"].map_kd
+    assert (texture.file, texture.scale, texture.ignored) == (file, scale, ignored)

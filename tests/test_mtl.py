@@ -170,12 +170,19 @@ def test_dissolve_sees_through_without_bending():
     assert to_material(MtlMaterial("m", 1, numbers={"Tr": 0.25})).transmit == 0.25
 
 
+@pytest.mark.parametrize("illum", [0, 1, 2, 3, 5, 8, 10])
+def test_dissolve_applies_to_every_model_without_glass(illum):
+    # "Dissolve works on all illumination models" (the MTL spec), constant colour included.
+    m = to_material(MtlMaterial("m", 1, numbers={"d": 0.5, "Ni": 1.5}, illum=illum))
+    assert (m.transmit, m.ior) == (0.5, 1.0)
+
+
 # Four times the worst measured over the illum models (rmse 6.4e-7, largest error 5.3e-6 in a
 # channel; PoCL 3.1, AMD EPYC).
 TOLERANCE = Tolerance(rmse=2.6e-6, err=2.2e-5)
 
 PANELS = {
-    0: "Kd 0.2 0.8 0.3",
+    0: "Kd 0.2 0.8 0.3\nd 0.6",
     1: "Kd 0.2 0.8 0.3\nKa 0.2 0.2 0.2",
     2: "Kd 0.2 0.8 0.3\nKs 0.5 0.5 0.5\nNs 40",
     3: "Kd 0.2 0.3 0.3\nKs 0.6 0.6 0.6\nNs 40",

@@ -188,10 +188,13 @@ def to_material(mtl: MtlMaterial) -> Material:
     ks = _mean(mtl.colors.get("Ks", (0.0, 0.0, 0.0)))
     illum = 2 if mtl.illum is None else mtl.illum
     dissolve = mtl.numbers.get("d", 1.0 - mtl.numbers.get("Tr", 0.0))
-    if illum == 0:  # colour only: Kd under the ambient light, nothing else
+    # Dissolve: see-through without bending. The MTL spec: "Dissolve works on all
+    # illumination models", constant colour (illum 0) included.
+    transmit, ior = min(1.0 - dissolve, L.MAX_BOUNCE_WEIGHT), 1.0
+    if illum == 0:  # colour only: Kd under the ambient light, and the dissolve
         return Material(name=mtl.name, color=kd, ambient=1.0, diffuse=0.0, specular=0.0,
-                        ior=1.0, emission=mtl.colors.get("Ke", (0.0, 0.0, 0.0)))
-    transmit, ior = 1.0 - dissolve, 1.0  # dissolve: see-through without bending
+                        transmit=transmit, ior=ior,
+                        emission=mtl.colors.get("Ke", (0.0, 0.0, 0.0)))
     if illum in TRANSMITTING:
         tf = mtl.colors.get("Tf")
         transmit = _mean(tf) if tf is not None else transmit

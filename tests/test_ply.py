@@ -444,3 +444,15 @@ def test_a_face_count_over_the_triangle_limit_is_refused_from_the_header(fmt, mo
                              "over the limit of 4 for all meshes")
     ok = _short_faces([[0, 1, 2]] * 4, 4)
     assert read_ply(ok, Path("m.ply")).mesh.faces.shape == (4, 3)
+
+
+@pytest.mark.parametrize("comment", [b"comment written before end_header by a tool\n",
+                                     b"comment end_header\n", b"end_header_x 1\n"])
+def test_the_header_ends_at_a_whole_end_header_line(comment):
+    header = b"ply\nformat ascii 1.0\n" + comment + _TRIANGLE
+    data = (header + b"element face 1\nproperty list uchar int vertex_indices\nend_header\n"
+            b"0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n")
+    if comment.startswith(b"comment"):
+        np.testing.assert_array_equal(read_ply(data, Path("m.ply")).mesh.faces, [[0, 1, 2]])
+    else:  # a line that only starts with the word is a keyword of its own
+        assert _errors(data) == "bad.ply: header line 3: unknown header keyword 'end_header_x'"

@@ -77,11 +77,7 @@ class _Reader:
         """(format, elements, offset of the body)."""
         if not self.data.startswith(b"ply") or self.data[3:4] not in (b"\n", b"\r"):
             raise self.error(None, "not a PLY file (it must start with a 'ply' line)")
-        end = self.data.find(b"end_header")
-        if end < 0:
-            raise self.error(None, "no end_header line")
-        newline = self.data.find(b"\n", end)
-        body = len(self.data) if newline < 0 else newline + 1
+        end, body = self.end_header()
         lines = self.data[:end].decode("ascii", errors="replace").splitlines()
         if len(lines) > _MAX_HEADER_LINES:
             raise self.error(None, f"header of over {_MAX_HEADER_LINES} lines")
@@ -125,6 +121,24 @@ class _Reader:
             if count and not props:
                 raise self.error(f"element {name}", "records without properties")
         return fmt, [_Element(n, c, tuple(p)) for n, c, p in elements], body
+
+    def end_header(self) -> tuple[int, int]:
+        """(offset of the end_header line, offset of the body). The line is the keyword alone
+        (a comment may mention end_header before it), among the first _MAX_HEADER_LINES lines;
+        the header is walked line by line, a binary body never."""
+        data, at = self.data, 0
+        for _ in range(_MAX_HEADER_LINES + 1):
+            newline = data.find(b"\n", at)
+            line_end = len(data) if newline < 0 else newline
+            # A copy of 64 bytes at most: a line of binary bytes may run on for megabytes.
+            line = data[at:min(line_end, at + 64)]
+            if line_end - at <= 64 and line.strip() == b"end_header":
+                return at + line.index(b"end_header"), min(line_end + 1, len(data))
+            if newline < 0:
+                raise self.error(None, "no end_header line")
+            at = newline + 1
+        raise self.error(None, f"header of over {_MAX_HEADER_LINES} lines (no end_header line "
+                         "among them)")
 
     def property(self, words: list[str], where: str) -> _Property:
         if len(words) == 5 and words[1] == "list":

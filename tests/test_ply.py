@@ -456,3 +456,27 @@ def test_the_header_ends_at_a_whole_end_header_line(comment):
         np.testing.assert_array_equal(read_ply(data, Path("m.ply")).mesh.faces, [[0, 1, 2]])
     else:  # a line that only starts with the word is a keyword of its own
         assert _errors(data) == "bad.ply: header line 3: unknown header keyword 'end_header_x'"
+
+
+_FACE = b"element face 1\nproperty list uchar int vertex_indices\n"
+
+
+@pytest.mark.parametrize("body", [
+    b"0 0 0\n1 0 0\n0 1 0\n\n3 0 1 2\n",  # between elements
+    b"\n0 0 0\n1 0 0\n \t\n0 1 0\n3 0 1 2\n\n",  # first, within an element, last
+    b"0 0 0\r\n1 0 0\r\n0 1 0\r\n\r\n3 0 1 2\r\n",  # CRLF
+])
+def test_blank_lines_in_an_ascii_body_are_read_past(body):
+    mesh = read_ply(_ascii(_TRIANGLE + _FACE, body), Path("m.ply")).mesh
+    np.testing.assert_array_equal(mesh.vertices, [[0, 0, 0], [1, 0, 0], [0, 1, 0]])
+    np.testing.assert_array_equal(mesh.faces, [[0, 1, 2]])
+
+
+@pytest.mark.parametrize("body, message", [
+    # The header is 9 lines: errors after blank lines name the line of the file.
+    (b"0 0 0\n\n1 0 0\n\n0 x 0\n3 0 1 2\n", "element vertex, line 14: expected a number, got b'x'"),
+    (b"0 0 0\n1 0 0\n0 1 0\n\n\n3 0 1\n", "element face, line 15: expected 0 numbers and a list"),
+    (b"0 0 0\n1 0 0\n0 1 0\n\n", "element face: file ends after 0 of 1 records"),
+])
+def test_errors_after_blank_lines_name_the_line(body, message):
+    assert _errors(_ascii(_TRIANGLE + _FACE, body)).startswith(f"bad.ply: {message}")

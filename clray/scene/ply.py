@@ -13,7 +13,9 @@ record to record, one pass finds where each record starts and numpy gathers the 
 
 from __future__ import annotations
 
+import re
 import struct
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -36,6 +38,8 @@ _STRUCT_CODES = {"i1": "b", "u1": "B", "i2": "h", "u2": "H", "i4": "i", "u4": "I
 _FORMATS = {"ascii": None, "binary_little_endian": "<", "binary_big_endian": ">"}
 _UV_NAMES = (("u", "v"), ("s", "t"), ("texture_u", "texture_v"), ("texture_s", "texture_t"))
 _FACE_LISTS = ("vertex_indices", "vertex_index")
+# A line of whitespace only between two others, in an ASCII body.
+_BLANK_LINE = re.compile(rb"\n[ \t\r\f\v]*\n")
 # Header lines a file may have before end_header; a real header has a few dozen.
 _MAX_HEADER_LINES = 10000
 
@@ -285,8 +289,18 @@ class _Reader:
     # -- ASCII -------------------------------------------------------------------------
 
     def ascii(self, elements: list[_Element], offset: int) -> dict[str, dict[str, object]]:
-        lines = self.data[offset:].split(b"\n")
+        body = self.data[offset:]
+        lines = body.split(b"\n")
         first_line = self.data[:offset].count(b"\n") + 1
+        # The file's line number of each line, for errors.
+        numbers: Sequence[int] = range(first_line, first_line + len(lines))
+        if not lines[0].strip() or _BLANK_LINE.search(body):
+            # Blank lines (some writers leave one between elements) hold no record: read past,
+            # as readers that take the body token by token (rply, trimesh) do. One regex pass
+            # finds them, so only a file that has them pays for the filtering.
+            kept = [i for i, line in enumerate(lines) if line.strip()]
+            lines = [lines[i] for i in kept]
+            numbers = [first_line + i for i in kept]
         out: dict[str, dict[str, object]] = {}
         row = 0
         for el in elements:
@@ -294,18 +308,18 @@ class _Reader:
             if len(mine) < el.count or (el.count and not mine[-1].strip()):
                 got = sum(1 for line in mine if line.strip())
                 raise self.truncated(el, got)
-            out[el.name] = self.ascii_element(el, mine, first_line + row)
+            out[el.name] = self.ascii_element(el, mine, numbers[row:row + el.count])
             row += el.count
         return out
 
-    def ascii_element(self, el: _Element, lines: list[bytes], first_line: int
+    def ascii_element(self, el: _Element, lines: list[bytes], numbers: Sequence[int]
                       ) -> dict[str, object]:
         props = el.properties
         if not el.has_list():
             tokens = b" ".join(lines).split()
             if len(tokens) != len(props) * el.count:
-                self.ascii_line_error(el, lines, first_line, len(props))
-            values = self.ascii_numbers(tokens, el, lines, first_line).reshape(el.count,
+                self.ascii_line_error(el, lines, numbers, len(props))
+            values = self.ascii_numbers(tokens, el, lines, numbers).reshape(el.count,
                                                                                 len(props))
             return {p.name: self.typed(values[:, i], p, el) for i, p in enumerate(props)}
         scalars: dict[str, list[float]] = {p.name: [] for p in props if p.count_type is None}
@@ -341,7 +355,7 @@ class _Reader:
             except (ValueError, IndexError):
                 shape = ("a list (its length first)" if n_lists == 1 else
                          f"{n_lists} lists (each its length first)")
-                raise self.error(f"element {el.name}, line {first_line + i}",
+                raise self.error(f"element {el.name}, line {numbers[i]}",
                                  f"expected {plural(len(scalars), 'number')} and {shape}, got "
                                  f"{b' '.join(words)[:60]!r}") from None
         out: dict[str, object] = {name: np.array(v, dtype=np.float64)
@@ -368,7 +382,7 @@ class _Reader:
         return values.astype(kind)
 
     def ascii_numbers(self, tokens: list[bytes], el: _Element, lines: list[bytes],
-                      first_line: int) -> np.ndarray:
+                      numbers: Sequence[int]) -> np.ndarray:
         try:
             # Token by token in C, as fast as np.array(tokens).astype(float) and parsed by the
             # same float(): that array of fixed-width strings is as wide as the longest token,
@@ -380,15 +394,15 @@ class _Reader:
                     try:
                         float(word)
                     except ValueError:
-                        raise self.error(f"element {el.name}, line {first_line + i}",
+                        raise self.error(f"element {el.name}, line {numbers[i]}",
                                          f"expected a number, got {word[:40]!r}") from None
             raise
 
-    def ascii_line_error(self, el: _Element, lines: list[bytes], first_line: int,
+    def ascii_line_error(self, el: _Element, lines: list[bytes], numbers: Sequence[int],
                          want: int) -> None:
         for i, line in enumerate(lines):
             if len(line.split()) != want:
-                raise self.error(f"element {el.name}, line {first_line + i}",
+                raise self.error(f"element {el.name}, line {numbers[i]}",
                                  f"expected {plural(want, 'number')}, got {len(line.split())}")
 
 

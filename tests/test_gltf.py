@@ -657,3 +657,15 @@ def test_a_python_scene_keeps_its_vertex_colours_and_checks_them():
     bad = M.Mesh(mesh.vertices, mesh.faces, 0, colors=colors * 2)
     with pytest.raises(SceneError, match=r"objects\[0\].colors: must be linear values in"):
         check_scene(colored_scene(bad))
+
+
+def test_bytes_after_the_glb_length_are_ignored_with_a_warning(tmp_path):
+    # They were reported as "truncated .glb": the file is longer than its header says.
+    glb = instanced_cubes().glb()
+    (tmp_path / "c.glb").write_bytes(glb)
+    (tmp_path / "padded.glb").write_bytes(glb + b"\0" * 5)
+    loaded = load(tmp_path / "padded.glb")
+    assert [w for w in loaded.warnings if "padded.glb" in w and w.endswith(
+        f"ignored: 5 bytes past the length the .glb header gives ({len(glb)})")], loaded.warnings
+    np.testing.assert_array_equal(loaded.objects[0].vertices,
+                                  load(tmp_path / "c.glb").objects[0].vertices)

@@ -170,12 +170,19 @@ def test_dissolve_sees_through_without_bending():
     assert to_material(MtlMaterial("m", 1, numbers={"Tr": 0.25})).transmit == 0.25
 
 
+@pytest.mark.parametrize("illum", [0, 1, 2, 3, 5, 8, 10])
+def test_dissolve_applies_to_every_model_without_glass(illum):
+    # "Dissolve works on all illumination models" (the MTL spec), constant colour included.
+    m = to_material(MtlMaterial("m", 1, numbers={"d": 0.5, "Ni": 1.5}, illum=illum))
+    assert (m.transmit, m.ior) == (0.5, 1.0)
+
+
 # Four times the worst measured over the illum models (rmse 6.4e-7, largest error 5.3e-6 in a
 # channel; PoCL 3.1, AMD EPYC).
 TOLERANCE = Tolerance(rmse=2.6e-6, err=2.2e-5)
 
 PANELS = {
-    0: "Kd 0.2 0.8 0.3",
+    0: "Kd 0.2 0.8 0.3\nd 0.6",
     1: "Kd 0.2 0.8 0.3\nKa 0.2 0.2 0.2",
     2: "Kd 0.2 0.8 0.3\nKs 0.5 0.5 0.5\nNs 40",
     3: "Kd 0.2 0.3 0.3\nKs 0.6 0.6 0.6\nNs 40",
@@ -269,6 +276,7 @@ def test_missing_texture_is_a_warning_and_the_material_keeps_kd(tmp_path):
     ("map_Kd", "expected an image file name"),
     ("map_Kd -s x t.png", "-s: expected numbers"),
     ("map_Kd -s 0 1 t.png", "-s: scales must be > 0"),
+    ("map_Kd -t x t.png", "-t: expected numbers"),
 ])
 def test_malformed_map_kd_is_an_error(tmp_path, line, message):
     textured_quad(tmp_path, line)
@@ -316,3 +324,26 @@ def test_inline_mesh_materials_need_an_index_per_triangle(tmp_path):
         data = {"camera": CAMERA, "materials": {"a": {}}, "objects": [{**base, **extra}]}
         with pytest.raises(SceneError, match=message):
             scene_from_dict(data, tmp_path / "s.toml")
+
+
+def test_a_byte_order_mark_is_not_part_of_the_first_key():
+    from clray.scene.mtl import parse_mtl
+
+    library = parse_mtl(b"\xef\xbb\xbfnewmtl a\nKd 0 0 1\n", Path("m.mtl"), "m.mtl")
+    assert library.materials["a"].colors == {"Kd": (0.0, 0.0, 1.0)}
+    assert library.warnings == []
+
+
+@pytest.mark.parametrize("line, file, scale, ignored", [
+    # -s, -o and -t take u and optionally v and w: only the numbers after them are theirs.
+    ("map_Kd -t 0.1 wood.png", "wood.png", (1.0, 1.0), ("-t",)),
+    ("map_Kd -t 0.1 0.2 -s 2 wood.png", "wood.png", (2.0, 1.0), ("-t",)),
+    ("map_Kd -t 0 0 0 -o 0 -s 2 3 1 my wood.png", "my wood.png", (2.0, 3.0), ()),
+    ("map_Kd -o 0.5 -clamp on -t 0 0.5 wood.png", "wood.png", (1.0, 1.0), ("-o", "-clamp", "-t")),
+])
+def test_map_options_take_the_numbers_that_follow(line, file, scale, ignored):
+    from clray.scene.mtl import parse_mtl
+
+    texture = parse_mtl(f"newmtl a\n{line}\n".encode(), Path("m.mtl"), "m.mtl") \
+        .materials["a"].map_kd
+    assert (texture.file, texture.scale, texture.ignored) == (file, scale, ignored)

@@ -432,3 +432,20 @@ def test_fast_path_reads_what_the_general_parser_reads(monkeypatch, text):
 ])
 def test_regular_layout_with_errors_leaves_them_to_the_general_parser(text):
     assert obj._parse_regular(text.encode()) is None
+
+
+@pytest.mark.parametrize("text", [
+    "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 5 5 5\nf 1 2 3\n",  # the common layout
+    "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 5 5 5\nf 1 2 3 # general parser\n",
+])
+def test_a_byte_order_mark_is_not_part_of_the_first_line(text):
+    with_bom = obj.parse_obj(b"\xef\xbb\xbf" + text.encode(), Path("m.obj"))
+    np.testing.assert_array_equal(with_bom.vertices[with_bom.faces],
+                                  [[[0, 0, 0], [1, 0, 0], [0, 1, 0]]])
+
+
+def test_a_byte_order_mark_before_mtllib_keeps_the_library():
+    data = b"\xef\xbb\xbfmtllib m.mtl\n" + SQUARE_V.encode() + b"usemtl a\nf 1 2 3\n"
+    mesh = obj.parse_obj(data, Path("m.obj"))
+    assert mesh.material_libraries == ((1, "m.mtl"),)
+    assert mesh.material_names == ("a",)

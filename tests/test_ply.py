@@ -5,12 +5,14 @@ Files are written here with struct, independently of the reader."""
 from __future__ import annotations
 
 import struct
+import tracemalloc
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 from clray.errors import SceneError
+from clray.scene import limits
 from clray.scene.colour import srgb_decode
 from clray.scene.load import scene_from_dict
 from clray.scene.obj import parse_obj
@@ -369,3 +371,112 @@ def test_float_positions_stay_float32_and_pack_as_doubles(tmp_path):
                          max_depth=0, seed=0).buffers() for name in ("f.ply", "d.ply")]
     for name, array in packed[0].items():
         assert array.tobytes() == packed[1][name].tobytes(), name
+
+
+_FLOAT_COLOURS = (b"element vertex 3\nproperty float x\nproperty float y\nproperty float z\n"
+                  b"property float red\nproperty float green\nproperty float blue\n"
+                  b"element face 1\nproperty list uchar int vertex_indices\n")
+
+
+@pytest.mark.parametrize("value", ["nan", "inf", "-inf"])
+@pytest.mark.parametrize("fmt", ["ascii", "binary"])
+def test_non_finite_float_colours_are_refused(value, fmt):
+    # np.clip keeps a NaN, which reached the renderer as NaN pixels.
+    rows = [[0, 0, 0, 1, 1, 1], [1, 0, 0, 1, 1, 1], [0, 1, 0, 0.5, float(value), 1]]
+    if fmt == "ascii":
+        body = b"".join(" ".join(map(str, r)).encode() + b"\n" for r in rows) + b"3 0 1 2\n"
+        data = _ascii(_FLOAT_COLOURS, body)
+    else:
+        body = b"".join(struct.pack("<6f", *r) for r in rows) + struct.pack("<B3i", 3, 0, 1, 2)
+        data = _binary(_FLOAT_COLOURS, body)
+    assert _errors(data) == ("bad.ply: element vertex: record 2: red, green, blue must be "
+                             "finite and at most 1e+30 in magnitude")
+
+
+def _peak(data: bytes) -> int:
+    tracemalloc.start()
+    try:
+        read_ply(data, Path("m.ply"))
+        return tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+
+
+def test_one_long_number_does_not_widen_every_number():
+    # An array of fixed-width byte strings is as wide as its longest token: one number of
+    # 2000 digits among 3000 vertices cost 2000 bytes a token (18 MB here, 4.8 GB for the
+    # reviewer's 800,000 vertices).
+    def data(first: bytes) -> bytes:
+        header = (b"element vertex 3000\nproperty float x\nproperty float y\nproperty float z\n"
+                  b"element face 1\nproperty list uchar int vertex_indices\n")
+        return _ascii(header, first + b" 0 0\n" + b"1 0 0\n" * 2999 + b"3 0 1 2\n")
+    long = b"0." + b"0" * 2000 + b"1"
+    mesh = read_ply(data(long), Path("m.ply")).mesh
+    assert mesh.vertices[0, 0] == np.float32(float(long))
+    assert _peak(data(long)) < 2 * _peak(data(b"0.1"))
+
+
+def _short_faces(lists: list[list[int]], count: int) -> bytes:
+    header = _TRIANGLE + b"element face %d\nproperty list uchar int vertex_indices\n" % count
+    body = struct.pack("<9f", 0, 0, 0, 1, 0, 0, 0, 1, 0)
+    body += b"".join(struct.pack(f"<B{len(f)}i", len(f), *f) for f in lists)
+    return _binary(header, body)
+
+
+@pytest.mark.parametrize(("lists", "record", "got"), [
+    ([[]], 0, 0),
+    ([[0, 1, 2], [0, 1, 2, 0], [1], [], [1]], 2, 1),
+])
+def test_a_short_binary_face_fails_where_it_is_read(lists, record, got):
+    # The file declares 100 faces and ends after these: the short face is reported as
+    # it is read, not after a pass over every record (which here ends in a truncation).
+    assert _errors(_short_faces(lists, 100)) == (
+        f"bad.ply: element face: record {record}: a face needs at least 3 vertices, got {got}")
+
+
+@pytest.mark.parametrize("fmt", ["ascii", "binary"])
+def test_a_face_count_over_the_triangle_limit_is_refused_from_the_header(fmt, monkeypatch):
+    monkeypatch.setattr(limits, "MAX_TRIANGLES", 4)
+    # Five faces declared, none written: the header alone is refused.
+    header = _TRIANGLE + b"element face 5\nproperty list uchar int vertex_indices\n"
+    data = (_ascii if fmt == "ascii" else _binary)(header, b"")
+    assert _errors(data) == ("bad.ply: element face: 5 faces make at least as many triangles, "
+                             "over the limit of 4 for all meshes")
+    ok = _short_faces([[0, 1, 2]] * 4, 4)
+    assert read_ply(ok, Path("m.ply")).mesh.faces.shape == (4, 3)
+
+
+@pytest.mark.parametrize("comment", [b"comment written before end_header by a tool\n",
+                                     b"comment end_header\n", b"end_header_x 1\n"])
+def test_the_header_ends_at_a_whole_end_header_line(comment):
+    header = b"ply\nformat ascii 1.0\n" + comment + _TRIANGLE
+    data = (header + b"element face 1\nproperty list uchar int vertex_indices\nend_header\n"
+            b"0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n")
+    if comment.startswith(b"comment"):
+        np.testing.assert_array_equal(read_ply(data, Path("m.ply")).mesh.faces, [[0, 1, 2]])
+    else:  # a line that only starts with the word is a keyword of its own
+        assert _errors(data) == "bad.ply: header line 3: unknown header keyword 'end_header_x'"
+
+
+_FACE = b"element face 1\nproperty list uchar int vertex_indices\n"
+
+
+@pytest.mark.parametrize("body", [
+    b"0 0 0\n1 0 0\n0 1 0\n\n3 0 1 2\n",  # between elements
+    b"\n0 0 0\n1 0 0\n \t\n0 1 0\n3 0 1 2\n\n",  # first, within an element, last
+    b"0 0 0\r\n1 0 0\r\n0 1 0\r\n\r\n3 0 1 2\r\n",  # CRLF
+])
+def test_blank_lines_in_an_ascii_body_are_read_past(body):
+    mesh = read_ply(_ascii(_TRIANGLE + _FACE, body), Path("m.ply")).mesh
+    np.testing.assert_array_equal(mesh.vertices, [[0, 0, 0], [1, 0, 0], [0, 1, 0]])
+    np.testing.assert_array_equal(mesh.faces, [[0, 1, 2]])
+
+
+@pytest.mark.parametrize("body, message", [
+    # The header is 9 lines: errors after blank lines name the line of the file.
+    (b"0 0 0\n\n1 0 0\n\n0 x 0\n3 0 1 2\n", "element vertex, line 14: expected a number, got b'x'"),
+    (b"0 0 0\n1 0 0\n0 1 0\n\n\n3 0 1\n", "element face, line 15: expected 0 numbers and a list"),
+    (b"0 0 0\n1 0 0\n0 1 0\n\n", "element face: file ends after 0 of 1 records"),
+])
+def test_errors_after_blank_lines_name_the_line(body, message):
+    assert _errors(_ascii(_TRIANGLE + _FACE, body)).startswith(f"bad.ply: {message}")

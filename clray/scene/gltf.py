@@ -153,9 +153,14 @@ class _Reader:
         version, length = struct.unpack_from("<II", data, 4)
         if version != 2:
             raise self.error(None, f".glb version {version} (expected 2)")
-        if length != len(data):
+        if length > len(data):
             raise self.error(None, f"truncated .glb: the header gives {length} bytes, the "
                              f"file has {len(data)}")
+        if length < len(data):
+            # The chunks end at the header's length (the whole .glb's, by the specification):
+            # bytes after it, padding a tool added say, are not the model's.
+            self.warn(f"ignored: {plural(len(data) - length, 'byte')} past the length the "
+                      f".glb header gives ({length})")
         chunks: list[tuple[int, bytes]] = []
         at = 12
         while at < length:

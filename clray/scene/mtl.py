@@ -21,9 +21,11 @@ Vec3 = tuple[float, float, float]
 # Keys clray reads besides illum and map_Kd; every other key gives a warning.
 _COLORS = ("Ka", "Kd", "Ks", "Tf", "Ke")
 _NUMBERS = ("Ns", "Ni", "d", "Tr")
-# Texture map options and how many numbers follow each (-s and -o are read, the rest skipped).
+# Texture map options and how many values follow each: -s, -o and -t (scale, offset,
+# turbulence) take u and optionally v and w, so up to 3 numbers; the others a fixed count.
 _MAP_OPTIONS = {"-s": 3, "-o": 3, "-t": 3, "-mm": 2, "-bm": 1, "-boost": 1, "-texres": 1,
                 "-blendu": 1, "-blendv": 1, "-clamp": 1, "-cc": 1, "-imfchan": 1}
+_UVW_OPTIONS = ("-s", "-o", "-t")
 # Illumination models with ray-traced reflection, and those that transmit.
 REFLECTING = (3, 4, 5, 6, 7, 8)
 TRANSMITTING = (4, 6, 7, 9)
@@ -48,7 +50,7 @@ class TextureMap:
     line: int
     file: str
     scale: tuple[float, float] = (1.0, 1.0)
-    # Options read past: -o (offset, not modelled unless zero) and the others.
+    # Options read past: -o and -t (offset, turbulence; not modelled unless zero) and the others.
     ignored: tuple[str, ...] = ()
 
 
@@ -63,6 +65,8 @@ def parse_mtl(data: bytes, path: Path, shown: str) -> MtlLibrary:
     materials: dict[str, MtlMaterial] = {}
     warned: dict[str, int] = {}
     current: MtlMaterial | None = None
+    # A UTF-8 byte order mark (Windows editors write one) would be part of the first key.
+    data = data.removeprefix(b"\xef\xbb\xbf")
     for number, raw in enumerate(data.split(b"\n"), start=1):
         words = raw.split(b"#", 1)[0].decode("utf-8", errors="replace").split()
         if not words:
@@ -147,8 +151,9 @@ def _texture_map(path: Path, number: int, key: str, args: list[str]) -> TextureM
     while i < len(args) - 1 and args[i] in _MAP_OPTIONS:
         option, n = args[i], _MAP_OPTIONS[args[i]]
         values = args[i + 1:i + 1 + n]
-        if option in ("-s", "-o"):
-            # u is required; v and w may be left out (1 for -s, 0 for -o).
+        if option in _UVW_OPTIONS:
+            # u is required; v and w may be left out (1 for -s, 0 for -o and -t): only the
+            # numbers that follow are the option's, the next word may be the file name.
             given = []
             while values and len(given) < n:
                 try:
@@ -162,7 +167,7 @@ def _texture_map(path: Path, number: int, key: str, args: list[str]) -> TextureM
                 scale = (given[0], given[1] if len(given) > 1 else 1.0)
                 if min(scale) <= 0:
                     raise _error(path, number, key, "-s: scales must be > 0")
-            elif any(given[:2]):
+            elif any(given[:2]):  # a zero offset or turbulence changes nothing
                 ignored.append(option)
             i += 1 + len(given)
             continue
@@ -183,10 +188,13 @@ def to_material(mtl: MtlMaterial) -> Material:
     ks = _mean(mtl.colors.get("Ks", (0.0, 0.0, 0.0)))
     illum = 2 if mtl.illum is None else mtl.illum
     dissolve = mtl.numbers.get("d", 1.0 - mtl.numbers.get("Tr", 0.0))
-    if illum == 0:  # colour only: Kd under the ambient light, nothing else
+    # Dissolve: see-through without bending. The MTL spec: "Dissolve works on all
+    # illumination models", constant colour (illum 0) included.
+    transmit, ior = min(1.0 - dissolve, L.MAX_BOUNCE_WEIGHT), 1.0
+    if illum == 0:  # colour only: Kd under the ambient light, and the dissolve
         return Material(name=mtl.name, color=kd, ambient=1.0, diffuse=0.0, specular=0.0,
-                        ior=1.0, emission=mtl.colors.get("Ke", (0.0, 0.0, 0.0)))
-    transmit, ior = 1.0 - dissolve, 1.0  # dissolve: see-through without bending
+                        transmit=transmit, ior=ior,
+                        emission=mtl.colors.get("Ke", (0.0, 0.0, 0.0)))
     if illum in TRANSMITTING:
         tf = mtl.colors.get("Tf")
         transmit = _mean(tf) if tf is not None else transmit

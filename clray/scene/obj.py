@@ -53,6 +53,7 @@ _OTHER, _V, _VT, _VN, _F = range(5)
 _NL = ord("\n")
 _SLASH = ord("/")
 _SPACE = ord(" ")
+_BOM = b"\xef\xbb\xbf"  # UTF-8's byte order mark
 
 # Face vertex forms, and how many integers each holds once the slashes are gone.
 _FORM_V, _FORM_VT, _FORM_VN, _FORM_VTN = range(4)
@@ -546,6 +547,11 @@ def read_obj(path: Path) -> ObjMesh:
 
 def parse_obj(data: bytes, path: Path) -> ObjMesh:
     """Parse OBJ text already in memory; `path` names the file in error messages."""
+    # Windows editors (Notepad) start UTF-8 text with a byte order mark: left in, it would be
+    # part of the first keyword (`\ufeffv` is not `v`), losing that line and shifting every
+    # index after it. It holds no newline, so line numbers are unchanged.
+    if data.startswith(_BOM):
+        data = data[len(_BOM):]
     mesh = _parse_regular(data)
     if mesh is not None:
         return mesh

@@ -28,7 +28,7 @@ import pyopencl as cl
 
 from clray import __version__
 from clray.denoise import check_denoiser
-from clray.device.context import default_device, list_devices
+from clray.device.context import DEFAULT_DEVICE_ORDER, default_device, list_devices
 from clray.distributed import (
     CONNECT_TIMEOUT_S,
     LOCAL_WORKERS,
@@ -631,8 +631,7 @@ def _device_flag(parser: argparse.ArgumentParser) -> None:
     """--device, the same for every command that renders."""
     parser.add_argument("--device", metavar="SPEC",
                         help="OpenCL device: 'P:D' indices as in PYOPENCL_CTX, or a name "
-                             "substring (default: CLRAY_DEVICE, PYOPENCL_CTX, then the first "
-                             "CPU device)")
+                             f"substring (default: {DEFAULT_DEVICE_ORDER})")
 
 
 def _write_stats(path: Path, stats: dict) -> None:

@@ -122,6 +122,11 @@ def select_device(spec: str | None = None) -> cl.Device:
     raise DeviceError(f"no OpenCL device matches {spec!r} (devices: {known})")
 
 
+# The order default_device takes, for --device's help and the like to name.
+DEFAULT_DEVICE_ORDER = ("CLRAY_DEVICE, PYOPENCL_CTX, then a GPU with memory of its own, then "
+                        "the first CPU device")
+
+
 def default_device() -> tuple[cl.Device, str, str]:
     """(device, spec, why): the device a render uses where neither --device nor the settings
     name one. CLRAY_DEVICE, then PYOPENCL_CTX, then a GPU with memory of its own (the one with

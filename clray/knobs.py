@@ -136,8 +136,8 @@ KNOB_TABLE: tuple[Knob, ...] = (
          "not worth a node visit"),
     Knob("traversal", "kernel", None, lambda v: v is None or _one_of(*TRAVERSALS)(v),
          "single, sample_packet, group_packet, or None: the device's own (sample_packet on "
-         "the CPU devices of PoCL and Intel's CPU runtime, 1.4x to 1.8x at 16 spp; single "
-         "elsewhere)",
+         "the CPU devices of PoCL and Intel's CPU runtime, where a pixel's samples fill a "
+         "packet; single elsewhere: docs/acceleration.md)",
          (None, *TRAVERSALS),
          "how rays walk the BVH (the -D TRAVERSAL, docs/acceleration.md): every ray alone, "
          "a pixel's samples in packets of packet_lanes vector lanes, or a work-group's tile of "

@@ -93,3 +93,14 @@ def test_architecture_names_every_module_and_kernel_file() -> None:
         if path.suffix in (".h", ".cl", ".py") and f"kernels/{path.name}" not in text:
             missing.append(path.relative_to(ROOT).as_posix())
     assert not missing, f"docs/architecture.md does not name: {', '.join(missing)}"
+
+
+def test_gpu_targets_counts_are_the_tests() -> None:
+    # docs/rendering.md counts the configurations tests/test_gpu_targets.py compiles.
+    from test_gpu_targets import CONFIGS, FEATURES, VARIANTS
+
+    text = " ".join((ROOT / "docs" / "rendering.md").read_text(encoding="utf-8").split())
+    found = re.search(r"each of the (\d+) feature switches .*? each of the (\d+) other switches"
+                      r" .*?: (\d+) configurations, its `CONFIGS`", text)
+    assert found, "docs/rendering.md no longer counts tests/test_gpu_targets.py's configurations"
+    assert tuple(int(n) for n in found.groups()) == (len(FEATURES), len(VARIANTS), len(CONFIGS))

@@ -5,6 +5,7 @@ the cache file resumed by a second run, and the stored winner used by `clray ren
 
 from __future__ import annotations
 
+import itertools
 import json
 import re
 import sys
@@ -685,3 +686,22 @@ def test_counts_of_one_take_the_singular(kernel_tuner, tmp_path, monkeypatch, ca
 def test_rejections_count_pixels_in_the_right_form(image, reason) -> None:
     tolerance = tuner_module.Tolerance(0.01, 0)
     assert tolerance.check(image, np.zeros((1, 2, 3), np.float32))[2] == reason
+
+
+def test_the_docs_count_a_runs_kernel_configurations(kernel_tuner, cl_device, tmp_path) -> None:
+    # docs/tuning.md counts the kernel configurations Kernel Tuner's restriction leaves of the
+    # table's tried values, on PoCL: at 2 or more samples a pixel, and at 1.
+    if cl_device.platform.name.strip() != "Portable Computing Language":
+        pytest.skip("docs/tuning.md counts PoCL's configurations")
+    text = " ".join((ROOT / "docs" / "tuning.md").read_text(encoding="utf-8").split())
+    packed = re.search(r"a run on PoCL has (\d+) kernel configurations for a scene of 2 or more "
+                       r"samples a pixel", text)
+    single = re.search(r"the packet knobs are not searched \((\d+) kernel configurations", text)
+    assert packed and single, "docs/tuning.md no longer counts a run's kernel configurations"
+    tuner = tuner_module.Tuner(cl_device, tmp_path)
+    for spp, found in ((16, packed), (2, packed), (1, single)):
+        tuner.set_scene_spp(spp)
+        space = {**tuner.block_params(), **tuner.kernel_params()}
+        legal = [values for values in itertools.product(*space.values())
+                 if tuner._legal(Tuning(), dict(zip(space, values, strict=True)), space)]
+        assert len(legal) == int(found.group(1)), f"{spp} spp"

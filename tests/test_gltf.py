@@ -602,7 +602,8 @@ def test_vertex_colours_blend_across_each_face_as_the_reference(cl_device):
     colors = np.array([[1.0, 0, 0], [0, 1, 0], [0, 0, 1]])
     mesh = M.Mesh(vertices, np.array([[0, 1, 2]]), 0, colors=colors)
     scene = colored_scene(mesh)
-    assert_kernel_matches_reference(scene, Tolerance(rmse=1e-4, err=1e-3, off=0))
+    # Measured on PoCL and Intel's CPU runtime alike: largest error 1.44e-7, RMSE 2.13e-8.
+    assert_kernel_matches_reference(scene, Tolerance(rmse=8.5e-8, err=5.8e-7, off=0))
     from clray.render import render
 
     image = render(scene).image.astype(np.float64)

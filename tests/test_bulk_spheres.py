@@ -86,7 +86,8 @@ def test_one_material_and_one_radius(cl_device, tmp_path: Path) -> None:
     np.testing.assert_array_equal(spheres.materials, 1)
     expected = render_reference(scene)
     image = render(scene).image
-    assert np.abs(image - expected).max() < 1e-3
+    # Measured on PoCL and Intel's CPU runtime alike: largest error 9.16e-6.
+    assert np.abs(image - expected).max() < 3.7e-5
 
 
 def test_numpy_arrays_from_python() -> None:

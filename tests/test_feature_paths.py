@@ -64,7 +64,8 @@ def test_point_light_attenuation_clamp_and_surface_beyond_the_light(cl_device) -
     image = render(scene).image.astype(np.float64)
     assert down.sum() > 0.8 * W * H
     assert (denom[down] < 1).sum() > 100 and (denom[down] > 1.2).sum() > 100
-    assert np.abs(image[down] - expected[down]).max() < 1e-5
+    # Measured on PoCL and Intel's CPU runtime alike: 1.17e-7.
+    assert np.abs(image[down] - expected[down]).max() < 4.7e-7
 
 
 @pytest.mark.parametrize("transmit", [0.0, 0.6])
@@ -90,6 +91,8 @@ def test_shadow_traversal_matches_brute_force(cl_device, transmit: float) -> Non
     shadowed = wall_seen & (expected.max(axis=-1) < 0.5)
     assert shadowed.sum() > 1000 and (wall_seen & ~shadowed).sum() > 1000
     err = np.abs(image - expected).max(axis=-1)
-    # A shadow ray within float32 rounding of a silhouette may legitimately flip.
+    # A shadow ray within float32 rounding of a silhouette may legitimately flip (measured:
+    # 1 pixel, on PoCL and Intel's CPU runtime alike).
     assert np.count_nonzero(err > 2 / 255) <= 3
-    assert np.median(err) < 1e-5
+    # Measured: 8.7e-9 (transmit 0), 1.85e-8 (0.6).
+    assert np.median(err) < 7.4e-8

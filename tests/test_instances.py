@@ -71,10 +71,12 @@ TURNED = [
 
 def test_instances_match_the_reference(cl_device) -> None:
     # Shadows through a glass instance, reflections of instances in instances, a material
-    # replaced by the instance, shear and rotation: at most a couple of grazing-glass pixels.
+    # replaced by the instance, shear and rotation. Measured on PoCL and Intel's CPU runtime
+    # alike: one grazing-glass pixel off by 0.29 (at (y, x) (28, 47)); the rest within 1.15e-3
+    # (its neighbour), RMSE 2.17e-5.
     scene = scene_from_dict(pawn_scene(PLACEMENTS, TURNED))
     assert sum(isinstance(o, M.Instance) for o in scene.objects) == 5
-    assert_kernel_matches_reference(scene, Tolerance(rmse=2e-3, err=0.02, off=2))
+    assert_kernel_matches_reference(scene, Tolerance(rmse=8.7e-5, err=4.6e-3, off=1))
 
 
 def test_an_instance_renders_as_the_objects_placed_on_the_host(cl_device) -> None:

@@ -318,6 +318,19 @@ def test_plane_under_directional_light_is_uniform(spp):
     assert np.allclose(img, np.broadcast_to(want, img.shape), rtol=0, atol=1e-13)
 
 
+def test_a_python_scene_is_normalised_as_render_takes_it():
+    # render() checks and normalises a scene built in Python (clray.scene.check); the reference
+    # must take it the same way, or a direction of length 3 triples n . l.
+    light_dir = np.array([-0.3, -1.0, -0.2]) / np.linalg.norm([-0.3, -1.0, -0.2])
+    mat = Material("m", color=(1.0, 1.0, 1.0), diffuse=0.7)
+    scene = make_scene([Plane((0.0, 0.0, 0.0), (0.0, 2.5, 0.0), 0)], [mat],
+                       [DirectionalLight(tuple(3.0 * light_dir))],
+                       camera=Camera(position=(0.0, 6.0, 1.0), look_at=(0.0, 0.0, 0.0)),
+                       ambient=(0.0, 0.0, 0.0))
+    img = render_reference(scene)
+    assert np.allclose(img, 0.7 * -light_dir[1], rtol=0, atol=1e-13)
+
+
 # The last: a denominator below 1 on the near side (0.1 + 0.05 d + 0.01 d^2 at d ~ 4), where
 # min(1, 1 / denominator) clamps.
 @pytest.mark.parametrize("attenuation", [(1.0, 0.0, 0.0), (0.2, 0.1, 0.05), (0.1, 0.05, 0.01)])

@@ -210,8 +210,11 @@ def test_tori_render_as_the_reference_does(cl_device, precision, traversal):
     image = render(scene, RenderSettings(precision=precision, traversal=traversal)).image
     reference = render_reference(scene)
     assert metrics.nonfinite_count(image) == 0
-    assert metrics.count_over(image, reference, 2 / 255) <= 2
-    assert metrics.rmse(image, reference) < 1e-3
+    # Measured on PoCL and Intel's CPU runtime, either traversal: largest error 1.12e-4 and
+    # 1.15e-4 in float, 1.07e-4 in double (which reads the same float32 scene records), RMSE
+    # 3.9e-6 in float, 3.5e-6 in double.
+    assert np.abs(image - reference).max() < 4.6e-4
+    assert metrics.rmse(image, reference) < 1.6e-5
 
 
 def test_a_torus_shadow_through_glass_filters_at_every_crossing(cl_device):

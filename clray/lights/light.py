@@ -74,8 +74,6 @@ class LightKind:
     toward: Callable[[Any, np.ndarray, np.ndarray, Square | None], Toward]
     area: bool = False  # sampled over its area: kernels/lights.h's is_area_light, HAS_AREA_LIGHTS
     switch: str | None = None  # a KernelConfig switch of its own (-DHAS_SPOT_LIGHTS)
-    # It lies on a scene surface (an emissive face) that must not shadow its own samples.
-    on_a_face: bool = False
 
     @property
     def code_name(self) -> str:

@@ -43,4 +43,4 @@ def toward(light: TriangleLight, p: np.ndarray, err: np.ndarray, square: Square)
 
 
 TRIANGLE = LightKind(kind="triangle", model=TriangleLight, keys=((), ()), parse=None, code=6,
-                     fields=fields, toward=toward, area=True, on_a_face=True)
+                     fields=fields, toward=toward, area=True)

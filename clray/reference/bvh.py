@@ -11,6 +11,7 @@ from clray.accel.prim_refs import PRIM_TRIANGLE
 from clray.reference.intersect import INTERSECT, intersect_triangle
 from clray.reference.shading import SHAPE_SURFACE
 from clray.reference.texture import MaterialTable
+from clray.scene.check import check_scene
 from clray.scene.model import (
     Instance,
     Mesh,
@@ -292,7 +293,9 @@ class _Placement(NamedTuple):
 
 
 def intersect_scene(scene: Scene, origins: np.ndarray, directions: np.ndarray) -> SceneHit:
-    """Closest hit (t > 0, ties by docs/rendering.md) of each ray with the scene's objects."""
+    """Closest hit (t > 0, ties by docs/rendering.md) of each ray with the scene's objects
+    (the scene checked and normalised as render() takes it)."""
+    scene = check_scene(scene)
     o = np.asarray(origins, dtype=np.float64).reshape(-1, 3)
     d = np.asarray(directions, dtype=np.float64).reshape(-1, 3)
     return Geometry(scene.objects).closest_hit(o, d)
@@ -301,7 +304,9 @@ def intersect_scene(scene: Scene, origins: np.ndarray, directions: np.ndarray) -
 def transmission(
     scene: Scene, origins: np.ndarray, directions: np.ndarray, tmax: np.ndarray | float
 ) -> np.ndarray:
-    """(N, 3): the product of transmit * colour over every surface crossing with 0 < t < tmax."""
+    """(N, 3): the product of transmit * colour over every surface crossing with 0 < t < tmax
+    (the scene checked and normalised as render() takes it)."""
+    scene = check_scene(scene)
     o = np.asarray(origins, dtype=np.float64).reshape(-1, 3)
     d = np.asarray(directions, dtype=np.float64).reshape(-1, 3)
     tmax = np.broadcast_to(np.asarray(tmax, dtype=np.float64), (len(o),))

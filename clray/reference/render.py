@@ -14,6 +14,7 @@ from clray.reference.fresnel import fresnel_reflectance, fresnel_schlick
 from clray.reference.sampling import SampleKey, _settings, camera_rays
 from clray.reference.shading import Surface, offset_origin, shade_direct, surface_at
 from clray.reference.texture import MaterialTable, surface_color
+from clray.scene.check import check_scene
 from clray.scene.emitters import scene_lights
 from clray.scene.model import Scene
 from clray.vectors import dot, safe_normalize, vec
@@ -87,7 +88,9 @@ def trace(
     """(N, 3) radiance along each ray (depth 0, starting in air), per docs/rendering.md.
     `schlick`: Fresnel materials use Schlick's approximation (the kernels' study variant).
     `pixel`, `sample` (per ray), `spp` and `seed` pick area lights' samples; by default ray i
-    is sample 0 of 1 of pixel i."""
+    is sample 0 of 1 of pixel i. A scene built in Python is checked and normalised first, as
+    render() takes it (clray.scene.check: unit directions and normals)."""
+    scene = check_scene(scene)
     max_depth = scene.render.max_depth if max_depth is None else max_depth
     seed = scene.render.seed if seed is None else seed
     geo = Geometry(scene.objects)
@@ -172,7 +175,8 @@ def render_reference(
     schlick: bool = False,
 ) -> np.ndarray:
     """(H, W, 3) float64 linear RGB: the mean of each pixel's samples. None = the scene's value;
-    `schlick` as for `trace`."""
+    `schlick` as for `trace`; the scene is taken as render() takes it (see `trace`)."""
+    scene = check_scene(scene)
     width, height, spp, max_depth, seed = _settings(scene, width, height, spp, max_depth, seed)
     origins, directions, pixel = camera_rays(scene, width, height, spp, seed)
     sample = np.tile(np.arange(spp, dtype=np.int64), width * height)

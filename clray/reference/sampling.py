@@ -8,6 +8,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from clray.scene.check import check_scene
 from clray.scene.model import Camera, Scene
 from clray.vectors import safe_normalize as _normalize
 
@@ -139,7 +140,9 @@ def camera_rays(
     seed: int | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(origins (N, 3), unit directions (N, 3), pixel (N,)) of every sample, ordered as
-    `sample_positions`; None takes the scene's setting."""
+    `sample_positions`; None takes the scene's setting. The scene is checked as render()
+    takes it (clray.scene.check)."""
+    scene = check_scene(scene)
     width, height, spp, _, seed = _settings(scene, width, height, spp, None, seed)
     sx, sy, pixel = sample_positions(width, height, spp, seed)
     camera = scene.camera

@@ -18,6 +18,14 @@ from clray.scene.model import Light, Plane
 from clray.shapes import SHAPES
 from clray.vectors import dot, frame, vec
 
+# Shadow rays towards a light at a place end this fraction of their length short of it
+# (docs/rendering.md). The reference reads the float64 scene, not the float32 records the
+# kernels do, so its light lies on its plane to float64 roundings, far inside any such margin;
+# the margin is 16 float32 roundings, at least the float kernels' (1 - gamma_n(16),
+# kernels/lights.h), so that the reference does not count a blocker next to the light that the
+# float kernels skip.
+SHADOW_MARGIN = 16 * np.finfo(np.float32).eps
+
 # (origins, directions, tmax, filters) -> (N, 3): the filter of every crossing before tmax.
 Transmission = Callable[[np.ndarray, np.ndarray, np.ndarray, np.ndarray], np.ndarray]
 
@@ -83,8 +91,7 @@ def shade_direct(sf: Surface, d: np.ndarray, c: np.ndarray, mats: MaterialTable,
         if not lit.any():
             continue
         shadow = np.zeros((len(sf.p), 3))
-        shadow[lit] = _shadow_filter(sf, lit, l_dir, target, mats, transmission,
-                                     LIGHT_OF[type(light)].on_a_face)
+        shadow[lit] = _shadow_filter(sf, lit, l_dir, target, mats, transmission)
         r = 2.0 * ndotl[:, None] * n - l_dir
         rv = dot(r, -d)
         spec = np.zeros(len(sf.p))
@@ -105,10 +112,8 @@ def _light_toward(light: Light, index: int, sf: Surface, key: SampleKey) -> Towa
 
 
 def _shadow_filter(sf: Surface, lit: np.ndarray, l_dir: np.ndarray, target: np.ndarray | None,
-                   mats: MaterialTable, transmission: Transmission,
-                   on_a_face: bool = False) -> np.ndarray:
-    """The filter of the shadow rays of the `lit` hits, from their offset origins.
-    `on_a_face`: the target lies on an emissive face, which must not shadow it."""
+                   mats: MaterialTable, transmission: Transmission) -> np.ndarray:
+    """The filter of the shadow rays of the `lit` hits, from their offset origins."""
     origin = offset_origin(sf.p[lit], sf.n_g[lit], l_dir[lit], sf.err[lit])
     shadow_dir, span = l_dir[lit], np.full(int(lit.sum()), np.inf)
     if target is not None:
@@ -118,8 +123,8 @@ def _shadow_filter(sf: Surface, lit: np.ndarray, l_dir: np.ndarray, target: np.n
         shadow_dir = np.where((span > 0.0)[:, None],
                               to_light / np.where(span > 0.0, span, 1.0)[:, None],
                               shadow_dir)
-        if on_a_face:
-            # Short of the emitting face itself, which lies at the sample point, by the
-            # kernels' margin (16 float32 roundings in either build).
-            span = span * (1.0 - 16 * np.finfo(np.float32).eps)
+        # Short of the light, so that a surface it lies on (a point or rect light set into
+        # a ceiling, an emissive face at its own sample) does not shadow it: that surface's
+        # computed crossing lands a rounding before or after the light.
+        span = span * (1.0 - SHADOW_MARGIN)
     return transmission(origin, shadow_dir, span, mats.filter)

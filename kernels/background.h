@@ -21,15 +21,15 @@ static inline REAL3 background_radiance(__global const Params* params,
     REAL3 u = safe_normalize(d);
 #endif
 #if HAS_BACKGROUND_GRADIENT
-    REAL t = clamp((REAL)0.5 * (u.y + (REAL)1), (REAL)0, (REAL)1);
+    REAL t = clamp(REAL_C(0.5) * (u.y + (REAL)1), (REAL)0, (REAL)1);
     return mix(TO_REAL3(params->background), TO_REAL3(params->background_top), t);
 #elif HAS_BACKGROUND_IMAGE
     int w = params->background_width, h = params->background_height;
     // u = 0.5 looks along -z and grows towards +x; v = 1 is straight up (image row 0).
-    REAL eu = (REAL)0.5 + atan2(u.x, -u.z) / ((REAL)2 * PI_R);
-    REAL ev = (REAL)0.5 + asin(clamp(u.y, (REAL)-1, (REAL)1)) / PI_R;
-    REAL sx = (eu - floor(eu)) * (REAL)w - (REAL)0.5;
-    REAL sy = clamp(((REAL)1 - ev) * (REAL)h - (REAL)0.5, (REAL)0, (REAL)(h - 1));
+    REAL eu = REAL_C(0.5) + atan2(u.x, -u.z) / ((REAL)2 * PI_R);
+    REAL ev = REAL_C(0.5) + asin(clamp(u.y, (REAL)-1, (REAL)1)) / PI_R;
+    REAL sx = (eu - floor(eu)) * (REAL)w - REAL_C(0.5);
+    REAL sy = clamp(((REAL)1 - ev) * (REAL)h - REAL_C(0.5), (REAL)0, (REAL)(h - 1));
     REAL fx0 = floor(sx), fy0 = floor(sy);
     REAL fx = sx - fx0, fy = sy - fy0;
     // Wrapping across u (x0 may be -1 or w - 1), clamped at the poles.

@@ -20,7 +20,7 @@ static inline REAL fresnel_reflectance(REAL eta, REAL cos_i, REAL cos_t) {
     // Both vanish only at grazing incidence between equal media: the limit there is 1.
     if (!(ds > (REAL)0) || !(dp > (REAL)0)) return (REAL)1;
     REAL rs = (eta * cos_i - cos_t) / ds, rp = (cos_i - eta * cos_t) / dp;
-    return (REAL)0.5 * (rs * rs + rp * rp);
+    return REAL_C(0.5) * (rs * rs + rp * rp);
 #endif
 }
 #endif

@@ -31,7 +31,7 @@ static inline REAL spot_factor(const __global Light* light, REAL3 l) {
 // A sample's weight above this is clamped: light colours (<= 1e6) times material weights
 // (<= 1e6) times it stay far inside float range. Irradiance from a light of radiance L is at
 // most pi L, so only a sample within about 1e-10 light sizes of the shaded point reaches it.
-#define AREA_WEIGHT_MAX ((REAL)1e20)
+#define AREA_WEIGHT_MAX (REAL_C(1e20))
 
 // The lights sampled over their area. Kinds are labels (clray_types.h): named, never ordered.
 static inline bool is_area_light(int kind) {

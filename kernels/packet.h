@@ -232,7 +232,7 @@ HOT int shapes_interval(REAL4 lo_x, REAL4 hi_x, REAL4 lo_y, REAL4 hi_y, REAL4 lo
                         const PacketBounds* b, REAL tmax) {
     REAL4 size = GREATER(GREATER(GREATER(fabs(lo_x), fabs(hi_x)), GREATER(fabs(lo_y), fabs(hi_y))),
                          GREATER(fabs(lo_z), fabs(hi_z)));
-    REAL4 margin = (size + b->origin_size) * (REAL)0x1p-12;
+    REAL4 margin = (size + b->origin_size) * REAL_C(0x1p-12);
     const REAL widen = (REAL)1 + (REAL)2 * gamma_n(3);
     REALW t0 = (REALW)(0), t1 = (REALW)(tmax);
     slab_axis_interval(shape_vector(lo_x - margin), shape_vector(hi_x + margin), b, 0, widen,

@@ -36,7 +36,7 @@ HOT PixelPasses pixel_passes(const SceneRefs* s, const __global Camera* camera,
     out.hits = 0;
     out.ref = out.instance = out.material = -1;
     int spp = params->spp;
-    REAL2 centre = (REAL2)((REAL)x + (REAL)0.5, (REAL)y + (REAL)0.5);
+    REAL2 centre = (REAL2)((REAL)x + REAL_C(0.5), (REAL)y + REAL_C(0.5));
     REAL nearest = REAL_INF;
     for (int sample = 0; sample < spp; ++sample) {
         REAL3 o, d;

@@ -33,6 +33,20 @@ typedef int4 MASK4;
 #define TO_REAL(x) (x)
 #endif
 
+// REAL_C(x): the floating literal x as a constant of REAL's precision, x with an f suffix in
+// the float build and plain in the double build (C's UINT64_C, for REAL). A plain literal is a
+// double constant, even cast to float, and a device without cl_khr_fp64 must refuse it or round
+// it to float with a warning ("double precision constant requires cl_khr_fp64"), tens a build
+// (tests/test_gpu_targets.py builds every configuration without fp64, warnings as errors). x
+// must be a floating literal (with a point or an exponent): an f pasted onto an integer is no
+// literal. Every constant so written is a float exactly as its double was cast to one, so the
+// float build's arithmetic is unchanged (benchmarks/image_hashes.py: every image the same).
+#ifdef USE_DOUBLE
+#define REAL_C(x) x
+#else
+#define REAL_C(x) x##f
+#endif
+
 // Vectors wider than the target's (a sample packet's 16 floats, or 8 doubles, on AVX2; a wide
 // node's 8 doubles) are passed between functions in a way an AVX-512 build would pass
 // otherwise, and clang warns so at every such function (-Wpsabi): hundreds of warnings, whose
@@ -89,7 +103,7 @@ typedef int4 MASK4;
 // twins' range, below, and the fused builtins' of the accuracy build): M is int for a scalar
 // (1 or 0) and a lane mask for vectors, as their comparisons give.
 #define DEFINE_PLAIN_SQUARED_LENGTH(SPEC, T, M, NAME)                 \
-    SPEC M NAME(T dd) { return (dd >= (T)0x1p-90) & (dd <= (T)0x1p90); }
+    SPEC M NAME(T dd) { return (dd >= (T)REAL_C(0x1p-90)) & (dd <= (T)REAL_C(0x1p90)); }
 
 // MATH_ULPS_OFF (+1 or -1; tests only, tests/conftest.py --opencl-ulps): sin, cos, tan, asin,
 // atan2, exp2 and log2 return results off by OpenCL's error bounds for them (4, 4, 4, 4, 6, 3
@@ -181,11 +195,11 @@ MATH_ULPS_OFF_DOUBLE(DEFINE_FUSED_DOT(double, double2, double3, double4))
 #endif
 
 #define REAL_INF ((REAL)INFINITY)
-#define PI_R ((REAL)3.14159265358979323846)
+#define PI_R REAL_C(3.14159265358979323846)
 
 // pbrt's bound on n chained roundings: gamma(n) = n u / (1 - n u), u the unit roundoff.
 static inline REAL gamma_n(int n) {
-    const REAL u = REAL_EPSILON * (REAL)0.5;
+    const REAL u = REAL_EPSILON * REAL_C(0.5);
     return (REAL)n * u / ((REAL)1 - (REAL)n * u);
 }
 
@@ -290,7 +304,7 @@ HOT int lowest_bit(int bits) { return 31 - clz(bits & -bits); }
 
 // An orthonormal pair perpendicular to unit a, the frame() of docs/rendering.md.
 static inline void frame(REAL3 a, REAL3* e1, REAL3* e2) {
-    REAL3 h = fabs(a.x) < (REAL)0.9 ? (REAL3)(1, 0, 0) : (REAL3)(0, 1, 0);
+    REAL3 h = fabs(a.x) < REAL_C(0.9) ? (REAL3)(1, 0, 0) : (REAL3)(0, 1, 0);
     *e1 = safe_normalize(cross(a, h));
     *e2 = cross(a, *e1);
 }

@@ -23,7 +23,7 @@ static inline uint rng_bits(uint seed, uint pixel, uint sample, uint dim) {
 
 // Uniform in [0, 1) with 24 bits, exact in float and double.
 static inline REAL rng_uniform(uint seed, uint pixel, uint sample, uint dim) {
-    return (REAL)(rng_bits(seed, pixel, sample, dim) >> 8) * (REAL)(1.0 / 16777216.0);
+    return (REAL)(rng_bits(seed, pixel, sample, dim) >> 8) * REAL_C(0x1p-24);
 }
 
 // Which of n strata sample i takes: a permutation of 0..n-1 chosen by `key` (Kensler's hashed
@@ -70,7 +70,7 @@ DEFINE_PCG_HASH(HOT, UINTP, pcg_hash_lanes)
 // pcg_hash(pcg_hash(seed) ^ pixel).
 HOT REALP rng_uniform_lanes(uint pixel_key, UINTP sample, uint dim) {
     UINTP bits = pcg_hash_lanes((UINTP)(pixel_key) ^ ((UINTP)(4u) * sample + (UINTP)(dim)));
-    return TO_REALP(bits >> (UINTP)(8u)) * (REAL)(1.0 / 16777216.0);
+    return TO_REALP(bits >> (UINTP)(8u)) * REAL_C(0x1p-24);
 }
 #endif
 

@@ -38,7 +38,7 @@ static OUT_OF_LINE REAL2 jittered_position(int x, int y, int s, int spp, uint se
 // one sample a pixel ran 2.9 % more instructions on the mesh's primary rays and 1.2 % more on
 // spheres' (docs/acceleration.md, The render against Embree, a core each).
 HOT REAL2 sample_position(int x, int y, int s, int spp, uint seed, uint pixel) {
-    if (spp == 1) return (REAL2)((REAL)x + (REAL)0.5, (REAL)y + (REAL)0.5);
+    if (spp == 1) return (REAL2)((REAL)x + REAL_C(0.5), (REAL)y + REAL_C(0.5));
     return jittered_position(x, y, s, spp, seed, pixel);
 }
 
@@ -84,7 +84,7 @@ static inline uint light_key(SampleKey k, int light) {
 }
 
 static inline REAL light_uniform(uint key, int sample, uint dim) {
-    return (REAL)(pcg_hash(key ^ (2u * (uint)sample + dim)) >> 8) * (REAL)(1.0 / 16777216.0);
+    return (REAL)(pcg_hash(key ^ (2u * (uint)sample + dim)) >> 8) * REAL_C(0x1p-24);
 }
 
 // A point of the unit square for this light at this pixel sample. The spp samples take the

@@ -142,12 +142,12 @@ static inline REAL3 set_comp3(REAL3 v, int k, REAL value) {
     return v;
 }
 
-static inline REAL angle_u(REAL y, REAL x) { return (REAL)0.5 + atan2(y, x) / ((REAL)2 * PI_R); }
+static inline REAL angle_u(REAL y, REAL x) { return REAL_C(0.5) + atan2(y, x) / ((REAL)2 * PI_R); }
 
 // A cap disc's (u, v): its frame coordinates mapped from [-radius, radius] to [0, 1].
 static inline REAL2 disc_uv(REAL3 q, REAL3 e1, REAL3 e2, REAL radius) {
-    return (REAL2)((REAL)0.5 + (REAL)0.5 * dot(q, e1) / radius,
-                   (REAL)0.5 + (REAL)0.5 * dot(q, e2) / radius);
+    return (REAL2)(REAL_C(0.5) + REAL_C(0.5) * dot(q, e1) / radius,
+                   REAL_C(0.5) + REAL_C(0.5) * dot(q, e2) / radius);
 }
 
 // (u, v) of a cylinder or cone: around the axis and along it on the side (part 0), the cap

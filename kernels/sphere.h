@@ -181,7 +181,7 @@ HOT void sphere_surface(const __global Sphere* sp, const Ray* r, const Hit* hit,
 #endif
     if (want_uv) {
         sf->uv = (REAL2)(angle_u(n.x, n.z),
-                         (REAL)0.5 + asin(clamp(n.y, (REAL)-1, (REAL)1)) / PI_R);
+                         REAL_C(0.5) + asin(clamp(n.y, (REAL)-1, (REAL)1)) / PI_R);
     }
     sf->material = sp->material;
 }

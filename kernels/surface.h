@@ -111,7 +111,7 @@ HOT Surface surface_at(const SceneRefs* s, const Ray* r, const Hit* hit, bool wa
 // normal (or the study's fixed 1e-4); lane by lane for vectors (real.h, Twins).
 #if OFFSET_FIXED_EPS
 #define DEFINE_OFFSET_DISTANCE(T, NAME) \
-    HOT T NAME(T err, T gx, T gy, T gz) { return (T)(1e-4); }
+    HOT T NAME(T err, T gx, T gy, T gz) { return (T)REAL_C(1e-4); }
 #else
 #define DEFINE_OFFSET_DISTANCE(T, NAME) \
     HOT T NAME(T err, T gx, T gy, T gz) { return err * (fabs(gx) + fabs(gy) + fabs(gz)); }

@@ -23,8 +23,8 @@ static inline REAL wrap01(REAL x) {
 
 static OUT_OF_LINE REAL3 image_texel(const SceneRefs* s, const __global Texture* tx, REAL2 uv) {
     int w = tx->width, h = tx->height;
-    REAL sx = wrap01(uv.x * TO_REAL(tx->repeat_u)) * (REAL)w - (REAL)0.5;
-    REAL sy = ((REAL)1 - wrap01(uv.y * TO_REAL(tx->repeat_v))) * (REAL)h - (REAL)0.5;
+    REAL sx = wrap01(uv.x * TO_REAL(tx->repeat_u)) * (REAL)w - REAL_C(0.5);
+    REAL sy = ((REAL)1 - wrap01(uv.y * TO_REAL(tx->repeat_v))) * (REAL)h - REAL_C(0.5);
     REAL fx0 = floor(sx), fy0 = floor(sy);
     REAL fx = sx - fx0, fy = sy - fy0;
     // Bilinear with wrap-around: x0 may be -1 or w - 1 here, y0 likewise.
@@ -42,7 +42,7 @@ static OUT_OF_LINE REAL3 image_texel(const SceneRefs* s, const __global Texture*
 #define DEFINE_CHECKER_ODD(T, M, NAME)                                  \
     HOT M NAME(T qx, T qy, T qz) {                                      \
         T cells = floor(qx) + floor(qy) + floor(qz);                    \
-        return cells - (REAL)2 * floor(cells * (REAL)0.5) == (REAL)1;   \
+        return cells - (REAL)2 * floor(cells * REAL_C(0.5)) == (REAL)1;   \
     }
 DEFINE_CHECKER_ODD(REAL, int, checker_odd)
 
@@ -50,7 +50,7 @@ DEFINE_CHECKER_ODD(REAL, int, checker_odd)
 // so a surface lying on a cell boundary gets one stable colour.
 static inline REAL3 checker_texel(const __global Texture* tx, REAL3 color, REAL3 p, REAL3 n_f) {
     REAL size = TO_REAL(tx->size);
-    REAL3 q = (p - (REAL)0.25 * size * n_f) / size;
+    REAL3 q = (p - REAL_C(0.25) * size * n_f) / size;
     return checker_odd(q.x, q.y, q.z) ? TO_REAL3(tx->color2) : color;
 }
 #endif
@@ -92,9 +92,9 @@ HOT void checker_lanes(ShapeLanes* g, const __global Camera* camera, const Surfa
     REALP ny = entering ? sf->gy : -sf->gy;
     REALP nz = entering ? sf->gz : -sf->gz;
     REALP size = g->size;
-    REALP qx = (sf->px + world.x - (REAL)0.25 * size * nx) / size;
-    REALP qy = (sf->py + world.y - (REAL)0.25 * size * ny) / size;
-    REALP qz = (sf->pz + world.z - (REAL)0.25 * size * nz) / size;
+    REALP qx = (sf->px + world.x - REAL_C(0.25) * size * nx) / size;
+    REALP qy = (sf->py + world.y - REAL_C(0.25) * size * ny) / size;
+    REALP qz = (sf->pz + world.z - REAL_C(0.25) * size * nz) / size;
     MASKP second = checker_odd_lanes(qx, qy, qz);
     REALP red = second ? g->red2 : g->red;
     REALP green = second ? g->green2 : g->green;

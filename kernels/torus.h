@@ -43,7 +43,7 @@ static inline REAL poly_value(const REAL* c, int degree, REAL x, REAL* slope) {
 // roundings wide. 100 steps bound the loop: bisection alone narrows any bracket to a rounding
 // in the double build within them.
 static inline REAL monotone_root(const REAL* c, int degree, REAL a, REAL b, REAL fa) {
-    REAL x = (REAL)0.5 * (a + b);
+    REAL x = REAL_C(0.5) * (a + b);
     for (int i = 0; i < 100; ++i) {
         REAL slope, fx = poly_value(c, degree, x, &slope);
         if (fx == (REAL)0) return x;
@@ -54,7 +54,7 @@ static inline REAL monotone_root(const REAL* c, int degree, REAL a, REAL b, REAL
         }
         if (b - a <= gamma_n(2) * fmax(fabs(a), fabs(b))) break;
         REAL newton = x - fx / slope;
-        x = slope != (REAL)0 && newton > a && newton < b ? newton : (REAL)0.5 * (a + b);
+        x = slope != (REAL)0 && newton > a && newton < b ? newton : REAL_C(0.5) * (a + b);
     }
     return x;
 }
@@ -121,18 +121,18 @@ static inline void local_quartic(REAL x0, REAL z0, REAL ux, REAL uz, REAL major,
     REAL q0 = (x0 - minor) * (x0 + minor) + z0 * z0;
     REAL h = x0 * ux + z0 * uz;
     REAL a2 = ux * ux + uz * uz;
-    c[0] = q0 + x0 * q0 * inv + (REAL)0.25 * q0 * q0 * inv2;
+    c[0] = q0 + x0 * q0 * inv + REAL_C(0.25) * q0 * q0 * inv2;
     c[1] = (REAL)2 * h + ((REAL)2 * x0 * h + ux * q0) * inv + q0 * h * inv2;
-    c[2] = a2 + (x0 + (REAL)2 * ux * h) * inv + (h * h + (REAL)0.5 * q0) * inv2;
+    c[2] = a2 + (x0 + (REAL)2 * ux * h) * inv + (h * h + REAL_C(0.5) * q0) * inv2;
     c[3] = ux * inv + h * inv2;
-    c[4] = (REAL)0.25 * inv2;
+    c[4] = REAL_C(0.25) * inv2;
 }
 
 // The crossings of the line o + s u (u unit, o relative to the centre) with the torus within the
 // piece [lo, hi] of the shell, ascending, appended to roots (count *n).
 static inline void piece_roots(REAL3 o, REAL3 u, REAL3 axis, REAL major, REAL minor, REAL lo,
                                REAL hi, REAL* roots, int* n) {
-    REAL mid = (REAL)0.5 * (lo + hi);
+    REAL mid = REAL_C(0.5) * (lo + hi);
     REAL3 p = o + mid * u;
     REAL z0 = dot(p, axis);
     REAL3 radial = p - z0 * axis;

@@ -297,7 +297,7 @@ HOT Surface triangle_surface(const SceneRefs* s, const Ray* r, const Hit* hit, b
     REAL3 to_centroid = (p0 + p1 + p2) / (REAL)3 - p;
     REAL reach = length3(to_centroid);
     if (reach > (REAL)0) {
-        p += fmin((REAL)4 * sf.err, (REAL)0.5 * reach) / reach * to_centroid;
+        p += fmin((REAL)4 * sf.err, REAL_C(0.5) * reach) / reach * to_centroid;
     }
     REAL3 n = safe_normalize(cross3(p1 - p0, p2 - p0));
     // A degenerate triangle has no normal: let it face the ray.
@@ -352,7 +352,7 @@ HOT SurfaceOfLanes triangle_surface_lanes(const ShapeLanes* g, const RayPacket* 
     REALP ty = (g->ay + g->by + g->cy) / (REAL)3 - v.py;
     REALP tz = (g->az + g->bz + g->cz) / (REAL)3 - v.pz;
     REALP reach = plain_length_lanes(tx, ty, tz, outside);
-    REALP k = fmin((REAL)4 * v.err, (REAL)0.5 * reach) / reach;
+    REALP k = fmin((REAL)4 * v.err, REAL_C(0.5) * reach) / reach;
     MASKP move = reach > (REAL)0;
     v.px = move ? v.px + k * tx : v.px;
     v.py = move ? v.py + k * ty : v.py;

@@ -108,6 +108,30 @@ def test_kernels_compile_with_the_generic_address_space(name: str) -> None:
                "-fsyntax-only", std="CL2.0")
 
 
+# A device without cl_khr_fp64 (many GPUs have none) builds the float kernel only. There an
+# unsuffixed floating literal, cast to float or not, is a double constant that clang's front end
+# rounds to float with a warning ("double precision constant requires cl_khr_fp64"), about 40 a
+# build before real.h's REAL_C; a driver may refuse it. Every float configuration must build
+# with fp64 switched off, warnings as errors.
+NO_FP64 = ("-Xclang", "-cl-ext=-cl_khr_fp64,-__opencl_c_fp64")
+FLOAT_CONFIGS = sorted(name for name in CONFIGS if name.startswith("float-"))
+
+
+@pytest.mark.parametrize("name", FLOAT_CONFIGS)
+def test_float_kernels_compile_without_fp64(name: str) -> None:
+    source = kernel_source()
+    for target in _targets(name):
+        compile_cl(target, CONFIGS[name].options(), source, "-fsyntax-only", *NO_FP64)
+
+
+def test_fp64_is_off_in_the_float_check() -> None:
+    # The switch takes: without it the check above would pass on any literal.
+    probe = "__kernel void probe(__global float* out) { out[0] = (float)0.5; }\n"
+    with pytest.raises(AssertionError, match="double precision constant"):
+        compile_cl("spir64", [], probe, "-fsyntax-only", *NO_FP64)
+    compile_cl("spir64", [], probe, "-fsyntax-only")
+
+
 def test_oclgrind_options_compile() -> None:
     # Oclgrind's -DHOT=inline must not clash with the kernels' own HOT.
     compile_cl("spir64", [*CONFIGS["float-all"].options(), *OCLGRIND_BUILD_OPTIONS],

@@ -183,7 +183,10 @@ STAGE bool light_ray(const SceneRefs* s, const Surface* sf, REAL3 n, int i, Samp
         REAL3 to_light = target - origin;
         REAL span = length3(to_light);
         shadow_dir = span > (REAL)0 ? to_light / span : l;
-        tmax = span * ((REAL)1 - gamma_n(ERR_ROUNDINGS));
+        // Short by float32 roundings in the double build too: the light and a surface holding
+        // it (a tilted plane) are where their float32 records put them, a float32 rounding
+        // to either side of each other.
+        tmax = span * ((REAL)1 - gamma_f32(ERR_ROUNDINGS));
     }
     *shadow = make_ray(origin, shadow_dir);
     *l_out = l;
@@ -281,7 +284,7 @@ HOT bool point_light_lanes(const __global Light* light, const SurfaceLanes* q, i
     REALP dx = away ? (tx - ox) / span : *lx;
     REALP dy = away ? (ty - oy) / span : *ly;
     REALP dz = away ? (tz - oz) / span : *lz;
-    *tmax = span * ((REAL)1 - gamma_n(ERR_ROUNDINGS));
+    *tmax = span * ((REAL)1 - gamma_f32(ERR_ROUNDINGS));  // as light_ray's
     *shot = lane_mask(lit);
     if (*shot) *rays = make_ray_packet(ox, oy, oz, dx, dy, dz, *shot);
     return true;

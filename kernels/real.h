@@ -203,6 +203,14 @@ static inline REAL gamma_n(int n) {
     return (REAL)n * u / ((REAL)1 - (REAL)n * u);
 }
 
+// The same bound counted in float32 roundings in either build: for values the buffers hold in
+// float32 (a plane, a light's position), which the double build widens but cannot sharpen.
+// In the float build it is gamma_n, operation for operation.
+static inline REAL gamma_f32(int n) {
+    const REAL u = (REAL)FLT_EPSILON * REAL_C(0.5);
+    return (REAL)n * u / ((REAL)1 - (REAL)n * u);
+}
+
 static inline REAL max_abs3(REAL3 v) {
     REAL3 a = fabs(v);
     return fmax(a.x, fmax(a.y, a.z));

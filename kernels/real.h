@@ -198,18 +198,16 @@ MATH_ULPS_OFF_DOUBLE(DEFINE_FUSED_DOT(double, double2, double3, double4))
 #define PI_R REAL_C(3.14159265358979323846)
 
 // pbrt's bound on n chained roundings: gamma(n) = n u / (1 - n u), u the unit roundoff.
-static inline REAL gamma_n(int n) {
-    const REAL u = REAL_EPSILON * REAL_C(0.5);
+static inline REAL gamma_of(int n, REAL u) {
     return (REAL)n * u / ((REAL)1 - (REAL)n * u);
 }
+
+static inline REAL gamma_n(int n) { return gamma_of(n, REAL_EPSILON * REAL_C(0.5)); }
 
 // The same bound counted in float32 roundings in either build: for values the buffers hold in
 // float32 (a plane, a light's position), which the double build widens but cannot sharpen.
 // In the float build it is gamma_n, operation for operation.
-static inline REAL gamma_f32(int n) {
-    const REAL u = (REAL)FLT_EPSILON * REAL_C(0.5);
-    return (REAL)n * u / ((REAL)1 - (REAL)n * u);
-}
+static inline REAL gamma_f32(int n) { return gamma_of(n, (REAL)FLT_EPSILON * REAL_C(0.5)); }
 
 static inline REAL max_abs3(REAL3 v) {
     REAL3 a = fabs(v);

@@ -252,7 +252,7 @@ MUTATIONS: tuple[Mutation, ...] = (
       "T denom = (T)(k.x) + k.y * dist + k.z * dist * dist;",
       "T denom = (T)(k.x) + k.y * dist + k.z * dist;", *KERNEL_SCENES),
     m("shading.shadow_ray_past_the_light", "kernels/lights.h",
-      " tmax = span * ((REAL)1 - gamma_n(ERR_ROUNDINGS));", " tmax = REAL_INF;",
+      " tmax = span * ((REAL)1 - gamma_f32(ERR_ROUNDINGS));", " tmax = REAL_INF;",
       *KERNEL_SCENES, SHADOW),
     m("shading.no_scene_ambient", "kernels/direct.h",
       "TO_REAL(m->ambient) * c * ambient_light", "TO_REAL(m->ambient) * c", *KERNEL_SCENES),

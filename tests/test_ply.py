@@ -121,7 +121,7 @@ def test_truncated_vertex_element():
     [
         ((b"0.5 1.5 0.25", b"0.5 x.5 0.25"), "element vertex, line", "expected a number"),
         ((b"3 0 1 2 7", b"3 0 1 9 7"), "element face", "out of range"),
-        ((b"3 0 1 2 7", b"2 0 1 7"), "element face", "at least 3 vertices"),
+        ((b"3 0 1 2 7", b"2 0 1 7"), "element face, line", "at least 3 vertices, got 2"),
         ((b"4 0 1 2 3 7", b"4 0 1 2 7"), "element face, line", "a list"),
         ((b"property float nx", b"property float128 nx"), "header line", "property TYPE NAME"),
         ((b"format ascii 1.0", b"format ascii 2.0"), "header line", "format"),
@@ -432,6 +432,16 @@ def test_a_short_binary_face_fails_where_it_is_read(lists, record, got):
     # it is read, not after a pass over every record (which here ends in a truncation).
     assert _errors(_short_faces(lists, 100)) == (
         f"bad.ply: element face: record {record}: a face needs at least 3 vertices, got {got}")
+
+
+def test_a_short_ascii_face_names_its_line():
+    # Header lines 1-10, vertices 11-13, faces from 14: the second face (line 15) has 2.
+    data = (b"ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\n"
+            b"property float z\nelement face 3\nproperty list uchar int vertex_indices\n"
+            b"comment two lines to count\nend_header\n0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n2 0 1\n"
+            b"3 0 1 2\n")
+    assert _errors(data) == (
+        "bad.ply: element face, line 15: a face needs at least 3 vertices, got 2")
 
 
 @pytest.mark.parametrize("fmt", ["ascii", "binary"])

@@ -326,9 +326,13 @@ class _Reader:
         lists: dict[str, tuple[list[int], list]] = {p.name: ([], []) for p in props
                                                     if p.count_type is not None}
         n_lists = len(lists)
+        # A face needs 3 items: checked as each line is read, as the binary reader does, so the
+        # error names its line and comes before the rest of the file is parsed.
+        faces = next((n for n in _FACE_LISTS if n in lists), None) if el.name == "face" else None
         for i, line in enumerate(lines):
             words = line.split()
             at = 0
+            short = None
             try:
                 for p in props:
                     if p.count_type is None:
@@ -341,6 +345,8 @@ class _Reader:
                     listed = words[at + 1:at + 1 + k]
                     if k < 0 or len(listed) != k:
                         raise ValueError
+                    if k < 3 and p.name == faces and np.dtype(p.type).kind in "iu":
+                        short = k
                     if np.dtype(p.type).kind == "f":
                         values: list = [float(w) for w in listed]
                     else:
@@ -358,6 +364,9 @@ class _Reader:
                 raise self.error(f"element {el.name}, line {numbers[i]}",
                                  f"expected {plural(len(scalars), 'number')} and {shape}, got "
                                  f"{b' '.join(words)[:60]!r}") from None
+            if short is not None:
+                raise self.error(f"element face, line {numbers[i]}",
+                                 f"a face needs at least 3 vertices, got {short}")
         out: dict[str, object] = {name: np.array(v, dtype=np.float64)
                                   for name, v in scalars.items()}
         for p in props:

@@ -226,7 +226,9 @@ def test_spot_light_cone_on_a_plane(cl_device) -> None:
     t = np.clip((cos_t - cos_o) / (cos_i - cos_o), 0, 1)
     expected = cos_t * t * t * (3 - 2 * t)
     assert (expected == 0).sum() > 100 and (t == 1).sum() > 100 and ((t > 0) & (t < 1)).any()
-    np.testing.assert_allclose(image, expected, atol=1e-5)
+    # 4x the largest difference measured: 7.1e-7 on PoCL, on Intel's runtime, and built as for a
+    # GPU with the builtins off by OpenCL's bounds either way (make test-opencl-ulps).
+    np.testing.assert_allclose(image, expected, atol=2.9e-6)
 
 
 @pytest.mark.parametrize("spp", [1, 2, 3, 5, 9, 16, 17, 30])

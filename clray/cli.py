@@ -73,10 +73,10 @@ from clray.model_scene import (
 from clray.output import (
     cannot_write,
     error_words,
-    is_special_file,
     output_target,
     refuse_a_folder,
     write_bytes_atomically,
+    written_directly,
 )
 from clray.passes import PASS_NAMES, pass_paths, pass_problem
 from clray.render import RenderResult, RenderSettings, render
@@ -584,11 +584,15 @@ def _check_writable(path: Path) -> None:
     """Before rendering, so that a typo in -o or a read-only folder does not cost a whole
     render: the folder (made where missing) must take a new file, which a probe file (removed
     at once) shows more reliably than permission bits (root, read-only mounts, ACLs)."""
-    path = output_target(path)
-    if is_special_file(path):
+    if written_directly(path):
+        try:
+            os.stat(path)  # a closed descriptor: /dev/stdout names no file
+        except OSError as err:
+            raise cannot_write(path, err) from err
         if not os.access(path, os.W_OK):
             raise cannot_write(path, "permission denied")
         return
+    path = output_target(path)
     folder = path.parent
     _make_folder(path, folder)
     refuse_a_folder(path)

@@ -5,10 +5,12 @@ error for an output that cannot be written."""
 
 from __future__ import annotations
 
+import contextlib
 import io
 import os
 import secrets
 import stat
+import sys
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -20,17 +22,48 @@ if TYPE_CHECKING:
 
 def output_target(path: str | Path) -> Path:
     """Where writing `path` lands: a symlink's final target (its folder must take the file),
-    else `path` itself. Writing there keeps the link a link and never writes elsewhere."""
+    else `path` itself, as it is for what is written directly (written_directly). Writing there
+    keeps the link a link and never writes elsewhere."""
     path = Path(path)
     try:
         linked = path.is_symlink()
     except (OSError, ValueError):  # a name the system refuses: the writer reports it
         return path
-    return Path(os.path.realpath(path)) if linked else path
+    return Path(os.path.realpath(path)) if linked and not written_directly(path) else path
 
 
-def is_special_file(path: Path) -> bool:
-    """An existing file that is not a regular file: a device (/dev/stdout), a pipe."""
+def written_directly(path: str | Path) -> bool:
+    """Whether writing `path` writes into what is there rather than replacing it: one of this
+    process's file descriptors (/dev/stdout, whatever it is: `>> log.txt` is appended to, not
+    replaced), or, through any symlinks, an existing file that is not a regular file (a device,
+    a pipe). Decided before the links are resolved: the resolved name of a descriptor's link is
+    no file (`/proc/PID/fd/pipe:[...]`), or one whose rename would drop what it holds."""
+    return _own_descriptor(path) is not None or _special_file(path)
+
+
+# Symlinks followed in search of a descriptor, as the system's own limit (MAXSYMLINKS) on Linux.
+_MAX_LINKS = 40
+
+
+def _own_descriptor(path: str | Path) -> int | None:
+    """The file descriptor of this process that `path` names through its symlinks (/dev/stdout
+    -> /proc/self/fd/1, /dev/fd/3), or None. Linux's /proc only: elsewhere /dev/fd/N are devices,
+    which _special_file finds."""
+    fd_folder = f"/proc/{os.getpid()}/fd"
+    try:
+        current = os.path.abspath(path)
+        for _ in range(_MAX_LINKS):
+            folder, name = os.path.split(current)
+            if name.isdigit() and os.path.realpath(folder) == fd_folder:
+                return int(name)
+            current = os.path.join(folder, os.readlink(current))  # an absolute target replaces
+    except (OSError, ValueError):  # not a link (EINVAL), missing, or a name the system refuses
+        return None
+    return None
+
+
+def _special_file(path: str | Path) -> bool:
+    """An existing file, through any symlinks, that is not a regular file: a device, a pipe."""
     try:
         mode = os.stat(path).st_mode
     except (OSError, ValueError):  # ValueError: a NUL byte in the name; the writer reports it
@@ -38,16 +71,33 @@ def is_special_file(path: Path) -> bool:
     return not (stat.S_ISREG(mode) or stat.S_ISDIR(mode))
 
 
+def _write_descriptor(fd: int, payload: bytes) -> None:
+    """`payload` written to `fd` after what Python's own streams on it hold."""
+    for stream in (sys.stdout, sys.stderr):
+        # None where the stream was closed at start; a stream without a descriptor is not fd.
+        with contextlib.suppress(AttributeError, OSError, ValueError):
+            if stream.fileno() == fd:
+                stream.flush()
+    view = memoryview(payload)
+    while view:
+        view = view[os.write(fd, view):]
+
+
 def write_bytes_atomically(path: str | Path, payload: bytes) -> None:
     """Write `payload` so that `path` is either untouched or complete, never partial.
 
     Through a symlink the target is replaced, not the link. A device or pipe cannot be
-    replaced by a rename (it would become a regular file): it is written directly."""
-    path = output_target(path)
-    if is_special_file(path):
+    replaced by a rename (it would become a regular file), nor should this process's standard
+    output be (`>> log.txt`): they are written directly (written_directly)."""
+    fd = _own_descriptor(path)
+    if fd is not None:
+        _write_descriptor(fd, payload)
+        return
+    if _special_file(path):
         with open(path, "wb") as stream:
             stream.write(payload)
         return
+    path = output_target(path)
     # Same directory, so os.replace is a rename on one file system; created with 0o666 rather
     # than through mkstemp so the finished file gets the usual umask-derived permissions.
     tmp = path.with_name(f".{path.name}.{os.getpid()}.{secrets.token_hex(4)}.tmp")

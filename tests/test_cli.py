@@ -586,6 +586,25 @@ def test_stats_json_dash_writes_json_to_stdout(cl_device, scene, tmp_path) -> No
     assert files_in(tmp_path) == ["out.pfm", "scene.toml"]
 
 
+def test_stats_json_dev_stdout_goes_into_a_pipe_or_is_appended(cl_device, scene,
+                                                                tmp_path) -> None:
+    # A pipe: /dev/stdout's resolved name is no file. A file opened to append: renaming onto its
+    # resolved name would have dropped what it held.
+    done = _clray("render", scene, *TINY, "-o", tmp_path / "out.pfm", "--stats-json",
+                  "/dev/stdout", "-q")
+    assert done.returncode == 0, done.stderr
+    assert json.loads(done.stdout)["width"] == 32
+    log = tmp_path / "log.txt"
+    log.write_text("earlier\n")
+    with log.open("a") as stdout:
+        appended = subprocess.run([sys.executable, "-m", "clray", "render", scene, *TINY, "-o",
+                                   tmp_path / "out.pfm", "--stats-json", "/dev/stdout", "-q"],
+                                  stdout=stdout, stderr=subprocess.PIPE, timeout=300)
+    assert appended.returncode == 0, appended.stderr
+    earlier, stats = log.read_text().split("\n", 1)
+    assert earlier == "earlier" and json.loads(stats)["height"] == 24
+
+
 def test_image_and_stats_both_to_stdout_is_a_usage_error(capsys, scene) -> None:
     code, out, err = run(capsys, "render", scene, "-o", "-", "--stats-json", "-")
     assert code == EXIT_USAGE and out == ""

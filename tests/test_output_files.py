@@ -100,3 +100,38 @@ def test_a_nul_byte_in_an_output_name_is_a_one_line_error(cl_device, capsys, mon
     assert len(err) == 1 and err[0].startswith("clray: error: cannot write a\\x00b")
     assert err[0].endswith(": embedded null byte")
     assert list(tmp_path.iterdir()) == []
+
+
+def test_a_link_to_a_descriptor_of_a_file_appends_to_it(tmp_path):
+    # `clray ... --stats-json /dev/stdout >> log.txt`: the log keeps what it held, and stays
+    # the same file (a rename onto the link's resolved name would have replaced it).
+    log = tmp_path / "log.txt"
+    log.write_bytes(b"earlier\n")
+    inode = log.stat().st_ino
+    fd = os.open(log, os.O_WRONLY | os.O_APPEND)
+    try:
+        link = tmp_path / "out.json"
+        link.symlink_to(f"/dev/fd/{fd}")
+        write_bytes_atomically(link, b"new\n")
+    finally:
+        os.close(fd)
+    assert log.read_bytes() == b"earlier\nnew\n"
+    assert log.stat().st_ino == inode
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["log.txt", "out.json"]
+
+
+def test_a_link_to_a_descriptor_of_a_pipe_is_written(tmp_path):
+    # `--stats-json /dev/stdout | reader`: the link's resolved name, /proc/PID/fd/pipe:[N], is
+    # no file, and used to fail the write.
+    read_end, write_end = os.pipe()
+    try:
+        link = tmp_path / "out.json"
+        link.symlink_to(f"/proc/self/fd/{write_end}")
+        write_bytes_atomically(link, b"through the pipe")
+        os.close(write_end)
+        write_end = -1
+        assert os.read(read_end, 100) == b"through the pipe"
+    finally:
+        os.close(read_end)
+        if write_end >= 0:
+            os.close(write_end)

@@ -945,6 +945,7 @@ def _render_frames(args: argparse.Namespace, started: float) -> int:
         sequence = load_sequence(args.scene)
         frames = frames_in(args.frames, sequence.animation)
         check_pattern(args.output, len(frames))
+        _check_stats_not_a_frame(args, frames, aovs)
         for path in frame_files(args.output, frames[0], aovs, args.aov_preview):
             _check_writable(path)
         todo = frames_to_render(frames, args.output, args.resume, aovs, args.aov_preview)
@@ -994,6 +995,22 @@ def _render_frames(args: argparse.Namespace, started: float) -> int:
         _say(f"wrote {plural(len(records), 'frame')} of {span} to "
              f"{args.output}{skipped} (wall {stats['total_s']:.3g} s)")
     return EXIT_OK
+
+
+def _check_stats_not_a_frame(args: argparse.Namespace, frames: range,
+                             aovs: tuple[str, ...]) -> None:
+    """SettingsError (a usage error) where --stats-json names one of the frames' files, which
+    the stats would replace: `-o f_%d.png --stats-json f_0.png`. Known only once the animation
+    says which frames `A:` takes; _parse compares the still's files."""
+    from clray.sequence import frame_files
+
+    if args.stats_json is None:
+        return
+    for frame in frames:
+        for path in frame_files(args.output, frame, aovs, args.aov_preview):
+            if _same_file(args.stats_json, path):
+                raise SettingsError(f"--stats-json and frame {frame}'s file are the same file: "
+                                    f"{path}")
 
 
 def _check_out_folder(out: Path, names: Iterable[str]) -> None:

@@ -215,6 +215,22 @@ def test_a_folder_in_place_of_a_frames_file_is_named_before_any_work(tmp_path, c
     assert sorted(p.name for p in tmp_path.iterdir()) == [folder]
 
 
+@pytest.mark.parametrize("stats", ["o/f_0.png", "o/f_2.depth.pfm", "o/f_1.depth.png"])
+@pytest.mark.parametrize("frames", ["0:3", "0:"])
+def test_stats_json_naming_a_frames_file_is_a_usage_error(tmp_path, capsys, monkeypatch, stats,
+                                                        frames):
+    # The stats replaced frame 0's image with JSON, which a later --resume took for complete.
+    monkeypatch.setattr("clray.sequence.render", refuse_to_render)
+    monkeypatch.chdir(tmp_path)
+    code = cli.main(["render", str(ORBIT), "--frames", frames, "-o", "o/f_%d.png", "--aov",
+                     "depth", "--aov-preview", "--stats-json", stats])
+    frame = stats[4]
+    assert code == 2
+    assert capsys.readouterr().err == (f"clray: error: --stats-json and frame {frame}'s file "
+                                       f"are the same file: {stats}\n")
+    assert list(tmp_path.iterdir()) == []
+
+
 @pytest.mark.parametrize("frames", [[], ["--frames", "0:2"]])
 @pytest.mark.parametrize("name", ["x_%99999999999d.png", "x_%.99999999999d.png",
                                   "x_%-0256d.png"])

@@ -99,11 +99,16 @@ def write_bytes_atomically(path: str | Path, payload: bytes) -> None:
         return
     path = output_target(path)
     # Same directory, so os.replace is a rename on one file system; created with 0o666 rather
-    # than through mkstemp so the finished file gets the usual umask-derived permissions.
+    # than through mkstemp so that a new file gets the usual umask-derived permissions.
     tmp = path.with_name(f".{path.name}.{os.getpid()}.{secrets.token_hex(4)}.tmp")
+    replaced = _regular_file_mode(path)
     try:
         fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
         try:
+            if replaced is not None:
+                # The file replaced keeps its permissions (a 0o640 image stays private); the
+                # rename makes a new file, which would have the umask's.
+                os.fchmod(fd, replaced)
             with os.fdopen(fd, "wb") as stream:
                 stream.write(payload)
             os.replace(tmp, path)
@@ -117,6 +122,15 @@ def write_bytes_atomically(path: str | Path, payload: bytes) -> None:
         # as writing it directly would, for callers that show err.filename. OSError() picks
         # the errno's subclass again (FileNotFoundError, IsADirectoryError).
         raise OSError(err.errno, err.strerror, os.fspath(path)) from None
+
+
+def _regular_file_mode(path: Path) -> int | None:
+    """The permission bits of the regular file at `path`, or None where there is none."""
+    try:
+        mode = os.stat(path).st_mode
+    except (OSError, ValueError):  # none there, or a name the system refuses: os.open says
+        return None
+    return stat.S_IMODE(mode) if stat.S_ISREG(mode) else None
 
 
 def error_words(err: OSError | ValueError) -> str:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import errno
 import os
+import stat
 import threading
 from pathlib import Path
 
@@ -135,3 +136,12 @@ def test_a_link_to_a_descriptor_of_a_pipe_is_written(tmp_path):
         os.close(read_end)
         if write_end >= 0:
             os.close(write_end)
+
+
+def test_a_replaced_file_keeps_its_permissions(tmp_path):
+    path = tmp_path / "image.png"
+    path.write_bytes(b"old")
+    path.chmod(0o640)
+    write_bytes_atomically(path, b"new")
+    assert path.read_bytes() == b"new"
+    assert stat.S_IMODE(path.stat().st_mode) == 0o640

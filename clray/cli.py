@@ -963,7 +963,7 @@ def _render_frames(args: argparse.Namespace, started: float) -> int:
             settings = _settings(args, None)
             samples = ((args.width or first.render.width) * (args.height or first.render.height)
                        * (args.spp or first.render.spp))
-            if progress is not None:
+            if progress is not None and todo:  # none to render (--resume): no progress to show
                 progress(0, len(todo) * samples)
 
             def done(frame: int, result: RenderResult) -> None:

@@ -302,6 +302,9 @@ def test_resume_renders_the_frames_without_the_passes_asked_for(cl_device, tmp_p
     assert all(frame_path(tmp_path / "f_%02d.depth.pfm", f).is_file() for f in range(3))
     assert cli.main([*args, "--frames", "0:3", "--resume", "--aov", "depth"]) == 0
     assert "wrote 0 frames of frames 0-2 to" in capsys.readouterr().err
+    # -v's progress lines, without a terminal, divided by the pixel-samples of no frames.
+    assert cli.main([*args, "--frames", "0:3", "--resume", "--aov", "depth", "-v"]) == 0
+    assert "wrote 0 frames of frames 0-2 to" in capsys.readouterr().err
 
 
 def test_frames_usage_errors(tmp_path, capsys):

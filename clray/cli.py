@@ -437,6 +437,7 @@ def _load(args: argparse.Namespace) -> Scene:
 
 
 def _scene(args: argparse.Namespace) -> int:
+    _check_stdout()
     if not is_mesh_file(args.model):
         raise SceneError(args.model, None, f"expected a {MESH_FILE}")
     name = args.model.as_posix()
@@ -544,15 +545,50 @@ def _same_file(a: Path, b: Path) -> bool:
     return os.path.abspath(a) == os.path.abspath(b)
 
 
-def _to_stdout(payload: bytes) -> None:
-    sys.stdout.flush()
-    sys.stdout.buffer.write(payload)
-    sys.stdout.buffer.flush()
+def _stdout_error(err: OSError) -> ClrayError:
+    return ClrayError(f"cannot write standard output: {error_words(err)}")
+
+
+def _check_stdout() -> None:
+    """ClrayError where standard output was closed at start (`>&-`), where Python's is None: a
+    command that writes there says so before its work."""
+    if sys.stdout is None:
+        raise _stdout_error(OSError(errno.EBADF, os.strerror(errno.EBADF)))
+
+
+@contextlib.contextmanager
+def _writing_stdout() -> Iterator[None]:
+    """Around a write to standard output: its failure (a full disk, a closed descriptor) as one
+    line, ClrayError; BrokenPipeError as it is, for the caller to end quietly (its reader has
+    gone). Either way nothing is left in its buffers to fail again at the exit."""
+    _check_stdout()
     try:
-        fd = sys.stdout.fileno()
-    except OSError:  # io.UnsupportedOperation: stdout replaced by an object without a file
-        return
-    _wait_until_read(fd)
+        yield
+    except OSError as err:
+        _quiet_stdout()
+        if isinstance(err, BrokenPipeError):
+            raise
+        raise _stdout_error(err) from err
+
+
+def _print_out(text: str) -> None:
+    """`text` on standard output, flushed, so that a failure is the command's, told as one
+    line (_writing_stdout), not a traceback at the exit."""
+    with _writing_stdout():
+        sys.stdout.write(text)
+        sys.stdout.flush()
+
+
+def _to_stdout(payload: bytes) -> None:
+    with _writing_stdout():
+        sys.stdout.flush()
+        sys.stdout.buffer.write(payload)
+        sys.stdout.buffer.flush()
+        try:
+            fd = sys.stdout.fileno()
+        except OSError:  # io.UnsupportedOperation: stdout replaced by an object without a file
+            return
+        _wait_until_read(fd)
 
 
 def _wait_until_read(fd: int) -> None:
@@ -655,6 +691,8 @@ def _write(path: Path, write: Callable[[], None]) -> None:
             _make_folder(path, output_target(path).parent)
         write()
     except OSError as err:
+        if path == STDOUT:  # a reader that went away: the image or stats did not arrive
+            raise _stdout_error(err) from err
         # The file the error names: an image's write writes its pass files too, and the one
         # that failed is the one to name (write_bytes_atomically names each file it writes).
         raise cannot_write(err.filename or path, err) from err
@@ -807,6 +845,8 @@ def _warnings_as_lines(*, quiet: bool, verbose: bool) -> Iterator[None]:
 def _render(args: argparse.Namespace) -> int:
     started = time.perf_counter()
     output: Path = args.output
+    if STDOUT in (output, args.stats_json):
+        _check_stdout()
     if output != STDOUT:
         _check_writable(output)
         check_writer(output)
@@ -1098,13 +1138,14 @@ def _tune(args: argparse.Namespace) -> int:
 def _profile(args: argparse.Namespace) -> int:
     from clray.profile import profile_scene
 
+    _check_stdout()
     with _warnings_as_lines(quiet=False, verbose=False):
         settings = RenderSettings(width=args.width, height=args.height, spp=args.spp,
                                   device=args.device, stored_tuning=args.stored_tuning,
                                   traversal=args.traversal)
         prof = profile_scene(args.scene, settings, args.repeat)
     if args.json:
-        print(json.dumps(prof, indent=2))
+        _print_out(json.dumps(prof, indent=2) + "\n")
         return EXIT_OK
     rays, tests = prof["rays"], prof["tests_per_ray"]
     lines = [f"{prof['scene']}: {prof['width']}x{prof['height']}, {prof['spp']} spp on "
@@ -1128,8 +1169,7 @@ def _profile(args: argparse.Namespace) -> int:
               f"scene on device: {_size(prof['device_bytes_total'])}: " + ", ".join(
                   f"{k} {_size(v)}" for k, v in sorted(prof["device_bytes"].items(),
                                                        key=lambda kv: -kv[1]) if v)]
-    for line in lines:
-        print(line)
+    _print_out("".join(f"{line}\n" for line in lines))
     return EXIT_OK
 
 
@@ -1158,8 +1198,8 @@ def _devices(args: argparse.Namespace) -> int:
              f"renders by default ({why})" if d.spec == default_spec else "")
             for d in list_devices()]
     widths = [max(len(row[i]) for row in rows) for i in range(len(rows[0]))]
-    for row in rows:
-        print("  ".join(cell.ljust(w) for cell, w in zip(row, widths, strict=True)).rstrip())
+    _print_out("".join("  ".join(cell.ljust(w) for cell, w in zip(row, widths, strict=True))
+                       .rstrip() + "\n" for row in rows))
     if problem is not None:
         _say(f"error: {problem}")
         return problem.exit_code
@@ -1217,8 +1257,9 @@ def run_command() -> NoReturn:
     (a closed pipe) the ordinary exit reports it as usual."""
     code = main()
     try:
-        sys.stdout.flush()
-        sys.stderr.flush()
+        for stream in (sys.stdout, sys.stderr):
+            if stream is not None:  # None: closed at start (`>&-`)
+                stream.flush()
     except BrokenPipeError:
         _quiet_stdout()
         code = code or EXIT_RUNTIME

@@ -619,6 +619,27 @@ def test_empty_scene_name_is_a_usage_error(capsys) -> None:
     assert "expected a scene file name, got ''" in err
 
 
+@pytest.mark.parametrize("redirect", ["> /dev/full", ">&-"], ids=["full", "closed"])
+@pytest.mark.parametrize("argv", [
+    ["scene", ROOT / "scenes" / "meshes" / "bumpy_ico2.obj"],
+    ["devices"],
+    ["profile", "{scene}", "-W", "8", "-H", "6", "--repeat", "1", "--json"],
+    ["profile", "{scene}", "-W", "8", "-H", "6", "--repeat", "1"],
+    ["render", "{scene}", *TINY, "-o", "-", "-q"],
+    ["render", "{scene}", *TINY, "-o", "{tmp}/out.png", "--stats-json", "-", "-q"],
+], ids=["scene", "devices", "profile-json", "profile", "render-o", "stats-json"])
+def test_a_standard_output_that_fails_is_one_line(cl_device, scene, tmp_path, argv,
+                                                   redirect) -> None:
+    # A full disk's ENOSPC was a traceback, and a closed stdout (Python's is then None) an
+    # AttributeError's.
+    words = [str(a).format(scene=scene, tmp=tmp_path) for a in argv]
+    shell = f"{sys.executable} -m clray {' '.join(words)} {redirect}"
+    done = subprocess.run(["bash", "-c", shell], capture_output=True, text=True, timeout=300)
+    why = "No space left on device" if "full" in redirect else "Bad file descriptor"
+    assert (done.returncode, done.stderr) == (1, f"clray: error: cannot write standard output: "
+                                                 f"{why}\n")
+
+
 @pytest.mark.parametrize("unbuffered", ["1", ""])
 def test_closed_stdout_is_not_a_traceback(cl_device, unbuffered: str) -> None:
     # A pipe whose reader is gone before clray writes: every write fails with EPIPE.
@@ -751,7 +772,7 @@ def test_a_reader_that_leaves_early_is_one_exit_code(cl_device, scene, reader) -
              f"{reader} > /dev/null; exit ${{PIPESTATUS[0]}}")
     done = subprocess.run(["bash", "-c", shell], capture_output=True, text=True, timeout=120)
     assert done.returncode == 1, done.stderr
-    assert done.stderr == "clray: error: cannot write -: Broken pipe\n"
+    assert done.stderr == "clray: error: cannot write standard output: Broken pipe\n"
 
 
 def test_a_reader_that_takes_everything_gets_exit_0(cl_device, scene) -> None:

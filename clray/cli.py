@@ -13,7 +13,6 @@ import errno
 import functools
 import json
 import os
-import secrets
 import select
 import stat
 import struct
@@ -75,6 +74,7 @@ from clray.output import (
     error_words,
     output_target,
     refuse_a_folder,
+    temporary_name,
     write_bytes_atomically,
     written_directly,
 )
@@ -632,7 +632,7 @@ def _check_writable(path: Path) -> None:
     folder = path.parent
     _make_folder(path, folder)
     refuse_a_folder(path)
-    probe = folder / f".{path.name[:100]}.{os.getpid()}.{secrets.token_hex(4)}.probe"
+    probe = temporary_name(path, "probe")
     try:
         # The name itself may be refused (too long, a NUL byte) where the probe's is not.
         os.stat(path)

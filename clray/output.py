@@ -100,7 +100,7 @@ def write_bytes_atomically(path: str | Path, payload: bytes) -> None:
     path = output_target(path)
     # Same directory, so os.replace is a rename on one file system; created with 0o666 rather
     # than through mkstemp so that a new file gets the usual umask-derived permissions.
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.{secrets.token_hex(4)}.tmp")
+    tmp = temporary_name(path, "tmp")
     replaced = _regular_file_mode(path)
     try:
         fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
@@ -122,6 +122,19 @@ def write_bytes_atomically(path: str | Path, payload: bytes) -> None:
         # as writing it directly would, for callers that show err.filename. OSError() picks
         # the errno's subclass again (FileNotFoundError, IsADirectoryError).
         raise OSError(err.errno, err.strerror, os.fspath(path)) from None
+
+
+# Bytes of the file's name that its temporary name keeps: with the rest (24 bytes at most) it
+# stays within the 255 bytes a name may have (NAME_MAX) however long the file's own is.
+_NAME_KEPT = 100
+
+
+def temporary_name(path: Path, kind: str) -> Path:
+    """A name in `path`'s folder, hidden, of this process and unlikely to be anyone else's, for
+    a file that becomes `path` (kind "tmp") or shows that `path` could (kind "probe"): as long
+    as a name may be wherever `path`'s own is."""
+    kept = os.fsdecode(os.fsencode(path.name)[:_NAME_KEPT])  # a character cut in two is bytes
+    return path.with_name(f".{kept}.{os.getpid()}.{secrets.token_hex(4)}.{kind}")
 
 
 def _regular_file_mode(path: Path) -> int | None:

@@ -544,6 +544,17 @@ def test_over_long_output_name_exits_1_before_rendering(capsys, scene, tmp_path,
     assert err.endswith(".png: File name too long\n")
 
 
+def test_a_long_output_name_with_pass_files_is_written(cl_device, scene, tmp_path,
+                                                       capsys) -> None:
+    # A valid 244-byte name (its pass files' 250) failed after the render: the temporary files'
+    # names were longer than the names, though the probe before the render had passed.
+    image = tmp_path / ("x" * 240 + ".png")
+    code, _, err = run(capsys, "render", scene, *TINY, "-o", image, "--aov", "depth")
+    assert code == 0, err
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(
+        [image.name, "x" * 240 + ".depth.pfm", "scene.toml"])
+
+
 def test_verbose_figures_escape_a_newline_in_the_output_name(capsys, cl_device, scene) -> None:
     # Found by tests/fuzz.py: "  output: x" and "y.png" came out as two lines.
     code, _, err = run(capsys, "render", scene, *TINY, "-v", "-o", "x\ny.png")

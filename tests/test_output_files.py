@@ -145,3 +145,12 @@ def test_a_replaced_file_keeps_its_permissions(tmp_path):
     write_bytes_atomically(path, b"new")
     assert path.read_bytes() == b"new"
     assert stat.S_IMODE(path.stat().st_mode) == 0o640
+
+
+@pytest.mark.parametrize("name", ["a" * 240 + ".png", "é" * 120 + ".png"], ids=["ascii", "utf8"])
+def test_a_name_as_long_as_a_name_may_be_is_written(tmp_path, name):
+    # 244 bytes: the temporary name, the whole name with 24 bytes more, was too long.
+    path = tmp_path / name
+    write_bytes_atomically(path, b"data")
+    assert path.read_bytes() == b"data"
+    assert [p.name for p in tmp_path.iterdir()] == [name]

@@ -487,6 +487,9 @@ def _parse(argv: list[str] | None) -> argparse.Namespace:
             parser.error("--frames writes files: give -o and --stats-json file names")
         if args.resume and args.frames is None:
             parser.error("--resume applies to --frames")
+        if args.frames is not None and is_mesh_file(args.scene):
+            parser.error(f"--frames renders a scene file's [animation] table; {args.scene} is a "
+                         f"{MESH_FILE}, which has none")
         _check_still_output(parser, args)
         if args.stats_json == STDOUT and args.output == STDOUT:
             parser.error("-o - and --stats-json - would both write to standard output")

@@ -317,6 +317,13 @@ def test_frames_usage_errors(tmp_path, capsys):
     assert cli.main(["render", str(plain), "--frames", "0:2", "-o",
                      str(tmp_path / "f_%d.png")]) == 3
     assert "animation: missing" in capsys.readouterr().err
+    # A mesh file was said to be of an unknown scene file type, which render takes.
+    mesh = ROOT / "scenes" / "meshes" / "bumpy_ico2.obj"
+    assert cli.main(["render", str(mesh), "--frames", "0", "-o", str(tmp_path / "m.png")]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"clray: error: --frames renders a scene file's [animation] table; "
+                          f"{mesh} is a mesh file")
+    assert list(tmp_path.iterdir()) == []
 
 
 def test_object_transform_animates(tmp_scene):

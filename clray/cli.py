@@ -851,13 +851,15 @@ def _render(args: argparse.Namespace) -> int:
     if STDOUT in (output, args.stats_json):
         _check_stdout()
     if output != STDOUT:
-        _check_writable(output)
         check_writer(output)
+    # With --frames, -o is a pattern, whose folder may hold the frame number too
+    # (shot_%02d/img.png): _render_frames checks each frame's own files instead.
+    if output != STDOUT and args.frames is None:
+        _check_writable(output)
+        for path in pass_paths(output, args.aov or (), args.aov_preview):
+            _check_writable(path)
     if args.stats_json not in (None, STDOUT):
         _check_writable(args.stats_json)
-    if args.aov:
-        for path in pass_paths(output, args.aov, args.aov_preview):
-            _check_writable(path)
 
     if args.denoise:
         check_denoiser()  # before any work: says how to install the binding where it is missing

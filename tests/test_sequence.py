@@ -355,6 +355,16 @@ values = [1, 3]
     assert sequence.scene(4).objects[0].center == (2.0, -4.0, 8.0)
 
 
+def test_a_frame_number_in_the_folder_makes_no_folder_of_the_pattern(cl_device, tmp_path):
+    # The check of -o before the frames made a folder literally named shot_%02d.
+    pattern = tmp_path / "shot_%02d" / "img.png"
+    assert cli.main(["render", str(ORBIT), "-W", "8", "-H", "4", "--frames", "0:2", "--aov",
+                     "depth", "-o", str(pattern), "-q"]) == 0
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["shot_00", "shot_01"]
+    assert sorted(p.name for p in (tmp_path / "shot_01").iterdir()) == ["img.depth.pfm",
+                                                                       "img.png"]
+
+
 def test_one_frame_is_said_in_the_singular(cl_device, tmp_path, capsys):
     pattern = tmp_path / "f_%04d.png"
     assert cli.main(["render", str(ROOT / "scenes" / "orbit.toml"), "-W", "16", "-H", "9",

@@ -476,13 +476,21 @@ def _parse(argv: list[str] | None) -> argparse.Namespace:
             parser.error("--dask-workers applies to a local cluster (--dask without ADDRESS)")
     if args.command == "render":
         if args.output is None:
-            args.output = Path(args.scene.stem + ("_%04d" if args.frames else "") + ".png")
-        if args.output != STDOUT:
+            # The scene's stem is a name, not a pattern: a % in it (50%done.toml) is no frame
+            # number, and --frames' pattern holds it as %%.
+            stem = args.scene.stem
+            args.output = Path(f"{stem.replace('%', '%%')}_%04d.png" if args.frames is not None
+                               else f"{stem}.png")
+        elif args.output != STDOUT:
             try:
                 # Before any work, as every usage error; frame_path cannot fail after this.
                 frame_path(args.output, 0)
             except SettingsError as err:
                 parser.error(str(err))
+            if (args.frames is None
+                    and frame_path(args.output, 0) != frame_path(args.output, 1)):
+                parser.error(f"-o {args.output} holds a frame number: give --frames A:B to "
+                             "render frames, or a name without % for a still")
         if args.frames is not None and STDOUT in (args.output, args.stats_json):
             parser.error("--frames writes files: give -o and --stats-json file names")
         if args.resume and args.frames is None:
@@ -507,8 +515,6 @@ def _parse(argv: list[str] | None) -> argparse.Namespace:
 
 def _check_still_output(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
     """Flags that a render would otherwise accept and ignore are refused with the reason."""
-    from clray.sequence import frame_path
-
     if not is_mesh_file(args.scene):
         given = [flag for flag, on in (("--view", args.view is not None),
                                        ("--ground", args.ground),
@@ -517,10 +523,6 @@ def _check_still_output(parser: argparse.ArgumentParser, args: argparse.Namespac
             verb = "applies" if len(given) == 1 else "apply"
             parser.error(f"{' and '.join(given)} {verb} to a {MESH_FILE}; "
                          f"{args.scene} is a scene file, whose [camera] and objects are its own")
-    if (args.frames is None and args.output != STDOUT
-            and frame_path(args.output, 0) != frame_path(args.output, 1)):
-        parser.error(f"-o {args.output} holds a frame number: give --frames A:B to render "
-                     "frames, or a name without % for a still")
 
 
 def _check_pass_flags(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:

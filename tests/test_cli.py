@@ -775,6 +775,17 @@ def test_a_percent_sign_in_a_still_name_is_kept(cl_device, scene, tmp_path, caps
     assert (tmp_path / "100%.png").is_file()
 
 
+def test_a_percent_sign_in_the_scenes_name_is_kept_in_the_default_output(cl_device, tmp_path,
+                                                                          capsys,
+                                                                          monkeypatch) -> None:
+    # `50%done.toml` was refused: "-o 50%done.png holds a frame number".
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "50%done.toml").write_text(scene_text())
+    code, _, err = run(capsys, "render", "50%done.toml", *TINY)
+    assert code == 0, err
+    assert files_in(tmp_path) == ["50%done.png", "50%done.toml"]
+
+
 @pytest.mark.parametrize("reader", ["head -c 10", "true", "sleep 0.5"])
 def test_a_reader_that_leaves_early_is_one_exit_code(cl_device, scene, reader) -> None:
     # Whether the reader closes the pipe before clray writes (true), after taking part of the

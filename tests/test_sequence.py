@@ -365,6 +365,21 @@ def test_a_frame_number_in_the_folder_makes_no_folder_of_the_pattern(cl_device, 
                                                                        "img.png"]
 
 
+@pytest.mark.parametrize(("stem", "frames"), [("50%done", "0:2"), ("orbit", "46:"),
+                                               ("50%done", "46:")])
+def test_the_default_frame_names_are_the_scenes_name_and_a_number(cl_device, tmp_path,
+                                                                  monkeypatch, stem, frames):
+    # The scene's stem went into the pattern as it was: `%d` in `50%done` was a frame number.
+    # And `A:`, an empty range until the animation's length is known, got a still's name.
+    monkeypatch.chdir(tmp_path)
+    scene = tmp_path / f"{stem}.toml"
+    scene.write_text(ORBIT.read_text())
+    assert cli.main(["render", str(scene), "-W", "8", "-H", "4", "--frames", frames, "-q"]) == 0
+    first = int(frames.split(":")[0])
+    assert sorted(p.name for p in tmp_path.iterdir()) == [
+        f"{stem}.toml", f"{stem}_{first:04d}.png", f"{stem}_{first + 1:04d}.png"]
+
+
 def test_one_frame_is_said_in_the_singular(cl_device, tmp_path, capsys):
     pattern = tmp_path / "f_%04d.png"
     assert cli.main(["render", str(ROOT / "scenes" / "orbit.toml"), "-W", "16", "-H", "9",

@@ -173,6 +173,14 @@ def _image_path(text: str) -> Path:
     return _file_path(text)
 
 
+def _stats_path(text: str) -> Path:
+    if text == "-":
+        return STDOUT
+    path = _file_path(text)
+    # `./-` is a file named -, which as a Path equals STDOUT: its absolute name does not.
+    return path.absolute() if path == STDOUT else path
+
+
 def _frames(text: str) -> range:
     from clray.sequence import parse_frames
 
@@ -236,7 +244,7 @@ def _render_command(commands: Any) -> None:
                         "packets 1 spp is always single "
                         "(docs/acceleration.md)")
     _image_flags(r)
-    r.add_argument("--stats-json", type=_file_path, metavar="PATH",
+    r.add_argument("--stats-json", type=_stats_path, metavar="PATH",
                    help="write timings, sizes and ray counts as JSON ('-': standard output)")
     talk = r.add_mutually_exclusive_group()
     talk.add_argument("-q", "--quiet", action="store_true",

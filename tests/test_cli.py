@@ -616,6 +616,14 @@ def test_stats_json_dev_stdout_goes_into_a_pipe_or_is_appended(cl_device, scene,
     assert earlier == "earlier" and json.loads(stats)["height"] == 24
 
 
+def test_stats_json_dot_slash_dash_is_a_file(cl_device, scene, tmp_path, capsys) -> None:
+    # Path("./-") == Path("-"): the stats went to standard output.
+    code, out, err = run(capsys, "render", scene, *TINY, "-o", "out.png", "--stats-json", "./-",
+                         "-q")
+    assert (code, out, err) == (0, "", "")
+    assert json.loads((tmp_path / "-").read_text())["width"] == 32
+
+
 def test_image_and_stats_both_to_stdout_is_a_usage_error(capsys, scene) -> None:
     code, out, err = run(capsys, "render", scene, "-o", "-", "--stats-json", "-")
     assert code == EXIT_USAGE and out == ""

@@ -1013,6 +1013,8 @@ def _render_frames(args: argparse.Namespace, started: float) -> int:
         if not args.quiet:
             for warning in first.warnings:
                 _say(f"warning: {warning}")
+            if todo:  # the frames are one size, and one at a time in this process
+                _note_image_memory(args, first)
         records: list[dict] = []
         with _progress(quiet=args.quiet, verbose=args.verbose) as progress:
             settings = _settings(args, None)

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from clray import cli
-from clray.errors import SceneError, SettingsError
+from clray.errors import ClrayError, SceneError, SettingsError
 from clray.image_io import Encoding, read_pfm
 from clray.passes import write_with_passes
 from clray.scene.animation import Animation, Track, parse_path
@@ -378,6 +378,20 @@ def test_the_default_frame_names_are_the_scenes_name_and_a_number(cl_device, tmp
     first = int(frames.split(":")[0])
     assert sorted(p.name for p in tmp_path.iterdir()) == [
         f"{stem}.toml", f"{stem}_{first:04d}.png", f"{stem}_{first + 1:04d}.png"]
+
+
+def test_large_frames_memory_noted_before_rendering(tmp_path, capsys, monkeypatch):
+    # The still's note was never said for --frames. Stopped at the render: it takes minutes.
+    def stop(*_args, **_kwargs):
+        raise ClrayError("stopped")
+
+    monkeypatch.setattr("clray.sequence.render", stop)
+    code = cli.main(["render", str(ORBIT), "-W", "16384", "-H", "16384", "--frames", "0:2",
+                     "-o", str(tmp_path / "f_%d.png")])
+    assert code == 1
+    assert capsys.readouterr().err.splitlines() == [
+        "clray: note: a 16384 x 16384 image takes about 7.5 GiB of host memory (the float "
+        "image and its PNG encoding)", "clray: error: stopped"]
 
 
 def test_one_frame_is_said_in_the_singular(cl_device, tmp_path, capsys):

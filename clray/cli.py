@@ -953,7 +953,7 @@ def _note_image_memory(args: argparse.Namespace, scene: Scene) -> None:
     width = args.width or scene.render.width
     height = args.height or scene.render.height
     suffix = ".png" if args.output == STDOUT else check_suffix(args.output)
-    need = image_host_bytes(width, height, suffix)
+    need = image_host_bytes(width, height, suffix, args.png_bits or scene.render.png_bits)
     if need > LARGE_IMAGE_BYTES:
         _say(f"note: a {width} x {height} image takes about {need / (1 << 30):.1f} GiB of host "
              f"memory (the float image and its {suffix[1:].upper()} encoding)")

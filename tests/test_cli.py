@@ -861,6 +861,10 @@ def test_large_image_memory_noted_before_rendering(capsys, scene, monkeypatch) -
     code, _, err = run(capsys, "render", scene, "-W", "16384", "-H", "16384", "-o", "big.pfm")
     assert err.splitlines()[0].endswith("about 9.5 GiB of host memory (the float image and its "
                                         "PFM encoding)")
+    code, _, err = run(capsys, "render", scene, "-W", "16384", "-H", "16384", "-o", "big.png",
+                       "--png-bits", "16")
+    assert err.splitlines()[0].endswith("about 8.0 GiB of host memory (the float image and its "
+                                        "PNG encoding)")
     code, _, err = run(capsys, "render", scene, "-W", "8192", "-H", "8192", "-o", "big.png")
     assert err.splitlines() == ["clray: error: stopped"]  # 1.9 GiB: no note
     code, _, err = run(capsys, "render", scene, "-W", "16384", "-H", "16384", "-q")

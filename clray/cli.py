@@ -914,18 +914,13 @@ def _render(args: argparse.Namespace) -> int:
         "render_s": result.stats["total_s"],
         "write_s": time.perf_counter() - write_started,
         "total_s": time.perf_counter() - started,
-        "nonfinite_pixels": nonfinite_count(result.image),
+        **_image_figures(result, output),
     }
-    if output == STDOUT or output.suffix.lower() == ".png":
-        stats["clipped_pixels"] = clipped_pixels(result.image, result.encoding.exposure)
     if args.stats_json is not None:
         _write_stats(args.stats_json, stats)
 
-    if not args.quiet and stats["nonfinite_pixels"]:
-        kept = "kept" if output.suffix.lower() in FLOAT_SUFFIXES else "written black"
-        n = stats["nonfinite_pixels"]
-        _say(f"warning: {plural(n, 'pixel')} {'is' if n == 1 else 'are'} NaN or infinite "
-             f"({kept})")
+    if not args.quiet:
+        _warn_nonfinite(stats, output)
     if args.verbose:
         _say("stats:")
         for line in _stats_table(stats):
@@ -941,6 +936,37 @@ def _render(args: argparse.Namespace) -> int:
                 files = f"layers of {output.name}" + (f"; previews {files}" if files else "")
             _say(f"wrote passes {','.join(args.aov)}: {files}")
     return EXIT_OK
+
+
+def _image_figures(result: RenderResult, output: Path) -> dict:
+    """The stats of the image written to `output`: its non-finite pixels, and where it is a
+    PNG, the pixels the PNG clips."""
+    figures = {"nonfinite_pixels": nonfinite_count(result.image)}
+    if output == STDOUT or output.suffix.lower() == ".png":
+        figures["clipped_pixels"] = clipped_pixels(result.image, result.encoding.exposure)
+    return figures
+
+
+def _warn_nonfinite(stats: dict, output: Path, where: str = "") -> None:
+    """The warning for an image with NaN or infinite pixels (`where`: which frame's)."""
+    n = stats["nonfinite_pixels"]
+    if n:
+        kept = "kept" if output.suffix.lower() in FLOAT_SUFFIXES else "written black"
+        _say(f"warning: {where}{plural(n, 'pixel')} {'is' if n == 1 else 'are'} NaN or "
+             f"infinite ({kept})")
+
+
+def _frame_line(record: dict) -> str:
+    """-v's line of a frame's stats: the still's table in a line."""
+    clipped = (f", {record['clipped_pixels']:,} clipped" if "clipped_pixels" in record
+               else "")
+    mrays = "" if record["mrays_per_s"] is None else f", {record['mrays_per_s']:.3g} Mrays/s"
+    return one_line(
+        f"  frame {record['frame']}: {record['output']} ({record['width']}x{record['height']}, "
+        f"{record['spp']} spp), load {record['load_s']:.3f} s, render {record['render_s']:.3f} "
+        f"s, kernel {record['kernel_s']:.3f} s, write {record['write_s']:.3f} s, "
+        f"{record['rays']['total']:,} rays{mrays}, {record['nonfinite_pixels']:,} non-finite"
+        f"{clipped}")
 
 
 # Above this much host memory for the image, render says how much before it starts.
@@ -1025,8 +1051,16 @@ def _render_frames(args: argparse.Namespace, started: float) -> int:
 
             def done(frame: int, result: RenderResult) -> None:
                 path = frame_path(args.output, frame)
+                write_started = time.perf_counter()
                 _write(path, lambda: result.save(path, previews=args.aov_preview))
-                records.append({"frame": frame, "output": str(path), **result.stats})
+                write_s = time.perf_counter() - write_started
+                # The still's record, but that total_s is the frame's own: its scene made,
+                # rendered and written (the command's is the top level's).
+                render_s = result.stats["total_s"]
+                records.append({"frame": frame, "output": str(path), **result.stats,
+                                "render_s": render_s, "write_s": write_s,
+                                "total_s": result.stats["load_s"] + render_s + write_s,
+                                **_image_figures(result, path)})
                 if progress is not None:
                     progress(len(records) * samples, len(todo) * samples)
 
@@ -1043,6 +1077,13 @@ def _render_frames(args: argparse.Namespace, started: float) -> int:
         stats["dask"] = dask_stats
     if args.stats_json is not None:
         _write_stats(args.stats_json, stats)
+    if not args.quiet:
+        for record in stats["frames"]:
+            _warn_nonfinite(record, Path(record["output"]), f"frame {record['frame']}: ")
+    if args.verbose and records:
+        _say("stats:")
+        for record in stats["frames"]:
+            print(_frame_line(record), file=sys.stderr)
     if not args.quiet:
         if dask_stats is not None:
             _say_dask(dask_stats, "frames")

@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 
 import numpy as np
@@ -13,6 +14,7 @@ from clray import cli
 from clray.errors import ClrayError, SceneError, SettingsError
 from clray.image_io import Encoding, read_pfm
 from clray.passes import write_with_passes
+from clray.render import RenderResult
 from clray.scene.animation import Animation, Track, parse_path
 from clray.sequence import (
     check_pattern,
@@ -285,6 +287,11 @@ def test_render_frames_then_resume(cl_device, tmp_path, capsys):
     assert frame_path(pattern, 0).stat().st_mtime_ns == stamp  # not written again
     record = json.loads(stats.read_text())
     assert [f["frame"] for f in record["frames"]] == [2] and record["skipped"] == 2
+    # The still's figures, each frame's own (PFM: no clipped_pixels).
+    frame = record["frames"][0]
+    assert frame["nonfinite_pixels"] == 0 and "clipped_pixels" not in frame
+    assert frame["total_s"] == pytest.approx(frame["load_s"] + frame["render_s"]
+                                             + frame["write_s"])
     assert frame_path(pattern, 2).exists()
     # Frames differ (the camera moves) and each is the still render of its frame's scene.
     assert (first[0] != first[1]).any()
@@ -392,6 +399,33 @@ def test_large_frames_memory_noted_before_rendering(tmp_path, capsys, monkeypatc
     assert capsys.readouterr().err.splitlines() == [
         "clray: note: a 16384 x 16384 image takes about 7.5 GiB of host memory (the float "
         "image and its PNG encoding)", "clray: error: stopped"]
+
+
+def test_frames_have_the_stills_figures_and_warnings(tmp_path, capsys, monkeypatch):
+    # Frames' records lacked load_s, nonfinite_pixels and clipped_pixels; a frame with NaN
+    # pixels said nothing, and -v showed no figures.
+    def nan_render(scene, settings):
+        image = np.array([[[0.5, np.nan, 0.5], [2.0, 0.5, 0.5]]], np.float32)
+        return RenderResult(image, {"total_s": 0.5, "width": 2, "height": 1, "spp": 1,
+                                    "kernel_s": 0.25, "rays": {"total": 4},
+                                    "mrays_per_s": None})
+
+    monkeypatch.setattr("clray.sequence.render", nan_render)
+    pattern = tmp_path / "f_%d.png"
+    stats = tmp_path / "stats.json"
+    assert cli.main(["render", str(ORBIT), "--frames", "0:2", "-o", str(pattern), "-v",
+                     "--stats-json", str(stats)]) == 0
+    err = capsys.readouterr().err.splitlines()
+    for frame in (0, 1):
+        assert f"clray: warning: frame {frame}: 1 pixel is NaN or infinite (written black)" in err
+        assert any(re.fullmatch(rf"  frame {frame}: {re.escape(str(tmp_path))}/f_{frame}\.png "
+                                r"\(2x1, 1 spp\), load [\d.]+ s, render 0\.500 s, kernel 0\.250 "
+                                r"s, write [\d.]+ s, 4 rays, 1 non-finite, 1 clipped", line)
+                   for line in err)
+    records = json.loads(stats.read_text())["frames"]
+    for record in records:
+        assert record["load_s"] >= 0 and record["render_s"] == 0.5 and record["write_s"] >= 0
+        assert (record["nonfinite_pixels"], record["clipped_pixels"]) == (1, 1)
 
 
 def test_one_frame_is_said_in_the_singular(cl_device, tmp_path, capsys):

@@ -74,7 +74,7 @@ def _special_file(path: str | Path) -> bool:
 def _write_descriptor(fd: int, payload: bytes) -> None:
     """`payload` written to `fd` after what Python's own streams on it hold."""
     for stream in (sys.stdout, sys.stderr):
-        # None where the stream was closed at start; a stream without a descriptor is not fd.
+        # None where the stream was closed at start; a stream replaced has no descriptor.
         with contextlib.suppress(AttributeError, OSError, ValueError):
             if stream.fileno() == fd:
                 stream.flush()
@@ -131,8 +131,8 @@ _NAME_KEPT = 100
 
 def temporary_name(path: Path, kind: str) -> Path:
     """A name in `path`'s folder, hidden, of this process and unlikely to be anyone else's, for
-    a file that becomes `path` (kind "tmp") or shows that `path` could (kind "probe"): as long
-    as a name may be wherever `path`'s own is."""
+    a file that becomes `path` (kind "tmp") or shows that `path` could (kind "probe"): never
+    longer than a name may be, however long `path`'s own is."""
     kept = os.fsdecode(os.fsencode(path.name)[:_NAME_KEPT])  # a character cut in two is bytes
     return path.with_name(f".{kept}.{os.getpid()}.{secrets.token_hex(4)}.{kind}")
 

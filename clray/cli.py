@@ -13,7 +13,6 @@ import errno
 import functools
 import json
 import os
-import secrets
 import select
 import stat
 import struct
@@ -73,10 +72,11 @@ from clray.model_scene import (
 from clray.output import (
     cannot_write,
     error_words,
-    is_special_file,
     output_target,
     refuse_a_folder,
+    temporary_name,
     write_bytes_atomically,
+    written_directly,
 )
 from clray.passes import PASS_NAMES, pass_paths, pass_problem
 from clray.render import RenderResult, RenderSettings, render
@@ -173,6 +173,14 @@ def _image_path(text: str) -> Path:
     return _file_path(text)
 
 
+def _stats_path(text: str) -> Path:
+    if text == "-":
+        return STDOUT
+    path = _file_path(text)
+    # `./-` is a file named -, which as a Path equals STDOUT: its absolute name does not.
+    return path.absolute() if path == STDOUT else path
+
+
 def _frames(text: str) -> range:
     from clray.sequence import parse_frames
 
@@ -236,7 +244,7 @@ def _render_command(commands: Any) -> None:
                         "packets 1 spp is always single "
                         "(docs/acceleration.md)")
     _image_flags(r)
-    r.add_argument("--stats-json", type=_file_path, metavar="PATH",
+    r.add_argument("--stats-json", type=_stats_path, metavar="PATH",
                    help="write timings, sizes and ray counts as JSON ('-': standard output)")
     talk = r.add_mutually_exclusive_group()
     talk.add_argument("-q", "--quiet", action="store_true",
@@ -437,6 +445,7 @@ def _load(args: argparse.Namespace) -> Scene:
 
 
 def _scene(args: argparse.Namespace) -> int:
+    _check_stdout()
     if not is_mesh_file(args.model):
         raise SceneError(args.model, None, f"expected a {MESH_FILE}")
     name = args.model.as_posix()
@@ -475,17 +484,28 @@ def _parse(argv: list[str] | None) -> argparse.Namespace:
             parser.error("--dask-workers applies to a local cluster (--dask without ADDRESS)")
     if args.command == "render":
         if args.output is None:
-            args.output = Path(args.scene.stem + ("_%04d" if args.frames else "") + ".png")
-        if args.output != STDOUT:
+            # The scene's stem is a name, not a pattern: a % in it (50%done.toml) is no frame
+            # number, and --frames' pattern holds it as %%.
+            stem = args.scene.stem
+            args.output = Path(f"{stem.replace('%', '%%')}_%04d.png" if args.frames is not None
+                               else f"{stem}.png")
+        elif args.output != STDOUT:
             try:
                 # Before any work, as every usage error; frame_path cannot fail after this.
                 frame_path(args.output, 0)
             except SettingsError as err:
                 parser.error(str(err))
+            if (args.frames is None
+                    and frame_path(args.output, 0) != frame_path(args.output, 1)):
+                parser.error(f"-o {args.output} holds a frame number: give --frames A:B to "
+                             "render frames, or a name without % for a still")
         if args.frames is not None and STDOUT in (args.output, args.stats_json):
             parser.error("--frames writes files: give -o and --stats-json file names")
         if args.resume and args.frames is None:
             parser.error("--resume applies to --frames")
+        if args.frames is not None and is_mesh_file(args.scene):
+            parser.error(f"--frames renders a scene file's [animation] table; {args.scene} is a "
+                         f"{MESH_FILE}, which has none")
         _check_still_output(parser, args)
         if args.stats_json == STDOUT and args.output == STDOUT:
             parser.error("-o - and --stats-json - would both write to standard output")
@@ -503,8 +523,6 @@ def _parse(argv: list[str] | None) -> argparse.Namespace:
 
 def _check_still_output(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
     """Flags that a render would otherwise accept and ignore are refused with the reason."""
-    from clray.sequence import frame_path
-
     if not is_mesh_file(args.scene):
         given = [flag for flag, on in (("--view", args.view is not None),
                                        ("--ground", args.ground),
@@ -513,10 +531,6 @@ def _check_still_output(parser: argparse.ArgumentParser, args: argparse.Namespac
             verb = "applies" if len(given) == 1 else "apply"
             parser.error(f"{' and '.join(given)} {verb} to a {MESH_FILE}; "
                          f"{args.scene} is a scene file, whose [camera] and objects are its own")
-    if (args.frames is None and args.output != STDOUT
-            and frame_path(args.output, 0) != frame_path(args.output, 1)):
-        parser.error(f"-o {args.output} holds a frame number: give --frames A:B to render "
-                     "frames, or a name without % for a still")
 
 
 def _check_pass_flags(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
@@ -544,15 +558,50 @@ def _same_file(a: Path, b: Path) -> bool:
     return os.path.abspath(a) == os.path.abspath(b)
 
 
-def _to_stdout(payload: bytes) -> None:
-    sys.stdout.flush()
-    sys.stdout.buffer.write(payload)
-    sys.stdout.buffer.flush()
+def _stdout_error(err: OSError) -> ClrayError:
+    return ClrayError(f"cannot write standard output: {error_words(err)}")
+
+
+def _check_stdout() -> None:
+    """ClrayError where standard output was closed at start (`>&-`), where Python's is None: a
+    command that writes there says so before its work."""
+    if sys.stdout is None:
+        raise _stdout_error(OSError(errno.EBADF, os.strerror(errno.EBADF)))
+
+
+@contextlib.contextmanager
+def _writing_stdout() -> Iterator[None]:
+    """Around a write to standard output: its failure (a full disk, a closed descriptor) as one
+    line, ClrayError; BrokenPipeError as it is, for the caller to end quietly (its reader has
+    gone). Either way nothing is left in its buffers to fail again at the exit."""
+    _check_stdout()
     try:
-        fd = sys.stdout.fileno()
-    except OSError:  # io.UnsupportedOperation: stdout replaced by an object without a file
-        return
-    _wait_until_read(fd)
+        yield
+    except OSError as err:
+        _quiet_stdout()
+        if isinstance(err, BrokenPipeError):
+            raise
+        raise _stdout_error(err) from err
+
+
+def _print_out(text: str) -> None:
+    """`text` on standard output, flushed, so that a failure is the command's, told as one
+    line (_writing_stdout), not a traceback at the exit."""
+    with _writing_stdout():
+        sys.stdout.write(text)
+        sys.stdout.flush()
+
+
+def _to_stdout(payload: bytes) -> None:
+    with _writing_stdout():
+        sys.stdout.flush()
+        sys.stdout.buffer.write(payload)
+        sys.stdout.buffer.flush()
+        try:
+            fd = sys.stdout.fileno()
+        except OSError:  # io.UnsupportedOperation: stdout replaced by an object without a file
+            return
+        _wait_until_read(fd)
 
 
 def _wait_until_read(fd: int) -> None:
@@ -584,15 +633,19 @@ def _check_writable(path: Path) -> None:
     """Before rendering, so that a typo in -o or a read-only folder does not cost a whole
     render: the folder (made where missing) must take a new file, which a probe file (removed
     at once) shows more reliably than permission bits (root, read-only mounts, ACLs)."""
-    path = output_target(path)
-    if is_special_file(path):
+    if written_directly(path):
+        try:
+            os.stat(path)  # a closed descriptor: /dev/stdout names no file
+        except OSError as err:
+            raise cannot_write(path, err) from err
         if not os.access(path, os.W_OK):
             raise cannot_write(path, "permission denied")
         return
+    path = output_target(path)
     folder = path.parent
     _make_folder(path, folder)
     refuse_a_folder(path)
-    probe = folder / f".{path.name[:100]}.{os.getpid()}.{secrets.token_hex(4)}.probe"
+    probe = temporary_name(path, "probe")
     try:
         # The name itself may be refused (too long, a NUL byte) where the probe's is not.
         os.stat(path)
@@ -651,6 +704,8 @@ def _write(path: Path, write: Callable[[], None]) -> None:
             _make_folder(path, output_target(path).parent)
         write()
     except OSError as err:
+        if path == STDOUT:  # a reader that went away: the image or stats did not arrive
+            raise _stdout_error(err) from err
         # The file the error names: an image's write writes its pass files too, and the one
         # that failed is the one to name (write_bytes_atomically names each file it writes).
         raise cannot_write(err.filename or path, err) from err
@@ -803,14 +858,18 @@ def _warnings_as_lines(*, quiet: bool, verbose: bool) -> Iterator[None]:
 def _render(args: argparse.Namespace) -> int:
     started = time.perf_counter()
     output: Path = args.output
+    if STDOUT in (output, args.stats_json):
+        _check_stdout()
     if output != STDOUT:
-        _check_writable(output)
         check_writer(output)
+    # With --frames, -o is a pattern, whose folder may hold the frame number too
+    # (shot_%02d/img.png): _render_frames checks each frame's own files instead.
+    if output != STDOUT and args.frames is None:
+        _check_writable(output)
+        for path in pass_paths(output, args.aov or (), args.aov_preview):
+            _check_writable(path)
     if args.stats_json not in (None, STDOUT):
         _check_writable(args.stats_json)
-    if args.aov:
-        for path in pass_paths(output, args.aov, args.aov_preview):
-            _check_writable(path)
 
     if args.denoise:
         check_denoiser()  # before any work: says how to install the binding where it is missing
@@ -855,18 +914,13 @@ def _render(args: argparse.Namespace) -> int:
         "render_s": result.stats["total_s"],
         "write_s": time.perf_counter() - write_started,
         "total_s": time.perf_counter() - started,
-        "nonfinite_pixels": nonfinite_count(result.image),
+        **_image_figures(result, output),
     }
-    if output == STDOUT or output.suffix.lower() == ".png":
-        stats["clipped_pixels"] = clipped_pixels(result.image, result.encoding.exposure)
     if args.stats_json is not None:
         _write_stats(args.stats_json, stats)
 
-    if not args.quiet and stats["nonfinite_pixels"]:
-        kept = "kept" if output.suffix.lower() in FLOAT_SUFFIXES else "written black"
-        n = stats["nonfinite_pixels"]
-        _say(f"warning: {plural(n, 'pixel')} {'is' if n == 1 else 'are'} NaN or infinite "
-             f"({kept})")
+    if not args.quiet:
+        _warn_nonfinite(stats, output)
     if args.verbose:
         _say("stats:")
         for line in _stats_table(stats):
@@ -884,6 +938,37 @@ def _render(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def _image_figures(result: RenderResult, output: Path) -> dict:
+    """The stats of the image written to `output`: its non-finite pixels, and where it is a
+    PNG, the pixels the PNG clips."""
+    figures = {"nonfinite_pixels": nonfinite_count(result.image)}
+    if output == STDOUT or output.suffix.lower() == ".png":
+        figures["clipped_pixels"] = clipped_pixels(result.image, result.encoding.exposure)
+    return figures
+
+
+def _warn_nonfinite(stats: dict, output: Path, where: str = "") -> None:
+    """The warning for an image with NaN or infinite pixels (`where`: which frame's)."""
+    n = stats["nonfinite_pixels"]
+    if n:
+        kept = "kept" if output.suffix.lower() in FLOAT_SUFFIXES else "written black"
+        _say(f"warning: {where}{plural(n, 'pixel')} {'is' if n == 1 else 'are'} NaN or "
+             f"infinite ({kept})")
+
+
+def _frame_line(record: dict) -> str:
+    """-v's line of a frame's stats: the still's table in a line."""
+    clipped = (f", {record['clipped_pixels']:,} clipped" if "clipped_pixels" in record
+               else "")
+    mrays = "" if record["mrays_per_s"] is None else f", {record['mrays_per_s']:.3g} Mrays/s"
+    return one_line(
+        f"  frame {record['frame']}: {record['output']} ({record['width']}x{record['height']}, "
+        f"{record['spp']} spp), load {record['load_s']:.3f} s, render {record['render_s']:.3f} "
+        f"s, kernel {record['kernel_s']:.3f} s, write {record['write_s']:.3f} s, "
+        f"{record['rays']['total']:,} rays{mrays}, {record['nonfinite_pixels']:,} non-finite"
+        f"{clipped}")
+
+
 # Above this much host memory for the image, render says how much before it starts.
 LARGE_IMAGE_BYTES = 2 << 30
 
@@ -894,7 +979,7 @@ def _note_image_memory(args: argparse.Namespace, scene: Scene) -> None:
     width = args.width or scene.render.width
     height = args.height or scene.render.height
     suffix = ".png" if args.output == STDOUT else check_suffix(args.output)
-    need = image_host_bytes(width, height, suffix)
+    need = image_host_bytes(width, height, suffix, args.png_bits or scene.render.png_bits)
     if need > LARGE_IMAGE_BYTES:
         _say(f"note: a {width} x {height} image takes about {need / (1 << 30):.1f} GiB of host "
              f"memory (the float image and its {suffix[1:].upper()} encoding)")
@@ -941,6 +1026,7 @@ def _render_frames(args: argparse.Namespace, started: float) -> int:
         sequence = load_sequence(args.scene)
         frames = frames_in(args.frames, sequence.animation)
         check_pattern(args.output, len(frames))
+        _check_stats_not_a_frame(args, frames, aovs)
         for path in frame_files(args.output, frames[0], aovs, args.aov_preview):
             _check_writable(path)
         todo = frames_to_render(frames, args.output, args.resume, aovs, args.aov_preview)
@@ -953,18 +1039,28 @@ def _render_frames(args: argparse.Namespace, started: float) -> int:
         if not args.quiet:
             for warning in first.warnings:
                 _say(f"warning: {warning}")
+            if todo:  # the frames are one size, and one at a time in this process
+                _note_image_memory(args, first)
         records: list[dict] = []
         with _progress(quiet=args.quiet, verbose=args.verbose) as progress:
             settings = _settings(args, None)
             samples = ((args.width or first.render.width) * (args.height or first.render.height)
                        * (args.spp or first.render.spp))
-            if progress is not None:
+            if progress is not None and todo:  # none to render (--resume): no progress to show
                 progress(0, len(todo) * samples)
 
             def done(frame: int, result: RenderResult) -> None:
                 path = frame_path(args.output, frame)
+                write_started = time.perf_counter()
                 _write(path, lambda: result.save(path, previews=args.aov_preview))
-                records.append({"frame": frame, "output": str(path), **result.stats})
+                write_s = time.perf_counter() - write_started
+                # The still's record, but that total_s is the frame's own: its scene made,
+                # rendered and written (the command's is the top level's).
+                render_s = result.stats["total_s"]
+                records.append({"frame": frame, "output": str(path), **result.stats,
+                                "render_s": render_s, "write_s": write_s,
+                                "total_s": result.stats["load_s"] + render_s + write_s,
+                                **_image_figures(result, path)})
                 if progress is not None:
                     progress(len(records) * samples, len(todo) * samples)
 
@@ -982,6 +1078,13 @@ def _render_frames(args: argparse.Namespace, started: float) -> int:
     if args.stats_json is not None:
         _write_stats(args.stats_json, stats)
     if not args.quiet:
+        for record in stats["frames"]:
+            _warn_nonfinite(record, Path(record["output"]), f"frame {record['frame']}: ")
+    if args.verbose and records:
+        _say("stats:")
+        for record in stats["frames"]:
+            print(_frame_line(record), file=sys.stderr)
+    if not args.quiet:
         if dask_stats is not None:
             _say_dask(dask_stats, "frames")
         skipped = f", {stats['skipped']} complete already" if stats["skipped"] else ""
@@ -990,6 +1093,22 @@ def _render_frames(args: argparse.Namespace, started: float) -> int:
         _say(f"wrote {plural(len(records), 'frame')} of {span} to "
              f"{args.output}{skipped} (wall {stats['total_s']:.3g} s)")
     return EXIT_OK
+
+
+def _check_stats_not_a_frame(args: argparse.Namespace, frames: range,
+                             aovs: tuple[str, ...]) -> None:
+    """SettingsError (a usage error) where --stats-json names one of the frames' files, which
+    the stats would replace: `-o f_%d.png --stats-json f_0.png`. Known only once the animation
+    says which frames `A:` takes; _parse compares the still's files."""
+    from clray.sequence import frame_files
+
+    if args.stats_json is None:
+        return
+    for frame in frames:
+        for path in frame_files(args.output, frame, aovs, args.aov_preview):
+            if _same_file(args.stats_json, path):
+                raise SettingsError(f"--stats-json and frame {frame}'s file are the same file: "
+                                    f"{path}")
 
 
 def _check_out_folder(out: Path, names: Iterable[str]) -> None:
@@ -1077,13 +1196,14 @@ def _tune(args: argparse.Namespace) -> int:
 def _profile(args: argparse.Namespace) -> int:
     from clray.profile import profile_scene
 
+    _check_stdout()
     with _warnings_as_lines(quiet=False, verbose=False):
         settings = RenderSettings(width=args.width, height=args.height, spp=args.spp,
                                   device=args.device, stored_tuning=args.stored_tuning,
                                   traversal=args.traversal)
         prof = profile_scene(args.scene, settings, args.repeat)
     if args.json:
-        print(json.dumps(prof, indent=2))
+        _print_out(json.dumps(prof, indent=2) + "\n")
         return EXIT_OK
     rays, tests = prof["rays"], prof["tests_per_ray"]
     lines = [f"{prof['scene']}: {prof['width']}x{prof['height']}, {prof['spp']} spp on "
@@ -1107,8 +1227,7 @@ def _profile(args: argparse.Namespace) -> int:
               f"scene on device: {_size(prof['device_bytes_total'])}: " + ", ".join(
                   f"{k} {_size(v)}" for k, v in sorted(prof["device_bytes"].items(),
                                                        key=lambda kv: -kv[1]) if v)]
-    for line in lines:
-        print(line)
+    _print_out("".join(f"{line}\n" for line in lines))
     return EXIT_OK
 
 
@@ -1137,8 +1256,8 @@ def _devices(args: argparse.Namespace) -> int:
              f"renders by default ({why})" if d.spec == default_spec else "")
             for d in list_devices()]
     widths = [max(len(row[i]) for row in rows) for i in range(len(rows[0]))]
-    for row in rows:
-        print("  ".join(cell.ljust(w) for cell, w in zip(row, widths, strict=True)).rstrip())
+    _print_out("".join("  ".join(cell.ljust(w) for cell, w in zip(row, widths, strict=True))
+                       .rstrip() + "\n" for row in rows))
     if problem is not None:
         _say(f"error: {problem}")
         return problem.exit_code
@@ -1196,8 +1315,9 @@ def run_command() -> NoReturn:
     (a closed pipe) the ordinary exit reports it as usual."""
     code = main()
     try:
-        sys.stdout.flush()
-        sys.stderr.flush()
+        for stream in (sys.stdout, sys.stderr):
+            if stream is not None:  # None: closed at start (`>&-`)
+                stream.flush()
     except BrokenPipeError:
         _quiet_stdout()
         code = code or EXIT_RUNTIME

@@ -173,9 +173,11 @@ def _render_tile(scene: Scene, scene_key: str, settings: RenderSettings, start: 
 def _render_frame(sequence: Sequence, frame: int, settings: RenderSettings) -> dict:
     started = time.perf_counter()
     with _device_lock, _kept_warnings() as kept:
-        result = render(sequence.scene(frame), settings)
+        scene = sequence.scene(frame)
+        load_s = time.perf_counter() - started
+        result = render(scene, settings)
     return {"frame": frame, "result": result, "worker": f"{socket.gethostname()}:{os.getpid()}",
-            "warnings": kept, "task_s": time.perf_counter() - started}
+            "warnings": kept, "task_s": time.perf_counter() - started, "load_s": load_s}
 
 
 # -- on the client -----------------------------------------------------------------------
@@ -335,6 +337,7 @@ def render_sequence(client: Client, sequence: Sequence, frames: Iterable[int],
         by_worker[out["worker"]] = by_worker.get(out["worker"], 0) + 1
         result_bytes += out["result"].image.nbytes
         task_s += out["task_s"]
+        out["result"].stats["load_s"] = out["load_s"]  # as render_frames' stats have it
         done(out["frame"], out["result"])
     client.cancel([future])
     return {"scheduler": client.scheduler.address, "workers": workers, "frames": len(tasks),

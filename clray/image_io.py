@@ -124,8 +124,11 @@ def _encode_float64(values: np.ndarray, encoding: Encoding) -> np.ndarray:
 _BUCKET_SHIFT = 15
 _ONE_BITS = 0x3F800000  # 1.0f
 _INF_BITS = 0x7F800000
-# Samples the table encodes at a time (_srgb8_by_table).
+# Samples the table encodes at a time (_srgb8_by_table), and bytes of rows png_bytes swaps.
 _ENCODE_SLICE = 1 << 20
+# Samples the formula encodes at a time (to_png_samples): its float64 temporaries take about
+# 40 bytes a sample.
+_FORMULA_SLICE = 1 << 16
 
 
 @functools.cache
@@ -182,7 +185,14 @@ def to_png_samples(image: np.ndarray, encoding: Encoding = Encoding()) -> np.nda
     image = as_pixels(image)
     if image.dtype == np.float32 and encoding == Encoding():
         return _srgb8_by_table(image)
-    return _encode_float64(image, encoding)
+    # Rows at a time, as the table does: the formula's float64 copy and the sRGB curve's
+    # temporaries of the whole image would take several times the float image (99 bytes a
+    # pixel at the peak, against the table's 18).
+    samples = np.empty(image.shape, dtype=np.uint8 if encoding.png_bits == 8 else np.uint16)
+    rows = max(1, _FORMULA_SLICE // (image.shape[1] * 3))
+    for top in range(0, image.shape[0], rows):
+        samples[top:top + rows] = _encode_float64(image[top:top + rows], encoding)
+    return samples
 
 
 def clipped_pixels(image: np.ndarray, exposure: float = 0.0) -> int:
@@ -194,8 +204,13 @@ def clipped_pixels(image: np.ndarray, exposure: float = 0.0) -> int:
     return int(np.count_nonzero(per_pixel((scaled > 1.0) & (scaled < np.inf))))
 
 
-def _png_chunk(kind: bytes, data: bytes) -> bytes:
-    return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data))
+def _png_chunk(kind: bytes, *pieces: bytes) -> list[bytes]:
+    """A chunk of data `pieces`, as pieces: png_bytes joins them all once, where concatenating
+    them would copy the image's compressed data again, more than once."""
+    crc = zlib.crc32(kind)
+    for piece in pieces:
+        crc = zlib.crc32(piece, crc)
+    return [struct.pack(">I", sum(map(len, pieces))) + kind, *pieces, struct.pack(">I", crc)]
 
 
 def png_bytes(pixels: np.ndarray, linear: bool = False) -> bytes:
@@ -214,23 +229,36 @@ def png_bytes(pixels: np.ndarray, linear: bool = False) -> bytes:
         raise SettingsError(f"pixels: expected uint8 or uint16 samples, got {pixels.dtype}")
     bits = 8 * pixels.dtype.itemsize
     height, width, _ = pixels.shape
-    # PNG samples are big-endian.
-    rows = np.ascontiguousarray(pixels, dtype=pixels.dtype.newbyteorder(">")).view(np.uint8)
-    rows = rows.reshape(height, -1)
-    filtered = np.empty((height, rows.shape[1] + 1), dtype=np.uint8)
-    filtered[:, 0] = 2  # filter type Up
-    filtered[0, 1:] = rows[0]
-    np.subtract(rows[1:], rows[:-1], out=filtered[1:, 1:])  # modulo 256, as PNG wants
+    row_bytes = width * 3 * pixels.dtype.itemsize
+    # Rows a slice at a time, each slice's big-endian samples (PNG's order) filtered and
+    # compressed before the next: beside the samples and the file, memory holds only the
+    # compressed data, never the whole image again in PNG's order or filtered.
+    packer = zlib.compressobj(1)
+    compressed = []
+    step = max(1, _ENCODE_SLICE // row_bytes)
+    for top in range(0, height, step):
+        above = max(top - 1, 0)  # the row above the slice, which its first row's filter takes
+        rows = np.ascontiguousarray(pixels[above:top + step],
+                                    dtype=pixels.dtype.newbyteorder(">"))
+        rows = rows.view(np.uint8).reshape(-1, row_bytes)
+        filtered = np.empty((min(step, height - top), row_bytes + 1), dtype=np.uint8)
+        filtered[:, 0] = 2  # filter type Up
+        if top == 0:
+            filtered[0, 1:] = rows[0]
+        np.subtract(rows[1:], rows[:-1], out=filtered[len(filtered) + 1 - len(rows):, 1:])
+        compressed.append(packer.compress(filtered.data))  # modulo 256 above, as PNG wants
+    compressed.append(packer.flush())
+    del rows, filtered  # the last slice's, not to be held while the file is joined
     header = struct.pack(">IIBBBBB", width, height, bits, 2, 0, 0, 0)  # RGB, no interlace
     # gAMA holds 100000 / gamma; sRGB's one byte is the rendering intent (0, perceptual).
     tag = (_png_chunk(b"gAMA", struct.pack(">I", 100000)) if linear
            else _png_chunk(b"sRGB", b"\x00"))
     return b"".join((
         b"\x89PNG\r\n\x1a\n",
-        _png_chunk(b"IHDR", header),
-        tag,
-        _png_chunk(b"IDAT", zlib.compress(filtered.data, 1)),
-        _png_chunk(b"IEND", b""),
+        *_png_chunk(b"IHDR", header),
+        *tag,
+        *_png_chunk(b"IDAT", *compressed),
+        *_png_chunk(b"IEND"),
     ))
 
 
@@ -290,16 +318,20 @@ def exr_bytes(image: np.ndarray, channels: dict[str, np.ndarray] | None = None) 
 
 
 # Host bytes a pixel: the (H, W, 3) float32 image a render returns, and at most what writing it
-# takes beside it, tracemalloc's peak of image_bytes (tests/test_image_io.py checks them; EXR's
-# is the Python side's, OpenEXR's own buffers come on top).
+# takes beside it, tracemalloc's peak of image_bytes (tests/test_image_io.py checks them, the
+# PNG's for each encoding; EXR's is the Python side's, OpenEXR's own buffers come on top). A PNG
+# holds its samples, their compressed data and the file, each twice as large at 16 bits.
 FLOAT_IMAGE_BYTES = 12
 WRITE_BYTES = {".png": 18, ".pfm": 26, ".exr": 14}
+PNG16_WRITE_BYTES = 20
 
 
-def image_host_bytes(width: int, height: int, suffix: str) -> int:
+def image_host_bytes(width: int, height: int, suffix: str, png_bits: int = 8) -> int:
     """About the most host memory a render's image of width x height takes, from the float
-    image to its file written as `suffix` (.png, .pfm or .exr)."""
-    return width * height * (FLOAT_IMAGE_BYTES + WRITE_BYTES[suffix])
+    image to its file written as `suffix` (.png, .pfm or .exr; a PNG of `png_bits` bits a
+    sample)."""
+    write = PNG16_WRITE_BYTES if suffix == ".png" and png_bits == 16 else WRITE_BYTES[suffix]
+    return width * height * (FLOAT_IMAGE_BYTES + write)
 
 
 def check_writer(path: str | Path) -> str:

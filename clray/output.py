@@ -5,10 +5,12 @@ error for an output that cannot be written."""
 
 from __future__ import annotations
 
+import contextlib
 import io
 import os
 import secrets
 import stat
+import sys
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -20,17 +22,48 @@ if TYPE_CHECKING:
 
 def output_target(path: str | Path) -> Path:
     """Where writing `path` lands: a symlink's final target (its folder must take the file),
-    else `path` itself. Writing there keeps the link a link and never writes elsewhere."""
+    else `path` itself, as it is for what is written directly (written_directly). Writing there
+    keeps the link a link and never writes elsewhere."""
     path = Path(path)
     try:
         linked = path.is_symlink()
     except (OSError, ValueError):  # a name the system refuses: the writer reports it
         return path
-    return Path(os.path.realpath(path)) if linked else path
+    return Path(os.path.realpath(path)) if linked and not written_directly(path) else path
 
 
-def is_special_file(path: Path) -> bool:
-    """An existing file that is not a regular file: a device (/dev/stdout), a pipe."""
+def written_directly(path: str | Path) -> bool:
+    """Whether writing `path` writes into what is there rather than replacing it: one of this
+    process's file descriptors (/dev/stdout, whatever it is: `>> log.txt` is appended to, not
+    replaced), or, through any symlinks, an existing file that is not a regular file (a device,
+    a pipe). Decided before the links are resolved: the resolved name of a descriptor's link is
+    no file (`/proc/PID/fd/pipe:[...]`), or one whose rename would drop what it holds."""
+    return _own_descriptor(path) is not None or _special_file(path)
+
+
+# Symlinks followed in search of a descriptor, as the system's own limit (MAXSYMLINKS) on Linux.
+_MAX_LINKS = 40
+
+
+def _own_descriptor(path: str | Path) -> int | None:
+    """The file descriptor of this process that `path` names through its symlinks (/dev/stdout
+    -> /proc/self/fd/1, /dev/fd/3), or None. Linux's /proc only: elsewhere /dev/fd/N are devices,
+    which _special_file finds."""
+    fd_folder = f"/proc/{os.getpid()}/fd"
+    try:
+        current = os.path.abspath(path)
+        for _ in range(_MAX_LINKS):
+            folder, name = os.path.split(current)
+            if name.isdigit() and os.path.realpath(folder) == fd_folder:
+                return int(name)
+            current = os.path.join(folder, os.readlink(current))  # an absolute target replaces
+    except (OSError, ValueError):  # not a link (EINVAL), missing, or a name the system refuses
+        return None
+    return None
+
+
+def _special_file(path: str | Path) -> bool:
+    """An existing file, through any symlinks, that is not a regular file: a device, a pipe."""
     try:
         mode = os.stat(path).st_mode
     except (OSError, ValueError):  # ValueError: a NUL byte in the name; the writer reports it
@@ -38,22 +71,44 @@ def is_special_file(path: Path) -> bool:
     return not (stat.S_ISREG(mode) or stat.S_ISDIR(mode))
 
 
+def _write_descriptor(fd: int, payload: bytes) -> None:
+    """`payload` written to `fd` after what Python's own streams on it hold."""
+    for stream in (sys.stdout, sys.stderr):
+        # None where the stream was closed at start; a stream replaced has no descriptor.
+        with contextlib.suppress(AttributeError, OSError, ValueError):
+            if stream.fileno() == fd:
+                stream.flush()
+    view = memoryview(payload)
+    while view:
+        view = view[os.write(fd, view):]
+
+
 def write_bytes_atomically(path: str | Path, payload: bytes) -> None:
     """Write `payload` so that `path` is either untouched or complete, never partial.
 
     Through a symlink the target is replaced, not the link. A device or pipe cannot be
-    replaced by a rename (it would become a regular file): it is written directly."""
-    path = output_target(path)
-    if is_special_file(path):
+    replaced by a rename (it would become a regular file), nor should this process's standard
+    output be (`>> log.txt`): they are written directly (written_directly)."""
+    fd = _own_descriptor(path)
+    if fd is not None:
+        _write_descriptor(fd, payload)
+        return
+    if _special_file(path):
         with open(path, "wb") as stream:
             stream.write(payload)
         return
+    path = output_target(path)
     # Same directory, so os.replace is a rename on one file system; created with 0o666 rather
-    # than through mkstemp so the finished file gets the usual umask-derived permissions.
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.{secrets.token_hex(4)}.tmp")
+    # than through mkstemp so that a new file gets the usual umask-derived permissions.
+    tmp = temporary_name(path, "tmp")
+    replaced = _regular_file_mode(path)
     try:
         fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
         try:
+            if replaced is not None:
+                # The file replaced keeps its permissions (a 0o640 image stays private); the
+                # rename makes a new file, which would have the umask's.
+                os.fchmod(fd, replaced)
             with os.fdopen(fd, "wb") as stream:
                 stream.write(payload)
             os.replace(tmp, path)
@@ -67,6 +122,28 @@ def write_bytes_atomically(path: str | Path, payload: bytes) -> None:
         # as writing it directly would, for callers that show err.filename. OSError() picks
         # the errno's subclass again (FileNotFoundError, IsADirectoryError).
         raise OSError(err.errno, err.strerror, os.fspath(path)) from None
+
+
+# Bytes of the file's name that its temporary name keeps: with the rest (24 bytes at most) it
+# stays within the 255 bytes a name may have (NAME_MAX) however long the file's own is.
+_NAME_KEPT = 100
+
+
+def temporary_name(path: Path, kind: str) -> Path:
+    """A name in `path`'s folder, hidden, of this process and unlikely to be anyone else's, for
+    a file that becomes `path` (kind "tmp") or shows that `path` could (kind "probe"): never
+    longer than a name may be, however long `path`'s own is."""
+    kept = os.fsdecode(os.fsencode(path.name)[:_NAME_KEPT])  # a character cut in two is bytes
+    return path.with_name(f".{kept}.{os.getpid()}.{secrets.token_hex(4)}.{kind}")
+
+
+def _regular_file_mode(path: Path) -> int | None:
+    """The permission bits of the regular file at `path`, or None where there is none."""
+    try:
+        mode = os.stat(path).st_mode
+    except (OSError, ValueError):  # none there, or a name the system refuses: os.open says
+        return None
+    return stat.S_IMODE(mode) if stat.S_ISREG(mode) else None
 
 
 def error_words(err: OSError | ValueError) -> str:

@@ -118,7 +118,8 @@ def passes_of(raw: dict[str, np.ndarray], scene: M.Scene,
 def preview(name: str, values: np.ndarray) -> np.ndarray:
     """A false-colour (H, W, 3) float32 picture of pass `name` in [0, 1] for a PNG: depth as
     inverse depth (white nearest, darker farther), normals from [-1, 1] and positions from their
-    range to [0, 1] per axis, albedo as it is, indices as distinct hues; black on a miss."""
+    range over the hits to [0, 1] per axis, albedo as it is, indices as distinct hues; black on
+    a miss."""
     if name == "albedo":
         return np.clip(values, 0.0, 1.0).astype(np.float32)
     if name in INDEX_PASSES:
@@ -139,9 +140,16 @@ def preview(name: str, values: np.ndarray) -> np.ndarray:
         rgb = np.clip(0.5 * values + 0.5, 0.0, 1.0)
         rgb[~values.any(axis=2)] = 0.0
         return rgb.astype(np.float32)
-    lo, hi = values.min(axis=(0, 1)), values.max(axis=(0, 1))
-    span = np.where(hi > lo, hi - lo, 1.0)
-    return np.clip((values - lo) / span, 0.0, 1.0).astype(np.float32)
+    # Positions: a miss is (0, 0, 0), which would stretch the range and show as any colour of
+    # it; the range is the hits' alone, and a miss black. (A hit exactly at the world origin
+    # shows black too.)
+    hit = values.any(axis=2)
+    rgb = np.zeros(values.shape, dtype=np.float32)
+    if hit.any():
+        lo, hi = values[hit].min(axis=0), values[hit].max(axis=0)
+        span = np.where(hi > lo, hi - lo, 1.0)
+        rgb[hit] = np.clip((values[hit] - lo) / span, 0.0, 1.0)
+    return rgb
 
 
 # Each pass's channels in an OpenEXR file: layer "name", channels "name.X" ... (the indices

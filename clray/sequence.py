@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import os
 import re
+import time
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from pathlib import Path
@@ -136,6 +137,12 @@ def frame_complete(pattern: Path, frame: int, aovs: tuple[str, ...], previews: b
 
 def render_frames(sequence: Sequence, frames: Iterable[int], settings: RenderSettings,
                   done: Callable[[int, RenderResult], None]) -> None:
-    """Render frames one after another in this process, `done(frame, result)` after each."""
+    """Render frames one after another in this process, `done(frame, result)` after each; the
+    stats' load_s is the time the frame's scene took to make from the file's data."""
     for frame in frames:
-        done(frame, render(sequence.scene(frame), settings))
+        started = time.perf_counter()
+        scene = sequence.scene(frame)
+        load_s = time.perf_counter() - started
+        result = render(scene, settings)
+        result.stats["load_s"] = load_s
+        done(frame, result)

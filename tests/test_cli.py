@@ -544,6 +544,17 @@ def test_over_long_output_name_exits_1_before_rendering(capsys, scene, tmp_path,
     assert err.endswith(".png: File name too long\n")
 
 
+def test_a_long_output_name_with_pass_files_is_written(cl_device, scene, tmp_path,
+                                                       capsys) -> None:
+    # A valid 244-byte name (its pass files' 250) failed after the render: the temporary files'
+    # names were longer than the names, though the probe before the render had passed.
+    image = tmp_path / ("x" * 240 + ".png")
+    code, _, err = run(capsys, "render", scene, *TINY, "-o", image, "--aov", "depth")
+    assert code == 0, err
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(
+        [image.name, "x" * 240 + ".depth.pfm", "scene.toml"])
+
+
 def test_verbose_figures_escape_a_newline_in_the_output_name(capsys, cl_device, scene) -> None:
     # Found by tests/fuzz.py: "  output: x" and "y.png" came out as two lines.
     code, _, err = run(capsys, "render", scene, *TINY, "-v", "-o", "x\ny.png")
@@ -586,6 +597,33 @@ def test_stats_json_dash_writes_json_to_stdout(cl_device, scene, tmp_path) -> No
     assert files_in(tmp_path) == ["out.pfm", "scene.toml"]
 
 
+def test_stats_json_dev_stdout_goes_into_a_pipe_or_is_appended(cl_device, scene,
+                                                                tmp_path) -> None:
+    # A pipe: /dev/stdout's resolved name is no file. A file opened to append: renaming onto its
+    # resolved name would have dropped what it held.
+    done = _clray("render", scene, *TINY, "-o", tmp_path / "out.pfm", "--stats-json",
+                  "/dev/stdout", "-q")
+    assert done.returncode == 0, done.stderr
+    assert json.loads(done.stdout)["width"] == 32
+    log = tmp_path / "log.txt"
+    log.write_text("earlier\n")
+    with log.open("a") as stdout:
+        appended = subprocess.run([sys.executable, "-m", "clray", "render", scene, *TINY, "-o",
+                                   tmp_path / "out.pfm", "--stats-json", "/dev/stdout", "-q"],
+                                  stdout=stdout, stderr=subprocess.PIPE, timeout=300)
+    assert appended.returncode == 0, appended.stderr
+    earlier, stats = log.read_text().split("\n", 1)
+    assert earlier == "earlier" and json.loads(stats)["height"] == 24
+
+
+def test_stats_json_dot_slash_dash_is_a_file(cl_device, scene, tmp_path, capsys) -> None:
+    # Path("./-") == Path("-"): the stats went to standard output.
+    code, out, err = run(capsys, "render", scene, *TINY, "-o", "out.png", "--stats-json", "./-",
+                         "-q")
+    assert (code, out, err) == (0, "", "")
+    assert json.loads((tmp_path / "-").read_text())["width"] == 32
+
+
 def test_image_and_stats_both_to_stdout_is_a_usage_error(capsys, scene) -> None:
     code, out, err = run(capsys, "render", scene, "-o", "-", "--stats-json", "-")
     assert code == EXIT_USAGE and out == ""
@@ -598,6 +636,27 @@ def test_empty_scene_name_is_a_usage_error(capsys) -> None:
     assert code == EXIT_USAGE and out == ""
     assert_one_error_line(err)
     assert "expected a scene file name, got ''" in err
+
+
+@pytest.mark.parametrize("redirect", ["> /dev/full", ">&-"], ids=["full", "closed"])
+@pytest.mark.parametrize("argv", [
+    ["scene", ROOT / "scenes" / "meshes" / "bumpy_ico2.obj"],
+    ["devices"],
+    ["profile", "{scene}", "-W", "8", "-H", "6", "--repeat", "1", "--json"],
+    ["profile", "{scene}", "-W", "8", "-H", "6", "--repeat", "1"],
+    ["render", "{scene}", *TINY, "-o", "-", "-q"],
+    ["render", "{scene}", *TINY, "-o", "{tmp}/out.png", "--stats-json", "-", "-q"],
+], ids=["scene", "devices", "profile-json", "profile", "render-o", "stats-json"])
+def test_a_standard_output_that_fails_is_one_line(cl_device, scene, tmp_path, argv,
+                                                   redirect) -> None:
+    # A full disk's ENOSPC was a traceback, and a closed stdout (Python's is then None) an
+    # AttributeError's.
+    words = [str(a).format(scene=scene, tmp=tmp_path) for a in argv]
+    shell = f"{sys.executable} -m clray {' '.join(words)} {redirect}"
+    done = subprocess.run(["bash", "-c", shell], capture_output=True, text=True, timeout=300)
+    why = "No space left on device" if "full" in redirect else "Bad file descriptor"
+    assert (done.returncode, done.stderr) == (1, f"clray: error: cannot write standard output: "
+                                                 f"{why}\n")
 
 
 @pytest.mark.parametrize("unbuffered", ["1", ""])
@@ -724,6 +783,17 @@ def test_a_percent_sign_in_a_still_name_is_kept(cl_device, scene, tmp_path, caps
     assert (tmp_path / "100%.png").is_file()
 
 
+def test_a_percent_sign_in_the_scenes_name_is_kept_in_the_default_output(cl_device, tmp_path,
+                                                                          capsys,
+                                                                          monkeypatch) -> None:
+    # `50%done.toml` was refused: "-o 50%done.png holds a frame number".
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "50%done.toml").write_text(scene_text())
+    code, _, err = run(capsys, "render", "50%done.toml", *TINY)
+    assert code == 0, err
+    assert files_in(tmp_path) == ["50%done.png", "50%done.toml"]
+
+
 @pytest.mark.parametrize("reader", ["head -c 10", "true", "sleep 0.5"])
 def test_a_reader_that_leaves_early_is_one_exit_code(cl_device, scene, reader) -> None:
     # Whether the reader closes the pipe before clray writes (true), after taking part of the
@@ -732,7 +802,7 @@ def test_a_reader_that_leaves_early_is_one_exit_code(cl_device, scene, reader) -
              f"{reader} > /dev/null; exit ${{PIPESTATUS[0]}}")
     done = subprocess.run(["bash", "-c", shell], capture_output=True, text=True, timeout=120)
     assert done.returncode == 1, done.stderr
-    assert done.stderr == "clray: error: cannot write -: Broken pipe\n"
+    assert done.stderr == "clray: error: cannot write standard output: Broken pipe\n"
 
 
 def test_a_reader_that_takes_everything_gets_exit_0(cl_device, scene) -> None:
@@ -791,6 +861,10 @@ def test_large_image_memory_noted_before_rendering(capsys, scene, monkeypatch) -
     code, _, err = run(capsys, "render", scene, "-W", "16384", "-H", "16384", "-o", "big.pfm")
     assert err.splitlines()[0].endswith("about 9.5 GiB of host memory (the float image and its "
                                         "PFM encoding)")
+    code, _, err = run(capsys, "render", scene, "-W", "16384", "-H", "16384", "-o", "big.png",
+                       "--png-bits", "16")
+    assert err.splitlines()[0].endswith("about 8.0 GiB of host memory (the float image and its "
+                                        "PNG encoding)")
     code, _, err = run(capsys, "render", scene, "-W", "8192", "-H", "8192", "-o", "big.png")
     assert err.splitlines() == ["clray: error: stopped"]  # 1.9 GiB: no note
     code, _, err = run(capsys, "render", scene, "-W", "16384", "-H", "16384", "-q")

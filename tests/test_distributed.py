@@ -6,6 +6,7 @@ the missing-Dask message run."""
 from __future__ import annotations
 
 import importlib.util
+import json
 import logging
 import os
 import signal
@@ -184,10 +185,13 @@ def test_cli_dask_frames_render_and_resume(cl_device, tmp_path, capsys):
     assert cli.main(["render", scene, *size, "--frames", "0:3", "-o", str(local), "-q"]) == 0
     assert cli.main(["render", scene, *size, "--frames", "0:2", "-o", str(dask), "--dask",
                      "-q"]) == 0
+    stats = tmp_path / "stats.json"
     assert cli.main(["render", scene, *size, "--frames", "0:3", "-o", str(dask), "--dask",
-                     "--resume"]) == 0
+                     "--resume", "--stats-json", str(stats)]) == 0
     err = capsys.readouterr().err
     assert "dask: 1 frame on 2 workers" in err and "2 complete already" in err, err
+    [record] = json.loads(stats.read_text())["frames"]
+    assert record["frame"] == 2 and record["load_s"] >= 0  # its scene made on the worker
     for f in range(3):
         assert (read_pfm(tmp_path / f"d_{f:02d}.pfm").tobytes()
                 == read_pfm(tmp_path / f"l_{f:02d}.pfm").tobytes())

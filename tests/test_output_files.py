@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import errno
 import os
+import stat
 import threading
 from pathlib import Path
 
@@ -100,3 +101,56 @@ def test_a_nul_byte_in_an_output_name_is_a_one_line_error(cl_device, capsys, mon
     assert len(err) == 1 and err[0].startswith("clray: error: cannot write a\\x00b")
     assert err[0].endswith(": embedded null byte")
     assert list(tmp_path.iterdir()) == []
+
+
+def test_a_link_to_a_descriptor_of_a_file_appends_to_it(tmp_path):
+    # `clray ... --stats-json /dev/stdout >> log.txt`: the log keeps what it held, and stays
+    # the same file (a rename onto the link's resolved name would have replaced it).
+    log = tmp_path / "log.txt"
+    log.write_bytes(b"earlier\n")
+    inode = log.stat().st_ino
+    fd = os.open(log, os.O_WRONLY | os.O_APPEND)
+    try:
+        link = tmp_path / "out.json"
+        link.symlink_to(f"/dev/fd/{fd}")
+        write_bytes_atomically(link, b"new\n")
+    finally:
+        os.close(fd)
+    assert log.read_bytes() == b"earlier\nnew\n"
+    assert log.stat().st_ino == inode
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["log.txt", "out.json"]
+
+
+def test_a_link_to_a_descriptor_of_a_pipe_is_written(tmp_path):
+    # `--stats-json /dev/stdout | reader`: the link's resolved name, /proc/PID/fd/pipe:[N], is
+    # no file, and used to fail the write.
+    read_end, write_end = os.pipe()
+    try:
+        link = tmp_path / "out.json"
+        link.symlink_to(f"/proc/self/fd/{write_end}")
+        write_bytes_atomically(link, b"through the pipe")
+        os.close(write_end)
+        write_end = -1
+        assert os.read(read_end, 100) == b"through the pipe"
+    finally:
+        os.close(read_end)
+        if write_end >= 0:
+            os.close(write_end)
+
+
+def test_a_replaced_file_keeps_its_permissions(tmp_path):
+    path = tmp_path / "image.png"
+    path.write_bytes(b"old")
+    path.chmod(0o640)
+    write_bytes_atomically(path, b"new")
+    assert path.read_bytes() == b"new"
+    assert stat.S_IMODE(path.stat().st_mode) == 0o640
+
+
+@pytest.mark.parametrize("name", ["a" * 240 + ".png", "é" * 120 + ".png"], ids=["ascii", "utf8"])
+def test_a_name_as_long_as_a_name_may_be_is_written(tmp_path, name):
+    # 244 bytes: the temporary name, the whole name with 24 bytes more, was too long.
+    path = tmp_path / name
+    write_bytes_atomically(path, b"data")
+    assert path.read_bytes() == b"data"
+    assert [p.name for p in tmp_path.iterdir()] == [name]

@@ -260,6 +260,18 @@ def test_previews_are_pictures_in_the_unit_range(name: str) -> None:
         assert np.all(picture[0, 0] == 0) and picture[1:].max() == 1.0
 
 
+def test_position_preview_is_black_on_a_miss_and_spans_the_hits() -> None:
+    # The misses' (0, 0, 0) stretched the range and showed white where the hits' coordinates
+    # are all negative.
+    values = np.zeros((3, 4, 3), np.float32)
+    values[1:, 1:] = np.random.default_rng(3).uniform(-6, -5, (2, 3, 3))
+    picture = preview("position", values)
+    assert np.all(picture[0] == 0) and np.all(picture[:, 0] == 0)
+    hits = picture[1:, 1:].reshape(-1, 3)
+    assert np.all(hits.min(axis=0) == 0) and np.all(hits.max(axis=0) == 1)
+    assert np.all(preview("position", np.zeros((2, 2, 3), np.float32)) == 0)  # nothing hit
+
+
 # --- the command line: --aov, --aov-preview, the files they write -----------------------------
 
 SCENE_FILE = """

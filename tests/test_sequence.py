@@ -4,15 +4,17 @@
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 from clray import cli
-from clray.errors import SceneError, SettingsError
+from clray.errors import ClrayError, SceneError, SettingsError
 from clray.image_io import Encoding, read_pfm
 from clray.passes import write_with_passes
+from clray.render import RenderResult
 from clray.scene.animation import Animation, Track, parse_path
 from clray.sequence import (
     check_pattern,
@@ -215,6 +217,22 @@ def test_a_folder_in_place_of_a_frames_file_is_named_before_any_work(tmp_path, c
     assert sorted(p.name for p in tmp_path.iterdir()) == [folder]
 
 
+@pytest.mark.parametrize("stats", ["o/f_0.png", "o/f_2.depth.pfm", "o/f_1.depth.png"])
+@pytest.mark.parametrize("frames", ["0:3", "0:"])
+def test_stats_json_naming_a_frames_file_is_a_usage_error(tmp_path, capsys, monkeypatch, stats,
+                                                        frames):
+    # The stats replaced frame 0's image with JSON, which a later --resume took for complete.
+    monkeypatch.setattr("clray.sequence.render", refuse_to_render)
+    monkeypatch.chdir(tmp_path)
+    code = cli.main(["render", str(ORBIT), "--frames", frames, "-o", "o/f_%d.png", "--aov",
+                     "depth", "--aov-preview", "--stats-json", stats])
+    frame = stats[4]
+    assert code == 2
+    assert capsys.readouterr().err == (f"clray: error: --stats-json and frame {frame}'s file "
+                                       f"are the same file: {stats}\n")
+    assert list(tmp_path.iterdir()) == []
+
+
 @pytest.mark.parametrize("frames", [[], ["--frames", "0:2"]])
 @pytest.mark.parametrize("name", ["x_%99999999999d.png", "x_%.99999999999d.png",
                                   "x_%-0256d.png"])
@@ -269,6 +287,11 @@ def test_render_frames_then_resume(cl_device, tmp_path, capsys):
     assert frame_path(pattern, 0).stat().st_mtime_ns == stamp  # not written again
     record = json.loads(stats.read_text())
     assert [f["frame"] for f in record["frames"]] == [2] and record["skipped"] == 2
+    # The still's figures, each frame's own (PFM: no clipped_pixels).
+    frame = record["frames"][0]
+    assert frame["nonfinite_pixels"] == 0 and "clipped_pixels" not in frame
+    assert frame["total_s"] == pytest.approx(frame["load_s"] + frame["render_s"]
+                                             + frame["write_s"])
     assert frame_path(pattern, 2).exists()
     # Frames differ (the camera moves) and each is the still render of its frame's scene.
     assert (first[0] != first[1]).any()
@@ -286,6 +309,9 @@ def test_resume_renders_the_frames_without_the_passes_asked_for(cl_device, tmp_p
     assert all(frame_path(tmp_path / "f_%02d.depth.pfm", f).is_file() for f in range(3))
     assert cli.main([*args, "--frames", "0:3", "--resume", "--aov", "depth"]) == 0
     assert "wrote 0 frames of frames 0-2 to" in capsys.readouterr().err
+    # -v's progress lines, without a terminal, divided by the pixel-samples of no frames.
+    assert cli.main([*args, "--frames", "0:3", "--resume", "--aov", "depth", "-v"]) == 0
+    assert "wrote 0 frames of frames 0-2 to" in capsys.readouterr().err
 
 
 def test_frames_usage_errors(tmp_path, capsys):
@@ -298,6 +324,13 @@ def test_frames_usage_errors(tmp_path, capsys):
     assert cli.main(["render", str(plain), "--frames", "0:2", "-o",
                      str(tmp_path / "f_%d.png")]) == 3
     assert "animation: missing" in capsys.readouterr().err
+    # A mesh file was said to be of an unknown scene file type, which render takes.
+    mesh = ROOT / "scenes" / "meshes" / "bumpy_ico2.obj"
+    assert cli.main(["render", str(mesh), "--frames", "0", "-o", str(tmp_path / "m.png")]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"clray: error: --frames renders a scene file's [animation] table; "
+                          f"{mesh} is a mesh file")
+    assert list(tmp_path.iterdir()) == []
 
 
 def test_object_transform_animates(tmp_scene):
@@ -327,6 +360,72 @@ values = [1, 3]
     assert sphere.center == (0.5, -1.0, 2.0)
     assert sphere.radius == 1.5
     assert sequence.scene(4).objects[0].center == (2.0, -4.0, 8.0)
+
+
+def test_a_frame_number_in_the_folder_makes_no_folder_of_the_pattern(cl_device, tmp_path):
+    # The check of -o before the frames made a folder literally named shot_%02d.
+    pattern = tmp_path / "shot_%02d" / "img.png"
+    assert cli.main(["render", str(ORBIT), "-W", "8", "-H", "4", "--frames", "0:2", "--aov",
+                     "depth", "-o", str(pattern), "-q"]) == 0
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["shot_00", "shot_01"]
+    assert sorted(p.name for p in (tmp_path / "shot_01").iterdir()) == ["img.depth.pfm",
+                                                                       "img.png"]
+
+
+@pytest.mark.parametrize(("stem", "frames"), [("50%done", "0:2"), ("orbit", "46:"),
+                                               ("50%done", "46:")])
+def test_the_default_frame_names_are_the_scenes_name_and_a_number(cl_device, tmp_path,
+                                                                  monkeypatch, stem, frames):
+    # The scene's stem went into the pattern as it was: `%d` in `50%done` was a frame number.
+    # And `A:`, an empty range until the animation's length is known, got a still's name.
+    monkeypatch.chdir(tmp_path)
+    scene = tmp_path / f"{stem}.toml"
+    scene.write_text(ORBIT.read_text())
+    assert cli.main(["render", str(scene), "-W", "8", "-H", "4", "--frames", frames, "-q"]) == 0
+    first = int(frames.split(":")[0])
+    assert sorted(p.name for p in tmp_path.iterdir()) == [
+        f"{stem}.toml", f"{stem}_{first:04d}.png", f"{stem}_{first + 1:04d}.png"]
+
+
+def test_large_frames_memory_noted_before_rendering(tmp_path, capsys, monkeypatch):
+    # The still's note was never said for --frames. Stopped at the render: it takes minutes.
+    def stop(*_args, **_kwargs):
+        raise ClrayError("stopped")
+
+    monkeypatch.setattr("clray.sequence.render", stop)
+    code = cli.main(["render", str(ORBIT), "-W", "16384", "-H", "16384", "--frames", "0:2",
+                     "-o", str(tmp_path / "f_%d.png")])
+    assert code == 1
+    assert capsys.readouterr().err.splitlines() == [
+        "clray: note: a 16384 x 16384 image takes about 7.5 GiB of host memory (the float "
+        "image and its PNG encoding)", "clray: error: stopped"]
+
+
+def test_frames_have_the_stills_figures_and_warnings(tmp_path, capsys, monkeypatch):
+    # Frames' records lacked load_s, nonfinite_pixels and clipped_pixels; a frame with NaN
+    # pixels said nothing, and -v showed no figures.
+    def nan_render(scene, settings):
+        image = np.array([[[0.5, np.nan, 0.5], [2.0, 0.5, 0.5]]], np.float32)
+        return RenderResult(image, {"total_s": 0.5, "width": 2, "height": 1, "spp": 1,
+                                    "kernel_s": 0.25, "rays": {"total": 4},
+                                    "mrays_per_s": None})
+
+    monkeypatch.setattr("clray.sequence.render", nan_render)
+    pattern = tmp_path / "f_%d.png"
+    stats = tmp_path / "stats.json"
+    assert cli.main(["render", str(ORBIT), "--frames", "0:2", "-o", str(pattern), "-v",
+                     "--stats-json", str(stats)]) == 0
+    err = capsys.readouterr().err.splitlines()
+    for frame in (0, 1):
+        assert f"clray: warning: frame {frame}: 1 pixel is NaN or infinite (written black)" in err
+        assert any(re.fullmatch(rf"  frame {frame}: {re.escape(str(tmp_path))}/f_{frame}\.png "
+                                r"\(2x1, 1 spp\), load [\d.]+ s, render 0\.500 s, kernel 0\.250 "
+                                r"s, write [\d.]+ s, 4 rays, 1 non-finite, 1 clipped", line)
+                   for line in err)
+    records = json.loads(stats.read_text())["frames"]
+    for record in records:
+        assert record["load_s"] >= 0 and record["render_s"] == 0.5 and record["write_s"] >= 0
+        assert (record["nonfinite_pixels"], record["clipped_pixels"]) == (1, 1)
 
 
 def test_one_frame_is_said_in_the_singular(cl_device, tmp_path, capsys):

@@ -688,6 +688,20 @@ def test_rejections_count_pixels_in_the_right_form(image, reason) -> None:
     assert tolerance.check(image, np.zeros((1, 2, 3), np.float32))[2] == reason
 
 
+def test_implicit_vectorization_is_never_tried_with_sample_packets(kernel_tuner, cl_device,
+                                                                  tmp_path) -> None:
+    # Intel's CPU runtime renders wrong images with both; the device's own walk (TRAVERSAL's
+    # None) is sample packets at 16 spp on the CPU drivers, so the walk built is what counts.
+    tuner = tuner_module.Tuner(cl_device, tmp_path)
+    tuner.set_scene_spp(16)
+    space = {**tuner.block_params(), **tuner.kernel_params()}
+    legal = [params for values in itertools.product(*space.values())
+             if tuner._legal(Tuning(), params := dict(zip(space, values, strict=True)), space)]
+    packets = TRAVERSALS.index("sample_packet")
+    assert {(p["TRAVERSAL"] == packets, p["IMPLICIT_VECTORIZATION"]) for p in legal} == {
+        (True, 0), (False, 0), (False, 1)}
+
+
 def test_the_docs_count_a_runs_kernel_configurations(kernel_tuner, cl_device, tmp_path) -> None:
     # docs/tuning.md counts the kernel configurations Kernel Tuner's restriction leaves of the
     # table's tried values, on PoCL: at 2 or more samples a pixel, and at 1.

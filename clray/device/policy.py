@@ -128,6 +128,10 @@ def device_plan(device: cl.Device, *, spp: int, precision: str = "float",
             switches["traversal"] = "single"
         else:
             switches.update(packet_lanes=lanes, packet_min_lanes=tuning.packet_min_lanes)
+    if TRAVERSAL_SCHEMES[str(switches["traversal"])].vector_lanes:
+        # Not packed on top of the walk's own vector lanes, whatever the tuning says: a tuning
+        # made at 1 spp (the single-ray walk) may hold it on (clray.knobs.TraversalScheme).
+        switches["implicit_vectorization"] = False
     switches.update({name: getattr(tuning, name) for name in IMAGE_KNOBS
                      if name not in BUILD_KNOBS})
     if tuning.build_options():

@@ -50,6 +50,7 @@ from clray.knobs import (
     Tuning,
     TuningError,
     other_schemes_knobs,
+    restriction_problems,
 )
 from clray.metrics import fail_allowance
 from clray.output import cannot_write
@@ -501,8 +502,8 @@ class Tuner:
         return Tuning(**{**base.values(), **kernel, **launch})
 
     def _legal(self, base: Tuning, params: dict, space: dict[str, list]) -> bool:
-        """Kernel Tuner's restriction: the knob table's, with the packet's lanes resolved
-        (packet_min_lanes below the device's own where packet_lanes is left to it), and the
+        """Kernel Tuner's restriction: the knob table's, with the walk and the packet's lanes
+        resolved (packet_min_lanes below the device's own where packet_lanes is left to it), and the
         single-ray walk built once, with the packet knobs' first values, which it ignores (as
         every scheme other schemes' kernel knobs)."""
         traversal = TRAVERSALS[params["TRAVERSAL"]]
@@ -519,6 +520,11 @@ class Tuner:
         try:
             tuning = self._tuning(base, params)
         except TuningError:
+            return False
+        # The knob table's rules again with the walk Kernel Tuner builds named: _tuning's
+        # traversal None (the device's own) may be sample packets, which implicit
+        # vectorization must not build with.
+        if restriction_problems({**tuning.values(), "traversal": traversal}):
             return False
         return tuning.packet_min_lanes < (tuning.packet_lanes or self.auto["packet_lanes"])
 

@@ -20,6 +20,7 @@ from clray.device.program import (
     KernelConfig,
     device_build_options,
 )
+from clray.errors import SettingsError
 from clray.knobs import TRAVERSAL_SCHEMES, TRAVERSAL_TABLE, Tuning, TuningError
 from clray.render import RenderSettings, pack_for, plan_for, resolved_settings
 from clray.scene.load import load_scene
@@ -121,7 +122,8 @@ def test_the_settings_traversal_overrides_the_tunings_and_the_knobs_act() -> Non
     assert own.traversal == "sample_packet" and not own.switches["implicit_vectorization"]
     assert not device_plan(intel, spp=4, tuning=packing, traversal="sample_packet"
                            ).switches["implicit_vectorization"]
-    with pytest.raises(TuningError, match="packet_min_lanes 7 is not below the 4 packet lanes"):
+    with pytest.raises(SettingsError, match="packet_min_lanes 7 is not below the 4 packet "
+                                            "lanes of 'stand-in' in float"):
         device_plan(DEVICES["nvidia_gpu"], spp=1, tuning=Tuning(packet_min_lanes=7),
                     traversal="sample_packet")
 

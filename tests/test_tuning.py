@@ -31,6 +31,7 @@ from clray.device.program import (
     device_build_options,
     kernel_source,
 )
+from clray.errors import SettingsError
 from clray.knobs import BUILD_KNOBS, IMAGE_KNOBS, build_option
 from clray.render import RenderSettings, pack_for, render
 from clray.scene.load import load_scene
@@ -293,11 +294,30 @@ def test_packet_min_lanes_must_be_below_the_devices_own_lanes(cl_device, spheres
                                                     packet_min_lanes=auto - 1), spp=8)
     assert f"-DPACKET_MIN_LANES={auto - 1}" in below
     # 8 lanes: the device's lanes refuse 8. 16 lanes: the knob's own range (0 to 15) answers.
-    refusal = (f"packet_min_lanes {auto} is not below the {auto}" if auto < 16
+    refusal = (f"tuning: packet_min_lanes {auto} is not below the {auto}" if auto < 16
                else "packet_min_lanes: expected an integer, 0 to 15")
-    with pytest.raises(TuningError, match=refusal):
+    with pytest.raises(SettingsError if auto < 16 else TuningError, match=refusal):
         options_with(cl_device, spheres, Tuning(traversal="sample_packet",
                                                 packet_min_lanes=auto), spp=8)
+
+
+def test_a_tuning_file_that_does_not_fit_a_double_render_is_ignored_for_it(
+        cl_device, capsys, tmp_path) -> None:
+    # packet_min_lanes tuned below a float render's lanes (16 on AVX-512) need not be below a
+    # double render's (8): that render takes the defaults, with one warning line.
+    lanes = packet_lanes_for(cl_device, "double", spp=8)
+    path = store.save_tuning(cl_device, Tuning(packet_min_lanes=lanes), {"note": "test"})
+    stats = tmp_path / "stats.json"
+    code = cli.main(["render", str(SPHERES), "-W", "16", "-H", "12", "--spp", "8",
+                     "--traversal", "sample_packet", "--precision", "double",
+                     "-o", str(tmp_path / "out.png"), "--stats-json", str(stats)])
+    warned = [line for line in capsys.readouterr().err.splitlines()
+              if line.startswith("clray: warning: ")]
+    assert code == 0
+    assert warned == [f"clray: warning: ignoring tuning file {path} for this render: "
+                      f"packet_min_lanes {lanes} is not below the {lanes} packet lanes of "
+                      f"{cl_device.name.strip()!r} in double"]
+    assert json.loads(stats.read_text())["tuning"]["source"] == "default"
 
 
 def test_traversal_cost_reaches_the_sah() -> None:

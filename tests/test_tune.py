@@ -17,8 +17,9 @@ import numpy as np
 import pytest
 
 from clray import cli
+from clray.device import program
 from clray.device.policy import device_plan
-from clray.device.program import kernel_source
+from clray.device.program import GPU_BUILD_OPTIONS, kernel_source
 from clray.errors import ClrayError
 from clray.knobs import TRAVERSALS
 from clray.tuning import KNOB_TABLE, Tuning
@@ -472,6 +473,22 @@ def test_each_image_size_has_its_own_cache_and_a_broken_one_is_one_line(
     cache.write_text(record.replace('"render"', '"other"'))
     with pytest.raises(ClrayError, match=refused):
         tune(cl_device, tmp_path, size=(32, 18), space=one)
+
+
+def test_kernel_tuner_builds_with_the_devices_build_options(kernel_tuner, cl_device,
+                                                            tmp_path, monkeypatch) -> None:
+    # What renders build on a GPU (a pixel a work-item), here a CPU device built as one: the
+    # builds Kernel Tuner times take the same options, and their cached verdicts are apart.
+    calls = record_tune_kernel(kernel_tuner, monkeypatch)
+    one = {**TWO, "work_group_width": (64,)}
+    tune(cl_device, tmp_path, space=one)
+    with program.built_as_for_a_gpu():
+        trials = tune(cl_device, tmp_path, space=one)
+    (cpu, _), (gpu, _) = [(kwargs["compiler_options"], kwargs["cache"]) for _, kwargs in calls]
+    assert GPU_BUILD_OPTIONS[0] in gpu and GPU_BUILD_OPTIONS[0] not in cpu
+    assert trials and all(t.verified for t in trials)
+    (device,) = (tmp_path / "cache").iterdir()
+    assert len(list((device / "spheres").iterdir())) == 2
 
 
 def test_an_edited_scene_or_tolerance_takes_no_cached_verdict(kernel_tuner, cl_device,

@@ -35,7 +35,7 @@ from clray import metrics
 from clray.device.launch import render_packed
 from clray.device.pack import PackedScene
 from clray.device.policy import DevicePlan, device_plan
-from clray.device.program import kernel_source
+from clray.device.program import device_build_options, kernel_source
 from clray.errors import ClrayError, DeviceError, one_line, plural
 from clray.knobs import (
     BUILD_KNOBS,
@@ -415,11 +415,12 @@ class Tuner:
         a cache file of another size) and each set of what the cached verdicts and times
         depend on: the reference image (the scene as it is now: an edited scene with the
         same name had its old verdicts taken), the image tolerance (--allow-error), and the
-        kernel's source and the scene's default build (another clray)."""
+        kernel's source and the scene's default build (another clray) with the device's build
+        options."""
         height, width = run.reference.shape[:2]
         key = hashlib.sha256(np.ascontiguousarray(run.reference).tobytes())
         for part in (repr(self.tolerance(run.reference)), self.source,
-                     *run.default_packed.config.options()):
+                     *run.default_packed.config.options(), *device_build_options(self.device)):
             key.update(b"\0" + part.encode("utf-8"))
         return f"{width}x{height}-{key.hexdigest()[:12]}"
 
@@ -436,7 +437,10 @@ class Tuner:
         tune_params = kernel_space
         # The kernel knobs' -D switches come from Kernel Tuner's #defines instead.
         tuned = tuple(f"-D{kernel_define(name)}=" for name in KERNEL_KNOBS)
-        options = [o for o in packed.config.options() if not o.startswith(tuned)]
+        # With the options every render's build on this device takes (a GPU's one pixel a
+        # work-item, correctly rounded division): what is timed is what renders build.
+        options = [*(o for o in packed.config.options() if not o.startswith(tuned)),
+                   *device_build_options(self.device)]
         answer = [None] * len(args)
         answer[image_index] = args[image_index]
         cache = (self.out / "cache" / _slug(self.device.name) / run.name

@@ -546,6 +546,36 @@ def test_tune_tries_both_traversals_as_kernel_defines_and_picks_one(
     assert best[1]["spheres"].tuning == min(trials, key=lambda t: t.time_ms).tuning
 
 
+def test_scenes_whose_own_walks_differ_can_share_a_named_walk(kernel_tuner, cl_device,
+                                                              tmp_path) -> None:
+    # At 1 spp the device's own walk is the single-ray one; at 16 spp sample packets on the
+    # CPU drivers. A trial's knobs name the walk only where it is not the scene's own, so
+    # traversal single had no key on both scenes, and could never be chosen.
+    if own_traversal(cl_device, 16) == own_traversal(cl_device, 1):
+        pytest.skip("this device's own walk is the same at 1 and at 16 spp")
+    (tmp_path / "many").mkdir()
+    many = spheres_at(tmp_path / "many", 16).rename(tmp_path / "many.toml")
+    one = tmp_path / "one.toml"
+    one.write_text(SPHERES.read_text(encoding="utf-8"), encoding="utf-8")
+    tuner = tuner_module.Tuner(cl_device, tmp_path / "out", size=SIZE, iterations=1,
+                               budget_s=300, space={**TWO, "work_group_width": (64,),
+                                                    "traversal": (None, "single")})
+    trials = tuner.tune([many, one])
+    assert all(t.verified for t in trials)
+    # Make the single-ray walk the fastest on the 16-spp scene: single is the best for both.
+    for t in trials:
+        t.time_ms = 1.0 if (t.scene, t.tuning.traversal) == ("many", "single") else 10.0
+    key, per_scene = tuner_module.best_configuration(trials, ["many", "one"])
+    assert tuner_module.key_tuning(key) == Tuning(traversal="single")
+    assert {s: t.tuning for s, t in per_scene.items()} == {
+        "many": Tuning(traversal="single"), "one": Tuning()}
+    # And where sample packets are faster, the device's own walk, left None.
+    for t in trials:
+        t.time_ms = 10.0 if (t.scene, t.tuning.traversal) == ("many", "single") else 1.0
+    assert tuner_module.key_tuning(
+        tuner_module.best_configuration(trials, ["many", "one"])[0]) == Tuning()
+
+
 def test_packet_knobs_act_only_with_sample_packets_and_below_the_lanes(
         kernel_tuner, cl_device, tmp_path) -> None:
     trials = tune(cl_device, tmp_path, spheres_at(tmp_path, 16), space={

@@ -683,8 +683,9 @@ def _make_folder(path: Path, folder: Path) -> None:
 def _device_flag(parser: argparse.ArgumentParser) -> None:
     """--device, the same for every command that renders."""
     parser.add_argument("--device", metavar="SPEC",
-                        help="OpenCL device: 'P:D' indices as in PYOPENCL_CTX, or a name "
-                             f"substring (default: {DEFAULT_DEVICE_ORDER})")
+                        help="OpenCL device: 'P:D' indices as in PYOPENCL_CTX, a type (cpu, "
+                             f"gpu, accelerator) or a name substring (default: "
+                             f"{DEFAULT_DEVICE_ORDER})")
 
 
 def _write_stats(path: Path, stats: dict) -> None:

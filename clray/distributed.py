@@ -38,10 +38,12 @@ from clray.render import (
     RenderResult,
     RenderSettings,
     pack_for,
+    plan_for,
     png_encoding,
     render,
     resolved_settings,
     settings_or_default,
+    tuning_stats,
     warn_deep_tree,
 )
 from clray.scene.check import check_scene
@@ -119,9 +121,10 @@ def connect(address: str | None, workers: int = LOCAL_WORKERS,
 
 # -- on the workers ----------------------------------------------------------------------
 
-# One packed scene per worker process, for the scene it is rendering now: the tiles of one
-# image share it, and a long-lived worker does not keep every scene it was ever sent.
-_packed: dict[tuple, PackedScene] = {}
+# One packed scene per worker process, for the scene it is rendering now (with its knobs'
+# stats, tuning_stats): the tiles of one image share it, and a long-lived worker does not keep
+# every scene it was ever sent.
+_packed: dict[tuple, tuple[PackedScene, dict]] = {}
 # A worker started with several threads would run tiles at once on one device, sharing its
 # queue and program cache; the device is busy either way, so they take turns.
 _device_lock = threading.Lock()
@@ -159,11 +162,14 @@ def _render_tile(scene: Scene, scene_key: str, settings: RenderSettings, start: 
         if packs:
             _packed.clear()
             pack_started = time.perf_counter()
-            _packed[key] = pack_for(scene, settings, device)
+            plan = plan_for(scene, settings, device)
+            fresh = pack_for(scene, settings, device, plan)
+            _packed[key] = fresh, tuning_stats(plan, fresh)
             pack_s = time.perf_counter() - pack_started
-        packed = _packed[key]
+        packed, tuning = _packed[key]
         image, stats = render_packed(packed, device, rows=(start, stop))
     return {"start": start, "rows": stop - start, "image": image, "stats": stats,
+            "tuning": tuning, "traversal": packed.config.traversal,
             "packed": packs, "pack_s": pack_s if packs else 0.0,
             "bvh_s": packed.bvh_s if packs else 0.0, "device": describe(device),
             "worker": f"{socket.gethostname()}:{os.getpid()}", "warnings": kept,
@@ -313,6 +319,13 @@ def _merge(tiles: list[dict], resolved: dict, settings: RenderSettings) -> dict:
         "mrays_per_s": rays["total"] / kernel_s * 1e-6 if kernel_s > 0 else None,
         "device_bytes": tiles[0]["stats"]["device_bytes"],
     }
+    # Which knobs and walk rendered, as render()'s stats say: each worker's own tuning file
+    # may differ, and then each worker's, by its name.
+    for name in ("tuning", "traversal"):
+        by_worker = {t["worker"]: t[name] for t in tiles}
+        values = list(by_worker.values())
+        stats[name] = (values[0] if all(v == values[0] for v in values)
+                       else dict(sorted(by_worker.items())))
     if "tests" in tiles[0]["stats"]:
         stats["tests"] = {k: sum(t["stats"]["tests"][k] for t in tiles)
                           for k in tiles[0]["stats"]["tests"]}

@@ -3,10 +3,13 @@ values, the values `clray tune` tries, and the restrictions between knobs (docs/
 
 A knob changes how fast an image renders, not which image: every legal configuration renders
 the default's image within the scene's float tolerance (clray.tuning.tuner's image check, an
-output observer of Kernel Tuner's, checks it for every configuration `clray tune` tries). The
-study variants are the exception: they change the image, and `clray tune` tries them only under
---allow-error. This module imports nothing of clray's, so the modules whose
-constants it replaces (clray.render, clray.accel.bvh, clray.accel.wide) can read it.
+output observer of Kernel Tuner's, checks it for every configuration `clray tune` tries).
+implicit_vectorization with sample packets, which renders wrong images on Intel's CPU runtime,
+is not legal (restriction_problems), and clray.device.policy.device_plan leaves it off where a
+render builds sample packets whatever a tuning says. The study variants are the exception:
+they change the image, and `clray tune` tries them only under --allow-error. This module
+imports nothing of clray's, so the modules whose constants it replaces (clray.render,
+clray.accel.bvh, clray.accel.wide) can read it.
 """
 
 from __future__ import annotations
@@ -70,6 +73,11 @@ class TraversalScheme:
     # Launched in square work-groups of group_side x group_side pixels that walk the BVH
     # together, not in row segments of work_group_width (clray.device.launch).
     tiles: bool = False
+    # A work-item's rays are lanes of its own float8/float16 vectors: a driver must not pack
+    # work-items into vector lanes on top (implicit_vectorization). On Intel's CPU runtime that
+    # combination renders wrong images with transmission (645 of 768 pixels of glass.toml at
+    # 16 spp, up to 1.07 off), so the knob table refuses it and device_plan leaves it off.
+    vector_lanes: bool = False
 
 
 # The traversal schemes (docs/acceleration.md), in the order of kernels/lanes.h's
@@ -78,7 +86,8 @@ class TraversalScheme:
 TRAVERSAL_TABLE: tuple[TraversalScheme, ...] = (
     TraversalScheme("single"),
     TraversalScheme("sample_packet", knobs=("packet_lanes", "packet_min_lanes"),
-                    defines=("packet_lanes", "packet_min_lanes"), packs_samples=True),
+                    defines=("packet_lanes", "packet_min_lanes"), packs_samples=True,
+                    vector_lanes=True),
     TraversalScheme("group_packet", knobs=("group_side",), tiles=True),
 )
 TRAVERSAL_SCHEMES: dict[str, TraversalScheme] = {t.name: t for t in TRAVERSAL_TABLE}
@@ -161,7 +170,9 @@ KNOB_TABLE: tuple[Knob, ...] = (
          "whether a driver that packs work-items into a vector's lanes may (the -D "
          "IMPLICIT_VECTORIZATION; Intel's CPU runtime packs 8 or 16 a thread unless the kernel "
          "asks for one): the pixels' walks diverge and their node loads become gathers, 2.1x "
-         "to 3.5x slower there at 1 spp. Drivers that do not pack (PoCL, GPUs) ignore it"),
+         "to 3.5x slower there at 1 spp. Drivers that do not pack (PoCL, GPUs) ignore it. "
+         "Never with sample packets (TraversalScheme.vector_lanes): a render building them "
+         "leaves it off"),
     _variant("cl_mad_enable", "build",
              "-cl-mad-enable: a * b + c may be one fused or less exact instruction"),
     _variant("cl_unsafe_math_optimizations", "build",
@@ -226,6 +237,11 @@ def restriction_problems(values: dict[str, object]) -> list[str]:
                         f"packet_lanes {lanes}")
     # A scheme's own knobs, where another scheme is named (None may be any device's own).
     traversal = values["traversal"]
+    if (traversal is not None and TRAVERSAL_SCHEMES[traversal].vector_lanes
+            and values["implicit_vectorization"]):
+        problems.append(f"implicit_vectorization True does not build with traversal "
+                        f"{traversal}, whose work-items' rays are vector lanes already "
+                        "(Intel's CPU runtime renders wrong images with both)")
     for scheme in TRAVERSAL_TABLE:
         if traversal is not None and traversal != scheme.name:
             problems += [f"{name} {values[name]} acts only with traversal {scheme.name} (leave "

@@ -234,6 +234,13 @@ def pack_for(scene: Scene, settings: RenderSettings, device: cl.Device,
                       **plan.pack_arguments())
 
 
+def tuning_stats(plan: DevicePlan, packed: PackedScene) -> dict:
+    """Which configuration rendered, for the stats: its source, the knobs changed from the
+    defaults, every knob's value, and the BVH width that "auto" (None) picked."""
+    return {"source": plan.tuning_source, "label": packed.tuning.label(),
+            **packed.tuning.values(), "bvh_width": packed.config.bvh_width}
+
+
 def render(scene: Scene | str | os.PathLike | Callable[[], Scene],
            settings: RenderSettings | None = None) -> RenderResult:
     """Render a scene, the scene file at a path, or the scene a callable returns. A scene built
@@ -281,10 +288,7 @@ def render(scene: Scene | str | os.PathLike | Callable[[], Scene],
         **resolved,
         "device": describe(device),
         "precision": settings.precision,
-        # Which configuration rendered: its source, the knobs changed from the defaults, every
-        # knob's value, and the BVH width that "auto" (None) picked.
-        "tuning": {"source": plan.tuning_source, "label": packed.tuning.label(),
-                   **packed.tuning.values(), "bvh_width": packed.config.bvh_width},
+        "tuning": tuning_stats(plan, packed),
         "traversal": packed.config.traversal,
         "bvh_s": packed.bvh_s,
         "pack_s": pack_s,

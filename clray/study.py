@@ -102,10 +102,19 @@ def _finite_or_none(value: float) -> float | None:
     return value if math.isfinite(value) else None
 
 
+# What results.json says of the knobs, which each record's `tuning` (the render's
+# stats["tuning"]["source"]) shows: the table's defaults, never the device's tuning file.
+TUNING_NOTE = "default: the knob table's defaults; a device's tuning file is not used"
+
+
 def _render_timed(scene: Scene, variant: Variant, repeat: int, base: RenderSettings
-                  ) -> tuple[np.ndarray, list[float]]:
+                  ) -> tuple[np.ndarray, list[float], str]:
+    """The variant's image, its renders' kernel times, and where its knobs came from."""
+    # The knob table's defaults, as `clray tune` renders its reference: a device's tuning file
+    # would make the reference and the default variants other builds than the report names.
     settings = RenderSettings(width=base.width, height=base.height, device=base.device,
-                              precision=variant.precision, variants=variant.switches)
+                              precision=variant.precision, variants=variant.switches,
+                              stored_tuning=False)
     first = render(scene, settings)  # warm-up: builds the kernel, first-touch costs
     times = []
     image = first.image
@@ -113,7 +122,7 @@ def _render_timed(scene: Scene, variant: Variant, repeat: int, base: RenderSetti
         result = render(scene, settings)
         times.append(result.stats["kernel_s"])
         image = result.image
-    return image, times
+    return image, times, first.stats["tuning"]["source"]
 
 
 def compare(image: np.ndarray, reference: np.ndarray) -> dict:
@@ -137,12 +146,12 @@ def study_scene(path: Path, variants: Sequence[Variant], repeat: int, base: Rend
                 ) -> list[dict]:
     """Every variant of the scene at `path` (already loaded: `scene`), timed on one device."""
     scene = scene or load_scene(path)
-    reference, _ = _render_timed(scene, REFERENCE, 0, base)
+    reference, _, _ = _render_timed(scene, REFERENCE, 0, base)
     height, width = reference.shape[:2]
     say(scene_line({"scene": path.stem, "width": width, "height": height}))
     records = []
     for variant in variants:
-        image, times = _render_timed(scene, variant, repeat, base)
+        image, times, tuning = _render_timed(scene, variant, repeat, base)
         record = {
             "scene": path.stem,
             "scene_file": str(path),
@@ -154,6 +163,7 @@ def study_scene(path: Path, variants: Sequence[Variant], repeat: int, base: Rend
             "height": int(image.shape[0]),
             "kernel_s_median": statistics.median(times),
             "kernel_s_all": times,
+            "tuning": tuning,
             "scene_warnings": list(scene.warnings),
             **compare(image, reference),
         }
@@ -380,7 +390,8 @@ def run_study(paths: Sequence[Path], out: Path, *, repeat: int = 3,
                    + "), each scene's variants all on one worker, whose name each scene's "
                    "section gives: times compare within a scene, not across scenes")
     write_output(out / "results.json", (json.dumps(
-        {"device": device_name, "repeat": repeat, "records": records}, indent=1)
+        {"device": device_name, "repeat": repeat, "tuning": TUNING_NOTE, "records": records},
+        indent=1)
         + "\n").encode("utf-8"))
     write_report(records, out, repeat, device_name, plots)
     return records

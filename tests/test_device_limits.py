@@ -78,8 +78,10 @@ def _listed(*kinds: tuple[str, int, bool]) -> list[tuple[str, SimpleNamespace]]:
     """Devices as _all_devices lists them, from (type, compute units, host unified memory)."""
     flags = {"CPU": cl.device_type.CPU, "GPU": cl.device_type.GPU,
              "ACCELERATOR": cl.device_type.ACCELERATOR, "ALL": cl.device_type.ALL}
+    platform = SimpleNamespace(name="Platform", vendor="Vendor", version="OpenCL 3.0")
     return [(f"{i}:0", SimpleNamespace(type=flags[kind], max_compute_units=units,
-                                       host_unified_memory=unified))
+                                       host_unified_memory=unified, name=f"device {i}",
+                                       platform=platform))
             for i, (kind, units, unified) in enumerate(kinds)]
 
 
@@ -101,6 +103,45 @@ def test_a_gpu_of_its_own_memory_renders_by_default(monkeypatch, kinds, chosen, 
     monkeypatch.setattr(context, "_all_devices", lambda: listed)
     device, spec, reason = context.default_device()
     assert spec == chosen and device is dict(listed)[chosen] and reason.startswith(why)
+
+
+@pytest.mark.parametrize(("kinds", "spec", "chosen"), [
+    # A GPU of its own memory with the most compute units before an integrated one, as by
+    # default; the first CPU; the type words in any case, with spaces about them.
+    ((("CPU", 16, True), ("GPU", 24, True), ("GPU", 132, False)), "gpu", "2:0"),
+    ((("CPU", 16, True), ("GPU", 24, True), ("GPU", 132, False)), " GPU ", "2:0"),
+    ((("GPU", 24, True), ("CPU", 16, True), ("CPU", 8, True)), "cpu", "1:0"),
+    ((("GPU", 24, True), ("CPU", 16, True)), "gpu", "0:0"),
+    ((("CPU", 16, True), ("ACCELERATOR", 4, False)), "Accelerator", "1:0"),
+])
+def test_a_device_type_names_the_first_device_of_that_type(monkeypatch, kinds, spec,
+                                                            chosen) -> None:
+    # docs/cli.md's `--device cpu` and docs/distributed.md's CLRAY_DEVICE=gpu: no device's
+    # name holds the word.
+    listed = _listed(*kinds)
+    monkeypatch.setattr(context, "_all_devices", lambda: listed)
+    assert context.select_device(spec) is dict(listed)[chosen]
+
+
+def test_a_device_type_that_no_device_has_is_one_line(monkeypatch) -> None:
+    monkeypatch.setattr(context, "_all_devices", lambda: _listed(("CPU", 16, True)))
+    with pytest.raises(DeviceError, match=r"^no OpenCL GPU device matches 'gpu' \(devices: "
+                                          r"0:0 CPU device 0\)$"):
+        context.select_device("gpu")
+
+
+@pytest.mark.parametrize("blank", ["", " ", "\t "])
+def test_a_blank_device_spec_is_no_spec(monkeypatch, blank) -> None:
+    # Not a substring that every name holds: a blank CLRAY_DEVICE or --device leaves the
+    # choice to PYOPENCL_CTX and the default order.
+    listed = _listed(("CPU", 16, True), ("CPU", 8, True))
+    monkeypatch.setattr(context, "_all_devices", lambda: listed)
+    monkeypatch.setenv("CLRAY_DEVICE", blank)
+    monkeypatch.setenv("PYOPENCL_CTX", "1:0")
+    assert context.default_device()[1:] == ("1:0", "PYOPENCL_CTX=1:0")
+    assert context.select_device(blank) is listed[1][1]
+    monkeypatch.setenv("PYOPENCL_CTX", blank)
+    assert context.default_device()[1:] == ("0:0", "the first CPU device")
 
 
 def test_clray_devices_marks_the_default(cl_device, capsys) -> None:

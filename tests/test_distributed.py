@@ -84,11 +84,34 @@ def test_tiles_assemble_bit_identical(cl_device, client):
         assert result.image.tobytes() == local.image.tobytes()
         assert result.stats["rays"] == local.stats["rays"]
     fixed = render_still(client, scene, small(), tile_rows=5)
+    # The knobs and walk that rendered, as docs/cli.md's --stats-json promises.
+    assert (fixed.stats["tuning"], fixed.stats["traversal"]) == (local.stats["tuning"],
+                                                                 local.stats["traversal"])
     dask = fixed.stats["dask"]
     assert dask["tiles"] == 13 and dask["tile_rows"] == [4, 5]
     assert dask["workers"] == 2
     assert dask["bytes_sent"] == 2 * dask["scene_bytes"] > 0
     assert dask["result_bytes"] == local.image.nbytes
+
+
+def test_workers_that_rendered_with_other_knobs_are_each_named() -> None:
+    from clray.distributed import _merge
+
+    def tile(worker: str, tuning: dict, traversal: str) -> dict:
+        stats = {"rays": dict.fromkeys(("primary", "secondary", "shadow", "total"), 1),
+                 "kernel_s": 1.0, "build_s": 0.0, "launches": 1, "device_bytes": 8}
+        return {"worker": worker, "device": "cpu", "bvh_s": 0.0, "pack_s": 0.0,
+                "stats": stats, "tuning": tuning, "traversal": traversal}
+
+    default, tuned = {"source": "default"}, {"source": "tuning file t.json"}
+    small_cpu = RenderSettings(width=8, height=6)
+    same = _merge([tile("a", default, "single"), tile("b", default, "single")], {}, small_cpu)
+    assert (same["tuning"], same["traversal"]) == (default, "single")
+    apart = _merge([tile("b", tuned, "sample_packet"), tile("a", default, "single"),
+                    tile("b", tuned, "sample_packet")], {}, small_cpu)
+    assert apart["tuning"] == {"a": default, "b": tuned}
+    assert apart["traversal"] == {"a": "single", "b": "sample_packet"}
+
 
 
 @needs_dask

@@ -12,6 +12,8 @@ import pytest
 
 from clray import metrics, study
 from clray.cli import main
+from clray.device.tuning_files import save_tuning
+from clray.knobs import Tuning
 
 SCENE = """
 [render]
@@ -69,6 +71,17 @@ def test_run_study_writes_results_report_and_plot(tmp_path: Path, tmp_scene,
     assert study.main([str(tmp_path / "out")]) == 0
     assert (tmp_path / "out" / "report.md").read_text() == report
     assert (tmp_path / "out" / "scene.png").read_bytes()[:4] == b"\x89PNG"
+
+
+@pytest.mark.filterwarnings("ignore::pyopencl.CompilerWarning")
+def test_study_renders_with_the_default_knobs_not_the_tuning_file(tmp_path: Path, tmp_scene,
+                                                                  cl_device: cl.Device) -> None:
+    # Its reference and default variant are the knob table's builds, as the report names them.
+    save_tuning(cl_device, Tuning(work_group_width=16), {"note": "test"})
+    study.run_study([tmp_scene(SCENE)], tmp_path / "out", repeat=1, variants=(study.DEFAULT,))
+    data = json.loads((tmp_path / "out" / "results.json").read_text())
+    assert data["tuning"].startswith("default: ")
+    assert [r["tuning"] for r in data["records"]] == ["default"]
 
 
 def _record(variant: str, ms: float, rmse: float | None, status: str = "pass") -> dict:

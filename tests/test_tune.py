@@ -17,8 +17,9 @@ import numpy as np
 import pytest
 
 from clray import cli
+from clray.device import program
 from clray.device.policy import device_plan
-from clray.device.program import kernel_source
+from clray.device.program import GPU_BUILD_OPTIONS, kernel_source
 from clray.errors import ClrayError
 from clray.knobs import TRAVERSALS
 from clray.tuning import KNOB_TABLE, Tuning
@@ -474,6 +475,22 @@ def test_each_image_size_has_its_own_cache_and_a_broken_one_is_one_line(
         tune(cl_device, tmp_path, size=(32, 18), space=one)
 
 
+def test_kernel_tuner_builds_with_the_devices_build_options(kernel_tuner, cl_device,
+                                                            tmp_path, monkeypatch) -> None:
+    # What renders build on a GPU (a pixel a work-item), here a CPU device built as one: the
+    # builds Kernel Tuner times take the same options, and their cached verdicts are apart.
+    calls = record_tune_kernel(kernel_tuner, monkeypatch)
+    one = {**TWO, "work_group_width": (64,)}
+    tune(cl_device, tmp_path, space=one)
+    with program.built_as_for_a_gpu():
+        trials = tune(cl_device, tmp_path, space=one)
+    (cpu, _), (gpu, _) = [(kwargs["compiler_options"], kwargs["cache"]) for _, kwargs in calls]
+    assert GPU_BUILD_OPTIONS[0] in gpu and GPU_BUILD_OPTIONS[0] not in cpu
+    assert trials and all(t.verified for t in trials)
+    (device,) = (tmp_path / "cache").iterdir()
+    assert len(list((device / "spheres").iterdir())) == 2
+
+
 def test_an_edited_scene_or_tolerance_takes_no_cached_verdict(kernel_tuner, cl_device,
                                                               tmp_path) -> None:
     # Kernel Tuner's cache holds each configuration's image verdict beside its times: an
@@ -527,6 +544,36 @@ def test_tune_tries_both_traversals_as_kernel_defines_and_picks_one(
     assert {t.tuning for t in trials} == {Tuning(), Tuning(traversal=other)}
     best = tuner_module.best_configuration(trials, ["spheres"])
     assert best[1]["spheres"].tuning == min(trials, key=lambda t: t.time_ms).tuning
+
+
+def test_scenes_whose_own_walks_differ_can_share_a_named_walk(kernel_tuner, cl_device,
+                                                              tmp_path) -> None:
+    # At 1 spp the device's own walk is the single-ray one; at 16 spp sample packets on the
+    # CPU drivers. A trial's knobs name the walk only where it is not the scene's own, so
+    # traversal single had no key on both scenes, and could never be chosen.
+    if own_traversal(cl_device, 16) == own_traversal(cl_device, 1):
+        pytest.skip("this device's own walk is the same at 1 and at 16 spp")
+    (tmp_path / "many").mkdir()
+    many = spheres_at(tmp_path / "many", 16).rename(tmp_path / "many.toml")
+    one = tmp_path / "one.toml"
+    one.write_text(SPHERES.read_text(encoding="utf-8"), encoding="utf-8")
+    tuner = tuner_module.Tuner(cl_device, tmp_path / "out", size=SIZE, iterations=1,
+                               budget_s=300, space={**TWO, "work_group_width": (64,),
+                                                    "traversal": (None, "single")})
+    trials = tuner.tune([many, one])
+    assert all(t.verified for t in trials)
+    # Make the single-ray walk the fastest on the 16-spp scene: single is the best for both.
+    for t in trials:
+        t.time_ms = 1.0 if (t.scene, t.tuning.traversal) == ("many", "single") else 10.0
+    key, per_scene = tuner_module.best_configuration(trials, ["many", "one"])
+    assert tuner_module.key_tuning(key) == Tuning(traversal="single")
+    assert {s: t.tuning for s, t in per_scene.items()} == {
+        "many": Tuning(traversal="single"), "one": Tuning()}
+    # And where sample packets are faster, the device's own walk, left None.
+    for t in trials:
+        t.time_ms = 10.0 if (t.scene, t.tuning.traversal) == ("many", "single") else 1.0
+    assert tuner_module.key_tuning(
+        tuner_module.best_configuration(trials, ["many", "one"])[0]) == Tuning()
 
 
 def test_packet_knobs_act_only_with_sample_packets_and_below_the_lanes(
@@ -686,6 +733,20 @@ def test_counts_of_one_take_the_singular(kernel_tuner, tmp_path, monkeypatch, ca
 def test_rejections_count_pixels_in_the_right_form(image, reason) -> None:
     tolerance = tuner_module.Tolerance(0.01, 0)
     assert tolerance.check(image, np.zeros((1, 2, 3), np.float32))[2] == reason
+
+
+def test_implicit_vectorization_is_never_tried_with_sample_packets(kernel_tuner, cl_device,
+                                                                  tmp_path) -> None:
+    # Intel's CPU runtime renders wrong images with both; the device's own walk (TRAVERSAL's
+    # None) is sample packets at 16 spp on the CPU drivers, so the walk built is what counts.
+    tuner = tuner_module.Tuner(cl_device, tmp_path)
+    tuner.set_scene_spp(16)
+    space = {**tuner.block_params(), **tuner.kernel_params()}
+    legal = [params for values in itertools.product(*space.values())
+             if tuner._legal(Tuning(), params := dict(zip(space, values, strict=True)), space)]
+    packets = TRAVERSALS.index("sample_packet")
+    assert {(p["TRAVERSAL"] == packets, p["IMPLICIT_VECTORIZATION"]) for p in legal} == {
+        (True, 0), (False, 0), (False, 1)}
 
 
 def test_the_docs_count_a_runs_kernel_configurations(kernel_tuner, cl_device, tmp_path) -> None:

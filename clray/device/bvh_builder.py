@@ -34,7 +34,13 @@ from clray.accel.bvh import (
 from clray.device.buffers import read_only_buffer
 from clray.device.context import has_fp64
 from clray.device.layout import BINARY_NODE, BUILD_PRIM, BUILD_TASK
-from clray.device.program import device_build_options, is_oclgrind, kernel_source
+from clray.device.program import (
+    build_cached,
+    cache_folder_errors,
+    device_build_options,
+    is_oclgrind,
+    kernel_source,
+)
 from clray.host_memory import by_chunks
 
 # Subtrees per compute unit before the per-subtree kernel takes over: enough that one large
@@ -153,9 +159,10 @@ def _prim_dtype(bound_bytes: int) -> np.dtype:
 def _kernels(context: cl.Context, float_bounds: bool) -> dict[str, cl.Kernel]:
     # Kernel objects are kept: pyopencl makes a new one on every attribute access.
     options = build_options() + list(device_build_options(context.devices[0]))
-    program = cl.Program(context, kernel_source(BUILD_FILE)).build(
-        options=options + (["-DFLOAT_BOUNDS"] if float_bounds else []))
-    return {k.function_name: k for k in program.all_kernels()}
+    program = build_cached(cl.Program(context, kernel_source(BUILD_FILE)),
+                           options + (["-DFLOAT_BOUNDS"] if float_bounds else []))
+    with cache_folder_errors():
+        return {k.function_name: k for k in program.all_kernels()}
 
 
 def build(queue: cl.CommandQueue, bounds: list[np.ndarray], max_leaf: int,

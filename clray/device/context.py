@@ -100,19 +100,28 @@ def list_devices() -> list[DeviceInfo]:
     ]
 
 
+# The device types a spec may name (device_type's names, in lower case): the first device of
+# that type in default_device's order.
+TYPE_WORDS = ("cpu", "gpu", "accelerator")
+
+
 def select_device(spec: str | None = None) -> cl.Device:
-    """`spec`: "P:D" indices (PYOPENCL_CTX syntax, "P" alone means its first device) or a
-    case-insensitive substring of the platform or device name. Without one: default_device."""
+    """`spec`: "P:D" indices (PYOPENCL_CTX syntax, "P" alone means its first device), a
+    device type (TYPE_WORDS: cpu, gpu, accelerator; the first of that type in default_device's
+    order), or a case-insensitive substring of the platform or device name. Without one (or
+    blank): default_device."""
+    spec = (spec or "").strip()
     if not spec:
         return default_device()[0]
     devices = _all_devices()
-    spec = spec.strip()
     if ":" not in spec and spec.isdigit():
         spec = f"{spec}:0"
     for found_spec, device in devices:
         if found_spec == spec:
             return device
     needle = spec.lower()
+    if needle in TYPE_WORDS:
+        return _first_of_type(devices, needle.upper(), spec)
     for _, device in devices:
         platform = device.platform
         names = (device.name, platform.name, platform.vendor, platform.version)
@@ -137,19 +146,39 @@ def default_device() -> tuple[cl.Device, str, str]:
     name only."""
     devices = _all_devices()
     for variable in ("CLRAY_DEVICE", "PYOPENCL_CTX"):
-        value = os.environ.get(variable)
+        # A blank value is unset, as for --device: not a substring that every name holds.
+        value = os.environ.get(variable, "").strip()
         if value:
             chosen = select_device(value)
             spec = next(s for s, d in devices if d == chosen)
             return chosen, spec, f"{variable}={value}"
-    gpus = [(s, d) for s, d in devices if is_discrete_gpu(d)]
+    gpus = _discrete_gpus(devices)
     if gpus:
-        spec, device = max(gpus, key=lambda sd: sd[1].max_compute_units)
+        spec, device = gpus[0]
         return device, spec, "a GPU with its own memory: faster than CPUs where measured"
     cpus = [(s, d) for s, d in devices if d.type & cl.device_type.CPU]
     if cpus:
         return cpus[0][1], cpus[0][0], "the first CPU device"
     return devices[0][1], devices[0][0], "the first device: there is no CPU device"
+
+
+def _discrete_gpus(devices: list[tuple[str, cl.Device]]) -> list[tuple[str, cl.Device]]:
+    """The GPUs with memory of their own, the one default_device takes first (the most
+    compute units)."""
+    gpus = [(s, d) for s, d in devices if is_discrete_gpu(d)]
+    return sorted(gpus, key=lambda sd: -sd[1].max_compute_units)
+
+
+def _first_of_type(devices: list[tuple[str, cl.Device]], kind: str, spec: str) -> cl.Device:
+    """The device of type `kind` (device_type's name) that default_device's order puts first:
+    for GPUs one with its own memory and the most compute units, else the first."""
+    of_kind = [(s, d) for s, d in devices if device_type(d) == kind]
+    if kind == "GPU":
+        of_kind = _discrete_gpus(of_kind) + of_kind
+    if not of_kind:
+        known = ", ".join(f"{s} {device_type(d)} {d.name.strip()}" for s, d in devices)
+        raise DeviceError(f"no OpenCL {kind} device matches {spec!r} (devices: {known})")
+    return of_kind[0][1]
 
 
 def is_discrete_gpu(device: cl.Device) -> bool:

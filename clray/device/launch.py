@@ -14,7 +14,7 @@ import pyopencl as cl
 from clray.device.buffers import read_only_buffer
 from clray.device.context import describe, device_type, queue_for
 from clray.device.pack import PackedScene
-from clray.device.program import build_program
+from clray.device.program import build_program, cache_folder_errors
 from clray.errors import DeviceError
 from clray.host_memory import small_pages
 from clray.knobs import DEFAULT_TUNING, TRAVERSAL_SCHEMES, Tuning
@@ -181,7 +181,8 @@ def render_packed(packed: PackedScene, device: cl.Device,
     try:
         buffers = _scene_buffers(ctx, packed)
         check_argument_bytes(len(buffers) + 3, 1, device)
-        kernel = cl.Kernel(program, "render")
+        with cache_folder_errors():
+            kernel = cl.Kernel(program, "render")
         group_width, group_height = _local_size(kernel, device, packed)
         # A band's launch covers whole work-groups: the rows past the band (below the image,
         # or the next band's, rendered again there) land in the buffers' spare rows.
@@ -274,7 +275,8 @@ def render_passes_packed(packed: PackedScene, device: cl.Device,
     try:
         buffers = _scene_buffers(ctx, packed)
         check_argument_bytes(len(buffers) + len(PASS_OUTPUTS), 1, device)
-        kernel = cl.Kernel(program, "render_passes")
+        with cache_folder_errors():
+            kernel = cl.Kernel(program, "render_passes")
         group_width = _group_width(kernel, device, packed.tuning)
         padded_width = -(-width // group_width) * group_width
         band_buffers = [cl.Buffer(ctx, cl.mem_flags.WRITE_ONLY, width * capacity * 16)
@@ -327,8 +329,9 @@ def intersect_rays(packed: PackedScene, device: cl.Device, origins: np.ndarray,
     hits_buf = cl.Buffer(ctx, cl.mem_flags.WRITE_ONLY, padded * 16)
     refs_buf = cl.Buffer(ctx, cl.mem_flags.WRITE_ONLY, padded * 4)
     local = (group,) if group else None
-    cl.Kernel(program, "intersect_rays")(queue, (padded // lanes,), local, *args, hits_buf,
-                                         refs_buf)
+    with cache_folder_errors():
+        kernel = cl.Kernel(program, "intersect_rays")
+    kernel(queue, (padded // lanes,), local, *args, hits_buf, refs_buf)
     hits = np.empty((padded, 4), dtype=np.float32)
     refs = np.empty(padded, dtype=np.int32)
     cl.enqueue_copy(queue, hits, hits_buf)

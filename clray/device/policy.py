@@ -8,13 +8,15 @@ clray.knobs.TRAVERSAL_TABLE; this module decides which of them a device renders 
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 
 import pyopencl as cl
 
 from clray.device.context import device_type
 from clray.device.tuning_files import chosen_tuning
-from clray.knobs import BUILD_KNOBS, IMAGE_KNOBS, TRAVERSAL_SCHEMES, Tuning, TuningError
+from clray.errors import SettingsError
+from clray.knobs import BUILD_KNOBS, DEFAULT_TUNING, IMAGE_KNOBS, TRAVERSAL_SCHEMES, Tuning
 
 
 def vector_width(device: cl.Device, precision: str = "float") -> int:
@@ -71,6 +73,20 @@ def packet_lanes_for(device: cl.Device, precision: str = "float", spp: int | Non
     return lanes
 
 
+def _misfit(device: cl.Device, tuning: Tuning, traversal: str | None, precision: str,
+            spp: int) -> str | None:
+    """Why `tuning` cannot build a render of these settings on `device`, or None: a
+    packet_min_lanes not below the packet lanes the device has for this arithmetic (16 floats
+    but 8 doubles on AVX-512), checked whatever the spp, as a tuning that cannot build is
+    wrong at 1 spp too."""
+    chosen = traversal or tuning.traversal or traversal_for(device)
+    lanes = tuning.packet_lanes or packet_lanes_for(device, precision, spp)
+    if TRAVERSAL_SCHEMES[chosen].packs_samples and tuning.packet_min_lanes >= lanes:
+        return (f"packet_min_lanes {tuning.packet_min_lanes} is not below the {lanes} packet "
+                f"lanes of {device.name.strip()!r} in {precision}")
+    return None
+
+
 @dataclass(frozen=True)
 class DevicePlan:
     """What a render on one device builds and packs, decided once (device_plan)."""
@@ -101,8 +117,9 @@ def device_plan(device: cl.Device, *, spp: int, precision: str = "float",
     """The plan of a render on `device` at `spp` samples a pixel. `traversal` (the settings')
     overrides the tuning's knob, which overrides the device's own (traversal_for); `tuning`
     None takes the device's tuning file where `stored_tuning` and one exists, else the knob
-    table's defaults. `passes` builds the passes kernel in; `variants` are extra KernelConfig
-    fields (studies), applied last.
+    table's defaults; a tuning file that cannot build this render (_misfit) is ignored for it
+    with a warning, and a given tuning that cannot raises SettingsError. `passes` builds the
+    passes kernel in; `variants` are extra KernelConfig fields (studies), applied last.
 
     A scheme that packs a pixel's samples is built only where it has samples to pack: with
     one sample a pixel the single-ray build renders, as the packet build's code costs the same
@@ -114,20 +131,28 @@ def device_plan(device: cl.Device, *, spp: int, precision: str = "float",
         tuning, source = chosen_tuning(device, stored_tuning)
     else:
         source = "given"
+    misfit = _misfit(device, tuning, traversal, precision, spp)
+    if misfit is not None and source == "given":
+        raise SettingsError(f"tuning: {misfit}")
+    if misfit is not None:
+        # A tuning file is a speed choice, never an error: one that this render cannot build
+        # (a double render's fewer lanes) gives way to the defaults, for this render alone.
+        warnings.warn(f"ignoring {source} for this render: {misfit}", stacklevel=2)
+        tuning, source = DEFAULT_TUNING, "default"
     named = traversal or tuning.traversal
     chosen = named or traversal_for(device)
     lanes = tuning.packet_lanes or packet_lanes_for(device, precision, spp)
     switches: dict[str, object] = {"traversal": chosen,
                                    "implicit_vectorization": tuning.implicit_vectorization}
     if TRAVERSAL_SCHEMES[chosen].packs_samples:
-        # Checked whatever the spp: a tuning that cannot build is an error at 1 spp too.
-        if tuning.packet_min_lanes >= lanes:
-            raise TuningError(f"packet_min_lanes {tuning.packet_min_lanes} is not below the "
-                              f"{lanes} packet lanes of {device.name.strip()!r}")
         if spp == 1 or (named is None and spp < lanes):
             switches["traversal"] = "single"
         else:
             switches.update(packet_lanes=lanes, packet_min_lanes=tuning.packet_min_lanes)
+    if TRAVERSAL_SCHEMES[str(switches["traversal"])].vector_lanes:
+        # Not packed on top of the walk's own vector lanes, whatever the tuning says: a tuning
+        # made at 1 spp (the single-ray walk) may hold it on (clray.knobs.TraversalScheme).
+        switches["implicit_vectorization"] = False
     switches.update({name: getattr(tuning, name) for name in IMAGE_KNOBS
                      if name not in BUILD_KNOBS})
     if tuning.build_options():

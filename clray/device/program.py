@@ -5,7 +5,9 @@ from __future__ import annotations
 import hashlib
 import os
 import re
+import sys
 import time
+import traceback
 import warnings
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -15,7 +17,7 @@ from importlib.resources import files
 import pyopencl as cl
 
 from clray.device.context import context_for, device_type, has_fp64
-from clray.errors import DeviceError
+from clray.errors import ClrayError, DeviceError
 from clray.knobs import KNOBS, TRAVERSAL_SCHEMES
 from clray.shapes import SHAPES
 
@@ -284,6 +286,52 @@ _programs: dict[tuple[int, str, tuple[str, ...]], cl.Program] = {}
 # it reads the variable without a default, so unset, a cache failure raised KeyError
 # ('PYOPENCL_CACHE_FAILURE_FATAL') instead (seen in CI while other processes built).
 os.environ.setdefault("PYOPENCL_CACHE_FAILURE_FATAL", "")
+# The start of the warning pyopencl gives then, with the whole traceback after it.
+_CACHE_FAILED = "PyOpenCL compiler caching failed"
+NO_CACHE_HINT = "set PYOPENCL_NO_CACHE=1 to run without pyopencl's caches"
+
+
+def build_cached(program: cl.Program, options: list[str]) -> cl.Program:
+    """`program` built; pyopencl's warning that its binary cache failed (it builds without
+    it) told in one line, the exception's last, not as its whole traceback."""
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        built = program.build(options=options)
+    for warning in caught:
+        text = str(warning.message)
+        if text.startswith(_CACHE_FAILED):
+            lines = [line for line in text.splitlines()
+                     if line.strip() and line.strip() != "[end exception]"]
+            warnings.warn(f"pyopencl's binary cache failed, built without it ({lines[-1]}); "
+                          f"{NO_CACHE_HINT}", stacklevel=2)
+        else:  # the build's own (a CompilerWarning), to the caller's filters
+            warnings.warn_explicit(warning.message, warning.category, warning.filename,
+                                   warning.lineno, source=warning.source)
+    return built
+
+
+def _ignore_unraisable(_: object) -> None:
+    return None
+
+
+@contextmanager
+def cache_folder_errors() -> Iterator[None]:
+    """A process's first kernel object makes pyopencl's invoker cache, whose folder
+    ($XDG_CACHE_HOME/pytools) it cannot make where a file or a denied folder is in the way: an
+    OSError, here one line naming it."""
+    try:
+        yield
+    except OSError as err:
+        message = (f"cannot use pyopencl's cache folder {err.filename or ''}: "
+                   f"{err.strerror or err}: move what is in the way, or {NO_CACHE_HINT}")
+        # The half-made cache object goes with the traceback's frames, and its __del__ fails
+        # on what its __init__ never set: a second traceback ("Exception ignored") otherwise.
+        hook, sys.unraisablehook = sys.unraisablehook, _ignore_unraisable
+        try:
+            traceback.clear_frames(err.__traceback__)
+        finally:
+            sys.unraisablehook = hook
+        raise ClrayError(message) from None
 
 
 def build_program(device: cl.Device, config: KernelConfig) -> tuple[cl.Program, float]:
@@ -304,7 +352,7 @@ def build_program(device: cl.Device, config: KernelConfig) -> tuple[cl.Program, 
     context = context_for(device)
     start = time.perf_counter()
     try:
-        program = cl.Program(context, source).build(options=list(options))
+        program = build_cached(cl.Program(context, source), list(options))
     except cl.RuntimeError as err:
         log = str(err).strip().splitlines()
         detail = " | ".join(line.strip() for line in log if "error" in line.lower())[:2000]

@@ -4,6 +4,7 @@ results, report and plot written to the output folder."""
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import sys
 import time
@@ -27,6 +28,7 @@ from clray.tuning.tuner import (
     best_configuration,
     confirm,
     confirmed_gain,
+    key_tuning,
 )
 
 
@@ -158,7 +160,10 @@ def run_tune(paths: Sequence[Path], out: Path, *, device: str | None = None,
     to_store: Tuning | None = None
     if best is not None:
         per_scene = best[1]
-        winner = next(iter(per_scene.values()))
+        # The best key's knobs, which each scene's trial built (its own walk left None, or
+        # named where the scenes' own walks differ): what is confirmed and stored.
+        winner = dataclasses.replace(next(iter(per_scene.values())),
+                                     tuning=key_tuning(best[0]))
         header["best"] = {"label": report.label(winner), "tuning": winner.tuning.values(),
                           "extra": winner.extra,
                           "time_ms": {s: t.time_ms for s, t in per_scene.items()}}

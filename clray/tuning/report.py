@@ -79,7 +79,7 @@ def plot_figure(trials: Sequence[Trial], best_key: str | None) -> matplotlib.fig
     fig, axes = plt.subplots(len(scenes), 1, squeeze=False, figsize=(9, sum(heights)),
                              height_ratios=heights)
     for ax, scene in zip(axes[:, 0], scenes, strict=True):
-        colours = ["tab:orange" if _is_default(t) else "tab:green" if t.key() == best_key
+        colours = ["tab:orange" if _is_default(t) else "tab:green" if best_key in t.keys()
                    else "tab:blue" for t in rows[scene]]
         ax.barh(range(len(rows[scene])), [t.time_ms for t in rows[scene]], color=colours)
         ax.set_yticks(range(len(rows[scene])), labels[scene], fontsize=7)
@@ -131,7 +131,7 @@ def write_report(out: Path, header: dict, trials: Sequence[Trial], best_key: str
                   "image | |", "|---|---|---|---|---|---|"]
         for t in sorted(rows, key=lambda t: (not t.verified, t.time_ms or float("inf"))):
             mark = " ".join(m for m, on in (("**default**", _is_default(t)),
-                                            ("**best**", t.key() == best_key)) if on)
+                                            ("**best**", best_key in t.keys())) if on)
             ratio = (f"{default.time_ms / t.time_ms:.2f}x" if default and t.time_ms and t.verified
                      else "")
             time_ms = f"{t.time_ms:.3f}" if t.time_ms is not None else "-"

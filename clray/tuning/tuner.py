@@ -35,7 +35,7 @@ from clray import metrics
 from clray.device.launch import render_packed
 from clray.device.pack import PackedScene
 from clray.device.policy import DevicePlan, device_plan
-from clray.device.program import kernel_source
+from clray.device.program import device_build_options, kernel_source
 from clray.errors import ClrayError, DeviceError, one_line, plural
 from clray.knobs import (
     BUILD_KNOBS,
@@ -50,6 +50,7 @@ from clray.knobs import (
     Tuning,
     TuningError,
     other_schemes_knobs,
+    restriction_problems,
 )
 from clray.metrics import fail_allowance
 from clray.output import cannot_write
@@ -95,7 +96,8 @@ def define_value(name: str, value: Any) -> int:
 def knob_value(name: str, define: int, auto: dict[str, Any]) -> Any:
     """The knob's value of Kernel Tuner's parameter: define_value's inverse, with the
     device's own value of a knob whose None stands for it (auto: the traversal, the packet
-    lanes) as None, so the default has one key."""
+    lanes) as None, so the default has one key (the trial's own; Trial.stands_for adds the
+    other configurations that build the same kernel on the scene, the walk named among them)."""
     if name == "traversal":
         value = TRAVERSALS[define]
     else:
@@ -179,9 +181,27 @@ class Trial:
     pixels_off: int  # pixels off the default's image by more than the tolerance
     problem: str | None = None  # why it was rejected or failed
     extra: dict = field(default_factory=dict)  # tunable parameters outside the knob table
+    # The keys of every configuration whose render of this scene builds what this trial built
+    # (its own among them; Tuner.equivalent_keys): the device's own walk named or left None,
+    # a packet knob that a scene of one sample a pixel never builds. Scenes whose own walks
+    # differ meet on these (best_configuration). Empty: its own key alone.
+    stands_for: tuple[str, ...] = ()
 
     def key(self) -> str:
-        return json.dumps({**self.tuning.values(), **self.extra}, sort_keys=True)
+        return configuration_key(self.tuning, self.extra)
+
+    def keys(self) -> tuple[str, ...]:
+        return self.stands_for or (self.key(),)
+
+
+def configuration_key(tuning: Tuning, extra: dict) -> str:
+    """A configuration's key: its knobs and extra parameters, as JSON."""
+    return json.dumps({**tuning.values(), **extra}, sort_keys=True)
+
+
+def key_tuning(key: str) -> Tuning:
+    """The knobs of a configuration's key (configuration_key's), less its extra parameters."""
+    return Tuning(**{k: v for k, v in json.loads(key).items() if k in KNOBS})
 
 
 # Kernel Tuner marks a configuration it did not time with an error object whose text is its
@@ -414,11 +434,12 @@ class Tuner:
         a cache file of another size) and each set of what the cached verdicts and times
         depend on: the reference image (the scene as it is now: an edited scene with the
         same name had its old verdicts taken), the image tolerance (--allow-error), and the
-        kernel's source and the scene's default build (another clray)."""
+        kernel's source and the scene's default build (another clray) with the device's build
+        options."""
         height, width = run.reference.shape[:2]
         key = hashlib.sha256(np.ascontiguousarray(run.reference).tobytes())
         for part in (repr(self.tolerance(run.reference)), self.source,
-                     *run.default_packed.config.options()):
+                     *run.default_packed.config.options(), *device_build_options(self.device)):
             key.update(b"\0" + part.encode("utf-8"))
         return f"{width}x{height}-{key.hexdigest()[:12]}"
 
@@ -435,7 +456,10 @@ class Tuner:
         tune_params = kernel_space
         # The kernel knobs' -D switches come from Kernel Tuner's #defines instead.
         tuned = tuple(f"-D{kernel_define(name)}=" for name in KERNEL_KNOBS)
-        options = [o for o in packed.config.options() if not o.startswith(tuned)]
+        # With the options every render's build on this device takes (a GPU's one pixel a
+        # work-item, correctly rounded division): what is timed is what renders build.
+        options = [*(o for o in packed.config.options() if not o.startswith(tuned)),
+                   *device_build_options(self.device)]
         answer = [None] * len(args)
         answer[image_index] = args[image_index]
         cache = (self.out / "cache" / _slug(self.device.name) / run.name
@@ -501,8 +525,8 @@ class Tuner:
         return Tuning(**{**base.values(), **kernel, **launch})
 
     def _legal(self, base: Tuning, params: dict, space: dict[str, list]) -> bool:
-        """Kernel Tuner's restriction: the knob table's, with the packet's lanes resolved
-        (packet_min_lanes below the device's own where packet_lanes is left to it), and the
+        """Kernel Tuner's restriction: the knob table's, with the walk and the packet's lanes
+        resolved (packet_min_lanes below the device's own where packet_lanes is left to it), and the
         single-ray walk built once, with the packet knobs' first values, which it ignores (as
         every scheme other schemes' kernel knobs)."""
         traversal = TRAVERSALS[params["TRAVERSAL"]]
@@ -520,6 +544,11 @@ class Tuner:
             tuning = self._tuning(base, params)
         except TuningError:
             return False
+        # The knob table's rules again with the walk Kernel Tuner builds named: _tuning's
+        # traversal None (the device's own) may be sample packets, which implicit
+        # vectorization must not build with.
+        if restriction_problems({**tuning.values(), "traversal": traversal}):
+            return False
         return tuning.packet_min_lanes < (tuning.packet_lanes or self.auto["packet_lanes"])
 
     def _trial(self, scene: str, base: Tuning, result: dict) -> Trial:
@@ -536,7 +565,39 @@ class Tuner:
         # same runs, which one launch slowed by the shared machine does not move.
         return Trial(scene, tuning, statistics.median(times) if times else float(time_ms), times,
                      float(result.get("compile_time", 0)), verified,
-                     int(result.get("pixels_off", 0)), problem, extra)
+                     int(result.get("pixels_off", 0)), problem, extra,
+                     self.equivalent_keys(tuning, extra))
+
+    def equivalent_keys(self, tuning: Tuning, extra: dict) -> tuple[str, ...]:
+        """The keys of the configurations whose render of the scene being tuned builds what
+        `tuning` builds: its walk knobs (traversal, packet_lanes, packet_min_lanes,
+        implicit_vectorization) at every value of the space or None, wherever the device
+        policy's plan is the same. A trial's knobs name the device's own walk and lanes as None
+        (knob_value), and those differ between scenes of other samples a pixel: a walk that is
+        one scene's own and another's named has a key of each kind."""
+        built = self._built(tuning)
+        names = ("traversal", "packet_lanes", "packet_min_lanes", "implicit_vectorization")
+        values = [dict.fromkeys((getattr(tuning, n), KNOBS[n].default, *self.space[n]))
+                  for n in names]
+        keys = [configuration_key(tuning, extra)]
+        for combination in itertools.product(*values):
+            try:
+                other = Tuning(**{**tuning.values(), **dict(zip(names, combination,
+                                                                strict=True))})
+            except TuningError:
+                continue
+            if other != tuning and self._built(other) == built:
+                keys.append(configuration_key(other, extra))
+        return tuple(keys)
+
+    def _built(self, tuning: Tuning) -> tuple[dict, int] | None:
+        """What a render of the scene being tuned with `tuning` builds (the plan's switches and
+        BVH width), or None where it cannot build."""
+        try:
+            plan = self.plan(tuning)
+        except ClrayError:
+            return None
+        return plan.switches, plan.bvh_width
 
     def block_params(self, only: Tuning | None = None) -> dict[str, list[int]]:
         """Kernel Tuner's work-group sizes: the work_group_width values as row segments and,
@@ -646,15 +707,22 @@ def _image_check(index: int, reference: np.ndarray, tolerance: Tolerance) -> Any
 def best_configuration(trials: Sequence[Trial], scenes: Sequence[str]
                        ) -> tuple[str, dict[str, Trial]] | None:
     """The configuration verified on every scene with the least total time, as (key, its trial
-    per scene); None when none was."""
+    per scene: the trial that built what the key's knobs build there); None when none was."""
     by_key: dict[str, dict[str, Trial]] = {}
     for trial in trials:
-        by_key.setdefault(trial.key(), {})[trial.scene] = trial
+        for key in trial.keys():
+            by_key.setdefault(key, {})[trial.scene] = trial
     whole = {k: v for k, v in by_key.items()
              if set(v) == set(scenes) and all(t.verified for t in v.values())}
     if not whole:
         return None
-    key = min(whole, key=lambda k: sum(t.time_ms for t in whole[k].values()))
+
+    def changed(key: str) -> int:
+        return len(key_tuning(key).changed())
+
+    # Of the keys that stand for the same trials, the fewest knobs named: the device's own
+    # walk as None, which stays its own on another driver.
+    key = min(whole, key=lambda k: (sum(t.time_ms for t in whole[k].values()), changed(k)))
     return key, whole[key]
 
 

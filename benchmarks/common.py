@@ -86,8 +86,7 @@ def check_outputs(parser: argparse.ArgumentParser, **paths: Path | str | None) -
 # Source of peak() for a child process run with `python -c`: its peak resident bytes, VmHWM,
 # which starts afresh at exec. ru_maxrss does not: it survives fork and exec, so a child that
 # stays below its parent's peak reports the parent's (the parent's mesh writer, for a big mesh).
-# ru_maxrss only where /proc is missing (not Linux). reset_peak() sets VmHWM back to the
-# process's resident size now (Linux 4.0 and later), so a later peak leaves out a warm-up's.
+# ru_maxrss only where /proc is missing (not Linux).
 PEAK_SOURCE = '''
 def peak():
     import resource
@@ -96,12 +95,4 @@ def peak():
             return next(int(line.split()[1]) * 1024 for line in f if line.startswith("VmHWM:"))
     except (OSError, StopIteration):
         return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
-
-def reset_peak():
-    try:
-        with open("/proc/self/clear_refs", "w") as f:
-            f.write("5")
-        return True
-    except OSError:
-        return False
 '''

@@ -7,17 +7,17 @@ runs them.
                                [--against REF [--rounds 3]]
 
 Each size is written once as a binary little-endian PLY (float x, y, z; uchar/int faces, the
-layout scanners and MeshLab write) and rendered in a fresh process (its peak resident memory,
-VmHWM, is its own): the automatic scene of `clray render MODEL` (clray.model_scene), 1280 x
-720, 1 spp, packed as render() packs it for the device (the BVH on the device where it is
-large). The process first loads, packs and renders the same file once as a warm-up, so that
-the kernel (whose build options follow the model: the BVH's stack depth) and, at 20,000
-triangles or more, the device BVH build's program are built before the timed pass, which
-finds them in the process's program cache: its `bvh_s` holds no compile and its `build_s` is
-0; the warm-up's own are `bvh_first_s` and `build_first_s` (a compile, or a load from PoCL's
-kernel cache where an earlier run filled it). The peak (VmHWM) is set back to the resident size
-after the warm-up (Linux's clear_refs; `peak_reset` says whether it was), then read after
-load, after pack and after the render, so each stage's share is in view.
+layout scanners and MeshLab write) and rendered in a fresh process as `clray render MODEL.ply`
+runs it: the automatic scene of `clray render MODEL` (clray.model_scene), 1280 x 720, 1 spp,
+packed as render() packs it for the device (the BVH on the device where it is large). A first
+process runs the same file as a warm-up, so that the kernel (whose build options follow the
+model: the BVH's stack depth) and, at 20,000 triangles or more, the device BVH build's program
+are in pyopencl's and PoCL's caches on disk: the timed process's `bvh_s` and `build_s` hold a
+load from those caches, as a second `clray render` of the model does, and no compile; the
+warm-up's own are `bvh_first_s` and `build_first_s`. The timed process's peak resident memory
+(VmHWM) is its own, as a user's command's is (a warm-up in the same process left its freed
+memory resident and raised the peak by it); it is read after load, after pack and after the
+render, so each stage's share is in view.
 
 Mitsuba 3's load of the same file (its PLY reader and, where built with it, Embree's BVH: a
 `scalar_rgb` scene of one `ply` shape) runs in a process of its own beside clray's where the
@@ -51,7 +51,7 @@ from benchmarks.common import PEAK_SOURCE, check_outputs, positive_int, positive
 MIB = 1024.0 * 1024.0
 
 # The children's peak resident bytes (VmHWM: its own, not the parent's mesh writer's).
-_PEAK = "import gc, json, sys, time\n" + PEAK_SOURCE
+_PEAK = "import json, sys, time\n" + PEAK_SOURCE
 
 # Runs in the child: one size; prints one JSON line.
 _CLRAY = _PEAK + """
@@ -65,16 +65,7 @@ from clray.render import RenderSettings, pack_for
 path = Path(sys.argv[1])
 settings = RenderSettings(width=1280, height=720, spp=1)
 device = select_device(None)
-# Warm-up with the measured model itself: its kernel's options (BVH_STACK_SIZE follows its
-# BVH) and whether its BVH is built on the device (DEVICE_BUILD_MIN) are the timed pass's, so
-# no compile falls in the timed bvh_s or build_s. A smaller mesh built other programs.
-packed = pack_for(load_model_scene(path), settings, device)
-_, stats = render_packed(packed, device)
-out = {"device": describe(device), "bvh_first_s": packed.bvh_s, "build_first_s": stats["build_s"]}
-del packed, stats
-gc.collect()
-out["peak_reset"] = reset_peak()
-out["rss_before"] = peak()
+out = {"device": describe(device), "rss_before": peak()}
 t = time.perf_counter()
 scene = load_model_scene(path)
 out["load_s"] = time.perf_counter() - t
@@ -152,8 +143,10 @@ def unknown_ref(ref: str) -> bool:
 
 
 def measure(path: Path, mitsuba: bool, source: Path = ROOT) -> dict:
-    row = _child(_CLRAY, str(path), source=source)
+    warm_up = _child(_CLRAY, str(path), source=source)
+    row = warm_up if "error" in warm_up else _child(_CLRAY, str(path), source=source)
     if "error" not in row:
+        row["bvh_first_s"], row["build_first_s"] = warm_up["bvh_s"], warm_up["build_s"]
         triangles = row["triangles"]
         device = sum(row["device_bytes"].values())
         row["device_bytes_total"] = device

@@ -189,6 +189,15 @@ def _scatter(client: Client, value: object) -> tuple[Any, int, int]:
     return future, nbytes, workers
 
 
+def _arrived(done: Iterable[Any]) -> Iterator[tuple[Any, Any]]:
+    """(future, result) as each future of `done` (a distributed.as_completed) finishes, each
+    result fetched on its own. as_completed(with_results=True) fetches them concurrently through
+    the client's batched gathers, and there a 12-frame animation once waited for ever on its
+    last frame's result, which the scheduler held in memory (distributed 2026.8.0)."""
+    for future in done:
+        yield future, future.result()
+
+
 def tile_rows_for(rate_rows_per_s: float, rows_left: int, workers: int) -> int:
     """Rows of a tile that takes about TILE_SECONDS at the measured rate, but no more than an
     even share of what is left, so that every worker gets some."""
@@ -241,9 +250,9 @@ def render_still(client: Client, scene: Scene, settings: RenderSettings | None =
         probe = max(1, PROBE_PIXEL_SAMPLES // row_samples)
         pending = [submit(probe) for _ in range(workers) if next_row < height]
     submitted = len(pending)
-    done = distributed.as_completed(pending, with_results=True)
+    done = distributed.as_completed(pending)
     rows_done = 0
-    for _, tile in done:
+    for _, tile in _arrived(done):
         image[tile["start"]:tile["start"] + tile["rows"]] = tile.pop("image")
         _tell(tile.pop("warnings"))
         tiles.append(tile)
@@ -321,7 +330,7 @@ def render_sequence(client: Client, sequence: Sequence, frames: Iterable[int],
     by_worker: dict[str, int] = {}
     result_bytes = 0
     task_s = 0.0
-    for _, out in distributed.as_completed(tasks, with_results=True):
+    for _, out in _arrived(distributed.as_completed(tasks)):
         _tell(out["warnings"])
         by_worker[out["worker"]] = by_worker.get(out["worker"], 0) + 1
         result_bytes += out["result"].image.nbytes
@@ -356,7 +365,7 @@ def study_scenes(client: Client, paths: Iterable[Path], variants: Iterable, repe
                            pure=False) for p in paths]
     by_path: dict[int, list[dict]] = {}
     index = {t.key: i for i, t in enumerate(tasks)}
-    for task, records in import_distributed().as_completed(tasks, with_results=True):
+    for task, records in _arrived(import_distributed().as_completed(tasks)):
         by_path[index[task.key]] = records
         if records:
             say(scene_line(records[0]))

@@ -40,6 +40,8 @@ from types import ModuleType
 import pyopencl as cl
 import pytest
 
+import clray
+from clray import kernels as clray_kernels
 from clray.device import policy as policy_module
 from clray.device import program as program_module
 from clray.device.context import DeviceInfo, context_for, list_devices, select_device
@@ -115,7 +117,23 @@ def _chosen(devices: dict[str, DeviceInfo], wanted: list[str]) -> dict[str, Devi
     return chosen
 
 
+def _check_checkout() -> None:
+    """Refuse to test another checkout's code: an editable install maps `clray.kernels` to the
+    kernels/ folder of the checkout it was made from, so a second checkout (a git worktree)
+    that borrows its environment would test its own Python against the other's kernels."""
+    root = Path(__file__).resolve().parents[1]
+    used = {"clray": Path(clray.__file__).resolve().parent,
+            "clray.kernels": Path(next(iter(clray_kernels.__path__))).resolve()}
+    wanted = {"clray": root / "clray", "clray.kernels": root / "kernels"}
+    for name, path in used.items():
+        if path != wanted[name]:
+            raise pytest.UsageError(
+                f"{name} is imported from {path}, not from this checkout's {wanted[name]}: "
+                f"run `make setup` here for an environment of its own (docs/testing.md)")
+
+
 def pytest_configure(config: pytest.Config) -> None:
+    _check_checkout()
     wanted = ",".join(config.getoption("cl_device")) or os.environ.get(SELECT_ENV, "")
     try:
         devices = _all_test_devices()

@@ -89,8 +89,6 @@ MUTATIONS: tuple[Mutation, ...] = (
     m("instances.one_row_factor_for_all", "kernels/surface.h",
       "REAL3 column = (REAL3)(d0, d1, d2) * inv_det;", "REAL3 column = (REAL3)(d0) * inv_det;",
       INSTANCES, HARD),
-    m("instances.bound_by_the_group_frame_alone", "kernels/surface.h",
-      "(along > (REAL)0 ? group_err / along : (REAL)0)", "group_err", HARD),
     m("instances.double_bound_in_double_roundings", "kernels/surface.h",
       "REAL gamma = fmax(gamma_n(ERR_ROUNDINGS), (REAL)(ERR_ROUNDINGS * FLT_EPSILON));",
       "REAL gamma = gamma_n(ERR_ROUNDINGS);", HARD),

@@ -24,43 +24,52 @@ static inline REAL3 instance_normal(const __global Instance* in, REAL3 n) {
 
 static inline REAL abs_sum3(REAL3 v) { return fabs(v.x) + fabs(v.y) + fabs(v.z); }
 
+// A row of M scaled by a power of two (exact) so that its largest entry lies in [0.5, 1); *down
+// is the factor. The exponent comes from ilogb (Oclgrind's check of uninitialised memory rejects
+// frexp's pointer argument) and the row is multiplied by 2^-e (Oclgrind's ldexp of a vector by
+// one int returned wrong numbers).
+static inline REAL3 unit_row(REAL3 row, REAL* down) {
+    REAL big = max_abs3(row);
+    *down = ldexp((REAL)1, big > (REAL)0 ? -(ilogb(big) + 1) : 0);
+    return row * *down;
+}
+
 // to_world's rows [A | a], the inverse of to_object's [M | m] (the record keeps M alone, 48 B an
 // instance less): A = adj(M) / det(M) from the cross products of M's rows, a = -A m, in REAL.
-// M is scaled by a power of two first (exact), so the cofactors neither overflow nor underflow
-// within the magnitudes the host allows (clray/scene/limits.py). det is not 0 for a matrix the
-// host inverted unless it is too near singular for REAL's cofactors: then A is zero, and the
+// Each row of M is scaled by its own power of two first (exact; M = D R, so A = R^-1 D^-1 scales
+// column j of R's inverse by row j's factor): a transform that stretches one axis 1e19 and keeps
+// the others would make one scale's cofactors underflow float32. det is not 0 for a matrix the
+// host inverted unless R is too near singular for REAL's cofactors: then A is zero, and the
 // error bound's residual term below pushes the point off by its whole miss.
 HOT void instance_to_world(const __global Instance* in, REAL4* a0, REAL4* a1, REAL4* a2) {
     REAL4 m0 = TO_REAL4(in->to_object[0]), m1 = TO_REAL4(in->to_object[1]),
           m2 = TO_REAL4(in->to_object[2]);
-    // big = r 2^e with r in [0.5, 1): frexp's exponent, from ilogb (Oclgrind's check of
-    // uninitialised memory rejects frexp's pointer argument). The rows are scaled by multiplying
-    // with 2^-e, exact as ldexp is (Oclgrind's ldexp of a vector by one int returned wrong
-    // numbers).
-    REAL big = fmax(max_abs3(m0.xyz), fmax(max_abs3(m1.xyz), max_abs3(m2.xyz)));
-    int e = big > (REAL)0 ? ilogb(big) + 1 : 0;
-    REAL down = ldexp((REAL)1, -e);
-    REAL3 r0 = m0.xyz * down, r1 = m1.xyz * down, r2 = m2.xyz * down;
+    REAL d0, d1, d2;
+    REAL3 r0 = unit_row(m0.xyz, &d0), r1 = unit_row(m1.xyz, &d1), r2 = unit_row(m2.xyz, &d2);
     REAL3 c0 = cross(r1, r2), c1 = cross(r2, r0), c2 = cross(r0, r1);
     REAL det = dot(r0, c0);
-    REAL scale = det != (REAL)0 ? down / det : (REAL)0;
+    REAL inv_det = det != (REAL)0 ? (REAL)1 / det : (REAL)0;
+    REAL3 column = (REAL3)(d0, d1, d2) * inv_det;
     REAL3 m = (REAL3)(m0.w, m1.w, m2.w);
-    REAL3 l0 = (REAL3)(c0.x, c1.x, c2.x) * scale, l1 = (REAL3)(c0.y, c1.y, c2.y) * scale,
-          l2 = (REAL3)(c0.z, c1.z, c2.z) * scale;
+    REAL3 l0 = (REAL3)(c0.x, c1.x, c2.x) * column, l1 = (REAL3)(c0.y, c1.y, c2.y) * column,
+          l2 = (REAL3)(c0.z, c1.z, c2.z) * column;
     *a0 = (REAL4)(l0, -dot(l0, m));
     *a1 = (REAL4)(l1, -dot(l1, m));
     *a2 = (REAL4)(l2, -dot(l2, m));
 }
 
 // The surface of a hit inside an instance: found in the group's frame, then mapped to the
-// scene's by to_world. Its error bound covers four things: the group-frame bound mapped through
-// A (the sum of |A| bounds its largest stretch); the rounding of that map; how far the point,
-// mapped back into the group's frame by to_object's M (as a ray spawned here is), misses the
-// group-frame point (the residual: A is a computed inverse, exact only to the roundings of
-// |M| |A| |p| and M's conditioning); and the rounding of that residual. A ray spawned here must
-// not be carried back through the surface: a distance e in the group's frame is at most
-// e / |M^T n| along the normal here. M is float32 in every build, so the rounding terms count
-// float32 roundings even in the double build.
+// scene's by to_world. A ray spawned here starts err |n_g|_1 along the normal (offset_origin) and
+// must not be carried back through the surface, so the bound is what matters along the normal.
+// A world distance d along the normal is d |M^T n| along the group frame's unit normal n
+// (M A = I), so each group-frame term below is divided by |M^T n|: the group-frame bound
+// (e per component is at most e |n|_1 along n), how far the point, mapped back into the group's
+// frame by to_object's M (as a spawned ray is), misses the group-frame point (the residual: A
+// is a computed inverse, exact only to the roundings of |M| |A| |p| and M's conditioning), and
+// the rounding of that residual; the rounding of the map itself is a world bound as it is.
+// Scaling by A's largest stretch instead put a ground made of a sphere stretched 1e4 along x and
+// z a stretch's worth of roundings above itself, inside what stood on it. M is float32 in every
+// build, so the rounding terms count float32 roundings even in the double build.
 HOT Surface instance_surface(const SceneRefs* s, const Ray* r, const Hit* hit, bool want_uv) {
     const __global Instance* in = s->instances + hit->instance;
     Ray group_ray = instance_ray(in, r);
@@ -73,7 +82,6 @@ HOT Surface instance_surface(const SceneRefs* s, const Ray* r, const Hit* hit, b
     REAL3 world = (REAL3)(dot(a0, p), dot(a1, p), dot(a2, p));
     REAL4 ap = fabs(p);
     REAL3 mapped = (REAL3)(dot(fabs(a0), ap), dot(fabs(a1), ap), dot(fabs(a2), ap));
-    REAL stretch = abs_sum3(a0.xyz) + abs_sum3(a1.xyz) + abs_sum3(a2.xyz);
     REAL4 aw = (REAL4)(fabs(world) + mapped, (REAL)1);
     REAL back = fmax(dot(fabs(m0), aw), fmax(dot(fabs(m1), aw), dot(fabs(m2), aw)));
     REAL4 w = (REAL4)(world, (REAL)1);
@@ -81,8 +89,9 @@ HOT Surface instance_surface(const SceneRefs* s, const Ray* r, const Hit* hit, b
     REAL3 n_g = instance_normal(in, sf.n_g);
     REAL along = length(n_g);
     REAL gamma = fmax(gamma_n(ERR_ROUNDINGS), (REAL)(ERR_ROUNDINGS * FLT_EPSILON));
-    sf.err = sf.err * stretch + gamma * (max_abs3(world) + max_comp3(mapped)) +
-             (along > (REAL)0 ? (gamma * back + miss) / along : (REAL)0);
+    REAL group_err = sf.err * abs_sum3(sf.n_g) + gamma * back + miss;
+    sf.err = gamma * (max_abs3(world) + max_comp3(mapped)) +
+             (along > (REAL)0 ? group_err / along : (REAL)0);
     sf.p = world;
     sf.n_g = safe_normalize(n_g);
     sf.n_s = safe_normalize(instance_normal(in, sf.n_s));

@@ -86,6 +86,9 @@ MUTATIONS: tuple[Mutation, ...] = (
     # instances (kernels/bvh.h, kernels/surface.h, clray/device/pack.py)
     m("instances.to_world_not_the_inverse", "kernels/surface.h",
       "c1 = cross(r2, r0)", "c1 = cross(r0, r2)", INSTANCES, HARD),
+    m("instances.one_row_factor_for_all", "kernels/surface.h",
+      "REAL3 column = (REAL3)(d0, d1, d2) * inv_det;", "REAL3 column = (REAL3)(d0) * inv_det;",
+      INSTANCES, HARD),
     m("instances.double_bound_in_double_roundings", "kernels/surface.h",
       "REAL gamma = fmax(gamma_n(ERR_ROUNDINGS), (REAL)(ERR_ROUNDINGS * FLT_EPSILON));",
       "REAL gamma = gamma_n(ERR_ROUNDINGS);", HARD),

@@ -775,6 +775,75 @@ def rotated_box() -> HardCase:
     return HardCase("rotated_box", scene, check)
 
 
+def ellipsoid_hit(eye: np.ndarray, d: np.ndarray, radii: tuple, centre: tuple
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(t, point, unit outward normal) where unit rays first meet the ellipsoid with these
+    semi-axes about `centre` (a unit sphere scaled, then moved), float64; t = inf on a miss."""
+    r = np.asarray(radii, dtype=np.float64)
+    o, dl = (eye - np.asarray(centre, dtype=np.float64)) / r, d / r
+    scale = np.linalg.norm(dl, axis=-1)
+    t = sphere_t(o, dl / scale[..., None], (0, 0, 0), 1.0) / scale
+    p = eye + np.where(np.isfinite(t), t, 0)[..., None] * d
+    n = (p - np.asarray(centre)) / r**2  # the gradient of the ellipsoid's equation
+    return t, p, n / np.linalg.norm(n, axis=-1, keepdims=True)
+
+
+def stretched_ground() -> HardCase:
+    # The ground is a unit sphere stretched 1e4 along x and z (an instance), a ball stands on
+    # it. A spawned ray starts err |n|_1 along the normal; a bound scaled by the transform's
+    # largest stretch rather than its stretch along the normal (1 here) puts shadow rays about
+    # 0.4 up, inside the ball, and darkens the lit ground around it.
+    light = np.array([0.6, -1.0, 0.3]) / np.linalg.norm([0.6, -1.0, 0.3])
+    ball, radius = (0.0, 0.5, 0.0), 0.5
+    radii, centre = (1e4, 1.0, 1e4), (0.0, -1.0, 0.0)
+    ground = {"type": "sphere", "center": [0, 0, 0], "radius": 1, "material": "m",
+              "transform": {"scale": list(radii), "translate": list(centre)}}
+    scene = _scene([ground, {"type": "sphere", "center": list(ball), "radius": radius,
+                             "material": "m"}],
+                   camera={"position": [0, 1.2, 2.5], "look_at": [0, 0.3, 0], "vfov": 45},
+                   materials={"m": MATTE}, width=64, height=48,
+                   lights=[{"type": "directional", "direction": light.tolist()}])
+
+    def check(image: np.ndarray, s: Scene) -> None:
+        eye, d = primary_rays(s)
+        t, p, n = ellipsoid_hit(eye, d, radii, centre)
+        seen = np.isfinite(t) & (impact(eye, d, ball) > radius * 1.03)
+        shadow_b = impact(p[seen], np.broadcast_to(-light, p[seen].shape), ball)
+        lit, dark = seen.copy(), seen.copy()
+        lit[seen] = shadow_b > radius * 1.03
+        dark[seen] = shadow_b < radius * 0.97
+        close(image, lit, (0.1 + 0.9 * np.clip(n[lit] @ -light, 0, None))[:, None], 2 / 255,
+              "lit ground (shadow rays started inside the ball show as 0.1)")
+        close(image, dark, (0.1, 0.1, 0.1), 2 / 255, "ground in the ball's shadow")
+
+    # Not yet in docs/study's report, which a whole study run regenerates.
+    return HardCase("stretched_ground", scene, check, in_study=False)
+
+
+def stretched_wall() -> HardCase:
+    # A unit sphere stretched 1e19 along y and z: a wall 2 thick at x in [-1, 1], lit by a
+    # point light. Inverting its transform scaled by one power of two for the whole matrix,
+    # the two small rows' cofactor (1e-38) underflows float32 and every hit maps to one point.
+    radii, light = (1.0, 1e19, 1e19), (3.0, 0.4, -0.3)
+    wall = {"type": "sphere", "center": [0, 0, 0], "radius": 1, "material": "m",
+            "transform": {"scale": list(radii)}}
+    scene = _scene([wall], camera={"position": [4, 0, 0], "look_at": [0, 0, 0], "vfov": 60},
+                   materials={"m": MATTE}, width=47, height=35,
+                   lights=[{"type": "point", "position": list(light)}])
+
+    def check(image: np.ndarray, s: Scene) -> None:
+        eye, d = primary_rays(s)
+        t, p, n = ellipsoid_hit(eye, d, radii, (0, 0, 0))
+        to_light = np.asarray(light) - p
+        ndl = np.sum(n * to_light, axis=-1) / np.linalg.norm(to_light, axis=-1)
+        lit = np.isfinite(t)
+        close(image, lit, (0.1 + 0.9 * np.clip(ndl[lit], 0, None))[:, None], 2 / 255,
+              "Lambert over the wall from a point light")
+        assert lit.all()
+
+    return HardCase("stretched_wall_1e19", scene, check, in_study=False)
+
+
 def cylinder_hit(o: np.ndarray, d: np.ndarray, radius: float, height: float) -> np.ndarray:
     """Whether rays cross the capped cylinder about +y from y = 0 to height (float64)."""
     a = d[..., 0] ** 2 + d[..., 2] ** 2
@@ -890,6 +959,8 @@ CASES: tuple[HardCase, ...] = (
     thin_ellipsoid(edge_on=True),
     thin_ellipsoid(edge_on=False),
     rotated_box(),
+    stretched_ground(),
+    stretched_wall(),
     sheared_cylinder(),
     torus_on_axis("torus_down_the_axis", 3.0, 1.0, 0.5, [0, 0, 0], 70, lit=False),
     torus_on_axis("torus_thin_1e-4", 1.0, 1.0, 1e-4, [1, 0, 0], 0.06, lit=False),

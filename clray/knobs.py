@@ -8,8 +8,8 @@ implicit_vectorization with sample packets, which renders wrong images on Intel'
 is not legal (restriction_problems), and clray.device.policy.device_plan leaves it off where a
 render builds sample packets whatever a tuning says. The study variants are the exception:
 they change the image, and `clray tune` tries them only under --allow-error. This module
-imports nothing of clray's, so the modules whose constants it replaces (clray.render,
-clray.accel.bvh, clray.accel.wide) can read it.
+imports nothing of clray's but clray.errors (which imports nothing of clray's), so the modules
+whose constants it replaces (clray.render, clray.accel.bvh, clray.accel.wide) can read it.
 """
 
 from __future__ import annotations

@@ -120,15 +120,16 @@ def _chosen(devices: dict[str, DeviceInfo], wanted: list[str]) -> dict[str, Devi
 def _check_checkout() -> None:
     """Refuse to test another checkout's code: an editable install maps `clray.kernels` to the
     kernels/ folder of the checkout it was made from, so a second checkout (a git worktree)
-    that borrows its environment would test its own Python against the other's kernels."""
+    that borrows its environment would test its own Python against the other's kernels. An
+    installed clray (a wheel, or scripts/gpu_check.py's assembled package) is no checkout."""
     root = Path(__file__).resolve().parents[1]
     used = {"clray": Path(clray.__file__).resolve().parent,
             "clray.kernels": Path(next(iter(clray_kernels.__path__))).resolve()}
-    wanted = {"clray": root / "clray", "clray.kernels": root / "kernels"}
     for name, path in used.items():
-        if path != wanted[name]:
+        checkout = path.parent
+        if (checkout / "pyproject.toml").is_file() and checkout != root:
             raise pytest.UsageError(
-                f"{name} is imported from {path}, not from this checkout's {wanted[name]}: "
+                f"{name} is imported from {path}, another checkout than this one ({root}): "
                 f"run `make setup` here for an environment of its own (docs/testing.md)")
 
 

@@ -84,20 +84,21 @@ HOT bool camera_ray_lanes(const __global Camera* camera, const __global Params* 
                           int y, int first, int lanes, uint pixel, RayPacket* p) {
     int spp = params->spp;
     if (spp == 1) return false;
-    // sample_position's grid of nx x ny cells.
+    // sample_position's strata (sampling.h, DEFINE_JITTER).
     int nx = grid_columns(spp);
-    int ny = (spp + nx - 1) / nx;
     uint sample[PACKET_LANES];
-    REAL column[PACKET_LANES], row[PACKET_LANES];
-    // The packet's samples are consecutive: their cells follow the first's along its row, one
+    REAL column[PACKET_LANES], start[PACKET_LANES], cells[PACKET_LANES];
+    // The packet's samples are consecutive: their strata follow the first's along its row, one
     // integer division a packet rather than one a lane.
     int first_column = first % nx, first_row = first / nx;
     int c = first_column, r = first_row;
     for (int j = 0; j < PACKET_LANES; ++j) {
         bool own = j < lanes;
+        int row = own ? r : first_row;
         sample[j] = (uint)(own ? first + j : first);
         column[j] = (REAL)(own ? c : first_column);
-        row[j] = (REAL)(own ? r : first_row);
+        start[j] = (REAL)(row * nx);
+        cells[j] = (REAL)row_cells(row, nx, spp);
         if (++c == nx) {
             c = 0;
             ++r;
@@ -107,8 +108,9 @@ HOT bool camera_ray_lanes(const __global Camera* camera, const __global Params* 
     uint pixel_key = pcg_hash(pcg_hash(params->seed) ^ pixel);
     REALP r0 = rng_uniform_lanes(pixel_key, samples, 0u);
     REALP r1 = rng_uniform_lanes(pixel_key, samples, 1u);
-    REALP sx = jitter_lanes(x, VLOADP(0, column), r0, nx);
-    REALP sy = jitter_lanes(y, VLOADP(0, row), r1, ny);
+    REALP row_cells_p = VLOADP(0, cells);
+    REALP sx = (REAL)x + jitter_lanes(VLOADP(0, column), r0, (REALP)(1), row_cells_p);
+    REALP sy = (REAL)y + jitter_lanes(VLOADP(0, start), r1, row_cells_p, (REALP)((REAL)spp));
     // image_plane_point, then camera_direction.
     REALP px = (REAL)2 * sx / (REAL)params->width - (REAL)1;
     REALP py = (REAL)1 - (REAL)2 * sy / (REAL)params->height;

@@ -17,20 +17,27 @@ static inline int grid_columns(int spp) {
     return nx;
 }
 
-// A coordinate of a jittered sample in pixel units: pixel plus (cell + r) / n, r in [0, 1),
-// of n cells; lane by lane for vectors (real.h, Twins).
+// The strata of a pixel's spp samples (its position in the pixel, and each area light's point):
+// rows of nx = grid_columns(spp) cells, nx / spp high, and a last row of the cells that remain,
+// as much wider and lower, so that every stratum has area 1 / spp and together they tile the
+// unit square. Stratum k is in row k / nx, column k % nx, of a row of `cells` cells; a point of
+// it is (jitter(col, r0, 1, cells), jitter(row nx, r1, cells, spp)) for r0, r1 in [0, 1), one
+// formula for both axes: (start + r width) / n; lane by lane for vectors (real.h, Twins).
 #define DEFINE_JITTER(T, NAME) \
-    HOT T NAME(int pixel, T cell, T r, int n) { return (REAL)pixel + (cell + r) / (REAL)n; }
+    HOT T NAME(T start, T r, T width, T n) { return (start + r * width) / n; }
 DEFINE_JITTER(REAL, jitter)
 
-// Sample s of spp (spp > 1) inside pixel (x, y), in pixel units: a jittered point in cell
-// (s mod nx, s div nx) of an nx x ny grid.
+// The cells of stratum row `row`: nx, or what the last row holds.
+static inline int row_cells(int row, int nx, int spp) { return min(nx, spp - row * nx); }
+
+// Sample s of spp (spp > 1) inside pixel (x, y), in pixel units: a jittered point of stratum s.
 static OUT_OF_LINE REAL2 jittered_position(int x, int y, int s, int spp, uint seed, uint pixel) {
     int nx = grid_columns(spp);
-    int ny = (spp + nx - 1) / nx;
+    int row = s / nx, cells = row_cells(row, nx, spp);
     REAL r0 = rng_uniform(seed, pixel, (uint)s, 0u);
     REAL r1 = rng_uniform(seed, pixel, (uint)s, 1u);
-    return (REAL2)(jitter(x, (REAL)(s % nx), r0, nx), jitter(y, (REAL)(s / nx), r1, ny));
+    return (REAL2)((REAL)x + jitter((REAL)(s % nx), r0, (REAL)1, (REAL)cells),
+                   (REAL)y + jitter((REAL)(row * nx), r1, (REAL)cells, (REAL)spp));
 }
 
 // Sample s of spp inside pixel (x, y), in pixel units: the centre for one sample, else
@@ -88,18 +95,16 @@ static inline REAL light_uniform(uint key, int sample, uint dim) {
 }
 
 // A point of the unit square for this light at this pixel sample. The spp samples take the
-// spp strata of a grid of rows of nx cells (the last row may hold fewer, its cells as much
-// wider as the row is shorter, so every stratum has area 1/spp), each stratum once: sample s
-// takes stratum permute_stratum(s), a permutation drawn per pixel and light, so that a light's
-// strata are independent of the pixel's jitter cells and of every other light's strata.
+// spp strata (DEFINE_JITTER), each once: sample s takes stratum permute_stratum(s), a
+// permutation drawn per pixel and light, so that a light's strata are independent of the
+// pixel's jitter cells and of every other light's strata.
 static OUT_OF_LINE REAL2 light_square(SampleKey k, int light) {
     uint key = light_key(k, light);
     int stratum = (int)permute_stratum((uint)k.sample, (uint)k.spp, key);
-    int row = stratum / k.nx, col = stratum % k.nx;
-    int cells = min(k.nx, k.spp - row * k.nx);
+    int row = stratum / k.nx, cells = row_cells(row, k.nx, k.spp);
     REAL r0 = light_uniform(key, k.sample, 0u), r1 = light_uniform(key, k.sample, 1u);
-    return (REAL2)(((REAL)col + r0) / (REAL)cells,
-                   ((REAL)(row * k.nx) + r1 * (REAL)cells) / (REAL)k.spp);
+    return (REAL2)(jitter((REAL)(stratum % k.nx), r0, (REAL)1, (REAL)cells),
+                   jitter((REAL)(row * k.nx), r1, (REAL)cells, (REAL)k.spp));
 }
 
 // Shirley and Chiu's concentric map of the unit square onto the unit disc: area-preserving, so

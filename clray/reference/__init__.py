@@ -21,10 +21,10 @@ from clray.reference.fresnel import fresnel_polarised, fresnel_reflectance, fres
 from clray.reference.render import render_reference, trace
 from clray.reference.sampling import (
     camera_rays,
+    grid_columns,
     lens_offsets,
     light_square,
     pcg_hash,
-    sample_grid,
     sample_positions,
     sample_uniform,
 )
@@ -40,13 +40,13 @@ __all__ = [
     "fresnel_polarised",
     "fresnel_reflectance",
     "fresnel_schlick",
+    "grid_columns",
     "image_texel",
     "intersect_scene",
     "lens_offsets",
     "light_square",
     "pcg_hash",
     "render_reference",
-    "sample_grid",
     "sample_positions",
     "sample_uniform",
     "trace",

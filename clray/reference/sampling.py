@@ -74,12 +74,10 @@ def permute_stratum(i: np.ndarray, n: int, key: np.ndarray) -> np.ndarray:
     return ((out + key % np.uint32(n)) % np.uint32(n)).astype(np.int64)
 
 
-def sample_grid(spp: int) -> tuple[int, int]:
-    """(nx, ny): nx = ceil(sqrt(spp)) computed in integers, ny = ceil(spp / nx)."""
+def grid_columns(spp: int) -> int:
+    """The strata's columns: ceil(sqrt(spp)), computed in integers."""
     nx = math.isqrt(spp)
-    if nx * nx < spp:
-        nx += 1
-    return nx, -(-spp // nx)
+    return nx + 1 if nx * nx < spp else nx
 
 
 class SampleKey(NamedTuple):
@@ -102,15 +100,23 @@ def light_square(
     key = pcg_hash(pcg_hash(pcg_hash(np.uint32(seed & 0xFFFFFFFF)) ^ pixel)
                    ^ np.uint32(0x80000000 | light))
     stratum = permute_stratum(sample, spp, key)
-    nx, _ = sample_grid(spp)
-    row, col = stratum // nx, stratum % nx
-    cells = np.minimum(nx, spp - row * nx)
 
     def uniform(dim: int) -> np.ndarray:
         counter = (2 * sample + dim).astype(np.uint32)
         return (pcg_hash(key ^ counter) >> np.uint32(8)).astype(np.float64) * 2.0**-24
 
-    return (col + uniform(0)) / cells, (row * nx + uniform(1) * cells) / spp
+    return stratum_point(stratum, spp, uniform(0), uniform(1))
+
+
+def stratum_point(stratum: np.ndarray, spp: int, r0: np.ndarray, r1: np.ndarray
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """A point of the unit square in stratum `stratum` of spp (docs/rendering.md): rows of nx
+    cells, nx / spp high, and a last row of the cells that remain, as much wider and lower, so
+    that the strata tile the square, each of area 1 / spp; (r0, r1) in [0, 1) place it."""
+    nx = grid_columns(spp)
+    row, col = stratum // nx, stratum % nx
+    cells = np.minimum(nx, spp - row * nx)
+    return (col + r0) / cells, (row * nx + r1 * cells) / spp
 
 
 def sample_positions(
@@ -124,12 +130,10 @@ def sample_positions(
     y = (pixel // width).astype(np.float64)
     if spp == 1:
         return x + 0.5, y + 0.5, pixel
-    nx, ny = sample_grid(spp)
     r0 = sample_uniform(seed, pixel, sample, 0)
     r1 = sample_uniform(seed, pixel, sample, 1)
-    sx = x + ((sample % nx) + r0) / nx
-    sy = y + ((sample // nx) + r1) / ny
-    return sx, sy, pixel
+    u, v = stratum_point(sample, spp, r0, r1)
+    return x + u, y + v, pixel
 
 
 def camera_rays(

@@ -235,10 +235,13 @@ def pack_for(scene: Scene, settings: RenderSettings, device: cl.Device,
 
 
 def tuning_stats(plan: DevicePlan, packed: PackedScene) -> dict:
-    """Which configuration rendered, for the stats: its source, the knobs changed from the
-    defaults, every knob's value, and the BVH width that "auto" (None) picked."""
+    """Which configuration rendered, for the stats: its source, the knobs it changed from the
+    defaults (label), every knob's value as built, and the BVH width that "auto" (None)
+    picked. implicit_vectorization is what the kernel was built with: a walk with vector lanes
+    of its own is never packed on top, whatever the tuning says (device_plan)."""
     return {"source": plan.tuning_source, "label": packed.tuning.label(),
-            **packed.tuning.values(), "bvh_width": packed.config.bvh_width}
+            **packed.tuning.values(), "bvh_width": packed.config.bvh_width,
+            "implicit_vectorization": packed.config.implicit_vectorization}
 
 
 def render(scene: Scene | str | os.PathLike | Callable[[], Scene],

@@ -816,8 +816,7 @@ def stretched_ground() -> HardCase:
               "lit ground (shadow rays started inside the ball show as 0.1)")
         close(image, dark, (0.1, 0.1, 0.1), 2 / 255, "ground in the ball's shadow")
 
-    # Not yet in docs/study's report, which a whole study run regenerates.
-    return HardCase("stretched_ground", scene, check, in_study=False)
+    return HardCase("stretched_ground", scene, check)
 
 
 def stretched_wall() -> HardCase:
@@ -841,7 +840,7 @@ def stretched_wall() -> HardCase:
               "Lambert over the wall from a point light")
         assert lit.all()
 
-    return HardCase("stretched_wall_1e19", scene, check, in_study=False)
+    return HardCase("stretched_wall_1e19", scene, check)
 
 
 def cylinder_hit(o: np.ndarray, d: np.ndarray, radius: float, height: float) -> np.ndarray:

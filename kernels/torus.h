@@ -203,15 +203,27 @@ static inline int shell_pieces(REAL3 o, REAL3 u, REAL3 axis, REAL major, REAL mi
 // Every crossing of the ray with the torus at t > 0, ascending, into t (REAL_INF past the
 // last); returns their count. The ray's direction is normalised for the root finding (s: length
 // along it) and the roots mapped back to the ray's t.
+// The root finding works in units of the torus: lengths divided by 2^e, the power of two at or
+// below the major radius. The local quartic squares q0 (about r^2) and has 1 / R^2 for its
+// leading term, so in world units float32 overflows for rings past about 1e10 (r^4 over 3e38:
+// no crossing is found) and goes denormal for rings near 1e-11 (r^4 / R^2 under 1e-38: wrong
+// crossings); in the torus's units every coefficient is of order 1 at any size. Scaling by a
+// power of two is exact (ldexp), and every step below is homogeneous in length (the shell's
+// rounding bound, the brackets' widths), so where world units neither overflow nor underflow
+// the crossings are theirs bit for bit.
 static inline int torus_crossings(const __global Torus* tr, const Ray* r, REAL* t) {
     for (int k = 0; k < TORUS_ROOTS; ++k) t[k] = REAL_INF;
     REAL len = length(r->d);
-    if (!(len > (REAL)0)) return 0;
+    REAL major = TO_REAL(tr->centre_major.w), minor = TO_REAL(tr->axis_minor.w);
+    // ilogb(0) is no exponent (the loader keeps lengths at least 1e-30).
+    if (!(len > (REAL)0) || !(major > (REAL)0)) return 0;
+    int e = ilogb(major);
+    major = ldexp(major, -e);
+    minor = ldexp(minor, -e);
     // The stored float32 axis is unit only to float rounding; the local quartic takes u and the
     // axis as unit to the build's precision.
     REAL3 u = r->d / len, axis = normalize(TO_REAL3(tr->axis_minor));
-    REAL major = TO_REAL(tr->centre_major.w), minor = TO_REAL(tr->axis_minor.w);
-    REAL3 o = r->o - TO_REAL3(tr->centre_major);
+    REAL3 o = ldexp(r->o - TO_REAL3(tr->centre_major), -e);
     REAL lo[2], hi[2];
     int pieces = shell_pieces(o, u, axis, major, minor, lo, hi);
     REAL roots[TORUS_ROOTS];
@@ -222,7 +234,7 @@ static inline int torus_crossings(const __global Torus* tr, const Ray* r, REAL* 
     }
     int count = 0;
     for (int k = 0; k < n; ++k) {
-        REAL tk = roots[k] / len;
+        REAL tk = ldexp(roots[k], e) / len;
         if (tk > (REAL)0) t[count++] = tk;
     }
     return count;

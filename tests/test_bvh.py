@@ -126,6 +126,18 @@ def _random_set(kind: str, n: int, rng: np.random.Generator) -> tuple[np.ndarray
         c[:, 1] = 0.1
         e = rng.uniform(0, 0.3, (n, 3))
         e[:, 1] = 0
+    elif kind == "segment":
+        # Boxes of no area on one line (degenerate triangles along an axis): every node's box
+        # is a segment.
+        c = np.zeros((n, 3))
+        c[:, 0] = rng.uniform(-5, 5, n)
+        e = np.zeros((n, 3))
+        e[:, 0] = rng.exponential(1e-3, n)
+    elif kind == "segment_and_boxes":
+        # A quarter boxes, the rest segments on a line through them: nodes of both kinds.
+        lo, hi = _random_set("segment", n, rng)
+        lo[: n // 4], hi[: n // 4] = _random_set("uniform", n // 4, rng)
+        return lo, hi
     elif kind == "clustered_scales":
         # Tiny clusters far apart: extents near float32 spacing at the cluster positions.
         c = rng.choice([-1e4, 0.0, 1e4], (n, 3)) + rng.normal(0, 1e-3, (n, 3))
@@ -135,7 +147,8 @@ def _random_set(kind: str, n: int, rng: np.random.Generator) -> tuple[np.ndarray
     return _boxes(c, e)
 
 
-KINDS = ["uniform", "points", "same_centroid", "duplicates", "flat", "clustered_scales"]
+KINDS = ["uniform", "points", "same_centroid", "duplicates", "flat", "clustered_scales",
+         "segment", "segment_and_boxes"]
 
 
 @settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
@@ -163,6 +176,28 @@ def test_coincident_primitives_are_split_to_bounded_leaves():
     lo = np.zeros((1000, 3))
     bvh = build_bvh(lo, lo + 1.0, max_leaf_size=4)
     check_bvh(bvh, lo, lo + 1.0, 4)
+
+
+def _depth(nodes: np.ndarray) -> int:
+    """Deepest node of a depth-first tree (the root at depth 0)."""
+    depth = np.zeros(nodes.size, dtype=np.int64)
+    for i in np.flatnonzero(nodes["count"] == 0):
+        depth[i + 1] = depth[nodes["first"][i]] = depth[i] + 1
+    return int(depth.max())
+
+
+@pytest.mark.parametrize("width", [4, 8])
+def test_boxes_of_no_area_build_a_balanced_tree(width):
+    # Every candidate split of a node of segments has zero area: costed by area, all tie and
+    # each split peels off the first bin.
+    # By length, the tree is as shallow as over the same segments given a little thickness.
+    n = 20000
+    lo, hi = _random_set("segment", n, np.random.default_rng(4))
+    segments = build_bvh(lo, hi)
+    thick = build_bvh(lo, hi + np.array([0, 1e-6, 1e-6]))
+    assert _depth(segments.nodes) <= _depth(thick.nodes) <= 2 * math.ceil(math.log2(n))
+    assert (collapse(segments, 5 << 28, width).stack_size
+            <= collapse(thick, 5 << 28, width).stack_size)
 
 
 @pytest.mark.parametrize(("lo", "hi"), [
@@ -386,6 +421,11 @@ def _half_area(lo: np.ndarray, hi: np.ndarray) -> float:
     return float(e[0] * e[1] + e[1] * e[2] + e[2] * e[0])
 
 
+def _measure(lo: np.ndarray, hi: np.ndarray, by_length: bool) -> float:
+    """The SAH's measure of a box: half area, or length in a node of no area."""
+    return float(np.maximum(hi - lo, 0.0).sum()) if by_length else _half_area(lo, hi)
+
+
 def _packets(n: int) -> int:
     """Packet tests of a leaf of n primitives, counted on their own: ceil(n / 4)."""
     return math.ceil(n / 4)
@@ -411,6 +451,9 @@ def reference_sah_cost(lo: np.ndarray, hi: np.ndarray, max_leaf_size: int) -> fl
 
 def _reference_split(lo: np.ndarray, hi: np.ndarray, area: float):
     """(goes right, SAH prefers a leaf) for one node, or None when its centroids coincide."""
+    by_length = area == 0
+    if by_length:
+        area = _measure(lo.min(axis=0), hi.max(axis=0), True)
     c = 0.5 * (lo + hi)
     ext = c.max(axis=0) - c.min(axis=0)
     axis = int(np.argmax(ext))
@@ -424,15 +467,17 @@ def _reference_split(lo: np.ndarray, hi: np.ndarray, area: float):
         left = b <= k
         if left.all() or not left.any():
             continue
-        cost = (_half_area(lo[left].min(axis=0), hi[left].max(axis=0)) * _packets(left.sum())
-                + _half_area(lo[~left].min(axis=0), hi[~left].max(axis=0))
+        cost = (_measure(lo[left].min(axis=0), hi[left].max(axis=0), by_length)
+                * _packets(left.sum())
+                + _measure(lo[~left].min(axis=0), hi[~left].max(axis=0), by_length)
                 * _packets((~left).sum()))
         if cost < best_cost:
             best, best_cost = k, cost
     return b > best, TRAVERSAL_COST * area + best_cost >= _packets(n) * area
 
 
-@pytest.mark.parametrize("kind", ["uniform", "duplicates", "flat", "clustered_scales"])
+@pytest.mark.parametrize("kind", ["uniform", "duplicates", "flat", "clustered_scales",
+                                  "segment_and_boxes"])
 @pytest.mark.parametrize("seed", [1, 2])
 def test_sah_cost_matches_a_recursive_reference(kind, seed):
     lo, hi = _random_set(kind, 3000, np.random.default_rng(seed))

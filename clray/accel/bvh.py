@@ -166,6 +166,13 @@ def _half_area(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
     return e[..., 0] * e[..., 1] + e[..., 1] * e[..., 2] + e[..., 2] * e[..., 0]
 
 
+def _half_perimeter(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """Sum of the edge lengths along the three axes of boxes with corners along the last
+    axis: a segment's length; empty boxes give 0."""
+    e = np.maximum(hi.astype(np.float64) - lo, 0)
+    return e[..., 0] + e[..., 1] + e[..., 2]
+
+
 def _segment_ranks(counts: np.ndarray, offsets: np.ndarray,
                    total: int) -> tuple[np.ndarray, np.ndarray]:
     """Segment id of each of `total` slots and its rank within the segment."""
@@ -345,20 +352,33 @@ class _Builder:
                     bin_count: np.ndarray, bin_lo: np.ndarray, bin_hi: np.ndarray
                     ) -> tuple[np.ndarray, np.ndarray]:
         """(each node's best split bin, whether it stays a leaf) by the surface area
-        heuristic."""
+        heuristic.
+
+        A node whose box has no area (its primitives lie on a segment parallel to an axis, or
+        at a point) is costed by length instead: every candidate there has zero area, so area
+        would tie them all and each split would peel off the first bin. A ray meets a segment
+        with a chance in proportion to its length (Cauchy-Crofton), as it meets a box in
+        proportion to its area, so length is the same heuristic one dimension down."""
+        a_node = _half_area(bounds[:, :3], bounds[:, 3:])
+        by_length = (a_node == 0)[:, None]
         # SAH cost of splitting after bin k (k = 0 .. N_BINS-2), from prefix and suffix unions.
         n_left = np.cumsum(bin_count, axis=1)[:, :-1]
         n_right = count[:, None] - n_left
-        a_left = _half_area(np.minimum.accumulate(bin_lo, axis=1),
-                            np.maximum.accumulate(bin_hi, axis=1))[:, :-1]
-        a_right = _half_area(np.minimum.accumulate(bin_lo[:, ::-1], axis=1),
-                             np.maximum.accumulate(bin_hi[:, ::-1], axis=1))[:, -2::-1]
+        left_lo = np.minimum.accumulate(bin_lo, axis=1)[:, :-1]
+        left_hi = np.maximum.accumulate(bin_hi, axis=1)[:, :-1]
+        right_lo = np.minimum.accumulate(bin_lo[:, ::-1], axis=1)[:, -2::-1]
+        right_hi = np.maximum.accumulate(bin_hi[:, ::-1], axis=1)[:, -2::-1]
+        a_left = np.where(by_length, _half_perimeter(left_lo, left_hi),
+                          _half_area(left_lo, left_hi))
+        a_right = np.where(by_length, _half_perimeter(right_lo, right_hi),
+                           _half_area(right_lo, right_hi))
         cost = a_left * packets(n_left) + a_right * packets(n_right)
         cost[(n_left == 0) | (n_right == 0)] = np.inf
         best = np.argmin(cost, axis=1)
         best_cost = cost[np.arange(count.size), best]
-        a_node = _half_area(bounds[:, :3], bounds[:, 3:])
-        # Compared multiplied through by the node's area, so flat and point nodes need no care.
+        a_node = np.where(by_length[:, 0], _half_perimeter(bounds[:, :3], bounds[:, 3:]), a_node)
+        # Compared multiplied through by the node's area (or length), so point nodes need no
+        # care.
         sah_leaf = ((self.traversal_cost * a_node + best_cost >= packets(count) * a_node)
                     | ~binnable)
         return best, sah_leaf & (count <= self.sah_leaf)

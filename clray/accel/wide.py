@@ -202,20 +202,26 @@ def _open_children(parents: np.ndarray, first: np.ndarray, nodes: np.ndarray, wi
     def grow(part: slice) -> None:
         mine = tuple(field[part] for field in level)
         rows = np.arange(part.stop - part.start)
-        area = np.full((rows.size, width), -1.0)  # an inner child's, -1 for a leaf or none
+        # An inner child's half area and length (clray.accel.bvh._sah_choice), -1 for a leaf
+        # or none. Length orders children of no area (segments), which area alone would tie:
+        # the first of them opened each time, the node would grow down one side.
+        area = np.full((rows.size, width), -1.0)
+        length = np.full((rows.size, width), -1.0)
         left, right = _children(parents[part], first[part], pairs)
-        _place(mine, area, rows, 0, left, nodes)
-        _place(mine, area, rows, 1, right, nodes)
+        _place(mine, area, length, rows, 0, left, nodes)
+        _place(mine, area, length, rows, 1, right, nodes)
         for filled in range(2, width):
             k = np.argmax(area, axis=1)
+            flat = area[rows, k] == 0
+            k[flat] = np.argmax(np.where(area[flat] == 0, length[flat], -1.0), axis=1)
             open_rows = rows[area[rows, k] >= 0]
             if open_rows.size == 0:
                 break
             k = k[open_rows]
             left, right = _children(mine[0][open_rows, k].astype(np.int64),
                                     mine[1][open_rows, k].astype(np.int64), pairs)
-            _place(mine, area, open_rows, k, left, nodes)
-            _place(mine, area, open_rows, filled, right, nodes)
+            _place(mine, area, length, open_rows, k, left, nodes)
+            _place(mine, area, length, open_rows, filled, right, nodes)
     by_chunks(m, grow, row_items=width)
     return level
 
@@ -226,16 +232,19 @@ def _children(node: np.ndarray, first: np.ndarray, pairs: bool) -> tuple[np.ndar
     return (first, first + 1) if pairs else (node + 1, first)
 
 
-def _place(level: _Level, area: np.ndarray, rows: np.ndarray, col: np.ndarray | int,
-           node: np.ndarray, nodes: np.ndarray) -> None:
-    """Binary nodes `node` into child slots (rows, col) of `level`, with their areas."""
+def _place(level: _Level, area: np.ndarray, length: np.ndarray, rows: np.ndarray,
+           col: np.ndarray | int, node: np.ndarray, nodes: np.ndarray) -> None:
+    """Binary nodes `node` into child slots (rows, col) of `level`, with their half areas and
+    lengths (-1 for a leaf)."""
     taken = nodes.take(node).view(BINARY_NODE)
     level[0][rows, col] = node
     level[1][rows, col] = taken["first"]
     level[2][rows, col] = taken["count"]
     ext = np.maximum(taken["hi"].astype(np.float64) - taken["lo"], 0)
     half_area = ext[:, 0] * ext[:, 1] + ext[:, 1] * ext[:, 2] + ext[:, 2] * ext[:, 0]
-    area[rows, col] = np.where(taken["count"] == 0, half_area, -1.0)
+    inner = taken["count"] == 0
+    area[rows, col] = np.where(inner, half_area, -1.0)
+    length[rows, col] = np.where(inner, ext[:, 0] + ext[:, 1] + ext[:, 2], -1.0)
 
 
 def _fold(slots: np.ndarray, first: np.ndarray, count: np.ndarray, kinds: _Kinds,

@@ -350,7 +350,7 @@ def test_device_rounding_at_the_edges_of_float32(cl_queue):
 def test_device_build_runs_on_the_device(cl_queue, monkeypatch):
     # Above max_leaf_size primitives on a device that supports it, build_bvh_on does not fall
     # back to the host build (which would make the comparisons above vacuous).
-    def device_build(*args: object) -> None:
+    def device_build(*args: object, **kwargs: object) -> None:
         raise RuntimeError("device build")
 
     monkeypatch.setattr(bvh_builder, "build", device_build)
@@ -396,7 +396,7 @@ def test_device_build_only_where_its_buffers_fit_the_device(cl_queue):
 def test_device_build_over_the_largest_allocation_builds_on_the_host(cl_queue, monkeypatch):
     # A device whose largest allocation cannot hold the build's buffers: the host builds the
     # same tree, and the device build is never tried (its buffers would fail to allocate).
-    def device_build(*args: object) -> None:
+    def device_build(*args: object, **kwargs: object) -> None:
         raise RuntimeError("device build")
 
     monkeypatch.setattr(bvh_builder, "build", device_build)
@@ -404,6 +404,33 @@ def test_device_build_over_the_largest_allocation_builds_on_the_host(cl_queue, m
     small = _StandInDevice(cl_queue.device, 1 << 10, 1 << 30)
     queue = type("Queue", (), {"device": small})()
     assert_same_tree(build_bvh_on(queue, lo, lo + 0.1, 4), build_bvh(lo, lo + 0.1, 4))
+
+
+def _float_prims(n: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    lo, hi = bvh_builder.float_prims(n)
+    c = np.random.default_rng(seed).uniform(-1, 1, (n, 3))
+    lo[:], hi[:] = c, c + 0.01
+    return lo, hi
+
+
+def test_device_build_leaves_its_bounds_as_they_were(cl_queue):
+    # Bounds made by float_prims are the device build's records only where the caller lets it
+    # consume them: a CPU device partitions those in place.
+    lo, hi = _float_prims(5000, 6)
+    was = lo.copy(), hi.copy()
+    bvh = build_bvh_on(cl_queue, lo, hi)
+    assert np.array_equal(lo, was[0]) and np.array_equal(hi, was[1])
+    assert_same_tree(bvh, build_bvh(*was))
+
+
+def test_device_build_may_consume_the_records_of_float_prims(cl_queue, monkeypatch):
+    # Consumed, the records are the build's first buffer: no copy of them rounded in.
+    lo, hi = _float_prims(5000, 7)
+    expected = build_bvh(lo, hi)
+    if not bvh_builder.is_oclgrind(cl_queue.device):
+        monkeypatch.setattr(bvh_builder, "_round_in", None)
+    bvh = bvh_builder.build_bvh_from(cl_queue, [lo, hi], consume=True)
+    assert_same_tree(bvh, expected)
 
 
 def test_device_build_of_mesh_triangles(cl_queue):

@@ -49,6 +49,11 @@ FOLD_PACKETS = KNOBS["fold_packets"].default
 _OPAQUE = np.dtype((np.void, BINARY_NODE.itemsize))
 # The leaf section of each primitive kind that has one of its own; any other kind: 2.
 _SECTION = {P.PRIM_TRIANGLE: 0, SPHERE.prim: 1}
+# The most primitives of each section a leaf's count can describe: triangle packets fill the
+# int32's bits above LEAF_TRIANGLE_SHIFT short of the sign (a negative count is an instance's
+# marker to the kernels), sphere packets and other primitives a field of LEAF_FIELD_MASK each.
+_SECTION_MOST = ((np.iinfo(np.int32).max >> LEAF_TRIANGLE_SHIFT) * PACKET_WIDTH,
+                 LEAF_FIELD_MASK * PACKET_WIDTH, LEAF_FIELD_MASK)
 
 
 def bvh_node_dtype(width: int) -> np.dtype:
@@ -292,8 +297,11 @@ def _lay_out_leaves(first: np.ndarray, count: np.ndarray, order_refs: np.ndarray
         sizes, position = _sections(refs, count, offsets)
     tri_packets = -(-sizes[0] // PACKET_WIDTH)
     sphere_packets = -(-sizes[1] // PACKET_WIDTH)
-    if np.any(sizes[2] > LEAF_FIELD_MASK) or np.any(sphere_packets > LEAF_FIELD_MASK):
-        raise ValueError(f"a leaf holds more than {LEAF_FIELD_MASK} of one section")
+    for size, name, most in zip(sizes, ("triangles", "spheres", "other primitives"),
+                                _SECTION_MOST, strict=True):
+        if size.size and size.max() > most:
+            raise ValueError(f"a leaf of {int(size.max())} {name} exceeds {most}, the most "
+                             f"its count field holds: build with a smaller largest_leaf")
     padded = -(-((tri_packets + sphere_packets) * PACKET_WIDTH + sizes[2]) // PACKET_WIDTH)
     start = np.concatenate([[0], np.cumsum(padded * PACKET_WIDTH)[:-1]]).astype(np.int64)
     prim_refs = np.full(int(padded.sum()) * PACKET_WIDTH, NO_REF, dtype=np.int32)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import warnings
 
 import numpy as np
 import pytest
@@ -219,15 +220,30 @@ def test_rejects_bad_bounds(lo, hi):
     (-1e39, "lo", "float32 range"), (2.0, "lo", "lo > hi"),
 ])
 def test_rejects_one_bad_bound_past_the_first_rows(dtype, value, where, message):
-    """One bad value among many good ones, in the last row (the checks go a block of rows at
-    a time): named for what is wrong."""
+    """One bad value among many good ones, near the end (the checks go a block of rows at
+    a time): named for what is wrong, with the primitive's index and bounds."""
     n = 3 * (1 << 16) + 5
     bounds = {"lo": np.zeros((n, 3), dtype), "hi": np.ones((n, 3), dtype)}
     if value == -1e39 and dtype == np.float32:
         value = -np.inf  # float32 cannot hold it: its rounding is the case
-    bounds[where][-1, 1] = value
-    with pytest.raises(ValueError, match=message):
+    bounds[where][-2, 1] = value
+    with pytest.raises(ValueError, match=message) as raised:
         checked_bounds(bounds["lo"], bounds["hi"], 4, None)
+    lo, hi = bounds["lo"][-2], bounds["hi"][-2]
+    assert str(raised.value).startswith(f"primitive {n - 2}'s bounds ")
+    assert str(raised.value).endswith(f"lo (0.0, {lo[1]}, 0.0), hi (1.0, {hi[1]}, 1.0)")
+
+
+def test_bounds_near_float32s_limits_build_without_warnings():
+    # Centroids from -3e38 to 3e38 span more than float32 holds: the node is not binned, and
+    # the build says nothing about the overflow on the way.
+    c = np.zeros((8, 3))
+    c[:4, 0], c[4:, 0] = -3e38, 3e38
+    c[:, 1] = np.arange(8)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        bvh = build_bvh(c, c + 1, 1)
+    check_bvh(bvh, c, c + 1, 1)
 
 
 def test_values_checked_skips_the_value_scans_but_not_the_shape_checks():

@@ -13,6 +13,7 @@ float64 min/max: node bounds hold the float64 geometry exactly, as the double bu
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import NamedTuple
 
@@ -120,8 +121,32 @@ def _check_values(lo: np.ndarray, hi: np.ndarray) -> None:
     if ordered and lo.min() >= -_F32_MAX and hi.max() <= _F32_MAX:
         return
     if not (within_float32(lo) and within_float32(hi)):
-        raise ValueError("primitive bounds must be finite and within float32 range")
-    raise ValueError("primitive bounds have lo > hi")
+        i = _first_row(lo, hi, lambda a, b: ~(_within_rows(a) & _within_rows(b)))
+        raise ValueError(f"primitive {i}'s bounds must be finite and within float32 range: "
+                         f"{_row_text(lo, hi, i)}")
+    i = _first_row(lo, hi, lambda a, b: (a > b).any(axis=1))
+    raise ValueError(f"primitive {i}'s bounds have lo > hi: {_row_text(lo, hi, i)}")
+
+
+def _within_rows(a: np.ndarray) -> np.ndarray:
+    """Which rows' values are all finite and within float32's range."""
+    return ((a >= -_F32_MAX) & (a <= _F32_MAX)).all(axis=1)
+
+
+def _first_row(lo: np.ndarray, hi: np.ndarray,
+               bad: Callable[[np.ndarray, np.ndarray], np.ndarray]) -> int:
+    """Index of the first row for which bad(lo rows, hi rows) holds, a block of rows at a
+    time; the caller knows there is one."""
+    for at in range(0, len(lo), _CHECK_ROWS):
+        rows = np.flatnonzero(bad(lo[at:at + _CHECK_ROWS], hi[at:at + _CHECK_ROWS]))
+        if rows.size:
+            return at + int(rows[0])
+    raise AssertionError("no bad row")
+
+
+def _row_text(lo: np.ndarray, hi: np.ndarray, i: int) -> str:
+    return (f"lo ({', '.join(str(v) for v in lo[i])}), "
+            f"hi ({', '.join(str(v) for v in hi[i])})")
 
 
 def within_float32(a: np.ndarray) -> bool:
@@ -323,7 +348,11 @@ class _Builder:
         bin the primitive count and the bounds' low and high corners)."""
         prim = self.prim
         p = self.ids.size
-        extent = cbounds[:, 3:] - cbounds[:, :3]
+        # Float32, as the device build finds them: centroids near float32's limits may span
+        # more than it holds, an extent of inf, whose node is not binned (below). Its bins,
+        # inf * 0 = NaN cast and clipped, are never read.
+        with np.errstate(over="ignore"):
+            extent = cbounds[:, 3:] - cbounds[:, :3]
         axis = np.argmax(extent, axis=1)
         rows = np.arange(m)
         cmin = cbounds[rows, axis]
@@ -335,7 +364,8 @@ class _Builder:
         binnable = np.isfinite(scale) & (scale > 0)
         scale[~binnable] = 0
         c = prim.ravel().take((6 + axis)[seg] * p + np.arange(p))
-        b = ((c - cmin[seg]) * scale[seg]).astype(np.int64)
+        with np.errstate(over="ignore", invalid="ignore"):
+            b = ((c - cmin[seg]) * scale[seg]).astype(np.int64)
         np.clip(b, 0, N_BINS - 1, out=b)
         key = seg * N_BINS + b
         bin_count = np.bincount(key, minlength=m * N_BINS).reshape(m, N_BINS)

@@ -1,4 +1,4 @@
-// The binned-SAH BVH build of clray/accel/bvh.py on the device (clray/device/bvh_build.py
+// The binned-SAH BVH build of clray/accel/bvh.py on the device (clray/device/bvh_builder.py
 // launches it): the same splits and bounds, so the same tree. Its records (BuildPrim,
 // BuildTask, BinaryNode) are in clray_types.h.
 #pragma OPENCL EXTENSION cl_khr_fp64 : enable

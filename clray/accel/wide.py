@@ -319,9 +319,9 @@ def _slots_in_build_order(start: np.ndarray, first: np.ndarray, count: np.ndarra
     """The slot of each primitive of the build's order, where the leaves, each starting at
     slot `start` with its primitives order[first:first + count] in their order, hold every
     primitive once: the leaves taken by their first primitive, so the primitives come in
-    the build's order and its refs are read once in sequence. int32 (slots fit): where a
-    leaf's refs were gathered by an int64 index a primitive, the leaves' layout made four
-    arrays of 8 B a primitive and took twice the time."""
+    the build's order and its refs are read once in sequence. One int32 array (slots fit):
+    gathering each leaf's refs and scattering them would take an int64 index a primitive
+    for each, four such arrays in all (docs/scale.md)."""
     by_first = np.argsort(first)
     slots = np.repeat((start - first)[by_first].astype(np.int32), count[by_first])
     slots += np.arange(len(slots), dtype=np.int32)

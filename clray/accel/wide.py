@@ -372,55 +372,74 @@ def fill_nodes(wide: WideBvh) -> WideBvh:
     whose greedy collapse above leaves many nodes of two or three children where a balanced
     binary tree's depth is not a multiple of log2(width): each lane there is an instance's
     record-sized share of node bytes. A Python loop over the nodes: for trees of thousands."""
-    width = wide.width
     if wide.nodes.size == 0:
         return wide
-    fields = ("lo_x", "lo_y", "lo_z", "hi_x", "hi_y", "hi_z")
-    # Each node's used lanes as [lo(3), hi(3), child, count] lists.
-    box = np.stack([wide.nodes[f] for f in fields], axis=-1).astype(np.float64)
+    lanes = _lanes(wide)
+    _fill(lanes, 0, wide.width)
+    return _laid_out(lanes, wide.width, wide.prim_refs)
+
+
+# A node's used lanes, as fill_nodes works on them: (bounds: lo xyz, hi xyz; child; count).
+_Lane = tuple[np.ndarray, int, int]
+_BOUND_FIELDS = ("lo_x", "lo_y", "lo_z", "hi_x", "hi_y", "hi_z")
+
+
+def _lanes(wide: WideBvh) -> list[list[_Lane]]:
+    """Each node's used lanes."""
+    box = np.stack([wide.nodes[f] for f in _BOUND_FIELDS], axis=-1).astype(np.float64)
     child, count = wide.nodes["child"], wide.nodes["count"]
-    lanes = [[(box[i, k], int(child[i, k]), int(count[i, k])) for k in range(width)
-              if child[i, k] >= 0] for i in range(wide.nodes.size)]
+    return [[(box[i, k], int(child[i, k]), int(count[i, k])) for k in range(wide.width)
+             if child[i, k] >= 0] for i in range(wide.nodes.size)]
 
-    def inner(lane: tuple) -> bool:
-        return lane[2] == 0
 
-    def fill(i: int) -> None:
-        for lane in lanes[i]:
-            if inner(lane):
-                fill(lane[1])
-        changed = True
-        while changed:
-            changed = False
-            # Move up the smallest inner child that fits in the room left.
-            for k, lane in sorted(enumerate(lanes[i]), key=lambda kl: len(lanes[kl[1][1]])
-                                  if inner(kl[1]) else width + 1):
-                if inner(lane) and len(lanes[i]) - 1 + len(lanes[lane[1]]) <= width:
-                    lanes[i][k:k + 1] = lanes[lane[1]]
-                    changed = True
-                    break
-            if changed:
-                continue
-            # Merge two inner children whose lanes fit in one node.
-            kids = sorted((k for k, lane in enumerate(lanes[i]) if inner(lane)),
-                          key=lambda k: len(lanes[lanes[i][k][1]]))
-            for a, b in itertools.combinations(kids, 2):
-                na, nb = lanes[i][a][1], lanes[i][b][1]
-                if len(lanes[na]) + len(lanes[nb]) <= width:
-                    lanes[na] = lanes[na] + lanes[nb]
-                    joined = np.concatenate([np.minimum(lanes[i][a][0][:3], lanes[i][b][0][:3]),
-                                             np.maximum(lanes[i][a][0][3:], lanes[i][b][0][3:])])
-                    lanes[i][a] = (joined, na, 0)
-                    del lanes[i][b]
-                    changed = True
-                    break
+def _inner(lane: _Lane) -> bool:
+    return lane[2] == 0
 
-    fill(0)
-    # Number the nodes left breadth first from the root, and lay them out: empty lanes have NaN
-    # bounds, child -1 and count 0, as the collapse leaves them.
+
+def _fill(lanes: list[list[_Lane]], i: int, width: int) -> None:
+    """Node i's subtree filled: its children's first, then moves and merges at i until none
+    is left."""
+    for lane in lanes[i]:
+        if _inner(lane):
+            _fill(lanes, lane[1], width)
+    while _move_up(lanes, i, width) or _merge(lanes, i, width):
+        pass
+
+
+def _move_up(lanes: list[list[_Lane]], i: int, width: int) -> bool:
+    """Moves the lanes of node i's smallest inner child that fits in the room left up into
+    it; False where none fits."""
+    for k, lane in sorted(enumerate(lanes[i]), key=lambda kl: len(lanes[kl[1][1]])
+                          if _inner(kl[1]) else width + 1):
+        if _inner(lane) and len(lanes[i]) - 1 + len(lanes[lane[1]]) <= width:
+            lanes[i][k:k + 1] = lanes[lane[1]]
+            return True
+    return False
+
+
+def _merge(lanes: list[list[_Lane]], i: int, width: int) -> bool:
+    """Merges two of node i's inner children whose lanes fit in one node, the smallest
+    first; False where no two fit."""
+    kids = sorted((k for k, lane in enumerate(lanes[i]) if _inner(lane)),
+                  key=lambda k: len(lanes[lanes[i][k][1]]))
+    for a, b in itertools.combinations(kids, 2):
+        na, nb = lanes[i][a][1], lanes[i][b][1]
+        if len(lanes[na]) + len(lanes[nb]) <= width:
+            lanes[na] = lanes[na] + lanes[nb]
+            joined = np.concatenate([np.minimum(lanes[i][a][0][:3], lanes[i][b][0][:3]),
+                                     np.maximum(lanes[i][a][0][3:], lanes[i][b][0][3:])])
+            lanes[i][a] = (joined, na, 0)
+            del lanes[i][b]
+            return True
+    return False
+
+
+def _laid_out(lanes: list[list[_Lane]], width: int, prim_refs: np.ndarray) -> WideBvh:
+    """The nodes the root still reaches, numbered breadth first from it and laid out: empty
+    lanes have NaN bounds, child -1 and count 0, as the collapse leaves them."""
     order, at = [0], 0
     while at < len(order):
-        order.extend(lane[1] for lane in lanes[order[at]] if inner(lane))
+        order.extend(lane[1] for lane in lanes[order[at]] if _inner(lane))
         at += 1
     number = {old: new for new, old in enumerate(order)}
     bounds = np.full((len(order), 6, width), np.nan, dtype=np.float32)
@@ -436,8 +455,8 @@ def fill_nodes(wide: WideBvh) -> WideBvh:
                 # The stack bound as _stack_size counts it.
                 pushed[number[c]] = pushed[new] + len(lanes[old]) - 1
     nodes = np.zeros(len(order), dtype=bvh_node_dtype(width))
-    for f, field in enumerate(fields):
+    for f, field in enumerate(_BOUND_FIELDS):
         nodes[field] = bounds[:, f]
     nodes["child"], nodes["count"] = kids, counts
     used = np.array([len(lanes[old]) for old in order])
-    return WideBvh(nodes, wide.prim_refs, width, int((pushed + used - 1).max()) + 1)
+    return WideBvh(nodes, prim_refs, width, int((pushed + used - 1).max()) + 1)

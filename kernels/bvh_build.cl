@@ -1,4 +1,4 @@
-// The binned-SAH BVH build of clray/accel/bvh.py on the device (clray/device/bvh_build.py
+// The binned-SAH BVH build of clray/accel/bvh.py on the device (clray/device/bvh_builder.py
 // launches it): the same splits and bounds, so the same tree. Its records (BuildPrim,
 // BuildTask, BinaryNode) are in clray_types.h.
 #pragma OPENCL EXTENSION cl_khr_fp64 : enable
@@ -131,6 +131,19 @@ static double half_area(float4 lo, float4 hi) {
     return ex * ey + ey * ez + ez * ex;
 }
 
+static double half_perimeter(float4 lo, float4 hi) {
+    double ex = fmax((double)hi.x - (double)lo.x, 0.0);
+    double ey = fmax((double)hi.y - (double)lo.y, 0.0);
+    double ez = fmax((double)hi.z - (double)lo.z, 0.0);
+    return ex + ey + ez;
+}
+
+// The SAH's measure of a box: its half area, or its length in a node of no area (the host's
+// _sah_choice says why).
+static double measure(float4 lo, float4 hi, bool by_length) {
+    return by_length ? half_perimeter(lo, hi) : half_area(lo, hi);
+}
+
 // Packet tests of a leaf of n primitives: the SAH's leaf cost, as the host's bvh.packets.
 static int packets(int n) { return (n + SAH_PACKET - 1) / SAH_PACKET; }
 
@@ -196,7 +209,7 @@ static void fill_bins(Bins *bins, __global Prim *src, int start, int count, int 
 // costs exactly what the split after the last non-empty bin before it did, which the strict
 // comparison keeps. Skipping them leaves the choice as it was; small nodes, most of a tree,
 // leave most of their bins empty.
-static int best_split(const Bins *bins, int count, double *best_cost) {
+static int best_split(const Bins *bins, int count, bool by_length, double *best_cost) {
     double a_right[N_BINS - 1];
     float4 lo = (float4)(INFINITY), hi = (float4)(-INFINITY);
     for (int k = N_BINS - 1; k > 0; k--) {
@@ -206,7 +219,7 @@ static int best_split(const Bins *bins, int count, double *best_cost) {
         }
         lo = lesser(lo, bins->lo[k]);
         hi = greater(hi, bins->hi[k]);
-        a_right[k - 1] = half_area(lo, hi);
+        a_right[k - 1] = measure(lo, hi, by_length);
     }
     lo = (float4)(INFINITY);
     hi = (float4)(-INFINITY);
@@ -219,7 +232,7 @@ static int best_split(const Bins *bins, int count, double *best_cost) {
         n_left += bins->count[k];
         int n_right = count - n_left;
         double cost = n_left == 0 || n_right == 0 ? INFINITY
-            : half_area(lo, hi) * (double)packets(n_left)
+            : measure(lo, hi, by_length) * (double)packets(n_left)
                 + a_right[k] * (double)packets(n_right);
         if (cost < *best_cost) {
             *best_cost = cost;
@@ -322,9 +335,11 @@ static int process(const BuildTask *t, __global Prim *prims, __global Prim *stas
     } else {
         Bins bins;
         fill_bins(&bins, prims, start, count, axis, cmin, scale);
-        double best_cost;
-        int best = best_split(&bins, count, &best_cost);
         double a_node = half_area(t->lo, t->hi);
+        bool by_length = a_node == 0.0;
+        if (by_length) a_node = half_perimeter(t->lo, t->hi);
+        double best_cost;
+        int best = best_split(&bins, count, by_length, &best_cost);
         if (count <= sah_max_leaf
             && TRAVERSAL_COST * a_node + best_cost >= (double)packets(count) * a_node) {
             write_leaf(t, prims, nodes, order);

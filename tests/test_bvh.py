@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import warnings
 
 import numpy as np
 import pytest
@@ -126,6 +127,18 @@ def _random_set(kind: str, n: int, rng: np.random.Generator) -> tuple[np.ndarray
         c[:, 1] = 0.1
         e = rng.uniform(0, 0.3, (n, 3))
         e[:, 1] = 0
+    elif kind == "segment":
+        # Boxes of no area on one line (degenerate triangles along an axis): every node's box
+        # is a segment.
+        c = np.zeros((n, 3))
+        c[:, 0] = rng.uniform(-5, 5, n)
+        e = np.zeros((n, 3))
+        e[:, 0] = rng.exponential(1e-3, n)
+    elif kind == "segment_and_boxes":
+        # A quarter boxes, the rest segments on a line through them: nodes of both kinds.
+        lo, hi = _random_set("segment", n, rng)
+        lo[: n // 4], hi[: n // 4] = _random_set("uniform", n // 4, rng)
+        return lo, hi
     elif kind == "clustered_scales":
         # Tiny clusters far apart: extents near float32 spacing at the cluster positions.
         c = rng.choice([-1e4, 0.0, 1e4], (n, 3)) + rng.normal(0, 1e-3, (n, 3))
@@ -135,7 +148,8 @@ def _random_set(kind: str, n: int, rng: np.random.Generator) -> tuple[np.ndarray
     return _boxes(c, e)
 
 
-KINDS = ["uniform", "points", "same_centroid", "duplicates", "flat", "clustered_scales"]
+KINDS = ["uniform", "points", "same_centroid", "duplicates", "flat", "clustered_scales",
+         "segment", "segment_and_boxes"]
 
 
 @settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
@@ -165,6 +179,28 @@ def test_coincident_primitives_are_split_to_bounded_leaves():
     check_bvh(bvh, lo, lo + 1.0, 4)
 
 
+def _depth(nodes: np.ndarray) -> int:
+    """Deepest node of a depth-first tree (the root at depth 0)."""
+    depth = np.zeros(nodes.size, dtype=np.int64)
+    for i in np.flatnonzero(nodes["count"] == 0):
+        depth[i + 1] = depth[nodes["first"][i]] = depth[i] + 1
+    return int(depth.max())
+
+
+@pytest.mark.parametrize("width", [4, 8])
+def test_boxes_of_no_area_build_a_balanced_tree(width):
+    # Every candidate split of a node of segments has zero area: costed by area, all tie and
+    # each split peels off the first bin.
+    # By length, the tree is as shallow as over the same segments given a little thickness.
+    n = 20000
+    lo, hi = _random_set("segment", n, np.random.default_rng(4))
+    segments = build_bvh(lo, hi)
+    thick = build_bvh(lo, hi + np.array([0, 1e-6, 1e-6]))
+    assert _depth(segments.nodes) <= _depth(thick.nodes) <= 2 * math.ceil(math.log2(n))
+    assert (collapse(segments, 5 << 28, width).stack_size
+            <= collapse(thick, 5 << 28, width).stack_size)
+
+
 @pytest.mark.parametrize(("lo", "hi"), [
     (np.zeros((3, 2)), np.zeros((3, 2))),
     (np.zeros((3, 3)), np.zeros((4, 3))),
@@ -184,15 +220,30 @@ def test_rejects_bad_bounds(lo, hi):
     (-1e39, "lo", "float32 range"), (2.0, "lo", "lo > hi"),
 ])
 def test_rejects_one_bad_bound_past_the_first_rows(dtype, value, where, message):
-    """One bad value among many good ones, in the last row (the checks go a block of rows at
-    a time): named for what is wrong."""
+    """One bad value among many good ones, near the end (the checks go a block of rows at
+    a time): named for what is wrong, with the primitive's index and bounds."""
     n = 3 * (1 << 16) + 5
     bounds = {"lo": np.zeros((n, 3), dtype), "hi": np.ones((n, 3), dtype)}
     if value == -1e39 and dtype == np.float32:
         value = -np.inf  # float32 cannot hold it: its rounding is the case
-    bounds[where][-1, 1] = value
-    with pytest.raises(ValueError, match=message):
+    bounds[where][-2, 1] = value
+    with pytest.raises(ValueError, match=message) as raised:
         checked_bounds(bounds["lo"], bounds["hi"], 4, None)
+    lo, hi = bounds["lo"][-2], bounds["hi"][-2]
+    assert str(raised.value).startswith(f"primitive {n - 2}'s bounds ")
+    assert str(raised.value).endswith(f"lo (0.0, {lo[1]}, 0.0), hi (1.0, {hi[1]}, 1.0)")
+
+
+def test_bounds_near_float32s_limits_build_without_warnings():
+    # Centroids from -3e38 to 3e38 span more than float32 holds: the node is not binned, and
+    # the build says nothing about the overflow on the way.
+    c = np.zeros((8, 3))
+    c[:4, 0], c[4:, 0] = -3e38, 3e38
+    c[:, 1] = np.arange(8)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        bvh = build_bvh(c, c + 1, 1)
+    check_bvh(bvh, c, c + 1, 1)
 
 
 def test_values_checked_skips_the_value_scans_but_not_the_shape_checks():
@@ -315,7 +366,7 @@ def test_device_rounding_at_the_edges_of_float32(cl_queue):
 def test_device_build_runs_on_the_device(cl_queue, monkeypatch):
     # Above max_leaf_size primitives on a device that supports it, build_bvh_on does not fall
     # back to the host build (which would make the comparisons above vacuous).
-    def device_build(*args: object) -> None:
+    def device_build(*args: object, **kwargs: object) -> None:
         raise RuntimeError("device build")
 
     monkeypatch.setattr(bvh_builder, "build", device_build)
@@ -361,7 +412,7 @@ def test_device_build_only_where_its_buffers_fit_the_device(cl_queue):
 def test_device_build_over_the_largest_allocation_builds_on_the_host(cl_queue, monkeypatch):
     # A device whose largest allocation cannot hold the build's buffers: the host builds the
     # same tree, and the device build is never tried (its buffers would fail to allocate).
-    def device_build(*args: object) -> None:
+    def device_build(*args: object, **kwargs: object) -> None:
         raise RuntimeError("device build")
 
     monkeypatch.setattr(bvh_builder, "build", device_build)
@@ -369,6 +420,33 @@ def test_device_build_over_the_largest_allocation_builds_on_the_host(cl_queue, m
     small = _StandInDevice(cl_queue.device, 1 << 10, 1 << 30)
     queue = type("Queue", (), {"device": small})()
     assert_same_tree(build_bvh_on(queue, lo, lo + 0.1, 4), build_bvh(lo, lo + 0.1, 4))
+
+
+def _float_prims(n: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    lo, hi = bvh_builder.float_prims(n)
+    c = np.random.default_rng(seed).uniform(-1, 1, (n, 3))
+    lo[:], hi[:] = c, c + 0.01
+    return lo, hi
+
+
+def test_device_build_leaves_its_bounds_as_they_were(cl_queue):
+    # Bounds made by float_prims are the device build's records only where the caller lets it
+    # consume them: a CPU device partitions those in place.
+    lo, hi = _float_prims(5000, 6)
+    was = lo.copy(), hi.copy()
+    bvh = build_bvh_on(cl_queue, lo, hi)
+    assert np.array_equal(lo, was[0]) and np.array_equal(hi, was[1])
+    assert_same_tree(bvh, build_bvh(*was))
+
+
+def test_device_build_may_consume_the_records_of_float_prims(cl_queue, monkeypatch):
+    # Consumed, the records are the build's first buffer: no copy of them rounded in.
+    lo, hi = _float_prims(5000, 7)
+    expected = build_bvh(lo, hi)
+    if not bvh_builder.is_oclgrind(cl_queue.device):
+        monkeypatch.setattr(bvh_builder, "_round_in", None)
+    bvh = bvh_builder.build_bvh_from(cl_queue, [lo, hi], consume=True)
+    assert_same_tree(bvh, expected)
 
 
 def test_device_build_of_mesh_triangles(cl_queue):
@@ -384,6 +462,11 @@ def test_device_build_of_mesh_triangles(cl_queue):
 def _half_area(lo: np.ndarray, hi: np.ndarray) -> float:
     e = np.maximum(hi - lo, 0.0)
     return float(e[0] * e[1] + e[1] * e[2] + e[2] * e[0])
+
+
+def _measure(lo: np.ndarray, hi: np.ndarray, by_length: bool) -> float:
+    """The SAH's measure of a box: half area, or length in a node of no area."""
+    return float(np.maximum(hi - lo, 0.0).sum()) if by_length else _half_area(lo, hi)
 
 
 def _packets(n: int) -> int:
@@ -411,6 +494,9 @@ def reference_sah_cost(lo: np.ndarray, hi: np.ndarray, max_leaf_size: int) -> fl
 
 def _reference_split(lo: np.ndarray, hi: np.ndarray, area: float):
     """(goes right, SAH prefers a leaf) for one node, or None when its centroids coincide."""
+    by_length = area == 0
+    if by_length:
+        area = _measure(lo.min(axis=0), hi.max(axis=0), True)
     c = 0.5 * (lo + hi)
     ext = c.max(axis=0) - c.min(axis=0)
     axis = int(np.argmax(ext))
@@ -424,15 +510,17 @@ def _reference_split(lo: np.ndarray, hi: np.ndarray, area: float):
         left = b <= k
         if left.all() or not left.any():
             continue
-        cost = (_half_area(lo[left].min(axis=0), hi[left].max(axis=0)) * _packets(left.sum())
-                + _half_area(lo[~left].min(axis=0), hi[~left].max(axis=0))
+        cost = (_measure(lo[left].min(axis=0), hi[left].max(axis=0), by_length)
+                * _packets(left.sum())
+                + _measure(lo[~left].min(axis=0), hi[~left].max(axis=0), by_length)
                 * _packets((~left).sum()))
         if cost < best_cost:
             best, best_cost = k, cost
     return b > best, TRAVERSAL_COST * area + best_cost >= _packets(n) * area
 
 
-@pytest.mark.parametrize("kind", ["uniform", "duplicates", "flat", "clustered_scales"])
+@pytest.mark.parametrize("kind", ["uniform", "duplicates", "flat", "clustered_scales",
+                                  "segment_and_boxes"])
 @pytest.mark.parametrize("seed", [1, 2])
 def test_sah_cost_matches_a_recursive_reference(kind, seed):
     lo, hi = _random_set(kind, 3000, np.random.default_rng(seed))

@@ -204,6 +204,22 @@ def test_empty_and_leaf_root():
     assert one.prim_refs.tolist() == [int(refs[0]), NO_REF, NO_REF, NO_REF]
 
 
+@pytest.mark.parametrize(("kind", "most", "name"), [
+    (L.PRIM_TRIANGLE, 131068, "triangles"), (L.PRIM_SPHERE, 1020, "spheres"),
+    (L.PRIM_BOX, 255, "other primitives")])
+def test_rejects_a_leaf_its_count_cannot_hold(kind, most, name):
+    # The triangle packets fill the count's bits above the sign: one packet more would make
+    # the count negative, which the kernels read as an instance's marker.
+    lo = np.zeros((most + 1, 3))
+    for n in (most, most + 1):
+        bvh = build_bvh(lo[:n], lo[:n] + 1, max_leaf_size=n)
+        if n == most:
+            assert collapse(bvh, kind << L.PRIM_TYPE_SHIFT, 4).nodes["count"][0, 0] > 0
+            continue
+        with pytest.raises(ValueError, match=f"a leaf of {n} {name} exceeds {most}"):
+            collapse(bvh, kind << L.PRIM_TYPE_SHIFT, 4)
+
+
 def test_rejects_other_widths():
     lo = np.zeros((3, 3))
     with pytest.raises(ValueError, match="width"):

@@ -13,6 +13,7 @@ float64 min/max: node bounds hold the float64 geometry exactly, as the double bu
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import NamedTuple
 
@@ -93,7 +94,7 @@ def checked_bounds(lo: np.ndarray, hi: np.ndarray, max_leaf_size: int,
     or float32 where both are (a mesh's: the same numbers at half the bytes, uncopied), and
     the largest leaf. values_checked: the caller made the bounds from values it checked
     (finite, within float32's range) as minima and maxima, so lo <= hi holds by construction
-    and the scans of every value (0.14 s at 5.24 M triangles) are skipped."""
+    and the scans of every value, the check's whole cost, are skipped."""
     lo, hi = np.asarray(lo), np.asarray(hi)
     if not lo.dtype == hi.dtype == np.float32:
         lo, hi = lo.astype(np.float64, copy=False), hi.astype(np.float64, copy=False)
@@ -111,8 +112,8 @@ def checked_bounds(lo: np.ndarray, hi: np.ndarray, max_leaf_size: int,
 
 def _check_values(lo: np.ndarray, hi: np.ndarray) -> None:
     """Every bound finite and within float32's range, and lo <= hi. By reductions, not a
-    boolean array the size of the bounds: at 5.24 M triangles those temporaries took 0.4 s,
-    most of it the first touch of their memory. A NaN fails lo <= hi; once lo <= hi holds,
+    boolean array the size of the bounds, whose first touch of fresh memory would cost more
+    than the comparisons (docs/scale.md). A NaN fails lo <= hi; once lo <= hi holds,
     every value lies between lo's minimum and hi's maximum, so those two bound the range:
     three passes over the bounds where a minimum and a maximum of each took five."""
     ordered = all(np.all(lo[at:at + _CHECK_ROWS] <= hi[at:at + _CHECK_ROWS])
@@ -120,8 +121,32 @@ def _check_values(lo: np.ndarray, hi: np.ndarray) -> None:
     if ordered and lo.min() >= -_F32_MAX and hi.max() <= _F32_MAX:
         return
     if not (within_float32(lo) and within_float32(hi)):
-        raise ValueError("primitive bounds must be finite and within float32 range")
-    raise ValueError("primitive bounds have lo > hi")
+        i = _first_row(lo, hi, lambda a, b: ~(_within_rows(a) & _within_rows(b)))
+        raise ValueError(f"primitive {i}'s bounds must be finite and within float32 range: "
+                         f"{_row_text(lo, hi, i)}")
+    i = _first_row(lo, hi, lambda a, b: (a > b).any(axis=1))
+    raise ValueError(f"primitive {i}'s bounds have lo > hi: {_row_text(lo, hi, i)}")
+
+
+def _within_rows(a: np.ndarray) -> np.ndarray:
+    """Which rows' values are all finite and within float32's range."""
+    return ((a >= -_F32_MAX) & (a <= _F32_MAX)).all(axis=1)
+
+
+def _first_row(lo: np.ndarray, hi: np.ndarray,
+               bad: Callable[[np.ndarray, np.ndarray], np.ndarray]) -> int:
+    """Index of the first row for which bad(lo rows, hi rows) holds, a block of rows at a
+    time; the caller knows there is one."""
+    for at in range(0, len(lo), _CHECK_ROWS):
+        rows = np.flatnonzero(bad(lo[at:at + _CHECK_ROWS], hi[at:at + _CHECK_ROWS]))
+        if rows.size:
+            return at + int(rows[0])
+    raise AssertionError("no bad row")
+
+
+def _row_text(lo: np.ndarray, hi: np.ndarray, i: int) -> str:
+    return (f"lo ({', '.join(str(v) for v in lo[i])}), "
+            f"hi ({', '.join(str(v) for v in hi[i])})")
 
 
 def within_float32(a: np.ndarray) -> bool:
@@ -164,6 +189,13 @@ def _half_area(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
     """Half surface area of boxes with corners along the last axis; empty boxes give 0."""
     e = np.maximum(hi.astype(np.float64) - lo, 0)
     return e[..., 0] * e[..., 1] + e[..., 1] * e[..., 2] + e[..., 2] * e[..., 0]
+
+
+def _half_perimeter(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """Sum of the edge lengths along the three axes of boxes with corners along the last
+    axis: a segment's length; empty boxes give 0."""
+    e = np.maximum(hi.astype(np.float64) - lo, 0)
+    return e[..., 0] + e[..., 1] + e[..., 2]
 
 
 def _segment_ranks(counts: np.ndarray, offsets: np.ndarray,
@@ -316,7 +348,11 @@ class _Builder:
         bin the primitive count and the bounds' low and high corners)."""
         prim = self.prim
         p = self.ids.size
-        extent = cbounds[:, 3:] - cbounds[:, :3]
+        # Float32, as the device build finds them: centroids near float32's limits may span
+        # more than it holds, an extent of inf, whose node is not binned (below). Its bins,
+        # inf * 0 = NaN cast and clipped, are never read.
+        with np.errstate(over="ignore"):
+            extent = cbounds[:, 3:] - cbounds[:, :3]
         axis = np.argmax(extent, axis=1)
         rows = np.arange(m)
         cmin = cbounds[rows, axis]
@@ -328,7 +364,8 @@ class _Builder:
         binnable = np.isfinite(scale) & (scale > 0)
         scale[~binnable] = 0
         c = prim.ravel().take((6 + axis)[seg] * p + np.arange(p))
-        b = ((c - cmin[seg]) * scale[seg]).astype(np.int64)
+        with np.errstate(over="ignore", invalid="ignore"):
+            b = ((c - cmin[seg]) * scale[seg]).astype(np.int64)
         np.clip(b, 0, N_BINS - 1, out=b)
         key = seg * N_BINS + b
         bin_count = np.bincount(key, minlength=m * N_BINS).reshape(m, N_BINS)
@@ -345,20 +382,33 @@ class _Builder:
                     bin_count: np.ndarray, bin_lo: np.ndarray, bin_hi: np.ndarray
                     ) -> tuple[np.ndarray, np.ndarray]:
         """(each node's best split bin, whether it stays a leaf) by the surface area
-        heuristic."""
+        heuristic.
+
+        A node whose box has no area (its primitives lie on a segment parallel to an axis, or
+        at a point) is costed by length instead: every candidate there has zero area, so area
+        would tie them all and each split would peel off the first bin. A ray meets a segment
+        with a chance in proportion to its length (Cauchy-Crofton), as it meets a box in
+        proportion to its area, so length is the same heuristic one dimension down."""
+        a_node = _half_area(bounds[:, :3], bounds[:, 3:])
+        by_length = (a_node == 0)[:, None]
         # SAH cost of splitting after bin k (k = 0 .. N_BINS-2), from prefix and suffix unions.
         n_left = np.cumsum(bin_count, axis=1)[:, :-1]
         n_right = count[:, None] - n_left
-        a_left = _half_area(np.minimum.accumulate(bin_lo, axis=1),
-                            np.maximum.accumulate(bin_hi, axis=1))[:, :-1]
-        a_right = _half_area(np.minimum.accumulate(bin_lo[:, ::-1], axis=1),
-                             np.maximum.accumulate(bin_hi[:, ::-1], axis=1))[:, -2::-1]
+        left_lo = np.minimum.accumulate(bin_lo, axis=1)[:, :-1]
+        left_hi = np.maximum.accumulate(bin_hi, axis=1)[:, :-1]
+        right_lo = np.minimum.accumulate(bin_lo[:, ::-1], axis=1)[:, -2::-1]
+        right_hi = np.maximum.accumulate(bin_hi[:, ::-1], axis=1)[:, -2::-1]
+        a_left = np.where(by_length, _half_perimeter(left_lo, left_hi),
+                          _half_area(left_lo, left_hi))
+        a_right = np.where(by_length, _half_perimeter(right_lo, right_hi),
+                           _half_area(right_lo, right_hi))
         cost = a_left * packets(n_left) + a_right * packets(n_right)
         cost[(n_left == 0) | (n_right == 0)] = np.inf
         best = np.argmin(cost, axis=1)
         best_cost = cost[np.arange(count.size), best]
-        a_node = _half_area(bounds[:, :3], bounds[:, 3:])
-        # Compared multiplied through by the node's area, so flat and point nodes need no care.
+        a_node = np.where(by_length[:, 0], _half_perimeter(bounds[:, :3], bounds[:, 3:]), a_node)
+        # Compared multiplied through by the node's area (or length), so point nodes need no
+        # care.
         sah_leaf = ((self.traversal_cost * a_node + best_cost >= packets(count) * a_node)
                     | ~binnable)
         return best, sah_leaf & (count <= self.sah_leaf)

@@ -49,6 +49,11 @@ FOLD_PACKETS = KNOBS["fold_packets"].default
 _OPAQUE = np.dtype((np.void, BINARY_NODE.itemsize))
 # The leaf section of each primitive kind that has one of its own; any other kind: 2.
 _SECTION = {P.PRIM_TRIANGLE: 0, SPHERE.prim: 1}
+# The most primitives of each section a leaf's count can describe: triangle packets fill the
+# int32's bits above LEAF_TRIANGLE_SHIFT short of the sign (a negative count is an instance's
+# marker to the kernels), sphere packets and other primitives a field of LEAF_FIELD_MASK each.
+_SECTION_MOST = ((np.iinfo(np.int32).max >> LEAF_TRIANGLE_SHIFT) * PACKET_WIDTH,
+                 LEAF_FIELD_MASK * PACKET_WIDTH, LEAF_FIELD_MASK)
 
 
 def bvh_node_dtype(width: int) -> np.dtype:
@@ -202,20 +207,26 @@ def _open_children(parents: np.ndarray, first: np.ndarray, nodes: np.ndarray, wi
     def grow(part: slice) -> None:
         mine = tuple(field[part] for field in level)
         rows = np.arange(part.stop - part.start)
-        area = np.full((rows.size, width), -1.0)  # an inner child's, -1 for a leaf or none
+        # An inner child's half area and length (clray.accel.bvh._sah_choice), -1 for a leaf
+        # or none. Length orders children of no area (segments), which area alone would tie:
+        # the first of them opened each time, the node would grow down one side.
+        area = np.full((rows.size, width), -1.0)
+        length = np.full((rows.size, width), -1.0)
         left, right = _children(parents[part], first[part], pairs)
-        _place(mine, area, rows, 0, left, nodes)
-        _place(mine, area, rows, 1, right, nodes)
+        _place(mine, area, length, rows, 0, left, nodes)
+        _place(mine, area, length, rows, 1, right, nodes)
         for filled in range(2, width):
             k = np.argmax(area, axis=1)
+            flat = area[rows, k] == 0
+            k[flat] = np.argmax(np.where(area[flat] == 0, length[flat], -1.0), axis=1)
             open_rows = rows[area[rows, k] >= 0]
             if open_rows.size == 0:
                 break
             k = k[open_rows]
             left, right = _children(mine[0][open_rows, k].astype(np.int64),
                                     mine[1][open_rows, k].astype(np.int64), pairs)
-            _place(mine, area, open_rows, k, left, nodes)
-            _place(mine, area, open_rows, filled, right, nodes)
+            _place(mine, area, length, open_rows, k, left, nodes)
+            _place(mine, area, length, open_rows, filled, right, nodes)
     by_chunks(m, grow, row_items=width)
     return level
 
@@ -226,16 +237,19 @@ def _children(node: np.ndarray, first: np.ndarray, pairs: bool) -> tuple[np.ndar
     return (first, first + 1) if pairs else (node + 1, first)
 
 
-def _place(level: _Level, area: np.ndarray, rows: np.ndarray, col: np.ndarray | int,
-           node: np.ndarray, nodes: np.ndarray) -> None:
-    """Binary nodes `node` into child slots (rows, col) of `level`, with their areas."""
+def _place(level: _Level, area: np.ndarray, length: np.ndarray, rows: np.ndarray,
+           col: np.ndarray | int, node: np.ndarray, nodes: np.ndarray) -> None:
+    """Binary nodes `node` into child slots (rows, col) of `level`, with their half areas and
+    lengths (-1 for a leaf)."""
     taken = nodes.take(node).view(BINARY_NODE)
     level[0][rows, col] = node
     level[1][rows, col] = taken["first"]
     level[2][rows, col] = taken["count"]
     ext = np.maximum(taken["hi"].astype(np.float64) - taken["lo"], 0)
     half_area = ext[:, 0] * ext[:, 1] + ext[:, 1] * ext[:, 2] + ext[:, 2] * ext[:, 0]
-    area[rows, col] = np.where(taken["count"] == 0, half_area, -1.0)
+    inner = taken["count"] == 0
+    area[rows, col] = np.where(inner, half_area, -1.0)
+    length[rows, col] = np.where(inner, ext[:, 0] + ext[:, 1] + ext[:, 2], -1.0)
 
 
 def _fold(slots: np.ndarray, first: np.ndarray, count: np.ndarray, kinds: _Kinds,
@@ -283,8 +297,11 @@ def _lay_out_leaves(first: np.ndarray, count: np.ndarray, order_refs: np.ndarray
         sizes, position = _sections(refs, count, offsets)
     tri_packets = -(-sizes[0] // PACKET_WIDTH)
     sphere_packets = -(-sizes[1] // PACKET_WIDTH)
-    if np.any(sizes[2] > LEAF_FIELD_MASK) or np.any(sphere_packets > LEAF_FIELD_MASK):
-        raise ValueError(f"a leaf holds more than {LEAF_FIELD_MASK} of one section")
+    for size, name, most in zip(sizes, ("triangles", "spheres", "other primitives"),
+                                _SECTION_MOST, strict=True):
+        if size.size and size.max() > most:
+            raise ValueError(f"a leaf of {int(size.max())} {name} exceeds {most}, the most "
+                             f"its count field holds: build with a smaller largest_leaf")
     padded = -(-((tri_packets + sphere_packets) * PACKET_WIDTH + sizes[2]) // PACKET_WIDTH)
     start = np.concatenate([[0], np.cumsum(padded * PACKET_WIDTH)[:-1]]).astype(np.int64)
     prim_refs = np.full(int(padded.sum()) * PACKET_WIDTH, NO_REF, dtype=np.int32)
@@ -302,9 +319,9 @@ def _slots_in_build_order(start: np.ndarray, first: np.ndarray, count: np.ndarra
     """The slot of each primitive of the build's order, where the leaves, each starting at
     slot `start` with its primitives order[first:first + count] in their order, hold every
     primitive once: the leaves taken by their first primitive, so the primitives come in
-    the build's order and its refs are read once in sequence. int32 (slots fit): where a
-    leaf's refs were gathered by an int64 index a primitive, the leaves' layout made four
-    arrays of 8 B a primitive and took twice the time."""
+    the build's order and its refs are read once in sequence. One int32 array (slots fit):
+    gathering each leaf's refs and scattering them would take an int64 index a primitive
+    for each, four such arrays in all (docs/scale.md)."""
     by_first = np.argsort(first)
     slots = np.repeat((start - first)[by_first].astype(np.int32), count[by_first])
     slots += np.arange(len(slots), dtype=np.int32)
@@ -355,55 +372,74 @@ def fill_nodes(wide: WideBvh) -> WideBvh:
     whose greedy collapse above leaves many nodes of two or three children where a balanced
     binary tree's depth is not a multiple of log2(width): each lane there is an instance's
     record-sized share of node bytes. A Python loop over the nodes: for trees of thousands."""
-    width = wide.width
     if wide.nodes.size == 0:
         return wide
-    fields = ("lo_x", "lo_y", "lo_z", "hi_x", "hi_y", "hi_z")
-    # Each node's used lanes as [lo(3), hi(3), child, count] lists.
-    box = np.stack([wide.nodes[f] for f in fields], axis=-1).astype(np.float64)
+    lanes = _lanes(wide)
+    _fill(lanes, 0, wide.width)
+    return _laid_out(lanes, wide.width, wide.prim_refs)
+
+
+# A node's used lanes, as fill_nodes works on them: (bounds: lo xyz, hi xyz; child; count).
+_Lane = tuple[np.ndarray, int, int]
+_BOUND_FIELDS = ("lo_x", "lo_y", "lo_z", "hi_x", "hi_y", "hi_z")
+
+
+def _lanes(wide: WideBvh) -> list[list[_Lane]]:
+    """Each node's used lanes."""
+    box = np.stack([wide.nodes[f] for f in _BOUND_FIELDS], axis=-1).astype(np.float64)
     child, count = wide.nodes["child"], wide.nodes["count"]
-    lanes = [[(box[i, k], int(child[i, k]), int(count[i, k])) for k in range(width)
-              if child[i, k] >= 0] for i in range(wide.nodes.size)]
+    return [[(box[i, k], int(child[i, k]), int(count[i, k])) for k in range(wide.width)
+             if child[i, k] >= 0] for i in range(wide.nodes.size)]
 
-    def inner(lane: tuple) -> bool:
-        return lane[2] == 0
 
-    def fill(i: int) -> None:
-        for lane in lanes[i]:
-            if inner(lane):
-                fill(lane[1])
-        changed = True
-        while changed:
-            changed = False
-            # Move up the smallest inner child that fits in the room left.
-            for k, lane in sorted(enumerate(lanes[i]), key=lambda kl: len(lanes[kl[1][1]])
-                                  if inner(kl[1]) else width + 1):
-                if inner(lane) and len(lanes[i]) - 1 + len(lanes[lane[1]]) <= width:
-                    lanes[i][k:k + 1] = lanes[lane[1]]
-                    changed = True
-                    break
-            if changed:
-                continue
-            # Merge two inner children whose lanes fit in one node.
-            kids = sorted((k for k, lane in enumerate(lanes[i]) if inner(lane)),
-                          key=lambda k: len(lanes[lanes[i][k][1]]))
-            for a, b in itertools.combinations(kids, 2):
-                na, nb = lanes[i][a][1], lanes[i][b][1]
-                if len(lanes[na]) + len(lanes[nb]) <= width:
-                    lanes[na] = lanes[na] + lanes[nb]
-                    joined = np.concatenate([np.minimum(lanes[i][a][0][:3], lanes[i][b][0][:3]),
-                                             np.maximum(lanes[i][a][0][3:], lanes[i][b][0][3:])])
-                    lanes[i][a] = (joined, na, 0)
-                    del lanes[i][b]
-                    changed = True
-                    break
+def _inner(lane: _Lane) -> bool:
+    return lane[2] == 0
 
-    fill(0)
-    # Number the nodes left breadth first from the root, and lay them out: empty lanes have NaN
-    # bounds, child -1 and count 0, as the collapse leaves them.
+
+def _fill(lanes: list[list[_Lane]], i: int, width: int) -> None:
+    """Node i's subtree filled: its children's first, then moves and merges at i until none
+    is left."""
+    for lane in lanes[i]:
+        if _inner(lane):
+            _fill(lanes, lane[1], width)
+    while _move_up(lanes, i, width) or _merge(lanes, i, width):
+        pass
+
+
+def _move_up(lanes: list[list[_Lane]], i: int, width: int) -> bool:
+    """Moves the lanes of node i's smallest inner child that fits in the room left up into
+    it; False where none fits."""
+    for k, lane in sorted(enumerate(lanes[i]), key=lambda kl: len(lanes[kl[1][1]])
+                          if _inner(kl[1]) else width + 1):
+        if _inner(lane) and len(lanes[i]) - 1 + len(lanes[lane[1]]) <= width:
+            lanes[i][k:k + 1] = lanes[lane[1]]
+            return True
+    return False
+
+
+def _merge(lanes: list[list[_Lane]], i: int, width: int) -> bool:
+    """Merges two of node i's inner children whose lanes fit in one node, the smallest
+    first; False where no two fit."""
+    kids = sorted((k for k, lane in enumerate(lanes[i]) if _inner(lane)),
+                  key=lambda k: len(lanes[lanes[i][k][1]]))
+    for a, b in itertools.combinations(kids, 2):
+        na, nb = lanes[i][a][1], lanes[i][b][1]
+        if len(lanes[na]) + len(lanes[nb]) <= width:
+            lanes[na] = lanes[na] + lanes[nb]
+            joined = np.concatenate([np.minimum(lanes[i][a][0][:3], lanes[i][b][0][:3]),
+                                     np.maximum(lanes[i][a][0][3:], lanes[i][b][0][3:])])
+            lanes[i][a] = (joined, na, 0)
+            del lanes[i][b]
+            return True
+    return False
+
+
+def _laid_out(lanes: list[list[_Lane]], width: int, prim_refs: np.ndarray) -> WideBvh:
+    """The nodes the root still reaches, numbered breadth first from it and laid out: empty
+    lanes have NaN bounds, child -1 and count 0, as the collapse leaves them."""
     order, at = [0], 0
     while at < len(order):
-        order.extend(lane[1] for lane in lanes[order[at]] if inner(lane))
+        order.extend(lane[1] for lane in lanes[order[at]] if _inner(lane))
         at += 1
     number = {old: new for new, old in enumerate(order)}
     bounds = np.full((len(order), 6, width), np.nan, dtype=np.float32)
@@ -419,8 +455,8 @@ def fill_nodes(wide: WideBvh) -> WideBvh:
                 # The stack bound as _stack_size counts it.
                 pushed[number[c]] = pushed[new] + len(lanes[old]) - 1
     nodes = np.zeros(len(order), dtype=bvh_node_dtype(width))
-    for f, field in enumerate(fields):
+    for f, field in enumerate(_BOUND_FIELDS):
         nodes[field] = bounds[:, f]
     nodes["child"], nodes["count"] = kids, counts
     used = np.array([len(lanes[old]) for old in order])
-    return WideBvh(nodes, wide.prim_refs, width, int((pushed + used - 1).max()) + 1)
+    return WideBvh(nodes, prim_refs, width, int((pushed + used - 1).max()) + 1)

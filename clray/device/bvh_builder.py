@@ -75,28 +75,32 @@ def build_bvh_on(queue: cl.CommandQueue, lo: np.ndarray, hi: np.ndarray,
 
 def build_bvh_from(queue: cl.CommandQueue, bounds: list[np.ndarray], max_leaf_size: int = 4,
                    *, largest_leaf: int | None = None, pairs: bool = False,
-                   values_checked: bool = False) -> Bvh:
+                   values_checked: bool = False, consume: bool = False) -> Bvh:
     """build_bvh_on's tree from `bounds` = [lo, hi], a list this call empties: where the
     caller holds the arrays nowhere else, the device build frees them once its kernels have
-    their copies, before its own buffers fill (a mesh's float bounds, 24 B a triangle, were
-    the pack's largest arrays beside them at 5.24 M triangles: docs/scale.md).
-    values_checked: as for clray.accel.bvh.checked_bounds."""
+    their copies, before its own buffers fill (a mesh's float bounds, 24 B a triangle, are
+    the pack's largest arrays beside them: docs/scale.md).
+    values_checked: as for clray.accel.bvh.checked_bounds. consume: the build may reorder
+    bounds made by float_prims, working in their records (build); else they are left as
+    they were."""
     lo, hi, largest = checked_bounds(*bounds, max_leaf_size, largest_leaf, values_checked)
     bounds.clear()
     n = lo.shape[0]
     if n > max_leaf_size and supports(queue.device, n, lo.itemsize):
         bounds += [lo, hi]
         del lo, hi
-        return build(queue, bounds, max_leaf_size, largest, not pairs)
+        return build(queue, bounds, max_leaf_size, largest, not pairs, consume=consume)
     return build_bvh(lo, hi, max_leaf_size, largest_leaf=largest)
 
 
 def float_prims(n: int) -> tuple[np.ndarray, np.ndarray]:
     """(lo, hi): (n, 3) float32 views, for the caller to fill with n primitives' bounds, of
     records laid out as the device build's float primitives (kernels/bvh_build.cl, Prim under
-    FLOAT_BOUNDS: lo, the index, hi, a spare word). A device build over bounds that are
-    these views whole takes their records as its first primitive buffer (_prims_of), on every
-    device but Oclgrind: no copy of the bounds and no pass that rounds them in. Any
+    FLOAT_BOUNDS: lo, the index, hi, a spare word). A device build allowed to consume bounds
+    that are these views whole (build_bvh_from's consume) takes their records as its first
+    primitive buffer (_prims_of), on every device but Oclgrind: no copy of the bounds and no
+    pass that rounds them in, but the build partitions them in place, so their rows come back
+    reordered on a device that works in host memory. Any other build copies them, and any
     other use sees plain bounds. The index and spare words are written a chunk at a time on
     every core: their first touch of the records' fresh memory (32 B a primitive) is most of
     the time this takes."""
@@ -166,10 +170,10 @@ def _kernels(context: cl.Context, float_bounds: bool) -> dict[str, cl.Kernel]:
 
 
 def build(queue: cl.CommandQueue, bounds: list[np.ndarray], max_leaf: int,
-          sah_max_leaf: int, depth_first: bool = True) -> Bvh:
+          sah_max_leaf: int, depth_first: bool = True, *, consume: bool = False) -> Bvh:
     """The tree over N primitives with float64 or float32 bounds [lo, hi] (N, 3), N >
     max_leaf: depth-first, or in the build's own layout (Bvh.pairs). `bounds` is emptied
-    (build_bvh_from)."""
+    and, where `consume`, may be reordered (build_bvh_from)."""
     lo, hi = bounds
     bounds.clear()
     n, bound_bytes = lo.shape[0], lo.itemsize
@@ -178,12 +182,12 @@ def build(queue: cl.CommandQueue, bounds: list[np.ndarray], max_leaf: int,
     kernels = _kernels(queue.context, float_bounds)
     # Every buffer lives in numpy memory: a CPU device then works in place, and numpy reuses
     # freed memory where a fresh device allocation page-faults in all over again each build.
-    # Records the caller filled (float_prims) are the first primitive buffer: a USE_HOST_PTR
-    # buffer's contents are its host memory's at creation, which a CPU device then reads in
-    # place and a GPU copies once, with no bounds beside them (the first GPU run found the
-    # packer holding both). Not on Oclgrind, which takes such contents for
-    # uninitialised: there they are bounds like any others.
-    given = (_prims_of(lo, hi) if float_bounds and not is_oclgrind(queue.device)
+    # Records the caller filled (float_prims) and lets the build consume are the first
+    # primitive buffer: a USE_HOST_PTR buffer's contents are its host memory's at creation,
+    # which a CPU device then reads and partitions in place and a GPU copies once, so the
+    # bounds need no second copy beside the records. Not on Oclgrind, which takes such
+    # contents for uninitialised: there they are bounds like any others.
+    given = (_prims_of(lo, hi) if consume and float_bounds and not is_oclgrind(queue.device)
              else None)
     # The primitives, partitioned in place, and the stash of the smaller side of a split
     # (kernels/bvh_build.cl, partition): half as many.

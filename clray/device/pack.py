@@ -391,7 +391,7 @@ def _build_wide(prims: list[np.ndarray], width: int, queue: cl.CommandQueue | No
                  and tuning.traversal_cost == TRAVERSAL_COST)
     if on_device:
         binary = build_bvh_from(queue, prims, **leaves, pairs=True,
-                                values_checked=values_checked)
+                                values_checked=values_checked, consume=True)
     else:
         binary = build_bvh(*prims, traversal_cost=tuning.traversal_cost, **leaves)
         prims.clear()

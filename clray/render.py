@@ -89,6 +89,8 @@ class RenderSettings:
     traversal: str | None = None
     # progress(done, total) in pixel-samples (pixels x spp): called with done = 0 before the
     # first launch, then after each launch, rising to done = total; several times a second.
+    # With passes (aovs, denoise) their kernel traces every pixel-sample again, and the total
+    # counts both kernels' (twice the image's): it is reached when the passes' launches end.
     progress: Callable[[int, int], None] | None = field(default=None, compare=False)
     variants: tuple[tuple[str, object], ...] = ()  # extra KernelConfig fields (studies)
     # PNG output (RenderResult.save, docs/rendering.md); None = the scene file's value.
@@ -244,6 +246,19 @@ def tuning_stats(plan: DevicePlan, packed: PackedScene) -> dict:
             "implicit_vectorization": packed.config.implicit_vectorization}
 
 
+def kernel_progress(progress: Callable[[int, int], None] | None, kernels: int
+                    ) -> list[Callable[[int, int], None] | None]:
+    """One progress callback for each of `kernels` launched one after the other over the same
+    pixel-samples, each reporting its own (done, total): together they report one rise from 0
+    to kernels x total, so that the end is heard when the last kernel's work ends."""
+    if progress is None:
+        return [None] * kernels
+
+    def part(k: int) -> Callable[[int, int], None]:
+        return lambda done, total: progress(k * total + done, kernels * total)
+    return [part(k) for k in range(kernels)]
+
+
 def render(scene: Scene | str | os.PathLike | Callable[[], Scene],
            settings: RenderSettings | None = None) -> RenderResult:
     """Render a scene, the scene file at a path, or the scene a callable returns. A scene built
@@ -272,11 +287,12 @@ def render(scene: Scene | str | os.PathLike | Callable[[], Scene],
     passes = traced_passes(settings)
     if not passes:
         del scene  # where render holds it alone, the scene's arrays go before the render's
-    image, stats = render_packed(packed, device, settings.progress, on_band=settings.on_band)
+    reports = kernel_progress(settings.progress, 2 if passes else 1)
+    image, stats = render_packed(packed, device, reports[0], on_band=settings.on_band)
     aovs: dict[str, np.ndarray] = {}
     if passes:
         passes_start = time.perf_counter()
-        raw, pass_stats = render_passes_packed(packed, device)
+        raw, pass_stats = render_passes_packed(packed, device, progress=reports[1])
         aovs = passes_of(raw, scene, passes)
         # passes_s: the wall time, with the host's work and PoCL's first-launch compile of the
         # passes kernel; passes_kernel_s: the launches' device time.

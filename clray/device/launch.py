@@ -259,12 +259,14 @@ PASS_OUTPUTS = (("geometry", np.float32), ("position", np.float32), ("albedo", n
 
 @small_pages
 def render_passes_packed(packed: PackedScene, device: cl.Device,
-                         rows: tuple[int, int] | None = None
+                         rows: tuple[int, int] | None = None,
+                         progress: Callable[[int, int], None] | None = None
                          ) -> tuple[dict[str, np.ndarray], dict]:
     """Launch render_passes over a scene packed for passes (packed.config.passes): (its outputs
     by PASS_OUTPUTS' names, (H, W, 4) each, stats: passes_kernel_s, the launches' device time,
     and passes_launches), for `rows` = (start, stop) as render_packed. In bands of rows sized
-    as render_packed's, by their time and within the device's memory."""
+    as render_packed's, by their time and within the device's memory; `progress` hears them in
+    pixel-samples as render_packed's does (a pixel's samples are traced for its passes too)."""
     if not packed.config.passes:
         raise ValueError("render_passes_packed needs a scene packed with passes=True")
     capacity = band_capacity(packed, device.global_mem_size, device.max_mem_alloc_size,
@@ -281,9 +283,12 @@ def render_passes_packed(packed: PackedScene, device: cl.Device,
         padded_width = -(-width // group_width) * group_width
         band_buffers = [cl.Buffer(ctx, cl.mem_flags.WRITE_ONLY, width * capacity * 16)
                         for _ in PASS_OUTPUTS]
+        row_samples = width * spp
+        if progress is not None:
+            progress(0, height * row_samples)
         row0, band, band_s, kernel_s, launches = 0, 0, 0.0, 0.0, 0
         while row0 < height:
-            band = min(capacity, next_band_rows(width * spp, band, band_s, height - row0,
+            band = min(capacity, next_band_rows(row_samples, band, band_s, height - row0,
                                                 packed.tuning))
             kernel.set_args(*buffers, *band_buffers, np.int32(first + row0))
             event = cl.enqueue_nd_range_kernel(queue, kernel, (padded_width, band),
@@ -295,6 +300,8 @@ def render_passes_packed(packed: PackedScene, device: cl.Device,
             for (name, _), buf in zip(PASS_OUTPUTS, band_buffers, strict=True):
                 cl.enqueue_copy(queue, out[name][row0:row0 + band], buf)
             row0 += band
+            if progress is not None:
+                progress(row0 * row_samples, height * row_samples)
         queue.finish()
     except cl.Error as err:
         raise DeviceError(f"OpenCL error while rendering passes on {describe(device)}: {err}"

@@ -788,9 +788,9 @@ def _format_stat(value: object) -> str:
     return str(value)
 
 
-_TIMES = (("load_s", "load"), ("bvh_s", "bvh"), ("pack_s", "pack"), ("build_s", "build"),
-          ("kernel_s", "kernel"), ("render_s", "render"), ("write_s", "write"),
-          ("total_s", "total (wall)"))
+_TIMES = (("load_s", "load"), ("device_s", "select device"), ("bvh_s", "bvh"),
+          ("pack_s", "pack"), ("build_s", "build"), ("kernel_s", "kernel"),
+          ("render_s", "render"), ("write_s", "write"), ("total_s", "total (wall)"))
 
 
 def _size(n: int) -> str:

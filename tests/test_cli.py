@@ -287,11 +287,11 @@ def test_verbose_prints_progress_and_stats(capsys, cl_device, scene) -> None:
     assert "clray: rendering: 100% (768 of 768 pixel-samples, " in err
     table = lines[lines.index("clray: stats:") + 1:-1]
     labels = [line.split("  ")[1] for line in table]
-    assert labels[:19] == ["scene", "output", "device", "image", "tuning", "traversal", "load",
-                           "bvh", "pack", "build", "kernel", "render", "write", "total (wall)",
-                           "rays primary", "rays secondary", "rays shadow", "rays total",
-                           "Mrays/s"]
-    assert labels[19:] == ["scene on device", "non-finite pixels", "clipped pixels"]
+    assert labels[:20] == ["scene", "output", "device", "image", "tuning", "traversal", "load",
+                           "select device", "bvh", "pack", "build", "kernel", "render", "write",
+                           "total (wall)", "rays primary", "rays secondary", "rays shadow",
+                           "rays total", "Mrays/s"]
+    assert labels[20:] == ["scene on device", "non-finite pixels", "clipped pixels"]
     # Labels padded to one width: the values start in one column.
     column = 2 + len("non-finite pixels") + 2
     assert all(line[2:column].rstrip() == label for line, label in zip(table, labels,

@@ -112,6 +112,15 @@ class RenderSettings:
     on_band: Callable[[int, np.ndarray], None] | None = field(default=None, compare=False)
 
     def __post_init__(self) -> None:
+        # numpy's numbers are numbers here (numbers.Integral, numbers.Real), but json.dumps
+        # refuses them, and these values go into the result's stats: kept as Python's own.
+        for name in (*L.RENDER_INTEGERS, *L.RENDER_NUMBERS, *L.RENDER_CHOICES):
+            object.__setattr__(self, name, _python_number(getattr(self, name)))
+        if isinstance(self.variants, tuple):
+            object.__setattr__(self, "variants", tuple(
+                (pair[0], _python_number(pair[1]))
+                if isinstance(pair, tuple) and len(pair) == 2 else pair
+                for pair in self.variants))
         # The scene file's [render] rules (clray.scene.limits), in the same words.
         checks = [(name, lambda v, r=rule: L.integer_problem(v, *r))
                   for name, rule in L.RENDER_INTEGERS.items()]
@@ -143,6 +152,13 @@ class RenderSettings:
             if getattr(self, name) is not None and not callable(getattr(self, name)):
                 raise SettingsError(f"RenderSettings.{name}: expected a callable, "
                                     f"got {getattr(self, name)!r}")
+
+
+def _python_number(value: object) -> object:
+    """A real number (numpy's too) as Python's int or float; anything else as it is."""
+    if isinstance(value, bool) or not isinstance(value, numbers.Real):
+        return value
+    return int(value) if isinstance(value, numbers.Integral) else float(value)
 
 
 def settings_or_default(settings: object) -> RenderSettings:

@@ -54,11 +54,12 @@ MAX_BAND_BYTES = 256 << 20
 
 
 def band_capacity(packed: PackedScene, global_mem: int, max_alloc: int,
-                  outputs: int | None = None) -> int:
+                  outputs: int | None = None, spare_rows: int = 0) -> int:
     """The most rows one launch may render: its output buffers (`outputs` of 16 bytes a pixel:
-    the render kernel's where None, its 12 and 8 bytes taken as 16) within the device's
-    largest allocation and, beside the scene's buffers, within its global memory. Refuses
-    (DeviceError) a scene whose own buffers do not fit, before any buffer exists."""
+    the render kernel's where None, its 12 and 8 bytes taken as 16), with `spare_rows` more
+    rows each, within the device's largest allocation and, beside the scene's buffers, within
+    its global memory. Refuses (DeviceError) a scene whose own buffers do not fit, before any
+    buffer exists."""
     width, height = int(packed.params[0]["width"]), int(packed.params[0]["height"])
     scene = packed.device_bytes()
     mib = 1 << 20
@@ -71,12 +72,12 @@ def band_capacity(packed: PackedScene, global_mem: int, max_alloc: int,
         outputs = 3 if packed.config.count_tests else 2
     row_bytes = 16 * width
     room = global_mem - sum(scene.values())
-    if room < outputs * row_bytes:
+    if room < outputs * row_bytes * (1 + spare_rows):
         raise DeviceError(f"the scene needs {sum(scene.values()) / mib:.0f} MiB of device "
                           f"memory, more than the device's {global_mem / mib:.0f} MiB leave for "
                           "rendering: render a smaller scene")
-    return max(1, min(height, min(max_alloc, MAX_BAND_BYTES) // row_bytes,
-                      room // (outputs * row_bytes)))
+    return max(1, min(height, min(max_alloc, MAX_BAND_BYTES) // row_bytes - spare_rows,
+                      room // (outputs * row_bytes) - spare_rows))
 
 
 def check_argument_bytes(n_buffers: int, n_ints: int, device: cl.Device) -> None:
@@ -175,7 +176,12 @@ def render_packed(packed: PackedScene, device: cl.Device,
     `rows` = (start, stop), only those rows of the image (a tile of a distributed render): the
     same values, bit for bit, as those rows of the whole image. on_band(first row, its rows of
     the image) hears each band as it arrives (a notebook's progressive display)."""
-    capacity = band_capacity(packed, device.global_mem_size, device.max_mem_alloc_size)
+    # A band's launch covers whole work-groups: with group packets, the rows past the band
+    # (below the image, or the next band's, rendered again there) land in spare rows.
+    tiles = TRAVERSAL_SCHEMES[packed.config.traversal].tiles
+    spare = packed.tuning.group_side - 1 if tiles else 0
+    capacity = band_capacity(packed, device.global_mem_size, device.max_mem_alloc_size,
+                             spare_rows=spare)
     program, build_s, queue, width, spp, first, height = _launch_of(packed, device, rows)
     ctx = queue.context
     try:
@@ -184,9 +190,6 @@ def render_packed(packed: PackedScene, device: cl.Device,
         with cache_folder_errors():
             kernel = cl.Kernel(program, "render")
         group_width, group_height = _local_size(kernel, device, packed)
-        # A band's launch covers whole work-groups: the rows past the band (below the image,
-        # or the next band's, rendered again there) land in the buffers' spare rows.
-        spare = group_height - 1
         band_bytes = width * (capacity + spare) * 16
         # A pixel's radiance, three floats: a band's rows are the image's, copied in place.
         image_buf = cl.Buffer(ctx, cl.mem_flags.WRITE_ONLY, band_bytes // 16 * 12)

@@ -78,7 +78,7 @@ from clray.output import (
     write_bytes_atomically,
     written_directly,
 )
-from clray.passes import PASS_NAMES, pass_paths, pass_problem
+from clray.passes import PASS_NAMES, pass_paths, pass_problem, passes_host_bytes
 from clray.render import RenderResult, RenderSettings, render
 from clray.scene import limits
 from clray.scene.load import load_scene
@@ -980,10 +980,13 @@ def _note_image_memory(args: argparse.Namespace, scene: Scene) -> None:
     width = args.width or scene.render.width
     height = args.height or scene.render.height
     suffix = ".png" if args.output == STDOUT else check_suffix(args.output)
-    need = image_host_bytes(width, height, suffix, args.png_bits or scene.render.png_bits)
+    aovs = tuple(args.aov or ())
+    need = (image_host_bytes(width, height, suffix, args.png_bits or scene.render.png_bits)
+            + width * height * passes_host_bytes(aovs, args.denoise, suffix))
     if need > LARGE_IMAGE_BYTES:
+        passes = ", its passes" if aovs or args.denoise else ""
         _say(f"note: a {width} x {height} image takes about {need / (1 << 30):.1f} GiB of host "
-             f"memory (the float image and its {suffix[1:].upper()} encoding)")
+             f"memory (the float image{passes} and its {suffix[1:].upper()} encoding)")
 
 
 def _settings(args: argparse.Namespace, progress: Callable[[int, int], None] | None

@@ -315,6 +315,7 @@ def render(scene: Scene | str | os.PathLike | Callable[[], Scene],
         passes_start = time.perf_counter()
         raw, pass_stats = render_passes_packed(packed, device, progress=reports[1])
         aovs = passes_of(raw, scene, passes)
+        del raw  # 64 bytes a pixel, not held through the denoiser and the write
         # passes_s: the wall time, with the host's work and PoCL's first-launch compile of the
         # passes kernel; passes_kernel_s: the launches' device time.
         stats.update(pass_stats, passes_s=time.perf_counter() - passes_start)

@@ -867,5 +867,10 @@ def test_large_image_memory_noted_before_rendering(capsys, scene, monkeypatch) -
                                         "PNG encoding)")
     code, _, err = run(capsys, "render", scene, "-W", "8192", "-H", "8192", "-o", "big.png")
     assert err.splitlines() == ["clray: error: stopped"]  # 1.9 GiB: no note
+    # Passes count too (clray.passes.passes_host_bytes): 122 bytes a pixel, not 30.
+    code, _, err = run(capsys, "render", scene, "-W", "8192", "-H", "8192", "-o", "big.png",
+                       "--aov", "depth,normal,albedo")
+    assert err.splitlines()[0] == ("clray: note: a 8192 x 8192 image takes about 7.6 GiB of host "
+                                   "memory (the float image, its passes and its PNG encoding)")
     code, _, err = run(capsys, "render", scene, "-W", "16384", "-H", "16384", "-q")
     assert err.splitlines() == ["clray: error: stopped"]

@@ -353,7 +353,10 @@ def _profile_command(commands: Any) -> None:
                     "per ray (the COUNT_TESTS build), kernel build time cold and warm, and the "
                     "scene's device bytes.")
     pr.add_argument("scene", type=_scene_path, metavar="SCENE",
-                    help="scene file (.toml or .json)")
+                    help=f"scene file (.toml or .json), or a {MESH_FILE} with render's "
+                         "automatic camera and lights")
+    # A mesh file's automatic scene as `clray render MODEL` makes it without view flags (_load).
+    pr.set_defaults(view=None, ground=False, up=None)
     _device_flag(pr)
     pr.add_argument("-W", "--width", type=_image_size, metavar="N", help="image width in pixels")
     pr.add_argument("-H", "--height", type=_image_size, metavar="N", help="image height in pixels")
@@ -1205,7 +1208,7 @@ def _profile(args: argparse.Namespace) -> int:
         settings = RenderSettings(width=args.width, height=args.height, spp=args.spp,
                                   device=args.device, stored_tuning=args.stored_tuning,
                                   traversal=args.traversal)
-        prof = profile_scene(args.scene, settings, args.repeat)
+        prof = profile_scene(args.scene, settings, args.repeat, _load(args))
     if args.json:
         _print_out(json.dumps(prof, indent=2) + "\n")
         return EXIT_OK

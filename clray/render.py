@@ -31,8 +31,8 @@ from clray.scene.load import load_scene
 from clray.scene.model import Scene
 
 # KernelConfig fields a variant may not set: the packer derives them from the scene (every
-# has_* switch, max_depth, bvh_stack_size: a variant naming one made pack_scene fail with a
-# TypeError), and the render from other settings (precision, passes: RenderSettings.precision,
+# has_* switch, max_depth, bvh_stack_size: a variant's value would clash with pack_scene's
+# own), and the render from other settings (precision, passes: RenderSettings.precision,
 # aovs and denoise, which the stats and the passes' launch follow).
 RENDER_SET_FIELDS = ("max_depth", "bvh_stack_size", "precision", "passes")
 _SWITCH_TYPES = typing.get_type_hints(KernelConfig)
@@ -141,7 +141,7 @@ class RenderSettings:
                    ("denoise",
                     lambda v: None if isinstance(v, bool) else "expected True or False")]
         # None keeps the scene's value only where the field's default is None: precision,
-        # aovs, variants and the switches take no None (variants=None failed in the render).
+        # aovs, variants and the switches take no None (the render reads each as it is).
         optional = {f.name for f in fields(self) if f.default is None}
         for name, problem_of in checks:
             value = getattr(self, name)

@@ -78,7 +78,7 @@ from clray.output import (
     write_bytes_atomically,
     written_directly,
 )
-from clray.passes import PASS_NAMES, pass_paths, pass_problem
+from clray.passes import PASS_NAMES, pass_paths, pass_problem, passes_host_bytes
 from clray.render import RenderResult, RenderSettings, render
 from clray.scene import limits
 from clray.scene.load import load_scene
@@ -353,7 +353,10 @@ def _profile_command(commands: Any) -> None:
                     "per ray (the COUNT_TESTS build), kernel build time cold and warm, and the "
                     "scene's device bytes.")
     pr.add_argument("scene", type=_scene_path, metavar="SCENE",
-                    help="scene file (.toml or .json)")
+                    help=f"scene file (.toml or .json), or a {MESH_FILE} with render's "
+                         "automatic camera and lights")
+    # A mesh file's automatic scene as `clray render MODEL` makes it without view flags (_load).
+    pr.set_defaults(view=None, ground=False, up=None)
     _device_flag(pr)
     pr.add_argument("-W", "--width", type=_image_size, metavar="N", help="image width in pixels")
     pr.add_argument("-H", "--height", type=_image_size, metavar="N", help="image height in pixels")
@@ -788,9 +791,9 @@ def _format_stat(value: object) -> str:
     return str(value)
 
 
-_TIMES = (("load_s", "load"), ("bvh_s", "bvh"), ("pack_s", "pack"), ("build_s", "build"),
-          ("kernel_s", "kernel"), ("render_s", "render"), ("write_s", "write"),
-          ("total_s", "total (wall)"))
+_TIMES = (("load_s", "load"), ("device_s", "select device"), ("bvh_s", "bvh"),
+          ("pack_s", "pack"), ("build_s", "build"), ("kernel_s", "kernel"),
+          ("render_s", "render"), ("write_s", "write"), ("total_s", "total (wall)"))
 
 
 def _size(n: int) -> str:
@@ -980,10 +983,13 @@ def _note_image_memory(args: argparse.Namespace, scene: Scene) -> None:
     width = args.width or scene.render.width
     height = args.height or scene.render.height
     suffix = ".png" if args.output == STDOUT else check_suffix(args.output)
-    need = image_host_bytes(width, height, suffix, args.png_bits or scene.render.png_bits)
+    aovs = tuple(args.aov or ())
+    need = (image_host_bytes(width, height, suffix, args.png_bits or scene.render.png_bits)
+            + width * height * passes_host_bytes(aovs, args.denoise, suffix))
     if need > LARGE_IMAGE_BYTES:
+        passes = ", its passes" if aovs or args.denoise else ""
         _say(f"note: a {width} x {height} image takes about {need / (1 << 30):.1f} GiB of host "
-             f"memory (the float image and its {suffix[1:].upper()} encoding)")
+             f"memory (the float image{passes} and its {suffix[1:].upper()} encoding)")
 
 
 def _settings(args: argparse.Namespace, progress: Callable[[int, int], None] | None
@@ -1202,7 +1208,7 @@ def _profile(args: argparse.Namespace) -> int:
         settings = RenderSettings(width=args.width, height=args.height, spp=args.spp,
                                   device=args.device, stored_tuning=args.stored_tuning,
                                   traversal=args.traversal)
-        prof = profile_scene(args.scene, settings, args.repeat)
+        prof = profile_scene(args.scene, settings, args.repeat, _load(args))
     if args.json:
         _print_out(json.dumps(prof, indent=2) + "\n")
         return EXIT_OK

@@ -156,21 +156,23 @@ def _render_tile(scene: Scene, scene_key: str, settings: RenderSettings, start: 
                  stop: int) -> dict:
     started = time.perf_counter()
     with _device_lock, _kept_warnings() as kept:
+        device_started = time.perf_counter()
         device = select_device(settings.device)
         key = (scene_key, settings, describe(device))
         packs = key not in _packed
         if packs:
             _packed.clear()
-            pack_started = time.perf_counter()
             plan = plan_for(scene, settings, device)
+            pack_started = time.perf_counter()
             fresh = pack_for(scene, settings, device, plan)
             _packed[key] = fresh, tuning_stats(plan, fresh)
             pack_s = time.perf_counter() - pack_started
+        device_s = pack_started - device_started if packs else 0.0
         packed, tuning = _packed[key]
         image, stats = render_packed(packed, device, rows=(start, stop))
     return {"start": start, "rows": stop - start, "image": image, "stats": stats,
             "tuning": tuning, "traversal": packed.config.traversal,
-            "packed": packs, "pack_s": pack_s if packs else 0.0,
+            "packed": packs, "device_s": device_s, "pack_s": pack_s if packs else 0.0,
             "bvh_s": packed.bvh_s if packs else 0.0, "device": describe(device),
             "worker": f"{socket.gethostname()}:{os.getpid()}", "warnings": kept,
             "task_s": time.perf_counter() - started}
@@ -310,6 +312,7 @@ def _merge(tiles: list[dict], resolved: dict, settings: RenderSettings) -> dict:
         **resolved,
         "device": ", ".join(sorted({t["device"] for t in tiles})),
         "precision": settings.precision,
+        "device_s": max(t["device_s"] for t in tiles),
         "bvh_s": max(t["bvh_s"] for t in tiles),
         "pack_s": max(t["pack_s"] - t["bvh_s"] for t in tiles),
         "build_s": max(t["stats"]["build_s"] for t in tiles),

@@ -12,7 +12,9 @@ from pathlib import Path
 
 import numpy as np
 
+from clray.denoise import DENOISE_GUIDES
 from clray.device import layout as L
+from clray.device.launch import PASS_OUTPUTS
 from clray.errors import SettingsError
 from clray.image_io import (
     Encoding,
@@ -243,3 +245,46 @@ def write_with_passes(path: str | Path, image: np.ndarray, encoding: Encoding,
     channels = exr_channels(aovs) if suffix == ".exr" else {}
     write_bytes_atomically(path, exr_bytes(image, channels) if suffix == ".exr"
                            else image_bytes(suffix, image, encoding))
+
+
+def pass_pixel_bytes(name: str) -> int:
+    """Host bytes a pixel of pass `name` as passes_of makes it: one float32 or int32, or three
+    float32."""
+    return 4 if name in SCALAR_PASSES else 12
+
+
+# Host bytes a pixel, beside the passes, of each stage that makes or writes them (tracemalloc's
+# figures; tests/test_passes.py checks the sum against a render and its write). The passes
+# kernel's raw outputs, held while passes_of reads them: a float4 or int4 each.
+RAW_PASS_BYTES = 16 * len(PASS_OUTPUTS)
+# object_indices' temporaries: the references' kinds and indices (int32 each), a kind's three
+# masks, and the indices and objects it gathers (int32 each).
+OBJECT_PASS_TEMPORARY_BYTES = 4 + 4 + 3 + 4 + 4
+# clray.denoise.denoise's float32 images at OIDN's call: the colour and the output, and each
+# guide's clipped copy and its denoised copy; the guide filters keep the guides' after it.
+DENOISE_WORK_BYTES = 12 * (2 + 2 * len(DENOISE_GUIDES))
+DENOISE_KEPT_BYTES = 12 * 2 * len(DENOISE_GUIDES)
+
+
+def passes_host_bytes(aovs: tuple[str, ...], denoise: bool, suffix: str) -> int:
+    """About the most host memory a pixel that tracing the passes `aovs` (and the denoiser's
+    guides with `denoise`) and writing them beside an image of `suffix` adds to the image's
+    own (clray.image_io.image_host_bytes): the largest of making the passes (the raw outputs
+    beside them), denoising (the denoiser's images beside them) and writing (the passes kept,
+    with a PFM's copies of the largest, or OpenEXR's channels and their share of the file).
+    With `denoise`, the render's noisy image is kept beside the denoised one. OIDN's own
+    buffers come on top."""
+    traced = aovs + tuple(name for name in DENOISE_GUIDES if denoise and name not in aovs)
+    if not traced:
+        return 0
+    made = sum(pass_pixel_bytes(name) for name in traced)
+    kept = sum(pass_pixel_bytes(name) for name in aovs)
+    making = RAW_PASS_BYTES + made + (OBJECT_PASS_TEMPORARY_BYTES if "object" in traced else 0)
+    denoising = made + DENOISE_WORK_BYTES if denoise else 0
+    if suffix == ".exr":
+        write = 2 * kept
+    else:  # pfm_bytes: a float32 copy of an integer pass, its rows flipped, their bytes
+        write = max((pass_pixel_bytes(name) * (3 if name in INDEX_PASSES else 2)
+                     for name in aovs), default=0)
+    writing = kept + write + (DENOISE_KEPT_BYTES if denoise else 0)
+    return max(making, denoising, writing) + (12 if denoise else 0)

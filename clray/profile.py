@@ -41,6 +41,7 @@ from clray.device.program import KernelConfig, build_program
 from clray.errors import EXIT_OPENCL, ClrayError, DeviceError, one_line
 from clray.render import RenderSettings, pack_for
 from clray.scene.load import load_scene
+from clray.scene.model import Scene
 
 
 def _variant(packed: PackedScene, *, depth0: bool, lights: bool) -> PackedScene:
@@ -161,10 +162,12 @@ def _build_only(config_json: str, device_spec: str | None) -> None:
     print(json.dumps({"build_s": seconds, "context_s": context_s}))
 
 
-def profile_scene(path: Path, settings: RenderSettings, repeat: int = 3) -> dict:
-    """The whole profile of the scene at `path` rendered with `settings` on its device."""
+def profile_scene(path: Path, settings: RenderSettings, repeat: int = 3,
+                  scene: Scene | None = None) -> dict:
+    """The whole profile of the scene at `path` (or of `scene`, where given, loaded from it:
+    a mesh file's automatic scene) rendered with `settings` on its device."""
     device = select_device(settings.device)
-    packed = pack_for(load_scene(path), settings, device)
+    packed = pack_for(scene if scene is not None else load_scene(path), settings, device)
     try:
         cache = tempfile.TemporaryDirectory(prefix="clray-profile-")
     except OSError as err:  # TMPDIR full or read-only, or no usable temporary folder at all

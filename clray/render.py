@@ -31,8 +31,8 @@ from clray.scene.load import load_scene
 from clray.scene.model import Scene
 
 # KernelConfig fields a variant may not set: the packer derives them from the scene (every
-# has_* switch, max_depth, bvh_stack_size: a variant naming one made pack_scene fail with a
-# TypeError), and the render from other settings (precision, passes: RenderSettings.precision,
+# has_* switch, max_depth, bvh_stack_size: a variant's value would clash with pack_scene's
+# own), and the render from other settings (precision, passes: RenderSettings.precision,
 # aovs and denoise, which the stats and the passes' launch follow).
 RENDER_SET_FIELDS = ("max_depth", "bvh_stack_size", "precision", "passes")
 _SWITCH_TYPES = typing.get_type_hints(KernelConfig)
@@ -89,6 +89,8 @@ class RenderSettings:
     traversal: str | None = None
     # progress(done, total) in pixel-samples (pixels x spp): called with done = 0 before the
     # first launch, then after each launch, rising to done = total; several times a second.
+    # With passes (aovs, denoise) their kernel traces every pixel-sample again, and the total
+    # counts both kernels' (twice the image's): it is reached when the passes' launches end.
     progress: Callable[[int, int], None] | None = field(default=None, compare=False)
     variants: tuple[tuple[str, object], ...] = ()  # extra KernelConfig fields (studies)
     # PNG output (RenderResult.save, docs/rendering.md); None = the scene file's value.
@@ -110,6 +112,15 @@ class RenderSettings:
     on_band: Callable[[int, np.ndarray], None] | None = field(default=None, compare=False)
 
     def __post_init__(self) -> None:
+        # numpy's numbers are numbers here (numbers.Integral, numbers.Real), but json.dumps
+        # refuses them, and these values go into the result's stats: kept as Python's own.
+        for name in (*L.RENDER_INTEGERS, *L.RENDER_NUMBERS, *L.RENDER_CHOICES):
+            object.__setattr__(self, name, _python_number(getattr(self, name)))
+        if isinstance(self.variants, tuple):
+            object.__setattr__(self, "variants", tuple(
+                (pair[0], _python_number(pair[1]))
+                if isinstance(pair, tuple) and len(pair) == 2 else pair
+                for pair in self.variants))
         # The scene file's [render] rules (clray.scene.limits), in the same words.
         checks = [(name, lambda v, r=rule: L.integer_problem(v, *r))
                   for name, rule in L.RENDER_INTEGERS.items()]
@@ -130,7 +141,7 @@ class RenderSettings:
                    ("denoise",
                     lambda v: None if isinstance(v, bool) else "expected True or False")]
         # None keeps the scene's value only where the field's default is None: precision,
-        # aovs, variants and the switches take no None (variants=None failed in the render).
+        # aovs, variants and the switches take no None (the render reads each as it is).
         optional = {f.name for f in fields(self) if f.default is None}
         for name, problem_of in checks:
             value = getattr(self, name)
@@ -141,6 +152,13 @@ class RenderSettings:
             if getattr(self, name) is not None and not callable(getattr(self, name)):
                 raise SettingsError(f"RenderSettings.{name}: expected a callable, "
                                     f"got {getattr(self, name)!r}")
+
+
+def _python_number(value: object) -> object:
+    """A real number (numpy's too) as Python's int or float; anything else as it is."""
+    if isinstance(value, bool) or not isinstance(value, numbers.Real):
+        return value
+    return int(value) if isinstance(value, numbers.Integral) else float(value)
 
 
 def settings_or_default(settings: object) -> RenderSettings:
@@ -244,6 +262,19 @@ def tuning_stats(plan: DevicePlan, packed: PackedScene) -> dict:
             "implicit_vectorization": packed.config.implicit_vectorization}
 
 
+def kernel_progress(progress: Callable[[int, int], None] | None, kernels: int
+                    ) -> list[Callable[[int, int], None] | None]:
+    """One progress callback for each of `kernels` launched one after the other over the same
+    pixel-samples, each reporting its own (done, total): together they report one rise from 0
+    to kernels x total, so that the end is heard when the last kernel's work ends."""
+    if progress is None:
+        return [None] * kernels
+
+    def part(k: int) -> Callable[[int, int], None]:
+        return lambda done, total: progress(k * total + done, kernels * total)
+    return [part(k) for k in range(kernels)]
+
+
 def render(scene: Scene | str | os.PathLike | Callable[[], Scene],
            settings: RenderSettings | None = None) -> RenderResult:
     """Render a scene, the scene file at a path, or the scene a callable returns. A scene built
@@ -265,19 +296,26 @@ def render(scene: Scene | str | os.PathLike | Callable[[], Scene],
     warn_deep_tree(scene, resolved)
     if settings.denoise:
         check_denoiser()  # before any device work
+    device_start = time.perf_counter()
     device = select_device(settings.device)
     plan = plan_for(scene, settings, device)
+    pack_start = time.perf_counter()
     packed = pack_for(scene, settings, device, plan)
-    pack_s = time.perf_counter() - start - packed.bvh_s
+    # device_s: finding the device and its plan (platforms, context, tuning file); pack_s:
+    # the packing beside its BVH build (bvh_s).
+    device_s = pack_start - device_start
+    pack_s = time.perf_counter() - pack_start - packed.bvh_s
     passes = traced_passes(settings)
     if not passes:
         del scene  # where render holds it alone, the scene's arrays go before the render's
-    image, stats = render_packed(packed, device, settings.progress, on_band=settings.on_band)
+    reports = kernel_progress(settings.progress, 2 if passes else 1)
+    image, stats = render_packed(packed, device, reports[0], on_band=settings.on_band)
     aovs: dict[str, np.ndarray] = {}
     if passes:
         passes_start = time.perf_counter()
-        raw, pass_stats = render_passes_packed(packed, device)
+        raw, pass_stats = render_passes_packed(packed, device, progress=reports[1])
         aovs = passes_of(raw, scene, passes)
+        del raw  # 64 bytes a pixel, not held through the denoiser and the write
         # passes_s: the wall time, with the host's work and PoCL's first-launch compile of the
         # passes kernel; passes_kernel_s: the launches' device time.
         stats.update(pass_stats, passes_s=time.perf_counter() - passes_start)
@@ -293,6 +331,7 @@ def render(scene: Scene | str | os.PathLike | Callable[[], Scene],
         "precision": settings.precision,
         "tuning": tuning_stats(plan, packed),
         "traversal": packed.config.traversal,
+        "device_s": device_s,
         "bvh_s": packed.bvh_s,
         "pack_s": pack_s,
         **stats,

@@ -287,11 +287,11 @@ def test_verbose_prints_progress_and_stats(capsys, cl_device, scene) -> None:
     assert "clray: rendering: 100% (768 of 768 pixel-samples, " in err
     table = lines[lines.index("clray: stats:") + 1:-1]
     labels = [line.split("  ")[1] for line in table]
-    assert labels[:19] == ["scene", "output", "device", "image", "tuning", "traversal", "load",
-                           "bvh", "pack", "build", "kernel", "render", "write", "total (wall)",
-                           "rays primary", "rays secondary", "rays shadow", "rays total",
-                           "Mrays/s"]
-    assert labels[19:] == ["scene on device", "non-finite pixels", "clipped pixels"]
+    assert labels[:20] == ["scene", "output", "device", "image", "tuning", "traversal", "load",
+                           "select device", "bvh", "pack", "build", "kernel", "render", "write",
+                           "total (wall)", "rays primary", "rays secondary", "rays shadow",
+                           "rays total", "Mrays/s"]
+    assert labels[20:] == ["scene on device", "non-finite pixels", "clipped pixels"]
     # Labels padded to one width: the values start in one column.
     column = 2 + len("non-finite pixels") + 2
     assert all(line[2:column].rstrip() == label for line, label in zip(table, labels,
@@ -867,5 +867,10 @@ def test_large_image_memory_noted_before_rendering(capsys, scene, monkeypatch) -
                                         "PNG encoding)")
     code, _, err = run(capsys, "render", scene, "-W", "8192", "-H", "8192", "-o", "big.png")
     assert err.splitlines() == ["clray: error: stopped"]  # 1.9 GiB: no note
+    # Passes count too (clray.passes.passes_host_bytes): 122 bytes a pixel, not 30.
+    code, _, err = run(capsys, "render", scene, "-W", "8192", "-H", "8192", "-o", "big.png",
+                       "--aov", "depth,normal,albedo")
+    assert err.splitlines()[0] == ("clray: note: a 8192 x 8192 image takes about 7.6 GiB of host "
+                                   "memory (the float image, its passes and its PNG encoding)")
     code, _, err = run(capsys, "render", scene, "-W", "16384", "-H", "16384", "-q")
     assert err.splitlines() == ["clray: error: stopped"]

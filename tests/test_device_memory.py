@@ -88,6 +88,46 @@ def test_image_in_small_bands_is_identical(cl_device, monkeypatch):
     assert banded.stats["rays"] == whole.stats["rays"]
 
 
+def test_spare_rows_come_out_of_the_band():
+    packed = _packed(1024, 1024)
+    assert band_capacity(packed, global_mem=64 * MIB, max_alloc=15 * MIB, spare_rows=7) == 953
+    room = 8 * MIB + sum(packed.device_bytes().values())
+    assert band_capacity(packed, global_mem=room, max_alloc=64 * MIB, spare_rows=3) == 253
+
+
+@pytest.mark.parametrize("count_tests", [False, True])
+def test_group_packets_output_buffers_stay_within_the_band_cap(cl_device, monkeypatch,
+                                                               count_tests):
+    # Group packets' launches cover whole 8 x 8 tiles, whose rows past the band land in spare
+    # rows: those come out of the band, so no output buffer is over the cap (on a device, its
+    # largest allocation), and the image is the one of a single launch.
+    from clray.render import pack_for
+    from clray.tuning import Tuning
+
+    width = 96
+    scene = _scene(width, 40)
+    settings = RenderSettings(spp=2, traversal="group_packet", tuning=Tuning(group_side=8))
+    packed = pack_for(scene, settings, cl_device)
+    packed = dataclasses.replace(packed, config=dataclasses.replace(packed.config,
+                                                                    count_tests=count_tests))
+    whole, _ = launch_module.render_packed(packed, cl_device)
+    cap = 8 * width * 16  # eight rows of the widest output, 16 bytes a pixel
+    monkeypatch.setattr(launch_module, "MAX_BAND_BYTES", cap)
+    sizes: list[int] = []
+    real_buffer = cl.Buffer
+
+    def recording_buffer(ctx, flags, size=0, hostbuf=None):
+        if flags & cl.mem_flags.WRITE_ONLY:
+            sizes.append(size)
+        return real_buffer(ctx, flags, size, hostbuf)
+
+    monkeypatch.setattr(cl, "Buffer", recording_buffer)
+    banded, stats = launch_module.render_packed(packed, cl_device)
+    assert len(sizes) == 3 and max(sizes) <= cap, sizes
+    assert stats["launches"] >= 40 // 8
+    np.testing.assert_array_equal(banded, whole)
+
+
 def _mesh_scene(subdivisions: int) -> M.Scene:
     vertices, faces, _ = mesh_gen.bumpy_mesh(subdivisions)
     return M.Scene(None, M.RenderOptions(64, 48, 1, 0, (0.0, 0.0, 0.0)),

@@ -100,7 +100,7 @@ def test_workers_that_rendered_with_other_knobs_are_each_named() -> None:
     def tile(worker: str, tuning: dict, traversal: str) -> dict:
         stats = {"rays": dict.fromkeys(("primary", "secondary", "shadow", "total"), 1),
                  "kernel_s": 1.0, "build_s": 0.0, "launches": 1, "device_bytes": 8}
-        return {"worker": worker, "device": "cpu", "bvh_s": 0.0, "pack_s": 0.0,
+        return {"worker": worker, "device": "cpu", "device_s": 0.0, "bvh_s": 0.0, "pack_s": 0.0,
                 "stats": stats, "tuning": tuning, "traversal": traversal}
 
     default, tuned = {"source": "default"}, {"source": "tuning file t.json"}

@@ -6,6 +6,7 @@ settings' checks; and the command line's --aov files (PFMs, EXR layers, previews
 
 from __future__ import annotations
 
+import importlib
 from dataclasses import replace
 from pathlib import Path
 
@@ -229,6 +230,73 @@ def test_passes_leave_the_image_alone(cl_device: cl.Device) -> None:
     with_passes = render(scene, RenderSettings(aovs=("depth",)))
     assert plain.aovs == {} and list(with_passes.aovs) == ["depth"]
     assert np.array_equal(plain.image, with_passes.image)
+
+
+def test_progress_ends_when_the_passes_launches_end(cl_device: cl.Device,
+                                                     monkeypatch: pytest.MonkeyPatch) -> None:
+    # Bands of 3 rows for both kernels: the image's reports rise to half the total, the
+    # passes' launches the other half; the total is reached by the passes' last band, not
+    # before their kernel runs.
+    render_module = importlib.import_module("clray.render")  # also the function's name
+    events: list[object] = []
+    launch_passes = render_module.render_passes_packed
+
+    def passes_packed(*args: object, **kwargs: object) -> object:
+        events.append("passes")
+        return launch_passes(*args, **kwargs)
+
+    monkeypatch.setattr(render_module, "render_passes_packed", passes_packed)
+    scene = _index_scene(CAMERAS["pinhole"], 4)
+    rows = Tuning(first_launch_pixel_samples=W * 4 * 3, max_launch_pixel_samples=W * 4 * 3)
+    result = render(scene, RenderSettings(aovs=("depth",), tuning=rows,
+                                          progress=lambda done, total: events.append(
+                                              (done, total))))
+    total = 2 * W * H * 4
+    reports = [e for e in events if e != "passes"]
+    assert {t for _, t in reports} == {total}
+    done = [d for d, _ in reports]
+    assert done == sorted(done) and done[0] == 0 and done[-1] == total
+    assert done.count(total) == 1
+    passes_at = events.index("passes")
+    assert max(d for d, _ in events[:passes_at]) == total // 2
+    assert result.stats["launches"] == result.stats["passes_launches"] == 10
+    assert len(reports) == 2 * (10 + 1)
+
+
+@pytest.mark.parametrize(("aovs", "denoise", "suffix"), [
+    (("depth",), False, ".png"), (("object",), False, ".pfm"),
+    (("depth", "normal", "albedo"), False, ".png"), (ALL, False, ".pfm"), (ALL, False, ".exr"),
+    ((), True, ".png"), (("depth", "normal", "albedo"), True, ".exr")])
+def test_passes_host_bytes_bound_a_render_and_its_write(aovs: tuple[str, ...], denoise: bool,
+                                                        suffix: str, cl_device: cl.Device,
+                                                        tmp_path: Path) -> None:
+    # What `clray render` announces for a large image (the image's bytes and the passes') bounds
+    # tracemalloc's peak of a render and its write, and is within 1.5 times of it: the image's
+    # figure alone (30 bytes a pixel for a PNG) was under a third of the peak with every pass.
+    import tracemalloc
+
+    from clray.image_io import image_host_bytes
+    from clray.passes import passes_host_bytes
+
+    if denoise:
+        pytest.importorskip("pyoidn")
+    if suffix == ".exr":
+        pytest.importorskip("OpenEXR")
+    width, height = 480, 360
+    scene = replace(_index_scene(CAMERAS["pinhole"], 1),
+                    render=M.RenderOptions(width, height, 1, 2, (0.2, 0.3, 0.4)))
+    settings = RenderSettings(aovs=aovs, denoise=denoise)
+    render(scene, settings).save(tmp_path / f"warm{suffix}")  # builds, the PNG table
+    tracemalloc.start()
+    try:
+        result = render(scene, settings)
+        result.save(tmp_path / f"out{suffix}")
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    estimate = (image_host_bytes(width, height, suffix)
+                + width * height * passes_host_bytes(aovs, denoise, suffix))
+    assert peak <= estimate <= 1.5 * peak, (peak / (width * height), estimate / (width * height))
 
 
 @pytest.mark.parametrize("aovs, words", [

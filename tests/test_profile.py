@@ -71,6 +71,19 @@ def test_profile_traversal_reaches_the_kernel(cl_device, capsys, spp) -> None:
     assert prof["rays"] == rendered.stats["rays"]
 
 
+def test_profile_takes_a_mesh_file_as_render_does(cl_device, capsys, tmp_path) -> None:
+    # A mesh file profiles with the automatic scene that `clray render` makes of it.
+    cube = Path(__file__).resolve().parent / "data" / "cube.obj"
+    code = cli.main(["profile", str(cube), "-W", "12", "-H", "8", "--repeat", "1", "--json"])
+    prof = json.loads(capsys.readouterr().out)
+    assert code == 0
+    stats_path = tmp_path / "stats.json"
+    assert cli.main(["render", str(cube), "-W", "12", "-H", "8", "-q", "-o",
+                     str(tmp_path / "cube.png"), "--stats-json", str(stats_path)]) == 0
+    assert prof["rays"] == json.loads(stats_path.read_text())["rays"]
+    assert prof["rays"]["shadow"] > 0  # the automatic lights
+
+
 def test_profile_prints_a_summary(cl_device, capsys) -> None:
     assert cli.main(["profile", str(SPHERES), "-W", "32", "-H", "18", "--repeat", "1"]) == 0
     lines = capsys.readouterr().out.splitlines()

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import dataclasses
 import importlib
+import time
 from pathlib import Path
 
 import numpy as np
@@ -262,6 +263,22 @@ def test_progress_counts_pixel_samples_up_to_the_total(cl_device, monkeypatch) -
     assert {t for _, t in reports} == {total}
     assert [d for d, _ in reports] == list(range(0, total + 1, W * 5 * 4))
     assert len(reports) == result.stats["launches"] + 1
+
+
+def test_pack_time_leaves_out_choosing_the_device(cl_device, monkeypatch) -> None:
+    # A device that takes half a second to find: device_s holds it, pack_s does not.
+    render_module = importlib.import_module("clray.render")  # also the function's name
+    find = render_module.select_device
+
+    def slow_select(spec: str | None) -> object:
+        time.sleep(0.5)
+        return find(spec)
+
+    monkeypatch.setattr(render_module, "select_device", slow_select)
+    stats = render(CASES["supersampled"]).stats
+    assert 0 <= stats["pack_s"] < 0.5
+    assert stats["device_s"] >= 0.5
+    assert stats["device_s"] + stats["bvh_s"] + stats["pack_s"] <= stats["total_s"]
 
 
 def test_band_rows_follow_the_measured_rate_within_bounds(monkeypatch) -> None:

@@ -5,6 +5,7 @@ the scene file's checks before they render."""
 from __future__ import annotations
 
 import dataclasses
+import json
 import math
 from pathlib import Path
 
@@ -154,6 +155,34 @@ def test_render_refuses_settings_that_are_not_render_settings(settings: object) 
 
 def test_numpy_integers_are_integers() -> None:
     assert RenderSettings(width=np.int64(32)).width == 32
+
+
+def test_numpy_numbers_become_pythons_own() -> None:
+    # Accepted as numbers, kept as Python's int and float: the render's stats hold them, and
+    # json.dumps refuses numpy's scalars.
+    settings = RenderSettings(width=np.int64(8), height=np.int32(6), spp=np.uint8(2),
+                              max_depth=np.int16(1), seed=np.int64(3),
+                              min_weight=np.float32(0.25), exposure=np.float64(-1.5),
+                              png_bits=np.int64(16),
+                              variants=(("packet_lanes", np.int64(4)),))
+    values = {name: getattr(settings, name) for name in
+              ("width", "height", "spp", "max_depth", "seed", "min_weight", "exposure",
+               "png_bits")}
+    assert values == {"width": 8, "height": 6, "spp": 2, "max_depth": 1, "seed": 3,
+                      "min_weight": 0.25, "exposure": -1.5, "png_bits": 16}
+    assert {name: type(value) for name, value in values.items()} == {
+        **dict.fromkeys(("width", "height", "spp", "max_depth", "seed", "png_bits"), int),
+        "min_weight": float, "exposure": float}
+    assert type(settings.variants[0][1]) is int
+    json.dumps({**values, "variants": settings.variants})
+    assert RenderSettings(min_weight=0).min_weight == 0  # Python's numbers as they are
+    assert type(RenderSettings(min_weight=0).min_weight) is int
+
+
+def test_render_stats_are_json_with_numpy_settings(cl_device) -> None:
+    result = render(SCENE_PATH, RenderSettings(width=np.int64(8), height=np.int64(6),
+                                               min_weight=np.float32(0.5)))
+    assert json.loads(json.dumps(result.stats))["width"] == 8
 
 
 # -- scenes built in Python --------------------------------------------------------------------

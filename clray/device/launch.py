@@ -54,11 +54,12 @@ MAX_BAND_BYTES = 256 << 20
 
 
 def band_capacity(packed: PackedScene, global_mem: int, max_alloc: int,
-                  outputs: int | None = None) -> int:
+                  outputs: int | None = None, spare_rows: int = 0) -> int:
     """The most rows one launch may render: its output buffers (`outputs` of 16 bytes a pixel:
-    the render kernel's where None, its 12 and 8 bytes taken as 16) within the device's
-    largest allocation and, beside the scene's buffers, within its global memory. Refuses
-    (DeviceError) a scene whose own buffers do not fit, before any buffer exists."""
+    the render kernel's where None, its 12 and 8 bytes taken as 16), with `spare_rows` more
+    rows each, within the device's largest allocation and, beside the scene's buffers, within
+    its global memory. Refuses (DeviceError) a scene whose own buffers do not fit, before any
+    buffer exists."""
     width, height = int(packed.params[0]["width"]), int(packed.params[0]["height"])
     scene = packed.device_bytes()
     mib = 1 << 20
@@ -71,12 +72,12 @@ def band_capacity(packed: PackedScene, global_mem: int, max_alloc: int,
         outputs = 3 if packed.config.count_tests else 2
     row_bytes = 16 * width
     room = global_mem - sum(scene.values())
-    if room < outputs * row_bytes:
+    if room < outputs * row_bytes * (1 + spare_rows):
         raise DeviceError(f"the scene needs {sum(scene.values()) / mib:.0f} MiB of device "
                           f"memory, more than the device's {global_mem / mib:.0f} MiB leave for "
                           "rendering: render a smaller scene")
-    return max(1, min(height, min(max_alloc, MAX_BAND_BYTES) // row_bytes,
-                      room // (outputs * row_bytes)))
+    return max(1, min(height, min(max_alloc, MAX_BAND_BYTES) // row_bytes - spare_rows,
+                      room // (outputs * row_bytes) - spare_rows))
 
 
 def check_argument_bytes(n_buffers: int, n_ints: int, device: cl.Device) -> None:
@@ -165,6 +166,55 @@ def _launch_of(packed: PackedScene, device: cl.Device, rows: tuple[int, int] | N
                    int(params["spp"]), first, end - first)
 
 
+class _BandOutputs:
+    """The render kernel's output buffers for a band of `rows` rows and `spare` more (a
+    work-group's rows past the band), and the ray and test counts of the bands read back."""
+
+    def __init__(self, ctx: cl.Context, width: int, rows: int, spare: int,
+                 count_tests: bool) -> None:
+        band_bytes = width * (rows + spare) * 16
+        # A pixel's radiance, three floats: a band's rows are the image's, copied in place.
+        self.image = cl.Buffer(ctx, cl.mem_flags.WRITE_ONLY, band_bytes // 16 * 12)
+        # A pixel's secondary and shadow rays (int2); its spp primary rays are counted here.
+        self.counts = cl.Buffer(ctx, cl.mem_flags.WRITE_ONLY, band_bytes // 2)
+        self.tests = cl.Buffer(ctx, cl.mem_flags.WRITE_ONLY, band_bytes if count_tests else 16)
+        self.count_tests = count_tests
+        self.band_counts = np.empty((rows * width, 2), dtype=np.int32)
+        self.band_tests = np.empty((rows * width if count_tests else 0, 4), dtype=np.int32)
+        self.rays = np.zeros(3, dtype=np.int64)
+        self.test_totals = np.zeros(4, dtype=np.int64)
+
+    def read_band(self, queue: cl.CommandQueue, image_rows: np.ndarray, spp: int) -> None:
+        """A launched band's radiance into `image_rows` (the image's rows, in place), and its
+        counts into the totals."""
+        pixels = image_rows.shape[0] * image_rows.shape[1]
+        cl.enqueue_copy(queue, image_rows, self.image)
+        cl.enqueue_copy(queue, self.band_counts[:pixels], self.counts)
+        self.rays[0] += pixels * spp
+        # einsum sums int32 columns into int64 about 3x faster than sum(axis=0, dtype=...).
+        self.rays[1:] += np.einsum("ij->j", self.band_counts[:pixels], dtype=np.int64)
+        if self.count_tests:
+            cl.enqueue_copy(queue, self.band_tests[:pixels], self.tests)
+            self.test_totals += np.einsum("ij->j", self.band_tests[:pixels], dtype=np.int64)
+
+    def stats(self, build_s: float, kernel_s: float, launches: int, packed: PackedScene) -> dict:
+        """render_packed's stats of the bands read."""
+        rays = dict(zip(("primary", "secondary", "shadow"), map(int, self.rays), strict=True))
+        rays["total"] = sum(rays.values())
+        stats = {
+            "build_s": build_s,
+            "kernel_s": kernel_s,
+            "launches": launches,
+            "rays": rays,
+            "mrays_per_s": rays["total"] / kernel_s * 1e-6 if kernel_s > 0 else None,
+            "device_bytes": packed.device_bytes(),
+        }
+        if self.count_tests:
+            stats["tests"] = dict(zip(("closest_boxes", "closest_prims", "shadow_boxes",
+                                       "shadow_prims"), map(int, self.test_totals), strict=True))
+        return stats
+
+
 @small_pages
 def render_packed(packed: PackedScene, device: cl.Device,
                   progress: Callable[[int, int], None] | None = None,
@@ -175,30 +225,21 @@ def render_packed(packed: PackedScene, device: cl.Device,
     `rows` = (start, stop), only those rows of the image (a tile of a distributed render): the
     same values, bit for bit, as those rows of the whole image. on_band(first row, its rows of
     the image) hears each band as it arrives (a notebook's progressive display)."""
-    capacity = band_capacity(packed, device.global_mem_size, device.max_mem_alloc_size)
+    # A band's launch covers whole work-groups: with group packets, the rows past the band
+    # (below the image, or the next band's, rendered again there) land in spare rows.
+    tiles = TRAVERSAL_SCHEMES[packed.config.traversal].tiles
+    spare = packed.tuning.group_side - 1 if tiles else 0
+    capacity = band_capacity(packed, device.global_mem_size, device.max_mem_alloc_size,
+                             spare_rows=spare)
     program, build_s, queue, width, spp, first, height = _launch_of(packed, device, rows)
-    ctx = queue.context
     try:
-        buffers = _scene_buffers(ctx, packed)
+        buffers = _scene_buffers(queue.context, packed)
         check_argument_bytes(len(buffers) + 3, 1, device)
         with cache_folder_errors():
             kernel = cl.Kernel(program, "render")
         group_width, group_height = _local_size(kernel, device, packed)
-        # A band's launch covers whole work-groups: the rows past the band (below the image,
-        # or the next band's, rendered again there) land in the buffers' spare rows.
-        spare = group_height - 1
-        band_bytes = width * (capacity + spare) * 16
-        # A pixel's radiance, three floats: a band's rows are the image's, copied in place.
-        image_buf = cl.Buffer(ctx, cl.mem_flags.WRITE_ONLY, band_bytes // 16 * 12)
-        # A pixel's secondary and shadow rays (int2); its spp primary rays are counted here.
-        counts_buf = cl.Buffer(ctx, cl.mem_flags.WRITE_ONLY, band_bytes // 2)
-        count_tests = packed.config.count_tests
-        tests_buf = cl.Buffer(ctx, cl.mem_flags.WRITE_ONLY, band_bytes if count_tests else 16)
+        outputs = _BandOutputs(queue.context, width, capacity, spare, packed.config.count_tests)
         image = np.empty((height, width, 3), dtype=np.float32)
-        band_counts = np.empty((capacity * width, 2), dtype=np.int32)
-        band_tests = np.empty((capacity * width if count_tests else 0, 4), dtype=np.int32)
-        totals = np.zeros(3, dtype=np.int64)
-        test_totals = np.zeros(4, dtype=np.int64)
         padded_width = -(-width // group_width) * group_width
         row_samples = width * spp
         if progress is not None:
@@ -207,7 +248,8 @@ def render_packed(packed: PackedScene, device: cl.Device,
         while row0 < height:
             band = min(capacity, next_band_rows(row_samples, band, band_s, height - row0,
                                                 packed.tuning))
-            kernel.set_args(*buffers, image_buf, counts_buf, tests_buf, np.int32(first + row0))
+            kernel.set_args(*buffers, outputs.image, outputs.counts, outputs.tests,
+                            np.int32(first + row0))
             padded_band = -(-band // group_height) * group_height
             event = cl.enqueue_nd_range_kernel(queue, kernel, (padded_width, padded_band),
                                                (group_width, group_height))
@@ -217,15 +259,7 @@ def render_packed(packed: PackedScene, device: cl.Device,
             band_s = (event.profile.end - event.profile.start) * 1e-9
             kernel_s += band_s
             launches += 1
-            pixels = band * width
-            cl.enqueue_copy(queue, image[row0:row0 + band], image_buf)
-            cl.enqueue_copy(queue, band_counts[:pixels], counts_buf)
-            totals[0] += pixels * spp
-            # einsum sums int32 columns into int64 about 3x faster than sum(axis=0, dtype=...).
-            totals[1:] += np.einsum("ij->j", band_counts[:pixels], dtype=np.int64)
-            if count_tests:
-                cl.enqueue_copy(queue, band_tests[:pixels], tests_buf)
-                test_totals += np.einsum("ij->j", band_tests[:pixels], dtype=np.int64)
+            outputs.read_band(queue, image[row0:row0 + band], spp)
             if on_band is not None:
                 on_band(first + row0, image[row0:row0 + band])
             row0 += band
@@ -235,20 +269,7 @@ def render_packed(packed: PackedScene, device: cl.Device,
     except cl.Error as err:
         raise DeviceError(f"OpenCL error while rendering on {describe(device)}: {err}"
                           f"{_resource_hint(err)}") from err
-    rays = {"primary": int(totals[0]), "secondary": int(totals[1]), "shadow": int(totals[2])}
-    rays["total"] = sum(rays.values())
-    stats = {
-        "build_s": build_s,
-        "kernel_s": kernel_s,
-        "launches": launches,
-        "rays": rays,
-        "mrays_per_s": rays["total"] / kernel_s * 1e-6 if kernel_s > 0 else None,
-        "device_bytes": packed.device_bytes(),
-    }
-    if count_tests:
-        stats["tests"] = dict(zip(("closest_boxes", "closest_prims", "shadow_boxes",
-                                   "shadow_prims"), map(int, test_totals), strict=True))
-    return image, stats
+    return image, outputs.stats(build_s, kernel_s, launches, packed)
 
 
 # render_passes' outputs (kernels/render.cl), 16 bytes a pixel each: normal and depth,
@@ -259,12 +280,14 @@ PASS_OUTPUTS = (("geometry", np.float32), ("position", np.float32), ("albedo", n
 
 @small_pages
 def render_passes_packed(packed: PackedScene, device: cl.Device,
-                         rows: tuple[int, int] | None = None
+                         rows: tuple[int, int] | None = None,
+                         progress: Callable[[int, int], None] | None = None
                          ) -> tuple[dict[str, np.ndarray], dict]:
     """Launch render_passes over a scene packed for passes (packed.config.passes): (its outputs
     by PASS_OUTPUTS' names, (H, W, 4) each, stats: passes_kernel_s, the launches' device time,
     and passes_launches), for `rows` = (start, stop) as render_packed. In bands of rows sized
-    as render_packed's, by their time and within the device's memory."""
+    as render_packed's, by their time and within the device's memory; `progress` hears them in
+    pixel-samples as render_packed's does (a pixel's samples are traced for its passes too)."""
     if not packed.config.passes:
         raise ValueError("render_passes_packed needs a scene packed with passes=True")
     capacity = band_capacity(packed, device.global_mem_size, device.max_mem_alloc_size,
@@ -281,9 +304,12 @@ def render_passes_packed(packed: PackedScene, device: cl.Device,
         padded_width = -(-width // group_width) * group_width
         band_buffers = [cl.Buffer(ctx, cl.mem_flags.WRITE_ONLY, width * capacity * 16)
                         for _ in PASS_OUTPUTS]
+        row_samples = width * spp
+        if progress is not None:
+            progress(0, height * row_samples)
         row0, band, band_s, kernel_s, launches = 0, 0, 0.0, 0.0, 0
         while row0 < height:
-            band = min(capacity, next_band_rows(width * spp, band, band_s, height - row0,
+            band = min(capacity, next_band_rows(row_samples, band, band_s, height - row0,
                                                 packed.tuning))
             kernel.set_args(*buffers, *band_buffers, np.int32(first + row0))
             event = cl.enqueue_nd_range_kernel(queue, kernel, (padded_width, band),
@@ -295,6 +321,8 @@ def render_passes_packed(packed: PackedScene, device: cl.Device,
             for (name, _), buf in zip(PASS_OUTPUTS, band_buffers, strict=True):
                 cl.enqueue_copy(queue, out[name][row0:row0 + band], buf)
             row0 += band
+            if progress is not None:
+                progress(row0 * row_samples, height * row_samples)
         queue.finish()
     except cl.Error as err:
         raise DeviceError(f"OpenCL error while rendering passes on {describe(device)}: {err}"

@@ -112,8 +112,10 @@ typedef struct {
     float4 position;
     float4 color;        // area lights: the radiance, w the emitting area (rect, disc, triangle)
     float4 attenuation;  // point and spot: constant, linear, quadratic, w unused
-    float4 axis_u;  // rect, triangle: edge u; disc: unit normal; spot: unit direction, w cos(angle)
-    float4 axis_v;  // rect, triangle: edge v; spot: w cos(inner_angle)
+    // Spot: axis_u the unit direction, w vers(angle); axis_v.w vers(inner_angle), with
+    // vers = 1 - cos, the versine (kernels/lights.h, spot_factor).
+    float4 axis_u;  // rect, triangle: edge u; disc: unit normal
+    float4 axis_v;  // rect, triangle: edge v
     int kind;       // LIGHT_*
     int pad0, pad1, pad2;
 } Light;

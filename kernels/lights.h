@@ -15,14 +15,19 @@
 #include "sampling.h"
 
 #if HAS_SPOT_LIGHTS
-// 1 inside the inner cone, 0 outside the outer one, smoothstep in cos between; cos_i == cos_o
-// is a hard edge, and never reaches the division.
+// 1 inside the inner cone, 0 outside the outer one, smoothstep between; vers_i == vers_o is a
+// hard edge, and never reaches the division. The cone is measured in versines (vers = 1 - cos),
+// not cosines: the cos of a cone under about 0.02 degrees rounds to 1 in float32, its versine
+// (clray/lights/spot.py packs 2 sin^2(angle / 2)) does not. The ray's, vers_t, is
+// |l + axis|^2 / 2 for unit l and axis (l = -axis on the axis): l + axis is near exact there,
+// where 1 + dot(l, axis) would cancel, and the lengths' roundings enter only squared.
 static inline REAL spot_factor(const __global Light* light, REAL3 l) {
-    REAL cos_t = -dot(l, TO_REAL3(light->axis_u));
-    REAL cos_o = TO_REAL(light->axis_u.w), cos_i = TO_REAL(light->axis_v.w);
-    if (!(cos_t > cos_o)) return 0;
-    if (cos_t >= cos_i) return 1;
-    REAL t = (cos_t - cos_o) / (cos_i - cos_o);
+    REAL3 s = l + TO_REAL3(light->axis_u);
+    REAL vers_t = dot3(s, s) / (REAL)2;
+    REAL vers_o = TO_REAL(light->axis_u.w), vers_i = TO_REAL(light->axis_v.w);
+    if (!(vers_t < vers_o)) return 0;
+    if (vers_t <= vers_i) return 1;
+    REAL t = (vers_o - vers_t) / (vers_o - vers_i);
     return t * t * ((REAL)3 - (REAL)2 * t);
 }
 #endif

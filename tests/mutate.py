@@ -312,8 +312,8 @@ MUTATIONS: tuple[Mutation, ...] = (
     m("lights.spot_linear_rim", "kernels/lights.h",
       "return t * t * ((REAL)3 - (REAL)2 * t);", "return t;", LIGHTS),
     m("pack.spot_inner_is_outer", "clray/lights/spot.py",
-      "f4((0.0, 0.0, 0.0), math.cos(math.radians(inner)))",
-      "f4((0.0, 0.0, 0.0), math.cos(math.radians(light.angle)))", LIGHTS),
+      "f4((0.0, 0.0, 0.0), versine(inner))",
+      "f4((0.0, 0.0, 0.0), versine(light.angle))", LIGHTS),
     # kernels/ray_tree.h and background.h (sky)
     m("render.reflection_half", "kernels/ray_tree.h",
       "{ return d - (REAL)2 * dn * n; }", "{ return d - dn * n; }",

@@ -52,6 +52,17 @@ def test_emissive_faces_become_triangle_lights(tmp_path):
     assert scene.lights == ()  # the scene's own lights stay as given
 
 
+def test_faces_parallel_to_float32_precision_light_nothing(tmp_path):
+    # The second face's edges (3, 0, 3) and (3, 0, 3.0000001) span 1.5e-7 in float64, but
+    # the float32 copies the kernels get are equal: their float32 normal would be zero, so
+    # neither renderer lights with the face. The first face is an ordinary one.
+    mesh = M.Mesh(np.array([[0, 0, 0], [1, 0, 0], [0, 0, 1], [3, 0, 3], [3, 0, 3.0000001]]),
+                  np.array([[0, 2, 1], [0, 3, 4]]), 0)
+    scene = M.Scene(None, M.RenderOptions(8, 6), M.Camera((0.0, 2.0, 3.0), (0.0, 0.0, 0.0)),
+                    (M.Material("glow", emission=(1.0, 1.0, 1.0)),), (), (mesh,))
+    assert [light.vertices[1] for light in emissive_triangles(scene)] == [(0.0, 0.0, 1.0)]
+
+
 def test_floor_irradiance_under_the_light_matches_the_integral(cl_device, tmp_path):
     # Straight down at the floor under the light's centre from below the light: the middle
     # pixel sees floor radiance Kd * E (clray's diffuse term has no 1/pi), E the irradiance.

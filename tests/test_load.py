@@ -657,6 +657,14 @@ ERRORS = [
         "lights[0].v: the light's area (|u x v|) must be in [1e-30, 1e+30], got 0",
     ),
     (
+        # |u x v| = 3e-7 in float64, but v's z rounds to 3 in float32: the kernels' normal,
+        # the float32 cross product, is zero and the light would emit nothing.
+        scene(lights=[{"type": "rect", "corner": [0, 0, 0], "u": [3, 0, 3],
+                       "v": [3, 0, 3.0000001]}]),
+        "lights[0].v: u and v are parallel to float32 precision: the kernels' float32 "
+        "|u x v| is within its rounding error",
+    ),
+    (
         scene(lights=[{"type": "rect", "corner": [0, 0, 0], "u": [1e20, 0, 0],
                        "v": [0, 1e20, 0]}]),
         "lights[0].v: the light's area (|u x v|) must be in [1e-30, 1e+30], got 1e+40",

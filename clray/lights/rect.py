@@ -31,10 +31,33 @@ def rect_area(u: Vec3, v: Vec3) -> float:
     return float(np.linalg.norm(np.cross(np.asarray(u) / nu, np.asarray(v) / nv))) * nu * nv
 
 
+# The rounding error of each component of a float32 cross product, a_j b_k - a_k b_j, in units
+# of |a_j b_k| + |a_k b_j|: gamma(2) of float32, the products and their difference each rounded
+# once, fused or not.
+F32_CROSS_ROUNDING = 2 * 2.0**-24 / (1 - 2 * 2.0**-24)
+
+
+def resolved_in_float32(u: Vec3, v: Vec3) -> bool:
+    """Whether the kernels' normal of these edges, the float32 cross product of their float32
+    copies, is nonzero and on the emitting side: its products are float32 numbers, and the
+    float32 edges' |u x v| (exact products in float64) is beyond its rounding error. Not so
+    for edges parallel to float32 precision, whose light would emit nothing on the device."""
+    a, b = (np.asarray(x, dtype=np.float64).astype(np.float32).astype(np.float64)
+            for x in (u, v))
+    products = np.abs(np.stack([a[[1, 2, 0]] * b[[2, 0, 1]], a[[2, 0, 1]] * b[[1, 2, 0]]]))
+    if not np.all(products <= np.finfo(np.float32).max):
+        return False
+    bound = F32_CROSS_ROUNDING * products.sum(axis=0)
+    return bool(np.linalg.norm(np.cross(a, b)) > np.linalg.norm(bound))
+
+
 def parse(spec: dict, key: str, color: Vec3, v: LightChecks) -> RectLight:
     corner = v.vec3(spec["corner"], f"{key}.corner")
     u, w = v.vec3(spec["u"], f"{key}.u"), v.vec3(spec["v"], f"{key}.v")
     v.light_area(rect_area(u, w), f"{key}.v", "|u x v|")
+    if not resolved_in_float32(u, w):
+        raise v.error(f"{key}.v", "u and v are parallel to float32 precision: the kernels' "
+                                  "float32 |u x v| is within its rounding error")
     return RectLight(corner, u, w, color)
 
 

@@ -10,7 +10,7 @@ import numpy as np
 from clray.lights import point
 from clray.lights.light import LightChecks, LightKind, Square, Toward
 from clray.shapes.shape import f4
-from clray.vectors import Vec3, vec
+from clray.vectors import Vec3, dot, vec
 
 MAX_SPOT_ANGLE = 180.0  # a spot light's half-angle, degrees: below it, exclusive
 
@@ -18,7 +18,7 @@ MAX_SPOT_ANGLE = 180.0  # a spot light's half-angle, degrees: below it, exclusiv
 @dataclass(frozen=True)
 class SpotLight:
     """A point light lighting only a cone: full inside `inner_angle`, nothing outside
-    `angle` (half-angles in degrees), smoothstep in cos between."""
+    `angle` (half-angles in degrees), smoothstep in the versine (1 - cos) between."""
 
     position: Vec3
     direction: Vec3  # unit; the cone's axis, the way the light travels
@@ -37,21 +37,31 @@ def parse(spec: dict, key: str, color: Vec3, v: LightChecks) -> SpotLight:
                      color, atten, inner)
 
 
+def versine(angle: float) -> float:
+    """1 - cos(angle), angle in degrees, as 2 sin^2(angle / 2): no cancellation for a small
+    angle, whose cos rounds to 1 in float32 below about 0.02 degrees."""
+    return 2.0 * math.sin(math.radians(angle) / 2.0) ** 2
+
+
 def fields(rec: np.void, light: SpotLight, eye: np.ndarray) -> None:
     point.fields(rec, light, eye)
     inner = light.angle if light.inner_angle is None else light.inner_angle
-    rec["axis_u"] = f4(light.direction, math.cos(math.radians(light.angle)))
-    rec["axis_v"] = f4((0.0, 0.0, 0.0), math.cos(math.radians(inner)))
+    rec["axis_u"] = f4(light.direction, versine(light.angle))
+    rec["axis_v"] = f4((0.0, 0.0, 0.0), versine(inner))
 
 
 def spot_factor(light: SpotLight, l_dir: np.ndarray) -> np.ndarray:
-    """1 inside the inner cone, 0 outside the outer, smoothstep in cos between."""
+    """1 inside the inner cone, 0 outside the outer, smoothstep in the versine between, as
+    kernels/lights.h has it: the ray's versine vers_t = |l + direction|^2 / 2 (unit vectors,
+    l towards the light), which does not cancel near the axis as 1 + l.direction would."""
     inner = light.angle if light.inner_angle is None else light.inner_angle
-    cos_o, cos_i = math.cos(math.radians(light.angle)), math.cos(math.radians(inner))
-    cos_t = -(l_dir @ vec(light.direction))
+    vers_o, vers_i = versine(light.angle), versine(inner)
+    s = l_dir + vec(light.direction)
+    vers_t = dot(s, s) / 2.0
     with np.errstate(divide="ignore", invalid="ignore"):
-        t = np.clip((cos_t - cos_o) / (cos_i - cos_o), 0.0, 1.0)
-    return np.where(cos_t <= cos_o, 0.0, np.where(cos_t >= cos_i, 1.0, t * t * (3.0 - 2.0 * t)))
+        t = np.clip((vers_o - vers_t) / (vers_o - vers_i), 0.0, 1.0)
+    return np.where(vers_t >= vers_o, 0.0,
+                    np.where(vers_t <= vers_i, 1.0, t * t * (3.0 - 2.0 * t)))
 
 
 def toward(light: SpotLight, p: np.ndarray, err: np.ndarray, square: Square | None) -> Toward:

@@ -62,12 +62,17 @@ def surface_at(o: np.ndarray, d: np.ndarray, t: np.ndarray, normal: np.ndarray,
     # Both normals face the incoming ray, each by its own sign.
     n_g = np.where((dot(d, normal) > 0.0)[:, None], -normal, normal)
     n = np.where((dot(d, shading_normal) > 0.0)[:, None], -shading_normal, shading_normal)
-    return Surface(p, _error_bound(p), n_g, n, dot(d, normal) < 0.0, uv, material)
+    return Surface(p, _error_bound(o, d, t), n_g, n, dot(d, normal) < 0.0, uv, material)
 
 
-def _error_bound(p: np.ndarray) -> np.ndarray:
-    """How far a float64 hit point may be off its surface, scaled to its magnitude."""
-    return 1e-9 * (1.0 + np.max(np.abs(p), axis=-1))
+def _error_bound(o: np.ndarray, d: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """How far a float64 hit point p = o + t d may be off its surface: 1e-10 of the
+    magnitudes that make it, |o| + |t d| in the largest coordinate, about 1e6 float64
+    roundings of them. Relative only, so that it shrinks with the scene (an absolute floor
+    outgrows a scene 1e-10 across and offsets every shadow ray past its light), and of those
+    magnitudes rather than |p|, which vanishes at a hit near the origin however far the ray
+    came: an offset of 1e-10 |p| there leaves p on the wrong side of its surface."""
+    return 1e-10 * np.max(np.abs(o) + np.abs(t[:, None] * d), axis=-1)
 
 
 def offset_origin(p: np.ndarray, n_g: np.ndarray, w: np.ndarray, err: np.ndarray) -> np.ndarray:

@@ -11,13 +11,15 @@ from __future__ import annotations
 
 import numpy as np
 
+from clray.lights.rect import resolved_in_float32
 from clray.scene import limits as L
 from clray.scene.model import Light, Mesh, Scene, TriangleLight
 
 
 def emissive_triangles(scene: Scene) -> tuple[TriangleLight, ...]:
     """The scene meshes' triangles whose material emits, in object and face order; faces of
-    no area (which emit nothing) are left out."""
+    no area (which emit nothing), or none the kernels' float32 edges resolve
+    (clray.lights.rect.resolved_in_float32), are left out."""
     emission = np.array([m.emission for m in scene.materials], dtype=np.float64).reshape(-1, 3)
     if not np.any(emission > 0):
         return ()
@@ -34,6 +36,9 @@ def emissive_triangles(scene: Scene) -> tuple[TriangleLight, ...]:
         area = np.linalg.norm(np.cross(corners[:, 1] - corners[:, 0],
                                        corners[:, 2] - corners[:, 0]), axis=1) / 2.0
         for k in np.flatnonzero(area >= L.MIN_LENGTH).tolist():
+            if not resolved_in_float32(corners[k, 1] - corners[k, 0],
+                                       corners[k, 2] - corners[k, 0]):
+                continue  # the kernels' float32 normal of the face would be zero or wrong
             a, b, c = (tuple(map(float, v)) for v in corners[k])
             r, g, bl = map(float, emission[material[glowing[k]]])
             lights.append(TriangleLight((a, b, c), (r, g, bl)))

@@ -100,6 +100,13 @@ def analyze(scene: M.Scene) -> ScaleReport:
             warnings.append(f"{where}: size {size:.3g} at distance {dist:.3g} from the camera "
                             f"(ratio {dist / size:.3g} > {RATIO_LIMIT:.0e}): float32 cannot "
                             "resolve it; expect ragged edges (move the camera closer)")
+        shape = SHAPE_OF.get(type(obj))
+        if shape is not None and shape.proportion is not None:
+            ratio, what = shape.proportion(obj)
+            if ratio > RATIO_LIMIT:
+                warnings.append(f"{where}: {what} (> {RATIO_LIMIT:.0e}): float32 cannot "
+                                "resolve its shape; expect stray hits and holes "
+                                "wherever it is seen from")
     return ScaleReport(median, tuple(fp64), tuple(warnings))
 
 

@@ -61,6 +61,15 @@ def centre_size(obj: Cone) -> tuple[np.ndarray, float]:
     return apex + axis * obj.height / 2.0, float(max(obj.height, rim))
 
 
+def proportion(obj: Cone) -> tuple[float, str]:
+    """The rim radius over the height, tan(angle): the kernels' side quadratic weighs its
+    terms along the axis by tan^2, and past about 1e4 their float32 roundings swamp the
+    terms across it, so a near-flat cone gets stray hits wherever it is seen from."""
+    tan = float(np.tan(np.radians(obj.angle)))
+    rim = obj.height * tan
+    return tan, f"its rim radius {rim:.3g} is {tan:.3g} times its height {obj.height:.3g}"
+
+
 RECORD = np.dtype([("apex_tan", "<f4", (4,)), ("axis_height", "<f4", (4,)),
                    ("material", "<i4"), ("capped", "<i4"), ("pad0", "<i4"), ("pad1", "<i4")])
 
@@ -126,4 +135,5 @@ CONE = Shape(
     kind="cone", model=Cone, keys=(("apex", "axis", "angle", "height"), ("capped",)),
     lengths=("height",), parse=parse, place=place, centre_size=centre_size, prim=4, record=RECORD,
     buffer="cones", switch="has_cones", pack=pack, intersect=intersect_cone, surface=cone_surface,
+    proportion=proportion,
 )

@@ -83,6 +83,10 @@ class Shape:
     also: tuple[type, ...] = ()
     # object -> how many records it packs into.
     primitives: Callable[[Any], int] = _one
+    # object -> where its own proportions, not its distance, strain float32: its largest
+    # length over the smallest its crossings must resolve, and the message that says so (a
+    # near-flat cone's rim radius over its height); clray.scene.scale warns above RATIO_LIMIT.
+    proportion: Callable[[Any], tuple[float, str]] | None = None
 
     @property
     def struct(self) -> str:

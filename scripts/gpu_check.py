@@ -412,6 +412,27 @@ def run_child(cmd: Sequence[str], limit_s: float, *, env: dict[str, str], cwd: P
     return ChildResult(list(cmd), rc, time.monotonic() - start, timed_out, text)
 
 
+# --- The kernel tests' per-test limit --------------------------------------------------------
+
+# Each kernel test's limit (pytest-timeout), and how much sooner Python's faulthandler writes
+# every thread's stack to the worker's stderr.
+TEST_TIMEOUT_S = {"gpu": 60, "cpu": 120}
+STACKS_BEFORE_TIMEOUT_S = 5
+
+
+def kernel_test_limit_args(timeout_s: float) -> list[str]:
+    """pytest's options for a per-test limit of `timeout_s`. pytest-timeout's thread method:
+    a test hung in the driver (a clFinish that never returns) takes no signal, so the signal
+    method would wait as long as it does. That method writes its stack dump to the terminal,
+    which an xdist worker has not: the worker exits, pytest-xdist replaces it and records the
+    test as an error ("worker 'gw0' crashed"), and the log would say no more. So pytest's
+    faulthandler dumps every thread's stack a little before (`faulthandler_timeout`): from a
+    thread of its own that needs no GIL, to the worker's stderr, which is the step's log."""
+    stacks_at = max(timeout_s - STACKS_BEFORE_TIMEOUT_S, timeout_s / 2)
+    return ["--timeout", f"{timeout_s:g}", "--timeout-method", "thread",
+            "-o", f"faulthandler_timeout={stacks_at:g}"]
+
+
 # --- The run --------------------------------------------------------------------------------
 
 def read_json(path: Path) -> dict | list | None:
@@ -785,11 +806,7 @@ class Check:
         if workers:
             cmd += ["-n", str(workers)]
         if software.get("pytest_timeout"):
-            # The thread method: a test hung in the driver (a clFinish that never returns)
-            # takes no signal, so the signal method would wait as long as it does. A worker
-            # stopped so is replaced by pytest-xdist, and the test reported as failed.
-            cmd += ["--timeout", "60" if self.mode.name == "gpu" else "120",
-                    "--timeout-method", "thread"]
+            cmd += kernel_test_limit_args(TEST_TIMEOUT_S[self.mode.name])
         cmd += self.kernel_test_paths()
         first = ",".join(name for name in self.mode.kernel_tests if name != "*")
         env = dict(self.env, GPU_CHECK_DEVICE_ONLY="1", GPU_CHECK_RESULTS=str(results),

@@ -456,6 +456,45 @@ def test_pytest_summary_line_is_found() -> None:
     assert G.last_summary_line("") is None
 
 
+def test_a_test_past_its_limit_leaves_every_threads_stack_in_the_log(tmp_path: Path) -> None:
+    """pytest-timeout's thread method writes its dump to the terminal, which an xdist worker
+    has not: the log said only "worker 'gw0' crashed". pytest's faulthandler dumps the stacks
+    to the worker's stderr before the limit. Where this Python lacks pytest-timeout or
+    pytest-xdist, the dump alone is checked (the test then ends by itself)."""
+    import importlib.util
+
+    has = {name: importlib.util.find_spec(name) is not None
+           for name in ("pytest_timeout", "xdist")}
+    args = G.kernel_test_limit_args(4)
+    stacks_at = float(next(a for a in args if a.startswith("faulthandler_timeout="))
+                      .partition("=")[2])
+    assert 0 < stacks_at < 4
+    assert G.kernel_test_limit_args(60)[-1] == "faulthandler_timeout=55"
+    (tmp_path / "pytest.ini").write_text("[pytest]\n")
+    (tmp_path / "test_hang.py").write_text(
+        "import time\n\n"
+        "def waiting_in_the_driver():\n"
+        f"    time.sleep({60 if has['pytest_timeout'] else 6})\n\n"
+        "def test_hangs():\n"
+        "    waiting_in_the_driver()\n")
+    cmd = [sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider",
+           "--rootdir", str(tmp_path)]
+    if has["pytest_timeout"]:
+        cmd += args
+    else:
+        cmd += args[-2:]
+    if has["xdist"]:
+        cmd += ["-n", "1"]
+    log = tmp_path / "kernel_tests.log"
+    with open(log, "wb") as out:  # stdout and stderr to one file, as run_child writes them
+        subprocess.run([*cmd, "test_hang.py"], cwd=tmp_path, stdout=out, stderr=out,
+                       stdin=subprocess.DEVNULL, timeout=60, check=False)
+    text = log.read_text(errors="replace")
+    assert "in waiting_in_the_driver" in text, text
+    if has["pytest_timeout"] and has["xdist"]:
+        assert "worker 'gw0' crashed" in text
+
+
 # --- The scene comparison's images --------------------------------------------------------
 
 

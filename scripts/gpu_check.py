@@ -765,8 +765,14 @@ class Check:
         found = json.loads(info_file.read_text(encoding="utf-8"))
         self.data["devices"] = found["devices"]
         target = found.get("target")
+        if target is not None:  # the later steps run on it even where this step fails
+            self.data["device"] = target
+            self.target = target["spec"]
+            self.test_device = target.get("test_id")
+            self.env["CLRAY_DEVICE"] = self.target
         if not listed.ok or not info.ok:
-            raise StepError("`clray devices` or the device listing failed (see the log)")
+            raise StepError("`clray devices` or the device listing failed (see the log)" +
+                            (f"; the steps run on {self.target}" if self.target else ""))
         if target is None:
             if self.mode.name == "gpu":  # the ICD loader says what it tried, into the log
                 self.child("devices", [self.python, "-c", "import pyopencl as cl; print("
@@ -774,13 +780,11 @@ class Check:
                            env=dict(self.env, OCL_ICD_DEBUG="15"))
             raise StepError(f"no {self.mode.device_type} OpenCL device among "
                             f"{len(found['devices'])} found")
-        self.data["device"] = target
-        self.target = target["spec"]
-        self.test_device = target.get("test_id")
-        self.env["CLRAY_DEVICE"] = self.target
-        return StepOutcome("ok", f"{target['name']} ({target['platform']}, driver "
-                                 f"{target['driver_version']}, {target['version']}) as "
-                                 f"{self.target}")
+        note = (f"{target['name']} ({target['platform']}, driver {target['driver_version']}, "
+                f"{target['version']}) as {self.target}")
+        if target.get("query_errors"):
+            note += f"; queries it did not answer: {', '.join(target['query_errors'])}"
+        return StepOutcome("ok", note)
 
     def kernel_test_paths(self) -> list[str]:
         tests = REPO / "tests"

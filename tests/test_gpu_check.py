@@ -537,6 +537,76 @@ def test_a_process_starts_only_with_time_left_and_its_failure_is_said(tmp_path: 
         S.in_new_process(["sleep", "5"], now + 30, most_s=1)
 
 
+class _DeviceWithoutSomeQueries:
+    """A GPU whose driver answers some of clray's device queries with an error."""
+
+    def __init__(self) -> None:
+        import pyopencl as cl
+
+        self.type = cl.device_type.GPU
+        self.platform = SimpleNamespace(name="NVIDIA CUDA ", version="OpenCL 3.0 CUDA 13.0")
+        self.name, self.vendor = "Fake GPU ", "NVIDIA Corporation"
+        self.version, self.driver_version = "OpenCL 3.0 CUDA", "580.159.04"
+        self.opencl_c_version = "OpenCL C 1.2 "
+        self.max_compute_units, self.max_clock_frequency = 132, 1980
+        self.global_mem_size, self.local_mem_size = 80 * 2**30, 48 * 2**10
+        self.max_mem_alloc_size, self.max_work_group_size = 20 * 2**30, 1024
+        self.preferred_vector_width_float = self.native_vector_width_float = 1
+        self.extensions = "cl_khr_fp64 cl_nv_compiler_options cl_nv_device_attribute_query"
+        self.double_fp_config = int(cl.device_fp_config.FMA)
+        self.compute_capability_major_nv, self.compute_capability_minor_nv = 9, 0
+
+    @property
+    def host_unified_memory(self) -> bool:
+        import pyopencl as cl
+
+        raise cl.LogicError("clGetDeviceInfo failed: INVALID_VALUE")
+
+    @property
+    def single_fp_config(self) -> int:
+        import pyopencl as cl
+
+        raise cl.LogicError("clGetDeviceInfo failed: INVALID_VALUE")
+
+
+def test_a_device_query_that_fails_loses_only_its_own_figure() -> None:
+    record = S.device_record("0:0", _DeviceWithoutSomeQueries())
+    assert record["host_unified_memory"] is None
+    assert record["single_fp_config"] is None
+    assert record["device_build_options"] is None  # it reads single_fp_config
+    assert set(record["query_errors"]) == {"host_unified_memory", "single_fp_config",
+                                           "device_build_options"}
+    assert "INVALID_VALUE" in record["query_errors"]["host_unified_memory"]
+    assert record["name"] == "Fake GPU" and record["type"] == "GPU"
+    assert record["double_fp_config"] == ["FMA"] and record["fp64"] is True
+    assert record["compute_capability_major_nv"] == 9
+    assert record["registers_per_block_nv"] is None
+
+
+def test_a_failed_device_listing_still_gives_the_later_steps_its_device(
+        tmp_path: Path) -> None:
+    check = G.Check(tmp_path / "out", G.GPU_MODE, wheels=None, python=sys.executable,
+                    work=tmp_path / "work")
+    check.out.mkdir()
+    check.work.mkdir()
+    target = {"spec": "0:0", "test_id": "nvidia-gpu", "name": "Fake GPU",
+              "platform": "NVIDIA CUDA", "driver_version": "580", "version": "OpenCL 3.0"}
+
+    def child(name: str, cmd: list, limit_s: float, **kwargs: object) -> G.ChildResult:
+        if "device-info" in map(str, cmd):
+            path = Path(cmd[list(map(str, cmd)).index("--json") + 1])
+            path.write_text(json.dumps({"devices": [target], "target": target}))
+            return G.ChildResult(list(cmd), 1, 0.1, False, "Traceback: LogicError")
+        return G.ChildResult(list(cmd), 0, 0.1, False, "0:0 GPU Fake GPU\n")
+
+    check.child = child
+    with pytest.raises(G.StepError, match="the steps run on 0:0"):
+        check.step_devices(45)
+    assert check.need_device() == "0:0"
+    assert check.test_device == "nvidia-gpu"
+    assert check.env["CLRAY_DEVICE"] == "0:0"
+
+
 @dataclasses.dataclass
 class FakeConfig:
     scene: str

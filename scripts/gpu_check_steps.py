@@ -539,8 +539,17 @@ print(time.perf_counter() - start)
 MIN_PROCESS_S = 2.0
 BUILD_TIMEOUT_S = 30.0
 # What the configurations' builds leave the cold and warm builds that follow them: of the
-# step's time, this share, at most this many seconds.
+# step's time, this share, at most this many seconds. A configuration's build started before
+# it may run this far into it, no further.
 COLD_WARM_SHARE, COLD_WARM_MOST_S = 0.4, 20.0
+BUILD_OVERRUN_S = 2.0
+
+
+def config_build_limit(now: float, starts_until: float) -> float:
+    """The most seconds a configuration's build started at `now` may take: BUILD_TIMEOUT_S,
+    and no more than BUILD_OVERRUN_S past `starts_until`, where the cold and warm builds'
+    share of the time begins (a build of 30 s started just before it would take all of it)."""
+    return min(BUILD_TIMEOUT_S, starts_until + BUILD_OVERRUN_S - now)
 
 
 class OutOfTime(Exception):
@@ -711,7 +720,7 @@ def cmd_builds(args: argparse.Namespace) -> int:
     # parallel processes (builds are the driver's, on the host's cores), NVIDIA's cache off so
     # the PTX assembler runs and speaks. First: the figures a GPU run is most wanted for. A
     # build starts while the cold and warm builds' share of the time is left, and may run on
-    # into it.
+    # into it by BUILD_OVERRUN_S at most (config_build_limit).
     env = dict(os.environ, CUDA_CACHE_DISABLE="1", PYOPENCL_NO_CACHE="1")
     entries = list(configs.values())
     records = [{"labels": entry["labels"], "options": " ".join(key)}
@@ -726,7 +735,8 @@ def cmd_builds(args: argparse.Namespace) -> int:
             record["private_stack_bytes"] = private_stack_bytes(entry["config"])
             out = in_new_process([sys.executable, __file__, "nv-build", "--config",
                                   config_json(entry["config"]), "--device", args.device],
-                                 end, env, most_s=BUILD_TIMEOUT_S, start_by=starts_until)
+                                 end, env, start_by=starts_until,
+                                 most_s=config_build_limit(time.monotonic(), starts_until))
             record.update(status="ok", **json.loads(last_line(out, "nv-build")))
         except OutOfTime:
             record["status"] = "not reached"

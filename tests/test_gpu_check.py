@@ -711,6 +711,31 @@ def test_cold_and_warm_builds_start_no_process_past_the_time_limit(
                                    "floor_warm_s"]
 
 
+def test_a_configurations_build_ends_soon_after_the_cold_and_warm_builds_time_begins(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    assert S.config_build_limit(100.0, 200.0) == S.BUILD_TIMEOUT_S
+    assert S.config_build_limit(100.0, 105.0) == pytest.approx(5 + S.BUILD_OVERRUN_S)
+    # The least a build that may still start gets: MIN_PROCESS_S before the share begins.
+    assert S.config_build_limit(100.0, 100.0 + S.MIN_PROCESS_S) >= S.MIN_PROCESS_S
+    # cmd_builds asks each configuration's build for no more: 10 s, 4 of them kept back.
+    calls: list[str] = []
+    _fake_builds(monkeypatch, calls)
+    limits: list[float] = []
+    answer = S.in_new_process
+
+    def in_new_process(cmd: list[str], end: float, env: object = None,
+                       **kwargs: float) -> str:
+        if "nv-build" in cmd:
+            limits.append(kwargs["start_by"] + S.BUILD_OVERRUN_S - time.monotonic()
+                          - kwargs["most_s"])
+        return answer(cmd, end, env, **kwargs)
+
+    monkeypatch.setattr(S, "in_new_process", in_new_process)
+    S.main(["builds", "--json", str(tmp_path / "b.json"), "--device", "x", "--no-examples",
+            "--scene", "spheres=spheres.toml", "--spp", "1", "--time-limit", "10"])
+    assert limits and all(slack >= -0.5 for slack in limits)
+
+
 # --- A whole --cpu run --------------------------------------------------------------------
 
 

@@ -376,6 +376,25 @@ def _stop_group(proc: subprocess.Popen, waits: tuple[float, float] = STOP_WAITS_
         pass
 
 
+# The file scripts/gpu_check.sh names for the running child's process group id.
+GROUP_FILE_ENV = "GPU_CHECK_GROUP_FILE"
+
+
+def note_group(pgid: int | None) -> None:
+    """Write the running child's process group id to the file GPU_CHECK_GROUP_FILE names (an
+    empty file once the group has ended). A child's group has a session of its own, so no
+    signal to the driver's group reaches it: where the driver is SIGKILLed (the shell's
+    `timeout -k`), the shell kills the group this file names."""
+    path = os.environ.get(GROUP_FILE_ENV)
+    if not path:
+        return
+    try:
+        with open(path, "w", encoding="ascii") as f:
+            f.write(f"{pgid}\n" if pgid else "")
+    except OSError:
+        pass
+
+
 def run_child(cmd: Sequence[str], limit_s: float, *, env: dict[str, str], cwd: Path,
               output: Path, stdout: Path | None = None) -> ChildResult:
     """Run `cmd` in a new process session within `limit_s` seconds, its output appended to
@@ -389,6 +408,7 @@ def run_child(cmd: Sequence[str], limit_s: float, *, env: dict[str, str], cwd: P
         try:
             proc = subprocess.Popen(list(cmd), cwd=cwd, env=env, stdin=subprocess.DEVNULL,
                                     stdout=sink, stderr=out, start_new_session=True)
+            note_group(proc.pid)
             timed_out = False
             try:
                 try:
@@ -403,6 +423,9 @@ def run_child(cmd: Sequence[str], limit_s: float, *, env: dict[str, str], cwd: P
             except BaseException:  # this run stopped meanwhile, even while stopping the child
                 _stop_group(proc, STOP_WAITS_ON_SIGNAL_S)
                 raise
+            finally:
+                if not group_alive(proc.pid):
+                    note_group(None)
         finally:
             if stdout:
                 sink.close()
@@ -533,7 +556,8 @@ class Check:
         env["CUDA_CACHE_MAXSIZE"] = str(CUDA_CACHE_BYTES)
         env["PYTHONUNBUFFERED"] = "1"
         env["MPLBACKEND"] = "Agg"
-        for name in ("CLRAY_DEVICE", "PYOPENCL_CTX", "CLRAY_TEST_DEVICES", "PYOPENCL_NO_CACHE"):
+        for name in ("CLRAY_DEVICE", "PYOPENCL_CTX", "CLRAY_TEST_DEVICES", "PYOPENCL_NO_CACHE",
+                     GROUP_FILE_ENV):
             env.pop(name, None)
         return env
 

@@ -359,6 +359,49 @@ def test_the_shell_stops_the_driver_with_sigterm_and_gives_it_time(tmp_path: Pat
     assert G.GPU_MODE.deadline_s + 20 + grace <= 480
 
 
+@needs_proc
+def test_the_shell_kills_the_steps_group_of_a_driver_killed_by_sigkill(tmp_path: Path) -> None:
+    # PYTHON stands for the driver: it starts a step's process in a session of its own, notes
+    # its group where gpu_check.py does, and is SIGKILLed (timeout -k, the kernel's OOM killer).
+    pids = tmp_path / "pids"
+    fake = tmp_path / "python"
+    fake.write_text("#!/usr/bin/env bash\n"
+                    "setsid sleep 61 & echo $! > \"$GPU_CHECK_GROUP_FILE\"\n"
+                    f"echo $! > {pids}\n"
+                    "kill -KILL $$\n")
+    fake.chmod(0o755)
+    env = dict(os.environ, PYTHON=str(fake))
+    env.pop(G.GROUP_FILE_ENV, None)
+    done = subprocess.run(["bash", str(ROOT / "scripts" / "gpu_check.sh"), str(tmp_path / "o")],
+                          capture_output=True, text=True, env=env, timeout=60, check=False)
+    step = _wait_for_lines(pids, 1)[0]
+    try:
+        assert done.returncode == 137, done.stderr
+        assert f"killed the running step's processes (group {step})" in done.stderr
+        give_up = time.monotonic() + 5
+        while _running(step) and time.monotonic() < give_up:
+            time.sleep(0.05)
+        assert not _running(step)
+    finally:
+        if _running(step):
+            os.kill(step, signal.SIGKILL)
+
+
+def test_the_running_childs_group_is_noted_for_the_shell(tmp_path: Path,
+                                                        monkeypatch: pytest.MonkeyPatch) -> None:
+    noted = tmp_path / "group"
+    monkeypatch.setenv(G.GROUP_FILE_ENV, str(noted))
+    result = G.run_child(["bash", "-c", f"cat {noted}; echo pid $$"], 30, env=dict(os.environ),
+                         cwd=tmp_path, output=tmp_path / "out.txt")
+    group, pid = result.output.split("pid")
+    assert group.strip() == pid.strip()
+    assert noted.read_text() == ""  # the group has ended
+    # The steps' children do not write it: only the driver's own children are noted.
+    check = G.Check(tmp_path / "o", G.CPU_MODE, wheels=None, python=sys.executable,
+                    work=tmp_path)
+    assert G.GROUP_FILE_ENV not in check.env
+
+
 def _scripted_check(tmp_path: Path, outcomes: dict[str, object]) -> G.Check:
     """A Check whose steps do nothing but end as `outcomes` says (a StepOutcome, or an
     exception to raise); the others pass."""

@@ -276,6 +276,31 @@ def assemble_package(repo: Path, root: Path) -> Path:
     return package
 
 
+def wheel_pythons(wheels: Iterable[Path]) -> set[str]:
+    """The CPython versions ("3.12") the wheels of compiled code were built for, by their ABI
+    tag (cp312); a pure wheel (none) or one of the stable ABI (abi3) names none."""
+    found = set()
+    for wheel in wheels:
+        parts = wheel.name.removesuffix(".whl").split("-")
+        if len(parts) < 5:
+            continue
+        for abi in parts[-2].split("."):
+            match = re.fullmatch(r"cp(\d)(\d+)", abi)
+            if match:
+                found.add(f"{match.group(1)}.{match.group(2)}")
+    return found
+
+
+def python_version(python: str) -> str | None:
+    """`python`'s version as major.minor, or None where it does not run."""
+    try:
+        done = subprocess.run([python, "-c", "import sys; print('%d.%d' % sys.version_info[:2])"],
+                              capture_output=True, text=True, timeout=30, check=False)
+    except (OSError, subprocess.SubprocessError):
+        return None
+    return done.stdout.strip() or None
+
+
 # --- Output limits ------------------------------------------------------------------------
 
 def cap_file(path: Path, max_bytes: int = MAX_OUT_BYTES) -> bool:
@@ -719,6 +744,12 @@ class Check:
                                 "machine with a network and carry the folder")
             site = self.work / "site"
             self.data["wheels"] = [w.name for w in wheels]
+            have = python_version(self.python)
+            wrong = sorted(wheel_pythons(wheels) - {have})
+            if have and wrong:
+                raise StepError(f"the wheels in {self.wheels} are for Python {', '.join(wrong)}, "
+                                f"{self.python} is Python {have}: pick that Python (PYTHON=) or "
+                                f"run scripts/gpu_wheels.sh with GPU_PYTHON={have}")
             has_pip = subprocess.run([self.python, "-m", "pip", "--version"],
                                      capture_output=True, check=False, timeout=30).returncode == 0
             if has_pip:

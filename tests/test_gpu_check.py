@@ -168,6 +168,31 @@ def test_wheels_unpack_as_pip_installs_them(tmp_path: Path) -> None:
     assert not any("demo-tool" in p.name for p in site.rglob("*"))
 
 
+def test_the_wheels_python_is_read_from_their_abi_tags() -> None:
+    names = ["pyopencl-2026.1.4-cp312-cp312-manylinux_2_27_x86_64.manylinux_2_28_x86_64.whl",
+             "attrs-26.1.0-py3-none-any.whl", "cryptography-46.0-cp311-abi3-manylinux_2_28.whl",
+             "siphash24-1.9-cp312-cp312-manylinux2014_x86_64.whl", "broken.whl"]
+    assert G.wheel_pythons(Path(name) for name in names) == {"3.12"}
+    assert G.wheel_pythons([Path("x-1-cp39-cp39-linux_x86_64.whl")]) == {"3.9"}
+
+
+def test_setup_stops_in_one_line_where_the_wheels_are_for_another_python(
+        tmp_path: Path) -> None:
+    wheels = tmp_path / "wheels"
+    wheels.mkdir()
+    (wheels / "pyopencl-2026.1.4-cp39-cp39-manylinux_2_28_x86_64.whl").write_bytes(b"")
+    (wheels / "attrs-26.1.0-py3-none-any.whl").write_bytes(b"")
+    check = G.Check(tmp_path / "out", G.GPU_MODE, wheels=wheels, python=sys.executable,
+                    work=tmp_path / "work")
+    have = f"{sys.version_info[0]}.{sys.version_info[1]}"
+    with pytest.raises(G.StepError) as caught:
+        check.step_setup(60)
+    message = str(caught.value)
+    assert "\n" not in message
+    assert "for Python 3.9" in message and f"is Python {have}" in message
+    assert f"GPU_PYTHON={have}" in message
+
+
 def test_the_package_is_assembled_as_its_wheel_lays_it_out(tmp_path: Path) -> None:
     package = G.assemble_package(ROOT, tmp_path)
     assert (package / "__init__.py").exists()

@@ -416,8 +416,10 @@ def test_the_running_childs_group_is_noted_for_the_shell(tmp_path: Path,
                                                         monkeypatch: pytest.MonkeyPatch) -> None:
     noted = tmp_path / "group"
     monkeypatch.setenv(G.GROUP_FILE_ENV, str(noted))
-    result = G.run_child(["bash", "-c", f"cat {noted}; echo pid $$"], 30, env=dict(os.environ),
-                         cwd=tmp_path, output=tmp_path / "out.txt")
+    # The child may run before the driver has written the file: it waits for it.
+    wait = f"for i in $(seq 200); do [ -s {noted} ] && break; sleep 0.05; done"
+    result = G.run_child(["bash", "-c", f"{wait}; cat {noted}; echo pid $$"], 30,
+                         env=dict(os.environ), cwd=tmp_path, output=tmp_path / "out.txt")
     group, pid = result.output.split("pid")
     assert group.strip() == pid.strip()
     assert noted.read_text() == ""  # the group has ended

@@ -276,6 +276,31 @@ def assemble_package(repo: Path, root: Path) -> Path:
     return package
 
 
+def wheel_pythons(wheels: Iterable[Path]) -> set[str]:
+    """The CPython versions ("3.12") the wheels of compiled code were built for, by their ABI
+    tag (cp312); a pure wheel (none) or one of the stable ABI (abi3) names none."""
+    found = set()
+    for wheel in wheels:
+        parts = wheel.name.removesuffix(".whl").split("-")
+        if len(parts) < 5:
+            continue
+        for abi in parts[-2].split("."):
+            match = re.fullmatch(r"cp(\d)(\d+)", abi)
+            if match:
+                found.add(f"{match.group(1)}.{match.group(2)}")
+    return found
+
+
+def python_version(python: str) -> str | None:
+    """`python`'s version as major.minor, or None where it does not run."""
+    try:
+        done = subprocess.run([python, "-c", "import sys; print('%d.%d' % sys.version_info[:2])"],
+                              capture_output=True, text=True, timeout=30, check=False)
+    except (OSError, subprocess.SubprocessError):
+        return None
+    return done.stdout.strip() or None
+
+
 # --- Output limits ------------------------------------------------------------------------
 
 def cap_file(path: Path, max_bytes: int = MAX_OUT_BYTES) -> bool:
@@ -376,6 +401,25 @@ def _stop_group(proc: subprocess.Popen, waits: tuple[float, float] = STOP_WAITS_
         pass
 
 
+# The file scripts/gpu_check.sh names for the running child's process group id.
+GROUP_FILE_ENV = "GPU_CHECK_GROUP_FILE"
+
+
+def note_group(pgid: int | None) -> None:
+    """Write the running child's process group id to the file GPU_CHECK_GROUP_FILE names (an
+    empty file once the group has ended). A child's group has a session of its own, so no
+    signal to the driver's group reaches it: where the driver is SIGKILLed (the shell's
+    `timeout -k`), the shell kills the group this file names."""
+    path = os.environ.get(GROUP_FILE_ENV)
+    if not path:
+        return
+    try:
+        with open(path, "w", encoding="ascii") as f:
+            f.write(f"{pgid}\n" if pgid else "")
+    except OSError:
+        pass
+
+
 def run_child(cmd: Sequence[str], limit_s: float, *, env: dict[str, str], cwd: Path,
               output: Path, stdout: Path | None = None) -> ChildResult:
     """Run `cmd` in a new process session within `limit_s` seconds, its output appended to
@@ -389,6 +433,7 @@ def run_child(cmd: Sequence[str], limit_s: float, *, env: dict[str, str], cwd: P
         try:
             proc = subprocess.Popen(list(cmd), cwd=cwd, env=env, stdin=subprocess.DEVNULL,
                                     stdout=sink, stderr=out, start_new_session=True)
+            note_group(proc.pid)
             timed_out = False
             try:
                 try:
@@ -403,6 +448,9 @@ def run_child(cmd: Sequence[str], limit_s: float, *, env: dict[str, str], cwd: P
             except BaseException:  # this run stopped meanwhile, even while stopping the child
                 _stop_group(proc, STOP_WAITS_ON_SIGNAL_S)
                 raise
+            finally:
+                if not group_alive(proc.pid):
+                    note_group(None)
         finally:
             if stdout:
                 sink.close()
@@ -410,6 +458,27 @@ def run_child(cmd: Sequence[str], limit_s: float, *, env: dict[str, str], cwd: P
         f.seek(offset)
         text = f.read().decode("utf-8", errors="replace")
     return ChildResult(list(cmd), rc, time.monotonic() - start, timed_out, text)
+
+
+# --- The kernel tests' per-test limit --------------------------------------------------------
+
+# Each kernel test's limit (pytest-timeout), and how much sooner Python's faulthandler writes
+# every thread's stack to the worker's stderr.
+TEST_TIMEOUT_S = {"gpu": 60, "cpu": 120}
+STACKS_BEFORE_TIMEOUT_S = 5
+
+
+def kernel_test_limit_args(timeout_s: float) -> list[str]:
+    """pytest's options for a per-test limit of `timeout_s`. pytest-timeout's thread method:
+    a test hung in the driver (a clFinish that never returns) takes no signal, so the signal
+    method would wait as long as it does. That method writes its stack dump to the terminal,
+    which an xdist worker has not: the worker exits, pytest-xdist replaces it and records the
+    test as an error ("worker 'gw0' crashed"), and the log would say no more. So pytest's
+    faulthandler dumps every thread's stack a little before (`faulthandler_timeout`): from a
+    thread of its own that needs no GIL, to the worker's stderr, which is the step's log."""
+    stacks_at = max(timeout_s - STACKS_BEFORE_TIMEOUT_S, timeout_s / 2)
+    return ["--timeout", f"{timeout_s:g}", "--timeout-method", "thread",
+            "-o", f"faulthandler_timeout={stacks_at:g}"]
 
 
 # --- The run --------------------------------------------------------------------------------
@@ -512,7 +581,8 @@ class Check:
         env["CUDA_CACHE_MAXSIZE"] = str(CUDA_CACHE_BYTES)
         env["PYTHONUNBUFFERED"] = "1"
         env["MPLBACKEND"] = "Agg"
-        for name in ("CLRAY_DEVICE", "PYOPENCL_CTX", "CLRAY_TEST_DEVICES", "PYOPENCL_NO_CACHE"):
+        for name in ("CLRAY_DEVICE", "PYOPENCL_CTX", "CLRAY_TEST_DEVICES", "PYOPENCL_NO_CACHE",
+                     GROUP_FILE_ENV):
             env.pop(name, None)
         return env
 
@@ -674,6 +744,12 @@ class Check:
                                 "machine with a network and carry the folder")
             site = self.work / "site"
             self.data["wheels"] = [w.name for w in wheels]
+            have = python_version(self.python)
+            wrong = sorted(wheel_pythons(wheels) - {have})
+            if have and wrong:
+                raise StepError(f"the wheels in {self.wheels} are for Python {', '.join(wrong)}, "
+                                f"{self.python} is Python {have}: pick that Python (PYTHON=) or "
+                                f"run scripts/gpu_wheels.sh with GPU_PYTHON={have}")
             has_pip = subprocess.run([self.python, "-m", "pip", "--version"],
                                      capture_output=True, check=False, timeout=30).returncode == 0
             if has_pip:
@@ -744,8 +820,14 @@ class Check:
         found = json.loads(info_file.read_text(encoding="utf-8"))
         self.data["devices"] = found["devices"]
         target = found.get("target")
+        if target is not None:  # the later steps run on it even where this step fails
+            self.data["device"] = target
+            self.target = target["spec"]
+            self.test_device = target.get("test_id")
+            self.env["CLRAY_DEVICE"] = self.target
         if not listed.ok or not info.ok:
-            raise StepError("`clray devices` or the device listing failed (see the log)")
+            raise StepError("`clray devices` or the device listing failed (see the log)" +
+                            (f"; the steps run on {self.target}" if self.target else ""))
         if target is None:
             if self.mode.name == "gpu":  # the ICD loader says what it tried, into the log
                 self.child("devices", [self.python, "-c", "import pyopencl as cl; print("
@@ -753,13 +835,11 @@ class Check:
                            env=dict(self.env, OCL_ICD_DEBUG="15"))
             raise StepError(f"no {self.mode.device_type} OpenCL device among "
                             f"{len(found['devices'])} found")
-        self.data["device"] = target
-        self.target = target["spec"]
-        self.test_device = target.get("test_id")
-        self.env["CLRAY_DEVICE"] = self.target
-        return StepOutcome("ok", f"{target['name']} ({target['platform']}, driver "
-                                 f"{target['driver_version']}, {target['version']}) as "
-                                 f"{self.target}")
+        note = (f"{target['name']} ({target['platform']}, driver {target['driver_version']}, "
+                f"{target['version']}) as {self.target}")
+        if target.get("query_errors"):
+            note += f"; queries it did not answer: {', '.join(target['query_errors'])}"
+        return StepOutcome("ok", note)
 
     def kernel_test_paths(self) -> list[str]:
         tests = REPO / "tests"
@@ -785,11 +865,7 @@ class Check:
         if workers:
             cmd += ["-n", str(workers)]
         if software.get("pytest_timeout"):
-            # The thread method: a test hung in the driver (a clFinish that never returns)
-            # takes no signal, so the signal method would wait as long as it does. A worker
-            # stopped so is replaced by pytest-xdist, and the test reported as failed.
-            cmd += ["--timeout", "60" if self.mode.name == "gpu" else "120",
-                    "--timeout-method", "thread"]
+            cmd += kernel_test_limit_args(TEST_TIMEOUT_S[self.mode.name])
         cmd += self.kernel_test_paths()
         first = ",".join(name for name in self.mode.kernel_tests if name != "*")
         env = dict(self.env, GPU_CHECK_DEVICE_ONLY="1", GPU_CHECK_RESULTS=str(results),

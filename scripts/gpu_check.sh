@@ -18,7 +18,8 @@
 # Further options go to scripts/gpu_check.py (--deadline S, --keep-work, --from-wheels).
 # --deadline S (default 450, with --cpu 420) is the steps' time; this script stops the driver
 # at S + 20 s (GPU_CHECK_LIMIT sets another limit): SIGTERM, on which it stops the running
-# step's processes and writes its JSON and log, then SIGKILL 10 s later. Give the device tool
+# step's processes and writes its JSON and log, then SIGKILL 10 s later (and then the running
+# step's process group, which the driver notes in a temporary file). Give the device tool
 # a timeout_s of at least S + 40.
 set -uo pipefail
 
@@ -69,10 +70,24 @@ case $whole in
 esac
 limit=${GPU_CHECK_LIMIT:-$((whole + 20))}
 grace=10
-PYTHONUNBUFFERED=1 timeout -s TERM -k "$grace" "$limit" \
+# Each step's processes run in a session of their own, which no signal to the driver reaches:
+# the driver writes the running step's process group id here, and where the driver did not
+# stop that group itself (SIGKILLed), it is killed below.
+groups=$(mktemp -d "${TMPDIR:-/tmp}/gpu-check-groups.XXXXXX") || exit 2
+trap 'rm -rf "$groups"' EXIT
+GPU_CHECK_GROUP_FILE=$groups/step PYTHONUNBUFFERED=1 timeout -s TERM -k "$grace" "$limit" \
     "$python" "$repo/scripts/gpu_check.py" "$out" "$@"
 rc=$?
 if [ "$rc" = 124 ] || [ "$rc" = 137 ]; then
+    pgid=$(cat "$groups/step" 2>/dev/null)
+    case $pgid in
+        ''|*[!0-9]*) ;;
+        *)
+            if kill -KILL -- "-$pgid" 2>/dev/null; then
+                echo "gpu_check: killed the running step's processes (group $pgid)" |
+                    tee -a "$out/gpu_check.log" >&2
+            fi ;;
+    esac
     echo "gpu_check: stopped after ${limit} s; $out/gpu_check.json holds the steps finished" |
         tee -a "$out/gpu_check.log" >&2
 fi

@@ -198,35 +198,54 @@ def fp_config_names(config: int) -> list[str]:
             if name.isupper() and config & getattr(cl.device_fp_config, name)]
 
 
-def device_record(spec: str) -> dict:
+def device_record(spec: str, device: object | None = None) -> dict:
+    """The device's OpenCL figures. Each is asked apart: one the driver does not answer (a
+    cl.Error, as clray.device.context.is_discrete_gpu guards host_unified_memory) is None,
+    its error in `query_errors`, and the others are still recorded."""
     import pyopencl as cl
 
     from clray.device.context import device_type, has_fp64, select_device
     from clray.device.program import device_build_options
 
-    d = select_device(spec)
-    record = {
-        "spec": spec, "name": d.name.strip(), "type": device_type(d),
-        "platform": d.platform.name.strip(), "platform_version": d.platform.version.strip(),
-        "vendor": d.vendor.strip(), "version": d.version.strip(),
-        "driver_version": d.driver_version.strip(),
-        "opencl_c_version": d.opencl_c_version.strip(),
-        "compute_units": d.max_compute_units, "max_clock_mhz": d.max_clock_frequency,
-        "global_mem_bytes": d.global_mem_size, "local_mem_bytes": d.local_mem_size,
-        "max_mem_alloc_bytes": d.max_mem_alloc_size,
-        "max_work_group_size": d.max_work_group_size, "fp64": has_fp64(d),
-        "preferred_vector_width_float": d.preferred_vector_width_float,
-        "native_vector_width_float": d.native_vector_width_float,
-        "nv_compiler_options": "cl_nv_compiler_options" in d.extensions,
-        "host_unified_memory": bool(d.host_unified_memory),
+    d = select_device(spec) if device is None else device
+    queries: dict[str, Callable[[], object]] = {
+        "name": lambda: d.name.strip(), "type": lambda: device_type(d),
+        "platform": lambda: d.platform.name.strip(),
+        "platform_version": lambda: d.platform.version.strip(),
+        "vendor": lambda: d.vendor.strip(), "version": lambda: d.version.strip(),
+        "driver_version": lambda: d.driver_version.strip(),
+        "opencl_c_version": lambda: d.opencl_c_version.strip(),
+        "compute_units": lambda: d.max_compute_units,
+        "max_clock_mhz": lambda: d.max_clock_frequency,
+        "global_mem_bytes": lambda: d.global_mem_size,
+        "local_mem_bytes": lambda: d.local_mem_size,
+        "max_mem_alloc_bytes": lambda: d.max_mem_alloc_size,
+        "max_work_group_size": lambda: d.max_work_group_size, "fp64": lambda: has_fp64(d),
+        "preferred_vector_width_float": lambda: d.preferred_vector_width_float,
+        "native_vector_width_float": lambda: d.native_vector_width_float,
+        "nv_compiler_options": lambda: "cl_nv_compiler_options" in d.extensions,
+        "host_unified_memory": lambda: bool(d.host_unified_memory),
         # What the float and double arithmetic promise (denormals kept, FMA, division and
         # square root correctly rounded): the GPU's images differ from the CPU's by these.
-        "single_fp_config": fp_config_names(d.single_fp_config),
-        "double_fp_config": fp_config_names(d.double_fp_config) if has_fp64(d) else [],
+        "single_fp_config": lambda: fp_config_names(d.single_fp_config),
+        "double_fp_config": lambda: (fp_config_names(d.double_fp_config) if has_fp64(d)
+                                     else []),
         # What every render build adds for this device (clray.device.program).
-        "device_build_options": list(device_build_options(d)),
+        "device_build_options": lambda: list(device_build_options(d)),
     }
-    if "cl_nv_device_attribute_query" in d.extensions:
+    record: dict = {"spec": spec}
+    errors: dict[str, str] = {}
+    for name, query in queries.items():
+        try:
+            record[name] = query()
+        except (AttributeError, cl.Error) as err:
+            record[name] = None
+            errors[name] = f"{type(err).__name__}: {err}"
+    try:
+        nv_queries = "cl_nv_device_attribute_query" in d.extensions
+    except (AttributeError, cl.Error):
+        nv_queries = False
+    if nv_queries:
         for name in ("compute_capability_major_nv", "compute_capability_minor_nv",
                      "registers_per_block_nv", "warp_size_nv", "kernel_exec_timeout_nv",
                      "integrated_memory_nv"):
@@ -234,6 +253,8 @@ def device_record(spec: str) -> dict:
                 record[name] = getattr(d, name)
             except (AttributeError, cl.Error):
                 record[name] = None
+    if errors:
+        record["query_errors"] = errors
     return record
 
 
@@ -254,7 +275,8 @@ def cmd_device_info(args: argparse.Namespace) -> int:
         record["test_id"] = ids.get(info.spec)
         devices.append(record)
     of_type = [d for d in devices if d["type"] == args.type]
-    preferred = [d for d in of_type if args.platform.lower() in d["platform"].lower()]
+    preferred = [d for d in of_type
+                 if args.platform.lower() in (d["platform"] or "").lower()]
     target = (preferred or of_type or [None])[0]
     write_json(args.json, {"devices": devices, "target": target})
     for d in devices:
@@ -517,8 +539,17 @@ print(time.perf_counter() - start)
 MIN_PROCESS_S = 2.0
 BUILD_TIMEOUT_S = 30.0
 # What the configurations' builds leave the cold and warm builds that follow them: of the
-# step's time, this share, at most this many seconds.
+# step's time, this share, at most this many seconds. A configuration's build started before
+# it may run this far into it, no further.
 COLD_WARM_SHARE, COLD_WARM_MOST_S = 0.4, 20.0
+BUILD_OVERRUN_S = 2.0
+
+
+def config_build_limit(now: float, starts_until: float) -> float:
+    """The most seconds a configuration's build started at `now` may take: BUILD_TIMEOUT_S,
+    and no more than BUILD_OVERRUN_S past `starts_until`, where the cold and warm builds'
+    share of the time begins (a build of 30 s started just before it would take all of it)."""
+    return min(BUILD_TIMEOUT_S, starts_until + BUILD_OVERRUN_S - now)
 
 
 class OutOfTime(Exception):
@@ -689,7 +720,7 @@ def cmd_builds(args: argparse.Namespace) -> int:
     # parallel processes (builds are the driver's, on the host's cores), NVIDIA's cache off so
     # the PTX assembler runs and speaks. First: the figures a GPU run is most wanted for. A
     # build starts while the cold and warm builds' share of the time is left, and may run on
-    # into it.
+    # into it by BUILD_OVERRUN_S at most (config_build_limit).
     env = dict(os.environ, CUDA_CACHE_DISABLE="1", PYOPENCL_NO_CACHE="1")
     entries = list(configs.values())
     records = [{"labels": entry["labels"], "options": " ".join(key)}
@@ -704,7 +735,8 @@ def cmd_builds(args: argparse.Namespace) -> int:
             record["private_stack_bytes"] = private_stack_bytes(entry["config"])
             out = in_new_process([sys.executable, __file__, "nv-build", "--config",
                                   config_json(entry["config"]), "--device", args.device],
-                                 end, env, most_s=BUILD_TIMEOUT_S, start_by=starts_until)
+                                 end, env, start_by=starts_until,
+                                 most_s=config_build_limit(time.monotonic(), starts_until))
             record.update(status="ok", **json.loads(last_line(out, "nv-build")))
         except OutOfTime:
             record["status"] = "not reached"

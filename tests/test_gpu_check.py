@@ -168,6 +168,31 @@ def test_wheels_unpack_as_pip_installs_them(tmp_path: Path) -> None:
     assert not any("demo-tool" in p.name for p in site.rglob("*"))
 
 
+def test_the_wheels_python_is_read_from_their_abi_tags() -> None:
+    names = ["pyopencl-2026.1.4-cp312-cp312-manylinux_2_27_x86_64.manylinux_2_28_x86_64.whl",
+             "attrs-26.1.0-py3-none-any.whl", "cryptography-46.0-cp311-abi3-manylinux_2_28.whl",
+             "siphash24-1.9-cp312-cp312-manylinux2014_x86_64.whl", "broken.whl"]
+    assert G.wheel_pythons(Path(name) for name in names) == {"3.12"}
+    assert G.wheel_pythons([Path("x-1-cp39-cp39-linux_x86_64.whl")]) == {"3.9"}
+
+
+def test_setup_stops_in_one_line_where_the_wheels_are_for_another_python(
+        tmp_path: Path) -> None:
+    wheels = tmp_path / "wheels"
+    wheels.mkdir()
+    (wheels / "pyopencl-2026.1.4-cp39-cp39-manylinux_2_28_x86_64.whl").write_bytes(b"")
+    (wheels / "attrs-26.1.0-py3-none-any.whl").write_bytes(b"")
+    check = G.Check(tmp_path / "out", G.GPU_MODE, wheels=wheels, python=sys.executable,
+                    work=tmp_path / "work")
+    have = f"{sys.version_info[0]}.{sys.version_info[1]}"
+    with pytest.raises(G.StepError) as caught:
+        check.step_setup(60)
+    message = str(caught.value)
+    assert "\n" not in message
+    assert "for Python 3.9" in message and f"is Python {have}" in message
+    assert f"GPU_PYTHON={have}" in message
+
+
 def test_the_package_is_assembled_as_its_wheel_lays_it_out(tmp_path: Path) -> None:
     package = G.assemble_package(ROOT, tmp_path)
     assert (package / "__init__.py").exists()
@@ -359,6 +384,51 @@ def test_the_shell_stops_the_driver_with_sigterm_and_gives_it_time(tmp_path: Pat
     assert G.GPU_MODE.deadline_s + 20 + grace <= 480
 
 
+@needs_proc
+def test_the_shell_kills_the_steps_group_of_a_driver_killed_by_sigkill(tmp_path: Path) -> None:
+    # PYTHON stands for the driver: it starts a step's process in a session of its own, notes
+    # its group where gpu_check.py does, and is SIGKILLed (timeout -k, the kernel's OOM killer).
+    pids = tmp_path / "pids"
+    fake = tmp_path / "python"
+    fake.write_text("#!/usr/bin/env bash\n"
+                    "setsid sleep 61 & echo $! > \"$GPU_CHECK_GROUP_FILE\"\n"
+                    f"echo $! > {pids}\n"
+                    "kill -KILL $$\n")
+    fake.chmod(0o755)
+    env = dict(os.environ, PYTHON=str(fake))
+    env.pop(G.GROUP_FILE_ENV, None)
+    done = subprocess.run(["bash", str(ROOT / "scripts" / "gpu_check.sh"), str(tmp_path / "o")],
+                          capture_output=True, text=True, env=env, timeout=60, check=False)
+    step = _wait_for_lines(pids, 1)[0]
+    try:
+        assert done.returncode == 137, done.stderr
+        assert f"killed the running step's processes (group {step})" in done.stderr
+        give_up = time.monotonic() + 5
+        while _running(step) and time.monotonic() < give_up:
+            time.sleep(0.05)
+        assert not _running(step)
+    finally:
+        if _running(step):
+            os.kill(step, signal.SIGKILL)
+
+
+def test_the_running_childs_group_is_noted_for_the_shell(tmp_path: Path,
+                                                        monkeypatch: pytest.MonkeyPatch) -> None:
+    noted = tmp_path / "group"
+    monkeypatch.setenv(G.GROUP_FILE_ENV, str(noted))
+    # The child may run before the driver has written the file: it waits for it.
+    wait = f"for i in $(seq 200); do [ -s {noted} ] && break; sleep 0.05; done"
+    result = G.run_child(["bash", "-c", f"{wait}; cat {noted}; echo pid $$"], 30,
+                         env=dict(os.environ), cwd=tmp_path, output=tmp_path / "out.txt")
+    group, pid = result.output.split("pid")
+    assert group.strip() == pid.strip()
+    assert noted.read_text() == ""  # the group has ended
+    # The steps' children do not write it: only the driver's own children are noted.
+    check = G.Check(tmp_path / "o", G.CPU_MODE, wheels=None, python=sys.executable,
+                    work=tmp_path)
+    assert G.GROUP_FILE_ENV not in check.env
+
+
 def _scripted_check(tmp_path: Path, outcomes: dict[str, object]) -> G.Check:
     """A Check whose steps do nothing but end as `outcomes` says (a StepOutcome, or an
     exception to raise); the others pass."""
@@ -456,6 +526,45 @@ def test_pytest_summary_line_is_found() -> None:
     assert G.last_summary_line("") is None
 
 
+def test_a_test_past_its_limit_leaves_every_threads_stack_in_the_log(tmp_path: Path) -> None:
+    """pytest-timeout's thread method writes its dump to the terminal, which an xdist worker
+    has not: the log said only "worker 'gw0' crashed". pytest's faulthandler dumps the stacks
+    to the worker's stderr before the limit. Where this Python lacks pytest-timeout or
+    pytest-xdist, the dump alone is checked (the test then ends by itself)."""
+    import importlib.util
+
+    has = {name: importlib.util.find_spec(name) is not None
+           for name in ("pytest_timeout", "xdist")}
+    args = G.kernel_test_limit_args(4)
+    stacks_at = float(next(a for a in args if a.startswith("faulthandler_timeout="))
+                      .partition("=")[2])
+    assert 0 < stacks_at < 4
+    assert G.kernel_test_limit_args(60)[-1] == "faulthandler_timeout=55"
+    (tmp_path / "pytest.ini").write_text("[pytest]\n")
+    (tmp_path / "test_hang.py").write_text(
+        "import time\n\n"
+        "def waiting_in_the_driver():\n"
+        f"    time.sleep({60 if has['pytest_timeout'] else 6})\n\n"
+        "def test_hangs():\n"
+        "    waiting_in_the_driver()\n")
+    cmd = [sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider",
+           "--rootdir", str(tmp_path)]
+    if has["pytest_timeout"]:
+        cmd += args
+    else:
+        cmd += args[-2:]
+    if has["xdist"]:
+        cmd += ["-n", "1"]
+    log = tmp_path / "kernel_tests.log"
+    with open(log, "wb") as out:  # stdout and stderr to one file, as run_child writes them
+        subprocess.run([*cmd, "test_hang.py"], cwd=tmp_path, stdout=out, stderr=out,
+                       stdin=subprocess.DEVNULL, timeout=60, check=False)
+    text = log.read_text(errors="replace")
+    assert "in waiting_in_the_driver" in text, text
+    if has["pytest_timeout"] and has["xdist"]:
+        assert "worker 'gw0' crashed" in text
+
+
 # --- The scene comparison's images --------------------------------------------------------
 
 
@@ -496,6 +605,76 @@ def test_a_process_starts_only_with_time_left_and_its_failure_is_said(tmp_path: 
         S.in_new_process(["bash", "-c", "echo the error >&2; exit 3"], now + 30)
     with pytest.raises(ValueError, match="no result within 1 s"):
         S.in_new_process(["sleep", "5"], now + 30, most_s=1)
+
+
+class _DeviceWithoutSomeQueries:
+    """A GPU whose driver answers some of clray's device queries with an error."""
+
+    def __init__(self) -> None:
+        import pyopencl as cl
+
+        self.type = cl.device_type.GPU
+        self.platform = SimpleNamespace(name="NVIDIA CUDA ", version="OpenCL 3.0 CUDA 13.0")
+        self.name, self.vendor = "Fake GPU ", "NVIDIA Corporation"
+        self.version, self.driver_version = "OpenCL 3.0 CUDA", "580.159.04"
+        self.opencl_c_version = "OpenCL C 1.2 "
+        self.max_compute_units, self.max_clock_frequency = 132, 1980
+        self.global_mem_size, self.local_mem_size = 80 * 2**30, 48 * 2**10
+        self.max_mem_alloc_size, self.max_work_group_size = 20 * 2**30, 1024
+        self.preferred_vector_width_float = self.native_vector_width_float = 1
+        self.extensions = "cl_khr_fp64 cl_nv_compiler_options cl_nv_device_attribute_query"
+        self.double_fp_config = int(cl.device_fp_config.FMA)
+        self.compute_capability_major_nv, self.compute_capability_minor_nv = 9, 0
+
+    @property
+    def host_unified_memory(self) -> bool:
+        import pyopencl as cl
+
+        raise cl.LogicError("clGetDeviceInfo failed: INVALID_VALUE")
+
+    @property
+    def single_fp_config(self) -> int:
+        import pyopencl as cl
+
+        raise cl.LogicError("clGetDeviceInfo failed: INVALID_VALUE")
+
+
+def test_a_device_query_that_fails_loses_only_its_own_figure() -> None:
+    record = S.device_record("0:0", _DeviceWithoutSomeQueries())
+    assert record["host_unified_memory"] is None
+    assert record["single_fp_config"] is None
+    assert record["device_build_options"] is None  # it reads single_fp_config
+    assert set(record["query_errors"]) == {"host_unified_memory", "single_fp_config",
+                                           "device_build_options"}
+    assert "INVALID_VALUE" in record["query_errors"]["host_unified_memory"]
+    assert record["name"] == "Fake GPU" and record["type"] == "GPU"
+    assert record["double_fp_config"] == ["FMA"] and record["fp64"] is True
+    assert record["compute_capability_major_nv"] == 9
+    assert record["registers_per_block_nv"] is None
+
+
+def test_a_failed_device_listing_still_gives_the_later_steps_its_device(
+        tmp_path: Path) -> None:
+    check = G.Check(tmp_path / "out", G.GPU_MODE, wheels=None, python=sys.executable,
+                    work=tmp_path / "work")
+    check.out.mkdir()
+    check.work.mkdir()
+    target = {"spec": "0:0", "test_id": "nvidia-gpu", "name": "Fake GPU",
+              "platform": "NVIDIA CUDA", "driver_version": "580", "version": "OpenCL 3.0"}
+
+    def child(name: str, cmd: list, limit_s: float, **kwargs: object) -> G.ChildResult:
+        if "device-info" in map(str, cmd):
+            path = Path(cmd[list(map(str, cmd)).index("--json") + 1])
+            path.write_text(json.dumps({"devices": [target], "target": target}))
+            return G.ChildResult(list(cmd), 1, 0.1, False, "Traceback: LogicError")
+        return G.ChildResult(list(cmd), 0, 0.1, False, "0:0 GPU Fake GPU\n")
+
+    check.child = child
+    with pytest.raises(G.StepError, match="the steps run on 0:0"):
+        check.step_devices(45)
+    assert check.need_device() == "0:0"
+    assert check.test_device == "nvidia-gpu"
+    assert check.env["CLRAY_DEVICE"] == "0:0"
 
 
 @dataclasses.dataclass
@@ -600,6 +779,31 @@ def test_cold_and_warm_builds_start_no_process_past_the_time_limit(
     assert set(times) == {"cold_s", "context_cold_s", "warm_s", "context_warm_s", "unfinished"}
     assert times["unfinished"] == ["warm_again_s", "warm_without_pyopencl_cache_s",
                                    "floor_warm_s"]
+
+
+def test_a_configurations_build_ends_soon_after_the_cold_and_warm_builds_time_begins(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    assert S.config_build_limit(100.0, 200.0) == S.BUILD_TIMEOUT_S
+    assert S.config_build_limit(100.0, 105.0) == pytest.approx(5 + S.BUILD_OVERRUN_S)
+    # The least a build that may still start gets: MIN_PROCESS_S before the share begins.
+    assert S.config_build_limit(100.0, 100.0 + S.MIN_PROCESS_S) >= S.MIN_PROCESS_S
+    # cmd_builds asks each configuration's build for no more: 10 s, 4 of them kept back.
+    calls: list[str] = []
+    _fake_builds(monkeypatch, calls)
+    limits: list[float] = []
+    answer = S.in_new_process
+
+    def in_new_process(cmd: list[str], end: float, env: object = None,
+                       **kwargs: float) -> str:
+        if "nv-build" in cmd:
+            limits.append(kwargs["start_by"] + S.BUILD_OVERRUN_S - time.monotonic()
+                          - kwargs["most_s"])
+        return answer(cmd, end, env, **kwargs)
+
+    monkeypatch.setattr(S, "in_new_process", in_new_process)
+    S.main(["builds", "--json", str(tmp_path / "b.json"), "--device", "x", "--no-examples",
+            "--scene", "spheres=spheres.toml", "--spp", "1", "--time-limit", "10"])
+    assert limits and all(slack >= -0.5 for slack in limits)
 
 
 # --- A whole --cpu run --------------------------------------------------------------------

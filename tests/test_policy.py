@@ -168,6 +168,15 @@ def test_gpu_devices_are_built_as_gpus_whatever_their_compiler_defines() -> None
     rounding = SimpleNamespace(type=cl.device_type.GPU, platform=SimpleNamespace(name="NVIDIA"),
                                single_fp_config=cl.device_fp_config.CORRECTLY_ROUNDED_DIVIDE_SQRT)
     assert device_build_options(rounding) == (*GPU_BUILD_OPTIONS, CORRECTLY_ROUNDED)
+
+    # A driver that fails the query builds without the option rather than failing the render.
+    class Unanswered(SimpleNamespace):
+        @property
+        def single_fp_config(self) -> int:
+            raise cl.Error("clGetDeviceInfo failed: INVALID_VALUE")
+
+    unanswered = Unanswered(type=cl.device_type.GPU, platform=SimpleNamespace(name="NVIDIA"))
+    assert device_build_options(unanswered) == GPU_BUILD_OPTIONS
     assert device_build_options(device(cl.device_type.CPU, "Portable Computing Language")) == ()
     assert "-DSERIAL_WORK_ITEMS=0" not in device_build_options(device(cl.device_type.CPU,
                                                                       "Oclgrind"))

@@ -72,9 +72,19 @@ def device_build_options(device: cl.Device) -> tuple[str, ...]:
         return OCLGRIND_BUILD_OPTIONS + _as_for_a_gpu + _ulps_off
     if not device.type & cl.device_type.GPU:
         return _as_for_a_gpu + _ulps_off
-    rounded = (getattr(device, "single_fp_config", 0)
-               & cl.device_fp_config.CORRECTLY_ROUNDED_DIVIDE_SQRT)
-    return GPU_BUILD_OPTIONS + ((CORRECTLY_ROUNDED,) if rounded else ()) + _ulps_off
+    return GPU_BUILD_OPTIONS + ((CORRECTLY_ROUNDED,) if _rounds_division(device) else ()) + \
+        _ulps_off
+
+
+def _rounds_division(device: cl.Device) -> bool:
+    """Whether the device offers correctly rounded float division and square root. A driver
+    that does not answer the query (a stand-in without it, or an OpenCL error) is taken as
+    not offering them: the build then keeps OpenCL's own bounds, never fails for it."""
+    try:
+        config = device.single_fp_config
+    except (AttributeError, cl.Error):
+        return False
+    return bool(config & cl.device_fp_config.CORRECTLY_ROUNDED_DIVIDE_SQRT)
 
 
 def ulps_off_option(direction: int) -> str:

@@ -208,7 +208,7 @@ static inline int shell_pieces(REAL3 o, REAL3 u, REAL3 axis, REAL major, REAL mi
 // leading term, so in world units float32 overflows for rings past about 1e10 (r^4 over 3e38:
 // no crossing is found) and goes denormal for rings near 1e-11 (r^4 / R^2 under 1e-38: wrong
 // crossings); in the torus's units every coefficient is of order 1 at any size. Scaling by a
-// power of two is exact (ldexp), and every step below is homogeneous in length (the shell's
+// power of two is exact, and every step below is homogeneous in length (the shell's
 // rounding bound, the brackets' widths), so where world units neither overflow nor underflow
 // the crossings are theirs bit for bit.
 static inline int torus_crossings(const __global Torus* tr, const Ray* r, REAL* t) {
@@ -218,12 +218,16 @@ static inline int torus_crossings(const __global Torus* tr, const Ray* r, REAL* 
     // ilogb(0) is no exponent (the loader keeps lengths at least 1e-30).
     if (!(len > (REAL)0) || !(major > (REAL)0)) return 0;
     int e = ilogb(major);
-    major = ldexp(major, -e);
-    minor = ldexp(minor, -e);
+    // 2^-e lies in float's normal range (|e| <= 100 for the loader's lengths), so a product
+    // with it is ldexp's, exactly. A vector is scaled by the product, not by ldexp: Oclgrind
+    // 21.10's ldexp of a vector applies the scalar exponent to its first lane only.
+    REAL unit = ldexp((REAL)1, -e);
+    major *= unit;
+    minor *= unit;
     // The stored float32 axis is unit only to float rounding; the local quartic takes u and the
     // axis as unit to the build's precision.
     REAL3 u = r->d / len, axis = normalize(TO_REAL3(tr->axis_minor));
-    REAL3 o = ldexp(r->o - TO_REAL3(tr->centre_major), -e);
+    REAL3 o = (r->o - TO_REAL3(tr->centre_major)) * unit;
     REAL lo[2], hi[2];
     int pieces = shell_pieces(o, u, axis, major, minor, lo, hi);
     REAL roots[TORUS_ROOTS];

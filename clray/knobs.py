@@ -14,6 +14,7 @@ whose constants it replaces (clray.render, clray.accel.bvh, clray.accel.wide) ca
 
 from __future__ import annotations
 
+import numbers
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, fields
 from typing import Literal
@@ -38,6 +39,15 @@ class Knob:
     # A study variant (clray.study): a different formula or a relaxed build, faster perhaps but
     # not the default's image. `clray tune` tries it only under --allow-error E.
     changes_image: bool = False
+
+
+def python_number(value: object) -> object:
+    """A real number (numpy's too) as Python's int or float; anything else as it is. numpy's
+    numbers are numbers (numbers.Integral, numbers.Real), but the knobs' checks and json.dumps
+    take Python's own."""
+    if isinstance(value, bool) or not isinstance(value, numbers.Real):
+        return value
+    return int(value) if isinstance(value, numbers.Integral) else float(value)
 
 
 def _int_in(low: int, high: int) -> Callable[[object], bool]:
@@ -282,6 +292,8 @@ class Tuning:
 
     def __post_init__(self) -> None:
         for name, value in self.values().items():
+            value = python_number(value)
+            object.__setattr__(self, name, value)
             knob = KNOBS[name]
             if not knob.legal(value):
                 raise TuningError(f"{name}: expected {knob.legal_text}, got {value!r}")

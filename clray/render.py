@@ -23,7 +23,7 @@ from clray.device.policy import DevicePlan, device_plan
 from clray.device.program import KernelConfig
 from clray.errors import SettingsError
 from clray.image_io import Encoding, image_bytes
-from clray.knobs import KNOBS, TRAVERSALS, Tuning
+from clray.knobs import KNOBS, TRAVERSALS, Tuning, python_number
 from clray.passes import pass_problem, passes_of, write_with_passes
 from clray.scene import limits as L
 from clray.scene.check import check_scene
@@ -115,10 +115,10 @@ class RenderSettings:
         # numpy's numbers are numbers here (numbers.Integral, numbers.Real), but json.dumps
         # refuses them, and these values go into the result's stats: kept as Python's own.
         for name in (*L.RENDER_INTEGERS, *L.RENDER_NUMBERS, *L.RENDER_CHOICES):
-            object.__setattr__(self, name, _python_number(getattr(self, name)))
+            object.__setattr__(self, name, python_number(getattr(self, name)))
         if isinstance(self.variants, tuple):
             object.__setattr__(self, "variants", tuple(
-                (pair[0], _python_number(pair[1]))
+                (pair[0], python_number(pair[1]))
                 if isinstance(pair, tuple) and len(pair) == 2 else pair
                 for pair in self.variants))
         # The scene file's [render] rules (clray.scene.limits), in the same words.
@@ -152,13 +152,6 @@ class RenderSettings:
             if getattr(self, name) is not None and not callable(getattr(self, name)):
                 raise SettingsError(f"RenderSettings.{name}: expected a callable, "
                                     f"got {getattr(self, name)!r}")
-
-
-def _python_number(value: object) -> object:
-    """A real number (numpy's too) as Python's int or float; anything else as it is."""
-    if isinstance(value, bool) or not isinstance(value, numbers.Real):
-        return value
-    return int(value) if isinstance(value, numbers.Integral) else float(value)
 
 
 def settings_or_default(settings: object) -> RenderSettings:

@@ -141,6 +141,18 @@ def test_illegal_knobs_and_broken_restrictions_are_refused(values, words) -> Non
         Tuning.from_values({"work_group_size": 64, "lanes": 8})
 
 
+def test_numpy_numbers_are_knob_values_as_pythons_own() -> None:
+    # As RenderSettings takes them: a knob from an array (a sweep's np.int64) is the number it
+    # holds, and the tuning's values serialise.
+    tuning = Tuning(work_group_width=np.int64(32), launch_seconds=np.float32(0.5),
+                    launch_growth=np.uint8(2))
+    assert tuning == Tuning(work_group_width=32, launch_seconds=0.5, launch_growth=2)
+    assert type(tuning.work_group_width) is int and type(tuning.launch_seconds) is float
+    assert json.loads(json.dumps(tuning.values()))["work_group_width"] == 32
+    with pytest.raises(TuningError, match="work_group_width: expected a power of two"):
+        Tuning(work_group_width=np.float64(32.0))  # a float is no count, numpy's or not
+
+
 def test_host_knobs_change_the_packed_bvh(crowd) -> None:
     base = packed_with(crowd)
     assert base.tuning == DEFAULT_TUNING

@@ -116,13 +116,19 @@ def gpu_group_width(width: int, limit: int, multiple: int) -> int:
     return max(multiple, width // multiple * multiple)
 
 
+def _group_rows(packed: PackedScene) -> int:
+    """The rows of the launch's work-group: group packets' tile is group_side rows high, a row
+    segment one."""
+    return packed.tuning.group_side if TRAVERSAL_SCHEMES[packed.config.traversal].tiles else 1
+
+
 def _local_size(kernel: cl.Kernel, device: cl.Device, packed: PackedScene) -> tuple[int, int]:
     """The launch's work-group: a row segment (_group_width), or with group packets the tile of
     group_side x group_side pixels that walk the BVH together, which the device must take
     whole."""
-    if not TRAVERSAL_SCHEMES[packed.config.traversal].tiles:
+    side = _group_rows(packed)
+    if side == 1:
         return _group_width(kernel, device, packed.tuning), 1
-    side = packed.tuning.group_side
     limit = kernel.get_work_group_info(cl.kernel_work_group_info.WORK_GROUP_SIZE, device)
     if side * side > limit:
         raise DeviceError(f"{describe(device)} runs at most {limit} work-items a group for this "
@@ -227,8 +233,7 @@ def render_packed(packed: PackedScene, device: cl.Device,
     the image) hears each band as it arrives (a notebook's progressive display)."""
     # A band's launch covers whole work-groups: with group packets, the rows past the band
     # (below the image, or the next band's, rendered again there) land in spare rows.
-    tiles = TRAVERSAL_SCHEMES[packed.config.traversal].tiles
-    spare = packed.tuning.group_side - 1 if tiles else 0
+    spare = _group_rows(packed) - 1
     capacity = band_capacity(packed, device.global_mem_size, device.max_mem_alloc_size,
                              spare_rows=spare)
     program, build_s, queue, width, spp, first, height = _launch_of(packed, device, rows)

@@ -32,6 +32,8 @@ HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
 sys.path.insert(0, str(ROOT))
 from benchmarks.common import check_outputs, image_size, positive_int  # noqa: E402
+from clray.errors import one_line  # noqa: E402
+from clray.knobs import TRAVERSALS  # noqa: E402
 
 # Runs inside each worktree's process; only API that every compared commit has.
 _MEASURE = """
@@ -112,13 +114,30 @@ def scene_paths(names: list[str], tmp: Path) -> dict[str, Path]:
     return {name: paths.get(name) or Path(name).resolve() for name in names}
 
 
+class MeasureError(Exception):
+    """A ref's measuring process failed; the message is its reason, one line."""
+
+
+def child_reason(returncode: int, stderr: str) -> str:
+    """Why a measuring process failed: its last line on stderr (a traceback's last line, the
+    exception), as clray.profile reads a failed child, else its signal or exit status."""
+    lines = [line.strip() for line in stderr.splitlines() if line.strip()]
+    if lines:
+        return one_line(lines[-1])
+    if returncode < 0:
+        return f"killed by signal {-returncode}"
+    return f"exit status {returncode}, and no message"
+
+
 def _measure(tree: Path, scene: Path, repeat: int, device: str | None, variant: str,
              shape: tuple[int, int, int]) -> dict:
     env = {**os.environ, "PYTHONPATH": str(tree)}
-    out = subprocess.run([sys.executable, "-c", _MEASURE, str(scene), str(repeat), device or "",
-                          variant, *(str(v) for v in shape)],
-                         check=True, capture_output=True, text=True, cwd=tree, env=env).stdout
-    return json.loads(out.splitlines()[-1])
+    done = subprocess.run([sys.executable, "-c", _MEASURE, str(scene), str(repeat), device or "",
+                           variant, *(str(v) for v in shape)],
+                          capture_output=True, text=True, cwd=tree, env=env)
+    if done.returncode != 0:
+        raise MeasureError(child_reason(done.returncode, done.stderr))
+    return json.loads(done.stdout.splitlines()[-1])
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -141,6 +160,14 @@ def main(argv: list[str] | None = None) -> None:
     unknown = unknown_scenes(names)
     if unknown:
         parser.error(f"scenes are spheres, mesh or scene files (not found: {unknown})")
+    # A misspelt traversal would fail only in the first child, after the worktrees were made.
+    # The names are this tree's: the schemes have only been added to, never renamed, so an
+    # older commit's are among them.
+    traversals = {ref: _split_ref(ref)[1].partition(":")[0] for ref in args.refs}
+    bad_traversals = [ref for ref, t in traversals.items() if t and t not in TRAVERSALS]
+    if bad_traversals:
+        parser.error(f"REF:TRAVERSAL takes a traversal of {', '.join(TRAVERSALS)}: "
+                     f"{', '.join(bad_traversals)}")
     lanes = {ref: _split_ref(ref)[1].partition(":")[2] for ref in args.refs}
     bad_lanes = [ref for ref, n in lanes.items() if n and not (n.isdigit() and int(n) > 0)]
     if bad_lanes:
@@ -167,8 +194,13 @@ def main(argv: list[str] | None = None) -> None:
             for round_index in range(args.rounds):
                 for ref in args.refs:
                     for name, path in scenes.items():
-                        got = _measure(trees[ref], path, args.per_round, args.device,
-                                       _split_ref(ref)[1], shape)
+                        try:
+                            got = _measure(trees[ref], path, args.per_round, args.device,
+                                           _split_ref(ref)[1], shape)
+                        except MeasureError as err:
+                            # One line, and the finally below still removes the worktrees.
+                            sys.exit(one_line(f"compare.py: {ref}, scene {name}: the "
+                                              f"measuring process failed: {err}"))
                         times[ref][name] += got["kernel_s"]
                         means[ref][name] = got["mean"]
                         rays[ref][name] = got["rays"]

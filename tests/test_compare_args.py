@@ -51,6 +51,8 @@ def _refuse_work(monkeypatch: pytest.MonkeyPatch) -> None:
     # was a CalledProcessError after HEAD's worktree was registered, which stayed so
     (["HEAD", "no-such-ref-xyz"], "no-such-ref-xyz"),
     (["HEAD:sample_packet:many"], "LANES"),
+    # was a CalledProcessError traceback, holding the child's whole source, from the first render
+    (["WORKTREE:bogus"], "WORKTREE:bogus"),
 ])
 def test_bad_arguments_are_usage_errors_before_any_work(
         args: list[str], says: str, tmp_path: Path, capsys: pytest.CaptureFixture[str],
@@ -74,3 +76,29 @@ def test_unwritable_json_is_refused_before_any_work(
         compare.main(["HEAD", "--scenes", "spheres", "--json", str(blocker / "compare.json")])
     assert exit_info.value.code == 2
     assert "--json" in capsys.readouterr().err
+
+
+def test_a_failed_render_is_one_line_with_the_ref_scene_and_reason(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """The child's exception, not a CalledProcessError traceback that threw its stderr away.
+    The scene fails to load, so the child stops before any device work."""
+    scene = tmp_path / "broken.toml"
+    scene.write_text("[render\n", encoding="utf-8")
+    out = tmp_path / "compare.json"
+    with pytest.raises(SystemExit) as exit_info:
+        compare.main(["WORKTREE", "--rounds", "1", "--per-round", "1", "--scenes", str(scene),
+                      "--json", str(out)])
+    message = str(exit_info.value.code)
+    assert "\n" not in message
+    assert message.startswith(f"compare.py: WORKTREE, scene {scene}: ")
+    assert message.endswith("(at line 1, column 8)")  # the child's SceneError, its last line
+    assert not out.exists()
+
+
+@pytest.mark.parametrize(("returncode", "stderr", "reason"), [
+    (1, "Traceback (most recent call last):\n  ...\nValueError: no\n\n", "ValueError: no"),
+    (-9, "", "killed by signal 9"),
+    (3, " \n", "exit status 3, and no message"),
+])
+def test_child_reason(returncode: int, stderr: str, reason: str) -> None:
+    assert compare.child_reason(returncode, stderr) == reason

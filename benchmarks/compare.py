@@ -142,11 +142,12 @@ def _measure(tree: Path, scene: Path, repeat: int, device: str | None, variant: 
 
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("refs", nargs="+", help="commits to compare; WORKTREE = files as they are")
+    parser.add_argument("refs", nargs="+", help="commits to compare, each at most once; "
+                        "WORKTREE = files as they are")
     parser.add_argument("--rounds", type=positive_int, default=5)
     parser.add_argument("--per-round", type=positive_int, default=3)
-    parser.add_argument("--scenes", default="spheres,mesh", help="comma-separated: spheres, "
-                        "mesh (generated) or paths to scene files")
+    parser.add_argument("--scenes", default="spheres,mesh", help="comma-separated, each at "
+                        "most once: spheres, mesh (generated) or paths to scene files")
     parser.add_argument("--device", default=None)
     parser.add_argument("--json", type=Path, default=HERE / "results" / "compare.json")
     parser.add_argument("--spp", type=positive_int, default=None,
@@ -156,7 +157,15 @@ def main(argv: list[str] | None = None) -> None:
     args = parser.parse_args(argv)
     # The child reads 0 as "the scene's own".
     shape = (args.spp or 0, *(args.size or (0, 0)))
-    names = [s for s in args.scenes.split(",") if s]
+    names = [s.strip() for s in args.scenes.split(",") if s.strip()]
+    if not names:
+        parser.error("--scenes: expected at least one of spheres, mesh or a scene file")
+    # A repeat is refused, not merged: results are keyed by name, so a repeated ref or scene
+    # was printed twice with its runs pooled, and dropping it would hide what was typed.
+    for what, given in (("REF", args.refs), ("scene", names)):
+        repeated = sorted({x for x in given if given.count(x) > 1})
+        if repeated:
+            parser.error(f"each {what} at most once; repeated: {', '.join(repeated)}")
     unknown = unknown_scenes(names)
     if unknown:
         parser.error(f"scenes are spheres, mesh or scene files (not found: {unknown})")

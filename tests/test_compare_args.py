@@ -53,6 +53,10 @@ def _refuse_work(monkeypatch: pytest.MonkeyPatch) -> None:
     (["HEAD:sample_packet:many"], "LANES"),
     # was a CalledProcessError traceback, holding the child's whole source, from the first render
     (["WORKTREE:bogus"], "WORKTREE:bogus"),
+    # were printed twice, each with both one's runs pooled
+    (["HEAD", "WORKTREE", "HEAD"], "repeated: HEAD"),
+    (["HEAD", "--scenes", "spheres,mesh,spheres"], "repeated: spheres"),
+    (["HEAD", "--scenes", ","], "--scenes"),  # measured nothing and exited 0
 ])
 def test_bad_arguments_are_usage_errors_before_any_work(
         args: list[str], says: str, tmp_path: Path, capsys: pytest.CaptureFixture[str],
@@ -60,7 +64,7 @@ def test_bad_arguments_are_usage_errors_before_any_work(
     _refuse_work(monkeypatch)
     out = tmp_path / "compare.json"
     with pytest.raises(SystemExit) as exit_info:
-        compare.main([*args, "--scenes", "spheres", "--json", str(out)])
+        compare.main(["--scenes", "spheres", *args, "--json", str(out)])  # the last --scenes wins
     assert exit_info.value.code == 2
     assert says in capsys.readouterr().err
     assert not out.exists()

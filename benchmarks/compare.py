@@ -20,6 +20,7 @@ scenes' own. `--scenes` takes spheres, mesh (the generated 327k-triangle mesh) o
 from __future__ import annotations
 
 import argparse
+import inspect
 import json
 import os
 import statistics
@@ -35,9 +36,26 @@ from benchmarks.common import check_outputs, image_size, positive_int  # noqa: E
 from clray.errors import one_line  # noqa: E402
 from clray.knobs import TRAVERSALS  # noqa: E402
 
+
+def image_summary(image) -> dict:
+    """The image's mean, None where it is not finite (strict JSON has no NaN), and how many
+    pixels have a channel that is NaN or infinite, which a NaN mean cannot tell. Its source is
+    part of _MEASURE: it runs in each ref's process, on that ref's image."""
+    import math
+
+    import numpy as np
+
+    finite = np.isfinite(image)
+    pixels = finite.all(axis=-1) if finite.ndim == 3 else finite
+    mean = float(image.mean())
+    return {"mean": mean if math.isfinite(mean) else None,
+            "nonfinite_pixels": int(pixels.size - np.count_nonzero(pixels))}
+
+
 # Runs inside each worktree's process; only API that every compared commit has.
 _MEASURE = """
 import importlib.util, json, os, sys
+""" + inspect.getsource(image_summary) + """
 # The virtual environment's editable install maps clray.kernels to its own checkout's kernels/:
 # take this tree's, or every ref would render with the same kernels (against its own layouts).
 kernels = os.path.join(os.getcwd(), "kernels", "__init__.py")
@@ -68,8 +86,7 @@ times = []
 for _ in range(repeat):
     image, stats = render_packed(packed, device)
     times.append(stats["kernel_s"])
-print(json.dumps({"kernel_s": times, "rays": stats["rays"]["total"],
-                  "mean": float(image.mean())}))
+print(json.dumps({"kernel_s": times, "rays": stats["rays"]["total"], **image_summary(image)}))
 """
 
 
@@ -191,8 +208,7 @@ def main(argv: list[str] | None = None) -> None:
         commits = dict.fromkeys(_split_ref(ref)[0] for ref in args.refs)
         commit_trees: dict[str, Path] = {}
         times: dict[str, dict[str, list[float]]] = {r: {n: [] for n in names} for r in args.refs}
-        means: dict[str, dict[str, float]] = {r: {} for r in args.refs}
-        rays: dict[str, dict[str, int]] = {r: {} for r in args.refs}
+        last: dict[str, dict[str, dict]] = {r: {} for r in args.refs}  # each one's last child
         # The worktrees are made inside the try: one that fails to check out, or an interrupt
         # between two, still removes those already registered.
         try:
@@ -211,8 +227,7 @@ def main(argv: list[str] | None = None) -> None:
                             sys.exit(one_line(f"compare.py: {ref}, scene {name}: the "
                                               f"measuring process failed: {err}"))
                         times[ref][name] += got["kernel_s"]
-                        means[ref][name] = got["mean"]
-                        rays[ref][name] = got["rays"]
+                        last[ref][name] = got
                 print(f"round {round_index + 1}/{args.rounds} done", file=sys.stderr)
         finally:
             for tree in commit_trees.values():
@@ -228,15 +243,19 @@ def main(argv: list[str] | None = None) -> None:
         entry = {}
         for name in names:
             median = statistics.median(times[ref][name])
+            got = last[ref][name]
             entry[name] = {"kernel_s": median, "kernel_runs_s": times[ref][name],
-                           "image_mean": means[ref][name], "rays": rays[ref][name],
-                           "mrays_per_s": rays[ref][name] / median * 1e-6,
+                           "image_mean": got["mean"], "nonfinite_pixels": got["nonfinite_pixels"],
+                           "rays": got["rays"], "mrays_per_s": got["rays"] / median * 1e-6,
                            "speedup_vs_first": statistics.median(times[base][name]) / median}
             print(f"{ref:>12} {Path(name).stem:>8}: kernel {median:.4f} s (median of "
                   f"{len(times[ref][name])}), {entry[name]['mrays_per_s']:.2f} Mrays/s, "
-                  f"x{entry[name]['speedup_vs_first']:.2f} vs {base}")
+                  f"x{entry[name]['speedup_vs_first']:.2f} vs {base}"
+                  + (f", {got['nonfinite_pixels']} pixels not finite"
+                     if got["nonfinite_pixels"] else ""))
         report["refs"][ref] = entry
-    args.json.write_text(json.dumps(report, indent=2) + "\n", encoding="utf-8")
+    # allow_nan=False: a NaN or infinity here is a bug to see, not a file other readers refuse.
+    args.json.write_text(json.dumps(report, indent=2, allow_nan=False) + "\n", encoding="utf-8")
     print(f"wrote {args.json}")
 
 

@@ -1,10 +1,14 @@
 """The benchmarks' scene arguments (compare.py, stages.py): the named benchmark scenes and scene
-files."""
+files; and compare.py's other arguments, its failures and its report, with the measuring
+processes faked where no render is needed."""
 
 from __future__ import annotations
 
+import json
+from collections.abc import Callable
 from pathlib import Path
 
+import numpy as np
 import pytest
 from conftest import module_from_file
 
@@ -106,3 +110,56 @@ def test_a_failed_render_is_one_line_with_the_ref_scene_and_reason(
 ])
 def test_child_reason(returncode: int, stderr: str, reason: str) -> None:
     assert compare.child_reason(returncode, stderr) == reason
+
+
+def _strict_json(path: Path) -> dict:
+    def refuse(constant: str) -> None:
+        raise AssertionError(f"{path} holds {constant}, which strict JSON has not")
+    return json.loads(path.read_text(encoding="utf-8"), parse_constant=refuse)
+
+
+def _fake_children(monkeypatch: pytest.MonkeyPatch,
+                   child: Callable[[str, str, str], dict]) -> list[tuple[str, str, str]]:
+    """compare.main without git worktrees or processes: each measurement is child(commit,
+    variant, scene name). Returns the measurements made, in order."""
+    made: list[tuple[str, str, str]] = []
+
+    def measure(tree: Path, scene: Path, repeat: int, device: str | None, variant: str,
+                shape: tuple[int, int, int]) -> dict:
+        made.append((tree.name, variant, scene.name))
+        return child(tree.name, variant, scene.name)
+    monkeypatch.setattr(compare, "_worktree", lambda commit, tmp: tmp / commit)
+    monkeypatch.setattr(compare, "scene_paths",
+                        lambda names, tmp: {name: tmp / name for name in names})
+    monkeypatch.setattr(compare, "_measure", measure)
+    return made
+
+
+def _child(mean: float | None = 0.25, nonfinite: int = 0) -> dict:
+    return {"kernel_s": [0.5], "rays": 1000, "mean": mean, "nonfinite_pixels": nonfinite}
+
+
+def test_image_summary_counts_pixels_not_finite() -> None:
+    image = np.full((2, 3, 3), 0.5, dtype=np.float32)
+    assert compare.image_summary(image) == {"mean": 0.5, "nonfinite_pixels": 0}
+    image[0, 0, 1] = np.nan
+    image[1, 2, 0] = np.inf
+    image[1, 2, 2] = np.nan  # the same pixel again
+    assert compare.image_summary(image) == {"mean": None, "nonfinite_pixels": 2}
+
+
+def test_a_nan_image_is_null_in_strict_json(tmp_path: Path, capsys: pytest.CaptureFixture[str],
+                                            monkeypatch: pytest.MonkeyPatch) -> None:
+    """Was `"image_mean": NaN`, which strict JSON readers refuse, and no count of the pixels."""
+    _fake_children(monkeypatch, lambda commit, variant, scene:
+                   _child(None, 3) if commit == "HEAD" else _child())
+    out = tmp_path / "compare.json"
+    compare.main(["WORKTREE", "HEAD", "--rounds", "1", "--scenes", "spheres", "--json", str(out)])
+    refs = _strict_json(out)["refs"]
+    assert refs["HEAD"]["spheres"]["image_mean"] is None
+    assert refs["HEAD"]["spheres"]["nonfinite_pixels"] == 3
+    assert refs["WORKTREE"]["spheres"]["image_mean"] == 0.25
+    assert refs["WORKTREE"]["spheres"]["nonfinite_pixels"] == 0
+    printed = capsys.readouterr().out
+    assert "3 pixels not finite" in printed
+    assert printed.count("not finite") == 1

@@ -63,7 +63,7 @@ if os.path.exists(kernels):
     spec = importlib.util.spec_from_file_location("clray.kernels", kernels)
     sys.modules["clray.kernels"] = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(sys.modules["clray.kernels"])
-from clray.device.context import select_device
+from clray.device.context import describe, select_device
 from clray.device.pack import pack_scene
 try:
     from clray.device.launch import render_packed
@@ -86,7 +86,9 @@ times = []
 for _ in range(repeat):
     image, stats = render_packed(packed, device)
     times.append(stats["kernel_s"])
-print(json.dumps({"kernel_s": times, "rays": stats["rays"]["total"], **image_summary(image)}))
+print(json.dumps({"kernel_s": times, "rays": stats["rays"]["total"], **image_summary(image),
+                  "device": describe(device),
+                  "platform_version": device.platform.version.strip()}))
 """
 
 
@@ -114,6 +116,19 @@ def unknown_refs(refs: list[str]) -> list[str]:
     return [commit for commit in commits if commit != "WORKTREE" and subprocess.run(
         ["git", "-C", str(ROOT), "rev-parse", "--verify", "--quiet", f"{commit}^{{commit}}"],
         capture_output=True).returncode != 0]
+
+
+def revision(commit: str) -> dict:
+    """What a ref renders, as git names it: `commit`'s SHA, or for WORKTREE the SHA of HEAD here
+    and whether tracked files differ from it (`dirty`; untracked files are not counted, or a
+    worktree whose .venv is a link would always be dirty). A name such as HEAD~3 moves."""
+    def git(*args: str) -> str:
+        return subprocess.run(["git", "-C", str(ROOT), *args], check=True, capture_output=True,
+                              text=True).stdout.strip()
+    if commit != "WORKTREE":
+        return {"commit": git("rev-parse", "--verify", f"{commit}^{{commit}}"), "dirty": False}
+    return {"commit": git("rev-parse", "--verify", "HEAD"),
+            "dirty": bool(git("status", "--porcelain", "--untracked-files=no"))}
 
 
 def unknown_scenes(names: list[str]) -> list[str]:
@@ -209,6 +224,11 @@ def main(argv: list[str] | None = None) -> None:
         commit_trees: dict[str, Path] = {}
         times: dict[str, dict[str, list[float]]] = {r: {n: [] for n in names} for r in args.refs}
         last: dict[str, dict[str, dict]] = {r: {} for r in args.refs}  # each one's last child
+        revisions = {commit: revision(commit) for commit in commits}
+        # (description, platform version) each ref's children rendered on; all must be the
+        # first's: one --device can pick different devices in commits whose select_device
+        # differs, and their times would not compare.
+        devices: dict[str, tuple[str, str]] = {}
         # The worktrees are made inside the try: one that fails to check out, or an interrupt
         # between two, still removes those already registered.
         try:
@@ -226,6 +246,13 @@ def main(argv: list[str] | None = None) -> None:
                             # One line, and the finally below still removes the worktrees.
                             sys.exit(one_line(f"compare.py: {ref}, scene {name}: the "
                                               f"measuring process failed: {err}"))
+                        seen = (got["device"], got["platform_version"])
+                        first, device = next(iter(devices.items()), (ref, seen))
+                        if seen != device:
+                            sys.exit(one_line(
+                                f"compare.py: {ref} rendered on {seen[0]} ({seen[1]}), "
+                                f"{first} on {device[0]} ({device[1]}): not one device"))
+                        devices[ref] = seen
                         times[ref][name] += got["kernel_s"]
                         last[ref][name] = got
                 print(f"round {round_index + 1}/{args.rounds} done", file=sys.stderr)
@@ -236,9 +263,11 @@ def main(argv: list[str] | None = None) -> None:
                                     str(tree)], capture_output=True)
 
     base = args.refs[0]
-    report = {"benchmark": "compare", "rounds": args.rounds, "per_round": args.per_round,
-              "spp": args.spp, "size": "x".join(map(str, args.size)) if args.size else None,
-              "refs": {}}
+    device = devices[base]  # every ref's, checked above
+    report = {"benchmark": "compare", "device_spec": args.device, "device": device[0],
+              "platform_version": device[1], "rounds": args.rounds,
+              "per_round": args.per_round, "spp": args.spp,
+              "size": "x".join(map(str, args.size)) if args.size else None, "refs": {}}
     for ref in args.refs:
         entry = {}
         for name in names:
@@ -253,7 +282,8 @@ def main(argv: list[str] | None = None) -> None:
                   f"x{entry[name]['speedup_vs_first']:.2f} vs {base}"
                   + (f", {got['nonfinite_pixels']} pixels not finite"
                      if got["nonfinite_pixels"] else ""))
-        report["refs"][ref] = entry
+        report["refs"][ref] = {**revisions[_split_ref(ref)[0]], "device": devices[ref][0],
+                               "platform_version": devices[ref][1], "scenes": entry}
     # allow_nan=False: a NaN or infinity here is a bug to see, not a file other readers refuse.
     args.json.write_text(json.dumps(report, indent=2, allow_nan=False) + "\n", encoding="utf-8")
     print(f"wrote {args.json}")

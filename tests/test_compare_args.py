@@ -5,12 +5,17 @@ processes faked where no render is needed."""
 from __future__ import annotations
 
 import json
+import os
+import subprocess
 from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
+import pyopencl as cl
 import pytest
 from conftest import module_from_file
+
+from clray.device.context import describe
 
 ROOT = Path(__file__).resolve().parent.parent
 compare = module_from_file(ROOT / "benchmarks" / "compare.py", "compare")
@@ -135,8 +140,14 @@ def _fake_children(monkeypatch: pytest.MonkeyPatch,
     return made
 
 
-def _child(mean: float | None = 0.25, nonfinite: int = 0) -> dict:
-    return {"kernel_s": [0.5], "rays": 1000, "mean": mean, "nonfinite_pixels": nonfinite}
+def _child(mean: float | None = 0.25, nonfinite: int = 0, device: str = "CPU (PoCL, 6.0)") -> dict:
+    return {"kernel_s": [0.5], "rays": 1000, "mean": mean, "nonfinite_pixels": nonfinite,
+            "device": device, "platform_version": "OpenCL 3.0 PoCL 6.0"}
+
+
+def _git(*args: str) -> str:
+    return subprocess.run(["git", "-C", str(ROOT), *args], check=True, capture_output=True,
+                          text=True).stdout.strip()
 
 
 def test_image_summary_counts_pixels_not_finite() -> None:
@@ -156,10 +167,60 @@ def test_a_nan_image_is_null_in_strict_json(tmp_path: Path, capsys: pytest.Captu
     out = tmp_path / "compare.json"
     compare.main(["WORKTREE", "HEAD", "--rounds", "1", "--scenes", "spheres", "--json", str(out)])
     refs = _strict_json(out)["refs"]
-    assert refs["HEAD"]["spheres"]["image_mean"] is None
-    assert refs["HEAD"]["spheres"]["nonfinite_pixels"] == 3
-    assert refs["WORKTREE"]["spheres"]["image_mean"] == 0.25
-    assert refs["WORKTREE"]["spheres"]["nonfinite_pixels"] == 0
+    assert refs["HEAD"]["scenes"]["spheres"]["image_mean"] is None
+    assert refs["HEAD"]["scenes"]["spheres"]["nonfinite_pixels"] == 3
+    assert refs["WORKTREE"]["scenes"]["spheres"]["image_mean"] == 0.25
+    assert refs["WORKTREE"]["scenes"]["spheres"]["nonfinite_pixels"] == 0
     printed = capsys.readouterr().out
     assert "3 pixels not finite" in printed
     assert printed.count("not finite") == 1
+
+
+def test_the_report_names_the_device_and_the_commits(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Was rounds, sizes and the refs as typed ("HEAD~1"): no device, driver or commit."""
+    _fake_children(monkeypatch, lambda commit, variant, scene: _child())
+    out = tmp_path / "compare.json"
+    compare.main(["HEAD~1", "WORKTREE:single", "--rounds", "1", "--scenes", "spheres",
+                  "--device", "pocl", "--json", str(out)])
+    report = _strict_json(out)
+    assert report["device_spec"] == "pocl"
+    assert report["device"] == "CPU (PoCL, 6.0)"
+    assert report["platform_version"] == "OpenCL 3.0 PoCL 6.0"
+    old, now = report["refs"]["HEAD~1"], report["refs"]["WORKTREE:single"]
+    assert old["commit"] == _git("rev-parse", "HEAD~1") and old["dirty"] is False
+    assert now["commit"] == _git("rev-parse", "HEAD")
+    assert now["dirty"] is bool(_git("status", "--porcelain", "--untracked-files=no"))
+    for ref in (old, now):
+        assert ref["device"] == "CPU (PoCL, 6.0)"
+        assert ref["platform_version"] == "OpenCL 3.0 PoCL 6.0"
+        assert set(ref["scenes"]) == {"spheres"}
+
+
+def test_refs_on_different_devices_stop_the_run(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    _fake_children(monkeypatch, lambda commit, variant, scene:
+                   _child(device="GPU (CUDA, 550)" if commit == "HEAD" else "CPU (PoCL, 6.0)"))
+    out = tmp_path / "compare.json"
+    with pytest.raises(SystemExit) as exit_info:
+        compare.main(["WORKTREE", "HEAD", "--rounds", "1", "--scenes", "spheres",
+                      "--json", str(out)])
+    assert exit_info.value.code == (
+        "compare.py: HEAD rendered on GPU (CUDA, 550) (OpenCL 3.0 PoCL 6.0), "
+        "WORKTREE on CPU (PoCL, 6.0) (OpenCL 3.0 PoCL 6.0): not one device")
+    assert not out.exists()
+
+
+def test_a_real_run_records_its_device(cl_device: cl.Device, tmp_path: Path) -> None:
+    """The measuring process itself, on the test's device, 4x4 pixels: what it reports."""
+    spec = os.environ["CLRAY_DEVICE"]  # the test's device (conftest)
+    out = tmp_path / "compare.json"
+    compare.main(["WORKTREE", "--rounds", "1", "--per-round", "1", "--size", "4x4",
+                  "--scenes", "spheres", "--device", spec, "--json", str(out)])
+    report = _strict_json(out)
+    assert report["device_spec"] == spec
+    assert report["device"] == describe(cl_device)
+    assert report["platform_version"] == cl_device.platform.version.strip()
+    spheres = report["refs"]["WORKTREE"]["scenes"]["spheres"]
+    assert spheres["nonfinite_pixels"] == 0
+    assert 0 < spheres["image_mean"] < 1

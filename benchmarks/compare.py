@@ -7,7 +7,9 @@
 Each REF (a commit, branch or `WORKTREE` for the files as they are now) is checked out into a
 temporary git worktree. Rounds alternate between the refs: in each round every ref renders every
 scene in a fresh process (importing clray from its own worktree, kernels included) once as a
-warm-up and then `--per-round` times, timed by OpenCL profiling events. Medians over all rounds are
+warm-up and then `--per-round` times, timed by OpenCL profiling events. Every other round takes
+the refs in reverse order (A B C, C B A, A B C, ...), so that no ref always runs first or last;
+over an even `--rounds` every ref's average place is the same. Medians over all rounds are
 reported per ref and scene, with the ratio to the first ref. Alternating the refs spreads the
 machine's load changes over all of them, which separate runs at different times do not.
 `REF:TRAVERSAL` (e.g. `WORKTREE:sample_packet`) renders with that KernelConfig traversal, for
@@ -237,7 +239,12 @@ def main(argv: list[str] | None = None) -> None:
             trees = {ref: commit_trees[_split_ref(ref)[0]] for ref in args.refs}
             scenes = scene_paths(names, tmp)
             for round_index in range(args.rounds):
-                for ref in args.refs:
+                # Every other round takes the refs in reverse (A B C, C B A, ...): a ref that
+                # always ran first (cold caches, a clock still rising) or last would carry
+                # that place's bias; over an even number of rounds every ref's average place
+                # is the same.
+                order = args.refs if round_index % 2 == 0 else args.refs[::-1]
+                for ref in order:
                     for name, path in scenes.items():
                         try:
                             got = _measure(trees[ref], path, args.per_round, args.device,

@@ -224,3 +224,13 @@ def test_a_real_run_records_its_device(cl_device: cl.Device, tmp_path: Path) -> 
     spheres = report["refs"]["WORKTREE"]["scenes"]["spheres"]
     assert spheres["nonfinite_pixels"] == 0
     assert 0 < spheres["image_mean"] < 1
+
+
+def test_rounds_alternate_the_order_of_the_refs(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Was A B C in every round, so A always ran first and C last."""
+    made = _fake_children(monkeypatch, lambda commit, variant, scene: _child())
+    compare.main(["WORKTREE", "HEAD", "HEAD~1", "--rounds", "3", "--scenes", "spheres",
+                  "--json", str(tmp_path / "compare.json")])
+    forward = ["WORKTREE", "HEAD", "HEAD~1"]
+    assert [commit for commit, _, _ in made] == forward + forward[::-1] + forward

@@ -24,6 +24,7 @@ from __future__ import annotations
 import argparse
 import inspect
 import json
+import math
 import os
 import statistics
 import subprocess
@@ -146,6 +147,14 @@ def scene_paths(names: list[str], tmp: Path) -> dict[str, Path]:
                         str(tmp / "mesh")], check=True, capture_output=True)
         paths["mesh"] = tmp / "mesh" / "bumpy.toml"
     return {name: paths.get(name) or Path(name).resolve() for name in names}
+
+
+def three_figures(value: float) -> str:
+    """`value` to three significant figures, without an exponent: a 4x4 render's kernel time
+    at four decimals was 0.0000 s, and 1234 Mrays/s in `.3g` is 1.23e+03."""
+    if value == 0 or not math.isfinite(value):
+        return f"{value:g}"
+    return f"{value:.{max(0, 2 - math.floor(math.log10(abs(value))))}f}"
 
 
 class MeasureError(Exception):
@@ -284,8 +293,9 @@ def main(argv: list[str] | None = None) -> None:
                            "image_mean": got["mean"], "nonfinite_pixels": got["nonfinite_pixels"],
                            "rays": got["rays"], "mrays_per_s": got["rays"] / median * 1e-6,
                            "speedup_vs_first": statistics.median(times[base][name]) / median}
-            print(f"{ref:>12} {Path(name).stem:>8}: kernel {median:.4f} s (median of "
-                  f"{len(times[ref][name])}), {entry[name]['mrays_per_s']:.2f} Mrays/s, "
+            print(f"{ref:>12} {Path(name).stem:>8}: kernel {three_figures(median)} s (median "
+                  f"of {len(times[ref][name])}), {three_figures(entry[name]['mrays_per_s'])} "
+                  "Mrays/s, "
                   f"x{entry[name]['speedup_vs_first']:.2f} vs {base}"
                   + (f", {got['nonfinite_pixels']} pixels not finite"
                      if got["nonfinite_pixels"] else ""))

@@ -234,3 +234,20 @@ def test_rounds_alternate_the_order_of_the_refs(
                   "--json", str(tmp_path / "compare.json")])
     forward = ["WORKTREE", "HEAD", "HEAD~1"]
     assert [commit for commit, _, _ in made] == forward + forward[::-1] + forward
+
+
+@pytest.mark.parametrize(("value", "text"), [
+    (2.0009e-05, "0.0000200"), (0.15437, "0.154"), (4.4979, "4.50"), (1234.4, "1234"), (0.0, "0"),
+])
+def test_three_figures(value: float, text: str) -> None:
+    assert compare.three_figures(value) == text
+
+
+def test_a_small_render_prints_its_figures(tmp_path: Path, capsys: pytest.CaptureFixture[str],
+                                           monkeypatch: pytest.MonkeyPatch) -> None:
+    """A 4x4 render's kernel time was printed as 0.0000 s."""
+    _fake_children(monkeypatch, lambda commit, variant, scene:
+                   {**_child(), "kernel_s": [2.0009e-05], "rays": 90})
+    compare.main(["WORKTREE", "--rounds", "1", "--scenes", "spheres",
+                  "--json", str(tmp_path / "compare.json")])
+    assert "kernel 0.0000200 s (median of 1), 4.50 Mrays/s" in capsys.readouterr().out

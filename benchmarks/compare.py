@@ -1,8 +1,8 @@
 """Kernel time of two or more commits, side by side in one run.
 
-    python benchmarks/compare.py REF [REF ...] [--rounds 5] [--scenes spheres,mesh]
-                                 [--json benchmarks/results/compare.json] [--device SPEC]
-                                 [--spp N] [--size WxH]
+    python benchmarks/compare.py REF[:TRAVERSAL[:LANES]] [REF ...] [--rounds 5] [--per-round 3]
+                                 [--scenes spheres,mesh] [--device SPEC] [--spp N] [--size WxH]
+                                 [--json benchmarks/results/compare.json]
 
 Each REF (a commit, branch or `WORKTREE` for the files as they are now) is checked out into a
 temporary git worktree. Rounds alternate between the refs: in each round every ref renders every
@@ -15,8 +15,15 @@ machine's load changes over all of them, which separate runs at different times 
 `REF:TRAVERSAL` (e.g. `WORKTREE:sample_packet`) renders with that KernelConfig traversal, for
 commits that have it, and `REF:sample_packet:LANES` with packets of LANES rays (KernelConfig's
 packet_lanes, 8 where not given, whatever the device's own); a plain REF with KernelConfig's
-default. `--spp` and `--size` replace the
-scenes' own. `--scenes` takes spheres, mesh (the generated 327k-triangle mesh) or scene files.
+default. `--spp` and `--size` replace the scenes' own. `--scenes` takes spheres, mesh (the
+generated 327k-triangle mesh) or scene files.
+
+An unknown REF or TRAVERSAL, a REF or scene given twice, or no scene, is a usage error before any
+worktree is made; a render that fails stops the run with one line naming the ref, the scene and
+its process's last line on stderr. The JSON records the `--device` given, the device and
+platform version the processes rendered on (one for all refs, or the run stops), and each ref's
+commit SHA (WORKTREE: HEAD's, and whether tracked files differ from it); an image mean that is
+not finite is null, with the image's count of pixels that are not (benchmarks/README.md).
 """
 
 from __future__ import annotations

@@ -2,7 +2,9 @@
 
 Images are (H, W, C) or (H, W) arrays; "pixel" counts reduce over the channel axis of 3-D
 inputs. Non-finite values propagate into rmse, psnr and max_abs (a NaN anywhere gives NaN), so a
-broken image can never look close; count them separately with `nonfinite_count`.
+broken image can never look close; count them separately with `nonfinite_count`. Two images
+compared must have the same shape and at least one value, else every comparison is a ValueError:
+an empty image is no evidence of a match (count_over would say no pixel differs).
 """
 
 from __future__ import annotations
@@ -28,6 +30,8 @@ def _pair(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     b = np.asarray(b, dtype=np.float64)
     if a.shape != b.shape:
         raise ValueError(f"images differ in shape: {a.shape} vs {b.shape}")
+    if a.size == 0:
+        raise ValueError(f"images are empty: shape {a.shape}, nothing to compare")
     return a, b
 
 

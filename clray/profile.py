@@ -12,11 +12,14 @@ packed scene three ways and differencing the medians:
 A part's figure carries the noise of two medians. Box and primitive tests come from the
 instrumented build (KernelConfig.count_tests), rendered once and untimed: its counters cost time
 of their own. Build times are measured in new processes, so this process's program cache does
-not answer them: cold with an empty PoCL kernel cache, warm with that cache filled (on other
-drivers, which keep their own caches, both are what a new process pays). Both time
-`clBuildProgram` only: PoCL compiles the work-group function at a kernel's first launch, about as
-long again on the CPU, which `benchmarks/cold_build.py` adds (docs/acceleration.md, The cold
-build a new user waits for).
+not answer them: cold with every kernel cache a new process could be answered from empty
+(PoCL's, pyopencl's binary cache, which it keeps for drivers without one of their own such as
+Intel's CPU runtime, and NVIDIA's compute cache: `cache_env`), warm with those caches as the
+cold build left them, as a user's second run finds them. A cache the environment turns off
+(PYOPENCL_NO_CACHE, CUDA_CACHE_DISABLE) stays off in both. Both time `clBuildProgram` only:
+PoCL compiles the work-group function at a kernel's first launch, about as long again on the
+CPU, which `benchmarks/cold_build.py` adds (docs/acceleration.md, The cold build a new user
+waits for).
 """
 
 from __future__ import annotations
@@ -30,6 +33,7 @@ import subprocess
 import sys
 import tempfile
 import time
+from collections.abc import Mapping
 from pathlib import Path
 
 import pyopencl as cl
@@ -109,14 +113,26 @@ def tests_per_ray(packed: PackedScene, device: cl.Device) -> dict:
     }
 
 
+# Where a new process looks for kernels built before it, by the variable that moves each there:
+# PoCL's kernel cache; pyopencl's binary cache, which pyopencl keeps for the drivers that keep
+# none (all but PoCL and NVIDIA's: Intel's CPU runtime), and any driver's cache kept under
+# $XDG_CACHE_HOME; NVIDIA's compute cache, which answers its builds (~/.nv/ComputeCache).
+CACHE_FOLDERS = {"POCL_CACHE_DIR": "pocl", "XDG_CACHE_HOME": "xdg", "CUDA_CACHE_PATH": "nv"}
+
+
+def cache_env(caches: Path, base: Mapping[str, str]) -> dict[str, str]:
+    """`base` with every kernel cache that could answer a new process's build in a folder of
+    its own under `caches` (CACHE_FOLDERS): empty for the first process, so its build is cold,
+    and as that process left it for the next, so theirs is warm."""
+    return {**base, **{name: str(caches / folder) for name, folder in CACHE_FOLDERS.items()}}
+
+
 def new_process_build(config: KernelConfig, device_spec: str | None,
-                      pocl_cache: Path | None = None) -> dict[str, float]:
+                      caches: Path | None = None) -> dict[str, float]:
     """A new process's seconds to make its context (`context_s`) and then to build the render
-    kernel of `config` (`build_s`), with PoCL's kernel cache at `pocl_cache` where given, else
-    where this process's environment puts it."""
-    env = dict(os.environ)
-    if pocl_cache is not None:
-        env["POCL_CACHE_DIR"] = str(pocl_cache)
+    kernel of `config` (`build_s`), with its kernel caches under `caches` (`cache_env`) where
+    given, else where this process's environment puts them."""
+    env = dict(os.environ) if caches is None else cache_env(caches, os.environ)
     cmd = [sys.executable, "-m", "clray.profile", "--build-only",
            json.dumps(dataclasses.asdict(config))]
     if device_spec:
@@ -146,9 +162,25 @@ def _child_error(returncode: int, stderr: str) -> ClrayError:
 
 
 def build_seconds(config: KernelConfig, device_spec: str | None,
-                  pocl_cache: Path | None = None) -> float:
-    """Seconds a new process takes to build the render kernel of `config`, its context made."""
-    return new_process_build(config, device_spec, pocl_cache)["build_s"]
+                  caches: Path | None = None) -> float:
+    """Seconds a new process takes to build the render kernel of `config`, its context made,
+    with its kernel caches under `caches` where given (`new_process_build`)."""
+    return new_process_build(config, device_spec, caches)["build_s"]
+
+
+def cold_and_warm_build(config: KernelConfig, device_spec: str | None) -> tuple[float, float]:
+    """Seconds a new process takes to build the render kernel of `config` with every kernel
+    cache empty (cold), then another with those caches as the first left them (warm)."""
+    try:
+        folder = tempfile.TemporaryDirectory(prefix="clray-profile-")
+    except OSError as err:  # TMPDIR full or read-only, or no usable temporary folder at all
+        where = f" in {os.path.dirname(err.filename)}" if err.filename else ""
+        raise ClrayError(f"cannot make a temporary folder{where} for the cold build's kernel "
+                         f"caches: {err.strerror or err}") from None
+    with folder as caches:
+        cold = build_seconds(config, device_spec, Path(caches))
+        warm = build_seconds(config, device_spec, Path(caches))
+    return cold, warm
 
 
 def _build_only(config_json: str, device_spec: str | None) -> None:
@@ -168,15 +200,7 @@ def profile_scene(path: Path, settings: RenderSettings, repeat: int = 3,
     a mesh file's automatic scene) rendered with `settings` on its device."""
     device = select_device(settings.device)
     packed = pack_for(scene if scene is not None else load_scene(path), settings, device)
-    try:
-        cache = tempfile.TemporaryDirectory(prefix="clray-profile-")
-    except OSError as err:  # TMPDIR full or read-only, or no usable temporary folder at all
-        where = f" in {os.path.dirname(err.filename)}" if err.filename else ""
-        raise ClrayError(f"cannot make a temporary folder{where} for the cold build's kernel "
-                         f"cache: {err.strerror or err}") from None
-    with cache as pocl_cache:
-        cold = build_seconds(packed.config, settings.device, Path(pocl_cache))
-        warm = build_seconds(packed.config, settings.device, Path(pocl_cache))
+    cold, warm = cold_and_warm_build(packed.config, settings.device)
     split = time_split(packed, device, repeat)
     _, stats = render_packed(packed, device)
     width, height = int(packed.params[0]["width"]), int(packed.params[0]["height"])

@@ -586,10 +586,10 @@ def in_new_process(cmd: list[str], end: float, env: dict[str, str] | None = None
     return done.stdout
 
 
-def timed_build(config: object, device_spec: str, pocl: Path, end: float) -> dict[str, float]:
+def timed_build(config: object, device_spec: str, env: dict[str, str],
+                end: float) -> dict[str, float]:
     """What clray.profile.new_process_build measures (`context_s`, `build_s`), in a new
-    process with PoCL's cache at `pocl`, within what is left before `end`."""
-    env = dict(os.environ, POCL_CACHE_DIR=str(pocl))
+    process with the environment `env`, within what is left before `end`."""
     out = in_new_process([sys.executable, "-m", "clray.profile", "--build-only",
                           config_json(config), "--device", device_spec], end, env)
     return {k: float(v) for k, v in json.loads(last_line(out, "--build-only")).items()}
@@ -604,8 +604,8 @@ def cold_and_warm(config: object, device_spec: str, end: float) -> dict:
     0.158 s with the context inside the build's time. Each of its six processes starts only
     while time is left before `end`; a part that fails goes under `errors` (where the cold
     build fails, nothing after it is measured), one with no time left under `unfinished`."""
-    saved = {k: os.environ.get(k) for k in ("CUDA_CACHE_PATH", "XDG_CACHE_HOME",
-                                             "CUDA_CACHE_DISABLE", "PYOPENCL_NO_CACHE")}
+    from clray.profile import cache_env
+
     times: dict[str, float] = {}
     errors: dict[str, str] = {}
     unfinished: list[str] = []
@@ -625,37 +625,32 @@ def cold_and_warm(config: object, device_spec: str, end: float) -> dict:
             return False
         return True
 
-    def build(cold_or_warm: str) -> dict[str, float]:
-        found = timed_build(config, device_spec, pocl, end)
-        return {f"{cold_or_warm}_s": found["build_s"],
-                f"context_{cold_or_warm}_s": found["context_s"]}
-
-    def again(name: str) -> dict[str, float]:
-        return {name: timed_build(config, device_spec, pocl, end)["build_s"]}
-
-    def floor_warm() -> dict[str, float]:
-        in_new_process(floor, end)  # fills the driver's cache
-        return {"floor_warm_s": float(last_line(in_new_process(floor, end), "floor build"))}
-
     with tempfile.TemporaryDirectory(prefix="clray-build-") as tmp:
-        os.environ["CUDA_CACHE_PATH"] = str(Path(tmp) / "nv")
-        os.environ["XDG_CACHE_HOME"] = str(Path(tmp) / "xdg")
-        os.environ.pop("CUDA_CACHE_DISABLE", None)
-        pocl = Path(tmp) / "pocl"
-        try:
-            if part("cold_s", lambda: build("cold")):  # the rest needs its caches
-                part("warm_s", lambda: build("warm"))
-                part("warm_again_s", lambda: again("warm_again_s"))
-                os.environ["PYOPENCL_NO_CACHE"] = "1"
-                part("warm_without_pyopencl_cache_s",
-                     lambda: again("warm_without_pyopencl_cache_s"))
-                part("floor_warm_s", floor_warm)
-        finally:
-            for key, value in saved.items():
-                if value is None:
-                    os.environ.pop(key, None)
-                else:
-                    os.environ[key] = value
+        # The caches `clray profile`'s build processes get, NVIDIA's and pyopencl's on
+        # whatever this environment says: they are what is measured.
+        env = cache_env(Path(tmp), os.environ)
+        env.pop("CUDA_CACHE_DISABLE", None)
+        env.pop("PYOPENCL_NO_CACHE", None)
+        driver_only = {**env, "PYOPENCL_NO_CACHE": "1"}  # the driver's own cache alone
+
+        def build(cold_or_warm: str) -> dict[str, float]:
+            found = timed_build(config, device_spec, env, end)
+            return {f"{cold_or_warm}_s": found["build_s"],
+                    f"context_{cold_or_warm}_s": found["context_s"]}
+
+        def floor_warm() -> dict[str, float]:
+            in_new_process(floor, end, driver_only)  # fills the driver's cache
+            out = in_new_process(floor, end, driver_only)
+            return {"floor_warm_s": float(last_line(out, "floor build"))}
+
+        if part("cold_s", lambda: build("cold")):  # the rest needs its caches
+            part("warm_s", lambda: build("warm"))
+            part("warm_again_s", lambda: {
+                "warm_again_s": timed_build(config, device_spec, env, end)["build_s"]})
+            part("warm_without_pyopencl_cache_s", lambda: {
+                "warm_without_pyopencl_cache_s":
+                    timed_build(config, device_spec, driver_only, end)["build_s"]})
+            part("floor_warm_s", floor_warm)
     result: dict = {key: round(value, 4) for key, value in times.items()}
     if errors:
         result["errors"] = errors

@@ -784,6 +784,43 @@ def test_cold_and_warm_builds_start_no_process_past_the_time_limit(
                                    "floor_warm_s"]
 
 
+def test_cold_and_warm_builds_get_clray_profiles_caches_all_on(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    # The caches `clray profile` moves for its cold build (clray.profile.cache_env), empty
+    # for the cold build and shared by the rest; NVIDIA's and pyopencl's on even where this
+    # environment turns them off, bar the build measured without pyopencl's.
+    from clray.profile import CACHE_FOLDERS
+
+    monkeypatch.setenv("CUDA_CACHE_DISABLE", "1")
+    monkeypatch.setenv("PYOPENCL_NO_CACHE", "1")
+    envs: list[tuple[str, dict[str, str], bool]] = []  # process, env, its caches all empty
+
+    def in_new_process(cmd: list[str], end: float, env: dict[str, str] | None = None,
+                       **kwargs: object) -> str:
+        assert env is not None
+        empty = not any(Path(env[name]).exists() for name in CACHE_FOLDERS)
+        for name in CACHE_FOLDERS:  # what a build leaves in its caches
+            Path(env[name]).mkdir(parents=True, exist_ok=True)
+        envs.append(("build-only" if "--build-only" in cmd else "floor", env, empty))
+        if "--build-only" in cmd:
+            return json.dumps({"build_s": 0.2, "context_s": 0.1}) + "\n"
+        return "0.01\n"
+
+    monkeypatch.setattr(S, "in_new_process", in_new_process)
+    times = S.cold_and_warm(FakeConfig("spheres", 1), "x", time.monotonic() + 60)
+    assert "errors" not in times and "unfinished" not in times
+    assert [(kind, empty) for kind, _, empty in envs] == [
+        ("build-only", True), ("build-only", False), ("build-only", False),
+        ("build-only", False), ("floor", False), ("floor", False)]
+    caches = {name: envs[0][1][name] for name in CACHE_FOLDERS}
+    assert all(Path(folder).parent == Path(caches["XDG_CACHE_HOME"]).parent
+               for folder in caches.values())
+    assert all({name: env[name] for name in CACHE_FOLDERS} == caches for _, env, _ in envs)
+    assert not any("CUDA_CACHE_DISABLE" in env for _, env, _ in envs)
+    assert [env.get("PYOPENCL_NO_CACHE") for _, env, _ in envs] == [None, None, None, "1",
+                                                                    "1", "1"]
+
+
 def test_a_configurations_build_ends_soon_after_the_cold_and_warm_builds_time_begins(
         tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     assert S.config_build_limit(100.0, 200.0) == S.BUILD_TIMEOUT_S

@@ -64,3 +64,17 @@ def test_two_dimensional_images_count_elements() -> None:
 def test_shape_mismatch_is_an_error() -> None:
     with pytest.raises(ValueError, match="shape"):
         rmse(np.zeros((2, 2, 3)), np.zeros((2, 3, 3)))
+
+
+@pytest.mark.parametrize("shape", [(0, 4, 3), (4, 0), (2, 2, 0)])
+@pytest.mark.parametrize(
+    "compare",
+    [rmse, psnr, max_abs, lambda a, b: count_over(a, b, 0.0)],
+    ids=["rmse", "psnr", "max_abs", "count_over"],
+)
+def test_empty_images_are_an_error_in_every_comparison(shape, compare) -> None:
+    # Before: rmse NaN with RuntimeWarnings, max_abs numpy's own ValueError, count_over 0 (a
+    # match, to a caller that counts the pixels off).
+    empty = np.zeros(shape)
+    with pytest.raises(ValueError, match=rf"^images are empty: shape \({shape[0]}, "):
+        compare(empty, empty)

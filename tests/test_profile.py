@@ -3,14 +3,19 @@
 from __future__ import annotations
 
 import json
+import os
+import subprocess
 import sys
 import tempfile
 from pathlib import Path
 
+import pyopencl as cl
 import pytest
+from pyopencl.characterize import has_src_build_cache
 
 from clray import cli, profile
-from clray.device.program import KernelConfig
+from clray.device import program as program_module
+from clray.device.program import KernelConfig, build_program
 from clray.errors import DeviceError
 from clray.render import RenderSettings, render
 
@@ -128,4 +133,67 @@ def test_profile_without_a_temporary_folder_is_an_error(cl_device, capsys, monke
     assert code == 1
     assert capsys.readouterr().err.splitlines() == [
         f"clray: error: cannot make a temporary folder in {missing} for the cold build's "
-        "kernel cache: No such file or directory"]
+        "kernel caches: No such file or directory"]
+
+
+# The variables that place the kernel caches a build process may be answered from: PoCL's,
+# pyopencl's binary cache (under $XDG_CACHE_HOME/pyopencl), NVIDIA's compute cache.
+CACHE_VARIABLES = ("POCL_CACHE_DIR", "XDG_CACHE_HOME", "CUDA_CACHE_PATH")
+
+
+def test_the_cold_build_finds_every_kernel_cache_empty_and_the_warm_one_its_caches(
+        monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> None:
+    # Caches of earlier runs where the user keeps them; the cold build must not see them.
+    for name in CACHE_VARIABLES:
+        (tmp_path / name).mkdir()
+        (tmp_path / name / "built-before").write_text("")
+        monkeypatch.setenv(name, str(tmp_path / name))
+    envs: list[dict[str, str]] = []
+
+    def build_process(cmd: list[str], **kwargs: object) -> subprocess.CompletedProcess:
+        env = kwargs["env"]
+        assert isinstance(env, dict)
+        envs.append(env)
+        for name in CACHE_VARIABLES:  # what the build leaves in its caches
+            Path(env[name]).mkdir(parents=True, exist_ok=True)
+            Path(env[name], f"built-{len(envs)}").write_text("")
+        return subprocess.CompletedProcess(cmd, 0, '{"build_s": 1.0, "context_s": 0.5}\n', "")
+
+    monkeypatch.setattr(subprocess, "run", build_process)
+    assert profile.cold_and_warm_build(KernelConfig(), None) == (1.0, 1.0)
+    cold, warm = envs
+    folders = [Path(cold[name]) for name in CACHE_VARIABLES]
+    assert len(set(folders)) == len(folders)  # one cache's files in no other's folder
+    assert all(folder.parent == folders[0].parent for folder in folders)
+    assert all(str(tmp_path) not in str(folder) for folder in folders)
+    assert not folders[0].parent.exists()  # the temporary folder, removed after
+    assert all(warm[name] == cold[name] for name in CACHE_VARIABLES)
+    assert all(cold[name] == os.environ[name] for name in cold if name not in CACHE_VARIABLES)
+
+
+def test_the_cold_build_process_is_not_answered_from_pyopencls_cache(
+        cl_device: cl.Device, monkeypatch: pytest.MonkeyPatch) -> None:
+    # Where the driver keeps no cache of its own (Intel's CPU runtime), pyopencl keeps the
+    # built binary: one in the user's cache, from a render before, answered the "cold" build.
+    if has_src_build_cache(cl_device):
+        pytest.skip("pyopencl keeps no binary cache for this device: its driver caches builds")
+    config = KernelConfig(has_spheres=True, max_depth=1)
+    monkeypatch.setattr(program_module, "_programs", {})
+    build_program(cl_device, config)  # into this test's $XDG_CACHE_HOME, as a render would
+    seen: list[tuple[int, int]] = []  # binaries in the process's pyopencl cache, before, after
+    run = subprocess.run
+
+    def binaries(env: dict[str, str]) -> int:
+        return len(list((Path(env["XDG_CACHE_HOME"]) / "pyopencl").rglob("binary")))
+
+    def watched(cmd: list[str], **kwargs: object) -> subprocess.CompletedProcess:
+        env = kwargs["env"]
+        assert isinstance(env, dict)
+        before = binaries(env)
+        done = run(cmd, **kwargs)
+        seen.append((before, binaries(env)))
+        return done
+
+    monkeypatch.setattr(subprocess, "run", watched)
+    profile.cold_and_warm_build(config, None)
+    assert seen == [(0, 1), (1, 1)]  # cold: built and kept; warm: found it

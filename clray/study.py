@@ -16,7 +16,7 @@ import statistics
 import sys
 import warnings
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -107,22 +107,40 @@ def _finite_or_none(value: float) -> float | None:
 TUNING_NOTE = "default: the knob table's defaults; a device's tuning file is not used"
 
 
-def _render_timed(scene: Scene, variant: Variant, repeat: int, base: RenderSettings
-                  ) -> tuple[np.ndarray, list[float], str]:
-    """The variant's image, its renders' kernel times, and where its knobs came from."""
+def _settings(variant: Variant, base: RenderSettings) -> RenderSettings:
     # The knob table's defaults, as `clray tune` renders its reference: a device's tuning file
     # would make the reference and the default variants other builds than the report names.
-    settings = RenderSettings(width=base.width, height=base.height, device=base.device,
-                              precision=variant.precision, variants=variant.switches,
-                              stored_tuning=False)
-    first = render(scene, settings)  # warm-up: builds the kernel, first-touch costs
-    times = []
-    image = first.image
-    for _ in range(repeat):
-        result = render(scene, settings)
-        times.append(result.stats["kernel_s"])
-        image = result.image
-    return image, times, first.stats["tuning"]["source"]
+    return RenderSettings(width=base.width, height=base.height, device=base.device,
+                          precision=variant.precision, variants=variant.switches,
+                          stored_tuning=False)
+
+
+@dataclass
+class _Runs:
+    """A variant's renders so far: its latest image, its timed kernel seconds, and where its
+    knobs came from."""
+    image: np.ndarray
+    tuning: str
+    times: list[float] = field(default_factory=list)
+
+
+def _warm_up(scene: Scene, variant: Variant, base: RenderSettings) -> _Runs:
+    """The variant's first render, untimed: it builds the kernel and pays first-touch costs."""
+    result = render(scene, _settings(variant, base))
+    return _Runs(result.image, result.stats["tuning"]["source"])
+
+
+def _time_rounds(scene: Scene, variants: Sequence[Variant], repeat: int, base: RenderSettings,
+                 runs: dict[Variant, _Runs]) -> None:
+    """`repeat` rounds that render every variant once each, into `runs`: a change in the
+    machine's load then falls on every variant alike, as in benchmarks/compare.py and
+    clray.profile.time_split. Every other round runs them in reverse order, so that no variant
+    always holds the same place in a round."""
+    for round_index in range(repeat):
+        for variant in variants if round_index % 2 == 0 else reversed(variants):
+            result = render(scene, _settings(variant, base))
+            runs[variant].times.append(result.stats["kernel_s"])
+            runs[variant].image = result.image
 
 
 def compare(image: np.ndarray, reference: np.ndarray) -> dict:
@@ -141,33 +159,45 @@ def compare(image: np.ndarray, reference: np.ndarray) -> dict:
     }
 
 
+def _record(path: Path, scene: Scene, variant: Variant, runs: _Runs,
+            reference: np.ndarray) -> dict:
+    """A variant's line of results.json: its build, its times and its image against the
+    reference's."""
+    return {
+        "scene": path.stem,
+        "scene_file": str(path),
+        "variant": variant.name,
+        "precision": variant.precision,
+        "switches": {k: list(v) if isinstance(v, tuple) else v for k, v in variant.switches},
+        "width": int(runs.image.shape[1]),
+        "height": int(runs.image.shape[0]),
+        "kernel_s_median": statistics.median(runs.times),
+        "kernel_s_all": runs.times,
+        "tuning": runs.tuning,
+        "scene_warnings": list(scene.warnings),
+        **compare(runs.image, reference),
+    }
+
+
 def study_scene(path: Path, variants: Sequence[Variant], repeat: int, base: RenderSettings,
                 say: Callable[[str], None] = lambda _: None, scene: Scene | None = None
                 ) -> list[dict]:
-    """Every variant of the scene at `path` (already loaded: `scene`), timed on one device."""
+    """Every variant of the scene at `path` (already loaded: `scene`), timed on one device:
+    each variant is built and warmed up, then timed in `repeat` interleaved rounds."""
     scene = scene or load_scene(path)
-    reference, _, _ = _render_timed(scene, REFERENCE, 0, base)
+    # The reference's warm-up gives the reference image, rendered once: where the double build
+    # is among the variants too, that render is its warm-up, and its rounds add only its timed
+    # renders.
+    runs = {REFERENCE: _warm_up(scene, REFERENCE, base)}
+    reference = runs[REFERENCE].image
     height, width = reference.shape[:2]
     say(scene_line({"scene": path.stem, "width": width, "height": height}))
-    records = []
     for variant in variants:
-        image, times, tuning = _render_timed(scene, variant, repeat, base)
-        record = {
-            "scene": path.stem,
-            "scene_file": str(path),
-            "variant": variant.name,
-            "precision": variant.precision,
-            "switches": {k: list(v) if isinstance(v, tuple) else v
-                         for k, v in variant.switches},
-            "width": int(image.shape[1]),
-            "height": int(image.shape[0]),
-            "kernel_s_median": statistics.median(times),
-            "kernel_s_all": times,
-            "tuning": tuning,
-            "scene_warnings": list(scene.warnings),
-            **compare(image, reference),
-        }
-        records.append(record)
+        if variant not in runs:
+            runs[variant] = _warm_up(scene, variant, base)
+    _time_rounds(scene, variants, repeat, base, runs)
+    records = [_record(path, scene, variant, runs[variant], reference) for variant in variants]
+    for record in records:
         say(variant_line(record))
     return records
 

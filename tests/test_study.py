@@ -5,6 +5,7 @@ from __future__ import annotations
 import builtins
 import json
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pyopencl as cl
@@ -14,6 +15,7 @@ from clray import metrics, study
 from clray.cli import main
 from clray.device.tuning_files import save_tuning
 from clray.knobs import Tuning
+from clray.scene.load import load_scene
 
 SCENE = """
 [render]
@@ -281,3 +283,39 @@ def test_one_dask_worker_is_named_in_the_singular(tmp_path: Path) -> None:
     study.run_study([Path("scenes/glass.toml")], tmp_path, run_scenes=one_worker)
     device = json.loads((tmp_path / "results.json").read_text())["device"]
     assert device.startswith("1 Dask worker (a device), each scene's variants")
+
+
+def _fake_render(calls: list[str], nan_in: str | None = None) -> object:
+    """A stand-in for clray.render.render that records which variant each call renders, and
+    returns a black 24x18 image (with a NaN pixel for the precision `nan_in`)."""
+    names = {(v.precision, v.switches): v.name for v in study.VARIANTS}
+
+    def fake(scene: object, settings: object) -> object:
+        calls.append(names[settings.precision, settings.variants])
+        image = np.zeros((18, 24, 3), dtype=np.float32)
+        if settings.precision == nan_in:
+            image[2, 3] = np.nan
+        return SimpleNamespace(image=image,
+                               stats={"kernel_s": 0.01, "tuning": {"source": "default"}})
+    return fake
+
+
+@pytest.mark.parametrize("variants", [
+    (study.REFERENCE, study.DEFAULT, study.VARIANTS[2]),
+    (study.DEFAULT, study.VARIANTS[2], study.REFERENCE),
+    (study.DEFAULT, study.VARIANTS[2]),
+], ids=["reference-first", "reference-last", "no-reference"])
+def test_study_warms_every_variant_up_then_times_them_in_interleaved_rounds(
+        tmp_scene, monkeypatch: pytest.MonkeyPatch, variants: tuple) -> None:
+    calls: list[str] = []
+    monkeypatch.setattr(study, "render", _fake_render(calls))
+    path = tmp_scene(SCENE)
+    records = study.study_scene(path, variants, 3, study.RenderSettings(),
+                                scene=load_scene(path))
+    names = [v.name for v in variants]
+    # The reference renders once before any variant, as the reference image and, where it is
+    # a variant, as its warm-up; then one warm-up a variant, then three rounds, every other
+    # one reversed.
+    warm_ups = ["double", *(name for name in names if name != "double")]
+    assert calls == warm_ups + names + names[::-1] + names
+    assert [len(r["kernel_s_all"]) for r in records] == [3] * len(variants)

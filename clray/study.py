@@ -73,6 +73,12 @@ def failure_reason(record: dict) -> str | None:
     """Why the record's variant FAILs its scene, in figures; None where it passes."""
     allowed = metrics.fail_allowance(record["width"] * record["height"])
     reasons = []
+    # .get: results.json written before the study checked its reference has no such field.
+    if record.get("reference_nonfinite"):
+        reasons.append(f"the reference has {plural(record['reference_nonfinite'], 'pixel')} "
+                       "NaN or infinite: no image compares with it")
+        if record["variant"] == REFERENCE.name:
+            return reasons[0]  # its own figures are those same pixels again
     if record["nonfinite"]:
         reasons.append(f"{plural(record['nonfinite'], 'pixel')} NaN or infinite")
     if record["over_2_255"] > allowed:
@@ -83,18 +89,22 @@ def failure_reason(record: dict) -> str | None:
 
 def scene_line(record: dict) -> str:
     """The progress line before a scene's variants: what each is compared with, and FAIL."""
-    return (f"{record['scene']} at {record['width']}x{record['height']}: each variant's image "
+    line = (f"{record['scene']} at {record['width']}x{record['height']}: each variant's image "
             f"against the double build's (the reference); "
             f"{tolerance_text(record['width'], record['height'])}")
+    if record.get("reference_nonfinite"):
+        line += (f"; the reference has {plural(record['reference_nonfinite'], 'pixel')} NaN or "
+                 "infinite: every variant FAILs")
+    return line
 
 
 def variant_line(record: dict) -> str:
     """A variant's progress line: its time, its error and, where it fails, why."""
     ms = f"{record['scene']}: {record['variant']}: {record['kernel_s_median'] * 1e3:.3g} ms"
-    if record["variant"] == REFERENCE.name:
-        return f"{ms}, the reference"
-    rmse = "n/a" if record["rmse"] is None else f"{record['rmse']:.3g}"
     reason = failure_reason(record)
+    if record["variant"] == REFERENCE.name:
+        return f"{ms}, the reference" + ("" if reason is None else f", FAIL: {reason}")
+    rmse = "n/a" if record["rmse"] is None else f"{record['rmse']:.3g}"
     return f"{ms}, RMSE {rmse}, " + ("pass" if reason is None else f"FAIL: {reason}")
 
 
@@ -144,9 +154,15 @@ def _time_rounds(scene: Scene, variants: Sequence[Variant], repeat: int, base: R
 
 
 def compare(image: np.ndarray, reference: np.ndarray) -> dict:
+    """The image's errors against the reference's, and its status: FAIL where either image has
+    a non-finite pixel (a NaN in the reference leaves every error undefined, which must not
+    read as a pass) or too many pixels are off by over 2/255."""
     n_pixels = image.shape[0] * image.shape[1]
     over_2 = metrics.count_over(image, reference, 2 / 255)
     nonfinite = metrics.nonfinite_count(image)
+    reference_nonfinite = metrics.nonfinite_count(reference)
+    passes = (nonfinite == 0 and reference_nonfinite == 0
+              and over_2 <= metrics.fail_allowance(n_pixels))
     return {
         "rmse": _finite_or_none(metrics.rmse(image, reference)),
         "psnr_db": _finite_or_none(metrics.psnr(image, reference)),
@@ -154,8 +170,8 @@ def compare(image: np.ndarray, reference: np.ndarray) -> dict:
         "over_1_255": metrics.count_over(image, reference, 1 / 255),
         "over_2_255": over_2,
         "nonfinite": nonfinite,
-        "status": ("pass" if nonfinite == 0 and over_2 <= metrics.fail_allowance(n_pixels)
-                   else "FAIL"),
+        "reference_nonfinite": reference_nonfinite,
+        "status": "pass" if passes else "FAIL",
     }
 
 
@@ -191,7 +207,8 @@ def study_scene(path: Path, variants: Sequence[Variant], repeat: int, base: Rend
     runs = {REFERENCE: _warm_up(scene, REFERENCE, base)}
     reference = runs[REFERENCE].image
     height, width = reference.shape[:2]
-    say(scene_line({"scene": path.stem, "width": width, "height": height}))
+    say(scene_line({"scene": path.stem, "width": width, "height": height,
+                    "reference_nonfinite": metrics.nonfinite_count(reference)}))
     for variant in variants:
         if variant not in runs:
             runs[variant] = _warm_up(scene, variant, base)
@@ -314,10 +331,11 @@ def _fmt(value: float | None, spec: str) -> str:
 
 
 def _status(record: dict) -> str:
-    if record["variant"] == REFERENCE.name:
-        return "reference"
     reason = failure_reason(record)
-    return "pass" if reason is None else f"**FAIL**: {reason}"
+    verdict = "pass" if reason is None else f"**FAIL**: {reason}"
+    if record["variant"] == REFERENCE.name:
+        return "reference" if reason is None else f"reference, {verdict}"
+    return verdict
 
 
 def write_report(records: list[dict], out: Path, repeat: int, device: str,

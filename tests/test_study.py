@@ -319,3 +319,24 @@ def test_study_warms_every_variant_up_then_times_them_in_interleaved_rounds(
     warm_ups = ["double", *(name for name in names if name != "double")]
     assert calls == warm_ups + names + names[::-1] + names
     assert [len(r["kernel_s_all"]) for r in records] == [3] * len(variants)
+
+
+def test_a_non_finite_reference_fails_every_variant_and_says_so(
+        tmp_scene, monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> None:
+    # A NaN in the double build's image made every error n/a and no variant's pixel
+    # non-finite: each variant passed, the fault nowhere.
+    monkeypatch.setattr(study, "render", _fake_render([], nan_in="double"))
+    path = tmp_scene(SCENE)
+    said: list[str] = []
+    records = study.study_scene(path, (study.REFERENCE, study.DEFAULT), 1,
+                                study.RenderSettings(), said.append, load_scene(path))
+    default = records[1]
+    assert (default["reference_nonfinite"], default["nonfinite"], default["rmse"],
+            default["status"]) == (1, 0, None, "FAIL")
+    fault = "the reference has 1 pixel NaN or infinite: no image compares with it"
+    assert said[0].endswith("; the reference has 1 pixel NaN or infinite: every variant FAILs")
+    assert said[1].endswith(f", the reference, FAIL: {fault}")
+    assert said[2].endswith(f", RMSE n/a, FAIL: {fault}")
+    study.write_report(records, tmp_path, 1, "a device", {})
+    assert (f"| scene | reference, **FAIL**: {fault} | **FAIL**: {fault} |"
+            in (tmp_path / "report.md").read_text())

@@ -234,6 +234,16 @@ def pareto_front(points: Sequence[tuple[float, float]]) -> list[int]:
 _MARKERS = "*osD^vPX<>ph"
 
 
+def _variant_styles(records: list[dict]) -> list[int]:
+    """Each record's place in VARIANTS, which picks its marker and colour: the same in a plot of
+    any subset of the variants. Variants not in VARIANTS follow them, in the records' order."""
+    places = {variant.name: i for i, variant in enumerate(VARIANTS)}
+    others = [name for name in dict.fromkeys(r["variant"] for r in records)
+              if name not in places]
+    places.update({name: len(VARIANTS) + i for i, name in enumerate(others)})
+    return [places[r["variant"]] for r in records]
+
+
 def _legend_label(record: dict, ms: float) -> str:
     rmse = record["rmse"]
     error = "non-finite pixels" if rmse is None else f"RMSE {rmse:.2g}"
@@ -263,9 +273,11 @@ def plot_figure(records: list[dict]) -> matplotlib.figure.Figure:
     ax = fig.add_subplot(grid[0])
     exact = fig.add_subplot(grid[1], sharex=ax)
     handles = []
-    for i, (record, x, y) in enumerate(zip(records, times, errors, strict=True)):
+    places = _variant_styles(records)
+    for i, record, x, y in zip(places, records, times, errors, strict=True):
         style = {"marker": _MARKERS[i % len(_MARKERS)], "color": f"C{i % 10}",
-                 "markersize": 11 if i == 0 else 8, "linestyle": "none",
+                 "markersize": 11 if record["variant"] == REFERENCE.name else 8,
+                 "linestyle": "none",
                  "markerfacecolor": "none" if record["status"] == "FAIL" else f"C{i % 10}"}
         if record["variant"] == REFERENCE.name:
             style["color"] = style["markerfacecolor"] = "black"

@@ -340,3 +340,23 @@ def test_a_non_finite_reference_fails_every_variant_and_says_so(
     study.write_report(records, tmp_path, 1, "a device", {})
     assert (f"| scene | reference, **FAIL**: {fault} | **FAIL**: {fault} |"
             in (tmp_path / "report.md").read_text())
+
+
+def test_a_variant_has_its_marker_and_colour_in_a_plot_of_any_subset() -> None:
+    pytest.importorskip("matplotlib")
+    import matplotlib.pyplot as plt
+
+    def styles(names: list[str]) -> dict[str, tuple[str, str]]:
+        fig = study.plot_figure([_record(name, 10.0 + i, 1e-3) for i, name in enumerate(names)])
+        try:
+            return {t.get_text().split(":")[0]: (h.get_marker(), h.get_color())
+                    for t, h in zip(fig.legends[0].get_texts(), fig.legends[0].legend_handles,
+                                    strict=True)}
+        finally:
+            plt.close(fig)
+
+    every = styles([v.name for v in study.VARIANTS])
+    some = styles(["Schlick Fresnel", "float (default)", "not a variant"])
+    assert some["Schlick Fresnel"] == every["Schlick Fresnel"]
+    assert some["float (default)"] == every["float (default)"]
+    assert some["not a variant"] not in every.values()

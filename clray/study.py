@@ -350,8 +350,94 @@ def _status(record: dict) -> str:
     return verdict
 
 
+def _shipped(record: dict) -> bool:
+    """A scene file under scenes/, as `clray study scenes/*.toml docs/study/scenes/*.json`
+    names the shipped scenes."""
+    return Path(record["scene_file"]).parts[:1] == ("scenes",)
+
+
+def timed_scenes(records: list[dict]) -> list[str]:
+    """The scenes whose times summary() averages: the shipped ones, as README.md and
+    docs/accuracy.md give the times; every scene where none is shipped."""
+    shipped = [r["scene"] for r in records if _shipped(r)]
+    return list(dict.fromkeys(shipped or [r["scene"] for r in records]))
+
+
+def summary(records: list[dict]) -> list[dict]:
+    """One row a variant, as the summary tables of README.md and docs/accuracy.md give them:
+    `time`, its kernel time relative to the float default's (geometric mean over
+    timed_scenes; None without the default), and `fails`, {scene: (pixels off by over 2/255,
+    non-finite pixels)} of the scenes it FAILs."""
+    by_key = {(r["scene"], r["variant"]): r for r in records}
+    timed = timed_scenes(records)
+    rows = []
+    for variant in dict.fromkeys(r["variant"] for r in records):
+        pairs = [(by_key[scene, variant], by_key[scene, DEFAULT.name]) for scene in timed
+                 if (scene, variant) in by_key and (scene, DEFAULT.name) in by_key]
+        logs = [math.log(r["kernel_s_median"] / default["kernel_s_median"])
+                for r, default in pairs]
+        fails = {r["scene"]: (r["over_2_255"], r["nonfinite"]) for r in records
+                 if r["variant"] == variant and r["status"] == "FAIL"}
+        rows.append({"variant": variant,
+                     "time": math.exp(statistics.fmean(logs)) if logs else None,
+                     "fails": fails})
+    return rows
+
+
+def _summary_lines(records: list[dict]) -> list[str]:
+    """report.md's summary: summary()'s table, the figures README.md and docs/accuracy.md
+    give."""
+    timed = len(timed_scenes(records))
+    over = (f"the {plural(timed, 'shipped scene')} (`scenes/`)" if any(map(_shipped, records))
+            else f"the {plural(timed, 'scene')}")
+    lines = ["## Summary", "",
+             f"Kernel time relative to the float default, the geometric mean over {over}, and "
+             "the scenes each variant FAILs, with its pixels off by more than 2/255 in brackets "
+             "(README.md and docs/accuracy.md give this table):", "",
+             "| variant | time | fails |", "|---|---|---|"]
+    for row in summary(records):
+        name = row["variant"] + (" (the reference)" if row["variant"] == REFERENCE.name else "")
+        fails = ", ".join(f"{scene} ({over_2}" + (f", {nonfinite} non-finite)" if nonfinite
+                                                   else ")")
+                          for scene, (over_2, nonfinite) in row["fails"].items())
+        lines.append(f"| {name} | {_fmt(row['time'], '.2f')} | {fails or '-'} |")
+    return lines
+
+
+def _scene_lines(rows: list[dict], plotted: bool) -> list[str]:
+    """report.md's section of one scene: its file, size and tolerance, and a row a variant."""
+    first = rows[0]
+    scene = first["scene"]
+    lines = ["", f"## {scene}", "",
+             f"`{first['scene_file']}` at {first['width']}x{first['height']}"
+             + (f", on worker {first['worker']} ({first['device']})."
+                if "worker" in first else ".")
+             + f" {tolerance_text(first['width'], first['height'])}."]
+    default = next((r for r in rows if r["variant"] == DEFAULT.name), None)
+    if default is not None and default["status"] == "FAIL":
+        lines.append("The float default fails here too: float rounding alone moves more "
+                     "pixels than that in this scene, so read the other variants against "
+                     "the default's row.")
+    for warning in first["scene_warnings"]:
+        lines.append(f"Loader warning: {warning}")
+    lines += ["", "| variant | kernel ms | RMSE | PSNR dB | max abs | px > 1/255 | "
+                  "px > 2/255 | non-finite | status |",
+              "|---|---|---|---|---|---|---|---|---|"]
+    for r in rows:
+        lines.append(
+            f"| {r['variant']} | {r['kernel_s_median'] * 1e3:.3g} | {_fmt(r['rmse'], '.2e')} "
+            f"| {_fmt(r['psnr_db'], '.1f') if r['rmse'] != 0 else 'inf'} "
+            f"| {_fmt(r['max_abs'], '.3g')} | {r['over_1_255']} | {r['over_2_255']} "
+            f"| {r['nonfinite']} | {_status(r)} |")
+    if plotted:
+        lines += ["", f"![time vs error, {scene}]({scene}.png)"]
+    return lines
+
+
 def write_report(records: list[dict], out: Path, repeat: int, device: str,
                  plots: dict[str, bool]) -> None:
+    """report.md in `out`: what is compared, the summary, pass/fail side by side, and a
+    section a scene."""
     scenes = list(dict.fromkeys(r["scene"] for r in records))
     variants = list(dict.fromkeys(r["variant"] for r in records))
     by_key = {(r["scene"], r["variant"]): r for r in records}
@@ -375,6 +461,10 @@ def write_report(records: list[dict], out: Path, repeat: int, device: str,
         "worse than the float default's: where the default fails too, float rounding alone "
         "moves that many pixels.",
         "",
+    ]
+    if records:
+        lines += [*_summary_lines(records), ""]
+    lines += [
         "## Pass/fail, all scenes side by side",
         "",
         "| scene | " + " | ".join(variants) + " |",
@@ -384,31 +474,8 @@ def write_report(records: list[dict], out: Path, repeat: int, device: str,
         cells = [_status(by_key[scene, v]) if (scene, v) in by_key else "" for v in variants]
         lines.append(f"| {scene} | " + " | ".join(cells) + " |")
     for scene in scenes:
-        rows = [r for r in records if r["scene"] == scene]
-        first = rows[0]
-        lines += ["", f"## {scene}", "",
-                  f"`{first['scene_file']}` at {first['width']}x{first['height']}"
-                  + (f", on worker {first['worker']} ({first['device']})."
-                     if "worker" in first else ".")
-                  + f" {tolerance_text(first['width'], first['height'])}."]
-        default = next((r for r in rows if r["variant"] == DEFAULT.name), None)
-        if default is not None and default["status"] == "FAIL":
-            lines.append("The float default fails here too: float rounding alone moves more "
-                         "pixels than that in this scene, so read the other variants against "
-                         "the default's row.")
-        for warning in first["scene_warnings"]:
-            lines.append(f"Loader warning: {warning}")
-        lines += ["", "| variant | kernel ms | RMSE | PSNR dB | max abs | px > 1/255 | "
-                      "px > 2/255 | non-finite | status |",
-                  "|---|---|---|---|---|---|---|---|---|"]
-        for r in rows:
-            lines.append(
-                f"| {r['variant']} | {r['kernel_s_median'] * 1e3:.3g} | {_fmt(r['rmse'], '.2e')} "
-                f"| {_fmt(r['psnr_db'], '.1f') if r['rmse'] != 0 else 'inf'} "
-                f"| {_fmt(r['max_abs'], '.3g')} | {r['over_1_255']} | {r['over_2_255']} "
-                f"| {r['nonfinite']} | {_status(r)} |")
-        if plots.get(scene):
-            lines += ["", f"![time vs error, {scene}]({scene}.png)"]
+        lines += _scene_lines([r for r in records if r["scene"] == scene],
+                              bool(plots.get(scene)))
     if not any(plots.values()):
         lines += ["", "Plots skipped: matplotlib is not installed (`pip install 'clray[plot]'`)."]
     write_output(out / "report.md", ("\n".join(lines) + "\n").encode("utf-8"))

@@ -360,3 +360,26 @@ def test_a_variant_has_its_marker_and_colour_in_a_plot_of_any_subset() -> None:
     assert some["Schlick Fresnel"] == every["Schlick Fresnel"]
     assert some["float (default)"] == every["float (default)"]
     assert some["not a variant"] not in every.values()
+
+
+def test_summary_averages_the_shipped_scenes_times_and_lists_each_variants_failures(
+        tmp_path: Path) -> None:
+    def at(scene: str, file: str, variant: str, ms: float, over: int = 0) -> dict:
+        return _full(variant, 0.001, over, scene=scene, scene_file=file,
+                     kernel_s_median=ms / 1e3)
+
+    shipped = [at(s, f"scenes/{s}.toml", v, ms, over) for s, v, ms, over in (
+        ("a", "float (default)", 10, 0), ("a", "x", 20, 13),
+        ("b", "float (default)", 10, 0), ("b", "x", 5, 0))]
+    hard = [at("h", "docs/study/scenes/h.json", "float (default)", 1, 0),
+            at("h", "docs/study/scenes/h.json", "x", 100, 0)]
+    # x takes twice the default's time on a, half on b: 1.00 over the shipped scenes; the hard
+    # case h (x100) is not averaged while there are shipped scenes.
+    rows = study.summary(shipped + hard)
+    assert [(row["variant"], row["time"], row["fails"]) for row in rows] == [
+        ("float (default)", 1.0, {}), ("x", pytest.approx(1.0), {"a": (13, 0)})]
+    assert study.summary(hard)[1]["time"] == pytest.approx(100)
+    study.write_report(shipped + hard, tmp_path, 1, "a device", {})
+    report = (tmp_path / "report.md").read_text()
+    assert "the geometric mean over the 2 shipped scenes (`scenes/`)" in report
+    assert "| float (default) | 1.00 | - |\n| x | 1.00 | a (13) |\n" in report

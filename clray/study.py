@@ -31,6 +31,7 @@ from clray.scene.load import load_scene
 from clray.scene.model import Scene
 
 if TYPE_CHECKING:
+    import matplotlib.axes
     import matplotlib.figure
 
 
@@ -254,10 +255,24 @@ def _legend_label(record: dict, ms: float) -> str:
     return f"{record['variant']}: {time} ms, {error}{fail}"
 
 
+def _log_time_axis(axis: matplotlib.axes.Axes, times: list[float]) -> None:
+    """Kernel times on a log axis (shared by the axes above), where a ratio of times is one
+    distance at any speed. Where the times span under a decade, which one scene's variants do
+    on one device, the log axis's own ticks (at 1, 10, 100, with unlabelled ones between) would
+    leave one label or none: round numbers of milliseconds instead."""
+    from matplotlib.ticker import FuncFormatter, MaxNLocator, NullLocator
+
+    axis.set_xscale("log")
+    if max(times) < 10 * min(times):
+        axis.xaxis.set_major_locator(MaxNLocator(nbins=6, steps=[1, 2, 2.5, 5, 10]))
+        axis.xaxis.set_major_formatter(FuncFormatter(lambda value, _: f"{value:g}"))
+        axis.xaxis.set_minor_locator(NullLocator())
+
+
 def plot_figure(records: list[dict]) -> matplotlib.figure.Figure:
-    """Kernel time against RMSE for one scene's records. Errors are on a log axis, with a strip
-    below it for the variants that match the reference exactly (RMSE 0, the reference itself
-    among them, drawn as a vertical line too) and non-finite errors drawn on the top edge. Each
+    """Kernel time against RMSE for one scene's records, both on log axes, with a strip below
+    for the variants that match the reference exactly (RMSE 0, the reference itself among them,
+    drawn as a vertical line too) and non-finite errors drawn on the top edge. Each
     variant has its own marker, named with its figures in the legend beside the plot instead of
     labels that would collide; FAILs are hollow and the Pareto front is ringed and dashed."""
     import matplotlib.pyplot as plt
@@ -317,7 +332,8 @@ def plot_figure(records: list[dict]) -> matplotlib.figure.Figure:
     ax.grid(True, which="major", alpha=0.3)
     exact.set_ylim(-1, 1)
     exact.set_yticks([0], ["0 (exact)"])
-    exact.set_xlabel("kernel time, ms (median)")
+    _log_time_axis(exact, times)
+    exact.set_xlabel("kernel time, ms (median; log scale)")
     exact.grid(True, axis="x", alpha=0.3)
     ax.set_title(f"{records[0]['scene']} ({records[0]['width']}x{records[0]['height']}): "
                  "kernel time against error", fontsize=10)
@@ -481,7 +497,7 @@ def write_report(records: list[dict], out: Path, repeat: int, device: str,
     write_output(out / "report.md", ("\n".join(lines) + "\n").encode("utf-8"))
 
 
-def run_study(paths: Sequence[Path], out: Path, *, repeat: int = 3,
+def run_study(paths: Sequence[Path], out: Path, *, repeat: int = 5,
               width: int | None = None, height: int | None = None, device: str | None = None,
               variants: Sequence[Variant] = VARIANTS,
               say: Callable[[str], None] = lambda _: None,

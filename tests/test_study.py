@@ -383,3 +383,36 @@ def test_summary_averages_the_shipped_scenes_times_and_lists_each_variants_failu
     report = (tmp_path / "report.md").read_text()
     assert "the geometric mean over the 2 shipped scenes (`scenes/`)" in report
     assert "| float (default) | 1.00 | - |\n| x | 1.00 | a (13) |\n" in report
+
+
+@pytest.mark.parametrize(("ms", "labels"), [
+    ((9.0, 10.0, 12.0), ["9", "10", "11", "12"]),  # one scene's variants: round milliseconds
+    ((3.0, 10.0, 300.0), ["$\\mathdefault{10^{1}}$", "$\\mathdefault{10^{2}}$"]),  # decades
+], ids=["under-a-decade", "decades"])
+def test_plot_times_are_on_a_log_axis(ms: tuple[float, ...], labels: list[str]) -> None:
+    pytest.importorskip("matplotlib")
+    import matplotlib.pyplot as plt
+
+    fig = study.plot_figure([_record(name, t, 1e-3) for name, t in zip("abc", ms, strict=True)])
+    try:
+        errors, exact = fig.axes
+        fig.canvas.draw()
+        low, high = exact.get_xlim()
+        shown = [t.get_text() for t in exact.get_xticklabels()
+                 if low <= t.get_position()[0] <= high]
+        assert (errors.get_xscale(), exact.get_xscale()) == ("log", "log")
+        assert [label for label in shown if label] == labels
+    finally:
+        plt.close(fig)
+
+
+def test_study_times_a_median_of_five_runs_by_default(tmp_scene) -> None:
+    # docs/cli.md gives the default; five, as a median of fewer moves too much between runs
+    # on a loaded machine.
+    from clray.cli import _build_parser
+
+    args = _build_parser().parse_args(["study", str(tmp_scene(SCENE)), "--out", "o"])
+    assert args.repeat == study.run_study.__kwdefaults__["repeat"] == 5
+    row = next(line for line in (Path(__file__).parent.parent / "docs/cli.md").read_text()
+               .splitlines() if line.startswith("| `--repeat N` | Timed runs per variant"))
+    assert row.endswith(" Default 5. |")

@@ -278,9 +278,9 @@ def _study_command(commands: Any) -> None:
     st.add_argument("scenes", type=_scene_path, nargs="+", metavar="SCENE",
                     help="scene files (.toml or .json)")
     st.add_argument("--out", type=Path, required=True, metavar="DIR", help="output folder")
-    st.add_argument("--repeat", type=_int_in(1, MAX_REPEAT), default=3, metavar="N",
-                    help="timed runs per variant after a warm-up; the median is reported "
-                         "(default: 3)")
+    st.add_argument("--repeat", type=_int_in(1, MAX_REPEAT), default=5, metavar="N",
+                    help="timed runs per variant after a warm-up, in interleaved rounds; the "
+                         "median is reported (default: 5)")
     st.add_argument("-W", "--width", type=_image_size, metavar="N",
                     help="image width for every scene (default: each scene's own)")
     st.add_argument("-H", "--height", type=_image_size, metavar="N",

@@ -375,7 +375,7 @@ def study_scenes(client: Client, paths: Iterable[Path], variants: Iterable, repe
                  base: RenderSettings, say: Callable[[str], None] = lambda _: None
                  ) -> list[dict]:
     """clray study's renders on the cluster, one task a scene: all the variants of a scene run
-    on one worker, one after another, so that their times compare (times from different
+    on one worker, in interleaved rounds, so that their times compare (times from different
     workers do not). The scenes are loaded here and sent with their tasks; the records come
     back in the order of `paths`, each naming its worker and device."""
     paths = list(paths)

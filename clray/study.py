@@ -16,7 +16,7 @@ import statistics
 import sys
 import warnings
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -31,6 +31,7 @@ from clray.scene.load import load_scene
 from clray.scene.model import Scene
 
 if TYPE_CHECKING:
+    import matplotlib.axes
     import matplotlib.figure
 
 
@@ -73,6 +74,12 @@ def failure_reason(record: dict) -> str | None:
     """Why the record's variant FAILs its scene, in figures; None where it passes."""
     allowed = metrics.fail_allowance(record["width"] * record["height"])
     reasons = []
+    # .get: results.json written before the study checked its reference has no such field.
+    if record.get("reference_nonfinite"):
+        reasons.append(f"the reference has {plural(record['reference_nonfinite'], 'pixel')} "
+                       "NaN or infinite: no image compares with it")
+        if record["variant"] == REFERENCE.name:
+            return reasons[0]  # its own figures are those same pixels again
     if record["nonfinite"]:
         reasons.append(f"{plural(record['nonfinite'], 'pixel')} NaN or infinite")
     if record["over_2_255"] > allowed:
@@ -83,18 +90,22 @@ def failure_reason(record: dict) -> str | None:
 
 def scene_line(record: dict) -> str:
     """The progress line before a scene's variants: what each is compared with, and FAIL."""
-    return (f"{record['scene']} at {record['width']}x{record['height']}: each variant's image "
+    line = (f"{record['scene']} at {record['width']}x{record['height']}: each variant's image "
             f"against the double build's (the reference); "
             f"{tolerance_text(record['width'], record['height'])}")
+    if record.get("reference_nonfinite"):
+        line += (f"; the reference has {plural(record['reference_nonfinite'], 'pixel')} NaN or "
+                 "infinite: every variant FAILs")
+    return line
 
 
 def variant_line(record: dict) -> str:
     """A variant's progress line: its time, its error and, where it fails, why."""
     ms = f"{record['scene']}: {record['variant']}: {record['kernel_s_median'] * 1e3:.3g} ms"
-    if record["variant"] == REFERENCE.name:
-        return f"{ms}, the reference"
-    rmse = "n/a" if record["rmse"] is None else f"{record['rmse']:.3g}"
     reason = failure_reason(record)
+    if record["variant"] == REFERENCE.name:
+        return f"{ms}, the reference" + ("" if reason is None else f", FAIL: {reason}")
+    rmse = "n/a" if record["rmse"] is None else f"{record['rmse']:.3g}"
     return f"{ms}, RMSE {rmse}, " + ("pass" if reason is None else f"FAIL: {reason}")
 
 
@@ -107,28 +118,52 @@ def _finite_or_none(value: float) -> float | None:
 TUNING_NOTE = "default: the knob table's defaults; a device's tuning file is not used"
 
 
-def _render_timed(scene: Scene, variant: Variant, repeat: int, base: RenderSettings
-                  ) -> tuple[np.ndarray, list[float], str]:
-    """The variant's image, its renders' kernel times, and where its knobs came from."""
+def _settings(variant: Variant, base: RenderSettings) -> RenderSettings:
     # The knob table's defaults, as `clray tune` renders its reference: a device's tuning file
     # would make the reference and the default variants other builds than the report names.
-    settings = RenderSettings(width=base.width, height=base.height, device=base.device,
-                              precision=variant.precision, variants=variant.switches,
-                              stored_tuning=False)
-    first = render(scene, settings)  # warm-up: builds the kernel, first-touch costs
-    times = []
-    image = first.image
-    for _ in range(repeat):
-        result = render(scene, settings)
-        times.append(result.stats["kernel_s"])
-        image = result.image
-    return image, times, first.stats["tuning"]["source"]
+    return RenderSettings(width=base.width, height=base.height, device=base.device,
+                          precision=variant.precision, variants=variant.switches,
+                          stored_tuning=False)
+
+
+@dataclass
+class _Runs:
+    """A variant's renders so far: its latest image, its timed kernel seconds, and where its
+    knobs came from."""
+    image: np.ndarray
+    tuning: str
+    times: list[float] = field(default_factory=list)
+
+
+def _warm_up(scene: Scene, variant: Variant, base: RenderSettings) -> _Runs:
+    """The variant's first render, untimed: it builds the kernel and pays first-touch costs."""
+    result = render(scene, _settings(variant, base))
+    return _Runs(result.image, result.stats["tuning"]["source"])
+
+
+def _time_rounds(scene: Scene, variants: Sequence[Variant], repeat: int, base: RenderSettings,
+                 runs: dict[Variant, _Runs]) -> None:
+    """`repeat` rounds that render every variant once each, into `runs`: a change in the
+    machine's load then falls on every variant alike, as in benchmarks/compare.py and
+    clray.profile.time_split. Every other round runs them in reverse order, so that no variant
+    always holds the same place in a round."""
+    for round_index in range(repeat):
+        for variant in variants if round_index % 2 == 0 else reversed(variants):
+            result = render(scene, _settings(variant, base))
+            runs[variant].times.append(result.stats["kernel_s"])
+            runs[variant].image = result.image
 
 
 def compare(image: np.ndarray, reference: np.ndarray) -> dict:
+    """The image's errors against the reference's, and its status: FAIL where either image has
+    a non-finite pixel (a NaN in the reference leaves every error undefined, which must not
+    read as a pass) or too many pixels are off by over 2/255."""
     n_pixels = image.shape[0] * image.shape[1]
     over_2 = metrics.count_over(image, reference, 2 / 255)
     nonfinite = metrics.nonfinite_count(image)
+    reference_nonfinite = metrics.nonfinite_count(reference)
+    passes = (nonfinite == 0 and reference_nonfinite == 0
+              and over_2 <= metrics.fail_allowance(n_pixels))
     return {
         "rmse": _finite_or_none(metrics.rmse(image, reference)),
         "psnr_db": _finite_or_none(metrics.psnr(image, reference)),
@@ -136,38 +171,51 @@ def compare(image: np.ndarray, reference: np.ndarray) -> dict:
         "over_1_255": metrics.count_over(image, reference, 1 / 255),
         "over_2_255": over_2,
         "nonfinite": nonfinite,
-        "status": ("pass" if nonfinite == 0 and over_2 <= metrics.fail_allowance(n_pixels)
-                   else "FAIL"),
+        "reference_nonfinite": reference_nonfinite,
+        "status": "pass" if passes else "FAIL",
+    }
+
+
+def _record(path: Path, scene: Scene, variant: Variant, runs: _Runs,
+            reference: np.ndarray) -> dict:
+    """A variant's line of results.json: its build, its times and its image against the
+    reference's."""
+    return {
+        "scene": path.stem,
+        "scene_file": str(path),
+        "variant": variant.name,
+        "precision": variant.precision,
+        "switches": {k: list(v) if isinstance(v, tuple) else v for k, v in variant.switches},
+        "width": int(runs.image.shape[1]),
+        "height": int(runs.image.shape[0]),
+        "kernel_s_median": statistics.median(runs.times),
+        "kernel_s_all": runs.times,
+        "tuning": runs.tuning,
+        "scene_warnings": list(scene.warnings),
+        **compare(runs.image, reference),
     }
 
 
 def study_scene(path: Path, variants: Sequence[Variant], repeat: int, base: RenderSettings,
                 say: Callable[[str], None] = lambda _: None, scene: Scene | None = None
                 ) -> list[dict]:
-    """Every variant of the scene at `path` (already loaded: `scene`), timed on one device."""
+    """Every variant of the scene at `path` (already loaded: `scene`), timed on one device:
+    each variant is built and warmed up, then timed in `repeat` interleaved rounds."""
     scene = scene or load_scene(path)
-    reference, _, _ = _render_timed(scene, REFERENCE, 0, base)
+    # The reference's warm-up gives the reference image, rendered once: where the double build
+    # is among the variants too, that render is its warm-up, and its rounds add only its timed
+    # renders.
+    runs = {REFERENCE: _warm_up(scene, REFERENCE, base)}
+    reference = runs[REFERENCE].image
     height, width = reference.shape[:2]
-    say(scene_line({"scene": path.stem, "width": width, "height": height}))
-    records = []
+    say(scene_line({"scene": path.stem, "width": width, "height": height,
+                    "reference_nonfinite": metrics.nonfinite_count(reference)}))
     for variant in variants:
-        image, times, tuning = _render_timed(scene, variant, repeat, base)
-        record = {
-            "scene": path.stem,
-            "scene_file": str(path),
-            "variant": variant.name,
-            "precision": variant.precision,
-            "switches": {k: list(v) if isinstance(v, tuple) else v
-                         for k, v in variant.switches},
-            "width": int(image.shape[1]),
-            "height": int(image.shape[0]),
-            "kernel_s_median": statistics.median(times),
-            "kernel_s_all": times,
-            "tuning": tuning,
-            "scene_warnings": list(scene.warnings),
-            **compare(image, reference),
-        }
-        records.append(record)
+        if variant not in runs:
+            runs[variant] = _warm_up(scene, variant, base)
+    _time_rounds(scene, variants, repeat, base, runs)
+    records = [_record(path, scene, variant, runs[variant], reference) for variant in variants]
+    for record in records:
         say(variant_line(record))
     return records
 
@@ -187,6 +235,16 @@ def pareto_front(points: Sequence[tuple[float, float]]) -> list[int]:
 _MARKERS = "*osD^vPX<>ph"
 
 
+def _variant_styles(records: list[dict]) -> list[int]:
+    """Each record's place in VARIANTS, which picks its marker and colour: the same in a plot of
+    any subset of the variants. Variants not in VARIANTS follow them, in the records' order."""
+    places = {variant.name: i for i, variant in enumerate(VARIANTS)}
+    others = [name for name in dict.fromkeys(r["variant"] for r in records)
+              if name not in places]
+    places.update({name: len(VARIANTS) + i for i, name in enumerate(others)})
+    return [places[r["variant"]] for r in records]
+
+
 def _legend_label(record: dict, ms: float) -> str:
     rmse = record["rmse"]
     error = "non-finite pixels" if rmse is None else f"RMSE {rmse:.2g}"
@@ -197,10 +255,24 @@ def _legend_label(record: dict, ms: float) -> str:
     return f"{record['variant']}: {time} ms, {error}{fail}"
 
 
+def _log_time_axis(axis: matplotlib.axes.Axes, times: list[float]) -> None:
+    """Kernel times on a log axis (shared by the axes above), where a ratio of times is one
+    distance at any speed. Where the times span under a decade, which one scene's variants do
+    on one device, the log axis's own ticks (at 1, 10, 100, with unlabelled ones between) would
+    leave one label or none: round numbers of milliseconds instead."""
+    from matplotlib.ticker import FuncFormatter, MaxNLocator, NullLocator
+
+    axis.set_xscale("log")
+    if max(times) < 10 * min(times):
+        axis.xaxis.set_major_locator(MaxNLocator(nbins=6, steps=[1, 2, 2.5, 5, 10]))
+        axis.xaxis.set_major_formatter(FuncFormatter(lambda value, _: f"{value:g}"))
+        axis.xaxis.set_minor_locator(NullLocator())
+
+
 def plot_figure(records: list[dict]) -> matplotlib.figure.Figure:
-    """Kernel time against RMSE for one scene's records. Errors are on a log axis, with a strip
-    below it for the variants that match the reference exactly (RMSE 0, the reference itself
-    among them, drawn as a vertical line too) and non-finite errors drawn on the top edge. Each
+    """Kernel time against RMSE for one scene's records, both on log axes, with a strip below
+    for the variants that match the reference exactly (RMSE 0, the reference itself among them,
+    drawn as a vertical line too) and non-finite errors drawn on the top edge. Each
     variant has its own marker, named with its figures in the legend beside the plot instead of
     labels that would collide; FAILs are hollow and the Pareto front is ringed and dashed."""
     import matplotlib.pyplot as plt
@@ -216,9 +288,11 @@ def plot_figure(records: list[dict]) -> matplotlib.figure.Figure:
     ax = fig.add_subplot(grid[0])
     exact = fig.add_subplot(grid[1], sharex=ax)
     handles = []
-    for i, (record, x, y) in enumerate(zip(records, times, errors, strict=True)):
+    places = _variant_styles(records)
+    for i, record, x, y in zip(places, records, times, errors, strict=True):
         style = {"marker": _MARKERS[i % len(_MARKERS)], "color": f"C{i % 10}",
-                 "markersize": 11 if i == 0 else 8, "linestyle": "none",
+                 "markersize": 11 if record["variant"] == REFERENCE.name else 8,
+                 "linestyle": "none",
                  "markerfacecolor": "none" if record["status"] == "FAIL" else f"C{i % 10}"}
         if record["variant"] == REFERENCE.name:
             style["color"] = style["markerfacecolor"] = "black"
@@ -258,7 +332,8 @@ def plot_figure(records: list[dict]) -> matplotlib.figure.Figure:
     ax.grid(True, which="major", alpha=0.3)
     exact.set_ylim(-1, 1)
     exact.set_yticks([0], ["0 (exact)"])
-    exact.set_xlabel("kernel time, ms (median)")
+    _log_time_axis(exact, times)
+    exact.set_xlabel("kernel time, ms (median; log scale)")
     exact.grid(True, axis="x", alpha=0.3)
     ax.set_title(f"{records[0]['scene']} ({records[0]['width']}x{records[0]['height']}): "
                  "kernel time against error", fontsize=10)
@@ -284,14 +359,101 @@ def _fmt(value: float | None, spec: str) -> str:
 
 
 def _status(record: dict) -> str:
-    if record["variant"] == REFERENCE.name:
-        return "reference"
     reason = failure_reason(record)
-    return "pass" if reason is None else f"**FAIL**: {reason}"
+    verdict = "pass" if reason is None else f"**FAIL**: {reason}"
+    if record["variant"] == REFERENCE.name:
+        return "reference" if reason is None else f"reference, {verdict}"
+    return verdict
+
+
+def _shipped(record: dict) -> bool:
+    """A scene file under scenes/, as `clray study scenes/*.toml docs/study/scenes/*.json`
+    names the shipped scenes."""
+    return Path(record["scene_file"]).parts[:1] == ("scenes",)
+
+
+def timed_scenes(records: list[dict]) -> list[str]:
+    """The scenes whose times summary() averages: the shipped ones, as README.md and
+    docs/accuracy.md give the times; every scene where none is shipped."""
+    shipped = [r["scene"] for r in records if _shipped(r)]
+    return list(dict.fromkeys(shipped or [r["scene"] for r in records]))
+
+
+def summary(records: list[dict]) -> list[dict]:
+    """One row a variant, as the summary tables of README.md and docs/accuracy.md give them:
+    `time`, its kernel time relative to the float default's (geometric mean over
+    timed_scenes; None without the default), and `fails`, {scene: (pixels off by over 2/255,
+    non-finite pixels)} of the scenes it FAILs."""
+    by_key = {(r["scene"], r["variant"]): r for r in records}
+    timed = timed_scenes(records)
+    rows = []
+    for variant in dict.fromkeys(r["variant"] for r in records):
+        pairs = [(by_key[scene, variant], by_key[scene, DEFAULT.name]) for scene in timed
+                 if (scene, variant) in by_key and (scene, DEFAULT.name) in by_key]
+        logs = [math.log(r["kernel_s_median"] / default["kernel_s_median"])
+                for r, default in pairs]
+        fails = {r["scene"]: (r["over_2_255"], r["nonfinite"]) for r in records
+                 if r["variant"] == variant and r["status"] == "FAIL"}
+        rows.append({"variant": variant,
+                     "time": math.exp(statistics.fmean(logs)) if logs else None,
+                     "fails": fails})
+    return rows
+
+
+def _summary_lines(records: list[dict]) -> list[str]:
+    """report.md's summary: summary()'s table, the figures README.md and docs/accuracy.md
+    give."""
+    timed = len(timed_scenes(records))
+    over = (f"the {plural(timed, 'shipped scene')} (`scenes/`)" if any(map(_shipped, records))
+            else f"the {plural(timed, 'scene')}")
+    lines = ["## Summary", "",
+             f"Kernel time relative to the float default, the geometric mean over {over}, and "
+             "the scenes each variant FAILs, with its pixels off by more than 2/255 in brackets "
+             "(README.md and docs/accuracy.md give this table):", "",
+             "| variant | time | fails |", "|---|---|---|"]
+    for row in summary(records):
+        name = row["variant"] + (" (the reference)" if row["variant"] == REFERENCE.name else "")
+        fails = ", ".join(f"{scene} ({over_2}" + (f", {nonfinite} non-finite)" if nonfinite
+                                                   else ")")
+                          for scene, (over_2, nonfinite) in row["fails"].items())
+        lines.append(f"| {name} | {_fmt(row['time'], '.2f')} | {fails or '-'} |")
+    return lines
+
+
+def _scene_lines(rows: list[dict], plotted: bool) -> list[str]:
+    """report.md's section of one scene: its file, size and tolerance, and a row a variant."""
+    first = rows[0]
+    scene = first["scene"]
+    lines = ["", f"## {scene}", "",
+             f"`{first['scene_file']}` at {first['width']}x{first['height']}"
+             + (f", on worker {first['worker']} ({first['device']})."
+                if "worker" in first else ".")
+             + f" {tolerance_text(first['width'], first['height'])}."]
+    default = next((r for r in rows if r["variant"] == DEFAULT.name), None)
+    if default is not None and default["status"] == "FAIL":
+        lines.append("The float default fails here too: float rounding alone moves more "
+                     "pixels than that in this scene, so read the other variants against "
+                     "the default's row.")
+    for warning in first["scene_warnings"]:
+        lines.append(f"Loader warning: {warning}")
+    lines += ["", "| variant | kernel ms | RMSE | PSNR dB | max abs | px > 1/255 | "
+                  "px > 2/255 | non-finite | status |",
+              "|---|---|---|---|---|---|---|---|---|"]
+    for r in rows:
+        lines.append(
+            f"| {r['variant']} | {r['kernel_s_median'] * 1e3:.3g} | {_fmt(r['rmse'], '.2e')} "
+            f"| {_fmt(r['psnr_db'], '.1f') if r['rmse'] != 0 else 'inf'} "
+            f"| {_fmt(r['max_abs'], '.3g')} | {r['over_1_255']} | {r['over_2_255']} "
+            f"| {r['nonfinite']} | {_status(r)} |")
+    if plotted:
+        lines += ["", f"![time vs error, {scene}]({scene}.png)"]
+    return lines
 
 
 def write_report(records: list[dict], out: Path, repeat: int, device: str,
                  plots: dict[str, bool]) -> None:
+    """report.md in `out`: what is compared, the summary, pass/fail side by side, and a
+    section a scene."""
     scenes = list(dict.fromkeys(r["scene"] for r in records))
     variants = list(dict.fromkeys(r["variant"] for r in records))
     by_key = {(r["scene"], r["variant"]): r for r in records}
@@ -315,6 +477,10 @@ def write_report(records: list[dict], out: Path, repeat: int, device: str,
         "worse than the float default's: where the default fails too, float rounding alone "
         "moves that many pixels.",
         "",
+    ]
+    if records:
+        lines += [*_summary_lines(records), ""]
+    lines += [
         "## Pass/fail, all scenes side by side",
         "",
         "| scene | " + " | ".join(variants) + " |",
@@ -324,37 +490,14 @@ def write_report(records: list[dict], out: Path, repeat: int, device: str,
         cells = [_status(by_key[scene, v]) if (scene, v) in by_key else "" for v in variants]
         lines.append(f"| {scene} | " + " | ".join(cells) + " |")
     for scene in scenes:
-        rows = [r for r in records if r["scene"] == scene]
-        first = rows[0]
-        lines += ["", f"## {scene}", "",
-                  f"`{first['scene_file']}` at {first['width']}x{first['height']}"
-                  + (f", on worker {first['worker']} ({first['device']})."
-                     if "worker" in first else ".")
-                  + f" {tolerance_text(first['width'], first['height'])}."]
-        default = next((r for r in rows if r["variant"] == DEFAULT.name), None)
-        if default is not None and default["status"] == "FAIL":
-            lines.append("The float default fails here too: float rounding alone moves more "
-                         "pixels than that in this scene, so read the other variants against "
-                         "the default's row.")
-        for warning in first["scene_warnings"]:
-            lines.append(f"Loader warning: {warning}")
-        lines += ["", "| variant | kernel ms | RMSE | PSNR dB | max abs | px > 1/255 | "
-                      "px > 2/255 | non-finite | status |",
-                  "|---|---|---|---|---|---|---|---|---|"]
-        for r in rows:
-            lines.append(
-                f"| {r['variant']} | {r['kernel_s_median'] * 1e3:.3g} | {_fmt(r['rmse'], '.2e')} "
-                f"| {_fmt(r['psnr_db'], '.1f') if r['rmse'] != 0 else 'inf'} "
-                f"| {_fmt(r['max_abs'], '.3g')} | {r['over_1_255']} | {r['over_2_255']} "
-                f"| {r['nonfinite']} | {_status(r)} |")
-        if plots.get(scene):
-            lines += ["", f"![time vs error, {scene}]({scene}.png)"]
+        lines += _scene_lines([r for r in records if r["scene"] == scene],
+                              bool(plots.get(scene)))
     if not any(plots.values()):
         lines += ["", "Plots skipped: matplotlib is not installed (`pip install 'clray[plot]'`)."]
     write_output(out / "report.md", ("\n".join(lines) + "\n").encode("utf-8"))
 
 
-def run_study(paths: Sequence[Path], out: Path, *, repeat: int = 3,
+def run_study(paths: Sequence[Path], out: Path, *, repeat: int = 5,
               width: int | None = None, height: int | None = None, device: str | None = None,
               variants: Sequence[Variant] = VARIANTS,
               say: Callable[[str], None] = lambda _: None,

@@ -5,6 +5,7 @@ from __future__ import annotations
 import builtins
 import json
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pyopencl as cl
@@ -14,6 +15,7 @@ from clray import metrics, study
 from clray.cli import main
 from clray.device.tuning_files import save_tuning
 from clray.knobs import Tuning
+from clray.scene.load import load_scene
 
 SCENE = """
 [render]
@@ -281,3 +283,136 @@ def test_one_dask_worker_is_named_in_the_singular(tmp_path: Path) -> None:
     study.run_study([Path("scenes/glass.toml")], tmp_path, run_scenes=one_worker)
     device = json.loads((tmp_path / "results.json").read_text())["device"]
     assert device.startswith("1 Dask worker (a device), each scene's variants")
+
+
+def _fake_render(calls: list[str], nan_in: str | None = None) -> object:
+    """A stand-in for clray.render.render that records which variant each call renders, and
+    returns a black 24x18 image (with a NaN pixel for the precision `nan_in`)."""
+    names = {(v.precision, v.switches): v.name for v in study.VARIANTS}
+
+    def fake(scene: object, settings: object) -> object:
+        calls.append(names[settings.precision, settings.variants])
+        image = np.zeros((18, 24, 3), dtype=np.float32)
+        if settings.precision == nan_in:
+            image[2, 3] = np.nan
+        return SimpleNamespace(image=image,
+                               stats={"kernel_s": 0.01, "tuning": {"source": "default"}})
+    return fake
+
+
+@pytest.mark.parametrize("variants", [
+    (study.REFERENCE, study.DEFAULT, study.VARIANTS[2]),
+    (study.DEFAULT, study.VARIANTS[2], study.REFERENCE),
+    (study.DEFAULT, study.VARIANTS[2]),
+], ids=["reference-first", "reference-last", "no-reference"])
+def test_study_warms_every_variant_up_then_times_them_in_interleaved_rounds(
+        tmp_scene, monkeypatch: pytest.MonkeyPatch, variants: tuple) -> None:
+    calls: list[str] = []
+    monkeypatch.setattr(study, "render", _fake_render(calls))
+    path = tmp_scene(SCENE)
+    records = study.study_scene(path, variants, 3, study.RenderSettings(),
+                                scene=load_scene(path))
+    names = [v.name for v in variants]
+    # The reference renders once before any variant, as the reference image and, where it is
+    # a variant, as its warm-up; then one warm-up a variant, then three rounds, every other
+    # one reversed.
+    warm_ups = ["double", *(name for name in names if name != "double")]
+    assert calls == warm_ups + names + names[::-1] + names
+    assert [len(r["kernel_s_all"]) for r in records] == [3] * len(variants)
+
+
+def test_a_non_finite_reference_fails_every_variant_and_says_so(
+        tmp_scene, monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> None:
+    # A NaN in the double build's image made every error n/a and no variant's pixel
+    # non-finite: each variant passed, the fault nowhere.
+    monkeypatch.setattr(study, "render", _fake_render([], nan_in="double"))
+    path = tmp_scene(SCENE)
+    said: list[str] = []
+    records = study.study_scene(path, (study.REFERENCE, study.DEFAULT), 1,
+                                study.RenderSettings(), said.append, load_scene(path))
+    default = records[1]
+    assert (default["reference_nonfinite"], default["nonfinite"], default["rmse"],
+            default["status"]) == (1, 0, None, "FAIL")
+    fault = "the reference has 1 pixel NaN or infinite: no image compares with it"
+    assert said[0].endswith("; the reference has 1 pixel NaN or infinite: every variant FAILs")
+    assert said[1].endswith(f", the reference, FAIL: {fault}")
+    assert said[2].endswith(f", RMSE n/a, FAIL: {fault}")
+    study.write_report(records, tmp_path, 1, "a device", {})
+    assert (f"| scene | reference, **FAIL**: {fault} | **FAIL**: {fault} |"
+            in (tmp_path / "report.md").read_text())
+
+
+def test_a_variant_has_its_marker_and_colour_in_a_plot_of_any_subset() -> None:
+    pytest.importorskip("matplotlib")
+    import matplotlib.pyplot as plt
+
+    def styles(names: list[str]) -> dict[str, tuple[str, str]]:
+        fig = study.plot_figure([_record(name, 10.0 + i, 1e-3) for i, name in enumerate(names)])
+        try:
+            return {t.get_text().split(":")[0]: (h.get_marker(), h.get_color())
+                    for t, h in zip(fig.legends[0].get_texts(), fig.legends[0].legend_handles,
+                                    strict=True)}
+        finally:
+            plt.close(fig)
+
+    every = styles([v.name for v in study.VARIANTS])
+    some = styles(["Schlick Fresnel", "float (default)", "not a variant"])
+    assert some["Schlick Fresnel"] == every["Schlick Fresnel"]
+    assert some["float (default)"] == every["float (default)"]
+    assert some["not a variant"] not in every.values()
+
+
+def test_summary_averages_the_shipped_scenes_times_and_lists_each_variants_failures(
+        tmp_path: Path) -> None:
+    def at(scene: str, file: str, variant: str, ms: float, over: int = 0) -> dict:
+        return _full(variant, 0.001, over, scene=scene, scene_file=file,
+                     kernel_s_median=ms / 1e3)
+
+    shipped = [at(s, f"scenes/{s}.toml", v, ms, over) for s, v, ms, over in (
+        ("a", "float (default)", 10, 0), ("a", "x", 20, 13),
+        ("b", "float (default)", 10, 0), ("b", "x", 5, 0))]
+    hard = [at("h", "docs/study/scenes/h.json", "float (default)", 1, 0),
+            at("h", "docs/study/scenes/h.json", "x", 100, 0)]
+    # x takes twice the default's time on a, half on b: 1.00 over the shipped scenes; the hard
+    # case h (x100) is not averaged while there are shipped scenes.
+    rows = study.summary(shipped + hard)
+    assert [(row["variant"], row["time"], row["fails"]) for row in rows] == [
+        ("float (default)", 1.0, {}), ("x", pytest.approx(1.0), {"a": (13, 0)})]
+    assert study.summary(hard)[1]["time"] == pytest.approx(100)
+    study.write_report(shipped + hard, tmp_path, 1, "a device", {})
+    report = (tmp_path / "report.md").read_text()
+    assert "the geometric mean over the 2 shipped scenes (`scenes/`)" in report
+    assert "| float (default) | 1.00 | - |\n| x | 1.00 | a (13) |\n" in report
+
+
+@pytest.mark.parametrize(("ms", "labels"), [
+    ((9.0, 10.0, 12.0), ["9", "10", "11", "12"]),  # one scene's variants: round milliseconds
+    ((3.0, 10.0, 300.0), ["$\\mathdefault{10^{1}}$", "$\\mathdefault{10^{2}}$"]),  # decades
+], ids=["under-a-decade", "decades"])
+def test_plot_times_are_on_a_log_axis(ms: tuple[float, ...], labels: list[str]) -> None:
+    pytest.importorskip("matplotlib")
+    import matplotlib.pyplot as plt
+
+    fig = study.plot_figure([_record(name, t, 1e-3) for name, t in zip("abc", ms, strict=True)])
+    try:
+        errors, exact = fig.axes
+        fig.canvas.draw()
+        low, high = exact.get_xlim()
+        shown = [t.get_text() for t in exact.get_xticklabels()
+                 if low <= t.get_position()[0] <= high]
+        assert (errors.get_xscale(), exact.get_xscale()) == ("log", "log")
+        assert [label for label in shown if label] == labels
+    finally:
+        plt.close(fig)
+
+
+def test_study_times_a_median_of_five_runs_by_default(tmp_scene) -> None:
+    # docs/cli.md gives the default; five, as a median of fewer moves too much between runs
+    # on a loaded machine.
+    from clray.cli import _build_parser
+
+    args = _build_parser().parse_args(["study", str(tmp_scene(SCENE)), "--out", "o"])
+    assert args.repeat == study.run_study.__kwdefaults__["repeat"] == 5
+    row = next(line for line in (Path(__file__).parent.parent / "docs/cli.md").read_text()
+               .splitlines() if line.startswith("| `--repeat N` | Timed runs per variant"))
+    assert row.endswith(" Default 5. |")

@@ -398,8 +398,10 @@ def worst_scene(results: dict[str, dict]) -> str | None:
 def judged(record: dict, spread: int) -> str:
     """A comparison's status (clray.study.compare's record), passed too where its pixels over
     2/255 are no more than `spread`, the CPU's own at OpenCL's accuracy (opencl_ulps_spread):
-    float rounding that OpenCL allows, not a fault. Never with a non-finite pixel."""
-    if record["status"] == "FAIL" and record["nonfinite"] == 0 and record["over_2_255"] <= spread:
+    float rounding that OpenCL allows, not a fault. Never with a non-finite pixel, in the
+    image or in its reference."""
+    finite = record["nonfinite"] == 0 and record.get("reference_nonfinite", 0) == 0
+    if record["status"] == "FAIL" and finite and record["over_2_255"] <= spread:
         return "pass"
     return record["status"]
 

@@ -952,13 +952,16 @@ def test_cpu_mode_stopped_by_the_shells_limit_leaves_no_process_and_its_json(
     assert "summary:" in (out / "gpu_check.log").read_text()
 
 
-@pytest.mark.parametrize(("status", "over", "nonfinite", "spread", "judged"), [
-    ("pass", 0, 0, 0, "pass"),
-    ("FAIL", 45, 0, 50, "pass"),  # the first GPU run's depth_of_field, within the CPU's spread
-    ("FAIL", 45, 0, 44, "FAIL"),
-    ("FAIL", 3, 1, 50, "FAIL"),  # a non-finite pixel is never rounding
+@pytest.mark.parametrize(("status", "over", "nonfinite", "reference_nonfinite", "spread",
+                          "judged"), [
+    ("pass", 0, 0, 0, 0, "pass"),
+    ("FAIL", 45, 0, 0, 50, "pass"),  # the first GPU run's depth_of_field, within the CPU's spread
+    ("FAIL", 45, 0, 0, 44, "FAIL"),
+    ("FAIL", 3, 1, 0, 50, "FAIL"),  # a non-finite pixel is never rounding
+    ("FAIL", 0, 0, 1, 50, "FAIL"),  # nor one in the reference, which fails every variant
 ])
-def test_a_scene_within_the_cpus_spread_at_opencl_accuracy_passes(status, over, nonfinite,
-                                                                  spread, judged) -> None:
-    record = {"status": status, "over_2_255": over, "nonfinite": nonfinite}
+def test_a_scene_within_the_cpus_spread_at_opencl_accuracy_passes(
+        status, over, nonfinite, reference_nonfinite, spread, judged) -> None:
+    record = {"status": status, "over_2_255": over, "nonfinite": nonfinite,
+              "reference_nonfinite": reference_nonfinite}
     assert S.judged(record, spread) == judged

@@ -459,7 +459,7 @@ def test_each_image_size_has_its_own_cache_and_a_broken_one_is_one_line(
     (device,) = (tmp_path / "cache").iterdir()
     sizes = sorted((device / "spheres").iterdir())
     assert [p.name.split("-")[0] for p in sizes] == ["32x18", "40x18"]
-    cache = sizes[0] / "default.json"
+    (cache,) = sizes[0].glob("default-*.json")
     record = cache.read_text()
     refused = f"^Kernel Tuner's cache file {re.escape(str(cache))}: .+: delete it, or tune into " \
               "another --out$"
@@ -473,6 +473,30 @@ def test_each_image_size_has_its_own_cache_and_a_broken_one_is_one_line(
     cache.write_text(record.replace('"render"', '"other"'))
     with pytest.raises(ClrayError, match=refused):
         tune(cl_device, tmp_path, size=(32, 18), space=one)
+
+
+def test_configurations_that_differ_late_have_their_own_cache_files(
+        kernel_tuner, cl_device, tmp_path, monkeypatch) -> None:
+    # Named by the label cut at 120 characters, these two shared one file under --allow-error:
+    # the second took the first's times and image verdicts from it.
+    caches = []
+
+    def no_run(*args, **kwargs):
+        caches.append(kwargs["cache"])
+        return [], {}
+
+    monkeypatch.setattr(kernel_tuner.interface, "tune_kernel", no_run)
+    tuner = tuner_module.Tuner(cl_device, tmp_path, space=TWO, size=(32, 18), allow_error=0.5)
+    run = tuner.prepare(SPHERES)
+    many = Tuning(bvh_width=4, traversal_cost=2.0, max_leaf_size=8, largest_leaf=32,
+                  fold_packets=8, cl_mad_enable=True, cl_unsafe_math_optimizations=True)
+    assert len(many.label()) > 120
+    for fast in (False, True):
+        host = {name: getattr(many, name) for name in tuner_module.OUTER_KNOBS}
+        tuner.run_host(run, {**host, "cl_fast_relaxed_math": fast}, 100.0,
+                       {**tuner.block_params(), **tuner.kernel_params()})
+    assert len(set(caches)) == 2
+    assert all(Path(c).name.startswith("bvh_width=4_traversal_cost=2.0") for c in caches)
 
 
 def test_kernel_tuner_builds_with_the_devices_build_options(kernel_tuner, cl_device,

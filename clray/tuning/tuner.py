@@ -330,6 +330,16 @@ def _slug(text: str) -> str:
     return re.sub(r"[^A-Za-z0-9.=]+", "_", text).strip("_")[:120] or "default"
 
 
+def cache_name(tuning: Tuning) -> str:
+    """The cache file name of a host and build configuration: its changed knobs, readable but
+    cut short, and a digest of every knob's value. By the cut label alone, 48 pairs of the 2,592
+    configurations under --allow-error (differing only in cl_fast_relaxed_math, past the 120th
+    character) shared a file, and Kernel Tuner gave the second the first's times and image
+    verdicts."""
+    digest = hashlib.sha256(configuration_key(tuning, {}).encode("utf-8")).hexdigest()[:12]
+    return f"{_slug(tuning.label())}-{digest}.json"
+
+
 def _cache_error(cache: Path, why: str) -> ClrayError:
     return ClrayError(f"Kernel Tuner's cache file {cache}: {why}: delete it, or tune into "
                       "another --out")
@@ -463,7 +473,7 @@ class Tuner:
         answer = [None] * len(args)
         answer[image_index] = args[image_index]
         cache = (self.out / "cache" / _slug(self.device.name) / run.name
-                 / self.cache_folder(run) / f"{_slug(base.label())}.json")
+                 / self.cache_folder(run) / cache_name(base))
         try:
             cache.parent.mkdir(parents=True, exist_ok=True)
         except OSError as err:

@@ -208,6 +208,99 @@ def test_tune_command_stores_the_winner_that_render_then_uses(
     assert f"tuned ({stored.label()})" in capsys.readouterr().out
 
 
+class FakeSpace:
+    """Kernel Tuner's Searchspace, of `size` values of one parameter."""
+
+    def __init__(self, size: int) -> None:
+        self.size = size
+        self.tune_params = {"block_size_x": list(range(size))}
+
+    def get_true_tunable_params(self) -> dict:
+        return self.tune_params
+
+    def sorted_list(self) -> list[tuple]:
+        return [(v,) for v in range(self.size)]
+
+
+class FakeRunner:
+    """Kernel Tuner's runner: every configuration it is given timed at 1 ms."""
+
+    def run(self, configurations: list, options: object) -> list[dict]:
+        return [{"block_size_x": c[0], "time": 1.0} for c in configurations]
+
+
+def within_budget(name: str, notes: list[str]) -> tuner_module.StrategyWithinBudget:
+    return tuner_module.StrategyWithinBudget(
+        name, "spheres", tuner_module.BruteForceWithinBudget({"block_size_x": 3}), notes.append)
+
+
+@pytest.mark.parametrize(("strategy", "size", "why"), [
+    ("pso", 44, "under 150 (3 times its population of 50)"),
+    ("greedy_ils", 1, "under 16 (too few to search)"),
+])
+def test_a_space_too_small_for_the_strategy_is_tried_by_brute_force(kernel_tuner, strategy,
+                                                                    size, why) -> None:
+    # bayes_opt failed to draw 20 of spheres' 12 configurations; pso, diff_evo and
+    # firefly_algorithm failed with IndexError, pso on the one of a later host configuration.
+    notes: list[str] = []
+    results = within_budget(strategy, notes).tune(FakeSpace(size), FakeRunner(), None)
+    assert sorted(r["block_size_x"] for r in results) == list(range(size))
+    assert results[0]["block_size_x"] == min(3, size - 1)  # brute force's first, the default
+    assert notes == [f"--strategy {strategy} on spheres: {size} kernel configuration"
+                     f"{'s' if size > 1 else ''}, {why}: tried whole by brute force, within the "
+                     "budget"]
+
+
+def test_a_strategy_that_lets_the_budgets_end_out_keeps_what_it_timed(kernel_tuner,
+                                                                      monkeypatch) -> None:
+    # greedy_ils and simulated_annealing let StopCriterionReached out after their first
+    # configuration: a traceback, the configurations timed lost.
+    def stopped(searchspace, runner, options):
+        runner.run([(0,)], options)
+        runner.run([(5,)], options)
+        raise kernel_tuner.util.StopCriterionReached("max_fevals (2) reached")
+
+    monkeypatch.setitem(kernel_tuner.interface.strategy_map, "stops",
+                        SimpleNamespace(tune=stopped))
+    notes: list[str] = []
+    results = within_budget("stops", notes).tune(FakeSpace(20), FakeRunner(), None)
+    assert [r["block_size_x"] for r in results] == [0, 5] and notes == []
+
+
+def test_a_strategy_that_fails_is_one_line_naming_it(kernel_tuner, monkeypatch) -> None:
+    def failing(searchspace, runner, options):
+        runner.run([(0,)], options)
+        return [][1]
+
+    monkeypatch.setitem(kernel_tuner.interface.strategy_map, "fails",
+                        SimpleNamespace(tune=failing))
+    with pytest.raises(ClrayError, match=r"^--strategy fails failed on spheres: IndexError: "
+                                         r"list index out of range$"):
+        within_budget("fails", []).tune(FakeSpace(20), FakeRunner(), None)
+
+    # The runner's own failure (a cache file that cannot be written) is not the strategy's.
+    class Full(FakeRunner):
+        def run(self, configurations: list, options: object) -> list[dict]:
+            raise OSError(28, "No space left on device")
+
+    monkeypatch.setitem(kernel_tuner.interface.strategy_map, "fails",
+                        SimpleNamespace(tune=lambda space, runner, options: runner.run([], {})))
+    with pytest.raises(OSError, match="No space left"):
+        within_budget("fails", []).tune(FakeSpace(20), Full(), None)
+
+
+def test_a_population_strategy_on_a_tiny_space_tunes(kernel_tuner, cl_device, tmp_path) -> None:
+    notes: list[str] = []
+    tuner = tuner_module.Tuner(cl_device, tmp_path, strategy="pso", space=TWO, size=SIZE,
+                               iterations=2, budget_s=300, say=notes.append)
+    trials = tuner.tune([SPHERES])
+    assert sorted(t.tuning.work_group_width for t in trials) == [16, 64]
+    assert all(t.verified for t in trials)
+    assert notes == tuner.notes == [
+        "--strategy pso on spheres: 2 kernel configurations, under 150 (3 times its population "
+        "of 50): tried whole by brute force, within the budget"]
+
+
 def test_tune_without_kernel_tuner_says_how_to_install(monkeypatch, capsys, tmp_path) -> None:
     monkeypatch.setitem(sys.modules, "kernel_tuner", None)
     code = cli.main(["tune", str(SPHERES), "--out", str(tmp_path / "t")])
@@ -347,7 +440,7 @@ def test_tune_writes_that_fail_are_one_line(kernel_tuner, cl_device, tmp_path) -
     with pytest.raises(ClrayError, match=blocked):
         tune(cl_device, tmp_path, size=(32, 18))
     header = {"device": "d", "strategy": "s", "budget_s": 1, "iterations": 1, "tolerance": "t",
-              "variants": "v", "untried": None, "scenes": [str(SPHERES)]}
+              "variants": "v", "untried": None, "notes": [], "scenes": [str(SPHERES)]}
     trials = [tuner_module.Trial("spheres", Tuning(), 1.0, [1.0], 0.0, True, 0)]
     for name, write in (("results.json", lambda: report.write_results(tmp_path, header, trials)),
                         ("report.md", lambda: report.write_report(tmp_path, header, trials, None,

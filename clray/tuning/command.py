@@ -59,6 +59,17 @@ class _Progress:
         if self.bar is not None:
             self.bar.close()
 
+    def through(self, say: Callable[[str], None]) -> Callable[[str], None]:
+        """`say`, with the bar cleared for the line and drawn again after it."""
+        if self.bar is None:
+            return say
+
+        def said(text: str) -> None:
+            with self.bar.external_write_mode(file=sys.stderr):
+                say(text)
+
+        return said
+
 
 def _verdict_text(verdict: dict) -> str:
     if verdict["gain"] is None:
@@ -138,7 +149,8 @@ def run_tune(paths: Sequence[Path], out: Path, *, device: str | None = None,
                                             "stores none") from err
     progress = _Progress(budget_s, show_progress)
     tuner = Tuner(cl_device, out, strategy=strategy, budget_s=budget_s,
-                  allow_error=allow_error, size=size, progress=progress, **tuner_options)
+                  allow_error=allow_error, size=size, progress=progress,
+                  say=progress.through(say), **tuner_options)
     try:
         trials = tuner.tune(paths)
     finally:
@@ -154,7 +166,7 @@ def run_tune(paths: Sequence[Path], out: Path, *, device: str | None = None,
                            if allow_error is not None else
                            "not tried (they change the image; --allow-error E tries them): ")
               + ", ".join(IMAGE_KNOBS),
-              "untried": untried(tuner.runs, trials, budget_s),
+              "untried": untried(tuner.runs, trials, budget_s), "notes": tuner.notes,
               "best": None, "tuning_file": None}
     confirmed = []
     to_store: Tuning | None = None

@@ -121,6 +121,7 @@ def write_report(out: Path, header: dict, trials: Sequence[Trial], best_key: str
     ]
     if header["untried"]:
         lines += [f"**Budget:** {header['untried']}.", ""]
+    lines += [line for note in header["notes"] for line in (f"**Note:** {note}.", "")]
     for scene in scenes:
         rows = [t for t in trials if t.scene == scene]
         if not rows:

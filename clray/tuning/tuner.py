@@ -25,6 +25,7 @@ import time
 import warnings
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -263,6 +264,88 @@ class BruteForceWithinBudget:
         return [r for r in runner.run(ordered, tuning_options) if r is not None]
 
 
+# A run of fewer kernel configurations than this, or than POPULATIONS_IN_SPACE times the
+# strategy's population (its first sample), is tried whole by brute force whatever --strategy
+# says: on spheres' 12, bayes_opt failed to draw its sample of 20, and diff_evo, pso and
+# firefly_algorithm failed with an IndexError (pso on the one configuration of a later host
+# configuration), while a search saves little over trying a handful of configurations.
+SMALL_SPACE = 16
+POPULATIONS_IN_SPACE = 3
+
+
+def strategy_population(name: str, dimensions: int) -> int:
+    """The configurations Kernel Tuner's strategy `name` draws before it searches: its popsize
+    option's default (times the space's `dimensions` where its options say so), 0 if it has
+    none."""
+    options = getattr(import_kernel_tuner().strategy_map[name], "_options", {})
+    size = int(options.get("popsize", ("", 0))[1])
+    if options.get("popsize_times_dimensions", ("", False))[1]:
+        size *= dimensions
+    return size
+
+
+class _RecordingRunner:
+    """Kernel Tuner's runner, keeping every result it returns (the configurations timed when a
+    strategy lets the budget's end out) and what it raised (not the strategy's failure)."""
+
+    def __init__(self, runner: Any) -> None:
+        self.runner = runner
+        self.results: list[dict] = []
+        self.raised: BaseException | None = None
+
+    def run(self, parameter_space: Any, tuning_options: Any) -> list:
+        try:
+            results = self.runner.run(parameter_space, tuning_options)
+        except BaseException as err:
+            self.raised = err
+            raise
+        self.results += [r for r in results if r is not None]
+        return results
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self.runner, name)
+
+
+class StrategyWithinBudget:
+    """Kernel Tuner's strategy `name` on one run, kept to what its results can say: a space too
+    small for it (SMALL_SPACE) tried by `brute_force` instead, told through `note`; the budget's
+    end, which some strategies let out as StopCriterionReached (greedy_ils and
+    simulated_annealing after their first configuration), the run's end, with what was timed;
+    any other failure of the strategy one line naming it. A Kernel Tuner strategy."""
+
+    def __init__(self, name: str, scene: str, brute_force: BruteForceWithinBudget,
+                 note: Callable[[str], None]) -> None:
+        self.name = name
+        self.scene = scene
+        self.brute_force = brute_force
+        self.note = note
+
+    def tune(self, searchspace: Any, runner: Any, tuning_options: Any) -> list[dict]:
+        from kernel_tuner.util import StopCriterionReached
+
+        population = strategy_population(self.name,
+                                         len(searchspace.get_true_tunable_params()))
+        least = max(SMALL_SPACE, POPULATIONS_IN_SPACE * population)
+        if searchspace.size < least:
+            why = (f"{POPULATIONS_IN_SPACE} times its population of {population}"
+                   if least > SMALL_SPACE else "too few to search")
+            self.note(f"--strategy {self.name} on {self.scene}: "
+                      f"{plural(searchspace.size, 'kernel configuration')}, under {least} "
+                      f"({why}): tried whole by brute force, within the budget")
+            return self.brute_force.tune(searchspace, runner, tuning_options)
+        recording = _RecordingRunner(runner)
+        try:
+            return import_kernel_tuner().strategy_map[self.name].tune(
+                searchspace, recording, tuning_options)
+        except StopCriterionReached:
+            return recording.results
+        except Exception as err:
+            if err is recording.raised:  # the runner's (the cache file's OSError)
+                raise
+            raise ClrayError(f"--strategy {self.name} failed on {self.scene}: "
+                             f"{type(err).__name__}: {one_line(str(err))}") from err
+
+
 def host_configurations(space: dict[str, Sequence], seed: int = 0) -> list[dict[str, Any]]:
     """Every combination of the host and build knobs' values in `space`, in the order they are
     tried: the default first, then each single-knob change from it, then the rest in a seeded
@@ -391,7 +474,8 @@ class Tuner:
                  size: tuple[int | None, int | None] = (None, None),
                  search_every_host: bool = False,
                  source: str | None = None, extra_params: dict[str, list] | None = None,
-                 progress: Callable[[str, Trial | None], None] | None = None) -> None:
+                 progress: Callable[[str, Trial | None], None] | None = None,
+                 say: Callable[[str], None] | None = None) -> None:
         self.kt = import_kernel_tuner()
         self.device = device
         self.out = out
@@ -415,8 +499,21 @@ class Tuner:
         self.source = source if source is not None else kernel_source()
         self.extra_params = extra_params or {}
         self.progress = progress or (lambda _msg, _trial: None)
+        self.say = say or (lambda _text: None)
+        # What was said while tuning (through `say`, at once), for the results and the report.
+        self.notes: list[str] = []
+        self._noted: set[str] = set()
         self.trials: list[Trial] = []
         self.runs: list[SceneRun] = []
+
+    def note(self, text: str, once: str | None = None) -> None:
+        """Say `text` now and keep it for the report; only the first of those `once` names."""
+        if once is not None:
+            if once in self._noted:
+                return
+            self._noted.add(once)
+        self.notes.append(text)
+        self.say(text)
 
     def prepare(self, path: Path) -> SceneRun:
         start = time.monotonic()
@@ -485,10 +582,12 @@ class Tuner:
         def legal(params: dict) -> bool:
             return self._legal(base, params, kernel_space)
 
-        strategy: Any = self.strategy
-        if strategy == "brute_force":
-            first = {**self.block_params(base), **self.kernel_params(base)}
-            strategy = BruteForceWithinBudget({k: v[0] for k, v in first.items()})
+        first = {**self.block_params(base), **self.kernel_params(base)}
+        brute_force = BruteForceWithinBudget({k: v[0] for k, v in first.items()})
+        strategy: Any = brute_force
+        if self.strategy != "brute_force":
+            strategy = StrategyWithinBudget(self.strategy, run.name, brute_force,
+                                            partial(self.note, once=f"strategy {run.name}"))
         with warnings.catch_warnings():
             # Kernel Tuner warns where a structured buffer meets a struct pointer: expected.
             warnings.simplefilter("ignore")

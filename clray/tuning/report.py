@@ -44,6 +44,7 @@ def decision(stored: Tuning | None, save: bool) -> str:
 
 
 def stored_knobs(stored: Tuning) -> str:
+    """A stored configuration in words: its changed knobs, or the defaults."""
     return "the defaults" if stored == DEFAULT_TUNING else stored.label()
 
 
@@ -182,7 +183,7 @@ def write_report(out: Path, header: dict, trials: Sequence[Trial], best_key: str
         lines += ["", f"{plural(len(rows), 'configuration')} tried, {len(rejected)} rejected "
                       "(never chosen).", ""]
     if header["best"] is not None:
-        lines += ["## Tuned against default, interleaved", ""]
+        lines += ["## Confirmation: the best against the default, interleaved", ""]
         if confirmed:
             lines += ["Whole renders through clray's own launches after a warm-up of each, "
                       "default and tuned in rounds, the default first in every other round "

@@ -324,7 +324,8 @@ def _tune_command(commands: Any) -> None:
                         "each host configuration: brute_force (default), random_sample, "
                         "greedy_ils, genetic_algorithm, bayes_opt, ...")
     t.add_argument("--budget", type=_number_in(0.0, 86400.0), default=120.0, metavar="SECONDS",
-                   help="tuning time, shared equally by the scenes (default: 120)")
+                   help="tuning time, shared equally by the scenes; the confirming renders "
+                        "after it are not counted (default: 120)")
     t.add_argument("--allow-error", type=_number_in(0.0, 1.0), metavar="E",
                    help="accept configurations whose pixels differ from the default's by up to "
                         "E (default: the scene's float tolerance, 2/255)")
@@ -339,7 +340,7 @@ def _tune_command(commands: Any) -> None:
                         "(default: with the first, the default; later host configurations keep "
                         "the best found so far, one build each)")
     t.add_argument("--no-save", dest="save", action="store_false",
-                   help="do not store the winner as the device's tuning file")
+                   help="store nothing as the device's tuning file")
     t.add_argument("-q", "--quiet", action="store_true", help="print nothing on success")
     t.set_defaults(run=_tune)
 

@@ -19,7 +19,7 @@ from collections.abc import Callable
 from dataclasses import asdict, dataclass, fields
 from typing import Literal
 
-from clray.errors import plural
+from clray.errors import SettingsError, plural
 
 # Where a knob acts. host: how the packed scene is built (a new BVH, new buffers); kernel: a -D
 # switch of the render kernel's build; build: an option of the kernel's compiler (-cl-...);
@@ -130,7 +130,8 @@ KNOB_TABLE: tuple[Knob, ...] = (
          "work-items per work-group, one row segment. PoCL left to itself puts up to 4096 in "
          "a group and gives their private memory one thread's stack, which a deep ray stack "
          "overflows; on PoCL 64 costs nothing against its own choice"),
-    Knob("bvh_width", "host+kernel", None, lambda v: v is None or v in (4, 8),
+    # _one_of, not `in (4, 8)`: 4.0 == 4, and a float width failed in the wide BVH's build.
+    Knob("bvh_width", "host+kernel", None, lambda v: v is None or _one_of(4, 8)(v),
          "4, 8, or None: 8 where the device's vectors of the arithmetic's type are 8 wide or "
          "more (its preferred or native width: float on AVX CPUs), else 4", (None, 4, 8),
          "children per BVH node (the -D BVH_WIDTH of the node's vector slab test): wider "
@@ -260,8 +261,9 @@ def restriction_problems(values: dict[str, object]) -> list[str]:
     return problems
 
 
-class TuningError(ValueError):
-    """A knob value that is not legal, or knobs that break a restriction."""
+class TuningError(SettingsError):
+    """A knob value that is not legal, or knobs that break a restriction: a SettingsError (a
+    ValueError), as another render setting's would be, so a bad knob is one line."""
 
 
 @dataclass(frozen=True)

@@ -110,6 +110,7 @@ def test_the_constants_at_their_sites_are_the_table_defaults() -> None:
 @pytest.mark.parametrize(("values", "words"), [
     ({"work_group_width": 48}, "work_group_width: expected a power of two"),
     ({"bvh_width": 16}, "bvh_width: expected 4, 8, or None"),
+    ({"bvh_width": 4.0}, "bvh_width: expected 4, 8, or None"),  # was legal: 4.0 == 4
     ({"traversal_cost": 0}, "traversal_cost: expected a number over 0"),
     ({"max_leaf_size": 8, "largest_leaf": 4}, "largest_leaf 4 is below max_leaf_size 8"),
     ({"first_launch_pixel_samples": 100, "max_launch_pixel_samples": 10},
@@ -133,12 +134,24 @@ def test_the_constants_at_their_sites_are_the_table_defaults() -> None:
      "implicit_vectorization True does not build with traversal sample_packet"),
 ])
 def test_illegal_knobs_and_broken_restrictions_are_refused(values, words) -> None:
-    with pytest.raises(TuningError, match=words):
+    # A SettingsError, as another bad render setting: one line on the command line.
+    with pytest.raises(SettingsError, match=words) as refused:
         Tuning(**values)
+    assert isinstance(refused.value, TuningError) and isinstance(refused.value, ValueError)
     with pytest.raises(TuningError, match=r"^1 unknown knob: work_group_size$"):
         Tuning.from_values({"work_group_size": 64})
     with pytest.raises(TuningError, match=r"^2 unknown knobs: lanes, work_group_size$"):
         Tuning.from_values({"work_group_size": 64, "lanes": 8})
+
+
+def test_no_knob_takes_a_float_or_a_bool_for_an_integer() -> None:
+    # A tuning file's "bvh_width": 4.0 passed the check (4.0 == 4) and failed every render in
+    # the wide BVH's build with a traceback.
+    for knob in KNOB_TABLE:
+        counts = [v for v in knob.tried if isinstance(v, int) and not isinstance(v, bool)]
+        assert not any(knob.legal(float(v)) for v in counts), knob.name
+        if not isinstance(knob.default, bool):
+            assert not knob.legal(True) and not knob.legal(False), knob.name
 
 
 def test_numpy_numbers_are_knob_values_as_pythons_own() -> None:
@@ -476,15 +489,21 @@ def test_next_band_rows_reads_the_band_knobs() -> None:
     assert rows(100, 10, 0.1, 10_000, Tuning(launch_seconds=0.5, launch_growth=8)) == 50
 
 
-def test_render_command_warns_once_of_a_stale_file_and_renders(cl_device, capsys,
-                                                               tmp_path) -> None:
-    path = _write_file(cl_device, Tuning(work_group_width=16), {"clray_version": "0.0.1"})
+@pytest.mark.parametrize(("changes", "why"), [
+    ({"clray_version": "0.0.1"},
+     f"stale: tuned for clray_version '0.0.1', this is '{__version__}'; run clray tune again"),
+    # A float width was taken as legal, and every render failed with a traceback.
+    ({"tuning": {"bvh_width": 4.0}},
+     f"bvh_width: expected {KNOBS['bvh_width'].legal_text}, got 4.0"),
+])
+def test_render_command_warns_once_of_a_bad_file_and_renders(cl_device, capsys, tmp_path,
+                                                             changes, why) -> None:
+    path = _write_file(cl_device, Tuning(work_group_width=16), changes)
     stats = tmp_path / "stats.json"
     code = cli.main(["render", str(SPHERES), "-W", "32", "-H", "18", "-o",
                      str(tmp_path / "out.png"), "--stats-json", str(stats)])
     err = capsys.readouterr().err.splitlines()
     assert code == 0
     warned = [line for line in err if line.startswith("clray: warning: ")]
-    assert warned == [f"clray: warning: ignoring tuning file {path}: stale: tuned for "
-                      f"clray_version '0.0.1', this is '{__version__}'; run clray tune again"]
+    assert warned == [f"clray: warning: ignoring tuning file {path}: {why}"]
     assert json.loads(stats.read_text())["tuning"]["source"] == "default"

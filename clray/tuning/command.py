@@ -59,13 +59,16 @@ class _Progress:
         if self.bar is not None:
             self.bar.close()
 
+    def through(self, say: Callable[[str], None]) -> Callable[[str], None]:
+        """`say`, with the bar cleared for the line and drawn again after it."""
+        if self.bar is None:
+            return say
 
-def _verdict_text(verdict: dict) -> str:
-    if verdict["gain"] is None:
-        return "the interleaved renders were too few to measure a spread"
-    lower, upper = verdict["spread"]
-    return (f"{verdict['gain']:.3f}x in interleaved renders, within their own spread "
-            f"(rounds' middle half {lower:.3f}x to {upper:.3f}x)")
+        def said(text: str) -> None:
+            with self.bar.external_write_mode(file=sys.stderr):
+                say(text)
+
+        return said
 
 
 def least_budget_s(reference_s: Sequence[float]) -> float:
@@ -138,7 +141,8 @@ def run_tune(paths: Sequence[Path], out: Path, *, device: str | None = None,
                                             "stores none") from err
     progress = _Progress(budget_s, show_progress)
     tuner = Tuner(cl_device, out, strategy=strategy, budget_s=budget_s,
-                  allow_error=allow_error, size=size, progress=progress, **tuner_options)
+                  allow_error=allow_error, size=size, progress=progress,
+                  say=progress.through(say), **tuner_options)
     try:
         trials = tuner.tune(paths)
     finally:
@@ -154,9 +158,11 @@ def run_tune(paths: Sequence[Path], out: Path, *, device: str | None = None,
                            if allow_error is not None else
                            "not tried (they change the image; --allow-error E tries them): ")
               + ", ".join(IMAGE_KNOBS),
-              "untried": untried(tuner.runs, trials, budget_s),
-              "best": None, "tuning_file": None}
-    confirmed = []
+              "untried": untried(tuner.runs, trials, budget_s), "notes": tuner.notes,
+              "best": None, "verdict": None, "stored": None,
+              "decision": "nothing stored: no configuration was verified on every scene",
+              "tuning_file": None}
+    confirmed: list[dict] = []
     to_store: Tuning | None = None
     if best is not None:
         per_scene = best[1]
@@ -167,22 +173,22 @@ def run_tune(paths: Sequence[Path], out: Path, *, device: str | None = None,
         header["best"] = {"label": report.label(winner), "tuning": winner.tuning.values(),
                           "extra": winner.extra,
                           "time_ms": {s: t.time_ms for s, t in per_scene.items()}}
-        runs = {run.name: run for run in tuner.runs}
-        confirmed = [confirm(runs[s], winner.tuning, cl_device) for s in scenes]
-        header["confirmed"] = confirmed
-        # Kernel Tuner times one launch over the whole image; renders launch in bands. Where
-        # the interleaved renders do not show the gain beyond their own spread, the defaults
-        # are what is stored.
-        verdict = confirmed_gain(confirmed)
-        header["confirmed_gain"] = verdict
-        stored = winner.tuning if verdict["beyond_spread"] else DEFAULT_TUNING
-        header["stored"] = stored.values()
-        if stored is DEFAULT_TUNING and winner.tuning != DEFAULT_TUNING:
-            say(f"best in Kernel Tuner's runs: {header['best']['label']}, but "
-                f"{_verdict_text(verdict)}: storing the defaults")
+        stored = DEFAULT_TUNING
+        if winner.tuning != DEFAULT_TUNING or any(winner.extra.values()):
+            # Kernel Tuner times one launch over the whole image; renders launch in bands, on
+            # a machine whose load comes and goes: the winner is stored only where
+            # interleaved renders confirm its gain (confirmed_gain). Outside the budget.
+            runs = {run.name: run for run in tuner.runs}
+            confirmed = confirm([runs[s] for s in scenes], winner.tuning, cl_device)
+            header["verdict"] = confirmed_gain(confirmed)
+            if header["verdict"]["confirmed"]:
+                stored = winner.tuning
         # A winner that needs a switch outside the knob table (a test's) is not stored.
         if save and not any(winner.extra.values()):
             to_store = stored
+        header["decision"] = report.decision(to_store, save)
+        header["stored"] = None if to_store is None else to_store.values()
+    header["confirmed"] = confirmed
     report.write_results(out, header, trials)
     plot_skipped = report.plot(out, trials, best[0] if best else None)
     report.write_report(out, header, trials, best[0] if best else None, confirmed, plot_skipped)
@@ -192,7 +198,7 @@ def run_tune(paths: Sequence[Path], out: Path, *, device: str | None = None,
         try:
             header["tuning_file"] = str(save_tuning(cl_device, to_store, {
                 "scenes": header["scenes"], "strategy": strategy, "budget_s": budget_s,
-                "best": header["best"], "confirmed": confirmed}))
+                "best": header["best"], "confirmed": confirmed, "verdict": header["verdict"]}))
         except OSError as err:
             raise cannot_write(tuning_path(cl_device), err,
                                f"the results are in {out}; nothing stored") from err
@@ -204,12 +210,12 @@ def run_tune(paths: Sequence[Path], out: Path, *, device: str | None = None,
         say(header["untried"])
     say(f"study variants {header['variants']}")
     for c in confirmed:
-        say(f"{c['scene']}: default {c['default_kernel_s'] * 1e3:.3g} ms, tuned "
-            f"{c['tuned_kernel_s'] * 1e3:.3g} ms ({c['speedup']:.3f}x, interleaved renders)")
+        say(report.scene_confirmation(c))
     if header["best"] is not None:
-        stored = Tuning(**header["stored"]).label()
-        say(f"best: {header['best']['label']}"
-            + (f"; stored {stored} in {header['tuning_file']}" if header["tuning_file"] else ""))
+        say(f"verdict: {report.verdict_text(header)}")
+        said = (f"stored {report.stored_knobs(to_store)} in {header['tuning_file']}"
+                if to_store is not None and header["tuning_file"] else header["decision"])
+        say(f"best: {header['best']['label']}; {said}")
     else:
-        say("no configuration was verified on every scene: nothing stored")
+        say(header["decision"])
     return header

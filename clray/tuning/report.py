@@ -10,9 +10,9 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from clray.errors import plural
-from clray.knobs import DEFAULT_TUNING
+from clray.knobs import DEFAULT_TUNING, Tuning
 from clray.output import figure_png, write_output
-from clray.tuning.tuner import Trial
+from clray.tuning.tuner import CONFIRM_P, MIN_GAIN, Trial
 
 if TYPE_CHECKING:
     import matplotlib.figure
@@ -32,6 +32,46 @@ def label(trial: Trial) -> str:
     extra = ", ".join(f"{k}={v}" for k, v in trial.extra.items())
     label = trial.tuning.label()
     return f"{label}, {extra}" if extra and label != "default" else extra or label
+
+
+def decision(stored: Tuning | None, save: bool) -> str:
+    """What a tune whose best was found stores (`stored`; None: nothing), in words."""
+    if not save:
+        return "nothing stored (--no-save)"
+    if stored is None:
+        return "nothing stored (the best needs a switch outside the knob table)"
+    return f"storing {stored_knobs(stored)} as the device's tuning file"
+
+
+def stored_knobs(stored: Tuning) -> str:
+    """A stored configuration in words: its changed knobs, or the defaults."""
+    return "the defaults" if stored == DEFAULT_TUNING else stored.label()
+
+
+def verdict_text(header: dict) -> str:
+    """The confirmation's verdict on the best configuration, in one line (stderr, report.md):
+    the figures it decides by, and what it decided."""
+    verdict = header["verdict"]
+    if verdict is None:
+        return "the best is the default configuration, nothing to confirm"
+    lower, upper = verdict["quartiles"]
+    rounds = verdict["rounds"]
+    outcome = ("confirmed" if verdict["confirmed"] else
+               f"not confirmed (storing needs p < {CONFIRM_P:g} and at least {MIN_GAIN:g}x)")
+    return (f"{header['best']['label']} at {verdict['gain']:.3f}x (median of {rounds} "
+            f"rounds' ratios of default to tuned kernel time, middle half {lower:.3f}x to "
+            f"{upper:.3f}x), faster in {verdict['faster_rounds']} of {rounds} rounds (sign "
+            f"test p = {verdict['p']:.2g}): {outcome}")
+
+
+def scene_confirmation(record: dict) -> str:
+    """A scene's confirming renders in one line: the speed-up (the rounds' median ratio, as the
+    verdict's) with its middle half, and how long the default's renders take."""
+    lower, upper = record["quartiles"]
+    return (f"{record['scene']}: {record['speedup']:.3f}x (median of {record['rounds']} rounds' "
+            f"ratios, middle half {lower:.3f}x to {upper:.3f}x), faster in "
+            f"{record['faster_rounds']} of {record['rounds']} rounds; the default renders in "
+            f"{record['default_kernel_s'] * 1e3:.3g} ms")
 
 
 def _is_default(trial: Trial) -> bool:
@@ -121,6 +161,7 @@ def write_report(out: Path, header: dict, trials: Sequence[Trial], best_key: str
     ]
     if header["untried"]:
         lines += [f"**Budget:** {header['untried']}.", ""]
+    lines += [line for note in header["notes"] for line in (f"**Note:** {note}.", "")]
     for scene in scenes:
         rows = [t for t in trials if t.scene == scene]
         if not rows:
@@ -141,14 +182,23 @@ def write_report(out: Path, header: dict, trials: Sequence[Trial], best_key: str
         rejected = [t for t in rows if not t.verified]
         lines += ["", f"{plural(len(rows), 'configuration')} tried, {len(rejected)} rejected "
                       "(never chosen).", ""]
-    if confirmed:
-        lines += ["## Tuned against default, interleaved", "",
-                  "Whole renders through clray's own launches, default and tuned in turns after "
-                  "a warm-up of each: median kernel time.", "",
-                  "| scene | rounds | default s | tuned s | speed-up |", "|---|---|---|---|---|"]
-        lines += [f"| {c['scene']} | {c['rounds']} | {c['default_kernel_s']:.4f} | "
-                  f"{c['tuned_kernel_s']:.4f} | {c['speedup']:.3f}x |" for c in confirmed]
-        lines.append("")
+    if header["best"] is not None:
+        lines += ["## Confirmation: the best against the default, interleaved", ""]
+        if confirmed:
+            lines += ["Whole renders through clray's own launches after a warm-up of each, "
+                      "default and tuned in rounds, the default first in every other round "
+                      "(not counted in the budget). Speed-up: the median of the rounds' ratios "
+                      "of default to tuned kernel time, with their middle half; the default's "
+                      "median kernel time.", "",
+                      "| scene | rounds | speed-up | middle half | faster rounds | default ms |",
+                      "|---|---|---|---|---|---|"]
+            lines += [f"| {c['scene']} | {c['rounds']} | {c['speedup']:.3f}x | "
+                      f"{c['quartiles'][0]:.3f}x to {c['quartiles'][1]:.3f}x | "
+                      f"{c['faster_rounds']} | {c['default_kernel_s'] * 1e3:.3f} |"
+                      for c in confirmed]
+            lines.append("")
+        lines += [f"**Verdict:** {verdict_text(header)}.", "",
+                  f"**Decision:** {header['decision']}.", ""]
     lines.append(f"![every configuration's time]({PLOT_NAME})" if plot_skipped is None else
                  f"Plot skipped: {plot_skipped}.")
     path = out / "report.md"

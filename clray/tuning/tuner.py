@@ -25,6 +25,7 @@ import time
 import warnings
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -68,13 +69,25 @@ PIXEL_TOLERANCE = 2 / 255
 ITERATIONS = 7  # timed launches per configuration, Kernel Tuner's default
 # A Kernel Tuner run needs a few seconds of budget to start (a compile, a reference launch).
 MIN_RUN_BUDGET_S = 2.0
-CONFIRM_ROUNDS = 5
 # A render shorter than this is timed mostly as noise: at 160x90 (about 1 ms on a 2-core CPU)
-# Kernel Tuner's table claimed 2.00x that interleaved renders measured at 1.02x.
+# Kernel Tuner's table claimed 2.00x that interleaved renders measured at 1.02x. Such a tune is
+# said to be so at once, and its winner is stored only where the confirmation (below) confirms
+# it, as any winner.
 MIN_TIMED_KERNEL_S = 0.02
-# The confirming renders' rounds grow until each side renders for about this long (at most
-# MAX_CONFIRM_ROUNDS): 5 rounds of 10 ms renders on a shared 2-core machine confirmed gains of
-# 1.47x and 1.64x that 40 rounds measured at 0.99x and 1.01x.
+# The confirmation (confirm, confirmed_gain): the default and the winner rendered in rounds,
+# and the winner stored only where a one-sided sign test on the rounds' paired ratios (default
+# / tuned) gives p < CONFIRM_P and their median is a gain of at least MIN_GAIN. Without the
+# test, storing where three rounds in four were faster stored about 1 winner in 5 that was the
+# default itself (its rounds' ratios pure noise) at 5 rounds; a gain under 2 % is not worth
+# changing every later render on the device for.
+CONFIRM_P = 0.01
+MIN_GAIN = 1.02
+# Rounds: at least MIN_CONFIRM_ROUNDS, where 12 faster rounds of 14 give p = 0.0065 (a sign
+# test reaches 0.01 from 7 rounds, with none slower); more, up to MAX_CONFIRM_ROUNDS, as make
+# about CONFIRM_SECONDS of renders a side: 5 rounds of 10 ms renders on a shared 2-core machine
+# confirmed gains of 1.47x and 1.64x that 40 rounds measured at 0.99x and 1.01x. Even, so that
+# each side is rendered first as often.
+MIN_CONFIRM_ROUNDS = 14
 CONFIRM_SECONDS = 1.0
 MAX_CONFIRM_ROUNDS = 40
 # The knobs of one Kernel Tuner run's fixed setup: the packed scene's (host) and the compiler's
@@ -263,6 +276,88 @@ class BruteForceWithinBudget:
         return [r for r in runner.run(ordered, tuning_options) if r is not None]
 
 
+# A run of fewer kernel configurations than this, or than POPULATIONS_IN_SPACE times the
+# strategy's population (its first sample), is tried whole by brute force whatever --strategy
+# says: on spheres' 12, bayes_opt failed to draw its sample of 20, and diff_evo, pso and
+# firefly_algorithm failed with an IndexError (pso on the one configuration of a later host
+# configuration), while a search saves little over trying a handful of configurations.
+SMALL_SPACE = 16
+POPULATIONS_IN_SPACE = 3
+
+
+def strategy_population(name: str, dimensions: int) -> int:
+    """The configurations Kernel Tuner's strategy `name` draws before it searches: its popsize
+    option's default (times the space's `dimensions` where its options say so), 0 if it has
+    none."""
+    options = getattr(import_kernel_tuner().strategy_map[name], "_options", {})
+    size = int(options.get("popsize", ("", 0))[1])
+    if options.get("popsize_times_dimensions", ("", False))[1]:
+        size *= dimensions
+    return size
+
+
+class _RecordingRunner:
+    """Kernel Tuner's runner, keeping every result it returns (the configurations timed when a
+    strategy lets the budget's end out) and what it raised (not the strategy's failure)."""
+
+    def __init__(self, runner: Any) -> None:
+        self.runner = runner
+        self.results: list[dict] = []
+        self.raised: BaseException | None = None
+
+    def run(self, parameter_space: Any, tuning_options: Any) -> list:
+        try:
+            results = self.runner.run(parameter_space, tuning_options)
+        except BaseException as err:
+            self.raised = err
+            raise
+        self.results += [r for r in results if r is not None]
+        return results
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self.runner, name)
+
+
+class StrategyWithinBudget:
+    """Kernel Tuner's strategy `name` on one run, kept to what its results can say: a space too
+    small for it (SMALL_SPACE) tried by `brute_force` instead, told through `note`; the budget's
+    end, which some strategies let out as StopCriterionReached (greedy_ils and
+    simulated_annealing after their first configuration), the run's end, with what was timed;
+    any other failure of the strategy one line naming it. A Kernel Tuner strategy."""
+
+    def __init__(self, name: str, scene: str, brute_force: BruteForceWithinBudget,
+                 note: Callable[[str], None]) -> None:
+        self.name = name
+        self.scene = scene
+        self.brute_force = brute_force
+        self.note = note
+
+    def tune(self, searchspace: Any, runner: Any, tuning_options: Any) -> list[dict]:
+        from kernel_tuner.util import StopCriterionReached
+
+        population = strategy_population(self.name,
+                                         len(searchspace.get_true_tunable_params()))
+        least = max(SMALL_SPACE, POPULATIONS_IN_SPACE * population)
+        if searchspace.size < least:
+            why = (f"{POPULATIONS_IN_SPACE} times its population of {population}"
+                   if least > SMALL_SPACE else "too few to search")
+            self.note(f"--strategy {self.name} on {self.scene}: "
+                      f"{plural(searchspace.size, 'kernel configuration')}, under {least} "
+                      f"({why}): tried whole by brute force, within the budget")
+            return self.brute_force.tune(searchspace, runner, tuning_options)
+        recording = _RecordingRunner(runner)
+        try:
+            return import_kernel_tuner().strategy_map[self.name].tune(
+                searchspace, recording, tuning_options)
+        except StopCriterionReached:
+            return recording.results
+        except Exception as err:
+            if err is recording.raised:  # the runner's (the cache file's OSError)
+                raise
+            raise ClrayError(f"--strategy {self.name} failed on {self.scene}: "
+                             f"{type(err).__name__}: {one_line(str(err))}") from err
+
+
 def host_configurations(space: dict[str, Sequence], seed: int = 0) -> list[dict[str, Any]]:
     """Every combination of the host and build knobs' values in `space`, in the order they are
     tried: the default first, then each single-knob change from it, then the rest in a seeded
@@ -330,6 +425,16 @@ def _slug(text: str) -> str:
     return re.sub(r"[^A-Za-z0-9.=]+", "_", text).strip("_")[:120] or "default"
 
 
+def cache_name(tuning: Tuning) -> str:
+    """The cache file name of a host and build configuration: its changed knobs, readable but
+    cut short, and a digest of every knob's value. By the cut label alone, 48 pairs of the 2,592
+    configurations under --allow-error (differing only in cl_fast_relaxed_math, past the 120th
+    character) shared a file, and Kernel Tuner gave the second the first's times and image
+    verdicts."""
+    digest = hashlib.sha256(configuration_key(tuning, {}).encode("utf-8")).hexdigest()[:12]
+    return f"{_slug(tuning.label())}-{digest}.json"
+
+
 def _cache_error(cache: Path, why: str) -> ClrayError:
     return ClrayError(f"Kernel Tuner's cache file {cache}: {why}: delete it, or tune into "
                       "another --out")
@@ -381,7 +486,8 @@ class Tuner:
                  size: tuple[int | None, int | None] = (None, None),
                  search_every_host: bool = False,
                  source: str | None = None, extra_params: dict[str, list] | None = None,
-                 progress: Callable[[str, Trial | None], None] | None = None) -> None:
+                 progress: Callable[[str, Trial | None], None] | None = None,
+                 say: Callable[[str], None] | None = None) -> None:
         self.kt = import_kernel_tuner()
         self.device = device
         self.out = out
@@ -405,8 +511,21 @@ class Tuner:
         self.source = source if source is not None else kernel_source()
         self.extra_params = extra_params or {}
         self.progress = progress or (lambda _msg, _trial: None)
+        self.say = say or (lambda _text: None)
+        # What was said while tuning (through `say`, at once), for the results and the report.
+        self.notes: list[str] = []
+        self._noted: set[str] = set()
         self.trials: list[Trial] = []
         self.runs: list[SceneRun] = []
+
+    def note(self, text: str, once: str | None = None) -> None:
+        """Say `text` now and keep it for the report; only the first of those `once` names."""
+        if once is not None:
+            if once in self._noted:
+                return
+            self._noted.add(once)
+        self.notes.append(text)
+        self.say(text)
 
     def prepare(self, path: Path) -> SceneRun:
         start = time.monotonic()
@@ -417,10 +536,12 @@ class Tuner:
         reference, stats = render_packed(packed, self.device)
         if stats["kernel_s"] < MIN_TIMED_KERNEL_S:
             height, width = reference.shape[:2]
-            warnings.warn(f"{path.stem}: the default renders {width}x{height} in "
-                          f"{stats['kernel_s'] * 1e3:.2g} ms, too short to time against the "
-                          f"machine's noise (under {MIN_TIMED_KERNEL_S * 1e3:.0f} ms): tune at "
-                          "the size you render, or larger (-W, -H)", stacklevel=2)
+            self.note(f"{path.stem}: the default renders {width}x{height} in "
+                      f"{stats['kernel_s'] * 1e3:.2g} ms, too short to time against the "
+                      f"machine's noise (under {MIN_TIMED_KERNEL_S * 1e3:.0f} ms): Kernel "
+                      "Tuner's times are mostly noise, and a winner is stored only where the "
+                      "interleaved renders confirm it; tune at the size you render, or larger "
+                      "(-W, -H)")
         return SceneRun(path.stem, path, settings, reference, packed, scene.render.spp,
                         time.monotonic() - start)
 
@@ -463,7 +584,7 @@ class Tuner:
         answer = [None] * len(args)
         answer[image_index] = args[image_index]
         cache = (self.out / "cache" / _slug(self.device.name) / run.name
-                 / self.cache_folder(run) / f"{_slug(base.label())}.json")
+                 / self.cache_folder(run) / cache_name(base))
         try:
             cache.parent.mkdir(parents=True, exist_ok=True)
         except OSError as err:
@@ -475,10 +596,12 @@ class Tuner:
         def legal(params: dict) -> bool:
             return self._legal(base, params, kernel_space)
 
-        strategy: Any = self.strategy
-        if strategy == "brute_force":
-            first = {**self.block_params(base), **self.kernel_params(base)}
-            strategy = BruteForceWithinBudget({k: v[0] for k, v in first.items()})
+        first = {**self.block_params(base), **self.kernel_params(base)}
+        brute_force = BruteForceWithinBudget({k: v[0] for k, v in first.items()})
+        strategy: Any = brute_force
+        if self.strategy != "brute_force":
+            strategy = StrategyWithinBudget(self.strategy, run.name, brute_force,
+                                            partial(self.note, once=f"strategy {run.name}"))
         with warnings.catch_warnings():
             # Kernel Tuner warns where a structured buffer meets a struct pointer: expected.
             warnings.simplefilter("ignore")
@@ -726,52 +849,79 @@ def best_configuration(trials: Sequence[Trial], scenes: Sequence[str]
     return key, whole[key]
 
 
-def confirm(run: SceneRun, tuning: Tuning, device: cl.Device,
-            rounds: int = CONFIRM_ROUNDS) -> dict:
-    """The default and `tuning` rendered in turns through clray's own launches (bands and all),
-    after a warm-up of each: median kernel times, so the gain is measured as renders see it.
-    At least `rounds` rounds, more where renders are short (CONFIRM_SECONDS)."""
-    scene = load_scene(run.path)
-    tuned = pack_for(scene, RenderSettings(width=run.settings.width,
-                                           height=run.settings.height, tuning=tuning), device)
-    times: dict[str, list[float]] = {"default": [], "tuned": []}
-    warm = max(render_packed(packed, device)[1]["kernel_s"]
-               for packed in (run.default_packed, tuned))
-    if warm > 0:
-        rounds = max(rounds, min(MAX_CONFIRM_ROUNDS, math.ceil(CONFIRM_SECONDS / warm)))
-    for _ in range(rounds):
-        for name, packed in (("default", run.default_packed), ("tuned", tuned)):
-            times[name].append(render_packed(packed, device)[1]["kernel_s"])
-    default_s, tuned_s = (statistics.median(times[n]) for n in ("default", "tuned"))
-    # Each round's pair ran back to back, so its ratio sees the same machine load: the spread
-    # of the ratios is the measurement's own noise.
-    ratios = [d / t for d, t in zip(times["default"], times["tuned"], strict=True) if t > 0]
-    return {"scene": run.name, "rounds": rounds, "default_kernel_s": default_s,
-            "tuned_kernel_s": tuned_s, "speedup": default_s / tuned_s if tuned_s else None,
-            "round_ratios": _quartiles(ratios),
-            "default_runs_s": times["default"], "tuned_runs_s": times["tuned"]}
+def confirm_rounds(round_s: float) -> int:
+    """The confirmation's rounds where a round renders each side for `round_s`: as many as make
+    CONFIRM_SECONDS of renders a side, within MIN_CONFIRM_ROUNDS and MAX_CONFIRM_ROUNDS, and
+    even (each side first as often)."""
+    wanted = math.ceil(CONFIRM_SECONDS / round_s) if round_s > 0 else MAX_CONFIRM_ROUNDS
+    rounds = min(MAX_CONFIRM_ROUNDS, max(MIN_CONFIRM_ROUNDS, wanted))
+    return rounds + rounds % 2
 
 
-def _quartiles(values: Sequence[float]) -> list[float] | None:
-    """[lower quartile, median, upper quartile], or None for fewer than two values."""
-    if len(values) < 2:
-        return None
-    lower, median, upper = statistics.quantiles(values, n=4, method="inclusive")
-    return [lower, median, upper]
+def confirm(runs: Sequence[SceneRun], tuning: Tuning, device: cl.Device) -> list[dict]:
+    """The default and `tuning` rendered through clray's own launches (bands and all) after a
+    warm-up of each, in rounds (confirm_rounds) that render both on every scene: the default
+    first in even rounds and `tuning` first in odd ones (ABBA), so that whatever favours a
+    render for following the other (a warm cache, a clock) favours each side alike. Per scene,
+    kernel times as renders see them (confirmation)."""
+    sides = [(run.default_packed,
+              pack_for(load_scene(run.path), RenderSettings(width=run.settings.width,
+                                                            height=run.settings.height,
+                                                            tuning=tuning), device))
+             for run in runs]
+    round_s = sum(max(render_packed(packed, device)[1]["kernel_s"] for packed in pair)
+                  for pair in sides)
+    rounds = confirm_rounds(round_s)
+    times: list[tuple[list[float], list[float]]] = [([], []) for _ in runs]
+    for i in range(rounds):
+        for pair, scene_times in zip(sides, times, strict=True):
+            for side in ((0, 1) if i % 2 == 0 else (1, 0)):
+                scene_times[side].append(render_packed(pair[side], device)[1]["kernel_s"])
+    return [confirmation(run.name, default_s, tuned_s)
+            for run, (default_s, tuned_s) in zip(runs, times, strict=True)]
+
+
+def confirmation(scene: str, default_s: list[float], tuned_s: list[float]) -> dict:
+    """A scene's record of the confirmation: its rounds' kernel times, default and tuned, their
+    medians, and its rounds' ratios (default / tuned): their median, the speed-up, and middle
+    half, and the rounds in which the tuned render was faster. The speed-up is not the ratio of
+    the medians, which pairs renders of different rounds (160x90 on PoCL under load: medians of
+    7.95 and 6.25 ms, 1.27x, where the rounds' ratios, 0.15x to 5.6x, had a median of 0.96x)."""
+    record = {"scene": scene, "rounds": len(default_s),
+              "default_kernel_s": statistics.median(default_s),
+              "tuned_kernel_s": statistics.median(tuned_s),
+              "default_runs_s": default_s, "tuned_runs_s": tuned_s}
+    ratios = round_ratios(record)
+    lower, speedup, upper = statistics.quantiles(ratios, n=4, method="inclusive")
+    return {**record, "speedup": speedup, "quartiles": [lower, upper],
+            "faster_rounds": sum(r > 1 for r in ratios)}
+
+
+def round_ratios(record: dict) -> list[float]:
+    """A confirmation's ratio of each round: the default's kernel time over the tuned one's,
+    rendered back to back, so under the same load."""
+    return [d / t for d, t in zip(record["default_runs_s"], record["tuned_runs_s"], strict=True)]
+
+
+def sign_test_p(faster: int, rounds: int) -> float:
+    """The one-sided sign test's p: the chance that at least `faster` of `rounds` rounds favour
+    the winner where each favours either side with even odds (no difference). Exact, whatever
+    the noise's distribution; a round's order effect, alternated (confirm), only lowers it."""
+    return sum(math.comb(rounds, k) for k in range(faster, rounds + 1)) / 2**rounds
 
 
 def confirmed_gain(confirmed: Sequence[dict]) -> dict:
-    """The interleaved renders' verdict on a winner, over every scene (geometric means): its
-    median gain, the rounds' middle half, and whether the gain stands beyond that spread,
-    which it does where the tuned render was faster in at least three rounds of four (the
-    lower quartile of the paired ratios above 1). A gain inside the spread is noise: storing
-    it would change every later render on the device for nothing."""
-    spans = [c["round_ratios"] for c in confirmed if c.get("round_ratios")]
-    if not spans or len(spans) < len(confirmed):
-        return {"gain": None, "spread": None, "beyond_spread": False}
-
-    def mean(values: list[float]) -> float:
-        return math.prod(values) ** (1 / len(values))
-
-    lower, gain, upper = (mean([span[i] for span in spans]) for i in range(3))
-    return {"gain": gain, "spread": [lower, upper], "beyond_spread": lower > 1}
+    """The confirmation's verdict on a winner over every scene (their records of one count of
+    rounds, confirm's). A round's ratio is the geometric mean of the scenes' ratios of that
+    round; the gain is the median of the rounds' ratios, with their middle half; the sign test
+    counts the rounds in which the winner was faster (a tie counts against it). Confirmed where
+    p < CONFIRM_P and the gain is at least MIN_GAIN: identical configurations pass the test in
+    fewer than 1 tune in 100, and less often still with the gain's bound. A gain that fails is
+    noise, or too small: storing it would change every later render on the device for it."""
+    by_round = zip(*(round_ratios(c) for c in confirmed), strict=True)
+    ratios = [math.prod(r) ** (1 / len(r)) for r in by_round]
+    lower, gain, upper = statistics.quantiles(ratios, n=4, method="inclusive")
+    faster = sum(r > 1 for r in ratios)
+    p = sign_test_p(faster, len(ratios))
+    return {"rounds": len(ratios), "gain": gain, "quartiles": [lower, upper],
+            "faster_rounds": faster, "p": p, "confirmed": p < CONFIRM_P and gain >= MIN_GAIN}

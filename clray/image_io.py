@@ -274,7 +274,8 @@ def pfm_bytes(image: np.ndarray) -> bytes:
 
 
 def read_pfm(path: str | Path) -> np.ndarray:
-    """(H, W, 3) float32 with row 0 at the top; greyscale ("Pf") files are not accepted."""
+    """float32 with row 0 at the top: (H, W, 3) from a colour ("PF") file, (H, W) from a
+    greyscale ("Pf") one, as pfm_bytes writes a pass of one number a pixel (depth, indices)."""
     data = Path(path).read_bytes()
     stream = io.BytesIO(data)
     try:
@@ -286,16 +287,18 @@ def read_pfm(path: str | Path) -> np.ndarray:
     if width < 1 or height < 1:
         raise ValueError(f"{Path(path).name}: expected a positive width and height, got {width}x"
                          f"{height}")
-    if kind != b"PF":
-        raise ValueError(f"{Path(path).name}: expected a colour PFM ('PF'), got {kind[:8]!r}")
+    if kind not in (b"PF", b"Pf"):
+        raise ValueError(f"{Path(path).name}: expected a colour ('PF') or greyscale ('Pf') "
+                         f"PFM, got {kind[:8]!r}")
     dtype = "<f4" if scale < 0 else ">f4"
-    count = width * height * 3
+    shape = (height, width) if kind == b"Pf" else (height, width, 3)
+    count = int(np.prod(shape))
     offset = stream.tell()
     if len(data) - offset < 4 * count:
         raise ValueError(f"{Path(path).name}: truncated PFM ({width}x{height} needs {4 * count} "
                          f"bytes of pixels, has {len(data) - offset})")
     pixels = np.frombuffer(data, dtype=dtype, count=count, offset=offset)
-    return pixels.reshape(height, width, 3)[::-1].astype(np.float32)
+    return pixels.reshape(shape)[::-1].astype(np.float32)
 
 
 def exr_bytes(image: np.ndarray, channels: dict[str, np.ndarray] | None = None) -> bytes:

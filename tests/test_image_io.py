@@ -33,6 +33,18 @@ def test_pfm_round_trip_keeps_values_and_orientation(tmp_path) -> None:
     np.testing.assert_array_equal(back, image)  # NaN compares equal here
 
 
+def test_greyscale_pfm_round_trip(tmp_path) -> None:
+    # A pass of one number a pixel (depth, the indices) is a "Pf" file, which read_pfm refused:
+    # clray could not read back its own pass files.
+    depth = np.arange(6, dtype=np.float32).reshape(2, 3)
+    depth[1, 2] = np.inf
+    path = tmp_path / "a.depth.pfm"
+    path.write_bytes(image_io.pfm_bytes(depth))
+    back = read_pfm(path)
+    assert back.dtype == np.float32 and back.shape == (2, 3)
+    np.testing.assert_array_equal(back, depth)
+
+
 def test_pfm_layout_is_little_endian_bottom_row_first(tmp_path) -> None:
     image = np.zeros((2, 3, 3), dtype=np.float32)
     image[0] = 1.0  # top row
@@ -52,15 +64,19 @@ def test_read_big_endian_pfm(tmp_path) -> None:
     np.testing.assert_array_equal(read_pfm(path), image)
 
 
-def test_read_pfm_rejects_truncated_and_grey_files(tmp_path) -> None:
+def test_read_pfm_rejects_truncated_and_unknown_files(tmp_path) -> None:
     short = tmp_path / "short.pfm"
     short.write_bytes(b"PF\n2 2\n-1.0\n" + bytes(8))
     with pytest.raises(ValueError, match="truncated"):
         read_pfm(short)
-    grey = tmp_path / "grey.pfm"
-    grey.write_bytes(b"Pf\n1 1\n-1.0\n" + bytes(4))
-    with pytest.raises(ValueError, match="colour"):
-        read_pfm(grey)
+    short_grey = tmp_path / "short_grey.pfm"
+    short_grey.write_bytes(b"Pf\n2 2\n-1.0\n" + bytes(12))
+    with pytest.raises(ValueError, match="truncated"):
+        read_pfm(short_grey)
+    other = tmp_path / "other.pfm"
+    other.write_bytes(b"P6\n1 1\n255\n" + bytes(3))
+    with pytest.raises(ValueError, match=r"colour .* or greyscale"):
+        read_pfm(other)
     # -2 x -2 asks for 12 values, as 2 x 2 does: the header's sizes, not the bytes, are wrong.
     negative = tmp_path / "negative.pfm"
     negative.write_bytes(b"PF\n-2 -2\n-1.0\n" + bytes(48))

@@ -558,7 +558,13 @@ def _check_pass_flags(parser: argparse.ArgumentParser, args: argparse.Namespace)
 
 
 def _same_file(a: Path, b: Path) -> bool:
-    return os.path.abspath(a) == os.path.abspath(b)
+    """Whether writing `a` would write `b`: the same name once symlinks are followed, as the
+    writes follow them (a link to the image, whose target need not exist yet). Hard links are
+    no clash: each write renames a new file onto its own name."""
+    try:
+        return os.path.realpath(a) == os.path.realpath(b)
+    except ValueError:  # a NUL byte in a name, which no link holds: its write reports it
+        return os.path.abspath(a) == os.path.abspath(b)
 
 
 def _stdout_error(err: OSError) -> ClrayError:

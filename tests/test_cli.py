@@ -631,6 +631,25 @@ def test_image_and_stats_both_to_stdout_is_a_usage_error(capsys, scene) -> None:
     assert "both write to standard output" in err
 
 
+@pytest.mark.parametrize(("link_to", "words"), [
+    ("out.png", "the output image are the same file"),
+    ("out.depth.pfm", "the out.depth.pfm pass file are the same file"),
+    ("sub/../out.png", "the output image are the same file"),
+], ids=["image", "pass", "dotdot"])
+def test_stats_json_through_a_link_to_the_image_is_a_usage_error(capsys, scene, tmp_path,
+                                                                 link_to, words) -> None:
+    # The names differ, so the stats replaced the image (or a pass file) with JSON, exit 0.
+    (tmp_path / "sub").mkdir()
+    (tmp_path / "out.png").write_bytes(b"image")
+    (tmp_path / "stats.json").symlink_to(link_to)
+    code, out, err = run(capsys, "render", scene, "-o", "out.png", "--aov", "depth",
+                         "--stats-json", "stats.json")
+    assert code == EXIT_USAGE and out == ""
+    assert_one_error_line(err)
+    assert words in err
+    assert (tmp_path / "out.png").read_bytes() == b"image"
+
+
 def test_empty_scene_name_is_a_usage_error(capsys) -> None:
     code, out, err = run(capsys, "render", "")
     assert code == EXIT_USAGE and out == ""

@@ -6,8 +6,6 @@ beside it) and draws their false-colour previews."""
 
 from __future__ import annotations
 
-import errno
-import os
 from pathlib import Path
 
 import numpy as np
@@ -24,8 +22,8 @@ from clray.image_io import (
     exr_bytes,
     image_bytes,
     pfm_bytes,
-    write_bytes_atomically,
 )
+from clray.output import WriteSet, write_set
 from clray.scene import model as M
 from clray.shapes import SHAPE_OF, SHAPES
 
@@ -223,28 +221,32 @@ def write_with_passes(path: str | Path, image: np.ndarray, encoding: Encoding,
                       aovs: dict[str, np.ndarray], previews: bool = False) -> None:
     """The image at `path` (its suffix picks the format), with its passes as layers of the
     same file where that is OpenEXR, else one PFM a pass beside it (pass_paths), and with
-    `previews` a false-colour PNG of each. Every file whole or not at all, the image last: where
-    it exists, so do its passes' files (what --frames --resume relies on). Bad arguments are
-    refused before any file is written, and so is a folder where one of the files goes."""
+    `previews` a false-colour PNG of each. Every file whole, and none in place unless all are
+    written (clray.output.WriteSet), the image last: where it exists, so do its passes' files
+    (what --frames --resume relies on). Bad arguments are refused before any file is written,
+    and so is a folder where one of the files goes."""
+    with write_set() as files:
+        stage_with_passes(files, path, image, encoding, aovs, previews)
+
+
+def stage_with_passes(files: WriteSet, path: str | Path, image: np.ndarray,
+                      encoding: Encoding, aovs: dict[str, np.ndarray],
+                      previews: bool = False) -> None:
+    """write_with_passes' files added to `files`, the image last, for its caller to commit
+    with more of its own (the command's stats)."""
     suffix = check_writer(path)
     check_encoding(encoding)
     aovs = as_passes(aovs, as_pixels(image).shape[:2])
-    # A folder where one of the files goes fails its write only after the files before it
-    # are written: passes left beside no image.
-    for target in (*pass_paths(path, tuple(aovs), previews), Path(path)):
-        if os.path.isdir(target):
-            raise IsADirectoryError(errno.EISDIR, os.strerror(errno.EISDIR), os.fspath(target))
     for name, values in aovs.items():
         if suffix != ".exr":
-            write_bytes_atomically(beside(path, name, ".pfm"), pfm_bytes(values))
+            files.add(beside(path, name, ".pfm"), pfm_bytes(values))
         if previews:
             # The previews' values are what to show, not light: linear PNG, as they are.
-            write_bytes_atomically(beside(path, name, ".png"),
-                                   image_bytes(".png", preview(name, values),
-                                               Encoding(linear=True)))
+            files.add(beside(path, name, ".png"),
+                      image_bytes(".png", preview(name, values), Encoding(linear=True)))
     channels = exr_channels(aovs) if suffix == ".exr" else {}
-    write_bytes_atomically(path, exr_bytes(image, channels) if suffix == ".exr"
-                           else image_bytes(suffix, image, encoding))
+    files.add(path, exr_bytes(image, channels) if suffix == ".exr"
+              else image_bytes(suffix, image, encoding))
 
 
 def pass_pixel_bytes(name: str) -> int:

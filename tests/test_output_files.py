@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from clray import image_io
 from clray.cli import main
 from clray.image_io import read_pfm
 from clray.output import write_bytes_atomically
@@ -58,6 +59,57 @@ def test_a_result_with_passes_names_the_pass_file_it_cannot_write(tmp_path):
     with pytest.raises(FileNotFoundError) as info:
         result.save(tmp_path / "missing" / "x.png")
     assert info.value.filename == str(tmp_path / "missing" / "x.depth.pfm")
+
+
+def _with_passes() -> RenderResult:
+    return RenderResult(np.zeros((2, 2, 3), np.float32), {},
+                        aovs={"depth": np.ones((2, 2), np.float32),
+                              "normal": np.zeros((2, 2, 3), np.float32)})
+
+
+@pytest.mark.skipif(not os.path.exists("/dev/full"), reason="needs Linux's /dev/full")
+def test_an_image_that_cannot_be_written_leaves_no_pass_file(tmp_path):
+    # The passes and previews were written first, to their own names, and stayed beside no
+    # image.
+    (tmp_path / "a.png").symlink_to("/dev/full")
+    with pytest.raises(OSError) as info:
+        _with_passes().save(tmp_path / "a.png", previews=True)
+    assert info.value.errno == errno.ENOSPC and info.value.filename == str(tmp_path / "a.png")
+    assert [p.name for p in tmp_path.iterdir()] == ["a.png"]
+
+
+def test_an_interrupt_while_the_image_is_encoded_leaves_no_file(tmp_path, monkeypatch):
+    # Once the passes' files are written, the image's encoder is interrupted: neither they nor
+    # their temporary files stay.
+    def interrupted(*_: object, **__: object) -> bytes:
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(image_io, "png_bytes", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        _with_passes().save(tmp_path / "a.png")
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_each_file_is_on_disk_before_any_name_appears_and_the_image_last(tmp_path,
+                                                                        monkeypatch):
+    events = []
+    fsync, replace = os.fsync, os.replace
+
+    def fsync_noted(fd: int) -> None:
+        events.append(("fsync", os.fstat(fd).st_ino))
+        fsync(fd)
+
+    def replace_noted(src: str | Path, dst: str | Path) -> None:
+        events.append(("rename", os.stat(src).st_ino))
+        replace(src, dst)
+
+    monkeypatch.setattr(os, "fsync", fsync_noted)
+    monkeypatch.setattr(os, "replace", replace_noted)
+    _with_passes().save(tmp_path / "a.png", previews=True)
+    names = ["a.depth.pfm", "a.depth.png", "a.normal.pfm", "a.normal.png", "a.png"]
+    inodes = [(tmp_path / name).stat().st_ino for name in names]
+    assert events == [("fsync", inode) for inode in inodes] + [("rename", inode)
+                                                             for inode in inodes]
 
 
 def test_a_pipe_is_written_not_replaced(tmp_path):

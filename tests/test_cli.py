@@ -430,6 +430,22 @@ def test_unwritable_stats_folder_is_found_before_rendering(capsys, scene, tmp_pa
     assert files_in(tmp_path) == ["file", "scene.toml"]
 
 
+@pytest.mark.skipif(not os.path.exists("/dev/full"), reason="needs Linux's /dev/full")
+@pytest.mark.parametrize("full", ["a.png", "s.json"])
+def test_a_full_disk_leaves_no_file_of_the_render(capsys, cl_device, scene, tmp_path,
+                                                  full) -> None:
+    # The pass files were written before the image and stayed when it failed, and the image
+    # and its passes when the stats failed after them (exit 1 both).
+    out = tmp_path / "fs"
+    out.mkdir()
+    (out / full).symlink_to("/dev/full")
+    code, _, err = run(capsys, "render", scene, *TINY, "-o", out / "a.png", "--aov",
+                       "depth,normal", "--aov-preview", "--stats-json", out / "s.json", "-q")
+    assert code == 1
+    assert err == f"clray: error: cannot write {out / full}: No space left on device\n"
+    assert files_in(out) == [full]
+
+
 @pytest.mark.skipif(os.geteuid() == 0, reason="root writes into read-only folders")
 def test_read_only_output_folder_is_found_before_rendering(capsys, scene, tmp_path,
                                                            monkeypatch) -> None:

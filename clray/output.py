@@ -14,6 +14,7 @@ import os
 import secrets
 import stat
 import sys
+import tempfile
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -128,6 +129,14 @@ class WriteSet:
         else:
             self._stage(path, lambda fd, _: _write_all(fd, payload))
 
+    def add_written(self, path: str | Path, write: Callable[[str], None]) -> None:
+        """The file that `write(name)` writes at the file name it is given, to be the file at
+        `path`: for a writer that takes a name, not bytes (OpenEXR's package)."""
+        if written_directly(path):
+            self._direct.append((path, _bytes_written(write, path)))
+        else:
+            self._stage(path, lambda _, tmp: write(os.fspath(tmp)))
+
     def _stage(self, path: str | Path, fill: Callable[[int, Path], None]) -> None:
         """A temporary file beside `path`'s target, filled by `fill(descriptor, its name)`."""
         target = output_target(path)
@@ -189,6 +198,19 @@ def write_set() -> Iterator[WriteSet]:
         files.commit()
     finally:
         files.discard()
+
+
+def _bytes_written(write: Callable[[str], None], path: str | Path) -> bytes:
+    """What `write(name)` writes, as bytes, for `path`, which is written directly: a writer that
+    seeks in its file (OpenEXR's) cannot write into a pipe. Through a private temporary file in
+    the system's temporary folder, the one file of a set written outside its own folder."""
+    try:
+        with tempfile.TemporaryDirectory(prefix="clray-") as folder:
+            name = os.path.join(folder, "file")
+            write(name)
+            return Path(name).read_bytes()
+    except OSError as err:
+        raise _naming(err, path) from None
 
 
 def _naming(err: OSError, path: str | Path) -> OSError:

@@ -16,10 +16,10 @@ from clray.device.launch import PASS_OUTPUTS
 from clray.errors import SettingsError
 from clray.image_io import (
     Encoding,
+    add_image,
     as_pixels,
     check_encoding,
     check_writer,
-    exr_bytes,
     image_bytes,
     pfm_bytes,
 )
@@ -244,9 +244,7 @@ def stage_with_passes(files: WriteSet, path: str | Path, image: np.ndarray,
             # The previews' values are what to show, not light: linear PNG, as they are.
             files.add(beside(path, name, ".png"),
                       image_bytes(".png", preview(name, values), Encoding(linear=True)))
-    channels = exr_channels(aovs) if suffix == ".exr" else {}
-    files.add(path, exr_bytes(image, channels) if suffix == ".exr"
-              else image_bytes(suffix, image, encoding))
+    add_image(files, path, image, encoding, exr_channels(aovs) if suffix == ".exr" else None)
 
 
 def pass_pixel_bytes(name: str) -> int:
@@ -273,7 +271,7 @@ def passes_host_bytes(aovs: tuple[str, ...], denoise: bool, suffix: str) -> int:
     guides with `denoise`) and writing them beside an image of `suffix` adds to the image's
     own (clray.image_io.image_host_bytes): the largest of making the passes (the raw outputs
     beside them), denoising (the denoiser's images beside them) and writing (the passes kept,
-    with a PFM's copies of the largest, or OpenEXR's channels and their share of the file).
+    with a PFM's copies of the largest, or OpenEXR's float32 channels of them).
     With `denoise`, the render's noisy image is kept beside the denoised one. OIDN's own
     buffers come on top."""
     traced = aovs + tuple(name for name in DENOISE_GUIDES if denoise and name not in aovs)
@@ -283,8 +281,8 @@ def passes_host_bytes(aovs: tuple[str, ...], denoise: bool, suffix: str) -> int:
     kept = sum(pass_pixel_bytes(name) for name in aovs)
     making = RAW_PASS_BYTES + made + (OBJECT_PASS_TEMPORARY_BYTES if "object" in traced else 0)
     denoising = made + DENOISE_WORK_BYTES if denoise else 0
-    if suffix == ".exr":
-        write = 2 * kept
+    if suffix == ".exr":  # exr_channels' copies; OpenEXR writes the file from them
+        write = kept
     else:  # pfm_bytes: a float32 copy of an integer pass, its rows flipped, their bytes
         write = max((pass_pixel_bytes(name) * (3 if name in INDEX_PASSES else 2)
                      for name in aovs), default=0)

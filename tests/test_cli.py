@@ -446,6 +446,29 @@ def test_a_full_disk_leaves_no_file_of_the_render(capsys, cl_device, scene, tmp_
     assert files_in(out) == [full]
 
 
+def test_an_exr_that_cannot_be_written_is_one_line_and_leaves_no_file(
+        capsys, cl_device, scene, tmp_path, monkeypatch) -> None:
+    # OpenEXR raises RuntimeError, not OSError, for a write that fails: it was a traceback.
+    openexr = pytest.importorskip("OpenEXR")
+
+    class FullDisk:
+        def __init__(self, *_: object) -> None:
+            pass
+
+        def write(self, name: str) -> None:
+            Path(name).write_bytes(b"v/1\x01")  # some of the file, as a full disk leaves it
+            raise RuntimeError(f'Failed to write pixel data to image file "{name}". No space '
+                               "left on device.")
+
+    monkeypatch.setattr(openexr, "File", FullDisk)
+    code, _, err = run(capsys, "render", scene, *TINY, "-o", "out.exr", "--aov", "depth",
+                       "--stats-json", "s.json")
+    assert code == 1
+    assert err == ("clray: error: cannot write out.exr: OpenEXR: Failed to write pixel data to "
+                   "image file. No space left on device\n")
+    assert files_in(tmp_path) == ["scene.toml"]
+
+
 @pytest.mark.skipif(os.geteuid() == 0, reason="root writes into read-only folders")
 def test_read_only_output_folder_is_found_before_rendering(capsys, scene, tmp_path,
                                                            monkeypatch) -> None:

@@ -2,10 +2,15 @@
 
 from __future__ import annotations
 
+import contextlib
 import errno
 import os
+import resource
+import signal
 import stat
+import tempfile
 import threading
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -13,7 +18,7 @@ import pytest
 
 from clray import image_io
 from clray.cli import main
-from clray.image_io import read_pfm
+from clray.image_io import read_pfm, write_image
 from clray.output import write_bytes_atomically
 from clray.render import RenderResult
 
@@ -110,6 +115,72 @@ def test_each_file_is_on_disk_before_any_name_appears_and_the_image_last(tmp_pat
     inodes = [(tmp_path / name).stat().st_ino for name in names]
     assert events == [("fsync", inode) for inode in inodes] + [("rename", inode)
                                                              for inode in inodes]
+
+
+@contextlib.contextmanager
+def _files_at_most(size: int) -> Iterator[None]:
+    """Files this process writes end at `size` bytes, as on a full disk: a write past it fails
+    with EFBIG (SIGXFSZ ignored) rather than killing the process."""
+    soft, hard = resource.getrlimit(resource.RLIMIT_FSIZE)
+    handler = signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
+    resource.setrlimit(resource.RLIMIT_FSIZE, (size, hard))
+    try:
+        yield
+    finally:
+        resource.setrlimit(resource.RLIMIT_FSIZE, (soft, hard))
+        signal.signal(signal.SIGXFSZ, handler)
+
+
+def test_an_exr_write_cut_short_is_an_os_error_naming_the_image(tmp_path):
+    # OpenEXR's own failure was a RuntimeError, which the command told as a traceback.
+    pytest.importorskip("OpenEXR")
+    image = np.random.default_rng(3).uniform(size=(64, 64, 3)).astype(np.float32)
+    result = RenderResult(image, {}, aovs={"depth": np.ones((64, 64), np.float32)})
+    path = tmp_path / "a.exr"
+    with _files_at_most(4096), pytest.raises(OSError) as info:
+        result.save(path)
+    assert info.value.errno == errno.EIO and info.value.filename == str(path)
+    # OpenEXR's words, without the temporary name they held.
+    assert info.value.strerror.startswith("OpenEXR: ") and "File too large" in str(info.value)
+    assert str(tmp_path) not in info.value.strerror
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_exr_is_written_in_its_own_folder_not_the_temporary_folder(tmp_path, monkeypatch):
+    # OpenEXR wrote a private file in /tmp and its bytes were copied: a full /tmp failed the
+    # image, and the image took twice its size in memory.
+    pytest.importorskip("OpenEXR")
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path / "no-such-folder"))
+    path = tmp_path / "a.exr"
+    path.write_bytes(b"old")
+    path.chmod(0o640)
+    image = np.arange(12, dtype=np.float32).reshape(2, 2, 3)
+    write_image(path, image)
+    assert np.array_equal(_exr_rgb(path), image)
+    assert stat.S_IMODE(path.stat().st_mode) == 0o640  # OpenEXR wrote into the staged file
+    assert [p.name for p in tmp_path.iterdir()] == ["a.exr"]
+
+
+def test_an_exr_into_a_pipe_is_written_whole(tmp_path):
+    # OpenEXR seeks in the file it writes, which a pipe refuses: its file is made first.
+    pytest.importorskip("OpenEXR")
+    fifo = tmp_path / "a.exr"
+    os.mkfifo(fifo)
+    received = []
+    reader = threading.Thread(target=lambda: received.append(fifo.read_bytes()), daemon=True)
+    reader.start()
+    image = np.arange(12, dtype=np.float32).reshape(2, 2, 3)
+    write_image(fifo, image)
+    reader.join(timeout=10)
+    copy = tmp_path / "copy.exr"
+    copy.write_bytes(received[0])
+    assert np.array_equal(_exr_rgb(copy), image)
+
+
+def _exr_rgb(path: Path) -> np.ndarray:
+    import OpenEXR
+
+    return OpenEXR.File(str(path)).channels()["RGB"].pixels
 
 
 def test_a_pipe_is_written_not_replaced(tmp_path):

@@ -75,6 +75,7 @@ from clray.output import (
     error_words,
     output_target,
     refuse_a_folder,
+    refuse_read_only,
     temporary_name,
     write_set,
     written_directly,
@@ -648,7 +649,8 @@ def _say(message: str) -> None:
 def _check_writable(path: Path) -> None:
     """Before rendering, so that a typo in -o or a read-only folder does not cost a whole
     render: the folder (made where missing) must take a new file, which a probe file (removed
-    at once) shows more reliably than permission bits (root, read-only mounts, ACLs)."""
+    at once) shows more reliably than permission bits (root, read-only mounts, ACLs), and a
+    file there must not be read-only."""
     if written_directly(path):
         try:
             os.stat(path)  # a closed descriptor: /dev/stdout names no file
@@ -672,6 +674,7 @@ def _check_writable(path: Path) -> None:
     try:
         os.close(os.open(probe, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600))
         os.unlink(probe)
+        refuse_read_only(path)  # after the probe, for a read-only file system's own words
     except OSError as err:
         raise cannot_write(path, err) from err
 

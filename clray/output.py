@@ -149,6 +149,9 @@ class WriteSet:
             replaced = _regular_file_mode(target)
             fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
             self._renames.append((tmp, target))  # discard's to remove from here on
+            # After the temporary file, whose failure names a folder's problem in the system's
+            # words (a read-only file system), as the file's mode could not.
+            refuse_read_only(target)
             try:
                 if replaced is not None:
                     # The file replaced keeps its permissions (a 0o640 image stays private);
@@ -242,7 +245,16 @@ def temporary_name(path: Path, kind: str) -> Path:
     return path.with_name(f".{kept}.{os.getpid()}.{secrets.token_hex(4)}.{kind}")
 
 
-def _regular_file_mode(path: Path) -> int | None:
+def refuse_read_only(path: str | Path) -> None:
+    """PermissionError naming `path` where it is, through any symlinks, a regular file that
+    this process may not write (its mode, an ACL): replacing a file takes only its folder's
+    permission, and would overwrite what its owner made read-only."""
+    if _regular_file_mode(path) is not None and not os.access(path, os.W_OK):
+        raise PermissionError(errno.EACCES, f"{os.strerror(errno.EACCES)} (read-only file)",
+                              os.fspath(path))
+
+
+def _regular_file_mode(path: str | Path) -> int | None:
     """The permission bits of the regular file at `path`, or None where there is none."""
     try:
         mode = os.stat(path).st_mode

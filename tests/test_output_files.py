@@ -183,6 +183,52 @@ def _exr_rgb(path: Path) -> np.ndarray:
     return OpenEXR.File(str(path)).channels()["RGB"].pixels
 
 
+def _read_only(monkeypatch: pytest.MonkeyPatch, *paths: Path) -> None:
+    """`paths` not writable by this process, as for anyone but root with mode 0o444 (root may
+    write any file, and the tests run as root in places)."""
+    access = os.access
+    locked = {os.path.realpath(path) for path in paths}
+
+    def access_but_locked(path: str | Path, mode: int, **options: object) -> bool:
+        if mode & os.W_OK and os.path.realpath(path) in locked:
+            return False
+        return access(path, mode, **options)
+
+    monkeypatch.setattr(os, "access", access_but_locked)
+
+
+@pytest.mark.parametrize("locked", ["a.png", "a.depth.pfm"])
+def test_a_read_only_file_is_not_replaced(tmp_path, monkeypatch, locked):
+    # The rename needs only the folder's permission: a 0o444 image was replaced, exit 0.
+    for name in ("a.png", "a.depth.pfm"):
+        (tmp_path / name).write_bytes(b"old")
+    _read_only(monkeypatch, tmp_path / locked)
+    with pytest.raises(PermissionError) as info:
+        _with_passes().save(tmp_path / "a.png")
+    assert info.value.filename == str(tmp_path / locked)
+    assert info.value.strerror == "Permission denied (read-only file)"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.depth.pfm", "a.png"]
+    assert (tmp_path / "a.png").read_bytes() == (tmp_path / "a.depth.pfm").read_bytes() == b"old"
+
+
+def test_a_read_only_image_is_found_before_rendering(tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setattr("clray.cli.render", _not_rendered)
+    (tmp_path / "a.png").write_bytes(b"old")
+    (tmp_path / "link.png").symlink_to("a.png")
+    _read_only(monkeypatch, tmp_path / "a.png")
+    code = main(["render", str(ROOT / "scenes" / "spheres.toml"), "-o", "link.png"])
+    assert code == 1
+    target = os.path.realpath(tmp_path / "a.png")  # through the link, its target is named
+    assert capsys.readouterr().err == (f"clray: error: cannot write {target}: Permission denied "
+                                       "(read-only file)\n")
+    assert (tmp_path / "a.png").read_bytes() == b"old"
+
+
+def _not_rendered(*_: object, **__: object) -> None:
+    raise AssertionError("rendered although the output could not be written")
+
+
 def test_a_pipe_is_written_not_replaced(tmp_path):
     fifo = tmp_path / "pipe"
     os.mkfifo(fifo)

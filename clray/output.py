@@ -140,19 +140,19 @@ class WriteSet:
     def _stage(self, path: str | Path, fill: Callable[[int, Path], None]) -> None:
         """A temporary file beside `path`'s target, filled by `fill(descriptor, its name)`."""
         target = output_target(path)
-        # Created with 0o666 rather than through mkstemp so that a new file gets the usual
-        # umask-derived permissions.
         tmp = temporary_name(target, "tmp")
         try:
             if os.path.isdir(target):  # the rename would fail only at the commit
                 raise IsADirectoryError(errno.EISDIR, os.strerror(errno.EISDIR))
             replaced = _regular_file_mode(target)
+            # Created with 0o666 rather than through mkstemp so that a new file gets the usual
+            # umask-derived permissions.
             fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
             self._renames.append((tmp, target))  # discard's to remove from here on
-            # After the temporary file, whose failure names a folder's problem in the system's
-            # words (a read-only file system), as the file's mode could not.
-            refuse_read_only(target)
             try:
+                # After the temporary file, whose failure tells a folder's problem in the
+                # system's words (a read-only file system), which the file's mode would not.
+                refuse_read_only(target)
                 if replaced is not None:
                     # The file replaced keeps its permissions (a 0o640 image stays private);
                     # the rename makes a new file, which would have the umask's.

@@ -284,6 +284,12 @@ def test_image_host_bytes_bound_the_writers_memory(suffix, encoding, tmp_path):
         image.nbytes + image_io.WRITE_BYTES[suffix] * height * width)
 
 
+def test_image_bytes_refuses_exr_which_openexr_writes_as_a_file() -> None:
+    # Not a PNG under an .exr name: OpenEXR's package writes files, not bytes (write_image).
+    with pytest.raises(SettingsError, match=r"expected '\.png' or '\.pfm', got '\.exr'"):
+        image_io.image_bytes(".exr", np.zeros((1, 1, 3), np.float32))
+
+
 def test_formula_and_png_rows_slice_by_slice(monkeypatch):
     # Slices of a few rows (the last one short) give the codes and the file of the whole image
     # at once: the slices neither skip nor repeat rows, and each slice's first row is filtered

@@ -70,15 +70,23 @@ from clray.model_scene import (
     to_toml,
 )
 from clray.output import (
+    WriteSet,
     cannot_write,
     error_words,
     output_target,
     refuse_a_folder,
+    refuse_read_only,
     temporary_name,
-    write_bytes_atomically,
+    write_set,
     written_directly,
 )
-from clray.passes import PASS_NAMES, pass_paths, pass_problem, passes_host_bytes
+from clray.passes import (
+    PASS_NAMES,
+    pass_paths,
+    pass_problem,
+    passes_host_bytes,
+    stage_with_passes,
+)
 from clray.render import RenderResult, RenderSettings, render
 from clray.scene import limits
 from clray.scene.load import load_scene
@@ -559,7 +567,13 @@ def _check_pass_flags(parser: argparse.ArgumentParser, args: argparse.Namespace)
 
 
 def _same_file(a: Path, b: Path) -> bool:
-    return os.path.abspath(a) == os.path.abspath(b)
+    """Whether writing `a` would write `b`: the same name once symlinks are followed, as the
+    writes follow them (a link to the image, whose target need not exist yet). Hard links are
+    no clash: each write renames a new file onto its own name."""
+    try:
+        return os.path.realpath(a) == os.path.realpath(b)
+    except ValueError:  # a NUL byte in a name, which no link holds: its write reports it
+        return os.path.abspath(a) == os.path.abspath(b)
 
 
 def _stdout_error(err: OSError) -> ClrayError:
@@ -636,7 +650,8 @@ def _say(message: str) -> None:
 def _check_writable(path: Path) -> None:
     """Before rendering, so that a typo in -o or a read-only folder does not cost a whole
     render: the folder (made where missing) must take a new file, which a probe file (removed
-    at once) shows more reliably than permission bits (root, read-only mounts, ACLs)."""
+    at once) shows more reliably than permission bits (root, read-only mounts, ACLs), and a
+    file there must not be read-only."""
     if written_directly(path):
         try:
             os.stat(path)  # a closed descriptor: /dev/stdout names no file
@@ -660,6 +675,7 @@ def _check_writable(path: Path) -> None:
     try:
         os.close(os.open(probe, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600))
         os.unlink(probe)
+        refuse_read_only(path)  # after the probe, for a read-only file system's own words
     except OSError as err:
         raise cannot_write(path, err) from err
 
@@ -692,13 +708,19 @@ def _device_flag(parser: argparse.ArgumentParser) -> None:
                              f"{DEFAULT_DEVICE_ORDER})")
 
 
-def _write_stats(path: Path, stats: dict) -> None:
-    """--stats-json: the stats as JSON, to standard output ('-') or whole into a file."""
+def _commit_with_stats(files: WriteSet, path: Path | None, stats: dict) -> None:
+    """The `files` staged (an image and its passes) put in place, with --stats-json's stats as
+    JSON at `path`: one more file of the set, so that none is in place unless all are written,
+    or after them to standard output ('-'), which cannot be taken back."""
     payload = (json.dumps(stats, indent=2, default=str) + "\n").encode("utf-8")
+    if path not in (None, STDOUT):
+        _write(path, lambda: files.add(path, payload))
+    try:
+        files.commit()
+    except OSError as err:  # WriteSet's errors name the file that failed
+        raise cannot_write(err.filename, err) from err
     if path == STDOUT:
         _write(path, lambda: _to_stdout(payload))
-    else:
-        _write(path, lambda: write_bytes_atomically(path, payload))
 
 
 def _write(path: Path, write: Callable[[], None]) -> None:
@@ -712,7 +734,7 @@ def _write(path: Path, write: Callable[[], None]) -> None:
         if path == STDOUT:  # a reader that went away: the image or stats did not arrive
             raise _stdout_error(err) from err
         # The file the error names: an image's write writes its pass files too, and the one
-        # that failed is the one to name (write_bytes_atomically names each file it writes).
+        # that failed is the one to name (clray.output.WriteSet names each file it writes).
         raise cannot_write(err.filename or path, err) from err
 
 
@@ -906,23 +928,26 @@ def _render(args: argparse.Namespace) -> int:
                         progress, "note_tiles", None))
 
     write_started = time.perf_counter()
-    if output == STDOUT:
-        _write(output, lambda: _to_stdout(image_bytes(".png", result.image, result.encoding)))
-    else:
-        _write(output, lambda: result.save(output, previews=args.aov_preview))
-    height, width, _ = result.image.shape
-    stats = {
-        **result.stats,
-        "scene": str(args.scene),
-        "output": str(output),
-        "load_s": load_s,
-        "render_s": result.stats["total_s"],
-        "write_s": time.perf_counter() - write_started,
-        "total_s": time.perf_counter() - started,
-        **_image_figures(result, output),
-    }
-    if args.stats_json is not None:
-        _write_stats(args.stats_json, stats)
+    with write_set() as files:
+        if output == STDOUT:
+            _write(output, lambda: _to_stdout(image_bytes(".png", result.image,
+                                                          result.encoding)))
+        else:
+            _write(output, lambda: stage_with_passes(files, output, result.image,
+                                                     result.encoding, result.aovs,
+                                                     args.aov_preview))
+        height, width, _ = result.image.shape
+        stats = {
+            **result.stats,
+            "scene": str(args.scene),
+            "output": str(output),
+            "load_s": load_s,
+            "render_s": result.stats["total_s"],
+            "write_s": time.perf_counter() - write_started,
+            "total_s": time.perf_counter() - started,
+            **_image_figures(result, output),
+        }
+        _commit_with_stats(files, args.stats_json, stats)
 
     if not args.quiet:
         _warn_nonfinite(stats, output)
@@ -1084,7 +1109,8 @@ def _render_frames(args: argparse.Namespace, started: float) -> int:
     if dask_stats is not None:
         stats["dask"] = dask_stats
     if args.stats_json is not None:
-        _write_stats(args.stats_json, stats)
+        with write_set() as files:
+            _commit_with_stats(files, args.stats_json, stats)
     if not args.quiet:
         for record in stats["frames"]:
             _warn_nonfinite(record, Path(record["output"]), f"frame {record['frame']}: ")

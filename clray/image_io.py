@@ -11,12 +11,12 @@ device or pipe (/dev/stdout) is written directly.
 
 from __future__ import annotations
 
+import errno
 import functools
 import io
 import numbers
 import os
 import struct
-import tempfile
 import zlib
 from dataclasses import dataclass
 from pathlib import Path
@@ -25,7 +25,7 @@ import numpy as np
 
 from clray.errors import ClrayError, SettingsError
 from clray.metrics import per_pixel
-from clray.output import write_bytes_atomically
+from clray.output import WriteSet, write_set
 from clray.scene import limits
 from clray.scene.colour import srgb_encode
 
@@ -274,7 +274,8 @@ def pfm_bytes(image: np.ndarray) -> bytes:
 
 
 def read_pfm(path: str | Path) -> np.ndarray:
-    """(H, W, 3) float32 with row 0 at the top; greyscale ("Pf") files are not accepted."""
+    """float32 with row 0 at the top: (H, W, 3) from a colour ("PF") file, (H, W) from a
+    greyscale ("Pf") one, as pfm_bytes writes a pass of one number a pixel (depth, indices)."""
     data = Path(path).read_bytes()
     stream = io.BytesIO(data)
     try:
@@ -286,43 +287,52 @@ def read_pfm(path: str | Path) -> np.ndarray:
     if width < 1 or height < 1:
         raise ValueError(f"{Path(path).name}: expected a positive width and height, got {width}x"
                          f"{height}")
-    if kind != b"PF":
-        raise ValueError(f"{Path(path).name}: expected a colour PFM ('PF'), got {kind[:8]!r}")
+    if kind not in (b"PF", b"Pf"):
+        raise ValueError(f"{Path(path).name}: expected a colour ('PF') or greyscale ('Pf') "
+                         f"PFM, got {kind[:8]!r}")
     dtype = "<f4" if scale < 0 else ">f4"
-    count = width * height * 3
+    shape = (height, width) if kind == b"Pf" else (height, width, 3)
+    count = int(np.prod(shape))
     offset = stream.tell()
     if len(data) - offset < 4 * count:
         raise ValueError(f"{Path(path).name}: truncated PFM ({width}x{height} needs {4 * count} "
                          f"bytes of pixels, has {len(data) - offset})")
     pixels = np.frombuffer(data, dtype=dtype, count=count, offset=offset)
-    return pixels.reshape(height, width, 3)[::-1].astype(np.float32)
+    return pixels.reshape(shape)[::-1].astype(np.float32)
 
 
-def exr_bytes(image: np.ndarray, channels: dict[str, np.ndarray] | None = None) -> bytes:
-    """Float32 RGB OpenEXR, ZIP-compressed, with more float32 `channels` of the image's size by
-    their full names (a layer's, "depth.Z"); needs the optional OpenEXR package."""
+def write_exr(name: str, image: np.ndarray, channels: dict[str, np.ndarray] | None = None
+              ) -> None:
+    """Float32 RGB OpenEXR at the file name `name`, ZIP-compressed, with more float32
+    `channels` of the image's size by their full names (a layer's, "depth.Z"); needs the
+    optional OpenEXR package, which writes to a file name (to streams only in its newest
+    releases): add_image gives it the temporary name of the file it becomes. The package's
+    RuntimeError for a write that failed (a full disk) as an OSError naming `name`, as a
+    failed write of another format's bytes would be."""
     try:
         import OpenEXR
     except ImportError:
         raise ClrayError(EXR_MISSING) from None
     pixels = np.ascontiguousarray(as_pixels(image), dtype=np.float32)
     header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
-    # The package writes to a file name (streams only in its newest releases): a private
-    # temporary file, whose bytes then go through write_bytes_atomically like every format.
-    with tempfile.TemporaryDirectory(prefix="clray-exr-") as folder:
-        path = os.path.join(folder, "image.exr")
-        more = {name: np.ascontiguousarray(values, dtype=np.float32)
-                for name, values in (channels or {}).items()}
-        OpenEXR.File(header, {"RGB": pixels, **more}).write(path)
-        return Path(path).read_bytes()
+    more = {channel: np.ascontiguousarray(values, dtype=np.float32)
+            for channel, values in (channels or {}).items()}
+    try:
+        OpenEXR.File(header, {"RGB": pixels, **more}).write(name)
+    except RuntimeError as err:
+        # 'Failed to write pixel data to image file "NAME". No space left on device.': the
+        # name is the caller's to give (a temporary one, which the user never named).
+        words = str(err).replace(f' "{name}"', "").rstrip(".")
+        raise OSError(errno.EIO, f"OpenEXR: {words}", name) from None
 
 
 # Host bytes a pixel: the (H, W, 3) float32 image a render returns, and at most what writing it
-# takes beside it, tracemalloc's peak of image_bytes (tests/test_image_io.py checks them, the
-# PNG's for each encoding; EXR's is the Python side's, OpenEXR's own buffers come on top). A PNG
-# holds its samples, their compressed data and the file, each twice as large at 16 bits.
+# takes beside it, tracemalloc's peak of write_image (tests/test_image_io.py checks them, the
+# PNG's for each encoding). A PNG holds its samples, their compressed data and the file, each
+# twice as large at 16 bits. OpenEXR writes its file from the image's own memory, with buffers
+# of its own that tracemalloc does not see (under half a byte a pixel, by the process's peak).
 FLOAT_IMAGE_BYTES = 12
-WRITE_BYTES = {".png": 18, ".pfm": 26, ".exr": 14}
+WRITE_BYTES = {".png": 18, ".pfm": 26, ".exr": 1}
 PNG16_WRITE_BYTES = 20
 
 
@@ -359,14 +369,31 @@ def write_image(path: str | Path, image: np.ndarray, encoding: Encoding = Encodi
 
     `encoding` applies to PNG only: PFM and EXR always hold the linear values as rendered.
     """
-    write_bytes_atomically(path, image_bytes(check_suffix(path), image, encoding))
+    with write_set() as files:
+        add_image(files, path, image, encoding)
+
+
+def add_image(files: WriteSet, path: str | Path, image: np.ndarray,
+              encoding: Encoding = Encoding(), channels: dict[str, np.ndarray] | None = None
+              ) -> None:
+    """The file write_image writes, added to `files` (PNG and PFM as bytes, OpenEXR written by
+    its package at the file's temporary name), with an OpenEXR image's more `channels`
+    (write_exr). Bad arguments, and a missing OpenEXR package, are refused before any file."""
+    suffix = check_writer(path)
+    check_encoding(encoding)
+    if suffix == ".exr":
+        pixels = as_pixels(image)
+        files.add_written(path, lambda name: write_exr(name, pixels, channels))
+    else:
+        files.add(path, image_bytes(suffix, image, encoding))
 
 
 def image_bytes(suffix: str, image: np.ndarray, encoding: Encoding = Encoding()) -> bytes:
-    """The file `write_image` writes for `suffix` (.png, .pfm or .exr), as bytes."""
+    """The file `write_image` writes for `suffix` .png or .pfm, as bytes (OpenEXR's package
+    writes files: write_exr)."""
     check_encoding(encoding)
     if suffix == ".pfm":
         return pfm_bytes(image)
-    if suffix == ".exr":
-        return exr_bytes(image)
+    if suffix != ".png":
+        raise SettingsError(f"image_bytes: expected '.png' or '.pfm', got {suffix!r}")
     return png_bytes(to_png_samples(image, encoding), linear=encoding.linear)

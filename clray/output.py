@@ -1,16 +1,21 @@
 """Output files written whole: a file that is either untouched or complete, never partial,
-through symlinks to their targets, and straight into devices and pipes. Images (clray.image_io),
-stats and tuning files (clray.device.tuning_files) are all written this way; and the one-line
-error for an output that cannot be written."""
+through symlinks to their targets, and straight into devices and pipes; files that belong
+together (an image and its passes, with the command's stats) as a set, none in place unless
+all are written (WriteSet). Images (clray.image_io, clray.passes), stats and tuning files
+(clray.device.tuning_files) are all written this way; and the one-line error for an output
+that cannot be written."""
 
 from __future__ import annotations
 
 import contextlib
+import errno
 import io
 import os
 import secrets
 import stat
 import sys
+import tempfile
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -72,56 +77,159 @@ def _special_file(path: str | Path) -> bool:
 
 
 def _write_descriptor(fd: int, payload: bytes) -> None:
-    """`payload` written to `fd` after what Python's own streams on it hold."""
+    """`payload` written to `fd`, one of this process's own, after what Python's own streams on
+    it hold."""
     for stream in (sys.stdout, sys.stderr):
         # None where the stream was closed at start; a stream replaced has no descriptor.
         with contextlib.suppress(AttributeError, OSError, ValueError):
             if stream.fileno() == fd:
                 stream.flush()
+    _write_all(fd, payload)
+
+
+def _write_all(fd: int, payload: bytes) -> None:
     view = memoryview(payload)
     while view:
         view = view[os.write(fd, view):]
 
 
-def write_bytes_atomically(path: str | Path, payload: bytes) -> None:
-    """Write `payload` so that `path` is either untouched or complete, never partial.
-
-    Through a symlink the target is replaced, not the link. A device or pipe cannot be
-    replaced by a rename (it would become a regular file), nor should this process's standard
-    output be (`>> log.txt`): they are written directly (written_directly)."""
+def _write_directly(path: str | Path, payload: bytes) -> None:
+    """`payload` into what `path` names that is written directly (written_directly)."""
     fd = _own_descriptor(path)
     if fd is not None:
         _write_descriptor(fd, payload)
         return
-    if _special_file(path):
-        with open(path, "wb") as stream:
-            stream.write(payload)
-        return
-    path = output_target(path)
-    # Same directory, so os.replace is a rename on one file system; created with 0o666 rather
-    # than through mkstemp so that a new file gets the usual umask-derived permissions.
-    tmp = temporary_name(path, "tmp")
-    replaced = _regular_file_mode(path)
-    try:
-        fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
+    with open(path, "wb") as stream:
+        stream.write(payload)
+
+
+class WriteSet:
+    """Files written as one, none in place unless all are written: an image and its passes'
+    files, and the command's stats beside them.
+
+    add and add_written write each file whole to a temporary name in its own folder (so that
+    its rename stays on one file system) and fsync it; commit then renames them in the order
+    added, so that a finished file is on disk before its name appears, and the last added
+    appears last (the image: where it exists, so do its passes). A failure before the commit
+    leaves no file of the set replaced, and discard removes the temporaries not renamed, also
+    after an interrupt (write_set does both). Through a symlink the target is replaced, not the
+    link. What is written directly (written_directly: a device, a pipe, this process's standard
+    output) cannot be renamed onto: it is held until the commit and written before the renames,
+    so that its failure (`/dev/full`) leaves no file of the set either. Errors name the file
+    being written, never its temporary name."""
+
+    def __init__(self) -> None:
+        self._renames: list[tuple[Path, Path]] = []  # (temporary name, file's name), in order
+        self._direct: list[tuple[str | Path, bytes]] = []
+
+    def add(self, path: str | Path, payload: bytes) -> None:
+        """`payload` to be the file at `path`."""
+        if written_directly(path):
+            self._direct.append((path, payload))
+        else:
+            self._stage(path, lambda fd, _: _write_all(fd, payload))
+
+    def add_written(self, path: str | Path, write: Callable[[str], None]) -> None:
+        """The file that `write(name)` writes at the file name it is given, to be the file at
+        `path`: for a writer that takes a name, not bytes (OpenEXR's package)."""
+        if written_directly(path):
+            self._direct.append((path, _bytes_written(write, path)))
+        else:
+            self._stage(path, lambda _, tmp: write(os.fspath(tmp)))
+
+    def _stage(self, path: str | Path, fill: Callable[[int, Path], None]) -> None:
+        """A temporary file beside `path`'s target, filled by `fill(descriptor, its name)`."""
+        target = output_target(path)
+        tmp = temporary_name(target, "tmp")
         try:
-            if replaced is not None:
-                # The file replaced keeps its permissions (a 0o640 image stays private); the
-                # rename makes a new file, which would have the umask's.
-                os.fchmod(fd, replaced)
-            with os.fdopen(fd, "wb") as stream:
-                stream.write(payload)
-            os.replace(tmp, path)
-        except BaseException:
-            tmp.unlink(missing_ok=True)
-            raise
+            if os.path.isdir(target):  # the rename would fail only at the commit
+                raise IsADirectoryError(errno.EISDIR, os.strerror(errno.EISDIR))
+            replaced = _regular_file_mode(target)
+            # Created with 0o666 rather than through mkstemp so that a new file gets the usual
+            # umask-derived permissions.
+            fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
+            self._renames.append((tmp, target))  # discard's to remove from here on
+            try:
+                # After the temporary file, whose failure tells a folder's problem in the
+                # system's words (a read-only file system), which the file's mode would not.
+                refuse_read_only(target)
+                if replaced is not None:
+                    # The file replaced keeps its permissions (a 0o640 image stays private);
+                    # the rename makes a new file, which would have the umask's.
+                    os.fchmod(fd, replaced)
+                fill(fd, tmp)
+                os.fsync(fd)
+            finally:
+                os.close(fd)
+        except OSError as err:
+            raise _naming(err, target) from None
+
+    def commit(self) -> None:
+        """What is written directly, then each temporary file renamed to its name, in the
+        order added."""
+        while self._direct:
+            path, payload = self._direct[0]
+            try:
+                _write_directly(path, payload)
+            except OSError as err:
+                raise _naming(err, path) from None
+            del self._direct[0]
+        while self._renames:
+            tmp, target = self._renames[0]
+            try:
+                os.replace(tmp, target)
+            except OSError as err:
+                raise _naming(err, target) from None
+            del self._renames[0]
+
+    def discard(self) -> None:
+        """The temporary files not renamed removed, and nothing left to write."""
+        for tmp, _ in self._renames:
+            with contextlib.suppress(OSError):
+                tmp.unlink(missing_ok=True)
+        self._renames.clear()
+        self._direct.clear()
+
+
+@contextlib.contextmanager
+def write_set() -> Iterator[WriteSet]:
+    """A WriteSet for the block to add to: committed when the block ends (unless the block has
+    committed it), discarded where the block or the commit raises, an interrupt included."""
+    files = WriteSet()
+    try:
+        yield files
+        files.commit()
+    finally:
+        files.discard()
+
+
+def _bytes_written(write: Callable[[str], None], path: str | Path) -> bytes:
+    """What `write(name)` writes, as bytes, for `path`, which is written directly: a writer that
+    seeks in its file (OpenEXR's) cannot write into a pipe. Through a private temporary file in
+    the system's temporary folder, the one file of a set written outside its own folder."""
+    try:
+        with tempfile.TemporaryDirectory(prefix="clray-") as folder:
+            name = os.path.join(folder, "file")
+            write(name)
+            return Path(name).read_bytes()
     except OSError as err:
-        if err.errno is None:
-            raise
-        # The temporary name is this function's own: the error names the file being written,
-        # as writing it directly would, for callers that show err.filename. OSError() picks
-        # the errno's subclass again (FileNotFoundError, IsADirectoryError).
-        raise OSError(err.errno, err.strerror, os.fspath(path)) from None
+        raise _naming(err, path) from None
+
+
+def _naming(err: OSError, path: str | Path) -> OSError:
+    """`err` naming `path`, the file being written, as writing it by its own name would, for
+    callers that show err.filename: not the temporary name. OSError() picks the errno's
+    subclass again (FileNotFoundError, IsADirectoryError, BrokenPipeError)."""
+    if err.errno is None:
+        return err
+    return OSError(err.errno, err.strerror, os.fspath(path))
+
+
+def write_bytes_atomically(path: str | Path, payload: bytes) -> None:
+    """Write `payload` so that `path` is either untouched or complete, never partial: a
+    WriteSet of one file."""
+    with write_set() as files:
+        files.add(path, payload)
 
 
 # Bytes of the file's name that its temporary name keeps: with the rest (24 bytes at most) it
@@ -137,7 +245,16 @@ def temporary_name(path: Path, kind: str) -> Path:
     return path.with_name(f".{kept}.{os.getpid()}.{secrets.token_hex(4)}.{kind}")
 
 
-def _regular_file_mode(path: Path) -> int | None:
+def refuse_read_only(path: str | Path) -> None:
+    """PermissionError naming `path` where it is, through any symlinks, a regular file that
+    this process may not write (its mode, an ACL): replacing a file takes only its folder's
+    permission, and would overwrite what its owner made read-only."""
+    if _regular_file_mode(path) is not None and not os.access(path, os.W_OK):
+        raise PermissionError(errno.EACCES, f"{os.strerror(errno.EACCES)} (read-only file)",
+                              os.fspath(path))
+
+
+def _regular_file_mode(path: str | Path) -> int | None:
     """The permission bits of the regular file at `path`, or None where there is none."""
     try:
         mode = os.stat(path).st_mode

@@ -6,8 +6,6 @@ beside it) and draws their false-colour previews."""
 
 from __future__ import annotations
 
-import errno
-import os
 from pathlib import Path
 
 import numpy as np
@@ -18,14 +16,14 @@ from clray.device.launch import PASS_OUTPUTS
 from clray.errors import SettingsError
 from clray.image_io import (
     Encoding,
+    add_image,
     as_pixels,
     check_encoding,
     check_writer,
-    exr_bytes,
     image_bytes,
     pfm_bytes,
-    write_bytes_atomically,
 )
+from clray.output import WriteSet, write_set
 from clray.scene import model as M
 from clray.shapes import SHAPE_OF, SHAPES
 
@@ -223,28 +221,30 @@ def write_with_passes(path: str | Path, image: np.ndarray, encoding: Encoding,
                       aovs: dict[str, np.ndarray], previews: bool = False) -> None:
     """The image at `path` (its suffix picks the format), with its passes as layers of the
     same file where that is OpenEXR, else one PFM a pass beside it (pass_paths), and with
-    `previews` a false-colour PNG of each. Every file whole or not at all, the image last: where
-    it exists, so do its passes' files (what --frames --resume relies on). Bad arguments are
-    refused before any file is written, and so is a folder where one of the files goes."""
+    `previews` a false-colour PNG of each. Every file whole, and none in place unless all are
+    written (clray.output.WriteSet), the image last: where it exists, so do its passes' files
+    (what --frames --resume relies on). Bad arguments are refused before any file is written,
+    and so is a folder where one of the files goes."""
+    with write_set() as files:
+        stage_with_passes(files, path, image, encoding, aovs, previews)
+
+
+def stage_with_passes(files: WriteSet, path: str | Path, image: np.ndarray,
+                      encoding: Encoding, aovs: dict[str, np.ndarray],
+                      previews: bool = False) -> None:
+    """write_with_passes' files added to `files`, the image last, for its caller to commit
+    with more of its own (the command's stats)."""
     suffix = check_writer(path)
     check_encoding(encoding)
     aovs = as_passes(aovs, as_pixels(image).shape[:2])
-    # A folder where one of the files goes fails its write only after the files before it
-    # are written: passes left beside no image.
-    for target in (*pass_paths(path, tuple(aovs), previews), Path(path)):
-        if os.path.isdir(target):
-            raise IsADirectoryError(errno.EISDIR, os.strerror(errno.EISDIR), os.fspath(target))
     for name, values in aovs.items():
         if suffix != ".exr":
-            write_bytes_atomically(beside(path, name, ".pfm"), pfm_bytes(values))
+            files.add(beside(path, name, ".pfm"), pfm_bytes(values))
         if previews:
             # The previews' values are what to show, not light: linear PNG, as they are.
-            write_bytes_atomically(beside(path, name, ".png"),
-                                   image_bytes(".png", preview(name, values),
-                                               Encoding(linear=True)))
-    channels = exr_channels(aovs) if suffix == ".exr" else {}
-    write_bytes_atomically(path, exr_bytes(image, channels) if suffix == ".exr"
-                           else image_bytes(suffix, image, encoding))
+            files.add(beside(path, name, ".png"),
+                      image_bytes(".png", preview(name, values), Encoding(linear=True)))
+    add_image(files, path, image, encoding, exr_channels(aovs) if suffix == ".exr" else None)
 
 
 def pass_pixel_bytes(name: str) -> int:
@@ -271,7 +271,7 @@ def passes_host_bytes(aovs: tuple[str, ...], denoise: bool, suffix: str) -> int:
     guides with `denoise`) and writing them beside an image of `suffix` adds to the image's
     own (clray.image_io.image_host_bytes): the largest of making the passes (the raw outputs
     beside them), denoising (the denoiser's images beside them) and writing (the passes kept,
-    with a PFM's copies of the largest, or OpenEXR's channels and their share of the file).
+    with a PFM's copies of the largest, or OpenEXR's float32 channels of them).
     With `denoise`, the render's noisy image is kept beside the denoised one. OIDN's own
     buffers come on top."""
     traced = aovs + tuple(name for name in DENOISE_GUIDES if denoise and name not in aovs)
@@ -281,8 +281,8 @@ def passes_host_bytes(aovs: tuple[str, ...], denoise: bool, suffix: str) -> int:
     kept = sum(pass_pixel_bytes(name) for name in aovs)
     making = RAW_PASS_BYTES + made + (OBJECT_PASS_TEMPORARY_BYTES if "object" in traced else 0)
     denoising = made + DENOISE_WORK_BYTES if denoise else 0
-    if suffix == ".exr":
-        write = 2 * kept
+    if suffix == ".exr":  # exr_channels' copies; OpenEXR writes the file from them
+        write = kept
     else:  # pfm_bytes: a float32 copy of an integer pass, its rows flipped, their bytes
         write = max((pass_pixel_bytes(name) * (3 if name in INDEX_PASSES else 2)
                      for name in aovs), default=0)

@@ -430,6 +430,45 @@ def test_unwritable_stats_folder_is_found_before_rendering(capsys, scene, tmp_pa
     assert files_in(tmp_path) == ["file", "scene.toml"]
 
 
+@pytest.mark.skipif(not os.path.exists("/dev/full"), reason="needs Linux's /dev/full")
+@pytest.mark.parametrize("full", ["a.png", "s.json"])
+def test_a_full_disk_leaves_no_file_of_the_render(capsys, cl_device, scene, tmp_path,
+                                                  full) -> None:
+    # The pass files were written before the image and stayed when it failed, and the image
+    # and its passes when the stats failed after them (exit 1 both).
+    out = tmp_path / "fs"
+    out.mkdir()
+    (out / full).symlink_to("/dev/full")
+    code, _, err = run(capsys, "render", scene, *TINY, "-o", out / "a.png", "--aov",
+                       "depth,normal", "--aov-preview", "--stats-json", out / "s.json", "-q")
+    assert code == 1
+    assert err == f"clray: error: cannot write {out / full}: No space left on device\n"
+    assert files_in(out) == [full]
+
+
+def test_an_exr_that_cannot_be_written_is_one_line_and_leaves_no_file(
+        capsys, cl_device, scene, tmp_path, monkeypatch) -> None:
+    # OpenEXR raises RuntimeError, not OSError, for a write that fails: it was a traceback.
+    openexr = pytest.importorskip("OpenEXR")
+
+    class FullDisk:
+        def __init__(self, *_: object) -> None:
+            pass
+
+        def write(self, name: str) -> None:
+            Path(name).write_bytes(b"v/1\x01")  # some of the file, as a full disk leaves it
+            raise RuntimeError(f'Failed to write pixel data to image file "{name}". No space '
+                               "left on device.")
+
+    monkeypatch.setattr(openexr, "File", FullDisk)
+    code, _, err = run(capsys, "render", scene, *TINY, "-o", "out.exr", "--aov", "depth",
+                       "--stats-json", "s.json")
+    assert code == 1
+    assert err == ("clray: error: cannot write out.exr: OpenEXR: Failed to write pixel data to "
+                   "image file. No space left on device\n")
+    assert files_in(tmp_path) == ["scene.toml"]
+
+
 @pytest.mark.skipif(os.geteuid() == 0, reason="root writes into read-only folders")
 def test_read_only_output_folder_is_found_before_rendering(capsys, scene, tmp_path,
                                                            monkeypatch) -> None:
@@ -629,6 +668,25 @@ def test_image_and_stats_both_to_stdout_is_a_usage_error(capsys, scene) -> None:
     assert code == EXIT_USAGE and out == ""
     assert_one_error_line(err)
     assert "both write to standard output" in err
+
+
+@pytest.mark.parametrize(("link_to", "words"), [
+    ("out.png", "the output image are the same file"),
+    ("out.depth.pfm", "the out.depth.pfm pass file are the same file"),
+    ("sub/../out.png", "the output image are the same file"),
+], ids=["image", "pass", "dotdot"])
+def test_stats_json_through_a_link_to_the_image_is_a_usage_error(capsys, scene, tmp_path,
+                                                                 link_to, words) -> None:
+    # The names differ, so the stats replaced the image (or a pass file) with JSON, exit 0.
+    (tmp_path / "sub").mkdir()
+    (tmp_path / "out.png").write_bytes(b"image")
+    (tmp_path / "stats.json").symlink_to(link_to)
+    code, out, err = run(capsys, "render", scene, "-o", "out.png", "--aov", "depth",
+                         "--stats-json", "stats.json")
+    assert code == EXIT_USAGE and out == ""
+    assert_one_error_line(err)
+    assert words in err
+    assert (tmp_path / "out.png").read_bytes() == b"image"
 
 
 def test_empty_scene_name_is_a_usage_error(capsys) -> None:

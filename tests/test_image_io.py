@@ -33,6 +33,18 @@ def test_pfm_round_trip_keeps_values_and_orientation(tmp_path) -> None:
     np.testing.assert_array_equal(back, image)  # NaN compares equal here
 
 
+def test_greyscale_pfm_round_trip(tmp_path) -> None:
+    # A pass of one number a pixel (depth, the indices) is a "Pf" file, which read_pfm refused:
+    # clray could not read back its own pass files.
+    depth = np.arange(6, dtype=np.float32).reshape(2, 3)
+    depth[1, 2] = np.inf
+    path = tmp_path / "a.depth.pfm"
+    path.write_bytes(image_io.pfm_bytes(depth))
+    back = read_pfm(path)
+    assert back.dtype == np.float32 and back.shape == (2, 3)
+    np.testing.assert_array_equal(back, depth)
+
+
 def test_pfm_layout_is_little_endian_bottom_row_first(tmp_path) -> None:
     image = np.zeros((2, 3, 3), dtype=np.float32)
     image[0] = 1.0  # top row
@@ -52,15 +64,19 @@ def test_read_big_endian_pfm(tmp_path) -> None:
     np.testing.assert_array_equal(read_pfm(path), image)
 
 
-def test_read_pfm_rejects_truncated_and_grey_files(tmp_path) -> None:
+def test_read_pfm_rejects_truncated_and_unknown_files(tmp_path) -> None:
     short = tmp_path / "short.pfm"
     short.write_bytes(b"PF\n2 2\n-1.0\n" + bytes(8))
     with pytest.raises(ValueError, match="truncated"):
         read_pfm(short)
-    grey = tmp_path / "grey.pfm"
-    grey.write_bytes(b"Pf\n1 1\n-1.0\n" + bytes(4))
-    with pytest.raises(ValueError, match="colour"):
-        read_pfm(grey)
+    short_grey = tmp_path / "short_grey.pfm"
+    short_grey.write_bytes(b"Pf\n2 2\n-1.0\n" + bytes(12))
+    with pytest.raises(ValueError, match="truncated"):
+        read_pfm(short_grey)
+    other = tmp_path / "other.pfm"
+    other.write_bytes(b"P6\n1 1\n255\n" + bytes(3))
+    with pytest.raises(ValueError, match=r"colour .* or greyscale"):
+        read_pfm(other)
     # -2 x -2 asks for 12 values, as 2 x 2 does: the header's sizes, not the bytes, are wrong.
     negative = tmp_path / "negative.pfm"
     negative.write_bytes(b"PF\n-2 -2\n-1.0\n" + bytes(48))
@@ -243,7 +259,7 @@ def test_table_encodes_slice_by_slice(monkeypatch):
     (".png", Encoding(exposure=-1, png_bits=16)), (".pfm", Encoding()), (".exr", Encoding())],
     ids=["png", "png16", "png-exposure", "png-linear", "png16-linear", "png16-exposure", "pfm",
          "exr"])
-def test_image_host_bytes_bound_the_writers_memory(suffix, encoding):
+def test_image_host_bytes_bound_the_writers_memory(suffix, encoding, tmp_path):
     # image_host_bytes' figure a pixel bounds what writing an image takes beside it (numpy's
     # and Python's allocations, which tracemalloc sees), for an image that compresses badly and
     # is larger than the PNG table's slice of samples (whose temporaries do not grow with it).
@@ -255,10 +271,10 @@ def test_image_host_bytes_bound_the_writers_memory(suffix, encoding):
         pytest.importorskip("OpenEXR")
     height, width = 768, 1024
     image = np.random.default_rng(2).uniform(-0.1, 1.3, (height, width, 3)).astype(np.float32)
-    image_io.image_bytes(suffix, image[:1, :1])  # the PNG table is built once, not per image
+    write_image(tmp_path / f"warm{suffix}", image[:1, :1])  # the PNG table is built once
     tracemalloc.start()
     try:
-        image_io.image_bytes(suffix, image, encoding)
+        write_image(tmp_path / f"a{suffix}", image, encoding)
         peak = tracemalloc.get_traced_memory()[1]
     finally:
         tracemalloc.stop()
@@ -266,6 +282,12 @@ def test_image_host_bytes_bound_the_writers_memory(suffix, encoding):
                     - image.nbytes)
     assert image_io.image_host_bytes(width, height, suffix) == (
         image.nbytes + image_io.WRITE_BYTES[suffix] * height * width)
+
+
+def test_image_bytes_refuses_exr_which_openexr_writes_as_a_file() -> None:
+    # Not a PNG under an .exr name: OpenEXR's package writes files, not bytes (write_image).
+    with pytest.raises(SettingsError, match=r"expected '\.png' or '\.pfm', got '\.exr'"):
+        image_io.image_bytes(".exr", np.zeros((1, 1, 3), np.float32))
 
 
 def test_formula_and_png_rows_slice_by_slice(monkeypatch):

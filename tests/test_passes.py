@@ -18,6 +18,7 @@ from PIL import Image
 from clray import cli
 from clray.device.context import has_fp64
 from clray.errors import EXIT_USAGE, SettingsError
+from clray.image_io import read_pfm
 from clray.knobs import Tuning
 from clray.passes import PASS_NAMES, preview
 from clray.reference import camera_rays
@@ -378,17 +379,6 @@ def scene_file(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
     return path
 
 
-def _read_pfm_any(path: Path) -> np.ndarray:
-    """A colour ("PF") or greyscale ("Pf") little-endian PFM, row 0 at the top."""
-    data = path.read_bytes()
-    kind, size, scale, pixels = data.split(b"\n", 3)
-    width, height = map(int, size.split())
-    assert float(scale) < 0
-    channels = 3 if kind == b"PF" else 1
-    values = np.frombuffer(pixels, dtype="<f4").reshape(height, width, channels)[::-1]
-    return values[..., 0] if channels == 1 else values
-
-
 def _cli(capsys: pytest.CaptureFixture, *argv: str | Path) -> tuple[int, str, str]:
     code = cli.main([str(a) for a in argv])
     out, err = capsys.readouterr()
@@ -405,9 +395,9 @@ def test_cli_writes_one_pfm_a_pass_beside_the_image_and_previews(
         "out.depth.pfm", "out.depth.png", "out.normal.pfm", "out.normal.png", "out.object.pfm",
         "out.object.png", "out.png", "scene.toml"]
     want = render(scene_file, RenderSettings(aovs=("depth", "normal", "object"))).aovs
-    assert np.array_equal(_read_pfm_any(tmp_path / "out.depth.pfm"), want["depth"])
-    assert np.array_equal(_read_pfm_any(tmp_path / "out.normal.pfm"), want["normal"])
-    assert np.array_equal(_read_pfm_any(tmp_path / "out.object.pfm"),
+    assert np.array_equal(read_pfm(tmp_path / "out.depth.pfm"), want["depth"])
+    assert np.array_equal(read_pfm(tmp_path / "out.normal.pfm"), want["normal"])
+    assert np.array_equal(read_pfm(tmp_path / "out.object.pfm"),
                           want["object"].astype(np.float32))
     assert set(np.unique(want["object"])) == {-1, 0, 1}
     with Image.open(tmp_path / "out.depth.png") as picture:
@@ -446,7 +436,7 @@ def test_cli_frames_get_their_passes_beside_each(capsys: pytest.CaptureFixture,
     assert sorted(p.name for p in (tmp_path / "out").iterdir()) == sorted(
         f"f_{frame:04d}{part}" for frame in (0, 1)
         for part in (".png", ".depth.pfm", ".object.pfm", ".depth.png", ".object.png"))
-    depths = [_read_pfm_any(tmp_path / "out" / f"f_{frame:04d}.depth.pfm") for frame in (0, 1)]
+    depths = [read_pfm(tmp_path / "out" / f"f_{frame:04d}.depth.pfm") for frame in (0, 1)]
     assert depths[0].shape == (12, 16) and not np.array_equal(depths[0], depths[1])
 
 
@@ -505,7 +495,7 @@ def test_passes_given_as_nested_lists_are_written_as_arrays_are(tmp_path: Path) 
     result = RenderResult(np.zeros((2, 3, 3), np.float32), {},
                           aovs={"depth": depth})  # type: ignore[dict-item]
     result.save(tmp_path / "out.png", previews=True)
-    assert np.array_equal(_read_pfm_any(tmp_path / "out.depth.pfm"), np.array(depth))
+    assert np.array_equal(read_pfm(tmp_path / "out.depth.pfm"), np.array(depth))
     assert (tmp_path / "out.depth.png").is_file()
 
 

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import functools
 import logging
 import math
 import os
@@ -25,7 +26,7 @@ import time
 import warnings
 from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, ParamSpec, TypeVar
 
 import numpy as np
 import pyopencl as cl
@@ -152,6 +153,30 @@ def _tell(messages: Iterable[str]) -> None:
         warnings.warn(message, stacklevel=3)
 
 
+_P = ParamSpec("_P")
+_R = TypeVar("_R")
+
+
+def _task(function: Callable[_P, _R]) -> Callable[_P, _R]:
+    """A function run as a task on the workers, whose ClrayError reaches the client as itself:
+    Dask pickles a failed task's exception with its cause and context (tblib), and where one of
+    them cannot be pickled (a pyopencl error's _ErrorRecord, the cause of a DeviceError) it sends
+    Exception(repr(err)) instead, which the command cannot tell from a bug. The message alone
+    says what a user needs."""
+
+    @functools.wraps(function)
+    def task(*args: _P.args, **kwargs: _P.kwargs) -> _R:
+        try:
+            return function(*args, **kwargs)
+        except ClrayError as err:
+            err.__cause__ = err.__context__ = None
+            err.__suppress_context__ = True
+            raise
+
+    return task
+
+
+@_task
 def _render_tile(scene: Scene, scene_key: str, settings: RenderSettings, start: int,
                  stop: int) -> dict:
     started = time.perf_counter()
@@ -178,6 +203,7 @@ def _render_tile(scene: Scene, scene_key: str, settings: RenderSettings, start: 
             "task_s": time.perf_counter() - started}
 
 
+@_task
 def _render_frame(sequence: Sequence, frame: int, settings: RenderSettings) -> dict:
     started = time.perf_counter()
     with _device_lock, _kept_warnings() as kept:
@@ -361,6 +387,7 @@ def render_sequence(client: Client, sequence: Sequence, frames: Iterable[int],
             "result_bytes": result_bytes, "task_s": task_s, "frames_by_worker": by_worker}
 
 
+@_task
 def _study_scene(scene: Scene, path: str, variants: tuple, repeat: int,
                  base: RenderSettings) -> list[dict]:
     with _device_lock, warnings.catch_warnings():

@@ -351,3 +351,32 @@ def test_a_tasks_warnings_go_back_to_the_client_and_compiler_output_nowhere(monk
     assert out["warnings"] == ["the scene's own warning"]
     with pytest.warns(UserWarning, match="^the scene's own warning$"):
         distributed._tell(out["warnings"])
+
+
+@needs_dask
+def test_a_device_error_from_pyopencl_reaches_the_client_as_itself(monkeypatch):
+    # Dask pickles a failed task's exception with its cause (tblib), and pyopencl's errors
+    # hold an _ErrorRecord, which cannot be pickled: the client got Exception(repr(err)), a
+    # traceback and exit 1, where the same render in one process says one line, exit 4.
+    import pyopencl as cl
+    from distributed.core import error_message
+    from distributed.protocol import pickle
+
+    from clray import distributed
+    from clray.errors import DeviceError
+
+    def no_platform(scene: object, settings: object) -> None:
+        record = cl._cl._ErrorRecord(msg="clGetPlatformIDs failed: PLATFORM_NOT_FOUND_KHR",
+                                     code=-1001, routine="clGetPlatformIDs")
+        try:
+            raise cl.LogicError(record)
+        except cl.Error as err:
+            raise DeviceError("no OpenCL platform found") from err
+
+    monkeypatch.setattr(distributed, "render", no_platform)
+    frames = SimpleNamespace(scene=lambda frame: frame)
+    with pytest.raises(DeviceError) as info:
+        distributed._render_frame(frames, 0, RenderSettings())  # type: ignore[arg-type]
+    # What the worker sends, as the client unpickles it.
+    sent = pickle.loads(error_message(info.value)["exception"].data)
+    assert type(sent) is DeviceError and str(sent) == "no OpenCL platform found"

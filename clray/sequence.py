@@ -7,31 +7,35 @@ import os
 import re
 import time
 from collections.abc import Callable, Iterable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from clray.errors import SceneError, SettingsError
 from clray.passes import exr_holds_passes, pass_paths
 from clray.render import RenderResult, RenderSettings, render
 from clray.scene.animation import Animation
+from clray.scene.files import KeptFiles
 from clray.scene.load import read_scene_data, scene_and_animation, scene_from_dict
 from clray.scene.model import Scene
 
 
 @dataclass(frozen=True)
 class Sequence:
-    """An animated scene file: its data as parsed and its checked [animation] table. Small and
-    picklable: a Dask cluster gets it once and makes each frame's scene where it renders it."""
+    """An animated scene file: its data as parsed, its checked [animation] table, and the files
+    it names (included scenes, meshes, textures) as they were read then. Picklable: a Dask
+    cluster gets it once and makes each frame's scene where it renders it, with no file."""
 
-    path: Path
+    path: Path  # absolute: the folder the names in `data` are relative to
     data: dict
     animation: Animation
+    files: KeptFiles = field(default_factory=KeptFiles)
 
     def scene(self, frame: int) -> Scene:
         """The scene at `frame`; SceneError names the key and the frame where an interpolated
         value is out of range (a Catmull-Rom curve may overshoot its keys)."""
         try:
-            return scene_from_dict(self.animation.data_at(self.data, frame), self.path)
+            with self.files.used():
+                return scene_from_dict(self.animation.data_at(self.data, frame), self.path)
         except SceneError as err:
             raise SceneError(err.file, err.key, f"{err.message} (animated, frame {frame})"
                              ) from None
@@ -39,14 +43,17 @@ class Sequence:
 
 def load_sequence(path: str | os.PathLike) -> Sequence:
     """Read and check an animated scene file: the scene, its [animation] table and each
-    keyframe by the loader's rules; SceneError if it has no [animation] table."""
-    path = Path(path)
+    keyframe by the loader's rules, keeping the files they read; SceneError if it has no
+    [animation] table."""
+    path = Path(path).absolute()
     data = read_scene_data(path)
-    animation = scene_and_animation(data, path)[1]
+    files = KeptFiles()
+    with files.used():
+        animation = scene_and_animation(data, path)[1]
     if animation is None:
         raise SceneError(path, "animation", "missing: --frames renders an [animation] table "
                          "(docs/scene_format.md)")
-    return Sequence(path, data, animation)
+    return Sequence(path, data, animation, files)
 
 
 def parse_frames(text: str) -> range:

@@ -486,3 +486,43 @@ def test_a_key_path_only_an_included_file_has_is_not_in_the_scene(tmp_scene, tmp
         "clray: error: scene.toml: animation.tracks[0].key: camera is not in the scene "
         "(give it a value there to animate it)"]
     assert not list(tmp_path.glob("f_*"))
+
+
+def test_a_frame_is_made_without_the_files_and_from_another_folder(tmp_path, monkeypatch):
+    """A Dask worker makes a frame's scene from the pickled sequence, in a working directory
+    of its own, maybe on a machine without the scene's files: the sequence carries them. (A
+    texture was read relative to the worker's directory: `file not found`, frame 0.)"""
+    import pickle
+    import shutil
+
+    from PIL import Image
+
+    project = tmp_path / "project"
+    (project / "tex").mkdir(parents=True)
+    (project / "parts").mkdir()
+    Image.fromarray(np.arange(4 * 6 * 3, dtype=np.uint8).reshape(4, 6, 3)).save(
+        project / "tex" / "b.png")
+    (project / "parts" / "tri.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
+    (project / "parts" / "more.toml").write_text(
+        '[[objects]]\ntype = "mesh"\nfile = "tri.obj"\nmaterial = "b"\n')
+    (project / "anim.toml").write_text(
+        'include = ["parts/more.toml"]\n'
+        "[camera]\nposition = [0, 0, 5]\nlook_at = [0, 0, 0]\n"
+        '[materials.b]\ntexture = { type = "image", file = "tex/b.png" }\n'
+        '[[lights]]\ntype = "point"\nposition = [4, 6, 5]\n'
+        '[[objects]]\ntype = "sphere"\ncenter = [0, 0, 0]\nradius = 1\nmaterial = "b"\n'
+        "[animation]\nframes = 3\n[[animation.tracks]]\n"
+        'key = "objects[0].center"\nframes = [0, 2]\nvalues = [[0, 0, 0], [0, 1, 0]]\n')
+    monkeypatch.chdir(project)
+    sequence = load_sequence("anim.toml")
+    here = sequence.scene(1)
+    sent = pickle.dumps(sequence)
+    shutil.rmtree(project)
+    (tmp_path / "worker").mkdir()
+    monkeypatch.chdir(tmp_path / "worker")
+    there = pickle.loads(sent).scene(1)
+    assert tuple(there.objects[1].center) == (0, 0.5, 0)
+    [texel_here, texel_there] = [[m.texture.image for m in scene.materials if m.texture]
+                                 for scene in (here, there)]
+    assert np.array_equal(texel_here[0], texel_there[0])
+    assert np.array_equal(there.objects[0].vertices, here.objects[0].vertices)

@@ -7,12 +7,12 @@ import os
 import re
 import time
 from collections.abc import Callable, Iterable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from clray.errors import SceneError, SettingsError
 from clray.passes import exr_holds_passes, pass_paths
-from clray.render import RenderResult, RenderSettings, render
+from clray.render import RenderResult, RenderSettings, progress_parts, render, settings_or_default
 from clray.scene.animation import Animation
 from clray.scene.files import KeptFiles
 from clray.scene.load import read_scene_data, scene_and_animation, scene_from_dict
@@ -142,14 +142,19 @@ def frame_complete(pattern: Path, frame: int, aovs: tuple[str, ...], previews: b
     return not aovs or image.suffix.lower() != ".exr" or exr_holds_passes(image, aovs)
 
 
-def render_frames(sequence: Sequence, frames: Iterable[int], settings: RenderSettings,
+def render_frames(sequence: Sequence, frames: Iterable[int], settings: RenderSettings | None,
                   done: Callable[[int, RenderResult], None]) -> None:
     """Render frames one after another in this process, `done(frame, result)` after each; the
-    stats' load_s is the time the frame's scene took to make from the file's data."""
-    for frame in frames:
+    stats' load_s is the time the frame's scene took to make from the file's data.
+    settings.progress hears the pixel-samples of all the frames, each frame's as it renders
+    after those of the frames before it."""
+    settings = settings_or_default(settings)
+    frames = list(frames)
+    reports = progress_parts(settings.progress, len(frames))
+    for frame, report in zip(frames, reports, strict=True):
         started = time.perf_counter()
         scene = sequence.scene(frame)
         load_s = time.perf_counter() - started
-        result = render(scene, settings)
+        result = render(scene, replace(settings, progress=report))
         result.stats["load_s"] = load_s
         done(frame, result)

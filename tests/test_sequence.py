@@ -526,3 +526,26 @@ def test_a_frame_is_made_without_the_files_and_from_another_folder(tmp_path, mon
                                  for scene in (here, there)]
     assert np.array_equal(texel_here[0], texel_there[0])
     assert np.array_equal(there.objects[0].vertices, here.objects[0].vertices)
+
+
+@pytest.mark.parametrize("aovs", [(), ("depth",)])
+def test_render_frames_reports_progress_within_each_frame(cl_device, aovs):
+    """One rise over all the frames, each frame's pixel-samples heard as it renders (the command
+    showed 0 % until a long frame was done)."""
+    from clray.render import RenderSettings
+    from clray.sequence import render_frames
+
+    reports: list[tuple[int, int]] = []
+    settings = RenderSettings(width=8, height=6, spp=2, aovs=aovs,
+                              progress=lambda done, total: reports.append((done, total)))
+    rendered: list[int] = []
+    render_frames(load_sequence(ORBIT), [4, 0, 7], settings,
+                  lambda frame, result: rendered.append(frame))
+    assert rendered == [4, 0, 7]
+    kernels = 1 + len(aovs)  # the passes' kernel reports after the image's
+    total = 3 * kernels * 8 * 6 * 2
+    assert {t for _, t in reports} == {total}
+    done = [d for d, _ in reports]
+    assert done == sorted(done) and done[0] == 0 and done[-1] == total
+    # Each frame's start and end is heard, not only the frames' ends.
+    assert {total // 3, 2 * total // 3} <= set(done)

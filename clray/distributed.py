@@ -459,6 +459,7 @@ def render_sequence(client: Client, sequence: Sequence, frames: Iterable[int],
     """Render frames on the cluster, one task each, `done(frame, result)` here as each
     arrives (in any order); returns what was moved and where it ran."""
     settings = dataclasses.replace(settings_or_default(settings), progress=None)
+    frames = [sequence.check_frame(f) for f in frames]  # each, before any is sent
     tasks = _Tasks(client, sequence,
                    lambda sequence, frame: client.submit(_render_frame, sequence, *frame,
                                                          settings, pure=False),

@@ -3,6 +3,7 @@ frame numbers and file names of `clray render --frames`, and the frames rendered
 
 from __future__ import annotations
 
+import operator
 import os
 import re
 import time
@@ -30,9 +31,23 @@ class Sequence:
     animation: Animation
     files: KeptFiles = field(default_factory=KeptFiles)
 
+    def check_frame(self, frame: int) -> int:
+        """`frame` if the animation has it; SettingsError if not (a track would hold its first
+        or last value there, a frame the animation does not have)."""
+        last = self.animation.frames - 1
+        try:
+            number = operator.index(frame)
+        except TypeError:
+            raise SettingsError(f"frame: expected a frame number, 0 to {last}, got "
+                                f"{type(frame).__name__}") from None
+        if not 0 <= number <= last:
+            raise SettingsError(f"frame {number}: the animation has frames 0 to {last}")
+        return number
+
     def scene(self, frame: int) -> Scene:
         """The scene at `frame`; SceneError names the key and the frame where an interpolated
         value is out of range (a Catmull-Rom curve may overshoot its keys)."""
+        frame = self.check_frame(frame)
         try:
             with self.files.used():
                 return scene_from_dict(self.animation.data_at(self.data, frame), self.path)
@@ -149,7 +164,7 @@ def render_frames(sequence: Sequence, frames: Iterable[int], settings: RenderSet
     settings.progress hears the pixel-samples of all the frames, each frame's as it renders
     after those of the frames before it."""
     settings = settings_or_default(settings)
-    frames = list(frames)
+    frames = [sequence.check_frame(f) for f in frames]  # each, before any is rendered
     reports = progress_parts(settings.progress, len(frames))
     for frame, report in zip(frames, reports, strict=True):
         started = time.perf_counter()

@@ -549,3 +549,22 @@ def test_render_frames_reports_progress_within_each_frame(cl_device, aovs):
     assert done == sorted(done) and done[0] == 0 and done[-1] == total
     # Each frame's start and end is heard, not only the frames' ends.
     assert {total // 3, 2 * total // 3} <= set(done)
+
+
+def test_a_frame_the_animation_lacks_is_refused_before_any_is_rendered():
+    # Tracks hold their first and last values beyond their keys: frame 1000 of 48 rendered
+    # frame 47's camera, and -7 frame 0's.
+    from clray.render import RenderSettings
+    from clray.sequence import render_frames
+
+    sequence = load_sequence(ORBIT)
+    for frame in (1000, -7, 48):
+        with pytest.raises(SettingsError, match=rf"^frame {frame}: the animation has frames 0 "
+                           "to 47$"):
+            sequence.scene(frame)
+    with pytest.raises(SettingsError, match=r"^frame: expected a frame number, 0 to 47, got "
+                       r"float$"):
+        sequence.scene(1.5)
+    with pytest.raises(SettingsError, match=r"^frame 1000: "):
+        render_frames(sequence, [0, 1000], RenderSettings(), refuse_to_render)
+    assert sequence.scene(np.int64(47)).camera == sequence.scene(47).camera

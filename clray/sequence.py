@@ -126,7 +126,13 @@ def frame_path(pattern: Path, frame: int) -> Path:
 
 
 def check_pattern(pattern: Path, n_frames: int) -> None:
-    """Each frame needs a file of its own: a printf-style frame number (`frame_%04d.png`)."""
+    """Each frame needs a file of its own: a printf-style frame number (`frame_%04d.png`), one
+    and decimal, which names every frame apart and holds no path separator: %.1e gave frames
+    100 and 101 one name, %c a `/` for frame 47."""
+    numbers = [c.group() for c in _CONVERSION.finditer(str(pattern)) if c.group() != "%%"]
+    if len(numbers) > 1 or any(number[-1] not in "diu" for number in numbers):
+        raise SettingsError(f"-o {pattern}: expected one decimal frame number (%d, %04d, %i or "
+                            f"%u), got {' '.join(numbers)}")
     if n_frames > 1 and frame_path(pattern, 0) == frame_path(pattern, 1):
         raise SettingsError(f"-o {pattern}: several frames need a frame number in the name, "
                             "such as out/frame_%04d.png")

@@ -153,6 +153,29 @@ def test_frames_argument_and_output_names():
     with pytest.raises(SettingsError, match="frame number"):
         check_pattern(Path("out.png"), 2)
     check_pattern(Path("out.png"), 1)
+    for good in ("f_%d.png", "f_%04d.png", "f_%5i.png", "f_%u.png", "100%%/f_%03d.png"):
+        check_pattern(Path(good), 3)
+
+
+@pytest.mark.parametrize(("name", "got"), [
+    ("f_%.1e.png", "%.1e"),  # frames 100 and 101: f_1.0e+02.png both
+    ("f_%c.png", "%c"),  # frame 47: f_/.png
+    ("f_%g.png", "%g"),  # frames 1000000 and 1000001: f_1e+06.png both
+    ("f_%s.png", "%s"),
+    ("f_%x.png", "%x"),
+    ("f_%d_%02d.png", "%d %02d"),
+])
+def test_a_frame_number_that_is_not_one_decimal_is_a_usage_error(tmp_path, capsys, monkeypatch,
+                                                                 name, got):
+    expected = (f"-o {tmp_path / name}: expected one decimal frame number (%d, %04d, %i or %u), "
+                f"got {got}")
+    with pytest.raises(SettingsError) as info:
+        check_pattern(tmp_path / name, 1)
+    assert str(info.value) == expected
+    monkeypatch.setattr("clray.sequence.render", refuse_to_render)
+    assert cli.main(["render", str(ORBIT), "--frames", "0:3", "-o", str(tmp_path / name)]) == 2
+    assert capsys.readouterr().err == f"clray: error: {expected}\n"
+    assert list(tmp_path.iterdir()) == []
 
 
 def test_frames_from_past_the_last_are_refused():

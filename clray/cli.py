@@ -1067,7 +1067,7 @@ def _render_frames(args: argparse.Namespace, started: float) -> int:
                                 "total_s": result.stats["load_s"] + render_s + write_s,
                                 **_image_figures(result, path)})
 
-            if args.dask is None:
+            if args.dask is None or not todo:  # none left (--resume): no cluster to start
                 dask_stats = None
                 render_frames(sequence, todo, settings, done)
             else:
@@ -1080,7 +1080,7 @@ def _render_frames(args: argparse.Namespace, started: float) -> int:
                     if progress is not None:
                         progress(len(records) * samples, len(todo) * samples)
 
-                if progress is not None and todo:  # none to render (--resume): none to show
+                if progress is not None:
                     progress(0, len(todo) * samples)
                 with _cluster(args) as client:
                     dask_stats = render_sequence(client, sequence, todo, settings, arrived)

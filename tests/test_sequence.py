@@ -591,3 +591,13 @@ def test_a_frame_the_animation_lacks_is_refused_before_any_is_rendered():
     with pytest.raises(SettingsError, match=r"^frame 1000: "):
         render_frames(sequence, [0, 1000], RenderSettings(), refuse_to_render)
     assert sequence.scene(np.int64(47)).camera == sequence.scene(47).camera
+
+
+def test_resume_with_every_frame_done_starts_no_cluster(tmp_path, capsys, monkeypatch):
+    for name in ("f_00.png", "f_01.png"):
+        (tmp_path / name).write_bytes(b"done")
+    monkeypatch.setattr(cli, "_cluster", refuse_to_render)
+    assert cli.main(["render", str(ORBIT), "--frames", "0:2", "-o", str(tmp_path / "f_%02d.png"),
+                     "--resume", "--dask"]) == 0
+    err = capsys.readouterr().err
+    assert "wrote 0 frames of frames 0-1" in err and "2 complete already" in err, err

@@ -26,7 +26,7 @@ class Sequence:
     it names (included scenes, meshes, textures) as they were read then. Picklable: a Dask
     cluster gets it once and makes each frame's scene where it renders it, with no file."""
 
-    path: Path  # absolute: the folder the names in `data` are relative to
+    path: Path  # absolute: the names in `data` are relative to its folder, wherever it is used
     data: dict
     animation: Animation
     files: KeptFiles = field(default_factory=KeptFiles)

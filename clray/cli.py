@@ -1076,11 +1076,9 @@ def _render_frames(args: argparse.Namespace, started: float) -> int:
                 _note_image_memory(args, first)
         records: list[dict] = []
         with _progress(quiet=args.quiet, verbose=args.verbose) as progress:
-            settings = _settings(args, None)
-            samples = ((args.width or first.render.width) * (args.height or first.render.height)
-                       * (args.spp or first.render.spp))
-            if progress is not None and todo:  # none to render (--resume): no progress to show
-                progress(0, len(todo) * samples)
+            # In this process each frame's render reports its pixel-samples after those of the
+            # frames before it (render_frames); on Dask each frame's are heard as it arrives.
+            settings = _settings(args, progress)
 
             def done(frame: int, result: RenderResult) -> None:
                 path = frame_path(args.output, frame)
@@ -1094,16 +1092,24 @@ def _render_frames(args: argparse.Namespace, started: float) -> int:
                                 "render_s": render_s, "write_s": write_s,
                                 "total_s": result.stats["load_s"] + render_s + write_s,
                                 **_image_figures(result, path)})
-                if progress is not None:
-                    progress(len(records) * samples, len(todo) * samples)
 
-            if args.dask is None:
+            if args.dask is None or not todo:  # none left (--resume): no cluster to start
                 dask_stats = None
                 render_frames(sequence, todo, settings, done)
             else:
+                samples = ((args.width or first.render.width)
+                           * (args.height or first.render.height)
+                           * (args.spp or first.render.spp))
 
+                def arrived(frame: int, result: RenderResult) -> None:
+                    done(frame, result)
+                    if progress is not None:
+                        progress(len(records) * samples, len(todo) * samples)
+
+                if progress is not None:
+                    progress(0, len(todo) * samples)
                 with _cluster(args) as client:
-                    dask_stats = render_sequence(client, sequence, todo, settings, done)
+                    dask_stats = render_sequence(client, sequence, todo, settings, arrived)
     stats = {"scene": str(args.scene), "frames": sorted(records, key=lambda r: r["frame"]),
              "skipped": len(frames) - len(todo), "total_s": time.perf_counter() - started}
     if dask_stats is not None:

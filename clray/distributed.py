@@ -3,7 +3,8 @@ one frame a task. Only this module imports Dask, and only when called: `pip inst
 'clray[dask]'`.
 
 Data movement: the scene (or the animation's scene data) goes to every worker once, with
-`client.scatter(..., broadcast=True)`; a task carries only its row range and settings. Each
+`client.scatter(..., broadcast=True)`, and again, once, if every worker holding it is lost
+(_Tasks); a task carries only its row range and settings. Each
 worker selects its own OpenCL device (`--device`, else its CLRAY_DEVICE, PYOPENCL_CTX, a GPU
 with its own memory, the first CPU device), packs the scene once for all its tiles and keeps
 compiled programs cached (clray.device.program caches per process). Per-pixel sampling
@@ -15,6 +16,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import functools
 import logging
 import math
 import os
@@ -25,7 +27,7 @@ import time
 import warnings
 from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, ParamSpec, TypeVar
 
 import numpy as np
 import pyopencl as cl
@@ -82,7 +84,8 @@ def connect(address: str | None, workers: int = LOCAL_WORKERS,
     """A client of the scheduler at `address` (`tcp://host:8786`), or of a LocalCluster of
     `workers` worker processes (one thread each: one task at a time per device) when None.
     An unreachable scheduler is a ClrayError after `timeout` seconds, an address this client
-    cannot use (malformed, or tls:// without Dask's TLS configuration) one at once."""
+    cannot use (malformed, or tls:// without Dask's TLS configuration) one at once; the client
+    waits as long for a worker to send the scene to again (_Tasks)."""
     distributed = import_distributed()
     if address is None:
         # CRITICAL, not ERROR: a task that raises is logged by its worker ("Compute Failed",
@@ -91,7 +94,8 @@ def connect(address: str | None, workers: int = LOCAL_WORKERS,
         # run again; tasks that keep killing workers reach here as KilledWorker.
         with distributed.LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
                                       dashboard_address=":0", silence_logs=logging.CRITICAL
-                                      ) as cluster, distributed.Client(cluster) as client:
+                                      ) as cluster, distributed.Client(cluster, timeout=timeout
+                                                                       ) as client:
             yield client
         return
     try:
@@ -152,6 +156,30 @@ def _tell(messages: Iterable[str]) -> None:
         warnings.warn(message, stacklevel=3)
 
 
+_P = ParamSpec("_P")
+_R = TypeVar("_R")
+
+
+def _task(function: Callable[_P, _R]) -> Callable[_P, _R]:
+    """A function run as a task on the workers, whose ClrayError reaches the client as itself:
+    Dask pickles a failed task's exception with its cause and context (tblib), and where one of
+    them cannot be pickled (a pyopencl error's _ErrorRecord, the cause of a DeviceError) it sends
+    Exception(repr(err)) instead, which the command cannot tell from a bug. The message alone
+    says what a user needs."""
+
+    @functools.wraps(function)
+    def task(*args: _P.args, **kwargs: _P.kwargs) -> _R:
+        try:
+            return function(*args, **kwargs)
+        except ClrayError as err:
+            err.__cause__ = err.__context__ = None
+            err.__suppress_context__ = True
+            raise
+
+    return task
+
+
+@_task
 def _render_tile(scene: Scene, scene_key: str, settings: RenderSettings, start: int,
                  stop: int) -> dict:
     started = time.perf_counter()
@@ -178,6 +206,7 @@ def _render_tile(scene: Scene, scene_key: str, settings: RenderSettings, start: 
             "task_s": time.perf_counter() - started}
 
 
+@_task
 def _render_frame(sequence: Sequence, frame: int, settings: RenderSettings) -> dict:
     started = time.perf_counter()
     with _device_lock, _kept_warnings() as kept:
@@ -191,21 +220,106 @@ def _render_frame(sequence: Sequence, frame: int, settings: RenderSettings) -> d
 # -- on the client -----------------------------------------------------------------------
 
 
-def _scatter(client: Client, value: object) -> tuple[Any, int, int]:
-    """(future, pickled bytes, workers): `value` sent once to every worker now connected."""
-    nbytes = len(pickle.dumps(value, protocol=pickle.HIGHEST_PROTOCOL))
-    workers = len(client.scheduler_info()["workers"])
-    [future] = client.scatter([value], broadcast=True, hash=False)
-    return future, nbytes, workers
+def _lost(err: BaseException, what: str) -> ClrayError | None:
+    """The one-line error for a task lost with the cluster (a worker that died each time it ran
+    it, the scheduler's connection, a cancellation clray did not ask for), naming `what` the
+    task was rendering; None for any other exception: the task's own ClrayError, or a bug."""
+    distributed = import_distributed()
+    if isinstance(err, distributed.KilledWorker):
+        return ClrayError(f"{what} not rendered: each Dask worker that ran it died (killed, or "
+                          "out of memory)")
+    if isinstance(err, distributed.comm.CommClosedError) or (
+            isinstance(err, distributed.client.FutureCancelledError)
+            and err.reason == "scheduler-connection-lost"):
+        return ClrayError(f"{what} not rendered: the connection to the Dask scheduler was lost")
+    if isinstance(err, distributed.client.FutureCancelledError):
+        return _Cancelled(f"{what} not rendered: cancelled by the Dask scheduler ({err.reason})")
+    return None
 
 
-def _arrived(done: Iterable[Any]) -> Iterator[tuple[Any, Any]]:
-    """(future, result) as each future of `done` (a distributed.as_completed) finishes, each
-    result fetched on its own. as_completed(with_results=True) fetches them concurrently through
-    the client's batched gathers, and there a 12-frame animation once waited for ever on its
-    last frame's result, which the scheduler held in memory (distributed 2026.8.0)."""
-    for future in done:
-        yield future, future.result()
+class _Cancelled(ClrayError):
+    """A task cancelled by the scheduler, not by clray: the data it needs was lost with the
+    workers that held it (_Tasks sends it again)."""
+
+
+def _result(task: Any, what: str) -> Any:
+    """task.result(), where the task was lost with the cluster a one-line ClrayError (_lost)."""
+    try:
+        return task.result()
+    except Exception as err:
+        lost = _lost(err, what)
+        if lost is None:
+            raise
+        raise lost from None
+
+
+class _Tasks:
+    """Tasks that each take one value sent to every worker (a scene, a sequence), and their
+    results as they arrive. The value is sent once (`client.scatter(..., broadcast=True)`) and
+    each task refers to it. Where every worker holding it is lost (the one worker, killed), the
+    scheduler forgets it and cancels the tasks that need it: then the value is sent again and
+    those tasks submitted again, once; a second loss is a one-line ClrayError naming a task's
+    `what`, as a task lost otherwise is (_lost)."""
+
+    def __init__(self, client: Client, value: object,
+                 submit: Callable[[Any, tuple], Any], what: Callable[[tuple], str]) -> None:
+        """`submit(future, args)`: the task of `args` on the value's future; `what(args)`: what
+        that task renders, for an error."""
+        self.client, self.value, self._submit, self.what = client, value, submit, what
+        self.nbytes = len(pickle.dumps(value, protocol=pickle.HIGHEST_PROTOCOL))
+        self.copies = 0  # sent, to this many workers in all
+        self.future = self._scatter()
+        self.workers = self.copies  # workers connected when it was first sent
+        self.resent = False
+        # The tasks not done yet, by key: the value's future each was submitted with, and
+        # its arguments.
+        self.pending: dict[Any, tuple[Any, tuple]] = {}
+        self.done = import_distributed().as_completed()
+
+    def _scatter(self) -> Any:
+        [future] = self.client.scatter([self.value], broadcast=True, hash=False)
+        # The workers it went to, counted after: sent again, it waits for a worker first.
+        self.copies += len(self.client.who_has([future])[future.key])
+        return future
+
+    def submit(self, *args: Any) -> None:
+        task = self._submit(self.future, args)
+        self.pending[task.key] = self.future, args
+        self.done.add(task)
+
+    def results(self) -> Iterator[Any]:
+        """Each task's result as it arrives, until every task submitted (before the iteration
+        or during it) is done; the value is forgotten after. Each result is fetched on its own:
+        as_completed(with_results=True) fetches them concurrently through the client's batched
+        gathers, and there a 12-frame animation once waited for ever on its last frame's
+        result, which the scheduler held in memory (distributed 2026.8.0)."""
+        try:
+            for task in self.done:
+                sent, args = self.pending.pop(task.key)
+                try:
+                    result = _result(task, self.what(args))
+                except _Cancelled:
+                    self._again(sent, args)
+                    continue
+                yield result
+        finally:
+            self.client.cancel([self.future])
+
+    def _again(self, sent: Any, args: tuple) -> None:
+        """A task cancelled because the value it took was lost, submitted again: with the value
+        sent again where it took the value sent last, which is then lost too."""
+        what = self.what(args)
+        if sent is self.future:
+            if self.resent:
+                raise ClrayError(f"{what} not rendered: every Dask worker holding the scene was "
+                                 "lost, again after it was sent once more")
+            self.resent = True
+            try:
+                self.future = self._scatter()
+            except TimeoutError:
+                raise ClrayError(f"{what} not rendered: every Dask worker holding the scene was "
+                                 "lost, and no worker came to take it again") from None
+        self.submit(*args)
 
 
 def tile_rows_for(rate_rows_per_s: float, rows_left: int, workers: int) -> int:
@@ -222,7 +336,7 @@ def render_still(client: Client, scene: Scene, settings: RenderSettings | None =
     bit, as render(scene, settings) on the workers' device. `tile_rows` fixes the band height
     (default: sized by the first tiles' rate to about TILE_SECONDS each). settings.progress
     hears pixel-samples as tiles arrive; on_tile(tiles done, tiles submitted) after each."""
-    distributed = import_distributed()
+    import_distributed()
     settings = settings_or_default(settings)
     if settings.denoise:
         # The denoiser needs the whole image's albedo and normal passes, which tiles lack.
@@ -239,30 +353,36 @@ def render_still(client: Client, scene: Scene, settings: RenderSettings | None =
     warn_deep_tree(scene, resolved)
     width, height, spp = (int(resolved[k]) for k in ("width", "height", "spp"))
     task_settings = dataclasses.replace(settings, progress=None)
-    scene_future, scene_bytes, workers = _scatter(client, scene)
+    tasks = _Tasks(client, scene,
+                   lambda scene, rows: client.submit(_render_tile, scene, scene.key,
+                                                     task_settings, *rows, pure=False),
+                   lambda rows: f"rows {rows[0]} to {rows[1] - 1}")
+    workers = tasks.workers
     row_samples = width * spp
 
     image = np.empty((height, width, 3), dtype=np.float32)
     tiles: list[dict] = []
     next_row = 0
+    submitted = 0
 
-    def submit(rows: int) -> Any:
-        nonlocal next_row
+    def submit(rows: int) -> None:
+        nonlocal next_row, submitted
         start, next_row = next_row, min(height, next_row + rows)
-        return client.submit(_render_tile, scene_future, scene_future.key, task_settings,
-                             start, next_row, pure=False)
+        tasks.submit(start, next_row)
+        submitted += 1
 
     if settings.progress is not None:
         settings.progress(0, height * row_samples)
     if tile_rows is not None:
-        pending = [submit(tile_rows) for _ in range(math.ceil(height / tile_rows))]
+        for _ in range(math.ceil(height / tile_rows)):
+            submit(tile_rows)
     else:
         probe = max(1, PROBE_PIXEL_SAMPLES // row_samples)
-        pending = [submit(probe) for _ in range(workers) if next_row < height]
-    submitted = len(pending)
-    done = distributed.as_completed(pending)
+        for _ in range(workers):
+            if next_row < height:
+                submit(probe)
     rows_done = 0
-    for _, tile in _arrived(done):
+    for tile in tasks.results():
         image[tile["start"]:tile["start"] + tile["rows"]] = tile.pop("image")
         _tell(tile.pop("warnings"))
         tiles.append(tile)
@@ -275,12 +395,10 @@ def render_still(client: Client, scene: Scene, settings: RenderSettings | None =
             kernel_s = tile["stats"]["kernel_s"]
             size = tile_rows_for(tile["rows"] / kernel_s if kernel_s > 0 else 0.0,
                                  height - next_row, workers)
-            rest = [submit(size) for _ in range(math.ceil((height - next_row) / size))]
-            submitted += len(rest)
-            done.update(rest)
+            for _ in range(math.ceil((height - next_row) / size)):
+                submit(size)
         if on_tile is not None:
             on_tile(len(tiles), submitted)
-    client.cancel([scene_future])
     stats = _merge(tiles, resolved, settings)
     by_worker: dict[str, int] = {}
     for t in tiles:
@@ -290,8 +408,8 @@ def render_still(client: Client, scene: Scene, settings: RenderSettings | None =
         "workers": workers,
         "tiles": len(tiles),
         "tile_rows": sorted({t["rows"] for t in tiles}),
-        "scene_bytes": scene_bytes,
-        "bytes_sent": scene_bytes * workers,
+        "scene_bytes": tasks.nbytes,
+        "bytes_sent": tasks.nbytes * tasks.copies,
         "result_bytes": image.nbytes,
         "task_s": sum(t["task_s"] for t in tiles),
         "tiles_by_worker": by_worker,
@@ -340,27 +458,31 @@ def render_sequence(client: Client, sequence: Sequence, frames: Iterable[int],
                     done: Callable[[int, RenderResult], None]) -> dict:
     """Render frames on the cluster, one task each, `done(frame, result)` here as each
     arrives (in any order); returns what was moved and where it ran."""
-    distributed = import_distributed()
     settings = dataclasses.replace(settings_or_default(settings), progress=None)
-    future, nbytes, workers = _scatter(client, sequence)
-    tasks = [client.submit(_render_frame, future, frame, settings, pure=False)
-             for frame in frames]
+    frames = [sequence.check_frame(f) for f in frames]  # each, before any is sent
+    tasks = _Tasks(client, sequence,
+                   lambda sequence, frame: client.submit(_render_frame, sequence, *frame,
+                                                         settings, pure=False),
+                   lambda frame: f"frame {frame[0]}")
+    for frame in frames:
+        tasks.submit(frame)
     by_worker: dict[str, int] = {}
     result_bytes = 0
     task_s = 0.0
-    for _, out in _arrived(distributed.as_completed(tasks)):
+    for out in tasks.results():
         _tell(out["warnings"])
         by_worker[out["worker"]] = by_worker.get(out["worker"], 0) + 1
         result_bytes += out["result"].image.nbytes
         task_s += out["task_s"]
         out["result"].stats["load_s"] = out["load_s"]  # as render_frames' stats have it
         done(out["frame"], out["result"])
-    client.cancel([future])
-    return {"scheduler": client.scheduler.address, "workers": workers, "frames": len(tasks),
-            "scene_bytes": nbytes, "bytes_sent": nbytes * workers,
+    return {"scheduler": client.scheduler.address, "workers": tasks.workers,
+            "frames": sum(by_worker.values()),
+            "scene_bytes": tasks.nbytes, "bytes_sent": tasks.nbytes * tasks.copies,
             "result_bytes": result_bytes, "task_s": task_s, "frames_by_worker": by_worker}
 
 
+@_task
 def _study_scene(scene: Scene, path: str, variants: tuple, repeat: int,
                  base: RenderSettings) -> list[dict]:
     with _device_lock, warnings.catch_warnings():
@@ -384,8 +506,9 @@ def study_scenes(client: Client, paths: Iterable[Path], variants: Iterable, repe
                            pure=False) for p in paths]
     by_path: dict[int, list[dict]] = {}
     index = {t.key: i for i, t in enumerate(tasks)}
-    for task, records in _arrived(import_distributed().as_completed(tasks)):
-        by_path[index[task.key]] = records
+    for task in import_distributed().as_completed(tasks):
+        i = index[task.key]
+        by_path[i] = records = _result(task, f"scene {paths[i]}")
         if records:
             say(scene_line(records[0]))
         for r in records:

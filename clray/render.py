@@ -255,17 +255,18 @@ def tuning_stats(plan: DevicePlan, packed: PackedScene) -> dict:
             "implicit_vectorization": packed.config.implicit_vectorization}
 
 
-def kernel_progress(progress: Callable[[int, int], None] | None, kernels: int
-                    ) -> list[Callable[[int, int], None] | None]:
-    """One progress callback for each of `kernels` launched one after the other over the same
-    pixel-samples, each reporting its own (done, total): together they report one rise from 0
-    to kernels x total, so that the end is heard when the last kernel's work ends."""
+def progress_parts(progress: Callable[[int, int], None] | None, parts: int
+                   ) -> list[Callable[[int, int], None] | None]:
+    """One progress callback for each of `parts` of equal work run one after the other (the
+    kernels of a render over the same pixel-samples, the frames of an animation), each reporting
+    its own (done, total): together they report one rise from 0 to parts x total, so that the
+    end is heard when the last part's work ends."""
     if progress is None:
-        return [None] * kernels
+        return [None] * parts
 
     def part(k: int) -> Callable[[int, int], None]:
-        return lambda done, total: progress(k * total + done, kernels * total)
-    return [part(k) for k in range(kernels)]
+        return lambda done, total: progress(k * total + done, parts * total)
+    return [part(k) for k in range(parts)]
 
 
 def render(scene: Scene | str | os.PathLike | Callable[[], Scene],
@@ -301,7 +302,7 @@ def render(scene: Scene | str | os.PathLike | Callable[[], Scene],
     passes = traced_passes(settings)
     if not passes:
         del scene  # where render holds it alone, the scene's arrays go before the render's
-    reports = kernel_progress(settings.progress, 2 if passes else 1)
+    reports = progress_parts(settings.progress, 2 if passes else 1)
     image, stats = render_packed(packed, device, reports[0], on_band=settings.on_band)
     aovs: dict[str, np.ndarray] = {}
     if passes:

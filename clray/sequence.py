@@ -3,35 +3,54 @@ frame numbers and file names of `clray render --frames`, and the frames rendered
 
 from __future__ import annotations
 
+import operator
 import os
 import re
 import time
 from collections.abc import Callable, Iterable
-from dataclasses import dataclass
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from clray.errors import SceneError, SettingsError
 from clray.passes import exr_holds_passes, pass_paths
-from clray.render import RenderResult, RenderSettings, render
+from clray.render import RenderResult, RenderSettings, progress_parts, render, settings_or_default
 from clray.scene.animation import Animation
+from clray.scene.files import KeptFiles
 from clray.scene.load import read_scene_data, scene_and_animation, scene_from_dict
 from clray.scene.model import Scene
 
 
 @dataclass(frozen=True)
 class Sequence:
-    """An animated scene file: its data as parsed and its checked [animation] table. Small and
-    picklable: a Dask cluster gets it once and makes each frame's scene where it renders it."""
+    """An animated scene file: its data as parsed, its checked [animation] table, and the files
+    it names (included scenes, meshes, textures) as they were read then. Picklable: a Dask
+    cluster gets it once and makes each frame's scene where it renders it, with no file."""
 
-    path: Path
+    path: Path  # absolute: the names in `data` are relative to its folder, wherever it is used
     data: dict
     animation: Animation
+    files: KeptFiles = field(default_factory=KeptFiles)
+
+    def check_frame(self, frame: int) -> int:
+        """`frame` if the animation has it; SettingsError if not (a track would hold its first
+        or last value there, a frame the animation does not have)."""
+        last = self.animation.frames - 1
+        try:
+            number = operator.index(frame)
+        except TypeError:
+            raise SettingsError(f"frame: expected a frame number, 0 to {last}, got "
+                                f"{type(frame).__name__}") from None
+        if not 0 <= number <= last:
+            raise SettingsError(f"frame {number}: the animation has frames 0 to {last}")
+        return number
 
     def scene(self, frame: int) -> Scene:
         """The scene at `frame`; SceneError names the key and the frame where an interpolated
         value is out of range (a Catmull-Rom curve may overshoot its keys)."""
+        frame = self.check_frame(frame)
         try:
-            return scene_from_dict(self.animation.data_at(self.data, frame), self.path)
+            with self.files.used():
+                return scene_from_dict(self.animation.data_at(self.data, frame), self.path)
         except SceneError as err:
             raise SceneError(err.file, err.key, f"{err.message} (animated, frame {frame})"
                              ) from None
@@ -39,14 +58,17 @@ class Sequence:
 
 def load_sequence(path: str | os.PathLike) -> Sequence:
     """Read and check an animated scene file: the scene, its [animation] table and each
-    keyframe by the loader's rules; SceneError if it has no [animation] table."""
-    path = Path(path)
+    keyframe by the loader's rules, keeping the files they read; SceneError if it has no
+    [animation] table."""
+    path = Path(path).absolute()
     data = read_scene_data(path)
-    animation = scene_and_animation(data, path)[1]
+    files = KeptFiles()
+    with files.used():
+        animation = scene_and_animation(data, path)[1]
     if animation is None:
         raise SceneError(path, "animation", "missing: --frames renders an [animation] table "
                          "(docs/scene_format.md)")
-    return Sequence(path, data, animation)
+    return Sequence(path, data, animation, files)
 
 
 def parse_frames(text: str) -> range:
@@ -104,7 +126,13 @@ def frame_path(pattern: Path, frame: int) -> Path:
 
 
 def check_pattern(pattern: Path, n_frames: int) -> None:
-    """Each frame needs a file of its own: a printf-style frame number (`frame_%04d.png`)."""
+    """Each frame needs a file of its own: a printf-style frame number (`frame_%04d.png`), one
+    and decimal, which names every frame apart and holds no path separator: %.1e gave frames
+    100 and 101 one name, %c a `/` for frame 47."""
+    numbers = [c.group() for c in _CONVERSION.finditer(str(pattern)) if c.group() != "%%"]
+    if len(numbers) > 1 or any(number[-1] not in "diu" for number in numbers):
+        raise SettingsError(f"-o {pattern}: expected one decimal frame number (%d, %04d, %i or "
+                            f"%u), got {' '.join(numbers)}")
     if n_frames > 1 and frame_path(pattern, 0) == frame_path(pattern, 1):
         raise SettingsError(f"-o {pattern}: several frames need a frame number in the name, "
                             "such as out/frame_%04d.png")
@@ -135,14 +163,19 @@ def frame_complete(pattern: Path, frame: int, aovs: tuple[str, ...], previews: b
     return not aovs or image.suffix.lower() != ".exr" or exr_holds_passes(image, aovs)
 
 
-def render_frames(sequence: Sequence, frames: Iterable[int], settings: RenderSettings,
+def render_frames(sequence: Sequence, frames: Iterable[int], settings: RenderSettings | None,
                   done: Callable[[int, RenderResult], None]) -> None:
     """Render frames one after another in this process, `done(frame, result)` after each; the
-    stats' load_s is the time the frame's scene took to make from the file's data."""
-    for frame in frames:
+    stats' load_s is the time the frame's scene took to make from the file's data.
+    settings.progress hears the pixel-samples of all the frames, each frame's as it renders
+    after those of the frames before it."""
+    settings = settings_or_default(settings)
+    frames = [sequence.check_frame(f) for f in frames]  # each, before any is rendered
+    reports = progress_parts(settings.progress, len(frames))
+    for frame, report in zip(frames, reports, strict=True):
         started = time.perf_counter()
         scene = sequence.scene(frame)
         load_s = time.perf_counter() - started
-        result = render(scene, settings)
+        result = render(scene, replace(settings, progress=report))
         result.stats["load_s"] = load_s
         done(frame, result)

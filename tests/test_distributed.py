@@ -15,6 +15,7 @@ import subprocess
 import sys
 import time
 import warnings
+from collections.abc import Callable
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -135,7 +136,13 @@ def test_scene_sent_and_packed_once_per_worker(cl_device, client):
     assert len(copies) == 8 and all(1 <= c <= 2 for c in copies), copies
     dask = result.stats["dask"]
     assert dask["packs"] == len(dask["tiles_by_worker"]) <= 2
-    assert not any(str(k).startswith("Scene-") for k in client.who_has())
+    # Forgotten once rendered. The cancel goes on the client's batched stream, up to its
+    # interval (10 ms) behind a tile released just before it, and who_has on a connection of
+    # its own may overtake it: asked until the scene is gone (or the wait is absurd).
+    deadline = time.monotonic() + 60
+    while any(str(k).startswith("Scene-") for k in client.who_has()):
+        assert time.monotonic() < deadline, "the scene is still held on the workers"
+        time.sleep(0.05)
 
 
 @needs_dask
@@ -186,6 +193,41 @@ def test_killed_worker_loses_no_tile(cl_device, client):
     assert result.stats["dask"]["tiles"] == 24
     # The nanny restarts the worker; the next tests get two again.
     client.wait_for_workers(2, timeout=60)
+
+
+@needs_dask
+def test_the_only_worker_killed_sends_the_scene_again_once(cl_device):
+    """With every worker holding the scene gone, the scheduler forgets it and cancels the tiles
+    that need it (they came back as FutureCancelledError, a traceback): the scene is sent again
+    and those tiles rendered, once; lost a second time, the render is one ClrayError."""
+    from clray.distributed import connect, render_still
+    from clray.errors import ClrayError
+
+    scene = load_scene(SPHERES)
+    settings = RenderSettings(width=64, height=48, spp=4, device=os.environ["CLRAY_DEVICE"])
+    local = render(scene, settings)
+    logging.getLogger("distributed").setLevel(logging.CRITICAL)
+    with connect(None, workers=1) as one:
+
+        def kill_the_worker(times: int) -> Callable[[int, int], None]:
+            killed: list[int] = []
+
+            def on_tile(done: int, submitted: int) -> None:
+                if len(killed) < times:
+                    [pid] = one.run(os.getpid).values()  # the nanny's restarted one after a kill
+                    killed.append(pid)
+                    os.kill(pid, signal.SIGKILL)
+
+            return on_tile
+
+        result = render_still(one, scene, settings, tile_rows=4, on_tile=kill_the_worker(1))
+        assert result.image.tobytes() == local.image.tobytes()
+        dask = result.stats["dask"]
+        assert dask["tiles"] == 12 and dask["bytes_sent"] == 2 * dask["scene_bytes"]
+        one.wait_for_workers(1, timeout=60)
+        with pytest.raises(ClrayError, match=r"^rows \d+ to \d+ not rendered: every Dask worker "
+                           r"holding the scene was lost, again after it was sent once more$"):
+            render_still(one, scene, settings, tile_rows=4, on_tile=kill_the_worker(2))
 
 
 @needs_dask
@@ -351,3 +393,32 @@ def test_a_tasks_warnings_go_back_to_the_client_and_compiler_output_nowhere(monk
     assert out["warnings"] == ["the scene's own warning"]
     with pytest.warns(UserWarning, match="^the scene's own warning$"):
         distributed._tell(out["warnings"])
+
+
+@needs_dask
+def test_a_device_error_from_pyopencl_reaches_the_client_as_itself(monkeypatch):
+    # Dask pickles a failed task's exception with its cause (tblib), and pyopencl's errors
+    # hold an _ErrorRecord, which cannot be pickled: the client got Exception(repr(err)), a
+    # traceback and exit 1, where the same render in one process says one line, exit 4.
+    import pyopencl as cl
+    from distributed.core import error_message
+    from distributed.protocol import pickle
+
+    from clray import distributed
+    from clray.errors import DeviceError
+
+    def no_platform(scene: object, settings: object) -> None:
+        record = cl._cl._ErrorRecord(msg="clGetPlatformIDs failed: PLATFORM_NOT_FOUND_KHR",
+                                     code=-1001, routine="clGetPlatformIDs")
+        try:
+            raise cl.LogicError(record)
+        except cl.Error as err:
+            raise DeviceError("no OpenCL platform found") from err
+
+    monkeypatch.setattr(distributed, "render", no_platform)
+    frames = SimpleNamespace(scene=lambda frame: frame)
+    with pytest.raises(DeviceError) as info:
+        distributed._render_frame(frames, 0, RenderSettings())  # type: ignore[arg-type]
+    # What the worker sends, as the client unpickles it.
+    sent = pickle.loads(error_message(info.value)["exception"].data)
+    assert type(sent) is DeviceError and str(sent) == "no OpenCL platform found"

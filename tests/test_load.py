@@ -869,6 +869,15 @@ ERRORS = [
      "animation.tracks[0].values[0]: objects[0].radius: must be > 0, got -1.0 (frame 3)"),
     (anim({"key": "camera.vfov", "frames": [0], "values": [30], "interpolation": "step"}),
      'animation.tracks[0].interpolation: expected "linear" or "catmull-rom", got "step"'),
+    # Integers: the values, read as real numbers, were refused as "expected an integer, got
+    # 1.0 (frame 0)", as if the file had given 1.0.
+    *((anim({"key": key, "frames": [0, 9], "values": values}),
+       f"animation.tracks[0].key: {key} cannot be animated: it takes integers, and a track's "
+       "values are real numbers")
+      for key, values in (("render.spp", [1, 4]), ("render.png_bits", [8, 16]),
+                          ("render.seed", [[0], [1]]),
+                          ("objects[1].material_index", [[0, 1], [1, 0]]),
+                          ("objects[1].material_index[0]", [0, 1]))),
 ]
 
 

@@ -153,6 +153,29 @@ def test_frames_argument_and_output_names():
     with pytest.raises(SettingsError, match="frame number"):
         check_pattern(Path("out.png"), 2)
     check_pattern(Path("out.png"), 1)
+    for good in ("f_%d.png", "f_%04d.png", "f_%5i.png", "f_%u.png", "100%%/f_%03d.png"):
+        check_pattern(Path(good), 3)
+
+
+@pytest.mark.parametrize(("name", "got"), [
+    ("f_%.1e.png", "%.1e"),  # frames 100 and 101: f_1.0e+02.png both
+    ("f_%c.png", "%c"),  # frame 47: f_/.png
+    ("f_%g.png", "%g"),  # frames 1000000 and 1000001: f_1e+06.png both
+    ("f_%s.png", "%s"),
+    ("f_%x.png", "%x"),
+    ("f_%d_%02d.png", "%d %02d"),
+])
+def test_a_frame_number_that_is_not_one_decimal_is_a_usage_error(tmp_path, capsys, monkeypatch,
+                                                                 name, got):
+    expected = (f"-o {tmp_path / name}: expected one decimal frame number (%d, %04d, %i or %u), "
+                f"got {got}")
+    with pytest.raises(SettingsError) as info:
+        check_pattern(tmp_path / name, 1)
+    assert str(info.value) == expected
+    monkeypatch.setattr("clray.sequence.render", refuse_to_render)
+    assert cli.main(["render", str(ORBIT), "--frames", "0:3", "-o", str(tmp_path / name)]) == 2
+    assert capsys.readouterr().err == f"clray: error: {expected}\n"
+    assert list(tmp_path.iterdir()) == []
 
 
 def test_frames_from_past_the_last_are_refused():
@@ -486,3 +509,95 @@ def test_a_key_path_only_an_included_file_has_is_not_in_the_scene(tmp_scene, tmp
         "clray: error: scene.toml: animation.tracks[0].key: camera is not in the scene "
         "(give it a value there to animate it)"]
     assert not list(tmp_path.glob("f_*"))
+
+
+def test_a_frame_is_made_without_the_files_and_from_another_folder(tmp_path, monkeypatch):
+    """A Dask worker makes a frame's scene from the pickled sequence, in a working directory
+    of its own, maybe on a machine without the scene's files: the sequence carries them. (A
+    texture was read relative to the worker's directory: `file not found`, frame 0.)"""
+    import pickle
+    import shutil
+
+    from PIL import Image
+
+    project = tmp_path / "project"
+    (project / "tex").mkdir(parents=True)
+    (project / "parts").mkdir()
+    Image.fromarray(np.arange(4 * 6 * 3, dtype=np.uint8).reshape(4, 6, 3)).save(
+        project / "tex" / "b.png")
+    (project / "parts" / "tri.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
+    (project / "parts" / "more.toml").write_text(
+        '[[objects]]\ntype = "mesh"\nfile = "tri.obj"\nmaterial = "b"\n')
+    (project / "anim.toml").write_text(
+        'include = ["parts/more.toml"]\n'
+        "[camera]\nposition = [0, 0, 5]\nlook_at = [0, 0, 0]\n"
+        '[materials.b]\ntexture = { type = "image", file = "tex/b.png" }\n'
+        '[[lights]]\ntype = "point"\nposition = [4, 6, 5]\n'
+        '[[objects]]\ntype = "sphere"\ncenter = [0, 0, 0]\nradius = 1\nmaterial = "b"\n'
+        "[animation]\nframes = 3\n[[animation.tracks]]\n"
+        'key = "objects[0].center"\nframes = [0, 2]\nvalues = [[0, 0, 0], [0, 1, 0]]\n')
+    monkeypatch.chdir(project)
+    sequence = load_sequence("anim.toml")
+    here = sequence.scene(1)
+    sent = pickle.dumps(sequence)
+    shutil.rmtree(project)
+    (tmp_path / "worker").mkdir()
+    monkeypatch.chdir(tmp_path / "worker")
+    there = pickle.loads(sent).scene(1)
+    assert tuple(there.objects[1].center) == (0, 0.5, 0)
+    [texel_here, texel_there] = [[m.texture.image for m in scene.materials if m.texture]
+                                 for scene in (here, there)]
+    assert np.array_equal(texel_here[0], texel_there[0])
+    assert np.array_equal(there.objects[0].vertices, here.objects[0].vertices)
+
+
+@pytest.mark.parametrize("aovs", [(), ("depth",)])
+def test_render_frames_reports_progress_within_each_frame(cl_device, aovs):
+    """One rise over all the frames, each frame's pixel-samples heard as it renders (the command
+    showed 0 % until a long frame was done)."""
+    from clray.render import RenderSettings
+    from clray.sequence import render_frames
+
+    reports: list[tuple[int, int]] = []
+    settings = RenderSettings(width=8, height=6, spp=2, aovs=aovs,
+                              progress=lambda done, total: reports.append((done, total)))
+    rendered: list[int] = []
+    render_frames(load_sequence(ORBIT), [4, 0, 7], settings,
+                  lambda frame, result: rendered.append(frame))
+    assert rendered == [4, 0, 7]
+    kernels = 1 + len(aovs)  # the passes' kernel reports after the image's
+    total = 3 * kernels * 8 * 6 * 2
+    assert {t for _, t in reports} == {total}
+    done = [d for d, _ in reports]
+    assert done == sorted(done) and done[0] == 0 and done[-1] == total
+    # Each frame's start and end is heard, not only the frames' ends.
+    assert {total // 3, 2 * total // 3} <= set(done)
+
+
+def test_a_frame_the_animation_lacks_is_refused_before_any_is_rendered():
+    # Tracks hold their first and last values beyond their keys: frame 1000 of 48 rendered
+    # frame 47's camera, and -7 frame 0's.
+    from clray.render import RenderSettings
+    from clray.sequence import render_frames
+
+    sequence = load_sequence(ORBIT)
+    for frame in (1000, -7, 48):
+        with pytest.raises(SettingsError, match=rf"^frame {frame}: the animation has frames 0 "
+                           "to 47$"):
+            sequence.scene(frame)
+    with pytest.raises(SettingsError, match=r"^frame: expected a frame number, 0 to 47, got "
+                       r"float$"):
+        sequence.scene(1.5)
+    with pytest.raises(SettingsError, match=r"^frame 1000: "):
+        render_frames(sequence, [0, 1000], RenderSettings(), refuse_to_render)
+    assert sequence.scene(np.int64(47)).camera == sequence.scene(47).camera
+
+
+def test_resume_with_every_frame_done_starts_no_cluster(tmp_path, capsys, monkeypatch):
+    for name in ("f_00.png", "f_01.png"):
+        (tmp_path / name).write_bytes(b"done")
+    monkeypatch.setattr(cli, "_cluster", refuse_to_render)
+    assert cli.main(["render", str(ORBIT), "--frames", "0:2", "-o", str(tmp_path / "f_%02d.png"),
+                     "--resume", "--dask"]) == 0
+    err = capsys.readouterr().err
+    assert "wrote 0 frames of frames 0-1" in err and "2 complete already" in err, err

@@ -140,6 +140,19 @@ def show_path(path: Path) -> str:
     return text
 
 
+# The [render] table's integers and integer choices (png_bits), and a mesh's or spheres
+# object's per-face or per-sphere material indices (`material_index`, or one of them).
+_INTEGER_RENDER_PATHS = {("render", name) for name in L.RENDER_INTEGERS} | {
+    ("render", name) for name, allowed in L.RENDER_CHOICES.items()
+    if all(isinstance(a, int) for a in allowed)}
+
+
+def _integer(path: Path) -> bool:
+    """Whether the loader takes only integers at `path`."""
+    names = [step for step in path if isinstance(step, str)]  # a path starts with a name
+    return path in _INTEGER_RENDER_PATHS or names[-1] == "material_index"
+
+
 def parse_animation(spec: dict, v: Values) -> Animation:
     """The [animation] table checked by the scene's value checks (errors name `animation.*`
     keys). The tracks' paths and values are checked against the scene by the loader itself."""
@@ -169,6 +182,10 @@ def _track(spec: dict, key: str, n_frames: int, default: str, v: Values) -> Trac
     if path is None:
         raise v.error(f"{key}.key", f"expected a key path such as camera.position or "
                            f"objects[0].center, got {name!r:.60}")
+    if _integer(path):
+        raise v.error(f"{key}.key", f"{name} cannot be animated: it takes integers, and a "
+                      "track's values are real numbers (1 is read as 1.0, and between keys "
+                      "they take fractions)")
     fkey, vkey = f"{key}.frames", f"{key}.values"
     raw_frames = spec["frames"]
     if not isinstance(raw_frames, list) or not raw_frames:

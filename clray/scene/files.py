@@ -1,14 +1,24 @@
-"""Opening the files a scene names (the scene itself, meshes, textures) without hanging.
+"""Opening the files a scene names (the scene itself, meshes, textures) without hanging, and
+keeping them for an animation's frames.
 
 A scene may name any path. Reading a FIFO or a character device would block or never end, so
 only regular files are read; they are opened non-blocking so that a FIFO is refused at once
 instead of waiting for a writer, and their size is checked before reading.
+
+Within KeptFiles.used(), each file is read whole once and kept by its absolute path, and opened
+again from memory: an animation (clray.sequence) keeps the files its scene read as it was
+loaded and checked, and makes each frame's scene from them, wherever that is (a Dask worker
+without those files, or in another working directory).
 """
 
 from __future__ import annotations
 
+import contextlib
+import io
 import os
 import stat
+from collections.abc import Iterator
+from contextvars import ContextVar
 from pathlib import Path
 from typing import BinaryIO
 
@@ -18,7 +28,22 @@ class UnreadableFile(Exception):
 
 
 def open_regular(path: Path, max_bytes: int) -> tuple[BinaryIO, os.stat_result]:
-    """Open `path` for reading if it is a regular file of at most `max_bytes` bytes."""
+    """Open `path` for reading if it is a regular file of at most `max_bytes` bytes (from the
+    files kept, within KeptFiles.used())."""
+    kept = _KEPT.get()
+    if kept is not None:
+        return kept.open(path, max_bytes)
+    stream, info = _open(path)
+    try:
+        _fits(info.st_size, max_bytes)
+    except UnreadableFile:
+        stream.close()
+        raise
+    return stream, info
+
+
+def _open(path: Path) -> tuple[BinaryIO, os.stat_result]:
+    """`path` open for reading, if it is a regular file."""
     try:
         fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK)
     except FileNotFoundError:
@@ -29,13 +54,16 @@ def open_regular(path: Path, max_bytes: int) -> tuple[BinaryIO, os.stat_result]:
         info = os.fstat(fd)
         if not stat.S_ISREG(info.st_mode):
             raise UnreadableFile("not a regular file")
-        if info.st_size > max_bytes:
-            raise UnreadableFile(f"{info.st_size} bytes is over the limit of {max_bytes} bytes")
         os.set_blocking(fd, True)  # O_NONBLOCK was for the open; reads may block as usual
         return os.fdopen(fd, "rb"), info
     except BaseException:
         os.close(fd)
         raise
+
+
+def _fits(size: int, max_bytes: int) -> None:
+    if size > max_bytes:
+        raise UnreadableFile(f"{size} bytes is over the limit of {max_bytes} bytes")
 
 
 def read_at_most(stream: BinaryIO, max_bytes: int) -> bytes:
@@ -55,3 +83,47 @@ def read_regular(path: Path, max_bytes: int) -> bytes:
     stream, _ = open_regular(path, max_bytes)
     with stream:
         return read_at_most(stream, max_bytes)
+
+
+class KeptFiles:
+    """Files read whole, by absolute path: each file's bytes and status, or why it could not
+    be opened (a missing material library is a warning, and must stay one). Picklable: a Dask
+    worker gets them with the animation."""
+
+    def __init__(self) -> None:
+        self.files: dict[str, tuple[bytes, os.stat_result] | str] = {}
+
+    @contextlib.contextmanager
+    def used(self) -> Iterator[None]:
+        """open_regular opens the files kept, and keeps each file it reads first."""
+        token = _KEPT.set(self)
+        try:
+            yield
+        finally:
+            _KEPT.reset(token)
+
+    def open(self, path: Path, max_bytes: int) -> tuple[BinaryIO, os.stat_result]:
+        """open_regular's answer for `path`, from memory; read and kept first if new."""
+        # Not resolved: a name is relative to the folder it was named in, through any link,
+        # as the system opens it (clray.scene.include), and a worker may lack the links.
+        name = os.path.abspath(path)
+        if name not in self.files:
+            try:
+                stream, info = _open(path)
+            except UnreadableFile as exc:
+                self.files[name] = str(exc)
+                raise
+            with stream:
+                # Over the limit, nothing is kept: it is said again for each open.
+                _fits(info.st_size, max_bytes)
+                self.files[name] = read_at_most(stream, max_bytes), info
+        kept = self.files[name]
+        if isinstance(kept, str):
+            raise UnreadableFile(kept)
+        data, info = kept
+        _fits(len(data), max_bytes)  # kept for another opener's limit, which may be larger
+        # Its read() of the whole returns `data` itself, not a copy (CPython's BytesIO).
+        return io.BytesIO(data), info
+
+
+_KEPT: ContextVar[KeptFiles | None] = ContextVar("clray_kept_files", default=None)

@@ -197,6 +197,26 @@ MATH_ULPS_OFF_DOUBLE(DEFINE_FUSED_DOT(double, double2, double3, double4))
 #define REAL_INF ((REAL)INFINITY)
 #define PI_R REAL_C(3.14159265358979323846)
 
+// Powers of two read from and written into REAL's bits: exponent_of(x) is floor(log2(x)), as
+// ilogb gives it, for a positive normal x; power_of_two(e) is 2^e for e in the normal range
+// (-126 to 127 in float, -1022 to 1023 in double). In PoCL's build ilogb and ldexp are calls
+// into its library, and the scale-free torus's two of each cost tori 7.8 % more instructions
+// (docs/rendering.md, Design history); these are a shift and an add. Outside those ranges they
+// return wrong numbers, not ilogb's or ldexp's (zero, a subnormal, a negative, an infinite or
+// a NaN x; e past the normal range): the callers rule them out. The loader keeps lengths and a
+// transform's stretches within [1e-30, 1e30], so their exponents and the callers' |e| stay
+// below about 100.
+// x * power_of_two(e) is ldexp(x, e) bit for bit: a product is correctly rounded (OpenCL
+// allows 0 ulp for it), so it is x 2^e exactly where that is representable and rounded as
+// ldexp rounds it where it is not, as long as the factor 2^e is itself a normal REAL.
+#ifdef USE_DOUBLE
+static inline int exponent_of(REAL x) { return (int)(as_long(x) >> 52) - 1023; }
+static inline REAL power_of_two(int e) { return as_double((long)(e + 1023) << 52); }
+#else
+static inline int exponent_of(REAL x) { return (as_int(x) >> 23) - 127; }
+static inline REAL power_of_two(int e) { return as_float((e + 127) << 23); }
+#endif
+
 // pbrt's bound on n chained roundings: gamma(n) = n u / (1 - n u), u the unit roundoff.
 static inline REAL gamma_of(int n, REAL u) {
     return (REAL)n * u / ((REAL)1 - (REAL)n * u);

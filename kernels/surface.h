@@ -25,12 +25,16 @@ static inline REAL3 instance_normal(const __global Instance* in, REAL3 n) {
 static inline REAL abs_sum3(REAL3 v) { return fabs(v.x) + fabs(v.y) + fabs(v.z); }
 
 // A row of M scaled by a power of two (exact) so that its largest entry lies in [0.5, 1); *down
-// is the factor. The exponent comes from ilogb (Oclgrind's check of uninitialised memory rejects
-// frexp's pointer argument) and the row is multiplied by 2^-e (Oclgrind's ldexp of a vector by
-// one int returned wrong numbers).
+// is the factor. The exponent and the factor are read from and written into REAL's bits
+// (exponent_of, power_of_two: real.h), not taken from frexp, whose pointer argument Oclgrind's
+// check of uninitialised memory rejects, nor from ilogb and ldexp, library calls in PoCL. The
+// row is multiplied by the factor, not put through ldexp (Oclgrind 21.10's ldexp of a vector by
+// one int returned wrong numbers). A row's largest entry is at least M's smallest stretch, so
+// positive and normal for a transform the loader took (within [1e-30, 1e30]); a zero row (or a
+// NaN) keeps the factor 1.
 static inline REAL3 unit_row(REAL3 row, REAL* down) {
     REAL big = max_abs3(row);
-    *down = ldexp((REAL)1, big > (REAL)0 ? -(ilogb(big) + 1) : 0);
+    *down = power_of_two(big > (REAL)0 ? -(exponent_of(big) + 1) : 0);
     return row * *down;
 }
 

@@ -215,13 +215,15 @@ static inline int torus_crossings(const __global Torus* tr, const Ray* r, REAL* 
     for (int k = 0; k < TORUS_ROOTS; ++k) t[k] = REAL_INF;
     REAL len = length(r->d);
     REAL major = TO_REAL(tr->centre_major.w), minor = TO_REAL(tr->axis_minor.w);
-    // ilogb(0) is no exponent (the loader keeps lengths at least 1e-30).
+    // exponent_of needs a positive normal major: 0 has no exponent (the loader keeps lengths
+    // at least 1e-30).
     if (!(len > (REAL)0) || !(major > (REAL)0)) return 0;
-    int e = ilogb(major);
-    // 2^-e lies in float's normal range (|e| <= 100 for the loader's lengths), so a product
-    // with it is ldexp's, exactly. A vector is scaled by the product, not by ldexp: Oclgrind
-    // 21.10's ldexp of a vector applies the scalar exponent to its first lane only.
-    REAL unit = ldexp((REAL)1, -e);
+    int e = exponent_of(major);
+    // 2^-e and 2^e lie in float's normal range (|e| <= 100 for the loader's lengths), so a
+    // product with either is ldexp's, exactly (real.h). A vector is scaled by the product, not
+    // by ldexp: Oclgrind 21.10's ldexp of a vector applies the scalar exponent to its first
+    // lane only.
+    REAL unit = power_of_two(-e);
     major *= unit;
     minor *= unit;
     // The stored float32 axis is unit only to float rounding; the local quartic takes u and the
@@ -238,7 +240,7 @@ static inline int torus_crossings(const __global Torus* tr, const Ray* r, REAL* 
     }
     int count = 0;
     for (int k = 0; k < n; ++k) {
-        REAL tk = ldexp(roots[k], e) / len;
+        REAL tk = roots[k] * power_of_two(e) / len;
         if (tk > (REAL)0) t[count++] = tk;
     }
     return count;

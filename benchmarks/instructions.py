@@ -1,7 +1,8 @@
 """Instructions the render kernel executes per pixel and per ray, counted by valgrind.
 
     python benchmarks/instructions.py [--json benchmarks/results/instructions.json]
-                                      [--scenes spheres,mesh] [--mesh-dir DIR]
+                                      [--scenes spheres,mesh,SCENE.toml] [--size WxH]
+                                      [--mesh-dir DIR]
 
 Times on a shared machine move by 10 to 30 % from one minute to the next; the number of
 instructions a render executes does not. Each scene renders once per variant (as bench.py's time
@@ -27,7 +28,8 @@ from pathlib import Path
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
 sys.path.insert(0, str(ROOT))
-from benchmarks.common import check_outputs, names_of  # noqa: E402
+from benchmarks import compare  # noqa: E402  (its scene names and files)
+from benchmarks.common import check_outputs, image_size  # noqa: E402
 
 VARIANTS = ("primary", "primary_shadow", "full")
 KERNEL_FUNCTION = "_pocl_kernel_render_workgroup*"
@@ -39,10 +41,11 @@ from clray.device.context import select_device
 from clray.device.pack import pack_scene
 from clray.device.launch import render_packed
 from clray.scene.load import load_scene
-path, variant = sys.argv[1], sys.argv[2]
+path, variant, width, height = sys.argv[1], sys.argv[2], int(sys.argv[3]), int(sys.argv[4])
 scene = load_scene(path)
 r = scene.render
-packed = pack_scene(scene, width=r.width, height=r.height, spp=r.spp, max_depth=r.max_depth,
+width, height = width or r.width, height or r.height
+packed = pack_scene(scene, width=width, height=height, spp=r.spp, max_depth=r.max_depth,
                     seed=r.seed)
 config, params = packed.config, packed.params.copy()
 if variant != "full":
@@ -52,13 +55,13 @@ if variant == "primary":
     params[0]["n_lights"] = 0
 packed = dataclasses.replace(packed, config=config, params=params)
 _, stats = render_packed(packed, select_device("pocl"))
-print(json.dumps({"rays": stats["rays"], "pixels": int(r.width) * int(r.height)}))
+print(json.dumps({"rays": stats["rays"], "pixels": int(width) * int(height)}))
 """
 
 
-def _render(scene: Path, variant: str, valgrind: bool) -> dict:
+def _render(scene: Path, variant: str, size: tuple[int, int], valgrind: bool) -> dict:
     env = {**os.environ, "POCL_MAX_PTHREAD_COUNT": "1"}
-    command = [sys.executable, "-c", _RENDER, str(scene), variant]
+    command = [sys.executable, "-c", _RENDER, str(scene), variant, str(size[0]), str(size[1])]
     if valgrind:
         command = ["valgrind", "--tool=callgrind", "--callgrind-out-file=/dev/null",
                    f"--toggle-collect={KERNEL_FUNCTION}", *command]
@@ -73,12 +76,13 @@ def _render(scene: Path, variant: str, valgrind: bool) -> dict:
     return result
 
 
-def count_scene(scene: Path) -> dict:
-    """Instructions per variant, per pixel, and per ray of each kind (by differences)."""
+def count_scene(scene: Path, size: tuple[int, int] = (0, 0)) -> dict:
+    """Instructions per variant, per pixel, and per ray of each kind (by differences), at
+    `size` (width, height; 0 for the scene's own)."""
     out = {}
     for variant in VARIANTS:
-        _render(scene, variant, valgrind=False)  # fills PoCL's kernel cache for this variant
-        out[variant] = _render(scene, variant, valgrind=True)
+        _render(scene, variant, size, valgrind=False)  # fills PoCL's kernel cache for it
+        out[variant] = _render(scene, variant, size, valgrind=True)
     pixels = out["full"]["pixels"]
     primary = out["primary"]
     shadow = out["primary_shadow"]["rays"]["shadow"]
@@ -101,29 +105,30 @@ def count_scene(scene: Path) -> dict:
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--json", type=Path, default=HERE / "results" / "instructions.json")
-    parser.add_argument("--scenes", type=names_of(("spheres", "mesh")),
-                        default=["spheres", "mesh"], help="comma-separated: spheres, mesh")
-    parser.add_argument("--mesh-dir", help="where to write the mesh scene (default: a temporary "
-                        "folder)")
+    parser.add_argument("--scenes", default="spheres,mesh", help="comma-separated: spheres, "
+                        "mesh (generated) or paths to scene files")
+    parser.add_argument("--size", type=image_size, metavar="WxH",
+                        help="image size (default: each scene's own)")
+    parser.add_argument("--mesh-dir", help="where to write the mesh scene (its folder mesh/ "
+                        "there; default: a temporary folder)")
     args = parser.parse_args(argv)
+    names = list(dict.fromkeys(n.strip() for n in args.scenes.split(",") if n.strip()))
+    unknown = compare.unknown_scenes(names)
+    if unknown or not names:
+        parser.error(f"--scenes: expected spheres, mesh or scene files (not found: {unknown})")
     check_outputs(parser, json=args.json)
     if shutil.which("valgrind") is None:
         sys.exit("instructions.py needs valgrind (Debian: apt-get install valgrind)")
-    names = list(dict.fromkeys(args.scenes))
     with tempfile.TemporaryDirectory() as tmp:
-        scenes = {"spheres": ROOT / "scenes" / "spheres.toml"}
-        if "mesh" in names:
-            mesh_dir = Path(args.mesh_dir or Path(tmp) / "mesh")
-            subprocess.run([sys.executable, str(ROOT / "scripts" / "make_mesh_scene.py"), "--out",
-                            str(mesh_dir)], check=True, capture_output=True)
-            scenes["mesh"] = mesh_dir / "bumpy.toml"
+        scenes = compare.scene_paths(names, Path(args.mesh_dir) if args.mesh_dir else Path(tmp))
         results = {}
         for name in names:
-            results[name] = count_scene(scenes[name])
+            results[name] = count_scene(scenes[name], args.size or (0, 0))
             per = results[name]["instructions_per_ray"]
             print(f"{name}: {results[name]['instructions_per_pixel']:.0f} instructions a pixel; "
                   "a ray: " + ", ".join(f"{k} {v:.0f}" for k, v in per.items() if v is not None))
-    args.json.write_text(json.dumps({"scenes": results}, indent=2) + "\n")
+    args.json.write_text(json.dumps({"size": list(args.size) if args.size else None,
+                                     "scenes": results}, indent=2) + "\n")
     print(f"wrote {args.json}")
 
 

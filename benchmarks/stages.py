@@ -31,7 +31,6 @@ Needs valgrind and PoCL's CPU device. Measures only; each count takes about a mi
 from __future__ import annotations
 
 import argparse
-import importlib.util
 import json
 import os
 import re
@@ -45,6 +44,7 @@ from pathlib import Path
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
 sys.path.insert(0, str(ROOT))
+from benchmarks import compare  # noqa: E402  (its scene names and files)
 from benchmarks.common import check_outputs, image_size, names_of, positive_ints  # noqa: E402
 
 # The traversal schemes of clray.knobs.TRAVERSALS, here without importing clray (and OpenCL)
@@ -161,14 +161,6 @@ def _summary(name: str, traversal: str, spp: int, result: dict) -> str:
     return "\n".join(lines)
 
 
-def _compare():
-    """benchmarks/compare.py, whose scene names and files this script shares."""
-    spec = importlib.util.spec_from_file_location("compare", HERE / "compare.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--scenes", default="spheres,mesh", help="comma-separated: spheres, "
@@ -194,7 +186,6 @@ def main(argv: list[str] | None = None) -> None:
                          f"{height} rows")
         rows = (int(start), int(stop))
     names = [n for n in args.scenes.split(",") if n]
-    compare = _compare()
     unknown = compare.unknown_scenes(names)
     if unknown:
         parser.error(f"scenes are spheres, mesh or scene files (not found: {unknown})")

@@ -66,16 +66,48 @@ def _fits(size: int, max_bytes: int) -> None:
         raise UnreadableFile(f"{size} bytes is over the limit of {max_bytes} bytes")
 
 
+# Bytes read at a time once a file turns out longer than its size said (it grew since).
+_GROWN_READ = 1 << 20
+
+
 def read_at_most(stream: BinaryIO, max_bytes: int) -> bytes:
     """The rest of `stream`, if it is at most `max_bytes` long (a file may have grown since
     open_regular looked at its size)."""
     try:
-        data = stream.read(max_bytes + 1)
+        return _read_at_most(stream, max_bytes)
     except OSError as exc:
         raise UnreadableFile(exc.strerror or str(exc)) from None
+
+
+def _read_at_most(stream: BinaryIO, max_bytes: int) -> bytes:
+    left = _bytes_left(stream)
+    if left is None:
+        # An in-memory stream (KeptFiles): its read takes no more than it holds.
+        data = stream.read(max_bytes + 1)
+    else:
+        # Not read(max_bytes + 1): CPython allocates the whole of a read's size before it
+        # shrinks the result: 1 GiB for every PLY file, whatever its size (its limit). The
+        # file's size and one byte more, to see a file that grew since it was looked at.
+        want = min(max_bytes, left) + 1
+        parts = [stream.read(want)]
+        total = len(parts[0])
+        while len(parts[-1]) == want and total <= max_bytes:  # it grew: the rest in parts
+            want = min(_GROWN_READ, max_bytes + 1 - total)
+            parts.append(stream.read(want))
+            total += len(parts[-1])
+        data = parts[0] if len(parts) == 1 else b"".join(parts)
     if len(data) > max_bytes:
         raise UnreadableFile(f"over the limit of {max_bytes} bytes")
     return data
+
+
+def _bytes_left(stream: BinaryIO) -> int | None:
+    """The bytes from the stream's position to the end of its file, as the file's status says
+    now; None for a stream without a file."""
+    try:
+        return max(0, os.fstat(stream.fileno()).st_size - stream.tell())
+    except (AttributeError, io.UnsupportedOperation):
+        return None
 
 
 def read_regular(path: Path, max_bytes: int) -> bytes:

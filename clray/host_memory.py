@@ -105,6 +105,15 @@ def small_pages(stage: Callable[P, R]) -> Callable[P, R]:
 CHUNK_ROWS = 1 << 16
 
 
+def usable_cores() -> int:
+    """The cores this process may run on: its affinity where the system has one (Linux), else
+    the cores Python counts (macOS and Windows have no sched_getaffinity)."""
+    if hasattr(os, "sched_getaffinity"):
+        return len(os.sched_getaffinity(0))
+    count = getattr(os, "process_cpu_count", os.cpu_count)()  # process_cpu_count: 3.13+
+    return count or 1  # None where the count is unknown
+
+
 def by_chunks(n: int, work: Callable[[slice], None], row_items: int = 1) -> None:
     """work(rows) for each chunk of range(n), on as many threads as the process may run at
     once: numpy's gathers, minima and copies let go of the GIL, and a chunk writes its own rows
@@ -117,7 +126,7 @@ def by_chunks(n: int, work: Callable[[slice], None], row_items: int = 1) -> None
     5.24 M-triangle mesh's pack (docs/scale.md)."""
     step = max(1, CHUNK_ROWS // row_items)
     parts = [slice(at, min(at + step, n)) for at in range(0, n, step)]
-    threads = min(len(parts), len(os.sched_getaffinity(0)))
+    threads = min(len(parts), usable_cores()) if len(parts) > 1 else 1
     if threads <= 1:
         for part in parts:
             work(part)

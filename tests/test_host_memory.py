@@ -4,6 +4,7 @@ heap pages back when they end."""
 
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -153,3 +154,21 @@ def test_chunks_cover_the_rows_once_with_chunk_rows_items_each(row_items: int) -
     host_memory.by_chunks(n, work, row_items=row_items)
     assert np.all(seen == 1)
     assert max(p.stop - p.start for p in parts) == max(1, host_memory.CHUNK_ROWS // row_items)
+
+
+@pytest.mark.parametrize("counted", [3, None])
+def test_chunks_run_where_the_system_has_no_affinity(
+        monkeypatch: pytest.MonkeyPatch, counted: int | None) -> None:
+    # macOS and Windows have no os.sched_getaffinity: the count of cores stands for it.
+    monkeypatch.delattr(os, "sched_getaffinity", raising=False)
+    monkeypatch.delattr(os, "process_cpu_count", raising=False)
+    monkeypatch.setattr(os, "cpu_count", lambda: counted)
+    assert host_memory.usable_cores() == (counted or 1)
+    for n in (5, 3 * host_memory.CHUNK_ROWS):  # one chunk, and several
+        seen = np.zeros(n, dtype=np.int64)
+
+        def work(part: slice, seen: np.ndarray = seen) -> None:
+            seen[part] += 1
+
+        host_memory.by_chunks(n, work)
+        assert np.all(seen == 1)

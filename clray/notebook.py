@@ -38,7 +38,9 @@ def show_progressive(scene: Scene | str | os.PathLike,
                      settings: RenderSettings | None = None) -> RenderResult:
     """Render as render() does, showing the image in the notebook as each band of rows
     arrives (rows still to come are black), then the finished image (denoised where the
-    settings ask). Returns the result; settings.on_band, if any, still hears every band."""
+    settings ask). Returns the result; settings.on_band, if any, still hears every band.
+    Outside a notebook's kernel (plain Python or IPython's terminal, where nothing can be
+    updated in place) it shows nothing and returns the result."""
     display = _display()
     settings = settings_or_default(settings)
     scene = load_scene(scene) if isinstance(scene, str | os.PathLike) else check_scene(scene)
@@ -49,15 +51,18 @@ def show_progressive(scene: Scene | str | os.PathLike,
     def frame() -> object:
         return display.Image(data=png_bytes(to_png_samples(canvas, encoding), encoding.linear))
 
+    # None where no notebook's kernel runs: IPython's display then has no display to update.
     handle = display.display(frame(), display_id=True)
     user_hook = settings.on_band
 
     def on_band(first_row: int, rows: np.ndarray) -> None:
         canvas[first_row:first_row + len(rows)] = rows
-        handle.update(frame())
+        if handle is not None:
+            handle.update(frame())
         if user_hook is not None:
             user_hook(first_row, rows)
 
     result = render(scene, dataclasses.replace(settings, on_band=on_band))
-    handle.update(display.Image(data=result._repr_png_()))
+    if handle is not None:
+        handle.update(display.Image(data=result._repr_png_()))
     return result

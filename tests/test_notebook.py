@@ -107,3 +107,23 @@ def test_show_progressive_refuses_settings_that_are_not_render_settings(monkeypa
     for settings in ({}, {"width": 4}):
         with pytest.raises(SettingsError, match=r"^settings: expected a clray\.RenderSettings"):
             show_progressive(ROOT / "scenes" / "spheres.toml", settings)  # type: ignore[arg-type]
+
+
+def test_show_progressive_outside_a_notebook_returns_the_render(cl_device, monkeypatch) -> None:
+    # IPython's display(..., display_id=True) returns None where no kernel runs (a script,
+    # IPython's terminal): there is nothing to update, and the render is still returned.
+    display = _fake_ipython(monkeypatch)
+    shown = display.shown
+    monkeypatch.setattr(display, "display", lambda obj, display_id: shown.append(obj.data))
+    scene = ROOT / "scenes" / "spheres.toml"
+    settings = RenderSettings(width=16, height=12)
+    result = show_progressive(scene, settings)
+    np.testing.assert_array_equal(result.image, render(scene, settings).image)
+    assert len(shown) == 1  # the black first frame, shown once and never updated
+
+
+def test_show_progressive_with_ipython_but_no_kernel(cl_device) -> None:
+    # The real IPython, where it is installed, as a script that imports it runs.
+    pytest.importorskip("IPython.display")
+    result = show_progressive(ROOT / "scenes" / "spheres.toml", RenderSettings(width=8, height=6))
+    assert result.image.shape == (6, 8, 3)

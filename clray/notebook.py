@@ -5,7 +5,6 @@ and clray does not require."""
 from __future__ import annotations
 
 import dataclasses
-import os
 
 import numpy as np
 
@@ -14,14 +13,13 @@ from clray.image_io import png_bytes, to_png_samples
 from clray.render import (
     RenderResult,
     RenderSettings,
+    SceneSource,
     png_encoding,
     render,
     resolved_settings,
+    scene_from,
     settings_or_default,
 )
-from clray.scene.check import check_scene
-from clray.scene.load import load_scene
-from clray.scene.model import Scene
 
 IPYTHON_MISSING = "show_progressive needs IPython's display (run it in Jupyter or IPython)"
 
@@ -34,8 +32,8 @@ def _display():
     return display
 
 
-def show_progressive(scene: Scene | str | os.PathLike,
-                     settings: RenderSettings | None = None) -> RenderResult:
+def show_progressive(scene: SceneSource, settings: RenderSettings | None = None
+                     ) -> RenderResult:
     """Render as render() does, showing the image in the notebook as each band of rows
     arrives (rows still to come are black), then the finished image (denoised where the
     settings ask). Returns the result; settings.on_band, if any, still hears every band.
@@ -43,9 +41,11 @@ def show_progressive(scene: Scene | str | os.PathLike,
     updated in place) it shows nothing and returns the result."""
     display = _display()
     settings = settings_or_default(settings)
-    scene = load_scene(scene) if isinstance(scene, str | os.PathLike) else check_scene(scene)
-    resolved = resolved_settings(scene, settings)
-    encoding = png_encoding(scene, settings)
+    # Handed to render() as render takes a path or a callable (a list's pop): given one,
+    # render holds the scene alone and lets it go once packed, here too.
+    held = [scene_from(scene)]
+    resolved = resolved_settings(held[0], settings)
+    encoding = png_encoding(held[0], settings)
     canvas = np.zeros((resolved["height"], resolved["width"], 3), dtype=np.float32)
 
     def frame() -> object:
@@ -62,7 +62,7 @@ def show_progressive(scene: Scene | str | os.PathLike,
         if user_hook is not None:
             user_hook(first_row, rows)
 
-    result = render(scene, dataclasses.replace(settings, on_band=on_band))
+    result = render(held.pop, dataclasses.replace(settings, on_band=on_band))
     if handle is not None:
         handle.update(display.Image(data=result._repr_png_()))
     return result

@@ -24,6 +24,7 @@ from clray.device.program import KernelConfig
 from clray.errors import SettingsError
 from clray.image_io import Encoding, image_bytes
 from clray.knobs import KNOBS, TRAVERSALS, Tuning, python_number
+from clray.model_scene import is_mesh_file, load_model_scene
 from clray.passes import pass_problem, passes_of, write_with_passes
 from clray.scene import limits as L
 from clray.scene.check import check_scene
@@ -269,21 +270,30 @@ def progress_parts(progress: Callable[[int, int], None] | None, parts: int
     return [part(k) for k in range(parts)]
 
 
-def render(scene: Scene | str | os.PathLike | Callable[[], Scene],
-           settings: RenderSettings | None = None) -> RenderResult:
-    """Render a scene, the scene file at a path, or the scene a callable returns. A scene built
-    in Python is first checked by the scene file's rules (clray.scene.check): SceneError names
-    the bad value.
+SceneSource = Scene | str | os.PathLike | Callable[[], Scene]
+
+
+def scene_from(source: SceneSource) -> Scene:
+    """The checked scene of what render() takes: a scene (checked by the scene file's rules,
+    clray.scene.check), a scene file, a mesh file (its automatic scene, as `clray render
+    model.obj` frames it), or the scene a callable returns."""
+    if isinstance(source, str | os.PathLike):
+        path = Path(os.fsdecode(source))
+        return load_model_scene(path) if is_mesh_file(path) else load_scene(path)
+    return check_scene(source() if callable(source) else source)
+
+
+def render(scene: SceneSource, settings: RenderSettings | None = None) -> RenderResult:
+    """Render a scene, the scene or mesh file at a path, or the scene a callable returns
+    (scene_from). A scene built in Python is first checked by the scene file's rules
+    (clray.scene.check): SceneError names the bad value.
 
     Given a path or a callable, render holds the scene alone and lets it go once it is packed
     (unless passes need it after the render): a big model's mesh (18 B a triangle from a PLY
     file) is not held beside the packed scene while it renders. `clray render` hands its
     scene over so (a list's `pop`)."""
     settings = settings_or_default(settings)
-    if isinstance(scene, str | os.PathLike):
-        scene = load_scene(scene)
-    else:
-        scene = check_scene(scene() if callable(scene) else scene)
+    scene = scene_from(scene)
     start = time.perf_counter()
     encoding = png_encoding(scene, settings)
     resolved = resolved_settings(scene, settings)

@@ -13,7 +13,7 @@ import pytest
 from clray.cli import main
 from clray.errors import SceneError
 from clray.model_scene import VIEWS, load_model_scene, model_scene_data, to_toml
-from clray.render import render
+from clray.render import RenderSettings, render
 from clray.scene import model as M
 from clray.scene.load import load_scene
 
@@ -49,6 +49,15 @@ def test_render_command_takes_a_mesh_file(cl_device, mesh, tmp_path):
     out = tmp_path / "m.png"
     assert main(["render", str(mesh), "-o", str(out), "-W", "40", "-H", "30", "-q"]) == 0
     assert out.stat().st_size > 0
+
+
+@pytest.mark.parametrize("name", ["cornell_box.obj", "scan.ply"])
+def test_render_takes_a_mesh_file_as_the_command_does(cl_device, name):
+    # Its automatic scene, as `clray render MODEL` frames it (was "unknown scene file type").
+    path = ROOT / "scenes" / "meshes" / name
+    settings = RenderSettings(width=24, height=18)
+    np.testing.assert_array_equal(render(str(path), settings).image,
+                                  render(load_model_scene(path), settings).image)
 
 
 def test_written_scene_renders_identically(cl_device, tmp_path, monkeypatch, capsysbinary):

@@ -3,9 +3,12 @@ display of bands (clray.notebook) through a stand-in for IPython.display."""
 
 from __future__ import annotations
 
+import gc
+import importlib
 import io
 import sys
 import types
+import weakref
 from dataclasses import replace
 from pathlib import Path
 
@@ -15,6 +18,7 @@ from PIL import Image
 
 from clray.errors import ClrayError, SettingsError
 from clray.image_io import Encoding, to_png_samples
+from clray.model_scene import load_model_scene
 from clray.notebook import show_progressive
 from clray.render import RenderResult, RenderSettings, render
 from clray.tuning import Tuning
@@ -127,3 +131,43 @@ def test_show_progressive_with_ipython_but_no_kernel(cl_device) -> None:
     pytest.importorskip("IPython.display")
     result = show_progressive(ROOT / "scenes" / "spheres.toml", RenderSettings(width=8, height=6))
     assert result.image.shape == (6, 8, 3)
+
+
+def test_show_progressive_takes_what_render_takes(cl_device, monkeypatch) -> None:
+    # A mesh file (its automatic scene) and a callable, as render() takes them.
+    _fake_ipython(monkeypatch)
+    mesh = ROOT / "scenes" / "meshes" / "cornell_box.obj"
+    settings = RenderSettings(width=16, height=12)
+    expected = render(mesh, settings).image
+    np.testing.assert_array_equal(show_progressive(mesh, settings).image, expected)
+    np.testing.assert_array_equal(
+        show_progressive(lambda: load_model_scene(mesh), settings).image, expected)
+
+
+@pytest.mark.parametrize("given", ["path", "callable"])
+def test_show_progressive_lets_a_handed_over_scene_go_before_the_render(
+        cl_device, monkeypatch, given: str) -> None:
+    # As render() does: given a path or a callable, no one else holds the scene, and its
+    # arrays go once it is packed, before the kernels run.
+    _fake_ipython(monkeypatch)
+    render_module = importlib.import_module("clray.render")
+    loaded: list[weakref.ref] = []
+    alive: list[bool] = []
+    load, render_packed = render_module.load_scene, render_module.render_packed
+
+    def loading(path: object) -> object:
+        scene = load(path)
+        loaded.append(weakref.ref(scene))
+        return scene
+
+    def spy(*args: object, **kwargs: object) -> object:
+        gc.collect()
+        alive.append(loaded[-1]() is not None)
+        return render_packed(*args, **kwargs)
+
+    monkeypatch.setattr(render_module, "load_scene", loading)
+    monkeypatch.setattr(render_module, "render_packed", spy)
+    scene = ROOT / "scenes" / "spheres.toml"
+    show_progressive(scene if given == "path" else lambda: loading(scene),
+                     RenderSettings(width=16, height=12))
+    assert alive == [False]

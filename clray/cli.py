@@ -1330,7 +1330,10 @@ def _run(args: argparse.Namespace) -> int:
         _say("error: interrupted")
         return EXIT_INTERRUPTED
     except MemoryError:
-        _say("error: out of memory")
+        # Past the loaders (which name the file they were reading): the file the command was
+        # working on, where it has one.
+        source = getattr(args, "scene", None) or getattr(args, "model", None)
+        _say(f"error: {f'{one_line(source.name)}: ' if source else ''}out of memory")
         return EXIT_RUNTIME
     except BrokenPipeError:
         _quiet_stdout()

@@ -608,7 +608,8 @@ def test_out_of_memory_is_one_line(capsys, scene, monkeypatch) -> None:
 
     monkeypatch.setattr(cli, "load_scene", exhausted)
     code, _, err = run(capsys, "render", scene)
-    assert (code, err) == (1, "clray: error: out of memory\n")
+    # Named: the file the command was working on.
+    assert (code, err) == (1, f"clray: error: {scene.name}: out of memory\n")
 
 
 # --- standard output ---------------------------------------------------------------------------

@@ -19,7 +19,8 @@ from tests.gltf_files import CUBE_FACES, CUBE_VERTICES, Builder
 SMALL_PEAK = 16 << 20
 
 
-def _cube(path: Path) -> Path:
+def cube_file(path: Path) -> Path:
+    """A unit cube (12 triangles) in the file `path`, of the kind its suffix names."""
     vertices, faces = np.asarray(CUBE_VERTICES, np.float32), np.asarray(CUBE_FACES, np.int32)
     if path.suffix == ".obj":
         path.write_text("".join(f"v {x} {y} {z}\n" for x, y, z in vertices)
@@ -41,7 +42,7 @@ def _cube(path: Path) -> Path:
 
 @pytest.mark.parametrize("suffix", [".ply", ".obj", ".npz", ".glb"])
 def test_a_small_mesh_file_takes_little_memory_to_load(tmp_path: Path, suffix: str) -> None:
-    path = _cube(tmp_path / f"cube{suffix}")
+    path = cube_file(tmp_path / f"cube{suffix}")
     model_scene_data(path)  # modules imported and caches filled before the count
     tracemalloc.start()
     try:

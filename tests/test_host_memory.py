@@ -13,9 +13,13 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from clray import host_memory
+from clray import cli, host_memory
 from clray.device import launch, pack
+from clray.errors import ClrayError, SceneError
+from clray.model_scene import load_model_scene
+from clray.scene import assets, ply
 from clray.scene.load import load_scene
+from tests.test_files import cube_file
 
 try:  # numpy 2
     from numpy._core.multiarray import _get_madvise_hugepage, _set_madvise_hugepage
@@ -172,3 +176,76 @@ def test_chunks_run_where_the_system_has_no_affinity(
 
         host_memory.by_chunks(n, work)
         assert np.all(seen == 1)
+
+
+def _available(monkeypatch: pytest.MonkeyPatch, tmp_path: Path, kib: int) -> None:
+    meminfo = tmp_path / "meminfo"
+    meminfo.write_text(f"MemTotal:       16384000 kB\nMemFree:          100000 kB\n"
+                       f"MemAvailable:   {kib:>9} kB\n")
+    monkeypatch.setattr(host_memory, "MEMINFO", meminfo)
+
+
+def test_the_memory_available_is_read_where_the_system_says_it(
+        monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> None:
+    _available(monkeypatch, tmp_path, 1234)
+    assert host_memory.memory_available() == 1234 * 1024
+    monkeypatch.setattr(host_memory, "MEMINFO", tmp_path / "missing")  # not Linux
+    assert host_memory.memory_available() is None
+    host_memory.fits_host_memory(Path("any.ply"), 10 ** 9)  # unknown: nothing refused
+
+
+@pytest.mark.parametrize("suffix", [".ply", ".obj", ".npz", ".glb"])
+def test_a_mesh_beyond_the_memory_available_is_refused_in_one_line(
+        monkeypatch: pytest.MonkeyPatch, tmp_path: Path, capsys: pytest.CaptureFixture[str],
+        suffix: str) -> None:
+    path = cube_file(tmp_path / f"cube{suffix}")
+    _available(monkeypatch, tmp_path, 1)  # 12 triangles need 936 B of the 1 KiB
+    assert cli.main(["scene", str(path)]) == 0
+    capsys.readouterr()
+    _available(monkeypatch, tmp_path, 0)
+    assert cli.main(["scene", str(path)]) == 1
+    assert capsys.readouterr().err == (
+        f"clray: error: cube{suffix}: 12 triangles need about 936 B of host memory to render "
+        f"({host_memory.HOST_BYTES_PER_TRIANGLE} B a triangle, docs/scale.md), more than the "
+        "0 B available\n")
+
+
+def test_a_ply_file_beyond_the_memory_available_is_refused_from_its_header(
+        monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> None:
+    path = cube_file(tmp_path / "cube.ply")
+    _available(monkeypatch, tmp_path, 0)
+
+    def unread(*args: object) -> None:
+        raise AssertionError("the records were read")
+
+    monkeypatch.setattr(ply._Reader, "ascii", unread)
+    with pytest.raises(ClrayError, match=r"cube\.ply: 12 triangles need about 936 B"):
+        load_model_scene(path)
+
+
+def test_running_out_of_memory_while_loading_names_the_file(
+        monkeypatch: pytest.MonkeyPatch, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+        ) -> None:
+    path = cube_file(tmp_path / "cube.obj")
+
+    def exhausted(*args: object) -> None:
+        raise MemoryError
+
+    monkeypatch.setattr(assets, "parse_obj", exhausted)
+    assert cli.main(["scene", str(path)]) == 1
+    assert capsys.readouterr().err == "clray: error: cube.obj: out of memory while loading it\n"
+
+
+def test_a_truncated_ply_file_is_said_to_be_truncated_not_too_big(
+        monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> None:
+    # It declares 10 million faces but holds none: its bytes, not its header, bound the
+    # estimate.
+    path = tmp_path / "cut.ply"
+    path.write_bytes(b"ply\nformat binary_little_endian 1.0\nelement vertex 3\n"
+                     b"property float x\nproperty float y\nproperty float z\n"
+                     b"element face 10000000\nproperty list uchar int vertex_indices\n"
+                     b"end_header\n" + bytes(36))
+    _available(monkeypatch, tmp_path, 1)
+    with pytest.raises(SceneError) as info:
+        load_model_scene(path)
+    assert "memory" not in str(info.value)

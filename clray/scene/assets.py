@@ -20,6 +20,7 @@ from typing import Any, BinaryIO
 import numpy as np
 
 from clray.errors import SceneError, plural
+from clray.host_memory import fits_host_memory, loading
 from clray.scene import limits as L
 from clray.scene.colour import srgb_decode
 from clray.scene.files import UnreadableFile, open_regular, read_at_most
@@ -155,7 +156,7 @@ class Assets:
                                     f"{expected})")
         limit = L.mesh_bytes_limit(suffix)
         stream, identity = self.open_file(name, key, limit)
-        with stream:
+        with stream, loading(self.base / name):
             if identity not in self.meshes:
                 try:
                     data = read_at_most(stream, limit)
@@ -166,7 +167,10 @@ class Assets:
                 elif suffix == ".ply":
                     self.meshes[identity] = self.ply_mesh(data, key, name)
                 else:
-                    self.meshes[identity] = parse_obj(data, self.base / name)
+                    mesh = parse_obj(data, self.base / name)
+                    # Its triangles are known once parsed: refused before the BVH is built.
+                    fits_host_memory(self.base / name, len(mesh.faces))
+                    self.meshes[identity] = mesh
         return self.meshes[identity]
 
     def gltf_model(self, name: Any, key: str) -> tuple[GltfModel, tuple[int, int]]:
@@ -175,7 +179,7 @@ class Assets:
         # A .glb's and a .bin's arrays are numpy views, as a binary PLY's; a .gltf is JSON.
         limit = L.mesh_bytes_limit(Path(str(name)).suffix.lower())
         stream, identity = self.open_file(name, key, limit)
-        with stream:
+        with stream, loading(self.base / name):
             if identity not in self.models:
                 try:
                     data = read_at_most(stream, limit)
@@ -254,7 +258,9 @@ class Assets:
                 key, f"{file_name(name)} holds {', '.join(sorted(headers)) or 'nothing'} "
                 f"(expected vertices, faces and optionally normals, uvs, colors)")
         # From the header, before the faces are inflated (parse_mesh counts them again).
-        self.fits_triangles(headers["faces"][0] if headers["faces"] else 0, key)
+        triangles = headers["faces"][0] if headers["faces"] else 0
+        self.fits_triangles(triangles, key)
+        fits_host_memory(self.base / name, triangles)
         try:
             arrays = npz_arrays(data)
         except ValueError as exc:

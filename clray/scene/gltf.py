@@ -31,6 +31,7 @@ from urllib.parse import unquote
 import numpy as np
 
 from clray.errors import SceneError, plural
+from clray.host_memory import fits_host_memory
 from clray.scene import limits as L
 from clray.scene.limits import MAX_MAGNITUDE, MAX_OBJECTS, MAX_TRIANGLES
 from clray.scene.obj import ObjMesh
@@ -385,6 +386,7 @@ class _Reader:
                                      f"and {triangles} triangles up to here, over the limit "
                                      f"of {L.MAX_MESH_VERTICES} vertices and "
                                      f"{L.MAX_TRIANGLES} triangles for all meshes")
+        fits_host_memory(self.path, triangles)
 
     def count(self, index: Any, where: str) -> int:
         """An accessor's declared element count."""

@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from clray.errors import SceneError, plural
+from clray.host_memory import fits_host_memory
 from clray.scene import limits
 from clray.scene.limits import MAX_MAGNITUDE
 from clray.scene.obj import ObjMesh, _fan
@@ -427,6 +428,11 @@ def read_ply(data: bytes, path: Path) -> PlyMesh:
             raise reader.error("element face", f"{el.count} faces make at least as many "
                                f"triangles, over the limit of {limits.MAX_TRIANGLES} for all "
                                "meshes")
+    # Before the records are read into arrays (a polygon makes more triangles than one). At
+    # most the faces the file's bytes hold (4 bytes the least: a binary count and three
+    # indices, each a byte): a truncated file is said to be truncated, not too big.
+    faces = sum(el.count for el in elements if el.name == "face")
+    fits_host_memory(path, min(faces, (len(data) - body) // 4))
     if fmt == "ascii":
         if len(data) > limits.MAX_MESH_BYTES:
             # Text is parsed token by token, at several times its size in memory: binary files

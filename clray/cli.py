@@ -311,6 +311,12 @@ def _scene_command(commands: Any) -> None:
     sc.add_argument("model", type=_scene_path, metavar="MODEL",
                     help=MESH_FILE)
     _model_flags(sc)
+    # The camera frames the model in the image's size, so the scene is written for it.
+    sc.add_argument("-W", "--width", type=_image_size, metavar="N",
+                    help="image width in pixels (default 640, or a glTF camera's)")
+    sc.add_argument("-H", "--height", type=_image_size, metavar="N",
+                    help="image height in pixels (default 480, or from a glTF camera's "
+                         "aspect ratio)")
     sc.set_defaults(run=_scene)
 
 
@@ -451,8 +457,10 @@ def _model_flags(parser: argparse.ArgumentParser) -> None:
 def _load(args: argparse.Namespace) -> Scene:
     """The scene file, or a mesh file's automatic scene."""
     if is_mesh_file(args.scene):
+        # The image size too: the camera frames the model in it (a portrait image is
+        # narrower than the view is high).
         return load_model_scene(args.scene, args.view or DEFAULT_VIEW, args.ground,
-                                args.up or DEFAULT_UP)
+                                args.up or DEFAULT_UP, args.width, args.height)
     return load_scene(args.scene)
 
 
@@ -470,10 +478,16 @@ def _scene(args: argparse.Namespace) -> int:
                          "file cannot hold: rename the file") from None
     view = args.view or DEFAULT_VIEW
     up = args.up or DEFAULT_UP
-    data = model_scene_data(args.model, view, args.ground, up)
+    with _warnings_as_lines(quiet=False, verbose=False):
+        data = model_scene_data(args.model, view, args.ground, up, args.width, args.height)
+    # -W and -H where given, as the camera frames the model in them.
+    flags = [f"--view {view}",
+             *(["--ground"] if args.ground else []), *([f"--up={up}"] if args.up else []),
+             *([f"-W {args.width}"] if args.width else []),
+             *([f"-H {args.height}"] if args.height else [])]
     # The name as error messages show it: a control character in a comment is not TOML.
-    header = (f"The automatic scene of {one_line(name)} (clray scene --view {view}"
-              f"{' --ground' if args.ground else ''}{f' --up={up}' if args.up else ''}).")
+    header = (f"The automatic scene of {one_line(name)} "
+              f"(clray scene{''.join(' ' + flag for flag in flags)}).")
     _to_stdout(to_toml(data, header).encode("utf-8"))
     return EXIT_OK
 

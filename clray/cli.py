@@ -67,6 +67,7 @@ from clray.model_scene import (
     is_mesh_file,
     load_model_scene,
     model_scene_data,
+    probe_camera,
     to_toml,
 )
 from clray.output import (
@@ -480,8 +481,9 @@ def _scene(args: argparse.Namespace) -> int:
     up = args.up or DEFAULT_UP
     with _warnings_as_lines(quiet=False, verbose=False):
         data = model_scene_data(args.model, view, args.ground, up, args.width, args.height)
-    # -W and -H where given, as the camera frames the model in them.
-    flags = [f"--view {view}",
+    # --view only where it sets the view (a glTF file's camera sets it otherwise, and --view
+    # is refused with it); -W and -H where given, as the camera frames the model in them.
+    flags = [*([f"--view {view}"] if probe_camera(args.model) is None else []),
              *(["--ground"] if args.ground else []), *([f"--up={up}"] if args.up else []),
              *([f"-W {args.width}"] if args.width else []),
              *([f"-H {args.height}"] if args.height else [])]
@@ -508,6 +510,9 @@ def _parse(argv: list[str] | None) -> argparse.Namespace:
                              f"{'applies' if len(given) == 1 else 'apply'} to --dask")
         elif args.dask and args.dask_workers is not None:
             parser.error("--dask-workers applies to a local cluster (--dask without ADDRESS)")
+    if args.command in ("render", "scene"):
+        _check_view_with_camera(parser, args.scene if args.command == "render" else args.model,
+                                args.view)
     if args.command == "render":
         if args.output is None:
             # The scene's stem is a name, not a pattern: a % in it (50%done.toml) is no frame
@@ -557,6 +562,22 @@ def _check_still_output(parser: argparse.ArgumentParser, args: argparse.Namespac
             verb = "applies" if len(given) == 1 else "apply"
             parser.error(f"{' and '.join(given)} {verb} to a {MESH_FILE}; "
                          f"{args.scene} is a scene file, whose [camera] and objects are its own")
+
+
+def _check_view_with_camera(parser: argparse.ArgumentParser, path: Path,
+                            view: str | None) -> None:
+    """--view with a glTF file that has a camera is refused: the file's camera sets the view,
+    and the flag would be ignored (as --view is refused with a scene file)."""
+    if view is None or not is_mesh_file(path):
+        return
+    try:
+        found = probe_camera(path)
+    except SceneError:
+        return  # the file cannot be read: the load says so, as without --view
+    if found is not None:
+        where = f" ({found.where})" if found.where else ""
+        parser.error(f"--view: {path} has a camera of its own{where}, which sets the view; "
+                     "leave out --view, or remove the camera from the file")
 
 
 def _check_pass_flags(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:

@@ -67,6 +67,7 @@ from clray.model_scene import (
     is_mesh_file,
     load_model_scene,
     model_scene_data,
+    probe_camera,
     to_toml,
 )
 from clray.output import (
@@ -311,6 +312,12 @@ def _scene_command(commands: Any) -> None:
     sc.add_argument("model", type=_scene_path, metavar="MODEL",
                     help=MESH_FILE)
     _model_flags(sc)
+    # The camera frames the model in the image's size, so the scene is written for it.
+    sc.add_argument("-W", "--width", type=_image_size, metavar="N",
+                    help="image width in pixels (default 640, or a glTF camera's)")
+    sc.add_argument("-H", "--height", type=_image_size, metavar="N",
+                    help="image height in pixels (default 480, or from a glTF camera's "
+                         "aspect ratio)")
     sc.set_defaults(run=_scene)
 
 
@@ -451,8 +458,10 @@ def _model_flags(parser: argparse.ArgumentParser) -> None:
 def _load(args: argparse.Namespace) -> Scene:
     """The scene file, or a mesh file's automatic scene."""
     if is_mesh_file(args.scene):
+        # The image size too: the camera frames the model in it (a portrait image is
+        # narrower than the view is high).
         return load_model_scene(args.scene, args.view or DEFAULT_VIEW, args.ground,
-                                args.up or DEFAULT_UP)
+                                args.up or DEFAULT_UP, args.width, args.height)
     return load_scene(args.scene)
 
 
@@ -470,10 +479,17 @@ def _scene(args: argparse.Namespace) -> int:
                          "file cannot hold: rename the file") from None
     view = args.view or DEFAULT_VIEW
     up = args.up or DEFAULT_UP
-    data = model_scene_data(args.model, view, args.ground, up)
+    with _warnings_as_lines(quiet=False, verbose=False):
+        data = model_scene_data(args.model, view, args.ground, up, args.width, args.height)
+    # --view only where it sets the view (a glTF file's camera sets it otherwise, and --view
+    # is refused with it); -W and -H where given, as the camera frames the model in them.
+    flags = [*([f"--view {view}"] if probe_camera(args.model) is None else []),
+             *(["--ground"] if args.ground else []), *([f"--up={up}"] if args.up else []),
+             *([f"-W {args.width}"] if args.width else []),
+             *([f"-H {args.height}"] if args.height else [])]
     # The name as error messages show it: a control character in a comment is not TOML.
-    header = (f"The automatic scene of {one_line(name)} (clray scene --view {view}"
-              f"{' --ground' if args.ground else ''}{f' --up={up}' if args.up else ''}).")
+    header = (f"The automatic scene of {one_line(name)} "
+              f"(clray scene{''.join(' ' + flag for flag in flags)}).")
     _to_stdout(to_toml(data, header).encode("utf-8"))
     return EXIT_OK
 
@@ -494,6 +510,9 @@ def _parse(argv: list[str] | None) -> argparse.Namespace:
                              f"{'applies' if len(given) == 1 else 'apply'} to --dask")
         elif args.dask and args.dask_workers is not None:
             parser.error("--dask-workers applies to a local cluster (--dask without ADDRESS)")
+    if args.command in ("render", "scene"):
+        _check_view_with_camera(parser, args.scene if args.command == "render" else args.model,
+                                args.view)
     if args.command == "render":
         if args.output is None:
             # The scene's stem is a name, not a pattern: a % in it (50%done.toml) is no frame
@@ -543,6 +562,22 @@ def _check_still_output(parser: argparse.ArgumentParser, args: argparse.Namespac
             verb = "applies" if len(given) == 1 else "apply"
             parser.error(f"{' and '.join(given)} {verb} to a {MESH_FILE}; "
                          f"{args.scene} is a scene file, whose [camera] and objects are its own")
+
+
+def _check_view_with_camera(parser: argparse.ArgumentParser, path: Path,
+                            view: str | None) -> None:
+    """--view with a glTF file that has a camera is refused: the file's camera sets the view,
+    and the flag would be ignored (as --view is refused with a scene file)."""
+    if view is None or not is_mesh_file(path):
+        return
+    try:
+        found = probe_camera(path)
+    except SceneError:
+        return  # the file cannot be read: the load says so, as without --view
+    if found is not None:
+        where = f" ({found.where})" if found.where else ""
+        parser.error(f"--view: {path} has a camera of its own{where}, which sets the view; "
+                     "leave out --view, or remove the camera from the file")
 
 
 def _check_pass_flags(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:

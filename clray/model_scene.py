@@ -10,6 +10,7 @@ and optionally a ground plane under the model. docs/cli.md (A mesh file) describ
 from __future__ import annotations
 
 import math
+import warnings
 from pathlib import Path
 from typing import Any
 
@@ -20,7 +21,7 @@ from clray.host_memory import CHUNK_ROWS, by_chunks, small_pages
 from clray.scene.assets import MESH_SUFFIXES, meshes_read_once
 from clray.scene.files import UnreadableFile, open_regular, read_regular
 from clray.scene.gltf import GLTF_SUFFIXES, GltfCamera, read_gltf_camera
-from clray.scene.limits import MAX_MAGNITUDE, mesh_bytes_limit
+from clray.scene.limits import MAX_IMAGE_SIZE, MAX_MAGNITUDE, mesh_bytes_limit
 from clray.scene.load import scene_from_dict
 from clray.scene.model import Instance, Mesh, Scene
 from clray.scene.parse_camera import parse_camera
@@ -54,12 +55,32 @@ UP_ROTATIONS: dict[str, tuple[tuple[int, int, int], ...]] = {
     "-x": ((0, 1, 0), (-1, 0, 0), (0, 0, 1)),
 }
 VFOV = 35.0
-# The bounding sphere's radius over the half-height of the view: a little room round it.
+# The image size of the automatic scene where neither -W/-H nor a glTF camera sets it.
+DEFAULT_SIZE = (640, 480)
+# The bounding sphere's radius over the half-extent of the view's narrower side: a little room
+# round it.
 MARGIN = 1.05
-# The smallest bounding radius the camera frames, over the centre's distance from the origin
-# (largest coordinate), and the radius it frames a model of one point at the origin with.
+# The bounding radius below which, over the centre's distance from the origin (largest
+# coordinate), the camera's float64 position and look_at no longer resolve the model: such a
+# model is moved to the origin (see RADIUS_RANGE).
 RESOLVED_RADIUS = 1e-10
-POINT_RADIUS = 1e-6
+# Bounding radii the automatic scene frames as they are. Outside, the model is moved to the
+# origin and scaled by a power of 2 (exact) to a radius near 1: the float32 triangle test
+# multiplies three lengths (scale.py), whose product leaves float32's range for models near
+# 1e13 or 1e-13, and rendered nothing; 2^+-32 keeps those products 1e9 inside it.
+RADIUS_RANGE = (2.0 ** -32, 2.0 ** 32)
+# A triangle whose cross product is at most this much of its two edges' lengths' product has
+# no area that a render could show (its corners are one point or on one line).
+FLAT_TRIANGLE = 1e-12
+# A model thinner than this much of its radius along an axis is flat: edge-on, it is under a
+# pixel thick even 16384 pixels high (its radius spans about 1/2.2 of the frame).
+FLAT_MODEL = 1e-4
+# The view that faces a model flat along x, y or z.
+FACING_VIEW = ("side", "top", "front")
+# The ground plane's distance under the model's lowest point, over the model's radius: in its
+# plane, a flat model (a terrain) and the ground hit at the same distance, and the ground hid
+# it; 1e-3 is many float32 steps of a camera-relative distance, and invisible as a gap.
+GROUND_GAP = 1e-3
 # The ambient light: dim, as files often give Ka = 1 (exporters' default) or Ka = Kd.
 AMBIENT = 0.12
 MODEL_MATERIAL = {"color": [0.8, 0.8, 0.8], "ambient": 1.0, "diffuse": 0.85,
@@ -73,9 +94,12 @@ def is_mesh_file(path: Path) -> bool:
 
 @small_pages
 def model_scene_data(path: Path, view: str = DEFAULT_VIEW, ground: bool = False,
-                     up: str = DEFAULT_UP) -> dict:
+                     up: str = DEFAULT_UP, width: int | None = None,
+                     height: int | None = None) -> dict:
     """Scene data for the mesh file `path` (relative names are relative to the working
-    directory, and written so); `up` names the model's axis that points up."""
+    directory, and written so); `up` names the model's axis that points up; `width` and
+    `height` the image's (default 640 x 480, or a glTF camera's aspect), which the camera
+    frames the model in. A glTF file's own camera replaces `view`."""
     name = path.as_posix()
     try:
         # Opened first, so that a file that cannot be opened (or is over its kind's limit) is
@@ -94,10 +118,11 @@ def model_scene_data(path: Path, view: str = DEFAULT_VIEW, ground: bool = False,
         inside = f"objects[0].file: {file_name(name)}: "
         key = err.key[len(inside):] if err.key and err.key.startswith(inside) else None
         raise SceneError(path, key, err.message) from None
+    _refuse_zero_area(path, probe)
     meshes = _placed_meshes(probe)
     toward, view_up = (np.array(v) for v in VIEWS[view])
     rotation = np.array(UP_ROTATIONS[up], dtype=np.float64)
-    matrix, offset, shrink = rotation, np.zeros(3), 1.0
+    matrix, offset = rotation, np.zeros(3)
     # One mesh's vertices as they are: a joined copy of a 2.6 M-vertex model was 63 MB of
     # fresh memory.
     model = meshes[0] if len(meshes) == 1 else np.concatenate(meshes)
@@ -105,36 +130,40 @@ def model_scene_data(path: Path, view: str = DEFAULT_VIEW, ground: bool = False,
     # 1.3 s for a 2.6 M-vertex model, einsum 0.18 s, the same numbers for these rotations
     # (each row a coordinate, signed); the default up needs no turn at all.
     vertices = model if up == DEFAULT_UP else np.einsum("ij,kj->ik", model, matrix)
-    center, radius, lo = _bounds(vertices)
-    distance = MARGIN * radius / math.sin(math.radians(VFOV) / 2.0)
-    if np.max(np.abs(center)) + distance > MAX_MAGNITUDE / 2:
-        # Vertices up to 1e30 are valid, but a camera framing them from outside would stand
-        # beyond the scene's limit (camera.position, a key the user never wrote). Rather
-        # than refuse a mesh a scene file renders, the automatic scene moves the model's
-        # centre to the origin and scales it by a power of 2 until the camera fits (half the
-        # limit: room for the rounding of the written numbers).
-        shrink = 2.0 ** -max(0, math.ceil(math.log2(distance / (MAX_MAGNITUDE / 4))))
+    found = probe_camera(path)
+    size = (_file_size(found, width, height) if found is not None
+            else (width or DEFAULT_SIZE[0], height or DEFAULT_SIZE[1]))
+    # The half-angle of the view's narrower side: a portrait image is narrower than its 35
+    # degrees high, and a distance from the vertical angle cropped the model's sides.
+    half = math.atan(math.tan(math.radians(VFOV) / 2.0) * min(1.0, size[0] / size[1]))
+    center, radius, lo, hi = _bounds(vertices)  # radius > 0: some triangle has an area
+    distance = MARGIN * radius / math.sin(half)
+    reach = float(np.max(np.abs(center)))
+    if (not RADIUS_RANGE[0] <= radius <= RADIUS_RANGE[1] or radius < RESOLVED_RADIUS * reach
+            or reach + distance > MAX_MAGNITUDE / 2):
+        # Moved to the origin and scaled by a power of 2, exact (the transform's offset too),
+        # so that `clray scene` writes the numbers that render; the float64 vertices keep
+        # what the file resolves. This also keeps a model with coordinates near 1e30 (valid)
+        # framed by a camera within the scene's limit (half of it: room for rounding).
+        shrink = 2.0 ** -round(math.log2(radius))
         matrix, offset = shrink * rotation, -shrink * center
     transform = None
-    # A shrunk model centred on the origin has no offset, but still its scale to write.
-    if up != DEFAULT_UP or offset.any() or shrink != 1.0:
+    if up != DEFAULT_UP or offset.any() or not np.array_equal(matrix, rotation):
         transform = [[*_plain(matrix[i]), *_plain(offset[i:i + 1])] for i in range(3)]
         transform.append([0.0, 0.0, 0.0, 1.0])
         # Framed from the vertices as the written (rounded) transform places them.
         written = np.array(transform)
         vertices = model @ written[:3, :3].T + written[:3, 3]
         matrix, offset = written[:3, :3], written[:3, 3]
-        center, radius, lo = _bounds(vertices)
-        distance = MARGIN * radius / math.sin(math.radians(VFOV) / 2.0)
+        center, radius, lo, hi = _bounds(vertices)
+        distance = MARGIN * radius / math.sin(half)
     if np.max(np.abs(center)) + distance > MAX_MAGNITUDE:
         raise SceneError(path, None, f"the automatic camera cannot frame a model this large "
                          f"(it would stand beyond {MAX_MAGNITUDE:g}); write a scene file")
     camera = {"position": _plain(center + distance * toward), "look_at": _plain(center),
               "up": _plain(view_up), "vfov": VFOV}
-    size = [640, 480]
-    found = probe_camera(path)
     if found is not None:  # a glTF file's own camera, turned and moved as the model is
-        camera, size = _file_camera(found, matrix, offset)
+        camera = _file_camera(found, matrix, offset)
         try:
             # Checked here, so that a camera the scene cannot take (a node placing it beyond
             # 1e30) names the file and its node, not a [camera] key the user never wrote.
@@ -144,6 +173,8 @@ def model_scene_data(path: Path, view: str = DEFAULT_VIEW, ground: bool = False,
                              f"{err.message}") from None
         toward = unit(np.array(camera["position"]) - np.array(camera["look_at"]))
         view_up = np.array(camera["up"])
+    else:
+        _warn_edge_on(name, view, toward, hi - lo, radius)
     up = view_up
     right = unit(np.cross(-toward, up))
     true_up = np.cross(right, -toward)
@@ -169,16 +200,49 @@ def model_scene_data(path: Path, view: str = DEFAULT_VIEW, ground: bool = False,
         obj["material"] = "model"
     if ground:
         data["materials"]["ground"] = GROUND_MATERIAL
-        data["objects"].append({"type": "plane", "point": _plain(center * [1, 0, 1]
-                                                                  + lo * [0, 1, 0]),
+        point = center.copy()
+        point[1] = lo[1] - GROUND_GAP * radius
+        data["objects"].append({"type": "plane", "point": _plain(point),
                                 "normal": [0.0, 1.0, 0.0], "material": "ground"})
     return data
 
 
 def load_model_scene(path: Path, view: str = DEFAULT_VIEW, ground: bool = False,
-                     up: str = DEFAULT_UP) -> Scene:
+                     up: str = DEFAULT_UP, width: int | None = None,
+                     height: int | None = None) -> Scene:
     with meshes_read_once():  # framing the model and loading its scene read the file once
-        return scene_from_dict(model_scene_data(path, view, ground, up))
+        return scene_from_dict(model_scene_data(path, view, ground, up, width, height))
+
+
+def _refuse_zero_area(path: Path, probe: Scene) -> None:
+    """SceneError where no triangle of the file has an area: the render would be empty."""
+    for mesh in _meshes(probe):
+        for start in range(0, len(mesh.faces), CHUNK_ROWS):
+            corners = mesh.vertices[mesh.faces[start:start + CHUNK_ROWS]].astype(np.float64)
+            e1, e2 = corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]
+            # Scaled by the largest edge component first, so that no square leaves float64.
+            peak = np.maximum(np.abs(e1).max(axis=1), np.abs(e2).max(axis=1))
+            peak[peak == 0] = 1.0
+            e1, e2 = e1 / peak[:, None], e2 / peak[:, None]
+            cross = np.cross(e1, e2)
+            area2 = np.einsum("ij,ij->i", cross, cross)
+            lengths2 = np.einsum("ij,ij->i", e1, e1) * np.einsum("ij,ij->i", e2, e2)
+            if np.any(area2 > FLAT_TRIANGLE ** 2 * lengths2):
+                return
+    raise SceneError(path, None, "every triangle has zero area (its corners are one point or "
+                     "on one line): nothing to render")
+
+
+def _warn_edge_on(name: str, view: str, toward: np.ndarray, extent: np.ndarray,
+                  radius: float) -> None:
+    """A warning where the model is flat in a plane that holds the view direction (and the
+    camera, which looks at its centre): seen edge-on, it renders as nothing."""
+    for axis in range(3):
+        if extent[axis] <= FLAT_MODEL * radius and toward[axis] == 0.0:
+            warnings.warn(f"{name}: the model is flat along {'xyz'[axis]} and --view {view} "
+                          f"sees it edge-on, as nothing; try --view {FACING_VIEW[axis]}",
+                          stacklevel=3)
+            return
 
 
 def _meshes(scene: Scene) -> list[Mesh]:
@@ -221,9 +285,8 @@ def probe_camera(path: Path) -> GltfCamera | None:
         raise SceneError(path, None, f"cannot read mesh file: {exc}") from None
 
 
-def _file_camera(found: GltfCamera, matrix: np.ndarray, offset: np.ndarray
-                 ) -> tuple[dict[str, Any], list[int]]:
-    """(camera table, [width, height]) of a glTF camera placed by x -> matrix x + offset."""
+def _file_camera(found: GltfCamera, matrix: np.ndarray, offset: np.ndarray) -> dict[str, Any]:
+    """The camera table of a glTF camera placed by x -> matrix x + offset."""
     position = matrix @ np.array(found.position) + offset
     look_at = matrix @ np.array(found.look_at) + offset
     camera: dict[str, Any] = {"position": _plain(position), "look_at": _plain(look_at),
@@ -236,14 +299,22 @@ def _file_camera(found: GltfCamera, matrix: np.ndarray, offset: np.ndarray
         scale = float(np.linalg.norm(matrix @ np.array(found.up)) /
                       np.linalg.norm(found.up))
         camera.update(type="orthographic", height=float(found.height * scale))
-    aspect = found.aspect if found.aspect is not None else 640 / 480
-    width = 640
-    height = min(max(round(width / aspect), 1), 16384)
-    return camera, [width, height]
+    return camera
 
 
-def _bounds(vertices: np.ndarray) -> tuple[np.ndarray, float, np.ndarray]:
-    """(centre of the bounding box, radius of the sphere about it, the box's low corner)."""
+def _file_size(found: GltfCamera, width: int | None, height: int | None) -> tuple[int, int]:
+    """The image size for a glTF camera: as given, else the camera's aspect ratio on the
+    side given (or a width of 640)."""
+    aspect = found.aspect if found.aspect is not None else DEFAULT_SIZE[0] / DEFAULT_SIZE[1]
+    if width is None and height is not None:
+        return min(max(round(height * aspect), 1), MAX_IMAGE_SIZE), height
+    width = width or DEFAULT_SIZE[0]
+    return width, height or min(max(round(width / aspect), 1), MAX_IMAGE_SIZE)
+
+
+def _bounds(vertices: np.ndarray) -> tuple[np.ndarray, float, np.ndarray, np.ndarray]:
+    """(centre of the bounding box, radius of the sphere about it, the box's low and high
+    corners)."""
     lo, hi = bounds(vertices)
     center = (lo + hi) / 2.0
     # The largest square's root is the largest length (a rounded root is monotonic). A chunk
@@ -256,16 +327,7 @@ def _bounds(vertices: np.ndarray) -> tuple[np.ndarray, float, np.ndarray]:
         farthest[part.start // CHUNK_ROWS] = (
             d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1] + d[:, 2] * d[:, 2]).max()
     by_chunks(len(vertices), reach)
-    radius = float(np.sqrt(farthest.max(initial=0.0)))
-    # The model's own size, but at least RESOLVED_RADIUS of its distance from the origin: the
-    # camera's position and look_at are float64 numbers near the centre, good to about 1e-16
-    # of it, and so is the model; below this the view's direction would be a matter of
-    # rounding (the render, made camera-relative, is not the limit, and scale.py warns that
-    # such a model is beyond float32 from the camera). Only a model of one point has no size.
-    floor = RESOLVED_RADIUS * float(np.max(np.abs(center)))
-    if radius == 0.0:
-        floor = max(floor, POINT_RADIUS)
-    return center, max(radius, floor), lo
+    return center, float(np.sqrt(farthest.max(initial=0.0))), lo, hi
 
 
 def _plain(v: np.ndarray) -> list[float]:

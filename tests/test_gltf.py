@@ -241,6 +241,25 @@ def test_the_files_first_camera_frames_the_automatic_scene(tmp_path, monkeypatch
     np.testing.assert_allclose(turned["position"], [1, 3, -2], atol=1e-6)
 
 
+def test_view_with_a_file_that_has_a_camera_is_a_usage_error(tmp_path, monkeypatch, capsys):
+    # The file's camera sets the view: --view top was ignored, though `clray scene`'s header
+    # said --view top. Refused as --view is with a scene file; the header leaves it out.
+    b = instanced_cubes()
+    b.doc["cameras"] = [{"type": "perspective", "perspective": {"yfov": 0.5, "znear": 0.1}}]
+    b.node(camera=0, translation=[1, 2, 30])
+    b.save(tmp_path / "c.glb")
+    monkeypatch.chdir(tmp_path)
+    for command in (["render", "c.glb", "--view", "top", "-o", "c.png"],
+                    ["scene", "c.glb", "--view", "top"]):
+        assert main(command) == 2
+        err = capsys.readouterr().err
+        assert "--view: c.glb has a camera of its own (nodes[" in err and len(
+            err.splitlines()) == 1
+    assert not (tmp_path / "c.png").exists()
+    assert main(["scene", "c.glb"]) == 0
+    assert capsys.readouterr().out.startswith("# The automatic scene of c.glb (clray scene).")
+
+
 def test_orthographic_camera(tmp_path, monkeypatch):
     b = instanced_cubes()
     b.doc["cameras"] = [{"type": "orthographic", "orthographic": {"xmag": 3, "ymag": 1.5}}]

@@ -90,7 +90,11 @@ def test_views_look_at_the_centre_from_their_side(view):
     assert abs(np.linalg.norm(toward) - 1.0) < 1e-12
     np.testing.assert_allclose(eye / np.linalg.norm(eye), toward, atol=1e-5)
     plane = data["objects"][1]
-    assert plane["type"] == "plane" and plane["point"][1] == 0.0
+    # Under the model's lowest point (y = 0) by GROUND_GAP of its radius.
+    from clray.model_scene import GROUND_GAP
+
+    assert plane["type"] == "plane"
+    assert plane["point"][1] == pytest.approx(-GROUND_GAP * _framed_radius(data), rel=1e-9)
 
 
 def test_scene_command_refuses_a_scene_file(capsys):
@@ -338,20 +342,22 @@ def test_a_small_model_is_framed_at_its_own_size(tmp_path, monkeypatch, corner, 
                                rtol=1e-6)
 
 
-def test_a_model_below_what_float64_resolves_is_framed_at_the_floor(tmp_path, monkeypatch):
-    from clray.model_scene import POINT_RADIUS, RESOLVED_RADIUS
-
+def test_a_model_below_what_float64_resolves_at_its_place_is_moved_to_the_origin(
+        tmp_path, monkeypatch):
+    # A 1e-5 cube 1e6 from the origin (below RESOLVED_RADIUS of its distance) was framed as
+    # if 1e-4 in radius: a speck. Moved to the origin and scaled by a power of 2, it fills
+    # the frame at a radius near 1.
     monkeypatch.chdir(tmp_path)
-    # Smaller than float64 places a camera about it, 1e20 from the origin: framed at the
-    # smallest radius float64 resolves there.
-    _cube(tmp_path / "far.obj", (1e20, 0.0, 0.0), 1e-10)
-    np.testing.assert_allclose(_framed_radius(model_scene_data(Path("far.obj"), "front")),
-                               RESOLVED_RADIUS * 1e20, rtol=1e-6)
-    # One point has no size: at the origin, framed at POINT_RADIUS; elsewhere at the floor.
-    for where, radius in ((0.0, POINT_RADIUS), (1e8, RESOLVED_RADIUS * 1e8)):
-        (tmp_path / "point.obj").write_text(f"v {where!r} 0 0\n" * 3 + "f 1 2 3\n")
-        np.testing.assert_allclose(_framed_radius(model_scene_data(Path("point.obj"), "front")),
-                                   radius, rtol=1e-6)
+    vertices = _cube(tmp_path / "far.obj", (1e6, 0.0, 0.0), 1e-5)
+    data = model_scene_data(Path("far.obj"), "front")
+    matrix = np.array(data["objects"][0]["transform"]["matrix"])
+    scale = matrix[0, 0]
+    assert scale == 2.0 ** round(np.log2(scale))  # a power of 2: exact
+    placed = vertices @ matrix[:3, :3].T + matrix[:3, 3]
+    centre = (placed.min(axis=0) + placed.max(axis=0)) / 2
+    radius = np.linalg.norm(placed - centre, axis=1).max()
+    assert 0.5 < radius < 2 and np.all(np.abs(centre) < 1e-3)
+    np.testing.assert_allclose(_framed_radius(data), radius, rtol=1e-6)
 
 
 def test_the_camera_frames_only_the_vertices_faces_use(tmp_path, monkeypatch):
@@ -361,7 +367,9 @@ def test_the_camera_frames_only_the_vertices_faces_use(tmp_path, monkeypatch):
                                     "f 1 2 3\nl 1 4\np 5\n")
     data = model_scene_data(Path("l.obj"), "front", ground=True)
     assert data["camera"]["look_at"] == [0.5, 0.5, 0.0]
-    assert data["objects"][1]["point"] == [0.5, 0.0, 0.0]
+    from clray.model_scene import GROUND_GAP
+
+    assert data["objects"][1]["point"] == pytest.approx([0.5, -GROUND_GAP * 0.5 ** 0.5, 0.0])
 
 
 @pytest.mark.parametrize(("arrays", "where"), [

@@ -98,3 +98,35 @@ def test_median_of_sizes_is_numpys() -> None:
     for n in (1, 2, 3, 4, 7, 10, 1001):
         sizes = np.round(rng.lognormal(size=n) * 10, 1)
         assert _median(sizes) == float(np.median(sizes))
+
+
+_OCTAHEDRON = ("v 1 0 0\nv -1 0 0\nv 0 1 0\nv 0 -1 0\nv 0 0 1\nv 0 0 -1\nf 1 3 5\nf 3 2 5\n"
+               "f 2 4 5\nf 4 1 5\nf 3 1 6\nf 2 3 6\nf 4 2 6\nf 1 4 6\n")
+
+
+@pytest.mark.parametrize(("scale", "warned"), [(1e11, False), (1e-11, False), (1e13, True),
+                                                (1e-16, True)])
+def test_triangles_warn_where_products_of_three_lengths_leave_float32(
+        cl_device, tmp_path, scale: float, warned: bool) -> None:
+    # The watertight test's t scaled by det is a product of three lengths: a 1e13 or a 1e-16
+    # mesh rendered nothing in float32, while the limits of squares (1e+-18) said nothing.
+    from clray.render import render
+
+    (tmp_path / "oct.obj").write_text(_OCTAHEDRON)
+    size = [[scale, 0, 0, 0], [0, scale, 0, 0], [0, 0, scale, 0], [0, 0, 0, 1]]
+    objects = [{"type": "mesh", "file": "oct.obj", "transform": {"matrix": size}},
+               {"type": "triangle", "vertices": [[scale, 0, 0], [0, scale, 0], [0, 0, scale]]}]
+    for i, obj in enumerate(objects):
+        scene = scene_from_dict({
+            "render": {"width": 16, "height": 12, "background": [0, 0, 0]},
+            "camera": {"position": [3 * scale] * 3, "look_at": [0, 0, 0], "vfov": 40},
+            "lights": [{"type": "directional", "direction": [-1, -1, -1]}],
+            "objects": [obj]}, tmp_path / "s.toml")
+        seen = int(np.any(render(scene).image != 0, axis=-1).sum())
+        if warned:
+            assert len(scene.warnings) == 1
+            assert "outside the range whose cubes float32 can hold" in scene.warnings[0]
+            assert seen == 0  # the warned range is where the pixels go
+        else:
+            assert scene.warnings == ()
+            assert seen == (16, 8)[i]  # as at scale 1

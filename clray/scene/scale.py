@@ -28,6 +28,13 @@ RATIO_LIMIT = 1e4
 # coordinates then flush to zero (denormals) or overflow.
 TINY_LENGTH = 1e-18
 HUGE_LENGTH = 1e18
+# The same for triangles and meshes, whose watertight test (kernels/triangle.h) multiplies
+# three lengths: its t scaled by det is edge functions (products of two corner coordinates)
+# times a third, each about the size or the distance. Float32 holds such products of lengths
+# between about 2e-13 and 7e12 (cube roots of its normal range); a 1e13 mesh rendered nothing,
+# a 1e-14 one lost pixels, a 1e-16 one rendered nothing.
+TINY_TRIANGLE_LENGTH = 1e-12
+HUGE_TRIANGLE_LENGTH = 1e12
 
 _KIND = {M.Triangle: "triangle", M.Mesh: "mesh", **{shape.model: shape.kind for shape in SHAPES}}
 
@@ -74,9 +81,12 @@ def analyze(scene: M.Scene) -> ScaleReport:
         kind = _KIND[type(obj)]
         where = f"objects[{i}] ({kind})"
         dist = float(np.linalg.norm(centre - eye))
-        if size > HUGE_LENGTH or dist > HUGE_LENGTH or 0 < size < TINY_LENGTH:
+        tiny, huge, what = ((TINY_TRIANGLE_LENGTH, HUGE_TRIANGLE_LENGTH, "cubes")
+                            if isinstance(obj, M.Triangle | M.Mesh)
+                            else (TINY_LENGTH, HUGE_LENGTH, "squares"))
+        if size > huge or dist > huge or 0 < size < tiny:
             warnings.append(f"{where}: size {size:.3g} at distance {dist:.3g} from the camera "
-                            "is outside the range whose squares float32 can hold; expect "
+                            f"is outside the range whose {what} float32 can hold; expect "
                             "missing or wrong surfaces (rescale the scene)")
             continue
         if isinstance(obj, M.Sphere):

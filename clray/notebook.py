@@ -43,7 +43,7 @@ def show_progressive(scene: SceneSource, settings: RenderSettings | None = None
     settings = settings_or_default(settings)
     # Handed to render() as render takes a path or a callable (a list's pop): given one,
     # render holds the scene alone and lets it go once packed, here too.
-    held = [scene_from(scene)]
+    held = [scene_from(scene, settings)]
     resolved = resolved_settings(held[0], settings)
     encoding = png_encoding(held[0], settings)
     canvas = np.zeros((resolved["height"], resolved["width"], 3), dtype=np.float32)

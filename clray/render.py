@@ -273,13 +273,17 @@ def progress_parts(progress: Callable[[int, int], None] | None, parts: int
 SceneSource = Scene | str | os.PathLike | Callable[[], Scene]
 
 
-def scene_from(source: SceneSource) -> Scene:
+def scene_from(source: SceneSource, settings: RenderSettings | None = None) -> Scene:
     """The checked scene of what render() takes: a scene (checked by the scene file's rules,
     clray.scene.check), a scene file, a mesh file (its automatic scene, as `clray render
-    model.obj` frames it), or the scene a callable returns."""
+    model.obj` frames it, for the settings' image size where they give one), or the scene a
+    callable returns."""
     if isinstance(source, str | os.PathLike):
         path = Path(os.fsdecode(source))
-        return load_model_scene(path) if is_mesh_file(path) else load_scene(path)
+        if is_mesh_file(path):
+            size = settings or RenderSettings()
+            return load_model_scene(path, width=size.width, height=size.height)
+        return load_scene(path)
     return check_scene(source() if callable(source) else source)
 
 
@@ -293,7 +297,7 @@ def render(scene: SceneSource, settings: RenderSettings | None = None) -> Render
     file) is not held beside the packed scene while it renders. `clray render` hands its
     scene over so (a list's `pop`)."""
     settings = settings_or_default(settings)
-    scene = scene_from(scene)
+    scene = scene_from(scene, settings)
     start = time.perf_counter()
     encoding = png_encoding(scene, settings)
     resolved = resolved_settings(scene, settings)

@@ -161,3 +161,18 @@ def test_the_ground_leaves_a_model_in_its_plane_visible(cl_device, tmp_path, mon
     with_model, without = (render(scene_from_dict(d)).image for d in (data, ground_only))
     differs = np.any(with_model != without, axis=-1)
     assert differs.mean() > 0.05
+
+
+def test_render_of_a_mesh_path_frames_it_for_the_settings_image_size(tmp_path, monkeypatch):
+    # render() took a mesh file's path but framed it for the default 640 x 480, so a portrait
+    # RenderSettings cut off a long model's sides as the command line no longer did.
+    from clray.render import RenderSettings, scene_from
+
+    monkeypatch.chdir(tmp_path)
+    _obj(tmp_path / "m.obj", _BOX * SHAPES["long_x"], _BOX_FACES)
+    settings = RenderSettings(width=60, height=160)
+    framed = scene_from("m.obj", settings)
+    direct = load_model_scene(Path("m.obj"), width=60, height=160)
+    assert framed.camera == direct.camera
+    assert (framed.render.width, framed.render.height) == (60, 160)
+    assert framed.camera != scene_from("m.obj").camera

@@ -125,7 +125,7 @@ def test_triangles_warn_where_products_of_three_lengths_leave_float32(
         seen = int(np.any(render(scene).image != 0, axis=-1).sum())
         if warned:
             assert len(scene.warnings) == 1
-            assert "outside the range whose cubes float32 can hold" in scene.warnings[0]
+            assert "whose products of three lengths float32 can hold" in scene.warnings[0]
             assert seen == 0  # the warned range is where the pixels go
         else:
             assert scene.warnings == ()

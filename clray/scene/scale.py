@@ -29,12 +29,14 @@ RATIO_LIMIT = 1e4
 TINY_LENGTH = 1e-18
 HUGE_LENGTH = 1e18
 # The same for triangles and meshes, whose watertight test (kernels/triangle.h) multiplies
-# three lengths: its t scaled by det is edge functions (products of two corner coordinates)
-# times a third, each about the size or the distance. Float32 holds such products of lengths
-# between about 2e-13 and 7e12 (cube roots of its normal range); a 1e13 mesh rendered nothing,
-# a 1e-14 one lost pixels, a 1e-16 one rendered nothing.
-TINY_TRIANGLE_LENGTH = 1e-12
-HUGE_TRIANGLE_LENGTH = 1e12
+# three lengths: its t scaled by det is edge functions (products of two of the corners' sheared
+# lateral coordinates, about the size) times a corner's depth along the ray (about the
+# distance). Float32 holds that product, size^2 x max(size, distance), between its smallest
+# normal number (1.2e-38) and its largest (3.4e38); within a factor of ten of the bounds below,
+# an octahedron of size 2e13 seen from 5.2e13 rendered nothing, one of 2e-14 lost pixels, and
+# the study's scale_1e12 (size 2e12 at 7.1e12: 2.8e37) rendered right.
+TINY_TRIANGLE_PRODUCT = 1e-37
+HUGE_TRIANGLE_PRODUCT = 1e38
 
 _KIND = {M.Triangle: "triangle", M.Mesh: "mesh", **{shape.model: shape.kind for shape in SHAPES}}
 
@@ -62,6 +64,18 @@ def _median(values: np.ndarray) -> float:
     return float((middle[(n - 1) // 2] + middle[n // 2]) / 2.0)
 
 
+def _beyond_float32(obj: object, size: float, dist: float) -> str | None:
+    """What of an object's intersection float32 cannot hold at this size and distance (the
+    warning's words), or None."""
+    if size > HUGE_LENGTH or dist > HUGE_LENGTH or 0 < size < TINY_LENGTH:
+        return "squares"
+    if isinstance(obj, M.Triangle | M.Mesh) and size > 0:
+        product = size * size * max(size, dist)
+        if not TINY_TRIANGLE_PRODUCT <= product <= HUGE_TRIANGLE_PRODUCT:
+            return "products of three lengths"
+    return None
+
+
 def analyze(scene: M.Scene) -> ScaleReport:
     eye = np.asarray(scene.camera.position, dtype=np.float64)
     bounded = [(i, obj) for i, obj in enumerate(scene.objects)
@@ -81,10 +95,8 @@ def analyze(scene: M.Scene) -> ScaleReport:
         kind = _KIND[type(obj)]
         where = f"objects[{i}] ({kind})"
         dist = float(np.linalg.norm(centre - eye))
-        tiny, huge, what = ((TINY_TRIANGLE_LENGTH, HUGE_TRIANGLE_LENGTH, "cubes")
-                            if isinstance(obj, M.Triangle | M.Mesh)
-                            else (TINY_LENGTH, HUGE_LENGTH, "squares"))
-        if size > huge or dist > huge or 0 < size < tiny:
+        what = _beyond_float32(obj, size, dist)
+        if what:
             warnings.append(f"{where}: size {size:.3g} at distance {dist:.3g} from the camera "
                             f"is outside the range whose {what} float32 can hold; expect "
                             "missing or wrong surfaces (rescale the scene)")

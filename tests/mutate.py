@@ -152,8 +152,8 @@ MUTATIONS: tuple[Mutation, ...] = (
       "return (REAL)n * u / ((REAL)1 - (REAL)n * u);", "return (REAL)0;",
       RENDER, HARD, MESH, FEATURES),
     m("real.frame_helper_swapped", "kernels/real.h",
-      "fabs(a.x) < REAL_C(0.9) ? (REAL3)(1, 0, 0) : (REAL3)(0, 1, 0)",
-      "fabs(a.x) < REAL_C(0.9) ? (REAL3)(0, 1, 0) : (REAL3)(1, 0, 0)", *KERNEL_SCENES),
+      "fabs(x) < 0.9f ? (REAL3)(1, 0, 0) : (REAL3)(0, 1, 0)",
+      "fabs(x) < 0.9f ? (REAL3)(0, 1, 0) : (REAL3)(1, 0, 0)", *KERNEL_SCENES),
     m("real.lowest_bit_is_highest", "kernels/real.h",
       "return 31 - clz(bits & -bits);", "return 31 - clz(bits);", INTERSECT, RENDER),
     # One definition for the single-ray, leaf-packet and lane-wise forms (real.h, Twins).

@@ -122,11 +122,11 @@ def trace(
         local = shade_direct(sf, tasks.d, c, mats, lights, ambient_light, key,
                              geo.transmission)
         np.add.at(radiance, tasks.owner, tasks.weight[:, None] * local)
-        tasks = secondary_rays(tasks, sf, mats, max_depth, scene.render.min_weight, schlick)
+        tasks = spawn_secondary(tasks, sf, mats, max_depth, scene.render.min_weight, schlick)
     return radiance
 
 
-def secondary_rays(tasks: RayTasks, sf: Surface, mats: MaterialTable, max_depth: int,
+def spawn_secondary(tasks: RayTasks, sf: Surface, mats: MaterialTable, max_depth: int,
                    min_weight: float, schlick: bool) -> RayTasks:
     """The next generation: each hit's reflected and refracted rays (spawn in the kernels),
     weighted by reflect and transmit (split by Fresnel, transmit joining reflect at total

@@ -223,8 +223,8 @@ MUTATIONS: tuple[Mutation, ...] = (
       *KERNEL_SCENES),
     # kernels/texture.h
     m("texture.v_not_flipped", "kernels/texture.h",
-      "REAL sy = ((REAL)1 - wrap01(uv.y * TO_REAL(tx->repeat_v))) * (REAL)h",
-      "REAL sy = wrap01(uv.y * TO_REAL(tx->repeat_v)) * (REAL)h", *KERNEL_SCENES, MESH),
+      "REAL sy = ((REAL)1 - wrap01(tv)) * (REAL)h",
+      "REAL sy = wrap01(tv) * (REAL)h", *KERNEL_SCENES, MESH),
     m("texture.bilinear_weight", "kernels/texture.h",
       "return mix(top, bottom, fy);", "return mix(top, bottom, fx);", *KERNEL_SCENES, MESH),
     m("texture.repeat_axes_swapped", "kernels/texture.h",

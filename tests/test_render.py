@@ -399,3 +399,29 @@ def test_frame_at_the_helper_axis_boundary_matches_reference(cl_device, name: st
     # Measured on PoCL: at most 6.2e-6 in float, 2.6e-6 in double; the float build's turned
     # frame was off on every textured pixel (up to 0.86) and by up to 0.29 under the disc.
     assert err.max() < 1e-4
+
+
+@pytest.mark.parametrize("precision", ["float", "double"])
+def test_image_rows_do_not_wrap_at_a_spheres_pole_or_a_cylinders_rims(cl_device,
+                                                                      precision: str) -> None:
+    # The image's top row white, the rest black: a pole (v = 1) or a top rim sees the top row
+    # alone, a bottom rim (v = 0) the bottom row alone, not the two blended half and half.
+    texels = np.zeros((4, 8, 3), dtype=np.float32)
+    texels[0] = 1.0
+    flat = M.Material("tex", texture=M.Texture("image", image=texels), ambient=1.0,
+                      diffuse=0.0)
+    seen = {}
+    pole = M.Scene(None, M.RenderOptions(9, 9, 1, 0, (0.3, 0.3, 0.3), (1.0, 1.0, 1.0)),
+                   M.Camera((0.0, 5.0, 0.0), (0.0, 0.0, 0.0), (0.0, 0.0, -1.0), vfov=20.0),
+                   (flat,), (), (M.Sphere((0, 0, 0), 1.0, 0),))
+    # An open cylinder seen from beside, its side filling the frame's height from rim to rim.
+    rims = M.Scene(None, M.RenderOptions(5, 21, 1, 0, (0.3, 0.3, 0.3), (1.0, 1.0, 1.0)),
+                   M.Camera((0.0, 0.5, 4.0), (0.0, 0.5, 0.0), vfov=16.0), (flat,), (),
+                   (M.Cylinder((0, 0, 0), (0, 1, 0), 0.5, 1.0, 0, capped=False),))
+    for name, scene in (("pole", pole), ("rims", rims)):
+        seen[name] = render(scene, RenderSettings(precision=precision)).image[..., 0]
+        np.testing.assert_allclose(seen[name], render_reference(scene)[..., 0], atol=1e-4)
+    # Wrapping gave 0.5 at the pole, 0.63 at the top rim and 0.37 at the bottom one.
+    assert seen["pole"][4, 4] == pytest.approx(1.0, abs=1e-4)
+    assert seen["rims"][0, 2] == pytest.approx(1.0, abs=1e-4)
+    assert seen["rims"][-1, 2] == pytest.approx(0.0, abs=1e-4)

@@ -117,7 +117,8 @@ def trace(
         tasks = tasks.select(h)
         sf = surface_at(tasks.o, tasks.d, hit.t[h], hit.normal[h], hit.shading_normal[h],
                         hit.uv[h], hit.material[h])
-        c = surface_color(mats, sf.material, sf.p, sf.uv, sf.n_g) * hit.tint[h]
+        c = (surface_color(mats, sf.material, sf.p, sf.uv, sf.n_g, hit.ends_apart[h])
+             * hit.tint[h])
         key = SampleKey(seed, ray_pixel[tasks.owner], ray_sample[tasks.owner], spp)
         local = shade_direct(sf, tasks.d, c, mats, lights, ambient_light, key,
                              geo.transmission)

@@ -46,6 +46,9 @@ def vec(v: tuple[float, float, float]) -> np.ndarray:
 
 def frame(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """frame(a) of docs/rendering.md: two unit vectors completing the unit vector a."""
-    h = np.array([1.0, 0.0, 0.0]) if abs(a[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    # Decided on a.x rounded to float32, as the kernels store and compare it: in float64 an
+    # |a.x| within rounding of 0.9 would take the other helper axis and rotate the frame.
+    h = (np.array([1.0, 0.0, 0.0]) if abs(np.float32(a[0])) < np.float32(0.9)
+         else np.array([0.0, 1.0, 0.0]))
     e1 = safe_normalize(np.cross(a, h))
     return e1, np.cross(a, e1)

@@ -12,22 +12,12 @@ static inline REAL3 environment_texel(__global const float4* texels, __global co
                                       int x, int y) {
     return TO_REAL3(texels[params->background_texels + y * params->background_width + x]);
 }
-#endif
 
-static inline REAL3 background_radiance(__global const Params* params,
-                                        __global const float4* texels, REAL3 d) {
-#if HAS_BACKGROUND_GRADIENT || HAS_BACKGROUND_IMAGE
-    // Reflected directions are unit only to rounding; the mapping wants them exactly unit.
-    REAL3 u = safe_normalize(d);
-#endif
-#if HAS_BACKGROUND_GRADIENT
-    REAL t = clamp(REAL_C(0.5) * (u.y + (REAL)1), (REAL)0, (REAL)1);
-    return mix(TO_REAL3(params->background), TO_REAL3(params->background_top), t);
-#elif HAS_BACKGROUND_IMAGE
+// Bilinear lookup of the panorama at (eu, ev): wrapping across u, rows clamped at the poles
+// (row 0 at ev = 1).
+static inline REAL3 environment_bilinear(__global const float4* texels,
+                                         __global const Params* params, REAL eu, REAL ev) {
     int w = params->background_width, h = params->background_height;
-    // u = 0.5 looks along -z and grows towards +x; v = 1 is straight up (image row 0).
-    REAL eu = REAL_C(0.5) + atan2(u.x, -u.z) / ((REAL)2 * PI_R);
-    REAL ev = REAL_C(0.5) + asin(clamp(u.y, (REAL)-1, (REAL)1)) / PI_R;
     REAL sx = (eu - floor(eu)) * (REAL)w - REAL_C(0.5);
     REAL sy = clamp(((REAL)1 - ev) * (REAL)h - REAL_C(0.5), (REAL)0, (REAL)(h - 1));
     REAL fx0 = floor(sx), fy0 = floor(sy);
@@ -40,6 +30,23 @@ static inline REAL3 background_radiance(__global const Params* params,
     REAL3 bottom = mix(environment_texel(texels, params, x0, y1),
                        environment_texel(texels, params, x1, y1), fx);
     return mix(top, bottom, fy);
+}
+#endif
+
+static inline REAL3 background_radiance(__global const Params* params,
+                                        __global const float4* texels, REAL3 d) {
+#if HAS_BACKGROUND_GRADIENT || HAS_BACKGROUND_IMAGE
+    // Reflected directions are unit only to rounding; the mapping wants them exactly unit.
+    REAL3 u = safe_normalize(d);
+#endif
+#if HAS_BACKGROUND_GRADIENT
+    REAL t = clamp(REAL_C(0.5) * (u.y + (REAL)1), (REAL)0, (REAL)1);
+    return mix(TO_REAL3(params->background), TO_REAL3(params->background_top), t);
+#elif HAS_BACKGROUND_IMAGE
+    // u = 0.5 looks along -z and grows towards +x; v = 1 is straight up (image row 0).
+    REAL eu = REAL_C(0.5) + atan2(u.x, -u.z) / ((REAL)2 * PI_R);
+    REAL ev = REAL_C(0.5) + asin(clamp(u.y, (REAL)-1, (REAL)1)) / PI_R;
+    return environment_bilinear(texels, params, eu, ev);
 #else
     return TO_REAL3(params->background);
 #endif

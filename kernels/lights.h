@@ -67,6 +67,8 @@ static OUT_OF_LINE bool sample_area_light(const __global Light* light, REAL3 p, 
         REAL sin_t = sqrt(fmax((REAL)0, one_minus_cos * ((REAL)2 - one_minus_cos)));
         REAL phi = (REAL)2 * PI_R * u.y;
         REAL3 w_c = to_c / dist, e1, e2;
+        // w_c is computed, so at |w_c.x| near 0.9 the builds and the reference may rotate the
+        // samples differently: the same distribution, another pattern of noise.
         frame(w_c, &e1, &e2);
         REAL3 w = cos_t * w_c + sin_t * (cos(phi) * e1 + sin(phi) * e2);
         // The nearer crossing of the sphere along w: (d^2 - R^2) / (d cos + sqrt(R^2 - d^2

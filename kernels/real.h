@@ -328,11 +328,18 @@ HOT int lane_bits4(int4 m) { return or_lanes4(m & (int4)(1, 2, 4, 8)); }
 // The lowest set bit's index (bits != 0); ctz is OpenCL 2.0, clz is 1.2.
 HOT int lowest_bit(int bits) { return 31 - clz(bits & -bits); }
 
-// An orthonormal pair perpendicular to unit a, the frame() of docs/rendering.md.
-static inline void frame(REAL3 a, REAL3* e1, REAL3* e2) {
-    REAL3 h = fabs(a.x) < REAL_C(0.9) ? (REAL3)(1, 0, 0) : (REAL3)(0, 1, 0);
+// An orthonormal pair perpendicular to unit a, the frame() of docs/rendering.md, its helper
+// axis chosen by x, a's x as the float32 the scene buffers store: compared in float, so that
+// the float and double builds, the host and the reference (which round to float32 too) take
+// the same branch where |x| lies within float32 rounding of 0.9.
+static inline void frame_by(REAL3 a, float x, REAL3* e1, REAL3* e2) {
+    REAL3 h = fabs(x) < 0.9f ? (REAL3)(1, 0, 0) : (REAL3)(0, 1, 0);
     *e1 = safe_normalize(cross(a, h));
     *e2 = cross(a, *e1);
 }
+
+// frame_by() on a's own x: for an a read straight from a buffer, (float)a.x is the stored
+// value in either build.
+static inline void frame(REAL3 a, REAL3* e1, REAL3* e2) { frame_by(a, (float)a.x, e1, e2); }
 
 #endif

@@ -25,7 +25,7 @@ STAGE ShadePoint shade_point(const SceneRefs* s, const __global Camera* camera, 
     REAL3 n_f = pt.entering ? pt.sf.n_g : -pt.sf.n_g;
     pt.n = dot(pt.sf.n_s, ray->d) < (REAL)0 ? pt.sf.n_s : -pt.sf.n_s;
     pt.c = surface_color(s, s->materials + pt.sf.material, pt.sf.p + TO_REAL3(camera->world),
-                         n_f, pt.sf.uv);
+                         n_f, pt.sf.uv, v_ends_apart(hit->ref, hit->part));
 #if HAS_VERTEX_COLORS
     pt.c *= pt.sf.tint;
 #endif

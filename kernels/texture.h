@@ -9,6 +9,13 @@
 #include "lanes.h"
 #include "shape.h"
 
+// Whether a crossing's v runs from pole to pole or rim to rim (a sphere; a cylinder's or
+// cone's side, part 0), so that its two ends are not neighbours on the surface.
+static inline bool v_ends_apart(int ref, int part) {
+    int kind = ref >> PRIM_TYPE_SHIFT;
+    return kind == PRIM_SPHERE || ((kind == PRIM_CYLINDER || kind == PRIM_CONE) && part == 0);
+}
+
 #if HAS_TEXTURES
 static inline REAL3 texel_at(const SceneRefs* s, const __global Texture* tx, int x, int y) {
     return TO_REAL3(s->texels[tx->texel_offset + y * tx->width + x]);
@@ -21,10 +28,21 @@ static inline REAL wrap01(REAL x) {
     return f < (REAL)1 ? f : 0;
 }
 
-static OUT_OF_LINE REAL3 image_texel(const SceneRefs* s, const __global Texture* tx, REAL2 uv) {
+// Bilinear at uv, wrapping between repeated tiles; where ends_apart, v is first held within
+// half a texel row of its outermost ends (0 and repeat_v), so that a pole or rim does not
+// blend the image's first row with its last as wrapping would. fmax and fmin, not clamp:
+// with repeat_v * h < 1 the bounds cross, where clamp is undefined (and a NaN gets the low
+// bound, as it would from a clamp).
+static OUT_OF_LINE REAL3 image_texel(const SceneRefs* s, const __global Texture* tx, REAL2 uv,
+                                     bool ends_apart) {
     int w = tx->width, h = tx->height;
     REAL sx = wrap01(uv.x * TO_REAL(tx->repeat_u)) * (REAL)w - REAL_C(0.5);
-    REAL sy = ((REAL)1 - wrap01(uv.y * TO_REAL(tx->repeat_v))) * (REAL)h - REAL_C(0.5);
+    REAL tv = uv.y * TO_REAL(tx->repeat_v);
+    if (ends_apart) {
+        REAL half_row = REAL_C(0.5) / (REAL)h;
+        tv = fmin(fmax(tv, half_row), TO_REAL(tx->repeat_v) - half_row);
+    }
+    REAL sy = ((REAL)1 - wrap01(tv)) * (REAL)h - REAL_C(0.5);
     REAL fx0 = floor(sx), fy0 = floor(sy);
     REAL fx = sx - fx0, fy = sy - fy0;
     // Bilinear with wrap-around: x0 may be -1 or w - 1 here, y0 likewise.
@@ -66,14 +84,15 @@ static inline bool material_needs_uv(const SceneRefs* s, int material) {
 }
 
 // p_world: the hit point in world space (the checker is a world-space solid texture).
+// ends_apart: v_ends_apart of the crossing.
 static inline REAL3 surface_color(const SceneRefs* s, const __global Material* m, REAL3 p_world,
-                                  REAL3 n_f, REAL2 uv) {
+                                  REAL3 n_f, REAL2 uv, bool ends_apart) {
     REAL3 color = TO_REAL3(m->color);
 #if HAS_TEXTURES
     if (m->texture >= 0) {
         const __global Texture* tx = s->textures + m->texture;
         REAL3 texel = tx->kind == TEXTURE_CHECKER ? checker_texel(tx, color, p_world, n_f)
-                                                  : image_texel(s, tx, uv);
+                                                  : image_texel(s, tx, uv, ends_apart);
         REAL blend = TO_REAL(tx->blend);
         return blend * texel + ((REAL)1 - blend) * color;
     }

@@ -270,7 +270,8 @@ HOT void torus_surface(const __global Torus* tr, bool want_uv, REAL gamma, REAL3
     REAL h = dot(q, axis);
     REAL3 radial = q - h * axis, e1, e2;
     REAL rho = length(radial);
-    frame(axis, &e1, &e2);
+    // Decided on the stored axis: the float and double builds normalise it differently.
+    frame_by(axis, tr->axis_minor.x, &e1, &e2);
     REAL3 nr = rho > (REAL)0 ? radial / rho : e1;  // on the axis (minor = major): any radial
     REAL3 n = safe_normalize(q - major * nr);
     *p = c + major * nr + minor * n;

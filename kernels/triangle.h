@@ -352,8 +352,10 @@ HOT SurfaceOfLanes triangle_surface_lanes(const ShapeLanes* g, const RayPacket* 
     REALP ty = (g->ay + g->by + g->cy) / (REAL)3 - v.py;
     REALP tz = (g->az + g->bz + g->cz) / (REAL)3 - v.pz;
     REALP reach = plain_length_lanes(tx, ty, tz, outside);
-    REALP k = fmin((REAL)4 * v.err, REAL_C(0.5) * reach) / reach;
     MASKP move = reach > (REAL)0;
+    // Divided by 1 in the lanes that stay (a degenerate triangle's, or no lane's hit), so that
+    // no lane computes 0/0, even one whose result the select below discards.
+    REALP k = fmin((REAL)4 * v.err, REAL_C(0.5) * reach) / (move ? reach : (REAL)1);
     v.px = move ? v.px + k * tx : v.px;
     v.py = move ? v.py + k * ty : v.py;
     v.pz = move ? v.pz + k * tz : v.pz;

@@ -152,8 +152,8 @@ MUTATIONS: tuple[Mutation, ...] = (
       "return (REAL)n * u / ((REAL)1 - (REAL)n * u);", "return (REAL)0;",
       RENDER, HARD, MESH, FEATURES),
     m("real.frame_helper_swapped", "kernels/real.h",
-      "fabs(a.x) < REAL_C(0.9) ? (REAL3)(1, 0, 0) : (REAL3)(0, 1, 0)",
-      "fabs(a.x) < REAL_C(0.9) ? (REAL3)(0, 1, 0) : (REAL3)(1, 0, 0)", *KERNEL_SCENES),
+      "fabs(x) < 0.9f ? (REAL3)(1, 0, 0) : (REAL3)(0, 1, 0)",
+      "fabs(x) < 0.9f ? (REAL3)(0, 1, 0) : (REAL3)(1, 0, 0)", *KERNEL_SCENES),
     m("real.lowest_bit_is_highest", "kernels/real.h",
       "return 31 - clz(bits & -bits);", "return 31 - clz(bits);", INTERSECT, RENDER),
     # One definition for the single-ray, leaf-packet and lane-wise forms (real.h, Twins).
@@ -223,8 +223,8 @@ MUTATIONS: tuple[Mutation, ...] = (
       *KERNEL_SCENES),
     # kernels/texture.h
     m("texture.v_not_flipped", "kernels/texture.h",
-      "REAL sy = ((REAL)1 - wrap01(uv.y * TO_REAL(tx->repeat_v))) * (REAL)h",
-      "REAL sy = wrap01(uv.y * TO_REAL(tx->repeat_v)) * (REAL)h", *KERNEL_SCENES, MESH),
+      "REAL sy = ((REAL)1 - wrap01(tv)) * (REAL)h",
+      "REAL sy = wrap01(tv) * (REAL)h", *KERNEL_SCENES, MESH),
     m("texture.bilinear_weight", "kernels/texture.h",
       "return mix(top, bottom, fy);", "return mix(top, bottom, fx);", *KERNEL_SCENES, MESH),
     m("texture.repeat_axes_swapped", "kernels/texture.h",

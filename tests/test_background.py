@@ -12,7 +12,7 @@ import pytest
 from clray.device.context import has_fp64
 from clray.device.pack import pack_scene
 from clray.metrics import nonfinite_count, rmse
-from clray.reference import environment_texel, equirect_uv, render_reference
+from clray.reference import environment_bilinear, equirect_uv, render_reference
 from clray.render import RenderSettings, render
 from clray.scene import model as M
 from clray.scene.check import check_scene
@@ -47,7 +47,7 @@ def test_equirectangular_mapping_puts_minus_z_in_the_middle_and_up_at_the_top() 
 
 
 def test_environment_lookup_is_bilinear_wraps_in_u_and_clamps_at_the_poles() -> None:
-    got = environment_texel(ENV, np.array([0.5, 0.75, 0.0, 0.125, 0.375]),
+    got = environment_bilinear(ENV, np.array([0.5, 0.75, 0.0, 0.125, 0.375]),
                              np.array([0.5, 0.5, 0.5, 1.0, 0.0]))
     np.testing.assert_allclose(got, [
         ENV[:, 1:3].mean(axis=(0, 1)),  # -z: between columns 1, 2 and the two rows
@@ -76,7 +76,7 @@ def test_panorama_seen_through_a_pinhole_matches_hand_computed_texels(cl_device)
     # Measured: 6.0e-8 (float32 trigonometry).
     np.testing.assert_allclose(image[1, 1], ENV[:, 1:3].mean(axis=(0, 1)), rtol=0, atol=2.4e-7)
     d = _directions(3, 3, 90.0).reshape(-1, 3)
-    expected = environment_texel(ENV, *equirect_uv(d)).reshape(3, 3, 3)
+    expected = environment_bilinear(ENV, *equirect_uv(d)).reshape(3, 3, 3)
     assert np.abs(image - expected).max() < 3.2e-7  # measured 7.9e-8
 
 
@@ -123,7 +123,7 @@ def _lookup_within_opencl_ulps(d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     u, v = equirect_uv(d)
     du = ATAN2_ULPS * np.spacing(np.abs(longitude).astype(np.float32)) / (2 * np.pi)
     dv = ASIN_ULPS * np.spacing(np.abs(latitude).astype(np.float32)) / np.pi
-    seen = np.stack([environment_texel(ENV, u + i * du, v + j * dv)
+    seen = np.stack([environment_bilinear(ENV, u + i * du, v + j * dv)
                      for i in (-1, 0, 1) for j in (-1, 0, 1)])
     return seen.min(axis=0), seen.max(axis=0)
 

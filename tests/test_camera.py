@@ -11,7 +11,7 @@ import pytest
 
 from clray.device.pack import pack_scene
 from clray.metrics import nonfinite_count, rmse
-from clray.reference import camera_rays, lens_offsets, render_reference, sample_uniform
+from clray.reference import camera_rays, lens_sample, render_reference, rng_uniform
 from clray.reference.sampling import stratum_point
 from clray.render import RenderSettings, render
 from clray.scene import model as M
@@ -55,16 +55,16 @@ def test_lens_samples_are_stratified_on_the_disc_and_deterministic() -> None:
     spp, seed, radius = 16, 3, 0.7
     pixel = np.repeat(np.arange(50), spp)
     sample = np.tile(np.arange(spp), 50)
-    offsets = lens_offsets(radius, spp, seed, pixel, sample)
+    offsets = lens_sample(radius, spp, seed, pixel, sample)
     assert np.all(np.hypot(offsets[:, 0], offsets[:, 1]) <= radius)
     angle = np.mod(np.arctan2(offsets[:, 1], offsets[:, 0]), 2 * np.pi)
     strata = np.floor(angle / (2 * np.pi) * spp).astype(int).reshape(50, spp)
     # One sample per angular stratum in every pixel, in an order that differs among pixels.
     assert all(sorted(row) == list(range(spp)) for row in strata)
     assert len({tuple(row) for row in strata}) > 1
-    np.testing.assert_array_equal(offsets, lens_offsets(radius, spp, seed, pixel, sample))
+    np.testing.assert_array_equal(offsets, lens_sample(radius, spp, seed, pixel, sample))
     # The radius is sqrt(r_3): uniform over the disc's area.
-    r3 = sample_uniform(seed, pixel, sample, 3)
+    r3 = rng_uniform(seed, pixel, sample, 3)
     np.testing.assert_allclose(np.hypot(offsets[:, 0], offsets[:, 1]), radius * np.sqrt(r3),
                                rtol=1e-14)
 

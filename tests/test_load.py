@@ -534,6 +534,10 @@ ERRORS = [
      "camera.aperture: must be at most 1e+06 times the focus distance (5), got 5.1e+06"),
     (scene(camera={**CAMERA, "aperture": 0.1, "focus_distance": 0}),
      "camera.focus_distance: must be > 0, got 0"),
+    # Focused at look_at's distance by default: 1 / 1e-39 is inf in float32, NaN in every ray.
+    (scene(camera={"position": [0, 0, 0], "look_at": [0, 0, -1e-39], "aperture": 1e-34}),
+     "camera.look_at: with an aperture and no focus_distance, look_at's distance from "
+     "position is the focus distance and must be >= 1e-30, got 1e-39"),
     (scene(camera={**CAMERA, "focus_distance": "far"}),
      'camera.focus_distance: expected a number, got "far"'),
     (scene(camera={**CAMERA, "width": 4}),

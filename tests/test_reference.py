@@ -7,19 +7,23 @@ code paths, so a wrong formula in clray/reference/ makes these fail.
 
 from __future__ import annotations
 
+import importlib
 import math
+import re
+from pathlib import Path
 
 import numpy as np
 import pytest
 
 from clray.reference import (
     camera_rays,
+    environment_texel,
     image_texel,
     intersect_scene,
     pcg_hash,
     render_reference,
+    rng_uniform,
     sample_positions,
-    sample_uniform,
     trace,
     transmission,
 )
@@ -101,7 +105,7 @@ def test_pcg_hash_matches_wrapping_uint32_arithmetic():
 def test_uniform_uses_the_documented_key():
     seed, pixels, samples = 7, [0, 5, 999, 123456], [0, 1, 3, 15]
     for dim in (0, 1):
-        got = sample_uniform(seed, np.array(pixels), np.array(samples), dim)
+        got = rng_uniform(seed, np.array(pixels), np.array(samples), dim)
         want = [
             (pcg_python(pcg_python(pcg_python(seed) ^ p) ^ (4 * s + dim)) >> 8) / 2**24
             for p, s in zip(pixels, samples, strict=True)
@@ -110,7 +114,7 @@ def test_uniform_uses_the_documented_key():
 
 
 def test_uniform_values_are_in_unit_interval_and_look_uniform():
-    r = sample_uniform(3, np.arange(100_000), np.zeros(100_000, dtype=int), 0)
+    r = rng_uniform(3, np.arange(100_000), np.zeros(100_000, dtype=int), 0)
     assert r.min() >= 0.0 and r.max() < 1.0
     assert np.all(r * 2**24 == np.floor(r * 2**24))  # 24-bit values
     counts = np.histogram(r, bins=10, range=(0, 1))[0]
@@ -608,3 +612,28 @@ def test_image_texture_on_a_sphere_facing_the_camera():
     scene = make_scene([Sphere((0.0, 0.0, 0.0), 1.0, 0)], [mat])
     got = trace(scene, [[0.0, 0.0, 5.0]], [[0.0, 0.0, -1.0]])[0]
     assert np.allclose(got, [0.5, 0.5, 0.5], atol=1e-12)
+
+
+# Functions that do the same in both carry the same name (clray/reference/__init__.py): the
+# kernel header and the reference module of each pair below.
+SHARED_NAMES = [
+    ("background.h", "background", "environment_texel"),
+    ("background.h", "background", "environment_bilinear"),
+    ("rng.h", "sampling", "rng_uniform"),
+    ("sampling.h", "sampling", "lens_sample"),
+    ("ray_tree.h", "render", "spawn_secondary"),
+]
+
+
+@pytest.mark.parametrize(("header", "module", "name"), SHARED_NAMES)
+def test_kernel_and_reference_share_the_functions_name(header: str, module: str,
+                                                       name: str) -> None:
+    source = (Path(__file__).resolve().parent.parent / "kernels" / header).read_text()
+    assert re.search(rf"\b{name}\(", source), f"no {name} in kernels/{header}"
+    assert callable(getattr(importlib.import_module(f"clray.reference.{module}"), name, None))
+
+
+def test_environment_texel_is_one_texel() -> None:
+    texels = np.arange(24, dtype=np.float64).reshape(2, 4, 3)
+    got = environment_texel(texels, np.array([3, 0]), np.array([1, 0]))
+    np.testing.assert_array_equal(got, [texels[1, 3], texels[0, 0]])

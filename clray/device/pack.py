@@ -77,7 +77,9 @@ def _records(dtype: np.dtype, n: int) -> np.ndarray:
 
 def texture_frame(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """frame(a) of docs/rendering.md, as kernels/real.h computes it."""
-    h = np.array([1.0, 0.0, 0.0]) if abs(a[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    # The kernel decides on the stored float32 a.x: so does the host (see vectors.frame).
+    h = (np.array([1.0, 0.0, 0.0]) if abs(np.float32(a[0])) < np.float32(0.9)
+         else np.array([0.0, 1.0, 0.0]))
     e1 = np.cross(a, h)
     e1 /= np.linalg.norm(e1)
     return e1, np.cross(a, e1)

@@ -43,7 +43,9 @@ def toward(light: SphereLight, p: np.ndarray, err: np.ndarray, square: Square) -
     sin_t = np.sqrt(np.maximum(0.0, one_minus_cos * (2.0 - one_minus_cos)))
     phi = 2.0 * np.pi * u2
     w_c = to_c / safe[:, None]
-    h = np.where((np.abs(w_c[:, 0]) < 0.9)[:, None], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0])
+    # frame(w_c), decided on float32 w_c.x as the kernel's is (vectors.frame).
+    h = np.where((np.abs(w_c[:, 0].astype(np.float32)) < np.float32(0.9))[:, None],
+                 [1.0, 0.0, 0.0], [0.0, 1.0, 0.0])
     e1 = safe_normalize(np.cross(w_c, h))
     e2 = np.cross(w_c, e1)
     w = (cos_t[:, None] * w_c

@@ -15,18 +15,23 @@ transmission), shading (surface.h: surface_at, offset_origin; direct.h: shade_di
 (ray_tree.h: refract_media, the ray tree); clray.vectors mirrors real.h.
 """
 
-from clray.reference.background import background_radiance, environment_texel, equirect_uv
+from clray.reference.background import (
+    background_radiance,
+    environment_bilinear,
+    environment_texel,
+    equirect_uv,
+)
 from clray.reference.bvh import SceneHit, intersect_scene, transmission
 from clray.reference.fresnel import fresnel_polarised, fresnel_reflectance, fresnel_schlick
 from clray.reference.render import render_reference, trace
 from clray.reference.sampling import (
     camera_rays,
     grid_columns,
-    lens_offsets,
+    lens_sample,
     light_square,
     pcg_hash,
+    rng_uniform,
     sample_positions,
-    sample_uniform,
 )
 from clray.reference.texture import checker_texel, image_texel
 
@@ -35,6 +40,7 @@ __all__ = [
     "background_radiance",
     "camera_rays",
     "checker_texel",
+    "environment_bilinear",
     "environment_texel",
     "equirect_uv",
     "fresnel_polarised",
@@ -43,12 +49,12 @@ __all__ = [
     "grid_columns",
     "image_texel",
     "intersect_scene",
-    "lens_offsets",
+    "lens_sample",
     "light_square",
     "pcg_hash",
     "render_reference",
+    "rng_uniform",
     "sample_positions",
-    "sample_uniform",
     "trace",
     "transmission",
 ]

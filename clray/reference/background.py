@@ -17,7 +17,12 @@ def equirect_uv(d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return u, v
 
 
-def environment_texel(image: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
+def environment_texel(texels: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """The texels at columns x, rows y of an (H, W, 3) panorama (one fetch each)."""
+    return texels[y, x]
+
+
+def environment_bilinear(image: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
     """Bilinear lookup of an equirectangular (H, W, 3) image: wrapping across u, rows clamped
     at the poles (row 0 at v = 1)."""
     texels = np.asarray(image, dtype=np.float64)
@@ -28,8 +33,10 @@ def environment_texel(image: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.nda
     fx, fy = (s - x0)[:, None], (t - y0)[:, None]
     x0, y0 = x0.astype(np.int64) % width, y0.astype(np.int64)
     x1, y1 = (x0 + 1) % width, np.minimum(y0 + 1, height - 1)
-    return ((1 - fx) * (1 - fy) * texels[y0, x0] + fx * (1 - fy) * texels[y0, x1]
-            + (1 - fx) * fy * texels[y1, x0] + fx * fy * texels[y1, x1])
+    return ((1 - fx) * (1 - fy) * environment_texel(texels, x0, y0)
+            + fx * (1 - fy) * environment_texel(texels, x1, y0)
+            + (1 - fx) * fy * environment_texel(texels, x0, y1)
+            + fx * fy * environment_texel(texels, x1, y1))
 
 
 def background_radiance(background: tuple[float, float, float] | Background, d: np.ndarray
@@ -41,4 +48,4 @@ def background_radiance(background: tuple[float, float, float] | Background, d: 
     if background.kind == "gradient":
         t = np.clip(0.5 * (d[:, 1:2] + 1.0), 0.0, 1.0)
         return (1.0 - t) * vec(background.bottom) + t * vec(background.top)
-    return environment_texel(background.image, *equirect_uv(d))
+    return environment_bilinear(background.image, *equirect_uv(d))

@@ -13,6 +13,8 @@ from clray.reference.shading import SHAPE_SURFACE
 from clray.reference.texture import MaterialTable
 from clray.scene.check import check_scene
 from clray.scene.model import (
+    Cone,
+    Cylinder,
     Instance,
     Mesh,
     Plane,
@@ -58,6 +60,9 @@ class SceneHit(NamedTuple):
     face: np.ndarray  # (N,) triangle index within a mesh (0 for a Triangle object), else -1
     material: np.ndarray  # (N,) index into scene.materials
     tint: np.ndarray  # (N, 3) blended vertex colours (Mesh.colors), ones elsewhere
+    # (N,) v runs pole to pole or rim to rim (a sphere; a cylinder's or cone's side): the
+    # kernels' v_ends_apart, which image_texel clamps rather than wraps at v's ends
+    ends_apart: np.ndarray
 
 
 class _Nearest(NamedTuple):
@@ -213,10 +218,15 @@ class Geometry:
         face = np.full(n, -1, dtype=np.int64)
         material = np.full(n, -1, dtype=np.int64)
         tint = np.ones((n, 3))
+        ends_apart = np.zeros(n, dtype=bool)
         for k, (i, ob) in enumerate(self.shapes):
             m = nearest.shape == k
             if m.any():
                 normal[m], uv[m] = SHAPE_SURFACE[type(ob)](ob, p[m], nearest.part[m])
+                if isinstance(ob, Sphere):
+                    ends_apart[m] = True
+                elif isinstance(ob, Cylinder | Cone):
+                    ends_apart[m] = nearest.part[m] == 0
                 shading[m] = normal[m]
                 obj[m], material[m] = i, ob.material
         m = nearest.triangle >= 0
@@ -234,7 +244,7 @@ class Geometry:
             uv[m] = np.where(np.isnan(blended_uv), np.stack([b1, b2], axis=-1), blended_uv)
             obj[m], face[m], material[m] = self.tri_obj[tri], self.tri_face[tri], self.tri_mat[tri]
             tint[m] = np.sum(bary * self.tri_tint[tri], axis=1)
-        return SceneHit(nearest.t, normal, shading, uv, obj, face, material, tint)
+        return SceneHit(nearest.t, normal, shading, uv, obj, face, material, tint, ends_apart)
 
     def transmission(
         self, o: np.ndarray, d: np.ndarray, tmax: np.ndarray, filters: np.ndarray
@@ -279,7 +289,8 @@ class _Placement(NamedTuple):
         better = (local.t > 0.0) & (local.t < _tie_floor(hit.t, local.t))
         if not better.any():
             return hit
-        t, normal, shading, uv, obj, face, material, tint = (np.array(field) for field in hit)
+        t, normal, shading, uv, obj, face, material, tint, ends_apart = (
+            np.array(field) for field in hit)
         t[better] = local.t[better]
         normal[better] = safe_normalize(local.normal[better] @ self.inverse)
         shading[better] = safe_normalize(local.shading_normal[better] @ self.inverse)
@@ -289,7 +300,8 @@ class _Placement(NamedTuple):
         replaced = self.instance.material
         material[better] = local.material[better] if replaced is None else replaced
         tint[better] = local.tint[better]
-        return SceneHit(t, normal, shading, uv, obj, face, material, tint)
+        ends_apart[better] = local.ends_apart[better]
+        return SceneHit(t, normal, shading, uv, obj, face, material, tint, ends_apart)
 
 
 def intersect_scene(scene: Scene, origins: np.ndarray, directions: np.ndarray) -> SceneHit:

@@ -117,16 +117,17 @@ def trace(
         tasks = tasks.select(h)
         sf = surface_at(tasks.o, tasks.d, hit.t[h], hit.normal[h], hit.shading_normal[h],
                         hit.uv[h], hit.material[h])
-        c = surface_color(mats, sf.material, sf.p, sf.uv, sf.n_g) * hit.tint[h]
+        c = (surface_color(mats, sf.material, sf.p, sf.uv, sf.n_g, hit.ends_apart[h])
+             * hit.tint[h])
         key = SampleKey(seed, ray_pixel[tasks.owner], ray_sample[tasks.owner], spp)
         local = shade_direct(sf, tasks.d, c, mats, lights, ambient_light, key,
                              geo.transmission)
         np.add.at(radiance, tasks.owner, tasks.weight[:, None] * local)
-        tasks = secondary_rays(tasks, sf, mats, max_depth, scene.render.min_weight, schlick)
+        tasks = spawn_secondary(tasks, sf, mats, max_depth, scene.render.min_weight, schlick)
     return radiance
 
 
-def secondary_rays(tasks: RayTasks, sf: Surface, mats: MaterialTable, max_depth: int,
+def spawn_secondary(tasks: RayTasks, sf: Surface, mats: MaterialTable, max_depth: int,
                    min_weight: float, schlick: bool) -> RayTasks:
     """The next generation: each hit's reflected and refracted rays (spawn in the kernels),
     weighted by reflect and transmit (split by Fresnel, transmit joining reflect at total

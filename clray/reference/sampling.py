@@ -32,7 +32,7 @@ def rng_bits(seed: int, pixel: np.ndarray, sample: np.ndarray, dim: int) -> np.n
     return pcg_hash(pcg_hash(seed_hash ^ pixel) ^ counter)
 
 
-def sample_uniform(seed: int, pixel: np.ndarray, sample: np.ndarray, dim: int) -> np.ndarray:
+def rng_uniform(seed: int, pixel: np.ndarray, sample: np.ndarray, dim: int) -> np.ndarray:
     """r_dim of docs/rendering.md: 24 random bits of the key, in [0, 1)."""
     return (rng_bits(seed, pixel, sample, dim) >> np.uint32(8)).astype(np.float64) * 2.0**-24
 
@@ -130,8 +130,8 @@ def sample_positions(
     y = (pixel // width).astype(np.float64)
     if spp == 1:
         return x + 0.5, y + 0.5, pixel
-    r0 = sample_uniform(seed, pixel, sample, 0)
-    r1 = sample_uniform(seed, pixel, sample, 1)
+    r0 = rng_uniform(seed, pixel, sample, 0)
+    r1 = rng_uniform(seed, pixel, sample, 1)
     u, v = stratum_point(sample, spp, r0, r1)
     return x + u, y + v, pixel
 
@@ -164,22 +164,22 @@ def camera_rays(
     # aim: from the ray's origin to its point on the focus plane, per unit of focus distance.
     if camera.aperture > 0.0:
         sample = np.tile(np.arange(spp, dtype=np.int64), width * height)
-        lens = lens_offsets(camera.aperture / 2.0, spp, seed, pixel, sample)
+        lens = lens_sample(camera.aperture / 2.0, spp, seed, pixel, sample)
         lens = lens[:, :1] * right + lens[:, 1:] * up
         focus = _focus_distance(camera)
         return origins + lens, _normalize(aim - lens / focus), pixel
     return origins, _normalize(aim), pixel
 
 
-def lens_offsets(radius: float, spp: int, seed: int, pixel: np.ndarray, sample: np.ndarray
+def lens_sample(radius: float, spp: int, seed: int, pixel: np.ndarray, sample: np.ndarray
                  ) -> np.ndarray:
     """(N, 2): each sample's point on the lens disc of `radius`, in (right, up) coordinates
     (docs/rendering.md, Depth of field)."""
     # The pixel's order of the angular strata, keyed by r_2 of the sample index spp, which no
     # sample uses.
     stratum = permute_stratum(sample, spp, rng_bits(seed, pixel, np.full_like(sample, spp), 2))
-    angle = 2.0 * np.pi * (stratum + sample_uniform(seed, pixel, sample, 2)) / spp
-    rho = radius * np.sqrt(sample_uniform(seed, pixel, sample, 3))
+    angle = 2.0 * np.pi * (stratum + rng_uniform(seed, pixel, sample, 2)) / spp
+    rho = radius * np.sqrt(rng_uniform(seed, pixel, sample, 3))
     return np.stack([rho * np.cos(angle), rho * np.sin(angle)], axis=-1)
 
 

@@ -32,13 +32,20 @@ class MaterialTable:
 
 
 def image_texel(
-    image: np.ndarray, u: np.ndarray, v: np.ndarray, repeat: tuple[float, float]
+    image: np.ndarray, u: np.ndarray, v: np.ndarray, repeat: tuple[float, float],
+    ends_apart: np.ndarray | bool = False,
 ) -> np.ndarray:
-    """Bilinear, wrapping lookup of an (H, W, 3) image (row 0 at the top) at (u, v)."""
+    """Bilinear, wrapping lookup of an (H, W, 3) image (row 0 at the top) at (u, v). Where
+    ends_apart (v runs pole to pole or rim to rim: v_ends_apart), v * repeat is first held
+    within half a texel row of 0 and of repeat, so the ends do not blend the first row with
+    the last."""
     texels = np.asarray(image, dtype=np.float64)
     height, width = texels.shape[:2]
     j, k = repeat
     uj, vk = u * j, v * k
+    # fmax/fmin as the kernel's: a NaN takes the low bound, crossed bounds give the high one.
+    half_row = 0.5 / height
+    vk = np.where(ends_apart, np.fmin(np.fmax(vk, half_row), k - half_row), vk)
     s = (uj - np.floor(uj)) * width - 0.5
     t = (1.0 - (vk - np.floor(vk))) * height - 0.5
     # A degenerate (u, v) (NaN from a zero-extent face) must not become a wild index.
@@ -68,9 +75,11 @@ def checker_texel(
 
 
 def surface_color(
-    mats: MaterialTable, material: np.ndarray, p: np.ndarray, uv: np.ndarray, ngf: np.ndarray
+    mats: MaterialTable, material: np.ndarray, p: np.ndarray, uv: np.ndarray, ngf: np.ndarray,
+    ends_apart: np.ndarray,
 ) -> np.ndarray:
-    """The material's colour, blended with its texture's texel where it has one."""
+    """The material's colour, blended with its texture's texel where it has one (ends_apart:
+    SceneHit.ends_apart, for image_texel)."""
     c = mats.color[material]
     for idx, mat in enumerate(mats.materials):
         tex = mat.texture
@@ -80,6 +89,6 @@ def surface_color(
         if tex.kind == "checker":
             texel = checker_texel(tex, mats.color[idx], p[m], ngf[m])
         else:
-            texel = image_texel(tex.image, uv[m, 0], uv[m, 1], tex.repeat)
+            texel = image_texel(tex.image, uv[m, 0], uv[m, 1], tex.repeat, ends_apart[m])
         c[m] = tex.blend * texel + (1.0 - tex.blend) * mats.color[idx]
     return c

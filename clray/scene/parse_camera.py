@@ -58,6 +58,12 @@ def _lens(spec: dict, v: Values, look_distance: float) -> dict[str, float]:
     lens = {"aperture": v.bounded(spec.get("aperture", 0.0), "camera.aperture", 0)}
     if "focus_distance" in spec:
         lens["focus_distance"] = v.length(spec["focus_distance"], "camera.focus_distance")
+    elif lens["aperture"] > 0 and look_distance < L.MIN_LENGTH:
+        # The look distance focuses instead, and the kernel takes 1 / focus as a float32:
+        # under MIN_LENGTH that is inf, and inf times the lens offset NaN in every ray.
+        raise v.error("camera.look_at", f"with an aperture and no focus_distance, look_at's "
+                      f"distance from position is the focus distance and must be >= "
+                      f"{L.MIN_LENGTH:g}, got {look_distance:g}")
     focus = lens.get("focus_distance", look_distance)
     if lens["aperture"] > L.MAX_APERTURE_RATIO * focus:
         raise v.error("camera.aperture", f"must be at most {L.MAX_APERTURE_RATIO:g} "

@@ -45,10 +45,15 @@ def vec(v: tuple[float, float, float]) -> np.ndarray:
 
 
 def frame(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """frame(a) of docs/rendering.md: two unit vectors completing the unit vector a."""
-    # Decided on a.x rounded to float32, as the kernels store and compare it: in float64 an
-    # |a.x| within rounding of 0.9 would take the other helper axis and rotate the frame.
-    h = (np.array([1.0, 0.0, 0.0]) if abs(np.float32(a[0])) < np.float32(0.9)
-         else np.array([0.0, 1.0, 0.0]))
-    e1 = safe_normalize(np.cross(a, h))
+    """frame(a) of docs/rendering.md: two unit vectors completing the unit vector a (or each
+    of an (N, 3) array of them)."""
+    e1 = safe_normalize(np.cross(a, frame_helper(a)))
     return e1, np.cross(a, e1)
+
+
+def frame_helper(a: np.ndarray) -> np.ndarray:
+    """The axis frame() crosses a with (each of an (N, 3) array's): x, or y where a is near it.
+    Decided on a.x rounded to float32, as the kernels store and compare it: in float64 an |a.x|
+    within rounding of 0.9 would take the other axis and rotate the frame."""
+    x_helper = np.abs(np.asarray(a[..., 0], dtype=np.float32)) < np.float32(0.9)
+    return np.where(x_helper[..., None], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0])

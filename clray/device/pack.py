@@ -26,6 +26,7 @@ from clray.scene.scale import needs_fp64_spheres
 from clray.shapes import SHAPE_OF, SHAPES
 from clray.shapes.shape import Shape, f4
 from clray.shapes.sphere import SPHERE
+from clray.vectors import frame_helper
 
 # Primitive count from which pack_scene builds the BVH on the device when given a queue.
 DEVICE_BUILD_MIN = 20000
@@ -77,10 +78,7 @@ def _records(dtype: np.dtype, n: int) -> np.ndarray:
 
 def texture_frame(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """frame(a) of docs/rendering.md, as kernels/real.h computes it."""
-    # The kernel decides on the stored float32 a.x: so does the host (see vectors.frame).
-    h = (np.array([1.0, 0.0, 0.0]) if abs(np.float32(a[0])) < np.float32(0.9)
-         else np.array([0.0, 1.0, 0.0]))
-    e1 = np.cross(a, h)
+    e1 = np.cross(a, frame_helper(a))
     e1 /= np.linalg.norm(e1)
     return e1, np.cross(a, e1)
 

@@ -8,7 +8,7 @@ import numpy as np
 
 from clray.lights.light import LightChecks, LightKind, Square, Toward, aimed, centre_and_radius
 from clray.shapes.shape import f4
-from clray.vectors import Vec3, safe_normalize, vec
+from clray.vectors import Vec3, frame, vec
 
 
 @dataclass(frozen=True)
@@ -43,11 +43,7 @@ def toward(light: SphereLight, p: np.ndarray, err: np.ndarray, square: Square) -
     sin_t = np.sqrt(np.maximum(0.0, one_minus_cos * (2.0 - one_minus_cos)))
     phi = 2.0 * np.pi * u2
     w_c = to_c / safe[:, None]
-    # frame(w_c), decided on float32 w_c.x as the kernel's is (vectors.frame).
-    h = np.where((np.abs(w_c[:, 0].astype(np.float32)) < np.float32(0.9))[:, None],
-                 [1.0, 0.0, 0.0], [0.0, 1.0, 0.0])
-    e1 = safe_normalize(np.cross(w_c, h))
-    e2 = np.cross(w_c, e1)
+    e1, e2 = frame(w_c)
     w = (cos_t[:, None] * w_c
          + sin_t[:, None] * (np.cos(phi)[:, None] * e1 + np.sin(phi)[:, None] * e2))
     # The nearer of the two crossings of the sphere along w.

@@ -431,8 +431,9 @@ def count_instructions(scene_file: Path) -> dict:
     """benchmarks/instructions.py's count of the render kernel's `primary` variant (depth 0,
     no lights: the single-ray walk of the camera rays and their ambient shading)."""
     instructions = _module("instructions")
-    instructions._render(scene_file, "primary", valgrind=False)  # fills PoCL's kernel cache
-    counted = instructions._render(scene_file, "primary", valgrind=True)
+    own_size = (0, 0)  # the scene file's, which write_scene made the benchmark's
+    instructions._render(scene_file, "primary", own_size, valgrind=False)  # fills the cache
+    counted = instructions._render(scene_file, "primary", own_size, valgrind=True)
     rays = counted["rays"]["primary"]
     return {"instructions": counted["instructions"], "rays": rays,
             "instructions_per_ray": counted["instructions"] / rays}

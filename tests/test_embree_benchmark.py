@@ -99,3 +99,26 @@ def test_clray_side_runs_without_embreex(cl_device: cl.Device, tmp_path: Path) -
     hit = np.isfinite(walked["t"]) & (walked["t"] > 0)
     assert 0 < hit.sum() < hit.size
     assert np.count_nonzero(hit != rendered["hit"]) <= 1
+
+
+def test_instruction_count_calls_the_counter_as_it_is_written(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    # --instructions had called benchmarks/instructions.py's _render without the size it
+    # came to take, a TypeError after every timed round; its arguments are bound to the real
+    # signature here (valgrind itself is not in CI).
+    import inspect
+
+    real = embree_benchmark._module("instructions")
+    calls = []
+
+    def render(*args: object, **kwargs: object) -> dict:
+        bound = inspect.signature(real._render).bind(*args, **kwargs)
+        calls.append(bound.arguments)
+        return {"instructions": 2_000, "rays": {"primary": 10}}
+
+    monkeypatch.setattr(embree_benchmark, "_module",
+                        lambda name: type("Counter", (), {"_render": staticmethod(render)}))
+    counted = embree_benchmark.count_instructions(Path("scene.toml"))
+    assert counted["instructions_per_ray"] == 200
+    assert [call["valgrind"] for call in calls] == [False, True]
+    assert all(call["size"] == (0, 0) for call in calls)

@@ -153,3 +153,65 @@ def test_clray_devices_marks_the_default(cl_device, capsys) -> None:
     assert len(marked) == 1
     # The suite names the test's device in CLRAY_DEVICE.
     assert cl_device.name.strip() in marked[0] and "(CLRAY_DEVICE=" in marked[0]
+
+
+POCL = "Portable Computing Language"
+INTEL = "Intel(R) OpenCL"
+
+
+def _named(*devices: tuple[str, str, str]) -> list[tuple[str, SimpleNamespace]]:
+    """Devices as _all_devices lists them, from (spec, platform name, device name): CPUs, one
+    platform object per platform index, PoCL's with its own vendor and version."""
+    platforms: dict[str, SimpleNamespace] = {}
+    listed = []
+    for spec, platform_name, name in devices:
+        pocl = platform_name == POCL
+        platform = platforms.setdefault(spec.split(":")[0], SimpleNamespace(
+            name=platform_name, vendor="The pocl project" if pocl else "Vendor",
+            version="OpenCL 3.0 PoCL 5.0" if pocl else "OpenCL 3.0"))
+        listed.append((spec, SimpleNamespace(type=cl.device_type.CPU, max_compute_units=2,
+                                             host_unified_memory=True, name=name,
+                                             platform=platform)))
+    return listed
+
+
+# PoCL's CPU device is named for the CPU's brand, as Intel's CPU runtime's device is.
+XEON = (("0:0", POCL, "pthread-skylake-avx512-Intel(R) Xeon(R) Gold 6248"),
+        ("1:0", INTEL, "Intel(R) Xeon(R) Gold 6248"))
+TWO_CARDS = (("0:0", "NVIDIA CUDA", "NVIDIA GeForce RTX 3080"),
+             ("0:1", "NVIDIA CUDA", "NVIDIA GeForce RTX 4090"),
+             ("1:0", POCL, "pthread-haswell-AMD EPYC"))
+
+
+@pytest.mark.parametrize(("devices", "spec", "chosen"), [
+    # A platform's name before a device's: `--device intel` is Intel's CPU runtime, which
+    # README and docs/acceleration.md measure with it.
+    (XEON, "intel", "1:0"), (XEON, "INTEL", "1:0"),
+    # `pocl` is in PoCL's vendor and version only.
+    (XEON, "pocl", "0:0"), (XEON, "skylake", "0:0"),
+    # Several devices of one platform: the first.
+    (TWO_CARDS, "nvidia", "0:0"), (TWO_CARDS, "rtx", "0:0"),
+    # A bare number is a platform index where that platform is there, else a name's part.
+    (TWO_CARDS, "4090", "0:1"), (TWO_CARDS, "1", "1:0"), (TWO_CARDS, "0:1", "0:1"),
+])
+def test_a_name_prefers_the_platform_then_the_device(monkeypatch, devices, spec,
+                                                     chosen) -> None:
+    listed = _named(*devices)
+    monkeypatch.setattr(context, "_all_devices", lambda: listed)
+    assert context.select_device(spec) is dict(listed)[chosen]
+
+
+def test_a_name_that_several_platforms_hold_alike_is_an_error(monkeypatch) -> None:
+    monkeypatch.setattr(context, "_all_devices", lambda: _named(*XEON))
+    with pytest.raises(DeviceError, match=(
+            r"^'xeon' matches devices on several platforms alike: "
+            r"0:0 pthread-skylake-avx512-Intel\(R\) Xeon\(R\) Gold 6248 "
+            r"\(Portable Computing Language\), 1:0 Intel\(R\) Xeon\(R\) Gold 6248 "
+            r"\(Intel\(R\) OpenCL\); expected a spec that names one, such as P:D$")):
+        context.select_device("xeon")
+
+
+def test_a_number_that_no_name_holds_is_quoted_as_typed(monkeypatch) -> None:
+    monkeypatch.setattr(context, "_all_devices", lambda: _named(*TWO_CARDS))
+    with pytest.raises(DeviceError, match=r"^no OpenCL device matches '7' \(devices: 0:0 "):
+        context.select_device("7")

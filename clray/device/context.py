@@ -106,29 +106,59 @@ TYPE_WORDS = ("cpu", "gpu", "accelerator")
 
 
 def select_device(spec: str | None = None) -> cl.Device:
-    """`spec`: "P:D" indices (PYOPENCL_CTX syntax, "P" alone means its first device), a
-    device type (TYPE_WORDS: cpu, gpu, accelerator; the first of that type in default_device's
-    order), or a case-insensitive substring of the platform or device name. Without one (or
-    blank): default_device."""
+    """`spec`: "P:D" indices (PYOPENCL_CTX's form; "P" alone, where platform P is there,
+    means its first device), a device type (TYPE_WORDS: cpu, gpu, accelerator; the first of
+    that type in default_device's order), or a case-insensitive substring of a name
+    (_by_name). Without one (or blank): default_device."""
     spec = (spec or "").strip()
     if not spec:
         return default_device()[0]
     devices = _all_devices()
-    if ":" not in spec and spec.isdigit():
-        spec = f"{spec}:0"
     for found_spec, device in devices:
         if found_spec == spec:
+            return device
+    # A bare number is a platform index only where that platform is there: else it is a
+    # name's part, as the 4090 of "RTX 4090".
+    for found_spec, device in devices:
+        if found_spec.split(":")[0] == spec:
             return device
     needle = spec.lower()
     if needle in TYPE_WORDS:
         return _first_of_type(devices, needle.upper(), spec)
-    for _, device in devices:
-        platform = device.platform
-        names = (device.name, platform.name, platform.vendor, platform.version)
-        if any(needle in n.lower() for n in names):
-            return device
-    known = ", ".join(f"{s} {d.name.strip()}" for s, d in devices)
-    raise DeviceError(f"no OpenCL device matches {spec!r} (devices: {known})")
+    return _by_name(devices, spec)
+
+
+def _name_rank(device: cl.Device, needle: str) -> int | None:
+    """Where `needle` is in the device's names, best first, or None: its platform's name, its
+    own name, then its platform's vendor and version. PoCL's CPU device is named for the CPU's
+    brand ("pthread-skylake-avx512-Intel(R) Xeon(R) ..."), so that `intel` would otherwise
+    pick PoCL where it means Intel's CPU runtime; PoCL's platform is named "Portable Computing
+    Language", and `pocl` is in its vendor and version only."""
+    platform = device.platform
+    for rank, names in enumerate(((platform.name,), (device.name,),
+                                  (platform.vendor, platform.version))):
+        if any(needle in name.lower() for name in names):
+            return rank
+    return None
+
+
+def _by_name(devices: list[tuple[str, cl.Device]], spec: str) -> cl.Device:
+    """The device whose names hold `spec` best (_name_rank), the first of its platform's that
+    do. Devices of several platforms that hold it alike are an error: which one a user meant
+    is not to be guessed."""
+    needle = spec.lower()
+    ranked = [(rank, s, d) for s, d in devices if (rank := _name_rank(d, needle)) is not None]
+    if not ranked:
+        known = ", ".join(f"{s} {d.name.strip()}" for s, d in devices)
+        raise DeviceError(f"no OpenCL device matches {spec!r} (devices: {known})")
+    best = min(rank for rank, _, _ in ranked)
+    matches = [(s, d) for rank, s, d in ranked if rank == best]
+    if len({s.split(":")[0] for s, _ in matches}) > 1:
+        listed = ", ".join(f"{s} {d.name.strip()} ({d.platform.name.strip()})"
+                           for s, d in matches)
+        raise DeviceError(f"{spec!r} matches devices on several platforms alike: {listed}; "
+                          "expected a spec that names one, such as P:D")
+    return matches[0][1]
 
 
 # The order default_device takes, for --device's help and the like to name.

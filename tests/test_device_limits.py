@@ -215,3 +215,42 @@ def test_a_number_that_no_name_holds_is_quoted_as_typed(monkeypatch) -> None:
     monkeypatch.setattr(context, "_all_devices", lambda: _named(*TWO_CARDS))
     with pytest.raises(DeviceError, match=r"^no OpenCL device matches '7' \(devices: 0:0 "):
         context.select_device("7")
+
+
+THREE_PLATFORMS = (("0:0", POCL, "pthread-haswell-AMD EPYC"),
+                   ("1:0", "AMD Accelerated Parallel Processing", "gfx1100"),
+                   ("1:1", "AMD Accelerated Parallel Processing", "gfx1030"),
+                   ("2:0", INTEL, "AMD EPYC"))
+
+
+@pytest.mark.parametrize(("value", "chosen"), [
+    # pyopencl's own forms (choose_devices): each part an index where it is an integer in
+    # range, else a case-insensitive part of the platform's or the device's name.
+    ("Intel:0", "2:0"), ("portable:0", "0:0"), ("1:gfx1030", "1:1"), ("1:GFX1100", "1:0"),
+    ("amd accelerated:1", "1:1"), ("1", "1:0"), ("Intel", "2:0"), ("1:", "1:0"),
+    ("2:0", "2:0"), ("1:1,0", "1:1"),
+])
+def test_pyopencl_ctx_is_read_as_pyopencl_reads_it(monkeypatch, value, chosen) -> None:
+    listed = _named(*THREE_PLATFORMS)
+    monkeypatch.setattr(context, "_all_devices", lambda: listed)
+    monkeypatch.delenv("CLRAY_DEVICE", raising=False)
+    monkeypatch.setenv("PYOPENCL_CTX", value)
+    device, spec, why = context.default_device()
+    assert (spec, why) == (chosen, f"PYOPENCL_CTX={value}")
+    assert device is dict(listed)[chosen]
+
+
+@pytest.mark.parametrize(("value", "message"), [
+    ("nvidia:0", r"^PYOPENCL_CTX='nvidia:0': no OpenCL platform matches 'nvidia' \(platforms: "
+                 r"0 Portable Computing Language, 1 AMD Accelerated Parallel Processing, "
+                 r"2 Intel\(R\) OpenCL\)$"),
+    ("1:7", r"^PYOPENCL_CTX='1:7': no device of platform 1 \(AMD Accelerated Parallel "
+            r"Processing\) matches '7' \(devices: 0 gfx1100, 1 gfx1030\)$"),
+    ("0:0:0", r"^PYOPENCL_CTX='0:0:0': expected PLATFORM or PLATFORM:DEVICE"),
+])
+def test_a_pyopencl_ctx_that_names_nothing_is_one_line(monkeypatch, value, message) -> None:
+    monkeypatch.setattr(context, "_all_devices", lambda: _named(*THREE_PLATFORMS))
+    monkeypatch.delenv("CLRAY_DEVICE", raising=False)
+    monkeypatch.setenv("PYOPENCL_CTX", value)
+    with pytest.raises(DeviceError, match=message):
+        context.default_device()

@@ -161,6 +161,55 @@ def _by_name(devices: list[tuple[str, cl.Device]], spec: str) -> cl.Device:
     return matches[0][1]
 
 
+def _pyopencl_choice(part: str, names: list[str]) -> int | None:
+    """One part of PYOPENCL_CTX as pyopencl's choose_devices reads it: an index where it is an
+    integer in range, else the first name (case-insensitive) that holds it; None where none
+    does. An empty part holds in every name: the first."""
+    try:
+        index = int(part)
+    except ValueError:
+        pass
+    else:
+        if 0 <= index < len(names):
+            return index
+    return next((i for i, name in enumerate(names) if part.lower() in name.lower()), None)
+
+
+def _pyopencl_ctx_device(devices: list[tuple[str, cl.Device]], value: str) -> cl.Device:
+    """The device PYOPENCL_CTX names, read as pyopencl reads it (choose_devices), so that a
+    value written for pyopencl means the same device here: "PLATFORM[:DEVICE]", each part an
+    index or a part of the platform's or the device's name. pyopencl takes the last platform
+    whose name holds the part, and so does this. A comma-separated device part asks pyopencl
+    for a context of several devices: clray renders on one, the first."""
+    parts = value.split(":")
+    if len(parts) > 2:
+        raise DeviceError(f"PYOPENCL_CTX={value!r}: expected PLATFORM or PLATFORM:DEVICE, "
+                          "each an index or a part of a name")
+    by_platform: dict[int, list[cl.Device]] = {}
+    for spec, device in devices:
+        by_platform.setdefault(int(spec.split(":")[0]), []).append(device)
+    indices = sorted(by_platform)
+    platform_names = [by_platform[i][0].platform.name.strip() for i in indices]
+    # pyopencl indexes every platform, one without devices too: the spec's own index.
+    platform = int(parts[0]) if parts[0].strip().isdigit() else None
+    if platform not in by_platform:
+        found = _pyopencl_choice(parts[0], platform_names[::-1])
+        platform = None if found is None else indices[::-1][found]
+    if platform is None:
+        known = ", ".join(f"{i} {name}" for i, name in zip(indices, platform_names, strict=True))
+        raise DeviceError(f"PYOPENCL_CTX={value!r}: no OpenCL platform matches {parts[0]!r} "
+                          f"(platforms: {known})")
+    on_platform = by_platform[platform]
+    part = parts[1].split(",")[0] if len(parts) > 1 else ""
+    found = _pyopencl_choice(part, [d.name.strip() for d in on_platform])
+    if found is None:
+        known = ", ".join(f"{i} {d.name.strip()}" for i, d in enumerate(on_platform))
+        raise DeviceError(f"PYOPENCL_CTX={value!r}: no device of platform {platform} "
+                          f"({on_platform[0].platform.name.strip()}) matches {part!r} "
+                          f"(devices: {known})")
+    return on_platform[found]
+
+
 # The order default_device takes, for --device's help and the like to name.
 DEFAULT_DEVICE_ORDER = ("CLRAY_DEVICE, PYOPENCL_CTX, then a GPU with memory of its own, then "
                         "the first CPU device")
@@ -179,7 +228,8 @@ def default_device() -> tuple[cl.Device, str, str]:
         # A blank value is unset, as for --device: not a substring that every name holds.
         value = os.environ.get(variable, "").strip()
         if value:
-            chosen = select_device(value)
+            chosen = (select_device(value) if variable == "CLRAY_DEVICE" else
+                      _pyopencl_ctx_device(devices, value))
             spec = next(s for s, d in devices if d == chosen)
             return chosen, spec, f"{variable}={value}"
     gpus = _discrete_gpus(devices)

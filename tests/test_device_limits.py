@@ -67,8 +67,10 @@ def test_the_default_device_and_why(cl_device, monkeypatch) -> None:
     if any(context.is_discrete_gpu(d) for _, d in context._all_devices()):
         assert types[spec] == "GPU" and context.is_discrete_gpu(device)
     elif "CPU" in types.values():
-        assert types[spec] == "CPU" and why == "the first CPU device"
-        assert spec == next(s for s, t in types.items() if t == "CPU")
+        cpus = [d for d in context.list_devices() if d.type == "CPU"]
+        pocl = [d.spec for d in cpus if d.platform == context.POCL_PLATFORM]
+        assert spec == (pocl[0] if pocl else cpus[0].spec)
+        assert why.startswith("PoCL's CPU device" if pocl else "the first CPU device")
     assert context.select_device() == device
     monkeypatch.setenv("CLRAY_DEVICE", spec)
     assert context.default_device()[1:] == (spec, f"CLRAY_DEVICE={spec}")
@@ -254,3 +256,15 @@ def test_a_pyopencl_ctx_that_names_nothing_is_one_line(monkeypatch, value, messa
     monkeypatch.setenv("PYOPENCL_CTX", value)
     with pytest.raises(DeviceError, match=message):
         context.default_device()
+
+
+def test_without_a_gpu_pocls_cpu_device_renders_by_default(monkeypatch) -> None:
+    # README: "else on PoCL's CPU device", whichever order the ICD loader lists platforms in.
+    monkeypatch.delenv("CLRAY_DEVICE", raising=False)
+    monkeypatch.delenv("PYOPENCL_CTX", raising=False)
+    listed = _named(("0:0", INTEL, "Intel(R) Xeon(R) Gold 6248"),
+                    ("1:0", POCL, "pthread-skylake-avx512-Intel(R) Xeon(R) Gold 6248"))
+    monkeypatch.setattr(context, "_all_devices", lambda: listed)
+    device, spec, why = context.default_device()
+    assert (spec, device) == ("1:0", listed[1][1]) and why.startswith("PoCL's CPU device")
+    assert context.select_device("cpu") is listed[1][1]

@@ -100,6 +100,9 @@ def list_devices() -> list[DeviceInfo]:
     ]
 
 
+# PoCL's platform name: the CPU runtime default_device prefers.
+POCL_PLATFORM = "Portable Computing Language"
+
 # The device types a spec may name (device_type's names, in lower case): the first device of
 # that type in default_device's order.
 TYPE_WORDS = ("cpu", "gpu", "accelerator")
@@ -212,13 +215,13 @@ def _pyopencl_ctx_device(devices: list[tuple[str, cl.Device]], value: str) -> cl
 
 # The order default_device takes, for --device's help and the like to name.
 DEFAULT_DEVICE_ORDER = ("CLRAY_DEVICE, PYOPENCL_CTX, then a GPU with memory of its own, then "
-                        "the first CPU device")
+                        "PoCL's CPU device, then the first CPU device, then the first device")
 
 
 def default_device() -> tuple[cl.Device, str, str]:
     """(device, spec, why): the device a render uses where neither --device nor the settings
-    name one. CLRAY_DEVICE, then PYOPENCL_CTX, then a GPU with memory of its own (the one with
-    the most compute units), then the first CPU device. The one GPU measured, an H100, ran
+    name one: DEFAULT_DEVICE_ORDER, where the GPU is the one with the most compute units and
+    the CPU devices go as _cpus orders them. The one GPU measured, an H100, ran
     every example scene's kernel 1.1 to 91 times as fast as a 2-core CPU's PoCL and the
     1080p spheres render in 15 ms (docs/gpu.md); a GPU that shares the host's memory is an
     integrated one, often slower than the CPU beside it, and not measured: it is chosen by
@@ -236,9 +239,12 @@ def default_device() -> tuple[cl.Device, str, str]:
     if gpus:
         spec, device = gpus[0]
         return device, spec, "a GPU with its own memory: faster than CPUs where measured"
-    cpus = [(s, d) for s, d in devices if d.type & cl.device_type.CPU]
+    cpus = _cpus(devices)
     if cpus:
-        return cpus[0][1], cpus[0][0], "the first CPU device"
+        spec, device = cpus[0]
+        if _is_pocl(device):
+            return device, spec, "PoCL's CPU device: there is no GPU with its own memory"
+        return device, spec, "the first CPU device"
     return devices[0][1], devices[0][0], "the first device: there is no CPU device"
 
 
@@ -249,12 +255,26 @@ def _discrete_gpus(devices: list[tuple[str, cl.Device]]) -> list[tuple[str, cl.D
     return sorted(gpus, key=lambda sd: -sd[1].max_compute_units)
 
 
+def _is_pocl(device: cl.Device) -> bool:
+    return device.platform.name.strip() == POCL_PLATFORM
+
+
+def _cpus(devices: list[tuple[str, cl.Device]]) -> list[tuple[str, cl.Device]]:
+    """The CPU devices, the one default_device takes first: PoCL's, then the others in the
+    loader's order. README promises PoCL's (the CPU runtime a pip install brings), and the
+    ICD loader lists platforms in its folder's directory order, which is no one's choice."""
+    cpus = [(s, d) for s, d in devices if d.type & cl.device_type.CPU]
+    return sorted(cpus, key=lambda sd: not _is_pocl(sd[1]))
+
+
 def _first_of_type(devices: list[tuple[str, cl.Device]], kind: str, spec: str) -> cl.Device:
     """The device of type `kind` (device_type's name) that default_device's order puts first:
     for GPUs one with its own memory and the most compute units, else the first."""
     of_kind = [(s, d) for s, d in devices if device_type(d) == kind]
     if kind == "GPU":
         of_kind = _discrete_gpus(of_kind) + of_kind
+    elif kind == "CPU":
+        of_kind = _cpus(of_kind)
     if not of_kind:
         known = ", ".join(f"{s} {device_type(d)} {d.name.strip()}" for s, d in devices)
         raise DeviceError(f"no OpenCL {kind} device matches {spec!r} (devices: {known})")

@@ -3,13 +3,15 @@
 from __future__ import annotations
 
 import os
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from functools import cache
 
 import pyopencl as cl
 import pyopencl.characterize
 
-from clray.errors import DeviceError
+from clray.errors import DeviceError, one_line
 
 NO_PLATFORM_HINT = (
     "no OpenCL platform found: install PoCL (Debian: apt-get install pocl-opencl-icd, or "
@@ -293,15 +295,34 @@ def is_discrete_gpu(device: cl.Device) -> bool:
         return True
 
 
+@contextmanager
+def opencl_errors(device: cl.Device, doing: str) -> Iterator[None]:
+    """OpenCL's errors while `doing` on `device` as a DeviceError (exit 4) naming the device
+    and the error: a driver that lists a device it cannot open, or runs out of its memory,
+    is the device's trouble, not a bug to show a traceback for."""
+    try:
+        yield
+    except cl.Error as err:
+        raise DeviceError(f"{describe(device)}: {doing}: {opencl_error_text(err)}") from err
+
+
+def opencl_error_text(err: cl.Error) -> str:
+    """OpenCL's error in one line: its first (a build's log follows on later lines)."""
+    first = next((line.strip() for line in str(err).splitlines() if line.strip()), "")
+    return one_line(first or repr(err))
+
+
 @cache
 def context_for(device: cl.Device) -> cl.Context:
-    return cl.Context([device])
+    with opencl_errors(device, "cannot open the device"):
+        return cl.Context([device])
 
 
 @cache
 def queue_for(device: cl.Device) -> cl.CommandQueue:
-    return cl.CommandQueue(context_for(device),
-                           properties=cl.command_queue_properties.PROFILING_ENABLE)
+    with opencl_errors(device, "cannot open the device"):
+        return cl.CommandQueue(context_for(device),
+                               properties=cl.command_queue_properties.PROFILING_ENABLE)
 
 
 def describe(device: cl.Device) -> str:

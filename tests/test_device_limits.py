@@ -10,8 +10,9 @@ import pyopencl as cl
 import pytest
 
 from clray.device import context, launch
-from clray.device.launch import RESOURCE_HINT, check_argument_bytes, gpu_group_width
+from clray.device.launch import check_argument_bytes, gpu_group_width
 from clray.errors import DeviceError
+from clray.knobs import Tuning
 
 
 @pytest.mark.parametrize(("width", "limit", "multiple", "expected"), [
@@ -50,13 +51,39 @@ def test_the_render_kernels_arguments_fit_any_device() -> None:
     check_argument_bytes(len(SCENE_BUFFERS) + 3, 1, fake_device(1024))
 
 
-@pytest.mark.parametrize(("code", "hinted"), [("OUT_OF_RESOURCES", True),
-                                              ("INVALID_WORK_GROUP_SIZE", True),
-                                              ("INVALID_VALUE", False)])
-def test_resource_errors_say_what_to_lower(code, hinted) -> None:
+def _packed(traversal: str, max_depth: int, **knobs: int) -> SimpleNamespace:
+    """What _resource_hint reads of a PackedScene."""
+    return SimpleNamespace(config=SimpleNamespace(traversal=traversal),
+                           params=[{"max_depth": max_depth}], tuning=Tuning(**knobs))
+
+
+@pytest.mark.parametrize("code", ["OUT_OF_RESOURCES", "INVALID_WORK_GROUP_SIZE"])
+def test_resource_errors_say_what_to_lower(code) -> None:
     err = SimpleNamespace(code=getattr(cl.status_code, code))
-    assert (launch._resource_hint(err) == RESOURCE_HINT) is hinted
-    assert "work_group_width" in RESOURCE_HINT and "max_depth" in RESOURCE_HINT
+    hint = launch._resource_hint(err, _packed("sample_packet", 5), tiles=False)
+    assert hint == ("; the kernel needs more registers or private memory than the device has "
+                    "for a group: render with a smaller work_group_width (now 64; a tuning "
+                    "knob: clray.RenderSettings(tuning=Tuning(work_group_width=N)) in Python, "
+                    "or the device's tuning file, docs/tuning.md), a lower --max-depth (now 5), "
+                    "or --traversal single")
+
+
+def test_a_resource_hint_leaves_out_what_the_render_already_does() -> None:
+    # Already the single-ray walk, no bounces, one work-item a group: nothing left to lower.
+    err = SimpleNamespace(code=cl.status_code.OUT_OF_RESOURCES)
+    assert launch._resource_hint(err, _packed("single", 0, work_group_width=1),
+                                 tiles=False) == (
+        "; the kernel needs more registers or private memory than the device has for a group")
+    # Group packets' tile is group_side x group_side, whatever work_group_width says.
+    hint = launch._resource_hint(err, _packed("group_packet", 2, group_side=8), tiles=True)
+    assert "group_side (now 8" in hint and "work_group_width" not in hint
+    assert "group_side" not in launch._resource_hint(err, _packed("group_packet", 2),
+                                                     tiles=True)
+
+
+def test_other_opencl_errors_have_no_resource_hint() -> None:
+    err = SimpleNamespace(code=cl.status_code.INVALID_VALUE)
+    assert launch._resource_hint(err, _packed("sample_packet", 5), tiles=False) == ""
 
 
 def test_the_default_device_and_why(cl_device, monkeypatch) -> None:

@@ -27,7 +27,12 @@ import pyopencl as cl
 
 from clray import __version__
 from clray.denoise import check_denoiser
-from clray.device.context import DEFAULT_DEVICE_ORDER, default_device, list_devices
+from clray.device.context import (
+    DEFAULT_DEVICE_ORDER,
+    default_device,
+    list_devices,
+    opencl_error_text,
+)
 from clray.distributed import (
     CONNECT_TIMEOUT_S,
     LOCAL_WORKERS,
@@ -39,6 +44,7 @@ from clray.distributed import (
 )
 from clray.errors import (
     EXIT_OK,
+    EXIT_OPENCL,
     EXIT_RUNTIME,
     EXIT_USAGE,
     ClrayError,
@@ -1361,6 +1367,11 @@ def _run(args: argparse.Namespace) -> int:
     except ClrayError as err:
         _say(f"error: {err}")
         return err.exit_code
+    except cl.Error as err:
+        # One that no call naming its device turned into a DeviceError (opencl_errors): still
+        # the device's trouble, exit 4, in one line.
+        _say(f"error: OpenCL: {opencl_error_text(err)}")
+        return EXIT_OPENCL
     except KeyboardInterrupt:
         _say("error: interrupted")
         return EXIT_INTERRUPTED

@@ -5,11 +5,11 @@ one frame a task. Only this module imports Dask, and only when called: `pip inst
 Data movement: the scene (or the animation's scene data) goes to every worker once, with
 `client.scatter(..., broadcast=True)`, and again, once, if every worker holding it is lost
 (_Tasks); a task carries only its row range and settings. Each
-worker selects its own OpenCL device (`--device`, else its CLRAY_DEVICE, PYOPENCL_CTX, a GPU
-with its own memory, the first CPU device), packs the scene once for all its tiles and keeps
-compiled programs cached (clray.device.program caches per process). Per-pixel sampling
-depends on the seed and the pixel's index only, so the assembled image is bit for bit the
-single-process render's.
+worker selects its own OpenCL device (`--device`, else as default_device does with its own
+environment: clray.device.context.DEFAULT_DEVICE_ORDER), packs the scene once for all its
+tiles and keeps compiled programs cached (clray.device.program caches per process).
+Per-pixel sampling depends on the seed and the pixel's index only, so the assembled image is
+bit for bit the single-process render's.
 """
 
 from __future__ import annotations

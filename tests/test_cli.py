@@ -224,6 +224,39 @@ def test_unknown_device_exits_4(capsys, scene, tmp_path) -> None:
     assert files_in(tmp_path) == ["scene.toml"]
 
 
+def test_an_opencl_error_making_the_context_exits_4(capsys, cl_device, scene,
+                                                    monkeypatch) -> None:
+    # A device that a driver lists but cannot open (another process holds it exclusively):
+    # one line naming the device and OpenCL's error, not a traceback.
+    import pyopencl as cl
+
+    from clray.device import context
+
+    def unavailable(device: cl.Device) -> cl.Context:
+        raise cl.RuntimeError("clCreateContext failed: DEVICE_NOT_AVAILABLE")
+
+    monkeypatch.setattr(context, "context_for", unavailable)
+    context.queue_for.cache_clear()
+    code, _, err = run(capsys, "render", scene, *TINY, "--no-tuning")
+    context.queue_for.cache_clear()
+    assert code == 4
+    assert_one_error_line(err)
+    assert "DEVICE_NOT_AVAILABLE" in err and cl_device.name.strip() in err
+
+
+def test_any_other_opencl_error_exits_4(capsys, monkeypatch) -> None:
+    import pyopencl as cl
+
+    def fails() -> list:
+        raise cl.LogicError("clGetDeviceInfo failed: INVALID_VALUE\nmore")
+
+    monkeypatch.setattr(cli, "list_devices", fails)
+    code, _, err = run(capsys, "devices")
+    assert code == 4
+    assert_one_error_line(err)
+    assert err == "clray: error: OpenCL: clGetDeviceInfo failed: INVALID_VALUE\n"
+
+
 def test_unwritable_output_exits_1_and_leaves_no_temp_file(capsys, cl_device, scene,
                                                            tmp_path) -> None:
     (tmp_path / "taken.png").mkdir()  # a directory where the image should go

@@ -10,8 +10,9 @@ import pyopencl as cl
 import pytest
 
 from clray.device import context, launch
-from clray.device.launch import RESOURCE_HINT, check_argument_bytes, gpu_group_width
+from clray.device.launch import check_argument_bytes, gpu_group_width
 from clray.errors import DeviceError
+from clray.knobs import Tuning
 
 
 @pytest.mark.parametrize(("width", "limit", "multiple", "expected"), [
@@ -50,13 +51,39 @@ def test_the_render_kernels_arguments_fit_any_device() -> None:
     check_argument_bytes(len(SCENE_BUFFERS) + 3, 1, fake_device(1024))
 
 
-@pytest.mark.parametrize(("code", "hinted"), [("OUT_OF_RESOURCES", True),
-                                              ("INVALID_WORK_GROUP_SIZE", True),
-                                              ("INVALID_VALUE", False)])
-def test_resource_errors_say_what_to_lower(code, hinted) -> None:
+def _packed(traversal: str, max_depth: int, **knobs: int) -> SimpleNamespace:
+    """What _resource_hint reads of a PackedScene."""
+    return SimpleNamespace(config=SimpleNamespace(traversal=traversal),
+                           params=[{"max_depth": max_depth}], tuning=Tuning(**knobs))
+
+
+@pytest.mark.parametrize("code", ["OUT_OF_RESOURCES", "INVALID_WORK_GROUP_SIZE"])
+def test_resource_errors_say_what_to_lower(code) -> None:
     err = SimpleNamespace(code=getattr(cl.status_code, code))
-    assert (launch._resource_hint(err) == RESOURCE_HINT) is hinted
-    assert "work_group_width" in RESOURCE_HINT and "max_depth" in RESOURCE_HINT
+    hint = launch._resource_hint(err, _packed("sample_packet", 5), tiles=False)
+    assert hint == ("; the kernel needs more registers or private memory than the device has "
+                    "for a group: render with a smaller work_group_width (now 64; a tuning "
+                    "knob: clray.RenderSettings(tuning=Tuning(work_group_width=N)) in Python, "
+                    "or the device's tuning file, docs/tuning.md), a lower --max-depth (now 5), "
+                    "or --traversal single")
+
+
+def test_a_resource_hint_leaves_out_what_the_render_already_does() -> None:
+    # Already the single-ray walk, no bounces, one work-item a group: nothing left to lower.
+    err = SimpleNamespace(code=cl.status_code.OUT_OF_RESOURCES)
+    assert launch._resource_hint(err, _packed("single", 0, work_group_width=1),
+                                 tiles=False) == (
+        "; the kernel needs more registers or private memory than the device has for a group")
+    # Group packets' tile is group_side x group_side, whatever work_group_width says.
+    hint = launch._resource_hint(err, _packed("group_packet", 2, group_side=8), tiles=True)
+    assert "group_side (now 8" in hint and "work_group_width" not in hint
+    assert "group_side" not in launch._resource_hint(err, _packed("group_packet", 2),
+                                                     tiles=True)
+
+
+def test_other_opencl_errors_have_no_resource_hint() -> None:
+    err = SimpleNamespace(code=cl.status_code.INVALID_VALUE)
+    assert launch._resource_hint(err, _packed("sample_packet", 5), tiles=False) == ""
 
 
 def test_the_default_device_and_why(cl_device, monkeypatch) -> None:
@@ -67,8 +94,10 @@ def test_the_default_device_and_why(cl_device, monkeypatch) -> None:
     if any(context.is_discrete_gpu(d) for _, d in context._all_devices()):
         assert types[spec] == "GPU" and context.is_discrete_gpu(device)
     elif "CPU" in types.values():
-        assert types[spec] == "CPU" and why == "the first CPU device"
-        assert spec == next(s for s, t in types.items() if t == "CPU")
+        cpus = [d for d in context.list_devices() if d.type == "CPU"]
+        pocl = [d.spec for d in cpus if d.platform == context.POCL_PLATFORM]
+        assert spec == (pocl[0] if pocl else cpus[0].spec)
+        assert why.startswith("PoCL's CPU device" if pocl else "the first CPU device")
     assert context.select_device() == device
     monkeypatch.setenv("CLRAY_DEVICE", spec)
     assert context.default_device()[1:] == (spec, f"CLRAY_DEVICE={spec}")
@@ -153,3 +182,116 @@ def test_clray_devices_marks_the_default(cl_device, capsys) -> None:
     assert len(marked) == 1
     # The suite names the test's device in CLRAY_DEVICE.
     assert cl_device.name.strip() in marked[0] and "(CLRAY_DEVICE=" in marked[0]
+
+
+POCL = "Portable Computing Language"
+INTEL = "Intel(R) OpenCL"
+
+
+def _named(*devices: tuple[str, str, str]) -> list[tuple[str, SimpleNamespace]]:
+    """Devices as _all_devices lists them, from (spec, platform name, device name): CPUs, one
+    platform object per platform index, PoCL's with its own vendor and version."""
+    platforms: dict[str, SimpleNamespace] = {}
+    listed = []
+    for spec, platform_name, name in devices:
+        pocl = platform_name == POCL
+        platform = platforms.setdefault(spec.split(":")[0], SimpleNamespace(
+            name=platform_name, vendor="The pocl project" if pocl else "Vendor",
+            version="OpenCL 3.0 PoCL 5.0" if pocl else "OpenCL 3.0"))
+        listed.append((spec, SimpleNamespace(type=cl.device_type.CPU, max_compute_units=2,
+                                             host_unified_memory=True, name=name,
+                                             platform=platform)))
+    return listed
+
+
+# PoCL's CPU device is named for the CPU's brand, as Intel's CPU runtime's device is.
+XEON = (("0:0", POCL, "pthread-skylake-avx512-Intel(R) Xeon(R) Gold 6248"),
+        ("1:0", INTEL, "Intel(R) Xeon(R) Gold 6248"))
+TWO_CARDS = (("0:0", "NVIDIA CUDA", "NVIDIA GeForce RTX 3080"),
+             ("0:1", "NVIDIA CUDA", "NVIDIA GeForce RTX 4090"),
+             ("1:0", POCL, "pthread-haswell-AMD EPYC"))
+
+
+@pytest.mark.parametrize(("devices", "spec", "chosen"), [
+    # A platform's name before a device's: `--device intel` is Intel's CPU runtime, which
+    # README and docs/acceleration.md measure with it.
+    (XEON, "intel", "1:0"), (XEON, "INTEL", "1:0"),
+    # `pocl` is in PoCL's vendor and version only.
+    (XEON, "pocl", "0:0"), (XEON, "skylake", "0:0"),
+    # Several devices of one platform: the first.
+    (TWO_CARDS, "nvidia", "0:0"), (TWO_CARDS, "rtx", "0:0"),
+    # A bare number is a platform index where that platform is there, else a name's part.
+    (TWO_CARDS, "4090", "0:1"), (TWO_CARDS, "1", "1:0"), (TWO_CARDS, "0:1", "0:1"),
+])
+def test_a_name_prefers_the_platform_then_the_device(monkeypatch, devices, spec,
+                                                     chosen) -> None:
+    listed = _named(*devices)
+    monkeypatch.setattr(context, "_all_devices", lambda: listed)
+    assert context.select_device(spec) is dict(listed)[chosen]
+
+
+def test_a_name_that_several_platforms_hold_alike_is_an_error(monkeypatch) -> None:
+    monkeypatch.setattr(context, "_all_devices", lambda: _named(*XEON))
+    with pytest.raises(DeviceError, match=(
+            r"^'xeon' matches devices on several platforms alike: "
+            r"0:0 pthread-skylake-avx512-Intel\(R\) Xeon\(R\) Gold 6248 "
+            r"\(Portable Computing Language\), 1:0 Intel\(R\) Xeon\(R\) Gold 6248 "
+            r"\(Intel\(R\) OpenCL\); expected a spec that names one, such as P:D$")):
+        context.select_device("xeon")
+
+
+def test_a_number_that_no_name_holds_is_quoted_as_typed(monkeypatch) -> None:
+    monkeypatch.setattr(context, "_all_devices", lambda: _named(*TWO_CARDS))
+    with pytest.raises(DeviceError, match=r"^no OpenCL device matches '7' \(devices: 0:0 "):
+        context.select_device("7")
+
+
+THREE_PLATFORMS = (("0:0", POCL, "pthread-haswell-AMD EPYC"),
+                   ("1:0", "AMD Accelerated Parallel Processing", "gfx1100"),
+                   ("1:1", "AMD Accelerated Parallel Processing", "gfx1030"),
+                   ("2:0", INTEL, "AMD EPYC"))
+
+
+@pytest.mark.parametrize(("value", "chosen"), [
+    # pyopencl's own forms (choose_devices): each part an index where it is an integer in
+    # range, else a case-insensitive part of the platform's or the device's name.
+    ("Intel:0", "2:0"), ("portable:0", "0:0"), ("1:gfx1030", "1:1"), ("1:GFX1100", "1:0"),
+    ("amd accelerated:1", "1:1"), ("1", "1:0"), ("Intel", "2:0"), ("1:", "1:0"),
+    ("2:0", "2:0"), ("1:1,0", "1:1"),
+])
+def test_pyopencl_ctx_is_read_as_pyopencl_reads_it(monkeypatch, value, chosen) -> None:
+    listed = _named(*THREE_PLATFORMS)
+    monkeypatch.setattr(context, "_all_devices", lambda: listed)
+    monkeypatch.delenv("CLRAY_DEVICE", raising=False)
+    monkeypatch.setenv("PYOPENCL_CTX", value)
+    device, spec, why = context.default_device()
+    assert (spec, why) == (chosen, f"PYOPENCL_CTX={value}")
+    assert device is dict(listed)[chosen]
+
+
+@pytest.mark.parametrize(("value", "message"), [
+    ("nvidia:0", r"^PYOPENCL_CTX='nvidia:0': no OpenCL platform matches 'nvidia' \(platforms: "
+                 r"0 Portable Computing Language, 1 AMD Accelerated Parallel Processing, "
+                 r"2 Intel\(R\) OpenCL\)$"),
+    ("1:7", r"^PYOPENCL_CTX='1:7': no device of platform 1 \(AMD Accelerated Parallel "
+            r"Processing\) matches '7' \(devices: 0 gfx1100, 1 gfx1030\)$"),
+    ("0:0:0", r"^PYOPENCL_CTX='0:0:0': expected PLATFORM or PLATFORM:DEVICE"),
+])
+def test_a_pyopencl_ctx_that_names_nothing_is_one_line(monkeypatch, value, message) -> None:
+    monkeypatch.setattr(context, "_all_devices", lambda: _named(*THREE_PLATFORMS))
+    monkeypatch.delenv("CLRAY_DEVICE", raising=False)
+    monkeypatch.setenv("PYOPENCL_CTX", value)
+    with pytest.raises(DeviceError, match=message):
+        context.default_device()
+
+
+def test_without_a_gpu_pocls_cpu_device_renders_by_default(monkeypatch) -> None:
+    # README: "else on PoCL's CPU device", whichever order the ICD loader lists platforms in.
+    monkeypatch.delenv("CLRAY_DEVICE", raising=False)
+    monkeypatch.delenv("PYOPENCL_CTX", raising=False)
+    listed = _named(("0:0", INTEL, "Intel(R) Xeon(R) Gold 6248"),
+                    ("1:0", POCL, "pthread-skylake-avx512-Intel(R) Xeon(R) Gold 6248"))
+    monkeypatch.setattr(context, "_all_devices", lambda: listed)
+    device, spec, why = context.default_device()
+    assert (spec, device) == ("1:0", listed[1][1]) and why.startswith("PoCL's CPU device")
+    assert context.select_device("cpu") is listed[1][1]

@@ -433,6 +433,24 @@ def test_invalid_or_stale_tuning_files_are_ignored_with_a_warning(cl_device, cha
     assert (tuning, source) == (DEFAULT_TUNING, "default")
 
 
+@pytest.mark.parametrize("change", ["kernels", "knobs"])
+def test_a_tuning_file_measured_with_other_kernels_is_stale(cl_device, monkeypatch,
+                                                            change) -> None:
+    # The package version is the same for every commit: a winner timed against older kernels
+    # (or a knob table whose values meant something else) is not this build's winner.
+    path = store.save_tuning(cl_device, Tuning(work_group_width=16), {"note": "test"})
+    assert store.load_tuning(cl_device) == (Tuning(work_group_width=16), path)
+    if change == "kernels":
+        source = store.kernel_source()
+        monkeypatch.setattr(store, "kernel_source", lambda: source + "\n// changed")
+    else:
+        table = store.KNOB_TABLE
+        monkeypatch.setattr(store, "KNOB_TABLE", table[:-1])
+    with pytest.warns(UserWarning, match=f"ignoring tuning file {path}: stale: tuned for "
+                                         "kernels '[0-9a-f]{64}', this is '[0-9a-f]{64}'"):
+        assert store.load_tuning(cl_device) is None
+
+
 def test_a_tuning_file_that_is_not_json_is_ignored(cl_device) -> None:
     path = store.tuning_path(cl_device)
     path.parent.mkdir(parents=True)

@@ -17,7 +17,7 @@ from clray.device.pack import PackedScene
 from clray.device.program import build_program, cache_folder_errors
 from clray.errors import DeviceError
 from clray.host_memory import small_pages
-from clray.knobs import DEFAULT_TUNING, TRAVERSAL_SCHEMES, Tuning
+from clray.knobs import DEFAULT_TUNING, GROUP_SIDES, TRAVERSAL_SCHEMES, Tuning
 
 # Launches are sized by the time they take, not by their work, so that progress advances
 # several times a second on any device and no launch nears a GPU watchdog, while a small render
@@ -137,18 +137,33 @@ def _local_size(kernel: cl.Kernel, device: cl.Device, packed: PackedScene) -> tu
     return side, side
 
 
-# What a launch that runs out of a device's resources can lower, in the knob table's and the
-# scene format's names: registers and private memory grow with the ray tree's depth and with
-# sample packets' lanes, and a group's share of them with its width.
-RESOURCE_HINT = ("; the kernel needs more registers or private memory than the device has for "
-                 "a group: lower work_group_width (a tuning knob) or max_depth, or render with "
-                 "--traversal single")
-
-
-def _resource_hint(err: cl.Error) -> str:
-    code = getattr(err, "code", None)
-    return RESOURCE_HINT if code in (cl.status_code.OUT_OF_RESOURCES,
-                                     cl.status_code.INVALID_WORK_GROUP_SIZE) else ""
+def _resource_hint(err: cl.Error, packed: PackedScene, tiles: bool) -> str:
+    """What a launch that ran out of the device's resources can lower, of what this render
+    could: registers and private memory grow with the ray tree's depth and with the lanes of
+    the walks that carry several rays, and a group's share of them with its size (group
+    packets' tile, where `tiles`, else work_group_width). work_group_width and group_side have
+    no flag: they are tuning knobs."""
+    if getattr(err, "code", None) not in (cl.status_code.OUT_OF_RESOURCES,
+                                          cl.status_code.INVALID_WORK_GROUP_SIZE):
+        return ""
+    tuning = packed.tuning
+    knob, value = (("group_side", tuning.group_side) if tiles else
+                   ("work_group_width", tuning.work_group_width))
+    advice = []
+    if value > (min(GROUP_SIDES) if tiles else 1):
+        advice.append(f"a smaller {knob} (now {value}; a tuning knob: clray.RenderSettings("
+                      f"tuning=Tuning({knob}=N)) in Python, or the device's tuning file, "
+                      "docs/tuning.md)")
+    max_depth = int(packed.params[0]["max_depth"])
+    if max_depth > 0:
+        advice.append(f"a lower --max-depth (now {max_depth})")
+    if packed.config.traversal != "single":
+        advice.append("--traversal single")
+    hint = "; the kernel needs more registers or private memory than the device has for a group"
+    if not advice:
+        return hint
+    listed = advice[-1] if len(advice) == 1 else f"{', '.join(advice[:-1])}, or {advice[-1]}"
+    return f"{hint}: render with {listed}"
 
 
 class _Launch(NamedTuple):
@@ -273,7 +288,7 @@ def render_packed(packed: PackedScene, device: cl.Device,
         queue.finish()
     except cl.Error as err:
         raise DeviceError(f"OpenCL error while rendering on {describe(device)}: {err}"
-                          f"{_resource_hint(err)}") from err
+                          f"{_resource_hint(err, packed, _group_rows(packed) > 1)}") from err
     return image, outputs.stats(build_s, kernel_s, launches, packed)
 
 
@@ -331,7 +346,7 @@ def render_passes_packed(packed: PackedScene, device: cl.Device,
         queue.finish()
     except cl.Error as err:
         raise DeviceError(f"OpenCL error while rendering passes on {describe(device)}: {err}"
-                          f"{_resource_hint(err)}") from err
+                          f"{_resource_hint(err, packed, tiles=False)}") from err
     return out, {"passes_kernel_s": kernel_s, "passes_launches": launches}
 
 

@@ -16,6 +16,7 @@ from clray.accel.bvh import TRAVERSAL_COST, build_bvh, within_float32
 from clray.accel.wide import LEAF_FIELD_MASK, PACKET_WIDTH, WideBvh, collapse, fill_nodes
 from clray.device import layout as L
 from clray.device.bvh_builder import build_bvh_from, float_prims
+from clray.device.context import opencl_errors
 from clray.device.program import KernelConfig
 from clray.host_memory import CHUNK_ROWS, aligned_empty, by_chunks, small_pages, trim_heap
 from clray.knobs import DEFAULT_TUNING, Tuning
@@ -390,8 +391,9 @@ def _build_wide(prims: list[np.ndarray], width: int, queue: cl.CommandQueue | No
     on_device = (queue is not None and len(prims[0]) >= DEVICE_BUILD_MIN
                  and tuning.traversal_cost == TRAVERSAL_COST)
     if on_device:
-        binary = build_bvh_from(queue, prims, **leaves, pairs=True,
-                                values_checked=values_checked, consume=True)
+        with opencl_errors(queue.device, "the device BVH build failed"):
+            binary = build_bvh_from(queue, prims, **leaves, pairs=True,
+                                    values_checked=values_checked, consume=True)
     else:
         binary = build_bvh(*prims, traversal_cost=tuning.traversal_cost, **leaves)
         prims.clear()

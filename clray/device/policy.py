@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import pyopencl as cl
 
-from clray.device.context import device_type
+from clray.device.context import POCL_PLATFORM, device_type
 from clray.device.tuning_files import chosen_tuning
 from clray.errors import SettingsError
 from clray.knobs import BUILD_KNOBS, DEFAULT_TUNING, IMAGE_KNOBS, TRAVERSAL_SCHEMES, Tuning
@@ -41,7 +41,7 @@ def bvh_width_for(device: cl.Device, precision: str = "float") -> int:
 # 1280 x 720 (docs/acceleration.md, Sample packets): PoCL, 1.63x (spheres) and 1.34x (mesh), at
 # 8 spp 1.59x and 1.17x; Intel's CPU runtime, 1.50x (spheres, with the chains) and 1.08x to
 # 1.31x (mesh).
-SAMPLE_PACKET_PLATFORMS = ("Portable Computing Language", "Intel(R) OpenCL")
+SAMPLE_PACKET_PLATFORMS = (POCL_PLATFORM, "Intel(R) OpenCL")
 
 
 def traversal_for(device: cl.Device) -> str:

@@ -266,6 +266,12 @@ def private_memory_warning(config: KernelConfig, device_type: str) -> str | None
             "expect spills to slow memory")
 
 
+def source_digest(source: str) -> str:
+    """The sha256 of a kernel source text: build_program's cache key, and what a tuning file
+    was measured against (clray.device.tuning_files)."""
+    return hashlib.sha256(source.encode()).hexdigest()
+
+
 def kernel_source(name: str = ENTRY_FILE) -> str:
     """The entry file with its quoted includes inlined (each once), with #line markers so
     build logs name the right file. Inlining keeps every cache keyed on the full text."""
@@ -354,7 +360,7 @@ def build_program(device: cl.Device, config: KernelConfig) -> tuple[cl.Program, 
         raise DeviceError(f"unsupported build option(s): {', '.join(sorted(unknown))}")
     source = kernel_source()
     options = tuple(config.options()) + device_build_options(device)
-    key = (device.int_ptr, hashlib.sha256(source.encode()).hexdigest(), options)
+    key = (device.int_ptr, source_digest(source), options)
     if key in _programs:
         return _programs[key], 0.0
     # The context comes before the clock: a process makes it once, whatever it builds

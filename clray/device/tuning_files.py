@@ -1,8 +1,9 @@
 """Per-device tuning files: where `clray tune` leaves its winner, and where renders pick it up.
 
 One JSON file per device under the user's cache directory ($XDG_CACHE_HOME/clray/tuning, else
-~/.cache/clray/tuning), named by the device's platform and name, and holding the driver version
-and the clray version it was tuned with: a file written under another driver or clray is stale,
+~/.cache/clray/tuning), named by the device's platform and name, and holding the driver version,
+the clray version and a digest of the kernels and the knob table it was tuned with: a file
+written under another driver, clray, kernel source or knob table is stale,
 and like a file that does not parse or names an illegal knob it is ignored with a one-line
 warning. The knobs change the speed, not the image, so a stale file is never an error.
 """
@@ -18,8 +19,9 @@ from pathlib import Path
 
 import pyopencl as cl
 
+from clray.device.program import kernel_source, source_digest
 from clray.errors import utf8_problem
-from clray.knobs import DEFAULT_TUNING, Tuning, TuningError
+from clray.knobs import DEFAULT_TUNING, KNOB_TABLE, Tuning, TuningError
 from clray.output import write_bytes_atomically
 from clray.scene.files import UnreadableFile, read_regular
 
@@ -49,10 +51,20 @@ def _slug(text: str) -> str:
     return re.sub(r"[^A-Za-z0-9.]+", "-", text.strip()).strip("-")[:80] or "device"
 
 
+def _kernels_digest() -> str:
+    """The kernels' source and the knob table a winner is timed against. The package version
+    stays the same across commits, so without this a winner measured with older kernels, or
+    with knobs that meant something else, would be applied to new ones."""
+    knobs = repr([(k.name, k.acts, k.default, k.legal_text) for k in KNOB_TABLE])
+    return source_digest(f"{kernel_source()}\n{knobs}")
+
+
 def device_key(device: cl.Device) -> dict[str, str]:
-    """What a tuning file is valid for: the device, its driver and the clray version."""
+    """What a tuning file is valid for: the device, its driver, the clray version, and the
+    kernels and knobs (_kernels_digest)."""
     return {"platform": device.platform.name.strip(), "device": device.name.strip(),
-            "driver_version": device.driver_version.strip(), "clray_version": _clray_version()}
+            "driver_version": device.driver_version.strip(), "clray_version": _clray_version(),
+            "kernels": _kernels_digest()}
 
 
 def tuning_path(device: cl.Device) -> Path:
@@ -64,7 +76,7 @@ def _problem(record: object, key: dict[str, str]) -> str | None:
     """Why a parsed tuning file does not apply to the device of `key`, or None."""
     if not isinstance(record, dict) or record.get("format") != FORMAT:
         return f"expected a clray tuning file of format {FORMAT}"
-    for name in ("device", "platform", "driver_version", "clray_version"):
+    for name in key:
         if record.get(name) != key[name]:
             return (f"stale: tuned for {name} {record.get(name)!r}, this is {key[name]!r}; "
                     "run clray tune again")

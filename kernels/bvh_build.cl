@@ -52,8 +52,9 @@ __kernel void round_prims_float(__global const float *lo, __global const float *
     int end = min(n, (int)(get_global_id(0) + 1) * chunk);
     for (int i = get_global_id(0) * chunk; i < end; i++) {
         Prim p;
-        p.lo = (float4)(vload3(i, lo), as_float(i));
-        p.hi = (float4)(vload3(i, hi), 0.0f);
+        // + 0.0f: every zero +0.0, as in round_prims.
+        p.lo = (float4)(vload3(i, lo) + 0.0f, as_float(i));
+        p.hi = (float4)(vload3(i, hi) + 0.0f, 0.0f);
         prims[i] = p;
     }
 }
@@ -92,9 +93,14 @@ __kernel void round_prims(__global const double *lo, __global const double *hi,
         double4 b = (double4)(hi[3 * i], hi[3 * i + 1], hi[3 * i + 2], 0.0);
         float4 fa = convert_float4(a), fb = convert_float4(b);
         Prim p;
-        p.lo = step_down(fa, convert_int4(convert_double4(fa) > a));
-        p.hi = step_up(fb, convert_int4(convert_double4(fb) < b));
-        p.c = convert_float4(0.5 * (a + b));
+        // + 0.0f makes every zero +0.0 (-0.0 + 0.0 is +0.0), as the host build does
+        // (clray/accel/bvh.py, _round_out): -0.0 and +0.0 compare equal, so which one lesser or
+        // greater keeps depends on the order of the reduction, which is not the host's here.
+        // With no -0.0 in, both builds give the same bytes. After the steps: the one up from
+        // -2^-149 gives -0.0.
+        p.lo = step_down(fa, convert_int4(convert_double4(fa) > a)) + 0.0f;
+        p.hi = step_up(fb, convert_int4(convert_double4(fb) < b)) + 0.0f;
+        p.c = convert_float4(0.5 * (a + b)) + 0.0f;
         p.c.w = as_float(i);
         prims[i] = p;
     }

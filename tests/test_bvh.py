@@ -273,9 +273,11 @@ def cl_queue(cl_device):
 
 
 def assert_same_tree(a: Bvh, b: Bvh) -> None:
-    # Field by field, by value: a min or max over 0.0 and -0.0 may give either.
+    # Field by field, then byte for byte: both builds make every zero +0.0 as the bounds come
+    # in, so no minimum or maximum meets both 0.0 and -0.0 (whose pick depends on the order).
     for field in BINARY_NODE.names:
         assert np.array_equal(a.nodes[field], b.nodes[field]), field
+    assert a.nodes.tobytes() == b.nodes.tobytes()
     assert np.array_equal(a.order, b.order)
 
 
@@ -347,6 +349,43 @@ def test_device_layout_collapses_to_the_same_wide_tree(cl_queue):
     a, b = collapse(own, refs, 8), collapse(host, refs, 8)
     assert a.nodes.tobytes() == b.nodes.tobytes()
     assert np.array_equal(a.prim_refs, b.prim_refs) and a.stack_size == b.stack_size
+
+
+def test_signed_zeros_give_the_same_bytes_from_either_build(cl_queue):
+    # -0.0 and +0.0 compare equal, so which one a minimum or maximum keeps depends on the order
+    # of the reduction, which differs between the builds: bounds with both (an OBJ file's
+    # "-0.000000") gave nodes equal as numbers but not as bytes. Every zero comes in as +0.0.
+    rng = np.random.default_rng(13)
+    c = rng.random((20000, 3))
+    c[:, 1] = np.where(rng.random(20000) < 0.5, -0.0, 0.0)
+    for lo, hi in ((c, c), (c.astype(np.float32), c.astype(np.float32))):
+        device, host = build_bvh_on(cl_queue, lo, hi), build_bvh(lo, hi)
+        assert device.nodes.tobytes() == host.nodes.tobytes()
+        assert np.array_equal(device.order, host.order)
+        assert not np.signbit(host.nodes["lo"][:, 1]).any()
+
+
+def test_signed_zeros_pack_the_same_bytes_from_either_build(cl_queue):
+    # A 20,000-triangle floor at y = 0 as an OBJ file writes it (some "-0.000000"): the pack's
+    # buffers from the device build are the host build's, byte for byte.
+    from clray.device.pack import pack_scene
+    from clray.scene.load import scene_from_dict
+
+    rng = np.random.default_rng(14)
+    n = 20000
+    v = rng.random((3 * n, 3)) * 10 - 5
+    v[:, 1] = np.where(rng.random(3 * n) < 0.5, -0.0, 0.0)
+    scene = scene_from_dict({
+        "render": {"width": 8, "height": 8},
+        "camera": {"position": [0, 0, -20], "look_at": [0, 0, 0]},
+        "materials": {"m": {"color": [1, 1, 1]}}, "lights": [],
+        "objects": [{"type": "mesh", "vertices": v.tolist(),
+                     "faces": np.arange(3 * n).reshape(-1, 3).tolist(), "material": "m"}]})
+    settings = {"width": 8, "height": 8, "spp": 1, "max_depth": 1, "seed": 0}
+    host = pack_scene(scene, **settings).buffers()
+    device = pack_scene(scene, **settings, queue=cl_queue).buffers()
+    assert host.keys() == device.keys()
+    assert [k for k in host if host[k].tobytes() != device[k].tobytes()] == []
 
 
 def test_device_rounding_at_the_edges_of_float32(cl_queue):

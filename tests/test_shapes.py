@@ -51,6 +51,21 @@ def test_the_registry_names_every_primitive_code_of_the_kernels() -> None:
     assert len(set(prims.values())) == len(prims)
 
 
+def test_a_primitive_code_that_makes_negative_references_is_refused() -> None:
+    # References are code << PRIM_TYPE_SHIFT | index in an int32: a code of 8 or more (or a
+    # negative one) makes them negative. The registry's codes pass (checked on import).
+    assert prim_refs.PRIM_CODES == 1 << (31 - prim_refs.PRIM_TYPE_SHIFT) == 8
+    prim_refs.check_codes(SHAPES)
+    largest = dataclasses.replace(SHAPES[-1], prim=prim_refs.PRIM_CODES - 1)
+    prim_refs.check_codes((*SHAPES[:-1], largest))
+    for code in (prim_refs.PRIM_CODES, -1):
+        bad = dataclasses.replace(SHAPES[-1], prim=code)
+        with pytest.raises(ValueError, match=rf"^{bad.prim_name} is {code}: a primitive type "
+                                             r"code must be from 0 to 7 \(below 1 << \(31 - "
+                                             r"PRIM_TYPE_SHIFT\)\)"):
+            prim_refs.check_codes((*SHAPES[:-1], bad))
+
+
 def test_each_shape_has_its_struct_buffer_and_switch_in_the_kernels() -> None:
     header, scene = kernel_source("clray_types.h"), kernel_source("scene.h")
     shapes_h = (KERNELS / "shapes.h").read_text(encoding="utf-8")

@@ -182,6 +182,11 @@ def _round_out(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
     prim[3:6] = np.where(hi32 < hi.T, np.nextafter(hi32, np.float32(np.inf)), hi32)
     # Summed in float64 whatever the bounds' type, as the device build does.
     prim[6:9] = (0.5 * np.add(lo.T, hi.T, dtype=np.float64)).astype(np.float32)
+    # Every zero +0.0 (-0.0 + 0.0 is +0.0), after the rounding (nextafter up from -2^-149 gives
+    # -0.0): -0.0 and +0.0 compare equal, so which one a minimum or maximum keeps depends on
+    # the reduction's order, which differs between this build and the device's. With no -0.0
+    # in, both give the same bytes (kernels/bvh_build.cl, round_prims).
+    prim += np.float32(0)
     return prim
 
 

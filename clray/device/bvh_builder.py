@@ -101,9 +101,10 @@ def float_prims(n: int) -> tuple[np.ndarray, np.ndarray]:
     primitive buffer (_prims_of), on every device but Oclgrind: no copy of the bounds and no
     pass that rounds them in, but the build partitions them in place, so their rows come back
     reordered on a device that works in host memory. Any other build copies them, and any
-    other use sees plain bounds. The index and spare words are written a chunk at a time on
-    every core: their first touch of the records' fresh memory (32 B a primitive) is most of
-    the time this takes."""
+    other use sees plain bounds. The caller writes every zero as +0.0, as the rounding passes
+    do (consumed records have none), for the host build's bytes. The index and spare words
+    are written a chunk at a time on every core: their first touch of the records' fresh
+    memory (32 B a primitive) is most of the time this takes."""
     records = np.empty((n, 8), dtype=np.float32)
 
     def number(part: slice) -> None:

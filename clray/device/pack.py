@@ -368,8 +368,11 @@ def _triangle_bounds(vertices: np.ndarray, corners: np.ndarray) -> tuple[np.ndar
 
     def bound(part: slice) -> None:
         c0, c1, c2 = (np.take(vertices, corners[part, k], axis=0) for k in range(3))
-        hi[part] = np.maximum(np.maximum(c0, c1), c2)[:, :3]
-        lo[part] = np.minimum(np.minimum(c0, c1, out=c0), c2, out=c0)[:, :3]
+        # + 0: every zero +0.0, as the builds' own rounding passes make them (a device build
+        # that consumes these records has none): -0.0 and +0.0 compare equal, so which one a
+        # minimum or maximum keeps depends on the reduction's order, and the builds' differ.
+        hi[part] = np.maximum(np.maximum(c0, c1), c2)[:, :3] + np.float32(0)
+        lo[part] = np.minimum(np.minimum(c0, c1, out=c0), c2, out=c0)[:, :3] + np.float32(0)
     by_chunks(len(corners), bound, row_items=4)
     return lo, hi
 

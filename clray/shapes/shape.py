@@ -68,7 +68,10 @@ class Shape:
     # object -> a representative centre and the length its crossings must resolve
     # (clray.scene.scale's float32 warnings).
     centre_size: Callable[[Any], tuple[np.ndarray, float]]
-    prim: int  # its PRIM_* code: kernels/clray_types.h's, and its place in the tie order
+    # Its PRIM_* code: kernels/clray_types.h's, and its place in the tie order; below
+    # 1 << (31 - PRIM_TYPE_SHIFT), 8, or its references are negative (the int32 code <<
+    # PRIM_TYPE_SHIFT | index): clray.accel.prim_refs.check_codes refuses it.
+    prim: int
     record: np.dtype  # the numpy twin of its struct in kernels/clray_types.h
     buffer: str  # its scene buffer: PackedScene's field, kernels/scene.h's parameter
     switch: str  # its KernelConfig field, -DHAS_... in the build

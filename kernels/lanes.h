@@ -114,8 +114,14 @@ HOT LANE_INT reduce_or_lanes(MASKP v) {
 #define REDUCE_OR(v) reduce_or_lanes(v)
 #endif
 
-// Bit k set where lane k of a comparison is true.
+// Bit k set where lane k of a comparison is true: movmsk on x86 (real.h, X86_LANE_BITS).
+#if X86_LANE_BITS && !defined(USE_DOUBLE) && PACKET_LANES == 16
+HOT int lane_mask(MASKP m) { return lane_bits8(m.lo) | (lane_bits8(m.hi) << 8); }
+#elif X86_LANE_BITS && !defined(USE_DOUBLE) && PACKET_LANES == 8
+HOT int lane_mask(MASKP m) { return lane_bits8(m); }
+#else
 HOT int lane_mask(MASKP m) { return (int)REDUCE_OR(m & LANE_BITS); }
+#endif
 
 // The lanes of `bits` as a comparison result.
 HOT MASKP lanes_of(int bits) { return ((MASKP)(bits) & LANE_BITS) != (MASKP)(0); }

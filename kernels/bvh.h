@@ -28,9 +28,7 @@ typedef float8 REALW;
 #define TO_REALW(v) (v)
 #define MASK_TO_INTW(m) (m)
 #endif
-HOT int lane_bits(INTW m) {
-    return or_lanes4((m.lo & (int4)(1, 2, 4, 8)) | (m.hi & (int4)(16, 32, 64, 128)));
-}
+HOT int lane_bits(INTW m) { return lane_bits8(m); }
 #elif BVH_WIDTH == 4
 typedef int4 INTW;
 #define VLOADW vload4

@@ -1,5 +1,6 @@
 // Camera rays (docs/rendering.md, Camera): a pinhole's, an orthographic camera's and a thin
-// lens's, for a pixel sample (sample_ray); for sample packets a pinhole's rays lane-wise.
+// lens's, for a pixel sample (sample_ray); a pinhole's rays lane-wise for sample packets and
+// for the single-ray render's row segments.
 #ifndef CLRAY_CAMERA_H
 #define CLRAY_CAMERA_H
 
@@ -24,6 +25,58 @@ static inline REAL3 camera_direction(const __global Camera* camera, REAL2 sample
               p.y * TO_REAL3(camera->up);
     return normalize3(d);
 }
+
+// The single-ray render's row segments (ray_tree.h, render_segment) make the camera rays of
+// CAMERA_AHEAD pixels before their walks; a pinhole's, at one sample a pixel, a pixel a vector
+// lane (CAMERA_ROW_LANES: row_directions), where each pixel's direction had been a chain of two
+// divisions and a square root of its own.
+#if RENDER_SEGMENTS
+#define CAMERA_AHEAD 16
+#endif
+#define CAMERA_ROW_LANES (RENDER_SEGMENTS && !HAS_THIN_LENS && !HAS_ORTHOGRAPHIC)
+
+#if CAMERA_ROW_LANES
+// One REAL a lane, CAMERA_AHEAD lanes, and what comparing two of them gives.
+#ifdef USE_DOUBLE
+typedef double16 REALROW;
+typedef long16 MASKROW;
+#define TO_REALROW convert_double16
+#define TO_MASKROW convert_long16
+#else
+typedef float16 REALROW;
+typedef int16 MASKROW;
+#define TO_REALROW convert_float16
+#define TO_MASKROW convert_int16
+#endif
+DEFINE_DOT(HOT, REALROW, dot_row)
+DEFINE_PLAIN_SQUARED_LENGTH(HOT, REALROW, MASKROW, plain_squared_length_row)
+
+// camera_direction at the centres of pixels x .. x + count - 1 of row y (count <=
+// CAMERA_AHEAD), lane i for pixel x + i, into dx, dy, dz: its expressions lane by lane, so
+// its directions. False where one of them has a squared length outside [2^-90, 2^90], where
+// normalize3 takes the builtin, which scales: the caller then makes them pixel by pixel.
+HOT bool row_directions(const __global Camera* camera, int x, int y, int count, int width,
+                        int height, REAL* dx, REAL* dy, REAL* dz) {
+    const int16 lane = (int16)(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15);
+    // sample_position's centre and image_plane_point's quotients.
+    REALROW sx = TO_REALROW(x + lane) + REAL_C(0.5);
+    REALROW px = (REAL)2 * sx / (REAL)width - (REAL)1;
+    REALROW py = (REALROW)((REAL)1 - (REAL)2 * ((REAL)y + REAL_C(0.5)) / (REAL)height);
+    REAL3 forward = TO_REAL3(camera->forward), right = TO_REAL3(camera->right),
+          up = TO_REAL3(camera->up);
+    REALROW ax = (REALROW)(forward.x) + px * right.x + py * up.x;
+    REALROW ay = (REALROW)(forward.y) + px * right.y + py * up.y;
+    REALROW az = (REALROW)(forward.z) + px * right.z + py * up.z;
+    REALROW dd = dot_row(ax, ay, az, ax, ay, az);
+    MASKROW own = TO_MASKROW(lane < count);
+    if (any(own & ~plain_squared_length_row(dd))) return false;
+    REALROW len = sqrt(dd);
+    vstore16(ax / len, 0, dx);
+    vstore16(ay / len, 0, dy);
+    vstore16(az / len, 0, dz);
+    return true;
+}
+#endif
 
 #if HAS_THIN_LENS || HAS_ORTHOGRAPHIC
 // The camera ray of sample s at image point `sample` (pixel units): from the eye (a

@@ -21,6 +21,21 @@
 #define SAMPLE_PACKETS (TRAVERSAL == TRAVERSAL_SAMPLE_PACKET)
 #define GROUP_PACKETS (TRAVERSAL == TRAVERSAL_GROUP_PACKET)
 
+// SERIAL_WORK_ITEMS: the driver runs a work-group's work-items one after another, a pass of a
+// loop each on one CPU thread (PoCL's CPU device; Intel's CPU runtime as the render kernels ask
+// it, IMPLICIT_VECTORIZATION 0), not side by side in a vector's lanes (that runtime packing
+// them) or in a GPU's (the amdgcn and nvptx targets). The host sets it to 0 for every GPU
+// device (program.device_build_options): a vendor's compiler need not name its target.
+#ifndef SERIAL_WORK_ITEMS
+#if IMPLICIT_VECTORIZATION || defined(__AMDGCN__) || defined(__NVPTX__)
+#define SERIAL_WORK_ITEMS 0
+#else
+#define SERIAL_WORK_ITEMS 1
+#endif
+#endif
+// The single-ray render's row segments (render_segment, below): where work-items run serially.
+#define RENDER_SEGMENTS (SERIAL_WORK_ITEMS && !SAMPLE_PACKETS && !GROUP_PACKETS)
+
 #if SAMPLE_PACKETS
 #ifndef PACKET_LANES
 #define PACKET_LANES 8
@@ -99,8 +114,14 @@ HOT LANE_INT reduce_or_lanes(MASKP v) {
 #define REDUCE_OR(v) reduce_or_lanes(v)
 #endif
 
-// Bit k set where lane k of a comparison is true.
+// Bit k set where lane k of a comparison is true: movmsk on x86 (real.h, X86_LANE_BITS).
+#if X86_LANE_BITS && !defined(USE_DOUBLE) && PACKET_LANES == 16
+HOT int lane_mask(MASKP m) { return lane_bits8(m.lo) | (lane_bits8(m.hi) << 8); }
+#elif X86_LANE_BITS && !defined(USE_DOUBLE) && PACKET_LANES == 8
+HOT int lane_mask(MASKP m) { return lane_bits8(m); }
+#else
 HOT int lane_mask(MASKP m) { return (int)REDUCE_OR(m & LANE_BITS); }
+#endif
 
 // The lanes of `bits` as a comparison result.
 HOT MASKP lanes_of(int bits) { return ((MASKP)(bits) & LANE_BITS) != (MASKP)(0); }

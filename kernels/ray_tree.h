@@ -19,21 +19,6 @@
 #include "background.h"
 #include "lanes.h"
 
-// SERIAL_WORK_ITEMS: the driver runs a work-group's work-items one after another, a pass of a
-// loop each on one CPU thread (PoCL's CPU device; Intel's CPU runtime as the render kernels ask
-// it, IMPLICIT_VECTORIZATION 0), not side by side in a vector's lanes (that runtime packing
-// them) or in a GPU's (the amdgcn and nvptx targets). The host sets it to 0 for every GPU
-// device (program.device_build_options): a vendor's compiler need not name its target.
-#ifndef SERIAL_WORK_ITEMS
-#if IMPLICIT_VECTORIZATION || defined(__AMDGCN__) || defined(__NVPTX__)
-#define SERIAL_WORK_ITEMS 0
-#else
-#define SERIAL_WORK_ITEMS 1
-#endif
-#endif
-// The single-ray render's row segments (render_segment, below): where work-items run serially.
-#define RENDER_SEGMENTS (SERIAL_WORK_ITEMS && !SAMPLE_PACKETS && !GROUP_PACKETS)
-
 // The media a ray can be inside at once (nested glass); a deeper one is not recorded.
 #define MEDIA_DEPTH 4
 // Depth first, a task pushes at most two children (refraction and reflection), so the stack
@@ -263,9 +248,10 @@ HOT void store_pixel(const SceneRefs* s, __global float* image, __global int2* r
 // - the camera rays of CAMERA_AHEAD pixels are made before their walks: each is a chain of
 //   dependent divisions and a square root, which overlap from pixel to pixel in a loop of
 //   their own, where ahead of each walk the walk waited on its ray (one ahead, not 16: the
-//   kernel 8 % slower)
-// (docs/acceleration.md, The single-ray render's row segments, 2026-12-05).
-#define CAMERA_AHEAD 16
+//   kernel 8 % slower); a pinhole's at one sample a pixel in a vector's lanes
+//   (camera.h, row_directions)
+// (docs/acceleration.md, The single-ray render's row segments, 2026-12-05, and The render's
+// camera rays in lanes, 2026-12-07).
 OUT_OF_LINE void render_segment(SceneRefs* s, const __global Camera* camera,
                                 const __global Params* params, __global float* image,
                                 __global int2* ray_counts, __global int4* test_counts,
@@ -274,6 +260,14 @@ OUT_OF_LINE void render_segment(SceneRefs* s, const __global Camera* camera,
     for (int start = 0; start < count; start += CAMERA_AHEAD) {
         int n = min(CAMERA_AHEAD, count - start);
         RayTask rays[CAMERA_AHEAD];
+#if CAMERA_ROW_LANES
+        REAL dx[CAMERA_AHEAD], dy[CAMERA_AHEAD], dz[CAMERA_AHEAD];
+        if (spp == 1 && row_directions(camera, first + start, y, n, width, params->height,
+                                       dx, dy, dz)) {
+            REAL3 o = TO_REAL3(camera->position);
+            for (int i = 0; i < n; ++i) rays[i] = root_task(o, (REAL3)(dx[i], dy[i], dz[i]));
+        } else
+#endif
         for (int i = 0; i < n; ++i) {
             int x = first + start + i;
             REAL3 o, d;

@@ -190,16 +190,22 @@ def test_gpu_devices_are_built_as_gpus_whatever_their_compiler_defines() -> None
     assert device_build_options(device(cl.device_type.CPU, "Intel(R) OpenCL")) == ()
 
 
-@pytest.mark.parametrize("scene_name", ["spheres", "glass"])
-def test_the_gpu_build_renders_the_cpu_builds_image(cl_device: cl.Device,
-                                                     scene_name: str) -> None:
-    # The render kernel as a GPU builds it (a pixel a work-item, the renderer inlined),
-    # run on this CPU device: the same image, bit for bit, as the CPU's build.
+@pytest.mark.parametrize("scene_name, width, height, precision", [
+    ("spheres", 64, 36, "float"), ("glass", 64, 36, "float"),
+    # Row segments whose last camera rays fill only some of the lanes (kernels/camera.h,
+    # row_directions), and the double build's lanes.
+    ("spheres", 37, 20, "float"), ("spheres", 37, 20, "double")])
+def test_the_gpu_build_renders_the_cpu_builds_image(cl_device: cl.Device, scene_name: str,
+                                                     width: int, height: int,
+                                                     precision: str) -> None:
+    # The render kernel as a GPU builds it (a pixel a work-item, the renderer inlined, each
+    # camera ray made alone), run on this CPU device: the same image, bit for bit, as the
+    # CPU's build.
     if GPU_BUILD_OPTIONS[0] in device_build_options(cl_device):
         pytest.skip("this device's own build is already a GPU's (a GPU, or --gpu-build): "
                     "nothing to compare it with")
     scene = load_scene(ROOT / "scenes" / f"{scene_name}.toml")
-    settings = RenderSettings(width=64, height=36, spp=1)
+    settings = RenderSettings(width=width, height=height, spp=1, precision=precision)
     cpu_image, _ = render_packed(pack_for(scene, settings, cl_device), cl_device)
     with program.built_as_for_a_gpu():
         gpu_image, _ = render_packed(pack_for(scene, settings, cl_device), cl_device)

@@ -26,6 +26,23 @@ static inline REAL3 camera_direction(const __global Camera* camera, REAL2 sample
     return normalize3(d);
 }
 
+// camera_direction before normalize3, lane by lane (T: a vector of REAL; DOT: DEFINE_DOT's for
+// it): the image points (sx, sy) in pixel units through image_plane_point's quotients to the
+// direction, and its squared length, in the single ray's expressions, so each lane's numbers
+// are its. The sample packets' camera rays and the row segments' share it.
+#define DEFINE_CAMERA_AIM_LANES(T, DOT, NAME)                                                   \
+    HOT void NAME(const __global Camera* camera, T sx, T sy, int width, int height, T* ax,    \
+                  T* ay, T* az, T* dd) {                                                       \
+        T px = (REAL)2 * sx / (REAL)width - (REAL)1;                                           \
+        T py = (REAL)1 - (REAL)2 * sy / (REAL)height;                                          \
+        REAL3 forward = TO_REAL3(camera->forward), right = TO_REAL3(camera->right),            \
+              up = TO_REAL3(camera->up);                                                       \
+        *ax = (T)(forward.x) + px * right.x + py * up.x;                                       \
+        *ay = (T)(forward.y) + px * right.y + py * up.y;                                       \
+        *az = (T)(forward.z) + px * right.z + py * up.z;                                       \
+        *dd = DOT(*ax, *ay, *az, *ax, *ay, *az);                                               \
+    }
+
 // The single-ray render's row segments (ray_tree.h, render_segment) make the camera rays of
 // CAMERA_AHEAD pixels before their walks; a pinhole's, at one sample a pixel, a pixel a vector
 // lane (CAMERA_ROW_LANES: row_directions), where each pixel's direction had been a chain of two
@@ -50,6 +67,7 @@ typedef int16 MASKROW;
 #endif
 DEFINE_DOT(HOT, REALROW, dot_row)
 DEFINE_PLAIN_SQUARED_LENGTH(HOT, REALROW, MASKROW, plain_squared_length_row)
+DEFINE_CAMERA_AIM_LANES(REALROW, dot_row, camera_aim_row)
 
 // camera_direction at the centres of pixels x .. x + count - 1 of row y (count <=
 // CAMERA_AHEAD), lane i for pixel x + i, into dx, dy, dz: its expressions lane by lane, so
@@ -58,16 +76,10 @@ DEFINE_PLAIN_SQUARED_LENGTH(HOT, REALROW, MASKROW, plain_squared_length_row)
 HOT bool row_directions(const __global Camera* camera, int x, int y, int count, int width,
                         int height, REAL* dx, REAL* dy, REAL* dz) {
     const int16 lane = (int16)(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15);
-    // sample_position's centre and image_plane_point's quotients.
-    REALROW sx = TO_REALROW(x + lane) + REAL_C(0.5);
-    REALROW px = (REAL)2 * sx / (REAL)width - (REAL)1;
-    REALROW py = (REALROW)((REAL)1 - (REAL)2 * ((REAL)y + REAL_C(0.5)) / (REAL)height);
-    REAL3 forward = TO_REAL3(camera->forward), right = TO_REAL3(camera->right),
-          up = TO_REAL3(camera->up);
-    REALROW ax = (REALROW)(forward.x) + px * right.x + py * up.x;
-    REALROW ay = (REALROW)(forward.y) + px * right.y + py * up.y;
-    REALROW az = (REALROW)(forward.z) + px * right.z + py * up.z;
-    REALROW dd = dot_row(ax, ay, az, ax, ay, az);
+    // sample_position's centre.
+    REALROW sx = TO_REALROW(x + lane) + REAL_C(0.5), sy = (REALROW)((REAL)y + REAL_C(0.5));
+    REALROW ax, ay, az, dd;
+    camera_aim_row(camera, sx, sy, width, height, &ax, &ay, &az, &dd);
     MASKROW own = TO_MASKROW(lane < count);
     if (any(own & ~plain_squared_length_row(dd))) return false;
     REALROW len = sqrt(dd);
@@ -127,6 +139,7 @@ STAGE void sample_ray(const __global Camera* camera, const __global Params* para
 
 #if CAMERA_LANES
 DEFINE_JITTER(REALP, jitter_lanes)
+DEFINE_CAMERA_AIM_LANES(REALP, dot_lanes, camera_aim_lanes)
 
 // sample_ray for samples first .. first + lanes - 1 of pixel (x, y), one a lane (the lanes past
 // the last hold copies of the first), into *p. False where the pixel has one sample (its
@@ -164,15 +177,8 @@ HOT bool camera_ray_lanes(const __global Camera* camera, const __global Params* 
     REALP row_cells_p = VLOADP(0, cells);
     REALP sx = (REAL)x + jitter_lanes(VLOADP(0, column), r0, (REALP)(1), row_cells_p);
     REALP sy = (REAL)y + jitter_lanes(VLOADP(0, start), r1, row_cells_p, (REALP)((REAL)spp));
-    // image_plane_point, then camera_direction.
-    REALP px = (REAL)2 * sx / (REAL)params->width - (REAL)1;
-    REALP py = (REAL)1 - (REAL)2 * sy / (REAL)params->height;
-    REAL3 forward = TO_REAL3(camera->forward), right = TO_REAL3(camera->right),
-          up = TO_REAL3(camera->up);
-    REALP dx = (REALP)(forward.x) + px * right.x + py * up.x;
-    REALP dy = (REALP)(forward.y) + px * right.y + py * up.y;
-    REALP dz = (REALP)(forward.z) + px * right.z + py * up.z;
-    REALP dd = dot_lanes(dx, dy, dz, dx, dy, dz);
+    REALP dx, dy, dz, dd;
+    camera_aim_lanes(camera, sx, sy, params->width, params->height, &dx, &dy, &dz, &dd);
     if (lane_mask(~plain_squared_length_lanes(dd))) return false;
     REALP len = sqrt(dd);
     REAL3 o = TO_REAL3(camera->position);

@@ -175,3 +175,21 @@ def test_a_transform_past_float32_is_exit_3_in_one_line(capsys, tmp_path) -> Non
     assert lines == ["clray: error: s.toml: objects[0].transform: moves the object beyond "
                      "1e+30 in magnitude (largest 1e+40)"]
     assert not out.exists()
+
+
+def test_a_cone_whose_rim_passes_the_limit_is_exit_3_in_one_line(capsys, tmp_path) -> None:
+    """Height and angle each within their limits, the rim radius (height x tan(angle),
+    5.7e37 here) was not checked: the scene rendered with a warning, and at height 1e30 its
+    bounds (5.7e38) reached the BVH build, a ValueError traceback."""
+    scene = tmp_path / "cone.toml"
+    scene.write_text('[render]\nwidth = 32\nheight = 18\nspp = 1\nmax_depth = 0\n'
+                     '[camera]\nposition = [0, 0, 5]\nlook_at = [0, 0, 0]\n'
+                     '[materials.m]\ncolor = [1, 1, 1]\n'
+                     '[[objects]]\ntype = "cone"\napex = [0, 0, -1]\naxis = [0, 0, -1]\n'
+                     'angle = 89.9999999\nheight = 1e29\nmaterial = "m"\n')
+    out = tmp_path / "o.png"
+    assert main(["render", str(scene), "-o", str(out)]) == 3
+    lines = capsys.readouterr().err.splitlines()
+    assert lines == ["clray: error: cone.toml: objects[0]: the cone's rim radius (height x "
+                     "tan(angle)) is 5.73e+37, beyond 1e+30 in magnitude"]
+    assert not out.exists()

@@ -919,6 +919,18 @@ LIMIT_ERRORS = [
         obj(type="mesh", **TRI, transform={"scale": [1, 1e-31, 1]}),
         "objects[2].transform.scale: must be at least 1e-30 in magnitude",
     ),
+    # A cone's rim radius, height x tan(angle), is a length too: each within its own limit,
+    # they made bounds of 5.7e38, past float32, and the BVH builder raised on them.
+    (obj(type="cone", apex=[0, 0, -1], axis=[0, 0, -1], angle=89.9999999, height=1e30),
+     "objects[2]: the cone's rim radius (height x tan(angle)) is 5.73e+38, beyond 1e+30 in "
+     "magnitude"),
+    (obj(type="cone", apex=[0, 0, -1], axis=[0, 0, -1], angle=89.9999999, height=1e20,
+         transform={"scale": 1e10}),
+     "objects[2].transform: makes the cone's rim radius (height x tan(angle)) 5.73e+38, beyond "
+     "1e+30 in magnitude"),
+    (scene(groups={"g": {"objects": [{"type": "cone", "apex": [0, 0, 0], "axis": [0, 0, 1],
+                                      "angle": 89.9999999, "height": 1e30}]}}),
+     "groups.g.objects[0]: the cone's rim radius (height x tan(angle)) is 5.73e+38"),
     # Integers beyond the double range used to raise OverflowError.
     (obj(type="sphere", center=[0, 0, 0], radius=10**400), "objects[2].radius: must be at most"),
     (scene(render={"width": 10**400}), "render.width: must be an integer in [1, 16384], got an "

@@ -12,6 +12,7 @@ from clray.errors import SceneError
 from clray.scene import model as M
 from clray.scene.load import scene_from_dict
 from clray.scene.transform import rotation_matrix
+from clray.shapes.box import place as place_box
 
 CAMERA = {"position": [0, 0, 10], "look_at": [0, 0, 0]}
 
@@ -57,6 +58,32 @@ def test_box_quarter_turns_stay_boxes() -> None:
     turned = placed(box, {"rotate": [0, 30, 0]})
     assert isinstance(turned, M.Instance) and turned.group.objects[0].max == (1.0, 2.0, 3.0)
     np.testing.assert_allclose(turned.matrix[:, :3], rotation_matrix((0, 30, 0)), atol=0)
+
+
+def test_box_keeps_axes_whose_scales_differ_by_1e12_or_more() -> None:
+    """The noise cleanup compared each entry with the whole matrix's largest, so beside a
+    scale of 1e12 a scale of 1 was taken for rounding noise: the box became a line."""
+    unit_box = M.Box((0.0, 0.0, 0.0), (1.0, 1.0, 1.0), 0)
+    stretched = place_box(unit_box, np.diag([1e13, 1.0, 1.0]), np.zeros(3))
+    assert (stretched.min, stretched.max) == ((0.0, 0.0, 0.0), (1e13, 1.0, 1.0))
+    # Scale x first, then a quarter turn about z: x -> y and y -> -x.
+    turned = place_box(unit_box, rotation_matrix((0, 0, 90)) @ np.diag([1e12, 1.0, 1.0]),
+                       np.zeros(3))
+    np.testing.assert_allclose(turned.min, (-1, 0, 0), rtol=1e-15, atol=1e-15)
+    np.testing.assert_allclose(turned.max, (0, 1e12, 1), rtol=1e-15, atol=1e-15)
+    b = placed({"type": "box", "min": [0, 0, 0], "max": [1, 1, 1]},
+               {"scale": [1e12, 1, 1], "rotate": [0, 0, 90]})
+    np.testing.assert_allclose(b.min, (-1, 0, 0), rtol=1e-15, atol=1e-15)
+    np.testing.assert_allclose(b.max, (0, 1e12, 1), rtol=1e-15, atol=1e-15)
+
+
+def test_box_turned_off_the_axes_by_a_small_column_is_an_instance() -> None:
+    """A column whose entries are all small beside another column's is no column of noise:
+    a shear or turn there still takes the box off the axes."""
+    a = rotation_matrix((0, 0, 0)) @ np.diag([1e13, 1.0, 1.0])
+    a[:2, 1] = rotation_matrix((0, 0, 30))[:2, 1]  # y turned 30 degrees within the xy plane
+    reason = place_box(M.Box((0.0, 0.0, 0.0), (1.0, 1.0, 1.0), 0), a, np.zeros(3))
+    assert isinstance(reason, str) and "off the axes" in reason
 
 
 def test_cylinder_and_cone_rotate_and_scale_uniformly() -> None:
@@ -147,4 +174,22 @@ def test_a_transform_past_float32_is_exit_3_in_one_line(capsys, tmp_path) -> Non
     lines = capsys.readouterr().err.splitlines()
     assert lines == ["clray: error: s.toml: objects[0].transform: moves the object beyond "
                      "1e+30 in magnitude (largest 1e+40)"]
+    assert not out.exists()
+
+
+def test_a_cone_whose_rim_passes_the_limit_is_exit_3_in_one_line(capsys, tmp_path) -> None:
+    """Height and angle each within their limits, the rim radius (height x tan(angle),
+    5.7e37 here) was not checked: the scene rendered with a warning, and at height 1e30 its
+    bounds (5.7e38) reached the BVH build, a ValueError traceback."""
+    scene = tmp_path / "cone.toml"
+    scene.write_text('[render]\nwidth = 32\nheight = 18\nspp = 1\nmax_depth = 0\n'
+                     '[camera]\nposition = [0, 0, 5]\nlook_at = [0, 0, 0]\n'
+                     '[materials.m]\ncolor = [1, 1, 1]\n'
+                     '[[objects]]\ntype = "cone"\napex = [0, 0, -1]\naxis = [0, 0, -1]\n'
+                     'angle = 89.9999999\nheight = 1e29\nmaterial = "m"\n')
+    out = tmp_path / "o.png"
+    assert main(["render", str(scene), "-o", str(out)]) == 3
+    lines = capsys.readouterr().err.splitlines()
+    assert lines == ["clray: error: cone.toml: objects[0]: the cone's rim radius (height x "
+                     "tan(angle)) is 5.73e+37, beyond 1e+30 in magnitude"]
     assert not out.exists()

@@ -77,6 +77,8 @@ class ObjectParser:
         if kind == "instance":
             return self.instance(spec, key)
         obj = self.unplaced(spec, key, kind)
+        if (problem := _extent_problem(obj)) is not None:
+            raise v.error(key, f"{problem[0]} is {problem[1]}")
         if kind == "mesh" or "transform" not in spec:
             return obj
         tkey = f"{key}.transform"
@@ -137,6 +139,8 @@ class ObjectParser:
         lengths = [getattr(obj, n) for n in (shape.lengths if shape else ()) if hasattr(obj, n)]
         if any(np.any(np.asarray(x) < L.MIN_LENGTH) for x in lengths):
             raise self.v.error(key, f"shrinks the object below {L.MIN_LENGTH:g}")
+        if (problem := _extent_problem(obj)) is not None:
+            raise self.v.error(key, f"makes {problem[0]} {problem[1]}")
         return obj
 
     def unplaced(self, spec: dict, key: str, kind: str) -> SceneObject:
@@ -159,3 +163,14 @@ class ObjectParser:
         if kind == "triangle":
             return Triangle(v.points(spec["vertices"], f"{key}.vertices", exactly=3), material)
         return parse_mesh(spec, key, material, v, assets, self.materials)
+
+
+def _extent_problem(obj: SceneObject) -> tuple[str, str] | None:
+    """(what, its value and the limit) for a length the shape derives from its numbers
+    (Shape.extents) past MAX_MAGNITUDE, or None."""
+    shape = SHAPE_OF.get(type(obj))
+    for what, value in shape.extents(obj) if shape else ():
+        if not abs(value) <= L.MAX_MAGNITUDE:  # a NaN too
+            return (f"the {shape.kind}'s {what}",
+                    f"{value:.3g}, beyond {L.MAX_MAGNITUDE:g} in magnitude")
+    return None

@@ -10,8 +10,10 @@ from clray.errors import show
 from clray.shapes.shape import Checks, Crossings, Packed, Shape, f4
 from clray.vectors import Vec3, vec
 
-# Below this, relative to the largest entry, a matrix entry is rounding noise: cos(90 degrees)
-# is 6e-17, not 0, and must not make a quarter-turned box "off the axes".
+# Below this, relative to the largest entry of its column, a matrix entry is rounding noise:
+# cos(90 degrees) is 6e-17, not 0, and must not make a quarter-turned box "off the axes". Each
+# column of A = R S carries one axis's scale, which may differ from another's by up to 1e60:
+# judged against the whole matrix, a small axis's real entries would be taken for noise.
 _NOISE = 1e-12
 
 
@@ -38,8 +40,9 @@ def parse(spec: dict, key: str, material: int, v: Checks) -> Box:
 def place(obj: Box, a: np.ndarray, t: np.ndarray) -> Box | str:
     """A box stays one only when A maps axes onto axes (a signed permutation times a diagonal
     scale)."""
-    clean = np.where(np.abs(a) <= _NOISE * np.max(np.abs(a)), 0.0, a)
-    if np.count_nonzero(clean, axis=0).max() != 1:
+    column = np.max(np.abs(a), axis=0, keepdims=True)
+    clean = np.where(np.abs(a) <= _NOISE * column, 0.0, a)
+    if np.any(np.count_nonzero(clean, axis=0) != 1):
         return "rotates the box off the axes (only quarter turns keep a box axis-aligned)"
     corners = np.array([obj.min, obj.max], dtype=np.float64) @ clean.T + t
     lo, hi = corners.min(axis=0), corners.max(axis=0)

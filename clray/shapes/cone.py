@@ -70,6 +70,13 @@ def proportion(obj: Cone) -> tuple[float, str]:
     return tan, f"its rim radius {rim:.3g} is {tan:.3g} times its height {obj.height:.3g}"
 
 
+def extents(obj: Cone) -> tuple[tuple[str, float], ...]:
+    """The rim radius: height and angle within their limits make it any size (1e30 x
+    tan(89.9999999 degrees) is 5.7e38, past float32)."""
+    return (("rim radius (height x tan(angle))",
+             obj.height * float(np.tan(np.radians(obj.angle)))),)
+
+
 RECORD = np.dtype([("apex_tan", "<f4", (4,)), ("axis_height", "<f4", (4,)),
                    ("material", "<i4"), ("capped", "<i4"), ("pad0", "<i4"), ("pad1", "<i4")])
 
@@ -135,5 +142,5 @@ CONE = Shape(
     kind="cone", model=Cone, keys=(("apex", "axis", "angle", "height"), ("capped",)),
     lengths=("height",), parse=parse, place=place, centre_size=centre_size, prim=4, record=RECORD,
     buffer="cones", switch="has_cones", pack=pack, intersect=intersect_cone, surface=cone_surface,
-    proportion=proportion,
+    proportion=proportion, extents=extents,
 )

@@ -90,6 +90,11 @@ class Shape:
     # length over the smallest its crossings must resolve, and the message that says so (a
     # near-flat cone's rim radius over its height); clray.scene.scale warns above RATIO_LIMIT.
     proportion: Callable[[Any], tuple[float, str]] | None = None
+    # object -> the lengths it derives from its numbers, (what, value) (a cone's rim radius,
+    # height x tan(angle)): each number within its limit, they can still carry the shape's
+    # bounds past float32, so the loader holds them to the numbers' own limit, MAX_MAGNITUDE,
+    # as parsed and as a transform leaves them.
+    extents: Callable[[Any], tuple[tuple[str, float], ...]] = lambda obj: ()
 
     @property
     def struct(self) -> str:

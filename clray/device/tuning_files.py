@@ -62,15 +62,21 @@ def _kernels_digest() -> str:
 def device_key(device: cl.Device) -> dict[str, str]:
     """What a tuning file is valid for: the device, its driver, the clray version, and the
     kernels and knobs (_kernels_digest)."""
-    return {"platform": device.platform.name.strip(), "device": device.name.strip(),
+    platform, name = _names(device)
+    return {"platform": platform, "device": name,
             "driver_version": device.driver_version.strip(), "clray_version": _clray_version(),
             "kernels": _kernels_digest()}
+
+
+def _names(device: cl.Device) -> tuple[str, str]:
+    """The platform's and the device's names, as tuning files and their names give them."""
+    return device.platform.name.strip(), device.name.strip()
 
 
 def tuning_path(device: cl.Device) -> Path:
     # From the names alone: device_key's digest reads and hashes the kernels' source (9 ms),
     # which every render would pay to find that there is no tuning file.
-    platform, name = device.platform.name.strip(), device.name.strip()
+    platform, name = _names(device)
     return cache_dir() / "tuning" / f"{_slug(platform)}--{_slug(name)}.json"
 
 

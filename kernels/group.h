@@ -18,7 +18,8 @@
 //
 // Each work-item finds the hit the single-ray walk finds: it tests the crossings the
 // single-ray walk tests, in another order, and the closest with its ties does not depend on
-// the order. Shadow rays visit the leaves in the single-ray walk's order, so a filter's product
+// the order, but for one case: three or more crossings within two tie widths of each other
+// (bvh.h: TIE_ROUNDINGS), where a tie is not transitive and the order can decide. Shadow rays visit the leaves in the single-ray walk's order, so a filter's product
 // is the same too.
 #ifndef CLRAY_GROUP_H
 #define CLRAY_GROUP_H

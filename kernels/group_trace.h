@@ -36,7 +36,8 @@ static inline REAL3 group_direct(const SceneRefs* s, Group* g, const ShadePoint*
                                        &tmax);
         if (lit) (*shadow_rays)++;
         REAL3 filter = group_transmission(s, g, &shadow, tmax, lit);
-        if (lit && max_comp3(filter) > (REAL)0) {
+        // As shade_direct's test (direct.h), so a NaN filter goes the same way in both.
+        if (lit && !(max_comp3(filter) <= (REAL)0)) {
             result += light_term(s, i, pt->n, v, pt->c, m, l, atten, ndl, filter);
         }
     }

@@ -94,10 +94,10 @@ typedef int LANE_INT;
 
 #define ALL_LANES ((1 << PACKET_LANES) - 1)
 
-// The OR and the minimum over the lanes. Clang's reductions compile to a few instructions;
-// a tree of halves (what PoCL's any() and all() amount to) costs shuffles at every level.
+// The OR over the lanes. Clang's reduction compiles to a few instructions; a tree of halves
+// (what PoCL's any() and all() amount to) costs shuffles at every level.
 // PORTABLE_REDUCTIONS keeps to the loops: an interpreter built on an older LLVM (Oclgrind 21.10)
-// cannot run the llvm.vector.reduce intrinsics that the builtins become.
+// cannot run the llvm.vector.reduce intrinsic that the builtin becomes.
 #if defined(__clang__) && defined(__has_builtin) && !defined(PORTABLE_REDUCTIONS)
 #if __has_builtin(__builtin_reduce_or)
 #define REDUCE_OR(v) __builtin_reduce_or(v)

@@ -2,9 +2,11 @@
 // wide BVH together, one ray per vector lane (docs/acceleration.md, Sample packets). A child
 // is visited if any active lane crosses its box, nearest first for the packet; each lane keeps
 // its own t and hit, and tests shapes with the single-ray formulas written lane-wise, so each
-// lane finds the hit the single-ray walk finds. A subtree or leaf that at most
-// PACKET_MIN_LANES lanes reach is walked ray by ray by the single-ray code (bvh.h), as an
-// any-hit packet is once every lane is blocked.
+// lane finds the hit the single-ray walk finds, but for one case: where three or more
+// crossings lie within two tie widths of each other (bvh.h: TIE_ROUNDINGS), which one wins can
+// depend on the order the leaves are visited in (a tie is not transitive), and the packet's
+// order is not the lane's own. A subtree or leaf that at most PACKET_MIN_LANES lanes reach is
+// walked ray by ray by the single-ray code (bvh.h).
 #ifndef CLRAY_PACKET_H
 #define CLRAY_PACKET_H
 
@@ -441,7 +443,7 @@ HOT void packet_walk_closest(const SceneRefs* s, const RayLanes* rays, const Ray
 
 // closest_hit for each lane of `bits` of the packet p (hits of the others: no hit); `rays`: the
 // same rays lane by lane, for the lanes that go on alone. `lanes`, where not 0, gets the hits
-// as lanes too (not with instances).
+// as lanes too (not with instances, and only where the scene has a BVH: SURFACE_LANES).
 // Out of line (OUT_OF_LINE; issue 42, cold build): called once per packet, so the call costs
 // nothing measurable beside the walk, and the sample-packet kernel's largest function (PoCL
 // compiles it whole) shrinks: cornell_box's cold build 6.4 -> 3.9 CPU-s with the others below

@@ -299,8 +299,9 @@ HOT REAL3 packet_pixel_radiance(const SceneRefs* s, const __global Camera* camer
         int sp = 1;
         if (spp > 1) {
             sp = packed_root(s, params, &packet, lane, stack, &radiance, secondary_rays);
-        } else
-        stack[0] = primary_task(camera, params, x, y, sample, pixel);
+        } else {
+            stack[0] = primary_task(camera, params, x, y, sample, pixel);
+        }
         sum += sample_tree_radiance(s, camera, params, key, ambient, stack, sp, radiance,
                                     secondary_rays, shadow_rays);
 #endif

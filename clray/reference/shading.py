@@ -19,12 +19,15 @@ from clray.shapes import SHAPES
 from clray.vectors import dot, frame, vec
 
 # Shadow rays towards a light at a place end this fraction of their length short of it
-# (docs/rendering.md). The reference reads the float64 scene, not the float32 records the
-# kernels do, so its light lies on its plane to float64 roundings, far inside any such margin;
-# the margin is 16 float32 roundings, at least the float kernels' (1 - gamma_n(16),
-# kernels/lights.h), so that the reference does not count a blocker next to the light that the
-# float kernels skip.
-SHADOW_MARGIN = 16 * np.finfo(np.float32).eps
+# (docs/rendering.md): 16 float32 roundings, the kernels' gamma_f32(ERR_ROUNDINGS) (kernels/
+# lights.h, real.h), pbrt's bound n u / (1 - n u) with n = 16 and u = 2^-24, in both builds.
+# The reference reads the float64 scene, not the float32 records the kernels do, so its light
+# lies on its plane to float64 roundings, far inside this margin; a blocker between the light
+# and the margin's end (a surface a few float32 roundings short of the light) is counted, or
+# not, exactly as the kernels count it.
+_ERR_ROUNDINGS = 16
+_U_F32 = np.finfo(np.float32).eps / 2.0
+SHADOW_MARGIN = _ERR_ROUNDINGS * _U_F32 / (1.0 - _ERR_ROUNDINGS * _U_F32)
 
 # (origins, directions, tmax, filters) -> (N, 3): the filter of every crossing before tmax.
 Transmission = Callable[[np.ndarray, np.ndarray, np.ndarray, np.ndarray], np.ndarray]

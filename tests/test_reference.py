@@ -248,6 +248,25 @@ def test_mesh_blends_vertex_normals_and_uvs():
     assert hit.face.tolist() == [0] and hit.obj.tolist() == [0]
 
 
+def test_a_degenerate_triangle_faces_the_ray():
+    # Collinear corners, the third twice the second: each component of the cross product is
+    # a y z - z y of the same rounded products, exactly 0, so the triangle has no normal. The
+    # crossing test's determinant is rounding noise, not always 0, so some rays still hit it;
+    # there it faces the ray, n_g = -d, as kernels/triangle.h has it (no zero normal).
+    v1 = np.array([0.1, 0.3, 0.7])
+    assert not np.cross(v1, 2 * v1).any()
+    tri = Triangle(((0.0, 0.0, 0.0), tuple(v1), tuple(2 * v1)), 0)
+    rng = np.random.default_rng(1)
+    d = rng.normal(size=(2000, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    o = rng.uniform(0.0, 2.0, (2000, 1)) * v1 - rng.uniform(0.1, 1.0, (2000, 1)) * d
+    hit = intersect_scene(make_scene([tri], [Material("m")]), o, d)
+    struck = np.isfinite(hit.t)
+    assert struck.sum() >= 10
+    np.testing.assert_array_equal(hit.normal[struck], -d[struck])
+    np.testing.assert_array_equal(hit.shading_normal[struck], -d[struck])
+
+
 def test_ties_go_to_type_order_then_scene_order():
     objects = [
         Sphere((0.0, 0.0, 0.0), 1.0, 0),

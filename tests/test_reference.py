@@ -623,6 +623,25 @@ def test_image_sampling_is_bilinear_and_wraps():
     assert np.allclose(a, b, atol=1e-15)
 
 
+def test_a_non_finite_texture_coordinate_wraps_as_zero():
+    # kernels/texture.h, wrap01: a non-finite u j or v k (a degenerate (u, v)) wraps to 0
+    # before the half-texel shift, as u = 0 or v = 0 does: s = -0.5 blends the last column with
+    # the first, t = H - 0.5 the last row with the first; not texel (0, 0) alone.
+    rng = np.random.default_rng(5)
+    tex = rng.random((2, 4, 3))
+    h, w = tex.shape[:2]
+    row_1 = np.array([1 - 1.5 / h])  # v at row 1's centre
+    col_2 = np.array([2.5 / w])  # u at column 2's centre
+    for bad in (np.nan, np.inf, -np.inf):
+        got = image_texel(tex, np.array([bad]), row_1, (1.0, 1.0))
+        np.testing.assert_allclose(got, [(tex[1, w - 1] + tex[1, 0]) / 2], atol=1e-15)
+        got = image_texel(tex, col_2, np.array([bad]), (1.0, 1.0))
+        np.testing.assert_allclose(got, [(tex[h - 1, 2] + tex[0, 2]) / 2], atol=1e-15)
+        np.testing.assert_array_equal(
+            image_texel(tex, np.array([bad]), np.array([bad]), (1.0, 1.0)),
+            image_texel(tex, np.array([0.0]), np.array([0.0]), (1.0, 1.0)))
+
+
 def test_image_texture_on_a_sphere_facing_the_camera():
     # The ray along -z hits the sphere at q = +z: (u, v) = (0.5, 0.5), the centre of a 2 x 2
     # image, where all four texels weigh a quarter.
@@ -641,6 +660,7 @@ SHARED_NAMES = [
     ("rng.h", "sampling", "rng_uniform"),
     ("sampling.h", "sampling", "lens_sample"),
     ("ray_tree.h", "render", "spawn_secondary"),
+    ("texture.h", "texture", "wrap01"),
 ]
 
 

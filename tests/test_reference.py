@@ -10,6 +10,7 @@ from __future__ import annotations
 import importlib
 import math
 import re
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -232,6 +233,20 @@ def test_texture_coordinates():
     ]
     hit = intersect_scene(scene, [c[0] for c in cases], [c[1] for c in cases])
     assert np.allclose(hit.uv, [c[2] for c in cases], atol=1e-13)
+
+
+def test_a_flat_box_face_has_texture_coordinate_zero_across_it():
+    # A box flat along y (a rectangle) struck on its x face by a ray in its plane: the face's
+    # u runs along y, where the box has no extent, so u is 0 (kernels/box.h), not 0 / 0; v
+    # runs along z as on any box.
+    scene = make_scene([Box((0.0, 0.0, 0.0), (1.0, 0.0, 2.0), 0)], [Material("m")])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        hit = intersect_scene(scene, [[-1.0, 0.0, 0.5], [3.0, 0.0, 1.5]],
+                              [[1.0, 0.0, 0.0], [-1.0, 0.0, 0.0]])
+    assert hit.t.tolist() == [1.0, 2.0]
+    np.testing.assert_array_equal(hit.normal, [[-1, 0, 0], [1, 0, 0]])
+    np.testing.assert_array_equal(hit.uv, [[0.0, 0.25], [0.0, 0.75]])
 
 
 def test_mesh_blends_vertex_normals_and_uvs():

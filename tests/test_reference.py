@@ -28,6 +28,7 @@ from clray.reference import (
     trace,
     transmission,
 )
+from clray.reference.shading import offset_origin, surface_at
 from clray.scene.model import (
     Box,
     Camera,
@@ -323,6 +324,22 @@ def test_shadow_segments_filter_once_per_crossing():
 
 # ---------------------------------------------------------------------------------------------
 # Shading
+
+
+def test_a_ray_spawned_along_the_surface_starts_inside_from_either_side():
+    # kernels/surface.h, offset_origin: p moves err along the outward n_g where w . n_g > 0,
+    # else against it; a w along the surface (w . n_g = 0) starts inside, whether the ray that
+    # hit came from outside or inside. The reference went by the normal facing the ray, with
+    # >= 0: outside for a ray that came from outside.
+    normal = np.array([[0.0, 0.0, 1.0]] * 2)
+    o = np.array([[0.0, 0.0, 1.0], [0.0, 0.0, -1.0]])
+    d = np.array([[0.0, 0.0, -1.0], [0.0, 0.0, 1.0]])  # from outside, from inside
+    sf = surface_at(o, d, np.ones(2), normal, normal, np.zeros((2, 2)), np.zeros(2, int))
+    np.testing.assert_array_equal(sf.n_g, [[0, 0, 1], [0, 0, -1]])
+    err = 1e-6
+    for w, z in (((1.0, 0.0, 0.0), -err), ((0.0, 0.0, 1.0), err), ((0.0, 0.0, -1.0), -err)):
+        got = offset_origin(sf.p, sf.n_out, np.array([w, w]), np.full(2, err))
+        np.testing.assert_array_equal(got, [[0.0, 0.0, z]] * 2)
 
 
 def test_background_on_miss():

@@ -7,6 +7,7 @@ code paths, so a wrong formula in clray/reference/ makes these fail.
 
 from __future__ import annotations
 
+import ast
 import importlib
 import math
 import re
@@ -708,3 +709,29 @@ def test_environment_texel_is_one_texel() -> None:
     texels = np.arange(24, dtype=np.float64).reshape(2, 4, 3)
     got = environment_texel(texels, np.array([3, 0]), np.array([1, 0]))
     np.testing.assert_array_equal(got, [texels[1, 3], texels[0, 0]])
+
+
+def test_the_reference_docstring_names_what_it_shares_and_mirrors() -> None:
+    # clray/reference/__init__.py says what the oracle shares with the packer: every clray
+    # module outside clray.reference that it imports, or a package above it, is named there;
+    # and each module it pairs with a kernel header ("bvh (bvh.h") is one of its own.
+    import clray.reference as reference
+
+    doc = reference.__doc__
+    # Each dotted name and its prefixes: clray.scene.check.check_scene names clray.scene.check.
+    named = {".".join(name.split(".")[:k]) for name in re.findall(r"\bclray(?:\.\w+)+", doc)
+             for k in range(2, name.count(".") + 2)}
+    package = Path(reference.__file__).parent
+    for path in sorted(package.glob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            if isinstance(node, ast.ImportFrom) and (node.module or "").startswith("clray."):
+                module = node.module
+                if module.startswith("clray.reference"):
+                    continue
+                parts = module.split(".")
+                above = {".".join(parts[:k]) for k in range(2, len(parts) + 1)}
+                assert above & named, f"{path.name} imports {module}, not named in the docstring"
+    paired = re.findall(r"\b(\w+)\s+\((?:kernels/)?\w+\.h\b", doc)
+    assert len(paired) >= 8
+    for module in paired:
+        assert (package / f"{module}.py").is_file(), f"no clray/reference/{module}.py"

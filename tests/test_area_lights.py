@@ -355,3 +355,20 @@ def test_lights_touching_surfaces_give_finite_images(cl_device) -> None:
     err = np.abs(image - reference).max(axis=-1)
     assert np.median(err) < 3.2e-8
     assert (err > 1.1e-4).sum() <= 8
+
+
+@pytest.mark.parametrize("s", [0.6, 1e-3, 1e-9])
+def test_a_sphere_lights_solid_angle_does_not_cancel(s: float) -> None:
+    # The weight of a sphere light's sample is its solid angle 2 pi (1 - cos_max), cos_max =
+    # sqrt(1 - s^2), s = radius / d: s^2 / (1 + sqrt(1 - s^2)) as kernels/lights.h has it. In
+    # the form 1 - sqrt(1 - s^2) it cancels: all of it lost at s = 1e-9 (a weight of 0 where
+    # the kernels' is pi s^2), about 1e-10 relative at s = 1e-3.
+    from clray.lights.sphere import toward
+
+    # 1 - cos_max to 40 digits (mpmath), rounded to float64.
+    exact = {0.6: 0.2, 1e-3: 5.000001250000625e-07, 1e-9: 5e-19}[s]
+    light = M.SphereLight((0.0, 0.0, 0.0), s)
+    p = np.array([[0.0, 1.0, 0.0]])  # d = 1
+    got = toward(light, p, np.zeros(1), (np.array([0.5]), np.array([0.25])))
+    assert got.usable.tolist() == [True]
+    assert got.atten[0] == pytest.approx(2 * np.pi * exact, rel=1e-15, abs=0.0)

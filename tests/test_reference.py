@@ -7,9 +7,11 @@ code paths, so a wrong formula in clray/reference/ makes these fail.
 
 from __future__ import annotations
 
+import ast
 import importlib
 import math
 import re
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -27,6 +29,7 @@ from clray.reference import (
     trace,
     transmission,
 )
+from clray.reference.shading import offset_origin, surface_at
 from clray.scene.model import (
     Box,
     Camera,
@@ -234,6 +237,20 @@ def test_texture_coordinates():
     assert np.allclose(hit.uv, [c[2] for c in cases], atol=1e-13)
 
 
+def test_a_flat_box_face_has_texture_coordinate_zero_across_it():
+    # A box flat along y (a rectangle) struck on its x face by a ray in its plane: the face's
+    # u runs along y, where the box has no extent, so u is 0 (kernels/box.h), not 0 / 0; v
+    # runs along z as on any box.
+    scene = make_scene([Box((0.0, 0.0, 0.0), (1.0, 0.0, 2.0), 0)], [Material("m")])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        hit = intersect_scene(scene, [[-1.0, 0.0, 0.5], [3.0, 0.0, 1.5]],
+                              [[1.0, 0.0, 0.0], [-1.0, 0.0, 0.0]])
+    assert hit.t.tolist() == [1.0, 2.0]
+    np.testing.assert_array_equal(hit.normal, [[-1, 0, 0], [1, 0, 0]])
+    np.testing.assert_array_equal(hit.uv, [[0.0, 0.25], [0.0, 0.75]])
+
+
 def test_mesh_blends_vertex_normals_and_uvs():
     verts = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
     normals = np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
@@ -246,6 +263,25 @@ def test_mesh_blends_vertex_normals_and_uvs():
     assert np.allclose(hit.shading_normal, [want_n], atol=1e-14)
     assert np.allclose(hit.uv, [b @ uvs], atol=1e-14)
     assert hit.face.tolist() == [0] and hit.obj.tolist() == [0]
+
+
+def test_a_degenerate_triangle_faces_the_ray():
+    # Collinear corners, the third twice the second: each component of the cross product is
+    # a y z - z y of the same rounded products, exactly 0, so the triangle has no normal. The
+    # crossing test's determinant is rounding noise, not always 0, so some rays still hit it;
+    # there it faces the ray, n_g = -d, as kernels/triangle.h has it (no zero normal).
+    v1 = np.array([0.1, 0.3, 0.7])
+    assert not np.cross(v1, 2 * v1).any()
+    tri = Triangle(((0.0, 0.0, 0.0), tuple(v1), tuple(2 * v1)), 0)
+    rng = np.random.default_rng(1)
+    d = rng.normal(size=(2000, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    o = rng.uniform(0.0, 2.0, (2000, 1)) * v1 - rng.uniform(0.1, 1.0, (2000, 1)) * d
+    hit = intersect_scene(make_scene([tri], [Material("m")]), o, d)
+    struck = np.isfinite(hit.t)
+    assert struck.sum() >= 10
+    np.testing.assert_array_equal(hit.normal[struck], -d[struck])
+    np.testing.assert_array_equal(hit.shading_normal[struck], -d[struck])
 
 
 def test_ties_go_to_type_order_then_scene_order():
@@ -289,6 +325,22 @@ def test_shadow_segments_filter_once_per_crossing():
 
 # ---------------------------------------------------------------------------------------------
 # Shading
+
+
+def test_a_ray_spawned_along_the_surface_starts_inside_from_either_side():
+    # kernels/surface.h, offset_origin: p moves err along the outward n_g where w . n_g > 0,
+    # else against it; a w along the surface (w . n_g = 0) starts inside, whether the ray that
+    # hit came from outside or inside. The reference went by the normal facing the ray, with
+    # >= 0: outside for a ray that came from outside.
+    normal = np.array([[0.0, 0.0, 1.0]] * 2)
+    o = np.array([[0.0, 0.0, 1.0], [0.0, 0.0, -1.0]])
+    d = np.array([[0.0, 0.0, -1.0], [0.0, 0.0, 1.0]])  # from outside, from inside
+    sf = surface_at(o, d, np.ones(2), normal, normal, np.zeros((2, 2)), np.zeros(2, int))
+    np.testing.assert_array_equal(sf.n_g, [[0, 0, 1], [0, 0, -1]])
+    err = 1e-6
+    for w, z in (((1.0, 0.0, 0.0), -err), ((0.0, 0.0, 1.0), err), ((0.0, 0.0, -1.0), -err)):
+        got = offset_origin(sf.p, sf.n_out, np.array([w, w]), np.full(2, err))
+        np.testing.assert_array_equal(got, [[0.0, 0.0, z]] * 2)
 
 
 def test_background_on_miss():
@@ -604,6 +656,25 @@ def test_image_sampling_is_bilinear_and_wraps():
     assert np.allclose(a, b, atol=1e-15)
 
 
+def test_a_non_finite_texture_coordinate_wraps_as_zero():
+    # kernels/texture.h, wrap01: a non-finite u j or v k (a degenerate (u, v)) wraps to 0
+    # before the half-texel shift, as u = 0 or v = 0 does: s = -0.5 blends the last column with
+    # the first, t = H - 0.5 the last row with the first; not texel (0, 0) alone.
+    rng = np.random.default_rng(5)
+    tex = rng.random((2, 4, 3))
+    h, w = tex.shape[:2]
+    row_1 = np.array([1 - 1.5 / h])  # v at row 1's centre
+    col_2 = np.array([2.5 / w])  # u at column 2's centre
+    for bad in (np.nan, np.inf, -np.inf):
+        got = image_texel(tex, np.array([bad]), row_1, (1.0, 1.0))
+        np.testing.assert_allclose(got, [(tex[1, w - 1] + tex[1, 0]) / 2], atol=1e-15)
+        got = image_texel(tex, col_2, np.array([bad]), (1.0, 1.0))
+        np.testing.assert_allclose(got, [(tex[h - 1, 2] + tex[0, 2]) / 2], atol=1e-15)
+        np.testing.assert_array_equal(
+            image_texel(tex, np.array([bad]), np.array([bad]), (1.0, 1.0)),
+            image_texel(tex, np.array([0.0]), np.array([0.0]), (1.0, 1.0)))
+
+
 def test_image_texture_on_a_sphere_facing_the_camera():
     # The ray along -z hits the sphere at q = +z: (u, v) = (0.5, 0.5), the centre of a 2 x 2
     # image, where all four texels weigh a quarter.
@@ -622,6 +693,7 @@ SHARED_NAMES = [
     ("rng.h", "sampling", "rng_uniform"),
     ("sampling.h", "sampling", "lens_sample"),
     ("ray_tree.h", "render", "spawn_secondary"),
+    ("texture.h", "texture", "wrap01"),
 ]
 
 
@@ -637,3 +709,29 @@ def test_environment_texel_is_one_texel() -> None:
     texels = np.arange(24, dtype=np.float64).reshape(2, 4, 3)
     got = environment_texel(texels, np.array([3, 0]), np.array([1, 0]))
     np.testing.assert_array_equal(got, [texels[1, 3], texels[0, 0]])
+
+
+def test_the_reference_docstring_names_what_it_shares_and_mirrors() -> None:
+    # clray/reference/__init__.py says what the oracle shares with the packer: every clray
+    # module outside clray.reference that it imports, or a package above it, is named there;
+    # and each module it pairs with a kernel header ("bvh (bvh.h") is one of its own.
+    import clray.reference as reference
+
+    doc = reference.__doc__
+    # Each dotted name and its prefixes: clray.scene.check.check_scene names clray.scene.check.
+    named = {".".join(name.split(".")[:k]) for name in re.findall(r"\bclray(?:\.\w+)+", doc)
+             for k in range(2, name.count(".") + 2)}
+    package = Path(reference.__file__).parent
+    for path in sorted(package.glob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            if isinstance(node, ast.ImportFrom) and (node.module or "").startswith("clray."):
+                module = node.module
+                if module.startswith("clray.reference"):
+                    continue
+                parts = module.split(".")
+                above = {".".join(parts[:k]) for k in range(2, len(parts) + 1)}
+                assert above & named, f"{path.name} imports {module}, not named in the docstring"
+    paired = re.findall(r"\b(\w+)\s+\((?:kernels/)?\w+\.h\b", doc)
+    assert len(paired) >= 8
+    for module in paired:
+        assert (package / f"{module}.py").is_file(), f"no clray/reference/{module}.py"

@@ -132,3 +132,33 @@ def test_the_double_build_ends_shadow_rays_short_by_float32_roundings(cl_device,
     mean_bound, pixel_bound, _ = CEILING_BOUNDS[name]
     assert abs(image[..., 0].mean() / irradiance - 1) < mean_bound
     assert np.abs(image[..., 0] / irradiance - 1).max() < pixel_bound
+
+
+def _under_a_thin_filter(with_filter: bool) -> M.Scene:
+    """A white floor lit by a point light at y = 1, under a half-transmitting plane 1.4e-6
+    below the light: 1.47 float32 roundings of the shadow rays' length (at most 1.05 here) short
+    of it, inside 32 of them but outside the 16 the margin is."""
+    white = M.Material("white", (1.0, 1.0, 1.0))
+    glass = M.Material("glass", (1.0, 1.0, 1.0), diffuse=0.0, transmit=0.5)
+    objects = (M.Plane((0, 0, 0), (0, 1, 0), 0),) + (
+        (M.Plane((0, 0.9999986, 0), (0, 1, 0), 1),) if with_filter else ())
+    camera = M.Camera((0.0, 0.5, 3.0), (0.0, 0.0, 0.0))
+    return M.Scene(None, M.RenderOptions(8, 6, 1, 0, (0, 0, 0), (0, 0, 0)), camera,
+                   (white, glass), (M.PointLight((0.0, 1.0, 0.0)),), objects)
+
+
+def test_a_filter_just_short_of_the_margin_filters_the_light(cl_device):
+    # Shadow rays end 16 float32 roundings short of the light, gamma_f32(16) = 16 u / (1 -
+    # 16 u), u = 2^-24, in the kernels and the reference alike: the plane 1.4e-6 below the light
+    # lies before that end, so it halves the light on the floor in both. With a margin of 32
+    # roundings (16 float32 epsilons) the reference ended its shadow rays before the plane and
+    # showed the floor twice as bright as the kernels.
+    expected = render_reference(_under_a_thin_filter(True))
+    unfiltered = render_reference(_under_a_thin_filter(False))
+    lit = unfiltered[..., 0] > 0.1
+    assert lit.sum() >= 24
+    np.testing.assert_allclose(expected[lit], 0.5 * unfiltered[lit], rtol=1e-12)
+    image = render(_under_a_thin_filter(True), RenderSettings()).image
+    # Measured on PoCL and Intel's CPU runtime: 7.5e-8 (pixels up to 0.38).
+    err = np.abs(image - expected).max()
+    assert err < 5e-7, f"kernel off the reference by {err:.3g}"

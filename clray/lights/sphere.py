@@ -37,7 +37,8 @@ def toward(light: SphereLight, p: np.ndarray, err: np.ndarray, square: Square) -
     usable = dist > light.radius
     safe = np.where(usable, dist, 2.0 * light.radius)
     s = light.radius / safe
-    k = 1.0 - np.sqrt(1.0 - s * s)
+    # 1 - cos_max without cancellation for a small or distant sphere (kernels/lights.h).
+    k = s * s / (1.0 + np.sqrt(np.maximum(0.0, 1.0 - s * s)))
     one_minus_cos = u1 * k
     cos_t = 1.0 - one_minus_cos
     sin_t = np.sqrt(np.maximum(0.0, one_minus_cos * (2.0 - one_minus_cos)))

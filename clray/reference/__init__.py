@@ -1,18 +1,31 @@
 """An independent float64 numpy renderer: the test oracle for the OpenCL kernels.
 
-It implements docs/rendering.md literally and shares no code with the kernels or the packer
-(each analytic shape's crossings and surface sit in the shape's module, clray.shapes, beside
-its packer but sharing no formula with it):
-every ray is intersected with every primitive by brute force, and the ray tree is walked as a
-wavefront (all live rays of one generation in arrays, their reflected and refracted children
-forming the next generation). Slow, but each formula can be checked against the page by eye.
+It implements docs/rendering.md literally: every ray is intersected with every primitive by
+brute force, and the ray tree is walked as a wavefront (all live rays of one generation in
+arrays, their reflected and refracted children forming the next generation). Slow, but each
+formula can be checked against the page by eye.
+
+It shares no code with the kernels, but some with the packer (clray.device.pack), so that a
+fault in these is not seen by comparing the two renderers:
+- the scene model, clray.scene.model;
+- clray.scene.check.check_scene, the scene normalised as render() takes it;
+- clray.scene.emitters.scene_lights, the light list (the scene's lights, then its emissive
+  faces: emissive_triangles, which keeps a face only where clray.lights.rect's
+  resolved_in_float32 finds its float32 edges resolved);
+- the modules of clray.lights and clray.shapes, which hold each light's and analytic shape's
+  packer beside the reference's part of it (a light's `toward`; a shape's crossings and
+  surface) and the helpers both use: spot.versine (the spot's cones, packed and in the
+  falloff), clray.vectors.frame_helper (the helper axis of frame and of the packer's frames).
+  The reference also takes clray.lights.light.AREA_WEIGHT_MAX from there, the clamp on an
+  area sample's weight: a copy of kernels/lights.h's, which the packer does not use;
+- clray.accel.prim_refs's type codes, which order ties (PRIM_TRIANGLE).
 
 Its modules mirror the kernel headers, and its functions carry the kernels' names, so the two
 can be read side by side: sampling (kernels/rng.h, camera.h), intersect (plane.h, triangle.h;
-the shapes' intersect_* are clray.shapes'), bvh (bvh.h: closest_hit,
-transmission), shading (surface.h: surface_at, offset_origin; direct.h: shade_direct), lights
-(lights.h), fresnel (fresnel.h), texture (texture.h), background (background.h), render
-(ray_tree.h: refract_media, the ray tree); clray.vectors mirrors real.h.
+the shapes' intersect_* are clray.shapes'), bvh (bvh.h: closest_hit, transmission), shading
+(surface.h: surface_at, offset_origin; direct.h: shade_direct; each light's part of lights.h is
+its module's `toward`, clray.lights), fresnel (fresnel.h), texture (texture.h), background
+(background.h), render (ray_tree.h: refract_media, the ray tree); clray.vectors mirrors real.h.
 """
 
 from clray.reference.background import (

@@ -53,7 +53,8 @@ class SceneHit(NamedTuple):
     """Closest hits of N rays. On a miss: t = inf, normals and uv zero, indices -1."""
 
     t: np.ndarray  # (N,)
-    normal: np.ndarray  # (N, 3) geometric normal n_g, outward / as given, not flipped
+    # (N, 3) geometric normal n_g, outward / as given (-d for a degenerate triangle), not flipped
+    normal: np.ndarray
     shading_normal: np.ndarray  # (N, 3) n_g, or the blended vertex normals; not flipped
     uv: np.ndarray  # (N, 2) texture coordinates
     obj: np.ndarray  # (N,) index into scene.objects
@@ -235,7 +236,11 @@ class Geometry:
             b1, b2 = nearest.b[m, 0], nearest.b[m, 1]
             bary = np.stack([1.0 - b1 - b2, b1, b2], axis=-1)[:, :, None]
             v = self.tri_v[tri]
-            normal[m] = safe_normalize(np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0]))
+            winding = safe_normalize(np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0]))
+            # A degenerate triangle (zero cross product) has no normal: it faces the ray, as
+            # in kernels/triangle.h (triangle_surface).
+            facing = (np.linalg.norm(winding, axis=-1) > 0.0)[:, None]
+            normal[m] = np.where(facing, winding, -d[m])
             smooth = np.sum(bary * self.tri_n[tri], axis=1)
             # Without vertex normals (NaN) or where they cancel out, shade with n_g.
             usable = (np.linalg.norm(smooth, axis=-1) > 0.0)[:, None]

@@ -153,8 +153,8 @@ def spawn_secondary(tasks: RayTasks, sf: Surface, mats: MaterialTable, max_depth
 
     refl_d = d - 2.0 * dot(d, n)[:, None] * n
     refr_d = eta[:, None] * d + (eta * cos_i - np.sqrt(np.maximum(k, 0.0)))[:, None] * n
-    refl_o = offset_origin(sf.p, sf.n_g, refl_d, sf.err)
-    refr_o = offset_origin(sf.p, sf.n_g, refr_d, sf.err)
+    refl_o = offset_origin(sf.p, sf.n_out, refl_d, sf.err)
+    refr_o = offset_origin(sf.p, sf.n_out, refr_d, sf.err)
     return RayTasks(
         np.concatenate([refl_o[refl], refr_o[refr]]),
         np.concatenate([refl_d[refl], safe_normalize(refr_d[refr])]),

@@ -19,12 +19,15 @@ from clray.shapes import SHAPES
 from clray.vectors import dot, frame, vec
 
 # Shadow rays towards a light at a place end this fraction of their length short of it
-# (docs/rendering.md). The reference reads the float64 scene, not the float32 records the
-# kernels do, so its light lies on its plane to float64 roundings, far inside any such margin;
-# the margin is 16 float32 roundings, at least the float kernels' (1 - gamma_n(16),
-# kernels/lights.h), so that the reference does not count a blocker next to the light that the
-# float kernels skip.
-SHADOW_MARGIN = 16 * np.finfo(np.float32).eps
+# (docs/rendering.md): 16 float32 roundings, the kernels' gamma_f32(ERR_ROUNDINGS) (kernels/
+# lights.h, real.h), pbrt's bound n u / (1 - n u) with n = 16 and u = 2^-24, in both builds.
+# The reference reads the float64 scene, not the float32 records the kernels do, so its light
+# lies on its plane to float64 roundings, far inside this margin; a blocker between the light
+# and the margin's end (a surface a few float32 roundings short of the light) is counted, or
+# not, exactly as the kernels count it.
+_ERR_ROUNDINGS = 16
+_U_F32 = np.finfo(np.float32).eps / 2.0
+SHADOW_MARGIN = _ERR_ROUNDINGS * _U_F32 / (1.0 - _ERR_ROUNDINGS * _U_F32)
 
 # (origins, directions, tmax, filters) -> (N, 3): the filter of every crossing before tmax.
 Transmission = Callable[[np.ndarray, np.ndarray, np.ndarray, np.ndarray], np.ndarray]
@@ -44,11 +47,13 @@ SHAPE_SURFACE: dict[type, Callable[..., tuple[np.ndarray, np.ndarray]]] = {
 
 
 class Surface(NamedTuple):
-    """What shading needs of N hits: both normals face the incoming ray."""
+    """What shading needs of N hits: n_g and n face the incoming ray, n_out is n_g as the
+    shape gives it (outward), whose side offset_origin goes by, as the kernels' does."""
 
     p: np.ndarray  # (N, 3) hit point
     err: np.ndarray  # (N,) how far p may be off the surface
     n_g: np.ndarray  # (N, 3) geometric normal, facing the ray
+    n_out: np.ndarray  # (N, 3) geometric normal, outward (as given): offset_origin's
     n: np.ndarray  # (N, 3) shading normal, facing the ray
     entering: np.ndarray  # (N,) the ray arrives on the outward side
     uv: np.ndarray  # (N, 2)
@@ -62,7 +67,8 @@ def surface_at(o: np.ndarray, d: np.ndarray, t: np.ndarray, normal: np.ndarray,
     # Both normals face the incoming ray, each by its own sign.
     n_g = np.where((dot(d, normal) > 0.0)[:, None], -normal, normal)
     n = np.where((dot(d, shading_normal) > 0.0)[:, None], -shading_normal, shading_normal)
-    return Surface(p, _error_bound(o, d, t), n_g, n, dot(d, normal) < 0.0, uv, material)
+    return Surface(p, _error_bound(o, d, t), n_g, normal, n, dot(d, normal) < 0.0, uv,
+                   material)
 
 
 def _error_bound(o: np.ndarray, d: np.ndarray, t: np.ndarray) -> np.ndarray:
@@ -75,10 +81,13 @@ def _error_bound(o: np.ndarray, d: np.ndarray, t: np.ndarray) -> np.ndarray:
     return 1e-10 * np.max(np.abs(o) + np.abs(t[:, None] * d), axis=-1)
 
 
-def offset_origin(p: np.ndarray, n_g: np.ndarray, w: np.ndarray, err: np.ndarray) -> np.ndarray:
-    """Move p off the surface along the facing geometric normal, to the side w leaves on."""
-    side = np.where(dot(w, n_g) >= 0.0, 1.0, -1.0)
-    return p + (side * err)[:, None] * n_g
+def offset_origin(p: np.ndarray, n_out: np.ndarray, w: np.ndarray,
+                  err: np.ndarray) -> np.ndarray:
+    """Move p off the surface along the outward geometric normal n_out, to the side w leaves
+    on: outwards where w . n_out > 0, else inwards, as kernels/surface.h has it (so a w along
+    the surface, w . n_out = 0, starts inside, whichever side the ray came from)."""
+    side = np.where(dot(w, n_out) > 0.0, 1.0, -1.0)
+    return p + (side * err)[:, None] * n_out
 
 
 def shade_direct(sf: Surface, d: np.ndarray, c: np.ndarray, mats: MaterialTable,
@@ -119,7 +128,7 @@ def _light_toward(light: Light, index: int, sf: Surface, key: SampleKey) -> Towa
 def _shadow_filter(sf: Surface, lit: np.ndarray, l_dir: np.ndarray, target: np.ndarray | None,
                    mats: MaterialTable, transmission: Transmission) -> np.ndarray:
     """The filter of the shadow rays of the `lit` hits, from their offset origins."""
-    origin = offset_origin(sf.p[lit], sf.n_g[lit], l_dir[lit], sf.err[lit])
+    origin = offset_origin(sf.p[lit], sf.n_out[lit], l_dir[lit], sf.err[lit])
     shadow_dir, span = l_dir[lit], np.full(int(lit.sum()), np.inf)
     if target is not None:
         # Aimed from the offset origin, as the kernels do (docs/rendering.md).

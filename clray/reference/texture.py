@@ -31,6 +31,15 @@ class MaterialTable:
         self.filter = self.transmit[:, None] * self.color  # shadow filter per crossing
 
 
+def wrap01(x: np.ndarray) -> np.ndarray:
+    """x wrapped into [0, 1) (kernels/texture.h): x - floor(x), but 0 where that rounds to 1
+    (a tiny negative x) and where x is not finite (a degenerate (u, v)), so that it never
+    becomes a wild index."""
+    with np.errstate(invalid="ignore"):
+        f = x - np.floor(x)
+    return np.where(np.isfinite(x) & (f < 1.0), f, 0.0)
+
+
 def image_texel(
     image: np.ndarray, u: np.ndarray, v: np.ndarray, repeat: tuple[float, float],
     ends_apart: np.ndarray | bool = False,
@@ -46,11 +55,8 @@ def image_texel(
     # fmax/fmin as the kernel's: a NaN takes the low bound, crossed bounds give the high one.
     half_row = 0.5 / height
     vk = np.where(ends_apart, np.fmin(np.fmax(vk, half_row), k - half_row), vk)
-    s = (uj - np.floor(uj)) * width - 0.5
-    t = (1.0 - (vk - np.floor(vk))) * height - 0.5
-    # A degenerate (u, v) (NaN from a zero-extent face) must not become a wild index.
-    s = np.where(np.isfinite(s), s, 0.0)
-    t = np.where(np.isfinite(t), t, 0.0)
+    s = wrap01(uj) * width - 0.5
+    t = (1.0 - wrap01(vk)) * height - 0.5
     x0, y0 = np.floor(s), np.floor(t)
     fx, fy = (s - x0)[:, None], (t - y0)[:, None]
     x0, y0 = x0.astype(np.int64), y0.astype(np.int64)

@@ -97,9 +97,14 @@ def box_surface(b: Box, p: np.ndarray, part: np.ndarray) -> tuple[np.ndarray, np
     n = np.zeros_like(p)
     n[rows, axis] = np.where(part % 2 == 1, 1.0, -1.0)
     a1, a2 = (axis + 1) % 3, (axis + 2) % 3
-    u = (p[rows, a1] - lo[a1]) / (hi[a1] - lo[a1])
-    v = (p[rows, a2] - lo[a2]) / (hi[a2] - lo[a2])
-    return n, np.stack([u, v], axis=-1)
+    return n, np.stack([_along(p[rows, a1], lo[a1], hi[a1]),
+                        _along(p[rows, a2], lo[a2], hi[a2])], axis=-1)
+
+
+def _along(x: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """(x - lo) / (hi - lo), or 0 where the box is flat on that axis (kernels/box.h)."""
+    width = hi - lo
+    return np.where(width > 0.0, (x - lo) / np.where(width > 0.0, width, 1.0), 0.0)
 
 
 BOX = Shape(

@@ -20,7 +20,7 @@ from clray.accel.prim_refs import PRIM_INDEX_MASK, PRIM_TRIANGLE, PRIM_TYPE_SHIF
 from clray.device.layout import TRIANGLE_COLOR, TRIANGLE_MATERIAL_MASK, TRIANGLE_SMOOTH
 from clray.device.pack import pack_scene
 from clray.metrics import count_over, max_abs, nonfinite_count, rmse
-from clray.reference import render_reference
+from clray.reference import camera_rays, render_reference
 from clray.render import RenderSettings, render
 from clray.scene import model as M
 from clray.scene.load import load_scene
@@ -191,6 +191,28 @@ def test_obj_mesh_with_normals_uvs_and_texture_matches_reference(tmp_path):
     assert np.ptp(got[20:30, 28:36].reshape(-1, 3), axis=0).max() > 0.1
     assert rmse(got, want) < 9.5e-7
     assert max_abs(got, want) < 1.5e-5
+
+
+def test_a_shading_normal_along_the_ray_faces_away_as_in_the_kernel():
+    """A square in z = 0 whose vertex normals all lie in it, (1, 0, 0), seen head-on at 3 x 3:
+    the middle column's rays have d . n_s = 0 exactly (x = 0 in float32 and float64). The
+    kernel (shade_point) flips n_s there, n = (-1, 0, 0), away from the light at
+    l = (1, 0, 1) / sqrt(2), so those pixels get the ambient term only; the reference kept n_s
+    at d . n_s = 0 and lit them."""
+    vertices = np.array([[-1.0, -1.0, 0.0], [1.0, -1.0, 0.0], [1.0, 1.0, 0.0], [-1.0, 1.0, 0.0]])
+    mesh = M.Mesh(vertices=vertices, faces=np.array([[0, 1, 2], [0, 2, 3]]), material=0,
+                  normals=np.tile([1.0, 0.0, 0.0], (4, 1)))
+    light = M.DirectionalLight(tuple(np.array([-1.0, 0.0, -1.0]) / np.sqrt(2.0)))
+    scene = M.Scene(None, M.RenderOptions(3, 3, 1, 0, (0.0, 0.0, 0.0), (1.0, 1.0, 1.0)),
+                    M.Camera((0.0, 0.0, 5.0), (0.0, 0.0, 0.0), vfov=10.0),
+                    (M.Material("m", ambient=0.2, diffuse=0.7),), (light,), (mesh,))
+    _, d, _ = camera_rays(scene, 3, 3, 1, 0)
+    assert np.all(d.reshape(3, 3, 3)[:, 1, 0] == 0.0)
+    got = render(scene).image.astype(np.float64)
+    want = render_reference(scene)
+    lit = 0.2 + 0.7 / np.sqrt(2.0)
+    np.testing.assert_allclose(want[:, :, 0], [[lit, 0.2, 0.2]] * 3, rtol=0, atol=1e-12)
+    assert max_abs(got, want) < 1e-6
 
 
 def test_mesh_transform_renders_like_pretransformed_vertices(tmp_path):

@@ -30,6 +30,7 @@ from clray.reference import (
     transmission,
 )
 from clray.reference.shading import offset_origin, surface_at
+from clray.reference.texture import MaterialTable, surface_color
 from clray.scene.model import (
     Box,
     Camera,
@@ -341,6 +342,36 @@ def test_a_ray_spawned_along_the_surface_starts_inside_from_either_side():
     for w, z in (((1.0, 0.0, 0.0), -err), ((0.0, 0.0, 1.0), err), ((0.0, 0.0, -1.0), -err)):
         got = offset_origin(sf.p, sf.n_out, np.array([w, w]), np.full(2, err))
         np.testing.assert_array_equal(got, [[0.0, 0.0, z]] * 2)
+
+
+def test_a_tangent_ray_sees_both_normals_flipped():
+    # kernels/shading.h, shade_point: entering = d . n_g < 0, n_f = entering ? n_g : -n_g,
+    # n = d . n_s < 0 ? n_s : -n_s; so where d . n is exactly 0 the normal is flipped. The
+    # reference kept it there (it flipped only where d . n > 0).
+    normal = np.array([[0.0, 1.0, 0.0]] * 3)
+    shading = np.array([[0.0, 1.0, 0.0], [0.6, 0.8, 0.0], [1.0, 0.0, 0.0]])
+    d = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])
+    o = np.zeros((3, 3))
+    sf = surface_at(o, d, np.zeros(3), normal, shading, np.zeros((3, 2)), np.zeros(3, int))
+
+    def kernel_facing(n: np.ndarray) -> np.ndarray:
+        return np.array([m if np.dot(w, m) < 0 else -m for w, m in zip(d, n, strict=True)])
+
+    assert np.sum(d * normal, axis=-1).tolist() == [0.0, 0.0, -1.0]
+    assert np.sum(d * shading, axis=-1).tolist() == [0.0, 0.0, 0.0]
+    np.testing.assert_array_equal(sf.entering, [False, False, True])
+    np.testing.assert_array_equal(sf.n_g, kernel_facing(normal))
+    np.testing.assert_array_equal(sf.n_g, [[0, -1, 0], [0, -1, 0], [0, 1, 0]])
+    np.testing.assert_array_equal(sf.n, kernel_facing(shading))
+    np.testing.assert_array_equal(sf.n, -shading)
+    # The checker's quarter-cell push goes by n_f: at p = 0, on a cell corner, the tangent
+    # rays' q = (0, 0.25, 0) is in cell 0 (even: the material colour); the ray arriving from
+    # above gets q = (0, -0.25, 0), cell -1 (odd: color2).
+    c1, c2 = (0.9, 0.8, 0.7), (0.1, 0.2, 0.3)
+    checker = Texture("checker", size=1.0, color2=c2)
+    mats = MaterialTable((Material("chk", color=c1, texture=checker),))
+    got = surface_color(mats, sf.material, sf.p, sf.uv, sf.n_g, np.zeros(3, bool))
+    np.testing.assert_array_equal(got, [c1, c1, c2])
 
 
 def test_background_on_miss():

@@ -47,7 +47,8 @@ SHAPE_SURFACE: dict[type, Callable[..., tuple[np.ndarray, np.ndarray]]] = {
 
 
 class Surface(NamedTuple):
-    """What shading needs of N hits: n_g and n face the incoming ray, n_out is n_g as the
+    """What shading needs of N hits: n_g and n face the incoming ray (n_g is the kernels'
+    n_f; flipped where d . n >= 0, so a tangent ray's is the flipped one), n_out is n_g as the
     shape gives it (outward), whose side offset_origin goes by, as the kernels' does."""
 
     p: np.ndarray  # (N, 3) hit point
@@ -64,11 +65,13 @@ def surface_at(o: np.ndarray, d: np.ndarray, t: np.ndarray, normal: np.ndarray,
                shading_normal: np.ndarray, uv: np.ndarray, material: np.ndarray) -> Surface:
     """The surface record of rays (o, d) that hit at t with these outward normals."""
     p = o + t[:, None] * d
-    # Both normals face the incoming ray, each by its own sign.
-    n_g = np.where((dot(d, normal) > 0.0)[:, None], -normal, normal)
-    n = np.where((dot(d, shading_normal) > 0.0)[:, None], -shading_normal, shading_normal)
-    return Surface(p, _error_bound(o, d, t), n_g, normal, n, dot(d, normal) < 0.0, uv,
-                   material)
+    # Both normals face the incoming ray, each by its own sign, as kernels/shading.h
+    # (shade_point) has it: kept where d . n < 0, else flipped, so a ray exactly along the
+    # surface (d . n = 0) sees the flipped normal, the one of a ray that is not entering.
+    entering = dot(d, normal) < 0.0
+    n_g = np.where(entering[:, None], normal, -normal)
+    n = np.where((dot(d, shading_normal) < 0.0)[:, None], shading_normal, -shading_normal)
+    return Surface(p, _error_bound(o, d, t), n_g, normal, n, entering, uv, material)
 
 
 def _error_bound(o: np.ndarray, d: np.ndarray, t: np.ndarray) -> np.ndarray:

@@ -551,6 +551,127 @@ def test_a_frame_is_made_without_the_files_and_from_another_folder(tmp_path, mon
     assert np.array_equal(there.objects[0].vertices, here.objects[0].vertices)
 
 
+def _four_mesh_files(project: Path) -> Path:
+    """An animation naming a mesh file of each kind clray parses (OBJ, PLY, .npz, glTF with a
+    .bin beside it, an extension it warns of), the OBJ's transform and the camera animated."""
+    from tests.gltf_files import CUBE_FACES, CUBE_VERTICES, Builder
+
+    project.mkdir()
+    (project / "tri.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nvn 0 0 1\nf 1//1 2//1 3//1\n")
+    (project / "quad.ply").write_text(
+        "ply\nformat ascii 1.0\nelement vertex 4\nproperty float x\nproperty float y\n"
+        "property float z\nelement face 1\nproperty list uchar int vertex_indices\n"
+        "end_header\n0 0 0\n1 0 0\n1 1 0\n0 1 0\n4 0 1 2 3\n")
+    np.savez(project / "tri.npz", vertices=np.array([[0.0, 0, 1], [1, 0, 1], [0, 1, 1]]),
+             faces=np.array([[0, 1, 2]]))
+    builder = Builder()
+    builder.node(mesh=builder.mesh(CUBE_VERTICES, CUBE_FACES))
+    builder.doc["extensionsUsed"] = ["EXT_not_modelled"]
+    builder.save(project / "cube.gltf")
+    objects = "".join(f'[[objects]]\ntype = "mesh"\nfile = "{name}"\nmaterial = "m"\n'
+                      f"transform = {{ translate = [{i}, 0, 0] }}\n"
+                      for i, name in enumerate(["tri.obj", "quad.ply", "tri.npz", "cube.gltf"]))
+    path = project / "anim.toml"
+    path.write_text(
+        "[camera]\nposition = [0, 0, 9]\nlook_at = [0, 0, 0]\n[materials.m]\n"
+        '[[lights]]\ntype = "point"\nposition = [4, 6, 5]\n' + objects +
+        "[animation]\nframes = 4\n"
+        '[[animation.tracks]]\nkey = "objects[0].transform.rotate"\nframes = [0, 3]\n'
+        "values = [[0, 0, 0], [0, 90, 0]]\n"
+        '[[animation.tracks]]\nkey = "camera.position"\nframes = [0, 3]\n'
+        "values = [[0, 0, 9], [9, 0, 0]]\n")
+    return path
+
+
+def _count_parses(monkeypatch) -> dict[str, int]:
+    """Calls of each mesh file parser that clray.scene.assets calls, by name, from now."""
+    from clray.scene import assets
+
+    calls: dict[str, int] = {}
+
+    def counting(name: str):
+        parse = getattr(assets, name)
+
+        def counted(*args, **kwargs):
+            calls[name] = calls.get(name, 0) + 1
+            return parse(*args, **kwargs)
+        return counted
+
+    for name in ("parse_obj", "read_ply", "npz_arrays", "read_gltf"):
+        monkeypatch.setattr(assets, name, counting(name))
+    return calls
+
+
+def _mesh_arrays(scene) -> list:
+    return [(m.vertices, m.faces, m.normals, m.uvs, m.colors, m.face_materials)
+            for m in scene.objects]
+
+
+def test_a_sequence_parses_each_mesh_file_once_for_all_its_frames(tmp_path, monkeypatch):
+    """The bytes were kept across frames but parsed again for each (0.50 s a frame of a
+    327,680-triangle OBJ); the keyframes' check and every frame now share one parse."""
+    path = _four_mesh_files(tmp_path / "project")
+    calls = _count_parses(monkeypatch)
+    sequence = load_sequence(path)
+    scenes = [sequence.scene(frame) for frame in range(4)]
+    assert calls == {"parse_obj": 1, "read_ply": 1, "npz_arrays": 1, "read_gltf": 1}
+    # The glTF file's warning is each frame's, as a still's.
+    for scene in scenes:
+        assert [w for w in scene.warnings if "EXT_not_modelled" in w] == [
+            "objects[3].file: cube.gltf: extension \"EXT_not_modelled\" is not modelled "
+            "(ignored)"]
+
+
+def test_frames_from_parsed_meshes_are_the_frames_parsed_afresh(tmp_path):
+    """Each frame's scene, its meshes reused, is the scene loaded from the files alone (the
+    animated transform applied to the mesh as parsed, not to the frame before's); none of
+    the arrays shared between frames can be written."""
+    from clray.scene.load import scene_from_dict
+
+    path = _four_mesh_files(tmp_path / "project")
+    sequence = load_sequence(path)
+    for frame in (0, 1, 3, 1):
+        reused = sequence.scene(frame)
+        fresh = scene_from_dict(sequence.animation.data_at(sequence.data, frame), path)
+        assert reused.warnings == fresh.warnings
+        assert len(reused.objects) == len(fresh.objects) == 4
+        for these, those in zip(_mesh_arrays(reused), _mesh_arrays(fresh), strict=True):
+            for this, that in zip(these, those, strict=True):
+                assert (this is None) == (that is None)
+                if this is not None:
+                    assert this.dtype == that.dtype
+                    np.testing.assert_array_equal(this, that)
+    for kind, mesh in sequence.files.parsed.items():
+        arrays = mesh.meshes if kind[0] == "glTF" else [mesh]
+        for obj in arrays:
+            assert not obj.vertices.flags.writeable and not obj.faces.flags.writeable
+
+
+def test_a_pickled_sequence_parses_again_once_where_it_is_sent(tmp_path, monkeypatch):
+    """A Dask worker gets the kept bytes without what they parsed to (which would double what
+    it is sent), parses each mesh file once for its frames, from the bytes alone."""
+    import pickle
+    import shutil
+
+    path = _four_mesh_files(tmp_path / "project")
+    sequence = load_sequence(path)
+    here = sequence.scene(2)
+    assert len(sequence.files.parsed) == 4
+    sent = pickle.dumps(sequence)
+    shutil.rmtree(tmp_path / "project")
+    calls = _count_parses(monkeypatch)
+    there = pickle.loads(sent)
+    assert there.files.parsed == {}
+    scenes = [there.scene(frame) for frame in (2, 3)]
+    assert calls == {"parse_obj": 1, "read_ply": 1, "npz_arrays": 1, "read_gltf": 1}
+    assert scenes[0].warnings == here.warnings
+    for these, those in zip(_mesh_arrays(scenes[0]), _mesh_arrays(here), strict=True):
+        for this, that in zip(these, those, strict=True):
+            assert (this is None) == (that is None)
+            if this is not None:
+                np.testing.assert_array_equal(this, that)
+
+
 @pytest.mark.parametrize("aovs", [(), ("depth",)])
 def test_render_frames_reports_progress_within_each_frame(cl_device, aovs):
     """One rise over all the frames, each frame's pixel-samples heard as it renders (the command

@@ -23,7 +23,7 @@ from clray.errors import SceneError, plural
 from clray.host_memory import fits_host_memory, loading
 from clray.scene import limits as L
 from clray.scene.colour import srgb_decode
-from clray.scene.files import UnreadableFile, open_regular, read_at_most
+from clray.scene.files import UnreadableFile, kept_parse, open_regular, read_at_most
 from clray.scene.gltf import GLTF_SUFFIXES, GltfModel, read_gltf
 from clray.scene.mesh_data import mesh_arrays
 from clray.scene.mtl import MtlLibrary, parse_mtl
@@ -158,19 +158,23 @@ class Assets:
         stream, identity = self.open_file(name, key, limit)
         with stream, loading(self.base / name):
             if identity not in self.meshes:
-                try:
-                    data = read_at_most(stream, limit)
-                except UnreadableFile as exc:
-                    raise self.values.error(key, f"{exc}: {file_name(name)}") from None
-                if suffix == ".npz":
-                    self.meshes[identity] = self.npz_mesh(data, key, name)
-                elif suffix == ".ply":
-                    self.meshes[identity] = self.ply_mesh(data, key, name)
-                else:
+
+                def parse() -> ObjMesh:
+                    try:
+                        data = read_at_most(stream, limit)
+                    except UnreadableFile as exc:
+                        raise self.values.error(key, f"{exc}: {file_name(name)}") from None
+                    if suffix == ".npz":
+                        return read_only(self.npz_mesh(data, key, name))
+                    if suffix == ".ply":
+                        return read_only(self.ply_mesh(data, key, name))
                     mesh = parse_obj(data, self.base / name)
                     # Its triangles are known once parsed: refused before the BVH is built.
                     fits_host_memory(self.base / name, len(mesh.faces))
-                    self.meshes[identity] = mesh
+                    return read_only(mesh)
+
+                # An animation's frames parse the file's kept bytes once between them.
+                self.meshes[identity] = kept_parse(self.base / name, "mesh", parse)
         return self.meshes[identity]
 
     def gltf_model(self, name: Any, key: str) -> tuple[GltfModel, tuple[int, int]]:
@@ -181,41 +185,56 @@ class Assets:
         stream, identity = self.open_file(name, key, limit)
         with stream, loading(self.base / name):
             if identity not in self.models:
-                try:
-                    data = read_at_most(stream, limit)
-                except UnreadableFile as exc:
-                    raise self.values.error(key, f"{exc}: {file_name(name)}") from None
-                path = self.base / name
-                # The buffer and image files by (device, inode), each read once (25 `buffers`
-                # naming one .bin were 25 copies of it), and together within the limit of
-                # one file, as a .glb's binary chunk is.
-                files: dict[tuple[int, int], bytes] = {}
-                left = L.MAX_BINARY_MESH_BYTES
-
-                def read_file(relative: str, where: str) -> bytes:
-                    nonlocal left
-                    try:
-                        stream, info = open_regular(path.parent / relative,
-                                                    L.MAX_BINARY_MESH_BYTES)
-                        with stream:
-                            identity = (info.st_dev, info.st_ino)
-                            if identity not in files:
-                                if info.st_size > left:
-                                    raise UnreadableFile(
-                                        f"{info.st_size} bytes is over what is left ({left}) "
-                                        f"of the limit of {L.MAX_BINARY_MESH_BYTES} bytes for "
-                                        "a glTF file's buffer and image files together")
-                                files[identity] = read_at_most(stream, left)
-                                left -= len(files[identity])
-                            return files[identity]
-                    except UnreadableFile as exc:
-                        raise SceneError(path, where, f"cannot read {file_name(relative)}: "
-                                         f"{exc}") from None
-
-                model = read_gltf(data, path, read_file)
+                # An animation's frames parse the file's kept bytes (and its buffers') once
+                # between them; each scene takes its warnings.
+                model = kept_parse(self.base / name, "glTF",
+                                   lambda: self.read_gltf_model(stream, limit, name, key))
                 self.warnings.extend(f"{key}: {file_name(name)}: {w}" for w in model.warnings)
                 self.models[identity] = model
         return self.models[identity], identity
+
+    def read_gltf_model(self, stream: BinaryIO, limit: int, name: Any, key: str
+                        ) -> GltfModel:
+        """gltf_model's reading of the file and of the buffer and image files it names, its
+        arrays read-only."""
+        try:
+            data = read_at_most(stream, limit)
+        except UnreadableFile as exc:
+            raise self.values.error(key, f"{exc}: {file_name(name)}") from None
+        path = self.base / name
+        # The buffer and image files by (device, inode), each read once (25 `buffers`
+        # naming one .bin were 25 copies of it), and together within the limit of
+        # one file, as a .glb's binary chunk is.
+        files: dict[tuple[int, int], bytes] = {}
+        left = L.MAX_BINARY_MESH_BYTES
+
+        def read_file(relative: str, where: str) -> bytes:
+            nonlocal left
+            try:
+                stream, info = open_regular(path.parent / relative,
+                                            L.MAX_BINARY_MESH_BYTES)
+                with stream:
+                    identity = (info.st_dev, info.st_ino)
+                    if identity not in files:
+                        if info.st_size > left:
+                            raise UnreadableFile(
+                                f"{info.st_size} bytes is over what is left ({left}) "
+                                f"of the limit of {L.MAX_BINARY_MESH_BYTES} bytes for "
+                                "a glTF file's buffer and image files together")
+                        files[identity] = read_at_most(stream, left)
+                        left -= len(files[identity])
+                    return files[identity]
+            except UnreadableFile as exc:
+                raise SceneError(path, where, f"cannot read {file_name(relative)}: "
+                                 f"{exc}") from None
+
+        model = read_gltf(data, path, read_file)
+        for mesh in model.meshes:
+            if mesh is not None:
+                read_only(mesh)
+        for _, matrix in model.placements:
+            matrix.flags.writeable = False
+        return model
 
     def ply_mesh(self, data: bytes, key: str, name: str) -> ObjMesh:
         ply = read_ply(data, self.base / name)
@@ -320,6 +339,17 @@ class Assets:
                 key, f"{plural(count, 'sphere')} is over what is left ({self.spheres_left}) of the "
                 f"limit of {L.MAX_BULK_SPHERES} spheres for all spheres objects")
         self.spheres_left -= count
+
+
+def read_only(mesh: ObjMesh) -> ObjMesh:
+    """`mesh`, its arrays made read-only: a mesh read once is shared by the scenes that name
+    its file (an animation's frames, clray.scene.files.kept_parse), which copy what they
+    change."""
+    for array in (mesh.vertices, mesh.faces, mesh.normals, mesh.uvs, mesh.face_groups,
+                  mesh.colors):
+        if array is not None:
+            array.flags.writeable = False
+    return mesh
 
 
 # -- numpy files --------------------------------------------------------------------------

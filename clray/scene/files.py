@@ -8,7 +8,8 @@ instead of waiting for a writer, and their size is checked before reading.
 Within KeptFiles.used(), each file is read whole once and kept by its absolute path, and opened
 again from memory: an animation (clray.sequence) keeps the files its scene read as it was
 loaded and checked, and makes each frame's scene from them, wherever that is (a Dask worker
-without those files, or in another working directory).
+without those files, or in another working directory). What a mesh file's bytes parse to is
+kept beside them (kept_parse), so that each frame does not parse the same bytes again.
 """
 
 from __future__ import annotations
@@ -17,10 +18,12 @@ import contextlib
 import io
 import os
 import stat
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextvars import ContextVar
 from pathlib import Path
-from typing import BinaryIO
+from typing import Any, BinaryIO, TypeVar
+
+T = TypeVar("T")
 
 
 class UnreadableFile(Exception):
@@ -120,10 +123,23 @@ def read_regular(path: Path, max_bytes: int) -> bytes:
 class KeptFiles:
     """Files read whole, by absolute path: each file's bytes and status, or why it could not
     be opened (a missing material library is a warning, and must stay one). Picklable: a Dask
-    worker gets them with the animation."""
+    worker gets them with the animation, without what they parsed to (`parsed`, which each
+    worker makes again, once)."""
 
     def __init__(self) -> None:
+        # A file, once kept, is never read again nor replaced: what is parsed from it by its
+        # name (`parsed`) is what its kept bytes parse to.
         self.files: dict[str, tuple[bytes, os.stat_result] | str] = {}
+        # kept_parse's results, by (kind, absolute path).
+        self.parsed: dict[tuple[str, str], Any] = {}
+
+    def __getstate__(self) -> dict[str, Any]:
+        # The bytes alone: parsed meshes would double what a worker is sent.
+        return {"files": self.files}
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        self.files = state["files"]
+        self.parsed = {}
 
     @contextlib.contextmanager
     def used(self) -> Iterator[None]:
@@ -156,6 +172,21 @@ class KeptFiles:
         _fits(len(data), max_bytes)  # kept for another opener's limit, which may be larger
         # Its read() of the whole returns `data` itself, not a copy (CPython's BytesIO).
         return io.BytesIO(data), info
+
+
+def kept_parse(path: Path, kind: str, parse: Callable[[], T]) -> T:
+    """parse(): the file at `path` (and any it names, kept too) parsed as `kind`. Within
+    KeptFiles.used(), once: its result is kept beside the bytes it came from, and given again
+    for the same kind and absolute path. It is shared between scenes, so the caller makes it
+    read-only; an exception keeps nothing. `kind` must name everything besides the files that
+    changes the result."""
+    kept = _KEPT.get()
+    if kept is None:
+        return parse()
+    key = (kind, os.path.abspath(path))
+    if key not in kept.parsed:
+        kept.parsed[key] = parse()
+    return kept.parsed[key]
 
 
 _KEPT: ContextVar[KeptFiles | None] = ContextVar("clray_kept_files", default=None)

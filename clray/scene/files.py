@@ -189,4 +189,9 @@ def kept_parse(path: Path, kind: str, parse: Callable[[], T]) -> T:
     return kept.parsed[key]
 
 
+def parses_kept() -> bool:
+    """Whether kept_parse keeps what it parses here (within KeptFiles.used())."""
+    return _KEPT.get() is not None
+
+
 _KEPT: ContextVar[KeptFiles | None] = ContextVar("clray_kept_files", default=None)

@@ -890,3 +890,18 @@ def test_resume_with_every_frame_done_starts_no_cluster(tmp_path, capsys, monkey
                      "--resume", "--dask"]) == 0
     err = capsys.readouterr().err
     assert "wrote 0 frames of frames 0-1" in err and "2 complete already" in err, err
+
+
+def test_texels_decoded_once_are_not_given_to_another_array_after_they_are_freed(tmp_path):
+    """Assets.decoded keys its results by id() of the texels: a glTF file's texels are freed
+    once decoded, and a later array may then have their id. Each array gets its own values."""
+    from clray.scene.assets import Assets
+    from clray.scene.colour import srgb_decode
+    from clray.scene.values import Values
+
+    assets = Assets(Values(tmp_path / "scene.toml"), tmp_path)
+    for k in range(32):
+        texels = np.full((2, 2, 3), k / 32, dtype=np.float32)
+        expected = srgb_decode(np.float64(k / 32))
+        np.testing.assert_allclose(assets.decoded(texels), expected, rtol=1e-6)
+        del texels

@@ -69,8 +69,10 @@ class Assets:
         self.base = base
         self.warnings: list[str] = []
         self.textures: dict[tuple[int, int], tuple[np.ndarray, bool]] = {}
-        # By id() of the stored texels, which self.textures keeps alive for the assets' life.
-        self.decoded_textures: dict[int, np.ndarray] = {}
+        # By id() of the stored texels: (those texels, kept alive here so that their id is not
+        # another array's while this holds it, as a glTF file's could be once decoded; their
+        # linear values).
+        self.decoded_textures: dict[int, tuple[np.ndarray, np.ndarray]] = {}
         # Texels read_image had kept, by id() likewise: (the texels, kept alive here, and the
         # path and kind that kept_parse knows them by). Only these are kept decoded too.
         self.kept_images: dict[int, tuple[np.ndarray, Path, str]] = {}
@@ -168,8 +170,8 @@ class Assets:
                 _, path, kind = kept
                 linear = kept_parse(path, f"{kind}, decoded from sRGB",
                                     lambda: _srgb_decoded(texels))
-            self.decoded_textures[id(texels)] = linear
-        return self.decoded_textures[id(texels)]
+            self.decoded_textures[id(texels)] = (texels, linear)
+        return self.decoded_textures[id(texels)][1]
 
     # -- meshes ---------------------------------------------------------------------------
 

@@ -23,9 +23,10 @@ from clray.scene.model import Scene
 @dataclass(frozen=True)
 class Sequence:
     """An animated scene file: its data as parsed, its checked [animation] table, and the files
-    it names (included scenes, meshes, textures) as they were read then, each mesh file parsed
-    once for all frames. Picklable: a Dask cluster gets it once (the bytes, not the parsed
-    meshes) and makes each frame's scene where it renders it, with no file."""
+    it names (included scenes, meshes, textures) as they were read then, each mesh and MTL
+    file parsed and each image decoded once for all frames. Picklable: a Dask cluster gets it
+    once (the bytes, not what they parse to) and makes each frame's scene where it renders
+    it, with no file."""
 
     path: Path  # absolute: the names in `data` are relative to its folder, wherever it is used
     data: dict

@@ -672,6 +672,174 @@ def test_a_pickled_sequence_parses_again_once_where_it_is_sent(tmp_path, monkeyp
                 np.testing.assert_array_equal(this, that)
 
 
+def _textured_files(project: Path) -> Path:
+    """An animation naming image files every way a scene does: one file as an sRGB material
+    texture and as a linear one, a background image, an OBJ's MTL library with a map_Kd
+    (and a key it warns of), and a glTF file's own image; the camera animated."""
+    from PIL import Image
+
+    from tests.gltf_files import Builder
+
+    (project / "tex").mkdir(parents=True)
+    for name, (height, width) in {"a": (4, 6), "bg": (8, 16), "c": (2, 3)}.items():
+        texels = np.arange(height * width * 3, dtype=np.uint8).reshape(height, width, 3)
+        Image.fromarray(texels * np.uint8(7)).save(project / "tex" / f"{name}.png")
+    (project / "m.mtl").write_text("newmtl red\nKd 1 0 0\nPr 0.5\nmap_Kd tex/c.png\n")
+    (project / "m.obj").write_text("mtllib m.mtl\nv 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0\n"
+                                   "vt 1 0\nvt 0 1\nusemtl red\nf 1/1 2/2 3/3\n")
+    builder = Builder()
+    material = builder.material(pbrMetallicRoughness={"baseColorTexture": {"index": builder.image(
+        np.arange(2 * 2 * 3, dtype=np.uint8).reshape(2, 2, 3) * np.uint8(20))}})
+    builder.node(mesh=builder.mesh([[0, 0, 0], [1, 0, 0], [0, 1, 0]], [[0, 1, 2]], material,
+                                   uvs=[[0, 0], [1, 0], [0, 1]]))
+    builder.save(project / "t.gltf")
+    path = project / "anim.toml"
+    path.write_text(
+        "[camera]\nposition = [0, 0, 9]\nlook_at = [0, 0, 0]\n"
+        '[render]\nbackground = { type = "image", file = "tex/bg.png" }\n'
+        '[materials.s]\ntexture = { type = "image", file = "tex/a.png" }\n'
+        '[materials.l]\ntexture = { type = "image", file = "tex/a.png", colorspace = "linear" }\n'
+        '[[lights]]\ntype = "point"\nposition = [4, 6, 5]\n'
+        '[[objects]]\ntype = "sphere"\ncenter = [-2, 0, 0]\nradius = 1\nmaterial = "s"\n'
+        '[[objects]]\ntype = "sphere"\ncenter = [2, 0, 0]\nradius = 1\nmaterial = "l"\n'
+        '[[objects]]\ntype = "mesh"\nfile = "m.obj"\n'
+        '[[objects]]\ntype = "mesh"\nfile = "t.gltf"\ntransform = { translate = [0, 2, 0] }\n'
+        "[animation]\nframes = 4\n"
+        '[[animation.tracks]]\nkey = "camera.position"\nframes = [0, 3]\n'
+        "values = [[0, 0, 9], [9, 0, 0]]\n")
+    return path
+
+
+def _count_decodes(monkeypatch) -> dict[str, int]:
+    """From now: images decoded (Pillow's opens), sRGB decodes and MTL files parsed."""
+    from PIL import Image
+
+    from clray.scene import assets
+
+    calls = {"image": 0, "srgb_decode": 0, "parse_mtl": 0}
+
+    def counting(name: str, function):
+        def counted(*args, **kwargs):
+            calls[name] += 1
+            return function(*args, **kwargs)
+        return counted
+
+    monkeypatch.setattr(Image, "open", counting("image", Image.open))
+    for name in ("srgb_decode", "parse_mtl"):
+        monkeypatch.setattr(assets, name, counting(name, getattr(assets, name)))
+    return calls
+
+
+def _texture_arrays(scene) -> list:
+    """(colorspace, texels) of each material's image texture, and of the background."""
+    textures = [(m.texture.colorspace, m.texture.image) for m in scene.materials
+                if m.texture is not None]
+    return [*textures, (scene.render.background.colorspace, scene.render.background.image)]
+
+
+def test_a_sequence_decodes_each_image_file_once_for_all_its_frames(tmp_path, monkeypatch):
+    """Each frame decoded every image file again (and parsed the MTL library again), from the
+    kept bytes; the keyframes' check and every frame now share one decode of each, and one
+    sRGB decode of each image taken as sRGB. Each frame still has the MTL file's warning."""
+    path = _textured_files(tmp_path / "project")
+    calls = _count_decodes(monkeypatch)
+    sequence = load_sequence(path)
+    scenes = [sequence.scene(frame) for frame in range(4)]
+    # a.png, bg.png, c.png and the glTF file's image; all four sRGB (a.png once so).
+    assert calls == {"image": 4, "srgb_decode": 4, "parse_mtl": 1}
+    for scene in scenes:
+        assert [w for w in scene.warnings if "Pr" in w] == [
+            "objects[2].file: m.obj: line 1: m.mtl: line 3: Pr is not modelled by clray "
+            "(ignored in the whole file)"]
+
+
+def test_frames_from_decoded_images_are_the_frames_decoded_afresh(tmp_path):
+    """Each frame's textures and background, decoded once for all frames, are those of the
+    scene loaded from the files alone: the file named as sRGB and as linear gives each its
+    own texels. What is kept is read-only."""
+    from clray.scene.load import scene_from_dict
+
+    path = _textured_files(tmp_path / "project")
+    sequence = load_sequence(path)
+    for frame in (0, 2, 3, 2):
+        reused = sequence.scene(frame)
+        fresh = scene_from_dict(sequence.animation.data_at(sequence.data, frame), path)
+        assert reused.warnings == fresh.warnings
+        assert reused.materials == fresh.materials
+        got, want = _texture_arrays(reused), _texture_arrays(fresh)
+        assert [c for c, _ in got] == [c for c, _ in want] == ["srgb", "linear", "srgb",
+                                                               "srgb", "srgb"]
+        for (_, this), (_, that) in zip(got, want, strict=True):
+            assert this.dtype == that.dtype == np.float32
+            np.testing.assert_array_equal(this, that)
+        assert not np.array_equal(got[0][1], got[1][1])  # sRGB-decoded, and as stored
+    project = str(tmp_path / "project")
+    kept = {(kind, Path(name).relative_to(project).as_posix())
+            for kind, name in sequence.files.parsed}
+    assert {("image", "tex/a.png"), ("image", "tex/bg.png"), ("image", "tex/c.png")} <= kept
+    for value in sequence.files.parsed.values():
+        for array in _kept_arrays(value):
+            assert not array.flags.writeable
+
+
+def _kept_arrays(value) -> list:
+    """The numpy arrays in a kept parse (a tuple holding them, or one)."""
+    if isinstance(value, np.ndarray):
+        return [value]
+    if isinstance(value, tuple):
+        return [item for item in value if isinstance(item, np.ndarray)]
+    return []
+
+
+def test_a_pickled_sequence_decodes_its_images_again_once_where_it_is_sent(tmp_path,
+                                                                           monkeypatch):
+    """A Dask worker gets the image files' bytes, not their texels, and decodes each once."""
+    import pickle
+    import shutil
+
+    path = _textured_files(tmp_path / "project")
+    sequence = load_sequence(path)
+    here = sequence.scene(1)
+    sent = pickle.dumps(sequence)
+    shutil.rmtree(tmp_path / "project")
+    calls = _count_decodes(monkeypatch)
+    there = pickle.loads(sent)
+    scenes = [there.scene(frame) for frame in (1, 2, 3)]
+    assert calls == {"image": 4, "srgb_decode": 4, "parse_mtl": 1}
+    assert scenes[0].warnings == here.warnings
+    for (_, this), (_, that) in zip(_texture_arrays(scenes[0]), _texture_arrays(here),
+                                    strict=True):
+        np.testing.assert_array_equal(this, that)
+
+
+def test_an_image_decoded_once_still_counts_against_each_scenes_texels(tmp_path, monkeypatch):
+    """A scene given an image decoded for another (kept_parse) checks its size against its
+    own texels left, as a decode would, with the same words."""
+    from clray.scene import limits as L
+    from clray.scene.assets import Assets
+    from clray.scene.files import KeptFiles
+    from clray.scene.values import Values
+
+    path = _textured_files(tmp_path / "project")
+    calls = _count_decodes(monkeypatch)
+    base = path.parent
+    with KeptFiles().used():
+        first = Assets(Values(path), base)
+        first.image("tex/bg.png", "render.background.file")
+        assert first.texels_left == L.MAX_TEXELS - 8 * 16
+        second = Assets(Values(path), base)
+        second.texels_left = 100
+        with pytest.raises(SceneError) as kept:
+            second.image("tex/bg.png", "render.background.file")
+    assert calls["image"] == 1
+    third = Assets(Values(path), base)
+    third.texels_left = 100
+    with pytest.raises(SceneError) as fresh:
+        third.image("tex/bg.png", "render.background.file")
+    assert str(kept.value) == str(fresh.value)
+    assert "16x8 = 128 texels, over what is left (100)" in str(kept.value)
+
+
 @pytest.mark.parametrize("aovs", [(), ("depth",)])
 def test_render_frames_reports_progress_within_each_frame(cl_device, aovs):
     """One rise over all the frames, each frame's pixel-samples heard as it renders (the command
@@ -722,3 +890,18 @@ def test_resume_with_every_frame_done_starts_no_cluster(tmp_path, capsys, monkey
                      "--resume", "--dask"]) == 0
     err = capsys.readouterr().err
     assert "wrote 0 frames of frames 0-1" in err and "2 complete already" in err, err
+
+
+def test_texels_decoded_once_are_not_given_to_another_array_after_they_are_freed(tmp_path):
+    """Assets.decoded keys its results by id() of the texels: a glTF file's texels are freed
+    once decoded, and a later array may then have their id. Each array gets its own values."""
+    from clray.scene.assets import Assets
+    from clray.scene.colour import srgb_decode
+    from clray.scene.values import Values
+
+    assets = Assets(Values(tmp_path / "scene.toml"), tmp_path)
+    for k in range(32):
+        texels = np.full((2, 2, 3), k / 32, dtype=np.float32)
+        expected = srgb_decode(np.float64(k / 32))
+        np.testing.assert_allclose(assets.decoded(texels), expected, rtol=1e-6)
+        del texels

@@ -11,7 +11,7 @@ from __future__ import annotations
 import dataclasses
 import io
 import zipfile
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from contextvars import ContextVar
 from pathlib import Path
@@ -23,13 +23,19 @@ from clray.errors import SceneError, plural
 from clray.host_memory import fits_host_memory, loading
 from clray.scene import limits as L
 from clray.scene.colour import srgb_decode
-from clray.scene.files import UnreadableFile, kept_parse, open_regular, read_at_most
+from clray.scene.files import (
+    UnreadableFile,
+    kept_parse,
+    open_regular,
+    parses_kept,
+    read_at_most,
+)
 from clray.scene.gltf import GLTF_SUFFIXES, GltfModel, read_gltf
 from clray.scene.mesh_data import mesh_arrays
 from clray.scene.mtl import MtlLibrary, parse_mtl
 from clray.scene.obj import ObjMesh, parse_obj
 from clray.scene.ply import read_ply
-from clray.scene.texture import TextureError, read_texture
+from clray.scene.texture import TextureError, check_size, read_texture
 from clray.scene.values import Values, file_name, show
 
 # What a `spheres` object's .npz may hold (a .npy holds centers, or centers and radii).
@@ -63,8 +69,13 @@ class Assets:
         self.base = base
         self.warnings: list[str] = []
         self.textures: dict[tuple[int, int], tuple[np.ndarray, bool]] = {}
-        # By id() of the stored texels, which self.textures keeps alive for the assets' life.
-        self.decoded_textures: dict[int, np.ndarray] = {}
+        # By id() of the stored texels: (those texels, kept alive here so that their id is not
+        # another array's while this holds it, as a glTF file's could be once decoded; their
+        # linear values).
+        self.decoded_textures: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+        # Texels read_image had kept, by id() likewise: (the texels, kept alive here, and the
+        # path and kind that kept_parse knows them by). Only these are kept decoded too.
+        self.kept_images: dict[int, tuple[np.ndarray, Path, str]] = {}
         shared = _SHARED_MESHES.get()
         self.meshes: dict[tuple[int, int], ObjMesh] = {} if shared is None else shared
         self.models: dict[tuple[int, int], GltfModel] = {}  # glTF files
@@ -79,7 +90,7 @@ class Assets:
         mesh or texture again."""
         other = Assets(self.values, self.base)
         other.textures, other.meshes, other.models = self.textures, self.meshes, self.models
-        other.decoded_textures = self.decoded_textures
+        other.decoded_textures, other.kept_images = self.decoded_textures, self.kept_images
         return other
 
     def open_file(
@@ -102,14 +113,31 @@ class Assets:
             if identity in self.textures:
                 return self.textures[identity]
             try:
-                texels, deep, warned = read_texture(stream, self.texels_left)
+                texels, deep, warned = self.read_image(lambda: stream, self.base / name,
+                                                       "image")
             except TextureError as exc:
                 raise self.values.error(key, f"cannot read image {file_name(name)}: {exc}"
                                         ) from None
-        self.texels_left -= texels.shape[0] * texels.shape[1]
         self.warnings.extend(f"{key}: image {file_name(name)}: {w}" for w in warned)
         self.textures[identity] = (texels, deep)
         return texels, deep
+
+    def read_image(self, stream: Callable[[], BinaryIO], path: Path, kind: str
+                   ) -> tuple[np.ndarray, bool, tuple[str, ...]]:
+        """read_texture of stream() (the image that `path` holds as `kind`), within the
+        texels left, which it takes; TextureError if not. An animation's frames decode the
+        kept bytes once between them (kept_parse), each checking and counting the texels
+        against its own scene's limit, as the decode does, and taking the warnings."""
+        texels, deep, warned = kept_parse(path, kind, lambda: _read_only_texture(
+            stream(), self.texels_left))
+        height, width, _ = texels.shape
+        check_size((width, height), self.texels_left)
+        self.texels_left -= width * height
+        if parses_kept():
+            # decoded() keeps the texels decoded from sRGB beside them. (Not otherwise: a
+            # glTF file's texels, once decoded, are not held.)
+            self.kept_images[id(texels)] = (texels, path, kind)
+        return texels, deep, warned
 
     def texels(self, value: Any, key: str) -> np.ndarray:
         """Linear texels given as an (H, W, 3) array (from Python), within the texel limits."""
@@ -132,17 +160,18 @@ class Assets:
         return np.array(texels, dtype=np.float32, order="C")
 
     def decoded(self, texels: np.ndarray) -> np.ndarray:
-        """`texels` decoded from sRGB to linear, once per file however often it is named."""
+        """`texels` decoded from sRGB to linear, once per file however often it is named (and
+        once for an animation's frames, where read_image had them kept)."""
         if id(texels) not in self.decoded_textures:
-            # In float64, a slice at a time: the whole of a texture at the texel limit would
-            # take several GiB of float64 temporaries.
-            flat = texels.reshape(-1)
-            linear = np.empty_like(flat)
-            for start in range(0, flat.size, _DECODE_SLICE):
-                part = flat[start : start + _DECODE_SLICE].astype(np.float64)
-                linear[start : start + _DECODE_SLICE] = srgb_decode(part)
-            self.decoded_textures[id(texels)] = linear.reshape(texels.shape)
-        return self.decoded_textures[id(texels)]
+            kept = self.kept_images.get(id(texels))
+            if kept is None:
+                linear = _srgb_decoded(texels)
+            else:
+                _, path, kind = kept
+                linear = kept_parse(path, f"{kind}, decoded from sRGB",
+                                    lambda: _srgb_decoded(texels))
+            self.decoded_textures[id(texels)] = (texels, linear)
+        return self.decoded_textures[id(texels)][1]
 
     # -- meshes ---------------------------------------------------------------------------
 
@@ -252,9 +281,16 @@ class Assets:
             with stream:
                 identity = (info.st_dev, info.st_ino)
                 if identity not in self.libraries:
-                    data = read_at_most(stream, L.MAX_SCENE_BYTES)
-                    self.libraries[identity] = parse_mtl(data, self.base / path,
-                                                         f"{where}: {file_name(path.name)}")
+                    shown = f"{where}: {file_name(path.name)}"
+
+                    def parse() -> MtlLibrary:
+                        data = read_at_most(stream, L.MAX_SCENE_BYTES)
+                        return parse_mtl(data, self.base / path, shown)
+
+                    # An animation's frames parse the kept bytes once between them: by
+                    # `shown` too, which the warnings name. Nothing changes a library read.
+                    self.libraries[identity] = kept_parse(self.base / path, f"MTL {shown}",
+                                                          parse)
                     self.warnings.extend(self.libraries[identity].warnings)
         except UnreadableFile as exc:
             self.warnings.append(f"{where}: cannot read material library "
@@ -339,6 +375,29 @@ class Assets:
                 key, f"{plural(count, 'sphere')} is over what is left ({self.spheres_left}) of the "
                 f"limit of {L.MAX_BULK_SPHERES} spheres for all spheres objects")
         self.spheres_left -= count
+
+
+def _read_only_texture(stream: BinaryIO, texels_left: int
+                       ) -> tuple[np.ndarray, bool, tuple[str, ...]]:
+    """read_texture's answer, its texels read-only: shared by the scenes that name the file
+    (an animation's frames, kept_parse), which pack copies of them."""
+    texels, deep, warned = read_texture(stream, texels_left)
+    texels.flags.writeable = False
+    return texels, deep, tuple(warned)
+
+
+def _srgb_decoded(texels: np.ndarray) -> np.ndarray:
+    """`texels` decoded from sRGB to linear, a new read-only array (see _read_only_texture)."""
+    # In float64, a slice at a time: the whole of a texture at the texel limit would take
+    # several GiB of float64 temporaries.
+    flat = texels.reshape(-1)
+    linear = np.empty_like(flat)
+    for start in range(0, flat.size, _DECODE_SLICE):
+        part = flat[start : start + _DECODE_SLICE].astype(np.float64)
+        linear[start : start + _DECODE_SLICE] = srgb_decode(part)
+    linear = linear.reshape(texels.shape)
+    linear.flags.writeable = False
+    return linear
 
 
 def read_only(mesh: ObjMesh) -> ObjMesh:

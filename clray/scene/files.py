@@ -8,8 +8,9 @@ instead of waiting for a writer, and their size is checked before reading.
 Within KeptFiles.used(), each file is read whole once and kept by its absolute path, and opened
 again from memory: an animation (clray.sequence) keeps the files its scene read as it was
 loaded and checked, and makes each frame's scene from them, wherever that is (a Dask worker
-without those files, or in another working directory). What a mesh file's bytes parse to is
-kept beside them (kept_parse), so that each frame does not parse the same bytes again.
+without those files, or in another working directory). What a mesh, MTL or image file's bytes
+parse to is kept beside them (kept_parse), so that each frame does not parse the same bytes
+again.
 """
 
 from __future__ import annotations
@@ -134,7 +135,8 @@ class KeptFiles:
         self.parsed: dict[tuple[str, str], Any] = {}
 
     def __getstate__(self) -> dict[str, Any]:
-        # The bytes alone: parsed meshes would double what a worker is sent.
+        # The bytes alone: parsed meshes and decoded images would double what a worker is
+        # sent.
         return {"files": self.files}
 
     def __setstate__(self, state: dict[str, Any]) -> None:
@@ -187,6 +189,11 @@ def kept_parse(path: Path, kind: str, parse: Callable[[], T]) -> T:
     if key not in kept.parsed:
         kept.parsed[key] = parse()
     return kept.parsed[key]
+
+
+def parses_kept() -> bool:
+    """Whether kept_parse keeps what it parses here (within KeptFiles.used())."""
+    return _KEPT.get() is not None
 
 
 _KEPT: ContextVar[KeptFiles | None] = ContextVar("clray_kept_files", default=None)

@@ -25,7 +25,7 @@ from clray.scene.model import Group, Instance, Material, Mesh, SceneObject, Text
 from clray.scene.obj import ObjMesh
 from clray.scene.parse_mesh import transformed
 from clray.scene.parse_transform import parse_transform
-from clray.scene.texture import TextureError, read_texture
+from clray.scene.texture import TextureError
 from clray.scene.transform import placed_magnitude
 from clray.scene.values import Values, file_name
 
@@ -157,14 +157,15 @@ def _texture(model: GltfModel, index: int, spec: dict, key: str, assets: Assets
     warning, where it cannot be read."""
     where = f"{key}.file: {file_name(spec['file'])}: images[{index}]"
     try:
-        texels, _, told = read_texture(io.BytesIO(model.images[index]()), assets.texels_left)
+        # An animation's frames decode it once between them, from the glTF file kept.
+        texels, _, told = assets.read_image(lambda: io.BytesIO(model.images[index]()),
+                                            assets.base / spec["file"], f"glTF images[{index}]")
     except TextureError as exc:
         assets.warnings.append(f"{where}: {exc} (the material keeps its colour)")
         return None
     except SceneError as err:  # the image's file or buffer view cannot be read
         assets.warnings.append(f"{where}: {err.message} (the material keeps its colour)")
         return None
-    assets.texels_left -= texels.shape[0] * texels.shape[1]
     assets.warnings.extend(f"{where}: {w}" for w in told)
     return Texture(kind="image", image=assets.decoded(texels), colorspace="srgb")
 

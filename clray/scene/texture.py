@@ -44,7 +44,7 @@ def read_texture(stream: BinaryIO, texels_left: int) -> tuple[np.ndarray, bool, 
         warnings.simplefilter("always")
         try:
             with Image.open(stream) as img:
-                _check_size(img.size, texels_left)
+                check_size(img.size, texels_left)
                 deep = _is_deep(img)
                 texels = _texels(img)
         except TextureError:
@@ -112,7 +112,9 @@ def _worth_telling(warning: warnings.WarningMessage) -> bool:
     return "Transparency expressed in bytes" not in str(warning.message)
 
 
-def _check_size(size: tuple[int, int], texels_left: int) -> None:
+def check_size(size: tuple[int, int], texels_left: int) -> None:
+    """TextureError if an image of `size` (width, height) is over the limits or over
+    `texels_left`."""
     width, height = size
     if width < 1 or height < 1:
         raise TextureError(f"image has no pixels ({width}x{height})")

@@ -243,6 +243,24 @@ def test_the_tune_step_does_not_start_without_the_time_it_needs(tmp_path: Path) 
     assert outcome.status == "timeout" and "not started" in outcome.note
 
 
+def test_the_packet_profiles_come_before_the_larger_sizes(tmp_path: Path) -> None:
+    """A profiles step at its limit leaves out its last runs: those at 3840x2160 with the
+    default walk, not the packets' measurements that issue 41 asks a GPU for."""
+    check = G.Check(tmp_path / "out", G.GPU_MODE, wheels=None, python=sys.executable,
+                    work=tmp_path / "work")
+    check.mesh_scene = tmp_path / "mesh.toml"
+    runs = [(scene, size, spp, traversal) for scene, _, size, spp, traversal
+            in check.profile_runs()]
+    first, second = G.GPU_MODE.sizes
+    most = max(G.GPU_MODE.spps)
+    assert runs == [
+        *[(scene, first, spp, None) for scene in ("spheres", "mesh") for spp in G.GPU_MODE.spps],
+        *[(scene, first, most, traversal) for traversal in G.PACKET_TRAVERSALS
+          for scene in ("spheres", "mesh")],
+        *[(scene, second, spp, None) for scene in ("spheres", "mesh")
+          for spp in G.GPU_MODE.spps]]
+
+
 def test_a_step_gets_its_cap_or_what_later_steps_leave(tmp_path: Path) -> None:
     check = G.Check(tmp_path / "out", G.GPU_MODE, wheels=None, python=sys.executable,
                     work=tmp_path / "work")

@@ -622,17 +622,23 @@ def test_a_sequence_parses_each_mesh_file_once_for_all_its_frames(tmp_path, monk
             "(ignored)"]
 
 
+def _frames_reused_and_fresh(sequence, frames):
+    """(the sequence's scene at each frame, that frame's scene loaded from the files alone)."""
+    from clray.scene.load import scene_from_dict
+
+    for frame in frames:
+        reused = sequence.scene(frame)
+        yield reused, scene_from_dict(sequence.animation.data_at(sequence.data, frame),
+                                      sequence.path)
+
+
 def test_frames_from_parsed_meshes_are_the_frames_parsed_afresh(tmp_path):
     """Each frame's scene, its meshes reused, is the scene loaded from the files alone (the
     animated transform applied to the mesh as parsed, not to the frame before's); none of
     the arrays shared between frames can be written."""
-    from clray.scene.load import scene_from_dict
-
     path = _four_mesh_files(tmp_path / "project")
     sequence = load_sequence(path)
-    for frame in (0, 1, 3, 1):
-        reused = sequence.scene(frame)
-        fresh = scene_from_dict(sequence.animation.data_at(sequence.data, frame), path)
+    for reused, fresh in _frames_reused_and_fresh(sequence, (0, 1, 3, 1)):
         assert reused.warnings == fresh.warnings
         assert len(reused.objects) == len(fresh.objects) == 4
         for these, those in zip(_mesh_arrays(reused), _mesh_arrays(fresh), strict=True):
@@ -757,13 +763,9 @@ def test_frames_from_decoded_images_are_the_frames_decoded_afresh(tmp_path):
     """Each frame's textures and background, decoded once for all frames, are those of the
     scene loaded from the files alone: the file named as sRGB and as linear gives each its
     own texels. What is kept is read-only."""
-    from clray.scene.load import scene_from_dict
-
     path = _textured_files(tmp_path / "project")
     sequence = load_sequence(path)
-    for frame in (0, 2, 3, 2):
-        reused = sequence.scene(frame)
-        fresh = scene_from_dict(sequence.animation.data_at(sequence.data, frame), path)
+    for reused, fresh in _frames_reused_and_fresh(sequence, (0, 2, 3, 2)):
         assert reused.warnings == fresh.warnings
         assert reused.materials == fresh.materials
         got, want = _texture_arrays(reused), _texture_arrays(fresh)

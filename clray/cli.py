@@ -548,6 +548,9 @@ def _parse(argv: list[str] | None) -> argparse.Namespace:
             parser.error("-o - and --stats-json - would both write to standard output")
         if args.stats_json is not None and _same_file(args.stats_json, args.output):
             parser.error(f"--stats-json and the output image are the same file: {args.output}")
+        if args.stats_json not in (None, STDOUT) and _same_file(args.stats_json, args.scene):
+            parser.error(f"--stats-json {args.stats_json} is the scene file {args.scene}, "
+                         "which the stats would replace: give another name")
         png_only = [flag for flag, given in (("--srgb", args.linear is False),
                                               ("--exposure", args.exposure is not None),
                                               ("--png-bits", args.png_bits is not None)) if given]

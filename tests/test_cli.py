@@ -132,6 +132,20 @@ def test_usage_errors_exit_2(capsys, scene, tmp_path, argv) -> None:
     assert files_in(tmp_path) == ["scene.toml"]
 
 
+@pytest.mark.parametrize("frames", [[], ["--frames", "0:2", "-o", "f_%d.png"]])
+def test_stats_json_naming_the_scene_file_is_refused(capsys, scene, tmp_path, frames) -> None:
+    # `--stats-json sc.toml` replaced the scene with the stats (compared with the images only).
+    text = scene.read_text()
+    (tmp_path / "link.json").symlink_to(scene.name)
+    for stats in ("scene.toml", "link.json"):
+        code, out, err = run(capsys, "render", scene, *frames, "--stats-json", stats)
+        assert (code, out) == (2, "")
+        assert_one_error_line(err)
+        assert f"--stats-json {stats} is the scene file" in err
+    assert scene.read_text() == text
+    assert files_in(tmp_path) == ["link.json", "scene.toml"]
+
+
 @pytest.mark.parametrize(("command", "flags"), [
     ("render", ["--dask-workers", "3"]),
     ("render", ["--dask-timeout", "5"]),

@@ -14,6 +14,7 @@ import functools
 import json
 import os
 import select
+import signal
 import stat
 import struct
 import sys
@@ -101,6 +102,8 @@ from clray.scene.load import load_scene
 from clray.scene.model import Scene
 
 EXIT_INTERRUPTED = 130  # 128 + SIGINT, as shells report it
+# Signals that end the command as Ctrl-C does (_Signalled), with 128 + the signal.
+_ENDING_SIGNALS = (signal.SIGTERM, signal.SIGHUP)
 # Output folders this command made, so that a command that fails leaves no trace of them: its
 # checks make them before the work.
 _MADE_FOLDERS: list[Path] = []
@@ -1421,6 +1424,9 @@ def _run(args: argparse.Namespace) -> int:
         # the device's trouble, exit 4, in one line.
         _say(f"error: OpenCL: {opencl_error_text(err)}")
         return EXIT_OPENCL
+    except _Signalled as stop:
+        _say(f"error: {signal.strsignal(stop.signum).lower()} ({signal.Signals(stop.signum).name})")
+        return 128 + stop.signum
     except KeyboardInterrupt:
         _say("error: interrupted")
         return EXIT_INTERRUPTED
@@ -1446,11 +1452,33 @@ def _remove_made_folders() -> None:
     _MADE_FOLDERS.clear()
 
 
+class _Signalled(KeyboardInterrupt):
+    """SIGTERM or SIGHUP, raised where the command is: a KeyboardInterrupt, so that it takes
+    Ctrl-C's way out (temporary files removed by clray.output.write_set, the folders the command
+    made by main), where the signal's default would end the process leaving both."""
+
+    def __init__(self, signum: int) -> None:
+        super().__init__(signum)
+        self.signum = signum
+
+
+def _raise_signalled(signum: int, _frame: object) -> None:
+    # Once: a second signal during the cleanup would cut it short (SIGKILL still ends it).
+    for other in _ENDING_SIGNALS:
+        signal.signal(other, signal.SIG_IGN)
+    raise _Signalled(signum)
+
+
 def run_command() -> NoReturn:
     """The `clray` command (console script and `python -m clray`): main(), then an exit that
     skips Python's finalisation, which spends about 0.05 s tearing down numpy's and pyopencl's
     modules once every file is written and closed. Output is flushed first; where that fails
-    (a closed pipe) the ordinary exit reports it as usual."""
+    (a closed pipe) the ordinary exit reports it as usual. SIGTERM and SIGHUP end the command
+    as Ctrl-C does (_Signalled), but where they are ignored (nohup): they stay so. Here, not in
+    main(): a program calling main() keeps its own handlers."""
+    for signum in _ENDING_SIGNALS:
+        if signal.getsignal(signum) == signal.SIG_DFL:
+            signal.signal(signum, _raise_signalled)
     code = main()
     try:
         for stream in (sys.stdout, sys.stderr):

@@ -9,10 +9,12 @@ import json
 import os
 import pty
 import re
+import signal
 import struct
 import subprocess
 import sys
 import termios
+import time
 import warnings
 from pathlib import Path
 
@@ -679,6 +681,33 @@ def test_ctrl_c_while_importing(tmp_path, argv, code, err) -> None:
         assert done.returncode != 0 and err in done.stderr
     else:
         assert (done.returncode, done.stderr) == (code, err)
+
+
+@pytest.mark.parametrize(("signum", "words"), [(signal.SIGTERM, "terminated (SIGTERM)"),
+                                              (signal.SIGHUP, "hangup (SIGHUP)")])
+def test_sigterm_or_sighup_mid_render_leaves_nothing(cl_device, scene, tmp_path, signum,
+                                                     words) -> None:
+    # SIGTERM and SIGHUP ended the process at once, leaving the output folders it made (and
+    # mid-write, its temporary files); they end it as Ctrl-C does, with 128 + the signal.
+    image = tmp_path / "out" / "deep" / "img.png"
+    with subprocess.Popen([sys.executable, "-m", "clray", "render", str(scene), "-W", "2000",
+                           "-H", "1500", "--spp", "1024", "-o", str(image), "--aov", "depth",
+                           "--stats-json", str(image.with_suffix(".json"))],
+                          stderr=subprocess.PIPE, text=True, cwd=tmp_path) as proc:
+        try:
+            deadline = time.monotonic() + 10
+            while not image.parent.is_dir():  # made before the scene is loaded and rendered
+                assert proc.poll() is None and time.monotonic() < deadline, "no render started"
+                time.sleep(0.02)
+            time.sleep(1.0)  # into the render
+            assert proc.poll() is None, "the render ended before the signal"
+            proc.send_signal(signum)
+            _, err = proc.communicate(timeout=10)
+        finally:
+            proc.kill()
+    assert (proc.returncode, err.splitlines()[-1:]) == (128 + signum, [f"clray: error: {words}"])
+    assert "Traceback" not in err
+    assert files_in(tmp_path) == ["scene.toml"]
 
 
 def test_over_long_output_name_exits_1_before_rendering(capsys, scene, tmp_path,

@@ -14,6 +14,7 @@ import functools
 import json
 import os
 import select
+import signal
 import stat
 import struct
 import sys
@@ -96,10 +97,13 @@ from clray.passes import (
 )
 from clray.render import RenderResult, RenderSettings, render
 from clray.scene import limits
+from clray.scene.files import noting_reads
 from clray.scene.load import load_scene
 from clray.scene.model import Scene
 
 EXIT_INTERRUPTED = 130  # 128 + SIGINT, as shells report it
+# Signals that end the command as Ctrl-C does (_Signalled), with 128 + the signal.
+_ENDING_SIGNALS = (signal.SIGTERM, signal.SIGHUP)
 # Output folders this command made, so that a command that fails leaves no trace of them: its
 # checks make them before the work.
 _MADE_FOLDERS: list[Path] = []
@@ -520,6 +524,8 @@ def _parse(argv: list[str] | None) -> argparse.Namespace:
         _check_view_with_camera(parser, args.scene if args.command == "render" else args.model,
                                 args.view)
     if args.command == "render":
+        # For the errors that name the output: the default is no name the user gave.
+        args.output_given = args.output is not None
         if args.output is None:
             # The scene's stem is a name, not a pattern: a % in it (50%done.toml) is no frame
             # number, and --frames' pattern holds it as %%.
@@ -548,6 +554,9 @@ def _parse(argv: list[str] | None) -> argparse.Namespace:
             parser.error("-o - and --stats-json - would both write to standard output")
         if args.stats_json is not None and _same_file(args.stats_json, args.output):
             parser.error(f"--stats-json and the output image are the same file: {args.output}")
+        if args.stats_json not in (None, STDOUT) and _same_file(args.stats_json, args.scene):
+            parser.error(f"--stats-json {args.stats_json} is the scene file {args.scene}, "
+                         "which the stats would replace: give another name")
         png_only = [flag for flag, given in (("--srgb", args.linear is False),
                                               ("--exposure", args.exposure is not None),
                                               ("--png-bits", args.png_bits is not None)) if given]
@@ -611,10 +620,40 @@ def _same_file(a: Path, b: Path) -> bool:
     """Whether writing `a` would write `b`: the same name once symlinks are followed, as the
     writes follow them (a link to the image, whose target need not exist yet). Hard links are
     no clash: each write renames a new file onto its own name."""
+    return _real(a) == _real(b)
+
+
+def _real(path: str | Path) -> str:
+    """`path`'s absolute name once symlinks are followed, for _same_file."""
     try:
-        return os.path.realpath(a) == os.path.realpath(b)
+        return os.path.realpath(path)
     except ValueError:  # a NUL byte in a name, which no link holds: its write reports it
-        return os.path.abspath(a) == os.path.abspath(b)
+        return os.path.abspath(path)
+
+
+def _pass_outputs(image: Path, aovs: tuple[str, ...], previews: bool, where: str
+                  ) -> list[tuple[str, Path, str]]:
+    """The pass files written with `image`, each with the words that name it `where` it is,
+    and the flag that names it (-o, as the image's)."""
+    if image == STDOUT:
+        return []
+    return [(f"the {path.name.split('.')[-2]} {'preview' if path.suffix == '.png' else 'pass'} "
+             f"file {path} ({where})", path, "-o")
+            for path in pass_paths(image, aovs, previews)]
+
+
+def _refuse_replacing_reads(read: set[str], outputs: list[tuple[str, Path | None, str]]
+                            ) -> None:
+    """SettingsError (a usage error, as an output naming another output is) where an output,
+    given with the words that name it and the flag that sets its name, would replace a file
+    that loading the scene read (`read`, clray.scene.files.noting_reads): `clray render tri.obj`
+    whose tri.mtl names the texture tri.png. After the load, which alone knows the files, and
+    before anything is written."""
+    reads = {_real(name) for name in read}
+    for words, path, flag in outputs:
+        if path not in (None, STDOUT) and _real(path) in reads:
+            raise SettingsError(f"{words}: the scene reads this file, which writing the output "
+                                f"would replace: give {flag} another name")
 
 
 def _stdout_error(err: OSError) -> ClrayError:
@@ -948,7 +987,14 @@ def _render(args: argparse.Namespace) -> int:
         return _render_frames(args, started)
 
     with _warnings_as_lines(quiet=args.quiet, verbose=args.verbose):
-        scene = _load(args)
+        with noting_reads() as read:
+            scene = _load(args)
+        image = (f"-o {output}" if args.output_given
+                 else f"the output {output} (the scene's name, as no -o is given)")
+        _refuse_replacing_reads(read, [
+            (image, output, "-o"),
+            *_pass_outputs(output, args.aov or (), args.aov_preview, f"beside {image}"),
+            (f"--stats-json {args.stats_json}", args.stats_json, "--stats-json")])
         load_s = time.perf_counter() - started
         if not args.quiet:
             for warning in scene.warnings:
@@ -1097,13 +1143,19 @@ def _render_frames(args: argparse.Namespace, started: float) -> int:
 
     aovs: tuple[str, ...] = args.aov or ()
     with _warnings_as_lines(quiet=args.quiet, verbose=args.verbose):
-        sequence = load_sequence(args.scene)
+        # Every file of every frame: the animation's keyframes are loaded here (load_sequence).
+        with noting_reads() as read:
+            sequence = load_sequence(args.scene)
         frames = frames_in(args.frames, sequence.animation)
         check_pattern(args.output, len(frames))
         _check_stats_not_a_frame(args, frames, aovs)
         for path in frame_files(args.output, frames[0], aovs, args.aov_preview):
             _check_writable(path)
         todo = frames_to_render(frames, args.output, args.resume, aovs, args.aov_preview)
+        _refuse_replacing_reads(read, [
+            *((f"frame {frame}'s file {path}", path, "-o") for frame in todo
+              for path in frame_files(args.output, frame, aovs, args.aov_preview)),
+            (f"--stats-json {args.stats_json}", args.stats_json, "--stats-json")])
         # A folder where a later frame's file goes would fail the command only once the frames
         # before it are rendered; a look at each name is cheap beside a probe file each.
         for frame in todo:
@@ -1372,6 +1424,9 @@ def _run(args: argparse.Namespace) -> int:
         # the device's trouble, exit 4, in one line.
         _say(f"error: OpenCL: {opencl_error_text(err)}")
         return EXIT_OPENCL
+    except _Signalled as stop:
+        _say(f"error: {signal.strsignal(stop.signum).lower()} ({signal.Signals(stop.signum).name})")
+        return 128 + stop.signum
     except KeyboardInterrupt:
         _say("error: interrupted")
         return EXIT_INTERRUPTED
@@ -1397,11 +1452,33 @@ def _remove_made_folders() -> None:
     _MADE_FOLDERS.clear()
 
 
+class _Signalled(KeyboardInterrupt):
+    """SIGTERM or SIGHUP, raised where the command is: a KeyboardInterrupt, so that it takes
+    Ctrl-C's way out (temporary files removed by clray.output.write_set, the folders the command
+    made by main), where the signal's default would end the process leaving both."""
+
+    def __init__(self, signum: int) -> None:
+        super().__init__(signum)
+        self.signum = signum
+
+
+def _raise_signalled(signum: int, _frame: object) -> None:
+    # Once: a second signal during the cleanup would cut it short (SIGKILL still ends it).
+    for other in _ENDING_SIGNALS:
+        signal.signal(other, signal.SIG_IGN)
+    raise _Signalled(signum)
+
+
 def run_command() -> NoReturn:
     """The `clray` command (console script and `python -m clray`): main(), then an exit that
     skips Python's finalisation, which spends about 0.05 s tearing down numpy's and pyopencl's
     modules once every file is written and closed. Output is flushed first; where that fails
-    (a closed pipe) the ordinary exit reports it as usual."""
+    (a closed pipe) the ordinary exit reports it as usual. SIGTERM and SIGHUP end the command
+    as Ctrl-C does (_Signalled), but where they are ignored (nohup): they stay so. Here, not in
+    main(): a program calling main() keeps its own handlers."""
+    for signum in _ENDING_SIGNALS:
+        if signal.getsignal(signum) == signal.SIG_DFL:
+            signal.signal(signum, _raise_signalled)
     code = main()
     try:
         for stream in (sys.stdout, sys.stderr):

@@ -22,6 +22,8 @@ from clray.image_io import (
     check_writer,
     image_bytes,
     pfm_bytes,
+    png_bytes,
+    to_png_samples,
 )
 from clray.output import WriteSet, write_set
 from clray.scene import model as M
@@ -118,8 +120,8 @@ def passes_of(raw: dict[str, np.ndarray], scene: M.Scene,
 def preview(name: str, values: np.ndarray) -> np.ndarray:
     """A false-colour (H, W, 3) float32 picture of pass `name` in [0, 1] for a PNG: depth as
     inverse depth (white nearest, darker farther), normals from [-1, 1] and positions from their
-    range over the hits to [0, 1] per axis, albedo as it is, indices as distinct hues; black on
-    a miss."""
+    range over the hits to [0, 1] per axis, albedo as it is (linear: preview_png sRGB-encodes
+    it), indices as distinct hues; black on a miss."""
     if name == "albedo":
         return np.clip(values, 0.0, 1.0).astype(np.float32)
     if name in INDEX_PASSES:
@@ -150,6 +152,18 @@ def preview(name: str, values: np.ndarray) -> np.ndarray:
         span = np.where(hi > lo, hi - lo, 1.0)
         rgb[hit] = np.clip((values[hit] - lo) / span, 0.0, 1.0)
     return rgb
+
+
+def preview_png(name: str, values: np.ndarray) -> bytes:
+    """The PNG of pass `name`'s preview, tagged sRGB, as a viewer should show its codes."""
+    shown = preview(name, values)
+    if name == "albedo":
+        # Linear reflectance, light's own scale: the sRGB curve, as the image has.
+        return image_bytes(".png", shown, Encoding())
+    # The other previews' values are the display codes themselves (no light to encode): as
+    # they are, but tagged sRGB, not linear (gAMA 1.0), which colour-managed viewers would
+    # show washed out.
+    return png_bytes(to_png_samples(shown, Encoding(linear=True)), linear=False)
 
 
 # Each pass's channels in an OpenEXR file: layer "name", channels "name.X" ... (the indices
@@ -241,9 +255,7 @@ def stage_with_passes(files: WriteSet, path: str | Path, image: np.ndarray,
         if suffix != ".exr":
             files.add(beside(path, name, ".pfm"), pfm_bytes(values))
         if previews:
-            # The previews' values are what to show, not light: linear PNG, as they are.
-            files.add(beside(path, name, ".png"),
-                      image_bytes(".png", preview(name, values), Encoding(linear=True)))
+            files.add(beside(path, name, ".png"), preview_png(name, values))
     add_image(files, path, image, encoding, exr_channels(aovs) if suffix == ".exr" else None)
 
 

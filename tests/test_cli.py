@@ -9,10 +9,12 @@ import json
 import os
 import pty
 import re
+import signal
 import struct
 import subprocess
 import sys
 import termios
+import time
 import warnings
 from pathlib import Path
 
@@ -20,7 +22,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from clray import cli
+from clray import cli, sequence
 from clray.device.context import has_fp64
 from clray.errors import EXIT_USAGE, ClrayError
 from clray.image_io import read_pfm
@@ -130,6 +132,20 @@ def test_usage_errors_exit_2(capsys, scene, tmp_path, argv) -> None:
     assert out == ""
     assert_one_error_line(err)
     assert files_in(tmp_path) == ["scene.toml"]
+
+
+@pytest.mark.parametrize("frames", [[], ["--frames", "0:2", "-o", "f_%d.png"]])
+def test_stats_json_naming_the_scene_file_is_refused(capsys, scene, tmp_path, frames) -> None:
+    # `--stats-json sc.toml` replaced the scene with the stats (compared with the images only).
+    text = scene.read_text()
+    (tmp_path / "link.json").symlink_to(scene.name)
+    for stats in ("scene.toml", "link.json"):
+        code, out, err = run(capsys, "render", scene, *frames, "--stats-json", stats)
+        assert (code, out) == (2, "")
+        assert_one_error_line(err)
+        assert f"--stats-json {stats} is the scene file" in err
+    assert scene.read_text() == text
+    assert files_in(tmp_path) == ["link.json", "scene.toml"]
 
 
 @pytest.mark.parametrize(("command", "flags"), [
@@ -453,6 +469,67 @@ def refuse_to_render(*_args, **_kwargs):
     raise AssertionError("rendered although an output could not be written")
 
 
+TEXTURED_OBJ = "mtllib tri.mtl\nv -1 -1 0\nv 1 -1 0\nv 0 1 0\nvt 0 0\nvt 1 0\nvt 0.5 1\n" \
+               "usemtl m\nf 1/1 2/2 3/3\n"
+
+
+def sky_scene(tmp_path: Path, texture: str, animated: bool = False) -> Path:
+    """A scene whose background is the image `texture` (written), in `tmp_path`."""
+    texture_path = tmp_path / texture
+    texture_path.parent.mkdir(parents=True, exist_ok=True)
+    Image.new("RGB", (4, 2), (90, 140, 200)).save(texture_path)
+    animation = ('[animation]\nframes = 3\n[[animation.tracks]]\nkey = "camera.vfov"\n'
+                 'frames = [0, 2]\nvalues = [40, 50]\n') if animated else ""
+    scene = tmp_path / "sky.toml"
+    scene.write_text(SCENE.format(radius="1", material_extra="").replace(
+        "max_depth = 2", f'max_depth = 2\nbackground = {{ type = "image", file = "{texture}" }}')
+        + animation)
+    return scene
+
+
+@pytest.mark.parametrize(("texture", "flags", "named"), [
+    ("textures/sky.png", ["-o", "textures/sky.png"], "-o textures/sky.png"),
+    ("sky.png", [], "the output sky.png (the scene's name"),
+    ("out.depth.pfm", ["-o", "out.png", "--aov", "depth"], "the depth pass file out.depth.pfm"),
+    ("out.normal.png", ["-o", "out.png", "--aov", "normal", "--aov-preview"],
+     "the normal preview file out.normal.png"),
+    ("s.png", ["-o", "out.png", "--stats-json", "s.png"], "--stats-json s.png"),
+    ("f_0002.png", ["--frames", "0:3", "-o", "f_%04d.png"], "frame 2's file f_0002.png"),
+    ("f_0001.png", ["--frames", "0:3", "-o", "x_%d.png", "--stats-json", "f_0001.png"],
+     "--stats-json f_0001.png"),
+])
+def test_an_output_that_the_scene_reads_is_refused(capsys, tmp_path, monkeypatch, texture,
+                                                   flags, named) -> None:
+    # `clray render tri.obj` wrote tri.png over the texture its tri.mtl names, and
+    # `-o textures/sky.png` replaced the scene's background image.
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setattr(cli, "render", refuse_to_render)
+    monkeypatch.setattr(sequence, "render_frames", refuse_to_render)
+    scene = sky_scene(tmp_path, texture, animated="--frames" in flags)
+    before = {p: p.read_bytes() for p in tmp_path.rglob("*") if p.is_file()}
+    code, out, err = run(capsys, "render", scene.name, *flags)
+    assert (code, out) == (2, ""), err
+    assert_one_error_line(err)
+    assert named in err and "the scene reads this file" in err
+    assert {p: p.read_bytes() for p in tmp_path.rglob("*") if p.is_file()} == before
+
+
+def test_a_mesh_files_texture_named_as_the_default_output_is_kept(capsys, tmp_path,
+                                                                  monkeypatch) -> None:
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setattr(cli, "render", refuse_to_render)
+    (tmp_path / "tri.obj").write_text(TEXTURED_OBJ)
+    (tmp_path / "tri.mtl").write_text("newmtl m\nKd 1 1 1\nmap_Kd tri.png\n")
+    Image.new("RGB", (2, 2), (200, 10, 10)).save(tmp_path / "tri.png")
+    texture = (tmp_path / "tri.png").read_bytes()
+    code, _, err = run(capsys, "render", "tri.obj")
+    assert code == 2
+    assert_one_error_line(err)
+    assert "the output tri.png (the scene's name" in err and "the scene reads this file" in err
+    assert (tmp_path / "tri.png").read_bytes() == texture
+    assert files_in(tmp_path) == ["tri.mtl", "tri.obj", "tri.png"]
+
+
 def test_unwritable_stats_folder_is_found_before_rendering(capsys, scene, tmp_path,
                                                            monkeypatch) -> None:
     monkeypatch.setattr(cli, "render", refuse_to_render)
@@ -604,6 +681,33 @@ def test_ctrl_c_while_importing(tmp_path, argv, code, err) -> None:
         assert done.returncode != 0 and err in done.stderr
     else:
         assert (done.returncode, done.stderr) == (code, err)
+
+
+@pytest.mark.parametrize(("signum", "words"), [(signal.SIGTERM, "terminated (SIGTERM)"),
+                                              (signal.SIGHUP, "hangup (SIGHUP)")])
+def test_sigterm_or_sighup_mid_render_leaves_nothing(cl_device, scene, tmp_path, signum,
+                                                     words) -> None:
+    # SIGTERM and SIGHUP ended the process at once, leaving the output folders it made (and
+    # mid-write, its temporary files); they end it as Ctrl-C does, with 128 + the signal.
+    image = tmp_path / "out" / "deep" / "img.png"
+    with subprocess.Popen([sys.executable, "-m", "clray", "render", str(scene), "-W", "2000",
+                           "-H", "1500", "--spp", "1024", "-o", str(image), "--aov", "depth",
+                           "--stats-json", str(image.with_suffix(".json"))],
+                          stderr=subprocess.PIPE, text=True, cwd=tmp_path) as proc:
+        try:
+            deadline = time.monotonic() + 10
+            while not image.parent.is_dir():  # made before the scene is loaded and rendered
+                assert proc.poll() is None and time.monotonic() < deadline, "no render started"
+                time.sleep(0.02)
+            time.sleep(1.0)  # into the render
+            assert proc.poll() is None, "the render ended before the signal"
+            proc.send_signal(signum)
+            _, err = proc.communicate(timeout=10)
+        finally:
+            proc.kill()
+    assert (proc.returncode, err.splitlines()[-1:]) == (128 + signum, [f"clray: error: {words}"])
+    assert "Traceback" not in err
+    assert files_in(tmp_path) == ["scene.toml"]
 
 
 def test_over_long_output_name_exits_1_before_rendering(capsys, scene, tmp_path,

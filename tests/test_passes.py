@@ -18,7 +18,7 @@ from PIL import Image
 from clray import cli
 from clray.device.context import has_fp64
 from clray.errors import EXIT_USAGE, SettingsError
-from clray.image_io import read_pfm
+from clray.image_io import read_pfm, to_png_samples
 from clray.knobs import Tuning
 from clray.passes import PASS_NAMES, preview
 from clray.reference import camera_rays
@@ -339,6 +339,38 @@ def test_position_preview_is_black_on_a_miss_and_spans_the_hits() -> None:
     hits = picture[1:, 1:].reshape(-1, 3)
     assert np.all(hits.min(axis=0) == 0) and np.all(hits.max(axis=0) == 1)
     assert np.all(preview("position", np.zeros((2, 2, 3), np.float32)) == 0)  # nothing hit
+
+
+def png_chunk_types(data: bytes) -> list[bytes]:
+    """The types of a PNG file's chunks, in order."""
+    types, at = [], 8
+    while at < len(data):
+        length = int.from_bytes(data[at:at + 4], "big")
+        types.append(data[at + 4:at + 8])
+        at += 12 + length
+    return types
+
+
+def test_previews_are_tagged_srgb_and_albedo_is_srgb_encoded(tmp_path: Path) -> None:
+    # The previews' codes are what to show, but were tagged gAMA 1.0 (linear): a colour-managed
+    # viewer showed them washed out. Albedo, linear reflectance, is sRGB-encoded as the image is.
+    rng = np.random.default_rng(5)
+    aovs = {name: (rng.integers(-1, 9, (4, 5)).astype(np.int32)
+                   if name in ("object", "material", "instance")
+                   else rng.uniform(1, 5, (4, 5)).astype(np.float32) if name == "depth"
+                   else rng.uniform(-1, 1, (4, 5, 3)).astype(np.float32))
+            for name in PASS_NAMES}
+    RenderResult(np.zeros((4, 5, 3), np.float32), {}, aovs=aovs).save(tmp_path / "out.png",
+                                                                       previews=True)
+    for name, values in aovs.items():
+        data = (tmp_path / f"out.{name}.png").read_bytes()
+        types = png_chunk_types(data)
+        assert b"sRGB" in types and b"gAMA" not in types, name
+        codes = np.asarray(Image.open(tmp_path / f"out.{name}.png"))
+        shown = preview(name, values)
+        expected = (to_png_samples(shown) if name == "albedo"
+                    else np.rint(shown.astype(np.float64) * 255).astype(np.uint8))
+        assert np.array_equal(codes, expected), name
 
 
 # --- the command line: --aov, --aov-preview, the files they write -----------------------------

@@ -34,6 +34,9 @@ class UnreadableFile(Exception):
 def open_regular(path: Path, max_bytes: int) -> tuple[BinaryIO, os.stat_result]:
     """Open `path` for reading if it is a regular file of at most `max_bytes` bytes (from the
     files kept, within KeptFiles.used())."""
+    noted = _READS.get()
+    if noted is not None:
+        noted.add(os.path.abspath(path))
     kept = _KEPT.get()
     if kept is not None:
         return kept.open(path, max_bytes)
@@ -44,6 +47,19 @@ def open_regular(path: Path, max_bytes: int) -> tuple[BinaryIO, os.stat_result]:
         stream.close()
         raise
     return stream, info
+
+
+@contextlib.contextmanager
+def noting_reads() -> Iterator[set[str]]:
+    """The absolute names of the files that open_regular is asked for within the block (those
+    that could not be opened too): the command line refuses an output that would replace a file
+    its scene reads (a texture named like the image)."""
+    names: set[str] = set()
+    token = _READS.set(names)
+    try:
+        yield names
+    finally:
+        _READS.reset(token)
 
 
 def _open(path: Path) -> tuple[BinaryIO, os.stat_result]:
@@ -197,3 +213,4 @@ def parses_kept() -> bool:
 
 
 _KEPT: ContextVar[KeptFiles | None] = ContextVar("clray_kept_files", default=None)
+_READS: ContextVar[set[str] | None] = ContextVar("clray_files_read", default=None)

@@ -1,6 +1,7 @@
 """What the benchmark scripts share: argument types that turn a bad value into one usage line
 (argparse's error, exit status 2) instead of a traceback or a measurement of nothing, the check
-of the output files before the work, and the peak memory of a child process.
+of the output files before the work, the host processor a result names, and the peak memory of
+a child process.
 
 The scripts import it as `benchmarks.common`, with the repository's root on the path (benchmarks/
 is not a package: it imports as a namespace package, as tests/ does).
@@ -9,6 +10,7 @@ is not a package: it imports as a namespace package, as tests/ does).
 from __future__ import annotations
 
 import argparse
+import platform
 from collections.abc import Callable, Iterable
 from pathlib import Path
 
@@ -81,6 +83,23 @@ def check_outputs(parser: argparse.ArgumentParser, **paths: Path | str | None) -
                 path.unlink()
         except OSError as err:
             parser.error(f"{option} {path}: cannot write there ({err.strerror or err})")
+
+
+def cpu_model() -> dict:
+    """The host processor's model name (null where neither /proc/cpuinfo nor the platform
+    module names it) and whether it has the vector extensions that matter here: `cpu_model`,
+    `avx2`, `avx512f`."""
+    model, flags = platform.processor() or None, set()
+    try:
+        for line in Path("/proc/cpuinfo").read_text(encoding="utf-8").splitlines():
+            key, _, value = line.partition(":")
+            if key.strip() == "model name" and model in (None, "", "x86_64"):
+                model = value.strip()
+            elif key.strip() == "flags" and not flags:
+                flags = set(value.split())
+    except OSError:
+        pass
+    return {"cpu_model": model, "avx2": "avx2" in flags, "avx512f": "avx512f" in flags}
 
 
 # Source of peak() for a child process run with `python -c`: its peak resident bytes, VmHWM,

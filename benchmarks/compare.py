@@ -12,16 +12,22 @@ the refs in reverse order (A B C, C B A, A B C, ...), so that no ref always runs
 over an even `--rounds` every ref's average place is the same. Medians over all rounds are
 reported per ref and scene, with the ratio to the first ref. Alternating the refs spreads the
 machine's load changes over all of them, which separate runs at different times do not.
-`REF:TRAVERSAL` (e.g. `WORKTREE:sample_packet`) renders with that KernelConfig traversal, for
-commits that have it, and `REF:sample_packet:LANES` with packets of LANES rays (KernelConfig's
-packet_lanes, 8 where not given, whatever the device's own); a plain REF with KernelConfig's
-default. `--spp` and `--size` replace the scenes' own. `--scenes` takes spheres, mesh (the
-generated 327k-triangle mesh) or scene files.
+Each ref packs the scene as its own `clray render --no-tuning` does, where the commit has the
+device policy (clray.device.policy.device_plan): the device's BVH width, traversal and switches,
+the BVH built on the device where its packer does so. A commit from before it packs with its
+KernelConfig's and pack_scene's defaults (a BVH of width 8 built on the host, the single-ray
+walk). `REF:TRAVERSAL` (e.g. `WORKTREE:sample_packet`) renders with that traversal, as `clray
+render --traversal` does (at 1 spp a sample-packet traversal builds the single-ray walk; before
+the device policy, KernelConfig's traversal as named), and `REF:sample_packet:LANES` with
+packets of LANES rays (the device's own where not given; before the device policy, 8). The
+traversal and BVH width each ref built are recorded. `--spp` and `--size` replace the scenes'
+own. `--scenes` takes spheres, mesh (the generated 327k-triangle mesh) or scene files.
 
 An unknown REF or TRAVERSAL, a REF or scene given twice, or no scene, is a usage error before any
 worktree is made; a render that fails stops the run with one line naming the ref, the scene and
 its process's last line on stderr. The JSON records the `--device` given, the device and
-platform version the processes rendered on (one for all refs, or the run stops), and each ref's
+platform version the processes rendered on (one for all refs, or the run stops), the host's
+processor, and each ref's
 commit SHA (WORKTREE: HEAD's, and whether tracked files differ from it); an image mean that is
 not finite is null, with the image's count of pixels that are not (benchmarks/README.md).
 """
@@ -38,16 +44,20 @@ import subprocess
 import sys
 import tempfile
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
 sys.path.insert(0, str(ROOT))
-from benchmarks.common import check_outputs, image_size, positive_int  # noqa: E402
+from benchmarks.common import check_outputs, cpu_model, image_size, positive_int  # noqa: E402
 from clray.errors import one_line  # noqa: E402
 from clray.knobs import TRAVERSALS  # noqa: E402
 
+if TYPE_CHECKING:
+    import numpy as np
 
-def image_summary(image) -> dict:
+
+def image_summary(image: np.ndarray) -> dict:
     """The image's mean, None where it is not finite (strict JSON has no NaN), and how many
     pixels have a channel that is NaN or infinite, which a NaN mean cannot tell. Its source is
     part of _MEASURE: it runs in each ref's process, on that ref's image."""
@@ -62,8 +72,9 @@ def image_summary(image) -> dict:
             "nonfinite_pixels": int(pixels.size - np.count_nonzero(pixels))}
 
 
-# Runs inside each worktree's process; only API that every compared commit has.
-_MEASURE = """
+# Runs inside each worktree's process; API that a compared commit may lack is tried first.
+# The annotations stay unevaluated: image_summary's name numpy, which the process imports late.
+_MEASURE = """from __future__ import annotations
 import importlib.util, json, os, sys
 """ + inspect.getsource(image_summary) + """
 # The virtual environment's editable install maps clray.kernels to its own checkout's kernels/:
@@ -80,23 +91,40 @@ try:
 except ImportError:  # a commit from before clray.device.launch
     from clray.render import render_packed
 from clray.scene.load import load_scene
+try:
+    from clray.device.context import queue_for
+    from clray.device.policy import device_plan
+    from clray.knobs import Tuning
+except ImportError:  # a commit from before the device policy
+    device_plan = None
 path, repeat, spec, variant = sys.argv[1], int(sys.argv[2]), sys.argv[3] or None, sys.argv[4]
 spp, width, height = (int(v) for v in sys.argv[5:8])
 scene = load_scene(path)
 r = scene.render
+spp = spp or r.spp
 traversal, _, lanes = variant.partition(":")
-switches = {"traversal": traversal} if traversal else {}
+device = select_device(spec)
+if device_plan is None:
+    # KernelConfig's and pack_scene's defaults: what the commit's own render packed.
+    switches = {"traversal": traversal} if traversal else {}
+else:
+    # As the commit's `clray render --no-tuning [--traversal T]` packs it: the device plan's
+    # BVH width, traversal and switches, the BVH built on the device where the packer does.
+    plan = device_plan(device, spp=spp, traversal=traversal or None, tuning=Tuning())
+    switches = {"queue": queue_for(device), **plan.pack_arguments()}
 if lanes:
     switches["packet_lanes"] = int(lanes)
-packed = pack_scene(scene, width=width or r.width, height=height or r.height,
-                    spp=spp or r.spp, max_depth=r.max_depth, seed=r.seed, **switches)
-device = select_device(spec)
+packed = pack_scene(scene, width=width or r.width, height=height or r.height, spp=spp,
+                    max_depth=r.max_depth, seed=r.seed, **switches)
 render_packed(packed, device)
 times = []
 for _ in range(repeat):
     image, stats = render_packed(packed, device)
     times.append(stats["kernel_s"])
+config = packed.config
 print(json.dumps({"kernel_s": times, "rays": stats["rays"]["total"], **image_summary(image),
+                  "traversal": getattr(config, "traversal", None),
+                  "bvh_width": getattr(config, "bvh_width", None),
                   "device": describe(device),
                   "platform_version": device.platform.version.strip()}))
 """
@@ -288,7 +316,7 @@ def main(argv: list[str] | None = None) -> None:
     base = args.refs[0]
     device = devices[base]  # every ref's, checked above
     report = {"benchmark": "compare", "device_spec": args.device, "device": device[0],
-              "platform_version": device[1], "rounds": args.rounds,
+              "platform_version": device[1], **cpu_model(), "rounds": args.rounds,
               "per_round": args.per_round, "spp": args.spp,
               "size": "x".join(map(str, args.size)) if args.size else None, "refs": {}}
     for ref in args.refs:
@@ -299,6 +327,7 @@ def main(argv: list[str] | None = None) -> None:
             entry[name] = {"kernel_s": median, "kernel_runs_s": times[ref][name],
                            "image_mean": got["mean"], "nonfinite_pixels": got["nonfinite_pixels"],
                            "rays": got["rays"], "mrays_per_s": got["rays"] / median * 1e-6,
+                           "traversal": got.get("traversal"), "bvh_width": got.get("bvh_width"),
                            "speedup_vs_first": statistics.median(times[base][name]) / median}
             print(f"{ref:>12} {Path(name).stem:>8}: kernel {three_figures(median)} s (median "
                   f"of {len(times[ref][name])}), {three_figures(entry[name]['mrays_per_s'])} "

@@ -19,8 +19,10 @@ so both trace the same float32 rays through the same float32 triangles.
   `EmbreeScene.run(origins, directions, output=1)` is a Cython loop that calls Embree's
   single-ray `rtcIntersect1` once a ray on the calling thread (embreex 4.4 binds no packet or
   stream call: its `rtcore_scene` module imports `rtcIntersect1` and `rtcOccluded1` only), so
-  it runs on one thread. The first run commits the scene (Embree's BVH build, on TBB's
-  threads) and is not timed. Timed by wall clock and by the process's CPU time.
+  it runs on one thread. The scene is committed (Embree's BVH build, on TBB's threads) by a
+  run on no rays, timed apart (`embree_commit_s`, after `embree_mesh_s`, the mesh's
+  construction), and the first full run is an untimed warm-up. Timed by wall clock and by the
+  process's CPU time.
 - clray, on the OpenCL device (PoCL's CPU device by default: one thread a core): the render
   kernel at 1 spp, max depth 0, no lights, built for the single-ray walk
   (`KernelConfig.traversal = "single"`, as `clray render` builds 1-spp renders): each
@@ -63,7 +65,6 @@ import dataclasses
 import importlib.util
 import json
 import os
-import platform
 import re
 import shutil
 import statistics
@@ -72,7 +73,8 @@ import sys
 import tempfile
 import time
 from pathlib import Path
-from typing import Any
+from types import ModuleType
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -80,6 +82,11 @@ HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
 sys.path.insert(0, str(ROOT))
 from benchmarks.common import check_outputs  # noqa: E402
+
+if TYPE_CHECKING:
+    import pyopencl as cl
+
+    from clray.scene.model import Scene
 
 INSTALL_HINT = ("benchmarks/embree.py needs embreex (Embree 4's Python binding): "
                 ".venv/bin/pip install embreex   (or: pip install -e '.[embree]')")
@@ -116,7 +123,7 @@ material = "clay"
 """
 
 
-def _module(name: str, folder: Path = HERE):
+def _module(name: str, folder: Path = HERE) -> ModuleType:
     # benchmarks/ and scripts/ are not packages: load their modules from their files.
     spec = importlib.util.spec_from_file_location(name, folder / f"{name}.py")
     module = importlib.util.module_from_spec(spec)
@@ -185,7 +192,7 @@ def write_scene(out: Path, width: int, height: int, subdivisions: int) -> Path:
     return path
 
 
-def primary_rays(scene, width: int, height: int) -> tuple[np.ndarray, np.ndarray]:
+def primary_rays(scene: Scene, width: int, height: int) -> tuple[np.ndarray, np.ndarray]:
     """(origins, directions), float32 (N, 3), camera-relative: one ray a pixel through its
     centre, row by row from the top, as clray's camera makes them (in float64, then rounded)."""
     from clray.reference.sampling import camera_rays
@@ -196,7 +203,7 @@ def primary_rays(scene, width: int, height: int) -> tuple[np.ndarray, np.ndarray
                                                                       dtype=np.float32))
 
 
-def camera_relative_triangles(scene) -> np.ndarray:
+def camera_relative_triangles(scene: Scene) -> np.ndarray:
     """(F, 3, 3) float32: the scene's meshes' triangles, camera-relative as pack_scene stores
     their vertices (float64 minus the eye, then rounded)."""
     from clray.scene import model as M
@@ -208,17 +215,25 @@ def camera_relative_triangles(scene) -> np.ndarray:
 
 
 class EmbreeSide:
-    """Embree 4 through embreex: one scene of one triangle mesh, rays by rtcIntersect1."""
+    """Embree 4 through embreex: one scene of one triangle mesh, rays by rtcIntersect1.
+    `mesh_s`: the mesh's construction (its vertices into Embree's buffers); `commit_s`: the
+    scene's commit, Embree's BVH build (embreex commits at a scene's first run: here a run on
+    no rays, so no trace is timed with it)."""
 
     def __init__(self, embree: tuple[Any, Any, str], triangles: np.ndarray,
-                 origins: np.ndarray, directions: np.ndarray):
+                 origins: np.ndarray, directions: np.ndarray) -> None:
         rtcore_scene, mesh_construction, _ = embree
         self.scene = rtcore_scene.EmbreeScene()
-        self.mesh = mesh_construction.TriangleMesh(self.scene, triangles)
-        self.origins, self.directions = origins, directions
         start = time.perf_counter()
-        self.run()  # commits the scene: Embree's BVH build
-        self.commit_and_first_run_s = time.perf_counter() - start
+        self.mesh = mesh_construction.TriangleMesh(self.scene, triangles)
+        self.mesh_s = time.perf_counter() - start
+        no_rays = np.zeros((0, 3), dtype=np.float32)
+        start = time.perf_counter()
+        self.scene.run(no_rays, no_rays.copy(), output=1)
+        self.commit_s = time.perf_counter() - start
+        if not self.scene.is_committed:
+            raise RuntimeError("embreex did not commit the scene at a run on no rays")
+        self.origins, self.directions = origins, directions
 
     def run(self) -> dict:
         # On the one CPU the one-core render's child has (OneCoreSide), as that child is: this
@@ -240,8 +255,8 @@ class ClraySide:
     kernel on given rays (none: the render alone), and optionally the render at packet_spp
     samples a pixel."""
 
-    def __init__(self, scene, device, origins: np.ndarray | None,
-                 directions: np.ndarray | None, packet_spp: int):
+    def __init__(self, scene: Scene, device: cl.Device, origins: np.ndarray | None,
+                 directions: np.ndarray | None, packet_spp: int) -> None:
         from clray.device.context import queue_for
         from clray.device.pack import pack_scene
         from clray.device.policy import device_plan
@@ -333,7 +348,7 @@ class _TimedLaunches:
     """pyopencl as render_packed sees it, but for enqueue_nd_range_kernel, which waits for the
     launch and adds the process's CPU time from the enqueue to the end of the wait to cpu_s."""
 
-    def __init__(self, module: Any):
+    def __init__(self, module: Any) -> None:
         self.module = module
         self.cpu_s = 0.0
 
@@ -356,7 +371,7 @@ class OneCoreSide:
     and clock: on the 2-core machine the one-core render ran 3 to 17 % faster than half the
     two-core one). The child renders once for each round the parent asks for."""
 
-    def __init__(self, scene_file: Path, device_spec: str | None):
+    def __init__(self, scene_file: Path, device_spec: str | None) -> None:
         cmd = [sys.executable, str(Path(__file__).resolve()), "--one-core-child",
                str(scene_file)] + (["--device", device_spec] if device_spec else [])
         env = dict(os.environ, POCL_MAX_PTHREAD_COUNT="1")
@@ -410,21 +425,6 @@ def rates(rays: int, seconds: list[float], cpu_seconds: list[float], workers: in
             "mrays_per_s": spread(per_s),
             "mrays_per_s_per_worker": spread([v / workers for v in per_s]),
             "mrays_per_cpu_s": spread([rays / s * 1e-6 for s in cpu_seconds])}
-
-
-def cpu_model() -> dict:
-    """The host CPU's model name and the vector extensions that matter here."""
-    model, flags = platform.processor() or None, set()
-    try:
-        for line in Path("/proc/cpuinfo").read_text(encoding="utf-8").splitlines():
-            key, _, value = line.partition(":")
-            if key.strip() == "model name" and model in (None, "", "x86_64"):
-                model = value.strip()
-            elif key.strip() == "flags" and not flags:
-                flags = set(value.split())
-    except OSError:
-        pass
-    return {"cpu_model": model, "avx2": "avx2" in flags, "avx512f": "avx512f" in flags}
 
 
 def count_instructions(scene_file: Path) -> dict:
@@ -579,9 +579,7 @@ def main(argv: list[str] | None = None) -> None:
         origins, directions = primary_rays(scene, args.width, args.height)
         triangles = camera_relative_triangles(scene)
 
-        start = time.perf_counter()
         embree_side = EmbreeSide(embree, triangles, origins, directions)
-        embree_build_s = time.perf_counter() - start
         clray_side = ClraySide(scene, device, origins, directions, args.packet_spp)
         one_core = OneCoreSide(scene_file, args.device)
         runs = timed_rounds(args, embree_side, clray_side, one_core)
@@ -612,9 +610,8 @@ def main(argv: list[str] | None = None) -> None:
         "embree_version": (re.match(r"\d+\.\d+\.\d+", embree[2]) or [None])[0],
         "embree_threads": 1,
         "embree_call": "rtcIntersect1 (embreex EmbreeScene.run, a Cython loop over rays)",
-        "embree_commit_and_first_run_s": embree_side.commit_and_first_run_s,
-        "embree_build_s": embree_build_s,
-        **cpu_model(),
+        "embree_mesh_s": embree_side.mesh_s,
+        "embree_commit_s": embree_side.commit_s,
         "embree": embree_rates,
         "clray": sides,
         "ratios": ratios_to_embree(sides, embree_rates),

@@ -3,7 +3,8 @@
 benchmarks/povray/ holds POV-Ray versions of scenes/spheres.toml (spheres.pov) and of the
 generated mesh scene (bumpy.pov, whose mesh2 `write_mesh_pov` writes from the generator's OBJ).
 `bench.py --povray auto` runs them through `Interleaved`, one POV-Ray trace after each timed clray
-render at the same samples per pixel: 1 (no antialiasing) and, by default, 16 (`+AM1 +A0.0 +R4`).
+render at the same samples per pixel: 1 (no antialiasing) and, by default, 16 (`+AM1 +A0.0 +R4`),
+after one untimed warm-up trace at each count.
 Only POV-Ray's own statistics are used: its trace time, with the parse time apart.
 
 Imported by bench.py from its file (benchmarks/ is not a package).
@@ -153,6 +154,11 @@ class Interleaved:
             self.pov_file = Path(shutil.copy(POV_DIR / POV_FILES[scene], work_dir))
         self.scene, self.width, self.height, self.threads = scene, width, height, threads
         self.runs: dict[int, list[dict]] = {}
+
+    def warm_up(self, samples: int = 1) -> None:
+        """One untimed trace at `samples`, as clray renders once before its timed renders: the
+        first run also pays POV-Ray's reads of its program and the scene's files."""
+        trace_time(self.pov_file, self.width, self.height, self.threads, samples)
 
     def trace(self, samples: int = 1) -> None:
         self.runs.setdefault(samples, []).append(

@@ -11,6 +11,8 @@ import sys
 from pathlib import Path
 from types import ModuleType
 
+import numpy as np
+import pyopencl as cl
 import pytest
 from conftest import module_from_file
 
@@ -118,6 +120,13 @@ BAD_ARGUMENTS = [
     ("stages", ["count_stages"], ["--rows", "5:2"], "--rows"),
     ("ply_readers", ["sphere_ply"], ["--repeat", "0"], "--repeat"),
     ("gltf_readers", ["grid_glb"], ["--side", "1"], "--side"),
+    ("bench", ["select_device", "bench_scene"], ["--scenes", ","], "--scenes"),  # measured nothing
+    ("bench", ["select_device", "bench_scene"], ["--scenes", "spheres,spheres"],
+     "repeated: spheres"),  # measured spheres twice
+    ("bench", ["select_device", "bench_scene"], ["--scenes", "spherse"], "spherse"),
+    # was ignored: no POV-Ray trace, and nothing said so
+    ("bench", ["select_device", "bench_scene"], ["--povray", "off", "--povray-spp", "16"],
+     "--povray-spp"),
 ]
 
 
@@ -231,6 +240,114 @@ def test_load_sizes_ratio_does_not_follow_the_order_of_sides(
     entry = json.loads(out.read_text(encoding="utf-8"))["formats"]["obj"]
     assert [s["side"] for s in entry["sizes"]] == [64, 128]
     assert entry["largest_over_smallest_a_triangle"] == pytest.approx(2.0)
+
+
+def test_cpu_model_names_the_host_processor() -> None:
+    from benchmarks.common import cpu_model
+
+    got = cpu_model()
+    assert set(got) == {"cpu_model", "avx2", "avx512f"}
+    if Path("/proc/cpuinfo").exists():
+        assert isinstance(got["cpu_model"], str) and got["cpu_model"]
+
+
+def test_bench_environment_names_the_processor(cl_device: cl.Device) -> None:
+    """bench.py's JSON named the device and driver but not the host processor."""
+    from benchmarks.common import cpu_model
+
+    env = script("bench").environment(cl_device)
+    assert {key: env[key] for key in ("cpu_model", "avx2", "avx512f")} == cpu_model()
+    assert env["driver_version"] == cl_device.driver_version.strip()
+
+
+def _fake_render(packed: object, device: object) -> tuple[np.ndarray, dict]:
+    return np.zeros((1, 1, 3), dtype=np.float32), {"kernel_s": 0.1, "rays": {"total": 4}}
+
+
+def test_bench_warms_povray_up_at_each_count(tmp_path: Path,
+                                            monkeypatch: pytest.MonkeyPatch) -> None:
+    """POV-Ray's first trace at each count was timed, though clray's first render was not."""
+    bench = script("bench")
+    traced: list[int] = []
+
+    def trace_time(pov_file: Path, width: int, height: int, threads: int = 2,
+                   samples: int = 1) -> dict:
+        traced.append(samples)
+        return {"trace_s": 1.0}
+
+    monkeypatch.setattr(bench.povray, "trace_time", trace_time)
+    rendered: list[object] = []
+    monkeypatch.setattr(bench, "render_packed",
+                        lambda packed, device: (rendered.append(packed), _fake_render(
+                            packed, device))[1])
+    pov = bench.povray.Interleaved("spheres", ROOT / "scenes" / "spheres.toml", tmp_path, 4, 4, 1)
+    got = bench.timed_renders("own", None, 2, pov, {16: "sixteen"}, (1, 16))
+    assert traced == [1, 16] + [1, 16] * 2  # a warm-up at each count, then the rounds
+    assert {n: len(runs) for n, runs in pov.runs.items()} == {1: 2, 16: 2}
+    assert rendered == ["sixteen"] + ["own", "sixteen"] * 2
+    assert got["runs"] == [0.1, 0.1] and got["spp_runs"] == {1: [0.1, 0.1], 16: [0.1, 0.1]}
+
+
+@pytest.mark.parametrize(("argv", "available", "state"), [
+    (["--povray", "off"], True, "off"),
+    (["--povray-spp", "16"], False, "not installed"),
+])
+def test_bench_records_why_povray_was_not_compared(
+        argv: list[str], available: bool, state: str, tmp_path: Path,
+        capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch) -> None:
+    """--povray-spp was silently ignored without POV-Ray: the JSON gave no reason."""
+    bench = script("bench")
+    monkeypatch.setattr(bench.povray, "available", lambda: available)
+    monkeypatch.setattr(bench.profile, "cache_env", lambda path, env: {})
+    monkeypatch.setattr(bench, "select_device", lambda spec: None)
+    monkeypatch.setattr(bench, "environment", lambda device: {})
+    monkeypatch.setattr(bench, "print_scene", lambda r, repeat: None)
+
+    def bench_scene(name: str, path: Path, device: object, spec: object, repeat: int,
+                    povray_dir: Path | None, split: bool, povray_spp: tuple[int, ...]) -> dict:
+        assert povray_dir is None
+        return {"scene": name}
+
+    monkeypatch.setattr(bench, "bench_scene", bench_scene)
+    out = tmp_path / "bench.json"
+    bench.main(["--scenes", "spheres", "--json", str(out), *argv])
+    scenes = json.loads(out.read_text(encoding="utf-8"))["scenes"]
+    assert scenes == [{"scene": "spheres", "povray": state}]
+    err = capsys.readouterr().err
+    assert ("povray is not on PATH" in err) is (state == "not installed")
+    assert "16 not traced" in err or state == "off"
+
+
+def test_bench_povray_entry_compares_rays_per_second() -> None:
+    """Beside the ratio of times, the ratio of rates: POV-Ray traces about n + 1 camera rays a
+    pixel at n samples."""
+    class Pov:
+        def summary(self, samples: int, kernel_s: float, image: np.ndarray) -> dict:
+            return {"trace_s": 2.0, "ratio_trace_over_kernel": 2.0 / kernel_s,
+                    "rays": {"traced": 3_000_000, "reflected": 0, "shadow_tests": 1_000_000}}
+
+    entry = script("bench").povray_entry(Pov(), 1, [0.5], {"total": 2_000_000},
+                                         np.zeros((1, 1, 3)))
+    assert entry["clray_mrays_per_s"] == pytest.approx(4.0)
+    assert entry["povray_mrays_per_s"] == pytest.approx(2.0)
+    assert entry["ratio_rays_per_s"] == pytest.approx(2.0)
+    assert entry["ratio_trace_over_kernel"] == pytest.approx(4.0)
+
+
+def test_bench_packs_every_count_with_the_device_plan(cl_device: cl.Device) -> None:
+    """The scene's own count was packed without the plan's switches, the other counts with
+    them: both as `clray render --no-tuning` packs."""
+    from clray.device.policy import device_plan
+    from clray.knobs import Tuning
+    from clray.scene.load import load_scene
+
+    scene = load_scene(ROOT / "scenes" / "spheres.toml")
+    for spp in (scene.render.spp, 16):
+        config = script("bench").pack_at(scene, cl_device, spp).config
+        plan = device_plan(cl_device, spp=spp, tuning=Tuning())
+        assert config.bvh_width == plan.bvh_width
+        for name, value in plan.switches.items():
+            assert getattr(config, name) == value, (spp, name)
 
 
 def test_stages_traversals_are_clrays() -> None:

@@ -186,6 +186,9 @@ def test_the_report_names_the_device_and_the_commits(
     report = _strict_json(out)
     assert report["device_spec"] == "pocl"
     assert report["device"] == "CPU (PoCL, 6.0)"
+    # The host processor too, which the device's name does not give on every platform.
+    cpu_model = module_from_file(ROOT / "benchmarks" / "common.py", "common").cpu_model()
+    assert {key: report[key] for key in cpu_model} == cpu_model
     assert report["platform_version"] == "OpenCL 3.0 PoCL 6.0"
     old, now = report["refs"]["HEAD~1"], report["refs"]["WORKTREE:single"]
     assert old["commit"] == _git("rev-parse", "HEAD~1") and old["dirty"] is False
@@ -224,6 +227,13 @@ def test_a_real_run_records_its_device(cl_device: cl.Device, tmp_path: Path) -> 
     spheres = report["refs"]["WORKTREE"]["scenes"]["spheres"]
     assert spheres["nonfinite_pixels"] == 0
     assert 0 < spheres["image_mean"] < 1
+    # Packed as `clray render --no-tuning` packs it, not with KernelConfig's defaults (BVH
+    # width 8 on every device, which a GPU's render never builds).
+    from clray.device.policy import device_plan
+    from clray.knobs import Tuning
+
+    plan = device_plan(cl_device, spp=1, tuning=Tuning())
+    assert (spheres["traversal"], spheres["bvh_width"]) == (plan.traversal, plan.bvh_width)
 
 
 def test_rounds_alternate_the_order_of_the_refs(

@@ -81,6 +81,31 @@ def test_tiny_run_agrees_with_embree(cl_device: cl.Device, tmp_path: Path,
     assert 0.05 < hits["hit_fraction"] < 0.5
     assert report["render_hits"]["mask_mismatches"] <= 1
     assert report["instructions"] is None
+    # The build figures, each one thing: no full trace inside the commit.
+    assert report["embree_mesh_s"] > 0 and report["embree_commit_s"] > 0
+    assert report["clray_bvh_s"] > 0
+    assert "embree_build_s" not in report and "embree_commit_and_first_run_s" not in report
+
+
+def test_embree_commit_is_timed_without_a_trace(monkeypatch: pytest.MonkeyPatch) -> None:
+    """embree_build_s held the mesh's construction, the commit and a whole first trace."""
+    embree = embree_benchmark.import_embreex()
+    if embree is None:
+        pytest.skip("embreex is not installed")
+    triangles = np.array([[[0, 0, 1], [1, 0, 1], [0, 1, 1]]], dtype=np.float32)
+    rays = np.zeros((3, 3), dtype=np.float32)
+    runs = []
+    real_run = embree[0].EmbreeScene.run
+
+    class Scene(embree[0].EmbreeScene):
+        def run(self, origins: np.ndarray, directions: np.ndarray, **kwargs: object) -> dict:
+            runs.append(len(origins))
+            return real_run(self, origins, directions, **kwargs)
+
+    side = embree_benchmark.EmbreeSide((type("M", (), {"EmbreeScene": Scene}), *embree[1:]),
+                                       triangles, rays, rays + np.float32([0, 0, 1]))
+    assert runs == [0] and side.scene.is_committed
+    assert side.mesh_s > 0 and side.commit_s > 0
 
 
 def test_clray_side_runs_without_embreex(cl_device: cl.Device, tmp_path: Path) -> None:

@@ -942,7 +942,6 @@ def _render(args: argparse.Namespace) -> int:
     if args.denoise:
         check_denoiser()  # before any work: says how to install the binding where it is missing
     if args.dask is not None:
-
         import_distributed()  # before any work: says how to install Dask where it is missing
     if args.frames is not None:
         return _render_frames(args, started)
@@ -963,7 +962,6 @@ def _render(args: argparse.Namespace) -> int:
                 del scene
                 result = render(hand_over.pop, settings)
             else:
-
                 with _cluster(args) as client:
                     result = render_still(client, scene, settings, on_tile=getattr(
                         progress, "note_tiles", None))
@@ -1070,7 +1068,6 @@ def _settings(args: argparse.Namespace, progress: Callable[[int, int], None] | N
 
 
 def _cluster(args: argparse.Namespace) -> contextlib.AbstractContextManager:
-
     return connect(args.dask or None, workers=args.dask_workers or LOCAL_WORKERS,
                    timeout=args.dask_timeout or CONNECT_TIMEOUT_S)
 

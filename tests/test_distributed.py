@@ -114,7 +114,6 @@ def test_workers_that_rendered_with_other_knobs_are_each_named() -> None:
     assert apart["traversal"] == {"a": "single", "b": "sample_packet"}
 
 
-
 @needs_dask
 def test_scene_sent_and_packed_once_per_worker(cl_device, client):
     """Tasks refer to the scattered scene: while tiles render, each worker holds one copy, and

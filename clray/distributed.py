@@ -338,6 +338,10 @@ def render_still(client: Client, scene: Scene, settings: RenderSettings | None =
     hears pixel-samples as tiles arrive; on_tile(tiles done, tiles submitted) after each."""
     import_distributed()
     settings = settings_or_default(settings)
+    if tile_rows is not None and (isinstance(tile_rows, bool) or not isinstance(tile_rows, int)
+                                  or tile_rows < 1):
+        # Checked before the scene is sent: 0 divided by zero, and -1 cut no tiles, only then.
+        raise SettingsError(f"tile_rows: must be a positive integer, got {tile_rows!r}")
     if settings.denoise:
         # The denoiser needs the whole image's albedo and normal passes, which tiles lack.
         raise SettingsError("--denoise (RenderSettings.denoise): a still rendered in tiles on "

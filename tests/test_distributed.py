@@ -421,3 +421,15 @@ def test_a_device_error_from_pyopencl_reaches_the_client_as_itself(monkeypatch):
     # What the worker sends, as the client unpickles it.
     sent = pickle.loads(error_message(info.value)["exception"].data)
     assert type(sent) is DeviceError and str(sent) == "no OpenCL platform found"
+
+
+@needs_dask
+@pytest.mark.parametrize("tile_rows", [0, -1, 2.5, True])
+def test_tile_rows_not_a_positive_int_is_refused_before_any_work(tile_rows):
+    from clray.distributed import render_still
+    from clray.errors import SettingsError
+
+    # No client: refused before the scene is sent (0 was a ZeroDivisionError, -1 a ValueError).
+    with pytest.raises(SettingsError, match=r"^tile_rows: must be a positive integer, got "):
+        render_still(None, load_scene(SPHERES), RenderSettings(width=8, height=6),
+                     tile_rows=tile_rows)

@@ -391,8 +391,6 @@ def render_still(client: Client, scene: Scene, settings: RenderSettings | None =
         _tell(tile.pop("warnings"))
         tiles.append(tile)
         rows_done += tile["rows"]
-        if settings.progress is not None:
-            settings.progress(rows_done * row_samples, height * row_samples)
         if tile_rows is None and len(tiles) == 1 and next_row < height:
             # The first probe sizes the remaining tiles by its device's rate; waiting for the
             # other probes would leave their workers idle for a round trip.
@@ -401,8 +399,11 @@ def render_still(client: Client, scene: Scene, settings: RenderSettings | None =
                                  height - next_row, workers)
             for _ in range(math.ceil((height - next_row) / size)):
                 submit(size)
+        # The tiles first: a progress line says the count as it is with this tile.
         if on_tile is not None:
             on_tile(len(tiles), submitted)
+        if settings.progress is not None:
+            settings.progress(rows_done * row_samples, height * row_samples)
     stats = _merge(tiles, resolved, settings)
     by_worker: dict[str, int] = {}
     for t in tiles:

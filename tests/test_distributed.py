@@ -433,3 +433,15 @@ def test_tile_rows_not_a_positive_int_is_refused_before_any_work(tile_rows):
     with pytest.raises(SettingsError, match=r"^tile_rows: must be a positive integer, got "):
         render_still(None, load_scene(SPHERES), RenderSettings(width=8, height=6),
                      tile_rows=tile_rows)
+
+
+@needs_dask
+def test_progress_lines_count_the_tile_just_done(cl_device, client, capsys):
+    from clray.distributed import render_still
+
+    lines = cli._ProgressLines()
+    settings = RenderSettings(width=96, height=64, spp=2, device=os.environ["CLRAY_DEVICE"],
+                              progress=lines)
+    render_still(client, load_scene(SPHERES), settings, tile_rows=32, on_tile=lines.note_tiles)
+    last = capsys.readouterr().err.splitlines()[-1]
+    assert last.startswith("clray: rendering: 100% ") and ", 2 of 2 tiles, " in last, last

@@ -5,6 +5,7 @@ the missing-Dask message run."""
 
 from __future__ import annotations
 
+import contextlib
 import importlib.util
 import json
 import logging
@@ -445,3 +446,15 @@ def test_progress_lines_count_the_tile_just_done(cl_device, client, capsys):
     render_still(client, load_scene(SPHERES), settings, tile_rows=32, on_tile=lines.note_tiles)
     last = capsys.readouterr().err.splitlines()[-1]
     assert last.startswith("clray: rendering: 100% ") and ", 2 of 2 tiles, " in last, last
+
+
+def test_load_s_with_dask_is_the_loading_alone(cl_device, monkeypatch, tmp_path):
+    # Importing Dask takes about a second; it is not the scene's loading.
+    monkeypatch.setattr(cli, "import_distributed", lambda: time.sleep(1))
+    monkeypatch.setattr(cli, "_cluster", lambda args: contextlib.nullcontext())
+    monkeypatch.setattr(cli, "render_still",
+                        lambda client, scene, settings, on_tile: render(scene, settings))
+    stats = tmp_path / "stats.json"
+    assert cli.main(["render", str(SPHERES), "-W", "8", "-H", "6", "--spp", "1", "-o",
+                     str(tmp_path / "x.png"), "--dask", "--stats-json", str(stats), "-q"]) == 0
+    assert json.loads(stats.read_text())["load_s"] < 0.5

@@ -981,21 +981,23 @@ def _render(args: argparse.Namespace) -> int:
     if args.denoise:
         check_denoiser()  # before any work: says how to install the binding where it is missing
     if args.dask is not None:
-
         import_distributed()  # before any work: says how to install Dask where it is missing
     if args.frames is not None:
         return _render_frames(args, started)
 
     with _warnings_as_lines(quiet=args.quiet, verbose=args.verbose):
+        # Timed alone: the checks above take no time, but importing Dask for --dask about a
+        # second, which is not the scene's loading.
+        load_started = time.perf_counter()
         with noting_reads() as read:
             scene = _load(args)
+        load_s = time.perf_counter() - load_started
         image = (f"-o {output}" if args.output_given
                  else f"the output {output} (the scene's name, as no -o is given)")
         _refuse_replacing_reads(read, [
             (image, output, "-o"),
             *_pass_outputs(output, args.aov or (), args.aov_preview, f"beside {image}"),
             (f"--stats-json {args.stats_json}", args.stats_json, "--stats-json")])
-        load_s = time.perf_counter() - started
         if not args.quiet:
             for warning in scene.warnings:
                 _say(f"warning: {warning}")
@@ -1009,7 +1011,6 @@ def _render(args: argparse.Namespace) -> int:
                 del scene
                 result = render(hand_over.pop, settings)
             else:
-
                 with _cluster(args) as client:
                     result = render_still(client, scene, settings, on_tile=getattr(
                         progress, "note_tiles", None))
@@ -1116,7 +1117,6 @@ def _settings(args: argparse.Namespace, progress: Callable[[int, int], None] | N
 
 
 def _cluster(args: argparse.Namespace) -> contextlib.AbstractContextManager:
-
     return connect(args.dask or None, workers=args.dask_workers or LOCAL_WORKERS,
                    timeout=args.dask_timeout or CONNECT_TIMEOUT_S)
 

@@ -17,6 +17,7 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import functools
+import importlib.metadata
 import logging
 import math
 import os
@@ -32,10 +33,11 @@ from typing import TYPE_CHECKING, Any, ParamSpec, TypeVar
 import numpy as np
 import pyopencl as cl
 
+from clray import __version__
 from clray.device.context import describe, select_device
 from clray.device.launch import render_packed
 from clray.device.pack import PackedScene
-from clray.errors import ClrayError, SettingsError
+from clray.errors import ClrayError, SceneError, SettingsError, one_line
 from clray.render import (
     RenderResult,
     RenderSettings,
@@ -92,12 +94,45 @@ def connect(address: str | None, workers: int = LOCAL_WORKERS,
         # a block of lines with the traceback) as well as raised here, where the command
         # reports it in one line. A worker that dies is restarted by its nanny and its tasks
         # run again; tasks that keep killing workers reach here as KilledWorker.
-        with distributed.LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                                      dashboard_address=":0", silence_logs=logging.CRITICAL
-                                      ) as cluster, distributed.Client(cluster, timeout=timeout
-                                                                       ) as client:
-            yield client
+        with contextlib.ExitStack() as stack:
+            try:
+                cluster = stack.enter_context(distributed.LocalCluster(
+                    n_workers=workers, threads_per_worker=1, processes=True,
+                    dashboard_address=":0", silence_logs=logging.CRITICAL))
+            except (OSError, RuntimeError) as err:
+                # Dask's RuntimeError("Cluster failed to start: ...") wraps what stopped it (a
+                # temporary folder it cannot make, a port it cannot bind): say that alone.
+                reason = str(err.__cause__ or err).strip() or type(err).__name__
+                raise ClrayError(f"cannot start a local Dask cluster: "
+                                 f"{one_line(reason.splitlines()[0])}") from None
+            yield stack.enter_context(distributed.Client(cluster, timeout=timeout))
         return
+    # As the local cluster's silence_logs: Dask's client logs a lost scheduler at ERROR
+    # ("Failed to reconnect to scheduler", also as it closes) before the command says so in
+    # one line. Its handlers' levels come back once the client is closed.
+    with _dask_logs_silenced():
+        yield from _remote(distributed, address, timeout)
+
+
+@contextlib.contextmanager
+def _dask_logs_silenced() -> Iterator[None]:
+    """Dask's log handlers (on the `distributed` logger) at CRITICAL, their levels restored
+    after: what LocalCluster(silence_logs=logging.CRITICAL) does."""
+    handlers = [h for h in logging.getLogger("distributed").handlers
+                if isinstance(h, logging.StreamHandler)]
+    levels = [h.level for h in handlers]
+    for handler in handlers:
+        handler.setLevel(logging.CRITICAL)
+    try:
+        yield
+    finally:
+        for handler, level in zip(handlers, levels, strict=True):
+            handler.setLevel(level)
+
+
+def _remote(distributed: Any, address: str, timeout: float) -> Iterator[Client]:
+    """connect()'s client of the scheduler at `address`, once a worker with this clray is
+    there."""
     try:
         client = distributed.Client(address, timeout=timeout)
     except (OSError, TimeoutError, ValueError, TypeError, ImportError, RuntimeError) as err:
@@ -120,7 +155,27 @@ def connect(address: str | None, workers: int = LOCAL_WORKERS,
         except TimeoutError:
             raise ClrayError(f"the Dask scheduler at {address} has no workers (waited "
                              f"{timeout:g} s)") from None
+        _check_versions(client)
         yield client
+
+
+def _check_versions(client: Client) -> None:
+    """A ClrayError naming the first worker whose clray is missing or not this one's: tasks name
+    clray's functions and pickle its classes, which such a worker cannot run or unpickle, and
+    it said so in a traceback. Asked through the standard library, which every worker has.
+    (A local cluster's workers run this Python, so they are not asked.)"""
+    versions = client.run(importlib.metadata.version, "clray", on_error="return")
+    for worker, version in sorted(versions.items()):
+        if isinstance(version, importlib.metadata.PackageNotFoundError):
+            has = "no clray installed"
+        elif isinstance(version, Exception):
+            has = f"a clray whose version cannot be read ({one_line(str(version))})"
+        elif version != __version__:
+            has = f"clray {version}"
+        else:
+            continue
+        raise ClrayError(f"Dask worker {worker} has {has}, this client clray {__version__}: "
+                         "install the same version on every worker")
 
 
 # -- on the workers ----------------------------------------------------------------------
@@ -165,7 +220,8 @@ def _task(function: Callable[_P, _R]) -> Callable[_P, _R]:
     Dask pickles a failed task's exception with its cause and context (tblib), and where one of
     them cannot be pickled (a pyopencl error's _ErrorRecord, the cause of a DeviceError) it sends
     Exception(repr(err)) instead, which the command cannot tell from a bug. The message alone
-    says what a user needs."""
+    says what a user needs, with the worker's name first where it is about the worker's machine
+    (its OpenCL platform, its files): the command says it where it would read as its own."""
 
     @functools.wraps(function)
     def task(*args: _P.args, **kwargs: _P.kwargs) -> _R:
@@ -174,9 +230,16 @@ def _task(function: Callable[_P, _R]) -> Callable[_P, _R]:
         except ClrayError as err:
             err.__cause__ = err.__context__ = None
             err.__suppress_context__ = True
+            if not isinstance(err, SceneError):  # the scene's fault, wherever it is made
+                err.args = (f"Dask worker {_worker_name()}: {err}",)
             raise
 
     return task
+
+
+def _worker_name() -> str:
+    """This worker as its tasks' results and errors name it: its machine and process."""
+    return f"{socket.gethostname()}:{os.getpid()}"
 
 
 @_task
@@ -202,7 +265,7 @@ def _render_tile(scene: Scene, scene_key: str, settings: RenderSettings, start: 
             "tuning": tuning, "traversal": packed.config.traversal,
             "packed": packs, "device_s": device_s, "pack_s": pack_s if packs else 0.0,
             "bvh_s": packed.bvh_s if packs else 0.0, "device": describe(device),
-            "worker": f"{socket.gethostname()}:{os.getpid()}", "warnings": kept,
+            "worker": _worker_name(), "warnings": kept,
             "task_s": time.perf_counter() - started}
 
 
@@ -213,8 +276,8 @@ def _render_frame(sequence: Sequence, frame: int, settings: RenderSettings) -> d
         scene = sequence.scene(frame)
         load_s = time.perf_counter() - started
         result = render(scene, settings)
-    return {"frame": frame, "result": result, "worker": f"{socket.gethostname()}:{os.getpid()}",
-            "warnings": kept, "task_s": time.perf_counter() - started, "load_s": load_s}
+    return {"frame": frame, "result": result, "worker": _worker_name(), "warnings": kept,
+            "task_s": time.perf_counter() - started, "load_s": load_s}
 
 
 # -- on the client -----------------------------------------------------------------------
@@ -277,7 +340,18 @@ class _Tasks:
         self.done = import_distributed().as_completed()
 
     def _scatter(self) -> Any:
-        [future] = self.client.scatter([self.value], broadcast=True, hash=False)
+        try:
+            [future] = self.client.scatter([self.value], broadcast=True, hash=False)
+        except TimeoutError:
+            raise  # no worker to send it to: the caller says what was not rendered
+        except Exception as err:
+            # A worker that cannot unpickle it (no clray there, or another version, having
+            # joined after connect() checked) fails the scatter with Exception(repr of its
+            # error).
+            reason = str(err).strip() or type(err).__name__
+            raise ClrayError(f"cannot send the scene to the Dask workers: "
+                             f"{one_line(reason.splitlines()[0])} (each needs clray "
+                             f"{__version__})") from None
         # The workers it went to, counted after: sent again, it waits for a worker first.
         self.copies += len(self.client.who_has([future])[future.key])
         return future
@@ -338,6 +412,10 @@ def render_still(client: Client, scene: Scene, settings: RenderSettings | None =
     hears pixel-samples as tiles arrive; on_tile(tiles done, tiles submitted) after each."""
     import_distributed()
     settings = settings_or_default(settings)
+    if tile_rows is not None and (isinstance(tile_rows, bool) or not isinstance(tile_rows, int)
+                                  or tile_rows < 1):
+        # Checked before the scene is sent: 0 divided by zero, and -1 cut no tiles, only then.
+        raise SettingsError(f"tile_rows: must be a positive integer, got {tile_rows!r}")
     if settings.denoise:
         # The denoiser needs the whole image's albedo and normal passes, which tiles lack.
         raise SettingsError("--denoise (RenderSettings.denoise): a still rendered in tiles on "
@@ -387,8 +465,6 @@ def render_still(client: Client, scene: Scene, settings: RenderSettings | None =
         _tell(tile.pop("warnings"))
         tiles.append(tile)
         rows_done += tile["rows"]
-        if settings.progress is not None:
-            settings.progress(rows_done * row_samples, height * row_samples)
         if tile_rows is None and len(tiles) == 1 and next_row < height:
             # The first probe sizes the remaining tiles by its device's rate; waiting for the
             # other probes would leave their workers idle for a round trip.
@@ -397,8 +473,11 @@ def render_still(client: Client, scene: Scene, settings: RenderSettings | None =
                                  height - next_row, workers)
             for _ in range(math.ceil((height - next_row) / size)):
                 submit(size)
+        # The tiles first: a progress line says the count as it is with this tile.
         if on_tile is not None:
             on_tile(len(tiles), submitted)
+        if settings.progress is not None:
+            settings.progress(rows_done * row_samples, height * row_samples)
     stats = _merge(tiles, resolved, settings)
     by_worker: dict[str, int] = {}
     for t in tiles:
@@ -488,7 +567,7 @@ def _study_scene(scene: Scene, path: str, variants: tuple, repeat: int,
     with _device_lock, warnings.catch_warnings():
         warnings.simplefilter("ignore", cl.CompilerWarning)
         records = study_scene(Path(path), variants, repeat, base, scene=scene)
-    worker = f"{socket.gethostname()}:{os.getpid()}"
+    worker = _worker_name()
     device = describe(select_device(base.device))
     return [{**r, "worker": worker, "device": device} for r in records]
 

@@ -5,6 +5,8 @@ the missing-Dask message run."""
 
 from __future__ import annotations
 
+import contextlib
+import importlib.metadata
 import importlib.util
 import json
 import logging
@@ -18,6 +20,7 @@ import warnings
 from collections.abc import Callable
 from pathlib import Path
 from types import SimpleNamespace
+from typing import ClassVar
 
 import pytest
 
@@ -112,7 +115,6 @@ def test_workers_that_rendered_with_other_knobs_are_each_named() -> None:
                     tile("b", tuned, "sample_packet")], {}, small_cpu)
     assert apart["tuning"] == {"a": default, "b": tuned}
     assert apart["traversal"] == {"a": "single", "b": "sample_packet"}
-
 
 
 @needs_dask
@@ -421,4 +423,159 @@ def test_a_device_error_from_pyopencl_reaches_the_client_as_itself(monkeypatch):
         distributed._render_frame(frames, 0, RenderSettings())  # type: ignore[arg-type]
     # What the worker sends, as the client unpickles it.
     sent = pickle.loads(error_message(info.value)["exception"].data)
-    assert type(sent) is DeviceError and str(sent) == "no OpenCL platform found"
+    # Said on the client, where it would read as this machine's: the worker's name first.
+    assert type(sent) is DeviceError
+    assert str(sent) == (f"Dask worker {socket.gethostname()}:{os.getpid()}: no OpenCL platform "
+                         "found")
+
+
+@needs_dask
+@pytest.mark.parametrize("tile_rows", [0, -1, 2.5, True])
+def test_tile_rows_not_a_positive_int_is_refused_before_any_work(tile_rows):
+    from clray.distributed import render_still
+    from clray.errors import SettingsError
+
+    # No client: refused before the scene is sent (0 was a ZeroDivisionError, -1 a ValueError).
+    with pytest.raises(SettingsError, match=r"^tile_rows: must be a positive integer, got "):
+        render_still(None, load_scene(SPHERES), RenderSettings(width=8, height=6),
+                     tile_rows=tile_rows)
+
+
+@needs_dask
+def test_progress_lines_count_the_tile_just_done(cl_device, client, capsys):
+    from clray.distributed import render_still
+
+    lines = cli._ProgressLines()
+    settings = RenderSettings(width=96, height=64, spp=2, device=os.environ["CLRAY_DEVICE"],
+                              progress=lines)
+    render_still(client, load_scene(SPHERES), settings, tile_rows=32, on_tile=lines.note_tiles)
+    last = capsys.readouterr().err.splitlines()[-1]
+    assert last.startswith("clray: rendering: 100% ") and ", 2 of 2 tiles, " in last, last
+
+
+def test_load_s_with_dask_is_the_loading_alone(cl_device, monkeypatch, tmp_path):
+    # Importing Dask takes about a second; it is not the scene's loading.
+    monkeypatch.setattr(cli, "import_distributed", lambda: time.sleep(1))
+    monkeypatch.setattr(cli, "_cluster", lambda args: contextlib.nullcontext())
+    monkeypatch.setattr(cli, "render_still",
+                        lambda client, scene, settings, on_tile: render(scene, settings))
+    stats = tmp_path / "stats.json"
+    assert cli.main(["render", str(SPHERES), "-W", "8", "-H", "6", "--spp", "1", "-o",
+                     str(tmp_path / "x.png"), "--dask", "--stats-json", str(stats), "-q"]) == 0
+    assert json.loads(stats.read_text())["load_s"] < 0.5
+
+
+class _FakeClient:
+    """A client of a remote scheduler whose workers report `versions` (clray's, or the error
+    importlib.metadata.version raised there)."""
+
+    versions: ClassVar[dict] = {}
+
+    def __init__(self, address: str, timeout: float) -> None:
+        pass
+
+    def __enter__(self) -> _FakeClient:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        pass
+
+    def wait_for_workers(self, n: int, timeout: float) -> None:
+        pass
+
+    def run(self, function: Callable, *args: object, on_error: str) -> dict:
+        return self.versions
+
+
+@needs_dask
+@pytest.mark.parametrize(("version", "says"), [
+    ("0.0.9", "Dask worker tcp://10.0.0.2:4000 has clray 0.0.9, this client clray {}: "
+              "install the same version on every worker"),
+    (importlib.metadata.PackageNotFoundError("clray"),
+     "Dask worker tcp://10.0.0.2:4000 has no clray installed, this client clray {}: "
+     "install the same version on every worker"),
+])
+def test_a_worker_without_this_clray_is_refused_on_connecting(monkeypatch, version, says):
+    import distributed
+
+    from clray import __version__
+    from clray.distributed import connect
+    from clray.errors import ClrayError
+
+    monkeypatch.setattr(distributed, "Client", _FakeClient)
+    monkeypatch.setattr(_FakeClient, "versions",
+                        {"tcp://10.0.0.1:4000": __version__, "tcp://10.0.0.2:4000": version})
+    with pytest.raises(ClrayError) as info, connect("tcp://10.0.0.9:8786"):
+        pass
+    assert str(info.value) == says.format(__version__)
+
+
+@needs_dask
+def test_a_remote_clients_dask_logs_are_silent_while_it_is_open():
+    # Dask's client logged "Failed to reconnect to scheduler" at ERROR when the scheduler went,
+    # a line before clray's own error line saying so. Dask's log handler writes to the stderr
+    # it found when imported: a process of its own shows what a user would see.
+    done = _run("import logging, distributed\n"
+                "from clray import __version__\n"
+                "from clray.distributed import connect\n"
+                "class Client:\n"
+                "    def __init__(self, address, timeout): pass\n"
+                "    def __enter__(self): return self\n"
+                "    def __exit__(self, *exc): pass\n"
+                "    def wait_for_workers(self, n, timeout): pass\n"
+                "    def run(self, *args, on_error):\n"
+                "        return {'tcp://10.0.0.1:4000': __version__}\n"
+                "distributed.Client = Client\n"
+                "log = logging.getLogger('distributed.client')\n"
+                "with connect('tcp://10.0.0.9:8786'):\n"
+                "    log.error('Failed to reconnect to scheduler')\n"
+                "log.error('after')\n")  # as Dask had it, once the client is closed
+    assert done.returncode == 0, done.stderr
+    lines = done.stderr.splitlines()
+    assert len(lines) == 1 and lines[0].endswith("distributed.client - ERROR - after"), lines
+
+
+@needs_dask
+def test_a_worker_without_clray_is_one_line(tmp_path):
+    """A worker that joined with no clray importable (its package's metadata still there, so
+    that the version check passes): the scene cannot be sent, which is one line, exit 1."""
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    worker = tmp_path / "worker.py"
+    worker.write_text("import sys\nsys.modules['clray'] = None\n"
+                      "from distributed.cli.dask_worker import main\n"
+                      f"sys.argv = ['dask-worker', 'tcp://127.0.0.1:{port}', '--nthreads', '1', "
+                      "'--no-nanny']\nmain()\n")
+    quiet = {"stdout": subprocess.DEVNULL, "stderr": subprocess.DEVNULL}
+    started = [subprocess.Popen([sys.executable, "-m", "distributed.cli.dask_scheduler",
+                                 "--host", "127.0.0.1", "--port", str(port),
+                                 "--dashboard-address", ":0"], **quiet)]
+    try:
+        started.append(subprocess.Popen([sys.executable, str(worker)], **quiet))
+        done = subprocess.run([sys.executable, "-m", "clray", "render", str(SPHERES), "-W", "8",
+                               "-H", "6", "-o", str(tmp_path / "x.png"), "--dask",
+                               f"tcp://127.0.0.1:{port}", "--dask-timeout", "30"],
+                              capture_output=True, text=True, timeout=90, cwd=ROOT)
+    finally:
+        for process in started:
+            process.kill()
+            process.wait()
+    assert done.returncode == EXIT_RUNTIME
+    lines = done.stderr.splitlines()
+    assert len(lines) == 1, done.stderr
+    assert lines[0].startswith("clray: error: cannot send the scene to the Dask workers: "
+                               "ModuleNotFoundError"), lines[0]
+    assert not (tmp_path / "x.png").exists()
+
+
+@needs_dask
+def test_a_local_cluster_that_cannot_start_is_one_line(tmp_path):
+    done = subprocess.run([sys.executable, "-m", "clray", "render", str(SPHERES), "-W", "8",
+                           "-H", "6", "-o", str(tmp_path / "x.png"), "--dask"],
+                          capture_output=True, text=True, timeout=60, cwd=ROOT,
+                          env={**os.environ, "DASK_TEMPORARY_DIRECTORY": "/proc/nope"})
+    assert done.returncode == EXIT_RUNTIME
+    assert done.stderr.splitlines() == [
+        "clray: error: cannot start a local Dask cluster: [Errno 2] No such file or directory: "
+        "'/proc/nope'"], done.stderr

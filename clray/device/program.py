@@ -51,6 +51,19 @@ def is_oclgrind(device: cl.Device) -> bool:
     return device.platform.name.strip() == "Oclgrind"
 
 
+# Mesa's OpenCL drivers (rusticl; Clover) compile the source with clang for the spir64 target,
+# unoptimised, and hand the module to LLVM's SPIR-V translator, which has no SPIR-V for the
+# llvm.vector.reduce intrinsics either ("Unexpected llvm intrinsic"): Mesa 22.3's rusticl ended
+# the process (exit 8) at the first sample-packet build. Intel's CPU runtime also compiles for
+# spir64, but takes the module as it is, and keeps the builtins.
+SPIRV_TRANSLATING_PLATFORMS = frozenset({"rusticl", "Clover"})
+SPIRV_BUILD_OPTIONS = ("-DPORTABLE_REDUCTIONS",)
+
+
+def translates_through_spirv(device: cl.Device) -> bool:
+    return device.platform.name.strip() in SPIRV_TRANSLATING_PLATFORMS
+
+
 # A GPU runs a work-group's work-items side by side (kernels/ray_tree.h, SERIAL_WORK_ITEMS):
 # a pixel a work-item, the renderer inlined, not a group's row segment rendered by its first
 # work-item (render_segment). Said by the host, since a
@@ -70,10 +83,11 @@ def device_build_options(device: cl.Device) -> tuple[str, ...]:
     while it lasts)."""
     if is_oclgrind(device):
         return OCLGRIND_BUILD_OPTIONS + _as_for_a_gpu + _ulps_off
+    spirv = SPIRV_BUILD_OPTIONS if translates_through_spirv(device) else ()
     if not device.type & cl.device_type.GPU:
-        return _as_for_a_gpu + _ulps_off
-    return GPU_BUILD_OPTIONS + ((CORRECTLY_ROUNDED,) if _rounds_division(device) else ()) + \
-        _ulps_off
+        return spirv + _as_for_a_gpu + _ulps_off
+    return GPU_BUILD_OPTIONS + spirv + \
+        ((CORRECTLY_ROUNDED,) if _rounds_division(device) else ()) + _ulps_off
 
 
 def _rounds_division(device: cl.Device) -> bool:

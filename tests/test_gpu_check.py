@@ -408,9 +408,16 @@ def test_the_shell_kills_the_steps_group_of_a_driver_killed_by_sigkill(tmp_path:
     # its group where gpu_check.py does, and is SIGKILLed (timeout -k, the kernel's OOM killer).
     pids = tmp_path / "pids"
     fake = tmp_path / "python"
+    # The id is noted once the step's session exists, as gpu_check.py's Popen (setsid before
+    # exec, which Popen waits for) notes it: noted at once, a loaded machine's shell ran its
+    # kill before setsid had made the group, and the sleep outlived the test. Its output goes
+    # elsewhere, so that a group left alive fails the assertions, not the pipe's timeout.
     fake.write_text("#!/usr/bin/env bash\n"
-                    "setsid sleep 61 & echo $! > \"$GPU_CHECK_GROUP_FILE\"\n"
-                    f"echo $! > {pids}\n"
+                    "setsid sleep 61 >/dev/null 2>&1 & step=$!\n"
+                    "until [ \"$(cut -d' ' -f5 /proc/$step/stat 2>/dev/null)\" = $step ]; do "
+                    "sleep 0.01; done\n"
+                    "echo $step > \"$GPU_CHECK_GROUP_FILE\"\n"
+                    f"echo $step > {pids}\n"
                     "kill -KILL $$\n")
     fake.chmod(0o755)
     env = dict(os.environ, PYTHON=str(fake))

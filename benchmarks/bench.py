@@ -311,10 +311,6 @@ def main(argv: list[str] | None = None) -> None:
                         help="skip the time split by ray kind and the test counts")
     args = parser.parse_args(argv)
     names = args.scenes
-    # Refused, not merged, as compare.py does: a repeated scene would be measured twice.
-    repeated = sorted({name for name in names if names.count(name) > 1})
-    if repeated:
-        parser.error(f"--scenes: each scene at most once; repeated: {', '.join(repeated)}")
     if args.povray == "off" and args.povray_spp is not None:
         parser.error("--povray-spp compares with POV-Ray, which --povray off leaves out")
     povray_spp = _povray_spp(parser, args.povray_spp or "1,16")

@@ -49,7 +49,8 @@ def image_size(text: str) -> tuple[int, int]:
 
 
 def names_of(choices: Iterable[str]) -> Callable[[str], list[str]]:
-    """argparse type: a comma-separated list of some of `choices`, at least one."""
+    """argparse type: a comma-separated list of some of `choices`, at least one, each at most
+    once (refused, not merged: a repeated name would be measured twice)."""
     allowed = tuple(choices)
 
     def parse(text: str) -> list[str]:
@@ -60,6 +61,9 @@ def names_of(choices: Iterable[str]) -> Callable[[str], list[str]]:
                                              f"choose from {', '.join(allowed)}")
         if not names:
             raise argparse.ArgumentTypeError("expected at least one name")
+        repeated = sorted({name for name in names if names.count(name) > 1})
+        if repeated:
+            raise argparse.ArgumentTypeError(f"each at most once; repeated: {', '.join(repeated)}")
         return names
     return parse
 

@@ -72,6 +72,12 @@ def test_tiny_run_agrees_with_embree(cl_device: cl.Device, tmp_path: Path,
     for side in (report["embree"], *report["clray"].values()):
         assert side["mrays_per_s"]["median"] > 0 and len(side["mrays_per_s"]["runs"]) == 1
     assert report["clray"]["render"]["rays"] == 64 * 36
+    # Embree's runs' kernel time (mapping embreex's new output arrays) and page faults, which
+    # its timed runs hold: a run's, not the process's, so never negative.
+    for key in ("system_seconds", "page_faults"):
+        runs = report["embree"][key]["runs"]
+        assert len(runs) == 1 and min(runs) >= 0, key
+    assert isinstance(report["embree"]["page_faults"]["runs"][0], int)
     # The one-core child renders the very render the parent does.
     assert report["clray"]["render_one_core"]["rays"] == 64 * 36
     assert report["clray"]["packets"]["rays"] == 64 * 36 * 4

@@ -21,7 +21,8 @@ render --traversal` does (at 1 spp a sample-packet traversal builds the single-r
 the device policy, KernelConfig's traversal as named), and `REF:sample_packet:LANES` with
 packets of LANES rays (the device's own where not given; before the device policy, 8). The
 traversal and BVH width each ref built are recorded. `--spp` and `--size` replace the scenes'
-own. `--scenes` takes spheres, mesh (the generated 327k-triangle mesh) or scene files.
+own; every other render setting is the scene's (its `min_weight` too, where the commit has
+it). `--scenes` takes spheres, mesh (the generated 327k-triangle mesh) or scene files.
 
 An unknown REF or TRAVERSAL, a REF or scene given twice, or no scene, is a usage error before any
 worktree is made; a render that fails stops the run with one line naming the ref, the scene and
@@ -114,6 +115,10 @@ else:
     switches = {"queue": queue_for(device), **plan.pack_arguments()}
 if lanes:
     switches["packet_lanes"] = int(lanes)
+# The scene's own min_weight, as its `clray render` packs it; a commit from before min_weight
+# has neither the setting nor the argument.
+if hasattr(r, "min_weight"):
+    switches["min_weight"] = r.min_weight
 packed = pack_scene(scene, width=width or r.width, height=height or r.height, spp=spp,
                     max_depth=r.max_depth, seed=r.seed, **switches)
 render_packed(packed, device)

@@ -788,14 +788,22 @@ def _device_flag(parser: argparse.ArgumentParser) -> None:
                              f"{DEFAULT_DEVICE_ORDER})")
 
 
-def _commit_with_stats(files: WriteSet, path: Path | None, stats: dict) -> None:
+def _commit_with_stats(files: WriteSet, path: Path | None, stats: dict,
+                       streamed: bytes | None = None) -> None:
     """The `files` staged (an image and its passes) put in place, with --stats-json's stats as
     JSON at `path`: one more file of the set, so that none is in place unless all are written,
-    or after them to standard output ('-'), which cannot be taken back."""
+    or after them to standard output ('-'), which cannot be taken back. `streamed`, the image
+    for standard output (-o -), is sent once the stats file is written to its temporary name
+    (or, for a device or pipe, written), and before it is renamed into place: a stats file that
+    cannot be written fails before any of the image goes, and an image that does not arrive
+    leaves no stats file."""
     payload = (json.dumps(stats, indent=2, default=str) + "\n").encode("utf-8")
     if path not in (None, STDOUT):
         _write(path, lambda: files.add(path, payload))
     try:
+        if streamed is not None:
+            files.write_direct()
+            _write(STDOUT, lambda: _to_stdout(streamed))
         files.commit()
     except OSError as err:  # WriteSet's errors name the file that failed
         raise cannot_write(err.filename, err) from err
@@ -1017,9 +1025,11 @@ def _render(args: argparse.Namespace) -> int:
 
     write_started = time.perf_counter()
     with write_set() as files:
+        streamed = None
         if output == STDOUT:
-            _write(output, lambda: _to_stdout(image_bytes(".png", result.image,
-                                                          result.encoding)))
+            # Sent by _commit_with_stats once the stats file is ready: an image sent cannot be
+            # taken back, so a stats file that cannot be written must fail before it goes.
+            streamed = image_bytes(".png", result.image, result.encoding)
         else:
             _write(output, lambda: stage_with_passes(files, output, result.image,
                                                      result.encoding, result.aovs,
@@ -1035,7 +1045,7 @@ def _render(args: argparse.Namespace) -> int:
             "total_s": time.perf_counter() - started,
             **_image_figures(result, output),
         }
-        _commit_with_stats(files, args.stats_json, stats)
+        _commit_with_stats(files, args.stats_json, stats, streamed)
 
     if not args.quiet:
         _warn_nonfinite(stats, output)

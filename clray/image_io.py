@@ -99,6 +99,17 @@ def as_pixels(values: object, name: str = "image", grey: bool = False) -> np.nda
     return pixels
 
 
+def as_radiance(values: object, name: str = "image") -> np.ndarray:
+    """`values` as an (H, W, 3) array of linear radiance (as_pixels), which must be floating
+    point: SettingsError for integers or bools, most likely an image already encoded (8-bit
+    codes, say), which would be written as if each code were radiance."""
+    pixels = as_pixels(values, name)
+    if pixels.dtype.kind != "f":
+        raise SettingsError(f"{name}: expected floating-point linear radiance, got dtype "
+                            f"{pixels.dtype} (an image already encoded?)")
+    return pixels
+
+
 def _encode_float64(values: np.ndarray, encoding: Encoding) -> np.ndarray:
     """to_png_samples by the formula, in float64."""
     values = np.array(values, dtype=np.float64)
@@ -365,7 +376,8 @@ def check_encoding(encoding: object) -> None:
 
 
 def write_image(path: str | Path, image: np.ndarray, encoding: Encoding = Encoding()) -> None:
-    """Write `image` as PNG, PFM or EXR, chosen by the suffix of `path`.
+    """Write `image`, (H, W, 3) floating-point linear radiance, as PNG, PFM or EXR, chosen by
+    the suffix of `path`.
 
     `encoding` applies to PNG only: PFM and EXR always hold the linear values as rendered.
     """
@@ -378,11 +390,12 @@ def add_image(files: WriteSet, path: str | Path, image: np.ndarray,
               ) -> None:
     """The file write_image writes, added to `files` (PNG and PFM as bytes, OpenEXR written by
     its package at the file's temporary name), with an OpenEXR image's more `channels`
-    (write_exr). Bad arguments, and a missing OpenEXR package, are refused before any file."""
+    (write_exr). Bad arguments (an image that is not floating-point radiance, as_radiance),
+    and a missing OpenEXR package, are refused before any file."""
     suffix = check_writer(path)
     check_encoding(encoding)
     if suffix == ".exr":
-        pixels = as_pixels(image)
+        pixels = as_radiance(image)
         files.add_written(path, lambda name: write_exr(name, pixels, channels))
     else:
         files.add(path, image_bytes(suffix, image, encoding))
@@ -390,10 +403,12 @@ def add_image(files: WriteSet, path: str | Path, image: np.ndarray,
 
 def image_bytes(suffix: str, image: np.ndarray, encoding: Encoding = Encoding()) -> bytes:
     """The file `write_image` writes for `suffix` .png or .pfm, as bytes (OpenEXR's package
-    writes files: write_exr)."""
+    writes files: write_exr); SettingsError for an image that is not floating-point radiance
+    (as_radiance)."""
     check_encoding(encoding)
+    if suffix not in (".png", ".pfm"):
+        raise SettingsError(f"image_bytes: expected '.png' or '.pfm', got {suffix!r}")
+    image = as_radiance(image)
     if suffix == ".pfm":
         return pfm_bytes(image)
-    if suffix != ".png":
-        raise SettingsError(f"image_bytes: expected '.png' or '.pfm', got {suffix!r}")
     return png_bytes(to_png_samples(image, encoding), linear=encoding.linear)

@@ -165,15 +165,9 @@ class WriteSet:
             raise _naming(err, target) from None
 
     def commit(self) -> None:
-        """What is written directly, then each temporary file renamed to its name, in the
-        order added."""
-        while self._direct:
-            path, payload = self._direct[0]
-            try:
-                _write_directly(path, payload)
-            except OSError as err:
-                raise _naming(err, path) from None
-            del self._direct[0]
+        """What is written directly (write_direct), then each temporary file renamed to its
+        name, in the order added."""
+        self.write_direct()
         while self._renames:
             tmp, target = self._renames[0]
             try:
@@ -181,6 +175,18 @@ class WriteSet:
             except OSError as err:
                 raise _naming(err, target) from None
             del self._renames[0]
+
+    def write_direct(self) -> None:
+        """What is written directly, written now, in the order added: commit's first step, for
+        a caller that sends more of its own (an image to standard output) between the files'
+        writes and their renames."""
+        while self._direct:
+            path, payload = self._direct[0]
+            try:
+                _write_directly(path, payload)
+            except OSError as err:
+                raise _naming(err, path) from None
+            del self._direct[0]
 
     def discard(self) -> None:
         """The temporary files not renamed removed, and nothing left to write."""

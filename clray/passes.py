@@ -18,6 +18,7 @@ from clray.image_io import (
     Encoding,
     add_image,
     as_pixels,
+    as_radiance,
     check_encoding,
     check_writer,
     image_bytes,
@@ -250,7 +251,7 @@ def stage_with_passes(files: WriteSet, path: str | Path, image: np.ndarray,
     with more of its own (the command's stats)."""
     suffix = check_writer(path)
     check_encoding(encoding)
-    aovs = as_passes(aovs, as_pixels(image).shape[:2])
+    aovs = as_passes(aovs, as_radiance(image).shape[:2])
     for name, values in aovs.items():
         if suffix != ".exr":
             files.add(beside(path, name, ".pfm"), pfm_bytes(values))

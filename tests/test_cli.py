@@ -5,6 +5,7 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import fcntl
+import io
 import json
 import os
 import pty
@@ -832,6 +833,57 @@ def test_empty_scene_name_is_a_usage_error(capsys) -> None:
     assert code == EXIT_USAGE and out == ""
     assert_one_error_line(err)
     assert "expected a scene file name, got ''" in err
+
+
+@pytest.mark.skipif(not os.path.exists("/dev/full"), reason="needs Linux's /dev/full")
+@pytest.mark.parametrize("obstacle", ["device", "folder"])
+def test_a_stats_file_that_cannot_be_written_stops_the_image_to_stdout(
+        capsysbinary, cl_device, scene, tmp_path, monkeypatch, obstacle) -> None:
+    # -o - sent the image before the stats file was written: a stats file that then failed
+    # (a full disk; a folder put in its place during the render) left an image sent and
+    # exit 1. The stats file is now written (to its temporary name) before the image goes.
+    out = tmp_path / "fs"
+    out.mkdir()
+    stats = out / "s.json"
+    rendered = cli.render
+    if obstacle == "device":
+        stats.symlink_to("/dev/full")
+        why = "No space left on device"
+    else:
+        def render_then_obstruct(*args, **kwargs):
+            result = rendered(*args, **kwargs)
+            stats.mkdir()  # after the checks before rendering, as another process might
+            return result
+
+        monkeypatch.setattr(cli, "render", render_then_obstruct)
+        why = "Is a directory"
+    code = cli.main(["render", str(scene), *TINY, "-o", "-", "--stats-json", str(stats), "-q"])
+    out_bytes, err = capsysbinary.readouterr()
+    assert (code, out_bytes) == (1, b"")
+    assert err.decode() == f"clray: error: cannot write {stats}: {why}\n"
+    assert files_in(out) == ["s.json"]  # the obstacle alone: no temporary file left
+    # Where the stats file can be written, both arrive.
+    monkeypatch.setattr(cli, "render", rendered)
+    good = out / "good.json"
+    code = cli.main(["render", str(scene), *TINY, "-o", "-", "--stats-json", str(good), "-q"])
+    out_bytes, err = capsysbinary.readouterr()
+    assert (code, err) == (0, b"")
+    assert out_bytes.startswith(b"\x89PNG\r\n\x1a\n")
+    assert Image.open(io.BytesIO(out_bytes)).size == (32, 24)
+    assert json.loads(good.read_text())["output"] == "-"
+
+
+@pytest.mark.skipif(not os.path.exists("/dev/full"), reason="needs Linux's /dev/full")
+def test_an_image_to_stdout_that_fails_leaves_no_stats_file(cl_device, scene, tmp_path) -> None:
+    # The stats file is written to its temporary name before the image goes, and put in place
+    # only once the image is sent: none where the image could not be.
+    stats = tmp_path / "s.json"
+    shell = (f"{sys.executable} -m clray render {scene} {' '.join(TINY)} -o - --stats-json "
+             f"{stats} -q > /dev/full")
+    done = subprocess.run(["bash", "-c", shell], capture_output=True, text=True, timeout=300)
+    assert (done.returncode, done.stderr) == (1, "clray: error: cannot write standard output: "
+                                                 "No space left on device\n")
+    assert files_in(tmp_path) == ["scene.toml"]
 
 
 @pytest.mark.parametrize("redirect", ["> /dev/full", ">&-"], ids=["full", "closed"])

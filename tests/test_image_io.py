@@ -157,6 +157,29 @@ def test_a_bad_image_is_a_settings_error_and_leaves_no_file(tmp_path, image, got
     assert list(tmp_path.iterdir()) == []
 
 
+@pytest.mark.parametrize("dtype", [np.uint8, np.uint16, np.int32, np.int64, bool])
+@pytest.mark.parametrize("suffix", [".png", ".pfm", ".exr"])
+def test_an_integer_image_is_not_radiance_and_leaves_no_file(tmp_path, dtype, suffix) -> None:
+    # An integer (or bool) array is most likely an image already encoded: its 8-bit codes were
+    # written as radiance (a PNG of 200 saturated to 255, a PFM of 200.0) rather than refused.
+    image = np.full((2, 2, 3), 200).astype(dtype)
+    message = (f"image: expected floating-point linear radiance, got dtype "
+               f"{np.dtype(dtype)} (an image already encoded?)")
+    writes = [lambda: write_image(tmp_path / f"a{suffix}", image),
+              lambda: RenderResult(image, {}, aovs={"depth": np.zeros((2, 2))}
+                                   ).save(tmp_path / f"a{suffix}", previews=True)]
+    if suffix != ".exr":
+        writes.append(lambda: image_io.image_bytes(suffix, image))
+    for write in writes:
+        with pytest.raises(SettingsError) as info:
+            write()
+        assert str(info.value) == message
+    assert list(tmp_path.iterdir()) == []
+    # The same values as floats are radiance, written.
+    write_image(tmp_path / "a.pfm", image.astype(np.float32))
+    np.testing.assert_array_equal(read_pfm(tmp_path / "a.pfm"), image.astype(np.float32))
+
+
 def test_an_encoding_that_is_not_an_encoding_is_a_settings_error(tmp_path) -> None:
     image = np.zeros((2, 2, 3), np.float32)
     for write in (lambda: write_image(tmp_path / "a.png", image, {"linear": True}),

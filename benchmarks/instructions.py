@@ -46,7 +46,7 @@ scene = load_scene(path)
 r = scene.render
 width, height = width or r.width, height or r.height
 packed = pack_scene(scene, width=width, height=height, spp=r.spp, max_depth=r.max_depth,
-                    seed=r.seed)
+                    min_weight=r.min_weight, seed=r.seed)
 config, params = packed.config, packed.params.copy()
 if variant != "full":
     config = dataclasses.replace(config, max_depth=0)

@@ -71,7 +71,8 @@ lanes = {}
 if traversal == "sample_packet":
     lanes["packet_lanes"] = packet_lanes_for(device, spp=int(spp))
 packed = pack_scene(scene, width=int(width), height=int(height), spp=int(spp),
-                    max_depth=r.max_depth, seed=r.seed, traversal=traversal, **lanes)
+                    max_depth=r.max_depth, min_weight=r.min_weight, seed=r.seed,
+                    traversal=traversal, **lanes)
 config = dataclasses.replace(packed.config, stage_profile=profile == "1")
 _, stats = render_packed(dataclasses.replace(packed, config=config), device,
                          rows=(int(first), int(end)))

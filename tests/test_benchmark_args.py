@@ -397,3 +397,36 @@ def test_the_readme_check_sees_a_missing_flag(capsys: pytest.CaptureFixture[str]
     flags = help_flags("denoise", capsys)
     assert unnamed(flags, section.replace("--picture-scene", "")) == ["--picture-scene"]
     assert "--picture-scene" in flags and "--picture" not in unnamed(flags, section)
+
+
+@pytest.mark.parametrize("name", ["stages", "instructions"])
+def test_counting_children_render_with_the_scenes_min_weight(name: str, cl_device: cl.Device,
+                                                             tmp_path: Path) -> None:
+    """The counting benchmarks' children packed every scene with min_weight 0, so a scene
+    that cuts faint rays was counted tracing rays its `clray render` never traces."""
+    import subprocess
+
+    from clray.render import RenderSettings, render
+    from clray.scene.load import load_scene
+
+    if not cl_device.platform.name.startswith("Portable Computing Language"):
+        pytest.skip("the counting benchmarks render on PoCL")
+    text = (ROOT / "scenes" / "fresnel.toml").read_text(encoding="utf-8")
+    assert "min_weight = 0.004\n" in text
+    scene = tmp_path / "fresnel.toml"
+    scene.write_text(text.replace("min_weight = 0.004\n", "min_weight = 0.3\n"),
+                     encoding="utf-8")
+    spp = load_scene(scene).render.spp
+    settings = dict(width=32, height=20, device="pocl", stored_tuning=False, traversal="single")
+    rendered = render(scene, RenderSettings(**settings))
+    uncut = render(scene, RenderSettings(**settings, min_weight=0.0))
+    assert uncut.stats["rays"]["total"] > rendered.stats["rays"]["total"]
+    if name == "stages":  # path, traversal, spp, width, height, profile, first row, end row
+        args = [str(scene), "single", str(spp), "32", "20", "0", "0", "20"]
+    else:  # path, variant, width, height
+        args = [str(scene), "full", "32", "20"]
+    run = subprocess.run([sys.executable, "-c", script(name)._RENDER, *args],
+                         capture_output=True, text=True, check=True)
+    rays = json.loads(run.stdout.strip().splitlines()[-1])
+    rays = rays.get("rays", rays)
+    assert rays["total"] == rendered.stats["rays"]["total"]

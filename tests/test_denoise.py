@@ -144,6 +144,21 @@ def test_noisy_guides_of_a_defocused_texture_do_not_keep_the_noise(cl_device) ->
     assert rmse(result.image, reference) < 0.6 * rmse(result.noisy, reference)
 
 
+def test_render_guides_the_denoiser_with_its_own_passes(cl_device) -> None:
+    """The test above passes with no guides at all: this one sees them. OIDN on the CPU gives
+    the same values for the same input, so the render's image is denoise() of its noisy image
+    and its own albedo and normal passes, bit for bit."""
+    pytest.importorskip("pyoidn")
+    scene = ROOT / "scenes" / "depth_of_field.toml"
+    result = render(scene, RenderSettings(**SMALL, denoise=True, aovs=("albedo", "normal")))
+    guided = denoise(result.noisy, result.aovs["albedo"], result.aovs["normal"])
+    np.testing.assert_array_equal(result.image, guided)
+    assert not np.array_equal(guided, denoise(result.noisy))  # the guides change the image
+    # The same guides where the passes are not asked for (traced for the denoiser alone).
+    unasked = render(scene, RenderSettings(**SMALL, denoise=True))
+    np.testing.assert_array_equal(unasked.image, result.image)
+
+
 def test_render_without_the_binding_fails_before_the_device(monkeypatch) -> None:
     monkeypatch.setitem(sys.modules, "pyoidn", None)
     module = importlib.import_module("clray.render")  # clray.render is also the function

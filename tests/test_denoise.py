@@ -6,6 +6,7 @@ from __future__ import annotations
 import importlib
 import json
 import sys
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -95,6 +96,21 @@ def test_a_flat_image_denoises_to_itself_up_to_its_edges(height: int, width: int
     denoised = denoise(image, **(guides if guided else {}))
     assert denoised.shape == image.shape and denoised.dtype == np.float32
     np.testing.assert_allclose(denoised, 0.5, rtol=0, atol=FLAT_TOLERANCE)
+
+
+def test_float64_beyond_float32_counts_as_float32_max_not_black() -> None:
+    """A float64 value too large for float32 became inf in the cast (numpy's RuntimeWarning),
+    hence black; it is the brightest float32 instead."""
+    pytest.importorskip("pyoidn")
+    image = np.full((40, 40, 3), 0.5)
+    image[20, 20] = 1e300
+    brightest = np.full(image.shape, 0.5, np.float32)
+    brightest[20, 20] = np.finfo(np.float32).max
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        denoised = denoise(image)
+    np.testing.assert_array_equal(denoised, denoise(brightest))
+    assert (denoised[20, 20] > 1.0).all()
 
 
 def test_mismatched_passes_are_refused() -> None:

@@ -12,16 +12,17 @@ once with another seed than the noisy images' (their samples must not be its fir
 kept as a PFM in --cache, so a second run skips it. At each spp the scene renders with
 `RenderSettings(denoise=True)` (the albedo and normal passes, then the denoiser): rmse of the
 noisy image (`RenderResult.noisy`) and of the denoised one against the reference; the
-render's seconds (`total_s` less `denoise_s`) and the denoiser's, medians of --rounds. Its cost
-(render, passes and denoiser) buys an undenoised render of `spp x cost / plain render's
-seconds` samples (the "same cost" render), with its own measured seconds and rmse. At each spp
-the plain and the denoised render first run once each untimed (their kernels' builds and
-PoCL's first-launch compiles), then once more untimed to estimate the same-cost spp, whose
-render then runs once untimed too; then each of --rounds rounds times the plain, the denoised
-and the same-cost render in turn, so that no row holds a compile and the machine's load
-drifting falls on the three alike. --picture writes the noisy and denoised
-images of --picture-scene at the lowest spp side by side as an sRGB PNG. Needs the denoise
-extra (pyoidn); without it, says so and exits with status 2. Measures only.
+undenoised render's seconds (`render_s`: its own `total_s`, with no passes traced), the
+denoised render's `passes_s` and `denoise_s` and its `total_s` (`denoised_total_s`), medians
+of --rounds. Its cost (render, passes and denoiser) buys an undenoised render of
+`spp x cost / plain render's seconds` samples (the "same cost" render), with its own
+measured seconds and rmse. At each spp the plain and the denoised render first run once each
+untimed (their kernels' builds and PoCL's first-launch compiles), then once more untimed to
+estimate the same-cost spp, whose render then runs once untimed too; then each of --rounds
+rounds times the plain, the denoised and the same-cost render in turn, so that no row holds a
+compile and the machine's load drifting falls on the three alike. --picture writes the noisy
+and denoised images of --picture-scene at the lowest spp side by side as an sRGB PNG. Needs
+the denoise extra (pyoidn); without it, says so and exits with status 2. Measures only.
 """
 
 from __future__ import annotations

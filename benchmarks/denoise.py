@@ -48,7 +48,7 @@ from clray.scene.load import load_scene
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
 sys.path.insert(0, str(ROOT))
-from benchmarks.common import check_outputs, positive_int, positive_ints  # noqa: E402
+from benchmarks.common import check_outputs, distinct_positive_ints, positive_int  # noqa: E402
 
 SCENES = ("soft_lights", "depth_of_field")
 REFERENCE_SEED = 1_000_003  # the noisy renders keep the scene's seed
@@ -135,8 +135,8 @@ def picture(result: RenderResult, path: Path) -> None:
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--json", type=Path, default=HERE / "results" / "denoise.json")
-    parser.add_argument("--spp", type=positive_ints, default=[4, 16, 64],
-                        help="comma-separated samples per pixel (default: 4,16,64)")
+    parser.add_argument("--spp", type=distinct_positive_ints, default=[4, 16, 64],
+                        help="comma-separated samples per pixel, each once (default: 4,16,64)")
     parser.add_argument("--reference-spp", type=positive_int, default=4096)
     parser.add_argument("--rounds", type=positive_int, default=3)
     parser.add_argument("--cache", type=Path, default=HERE / "results" / "denoise_references")
@@ -166,7 +166,7 @@ def main(argv: list[str] | None = None) -> None:
                   f"{row['passes_s']:.2f} s + denoise {row['denoise_s']:.2f} s); same cost: "
                   f"{row['same_cost_spp']} spp {row['same_cost_s']:.2f} s rmse "
                   f"{row['rmse_same_cost']:.4f}", flush=True)
-            if args.picture and scene_name == args.picture_scene and spp == spps[0]:
+            if args.picture and scene_name == args.picture_scene and spp == min(spps):
                 picture(result, args.picture)
     report = {"device": describe(select_device(None)), "machine": platform.processor() or
               platform.machine(), "reference_spp": args.reference_spp,

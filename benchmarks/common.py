@@ -37,6 +37,17 @@ def positive_ints(text: str) -> list[int]:
     return values
 
 
+def distinct_positive_ints(text: str) -> list[int]:
+    """argparse type: positive_ints, each at most once (refused, not merged, as names_of's
+    names: a repeated value would be measured twice)."""
+    values = positive_ints(text)
+    repeated = sorted({value for value in values if values.count(value) > 1})
+    if repeated:
+        raise argparse.ArgumentTypeError(
+            f"each at most once; repeated: {', '.join(map(str, repeated))}")
+    return values
+
+
 def image_size(text: str) -> tuple[int, int]:
     """argparse type: WxH, both at least 1."""
     width, sep, height = text.lower().partition("x")

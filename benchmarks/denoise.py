@@ -12,16 +12,17 @@ once with another seed than the noisy images' (their samples must not be its fir
 kept as a PFM in --cache, so a second run skips it. At each spp the scene renders with
 `RenderSettings(denoise=True)` (the albedo and normal passes, then the denoiser): rmse of the
 noisy image (`RenderResult.noisy`) and of the denoised one against the reference; the
-render's seconds (`total_s` less `denoise_s`) and the denoiser's, medians of --rounds. Its cost
-(render, passes and denoiser) buys an undenoised render of `spp x cost / plain render's
-seconds` samples (the "same cost" render), with its own measured seconds and rmse. At each spp
-the plain and the denoised render first run once each untimed (their kernels' builds and
-PoCL's first-launch compiles), then once more untimed to estimate the same-cost spp, whose
-render then runs once untimed too; then each of --rounds rounds times the plain, the denoised
-and the same-cost render in turn, so that no row holds a compile and the machine's load
-drifting falls on the three alike. --picture writes the noisy and denoised
-images of --picture-scene at the lowest spp side by side as an sRGB PNG. Needs the denoise
-extra (pyoidn); without it, says so and exits with status 2. Measures only.
+undenoised render's seconds (`render_s`: its own `total_s`, with no passes traced), the
+denoised render's `passes_s` and `denoise_s` and its `total_s` (`denoised_total_s`), medians
+of --rounds. Its cost (render, passes and denoiser) buys an undenoised render of
+`spp x cost / plain render's seconds` samples (the "same cost" render), with its own
+measured seconds and rmse. At each spp the plain and the denoised render first run once each
+untimed (their kernels' builds and PoCL's first-launch compiles), then once more untimed to
+estimate the same-cost spp, whose render then runs once untimed too; then each of --rounds
+rounds times the plain, the denoised and the same-cost render in turn, so that no row holds a
+compile and the machine's load drifting falls on the three alike. --picture writes the noisy
+and denoised images of --picture-scene at the lowest spp side by side as an sRGB PNG. Needs
+the denoise extra (pyoidn); without it, says so and exits with status 2. Measures only.
 """
 
 from __future__ import annotations
@@ -47,7 +48,7 @@ from clray.scene.load import load_scene
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
 sys.path.insert(0, str(ROOT))
-from benchmarks.common import check_outputs, positive_int, positive_ints  # noqa: E402
+from benchmarks.common import check_outputs, distinct_positive_ints, positive_int  # noqa: E402
 
 SCENES = ("soft_lights", "depth_of_field")
 REFERENCE_SEED = 1_000_003  # the noisy renders keep the scene's seed
@@ -134,8 +135,8 @@ def picture(result: RenderResult, path: Path) -> None:
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--json", type=Path, default=HERE / "results" / "denoise.json")
-    parser.add_argument("--spp", type=positive_ints, default=[4, 16, 64],
-                        help="comma-separated samples per pixel (default: 4,16,64)")
+    parser.add_argument("--spp", type=distinct_positive_ints, default=[4, 16, 64],
+                        help="comma-separated samples per pixel, each once (default: 4,16,64)")
     parser.add_argument("--reference-spp", type=positive_int, default=4096)
     parser.add_argument("--rounds", type=positive_int, default=3)
     parser.add_argument("--cache", type=Path, default=HERE / "results" / "denoise_references")
@@ -165,7 +166,7 @@ def main(argv: list[str] | None = None) -> None:
                   f"{row['passes_s']:.2f} s + denoise {row['denoise_s']:.2f} s); same cost: "
                   f"{row['same_cost_spp']} spp {row['same_cost_s']:.2f} s rmse "
                   f"{row['rmse_same_cost']:.4f}", flush=True)
-            if args.picture and scene_name == args.picture_scene and spp == spps[0]:
+            if args.picture and scene_name == args.picture_scene and spp == min(spps):
                 picture(result, args.picture)
     report = {"device": describe(select_device(None)), "machine": platform.processor() or
               platform.machine(), "reference_spp": args.reference_spp,

@@ -274,8 +274,10 @@ RAW_PASS_BYTES = 16 * len(PASS_OUTPUTS)
 # masks, and the indices and objects it gathers (int32 each).
 OBJECT_PASS_TEMPORARY_BYTES = 4 + 4 + 3 + 4 + 4
 # clray.denoise.denoise's float32 images at OIDN's call: the colour and the output, and each
-# guide's clipped copy and its denoised copy; the guide filters keep the guides' after it.
-DENOISE_WORK_BYTES = 12 * (2 + 2 * len(DENOISE_GUIDES))
+# guide's clipped copy and its denoised copy, and the output's crop copied out of its padded
+# frame; the guide filters keep the guides' after it. All but the crop are padded 16 px on
+# each side (clray.denoise.PAD), which a large image's pixels do not notice (1920x1080: 5 %).
+DENOISE_WORK_BYTES = 12 * (3 + 2 * len(DENOISE_GUIDES))
 DENOISE_KEPT_BYTES = 12 * 2 * len(DENOISE_GUIDES)
 
 

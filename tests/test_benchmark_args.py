@@ -107,6 +107,7 @@ BAD_ARGUMENTS = [
     ("load_sizes", ["write", "load"], ["--sides", "64,x"], "--sides"),
     ("denoise", ["reference", "measure"], ["--rounds", "0"], "--rounds"),
     ("denoise", ["reference", "measure"], ["--spp", "4,0"], "--spp"),
+    ("denoise", ["reference", "measure"], ["--spp", "4,16,4"], "repeated: 4"),  # measured twice
     ("bench_obj_materials", ["write_grid"], ["--repeat", "0"], "--repeat"),
     ("bench_instances", ["select_device", "scenes"], ["--repeat", "0"], "--repeat"),
     ("scale", ["write_ply", "measure", "against"], ["--against", "HEAD", "--rounds", "0"],
@@ -240,6 +241,25 @@ def test_load_sizes_ratio_does_not_follow_the_order_of_sides(
     entry = json.loads(out.read_text(encoding="utf-8"))["formats"]["obj"]
     assert [s["side"] for s in entry["sizes"]] == [64, 128]
     assert entry["largest_over_smallest_a_triangle"] == pytest.approx(2.0)
+
+
+def test_denoise_picture_is_at_the_lowest_spp(tmp_path: Path,
+                                              monkeypatch: pytest.MonkeyPatch) -> None:
+    """--picture shows the lowest of --spp, as its help says, in whatever order they come."""
+    module = script("denoise")
+    row = dict.fromkeys(("rmse_noisy", "rmse_denoised", "render_s", "passes_s", "denoise_s",
+                         "same_cost_s", "rmse_same_cost"), 0.0)
+    pictured: list[int] = []
+    monkeypatch.setattr(module, "check_denoiser", lambda: None)
+    monkeypatch.setattr(module, "reference", lambda *args: None)
+    monkeypatch.setattr(module, "measure", lambda scene_name, spp, ref, rounds: (
+        {**row, "scene": scene_name, "spp": spp, "same_cost_spp": spp}, spp))
+    monkeypatch.setattr(module, "picture", lambda result, path: pictured.append(result))
+    monkeypatch.setattr(module, "select_device", lambda spec: None)
+    monkeypatch.setattr(module, "describe", lambda device: "none")
+    module.main(["--spp", "16,4,64", "--json", str(tmp_path / "out.json"), "--cache",
+                 str(tmp_path / "cache"), "--picture", str(tmp_path / "picture.png")])
+    assert pictured == [4]
 
 
 def test_cpu_model_names_the_host_processor() -> None:

@@ -6,6 +6,7 @@ from __future__ import annotations
 import importlib
 import json
 import sys
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -77,6 +78,41 @@ def test_non_finite_pixels_count_as_black() -> None:
     assert rmse(denoised, clean) < 0.5 * rmse(np.nan_to_num(noisy, posinf=0, neginf=0), clean)
 
 
+# Unpadded, OIDN took what lies past the image's edges for black: a flat 0.5 came back about
+# 0.09 at 1x1 and off by up to 0.0228 in a 64x64 image's outer 4 pixels. Its own error on a
+# flat 0.5 is up to 0.0017 inside that image (8 px and more from an edge), and padded up to
+# 0.0014 at these sizes: the tolerance is that interior error and half again.
+FLAT_TOLERANCE = 0.0025
+
+
+@pytest.mark.parametrize("guided", [False, True], ids=("alone", "guided"))
+@pytest.mark.parametrize("height, width", [(1, 1), (2, 3), (64, 64)])
+def test_a_flat_image_denoises_to_itself_up_to_its_edges(height: int, width: int,
+                                                         guided: bool) -> None:
+    pytest.importorskip("pyoidn")
+    image = np.full((height, width, 3), 0.5, np.float32)
+    guides = {"albedo": np.full_like(image, 0.5),
+              "normal": np.tile(np.float32([0.0, 0.0, 1.0]), (height, width, 1))}
+    denoised = denoise(image, **(guides if guided else {}))
+    assert denoised.shape == image.shape and denoised.dtype == np.float32
+    np.testing.assert_allclose(denoised, 0.5, rtol=0, atol=FLAT_TOLERANCE)
+
+
+def test_float64_beyond_float32_counts_as_float32_max_not_black() -> None:
+    """A float64 value too large for float32 became inf in the cast (numpy's RuntimeWarning),
+    hence black; it is the brightest float32 instead."""
+    pytest.importorskip("pyoidn")
+    image = np.full((40, 40, 3), 0.5)
+    image[20, 20] = 1e300
+    brightest = np.full(image.shape, 0.5, np.float32)
+    brightest[20, 20] = np.finfo(np.float32).max
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        denoised = denoise(image)
+    np.testing.assert_array_equal(denoised, denoise(brightest))
+    assert (denoised[20, 20] > 1.0).all()
+
+
 def test_mismatched_passes_are_refused() -> None:
     pytest.importorskip("pyoidn")
     clean, albedo, normal = _clean_scene()
@@ -122,6 +158,21 @@ def test_noisy_guides_of_a_defocused_texture_do_not_keep_the_noise(cl_device) ->
     reference = render(scene, RenderSettings(**size, spp=256, seed=7)).image
     result = render(scene, RenderSettings(**size, spp=4, denoise=True))
     assert rmse(result.image, reference) < 0.6 * rmse(result.noisy, reference)
+
+
+def test_render_guides_the_denoiser_with_its_own_passes(cl_device) -> None:
+    """The test above passes with no guides at all: this one sees them. OIDN on the CPU gives
+    the same values for the same input, so the render's image is denoise() of its noisy image
+    and its own albedo and normal passes, bit for bit."""
+    pytest.importorskip("pyoidn")
+    scene = ROOT / "scenes" / "depth_of_field.toml"
+    result = render(scene, RenderSettings(**SMALL, denoise=True, aovs=("albedo", "normal")))
+    guided = denoise(result.noisy, result.aovs["albedo"], result.aovs["normal"])
+    np.testing.assert_array_equal(result.image, guided)
+    assert not np.array_equal(guided, denoise(result.noisy))  # the guides change the image
+    # The same guides where the passes are not asked for (traced for the denoiser alone).
+    unasked = render(scene, RenderSettings(**SMALL, denoise=True))
+    np.testing.assert_array_equal(unasked.image, result.image)
 
 
 def test_render_without_the_binding_fails_before_the_device(monkeypatch) -> None:

@@ -347,3 +347,47 @@ def test_map_options_take_the_numbers_that_follow(line, file, scale, ignored):
     texture = parse_mtl(f"newmtl a\n{line}\n".encode(), Path("m.mtl"), "m.mtl") \
         .materials["a"].map_kd
     assert (texture.file, texture.scale, texture.ignored) == (file, scale, ignored)
+
+
+@pytest.mark.parametrize("first", ["root:x:0:0:root:/root:/bin/bash",
+                                   "\x1b[31mSECRET\x1b[0m" + "A" * 200, "\u00ff\u00fe binary"])
+def test_a_file_that_is_not_a_material_library_is_said_so_without_its_text(tmp_path, first):
+    # The review's `mtllib ../../etc/passwd`: the error echoed the file's first word, whole.
+    (tmp_path / "sub").mkdir()
+    (tmp_path / "notes.txt").write_text(f"# a comment\n\n{first}\nnewmtl m\n")
+    write(tmp_path, "# header\nmtllib ../notes.txt\nusemtl m\nv 0 0 0\nv 1 0 0\nv 0 1 0\n"
+          "f 1 2 3\n", None, "sub/m.obj")
+    data = {"camera": CAMERA, "objects": [{"type": "mesh", "file": "sub/m.obj"}]}
+    with pytest.raises(SceneError) as info:
+        scene_from_dict(data, tmp_path / "s.toml")
+    assert str(info.value) == ("notes.txt: line 3: not a material library: its first "
+                               "statement is not an MTL one (expected newmtl) (sub/m.obj line "
+                               "2 names it in mtllib)")
+
+
+def test_a_key_before_newmtl_names_the_objs_mtllib_line(tmp_path):
+    # Which reference is wrong: the OBJ file and its mtllib line, with the library's line.
+    write(tmp_path, WALL_AND_PANEL, "Kd 1 0 0\nnewmtl wall\n")
+    with pytest.raises(SceneError) as info:
+        scene_of(tmp_path)
+    assert str(info.value) == ("m.mtl: line 1: Kd before the first newmtl (m.obj line 1 "
+                               "names it in mtllib)")
+
+
+@pytest.mark.parametrize(("line", "message"), [
+    ("Kd 1 " + "x" * 200, "Kd: expected numbers, got '1 " + "x" * 38 + "...'"),
+    ("illum " + "\x1b" * 100, "illum: expected an integer 0-10, got '" + "\\x1b" * 40 + "...'"),
+])
+def test_text_a_value_error_echoes_is_cut(tmp_path, line, message):
+    write(tmp_path, WALL_AND_PANEL, WALL + f"newmtl panel\n{line}\n")
+    with pytest.raises(SceneError) as info:
+        scene_of(tmp_path)
+    assert str(info.value).endswith(f"m.mtl: line 6: {message} (m.obj line 1 names it in "
+                                    "mtllib)")
+
+
+def test_a_long_unmodelled_key_is_cut_in_its_warning(tmp_path):
+    write(tmp_path, WALL_AND_PANEL, WALL + "P" * 300 + " 1\n")
+    said = [w for w in scene_of(tmp_path).warnings if "not modelled" in w]
+    assert len(said) == 1 and "line 5: " + "P" * 40 + "... is not modelled" in said[0]
+    assert "P" * 41 not in said[0]

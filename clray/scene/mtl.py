@@ -26,6 +26,14 @@ _NUMBERS = ("Ns", "Ni", "d", "Tr")
 _MAP_OPTIONS = {"-s": 3, "-o": 3, "-t": 3, "-mm": 2, "-bm": 1, "-boost": 1, "-texres": 1,
                 "-blendu": 1, "-blendv": 1, "-clamp": 1, "-cc": 1, "-imfchan": 1}
 _UVW_OPTIONS = ("-s", "-o", "-t")
+# The MTL statements clray does not model (warned of): with the keys above, illum and the
+# map_ statements, what a material library's first statement may be. Any other word before
+# the first newmtl says the file is not a material library (an `mtllib` naming the wrong
+# file), and is not shown: it may be any file's first word.
+_UNMODELLED = ("bump", "disp", "decal", "refl", "norm", "sharpness", "Pr", "Pm", "Ps", "Pc",
+               "Pcr", "aniso", "anisor")
+# Text of the file shown in a message is cut to this many characters.
+ECHO_CHARS = 40
 # Illumination models with ray-traced reflection, and those that transmit.
 REFLECTING = (3, 4, 5, 6, 7, 8)
 TRANSMITTING = (4, 6, 7, 9)
@@ -78,6 +86,9 @@ def parse_mtl(data: bytes, path: Path, shown: str) -> MtlLibrary:
             materials[name] = current
             continue
         if current is None:
+            if not _is_statement(key):
+                raise SceneError(path, f"line {number}", "not a material library: its first "
+                                 "statement is not an MTL one (expected newmtl)")
             raise SceneError(path, f"line {number}", f"{key} before the first newmtl")
         if key in _COLORS:
             current.colors[key] = _color(path, number, key, args)
@@ -89,9 +100,20 @@ def parse_mtl(data: bytes, path: Path, shown: str) -> MtlLibrary:
             current.map_kd = _texture_map(path, number, key, args)
         else:
             warned.setdefault(key, number)
-    warnings = [f"{shown}: line {line}: {key} is not modelled by clray (ignored in the whole "
-                "file)" for key, line in warned.items()]
+    warnings = [f"{shown}: line {line}: {_cut(key)} is not modelled by clray (ignored in the "
+                "whole file)" for key, line in warned.items()]
     return MtlLibrary(materials, warnings)
+
+
+def _is_statement(key: str) -> bool:
+    """Whether `key` is an MTL statement (read, or warned of as not modelled)."""
+    return (key in (*_COLORS, *_NUMBERS, *_UNMODELLED, "newmtl", "illum")
+            or key.startswith("map_"))
+
+
+def _cut(text: str) -> str:
+    """Text of the file, cut to ECHO_CHARS characters, for a message."""
+    return text if len(text) <= ECHO_CHARS else text[:ECHO_CHARS] + "..."
 
 
 def _error(path: Path, number: int, key: str, message: str) -> SceneError:
@@ -102,7 +124,7 @@ def _floats(path: Path, number: int, key: str, args: list[str]) -> list[float]:
     try:
         values = [float(a) for a in args]
     except ValueError:
-        raise _error(path, number, key, f"expected numbers, got {' '.join(args)[:60]!r}") from None
+        raise _error(path, number, key, f"expected numbers, got {_cut(' '.join(args))!r}") from None
     if not all(math.isfinite(v) and abs(v) <= L.MAX_MAGNITUDE for v in values):
         raise _error(path, number, key, "numbers must be finite")
     return values
@@ -142,7 +164,7 @@ def _illum(path: Path, number: int, args: list[str]) -> int:
     digits = (args[0].lstrip("0") or "0") if len(args) == 1 else ""
     if not (digits.isascii() and digits.isdigit() and len(digits) <= 2 and int(digits) <= 10):
         raise _error(path, number, "illum", f"expected an integer 0-10, got "
-                     f"{' '.join(args)[:40]!r}")
+                     f"{_cut(' '.join(args))!r}")
     return int(digits)
 
 

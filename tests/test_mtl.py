@@ -97,7 +97,7 @@ def test_missing_library_is_a_warning_naming_file_and_line(tmp_path):
     ("Kd 1 x 1", "Kd: expected numbers"),
     ("Kd 1 1", "Kd: expected 1 or 3 numbers"),
     ("Ks -1 0 0", "Ks: components must be in"),
-    ("Ni 0", "Ni: must be in"),
+    ("Ni 0\nillum 4", "Ni: must be in [0.01, 100] (illum 4 refracts by it), got 0"),
     ("d 1.5", "d: must be in [0, 1]"),
     ("illum 11", "illum: expected an integer 0-10"),
     ("illum \u00b9", "illum: expected an integer 0-10, got '\u00b9'"),  # isdigit() takes it
@@ -391,3 +391,35 @@ def test_a_long_unmodelled_key_is_cut_in_its_warning(tmp_path):
     said = [w for w in scene_of(tmp_path).warnings if "not modelled" in w]
     assert len(said) == 1 and "line 5: " + "P" * 40 + "... is not modelled" in said[0]
     assert "P" * 41 not in said[0]
+
+
+@pytest.mark.parametrize("illum", [None, 0, 1, 2, 3, 5, 8, 10])
+def test_ni_outside_its_range_is_unset_with_a_warning_where_nothing_refracts(tmp_path, illum):
+    # Blender 2.62 writes `Ni 0.000000` for every material: the whole model was refused.
+    block = "newmtl panel\nKd 0 0 1\nNi 0.000000\n" + (f"illum {illum}\n" if illum is not None
+                                                      else "")
+    write(tmp_path, WALL_AND_PANEL, WALL + block)
+    scene = scene_of(tmp_path)
+    panel = scene.materials[scene.objects[0].face_materials[2]]
+    assert panel.name == "panel" and panel.ior == 1.0
+    assert [w for w in scene.warnings if "Ni" in w] == [
+        "objects[0].file: m.obj: line 1: m.mtl: line 7: Ni 0 is outside [0.01, 100]: read as "
+        "unset (material 'panel' does not refract)"]
+
+
+@pytest.mark.parametrize("illum", [4, 6, 7, 9])
+def test_ni_outside_its_range_is_refused_where_the_material_refracts(tmp_path, illum):
+    # illum after Ni, as exporters write it: the block's illum decides.
+    write(tmp_path, WALL_AND_PANEL, WALL + f"newmtl panel\nNi 0\nTf 1 1 1\nillum {illum}\n"
+          "newmtl other\nKd 1 1 1\n")
+    with pytest.raises(SceneError) as info:
+        scene_of(tmp_path)
+    assert str(info.value) == (f"m.mtl: line 6: Ni: must be in [0.01, 100] (illum {illum} "
+                               "refracts by it), got 0 (m.obj line 1 names it in mtllib)")
+
+
+def test_a_later_ni_in_range_replaces_one_outside(tmp_path):
+    write(tmp_path, WALL_AND_PANEL, WALL + "newmtl panel\nNi 0\nNi 1.5\nillum 4\n")
+    scene = scene_of(tmp_path)
+    assert scene.materials[scene.objects[0].face_materials[2]].ior == 1.5
+    assert not [w for w in scene.warnings if "Ni" in w]

@@ -49,6 +49,9 @@ class MtlMaterial:
     numbers: dict[str, float] = field(default_factory=dict)
     illum: int | None = None
     map_kd: TextureMap | None = None
+    # An Ni outside IOR_RANGE (exporters write `Ni 0`) and its line: unset where the
+    # material does not refract (a warning), an error where it does (_check_ni).
+    outside_ni: tuple[int, float] | None = None
 
 
 @dataclass(frozen=True)
@@ -72,6 +75,7 @@ def parse_mtl(data: bytes, path: Path, shown: str) -> MtlLibrary:
     """The materials of an MTL file; `path` names it in errors, `shown` in warnings."""
     materials: dict[str, MtlMaterial] = {}
     warned: dict[str, int] = {}
+    warnings: list[str] = []
     current: MtlMaterial | None = None
     # A UTF-8 byte order mark (Windows editors write one) would be part of the first key.
     data = data.removeprefix(b"\xef\xbb\xbf")
@@ -81,6 +85,8 @@ def parse_mtl(data: bytes, path: Path, shown: str) -> MtlLibrary:
             continue
         key, args = words[0], words[1:]
         if key == "newmtl":
+            if current is not None:
+                _check_ni(current, path, shown, warnings)
             name = " ".join(args)
             current = MtlMaterial(name, number)
             materials[name] = current
@@ -92,6 +98,13 @@ def parse_mtl(data: bytes, path: Path, shown: str) -> MtlLibrary:
             raise SceneError(path, f"line {number}", f"{key} before the first newmtl")
         if key in _COLORS:
             current.colors[key] = _color(path, number, key, args)
+        elif key == "Ni":
+            value = _number(path, number, key, args, check=False)
+            if L.IOR_RANGE[0] <= value <= L.IOR_RANGE[1]:
+                current.numbers[key], current.outside_ni = value, None
+            else:
+                current.numbers.pop(key, None)
+                current.outside_ni = (number, value)
         elif key in _NUMBERS:
             current.numbers[key] = _number(path, number, key, args)
         elif key == "illum":
@@ -100,9 +113,27 @@ def parse_mtl(data: bytes, path: Path, shown: str) -> MtlLibrary:
             current.map_kd = _texture_map(path, number, key, args)
         else:
             warned.setdefault(key, number)
-    warnings = [f"{shown}: line {line}: {_cut(key)} is not modelled by clray (ignored in the "
-                "whole file)" for key, line in warned.items()]
+    if current is not None:
+        _check_ni(current, path, shown, warnings)
+    warnings += [f"{shown}: line {line}: {_cut(key)} is not modelled by clray (ignored in the "
+                 "whole file)" for key, line in warned.items()]
     return MtlLibrary(materials, warnings)
+
+
+def _check_ni(mtl: MtlMaterial, path: Path, shown: str, warnings: list[str]) -> None:
+    """At the end of a material's block, where its illum is known: an Ni outside IOR_RANGE is
+    an error where the material refracts by it (illum 4, 6, 7, 9), else unset (the default
+    index, which only those models use) with a warning naming the file and line. Blender
+    2.62 writes `Ni 0.000000` for every material."""
+    if mtl.outside_ni is None:
+        return
+    line, value = mtl.outside_ni
+    low, high = L.IOR_RANGE
+    if mtl.illum in TRANSMITTING:
+        raise _error(path, line, "Ni", f"must be in [{low:g}, {high:g}] (illum {mtl.illum} "
+                     f"refracts by it), got {value:g}")
+    warnings.append(f"{shown}: line {line}: Ni {value:g} is outside [{low:g}, {high:g}]: read "
+                    f"as unset (material {_cut(mtl.name)!r} does not refract)")
 
 
 def _is_statement(key: str) -> bool:
@@ -147,13 +178,13 @@ _NUMBER_RANGE = {"Ns": (0.0, L.MAX_SHININESS), "Ni": L.IOR_RANGE, "d": (0.0, 1.0
                  "Tr": (0.0, 1.0)}
 
 
-def _number(path: Path, number: int, key: str, args: list[str]) -> float:
+def _number(path: Path, number: int, key: str, args: list[str], check: bool = True) -> float:
     # `d -halo 0.5`: the halo form is read as plain dissolve.
     values = _floats(path, number, key, args[1:] if args[:1] == ["-halo"] else args)
     if len(values) != 1:
         raise _error(path, number, key, f"expected 1 number, got {len(values)}")
     low, high = _NUMBER_RANGE[key]
-    if not low <= values[0] <= high:
+    if check and not low <= values[0] <= high:
         raise _error(path, number, key, f"must be in [{low:g}, {high:g}], got {values[0]:g}")
     return values[0]
 

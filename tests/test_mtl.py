@@ -423,3 +423,28 @@ def test_a_later_ni_in_range_replaces_one_outside(tmp_path):
     scene = scene_of(tmp_path)
     assert scene.materials[scene.objects[0].face_materials[2]].ior == 1.5
     assert not [w for w in scene.warnings if "Ni" in w]
+
+
+def test_cr_only_line_ends_are_read_as_lf_ones(tmp_path):
+    # Classic Mac OS text: the OBJ reader saw one line ("line 1: expected a number, got 'v'"),
+    # and the MTL one a single statement.
+    lf_obj, lf_mtl = WALL_AND_PANEL, WALL + "newmtl panel\nKd 0 0 1\nillum 3\n"
+    write(tmp_path, lf_obj, lf_mtl)
+    want = scene_of(tmp_path)
+    write(tmp_path, lf_obj.replace("\n", "\r"), lf_mtl.replace("\n", "\r"))
+    got = scene_of(tmp_path)
+    assert got.warnings == want.warnings == ()
+    np.testing.assert_array_equal(got.objects[0].vertices, want.objects[0].vertices)
+    np.testing.assert_array_equal(got.objects[0].faces, want.objects[0].faces)
+    assert [got.materials[i] for i in got.objects[0].face_materials] == \
+        [want.materials[i] for i in want.objects[0].face_materials]
+
+
+def test_cr_only_line_ends_keep_line_numbers_in_errors(tmp_path):
+    write(tmp_path, WALL_AND_PANEL.replace("\n", "\r"),
+          (WALL + "newmtl panel\nKd 1 x 1\n").replace("\n", "\r"))
+    with pytest.raises(SceneError, match=r"m\.mtl: line 6: Kd: expected numbers"):
+        scene_of(tmp_path)
+    write(tmp_path, "v 0 0 0\rv 1 0 0\rv 0 1 0\rf 1 2 9\r", None)
+    with pytest.raises(SceneError, match=r"m\.obj: line 4: f: vertex index 9 out of range"):
+        scene_of(tmp_path)

@@ -14,6 +14,7 @@ from pathlib import Path
 
 from clray.errors import SceneError
 from clray.scene import limits as L
+from clray.scene.files import lf_line_ends
 from clray.scene.model import Material
 
 Vec3 = tuple[float, float, float]
@@ -78,7 +79,7 @@ def parse_mtl(data: bytes, path: Path, shown: str) -> MtlLibrary:
     warnings: list[str] = []
     current: MtlMaterial | None = None
     # A UTF-8 byte order mark (Windows editors write one) would be part of the first key.
-    data = data.removeprefix(b"\xef\xbb\xbf")
+    data = lf_line_ends(data.removeprefix(b"\xef\xbb\xbf"))
     for number, raw in enumerate(data.split(b"\n"), start=1):
         words = raw.split(b"#", 1)[0].decode("utf-8", errors="replace").split()
         if not words:

@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from clray.errors import SceneError
-from clray.scene.files import UnreadableFile, read_regular
+from clray.scene.files import UnreadableFile, lf_line_ends, read_regular
 from clray.scene.limits import MAX_MAGNITUDE, MAX_MESH_BYTES
 from clray.vectors import unit
 
@@ -561,6 +561,7 @@ def parse_obj(data: bytes, path: Path) -> ObjMesh:
     # index after it. It holds no newline, so line numbers are unchanged.
     if data.startswith(_BOM):
         data = data[len(_BOM):]
+    data = lf_line_ends(data)
     mesh = _parse_regular(data)
     if mesh is not None:
         return mesh

@@ -21,10 +21,11 @@ from clray.host_memory import CHUNK_ROWS, by_chunks, small_pages
 from clray.scene.assets import MESH_SUFFIXES, meshes_read_once
 from clray.scene.files import UnreadableFile, open_regular, read_regular
 from clray.scene.gltf import GLTF_SUFFIXES, GltfCamera, read_gltf_camera
-from clray.scene.limits import MAX_IMAGE_SIZE, MAX_MAGNITUDE, mesh_bytes_limit
+from clray.scene.limits import MAX_IMAGE_SIZE, MAX_MAGNITUDE, MIN_LENGTH, mesh_bytes_limit
 from clray.scene.load import scene_from_dict
 from clray.scene.model import Instance, Mesh, Scene
 from clray.scene.parse_camera import parse_camera
+from clray.scene.parse_transform import parse_transform
 from clray.scene.values import Values, file_name
 from clray.vectors import bounds, unit
 
@@ -69,6 +70,12 @@ RESOLVED_RADIUS = 1e-10
 # multiplies three lengths (scale.py), whose product leaves float32's range for models near
 # 1e13 or 1e-13, and rendered nothing; 2^+-32 keeps those products 1e9 inside it.
 RADIUS_RANGE = (2.0 ** -32, 2.0 ** 32)
+# The powers of 2 a transform may scale by (its singular values at least MIN_LENGTH, its
+# entries at most MAX_MAGNITUDE): 2^-99 brings the largest radius a mesh file may hold
+# (coordinates within 1e30: sqrt(3) x 1e30) to 2.7, and 2^99 any radius from 2^-131 up into
+# RADIUS_RANGE. A model smaller than that (or too small for its distance from the origin: the
+# offset too is at most MAX_MAGNITUDE) is refused, naming the file.
+SHRINK_EXPONENTS = (math.ceil(math.log2(MIN_LENGTH)), math.floor(math.log2(MAX_MAGNITUDE)))
 # A triangle whose cross product is at most this much of its two edges' lengths' product has
 # no area that a render could show (its corners are one point or on one line).
 FLAT_TRIANGLE = 1e-12
@@ -145,7 +152,7 @@ def model_scene_data(path: Path, view: str = DEFAULT_VIEW, ground: bool = False,
         # so that `clray scene` writes the numbers that render; the float64 vertices keep
         # what the file resolves. This also keeps a model with coordinates near 1e30 (valid)
         # framed by a camera within the scene's limit (half of it: room for rounding).
-        shrink = 2.0 ** -round(math.log2(radius))
+        shrink = _shrink(path, radius, reach)
         matrix, offset = shrink * rotation, -shrink * center
     transform = None
     if up != DEFAULT_UP or offset.any() or not np.array_equal(matrix, rotation):
@@ -155,6 +162,7 @@ def model_scene_data(path: Path, view: str = DEFAULT_VIEW, ground: bool = False,
         written = np.array(transform)
         vertices = model @ written[:3, :3].T + written[:3, 3]
         matrix, offset = written[:3, :3], written[:3, 3]
+        _check_placement(path, transform, vertices)
         center, radius, lo, hi = _bounds(vertices)
         distance = MARGIN * radius / math.sin(half)
     if np.max(np.abs(center)) + distance > MAX_MAGNITUDE:
@@ -212,6 +220,40 @@ def load_model_scene(path: Path, view: str = DEFAULT_VIEW, ground: bool = False,
                      height: int | None = None) -> Scene:
     with meshes_read_once():  # framing the model and loading its scene read the file once
         return scene_from_dict(model_scene_data(path, view, ground, up, width, height))
+
+
+def _shrink(path: Path, radius: float, reach: float) -> float:
+    """The power of 2 that scales a model of this bounding radius, its centre `reach` from
+    the origin (largest coordinate), to a radius near 1 about the origin, within what a
+    transform may hold: 2^SHRINK_EXPONENTS, and an offset (shrink x centre) of at most
+    MAX_MAGNITUDE. SceneError, naming the file, where the model would still be smaller than
+    RADIUS_RANGE: the float32 triangle test would render nothing. (The radius is 0 where its
+    square left float64, under 1e-154: _refuse_zero_area has found an area.)"""
+    exponent = -round(math.log2(radius)) if radius > 0.0 else SHRINK_EXPONENTS[1]
+    if reach > 0.0:
+        exponent = min(exponent, math.floor(math.log2(MAX_MAGNITUDE) - math.log2(reach)))
+    shrink = 2.0 ** min(max(exponent, SHRINK_EXPONENTS[0]), SHRINK_EXPONENTS[1])
+    if shrink * radius < RADIUS_RANGE[0]:
+        size = f"{radius:.3g}" if radius > 0.0 else "under 1e-154"
+        raise SceneError(path, None, f"the automatic scene cannot frame a model this small "
+                         f"(radius {size}, {reach:.3g} from the origin): it scales a "
+                         f"model by at most 2^{SHRINK_EXPONENTS[1]} and moves it by at most "
+                         f"{MAX_MAGNITUDE:g}; scale the model up, or write a scene file")
+    return shrink
+
+
+def _check_placement(path: Path, transform: list[list[float]], vertices: np.ndarray) -> None:
+    """SceneError naming the model file where the transform the automatic scene writes, or
+    the vertices it places, are beyond the scene's limits: loading the scene would name its
+    objects[0].transform, a key the user never wrote."""
+    try:
+        parse_transform({"matrix": transform}, "transform", Values(None))
+    except SceneError as err:
+        raise SceneError(path, None, f"the automatic scene cannot place this model (its "
+                         f"{err.key}: {err.message}); write a scene file") from None
+    if not np.all(np.abs(vertices) <= MAX_MAGNITUDE):  # NaN too
+        raise SceneError(path, None, f"the automatic scene cannot place this model (it would "
+                         f"move vertices beyond {MAX_MAGNITUDE:g}); write a scene file")
 
 
 def _refuse_zero_area(path: Path, probe: Scene) -> None:

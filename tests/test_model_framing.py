@@ -176,3 +176,54 @@ def test_render_of_a_mesh_path_frames_it_for_the_settings_image_size(tmp_path, m
     assert framed.camera == direct.camera
     assert (framed.render.width, framed.render.height) == (60, 160)
     assert framed.camera != scene_from("m.obj").camera
+
+
+@pytest.mark.parametrize(("scale", "place"), [(1e-35, 0.0), (1e-38, 0.0), (1e30, 0.0),
+                                              (1e-3, 1e29), (1e-10, 1e25)])
+def test_a_model_at_the_edge_of_the_limits_renders_and_its_written_scene_loads(
+        cl_device, tmp_path, monkeypatch, capsysbinary, scale, place):
+    # The review's obj_tiny, obj_huge and obj_farsmall: the scale by 2^-round(log2(radius))
+    # was beyond a transform's limits (1e35 for a 1e-35 model; 2^-100, under 1e-30, for
+    # coordinates at 1e30; an offset of 1e32 for a small model at 1e29), and a valid model
+    # failed naming objects[0].transform.matrix, a key the user never wrote.
+    monkeypatch.chdir(tmp_path)
+    _obj(tmp_path / "m.obj", _OCTAHEDRON * scale + [place, 0.0, 0.0], _OCTAHEDRON_FACES)
+    scene = load_model_scene(Path("m.obj"), width=32, height=24)
+    assert _seen(scene).mean() > 0.1
+    assert main(["scene", "m.obj", "-W", "32", "-H", "24"]) == 0
+    (tmp_path / "m.toml").write_bytes(capsysbinary.readouterr().out)
+    np.testing.assert_array_equal(render(load_scene(tmp_path / "m.toml")).image,
+                                  render(scene).image)
+
+
+@pytest.mark.parametrize(("scale", "place"), [(1e-300, 0.0), (1e-300, 1e-299), (1e-28, 1e29)])
+def test_a_model_too_small_to_frame_is_refused_naming_its_file(tmp_path, monkeypatch, capsys,
+                                                               scale, place):
+    # Scaled by the most a transform may (2^99), or moved by the most it may (1e30), the model
+    # would still be under 2^-32 across, which the float32 triangle test renders as nothing.
+    monkeypatch.chdir(tmp_path)
+    _obj(tmp_path / "m.obj", _OCTAHEDRON * scale + [place, 0.0, 0.0], _OCTAHEDRON_FACES)
+    for command in (["render", "m.obj", "-o", "m.png", "-q"], ["scene", "m.obj"]):
+        assert main(command) == 3
+        out = capsys.readouterr()
+        assert out.out == ""
+        assert out.err.startswith("clray: error: m.obj: the automatic scene cannot frame a "
+                                  "model this small (radius ")
+        assert out.err.endswith("; scale the model up, or write a scene file\n")
+        assert out.err.count("\n") == 1
+    assert not (tmp_path / "m.png").exists()
+
+
+def test_a_transform_beyond_the_limits_names_the_model_file(tmp_path, monkeypatch, capsys):
+    # Whatever the framing computes, a transform the scene cannot take is said of the model
+    # file, not of objects[0].transform, which the user never wrote.
+    import clray.model_scene as model_scene
+
+    monkeypatch.chdir(tmp_path)
+    _obj(tmp_path / "m.obj", _OCTAHEDRON * 1e20, _OCTAHEDRON_FACES)
+    monkeypatch.setattr(model_scene, "_shrink", lambda path, radius, reach: 2.0 ** -110)
+    assert main(["scene", "m.obj"]) == 3
+    err = capsys.readouterr().err
+    assert err == ("clray: error: m.obj: the automatic scene cannot place this model (its "
+                   "transform.matrix: is singular: it flattens space (its 3x3 part must be "
+                   "invertible)); write a scene file\n")

@@ -97,7 +97,7 @@ def test_missing_library_is_a_warning_naming_file_and_line(tmp_path):
     ("Kd 1 x 1", "Kd: expected numbers"),
     ("Kd 1 1", "Kd: expected 1 or 3 numbers"),
     ("Ks -1 0 0", "Ks: components must be in"),
-    ("Ni 0", "Ni: must be in"),
+    ("Ni 0\nillum 4", "Ni: must be in [0.01, 100] (illum 4 refracts by it), got 0"),
     ("d 1.5", "d: must be in [0, 1]"),
     ("illum 11", "illum: expected an integer 0-10"),
     ("illum \u00b9", "illum: expected an integer 0-10, got '\u00b9'"),  # isdigit() takes it
@@ -347,3 +347,104 @@ def test_map_options_take_the_numbers_that_follow(line, file, scale, ignored):
     texture = parse_mtl(f"newmtl a\n{line}\n".encode(), Path("m.mtl"), "m.mtl") \
         .materials["a"].map_kd
     assert (texture.file, texture.scale, texture.ignored) == (file, scale, ignored)
+
+
+@pytest.mark.parametrize("first", ["root:x:0:0:root:/root:/bin/bash",
+                                   "\x1b[31mSECRET\x1b[0m" + "A" * 200, "\u00ff\u00fe binary"])
+def test_a_file_that_is_not_a_material_library_is_said_so_without_its_text(tmp_path, first):
+    # The review's `mtllib ../../etc/passwd`: the error echoed the file's first word, whole.
+    (tmp_path / "sub").mkdir()
+    (tmp_path / "notes.txt").write_text(f"# a comment\n\n{first}\nnewmtl m\n")
+    write(tmp_path, "# header\nmtllib ../notes.txt\nusemtl m\nv 0 0 0\nv 1 0 0\nv 0 1 0\n"
+          "f 1 2 3\n", None, "sub/m.obj")
+    data = {"camera": CAMERA, "objects": [{"type": "mesh", "file": "sub/m.obj"}]}
+    with pytest.raises(SceneError) as info:
+        scene_from_dict(data, tmp_path / "s.toml")
+    assert str(info.value) == ("notes.txt: line 3: not a material library: its first "
+                               "statement is not an MTL one (expected newmtl) (sub/m.obj line "
+                               "2 names it in mtllib)")
+
+
+def test_a_key_before_newmtl_names_the_objs_mtllib_line(tmp_path):
+    # Which reference is wrong: the OBJ file and its mtllib line, with the library's line.
+    write(tmp_path, WALL_AND_PANEL, "Kd 1 0 0\nnewmtl wall\n")
+    with pytest.raises(SceneError) as info:
+        scene_of(tmp_path)
+    assert str(info.value) == ("m.mtl: line 1: Kd before the first newmtl (m.obj line 1 "
+                               "names it in mtllib)")
+
+
+@pytest.mark.parametrize(("line", "message"), [
+    ("Kd 1 " + "x" * 200, "Kd: expected numbers, got '1 " + "x" * 38 + "...'"),
+    ("illum " + "\x1b" * 100, "illum: expected an integer 0-10, got '" + "\\x1b" * 40 + "...'"),
+])
+def test_text_a_value_error_echoes_is_cut(tmp_path, line, message):
+    write(tmp_path, WALL_AND_PANEL, WALL + f"newmtl panel\n{line}\n")
+    with pytest.raises(SceneError) as info:
+        scene_of(tmp_path)
+    assert str(info.value).endswith(f"m.mtl: line 6: {message} (m.obj line 1 names it in "
+                                    "mtllib)")
+
+
+def test_a_long_unmodelled_key_is_cut_in_its_warning(tmp_path):
+    write(tmp_path, WALL_AND_PANEL, WALL + "P" * 300 + " 1\n")
+    said = [w for w in scene_of(tmp_path).warnings if "not modelled" in w]
+    assert len(said) == 1 and "line 5: " + "P" * 40 + "... is not modelled" in said[0]
+    assert "P" * 41 not in said[0]
+
+
+@pytest.mark.parametrize("illum", [None, 0, 1, 2, 3, 5, 8, 10])
+def test_ni_outside_its_range_is_unset_with_a_warning_where_nothing_refracts(tmp_path, illum):
+    # Blender 2.62 writes `Ni 0.000000` for every material: the whole model was refused.
+    block = "newmtl panel\nKd 0 0 1\nNi 0.000000\n" + (f"illum {illum}\n" if illum is not None
+                                                      else "")
+    write(tmp_path, WALL_AND_PANEL, WALL + block)
+    scene = scene_of(tmp_path)
+    panel = scene.materials[scene.objects[0].face_materials[2]]
+    assert panel.name == "panel" and panel.ior == 1.0
+    assert [w for w in scene.warnings if "Ni" in w] == [
+        "objects[0].file: m.obj: line 1: m.mtl: line 7: Ni 0 is outside [0.01, 100]: read as "
+        "unset (material 'panel' does not refract)"]
+
+
+@pytest.mark.parametrize("illum", [4, 6, 7, 9])
+def test_ni_outside_its_range_is_refused_where_the_material_refracts(tmp_path, illum):
+    # illum after Ni, as exporters write it: the block's illum decides.
+    write(tmp_path, WALL_AND_PANEL, WALL + f"newmtl panel\nNi 0\nTf 1 1 1\nillum {illum}\n"
+          "newmtl other\nKd 1 1 1\n")
+    with pytest.raises(SceneError) as info:
+        scene_of(tmp_path)
+    assert str(info.value) == (f"m.mtl: line 6: Ni: must be in [0.01, 100] (illum {illum} "
+                               "refracts by it), got 0 (m.obj line 1 names it in mtllib)")
+
+
+def test_a_later_ni_in_range_replaces_one_outside(tmp_path):
+    write(tmp_path, WALL_AND_PANEL, WALL + "newmtl panel\nNi 0\nNi 1.5\nillum 4\n")
+    scene = scene_of(tmp_path)
+    assert scene.materials[scene.objects[0].face_materials[2]].ior == 1.5
+    assert not [w for w in scene.warnings if "Ni" in w]
+
+
+def test_cr_only_line_ends_are_read_as_lf_ones(tmp_path):
+    # Classic Mac OS text: the OBJ reader saw one line ("line 1: expected a number, got 'v'"),
+    # and the MTL one a single statement.
+    lf_obj, lf_mtl = WALL_AND_PANEL, WALL + "newmtl panel\nKd 0 0 1\nillum 3\n"
+    write(tmp_path, lf_obj, lf_mtl)
+    want = scene_of(tmp_path)
+    write(tmp_path, lf_obj.replace("\n", "\r"), lf_mtl.replace("\n", "\r"))
+    got = scene_of(tmp_path)
+    assert got.warnings == want.warnings == ()
+    np.testing.assert_array_equal(got.objects[0].vertices, want.objects[0].vertices)
+    np.testing.assert_array_equal(got.objects[0].faces, want.objects[0].faces)
+    assert [got.materials[i] for i in got.objects[0].face_materials] == \
+        [want.materials[i] for i in want.objects[0].face_materials]
+
+
+def test_cr_only_line_ends_keep_line_numbers_in_errors(tmp_path):
+    write(tmp_path, WALL_AND_PANEL.replace("\n", "\r"),
+          (WALL + "newmtl panel\nKd 1 x 1\n").replace("\n", "\r"))
+    with pytest.raises(SceneError, match=r"m\.mtl: line 6: Kd: expected numbers"):
+        scene_of(tmp_path)
+    write(tmp_path, "v 0 0 0\rv 1 0 0\rv 0 1 0\rf 1 2 9\r", None)
+    with pytest.raises(SceneError, match=r"m\.obj: line 4: f: vertex index 9 out of range"):
+        scene_of(tmp_path)

@@ -73,6 +73,17 @@ def test_v_vt_form(tmp_path):
     ]
 
 
+@pytest.mark.parametrize("uvs", [["0.25", "0.5", "0.75"], ["0.25", "0.5 0.125", "0.75 1 0"],
+                                 ["0.25 0.5 0.5", "0.5", "0.75 1"]])
+def test_vt_with_u_alone_reads_v_as_0(tmp_path, uvs):
+    # The OBJ specification makes v optional (default 0): `vt u` was refused. Each statement
+    # keeps its own values, not the next one's.
+    text = SQUARE_V + "".join(f"vt {uv}\n" for uv in uvs) + "f 1/1 2/2 3/3\n"
+    mesh = read_obj(write(tmp_path, text))
+    want = [tuple(float(x) for x in [*uv.split(), "0"][:2]) for uv in uvs]
+    assert [uv for _, uv, _ in corners(mesh)[0]] == want
+
+
 def test_v_vn_form(tmp_path):
     text = SQUARE_V + "vn 0 0 1\nvn 0 1 0\nf 1//1 2//2 3//1\n"
     mesh = read_obj(write(tmp_path, text))
@@ -191,7 +202,7 @@ def test_fixture_cube():
         ("v 0 0 0\nv 1 zero 0\n", 2, "expected a number, got 'zero'"),
         ("v 0 0 0\nv 1 1_0 0\n", 2, "expected a number, got '1_0'"),
         ("v 0 0 0\nv 1 0\n", 2, "v: expected at least 3 numbers, got 2"),
-        ("vt 0\n", 1, "vt: expected at least 2 numbers, got 1"),
+        ("v 0 0 0\nvt\n", 2, "vt: expected at least 1 number, got 0"),
         ("v 0 0 0\nv 1 nan 0\n", 2, "v: numbers must be finite"),
         ("v 0 0 0\nvn 0 0 0\n", 2, "vn: zero-length normal"),
     ],

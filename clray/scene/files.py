@@ -214,3 +214,13 @@ def parses_kept() -> bool:
 
 _KEPT: ContextVar[KeptFiles | None] = ContextVar("clray_kept_files", default=None)
 _READS: ContextVar[set[str] | None] = ContextVar("clray_files_read", default=None)
+
+
+def lf_line_ends(data: bytes) -> bytes:
+    """Text whose lines end in a CR alone (classic Mac OS files) with LF line ends instead, the
+    same length (byte offsets, and so line numbers, unchanged); other text as it is. Only
+    where the text holds no LF: a CR then ends every line, and the line readers (OBJ, MTL),
+    which split at LF, read such a file as one line."""
+    if b"\r" in data and b"\n" not in data:
+        return data.replace(b"\r", b"\n")
+    return data

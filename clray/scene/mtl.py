@@ -14,6 +14,7 @@ from pathlib import Path
 
 from clray.errors import SceneError
 from clray.scene import limits as L
+from clray.scene.files import lf_line_ends
 from clray.scene.model import Material
 
 Vec3 = tuple[float, float, float]
@@ -26,6 +27,14 @@ _NUMBERS = ("Ns", "Ni", "d", "Tr")
 _MAP_OPTIONS = {"-s": 3, "-o": 3, "-t": 3, "-mm": 2, "-bm": 1, "-boost": 1, "-texres": 1,
                 "-blendu": 1, "-blendv": 1, "-clamp": 1, "-cc": 1, "-imfchan": 1}
 _UVW_OPTIONS = ("-s", "-o", "-t")
+# The MTL statements clray does not model (warned of): with the keys above, illum and the
+# map_ statements, what a material library's first statement may be. Any other word before
+# the first newmtl says the file is not a material library (an `mtllib` naming the wrong
+# file), and is not shown: it may be any file's first word.
+_UNMODELLED = ("bump", "disp", "decal", "refl", "norm", "sharpness", "Pr", "Pm", "Ps", "Pc",
+               "Pcr", "aniso", "anisor")
+# Text of the file shown in a message is cut to this many characters.
+ECHO_CHARS = 40
 # Illumination models with ray-traced reflection, and those that transmit.
 REFLECTING = (3, 4, 5, 6, 7, 8)
 TRANSMITTING = (4, 6, 7, 9)
@@ -41,6 +50,9 @@ class MtlMaterial:
     numbers: dict[str, float] = field(default_factory=dict)
     illum: int | None = None
     map_kd: TextureMap | None = None
+    # An Ni outside IOR_RANGE (exporters write `Ni 0`) and its line: unset where the
+    # material does not refract (a warning), an error where it does (_check_ni).
+    outside_ni: tuple[int, float] | None = None
 
 
 @dataclass(frozen=True)
@@ -64,23 +76,36 @@ def parse_mtl(data: bytes, path: Path, shown: str) -> MtlLibrary:
     """The materials of an MTL file; `path` names it in errors, `shown` in warnings."""
     materials: dict[str, MtlMaterial] = {}
     warned: dict[str, int] = {}
+    warnings: list[str] = []
     current: MtlMaterial | None = None
     # A UTF-8 byte order mark (Windows editors write one) would be part of the first key.
-    data = data.removeprefix(b"\xef\xbb\xbf")
+    data = lf_line_ends(data.removeprefix(b"\xef\xbb\xbf"))
     for number, raw in enumerate(data.split(b"\n"), start=1):
         words = raw.split(b"#", 1)[0].decode("utf-8", errors="replace").split()
         if not words:
             continue
         key, args = words[0], words[1:]
         if key == "newmtl":
+            if current is not None:
+                _check_ni(current, path, shown, warnings)
             name = " ".join(args)
             current = MtlMaterial(name, number)
             materials[name] = current
             continue
         if current is None:
+            if not _is_statement(key):
+                raise SceneError(path, f"line {number}", "not a material library: its first "
+                                 "statement is not an MTL one (expected newmtl)")
             raise SceneError(path, f"line {number}", f"{key} before the first newmtl")
         if key in _COLORS:
             current.colors[key] = _color(path, number, key, args)
+        elif key == "Ni":
+            value = _number(path, number, key, args, check=False)
+            if L.IOR_RANGE[0] <= value <= L.IOR_RANGE[1]:
+                current.numbers[key], current.outside_ni = value, None
+            else:
+                current.numbers.pop(key, None)
+                current.outside_ni = (number, value)
         elif key in _NUMBERS:
             current.numbers[key] = _number(path, number, key, args)
         elif key == "illum":
@@ -89,9 +114,38 @@ def parse_mtl(data: bytes, path: Path, shown: str) -> MtlLibrary:
             current.map_kd = _texture_map(path, number, key, args)
         else:
             warned.setdefault(key, number)
-    warnings = [f"{shown}: line {line}: {key} is not modelled by clray (ignored in the whole "
-                "file)" for key, line in warned.items()]
+    if current is not None:
+        _check_ni(current, path, shown, warnings)
+    warnings += [f"{shown}: line {line}: {_cut(key)} is not modelled by clray (ignored in the "
+                 "whole file)" for key, line in warned.items()]
     return MtlLibrary(materials, warnings)
+
+
+def _check_ni(mtl: MtlMaterial, path: Path, shown: str, warnings: list[str]) -> None:
+    """At the end of a material's block, where its illum is known: an Ni outside IOR_RANGE is
+    an error where the material refracts by it (illum 4, 6, 7, 9), else unset (the default
+    index, which only those models use) with a warning naming the file and line. Blender
+    2.62 writes `Ni 0.000000` for every material."""
+    if mtl.outside_ni is None:
+        return
+    line, value = mtl.outside_ni
+    low, high = L.IOR_RANGE
+    if mtl.illum in TRANSMITTING:
+        raise _error(path, line, "Ni", f"must be in [{low:g}, {high:g}] (illum {mtl.illum} "
+                     f"refracts by it), got {value:g}")
+    warnings.append(f"{shown}: line {line}: Ni {value:g} is outside [{low:g}, {high:g}]: read "
+                    f"as unset (material {_cut(mtl.name)!r} does not refract)")
+
+
+def _is_statement(key: str) -> bool:
+    """Whether `key` is an MTL statement (read, or warned of as not modelled)."""
+    return (key in (*_COLORS, *_NUMBERS, *_UNMODELLED, "newmtl", "illum")
+            or key.startswith("map_"))
+
+
+def _cut(text: str) -> str:
+    """Text of the file, cut to ECHO_CHARS characters, for a message."""
+    return text if len(text) <= ECHO_CHARS else text[:ECHO_CHARS] + "..."
 
 
 def _error(path: Path, number: int, key: str, message: str) -> SceneError:
@@ -102,7 +156,7 @@ def _floats(path: Path, number: int, key: str, args: list[str]) -> list[float]:
     try:
         values = [float(a) for a in args]
     except ValueError:
-        raise _error(path, number, key, f"expected numbers, got {' '.join(args)[:60]!r}") from None
+        raise _error(path, number, key, f"expected numbers, got {_cut(' '.join(args))!r}") from None
     if not all(math.isfinite(v) and abs(v) <= L.MAX_MAGNITUDE for v in values):
         raise _error(path, number, key, "numbers must be finite")
     return values
@@ -125,13 +179,13 @@ _NUMBER_RANGE = {"Ns": (0.0, L.MAX_SHININESS), "Ni": L.IOR_RANGE, "d": (0.0, 1.0
                  "Tr": (0.0, 1.0)}
 
 
-def _number(path: Path, number: int, key: str, args: list[str]) -> float:
+def _number(path: Path, number: int, key: str, args: list[str], check: bool = True) -> float:
     # `d -halo 0.5`: the halo form is read as plain dissolve.
     values = _floats(path, number, key, args[1:] if args[:1] == ["-halo"] else args)
     if len(values) != 1:
         raise _error(path, number, key, f"expected 1 number, got {len(values)}")
     low, high = _NUMBER_RANGE[key]
-    if not low <= values[0] <= high:
+    if check and not low <= values[0] <= high:
         raise _error(path, number, key, f"must be in [{low:g}, {high:g}], got {values[0]:g}")
     return values[0]
 
@@ -142,7 +196,7 @@ def _illum(path: Path, number: int, args: list[str]) -> int:
     digits = (args[0].lstrip("0") or "0") if len(args) == 1 else ""
     if not (digits.isascii() and digits.isdigit() and len(digits) <= 2 and int(digits) <= 10):
         raise _error(path, number, "illum", f"expected an integer 0-10, got "
-                     f"{' '.join(args)[:40]!r}")
+                     f"{_cut(' '.join(args))!r}")
     return int(digits)
 
 

@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from clray.errors import SceneError
-from clray.scene.files import UnreadableFile, read_regular
+from clray.scene.files import UnreadableFile, lf_line_ends, read_regular
 from clray.scene.limits import MAX_MAGNITUDE, MAX_MESH_BYTES
 from clray.vectors import unit
 
@@ -313,13 +313,18 @@ def _value_tokens(first: np.ndarray, count: np.ndarray) -> np.ndarray:
     return _ranges(first, count)
 
 
-def _floats(tok: _Tokens, kind: int, name: str, want: int) -> tuple[np.ndarray, np.ndarray]:
-    """(values (N, want), statement numbers) of the `v`/`vt`/`vn` statements."""
+def _floats(tok: _Tokens, kind: int, name: str, want: int, least: int | None = None
+            ) -> tuple[np.ndarray, np.ndarray]:
+    """(values (N, want), statement numbers) of the `v`/`vt`/`vn` statements: each gives at
+    least `least` (default `want`) numbers, those it leaves out are 0 (`vt u`: v is optional,
+    0 by the OBJ specification)."""
+    least = want if least is None else least
     stmt, first, count = tok.statements(kind)
-    short = np.flatnonzero(count < want)
+    short = np.flatnonzero(count < least)
     if len(short):
         i = short[0]
-        raise tok.error(first[i] - 1, f"{name}: expected at least {want} numbers, got {count[i]}")
+        raise tok.error(first[i] - 1, f"{name}: expected at least {least} "
+                        f"number{'s' * (least != 1)}, got {count[i]}")
     tokens = _value_tokens(first, count)
     values, ok = _fast_floats(tok.buf, tok.starts[tokens], tok.ends[tokens])
     for i in np.flatnonzero(~ok).tolist():
@@ -327,8 +332,12 @@ def _floats(tok: _Tokens, kind: int, name: str, want: int) -> tuple[np.ndarray, 
     # Extra values (a `w`, vertex colours) are allowed and ignored.
     if np.all(count == want):
         picked = values.reshape(-1, want)
-    else:
+    elif least == want or count.min() >= want:
         picked = values[_exclusive_cumsum(count)[:, None] + np.arange(want)]
+    else:  # some statements leave values out: those read as 0, not the next statement's
+        index = _exclusive_cumsum(count)[:, None] + np.arange(want)
+        given = np.arange(want) < count[:, None]
+        picked = np.where(given, values[np.where(given, index, 0)], 0.0)
     bad = np.flatnonzero(~np.isfinite(picked).all(axis=1))
     if len(bad):
         raise tok.error(first[bad[0]] - 1, f"{name}: numbers must be finite")
@@ -552,12 +561,13 @@ def parse_obj(data: bytes, path: Path) -> ObjMesh:
     # index after it. It holds no newline, so line numbers are unchanged.
     if data.startswith(_BOM):
         data = data[len(_BOM):]
+    data = lf_line_ends(data)
     mesh = _parse_regular(data)
     if mesh is not None:
         return mesh
     tok = _Tokens(data, path)
     positions, v_stmt = _floats(tok, _V, "v", 3)
-    uv_values, vt_stmt = _floats(tok, _VT, "vt", 2)
+    uv_values, vt_stmt = _floats(tok, _VT, "vt", 2, least=1)
     normal_values, vn_stmt = _floats(tok, _VN, "vn", 3)
     zero = np.flatnonzero(~np.any(normal_values != 0.0, axis=1))
     if len(zero):

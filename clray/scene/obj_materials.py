@@ -29,7 +29,12 @@ def obj_face_materials(obj: ObjMesh, name: str, key: str, default: int, v: Value
     folder = Path(name).parent
     for line, lib in obj.material_libraries:
         where = f"{key}: {file_name(name)}: line {line}"
-        read = assets.material_library(folder / lib, where)
+        try:
+            read = assets.material_library(folder / lib, where)
+        except SceneError as err:
+            # Which reference is wrong: the library may be any file (`mtllib` names it).
+            raise SceneError(err.file, err.key, f"{err.message} ({file_name(name)} line {line} "
+                             "names it in mtllib)") from None
         if read is None:
             continue
         library, identity = read

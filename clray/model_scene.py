@@ -122,7 +122,7 @@ def model_scene_data(path: Path, view: str = DEFAULT_VIEW, ground: bool = False,
             raise
         # Not a scene file's key (the probe's): what the file holds, and where in it (a .npz's
         # array, "faces[3]") where the key goes on past the probe's object and file name.
-        inside = f"objects[0].file: {file_name(name)}: "
+        inside = _probe_key(name)
         key = err.key[len(inside):] if err.key and err.key.startswith(inside) else None
         raise SceneError(path, key, err.message) from None
     _refuse_zero_area(path, probe)
@@ -219,7 +219,20 @@ def load_model_scene(path: Path, view: str = DEFAULT_VIEW, ground: bool = False,
                      up: str = DEFAULT_UP, width: int | None = None,
                      height: int | None = None) -> Scene:
     with meshes_read_once():  # framing the model and loading its scene read the file once
-        return scene_from_dict(model_scene_data(path, view, ground, up, width, height))
+        scene = scene_from_dict(model_scene_data(path, view, ground, up, width, height))
+    # The loader's warnings about the mesh begin with its key in the made scene
+    # (`objects[0].file: NAME: `), a key the user never wrote: told as `NAME: `. Set as the
+    # loader sets `checked`: the scene is frozen, and replace() would make an unchecked copy.
+    inside = _probe_key(path.as_posix())
+    told = tuple(f"{file_name(path.as_posix())}: {w[len(inside):]}" if w.startswith(inside)
+                 else w for w in scene.warnings)
+    object.__setattr__(scene, "warnings", told)
+    return scene
+
+
+def _probe_key(name: str) -> str:
+    """How the loader's messages about the made scene's mesh begin: its key and file name."""
+    return f"objects[0].file: {file_name(name)}: "
 
 
 def _shrink(path: Path, radius: float, reach: float) -> float:

@@ -407,3 +407,22 @@ def test_a_float16_npz_loads_without_numpy_warnings(tmp_path, monkeypatch):
         warnings.simplefilter("error")
         with pytest.raises(SceneError, match=r"h\.npz: vertices\[1\]: must be finite"):
             model_scene_data(Path("h.npz"))
+
+
+def test_a_models_warnings_name_its_file_not_the_made_scenes_key(tmp_path, monkeypatch):
+    """The automatic scene's warnings about the model began `objects[0].file: m.obj: `, a key
+    of the scene clray made, which the user never wrote."""
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "m.mtl").write_text("newmtl m\nKd 1 0 0\nNi 0\nillum 2\n", encoding="utf-8")
+    (tmp_path / "m.obj").write_text("mtllib m.mtl\nv 0 0 0\nv 1 0 0\nv 0 1 0\nusemtl m\n"
+                                    "f 1 2 3\n", encoding="utf-8")
+    warnings = load_model_scene(Path("m.obj")).warnings
+    ni = [w for w in warnings if "Ni 0" in w]
+    assert len(ni) == 1 and ni[0].startswith("m.obj: line 1: m.mtl: line 3: "), warnings
+    assert not any("objects[0]" in w for w in warnings), warnings
+    # A scene file that names the mesh keeps the key it wrote.
+    (tmp_path / "s.toml").write_text(
+        '[camera]\nposition = [0, 0, 3]\nlook_at = [0, 0, 0]\n'
+        '[[objects]]\ntype = "mesh"\nfile = "m.obj"\n', encoding="utf-8")
+    assert any(w.startswith("objects[0].file: m.obj: line 1: m.mtl")
+               for w in load_scene(Path("s.toml")).warnings)

@@ -544,7 +544,8 @@ def _mesh(reader: _Reader, columns: dict[str, dict[str, object]]) -> PlyMesh:
             raise _few_corners(reader, int(small[0]), int(counts[small[0]]))
         # A triangle mesh's items are its faces as they are: no fan to gather (a copy of
         # 24 bytes a triangle).
-        parts.append(items.reshape(-1, 3) if np.all(counts == 3) else items[_fan(counts)])
+        parts.append(items.reshape(-1, 3) if np.all(counts == 3)
+                     else items[_fan(counts, vertices, items)])
     strips = _index_list(reader, columns, "tristrips", len(vertices))
     if strips is not None:
         parts.append(_strip_triangles(*strips))

@@ -543,6 +543,9 @@ def _shape_polygons(tris: np.ndarray, count: np.ndarray, positions: np.ndarray,
     base = _exclusive_cumsum(count)
     for k in np.unique(count[count > 3]).tolist():
         polys = np.flatnonzero(count == k)
+        if k == 4:
+            _shape_quads(tris, polys, first_tri, base, positions, v)
+            continue
         # Corners 0..k-1 then 0 and 1 again: every edge and its successor are views.
         wrap = np.arange(k + 2) % k
         for at in range(0, len(polys), _CHUNK):
@@ -598,6 +601,40 @@ def _shape_polygons(tris: np.ndarray, count: np.ndarray, positions: np.ndarray,
                 if clipped is not None:
                     poly_i = int(chunk[bent[i]])
                     tris[first_tri[poly_i]:first_tri[poly_i] + k - 2] = base[poly_i] + clipped
+
+
+def _shape_quads(tris: np.ndarray, polys: np.ndarray, first_tri: np.ndarray,
+                 base: np.ndarray, positions: np.ndarray, v: np.ndarray) -> None:
+    """_shape_polygons for quads, the common polygon, at a fraction of the general test's
+    cost (1M quads: 0.45 s there): a quad's fan (0, 1, 2), (0, 2, 3) is right unless its two
+    triangles face opposite ways, a reflex corner at 1 or 3; it then takes the other
+    diagonal, (1, 2, 3), (1, 3, 0), where that one's triangles face alike and the quad is
+    planar, and stays a fan otherwise (crossing itself, or bent). A corner straight on
+    (a triangle of no area) keeps the fan, as in the general test."""
+    for at in range(0, len(polys), _CHUNK):
+        chunk = polys[at:at + _CHUNK]
+        p = positions[v[base[chunk][:, None] + np.arange(4)]].astype(np.float64)
+        # Coordinate by coordinate: np.cross and einsum on (P, 3) took 3 times as long.
+        (ax, ay, az), (bx, by, bz), (cx, cy, cz) = [[p[:, k, i] - p[:, 0, i] for i in range(3)]
+                                                    for k in (1, 2, 3)]
+        bent = ((ay * bz - az * by) * (by * cz - bz * cy) + (az * bx - ax * bz)
+                * (bz * cx - bx * cz) + (ax * by - ay * bx) * (bx * cy - by * cx)) < 0
+        if not bent.any():
+            continue
+        chunk, p = chunk[bent], p[bent]
+        a, b, c = p[:, 1] - p[:, 0], p[:, 2] - p[:, 0], p[:, 3] - p[:, 0]
+        other = np.einsum("pc,pc->p", np.cross(b - a, c - a), np.cross(c - a, -a)) > 0
+        # Planar as _shape_polygons asks: no corner off the plane by more than _PLANAR of
+        # the longest edge (the normal: the diagonals' cross product, Newell's for a quad).
+        normal = np.cross(b, c - a)
+        size = np.linalg.norm(normal, axis=1)
+        unit_n = normal / np.where(size > 0, size, 1.0)[:, None]
+        off = np.abs(np.einsum("pkc,pc->pk", p - p[:, :1], unit_n)).max(axis=1)
+        longest = np.linalg.norm(np.roll(p, -1, axis=1) - p, axis=2).max(axis=1)
+        flip = chunk[other & (size > 0) & (off <= _PLANAR * longest)]
+        rows = first_tri[flip]
+        tris[rows] = base[flip][:, None] + np.array([1, 2, 3])
+        tris[rows + 1] = base[flip][:, None] + np.array([1, 3, 0])
 
 
 def _ear_clip(p: np.ndarray, normal: np.ndarray) -> np.ndarray | None:

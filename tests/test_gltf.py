@@ -692,3 +692,50 @@ def test_bytes_after_the_glb_length_are_ignored_with_a_warning(tmp_path):
         f"ignored: 5 bytes past the length the .glb header gives ({len(glb)})")], loaded.warnings
     np.testing.assert_array_equal(loaded.objects[0].vertices,
                                   load(tmp_path / "c.glb").objects[0].vertices)
+
+
+def test_zeros_without_a_buffer_view_are_at_most_the_file(tmp_path, monkeypatch):
+    # A 689-byte file of 100 M zeros (POSITION, no buffer view) took 4.8 GB and 24 s before
+    # it failed. Zeros are charged as if written out; np.zeros of more is never called.
+    import clray.scene.gltf as gltf
+
+    made = []
+    real = np.zeros
+    monkeypatch.setattr(gltf.np, "zeros", lambda shape, *a, **k: made.append(shape)
+                        or real(shape, *a, **k))
+    path = _zeros_file(tmp_path, [3 * 10**6])
+    size = path.stat().st_size
+    with pytest.raises(SceneError) as info:
+        load(path)
+    assert str(info.value) == (
+        f"{path.name}: accessors[0]: 36000000 bytes of elements without a buffer view, over the "
+        f"{size} bytes of the file and its buffers (an accessor's zeros may be at most as "
+        "large as the file)")
+    assert made == []
+    # A sparse accessor of zeros as large as the positions the file holds is read.
+    b = Builder()
+    b.node(mesh=b.mesh(CUBE_VERTICES, CUBE_FACES))
+    where = b.view(np.array([7], np.uint16).tobytes())
+    value = b.view(np.array([[5, 5, 5]], np.float32).tobytes())
+    b.doc["accessors"].append({"componentType": 5126, "count": 8, "type": "VEC3", "sparse": {
+        "count": 1, "indices": {"bufferView": where, "componentType": 5123},
+        "values": {"bufferView": value}}})
+    b.doc["meshes"][0]["primitives"][0]["attributes"]["NORMAL"] = len(b.doc["accessors"]) - 1
+    load(b.save(tmp_path / "s.glb"))
+
+
+@pytest.mark.parametrize(("stride", "message"), [
+    (4, "bufferViews[0].byteStride: 4 is less than the 12 bytes of accessors[0]'s elements"),
+    (14, "bufferViews[0].byteStride: expected a multiple of 4 from 4 to 252, got 14"),
+])
+def test_a_byte_stride_under_the_element_or_not_a_multiple_of_4_is_named(tmp_path, stride,
+                                                                          message):
+    # A stride of 4 for float VEC3 (overlapping elements) ended in "every triangle has zero
+    # area".
+    b = Builder()
+    b.node(mesh=b.mesh(CUBE_VERTICES, CUBE_FACES))
+    b.doc["bufferViews"][0]["byteStride"] = stride
+    path = b.save(tmp_path / "s.glb")
+    with pytest.raises(SceneError) as info:
+        load(path)
+    assert str(info.value) == f"{path.name}: {message}"

@@ -6,7 +6,7 @@ import pytest
 
 from clray.errors import SceneError
 from clray.scene import obj
-from clray.scene.obj import read_obj
+from clray.scene.obj import parse_obj, read_obj
 
 DATA = Path(__file__).parent / "data"
 
@@ -460,3 +460,47 @@ def test_a_byte_order_mark_before_mtllib_keeps_the_library():
     mesh = obj.parse_obj(data, Path("m.obj"))
     assert mesh.material_libraries == ((1, "m.mtl"),)
     assert mesh.material_names == ("a",)
+
+
+def _signed_areas(mesh) -> np.ndarray:
+    p = np.asarray(mesh.vertices, dtype=np.float64)[mesh.faces]
+    return np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])[:, 2] / 2
+
+
+@pytest.mark.parametrize(("corners", "area"), [
+    # A chevron, its reflex corner second: the fan around the first filled its notch.
+    ([(0, 3), (2, 1), (4, 3), (2, 0)], 2.0),
+    # A crown of two reflex corners: ear-clipped.
+    ([(0, 0), (6, 0), (6, 4), (4, 2), (3, 4), (2, 2), (0, 4)], 18.0),
+])
+def test_a_concave_polygon_covers_its_own_area(corners, area):
+    text = "".join(f"v {x} {y} 0\n" for x, y in corners)
+    text += "f " + " ".join(str(i + 1) for i in range(len(corners))) + "\n"
+    mesh = parse_obj(text.encode(), Path("c.obj"))
+    signed = _signed_areas(mesh)
+    assert len(signed) == len(corners) - 2
+    # Every triangle wound as the polygon (the chevron's corners run clockwise), and
+    # together exactly its area: no overlap.
+    xy = np.array(corners, dtype=float)
+    orientation = np.sign(np.cross(xy, np.roll(xy, -1, axis=0)).sum())
+    assert np.all(signed * orientation >= 0)
+    assert abs(signed.sum()) == pytest.approx(area)
+    # The PLY reader triangulates its faces alike.
+    ply = (f"ply\nformat ascii 1.0\nelement vertex {len(corners)}\nproperty float x\n"
+           "property float y\nproperty float z\nelement face 1\n"
+           "property list uchar int vertex_indices\nend_header\n"
+           + "".join(f"{x} {y} 0\n" for x, y in corners)
+           + f"{len(corners)} " + " ".join(map(str, range(len(corners)))) + "\n")
+    from clray.scene.ply import read_ply
+    np.testing.assert_array_equal(read_ply(ply.encode(), Path("c.ply")).mesh.faces, mesh.faces)
+
+
+@pytest.mark.parametrize("text", [
+    # Crossing itself (a bow tie: no area about its Newell normal).
+    "v 0 0 0\nv 1 1 0\nv 1 0 0\nv 0 1 0\nf 1 2 3 4\n",
+    # Concave but not planar: the chevron with a corner lifted far off its plane.
+    "v 0 3 0\nv 2 1 2\nv 4 3 0\nv 2 0 0\nf 1 2 3 4\n",
+])
+def test_self_crossing_and_non_planar_polygons_stay_fans(text):
+    mesh = parse_obj(text.encode(), Path("c.obj"))
+    np.testing.assert_array_equal(mesh.faces, [[0, 1, 2], [0, 2, 3]])

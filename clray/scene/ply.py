@@ -5,7 +5,8 @@ coordinates (u, v; s, t; texture_u, texture_v) and colours (red, green, blue); t
 element's list property (vertex_indices or vertex_index) gives polygons, fan-triangulated as
 the OBJ reader does, and a tristrips element's gives triangle strips (-1 restarts a strip).
 Other elements (edge, material, ...) and properties, lists among them (MeshLab's per-corner
-`texcoord`), are read past and ignored. Binary elements are read with one numpy view where
+`texcoord`), are read past and ignored; elements after the last needed one are not read at
+all. Binary elements are read with one numpy view where
 every record has one size (a million-face triangle mesh); where list lengths change from
 record to record, one pass finds where each record starts and numpy gathers the values
 (docs/scene_format.md compares this reader with plyfile and trimesh).
@@ -43,6 +44,13 @@ _FACE_LISTS = ("vertex_indices", "vertex_index")
 _BLANK_LINE = re.compile(rb"\n[ \t\r\f\v]*\n")
 # Header lines a file may have before end_header; a real header has a few dozen.
 _MAX_HEADER_LINES = 10000
+# The elements the mesh is built from; the others are read past (or, after the last of these,
+# not read at all).
+_NEEDED = ("vertex", "face", "tristrips")
+# Records of an ignored element whose list lengths change from record to record, walked one
+# by one in Python to find where the element ends (only where a needed element follows it):
+# at most this many, about a second's work (a 30 MB file of 20 M such records took 22 s).
+MAX_SKIPPED_RECORDS = 2**22
 
 
 @dataclass(frozen=True)
@@ -82,6 +90,9 @@ class _Reader:
         """(format, elements, offset of the body)."""
         if not self.data.startswith(b"ply") or self.data[3:4] not in (b"\n", b"\r"):
             raise self.error(None, "not a PLY file (it must start with a 'ply' line)")
+        if self.data[3:4] == b"\r" and self.data[4:5] != b"\n":
+            raise self.error(None, "CR-only line endings are not read (expected LF or CRLF "
+                             "line endings)")
         end, body = self.end_header()
         lines = self.data[:end].decode("ascii", errors="replace").splitlines()
         if len(lines) > _MAX_HEADER_LINES:
@@ -165,8 +176,10 @@ class _Reader:
                ) -> dict[str, dict[str, object]]:
         buf = memoryview(self.data)
         out: dict[str, dict[str, object]] = {}
-        for el in elements:
-            if not el.has_list():
+        for el in elements[:_last_needed(elements)]:
+            if el.name not in _NEEDED:
+                offset = self.binary_skip(buf, el, offset, order)
+            elif not el.has_list():
                 dtype = np.dtype([(p.name, order + p.type) for p in el.properties])
                 size = dtype.itemsize * el.count
                 if offset + size > len(buf):
@@ -180,6 +193,47 @@ class _Reader:
                     read = self.binary_lists(el, offset, order)
                 out[el.name], offset = read
         return out
+
+    def binary_skip(self, buf: memoryview, el: _Element, offset: int, order: str) -> int:
+        """Where an ignored element that a needed one follows ends: by arithmetic for fixed
+        records, by one numpy view where every list has the first record's length, else by a
+        walk that keeps nothing a record (and takes at most MAX_SKIPPED_RECORDS)."""
+        if not el.has_list():
+            size = sum(np.dtype(p.type).itemsize for p in el.properties)
+            if offset + size * el.count > len(buf):
+                raise self.truncated(el, (len(buf) - offset) // max(size, 1))
+            return offset + size * el.count
+        read = self.binary_uniform(buf, el, offset, order)
+        if read is not None:
+            return read[1]
+        if el.count > MAX_SKIPPED_RECORDS:
+            raise self.error(f"element {el.name}", f"{el.count} records of lists that change "
+                             f"length before the mesh's elements; at most "
+                             f"{MAX_SKIPPED_RECORDS} are read past (write it after vertex "
+                             "and face)")
+        segments, gap = [], 0
+        for p in el.properties:
+            size = np.dtype(p.type).itemsize
+            if p.count_type is None:
+                gap += size
+                continue
+            count = struct.Struct(order + _STRUCT_CODES[p.count_type])
+            segments.append((gap, count.unpack_from, count.size, size))
+            gap = 0
+        data, end, at = self.data, len(self.data), offset
+        for record in range(el.count):
+            for before, unpack, count_size, item_size in segments:
+                at += before
+                if at + count_size > end:
+                    raise self.truncated(el, record)
+                k = unpack(data, at)[0]
+                if k < 0:
+                    raise self.error(f"element {el.name}", f"record {record}: list length {k}")
+                at += count_size + k * item_size
+            at += gap
+            if at > end:
+                raise self.truncated(el, record)
+        return at
 
     def binary_uniform(self, buf: memoryview, el: _Element, offset: int, order: str
                        ) -> tuple[dict[str, object], int] | None:
@@ -211,7 +265,8 @@ class _Reader:
                 columns[p.name] = view[p.name]
                 continue
             lengths = view[f"\0count {p.name}"]
-            if np.any(lengths != lengths[:1]):
+            # Two reductions, no boolean array of a byte a record.
+            if len(lengths) and lengths.min() != lengths.max():
                 return None
             # One length for every record: a read-only broadcast of it, not an int64 a record.
             counts = np.broadcast_to(np.int64(lengths[0]) if len(lengths) else np.int64(0),
@@ -291,7 +346,8 @@ class _Reader:
 
     def ascii(self, elements: list[_Element], offset: int) -> dict[str, dict[str, object]]:
         body = self.data[offset:]
-        lines = body.split(b"\n")
+        # The lines up to the last needed element's, and the rest of the file as one piece.
+        lines = body.split(b"\n", sum(el.count for el in elements[:_last_needed(elements)]))
         first_line = self.data[:offset].count(b"\n") + 1
         # The file's line number of each line, for errors.
         numbers: Sequence[int] = range(first_line, first_line + len(lines))
@@ -299,17 +355,20 @@ class _Reader:
             # Blank lines (some writers leave one between elements) hold no record: read past,
             # as readers that take the body token by token (rply, trimesh) do. One regex pass
             # finds them, so only a file that has them pays for the filtering.
+            lines = body.split(b"\n")
             kept = [i for i, line in enumerate(lines) if line.strip()]
             lines = [lines[i] for i in kept]
             numbers = [first_line + i for i in kept]
         out: dict[str, dict[str, object]] = {}
         row = 0
-        for el in elements:
+        for el in elements[:_last_needed(elements)]:
             mine = lines[row:row + el.count]
             if len(mine) < el.count or (el.count and not mine[-1].strip()):
                 got = sum(1 for line in mine if line.strip())
                 raise self.truncated(el, got)
-            out[el.name] = self.ascii_element(el, mine, numbers[row:row + el.count])
+            # An ignored element is one line a record: its lines are counted, not parsed.
+            if el.name in _NEEDED:
+                out[el.name] = self.ascii_element(el, mine, numbers[row:row + el.count])
             row += el.count
         return out
 
@@ -416,6 +475,12 @@ class _Reader:
                                  f"expected {plural(want, 'number')}, got {len(line.split())}")
 
 
+def _last_needed(elements: list[_Element]) -> int:
+    """How many elements are read: up to the last needed one. The elements after it are not
+    read at all (nothing of the mesh needs to know where they end)."""
+    return max((i + 1 for i, el in enumerate(elements) if el.name in _NEEDED), default=0)
+
+
 def read_ply(data: bytes, path: Path) -> PlyMesh:
     """Parse a PLY file already in memory; `path` names the file in error messages, which
     name the element (and for ASCII files the line) too."""
@@ -479,7 +544,8 @@ def _mesh(reader: _Reader, columns: dict[str, dict[str, object]]) -> PlyMesh:
             raise _few_corners(reader, int(small[0]), int(counts[small[0]]))
         # A triangle mesh's items are its faces as they are: no fan to gather (a copy of
         # 24 bytes a triangle).
-        parts.append(items.reshape(-1, 3) if np.all(counts == 3) else items[_fan(counts)])
+        parts.append(items.reshape(-1, 3) if np.all(counts == 3)
+                     else items[_fan(counts, vertices, items)])
     strips = _index_list(reader, columns, "tristrips", len(vertices))
     if strips is not None:
         parts.append(_strip_triangles(*strips))

@@ -470,6 +470,10 @@ def _signed_areas(mesh) -> np.ndarray:
 @pytest.mark.parametrize(("corners", "area"), [
     # A chevron, its reflex corner second: the fan around the first filled its notch.
     ([(0, 3), (2, 1), (4, 3), (2, 0)], 2.0),
+    # The same chevron, its reflex corner last (quads take a path of their own).
+    ([(4, 3), (2, 0), (0, 3), (2, 1)], 2.0),
+    # A pentagon of one reflex corner, third: the fan around that corner.
+    ([(0, 0), (4, 0), (2, 1), (4, 4), (0, 4)], 12.0),
     # A crown of two reflex corners: ear-clipped.
     ([(0, 0), (6, 0), (6, 4), (4, 2), (3, 4), (2, 2), (0, 4)], 18.0),
 ])

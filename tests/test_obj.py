@@ -462,11 +462,19 @@ def test_a_byte_order_mark_before_mtllib_keeps_the_library():
     assert mesh.material_names == ("a",)
 
 
-def _signed_areas(mesh) -> np.ndarray:
+# The corners' (u, v) in each plane: the axes of u and v (the plane's normal is u x v).
+_PLANES = {"xy": (0, 1), "xz": (0, 2), "yz": (1, 2)}
+
+
+def _signed_areas(mesh, plane="xy") -> np.ndarray:
+    u, v = _PLANES[plane]
     p = np.asarray(mesh.vertices, dtype=np.float64)[mesh.faces]
-    return np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])[:, 2] / 2
+    a, b = p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]
+    return (a[:, u] * b[:, v] - a[:, v] * b[:, u]) / 2
 
 
+@pytest.mark.parametrize("plane", sorted(_PLANES))
+@pytest.mark.parametrize("reverse", [False, True])
 @pytest.mark.parametrize(("corners", "area"), [
     # A chevron, its reflex corner second: the fan around the first filled its notch.
     ([(0, 3), (2, 1), (4, 3), (2, 0)], 2.0),
@@ -476,24 +484,36 @@ def _signed_areas(mesh) -> np.ndarray:
     ([(0, 0), (4, 0), (2, 1), (4, 4), (0, 4)], 12.0),
     # A crown of two reflex corners: ear-clipped.
     ([(0, 0), (6, 0), (6, 4), (4, 2), (3, 4), (2, 2), (0, 4)], 18.0),
+    # A U of two reflex corners (its fan covers 11).
+    ([(0, 0), (3, 0), (3, 3), (2, 3), (2, 1), (1, 1), (1, 3), (0, 3)], 7.0),
 ])
-def test_a_concave_polygon_covers_its_own_area(corners, area):
-    text = "".join(f"v {x} {y} 0\n" for x, y in corners)
+def test_a_concave_polygon_covers_its_own_area(corners, area, reverse, plane):
+    # In each axis plane and both windings: ear clipping works in a plane of two axes,
+    # picked by the normal, whose order sets which way round counts as convex.
+    corners = corners[::-1] if reverse else corners
+    u, v = _PLANES[plane]
+
+    def point(x, y):
+        p = [0, 0, 0]
+        p[u], p[v] = x, y
+        return " ".join(map(str, p))
+
+    text = "".join(f"v {point(x, y)}\n" for x, y in corners)
     text += "f " + " ".join(str(i + 1) for i in range(len(corners))) + "\n"
     mesh = parse_obj(text.encode(), Path("c.obj"))
-    signed = _signed_areas(mesh)
+    signed = _signed_areas(mesh, plane)
     assert len(signed) == len(corners) - 2
     # Every triangle wound as the polygon (the chevron's corners run clockwise), and
     # together exactly its area: no overlap.
-    xy = np.array(corners, dtype=float)
-    orientation = np.sign(np.cross(xy, np.roll(xy, -1, axis=0)).sum())
+    x, y = np.array(corners, dtype=float).T
+    orientation = np.sign((x * np.roll(y, -1) - y * np.roll(x, -1)).sum())
     assert np.all(signed * orientation >= 0)
     assert abs(signed.sum()) == pytest.approx(area)
     # The PLY reader triangulates its faces alike.
     ply = (f"ply\nformat ascii 1.0\nelement vertex {len(corners)}\nproperty float x\n"
            "property float y\nproperty float z\nelement face 1\n"
            "property list uchar int vertex_indices\nend_header\n"
-           + "".join(f"{x} {y} 0\n" for x, y in corners)
+           + "".join(f"{point(x, y)}\n" for x, y in corners)
            + f"{len(corners)} " + " ".join(map(str, range(len(corners)))) + "\n")
     from clray.scene.ply import read_ply
     np.testing.assert_array_equal(read_ply(ply.encode(), Path("c.ply")).mesh.faces, mesh.faces)

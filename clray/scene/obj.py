@@ -649,9 +649,10 @@ def _shape_quads(tris: np.ndarray, polys: np.ndarray, first_tri: np.ndarray,
 def _ear_clip(p: np.ndarray, normal: np.ndarray) -> np.ndarray | None:
     """(n - 2, 3) corner numbers triangulating the planar polygon `p` (n, 3) whose Newell
     normal is `normal`, by ear clipping; None where no ear is found (it crosses itself)."""
-    # In the plane: the two axes other than the normal's largest, oriented counterclockwise.
+    # In the plane: the two axes other than the normal's largest, in cyclic order after it
+    # ((y, z), (z, x), (x, y): a x b is +drop) so that the polygon runs counterclockwise.
     drop = int(np.argmax(np.abs(normal)))
-    a, b = [axis for axis in range(3) if axis != drop]
+    a, b = (drop + 1) % 3, (drop + 2) % 3
     if normal[drop] < 0:
         a, b = b, a
     xy = [(float(x), float(y)) for x, y in p[:, [a, b]]]

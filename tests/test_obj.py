@@ -528,3 +528,92 @@ def test_a_concave_polygon_covers_its_own_area(corners, area, reverse, plane):
 def test_self_crossing_and_non_planar_polygons_stay_fans(text):
     mesh = parse_obj(text.encode(), Path("c.obj"))
     np.testing.assert_array_equal(mesh.faces, [[0, 1, 2], [0, 2, 3]])
+
+
+_U = [(0, 0), (3, 0), (3, 3), (2, 3), (2, 1), (1, 1), (1, 3), (0, 3)]  # area 7, its fan 11
+_U_TEXT = "".join(f"v {x} {y} 0\n" for x, y in _U)
+_U_FACE = "f " + " ".join(str(i + 1) for i in range(len(_U))) + "\n"
+
+
+def _polygon_areas(mesh, polygons: int, k: int) -> list[float]:
+    return [float(abs(_signed_areas(mesh)[i * (k - 2):(i + 1) * (k - 2)]).sum())
+            for i in range(polygons)]
+
+
+def test_ear_clipping_stops_at_the_files_budget_with_one_warning(monkeypatch):
+    # Room for two U-shaped 8-gons: the third and fourth stay fans, with one warning.
+    cost = 8 * (8 + obj._EAR_CLIP_EXTRA)
+    monkeypatch.setattr(obj, "_EAR_CLIP_BUDGET", 2 * cost + cost // 2)
+    mesh = parse_obj((_U_TEXT + _U_FACE * 4).encode(), Path("u.obj"))
+    assert _polygon_areas(mesh, 4, 8) == pytest.approx([7, 7, 11, 11])
+    assert len(mesh.warnings) == 1
+    assert mesh.warnings[0].startswith("2 polygon(s) of two or more reflex corners left as "
+                                       "fans")
+    assert "budget" in mesh.warnings[0]
+    # Within the budget: no warning.
+    assert parse_obj((_U_TEXT + _U_FACE * 2).encode(), Path("u.obj")).warnings == ()
+    # The PLY reader spends the same budget.
+    from clray.scene.ply import read_ply
+    ply = ("ply\nformat ascii 1.0\nelement vertex 8\nproperty float x\nproperty float y\n"
+           "property float z\nelement face 4\nproperty list uchar int vertex_indices\n"
+           "end_header\n" + "".join(f"{x} {y} 0\n" for x, y in _U)
+           + "8 0 1 2 3 4 5 6 7\n" * 4)
+    ply_mesh = read_ply(ply.encode(), Path("u.ply")).mesh
+    np.testing.assert_array_equal(ply_mesh.faces, mesh.faces)
+    assert ply_mesh.warnings == mesh.warnings
+
+
+def test_ear_clipping_a_file_of_many_large_polygons_is_bounded(monkeypatch):
+    # 200 stars of 256 corners (128 reflex): about 20 ms each to ear-clip, 4 s in all
+    # before the budget; now only as many as _EAR_CLIP_BUDGET pays for.
+    k = 256
+    t = np.linspace(0, 2 * np.pi, k, endpoint=False)
+    r = np.where(np.arange(k) % 2, 1.0, 0.6)
+    xy = np.stack([r * np.cos(t), r * np.sin(t)], axis=1)
+    text = "".join(f"v {x:.4f} {y:.4f} 0\n" for x, y in xy)
+    text += ("f " + " ".join(str(i + 1) for i in range(k)) + "\n") * 200
+    clipped = []
+    ear_clip = obj._ear_clip
+    monkeypatch.setattr(obj, "_ear_clip", lambda p, n: clipped.append(1) or ear_clip(p, n))
+    mesh = parse_obj(text.encode(), Path("s.obj"))
+    paid = obj._EAR_CLIP_BUDGET // (k * (k + obj._EAR_CLIP_EXTRA))
+    assert 0 < len(clipped) == paid < 200
+    assert mesh.warnings[0].startswith(f"{200 - paid} polygon(s) ")
+
+
+def test_a_scene_takes_the_mesh_files_warning(tmp_path, monkeypatch):
+    from clray.scene.assets import meshes_read_once
+    from clray.scene.load import scene_from_dict
+    monkeypatch.setattr(obj, "_EAR_CLIP_BUDGET", 0)
+    (tmp_path / "u.obj").write_text(_U_TEXT + _U_FACE)
+    data = {"camera": {"position": [0, 0, 5], "look_at": [0, 0, 0]},
+            "objects": [{"type": "mesh", "file": "u.obj"},
+                        {"type": "mesh", "file": "u.obj"}]}
+    with meshes_read_once():
+        # Once a scene, also for the second scene that finds the file already read.
+        for _ in range(2):
+            scene = scene_from_dict(data, tmp_path / "s.toml")
+            told = [w for w in scene.warnings if "left as fans" in w]
+            assert len(told) == 1 and "u.obj: 1 polygon(s)" in told[0]
+
+
+def test_convexity_is_tested_a_bounded_number_of_corners_at_a_time():
+    # 2048 convex 1000-gons: the test's float64 temporaries (about 100 bytes a corner) come
+    # a chunk of corners at a time, not 2048 polygons' (200 MB) at once.
+    import tracemalloc
+    k, polygons = 1000, 2048
+    t = np.linspace(0, 2 * np.pi, k, endpoint=False)
+    positions = np.stack([np.cos(t), np.sin(t), np.zeros(k)], axis=1)
+    v = np.tile(np.arange(k), polygons)
+    count = np.full(polygons, k)
+
+    def peak(*shape) -> int:
+        tracemalloc.start()
+        try:
+            obj._fan(count, *shape)
+            return tracemalloc.get_traced_memory()[1]
+        finally:
+            tracemalloc.stop()
+
+    # Beyond the fan's own peak (the same polygons, their shapes not looked at).
+    assert peak(positions, v) - peak() < 40 << 20

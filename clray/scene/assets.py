@@ -52,8 +52,8 @@ _SHARED_MESHES: ContextVar[dict | None] = ContextVar("clray_shared_meshes", defa
 def meshes_read_once() -> Iterator[None]:
     """Scenes loaded within it read each mesh file once between them: the automatic scene of a
     model file loads it to frame it, then as the scene (for a 5 M-triangle PLY, half the
-    load). Meshes only: a mesh file's reading adds no warning that the second scene would
-    then miss, as a texture's or a glTF file's does."""
+    load). Meshes only: a mesh file's warnings travel with the mesh (ObjMesh.warnings), so
+    the second scene takes them too, which a texture's or a glTF file's would miss."""
     token = _SHARED_MESHES.set({})
     try:
         yield
@@ -79,6 +79,7 @@ class Assets:
         shared = _SHARED_MESHES.get()
         self.meshes: dict[tuple[int, int], ObjMesh] = {} if shared is None else shared
         self.models: dict[tuple[int, int], GltfModel] = {}  # glTF files
+        self.mesh_warned: set[tuple[int, int]] = set()  # mesh files whose warnings are taken
         # MTL libraries by (device, inode): (the library, its identity).
         self.libraries: dict[tuple[int, int], MtlLibrary] = {}
         self.texels_left = L.MAX_TEXELS
@@ -204,7 +205,12 @@ class Assets:
 
                 # An animation's frames parse the file's kept bytes once between them.
                 self.meshes[identity] = kept_parse(self.base / name, "mesh", parse)
-        return self.meshes[identity]
+        mesh = self.meshes[identity]
+        # Each scene takes a file's warnings once, whether or not it read the file itself.
+        if mesh.warnings and identity not in self.mesh_warned:
+            self.mesh_warned.add(identity)
+            self.warnings.extend(f"{key}: {file_name(name)}: {w}" for w in mesh.warnings)
+        return mesh
 
     def gltf_model(self, name: Any, key: str) -> tuple[GltfModel, tuple[int, int]]:
         """A .gltf or .glb file's model (clray.scene.gltf), read once, with its identity; the

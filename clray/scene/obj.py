@@ -42,6 +42,8 @@ class ObjMesh:
     material_libraries: tuple[tuple[int, str], ...] = ()
     # (V, 3) float64 linear vertex colours in [0, 1] (PLY, glTF and inline meshes; not OBJ).
     colors: np.ndarray | None = None
+    # What reading the file warns of (polygons left as fans past the ear-clipping budget).
+    warnings: tuple[str, ...] = ()
 
 
 # The bytes `bytes.split()` treats as whitespace, so token boundaries found with numpy agree
@@ -511,7 +513,7 @@ def _resolve(
 
 
 def _fan(count: np.ndarray, positions: np.ndarray | None = None,
-         v: np.ndarray | None = None) -> np.ndarray:
+         v: np.ndarray | None = None, told: list[str] | None = None) -> np.ndarray:
     """(T, 3) positions into the face-vertex list, count - 2 triangles a polygon in order.
 
     A convex polygon (every turn the same way about its Newell normal) is a fan around its
@@ -519,8 +521,9 @@ def _fan(count: np.ndarray, positions: np.ndarray | None = None,
     is triangulated by its shape: with one reflex corner, as a fan around that corner (the
     polygon is star-shaped from it); with more, by ear clipping in its plane. Polygons that
     are not planar (a corner off the plane by more than _PLANAR of the polygon's extent),
-    whose area is zero, that cross themselves (no ear) or have over _MAX_EAR_CLIP corners
-    stay fans."""
+    whose area is zero or that cross themselves (no ear) stay fans around their first vertex;
+    so do those of two or more reflex corners that are not ear-clipped: over _MAX_EAR_CLIP
+    corners, or past the file's _EAR_CLIP_BUDGET, which appends one warning to `told`."""
     if np.all(count == 3):
         return np.arange(3 * len(count)).reshape(-1, 3)
     n_tri = count - 2
@@ -529,7 +532,13 @@ def _fan(count: np.ndarray, positions: np.ndarray | None = None,
     base = _exclusive_cumsum(count)[poly]
     tris = np.stack([base, base + k, base + k + 1], axis=1)
     if positions is not None and v is not None:
-        _shape_polygons(tris, count, positions, v)
+        budget = _EarClipBudget(_EAR_CLIP_BUDGET)
+        _shape_polygons(tris, count, positions, v, budget)
+        if budget.over and told is not None:
+            told.append(f"{budget.over} polygon(s) of two or more reflex corners left as fans "
+                        "around their first vertex: ear clipping them was past the file's "
+                        f"budget of {_EAR_CLIP_BUDGET} (the sum of k (k + {_EAR_CLIP_EXTRA}) "
+                        "over polygons of k corners; ear clipping is O(k^2) in Python)")
     return tris
 
 
@@ -539,15 +548,39 @@ _PLANAR = 1e-3
 _TURN_EPS = 1e-9
 # Polygons of more corners than this are not ear-clipped (ear clipping is O(n^2) in Python).
 _MAX_EAR_CLIP = 256
-# Polygons tested for convexity at once (bounds the temporaries).
-_CHUNK = 1 << 15
+# Ear clipping a polygon of k corners costs about k (k + _EAR_CLIP_EXTRA) times 0.3 to 0.5 us
+# (measured on a 2-core EPYC: 45 us a concave pentagon, 80 us the U-shaped 8-gon, 21 ms a
+# 256-corner star); a file's polygons are ear-clipped until the sum reaches this (about a
+# second), the rest stay fans.
+_EAR_CLIP_EXTRA = 16
+_EAR_CLIP_BUDGET = 2_500_000
+# Corners tested for convexity at once (bounds the temporaries, about 105 bytes a corner):
+# max(1, _CORNER_CHUNK // k) polygons of k corners.
+_CORNER_CHUNK = 1 << 17
+
+
+@dataclass
+class _EarClipBudget:
+    """What is left of a file's _EAR_CLIP_BUDGET, and the polygons it left as fans."""
+
+    left: int
+    over: int = 0
+
+    def take(self, k: int) -> bool:
+        cost = k * (k + _EAR_CLIP_EXTRA)
+        if cost > self.left:
+            self.over += 1
+            return False
+        self.left -= cost
+        return True
 
 
 def _shape_polygons(tris: np.ndarray, count: np.ndarray, positions: np.ndarray,
-                    v: np.ndarray) -> None:
+                    v: np.ndarray, budget: _EarClipBudget) -> None:
     """Replace, in `tris`, the fan of each planar polygon with reflex corners. The convexity
-    test is vectorised over every polygon of one corner count (a chunk at a time), a
-    coordinate at a time: only polygons with a reflex corner go further."""
+    test is vectorised over every polygon of one corner count (a chunk of about
+    _CORNER_CHUNK corners at a time): only polygons with a reflex corner go further. Counts
+    are taken in increasing order, so `budget` ear-clips smaller polygons first."""
     first_tri = _exclusive_cumsum(count - 2)
     base = _exclusive_cumsum(count)
     for k in np.unique(count[count > 3]).tolist():
@@ -557,59 +590,88 @@ def _shape_polygons(tris: np.ndarray, count: np.ndarray, positions: np.ndarray,
             continue
         # Corners 0..k-1 then 0 and 1 again: every edge and its successor are views.
         wrap = np.arange(k + 2) % k
-        for at in range(0, len(polys), _CHUNK):
-            chunk = polys[at:at + _CHUNK]
+        step = max(1, _CORNER_CHUNK // k)
+        for at in range(0, len(polys), step):
+            chunk = polys[at:at + step]
             corner = v[base[chunk][:, None] + wrap]
             # Each coordinate (P, k + 2), from the polygon's first corner.
             x, y, z = (positions[corner, c].astype(np.float64) for c in range(3))
             x -= x[:, :1]
             y -= y[:, :1]
             z -= z[:, :1]
-            # Newell's normal: the sum of p_i x p_i+1 (p_0 is the origin: k - 2 terms).
-            a, b = slice(1, k - 1), slice(2, k)
-            nx = (y[:, a] * z[:, b] - z[:, a] * y[:, b]).sum(axis=1)[:, None]
-            ny = (z[:, a] * x[:, b] - x[:, a] * z[:, b]).sum(axis=1)[:, None]
-            nz = (x[:, a] * y[:, b] - y[:, a] * x[:, b]).sum(axis=1)[:, None]
-            ex, ey, ez = np.diff(x, axis=1), np.diff(y, axis=1), np.diff(z, axis=1)
-            # The turn at corner i + 1: (edge i x edge i + 1) . normal.
-            ix, iy, iz = ex[:, :-1], ey[:, :-1], ez[:, :-1]
-            ox, oy, oz = ex[:, 1:], ey[:, 1:], ez[:, 1:]
-            turn = (nx * (iy * oz - iz * oy) + ny * (iz * ox - ix * oz)
-                    + nz * (ix * oy - iy * ox))
-            maybe = np.flatnonzero((turn < 0).any(axis=1))
-            if not len(maybe):
-                continue
-            e = np.stack([ex[maybe, :k], ey[maybe, :k], ez[maybe, :k]], axis=2)
-            length = np.linalg.norm(e, axis=2)  # of the edge out of each corner
-            normal = np.concatenate([nx[maybe], ny[maybe], nz[maybe]], axis=1)
-            size = np.linalg.norm(normal, axis=1)
-            scale = length * np.roll(length, -1, axis=1) * size[:, None]
-            reflex = np.roll(turn[maybe] < -_TURN_EPS * scale, 1, axis=1)  # by corner
-            keep = reflex.any(axis=1) & (size > 0)
-            bent, reflex, normal, size = maybe[keep], reflex[keep], normal[keep], size[keep]
+            bent, reflex, unit_n = _reflex_corners(x, y, z)
             if not len(bent):
                 continue
-            # Planar: every corner within _PLANAR of the extent from the first's plane.
-            unit_n = normal / size[:, None]
-            off = np.abs(x[bent, :k] * unit_n[:, :1] + y[bent, :k] * unit_n[:, 1:2]
-                         + z[bent, :k] * unit_n[:, 2:]).max(axis=1)
-            planar = off <= _PLANAR * length[keep].max(axis=1)
-            one = planar & (reflex.sum(axis=1) == 1)
-            # One reflex corner r: the fan around it, (r, r + j, r + j + 1).
-            r = np.argmax(reflex[one], axis=1)[:, None]
-            j = np.arange(1, k - 1)
-            local = np.stack([np.broadcast_to(r, (len(r), k - 2)), (r + j) % k,
-                              (r + j + 1) % k], axis=2)
-            rows = first_tri[chunk[bent[one]]][:, None] + np.arange(k - 2)
-            tris[rows] = base[chunk[bent[one]]][:, None, None] + local
-            if k > _MAX_EAR_CLIP:
-                continue
-            for i in np.flatnonzero(planar & ~one).tolist():
+            one = reflex.sum(axis=1) == 1
+            polys_one = chunk[bent[one]]
+            _fan_around_reflex(tris, first_tri[polys_one], base[polys_one], reflex[one])
+            for i in np.flatnonzero(~one).tolist():
+                poly_i = int(chunk[bent[i]])
                 p = np.stack([x[bent[i], :k], y[bent[i], :k], z[bent[i], :k]], axis=1)
-                clipped = _ear_clip(p, unit_n[i])
-                if clipped is not None:
-                    poly_i = int(chunk[bent[i]])
-                    tris[first_tri[poly_i]:first_tri[poly_i] + k - 2] = base[poly_i] + clipped
+                _ear_clip_polygon(tris[first_tri[poly_i]:first_tri[poly_i] + k - 2],
+                                  base[poly_i], p, unit_n[i], budget)
+
+
+def _reflex_corners(x: np.ndarray, y: np.ndarray, z: np.ndarray
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The convexity and planarity test of P polygons of k corners, each coordinate (P, k + 2)
+    from the polygon's first corner and wrapped (corners 0..k-1, 0, 1): (the polygons with a
+    reflex corner that are planar and of nonzero area, (B,); their reflex corners, (B, k)
+    bool; their unit Newell normals, (B, 3))."""
+    k = x.shape[1] - 2
+    # Newell's normal: the sum of p_i x p_i+1 (p_0 is the origin: k - 2 terms).
+    a, b = slice(1, k - 1), slice(2, k)
+    nx = (y[:, a] * z[:, b] - z[:, a] * y[:, b]).sum(axis=1)[:, None]
+    ny = (z[:, a] * x[:, b] - x[:, a] * z[:, b]).sum(axis=1)[:, None]
+    nz = (x[:, a] * y[:, b] - y[:, a] * x[:, b]).sum(axis=1)[:, None]
+    ex, ey, ez = np.diff(x, axis=1), np.diff(y, axis=1), np.diff(z, axis=1)
+    # The turn at corner i + 1: (edge i x edge i + 1) . normal.
+    ix, iy, iz = ex[:, :-1], ey[:, :-1], ez[:, :-1]
+    ox, oy, oz = ex[:, 1:], ey[:, 1:], ez[:, 1:]
+    turn = (nx * (iy * oz - iz * oy) + ny * (iz * ox - ix * oz)
+            + nz * (ix * oy - iy * ox))
+    maybe = np.flatnonzero((turn < 0).any(axis=1))
+    if not len(maybe):
+        return maybe, np.zeros((0, k), dtype=bool), np.zeros((0, 3))
+    e = np.stack([ex[maybe, :k], ey[maybe, :k], ez[maybe, :k]], axis=2)
+    length = np.linalg.norm(e, axis=2)  # of the edge out of each corner
+    normal = np.concatenate([nx[maybe], ny[maybe], nz[maybe]], axis=1)
+    size = np.linalg.norm(normal, axis=1)
+    scale = length * np.roll(length, -1, axis=1) * size[:, None]
+    reflex = np.roll(turn[maybe] < -_TURN_EPS * scale, 1, axis=1)  # by corner
+    keep = reflex.any(axis=1) & (size > 0)
+    bent, reflex, normal, size = maybe[keep], reflex[keep], normal[keep], size[keep]
+    # Planar: every corner within _PLANAR of the extent from the first's plane.
+    unit_n = normal / size[:, None]
+    off = np.abs(x[bent, :k] * unit_n[:, :1] + y[bent, :k] * unit_n[:, 1:2]
+                 + z[bent, :k] * unit_n[:, 2:]).max(axis=1)
+    planar = off <= _PLANAR * length[keep].max(axis=1)
+    return bent[planar], reflex[planar], unit_n[planar]
+
+
+def _fan_around_reflex(tris: np.ndarray, first_tri: np.ndarray, base: np.ndarray,
+                       reflex: np.ndarray) -> None:
+    """The fan around the one reflex corner r of each polygon, (r, r + j, r + j + 1), into
+    `tris` at rows first_tri..first_tri + k - 3 (`reflex` (P, k) marks r)."""
+    k = reflex.shape[1]
+    r = np.argmax(reflex, axis=1)[:, None]
+    j = np.arange(1, k - 1)
+    local = np.stack([np.broadcast_to(r, (len(r), k - 2)), (r + j) % k,
+                      (r + j + 1) % k], axis=2)
+    tris[first_tri[:, None] + np.arange(k - 2)] = base[:, None, None] + local
+
+
+def _ear_clip_polygon(rows: np.ndarray, base: int, p: np.ndarray, normal: np.ndarray,
+                      budget: _EarClipBudget) -> None:
+    """Ear-clip the planar polygon `p` (k, 3) into `rows` (its k - 2 triangles, from corner
+    number `base`) where it has at most _MAX_EAR_CLIP corners and `budget` allows; its fan
+    stays otherwise, or where it has no ear."""
+    k = len(p)
+    if k > _MAX_EAR_CLIP or not budget.take(k):
+        return
+    clipped = _ear_clip(p, normal)
+    if clipped is not None:
+        rows[:] = base + clipped
 
 
 def _shape_quads(tris: np.ndarray, polys: np.ndarray, first_tri: np.ndarray,
@@ -620,8 +682,8 @@ def _shape_quads(tris: np.ndarray, polys: np.ndarray, first_tri: np.ndarray,
     diagonal, (1, 2, 3), (1, 3, 0), where that one's triangles face alike and the quad is
     planar, and stays a fan otherwise (crossing itself, or bent). A corner straight on
     (a triangle of no area) keeps the fan, as in the general test."""
-    for at in range(0, len(polys), _CHUNK):
-        chunk = polys[at:at + _CHUNK]
+    for at in range(0, len(polys), _CORNER_CHUNK // 4):
+        chunk = polys[at:at + _CORNER_CHUNK // 4]
         p = positions[v[base[chunk][:, None] + np.arange(4)]].astype(np.float64)
         # Coordinate by coordinate: np.cross and einsum on (P, 3) took 3 times as long.
         (ax, ay, az), (bx, by, bz), (cx, cy, cz) = [[p[:, k, i] - p[:, 0, i] for i in range(3)]
@@ -752,8 +814,11 @@ def parse_obj(data: bytes, path: Path) -> ObjMesh:
     vt = _component(tok, comp[:, 1], tokens, has_vt, use_uv, vt_stmt, "texture coordinate")
     vn = _component(tok, comp[:, 2], tokens, has_vn, use_vn, vn_stmt, "normal")
 
+    told: list[str] = []
     mesh = _mesh(positions, uv_values if use_uv else None, normal_values if use_vn else None,
-                 v, vt, vn, _fan(count, positions, v))
+                 v, vt, vn, _fan(count, positions, v, told))
+    if told:
+        mesh = dataclasses.replace(mesh, warnings=tuple(told))
     face_at = tok.starts[tok.heads[tok.kind == _F]] - _PAD
     return _with_materials(data, mesh, face_at, count)
 
@@ -876,8 +941,11 @@ def _parse_regular(data: bytes) -> ObjMesh | None:
     if v is None or vt is None or vn is None:
         return None
     count = np.full(len(ws), ws.shape[1] - 1)
+    told: list[str] = []
     mesh = _mesh(positions, uv_values if use_uv else None, normal_values if use_vn else None,
-                 v, vt, vn, _fan(count, positions, v))
+                 v, vt, vn, _fan(count, positions, v, told))
+    if told:
+        mesh = dataclasses.replace(mesh, warnings=tuple(told))
     return _with_materials(data, mesh, starts[kind == _F] - _PAD, count)
 
 

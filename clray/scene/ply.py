@@ -536,6 +536,7 @@ def _mesh(reader: _Reader, columns: dict[str, dict[str, object]]) -> PlyMesh:
             break
     colors = _colors(reader, vertex)
     parts = []
+    told: list[str] = []
     face = _index_list(reader, columns, "face", len(vertices))
     if face is not None:
         counts, items = face
@@ -545,7 +546,7 @@ def _mesh(reader: _Reader, columns: dict[str, dict[str, object]]) -> PlyMesh:
         # A triangle mesh's items are its faces as they are: no fan to gather (a copy of
         # 24 bytes a triangle).
         parts.append(items.reshape(-1, 3) if np.all(counts == 3)
-                     else items[_fan(counts, vertices, items)])
+                     else items[_fan(counts, vertices, items, told)])
     strips = _index_list(reader, columns, "tristrips", len(vertices))
     if strips is not None:
         parts.append(_strip_triangles(*strips))
@@ -553,7 +554,7 @@ def _mesh(reader: _Reader, columns: dict[str, dict[str, object]]) -> PlyMesh:
         raise reader.error("element face", "needs an element face (or tristrips) with a "
                            "vertex_indices list")
     faces = parts[0] if len(parts) == 1 else np.concatenate(parts)
-    return PlyMesh(ObjMesh(vertices, faces, normals, uvs), colors)
+    return PlyMesh(ObjMesh(vertices, faces, normals, uvs, warnings=tuple(told)), colors)
 
 
 def _few_corners(reader: _Reader, record: int, count: int) -> SceneError:

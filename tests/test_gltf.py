@@ -4,6 +4,7 @@ every warning and refusal, the exit-3 command, and the Khronos sample model rend
 
 from __future__ import annotations
 
+import base64
 import json
 import math
 import struct
@@ -722,6 +723,35 @@ def test_zeros_without_a_buffer_view_are_at_most_the_file(tmp_path, monkeypatch)
         "values": {"bufferView": value}}})
     b.doc["meshes"][0]["primitives"][0]["attributes"]["NORMAL"] = len(b.doc["accessors"]) - 1
     load(b.save(tmp_path / "s.glb"))
+
+
+def test_zeros_without_a_buffer_view_read_no_unused_buffer(tmp_path):
+    # The cap on an accessor's zeros read every buffer for its size: an unused buffer whose
+    # file is missing failed a file that loaded without the zeros. The buffers count by
+    # their declared byteLength, read or not.
+    positions = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], np.float32).tobytes()
+    doc = {"asset": {"version": "2.0"},
+           "buffers": [{"uri": "data:application/octet-stream;base64,"
+                        + base64.b64encode(positions).decode(), "byteLength": 36},
+                       {"uri": "missing.bin", "byteLength": 4000}],
+           "bufferViews": [{"buffer": 0, "byteLength": 36}],
+           "accessors": [{"bufferView": 0, "componentType": 5126, "count": 3, "type": "VEC3",
+                          "min": [0, 0, 0], "max": [1, 1, 0]},
+                         {"componentType": 5126, "count": 3, "type": "VEC2"}],
+           "meshes": [{"primitives": [{"attributes": {"POSITION": 0, "TEXCOORD_0": 1}}]}],
+           "nodes": [{"mesh": 0}], "scenes": [{"nodes": [0]}], "scene": 0}
+    path = tmp_path / "t.gltf"
+    path.write_text(json.dumps(doc))
+    (mesh,) = load(path).objects
+    np.testing.assert_array_equal(mesh.uvs, [[0, 1]] * 3)  # zeros, v flipped to 1 - v
+    # The missing buffer's declared bytes count toward the cap (the bound named).
+    doc["accessors"][1]["count"] = 1000
+    doc["meshes"][0]["primitives"][0]["attributes"] = {"POSITION": 1}
+    doc["accessors"][1]["type"] = "VEC3"
+    path.write_text(json.dumps(doc))
+    with pytest.raises(SceneError, match=r"accessors\[1\]: 12000 bytes of elements without a "
+                       rf"buffer view, over the {path.stat().st_size + 36 + 4000} bytes "):
+        load(path)
 
 
 @pytest.mark.parametrize(("stride", "message"), [

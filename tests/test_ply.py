@@ -538,3 +538,25 @@ def test_cr_only_line_endings_are_named():
     data = _ascii(_TRIANGLE + _FACE, b"0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n").replace(b"\n", b"\r")
     assert _errors(data) == ("bad.ply: CR-only line endings are not read (expected LF or CRLF "
                              "line endings)")
+
+
+def test_a_skipped_element_of_uniform_float_lists_is_not_converted(monkeypatch):
+    # An element the mesh does not use, before vertex and face, of float lists of one
+    # length: skipping it converted its lists to float64 (8 bytes an item) only to find
+    # where it ends. Any conversion of its items is now an error.
+    import clray.scene.ply as ply_module
+    real = ply_module._as_items
+
+    def as_items(items, prop):
+        assert prop.name != "samples", "a skipped element's items were converted"
+        return real(items, prop)
+
+    monkeypatch.setattr(ply_module, "_as_items", as_items)
+    header = ("ply\nformat binary_little_endian 1.0\nelement scan 50\n"
+              "property list uchar float samples\nelement vertex 3\nproperty float x\n"
+              "property float y\nproperty float z\nelement face 1\n"
+              "property list uchar int vertex_indices\nend_header\n")
+    body = struct.pack("<B4f", 4, 1, 2, 3, 4) * 50
+    body += struct.pack("<9f", 0, 0, 0, 1, 0, 0, 0, 1, 0) + struct.pack("<B3i", 3, 0, 1, 2)
+    mesh = read_ply(header.encode() + body, Path("s.ply")).mesh
+    np.testing.assert_array_equal(mesh.faces, [[0, 1, 2]])

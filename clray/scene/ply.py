@@ -203,7 +203,7 @@ class _Reader:
             if offset + size * el.count > len(buf):
                 raise self.truncated(el, (len(buf) - offset) // max(size, 1))
             return offset + size * el.count
-        read = self.binary_uniform(buf, el, offset, order)
+        read = self.binary_uniform(buf, el, offset, order, keep=False)
         if read is not None:
             return read[1]
         if el.count > MAX_SKIPPED_RECORDS:
@@ -235,10 +235,12 @@ class _Reader:
                 raise self.truncated(el, record)
         return at
 
-    def binary_uniform(self, buf: memoryview, el: _Element, offset: int, order: str
-                       ) -> tuple[dict[str, object], int] | None:
+    def binary_uniform(self, buf: memoryview, el: _Element, offset: int, order: str,
+                       keep: bool = True) -> tuple[dict[str, object], int] | None:
         """An element whose every list has the first record's length (a triangle mesh's
-        faces) as one numpy view; None where a length changes (or the file ends early)."""
+        faces) as one numpy view; None where a length changes (or the file ends early).
+        With keep False (an element skipped) the lengths are checked and no column is
+        made: only where the element ends counts."""
         fields, at = [], offset
         for p in el.properties:
             if p.count_type is None:
@@ -268,6 +270,8 @@ class _Reader:
             # Two reductions, no boolean array of a byte a record.
             if len(lengths) and lengths.min() != lengths.max():
                 return None
+            if not keep:
+                continue
             # One length for every record: a read-only broadcast of it, not an int64 a record.
             counts = np.broadcast_to(np.int64(lengths[0]) if len(lengths) else np.int64(0),
                                      lengths.shape)

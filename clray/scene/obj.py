@@ -31,7 +31,9 @@ class ObjMesh:
     """One shared vertex index for positions, normals and UVs, as the renderer wants it."""
 
     vertices: np.ndarray  # (V, 3) float64; float32 as a PLY file stores them (Mesh.vertices)
-    faces: np.ndarray  # (F, 3) int64 (int32 from a PLY file), fan-triangulated, in file order
+    # (F, 3) int64 (int32 from a PLY file), in file order: convex polygons as fans, concave
+    # ones split by their shape (_fan)
+    faces: np.ndarray
     normals: np.ndarray | None = None  # (V, 3) float64, unit length
     uvs: np.ndarray | None = None  # (V, 2) float64
     # Materials named by `usemtl`, in order of first use; face_groups gives each triangle's
@@ -773,8 +775,9 @@ def _unique_rows(keys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def read_obj(path: Path) -> ObjMesh:
-    """Read an OBJ file. Faces are fan-triangulated; every statement other than `v`, `vt`,
-    `vn` and `f` (`o`, `g`, `s`, `usemtl`, `mtllib`, ...) is ignored."""
+    """Read an OBJ file. Convex faces are triangulated as fans, concave ones split by their
+    shape (_fan); every statement other than `v`, `vt`, `vn` and `f` (`o`, `g`, `s`, `usemtl`,
+    `mtllib`, ...) is ignored."""
     path = Path(path)
     try:
         data = read_regular(path, MAX_MESH_BYTES)

@@ -2,8 +2,9 @@
 
 The vertex element gives positions (x, y, z), and where present normals (nx, ny, nz), texture
 coordinates (u, v; s, t; texture_u, texture_v) and colours (red, green, blue); the face
-element's list property (vertex_indices or vertex_index) gives polygons, fan-triangulated as
-the OBJ reader does, and a tristrips element's gives triangle strips (-1 restarts a strip).
+element's list property (vertex_indices or vertex_index) gives polygons, triangulated as the
+OBJ reader does (convex ones as fans, concave ones split by their shape), and a tristrips
+element's gives triangle strips (-1 restarts a strip).
 Other elements (edge, material, ...) and properties, lists among them (MeshLab's per-corner
 `texcoord`), are read past and ignored; elements after the last needed one are not read at
 all. Binary elements are read with one numpy view where

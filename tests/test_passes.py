@@ -227,9 +227,10 @@ def test_many_samples_give_the_mean_and_the_nearest_samples_indices(
     nearest = _nearest_samples(scene)[..., None]
     samples_object = ref.obj.reshape(H, W, spp)
     want_object = np.take_along_axis(samples_object, nearest, axis=-1)[..., 0]
-    if spp == 4:  # no fixed sample stands in for the nearest (each differs on 30 pixels or
-        # more here); at 9 spp, the centre cell's sample 4 gives the same objects here
-        assert all((want_object != samples_object[..., k]).sum() >= 20 for k in range(spp))
+    if spp == 4:  # no fixed sample stands in for the nearest (each differs on 30 to 55
+        # pixels here, measured on PoCL and Intel's CPU runtime over the three cameras); at
+        # 9 spp, the centre cell's sample 4 gives the same objects here
+        assert all((want_object != samples_object[..., k]).sum() >= 30 for k in range(spp))
     assert np.array_equal(aovs["object"], want_object)
     want_material = np.take_along_axis(ref.material.reshape(H, W, spp), nearest, axis=-1)
     assert np.array_equal(aovs["material"], want_material[..., 0])

@@ -698,6 +698,7 @@ def test_bytes_after_the_glb_length_are_ignored_with_a_warning(tmp_path):
 def test_zeros_without_a_buffer_view_are_at_most_the_file(tmp_path, monkeypatch):
     # A 689-byte file of 100 M zeros (POSITION, no buffer view) took 4.8 GB and 24 s before
     # it failed. Zeros are charged as if written out; np.zeros of more is never called.
+    # (A buffer that cannot be read, declaring any byteLength, adds nothing: below.)
     import clray.scene.gltf as gltf
 
     made = []
@@ -727,8 +728,8 @@ def test_zeros_without_a_buffer_view_are_at_most_the_file(tmp_path, monkeypatch)
 
 def test_zeros_without_a_buffer_view_read_no_unused_buffer(tmp_path):
     # The cap on an accessor's zeros read every buffer for its size: an unused buffer whose
-    # file is missing failed a file that loaded without the zeros. The buffers count by
-    # their declared byteLength, read or not.
+    # file is missing failed a file that loaded without the zeros. A buffer that cannot be
+    # read now counts nothing (its declared byteLength could be anything).
     positions = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], np.float32).tobytes()
     doc = {"asset": {"version": "2.0"},
            "buffers": [{"uri": "data:application/octet-stream;base64,"
@@ -744,14 +745,18 @@ def test_zeros_without_a_buffer_view_read_no_unused_buffer(tmp_path):
     path.write_text(json.dumps(doc))
     (mesh,) = load(path).objects
     np.testing.assert_array_equal(mesh.uvs, [[0, 1]] * 3)  # zeros, v flipped to 1 - v
-    # The missing buffer's declared bytes count toward the cap (the bound named).
-    doc["accessors"][1]["count"] = 1000
+    # The missing buffer's declared 4,000 bytes do not count toward the cap (the bound
+    # named: the file's and the data: buffer's 36); once it exists, they do.
+    doc["accessors"][1]["count"] = 300
     doc["meshes"][0]["primitives"][0]["attributes"] = {"POSITION": 1}
     doc["accessors"][1]["type"] = "VEC3"
     path.write_text(json.dumps(doc))
-    with pytest.raises(SceneError, match=r"accessors\[1\]: 12000 bytes of elements without a "
-                       rf"buffer view, over the {path.stat().st_size + 36 + 4000} bytes "):
+    with pytest.raises(SceneError, match=r"accessors\[1\]: 3600 bytes of elements without a "
+                       rf"buffer view, over the {path.stat().st_size + 36} bytes "):
         load(path)
+    (tmp_path / "missing.bin").write_bytes(bytes(4000))
+    (mesh,) = load(path).objects  # within the cap now: its zeros are read
+    assert len(mesh.vertices) == 300 and not np.any(mesh.vertices)
 
 
 @pytest.mark.parametrize(("stride", "message"), [

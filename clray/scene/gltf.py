@@ -317,17 +317,21 @@ class _Reader:
 
     def zeros(self, size: int, path: str) -> None:
         """An accessor without a buffer view (zeros, or sparse) is charged as if its zeros
-        were written out: at most the bytes of the file and all its buffers, and at most
-        L.MAX_BINARY_MESH_BYTES. A 689-byte file of 100 M zeros took 4.8 GB and 24 s. The
-        buffers count by their declared byteLength: none is read here (an unused one may be
-        missing)."""
+        were written out: at most the bytes of the file and of the buffers it has, and at
+        most L.MAX_BINARY_MESH_BYTES. A 689-byte file of 100 M zeros took 4.8 GB and 24 s.
+        A buffer counts once read (its byteLength then holds), not by the byteLength it
+        declares, which a small file could make anything; one that cannot be read counts
+        none: an unused buffer may be missing, and a used one fails where it is used."""
         held = self.size
         for i in range(len(self.items(self.doc, "buffers"))):
             spec, where = self.entry("buffers", i, f"buffers[{i}]")
-            length = self.integer(spec, "byteLength", where, low=1)
-            # A .glb's binary chunk is in the file's bytes already.
-            if "uri" in spec or i != 0 or self.bin is None:
-                held += length
+            if "uri" not in spec and i == 0 and self.bin is not None:
+                continue  # the .glb's binary chunk: in the file's bytes already
+            try:
+                self.buffer(i, where)
+            except SceneError:
+                continue
+            held += self.integer(spec, "byteLength", where, low=1)
         bound = min(held, L.MAX_BINARY_MESH_BYTES)
         if size > bound:
             raise self.error(path, f"{size} bytes of elements without a buffer view, over "

@@ -514,34 +514,34 @@ def _resolve(
     return index
 
 
-def _fan(count: np.ndarray, positions: np.ndarray | None = None,
-         v: np.ndarray | None = None, told: list[str] | None = None) -> np.ndarray:
-    """(T, 3) positions into the face-vertex list, count - 2 triangles a polygon in order.
+def _fan(count: np.ndarray, positions: np.ndarray, v: np.ndarray
+         ) -> tuple[np.ndarray, tuple[str, ...]]:
+    """(T, 3) positions into the face-vertex list `v`, count - 2 triangles a polygon in
+    order, and what the triangulation warns of.
 
     A convex polygon (every turn the same way about its Newell normal) is a fan around its
-    first vertex. Given the corners' positions (`positions[v]`), a polygon with reflex corners
+    first vertex. A polygon with reflex corners (by the corners' positions, `positions[v]`)
     is triangulated by its shape: with one reflex corner, as a fan around that corner (the
     polygon is star-shaped from it); with more, by ear clipping in its plane. Polygons that
     are not planar (a corner off the plane by more than _PLANAR of the polygon's extent),
     whose area is zero or that cross themselves (no ear) stay fans around their first vertex;
     so do those of two or more reflex corners that are not ear-clipped: over _MAX_EAR_CLIP
-    corners, or past the file's _EAR_CLIP_BUDGET, which appends one warning to `told`."""
+    corners, or past the file's _EAR_CLIP_BUDGET, which is the one warning."""
     if np.all(count == 3):
-        return np.arange(3 * len(count)).reshape(-1, 3)
+        return np.arange(3 * len(count)).reshape(-1, 3), ()
     n_tri = count - 2
     poly = np.repeat(np.arange(len(count)), n_tri)
     k = np.arange(n_tri.sum()) - np.repeat(_exclusive_cumsum(n_tri), n_tri) + 1
     base = _exclusive_cumsum(count)[poly]
     tris = np.stack([base, base + k, base + k + 1], axis=1)
-    if positions is not None and v is not None:
-        budget = _EarClipBudget(_EAR_CLIP_BUDGET)
-        _shape_polygons(tris, count, positions, v, budget)
-        if budget.over and told is not None:
-            told.append(f"{budget.over} polygon(s) of two or more reflex corners left as fans "
-                        "around their first vertex: ear clipping them was past the file's "
-                        f"budget of {_EAR_CLIP_BUDGET} (the sum of k (k + {_EAR_CLIP_EXTRA}) "
-                        "over polygons of k corners; ear clipping is O(k^2) in Python)")
-    return tris
+    budget = _EarClipBudget(_EAR_CLIP_BUDGET)
+    _shape_polygons(tris, count, positions, v, budget)
+    if not budget.over:
+        return tris, ()
+    return tris, (f"{budget.over} polygon(s) of two or more reflex corners left as fans "
+                  "around their first vertex: ear clipping them was past the file's budget "
+                  f"of {_EAR_CLIP_BUDGET} (the sum of k (k + {_EAR_CLIP_EXTRA}) over polygons "
+                  "of k corners; ear clipping is O(k^2) in Python)",)
 
 
 # A polygon is planar when no corner is further from its plane than this part of its extent.
@@ -817,11 +817,8 @@ def parse_obj(data: bytes, path: Path) -> ObjMesh:
     vt = _component(tok, comp[:, 1], tokens, has_vt, use_uv, vt_stmt, "texture coordinate")
     vn = _component(tok, comp[:, 2], tokens, has_vn, use_vn, vn_stmt, "normal")
 
-    told: list[str] = []
     mesh = _mesh(positions, uv_values if use_uv else None, normal_values if use_vn else None,
-                 v, vt, vn, _fan(count, positions, v, told))
-    if told:
-        mesh = dataclasses.replace(mesh, warnings=tuple(told))
+                 v, vt, vn, *_fan(count, positions, v))
     face_at = tok.starts[tok.heads[tok.kind == _F]] - _PAD
     return _with_materials(data, mesh, face_at, count)
 
@@ -834,14 +831,15 @@ def _mesh(
     vt: np.ndarray,
     vn: np.ndarray,
     corners: np.ndarray,
+    warnings: tuple[str, ...],
 ) -> ObjMesh:
     """One shared index per distinct (position, uv, normal) of the faces' corners; UVs or
-    normals passed as None are not used."""
+    normals passed as None are not used; `warnings`, the triangulation's (_fan)."""
     # Normals and UVs are per vertex in the output, so a mesh gets them only when every
     # face has them; otherwise the faces without would have nothing to interpolate.
     use_uv, use_vn = uv_values is not None, normal_values is not None
     if not (use_uv or use_vn):
-        return ObjMesh(vertices=positions, faces=v[corners])
+        return ObjMesh(vertices=positions, faces=v[corners], warnings=warnings)
 
     columns = [v] + ([vt] if use_uv else []) + ([vn] if use_vn else [])
     uniq, inverse = _unique_rows(np.stack(columns, axis=1))
@@ -850,6 +848,7 @@ def _mesh(
         faces=inverse[corners],
         normals=normal_values[uniq[:, -1]] if use_vn else None,
         uvs=uv_values[uniq[:, 1]] if use_uv else None,
+        warnings=warnings,
     )
 
 
@@ -944,11 +943,8 @@ def _parse_regular(data: bytes) -> ObjMesh | None:
     if v is None or vt is None or vn is None:
         return None
     count = np.full(len(ws), ws.shape[1] - 1)
-    told: list[str] = []
     mesh = _mesh(positions, uv_values if use_uv else None, normal_values if use_vn else None,
-                 v, vt, vn, _fan(count, positions, v, told))
-    if told:
-        mesh = dataclasses.replace(mesh, warnings=tuple(told))
+                 v, vt, vn, *_fan(count, positions, v))
     return _with_materials(data, mesh, starts[kind == _F] - _PAD, count)
 
 

@@ -541,7 +541,7 @@ def _mesh(reader: _Reader, columns: dict[str, dict[str, object]]) -> PlyMesh:
             break
     colors = _colors(reader, vertex)
     parts = []
-    told: list[str] = []
+    told: tuple[str, ...] = ()
     face = _index_list(reader, columns, "face", len(vertices))
     if face is not None:
         counts, items = face
@@ -550,8 +550,11 @@ def _mesh(reader: _Reader, columns: dict[str, dict[str, object]]) -> PlyMesh:
             raise _few_corners(reader, int(small[0]), int(counts[small[0]]))
         # A triangle mesh's items are its faces as they are: no fan to gather (a copy of
         # 24 bytes a triangle).
-        parts.append(items.reshape(-1, 3) if np.all(counts == 3)
-                     else items[_fan(counts, vertices, items, told)])
+        if np.all(counts == 3):
+            parts.append(items.reshape(-1, 3))
+        else:
+            corners, told = _fan(counts, vertices, items)
+            parts.append(items[corners])
     strips = _index_list(reader, columns, "tristrips", len(vertices))
     if strips is not None:
         parts.append(_strip_triangles(*strips))
@@ -559,7 +562,7 @@ def _mesh(reader: _Reader, columns: dict[str, dict[str, object]]) -> PlyMesh:
         raise reader.error("element face", "needs an element face (or tristrips) with a "
                            "vertex_indices list")
     faces = parts[0] if len(parts) == 1 else np.concatenate(parts)
-    return PlyMesh(ObjMesh(vertices, faces, normals, uvs, warnings=tuple(told)), colors)
+    return PlyMesh(ObjMesh(vertices, faces, normals, uvs, warnings=told), colors)
 
 
 def _few_corners(reader: _Reader, record: int, count: int) -> SceneError:

@@ -111,6 +111,7 @@ class _Reader:
         self.buffers: dict[int, bytes | memoryview] = {}
         self.warnings: list[str] = []
         self.size = 0  # the bytes of the .gltf or .glb file
+        self.held: int | None = None  # ... and of the buffers it has (zeros), once counted
 
     def error(self, where: str | None, message: str) -> SceneError:
         return SceneError(self.path, where, message)
@@ -321,18 +322,20 @@ class _Reader:
         most L.MAX_BINARY_MESH_BYTES. A 689-byte file of 100 M zeros took 4.8 GB and 24 s.
         A buffer counts once read (its byteLength then holds), not by the byteLength it
         declares, which a small file could make anything; one that cannot be read counts
-        none: an unused buffer may be missing, and a used one fails where it is used."""
-        held = self.size
-        for i in range(len(self.items(self.doc, "buffers"))):
-            spec, where = self.entry("buffers", i, f"buffers[{i}]")
-            if "uri" not in spec and i == 0 and self.bin is not None:
-                continue  # the .glb's binary chunk: in the file's bytes already
-            try:
-                self.buffer(i, where)
-            except SceneError:
-                continue
-            held += self.integer(spec, "byteLength", where, low=1)
-        bound = min(held, L.MAX_BINARY_MESH_BYTES)
+        none: an unused buffer may be missing, and a used one fails where it is used. Counted
+        once for all the file's accessors."""
+        if self.held is None:
+            self.held = self.size
+            for i in range(len(self.items(self.doc, "buffers"))):
+                spec, where = self.entry("buffers", i, f"buffers[{i}]")
+                if "uri" not in spec and i == 0 and self.bin is not None:
+                    continue  # the .glb's binary chunk: in the file's bytes already
+                try:
+                    self.buffer(i, where)
+                except SceneError:
+                    continue
+                self.held += self.integer(spec, "byteLength", where, low=1)
+        bound = min(self.held, L.MAX_BINARY_MESH_BYTES)
         if size > bound:
             raise self.error(path, f"{size} bytes of elements without a buffer view, over "
                              f"the {bound} bytes of the file and its buffers (an accessor's "

@@ -351,12 +351,12 @@ class _Reader:
 
     def ascii(self, elements: list[_Element], offset: int) -> dict[str, dict[str, object]]:
         body = self.data[offset:]
-        # The lines up to the last needed element's, and the rest of the file as one piece.
-        lines = body.split(b"\n", sum(el.count for el in elements[:_last_needed(elements)]))
+        read = elements[:_last_needed(elements)]
         first_line = self.data[:offset].count(b"\n") + 1
-        # The file's line number of each line, for errors.
-        numbers: Sequence[int] = range(first_line, first_line + len(lines))
-        if not lines[0].strip() or _BLANK_LINE.search(body):
+        numbers: Sequence[int]  # the file's line number of each line, for errors
+        first_end = body.find(b"\n")
+        if not body[:first_end if first_end >= 0 else len(body)].strip() or \
+                _BLANK_LINE.search(body):
             # Blank lines (some writers leave one between elements) hold no record: read past,
             # as readers that take the body token by token (rply, trimesh) do. One regex pass
             # finds them, so only a file that has them pays for the filtering.
@@ -364,9 +364,13 @@ class _Reader:
             kept = [i for i, line in enumerate(lines) if line.strip()]
             lines = [lines[i] for i in kept]
             numbers = [first_line + i for i in kept]
+        else:
+            # The lines up to the last needed element's, the rest of the file as one piece.
+            lines = body.split(b"\n", sum(el.count for el in read))
+            numbers = range(first_line, first_line + len(lines))
         out: dict[str, dict[str, object]] = {}
         row = 0
-        for el in elements[:_last_needed(elements)]:
+        for el in read:
             mine = lines[row:row + el.count]
             if len(mine) < el.count or (el.count and not mine[-1].strip()):
                 got = sum(1 for line in mine if line.strip())

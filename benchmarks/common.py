@@ -40,7 +40,11 @@ def positive_ints(text: str) -> list[int]:
 def distinct_positive_ints(text: str) -> list[int]:
     """argparse type: positive_ints, each at most once (refused, not merged, as names_of's
     names: a repeated value would be measured twice)."""
-    values = positive_ints(text)
+    return _each_once(positive_ints(text))
+
+
+def _each_once(values: list) -> list:
+    """`values` where none repeats; else argparse's error naming the repeated ones."""
     repeated = sorted({value for value in values if values.count(value) > 1})
     if repeated:
         raise argparse.ArgumentTypeError(
@@ -72,10 +76,7 @@ def names_of(choices: Iterable[str]) -> Callable[[str], list[str]]:
                                              f"choose from {', '.join(allowed)}")
         if not names:
             raise argparse.ArgumentTypeError("expected at least one name")
-        repeated = sorted({name for name in names if names.count(name) > 1})
-        if repeated:
-            raise argparse.ArgumentTypeError(f"each at most once; repeated: {', '.join(repeated)}")
-        return names
+        return _each_once(names)
     return parse
 
 

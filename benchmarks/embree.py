@@ -244,13 +244,8 @@ class EmbreeSide:
     def run(self) -> dict:
         # On the one CPU the one-core render's child has (OneCoreSide), as that child is: this
         # thread only (Linux pins the calling thread), given back its CPUs after.
-        # embreex allocates its output arrays (t, ids, u, v, normals: 32 B a ray) afresh at
-        # every run. Between rounds the clray sides' arrays take the memory they were freed
-        # to, so a timed run's arrays came fresh from the kernel, whose mapping of them (3,000
-        # to 4,600 page faults, up to 52 ms of a 60 to 103 ms run) was timed as Embree's
-        # tracing; clray's kernel time holds no allocation. An untimed run just before gives
-        # the timed one the memory it frees; the thread's system time and page faults in the
-        # timed run are reported to show it (docs/acceleration.md, 2026-12-07).
+        # An untimed run first: its freed output arrays are the timed run's, so no page fault
+        # of fresh memory is timed as Embree's tracing (the module's docstring).
         cpus = os.sched_getaffinity(0)
         os.sched_setaffinity(0, {min(cpus)})
         try:

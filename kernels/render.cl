@@ -119,6 +119,17 @@ __kernel WORK_ITEM_LANES void render(SCENE_BUFFER_PARAMS, __global float* image,
 // sample packets a work-item takes PACKET_LANES rays as one packet, with group packets a
 // work-group's rays walk together (the host pads the last group).
 #if INTERSECT_RAYS
+#if !SAMPLE_PACKETS && !GROUP_PACKETS
+// Ray i's closest hit, reported.
+HOT void intersect_one(const SceneRefs* s, __global const float4* origins,
+                       __global const float4* directions, __global float4* hits,
+                       __global int* refs, int i) {
+    Ray ray = make_ray(TO_REAL3(origins[i]), TO_REAL3(directions[i]));
+    Hit hit = closest_hit(s, &ray);
+    report_hit(s, &ray, &hit, hits + i, refs + i);
+}
+#endif
+
 __kernel WORK_ITEM_LANES void intersect_rays(__global const float4* origins,
                                              __global const float4* directions,
                                              SCENE_BUFFER_PARAMS, __global float4* hits,
@@ -152,10 +163,15 @@ __kernel WORK_ITEM_LANES void intersect_rays(__global const float4* origins,
     Ray ray = make_ray(TO_REAL3(origins[i]), TO_REAL3(directions[i]));
     Hit hit = group_closest(&s, &g, &ray, true);
     report_hit(&s, &ray, &hit, hits + i, refs + i);
+#elif RENDER_SEGMENTS
+    // The group's first work-item walks the group's rays in a loop of its own, as the render's
+    // row segments do (ray_tree.h, render_segment): PoCL's loop over work-items copied
+    // SceneRefs' pointers and ran a call's prologue for every ray.
+    if (get_local_id(0) != 0) return;
+    int end = min(i + (int)get_local_size(0), (int)get_global_size(0));
+    for (; i < end; ++i) intersect_one(&s, origins, directions, hits, refs, i);
 #else
-    Ray ray = make_ray(TO_REAL3(origins[i]), TO_REAL3(directions[i]));
-    Hit hit = closest_hit(&s, &ray);
-    report_hit(&s, &ray, &hit, hits + i, refs + i);
+    intersect_one(&s, origins, directions, hits, refs, i);
 #endif
 }
 #endif

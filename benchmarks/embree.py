@@ -37,9 +37,10 @@ so both trace the same float32 rays through the same float32 triangles.
   primitive), from which the hits are compared. Both timed by OpenCL profiling events (kernel
   time) and by the process's CPU time from each launch's enqueue to the end of its wait (the
   render's buffers, read-backs and ray counts, outside its launches, are not counted: Embree's
-  CPU time holds its loop alone). And the render again in a child
-  process held to one core (`render_one_core`: its CPU affinity one CPU, PoCL's threads one),
-  a core's own rate beside Embree's one thread.
+  CPU time holds its loop alone). And both again in a child process held to one core
+  (`render_one_core`, `intersect_one_core`: its CPU affinity one CPU, PoCL's threads one), a
+  core's own rate beside Embree's one thread; `intersect_one_core` is the walk on Embree's
+  very rays, as Embree's loop reads its rays and writes its hits.
 - With `--packet-spp N` (default 16, 0: none), the render kernel at N samples a pixel as a
   render builds it on the device (sample packets on CPU devices), for the issue's "sample
   packets against Embree's single rays".
@@ -376,16 +377,18 @@ class _TimedLaunches:
 
 
 class OneCoreSide:
-    """clray's render (ClraySide.render's single-ray 1-spp kernel) in a child process held to
-    one core: its CPU affinity one CPU, and PoCL's worker threads one
-    (POCL_MAX_PTHREAD_COUNT), so that "a core" is a core's own rate, as Embree's one thread
-    is, and not the whole device's divided by its cores (two threads share the cores' caches
-    and clock: on the 2-core machine the one-core render ran 3 to 17 % faster than half the
-    two-core one). The child renders once for each round the parent asks for."""
+    """clray's render (ClraySide.render's single-ray 1-spp kernel) and its intersect_rays on
+    Embree's rays (ClraySide.intersect), in a child process held to one core: its CPU affinity
+    one CPU, and PoCL's worker threads one (POCL_MAX_PTHREAD_COUNT), so that "a core" is a
+    core's own rate, as Embree's one thread is, and not the whole device's divided by its
+    cores (two threads share the cores' caches and clock: on the 2-core machine the one-core
+    render ran 3 to 17 % faster than half the two-core one). The child renders and intersects
+    once for each round the parent asks for, and answers both."""
 
-    def __init__(self, scene_file: Path, device_spec: str | None) -> None:
+    def __init__(self, scene_file: Path, device_spec: str | None, size: tuple[int, int]) -> None:
         cmd = [sys.executable, str(Path(__file__).resolve()), "--one-core-child",
-               str(scene_file)] + (["--device", device_spec] if device_spec else [])
+               str(scene_file), "--size", f"{size[0]}x{size[1]}"]
+        cmd += ["--device", device_spec] if device_spec else []
         env = dict(os.environ, POCL_MAX_PTHREAD_COUNT="1")
         self.child = subprocess.Popen(cmd, stdin=subprocess.PIPE, stdout=subprocess.PIPE,
                                       text=True, env=env)
@@ -407,21 +410,30 @@ class OneCoreSide:
         self.child.wait()
 
 
-def one_core_child(scene_file: Path, device_spec: str | None) -> None:
-    """OneCoreSide's process: the render packed as ClraySide packs it, then one timed render
-    a line of standard input, each answered with a line of JSON."""
+def one_core_child(scene_file: Path, device_spec: str | None, size: tuple[int, int]) -> None:
+    """OneCoreSide's process: the render packed as ClraySide packs it and intersect_rays on
+    the parent's rays (primary_rays at `size`, made again here: the same float64 camera, the
+    same float32 rays), then one timed render and one timed intersect_rays a line of standard
+    input, each line answered with a line of JSON (the first also with intersect_rays' t, for
+    the parent's check that both walked the same rays)."""
     from clray.device.context import select_device
     from clray.scene.load import load_scene
 
     os.sched_setaffinity(0, {min(os.sched_getaffinity(0))})
     scene = load_scene(scene_file)
-    side = ClraySide(scene, select_device(device_spec), None, None, 0)
+    origins, directions = primary_rays(scene, *size)
+    side = ClraySide(scene, select_device(device_spec), origins, directions, 0)
     side.render()
+    side.intersect()
     print(json.dumps({"ready": True}), flush=True)
-    for _ in sys.stdin:
-        done = side.render()
-        print(json.dumps({"kernel_s": done["kernel_s"], "cpu_s": done["cpu_s"],
-                          "rays": done["rays"]}), flush=True)
+    for index, _ in enumerate(sys.stdin):
+        done, walked = side.render(), side.intersect()
+        print(json.dumps({"render": {"kernel_s": done["kernel_s"], "cpu_s": done["cpu_s"],
+                                     "rays": done["rays"]},
+                          "intersect": {"kernel_s": walked["kernel_s"],
+                                        "cpu_s": walked["cpu_s"],
+                                        **({} if index else {"t": walked["t"].tolist()})}}),
+              flush=True)
 
 
 def spread(values: list[float]) -> dict:
@@ -492,33 +504,37 @@ def timed_rounds(args: argparse.Namespace, embree_side: EmbreeSide, clray_side: 
         clray_side.render(packets=True)
     embree_side.run()
     runs: dict[str, list[dict]] = {"embree": [], "render": [], "render_one_core": [],
-                                   "intersect": [], "packets": []}
+                                   "intersect": [], "intersect_one_core": [], "packets": []}
     for round_index in range(args.repeat):
         runs["embree"].append(embree_side.run())
         runs["render"].append(clray_side.render())
-        runs["render_one_core"].append(one_core.run())
+        alone = one_core.run()
+        runs["render_one_core"].append(alone["render"])
+        runs["intersect_one_core"].append(alone["intersect"])
         runs["intersect"].append(clray_side.intersect())
         if args.packet_spp:
             runs["packets"].append(clray_side.render(packets=True))
         print(f"round {round_index + 1}/{args.repeat}: embree "
               f"{runs['embree'][-1]['wall_s']:.4f} s, clray render "
               f"{runs['render'][-1]['kernel_s']:.4f} s, intersect "
-              f"{runs['intersect'][-1]['kernel_s']:.4f} s, render on one core "
-              f"{runs['render_one_core'][-1]['kernel_s']:.4f} s", file=sys.stderr)
+              f"{runs['intersect'][-1]['kernel_s']:.4f} s, on one core: render "
+              f"{runs['render_one_core'][-1]['kernel_s']:.4f} s, intersect "
+              f"{runs['intersect_one_core'][-1]['kernel_s']:.4f} s", file=sys.stderr)
     return runs
 
 
 def clray_rates(runs: dict[str, list[dict]], rays: int, workers: int,
                 clray_side: ClraySide) -> dict:
-    """rates() of each clray side: the render's, the one-core render's, intersect_rays' on
-    the `rays` Embree traces, and the packets' where they ran."""
+    """rates() of each clray side: the render's, intersect_rays' on the `rays` Embree
+    traces, each on the device and on one core, and the packets' where they ran."""
     def of(name: str, n: int, per: int) -> dict:
         return rates(n, [r["kernel_s"] for r in runs[name]], [r["cpu_s"] for r in runs[name]],
                      per)
 
     sides = {"render": of("render", runs["render"][-1]["rays"], workers),
              "render_one_core": of("render_one_core", runs["render_one_core"][-1]["rays"], 1),
-             "intersect": of("intersect", rays, workers)}
+             "intersect": of("intersect", rays, workers),
+             "intersect_one_core": of("intersect_one_core", rays, 1)}
     if runs["packets"]:
         config = clray_side.packets.config
         sides["packets"] = {**of("packets", runs["packets"][-1]["rays"], workers),
@@ -575,7 +591,8 @@ def print_summary(report: dict, json_path: Path) -> None:
 def main(argv: list[str] | None = None) -> None:
     args = parse_arguments(argv)
     if args.one_core_child is not None:
-        one_core_child(args.one_core_child, args.device)
+        width, _, height = args.size.partition("x")
+        one_core_child(args.one_core_child, args.device, (int(width), int(height)))
         return
     embree = import_embreex()
     if embree is None:
@@ -596,7 +613,7 @@ def main(argv: list[str] | None = None) -> None:
 
         embree_side = EmbreeSide(embree, triangles, origins, directions)
         clray_side = ClraySide(scene, device, origins, directions, args.packet_spp)
-        one_core = OneCoreSide(scene_file, args.device)
+        one_core = OneCoreSide(scene_file, args.device, (args.width, args.height))
         runs = timed_rounds(args, embree_side, clray_side, one_core)
         one_core.close()
         counted = count_instructions(scene_file) if args.instructions else None
@@ -633,6 +650,9 @@ def main(argv: list[str] | None = None) -> None:
         "clray": sides,
         "ratios": ratios_to_embree(sides, embree_rates),
         "hits": compare_hits(runs["intersect"][-1]["t"], embree_t),
+        # The one-core child's intersect_rays against the device's: the same rays, the same t.
+        "one_core_hits": compare_hits(np.asarray(runs["intersect_one_core"][0]["t"],
+                                                 dtype=np.float32), runs["intersect"][-1]["t"]),
         "render_hits": compare_hits(np.where(runs["render"][-1]["hit"], 1.0, np.inf),
                                     np.where(np.isfinite(embree_t), 1.0, np.inf)),
         "instructions": counted,

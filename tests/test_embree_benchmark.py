@@ -68,7 +68,8 @@ def test_tiny_run_agrees_with_embree(cl_device: cl.Device, tmp_path: Path,
         assert key in report, key
     assert report["rays"] == 64 * 36 and report["triangles"] == 20 * 4**4
     assert report["traversal"] == "single"
-    assert set(report["clray"]) == {"render", "render_one_core", "intersect", "packets"}
+    assert set(report["clray"]) == {"render", "render_one_core", "intersect",
+                                    "intersect_one_core", "packets"}
     for side in (report["embree"], *report["clray"].values()):
         assert side["mrays_per_s"]["median"] > 0 and len(side["mrays_per_s"]["runs"]) == 1
     assert report["clray"]["render"]["rays"] == 64 * 36
@@ -86,6 +87,9 @@ def test_tiny_run_agrees_with_embree(cl_device: cl.Device, tmp_path: Path,
     assert hits["agree"], hits
     assert 0.05 < hits["hit_fraction"] < 0.5
     assert report["render_hits"]["mask_mismatches"] <= 1
+    # The one-core child walks the parent's very rays: the same hits, the same t.
+    assert report["one_core_hits"]["mask_mismatches"] == 0
+    assert report["one_core_hits"]["t_rel_diff_max"] == 0
     assert report["instructions"] is None
     # The build figures, each one thing: no full trace inside the commit.
     assert report["embree_mesh_s"] > 0 and report["embree_commit_s"] > 0

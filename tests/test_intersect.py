@@ -298,6 +298,42 @@ def test_axis_aligned_rays_on_bvh_slab_planes_reach_flat_primitives(cl_device):
     assert np.allclose(t, [5.0] * 6 + [5.0], rtol=RTOL)
 
 
+@pytest.mark.parametrize("precision", ["float", "double"])
+@pytest.mark.parametrize("traversal", ["single", "sample_packet"])
+def test_negative_zero_direction_components_on_slab_planes_hit(cl_device, precision, traversal):
+    """The rays of test_rays_along_box_edges_and_faces_hit with their zero components negative:
+    1 / -0 = -inf, and a slab test that picks the near plane by comparing the two t (one NaN)
+    kept (hi - o) * -inf = -inf as the far bound with the origin on lo (or +inf as the near one
+    with it on hi), and missed. A -0 is what negating or scaling a zero gives (a reflected or
+    flipped direction). Both the box's own test and the BVH nodes' (whose bounds are the
+    box's) must ignore the NaN, as for +0. The oracle: clray.reference, which takes any zero
+    component as parallel."""
+    if precision == "double" and "cl_khr_fp64" not in cl_device.extensions:
+        pytest.skip("no fp64")
+    lo, hi = (-1.0, -1.0, -6.0), (1.0, 2.0, -4.0)
+    scene = make_scene(M.Box(lo, hi, 0))
+    z = -0.0
+    rays = [
+        ((-1.0, 0.5, 0.0), (z, z, -1.0)),  # in the plane of the x = lo face
+        ((1.0, 0.5, 0.0), (z, z, -1.0)),  # in the plane of the x = hi face
+        ((0.5, -1.0, 0.0), (z, z, -1.0)),  # y = lo
+        ((0.5, 2.0, 0.0), (z, z, -1.0)),  # y = hi
+        ((-1.0, -1.0, 0.0), (z, z, -1.0)),  # along an edge
+        ((1.0, 2.0, -9.0), (z, z, 1.0)),  # along the opposite edge, from behind
+        ((-5.0, 2.0, -6.0), (1.0, z, z)),  # along x, on the y = hi and z = lo planes
+    ]
+    o = np.array([r[0] for r in rays])
+    d = np.array([r[1] for r in rays])
+    assert np.all(np.signbit(d[d == 0.0]))
+    packed = pack_scene(scene, width=4, height=4, spp=1, max_depth=0, seed=0,
+                        precision=precision, traversal=traversal)
+    t, _, r = intersect_rays(packed, cl_device, o, d)
+    want = intersect_scene(scene, o, d)
+    assert np.all(np.isfinite(want.t))
+    assert r.tolist() == [ref(L.PRIM_BOX, 0)] * len(rays), f"t = {t}"
+    assert_rel(t.astype(np.float64), want.t, RTOL, "t")
+
+
 # ---------------------------------------------------------------------------------------------
 # Planes
 

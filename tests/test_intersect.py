@@ -250,6 +250,21 @@ def test_box_face_normals(cl_device):
     assert_normals(normal[clear], want.normal[clear], 0.0, "box normal")
 
 
+def test_flat_box_normal_is_the_face_the_ray_enters_by(cl_device):
+    """A box flat in z (lo.z == hi.z) has both z faces in one plane; the entry face, and so the
+    normal, is the reference's: +z for a ray coming down, -z for one coming up. (Picking the
+    near plane by comparing the two equal t kept the lo face, -z, for both.)"""
+    scene = make_scene(M.Box((-1.0, -1.0, -5.0), (1.0, 1.0, -5.0), 0))
+    o = np.array([[0.1, 0.2, 0.0], [0.1, 0.2, -9.0]])
+    d = np.array([[0.0, 0.1, -1.0], [0.0, 0.1, 1.0]])
+    t, normal, r = cast(cl_device, scene, o, d)
+    want = intersect_scene(scene, o, d)
+    assert np.all(r == ref(L.PRIM_BOX, 0))
+    assert_rel(t, want.t, RTOL, "flat box t")
+    assert_normals(normal, want.normal, 0.0, "flat box normal")
+    assert want.normal[:, 2].tolist() == [1.0, -1.0]
+
+
 def test_rays_along_box_edges_and_faces_hit(cl_device):
     """Axis-aligned rays: zero direction components with the origin exactly on slab planes
     give (bound - o) * inf = 0 * inf = NaN, which must not turn the hit into a miss; one ulp

@@ -96,15 +96,17 @@ static inline void consider_hit(Hit* hit, const Crossings* c, int ref, int insta
 DEFINE_TIE_REACH(static inline, REAL, tie_reach)
 
 // One axis of the vector slab test, with the scalar slab_interval's rules: compare-select so a
-// NaN from 0 * inf never narrows the interval, and the far bound widened by `widen`. For a
+// NaN from 0 * inf never narrows the interval, the near plane picked by the reciprocal's sign
+// (so a -0 direction component with the origin on a plane leaves the NaN on the plane's side,
+// where it is ignored), and the far bound widened by `widen`. For a
 // wide node's boxes against one ray (REALW) and for one box against a sample packet's lanes
 // (REALP, packet.h), lane by lane the same (real.h, Twins).
 #define DEFINE_SLAB_AXIS(T, NAME)                                          \
     HOT void NAME(T lo, T hi, T o, T inv, REAL widen, T* t0, T* t1) {      \
         T tn = (lo - o) * inv;                                             \
         T tf = (hi - o) * inv;                                             \
-        T near = tn > tf ? tf : tn;                                        \
-        T far = (tn > tf ? tn : tf) * widen;                               \
+        T near = inv < (T)(0) ? tf : tn;                                   \
+        T far = (inv < (T)(0) ? tn : tf) * widen;                          \
         *t0 = near > *t0 ? near : *t0;                                     \
         *t1 = far < *t1 ? far : *t1;                                       \
     }

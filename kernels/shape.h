@@ -73,7 +73,10 @@ static inline bool quadratic_roots(REAL a, REAL b, REAL c, REAL disc, REAL* t0, 
 
 // Slab test against [lo, hi] within (tmin, tmax). Compare-select keeps a NaN from 0 * inf (a
 // zero direction component with the origin on a slab plane) out of the interval, and the far
-// bound is widened by 1 + 2 gamma(3) so no ray slips past an edge (Ize 2013, pbrt).
+// bound is widened by 1 + 2 gamma(3) so no ray slips past an edge (Ize 2013, pbrt). Which plane
+// is near goes by the reciprocal's sign (Williams et al. 2005), not by comparing the two t: a
+// NaN compares false, so with the origin on lo and d = -0 (inv = -inf) that comparison kept
+// tf = (hi - o) * -inf = -inf as the far bound and the ray missed a box it runs along.
 static inline bool slab_interval(REAL3 lo, REAL3 hi, const Ray* r, REAL* tmin, REAL* tmax,
                                  int* part0, int* part1) {
     REAL t0 = *tmin, t1 = *tmax;
@@ -83,7 +86,7 @@ static inline bool slab_interval(REAL3 lo, REAL3 hi, const Ray* r, REAL* tmin, R
         REAL tn = (comp3(lo, k) - o) * inv;
         REAL tf = (comp3(hi, k) - o) * inv;
         int pn = 2 * k, pf = 2 * k + 1;
-        if (tn > tf) {
+        if (inv < (REAL)0) {
             REAL swap = tn;
             tn = tf;
             tf = swap;

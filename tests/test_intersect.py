@@ -27,6 +27,7 @@ from clray.device.launch import intersect_rays
 from clray.device.pack import pack_scene
 from clray.reference import intersect_scene
 from clray.scene import model as M
+from clray.scene.scale import scene_warnings
 
 RTOL = 1e-5
 RTOL_GRAZING = 1e-4
@@ -249,6 +250,21 @@ def test_box_face_normals(cl_device):
     assert_normals(normal[clear], want.normal[clear], 0.0, "box normal")
 
 
+def test_flat_box_normal_is_the_face_the_ray_enters_by(cl_device):
+    """A box flat in z (lo.z == hi.z) has both z faces in one plane; the entry face, and so the
+    normal, is the reference's: +z for a ray coming down, -z for one coming up. (Picking the
+    near plane by comparing the two equal t kept the lo face, -z, for both.)"""
+    scene = make_scene(M.Box((-1.0, -1.0, -5.0), (1.0, 1.0, -5.0), 0))
+    o = np.array([[0.1, 0.2, 0.0], [0.1, 0.2, -9.0]])
+    d = np.array([[0.0, 0.1, -1.0], [0.0, 0.1, 1.0]])
+    t, normal, r = cast(cl_device, scene, o, d)
+    want = intersect_scene(scene, o, d)
+    assert np.all(r == ref(L.PRIM_BOX, 0))
+    assert_rel(t, want.t, RTOL, "flat box t")
+    assert_normals(normal, want.normal, 0.0, "flat box normal")
+    assert want.normal[:, 2].tolist() == [1.0, -1.0]
+
+
 def test_rays_along_box_edges_and_faces_hit(cl_device):
     """Axis-aligned rays: zero direction components with the origin exactly on slab planes
     give (bound - o) * inf = 0 * inf = NaN, which must not turn the hit into a miss; one ulp
@@ -296,6 +312,42 @@ def test_axis_aligned_rays_on_bvh_slab_planes_reach_flat_primitives(cl_device):
     box, triangle = ref(L.PRIM_BOX, 0), ref(L.PRIM_TRIANGLE, 0)
     assert r.tolist() == [box, box, box, triangle, triangle, triangle, box]
     assert np.allclose(t, [5.0] * 6 + [5.0], rtol=RTOL)
+
+
+@pytest.mark.parametrize("precision", ["float", "double"])
+@pytest.mark.parametrize("traversal", ["single", "sample_packet"])
+def test_negative_zero_direction_components_on_slab_planes_hit(cl_device, precision, traversal):
+    """The rays of test_rays_along_box_edges_and_faces_hit with their zero components negative:
+    1 / -0 = -inf, and a slab test that picks the near plane by comparing the two t (one NaN)
+    kept (hi - o) * -inf = -inf as the far bound with the origin on lo (or +inf as the near one
+    with it on hi), and missed. A -0 is what negating or scaling a zero gives (a reflected or
+    flipped direction). Both the box's own test and the BVH nodes' (whose bounds are the
+    box's) must ignore the NaN, as for +0. The oracle: clray.reference, which takes any zero
+    component as parallel."""
+    if precision == "double" and "cl_khr_fp64" not in cl_device.extensions:
+        pytest.skip("no fp64")
+    lo, hi = (-1.0, -1.0, -6.0), (1.0, 2.0, -4.0)
+    scene = make_scene(M.Box(lo, hi, 0))
+    z = -0.0
+    rays = [
+        ((-1.0, 0.5, 0.0), (z, z, -1.0)),  # in the plane of the x = lo face
+        ((1.0, 0.5, 0.0), (z, z, -1.0)),  # in the plane of the x = hi face
+        ((0.5, -1.0, 0.0), (z, z, -1.0)),  # y = lo
+        ((0.5, 2.0, 0.0), (z, z, -1.0)),  # y = hi
+        ((-1.0, -1.0, 0.0), (z, z, -1.0)),  # along an edge
+        ((1.0, 2.0, -9.0), (z, z, 1.0)),  # along the opposite edge, from behind
+        ((-5.0, 2.0, -6.0), (1.0, z, z)),  # along x, on the y = hi and z = lo planes
+    ]
+    o = np.array([r[0] for r in rays])
+    d = np.array([r[1] for r in rays])
+    assert np.all(np.signbit(d[d == 0.0]))
+    packed = pack_scene(scene, width=4, height=4, spp=1, max_depth=0, seed=0,
+                        precision=precision, traversal=traversal)
+    t, _, r = intersect_rays(packed, cl_device, o, d)
+    want = intersect_scene(scene, o, d)
+    assert np.all(np.isfinite(want.t))
+    assert r.tolist() == [ref(L.PRIM_BOX, 0)] * len(rays), f"t = {t}"
+    assert_rel(t.astype(np.float64), want.t, RTOL, "t")
 
 
 # ---------------------------------------------------------------------------------------------
@@ -492,6 +544,34 @@ def test_cone_side_and_cap(cl_device):
     o = f32(aim + 4.0 * axis + 0.3 * random_units(rng, n))
     t = check_against_reference(cl_device, k, o, f32(aim - o), RTOL, "cone cap")
     assert np.all(np.abs(t - 1.0) < 1e-5)
+
+
+@pytest.mark.parametrize("distance", [100.0, 2000.0])
+def test_far_cone_side_hits_match_reference(cl_device, distance):
+    """Sideways rays from `distance` away (the cone is 2 high: well under the loader's 1e4
+    ratio, so no warning) aimed at axis points between 10 % and 90 % of the height: every ray
+    crosses the cone through its axis, with a chord of its own size. The discriminant
+    b^2 - a c from the far origin is the difference of two terms of order distance^2, whose
+    float32 roundings swamp it: ragged or missing sides, as the textbook sphere gives. Taken
+    from the line's point nearest the apex (as the sphere's and cylinder's Hearn-Baker form)
+    it keeps float32 accuracy. Normals are not compared: at this distance the hit point's own
+    float32 rounding moves them by more than the 1e-4 the near tests allow."""
+    rng = np.random.default_rng(17)
+    k = cone()
+    apex, axis = np.array(k.apex), -AXIS
+    n = 2000
+    perp = perpendicular_units(rng, np.broadcast_to(axis, (n, 3)))
+    aim = apex + rng.uniform(0.2, 1.8, (n, 1)) * axis
+    o = f32(aim + distance * perp + rng.uniform(-0.2, 0.2, (n, 1)) * distance * axis)
+    d = f32(aim - o)
+    scene = make_scene(k)
+    assert scene_warnings(scene) == ()
+    t, normal, r = cast(cl_device, scene, o, d)
+    want = intersect_scene(make_scene(f32_shape(k)), o, d)
+    assert np.all(np.isfinite(want.t)), "test rays must all hit in float64"
+    assert np.all(r >= 0), f"{np.sum(r < 0)} of {n} rays at the far cone missed"
+    assert_rel(t, want.t, RTOL, "far cone t")
+    assert np.allclose(np.linalg.norm(normal, axis=1), 1.0, atol=1e-5)
 
 
 def test_cone_apex(cl_device):

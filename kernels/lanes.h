@@ -57,6 +57,7 @@
     typedef uint##n UINTP;
 #define TO_REALP PACKET_PASTE(convert_double, PACKET_LANES)
 #define TO_MASKP PACKET_PASTE(convert_long, PACKET_LANES)
+#define SIGNS_P PACKET_PASTE(as_long, PACKET_LANES)
 #else
 #define PACKET_TYPES(n) \
     typedef float##n REALP; \
@@ -64,6 +65,7 @@
     typedef uint##n UINTP;
 #define TO_REALP PACKET_PASTE(convert_float, PACKET_LANES)
 #define TO_MASKP PACKET_PASTE(convert_int, PACKET_LANES)
+#define SIGNS_P PACKET_PASTE(as_int, PACKET_LANES)
 #endif
 
 #if PACKET_LANES == 16

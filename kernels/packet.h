@@ -56,7 +56,7 @@ HOT void consider_planes_lanes(const SceneRefs* s, const RayPacket* p, MASKP lan
 #endif
 
 // One axis of node_children's slab test (bvh.h), for one box against every lane.
-DEFINE_SLAB_AXIS(REALP, slab_axis_lanes)
+DEFINE_SLAB_AXIS(REALP, SIGNS_P, slab_axis_lanes)
 
 // Where each lane enters box c of a node, within [0, tmax]; crossed lanes in *crossed.
 HOT REALP box_lanes(const __global BvhNode* node, int c, const RayPacket* p, REALP tmax,

@@ -1337,7 +1337,7 @@ def _tune(args: argparse.Namespace) -> int:
 
 
 def _profile(args: argparse.Namespace) -> int:
-    from clray.profile import profile_scene
+    from clray.profile import part_text, profile_scene
 
     _check_stdout()
     with _warnings_as_lines(quiet=False, verbose=False):
@@ -1354,9 +1354,7 @@ def _profile(args: argparse.Namespace) -> int:
              f"rays: {rays['total']:,} ({rays['primary']:,} primary, {rays['secondary']:,} "
              f"secondary, {rays['shadow']:,} shadow); kernel {prof['kernel_s'] * 1e3:.3g} ms, "
              f"{prof['mrays_per_s']:.3g} Mrays/s (median of {prof['repeat']})"]
-    for part, v in prof["time_split"]["parts"].items():
-        rate = f"{v['mrays_per_s']:.3g} Mrays/s" if v["mrays_per_s"] else "-"
-        lines.append(f"  {part}: {v['kernel_s'] * 1e3:.3g} ms, {v['rays']:,} rays, {rate}")
+    lines += [f"  {part_text(name, part)}" for name, part in prof["time_split"]["parts"].items()]
 
     def per(value: float | None) -> str:
         return "-" if value is None else f"{value:.3g}"

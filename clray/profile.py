@@ -9,7 +9,11 @@ packed scene three ways and differencing the medians:
 - `primary_shadow`: max depth 0 with the lights: adds the shadow rays from primary hits;
 - `full`: the scene as given: adds reflected and refracted rays and their shadow rays.
 
-A part's figure carries the noise of two medians. Box and primitive tests come from the
+A part's figure carries the noise of two medians: where the variants' timed runs overlap (some run
+with the part's rays took no longer than some run without them) the difference is within that
+noise, and is reported as such (`within_noise`, with the range of the runs' differences), with
+no Mrays/s; a kind of ray the scene never traces (no lights, nothing that reflects) has no time.
+Box and primitive tests come from the
 instrumented build (KernelConfig.count_tests), rendered once and untimed: its counters cost time
 of their own. Build times are measured in new processes, so this process's program cache does
 not answer them: cold with every kernel cache a new process could be answered from empty
@@ -35,6 +39,7 @@ import tempfile
 import time
 from collections.abc import Mapping
 from pathlib import Path
+from typing import Any
 
 import pyopencl as cl
 
@@ -77,19 +82,54 @@ def time_split(packed: PackedScene, device: cl.Device, repeat: int) -> dict:
     t = {name: statistics.median(r) for name, r in runs.items()}
     primary_shadow_rays = rays["primary_shadow"]["shadow"]
     later_rays = rays["full"]["total"] - rays["primary_shadow"]["total"]
-    parts = {
-        "primary": (t["primary"], rays["full"]["primary"]),
-        "shadow_of_primary": (t["primary_shadow"] - t["primary"], primary_shadow_rays),
-        "secondary_and_their_shadow": (t["full"] - t["primary_shadow"], later_rays),
-    }
     return {
         "variant_kernel_s": t,
         "parts": {
-            name: {"kernel_s": s, "rays": n,
-                   "mrays_per_s": n / s * 1e-6 if s > 0 and n > 0 else None}
-            for name, (s, n) in parts.items()
+            "primary": _part(runs["primary"], None, rays["full"]["primary"]),
+            "shadow_of_primary": _part(runs["primary_shadow"], runs["primary"],
+                                       primary_shadow_rays),
+            "secondary_and_their_shadow": _part(runs["full"], runs["primary_shadow"],
+                                                later_rays),
         },
     }
+
+
+def _part(runs: list[float], without: list[float] | None, rays: int) -> dict:
+    """One kind of ray's figures: its `rays` and kernel seconds, the median of `runs`, less the
+    median of the runs `without` those rays where given. A kind with no rays has no time: the
+    difference of two variants that trace the same rays is noise alone, and may be negative.
+    A difference is `within_noise` where the two variants' runs overlap, so that not every run
+    with the rays took longer than every run without them: a negative difference always is,
+    and its rate would be noise."""
+    if rays == 0:
+        return {"kernel_s": 0.0, "rays": 0, "mrays_per_s": None, "within_noise": False,
+                "difference_range_s": None}
+    seconds = statistics.median(runs)
+    spread = None
+    if without is not None:
+        seconds -= statistics.median(without)
+        # Every run with the rays against every run without: the least and the most it took.
+        spread = [min(runs) - max(without), max(runs) - min(without)]
+    within = spread is not None and spread[0] <= 0
+    return {"kernel_s": seconds, "rays": rays,
+            "mrays_per_s": None if within or seconds <= 0 else rays / seconds * 1e-6,
+            "within_noise": within, "difference_range_s": spread}
+
+
+def part_text(name: str, part: Mapping[str, Any]) -> str:
+    """One kind of ray's line of the profile, as `clray profile` and benchmarks/bench.py print
+    it: its time and rate, "no rays" where the scene traces none, and where its time is within
+    the noise of the timed runs, that and the range of the runs' differences, not a duration
+    (which could be negative)."""
+    rays = part["rays"]
+    if rays == 0:
+        return f"{name}: no rays"
+    if part["within_noise"]:
+        low, high = part["difference_range_s"]
+        return (f"{name}: within noise (runs differ by {low * 1e3:.3g} to {high * 1e3:.3g} ms), "
+                f"{rays:,} rays, -")
+    rate = "-" if part["mrays_per_s"] is None else f"{part['mrays_per_s']:.3g} Mrays/s"
+    return f"{name}: {part['kernel_s'] * 1e3:.3g} ms, {rays:,} rays, {rate}"
 
 
 def tests_per_ray(packed: PackedScene, device: cl.Device) -> dict:

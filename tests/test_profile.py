@@ -101,6 +101,90 @@ def test_profile_prints_a_summary(cl_device, capsys) -> None:
     assert lines[7].startswith("scene on device: ")
 
 
+# A sphere that reflects nothing, and no lights: only primary rays are ever traced.
+NO_LIGHTS = """
+[render]
+width = 16
+height = 10
+max_depth = 4
+[camera]
+position = [0, 0, 5]
+look_at = [0, 0, 0]
+[materials.matte]
+color = [0.8, 0.2, 0.2]
+[[objects]]
+type = "sphere"
+center = [0, 0, 0]
+radius = 1
+material = "matte"
+"""
+
+
+def test_profile_gives_no_time_to_kinds_of_ray_never_traced(cl_device, capsys,
+                                                            tmp_scene) -> None:
+    # Their times were differences of renders tracing the same rays, noise alone: -9.47 ms.
+    scene = tmp_scene(NO_LIGHTS)
+    assert cli.main(["profile", str(scene), "--repeat", "3", "--json"]) == 0
+    parts = json.loads(capsys.readouterr().out)["time_split"]["parts"]
+    for name in ("shadow_of_primary", "secondary_and_their_shadow"):
+        assert parts[name]["rays"] == 0
+        assert parts[name]["kernel_s"] == 0.0
+        assert parts[name]["mrays_per_s"] is None
+    assert cli.main(["profile", str(scene), "--repeat", "3"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[3:5] == ["  shadow_of_primary: no rays", "  secondary_and_their_shadow: no rays"]
+
+
+def _scripted_split(monkeypatch: pytest.MonkeyPatch, kernel_s: dict[str, list[float]],
+                    repeat: int) -> dict:
+    """time_split of variants whose timed runs take `kernel_s` seconds by variant, in turn,
+    each tracing rays of every kind."""
+    def variant(packed: str, *, depth0: bool, lights: bool) -> str:
+        return "primary" if not lights else "primary_shadow" if depth0 else "full"
+
+    rays = {"primary": {"primary": 100, "secondary": 0, "shadow": 0, "total": 100},
+            "primary_shadow": {"primary": 100, "secondary": 0, "shadow": 200, "total": 300},
+            "full": {"primary": 100, "secondary": 50, "shadow": 250, "total": 400}}
+    left = {name: [0.0, *times] for name, times in kernel_s.items()}  # a warm-up first
+
+    def render_packed(name: str, device: object) -> tuple[None, dict]:
+        return None, {"kernel_s": left[name].pop(0), "rays": rays[name]}
+
+    monkeypatch.setattr(profile, "_variant", variant)
+    monkeypatch.setattr(profile, "render_packed", render_packed)
+    return profile.time_split("full", None, repeat)["parts"]
+
+
+def test_a_difference_within_the_runs_spread_is_no_duration(monkeypatch) -> None:
+    # With the lights, runs of 1.0 to 1.4 ms against 1.1 to 1.3 ms without: the medians differ
+    # by -0.1 ms, which is no time the shadow rays took.
+    parts = _scripted_split(monkeypatch, {"primary": [1.1e-3, 1.2e-3, 1.3e-3],
+                                          "primary_shadow": [1.0e-3, 1.1e-3, 1.4e-3],
+                                          "full": [3.0e-3, 3.1e-3, 3.2e-3]}, 3)
+    shadow = parts["shadow_of_primary"]
+    assert shadow["within_noise"] is True
+    assert shadow["mrays_per_s"] is None
+    assert shadow["difference_range_s"] == pytest.approx([1.0e-3 - 1.3e-3, 1.4e-3 - 1.1e-3])
+    assert profile.part_text("shadow_of_primary", shadow) == (
+        "shadow_of_primary: within noise (runs differ by -0.3 to 0.3 ms), 200 rays, -")
+    # Every run with the secondary rays slower than every run without: a duration.
+    later = parts["secondary_and_their_shadow"]
+    assert later["within_noise"] is False
+    assert later["kernel_s"] == pytest.approx(3.1e-3 - 1.1e-3)
+    assert later["mrays_per_s"] == pytest.approx(100 / 2.0e-3 * 1e-6)
+    assert profile.part_text("secondary_and_their_shadow", later) == (
+        "secondary_and_their_shadow: 2 ms, 100 rays, 0.05 Mrays/s")
+
+
+def test_a_single_run_resolves_any_difference_but_a_negative_one(monkeypatch) -> None:
+    # One run a variant has no spread: only a difference of 0 or less is no duration.
+    parts = _scripted_split(monkeypatch, {"primary": [2.0e-3], "primary_shadow": [1.5e-3],
+                                          "full": [1.6e-3]}, 1)
+    assert parts["shadow_of_primary"]["within_noise"] is True
+    assert parts["secondary_and_their_shadow"]["within_noise"] is False
+    assert parts["secondary_and_their_shadow"]["kernel_s"] == pytest.approx(0.1e-3)
+
+
 def test_a_failed_build_process_is_its_own_device_error(cl_device) -> None:
     # The new process refuses the option before it builds: its DeviceError, not a
     # CalledProcessError with the config dumped in it.

@@ -508,8 +508,12 @@ def _parse(argv: list[str] | None) -> argparse.Namespace:
     from clray.sequence import frame_path
 
     top = _build_parser()
-    args = top.parse_args(argv)
+    # Known arguments first: argparse's own parse_args says of a flag no command has "see
+    # 'clray --help'", which lists the commands, not the flags of the one given.
+    args, unknown = top.parse_known_args(argv)
     parser = top.commands[args.command]
+    if unknown:
+        parser.error(f"unrecognized arguments: {' '.join(unknown)}")
     if args.command in ("render", "study"):
         if args.dask is None:
             given = [flag for flag, value in (("--dask-workers", args.dask_workers),

@@ -172,6 +172,17 @@ def test_usage_errors_after_parsing_point_to_the_commands_help(capsys, scene) ->
     assert err.endswith("(see 'clray study --help')\n")
 
 
+@pytest.mark.parametrize("command", [["render", "s.toml"], ["profile", "s.toml"], ["devices"],
+                                     ["tune", "s.toml"], ["study", "s.toml", "--out", "d"],
+                                     ["scene", "m.obj"]])
+def test_an_unknown_flag_points_to_the_commands_help(capsys, command) -> None:
+    # It pointed to 'clray --help', which lists the commands, not the flags of the one given.
+    code, _, err = run(capsys, *command, "--bogus")
+    assert code == 2
+    assert err == ("clray: error: unrecognized arguments: --bogus "
+                   f"(see 'clray {command[0]} --help')\n")
+
+
 def test_a_write_error_names_the_file_that_failed(tmp_path) -> None:
     # An image's write writes its pass files too; one of theirs was said as the image's.
     blocker = tmp_path / "out.depth.pfm"

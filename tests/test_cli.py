@@ -451,6 +451,17 @@ def test_devices_still_lists_where_clray_device_names_none(capsys, cl_device,
     assert "renders by default" not in out
 
 
+def test_a_render_names_the_clray_device_that_matches_none(capsys, scene, cl_device,
+                                                          monkeypatch) -> None:
+    # The error named the spec alone, which no flag given held: the variable is what to mend.
+    monkeypatch.setenv("CLRAY_DEVICE", "no-such-device")
+    code, _, err = run(capsys, "render", scene, *TINY, "-o", "out.png")
+    assert code == 4
+    assert_one_error_line(err)
+    assert err.startswith("clray: error: CLRAY_DEVICE='no-such-device': no OpenCL device "
+                          "matches 'no-such-device' (devices: ")
+
+
 def test_python_dash_m_clray(cl_device, scene, tmp_path) -> None:
     done = subprocess.run([sys.executable, "-m", "clray", "render", str(scene), *TINY,
                            "-o", "sub.png"], capture_output=True, text=True, cwd=tmp_path,

@@ -857,8 +857,12 @@ class _ProgressLines:
 class _ProgressBar:
     """A tqdm bar on stderr, made at the first report so that it measures the launches only."""
 
-    def __init__(self) -> None:
+    def __init__(self, desc: str = "clray: rendering", unit: str = "samples",
+                 unit_scale: bool = True) -> None:
         self.bar: Any = None  # a tqdm bar
+        self.desc = desc
+        self.unit = unit
+        self.unit_scale = unit_scale  # 1.2M samples, but 3/14 steps
 
     def __call__(self, done: int, total: int) -> None:
         if self.bar is None:
@@ -867,14 +871,22 @@ class _ProgressBar:
             from tqdm import tqdm
 
             # leave=False: the bar is erased when it closes, and the summary line says it all.
-            self.bar = tqdm(total=total, desc="clray: rendering", unit="samples",
-                            unit_scale=True, file=sys.stderr, leave=False, dynamic_ncols=True)
+            self.bar = tqdm(total=total, desc=self.desc, unit=self.unit,
+                            unit_scale=self.unit_scale, file=sys.stderr, leave=False,
+                            dynamic_ncols=True)
         self.bar.update(done - self.bar.n)
 
     def note_tiles(self, done: int, submitted: int) -> None:
         # A distributed render's tiles, as they arrive from the cluster's workers.
         if self.bar is not None:
             self.bar.set_postfix_str(f"{done}/{plural(submitted, 'tile')}")
+
+    def step(self, done: int, total: int, what: str) -> None:
+        """`clray profile`'s steps, each named as it starts."""
+        if self.bar is not None:  # named with the count, in one refresh
+            self.bar.set_postfix_str(what, refresh=False)
+        self(done, total)
+        self.bar.set_postfix_str(what)
 
     def close(self) -> None:
         if self.bar is not None:
@@ -1348,7 +1360,17 @@ def _profile(args: argparse.Namespace) -> int:
         settings = RenderSettings(width=args.width, height=args.height, spp=args.spp,
                                   device=args.device, stored_tuning=args.stored_tuning,
                                   traversal=args.traversal)
-        prof = profile_scene(args.scene, settings, args.repeat, _load(args))
+        scene = _load(args)
+        # On a terminal, as a render's: the profile's builds and renders take minutes on a
+        # large scene, and without it nothing showed until the end.
+        bar = (_ProgressBar("clray: profiling", " steps", unit_scale=False)
+               if sys.stderr.isatty() else None)
+        try:
+            prof = profile_scene(args.scene, settings, args.repeat, scene,
+                                 progress=None if bar is None else bar.step)
+        finally:
+            if bar is not None:
+                bar.close()
     if args.json:
         _print_out(json.dumps(prof, indent=2) + "\n")
         return EXIT_OK

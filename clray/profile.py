@@ -37,7 +37,7 @@ import subprocess
 import sys
 import tempfile
 import time
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -64,18 +64,26 @@ def _variant(packed: PackedScene, *, depth0: bool, lights: bool) -> PackedScene:
     return dataclasses.replace(packed, config=config, params=params)
 
 
-def time_split(packed: PackedScene, device: cl.Device, repeat: int) -> dict:
-    """Kernel seconds and Mrays/s per kind of ray, from the three variants above."""
+# The variants time_split renders, each a warm-up and then `repeat` timed runs.
+VARIANTS = ("primary", "primary_shadow", "full")
+
+
+def time_split(packed: PackedScene, device: cl.Device, repeat: int,
+               step: Callable[[str], None] = lambda _: None) -> dict:
+    """Kernel seconds and Mrays/s per kind of ray, from the three variants above. `step` hears
+    what each render is as it starts."""
     variants = {"primary": _variant(packed, depth0=True, lights=False),
                 "primary_shadow": _variant(packed, depth0=True, lights=True),
                 "full": packed}
     # Interleave the variants' runs so load changes spread over all three.
     runs: dict[str, list[float]] = {name: [] for name in variants}
     rays: dict[str, dict] = {}
-    for variant in variants.values():
+    for name, variant in variants.items():
+        step(f"{name} warm-up")
         render_packed(variant, device)  # build and warm-up
-    for _ in range(repeat):
+    for run in range(repeat):
         for name, variant in variants.items():
+            step(f"{name} run {run + 1} of {repeat}")
             _, stats = render_packed(variant, device)
             runs[name].append(stats["kernel_s"])
             rays[name] = stats["rays"]
@@ -234,15 +242,39 @@ def _build_only(config_json: str, device_spec: str | None) -> None:
     print(json.dumps({"build_s": seconds, "context_s": context_s}))
 
 
+def profile_steps(repeat: int) -> int:
+    """The steps of profile_scene: the builds, cold and warm, each variant's warm-up and timed
+    runs, the render of the COUNT_TESTS build and the render whose stats are reported."""
+    return 2 + len(VARIANTS) * (1 + repeat) + 2
+
+
 def profile_scene(path: Path, settings: RenderSettings, repeat: int = 3,
-                  scene: Scene | None = None) -> dict:
+                  scene: Scene | None = None,
+                  progress: Callable[[int, int, str], None] | None = None) -> dict:
     """The whole profile of the scene at `path` (or of `scene`, where given, loaded from it:
-    a mesh file's automatic scene) rendered with `settings` on its device."""
+    a mesh file's automatic scene) rendered with `settings` on its device. `progress` hears
+    (steps done, steps in all, what the next is) before each step (profile_steps), and
+    (all, all, "done") at the end: on a large scene the whole takes minutes."""
+    total = profile_steps(repeat)
+    done = 0
+
+    def step(what: str, count: int = 1) -> None:
+        nonlocal done
+        if progress is not None:
+            progress(done, total, what)
+        done += count
+
     device = select_device(settings.device)
     packed = pack_for(scene if scene is not None else load_scene(path), settings, device)
+    step("kernel build in new processes, cold and warm", 2)
     cold, warm = cold_and_warm_build(packed.config, settings.device)
-    split = time_split(packed, device, repeat)
+    split = time_split(packed, device, repeat, step)
+    step("rays and device bytes")
     _, stats = render_packed(packed, device)
+    step("box and primitive tests (the COUNT_TESTS build)")
+    tests = tests_per_ray(packed, device)
+    if progress is not None:
+        progress(total, total, "done")
     width, height = int(packed.params[0]["width"]), int(packed.params[0]["height"])
     return {
         "scene": str(path),
@@ -257,7 +289,7 @@ def profile_scene(path: Path, settings: RenderSettings, repeat: int = 3,
         "kernel_s": split["variant_kernel_s"]["full"],
         "mrays_per_s": stats["rays"]["total"] / split["variant_kernel_s"]["full"] * 1e-6,
         "time_split": split,
-        "tests_per_ray": tests_per_ray(packed, device),
+        "tests_per_ray": tests,
         "build_cold_s": cold,
         "build_warm_s": warm,
         "device_bytes": packed.device_bytes(),

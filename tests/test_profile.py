@@ -2,11 +2,17 @@
 
 from __future__ import annotations
 
+import contextlib
+import fcntl
 import json
 import os
+import pty
+import re
+import struct
 import subprocess
 import sys
 import tempfile
+import termios
 from pathlib import Path
 
 import pyopencl as cl
@@ -183,6 +189,36 @@ def test_a_single_run_resolves_any_difference_but_a_negative_one(monkeypatch) ->
     assert parts["shadow_of_primary"]["within_noise"] is True
     assert parts["secondary_and_their_shadow"]["within_noise"] is False
     assert parts["secondary_and_their_shadow"]["kernel_s"] == pytest.approx(0.1e-3)
+
+
+def test_profile_shows_its_steps_on_a_terminal(cl_device, tmp_path) -> None:
+    # Its builds and renders take minutes on a large scene, and nothing showed until the end.
+    leader, follower = pty.openpty()
+    # A new pseudo-terminal is 0 columns wide, where tqdm draws nothing.
+    fcntl.ioctl(follower, termios.TIOCSWINSZ, struct.pack("HHHH", 24, 120, 0, 0))
+    done = subprocess.run([sys.executable, "-m", "clray", "profile", str(SPHERES), "-W", "8",
+                           "-H", "6", "--repeat", "2"], stderr=follower, stdout=subprocess.PIPE,
+                          cwd=tmp_path, check=False, timeout=300)
+    os.close(follower)
+    chunks = []
+    with contextlib.suppress(OSError):  # Linux ends a drained pty with EIO
+        while chunk := os.read(leader, 4096):
+            chunks.append(chunk)
+    os.close(leader)
+    shown = b"".join(chunks).decode()
+    assert done.returncode == 0, shown
+    steps = profile.profile_steps(2)
+    assert steps == 2 + 3 * 3 + 2
+    assert re.match(r"\rclray: profiling: +0%\|", shown), repr(shown)
+    named = re.findall(rf"\| (\d+)/{steps} \[[^],]*, [^],]*, ([^]]*)\]", shown)
+    # Each step named as it starts, with the count of those done before it.
+    assert (("0", "kernel build in new processes, cold and warm") in named
+            and ("10", "full run 2 of 2") in named
+            and ("12", "box and primitive tests (the COUNT_TESTS build)") in named
+            and named[-1] == (str(steps), "done")), named
+    # The bar is erased before the command ends; the profile itself is on stdout.
+    assert shown.rstrip("\r").split("\r")[-1].strip() == ""
+    assert done.stdout.decode().startswith(f"{SPHERES}: 8x6, 1 spp on ")
 
 
 def test_a_failed_build_process_is_its_own_device_error(cl_device) -> None:

@@ -133,9 +133,10 @@ def part_text(name: str, part: Mapping[str, Any]) -> str:
     if rays == 0:
         return f"{name}: no rays"
     if part["within_noise"]:
-        low, high = part["difference_range_s"]
-        return (f"{name}: within noise (runs differ by {low * 1e3:.3g} to {high * 1e3:.3g} ms), "
-                f"{rays:,} rays, -")
+        low, high = (f"{s * 1e3:.3g}" for s in part["difference_range_s"])
+        # One run a variant (--repeat 1) gives one difference, not a range.
+        by = low if low == high else f"{low} to {high}"
+        return f"{name}: within noise (runs differ by {by} ms), {rays:,} rays, -"
     rate = "-" if part["mrays_per_s"] is None else f"{part['mrays_per_s']:.3g} Mrays/s"
     return f"{name}: {part['kernel_s'] * 1e3:.3g} ms, {rays:,} rays, {rate}"
 

@@ -187,6 +187,8 @@ def test_a_single_run_resolves_any_difference_but_a_negative_one(monkeypatch) ->
     parts = _scripted_split(monkeypatch, {"primary": [2.0e-3], "primary_shadow": [1.5e-3],
                                           "full": [1.6e-3]}, 1)
     assert parts["shadow_of_primary"]["within_noise"] is True
+    assert profile.part_text("shadow_of_primary", parts["shadow_of_primary"]) == (
+        "shadow_of_primary: within noise (runs differ by -0.5 ms), 200 rays, -")
     assert parts["secondary_and_their_shadow"]["within_noise"] is False
     assert parts["secondary_and_their_shadow"]["kernel_s"] == pytest.approx(0.1e-3)
 

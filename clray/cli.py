@@ -237,7 +237,8 @@ def _render_command(commands: Any) -> None:
                    help=f"output image, by suffix: {', '.join(SUFFIXES)} (.png is 8- or "
                         "16-bit, sRGB unless --linear, clamped to [0, 1] after --exposure; .pfm "
                         "and .exr are float32 linear radiance, every value kept; .exr needs "
-                        "pip install 'clray[exr]'); '-' writes PNG to standard output; default: "
+                        "pip install 'clray[exr]'); '-' writes PNG to standard output (not a "
+                        "terminal); default: "
                         "SCENE's stem + .png in the current directory")
     r.add_argument("-W", "--width", type=_image_size, metavar="N", help="image width in pixels")
     r.add_argument("-H", "--height", type=_image_size, metavar="N", help="image height in pixels")
@@ -556,6 +557,11 @@ def _parse(argv: list[str] | None) -> argparse.Namespace:
         _check_still_output(parser, args)
         if args.stats_json == STDOUT and args.output == STDOUT:
             parser.error("-o - and --stats-json - would both write to standard output")
+        if args.output == STDOUT and sys.stdout is not None and sys.stdout.isatty():
+            # A PNG's bytes on a terminal are noise, and can leave it in a state that needs a
+            # reset; gzip and curl refuse the same.
+            parser.error("-o - writes the PNG to standard output, which is a terminal: "
+                         "redirect it (> out.png) or pipe it, or give -o a file name")
         if args.stats_json is not None and _same_file(args.stats_json, args.output):
             parser.error(f"--stats-json and the output image are the same file: {args.output}")
         if args.stats_json not in (None, STDOUT) and _same_file(args.stats_json, args.scene):

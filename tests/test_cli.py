@@ -183,6 +183,16 @@ def test_an_unknown_flag_points_to_the_commands_help(capsys, command) -> None:
                    f"(see 'clray {command[0]} --help')\n")
 
 
+def test_an_image_is_not_written_to_a_terminal(capsys, scene, monkeypatch) -> None:
+    # `-o -` at a prompt wrote the PNG's bytes to the terminal.
+    monkeypatch.setattr(sys.stdout, "isatty", lambda: True)
+    code, out, err = run(capsys, "render", scene, *TINY, "-o", "-")
+    assert (code, out) == (2, "")
+    assert err == ("clray: error: -o - writes the PNG to standard output, which is a terminal: "
+                   "redirect it (> out.png) or pipe it, or give -o a file name "
+                   "(see 'clray render --help')\n")
+
+
 def test_a_write_error_names_the_file_that_failed(tmp_path) -> None:
     # An image's write writes its pass files too; one of theirs was said as the image's.
     blocker = tmp_path / "out.depth.pfm"

@@ -404,8 +404,10 @@ def _devices_command(commands: Any) -> None:
     """`clray devices`."""
     d = commands.add_parser("devices", help="list OpenCL devices, one per line",
                             description="List OpenCL devices: spec, type, name, platform, "
-                                        "compute units, fp64 support, driver version, and "
-                                        "whether `clray tune` left a tuning file for it.")
+                                        "compute units, fp64 support, driver version, "
+                                        "whether `clray tune` left a tuning file for it, and "
+                                        "which one renders by default (without --device), "
+                                        "and why.")
     d.set_defaults(run=_devices)
 
 

@@ -449,6 +449,16 @@ def test_devices_lists_one_line_per_device(capsys, cl_device) -> None:
     assert any(cl_device.name.strip() in line for line in lines)
 
 
+def test_devices_help_says_what_its_columns_are(capsys) -> None:
+    # It left out the last: which device renders by default, and why.
+    code, out, _ = run(capsys, "devices", "--help")
+    assert code == 0
+    text = " ".join(out.split())
+    for column in ("spec", "type", "name", "platform", "compute units", "fp64",
+                   "driver version", "tuning file", "renders by default"):
+        assert column in text
+
+
 def test_devices_still_lists_where_clray_device_names_none(capsys, cl_device,
                                                            monkeypatch) -> None:
     """A bad CLRAY_DEVICE is what `clray devices` is run to mend: the list, then the error."""

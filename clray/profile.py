@@ -9,21 +9,21 @@ packed scene three ways and differencing the medians:
 - `primary_shadow`: max depth 0 with the lights: adds the shadow rays from primary hits;
 - `full`: the scene as given: adds reflected and refracted rays and their shadow rays.
 
-A part's figure carries the noise of two medians: where the variants' timed runs overlap (some run
-with the part's rays took no longer than some run without them) the difference is within that
-noise, and is reported as such (`within_noise`, with the range of the runs' differences), with
-no Mrays/s; a kind of ray the scene never traces (no lights, nothing that reflects) has no time.
-Box and primitive tests come from the
-instrumented build (KernelConfig.count_tests), rendered once and untimed: its counters cost time
-of their own. Build times are measured in new processes, so this process's program cache does
-not answer them: cold with every kernel cache a new process could be answered from empty
-(PoCL's, pyopencl's binary cache, which it keeps for drivers without one of their own such as
-Intel's CPU runtime, and NVIDIA's compute cache: `cache_env`), warm with those caches as the
-cold build left them, as a user's second run finds them. A cache the environment turns off
-(PYOPENCL_NO_CACHE, CUDA_CACHE_DISABLE) stays off in both. Both time `clBuildProgram` only:
-PoCL compiles the work-group function at a kernel's first launch, about as long again on the
-CPU, which `benchmarks/cold_build.py` adds (docs/acceleration.md, The cold build a new user
-waits for).
+A part's figure carries the noise of two medians: where the variants' timed runs overlap (some
+run with the part's rays took no longer than some run without them) the difference is within
+that noise, and is reported as such (`within_noise`, with the range of the runs' differences),
+with no Mrays/s; a kind of ray the scene never traces (no lights, nothing that reflects) has no
+time. Box and primitive tests come from the instrumented build (KernelConfig.count_tests),
+rendered once and untimed: its counters cost time of their own.
+
+Build times are measured in new processes, so this process's program cache does not answer them:
+cold with every kernel cache a new process could be answered from empty (PoCL's, pyopencl's
+binary cache, which it keeps for drivers without one of their own such as Intel's CPU runtime,
+and NVIDIA's compute cache: `cache_env`), warm with those caches as the cold build left them, as
+a user's second run finds them. A cache the environment turns off (PYOPENCL_NO_CACHE,
+CUDA_CACHE_DISABLE) stays off in both. Both time `clBuildProgram` only: PoCL compiles the
+work-group function at a kernel's first launch, about as long again on the CPU, which
+`benchmarks/cold_build.py` adds (docs/acceleration.md, The cold build a new user waits for).
 """
 
 from __future__ import annotations

@@ -365,8 +365,7 @@ def print_scene(r: dict, repeat: int) -> None:
     print(f"  whole command {r['command_wall_s']:.3f} s wall (median of {COMMAND_RUNS})")
     if "time_split" in r:
         for part, v in r["time_split"]["parts"].items():
-            rate = f"{v['mrays_per_s']:.1f} Mrays/s" if v["mrays_per_s"] else "-"
-            print(f"  {part}: {v['kernel_s']:.3f} s, {v['rays']:,} rays, {rate}")
+            print(f"  {profile.part_text(part, v)}")
         t = r["tests_per_ray"]
         print(f"  per closest-hit ray: {t['closest_boxes_per_ray']:.1f} boxes, "
               f"{t['closest_prims_per_ray']:.2f} primitives; per shadow ray: "

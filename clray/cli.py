@@ -237,7 +237,8 @@ def _render_command(commands: Any) -> None:
                    help=f"output image, by suffix: {', '.join(SUFFIXES)} (.png is 8- or "
                         "16-bit, sRGB unless --linear, clamped to [0, 1] after --exposure; .pfm "
                         "and .exr are float32 linear radiance, every value kept; .exr needs "
-                        "pip install 'clray[exr]'); '-' writes PNG to standard output; default: "
+                        "pip install 'clray[exr]'); '-' writes PNG to standard output (not a "
+                        "terminal); default: "
                         "SCENE's stem + .png in the current directory")
     r.add_argument("-W", "--width", type=_image_size, metavar="N", help="image width in pixels")
     r.add_argument("-H", "--height", type=_image_size, metavar="N", help="image height in pixels")
@@ -403,8 +404,10 @@ def _devices_command(commands: Any) -> None:
     """`clray devices`."""
     d = commands.add_parser("devices", help="list OpenCL devices, one per line",
                             description="List OpenCL devices: spec, type, name, platform, "
-                                        "compute units, fp64 support, driver version, and "
-                                        "whether `clray tune` left a tuning file for it.")
+                                        "compute units, fp64 support, driver version, "
+                                        "whether `clray tune` left a tuning file for it, and "
+                                        "which one renders by default (without --device), "
+                                        "and why.")
     d.set_defaults(run=_devices)
 
 
@@ -508,8 +511,12 @@ def _parse(argv: list[str] | None) -> argparse.Namespace:
     from clray.sequence import frame_path
 
     top = _build_parser()
-    args = top.parse_args(argv)
+    # Known arguments first: argparse's own parse_args says of a flag no command has "see
+    # 'clray --help'", which lists the commands, not the flags of the one given.
+    args, unknown = top.parse_known_args(argv)
     parser = top.commands[args.command]
+    if unknown:
+        parser.error(f"unrecognized arguments: {' '.join(unknown)}")
     if args.command in ("render", "study"):
         if args.dask is None:
             given = [flag for flag, value in (("--dask-workers", args.dask_workers),
@@ -552,6 +559,11 @@ def _parse(argv: list[str] | None) -> argparse.Namespace:
         _check_still_output(parser, args)
         if args.stats_json == STDOUT and args.output == STDOUT:
             parser.error("-o - and --stats-json - would both write to standard output")
+        if args.output == STDOUT and sys.stdout is not None and sys.stdout.isatty():
+            # A PNG's bytes on a terminal are noise, and can leave it in a state that needs a
+            # reset; gzip and curl refuse the same.
+            parser.error("-o - writes the PNG to standard output, which is a terminal: "
+                         "redirect it (> out.png) or pipe it, or give -o a file name")
         if args.stats_json is not None and _same_file(args.stats_json, args.output):
             parser.error(f"--stats-json and the output image are the same file: {args.output}")
         if args.stats_json not in (None, STDOUT) and _same_file(args.stats_json, args.scene):
@@ -853,8 +865,12 @@ class _ProgressLines:
 class _ProgressBar:
     """A tqdm bar on stderr, made at the first report so that it measures the launches only."""
 
-    def __init__(self) -> None:
+    def __init__(self, desc: str = "clray: rendering", unit: str = "samples",
+                 unit_scale: bool = True) -> None:
         self.bar: Any = None  # a tqdm bar
+        self.desc = desc
+        self.unit = unit
+        self.unit_scale = unit_scale  # 1.2M samples, but 3/14 steps
 
     def __call__(self, done: int, total: int) -> None:
         if self.bar is None:
@@ -863,14 +879,22 @@ class _ProgressBar:
             from tqdm import tqdm
 
             # leave=False: the bar is erased when it closes, and the summary line says it all.
-            self.bar = tqdm(total=total, desc="clray: rendering", unit="samples",
-                            unit_scale=True, file=sys.stderr, leave=False, dynamic_ncols=True)
+            self.bar = tqdm(total=total, desc=self.desc, unit=self.unit,
+                            unit_scale=self.unit_scale, file=sys.stderr, leave=False,
+                            dynamic_ncols=True)
         self.bar.update(done - self.bar.n)
 
     def note_tiles(self, done: int, submitted: int) -> None:
         # A distributed render's tiles, as they arrive from the cluster's workers.
         if self.bar is not None:
             self.bar.set_postfix_str(f"{done}/{plural(submitted, 'tile')}")
+
+    def step(self, done: int, total: int, what: str) -> None:
+        """`clray profile`'s steps, each named as it starts."""
+        if self.bar is not None:  # named with the count, in one refresh
+            self.bar.set_postfix_str(what, refresh=False)
+        self(done, total)
+        self.bar.set_postfix_str(what)
 
     def close(self) -> None:
         if self.bar is not None:
@@ -1337,14 +1361,24 @@ def _tune(args: argparse.Namespace) -> int:
 
 
 def _profile(args: argparse.Namespace) -> int:
-    from clray.profile import profile_scene
+    from clray.profile import part_text, profile_scene
 
     _check_stdout()
     with _warnings_as_lines(quiet=False, verbose=False):
         settings = RenderSettings(width=args.width, height=args.height, spp=args.spp,
                                   device=args.device, stored_tuning=args.stored_tuning,
                                   traversal=args.traversal)
-        prof = profile_scene(args.scene, settings, args.repeat, _load(args))
+        scene = _load(args)
+        # On a terminal, as a render's: the profile's builds and renders take minutes on a
+        # large scene, and without it nothing showed until the end.
+        bar = (_ProgressBar("clray: profiling", " steps", unit_scale=False)
+               if sys.stderr.isatty() else None)
+        try:
+            prof = profile_scene(args.scene, settings, args.repeat, scene,
+                                 progress=None if bar is None else bar.step)
+        finally:
+            if bar is not None:
+                bar.close()
     if args.json:
         _print_out(json.dumps(prof, indent=2) + "\n")
         return EXIT_OK
@@ -1354,9 +1388,7 @@ def _profile(args: argparse.Namespace) -> int:
              f"rays: {rays['total']:,} ({rays['primary']:,} primary, {rays['secondary']:,} "
              f"secondary, {rays['shadow']:,} shadow); kernel {prof['kernel_s'] * 1e3:.3g} ms, "
              f"{prof['mrays_per_s']:.3g} Mrays/s (median of {prof['repeat']})"]
-    for part, v in prof["time_split"]["parts"].items():
-        rate = f"{v['mrays_per_s']:.3g} Mrays/s" if v["mrays_per_s"] else "-"
-        lines.append(f"  {part}: {v['kernel_s'] * 1e3:.3g} ms, {v['rays']:,} rays, {rate}")
+    lines += [f"  {part_text(name, part)}" for name, part in prof["time_split"]["parts"].items()]
 
     def per(value: float | None) -> str:
         return "-" if value is None else f"{value:.3g}"

@@ -9,17 +9,21 @@ packed scene three ways and differencing the medians:
 - `primary_shadow`: max depth 0 with the lights: adds the shadow rays from primary hits;
 - `full`: the scene as given: adds reflected and refracted rays and their shadow rays.
 
-A part's figure carries the noise of two medians. Box and primitive tests come from the
-instrumented build (KernelConfig.count_tests), rendered once and untimed: its counters cost time
-of their own. Build times are measured in new processes, so this process's program cache does
-not answer them: cold with every kernel cache a new process could be answered from empty
-(PoCL's, pyopencl's binary cache, which it keeps for drivers without one of their own such as
-Intel's CPU runtime, and NVIDIA's compute cache: `cache_env`), warm with those caches as the
-cold build left them, as a user's second run finds them. A cache the environment turns off
-(PYOPENCL_NO_CACHE, CUDA_CACHE_DISABLE) stays off in both. Both time `clBuildProgram` only:
-PoCL compiles the work-group function at a kernel's first launch, about as long again on the
-CPU, which `benchmarks/cold_build.py` adds (docs/acceleration.md, The cold build a new user
-waits for).
+A part's figure carries the noise of two medians: where the variants' timed runs overlap (some
+run with the part's rays took no longer than some run without them) the difference is within
+that noise, and is reported as such (`within_noise`, with the range of the runs' differences),
+with no Mrays/s; a kind of ray the scene never traces (no lights, nothing that reflects) has no
+time. Box and primitive tests come from the instrumented build (KernelConfig.count_tests),
+rendered once and untimed: its counters cost time of their own.
+
+Build times are measured in new processes, so this process's program cache does not answer them:
+cold with every kernel cache a new process could be answered from empty (PoCL's, pyopencl's
+binary cache, which it keeps for drivers without one of their own such as Intel's CPU runtime,
+and NVIDIA's compute cache: `cache_env`), warm with those caches as the cold build left them, as
+a user's second run finds them. A cache the environment turns off (PYOPENCL_NO_CACHE,
+CUDA_CACHE_DISABLE) stays off in both. Both time `clBuildProgram` only: PoCL compiles the
+work-group function at a kernel's first launch, about as long again on the CPU, which
+`benchmarks/cold_build.py` adds (docs/acceleration.md, The cold build a new user waits for).
 """
 
 from __future__ import annotations
@@ -33,8 +37,9 @@ import subprocess
 import sys
 import tempfile
 import time
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from pathlib import Path
+from typing import Any
 
 import pyopencl as cl
 
@@ -59,37 +64,81 @@ def _variant(packed: PackedScene, *, depth0: bool, lights: bool) -> PackedScene:
     return dataclasses.replace(packed, config=config, params=params)
 
 
-def time_split(packed: PackedScene, device: cl.Device, repeat: int) -> dict:
-    """Kernel seconds and Mrays/s per kind of ray, from the three variants above."""
+# The variants time_split renders, each a warm-up and then `repeat` timed runs.
+VARIANTS = ("primary", "primary_shadow", "full")
+
+
+def time_split(packed: PackedScene, device: cl.Device, repeat: int,
+               step: Callable[[str], None] = lambda _: None) -> dict:
+    """Kernel seconds and Mrays/s per kind of ray, from the three variants above. `step` hears
+    what each render is as it starts."""
     variants = {"primary": _variant(packed, depth0=True, lights=False),
                 "primary_shadow": _variant(packed, depth0=True, lights=True),
                 "full": packed}
     # Interleave the variants' runs so load changes spread over all three.
     runs: dict[str, list[float]] = {name: [] for name in variants}
     rays: dict[str, dict] = {}
-    for variant in variants.values():
+    for name, variant in variants.items():
+        step(f"{name} warm-up")
         render_packed(variant, device)  # build and warm-up
-    for _ in range(repeat):
+    for run in range(repeat):
         for name, variant in variants.items():
+            step(f"{name} run {run + 1} of {repeat}")
             _, stats = render_packed(variant, device)
             runs[name].append(stats["kernel_s"])
             rays[name] = stats["rays"]
     t = {name: statistics.median(r) for name, r in runs.items()}
     primary_shadow_rays = rays["primary_shadow"]["shadow"]
     later_rays = rays["full"]["total"] - rays["primary_shadow"]["total"]
-    parts = {
-        "primary": (t["primary"], rays["full"]["primary"]),
-        "shadow_of_primary": (t["primary_shadow"] - t["primary"], primary_shadow_rays),
-        "secondary_and_their_shadow": (t["full"] - t["primary_shadow"], later_rays),
-    }
     return {
         "variant_kernel_s": t,
         "parts": {
-            name: {"kernel_s": s, "rays": n,
-                   "mrays_per_s": n / s * 1e-6 if s > 0 and n > 0 else None}
-            for name, (s, n) in parts.items()
+            "primary": _part(runs["primary"], None, rays["full"]["primary"]),
+            "shadow_of_primary": _part(runs["primary_shadow"], runs["primary"],
+                                       primary_shadow_rays),
+            "secondary_and_their_shadow": _part(runs["full"], runs["primary_shadow"],
+                                                later_rays),
         },
     }
+
+
+def _part(runs: list[float], without: list[float] | None, rays: int) -> dict:
+    """One kind of ray's figures: its `rays` and kernel seconds, the median of `runs`, less the
+    median of the runs `without` those rays where given. A kind with no rays has no time: the
+    difference of two variants that trace the same rays is noise alone, and may be negative.
+    A difference is `within_noise` where the two variants' runs overlap, so that not every run
+    with the rays took longer than every run without them: a negative difference always is,
+    and its rate would be noise."""
+    if rays == 0:
+        return {"kernel_s": 0.0, "rays": 0, "mrays_per_s": None, "within_noise": False,
+                "difference_range_s": None}
+    seconds = statistics.median(runs)
+    spread = None
+    if without is not None:
+        seconds -= statistics.median(without)
+        # Every run with the rays against every run without: the least and the most it took.
+        spread = [min(runs) - max(without), max(runs) - min(without)]
+    within = spread is not None and spread[0] <= 0
+    return {"kernel_s": seconds, "rays": rays,
+            "mrays_per_s": None if within or seconds <= 0 else rays / seconds * 1e-6,
+            "within_noise": within, "difference_range_s": spread}
+
+
+def part_text(name: str, part: Mapping[str, Any]) -> str:
+    """One kind of ray's line of the profile, as `clray profile` and benchmarks/bench.py print
+    it: its time and rate, "no rays" where the scene traces none, and where its time is within
+    the noise of the timed runs, that and the range of the runs' differences, not a duration
+    (which could be negative)."""
+    rays = part["rays"]
+    if rays == 0:
+        return f"{name}: no rays"
+    if part["within_noise"]:
+        low, high = (f"{s * 1e3:.3g}" for s in part["difference_range_s"])
+        # One run a variant (--repeat 1) gives one difference, not a range.
+        by = low if low == high else f"{low} to {high}"
+        return f"{name}: within noise (runs differ by {by} ms), {rays:,} rays, -"
+    rate = "-" if part["mrays_per_s"] is None else f"{part['mrays_per_s']:.3g} Mrays/s"
+    return f"{name}: {part['kernel_s'] * 1e3:.3g} ms, {rays:,} rays, {rate}"
 
 
 def tests_per_ray(packed: PackedScene, device: cl.Device) -> dict:
@@ -194,15 +243,39 @@ def _build_only(config_json: str, device_spec: str | None) -> None:
     print(json.dumps({"build_s": seconds, "context_s": context_s}))
 
 
+def profile_steps(repeat: int) -> int:
+    """The steps of profile_scene: the builds, cold and warm, each variant's warm-up and timed
+    runs, the render of the COUNT_TESTS build and the render whose stats are reported."""
+    return 2 + len(VARIANTS) * (1 + repeat) + 2
+
+
 def profile_scene(path: Path, settings: RenderSettings, repeat: int = 3,
-                  scene: Scene | None = None) -> dict:
+                  scene: Scene | None = None,
+                  progress: Callable[[int, int, str], None] | None = None) -> dict:
     """The whole profile of the scene at `path` (or of `scene`, where given, loaded from it:
-    a mesh file's automatic scene) rendered with `settings` on its device."""
+    a mesh file's automatic scene) rendered with `settings` on its device. `progress` hears
+    (steps done, steps in all, what the next is) before each step (profile_steps), and
+    (all, all, "done") at the end: on a large scene the whole takes minutes."""
+    total = profile_steps(repeat)
+    done = 0
+
+    def step(what: str, count: int = 1) -> None:
+        nonlocal done
+        if progress is not None:
+            progress(done, total, what)
+        done += count
+
     device = select_device(settings.device)
     packed = pack_for(scene if scene is not None else load_scene(path), settings, device)
+    step("kernel build in new processes, cold and warm", 2)
     cold, warm = cold_and_warm_build(packed.config, settings.device)
-    split = time_split(packed, device, repeat)
+    split = time_split(packed, device, repeat, step)
+    step("rays and device bytes")
     _, stats = render_packed(packed, device)
+    step("box and primitive tests (the COUNT_TESTS build)")
+    tests = tests_per_ray(packed, device)
+    if progress is not None:
+        progress(total, total, "done")
     width, height = int(packed.params[0]["width"]), int(packed.params[0]["height"])
     return {
         "scene": str(path),
@@ -217,7 +290,7 @@ def profile_scene(path: Path, settings: RenderSettings, repeat: int = 3,
         "kernel_s": split["variant_kernel_s"]["full"],
         "mrays_per_s": stats["rays"]["total"] / split["variant_kernel_s"]["full"] * 1e-6,
         "time_split": split,
-        "tests_per_ray": tests_per_ray(packed, device),
+        "tests_per_ray": tests,
         "build_cold_s": cold,
         "build_warm_s": warm,
         "device_bytes": packed.device_bytes(),

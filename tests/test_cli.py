@@ -172,6 +172,27 @@ def test_usage_errors_after_parsing_point_to_the_commands_help(capsys, scene) ->
     assert err.endswith("(see 'clray study --help')\n")
 
 
+@pytest.mark.parametrize("command", [["render", "s.toml"], ["profile", "s.toml"], ["devices"],
+                                     ["tune", "s.toml"], ["study", "s.toml", "--out", "d"],
+                                     ["scene", "m.obj"]])
+def test_an_unknown_flag_points_to_the_commands_help(capsys, command) -> None:
+    # It pointed to 'clray --help', which lists the commands, not the flags of the one given.
+    code, _, err = run(capsys, *command, "--bogus")
+    assert code == 2
+    assert err == ("clray: error: unrecognized arguments: --bogus "
+                   f"(see 'clray {command[0]} --help')\n")
+
+
+def test_an_image_is_not_written_to_a_terminal(capsys, scene, monkeypatch) -> None:
+    # `-o -` at a prompt wrote the PNG's bytes to the terminal.
+    monkeypatch.setattr(sys.stdout, "isatty", lambda: True)
+    code, out, err = run(capsys, "render", scene, *TINY, "-o", "-")
+    assert (code, out) == (2, "")
+    assert err == ("clray: error: -o - writes the PNG to standard output, which is a terminal: "
+                   "redirect it (> out.png) or pipe it, or give -o a file name "
+                   "(see 'clray render --help')\n")
+
+
 def test_a_write_error_names_the_file_that_failed(tmp_path) -> None:
     # An image's write writes its pass files too; one of theirs was said as the image's.
     blocker = tmp_path / "out.depth.pfm"
@@ -428,6 +449,16 @@ def test_devices_lists_one_line_per_device(capsys, cl_device) -> None:
     assert any(cl_device.name.strip() in line for line in lines)
 
 
+def test_devices_help_says_what_its_columns_are(capsys) -> None:
+    # It left out the last: which device renders by default, and why.
+    code, out, _ = run(capsys, "devices", "--help")
+    assert code == 0
+    text = " ".join(out.split())
+    for column in ("spec", "type", "name", "platform", "compute units", "fp64",
+                   "driver version", "tuning file", "renders by default"):
+        assert column in text
+
+
 def test_devices_still_lists_where_clray_device_names_none(capsys, cl_device,
                                                            monkeypatch) -> None:
     """A bad CLRAY_DEVICE is what `clray devices` is run to mend: the list, then the error."""
@@ -438,6 +469,17 @@ def test_devices_still_lists_where_clray_device_names_none(capsys, cl_device,
     assert "no-such-device" in err
     assert any(cl_device.name.strip() in line for line in out.splitlines())
     assert "renders by default" not in out
+
+
+def test_a_render_names_the_clray_device_that_matches_none(capsys, scene, cl_device,
+                                                          monkeypatch) -> None:
+    # The error named the spec alone, which no flag given held: the variable is what to mend.
+    monkeypatch.setenv("CLRAY_DEVICE", "no-such-device")
+    code, _, err = run(capsys, "render", scene, *TINY, "-o", "out.png")
+    assert code == 4
+    assert_one_error_line(err)
+    assert err.startswith("clray: error: CLRAY_DEVICE='no-such-device': no OpenCL device "
+                          "matches 'no-such-device' (devices: ")
 
 
 def test_python_dash_m_clray(cl_device, scene, tmp_path) -> None:

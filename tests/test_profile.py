@@ -2,11 +2,17 @@
 
 from __future__ import annotations
 
+import contextlib
+import fcntl
 import json
 import os
+import pty
+import re
+import struct
 import subprocess
 import sys
 import tempfile
+import termios
 from pathlib import Path
 
 import pyopencl as cl
@@ -99,6 +105,122 @@ def test_profile_prints_a_summary(cl_device, capsys) -> None:
     assert lines[5].startswith("tests per closest-hit ray: ")
     assert lines[6].startswith("kernel build: ") and "cold" in lines[6]
     assert lines[7].startswith("scene on device: ")
+
+
+# A sphere that reflects nothing, and no lights: only primary rays are ever traced.
+NO_LIGHTS = """
+[render]
+width = 16
+height = 10
+max_depth = 4
+[camera]
+position = [0, 0, 5]
+look_at = [0, 0, 0]
+[materials.matte]
+color = [0.8, 0.2, 0.2]
+[[objects]]
+type = "sphere"
+center = [0, 0, 0]
+radius = 1
+material = "matte"
+"""
+
+
+def test_profile_gives_no_time_to_kinds_of_ray_never_traced(cl_device, capsys,
+                                                            tmp_scene) -> None:
+    # Their times were differences of renders tracing the same rays, noise alone: -9.47 ms.
+    scene = tmp_scene(NO_LIGHTS)
+    assert cli.main(["profile", str(scene), "--repeat", "3", "--json"]) == 0
+    parts = json.loads(capsys.readouterr().out)["time_split"]["parts"]
+    for name in ("shadow_of_primary", "secondary_and_their_shadow"):
+        assert parts[name]["rays"] == 0
+        assert parts[name]["kernel_s"] == 0.0
+        assert parts[name]["mrays_per_s"] is None
+    assert cli.main(["profile", str(scene), "--repeat", "3"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[3:5] == ["  shadow_of_primary: no rays", "  secondary_and_their_shadow: no rays"]
+
+
+def _scripted_split(monkeypatch: pytest.MonkeyPatch, kernel_s: dict[str, list[float]],
+                    repeat: int) -> dict:
+    """time_split of variants whose timed runs take `kernel_s` seconds by variant, in turn,
+    each tracing rays of every kind."""
+    def variant(packed: str, *, depth0: bool, lights: bool) -> str:
+        return "primary" if not lights else "primary_shadow" if depth0 else "full"
+
+    rays = {"primary": {"primary": 100, "secondary": 0, "shadow": 0, "total": 100},
+            "primary_shadow": {"primary": 100, "secondary": 0, "shadow": 200, "total": 300},
+            "full": {"primary": 100, "secondary": 50, "shadow": 250, "total": 400}}
+    left = {name: [0.0, *times] for name, times in kernel_s.items()}  # a warm-up first
+
+    def render_packed(name: str, device: object) -> tuple[None, dict]:
+        return None, {"kernel_s": left[name].pop(0), "rays": rays[name]}
+
+    monkeypatch.setattr(profile, "_variant", variant)
+    monkeypatch.setattr(profile, "render_packed", render_packed)
+    return profile.time_split("full", None, repeat)["parts"]
+
+
+def test_a_difference_within_the_runs_spread_is_no_duration(monkeypatch) -> None:
+    # With the lights, runs of 1.0 to 1.4 ms against 1.1 to 1.3 ms without: the medians differ
+    # by -0.1 ms, which is no time the shadow rays took.
+    parts = _scripted_split(monkeypatch, {"primary": [1.1e-3, 1.2e-3, 1.3e-3],
+                                          "primary_shadow": [1.0e-3, 1.1e-3, 1.4e-3],
+                                          "full": [3.0e-3, 3.1e-3, 3.2e-3]}, 3)
+    shadow = parts["shadow_of_primary"]
+    assert shadow["within_noise"] is True
+    assert shadow["mrays_per_s"] is None
+    assert shadow["difference_range_s"] == pytest.approx([1.0e-3 - 1.3e-3, 1.4e-3 - 1.1e-3])
+    assert profile.part_text("shadow_of_primary", shadow) == (
+        "shadow_of_primary: within noise (runs differ by -0.3 to 0.3 ms), 200 rays, -")
+    # Every run with the secondary rays slower than every run without: a duration.
+    later = parts["secondary_and_their_shadow"]
+    assert later["within_noise"] is False
+    assert later["kernel_s"] == pytest.approx(3.1e-3 - 1.1e-3)
+    assert later["mrays_per_s"] == pytest.approx(100 / 2.0e-3 * 1e-6)
+    assert profile.part_text("secondary_and_their_shadow", later) == (
+        "secondary_and_their_shadow: 2 ms, 100 rays, 0.05 Mrays/s")
+
+
+def test_a_single_run_resolves_any_difference_but_a_negative_one(monkeypatch) -> None:
+    # One run a variant has no spread: only a difference of 0 or less is no duration.
+    parts = _scripted_split(monkeypatch, {"primary": [2.0e-3], "primary_shadow": [1.5e-3],
+                                          "full": [1.6e-3]}, 1)
+    assert parts["shadow_of_primary"]["within_noise"] is True
+    assert profile.part_text("shadow_of_primary", parts["shadow_of_primary"]) == (
+        "shadow_of_primary: within noise (runs differ by -0.5 ms), 200 rays, -")
+    assert parts["secondary_and_their_shadow"]["within_noise"] is False
+    assert parts["secondary_and_their_shadow"]["kernel_s"] == pytest.approx(0.1e-3)
+
+
+def test_profile_shows_its_steps_on_a_terminal(cl_device, tmp_path) -> None:
+    # Its builds and renders take minutes on a large scene, and nothing showed until the end.
+    leader, follower = pty.openpty()
+    # A new pseudo-terminal is 0 columns wide, where tqdm draws nothing.
+    fcntl.ioctl(follower, termios.TIOCSWINSZ, struct.pack("HHHH", 24, 120, 0, 0))
+    done = subprocess.run([sys.executable, "-m", "clray", "profile", str(SPHERES), "-W", "8",
+                           "-H", "6", "--repeat", "2"], stderr=follower, stdout=subprocess.PIPE,
+                          cwd=tmp_path, check=False, timeout=300)
+    os.close(follower)
+    chunks = []
+    with contextlib.suppress(OSError):  # Linux ends a drained pty with EIO
+        while chunk := os.read(leader, 4096):
+            chunks.append(chunk)
+    os.close(leader)
+    shown = b"".join(chunks).decode()
+    assert done.returncode == 0, shown
+    steps = profile.profile_steps(2)
+    assert steps == 2 + 3 * 3 + 2
+    assert re.match(r"\rclray: profiling: +0%\|", shown), repr(shown)
+    named = re.findall(rf"\| (\d+)/{steps} \[[^],]*, [^],]*, ([^]]*)\]", shown)
+    # Each step named as it starts, with the count of those done before it.
+    assert (("0", "kernel build in new processes, cold and warm") in named
+            and ("10", "full run 2 of 2") in named
+            and ("12", "box and primitive tests (the COUNT_TESTS build)") in named
+            and named[-1] == (str(steps), "done")), named
+    # The bar is erased before the command ends; the profile itself is on stdout.
+    assert shown.rstrip("\r").split("\r")[-1].strip() == ""
+    assert done.stdout.decode().startswith(f"{SPHERES}: 8x6, 1 spp on ")
 
 
 def test_a_failed_build_process_is_its_own_device_error(cl_device) -> None:

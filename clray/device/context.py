@@ -233,8 +233,15 @@ def default_device() -> tuple[cl.Device, str, str]:
         # A blank value is unset, as for --device: not a substring that every name holds.
         value = os.environ.get(variable, "").strip()
         if value:
-            chosen = (select_device(value) if variable == "CLRAY_DEVICE" else
-                      _pyopencl_ctx_device(devices, value))
+            if variable == "CLRAY_DEVICE":
+                try:
+                    chosen = select_device(value)
+                except DeviceError as err:
+                    # Named as PYOPENCL_CTX's errors are: the spec is no flag the user typed,
+                    # and the variable is what to mend.
+                    raise DeviceError(f"{variable}={value!r}: {err}") from None
+            else:
+                chosen = _pyopencl_ctx_device(devices, value)
             spec = next(s for s, d in devices if d == chosen)
             return chosen, spec, f"{variable}={value}"
     gpus = _discrete_gpus(devices)

@@ -271,7 +271,10 @@ HOT void walk_closest(const SceneRefs* s, const Ray* world, int child, int count
     int stack_child[BVH_STACK_SIZE], stack_count[BVH_STACK_SIZE];
     REAL stack_t[BVH_STACK_SIZE];
     int sp = 0;
-    const Ray* r = world;
+    // world's own set-up for triangles, made at the first leaf if world has none
+    // (make_walk_ray).
+    Ray own = *world;
+    Ray* r = &own;
 #if HAS_INSTANCES
     // Inside an instance the walk goes on in its group's BVH with the ray in the group's frame
     // (enter_instance).
@@ -283,6 +286,9 @@ HOT void walk_closest(const SceneRefs* s, const Ray* world, int child, int count
     for (;;) {
         if (count > 0) {
             COUNT(s, closest_prims, leaf_prims(s, child, count));
+#if HAS_TRIANGLES
+            if (r->kz < 0) shear_walk_ray(r);
+#endif
             leaf_closest(s, child, count, r, instance, &hit);
 #if HAS_INSTANCES
             if (instance < 0) {
@@ -296,7 +302,7 @@ HOT void walk_closest(const SceneRefs* s, const Ray* world, int child, int count
             continue;
         } else if (count == LEAVE_INSTANCE) {
             instance = -1;
-            r = world;
+            r = &own;
 #endif
         } else {
             const __global BvhNode* node = s->nodes + child;

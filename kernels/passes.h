@@ -41,7 +41,7 @@ HOT PixelPasses pixel_passes(const SceneRefs* s, const __global Camera* camera,
     for (int sample = 0; sample < spp; ++sample) {
         REAL3 o, d;
         sample_ray(camera, params, x, y, sample, pixel, &o, &d);
-        Ray ray = make_ray(o, d);
+        Ray ray = make_walk_ray(o, d);
         Hit hit = closest_hit(s, &ray);
         bool found = hit.t < REAL_INF;
         int material = -1;

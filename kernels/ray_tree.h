@@ -167,7 +167,7 @@ HOT REAL3 tree_radiance(const SceneRefs* s, const __global Camera* camera,
                         int* shadow_rays) {
     while (sp > 0) {
         RayTask task = stack[--sp];
-        Ray ray = make_ray(task.o, task.d);
+        Ray ray = make_walk_ray(task.o, task.d);
         Hit hit = closest_hit(s, &ray);
         if (!(hit.t < REAL_INF)) {
             radiance += sky(params, s->texels, task.d, task.weight);

@@ -124,7 +124,7 @@ __kernel WORK_ITEM_LANES void render(SCENE_BUFFER_PARAMS, __global float* image,
 HOT void intersect_one(const SceneRefs* s, __global const float4* origins,
                        __global const float4* directions, __global float4* hits,
                        __global int* refs, int i) {
-    Ray ray = make_ray(TO_REAL3(origins[i]), TO_REAL3(directions[i]));
+    Ray ray = make_walk_ray(TO_REAL3(origins[i]), TO_REAL3(directions[i]));
     Hit hit = closest_hit(s, &ray);
     report_hit(s, &ray, &hit, hits + i, refs + i);
 }

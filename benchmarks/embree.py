@@ -32,8 +32,8 @@ so both trace the same float32 rays through the same float32 triangles.
   kernel at 1 spp, max depth 0, no lights, built for the single-ray walk
   (`KernelConfig.traversal = "single"`, as `clray render` builds 1-spp renders): each
   work-item makes its camera ray, walks the BVH to the closest hit and shades it by the ambient
-  term. That is the headline (`render`). Beside it the `intersect_rays` kernel on the very rays
-  Embree traces (`intersect`: reads a ray, walks, writes t, the geometric normal and the
+  term (`render`). Beside it the `intersect_rays` kernel on the very rays Embree traces, the
+  walk's own figure (`intersect`: reads a ray, walks, writes t, the geometric normal and the
   primitive), from which the hits are compared. Both timed by OpenCL profiling events (kernel
   time) and by the process's CPU time from each launch's enqueue to the end of its wait (the
   render's buffers, read-backs and ray counts, outside its launches, are not counted: Embree's

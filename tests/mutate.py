@@ -93,7 +93,7 @@ MUTATIONS: tuple[Mutation, ...] = (
       "REAL gamma = fmax(gamma_n(ERR_ROUNDINGS), (REAL)(ERR_ROUNDINGS * FLT_EPSILON));",
       "REAL gamma = gamma_n(ERR_ROUNDINGS);", HARD),
     m("instances.scene_ray_not_restored", "kernels/bvh.h",
-      "instance = -1;\n            r = world;\n#endif\n        } else {",
+      "instance = -1;\n            r = &own;\n#endif\n        } else {",
       "instance = -1;\n#endif\n        } else {", INSTANCES),
     m("instances.material_not_replaced", "kernels/surface.h",
       "if (in->material >= 0) sf.material = in->material;", "", INSTANCES),
@@ -180,6 +180,13 @@ MUTATIONS: tuple[Mutation, ...] = (
       "REAL t = dot3(r->o - TO_REAL3(pl->point), n) / dn;", INTERSECT),
     m("intersect.slab_not_widened", "kernels/shape.h",
       "        tf *= widen;\n", "", INTERSECT, HARD),
+    # The nodes' slab test: the near plane by the reciprocal's sign, not by comparing the two t
+    # (a -0 direction component on a face plane).
+    m("intersect.node_near_plane_by_t", "kernels/bvh.h",
+      "T near = select(tn, tf, SIGNS(inv));", "T near = tn > tf ? tf : tn;", INTERSECT),
+    # The single-ray walks' triangle set-up, made at the first leaf (make_walk_ray).
+    m("intersect.walk_ray_never_sheared", "kernels/bvh.h",
+      "if (r->kz < 0) shear_walk_ray(r);", "", INTERSECT),
     m("intersect.cylinder_caps_swapped", "kernels/cylinder.h",
       "REAL tc = ((cap ? height : (REAL)0) - fa) / da;",
       "REAL tc = ((cap ? (REAL)0 : height) - fa) / da;", INTERSECT),

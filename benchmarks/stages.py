@@ -5,16 +5,18 @@
                                 [--json benchmarks/results/stages.json] [--mesh-dir DIR]
 
 The kernels mark their stages STAGE (kernels/real.h): the camera ray (`sample_ray`), the ray
-set-up (`make_ray`), the closest hit (`closest_hit`, and for sample packets `packet_closest`),
-the shading point (`shade_point`), a light's shadow ray (`light_ray`) and term (`light_term`),
-and the shadow ray's walk (`transmission`, `packet_transmission`). The stage-profiling build
-(KernelConfig.stage_profile, -DSTAGE_PROFILE=1) keeps each a function of its own; one render
-of each scene runs under `valgrind --tool=callgrind` with one PoCL thread, counting inside the
-render kernel only. A stage's count is inclusive (it and everything it calls), with its number of
-calls. Stages nest (light_ray sets up its shadow ray with make_ray), so the shares do not add
-up to 100 %; what no stage holds is the ray tree's own bookkeeping and the sample packets'
-gathering of lanes. Calls that are not inlined cost instructions of their own: the profiling
-build's total is reported beside the normal build's, so the overhead is in view.
+set-up (`make_ray`, and `make_walk_ray` for the single-ray closest-hit walks' rays, whose
+triangle set-up the walk makes at its first leaf, inside `closest_hit`), the closest hit
+(`closest_hit`, and for sample packets `packet_closest`), the shading point (`shade_point`), a
+light's shadow ray (`light_ray`) and term (`light_term`), and the shadow ray's walk
+(`transmission`, `packet_transmission`). The stage-profiling build (KernelConfig.stage_profile,
+-DSTAGE_PROFILE=1) keeps each a function of its own; one render of each scene runs under
+`valgrind --tool=callgrind` with one PoCL thread, counting inside the render kernel only. A
+stage's count is inclusive (it and everything it calls), with its number of calls. Stages nest
+(light_ray sets up its shadow ray with make_ray), so the shares do not add up to 100 %; what no
+stage holds is the ray tree's own bookkeeping and the sample packets' gathering of lanes. Calls
+that are not inlined cost instructions of their own: the profiling build's total is reported
+beside the normal build's, so the overhead is in view.
 
 Sample packets have the lanes a render gives them on PoCL's device at that many samples a
 pixel (`clray.device.policy.packet_lanes_for`: 16 on AVX2 at 16 spp).
@@ -51,8 +53,8 @@ from benchmarks.common import check_outputs, image_size, names_of, positive_ints
 # into the parent, which only starts children; tests/test_benchmark_args.py checks them.
 TRAVERSALS = ("single", "sample_packet", "group_packet")
 KERNEL_FUNCTION = "_pocl_kernel_render_workgroup"
-STAGES = ("sample_ray", "make_ray", "closest_hit", "packet_closest", "shade_point", "light_ray",
-          "transmission", "packet_transmission", "light_term")
+STAGES = ("sample_ray", "make_ray", "make_walk_ray", "closest_hit", "packet_closest",
+          "shade_point", "light_ray", "transmission", "packet_transmission", "light_term")
 
 # Runs in the child: one render; prints the rays it traced.
 _RENDER = """

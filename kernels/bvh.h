@@ -106,9 +106,9 @@ DEFINE_TIE_REACH(static inline, REAL, tie_reach)
 // wide node's boxes against one ray (REALW) and for one box against a sample packet's lanes
 // (REALP, packet.h), lane by lane the same (real.h, Twins). SIGNS: T's bits as integers, for
 // select, which picks by each lane's top bit, the reciprocal's sign (1/d is never -0 or NaN for
-// a finite d): one blend a bound, as the min and max that compared the two t were, where
-// `inv < 0 ? ...` also compared inv with 0 at every node (the mesh's primary rays in
-// intersect_rays: 434 instructions a ray either way, 440 so).
+// a finite d): one blend a bound, as the min and max that compared the two t were. Written
+// `inv < 0 ? tf : tn` it also compared inv with 0 at every node: the mesh's primary rays in
+// intersect_rays took 440 instructions a ray, against 434 with select or with min and max.
 #define DEFINE_SLAB_AXIS(T, SIGNS, NAME)                                   \
     HOT void NAME(T lo, T hi, T o, T inv, REAL widen, T* t0, T* t1) {      \
         T tn = (lo - o) * inv;                                             \
@@ -271,8 +271,8 @@ HOT void walk_closest(const SceneRefs* s, const Ray* world, int child, int count
     int stack_child[BVH_STACK_SIZE], stack_count[BVH_STACK_SIZE];
     REAL stack_t[BVH_STACK_SIZE];
     int sp = 0;
-    // world's own set-up for triangles, made at the first leaf if world has none
-    // (make_walk_ray).
+    // The walk's copy of world, whose triangle set-up it makes at the first leaf where world
+    // has none (ray.h, LAZY_SHEAR).
     Ray own = *world;
     Ray* r = &own;
 #if HAS_INSTANCES
@@ -286,7 +286,7 @@ HOT void walk_closest(const SceneRefs* s, const Ray* world, int child, int count
     for (;;) {
         if (count > 0) {
             COUNT(s, closest_prims, leaf_prims(s, child, count));
-#if HAS_TRIANGLES
+#if LAZY_SHEAR
             if (r->kz < 0) shear_walk_ray(r);
 #endif
             leaf_closest(s, child, count, r, instance, &hit);

@@ -34,8 +34,9 @@ static OUT_OF_LINE Crossings intersect_cone(const __global Cone* co, const Ray* 
         // away, 213 of 2,000 rays aimed through the axis missed), while g is within the
         // cone's own size of the apex wherever the line meets the cone. The roots keep the
         // origin's b and cc (Press pair): the one near the origin needs its small cc. A
-        // direction whose square underflows (dd = 0) makes g and the discriminant NaN, which
-        // quadratic_roots refuses.
+        // direction whose square underflows (dd = 0) makes g NaN or infinite, and with it the
+        // discriminant; a NaN one quadratic_roots refuses, and an infinite one needs an a of
+        // the same order as dd, which is then 0 itself outside the most extreme cones.
         REAL dd = dot(r->d, r->d);
         REAL3 g = f - (dot(f, r->d) / dd) * r->d;
         REAL ga = dot(g, axis);

@@ -21,18 +21,6 @@
 #define SAMPLE_PACKETS (TRAVERSAL == TRAVERSAL_SAMPLE_PACKET)
 #define GROUP_PACKETS (TRAVERSAL == TRAVERSAL_GROUP_PACKET)
 
-// SERIAL_WORK_ITEMS: the driver runs a work-group's work-items one after another, a pass of a
-// loop each on one CPU thread (PoCL's CPU device; Intel's CPU runtime as the render kernels ask
-// it, IMPLICIT_VECTORIZATION 0), not side by side in a vector's lanes (that runtime packing
-// them) or in a GPU's (the amdgcn and nvptx targets). The host sets it to 0 for every GPU
-// device (program.device_build_options): a vendor's compiler need not name its target.
-#ifndef SERIAL_WORK_ITEMS
-#if IMPLICIT_VECTORIZATION || defined(__AMDGCN__) || defined(__NVPTX__)
-#define SERIAL_WORK_ITEMS 0
-#else
-#define SERIAL_WORK_ITEMS 1
-#endif
-#endif
 // The single-ray render's row segments (render_segment, below): where work-items run serially.
 #define RENDER_SEGMENTS (SERIAL_WORK_ITEMS && !SAMPLE_PACKETS && !GROUP_PACKETS)
 
@@ -162,7 +150,9 @@ typedef struct {
 #endif
 } RayPacket;
 
-// rays[k] for every lane (lanes without a ray of their own hold a copy of another's).
+// rays[k] for every lane (lanes without a ray of their own hold a copy of another's). The rays
+// come from make_ray: the lanes' axes and shears are read here, which a make_walk_ray ray has
+// not made yet.
 HOT RayPacket ray_packet(const Ray* rays) {
     REAL f[10][PACKET_LANES];
     for (int k = 0; k < PACKET_LANES; ++k) {

@@ -1,6 +1,7 @@
 // A ray as the scene's queries take it: origin and direction, with the set-up every test of it
 // shares (the reciprocal direction for the slab tests; the axis permutation and shear of the
-// watertight triangle test).
+// watertight triangle test, which a single-ray closest-hit walk may make only when it reaches a
+// leaf: make_walk_ray).
 #ifndef CLRAY_RAY_H
 #define CLRAY_RAY_H
 
@@ -15,11 +16,14 @@ typedef struct {
                      // kz < 0 where not made yet: make_walk_ray)
 } Ray;
 
-// A ray without the triangle test's set-up (kz < 0), for a closest-hit walk, which makes it at
-// the first leaf it reaches (bvh.h, walk_closest): most rays of a scene that fills little of
-// the frame reach none. The mesh's primary rays (13 % hit, 13.5 % reach a leaf): 557 -> 514
-// instructions a ray in the render, 434 -> 394 in intersect_rays (docs/acceleration.md).
-STAGE Ray make_walk_ray(REAL3 o, REAL3 d) {
+// LAZY_SHEAR: the single-ray closest-hit walks make the triangle set-up at the first leaf a ray
+// reaches (bvh.h, walk_closest), where work-items run one after another (CPU drivers). Not in
+// a GPU build: there the walk's copy of the ray, whose address the out-of-line set-up takes,
+// would live in private memory a GPU keeps off its registers (not measured on a GPU).
+#define LAZY_SHEAR (HAS_TRIANGLES && SERIAL_WORK_ITEMS)
+
+// The origin, the direction and the reciprocal, without the triangle set-up (kz < 0).
+HOT Ray unsheared_ray(REAL3 o, REAL3 d) {
     Ray r;
     r.o = o;
     r.d = d;
@@ -52,19 +56,26 @@ HOT void shear_ray(Ray* r) {
 }
 #endif
 
-#if HAS_TRIANGLES
-// shear_ray for a walk's first leaf (bvh.h, walk_closest). Out of line: inline, the compiler
-// hoisted the set-up out of the walk's loop to every ray's start, where it ran whether or not
-// the ray reached a leaf.
-OUT_OF_LINE void shear_walk_ray(Ray* r) { shear_ray(r); }
-#endif
-
 STAGE Ray make_ray(REAL3 o, REAL3 d) {
-    Ray r = make_walk_ray(o, d);
+    Ray r = unsheared_ray(o, d);
 #if HAS_TRIANGLES
     shear_ray(&r);
 #endif
     return r;
 }
+
+#if LAZY_SHEAR
+// A ray for a single-ray closest-hit walk, which makes its triangle set-up at the first leaf:
+// most rays of a scene that fills little of the frame reach none. The mesh's primary rays
+// (13 % hit, 13.5 % reach a leaf): 557 -> 514 instructions a ray in the render, 434 -> 394 in
+// intersect_rays (docs/acceleration.md).
+STAGE Ray make_walk_ray(REAL3 o, REAL3 d) { return unsheared_ray(o, d); }
+
+// shear_ray for a walk's first leaf. Out of line: inline, the compiler hoisted the set-up out
+// of the walk's loop to every ray's start, where it ran whether or not the ray reached a leaf.
+OUT_OF_LINE void shear_walk_ray(Ray* r) { shear_ray(r); }
+#else
+#define make_walk_ray make_ray
+#endif
 
 #endif

@@ -370,4 +370,17 @@ static inline void frame_by(REAL3 a, float x, REAL3* e1, REAL3* e2) {
 // value in either build.
 static inline void frame(REAL3 a, REAL3* e1, REAL3* e2) { frame_by(a, (float)a.x, e1, e2); }
 
+// SERIAL_WORK_ITEMS: the driver runs a work-group's work-items one after another, a pass of a
+// loop each on one CPU thread (PoCL's CPU device; Intel's CPU runtime as the render kernels ask
+// it, IMPLICIT_VECTORIZATION 0), not side by side in a vector's lanes (that runtime packing
+// them) or in a GPU's (the amdgcn and nvptx targets). The host sets it to 0 for every GPU
+// device (program.device_build_options): a vendor's compiler need not name its target.
+#ifndef SERIAL_WORK_ITEMS
+#if IMPLICIT_VECTORIZATION || defined(__AMDGCN__) || defined(__NVPTX__)
+#define SERIAL_WORK_ITEMS 0
+#else
+#define SERIAL_WORK_ITEMS 1
+#endif
+#endif
+
 #endif

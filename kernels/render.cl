@@ -120,7 +120,7 @@ __kernel WORK_ITEM_LANES void render(SCENE_BUFFER_PARAMS, __global float* image,
 // work-group's rays walk together (the host pads the last group).
 #if INTERSECT_RAYS
 #if !SAMPLE_PACKETS && !GROUP_PACKETS
-// Ray i's closest hit, reported.
+// Ray i's closest hit, reported: a work-item's whole work, or one step of its group's loop.
 HOT void intersect_one(const SceneRefs* s, __global const float4* origins,
                        __global const float4* directions, __global float4* hits,
                        __global int* refs, int i) {

@@ -34,6 +34,13 @@ def test_every_counted_stage_is_a_stage_function():
         assert re.search(rf"^(STAGE|OUT_OF_LINE) \w+ {stage}\(", source, re.MULTILINE), stage
 
 
+def test_every_stage_function_is_counted():
+    # The other way round: a function marked STAGE that stages.py does not name would be a
+    # function of its own in the profiling build, its instructions counted by no stage.
+    marked = set(re.findall(r"^STAGE \w+ (\w+)\(", kernel_source(), re.MULTILINE))
+    assert marked and marked <= set(_stages()), sorted(marked - set(_stages()))
+
+
 @pytest.mark.filterwarnings("ignore::pyopencl.CompilerWarning")
 @pytest.mark.parametrize("traversal", ["single", "sample_packet"])
 @pytest.mark.parametrize("name", ["spheres", "textured"])

@@ -64,7 +64,7 @@ def translates_through_spirv(device: cl.Device) -> bool:
     return device.platform.name.strip() in SPIRV_TRANSLATING_PLATFORMS
 
 
-# A GPU runs a work-group's work-items side by side (kernels/ray_tree.h, SERIAL_WORK_ITEMS):
+# A GPU runs a work-group's work-items side by side (kernels/real.h, SERIAL_WORK_ITEMS):
 # a pixel a work-item, the renderer inlined, not a group's row segment rendered by its first
 # work-item (render_segment). Said by the host, since a
 # vendor's compiler need not define the target macros (__NVPTX__, __AMDGCN__) clang's do.

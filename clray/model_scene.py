@@ -108,6 +108,60 @@ def model_scene_data(path: Path, view: str = DEFAULT_VIEW, ground: bool = False,
     `height` the image's (default 640 x 480, or a glTF camera's aspect), which the camera
     frames the model in. A glTF file's own camera replaces `view`."""
     name = path.as_posix()
+    probe = _probe_scene(path, name)
+    toward, view_up = (np.array(v) for v in VIEWS[view])
+    model, rotation, vertices = _turned_model(probe, up)
+    found = probe_camera(path)
+    size = (_file_size(found, width, height) if found is not None
+            else (width or DEFAULT_SIZE[0], height or DEFAULT_SIZE[1]))
+    # The half-angle of the view's narrower side: a portrait image is narrower than its 35
+    # degrees high, and a distance from the vertical angle cropped the model's sides.
+    half = math.atan(math.tan(math.radians(VFOV) / 2.0) * min(1.0, size[0] / size[1]))
+    center, radius, lo, hi = _bounds(vertices)  # radius > 0: some triangle has an area
+    matrix, offset = _model_placement(path, rotation, center, radius, half)
+    transform = None
+    if up != DEFAULT_UP or offset.any() or not np.array_equal(matrix, rotation):
+        transform, matrix, offset = _written_transform(matrix, offset)
+        # Framed from the vertices as the written (rounded) transform places them.
+        vertices = model @ matrix.T + offset
+        _check_placement(path, transform, vertices)
+        center, radius, lo, hi = _bounds(vertices)
+    distance = MARGIN * radius / math.sin(half)
+    if np.max(np.abs(center)) + distance > MAX_MAGNITUDE:
+        raise SceneError(path, None, f"the automatic camera cannot frame a model this large "
+                         f"(it would stand beyond {MAX_MAGNITUDE:g}); write a scene file")
+    if found is not None:  # a glTF file's own camera, turned and moved as the model is
+        camera = _checked_file_camera(path, found, matrix, offset)
+        toward = unit(np.array(camera["position"]) - np.array(camera["look_at"]))
+        view_up = np.array(camera["up"])
+    else:
+        camera = {"position": _plain(center + distance * toward), "look_at": _plain(center),
+                  "up": _plain(view_up), "vfov": VFOV}
+        _warn_edge_on(name, view, toward, hi - lo, radius)
+    obj: dict[str, Any] = {"type": "mesh", "file": name}
+    if transform is not None:
+        obj["transform"] = {"matrix": transform}
+    data: dict[str, Any] = {
+        "render": {"width": size[0], "height": size[1], "background": [0.05, 0.05, 0.07],
+                   "ambient": [AMBIENT] * 3, "max_depth": 4},
+        "camera": camera,
+        "materials": {},
+        "lights": _model_lights(toward, view_up),
+        "objects": [obj],
+    }
+    if all(m.face_materials is None for m in _meshes(probe)):  # the file brings none
+        data["materials"]["model"] = _model_material(probe)
+        obj["material"] = "model"
+    if ground:
+        data["materials"]["ground"] = GROUND_MATERIAL
+        data["objects"].append(_ground_plane(center, lo, radius))
+    return data
+
+
+def _probe_scene(path: Path, name: str) -> Scene:
+    """The scene of the mesh file alone (a placeholder camera), which the automatic scene is
+    made from: SceneError, naming the file, where it cannot be read or has no triangle with
+    an area."""
     try:
         # Opened first, so that a file that cannot be opened (or is over its kind's limit) is
         # said as a scene file that cannot be read is.
@@ -126,24 +180,29 @@ def model_scene_data(path: Path, view: str = DEFAULT_VIEW, ground: bool = False,
         key = err.key[len(inside):] if err.key and err.key.startswith(inside) else None
         raise SceneError(path, key, err.message) from None
     _refuse_zero_area(path, probe)
+    return probe
+
+
+def _turned_model(probe: Scene, up: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The model's vertices where the file places them, the rotation that turns its `up` axis
+    to y, and the vertices so turned."""
     meshes = _placed_meshes(probe)
-    toward, view_up = (np.array(v) for v in VIEWS[view])
     rotation = np.array(UP_ROTATIONS[up], dtype=np.float64)
-    matrix, offset = rotation, np.zeros(3)
     # One mesh's vertices as they are: a joined copy of a 2.6 M-vertex model was 63 MB of
     # fresh memory.
     model = meshes[0] if len(meshes) == 1 else np.concatenate(meshes)
-    # einsum, not `model @ matrix.T`: numpy's matmul of millions of rows by a 3 x 3 took
+    # einsum, not `model @ rotation.T`: numpy's matmul of millions of rows by a 3 x 3 took
     # 1.3 s for a 2.6 M-vertex model, einsum 0.18 s, the same numbers for these rotations
     # (each row a coordinate, signed); the default up needs no turn at all.
-    vertices = model if up == DEFAULT_UP else np.einsum("ij,kj->ik", model, matrix)
-    found = probe_camera(path)
-    size = (_file_size(found, width, height) if found is not None
-            else (width or DEFAULT_SIZE[0], height or DEFAULT_SIZE[1]))
-    # The half-angle of the view's narrower side: a portrait image is narrower than its 35
-    # degrees high, and a distance from the vertical angle cropped the model's sides.
-    half = math.atan(math.tan(math.radians(VFOV) / 2.0) * min(1.0, size[0] / size[1]))
-    center, radius, lo, hi = _bounds(vertices)  # radius > 0: some triangle has an area
+    vertices = model if up == DEFAULT_UP else np.einsum("ij,kj->ik", model, rotation)
+    return model, rotation, vertices
+
+
+def _model_placement(path: Path, rotation: np.ndarray, center: np.ndarray, radius: float,
+                     half: float) -> tuple[np.ndarray, np.ndarray]:
+    """The model's placement x -> matrix x + offset: its turn to the chosen up (bounds
+    `center` and `radius` once turned, `half` the view's half-angle), scaled and moved to the
+    origin where the camera could not frame it as it stands."""
     distance = MARGIN * radius / math.sin(half)
     reach = float(np.max(np.abs(center)))
     if (not RADIUS_RANGE[0] <= radius <= RADIUS_RANGE[1] or radius < RESOLVED_RADIUS * reach
@@ -153,66 +212,61 @@ def model_scene_data(path: Path, view: str = DEFAULT_VIEW, ground: bool = False,
         # what the file resolves. This also keeps a model with coordinates near 1e30 (valid)
         # framed by a camera within the scene's limit (half of it: room for rounding).
         shrink = _shrink(path, radius, reach)
-        matrix, offset = shrink * rotation, -shrink * center
-    transform = None
-    if up != DEFAULT_UP or offset.any() or not np.array_equal(matrix, rotation):
-        transform = [[*_plain(matrix[i]), *_plain(offset[i:i + 1])] for i in range(3)]
-        transform.append([0.0, 0.0, 0.0, 1.0])
-        # Framed from the vertices as the written (rounded) transform places them.
-        written = np.array(transform)
-        vertices = model @ written[:3, :3].T + written[:3, 3]
-        matrix, offset = written[:3, :3], written[:3, 3]
-        _check_placement(path, transform, vertices)
-        center, radius, lo, hi = _bounds(vertices)
-        distance = MARGIN * radius / math.sin(half)
-    if np.max(np.abs(center)) + distance > MAX_MAGNITUDE:
-        raise SceneError(path, None, f"the automatic camera cannot frame a model this large "
-                         f"(it would stand beyond {MAX_MAGNITUDE:g}); write a scene file")
-    camera = {"position": _plain(center + distance * toward), "look_at": _plain(center),
-              "up": _plain(view_up), "vfov": VFOV}
-    if found is not None:  # a glTF file's own camera, turned and moved as the model is
-        camera = _file_camera(found, matrix, offset)
-        try:
-            # Checked here, so that a camera the scene cannot take (a node placing it beyond
-            # 1e30) names the file and its node, not a [camera] key the user never wrote.
-            parse_camera(camera, Values(None))
-        except SceneError as err:
-            raise SceneError(path, found.where, f"as the automatic scene's {err.key}: "
-                             f"{err.message}") from None
-        toward = unit(np.array(camera["position"]) - np.array(camera["look_at"]))
-        view_up = np.array(camera["up"])
-    else:
-        _warn_edge_on(name, view, toward, hi - lo, radius)
-    up = view_up
+        return shrink * rotation, -shrink * center
+    return rotation, np.zeros(3)
+
+
+def _written_transform(matrix: np.ndarray, offset: np.ndarray
+                       ) -> tuple[list[list[float]], np.ndarray, np.ndarray]:
+    """The object's transform table for the placement, and the placement as it reads back
+    from the written numbers (its matrix and offset)."""
+    transform = [[*_plain(matrix[i]), *_plain(offset[i:i + 1])] for i in range(3)]
+    transform.append([0.0, 0.0, 0.0, 1.0])
+    written = np.array(transform)
+    return transform, written[:3, :3], written[:3, 3]
+
+
+def _checked_file_camera(path: Path, found: GltfCamera, matrix: np.ndarray,
+                         offset: np.ndarray) -> dict[str, Any]:
+    """The glTF camera's table placed as the model is, SceneError naming the file and its
+    node where the scene cannot take it."""
+    camera = _file_camera(found, matrix, offset)
+    try:
+        # Checked here, so that a camera the scene cannot take (a node placing it beyond
+        # 1e30) names the file and its node, not a [camera] key the user never wrote.
+        parse_camera(camera, Values(None))
+    except SceneError as err:
+        raise SceneError(path, found.where, f"as the automatic scene's {err.key}: "
+                         f"{err.message}") from None
+    return camera
+
+
+def _model_lights(toward: np.ndarray, up: np.ndarray) -> list[dict[str, Any]]:
+    """The key and fill lights for a camera in the unit direction `toward` from the model's
+    centre, `up` its up: the key from above the camera and to its left, the dimmer fill from
+    nearly level and to its right."""
     right = unit(np.cross(-toward, up))
     true_up = np.cross(right, -toward)
     key = unit(toward + 0.8 * true_up - 0.6 * right)
     fill = unit(toward + 0.2 * true_up + 0.9 * right)
-    obj: dict[str, Any] = {"type": "mesh", "file": name}
-    if transform is not None:
-        obj["transform"] = {"matrix": transform}
-    data: dict[str, Any] = {
-        "render": {"width": size[0], "height": size[1], "background": [0.05, 0.05, 0.07],
-                   "ambient": [AMBIENT] * 3, "max_depth": 4},
-        "camera": camera,
-        "materials": {},
-        "lights": [{"type": "directional", "direction": _plain(-key), "color": [0.85] * 3},
-                   {"type": "directional", "direction": _plain(-fill), "color": [0.35] * 3}],
-        "objects": [obj],
-    }
-    if all(m.face_materials is None for m in _meshes(probe)):  # the file brings none
-        data["materials"]["model"] = MODEL_MATERIAL
-        if any(m.colors is not None for m in _meshes(probe)):
-            # Vertex colours multiply the material's: white shows them as the file has them.
-            data["materials"]["model"] = {**MODEL_MATERIAL, "color": [1.0, 1.0, 1.0]}
-        obj["material"] = "model"
-    if ground:
-        data["materials"]["ground"] = GROUND_MATERIAL
-        point = center.copy()
-        point[1] = lo[1] - GROUND_GAP * radius
-        data["objects"].append({"type": "plane", "point": _plain(point),
-                                "normal": [0.0, 1.0, 0.0], "material": "ground"})
-    return data
+    return [{"type": "directional", "direction": _plain(-key), "color": [0.85] * 3},
+            {"type": "directional", "direction": _plain(-fill), "color": [0.35] * 3}]
+
+
+def _model_material(probe: Scene) -> dict[str, Any]:
+    """The material for a model whose file brings none."""
+    if any(m.colors is not None for m in _meshes(probe)):
+        # Vertex colours multiply the material's: white shows them as the file has them.
+        return {**MODEL_MATERIAL, "color": [1.0, 1.0, 1.0]}
+    return MODEL_MATERIAL
+
+
+def _ground_plane(center: np.ndarray, lo: np.ndarray, radius: float) -> dict[str, Any]:
+    """The ground plane's object, just under the model's bounding box."""
+    point = center.copy()
+    point[1] = lo[1] - GROUND_GAP * radius
+    return {"type": "plane", "point": _plain(point), "normal": [0.0, 1.0, 0.0],
+            "material": "ground"}
 
 
 def load_model_scene(path: Path, view: str = DEFAULT_VIEW, ground: bool = False,

@@ -12,6 +12,8 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
+import pyopencl as cl
+
 from clray.device.context import describe, select_device
 from clray.device.tuning_files import save_tuning, tuning_path
 from clray.errors import ClrayError, plural
@@ -128,6 +130,34 @@ def run_tune(paths: Sequence[Path], out: Path, *, device: str | None = None,
     cl_device = select_device(device)
     for path in paths:  # a bad scene is one line before anything is written
         load_scene(path)
+    _make_folders(out, cl_device, save)
+    progress = _Progress(budget_s, show_progress)
+    tuner = Tuner(cl_device, out, strategy=strategy, budget_s=budget_s,
+                  allow_error=allow_error, size=size, progress=progress,
+                  say=progress.through(say), **tuner_options)
+    try:
+        trials = tuner.tune(paths)
+    finally:
+        progress.close()
+    scenes = [p.stem for p in paths]
+    best = best_configuration(trials, scenes)
+    header = _results_header(cl_device, paths, strategy, budget_s, allow_error, tuner, trials)
+    confirmed: list[dict] = []
+    to_store: Tuning | None = None
+    if best is not None:
+        confirmed, to_store = _judge_winner(header, best, tuner, scenes, cl_device, save)
+    header["confirmed"] = confirmed
+    report.write_results(out, header, trials)
+    plot_skipped = report.plot(out, trials, best[0] if best else None)
+    report.write_report(out, header, trials, best[0] if best else None, confirmed, plot_skipped)
+    if to_store is not None:
+        _store_winner(out, header, trials, cl_device, to_store, strategy, budget_s)
+    _say_outcome(say, header, trials, confirmed, to_store, cl_device)
+    return header
+
+
+def _make_folders(out: Path, cl_device: cl.Device, save: bool) -> None:
+    """The results' folder, and with `save` the device's tuning folder."""
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as err:
@@ -139,70 +169,78 @@ def run_tune(paths: Sequence[Path], out: Path, *, device: str | None = None,
         except OSError as err:
             raise cannot_write(folder, err, "the device's tuning file goes there; --no-save "
                                             "stores none") from err
-    progress = _Progress(budget_s, show_progress)
-    tuner = Tuner(cl_device, out, strategy=strategy, budget_s=budget_s,
-                  allow_error=allow_error, size=size, progress=progress,
-                  say=progress.through(say), **tuner_options)
-    try:
-        trials = tuner.tune(paths)
-    finally:
-        progress.close()
-    scenes = [p.stem for p in paths]
-    best = best_configuration(trials, scenes)
-    header = {"device": describe(cl_device), "strategy": strategy, "budget_s": budget_s,
-              "iterations": tuner.iterations, "scenes": [str(p) for p in paths],
-              "tolerance": (f"at most max(2, 0.2 % of the pixels) may differ by over "
-                            f"{PIXEL_TOLERANCE if allow_error is None else allow_error:.3g}, "
-                            "and no pixel may turn non-finite"),
-              "variants": (f"tried under --allow-error {allow_error:g}: "
-                           if allow_error is not None else
-                           "not tried (they change the image; --allow-error E tries them): ")
-              + ", ".join(IMAGE_KNOBS),
-              "untried": untried(tuner.runs, trials, budget_s), "notes": tuner.notes,
-              "best": None, "verdict": None, "stored": None,
-              "decision": "nothing stored: no configuration was verified on every scene",
-              "tuning_file": None}
+
+
+def _results_header(cl_device: cl.Device, paths: Sequence[Path], strategy: str, budget_s: float,
+                    allow_error: float | None, tuner: Tuner, trials: Sequence[Trial]) -> dict:
+    """The results' header before a winner is judged: what was tuned, how, and nothing
+    stored."""
+    return {"device": describe(cl_device), "strategy": strategy, "budget_s": budget_s,
+            "iterations": tuner.iterations, "scenes": [str(p) for p in paths],
+            "tolerance": (f"at most max(2, 0.2 % of the pixels) may differ by over "
+                          f"{PIXEL_TOLERANCE if allow_error is None else allow_error:.3g}, "
+                          "and no pixel may turn non-finite"),
+            "variants": (f"tried under --allow-error {allow_error:g}: "
+                         if allow_error is not None else
+                         "not tried (they change the image; --allow-error E tries them): ")
+            + ", ".join(IMAGE_KNOBS),
+            "untried": untried(tuner.runs, trials, budget_s), "notes": tuner.notes,
+            "best": None, "verdict": None, "stored": None,
+            "decision": "nothing stored: no configuration was verified on every scene",
+            "tuning_file": None}
+
+
+def _judge_winner(header: dict, best: tuple[str, dict[str, Trial]], tuner: Tuner,
+                  scenes: list[str], cl_device: cl.Device,
+                  save: bool) -> tuple[list[dict], Tuning | None]:
+    """The best configuration's confirmation renders and the tuning to store (None for
+    none), with the header's best, verdict, decision and stored filled in."""
+    per_scene = best[1]
+    # The best key's knobs, which each scene's trial built (its own walk left None, or
+    # named where the scenes' own walks differ): what is confirmed and stored.
+    winner = dataclasses.replace(next(iter(per_scene.values())),
+                                 tuning=key_tuning(best[0]))
+    header["best"] = {"label": report.label(winner), "tuning": winner.tuning.values(),
+                      "extra": winner.extra,
+                      "time_ms": {s: t.time_ms for s, t in per_scene.items()}}
     confirmed: list[dict] = []
-    to_store: Tuning | None = None
-    if best is not None:
-        per_scene = best[1]
-        # The best key's knobs, which each scene's trial built (its own walk left None, or
-        # named where the scenes' own walks differ): what is confirmed and stored.
-        winner = dataclasses.replace(next(iter(per_scene.values())),
-                                     tuning=key_tuning(best[0]))
-        header["best"] = {"label": report.label(winner), "tuning": winner.tuning.values(),
-                          "extra": winner.extra,
-                          "time_ms": {s: t.time_ms for s, t in per_scene.items()}}
-        stored = DEFAULT_TUNING
-        if winner.tuning != DEFAULT_TUNING or any(winner.extra.values()):
-            # Kernel Tuner times one launch over the whole image; renders launch in bands, on
-            # a machine whose load comes and goes: the winner is stored only where
-            # interleaved renders confirm its gain (confirmed_gain). Outside the budget.
-            runs = {run.name: run for run in tuner.runs}
-            confirmed = confirm([runs[s] for s in scenes], winner.tuning, cl_device)
-            header["verdict"] = confirmed_gain(confirmed)
-            if header["verdict"]["confirmed"]:
-                stored = winner.tuning
-        # A winner that needs a switch outside the knob table (a test's) is not stored.
-        if save and not any(winner.extra.values()):
-            to_store = stored
-        header["decision"] = report.decision(to_store, save)
-        header["stored"] = None if to_store is None else to_store.values()
-    header["confirmed"] = confirmed
-    report.write_results(out, header, trials)
-    plot_skipped = report.plot(out, trials, best[0] if best else None)
-    report.write_report(out, header, trials, best[0] if best else None, confirmed, plot_skipped)
-    if to_store is not None:
-        # Stored after the results are written: a tuning folder that fails now loses the
-        # stored winner, not the tuning's results.
-        try:
-            header["tuning_file"] = str(save_tuning(cl_device, to_store, {
-                "scenes": header["scenes"], "strategy": strategy, "budget_s": budget_s,
-                "best": header["best"], "confirmed": confirmed, "verdict": header["verdict"]}))
-        except OSError as err:
-            raise cannot_write(tuning_path(cl_device), err,
-                               f"the results are in {out}; nothing stored") from err
-        report.write_results(out, header, trials)  # again, naming the tuning file
+    stored = DEFAULT_TUNING
+    if winner.tuning != DEFAULT_TUNING or any(winner.extra.values()):
+        # Kernel Tuner times one launch over the whole image; renders launch in bands, on
+        # a machine whose load comes and goes: the winner is stored only where
+        # interleaved renders confirm its gain (confirmed_gain). Outside the budget.
+        runs = {run.name: run for run in tuner.runs}
+        confirmed = confirm([runs[s] for s in scenes], winner.tuning, cl_device)
+        header["verdict"] = confirmed_gain(confirmed)
+        if header["verdict"]["confirmed"]:
+            stored = winner.tuning
+    # A winner that needs a switch outside the knob table (a test's) is not stored.
+    to_store = stored if save and not any(winner.extra.values()) else None
+    header["decision"] = report.decision(to_store, save)
+    header["stored"] = None if to_store is None else to_store.values()
+    return confirmed, to_store
+
+
+def _store_winner(out: Path, header: dict, trials: Sequence[Trial], cl_device: cl.Device,
+                  to_store: Tuning, strategy: str, budget_s: float) -> None:
+    """The device's tuning file for the winner, named in the header and the results."""
+    # Stored after the results are written: a tuning folder that fails now loses the
+    # stored winner, not the tuning's results.
+    try:
+        header["tuning_file"] = str(save_tuning(cl_device, to_store, {
+            "scenes": header["scenes"], "strategy": strategy, "budget_s": budget_s,
+            "best": header["best"], "confirmed": header["confirmed"],
+            "verdict": header["verdict"]}))
+    except OSError as err:
+        raise cannot_write(tuning_path(cl_device), err,
+                           f"the results are in {out}; nothing stored") from err
+    report.write_results(out, header, trials)  # again, naming the tuning file
+
+
+def _say_outcome(say: Callable[[str], None], header: dict, trials: Sequence[Trial],
+                 confirmed: list[dict], to_store: Tuning | None, cl_device: cl.Device) -> None:
+    """The tuning's outcome in a few lines: what was tried, each scene's confirmation, and
+    what was stored."""
     rejected = sum(not t.verified for t in trials)
     say(f"tried {plural(len(trials), 'configuration')} on {describe(cl_device)}, "
         f"{rejected} rejected")
@@ -218,4 +256,3 @@ def run_tune(paths: Sequence[Path], out: Path, *, device: str | None = None,
         say(f"best: {header['best']['label']}; {said}")
     else:
         say(header["decision"])
-    return header

@@ -412,6 +412,29 @@ def render_still(client: Client, scene: Scene, settings: RenderSettings | None =
     hears pixel-samples as tiles arrive; on_tile(tiles done, tiles submitted) after each."""
     import_distributed()
     settings = settings_or_default(settings)
+    _check_tiled_settings(settings, tile_rows)
+    started = time.perf_counter()
+    scene = check_scene(scene)
+    encoding = png_encoding(scene, settings)
+    resolved = resolved_settings(scene, settings)
+    warn_deep_tree(scene, resolved)
+    width, height, spp = (int(resolved[k]) for k in ("width", "height", "spp"))
+    task_settings = dataclasses.replace(settings, progress=None)
+    tasks = _Tasks(client, scene,
+                   lambda scene, rows: client.submit(_render_tile, scene, scene.key,
+                                                     task_settings, *rows, pure=False),
+                   lambda rows: f"rows {rows[0]} to {rows[1] - 1}")
+    image = np.empty((height, width, 3), dtype=np.float32)
+    tiles = _assemble_tiles(tasks, image, spp, tile_rows, settings, on_tile)
+    stats = _merge(tiles, resolved, settings)
+    stats["dask"] = _tile_stats(client, tasks, tiles, image)
+    stats["total_s"] = time.perf_counter() - started
+    return RenderResult(image, stats, encoding)
+
+
+def _check_tiled_settings(settings: RenderSettings, tile_rows: int | None) -> None:
+    """SettingsError for what a still rendered in tiles cannot do, or a band height that is
+    not a positive integer."""
     if tile_rows is not None and (isinstance(tile_rows, bool) or not isinstance(tile_rows, int)
                                   or tile_rows < 1):
         # Checked before the scene is sent: 0 divided by zero, and -1 cut no tiles, only then.
@@ -424,21 +447,17 @@ def render_still(client: Client, scene: Scene, settings: RenderSettings | None =
         # Tiles render the image only (render_packed); their passes would be lost unasked.
         raise SettingsError("RenderSettings.aovs: a still rendered in tiles on Dask has no "
                             "passes; render it without Dask")
-    started = time.perf_counter()
-    scene = check_scene(scene)
-    encoding = png_encoding(scene, settings)
-    resolved = resolved_settings(scene, settings)
-    warn_deep_tree(scene, resolved)
-    width, height, spp = (int(resolved[k]) for k in ("width", "height", "spp"))
-    task_settings = dataclasses.replace(settings, progress=None)
-    tasks = _Tasks(client, scene,
-                   lambda scene, rows: client.submit(_render_tile, scene, scene.key,
-                                                     task_settings, *rows, pure=False),
-                   lambda rows: f"rows {rows[0]} to {rows[1] - 1}")
+
+
+def _assemble_tiles(tasks: _Tasks, image: np.ndarray, spp: int, tile_rows: int | None,
+                    settings: RenderSettings,
+                    on_tile: Callable[[int, int], None] | None) -> list[dict]:
+    """Submit `image`'s bands of rows as tiles (`tile_rows` each, or probes first that size
+    the rest) and copy each tile into it as it arrives: the tiles' records in that order,
+    their warnings told, settings.progress and on_tile heard after each."""
+    height, width = image.shape[:2]
     workers = tasks.workers
     row_samples = width * spp
-
-    image = np.empty((height, width, 3), dtype=np.float32)
     tiles: list[dict] = []
     next_row = 0
     submitted = 0
@@ -478,13 +497,17 @@ def render_still(client: Client, scene: Scene, settings: RenderSettings | None =
             on_tile(len(tiles), submitted)
         if settings.progress is not None:
             settings.progress(rows_done * row_samples, height * row_samples)
-    stats = _merge(tiles, resolved, settings)
+    return tiles
+
+
+def _tile_stats(client: Client, tasks: _Tasks, tiles: list[dict], image: np.ndarray) -> dict:
+    """The still's stats["dask"]: the cluster, its tiles and what was sent and returned."""
     by_worker: dict[str, int] = {}
     for t in tiles:
         by_worker[t["worker"]] = by_worker.get(t["worker"], 0) + 1
-    stats["dask"] = {
+    return {
         "scheduler": client.scheduler.address,
-        "workers": workers,
+        "workers": tasks.workers,
         "tiles": len(tiles),
         "tile_rows": sorted({t["rows"] for t in tiles}),
         "scene_bytes": tasks.nbytes,
@@ -495,8 +518,6 @@ def render_still(client: Client, scene: Scene, settings: RenderSettings | None =
         # Tiles that packed the scene (BVH, buffers): one a worker, the rest reuse it.
         "packs": sum(t["packed"] for t in tiles),
     }
-    stats["total_s"] = time.perf_counter() - started
-    return RenderResult(image, stats, encoding)
 
 
 def _merge(tiles: list[dict], resolved: dict, settings: RenderSettings) -> dict:

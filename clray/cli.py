@@ -997,6 +997,30 @@ def _warnings_as_lines(*, quiet: bool, verbose: bool) -> Iterator[None]:
 def _render(args: argparse.Namespace) -> int:
     started = time.perf_counter()
     output: Path = args.output
+    _check_render_outputs(args)
+    if args.denoise:
+        check_denoiser()  # before any work: says how to install the binding where it is missing
+    if args.dask is not None:
+        import_distributed()  # before any work: says how to install Dask where it is missing
+    if args.frames is not None:
+        return _render_frames(args, started)
+    result, load_s = _render_still(args)
+    stats = _write_still(args, result, load_s, started)
+    if not args.quiet:
+        _warn_nonfinite(stats, output)
+    if args.verbose:
+        _say("stats:")
+        for line in _stats_table(stats):
+            print(line, file=sys.stderr)
+    if not args.quiet:
+        _say_still(args, stats, result)
+    return EXIT_OK
+
+
+def _check_render_outputs(args: argparse.Namespace) -> None:
+    """Before any work: standard output usable where it takes the image or stats, and the
+    image's, passes' and stats' files writable."""
+    output: Path = args.output
     if STDOUT in (output, args.stats_json):
         _check_stdout()
     if output != STDOUT:
@@ -1010,30 +1034,12 @@ def _render(args: argparse.Namespace) -> int:
     if args.stats_json not in (None, STDOUT):
         _check_writable(args.stats_json)
 
-    if args.denoise:
-        check_denoiser()  # before any work: says how to install the binding where it is missing
-    if args.dask is not None:
-        import_distributed()  # before any work: says how to install Dask where it is missing
-    if args.frames is not None:
-        return _render_frames(args, started)
 
+def _render_still(args: argparse.Namespace) -> tuple[RenderResult, float]:
+    """The still rendered, here or on Dask, and the seconds its scene took to load; the
+    scene's warnings said (as lines) before it renders."""
     with _warnings_as_lines(quiet=args.quiet, verbose=args.verbose):
-        # Timed alone: the checks above take no time, but importing Dask for --dask about a
-        # second, which is not the scene's loading.
-        load_started = time.perf_counter()
-        with noting_reads() as read:
-            scene = _load(args)
-        load_s = time.perf_counter() - load_started
-        image = (f"-o {output}" if args.output_given
-                 else f"the output {output} (the scene's name, as no -o is given)")
-        _refuse_replacing_reads(read, [
-            (image, output, "-o"),
-            *_pass_outputs(output, args.aov or (), args.aov_preview, f"beside {image}"),
-            (f"--stats-json {args.stats_json}", args.stats_json, "--stats-json")])
-        if not args.quiet:
-            for warning in scene.warnings:
-                _say(f"warning: {warning}")
-            _note_image_memory(args, scene)
+        scene, load_s = _load_still(args)
         with _progress(quiet=args.quiet, verbose=args.verbose) as progress:
             settings = _settings(args, progress)
             if args.dask is None:
@@ -1046,7 +1052,37 @@ def _render(args: argparse.Namespace) -> int:
                 with _cluster(args) as client:
                     result = render_still(client, scene, settings, on_tile=getattr(
                         progress, "note_tiles", None))
+    return result, load_s
 
+
+def _load_still(args: argparse.Namespace) -> tuple[Scene, float]:
+    """The still's scene and the seconds it took to load, refused where an output would
+    replace a file it read; its warnings and a large image's memory said."""
+    output: Path = args.output
+    # Timed alone: the checks before it take no time, but importing Dask for --dask about a
+    # second, which is not the scene's loading.
+    load_started = time.perf_counter()
+    with noting_reads() as read:
+        scene = _load(args)
+    load_s = time.perf_counter() - load_started
+    image = (f"-o {output}" if args.output_given
+             else f"the output {output} (the scene's name, as no -o is given)")
+    _refuse_replacing_reads(read, [
+        (image, output, "-o"),
+        *_pass_outputs(output, args.aov or (), args.aov_preview, f"beside {image}"),
+        (f"--stats-json {args.stats_json}", args.stats_json, "--stats-json")])
+    if not args.quiet:
+        for warning in scene.warnings:
+            _say(f"warning: {warning}")
+        _note_image_memory(args, scene)
+    return scene, load_s
+
+
+def _write_still(args: argparse.Namespace, result: RenderResult, load_s: float,
+                 started: float) -> dict:
+    """The image (and passes) written to -o, or sent to standard output, with the stats file;
+    the still's stats."""
+    output: Path = args.output
     write_started = time.perf_counter()
     with write_set() as files:
         streamed = None
@@ -1058,7 +1094,6 @@ def _render(args: argparse.Namespace) -> int:
             _write(output, lambda: stage_with_passes(files, output, result.image,
                                                      result.encoding, result.aovs,
                                                      args.aov_preview))
-        height, width, _ = result.image.shape
         stats = {
             **result.stats,
             "scene": str(args.scene),
@@ -1070,24 +1105,22 @@ def _render(args: argparse.Namespace) -> int:
             **_image_figures(result, output),
         }
         _commit_with_stats(files, args.stats_json, stats, streamed)
+    return stats
 
-    if not args.quiet:
-        _warn_nonfinite(stats, output)
-    if args.verbose:
-        _say("stats:")
-        for line in _stats_table(stats):
-            print(line, file=sys.stderr)
-    if not args.quiet:
-        if "dask" in stats:
-            _say_dask(stats["dask"], "tiles")
-        _say(f"wrote {output} ({width}x{height}, {stats['spp']} spp, "
-             f"wall {stats['total_s']:.3g} s, kernel {stats['kernel_s']:.3g} s)")
-        if args.aov:
-            files = ", ".join(p.name for p in pass_paths(output, args.aov, args.aov_preview))
-            if output.suffix.lower() == ".exr":
-                files = f"layers of {output.name}" + (f"; previews {files}" if files else "")
-            _say(f"wrote passes {','.join(args.aov)}: {files}")
-    return EXIT_OK
+
+def _say_still(args: argparse.Namespace, stats: dict, result: RenderResult) -> None:
+    """The lines that say what the still's render wrote, and where on Dask."""
+    output: Path = args.output
+    height, width, _ = result.image.shape
+    if "dask" in stats:
+        _say_dask(stats["dask"], "tiles")
+    _say(f"wrote {output} ({width}x{height}, {stats['spp']} spp, "
+         f"wall {stats['total_s']:.3g} s, kernel {stats['kernel_s']:.3g} s)")
+    if args.aov:
+        files = ", ".join(p.name for p in pass_paths(output, args.aov, args.aov_preview))
+        if output.suffix.lower() == ".exr":
+            files = f"layers of {output.name}" + (f"; previews {files}" if files else "")
+        _say(f"wrote passes {','.join(args.aov)}: {files}")
 
 
 def _image_figures(result: RenderResult, output: Path) -> dict:

@@ -22,7 +22,7 @@ import time
 import warnings
 from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
-from typing import Any, NoReturn
+from typing import TYPE_CHECKING, Any, NoReturn
 
 import pyopencl as cl
 
@@ -100,6 +100,9 @@ from clray.scene import limits
 from clray.scene.files import noting_reads
 from clray.scene.load import load_scene
 from clray.scene.model import Scene
+
+if TYPE_CHECKING:
+    from clray.sequence import Sequence
 
 EXIT_INTERRUPTED = 130  # 128 + SIGINT, as shells report it
 # Signals that end the command as Ctrl-C does (_Signalled), with 128 + the signal.
@@ -1198,78 +1201,21 @@ def _say_dask(stats: dict, unit: str) -> None:
 def _render_frames(args: argparse.Namespace, started: float) -> int:
     """--frames: each frame of the scene's [animation] to its own file, skipping those complete
     (image and pass files) with --resume; locally one after another, or one Dask task each."""
-    from clray.sequence import (
-        check_pattern,
-        frame_files,
-        frame_path,
-        frames_in,
-        frames_to_render,
-        load_sequence,
-        render_frames,
-    )
+    from clray.sequence import frames_in, load_sequence
 
-    aovs: tuple[str, ...] = args.aov or ()
     with _warnings_as_lines(quiet=args.quiet, verbose=args.verbose):
         # Every file of every frame: the animation's keyframes are loaded here (load_sequence).
         with noting_reads() as read:
             sequence = load_sequence(args.scene)
         frames = frames_in(args.frames, sequence.animation)
-        check_pattern(args.output, len(frames))
-        _check_stats_not_a_frame(args, frames, aovs)
-        for path in frame_files(args.output, frames[0], aovs, args.aov_preview):
-            _check_writable(path)
-        todo = frames_to_render(frames, args.output, args.resume, aovs, args.aov_preview)
-        _refuse_replacing_reads(read, [
-            *((f"frame {frame}'s file {path}", path, "-o") for frame in todo
-              for path in frame_files(args.output, frame, aovs, args.aov_preview)),
-            (f"--stats-json {args.stats_json}", args.stats_json, "--stats-json")])
-        # A folder where a later frame's file goes would fail the command only once the frames
-        # before it are rendered; a look at each name is cheap beside a probe file each.
-        for frame in todo:
-            for path in frame_files(args.output, frame, aovs, args.aov_preview):
-                refuse_a_folder(path)
+        todo = _check_frame_outputs(args, frames, read)
         first = sequence.scene(frames[0])
         if not args.quiet:
             for warning in first.warnings:
                 _say(f"warning: {warning}")
             if todo:  # the frames are one size, and one at a time in this process
                 _note_image_memory(args, first)
-        records: list[dict] = []
-        with _progress(quiet=args.quiet, verbose=args.verbose) as progress:
-            # In this process each frame's render reports its pixel-samples after those of the
-            # frames before it (render_frames); on Dask each frame's are heard as it arrives.
-            settings = _settings(args, progress)
-
-            def done(frame: int, result: RenderResult) -> None:
-                path = frame_path(args.output, frame)
-                write_started = time.perf_counter()
-                _write(path, lambda: result.save(path, previews=args.aov_preview))
-                write_s = time.perf_counter() - write_started
-                # The still's record, but that total_s is the frame's own: its scene made,
-                # rendered and written (the command's is the top level's).
-                render_s = result.stats["total_s"]
-                records.append({"frame": frame, "output": str(path), **result.stats,
-                                "render_s": render_s, "write_s": write_s,
-                                "total_s": result.stats["load_s"] + render_s + write_s,
-                                **_image_figures(result, path)})
-
-            if args.dask is None or not todo:  # none left (--resume): no cluster to start
-                dask_stats = None
-                render_frames(sequence, todo, settings, done)
-            else:
-                samples = ((args.width or first.render.width)
-                           * (args.height or first.render.height)
-                           * (args.spp or first.render.spp))
-
-                def arrived(frame: int, result: RenderResult) -> None:
-                    done(frame, result)
-                    if progress is not None:
-                        progress(len(records) * samples, len(todo) * samples)
-
-                if progress is not None:
-                    progress(0, len(todo) * samples)
-                with _cluster(args) as client:
-                    dask_stats = render_sequence(client, sequence, todo, settings, arrived)
+        records, dask_stats = _render_todo(args, sequence, first, todo)
     stats = {"scene": str(args.scene), "frames": sorted(records, key=lambda r: r["frame"]),
              "skipped": len(frames) - len(todo), "total_s": time.perf_counter() - started}
     if dask_stats is not None:
@@ -1277,22 +1223,97 @@ def _render_frames(args: argparse.Namespace, started: float) -> int:
     if args.stats_json is not None:
         with write_set() as files:
             _commit_with_stats(files, args.stats_json, stats)
+    _say_frames(args, frames, stats)
+    return EXIT_OK
+
+
+def _check_frame_outputs(args: argparse.Namespace, frames: range, read: set[str]) -> list[int]:
+    """The frames still to render (all but those complete, with --resume), once -o's pattern
+    and every frame's files are found fit to write: none a file the scene read, a folder, or
+    the stats file."""
+    from clray.sequence import check_pattern, frame_files, frames_to_render
+
+    aovs: tuple[str, ...] = args.aov or ()
+    check_pattern(args.output, len(frames))
+    _check_stats_not_a_frame(args, frames, aovs)
+    for path in frame_files(args.output, frames[0], aovs, args.aov_preview):
+        _check_writable(path)
+    todo = frames_to_render(frames, args.output, args.resume, aovs, args.aov_preview)
+    _refuse_replacing_reads(read, [
+        *((f"frame {frame}'s file {path}", path, "-o") for frame in todo
+          for path in frame_files(args.output, frame, aovs, args.aov_preview)),
+        (f"--stats-json {args.stats_json}", args.stats_json, "--stats-json")])
+    # A folder where a later frame's file goes would fail the command only once the frames
+    # before it are rendered; a look at each name is cheap beside a probe file each.
+    for frame in todo:
+        for path in frame_files(args.output, frame, aovs, args.aov_preview):
+            refuse_a_folder(path)
+    return todo
+
+
+def _render_todo(args: argparse.Namespace, sequence: Sequence, first: Scene, todo: list[int]
+                 ) -> tuple[list[dict], dict | None]:
+    """The frames `todo` rendered (here, or on Dask from `first`'s size), each written to its
+    file as it is done: the frames' records in that order, and the Dask stats (None for
+    none)."""
+    from clray.sequence import frame_path, render_frames
+
+    records: list[dict] = []
+    with _progress(quiet=args.quiet, verbose=args.verbose) as progress:
+        # In this process each frame's render reports its pixel-samples after those of the
+        # frames before it (render_frames); on Dask each frame's are heard as it arrives.
+        settings = _settings(args, progress)
+
+        def done(frame: int, result: RenderResult) -> None:
+            path = frame_path(args.output, frame)
+            write_started = time.perf_counter()
+            _write(path, lambda: result.save(path, previews=args.aov_preview))
+            write_s = time.perf_counter() - write_started
+            # The still's record, but that total_s is the frame's own: its scene made,
+            # rendered and written (the command's is the top level's).
+            render_s = result.stats["total_s"]
+            records.append({"frame": frame, "output": str(path), **result.stats,
+                            "render_s": render_s, "write_s": write_s,
+                            "total_s": result.stats["load_s"] + render_s + write_s,
+                            **_image_figures(result, path)})
+
+        if args.dask is None or not todo:  # none left (--resume): no cluster to start
+            render_frames(sequence, todo, settings, done)
+            return records, None
+        samples = ((args.width or first.render.width)
+                   * (args.height or first.render.height)
+                   * (args.spp or first.render.spp))
+
+        def arrived(frame: int, result: RenderResult) -> None:
+            done(frame, result)
+            if progress is not None:
+                progress(len(records) * samples, len(todo) * samples)
+
+        if progress is not None:
+            progress(0, len(todo) * samples)
+        with _cluster(args) as client:
+            return records, render_sequence(client, sequence, todo, settings, arrived)
+
+
+def _say_frames(args: argparse.Namespace, frames: range, stats: dict) -> None:
+    """The lines after the frames: their non-finite pixels, -v's stats, and what was written
+    (and where on Dask)."""
+    records = stats["frames"]
     if not args.quiet:
-        for record in stats["frames"]:
+        for record in records:
             _warn_nonfinite(record, Path(record["output"]), f"frame {record['frame']}: ")
     if args.verbose and records:
         _say("stats:")
-        for record in stats["frames"]:
+        for record in records:
             print(_frame_line(record), file=sys.stderr)
     if not args.quiet:
-        if dask_stats is not None:
-            _say_dask(dask_stats, "frames")
+        if "dask" in stats:
+            _say_dask(stats["dask"], "frames")
         skipped = f", {stats['skipped']} complete already" if stats["skipped"] else ""
         span = (f"frame {frames.start}" if len(frames) == 1
                 else f"frames {frames.start}-{frames.stop - 1}")
         _say(f"wrote {plural(len(records), 'frame')} of {span} to "
              f"{args.output}{skipped} (wall {stats['total_s']:.3g} s)")
-    return EXIT_OK
 
 
 def _check_stats_not_a_frame(args: argparse.Namespace, frames: range,

@@ -243,6 +243,18 @@ def _render_command(commands: Any) -> None:
                         "pip install 'clray[exr]'); '-' writes PNG to standard output (not a "
                         "terminal); default: "
                         "SCENE's stem + .png in the current directory")
+    _render_settings_flags(r)
+    _kernel_flags(r)
+    _image_flags(r)
+    r.add_argument("--stats-json", type=_stats_path, metavar="PATH",
+                   help="write timings, sizes and ray counts as JSON ('-': standard output)")
+    _talk_flags(r)
+    _animation_flags(r)
+    r.set_defaults(run=_render)
+
+
+def _render_settings_flags(r: argparse.ArgumentParser) -> None:
+    """The image's size and the trace's samples, depth, seed and ray weight."""
     r.add_argument("-W", "--width", type=_image_size, metavar="N", help="image width in pixels")
     r.add_argument("-H", "--height", type=_image_size, metavar="N", help="image height in pixels")
     r.add_argument("--spp", type=_int_in(1, limits.MAX_SPP), metavar="N",
@@ -255,6 +267,10 @@ def _render_command(commands: Any) -> None:
                    help="do not trace reflected or refracted rays of a weight below W (POV-Ray's "
                         "adc_bailout; default 0: every ray to --max-depth). Inside glass the ray "
                         "tree doubles at every bounce: set W (e.g. 0.004) for depths above ~20")
+
+
+def _kernel_flags(r: argparse.ArgumentParser) -> None:
+    """The device that renders, and its kernels' arithmetic and BVH walk."""
     _device_flag(r)
     r.add_argument("--precision", choices=limits.PRECISIONS, default="float",
                    help="arithmetic in the kernels (double needs cl_khr_fp64; default: float)")
@@ -266,9 +282,10 @@ def _render_command(commands: Any) -> None:
                         "of PoCL and Intel's runtime, single elsewhere (GPUs); with sample "
                         "packets 1 spp is always single "
                         "(docs/acceleration.md)")
-    _image_flags(r)
-    r.add_argument("--stats-json", type=_stats_path, metavar="PATH",
-                   help="write timings, sizes and ray counts as JSON ('-': standard output)")
+
+
+def _talk_flags(r: argparse.ArgumentParser) -> None:
+    """-q and -v: what a render says as it goes and at the end."""
     talk = r.add_mutually_exclusive_group()
     talk.add_argument("-q", "--quiet", action="store_true",
                       help="print nothing on success, not even the progress bar")
@@ -276,6 +293,10 @@ def _render_command(commands: Any) -> None:
                       help="print progress lines where stderr is not a terminal (a terminal "
                            "always gets a progress bar), compiler warnings and a table of "
                            "timings, ray counts and device memory")
+
+
+def _animation_flags(r: argparse.ArgumentParser) -> None:
+    """--frames, --resume and the Dask flags."""
     cluster = r.add_argument_group("animation and Dask (docs/distributed.md)")
     cluster.add_argument("--frames", type=_frames, metavar="A:B",
                          help="render frames A to B-1 of the scene's [animation] ('A:' to the "
@@ -287,7 +308,6 @@ def _render_command(commands: Any) -> None:
     _dask_flags(cluster, "render on a Dask cluster: a still in tiles, frames one task each; at "
                          "ADDRESS (tcp://host:8786), else on a local cluster of --dask-workers "
                          "processes. Needs pip install 'clray[dask]'")
-    r.set_defaults(run=_render)
 
 
 def _study_command(commands: Any) -> None:

@@ -531,8 +531,6 @@ def _scene(args: argparse.Namespace) -> int:
 
 
 def _parse(argv: list[str] | None) -> argparse.Namespace:
-    from clray.sequence import frame_path
-
     top = _build_parser()
     # Known arguments first: argparse's own parse_args says of a flag no command has "see
     # 'clray --help'", which lists the commands, not the flags of the one given.
@@ -541,65 +539,85 @@ def _parse(argv: list[str] | None) -> argparse.Namespace:
     if unknown:
         parser.error(f"unrecognized arguments: {' '.join(unknown)}")
     if args.command in ("render", "study"):
-        if args.dask is None:
-            given = [flag for flag, value in (("--dask-workers", args.dask_workers),
-                                              ("--dask-timeout", args.dask_timeout))
-                     if value is not None]
-            if given:
-                parser.error(f"{' and '.join(given)} "
-                             f"{'applies' if len(given) == 1 else 'apply'} to --dask")
-        elif args.dask and args.dask_workers is not None:
-            parser.error("--dask-workers applies to a local cluster (--dask without ADDRESS)")
+        _check_dask_flags(parser, args)
     if args.command in ("render", "scene"):
         _check_view_with_camera(parser, args.scene if args.command == "render" else args.model,
                                 args.view)
     if args.command == "render":
-        # For the errors that name the output: the default is no name the user gave.
-        args.output_given = args.output is not None
-        if args.output is None:
-            # The scene's stem is a name, not a pattern: a % in it (50%done.toml) is no frame
-            # number, and --frames' pattern holds it as %%.
-            stem = args.scene.stem
-            args.output = Path(f"{stem.replace('%', '%%')}_%04d.png" if args.frames is not None
-                               else f"{stem}.png")
-        elif args.output != STDOUT:
-            try:
-                # Before any work, as every usage error; frame_path cannot fail after this.
-                frame_path(args.output, 0)
-            except SettingsError as err:
-                parser.error(str(err))
-            if (args.frames is None
-                    and frame_path(args.output, 0) != frame_path(args.output, 1)):
-                parser.error(f"-o {args.output} holds a frame number: give --frames A:B to "
-                             "render frames, or a name without % for a still")
-        if args.frames is not None and STDOUT in (args.output, args.stats_json):
-            parser.error("--frames writes files: give -o and --stats-json file names")
-        if args.resume and args.frames is None:
-            parser.error("--resume applies to --frames")
-        if args.frames is not None and is_mesh_file(args.scene):
-            parser.error(f"--frames renders a scene file's [animation] table; {args.scene} is a "
-                         f"{MESH_FILE}, which has none")
-        _check_still_output(parser, args)
-        if args.stats_json == STDOUT and args.output == STDOUT:
-            parser.error("-o - and --stats-json - would both write to standard output")
-        if args.output == STDOUT and sys.stdout is not None and sys.stdout.isatty():
-            # A PNG's bytes on a terminal are noise, and can leave it in a state that needs a
-            # reset; gzip and curl refuse the same.
-            parser.error("-o - writes the PNG to standard output, which is a terminal: "
-                         "redirect it (> out.png) or pipe it, or give -o a file name")
-        if args.stats_json is not None and _same_file(args.stats_json, args.output):
-            parser.error(f"--stats-json and the output image are the same file: {args.output}")
-        if args.stats_json not in (None, STDOUT) and _same_file(args.stats_json, args.scene):
-            parser.error(f"--stats-json {args.stats_json} is the scene file {args.scene}, "
-                         "which the stats would replace: give another name")
-        png_only = [flag for flag, given in (("--srgb", args.linear is False),
-                                              ("--exposure", args.exposure is not None),
-                                              ("--png-bits", args.png_bits is not None)) if given]
-        if png_only and args.output.suffix.lower() in FLOAT_SUFFIXES:
-            parser.error(f"{', '.join(png_only)} applies to PNG output only; "
-                         f"{args.output.suffix} holds the linear radiance as rendered")
-        _check_pass_flags(parser, args)
+        _render_output(parser, args)
+        _check_render_flags(parser, args)
     return args
+
+
+def _check_dask_flags(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
+    """--dask-workers and --dask-timeout are refused without --dask, and --dask-workers with
+    a cluster's ADDRESS."""
+    if args.dask is None:
+        given = [flag for flag, value in (("--dask-workers", args.dask_workers),
+                                          ("--dask-timeout", args.dask_timeout))
+                 if value is not None]
+        if given:
+            parser.error(f"{' and '.join(given)} "
+                         f"{'applies' if len(given) == 1 else 'apply'} to --dask")
+    elif args.dask and args.dask_workers is not None:
+        parser.error("--dask-workers applies to a local cluster (--dask without ADDRESS)")
+
+
+def _render_output(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
+    """-o as given, checked as a still's name or a frames' pattern, else the default from the
+    scene's stem; args.output_given says which."""
+    from clray.sequence import frame_path
+
+    # For the errors that name the output: the default is no name the user gave.
+    args.output_given = args.output is not None
+    if args.output is None:
+        # The scene's stem is a name, not a pattern: a % in it (50%done.toml) is no frame
+        # number, and --frames' pattern holds it as %%.
+        stem = args.scene.stem
+        args.output = Path(f"{stem.replace('%', '%%')}_%04d.png" if args.frames is not None
+                           else f"{stem}.png")
+    elif args.output != STDOUT:
+        try:
+            # Before any work, as every usage error; frame_path cannot fail after this.
+            frame_path(args.output, 0)
+        except SettingsError as err:
+            parser.error(str(err))
+        if (args.frames is None
+                and frame_path(args.output, 0) != frame_path(args.output, 1)):
+            parser.error(f"-o {args.output} holds a frame number: give --frames A:B to "
+                         "render frames, or a name without % for a still")
+
+
+def _check_render_flags(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
+    """`clray render`'s usage errors between flags: frames and standard output, flags for a
+    mesh file or PNG output only, the stats file beside the image and scene, and the passes."""
+    if args.frames is not None and STDOUT in (args.output, args.stats_json):
+        parser.error("--frames writes files: give -o and --stats-json file names")
+    if args.resume and args.frames is None:
+        parser.error("--resume applies to --frames")
+    if args.frames is not None and is_mesh_file(args.scene):
+        parser.error(f"--frames renders a scene file's [animation] table; {args.scene} is a "
+                     f"{MESH_FILE}, which has none")
+    _check_still_output(parser, args)
+    if args.stats_json == STDOUT and args.output == STDOUT:
+        parser.error("-o - and --stats-json - would both write to standard output")
+    if args.output == STDOUT and sys.stdout is not None and sys.stdout.isatty():
+        # A PNG's bytes on a terminal are noise, and can leave it in a state that needs a
+        # reset; gzip and curl refuse the same.
+        parser.error("-o - writes the PNG to standard output, which is a terminal: "
+                     "redirect it (> out.png) or pipe it, or give -o a file name")
+    if args.stats_json is not None and _same_file(args.stats_json, args.output):
+        parser.error(f"--stats-json and the output image are the same file: {args.output}")
+    if args.stats_json not in (None, STDOUT) and _same_file(args.stats_json, args.scene):
+        parser.error(f"--stats-json {args.stats_json} is the scene file {args.scene}, "
+                     "which the stats would replace: give another name")
+    png_only = [flag for flag, given in (("--srgb", args.linear is False),
+                                          ("--exposure", args.exposure is not None),
+                                          ("--png-bits", args.png_bits is not None)) if given]
+    if png_only and args.output.suffix.lower() in FLOAT_SUFFIXES:
+        parser.error(f"{', '.join(png_only)} applies to PNG output only; "
+                     f"{args.output.suffix} holds the linear radiance as rendered")
+    _check_pass_flags(parser, args)
 
 
 def _check_still_output(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:

@@ -1253,7 +1253,7 @@ def _render_frames(args: argparse.Namespace, started: float) -> int:
                 _say(f"warning: {warning}")
             if todo:  # the frames are one size, and one at a time in this process
                 _note_image_memory(args, first)
-        records, dask_stats = _render_todo(args, sequence, first, todo)
+        records, dask_stats = _render_and_write_frames(args, sequence, first, todo)
     stats = {"scene": str(args.scene), "frames": sorted(records, key=lambda r: r["frame"]),
              "skipped": len(frames) - len(todo), "total_s": time.perf_counter() - started}
     if dask_stats is not None:
@@ -1289,7 +1289,7 @@ def _check_frame_outputs(args: argparse.Namespace, frames: range, read: set[str]
     return todo
 
 
-def _render_todo(args: argparse.Namespace, sequence: Sequence, first: Scene, todo: list[int]
+def _render_and_write_frames(args: argparse.Namespace, sequence: Sequence, first: Scene, todo: list[int]
                  ) -> tuple[list[dict], dict | None]:
     """The frames `todo` rendered (here, or on Dask from `first`'s size), each written to its
     file as it is done: the frames' records in that order, and the Dask stats (None for

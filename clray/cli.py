@@ -1289,8 +1289,8 @@ def _check_frame_outputs(args: argparse.Namespace, frames: range, read: set[str]
     return todo
 
 
-def _render_and_write_frames(args: argparse.Namespace, sequence: Sequence, first: Scene, todo: list[int]
-                 ) -> tuple[list[dict], dict | None]:
+def _render_and_write_frames(args: argparse.Namespace, sequence: Sequence, first: Scene,
+                             todo: list[int]) -> tuple[list[dict], dict | None]:
     """The frames `todo` rendered (here, or on Dask from `first`'s size), each written to its
     file as it is done: the frames' records in that order, and the Dask stats (None for
     none)."""

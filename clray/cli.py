@@ -1551,7 +1551,7 @@ def _run(args: argparse.Namespace) -> int:
     try:
         return args.run(args)
     except ClrayError as err:
-        _say(f"error: {err}")
+        _say(f"error: {err.with_path() if isinstance(err, SceneError) else err}")
         return err.exit_code
     except cl.Error as err:
         # One that no call naming its device turned into a DeviceError (opencl_errors): still
@@ -1566,9 +1566,9 @@ def _run(args: argparse.Namespace) -> int:
         return EXIT_INTERRUPTED
     except MemoryError:
         # Past the loaders (which name the file they were reading): the file the command was
-        # working on, where it has one.
+        # working on, where it has one, by its path as given (as a SceneError's line names it).
         source = getattr(args, "scene", None) or getattr(args, "model", None)
-        _say(f"error: {f'{one_line(source.name)}: ' if source else ''}out of memory")
+        _say(f"error: {f'{one_line(str(source))}: ' if source else ''}out of memory")
         return EXIT_RUNTIME
     except BrokenPipeError:
         _quiet_stdout()

@@ -95,6 +95,14 @@ class SceneError(ClrayError):
         parts = [p for p in (None if file is None else Path(file).name, key, message) if p]
         super().__init__(one_line(": ".join(parts)))
 
+    def with_path(self) -> str:
+        """The message naming the file by its path as given (on the command line, or joined to
+        the folder of the scene that names it), not by its base name alone, which an included
+        scene or a mesh in another folder may share: what the command line prints."""
+        parts = [p for p in (None if self.file is None else str(self.file), self.key,
+                             self.message) if p]
+        return one_line(": ".join(parts))
+
 
 class SettingsError(ClrayError, ValueError):
     """A render setting out of range, from a command-line flag or RenderSettings: the same rules

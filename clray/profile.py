@@ -72,6 +72,13 @@ def time_split(packed: PackedScene, device: cl.Device, repeat: int,
                step: Callable[[str], None] = lambda _: None) -> dict:
     """Kernel seconds and Mrays/s per kind of ray, from the three variants above. `step` hears
     what each render is as it starts."""
+    return _timed_split(packed, device, repeat, step)[0]
+
+
+def _timed_split(packed: PackedScene, device: cl.Device, repeat: int,
+                 step: Callable[[str], None]) -> tuple[dict, dict]:
+    """time_split's figures, and the rays of the scene as given (its `full` variant's last
+    timed run: every render of a scene traces the same rays)."""
     variants = {"primary": _variant(packed, depth0=True, lights=False),
                 "primary_shadow": _variant(packed, depth0=True, lights=True),
                 "full": packed}
@@ -99,7 +106,7 @@ def time_split(packed: PackedScene, device: cl.Device, repeat: int,
             "secondary_and_their_shadow": _part(runs["full"], runs["primary_shadow"],
                                                 later_rays),
         },
-    }
+    }, rays["full"]
 
 
 def _part(runs: list[float], without: list[float] | None, rays: int) -> dict:
@@ -245,8 +252,9 @@ def _build_only(config_json: str, device_spec: str | None) -> None:
 
 def profile_steps(repeat: int) -> int:
     """The steps of profile_scene: the builds, cold and warm, each variant's warm-up and timed
-    runs, the render of the COUNT_TESTS build and the render whose stats are reported."""
-    return 2 + len(VARIANTS) * (1 + repeat) + 2
+    runs (the last of the scene as given reports its rays), and the render of the COUNT_TESTS
+    build."""
+    return 2 + len(VARIANTS) * (1 + repeat) + 1
 
 
 def profile_scene(path: Path, settings: RenderSettings, repeat: int = 3,
@@ -269,9 +277,7 @@ def profile_scene(path: Path, settings: RenderSettings, repeat: int = 3,
     packed = pack_for(scene if scene is not None else load_scene(path), settings, device)
     step("kernel build in new processes, cold and warm", 2)
     cold, warm = cold_and_warm_build(packed.config, settings.device)
-    split = time_split(packed, device, repeat, step)
-    step("rays and device bytes")
-    _, stats = render_packed(packed, device)
+    split, rays = _timed_split(packed, device, repeat, step)
     step("box and primitive tests (the COUNT_TESTS build)")
     tests = tests_per_ray(packed, device)
     if progress is not None:
@@ -286,9 +292,9 @@ def profile_scene(path: Path, settings: RenderSettings, repeat: int = 3,
         "tuning": packed.tuning.label(),
         "traversal": packed.config.traversal,
         "repeat": repeat,
-        "rays": stats["rays"],
+        "rays": rays,
         "kernel_s": split["variant_kernel_s"]["full"],
-        "mrays_per_s": stats["rays"]["total"] / split["variant_kernel_s"]["full"] * 1e-6,
+        "mrays_per_s": rays["total"] / split["variant_kernel_s"]["full"] * 1e-6,
         "time_split": split,
         "tests_per_ray": tests,
         "build_cold_s": cold,

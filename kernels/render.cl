@@ -167,8 +167,12 @@ __kernel WORK_ITEM_LANES void intersect_rays(__global const float4* origins,
     // The group's first work-item walks the group's rays in a loop of its own, as the render's
     // row segments do (ray_tree.h, render_segment): PoCL's loop over work-items copied
     // SceneRefs' pointers and ran a call's prologue for every ray.
+    // The group's rays end within the launch: the program is OpenCL C 1.2 (no -cl-std), whose
+    // work-groups are uniform (the global size a multiple of the local size, whether the host
+    // or the driver picks it), a non-uniform group's get_local_size is its own, and no launch
+    // (clray.device.launch.intersect_rays, benchmarks/embree.py) gives a global offset.
     if (get_local_id(0) != 0) return;
-    int end = min(i + (int)get_local_size(0), (int)get_global_size(0));
+    int end = i + (int)get_local_size(0);
     for (; i < end; ++i) intersect_one(&s, origins, directions, hits, refs, i);
 #else
     intersect_one(&s, origins, directions, hits, refs, i);

@@ -650,6 +650,27 @@ def test_newline_in_scene_name_gives_one_error_line(capsys, tmp_path, monkeypatc
     assert "a\\nclray: error: b.toml" in err
 
 
+def test_scene_errors_name_the_file_by_its_path(capsys, tmp_path, monkeypatch) -> None:
+    # Two files named scene.toml, one including the other from its folder: each error names
+    # its file by the path as given, or joined to the including scene's folder, as the
+    # warnings do; a base name alone would not say which it was. Exit 3, one line.
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "shots" / "parts").mkdir(parents=True)
+    camera = '[camera]\nposition = [0, 0, 5]\nlook_at = [0, 0, 0]\n'
+    (tmp_path / "shots" / "scene.toml").write_text('include = ["parts/scene.toml"]\n' + camera)
+    (tmp_path / "shots" / "parts" / "scene.toml").write_text("[materials.bad]\nior = 0\n")
+    code, _, err = run(capsys, "render", "shots/scene.toml", "-o", "x.png")
+    assert code == 3
+    assert err == ("clray: error: shots/parts/scene.toml: materials.bad.ior: must be >= 0.01, "
+                   "got 0\n")
+    (tmp_path / "shots" / "scene.toml").write_text("[camera]\n")
+    code, _, err = run(capsys, "render", tmp_path / "shots" / "scene.toml", "-o", "x.png")
+    assert code == 3
+    assert err == (f"clray: error: {tmp_path / 'shots' / 'scene.toml'}: camera.position: "
+                   "missing required key\n")
+    assert files_in(tmp_path) == ["shots"]
+
+
 def test_fifo_scene_exits_3_without_blocking(capsys, tmp_path, monkeypatch) -> None:
     monkeypatch.chdir(tmp_path)
     os.mkfifo(tmp_path / "pipe.toml")
@@ -789,7 +810,7 @@ def test_out_of_memory_is_one_line(capsys, scene, monkeypatch) -> None:
     monkeypatch.setattr(cli, "load_scene", exhausted)
     code, _, err = run(capsys, "render", scene)
     # Named: the file the command was working on.
-    assert (code, err) == (1, f"clray: error: {scene.name}: out of memory\n")
+    assert (code, err) == (1, f"clray: error: {scene}: out of memory\n")
 
 
 # --- standard output ---------------------------------------------------------------------------

@@ -281,7 +281,7 @@ def test_a_frame_failing_on_a_local_cluster_is_one_line(cl_device, tmp_path):
                           capture_output=True, text=True, timeout=120, cwd=ROOT)
     assert done.returncode == EXIT_SCENE
     assert done.stderr.splitlines() == [
-        "clray: error: overshoot.toml: materials.red.reflect: must be <= 1, got 1.125 "
+        f"clray: error: {scene}: materials.red.reflect: must be <= 1, got 1.125 "
         "(animated, frame 3)"], done.stderr
 
 

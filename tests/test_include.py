@@ -124,6 +124,24 @@ def test_cycle_shows_the_chain(tmp_path: Path) -> None:
     assert message == "b.toml: include[0]: includes itself: s.toml -> a.toml -> b.toml -> a.toml"
 
 
+def test_files_in_other_folders_are_named_from_the_scenes_folder(tmp_path: Path) -> None:
+    # Two libraries named lib.toml: "already defined in lib.toml" did not say which, nor did
+    # a chain of files named a.toml.
+    write(tmp_path, "wood/lib.toml", GLASS)
+    write(tmp_path, "metal/lib.toml", GLASS)
+    message = load_error(write(tmp_path, "s.toml",
+                               'include = ["wood/lib.toml", "metal/lib.toml"]\n' + CAMERA))
+    assert message == "lib.toml: materials.glass: already defined in wood/lib.toml"
+    write(tmp_path, "x/a.toml", 'include = ["../y/a.toml"]\n')
+    write(tmp_path, "y/a.toml", 'include = ["../x/a.toml"]\n' + CAMERA)
+    message = load_error(write(tmp_path, "s.toml", 'include = ["x/a.toml"]\n' + CAMERA))
+    assert message == ("a.toml: include[0]: includes itself: s.toml -> x/a.toml -> y/a.toml -> "
+                       "x/a.toml")
+    write(tmp_path, "x/a.toml", CAMERA)
+    message = load_error(write(tmp_path, "s.toml", 'include = ["x/a.toml"]\n' + CAMERA))
+    assert message == "s.toml: camera: already given in x/a.toml"
+
+
 def test_self_include(tmp_path: Path) -> None:
     message = load_error(write(tmp_path, "s.toml", 'include = ["s.toml"]\n' + CAMERA))
     assert message == "s.toml: include[0]: includes itself: s.toml -> s.toml"

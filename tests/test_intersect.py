@@ -600,6 +600,34 @@ def test_cone_apex(cl_device):
     assert np.all(np.abs(t[hit] - 1.0) <= RTOL_APEX)
 
 
+def test_ray_parallel_to_a_cone_generator_meets_the_side_once(cl_device):
+    """A 45-degree cone and directions along its side's slope, (1, -1, 0) exactly: the side's
+    quadratic has a = 0 exactly in float32 (tan 45 stores as 1), and its linear root is the
+    closed form's. From the apex's height, (-c, 0, z) off the axis, the line meets the cone
+    where (s - c)^2 + z^2 = s^2: s = (c^2 + z^2) / (2 c) down the axis, at t = s."""
+    apex = np.array([0.0, 1.0, -5.0])
+    k = M.Cone(apex=tuple(apex), axis=(0.0, -1.0, 0.0), angle=45.0, height=2.0, material=0,
+               capped=False)
+    c = np.array([2.0, 1.0, 3.0, 0.5, 1.5, 4.0])
+    z = np.array([0.5, 0.25, -1.0, 0.1, 1.0, 2.0])
+    o = apex + np.stack([-c, np.zeros_like(c), z], axis=1)
+    d = np.tile([1.0, -1.0, 0.0], (len(c), 1))
+    s = (c * c + z * z) / (2.0 * c)
+    want = np.where(s <= 2.0, s, np.inf)  # the last, 2.5 down, is past the cone's height
+    assert np.isinf(want[-1]) and np.all(np.isfinite(want[:-1]))
+    reference = intersect_scene(make_scene(k), o, d)
+    assert np.allclose(reference.t, want, rtol=1e-12)
+    t, normal, r = cast(cl_device, make_scene(k), o, d)
+    assert r.tolist() == [ref(L.PRIM_CONE, 0)] * (len(c) - 1) + [-1]
+    assert_rel(t[:-1], want[:-1], RTOL, "cone side along a generator t")
+    assert_normals(normal[:-1], reference.normal[:-1], 1e-4, "cone side along a generator")
+    # Unit directions along the slope: float32's rounding leaves a a hair off 0.
+    du = np.tile(f32(np.array([1.0, -1.0, 0.0]) / np.sqrt(2.0)), (len(c), 1))
+    t, _, r = cast(cl_device, make_scene(k), o, du)
+    assert r.tolist() == [ref(L.PRIM_CONE, 0)] * (len(c) - 1) + [-1]
+    assert_rel(t[:-1], intersect_scene(make_scene(k), o, du).t[:-1], RTOL, "unit slope t")
+
+
 # ---------------------------------------------------------------------------------------------
 # Triangles and closed meshes
 

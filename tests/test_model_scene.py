@@ -386,7 +386,7 @@ def test_an_npz_error_names_the_array(tmp_path, monkeypatch, capsys, arrays, whe
     for command in ("scene", "render"):
         assert main([command, "sub/f.npz"]) == 3
         err = capsys.readouterr().err
-        assert err.startswith(f"clray: error: f.npz: {where}") and err.count("\n") == 1, err
+        assert err.startswith(f"clray: error: sub/f.npz: {where}") and err.count("\n") == 1, err
 
 
 def test_a_float16_npz_loads_without_numpy_warnings(tmp_path, monkeypatch):

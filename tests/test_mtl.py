@@ -14,6 +14,7 @@ from clray.errors import SceneError
 from clray.scene import model as M
 from clray.scene.load import scene_from_dict
 from clray.scene.mtl import MtlMaterial, to_material
+from clray.scene.values import file_name
 from tests.reference_check import Tolerance, assert_kernel_matches_reference
 
 CAMERA = {"position": [0, 1.5, 5], "look_at": [0, 0.5, 0], "vfov": 40}
@@ -91,6 +92,18 @@ def test_missing_library_is_a_warning_naming_file_and_line(tmp_path):
     assert any("m.obj: line 2: cannot read material library m.mtl: file not found" in w
                for w in scene.warnings), scene.warnings
     assert {scene.materials[i].name for i in scene.objects[0].face_materials} == {"(default)"}
+
+
+@pytest.mark.parametrize("library", ["../m.mtl", "/nowhere/m.mtl", "http://x.test/m.mtl",
+                                     "libs/m.mtl"])
+def test_a_library_that_cannot_be_read_is_named_as_the_file_writes_it(tmp_path, library):
+    # Its base name alone named another file: m.mtl beside the OBJ here, which can be read.
+    write(tmp_path, f"mtllib {library}\n" + WALL_AND_PANEL.split("\n", 1)[1], WALL)
+    scene = scene_of(tmp_path)
+    shown = [w for w in scene.warnings if "cannot read material library" in w]
+    assert len(shown) == 1 and "\n" not in shown[0], scene.warnings
+    assert f"m.obj: line 1: cannot read material library {file_name(library)}: " in shown[0], \
+        shown
 
 
 @pytest.mark.parametrize("line, message", [

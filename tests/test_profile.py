@@ -57,6 +57,25 @@ def test_profile_figures_add_up_and_match_the_render(cl_device, capsys) -> None:
     assert prof["tuning"] == "default"
 
 
+def test_profile_renders_no_image_it_does_not_use(cl_device, monkeypatch) -> None:
+    # The rays it reports are the last timed run's of the scene as given: a render more for
+    # them cost a whole render's time on a large scene.
+    calls = []
+    real = profile.render_packed
+
+    def counted(packed, device):
+        calls.append(packed.config.count_tests)
+        return real(packed, device)
+
+    monkeypatch.setattr(profile, "render_packed", counted)
+    monkeypatch.setattr(profile, "cold_and_warm_build", lambda config, spec: (1.0, 1.0))
+    prof = profile.profile_scene(SPHERES, RenderSettings(width=8, height=6), repeat=2)
+    # Each variant's warm-up and timed runs, and the COUNT_TESTS build's render.
+    assert calls == [False] * len(profile.VARIANTS) * (1 + 2) + [True]
+    assert len(calls) == profile.profile_steps(2) - 2
+    assert prof["rays"] == render(SPHERES, RenderSettings(width=8, height=6)).stats["rays"]
+
+
 def test_profile_spp_replaces_the_scenes_samples(cl_device, capsys) -> None:
     # spheres.toml renders 1 spp: --spp 3 must reach the kernel, not only the printed figures.
     code = cli.main(["profile", str(SPHERES), "-W", "16", "-H", "10", "--spp", "3",
@@ -210,13 +229,13 @@ def test_profile_shows_its_steps_on_a_terminal(cl_device, tmp_path) -> None:
     shown = b"".join(chunks).decode()
     assert done.returncode == 0, shown
     steps = profile.profile_steps(2)
-    assert steps == 2 + 3 * 3 + 2
+    assert steps == 2 + 3 * 3 + 1
     assert re.match(r"\rclray: profiling: +0%\|", shown), repr(shown)
     named = re.findall(rf"\| (\d+)/{steps} \[[^],]*, [^],]*, ([^]]*)\]", shown)
     # Each step named as it starts, with the count of those done before it.
     assert (("0", "kernel build in new processes, cold and warm") in named
             and ("10", "full run 2 of 2") in named
-            and ("12", "box and primitive tests (the COUNT_TESTS build)") in named
+            and ("11", "box and primitive tests (the COUNT_TESTS build)") in named
             and named[-1] == (str(steps), "done")), named
     # The bar is erased before the command ends; the profile itself is on stdout.
     assert shown.rstrip("\r").split("\r")[-1].strip() == ""

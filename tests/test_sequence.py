@@ -506,7 +506,7 @@ def test_a_key_path_only_an_included_file_has_is_not_in_the_scene(tmp_scene, tmp
     assert cli.main(["render", str(path), "--frames", "0:3", "-W", "16", "-H", "12",
                      "-o", str(tmp_path / "f_%04d.png")]) == 3
     assert capsys.readouterr().err.splitlines() == [
-        "clray: error: scene.toml: animation.tracks[0].key: camera is not in the scene "
+        f"clray: error: {path}: animation.tracks[0].key: camera is not in the scene "
         "(give it a value there to animate it)"]
     assert not list(tmp_path.glob("f_*"))
 

@@ -185,7 +185,7 @@ def test_a_bad_scene_stops_the_study_before_any_render(tmp_path: Path, tmp_scene
     bad = tmp_path / "bad.toml"
     bad.write_text("[render]\nwidth = -3\n")
     assert main(["study", str(tmp_scene(SCENE)), str(bad), "--out", str(tmp_path / "o")]) == 3
-    assert capsys.readouterr().err == "clray: error: bad.toml: camera: missing required key\n"
+    assert capsys.readouterr().err == f"clray: error: {bad}: camera: missing required key\n"
     assert rendered == [] and not (tmp_path / "o").exists()
 
 

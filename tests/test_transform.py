@@ -172,7 +172,7 @@ def test_a_transform_past_float32_is_exit_3_in_one_line(capsys, tmp_path) -> Non
     out = tmp_path / "o.png"
     assert main(["render", str(scene), "-W", "16", "-H", "12", "-o", str(out)]) == 3
     lines = capsys.readouterr().err.splitlines()
-    assert lines == ["clray: error: s.toml: objects[0].transform: moves the object beyond "
+    assert lines == [f"clray: error: {scene}: objects[0].transform: moves the object beyond "
                      "1e+30 in magnitude (largest 1e+40)"]
     assert not out.exists()
 
@@ -190,6 +190,6 @@ def test_a_cone_whose_rim_passes_the_limit_is_exit_3_in_one_line(capsys, tmp_pat
     out = tmp_path / "o.png"
     assert main(["render", str(scene), "-o", str(out)]) == 3
     lines = capsys.readouterr().err.splitlines()
-    assert lines == ["clray: error: cone.toml: objects[0]: the cone's rim radius (height x "
+    assert lines == [f"clray: error: {scene}: objects[0]: the cone's rim radius (height x "
                      "tan(angle)) is 5.73e+37, beyond 1e+30 in magnitude"]
     assert not out.exists()

@@ -410,7 +410,7 @@ def test_tune_refuses_a_bad_scene_before_writing_anything(kernel_tuner, capsys, 
     code = cli.main(["tune", str(bad), "--out", str(tmp_path / "t")])
     err = capsys.readouterr().err
     assert code == 3
-    assert err == "clray: error: bad.toml: camera: missing required key\n"
+    assert err == f"clray: error: {bad}: camera: missing required key\n"
     assert not (tmp_path / "t").exists()
 
 
@@ -470,7 +470,7 @@ def test_a_failed_tune_takes_back_the_folders_it_made(kernel_tuner, capsys, tmp_
     bad.write_text("[render]\nwidth = -3\n")
     code = cli.main(["tune", str(bad), "--out", str(tmp_path / "new" / "t")])
     assert code == 3
-    assert capsys.readouterr().err == "clray: error: bad.toml: camera: missing required key\n"
+    assert capsys.readouterr().err == f"clray: error: {bad}: camera: missing required key\n"
     assert not (tmp_path / "new").exists()
 
 

@@ -278,16 +278,17 @@ class Assets:
         # Scanners and MeshLab write display (sRGB) colours, as 8-bit images hold.
         return dataclasses.replace(ply.mesh, colors=srgb_decode(ply.colors))
 
-    def material_library(self, path: Path, where: str
+    def material_library(self, path: Path, where: str, written: str
                          ) -> tuple[MtlLibrary, tuple[int, int]] | None:
         """An MTL file (relative to the scene's folder) read once, with its identity; None,
-        with a warning naming `where`, if it cannot be read."""
+        with a warning naming `where`, if it cannot be read. `written`: its name as the OBJ's
+        mtllib writes it, which messages name (its base name alone may be another file's)."""
         try:
             stream, info = open_regular(self.base / path, L.MAX_SCENE_BYTES)
             with stream:
                 identity = (info.st_dev, info.st_ino)
                 if identity not in self.libraries:
-                    shown = f"{where}: {file_name(path.name)}"
+                    shown = f"{where}: {file_name(written)}"
 
                     def parse() -> MtlLibrary:
                         data = read_at_most(stream, L.MAX_SCENE_BYTES)
@@ -300,7 +301,7 @@ class Assets:
                     self.warnings.extend(self.libraries[identity].warnings)
         except UnreadableFile as exc:
             self.warnings.append(f"{where}: cannot read material library "
-                                 f"{file_name(path.name)}: {exc} (its faces take the default "
+                                 f"{file_name(written)}: {exc} (its faces take the default "
                                  "material)")
             return None
         return self.libraries[identity], identity

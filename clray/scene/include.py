@@ -15,6 +15,7 @@ they are written there (`lib.toml: materials.glass.ior: ...`).
 
 from __future__ import annotations
 
+import os
 import re
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -43,6 +44,15 @@ class Origins:
     render: dict[str, Path] = field(default_factory=dict)
     camera: Path | None = None
     merged_files: set[Path] = field(default_factory=set)
+    folder: Path = Path()  # the top scene's, which the other files' names are relative to
+
+    def named(self, file: Path) -> str:
+        """`file` as a message names another file: relative to the top scene's folder, as the
+        scene names its files (its base name alone may be another library's too)."""
+        try:
+            return file.relative_to(self.folder).as_posix()
+        except ValueError:  # an absolute include
+            return file.as_posix()
 
     def locate(self, error: SceneError, key_of: Callable[[str, str], str]) -> SceneError:
         """`error` (found in the merged data) re-addressed to the file and key it came from."""
@@ -77,7 +87,7 @@ def expand_includes(data: Any, path: Path | None, read: Callable[[Path], Any]
     came from (None: relative names are relative to the working directory)."""
     if not isinstance(data, dict) or "include" not in data:
         return data, None
-    origins = Origins()
+    origins = Origins(folder=(path or Path("scene")).parent)
     merged: dict[str, Any] = {"materials": {}, "groups": {}, "lights": [], "objects": [],
                               "render": {}}
     top = (path or Path("scene")).resolve()
@@ -105,7 +115,9 @@ def _merge(data: Any, path: Path | None, chain: tuple[Path, ...], merged: dict, 
         target = (path or Path("scene")).parent / name
         resolved = target.resolve()
         if resolved in chain:
-            shown = " -> ".join(p.name for p in (*chain, resolved))
+            top = chain[0].parent
+            shown = " -> ".join(Path(os.path.relpath(p, top)).as_posix()
+                                for p in (*chain, resolved))
             raise SceneError(path, f"include[{i}]", f"includes itself: {shown}")
         if len(chain) > L.MAX_INCLUDE_DEPTH:
             raise SceneError(path, f"include[{i}]", f"includes nested more than "
@@ -142,7 +154,7 @@ def _merge_tables(data: dict, own: dict, path: Path | None, merged: dict,
         for name, spec in own.get(table, {}).items():
             if name in merged[table]:
                 raise SceneError(path, key_path(table, name),
-                                 f"already defined in {defined[name].name}")
+                                 f"already defined in {origins.named(defined[name])}")
             merged[table][name] = spec
             defined[name] = file
     for table in ("lights", "objects"):
@@ -156,7 +168,8 @@ def _merge_tables(data: dict, own: dict, path: Path | None, merged: dict,
         origins.render[key] = file
     if "camera" in data:
         if origins.camera is not None:
-            raise SceneError(path, "camera", f"already given in {origins.camera.name}")
+            raise SceneError(path, "camera",
+                             f"already given in {origins.named(origins.camera)}")
         merged["camera"] = data["camera"]
         origins.camera = file
 

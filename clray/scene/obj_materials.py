@@ -30,7 +30,7 @@ def obj_face_materials(obj: ObjMesh, name: str, key: str, default: int, v: Value
     for line, lib in obj.material_libraries:
         where = f"{key}: {file_name(name)}: line {line}"
         try:
-            read = assets.material_library(folder / lib, where)
+            read = assets.material_library(folder / lib, where, lib)
         except SceneError as err:
             # Which reference is wrong: the library may be any file (`mtllib` names it).
             raise SceneError(err.file, err.key, f"{err.message} ({file_name(name)} line {line} "

@@ -544,7 +544,7 @@ def _parse(argv: list[str] | None) -> argparse.Namespace:
         _check_view_with_camera(parser, args.scene if args.command == "render" else args.model,
                                 args.view)
     if args.command == "render":
-        _render_output(parser, args)
+        _output_name(parser, args)
         _check_render_flags(parser, args)
     return args
 
@@ -563,7 +563,7 @@ def _check_dask_flags(parser: argparse.ArgumentParser, args: argparse.Namespace)
         parser.error("--dask-workers applies to a local cluster (--dask without ADDRESS)")
 
 
-def _render_output(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
+def _output_name(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
     """-o as given, checked as a still's name or a frames' pattern, else the default from the
     scene's stem; args.output_given says which."""
     from clray.sequence import frame_path
@@ -1292,8 +1292,8 @@ def _check_frame_outputs(args: argparse.Namespace, frames: range, read: set[str]
 def _render_and_write_frames(args: argparse.Namespace, sequence: Sequence, first: Scene,
                              todo: list[int]) -> tuple[list[dict], dict | None]:
     """The frames `todo` rendered (here, or on Dask from `first`'s size), each written to its
-    file as it is done: the frames' records in that order, and the Dask stats (None for
-    none)."""
+    file as it is done: the frames' records in the order they were done (the caller sorts
+    them), and the Dask stats (None without Dask)."""
     from clray.sequence import frame_path, render_frames
 
     records: list[dict] = []

@@ -98,10 +98,23 @@ class SceneError(ClrayError):
     def with_path(self) -> str:
         """The message naming the file by its path as given (on the command line, or joined to
         the folder of the scene that names it), not by its base name alone, which an included
-        scene or a mesh in another folder may share: what the command line prints."""
-        parts = [p for p in (None if self.file is None else str(self.file), self.key,
+        scene or a mesh in another folder may share: what the command line prints. A path the
+        loader made absolute (an animation's scene, a mesh file's automatic scene) is named
+        from the working directory where it lies below it, as it was given there."""
+        parts = [p for p in (None if self.file is None else shown_path(self.file), self.key,
                              self.message) if p]
         return one_line(": ".join(parts))
+
+
+def shown_path(path: Path) -> str:
+    """`path` as a message to the user names it: relative to the working directory where it is
+    absolute and lies below it, else as it is."""
+    if path.is_absolute():
+        try:
+            return str(path.relative_to(Path.cwd()))
+        except (ValueError, OSError):  # elsewhere, or no working directory any more
+            pass
+    return str(path)
 
 
 class SettingsError(ClrayError, ValueError):

@@ -33,7 +33,7 @@ from typing import ParamSpec, TypeVar
 
 import numpy as np
 
-from clray.errors import ClrayError, one_line
+from clray.errors import ClrayError, one_line, shown_path
 
 try:  # numpy 2
     from numpy._core.multiarray import _set_madvise_hugepage
@@ -187,9 +187,9 @@ def fits_host_memory(path: Path, triangles: int) -> None:
     available = memory_available()
     if available is not None and needed > available:
         raise ClrayError(one_line(
-            f"{path.name}: {triangles:,} triangles need about {_bytes(needed)} of host memory "
-            f"to render ({HOST_BYTES_PER_TRIANGLE} B a triangle, docs/scale.md), more than the "
-            f"{_bytes(available)} available"))
+            f"{shown_path(path)}: {triangles:,} triangles need about {_bytes(needed)} of host "
+            f"memory to render ({HOST_BYTES_PER_TRIANGLE} B a triangle, docs/scale.md), more "
+            f"than the {_bytes(available)} available"))
 
 
 @contextmanager
@@ -199,7 +199,7 @@ def loading(path: Path) -> Iterator[None]:
     try:
         yield
     except MemoryError:
-        raise ClrayError(one_line(f"{path.name}: out of memory while loading it")) from None
+        raise ClrayError(one_line(f"{shown_path(path)}: out of memory while loading it")) from None
 
 
 def _bytes(count: int) -> str:

@@ -664,10 +664,42 @@ def test_scene_errors_name_the_file_by_its_path(capsys, tmp_path, monkeypatch) -
     assert err == ("clray: error: shots/parts/scene.toml: materials.bad.ior: must be >= 0.01, "
                    "got 0\n")
     (tmp_path / "shots" / "scene.toml").write_text("[camera]\n")
+    # An absolute path outside the working directory stays as it was given.
+    (tmp_path / "elsewhere").mkdir()
+    monkeypatch.chdir(tmp_path / "elsewhere")
     code, _, err = run(capsys, "render", tmp_path / "shots" / "scene.toml", "-o", "x.png")
     assert code == 3
     assert err == (f"clray: error: {tmp_path / 'shots' / 'scene.toml'}: camera.position: "
                    "missing required key\n")
+    assert files_in(tmp_path) == ["elsewhere", "shots"]
+    assert files_in(tmp_path / "elsewhere") == []
+
+
+@pytest.mark.parametrize("command", ["render", "scene"])
+def test_a_mesh_files_errors_name_it_as_given(capsys, tmp_path, monkeypatch, command) -> None:
+    # The automatic scene of a mesh file loads it by an absolute path; its errors name it by
+    # the relative one given.
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "models").mkdir()
+    (tmp_path / "models" / "bad.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 x\n")
+    output = ["-o", "x.png"] if command == "render" else []
+    code, _, err = run(capsys, command, "models/bad.obj", *output)
+    assert code == 3
+    assert err.startswith("clray: error: models/bad.obj: line 4: ")
+    assert len(err.splitlines()) == 1
+
+
+def test_an_animations_errors_name_the_scene_as_given(capsys, tmp_path, monkeypatch) -> None:
+    # --frames loads the scene by its absolute path (for Dask's workers); its errors name it
+    # by the relative one given.
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "shots").mkdir()
+    (tmp_path / "shots" / "plain.toml").write_text(
+        '[camera]\nposition = [0, 0, 5]\nlook_at = [0, 0, 0]\n')
+    code, _, err = run(capsys, "render", "shots/plain.toml", "--frames", "0:2", "-o",
+                       "f_%04d.png")
+    assert code == 3
+    assert err.startswith("clray: error: shots/plain.toml: animation: missing")
     assert files_in(tmp_path) == ["shots"]
 
 

@@ -198,14 +198,18 @@ def test_the_memory_available_is_read_where_the_system_says_it(
 def test_a_mesh_beyond_the_memory_available_is_refused_in_one_line(
         monkeypatch: pytest.MonkeyPatch, tmp_path: Path, capsys: pytest.CaptureFixture[str],
         suffix: str) -> None:
-    path = cube_file(tmp_path / f"cube{suffix}")
+    # Named by the path as given (two meshes may share a base name), the loader's absolute
+    # one shown from the working directory.
+    (tmp_path / "sub").mkdir()
+    cube_file(tmp_path / "sub" / f"cube{suffix}")
+    monkeypatch.chdir(tmp_path)
     _available(monkeypatch, tmp_path, 1)  # 12 triangles need 936 B of the 1 KiB
-    assert cli.main(["scene", str(path)]) == 0
+    assert cli.main(["scene", f"sub/cube{suffix}"]) == 0
     capsys.readouterr()
     _available(monkeypatch, tmp_path, 0)
-    assert cli.main(["scene", str(path)]) == 1
+    assert cli.main(["scene", f"sub/cube{suffix}"]) == 1
     assert capsys.readouterr().err == (
-        f"clray: error: cube{suffix}: 12 triangles need about 936 B of host memory to render "
+        f"clray: error: sub/cube{suffix}: 12 triangles need about 936 B of host memory to render "
         f"({host_memory.HOST_BYTES_PER_TRIANGLE} B a triangle, docs/scale.md), more than the "
         "0 B available\n")
 
@@ -226,14 +230,17 @@ def test_a_ply_file_beyond_the_memory_available_is_refused_from_its_header(
 def test_running_out_of_memory_while_loading_names_the_file(
         monkeypatch: pytest.MonkeyPatch, tmp_path: Path, capsys: pytest.CaptureFixture[str]
         ) -> None:
-    path = cube_file(tmp_path / "cube.obj")
+    (tmp_path / "sub").mkdir()
+    cube_file(tmp_path / "sub" / "cube.obj")
+    monkeypatch.chdir(tmp_path)
 
     def exhausted(*args: object) -> None:
         raise MemoryError
 
     monkeypatch.setattr(assets, "parse_obj", exhausted)
-    assert cli.main(["scene", str(path)]) == 1
-    assert capsys.readouterr().err == "clray: error: cube.obj: out of memory while loading it\n"
+    assert cli.main(["scene", "sub/cube.obj"]) == 1
+    assert capsys.readouterr().err == (
+        "clray: error: sub/cube.obj: out of memory while loading it\n")
 
 
 def test_a_truncated_ply_file_is_said_to_be_truncated_not_too_big(

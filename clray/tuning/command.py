@@ -151,6 +151,8 @@ def run_tune(paths: Sequence[Path], out: Path, *, device: str | None = None,
     plot_skipped = report.plot(out, trials, best[0] if best else None)
     report.write_report(out, header, trials, best[0] if best else None, confirmed, plot_skipped)
     if to_store is not None:
+        # Stored after the results are written: a tuning folder that fails now loses the
+        # stored winner, not the tuning's results.
         _store_winner(out, header, trials, cl_device, to_store, strategy, budget_s)
     _say_outcome(say, header, trials, confirmed, to_store, cl_device)
     return header
@@ -224,8 +226,6 @@ def _judge_winner(header: dict, best: tuple[str, dict[str, Trial]], tuner: Tuner
 def _store_winner(out: Path, header: dict, trials: Sequence[Trial], cl_device: cl.Device,
                   to_store: Tuning, strategy: str, budget_s: float) -> None:
     """The device's tuning file for the winner, named in the header and the results."""
-    # Stored after the results are written: a tuning folder that fails now loses the
-    # stored winner, not the tuning's results.
     try:
         header["tuning_file"] = str(save_tuning(cl_device, to_store, {
             "scenes": header["scenes"], "strategy": strategy, "budget_s": budget_s,

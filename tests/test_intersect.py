@@ -138,6 +138,21 @@ def test_sphere_hits_match_closed_form(cl_device):
     assert_normals(normal, (o + want[:, None] * d - center) / radius, 1e-5, "sphere normal")
 
 
+@pytest.mark.parametrize("n", [1, 7, 97, 1009])
+def test_every_ray_of_a_launch_is_walked(cl_device, n):
+    # intersect_rays walks a work-group's rays in a loop where work-items run serially: ray
+    # counts that no local size but 1 or n divides leave no ray unwalked, nor any walked twice
+    # with another's result. Each ray its own distance: a ray left out keeps no right t.
+    center, radius = np.array([0.0, 0.0, -5.0]), 1.0
+    scene = make_scene(M.Sphere(tuple(center), radius, 0))
+    distance = np.linspace(2.0, 40.0, n)
+    o = f32(center + np.outer(distance, [0.0, 0.0, 1.0]))
+    d = f32(np.tile([0.0, 0.0, -1.0], (n, 1)))
+    t, _, r = cast(cl_device, scene, o, d)
+    assert np.all(r == ref(L.PRIM_SPHERE, 0))
+    assert_rel(t, (o[:, 2] - center[2]) - radius, RTOL, "sphere t")
+
+
 def test_sphere_from_inside_hits_the_far_side(cl_device):
     rng = np.random.default_rng(2)
     center, radius = np.array([1.0, 2.0, -3.0]), 2.0

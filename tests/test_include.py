@@ -142,6 +142,16 @@ def test_files_in_other_folders_are_named_from_the_scenes_folder(tmp_path: Path)
     assert message == "s.toml: camera: already given in x/a.toml"
 
 
+def test_a_cycle_through_a_link_is_shown_by_the_names_given(tmp_path: Path) -> None:
+    # The chain names the files as the scenes name them: not where a symbolic link points
+    # (../elsewhere/a.toml), which no scene wrote.
+    write(tmp_path, "elsewhere/a.toml", 'include = ["a.toml"]\n')
+    (tmp_path / "top").mkdir()
+    (tmp_path / "top" / "lib").symlink_to(tmp_path / "elsewhere")
+    message = load_error(write(tmp_path, "top/s.toml", 'include = ["lib/a.toml"]\n' + CAMERA))
+    assert message == "a.toml: include[0]: includes itself: s.toml -> lib/a.toml -> lib/a.toml"
+
+
 def test_self_include(tmp_path: Path) -> None:
     message = load_error(write(tmp_path, "s.toml", 'include = ["s.toml"]\n' + CAMERA))
     assert message == "s.toml: include[0]: includes itself: s.toml -> s.toml"

@@ -90,19 +90,20 @@ def expand_includes(data: Any, path: Path | None, read: Callable[[Path], Any]
     origins = Origins(folder=(path or Path("scene")).parent)
     merged: dict[str, Any] = {"materials": {}, "groups": {}, "lights": [], "objects": [],
                               "render": {}}
-    top = (path or Path("scene")).resolve()
-    _merge(data, path, (top,), merged, origins, Path(), read)
+    top = path or Path("scene")
+    _merge(data, path, ((top.resolve(), top),), merged, origins, Path(), read)
     return merged, origins
 
 
-def _merge(data: Any, path: Path | None, chain: tuple[Path, ...], merged: dict, origins: Origins,
-           folder: Path, read: Callable[[Path], Any]) -> None:
+def _merge(data: Any, path: Path | None, chain: tuple[tuple[Path, Path], ...], merged: dict,
+           origins: Origins, folder: Path, read: Callable[[Path], Any]) -> None:
     """Merges `data`, read from `path`, after its includes. `folder`: the folder of `path`
     relative to the top scene's (Path() for the top scene itself). Names are joined, never
     resolved or normalised: a relative name is then relative to the folder of the file as
     it was named, through any symbolic link, as the system opens it and as the loader reads
-    the top scene's textures and meshes (clray.scene.load._base); `chain` holds the resolved
-    files, which a cycle repeats however they are named."""
+    the top scene's textures and meshes (clray.scene.load._base); `chain` holds the files
+    including it, each resolved (a cycle repeats those however they are named) and joined (as
+    the cycle's message names them, not by where a symbolic link points)."""
     if not isinstance(data, dict):
         raise SceneError(path, None, f"expected a table at the top level, got {show(data)}")
     for key in string_keys(data, path, None):
@@ -114,10 +115,11 @@ def _merge(data: Any, path: Path | None, chain: tuple[Path, ...], merged: dict, 
     for i, name in enumerate(names):
         target = (path or Path("scene")).parent / name
         resolved = target.resolve()
-        if resolved in chain:
-            top = chain[0].parent
-            shown = " -> ".join(Path(os.path.relpath(p, top)).as_posix()
-                                for p in (*chain, resolved))
+        if resolved in (file for file, _ in chain):
+            # Lexically, from the top scene's folder: where a link points is not what was named.
+            top = chain[0][1].parent
+            shown = " -> ".join(Path(os.path.relpath(joined, top)).as_posix()
+                                for _, joined in (*chain, (resolved, target)))
             raise SceneError(path, f"include[{i}]", f"includes itself: {shown}")
         if len(chain) > L.MAX_INCLUDE_DEPTH:
             raise SceneError(path, f"include[{i}]", f"includes nested more than "
@@ -129,7 +131,7 @@ def _merge(data: Any, path: Path | None, chain: tuple[Path, ...], merged: dict, 
             included = read(target)
         except UnreadableFile as exc:
             raise SceneError(path, f"include[{i}]", f"cannot read {name!r}: {exc}") from None
-        _merge(included, target, (*chain, resolved), merged, origins,
+        _merge(included, target, (*chain, (resolved, target)), merged, origins,
                folder / Path(name).parent, read)
     own = {k: _relocated(v, folder) for k, v in data.items()
            if k in ("materials", "groups", "lights", "objects", "render")}

@@ -9,14 +9,19 @@ from __future__ import annotations
 
 import fnmatch
 import importlib.metadata
+import os
 import re
+import shutil
 import subprocess
 import sys
 import tomllib
 from importlib.resources import files
 from pathlib import Path
 
+import pytest
+
 import clray
+from clray.device import program
 from clray.device.program import ENTRY_FILE, KERNEL_PACKAGE, kernel_source
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -101,6 +106,30 @@ def test_line_markers_lead_back_to_every_source_line() -> None:
                 for lineno, line in enumerate(sources[name], start=1)
                 if not INCLUDE.match(line)}
     assert expected <= emitted, sorted(expected - emitted)[:5]
+
+
+def test_kernel_source_is_kept_until_a_file_it_read_changes(tmp_path: Path,
+                                                           monkeypatch: pytest.MonkeyPatch) -> None:
+    """Every render asks for kernel_source(): the expanded text is kept, and expanded again when
+    a file that went into it changes on disk, an included one (rng.h, two includes deep) too."""
+    folder = tmp_path / "kernels"
+    shutil.copytree(str(files(KERNEL_PACKAGE)), folder,
+                    ignore=shutil.ignore_patterns("__pycache__"))
+    monkeypatch.setattr(program, "files", lambda package: folder)
+    first = kernel_source()
+    assert "// edited" not in first
+    assert kernel_source() is first  # the kept text, not the same text expanded again
+    header = folder / "rng.h"
+    header.write_text(header.read_text(encoding="utf-8") + "// edited\n", encoding="utf-8")
+    edited = kernel_source()
+    assert edited.count("// edited") == 1  # inlined once, though two files include it
+    assert kernel_source() is edited
+    # An edit that keeps the size is seen by its time (set ahead: a coarse clock may not move).
+    header.write_text(header.read_text(encoding="utf-8").replace("// edited", "// EDITED"),
+                      encoding="utf-8")
+    stat = header.stat()
+    os.utime(header, ns=(stat.st_atime_ns, stat.st_mtime_ns + 10**9))
+    assert "// EDITED" in kernel_source()
 
 
 def test_version_is_the_same_everywhere() -> None:

@@ -13,6 +13,8 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, fields, make_dataclass
 from importlib.resources import files
+from importlib.resources.abc import Traversable
+from pathlib import Path
 
 import pyopencl as cl
 
@@ -286,16 +288,51 @@ def source_digest(source: str) -> str:
     return hashlib.sha256(source.encode()).hexdigest()
 
 
+# A file's stamp: what says, without reading it, that it is unchanged; None where the package
+# is not plain files (a zip import), which has no stat and is read again every time.
+_Stamp = tuple[int, int] | None
+# kernel_source's texts by (kernel folder, entry file), with the stamp of every file that went
+# into each: expanding the includes took about 7-13 ms, which every render (an animation's each
+# frame) paid, and a stat of the ~35 files costs well under a millisecond.
+_expanded: dict[tuple[str, str], tuple[tuple[tuple[Traversable, _Stamp], ...], str]] = {}
+
+
+def _stamp(file: Traversable) -> _Stamp:
+    if not isinstance(file, Path):
+        return None
+    info = file.stat()
+    # The size as well as the time: a filesystem with coarse timestamps can keep the time of an
+    # edit made within the same tick.
+    return info.st_mtime_ns, info.st_size
+
+
 def kernel_source(name: str = ENTRY_FILE) -> str:
     """The entry file with its quoted includes inlined (each once), with #line markers so
-    build logs name the right file. Inlining keeps every cache keyed on the full text."""
+    build logs name the right file. Inlining keeps every cache keyed on the full text. The
+    text is kept for the process, and expanded again when any file that went into it changes
+    on disk (a kernel edited while a notebook or an animation runs)."""
+    folder = files(KERNEL_PACKAGE)
+    key = (str(folder), name)
+    cached = _expanded.get(key)
+    if cached is not None:
+        read, text = cached
+        try:
+            if all(stamp is not None and _stamp(file) == stamp for file, stamp in read):
+                return text
+        except OSError:  # a file gone: expanding again reports it as a first read would
+            pass
     seen: set[str] = set()
+    read_files: list[tuple[Traversable, _Stamp]] = []
 
     def expand(fname: str) -> str:
         if fname in seen:
             return ""
         seen.add(fname)
-        text = files(KERNEL_PACKAGE).joinpath(fname).read_text(encoding="utf-8")
+        file = folder.joinpath(fname)
+        # Stamped before reading: an edit landing between the two makes the next call expand
+        # again, never keeps a stale text.
+        read_files.append((file, _stamp(file)))
+        text = file.read_text(encoding="utf-8")
         out = [f'#line 1 "{fname}"']
         for lineno, line in enumerate(text.splitlines(), start=1):
             match = _INCLUDE.match(line)
@@ -306,7 +343,9 @@ def kernel_source(name: str = ENTRY_FILE) -> str:
                 out.append(line)
         return "\n".join(out)
 
-    return expand(name)
+    text = expand(name)
+    _expanded[key] = (tuple(read_files), text)
+    return text
 
 
 _programs: dict[tuple[int, str, tuple[str, ...]], cl.Program] = {}

@@ -284,11 +284,18 @@ def _kernel_flags(r: argparse.ArgumentParser) -> None:
                         "(docs/acceleration.md)")
 
 
+def _quiet_flag(r: Any, not_even: str = "") -> None:
+    """-q/--quiet (args.quiet), the same flag in every command that has it, on its parser or
+    on a group of it (render's, beside -v); `not_even` names what else the command leaves
+    unsaid (render's progress bar)."""
+    r.add_argument("-q", "--quiet", action="store_true",
+                   help="print nothing on success" + (f", not even {not_even}" if not_even else ""))
+
+
 def _talk_flags(r: argparse.ArgumentParser) -> None:
     """-q and -v: what a render says as it goes and at the end."""
     talk = r.add_mutually_exclusive_group()
-    talk.add_argument("-q", "--quiet", action="store_true",
-                      help="print nothing on success, not even the progress bar")
+    _quiet_flag(talk, not_even="the progress bar")
     talk.add_argument("-v", "--verbose", action="store_true",
                       help="print progress lines where stderr is not a terminal (a terminal "
                            "always gets a progress bar), compiler warnings and a table of "
@@ -331,7 +338,7 @@ def _study_command(commands: Any) -> None:
     _device_flag(st)
     _dask_flags(st, "render on a Dask cluster, one task a scene (each scene's variants on one "
                     "worker, so that their times compare), as for render")
-    st.add_argument("-q", "--quiet", action="store_true", help="print nothing on success")
+    _quiet_flag(st)
     st.set_defaults(run=_study)
 
 
@@ -390,7 +397,7 @@ def _tune_command(commands: Any) -> None:
                         "the best found so far, one build each)")
     t.add_argument("--no-save", dest="save", action="store_false",
                    help="store nothing as the device's tuning file")
-    t.add_argument("-q", "--quiet", action="store_true", help="print nothing on success")
+    _quiet_flag(t)
     t.set_defaults(run=_tune)
 
 

@@ -285,6 +285,24 @@ def test_missing_texture_is_a_warning_and_the_material_keeps_kd(tmp_path):
     assert "option -o is not modelled" in text and "option -bm is not modelled" in text
 
 
+@pytest.mark.parametrize("written, message", [
+    # Joined to the MTL file's folder, the URL read "mats/http:/x.test/t.png".
+    ("http://x.test/t.png", "file not found: {}"),
+    ("tex//none.png", "file not found: {}"),
+    ("./tex/bad.png", "cannot read image {}: not an image"),
+])
+def test_a_texture_that_cannot_be_read_is_named_as_the_mtl_file_writes_it(tmp_path, written,
+                                                                         message):
+    textured_quad(tmp_path, f"map_Kd {written}")
+    (tmp_path / "mats" / "tex" / "bad.png").write_bytes(b"not an image")
+    scene = scene_of(tmp_path)
+    assert scene.materials[scene.objects[0].face_materials[0]].texture is None
+    shown = [w for w in scene.warnings if "keeps Kd" in w]
+    assert len(shown) == 1, scene.warnings
+    where = "objects[0].file: m.obj: line 1: mats/m.mtl: line 5: map_Kd: "
+    assert shown[0].startswith(where + message.format(file_name(written))), shown
+
+
 @pytest.mark.parametrize("line, message", [
     ("map_Kd", "expected an image file name"),
     ("map_Kd -s x t.png", "-s: expected numbers"),

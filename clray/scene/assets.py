@@ -95,21 +95,26 @@ class Assets:
         return other
 
     def open_file(
-        self, value: Any, key: str, max_bytes: int
+        self, value: Any, key: str, max_bytes: int, written: str | None = None
     ) -> tuple[BinaryIO, tuple[int, int]]:
-        """(open binary stream, (device, inode)) of a mesh or texture file."""
+        """(open binary stream, (device, inode)) of a mesh or texture file. `written`: its
+        name as the file that refers to it writes it (an MTL file's map_Kd, which `value`
+        joins to that file's folder), which messages name; else `value`."""
         name = self.values.string(value, key)
         try:
             stream, info = open_regular(self.base / name, max_bytes)
         except UnreadableFile as exc:
-            raise self.values.error(key, f"{exc}: {file_name(name)}") from None
+            raise self.values.error(key, f"{exc}: {file_name(written or name)}") from None
         return stream, (info.st_dev, info.st_ino)
 
     # -- images ---------------------------------------------------------------------------
 
-    def image(self, name: str, key: str) -> tuple[np.ndarray, bool]:
-        """(texels as stored, scaled to [0, 1]; whether the file has more than 8 bits)."""
-        stream, identity = self.open_file(name, key, L.MAX_TEXTURE_BYTES)
+    def image(self, name: str, key: str, written: str | None = None
+              ) -> tuple[np.ndarray, bool]:
+        """(texels as stored, scaled to [0, 1]; whether the file has more than 8 bits).
+        `written`: the name that messages give it, as for open_file."""
+        stream, identity = self.open_file(name, key, L.MAX_TEXTURE_BYTES, written)
+        shown = file_name(written or name)
         with stream:
             if identity in self.textures:
                 return self.textures[identity]
@@ -117,9 +122,8 @@ class Assets:
                 texels, deep, warned = self.read_image(lambda: stream, self.base / name,
                                                        "image")
             except TextureError as exc:
-                raise self.values.error(key, f"cannot read image {file_name(name)}: {exc}"
-                                        ) from None
-        self.warnings.extend(f"{key}: image {file_name(name)}: {w}" for w in warned)
+                raise self.values.error(key, f"cannot read image {shown}: {exc}") from None
+        self.warnings.extend(f"{key}: image {shown}: {w}" for w in warned)
         self.textures[identity] = (texels, deep)
         return texels, deep
 

@@ -61,7 +61,7 @@ def obj_face_materials(obj: ObjMesh, name: str, key: str, default: int, v: Value
 def _textured(material: Material, mtl: MtlMaterial, library: Path, where: str, v: Values,
               assets: Assets) -> Material:
     """`material` with the MTL material's map_Kd (relative to its library) as an image
-    texture replacing Kd; a texture that cannot be read is a warning."""
+    texture replacing Kd; a texture that cannot be read is a warning naming it as written."""
     from clray.scene.parse_materials import parse_texture
 
     texture_map = mtl.map_kd
@@ -73,7 +73,9 @@ def _textured(material: Material, mtl: MtlMaterial, library: Path, where: str, v
     spec = {"type": "image", "file": (library.parent / texture_map.file).as_posix(),
             "repeat": list(texture_map.scale)}
     try:
-        texture = parse_texture(spec, shown, v, assets)
+        # Messages name the image as the MTL file writes it, as they do its mtllib name: the
+        # joined path is not what the file says (a URL's // collapses: "sub/http:/x/t.png").
+        texture = parse_texture(spec, shown, v, assets, written=texture_map.file)
     except SceneError as err:
         assets.warnings.append(f"{shown}: {err.message} (the material keeps Kd)")
         return material

@@ -109,7 +109,10 @@ def parse_material(spec: dict, key: str, name: str, v: Values, assets: Assets) -
     )
 
 
-def parse_texture(spec: dict, key: str, v: Values, assets: Assets) -> Texture:
+def parse_texture(spec: dict, key: str, v: Values, assets: Assets,
+                  written: str | None = None) -> Texture:
+    """A texture table. `written`: the image file's name as the file that refers to it writes
+    it (an MTL file's map_Kd), which messages name instead of spec's joined path."""
     kind = v.kind(spec, key, TEXTURE_KEYS)
     v.keys(spec, key, TEXTURE_KEYS[kind], ("type",))
     d = Texture(kind=kind)
@@ -138,7 +141,7 @@ def parse_texture(spec: dict, key: str, v: Values, assets: Assets) -> Texture:
         return Texture(kind=kind, repeat=(j, k), blend=blend, image=texels)
     fkey = f"{key}.file"
     file = assets.base / v.string(spec["file"], fkey)
-    texels, deep = assets.image(spec["file"], fkey)
+    texels, deep = assets.image(spec["file"], fkey, written)
     # The file's values are sRGB-encoded unless it says otherwise: by default 8-bit images
     # are (as cameras and paint programs write them), 16-bit and float ones are linear.
     colorspace = v.choice(

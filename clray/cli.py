@@ -295,7 +295,7 @@ def _quiet_flag(r: Any, not_even: str = "") -> None:
 def _talk_flags(r: argparse.ArgumentParser) -> None:
     """-q and -v: what a render says as it goes and at the end."""
     talk = r.add_mutually_exclusive_group()
-    _quiet_flag(talk, not_even="the progress bar")
+    _quiet_flag(talk, not_even="the progress bar or scene warnings")
     talk.add_argument("-v", "--verbose", action="store_true",
                       help="print progress lines where stderr is not a terminal (a terminal "
                            "always gets a progress bar), compiler warnings and a table of "

@@ -22,6 +22,7 @@ from clray.accel.wide import (
     WideBvh,
     collapse,
     fill_nodes,
+    refit,
 )
 from clray.device import layout as L
 from clray.device.launch import render_packed
@@ -119,6 +120,51 @@ def test_collapse_of_random_boxes(width, n):
     refs = _refs(kinds)
     wide = collapse(build_bvh(c - e, c + e), refs, width)
     check_wide(wide, c - e, c + e, refs)
+
+
+def _union_below(wide: WideBvh, node: int, lo: np.ndarray, hi: np.ndarray
+                 ) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Each used lane's box of `node`, found by walking down to the primitives: the union of
+    the boxes (lo, hi by a primitive's place in refs) of every primitive below the lane."""
+    boxes = []
+    for child, count, _, _ in _children(wide, node):
+        if count == 0:
+            below = _union_below(wide, child, lo, hi)
+            boxes.append((np.min([b[0] for b in below], axis=0),
+                          np.max([b[1] for b in below], axis=0)))
+            continue
+        refs = np.concatenate(_leaf_sections(wide, child, count))
+        refs = refs[refs != NO_REF] & L.PRIM_INDEX_MASK
+        boxes.append((lo[refs].min(axis=0), hi[refs].max(axis=0)))
+    return boxes
+
+
+@pytest.mark.parametrize("width", [4, 8])
+@pytest.mark.parametrize("n", [1, 9, 300, 3000])
+def test_refit_makes_each_box_the_union_of_the_moved_primitives(width, n):
+    rng = np.random.default_rng(n + width)
+    c = rng.uniform(-10, 10, (n, 3))
+    e = rng.exponential(0.3, (n, 3))
+    # References that are each primitive's index (one kind), so a slot's ref indexes the boxes.
+    refs = (L.PRIM_TRIANGLE << L.PRIM_TYPE_SHIFT) + np.arange(n)
+    wide = collapse(build_bvh(c - e, c + e, 4), refs, width)
+    moved = np.concatenate([[[0.0, 0.0, 0.0]], rng.uniform(-0.5, 0.5, (n - 1, 3))]) + 3.0
+    lo, hi = ((c + moved - e).astype(np.float32), (c + moved + e).astype(np.float32))
+    used = wide.prim_refs != NO_REF
+    slots = np.where(used, wide.prim_refs & L.PRIM_INDEX_MASK, 0)
+    slot_lo = np.where(used[:, None], lo[slots], np.inf).astype(np.float32)
+    slot_hi = np.where(used[:, None], hi[slots], -np.inf).astype(np.float32)
+    nodes = wide.nodes.copy()
+    refit(nodes, slot_lo, slot_hi, np.zeros((0, 3), np.float32), np.zeros((0, 3), np.float32))
+    fitted = WideBvh(nodes, wide.prim_refs, width, wide.stack_size)
+    for node in range(len(nodes)):
+        expected = _union_below(fitted, node, lo, hi)
+        for (_, _, got_lo, got_hi), (want_lo, want_hi) in zip(_children(fitted, node),
+                                                              expected, strict=True):
+            np.testing.assert_array_equal(got_lo, want_lo)
+            np.testing.assert_array_equal(got_hi, want_hi)
+    np.testing.assert_array_equal(nodes["child"], wide.nodes["child"])
+    np.testing.assert_array_equal(nodes["count"], wide.nodes["count"])
 
 
 @pytest.mark.parametrize("width", [4, 8])

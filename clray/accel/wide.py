@@ -460,3 +460,65 @@ def _laid_out(lanes: list[list[_Lane]], width: int, prim_refs: np.ndarray) -> Wi
     nodes["child"], nodes["count"] = kids, counts
     used = np.array([len(lanes[old]) for old in order])
     return WideBvh(nodes, prim_refs, width, int((pushed + used - 1).max()) + 1)
+
+
+def leaf_slots(count: np.ndarray) -> np.ndarray:
+    """The slots of prim_refs each leaf `count` field spans: its triangle and sphere packets'
+    PACKET_WIDTH slots each, then its other primitives one slot each."""
+    packets = (count >> LEAF_TRIANGLE_SHIFT) + ((count >> LEAF_SPHERE_SHIFT) & LEAF_FIELD_MASK)
+    return PACKET_WIDTH * packets + (count & LEAF_FIELD_MASK)
+
+
+def refit(nodes: np.ndarray, slot_lo: np.ndarray, slot_hi: np.ndarray,
+          instance_lo: np.ndarray, instance_hi: np.ndarray) -> None:
+    """Makes again, in place, every box of the tree whose root is node 0 from its primitives'
+    boxes: `slot_lo`, `slot_hi` (slots, 3) float32, one a slot of prim_refs (+inf and -inf
+    where a slot is empty), and `instance_lo`, `instance_hi` (instances, 3) for the lanes
+    that hold an instance (a negative count, ENTER_INSTANCE: kernels/clray_types.h). The
+    tree keeps its shape, and each box is again the union of the boxes below it, as the
+    collapse made them: where the primitives have moved together (the same scene at another
+    eye, clray/device/pack.py), the tree a build would give, or one of the same quality.
+    Nodes the root does not reach (a group's tree, in the group's own frame) are left as
+    they are.
+
+    Level by level from the deepest: a lane's box is its leaf's slots' union (one reduceat
+    over all the leaves), its instance's box, or the union of its child node's lanes."""
+    if nodes.size == 0:
+        return
+    child, count = nodes["child"], nodes["count"]
+    inner = (count == 0) & (child >= 0)
+    levels = [np.zeros(1, dtype=np.int64)]
+    while True:
+        below = child[levels[-1]][inner[levels[-1]]]
+        if not below.size:
+            break
+        levels.append(below.astype(np.int64))
+    reached = np.concatenate(levels)
+    box = {side: np.stack([nodes[f"{side}_{axis}"] for axis in "xyz"], axis=-1)
+           for side in ("lo", "hi")}  # (nodes, width, 3)
+
+    rows, lanes = np.nonzero(count[reached] > 0)
+    rows = reached[rows]
+    if rows.size:
+        starts = child[rows, lanes].astype(np.int64)
+        # One extra empty slot: a leaf that ends at the last slot ends at a valid index.
+        bounds = np.stack([starts, starts + leaf_slots(count[rows, lanes])], axis=1).ravel()
+        for side, slots, pad, reduce in (("lo", slot_lo, np.inf, np.minimum),
+                                         ("hi", slot_hi, -np.inf, np.maximum)):
+            padded = np.concatenate([slots, np.full((1, 3), pad, np.float32)])
+            box[side][rows, lanes] = reduce.reduceat(padded, bounds, axis=0)[::2]
+    rows, lanes = np.nonzero(count[reached] < 0)
+    rows = reached[rows]
+    box["lo"][rows, lanes] = instance_lo[child[rows, lanes]]
+    box["hi"][rows, lanes] = instance_hi[child[rows, lanes]]
+
+    for level in reversed(levels[:-1]):
+        rows, lanes = np.nonzero(inner[level])
+        rows = level[rows]
+        below = child[rows, lanes]
+        # An unused lane's box is NaN: fmin and fmax pass over it.
+        box["lo"][rows, lanes] = np.fmin.reduce(box["lo"][below], axis=1)
+        box["hi"][rows, lanes] = np.fmax.reduce(box["hi"][below], axis=1)
+    for side in ("lo", "hi"):
+        for k, axis in enumerate("xyz"):
+            nodes[f"{side}_{axis}"][reached] = box[side][reached, :, k]

@@ -12,8 +12,15 @@ from dataclasses import dataclass, field, make_dataclass
 import numpy as np
 import pyopencl as cl
 
-from clray.accel.bvh import TRAVERSAL_COST, build_bvh, within_float32
-from clray.accel.wide import LEAF_FIELD_MASK, PACKET_WIDTH, WideBvh, collapse, fill_nodes
+from clray.accel.bvh import TRAVERSAL_COST, build_bvh, rounded_out, within_float32
+from clray.accel.wide import (
+    LEAF_FIELD_MASK,
+    PACKET_WIDTH,
+    WideBvh,
+    collapse,
+    fill_nodes,
+    refit,
+)
 from clray.device import layout as L
 from clray.device.bvh_builder import build_bvh_from, float_prims
 from clray.device.context import opencl_errors
@@ -311,8 +318,7 @@ def _vertex_arrays(objs: _Placed, sources: list[tuple], faces: _Faces) -> _Trian
         empty = np.zeros((0, 4), dtype=np.float32)
         return _Triangles(faces, _Positions(empty), empty.copy(), np.zeros((0, 2), np.float32),
                           empty.copy())
-    positions = (_Positions(sources[0][0], objs.origins[0]) if len(sources) == 1 else
-                 _Positions(_relative_vertices(objs, sources)))
+    positions = _positions(objs, sources)
     offsets = _vertex_offsets(sources)
     n_vertices = len(positions)
     has_normals = any(src[2] is not None for src in sources)
@@ -330,6 +336,14 @@ def _vertex_arrays(objs: _Placed, sources: list[tuple], faces: _Faces) -> _Trian
         if u is not None:
             uvs[off:off + len(v)] = u
     return _Triangles(faces, positions, normals, uvs, colors)
+
+
+def _positions(objs: _Placed, sources: list[tuple]) -> _Positions:
+    """The triangles' camera-relative positions: a mesh alone's made relative as they are
+    taken, several sources' made relative together (_relative_vertices)."""
+    if len(sources) == 1:
+        return _Positions(sources[0][0], objs.origins[0])
+    return _Positions(_relative_vertices(objs, sources))
 
 
 def _scene_faces(sources: list[tuple], offsets: np.ndarray, tints: list) -> _Faces:
@@ -477,9 +491,9 @@ def _append(nodes: np.ndarray, wide: WideBvh, node_offset: int, slot_offset: int
 def _pack_bvh(bounded: _Bounded, n_groups: int, instances: list[M.Instance],
               group_of: np.ndarray, eye: np.ndarray, width: int,
               queue: cl.CommandQueue | None, tuning: Tuning
-              ) -> tuple[WideBvh, np.ndarray, float]:
+              ) -> tuple[WideBvh, np.ndarray, list[tuple[np.ndarray, np.ndarray]], float]:
     """The wide BVH of the scene's bounded primitives and instances, each group's BVH appended
-    after it, the INSTANCE records, and the seconds it took."""
+    after it, the INSTANCE records, each group's box and the seconds it took."""
     start = time.perf_counter()
     group_trees, group_bounds = [], []
     for g in range(n_groups):
@@ -497,7 +511,7 @@ def _pack_bvh(bounded: _Bounded, n_groups: int, instances: list[M.Instance],
     wide = _build_wide(prims, width, queue, tuning, one_per_leaf=one_per_leaf,
                        values_checked=values_checked)
     if not instances:
-        return wide, records, time.perf_counter() - start
+        return wide, records, group_bounds, time.perf_counter() - start
     wide = _instance_lanes(wide)
     if one_per_leaf:
         wide = fill_nodes(wide)
@@ -522,7 +536,7 @@ def _pack_bvh(bounded: _Bounded, n_groups: int, instances: list[M.Instance],
     stack_size = (wide.stack_size + per_leaf + 1 +
                   max(tree.stack_size for tree in group_trees))
     prim_refs = np.concatenate([*(tree.prim_refs for tree in group_trees), wide.prim_refs])
-    return (WideBvh(nodes, prim_refs, width, stack_size), records,
+    return (WideBvh(nodes, prim_refs, width, stack_size), records, group_bounds,
             time.perf_counter() - start)
 
 
@@ -553,17 +567,8 @@ def _slot_triangles(prim_refs: np.ndarray, tris: _Triangles) -> tuple[np.ndarray
     packets = np.empty((used, 3, 3, PACKET_WIDTH), dtype=np.float32)
 
     def gather(part: slice) -> None:
-        index = np.where(is_tri[part], slots[part] & L.PRIM_INDEX_MASK, 0)
-        records = (tris.faces.take(index) if kept is not None else
-                   np.take(tris.faces.corners, index, axis=0))
-        records[~is_tri[part]] = 0
-        # Corner by corner, whole vertex rows taken (np.take along axis 0: a fancy index with
-        # a slice is several times slower), then the packet's order: corner, axis, lane.
-        for k in range(3):
-            packets[part, k] = tris.positions.take(records[:, :, k])[..., :3].transpose(0, 2, 1)
-        # NaN in the lanes of the packets that are not all triangles.
-        partial = part.start + np.flatnonzero(~is_tri[part].all(axis=1))
-        packets[partial] = np.where(is_tri[partial, None, None, :], packets[partial], np.nan)
+        records = _packets_of(packets, part, slots[part], is_tri[part], tris.faces,
+                              tris.positions, whole=kept is not None)
         if kept is not None:
             kept[part] = records if whole else records[..., 3]
     by_chunks(used, gather, row_items=PACKET_WIDTH)
@@ -573,6 +578,71 @@ def _slot_triangles(prim_refs: np.ndarray, tris: _Triangles) -> tuple[np.ndarray
                                    tris.colors, np.array([one_word], dtype=np.int32),
                                    one_material=True)
     return packets, _in_slot_order(kept, is_tri, tris)
+
+
+def _packets_of(packets: np.ndarray, part: slice, slots: np.ndarray, is_tri: np.ndarray,
+                faces: _Faces, positions: _Positions, whole: bool) -> np.ndarray:
+    """Writes packets[part] (packets, 3 corners, 3 axes, PACKET_WIDTH) from those packets'
+    `slots` of prim_refs: each triangle slot's corners, NaN in the lanes of a packet that are
+    not triangles. Returns the slots' face records (whole: with their material words), zero
+    where a slot is not a triangle."""
+    index = np.where(is_tri, slots & L.PRIM_INDEX_MASK, 0)
+    records = faces.take(index) if whole else np.take(faces.corners, index, axis=0)
+    records[~is_tri] = 0
+    # Corner by corner, whole vertex rows taken (np.take along axis 0: a fancy index with a
+    # slice is several times slower), then the packet's order: corner, axis, lane.
+    for k in range(3):
+        packets[part, k] = positions.take(records[:, :, k])[..., :3].transpose(0, 2, 1)
+    partial = part.start + np.flatnonzero(~is_tri.all(axis=1))
+    packets[partial] = np.where(is_tri[partial - part.start, None, None, :], packets[partial],
+                                np.nan)
+    return records
+
+
+def _fill_packets(packets: np.ndarray, prim_refs: np.ndarray, faces: _Faces,
+                  positions: _Positions) -> None:
+    """The triangle packets (TRIANGLE_PACKET records) written again in place from `faces`
+    and `positions` for the slots of prim_refs they were made for (_slot_triangles)."""
+    slots = prim_refs.reshape(-1, PACKET_WIDTH)[:len(packets)]
+    is_tri = (slots >= 0) & ((slots >> L.PRIM_TYPE_SHIFT) == L.PRIM_TRIANGLE)
+    corners = packets.view(np.float32).reshape(len(packets), 3, 3, PACKET_WIDTH)
+    by_chunks(len(packets), lambda part: _packets_of(corners, part, slots[part], is_tri[part],
+                                                     faces, positions, whole=False),
+              row_items=PACKET_WIDTH)
+
+
+def _slot_bounds(prim_refs: np.ndarray, triangle_packets: np.ndarray, bounded: _Bounded
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """(lo, hi) (slots, 3) float32 of each slot's primitive: a triangle's from its packet's
+    corners (the numbers _triangle_bounds takes from the same positions), any other kind's
+    from `bounded` (its shapes and instances); +inf and -inf where a slot holds none."""
+    lo = np.full((len(prim_refs), 3), np.inf, dtype=np.float32)
+    hi = np.full((len(prim_refs), 3), -np.inf, dtype=np.float32)
+    kind = np.where(prim_refs >= 0, prim_refs >> L.PRIM_TYPE_SHIFT, -1)
+    index = prim_refs & L.PRIM_INDEX_MASK
+    if len(triangle_packets):
+        corners = triangle_packets.view(np.float32).reshape(-1, 3, 3, PACKET_WIDTH)
+        n = corners.shape[0] * PACKET_WIDTH
+        tri = np.flatnonzero(kind[:n] == L.PRIM_TRIANGLE)
+        # (packets, axis, lane) -> a row a slot; + 0 as _triangle_bounds makes every zero +0.0.
+        for out, reduce in ((lo, np.min), (hi, np.max)):
+            out[tri] = reduce(corners, axis=1).transpose(0, 2, 1).reshape(n, 3)[tri] + \
+                np.float32(0)
+    for code in {int(r) >> L.PRIM_TYPE_SHIFT for r in bounded.refs}:
+        kind_lo, kind_hi = _kind_bounds(bounded, code)
+        mine = np.flatnonzero(kind == code)
+        lo[mine], hi[mine] = kind_lo[index[mine]], kind_hi[index[mine]]
+    return lo, hi
+
+
+def _kind_bounds(bounded: _Bounded, code: int) -> tuple[np.ndarray, np.ndarray]:
+    """(lo, hi) float32 of one kind's primitives in `bounded` (each kind added once), by
+    their index; empty where the kind has none."""
+    for lo, hi, refs in zip(bounded.lo, bounded.hi, bounded.refs, strict=True):
+        if int(refs) >> L.PRIM_TYPE_SHIFT == code:
+            # + 0: every zero +0.0, as the builds make them (_triangle_bounds).
+            return tuple(b + np.float32(0) for b in rounded_out(lo, hi))
+    return np.zeros((0, 3), np.float32), np.zeros((0, 3), np.float32)
 
 
 def _in_slot_order(kept: np.ndarray, is_tri: np.ndarray, tris: _Triangles) -> _Triangles:
@@ -777,15 +847,34 @@ def _stack_size_option(stack_size: int) -> int:
     return max(16, -(-stack_size // 16) * 16)
 
 
-@small_pages
-def pack_scene(scene: M.Scene, *, width: int, height: int, spp: int, max_depth: int,
-               seed: int, min_weight: float = 0.0, precision: str = "float",
-               bvh_width: int = 8, queue: cl.CommandQueue | None = None,
-               tuning: Tuning = DEFAULT_TUNING, **variants: object) -> PackedScene:
-    """`bvh_width`: children per BVH node (4 or 8; clray.device.policy.bvh_width_for picks
-    one per device). `queue`: build large BVHs on its device (the same tree as the host
-    build). `tuning`: the other knobs of the BVH build, and of the launches (kept in the
-    PackedScene). `variants` are extra KernelConfig fields (study switches, options)."""
+@dataclass
+class SceneGeometry:
+    """A scene's objects packed at an eye: the arrays that pack_scene joins to the scene's
+    materials, lights and camera. pack_geometry makes it at one frame of an animation whose
+    objects do not move; pack_scene(geometry=...) places it at another frame's eye: the
+    positions are made relative to that eye again, and the BVH keeps its shape with each box
+    made again from them (wide.refit), instead of a new build. Placing updates it in place
+    (the triangle packets and the nodes, the largest arrays, are written over): it is the
+    geometry of the last frame placed, which that frame's PackedScene shares."""
+
+    eye: np.ndarray  # float64, where the positions are relative to
+    planes: np.ndarray
+    shapes: dict[str, np.ndarray]  # each shape's records by its buffer's name
+    tris: _Triangles  # in slot order (_slot_triangles)
+    triangle_packets: np.ndarray
+    sphere_packets: np.ndarray
+    wide: WideBvh  # the scene's tree, then each group's
+    instances: np.ndarray  # INSTANCE records
+    group_bounds: list[tuple[np.ndarray, np.ndarray]]  # each group's box, in its frame
+    # Seconds of BVH work (the build, then each refit) that no PackedScene has reported yet.
+    bvh_s: float
+    bvh_width: int
+    tuning: Tuning
+
+
+def pack_geometry(scene: M.Scene, *, bvh_width: int = 8, queue: cl.CommandQueue | None = None,
+                  tuning: Tuning = DEFAULT_TUNING) -> SceneGeometry:
+    """The scene's objects packed at its eye, with their BVH (pack_scene's arguments)."""
     eye = np.asarray(scene.camera.position, dtype=np.float64)
     instances = [obj for obj in scene.objects if isinstance(obj, M.Instance)]
     groups, group_of = _groups_of(instances)
@@ -796,8 +885,8 @@ def pack_scene(scene: M.Scene, *, width: int, height: int, spp: int, max_depth: 
     shapes = {shape.buffer: _pack_shape(shape, kinds[shape.model], bounded) for shape in SHAPES}
     sources = _triangle_sources(kinds[M.Triangle])
     faces = _pack_triangles(kinds[M.Triangle], sources, bounded)
-    wide, instance_records, bvh_s = _pack_bvh(bounded, len(groups), instances, group_of, eye,
-                                              bvh_width, queue, tuning)
+    wide, instance_records, group_bounds, bvh_s = _pack_bvh(
+        bounded, len(groups), instances, group_of, eye, bvh_width, queue, tuning)
     # The build's and the collapse's temporaries, freed: their heap pages go back before
     # the packets take their place.
     trim_heap()
@@ -807,6 +896,68 @@ def pack_scene(scene: M.Scene, *, width: int, height: int, spp: int, max_depth: 
     else:
         triangle_packets = _records(L.TRIANGLE_PACKET, 0)
     sphere_packets = _sphere_packets(wide.prim_refs, shapes[SPHERE.buffer])
+    return SceneGeometry(eye, planes, shapes, tris, triangle_packets, sphere_packets, wide,
+                         instance_records, group_bounds, bvh_s, bvh_width, tuning)
+
+
+def _place(geometry: SceneGeometry, scene: M.Scene) -> SceneGeometry:
+    """`geometry`, made of the same objects as `scene`'s, placed at `scene`'s eye: in place,
+    and returned. Everything that depends on the eye is made again as pack_geometry makes it
+    (planes, shapes, instances, triangle packets), but the BVH, which is refitted: the same
+    boxes as a build of that shape would have, so the same image but where a ray meets two
+    primitives at one distance and the tree's order picks one."""
+    eye = np.asarray(scene.camera.position, dtype=np.float64)
+    if np.array_equal(eye, geometry.eye):
+        return geometry
+    start = time.perf_counter()
+    instances = [obj for obj in scene.objects if isinstance(obj, M.Instance)]
+    groups, group_of = _groups_of(instances)
+    kinds = _by_kind(scene.objects, groups, eye)
+    bounded = _Bounded()
+    geometry.planes = _pack_planes(kinds[M.Plane].objects, eye)
+    geometry.shapes = {shape.buffer: _pack_shape(shape, kinds[shape.model], bounded)
+                       for shape in SHAPES}
+    roots = geometry.instances["root"]
+    geometry.instances = _pack_instances(instances, group_of, geometry.group_bounds, eye,
+                                         bounded)
+    geometry.instances["root"] = roots
+    prim_refs = geometry.wide.prim_refs
+    if len(geometry.triangle_packets):
+        sources = _triangle_sources(kinds[M.Triangle])
+        tints = [getattr(obj, "colors", None) for obj in kinds[M.Triangle].objects]
+        faces = _scene_faces(sources, _vertex_offsets(sources), tints)
+        _fill_packets(geometry.triangle_packets, prim_refs, faces,
+                      _positions(kinds[M.Triangle], sources))
+    geometry.sphere_packets = _sphere_packets(prim_refs, geometry.shapes[SPHERE.buffer])
+    refit(geometry.wide.nodes, *_slot_bounds(prim_refs, geometry.triangle_packets, bounded),
+          *_kind_bounds(bounded, L.PRIM_INSTANCE))
+    geometry.eye = eye
+    geometry.bvh_s += time.perf_counter() - start
+    return geometry
+
+
+@small_pages
+def pack_scene(scene: M.Scene, *, width: int, height: int, spp: int, max_depth: int,
+               seed: int, min_weight: float = 0.0, precision: str = "float",
+               bvh_width: int = 8, queue: cl.CommandQueue | None = None,
+               tuning: Tuning = DEFAULT_TUNING, geometry: SceneGeometry | None = None,
+               **variants: object) -> PackedScene:
+    """`bvh_width`: children per BVH node (4 or 8; clray.device.policy.bvh_width_for picks
+    one per device). `queue`: build large BVHs on its device (the same tree as the host
+    build). `tuning`: the other knobs of the BVH build, and of the launches (kept in the
+    PackedScene). `geometry`: this scene's objects as pack_geometry packed them at another
+    frame of its animation (with this bvh_width and tuning), placed at this scene's eye
+    instead of packed afresh. `variants` are extra KernelConfig fields (study switches,
+    options)."""
+    if geometry is None:
+        geometry = pack_geometry(scene, bvh_width=bvh_width, queue=queue, tuning=tuning)
+    elif (geometry.bvh_width, geometry.tuning) != (bvh_width, tuning):
+        raise ValueError("pack_scene: the geometry was packed with another BVH width or tuning")
+    else:
+        geometry = _place(geometry, scene)
+    planes, shapes, tris, wide = geometry.planes, geometry.shapes, geometry.tris, geometry.wide
+    eye = geometry.eye
+    bvh_s, geometry.bvh_s = geometry.bvh_s, 0.0
     materials, textures, texels = _pack_materials(scene.materials)
     lights = _pack_lights(scene_lights(scene), eye)
     camera = _pack_camera(scene.camera, eye, width, height)
@@ -823,13 +974,13 @@ def pack_scene(scene: M.Scene, *, width: int, height: int, spp: int, max_depth: 
     config = KernelConfig(
         has_planes=len(planes) > 0,
         **{shape.switch: len(shapes[shape.buffer]) > 0 for shape in SHAPES},
-        has_triangles=len(triangle_packets) > 0,
+        has_triangles=len(geometry.triangle_packets) > 0,
         has_vertex_normals=len(tris.normals) > 0,
         has_vertex_uvs=len(tris.uvs) > 0,
         has_vertex_colors=len(tris.colors) > 0,
         has_one_triangle_material=tris.one_material,
         has_textures=len(textures) > 0,
-        has_instances=len(instances) > 0,
+        has_instances=len(geometry.instances) > 0,
         **_scene_switches(scene, max_depth),
         bvh_width=bvh_width,
         bvh_stack_size=_stack_size_option(wide.stack_size),
@@ -839,9 +990,10 @@ def pack_scene(scene: M.Scene, *, width: int, height: int, spp: int, max_depth: 
     )
     return PackedScene(camera=camera, params=params, planes=planes, **shapes,
                        triangles=tris.triangles, triangle_materials=tris.material_words,
-                       triangle_packets=triangle_packets, sphere_packets=sphere_packets,
+                       triangle_packets=geometry.triangle_packets,
+                       sphere_packets=geometry.sphere_packets,
                        normals=tris.normals, uvs=tris.uvs, colors=tris.colors,
                        nodes=wide.nodes,
                        prim_refs=wide.prim_refs, materials=materials, textures=textures,
-                       texels=texels, lights=lights, instances=instance_records,
+                       texels=texels, lights=lights, instances=geometry.instances,
                        config=config, bvh_s=bvh_s, tuning=tuning)

@@ -18,7 +18,7 @@ import pyopencl as cl
 from clray.denoise import DENOISE_GUIDES, check_denoiser, denoise
 from clray.device.context import describe, queue_for, select_device
 from clray.device.launch import render_packed, render_passes_packed
-from clray.device.pack import PackedScene, pack_scene
+from clray.device.pack import PackedScene, SceneGeometry, pack_scene
 from clray.device.policy import DevicePlan, device_plan
 from clray.device.program import KernelConfig
 from clray.errors import SettingsError
@@ -237,13 +237,15 @@ def plan_for(scene: Scene, settings: RenderSettings, device: cl.Device) -> Devic
 
 
 def pack_for(scene: Scene, settings: RenderSettings, device: cl.Device,
-             plan: DevicePlan | None = None) -> PackedScene:
+             plan: DevicePlan | None = None, geometry: SceneGeometry | None = None
+             ) -> PackedScene:
     """The checked `scene` packed for `device` with `settings` as `plan` (plan_for's where not
     given) decides: what render() launches, and what each worker of a distributed render packs
-    once for all its tiles."""
+    once for all its tiles. `geometry`: the scene's objects packed at another frame, placed
+    at this scene's eye (pack_scene)."""
     plan = plan or plan_for(scene, settings, device)
-    return pack_scene(scene, queue=queue_for(device), **resolved_settings(scene, settings),
-                      **plan.pack_arguments())
+    return pack_scene(scene, queue=queue_for(device), geometry=geometry,
+                      **resolved_settings(scene, settings), **plan.pack_arguments())
 
 
 def tuning_stats(plan: DevicePlan, packed: PackedScene) -> dict:
@@ -287,10 +289,17 @@ def scene_from(source: SceneSource, settings: RenderSettings | None = None) -> S
     return check_scene(source() if callable(source) else source)
 
 
-def render(scene: SceneSource, settings: RenderSettings | None = None) -> RenderResult:
+# What gives a frame's render its objects already packed (clray.sequence.FrameGeometry).
+GeometrySource = Callable[[cl.Device, DevicePlan], SceneGeometry]
+
+
+def render(scene: SceneSource, settings: RenderSettings | None = None, *,
+           geometry: GeometrySource | None = None) -> RenderResult:
     """Render a scene, the scene or mesh file at a path, or the scene a callable returns
     (scene_from). A scene built in Python is first checked by the scene file's rules
-    (clray.scene.check): SceneError names the bad value.
+    (clray.scene.check): SceneError names the bad value. `geometry`: where the scene is a
+    frame of an animation that moves no object, its objects as packed for the device and
+    plan (clray.sequence.Sequence.frame_geometry), placed at this frame's eye.
 
     Given a path or a callable, render holds the scene alone and lets it go once it is packed
     (unless passes need it after the render): a big model's mesh (18 B a triangle from a PLY
@@ -308,7 +317,8 @@ def render(scene: SceneSource, settings: RenderSettings | None = None) -> Render
     device = select_device(settings.device)
     plan = plan_for(scene, settings, device)
     pack_start = time.perf_counter()
-    packed = pack_for(scene, settings, device, plan)
+    packed = pack_for(scene, settings, device, plan,
+                      None if geometry is None else geometry(device, plan))
     # device_s: finding the device and its plan (platforms, context, tuning file); pack_s:
     # the packing beside its BVH build (bvh_s).
     device_s = pack_start - device_start

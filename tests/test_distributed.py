@@ -381,13 +381,13 @@ def test_a_tasks_warnings_go_back_to_the_client_and_compiler_output_nowhere(monk
 
     from clray import distributed
 
-    def warning_render(scene: object, settings: object) -> str:
+    def warning_render(scene: object, settings: object, geometry: object) -> str:
         warnings.warn("the scene's own warning", stacklevel=1)
         warnings.warn("build output", cl.CompilerWarning, stacklevel=1)
         return "rendered"
 
     monkeypatch.setattr(distributed, "render", warning_render)
-    frames = SimpleNamespace(scene=lambda frame: frame)
+    frames = SimpleNamespace(scene=lambda frame: frame, frame_geometry=lambda: None)
     with warnings.catch_warnings(record=True) as escaped:
         warnings.simplefilter("always")
         out = distributed._render_frame(frames, 3, RenderSettings())  # type: ignore[arg-type]
@@ -409,7 +409,7 @@ def test_a_device_error_from_pyopencl_reaches_the_client_as_itself(monkeypatch):
     from clray import distributed
     from clray.errors import DeviceError
 
-    def no_platform(scene: object, settings: object) -> None:
+    def no_platform(scene: object, settings: object, geometry: object) -> None:
         record = cl._cl._ErrorRecord(msg="clGetPlatformIDs failed: PLATFORM_NOT_FOUND_KHR",
                                      code=-1001, routine="clGetPlatformIDs")
         try:
@@ -418,7 +418,7 @@ def test_a_device_error_from_pyopencl_reaches_the_client_as_itself(monkeypatch):
             raise DeviceError("no OpenCL platform found") from err
 
     monkeypatch.setattr(distributed, "render", no_platform)
-    frames = SimpleNamespace(scene=lambda frame: frame)
+    frames = SimpleNamespace(scene=lambda frame: frame, frame_geometry=lambda: None)
     with pytest.raises(DeviceError) as info:
         distributed._render_frame(frames, 0, RenderSettings())  # type: ignore[arg-type]
     # What the worker sends, as the client unpickles it.

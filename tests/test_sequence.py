@@ -427,7 +427,7 @@ def test_large_frames_memory_noted_before_rendering(tmp_path, capsys, monkeypatc
 def test_frames_have_the_stills_figures_and_warnings(tmp_path, capsys, monkeypatch):
     # Frames' records lacked load_s, nonfinite_pixels and clipped_pixels; a frame with NaN
     # pixels said nothing, and -v showed no figures.
-    def nan_render(scene, settings):
+    def nan_render(scene, settings, geometry=None):
         image = np.array([[[0.5, np.nan, 0.5], [2.0, 0.5, 0.5]]], np.float32)
         return RenderResult(image, {"total_s": 0.5, "width": 2, "height": 1, "spp": 1,
                                     "kernel_s": 0.25, "rays": {"total": 4},
@@ -907,3 +907,95 @@ def test_texels_decoded_once_are_not_given_to_another_array_after_they_are_freed
         expected = srgb_decode(np.float64(k / 32))
         np.testing.assert_allclose(assets.decoded(texels), expected, rtol=1e-6)
         del texels
+
+
+def _still_objects_scene(tmp_path: Path, name: str) -> Path:
+    """An animation whose tracks move no object: orbit.toml's camera and material tracks, a
+    mesh beside its spheres ("orbit"), or instances.toml's groups placed by instances under
+    an orbiting camera ("instances")."""
+    meshes = (ROOT / "scenes" / "meshes").as_posix()
+    if name == "orbit":
+        blocks = ORBIT.read_text().split("[[animation.tracks]]")
+        text = "[[animation.tracks]]".join(b for b in blocks if "objects[" not in b)
+        assert len(blocks) == text.count("[[animation.tracks]]") + 2
+        text = text.replace("[animation]", f'[[objects]]\ntype = "mesh"\nfile = "{meshes}/'
+                            'bumpy_ico2.obj"\nmaterial = "blue"\ntransform = { scale = 0.6, '
+                            'translate = [0.2, 0.6, 1.6] }\n\n[animation]')
+    else:
+        text = (ROOT / "scenes" / "instances.toml").read_text().replace('"meshes/',
+                                                                         f'"{meshes}/')
+        text += ('\n[animation]\nframes = 6\n\n[[animation.tracks]]\nkey = "camera.position"\n'
+                 'frames = [0, 5]\nvalues = [[0, 3, 9], [6, 4, 6]]\n')
+    path = tmp_path / f"{name}.toml"
+    path.write_text(text)
+    return path
+
+
+@pytest.mark.parametrize("name", ["orbit", "instances"])
+def test_frames_that_move_no_object_share_one_bvh_and_render_their_stills(cl_device, tmp_path,
+                                                                          monkeypatch, name):
+    """Frame 0's objects packed once, placed at each frame's eye (clray.device.pack): one BVH
+    build for all the frames, each frame the image its still renders, whichever frames a run
+    renders (frame 0's tree, not the first rendered frame's)."""
+    from clray import sequence as sequence_module
+    from clray.device import pack
+    from clray.render import RenderSettings, render
+    from clray.sequence import render_frames
+
+    builds = []
+    build = pack._pack_bvh
+    monkeypatch.setattr(pack, "_pack_bvh", lambda *a, **k: builds.append(1) or build(*a, **k))
+    settings = RenderSettings(width=48, height=27, spp=2)
+    path = _still_objects_scene(tmp_path, name)
+    sequence = load_sequence(path)
+    assert not sequence.moves_objects()
+    frames: dict[int, np.ndarray] = {}
+    render_frames(sequence, [0, 1, 2, 3], settings,
+                  lambda frame, result: frames.update({frame: result.image}))
+    assert len(builds) == 1
+    others: dict[int, np.ndarray] = {}
+    packed_at = []
+    pack_geometry = sequence_module.pack_geometry
+    monkeypatch.setattr(sequence_module, "pack_geometry", lambda scene, **k: packed_at.append(
+        scene.camera.position) or pack_geometry(scene, **k))
+    render_frames(load_sequence(path), [3, 1], settings,
+                  lambda frame, result: others.update({frame: result.image}))
+    assert len(builds) == 2 and packed_at == [sequence.scene(0).camera.position]
+    for frame in (1, 3):
+        np.testing.assert_array_equal(others[frame], frames[frame])
+    for frame, image in frames.items():
+        still = render(sequence.scene(frame), settings).image
+        assert np.count_nonzero(image) > image.size // 4
+        np.testing.assert_array_equal(image, still)
+    assert not np.array_equal(frames[0], frames[3])  # the camera moved
+
+
+def test_frames_that_move_an_object_are_each_packed_afresh(cl_device, monkeypatch):
+    from clray.device import pack
+    from clray.render import RenderSettings
+    from clray.sequence import render_frames
+
+    builds = []
+    build = pack._pack_bvh
+    monkeypatch.setattr(pack, "_pack_bvh", lambda *a, **k: builds.append(1) or build(*a, **k))
+    sequence = load_sequence(ORBIT)
+    assert sequence.moves_objects() and sequence.frame_geometry() is None
+    render_frames(sequence, [0, 1, 2], RenderSettings(width=8, height=6, spp=1), lambda *_: None)
+    assert len(builds) == 3
+
+
+def test_a_pickled_sequence_leaves_its_packed_objects_behind(cl_device, tmp_path):
+    """A Dask worker packs its own: the client's packed geometry is not sent with the
+    sequence."""
+    import pickle
+
+    from clray.render import RenderSettings
+    from clray.sequence import render_frames
+
+    sequence = load_sequence(_still_objects_scene(tmp_path, "orbit"))
+    sent = len(pickle.dumps(sequence))
+    render_frames(sequence, [0], RenderSettings(width=8, height=6, spp=1),
+                  lambda *_: None)
+    assert sequence.frame_geometry().geometry is not None
+    assert len(pickle.dumps(sequence)) == sent
+    assert pickle.loads(pickle.dumps(sequence)).frame_geometry().geometry is None

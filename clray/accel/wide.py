@@ -494,31 +494,30 @@ def refit(nodes: np.ndarray, slot_lo: np.ndarray, slot_hi: np.ndarray,
             break
         levels.append(below.astype(np.int64))
     reached = np.concatenate(levels)
-    box = {side: np.stack([nodes[f"{side}_{axis}"] for axis in "xyz"], axis=-1)
-           for side in ("lo", "hi")}  # (nodes, width, 3)
+    # The records as rows of 8 lanes-wide fields (collapse's layout): lo xyz, hi xyz, child,
+    # count. Boxes are written through this view, in place.
+    rows = nodes.view(np.float32).reshape(len(nodes), 8, -1)
+    sides = ((slice(0, 3), slot_lo, np.inf, np.minimum, np.fmin, instance_lo),
+             (slice(3, 6), slot_hi, -np.inf, np.maximum, np.fmax, instance_hi))
 
-    rows, lanes = np.nonzero(count[reached] > 0)
-    rows = reached[rows]
-    if rows.size:
-        starts = child[rows, lanes].astype(np.int64)
+    node, lane = np.nonzero(count[reached] > 0)
+    node = reached[node]
+    if node.size:
+        starts = child[node, lane].astype(np.int64)
         # One extra empty slot: a leaf that ends at the last slot ends at a valid index.
-        bounds = np.stack([starts, starts + leaf_slots(count[rows, lanes])], axis=1).ravel()
-        for side, slots, pad, reduce in (("lo", slot_lo, np.inf, np.minimum),
-                                         ("hi", slot_hi, -np.inf, np.maximum)):
-            padded = np.concatenate([slots, np.full((1, 3), pad, np.float32)])
-            box[side][rows, lanes] = reduce.reduceat(padded, bounds, axis=0)[::2]
-    rows, lanes = np.nonzero(count[reached] < 0)
-    rows = reached[rows]
-    box["lo"][rows, lanes] = instance_lo[child[rows, lanes]]
-    box["hi"][rows, lanes] = instance_hi[child[rows, lanes]]
+        ends = np.stack([starts, starts + leaf_slots(count[node, lane])], axis=1).ravel()
+        for fields, slots, empty, reduce, _, _ in sides:
+            padded = np.concatenate([slots, np.full((1, 3), empty, np.float32)])
+            rows[node, fields, lane] = reduce.reduceat(padded, ends, axis=0)[::2]
+    node, lane = np.nonzero(count[reached] < 0)
+    node = reached[node]
+    for fields, *_, instance in sides:
+        rows[node, fields, lane] = instance[child[node, lane]]
 
     for level in reversed(levels[:-1]):
-        rows, lanes = np.nonzero(inner[level])
-        rows = level[rows]
-        below = child[rows, lanes]
-        # An unused lane's box is NaN: fmin and fmax pass over it.
-        box["lo"][rows, lanes] = np.fmin.reduce(box["lo"][below], axis=1)
-        box["hi"][rows, lanes] = np.fmax.reduce(box["hi"][below], axis=1)
-    for side in ("lo", "hi"):
-        for k, axis in enumerate("xyz"):
-            nodes[f"{side}_{axis}"][reached] = box[side][reached, :, k]
+        node, lane = np.nonzero(inner[level])
+        node = level[node]
+        below = child[node, lane]
+        for fields, _, _, _, union, _ in sides:
+            # An unused lane's box is NaN: fmin and fmax pass over it.
+            rows[node, fields, lane] = union.reduce(rows[below, fields], axis=2)

@@ -275,7 +275,7 @@ def _render_frame(sequence: Sequence, frame: int, settings: RenderSettings) -> d
     with _device_lock, _kept_warnings() as kept:
         scene = sequence.scene(frame)
         load_s = time.perf_counter() - started
-        result = render(scene, settings, geometry=sequence.frame_geometry())
+        result = render(scene, settings, geometry_for=sequence.frame_geometry())
     return {"frame": frame, "result": result, "worker": _worker_name(), "warnings": kept,
             "task_s": time.perf_counter() - started, "load_s": load_s}
 

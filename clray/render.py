@@ -241,8 +241,8 @@ def pack_for(scene: Scene, settings: RenderSettings, device: cl.Device,
              ) -> PackedScene:
     """The checked `scene` packed for `device` with `settings` as `plan` (plan_for's where not
     given) decides: what render() launches, and what each worker of a distributed render packs
-    once for all its tiles. `geometry`: the scene's objects packed at another frame, placed
-    at this scene's eye (pack_scene)."""
+    once for all its tiles. `geometry`: the scene's objects packed at another frame, moved
+    to this scene's eye (pack_scene)."""
     plan = plan or plan_for(scene, settings, device)
     return pack_scene(scene, queue=queue_for(device), geometry=geometry,
                       **resolved_settings(scene, settings), **plan.pack_arguments())
@@ -289,17 +289,18 @@ def scene_from(source: SceneSource, settings: RenderSettings | None = None) -> S
     return check_scene(source() if callable(source) else source)
 
 
-# What gives a frame's render its objects already packed (clray.sequence.FrameGeometry).
+# What gives a frame's render its objects packed for the device and plan
+# (clray.sequence.Sequence.packed_objects).
 GeometrySource = Callable[[cl.Device, DevicePlan], SceneGeometry]
 
 
 def render(scene: SceneSource, settings: RenderSettings | None = None, *,
-           geometry: GeometrySource | None = None) -> RenderResult:
+           geometry_for: GeometrySource | None = None) -> RenderResult:
     """Render a scene, the scene or mesh file at a path, or the scene a callable returns
     (scene_from). A scene built in Python is first checked by the scene file's rules
-    (clray.scene.check): SceneError names the bad value. `geometry`: where the scene is a
-    frame of an animation that moves no object, its objects as packed for the device and
-    plan (clray.sequence.Sequence.frame_geometry), placed at this frame's eye.
+    (clray.scene.check): SceneError names the bad value. `geometry_for`: where the scene is
+    a frame of an animation that moves no object, what gives its objects as packed at
+    another frame (clray.sequence.Sequence.frame_geometry), moved to this frame's eye.
 
     Given a path or a callable, render holds the scene alone and lets it go once it is packed
     (unless passes need it after the render): a big model's mesh (18 B a triangle from a PLY
@@ -318,7 +319,7 @@ def render(scene: SceneSource, settings: RenderSettings | None = None, *,
     plan = plan_for(scene, settings, device)
     pack_start = time.perf_counter()
     packed = pack_for(scene, settings, device, plan,
-                      None if geometry is None else geometry(device, plan))
+                      None if geometry_for is None else geometry_for(device, plan))
     # device_s: finding the device and its plan (platforms, context, tuning file); pack_s:
     # the packing beside its BVH build (bvh_s).
     device_s = pack_start - device_start

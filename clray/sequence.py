@@ -10,19 +10,29 @@ import time
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-
-import pyopencl as cl
+from typing import TYPE_CHECKING
 
 from clray.device.context import queue_for
 from clray.device.pack import SceneGeometry, pack_geometry
-from clray.device.policy import DevicePlan
 from clray.errors import SceneError, SettingsError
 from clray.passes import exr_holds_passes, pass_paths
-from clray.render import RenderResult, RenderSettings, progress_parts, render, settings_or_default
+from clray.render import (
+    GeometrySource,
+    RenderResult,
+    RenderSettings,
+    progress_parts,
+    render,
+    settings_or_default,
+)
 from clray.scene.animation import Animation
 from clray.scene.files import KeptFiles
 from clray.scene.load import read_scene_data, scene_and_animation, scene_from_dict
 from clray.scene.model import Scene
+
+if TYPE_CHECKING:
+    import pyopencl as cl
+
+    from clray.device.policy import DevicePlan
 
 
 @dataclass(frozen=True)
@@ -37,13 +47,14 @@ class Sequence:
     data: dict
     animation: Animation
     files: KeptFiles = field(default_factory=KeptFiles)
-    # Where no track moves an object: the objects packed once for all the frames this process
-    # renders (frame_geometry). Not pickled: a Dask worker packs its own.
-    _geometry: FrameGeometry | None = field(default=None, init=False, repr=False,
-                                            compare=False)
+    # Where no track moves an object: frame 0's objects packed for all the frames this process
+    # renders, with the device, BVH width and knobs they were packed for (packed_objects).
+    # Not pickled: a Dask worker packs its own.
+    _packed: tuple[tuple, SceneGeometry] | None = field(default=None, init=False, repr=False,
+                                                       compare=False)
 
     def __getstate__(self) -> dict:
-        return {**self.__dict__, "_geometry": None}
+        return {**self.__dict__, "_packed": None}
 
     def moves_objects(self) -> bool:
         """Whether a track keys an object's or a group's value (objects[2].center,
@@ -51,14 +62,25 @@ class Sequence:
         afresh."""
         return any(track.path[0] in ("objects", "groups") for track in self.animation.tracks)
 
-    def frame_geometry(self) -> FrameGeometry | None:
-        """The objects packed once for every frame this process renders, or None where a
-        track moves them."""
-        if self.moves_objects():
-            return None
-        if self._geometry is None:
-            object.__setattr__(self, "_geometry", FrameGeometry(self))
-        return self._geometry
+    def frame_geometry(self) -> GeometrySource | None:
+        """What gives each frame's render its objects packed (render's geometry_for), or None
+        where a track moves them."""
+        return None if self.moves_objects() else self.packed_objects
+
+    def packed_objects(self, device: cl.Device, plan: DevicePlan) -> SceneGeometry:
+        """Frame 0's objects packed for a render on `device` as `plan` packs them: once, and
+        again only for another device, BVH width or knobs (one packing kept at a time). Each
+        frame's render moves them to its own eye, with the BVH refitted instead of built
+        (clray.device.pack.pack_geometry; docs/distributed.md). Frame 0's whichever frames
+        render: a frame's image does not depend on how a run splits the frames (--resume,
+        Dask's tasks)."""
+        key = (device.int_ptr, plan.bvh_width, plan.tuning)
+        if self._packed is None or self._packed[0] != key:
+            object.__setattr__(self, "_packed", None)  # its arrays go before the new ones
+            geometry = pack_geometry(self.scene(0), bvh_width=plan.bvh_width,
+                                     queue=queue_for(device), tuning=plan.tuning)
+            object.__setattr__(self, "_packed", (key, geometry))
+        return self._packed[1]
 
     def check_frame(self, frame: int) -> int:
         """`frame` if the animation has it; SettingsError if not (a track would hold its first
@@ -83,32 +105,6 @@ class Sequence:
         except SceneError as err:
             raise SceneError(err.file, err.key, f"{err.message} (animated, frame {frame})"
                              ) from None
-
-
-class FrameGeometry:
-    """The objects of a sequence whose tracks move none of them (camera, lights, materials,
-    [render] values), packed once: frame 0's, placed at each frame's eye with the BVH refitted
-    instead of built (clray.device.pack.pack_geometry). On the 327,680-triangle mesh that is
-    about 0.05 s a frame instead of 0.19 s (docs/scale.md). Frame 0's whichever frames render:
-    each frame's image is the same however the frames are split (--resume, Dask's tasks).
-    It is the same image as the frame's still but where a ray meets two primitives at one
-    distance (a tree of another shape may pick the other)."""
-
-    def __init__(self, sequence: Sequence) -> None:
-        self.sequence = sequence
-        self.key: tuple | None = None
-        self.geometry: SceneGeometry | None = None
-
-    def __call__(self, device: cl.Device, plan: DevicePlan) -> SceneGeometry:
-        """The geometry for a render on `device` as `plan` packs it: packed at frame 0 the first
-        time, or when the device, BVH width or knobs change (one kept at a time)."""
-        key = (device.int_ptr, plan.bvh_width, plan.tuning)
-        if key != self.key or self.geometry is None:
-            self.geometry = None  # the last one's arrays go before the new ones are made
-            self.geometry = pack_geometry(self.sequence.scene(0), bvh_width=plan.bvh_width,
-                                          queue=queue_for(device), tuning=plan.tuning)
-            self.key = key
-        return self.geometry
 
 
 def load_sequence(path: str | os.PathLike) -> Sequence:
@@ -232,6 +228,6 @@ def render_frames(sequence: Sequence, frames: Iterable[int], settings: RenderSet
         scene = sequence.scene(frame)
         load_s = time.perf_counter() - started
         result = render(scene, replace(settings, progress=report),
-                        geometry=sequence.frame_geometry())
+                        geometry_for=sequence.frame_geometry())
         result.stats["load_s"] = load_s
         done(frame, result)

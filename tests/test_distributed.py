@@ -381,7 +381,7 @@ def test_a_tasks_warnings_go_back_to_the_client_and_compiler_output_nowhere(monk
 
     from clray import distributed
 
-    def warning_render(scene: object, settings: object, geometry: object) -> str:
+    def warning_render(scene: object, settings: object, geometry_for: object) -> str:
         warnings.warn("the scene's own warning", stacklevel=1)
         warnings.warn("build output", cl.CompilerWarning, stacklevel=1)
         return "rendered"
@@ -409,7 +409,7 @@ def test_a_device_error_from_pyopencl_reaches_the_client_as_itself(monkeypatch):
     from clray import distributed
     from clray.errors import DeviceError
 
-    def no_platform(scene: object, settings: object, geometry: object) -> None:
+    def no_platform(scene: object, settings: object, geometry_for: object) -> None:
         record = cl._cl._ErrorRecord(msg="clGetPlatformIDs failed: PLATFORM_NOT_FOUND_KHR",
                                      code=-1001, routine="clGetPlatformIDs")
         try:

@@ -427,7 +427,7 @@ def test_large_frames_memory_noted_before_rendering(tmp_path, capsys, monkeypatc
 def test_frames_have_the_stills_figures_and_warnings(tmp_path, capsys, monkeypatch):
     # Frames' records lacked load_s, nonfinite_pixels and clipped_pixels; a frame with NaN
     # pixels said nothing, and -v showed no figures.
-    def nan_render(scene, settings, geometry=None):
+    def nan_render(scene, settings, geometry_for=None):
         image = np.array([[[0.5, np.nan, 0.5], [2.0, 0.5, 0.5]]], np.float32)
         return RenderResult(image, {"total_s": 0.5, "width": 2, "height": 1, "spp": 1,
                                     "kernel_s": 0.25, "rays": {"total": 4},
@@ -996,6 +996,6 @@ def test_a_pickled_sequence_leaves_its_packed_objects_behind(cl_device, tmp_path
     sent = len(pickle.dumps(sequence))
     render_frames(sequence, [0], RenderSettings(width=8, height=6, spp=1),
                   lambda *_: None)
-    assert sequence.frame_geometry().geometry is not None
+    assert sequence._packed is not None
     assert len(pickle.dumps(sequence)) == sent
-    assert pickle.loads(pickle.dumps(sequence)).frame_geometry().geometry is None
+    assert pickle.loads(pickle.dumps(sequence))._packed is None

@@ -497,8 +497,7 @@ def refit(nodes: np.ndarray, slot_lo: np.ndarray, slot_hi: np.ndarray,
     # The records as rows of 8 lanes-wide fields (collapse's layout): lo xyz, hi xyz, child,
     # count. Boxes are written through this view, in place.
     rows = nodes.view(np.float32).reshape(len(nodes), 8, -1)
-    sides = ((slice(0, 3), slot_lo, np.inf, np.minimum, np.fmin, instance_lo),
-             (slice(3, 6), slot_hi, -np.inf, np.maximum, np.fmax, instance_hi))
+    lo, hi = slice(0, 3), slice(3, 6)
 
     node, lane = np.nonzero(count[reached] > 0)
     node = reached[node]
@@ -506,18 +505,19 @@ def refit(nodes: np.ndarray, slot_lo: np.ndarray, slot_hi: np.ndarray,
         starts = child[node, lane].astype(np.int64)
         # One extra empty slot: a leaf that ends at the last slot ends at a valid index.
         ends = np.stack([starts, starts + leaf_slots(count[node, lane])], axis=1).ravel()
-        for fields, slots, empty, reduce, _, _ in sides:
+        for fields, slots, empty, union in ((lo, slot_lo, np.inf, np.minimum),
+                                            (hi, slot_hi, -np.inf, np.maximum)):
             padded = np.concatenate([slots, np.full((1, 3), empty, np.float32)])
-            rows[node, fields, lane] = reduce.reduceat(padded, ends, axis=0)[::2]
+            rows[node, fields, lane] = union.reduceat(padded, ends, axis=0)[::2]
     node, lane = np.nonzero(count[reached] < 0)
     node = reached[node]
-    for fields, *_, instance in sides:
-        rows[node, fields, lane] = instance[child[node, lane]]
+    rows[node, lo, lane] = instance_lo[child[node, lane]]
+    rows[node, hi, lane] = instance_hi[child[node, lane]]
 
     for level in reversed(levels[:-1]):
         node, lane = np.nonzero(inner[level])
         node = level[node]
         below = child[node, lane]
-        for fields, _, _, _, union, _ in sides:
-            # An unused lane's box is NaN: fmin and fmax pass over it.
-            rows[node, fields, lane] = union.reduce(rows[below, fields], axis=2)
+        # An unused lane's box is NaN: fmin and fmax pass over it.
+        rows[node, lo, lane] = np.fmin.reduce(rows[below, lo], axis=2)
+        rows[node, hi, lane] = np.fmax.reduce(rows[below, hi], axis=2)

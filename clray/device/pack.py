@@ -7,7 +7,7 @@ authored far from the origin keeps its precision near the eye.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field, make_dataclass
+from dataclasses import dataclass, field, make_dataclass, replace
 
 import numpy as np
 import pyopencl as cl
@@ -75,7 +75,8 @@ PackedScene = make_dataclass(
     namespace={"device_bytes": _device_bytes, "buffers": _buffers,
                "triangle_count": _triangle_count,
                "__doc__": "A scene packed for the kernels: layout.SCENE_BUFFERS' arrays by "
-                          "name, the KernelConfig and bvh_s (host seconds of the BVH build)."},
+                          "name, the KernelConfig and bvh_s (host seconds of the BVH build, "
+                          "or of its refit at another eye)."},
 )
 PackedScene.__module__ = __name__  # pickled by reference: a Dask worker finds it here
 
@@ -851,20 +852,22 @@ def _stack_size_option(stack_size: int) -> int:
     return max(16, -(-stack_size // 16) * 16)
 
 
-@dataclass
+@dataclass(eq=False)
 class SceneGeometry:
     """A scene's objects packed at an eye: the arrays that pack_scene joins to the scene's
     materials, lights and camera. pack_geometry makes it at one frame of an animation whose
-    objects do not move; pack_scene(geometry=...) places it at another frame's eye: the
-    positions are made relative to that eye again, and the BVH keeps its shape with each box
-    made again from them (wide.refit), instead of a new build. Placing updates it in place
-    (the triangle packets and the nodes, the largest arrays, are written over): it is the
-    geometry of the last frame placed, which that frame's PackedScene shares."""
+    objects do not move; pack_scene(geometry=...) moves it to another frame's eye (_at_eye):
+    the positions are made relative to that eye again, and the BVH keeps its shape with each
+    box made again from them (wide.refit), instead of a new build. Moving it writes over its
+    arrays in place (the triangle packets and the nodes, the largest, among them), so a
+    PackedScene made from it is good until the next move: it is the geometry of the last
+    frame moved to, and holds nothing beside what that frame's PackedScene holds but the
+    triangles' faces, which each move takes the corners through."""
 
-    eye: np.ndarray  # float64, where the positions are relative to
+    eye: np.ndarray  # float64, what the positions are relative to; NaN while being moved
     planes: np.ndarray
     shapes: dict[str, np.ndarray]  # each shape's records by its buffer's name
-    tris: _Triangles  # in slot order (_slot_triangles)
+    tris: _Triangles  # in slot order (_slot_triangles), without the positions
     triangle_packets: np.ndarray
     sphere_packets: np.ndarray
     wide: WideBvh  # the scene's tree, then each group's
@@ -876,6 +879,7 @@ class SceneGeometry:
     tuning: Tuning
 
 
+@small_pages
 def pack_geometry(scene: M.Scene, *, bvh_width: int = 8, queue: cl.CommandQueue | None = None,
                   tuning: Tuning = DEFAULT_TUNING) -> SceneGeometry:
     """The scene's objects packed at its eye, with their BVH (pack_scene's arguments)."""
@@ -900,19 +904,24 @@ def pack_geometry(scene: M.Scene, *, bvh_width: int = 8, queue: cl.CommandQueue 
     else:
         triangle_packets = _records(L.TRIANGLE_PACKET, 0)
     sphere_packets = _sphere_packets(wide.prim_refs, shapes[SPHERE.buffer])
+    # The positions are in the packets: kept, they would be frame 0's for a whole sequence.
+    tris = replace(tris, positions=_Positions(np.zeros((0, 4), np.float32)))
     return SceneGeometry(eye, planes, shapes, tris, triangle_packets, sphere_packets, wide,
                          instance_records, group_bounds, bvh_s, bvh_width, tuning)
 
 
-def _place(geometry: SceneGeometry, scene: M.Scene) -> SceneGeometry:
-    """`geometry`, made of the same objects as `scene`'s, placed at `scene`'s eye: in place,
+def _at_eye(geometry: SceneGeometry, scene: M.Scene) -> SceneGeometry:
+    """`geometry`, made of the same objects as `scene`'s, moved to `scene`'s eye: in place,
     and returned. Everything that depends on the eye is made again as pack_geometry makes it
-    (planes, shapes, instances, triangle packets), but the BVH, which is refitted: the same
-    boxes as a build of that shape would have, so the same image but where a ray meets two
-    primitives at one distance and the tree's order picks one."""
+    (planes, shapes, instances, triangle packets), but the BVH, which is refitted: the boxes
+    a build of that shape would have. The image is a fresh pack's but where a ray meets two
+    primitives at one distance: a tree of another shape may take the other one."""
     eye = np.asarray(scene.camera.position, dtype=np.float64)
     if np.array_equal(eye, geometry.eye):
         return geometry
+    # Until the move is done, no eye: a move that fails part way leaves arrays of two eyes,
+    # which no later frame at the old eye may take as they are.
+    geometry.eye = np.full(3, np.nan)
     instances = [obj for obj in scene.objects if isinstance(obj, M.Instance)]
     groups, group_of = _groups_of(instances)
     kinds = _by_kind(scene.objects, groups, eye)
@@ -926,11 +935,8 @@ def _place(geometry: SceneGeometry, scene: M.Scene) -> SceneGeometry:
     geometry.instances["root"] = roots
     prim_refs = geometry.wide.prim_refs
     if len(geometry.triangle_packets):
-        sources = _triangle_sources(kinds[M.Triangle])
-        tints = [getattr(obj, "colors", None) for obj in kinds[M.Triangle].objects]
-        faces = _scene_faces(sources, _vertex_offsets(sources), tints)
-        _fill_packets(geometry.triangle_packets, prim_refs, faces,
-                      _positions(kinds[M.Triangle], sources))
+        _fill_packets(geometry.triangle_packets, prim_refs, geometry.tris.faces,
+                      _positions(kinds[M.Triangle], _triangle_sources(kinds[M.Triangle])))
     geometry.sphere_packets = _sphere_packets(prim_refs, geometry.shapes[SPHERE.buffer])
     start = time.perf_counter()
     refit(geometry.wide.nodes, *_slot_bounds(prim_refs, geometry.triangle_packets, bounded),
@@ -950,7 +956,7 @@ def pack_scene(scene: M.Scene, *, width: int, height: int, spp: int, max_depth: 
     one per device). `queue`: build large BVHs on its device (the same tree as the host
     build). `tuning`: the other knobs of the BVH build, and of the launches (kept in the
     PackedScene). `geometry`: this scene's objects as pack_geometry packed them at another
-    frame of its animation (with this bvh_width and tuning), placed at this scene's eye
+    frame of its animation (with this bvh_width and tuning), moved to this scene's eye
     instead of packed afresh. `variants` are extra KernelConfig fields (study switches,
     options)."""
     if geometry is None:
@@ -958,7 +964,7 @@ def pack_scene(scene: M.Scene, *, width: int, height: int, spp: int, max_depth: 
     elif (geometry.bvh_width, geometry.tuning) != (bvh_width, tuning):
         raise ValueError("pack_scene: the geometry was packed with another BVH width or tuning")
     else:
-        geometry = _place(geometry, scene)
+        geometry = _at_eye(geometry, scene)
     planes, shapes, tris, wide = geometry.planes, geometry.shapes, geometry.tris, geometry.wide
     eye = geometry.eye
     bvh_s, geometry.bvh_s = geometry.bvh_s, 0.0

@@ -43,6 +43,13 @@ def _refs(kinds: np.ndarray) -> np.ndarray:
     return refs
 
 
+def _random_boxes(rng: np.random.Generator, n: int, extent: float
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """n boxes' centres, uniform in [-10, 10)^3, and half-extents, exponential of mean
+    `extent`: the boxes are c - e to c + e."""
+    return rng.uniform(-10, 10, (n, 3)), rng.exponential(extent, (n, 3))
+
+
 def _children(wide: WideBvh, node: int) -> list[tuple[int, int, np.ndarray, np.ndarray]]:
     """(child, count, lo, hi) of each used slot of a node."""
     rec = wide.nodes[node]
@@ -114,8 +121,7 @@ def check_wide(wide: WideBvh, lo: np.ndarray, hi: np.ndarray, refs: np.ndarray) 
 @pytest.mark.parametrize("n", [1, 2, 7, 100, 3000])
 def test_collapse_of_random_boxes(width, n):
     rng = np.random.default_rng(n * 10 + width)
-    c = rng.uniform(-10, 10, (n, 3))
-    e = rng.exponential(0.3, (n, 3))
+    c, e = _random_boxes(rng, n, 0.3)
     kinds = rng.choice([L.PRIM_SPHERE, L.PRIM_BOX, L.PRIM_TRIANGLE, L.PRIM_CONE], n)
     refs = _refs(kinds)
     wide = collapse(build_bvh(c - e, c + e), refs, width)
@@ -143,8 +149,7 @@ def _union_below(wide: WideBvh, node: int, lo: np.ndarray, hi: np.ndarray
 @pytest.mark.parametrize("n", [1, 9, 300, 3000])
 def test_refit_makes_each_box_the_union_of_the_moved_primitives(width, n):
     rng = np.random.default_rng(n + width)
-    c = rng.uniform(-10, 10, (n, 3))
-    e = rng.exponential(0.3, (n, 3))
+    c, e = _random_boxes(rng, n, 0.3)
     # References that are each primitive's index (one kind), so a slot's ref indexes the boxes.
     refs = (L.PRIM_TRIANGLE << L.PRIM_TYPE_SHIFT) + np.arange(n)
     wide = collapse(build_bvh(c - e, c + e, 4), refs, width)
@@ -213,9 +218,7 @@ def test_wide_nodes_are_full_unless_only_leaves_are_left(width):
 @pytest.mark.parametrize("width", [4, 8])
 @pytest.mark.parametrize("n", [1, 2, 9, 300])
 def test_filled_nodes_keep_every_primitive_under_boxes_that_hold_it(width, n):
-    rng = np.random.default_rng(n + width)
-    c = rng.uniform(-10, 10, (n, 3))
-    e = rng.exponential(0.5, (n, 3))
+    c, e = _random_boxes(np.random.default_rng(n + width), n, 0.5)
     refs = _refs(np.full(n, L.PRIM_INSTANCE))
     wide = collapse(build_bvh(c - e, c + e, max_leaf_size=1, largest_leaf=1), refs, width)
     filled = fill_nodes(wide)

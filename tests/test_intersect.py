@@ -365,6 +365,53 @@ def test_negative_zero_direction_components_on_slab_planes_hit(cl_device, precis
     assert_rel(t.astype(np.float64), want.t, RTOL, "t")
 
 
+@pytest.mark.parametrize("precision", ["float", "double"])
+@pytest.mark.parametrize("traversal", ["single", "sample_packet"])
+def test_unused_node_lanes_are_missed_by_rays_with_zero_direction_components(
+        cl_device, precision, traversal):
+    """A wide node's unused lanes (child -1) hold NaN boxes, which the slab test's
+    compare-select passes over (a NaN never narrows the interval), so node_children masks them
+    by child >= 0: a crossed one would send the walk to node -1. Rays with every sign of zero
+    in their zero components (reciprocals of +-inf), from origins at 0 and on the boxes'
+    planes, through a tree whose nodes have unused lanes, against clray.reference."""
+    if precision == "double" and "cl_khr_fp64" not in cl_device.extensions:
+        pytest.skip("no fp64")
+    # A grid of boxes, of sizes that leave the tree's lower nodes part full, one at the
+    # origin's planes (x = 0, y = 0).
+    boxes = [M.Box((3.0 * i, 3.0 * j, -6.0 - (i + j) % 4),
+                   (3.0 * i + 1.0, 3.0 * j + 1.0 + i % 3, -5.0), 0)
+             for i in range(11) for j in range(11)]
+    scene = make_scene(*boxes)
+    packed = pack_scene(scene, width=4, height=4, spp=1, max_depth=0, seed=0,
+                        precision=precision, traversal=traversal)
+    nodes = packed.nodes
+    unused = nodes["child"] < 0
+    assert unused.any() and ((nodes["count"] == 0) & ~unused).any()  # inner nodes, not full
+    for side in ("lo", "hi"):
+        for axis in "xyz":
+            assert np.all(np.isnan(nodes[f"{side}_{axis}"][unused]))
+    o, d = [], []
+    for a in (0.0, -0.0):
+        for b in (0.0, -0.0):
+            for x in (0.0, 1e-30, 0.5, 1.0, 2.0, 3.0, 4.0, 15.0, 31.0):
+                for y in (0.0, 0.5, 1.0, 2.0, 3.0, 30.5):
+                    o += [(x, y, 0.0), (x, y, -20.0)]  # down the z axis, and from behind
+                    d += [(a, b, -1.0), (a, b, 1.0)]
+            for u in (0.0, 1.0, 3.0, 3.5, 4.0):
+                for z in (-5.0, -6.0, -8.0, 0.0):
+                    # Along x and along y, on the boxes' planes and between them.
+                    o += [(-4.0, u, z), (40.0, u, z), (u, -4.0, z), (u, 40.0, z)]
+                    d += [(1.0, a, b), (-1.0, a, b), (a, 1.0, b), (a, -1.0, b)]
+    o, d = np.array(o), np.array(d)
+    t, _, r = intersect_rays(packed, cl_device, o, d)
+    want = intersect_scene(scene, o, d)
+    hit = np.isfinite(want.t)
+    assert hit.sum() > len(o) // 4 and (~hit).sum() > len(o) // 8
+    assert np.array_equal(r >= 0, hit), f"rays {np.flatnonzero((r >= 0) != hit)}"
+    assert np.all(r[hit] >> L.PRIM_TYPE_SHIFT == L.PRIM_BOX)
+    assert_rel(t[hit].astype(np.float64), want.t[hit], RTOL, "t")
+
+
 # ---------------------------------------------------------------------------------------------
 # Planes
 

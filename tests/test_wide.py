@@ -72,10 +72,22 @@ def _leaf_sections(wide: WideBvh, slot: int, count: int) -> list[np.ndarray]:
     return [wide.prim_refs[a:b] for a, b in itertools.pairwise(ends)]
 
 
+def check_unused_lanes(nodes: np.ndarray) -> None:
+    """Each unused lane is child -1 and count 0 with a NaN box, as the kernel's mask of unused
+    lanes (kernels/bvh.h, node_children) and the host's readers of boxes take it."""
+    unused = nodes["child"] < 0
+    assert np.all(nodes["child"][unused] == -1)
+    assert np.all(nodes["count"][unused] == 0)
+    for side in ("lo", "hi"):
+        for axis in AXES:
+            assert np.all(np.isnan(nodes[f"{side}_{axis}"][unused]))
+
+
 def check_wide(wide: WideBvh, lo: np.ndarray, hi: np.ndarray, refs: np.ndarray) -> None:
     """Every primitive in exactly one leaf, inside every box on its path; leaves laid out as the
-    kernel reads them; the stack bound covers the deepest walk."""
+    kernel reads them; the stack bound covers the deepest walk; unused lanes as described."""
     assert wide.nodes.dtype == L.bvh_node_dtype(wide.width)
+    check_unused_lanes(wide.nodes)
     seen: list[int] = []
     index_of = {int(r): i for i, r in enumerate(refs)}
     deepest = 0
@@ -170,6 +182,7 @@ def test_refit_makes_each_box_the_union_of_the_moved_primitives(width, n):
             np.testing.assert_array_equal(got_hi, want_hi)
     np.testing.assert_array_equal(nodes["child"], wide.nodes["child"])
     np.testing.assert_array_equal(nodes["count"], wide.nodes["count"])
+    check_unused_lanes(nodes)
 
 
 @pytest.mark.parametrize("width", [4, 8])

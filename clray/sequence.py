@@ -67,6 +67,10 @@ class Sequence:
         where a track moves them."""
         return None if self.moves_objects() else self.packed_objects
 
+    def forget_packed_objects(self) -> None:
+        """Lets go of the objects packed for the frames (packed_objects packs them again)."""
+        object.__setattr__(self, "_packed", None)
+
     def packed_objects(self, device: cl.Device, plan: DevicePlan) -> SceneGeometry:
         """Frame 0's objects packed for a render on `device` as `plan` packs them: once, and
         again only for another device, BVH width or knobs (one packing kept at a time). Each
@@ -76,7 +80,7 @@ class Sequence:
         Dask's tasks)."""
         key = (device.int_ptr, plan.bvh_width, plan.tuning)
         if self._packed is None or self._packed[0] != key:
-            object.__setattr__(self, "_packed", None)  # its arrays go before the new ones
+            self.forget_packed_objects()  # its arrays go before the new ones
             geometry = pack_geometry(self.scene(0), bvh_width=plan.bvh_width,
                                      queue=queue_for(device), tuning=plan.tuning)
             object.__setattr__(self, "_packed", (key, geometry))
@@ -223,11 +227,15 @@ def render_frames(sequence: Sequence, frames: Iterable[int], settings: RenderSet
     settings = settings_or_default(settings)
     frames = [sequence.check_frame(f) for f in frames]  # each, before any is rendered
     reports = progress_parts(settings.progress, len(frames))
-    for frame, report in zip(frames, reports, strict=True):
-        started = time.perf_counter()
-        scene = sequence.scene(frame)
-        load_s = time.perf_counter() - started
-        result = render(scene, replace(settings, progress=report),
-                        geometry_for=sequence.frame_geometry())
-        result.stats["load_s"] = load_s
-        done(frame, result)
+    try:
+        for frame, report in zip(frames, reports, strict=True):
+            started = time.perf_counter()
+            scene = sequence.scene(frame)
+            load_s = time.perf_counter() - started
+            result = render(scene, replace(settings, progress=report),
+                            geometry_for=sequence.frame_geometry())
+            result.stats["load_s"] = load_s
+            done(frame, result)
+    finally:
+        # The frames' packing goes with the run, not with the sequence a caller may keep.
+        sequence.forget_packed_objects()

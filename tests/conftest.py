@@ -37,6 +37,7 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 from types import ModuleType
 
+import numpy as np
 import pyopencl as cl
 import pytest
 
@@ -324,3 +325,39 @@ def load_mesh_generator() -> ModuleType:
     """scripts/make_mesh_scene.py (bumpy_mesh, icosphere, main, ...) as a module."""
     return module_from_file(
         Path(__file__).resolve().parents[1] / "scripts" / "make_mesh_scene.py", "make_mesh_scene")
+
+
+_ROOT = Path(__file__).resolve().parents[1]
+
+
+def still_objects_scene(tmp_path: Path, name: str) -> Path:
+    """An animation whose tracks move no object: orbit.toml's camera and material tracks, a
+    mesh beside its spheres ("orbit"), or instances.toml's groups placed by instances under
+    an orbiting camera ("instances")."""
+    meshes = (_ROOT / "scenes" / "meshes").as_posix()
+    if name == "orbit":
+        blocks = (_ROOT / "scenes" / "orbit.toml").read_text().split("[[animation.tracks]]")
+        text = "[[animation.tracks]]".join(b for b in blocks if "objects[" not in b)
+        assert len(blocks) == text.count("[[animation.tracks]]") + 2
+        text = text.replace("[animation]", f'[[objects]]\ntype = "mesh"\nfile = "{meshes}/'
+                            'bumpy_ico2.obj"\nmaterial = "blue"\ntransform = { scale = 0.6, '
+                            'translate = [0.2, 0.6, 1.6] }\n\n[animation]')
+    else:
+        text = (_ROOT / "scenes" / "instances.toml").read_text().replace('"meshes/',
+                                                                         f'"{meshes}/')
+        text += ('\n[animation]\nframes = 6\n\n[[animation.tracks]]\nkey = "camera.position"\n'
+                 'frames = [0, 5]\nvalues = [[0, 3, 9], [6, 4, 6]]\n')
+    path = tmp_path / f"{name}.toml"
+    path.write_text(text)
+    return path
+
+
+def check_unused_lanes(nodes: np.ndarray) -> None:
+    """Each unused lane is child -1 and count 0 with a NaN box, as the kernel's mask of unused
+    lanes (kernels/bvh.h, node_children) and the host's readers of boxes take it."""
+    unused = nodes["child"] < 0
+    assert np.all(nodes["child"][unused] == -1)
+    assert np.all(nodes["count"][unused] == 0)
+    for side in ("lo", "hi"):
+        for axis in "xyz":
+            assert np.all(np.isnan(nodes[f"{side}_{axis}"][unused]))

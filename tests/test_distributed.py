@@ -23,6 +23,7 @@ from types import SimpleNamespace
 from typing import ClassVar
 
 import pytest
+from conftest import still_objects_scene
 
 from clray import cli
 from clray.errors import EXIT_RUNTIME, EXIT_SCENE
@@ -260,6 +261,22 @@ def test_cli_dask_frames_render_and_resume(cl_device, tmp_path, capsys):
     [record] = json.loads(stats.read_text())["frames"]
     assert record["frame"] == 2 and record["load_s"] >= 0  # its scene made on the worker
     for f in range(3):
+        assert (read_pfm(tmp_path / f"d_{f:02d}.pfm").tobytes()
+                == read_pfm(tmp_path / f"l_{f:02d}.pfm").tobytes())
+
+
+@needs_dask
+def test_dask_frames_that_move_no_object_are_the_local_frames(cl_device, tmp_path, capsys):
+    """Each worker packs frame 0's objects once and moves them to its frames' eyes (the
+    client's packing is not sent): frames split between workers, whichever frames each gets,
+    are the single-process frames bit for bit."""
+    scene = str(still_objects_scene(tmp_path, "instances"))
+    size = ["-W", "32", "-H", "18", "--spp", "1"]
+    local, dask = tmp_path / "l_%02d.pfm", tmp_path / "d_%02d.pfm"
+    assert cli.main(["render", scene, *size, "--frames", "0:5", "-o", str(local), "-q"]) == 0
+    assert cli.main(["render", scene, *size, "--frames", "1:5", "-o", str(dask), "--dask",
+                     "-q"]) == 0
+    for f in range(1, 5):
         assert (read_pfm(tmp_path / f"d_{f:02d}.pfm").tobytes()
                 == read_pfm(tmp_path / f"l_{f:02d}.pfm").tobytes())
 

@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import still_objects_scene
 
 from clray import cli
 from clray.errors import ClrayError, SceneError, SettingsError
@@ -909,28 +910,6 @@ def test_texels_decoded_once_are_not_given_to_another_array_after_they_are_freed
         del texels
 
 
-def _still_objects_scene(tmp_path: Path, name: str) -> Path:
-    """An animation whose tracks move no object: orbit.toml's camera and material tracks, a
-    mesh beside its spheres ("orbit"), or instances.toml's groups placed by instances under
-    an orbiting camera ("instances")."""
-    meshes = (ROOT / "scenes" / "meshes").as_posix()
-    if name == "orbit":
-        blocks = ORBIT.read_text().split("[[animation.tracks]]")
-        text = "[[animation.tracks]]".join(b for b in blocks if "objects[" not in b)
-        assert len(blocks) == text.count("[[animation.tracks]]") + 2
-        text = text.replace("[animation]", f'[[objects]]\ntype = "mesh"\nfile = "{meshes}/'
-                            'bumpy_ico2.obj"\nmaterial = "blue"\ntransform = { scale = 0.6, '
-                            'translate = [0.2, 0.6, 1.6] }\n\n[animation]')
-    else:
-        text = (ROOT / "scenes" / "instances.toml").read_text().replace('"meshes/',
-                                                                         f'"{meshes}/')
-        text += ('\n[animation]\nframes = 6\n\n[[animation.tracks]]\nkey = "camera.position"\n'
-                 'frames = [0, 5]\nvalues = [[0, 3, 9], [6, 4, 6]]\n')
-    path = tmp_path / f"{name}.toml"
-    path.write_text(text)
-    return path
-
-
 @pytest.mark.parametrize("name", ["orbit", "instances"])
 def test_frames_that_move_no_object_share_one_bvh_and_render_their_stills(cl_device, tmp_path,
                                                                           monkeypatch, name):
@@ -946,7 +925,7 @@ def test_frames_that_move_no_object_share_one_bvh_and_render_their_stills(cl_dev
     build = pack._pack_bvh
     monkeypatch.setattr(pack, "_pack_bvh", lambda *a, **k: builds.append(1) or build(*a, **k))
     settings = RenderSettings(width=48, height=27, spp=2)
-    path = _still_objects_scene(tmp_path, name)
+    path = still_objects_scene(tmp_path, name)
     sequence = load_sequence(path)
     assert not sequence.moves_objects()
     frames: dict[int, np.ndarray] = {}
@@ -986,16 +965,20 @@ def test_frames_that_move_an_object_are_each_packed_afresh(cl_device, monkeypatc
 
 def test_a_pickled_sequence_leaves_its_packed_objects_behind(cl_device, tmp_path):
     """A Dask worker packs its own: the client's packed geometry is not sent with the
-    sequence."""
+    sequence. render_frames lets go of it at the end of the run: a caller that keeps the
+    sequence does not keep the packing."""
     import pickle
 
-    from clray.render import RenderSettings
+    from clray.render import RenderSettings, plan_for
     from clray.sequence import render_frames
 
-    sequence = load_sequence(_still_objects_scene(tmp_path, "orbit"))
+    sequence = load_sequence(still_objects_scene(tmp_path, "orbit"))
     sent = len(pickle.dumps(sequence))
-    render_frames(sequence, [0], RenderSettings(width=8, height=6, spp=1),
-                  lambda *_: None)
-    assert sequence._packed is not None
+    settings = RenderSettings(width=8, height=6, spp=1)
+    geometry = sequence.frame_geometry()(cl_device, plan_for(sequence.scene(0), settings,
+                                                             cl_device))
+    assert sequence._packed[1] is geometry
     assert len(pickle.dumps(sequence)) == sent
     assert pickle.loads(pickle.dumps(sequence))._packed is None
+    render_frames(sequence, [0], settings, lambda *_: None)
+    assert sequence._packed is None

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import load_mesh_generator
+from conftest import check_unused_lanes, load_mesh_generator
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -70,17 +70,6 @@ def _leaf_sections(wide: WideBvh, slot: int, count: int) -> list[np.ndarray]:
              count & LEAF_FIELD_MASK]
     ends = np.cumsum([0, *sizes]) + slot
     return [wide.prim_refs[a:b] for a, b in itertools.pairwise(ends)]
-
-
-def check_unused_lanes(nodes: np.ndarray) -> None:
-    """Each unused lane is child -1 and count 0 with a NaN box, as the kernel's mask of unused
-    lanes (kernels/bvh.h, node_children) and the host's readers of boxes take it."""
-    unused = nodes["child"] < 0
-    assert np.all(nodes["child"][unused] == -1)
-    assert np.all(nodes["count"][unused] == 0)
-    for side in ("lo", "hi"):
-        for axis in AXES:
-            assert np.all(np.isnan(nodes[f"{side}_{axis}"][unused]))
 
 
 def check_wide(wide: WideBvh, lo: np.ndarray, hi: np.ndarray, refs: np.ndarray) -> None:

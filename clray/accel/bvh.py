@@ -175,24 +175,24 @@ def build_bvh(lo: np.ndarray, hi: np.ndarray, max_leaf_size: int = MAX_LEAF_SIZE
 
 def rounded_out(lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Bounds as float32, each rounded to nearest and then one step outwards where that went
-    inwards: the boxes every build takes (and a refit, clray.accel.wide.refit, again)."""
+    inwards, every zero +0.0: the boxes every build takes (and a refit, clray.accel.wide.refit,
+    again). -0.0 and +0.0 compare equal, so which one a minimum or maximum keeps depends on the
+    reduction's order, which differs between the builds; with no -0.0 in, all give the same
+    bytes (kernels/bvh_build.cl, round_prims). + 0 after the rounding: nextafter up from
+    -2^-149 gives -0.0."""
     lo32 = lo.astype(np.float32)
     hi32 = hi.astype(np.float32)
-    return (np.where(lo32 > lo, np.nextafter(lo32, np.float32(-np.inf)), lo32),
-            np.where(hi32 < hi, np.nextafter(hi32, np.float32(np.inf)), hi32))
+    return (np.where(lo32 > lo, np.nextafter(lo32, np.float32(-np.inf)), lo32) + np.float32(0),
+            np.where(hi32 < hi, np.nextafter(hi32, np.float32(np.inf)), hi32) + np.float32(0))
 
 
 def _round_out(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
     """(9, N) float32 rows: lo xyz, hi xyz rounded outwards, then centroids (for binning only)."""
     prim = np.empty((9, lo.shape[0]), dtype=np.float32)
     prim[0:3], prim[3:6] = rounded_out(lo.T, hi.T)
-    # Summed in float64 whatever the bounds' type, as the device build does.
-    prim[6:9] = (0.5 * np.add(lo.T, hi.T, dtype=np.float64)).astype(np.float32)
-    # Every zero +0.0 (-0.0 + 0.0 is +0.0), after the rounding (nextafter up from -2^-149 gives
-    # -0.0): -0.0 and +0.0 compare equal, so which one a minimum or maximum keeps depends on
-    # the reduction's order, which differs between this build and the device's. With no -0.0
-    # in, both give the same bytes (kernels/bvh_build.cl, round_prims).
-    prim += np.float32(0)
+    # Summed in float64 whatever the bounds' type, as the device build does; every zero +0.0,
+    # as rounded_out makes the bounds'.
+    prim[6:9] = (0.5 * np.add(lo.T, hi.T, dtype=np.float64)).astype(np.float32) + np.float32(0)
     return prim
 
 

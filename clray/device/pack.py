@@ -152,6 +152,17 @@ class _Bounded:
         self.checked = []
         return prims
 
+    def kind_bounds(self, code: int) -> tuple[np.ndarray, np.ndarray]:
+        """(lo, hi) float32 of the primitives of one kind, by their index, as the builds take
+        them (clray.accel.bvh.rounded_out); empty where the kind has none. Before owned_by:
+        each kind as added (once a kind), its references still the first of its run."""
+        for lo, hi, refs in zip(self.lo, self.hi, self.refs, strict=True):
+            if not isinstance(refs, int):
+                raise ValueError("kind_bounds: the kinds are joined already (owned_by)")
+            if refs >> L.PRIM_TYPE_SHIFT == code:
+                return rounded_out(lo, hi)
+        return np.zeros((0, 3), np.float32), np.zeros((0, 3), np.float32)
+
     def values_checked(self) -> bool:
         """Every kind's bounds made from checked values (add's `checked`)."""
         return bool(self.checked) and all(self.checked)
@@ -634,20 +645,10 @@ def _slot_bounds(prim_refs: np.ndarray, triangle_packets: np.ndarray, bounded: _
             out[rows] = np.where(is_tri[rows], slots + np.float32(0), np.float32(empty))
     by_chunks(corners.shape[0], bound, row_items=PACKET_WIDTH)
     for code in {int(r) >> L.PRIM_TYPE_SHIFT for r in bounded.refs}:
-        kind_lo, kind_hi = _kind_bounds(bounded, code)
+        kind_lo, kind_hi = bounded.kind_bounds(code)
         mine = np.flatnonzero(kind == code)
         lo[mine], hi[mine] = kind_lo[index[mine]], kind_hi[index[mine]]
     return lo, hi
-
-
-def _kind_bounds(bounded: _Bounded, code: int) -> tuple[np.ndarray, np.ndarray]:
-    """(lo, hi) float32 of one kind's primitives in `bounded` (each kind added once), by
-    their index; empty where the kind has none."""
-    for lo, hi, refs in zip(bounded.lo, bounded.hi, bounded.refs, strict=True):
-        if int(refs) >> L.PRIM_TYPE_SHIFT == code:
-            # + 0: every zero +0.0, as the builds make them (_triangle_bounds).
-            return tuple(b + np.float32(0) for b in rounded_out(lo, hi))
-    return np.zeros((0, 3), np.float32), np.zeros((0, 3), np.float32)
 
 
 def _in_slot_order(kept: np.ndarray, is_tri: np.ndarray, tris: _Triangles) -> _Triangles:
@@ -940,7 +941,7 @@ def _at_eye(geometry: SceneGeometry, scene: M.Scene) -> SceneGeometry:
     geometry.sphere_packets = _sphere_packets(prim_refs, geometry.shapes[SPHERE.buffer])
     start = time.perf_counter()
     refit(geometry.wide.nodes, *_slot_bounds(prim_refs, geometry.triangle_packets, bounded),
-          *_kind_bounds(bounded, L.PRIM_INSTANCE))
+          *bounded.kind_bounds(L.PRIM_INSTANCE))
     geometry.eye = eye
     geometry.bvh_s += time.perf_counter() - start
     return geometry
@@ -956,9 +957,9 @@ def pack_scene(scene: M.Scene, *, width: int, height: int, spp: int, max_depth: 
     one per device). `queue`: build large BVHs on its device (the same tree as the host
     build). `tuning`: the other knobs of the BVH build, and of the launches (kept in the
     PackedScene). `geometry`: this scene's objects as pack_geometry packed them at another
-    frame of its animation (with this bvh_width and tuning), moved to this scene's eye
-    instead of packed afresh. `variants` are extra KernelConfig fields (study switches,
-    options)."""
+    frame of its animation (with this bvh_width and tuning: ValueError if not), moved to this
+    scene's eye instead of packed afresh. `variants` are extra KernelConfig fields (study
+    switches, options)."""
     if geometry is None:
         geometry = pack_geometry(scene, bvh_width=bvh_width, queue=queue, tuning=tuning)
     elif (geometry.bvh_width, geometry.tuning) != (bvh_width, tuning):

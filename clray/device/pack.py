@@ -552,6 +552,15 @@ def _pack_bvh(bounded: _Bounded, n_groups: int, instances: list[M.Instance],
             time.perf_counter() - start)
 
 
+def _packet_slots(prim_refs: np.ndarray, prim: int) -> tuple[np.ndarray, np.ndarray]:
+    """prim_refs as packets of PACKET_WIDTH slots, through the last packet that holds a
+    primitive of kind `prim` (the kernel reads none past it), and which slots hold one."""
+    slots = prim_refs.reshape(-1, PACKET_WIDTH)
+    is_kind = (slots >= 0) & ((slots >> L.PRIM_TYPE_SHIFT) == prim)
+    used = _through_last(is_kind)
+    return slots[:used], is_kind[:used]
+
+
 def _through_last(is_kind: np.ndarray) -> int:
     """Packets up to and including the last one with a lane of the kind (rows of is_kind)."""
     holding = np.flatnonzero(is_kind.any(axis=1))
@@ -567,10 +576,8 @@ def _slot_triangles(prim_refs: np.ndarray, tris: _Triangles) -> tuple[np.ndarray
     of 16-byte rows, not three of a strided field), its corners go into the packet, and the
     record is kept (the slot's material word alone where the device keeps no more). Records of
     every slot at once took 16 B a slot beside the packets, at the pack's peak."""
-    slots = prim_refs.reshape(-1, PACKET_WIDTH)
-    is_tri = (slots >= 0) & ((slots >> L.PRIM_TYPE_SHIFT) == L.PRIM_TRIANGLE)
-    used = _through_last(is_tri)
-    slots, is_tri = slots[:used], is_tri[:used]
+    slots, is_tri = _packet_slots(prim_refs, L.PRIM_TRIANGLE)
+    used = len(slots)
     whole = bool(len(tris.normals) or len(tris.uvs) or len(tris.colors))
     # A mesh of one material (_Faces.word) keeps its one word: nothing a slot to keep.
     one_word = None if whole else tris.faces.word
@@ -615,8 +622,7 @@ def _fill_packets(packets: np.ndarray, prim_refs: np.ndarray, faces: _Faces,
                   positions: _Positions) -> None:
     """The triangle packets (TRIANGLE_PACKET records) written again in place from `faces`
     and `positions` for the slots of prim_refs they were made for (_slot_triangles)."""
-    slots = prim_refs.reshape(-1, PACKET_WIDTH)[:len(packets)]
-    is_tri = (slots >= 0) & ((slots >> L.PRIM_TYPE_SHIFT) == L.PRIM_TRIANGLE)
+    slots, is_tri = _packet_slots(prim_refs, L.PRIM_TRIANGLE)
     corners = packets.view(np.float32).reshape(len(packets), 3, 3, PACKET_WIDTH)
     by_chunks(len(packets), lambda part: _packets_of(corners, part, slots[part], is_tri[part],
                                                      faces, positions, whole=False),
@@ -693,10 +699,7 @@ def _sphere_packets(prim_refs: np.ndarray, spheres: np.ndarray) -> np.ndarray:
     """One SpherePacket per PACKET_WIDTH slots of prim_refs, NaN where a slot holds no sphere."""
     if len(spheres) == 0:
         return _records(L.SPHERE_PACKET, 0)
-    slots = prim_refs.reshape(-1, PACKET_WIDTH).astype(np.int64)
-    is_sphere = (slots >= 0) & ((slots >> L.PRIM_TYPE_SHIFT) == SPHERE.prim)
-    used = _through_last(is_sphere)
-    slots, is_sphere = slots[:used], is_sphere[:used]
+    slots, is_sphere = _packet_slots(prim_refs, SPHERE.prim)
     cr = spheres["center_radius"][np.where(is_sphere, slots & L.PRIM_INDEX_MASK, 0)]
     packets = _records(L.SPHERE_PACKET, len(slots))
     for axis, name in enumerate(("x", "y", "z", "radius")):
@@ -880,22 +883,44 @@ class SceneGeometry:
     tuning: Tuning
 
 
+@dataclass(frozen=True)
+class _AtEye:
+    """What a scene's objects give at an eye before any BVH: the instances and the groups they
+    place, the objects by kind (relative to the eye, a group's in its own frame), the planes'
+    and shapes' records, and the bounded primitives so far (pack_geometry's and _at_eye's
+    first steps)."""
+
+    instances: list[M.Instance]
+    groups: list[M.Group]
+    group_of: np.ndarray
+    kinds: dict[type, _Placed]
+    bounded: _Bounded
+    planes: np.ndarray
+    shapes: dict[str, np.ndarray]
+
+
+def _at(scene: M.Scene, eye: np.ndarray) -> _AtEye:
+    """The scene's objects at `eye` (_AtEye)."""
+    instances = [obj for obj in scene.objects if isinstance(obj, M.Instance)]
+    groups, group_of = _groups_of(instances)
+    kinds = _by_kind(scene.objects, groups, eye)
+    bounded = _Bounded()
+    planes = _pack_planes(kinds[M.Plane].objects, eye)
+    shapes = {shape.buffer: _pack_shape(shape, kinds[shape.model], bounded) for shape in SHAPES}
+    return _AtEye(instances, groups, group_of, kinds, bounded, planes, shapes)
+
+
 @small_pages
 def pack_geometry(scene: M.Scene, *, bvh_width: int = 8, queue: cl.CommandQueue | None = None,
                   tuning: Tuning = DEFAULT_TUNING) -> SceneGeometry:
     """The scene's objects packed at its eye, with their BVH (pack_scene's arguments)."""
     eye = np.asarray(scene.camera.position, dtype=np.float64)
-    instances = [obj for obj in scene.objects if isinstance(obj, M.Instance)]
-    groups, group_of = _groups_of(instances)
-    kinds = _by_kind(scene.objects, groups, eye)
-
-    bounded = _Bounded()
-    planes = _pack_planes(kinds[M.Plane].objects, eye)
-    shapes = {shape.buffer: _pack_shape(shape, kinds[shape.model], bounded) for shape in SHAPES}
+    at = _at(scene, eye)
+    kinds = at.kinds
     sources = _triangle_sources(kinds[M.Triangle])
-    faces = _pack_triangles(kinds[M.Triangle], sources, bounded)
+    faces = _pack_triangles(kinds[M.Triangle], sources, at.bounded)
     wide, instance_records, group_bounds, bvh_s = _pack_bvh(
-        bounded, len(groups), instances, group_of, eye, bvh_width, queue, tuning)
+        at.bounded, len(at.groups), at.instances, at.group_of, eye, bvh_width, queue, tuning)
     # The build's and the collapse's temporaries, freed: their heap pages go back before
     # the packets take their place.
     trim_heap()
@@ -904,11 +929,11 @@ def pack_geometry(scene: M.Scene, *, bvh_width: int = 8, queue: cl.CommandQueue 
         triangle_packets, tris = _slot_triangles(wide.prim_refs, tris)
     else:
         triangle_packets = _records(L.TRIANGLE_PACKET, 0)
-    sphere_packets = _sphere_packets(wide.prim_refs, shapes[SPHERE.buffer])
+    sphere_packets = _sphere_packets(wide.prim_refs, at.shapes[SPHERE.buffer])
     # The positions are in the packets: kept, they would be frame 0's for a whole sequence.
     tris = replace(tris, positions=_Positions(np.zeros((0, 4), np.float32)))
-    return SceneGeometry(eye, planes, shapes, tris, triangle_packets, sphere_packets, wide,
-                         instance_records, group_bounds, bvh_s, bvh_width, tuning)
+    return SceneGeometry(eye, at.planes, at.shapes, tris, triangle_packets, sphere_packets,
+                         wide, instance_records, group_bounds, bvh_s, bvh_width, tuning)
 
 
 def _at_eye(geometry: SceneGeometry, scene: M.Scene) -> SceneGeometry:
@@ -923,25 +948,21 @@ def _at_eye(geometry: SceneGeometry, scene: M.Scene) -> SceneGeometry:
     # Until the move is done, no eye: a move that fails part way leaves arrays of two eyes,
     # which no later frame at the old eye may take as they are.
     geometry.eye = np.full(3, np.nan)
-    instances = [obj for obj in scene.objects if isinstance(obj, M.Instance)]
-    groups, group_of = _groups_of(instances)
-    kinds = _by_kind(scene.objects, groups, eye)
-    bounded = _Bounded()
-    geometry.planes = _pack_planes(kinds[M.Plane].objects, eye)
-    geometry.shapes = {shape.buffer: _pack_shape(shape, kinds[shape.model], bounded)
-                       for shape in SHAPES}
+    at = _at(scene, eye)
+    geometry.planes, geometry.shapes = at.planes, at.shapes
     roots = geometry.instances["root"]
-    geometry.instances = _pack_instances(instances, group_of, geometry.group_bounds, eye,
-                                         bounded)
+    geometry.instances = _pack_instances(at.instances, at.group_of, geometry.group_bounds, eye,
+                                         at.bounded)
     geometry.instances["root"] = roots
     prim_refs = geometry.wide.prim_refs
+    triangles = at.kinds[M.Triangle]
     if len(geometry.triangle_packets):
         _fill_packets(geometry.triangle_packets, prim_refs, geometry.tris.faces,
-                      _positions(kinds[M.Triangle], _triangle_sources(kinds[M.Triangle])))
-    geometry.sphere_packets = _sphere_packets(prim_refs, geometry.shapes[SPHERE.buffer])
+                      _positions(triangles, _triangle_sources(triangles)))
+    geometry.sphere_packets = _sphere_packets(prim_refs, at.shapes[SPHERE.buffer])
     start = time.perf_counter()
-    refit(geometry.wide.nodes, *_slot_bounds(prim_refs, geometry.triangle_packets, bounded),
-          *bounded.kind_bounds(L.PRIM_INSTANCE))
+    refit(geometry.wide.nodes, *_slot_bounds(prim_refs, geometry.triangle_packets, at.bounded),
+          *at.bounded.kind_bounds(L.PRIM_INSTANCE))
     geometry.eye = eye
     geometry.bvh_s += time.perf_counter() - start
     return geometry

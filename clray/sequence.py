@@ -47,25 +47,32 @@ class Sequence:
     data: dict
     animation: Animation
     files: KeptFiles = field(default_factory=KeptFiles)
-    # Where no track moves an object: frame 0's objects packed for all the frames this process
-    # renders, with the device, BVH width and knobs they were packed for (packed_objects).
-    # Not pickled: a Dask worker packs its own.
+    # Where no track moves a primitive: frame 0's objects packed for all the frames this
+    # process renders, with the device, BVH width and knobs they were packed for
+    # (packed_objects). Not pickled: a Dask worker packs its own.
     _packed: tuple[tuple, SceneGeometry] | None = field(default=None, init=False, repr=False,
                                                        compare=False)
 
     def __getstate__(self) -> dict:
         return {**self.__dict__, "_packed": None}
 
-    def moves_objects(self) -> bool:
-        """Whether a track keys an object's or a group's value (objects[2].center,
-        groups.g.objects[0].radius): the frames' objects differ, and each frame is packed
-        afresh."""
-        return any(track.path[0] in ("objects", "groups") for track in self.animation.tracks)
+    def moves_primitives(self) -> bool:
+        """Whether a track keys a value of a group or of an object other than an instance
+        (objects[2].center, groups.g.objects[0].radius): the frames' primitives differ, and
+        each frame is packed afresh. An instance's transform places its group's primitives
+        without changing them in the group's frame."""
+        objects = self.data.get("objects")
+
+        def places_an_instance(path: tuple) -> bool:
+            return (path[0] == "objects" and isinstance(objects, list)
+                    and objects[path[1]].get("type") == "instance")
+        return any(track.path[0] in ("objects", "groups") and not places_an_instance(track.path)
+                   for track in self.animation.tracks)
 
     def frame_geometry(self) -> GeometrySource | None:
         """What gives each frame's render its objects packed (render's geometry_for), or None
-        where a track moves them."""
-        return None if self.moves_objects() else self.packed_objects
+        where a track moves primitives."""
+        return None if self.moves_primitives() else self.packed_objects
 
     def forget_packed_objects(self) -> None:
         """Lets go of the objects packed for the frames (packed_objects packs them again)."""
@@ -77,7 +84,9 @@ class Sequence:
         frame's render moves them to its own eye, with the BVH refitted instead of built
         (clray.device.pack.pack_geometry; docs/distributed.md). Frame 0's whichever frames
         render: a frame's image does not depend on how a run splits the frames (--resume,
-        Dask's tasks)."""
+        Dask's tasks). Instances moved by tracks are placed anew in each frame, their groups'
+        trees kept; where that makes the scene's tree too costly, the frame is packed afresh
+        (clray.device.pack.REFIT_COST_LIMIT)."""
         key = (device.int_ptr, plan.bvh_width, plan.tuning)
         if self._packed is None or self._packed[0] != key:
             self.forget_packed_objects()  # its arrays go before the new ones

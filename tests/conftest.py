@@ -331,9 +331,10 @@ _ROOT = Path(__file__).resolve().parents[1]
 
 
 def still_objects_scene(tmp_path: Path, name: str) -> Path:
-    """An animation whose tracks move no object: orbit.toml's camera and material tracks, a
-    mesh beside its spheres ("orbit"), or instances.toml's groups placed by instances under
-    an orbiting camera ("instances")."""
+    """An animation whose tracks move no primitive: orbit.toml's camera and material tracks, a
+    mesh beside its spheres ("orbit"), instances.toml's groups placed by instances under
+    an orbiting camera ("instances"), and besides that two of its instances turned and slid
+    ("turntable")."""
     meshes = (_ROOT / "scenes" / "meshes").as_posix()
     if name == "orbit":
         blocks = (_ROOT / "scenes" / "orbit.toml").read_text().split("[[animation.tracks]]")
@@ -347,6 +348,11 @@ def still_objects_scene(tmp_path: Path, name: str) -> Path:
                                                                          f'"{meshes}/')
         text += ('\n[animation]\nframes = 6\n\n[[animation.tracks]]\nkey = "camera.position"\n'
                  'frames = [0, 5]\nvalues = [[0, 3, 9], [6, 4, 6]]\n')
+        if name == "turntable":
+            text += ('\n[[animation.tracks]]\nkey = "objects[1].transform.rotate"\n'
+                     'frames = [0, 5]\nvalues = [[0, 0, 0], [0, 150, 0]]\n'
+                     '\n[[animation.tracks]]\nkey = "objects[4].transform.translate"\n'
+                     'frames = [0, 5]\nvalues = [[1.5, 0, -1.5], [0.5, 0.8, 0.5]]\n')
     path = tmp_path / f"{name}.toml"
     path.write_text(text)
     return path

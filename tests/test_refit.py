@@ -1,7 +1,8 @@
 """A scene's geometry packed at one eye and placed at another (pack_geometry, then pack_scene's
-`geometry`): the positions made relative to the new eye, the BVH refitted, not built again.
-Oracles: a pack made afresh at that eye (its bytes where the build's tree has the same shape,
-its image where it does not), and the first eye's pack, which placing back must give."""
+`geometry`): the positions made relative to the new eye and the instances placed anew, the BVH
+refitted, not built again. Oracles: a pack made afresh there (its bytes where the build's tree
+has the same shape, its image where it does not), the first eye's pack, which placing back must
+give, and a walk of the tree for its cost."""
 
 from __future__ import annotations
 
@@ -12,12 +13,15 @@ import numpy as np
 import pytest
 from conftest import load_mesh_generator
 
+from clray.accel.bvh import TRAVERSAL_COST
+from clray.accel.wide import LEAF_SPHERE_SHIFT, LEAF_TRIANGLE_SHIFT, tree_cost
 from clray.device import bvh_builder
 from clray.device.context import queue_for
 from clray.device.launch import render_packed
-from clray.device.pack import DEVICE_BUILD_MIN, pack_geometry, pack_scene
+from clray.device.pack import DEVICE_BUILD_MIN, REFIT_COST_LIMIT, pack_geometry, pack_scene
 from clray.scene import model as M
 from clray.scene.load import load_scene
+from clray.scene.transform import rotation_matrix
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENES = sorted(p.name for p in (ROOT / "scenes").glob("*.toml"))
@@ -135,3 +139,91 @@ def test_a_move_that_fails_part_way_is_not_taken_for_the_old_eye(monkeypatch):
             pack_scene(_moved(scene, MOVES[0]), geometry=geometry, **SETTINGS)
     assert _differing(pack_scene(scene, geometry=geometry, **SETTINGS),
                       pack_scene(scene, **SETTINGS)) == []
+
+
+def _turned(scene: M.Scene, degrees: float) -> M.Scene:
+    """The scene with each instance turned about the y axis through the origin (a carousel),
+    its own primitives left where they are."""
+    turn = rotation_matrix((0.0, degrees, 0.0))
+    return dataclasses.replace(scene, objects=tuple(
+        dataclasses.replace(obj, matrix=turn @ obj.matrix) if isinstance(obj, M.Instance)
+        else obj for obj in scene.objects))
+
+
+def test_instances_placed_anew_are_the_pack_made_there(cl_device):
+    """Instances moved by a track (clray.sequence): their records and lanes made again, their
+    groups' trees kept. At the same eye too: a move is the eye's and the instances' places."""
+    scene = load_scene(ROOT / "scenes" / "instances.toml")
+    geometry = pack_geometry(scene)
+    for moved in (_turned(scene, 5.0), _moved(_turned(scene, 5.0), MOVES[0])):
+        assert _differing(pack_scene(moved, geometry=geometry, **SETTINGS),
+                          pack_scene(moved, **SETTINGS)) == []
+    # A half turn: a build there gives a tree of another shape, whose image is the oracle.
+    settings = {**SETTINGS, "width": 96, "height": 54}
+    moved = _turned(scene, 180.0)
+    placed = pack_scene(moved, geometry=geometry, **settings)
+    fresh = pack_scene(moved, **settings)
+    assert "nodes" in _differing(placed, fresh)
+    assert geometry.cost <= REFIT_COST_LIMIT * geometry.built_cost  # refitted, not built
+    image = render_packed(placed, cl_device)[0]
+    assert not np.array_equal(image, render_packed(pack_scene(scene, **settings), cl_device)[0])
+    np.testing.assert_array_equal(image, render_packed(fresh, cl_device)[0])
+    assert _differing(pack_scene(scene, geometry=geometry, **SETTINGS),
+                      pack_scene(scene, **SETTINGS)) == []
+
+
+def _ball_grid(order: np.ndarray) -> M.Scene:
+    """64 instances of one small sphere's group on an 8 x 8 grid, instance i at place
+    order[i]."""
+    ball = M.Group("ball", (M.Sphere((0.0, 0.0, 0.0), 0.4, 0),))
+    places = [(float(x), 0.0, float(z)) for x in range(8) for z in range(8)]
+    instances = tuple(M.Instance(ball, np.hstack([np.eye(3), np.array(places[k])[:, None]]))
+                      for k in order)
+    return M.Scene(None, M.RenderOptions(48, 27, 1, 0, (0.0, 0.0, 0.0)),
+                   M.Camera((3.5, 9.0, 12.0), (3.5, 0.0, 3.5)), (M.Material("m"),),
+                   (M.PointLight((2.0, 9.0, 4.0)),), instances)
+
+
+def test_a_refit_past_the_cost_limit_is_packed_afresh():
+    # The instances change places: frame 0's tree refitted there has every inner box across
+    # the grid, and the frame gets a tree of its own.
+    scene = _ball_grid(np.arange(64))
+    geometry = pack_geometry(scene)
+    shuffled = _ball_grid(np.random.default_rng(1).permutation(64))
+    placed = pack_scene(shuffled, geometry=geometry, **SETTINGS)
+    assert geometry.cost > REFIT_COST_LIMIT * geometry.built_cost
+    assert placed.bvh_s > 0
+    assert _differing(placed, pack_scene(shuffled, **SETTINGS)) == []
+    assert _differing(pack_scene(scene, geometry=geometry, **SETTINGS),
+                      pack_scene(scene, **SETTINGS)) == []
+
+
+def _walk_cost(nodes: np.ndarray) -> float:
+    """tree_cost's oracle: the tree walked node by node from the root in float64, each used
+    lane's box area times a node visit (inner or instance lane) or its leaf's tests."""
+    def area(node: np.void, lane: int) -> float:
+        e = [float(node[f"hi_{a}"][lane]) - float(node[f"lo_{a}"][lane]) for a in "xyz"]
+        return e[0] * e[1] + e[1] * e[2] + e[2] * e[0]
+
+    total, todo = 0.0, [0]
+    while todo:
+        node = nodes[todo.pop()]
+        for lane in range(len(node["child"])):
+            child, count = int(node["child"][lane]), int(node["count"][lane])
+            if child < 0:
+                continue
+            if count == 0:
+                todo.append(child)
+            tests = ((count >> LEAF_TRIANGLE_SHIFT) + ((count >> LEAF_SPHERE_SHIFT) & 0xFF)
+                     + (count & 0xFF))
+            total += area(node, lane) * (tests if count > 0 else TRAVERSAL_COST)
+    used = nodes[0]["child"] >= 0
+    lo = [float(nodes[0][f"lo_{a}"][used].min()) for a in "xyz"]
+    hi = [float(nodes[0][f"hi_{a}"][used].max()) for a in "xyz"]
+    return total / sum((hi[i] - lo[i]) * (hi[j] - lo[j]) for i, j in ((0, 1), (1, 2), (2, 0)))
+
+
+@pytest.mark.parametrize("scene_file", ["spheres.toml", "instances.toml", "cornell_box.toml"])
+def test_tree_cost_is_the_walk_over_the_root(scene_file):
+    nodes = pack_geometry(load_scene(ROOT / "scenes" / scene_file)).wide.nodes
+    assert tree_cost(nodes) == pytest.approx(_walk_cost(nodes), rel=1e-12)

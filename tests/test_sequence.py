@@ -910,12 +910,13 @@ def test_texels_decoded_once_are_not_given_to_another_array_after_they_are_freed
         del texels
 
 
-@pytest.mark.parametrize("name", ["orbit", "instances"])
-def test_frames_that_move_no_object_share_one_bvh_and_render_their_stills(cl_device, tmp_path,
-                                                                          monkeypatch, name):
-    """Frame 0's objects packed once, placed at each frame's eye (clray.device.pack): one BVH
-    build for all the frames, each frame the image its still renders, whichever frames a run
-    renders (frame 0's tree, not the first rendered frame's)."""
+@pytest.mark.parametrize("name", ["orbit", "instances", "turntable"])
+def test_frames_that_move_no_primitive_share_one_bvh_and_render_their_stills(
+        cl_device, tmp_path, monkeypatch, name):
+    """Frame 0's objects packed once, placed at each frame's eye and instances' places
+    (clray.device.pack): one BVH build for all the frames, each frame the image its still
+    renders, whichever frames a run renders (frame 0's tree, not the first rendered
+    frame's)."""
     from clray import sequence as sequence_module
     from clray.device import pack
     from clray.render import RenderSettings, render
@@ -927,7 +928,7 @@ def test_frames_that_move_no_object_share_one_bvh_and_render_their_stills(cl_dev
     settings = RenderSettings(width=48, height=27, spp=2)
     path = still_objects_scene(tmp_path, name)
     sequence = load_sequence(path)
-    assert not sequence.moves_objects()
+    assert not sequence.moves_primitives()
     frames: dict[int, np.ndarray] = {}
     render_frames(sequence, [0, 1, 2, 3], settings,
                   lambda frame, result: frames.update({frame: result.image}))
@@ -949,7 +950,7 @@ def test_frames_that_move_no_object_share_one_bvh_and_render_their_stills(cl_dev
     assert not np.array_equal(frames[0], frames[3])  # the camera moved
 
 
-def test_frames_that_move_an_object_are_each_packed_afresh(cl_device, monkeypatch):
+def test_frames_that_move_a_primitive_are_each_packed_afresh(cl_device, monkeypatch):
     from clray.device import pack
     from clray.render import RenderSettings
     from clray.sequence import render_frames
@@ -958,9 +959,25 @@ def test_frames_that_move_an_object_are_each_packed_afresh(cl_device, monkeypatc
     build = pack._pack_bvh
     monkeypatch.setattr(pack, "_pack_bvh", lambda *a, **k: builds.append(1) or build(*a, **k))
     sequence = load_sequence(ORBIT)
-    assert sequence.moves_objects() and sequence.frame_geometry() is None
+    assert sequence.moves_primitives() and sequence.frame_geometry() is None
     render_frames(sequence, [0, 1, 2], RenderSettings(width=8, height=6, spp=1), lambda *_: None)
     assert len(builds) == 3
+
+
+@pytest.mark.parametrize(("key", "moves"), [
+    ("objects[1].transform.rotate", False),  # an instance: its group's primitives stay
+    ("groups.pawn.objects[2].radius", True),
+    ("objects[7].transform.rotate", True),  # a sphere, placed by an instance of its own
+    ("objects[0].point", True),
+])
+def test_a_track_moves_primitives_unless_it_places_an_instance(tmp_path, key, moves):
+    text = (still_objects_scene(tmp_path, "instances").read_text() +
+            f'\n[[animation.tracks]]\nkey = "{key}"\nframes = [0]\nvalues = [[0, 1, 0]]\n')
+    if key.endswith("radius"):
+        text = text.replace("values = [[0, 1, 0]]\n", "values = [0.25]\n")
+    path = tmp_path / "moved.toml"
+    path.write_text(text)
+    assert load_sequence(path).moves_primitives() is moves
 
 
 def test_a_pickled_sequence_leaves_its_packed_objects_behind(cl_device, tmp_path):

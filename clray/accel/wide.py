@@ -29,7 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from clray.accel import prim_refs as P
-from clray.accel.bvh import BINARY_NODE, Bvh
+from clray.accel.bvh import BINARY_NODE, TRAVERSAL_COST, Bvh
 from clray.host_memory import aligned_empty, by_chunks
 from clray.knobs import KNOBS
 from clray.shapes.sphere import SPHERE
@@ -469,6 +469,42 @@ def leaf_slots(count: np.ndarray) -> np.ndarray:
     return PACKET_WIDTH * packets + (count & LEAF_FIELD_MASK)
 
 
+def _reached_levels(nodes: np.ndarray) -> list[np.ndarray]:
+    """The nodes the root (node 0) reaches, level by level from the root's: a group's tree,
+    reached through an instance lane, is not among them."""
+    child, count = nodes["child"], nodes["count"]
+    inner = (count == 0) & (child >= 0)
+    levels = [np.zeros(1, dtype=np.int64)]
+    while True:
+        below = child[levels[-1]][inner[levels[-1]]]
+        if not below.size:
+            return levels
+        levels.append(below.astype(np.int64))
+
+
+def tree_cost(nodes: np.ndarray, traversal_cost: float = TRAVERSAL_COST) -> float:
+    """The expected cost of a ray's walk through the tree whose root is node 0, relative to
+    its root's box (the surface-area heuristic, as clray.accel.bvh.sah_cost gives it for a
+    binary tree): each lane's box area times its cost, a node visit for an inner lane or an
+    instance's (its group's tree is not counted), a test a packet or other primitive for a
+    leaf's, over the root's area. A refitted tree (refit) against the same tree as built says
+    how far the refit has let its boxes grow: the figure a build minimises. 0 for a tree
+    without nodes or with a root box of no area."""
+    if nodes.size == 0:
+        return 0.0
+    reached = nodes[np.concatenate(_reached_levels(nodes))]
+    child, count = reached["child"], reached["count"].astype(np.int64)
+    e = np.stack([reached[f"hi_{a}"].astype(np.float64) - reached[f"lo_{a}"] for a in "xyz"])
+    area = np.where(child >= 0, e[0] * e[1] + e[1] * e[2] + e[2] * e[0], 0.0)
+    tests = ((count >> LEAF_TRIANGLE_SHIFT) + ((count >> LEAF_SPHERE_SHIFT) & LEAF_FIELD_MASK)
+             + (count & LEAF_FIELD_MASK))
+    cost = np.where(count > 0, tests, traversal_cost)
+    lo = [np.nanmin(nodes[0][f"lo_{a}"].astype(np.float64)) for a in "xyz"]
+    hi = [np.nanmax(nodes[0][f"hi_{a}"].astype(np.float64)) for a in "xyz"]
+    root = sum((hi[i] - lo[i]) * (hi[j] - lo[j]) for i, j in ((0, 1), (1, 2), (2, 0)))
+    return float((cost * area).sum() / root) if root > 0 else 0.0
+
+
 def refit(nodes: np.ndarray, slot_lo: np.ndarray, slot_hi: np.ndarray,
           instance_lo: np.ndarray, instance_hi: np.ndarray) -> None:
     """Makes again, in place, every box of the tree whose root is node 0 from its primitives'
@@ -487,12 +523,7 @@ def refit(nodes: np.ndarray, slot_lo: np.ndarray, slot_hi: np.ndarray,
         return
     child, count = nodes["child"], nodes["count"]
     inner = (count == 0) & (child >= 0)
-    levels = [np.zeros(1, dtype=np.int64)]
-    while True:
-        below = child[levels[-1]][inner[levels[-1]]]
-        if not below.size:
-            break
-        levels.append(below.astype(np.int64))
+    levels = _reached_levels(nodes)
     reached = np.concatenate(levels)
     # The records as rows of 8 lanes-wide fields (collapse's layout): lo xyz, hi xyz, child,
     # count. Boxes are written through this view, in place.

@@ -20,6 +20,7 @@ from clray.accel.wide import (
     collapse,
     fill_nodes,
     refit,
+    tree_cost,
 )
 from clray.device import layout as L
 from clray.device.bvh_builder import build_bvh_from, float_prims
@@ -856,19 +857,29 @@ def _stack_size_option(stack_size: int) -> int:
     return max(16, -(-stack_size // 16) * 16)
 
 
+# A refitted scene tree (instances moved, clray.sequence) whose cost a ray (wide.tree_cost) has
+# grown past this many times the built tree's is built again: a rigid turn or slide of a few
+# instances stays well within it, while instances that have moved across each other's places
+# can make every inner box span the scene. Each build of the scene's tree is then frame 0's
+# cost or less, and the frames' images do not depend on which frames a run renders.
+REFIT_COST_LIMIT = 1.5
+
+
 @dataclass(eq=False)
 class SceneGeometry:
     """A scene's objects packed at an eye: the arrays that pack_scene joins to the scene's
     materials, lights and camera. pack_geometry makes it at one frame of an animation whose
-    objects do not move; pack_scene(geometry=...) moves it to another frame's eye (_at_eye):
-    the positions are made relative to that eye again, and the BVH keeps its shape with each
-    box made again from them (wide.refit), instead of a new build. Moving it writes over its
+    primitives do not move; pack_scene(geometry=...) moves it to another frame's eye and
+    instances' places (_moved_to): the positions are made relative to that eye again, and the
+    BVH keeps its shape with each box made again from them (wide.refit), instead of a new
+    build; the groups' trees, in their own frames, are kept as they are. Moving it writes over its
     arrays in place (the triangle packets and the nodes, the largest, among them), so a
     PackedScene made from it is good until the next move: it is the geometry of the last
     frame moved to, and holds nothing beside what that frame's PackedScene holds but the
     triangles' faces, which each move takes the corners through."""
 
     eye: np.ndarray  # float64, what the positions are relative to; NaN while being moved
+    placements: np.ndarray  # float64 (instances, 3, 4): the instances' matrices
     planes: np.ndarray
     shapes: dict[str, np.ndarray]  # each shape's records by its buffer's name
     tris: _Triangles  # in slot order (_slot_triangles), without the positions
@@ -881,13 +892,16 @@ class SceneGeometry:
     bvh_s: float
     bvh_width: int
     tuning: Tuning
+    # The scene tree's wide.tree_cost as built, and as last refitted.
+    built_cost: float
+    cost: float
 
 
 @dataclass(frozen=True)
 class _AtEye:
     """What a scene's objects give at an eye before any BVH: the instances and the groups they
     place, the objects by kind (relative to the eye, a group's in its own frame), the planes'
-    and shapes' records, and the bounded primitives so far (pack_geometry's and _at_eye's
+    and shapes' records, and the bounded primitives so far (pack_geometry's and _moved_to's
     first steps)."""
 
     instances: list[M.Instance]
@@ -932,18 +946,27 @@ def pack_geometry(scene: M.Scene, *, bvh_width: int = 8, queue: cl.CommandQueue 
     sphere_packets = _sphere_packets(wide.prim_refs, at.shapes[SPHERE.buffer])
     # The positions are in the packets: kept, they would be frame 0's for a whole sequence.
     tris = replace(tris, positions=_Positions(np.zeros((0, 4), np.float32)))
-    return SceneGeometry(eye, at.planes, at.shapes, tris, triangle_packets, sphere_packets,
-                         wide, instance_records, group_bounds, bvh_s, bvh_width, tuning)
+    cost = tree_cost(wide.nodes)
+    return SceneGeometry(eye, _placements(at.instances), at.planes, at.shapes, tris,
+                         triangle_packets, sphere_packets, wide, instance_records, group_bounds,
+                         bvh_s, bvh_width, tuning, cost, cost)
 
 
-def _at_eye(geometry: SceneGeometry, scene: M.Scene) -> SceneGeometry:
-    """`geometry`, made of the same objects as `scene`'s, moved to `scene`'s eye: in place,
-    and returned. Everything that depends on the eye is made again as pack_geometry makes it
-    (planes, shapes, instances, triangle packets), but the BVH, which is refitted: the boxes
-    a build of that shape would have. The image is a fresh pack's but where a ray meets two
-    primitives at one distance: a tree of another shape may take the other one."""
+def _placements(instances: list[M.Instance]) -> np.ndarray:
+    return np.array([inst.matrix for inst in instances], dtype=np.float64).reshape(-1, 3, 4)
+
+
+def _moved_to(geometry: SceneGeometry, scene: M.Scene) -> SceneGeometry:
+    """`geometry`, made of the same primitives as `scene`'s, moved to `scene`'s eye and its
+    instances' places: in place, and returned. Everything that depends on them is made again
+    as pack_geometry makes it (planes, shapes, instances, triangle packets), but the BVH,
+    which is refitted: the boxes a build of that shape would have, its cost in
+    geometry.cost. The image is a fresh pack's but where a ray meets two primitives at one
+    distance: a tree of another shape may take the other one."""
     eye = np.asarray(scene.camera.position, dtype=np.float64)
-    if np.array_equal(eye, geometry.eye):
+    instances = [obj for obj in scene.objects if isinstance(obj, M.Instance)]
+    placements = _placements(instances)
+    if np.array_equal(eye, geometry.eye) and np.array_equal(placements, geometry.placements):
         return geometry
     # Until the move is done, no eye: a move that fails part way leaves arrays of two eyes,
     # which no later frame at the old eye may take as they are.
@@ -963,7 +986,8 @@ def _at_eye(geometry: SceneGeometry, scene: M.Scene) -> SceneGeometry:
     start = time.perf_counter()
     refit(geometry.wide.nodes, *_slot_bounds(prim_refs, geometry.triangle_packets, at.bounded),
           *at.bounded.kind_bounds(L.PRIM_INSTANCE))
-    geometry.eye = eye
+    geometry.cost = tree_cost(geometry.wide.nodes)
+    geometry.eye, geometry.placements = eye, placements
     geometry.bvh_s += time.perf_counter() - start
     return geometry
 
@@ -979,14 +1003,20 @@ def pack_scene(scene: M.Scene, *, width: int, height: int, spp: int, max_depth: 
     build). `tuning`: the other knobs of the BVH build, and of the launches (kept in the
     PackedScene). `geometry`: this scene's objects as pack_geometry packed them at another
     frame of its animation (with this bvh_width and tuning: ValueError if not), moved to this
-    scene's eye instead of packed afresh. `variants` are extra KernelConfig fields (study
-    switches, options)."""
+    scene's eye and instances' places instead of packed afresh, or packed afresh where the
+    refitted tree's cost has grown past REFIT_COST_LIMIT. `variants` are extra KernelConfig
+    fields (study switches, options)."""
     if geometry is None:
         geometry = pack_geometry(scene, bvh_width=bvh_width, queue=queue, tuning=tuning)
     elif (geometry.bvh_width, geometry.tuning) != (bvh_width, tuning):
         raise ValueError("pack_scene: the geometry was packed with another BVH width or tuning")
     else:
-        geometry = _at_eye(geometry, scene)
+        geometry = _moved_to(geometry, scene)
+        if geometry.cost > REFIT_COST_LIMIT * geometry.built_cost:
+            fresh = pack_geometry(scene, bvh_width=bvh_width, queue=queue, tuning=tuning)
+            fresh.bvh_s += geometry.bvh_s  # the refit's time, spent too
+            geometry.bvh_s = 0.0
+            geometry = fresh
     planes, shapes, tris, wide = geometry.planes, geometry.shapes, geometry.tris, geometry.wide
     eye = geometry.eye
     bvh_s, geometry.bvh_s = geometry.bvh_s, 0.0

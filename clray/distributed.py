@@ -7,7 +7,7 @@ Data movement: the scene (or the animation's scene data) goes to every worker on
 (_Tasks); a task carries only its row range and settings. Each
 worker selects its own OpenCL device (`--device`, else as default_device does with its own
 environment: clray.device.context.DEFAULT_DEVICE_ORDER), packs the scene once for all its
-tiles, or an animation's frame 0 objects once for its frames where no track moves a primitive
+tiles, or an animation's frame 0 objects once for its frames where they share a packing
 (clray.sequence.Sequence.packed_objects), and keeps compiled programs cached
 (clray.device.program caches per process).
 Per-pixel sampling depends on the seed and the pixel's index only, so the assembled image is

@@ -299,9 +299,9 @@ def render(scene: SceneSource, settings: RenderSettings | None = None, *,
     """Render a scene, the scene or mesh file at a path, or the scene a callable returns
     (scene_from). A scene built in Python is first checked by the scene file's rules
     (clray.scene.check): SceneError names the bad value. `geometry_for`: where the scene is
-    a frame of an animation that moves no primitive, what gives its objects as packed at
-    another frame (clray.sequence.Sequence.frame_geometry), moved to this frame's eye and
-    instances' places.
+    a frame of an animation whose frames share a packing, what gives its objects as packed
+    at another frame (clray.sequence.Sequence.frame_geometry), moved to this frame's eye,
+    instances' places and shapes' values.
 
     Given a path or a callable, render holds the scene alone and lets it go once it is packed
     (unless passes need it after the render): a big model's mesh (18 B a triangle from a PLY

@@ -28,6 +28,11 @@ from clray.scene.animation import Animation
 from clray.scene.files import KeptFiles
 from clray.scene.load import read_scene_data, scene_and_animation, scene_from_dict
 from clray.scene.model import Scene
+from clray.shapes import SHAPE_KINDS
+
+# The object types a track may move without each frame packed afresh where they have no
+# transform: each is one record of its kind's array in every frame, made again as it moves.
+MOVABLE_TYPES = frozenset({"plane", *SHAPE_KINDS})
 
 if TYPE_CHECKING:
     import pyopencl as cl
@@ -47,7 +52,7 @@ class Sequence:
     data: dict
     animation: Animation
     files: KeptFiles = field(default_factory=KeptFiles)
-    # Where no track moves a primitive: frame 0's objects packed for all the frames this
+    # Unless each frame packs afresh: frame 0's objects packed for all the frames this
     # process renders, with the device, BVH width and knobs they were packed for
     # (packed_objects). Not pickled: a Dask worker packs its own.
     _packed: tuple[tuple, SceneGeometry] | None = field(default=None, init=False, repr=False,
@@ -56,23 +61,28 @@ class Sequence:
     def __getstate__(self) -> dict:
         return {**self.__dict__, "_packed": None}
 
-    def moves_primitives(self) -> bool:
-        """Whether a track keys a value of a group or of an object other than an instance
-        (objects[2].center, groups.g.objects[0].radius): the frames' primitives differ, and
-        each frame is packed afresh. An instance's transform places its group's primitives
-        without changing them in the group's frame."""
+    def packs_each_frame(self) -> bool:
+        """Whether a track keys a value that each frame must be packed afresh for: a group's
+        (groups.g.objects[0].radius), or an object's other than an instance's (its transform,
+        an inline material) and a plane's or shape's where it has no transform
+        (objects[2].center of a sphere). A mesh's and a triangle's vertices are taken once
+        for all frames, with their normals; a transform can make a shape an instance of its
+        own group (an ellipsoid) in some frames only. Otherwise each frame moves frame 0's
+        packing (packed_objects)."""
         objects = self.data.get("objects")
 
-        def places_an_instance(path: tuple) -> bool:
-            return (path[0] == "objects" and isinstance(objects, list)
-                    and objects[path[1]].get("type") == "instance")
-        return any(track.path[0] in ("objects", "groups") and not places_an_instance(track.path)
+        def moved_in_place(path: tuple) -> bool:
+            # load_sequence checked every path against the data: objects[N] is a table.
+            spec = objects[path[1]] if path[0] == "objects" else {}
+            return spec.get("type") == "instance" or (spec.get("type") in MOVABLE_TYPES
+                                                      and "transform" not in spec)
+        return any(track.path[0] in ("objects", "groups") and not moved_in_place(track.path)
                    for track in self.animation.tracks)
 
     def frame_geometry(self) -> GeometrySource | None:
         """What gives each frame's render its objects packed (render's geometry_for), or None
-        where a track moves primitives."""
-        return None if self.moves_primitives() else self.packed_objects
+        where each frame is packed afresh (packs_each_frame)."""
+        return None if self.packs_each_frame() else self.packed_objects
 
     def forget_packed_objects(self) -> None:
         """Lets go of the objects packed for the frames (packed_objects packs them again)."""
@@ -84,9 +94,9 @@ class Sequence:
         frame's render moves them to its own eye, with the BVH refitted instead of built
         (clray.device.pack.pack_geometry; docs/distributed.md). Frame 0's whichever frames
         render: a frame's image does not depend on how a run splits the frames (--resume,
-        Dask's tasks). Instances moved by tracks are placed anew in each frame, their groups'
-        trees kept; where that makes the scene's tree too costly, the frame is packed afresh
-        (clray.device.pack.REFIT_COST_LIMIT)."""
+        Dask's tasks). Instances and shapes moved by tracks are placed anew in each frame, the
+        groups' trees kept; where that makes the scene's tree too costly, the frame is packed
+        afresh (clray.device.pack.REFIT_COST_LIMIT)."""
         key = (device.int_ptr, plan.bvh_width, plan.tuning)
         if self._packed is None or self._packed[0] != key:
             self.forget_packed_objects()  # its arrays go before the new ones

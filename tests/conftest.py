@@ -330,16 +330,18 @@ def load_mesh_generator() -> ModuleType:
 _ROOT = Path(__file__).resolve().parents[1]
 
 
-def still_objects_scene(tmp_path: Path, name: str) -> Path:
-    """An animation whose tracks move no primitive: orbit.toml's camera and material tracks, a
-    mesh beside its spheres ("orbit"), instances.toml's groups placed by instances under
-    an orbiting camera ("instances"), and besides that two of its instances turned and slid
-    ("turntable")."""
+def shared_packing_scene(tmp_path: Path, name: str) -> Path:
+    """An animation whose frames share frame 0's packing (clray.sequence.Sequence
+    .packs_each_frame false): orbit.toml's camera and material tracks, a mesh beside its
+    spheres ("orbit"), and its sphere's rise too ("rising"); instances.toml's groups placed
+    by instances under an orbiting camera ("instances"), and besides that two of its
+    instances turned and slid ("turntable")."""
     meshes = (_ROOT / "scenes" / "meshes").as_posix()
-    if name == "orbit":
+    if name in ("orbit", "rising"):
         blocks = (_ROOT / "scenes" / "orbit.toml").read_text().split("[[animation.tracks]]")
-        text = "[[animation.tracks]]".join(b for b in blocks if "objects[" not in b)
-        assert len(blocks) == text.count("[[animation.tracks]]") + 2
+        text = "[[animation.tracks]]".join(b for b in blocks if name == "rising"
+                                           or "objects[" not in b)
+        assert len(blocks) == text.count("[[animation.tracks]]") + 1 + (name == "orbit")
         text = text.replace("[animation]", f'[[objects]]\ntype = "mesh"\nfile = "{meshes}/'
                             'bumpy_ico2.obj"\nmaterial = "blue"\ntransform = { scale = 0.6, '
                             'translate = [0.2, 0.6, 1.6] }\n\n[animation]')

@@ -23,7 +23,7 @@ from types import SimpleNamespace
 from typing import ClassVar
 
 import pytest
-from conftest import still_objects_scene
+from conftest import shared_packing_scene
 
 from clray import cli
 from clray.errors import EXIT_RUNTIME, EXIT_SCENE
@@ -270,7 +270,7 @@ def test_dask_frames_that_move_no_object_are_the_local_frames(cl_device, tmp_pat
     """Each worker packs frame 0's objects once and moves them to its frames' eyes (the
     client's packing is not sent): frames split between workers, whichever frames each gets,
     are the single-process frames bit for bit."""
-    scene = str(still_objects_scene(tmp_path, "instances"))
+    scene = str(shared_packing_scene(tmp_path, "instances"))
     size = ["-W", "32", "-H", "18", "--spp", "1"]
     local, dask = tmp_path / "l_%02d.pfm", tmp_path / "d_%02d.pfm"
     assert cli.main(["render", scene, *size, "--frames", "0:5", "-o", str(local), "-q"]) == 0

@@ -172,6 +172,52 @@ def test_instances_placed_anew_are_the_pack_made_there(cl_device):
                       pack_scene(scene, **SETTINGS)) == []
 
 
+def _shifted_shapes(scene: M.Scene, step: tuple[float, float, float]) -> M.Scene:
+    """The scene with each sphere and plane moved by `step` (a track on their own values)."""
+    def shifted(obj: M.SceneObject) -> M.SceneObject:
+        if isinstance(obj, M.Sphere):
+            return dataclasses.replace(obj, center=tuple(np.add(obj.center, step)))
+        if isinstance(obj, M.Plane):
+            return dataclasses.replace(obj, point=tuple(np.add(obj.point, step)))
+        return obj
+    return dataclasses.replace(scene, objects=tuple(shifted(obj) for obj in scene.objects))
+
+
+@pytest.mark.parametrize("scene_file", ["spheres.toml", "orbit.toml"])
+def test_shapes_moved_in_place_are_the_pack_made_there(cl_device, scene_file):
+    """Spheres and planes moved by a track, the packing kept: their records made again, the
+    tree refitted to the spheres' new boxes."""
+    scene = load_scene(ROOT / "scenes" / scene_file)
+    geometry = pack_geometry(scene)
+    settings = {**SETTINGS, "width": 96, "height": 54}
+    for step in ((0.0, 0.3, 0.0), (0.2, -0.1, 0.4)):
+        moved = _shifted_shapes(scene, step)
+        placed = pack_scene(moved, geometry=geometry, **settings)
+        fresh = pack_scene(moved, **settings)
+        assert geometry.cost <= REFIT_COST_LIMIT * geometry.built_cost  # refitted, not built
+        # The records are a fresh pack's; the tree may be of another shape, with its slots
+        # in another order (prim_refs, sphere_packets): the image is the oracle for it.
+        assert not {"planes", "spheres", "camera"} & set(_differing(placed, fresh))
+        image = render_packed(placed, cl_device)[0]
+        np.testing.assert_array_equal(image, render_packed(fresh, cl_device)[0])
+        assert not np.array_equal(image, render_packed(pack_scene(scene, **settings),
+                                                       cl_device)[0])
+    assert _differing(pack_scene(scene, geometry=geometry, **SETTINGS),
+                      pack_scene(scene, **SETTINGS)) == []
+
+
+def test_other_primitives_are_packed_afresh():
+    # One sphere more: the packing's slots are not the frame's, whatever the cost.
+    scene = load_scene(ROOT / "scenes" / "orbit.toml")
+    geometry = pack_geometry(scene)
+    more = dataclasses.replace(scene, objects=(*scene.objects, M.Sphere((0.0, 3.0, 0.0), 0.5,
+                                                                        0)))
+    assert _differing(pack_scene(more, geometry=geometry, **SETTINGS),
+                      pack_scene(more, **SETTINGS)) == []
+    assert _differing(pack_scene(scene, geometry=geometry, **SETTINGS),
+                      pack_scene(scene, **SETTINGS)) == []
+
+
 def _ball_grid(order: np.ndarray) -> M.Scene:
     """64 instances of one small sphere's group on an 8 x 8 grid, instance i at place
     order[i]."""
@@ -184,15 +230,20 @@ def _ball_grid(order: np.ndarray) -> M.Scene:
                    (M.PointLight((2.0, 9.0, 4.0)),), instances)
 
 
-def test_a_refit_past_the_cost_limit_is_packed_afresh():
+def test_a_refit_past_the_cost_limit_is_packed_afresh(monkeypatch):
     # The instances change places: frame 0's tree refitted there has every inner box across
     # the grid, and the frame gets a tree of its own.
+    from clray.device import pack
+
     scene = _ball_grid(np.arange(64))
     geometry = pack_geometry(scene)
     shuffled = _ball_grid(np.random.default_rng(1).permutation(64))
+    builds = []
+    build = pack._pack_bvh
+    monkeypatch.setattr(pack, "_pack_bvh", lambda *a, **k: builds.append(1) or build(*a, **k))
     placed = pack_scene(shuffled, geometry=geometry, **SETTINGS)
     assert geometry.cost > REFIT_COST_LIMIT * geometry.built_cost
-    assert placed.bvh_s > 0
+    assert len(builds) == 1
     assert _differing(placed, pack_scene(shuffled, **SETTINGS)) == []
     assert _differing(pack_scene(scene, geometry=geometry, **SETTINGS),
                       pack_scene(scene, **SETTINGS)) == []
@@ -221,6 +272,20 @@ def _walk_cost(nodes: np.ndarray) -> float:
     lo = [float(nodes[0][f"lo_{a}"][used].min()) for a in "xyz"]
     hi = [float(nodes[0][f"hi_{a}"][used].max()) for a in "xyz"]
     return total / sum((hi[i] - lo[i]) * (hi[j] - lo[j]) for i, j in ((0, 1), (1, 2), (2, 0)))
+
+
+def test_tree_cost_in_closed_form():
+    # One sphere: the root's one lane is a leaf of one sphere packet over its own box; one
+    # instance: a lane that enters its group, at a node visit's cost; no tree; no area.
+    sphere = M.Sphere((0.5, 0.2, -3.0), 0.7, 0)
+    one = dataclasses.replace(_ball_grid(np.arange(1)), objects=(sphere,))
+    assert tree_cost(pack_geometry(one).wide.nodes) == 1.0
+    assert tree_cost(pack_geometry(_ball_grid(np.arange(1))).wide.nodes) == TRAVERSAL_COST
+    assert tree_cost(pack_geometry(_ball_grid(np.arange(1))).wide.nodes[:0]) == 0.0
+    flat = pack_geometry(one).wide.nodes.copy()
+    for axis in "xyz":
+        flat[f"hi_{axis}"] = flat[f"lo_{axis}"]
+    assert tree_cost(flat) == 0.0
 
 
 @pytest.mark.parametrize("scene_file", ["spheres.toml", "instances.toml", "cornell_box.toml"])

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import still_objects_scene
+from conftest import shared_packing_scene
 
 from clray import cli
 from clray.errors import ClrayError, SceneError, SettingsError
@@ -910,12 +910,12 @@ def test_texels_decoded_once_are_not_given_to_another_array_after_they_are_freed
         del texels
 
 
-@pytest.mark.parametrize("name", ["orbit", "instances", "turntable"])
-def test_frames_that_move_no_primitive_share_one_bvh_and_render_their_stills(
+@pytest.mark.parametrize("name", ["orbit", "rising", "instances", "turntable"])
+def test_frames_that_share_a_packing_share_one_bvh_and_render_their_stills(
         cl_device, tmp_path, monkeypatch, name):
-    """Frame 0's objects packed once, placed at each frame's eye and instances' places
-    (clray.device.pack): one BVH build for all the frames, each frame the image its still
-    renders, whichever frames a run renders (frame 0's tree, not the first rendered
+    """Frame 0's objects packed once, placed at each frame's eye, instances' places and
+    shapes' values (clray.device.pack): one BVH build for all the frames, each frame the image
+    its still renders, whichever frames a run renders (frame 0's tree, not the first rendered
     frame's)."""
     from clray import sequence as sequence_module
     from clray.device import pack
@@ -926,9 +926,9 @@ def test_frames_that_move_no_primitive_share_one_bvh_and_render_their_stills(
     build = pack._pack_bvh
     monkeypatch.setattr(pack, "_pack_bvh", lambda *a, **k: builds.append(1) or build(*a, **k))
     settings = RenderSettings(width=48, height=27, spp=2)
-    path = still_objects_scene(tmp_path, name)
+    path = shared_packing_scene(tmp_path, name)
     sequence = load_sequence(path)
-    assert not sequence.moves_primitives()
+    assert not sequence.packs_each_frame()
     frames: dict[int, np.ndarray] = {}
     render_frames(sequence, [0, 1, 2, 3], settings,
                   lambda frame, result: frames.update({frame: result.image}))
@@ -950,7 +950,56 @@ def test_frames_that_move_no_primitive_share_one_bvh_and_render_their_stills(
     assert not np.array_equal(frames[0], frames[3])  # the camera moved
 
 
-def test_frames_that_move_a_primitive_are_each_packed_afresh(cl_device, monkeypatch):
+def _swapping_balls(tmp_path: Path) -> Path:
+    """64 instances of a ball on an 8 x 8 grid that change places between frames 0 and 2:
+    frame 0's tree refitted to frames 1 and 2 costs over REFIT_COST_LIMIT times its build."""
+    places = [[x, 0.4, z] for x in range(8) for z in range(8)]
+    order = np.random.default_rng(1).permutation(64)
+    text = ('[camera]\nposition = [3.5, 9, 12]\nlook_at = [3.5, 0, 3.5]\n'
+            '[[lights]]\ntype = "point"\nposition = [2, 9, 4]\n'
+            '[groups.ball]\nobjects = [{ type = "sphere", center = [0, 0, 0], radius = 0.4 }]\n')
+    text += "".join(f'[[objects]]\ntype = "instance"\ngroup = "ball"\n'
+                    f'transform = {{ translate = {places[i]} }}\n' for i in range(64))
+    text += "[animation]\nframes = 3\n"
+    text += "".join(f'[[animation.tracks]]\nkey = "objects[{i}].transform.translate"\n'
+                    f'frames = [0, 2]\nvalues = [{places[i]}, {places[order[i]]}]\n'
+                    for i in range(64))
+    path = tmp_path / "balls.toml"
+    path.write_text(text)
+    return path
+
+
+def test_frames_past_the_refit_cost_limit_are_built_and_leave_frame_0s_tree(cl_device, tmp_path,
+                                                                           monkeypatch):
+    from clray.device import pack
+    from clray.render import RenderSettings, render
+    from clray.sequence import render_frames
+
+    builds = []
+    build = pack._pack_bvh
+    monkeypatch.setattr(pack, "_pack_bvh", lambda *a, **k: builds.append(1) or build(*a, **k))
+    settings = RenderSettings(width=48, height=27, spp=1)
+    path = _swapping_balls(tmp_path)
+    assert not load_sequence(path).packs_each_frame()
+    runs: dict[tuple[int, ...], dict[int, np.ndarray]] = {}
+    for frames in ((0, 1, 2), (2, 0), (1,)):
+        images: dict[int, np.ndarray] = {}
+        builds.clear()
+        render_frames(load_sequence(path), frames, settings,
+                      lambda frame, result, images=images: images.update({frame: result.image}))
+        # Frame 0's packing, then a build for each frame past the limit.
+        assert len(builds) == 1 + sum(frame != 0 for frame in frames)
+        runs[frames] = images
+    sequence = load_sequence(path)
+    for frame in (0, 1, 2):
+        still = render(sequence.scene(frame), settings).image
+        assert np.count_nonzero(still) > still.size // 10
+        for images in runs.values():
+            if frame in images:
+                np.testing.assert_array_equal(images[frame], still)
+
+
+def test_frames_that_move_a_mesh_are_each_packed_afresh(cl_device, tmp_path, monkeypatch):
     from clray.device import pack
     from clray.render import RenderSettings
     from clray.sequence import render_frames
@@ -958,26 +1007,31 @@ def test_frames_that_move_a_primitive_are_each_packed_afresh(cl_device, monkeypa
     builds = []
     build = pack._pack_bvh
     monkeypatch.setattr(pack, "_pack_bvh", lambda *a, **k: builds.append(1) or build(*a, **k))
-    sequence = load_sequence(ORBIT)
-    assert sequence.moves_primitives() and sequence.frame_geometry() is None
+    path = shared_packing_scene(tmp_path, "orbit")
+    path.write_text(path.read_text() + '\n[[animation.tracks]]\nkey = "objects[3].transform.'
+                    'scale"\nframes = [0, 47]\nvalues = [0.6, 0.9]\n')
+    sequence = load_sequence(path)
+    assert sequence.packs_each_frame() and sequence.frame_geometry() is None
     render_frames(sequence, [0, 1, 2], RenderSettings(width=8, height=6, spp=1), lambda *_: None)
     assert len(builds) == 3
 
 
-@pytest.mark.parametrize(("key", "moves"), [
+@pytest.mark.parametrize(("key", "afresh"), [
     ("objects[1].transform.rotate", False),  # an instance: its group's primitives stay
+    ("objects[0].point", False),  # a plane without a transform
     ("groups.pawn.objects[2].radius", True),
     ("objects[7].transform.rotate", True),  # a sphere, placed by an instance of its own
-    ("objects[0].point", True),
+    ("objects[8].min", True),  # a box with a transform: at some angles an instance
 ])
-def test_a_track_moves_primitives_unless_it_places_an_instance(tmp_path, key, moves):
-    text = (still_objects_scene(tmp_path, "instances").read_text() +
+def test_a_track_packs_each_frame_unless_it_moves_an_instance_or_a_plain_shape(tmp_path, key,
+                                                                               afresh):
+    text = (shared_packing_scene(tmp_path, "instances").read_text() +
             f'\n[[animation.tracks]]\nkey = "{key}"\nframes = [0]\nvalues = [[0, 1, 0]]\n')
     if key.endswith("radius"):
         text = text.replace("values = [[0, 1, 0]]\n", "values = [0.25]\n")
     path = tmp_path / "moved.toml"
     path.write_text(text)
-    assert load_sequence(path).moves_primitives() is moves
+    assert load_sequence(path).packs_each_frame() is afresh
 
 
 def test_a_pickled_sequence_leaves_its_packed_objects_behind(cl_device, tmp_path):
@@ -989,7 +1043,7 @@ def test_a_pickled_sequence_leaves_its_packed_objects_behind(cl_device, tmp_path
     from clray.render import RenderSettings, plan_for
     from clray.sequence import render_frames
 
-    sequence = load_sequence(still_objects_scene(tmp_path, "orbit"))
+    sequence = load_sequence(shared_packing_scene(tmp_path, "orbit"))
     sent = len(pickle.dumps(sequence))
     settings = RenderSettings(width=8, height=6, spp=1)
     geometry = sequence.frame_geometry()(cl_device, plan_for(sequence.scene(0), settings,

@@ -857,11 +857,12 @@ def _stack_size_option(stack_size: int) -> int:
     return max(16, -(-stack_size // 16) * 16)
 
 
-# A refitted scene tree (instances moved, clray.sequence) whose cost a ray (wide.tree_cost) has
-# grown past this many times the built tree's is built again: a rigid turn or slide of a few
-# instances stays well within it, while instances that have moved across each other's places
-# can make every inner box span the scene. Each build of the scene's tree is then frame 0's
-# cost or less, and the frames' images do not depend on which frames a run renders.
+# A refitted scene tree (instances or shapes moved, clray.sequence) whose cost a ray
+# (wide.tree_cost) has grown past this many times the tree's as built is not used: the frame is
+# packed afresh. A rigid turn or slide of a few instances stays well within it, while instances
+# that have changed places can make every inner box span the scene. Each frame's tree so costs
+# at most 1.5 times frame 0's as built, or is built for that frame; either way it is a function
+# of frame 0 and the frame alone, so the images do not depend on which frames a run renders.
 REFIT_COST_LIMIT = 1.5
 
 
@@ -880,6 +881,7 @@ class SceneGeometry:
 
     eye: np.ndarray  # float64, what the positions are relative to; NaN while being moved
     placements: np.ndarray  # float64 (instances, 3, 4): the instances' matrices
+    group_of: np.ndarray  # each instance's group (_groups_of)
     planes: np.ndarray
     shapes: dict[str, np.ndarray]  # each shape's records by its buffer's name
     tris: _Triangles  # in slot order (_slot_triangles), without the positions
@@ -892,9 +894,10 @@ class SceneGeometry:
     bvh_s: float
     bvh_width: int
     tuning: Tuning
-    # The scene tree's wide.tree_cost as built, and as last refitted.
-    built_cost: float
-    cost: float
+    # The scene tree's wide.tree_cost as built (None until the first move: a still render
+    # never needs it), and as last refitted.
+    built_cost: float | None = None
+    cost: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -946,32 +949,48 @@ def pack_geometry(scene: M.Scene, *, bvh_width: int = 8, queue: cl.CommandQueue 
     sphere_packets = _sphere_packets(wide.prim_refs, at.shapes[SPHERE.buffer])
     # The positions are in the packets: kept, they would be frame 0's for a whole sequence.
     tris = replace(tris, positions=_Positions(np.zeros((0, 4), np.float32)))
-    cost = tree_cost(wide.nodes)
-    return SceneGeometry(eye, _placements(at.instances), at.planes, at.shapes, tris,
+    return SceneGeometry(eye, _placements(at.instances), at.group_of, at.planes, at.shapes, tris,
                          triangle_packets, sphere_packets, wide, instance_records, group_bounds,
-                         bvh_s, bvh_width, tuning, cost, cost)
+                         bvh_s, bvh_width, tuning)
 
 
 def _placements(instances: list[M.Instance]) -> np.ndarray:
     return np.array([inst.matrix for inst in instances], dtype=np.float64).reshape(-1, 3, 4)
 
 
-def _moved_to(geometry: SceneGeometry, scene: M.Scene) -> SceneGeometry:
-    """`geometry`, made of the same primitives as `scene`'s, moved to `scene`'s eye and its
-    instances' places: in place, and returned. Everything that depends on them is made again
-    as pack_geometry makes it (planes, shapes, instances, triangle packets), but the BVH,
-    which is refitted: the boxes a build of that shape would have, its cost in
-    geometry.cost. The image is a fresh pack's but where a ray meets two primitives at one
-    distance: a tree of another shape may take the other one."""
+def _same_primitives(geometry: SceneGeometry, at: _AtEye) -> bool:
+    """Whether the objects of `at` pack into as many planes, shapes of each kind and
+    triangles as `geometry` holds, with instances of the same groups: the slots of its tree
+    are theirs. Which triangles, and where in their groups' frames, is the caller's word
+    (pack_scene's `geometry`)."""
+    triangles = _triangle_sources(at.kinds[M.Triangle])
+    return (len(at.planes) == len(geometry.planes)
+            and all(len(at.shapes[b]) == len(geometry.shapes[b]) for b in geometry.shapes)
+            and sum(len(source[1]) for source in triangles) == len(geometry.tris.faces)
+            and np.array_equal(at.group_of, geometry.group_of))
+
+
+def _moved_to(geometry: SceneGeometry, scene: M.Scene) -> SceneGeometry | None:
+    """`geometry`, made of the same primitives as `scene`'s, moved to `scene`'s eye, its
+    instances' places and its planes' and shapes' values: in place, and returned; None, and
+    nothing moved, where `scene` has other primitives (_same_primitives). Everything that
+    depends on them is made again as pack_geometry makes it (planes, shapes, instances,
+    triangle packets), but the BVH, which is refitted: the boxes a build of that shape would
+    have, its cost in geometry.cost. The image is a fresh pack's but where a ray meets two
+    primitives at one distance: a tree of another shape may take the other one."""
     eye = np.asarray(scene.camera.position, dtype=np.float64)
-    instances = [obj for obj in scene.objects if isinstance(obj, M.Instance)]
-    placements = _placements(instances)
-    if np.array_equal(eye, geometry.eye) and np.array_equal(placements, geometry.placements):
+    at = _at(scene, eye)
+    if not _same_primitives(geometry, at):
+        return None
+    placements = _placements(at.instances)
+    if (np.array_equal(eye, geometry.eye) and np.array_equal(placements, geometry.placements)
+            and at.planes.tobytes() == geometry.planes.tobytes()
+            and all(at.shapes[b].tobytes() == geometry.shapes[b].tobytes()
+                    for b in geometry.shapes)):
         return geometry
     # Until the move is done, no eye: a move that fails part way leaves arrays of two eyes,
     # which no later frame at the old eye may take as they are.
     geometry.eye = np.full(3, np.nan)
-    at = _at(scene, eye)
     geometry.planes, geometry.shapes = at.planes, at.shapes
     roots = geometry.instances["root"]
     geometry.instances = _pack_instances(at.instances, at.group_of, geometry.group_bounds, eye,
@@ -984,9 +1003,12 @@ def _moved_to(geometry: SceneGeometry, scene: M.Scene) -> SceneGeometry:
                       _positions(triangles, _triangle_sources(triangles)))
     geometry.sphere_packets = _sphere_packets(prim_refs, at.shapes[SPHERE.buffer])
     start = time.perf_counter()
-    refit(geometry.wide.nodes, *_slot_bounds(prim_refs, geometry.triangle_packets, at.bounded),
+    nodes, traversal_cost = geometry.wide.nodes, geometry.tuning.traversal_cost
+    if geometry.built_cost is None:  # the first move: the tree is still the build's
+        geometry.built_cost = tree_cost(nodes, traversal_cost)
+    refit(nodes, *_slot_bounds(prim_refs, geometry.triangle_packets, at.bounded),
           *at.bounded.kind_bounds(L.PRIM_INSTANCE))
-    geometry.cost = tree_cost(geometry.wide.nodes)
+    geometry.cost = tree_cost(nodes, traversal_cost)
     geometry.eye, geometry.placements = eye, placements
     geometry.bvh_s += time.perf_counter() - start
     return geometry
@@ -1002,21 +1024,24 @@ def pack_scene(scene: M.Scene, *, width: int, height: int, spp: int, max_depth: 
     one per device). `queue`: build large BVHs on its device (the same tree as the host
     build). `tuning`: the other knobs of the BVH build, and of the launches (kept in the
     PackedScene). `geometry`: this scene's objects as pack_geometry packed them at another
-    frame of its animation (with this bvh_width and tuning: ValueError if not), moved to this
-    scene's eye and instances' places instead of packed afresh, or packed afresh where the
-    refitted tree's cost has grown past REFIT_COST_LIMIT. `variants` are extra KernelConfig
+    frame of its animation (with this bvh_width and tuning: ValueError if not), whose meshes,
+    triangles and groups are this scene's, moved to this scene's eye, instances' places and
+    planes' and shapes' values instead of packed afresh; packed afresh where the frames'
+    primitives differ in number or the refitted tree's cost has grown past
+    REFIT_COST_LIMIT. `variants` are extra KernelConfig
     fields (study switches, options)."""
     if geometry is None:
         geometry = pack_geometry(scene, bvh_width=bvh_width, queue=queue, tuning=tuning)
     elif (geometry.bvh_width, geometry.tuning) != (bvh_width, tuning):
         raise ValueError("pack_scene: the geometry was packed with another BVH width or tuning")
     else:
-        geometry = _moved_to(geometry, scene)
-        if geometry.cost > REFIT_COST_LIMIT * geometry.built_cost:
+        moved = _moved_to(geometry, scene)
+        if moved is None or moved.cost > REFIT_COST_LIMIT * (moved.built_cost or 0.0):
             fresh = pack_geometry(scene, bvh_width=bvh_width, queue=queue, tuning=tuning)
-            fresh.bvh_s += geometry.bvh_s  # the refit's time, spent too
+            fresh.bvh_s += geometry.bvh_s  # a refit's time, spent too
             geometry.bvh_s = 0.0
-            geometry = fresh
+            moved = fresh
+        geometry = moved
     planes, shapes, tris, wide = geometry.planes, geometry.shapes, geometry.tris, geometry.wide
     eye = geometry.eye
     bvh_s, geometry.bvh_s = geometry.bvh_s, 0.0

@@ -172,9 +172,13 @@ def test_instances_placed_anew_are_the_pack_made_there(cl_device):
                       pack_scene(scene, **SETTINGS)) == []
 
 
-def _shifted_shapes(scene: M.Scene, step: tuple[float, float, float]) -> M.Scene:
-    """The scene with each sphere and plane moved by `step` (a track on their own values)."""
+def _shifted_shapes(scene: M.Scene, step: tuple[float, float, float],
+                    kinds: tuple[type, ...]) -> M.Scene:
+    """The scene with each sphere and plane of `kinds` moved by `step` (a track on their own
+    values)."""
     def shifted(obj: M.SceneObject) -> M.SceneObject:
+        if not isinstance(obj, kinds):
+            return obj
         if isinstance(obj, M.Sphere):
             return dataclasses.replace(obj, center=tuple(np.add(obj.center, step)))
         if isinstance(obj, M.Plane):
@@ -188,10 +192,12 @@ def test_shapes_moved_in_place_are_the_pack_made_there(cl_device, scene_file):
     """Spheres and planes moved by a track, the packing kept: their records made again, the
     tree refitted to the spheres' new boxes."""
     scene = load_scene(ROOT / "scenes" / scene_file)
-    geometry = pack_geometry(scene)
     settings = {**SETTINGS, "width": 96, "height": 54}
-    for step in ((0.0, 0.3, 0.0), (0.2, -0.1, 0.4)):
-        moved = _shifted_shapes(scene, step)
+    # Each kind alone too, from frame 0: a move at the same eye is any record's change.
+    for step, kinds in (((0.0, 0.3, 0.0), (M.Sphere, M.Plane)),
+                        ((0.2, -0.1, 0.4), (M.Sphere,)), ((0.0, 0.25, 0.0), (M.Plane,))):
+        geometry = pack_geometry(scene)
+        moved = _shifted_shapes(scene, step, kinds)
         placed = pack_scene(moved, geometry=geometry, **settings)
         fresh = pack_scene(moved, **settings)
         assert geometry.cost <= REFIT_COST_LIMIT * geometry.built_cost  # refitted, not built

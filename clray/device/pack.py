@@ -869,15 +869,16 @@ REFIT_COST_LIMIT = 1.5
 @dataclass(eq=False)
 class SceneGeometry:
     """A scene's objects packed at an eye: the arrays that pack_scene joins to the scene's
-    materials, lights and camera. pack_geometry makes it at one frame of an animation whose
-    primitives do not move; pack_scene(geometry=...) moves it to another frame's eye and
-    instances' places (_moved_to): the positions are made relative to that eye again, and the
-    BVH keeps its shape with each box made again from them (wide.refit), instead of a new
-    build; the groups' trees, in their own frames, are kept as they are. Moving it writes over its
-    arrays in place (the triangle packets and the nodes, the largest, among them), so a
-    PackedScene made from it is good until the next move: it is the geometry of the last
-    frame moved to, and holds nothing beside what that frame's PackedScene holds but the
-    triangles' faces, which each move takes the corners through."""
+    materials, lights and camera. pack_geometry makes it at frame 0 of an animation whose
+    frames share a packing (clray.sequence); pack_scene(geometry=...) moves it to another
+    frame's eye, instances' places and planes' and shapes' values (_moved_to): their records
+    are made again there, and the scene's tree keeps its shape with each box made again from
+    them (wide.refit), instead of a new build; the groups' trees, in their own frames, are
+    kept as they are. Moving it writes over its arrays in place (the triangle packets and the
+    nodes, the largest, among them), so a PackedScene made from it is good until the next
+    move: it is the geometry of the last frame moved to, and holds nothing beside what that
+    frame's PackedScene holds but the triangles' faces, which each move takes the corners
+    through."""
 
     eye: np.ndarray  # float64, what the positions are relative to; NaN while being moved
     placements: np.ndarray  # float64 (instances, 3, 4): the instances' matrices
@@ -955,6 +956,7 @@ def pack_geometry(scene: M.Scene, *, bvh_width: int = 8, queue: cl.CommandQueue 
 
 
 def _placements(instances: list[M.Instance]) -> np.ndarray:
+    """The instances' matrices, (instances, 3, 4) float64: where a move finds them."""
     return np.array([inst.matrix for inst in instances], dtype=np.float64).reshape(-1, 3, 4)
 
 
@@ -1027,9 +1029,8 @@ def pack_scene(scene: M.Scene, *, width: int, height: int, spp: int, max_depth: 
     frame of its animation (with this bvh_width and tuning: ValueError if not), whose meshes,
     triangles and groups are this scene's, moved to this scene's eye, instances' places and
     planes' and shapes' values instead of packed afresh; packed afresh where the frames'
-    primitives differ in number or the refitted tree's cost has grown past
-    REFIT_COST_LIMIT. `variants` are extra KernelConfig
-    fields (study switches, options)."""
+    primitives differ in number or the refitted tree's cost has grown past REFIT_COST_LIMIT.
+    `variants` are extra KernelConfig fields (study switches, options)."""
     if geometry is None:
         geometry = pack_geometry(scene, bvh_width=bvh_width, queue=queue, tuning=tuning)
     elif (geometry.bvh_width, geometry.tuning) != (bvh_width, tuning):

@@ -14,7 +14,7 @@ import pytest
 from conftest import load_mesh_generator
 
 from clray.accel.bvh import TRAVERSAL_COST
-from clray.accel.wide import LEAF_SPHERE_SHIFT, LEAF_TRIANGLE_SHIFT, tree_cost
+from clray.accel.wide import LEAF_SPHERE_SHIFT, LEAF_TRIANGLE_SHIFT, PACKET_WIDTH, tree_cost
 from clray.device import bvh_builder
 from clray.device.context import queue_for
 from clray.device.launch import render_packed
@@ -150,14 +150,45 @@ def _turned(scene: M.Scene, degrees: float) -> M.Scene:
         else obj for obj in scene.objects))
 
 
+def _with_mesh(scene: M.Scene) -> M.Scene:
+    """The scene with a small mesh of its own (beside its groups' triangles)."""
+    vertices, faces, _ = load_mesh_generator().bumpy_mesh(2)
+    mesh = M.Mesh(vertices=0.5 * vertices + [0.0, 2.5, 1.0], faces=faces, material=0)
+    return dataclasses.replace(scene, objects=(*scene.objects, mesh))
+
+
+def _triangles_of(packed: object) -> np.ndarray:
+    """Every triangle of the packets, its corners' nine numbers, in sorted order: the same
+    for the same triangles whatever slots a tree gives them."""
+    corners = packed.triangle_packets.view(np.float32).reshape(-1, 9, PACKET_WIDTH)
+    rows = corners.transpose(0, 2, 1).reshape(-1, 9)
+    rows = rows[~np.isnan(rows).any(axis=1)]
+    return rows[np.lexsort(rows.T[::-1])]
+
+
 def test_instances_placed_anew_are_the_pack_made_there(cl_device):
     """Instances moved by a track (clray.sequence): their records and lanes made again, their
-    groups' trees kept. At the same eye too: a move is the eye's and the instances' places."""
+    groups' trees and triangle packets kept, the scene's own triangles moved to the eye. At the
+    same eye too: a move is the eye's and the instances' places."""
     scene = load_scene(ROOT / "scenes" / "instances.toml")
     geometry = pack_geometry(scene)
     for moved in (_turned(scene, 5.0), _moved(_turned(scene, 5.0), MOVES[0])):
         assert _differing(pack_scene(moved, geometry=geometry, **SETTINGS),
                           pack_scene(moved, **SETTINGS)) == []
+    # With a mesh of the scene's own, a build there gives a tree of another shape: the image
+    # is the oracle there, and placing back must give the first pack's bytes.
+    meshed = _with_mesh(scene)
+    geometry = pack_geometry(meshed)
+    moved = _moved(_turned(meshed, 5.0), MOVES[0])
+    placed, fresh = (pack_scene(moved, geometry=geometry, **SETTINGS),
+                     pack_scene(moved, **SETTINGS))
+    assert geometry.cost <= REFIT_COST_LIMIT * geometry.built_cost  # refitted, not built
+    np.testing.assert_array_equal(_triangles_of(placed), _triangles_of(fresh))
+    np.testing.assert_array_equal(render_packed(placed, cl_device)[0],
+                                  render_packed(fresh, cl_device)[0])
+    assert _differing(pack_scene(meshed, geometry=geometry, **SETTINGS),
+                      pack_scene(meshed, **SETTINGS)) == []
+    geometry = pack_geometry(scene)
     # A half turn: a build there gives a tree of another shape, whose image is the oracle.
     settings = {**SETTINGS, "width": 96, "height": 54}
     moved = _turned(scene, 180.0)

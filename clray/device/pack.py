@@ -504,9 +504,10 @@ def _append(nodes: np.ndarray, wide: WideBvh, node_offset: int, slot_offset: int
 def _pack_bvh(bounded: _Bounded, n_groups: int, instances: list[M.Instance],
               group_of: np.ndarray, eye: np.ndarray, width: int,
               queue: cl.CommandQueue | None, tuning: Tuning
-              ) -> tuple[WideBvh, np.ndarray, list[tuple[np.ndarray, np.ndarray]], float]:
+              ) -> tuple[WideBvh, np.ndarray, list[tuple[np.ndarray, np.ndarray]], int, float]:
     """The wide BVH of the scene's bounded primitives and instances, each group's BVH appended
-    after it, the INSTANCE records, each group's box and the seconds it took."""
+    after it, the INSTANCE records, each group's box, the groups' slots (the first of
+    prim_refs, before the scene's) and the seconds it took."""
     start = time.perf_counter()
     group_trees, group_bounds = [], []
     for g in range(n_groups):
@@ -524,7 +525,7 @@ def _pack_bvh(bounded: _Bounded, n_groups: int, instances: list[M.Instance],
     wide = _build_wide(prims, width, queue, tuning, one_per_leaf=one_per_leaf,
                        values_checked=values_checked)
     if not instances:
-        return wide, records, group_bounds, time.perf_counter() - start
+        return wide, records, group_bounds, 0, time.perf_counter() - start
     wide = _instance_lanes(wide)
     if one_per_leaf:
         wide = fill_nodes(wide)
@@ -550,7 +551,7 @@ def _pack_bvh(bounded: _Bounded, n_groups: int, instances: list[M.Instance],
                   max(tree.stack_size for tree in group_trees))
     prim_refs = np.concatenate([*(tree.prim_refs for tree in group_trees), wide.prim_refs])
     return (WideBvh(nodes, prim_refs, width, stack_size), records, group_bounds,
-            time.perf_counter() - start)
+            int(slot_offsets[-1]), time.perf_counter() - start)
 
 
 def _packet_slots(prim_refs: np.ndarray, prim: int) -> tuple[np.ndarray, np.ndarray]:
@@ -620,36 +621,42 @@ def _packets_of(packets: np.ndarray, part: slice, slots: np.ndarray, is_tri: np.
 
 
 def _fill_packets(packets: np.ndarray, prim_refs: np.ndarray, faces: _Faces,
-                  positions: _Positions) -> None:
-    """The triangle packets (TRIANGLE_PACKET records) written again in place from `faces`
-    and `positions` for the slots of prim_refs they were made for (_slot_triangles)."""
-    slots, is_tri = _packet_slots(prim_refs, L.PRIM_TRIANGLE)
-    corners = packets.view(np.float32).reshape(len(packets), 3, 3, PACKET_WIDTH)
-    by_chunks(len(packets), lambda part: _packets_of(corners, part, slots[part], is_tri[part],
-                                                     faces, positions, whole=False),
+                  positions: _Positions, first: int = 0) -> None:
+    """The triangle packets (TRIANGLE_PACKET records) from packet `first` on written again in
+    place from `faces` and `positions` for the slots of prim_refs they were made for
+    (_slot_triangles)."""
+    slots, is_tri = _packet_slots(prim_refs[first * PACKET_WIDTH:], L.PRIM_TRIANGLE)
+    corners = packets[first:first + len(slots)].view(np.float32).reshape(
+        len(slots), 3, 3, PACKET_WIDTH)
+    by_chunks(len(slots), lambda part: _packets_of(corners, part, slots[part], is_tri[part],
+                                                   faces, positions, whole=False),
               row_items=PACKET_WIDTH)
 
 
-def _slot_bounds(prim_refs: np.ndarray, triangle_packets: np.ndarray, bounded: _Bounded
-                 ) -> tuple[np.ndarray, np.ndarray]:
-    """(lo, hi) (slots, 3) float32 of each slot's primitive: a triangle's from its packet's
-    corners (the numbers _triangle_bounds takes from the same positions), any other kind's
-    from `bounded` (its shapes and instances); +inf and -inf where a slot holds none."""
+def _slot_bounds(prim_refs: np.ndarray, triangle_packets: np.ndarray, bounded: _Bounded,
+                 first: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """(lo, hi) (slots, 3) float32 of each slot's primitive from packet `first` on: a
+    triangle's from its packet's corners (the numbers _triangle_bounds takes from the same
+    positions), any other kind's from `bounded` (its shapes and instances); +inf and -inf
+    where a slot holds none, and before packet `first`."""
     lo = np.full((len(prim_refs), 3), np.inf, dtype=np.float32)
     hi = np.full((len(prim_refs), 3), -np.inf, dtype=np.float32)
     kind = np.where(prim_refs >= 0, prim_refs >> L.PRIM_TYPE_SHIFT, -1)
+    kind[:first * PACKET_WIDTH] = -1
     index = prim_refs & L.PRIM_INDEX_MASK
-    corners = triangle_packets.view(np.float32).reshape(-1, 3, 3, PACKET_WIDTH)
-    is_tri = (kind[:corners.shape[0] * PACKET_WIDTH] == L.PRIM_TRIANGLE)[:, None]
+    corners = triangle_packets.view(np.float32).reshape(-1, 3, 3, PACKET_WIDTH)[first:]
+    start = first * PACKET_WIDTH
+    is_tri = (kind[start:start + corners.shape[0] * PACKET_WIDTH] == L.PRIM_TRIANGLE)[:, None]
 
     def bound(part: slice) -> None:
         # Elementwise over the three corners (a reduction over their axis is several times
         # slower), then a row a slot; + 0 as _triangle_bounds makes every zero +0.0.
         c = corners[part]
-        rows = slice(part.start * PACKET_WIDTH, part.stop * PACKET_WIDTH)
+        mine = slice(part.start * PACKET_WIDTH, part.stop * PACKET_WIDTH)
+        rows = slice(start + mine.start, start + mine.stop)
         for out, pick, empty in ((lo, np.minimum, np.inf), (hi, np.maximum, -np.inf)):
             slots = pick(pick(c[:, 0], c[:, 1]), c[:, 2]).transpose(0, 2, 1).reshape(-1, 3)
-            out[rows] = np.where(is_tri[rows], slots + np.float32(0), np.float32(empty))
+            out[rows] = np.where(is_tri[mine], slots + np.float32(0), np.float32(empty))
     by_chunks(corners.shape[0], bound, row_items=PACKET_WIDTH)
     for code in {int(r) >> L.PRIM_TYPE_SHIFT for r in bounded.refs}:
         kind_lo, kind_hi = bounded.kind_bounds(code)
@@ -891,6 +898,9 @@ class SceneGeometry:
     wide: WideBvh  # the scene's tree, then each group's
     instances: np.ndarray  # INSTANCE records
     group_bounds: list[tuple[np.ndarray, np.ndarray]]  # each group's box, in its frame
+    # The groups' packets, before the scene's: in the groups' own frames, where no move
+    # changes them.
+    group_packets: int
     # Seconds of BVH work (the build, then each refit) that no PackedScene has reported yet.
     bvh_s: float
     bvh_width: int
@@ -937,7 +947,7 @@ def pack_geometry(scene: M.Scene, *, bvh_width: int = 8, queue: cl.CommandQueue 
     kinds = at.kinds
     sources = _triangle_sources(kinds[M.Triangle])
     faces = _pack_triangles(kinds[M.Triangle], sources, at.bounded)
-    wide, instance_records, group_bounds, bvh_s = _pack_bvh(
+    wide, instance_records, group_bounds, group_slots, bvh_s = _pack_bvh(
         at.bounded, len(at.groups), at.instances, at.group_of, eye, bvh_width, queue, tuning)
     # The build's and the collapse's temporaries, freed: their heap pages go back before
     # the packets take their place.
@@ -952,7 +962,7 @@ def pack_geometry(scene: M.Scene, *, bvh_width: int = 8, queue: cl.CommandQueue 
     tris = replace(tris, positions=_Positions(np.zeros((0, 4), np.float32)))
     return SceneGeometry(eye, _placements(at.instances), at.group_of, at.planes, at.shapes, tris,
                          triangle_packets, sphere_packets, wide, instance_records, group_bounds,
-                         bvh_s, bvh_width, tuning)
+                         group_slots // PACKET_WIDTH, bvh_s, bvh_width, tuning)
 
 
 def _placements(instances: list[M.Instance]) -> np.ndarray:
@@ -1000,15 +1010,17 @@ def _moved_to(geometry: SceneGeometry, scene: M.Scene) -> SceneGeometry | None:
     geometry.instances["root"] = roots
     prim_refs = geometry.wide.prim_refs
     triangles = at.kinds[M.Triangle]
-    if len(geometry.triangle_packets):
+    # The groups' packets are in their own frames: no move changes them.
+    first = geometry.group_packets
+    if len(geometry.triangle_packets) > first:
         _fill_packets(geometry.triangle_packets, prim_refs, geometry.tris.faces,
-                      _positions(triangles, _triangle_sources(triangles)))
+                      _positions(triangles, _triangle_sources(triangles)), first)
     geometry.sphere_packets = _sphere_packets(prim_refs, at.shapes[SPHERE.buffer])
     start = time.perf_counter()
     nodes, traversal_cost = geometry.wide.nodes, geometry.tuning.traversal_cost
     if geometry.built_cost is None:  # the first move: the tree is still the build's
         geometry.built_cost = tree_cost(nodes, traversal_cost)
-    refit(nodes, *_slot_bounds(prim_refs, geometry.triangle_packets, at.bounded),
+    refit(nodes, *_slot_bounds(prim_refs, geometry.triangle_packets, at.bounded, first),
           *at.bounded.kind_bounds(L.PRIM_INSTANCE))
     geometry.cost = tree_cost(nodes, traversal_cost)
     geometry.eye, geometry.placements = eye, placements

@@ -266,11 +266,11 @@ def test_cli_dask_frames_render_and_resume(cl_device, tmp_path, capsys):
 
 
 @needs_dask
-def test_dask_frames_that_move_no_object_are_the_local_frames(cl_device, tmp_path, capsys):
-    """Each worker packs frame 0's objects once and moves them to its frames' eyes (the
-    client's packing is not sent): frames split between workers, whichever frames each gets,
-    are the single-process frames bit for bit."""
-    scene = str(shared_packing_scene(tmp_path, "instances"))
+def test_dask_frames_that_share_a_packing_are_the_local_frames(cl_device, tmp_path, capsys):
+    """Each worker packs frame 0's objects once and moves them to its frames' eyes and
+    instances' places (the client's packing is not sent): frames split between workers,
+    whichever frames each gets, are the single-process frames bit for bit."""
+    scene = str(shared_packing_scene(tmp_path, "turntable"))
     size = ["-W", "32", "-H", "18", "--spp", "1"]
     local, dask = tmp_path / "l_%02d.pfm", tmp_path / "d_%02d.pfm"
     assert cli.main(["render", scene, *size, "--frames", "0:5", "-o", str(local), "-q"]) == 0

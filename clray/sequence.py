@@ -63,12 +63,13 @@ class Sequence:
 
     def packs_each_frame(self) -> bool:
         """Whether a track keys a value that each frame must be packed afresh for: a group's
-        (groups.g.objects[0].radius), or an object's other than an instance's (its transform,
-        an inline material) and a plane's or shape's where it has no transform
-        (objects[2].center of a sphere). A mesh's and a triangle's vertices are taken once
-        for all frames, with their normals; a transform can make a shape an instance of its
-        own group (an ellipsoid) in some frames only. Otherwise each frame moves frame 0's
-        packing (packed_objects)."""
+        (groups.g.objects[0].radius), or an object's but an instance's (its transform, an
+        inline material) and a plane's or shape's without a transform table (the center of
+        a sphere without one moves with the packing kept; a mesh's transform, or a sphere's
+        center beside its transform, is packed afresh). A mesh's and a triangle's vertices
+        are taken once for all frames, with their normals; a transform can make a shape an
+        instance of its own group (an ellipsoid) in some frames only. Otherwise each frame
+        moves frame 0's packing (packed_objects)."""
         objects = self.data.get("objects")
 
         def moved_in_place(path: tuple) -> bool:

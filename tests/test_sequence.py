@@ -1034,6 +1034,29 @@ def test_a_track_packs_each_frame_unless_it_moves_an_instance_or_a_plain_shape(t
     assert load_sequence(path).packs_each_frame() is afresh
 
 
+@pytest.mark.parametrize(("key", "values", "afresh"), [
+    ("objects[0].center", "[[0, 1, 0], [0, 1.5, 0]]", False),  # a sphere without a transform
+    ("objects[1].major_radius", "[0.6, 0.5]", False),  # a torus without one
+    ("objects[2].radius", "[0.3, 0.4]", True),  # a spheres array: its own arrays
+    ("objects[3].center", "[[0, 3, 0], [0, 3.5, 0]]", True),  # a sphere with a transform
+    ("camera.vfov", "[40, 45]", False),
+])
+def test_each_kind_of_shape_moves_with_the_packing_kept_unless_a_transform_places_it(
+        tmp_path, key, values, afresh):
+    path = tmp_path / "shapes.toml"
+    path.write_text(
+        '[camera]\nposition = [0, 2, 8]\nlook_at = [0, 0, 0]\n'
+        '[[objects]]\ntype = "sphere"\ncenter = [0, 1, 0]\nradius = 1\n'
+        '[[objects]]\ntype = "torus"\ncenter = [2, 1, 0]\naxis = [0, 1, 0]\n'
+        'major_radius = 0.6\nminor_radius = 0.2\n'
+        '[[objects]]\ntype = "spheres"\ncenters = [[-2, 1, 0], [-2, 2, 0]]\nradius = 0.3\n'
+        '[[objects]]\ntype = "sphere"\ncenter = [0, 3, 0]\nradius = 0.5\n'
+        'transform = { rotate = [0, 30, 0] }\n'
+        f'[animation]\nframes = 2\n[[animation.tracks]]\nkey = "{key}"\nframes = [0, 1]\n'
+        f'values = {values}\n')
+    assert load_sequence(path).packs_each_frame() is afresh
+
+
 def test_a_pickled_sequence_leaves_its_packed_objects_behind(cl_device, tmp_path):
     """A Dask worker packs its own: the client's packed geometry is not sent with the
     sequence. render_frames lets go of it at the end of the run: a caller that keeps the

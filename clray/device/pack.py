@@ -986,10 +986,11 @@ def _moved_to(geometry: SceneGeometry, scene: M.Scene) -> SceneGeometry | None:
     """`geometry`, made of the same primitives as `scene`'s, moved to `scene`'s eye, its
     instances' places and its planes' and shapes' values: in place, and returned; None, and
     nothing moved, where `scene` has other primitives (_same_primitives). Everything that
-    depends on them is made again as pack_geometry makes it (planes, shapes, instances,
-    triangle packets), but the BVH, which is refitted: the boxes a build of that shape would
-    have, its cost in geometry.cost. The image is a fresh pack's but where a ray meets two
-    primitives at one distance: a tree of another shape may take the other one."""
+    depends on them is made again as pack_geometry makes it (planes, shapes, instances, the
+    scene's own triangle packets; the groups' are in their own frames), but the BVH, which
+    is refitted: the boxes a build of that shape would have, its cost in geometry.cost. The
+    image is a fresh pack's but where a ray meets two primitives at one distance: a tree of
+    another shape may take the other one."""
     eye = np.asarray(scene.camera.position, dtype=np.float64)
     at = _at(scene, eye)
     if not _same_primitives(geometry, at):
@@ -1049,6 +1050,7 @@ def pack_scene(scene: M.Scene, *, width: int, height: int, spp: int, max_depth: 
         raise ValueError("pack_scene: the geometry was packed with another BVH width or tuning")
     else:
         moved = _moved_to(geometry, scene)
+        # built_cost is None only before the first move, while cost is still 0.
         if moved is None or moved.cost > REFIT_COST_LIMIT * (moved.built_cost or 0.0):
             fresh = pack_geometry(scene, bvh_width=bvh_width, queue=queue, tuning=tuning)
             fresh.bvh_s += geometry.bvh_s  # a refit's time, spent too

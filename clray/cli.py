@@ -97,6 +97,7 @@ from clray.passes import (
 )
 from clray.render import RenderResult, RenderSettings, render
 from clray.scene import limits
+from clray.scene.animation import MAX_FRAMES
 from clray.scene.files import noting_reads
 from clray.scene.load import load_scene
 from clray.scene.model import Scene
@@ -225,6 +226,8 @@ def _build_parser() -> _Parser:
 
 # Image sizes a command takes (-W, -H).
 _image_size = _int_in(1, limits.MAX_IMAGE_SIZE)
+# A turntable's frames (clray scene --turntable): a turn needs two views at least.
+_turntable_frames = _int_in(2, MAX_FRAMES)
 
 
 def _render_command(commands: Any) -> None:
@@ -359,6 +362,9 @@ def _scene_command(commands: Any) -> None:
     sc.add_argument("-H", "--height", type=_image_size, metavar="N",
                     help="image height in pixels (default 480, or from a glTF camera's "
                          "aspect ratio)")
+    sc.add_argument("--turntable", type=_turntable_frames, metavar="N",
+                    help="an animation of N frames in which the model turns once about its "
+                         "vertical axis, the camera still: render it with --frames 0:N")
     sc.set_defaults(run=_scene)
 
 
@@ -523,13 +529,15 @@ def _scene(args: argparse.Namespace) -> int:
     view = args.view or DEFAULT_VIEW
     up = args.up or DEFAULT_UP
     with _warnings_as_lines(quiet=False, verbose=False):
-        data = model_scene_data(args.model, view, args.ground, up, args.width, args.height)
+        data = model_scene_data(args.model, view, args.ground, up, args.width, args.height,
+                                args.turntable)
     # --view only where it sets the view (a glTF file's camera sets it otherwise, and --view
     # is refused with it); -W and -H where given, as the camera frames the model in them.
     flags = [*([f"--view {view}"] if probe_camera(args.model) is None else []),
              *(["--ground"] if args.ground else []), *([f"--up={up}"] if args.up else []),
              *([f"-W {args.width}"] if args.width else []),
-             *([f"-H {args.height}"] if args.height else [])]
+             *([f"-H {args.height}"] if args.height else []),
+             *([f"--turntable {args.turntable}"] if args.turntable else [])]
     # The name as error messages show it: a control character in a comment is not TOML.
     header = (f"The automatic scene of {one_line(name)} "
               f"(clray scene{''.join(' ' + flag for flag in flags)}).")

@@ -102,11 +102,13 @@ def is_mesh_file(path: Path) -> bool:
 @small_pages
 def model_scene_data(path: Path, view: str = DEFAULT_VIEW, ground: bool = False,
                      up: str = DEFAULT_UP, width: int | None = None,
-                     height: int | None = None) -> dict:
+                     height: int | None = None, turntable: int | None = None) -> dict:
     """Scene data for the mesh file `path` (relative names are relative to the working
     directory, and written so); `up` names the model's axis that points up; `width` and
     `height` the image's (default 640 x 480, or a glTF camera's aspect), which the camera
-    frames the model in. A glTF file's own camera replaces `view`."""
+    frames the model in. A glTF file's own camera replaces `view`. `turntable`: an
+    animation of that many frames (at least 2) in which the model turns once about the
+    vertical through its centre (_turntable)."""
     name = path.as_posix()
     probe = _probe_scene(path, name)
     toward, view_up = (np.array(v) for v in VIEWS[view])
@@ -155,7 +157,31 @@ def model_scene_data(path: Path, view: str = DEFAULT_VIEW, ground: bool = False,
     if ground:
         data["materials"]["ground"] = GROUND_MATERIAL
         data["objects"].append(_ground_plane(center, lo, radius))
+    if turntable is not None:
+        _turntable(data, center, turntable)
     return data
+
+
+def _turntable(data: dict, center: np.ndarray, frames: int) -> None:
+    """Makes the model (data's first object) a group placed by one instance whose rotation
+    about y a track keys, a whole turn over `frames` frames (frame `frames` would be frame
+    0 again), the rest of the scene still. An instance's transform places its group without
+    moving the group's triangles, so the frames share one packing and the model's BVH, built
+    once (docs/distributed.md); a mesh object's own keyed transform would be packed afresh
+    each frame. The group holds the model moved to put its centre at the origin, where the
+    instance's rotation turns it, and the instance's translation puts the centre back."""
+    if frames < 2:
+        raise ValueError(f"a turntable needs at least 2 frames, got {frames}")
+    model = data["objects"][0]
+    placement = np.array(model.get("transform", {}).get("matrix", np.eye(4).tolist()))
+    placement[:3, 3] -= center
+    model["transform"] = {"matrix": [_plain(row) for row in placement]}
+    data["objects"][0] = {"type": "instance", "group": "model",
+                          "transform": {"rotate": [0.0, 0.0, 0.0], "translate": _plain(center)}}
+    data["groups"] = {"model": {"objects": [model]}}
+    data["animation"] = {"frames": frames, "tracks": [{
+        "key": "objects[0].transform.rotate", "frames": [0, frames - 1],
+        "values": [[0.0, 0.0, 0.0], [0.0, 360.0 * (frames - 1) / frames, 0.0]]}]}
 
 
 def _probe_scene(path: Path, name: str) -> Scene:
@@ -465,18 +491,24 @@ def toml_string(text: str) -> str:
 
 
 def to_toml(data: dict, header: str = "") -> str:
-    """Scene data of model_scene_data as TOML: top-level tables, materials as sub-tables,
-    lights and objects as arrays of tables; `header` as comment lines, each control character
-    in it written as a \\uXXXX escape (a comment may not hold one)."""
+    """Scene data of model_scene_data as TOML: top-level tables, materials and groups as
+    sub-tables, lights, objects and an animation's tracks as arrays of tables; `header` as
+    comment lines, each control character in it written as a \\uXXXX escape (a comment may
+    not hold one)."""
     lines = [f"# {line.translate(_COMMENT_ESCAPES)}" for line in header.split("\n")
              if header]
     for section, value in data.items():
         if isinstance(value, list):
             for item in value:
                 lines += ["", f"[[{section}]]", *_pairs(item)]
-        elif section == "materials":
+        elif section in ("materials", "groups"):
             for name, spec in value.items():
-                lines += ["", f"[materials.{name}]", *_pairs(spec)]
+                lines += ["", f"[{section}.{name}]", *_pairs(spec)]
+        elif section == "animation":
+            lines += ["", "[animation]", *_pairs({k: x for k, x in value.items()
+                                                  if k != "tracks"})]
+            for track in value.get("tracks", []):
+                lines += ["", "[[animation.tracks]]", *_pairs(track)]
         else:
             lines += ["", f"[{section}]", *_pairs(value)]
     return "\n".join(lines).lstrip("\n") + "\n"

@@ -426,3 +426,66 @@ def test_a_models_warnings_name_its_file_not_the_made_scenes_key(tmp_path, monke
         '[[objects]]\ntype = "mesh"\nfile = "m.obj"\n', encoding="utf-8")
     assert any(w.startswith("objects[0].file: m.obj: line 1: m.mtl")
                for w in load_scene(Path("s.toml")).warnings)
+
+
+def _placed_vertices(scene: M.Scene) -> np.ndarray:
+    """The turntable's model as the frame places it: its group's mesh by its instance."""
+    instance = scene.objects[0]
+    return instance.group.objects[0].vertices @ instance.matrix[:, :3].T + instance.matrix[:, 3]
+
+
+@pytest.mark.parametrize("up", ["y", "z"])
+def test_a_turntable_turns_the_model_once_about_its_vertical_axis(tmp_path, monkeypatch,
+                                                                  capsys, up):
+    """`clray scene MODEL --turntable N` writes the still's scene with the model turned
+    360 k / N degrees about the vertical through its centre in frame k, the rest still, and
+    frames that share one packing (the model's BVH built once: docs/distributed.md)."""
+    from clray.scene.transform import rotation_matrix
+    from clray.sequence import load_sequence
+
+    monkeypatch.chdir(tmp_path)
+    _obj(tmp_path / "m.obj", _Y_UP)
+    assert main(["scene", "m.obj", f"--up={up}", "--ground", "--turntable", "6"]) == 0
+    out = capsys.readouterr().out
+    assert "--ground --up=" in out.splitlines()[0] and "--turntable 6)." in out.splitlines()[0]
+    (tmp_path / "turn.toml").write_text(out)
+    sequence = load_sequence(tmp_path / "turn.toml")
+    assert sequence.animation.frames == 6 and not sequence.packs_each_frame()
+    still = load_model_scene(Path("m.obj"), up=up, ground=True)
+    model = still.objects[0].vertices
+    center = (model.min(axis=0) + model.max(axis=0)) / 2
+    for k in range(6):
+        frame = sequence.scene(k)
+        assert (frame.camera, frame.lights, frame.objects[1]) == (still.camera, still.lights,
+                                                                  still.objects[1])
+        turned = (model - center) @ rotation_matrix((0.0, 60.0 * k, 0.0)).T + center
+        np.testing.assert_allclose(_placed_vertices(frame), turned, rtol=0, atol=1e-12)
+
+
+def test_a_turntable_renders_its_frames_with_one_bvh_build(cl_device, tmp_path, monkeypatch,
+                                                           capsys):
+    from clray.device import pack
+    from clray.sequence import load_sequence, render_frames
+
+    monkeypatch.chdir(tmp_path)
+    shutil.copy(ROOT / "scenes" / "meshes" / "bumpy_ico2.obj", tmp_path / "m.obj")
+    assert main(["scene", "m.obj", "--turntable", "4"]) == 0
+    (tmp_path / "turn.toml").write_text(capsys.readouterr().out)
+    builds = []
+    build = pack._pack_bvh
+    monkeypatch.setattr(pack, "_pack_bvh", lambda *a, **k: builds.append(1) or build(*a, **k))
+    settings = RenderSettings(width=40, height=30, spp=1)
+    sequence = load_sequence(tmp_path / "turn.toml")
+    images: dict[int, np.ndarray] = {}
+    render_frames(sequence, range(4), settings,
+                  lambda frame, result: images.update({frame: result.image}))
+    assert len(builds) == 1
+    for k in range(4):
+        np.testing.assert_array_equal(images[k], render(sequence.scene(k), settings).image)
+    assert not np.array_equal(images[0], images[1])  # the bumps turned
+
+
+@pytest.mark.parametrize("frames", ["1", "0", "x"])
+def test_a_turntable_needs_two_frames_or_more(capsys, frames):
+    assert main(["scene", "m.obj", "--turntable", frames]) == 2
+    assert "--turntable" in capsys.readouterr().err

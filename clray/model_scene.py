@@ -19,6 +19,7 @@ import numpy as np
 from clray.errors import SceneError
 from clray.host_memory import CHUNK_ROWS, by_chunks, small_pages
 from clray.scene.assets import MESH_SUFFIXES, meshes_read_once
+from clray.scene.emitters import emissive_triangles
 from clray.scene.files import UnreadableFile, open_regular, read_regular
 from clray.scene.gltf import GLTF_SUFFIXES, GltfCamera, read_gltf_camera
 from clray.scene.limits import MAX_IMAGE_SIZE, MAX_MAGNITUDE, MIN_LENGTH, mesh_bytes_limit
@@ -158,6 +159,10 @@ def model_scene_data(path: Path, view: str = DEFAULT_VIEW, ground: bool = False,
         data["materials"]["ground"] = GROUND_MATERIAL
         data["objects"].append(_ground_plane(center, lo, radius))
     if turntable is not None:
+        if emissive_triangles(probe):
+            raise SceneError(path, None, "has emissive faces, which light the scene only "
+                             "from its own meshes: a turntable's model is a group, whose "
+                             "faces would glow but light nothing (write a scene file)")
         _turntable(data, center, turntable)
     return data
 
@@ -179,8 +184,11 @@ def _turntable(data: dict, center: np.ndarray, frames: int) -> None:
     data["objects"][0] = {"type": "instance", "group": "model",
                           "transform": {"rotate": [0.0, 0.0, 0.0], "translate": _plain(center)}}
     data["groups"] = {"model": {"objects": [model]}}
+    # Linear written out: an [animation] interpolation edited in would not change the turn's
+    # even speed.
     data["animation"] = {"frames": frames, "tracks": [{
-        "key": "objects[0].transform.rotate", "frames": [0, frames - 1],
+        "key": "objects[0].transform.rotate", "interpolation": "linear",
+        "frames": [0, frames - 1],
         "values": [[0.0, 0.0, 0.0], [0.0, 360.0 * (frames - 1) / frames, 0.0]]}]}
 
 

@@ -485,6 +485,48 @@ def test_a_turntable_renders_its_frames_with_one_bvh_build(cl_device, tmp_path, 
     assert not np.array_equal(images[0], images[1])  # the bumps turned
 
 
+def test_a_turntable_of_a_model_with_emissive_faces_is_refused_in_one_line(tmp_path,
+                                                                           monkeypatch, capsys):
+    # In the turntable's group its lamp would glow and light nothing (clray.scene.emitters).
+    monkeypatch.chdir(tmp_path)
+    for name in ("cornell_box.obj", "cornell_box.mtl"):
+        shutil.copy(ROOT / "scenes" / "meshes" / name, tmp_path / name)
+    assert main(["scene", "cornell_box.obj", "--turntable", "4"]) == 3
+    captured = capsys.readouterr()
+    assert captured.out == ""
+    assert captured.err.count("\n") == 1 and "cornell_box.obj" in captured.err
+    assert "emissive faces" in captured.err
+
+
+def test_a_turntable_of_a_gltf_file_turns_its_nodes_meshes_and_repeats_its_header(
+        tmp_path, monkeypatch, capsys):
+    """A glTF file's nodes placed in the group (its instanced mesh copied for each node), the
+    frames turning its triangles about the still's centre; the header's command writes the
+    same file again."""
+    import shlex
+
+    from gltf_files import instanced_cubes
+
+    from clray.sequence import load_sequence
+
+    monkeypatch.chdir(tmp_path)
+    instanced_cubes().save(tmp_path / "cubes.glb")
+    assert main(["scene", "cubes.glb", "--turntable", "4", "-W", "80"]) == 0
+    out = capsys.readouterr().out
+    command = out.splitlines()[0].split("(", 1)[1].removesuffix(").")
+    assert main([*shlex.split(command)[1:], "cubes.glb"]) == 0
+    assert capsys.readouterr().out == out
+    (tmp_path / "turn.toml").write_text(out)
+    sequence = load_sequence(tmp_path / "turn.toml")
+    still = load_model_scene(Path("cubes.glb"), width=80)
+    count = sum(len(obj.faces) if isinstance(obj, M.Mesh) else len(obj.group.objects[0].faces)
+                for obj in still.objects)
+    for k in (0, 1):
+        group = sequence.scene(k).objects[0].group
+        assert sum(len(obj.faces) for obj in group.objects) == count
+    assert sequence.scene(0).camera == still.camera
+
+
 @pytest.mark.parametrize("frames", ["1", "0", "x"])
 def test_a_turntable_needs_two_frames_or_more(capsys, frames):
     assert main(["scene", "m.obj", "--turntable", frames]) == 2

@@ -295,6 +295,18 @@ def lane_width(request: pytest.FixtureRequest, monkeypatch: pytest.MonkeyPatch) 
     return request.param
 
 
+@pytest.fixture
+def bvh_builds(monkeypatch: pytest.MonkeyPatch) -> list[int]:
+    """A list that grows by one at each BVH build of a pack (clray.device.pack._pack_bvh):
+    how many packs a run of frames made afresh."""
+    from clray.device import pack
+
+    builds: list[int] = []
+    build = pack._pack_bvh
+    monkeypatch.setattr(pack, "_pack_bvh", lambda *a, **k: builds.append(1) or build(*a, **k))
+    return builds
+
+
 @pytest.fixture(scope="session")
 def cl_ctx(cl_device: cl.Device) -> cl.Context:
     return context_for(cl_device)

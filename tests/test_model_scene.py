@@ -463,23 +463,19 @@ def test_a_turntable_turns_the_model_once_about_its_vertical_axis(tmp_path, monk
 
 
 def test_a_turntable_renders_its_frames_with_one_bvh_build(cl_device, tmp_path, monkeypatch,
-                                                           capsys):
-    from clray.device import pack
+                                                           capsys, bvh_builds):
     from clray.sequence import load_sequence, render_frames
 
     monkeypatch.chdir(tmp_path)
     shutil.copy(ROOT / "scenes" / "meshes" / "bumpy_ico2.obj", tmp_path / "m.obj")
     assert main(["scene", "m.obj", "--turntable", "4"]) == 0
     (tmp_path / "turn.toml").write_text(capsys.readouterr().out)
-    builds = []
-    build = pack._pack_bvh
-    monkeypatch.setattr(pack, "_pack_bvh", lambda *a, **k: builds.append(1) or build(*a, **k))
     settings = RenderSettings(width=40, height=30, spp=1)
     sequence = load_sequence(tmp_path / "turn.toml")
     images: dict[int, np.ndarray] = {}
     render_frames(sequence, range(4), settings,
                   lambda frame, result: images.update({frame: result.image}))
-    assert len(builds) == 1
+    assert len(bvh_builds) == 1
     for k in range(4):
         np.testing.assert_array_equal(images[k], render(sequence.scene(k), settings).image)
     assert not np.array_equal(images[0], images[1])  # the bumps turned

@@ -274,20 +274,16 @@ def _ball_grid(order: np.ndarray) -> M.Scene:
                    (M.PointLight((2.0, 9.0, 4.0)),), instances)
 
 
-def test_a_refit_past_the_cost_limit_is_packed_afresh(monkeypatch):
+def test_a_refit_past_the_cost_limit_is_packed_afresh(bvh_builds):
     # The instances change places: frame 0's tree refitted there has every inner box across
     # the grid, and the frame gets a tree of its own.
-    from clray.device import pack
-
     scene = _ball_grid(np.arange(64))
     geometry = pack_geometry(scene)
     shuffled = _ball_grid(np.random.default_rng(1).permutation(64))
-    builds = []
-    build = pack._pack_bvh
-    monkeypatch.setattr(pack, "_pack_bvh", lambda *a, **k: builds.append(1) or build(*a, **k))
+    bvh_builds.clear()  # frame 0's
     placed = pack_scene(shuffled, geometry=geometry, **SETTINGS)
     assert geometry.cost > REFIT_COST_LIMIT * geometry.built_cost
-    assert len(builds) == 1
+    assert len(bvh_builds) == 1
     assert _differing(placed, pack_scene(shuffled, **SETTINGS)) == []
     assert _differing(pack_scene(scene, geometry=geometry, **SETTINGS),
                       pack_scene(scene, **SETTINGS)) == []

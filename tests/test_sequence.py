@@ -912,19 +912,15 @@ def test_texels_decoded_once_are_not_given_to_another_array_after_they_are_freed
 
 @pytest.mark.parametrize("name", ["orbit", "rising", "instances", "turntable"])
 def test_frames_that_share_a_packing_share_one_bvh_and_render_their_stills(
-        cl_device, tmp_path, monkeypatch, name):
+        cl_device, tmp_path, monkeypatch, bvh_builds, name):
     """Frame 0's objects packed once, placed at each frame's eye, instances' places and
     shapes' values (clray.device.pack): one BVH build for all the frames, each frame the image
     its still renders, whichever frames a run renders (frame 0's tree, not the first rendered
     frame's)."""
     from clray import sequence as sequence_module
-    from clray.device import pack
     from clray.render import RenderSettings, render
     from clray.sequence import render_frames
 
-    builds = []
-    build = pack._pack_bvh
-    monkeypatch.setattr(pack, "_pack_bvh", lambda *a, **k: builds.append(1) or build(*a, **k))
     settings = RenderSettings(width=48, height=27, spp=2)
     path = shared_packing_scene(tmp_path, name)
     sequence = load_sequence(path)
@@ -932,7 +928,7 @@ def test_frames_that_share_a_packing_share_one_bvh_and_render_their_stills(
     frames: dict[int, np.ndarray] = {}
     render_frames(sequence, [0, 1, 2, 3], settings,
                   lambda frame, result: frames.update({frame: result.image}))
-    assert len(builds) == 1
+    assert len(bvh_builds) == 1
     others: dict[int, np.ndarray] = {}
     packed_at = []
     pack_geometry = sequence_module.pack_geometry
@@ -940,7 +936,7 @@ def test_frames_that_share_a_packing_share_one_bvh_and_render_their_stills(
         scene.camera.position) or pack_geometry(scene, **k))
     render_frames(load_sequence(path), [3, 1], settings,
                   lambda frame, result: others.update({frame: result.image}))
-    assert len(builds) == 2 and packed_at == [sequence.scene(0).camera.position]
+    assert len(bvh_builds) == 2 and packed_at == [sequence.scene(0).camera.position]
     for frame in (1, 3):
         np.testing.assert_array_equal(others[frame], frames[frame])
     for frame, image in frames.items():
@@ -970,25 +966,21 @@ def _swapping_balls(tmp_path: Path) -> Path:
 
 
 def test_frames_past_the_refit_cost_limit_are_built_and_leave_frame_0s_tree(cl_device, tmp_path,
-                                                                           monkeypatch):
-    from clray.device import pack
+                                                                           bvh_builds):
     from clray.render import RenderSettings, render
     from clray.sequence import render_frames
 
-    builds = []
-    build = pack._pack_bvh
-    monkeypatch.setattr(pack, "_pack_bvh", lambda *a, **k: builds.append(1) or build(*a, **k))
     settings = RenderSettings(width=48, height=27, spp=1)
     path = _swapping_balls(tmp_path)
     assert not load_sequence(path).packs_each_frame()
     runs: dict[tuple[int, ...], dict[int, np.ndarray]] = {}
     for frames in ((0, 1, 2), (2, 0), (1,)):
         images: dict[int, np.ndarray] = {}
-        builds.clear()
+        bvh_builds.clear()
         render_frames(load_sequence(path), frames, settings,
                       lambda frame, result, images=images: images.update({frame: result.image}))
         # Frame 0's packing, then a build for each frame past the limit.
-        assert len(builds) == 1 + sum(frame != 0 for frame in frames)
+        assert len(bvh_builds) == 1 + sum(frame != 0 for frame in frames)
         runs[frames] = images
     sequence = load_sequence(path)
     for frame in (0, 1, 2):
@@ -999,21 +991,17 @@ def test_frames_past_the_refit_cost_limit_are_built_and_leave_frame_0s_tree(cl_d
                 np.testing.assert_array_equal(images[frame], still)
 
 
-def test_frames_that_move_a_mesh_are_each_packed_afresh(cl_device, tmp_path, monkeypatch):
-    from clray.device import pack
+def test_frames_that_move_a_mesh_are_each_packed_afresh(cl_device, tmp_path, bvh_builds):
     from clray.render import RenderSettings
     from clray.sequence import render_frames
 
-    builds = []
-    build = pack._pack_bvh
-    monkeypatch.setattr(pack, "_pack_bvh", lambda *a, **k: builds.append(1) or build(*a, **k))
     path = shared_packing_scene(tmp_path, "orbit")
     path.write_text(path.read_text() + '\n[[animation.tracks]]\nkey = "objects[3].transform.'
                     'scale"\nframes = [0, 47]\nvalues = [0.6, 0.9]\n')
     sequence = load_sequence(path)
     assert sequence.packs_each_frame() and sequence.frame_geometry() is None
     render_frames(sequence, [0, 1, 2], RenderSettings(width=8, height=6, spp=1), lambda *_: None)
-    assert len(builds) == 3
+    assert len(bvh_builds) == 3
 
 
 @pytest.mark.parametrize(("key", "afresh"), [

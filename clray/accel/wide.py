@@ -462,11 +462,15 @@ def _laid_out(lanes: list[list[_Lane]], width: int, prim_refs: np.ndarray) -> Wi
     return WideBvh(nodes, prim_refs, width, int((pushed + used - 1).max()) + 1)
 
 
+def _leaf_packets(count: np.ndarray) -> np.ndarray:
+    """The triangle and sphere packets of each leaf `count` field."""
+    return (count >> LEAF_TRIANGLE_SHIFT) + ((count >> LEAF_SPHERE_SHIFT) & LEAF_FIELD_MASK)
+
+
 def leaf_slots(count: np.ndarray) -> np.ndarray:
     """The slots of prim_refs each leaf `count` field spans: its triangle and sphere packets'
     PACKET_WIDTH slots each, then its other primitives one slot each."""
-    packets = (count >> LEAF_TRIANGLE_SHIFT) + ((count >> LEAF_SPHERE_SHIFT) & LEAF_FIELD_MASK)
-    return PACKET_WIDTH * packets + (count & LEAF_FIELD_MASK)
+    return PACKET_WIDTH * _leaf_packets(count) + (count & LEAF_FIELD_MASK)
 
 
 def _reached_levels(nodes: np.ndarray) -> list[np.ndarray]:
@@ -496,9 +500,8 @@ def tree_cost(nodes: np.ndarray, traversal_cost: float = TRAVERSAL_COST) -> floa
     child, count = reached["child"], reached["count"].astype(np.int64)
     e = np.stack([reached[f"hi_{a}"].astype(np.float64) - reached[f"lo_{a}"] for a in "xyz"])
     area = np.where(child >= 0, e[0] * e[1] + e[1] * e[2] + e[2] * e[0], 0.0)
-    tests = ((count >> LEAF_TRIANGLE_SHIFT) + ((count >> LEAF_SPHERE_SHIFT) & LEAF_FIELD_MASK)
-             + (count & LEAF_FIELD_MASK))
-    cost = np.where(count > 0, tests, traversal_cost)
+    # A leaf's tests: a packet test each, and one for each other primitive.
+    cost = np.where(count > 0, _leaf_packets(count) + (count & LEAF_FIELD_MASK), traversal_cost)
     lo = [np.nanmin(nodes[0][f"lo_{a}"].astype(np.float64)) for a in "xyz"]
     hi = [np.nanmax(nodes[0][f"hi_{a}"].astype(np.float64)) for a in "xyz"]
     root = sum((hi[i] - lo[i]) * (hi[j] - lo[j]) for i, j in ((0, 1), (1, 2), (2, 0)))

@@ -970,15 +970,14 @@ def _placements(instances: list[M.Instance]) -> np.ndarray:
     return np.array([inst.matrix for inst in instances], dtype=np.float64).reshape(-1, 3, 4)
 
 
-def _same_primitives(geometry: SceneGeometry, at: _AtEye) -> bool:
-    """Whether the objects of `at` pack into as many planes, shapes of each kind and
-    triangles as `geometry` holds, with instances of the same groups: the slots of its tree
-    are theirs. Which triangles, and where in their groups' frames, is the caller's word
-    (pack_scene's `geometry`)."""
-    triangles = _triangle_sources(at.kinds[M.Triangle])
+def _same_primitives(geometry: SceneGeometry, at: _AtEye, sources: list[tuple]) -> bool:
+    """Whether the objects of `at` (their triangles' `sources`) pack into as many planes,
+    shapes of each kind and triangles as `geometry` holds, with instances of the same groups:
+    the slots of its tree are theirs. Which triangles, and where in their groups' frames, is
+    the caller's word (pack_scene's `geometry`)."""
     return (len(at.planes) == len(geometry.planes)
             and all(len(at.shapes[b]) == len(geometry.shapes[b]) for b in geometry.shapes)
-            and sum(len(source[1]) for source in triangles) == len(geometry.tris.faces)
+            and sum(len(source[1]) for source in sources) == len(geometry.tris.faces)
             and np.array_equal(at.group_of, geometry.group_of))
 
 
@@ -993,7 +992,9 @@ def _moved_to(geometry: SceneGeometry, scene: M.Scene) -> SceneGeometry | None:
     another shape may take the other one."""
     eye = np.asarray(scene.camera.position, dtype=np.float64)
     at = _at(scene, eye)
-    if not _same_primitives(geometry, at):
+    triangles = at.kinds[M.Triangle]
+    sources = _triangle_sources(triangles)
+    if not _same_primitives(geometry, at, sources):
         return None
     placements = _placements(at.instances)
     if (np.array_equal(eye, geometry.eye) and np.array_equal(placements, geometry.placements)
@@ -1010,12 +1011,11 @@ def _moved_to(geometry: SceneGeometry, scene: M.Scene) -> SceneGeometry | None:
                                          at.bounded)
     geometry.instances["root"] = roots
     prim_refs = geometry.wide.prim_refs
-    triangles = at.kinds[M.Triangle]
     # The groups' packets are in their own frames: no move changes them.
     first = geometry.group_packets
     if len(geometry.triangle_packets) > first:
         _fill_packets(geometry.triangle_packets, prim_refs, geometry.tris.faces,
-                      _positions(triangles, _triangle_sources(triangles)), first)
+                      _positions(triangles, sources), first)
     geometry.sphere_packets = _sphere_packets(prim_refs, at.shapes[SPHERE.buffer])
     start = time.perf_counter()
     nodes, traversal_cost = geometry.wide.nodes, geometry.tuning.traversal_cost

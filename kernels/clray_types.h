@@ -26,6 +26,7 @@
 #define LIGHT_DISC 4
 #define LIGHT_SPHERE 5
 #define LIGHT_TRIANGLE 6  // an emissive mesh face
+#define LIGHT_MESH 7      // many emissive faces of a mesh, a sample picking one (lights.h)
 
 #define TEXTURE_NONE (-1)
 #define TEXTURE_CHECKER 0
@@ -117,6 +118,8 @@ typedef struct {
     float4 axis_u;  // rect, triangle: edge u; disc: unit normal
     float4 axis_v;  // rect, triangle: edge v
     int kind;       // LIGHT_*
+    // Mesh: its faces' records (triangle lights after the n_lights that the shading loops take),
+    // pad0 the first's index and pad1 how many; a face's pad0 its pick threshold, a uint.
     int pad0, pad1, pad2;
 } Light;
 

@@ -41,8 +41,33 @@ static inline REAL spot_factor(const __global Light* light, REAL3 l) {
 // The lights sampled over their area. Kinds are labels (clray_types.h): named, never ordered.
 static inline bool is_area_light(int kind) {
     return kind == LIGHT_RECT || kind == LIGHT_DISC || kind == LIGHT_SPHERE ||
-           kind == LIGHT_TRIANGLE;
+           kind == LIGHT_TRIANGLE || kind == LIGHT_MESH;
 }
+
+#if HAS_MESH_LIGHTS
+// The face of a mesh light (clray/lights/mesh.py) that `pick` takes: the first whose threshold
+// is above it (the thresholds are the faces' cumulative share of the area in units of 2^-32,
+// the last's 2^32 stored as 0), found by bisection; *weight is one over its probability, its
+// width in picks over 2^32, taken in uint arithmetic, where the last's width wraps right.
+static inline const __global Light* mesh_face(const __global Light* lights,
+                                              const __global Light* mesh, uint pick,
+                                              REAL* weight) {
+    const __global Light* faces = lights + mesh->pad0;
+    int lo = 0, hi = mesh->pad1 - 1;  // the face is in [lo, hi]
+    while (lo < hi) {
+        int mid = lo + (hi - lo) / 2;
+        if (pick < (uint)faces[mid].pad0) {
+            hi = mid;
+        } else {
+            lo = mid + 1;
+        }
+    }
+    uint below = lo > 0 ? (uint)faces[lo - 1].pad0 : 0u;
+    // A face of no width is never picked, so the width here is at least 1.
+    *weight = REAL_C(4294967296.0) / (REAL)((uint)faces[lo].pad0 - below);
+    return faces + lo;
+}
+#endif
 
 // One sample point `target` of an area light seen from p, and its weight: the factor that
 // multiplies the light's colour (its radiance) in place of a point light's attenuation, so
@@ -157,9 +182,18 @@ STAGE bool light_ray(const SceneRefs* s, const Surface* sf, REAL3 n, int i, Samp
     REAL3 target = TO_REAL3(light->position);
 #if HAS_AREA_LIGHTS
     if (is_area_light(light->kind)) {
-        if (!sample_area_light(light, sf->p, sf->err, light_square(key, i), &target, &atten)) {
+        const __global Light* area = light;
+#if HAS_MESH_LIGHTS
+        REAL pick_weight = 1;
+        if (light->kind == LIGHT_MESH) area = mesh_face(s->lights, light, light_pick(key, i),
+                                                        &pick_weight);
+#endif
+        if (!sample_area_light(area, sf->p, sf->err, light_square(key, i), &target, &atten)) {
             return false;
         }
+#if HAS_MESH_LIGHTS
+        atten = fmin(atten * pick_weight, AREA_WEIGHT_MAX);  // the face's over its probability
+#endif
         l = safe_normalize(target - sf->p);
     } else
 #endif

@@ -15,7 +15,8 @@
 // TRIANGLE_MOLLER_TRUMBORE, FRESNEL_SCHLICK; FP64_SPHERES (the packer's per-scene fp64 path
 // for spheres float32 cannot intersect); COUNT_TESTS (the instrumented build: box and
 // primitive tests per pixel).
-// HAS_SPOT_LIGHTS, HAS_AREA_LIGHTS (0 or 1): the scene has spot lights, area lights.
+// HAS_SPOT_LIGHTS, HAS_AREA_LIGHTS, HAS_MESH_LIGHTS (0 or 1): the scene has spot lights, area
+// lights, mesh lights (many emissive faces as one light).
 // HAS_INSTANCES (0 or 1): the scene places groups by transforms (kernels/bvh.h walks into them).
 // PASSES (0 or 1): the build has render_passes, for a render that asks for passes; without it
 // the program is the same text as before passes existed. INTERSECT_RAYS (0 or 1): the build has

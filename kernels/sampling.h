@@ -94,6 +94,15 @@ static inline REAL light_uniform(uint key, int sample, uint dim) {
     return (REAL)(pcg_hash(key ^ (2u * (uint)sample + dim)) >> 8) * REAL_C(0x1p-24);
 }
 
+#if HAS_MESH_LIGHTS
+// Which face of mesh light `light` a pixel sample's shadow ray aims at (lights.h, mesh_face): a
+// uint of the light's own stream, its counter's bit 30 apart from the square's (light_uniform's
+// 2 sample + dim, below 2^13), so the pick is independent of the point on the face.
+static inline uint light_pick(SampleKey k, int light) {
+    return pcg_hash(light_key(k, light) ^ (0x40000000u | (uint)k.sample));
+}
+#endif
+
 // A point of the unit square for this light at this pixel sample. The spp samples take the
 // spp strata (DEFINE_JITTER), each once: sample s takes stratum permute_stratum(s), a
 // permutation drawn per pixel and light, so that a light's strata are independent of the

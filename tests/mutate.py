@@ -58,6 +58,7 @@ CLI = "tests/test_cli.py"
 STUDY = "tests/test_study.py"
 DEVICE = "tests/test_device_fixture.py"
 LIGHTS = "tests/test_area_lights.py"
+EMISSION = "tests/test_emission.py"
 INSTANCES = "tests/test_instances.py"
 CAMERA = "tests/test_camera.py"
 FRESNEL = "tests/test_fresnel.py"
@@ -487,6 +488,19 @@ MUTATIONS: tuple[Mutation, ...] = (
     m("passes.bands_at_the_first_row", "clray/device/launch.py",
       "kernel.set_args(*buffers, *band_buffers, np.int32(first + row0))",
       "kernel.set_args(*buffers, *band_buffers, np.int32(first))", PASSES),
+    # mesh lights (kernels/lights.h, kernels/sampling.h, clray/lights/mesh.py, emitters.py)
+    m("mesh_lights.pick_weight_dropped", "kernels/lights.h",
+      "atten = fmin(atten * pick_weight, AREA_WEIGHT_MAX);",
+      "atten = fmin(atten, AREA_WEIGHT_MAX);", EMISSION),
+    m("mesh_lights.pick_on_a_threshold_takes_it", "kernels/lights.h",
+      "if (pick < (uint)faces[mid].pad0) {", "if (pick <= (uint)faces[mid].pad0) {", EMISSION),
+    m("mesh_lights.pick_shares_the_square_stream", "kernels/sampling.h",
+      "(0x40000000u | (uint)k.sample)", "(2u * (uint)k.sample)", EMISSION),
+    m("mesh_lights.picks_uniform_not_by_area", "clray/lights/mesh.py",
+      "share = np.cumsum(areas) / float(np.sum(areas))",
+      "share = np.arange(1, len(areas) + 1) / len(areas)", EMISSION),
+    m("mesh_lights.faces_at_the_limit_pooled", "clray/scene/emitters.py",
+      "many = counts > EACH_FACE_UP_TO", "many = counts >= EACH_FACE_UP_TO", EMISSION),
 )
 
 

@@ -9,9 +9,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from clray.render import render
+from clray.lights.mesh import face_picked
+from clray.metrics import rmse
+from clray.reference import render_reference
+from clray.reference.sampling import light_pick
+from clray.render import RenderSettings, render
 from clray.scene import model as M
-from clray.scene.emitters import emissive_triangles
+from clray.scene.emitters import EACH_FACE_UP_TO, emissive_lights, emissive_triangles, scene_lights
 from clray.scene.load import scene_from_dict
 from tests.reference_check import Tolerance, assert_kernel_matches_reference
 
@@ -91,3 +95,149 @@ def test_emissive_faces_match_the_reference(cl_device, tmp_path):
                         4, (48, 36), [box])
     # Four times the measured (rmse 3.5e-8, largest error 3.2e-7; PoCL 3.1, AMD EPYC).
     assert_kernel_matches_reference(scene, Tolerance(rmse=1.5e-7, err=1.3e-6))
+
+
+# --- Mesh lights: many emissive faces of one material in one mesh, sampled as one light -----
+
+def _grid_lamp(nx: int, nz: int, *, tiny: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    """The Cornell box's light (LIGHT_OBJ's rectangle, facing down) as 2 nx nz triangles over
+    an uneven grid, so that faces differ in area; with `tiny`, a sliver of a face whose share
+    of the area rounds to no picks is added first."""
+    x = 213 + 130 * np.linspace(0, 1, nx + 1) ** 1.5
+    z = 227 + 105 * np.linspace(0, 1, nz + 1) ** 0.7
+    gx, gz = np.meshgrid(x, z, indexing="ij")
+    vertices = np.stack([gx.ravel(), np.full(gx.size, 548.7), gz.ravel()], axis=1)
+    at = np.arange(gx.size).reshape(nx + 1, nz + 1)
+    a, b, c, d = at[:-1, :-1], at[1:, :-1], at[1:, 1:], at[:-1, 1:]
+    # Wound so that cross(v1 - v0, v2 - v0) points down, the side that emits.
+    faces = np.concatenate([np.stack([a, b, c], -1).reshape(-1, 3),
+                            np.stack([a, c, d], -1).reshape(-1, 3)])
+    if tiny:
+        vertices = np.vstack([vertices, [[300.0, 548.7, 300.0], [300.0 + 1e-6, 548.7, 300.0],
+                                         [300.0 + 1e-6, 548.7, 300.0 + 1e-3]]])
+        n = len(vertices)
+        faces = np.vstack([[[n - 3, n - 2, n - 1]], faces])
+    return vertices, faces
+
+
+def _lamp_scene(lamp: tuple[np.ndarray, np.ndarray], camera: dict, spp: int,
+                size: tuple[int, int], extra: list | None = None,
+                specular: float = 0.2) -> M.Scene:
+    vertices, faces = lamp
+    data = {"render": {"width": size[0], "height": size[1], "spp": spp, "ambient": [0, 0, 0]},
+            "camera": camera,
+            "materials": {"floor": {"color": [0.5, 0.5, 0.5], "specular": specular},
+                          "lamp": {"color": [0, 0, 0], "diffuse": 0, "emission": list(KE)}},
+            "objects": [{"type": "mesh", "vertices": vertices.tolist(),
+                         "faces": faces.tolist(), "material": "lamp"},
+                        {"type": "plane", "point": [0, 0, 0], "normal": [0, 1, 0],
+                         "material": "floor"}, *(extra or [])]}
+    return scene_from_dict(data)
+
+
+def _strip_scene(n_glow: int) -> tuple[M.Scene, M.Mesh]:
+    """A strip of n_glow + 2 faces of area 1/2: faces 1 and 3 of material `other`, the rest of
+    `glow`, both emissive."""
+    n = n_glow + 2
+    vertices = np.array([[i, 0.0, 0.0] for i in range(n + 1)] +
+                        [[i, 0.0, 1.0] for i in range(n + 1)])
+    faces = np.array([[i, i + n + 1, i + 1] for i in range(n)])
+    mesh = M.Mesh(vertices, faces, 0, face_materials=np.array([int(i in (1, 3))
+                                                              for i in range(n)]))
+    materials = (M.Material("glow", emission=(1.0, 2.0, 3.0)),
+                 M.Material("other", emission=(3.0, 2.0, 1.0)))
+    return M.Scene(None, M.RenderOptions(8, 6), M.Camera((0.0, 2.0, 3.0), (0.0, 0.0, 0.0)),
+                   materials, (), (mesh,)), mesh
+
+
+def test_faces_beyond_the_limit_become_one_mesh_light():
+    scene, _ = _strip_scene(EACH_FACE_UP_TO)
+    assert emissive_lights(scene) == emissive_triangles(scene)  # each face its own light
+    scene, mesh = _strip_scene(EACH_FACE_UP_TO + 1)
+    lights = emissive_lights(scene)
+    # One mesh light in the place of glow's first face; the other material's faces in order.
+    assert [type(light) for light in lights] == [M.MeshLight, M.TriangleLight, M.TriangleLight]
+    glow = [i for i in range(len(mesh.faces)) if i not in (1, 3)]
+    np.testing.assert_array_equal(lights[0].corners, mesh.vertices[mesh.faces[glow]])
+    assert lights[0].color == (1.0, 2.0, 3.0)
+    assert [light.vertices for light in lights[1:]] == [
+        light.vertices for light in emissive_triangles(scene)[1:4:2]]
+    assert lights[1].color == lights[2].color == (3.0, 2.0, 1.0)
+
+
+def test_picks_take_faces_by_area():
+    vertices, faces = _grid_lamp(3, 2, tiny=True)
+    lamp = M.MeshLight(vertices[faces])
+    areas = lamp.areas
+    thresholds = lamp.thresholds
+    widths = np.diff(np.concatenate([[0], thresholds])).astype(np.float64)
+    assert thresholds[-1] == 2**32 and widths[0] == 0  # the sliver: no picks at all
+    np.testing.assert_allclose(widths / 2**32, areas / areas.sum(), atol=2**-32)
+    # Each face's first and last pick take it; the sliver is never taken.
+    picks = np.concatenate([[0], thresholds[:-1], thresholds[1:] - 1]).astype(np.uint64)
+    face, weight = face_picked(lamp, picks)
+    expected = np.concatenate([[1], np.arange(1, len(faces)), np.arange(1, len(faces))])
+    np.testing.assert_array_equal(face, expected)
+    np.testing.assert_array_equal(weight, 2**32 / widths[expected])
+
+
+# Four times the measured (PoCL 3.1 and Intel's CPU runtime, AMD EPYC): float32 rounding, the
+# same face and point of it picked for every sample by the kernels and the reference.
+MESH_LIGHT_TOLERANCE = Tolerance(rmse=1.5e-7, err=1.3e-6)
+
+
+@pytest.mark.parametrize("traversal", ["single", "sample_packet"])
+def test_mesh_light_matches_the_reference(cl_device, traversal):
+    box = {"type": "box", "min": [200, 0, 200], "max": [300, 150, 300],
+           "material": {"color": [0.2, 0.6, 0.9], "reflect": 0.3}}
+    scene = _lamp_scene(_grid_lamp(6, 5, tiny=True),
+                        {"position": [278, 400, -500], "look_at": [278, 200, 280]}, 8, (48, 36),
+                        [box])
+    assert [type(light) for light in scene_lights(scene)] == [M.MeshLight]
+    image = render(scene, RenderSettings(traversal=traversal)).image.astype(np.float64)
+    expected = render_reference(scene)
+    assert np.all(np.isfinite(image))
+    err = np.abs(image - expected).max(axis=-1)
+    assert err.max() < MESH_LIGHT_TOLERANCE.err
+    assert rmse(image, expected) < MESH_LIGHT_TOLERANCE.rmse
+
+
+def test_mesh_light_irradiance_matches_the_integral(cl_device):
+    # As test_floor_irradiance_under_the_light_matches_the_integral, the light in 60 faces of
+    # unequal areas sampled as one: each sample's one shadow ray estimates the same irradiance.
+    below = [278.0, 0.0, 279.5]
+    scene = _lamp_scene(_grid_lamp(6, 5), {"position": [278, 500, 279.5], "look_at": below,
+                                           "up": [0, 0, 1], "vfov": 1}, 1024, (3, 3),
+                        specular=0.0)
+    result = render(scene)
+    pixel = result.image[1, 1].astype(np.float64)
+    n = 400
+    x = 213 + (np.arange(n) + 0.5) * 130 / n
+    z = 227 + (np.arange(n) + 0.5) * 105 / n
+    gx, gz = np.meshgrid(x - below[0], z - below[2])
+    h = 548.7
+    r2 = gx**2 + gz**2 + h**2
+    irradiance = np.sum(h * h / (r2 * r2)) * (130 / n) * (105 / n)
+    np.testing.assert_allclose(pixel, 0.5 * np.array(KE) * irradiance, rtol=0.02)
+    # One shadow ray a sample for the 60 faces, not 60.
+    assert result.stats["rays"]["shadow"] <= 9 * 1024
+
+
+def test_a_pick_on_a_threshold_takes_the_next_face(cl_device):
+    # A strip of 17 faces 2 above the floor whose first face's threshold is the very pick of
+    # the one pixel's one sample (seed 0, pixel 0, sample 0, light 0): the pick takes face 1,
+    # the next, in the kernels as in the reference (a pick takes the first face whose threshold
+    # is above it). Faces 0 and 1 light the floor point under face 1 differently.
+    pick = int(light_pick(0, np.array([0]), np.array([0]), 0)[0])
+    share = (pick + 0.5) / 2**32
+    x = np.concatenate([[0.0], 16 * share / (1 - share) + np.arange(17.0)])
+    vertices = np.array([[xi, 2.0, z] for xi in x for z in (0.0, 1.0)])
+    faces = np.array([[2 * k, 2 * k + 2, 2 * k + 1] for k in range(17)])
+    lamp = M.MeshLight(vertices[faces])
+    assert lamp.thresholds[0] == pick
+    below = [float(x[1] + 0.5), 0.0, 0.5]
+    scene = _lamp_scene((vertices, faces), {"position": [below[0], 1.0, -1.0],
+                                            "look_at": below}, 1, (1, 1), specular=0.0)
+    assert face_picked(scene_lights(scene)[0], np.array([pick]))[0][0] == 1
+    image = render(scene).image.astype(np.float64)
+    np.testing.assert_allclose(image, render_reference(scene), rtol=1e-5)

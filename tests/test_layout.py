@@ -128,7 +128,7 @@ def test_light_kinds_are_labels_one_a_light_class() -> None:
     # Every label of the header is one kind's of the registry, under the kind's name.
     assert sorted(names) == sorted(light.code_name for light in LIGHTS)
     assert len({light.code for light in LIGHTS}) == len(LIGHTS)
-    assert {light.model for light in LIGHTS} == {*M.Light.__args__, M.TriangleLight}
+    assert {light.model for light in LIGHTS} == {*M.Light.__args__, M.TriangleLight, M.MeshLight}
     # The kernels name the kinds they mean: no comparison orders them.
     kernels = "".join(kernel_source(name) for name in ("lights.h", "direct.h", "shading.h"))
     assert re.findall(r"kind\s*[<>]|LIGHT_[A-Z]+\s*[<>]|[<>]=?\s*LIGHT_", kernels) == []

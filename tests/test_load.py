@@ -1087,7 +1087,8 @@ def test_counts_of_one_take_the_singular(monkeypatch, tmp_path):
     glow = {"type": "mesh", **TRI, "material": {"emission": [1, 1, 1]}}
     point = {"type": "point", "position": [0, 5, 0]}
     assert load_error(scene(objects=[glow], lights=[point, point])) == (
-        "scene.toml: objects: 1 emissive triangle and 2 lights are over the limit of 2 lights")
+        "scene.toml: objects: 1 light of emissive faces and 2 lights are over the limit of 2 "
+        "lights")
     monkeypatch.setattr(limits, "MAX_BULK_SPHERES", 1)
     spheres = {"type": "spheres", "centers": [[0, 0, 0]], "radius": 1}
     assert load_error(scene(objects=[spheres, spheres])) == (

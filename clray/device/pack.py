@@ -753,14 +753,27 @@ def _pack_materials(materials: list[M.Material]) -> tuple[np.ndarray, np.ndarray
     return records, textures, texels
 
 
-def _pack_lights(lights: list[M.Light], eye: np.ndarray) -> np.ndarray:
-    records = _records(L.LIGHT, len(lights))
+def _pack_lights(lights: list[M.Light], eye: np.ndarray) -> tuple[np.ndarray, int]:
+    """(records, how many lights the kernels loop over): the lights, then the parts a light's
+    samples pick among (a mesh light's faces), which only their light's record points to."""
+    placed, pad0s, spans = list(lights), [], {}
     for i, light in enumerate(lights):
+        parts = LIGHT_OF[type(light)].parts
+        if parts is not None:
+            picked = parts(light)
+            spans[i] = (len(placed), len(picked))
+            placed += [part for part, _ in picked]
+            pad0s += [pad0 for _, pad0 in picked]
+    records = _records(L.LIGHT, len(placed))
+    for i, light in enumerate(placed):
         kind = LIGHT_OF[type(light)]
         records[i]["kind"] = kind.code
         records[i]["color"] = f4(light.color)  # w: an area light's area, from its fields
         kind.fields(records[i], light, eye)
-    return records
+    for i, (first, count) in spans.items():
+        records[i]["pad0"], records[i]["pad1"] = first, count
+    records["pad0"][len(lights):] = np.array(pad0s, dtype=np.uint32).view(np.int32)
+    return records, len(lights)
 
 
 def _pack_camera(camera: M.Camera, eye: np.ndarray, width: int, height: int) -> np.ndarray:
@@ -1061,7 +1074,7 @@ def pack_scene(scene: M.Scene, *, width: int, height: int, spp: int, max_depth: 
     eye = geometry.eye
     bvh_s, geometry.bvh_s = geometry.bvh_s, 0.0
     materials, textures, texels = _pack_materials(scene.materials)
-    lights = _pack_lights(scene_lights(scene), eye)
+    lights, n_lights = _pack_lights(scene_lights(scene), eye)
     camera = _pack_camera(scene.camera, eye, width, height)
 
     params = np.zeros(1, dtype=L.PARAMS)
@@ -1070,7 +1083,7 @@ def pack_scene(scene: M.Scene, *, width: int, height: int, spp: int, max_depth: 
     p["ambient"] = f4(scene.render.ambient)
     p["width"], p["height"], p["spp"], p["max_depth"] = width, height, spp, max_depth
     p["seed"], p["min_weight"] = seed, min_weight
-    p["n_planes"], p["n_lights"] = len(planes), len(lights)
+    p["n_planes"], p["n_lights"] = len(planes), n_lights
     p["n_nodes"] = len(wide.nodes)
 
     config = KernelConfig(

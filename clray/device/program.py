@@ -170,6 +170,7 @@ class KernelConfig(_ShapeSwitches):
     has_refraction: bool = False
     has_spot_lights: bool = False
     has_area_lights: bool = False  # rect, disc or sphere lights: sampled per pixel sample
+    has_mesh_lights: bool = False  # many emissive faces as one light, a sample picking a face
     has_fresnel: bool = False  # some transmissive material splits by Fresnel
     has_thin_lens: bool = False  # camera aperture > 0
     has_orthographic: bool = False

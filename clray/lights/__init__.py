@@ -10,13 +10,14 @@ from __future__ import annotations
 from clray.lights.directional import DIRECTIONAL
 from clray.lights.disc import DISC
 from clray.lights.light import LightKind
+from clray.lights.mesh import MESH
 from clray.lights.point import POINT
 from clray.lights.rect import RECT
 from clray.lights.sphere import SPHERE
 from clray.lights.spot import SPOT
 from clray.lights.triangle import TRIANGLE
 
-LIGHTS: tuple[LightKind, ...] = (POINT, DIRECTIONAL, SPOT, RECT, DISC, SPHERE, TRIANGLE)
+LIGHTS: tuple[LightKind, ...] = (POINT, DIRECTIONAL, SPOT, RECT, DISC, SPHERE, TRIANGLE, MESH)
 
 # Each model class -> its kind.
 LIGHT_OF: dict[type, LightKind] = {light.model: light for light in LIGHTS}

@@ -70,10 +70,15 @@ class LightKind:
     # (record, light, eye) -> its Light record's fields beside `kind` and `color`'s rgb.
     fields: Callable[[np.void, Any, np.ndarray], None]
     # (light, p (N, 3), err (N,), square) -> what it brings to p, in float64; the square is
-    # given to area lights only (None for the others).
-    toward: Callable[[Any, np.ndarray, np.ndarray, Square | None], Toward]
+    # given to area lights only (None for the others), and a light with parts is also given
+    # each ray's pick, a uint32 (clray.reference.sampling.light_pick).
+    toward: Callable[..., Toward]
     area: bool = False  # sampled over its area: kernels/lights.h's is_area_light, HAS_AREA_LIGHTS
     switch: str | None = None  # a KernelConfig switch of its own (-DHAS_SPOT_LIGHTS)
+    # light -> the lights a sample picks one of, each with its record's pad0, packed after the
+    # scene's lights (the light's own record: pad0 the first's index, pad1 how many): a mesh
+    # light's faces (clray/lights/mesh.py). None: the light is sampled whole.
+    parts: Callable[[Any], tuple[tuple[Any, int], ...]] | None = None
 
     @property
     def code_name(self) -> str:

@@ -37,18 +37,21 @@ def rect_area(u: Vec3, v: Vec3) -> float:
 F32_CROSS_ROUNDING = 2 * 2.0**-24 / (1 - 2 * 2.0**-24)
 
 
-def resolved_in_float32(u: Vec3, v: Vec3) -> bool:
+def resolved_in_float32(u: Vec3 | np.ndarray, v: Vec3 | np.ndarray) -> np.ndarray:
     """Whether the kernels' normal of these edges, the float32 cross product of their float32
     copies, is nonzero and on the emitting side: its products are float32 numbers, and the
     float32 edges' |u x v| (exact products in float64) is beyond its rounding error. Not so
-    for edges parallel to float32 precision, whose light would emit nothing on the device."""
+    for edges parallel to float32 precision, whose light would emit nothing on the device.
+    For one pair of edges (3,) or many (N, 3): a boolean, or N of them."""
     a, b = (np.asarray(x, dtype=np.float64).astype(np.float32).astype(np.float64)
             for x in (u, v))
-    products = np.abs(np.stack([a[[1, 2, 0]] * b[[2, 0, 1]], a[[2, 0, 1]] * b[[1, 2, 0]]]))
-    if not np.all(products <= np.finfo(np.float32).max):
-        return False
-    bound = F32_CROSS_ROUNDING * products.sum(axis=0)
-    return bool(np.linalg.norm(np.cross(a, b)) > np.linalg.norm(bound))
+    products = np.abs(np.stack([a[..., [1, 2, 0]] * b[..., [2, 0, 1]],
+                                a[..., [2, 0, 1]] * b[..., [1, 2, 0]]]))
+    finite = np.all(products <= np.finfo(np.float32).max, axis=(0, -1))
+    bound = F32_CROSS_ROUNDING * np.where(np.isfinite(products), products, 0.0).sum(axis=0)
+    with np.errstate(over="ignore", invalid="ignore"):
+        crossed = np.linalg.norm(np.cross(a, b), axis=-1) > np.linalg.norm(bound, axis=-1)
+    return finite & crossed
 
 
 def parse(spec: dict, key: str, color: Vec3, v: LightChecks) -> RectLight:

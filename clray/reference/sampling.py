@@ -90,15 +90,21 @@ class SampleKey(NamedTuple):
     spp: int
 
 
+def light_key(seed: int, pixel: np.ndarray, light: int) -> np.ndarray:
+    """Light `light`'s random stream at each pixel (kernels/sampling.h, light_key): its counter
+    2^31 | light above every counter of the pixel's jitter."""
+    pixel = np.asarray(pixel).astype(np.uint32)
+    return pcg_hash(pcg_hash(pcg_hash(np.uint32(seed & 0xFFFFFFFF)) ^ pixel)
+                    ^ np.uint32(0x80000000 | light))
+
+
 def light_square(
     seed: int, pixel: np.ndarray, sample: np.ndarray, spp: int, light: int
 ) -> tuple[np.ndarray, np.ndarray]:
     """(u1, u2) in the unit square: light `light`'s stratified sample for each (pixel,
     sample) of docs/rendering.md (Area lights)."""
-    pixel = np.asarray(pixel).astype(np.uint32)
     sample = np.asarray(sample).astype(np.int64)
-    key = pcg_hash(pcg_hash(pcg_hash(np.uint32(seed & 0xFFFFFFFF)) ^ pixel)
-                   ^ np.uint32(0x80000000 | light))
+    key = light_key(seed, pixel, light)
     stratum = permute_stratum(sample, spp, key)
 
     def uniform(dim: int) -> np.ndarray:
@@ -106,6 +112,13 @@ def light_square(
         return (pcg_hash(key ^ counter) >> np.uint32(8)).astype(np.float64) * 2.0**-24
 
     return stratum_point(stratum, spp, uniform(0), uniform(1))
+
+
+def light_pick(seed: int, pixel: np.ndarray, sample: np.ndarray, light: int) -> np.ndarray:
+    """Light `light`'s uint32 pick for each (pixel, sample): the face of a mesh light its
+    shadow ray aims at (kernels/sampling.h, light_pick; docs/rendering.md, Area lights)."""
+    return pcg_hash(light_key(seed, pixel, light)
+                    ^ (np.uint32(0x40000000) | np.asarray(sample).astype(np.uint32)))
 
 
 def stratum_point(stratum: np.ndarray, spp: int, r0: np.ndarray, r1: np.ndarray

@@ -12,7 +12,7 @@ import numpy as np
 
 from clray.lights import LIGHT_OF
 from clray.lights.light import Toward
-from clray.reference.sampling import SampleKey, light_square
+from clray.reference.sampling import SampleKey, light_pick, light_square
 from clray.reference.texture import MaterialTable
 from clray.scene.model import Light, Plane
 from clray.shapes import SHAPES
@@ -125,6 +125,9 @@ def _light_toward(light: Light, index: int, sf: Surface, key: SampleKey) -> Towa
     kind = LIGHT_OF[type(light)]
     square = (light_square(key.seed, key.pixel, key.sample, key.spp, index) if kind.area
               else None)
+    if kind.parts is not None:  # a sample picks one of its parts (a mesh light's faces)
+        return kind.toward(light, sf.p, sf.err, square,
+                           light_pick(key.seed, key.pixel, key.sample, index))
     return kind.toward(light, sf.p, sf.err, square)
 
 

@@ -23,7 +23,7 @@ from clray.host_memory import small_pages
 from clray.scene import limits as L
 from clray.scene.animation import Animation, parse_animation, put, show_path
 from clray.scene.assets import Assets
-from clray.scene.emitters import emissive_triangles
+from clray.scene.emitters import emissive_lights
 from clray.scene.files import UnreadableFile, read_regular
 from clray.scene.include import expand_includes
 from clray.scene.model import Background, Instance, Mesh, Scene, Spheres
@@ -133,9 +133,9 @@ def _scene(data: Any, v: Values, assets: Assets) -> Scene:
         lights=lights,
         objects=placed,
     )
-    glowing = len(emissive_triangles(scene))
+    glowing = len(emissive_lights(scene))
     if glowing and len(lights) + glowing > L.MAX_LIGHTS:
-        raise v.error("objects", f"{plural(glowing, 'emissive triangle')} and "
+        raise v.error("objects", f"{plural(glowing, 'light')} of emissive faces and "
                       f"{plural(len(lights), 'light')} are over the limit of {L.MAX_LIGHTS} lights")
     scene = dataclasses.replace(scene, warnings=(*assets.warnings, *content_warnings(scene),
                                                  *scene_warnings(scene)))

@@ -19,6 +19,7 @@ import numpy as np
 from clray.lights import LIGHTS, LISTED
 from clray.lights.directional import DirectionalLight as DirectionalLight
 from clray.lights.disc import DiscLight as DiscLight
+from clray.lights.mesh import MeshLight as MeshLight
 from clray.lights.point import PointLight as PointLight
 from clray.lights.rect import RectLight as RectLight
 from clray.lights.rect import rect_area as rect_area
@@ -72,7 +73,8 @@ class Material:
     emission: Vec3 = (0.0, 0.0, 0.0)
 
 
-# The lights a scene file names (an emissive mesh face's TriangleLight is made by the loader)
+# The lights a scene file names (an emissive mesh face's TriangleLight, and the MeshLight of
+# many such faces, are made by the loader)
 # and those sampled over their area, from the registry (clray.lights.LIGHTS).
 Light = functools.reduce(operator.or_, (light.model for light in LISTED.values()))
 AreaLight = functools.reduce(operator.or_, (light.model for light in LIGHTS if light.area))

@@ -1,0 +1,110 @@
+"""Mesh lights: the emissive faces of one material in one mesh, sampled as one light
+(clray.scene.emitters makes them where the faces are many). Each pixel sample's shadow ray picks
+one face, with probability its share of the faces' area, and a point uniform on it, so that the
+mesh costs one shadow ray, not one a face; the estimate's mean is the faces' sum (docs/
+rendering.md, Emissive faces). No scene file names them.
+
+On the device a mesh light's record holds the radiance and, in pad0 and pad1, where its faces'
+records start and how many there are: triangle lights packed after the scene's lights, each
+with its pick threshold in pad0 (`thresholds`; kernels/lights.h, mesh_face).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from clray.lights.light import AREA_WEIGHT_MAX, LightKind, Square, Toward, aimed
+from clray.lights.triangle import TriangleLight
+from clray.shapes.shape import f4
+from clray.vectors import Vec3
+
+# Picks are uint32 (kernels/sampling.h, light_pick): face k's share of them is its width.
+PICKS = 2**32
+
+
+@dataclass(frozen=True, eq=False)
+class MeshLight:
+    """Emissive faces of one radiance, each one-sided (to the side of cross(v1 - v0, v2 - v0)),
+    sampled as one light. `corners` (K, 3, 3) float64 in world units, K >= 2, as the faces'
+    TriangleLights have them; made by the loader, never given in a scene file."""
+
+    corners: np.ndarray
+    color: Vec3 = (1.0, 1.0, 1.0)
+
+    def __post_init__(self) -> None:
+        corners = np.array(self.corners, dtype=np.float64).reshape(-1, 3, 3)
+        corners.setflags(write=False)
+        object.__setattr__(self, "corners", corners)
+
+    @property
+    def areas(self) -> np.ndarray:
+        """(K,) the faces' areas."""
+        c = self.corners
+        return np.linalg.norm(np.cross(c[:, 1] - c[:, 0], c[:, 2] - c[:, 0]), axis=1) / 2.0
+
+    @property
+    def thresholds(self) -> np.ndarray:
+        """(K,) uint64: a pick (a uint32) takes the first face whose threshold is above it, the
+        thresholds being the faces' cumulative share of the area in units of 2^-32, the last
+        2^32. A face whose share rounds to nothing is never picked."""
+        areas = self.areas
+        share = np.cumsum(areas) / float(np.sum(areas))
+        out = np.minimum(np.floor(share * PICKS), PICKS - 1).astype(np.uint64)
+        out[-1] = PICKS
+        return out
+
+    def faces(self) -> tuple[TriangleLight, ...]:
+        """The faces as triangle lights of the mesh light's radiance."""
+        return tuple(TriangleLight(tuple(tuple(map(float, v)) for v in face), self.color)
+                     for face in self.corners)
+
+
+def fields(rec: np.void, light: MeshLight, eye: np.ndarray) -> None:
+    # Its faces' records (pad0: where they start, pad1: how many) are the packer's to place.
+    rec["color"] = f4(light.color, float(np.sum(light.areas)))
+
+
+def parts(light: MeshLight) -> tuple[tuple[TriangleLight, int], ...]:
+    """The faces' triangle lights after the scene's lights, each with the pad0 the kernels read:
+    its threshold as a uint32 (the last's 2^32 wraps to 0, whose width below still comes out
+    right in uint32 arithmetic)."""
+    return tuple(zip(light.faces(), (int(t) % PICKS for t in light.thresholds), strict=True))
+
+
+def face_picked(light: MeshLight, pick: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(face index, 2^32 over the face's width) for each uint32 pick, as kernels/lights.h's
+    mesh_face: the first face whose threshold is above the pick."""
+    thresholds = light.thresholds
+    face = np.searchsorted(thresholds, np.asarray(pick, dtype=np.uint64), side="right")
+    below = np.where(face > 0, thresholds[np.maximum(face - 1, 0)], 0)
+    return face, PICKS / (thresholds[face] - below).astype(np.float64)
+
+
+def toward(light: MeshLight, p: np.ndarray, err: np.ndarray, square: Square,
+           pick: np.ndarray) -> Toward:
+    face, pick_weight = face_picked(light, pick)
+    v0, v1, v2 = (light.corners[face, i] for i in range(3))
+    u, v = v1 - v0, v2 - v0
+    u1, u2 = square
+    # The square's far half folded onto its near one, as for a triangle light.
+    far = u1 + u2 > 1.0
+    u1, u2 = np.where(far, 1.0 - u1, u1), np.where(far, 1.0 - u2, u2)
+    y = v0 + u1[:, None] * u + u2[:, None] * v
+    normal = np.cross(u, v)
+    twice_area = np.linalg.norm(normal, axis=1)
+    to_y = y - p
+    dist = np.linalg.norm(to_y, axis=-1)
+    safe = np.where(dist > 0.0, dist, 1.0)
+    cos_l = -np.sum(to_y * normal, axis=1) / (twice_area * safe)
+    usable = (dist > err) & (cos_l > 0.0)  # one-sided: the back emits nothing
+    # The face's weight (area_sample's) over the pick's probability, clamped as the kernels do.
+    weight = np.minimum(twice_area / 2.0 * cos_l / (safe * safe), AREA_WEIGHT_MAX)
+    weight = np.minimum(weight * pick_weight, AREA_WEIGHT_MAX)
+    return aimed(y, p, weight, usable)
+
+
+MESH = LightKind(kind="mesh", model=MeshLight, keys=((), ()), parse=None, code=7,
+                 fields=fields, toward=toward, area=True, switch="has_mesh_lights",
+                 parts=parts)

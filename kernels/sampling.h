@@ -96,10 +96,16 @@ static inline REAL light_uniform(uint key, int sample, uint dim) {
 
 #if HAS_MESH_LIGHTS
 // Which face of mesh light `light` a pixel sample's shadow ray aims at (lights.h, mesh_face): a
-// uint of the light's own stream, its counter's bit 30 apart from the square's (light_uniform's
-// 2 sample + dim, below 2^13), so the pick is independent of the point on the face.
+// uint32 pick. The spp samples take the spp strata of the picks, each once, as the light's
+// square has them (light_square), by a permutation of their own: the faces, in the mesh's
+// order, are shared out among the samples by area. Their key is the light's own stream hashed
+// with bit 30, apart from the square's counters (2 sample + dim, below 2^13); within its
+// stratum the pick is uniform: (stratum 2^32 + r) / spp in 64-bit integers, exact.
 static inline uint light_pick(SampleKey k, int light) {
-    return pcg_hash(light_key(k, light) ^ (0x40000000u | (uint)k.sample));
+    uint key = pcg_hash(light_key(k, light) ^ 0x40000000u);
+    uint stratum = permute_stratum((uint)k.sample, (uint)k.spp, key);
+    uint r = pcg_hash(key ^ (uint)k.sample);
+    return (uint)((((ulong)stratum << 32) | (ulong)r) / (ulong)k.spp);
 }
 #endif
 

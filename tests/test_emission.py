@@ -228,7 +228,7 @@ def test_a_pick_on_a_threshold_takes_the_next_face(cl_device):
     # the one pixel's one sample (seed 0, pixel 0, sample 0, light 0): the pick takes face 1,
     # the next, in the kernels as in the reference (a pick takes the first face whose threshold
     # is above it). Faces 0 and 1 light the floor point under face 1 differently.
-    pick = int(light_pick(0, np.array([0]), np.array([0]), 0)[0])
+    pick = int(light_pick(0, np.array([0]), np.array([0]), 1, 0)[0])
     share = (pick + 0.5) / 2**32
     x = np.concatenate([[0.0], 16 * share / (1 - share) + np.arange(17.0)])
     vertices = np.array([[xi, 2.0, z] for xi in x for z in (0.0, 1.0)])
@@ -241,3 +241,17 @@ def test_a_pick_on_a_threshold_takes_the_next_face(cl_device):
     assert face_picked(scene_lights(scene)[0], np.array([pick]))[0][0] == 1
     image = render(scene).image.astype(np.float64)
     np.testing.assert_allclose(image, render_reference(scene), rtol=1e-5)
+
+
+@pytest.mark.parametrize("spp", [1, 5, 16, 64])
+def test_picks_take_each_stratum_once(spp: int):
+    # Each pixel's spp picks fall one in each 1/spp of the picks (so the samples share the
+    # faces out by area), in an order of their own for every pixel and light.
+    pixels = np.repeat(np.arange(50), spp)
+    samples = np.tile(np.arange(spp), 50)
+    for light in (0, 3):
+        picks = light_pick(7, pixels, samples, spp, light).astype(np.uint64)
+        strata = (picks * np.uint64(spp)) >> np.uint64(32)
+        assert all(sorted(row) == list(range(spp)) for row in strata.reshape(50, spp).tolist())
+    orders = light_pick(7, pixels, samples, spp, 0).reshape(50, spp).argsort(axis=1)
+    assert spp == 1 or len({tuple(row) for row in orders.tolist()}) > 1

@@ -114,11 +114,16 @@ def light_square(
     return stratum_point(stratum, spp, uniform(0), uniform(1))
 
 
-def light_pick(seed: int, pixel: np.ndarray, sample: np.ndarray, light: int) -> np.ndarray:
-    """Light `light`'s uint32 pick for each (pixel, sample): the face of a mesh light its
-    shadow ray aims at (kernels/sampling.h, light_pick; docs/rendering.md, Area lights)."""
-    return pcg_hash(light_key(seed, pixel, light)
-                    ^ (np.uint32(0x40000000) | np.asarray(sample).astype(np.uint32)))
+def light_pick(seed: int, pixel: np.ndarray, sample: np.ndarray, spp: int,
+               light: int) -> np.ndarray:
+    """Light `light`'s uint32 pick for each (pixel, sample), which face of a mesh light its
+    shadow ray aims at: the samples take the spp strata of the picks, each once
+    (kernels/sampling.h, light_pick; docs/rendering.md, Area lights)."""
+    key = pcg_hash(light_key(seed, pixel, light) ^ np.uint32(0x40000000))
+    sample = np.asarray(sample).astype(np.uint32)
+    stratum = permute_stratum(sample, spp, key).astype(np.uint64)
+    r = pcg_hash(key ^ sample).astype(np.uint64)
+    return (((stratum << np.uint64(32)) | r) // np.uint64(spp)).astype(np.uint32)
 
 
 def stratum_point(stratum: np.ndarray, spp: int, r0: np.ndarray, r1: np.ndarray

@@ -127,7 +127,7 @@ def _light_toward(light: Light, index: int, sf: Surface, key: SampleKey) -> Towa
               else None)
     if kind.parts is not None:  # a sample picks one of its parts (a mesh light's faces)
         return kind.toward(light, sf.p, sf.err, square,
-                           light_pick(key.seed, key.pixel, key.sample, index))
+                           light_pick(key.seed, key.pixel, key.sample, key.spp, index))
     return kind.toward(light, sf.p, sf.err, square)
 
 

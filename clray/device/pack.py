@@ -753,26 +753,22 @@ def _pack_materials(materials: list[M.Material]) -> tuple[np.ndarray, np.ndarray
     return records, textures, texels
 
 
-def _pack_lights(lights: list[M.Light], eye: np.ndarray) -> tuple[np.ndarray, int]:
+def _pack_lights(lights: tuple[M.Light, ...], eye: np.ndarray) -> tuple[np.ndarray, int]:
     """(records, how many lights the kernels loop over): the lights, then the parts a light's
     samples pick among (a mesh light's faces), which only their light's record points to."""
-    placed, pad0s, spans = list(lights), [], {}
-    for i, light in enumerate(lights):
-        parts = LIGHT_OF[type(light)].parts
-        if parts is not None:
-            picked = parts(light)
-            spans[i] = (len(placed), len(picked))
-            placed += [part for part, _ in picked]
-            pad0s += [pad0 for _, pad0 in picked]
-    records = _records(L.LIGHT, len(placed))
-    for i, light in enumerate(placed):
-        kind = LIGHT_OF[type(light)]
+    kinds = [LIGHT_OF[type(light)] for light in lights]
+    counts = [kind.parts(light) if kind.parts else 0
+              for kind, light in zip(kinds, lights, strict=True)]
+    records = _records(L.LIGHT, len(lights) + sum(counts))
+    first = len(lights)
+    for i, (kind, light, count) in enumerate(zip(kinds, lights, counts, strict=True)):
         records[i]["kind"] = kind.code
         records[i]["color"] = f4(light.color)  # w: an area light's area, from its fields
         kind.fields(records[i], light, eye)
-    for i, (first, count) in spans.items():
-        records[i]["pad0"], records[i]["pad1"] = first, count
-    records["pad0"][len(lights):] = np.array(pad0s, dtype=np.uint32).view(np.int32)
+        if count:
+            records[i]["pad0"], records[i]["pad1"] = first, count
+            kind.part_fields(records[first:first + count], light, eye)
+            first += count
     return records, len(lights)
 
 
@@ -841,7 +837,8 @@ def _groups_of(instances: list[M.Instance]) -> tuple[list[M.Group], np.ndarray]:
                                            dtype=np.int64)
 
 
-def _scene_switches(scene: M.Scene, max_depth: int) -> dict[str, object]:
+def _scene_switches(scene: M.Scene, lights: tuple[M.Light, ...],
+                    max_depth: int) -> dict[str, object]:
     """The KernelConfig switches that follow from the materials, lights, camera and
     background (the geometry's follow from the packed arrays)."""
     any_reflect = any(m.reflect > 0 for m in scene.materials)
@@ -851,7 +848,7 @@ def _scene_switches(scene: M.Scene, max_depth: int) -> dict[str, object]:
     return {
         "has_transmission": any_transmit,
         "has_refraction": any_transmit and max_depth > 0,
-        **_light_switches(scene_lights(scene)),
+        **_light_switches(lights),
         "has_fresnel": max_depth > 0 and any(m.fresnel and m.transmit > 0
                                              for m in scene.materials),
         "has_thin_lens": scene.camera.aperture > 0,
@@ -862,7 +859,7 @@ def _scene_switches(scene: M.Scene, max_depth: int) -> dict[str, object]:
     }
 
 
-def _light_switches(lights: list[M.Light]) -> dict[str, bool]:
+def _light_switches(lights: tuple[M.Light, ...]) -> dict[str, bool]:
     """The lights' KernelConfig switches: each kind's own (has_spot_lights) and has_area_lights,
     on where a light of the scene needs them."""
     kinds = {LIGHT_OF[type(light)] for light in lights}
@@ -1074,7 +1071,8 @@ def pack_scene(scene: M.Scene, *, width: int, height: int, spp: int, max_depth: 
     eye = geometry.eye
     bvh_s, geometry.bvh_s = geometry.bvh_s, 0.0
     materials, textures, texels = _pack_materials(scene.materials)
-    lights, n_lights = _pack_lights(scene_lights(scene), eye)
+    every_light = scene_lights(scene)  # its emissive faces found once, for both uses
+    lights, n_lights = _pack_lights(every_light, eye)
     camera = _pack_camera(scene.camera, eye, width, height)
 
     params = np.zeros(1, dtype=L.PARAMS)
@@ -1096,7 +1094,7 @@ def pack_scene(scene: M.Scene, *, width: int, height: int, spp: int, max_depth: 
         has_one_triangle_material=tris.one_material,
         has_textures=len(textures) > 0,
         has_instances=len(geometry.instances) > 0,
-        **_scene_switches(scene, max_depth),
+        **_scene_switches(scene, every_light, max_depth),
         bvh_width=bvh_width,
         bvh_stack_size=_stack_size_option(wide.stack_size),
         precision=precision,

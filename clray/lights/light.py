@@ -75,10 +75,11 @@ class LightKind:
     toward: Callable[..., Toward]
     area: bool = False  # sampled over its area: kernels/lights.h's is_area_light, HAS_AREA_LIGHTS
     switch: str | None = None  # a KernelConfig switch of its own (-DHAS_SPOT_LIGHTS)
-    # light -> the lights a sample picks one of, each with its record's pad0, packed after the
-    # scene's lights (the light's own record: pad0 the first's index, pad1 how many): a mesh
-    # light's faces (clray/lights/mesh.py). None: the light is sampled whole.
-    parts: Callable[[Any], tuple[tuple[Any, int], ...]] | None = None
+    # light -> how many parts a sample picks one of (a mesh light's faces, clray/lights/
+    # mesh.py), their records packed after the scene's lights (the light's own: pad0 the
+    # first's index, pad1 how many) by part_fields(records, light, eye). None: sampled whole.
+    parts: Callable[[Any], int] | None = None
+    part_fields: Callable[[np.ndarray, Any, np.ndarray], None] | None = None
 
     @property
     def code_name(self) -> str:

@@ -12,11 +12,12 @@ with its pick threshold in pad0 (`thresholds`; kernels/lights.h, mesh_face).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
 from clray.lights.light import AREA_WEIGHT_MAX, LightKind, Square, Toward, aimed
-from clray.lights.triangle import TriangleLight
+from clray.lights.triangle import TRIANGLE
 from clray.shapes.shape import f4
 from clray.vectors import Vec3
 
@@ -38,13 +39,18 @@ class MeshLight:
         corners.setflags(write=False)
         object.__setattr__(self, "corners", corners)
 
-    @property
+    @cached_property
     def areas(self) -> np.ndarray:
-        """(K,) the faces' areas."""
-        c = self.corners
-        return np.linalg.norm(np.cross(c[:, 1] - c[:, 0], c[:, 2] - c[:, 0]), axis=1) / 2.0
+        """(K,) the faces' areas, each edge scaled to unit length for the cross product (as
+        clray.lights.rect.rect_area) so that no product underflows or overflows."""
+        u, v = self.corners[:, 1] - self.corners[:, 0], self.corners[:, 2] - self.corners[:, 0]
+        nu, nv = (np.max(np.abs(e), axis=1, keepdims=True) for e in (u, v))
+        with np.errstate(invalid="ignore", divide="ignore"):
+            cross = np.cross(u / nu, v / nv)
+        area = np.linalg.norm(cross, axis=1) * nu[:, 0] * nv[:, 0] / 2.0
+        return np.where((nu[:, 0] > 0) & (nv[:, 0] > 0), area, 0.0)
 
-    @property
+    @cached_property
     def thresholds(self) -> np.ndarray:
         """(K,) uint64: a pick (a uint32) takes the first face whose threshold is above it, the
         thresholds being the faces' cumulative share of the area in units of 2^-32, the last
@@ -55,22 +61,23 @@ class MeshLight:
         out[-1] = PICKS
         return out
 
-    def faces(self) -> tuple[TriangleLight, ...]:
-        """The faces as triangle lights of the mesh light's radiance."""
-        return tuple(TriangleLight(tuple(tuple(map(float, v)) for v in face), self.color)
-                     for face in self.corners)
-
 
 def fields(rec: np.void, light: MeshLight, eye: np.ndarray) -> None:
     # Its faces' records (pad0: where they start, pad1: how many) are the packer's to place.
     rec["color"] = f4(light.color, float(np.sum(light.areas)))
 
 
-def parts(light: MeshLight) -> tuple[tuple[TriangleLight, int], ...]:
-    """The faces' triangle lights after the scene's lights, each with the pad0 the kernels read:
-    its threshold as a uint32 (the last's 2^32 wraps to 0, whose width below still comes out
-    right in uint32 arithmetic)."""
-    return tuple(zip(light.faces(), (int(t) % PICKS for t in light.thresholds), strict=True))
+def part_fields(records: np.ndarray, light: MeshLight, eye: np.ndarray) -> None:
+    """Its faces' records, as triangle lights' (clray/lights/triangle.py, in bulk), with each
+    face's pick threshold as a uint32 in pad0 (the last's 2^32 wraps to 0, whose width below it
+    still comes out right in uint32 arithmetic)."""
+    c = light.corners
+    records["kind"] = TRIANGLE.code
+    records["position"][:, :3] = c[:, 0] - eye
+    records["axis_u"][:, :3], records["axis_v"][:, :3] = c[:, 1] - c[:, 0], c[:, 2] - c[:, 0]
+    records["color"] = np.append(light.color, 0.0)
+    records["color"][:, 3] = light.areas
+    records["pad0"] = (light.thresholds % PICKS).astype(np.uint32).view(np.int32)
 
 
 def face_picked(light: MeshLight, pick: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -107,4 +114,4 @@ def toward(light: MeshLight, p: np.ndarray, err: np.ndarray, square: Square,
 
 MESH = LightKind(kind="mesh", model=MeshLight, keys=((), ()), parse=None, code=7,
                  fields=fields, toward=toward, area=True, switch="has_mesh_lights",
-                 parts=parts)
+                 parts=lambda light: len(light.corners), part_fields=part_fields)

@@ -102,9 +102,9 @@ static inline REAL light_uniform(uint key, int sample, uint dim) {
 // with bit 30, apart from the square's counters (2 sample + dim, below 2^13); within its
 // stratum the pick is uniform: (stratum 2^32 + r) / spp in 64-bit integers, exact.
 static inline uint light_pick(SampleKey k, int light) {
-    uint key = pcg_hash(light_key(k, light) ^ 0x40000000u);
-    uint stratum = permute_stratum((uint)k.sample, (uint)k.spp, key);
-    uint r = pcg_hash(key ^ (uint)k.sample);
+    uint pick_key = pcg_hash(light_key(k, light) ^ 0x40000000u);
+    uint stratum = permute_stratum((uint)k.sample, (uint)k.spp, pick_key);
+    uint r = pcg_hash(pick_key ^ (uint)k.sample);
     return (uint)((((ulong)stratum << 32) | (ulong)r) / (ulong)k.spp);
 }
 #endif

@@ -10,8 +10,9 @@ fault in these is not seen by comparing the two renderers:
 - the scene model, clray.scene.model;
 - clray.scene.check.check_scene, the scene normalised as render() takes it;
 - clray.scene.emitters.scene_lights, the light list (the scene's lights, then its emissive
-  faces: emissive_triangles, which keeps a face only where clray.lights.rect's
-  resolved_in_float32 finds its float32 edges resolved);
+  faces' lights: emissive_lights, which keeps a face only where clray.lights.rect's
+  resolved_in_float32 finds its float32 edges resolved, and makes a mesh's many faces of a
+  material one mesh light, whose pick thresholds (clray.lights.mesh) both renderers use);
 - the modules of clray.lights and clray.shapes, which hold each light's and analytic shape's
   packer beside the reference's part of it (a light's `toward`; a shape's crossings and
   surface) and the helpers both use: spot.versine (the spot's cones, packed and in the

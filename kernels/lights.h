@@ -47,8 +47,9 @@ static inline bool is_area_light(int kind) {
 #if HAS_MESH_LIGHTS
 // The face of a mesh light (clray/lights/mesh.py) that `pick` takes: the first whose threshold
 // is above it (the thresholds are the faces' cumulative share of the area in units of 2^-32,
-// the last's 2^32 stored as 0), found by bisection; *weight is one over its probability, its
-// width in picks over 2^32, taken in uint arithmetic, where the last's width wraps right.
+// the last's 2^32 stored as 0, never compared), found by bisection; *weight is one over its
+// probability, 2^32 over its width in picks, in 64-bit integers: the last face's width is
+// 2^32 less the one below, all 2^32 where the faces before it share no picks.
 static inline const __global Light* mesh_face(const __global Light* lights,
                                               const __global Light* mesh, uint pick,
                                               REAL* weight) {
@@ -62,9 +63,10 @@ static inline const __global Light* mesh_face(const __global Light* lights,
             lo = mid + 1;
         }
     }
-    uint below = lo > 0 ? (uint)faces[lo - 1].pad0 : 0u;
+    ulong below = lo > 0 ? (ulong)(uint)faces[lo - 1].pad0 : 0ul;
+    ulong above = lo < mesh->pad1 - 1 ? (ulong)(uint)faces[lo].pad0 : 0x100000000ul;
     // A face of no width is never picked, so the width here is at least 1.
-    *weight = REAL_C(4294967296.0) / (REAL)((uint)faces[lo].pad0 - below);
+    *weight = REAL_C(4294967296.0) / (REAL)(above - below);
     return faces + lo;
 }
 #endif

@@ -9,7 +9,7 @@ import numpy as np
 
 from clray.metrics import nonfinite_count, rmse
 from clray.reference import render_reference
-from clray.render import render
+from clray.render import RenderSettings, render
 from clray.scene import model as M
 
 
@@ -24,8 +24,9 @@ class Tolerance(NamedTuple):
     off: int = 0
 
 
-def assert_kernel_matches_reference(scene: M.Scene, tol: Tolerance) -> None:
-    image = render(scene).image.astype(np.float64)
+def assert_kernel_matches_reference(scene: M.Scene, tol: Tolerance,
+                                    settings: RenderSettings | None = None) -> None:
+    image = render(scene, settings).image.astype(np.float64)
     expected = render_reference(scene)
     assert nonfinite_count(image) == 0
     err = np.abs(image - expected).max(axis=-1)

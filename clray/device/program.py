@@ -169,8 +169,11 @@ class KernelConfig(_ShapeSwitches):
     has_transmission: bool = False  # some material transmits: shadow rays filter
     has_refraction: bool = False
     has_spot_lights: bool = False
-    has_area_lights: bool = False  # rect, disc or sphere lights: sampled per pixel sample
-    has_mesh_lights: bool = False  # many emissive faces as one light, a sample picking a face
+    # Rect, disc, sphere and triangle (emissive face) lights: sampled per pixel sample.
+    has_area_lights: bool = False
+    # Many emissive faces as one light, a sample picking a face; its code is area lights', so
+    # alone (the compile checks' configurations) it builds none.
+    has_mesh_lights: bool = False
     has_fresnel: bool = False  # some transmissive material splits by Fresnel
     has_thin_lens: bool = False  # camera aperture > 0
     has_orthographic: bool = False

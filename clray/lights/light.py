@@ -101,15 +101,16 @@ def centre_and_radius(spec: dict, key: str, v: LightChecks) -> tuple[Vec3, float
     return center, radius
 
 
-def area_sample(y: np.ndarray, normal: np.ndarray, area: float, p: np.ndarray,
+def area_sample(y: np.ndarray, normal: np.ndarray, area: float | np.ndarray, p: np.ndarray,
                 err: np.ndarray) -> Toward:
-    """The sample points y (N, 3) of a flat one-sided light of this unit normal and area, seen
-    from p: the weight that times its radiance estimates the irradiance on a surface facing the
-    sample (docs/rendering.md, Area lights)."""
+    """The sample points y (N, 3) of a flat one-sided light of this unit normal (3,) and area,
+    or of one a point ((N, 3), (N,): a mesh light's faces), seen from p: the weight that times
+    its radiance estimates the irradiance on a surface facing the sample (docs/rendering.md,
+    Area lights)."""
     to_y = y - p
     dist = np.linalg.norm(to_y, axis=-1)
     safe = np.where(dist > 0.0, dist, 1.0)
-    cos_l = -(to_y @ normal) / safe
+    cos_l = -np.sum(to_y * normal, axis=-1) / safe
     usable = (dist > err) & (cos_l > 0.0)  # one-sided: the back emits nothing
     weight = np.minimum(area * cos_l / (safe * safe), AREA_WEIGHT_MAX)
     return aimed(y, p, weight, usable)

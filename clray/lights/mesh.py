@@ -2,7 +2,7 @@
 (clray.scene.emitters makes them where the faces are many). Each pixel sample's shadow ray picks
 one face, with probability its share of the faces' area, and a point uniform on it, so that the
 mesh costs one shadow ray, not one a face; the estimate's mean is the faces' sum (docs/
-rendering.md, Emissive faces). No scene file names them.
+rendering.md, Lights: Mesh lights). No scene file names them.
 
 On the device a mesh light's record holds the radiance and, in pad0 and pad1, where its faces'
 records start and how many there are: triangle lights packed after the scene's lights, each
@@ -16,8 +16,9 @@ from functools import cached_property
 
 import numpy as np
 
-from clray.lights.light import AREA_WEIGHT_MAX, LightKind, Square, Toward, aimed
-from clray.lights.triangle import TRIANGLE
+from clray.lights.light import AREA_WEIGHT_MAX, LightKind, Square, Toward, area_sample
+from clray.lights.rect import rect_area
+from clray.lights.triangle import TRIANGLE, triangle_point
 from clray.shapes.shape import f4
 from clray.vectors import Vec3
 
@@ -38,17 +39,16 @@ class MeshLight:
         corners = np.array(self.corners, dtype=np.float64).reshape(-1, 3, 3)
         corners.setflags(write=False)
         object.__setattr__(self, "corners", corners)
+        # The loader gives it emissive_lights' faces, each of area >= 1e-30, more than 16.
+        if len(corners) < 2 or not np.sum(self.areas) > 0.0:
+            raise ValueError("a mesh light needs two or more faces of some area")
 
     @cached_property
     def areas(self) -> np.ndarray:
-        """(K,) the faces' areas, each edge scaled to unit length for the cross product (as
-        clray.lights.rect.rect_area) so that no product underflows or overflows."""
-        u, v = self.corners[:, 1] - self.corners[:, 0], self.corners[:, 2] - self.corners[:, 0]
-        nu, nv = (np.max(np.abs(e), axis=1, keepdims=True) for e in (u, v))
-        with np.errstate(invalid="ignore", divide="ignore"):
-            cross = np.cross(u / nu, v / nv)
-        area = np.linalg.norm(cross, axis=1) * nu[:, 0] * nv[:, 0] / 2.0
-        return np.where((nu[:, 0] > 0) & (nv[:, 0] > 0), area, 0.0)
+        """(K,) the faces' areas (clray.lights.rect.rect_area, which scales the edges so that no
+        product underflows or overflows)."""
+        c = self.corners
+        return rect_area(c[:, 1] - c[:, 0], c[:, 2] - c[:, 0]) / 2.0
 
     @cached_property
     def thresholds(self) -> np.ndarray:
@@ -69,8 +69,8 @@ def fields(rec: np.void, light: MeshLight, eye: np.ndarray) -> None:
 
 def part_fields(records: np.ndarray, light: MeshLight, eye: np.ndarray) -> None:
     """Its faces' records, as triangle lights' (clray/lights/triangle.py, in bulk), with each
-    face's pick threshold as a uint32 in pad0 (the last's 2^32 wraps to 0, whose width below it
-    still comes out right in uint32 arithmetic)."""
+    face's pick threshold as a uint32 in pad0 (the last's 2^32 as 0: mesh_face never compares
+    a pick with it and takes the last face's width as 2^32 less the threshold below)."""
     c = light.corners
     records["kind"] = TRIANGLE.code
     records["position"][:, :3] = c[:, 0] - eye
@@ -94,22 +94,12 @@ def toward(light: MeshLight, p: np.ndarray, err: np.ndarray, square: Square,
     face, pick_weight = face_picked(light, pick)
     v0, v1, v2 = (light.corners[face, i] for i in range(3))
     u, v = v1 - v0, v2 - v0
-    u1, u2 = square
-    # The square's far half folded onto its near one, as for a triangle light.
-    far = u1 + u2 > 1.0
-    u1, u2 = np.where(far, 1.0 - u1, u1), np.where(far, 1.0 - u2, u2)
-    y = v0 + u1[:, None] * u + u2[:, None] * v
     normal = np.cross(u, v)
     twice_area = np.linalg.norm(normal, axis=1)
-    to_y = y - p
-    dist = np.linalg.norm(to_y, axis=-1)
-    safe = np.where(dist > 0.0, dist, 1.0)
-    cos_l = -np.sum(to_y * normal, axis=1) / (twice_area * safe)
-    usable = (dist > err) & (cos_l > 0.0)  # one-sided: the back emits nothing
-    # The face's weight (area_sample's) over the pick's probability, clamped as the kernels do.
-    weight = np.minimum(twice_area / 2.0 * cos_l / (safe * safe), AREA_WEIGHT_MAX)
-    weight = np.minimum(weight * pick_weight, AREA_WEIGHT_MAX)
-    return aimed(y, p, weight, usable)
+    sample = area_sample(triangle_point(v0, u, v, square), normal / twice_area[:, None],
+                         twice_area / 2.0, p, err)
+    # The face's weight over the pick's probability, clamped again as the kernels do.
+    return sample._replace(atten=np.minimum(sample.atten * pick_weight, AREA_WEIGHT_MAX))
 
 
 MESH = LightKind(kind="mesh", model=MeshLight, keys=((), ()), parse=None, code=7,

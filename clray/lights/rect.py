@@ -22,13 +22,17 @@ class RectLight:
     color: Vec3 = (1.0, 1.0, 1.0)
 
 
-def rect_area(u: Vec3, v: Vec3) -> float:
+def rect_area(u: Vec3 | np.ndarray, v: Vec3 | np.ndarray) -> float | np.ndarray:
     """|u x v|, the parallelogram's area, computed with both edges scaled to unit length first
-    so that no product underflows or overflows."""
-    nu, nv = float(np.max(np.abs(u))), float(np.max(np.abs(v)))
-    if nu == 0.0 or nv == 0.0:
-        return 0.0
-    return float(np.linalg.norm(np.cross(np.asarray(u) / nu, np.asarray(v) / nv))) * nu * nv
+    so that no product underflows or overflows; 0 where an edge is zero. For one pair of edges
+    (3,) a float, for many (N, 3) N of them."""
+    u, v = np.asarray(u, dtype=np.float64), np.asarray(v, dtype=np.float64)
+    nu, nv = np.max(np.abs(u), axis=-1), np.max(np.abs(v), axis=-1)
+    zero = (nu == 0.0) | (nv == 0.0)
+    nu, nv = np.where(zero, 1.0, nu), np.where(zero, 1.0, nv)
+    cross = np.cross(u / nu[..., None], v / nv[..., None])
+    area = np.where(zero, 0.0, np.linalg.norm(cross, axis=-1) * nu * nv)
+    return float(area) if area.ndim == 0 else area
 
 
 # The rounding error of each component of a float32 cross product, a_j b_k - a_k b_j, in units
@@ -37,7 +41,7 @@ def rect_area(u: Vec3, v: Vec3) -> float:
 F32_CROSS_ROUNDING = 2 * 2.0**-24 / (1 - 2 * 2.0**-24)
 
 
-def resolved_in_float32(u: Vec3 | np.ndarray, v: Vec3 | np.ndarray) -> np.ndarray:
+def resolved_in_float32(u: Vec3 | np.ndarray, v: Vec3 | np.ndarray) -> np.bool_ | np.ndarray:
     """Whether the kernels' normal of these edges, the float32 cross product of their float32
     copies, is nonzero and on the emitting side: its products are float32 numbers, and the
     float32 edges' |u x v| (exact products in float64) is beyond its rounding error. Not so

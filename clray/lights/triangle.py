@@ -29,17 +29,22 @@ def fields(rec: np.void, light: TriangleLight, eye: np.ndarray) -> None:
     rec["color"] = f4(light.color, rect_area(v1 - v0, v2 - v0) / 2.0)
 
 
-def toward(light: TriangleLight, p: np.ndarray, err: np.ndarray, square: Square) -> Toward:
+def triangle_point(v0: np.ndarray, u: np.ndarray, v: np.ndarray, square: Square) -> np.ndarray:
+    """The points (N, 3) of the triangle v0, v0 + u, v0 + v (one, or one a point: (N, 3)) that
+    the square's points take, uniform by area: the square's far half folded onto its near one,
+    as the kernels do."""
     u1, u2 = square
-    v0, v1, v2 = (vec(v) for v in light.vertices)
-    u, v = v1 - v0, v2 - v0
-    # The square's far half folded onto its near one, as the kernels do.
     far = u1 + u2 > 1.0
     u1, u2 = np.where(far, 1.0 - u1, u1), np.where(far, 1.0 - u2, u2)
-    y = v0 + u1[:, None] * u + u2[:, None] * v
+    return v0 + u1[:, None] * u + u2[:, None] * v
+
+
+def toward(light: TriangleLight, p: np.ndarray, err: np.ndarray, square: Square) -> Toward:
+    v0, v1, v2 = (vec(v) for v in light.vertices)
+    u, v = v1 - v0, v2 - v0
     normal = np.cross(u, v)
     area = float(np.linalg.norm(normal)) / 2.0
-    return area_sample(y, normal / (2.0 * area), area, p, err)
+    return area_sample(triangle_point(v0, u, v, square), normal / (2.0 * area), area, p, err)
 
 
 TRIANGLE = LightKind(kind="triangle", model=TriangleLight, keys=((), ()), parse=None, code=6,

@@ -76,15 +76,19 @@ def test_floor_irradiance_under_the_light_matches_the_integral(cl_device, tmp_pa
                     tuple(M.Material(m.name, color=m.color, emission=m.emission)
                           for m in scene.materials), (), scene.objects)
     pixel = render(scene).image[1, 1].astype(np.float64)
-    # Midpoint rule over a fine grid of the light: E = L * sum cos cos' / r^2 dA.
+    np.testing.assert_allclose(pixel, 0.5 * np.array(KE) * _irradiance_under(below), rtol=0.02)
+
+
+def _irradiance_under(below: list[float]) -> float:
+    """The irradiance the Cornell box's light (radiance 1) gives the floor point `below`, by the
+    midpoint rule over a fine grid of the light: E = sum cos cos' / r^2 dA."""
     n = 400
     x = 213 + (np.arange(n) + 0.5) * 130 / n
     z = 227 + (np.arange(n) + 0.5) * 105 / n
     gx, gz = np.meshgrid(x - below[0], z - below[2])
     h = 548.7
     r2 = gx**2 + gz**2 + h**2
-    irradiance = np.sum(h * h / (r2 * r2)) * (130 / n) * (105 / n)
-    np.testing.assert_allclose(pixel, 0.5 * np.array(KE) * irradiance, rtol=0.02)
+    return float(np.sum(h * h / (r2 * r2)) * (130 / n) * (105 / n))
 
 
 def test_emissive_faces_match_the_reference(cl_device, tmp_path):
@@ -207,14 +211,7 @@ def test_mesh_light_irradiance_matches_the_integral(cl_device):
                         specular=0.0)
     result = render(scene)
     pixel = result.image[1, 1].astype(np.float64)
-    n = 400
-    x = 213 + (np.arange(n) + 0.5) * 130 / n
-    z = 227 + (np.arange(n) + 0.5) * 105 / n
-    gx, gz = np.meshgrid(x - below[0], z - below[2])
-    h = 548.7
-    r2 = gx**2 + gz**2 + h**2
-    irradiance = np.sum(h * h / (r2 * r2)) * (130 / n) * (105 / n)
-    np.testing.assert_allclose(pixel, 0.5 * np.array(KE) * irradiance, rtol=0.02)
+    np.testing.assert_allclose(pixel, 0.5 * np.array(KE) * _irradiance_under(below), rtol=0.02)
     # One shadow ray a sample for the 60 faces, not 60.
     assert result.stats["rays"]["shadow"] <= 9 * 1024
 

@@ -19,7 +19,7 @@ import numpy as np
 from clray.errors import SceneError
 from clray.host_memory import CHUNK_ROWS, by_chunks, small_pages
 from clray.scene.assets import MESH_SUFFIXES, meshes_read_once
-from clray.scene.emitters import emissive_triangles
+from clray.scene.emitters import has_emissive_faces
 from clray.scene.files import UnreadableFile, open_regular, read_regular
 from clray.scene.gltf import GLTF_SUFFIXES, GltfCamera, read_gltf_camera
 from clray.scene.limits import MAX_IMAGE_SIZE, MAX_MAGNITUDE, MIN_LENGTH, mesh_bytes_limit
@@ -159,7 +159,7 @@ def model_scene_data(path: Path, view: str = DEFAULT_VIEW, ground: bool = False,
         data["materials"]["ground"] = GROUND_MATERIAL
         data["objects"].append(_ground_plane(center, lo, radius))
     if turntable is not None:
-        if emissive_triangles(probe):
+        if has_emissive_faces(probe):
             raise SceneError(path, None, "has emissive faces, which light the scene only "
                              "from its own meshes: a turntable's model is a group, whose "
                              "faces would glow but light nothing (write a scene file)")

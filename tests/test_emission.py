@@ -11,7 +11,7 @@ import pytest
 
 from clray.lights.mesh import face_picked
 from clray.reference import render_reference
-from clray.reference.sampling import light_pick
+from clray.reference.sampling import light_key, light_pick, permute_stratum
 from clray.render import RenderSettings, render
 from clray.scene import model as M
 from clray.scene.emitters import EACH_FACE_UP_TO, emissive_lights, emissive_triangles, scene_lights
@@ -139,13 +139,13 @@ def _lamp_scene(lamp: tuple[np.ndarray, np.ndarray], camera: dict, spp: int,
 
 
 def _strip_scene(n_glow: int) -> tuple[M.Scene, M.Mesh]:
-    """A strip of n_glow + 2 faces of area 1/2: faces 1 and 3 of material `other`, the rest of
+    """A strip of n_glow + 2 faces of area 1/2: faces 0 and 3 of material `other`, the rest of
     `glow`, both emissive."""
     n = n_glow + 2
     vertices = np.array([[i, 0.0, 0.0] for i in range(n + 1)] +
                         [[i, 0.0, 1.0] for i in range(n + 1)])
     faces = np.array([[i, i + n + 1, i + 1] for i in range(n)])
-    mesh = M.Mesh(vertices, faces, 0, face_materials=np.array([int(i in (1, 3))
+    mesh = M.Mesh(vertices, faces, 0, face_materials=np.array([int(i in (0, 3))
                                                               for i in range(n)]))
     materials = (M.Material("glow", emission=(1.0, 2.0, 3.0)),
                  M.Material("other", emission=(3.0, 2.0, 1.0)))
@@ -158,14 +158,15 @@ def test_faces_beyond_the_limit_become_one_mesh_light():
     assert emissive_lights(scene) == emissive_triangles(scene)  # each face its own light
     scene, mesh = _strip_scene(EACH_FACE_UP_TO + 1)
     lights = emissive_lights(scene)
-    # One mesh light in the place of glow's first face; the other material's faces in order.
-    assert [type(light) for light in lights] == [M.MeshLight, M.TriangleLight, M.TriangleLight]
-    glow = [i for i in range(len(mesh.faces)) if i not in (1, 3)]
-    np.testing.assert_array_equal(lights[0].corners, mesh.vertices[mesh.faces[glow]])
-    assert lights[0].color == (1.0, 2.0, 3.0)
-    assert [light.vertices for light in lights[1:]] == [
-        light.vertices for light in emissive_triangles(scene)[1:4:2]]
-    assert lights[1].color == lights[2].color == (3.0, 2.0, 1.0)
+    # One mesh light in the place of glow's first face (face 1), the other material's faces
+    # (0 and 3) each in its own.
+    assert [type(light) for light in lights] == [M.TriangleLight, M.MeshLight, M.TriangleLight]
+    glow = [i for i in range(len(mesh.faces)) if i not in (0, 3)]
+    np.testing.assert_array_equal(lights[1].corners, mesh.vertices[mesh.faces[glow]])
+    assert lights[1].color == (1.0, 2.0, 3.0)
+    faces = emissive_triangles(scene)
+    assert [lights[0].vertices, lights[2].vertices] == [faces[0].vertices, faces[3].vertices]
+    assert lights[0].color == lights[2].color == (3.0, 2.0, 1.0)
 
 
 def test_picks_take_faces_by_area():
@@ -216,24 +217,37 @@ def test_mesh_light_irradiance_matches_the_integral(cl_device):
     assert result.stats["rays"]["shadow"] <= 9 * 1024
 
 
-def test_a_pick_on_a_threshold_takes_the_next_face(cl_device):
-    # A strip of 17 faces 2 above the floor whose first face's threshold is the very pick of
-    # the one pixel's one sample (seed 0, pixel 0, sample 0, light 0): the pick takes face 1,
-    # the next, in the kernels as in the reference (a pick takes the first face whose threshold
-    # is above it). Faces 0 and 1 light the floor point under face 1 differently.
-    pick = int(light_pick(0, np.array([0]), np.array([0]), 1, 0)[0])
-    share = (pick + 0.5) / 2**32
+def _threshold_strip(pick: int, above: int) -> tuple[np.ndarray, np.ndarray]:
+    """A strip of 17 faces 2 above the floor, all of width 1 but the first, whose width puts
+    its threshold at pick + above."""
+    share = (pick + above + 0.5) / 2**32
     x = np.concatenate([[0.0], 16 * share / (1 - share) + np.arange(17.0)])
     vertices = np.array([[xi, 2.0, z] for xi in x for z in (0.0, 1.0)])
-    faces = np.array([[2 * k, 2 * k + 2, 2 * k + 1] for k in range(17)])
-    lamp = M.MeshLight(vertices[faces])
-    assert lamp.thresholds[0] == pick
-    below = [float(x[1] + 0.5), 0.0, 0.5]
-    scene = _lamp_scene((vertices, faces), {"position": [below[0], 1.0, -1.0],
-                                            "look_at": below}, 1, (1, 1), specular=0.0)
+    return vertices, np.array([[2 * k, 2 * k + 2, 2 * k + 1] for k in range(17)])
+
+
+def test_a_pick_on_a_threshold_takes_the_next_face(cl_device):
+    # The strip's first threshold is the very pick of the one pixel's one sample (seed 0,
+    # pixel 0, sample 0, light 0): the pick takes face 1, the next, in the kernels as in the
+    # reference (a pick takes the first face whose threshold is above it).
+    pick = int(light_pick(0, np.array([0]), np.array([0]), 1, 0)[0])
+
+    def strip_scene(above: int) -> M.Scene:
+        vertices, faces = _threshold_strip(pick, above)
+        assert M.MeshLight(vertices[faces]).thresholds[0] == pick + above
+        below = [float(vertices[2, 0] + 0.5), 0.0, 0.5]  # under face 1
+        return _lamp_scene((vertices, faces), {"position": [below[0], 1.0, -1.0],
+                                               "look_at": below}, 1, (1, 1), specular=0.0)
+
+    scene = strip_scene(0)
     assert face_picked(scene_lights(scene)[0], np.array([pick]))[0][0] == 1
-    image = render(scene).image.astype(np.float64)
-    np.testing.assert_allclose(image, render_reference(scene), rtol=1e-5)
+    expected = render_reference(scene)
+    np.testing.assert_allclose(render(scene).image, expected, rtol=1e-5)
+    # One pick more of face 0 makes the sample face 0's: the floor point is lit otherwise, so
+    # the comparison above tells the two faces apart.
+    other = render_reference(strip_scene(1))
+    assert expected[0, 0, 0] > 0 and other[0, 0, 0] > 0
+    assert abs(other[0, 0, 0] / expected[0, 0, 0] - 1) > 0.1
 
 
 @pytest.mark.parametrize("spp", [1, 5, 16, 64])
@@ -242,12 +256,20 @@ def test_picks_take_each_stratum_once(spp: int):
     # faces out by area), in an order of their own for every pixel and light.
     pixels = np.repeat(np.arange(50), spp)
     samples = np.tile(np.arange(spp), 50)
+    strata = {}
     for light in (0, 3):
         picks = light_pick(7, pixels, samples, spp, light).astype(np.uint64)
-        strata = (picks * np.uint64(spp)) >> np.uint64(32)
-        assert all(sorted(row) == list(range(spp)) for row in strata.reshape(50, spp).tolist())
-    orders = light_pick(7, pixels, samples, spp, 0).reshape(50, spp).argsort(axis=1)
+        strata[light] = (picks * np.uint64(spp)) >> np.uint64(32)
+        assert all(sorted(row) == list(range(spp))
+                   for row in strata[light].reshape(50, spp).tolist())
+        if spp >= 16:
+            # An order of its own: a sample's pick stratum is not its square's (a shared
+            # permutation would tie each part of the faces to one part of each face).
+            square = permute_stratum(samples, spp, light_key(7, pixels, light))
+            assert np.mean(strata[light] == square) < 0.2
+    orders = strata[0].reshape(50, spp).argsort(axis=1)
     assert spp == 1 or len({tuple(row) for row in orders.tolist()}) > 1
+    assert spp == 1 or np.mean(strata[0] == strata[3]) < 0.5
 
 
 def test_a_last_face_holding_every_pick_weighs_one(cl_device):

@@ -753,8 +753,8 @@ def _pack_materials(materials: list[M.Material]) -> tuple[np.ndarray, np.ndarray
     return records, textures, texels
 
 
-def _pack_lights(lights: tuple[M.Light, ...], eye: np.ndarray) -> tuple[np.ndarray, int]:
-    """(records, how many lights the kernels loop over): the lights, then the parts a light's
+def _pack_lights(lights: tuple[M.Light, ...], eye: np.ndarray) -> np.ndarray:
+    """The lights' records, the n_lights the kernels loop over, then the parts a light's
     samples pick among (a mesh light's faces), which only their light's record points to."""
     kinds = [LIGHT_OF[type(light)] for light in lights]
     counts = [kind.parts(light) if kind.parts else 0
@@ -769,7 +769,7 @@ def _pack_lights(lights: tuple[M.Light, ...], eye: np.ndarray) -> tuple[np.ndarr
             records[i]["pad0"], records[i]["pad1"] = first, count
             kind.part_fields(records[first:first + count], light, eye)
             first += count
-    return records, len(lights)
+    return records
 
 
 def _pack_camera(camera: M.Camera, eye: np.ndarray, width: int, height: int) -> np.ndarray:
@@ -1072,7 +1072,7 @@ def pack_scene(scene: M.Scene, *, width: int, height: int, spp: int, max_depth: 
     bvh_s, geometry.bvh_s = geometry.bvh_s, 0.0
     materials, textures, texels = _pack_materials(scene.materials)
     every_light = scene_lights(scene)  # its emissive faces found once, for both uses
-    lights, n_lights = _pack_lights(every_light, eye)
+    lights = _pack_lights(every_light, eye)
     camera = _pack_camera(scene.camera, eye, width, height)
 
     params = np.zeros(1, dtype=L.PARAMS)
@@ -1081,7 +1081,7 @@ def pack_scene(scene: M.Scene, *, width: int, height: int, spp: int, max_depth: 
     p["ambient"] = f4(scene.render.ambient)
     p["width"], p["height"], p["spp"], p["max_depth"] = width, height, spp, max_depth
     p["seed"], p["min_weight"] = seed, min_weight
-    p["n_planes"], p["n_lights"] = len(planes), n_lights
+    p["n_planes"], p["n_lights"] = len(planes), len(every_light)
     p["n_nodes"] = len(wide.nodes)
 
     config = KernelConfig(

@@ -169,7 +169,7 @@ class KernelConfig(_ShapeSwitches):
     has_transmission: bool = False  # some material transmits: shadow rays filter
     has_refraction: bool = False
     has_spot_lights: bool = False
-    # Rect, disc, sphere and triangle (emissive face) lights: sampled per pixel sample.
+    # Rect, disc, sphere, triangle (an emissive face) and mesh lights: sampled per pixel sample.
     has_area_lights: bool = False
     # Many emissive faces as one light, a sample picking a face; its code is area lights', so
     # alone (the compile checks' configurations) it builds none.

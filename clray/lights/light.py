@@ -76,8 +76,8 @@ class LightKind:
     area: bool = False  # sampled over its area: kernels/lights.h's is_area_light, HAS_AREA_LIGHTS
     switch: str | None = None  # a KernelConfig switch of its own (-DHAS_SPOT_LIGHTS)
     # light -> how many parts a sample picks one of (a mesh light's faces, clray/lights/
-    # mesh.py), their records packed after the scene's lights (the light's own: pad0 the
-    # first's index, pad1 how many) by part_fields(records, light, eye). None: sampled whole.
+    # mesh.py), their records packed after the scene's lights by part_fields(records, light,
+    # eye), the light's own pointing to them (kernels/clray_types.h). None: sampled whole.
     parts: Callable[[Any], int] | None = None
     part_fields: Callable[[np.ndarray, Any, np.ndarray], None] | None = None
 

@@ -63,14 +63,14 @@ class MeshLight:
 
 
 def fields(rec: np.void, light: MeshLight, eye: np.ndarray) -> None:
-    # Its faces' records (pad0: where they start, pad1: how many) are the packer's to place.
+    # pad0 and pad1, where its faces' records are (kernels/clray_types.h), are the packer's.
     rec["color"] = f4(light.color, float(np.sum(light.areas)))
 
 
 def part_fields(records: np.ndarray, light: MeshLight, eye: np.ndarray) -> None:
     """Its faces' records, as triangle lights' (clray/lights/triangle.py, in bulk), with each
-    face's pick threshold as a uint32 in pad0 (the last's 2^32 as 0: mesh_face never compares
-    a pick with it and takes the last face's width as 2^32 less the threshold below)."""
+    face's pick threshold as a uint32 in pad0 (the last's 2^32 as 0, which kernels/lights.h's
+    mesh_face never compares a pick with)."""
     c = light.corners
     records["kind"] = TRIANGLE.code
     records["position"][:, :3] = c[:, 0] - eye
@@ -95,9 +95,9 @@ def toward(light: MeshLight, p: np.ndarray, err: np.ndarray, square: Square,
     v0, v1, v2 = (light.corners[face, i] for i in range(3))
     u, v = v1 - v0, v2 - v0
     normal = np.cross(u, v)
-    twice_area = np.linalg.norm(normal, axis=1)
-    sample = area_sample(triangle_point(v0, u, v, square), normal / twice_area[:, None],
-                         twice_area / 2.0, p, err)
+    sample = area_sample(triangle_point(v0, u, v, square),
+                         normal / np.linalg.norm(normal, axis=1)[:, None], light.areas[face],
+                         p, err)
     # The face's weight over the pick's probability, clamped again as the kernels do.
     return sample._replace(atten=np.minimum(sample.atten * pick_weight, AREA_WEIGHT_MAX))
 

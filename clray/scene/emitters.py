@@ -45,12 +45,18 @@ def _glowing_faces(scene: Scene) -> Iterator[tuple[np.ndarray, np.ndarray, np.nd
         u, v = corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]
         area = np.linalg.norm(np.cross(u, v), axis=1) / 2.0
         kept = (area >= L.MIN_LENGTH) & resolved_in_float32(u, v)
-        yield material[glowing[kept]], corners[kept], emission[material[glowing[kept]]]
+        if kept.any():
+            yield material[glowing[kept]], corners[kept], emission[material[glowing[kept]]]
 
 
 def _face(corners: np.ndarray, radiance: np.ndarray) -> TriangleLight:
     a, b, c = (tuple(map(float, v)) for v in corners)
     return TriangleLight((a, b, c), tuple(map(float, radiance)))
+
+
+def has_emissive_faces(scene: Scene) -> bool:
+    """Whether a scene mesh has a face that emits light (emissive_triangles is not empty)."""
+    return any(True for _ in _glowing_faces(scene))
 
 
 def emissive_triangles(scene: Scene) -> tuple[TriangleLight, ...]:
@@ -65,9 +71,9 @@ def emissive_lights(scene: Scene) -> tuple[TriangleLight | MeshLight, ...]:
     one mesh light, in the place of the first."""
     lights: list[TriangleLight | MeshLight] = []
     for material, corners, radiance in _glowing_faces(scene):
-        kinds, first, counts = np.unique(material, return_index=True, return_counts=True)
+        emitting, first, counts = np.unique(material, return_index=True, return_counts=True)
         many = counts > EACH_FACE_UP_TO
-        pooled = np.isin(material, kinds[many])  # faces of a mesh light
+        pooled = np.isin(material, emitting[many])  # faces of a mesh light
         for i in np.sort(np.concatenate([np.flatnonzero(~pooled), first[many]])).tolist():
             if pooled[i]:  # the mesh light's first face: the light in its place
                 lights.append(MeshLight(corners[material == material[i]],
